@@ -1,0 +1,35 @@
+// Conversions between core types and ROS messages, in one place (STYLE.md). 2-D poses live in
+// the plane z = 0 of their frame; yaw is the rotation about z (REP-103).
+#pragma once
+
+#include <geometry_msgs/Pose.h>
+#include <geometry_msgs/Pose2D.h>
+#include <geometry_msgs/PoseWithCovariance.h>
+#include <geometry_msgs/Transform.h>
+
+#include "uw_multislam/core/uncertain_pose.h"
+
+namespace uw_multislam {
+namespace ros_conversions {
+
+/// Variance written for the 3-D components a 2-D estimate does not observe (z, roll, pitch),
+/// so that consumers treating the message as 3-D do not over-trust them.
+constexpr double kUnobservedVariance = 1e6;
+
+geometry_msgs::Pose2D toPose2DMsg(const core::Pose2& p);
+core::Pose2 fromMsg(const geometry_msgs::Pose2D& m);
+
+geometry_msgs::Pose toPoseMsg(const core::Pose2& p);
+/// The planar part of a 3-D pose: x, y and the yaw of the quaternion (normalised first).
+/// Returns false (and leaves `out` untouched) for a non-finite pose or a zero quaternion.
+bool fromMsg(const geometry_msgs::Pose& m, core::Pose2* out);
+
+geometry_msgs::Transform toTransformMsg(const core::Pose2& p);
+
+/// 6x6 row-major covariance (x, y, z, roll, pitch, yaw) from the 3x3 (x, y, yaw) one.
+geometry_msgs::PoseWithCovariance toPoseWithCovarianceMsg(const core::UncertainPose2& p);
+/// The (x, y, yaw) part; false for non-finite input or an invalid covariance.
+bool fromMsg(const geometry_msgs::PoseWithCovariance& m, core::UncertainPose2* out);
+
+}  // namespace ros_conversions
+}  // namespace uw_multislam

@@ -1,0 +1,11 @@
+# Shared settings for the build, test and demo scripts. Sourced, not run.
+# The catkin workspace lives in <repo>/.catkin_ws unless UWMS_WS says otherwise; the package is
+# linked into its src/ so the repository root stays a plain catkin package.
+UWMS_REPO=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+UWMS_WS=${UWMS_WS:-$UWMS_REPO/.catkin_ws}
+# Debian's ROS Python modules live in /usr/lib/python3/dist-packages: a python3 from pyenv or
+# a virtualenv earlier on PATH cannot import them, so /usr/bin goes first.
+export PATH=/usr/bin:/bin:$PATH
+# Logs of roslaunch / rostest go to the workspace, not to ~/.ros.
+export ROS_HOME=${ROS_HOME:-$UWMS_WS/ros_home}
+export ROS_LOG_DIR=${ROS_LOG_DIR:-$ROS_HOME/log}

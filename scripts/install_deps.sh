@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Installs the Debian 12 packages uw_multislam needs to build, test and run.
+# Idempotent: when everything is already installed it prints one line and returns.
+set -euo pipefail
+
+PACKAGES=(
+  build-essential cmake git
+  catkin ros-core-dev libroscpp-dev libnodeletlib-dev libnodeletlib-tools
+  libtf2-ros-dev libtf2-geometry-msgs-dev libimage-transport-dev libcv-bridge-dev
+  libmessage-filters-dev librosbag-dev python3-rosbag
+  ros-message-generation ros-std-msgs ros-sensor-msgs ros-nav-msgs ros-geometry-msgs
+  ros-visualization-msgs ros-diagnostic-msgs
+  python3-roslaunch python3-rostest librostest-dev rosbash python3-rostopic python3-rosservice
+  libopencv-dev libeigen3-dev libceres-dev libsqlite3-dev libgtest-dev
+  python3-nodelet python3-numpy python3-matplotlib python3-yaml
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "[install_deps] all ${#PACKAGES[@]} packages already installed"
+  exit 0
+fi
+
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+
+echo "[install_deps] installing ${#missing[@]} missing packages: ${missing[*]}"
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/tmp/uw_multislam_apt.log 2>&1 || {
+  echo "[install_deps] apt-get install failed; last lines of /tmp/uw_multislam_apt.log:" >&2
+  tail -n 30 /tmp/uw_multislam_apt.log >&2
+  exit 1
+}
+echo "[install_deps] done"

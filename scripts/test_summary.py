@@ -1,0 +1,75 @@
+#!/usr/bin/python3
+"""Summarises the JUnit XML files that catkin's run_tests wrote.
+
+usage: test_summary.py RESULTS_DIR
+
+Prints one line per test suite, then every failing test case with the start of its message,
+then the closing line 'N passed, N failed, N skipped'. Exit status 1 when any test failed or
+errored, when a suite's result is missing, or when no test ran at all.
+"""
+import os
+import sys
+import xml.etree.ElementTree as ET
+
+
+def suites_in(path):
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as e:
+        return None, "unreadable result file: %s" % e
+    if root.tag == "testsuite":
+        return [root], None
+    return root.findall("testsuite") or [root], None
+
+
+def main():
+    if len(sys.argv) != 2 or sys.argv[1] in ("-h", "--help"):
+        print(__doc__.strip())
+        return 0 if len(sys.argv) == 2 else 2
+    results = sys.argv[1]
+    passed = failed = skipped = 0
+    failures = []
+    files = []
+    for dirpath, _, names in os.walk(results):
+        files += [os.path.join(dirpath, n) for n in names if n.endswith(".xml")]
+    print("== test summary (%s) ==" % results)
+    for path in sorted(files):
+        suites, err = suites_in(path)
+        name = os.path.relpath(path, results)
+        if err:
+            failed += 1
+            failures.append((name, err))
+            continue
+        s_pass = s_fail = s_skip = 0
+        for suite in suites:
+            for case in suite.iter("testcase"):
+                label = "%s: %s.%s" % (name, case.get("classname", ""), case.get("name", ""))
+                bad = case.find("failure")
+                if bad is None:
+                    bad = case.find("error")
+                if bad is not None:
+                    s_fail += 1
+                    text = (bad.get("message") or "") + "\n" + (bad.text or "")
+                    failures.append((label, text.strip()))
+                elif case.find("skipped") is not None or case.get("status") == "notrun":
+                    s_skip += 1
+                else:
+                    s_pass += 1
+        if s_pass + s_fail + s_skip == 0:
+            s_fail = 1
+            failures.append((name, "result file holds no test case (test did not run?)"))
+        print("  %-60s %4d passed %3d failed %3d skipped" % (name, s_pass, s_fail, s_skip))
+        passed, failed, skipped = passed + s_pass, failed + s_fail, skipped + s_skip
+    if not files:
+        failed += 1
+        failures.append((results, "no result files: no test ran"))
+    for label, text in failures:
+        print("FAILED %s" % label)
+        for line in text.splitlines()[:15]:
+            print("    " + line)
+    print("%d passed, %d failed, %d skipped" % (passed, failed, skipped))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

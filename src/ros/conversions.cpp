@@ -1,0 +1,90 @@
+#include "uw_multislam/ros/conversions.h"
+
+#include <tf2/LinearMath/Matrix3x3.h>
+#include <tf2/LinearMath/Quaternion.h>
+
+#include <cmath>
+
+namespace uw_multislam {
+namespace ros_conversions {
+
+namespace {
+// Index of the planar components in the 6x6 (x, y, z, roll, pitch, yaw) covariance.
+constexpr int kPlanar[3] = {0, 1, 5};
+
+geometry_msgs::Quaternion yawQuaternion(double yaw) {
+  geometry_msgs::Quaternion q;
+  q.x = 0.0;
+  q.y = 0.0;
+  q.z = std::sin(yaw / 2.0);
+  q.w = std::cos(yaw / 2.0);
+  return q;
+}
+}  // namespace
+
+geometry_msgs::Pose2D toPose2DMsg(const core::Pose2& p) {
+  geometry_msgs::Pose2D m;
+  m.x = p.x();
+  m.y = p.y();
+  m.theta = p.yaw();
+  return m;
+}
+
+core::Pose2 fromMsg(const geometry_msgs::Pose2D& m) { return core::Pose2(m.x, m.y, m.theta); }
+
+geometry_msgs::Pose toPoseMsg(const core::Pose2& p) {
+  geometry_msgs::Pose m;
+  m.position.x = p.x();
+  m.position.y = p.y();
+  m.position.z = 0.0;
+  m.orientation = yawQuaternion(p.yaw());
+  return m;
+}
+
+bool fromMsg(const geometry_msgs::Pose& m, core::Pose2* out) {
+  const auto& o = m.orientation;
+  const double norm = std::sqrt(o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w);
+  if (!std::isfinite(m.position.x) || !std::isfinite(m.position.y) || !std::isfinite(norm) || norm < 1e-9) {
+    return false;
+  }
+  tf2::Quaternion q(o.x / norm, o.y / norm, o.z / norm, o.w / norm);
+  double roll = 0.0, pitch = 0.0, yaw = 0.0;
+  tf2::Matrix3x3(q).getRPY(roll, pitch, yaw);
+  *out = core::Pose2(m.position.x, m.position.y, yaw);
+  return true;
+}
+
+geometry_msgs::Transform toTransformMsg(const core::Pose2& p) {
+  geometry_msgs::Transform t;
+  t.translation.x = p.x();
+  t.translation.y = p.y();
+  t.translation.z = 0.0;
+  t.rotation = yawQuaternion(p.yaw());
+  return t;
+}
+
+geometry_msgs::PoseWithCovariance toPoseWithCovarianceMsg(const core::UncertainPose2& p) {
+  geometry_msgs::PoseWithCovariance m;
+  m.pose = toPoseMsg(p.mean);
+  m.covariance.fill(0.0);
+  for (int i = 2; i <= 4; ++i) m.covariance[i * 6 + i] = kUnobservedVariance;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) m.covariance[kPlanar[r] * 6 + kPlanar[c]] = p.covariance(r, c);
+  }
+  return m;
+}
+
+bool fromMsg(const geometry_msgs::PoseWithCovariance& m, core::UncertainPose2* out) {
+  core::Pose2 mean;
+  if (!fromMsg(m.pose, &mean)) return false;
+  Eigen::Matrix3d cov;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) cov(r, c) = m.covariance[kPlanar[r] * 6 + kPlanar[c]];
+  }
+  if (!core::checkCovariance(cov).empty()) return false;
+  *out = core::UncertainPose2(mean, cov);
+  return true;
+}
+
+}  // namespace ros_conversions
+}  // namespace uw_multislam

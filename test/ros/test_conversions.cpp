@@ -1,0 +1,96 @@
+// Core <-> ROS message conversions (no master needed).
+#include <gtest/gtest.h>
+
+#include <tf2/LinearMath/Quaternion.h>
+
+#include <cmath>
+#include <limits>
+
+#include "uw_multislam/ros/conversions.h"
+
+namespace uw_multislam {
+namespace {
+
+using core::Pose2;
+using core::UncertainPose2;
+namespace rc = ros_conversions;
+
+TEST(Conversions, Pose2DRoundTrip) {
+  const Pose2 p(1.5, -2.25, 3.0);
+  const auto m = rc::toPose2DMsg(p);
+  EXPECT_DOUBLE_EQ(m.x, 1.5);
+  EXPECT_DOUBLE_EQ(m.theta, 3.0);
+  EXPECT_TRUE(core::approxEqual(rc::fromMsg(m), p));
+}
+
+TEST(Conversions, PoseRoundTripKeepsYawAcrossPi) {
+  for (double yaw : {0.0, 0.5, -1.2, M_PI, M_PI - 1e-7, -M_PI + 1e-7}) {
+    const Pose2 p(-3.0, 4.0, yaw);
+    const auto m = rc::toPoseMsg(p);
+    EXPECT_DOUBLE_EQ(m.position.z, 0.0);
+    EXPECT_NEAR(m.orientation.x * m.orientation.x + m.orientation.y * m.orientation.y +
+                    m.orientation.z * m.orientation.z + m.orientation.w * m.orientation.w,
+                1.0, 1e-12);
+    Pose2 back;
+    ASSERT_TRUE(rc::fromMsg(m, &back));
+    EXPECT_TRUE(core::approxEqual(back, p, 1e-12, 1e-9)) << back << " vs " << p;
+  }
+}
+
+TEST(Conversions, PoseFromUnnormalisedQuaternionAndRejectsBroken) {
+  geometry_msgs::Pose m;
+  tf2::Quaternion q;
+  q.setRPY(0.0, 0.0, 0.8);
+  m.orientation.x = 2 * q.x();
+  m.orientation.y = 2 * q.y();
+  m.orientation.z = 2 * q.z();
+  m.orientation.w = 2 * q.w();
+  Pose2 out;
+  ASSERT_TRUE(rc::fromMsg(m, &out));
+  EXPECT_NEAR(out.yaw(), 0.8, 1e-12);
+
+  geometry_msgs::Pose zero;  // all-zero quaternion
+  zero.orientation.w = 0.0;
+  const Pose2 untouched(9, 9, 0.1);
+  out = untouched;
+  EXPECT_FALSE(rc::fromMsg(zero, &out));
+  EXPECT_TRUE(core::approxEqual(out, untouched));
+  geometry_msgs::Pose nan = rc::toPoseMsg(Pose2(0, 0, 0));
+  nan.position.x = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(rc::fromMsg(nan, &out));
+}
+
+TEST(Conversions, CovarianceLandsInXYYawSlots) {
+  Eigen::Matrix3d c;
+  c << 0.04, 0.01, 0.002,  //
+      0.01, 0.09, -0.003,  //
+      0.002, -0.003, 0.01;
+  const UncertainPose2 p(Pose2(1, 2, 0.3), c);
+  const auto m = rc::toPoseWithCovarianceMsg(p);
+  EXPECT_DOUBLE_EQ(m.covariance[0], 0.04);                      // x,x
+  EXPECT_DOUBLE_EQ(m.covariance[1], 0.01);                      // x,y
+  EXPECT_DOUBLE_EQ(m.covariance[5], 0.002);                     // x,yaw
+  EXPECT_DOUBLE_EQ(m.covariance[35], 0.01);                     // yaw,yaw
+  EXPECT_DOUBLE_EQ(m.covariance[30], 0.002);                    // yaw,x
+  EXPECT_DOUBLE_EQ(m.covariance[14], rc::kUnobservedVariance);  // z,z
+  UncertainPose2 back;
+  ASSERT_TRUE(rc::fromMsg(m, &back));
+  EXPECT_TRUE(back.covariance.isApprox(c));
+  EXPECT_TRUE(core::approxEqual(back.mean, p.mean, 1e-12, 1e-12));
+
+  auto bad = m;
+  bad.covariance[35] = -1.0;
+  EXPECT_FALSE(rc::fromMsg(bad, &back));
+}
+
+TEST(Conversions, TransformMatchesPose) {
+  const Pose2 p(0.5, 0.25, -2.0);
+  const auto t = rc::toTransformMsg(p);
+  const auto m = rc::toPoseMsg(p);
+  EXPECT_DOUBLE_EQ(t.translation.x, m.position.x);
+  EXPECT_DOUBLE_EQ(t.rotation.z, m.orientation.z);
+  EXPECT_DOUBLE_EQ(t.rotation.w, m.orientation.w);
+}
+
+}  // namespace
+}  // namespace uw_multislam
