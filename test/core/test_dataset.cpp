@@ -1,0 +1,102 @@
+// Dataset folders: round trips and clear errors on broken files.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "uw_multislam/core/dataset.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+namespace fs = std::filesystem;
+
+class DatasetTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("uwms_dataset_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  void write(const std::string& name, const std::string& text) { std::ofstream(dir_ / name) << text; }
+  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+  // Expects loadDataset to throw a DatasetError whose message contains `needle`.
+  void expectError(const std::string& needle) {
+    try {
+      loadDataset(dir_.string());
+      FAIL() << "no error, expected one containing '" << needle << "'";
+    } catch (const DatasetError& e) {
+      EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+    }
+  }
+  void writeValid() {
+    CameraIntrinsics c{320, 240, 300.0, 301.0, 160.0, 120.0};
+    writeCameraYaml(path("camera.yaml"), c);
+    writeFramesCsv(path("frames.csv"), {{0, "0000.jpg", 0.0, 2.5}, {1, "0001.jpg", 0.5, 2.6}});
+    write("0000.jpg", "x");
+    write("0001.jpg", "x");
+  }
+  fs::path dir_;
+};
+
+TEST_F(DatasetTest, RoundTrip) {
+  writeValid();
+  writeGroundTruthCsv(path("gt.csv"), {{0, "0000.jpg", Pose2(0, 0, 0)}, {1, "0001.jpg", Pose2(0.25, -0.5, 3.1)}});
+  const Dataset d = loadDataset(dir_.string());
+  EXPECT_EQ(d.camera.width, 320);
+  EXPECT_DOUBLE_EQ(d.camera.fy, 301.0);
+  ASSERT_EQ(d.frames.size(), 2u);
+  EXPECT_EQ(d.frames[1].image, "0001.jpg");
+  EXPECT_DOUBLE_EQ(d.frames[1].altitude_m, 2.6);
+  EXPECT_DOUBLE_EQ(d.frames[1].stamp_s, 0.5);
+  ASSERT_EQ(d.ground_truth.size(), 2u);
+  EXPECT_TRUE(approxEqual(d.ground_truth[1].pose, Pose2(0.25, -0.5, 3.1), 1e-6, 1e-6));
+  EXPECT_EQ(d.imagePath(d.frames[0]), (dir_ / "0000.jpg").string());
+}
+
+TEST_F(DatasetTest, GroundTruthIsOptional) {
+  writeValid();
+  EXPECT_TRUE(loadDataset(dir_.string()).ground_truth.empty());
+}
+
+TEST_F(DatasetTest, ReadsTheSharedFormatWithSpaces) {
+  write("camera.yaml",
+        "# a comment\nimage_width: 680\nimage_height: 512\nfx: 1000.0\nfy: 1000.0\ncx: 340.0\ncy: 256.0\n");
+  write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.000,2.3700\n\n1, 0001.jpg ,1.000,2.3108\n");
+  write("0000.jpg", "x");
+  write("0001.jpg", "x");
+  const Dataset d = loadDataset(dir_.string());
+  EXPECT_EQ(d.frames.size(), 2u);
+  EXPECT_EQ(d.frames[1].image, "0001.jpg");
+}
+
+TEST_F(DatasetTest, ClearErrors) {
+  expectError("camera.yaml: cannot open");
+  writeValid();
+  write("frames.csv", "index,image,stamp\n");
+  expectError("unexpected header");
+  write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,abc\n");
+  expectError("frames.csv:2: bad number in altitude_m");
+  write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,2\n0,0001.jpg,0.5,2\n");
+  expectError("duplicate index 0");
+  write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,2\n1,missing.jpg,0.5,2\n");
+  expectError("image 'missing.jpg' of frame 1 does not exist");
+  write("frames.csv", "index,image,stamp_s,altitude_m\n");
+  expectError("no frames");
+  write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0\n");
+  expectError("expected 4 columns, found 3");
+  writeValid();
+  write("camera.yaml", "image_width: 320\nimage_height: 240\nfx: 0\nfy: 300\ncx: 160\ncy: 120\n");
+  expectError("focal length");
+  write("camera.yaml", "image_width: 320\nimage_height: 240\nfx: 300\nfy: 300\ncx: 160\n");
+  expectError("missing key 'cy'");
+}
+
+TEST(Dataset, NotADirectory) { EXPECT_THROW(loadDataset("/nonexistent/uwms"), DatasetError); }
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam
