@@ -1,0 +1,151 @@
+// folder_to_bag: converts a dataset folder (../shared/data/README.md) to a ROS bag that replays
+// through the same nodelets as a recorded mission. No ROS master needed.
+// Exit status: 0 on success (one summary line on stdout, warnings on stderr), 1 on bad input or
+// a failed write (one line on stderr), 2 on a bad command line.
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/dataset.h"
+#include "uw_multislam/ros/dataset_bag.h"
+
+namespace core = uw_multislam::core;
+namespace rb = uw_multislam::ros_bag;
+
+namespace {
+
+int usage(int code) {
+  const rb::DatasetBagOptions d;
+  std::fprintf(code ? stderr : stdout,
+               "usage: folder_to_bag DATASET_DIR OUT.bag [options]\n"
+               "Writes a dataset folder (frames.csv, camera.yaml, images, optional gt.csv) to a ROS bag.\n"
+               "Per frame, all stamped start time + stamp_s (the bag time too):\n"
+               "  %-22s sensor_msgs/Image       the image, lossless (colour bgr8, grey mono8)\n"
+               "  %-22s sensor_msgs/CameraInfo  plumb_bob, zero distortion, K and P from camera.yaml\n"
+               "  %-22s sensor_msgs/Range       altitude_m (ULTRASOUND, %.0f deg beam, %.1f..%.0f m);\n"
+               "  %-22s                         not written for a NaN or out-of-range altitude\n"
+               "  %-22s nav_msgs/Odometry       gt.csv pose in frame '%s', child the camera frame;\n"
+               "  %-22s                         only when the folder has gt.csv\n"
+               "options:\n"
+               "  --start-time SEC          time of stamp_s = 0, seconds since the epoch (default %u)\n"
+               "  --no-ground-truth         do not write the ground-truth odometry\n"
+               "  --camera-frame ID         frame id of Image/CameraInfo, odometry child (default '%s')\n"
+               "  --altimeter-frame ID      frame id of the Range messages (default '%s')\n"
+               "  --gt-frame ID             frame id of the ground-truth odometry (default '%s')\n"
+               "  --image-topic NAME        (default %s)\n"
+               "  --camera-info-topic NAME  (default %s)\n"
+               "  --altitude-topic NAME     (default %s)\n"
+               "  --gt-topic NAME           (default %s)\n"
+               "  --encoding ENC            convert images to mono8, mono16, bgr8, rgb8, bgr16 or rgb16\n"
+               "                            (default: as stored)\n"
+               "  --compression C           none, lz4 or bz2 (default none)\n"
+               "  -h, --help                this text\n"
+               "Exit status 0 on success, 1 on bad input or a failed write, 2 on a bad command line.\n",
+               d.topics.image.c_str(), d.topics.camera_info.c_str(), d.topics.altitude.c_str(),
+               d.altimeter.field_of_view_rad * 180.0 / M_PI, d.altimeter.min_range_m, d.altimeter.max_range_m, "",
+               d.topics.ground_truth.c_str(), d.frames.ground_truth_origin.c_str(), "", rb::kDefaultStartTimeSec,
+               d.frames.camera.c_str(), d.frames.altimeter.c_str(), d.frames.ground_truth_origin.c_str(),
+               d.topics.image.c_str(), d.topics.camera_info.c_str(), d.topics.altitude.c_str(),
+               d.topics.ground_truth.c_str());
+  return code;
+}
+
+int badArgument(const std::string& what) {
+  std::fprintf(stderr, "folder_to_bag: %s (see --help)\n", what.c_str());
+  return 2;
+}
+
+bool parseStartTime(const std::string& s, ros::Time* out) {
+  char* end = nullptr;
+  const double v = std::strtod(s.c_str(), &end);
+  if (s.empty() || *end != '\0' || !std::isfinite(v) || v <= 0.0 || v >= 4294967295.0) return false;
+  out->fromSec(v);
+  return true;
+}
+
+bool parseCompression(const std::string& s, rb::BagCompression* out) {
+  if (s == "none")
+    *out = rb::BagCompression::kNone;
+  else if (s == "lz4")
+    *out = rb::BagCompression::kLz4;
+  else if (s == "bz2")
+    *out = rb::BagCompression::kBz2;
+  else
+    return false;
+  return true;
+}
+
+// Applies one option taking a value; false when the option is unknown or its value bad.
+bool applyOption(const std::string& name, const std::string& value, rb::DatasetBagOptions* o) {
+  std::string* text = name == "--camera-frame"        ? &o->frames.camera
+                      : name == "--altimeter-frame"   ? &o->frames.altimeter
+                      : name == "--gt-frame"          ? &o->frames.ground_truth_origin
+                      : name == "--image-topic"       ? &o->topics.image
+                      : name == "--camera-info-topic" ? &o->topics.camera_info
+                      : name == "--altitude-topic"    ? &o->topics.altitude
+                      : name == "--gt-topic"          ? &o->topics.ground_truth
+                      : name == "--encoding"          ? &o->image_encoding
+                                                      : nullptr;
+  if (text) {
+    *text = value;
+    return true;
+  }
+  if (name == "--start-time") return parseStartTime(value, &o->start_time);
+  if (name == "--compression") return parseCompression(value, &o->compression);
+  return false;
+}
+
+// A one-line reason when `dir` is a directory without the files of a dataset folder; loadDataset
+// reports everything else (not a directory, bad files, missing images).
+std::string notADatasetFolder(const std::string& dir) {
+  namespace fs = std::filesystem;
+  if (!fs::is_directory(dir)) return "";
+  std::string missing;
+  for (const char* f : {"frames.csv", "camera.yaml"}) {
+    if (!fs::exists(fs::path(dir) / f)) missing += std::string(missing.empty() ? "" : ", ") + f;
+  }
+  return missing.empty() ? "" : dir + ": not a dataset folder (no " + missing + ")";
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  rb::DatasetBagOptions options;
+  std::vector<std::string> positional;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "-h" || a == "--help") return usage(0);
+    if (a == "--no-ground-truth") {
+      options.include_ground_truth = false;
+    } else if (a.size() > 1 && a[0] == '-') {
+      if (i + 1 >= argc) return badArgument("option " + a + " needs a value");
+      if (!applyOption(a, argv[i + 1], &options)) return badArgument("bad option '" + a + " " + argv[i + 1] + "'");
+      ++i;
+    } else {
+      positional.push_back(a);
+    }
+  }
+  if (positional.size() != 2) return badArgument("expected DATASET_DIR and OUT.bag");
+  const std::string bad = options.validate();
+  if (!bad.empty()) return badArgument(bad);
+
+  const std::string not_dataset = notADatasetFolder(positional[0]);
+  if (!not_dataset.empty()) {
+    std::fprintf(stderr, "folder_to_bag: %s\n", not_dataset.c_str());
+    return 1;
+  }
+  try {
+    const core::Dataset dataset = core::loadDataset(positional[0]);
+    const rb::DatasetBagStats stats = rb::writeDatasetBag(dataset, options, positional[1]);
+    for (const auto& w : rb::warnings(stats)) std::fprintf(stderr, "folder_to_bag: warning: %s\n", w.c_str());
+    std::printf("folder_to_bag: wrote %s\n", rb::summarize(stats, options).c_str());
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "folder_to_bag: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}
