@@ -1,0 +1,483 @@
+"""Tests of src/tools/evaluate.py. Every input is built in tmp_path; nothing reads ../shared."""
+import csv
+import importlib.util
+import json
+import math
+import os
+import subprocess
+
+import numpy as np
+import pytest
+
+TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "evaluate.py")
+_spec = importlib.util.spec_from_file_location("evaluate", TOOL)
+ev = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(ev)
+
+ALTITUDE = 2.0  # with image_height 240 and fy 1000: footprint height 0.48 m
+
+
+# ---------------------------------------------------------------------------------------------
+# Builders.
+
+def write_csv(path, header, rows):
+    with open(path, "w", newline="") as f:
+        out = csv.writer(f, lineterminator="\n")
+        out.writerow(header.split(","))
+        out.writerows(rows)
+
+
+def write_session(directory, poses):
+    """A dataset folder whose gt is `poses` (list of (x, y, yaw), frame i = index i)."""
+    os.makedirs(directory, exist_ok=True)
+    write_csv(os.path.join(directory, "gt.csv"), "index,image,x_m,y_m,yaw_rad",
+              [(i, "%04d.png" % i) + tuple(p) for i, p in enumerate(poses)])
+    write_csv(os.path.join(directory, "frames.csv"), "index,image,stamp_s,altitude_m",
+              [(i, "%04d.png" % i, 0.5 * i, ALTITUDE) for i in range(len(poses))])
+    with open(os.path.join(directory, "camera.yaml"), "w") as f:
+        f.write("image_width: 320\nimage_height: 240\nfx: 1000.0\nfy: 1000.0\ncx: 160.0\ncy: 120.0\n")
+    return str(directory)
+
+
+def write_run(directory, odometry, trajectory=None, loops=None, timing=None):
+    """odometry: {session: [(index, pose)]}; trajectory: {session: [(index, map, pose)]};
+    loops: [((s, i), (s, i))]; timing: list of rows."""
+    os.makedirs(directory, exist_ok=True)
+    write_csv(os.path.join(directory, "odometry.csv"), "session,index,x_m,y_m,yaw_rad",
+              [(s, i) + tuple(p) for s, rows in odometry.items() for i, p in rows])
+    if trajectory is not None:
+        write_csv(os.path.join(directory, "trajectory.csv"), "session,index,map,x_m,y_m,yaw_rad",
+                  [(s, i, m) + tuple(p) for s, rows in trajectory.items() for i, m, p in rows])
+    if loops is not None:
+        write_csv(os.path.join(directory, "loops.csv"), "session_a,index_a,session_b,index_b,kind,inliers",
+                  [(a[0], a[1], b[0], b[1], "local" if a[0] == b[0] else "global", 30) for a, b in loops])
+    if timing is not None:
+        write_csv(os.path.join(directory, "timing.csv"), "stage,calls,total_ms,mean_ms,max_ms", timing)
+    return str(directory)
+
+
+def write_loops_gt(path, pairs):
+    write_csv(path, "session_a,index_a,session_b,index_b", [(a[0], a[1], b[0], b[1]) for a, b in pairs])
+    return str(path)
+
+
+def write_world_gt(path, sessions):
+    write_csv(path, "session,index,x_m,y_m,yaw_rad",
+              [(s, i) + tuple(p) for s, poses in enumerate(sessions) for i, p in enumerate(poses)])
+    return str(path)
+
+
+def lawnmower(n=12, step=0.2):
+    """A path that turns: out along x, a corner, then down along y (x right, y down)."""
+    poses = [(step * i, 0.0, 0.0) for i in range(n // 2)]
+    corner = poses[-1][0]
+    poses += [(corner, step * (i + 1), math.pi / 2) for i in range(n - len(poses))]
+    return poses
+
+
+def in_frame(origin, poses):
+    """`poses` (given in a world frame) expressed in the frame of `origin`."""
+    o = np.array(origin)
+    return [tuple(ev.relative(o, np.array(p))) for p in poses]
+
+
+def to_world(origin, poses):
+    o = np.array(origin)
+    return [tuple(ev.compose(o, np.array(p))) for p in poses]
+
+
+def indexed(poses, keyframes=None):
+    keyframes = range(len(poses)) if keyframes is None else keyframes
+    return [(i, poses[i]) for i in keyframes]
+
+
+def run_main(args):
+    return ev.main([str(a) for a in args])
+
+
+def evaluate_dirs(tmp_path, sessions, run, world=None, loops_gt=None, extra=()):
+    args = ["--run", run, "--report", tmp_path / "report", "--no-plots"]
+    for s in sessions:
+        args += ["--session", s]
+    if world:
+        args += ["--world-gt", world]
+    if loops_gt:
+        args += ["--loops-gt", loops_gt]
+    assert run_main(args + list(extra)) == 0
+    with open(tmp_path / "report" / "metrics.json") as f:
+        return json.load(f)
+
+
+def metric(data, scope, ident, estimate, name):
+    return data[scope][str(ident)][estimate][name]
+
+
+# ---------------------------------------------------------------------------------------------
+# Pose helpers.
+
+def test_wrap_angle_is_half_open_at_minus_pi():
+    assert ev.wrap_angle(math.pi) == pytest.approx(math.pi)
+    assert ev.wrap_angle(-math.pi) == pytest.approx(math.pi)
+    assert ev.wrap_angle(3 * math.pi / 2) == pytest.approx(-math.pi / 2)
+    assert ev.wrap_angle(-0.25) == pytest.approx(-0.25)
+
+
+def test_relative_position_is_rotated_by_minus_yaw_of_first_pose():
+    a = np.array([1.0, 2.0, math.pi / 2])  # facing +y
+    b = np.array([1.0, 3.0, math.pi])      # one metre further along a's x axis
+    rel = ev.relative(a, b)
+    assert rel == pytest.approx([1.0, 0.0, math.pi / 2])
+    assert ev.compose(a, rel) == pytest.approx(b)
+
+
+def test_se2_alignment_recovers_a_rigid_motion():
+    gt_xy = np.array([p[:2] for p in lawnmower()])
+    moved = [tuple(ev.compose(np.array([0.5, -0.3, 0.4]), np.array([x, y, 0.0]))[:2]) for x, y in gt_xy]
+    assert ev.ate_rmse(moved, gt_xy) > 0.3
+    assert ev.ate_aligned_rmse(moved, gt_xy) == pytest.approx(0.0, abs=1e-12)
+
+
+# ---------------------------------------------------------------------------------------------
+# Trajectory metrics.
+
+def test_estimate_equal_to_ground_truth_scores_zero(tmp_path):
+    gt = lawnmower()
+    s0 = write_session(tmp_path / "s0", gt)
+    pairs = [((0, 0), (0, 11)), ((0, 2), (0, 9))]
+    loops_gt = write_loops_gt(tmp_path / "loops_gt.csv", pairs)
+    run = write_run(tmp_path / "run", {0: indexed(gt)}, {0: [(i, 0, p) for i, p in indexed(gt)]})
+    data = evaluate_dirs(tmp_path, [s0], run, loops_gt=loops_gt)
+    for estimate in ("odometry", "slam"):
+        m = data["session"]["0"][estimate]
+        for name in ("ate_rmse_m", "ate_aligned_rmse_m", "end_drift_pct", "rpe_trans_rmse_m",
+                     "rpe_rot_rmse_deg", "ek_intra_m"):
+            assert m[name] == pytest.approx(0.0, abs=1e-9), (estimate, name)
+        assert m["n_keyframes"] == 12
+        assert m["ek_intra_pairs"] == 2
+        assert m["path_length_m"] == pytest.approx(12 * 0.2 - 0.2)
+    assert metric(data, "map", 0, "slam", "ate_rmse_m") == pytest.approx(0.0, abs=1e-9)
+    assert metric(data, "map", 0, "slam", "n_sessions") == 1
+
+
+def test_constant_offset_gives_that_ate_and_zero_after_alignment(tmp_path):
+    gt = lawnmower()
+    s0 = write_session(tmp_path / "s0", gt)
+    loops_gt = write_loops_gt(tmp_path / "loops_gt.csv", [((0, 0), (0, 11))])
+    shifted = [(x + 0.10, y, yaw) for x, y, yaw in gt]
+    run = write_run(tmp_path / "run", {0: indexed(shifted)})
+    m = evaluate_dirs(tmp_path, [s0], run, loops_gt=loops_gt)["session"]["0"]["odometry"]
+    assert m["ate_rmse_m"] == pytest.approx(0.10, abs=1e-9)
+    assert m["ate_aligned_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+    assert m["end_drift_pct"] == pytest.approx(100 * 0.10 / m["path_length_m"])
+    assert m["rpe_trans_rmse_m"] == pytest.approx(0.0, abs=1e-9)  # relative motions unchanged
+    assert m["ek_intra_m"] == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("scale,rotation", [(1.05, 0.0), (1.0, 0.2), (0.9, -0.1)])
+def test_injected_scale_and_rotation_give_the_expected_end_drift(tmp_path, scale, rotation):
+    length = 3.0
+    gt = [(0.25 * i, 0.0, 0.0) for i in range(13)]  # straight, 3 m
+    s0 = write_session(tmp_path / "s0", gt)
+    est = [tuple(ev.compose(np.array([0.0, 0.0, rotation]), np.array([scale * x, 0.0, 0.0]))) for x, _, _ in gt]
+    run = write_run(tmp_path / "run", {0: indexed(est)})
+    m = evaluate_dirs(tmp_path, [s0], run)["session"]["0"]["odometry"]
+    end = np.array([scale * length * math.cos(rotation), scale * length * math.sin(rotation)])
+    expected = 100.0 * np.hypot(*(end - [length, 0.0])) / length
+    assert m["end_drift_pct"] == pytest.approx(expected, rel=1e-9)
+    if scale == 1.0:
+        assert m["end_drift_pct"] == pytest.approx(200.0 * math.sin(abs(rotation) / 2))
+        assert m["ate_aligned_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+    else:
+        assert m["ate_aligned_rmse_m"] > 0.01  # no scale in the alignment
+
+
+def test_only_keyframes_are_scored_and_rpe_is_between_consecutive_keyframes(tmp_path):
+    gt = [(0.1 * i, 0.0, 0.0) for i in range(10)]
+    s0 = write_session(tmp_path / "s0", gt)
+    keyframes = [0, 3, 6, 9]
+    est = {i: (gt[i][0] * 1.1, 0.0, 0.0) for i in keyframes}  # each 0.3 m step estimated as 0.33 m
+    run = write_run(tmp_path / "run", {0: sorted(est.items())})
+    m = evaluate_dirs(tmp_path, [s0], run)["session"]["0"]["odometry"]
+    assert m["n_keyframes"] == 4
+    assert m["rpe_trans_rmse_m"] == pytest.approx(0.03)
+    assert m["path_length_m"] == pytest.approx(0.9)
+    assert m["end_drift_pct"] == pytest.approx(10.0)
+
+
+TURN = 2 * math.pi - 6.2  # 0.083 rad
+
+
+@pytest.mark.parametrize("gt_yaws,est_yaws,error", [
+    ((3.1, -3.1), (3.1, 3.1 + TURN + 0.01), 0.01),  # both turn +0.083 across pi, one unwrapped
+    ((0.0, 3.1), (0.0, -3.1), TURN),                # turns of +3.1 and -3.1 differ by 0.083, not 6.2
+    ((0.0, -3.1), (0.0, 3.1), TURN),
+])
+def test_rpe_wraps_yaw_differences(tmp_path, gt_yaws, est_yaws, error):
+    gt = [(0.0, 0.0, gt_yaws[0]), (0.1, 0.0, gt_yaws[1])]
+    est = [(0.0, 0.0, est_yaws[0]), (0.1, 0.0, est_yaws[1])]
+    s0 = write_session(tmp_path / "s0", gt)
+    run = write_run(tmp_path / "run", {0: indexed(est)})
+    m = evaluate_dirs(tmp_path, [s0], run)["session"]["0"]["odometry"]
+    assert m["rpe_rot_rmse_deg"] == pytest.approx(math.degrees(error), rel=1e-6)
+
+
+def test_session_split_into_two_maps_is_scored_in_each_map_frame(tmp_path):
+    # Tracking lost after frame 5: frames 6..11 start map 1 at its own origin.
+    gt = lawnmower()
+    s0 = write_session(tmp_path / "s0", gt)
+    piece = in_frame(gt[6], gt[6:])
+    trajectory = {0: [(i, 0, gt[i]) for i in range(6)] + [(i + 6, 1, p) for i, p in enumerate(piece)]}
+    loops_gt = write_loops_gt(tmp_path / "loops_gt.csv", [((0, 0), (0, 5)), ((0, 0), (0, 11)), ((0, 6), (0, 11))])
+    run = write_run(tmp_path / "run", {0: indexed(gt)}, trajectory)
+    data = evaluate_dirs(tmp_path, [s0], run, loops_gt=loops_gt)
+    m = data["session"]["0"]["slam"]
+    assert m["ate_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+    assert m["rpe_trans_rmse_m"] == pytest.approx(0.0, abs=1e-9)  # the pair 5-6 spans two maps: skipped
+    assert m["ek_intra_pairs"] == 2  # (0, 11) spans two maps: skipped
+    assert metric(data, "map", 1, "slam", "n_keyframes") == 6
+    assert metric(data, "map", 1, "slam", "ate_rmse_m") == pytest.approx(0.0, abs=1e-9)
+
+
+def two_session_world():
+    """Two sessions in a world frame that is neither session's frame (both turned and moved)."""
+    local0 = lawnmower(10)
+    local1 = [(0.15 * i, 0.05 * i, 0.0) for i in range(8)]
+    world0 = to_world((5.0, -2.0, 0.7), local0)
+    world1 = to_world((5.1, -1.9, -2.0), local1)
+    return local0, local1, world0, world1
+
+
+def test_two_session_map_with_world_gt_scores_an_injected_offset(tmp_path):
+    local0, local1, world0, world1 = two_session_world()
+    s0 = write_session(tmp_path / "s0", local0)
+    s1 = write_session(tmp_path / "s1", local1)
+    world = write_world_gt(tmp_path / "world_gt.csv", [world0, world1])
+    inter = [((0, 0), (1, 0)), ((0, 5), (1, 3)), ((1, 7), (0, 9))]
+    loops_gt = write_loops_gt(tmp_path / "loops_gt.csv", inter + [((0, 0), (0, 9)), ((1, 0), (1, 7))])
+    # SLAM: s0 exact in the map frame (= s0's frame), s1 in that frame but shifted by (0.3, -0.4).
+    map0 = in_frame(world0[0], world0)
+    map1 = [(x + 0.3, y - 0.4, yaw) for x, y, yaw in in_frame(world0[0], world1)]
+    trajectory = {0: [(i, 0, p) for i, p in indexed(map0)], 1: [(i, 0, p) for i, p in indexed(map1)]}
+    run = write_run(tmp_path / "run", {0: indexed(local0), 1: indexed(local1)}, trajectory)
+    data = evaluate_dirs(tmp_path, [s0, s1], run, world=world, loops_gt=loops_gt)
+
+    m = data["map"]["0"]["slam"]
+    assert m["n_sessions"] == 2 and m["n_keyframes"] == 18
+    assert m["ate_rmse_m"] == pytest.approx(0.5 * math.sqrt(8 / 18))
+    assert m["ek_inter_m"] == pytest.approx(0.5)  # |rotated offset| for every inter pair
+    assert m["ek_inter_pairs"] == 3
+    assert m["ek_intra_m"] == pytest.approx(0.0, abs=1e-9)
+    assert m["ek_intra_pairs"] == 2
+    s1_slam = data["session"]["1"]["slam"]
+    assert s1_slam["ate_rmse_m"] == pytest.approx(0.5)
+    assert s1_slam["ate_aligned_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+    assert s1_slam["ek_inter_m"] == pytest.approx(0.5) and s1_slam["ek_inter_pairs"] == 3
+    assert data["session"]["0"]["slam"]["ate_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+    # Odometry is exact in each session's own frame; it has no inter-session e_k.
+    assert data["session"]["1"]["odometry"]["ate_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+    assert "ek_inter_m" not in data["session"]["1"]["odometry"]
+
+
+def test_two_session_map_without_world_gt_reports_na(tmp_path):
+    local0, local1, world0, world1 = two_session_world()
+    s0 = write_session(tmp_path / "s0", local0)
+    s1 = write_session(tmp_path / "s1", local1)
+    loops_gt = write_loops_gt(tmp_path / "loops_gt.csv", [((0, 0), (1, 0)), ((1, 0), (1, 7))])
+    map1 = in_frame(world0[0], world1)
+    trajectory = {0: [(i, 0, p) for i, p in indexed(local0)], 1: [(i, 0, p) for i, p in indexed(map1)]}
+    run = write_run(tmp_path / "run", {0: indexed(local0), 1: indexed(local1)}, trajectory)
+    data = evaluate_dirs(tmp_path, [s0, s1], run, loops_gt=loops_gt)
+    assert metric(data, "map", 0, "slam", "ate_rmse_m") is None
+    assert metric(data, "map", 0, "slam", "ek_inter_m") is None
+    assert metric(data, "map", 0, "slam", "ek_inter_pairs") == 0
+    # Relative metrics within a session still work from gt.csv.
+    assert metric(data, "session", 1, "slam", "ek_intra_m") == pytest.approx(0.0, abs=1e-9)
+    assert metric(data, "session", 1, "slam", "rpe_trans_rmse_m") == pytest.approx(0.0, abs=1e-9)
+    notes = (tmp_path / "report" / "metrics.md").read_text()
+    assert "world_gt.csv" in notes
+
+
+def test_separate_maps_use_each_session_frame(tmp_path):
+    local0, local1, _, _ = two_session_world()
+    s0 = write_session(tmp_path / "s0", local0)
+    s1 = write_session(tmp_path / "s1", local1)
+    trajectory = {0: [(i, 0, p) for i, p in indexed(local0)], 1: [(i, 1, p) for i, p in indexed(local1)]}
+    run = write_run(tmp_path / "run", {0: indexed(local0), 1: indexed(local1)}, trajectory)
+    data = evaluate_dirs(tmp_path, [s0, s1], run)  # no world gt needed
+    for map_id in (0, 1):
+        assert metric(data, "map", map_id, "slam", "ate_rmse_m") == pytest.approx(0.0, abs=1e-9)
+        assert metric(data, "map", map_id, "slam", "n_sessions") == 1
+
+
+# ---------------------------------------------------------------------------------------------
+# Loops.
+
+def loop_scene(tmp_path, with_world=True):
+    """Session 0 goes out along x and comes back 0.05 m lower; session 1 repeats the outward leg
+    0.1 m lower in the world. Frames 0.2 m apart; footprint height 0.48 m."""
+    out = [(0.2 * i, 0.0, 0.0) for i in range(6)]
+    back = [(0.2 * (5 - i), 0.05, math.pi) for i in range(6)]
+    local0 = out + back
+    local1 = [(0.2 * i, 0.0, 0.0) for i in range(6)]
+    s0 = write_session(tmp_path / "s0", local0)
+    s1 = write_session(tmp_path / "s1", local1)
+    world = write_world_gt(tmp_path / "world_gt.csv", [local0, [(x, 0.1, 0.0) for x, _, _ in local1]])
+    return s0, s1, (world if with_world else None), local0, local1
+
+
+def test_loop_precision_and_recall_with_planted_false_loops(tmp_path):
+    s0, s1, world, local0, local1 = loop_scene(tmp_path)
+    # Revisits: 0/i with 0/(11-i) are the same place.
+    intra_gt = [((0, i), (0, 11 - i)) for i in range(5)]
+    inter_gt = [((0, i), (1, i)) for i in range(4)]
+    loops_gt = write_loops_gt(tmp_path / "loops_gt.csv", intra_gt + inter_gt)
+    keyframes = [i for i in range(12) if i != 7]  # gt pair (0,4)-(0,7) cannot be found
+    accepted = intra_gt[:3] + [((0, 8), (0, 3))]  # 4 true (one given reversed) ...
+    accepted += [((0, 0), (0, 5))]                  # ... and one planted false: 1.0 m apart
+    accepted += [((1, 1), (0, 1)), ((0, 2), (1, 2)), ((0, 0), (1, 5))]  # 2 true, 1 false inter
+    run = write_run(tmp_path / "run", {0: indexed(local0, keyframes), 1: indexed(local1)}, loops=accepted)
+    data = evaluate_dirs(tmp_path, [s0, s1], run, world=world, loops_gt=loops_gt)
+    intra, inter, both = (data["loops"][k]["loops"] for k in ("intra", "inter", "all"))
+    assert intra["accepted"] == 5 and intra["correct"] == 4
+    assert intra["precision"] == pytest.approx(4 / 5)
+    assert intra["gt_pairs"] == 5 and intra["gt_pairs_keyframes"] == 4
+    assert intra["found"] == 4 and intra["recall"] == pytest.approx(1.0)
+    assert inter["accepted"] == 3 and inter["precision"] == pytest.approx(2 / 3)
+    assert inter["gt_pairs"] == 4 and inter["found"] == 2 and inter["recall"] == pytest.approx(0.5)
+    assert both["precision"] == pytest.approx(6 / 8) and both["recall"] == pytest.approx(6 / 8)
+
+
+def test_default_true_loop_distance_is_the_footprint_height(tmp_path):
+    s0, s1, world, local0, local1 = loop_scene(tmp_path)
+    accepted = [((0, 0), (0, 2)), ((0, 0), (0, 3))]  # 0.4 m (overlap) and 0.6 m (no overlap) apart
+    run = write_run(tmp_path / "run", {0: indexed(local0)}, loops=accepted)
+    data = evaluate_dirs(tmp_path, [s0], run)
+    assert data["loops"]["intra"]["loops"]["correct"] == 1
+    data = evaluate_dirs(tmp_path, [s0], run, extra=["--loop-true-dist", "0.7"])
+    assert data["loops"]["intra"]["loops"]["correct"] == 2
+    assert data["loops"]["intra"]["loops"]["recall"] is None  # no loops_gt.csv
+
+
+def test_inter_session_precision_is_na_without_world_gt(tmp_path):
+    s0, s1, _, local0, local1 = loop_scene(tmp_path, with_world=False)
+    accepted = [((0, 0), (0, 11)), ((0, 1), (1, 1))]
+    loops_gt = write_loops_gt(tmp_path / "loops_gt.csv", [((0, 1), (1, 1))])
+    run = write_run(tmp_path / "run", {0: indexed(local0), 1: indexed(local1)}, loops=accepted)
+    data = evaluate_dirs(tmp_path, [s0, s1], run, loops_gt=loops_gt)
+    assert data["loops"]["intra"]["loops"]["precision"] == pytest.approx(1.0)
+    assert data["loops"]["inter"]["loops"]["precision"] is None
+    assert data["loops"]["inter"]["loops"]["recall"] == pytest.approx(1.0)  # recall needs no world gt
+
+
+def test_header_only_loops_and_missing_trajectory(tmp_path):
+    s0, _, _, local0, _ = loop_scene(tmp_path)
+    loops_gt = write_loops_gt(tmp_path / "loops_gt.csv", [((0, 0), (0, 11))])
+    run = write_run(tmp_path / "run", {0: indexed(local0)}, loops=[])
+    data = evaluate_dirs(tmp_path, [s0], run, loops_gt=loops_gt)
+    m = data["loops"]["intra"]["loops"]
+    assert m["accepted"] == 0 and m["precision"] is None and m["recall"] == 0.0
+    assert "map" not in data and list(data["session"]["0"]) == ["odometry"]
+
+
+# ---------------------------------------------------------------------------------------------
+# Outputs and the command line.
+
+def test_report_files_agree_and_timing_is_copied(tmp_path, capsys):
+    gt = lawnmower()
+    s0 = write_session(tmp_path / "s0", gt)
+    run = write_run(tmp_path / "run", {0: indexed(gt)}, {0: [(i, 0, p) for i, p in indexed(gt)]},
+                    loops=[], timing=[("odometry", 12, 240.0, 20.0, 31.5)])
+    data = evaluate_dirs(tmp_path, [s0], run)
+    with open(tmp_path / "report" / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert rows and set(rows[0]) == {"scope", "id", "estimate", "metric", "value"}
+    for row in rows:
+        value = data[row["scope"]][row["id"]][row["estimate"]][row["metric"]]
+        assert row["value"] == "n/a" if value is None else float(row["value"]) == pytest.approx(value)
+    assert data["timing"]["odometry"]["timing"] == {"calls": 12, "total_ms": 240.0, "mean_ms": 20.0,
+                                                    "max_ms": 31.5}
+    md = (tmp_path / "report" / "metrics.md").read_text()
+    for title in ("## Sessions", "## Maps (slam)", "## Loops", "## Timing"):
+        assert title in md
+    assert "## Sessions" in capsys.readouterr().out
+
+
+def is_png(path):
+    with open(path, "rb") as f:
+        return f.read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_plots_are_written_unless_disabled(tmp_path):
+    local0, local1, world0, world1 = two_session_world()
+    s0 = write_session(tmp_path / "s0", local0)
+    s1 = write_session(tmp_path / "s1", local1)
+    world = write_world_gt(tmp_path / "world_gt.csv", [world0, world1])
+    trajectory = {0: [(i, 0, p) for i, p in indexed(in_frame(world0[0], world0))],
+                  1: [(i, 0, p) for i, p in indexed(in_frame(world0[0], world1))]}
+    run = write_run(tmp_path / "run", {0: indexed(local0), 1: indexed(local1)}, trajectory,
+                    loops=[((0, 0), (1, 0)), ((0, 0), (0, 9))])
+    base = ["--run", run, "--session", s0, "--session", s1, "--world-gt", world]
+    assert run_main(base + ["--report", tmp_path / "quiet", "--no-plots"]) == 0
+    assert not [n for n in os.listdir(tmp_path / "quiet") if n.endswith(".png")]
+    assert run_main(base + ["--report", tmp_path / "plots"]) == 0
+    pngs = sorted(n for n in os.listdir(tmp_path / "plots") if n.endswith(".png"))
+    assert pngs == ["map_0.png", "session_0.png", "session_1.png"]
+    assert all(is_png(tmp_path / "plots" / n) for n in pngs)
+
+
+def test_mission_folder_finds_sessions_and_truth_files(tmp_path):
+    local0, local1, world0, world1 = two_session_world()
+    mission = tmp_path / "mission"
+    write_session(mission / "s0", local0)
+    write_session(mission / "s1", local1)
+    os.makedirs(mission / "notes")  # not a session: no frames.csv
+    write_world_gt(mission / "world_gt.csv", [world0, world1])
+    write_loops_gt(mission / "loops_gt.csv", [((0, 0), (1, 0))])
+    map1 = [(x + 0.3, y - 0.4, yaw) for x, y, yaw in in_frame(world0[0], world1)]
+    trajectory = {0: [(i, 0, p) for i, p in indexed(in_frame(world0[0], world0))],
+                  1: [(i, 0, p) for i, p in indexed(map1)]}
+    run = write_run(tmp_path / "run", {0: indexed(local0), 1: indexed(local1)}, trajectory)
+    assert run_main(["--run", run, "--mission", mission, "--report", tmp_path / "r", "--no-plots"]) == 0
+    data = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert metric(data, "map", 0, "slam", "ek_inter_m") == pytest.approx(0.5)
+    assert data["loops"]["inter"]["loops"]["gt_pairs"] == 1
+
+
+def check_fails(capsys, args, words):
+    code = run_main(args)
+    err = capsys.readouterr().err
+    assert code != 0
+    assert len(err.strip().splitlines()) == 1, err
+    assert "Traceback" not in err
+    for word in words:
+        assert word in err, err
+
+
+def test_bad_input_exits_non_zero_with_one_line(tmp_path, capsys):
+    gt = lawnmower()
+    s0 = write_session(tmp_path / "s0", gt)
+    run = write_run(tmp_path / "run", {0: indexed(gt), 1: indexed(gt)})
+    report = ["--report", tmp_path / "report"]
+    check_fails(capsys, ["--run", tmp_path / "nope", "--session", s0] + report, ["nope", "not found"])
+    check_fails(capsys, ["--run", run, "--session", tmp_path / "missing"] + report, ["missing"])
+    check_fails(capsys, ["--run", run, "--session", s0] + report, ["session 1", "1 ground-truth folder"])
+    check_fails(capsys, ["--run", run] + report, ["--session"])  # no ground truth at all
+    bad = tmp_path / "bad"
+    os.makedirs(bad)
+    write_csv(bad / "odometry.csv", "session,idx,x_m,y_m,yaw_rad", [(0, 0, 0.0, 0.0, 0.0)])
+    check_fails(capsys, ["--run", bad, "--session", s0] + report, ["odometry.csv", "index"])
+    os.remove(bad / "odometry.csv")
+    check_fails(capsys, ["--run", bad, "--session", s0] + report, ["odometry.csv", "not found"])
+    write_run(bad, {0: [(99, (0.0, 0.0, 0.0))]})
+    check_fails(capsys, ["--run", bad, "--session", s0] + report, ["gt.csv", "99"])
+
+
+def test_command_line_process_has_help_and_clean_errors(tmp_path):
+    done = subprocess.run(["/usr/bin/python3", TOOL, "--help"], capture_output=True, text=True)
+    assert done.returncode == 0
+    for word in ("--mission", "--loop-true-dist", "ate_aligned_rmse_m", "ek_inter_m", "recall"):
+        assert word in done.stdout
+    done = subprocess.run(["/usr/bin/python3", TOOL, "--run", str(tmp_path / "x"), "--session", str(tmp_path),
+                           "--report", str(tmp_path / "r")], capture_output=True, text=True)
+    assert done.returncode == 1
+    assert "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) == 1
