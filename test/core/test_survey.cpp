@@ -1,0 +1,385 @@
+// The survey generator: geometry of the rendering against the ground truth, missions, water,
+// reproducibility, ground-truth loops and the YAML spec.
+#include <gtest/gtest.h>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "uw_multislam/core/dataset.h"
+#include "uw_multislam/core/survey_config.h"
+#include "uw_multislam/core/survey_generator.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+namespace fs = std::filesystem;
+
+const CameraIntrinsics kCam{160, 120, 150.0, 160.0, 79.5, 59.5};
+
+// A dark world with one bright dot at a known world point.
+SeabedWorld dotWorld(const Eigen::Vector2d& dot_m, double mpp = 0.005) {
+  cv::Mat img(1200, 1600, CV_8UC3, cv::Scalar(20, 20, 20));
+  const SeabedWorld probe(img, mpp, Eigen::Vector2d(100.0, 150.0));
+  const Eigen::Vector2d px = probe.worldToPixel(dot_m);
+  cv::circle(img, cv::Point(cvRound(px.x() * 16), cvRound(px.y() * 16)), 3 * 16, cv::Scalar(255, 255, 255), cv::FILLED,
+             cv::LINE_AA, 4);
+  return SeabedWorld(img, mpp, Eigen::Vector2d(100.0, 150.0));
+}
+
+// Intensity-weighted centroid of the bright pixels.
+Eigen::Vector2d brightCentroid(const cv::Mat& bgr) {
+  cv::Mat g;
+  cv::cvtColor(bgr, g, cv::COLOR_BGR2GRAY);
+  g.convertTo(g, CV_64F);
+  g -= 20.0;
+  cv::threshold(g, g, 0.0, 0.0, cv::THRESH_TOZERO);
+  const cv::Moments m = cv::moments(g);
+  return Eigen::Vector2d(m.m10 / m.m00, m.m01 / m.m00);
+}
+
+// Where the camera at `pose` (altitude a) sees world point w: p_c = R^T (w - t), then pinhole.
+Eigen::Vector2d project(const Pose2& pose, double a, const Eigen::Vector2d& w) {
+  const Eigen::Vector2d pc = pose.rotation().transpose() * (w - pose.translation());
+  return Eigen::Vector2d(kCam.cx + kCam.fx * pc.x() / a, kCam.cy + kCam.fy * pc.y() / a);
+}
+
+TEST(SeabedWorld, KnownWorldPointLandsWhereTheGroundTruthPredicts) {
+  const Eigen::Vector2d dot(1.3, 0.4);
+  const SeabedWorld world = dotWorld(dot);
+  for (const Pose2& pose : {Pose2(1.2, 0.5, 0.0), Pose2(1.0, 0.3, 0.8), Pose2(1.5, 0.6, -2.5), Pose2(1.4, 0.2, M_PI)}) {
+    for (double a : {1.5, 2.5}) {
+      const cv::Mat view = world.render(pose, a, kCam);
+      const Eigen::Vector2d seen = brightCentroid(view), predicted = project(pose, a, dot);
+      EXPECT_LT((seen - predicted).norm(), 0.3) << "pose " << pose << " altitude " << a << ": seen " << seen.transpose()
+                                                << " predicted " << predicted.transpose();
+    }
+  }
+}
+
+TEST(SeabedWorld, PixelWorldRoundTripAndValidity) {
+  const SeabedWorld world = dotWorld(Eigen::Vector2d(1, 1));
+  const Eigen::Vector2d w(2.0, -0.3);
+  EXPECT_TRUE(world.pixelToWorld(world.worldToPixel(w)).isApprox(w));
+  EXPECT_TRUE(world.viewIsValid(Pose2(1.0, 1.0, 0.3), 2.0, kCam));
+  EXPECT_FALSE(world.viewIsValid(Pose2(-0.4, 1.0, 0.3), 2.0, kCam));  // left edge of the raster
+}
+
+TEST(SeabedWorld, MosaicBlackAreasNeverEnterAFrame) {
+  const fs::path dir = fs::temp_directory_path() / ("uwms_mosaic_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  cv::Mat img(800, 800, CV_8UC3, cv::Scalar(0, 0, 0));
+  cv::Mat inner = img(cv::Rect(100, 100, 600, 600));
+  cv::randu(inner, cv::Scalar::all(40), cv::Scalar::all(220));
+  cv::imwrite((dir / "m.png").string(), img);
+  std::ofstream(dir / "m.txt") << "m_per_px 0.005\norigin_px 100 100\n";
+  const SeabedWorld world = SeabedWorld::fromMosaic((dir / "m.png").string(), (dir / "m.txt").string());
+  fs::remove_all(dir);
+  // Imaged area: world [0, 3] m in x and y. Footprint at 1 m: 1.07 x 0.75 m.
+  EXPECT_TRUE(world.viewIsValid(Pose2(1.5, 1.5, 0.4), 1.0, kCam));
+  EXPECT_FALSE(world.viewIsValid(Pose2(0.3, 1.5, 0.0), 1.0, kCam));
+  EXPECT_FALSE(world.viewIsValid(Pose2(1.5, 2.9, 1.0), 1.0, kCam));
+  const cv::Mat view = world.render(Pose2(1.5, 1.5, 0.4), 1.0, kCam);
+  double lo = 0;
+  cv::minMaxLoc(view.reshape(1), &lo);
+  EXPECT_GT(lo, 10.0);
+
+  SurveySpec spec;
+  spec.sessions.resize(1);
+  spec.sessions[0].camera = kCam;
+  spec.sessions[0].mission.pattern = MissionPattern::kOutAndBack;
+  spec.sessions[0].mission.start_m = Eigen::Vector2d(0.8, 1.0);
+  spec.sessions[0].mission.length_m = 5.0;  // runs off the 3 m mosaic
+  spec.sessions[0].mission.altitude_m = 1.0;
+  try {
+    planSurvey(spec, world);
+    FAIL() << "a mission leaving the mosaic was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("leaves the seabed"), std::string::npos) << e.what();
+  }
+  spec.sessions[0].mission.length_m = 1.2;
+  spec.sessions[0].mission.leg_spacing_m = 0.3;
+  EXPECT_NO_THROW(planSurvey(spec, world));
+}
+
+TEST(Mission, FramesAreEvenlySpacedAlongThePath) {
+  for (auto pattern :
+       {MissionPattern::kLawnmower, MissionPattern::kOutAndBack, MissionPattern::kLoop, MissionPattern::kFigureEight}) {
+    MissionSpec m;
+    m.pattern = pattern;
+    m.speed_m_s = 0.4;
+    m.frame_period_s = 0.5;
+    m.heading_rad = 0.7;
+    const auto frames = planMission(m);
+    ASSERT_GT(frames.size(), 20u) << patternName(pattern);
+    EXPECT_TRUE(approxEqual(Pose2(frames[0].pose.x(), frames[0].pose.y(), 0), Pose2(4.0, 4.0, 0), 1e-9));
+    for (std::size_t k = 1; k < frames.size(); ++k) {
+      const double d = (frames[k].pose.translation() - frames[k - 1].pose.translation()).norm();
+      // Chords of a curved path are slightly shorter than the 0.2 m of path between frames.
+      ASSERT_LE(d, 0.2 + 1e-6) << patternName(pattern) << " frame " << k;
+      ASSERT_GT(d, 0.17) << patternName(pattern) << " frame " << k;
+      ASSERT_NEAR(frames[k].stamp_s - frames[k - 1].stamp_s, 0.5, 1e-9);
+    }
+    // The initial direction of travel is the heading.
+    const Eigen::Vector2d d0 = frames[1].pose.translation() - frames[0].pose.translation();
+    EXPECT_NEAR(normalizeAngle(std::atan2(d0.y(), d0.x()) - 0.7), 0.0, 0.05) << patternName(pattern);
+  }
+}
+
+TEST(Mission, LoopsComeBackAndOutAndBackReturns) {
+  MissionSpec m;
+  m.pattern = MissionPattern::kLoop;
+  m.laps = 1.0;
+  auto f = planMission(m);
+  EXPECT_LT((f.back().pose.translation() - f.front().pose.translation()).norm(), 0.5);
+  m.pattern = MissionPattern::kOutAndBack;
+  m.leg_spacing_m = 0.8;
+  f = planMission(m);
+  EXPECT_NEAR((f.back().pose.translation() - f.front().pose.translation()).norm(), 0.8, 0.5);
+  m.pattern = MissionPattern::kLawnmower;
+  m.length_m = 10;
+  m.width_m = 4.2;
+  m.leg_spacing_m = 1.4;
+  m.wobble_yaw_rad = 0;
+  f = planMission(m);
+  // Four legs: the last one runs back towards x = start, 4.2 m across.
+  EXPECT_NEAR(f.back().pose.y() - f.front().pose.y(), 4.2, 0.25);
+  EXPECT_NEAR(std::abs(normalizeAngle(f.back().pose.yaw())), M_PI, 0.05);
+  m.altitude_amplitude_m = 3.0;  // more than the altitude
+  EXPECT_THROW(planMission(m), std::invalid_argument);
+}
+
+cv::Scalar stddev(const cv::Mat& img) {
+  cv::Scalar mean, sd;
+  cv::meanStdDev(img, mean, sd);
+  return sd;
+}
+
+TEST(Water, TurbidityLowersContrastAndBlankFramesAreFeatureless) {
+  ProceduralSeabedOptions o;
+  o.width_m = 6;
+  o.height_m = 5;
+  o.featureless_fraction = 0;
+  const SeabedWorld world = SeabedWorld::procedural(o);
+  const cv::Mat clean = world.render(Pose2(3, 2.5, 0.2), 2.0, kCam);
+  WaterFrame f;
+  f.altitude_m = 2.0;
+  WaterOptions clear;
+  clear.noise_sigma = 0;
+  WaterOptions murky = clear;
+  murky.turbidity_per_m = 0.3;
+  cv::RNG r1(1), r2(1), r3(1);
+  const double sd_clear = stddev(applyWater(clean, clear, f, r1))[1];
+  const double sd_murky = stddev(applyWater(clean, murky, f, r2))[1];
+  EXPECT_LT(sd_murky, 0.6 * sd_clear);
+  WaterOptions blank = clear;
+  blank.vignetting = 0;
+  blank.stretches = {{0, 3, FrameStretch::Kind::kBlank}};
+  EXPECT_LT(stddev(applyWater(clean, blank, f, r3))[1], 1.0);
+  f.index = 3;  // first frame after the stretch
+  EXPECT_GT(stddev(applyWater(clean, blank, f, r3))[1], 0.5 * sd_clear);
+}
+
+TEST(Water, MarineSnowAddsBrightSpots) {
+  const cv::Mat grey(120, 160, CV_8UC3, cv::Scalar(60, 60, 60));
+  WaterOptions o;
+  o.noise_sigma = 0;
+  o.vignetting = 0;
+  o.turbidity_per_m = 0;
+  o.marine_snow_per_frame = 50;
+  WaterFrame f;
+  cv::RNG rng(3);
+  cv::Mat out = applyWater(grey, o, f, rng);
+  cv::Mat g;
+  cv::cvtColor(out, g, cv::COLOR_BGR2GRAY);
+  EXPECT_GT(cv::countNonZero(g > 120), 20);
+}
+
+class SurveyTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    out_ = fs::temp_directory_path() / ("uwms_survey_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(out_);
+    spec_.world.procedural.width_m = 10;
+    spec_.world.procedural.height_m = 7;
+    SessionSpec a;
+    a.name = "a";
+    a.camera = kCam;
+    a.mission.pattern = MissionPattern::kOutAndBack;
+    a.mission.start_m = Eigen::Vector2d(2.0, 2.5);
+    a.mission.length_m = 4.0;
+    a.mission.leg_spacing_m = 0.6;
+    a.mission.altitude_m = 1.5;
+    a.image_format = "png";
+    SessionSpec b = a;
+    b.name = "b";
+    b.mission.pattern = MissionPattern::kLoop;
+    b.mission.start_m = Eigen::Vector2d(5.0, 3.0);
+    b.mission.heading_rad = M_PI / 2;
+    b.mission.length_m = 3.0;
+    b.mission.width_m = 2.0;
+    b.water.illumination = 0.7;
+    spec_.sessions = {a, b};
+  }
+  void TearDown() override { fs::remove_all(out_); }
+  fs::path out_;
+  SurveySpec spec_;
+};
+
+TEST_F(SurveyTest, WritesDatasetFoldersConsistentWithWorldGroundTruth) {
+  const SurveyResult r = generateSurvey(spec_, out_.string());
+  ASSERT_EQ(r.session_dirs.size(), 2u);
+  std::map<std::pair<int, int>, Pose2> world;
+  for (const auto& p : r.world_poses) world[{p.session, p.index}] = p.pose;
+  for (int s = 0; s < 2; ++s) {
+    const Dataset d = loadDataset(r.session_dirs[s]);
+    EXPECT_EQ(d.camera.fy, kCam.fy);
+    ASSERT_EQ(d.frames.size(), d.ground_truth.size());
+    EXPECT_TRUE(approxEqual(d.ground_truth[0].pose, Pose2::identity(), 1e-6, 1e-6));
+    for (const auto& g : d.ground_truth) {
+      // gt.csv is the world pose seen from the session's first frame.
+      const Pose2 expected = between(world[{s, 0}], world[{s, g.index}]);
+      ASSERT_TRUE(approxEqual(g.pose, expected, 2e-6, 2e-6)) << "session " << s << " frame " << g.index;
+    }
+    for (const auto& f : d.frames) EXPECT_NEAR(f.altitude_m, 1.5, 0.06);  // altimeter noise 1 cm
+    const cv::Mat img = cv::imread(d.imagePath(d.frames[0]));
+    EXPECT_EQ(img.cols, kCam.width);
+    EXPECT_EQ(img.rows, kCam.height);
+  }
+  // world_gt.csv holds every frame.
+  std::ifstream wg(out_ / "world_gt.csv");
+  std::string line;
+  int rows = -1;
+  while (std::getline(wg, line)) ++rows;
+  EXPECT_EQ(rows, r.frames);
+}
+
+TEST_F(SurveyTest, ConsecutiveFramesMatchTheirGroundTruthMotion) {
+  // Independent check of the rendering: warp frame k+1 into frame k with the ground-truth
+  // motion; the overlapping pixels must agree far better than with a wrong motion.
+  spec_.sessions.resize(1);
+  spec_.sessions[0].water.noise_sigma = 0;
+  spec_.sessions[0].water.vignetting = 0;
+  const SurveyResult r = generateSurvey(spec_, out_.string());
+  const Dataset d = loadDataset(r.session_dirs[0]);
+  auto residual = [&](int k, const Pose2& motion) {
+    const cv::Mat a = cv::imread(d.imagePath(d.frames[k]), cv::IMREAD_GRAYSCALE);
+    const cv::Mat b = cv::imread(d.imagePath(d.frames[k + 1]), cv::IMREAD_GRAYSCALE);
+    // Pixel of a -> metres in a -> metres in b -> pixel of b.
+    const double ax = d.frames[k].altitude_m, bx = d.frames[k + 1].altitude_m;
+    (void)ax;
+    (void)bx;
+    cv::Mat map_x(a.size(), CV_32F), map_y(a.size(), CV_32F);
+    const double alt = 1.5;
+    for (int v = 0; v < a.rows; ++v) {
+      for (int u = 0; u < a.cols; ++u) {
+        const Eigen::Vector2d pa((u - kCam.cx) * alt / kCam.fx, (v - kCam.cy) * alt / kCam.fy);
+        const Eigen::Vector2d pb = invert(motion).rotation() * pa + invert(motion).translation();
+        map_x.at<float>(v, u) = static_cast<float>(kCam.cx + pb.x() * kCam.fx / alt);
+        map_y.at<float>(v, u) = static_cast<float>(kCam.cy + pb.y() * kCam.fy / alt);
+      }
+    }
+    cv::Mat warped, mask;
+    cv::remap(b, warped, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0));
+    cv::remap(cv::Mat(b.size(), CV_8U, cv::Scalar(255)), mask, map_x, map_y, cv::INTER_NEAREST, cv::BORDER_CONSTANT,
+              cv::Scalar(0));
+    cv::Mat diff;
+    cv::absdiff(a, warped, diff);
+    return cv::mean(diff, mask)[0];
+  };
+  for (int k : {0, 5, 9}) {
+    const Pose2 motion = between(d.ground_truth[k].pose, d.ground_truth[k + 1].pose);
+    const double good = residual(k, motion);
+    const double bad = residual(k, compose(motion, Pose2(0.02, 0.0, 0.0)));  // 2 cm off
+    EXPECT_LT(good, 0.6 * bad) << "frame " << k << ": residual " << good << " vs " << bad;
+  }
+}
+
+TEST_F(SurveyTest, SameSeedSameOutputOtherSeedOtherWorld) {
+  spec_.sessions.resize(1);
+  generateSurvey(spec_, (out_ / "one").string());
+  generateSurvey(spec_, (out_ / "two").string());
+  spec_.seed = 2;
+  generateSurvey(spec_, (out_ / "three").string());
+  auto read = [&](const char* run, const char* file) {
+    std::ifstream in(out_ / run / "a" / file, std::ios::binary);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+  };
+  EXPECT_EQ(read("one", "0003.png"), read("two", "0003.png"));
+  EXPECT_EQ(read("one", "frames.csv"), read("two", "frames.csv"));
+  EXPECT_NE(read("one", "0003.png"), read("three", "0003.png"));
+  EXPECT_EQ(read("one", "gt.csv"), read("three", "gt.csv"));  // same mission, other world
+}
+
+TEST_F(SurveyTest, GroundTruthLoopsAreExactlyTheClosePairs) {
+  const SeabedWorld world = buildWorld(spec_);
+  const auto plans = planSurvey(spec_, world);
+  std::vector<WorldPose> poses;
+  for (int s = 0; s < 2; ++s) {
+    for (std::size_t k = 0; k < plans[s].size(); ++k) {
+      poses.push_back({s, static_cast<int>(k), plans[s][k].pose, plans[s][k].altitude_m});
+    }
+  }
+  const auto loops = groundTruthLoops(spec_, poses);
+  const double limit = 0.4 * kCam.height * 1.5 / kCam.fy;  // 0.45 m
+  std::set<std::tuple<int, int, int, int>> listed;
+  for (const auto& l : loops) listed.insert({l.session_a, l.index_a, l.session_b, l.index_b});
+  int expected = 0, inter = 0;
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    for (std::size_t j = i + 1; j < poses.size(); ++j) {
+      const bool neighbours = poses[i].session == poses[j].session && std::abs(poses[i].index - poses[j].index) < 3;
+      const bool close = (poses[i].pose.translation() - poses[j].pose.translation()).norm() < limit;
+      const bool in = listed.count({poses[i].session, poses[i].index, poses[j].session, poses[j].index}) > 0;
+      EXPECT_EQ(in, close && !neighbours);
+      expected += close && !neighbours;
+      inter += close && !neighbours && poses[i].session != poses[j].session;
+    }
+  }
+  EXPECT_EQ(static_cast<int>(loops.size()), expected);
+  EXPECT_GT(expected, 10);  // the out-and-back passes over itself, the loop closes
+  EXPECT_GT(inter, 0);      // and the two sessions overlap
+}
+
+TEST(SurveyConfig, YamlRoundTripAndClearErrors) {
+  const SurveySpec demo = surveyPreset("demo");
+  const std::string yaml = surveyToYaml(demo);
+  const SurveySpec back = surveyFromYaml(yaml);
+  EXPECT_EQ(surveyToYaml(back), yaml);
+  ASSERT_EQ(back.sessions.size(), 2u);
+  EXPECT_EQ(back.sessions[1].mission.pattern, MissionPattern::kLoop);
+  EXPECT_DOUBLE_EQ(back.sessions[1].water.illumination, 0.7);
+
+  const SurveySpec overridden = surveyFromYaml("preset: demo\nseed: 7\nworld: {width_m: 30}\n");
+  EXPECT_EQ(overridden.seed, 7u);
+  EXPECT_DOUBLE_EQ(overridden.world.procedural.width_m, 30.0);
+  EXPECT_EQ(overridden.sessions.size(), 2u);
+
+  auto error = [](const std::string& text) {
+    try {
+      surveyFromYaml(text);
+    } catch (const std::invalid_argument& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  EXPECT_NE(error("sesions: []\n").find("unknown key 'sesions'"), std::string::npos);
+  EXPECT_NE(error("sessions: [{mission: {pattern: spiral}}]\n").find("unknown pattern 'spiral'"), std::string::npos);
+  EXPECT_NE(error("sessions: [{mission: {speed_m_s: -1}}]\n").find("speed_m_s"), std::string::npos);
+  EXPECT_NE(error("sessions: [{water: {turbidity_per_m: abc}}]\n").find("turbidity_per_m"), std::string::npos);
+  EXPECT_NE(error("sessions: [{name: a}, {name: a}]\n").find("duplicate"), std::string::npos);
+  EXPECT_NE(error("preset: nope\n").find("unknown preset"), std::string::npos);
+  EXPECT_NE(error("sessions: [{water: {stretches: [{first_frame: 2, num_frames: 3, kind: fog}]}}]\n").find("kind"),
+            std::string::npos);
+  for (const auto& p : surveyPresets()) EXPECT_EQ(surveyPreset(p).validate(), "") << p;
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam
