@@ -1,0 +1,134 @@
+"""make_survey end to end: command line, dataset folders, ground truth and the bags it writes.
+
+The binary comes from UWMS_BIN_DIR (set by CMake to the devel space), or the default workspace.
+"""
+import csv
+import math
+import os
+import subprocess
+
+import pytest
+import rosbag
+import yaml
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+BIN_DIR = os.environ.get(
+    "UWMS_BIN_DIR", os.path.join(HERE, "..", "..", ".catkin_ws", "devel", "lib", "uw_multislam"))
+MAKE_SURVEY = os.path.join(BIN_DIR, "make_survey")
+
+TINY = """
+seed: 4
+world: {width_m: 5, height_m: 4, metres_per_px: 0.01}
+sessions:
+  - name: first
+    camera: {image_width: 96, image_height: 72, fx: 90, fy: 90, cx: 47.5, cy: 35.5}
+    image_format: png
+    mission: {pattern: out_and_back, start_m: [1.2, 1.5], length_m: 1.5, leg_spacing_m: 0.4,
+              speed_m_s: 0.25, frame_period_s: 1.0, altitude_m: 1.2}
+  - name: second
+    camera: {image_width: 96, image_height: 72, fx: 90, fy: 90, cx: 47.5, cy: 35.5}
+    mission: {pattern: loop, start_m: [3.0, 2.0], heading_rad: 1.5708, length_m: 1.2, width_m: 0.8,
+              laps: 1.0, speed_m_s: 0.3, frame_period_s: 0.5, altitude_m: 1.3}
+    water: {illumination: 0.6, turbidity_per_m: 0.1}
+"""
+
+
+def run(*args):
+    return subprocess.run([MAKE_SURVEY, *args], capture_output=True, text=True, timeout=120)
+
+
+def read_csv(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory):
+    base = tmp_path_factory.mktemp("survey")
+    config = base / "tiny.yaml"
+    config.write_text(TINY)
+    out = base / "out"
+    result = run("--config", str(config), "--out", str(out), "--quiet")
+    assert result.returncode == 0, result.stderr
+    return out, result
+
+
+def test_help_and_bad_arguments():
+    r = run("--help")
+    assert r.returncode == 0 and "--preset" in r.stdout and "loops_gt.csv" in r.stdout
+    r = run("--frobnicate")
+    assert r.returncode == 2 and "unknown argument" in r.stderr
+    r = run("--preset", "nope", "--out", "/tmp/uwms_never_written")
+    assert r.returncode == 1 and "unknown preset 'nope'" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert not os.path.exists("/tmp/uwms_never_written")
+
+
+def test_bad_config_names_the_key(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("sessions: [{mission: {patern: loop}}]\n")
+    r = run("--config", str(bad), "--out", str(tmp_path / "o"))
+    assert r.returncode == 1
+    assert "unknown key 'patern'" in r.stderr and str(bad) in r.stderr
+
+
+def test_presets_are_listed_and_dumpable():
+    names = run("--list-presets").stdout.split()
+    assert "demo" in names and "blank" in names
+    spec = yaml.safe_load(run("--preset", "demo", "--dump-config").stdout)
+    assert [s["name"] for s in spec["sessions"]] == ["s0", "s1"]
+    assert spec["sessions"][1]["water"]["illumination"] < spec["sessions"][0]["water"]["illumination"]
+
+
+def test_writes_folders_and_mission_ground_truth(survey):
+    out, result = survey
+    assert "2 sessions" in result.stdout
+    world = read_csv(out / "world_gt.csv")
+    for s, name in enumerate(["first", "second"]):
+        frames = read_csv(out / name / "frames.csv")
+        gt = read_csv(out / name / "gt.csv")
+        assert len(frames) == len(gt) > 4
+        assert sum(1 for w in world if int(w["session"]) == s) == len(frames)
+        for f in frames:
+            assert (out / name / f["image"]).is_file()
+        assert float(gt[0]["x_m"]) == 0.0 and float(gt[0]["y_m"]) == 0.0
+    assert (out / "first" / "0000.png").is_file() and (out / "second" / "0000.jpg").is_file()
+    with open(out / "loops_gt.csv") as f:
+        assert f.readline().strip() == "session_a,index_a,session_b,index_b"
+    assert len(read_csv(out / "loops_gt.csv")) > 0  # the out-and-back passes over itself
+
+
+def test_bag_holds_the_expected_topics_counts_and_values(survey):
+    out, _ = survey
+    frames = read_csv(out / "first" / "frames.csv")
+    gt = read_csv(out / "first" / "gt.csv")
+    with rosbag.Bag(str(out / "first.bag")) as bag:
+        info = bag.get_type_and_topic_info().topics
+        assert info["/camera/image_raw"].msg_type == "sensor_msgs/Image"
+        assert info["/camera/camera_info"].msg_type == "sensor_msgs/CameraInfo"
+        assert info["/altitude"].msg_type == "sensor_msgs/Range"
+        assert info["/ground_truth/odom"].msg_type == "nav_msgs/Odometry"
+        for topic in info:
+            assert info[topic].message_count == len(frames), topic
+        ranges = [m.range for _, m, _ in bag.read_messages(topics=["/altitude"])]
+        assert ranges == pytest.approx([float(f["altitude_m"]) for f in frames], abs=1e-4)
+        images = [m for _, m, _ in bag.read_messages(topics=["/camera/image_raw"])]
+        assert images[0].encoding == "bgr8" and (images[0].width, images[0].height) == (96, 72)
+        odom = [m for _, m, _ in bag.read_messages(topics=["/ground_truth/odom"])]
+        last, ref = odom[-1].pose.pose, gt[-1]
+        assert last.position.x == pytest.approx(float(ref["x_m"]), abs=1e-5)
+        yaw_error = 2 * math.atan2(last.orientation.z, last.orientation.w) - float(ref["yaw_rad"])
+        assert math.atan2(math.sin(yaw_error), math.cos(yaw_error)) == pytest.approx(0.0, abs=1e-5)
+        stamps = [m.header.stamp.to_sec() for m in images]
+        assert all(b > a for a, b in zip(stamps, stamps[1:]))
+
+
+def test_effective_spec_reproduces_the_survey(survey, tmp_path):
+    out, _ = survey
+    again = tmp_path / "again"
+    r = run("--config", str(out / "survey.yaml"), "--out", str(again), "--no-bag", "--quiet")
+    assert r.returncode == 0, r.stderr
+    for name in ["first", "second"]:
+        for f in ["frames.csv", "gt.csv", "0003.png" if name == "first" else "0003.jpg"]:
+            assert (again / name / f).read_bytes() == (out / name / f).read_bytes(), f
+    assert not (again / "first.bag").exists()
