@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "../common/scoped_temp_dir.h"
 #include "uw_multislam/core/dataset.h"
 
 namespace uw_multislam {
@@ -14,13 +15,6 @@ namespace fs = std::filesystem;
 
 class DatasetTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("uwms_dataset_" + std::to_string(::getpid()) + "_" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
   void write(const std::string& name, const std::string& text) { std::ofstream(dir_ / name) << text; }
   std::string path(const std::string& name) const { return (dir_ / name).string(); }
   // Expects loadDataset to throw a DatasetError whose message contains `needle`.
@@ -39,7 +33,8 @@ class DatasetTest : public ::testing::Test {
     write("0000.jpg", "x");
     write("0001.jpg", "x");
   }
-  fs::path dir_;
+  testing_util::ScopedTempDir tmp_{"uwms_dataset"};
+  const fs::path dir_ = tmp_.path();
 };
 
 TEST_F(DatasetTest, RoundTrip) {

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "../common/scoped_temp_dir.h"
 #include "uw_multislam/core/dataset.h"
 #include "uw_multislam/core/survey_config.h"
 #include "uw_multislam/core/survey_generator.h"
@@ -70,15 +71,14 @@ TEST(SeabedWorld, PixelWorldRoundTripAndValidity) {
 }
 
 TEST(SeabedWorld, MosaicBlackAreasNeverEnterAFrame) {
-  const fs::path dir = fs::temp_directory_path() / ("uwms_mosaic_" + std::to_string(::getpid()));
-  fs::create_directories(dir);
+  const testing_util::ScopedTempDir tmp("uwms_mosaic");
+  const fs::path& dir = tmp.path();
   cv::Mat img(800, 800, CV_8UC3, cv::Scalar(0, 0, 0));
   cv::Mat inner = img(cv::Rect(100, 100, 600, 600));
   cv::randu(inner, cv::Scalar::all(40), cv::Scalar::all(220));
   cv::imwrite((dir / "m.png").string(), img);
   std::ofstream(dir / "m.txt") << "m_per_px 0.005\norigin_px 100 100\n";
   const SeabedWorld world = SeabedWorld::fromMosaic((dir / "m.png").string(), (dir / "m.txt").string());
-  fs::remove_all(dir);
   // Imaged area: world [0, 3] m in x and y. Footprint at 1 m: 1.07 x 0.75 m.
   EXPECT_TRUE(world.viewIsValid(Pose2(1.5, 1.5, 0.4), 1.0, kCam));
   EXPECT_FALSE(world.viewIsValid(Pose2(0.3, 1.5, 0.0), 1.0, kCam));
@@ -202,9 +202,6 @@ TEST(Water, MarineSnowAddsBrightSpots) {
 class SurveyTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    out_ = fs::temp_directory_path() / ("uwms_survey_" + std::to_string(::getpid()) + "_" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(out_);
     spec_.world.procedural.width_m = 10;
     spec_.world.procedural.height_m = 7;
     SessionSpec a;
@@ -226,8 +223,8 @@ class SurveyTest : public ::testing::Test {
     b.water.illumination = 0.7;
     spec_.sessions = {a, b};
   }
-  void TearDown() override { fs::remove_all(out_); }
-  fs::path out_;
+  testing_util::ScopedTempDir tmp_{"uwms_survey"};
+  const fs::path out_ = tmp_.path() / "out";
   SurveySpec spec_;
 };
 

@@ -21,6 +21,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
+#include "../common/scoped_temp_dir.h"
 #include "uw_multislam/ros/dataset_bag.h"
 
 namespace uw_multislam {
@@ -94,15 +95,11 @@ double yawOf(const geometry_msgs::Quaternion& q) {
 class DatasetBagTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    root_ = fs::temp_directory_path() / ("uwms_bag_" + std::to_string(::getpid()) + "_" +
-                                         ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(root_);
     data_ = root_ / "data";
     fs::create_directories(data_);
     bag_ = (root_ / "out.bag").string();
     frames_ = sourceFrames();
   }
-  void TearDown() override { fs::remove_all(root_); }
 
   // Textured images (seeded noise), lossless PNG: four colour and one grey.
   void writeImages() {
@@ -136,7 +133,8 @@ class DatasetBagTest : public ::testing::Test {
     }
   }
 
-  fs::path root_;
+  testing_util::ScopedTempDir tmp_{"uwms_bag"};
+  const fs::path root_ = tmp_.path();
   fs::path data_;
   std::string bag_;
   std::vector<FrameRecord> frames_;
