@@ -1,10 +1,11 @@
 #include "uw_multislam/core/survey_config.h"
 
+#include "uw_multislam/core/yaml_map_reader.h"
+
 #include <yaml-cpp/yaml.h>
 
 #include <filesystem>
 #include <fstream>
-#include <set>
 #include <sstream>
 #include <stdexcept>
 
@@ -14,55 +15,6 @@ namespace core {
 namespace fs = std::filesystem;
 
 namespace {
-
-// Reads the keys of one YAML map into fields, and rejects keys nobody asked for.
-class MapReader {
- public:
-  MapReader(const YAML::Node& node, std::string where) : node_(node), where_(std::move(where)) {
-    if (present() && !node_.IsMap()) fail("must be a map");
-  }
-  // Call after the last read: rejects every key that was not read.
-  void finish() const {
-    if (!present()) return;
-    for (const auto& kv : node_) {
-      const std::string key = kv.first.as<std::string>();
-      if (!used_.count(key)) fail("unknown key '" + key + "'");
-    }
-  }
-  template <typename T>
-  void read(const char* key, T* out) {
-    used_.insert(key);
-    if (!present() || !node_[key]) return;
-    try {
-      *out = node_[key].template as<T>();
-    } catch (const YAML::Exception&) {
-      fail(std::string("bad value for '") + key + "'");
-    }
-  }
-  void readVector2(const char* key, Eigen::Vector2d* out) { readVector<2>(key, out); }
-  void readVector3(const char* key, Eigen::Vector3d* out) { readVector<3>(key, out); }
-  YAML::Node child(const char* key) {
-    used_.insert(key);
-    return present() ? node_[key] : YAML::Node();
-  }
-  /// A missing or null (empty) map reads as "all defaults".
-  bool present() const { return node_ && !node_.IsNull(); }
-  [[noreturn]] void fail(const std::string& what) const { throw std::invalid_argument(where_ + ": " + what); }
-  const std::string& where() const { return where_; }
-
- private:
-  template <int N, typename V>
-  void readVector(const char* key, V* out) {
-    std::vector<double> v;
-    read(key, &v);
-    if (!present() || !node_[key]) return;
-    if (static_cast<int>(v.size()) != N) fail(std::string("'") + key + "' needs " + std::to_string(N) + " numbers");
-    for (int i = 0; i < N; ++i) (*out)[i] = v[i];
-  }
-  const YAML::Node node_;
-  std::string where_;
-  std::set<std::string> used_;
-};
 
 void readCamera(const YAML::Node& n, const std::string& where, CameraIntrinsics* c) {
   MapReader r(n, where);

@@ -1,0 +1,268 @@
+// Feature odometry: the rigid fit, RANSAC with outliers, the covariance model, altitude scale,
+// matching, and the odometry on rendered seabed frames with known motion.
+#include <gtest/gtest.h>
+
+#include <opencv2/imgproc.hpp>
+
+#include <random>
+
+#include "uw_multislam/core/features.h"
+#include "uw_multislam/core/matching.h"
+#include "uw_multislam/core/odometry.h"
+#include "uw_multislam/core/rigid_ransac.h"
+#include "uw_multislam/core/seabed_world.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+// Points b in frame B and their images a = T ⊕ b + noise in frame A; the first
+// `outliers` fraction replaced by random points.
+struct Synthetic {
+  std::vector<Eigen::Vector2d> a, b;
+};
+Synthetic makeCorrespondences(const Pose2& t, int n, double noise_m, double outlier_fraction, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::normal_distribution<double> g(0.0, noise_m);
+  Synthetic s;
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector2d b(u(rng), 0.75 * u(rng));
+    Eigen::Vector2d a = transformPoint(t, b) + Eigen::Vector2d(g(rng), g(rng));
+    if (i < outlier_fraction * n) a = Eigen::Vector2d(2 * u(rng), 2 * u(rng));
+    s.a.push_back(a);
+    s.b.push_back(b);
+  }
+  return s;
+}
+
+TEST(RigidFit, ExactOnNoiseFreePoints) {
+  const Pose2 t(0.3, -0.2, 0.7);
+  const Synthetic s = makeCorrespondences(t, 10, 0.0, 0.0, 1);
+  Pose2 fit;
+  ASSERT_TRUE(fitRigid2D(s.a, s.b, {}, &fit));
+  EXPECT_TRUE(approxEqual(fit, t, 1e-12, 1e-12)) << fit;
+  EXPECT_FALSE(fitRigid2D(s.a, s.b, {3}, &fit));                           // one point
+  EXPECT_FALSE(fitRigid2D({s.a[0], s.a[0]}, {s.b[0], s.b[0]}, {}, &fit));  // coincident points
+}
+
+TEST(Ransac, RecoversKnownMotionWithHalfOutliers) {
+  const Pose2 t(0.12, 0.05, -0.3);
+  const double mpp = 0.005;  // 5 mm per pixel
+  const Synthetic s = makeCorrespondences(t, 200, 0.5 * mpp, 0.5, 2);
+  RansacOptions o;
+  const RansacResult r = estimateRigidRansac(s.a, s.b, mpp, o);
+  ASSERT_TRUE(r.success) << r.failure;
+  EXPECT_TRUE(approxEqual(r.motion, t, 1e-3, 1e-3)) << r.motion;
+  // Every inlier is a true correspondence (index >= 100), and most true ones are found.
+  for (int i : r.inliers) EXPECT_GE(i, 100);
+  EXPECT_GT(r.inliers.size(), 95u);
+  // The covariance is consistent with the actual error (within 4 sigma per component).
+  const Eigen::Vector3d e = poseError(r.motion, t);
+  for (int k = 0; k < 3; ++k) EXPECT_LT(std::abs(e[k]), 4 * std::sqrt(r.covariance(k, k)));
+}
+
+TEST(Ransac, IsDeterministicForASeed) {
+  const Synthetic s = makeCorrespondences(Pose2(0.1, 0.1, 0.2), 100, 0.002, 0.4, 3);
+  const RansacResult r1 = estimateRigidRansac(s.a, s.b, 0.005, RansacOptions());
+  const RansacResult r2 = estimateRigidRansac(s.a, s.b, 0.005, RansacOptions());
+  EXPECT_EQ(r1.inliers, r2.inliers);
+  EXPECT_EQ(r1.motion.vector(), r2.motion.vector());
+}
+
+TEST(Ransac, FailsCleanlyOnNoConsensus) {
+  // Pure outliers (unrelated points) and too few correspondences.
+  const Synthetic s = makeCorrespondences(Pose2(), 100, 0.0, 1.0, 4);
+  const RansacResult r = estimateRigidRansac(s.a, s.b, 0.005, RansacOptions());
+  EXPECT_FALSE(r.success);
+  EXPECT_NE(r.failure.find("inliers"), std::string::npos) << r.failure;
+  const RansacResult few =
+      estimateRigidRansac({s.a.begin(), s.a.begin() + 5}, {s.b.begin(), s.b.begin() + 5}, 0.005, RansacOptions());
+  EXPECT_FALSE(few.success);
+  EXPECT_NE(few.failure.find("only 5"), std::string::npos) << few.failure;
+}
+
+TEST(Ransac, CovarianceGrowsWhenMatchQualityDrops) {
+  const Pose2 t(0.1, -0.05, 0.1);
+  const double mpp = 0.005;
+  RansacOptions o;
+  o.inlier_threshold_px = 6.0;
+  double prev_trace = 0.0;
+  for (double noise_px : {0.5, 1.0, 2.0}) {
+    const Synthetic s = makeCorrespondences(t, 150, noise_px * mpp, 0.2, 5);
+    const RansacResult r = estimateRigidRansac(s.a, s.b, mpp, o);
+    ASSERT_TRUE(r.success) << noise_px;
+    EXPECT_GT(r.covariance.trace(), 1.5 * prev_trace) << "noise " << noise_px << " px";
+    prev_trace = r.covariance.trace();
+  }
+  // Fewer inliers, same noise: larger covariance too.
+  const Synthetic many = makeCorrespondences(t, 200, mpp, 0.0, 6);
+  const Synthetic few = makeCorrespondences(t, 30, mpp, 0.0, 6);
+  EXPECT_GT(estimateRigidRansac(few.a, few.b, mpp, o).covariance.trace(),
+            2.0 * estimateRigidRansac(many.a, many.b, mpp, o).covariance.trace());
+}
+
+TEST(Features, ApplyAltitudeScalesPixelsToMetres) {
+  const CameraIntrinsics c{320, 240, 400.0, 500.0, 160.0, 120.0};
+  EXPECT_TRUE(pixelToMetres(cv::Point2f(160, 120), c, 2.0).isZero());
+  // 100 px right at 2 m with fx = 400 is 0.5 m; 50 px down with fy = 500 is 0.2 m.
+  EXPECT_TRUE(pixelToMetres(cv::Point2f(260, 170), c, 2.0).isApprox(Eigen::Vector2d(0.5, 0.2)));
+  EXPECT_TRUE(pixelToMetres(cv::Point2f(260, 170), c, 4.0).isApprox(Eigen::Vector2d(1.0, 0.4)));
+}
+
+cv::Mat texturedGrey(int w, int h, unsigned seed) {
+  cv::Mat img(h, w, CV_8U);
+  cv::RNG rng(seed);
+  rng.fill(img, cv::RNG::UNIFORM, 0, 255);
+  cv::GaussianBlur(img, img, cv::Size(0, 0), 2.0);
+  cv::normalize(img, img, 0, 255, cv::NORM_MINMAX);
+  return img;
+}
+
+TEST(Features, FixedCountSpreadOverTheImageInResponseOrder) {
+  FeatureOptions o;
+  o.num_features = 200;
+  const FeatureExtractor ex(o);
+  const FrameFeatures f = ex.extract(texturedGrey(320, 240, 1));
+  ASSERT_EQ(f.size(), 200u);
+  EXPECT_EQ(f.descriptors.rows, 200);
+  EXPECT_EQ(f.descriptors.cols, 128);
+  for (std::size_t i = 1; i < f.size(); ++i) ASSERT_GE(f.keypoints[i - 1].response, f.keypoints[i].response);
+  // Bucketing: every cell of the 4 x 4 grid holds features.
+  std::vector<int> cells(16, 0);
+  for (const auto& k : f.keypoints)
+    ++cells[static_cast<int>(k.pt.y * 4 / 240) * 4 + static_cast<int>(k.pt.x * 4 / 320)];
+  for (int c : cells) EXPECT_GT(c, 0);
+  // A featureless image gives few or none, without error.
+  EXPECT_LT(ex.extract(cv::Mat(240, 320, CV_8U, cv::Scalar(128))).size(), 5u);
+  EXPECT_THROW(ex.extract(cv::Mat()), std::invalid_argument);
+}
+
+TEST(Matching, RatioAndMutualCheck) {
+  const FeatureExtractor ex(FeatureOptions{});
+  const cv::Mat img = texturedGrey(320, 240, 2);
+  const FrameFeatures a = ex.extract(img);
+  cv::Mat shifted;
+  cv::warpAffine(img, shifted, cv::Matx23d(1, 0, 7, 0, 1, -4), img.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+  const FrameFeatures b = ex.extract(shifted);
+  const auto m = matchDescriptors(a.descriptors, b.descriptors, MatchOptions());
+  ASSERT_GT(m.size(), 100u);
+  int right = 0;
+  for (const auto& x : m) {
+    const cv::Point2f d = b.keypoints[x.b].pt - a.keypoints[x.a].pt;
+    right += std::abs(d.x - 7) < 1.0 && std::abs(d.y + 4) < 1.0;
+  }
+  EXPECT_GT(right, 0.95 * m.size());
+  // Mutual: no feature of b is used twice.
+  std::set<int> used;
+  for (const auto& x : m) EXPECT_TRUE(used.insert(x.b).second);
+  EXPECT_TRUE(matchDescriptors(cv::Mat(), b.descriptors, MatchOptions()).empty());
+}
+
+// Odometry over frames rendered from the procedural seabed with a known motion.
+class OdometryTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    ProceduralSeabedOptions o;
+    o.width_m = 8;
+    o.height_m = 6;
+    o.metres_per_px = 0.006;
+    o.featureless_fraction = 0.0;
+    world_ = new SeabedWorld(SeabedWorld::procedural(o));
+  }
+  static void TearDownTestSuite() { delete world_; }
+  cv::Mat render(const Pose2& p, double alt) const { return world_->render(p, alt, camera_); }
+
+  static SeabedWorld* world_;
+  const CameraIntrinsics camera_{320, 240, 300.0, 300.0, 159.5, 119.5};
+};
+SeabedWorld* OdometryTest::world_ = nullptr;
+
+TEST_F(OdometryTest, RecoversMotionWithAltitudeScale) {
+  // Frames at different altitudes: the metric motion must come out right only if the pixels
+  // are scaled by the altitudes.
+  const Pose2 p0(3.0, 3.0, 0.2), p1(3.45, 3.12, 0.32);
+  const Pose2 expected = between(p0, p1);
+  OdometryOptions o;
+  o.keyframes.min_overlap = 0.99;  // make every matched frame a keyframe
+  auto run = [&](const OdometryOptions& opt, double alt0_read, double alt1_read, OdometryUpdate* second) {
+    Odometry odo(camera_, opt);
+    EXPECT_EQ(odo.process({0, 0.0, alt0_read, render(p0, 2.0)}).status, FrameStatus::kFirstKeyframe);
+    *second = odo.process({1, 1.0, alt1_read, render(p1, 2.4)});
+    EXPECT_EQ(second->status, FrameStatus::kKeyframe) << second->reason;
+    return odo.trajectory().motion(1).mean;
+  };
+  OdometryUpdate u;
+  const Pose2 good = run(o, 2.0, 2.4, &u);
+  EXPECT_TRUE(approxEqual(good, expected, 0.01, 0.005)) << good << " vs " << expected;
+  EXPECT_NEAR(u.scale, 1.0, 0.01);
+  EXPECT_GT(u.inliers, 50);
+
+  // A wrong altitude of the new frame only moves the fitted scale (2.4 / 2.0): the motion, in
+  // the keyframe's metres, stays right.
+  const Pose2 wrong_new = run(o, 2.0, 2.0, &u);
+  EXPECT_TRUE(approxEqual(wrong_new, expected, 0.01, 0.005)) << wrong_new;
+  EXPECT_NEAR(u.scale, 1.2, 0.02);
+  // A wrong altitude of the keyframe scales the whole motion (here by 2.2 / 2.0).
+  const Pose2 wrong_kf = run(o, 2.2, 2.4, &u);
+  EXPECT_NEAR(wrong_kf.translation().norm(), 1.1 * expected.translation().norm(), 0.01);
+  // Without the scale correction a wrong altitude of the new frame biases the motion.
+  o.ransac.estimate_scale = false;
+  o.ransac.inlier_threshold_px = 30;  // let the inconsistent points in
+  const Pose2 rigid = run(o, 2.0, 2.0, &u);
+  EXPECT_GT((rigid.translation() - expected.translation()).norm(), 0.03) << rigid;
+}
+
+TEST_F(OdometryTest, NoOverlapFallsBackCleanlyAndIsCounted) {
+  Odometry odo(camera_, OdometryOptions());
+  odo.process({0, 0.0, 2.0, render(Pose2(2.0, 2.0, 0.0), 2.0)});
+  odo.process({1, 1.0, 2.0, render(Pose2(2.3, 2.0, 0.0), 2.0)});
+  const OdometryUpdate u = odo.process({2, 2.0, 2.0, render(Pose2(6.0, 4.5, 1.0), 2.0)});  // elsewhere
+  EXPECT_EQ(u.status, FrameStatus::kFallback);
+  EXPECT_FALSE(u.reason.empty());
+  EXPECT_EQ(odo.stats().fallbacks, 1);
+  EXPECT_TRUE(odo.keyframes().back().fallback);
+  // The reused motion is the previous step (0.3 m along x), with a large covariance.
+  const UncertainPose2& m = odo.trajectory().motion(odo.trajectory().numMotions());
+  EXPECT_GT(m.covariance(0, 0), 0.04 * 0.04);
+  EXPECT_NEAR(odo.trajectory().absolutePoses().back().x(), 0.6, 0.03);
+}
+
+TEST_F(OdometryTest, BadInputIsSkippedOrRepairedAndCounted) {
+  Odometry odo(camera_, OdometryOptions());
+  EXPECT_EQ(odo.process({0, 0.0, 2.0, cv::Mat()}).status, FrameStatus::kSkipped);
+  EXPECT_EQ(odo.process({1, 0.5, std::nan(""), render(Pose2(2, 2, 0), 2.0)}).status, FrameStatus::kSkipped);
+  EXPECT_EQ(odo.process({2, 1.0, 2.0, render(Pose2(2, 2, 0), 2.0)}).status, FrameStatus::kFirstKeyframe);
+  const OdometryUpdate u = odo.process({3, 1.5, -1.0, render(Pose2(2.1, 2, 0), 2.0)});  // reuses 2.0 m
+  EXPECT_EQ(u.status, FrameStatus::kTracked);
+  EXPECT_NEAR(u.pose.x(), 0.1, 0.01);
+  cv::Mat sixteen(240, 320, CV_16U, cv::Scalar(1000));
+  EXPECT_EQ(odo.process({4, 2.0, 2.0, sixteen}).status, FrameStatus::kSkipped);
+  EXPECT_EQ(odo.stats().skipped_image, 2);
+  EXPECT_EQ(odo.stats().skipped_altitude, 1);
+  EXPECT_EQ(odo.stats().altitude_reused, 1);
+  EXPECT_EQ(odo.stats().frames, 5);
+}
+
+TEST_F(OdometryTest, StraightRunDriftsLittleAndTakesKeyframesByOverlap) {
+  OdometryOptions o;
+  Odometry odo(camera_, o);
+  const int n = 25;
+  for (int k = 0; k < n; ++k) {
+    const Pose2 p(1.8 + 0.15 * k, 3.0, 0.02 * std::sin(k * 0.5));
+    odo.process({k, 0.5 * k, 2.0, render(p, 2.0)});
+  }
+  const Pose2 end = odo.trajectory().absolutePoses().back();
+  const int last = odo.keyframes().back().frame_index;
+  const Pose2 truth = between(Pose2(1.8, 3.0, 0.0), Pose2(1.8 + 0.15 * last, 3.0, 0.02 * std::sin(last * 0.5)));
+  EXPECT_LT((end.translation() - truth.translation()).norm(), 0.01 * 0.15 * last + 0.005) << end << " vs " << truth;
+  // Footprint 2.13 m wide; 0.15 m steps: a keyframe about every 1.1 m (overlap 0.5), not every frame.
+  EXPECT_GE(odo.stats().keyframes, 3);
+  EXPECT_LT(odo.stats().keyframes, 10);
+  EXPECT_EQ(odo.stats().fallbacks, 0);
+  EXPECT_GT(odo.stats().tracked, 10);
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam

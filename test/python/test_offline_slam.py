@@ -1,0 +1,141 @@
+"""offline_slam's contract (../shared/DESIGN.md): command line, output files and their columns,
+session numbering, and clear failures on bad input. Runs on a small generated survey."""
+import csv
+import math
+import os
+import subprocess
+
+import pytest
+import yaml
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+BIN_DIR = os.environ.get(
+    "UWMS_BIN_DIR", os.path.join(HERE, "..", "..", ".catkin_ws", "devel", "lib", "uw_multislam"))
+
+SURVEY = """
+seed: 11
+world: {width_m: 9, height_m: 6, featureless_fraction: 0}
+sessions:
+  - name: a
+    mission: {pattern: out_and_back, start_m: [2.0, 2.0], length_m: 4.0, leg_spacing_m: 1.0,
+              speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.0}
+  - name: b
+    mission: {pattern: loop, start_m: [5.5, 3.0], heading_rad: 1.5708, length_m: 2.0, width_m: 1.6,
+              laps: 1.0, speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.2}
+"""
+
+
+def run(tool, *args):
+    return subprocess.run([os.path.join(BIN_DIR, tool), *args], capture_output=True, text=True, timeout=300)
+
+
+def rows(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory):
+    base = tmp_path_factory.mktemp("slam")
+    (base / "survey.yaml").write_text(SURVEY)
+    r = run("make_survey", "--config", str(base / "survey.yaml"), "--out", str(base / "m"), "--no-bag", "--quiet")
+    assert r.returncode == 0, r.stderr
+    return base / "m"
+
+
+@pytest.fixture(scope="module")
+def result(survey, tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    r = run("offline_slam", "--session", str(survey / "a"), "--session", str(survey / "b"), "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    return out, r
+
+
+def test_writes_the_four_files_with_the_contract_columns(result):
+    out, _ = result
+    headers = {
+        "odometry.csv": "session,index,x_m,y_m,yaw_rad",
+        "trajectory.csv": "session,index,map,x_m,y_m,yaw_rad",
+        "loops.csv": "session_a,index_a,session_b,index_b,kind,inliers",
+        "timing.csv": "stage,calls,total_ms,mean_ms,max_ms",
+    }
+    for name, header in headers.items():
+        with open(out / name) as f:
+            assert f.readline().strip() == header, name
+    stages = {r["stage"] for r in rows(out / "timing.csv")}
+    assert {"features", "match", "ransac", "odometry_total"} <= stages
+
+
+def test_sessions_numbered_by_position_and_indexes_from_frames_csv(result, survey):
+    out, r = result
+    odo = rows(out / "odometry.csv")
+    assert {o["session"] for o in odo} == {"0", "1"}
+    for s, name in [(0, "a"), (1, "b")]:
+        frame_indexes = {f["index"] for f in rows(survey / name / "frames.csv")}
+        mine = [o for o in odo if o["session"] == str(s)]
+        assert mine[0]["index"] == "0" and float(mine[0]["x_m"]) == 0.0  # each session in its own frame
+        assert {o["index"] for o in mine} <= frame_indexes
+        assert 2 < len(mine) < len(frame_indexes)  # keyframes only
+    assert "session 0" in r.stdout and "session 1" in r.stdout and "fallbacks" in r.stdout
+
+
+def test_odometry_follows_the_ground_truth(result, survey):
+    out, _ = result
+    gt = {g["index"]: g for g in rows(survey / "a" / "gt.csv")}
+    odo = [o for o in rows(out / "odometry.csv") if o["session"] == "0"]
+    last = odo[-1]
+    ref = gt[last["index"]]
+    err = math.hypot(float(last["x_m"]) - float(ref["x_m"]), float(last["y_m"]) - float(ref["y_m"]))
+    assert err < 0.05, err  # about 9 m of path on textured seabed
+
+
+def test_trajectory_equals_odometry_until_the_back_end_exists(result):
+    out, _ = result
+    odo, traj = rows(out / "odometry.csv"), rows(out / "trajectory.csv")
+    assert len(odo) == len(traj)
+    for o, t in zip(odo, traj):
+        assert (o["session"], o["index"], o["x_m"]) == (t["session"], t["index"], t["x_m"])
+        assert t["map"] == t["session"]
+
+
+def test_bad_input_fails_with_one_line(tmp_path, survey):
+    r = run("offline_slam", "--session", str(tmp_path / "nope"), "--out", str(tmp_path / "o"))
+    assert r.returncode == 1 and "not a directory" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "camera.yaml").write_text((survey / "a" / "camera.yaml").read_text())
+    (broken / "frames.csv").write_text("index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,two\n")
+    r = run("offline_slam", "--session", str(survey / "a"), "--session", str(broken), "--out", str(tmp_path / "o"))
+    assert r.returncode == 1 and "frames.csv:2: bad number in altitude_m" in r.stderr
+    assert not (tmp_path / "o" / "odometry.csv").exists()  # folders are checked before any work
+    assert run("offline_slam", "--out", str(tmp_path / "o")).returncode == 2
+    assert run("offline_slam", "--bogus").returncode == 2
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("odometry:\n  ransac: {inlier_treshold_px: 3}\n")
+    r = run("offline_slam", "--config", str(cfg), "--session", str(survey / "a"), "--out", str(tmp_path / "o"))
+    assert r.returncode == 1 and "unknown key 'inlier_treshold_px'" in r.stderr
+
+
+def test_unreadable_image_is_skipped_and_counted(tmp_path, survey):
+    folder = tmp_path / "a"
+    os.system(f"cp -r {survey / 'a'} {folder}")
+    (folder / "0003.jpg").write_bytes(b"not a jpeg")
+    r = run("offline_slam", "--session", str(folder), "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr
+    assert "0003.jpg" in r.stderr and "skipped" in r.stderr
+    assert "1 skipped (1 image" in r.stdout
+
+
+def test_dump_config_round_trips(tmp_path):
+    dumped = run("offline_slam", "--dump-config").stdout
+    spec = yaml.safe_load(dumped)
+    assert spec["odometry"]["features"]["num_features"] == 500
+    (tmp_path / "c.yaml").write_text(dumped)
+    assert run("offline_slam", "--config", str(tmp_path / "c.yaml"), "--dump-config").stdout == dumped
+
+
+def test_config_slam_yaml_documents_the_defaults():
+    path = os.path.join(HERE, "..", "..", "config", "slam.yaml")
+    documented = run("offline_slam", "--config", path, "--dump-config")
+    assert documented.returncode == 0, documented.stderr
+    assert documented.stdout == run("offline_slam", "--dump-config").stdout
