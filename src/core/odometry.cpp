@@ -71,25 +71,9 @@ Odometry::Odometry(const CameraIntrinsics& camera, const OdometryOptions& option
       enhancer_(options.enhancement),
       extractor_(options.features) {}
 
-Odometry::MatchResult Odometry::matchToKeyframe(const FrameFeatures& f, double altitude_m) {
-  MatchResult out;
-  std::vector<FeatureMatch> matches;
-  {
-    ScopedStage s(&times_, "match");
-    matches = matchDescriptors(last_kf_.features.descriptors, f.descriptors, options_.matching);
-  }
-  out.matches = static_cast<int>(matches.size());
-  std::vector<Eigen::Vector2d> a, b;
-  a.reserve(matches.size());
-  b.reserve(matches.size());
-  for (const auto& m : matches) {
-    a.push_back(pixelToMetres(last_kf_.features.keypoints[m.a].pt, camera_, last_kf_.altitude_m));
-    b.push_back(pixelToMetres(f.keypoints[m.b].pt, camera_, altitude_m));
-  }
-  ScopedStage s(&times_, "ransac");
-  const double metres_per_px = altitude_m / (0.5 * (camera_.fx + camera_.fy));
-  out.ransac = estimateRigidRansac(a, b, metres_per_px, options_.ransac);
-  return out;
+PairMotion Odometry::matchToKeyframe(const FrameFeatures& f, double altitude_m) {
+  return estimatePairMotion({&last_kf_.features, last_kf_.altitude_m, &camera_}, {&f, altitude_m, &camera_},
+                            options_.matching, options_.ransac, &times_);
 }
 
 double Odometry::footprintOverlap(const Pose2& motion, double kf_altitude, double altitude) const {
@@ -118,6 +102,7 @@ bool Odometry::needsKeyframe(const RansacResult& r, double overlap, double stamp
 
 void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback) {
   trajectory_.append(motion);
+  new_keyframes_.push_back({static_cast<int>(keyframes_.size()), frame.features});
   keyframes_.push_back({frame.index, frame.stamp_s, frame.altitude_m, fallback});
   last_kf_ = frame;
   last_kf_.pose = trajectory_.absolutePoses().back();
@@ -128,6 +113,7 @@ void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& moti
 OdometryUpdate Odometry::process(const OdometryInput& in) {
   ScopedStage total(&times_, "odometry_total");
   ++stats_.frames;
+  new_keyframes_.clear();
   OdometryUpdate up;
   up.index = in.index;
   if (in.image.empty()) {
@@ -167,6 +153,7 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
   up.features = static_cast<int>(cur.features.size());
 
   if (keyframes_.empty()) {
+    new_keyframes_.push_back({0, cur.features});
     cur.pose = Pose2();
     keyframes_.push_back({cur.index, cur.stamp_s, cur.altitude_m, false});
     last_kf_ = cur;
@@ -177,7 +164,7 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
     return up;
   }
 
-  MatchResult m = matchToKeyframe(cur.features, alt);
+  PairMotion m = matchToKeyframe(cur.features, alt);
   if (!m.ransac.success && prev_.index != last_kf_.index) {
     // Promote the last tracked frame and try again from there.
     addKeyframe(prev_, prev_.motion, false);

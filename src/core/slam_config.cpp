@@ -81,11 +81,38 @@ void readOdometry(const YAML::Node& node, OdometryOptions* o) {
   r.finish();
 }
 
+void readLoops(const YAML::Node& node, LoopOptions* o) {
+  MapReader r(node, "loops");
+  {
+    MapReader l(r.child("local"), "loops.local");
+    l.read("enabled", &o->local.enabled);
+    l.read("radius_m", &o->local.radius_m);
+    l.read("sigma_widening", &o->local.sigma_widening);
+    l.read("max_radius_m", &o->local.max_radius_m);
+    l.read("exclude_recent", &o->local.exclude_recent);
+    l.read("max_candidates", &o->local.max_candidates);
+    l.read("min_inliers", &o->local.min_inliers);
+    l.finish();
+  }
+  {
+    MapReader g(r.child("global"), "loops.global");
+    g.read("enabled", &o->global.enabled);
+    g.read("best_k", &o->global.best_k);
+    g.read("max_l1", &o->global.max_l1);
+    g.read("min_inliers", &o->global.min_inliers);
+    g.read("projection_seed", &o->global.projection_seed);
+    g.finish();
+  }
+  r.finish();
+}
+
 }  // namespace
 
 std::string SlamConfig::validate() const {
   const std::string o = odometry.validate();
-  return o.empty() ? o : "odometry." + o;
+  if (!o.empty()) return "odometry." + o;
+  const std::string l = loops.validate();
+  return l.empty() ? l : "loops." + l;
 }
 
 SlamConfig slamConfigFromYaml(const std::string& yaml_text) {
@@ -98,6 +125,7 @@ SlamConfig slamConfigFromYaml(const std::string& yaml_text) {
   SlamConfig c;
   MapReader r(root, "config");
   readOdometry(r.child("odometry"), &c.odometry);
+  readLoops(r.child("loops"), &c.loops);
   r.finish();
   const std::string bad = c.validate();
   if (!bad.empty()) throw std::invalid_argument("config: " + bad);
@@ -166,6 +194,23 @@ std::string slamConfigToYaml(const SlamConfig& c) {
   kv("min_sigma_m", o.fallback.min_sigma_m);
   kv("relative_sigma", o.fallback.relative_sigma);
   kv("sigma_yaw_rad", o.fallback.sigma_yaw_rad);
+  out << YAML::EndMap << YAML::EndMap;
+  const LoopOptions& l = c.loops;
+  out << YAML::Key << "loops" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "local" << YAML::Value << YAML::BeginMap;
+  kv("enabled", l.local.enabled);
+  kv("radius_m", l.local.radius_m);
+  kv("sigma_widening", l.local.sigma_widening);
+  kv("max_radius_m", l.local.max_radius_m);
+  kv("exclude_recent", l.local.exclude_recent);
+  kv("max_candidates", l.local.max_candidates);
+  kv("min_inliers", l.local.min_inliers);
+  out << YAML::EndMap << YAML::Key << "global" << YAML::Value << YAML::BeginMap;
+  kv("enabled", l.global.enabled);
+  kv("best_k", l.global.best_k);
+  kv("max_l1", l.global.max_l1);
+  kv("min_inliers", l.global.min_inliers);
+  kv("projection_seed", l.global.projection_seed);
   out << YAML::EndMap << YAML::EndMap << YAML::EndMap;
   return std::string(out.c_str()) + "\n";
 }

@@ -42,11 +42,15 @@ Metrics (per map, slam)
 
 Metrics (loops, rows intra / inter / all)
   accepted             distinct unordered pairs in loops.csv.
-  correct              accepted pairs whose gt distance between image centres is below the
-                       true-loop distance: --loop-true-dist, or by default the image footprint
-                       height image_height * altitude / fy averaged over the two frames (their
-                       altitudes from frames.csv), i.e. the images overlap. Inter-session
-                       distances need world_gt.csv.
+  correct              when the run has loop_poses.csv (offline_slam writes it: the measured
+                       pose of b in a, columns session_a,index_a,session_b,index_b,x_m,y_m,
+                       yaw_rad), accepted pairs whose measured pose is within 10 % of the
+                       footprint height and 5 deg of the gt relative pose: a geometrically
+                       right loop. Otherwise accepted pairs whose gt distance between image
+                       centres is below the true-loop distance: --loop-true-dist, or by
+                       default the image footprint height image_height * altitude / fy
+                       averaged over the two frames (their altitudes from frames.csv), i.e.
+                       the images overlap. Inter-session pairs need world_gt.csv.
   precision            correct / accepted (n/a when nothing was accepted or a pair cannot be
                        judged).
   gt_pairs             distinct pairs in loops_gt.csv (raw count).
@@ -81,6 +85,12 @@ TRAJECTORY_COLUMNS = (("session", int), ("index", int), ("map", int), ("x_m", fl
                       ("yaw_rad", float))
 LOOPS_COLUMNS = (("session_a", int), ("index_a", int), ("session_b", int), ("index_b", int), ("kind", str),
                  ("inliers", float))
+LOOP_POSES_COLUMNS = (("session_a", int), ("index_a", int), ("session_b", int), ("index_b", int), ("x_m", float),
+                      ("y_m", float), ("yaw_rad", float))
+# With loop_poses.csv, an accepted loop is correct when its measured pose of b in a is within
+# this fraction of the footprint height (translation) and this angle of the ground truth.
+LOOP_POSE_TOL_FRACTION = 0.1
+LOOP_POSE_TOL_YAW = math.radians(5.0)
 TIMING_COLUMNS = (("stage", str), ("calls", int), ("total_ms", float), ("mean_ms", float), ("max_ms", float))
 GT_COLUMNS = (("index", int), ("image", str), ("x_m", float), ("y_m", float), ("yaw_rad", float))
 FRAMES_COLUMNS = (("index", int), ("image", str), ("stamp_s", float), ("altitude_m", float))
@@ -308,6 +318,7 @@ class Run:
     slam: Estimate = None  # None without trajectory.csv
     loops: list = None     # None without loops.csv
     timing: list = None    # None without timing.csv
+    loop_poses: dict = None  # (key_a, key_b) -> measured pose of b in a, from loop_poses.csv
 
     def estimates(self):
         return [e for e in (self.odometry, self.slam) if e is not None]
@@ -331,7 +342,11 @@ def load_run(directory):
         slam = Estimate("slam", poses, {(r["session"], r["index"]): r["map"] for r in rows})
     loops = read_table(os.path.join(directory, "loops.csv"), LOOPS_COLUMNS, required=False)
     timing = read_table(os.path.join(directory, "timing.csv"), TIMING_COLUMNS, required=False)
-    return Run(odometry, slam, None if loops is None else loop_pairs(loops), timing)
+    measured = read_table(os.path.join(directory, "loop_poses.csv"), LOOP_POSES_COLUMNS, required=False)
+    loop_poses = None
+    if measured is not None:
+        loop_poses = {((r["session_a"], r["index_a"]), (r["session_b"], r["index_b"])): pose_of(r) for r in measured}
+    return Run(odometry, slam, None if loops is None else loop_pairs(loops), timing, loop_poses)
 
 
 def check_run_against_truth(run, gt):
@@ -506,12 +521,36 @@ def true_loop_distance(gt, pair, fixed=None):
     return float(np.mean(heights))
 
 
-def judge_loops(gt, accepted, fixed_dist=None):
-    """Dict pair -> True (correct), False (wrong) or None (no gt distance)."""
+def measured_pose(loop_poses, pair):
+    """The measured pose of pair[1] in pair[0] from loop_poses.csv (either order), or None."""
+    if not loop_poses:
+        return None
+    if pair in loop_poses:
+        return loop_poses[pair]
+    reverse = (pair[1], pair[0])
+    return invert(loop_poses[reverse]) if reverse in loop_poses else None
+
+
+def judge_loops(gt, accepted, fixed_dist=None, loop_poses=None):
+    """Dict pair -> True (correct), False (wrong) or None (no gt).
+
+    With the loop's measured pose (loop_poses.csv) a loop is correct when that pose agrees with
+    the ground-truth relative pose: translation within LOOP_POSE_TOL_FRACTION of the footprint
+    height and yaw within LOOP_POSE_TOL_YAW. Without it, when the two image centres are closer
+    than the true-loop distance (the images overlap)."""
     verdict = {}
     for pair in accepted:
-        d = gt.distance(*pair)
-        verdict[pair] = None if d is None else d < true_loop_distance(gt, pair, fixed_dist)
+        rel = gt.relative(*pair)
+        if rel is None:
+            verdict[pair] = None
+            continue
+        limit = true_loop_distance(gt, pair, fixed_dist)
+        z = measured_pose(loop_poses, pair)
+        if z is None:
+            verdict[pair] = float(np.hypot(rel[0], rel[1])) < limit
+        else:
+            verdict[pair] = bool(np.hypot(z[0] - rel[0], z[1] - rel[1]) < LOOP_POSE_TOL_FRACTION * limit
+                                 and abs(wrap_angle(z[2] - rel[2])) < LOOP_POSE_TOL_YAW)
     return verdict
 
 
@@ -587,7 +626,7 @@ def evaluate(run, gt, loop_true_dist=None):
     if run.slam is not None:
         for map_id in sorted(set(run.slam.frame.values())):
             ev.add("map", map_id, "slam", map_metrics(run.slam, gt, ev.gt_poses["slam"], map_id))
-    ev.verdict = judge_loops(gt, run.loops or [], loop_true_dist)
+    ev.verdict = judge_loops(gt, run.loops or [], loop_true_dist, run.loop_poses)
     for kind, metrics in loop_metrics(run, gt, ev.verdict).items():
         ev.add("loops", kind, "loops", metrics)
     for row in run.timing or []:

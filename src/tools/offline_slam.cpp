@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "uw_multislam/core/dataset.h"
+#include "uw_multislam/core/loop_detector.h"
 #include "uw_multislam/core/odometry.h"
 #include "uw_multislam/core/slam_config.h"
 
@@ -27,10 +28,12 @@ Runs uw_multislam over dataset folders (frames.csv, camera.yaml, images; see
   odometry.csv    session,index,x_m,y_m,yaw_rad          odometry keyframe poses, each session in its own frame
   trajectory.csv  session,index,map,x_m,y_m,yaw_rad      final keyframe poses in the frame of map `map`
   loops.csv       session_a,index_a,session_b,index_b,kind,inliers   accepted loops
+  loop_poses.csv  session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad  each loop's measured pose of b in a
   timing.csv      stage,calls,total_ms,mean_ms,max_ms    one row per pipeline stage
 `session` is the folder's position on the command line, `index` the frame's index in frames.csv.
-(Loop detection and the back-end are not in this build yet: trajectory.csv equals the odometry,
-each session its own map, and loops.csv is empty.)
+Local loops (within a session) and global loops (across sessions, HALOC hashes) are detected
+and written to loops.csv. (The back-end is not in this build yet: trajectory.csv equals the
+odometry, each session its own map.)
 
 options:
   --session DIR     a dataset folder (repeat for several missions)
@@ -111,7 +114,12 @@ int main(int argc, char** argv) {
     std::ofstream odo(fs::path(a.out) / "odometry.csv"), traj(fs::path(a.out) / "trajectory.csv");
     odo << "session,index,x_m,y_m,yaw_rad\n" << std::fixed;
     traj << "session,index,map,x_m,y_m,yaw_rad\n" << std::fixed;
+    std::ofstream loops_csv(fs::path(a.out) / "loops.csv"), loop_poses(fs::path(a.out) / "loop_poses.csv");
+    loops_csv << "session_a,index_a,session_b,index_b,kind,inliers\n";
+    loop_poses << "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad\n" << std::fixed << std::setprecision(6);
     core::StageTimes times;
+    core::LoopDetector loops(config.loops, config.odometry.matching, config.odometry.ransac,
+                             config.odometry.features.num_features);
     for (std::size_t s = 0; s < datasets.size(); ++s) {
       const core::Dataset& d = datasets[s];
       core::Odometry odometry(d.camera, config.odometry);
@@ -131,6 +139,16 @@ int main(int argc, char** argv) {
         if (u.status == core::FrameStatus::kFallback && !a.quiet) {
           std::fprintf(stderr, "offline_slam: session %zu frame %d: odometry fallback (%s)\n", s, f.index,
                        u.reason.c_str());
+        }
+        for (const auto& kf : odometry.newKeyframes()) {
+          const core::KeyframeInfo& info = odometry.keyframes()[kf.id];
+          for (const core::Loop& l : loops.addKeyframe(static_cast<int>(s), kf.id, info.frame_index, info.altitude_m,
+                                                       &d.camera, kf.features, odometry.trajectory())) {
+            loops_csv << l.session_a << "," << l.frame_a << "," << l.session_b << "," << l.frame_b << ","
+                      << core::loopKindName(l.kind) << "," << l.inliers << "\n";
+            loop_poses << l.session_a << "," << l.frame_a << "," << l.session_b << "," << l.frame_b << ","
+                       << l.z.mean.x() << "," << l.z.mean.y() << "," << l.z.mean.yaw() << "\n";
+          }
         }
       }
       const auto& kfs = odometry.keyframes();
@@ -153,7 +171,13 @@ int main(int argc, char** argv) {
       }
       (void)unreadable;
     }
-    std::ofstream(fs::path(a.out) / "loops.csv") << "session_a,index_a,session_b,index_b,kind,inliers\n";
+    times.merge(loops.times());
+    if (!a.quiet) {
+      const core::LoopStats& ls = loops.stats();
+      std::printf(
+          "loops: %d local accepted of %d candidates, %d global accepted of %d candidates, %zu keyframes stored\n",
+          ls.local_accepted, ls.local_candidates, ls.global_accepted, ls.global_candidates, loops.size());
+    }
     writeTiming((fs::path(a.out) / "timing.csv").string(), times);
     if (!odo || !traj) throw core::DatasetError(a.out + ": cannot write the output files");
     return 0;

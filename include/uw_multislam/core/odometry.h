@@ -27,6 +27,7 @@
 #include "uw_multislam/core/enhancement.h"
 #include "uw_multislam/core/features.h"
 #include "uw_multislam/core/matching.h"
+#include "uw_multislam/core/pair_motion.h"
 #include "uw_multislam/core/rigid_ransac.h"
 #include "uw_multislam/core/stage_timer.h"
 #include "uw_multislam/core/trajectory.h"
@@ -126,8 +127,13 @@ class Odometry {
 
   const Trajectory& trajectory() const { return trajectory_; }
   const std::vector<KeyframeInfo>& keyframes() const { return keyframes_; }
-  /// Features of the newest keyframe (what loop detection stores).
-  const FrameFeatures& lastKeyframeFeatures() const { return last_kf_.features; }
+  /// Keyframes made by the last process() call (usually none or one; two when a tracked frame
+  /// was promoted), with their features: what loop detection stores.
+  struct NewKeyframe {
+    int id;
+    FrameFeatures features;
+  };
+  const std::vector<NewKeyframe>& newKeyframes() const { return new_keyframes_; }
   const OdometryStats& stats() const { return stats_; }
   const StageTimes& times() const { return times_; }
   const CameraIntrinsics& camera() const { return camera_; }
@@ -141,12 +147,7 @@ class Odometry {
     Pose2 pose;             // in the session frame
     UncertainPose2 motion;  // from the keyframe it was matched to
   };
-  struct MatchResult {
-    RansacResult ransac;
-    int matches = 0;
-  };
-
-  MatchResult matchToKeyframe(const FrameFeatures& f, double altitude_m);
+  PairMotion matchToKeyframe(const FrameFeatures& f, double altitude_m);
   double footprintOverlap(const Pose2& motion, double kf_altitude, double altitude) const;
   void addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback);
   bool needsKeyframe(const RansacResult& r, double overlap, double stamp_s) const;
@@ -163,6 +164,7 @@ class Odometry {
   double last_altitude_ = -1.0;  // last valid altitude
   OdometryStats stats_;
   StageTimes times_;
+  std::vector<NewKeyframe> new_keyframes_;
 };
 
 }  // namespace core

@@ -4,6 +4,7 @@
 
 #include <string>
 
+#include "uw_multislam/core/loop_detector.h"
 #include "uw_multislam/core/odometry.h"
 
 namespace uw_multislam {
@@ -11,6 +12,7 @@ namespace core {
 
 struct SlamConfig {
   OdometryOptions odometry;
+  LoopOptions loops;
 
   /// Empty when usable, else "<component>: <reason>".
   std::string validate() const;

@@ -1,0 +1,107 @@
+// HALOC image hashes for global loop detection (paper 000 §7, equations (6)-(8)).
+//
+// The hash of an image is its n x m descriptor matrix D (n features in the extractor's fixed
+// order, descending response; m = 128) projected on three random orthonormal vectors u_l of
+// length n: h_l(i) = sum_j D(j, i) u_l(j), H = (h_0, h_1, h_2), 3m values (6)(7). Descriptors
+// are L2-normalised first, so the hash does not depend on OpenCV's descriptor scale. An image
+// with fewer than n features is hashed as if the missing rows were zero: its hash is defined
+// and comparable, only less distinctive.
+//
+// The vectors come from a seed (QR of a seeded Gaussian matrix) and must be stored with the
+// maps: hashes of different runs are comparable only with the same vectors. They are written
+// out and read back exactly (hex floats).
+//
+// The store keeps hashes quantised to 8 bits in one contiguous array and compares them by L1
+// distance (8) with a sum-of-absolute-differences loop: no allocation per query.
+#pragma once
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace uw_multislam {
+namespace core {
+
+class HalocProjections {
+ public:
+  static constexpr int kDirections = 3;
+  static constexpr int kDescriptorSize = 128;
+  static constexpr int kHashSize = kDirections * kDescriptorSize;
+
+  /// Three orthonormal vectors of length n from `seed` (same seed, same vectors, everywhere).
+  HalocProjections(int n, std::uint64_t seed);
+  /// From given vectors (rows), e.g. read from a map store. Throws std::invalid_argument unless
+  /// they are 3 x n and orthonormal to 1e-9.
+  explicit HalocProjections(const Eigen::MatrixXd& vectors, std::uint64_t seed = 0);
+
+  int n() const { return static_cast<int>(u_.cols()); }
+  std::uint64_t seed() const { return seed_; }
+  const Eigen::MatrixXd& vectors() const { return u_; }  // 3 x n
+
+  /// H_t of (6)(7) for descriptors (rows, CV_32F or CV_8U, 128 columns). Rows beyond n are
+  /// ignored; missing rows count as zero.
+  Eigen::VectorXf hash(const cv::Mat& descriptors) const;
+
+  /// Exact text form (hex floats) and back; fromText throws std::invalid_argument when bad.
+  std::string toText() const;
+  static HalocProjections fromText(const std::string& text);
+
+ private:
+  Eigen::MatrixXd u_;
+  Eigen::MatrixXf uf_;
+  std::uint64_t seed_ = 0;
+};
+
+/// One stored hash and whose it is.
+struct HashEntry {
+  int session = 0;
+  int keyframe = 0;  // keyframe id within the session
+};
+
+struct HashCandidate {
+  int entry = 0;    // index into the store
+  float l1 = 0.0f;  // L1 distance (8), in hash units
+};
+
+class HashStore {
+ public:
+  /// Hash values are quantised to 8 bits over [-range, range]; unit-norm SIFT descriptors give
+  /// values with a standard deviation of about 0.09, so 0.5 clips nothing in practice.
+  explicit HashStore(float range = 0.5f);
+
+  /// Appends a hash (size kHashSize); returns its entry index.
+  int add(const HashEntry& who, const Eigen::VectorXf& hash);
+  std::size_t size() const { return entries_.size(); }
+  const HashEntry& entry(int i) const { return entries_[i]; }
+  void reserve(std::size_t n);
+
+  /// The best `k` entries of sessions other than `exclude_session` with L1 <= max_l1 (pass
+  /// infinity for no threshold), nearest first, written into `out` (cleared; its capacity is
+  /// reused, so a caller that keeps `out` allocates nothing).
+  void query(const Eigen::VectorXf& hash, int exclude_session, int k, float max_l1,
+             std::vector<HashCandidate>* out) const;
+
+  /// L1 distance between two hashes as the store measures it (quantised).
+  float distance(const Eigen::VectorXf& a, const Eigen::VectorXf& b) const;
+
+ private:
+  void quantise(const Eigen::VectorXf& h, std::uint8_t* out) const;
+  float range_;
+  float step_;
+  std::vector<HashEntry> entries_;
+  std::vector<std::uint8_t> codes_;  // size() x kHashSize, contiguous
+  // Scratch of query(): sized once, so queries allocate nothing. A store is therefore not
+  // safe for concurrent queries (one per thread, or a lock).
+  mutable std::vector<std::uint8_t> query_code_;
+  mutable std::vector<std::pair<std::uint32_t, int>> best_;
+};
+
+/// Sum of absolute differences of two byte arrays (the hot loop of the store).
+std::uint32_t sumAbsDiff(const std::uint8_t* a, const std::uint8_t* b, int n);
+
+}  // namespace core
+}  // namespace uw_multislam
