@@ -139,3 +139,22 @@ def test_config_slam_yaml_documents_the_defaults():
     documented = run("offline_slam", "--config", path, "--dump-config")
     assert documented.returncode == 0, documented.stderr
     assert documented.stdout == run("offline_slam", "--dump-config").stdout
+
+
+def test_loops_reference_keyframes_and_have_measured_poses(result, survey):
+    out, r = result
+    loops = rows(out / "loops.csv")
+    poses = rows(out / "loop_poses.csv")
+    assert len(loops) == len(poses)
+    keyframes = {(o["session"], o["index"]) for o in rows(out / "odometry.csv")}
+    kinds = set()
+    for loop, pose in zip(loops, poses):
+        assert (loop["session_a"], loop["index_a"]) in keyframes and (loop["session_b"], loop["index_b"]) in keyframes
+        assert loop["kind"] == ("local" if loop["session_a"] == loop["session_b"] else "global")
+        assert int(loop["inliers"]) >= 25
+        assert (pose["session_a"], pose["index_a"], pose["session_b"], pose["index_b"]) == (
+            loop["session_a"], loop["index_a"], loop["session_b"], loop["index_b"])
+        kinds.add(loop["kind"])
+    # Session a goes out and back 1 m apart (a revisit); session b crosses a's area.
+    assert kinds == {"local", "global"}, loops
+    assert "loops:" in r.stdout

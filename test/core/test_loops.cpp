@@ -1,0 +1,233 @@
+// Loop detection: HALOC hashes (6)(7), the hash store's L1 query (8), and the local / global
+// detectors with RANSAC verification (5)(9) on frames rendered with known poses.
+#include <gtest/gtest.h>
+
+#include <opencv2/imgproc.hpp>
+
+#include <random>
+
+#include "uw_multislam/core/loop_detector.h"
+#include "uw_multislam/core/odometry.h"
+#include "uw_multislam/core/seabed_world.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+TEST(HalocProjections, OrthonormalAndReproducibleFromTheSeed) {
+  const HalocProjections p(500, 42), q(500, 42), r(500, 43);
+  const Eigen::MatrixXd g = p.vectors() * p.vectors().transpose();
+  EXPECT_TRUE(g.isApprox(Eigen::Matrix3d::Identity(), 1e-12)) << g;
+  EXPECT_EQ(p.vectors(), q.vectors());
+  EXPECT_GT((p.vectors() - r.vectors()).cwiseAbs().maxCoeff(), 0.01);
+  // Exact round trip through text (stored with the maps).
+  const HalocProjections back = HalocProjections::fromText(p.toText());
+  EXPECT_EQ(back.vectors(), p.vectors());
+  EXPECT_EQ(back.seed(), 42u);
+  EXPECT_THROW(HalocProjections::fromText("haloc_projections v1 n 4 seed 1\n1 2 3"), std::invalid_argument);
+  Eigen::MatrixXd not_ortho = p.vectors();
+  not_ortho(0, 0) += 0.1;
+  EXPECT_THROW(HalocProjections h(not_ortho), std::invalid_argument);
+}
+
+cv::Mat randomDescriptors(int n, unsigned seed) {
+  cv::Mat d(n, 128, CV_32F);
+  cv::RNG rng(seed);
+  rng.fill(d, cv::RNG::UNIFORM, 0.0f, 60.0f);
+  return d;
+}
+
+TEST(HalocHash, IsTheProjectionOfTheNormalisedDescriptors) {
+  const HalocProjections p(20, 1);
+  const cv::Mat d = randomDescriptors(20, 2);
+  const Eigen::VectorXf h = p.hash(d);
+  ASSERT_EQ(h.size(), 384);
+  // Equation (7) by hand for one element of each direction.
+  for (int l = 0; l < 3; ++l) {
+    double expected = 0.0;
+    for (int j = 0; j < 20; ++j) expected += d.at<float>(j, 5) / cv::norm(d.row(j)) * p.vectors()(l, j);
+    EXPECT_NEAR(h[l * 128 + 5], expected, 1e-5);
+  }
+  // Fewer features than n: the missing rows count as zero.
+  const Eigen::VectorXf partial = p.hash(d.rowRange(0, 10));
+  cv::Mat padded = d.clone();
+  padded.rowRange(10, 20).setTo(0);
+  EXPECT_TRUE(partial.isApprox(p.hash(padded), 1e-6));
+  EXPECT_TRUE(p.hash(cv::Mat()).isZero());
+  // 8-bit descriptors hash like their float values.
+  cv::Mat d8;
+  d.convertTo(d8, CV_8U);
+  cv::Mat d8f;
+  d8.convertTo(d8f, CV_32F);
+  EXPECT_TRUE(p.hash(d8).isApprox(p.hash(d8f), 1e-5));
+}
+
+TEST(HashStore, QueryReturnsTheNearestOfOtherSessionsWithoutAllocating) {
+  const HalocProjections p(100, 3);
+  HashStore store;
+  std::vector<Eigen::VectorXf> hashes;
+  for (int i = 0; i < 50; ++i) {
+    hashes.push_back(p.hash(randomDescriptors(100, 100 + i)));
+    store.add({i < 25 ? 0 : 1, i}, hashes.back());
+  }
+  std::vector<HashCandidate> out;
+  // Query with a slightly perturbed copy of entry 30 (session 1), excluding session 0.
+  Eigen::VectorXf q = hashes[30];
+  q[7] += 0.01f;
+  store.query(q, 0, 3, std::numeric_limits<float>::infinity(), &out);
+  ASSERT_EQ(out.size(), 3u);
+  EXPECT_EQ(out[0].entry, 30);
+  EXPECT_LE(out[0].l1, out[1].l1);
+  EXPECT_LE(out[1].l1, out[2].l1);
+  for (const auto& c : out) EXPECT_EQ(store.entry(c.entry).session, 1);
+  // Brute-force check of the order against the store's own distance.
+  std::vector<std::pair<float, int>> all;
+  for (int i = 25; i < 50; ++i) all.push_back({store.distance(q, hashes[i]), i});
+  std::sort(all.begin(), all.end());
+  for (int k = 0; k < 3; ++k) EXPECT_EQ(out[k].entry, all[k].second);
+  // Excluding session 1 returns session 0 only; a threshold below every distance returns none.
+  store.query(q, 1, 3, std::numeric_limits<float>::infinity(), &out);
+  for (const auto& c : out) EXPECT_EQ(store.entry(c.entry).session, 0);
+  store.query(q, 0, 3, 0.5f * all[0].first, &out);
+  EXPECT_TRUE(out.empty() || out[0].entry == 30);
+  // The same `out` is reused: its capacity does not grow across queries.
+  const std::size_t cap = out.capacity();
+  for (int i = 0; i < 20; ++i) store.query(hashes[i], 1, 3, std::numeric_limits<float>::infinity(), &out);
+  EXPECT_EQ(out.capacity(), cap);
+  EXPECT_THROW(store.add({0, 0}, Eigen::VectorXf::Zero(10)), std::invalid_argument);
+}
+
+TEST(HashStore, SumAbsDiffMatchesScalar) {
+  std::mt19937 rng(5);
+  std::vector<std::uint8_t> a(384 + 7), b(384 + 7);
+  for (auto& x : a) x = static_cast<std::uint8_t>(rng());
+  for (auto& x : b) x = static_cast<std::uint8_t>(rng());
+  for (int n : {0, 1, 15, 16, 17, 384, 391}) {
+    std::uint32_t expected = 0;
+    for (int i = 0; i < n; ++i) expected += static_cast<std::uint32_t>(std::abs(int(a[i]) - int(b[i])));
+    EXPECT_EQ(sumAbsDiff(a.data(), b.data(), n), expected) << n;
+  }
+}
+
+// Rendered frames over one seabed: hashes of the same place are close, of other places far,
+// and the detectors find a planted revisit with the right relative pose.
+class LoopTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    ProceduralSeabedOptions o;
+    o.width_m = 12;
+    o.height_m = 8;
+    o.metres_per_px = 0.006;
+    o.featureless_fraction = 0.0;
+    world_ = new SeabedWorld(SeabedWorld::procedural(o));
+  }
+  static void TearDownTestSuite() { delete world_; }
+  FrameFeatures features(const Pose2& p, double alt, double gain = 1.0) const {
+    cv::Mat img = world_->render(p, alt, camera_);
+    img.convertTo(img, -1, gain, 0.0);
+    FeatureImageEnhancer enhancer(OdometryOptions().enhancement);
+    return FeatureExtractor(FeatureOptions()).extract(enhancer.enhance(img));
+  }
+  static SeabedWorld* world_;
+  const CameraIntrinsics camera_{320, 240, 300.0, 300.0, 159.5, 119.5};
+};
+SeabedWorld* LoopTest::world_ = nullptr;
+
+TEST_F(LoopTest, SamePlaceHashesCloseOtherPlacesFar) {
+  const HalocProjections p(500, 20231122);
+  HashStore store;
+  const Eigen::VectorXf a = p.hash(features(Pose2(3, 3, 0.1), 2.0).descriptors);
+  const Eigen::VectorXf same = p.hash(features(Pose2(3, 3, 0.1), 2.0).descriptors);
+  EXPECT_FLOAT_EQ(store.distance(a, same), 0.0f);
+  const Pose2 elsewhere[] = {Pose2(8, 5, 1.0), Pose2(9, 2.5, -2.0), Pose2(6, 6, 0.5), Pose2(2.5, 6, 2.8)};
+  float nearest_other = std::numeric_limits<float>::max();
+  for (const Pose2& e : elsewhere) {
+    nearest_other = std::min(nearest_other, store.distance(a, p.hash(features(e, 2.0).descriptors)));
+  }
+  // Shifted by 2 cm (3 px) and 4 cm: closer than any unrelated place. (A larger change of view
+  // reorders the features by response and the hash loses its advantage: HALOC's known limit,
+  // which is why best_k candidates are verified rather than the nearest one trusted.)
+  for (double dx : {0.02, 0.04}) {
+    const float near = store.distance(a, p.hash(features(Pose2(3 + dx, 3, 0.1), 2.0).descriptors));
+    EXPECT_LT(near, nearest_other) << "shift " << dx << " m";
+  }
+}
+
+TEST_F(LoopTest, PlantedRevisitIsFoundWithTheRightPoseAndAWrongCandidateIsRejected) {
+  // Session 0 flies east along y = 3; session 1 (another day, dimmer) crosses its start.
+  OdometryOptions oo;
+  LoopDetector detector(LoopOptions(), oo.matching, oo.ransac, oo.features.num_features);
+  std::vector<Pose2> world0;
+  Trajectory t0;
+  for (int k = 0; k < 6; ++k) {
+    world0.push_back(Pose2(2.5 + 1.2 * k, 3.0, 0.0));
+    if (k > 0) t0.append(UncertainPose2(between(world0[k - 1], world0[k]), Eigen::Matrix3d::Identity() * 1e-4));
+    const auto loops = detector.addKeyframe(0, k, 10 * k, 2.0, &camera_, features(world0[k], 2.0), t0);
+    EXPECT_TRUE(loops.empty()) << "keyframe " << k;  // a straight line revisits nothing
+  }
+  // Session 1: one keyframe near session 0's keyframe 2, turned and dimmer; another far away.
+  const Pose2 revisit(2.5 + 2.4 + 0.3, 3.2, 1.3);
+  Trajectory t1;
+  const auto loops = detector.addKeyframe(1, 0, 0, 2.3, &camera_, features(revisit, 2.3, 0.7), t1);
+  ASSERT_FALSE(loops.empty());
+  bool found = false;
+  for (const Loop& l : loops) {
+    EXPECT_EQ(l.kind, Loop::Kind::kGlobal);
+    EXPECT_EQ(l.session_a, 0);
+    const Pose2 truth = between(world0[l.keyframe_a], revisit);
+    EXPECT_TRUE(approxEqual(l.z.mean, truth, 0.02, 0.01)) << "kf " << l.keyframe_a << ": " << l.z.mean << " vs " << truth;
+    found = found || l.keyframe_a == 2;
+    EXPECT_GE(l.inliers, 25);
+  }
+  EXPECT_TRUE(found);
+  // A view of a place session 0 never saw: every hash candidate is rejected by RANSAC.
+  Trajectory t1b;
+  t1b.append(UncertainPose2(Pose2(0.5, 0, 0), Eigen::Matrix3d::Identity() * 1e-4));
+  const int candidates_before = detector.stats().global_candidates;
+  const auto none = detector.addKeyframe(1, 1, 5, 2.0, &camera_, features(Pose2(9.0, 6.5, 2.0), 2.0), t1b);
+  EXPECT_TRUE(none.empty());
+  EXPECT_GT(detector.stats().global_candidates, candidates_before);
+}
+
+TEST_F(LoopTest, LocalLoopWithinRadiusLeavingOutRecentKeyframes) {
+  // Out along y = 3 and back along y = 3.4: the way back revisits the way out.
+  OdometryOptions oo;
+  LoopOptions lo;
+  lo.global.enabled = false;
+  LoopDetector detector(lo, oo.matching, oo.ransac, oo.features.num_features);
+  std::vector<Pose2> w = {Pose2(3, 3, 0), Pose2(4.2, 3, 0), Pose2(5.4, 3, 0), Pose2(6.6, 3, 0),
+                          Pose2(6.6, 3.4, M_PI), Pose2(5.4, 3.4, M_PI), Pose2(4.2, 3.4, M_PI)};
+  Trajectory t;
+  std::vector<std::vector<Loop>> found;
+  for (std::size_t k = 0; k < w.size(); ++k) {
+    if (k > 0) t.append(UncertainPose2(between(w[k - 1], w[k]), Eigen::Matrix3d::Identity() * 1e-4));
+    found.push_back(detector.addKeyframe(0, static_cast<int>(k), static_cast<int>(k), 2.0, &camera_,
+                                         features(w[k], 2.0), t));
+  }
+  // Keyframe 4 turns at the end: its only near keyframe (3) is "recent" and left out.
+  EXPECT_TRUE(found[4].empty());
+  // Keyframe 5 (at x = 5.4) revisits keyframe 2; keyframe 6 revisits keyframe 1.
+  ASSERT_FALSE(found[5].empty());
+  EXPECT_EQ(found[5][0].keyframe_a, 2);
+  EXPECT_EQ(found[5][0].kind, Loop::Kind::kLocal);
+  EXPECT_TRUE(approxEqual(found[5][0].z.mean, between(w[2], w[5]), 0.02, 0.01)) << found[5][0].z.mean;
+  ASSERT_FALSE(found[6].empty());
+  EXPECT_EQ(found[6][0].keyframe_a, 1);
+  EXPECT_EQ(detector.stats().local_accepted, detector.stats().local_candidates);
+}
+
+TEST(LoopOptions, ValidateNamesTheBadValue) {
+  LoopOptions o;
+  EXPECT_EQ(o.validate(), "");
+  o.local.radius_m = -1;
+  EXPECT_NE(o.validate().find("local"), std::string::npos);
+  o = LoopOptions();
+  o.global.best_k = 0;
+  EXPECT_NE(o.validate().find("best_k"), std::string::npos);
+  OdometryOptions oo;
+  EXPECT_THROW(LoopDetector(o, oo.matching, oo.ransac, 500), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam
