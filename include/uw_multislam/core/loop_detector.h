@@ -42,8 +42,10 @@ struct LocalLoopOptions {
 
 struct GlobalLoopOptions {
   bool enabled = true;
-  int best_k = 10;      // candidates verified per keyframe (the paper used 5; 10 doubles
-                        // inter-session recall on flights/acfr_test4 at no loss of precision)
+  // Candidates verified per keyframe. The paper used 5; 20 lifts the inter-session recall on
+  // flights/acfr_test4 from 0.34 to 1.0 and on the demo from 0.09 to 0.45, precision staying 1.0,
+  // for about 18 ms of verification per keyframe.
+  int best_k = 20;
   double max_l1 = 0.0;  // δ' of (8); 0 = no threshold, best_k only
   int min_inliers = 25;
   std::uint64_t projection_seed = 20231122;  // the HALOC vectors; stored with the maps
