@@ -20,6 +20,39 @@ namespace core {
 
 namespace {
 
+// Uniform (0, 1) from mt19937_64's raw output and Box-Muller: the same numbers on every
+// platform (std::normal_distribution is implementation-defined).
+class PortableGaussian {
+ public:
+  explicit PortableGaussian(std::uint64_t seed) : rng_(seed) {}
+  double operator()() { return std::sqrt(-2.0 * std::log(uniform())) * std::cos(2.0 * M_PI * uniform()); }
+
+ private:
+  double uniform() { return (static_cast<double>(rng_() >> 11) + 0.5) * (1.0 / 9007199254740992.0); }
+  std::mt19937_64 rng_;
+};
+
+// Descriptor rows as unit vectors (zero rows stay zero).
+Eigen::MatrixXf unitRows(const cv::Mat& descriptors, int max_rows) {
+  const int rows = std::min(descriptors.rows, max_rows);
+  Eigen::MatrixXf m(rows, HalocProjections::kDescriptorSize);
+  for (int j = 0; j < rows; ++j) {
+    for (int i = 0; i < HalocProjections::kDescriptorSize; ++i) {
+      m(j, i) = descriptors.type() == CV_32F ? descriptors.at<float>(j, i) : descriptors.at<std::uint8_t>(j, i);
+    }
+    const float norm = m.row(j).norm();
+    if (norm > 0.0f) m.row(j) /= norm;
+  }
+  return m;
+}
+
+void checkDescriptors(const cv::Mat& descriptors) {
+  if (descriptors.cols != HalocProjections::kDescriptorSize ||
+      (descriptors.type() != CV_32F && descriptors.type() != CV_8U)) {
+    throw std::invalid_argument("HALOC: descriptors must be 128 columns of CV_32F or CV_8U");
+  }
+}
+
 void checkOrthonormal(const Eigen::MatrixXd& u) {
   if (u.rows() != HalocProjections::kDirections || u.cols() < 3) {
     throw std::invalid_argument("HALOC projections must be 3 x n with n >= 3");
@@ -34,15 +67,11 @@ void checkOrthonormal(const Eigen::MatrixXd& u) {
 
 HalocProjections::HalocProjections(int n, std::uint64_t seed) : seed_(seed) {
   if (n < 3 || n > 100000) throw std::invalid_argument("HALOC: n must be in [3, 100000]");
-  // std::normal_distribution is implementation-defined; Box-Muller on mt19937_64's raw output is
-  // the same on every platform, so every vehicle derives the same vectors from the seed.
-  std::mt19937_64 rng(seed);
-  auto uniform = [&rng]() { return (static_cast<double>(rng() >> 11) + 0.5) * (1.0 / 9007199254740992.0); };
+  // Every vehicle derives the same vectors from the seed (PortableGaussian).
+  PortableGaussian gauss(seed);
   Eigen::MatrixXd g(n, kDirections);
   for (int c = 0; c < kDirections; ++c) {
-    for (int r = 0; r < n; ++r) {
-      g(r, c) = std::sqrt(-2.0 * std::log(uniform())) * std::cos(2.0 * M_PI * uniform());
-    }
+    for (int r = 0; r < n; ++r) g(r, c) = gauss();
   }
   // Modified Gram-Schmidt, twice for full double precision: three random orthonormal directions.
   for (int pass = 0; pass < 2; ++pass) {
@@ -63,19 +92,10 @@ HalocProjections::HalocProjections(const Eigen::MatrixXd& vectors, std::uint64_t
 Eigen::VectorXf HalocProjections::hash(const cv::Mat& descriptors) const {
   Eigen::VectorXf h = Eigen::VectorXf::Zero(kHashSize);
   if (descriptors.empty()) return h;
-  if (descriptors.cols != kDescriptorSize || (descriptors.type() != CV_32F && descriptors.type() != CV_8U)) {
-    throw std::invalid_argument("HALOC: descriptors must be 128 columns of CV_32F or CV_8U");
-  }
-  const int rows = std::min(descriptors.rows, n());
-  Eigen::VectorXf d(kDescriptorSize);
-  for (int j = 0; j < rows; ++j) {
-    for (int i = 0; i < kDescriptorSize; ++i) {
-      d[i] = descriptors.type() == CV_32F ? descriptors.at<float>(j, i) : descriptors.at<std::uint8_t>(j, i);
-    }
-    const float norm = d.norm();
-    if (norm <= 0.0f) continue;
-    d /= norm;
-    for (int l = 0; l < kDirections; ++l) h.segment(l * kDescriptorSize, kDescriptorSize) += uf_(l, j) * d;
+  checkDescriptors(descriptors);
+  const Eigen::MatrixXf d = unitRows(descriptors, n());
+  for (int l = 0; l < kDirections; ++l) {
+    h.segment(l * kDescriptorSize, kDescriptorSize) = d.transpose() * uf_.row(l).head(d.rows()).transpose();
   }
   return h;
 }
@@ -113,6 +133,49 @@ HalocProjections HalocProjections::fromText(const std::string& text) {
     }
   }
   return HalocProjections(u, seed);
+}
+
+std::string hashModeName(HashMode m) { return m == HashMode::kHaloc ? "haloc" : "sorted_dct"; }
+
+bool parseHashMode(const std::string& name, HashMode* out) {
+  if (name == "haloc") {
+    *out = HashMode::kHaloc;
+  } else if (name == "sorted_dct") {
+    *out = HashMode::kSortedDct;
+  } else {
+    return false;
+  }
+  return true;
+}
+
+ImageHasher::ImageHasher(HashMode mode, int n, std::uint64_t seed) : mode_(mode), haloc_(n, seed) {
+  PortableGaussian gauss(seed ^ 0x5DEECE66DULL);  // another stream than the HALOC vectors'
+  key_.resize(HalocProjections::kDescriptorSize);
+  for (int i = 0; i < key_.size(); ++i) key_[i] = static_cast<float>(gauss());
+  key_.normalize();
+}
+
+Eigen::VectorXf ImageHasher::hash(const cv::Mat& descriptors) const {
+  if (mode_ == HashMode::kHaloc) return haloc_.hash(descriptors);
+  Eigen::VectorXf h = Eigen::VectorXf::Zero(HalocProjections::kHashSize);
+  if (descriptors.empty()) return h;
+  checkDescriptors(descriptors);
+  const Eigen::MatrixXf d = unitRows(descriptors, haloc_.n());
+  const int rows = static_cast<int>(d.rows());
+  // Rows in the order of their content key r·d (ties by index, for a total order).
+  const Eigen::VectorXf keys = d * key_;
+  std::vector<int> order(rows);
+  for (int j = 0; j < rows; ++j) order[j] = j;
+  std::sort(order.begin(), order.end(), [&](int a, int b) { return keys[a] != keys[b] ? keys[a] < keys[b] : a < b; });
+  // DCT-II basis vectors 0, 1, 2 over the rows: orthonormal, smooth in the rank.
+  for (int r = 0; r < rows; ++r) {
+    for (int l = 0; l < HalocProjections::kDirections; ++l) {
+      const double w = std::sqrt((l == 0 ? 1.0 : 2.0) / rows) * std::cos(M_PI * l * (r + 0.5) / rows);
+      h.segment(l * HalocProjections::kDescriptorSize, HalocProjections::kDescriptorSize) +=
+          static_cast<float>(w) * d.row(order[r]).transpose();
+    }
+  }
+  return h;
 }
 
 std::uint32_t sumAbsDiff(const std::uint8_t* a, const std::uint8_t* b, int n) {

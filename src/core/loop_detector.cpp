@@ -55,7 +55,7 @@ LoopDetector::LoopDetector(const LoopOptions& options, const MatchOptions& match
     : options_(checked(options)),
       matching_(matching),
       ransac_(ransac),
-      projections_(num_features, options.global.projection_seed) {}
+      hasher_(options.global.hash_mode, num_features, options.global.projection_seed) {}
 
 bool LoopDetector::verify(const Stored& old, const View& now, Loop* loop) {
   FrameFeatures f = old.features;  // keypoints shared; descriptors back to float for matching
@@ -111,7 +111,7 @@ std::vector<Loop> LoopDetector::addKeyframe(int session, int keyframe, int frame
   Eigen::VectorXf hash;
   {
     ScopedStage s(&times_, "hash");
-    hash = projections_.hash(features.descriptors);
+    hash = hasher_.hash(features.descriptors);
   }
   if (options_.local.enabled) {
     std::vector<int> candidates;

@@ -101,6 +101,9 @@ void readLoops(const YAML::Node& node, LoopOptions* o) {
     g.read("max_l1", &o->global.max_l1);
     g.read("min_inliers", &o->global.min_inliers);
     g.read("projection_seed", &o->global.projection_seed);
+    std::string mode = hashModeName(o->global.hash_mode);
+    g.read("hash_mode", &mode);
+    if (!parseHashMode(mode, &o->global.hash_mode)) g.fail("unknown hash_mode '" + mode + "' (sorted_dct, haloc)");
     g.finish();
   }
   r.finish();
@@ -211,6 +214,7 @@ std::string slamConfigToYaml(const SlamConfig& c) {
   kv("max_l1", l.global.max_l1);
   kv("min_inliers", l.global.min_inliers);
   kv("projection_seed", l.global.projection_seed);
+  kv("hash_mode", hashModeName(l.global.hash_mode));
   out << YAML::EndMap << YAML::EndMap << YAML::EndMap;
   return std::string(out.c_str()) + "\n";
 }

@@ -153,6 +153,27 @@ TEST_F(LoopTest, SamePlaceHashesCloseOtherPlacesFar) {
   }
 }
 
+TEST_F(LoopTest, SortedDctHashIgnoresFeatureOrderAndRanksAChangedViewFirst) {
+  const ImageHasher sorted(HashMode::kSortedDct, 500, 20231122), haloc(HashMode::kHaloc, 500, 20231122);
+  HashStore store;
+  const FrameFeatures a = features(Pose2(3, 3, 0.1), 2.0);
+  // The same features in another order: the sorted-DCT hash is the same, HALOC's is not.
+  cv::Mat flipped;
+  cv::flip(a.descriptors, flipped, 0);
+  EXPECT_LT(store.distance(sorted.hash(a.descriptors), sorted.hash(flipped)), 1e-3f);
+  EXPECT_GT(store.distance(haloc.hash(a.descriptors), haloc.hash(flipped)), 1.0f);
+  // A view shifted by 10 cm, turned and 20 % darker (HALOC's ordering breaks on this) is still
+  // nearer than every unrelated place.
+  const Eigen::VectorXf ha = sorted.hash(a.descriptors);
+  const float near = store.distance(ha, sorted.hash(features(Pose2(3.1, 3.05, 0.25), 2.0, 0.8).descriptors));
+  const Pose2 elsewhere[] = {Pose2(8, 5, 1.0), Pose2(9, 2.5, -2.0), Pose2(6, 6, 0.5), Pose2(2.5, 6, 2.8)};
+  for (const Pose2& e : elsewhere) EXPECT_LT(near, store.distance(ha, sorted.hash(features(e, 2.0).descriptors))) << e;
+  HashMode m;
+  EXPECT_TRUE(parseHashMode(hashModeName(HashMode::kSortedDct), &m));
+  EXPECT_EQ(m, HashMode::kSortedDct);
+  EXPECT_FALSE(parseHashMode("bow", &m));
+}
+
 TEST_F(LoopTest, PlantedRevisitIsFoundWithTheRightPoseAndAWrongCandidateIsRejected) {
   // Session 0 flies east along y = 3; session 1 (another day, dimmer) crosses its start.
   OdometryOptions oo;
@@ -175,7 +196,8 @@ TEST_F(LoopTest, PlantedRevisitIsFoundWithTheRightPoseAndAWrongCandidateIsReject
     EXPECT_EQ(l.kind, Loop::Kind::kGlobal);
     EXPECT_EQ(l.session_a, 0);
     const Pose2 truth = between(world0[l.keyframe_a], revisit);
-    EXPECT_TRUE(approxEqual(l.z.mean, truth, 0.02, 0.01)) << "kf " << l.keyframe_a << ": " << l.z.mean << " vs " << truth;
+    EXPECT_TRUE(approxEqual(l.z.mean, truth, 0.02, 0.01))
+        << "kf " << l.keyframe_a << ": " << l.z.mean << " vs " << truth;
     found = found || l.keyframe_a == 2;
     EXPECT_GE(l.inliers, 25);
   }
@@ -195,14 +217,14 @@ TEST_F(LoopTest, LocalLoopWithinRadiusLeavingOutRecentKeyframes) {
   LoopOptions lo;
   lo.global.enabled = false;
   LoopDetector detector(lo, oo.matching, oo.ransac, oo.features.num_features);
-  std::vector<Pose2> w = {Pose2(3, 3, 0), Pose2(4.2, 3, 0), Pose2(5.4, 3, 0), Pose2(6.6, 3, 0),
+  std::vector<Pose2> w = {Pose2(3, 3, 0),        Pose2(4.2, 3, 0),      Pose2(5.4, 3, 0),     Pose2(6.6, 3, 0),
                           Pose2(6.6, 3.4, M_PI), Pose2(5.4, 3.4, M_PI), Pose2(4.2, 3.4, M_PI)};
   Trajectory t;
   std::vector<std::vector<Loop>> found;
   for (std::size_t k = 0; k < w.size(); ++k) {
     if (k > 0) t.append(UncertainPose2(between(w[k - 1], w[k]), Eigen::Matrix3d::Identity() * 1e-4));
-    found.push_back(detector.addKeyframe(0, static_cast<int>(k), static_cast<int>(k), 2.0, &camera_,
-                                         features(w[k], 2.0), t));
+    found.push_back(
+        detector.addKeyframe(0, static_cast<int>(k), static_cast<int>(k), 2.0, &camera_, features(w[k], 2.0), t));
   }
   // Keyframe 4 turns at the end: its only near keyframe (3) is "recent" and left out.
   EXPECT_TRUE(found[4].empty());
