@@ -6,6 +6,7 @@
 
 #include <random>
 
+#include "../common/rendered_seabed.h"
 #include "uw_multislam/core/loop_detector.h"
 #include "uw_multislam/core/odometry.h"
 #include "uw_multislam/core/seabed_world.h"
@@ -111,27 +112,15 @@ TEST(HashStore, SumAbsDiffMatchesScalar) {
 
 // Rendered frames over one seabed: hashes of the same place are close, of other places far,
 // and the detectors find a planted revisit with the right relative pose.
-class LoopTest : public ::testing::Test {
+class LoopTest : public testing_util::RenderedSeabedTest {
  protected:
-  static void SetUpTestSuite() {
-    ProceduralSeabedOptions o;
-    o.width_m = 12;
-    o.height_m = 8;
-    o.metres_per_px = 0.006;
-    o.featureless_fraction = 0.0;
-    world_ = new SeabedWorld(SeabedWorld::procedural(o));
-  }
-  static void TearDownTestSuite() { delete world_; }
   FrameFeatures features(const Pose2& p, double alt, double gain = 1.0) const {
-    cv::Mat img = world_->render(p, alt, camera_);
+    cv::Mat img = render(p, alt);
     img.convertTo(img, -1, gain, 0.0);
     FeatureImageEnhancer enhancer(OdometryOptions().enhancement);
     return FeatureExtractor(FeatureOptions()).extract(enhancer.enhance(img));
   }
-  static SeabedWorld* world_;
-  const CameraIntrinsics camera_{320, 240, 300.0, 300.0, 159.5, 119.5};
 };
-SeabedWorld* LoopTest::world_ = nullptr;
 
 TEST_F(LoopTest, SamePlaceHashesCloseOtherPlacesFar) {
   const HalocProjections p(500, 20231122);

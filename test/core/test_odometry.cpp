@@ -6,6 +6,7 @@
 
 #include <random>
 
+#include "../common/rendered_seabed.h"
 #include "uw_multislam/core/features.h"
 #include "uw_multislam/core/matching.h"
 #include "uw_multislam/core/odometry.h"
@@ -160,23 +161,7 @@ TEST(Matching, RatioAndMutualCheck) {
 }
 
 // Odometry over frames rendered from the procedural seabed with a known motion.
-class OdometryTest : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    ProceduralSeabedOptions o;
-    o.width_m = 8;
-    o.height_m = 6;
-    o.metres_per_px = 0.006;
-    o.featureless_fraction = 0.0;
-    world_ = new SeabedWorld(SeabedWorld::procedural(o));
-  }
-  static void TearDownTestSuite() { delete world_; }
-  cv::Mat render(const Pose2& p, double alt) const { return world_->render(p, alt, camera_); }
-
-  static SeabedWorld* world_;
-  const CameraIntrinsics camera_{320, 240, 300.0, 300.0, 159.5, 119.5};
-};
-SeabedWorld* OdometryTest::world_ = nullptr;
+using OdometryTest = testing_util::RenderedSeabedTest;
 
 TEST_F(OdometryTest, RecoversMotionWithAltitudeScale) {
   // Frames at different altitudes: the metric motion must come out right only if the pixels
