@@ -10,103 +10,136 @@ namespace core {
 
 namespace {
 
-void readOdometry(const YAML::Node& node, OdometryOptions* o) {
-  MapReader r(node, "odometry");
-  {
-    MapReader e(r.child("enhancement"), "odometry.enhancement");
-    std::string mode = enhancementName(o->enhancement.mode);
-    e.read("mode", &mode);
-    if (!parseEnhancement(mode, &o->enhancement.mode)) {
-      e.fail("unknown mode '" + mode + "' (none, clahe, dehaze, dehaze_clahe)");
-    }
-    e.read("clahe_clip_limit", &o->enhancement.clahe_clip_limit);
-    e.read("clahe_tile_grid", &o->enhancement.clahe_tile_grid);
-    e.read("dark_channel_patch_px", &o->enhancement.dark_channel_patch_px);
-    e.read("dehaze_omega", &o->enhancement.dehaze_omega);
-    e.read("dehaze_t0", &o->enhancement.dehaze_t0);
-    e.read("guided_filter_radius_px", &o->enhancement.guided_filter_radius_px);
-    e.read("guided_filter_eps", &o->enhancement.guided_filter_eps);
-    e.read("stretch_low_percentile", &o->enhancement.stretch_low_percentile);
-    e.read("stretch_high_percentile", &o->enhancement.stretch_high_percentile);
-    e.finish();
+// Every option block lists its keys once, in visit*(); the same list reads the YAML (Reader)
+// and writes it (Writer), so the file format cannot drift between the two.
+
+class Reader {
+ public:
+  Reader(const YAML::Node& node, const std::string& where) : r_(node, where), where_(where) {}
+  template <typename T>
+  void operator()(const char* key, T& field) {
+    r_.read(key, &field);
   }
-  {
-    MapReader f(r.child("features"), "odometry.features");
-    f.read("num_features", &o->features.num_features);
-    f.read("grid_rows", &o->features.grid_rows);
-    f.read("grid_cols", &o->features.grid_cols);
-    f.read("candidate_factor", &o->features.candidate_factor);
-    f.read("contrast_threshold", &o->features.contrast_threshold);
-    f.read("edge_threshold", &o->features.edge_threshold);
-    f.read("sigma", &o->features.sigma);
-    f.read("octave_layers", &o->features.octave_layers);
-    f.read("border_px", &o->features.border_px);
-    f.finish();
+  template <typename E, typename Name, typename Parse>
+  void enumeration(const char* key, E& field, Name name, Parse parse, const char* choices) {
+    std::string text = name(field);
+    r_.read(key, &text);
+    if (!parse(text, &field)) r_.fail("unknown " + std::string(key) + " '" + text + "' (" + choices + ")");
   }
-  {
-    MapReader m(r.child("matching"), "odometry.matching");
-    m.read("ratio", &o->matching.ratio);
-    m.read("mutual", &o->matching.mutual);
-    m.finish();
+  template <typename F>
+  void block(const char* key, F visit) {
+    Reader child(r_.child(key), where_ + "." + key);
+    visit(child);
+    child.finish();
   }
-  {
-    MapReader a(r.child("ransac"), "odometry.ransac");
-    a.read("inlier_threshold_px", &o->ransac.inlier_threshold_px);
-    a.read("min_inliers", &o->ransac.min_inliers);
-    a.read("confidence", &o->ransac.confidence);
-    a.read("min_iterations", &o->ransac.min_iterations);
-    a.read("max_iterations", &o->ransac.max_iterations);
-    a.read("refine_iterations", &o->ransac.refine_iterations);
-    a.read("min_noise_px", &o->ransac.min_noise_px);
-    a.read("seed", &o->ransac.seed);
-    a.read("estimate_scale", &o->ransac.estimate_scale);
-    a.read("max_scale_change", &o->ransac.max_scale_change);
-    a.finish();
+  void finish() const { r_.finish(); }
+
+ private:
+  MapReader r_;
+  std::string where_;
+};
+
+class Writer {
+ public:
+  explicit Writer(YAML::Emitter& out) : out_(out) {}
+  template <typename T>
+  void operator()(const char* key, const T& field) {
+    out_ << YAML::Key << key << YAML::Value << field;
   }
-  {
-    MapReader k(r.child("keyframes"), "odometry.keyframes");
-    k.read("min_overlap", &o->keyframes.min_overlap);
-    k.read("max_rotation_rad", &o->keyframes.max_rotation_rad);
-    k.read("max_interval_s", &o->keyframes.max_interval_s);
-    k.read("min_tracking_inliers", &o->keyframes.min_tracking_inliers);
-    k.finish();
+  template <typename E, typename Name, typename Parse>
+  void enumeration(const char* key, const E& field, Name name, Parse, const char*) {
+    out_ << YAML::Key << key << YAML::Value << name(field);
   }
-  {
-    MapReader b(r.child("fallback"), "odometry.fallback");
-    b.read("min_sigma_m", &o->fallback.min_sigma_m);
-    b.read("relative_sigma", &o->fallback.relative_sigma);
-    b.read("sigma_yaw_rad", &o->fallback.sigma_yaw_rad);
-    b.finish();
+  template <typename F>
+  void block(const char* key, F visit) {
+    out_ << YAML::Key << key << YAML::Value << YAML::BeginMap;
+    visit(*this);
+    out_ << YAML::EndMap;
   }
-  r.finish();
+
+ private:
+  YAML::Emitter& out_;
+};
+
+template <typename V, typename O>
+void visitOdometry(V& v, O& o) {
+  v.block("enhancement", [&](V& e) {
+    e.enumeration("mode", o.enhancement.mode, enhancementName, parseEnhancement, "none, clahe, dehaze, dehaze_clahe");
+    e("clahe_clip_limit", o.enhancement.clahe_clip_limit);
+    e("clahe_tile_grid", o.enhancement.clahe_tile_grid);
+    e("dark_channel_patch_px", o.enhancement.dark_channel_patch_px);
+    e("dehaze_omega", o.enhancement.dehaze_omega);
+    e("dehaze_t0", o.enhancement.dehaze_t0);
+    e("guided_filter_radius_px", o.enhancement.guided_filter_radius_px);
+    e("guided_filter_eps", o.enhancement.guided_filter_eps);
+    e("stretch_low_percentile", o.enhancement.stretch_low_percentile);
+    e("stretch_high_percentile", o.enhancement.stretch_high_percentile);
+  });
+  v.block("features", [&](V& f) {
+    f("num_features", o.features.num_features);
+    f("grid_rows", o.features.grid_rows);
+    f("grid_cols", o.features.grid_cols);
+    f("candidate_factor", o.features.candidate_factor);
+    f("contrast_threshold", o.features.contrast_threshold);
+    f("edge_threshold", o.features.edge_threshold);
+    f("sigma", o.features.sigma);
+    f("octave_layers", o.features.octave_layers);
+    f("border_px", o.features.border_px);
+  });
+  v.block("matching", [&](V& m) {
+    m("ratio", o.matching.ratio);
+    m("mutual", o.matching.mutual);
+  });
+  v.block("ransac", [&](V& a) {
+    a("inlier_threshold_px", o.ransac.inlier_threshold_px);
+    a("min_inliers", o.ransac.min_inliers);
+    a("confidence", o.ransac.confidence);
+    a("min_iterations", o.ransac.min_iterations);
+    a("max_iterations", o.ransac.max_iterations);
+    a("refine_iterations", o.ransac.refine_iterations);
+    a("min_noise_px", o.ransac.min_noise_px);
+    a("seed", o.ransac.seed);
+    a("estimate_scale", o.ransac.estimate_scale);
+    a("max_scale_change", o.ransac.max_scale_change);
+  });
+  v.block("keyframes", [&](V& k) {
+    k("min_overlap", o.keyframes.min_overlap);
+    k("max_rotation_rad", o.keyframes.max_rotation_rad);
+    k("max_interval_s", o.keyframes.max_interval_s);
+    k("min_tracking_inliers", o.keyframes.min_tracking_inliers);
+  });
+  v.block("fallback", [&](V& b) {
+    b("min_sigma_m", o.fallback.min_sigma_m);
+    b("relative_sigma", o.fallback.relative_sigma);
+    b("sigma_yaw_rad", o.fallback.sigma_yaw_rad);
+  });
 }
 
-void readLoops(const YAML::Node& node, LoopOptions* o) {
-  MapReader r(node, "loops");
-  {
-    MapReader l(r.child("local"), "loops.local");
-    l.read("enabled", &o->local.enabled);
-    l.read("radius_m", &o->local.radius_m);
-    l.read("sigma_widening", &o->local.sigma_widening);
-    l.read("max_radius_m", &o->local.max_radius_m);
-    l.read("exclude_recent", &o->local.exclude_recent);
-    l.read("max_candidates", &o->local.max_candidates);
-    l.read("min_inliers", &o->local.min_inliers);
-    l.finish();
-  }
-  {
-    MapReader g(r.child("global"), "loops.global");
-    g.read("enabled", &o->global.enabled);
-    g.read("best_k", &o->global.best_k);
-    g.read("max_l1", &o->global.max_l1);
-    g.read("min_inliers", &o->global.min_inliers);
-    g.read("projection_seed", &o->global.projection_seed);
-    std::string mode = hashModeName(o->global.hash_mode);
-    g.read("hash_mode", &mode);
-    if (!parseHashMode(mode, &o->global.hash_mode)) g.fail("unknown hash_mode '" + mode + "' (sorted_dct, haloc)");
-    g.finish();
-  }
-  r.finish();
+template <typename V, typename O>
+void visitLoops(V& v, O& o) {
+  v.block("local", [&](V& l) {
+    l("enabled", o.local.enabled);
+    l("radius_m", o.local.radius_m);
+    l("sigma_widening", o.local.sigma_widening);
+    l("max_radius_m", o.local.max_radius_m);
+    l("exclude_recent", o.local.exclude_recent);
+    l("max_candidates", o.local.max_candidates);
+    l("min_inliers", o.local.min_inliers);
+  });
+  v.block("global", [&](V& g) {
+    g("enabled", o.global.enabled);
+    g("best_k", o.global.best_k);
+    g("max_l1", o.global.max_l1);
+    g("min_inliers", o.global.min_inliers);
+    g("projection_seed", o.global.projection_seed);
+    g.enumeration("hash_mode", o.global.hash_mode, hashModeName, parseHashMode, "sorted_dct, haloc");
+  });
+}
+
+template <typename V, typename C>
+void visitConfig(V& v, C& c) {
+  v.block("odometry", [&](V& o) { visitOdometry(o, c.odometry); });
+  v.block("loops", [&](V& l) { visitLoops(l, c.loops); });
 }
 
 }  // namespace
@@ -126,9 +159,8 @@ SlamConfig slamConfigFromYaml(const std::string& yaml_text) {
     throw std::invalid_argument(std::string("config YAML: ") + e.what());
   }
   SlamConfig c;
-  MapReader r(root, "config");
-  readOdometry(r.child("odometry"), &c.odometry);
-  readLoops(r.child("loops"), &c.loops);
+  Reader r(root, "config");
+  visitConfig(r, c);
   r.finish();
   const std::string bad = c.validate();
   if (!bad.empty()) throw std::invalid_argument("config: " + bad);
@@ -148,74 +180,12 @@ SlamConfig loadSlamConfig(const std::string& path) {
 }
 
 std::string slamConfigToYaml(const SlamConfig& c) {
-  const OdometryOptions& o = c.odometry;
   YAML::Emitter out;
   out.SetDoublePrecision(10);
-  auto kv = [&out](const char* k, const auto& v) { out << YAML::Key << k << YAML::Value << v; };
-  out << YAML::BeginMap << YAML::Key << "odometry" << YAML::Value << YAML::BeginMap;
-  out << YAML::Key << "enhancement" << YAML::Value << YAML::BeginMap;
-  kv("mode", enhancementName(o.enhancement.mode));
-  kv("clahe_clip_limit", o.enhancement.clahe_clip_limit);
-  kv("clahe_tile_grid", o.enhancement.clahe_tile_grid);
-  kv("dark_channel_patch_px", o.enhancement.dark_channel_patch_px);
-  kv("dehaze_omega", o.enhancement.dehaze_omega);
-  kv("dehaze_t0", o.enhancement.dehaze_t0);
-  kv("guided_filter_radius_px", o.enhancement.guided_filter_radius_px);
-  kv("guided_filter_eps", o.enhancement.guided_filter_eps);
-  kv("stretch_low_percentile", o.enhancement.stretch_low_percentile);
-  kv("stretch_high_percentile", o.enhancement.stretch_high_percentile);
-  out << YAML::EndMap << YAML::Key << "features" << YAML::Value << YAML::BeginMap;
-  kv("num_features", o.features.num_features);
-  kv("grid_rows", o.features.grid_rows);
-  kv("grid_cols", o.features.grid_cols);
-  kv("candidate_factor", o.features.candidate_factor);
-  kv("contrast_threshold", o.features.contrast_threshold);
-  kv("edge_threshold", o.features.edge_threshold);
-  kv("sigma", o.features.sigma);
-  kv("octave_layers", o.features.octave_layers);
-  kv("border_px", o.features.border_px);
-  out << YAML::EndMap << YAML::Key << "matching" << YAML::Value << YAML::BeginMap;
-  kv("ratio", o.matching.ratio);
-  kv("mutual", o.matching.mutual);
-  out << YAML::EndMap << YAML::Key << "ransac" << YAML::Value << YAML::BeginMap;
-  kv("inlier_threshold_px", o.ransac.inlier_threshold_px);
-  kv("min_inliers", o.ransac.min_inliers);
-  kv("confidence", o.ransac.confidence);
-  kv("min_iterations", o.ransac.min_iterations);
-  kv("max_iterations", o.ransac.max_iterations);
-  kv("refine_iterations", o.ransac.refine_iterations);
-  kv("min_noise_px", o.ransac.min_noise_px);
-  kv("seed", o.ransac.seed);
-  kv("estimate_scale", o.ransac.estimate_scale);
-  kv("max_scale_change", o.ransac.max_scale_change);
-  out << YAML::EndMap << YAML::Key << "keyframes" << YAML::Value << YAML::BeginMap;
-  kv("min_overlap", o.keyframes.min_overlap);
-  kv("max_rotation_rad", o.keyframes.max_rotation_rad);
-  kv("max_interval_s", o.keyframes.max_interval_s);
-  kv("min_tracking_inliers", o.keyframes.min_tracking_inliers);
-  out << YAML::EndMap << YAML::Key << "fallback" << YAML::Value << YAML::BeginMap;
-  kv("min_sigma_m", o.fallback.min_sigma_m);
-  kv("relative_sigma", o.fallback.relative_sigma);
-  kv("sigma_yaw_rad", o.fallback.sigma_yaw_rad);
-  out << YAML::EndMap << YAML::EndMap;
-  const LoopOptions& l = c.loops;
-  out << YAML::Key << "loops" << YAML::Value << YAML::BeginMap;
-  out << YAML::Key << "local" << YAML::Value << YAML::BeginMap;
-  kv("enabled", l.local.enabled);
-  kv("radius_m", l.local.radius_m);
-  kv("sigma_widening", l.local.sigma_widening);
-  kv("max_radius_m", l.local.max_radius_m);
-  kv("exclude_recent", l.local.exclude_recent);
-  kv("max_candidates", l.local.max_candidates);
-  kv("min_inliers", l.local.min_inliers);
-  out << YAML::EndMap << YAML::Key << "global" << YAML::Value << YAML::BeginMap;
-  kv("enabled", l.global.enabled);
-  kv("best_k", l.global.best_k);
-  kv("max_l1", l.global.max_l1);
-  kv("min_inliers", l.global.min_inliers);
-  kv("projection_seed", l.global.projection_seed);
-  kv("hash_mode", hashModeName(l.global.hash_mode));
-  out << YAML::EndMap << YAML::EndMap << YAML::EndMap;
+  out << YAML::BeginMap;
+  Writer w(out);
+  visitConfig(w, c);
+  out << YAML::EndMap;
   return std::string(out.c_str()) + "\n";
 }
 
