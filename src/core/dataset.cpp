@@ -118,7 +118,9 @@ CameraIntrinsics readCameraYaml(const std::string& path) {
   };
   CameraIntrinsics c;
   const double w = get("image_width"), h = get("image_height");
-  if (w != std::floor(w) || h != std::floor(h) || w > 1e6 || h > 1e6) fail(path, 0, "image size must be integers");
+  if (!(w >= 1 && w <= 1e6 && h >= 1 && h <= 1e6) || w != std::floor(w) || h != std::floor(h)) {
+    fail(path, 0, "image size must be whole numbers of pixels in [1, 1000000]");
+  }
   c.width = static_cast<int>(w);
   c.height = static_cast<int>(h);
   c.fx = get("fx");

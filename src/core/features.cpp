@@ -11,7 +11,8 @@ std::string FeatureOptions::validate() const {
   std::ostringstream os;
   if (num_features < 8 || num_features > 20000) {
     os << "num_features " << num_features << " must be in [8, 20000]";
-  } else if (grid_rows < 1 || grid_cols < 1 || grid_rows * grid_cols > num_features) {
+  } else if (grid_rows < 1 || grid_cols < 1 || grid_rows > num_features || grid_cols > num_features ||
+             static_cast<long long>(grid_rows) * grid_cols > num_features) {
     os << "grid " << grid_rows << "x" << grid_cols << " must have 1..num_features cells";
   } else if (!(candidate_factor >= 1.0 && candidate_factor <= 20.0)) {
     os << "candidate_factor " << candidate_factor << " must be in [1, 20]";

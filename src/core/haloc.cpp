@@ -167,10 +167,12 @@ Eigen::VectorXf ImageHasher::hash(const cv::Mat& descriptors) const {
   std::vector<int> order(rows);
   for (int j = 0; j < rows; ++j) order[j] = j;
   std::sort(order.begin(), order.end(), [&](int a, int b) { return keys[a] != keys[b] ? keys[a] < keys[b] : a < b; });
-  // DCT-II basis vectors 0, 1, 2 over the rows: orthonormal, smooth in the rank.
+  // DCT-II basis vectors 0, 1, 2 over the rows: orthonormal, smooth in the rank. The hash is
+  // then divided by sqrt(rows), so that the first block is the mean unit descriptor (values in
+  // [0, ~0.3]) and every value stays inside the store's quantisation range.
   for (int r = 0; r < rows; ++r) {
     for (int l = 0; l < HalocProjections::kDirections; ++l) {
-      const double w = std::sqrt((l == 0 ? 1.0 : 2.0) / rows) * std::cos(M_PI * l * (r + 0.5) / rows);
+      const double w = std::sqrt((l == 0 ? 1.0 : 2.0) / rows) * std::cos(M_PI * l * (r + 0.5) / rows) / std::sqrt(rows);
       h.segment(l * HalocProjections::kDescriptorSize, HalocProjections::kDescriptorSize) +=
           static_cast<float>(w) * d.row(order[r]).transpose();
     }

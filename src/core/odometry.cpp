@@ -121,6 +121,13 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
     up.reason = "empty image";
     return up;
   }
+  if (in.image.cols != camera_.width || in.image.rows != camera_.height) {
+    // The intrinsics would scale every feature wrongly: a silently wrong trajectory.
+    ++stats_.skipped_image;
+    up.reason = "image is " + std::to_string(in.image.cols) + "x" + std::to_string(in.image.rows) + ", the camera " +
+                std::to_string(camera_.width) + "x" + std::to_string(camera_.height);
+    return up;
+  }
   double alt = in.altitude_m;
   if (std::isfinite(alt) && alt > 0.0) {
     last_altitude_ = alt;

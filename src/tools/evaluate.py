@@ -509,7 +509,8 @@ def loop_kind(pair):
 
 
 def true_loop_distance(gt, pair, fixed=None):
-    """Distance below which a loop is correct: `fixed`, else the mean footprint height."""
+    """Distance below which a loop is correct: `fixed`, else the mean footprint height of the
+    frames with a valid (finite, positive) altitude; None when neither has one (n/a)."""
     if fixed is not None:
         return fixed
     heights = []
@@ -517,8 +518,10 @@ def true_loop_distance(gt, pair, fixed=None):
         truth = gt.sessions[session]
         if index not in truth.altitude:
             raise EvalError("%s: no altitude for frame %d" % (os.path.join(truth.directory, "frames.csv"), index))
-        heights.append(truth.footprint_height(index))
-    return float(np.mean(heights))
+        h = truth.footprint_height(index)
+        if math.isfinite(h) and h > 0:
+            heights.append(h)
+    return float(np.mean(heights)) if heights else None
 
 
 def measured_pose(loop_poses, pair):
@@ -546,7 +549,9 @@ def judge_loops(gt, accepted, fixed_dist=None, loop_poses=None):
             continue
         limit = true_loop_distance(gt, pair, fixed_dist)
         z = measured_pose(loop_poses, pair)
-        if z is None:
+        if limit is None:
+            verdict[pair] = None
+        elif z is None:
             verdict[pair] = float(np.hypot(rel[0], rel[1])) < limit
         else:
             verdict[pair] = bool(np.hypot(z[0] - rel[0], z[1] - rel[1]) < LOOP_POSE_TOL_FRACTION * limit

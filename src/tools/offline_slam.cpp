@@ -123,7 +123,6 @@ int main(int argc, char** argv) {
     for (std::size_t s = 0; s < datasets.size(); ++s) {
       const core::Dataset& d = datasets[s];
       core::Odometry odometry(d.camera, config.odometry);
-      int unreadable = 0;
       for (const auto& f : d.frames) {
         cv::Mat image;
         {
@@ -131,11 +130,13 @@ int main(int argc, char** argv) {
           image = cv::imread(d.imagePath(f), cv::IMREAD_COLOR);
         }
         if (image.empty()) {
-          ++unreadable;
           std::fprintf(stderr, "offline_slam: %s: cannot decode image of frame %d, skipped\n", d.imagePath(f).c_str(),
                        f.index);
         }
         const core::OdometryUpdate u = odometry.process({f.index, f.stamp_s, f.altitude_m, image});
+        if (u.status == core::FrameStatus::kSkipped && !image.empty()) {
+          std::fprintf(stderr, "offline_slam: session %zu frame %d skipped: %s\n", s, f.index, u.reason.c_str());
+        }
         if (u.status == core::FrameStatus::kFallback && !a.quiet) {
           std::fprintf(stderr, "offline_slam: session %zu frame %d: odometry fallback (%s)\n", s, f.index,
                        u.reason.c_str());
@@ -169,7 +170,6 @@ int main(int argc, char** argv) {
             st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude, st.altitude_reused,
             odometry.times().get("odometry_total").meanMs());
       }
-      (void)unreadable;
     }
     times.merge(loops.times());
     if (!a.quiet) {
@@ -179,7 +179,7 @@ int main(int argc, char** argv) {
           ls.local_accepted, ls.local_candidates, ls.global_accepted, ls.global_candidates, loops.size());
     }
     writeTiming((fs::path(a.out) / "timing.csv").string(), times);
-    if (!odo || !traj) throw core::DatasetError(a.out + ": cannot write the output files");
+    if (!odo || !traj || !loops_csv || !loop_poses) throw core::DatasetError(a.out + ": cannot write the output files");
     return 0;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "offline_slam: %s\n", e.what());

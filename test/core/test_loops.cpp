@@ -227,6 +227,31 @@ TEST_F(LoopTest, LocalLoopWithinRadiusLeavingOutRecentKeyframes) {
   EXPECT_EQ(detector.stats().local_accepted, detector.stats().local_candidates);
 }
 
+TEST_F(LoopTest, LocalRadiusWidensWithHeadingUncertainty) {
+  // Out 4 m and back 3 m beside the way out: the last keyframe is 3 m from keyframe 1, outside
+  // the 1.5 m radius. With a confident heading it is no candidate; with 0.3 rad of heading
+  // sigma per motion (odometry fallbacks) its position is uncertain by metres and it is.
+  auto candidates = [&](double sigma_yaw) {
+    OdometryOptions oo;
+    LoopOptions lo;
+    lo.global.enabled = false;
+    LoopDetector detector(lo, oo.matching, oo.ransac, oo.features.num_features);
+    const Eigen::Matrix3d cov = Eigen::Vector3d(1e-4, 1e-4, sigma_yaw * sigma_yaw).asDiagonal();
+    const std::vector<Pose2> w = {Pose2(2, 3, 0),      Pose2(3, 3, 0),      Pose2(4, 3, 0),
+                                  Pose2(5, 3, 0),      Pose2(6, 3, 0),      Pose2(6, 3.6, M_PI),
+                                  Pose2(5, 3.6, M_PI), Pose2(4, 3.6, M_PI), Pose2(6, 6, M_PI)};
+    Trajectory t;
+    const FrameFeatures f = features(Pose2(9, 6, 0), 2.0);
+    for (std::size_t k = 0; k < w.size(); ++k) {
+      if (k > 0) t.append(UncertainPose2(between(w[k - 1], w[k]), cov));
+      detector.addKeyframe(0, static_cast<int>(k), static_cast<int>(k), 2.0, &camera_, f, t);
+    }
+    return detector.stats().local_candidates;
+  };
+  const int confident = candidates(1e-4), uncertain = candidates(0.3);
+  EXPECT_GT(uncertain, confident);
+}
+
 TEST(LoopOptions, ValidateNamesTheBadValue) {
   LoopOptions o;
   EXPECT_EQ(o.validate(), "");

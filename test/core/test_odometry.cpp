@@ -137,6 +137,11 @@ TEST(Features, FixedCountSpreadOverTheImageInResponseOrder) {
   // A featureless image gives few or none, without error.
   EXPECT_LT(ex.extract(cv::Mat(240, 320, CV_8U, cv::Scalar(128))).size(), 5u);
   EXPECT_THROW(ex.extract(cv::Mat()), std::invalid_argument);
+  // A grid whose cell count overflows an int is refused, not divided by zero later.
+  FeatureOptions huge;
+  huge.grid_rows = huge.grid_cols = 65536;
+  EXPECT_NE(huge.validate(), "");
+  EXPECT_THROW(FeatureExtractor{huge}, std::invalid_argument);
 }
 
 TEST(Matching, RatioAndMutualCheck) {
@@ -223,10 +228,16 @@ TEST_F(OdometryTest, BadInputIsSkippedOrRepairedAndCounted) {
   EXPECT_NEAR(u.pose.x(), 0.1, 0.01);
   cv::Mat sixteen(240, 320, CV_16U, cv::Scalar(1000));
   EXPECT_EQ(odo.process({4, 2.0, 2.0, sixteen}).status, FrameStatus::kSkipped);
-  EXPECT_EQ(odo.stats().skipped_image, 2);
+  // An image of another size than camera.yaml's would be scaled wrongly: skipped, with why.
+  cv::Mat half;
+  cv::resize(render(Pose2(2.2, 2, 0), 2.0), half, cv::Size(160, 120));
+  const OdometryUpdate wrong_size = odo.process({5, 2.5, 2.0, half});
+  EXPECT_EQ(wrong_size.status, FrameStatus::kSkipped);
+  EXPECT_NE(wrong_size.reason.find("160x120"), std::string::npos) << wrong_size.reason;
+  EXPECT_EQ(odo.stats().skipped_image, 3);
   EXPECT_EQ(odo.stats().skipped_altitude, 1);
   EXPECT_EQ(odo.stats().altitude_reused, 1);
-  EXPECT_EQ(odo.stats().frames, 5);
+  EXPECT_EQ(odo.stats().frames, 6);
 }
 
 TEST_F(OdometryTest, StraightRunDriftsLittleAndTakesKeyframesByOverlap) {

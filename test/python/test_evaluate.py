@@ -481,3 +481,21 @@ def test_command_line_process_has_help_and_clean_errors(tmp_path):
                            "--report", str(tmp_path / "r")], capture_output=True, text=True)
     assert done.returncode == 1
     assert "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) == 1
+
+
+def test_measured_loop_poses_decide_correctness_and_nan_altitude_is_na(tmp_path):
+    s0, _, _, local0, _ = loop_scene(tmp_path)
+    # Two loops 0.4 m apart (the images overlap); loop_poses.csv says one was measured right and
+    # one 0.3 m off (a geometrically wrong loop between overlapping images).
+    accepted = [((0, 0), (0, 2)), ((0, 1), (0, 3))]
+    run = write_run(tmp_path / "run", {0: indexed(local0)}, loops=accepted)
+    write_csv(os.path.join(run, "loop_poses.csv"), "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad",
+              [(0, 0, 0, 2, 0.4, 0.0, 0.0), (0, 1, 0, 3, 0.7, 0.0, 0.0)])
+    data = evaluate_dirs(tmp_path, [s0], run)
+    assert data["loops"]["intra"]["loops"]["accepted"] == 2 and data["loops"]["intra"]["loops"]["correct"] == 1
+    # A NaN altitude on one frame: its partner's footprint still judges the loop; on both: n/a.
+    gt = ev.load_ground_truth([s0])
+    gt.sessions[0].altitude[0] = float("nan")
+    assert ev.judge_loops(gt, [((0, 0), (0, 2))]) == {((0, 0), (0, 2)): True}
+    gt.sessions[0].altitude[2] = float("nan")
+    assert ev.judge_loops(gt, [((0, 0), (0, 2))]) == {((0, 0), (0, 2)): None}

@@ -158,3 +158,10 @@ def test_loops_reference_keyframes_and_have_measured_poses(result, survey):
     # Session a goes out and back 1 m apart (a revisit); session b crosses a's area.
     assert kinds == {"local", "global"}, loops
     assert "loops:" in r.stdout
+
+
+def test_an_unwritable_output_file_is_an_error(tmp_path, survey):
+    out = tmp_path / "o"
+    (out / "loops.csv").mkdir(parents=True)  # a directory where the file must go
+    r = run("offline_slam", "--session", str(survey / "a"), "--out", str(out))
+    assert r.returncode == 1 and "cannot write" in r.stderr

@@ -108,7 +108,7 @@ class LoopDetector {
   MatchOptions matching_;
   RansacOptions ransac_;
   ImageHasher hasher_;
-  HashStore hashes_;  // entry i <-> keyframes_[i]
+  HashStore hashes_;  // entry i <-> keyframes_[i]; range set by the hash mode
   std::vector<Stored> keyframes_;
   std::vector<std::vector<int>> by_session_;  // [session][keyframe] -> index into keyframes_
   std::vector<HashCandidate> scratch_;

@@ -14,7 +14,8 @@
 // does: the frame becomes a keyframe whose motion is marked as a fallback, with the fallback
 // covariance, and is counted.
 //
-// Bad input: an empty image is skipped and counted; a non-finite or non-positive altitude is
+// Bad input: an empty image, one of another size than the camera's or of an unsupported type is
+// skipped and counted (with the reason in the update); a non-finite or non-positive altitude is
 // replaced by the last valid one (counted), or the frame is skipped when there is none yet.
 #pragma once
 
