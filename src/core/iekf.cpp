@@ -1,0 +1,128 @@
+#include "uw_multislam/core/iekf.h"
+
+#include <Eigen/Dense>
+
+#include <stdexcept>
+
+namespace uw_multislam {
+namespace core {
+
+std::string IekfOptions::validate() const {
+  if (max_iterations < 1) return "max_iterations must be >= 1";
+  if (!(tolerance > 0)) return "tolerance must be positive";
+  return {};
+}
+
+TrajectoryIekf::TrajectoryIekf(const IekfOptions& options) : options_(options) {
+  const std::string bad = options.validate();
+  if (!bad.empty()) throw std::invalid_argument("iekf: " + bad);
+}
+
+void TrajectoryIekf::addMotion(const UncertainPose2& motion) {
+  const std::string bad = checkCovariance(motion.covariance);
+  if (!bad.empty() || !motion.mean.isFinite())
+    throw std::invalid_argument("iekf: motion: " + (bad.empty() ? "not finite" : bad));
+  const Eigen::Index n = p_.rows();
+  Eigen::MatrixXd p = Eigen::MatrixXd::Zero(n + 3, n + 3);
+  p.topLeftCorner(n, n) = p_;
+  p.bottomRightCorner<3, 3>() = motion.covariance;
+  p_ = std::move(p);
+  motions_.push_back(motion.mean);
+}
+
+Trajectory TrajectoryIekf::meansOnly(const std::vector<Pose2>& motions) const {
+  Trajectory t;
+  for (const Pose2& m : motions) t.append(UncertainPose2::exact(m));
+  return t;
+}
+
+Trajectory TrajectoryIekf::trajectory() const {
+  Trajectory t;
+  for (std::size_t k = 0; k < motions_.size(); ++k) {
+    const auto b = static_cast<Eigen::Index>(3 * k);
+    t.append(UncertainPose2(motions_[k], p_.block<3, 3>(b, b)));
+  }
+  return t;
+}
+
+UncertainPose2 TrajectoryIekf::relative(int i, int j) const {
+  const Trajectory t = meansOnly(motions_);
+  const auto lo = static_cast<Eigen::Index>(std::min(i, j)), hi = static_cast<Eigen::Index>(std::max(i, j));
+  const Eigen::MatrixXd jac = t.relativeJacobian(i, j);
+  const Eigen::MatrixXd block = p_.block(3 * lo, 3 * lo, 3 * (hi - lo), 3 * (hi - lo));
+  return UncertainPose2(t.relative(i, j).mean, jac * block * jac.transpose());
+}
+
+IekfResult TrajectoryIekf::update(const std::vector<LoopMeasurement>& loops) {
+  IekfResult res;
+  if (loops.empty() || motions_.empty()) return res;
+  const int n = static_cast<int>(motions_.size());
+  for (const auto& l : loops) {
+    if (l.i == l.j || l.i < 0 || l.j < 0 || l.i > n || l.j > n) {
+      throw std::invalid_argument("iekf: loop " + std::to_string(l.i) + " -> " + std::to_string(l.j) +
+                                  " is not between two keyframes of a trajectory of " + std::to_string(n + 1));
+    }
+    const std::string bad = checkCovariance(l.z.covariance);
+    if (!bad.empty()) throw std::invalid_argument("iekf: loop covariance: " + bad);
+  }
+  const Eigen::Index m = static_cast<Eigen::Index>(3 * loops.size());
+  const Eigen::Index dim = 3 * n;
+  Eigen::MatrixXd r = Eigen::MatrixXd::Zero(m, m);  // (13)
+  for (std::size_t k = 0; k < loops.size(); ++k) r.block<3, 3>(3 * k, 3 * k) = loops[k].z.covariance;
+
+  auto stack = [](const std::vector<Pose2>& v) {
+    Eigen::VectorXd x(3 * v.size());
+    for (std::size_t k = 0; k < v.size(); ++k) x.segment<3>(3 * k) = v[k].vector();
+    return x;
+  };
+  auto unstack = [](const Eigen::VectorXd& x) {
+    std::vector<Pose2> v;
+    for (Eigen::Index k = 0; k < x.size() / 3; ++k) v.push_back(Pose2::fromVector(x.segment<3>(3 * k)));
+    return v;
+  };
+  // Innovation ẑ − g(x) (15) with wrapped yaw, and G (16)(18).
+  auto linearise = [&](const std::vector<Pose2>& x, Eigen::VectorXd* nu, Eigen::MatrixXd* g) {
+    const Trajectory t = meansOnly(x);
+    nu->resize(m);
+    *g = Eigen::MatrixXd::Zero(m, dim);
+    for (std::size_t k = 0; k < loops.size(); ++k) {
+      const auto& l = loops[k];
+      nu->segment<3>(3 * k) = poseError(l.z.mean, t.relative(l.i, l.j).mean);
+      const int lo = std::min(l.i, l.j), hi = std::max(l.i, l.j);
+      g->block(3 * k, 3 * lo, 3, 3 * (hi - lo)) = t.relativeJacobian(l.i, l.j);
+    }
+  };
+
+  const Eigen::VectorXd prior = stack(motions_);
+  Eigen::VectorXd x = prior;
+  Eigen::MatrixXd k_gain, g;
+  Eigen::VectorXd nu;
+  for (int it = 0; it < options_.max_iterations; ++it) {
+    linearise(unstack(x), &nu, &g);
+    const Eigen::MatrixXd s = g * p_ * g.transpose() + r;
+    const Eigen::LDLT<Eigen::MatrixXd> s_ldlt(s);
+    if (it == 0) res.chi2_before = nu.dot(s_ldlt.solve(nu));
+    k_gain = p_ * g.transpose() * s_ldlt.solve(Eigen::MatrixXd::Identity(m, m));
+    Eigen::VectorXd dx = prior - x;
+    for (Eigen::Index q = 2; q < dim; q += 3) dx[q] = normalizeAngle(dx[q]);
+    Eigen::VectorXd next = prior + k_gain * (nu - g * dx);
+    Eigen::VectorXd step = next - x;
+    for (Eigen::Index q = 2; q < dim; q += 3) step[q] = normalizeAngle(step[q]);
+    x = stack(unstack(next));  // normalise the yaws
+    res.iterations = it + 1;
+    res.last_step = step.lpNorm<Eigen::Infinity>();
+    if (res.last_step < options_.tolerance) break;
+  }
+  // (20) with G at the final estimate.
+  linearise(unstack(x), &nu, &g);
+  const Eigen::MatrixXd s = g * p_ * g.transpose() + r;
+  k_gain = p_ * g.transpose() * s.ldlt().solve(Eigen::MatrixXd::Identity(m, m));
+  p_ = p_ - k_gain * g * p_;
+  p_ = 0.5 * (p_ + p_.transpose());
+  motions_ = unstack(x);
+  res.chi2_after = nu.dot(r.ldlt().solve(nu));
+  return res;
+}
+
+}  // namespace core
+}  // namespace uw_multislam
