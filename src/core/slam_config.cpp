@@ -136,19 +136,37 @@ void visitLoops(V& v, O& o) {
   });
 }
 
+template <typename V, typename B>
+void visitBackend(V& v, B& b) {
+  v("intra_map_iekf", b.intra_map_iekf);
+  v("max_iterations", b.iekf.max_iterations);
+  v("tolerance", b.iekf.tolerance);
+  v("max_keyframes", b.max_keyframes);
+}
+
 template <typename V, typename C>
 void visitConfig(V& v, C& c) {
   v.block("odometry", [&](V& o) { visitOdometry(o, c.odometry); });
   v.block("loops", [&](V& l) { visitLoops(l, c.loops); });
+  v.block("backend", [&](V& b) { visitBackend(b, c.backend); });
 }
 
 }  // namespace
+
+std::string BackendOptions::validate() const {
+  const std::string bad = iekf.validate();
+  if (!bad.empty()) return bad;
+  if (max_keyframes < 2) return "max_keyframes must be >= 2";
+  return {};
+}
 
 std::string SlamConfig::validate() const {
   const std::string o = odometry.validate();
   if (!o.empty()) return "odometry." + o;
   const std::string l = loops.validate();
-  return l.empty() ? l : "loops." + l;
+  if (!l.empty()) return "loops." + l;
+  const std::string b = backend.validate();
+  return b.empty() ? b : "backend: " + b;
 }
 
 SlamConfig slamConfigFromYaml(const std::string& yaml_text) {

@@ -8,10 +8,12 @@
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "uw_multislam/core/dataset.h"
+#include "uw_multislam/core/iekf.h"
 #include "uw_multislam/core/loop_detector.h"
 #include "uw_multislam/core/odometry.h"
 #include "uw_multislam/core/slam_config.h"
@@ -31,9 +33,10 @@ Runs uw_multislam over dataset folders (frames.csv, camera.yaml, images; see
   loop_poses.csv  session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad  each loop's measured pose of b in a
   timing.csv      stage,calls,total_ms,mean_ms,max_ms    one row per pipeline stage
 `session` is the folder's position on the command line, `index` the frame's index in frames.csv.
-Local loops (within a session) and global loops (across sessions, HALOC hashes) are detected
-and written to loops.csv. (The back-end is not in this build yet: trajectory.csv equals the
-odometry, each session its own map.)
+Local loops (within a session) and global loops (across sessions, hashes) are detected and
+written to loops.csv. Each session's trajectory is optimised with its local loops by the
+intra-map IEKF (paper §8) and written to trajectory.csv, each session its own map: map joining
+is not in this build yet.
 
 options:
   --session DIR     a dataset folder (repeat for several missions)
@@ -123,6 +126,10 @@ int main(int argc, char** argv) {
     for (std::size_t s = 0; s < datasets.size(); ++s) {
       const core::Dataset& d = datasets[s];
       core::Odometry odometry(d.camera, config.odometry);
+      // Intra-map optimisation of this session (paper §8) with its local loops, while it fits.
+      std::optional<core::TrajectoryIekf> iekf;
+      if (config.backend.intra_map_iekf) iekf.emplace(config.backend.iekf);
+      int iekf_updates = 0;
       for (const auto& f : d.frames) {
         cv::Mat image;
         {
@@ -143,32 +150,53 @@ int main(int argc, char** argv) {
         }
         for (const auto& kf : odometry.newKeyframes()) {
           const core::KeyframeInfo& info = odometry.keyframes()[kf.id];
-          for (const core::Loop& l : loops.addKeyframe(static_cast<int>(s), kf.id, info.frame_index, info.altitude_m,
-                                                       &d.camera, kf.features, odometry.trajectory())) {
+          if (iekf && kf.id > 0) {
+            if (static_cast<int>(iekf->numKeyframes()) >= config.backend.max_keyframes) {
+              std::fprintf(stderr,
+                           "offline_slam: session %zu passed backend.max_keyframes = %d: intra-map IEKF off, "
+                           "its trajectory is the odometry's\n",
+                           s, config.backend.max_keyframes);
+              iekf.reset();
+            } else {
+              iekf->addMotion(odometry.trajectory().motion(kf.id));  // trajectory building (10)(11)
+            }
+          }
+          std::vector<core::LoopMeasurement> local;
+          for (const core::Loop& l :
+               loops.addKeyframe(static_cast<int>(s), kf.id, info.frame_index, info.altitude_m, &d.camera, kf.features,
+                                 iekf ? iekf->trajectory() : odometry.trajectory())) {
             loops_csv << l.session_a << "," << l.frame_a << "," << l.session_b << "," << l.frame_b << ","
                       << core::loopKindName(l.kind) << "," << l.inliers << "\n";
             loop_poses << l.session_a << "," << l.frame_a << "," << l.session_b << "," << l.frame_b << ","
                        << l.z.mean.x() << "," << l.z.mean.y() << "," << l.z.mean.yaw() << "\n";
+            if (l.kind == core::Loop::Kind::kLocal) local.push_back({l.keyframe_a, l.keyframe_b, l.z});
+          }
+          if (iekf && !local.empty()) {
+            core::ScopedStage stage(&times, "iekf_update");
+            iekf->update(local);
+            ++iekf_updates;
           }
         }
       }
       const auto& kfs = odometry.keyframes();
       const auto& poses = odometry.trajectory().absolutePoses();
+      const core::Trajectory optimised = iekf ? iekf->trajectory() : odometry.trajectory();
+      const auto& slam = optimised.absolutePoses();
       for (std::size_t k = 0; k < kfs.size(); ++k) {
         odo << s << "," << kfs[k].frame_index << "," << std::setprecision(6) << poses[k].x() << "," << poses[k].y()
             << "," << std::setprecision(7) << poses[k].yaw() << "\n";
-        traj << s << "," << kfs[k].frame_index << "," << s << "," << std::setprecision(6) << poses[k].x() << ","
-             << poses[k].y() << "," << std::setprecision(7) << poses[k].yaw() << "\n";
+        traj << s << "," << kfs[k].frame_index << "," << s << "," << std::setprecision(6) << slam[k].x() << ","
+             << slam[k].y() << "," << std::setprecision(7) << slam[k].yaw() << "\n";
       }
       times.merge(odometry.times());
       if (!a.quiet) {
         const core::OdometryStats& st = odometry.stats();
         std::printf(
             "session %zu (%s): %d frames, %d keyframes, %d tracked, %d fallbacks, %d promotions, %d skipped "
-            "(%d image, %d altitude), %d altitudes reused, %.1f ms/frame\n",
+            "(%d image, %d altitude), %d altitudes reused, %.1f ms/frame, %d IEKF updates\n",
             s, d.directory.c_str(), st.frames, st.keyframes, st.tracked, st.fallbacks, st.promotions,
             st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude, st.altitude_reused,
-            odometry.times().get("odometry_total").meanMs());
+            odometry.times().get("odometry_total").meanMs(), iekf_updates);
       }
     }
     times.merge(loops.times());
