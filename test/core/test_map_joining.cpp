@@ -1,0 +1,91 @@
+// Map joining by a single link (paper 000 §9, (21)-(34)).
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "uw_multislam/core/map_joining.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+// Two sessions in one world: the previous one along y = 0, the current one starting elsewhere,
+// turned, crossing the first. World poses make every X exact.
+struct TwoSessions {
+  std::vector<Pose2> prev, cur;  // world poses of the keyframes
+  Trajectory tp, tc;
+  Pose2 link() const { return between(prev.back(), cur.front()); }  // X_cs^pe
+  JoinLoop loop(int pi, int ci, const Pose2& noise = Pose2(), double sigma = 0.01) const {
+    JoinLoop l;
+    l.pe_from_pi = tp.relative(pi, static_cast<int>(prev.size()) - 1).mean;
+    l.ci_from_cs = tc.relative(0, ci).mean;
+    l.z = UncertainPose2(compose(between(prev[pi], cur[ci]), noise),
+                         Eigen::Vector3d(sigma * sigma, sigma * sigma, 1e-4).asDiagonal());
+    return l;
+  }
+};
+
+TwoSessions makeSessions() {
+  TwoSessions s;
+  for (int k = 0; k < 8; ++k) s.prev.push_back(Pose2(0.5 * k, 0.0, 0.02 * k));
+  for (int k = 0; k < 8; ++k) s.cur.push_back(Pose2(1.0 + 0.1 * k, -1.5 + 0.45 * k, 1.4 + 0.01 * k));
+  for (std::size_t k = 1; k < s.prev.size(); ++k) s.tp.append(UncertainPose2::exact(between(s.prev[k - 1], s.prev[k])));
+  for (std::size_t k = 1; k < s.cur.size(); ++k) s.tc.append(UncertainPose2::exact(between(s.cur[k - 1], s.cur[k])));
+  return s;
+}
+
+TEST(MapJoining, OnePerfectLoopRecoversTheLinkExactly) {
+  const TwoSessions s = makeSessions();
+  const JoinResult r = estimateJoinLink({s.loop(2, 3)});
+  EXPECT_TRUE(approxEqual(r.link.mean, s.link(), 1e-9, 1e-9)) << r.link.mean << " vs " << s.link();
+  EXPECT_LT(r.rms_residual_m, 1e-9);
+}
+
+TEST(MapJoining, SeveralNoisyLoopsAverageAndTheCovarianceShrinks) {
+  const TwoSessions s = makeSessions();
+  std::mt19937 rng(3);
+  std::normal_distribution<double> n(0.0, 0.02);
+  std::vector<JoinLoop> loops;
+  for (int k = 0; k < 10; ++k) loops.push_back(s.loop(k % 8, (3 * k) % 8, Pose2(n(rng), n(rng), 0.0), 0.02));
+  const JoinResult one = estimateJoinLink({loops.front()});
+  const JoinResult all = estimateJoinLink(loops);
+  // The error of one noisy loop is ~2 cm; ten average it down, and the covariance says so.
+  EXPECT_LT(poseError(all.link.mean, s.link()).head<2>().norm(), 0.02);
+  EXPECT_LT(all.link.covariance.trace(), 0.2 * one.link.covariance.trace());
+  EXPECT_NEAR(all.rms_residual_m, 0.02 * std::sqrt(2.0), 0.015);
+}
+
+TEST(MapJoining, ConvergesFromTheClosedFormWhenTheFirstLoopIsBad) {
+  // The first loop (the initial guess (32)) is 0.3 m and 0.3 rad off but says so in its
+  // covariance; six good loops pull the link back, which takes relinearising (the heading).
+  const TwoSessions s = makeSessions();
+  JoinLoop bad = s.loop(1, 1, Pose2(0.3, -0.3, 0.3), 0.02);
+  bad.z.covariance = Eigen::Vector3d(1.0, 1.0, 1.0).asDiagonal();
+  std::vector<JoinLoop> loops = {bad};
+  for (int k = 2; k < 8; ++k) loops.push_back(s.loop(k, k, Pose2(), 0.005));
+  const JoinResult r = estimateJoinLink(loops);
+  EXPECT_LT(poseError(r.link.mean, s.link()).head<2>().norm(), 0.01) << r.link.mean;
+  EXPECT_GE(r.iterations, 2);
+}
+
+TEST(MapJoining, JoinedTrajectoryPutsTheCurrentSessionInThePreviousFrame) {
+  const TwoSessions s = makeSessions();
+  const Trajectory joined = joinTrajectories(s.tp, UncertainPose2::exact(s.link()), s.tc);
+  ASSERT_EQ(joined.numKeyframes(), s.prev.size() + s.cur.size());
+  for (std::size_t k = 0; k < s.cur.size(); ++k) {
+    const Pose2 expected = between(s.prev.front(), s.cur[k]);
+    EXPECT_TRUE(approxEqual(joined.absolutePose(s.prev.size() + k), expected, 1e-9, 1e-9)) << k;
+  }
+}
+
+TEST(MapJoining, RefusesNoLoopsAndBadCovariances) {
+  EXPECT_THROW(estimateJoinLink({}), std::invalid_argument);
+  const TwoSessions s = makeSessions();
+  JoinLoop l = s.loop(1, 1);
+  l.z.covariance(0, 0) = -1;
+  EXPECT_THROW(estimateJoinLink({l}), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam
