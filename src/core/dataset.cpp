@@ -191,6 +191,14 @@ void writeGroundTruthCsv(const std::string& path, const std::vector<GroundTruthR
   if (!out) throw DatasetError(path + ": write failed");
 }
 
+std::string readTextFile(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw DatasetError(path + ": cannot open");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
 Dataset loadDataset(const std::string& directory, bool check_images_exist) {
   if (!fs::is_directory(directory)) throw DatasetError(directory + ": not a directory");
   Dataset d;

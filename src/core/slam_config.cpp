@@ -170,12 +170,7 @@ std::string SlamConfig::validate() const {
 }
 
 SlamConfig slamConfigFromYaml(const std::string& yaml_text) {
-  YAML::Node root;
-  try {
-    root = YAML::Load(yaml_text);
-  } catch (const YAML::Exception& e) {
-    throw std::invalid_argument(std::string("config YAML: ") + e.what());
-  }
+  const YAML::Node root = parseYaml(yaml_text, "config");
   SlamConfig c;
   Reader r(root, "config");
   visitConfig(r, c);
@@ -186,15 +181,7 @@ SlamConfig slamConfigFromYaml(const std::string& yaml_text) {
 }
 
 SlamConfig loadSlamConfig(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw DatasetError(path + ": cannot open");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  try {
-    return slamConfigFromYaml(ss.str());
-  } catch (const std::invalid_argument& e) {
-    throw std::invalid_argument(path + ": " + e.what());
-  }
+  return parseYamlFile(path, [](const std::string& text) { return slamConfigFromYaml(text); });
 }
 
 std::string slamConfigToYaml(const SlamConfig& c) {

@@ -97,13 +97,7 @@ std::string resolve(const std::string& path, const std::string& base_dir) {
 }  // namespace
 
 SurveySpec surveyFromYaml(const std::string& yaml_text, const std::string& base_dir) {
-  YAML::Node root;
-  try {
-    root = YAML::Load(yaml_text);
-  } catch (const YAML::Exception& e) {
-    throw std::invalid_argument(std::string("survey YAML: ") + e.what());
-  }
-  if (!root || root.IsNull()) root = YAML::Node(YAML::NodeType::Map);
+  const YAML::Node root = parseYaml(yaml_text, "survey");
   MapReader r(root, "survey");
   std::string preset;
   r.read("preset", &preset);
@@ -153,15 +147,8 @@ SurveySpec surveyFromYaml(const std::string& yaml_text, const std::string& base_
 }
 
 SurveySpec loadSurveyYaml(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw DatasetError(path + ": cannot open");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  try {
-    return surveyFromYaml(ss.str(), fs::path(path).parent_path().string());
-  } catch (const std::invalid_argument& e) {
-    throw std::invalid_argument(path + ": " + e.what());
-  }
+  const std::string base_dir = fs::path(path).parent_path().string();
+  return parseYamlFile(path, [&](const std::string& text) { return surveyFromYaml(text, base_dir); });
 }
 
 std::string surveyToYaml(const SurveySpec& spec) {

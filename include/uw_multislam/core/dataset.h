@@ -67,6 +67,9 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
 std::vector<GroundTruthRecord> readGroundTruthCsv(const std::string& path);
 void writeGroundTruthCsv(const std::string& path, const std::vector<GroundTruthRecord>& gt);
 
+/// The whole content of a text file; throws DatasetError("<path>: cannot open") when unreadable.
+std::string readTextFile(const std::string& path);
+
 /// Loads a dataset folder; throws DatasetError with a one-line reason when it is not one
 /// (missing files, bad header, unparsable number, duplicate index, missing image file).
 Dataset loadDataset(const std::string& directory, bool check_images_exist = true);

@@ -11,6 +11,8 @@
 #include <string>
 #include <vector>
 
+#include "uw_multislam/core/dataset.h"
+
 namespace uw_multislam {
 namespace core {
 
@@ -62,6 +64,22 @@ class MapReader {
   std::string where_;
   std::set<std::string> used_;
 };
+
+/// Parses YAML text; a syntax error becomes std::invalid_argument("<what> YAML: ..."). An empty
+/// document is an empty map (all defaults).
+YAML::Node parseYaml(const std::string& text, const std::string& what);
+
+/// Reads a YAML file and hands its text to `parse`; an unreadable file throws DatasetError and
+/// a bad one std::invalid_argument, both starting with the path.
+template <typename Parse>
+auto parseYamlFile(const std::string& path, Parse parse) -> decltype(parse(std::string())) {
+  const std::string text = readTextFile(path);
+  try {
+    return parse(text);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(path + ": " + e.what());
+  }
+}
 
 }  // namespace core
 }  // namespace uw_multislam
