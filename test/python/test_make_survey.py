@@ -1,20 +1,11 @@
-"""make_survey end to end: command line, dataset folders, ground truth and the bags it writes.
-
-The binary comes from UWMS_BIN_DIR (set by CMake to the devel space), or the default workspace.
-"""
-import csv
+"""make_survey end to end: command line, dataset folders, ground truth and the bags it writes."""
 import math
 import os
-import subprocess
 
 import pytest
 import rosbag
 import yaml
-
-HERE = os.path.dirname(os.path.abspath(__file__))
-BIN_DIR = os.environ.get(
-    "UWMS_BIN_DIR", os.path.join(HERE, "..", "..", ".catkin_ws", "devel", "lib", "uw_multislam"))
-MAKE_SURVEY = os.path.join(BIN_DIR, "make_survey")
+from tool_runner import read_csv, run_tool
 
 TINY = """
 seed: 4
@@ -34,12 +25,7 @@ sessions:
 
 
 def run(*args):
-    return subprocess.run([MAKE_SURVEY, *args], capture_output=True, text=True, timeout=120)
-
-
-def read_csv(path):
-    with open(path) as f:
-        return list(csv.DictReader(f))
+    return run_tool("make_survey", *args, timeout=120)
 
 
 @pytest.fixture(scope="module")

@@ -1,16 +1,11 @@
 """offline_slam's contract (../shared/DESIGN.md): command line, output files and their columns,
 session numbering, and clear failures on bad input. Runs on a small generated survey."""
-import csv
 import math
 import os
-import subprocess
 
 import pytest
 import yaml
-
-HERE = os.path.dirname(os.path.abspath(__file__))
-BIN_DIR = os.environ.get(
-    "UWMS_BIN_DIR", os.path.join(HERE, "..", "..", ".catkin_ws", "devel", "lib", "uw_multislam"))
+from tool_runner import HERE, read_csv as rows, run_tool as run
 
 SURVEY = """
 seed: 11
@@ -23,15 +18,6 @@ sessions:
     mission: {pattern: loop, start_m: [5.5, 3.0], heading_rad: 1.5708, length_m: 2.0, width_m: 1.6,
               laps: 1.0, speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.2}
 """
-
-
-def run(tool, *args):
-    return subprocess.run([os.path.join(BIN_DIR, tool), *args], capture_output=True, text=True, timeout=300)
-
-
-def rows(path):
-    with open(path) as f:
-        return list(csv.DictReader(f))
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,22 @@
+"""Shared helpers of the tool tests: run a built uw_multislam binary, read a CSV.
+
+The binaries come from UWMS_BIN_DIR (set by CMake to the devel space), or the default workspace.
+"""
+import csv
+import os
+import subprocess
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+BIN_DIR = os.environ.get(
+    "UWMS_BIN_DIR", os.path.join(HERE, "..", "..", ".catkin_ws", "devel", "lib", "uw_multislam"))
+
+
+def run_tool(tool, *args, timeout=300):
+    """Runs BIN_DIR/tool with the arguments; returns the CompletedProcess (text output)."""
+    return subprocess.run([os.path.join(BIN_DIR, tool), *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def read_csv(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
