@@ -18,6 +18,16 @@ TrajectoryIekf::TrajectoryIekf(const IekfOptions& options) : options_(options) {
   if (!bad.empty()) throw std::invalid_argument("iekf: " + bad);
 }
 
+TrajectoryIekf::TrajectoryIekf(const IekfOptions& options, std::vector<Pose2> motions, Eigen::MatrixXd covariance)
+    : TrajectoryIekf(options) {
+  const auto n = static_cast<Eigen::Index>(3 * motions.size());
+  if (covariance.rows() != n || covariance.cols() != n)
+    throw std::invalid_argument("iekf: state of " + std::to_string(motions.size()) + " motions needs a " +
+                                std::to_string(n) + " x " + std::to_string(n) + " covariance");
+  motions_ = std::move(motions);
+  p_ = std::move(covariance);
+}
+
 void TrajectoryIekf::addMotion(const UncertainPose2& motion) {
   const std::string bad = checkCovariance(motion.covariance);
   if (!bad.empty() || !motion.mean.isFinite())

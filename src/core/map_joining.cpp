@@ -61,9 +61,10 @@ JoinResult estimateJoinLink(const std::vector<JoinLoop>& loops, const IekfOption
     if (step < options.tolerance) break;
   }
   linearise(x);
-  const Eigen::MatrixXd s = g * p0 * g.transpose() + r;
-  k_gain = p0 * g.transpose() * s.ldlt().solve(Eigen::MatrixXd::Identity(m, m));
-  Eigen::Matrix3d p = (Eigen::Matrix3d::Identity() - k_gain * g) * p0;  // (30)
+  // (30) in information form, (P0⁻¹ + Gᵀ R⁻¹ G)⁻¹: the same matrix, without the cancellation of
+  // (I − K G) P0 against the large uninformative P0.
+  const Eigen::Matrix3d info = p0.inverse() + g.transpose() * r.ldlt().solve(g);
+  Eigen::Matrix3d p = info.inverse();
   p = 0.5 * (p + p.transpose());
   double sq = 0.0;
   for (std::size_t k = 0; k < loops.size(); ++k) sq += nu.segment<2>(3 * k).squaredNorm();

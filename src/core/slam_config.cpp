@@ -138,10 +138,22 @@ void visitLoops(V& v, O& o) {
 
 template <typename V, typename B>
 void visitBackend(V& v, B& b) {
-  v("intra_map_iekf", b.intra_map_iekf);
-  v("max_iterations", b.iekf.max_iterations);
-  v("tolerance", b.iekf.tolerance);
-  v("max_keyframes", b.max_keyframes);
+  v("optimise", b.optimise);
+  v.enumeration("optimizer", b.optimizer, optimizerName, parseOptimizer, "sparse, iekf");
+  v("optimise_every", b.optimise_every);
+  v("join_min_loops", b.join_min_loops);
+  v("join_gate_m", b.join_gate_m);
+  v.block("iekf", [&](V& i) {
+    i("max_iterations", b.iekf.max_iterations);
+    i("tolerance", b.iekf.tolerance);
+    i("max_keyframes", b.max_keyframes);
+  });
+  v.block("sparse", [&](V& s) {
+    s("max_iterations", b.sparse.max_iterations);
+    s("function_tolerance", b.sparse.function_tolerance);
+    s.enumeration("robust_loss", b.sparse.robust_loss, robustLossName, parseRobustLoss, "none, huber, cauchy");
+    s("loss_scale", b.sparse.loss_scale);
+  });
 }
 
 template <typename V, typename C>
@@ -152,13 +164,6 @@ void visitConfig(V& v, C& c) {
 }
 
 }  // namespace
-
-std::string BackendOptions::validate() const {
-  const std::string bad = iekf.validate();
-  if (!bad.empty()) return bad;
-  if (max_keyframes < 2) return "max_keyframes must be >= 2";
-  return {};
-}
 
 std::string SlamConfig::validate() const {
   const std::string o = odometry.validate();

@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "uw_multislam/core/dataset.h"
-#include "uw_multislam/core/iekf.h"
+#include "uw_multislam/core/backend.h"
 #include "uw_multislam/core/loop_detector.h"
 #include "uw_multislam/core/odometry.h"
 #include "uw_multislam/core/slam_config.h"
@@ -31,12 +31,14 @@ Runs uw_multislam over dataset folders (frames.csv, camera.yaml, images; see
   trajectory.csv  session,index,map,x_m,y_m,yaw_rad      final keyframe poses in the frame of map `map`
   loops.csv       session_a,index_a,session_b,index_b,kind,inliers   accepted loops
   loop_poses.csv  session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad  each loop's measured pose of b in a
+  links.csv       map,previous_session,current_session,loops,x_m,y_m,yaw_rad   the links joining sessions
   timing.csv      stage,calls,total_ms,mean_ms,max_ms    one row per pipeline stage
 `session` is the folder's position on the command line, `index` the frame's index in frames.csv.
 Local loops (within a session) and global loops (across sessions, hashes) are detected and
-written to loops.csv. Each session's trajectory is optimised with its local loops by the
-intra-map IEKF (paper §8) and written to trajectory.csv, each session its own map: map joining
-is not in this build yet.
+written to loops.csv. Sessions are joined into maps once backend.join_min_loops global loops
+link them (paper §9); each map is optimised with its loops by the selected back-end
+(backend.optimizer: sparse, the default, or the paper's iekf). `map` in trajectory.csv is the
+id of the map's first session, whose frame the poses are in; a session left alone is its own map.
 
 options:
   --session DIR     a dataset folder (repeat for several missions)
@@ -123,13 +125,14 @@ int main(int argc, char** argv) {
     core::StageTimes times;
     core::LoopDetector loops(config.loops, config.odometry.matching, config.odometry.ransac,
                              config.odometry.features.num_features);
+    core::MultiSessionBackend backend(config.backend, [&](const std::string& line) {
+      if (!a.quiet) std::printf("backend: %s\n", line.c_str());
+    });
+    std::vector<std::vector<int>> frame_of_keyframe(datasets.size());
     for (std::size_t s = 0; s < datasets.size(); ++s) {
       const core::Dataset& d = datasets[s];
       core::Odometry odometry(d.camera, config.odometry);
-      // Intra-map optimisation of this session (paper §8) with its local loops, while it fits.
-      std::optional<core::TrajectoryIekf> iekf;
-      if (config.backend.intra_map_iekf) iekf.emplace(config.backend.iekf);
-      int iekf_updates = 0;
+      const int session = backend.startSession(d.directory);
       for (const auto& f : d.frames) {
         cv::Mat image;
         {
@@ -150,54 +153,65 @@ int main(int argc, char** argv) {
         }
         for (const auto& kf : odometry.newKeyframes()) {
           const core::KeyframeInfo& info = odometry.keyframes()[kf.id];
-          if (iekf && kf.id > 0) {
-            if (static_cast<int>(iekf->numKeyframes()) >= config.backend.max_keyframes) {
-              std::fprintf(stderr,
-                           "offline_slam: session %zu passed backend.max_keyframes = %d: intra-map IEKF off, "
-                           "its trajectory is the odometry's\n",
-                           s, config.backend.max_keyframes);
-              iekf.reset();
-            } else {
-              iekf->addMotion(odometry.trajectory().motion(kf.id));  // trajectory building (10)(11)
-            }
-          }
-          std::vector<core::LoopMeasurement> local;
-          for (const core::Loop& l :
-               loops.addKeyframe(static_cast<int>(s), kf.id, info.frame_index, info.altitude_m, &d.camera, kf.features,
-                                 iekf ? iekf->trajectory() : odometry.trajectory())) {
+          frame_of_keyframe[s].push_back(info.frame_index);
+          if (kf.id > 0) backend.addMotion(session, odometry.trajectory().motion(kf.id));  // (10)(11)
+          const std::vector<core::Loop> found = loops.addKeyframe(session, kf.id, info.frame_index, info.altitude_m,
+                                                                  &d.camera, kf.features, backend.sessionTrajectory(session));
+          core::ScopedStage stage(&times, "backend");
+          for (const core::Loop& l : found) {
             loops_csv << l.session_a << "," << l.frame_a << "," << l.session_b << "," << l.frame_b << ","
                       << core::loopKindName(l.kind) << "," << l.inliers << "\n";
             loop_poses << l.session_a << "," << l.frame_a << "," << l.session_b << "," << l.frame_b << ","
                        << l.z.mean.x() << "," << l.z.mean.y() << "," << l.z.mean.yaw() << "\n";
-            if (l.kind == core::Loop::Kind::kLocal) local.push_back({l.keyframe_a, l.keyframe_b, l.z});
-          }
-          if (iekf && !local.empty()) {
-            core::ScopedStage stage(&times, "iekf_update");
-            iekf->update(local);
-            ++iekf_updates;
+            backend.addLoop({l.session_a, l.keyframe_a, l.session_b, l.keyframe_b, l.z});
           }
         }
       }
-      const auto& kfs = odometry.keyframes();
+      {
+        core::ScopedStage stage(&times, "backend");
+        backend.endSession(session);
+      }
       const auto& poses = odometry.trajectory().absolutePoses();
-      const core::Trajectory optimised = iekf ? iekf->trajectory() : odometry.trajectory();
-      const auto& slam = optimised.absolutePoses();
-      for (std::size_t k = 0; k < kfs.size(); ++k) {
-        odo << s << "," << kfs[k].frame_index << "," << std::setprecision(6) << poses[k].x() << "," << poses[k].y()
-            << "," << std::setprecision(7) << poses[k].yaw() << "\n";
-        traj << s << "," << kfs[k].frame_index << "," << s << "," << std::setprecision(6) << slam[k].x() << ","
-             << slam[k].y() << "," << std::setprecision(7) << slam[k].yaw() << "\n";
+      for (std::size_t k = 0; k < poses.size(); ++k) {
+        odo << s << "," << frame_of_keyframe[s][k] << "," << std::setprecision(6) << poses[k].x() << ","
+            << poses[k].y() << "," << std::setprecision(7) << poses[k].yaw() << "\n";
       }
       times.merge(odometry.times());
       if (!a.quiet) {
         const core::OdometryStats& st = odometry.stats();
         std::printf(
             "session %zu (%s): %d frames, %d keyframes, %d tracked, %d fallbacks, %d promotions, %d skipped "
-            "(%d image, %d altitude), %d altitudes reused, %.1f ms/frame, %d IEKF updates\n",
+            "(%d image, %d altitude), %d altitudes reused, %.1f ms/frame\n",
             s, d.directory.c_str(), st.frames, st.keyframes, st.tracked, st.fallbacks, st.promotions,
             st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude, st.altitude_reused,
-            odometry.times().get("odometry_total").meanMs(), iekf_updates);
+            odometry.times().get("odometry_total").meanMs());
       }
+    }
+    {
+      core::ScopedStage stage(&times, "backend");
+      backend.flush();
+    }
+    // The final optimised poses, each session in the frame of its map.
+    std::ofstream links_csv(fs::path(a.out) / "links.csv");
+    links_csv << "map,previous_session,current_session,loops,x_m,y_m,yaw_rad\n" << std::fixed << std::setprecision(6);
+    for (int s = 0; s < backend.numSessions(); ++s) {
+      const std::vector<core::Pose2> slam = backend.sessionPoses(s);
+      for (std::size_t k = 0; k < slam.size(); ++k) {
+        traj << s << "," << frame_of_keyframe[s][k] << "," << backend.mapOf(s) << "," << std::setprecision(6)
+             << slam[k].x() << "," << slam[k].y() << "," << std::setprecision(7) << slam[k].yaw() << "\n";
+      }
+    }
+    for (int m : backend.mapIds()) {
+      for (const core::LinkInfo& l : backend.links(m)) {
+        links_csv << m << "," << l.previous << "," << l.current << "," << l.loops << "," << l.estimate.x() << ","
+                  << l.estimate.y() << "," << l.estimate.yaw() << "\n";
+      }
+    }
+    if (!a.quiet) {
+      const core::BackendStats& bs = backend.stats();
+      std::printf("back-end (%s): %zu maps, %d joins, %d optimisations (%.1f ms total, %.1f ms max), %d loops refused\n",
+                  core::optimizerName(config.backend.optimizer), backend.mapIds().size(), bs.joins, bs.optimisations,
+                  bs.optimise_ms_total, bs.optimise_ms_max, bs.loops_refused);
     }
     times.merge(loops.times());
     if (!a.quiet) {
@@ -207,7 +221,7 @@ int main(int argc, char** argv) {
           ls.local_accepted, ls.local_candidates, ls.global_accepted, ls.global_candidates, loops.size());
     }
     writeTiming((fs::path(a.out) / "timing.csv").string(), times);
-    if (!odo || !traj || !loops_csv || !loop_poses) throw core::DatasetError(a.out + ": cannot write the output files");
+    if (!odo || !traj || !loops_csv || !loop_poses || !links_csv) throw core::DatasetError(a.out + ": cannot write the output files");
     return 0;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "offline_slam: %s\n", e.what());

@@ -75,22 +75,67 @@ def test_odometry_follows_the_ground_truth(result, survey):
     assert err < 0.05, err  # about 9 m of path on textured seabed
 
 
-def test_trajectory_holds_the_same_keyframes_each_session_its_own_map(result):
+def test_trajectory_holds_the_same_keyframes_and_the_map_of_each_session(result):
     out, _ = result
     odo, traj = rows(out / "odometry.csv"), rows(out / "trajectory.csv")
     assert len(odo) == len(traj)
     for o, t in zip(odo, traj):
         assert (o["session"], o["index"]) == (t["session"], t["index"])
-        assert t["map"] == t["session"]  # no map joining yet
-        if t["index"] == "0":
-            assert float(t["x_m"]) == 0.0 and float(t["y_m"]) == 0.0
+    first = traj[0]
+    assert first["map"] == "0" and float(first["x_m"]) == 0.0 and float(first["y_m"]) == 0.0
 
 
-def test_intra_map_iekf_brings_the_revisits_closer_to_the_truth(result, survey):
-    """Session a goes out and back: with its local loops, the optimised trajectory's relative
-    poses between revisited keyframes (the paper's e_k) are closer to the truth than odometry's."""
+def _in_frame(origin, p):
+    """Pose p expressed in the frame of pose origin (both (x, y, yaw))."""
+    c, s = math.cos(origin[2]), math.sin(origin[2])
+    dx, dy = p[0] - origin[0], p[1] - origin[1]
+    yaw = math.atan2(math.sin(p[2] - origin[2]), math.cos(p[2] - origin[2]))
+    return (c * dx + s * dy, -s * dx + c * dy, yaw)
+
+
+def test_sessions_are_joined_into_one_map_close_to_the_truth(result, survey):
+    """The loop session b revisits a's ground: its global loops join it to map 0 through one link,
+    and its poses in map 0's frame (session a's first keyframe) match the ground truth."""
     out, r = result
-    assert "IEKF updates" in r.stdout
+    links = rows(out / "links.csv")
+    assert len(links) == 1 and links[0]["previous_session"] == "0" and links[0]["current_session"] == "1"
+    assert int(links[0]["loops"]) >= 5  # join_min_loops
+    assert "joined map 1 to map 0" in r.stdout
+    traj = rows(out / "trajectory.csv")
+    assert {t["map"] for t in traj} == {"0"}
+    world = {(g["session"], g["index"]): (float(g["x_m"]), float(g["y_m"]), float(g["yaw_rad"]))
+             for g in rows(survey / "world_gt.csv")}
+    origin = world[("0", traj[0]["index"])]
+    errs = []
+    for t in traj:
+        if t["session"] != "1":
+            continue
+        gt = _in_frame(origin, world[("1", t["index"])])
+        errs.append(math.hypot(float(t["x_m"]) - gt[0], float(t["y_m"]) - gt[1]))
+    assert len(errs) > 3
+    assert max(errs) < 0.05, errs  # a few cm on 2 x 1.6 m, ~3 m from session a's start
+
+
+def test_no_join_when_the_configuration_forbids_it(survey, tmp_path):
+    cfg = tmp_path / "nojoin.yaml"
+    cfg.write_text("backend:\n  join_min_loops: 0\n")
+    out = tmp_path / "o"
+    r = run("offline_slam", "--session", str(survey / "a"), "--session", str(survey / "b"), "--out", str(out),
+            "--config", str(cfg))
+    assert r.returncode == 0, r.stderr
+    traj = rows(out / "trajectory.csv")
+    for t in traj:
+        assert t["map"] == t["session"]  # each session its own map, in its own frame
+    firsts = [t for t in traj if t["session"] == "1"][:1]
+    assert firsts and float(firsts[0]["x_m"]) == 0.0 and float(firsts[0]["y_m"]) == 0.0
+    assert rows(out / "links.csv") == []
+
+
+def test_the_back_end_brings_the_revisits_closer_to_the_truth(result, survey):
+    """Session a goes out and back: with its loops, the optimised trajectory's relative poses
+    between revisited keyframes (the paper's e_k) are closer to the truth than odometry's."""
+    out, r = result
+    assert "optimisations" in r.stdout
     gt = {g["index"]: (float(g["x_m"]), float(g["y_m"]), float(g["yaw_rad"])) for g in rows(survey / "a" / "gt.csv")}
 
     def poses(name):

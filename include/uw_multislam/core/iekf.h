@@ -53,6 +53,9 @@ struct IekfResult {
 class TrajectoryIekf {
  public:
   explicit TrajectoryIekf(const IekfOptions& options = IekfOptions());
+  /// Starts from a given state: the motions and their joint covariance (3N x 3N). Throws
+  /// std::invalid_argument when the sizes disagree.
+  TrajectoryIekf(const IekfOptions& options, std::vector<Pose2> motions, Eigen::MatrixXd covariance);
 
   /// Trajectory building, (10)(11): x⁻ = (x, X_t^{t-1}), P⁻ = blkdiag(P, P_t^{t-1}).
   void addMotion(const UncertainPose2& motion);

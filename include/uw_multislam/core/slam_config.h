@@ -4,22 +4,12 @@
 
 #include <string>
 
-#include "uw_multislam/core/iekf.h"
+#include "uw_multislam/core/backend.h"
 #include "uw_multislam/core/loop_detector.h"
 #include "uw_multislam/core/odometry.h"
 
 namespace uw_multislam {
 namespace core {
-
-/// Back-end settings. The intra-map IEKF keeps a dense covariance (3N x 3N): it is switched off
-/// for a session that grows past max_keyframes, whose trajectory is then the odometry's.
-struct BackendOptions {
-  bool intra_map_iekf = true;
-  IekfOptions iekf;
-  int max_keyframes = 1500;
-
-  std::string validate() const;
-};
 
 struct SlamConfig {
   OdometryOptions odometry;

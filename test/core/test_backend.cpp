@@ -1,0 +1,297 @@
+// The multi-session back-end (core/backend.h): sessions, automatic and explicit joins, splits,
+// delayed optimisation, both optimisers on the same graph.
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+
+#include <random>
+
+#include "uw_multislam/core/backend.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+Eigen::Matrix3d diag(double sxy, double syaw) {
+  return Eigen::Vector3d(sxy * sxy, sxy * sxy, syaw * syaw).asDiagonal();
+}
+
+// Ground-truth world poses of a few sessions; odometry and loops derived from them.
+struct World {
+  std::vector<std::vector<Pose2>> sessions;
+  std::mt19937 rng{3};
+  double odo_noise = 0.0;  // std of the odometry's x, y (m) and yaw (rad) error per motion
+
+  UncertainPose2 motion(int s, int k) {
+    std::normal_distribution<double> n(0.0, 1.0);
+    const Pose2 m = between(sessions[s][k - 1], sessions[s][k]);
+    const double e = odo_noise;
+    return UncertainPose2(Pose2(m.x() + e * n(rng), m.y() + e * n(rng), m.yaw() + e * n(rng)),
+                          diag(std::max(e, 0.01), std::max(e, 0.01)));
+  }
+  BackendLoop loop(int sa, int ka, int sb, int kb, const Pose2& error = Pose2()) const {
+    return {sa, ka, sb, kb, UncertainPose2(compose(between(sessions[sa][ka], sessions[sb][kb]), error), diag(0.005, 0.005))};
+  }
+  // Feeds session s into the back-end (start, motions, end).
+  int feed(MultiSessionBackend* b, int s, bool end = true) {
+    const int id = b->startSession();
+    for (int k = 1; k < static_cast<int>(sessions[s].size()); ++k) b->addMotion(id, motion(s, k));
+    if (end) b->endSession(id);
+    return id;
+  }
+  // The truth of session s's keyframes in the frame of session `map`'s first keyframe.
+  std::vector<Pose2> truthIn(int map, int s) const {
+    std::vector<Pose2> out;
+    for (const Pose2& p : sessions[s]) out.push_back(between(sessions[map][0], p));
+    return out;
+  }
+};
+
+// A straight line of n keyframes along the heading, 0.5 m apart.
+std::vector<Pose2> line(const Pose2& start, int n) {
+  std::vector<Pose2> p{start};
+  for (int k = 1; k < n; ++k) p.push_back(compose(p.back(), Pose2(0.5, 0.0, 0.0)));
+  return p;
+}
+
+double worstError(const std::vector<Pose2>& est, const std::vector<Pose2>& truth) {
+  double w = 0.0;
+  for (std::size_t k = 0; k < est.size(); ++k) w = std::max(w, between(truth[k], est[k]).translation().norm());
+  return w;
+}
+
+BackendOptions optionsFor(OptimizerKind k) {
+  BackendOptions o;
+  o.optimizer = k;
+  o.optimise_every = 1;
+  return o;
+}
+
+class BothOptimizers : public ::testing::TestWithParam<OptimizerKind> {};
+
+TEST_P(BothOptimizers, AJoinFromOnePerfectLoopRecoversTheKnownLink) {
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(4.0, -1.0, M_PI / 2), 8)};
+  MultiSessionBackend b(optionsFor(GetParam()));
+  w.feed(&b, 0);
+  w.feed(&b, 1);
+  b.addLoop(w.loop(0, 8, 1, 2));  // K = 5 by default: stored, not joined
+  EXPECT_NE(b.mapOf(0), b.mapOf(1));
+  EXPECT_EQ(b.pendingJoinLoops(0, 1), 1);
+  const BackendStatus st = b.join(1, 0, 1);
+  ASSERT_TRUE(st.ok()) << st.message;
+  EXPECT_EQ(b.mapOf(1), 0);
+  ASSERT_EQ(b.links(0).size(), 1u);
+  const Pose2 truth_link = between(w.sessions[0].back(), w.sessions[1].front());
+  EXPECT_TRUE(approxEqual(b.links(0)[0].measured.mean, truth_link, 1e-6, 1e-6)) << b.links(0)[0].measured.mean;
+  EXPECT_LT(worstError(b.sessionPoses(1), w.truthIn(0, 1)), 1e-6);
+  EXPECT_EQ(b.pendingJoinLoops(0, 1), 0);  // the loop is summarised by the link
+}
+
+TEST_P(BothOptimizers, SquareWithOneExactLoopClosesExactly) {
+  MultiSessionBackend b(optionsFor(GetParam()));
+  const int s = b.startSession("square");
+  for (int k = 0; k < 4; ++k) b.addMotion(s, UncertainPose2(Pose2(2.1, 0.0, M_PI / 2 + 0.05), diag(0.05, 0.02)));
+  EXPECT_GT(b.sessionPoses(s)[4].translation().norm(), 0.2);
+  b.addLoop({s, 0, s, 4, UncertainPose2(Pose2(), Eigen::Matrix3d::Identity() * 1e-10)});
+  EXPECT_TRUE(approxEqual(b.sessionPoses(s)[4], Pose2(), 1e-4, 1e-4)) << b.sessionPoses(s)[4];
+  EXPECT_EQ(b.stats().optimisations, 1);
+}
+
+TEST_P(BothOptimizers, JoinsAutomaticallyAfterKLoopsWhileTheSessionRecords) {
+  // Session 1 crosses session 0 (at session 0's keyframe 4) with a drifting odometry; the third
+  // global loop (K = 3) joins it while it is still recording.
+  World w;
+  w.odo_noise = 0.01;
+  w.sessions = {line(Pose2(0, 0, 0), 20), line(Pose2(2.0, -3.0, M_PI / 2), 20)};
+  BackendOptions o = optionsFor(GetParam());
+  o.join_min_loops = 3;
+  MultiSessionBackend b(o);
+  w.feed(&b, 0);
+  const int s1 = b.startSession();
+  for (int k = 1; k < 20; ++k) {
+    b.addMotion(s1, w.motion(1, k));
+    if (k >= 5 && k <= 7) b.addLoop(w.loop(0, 4, 1, k));
+    if (k == 7) {
+      EXPECT_EQ(b.mapOf(s1), 0) << "joined after the third loop";
+    } else if (k < 7) {
+      EXPECT_EQ(b.mapOf(s1), s1);
+    }
+  }
+  // The recording session went second: the link runs from session 0's end to session 1's start,
+  // and its later motions were appended to the joined map.
+  EXPECT_EQ(b.chain(0), (std::vector<int>{0, 1}));
+  EXPECT_EQ(b.sessionPoses(s1).size(), 20u);
+  b.endSession(s1);
+  // Around the crossing, session 1 sits where the loops say, relative to session 0's keyframe 4
+  // (whose own odometry drift both share).
+  const Pose2 anchor = b.sessionPoses(0)[4];
+  for (int k = 5; k <= 7; ++k) {
+    const Pose2 est = between(anchor, b.sessionPoses(s1)[k]);
+    const Pose2 truth = between(w.sessions[0][4], w.sessions[1][k]);
+    EXPECT_LT(between(truth, est).translation().norm(), 0.02) << k;
+  }
+  EXPECT_EQ(b.stats().joins, 1);
+}
+
+TEST_P(BothOptimizers, SplitThenJoinReturnsTheSameTrajectory) {
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 12), line(Pose2(1.0, -2.0, M_PI / 2), 10), line(Pose2(3.0, 2.0, -M_PI / 2), 10)};
+  MultiSessionBackend b(optionsFor(GetParam()));
+  for (int s = 0; s < 3; ++s) w.feed(&b, s);
+  for (int k = 0; k < 3; ++k) b.addLoop(w.loop(0, 1 + k, 1, 4));
+  for (int k = 0; k < 3; ++k) b.addLoop(w.loop(0, 5 + k, 2, 4));
+  ASSERT_TRUE(b.join(0, 1, 3).ok());
+  ASSERT_TRUE(b.join(0, 2, 3).ok());
+  EXPECT_EQ(b.chain(0), (std::vector<int>{0, 1, 2}));
+  std::vector<std::vector<Pose2>> joined;
+  for (int s = 0; s < 3; ++s) joined.push_back(b.sessionPoses(s));
+  EXPECT_LT(worstError(joined[2], w.truthIn(0, 2)), 1e-6);
+
+  // Split the middle session: it becomes map 1 in its own frame; 0 and 2 stay joined through
+  // the composed link, their poses unchanged.
+  const BackendStatus st = b.split(1);
+  ASSERT_TRUE(st.ok()) << st.message;
+  EXPECT_EQ(b.mapOf(1), 1);
+  EXPECT_EQ(b.chain(0), (std::vector<int>{0, 2}));
+  EXPECT_LT(worstError(b.sessionPoses(2), joined[2]), 1e-9);
+  EXPECT_LT(worstError(b.sessionPoses(1), w.truthIn(1, 1)), 1e-6);  // its own frame, its own motions
+  EXPECT_EQ(b.pendingJoinLoops(0, 1), 3);  // its loops are stored again
+
+  // New loops between the split pair do not re-join it automatically...
+  for (int k = 0; k < 6; ++k) b.addLoop(w.loop(0, k, 1, 5));
+  EXPECT_EQ(b.mapOf(1), 1);
+  // ...an explicit join does, and gives the same trajectory back.
+  ASSERT_TRUE(b.join(1, 0, 1).ok());
+  EXPECT_EQ(b.chain(0), (std::vector<int>{0, 2, 1}));
+  for (int s = 0; s < 3; ++s) EXPECT_LT(worstError(b.sessionPoses(s), joined[s]), 1e-6) << s;
+}
+
+TEST_P(BothOptimizers, SplitAtEitherEndKeepsBothParts) {
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 8), line(Pose2(1.0, -2.0, M_PI / 2), 8)};
+  MultiSessionBackend b(optionsFor(GetParam()));
+  w.feed(&b, 0);
+  w.feed(&b, 1);
+  b.addLoop(w.loop(0, 2, 1, 4));
+  ASSERT_TRUE(b.join(0, 1).ok());
+  const std::vector<Pose2> p0 = b.sessionPoses(0);
+  ASSERT_TRUE(b.split(0).ok());  // the first session: the rest (session 1) becomes map 1
+  EXPECT_EQ(b.mapOf(0), 0);
+  EXPECT_EQ(b.mapOf(1), 1);
+  EXPECT_LT(worstError(b.sessionPoses(0), p0), 1e-12);
+  EXPECT_TRUE(approxEqual(b.sessionPoses(1)[0], Pose2(), 0.0, 0.0));  // its own frame again
+  EXPECT_EQ(b.split(1).code, StatusCode::kFailedPrecondition);        // alone: nothing to split
+}
+
+TEST_P(BothOptimizers, WrongRequestsChangeNothing) {
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 6), line(Pose2(0.5, -1.0, M_PI / 2), 6)};
+  MultiSessionBackend b(optionsFor(GetParam()));
+  w.feed(&b, 0);
+  w.feed(&b, 1);
+  EXPECT_EQ(b.join(0, 7).code, StatusCode::kNotFound);
+  EXPECT_EQ(b.join(-1, 0).code, StatusCode::kNotFound);
+  EXPECT_EQ(b.join(0, 1, 0).code, StatusCode::kInvalidArgument);
+  const BackendStatus none = b.join(0, 1);
+  EXPECT_EQ(none.code, StatusCode::kFailedPrecondition);
+  EXPECT_NE(none.message.find("0 global loops"), std::string::npos) << none.message;
+  EXPECT_EQ(b.join(0, 0).code, StatusCode::kFailedPrecondition);
+  EXPECT_EQ(b.split(9).code, StatusCode::kNotFound);
+  EXPECT_EQ(b.mapIds(), (std::vector<int>{0, 1}));
+  EXPECT_THROW(b.addLoop({0, 1, 1, 6, UncertainPose2(Pose2(), diag(0.1, 0.1))}),
+               std::invalid_argument);  // keyframe 6 does not exist
+  EXPECT_THROW(b.addLoop({0, 1, 0, 1, UncertainPose2(Pose2(), diag(0.1, 0.1))}), std::invalid_argument);
+  EXPECT_THROW(b.addLoop({0, 1, 1, 1, UncertainPose2(Pose2(), Eigen::Matrix3d::Zero())}), std::invalid_argument);
+  EXPECT_THROW(b.addMotion(0, UncertainPose2(Pose2(1, 0, 0), diag(0.1, 0.1))), std::invalid_argument);  // ended
+  EXPECT_EQ(b.stats().loops, 0);
+}
+
+TEST_P(BothOptimizers, AnInconsistentLoopIsRefusedAtTheJoin) {
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(1.0, -2.0, M_PI / 2), 10)};
+  BackendOptions o = optionsFor(GetParam());
+  MultiSessionBackend b(o);
+  w.feed(&b, 0);
+  w.feed(&b, 1);
+  for (int k = 0; k < 4; ++k) b.addLoop(w.loop(0, 2, 1, 3 + k));
+  EXPECT_EQ(b.mapOf(1), 1);
+  b.addLoop(w.loop(0, 7, 1, 4, Pose2(2.0, 0.0, 0.3)));  // the fifth, and wrong
+  EXPECT_EQ(b.mapOf(1), 1) << "4 good loops of 5: K = 5 not reached";
+  b.addLoop(w.loop(0, 3, 1, 4));
+  ASSERT_EQ(b.mapOf(1), 0);
+  EXPECT_EQ(b.stats().loops_refused, 1);
+  EXPECT_EQ(b.links(0)[0].loops, 5);
+  EXPECT_LT(worstError(b.sessionPoses(1), w.truthIn(0, 1)), 1e-3);
+}
+
+TEST_P(BothOptimizers, OptimisationWaitsForMPendingLoops) {
+  BackendOptions o = optionsFor(GetParam());
+  o.optimise_every = 3;
+  MultiSessionBackend b(o);
+  const int s = b.startSession();
+  for (int k = 0; k < 8; ++k) b.addMotion(s, UncertainPose2(Pose2(0.5, 0.0, k == 3 ? M_PI : 0.0), diag(0.02, 0.01)));
+  b.addLoop({s, 0, s, 7, UncertainPose2(Pose2(0, 0, M_PI), diag(0.01, 0.01))});
+  b.addLoop({s, 1, s, 6, UncertainPose2(Pose2(0, 0, M_PI), diag(0.01, 0.01))});
+  EXPECT_EQ(b.stats().optimisations, 0);
+  b.addLoop({s, 2, s, 5, UncertainPose2(Pose2(0, 0, M_PI), diag(0.01, 0.01))});
+  EXPECT_EQ(b.stats().optimisations, 1);
+  b.addLoop({s, 0, s, 8, UncertainPose2(Pose2(-0.5, 0, M_PI), diag(0.01, 0.01))});
+  EXPECT_EQ(b.stats().optimisations, 1);
+  b.endSession(s);  // a session's end flushes its map
+  EXPECT_EQ(b.stats().optimisations, 2);
+}
+
+INSTANTIATE_TEST_SUITE_P(Backend, BothOptimizers, ::testing::Values(OptimizerKind::kIekf, OptimizerKind::kSparse),
+                         [](const auto& info) { return std::string(optimizerName(info.param)); });
+
+TEST(Backend, BothOptimizersAgreeOnTheSameNoisyRun) {
+  auto run = [](OptimizerKind k) {
+    World w;
+    w.odo_noise = 0.01;
+    w.sessions = {line(Pose2(0, 0, 0), 15), line(Pose2(3.0, -3.0, M_PI / 2), 15)};
+    BackendOptions o = optionsFor(k);
+    o.join_min_loops = 3;
+    o.sparse.robust_loss = RobustLoss::kNone;
+    MultiSessionBackend b(o);
+    w.feed(&b, 0);
+    w.feed(&b, 1);
+    for (int k = 0; k < 3; ++k) b.addLoop(w.loop(0, 5 + k, 1, 6));
+    for (int k = 0; k < 3; ++k) b.addLoop(w.loop(0, 6, 1, 5 + k));
+    b.flush();
+    return std::make_pair(b.sessionPoses(0), b.sessionPoses(1));
+  };
+  const auto iekf = run(OptimizerKind::kIekf), sparse = run(OptimizerKind::kSparse);
+  EXPECT_LT(worstError(iekf.first, sparse.first), 0.01);
+  EXPECT_LT(worstError(iekf.second, sparse.second), 0.01);
+}
+
+TEST(Backend, TheIekfHandsALargeMapToTheSparseOptimiser) {
+  BackendOptions o = optionsFor(OptimizerKind::kIekf);
+  o.max_keyframes = 10;
+  std::vector<std::string> said;
+  MultiSessionBackend b(o, [&](const std::string& l) { said.push_back(l); });
+  const int s = b.startSession();
+  for (int k = 0; k < 12; ++k) b.addMotion(s, UncertainPose2(Pose2(0.5, 0.0, k == 5 ? M_PI : 0.0), diag(0.02, 0.01)));
+  ASSERT_EQ(said.size(), 1u);
+  EXPECT_NE(said[0].find("sparse"), std::string::npos) << said[0];
+  b.addLoop({s, 0, s, 11, UncertainPose2(Pose2(0, 0, M_PI), diag(0.01, 0.01))});
+  EXPECT_EQ(b.stats().optimisations, 1);
+  EXPECT_EQ(b.sessionPoses(s).size(), 13u);
+}
+
+TEST(Backend, RefusesBadOptions) {
+  BackendOptions o;
+  o.optimise_every = 0;
+  EXPECT_THROW(MultiSessionBackend{o}, std::invalid_argument);
+  o = BackendOptions();
+  o.sparse.max_iterations = 0;
+  EXPECT_THROW(MultiSessionBackend{o}, std::invalid_argument);
+  OptimizerKind k;
+  EXPECT_TRUE(parseOptimizer("iekf", &k) && k == OptimizerKind::kIekf);
+  EXPECT_FALSE(parseOptimizer("g2o", &k));
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam
