@@ -127,7 +127,7 @@ IekfResult TrajectoryIekf::update(const std::vector<LoopMeasurement>& loops) {
   linearise(unstack(x), &nu, &g);
   const Eigen::MatrixXd s = g * p_ * g.transpose() + r;
   k_gain = p_ * g.transpose() * s.ldlt().solve(Eigen::MatrixXd::Identity(m, m));
-  p_ = p_ - k_gain * g * p_;
+  p_ -= k_gain * (g * p_);  // K (G P): O(N² m), not (K G) P: O(N³)
   p_ = 0.5 * (p_ + p_.transpose());
   motions_ = unstack(x);
   res.chi2_after = nu.dot(r.ldlt().solve(nu));

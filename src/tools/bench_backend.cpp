@@ -1,0 +1,326 @@
+// bench_backend: back-end benchmark (paper 000 §8, §9, its Table 3). A benchmark, not a test: it
+// prints numbers and asserts nothing. Two modes:
+//
+//   --robustness --mission DIR   the paper's Table 3: the ground truth of a generated mission
+//       (world_gt.csv, loops_gt.csv) with its odometry corrupted at five noise levels (2σ from
+//       5 cm / 5° to 25 cm / 25° per motion), every ground-truth loop measured with 1 cm / 0.5°
+//       noise, `--runs` seeds per level, joined with K = 1, 10, 20, 30 loops, by both optimisers.
+//       Prints mean ± σ of the errors before (odometry) and after SLAM.
+//   --cost N --loops L --optimizer iekf|sparse   one synthetic single-session survey of N
+//       keyframes (rows of 50 keyframes 0.5 m apart, 1 cm / 0.5° odometry noise) with L loops
+//       between neighbouring rows; prints the time to add the motions, to optimise with all the
+//       loops at once, to re-optimise after one more loop, and the peak resident memory. Run
+//       once per process (scripts/bench_backend.sh) so that the peak memory is this case's.
+#include <sys/resource.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/backend.h"
+#include "uw_multislam/core/dataset.h"
+
+namespace core = uw_multislam::core;
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+const char* kUsage = R"(usage: bench_backend --robustness --mission DIR [--runs N]
+       bench_backend --cost N --loops L --optimizer iekf|sparse
+
+--robustness: Table 3 of the paper on a generated mission (make_survey output: world_gt.csv and
+  loops_gt.csv): odometry corrupted with 2σ = 5, 10, 15, 20, 25 cm and degrees per motion, loops
+  from the ground truth with 1 cm / 0.5° noise, K = 1, 10, 20, 30, both optimisers, N runs per
+  level (default 20). Errors in metres, mean ± σ over the runs:
+    odo e_k    the paper's e_k (35) of the odometry over the intra-session loop pairs
+    e_k intra  the same after SLAM
+    e_k inter  over the inter-session pairs, in the joined map (only runs that joined)
+    map ATE    every keyframe in the joined map's frame vs the ground truth in that frame
+--cost: time and peak memory of one optimiser on a synthetic survey of N keyframes, L loops.)";
+
+double ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+
+long peakRssKb() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return u.ru_maxrss;
+}
+
+Eigen::Matrix3d diag(double sxy, double syaw) {
+  return Eigen::Vector3d(sxy * sxy, sxy * sxy, syaw * syaw).asDiagonal();
+}
+
+struct Mission {
+  std::vector<std::vector<core::Pose2>> sessions;                 // world poses, every frame a keyframe
+  std::vector<std::pair<std::pair<int, int>, std::pair<int, int>>> loops;  // (session, keyframe) pairs
+};
+
+std::vector<std::map<std::string, std::string>> readCsv(const fs::path& p) {
+  const std::string text = core::readTextFile(p.string());
+  std::istringstream in(text);
+  std::string line, cell;
+  std::getline(in, line);
+  std::vector<std::string> header;
+  std::istringstream h(line);
+  while (std::getline(h, cell, ',')) header.push_back(cell);
+  std::vector<std::map<std::string, std::string>> rows;
+  while (std::getline(in, line)) {
+    if (line.empty()) continue;
+    std::istringstream r(line);
+    std::map<std::string, std::string> row;
+    for (const auto& key : header) {
+      std::getline(r, cell, ',');
+      row[key] = cell;
+    }
+    rows.push_back(row);
+  }
+  return rows;
+}
+
+Mission loadMission(const fs::path& dir) {
+  Mission m;
+  std::map<std::pair<int, int>, int> keyframe;  // (session, frame index) -> keyframe
+  for (const auto& r : readCsv(dir / "world_gt.csv")) {
+    const int s = std::stoi(r.at("session"));
+    if (s >= static_cast<int>(m.sessions.size())) m.sessions.resize(s + 1);
+    keyframe[{s, std::stoi(r.at("index"))}] = static_cast<int>(m.sessions[s].size());
+    m.sessions[s].emplace_back(std::stod(r.at("x_m")), std::stod(r.at("y_m")), std::stod(r.at("yaw_rad")));
+  }
+  for (const auto& r : readCsv(dir / "loops_gt.csv")) {
+    const std::pair<int, int> a{std::stoi(r.at("session_a")), std::stoi(r.at("index_a"))};
+    const std::pair<int, int> b{std::stoi(r.at("session_b")), std::stoi(r.at("index_b"))};
+    m.loops.push_back({{a.first, keyframe.at(a)}, {b.first, keyframe.at(b)}});
+  }
+  return m;
+}
+
+struct RunErrors {
+  double odo_ek = 0, ek_intra = 0, ek_inter = NAN, map_ate = NAN, ms = 0;
+  bool joined = false;
+};
+
+double ekOver(const std::vector<std::vector<core::Pose2>>& est, const Mission& m, bool inter) {
+  double sum = 0;
+  int n = 0;
+  for (const auto& l : m.loops) {
+    const auto [a, b] = l;
+    if ((a.first != b.first) != inter) continue;
+    const core::Pose2 e = core::between(est[a.first][a.second], est[b.first][b.second]);
+    const core::Pose2 g = core::between(m.sessions[a.first][a.second], m.sessions[b.first][b.second]);
+    sum += (e.translation() - g.translation()).norm();
+    ++n;
+  }
+  return n ? sum / n : NAN;
+}
+
+RunErrors runOnce(const Mission& m, double level, int k_join, core::OptimizerKind opt, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  const double s_xy = 0.5 * level, s_yaw = 0.5 * level * 100.0 * M_PI / 180.0;  // 2σ = level m, level*100 deg
+  const double l_xy = 0.01, l_yaw = 0.5 * M_PI / 180.0;
+  core::BackendOptions o;
+  o.optimizer = opt;
+  o.join_min_loops = k_join;
+  o.optimise_every = 1;
+  o.join_gate_m = 1e9;  // the loops are true: measure the optimiser, not the gate
+  o.max_keyframes = 100000;
+  core::MultiSessionBackend b(o);
+  // Loops indexed by their later end, added when that keyframe arrives.
+  std::map<std::pair<int, int>, std::vector<std::size_t>> at;
+  for (std::size_t i = 0; i < m.loops.size(); ++i) at[m.loops[i].second].push_back(i);
+  std::vector<std::vector<core::Pose2>> odo(m.sessions.size());
+  RunErrors r;
+  const auto t0 = Clock::now();
+  for (int s = 0; s < static_cast<int>(m.sessions.size()); ++s) {
+    const int id = b.startSession();
+    odo[s].push_back(core::Pose2());
+    for (int k = 0; k < static_cast<int>(m.sessions[s].size()); ++k) {
+      if (k > 0) {
+        const core::Pose2 t = core::between(m.sessions[s][k - 1], m.sessions[s][k]);
+        const core::Pose2 z(t.x() + s_xy * n01(rng), t.y() + s_xy * n01(rng), t.yaw() + s_yaw * n01(rng));
+        b.addMotion(id, core::UncertainPose2(z, diag(s_xy, s_yaw)));
+        odo[s].push_back(core::compose(odo[s].back(), z));
+      }
+      for (std::size_t i : at[{s, k}]) {
+        const auto [a, c] = m.loops[i];
+        const core::Pose2 t = core::between(m.sessions[a.first][a.second], m.sessions[c.first][c.second]);
+        const core::Pose2 z(t.x() + l_xy * n01(rng), t.y() + l_xy * n01(rng), t.yaw() + l_yaw * n01(rng));
+        b.addLoop({a.first, a.second, c.first, c.second, core::UncertainPose2(z, diag(l_xy, l_yaw))});
+      }
+    }
+    b.endSession(id);
+  }
+  b.flush();
+  r.ms = ms(t0, Clock::now());
+  std::vector<std::vector<core::Pose2>> est;
+  for (int s = 0; s < b.numSessions(); ++s) est.push_back(b.sessionPoses(s));
+  r.odo_ek = ekOver(odo, m, false);
+  r.ek_intra = ekOver(est, m, false);
+  r.joined = b.mapIds().size() == 1;
+  if (r.joined) {
+    r.ek_inter = ekOver(est, m, true);
+    double sq = 0;
+    int n = 0;
+    for (int s = 0; s < b.numSessions(); ++s)
+      for (std::size_t k = 0; k < est[s].size(); ++k) {
+        const core::Pose2 g = core::between(m.sessions[0][0], m.sessions[s][k]);
+        sq += (est[s][k].translation() - g.translation()).squaredNorm();
+        ++n;
+      }
+    r.map_ate = std::sqrt(sq / n);
+  }
+  return r;
+}
+
+std::string meanSd(const std::vector<double>& v) {
+  std::vector<double> x;
+  for (double d : v)
+    if (std::isfinite(d)) x.push_back(d);
+  if (x.empty()) return "n/a";
+  double mean = 0, sq = 0;
+  for (double d : x) mean += d;
+  mean /= x.size();
+  for (double d : x) sq += (d - mean) * (d - mean);
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.3f ± %.3f", mean, x.size() > 1 ? std::sqrt(sq / (x.size() - 1)) : 0.0);
+  return buf;
+}
+
+int robustness(const fs::path& dir, int runs) {
+  const Mission m = loadMission(dir);
+  int intra = 0;
+  for (const auto& l : m.loops) intra += l.first.first == l.second.first;
+  std::printf("mission %s: %zu sessions, %zu loops (%d intra, %zu inter), %d runs per level\n\n", dir.c_str(),
+              m.sessions.size(), m.loops.size(), intra, m.loops.size() - intra, runs);
+  std::printf("| noise 2σ | K | optimiser | odo e_k (m) | e_k intra (m) | e_k inter (m) | map ATE (m) | joined | ms/run |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|\n");
+  for (int level = 1; level <= 5; ++level) {
+    const double lv = 0.05 * level;
+    for (int k : {1, 10, 20, 30}) {
+      for (auto opt : {core::OptimizerKind::kIekf, core::OptimizerKind::kSparse}) {
+        std::vector<double> odo, ei, ee, ate, t;
+        int joined = 0;
+        for (int r = 0; r < runs; ++r) {
+          const RunErrors e = runOnce(m, lv, k, opt, 1000u * level + r);  // same seeds for both optimisers
+          odo.push_back(e.odo_ek);
+          ei.push_back(e.ek_intra);
+          ee.push_back(e.ek_inter);
+          ate.push_back(e.map_ate);
+          t.push_back(e.ms);
+          joined += e.joined;
+        }
+        std::printf("| %d cm / %d° | %d | %s | %s | %s | %s | %s | %d/%d | %s |\n", 5 * level, 5 * level, k,
+                    core::optimizerName(opt), meanSd(odo).c_str(), meanSd(ei).c_str(), meanSd(ee).c_str(),
+                    meanSd(ate).c_str(), joined, runs, meanSd(t).c_str());
+        std::fflush(stdout);
+      }
+    }
+  }
+  return 0;
+}
+
+int cost(int n, int loops, core::OptimizerKind opt) {
+  constexpr int kRow = 50;
+  std::mt19937 rng(7);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  std::vector<core::Pose2> truth;
+  for (int k = 0; k < n; ++k) {
+    const int row = k / kRow, col = k % kRow;
+    const bool back = row % 2 == 1;
+    truth.emplace_back(back ? 0.5 * (kRow - 1 - col) : 0.5 * col, 0.5 * row, back ? M_PI : 0.0);
+  }
+  core::BackendOptions o;
+  o.optimizer = opt;
+  o.optimise_every = 1 << 30;  // one optimisation with every loop, then one more
+  o.max_keyframes = n + 2;
+  core::MultiSessionBackend b(o);
+  const int s = b.startSession();
+  const auto t0 = Clock::now();
+  for (int k = 1; k < n; ++k) {
+    const core::Pose2 t = core::between(truth[k - 1], truth[k]);
+    b.addMotion(s, core::UncertainPose2(core::Pose2(t.x() + 0.01 * n01(rng), t.y() + 0.01 * n01(rng),
+                                                    t.yaw() + 0.0087 * n01(rng)),
+                                        diag(0.01, 0.0087)));
+  }
+  const auto t1 = Clock::now();
+  std::uniform_int_distribution<int> pick(kRow, n - 1);
+  auto loop = [&]() {
+    const int j = pick(rng);
+    const int row = j / kRow, col = j % kRow;
+    const int i = (row - 1) * kRow + (kRow - 1 - col);  // the keyframe beside it in the previous row
+    return core::BackendLoop{s, i, s, j, core::UncertainPose2(core::between(truth[i], truth[j]), diag(0.01, 0.0087))};
+  };
+  for (int l = 0; l < loops; ++l) b.addLoop(loop());
+  const auto t2 = Clock::now();
+  b.flush();
+  const auto t3 = Clock::now();
+  b.addLoop(loop());
+  b.flush();
+  const auto t4 = Clock::now();
+  double ate = 0;
+  const auto est = b.sessionPoses(s);
+  for (int k = 0; k < n; ++k) ate += (est[k].translation() - core::between(truth[0], truth[k]).translation()).squaredNorm();
+  std::printf("| %s | %d | %d | %.1f | %.1f | %.1f | %.1f | %.3f |\n", core::optimizerName(opt), n, loops, ms(t0, t1),
+              ms(t2, t3), ms(t3, t4), peakRssKb() / 1024.0, std::sqrt(ate / n));
+  (void)t2;
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string mission, optimizer = "sparse";
+  int runs = 20, n = 0, loops = 0;
+  bool robust = false;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    const bool v = i + 1 < argc;
+    if (a == "-h" || a == "--help") {
+      std::puts(kUsage);
+      return 0;
+    } else if (a == "--robustness") {
+      robust = true;
+    } else if (a == "--mission" && v) {
+      mission = argv[++i];
+    } else if (a == "--runs" && v) {
+      runs = std::atoi(argv[++i]);
+    } else if (a == "--cost" && v) {
+      n = std::atoi(argv[++i]);
+    } else if (a == "--loops" && v) {
+      loops = std::atoi(argv[++i]);
+    } else if (a == "--optimizer" && v) {
+      optimizer = argv[++i];
+    } else {
+      std::fprintf(stderr, "bench_backend: unknown or incomplete argument '%s' (see --help)\n", a.c_str());
+      return 2;
+    }
+  }
+  try {
+    if (robust) {
+      if (mission.empty() || runs < 1) {
+        std::fprintf(stderr, "bench_backend: --robustness needs --mission DIR and --runs >= 1\n");
+        return 2;
+      }
+      return robustness(mission, runs);
+    }
+    core::OptimizerKind k;
+    if (n < 2 * 50 || loops < 0 || !core::parseOptimizer(optimizer, &k)) {
+      std::fprintf(stderr, "bench_backend: --cost N (>= 100) --loops L --optimizer iekf|sparse (see --help)\n");
+      return 2;
+    }
+    return cost(n, loops, k);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "bench_backend: %s\n", e.what());
+    return 1;
+  }
+}
