@@ -42,7 +42,10 @@ std::string describe(const Pose2& p) {
   return buf;
 }
 
-Eigen::Matrix3d block3(const Eigen::MatrixXd& p, Eigen::Index i, Eigen::Index j) { return p.block<3, 3>(3 * i, 3 * j); }
+template <typename Derived>
+Eigen::Matrix3d block3(const Eigen::MatrixBase<Derived>& p, Eigen::Index i, Eigen::Index j) {
+  return p.template block<3, 3>(3 * i, 3 * j);
+}
 
 // Means-only trajectory of a list of motions.
 Trajectory meansTrajectory(const std::vector<Pose2>& motions) {
@@ -451,7 +454,7 @@ BackendStatus MultiSessionBackend::split(int session) {
       return;
     }
     // Dense: the kept blocks of P, and for a composed motion J P Jᵀ with its cross terms J P.
-    const Eigen::MatrixXd& p = m.iekf->covariance();
+    const auto p = m.iekf->covariance();
     Eigen::Index dim = 0;
     std::vector<std::pair<Eigen::Index, Eigen::Index>> src;  // (start, length) in the old state
     for (std::size_t r = 0; r < ranges.size(); ++r) {

@@ -69,7 +69,11 @@ class TrajectoryIekf {
   /// motions' covariances.
   Trajectory trajectory() const;
   const std::vector<Pose2>& motions() const { return motions_; }
-  const Eigen::MatrixXd& covariance() const { return p_; }
+  /// P, 3N x 3N (a view into a buffer with spare capacity).
+  Eigen::Block<const Eigen::MatrixXd> covariance() const {
+    const auto n = static_cast<Eigen::Index>(3 * motions_.size());
+    return storage_.topLeftCorner(n, n);
+  }
   /// X_j^i with its covariance under the full (correlated) P.
   UncertainPose2 relative(int i, int j) const;
 
@@ -77,7 +81,11 @@ class TrajectoryIekf {
   Trajectory meansOnly(const std::vector<Pose2>& motions) const;
   IekfOptions options_;
   std::vector<Pose2> motions_;
-  Eigen::MatrixXd p_;
+  Eigen::Block<Eigen::MatrixXd> state() {
+    const auto n = static_cast<Eigen::Index>(3 * motions_.size());
+    return storage_.topLeftCorner(n, n);
+  }
+  Eigen::MatrixXd storage_;  // P in its top-left 3N x 3N corner
 };
 
 }  // namespace core
