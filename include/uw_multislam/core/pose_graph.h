@@ -30,7 +30,7 @@ bool parseRobustLoss(const std::string& name, RobustLoss* out);
 struct SparseOptions {
   int max_iterations = 50;
   double function_tolerance = 1e-10;  // relative cost change that stops the solver
-  RobustLoss robust_loss = RobustLoss::kCauchy;
+  RobustLoss robust_loss = RobustLoss::kHuber;  // Cauchy under-weighted true loops (over-confident covariances)
   double loss_scale = 3.0;  // in standard deviations: loops beyond it are down-weighted
 
   std::string validate() const;
