@@ -21,7 +21,9 @@ import rosgraph
 import roslib.packages
 import rospy
 import rostest
+import rosnode
 from geometry_msgs.msg import PoseStamped
+from sensor_msgs.msg import CameraInfo, Image, Range
 from uw_multislam.msg import Keyframe, KeyframeHash, Loop
 
 SURVEY = """
@@ -177,6 +179,39 @@ class SlamPipelineTest(unittest.TestCase):
         for h in self.hashes:
             self.assertEqual(len(h.values), 384)
             self.assertEqual(h.hash_mode, KeyframeHash.SORTED_DCT)
+
+    def test_bad_input_is_skipped_without_crashing(self):
+        """A float image, an empty image and a camera_info without focal length, each with a NaN
+        altitude: skipped (no pose, no keyframe), and the node keeps running."""
+        pubs = [rospy.Publisher(t, m, queue_size=10) for t, m in
+                (("/camera/image_raw", Image), ("/camera/camera_info", CameraInfo), ("/altitude", Range))]
+        deadline = time.time() + 10
+        while time.time() < deadline and any(p.get_num_connections() == 0 for p in pubs):
+            time.sleep(0.2)
+        with self.lock:
+            poses_before, keyframes_before = len(self.poses), len(self.keyframes)
+        stamp = rospy.Time(1700005000)  # after both sessions
+        good_info = CameraInfo(width=240, height=180, K=[220, 0, 119.5, 0, 220, 89.5, 0, 0, 1])
+        cases = [(Image(encoding="32FC1", width=240, height=180, step=960, data=bytes(960 * 180)), good_info),
+                 (Image(encoding="mono8", width=0, height=0, step=0, data=b""), good_info),
+                 (Image(encoding="mono8", width=240, height=180, step=240, data=bytes(range(240)) * 180),
+                  CameraInfo(width=240, height=180, K=[0] * 9))]
+        for i, (image, info) in enumerate(cases):
+            image.header.stamp = info.header.stamp = stamp + rospy.Duration(i)
+            altitude = Range(range=float("nan"), min_range=0.1, max_range=100)
+            altitude.header.stamp = image.header.stamp
+            for p, m in zip(pubs, (image, info, altitude)):
+                p.publish(m)
+            time.sleep(0.5)
+        time.sleep(2.0)
+        with self.lock:
+            self.assertEqual(len(self.poses), poses_before, "a bad frame was processed")
+            self.assertEqual(len(self.keyframes), keyframes_before)
+        state = rosgraph.Master("/check_slam_pipeline").getSystemState()
+        nodes = dict(state[0]).get(NS + "/odometry/pose", [])
+        self.assertTrue(nodes, "nobody publishes the odometry pose any more")
+        for node in nodes:
+            self.assertTrue(rosnode.rosnode_ping(node, max_count=1), "%s does not answer" % node)
 
 
 if __name__ == "__main__":
