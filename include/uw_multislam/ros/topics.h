@@ -20,6 +20,43 @@ constexpr char kAltitude[] = "altitude";
 /// nav_msgs/Odometry: ground-truth pose of the camera, for evaluation only (never fed to SLAM).
 constexpr char kGroundTruthOdom[] = "ground_truth/odom";
 
+// --- The pipeline (DESIGN.md): odometry -> keyframes -> loop detection -> back-end ------------
+
+/// uw_multislam/Keyframe: each new keyframe with its features (odometry nodelet).
+constexpr char kKeyframes[] = "keyframes";
+/// geometry_msgs/PoseStamped: the odometry-only pose of the latest frame in its session's frame
+/// (odometry nodelet; frame_id = frames/session_frame_prefix + session id).
+constexpr char kOdometryPose[] = "odometry/pose";
+/// sensor_msgs/Image: the latest keyframe's image with its features drawn (odometry nodelet,
+/// only while someone subscribes).
+constexpr char kKeyframeImage[] = "odometry/keyframe_image";
+/// uw_multislam/Loop: verified loops, local and global (loop detector nodelet(s)).
+constexpr char kLoops[] = "loops";
+/// uw_multislam/KeyframeHash: each keyframe's compact hash (loop detector in global/both mode).
+constexpr char kKeyframeHashes[] = "keyframe_hashes";
+
+// --- Back-end / session manager (published by it; the front-end nodelets consume these) ------
+
+/// uw_multislam/SessionTrajectory: optimised keyframe poses of a session after each
+/// optimisation. The loop detector takes local-loop candidates from them when they arrive, else
+/// from the odometry motions of the Keyframe messages.
+constexpr char kSessionTrajectory[] = "session_trajectory";
+/// uw_multislam/SessionState, latched: the session keyframes go to now. When its id differs
+/// from the odometry's current one, the odometry closes its session and starts this one.
+constexpr char kActiveSession[] = "active_session";
+/// Suggested names for the back-end's outputs (one place, so rviz and launch files agree):
+/// nav_msgs/Path per session "paths/session_<id>", visualization_msgs/MarkerArray of loops and
+/// joins, uw_multislam/SessionState[] via the list_sessions service.
+constexpr char kSessionPathPrefix[] = "paths/session_";
+constexpr char kLoopMarkers[] = "loop_markers";
+
+// --- Services of the session manager (uw_multislam/srv) ---------------------------------------
+constexpr char kJoinSessionsService[] = "join_sessions";
+constexpr char kSplitSessionService[] = "split_session";
+constexpr char kReloadSessionService[] = "reload_session";
+constexpr char kListSessionsService[] = "list_sessions";
+constexpr char kStartSessionService[] = "start_session";
+
 /// The absolute form of a relative name ("camera/image_raw" -> "/camera/image_raw").
 inline std::string globalName(const std::string& relative) {
   return (!relative.empty() && relative.front() == '/') ? relative : "/" + relative;

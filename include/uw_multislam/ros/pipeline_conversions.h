@@ -1,0 +1,83 @@
+// Conversions between the core's keyframes, loops and hashes and the pipeline's messages
+// (uw_multislam/Keyframe, Loop, KeyframeHash). One place for them (STYLE.md); every function has
+// a test in test/ros/test_pipeline_conversions.cpp.
+//
+// Messages from the wire are checked: fromMsg returns false with a one-line reason (never
+// throws) for inconsistent array sizes, non-finite numbers, a bad camera or covariance, so that a
+// nodelet can count and skip a bad message.
+#pragma once
+
+#include <std_msgs/Header.h>
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <string>
+
+#include "uw_multislam/Keyframe.h"
+#include "uw_multislam/KeyframeHash.h"
+#include "uw_multislam/Loop.h"
+#include "uw_multislam/core/dataset.h"
+#include "uw_multislam/core/features.h"
+#include "uw_multislam/core/haloc.h"
+#include "uw_multislam/core/loop_detector.h"
+#include "uw_multislam/core/odometry.h"
+#include "uw_multislam/core/uncertain_pose.h"
+
+namespace uw_multislam {
+namespace ros_conversions {
+
+/// How the keyframe's motion from the previous keyframe was obtained (Keyframe.status).
+enum class KeyframeQuality { kFirst, kMatched, kFallback };
+
+/// Everything a Keyframe message carries, in core types.
+struct KeyframeData {
+  int session = 0;
+  int keyframe = 0;
+  int frame_index = 0;
+  double altitude_m = 0.0;
+  core::CameraIntrinsics camera;
+  /// Keypoints (position and response only travel) and descriptors (CV_32F from the extractor;
+  /// fromMsg gives CV_32F too, the values of the 8-bit message).
+  core::FrameFeatures features;
+  core::UncertainPose2 motion;  // X_k^{k-1}; exact identity for keyframe 0
+  core::Pose2 odometry_pose;    // X_k^0 of the odometry
+  KeyframeQuality quality = KeyframeQuality::kFirst;
+  int matches = 0;
+  int inliers = 0;
+  double overlap = 0.0;
+  double scale = 1.0;
+};
+
+/// The keyframe `id` of an odometry, as loop detection and the back-end need it: its features,
+/// camera, altitude, motion and pose. `update` is the process() result that made it (its
+/// matches/inliers are reported for the keyframe of the update's own frame, 0 for a promoted
+/// earlier frame).
+KeyframeData keyframeData(const core::Odometry& odometry, const core::Odometry::NewKeyframe& kf,
+                          const core::OdometryUpdate& update, int session);
+
+/// Descriptors are rounded and saturated to 8 bits (SIFT's values are integers in 0..255).
+uw_multislam::Keyframe toKeyframeMsg(const KeyframeData& k, const std_msgs::Header& header);
+bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* why = nullptr);
+
+uw_multislam::Loop toLoopMsg(const core::Loop& loop, const std_msgs::Header& header);
+bool fromMsg(const uw_multislam::Loop& m, core::Loop* out, std::string* why = nullptr);
+
+/// A keyframe's hash; values must have core::HalocProjections::kHashSize entries.
+struct KeyframeHashData {
+  int session = 0;
+  int keyframe = 0;
+  int frame_index = 0;
+  core::HashMode mode = core::HashMode::kSortedDct;
+  std::uint64_t projection_seed = 0;
+  int num_features = 0;
+  Eigen::VectorXf values;
+};
+uw_multislam::KeyframeHash toKeyframeHashMsg(const KeyframeHashData& h, const std_msgs::Header& header);
+bool fromMsg(const uw_multislam::KeyframeHash& m, KeyframeHashData* out, std::string* why = nullptr);
+
+/// 3x3 covariance <-> row-major float64[9].
+void toArray(const Eigen::Matrix3d& c, boost::array<double, 9>* out);
+Eigen::Matrix3d fromArray(const boost::array<double, 9>& a);
+
+}  // namespace ros_conversions
+}  // namespace uw_multislam

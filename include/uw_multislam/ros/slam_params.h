@@ -1,0 +1,47 @@
+// Parameters of the nodelets. The algorithm options are the core's SlamConfig (the keys of
+// config/slam.yaml), read from the parameter server tree where launch/core.launch loads that
+// file (<namespace>/slam), so offline_slam and the nodelets share one file, one parser and one
+// validation: missing keys keep their defaults, unknown keys and bad values are errors naming
+// the key. Tested in test/ros/test_slam_params.cpp.
+#pragma once
+
+#include <ros/node_handle.h>
+#include <xmlrpcpp/XmlRpcValue.h>
+
+#include <sstream>
+#include <stdexcept>
+#include <string>
+
+#include "uw_multislam/core/slam_config.h"
+
+namespace uw_multislam {
+namespace ros_params {
+
+/// The parameter tree as YAML text (maps, lists, scalars; doubles with full precision).
+std::string xmlRpcToYaml(const XmlRpc::XmlRpcValue& value);
+
+/// The SlamConfig of a parameter tree (a map of blocks as in config/slam.yaml). Throws
+/// std::invalid_argument "<where>: <reason>" for an unknown key, a bad value or a non-map.
+core::SlamConfig slamConfigFromXmlRpc(const XmlRpc::XmlRpcValue& tree, const std::string& where);
+
+/// The SlamConfig at `nh`/`key` (default "slam"); all defaults when the key is absent.
+/// Throws std::invalid_argument "<resolved key>: <reason>" for an unknown key or a bad value.
+core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::string& key = "slam");
+
+/// A required-or-defaulted scalar parameter with a check; throws std::invalid_argument
+/// "<resolved name> = <value>: must be <requirement>" when `ok(value)` is false.
+template <typename T, typename Check>
+T param(const ros::NodeHandle& nh, const std::string& name, const T& fallback, Check ok,
+        const std::string& requirement) {
+  T value = fallback;
+  nh.param(name, value, fallback);
+  if (!ok(value)) {
+    std::ostringstream os;
+    os << nh.resolveName(name) << " = " << value << ": must be " << requirement;
+    throw std::invalid_argument(os.str());
+  }
+  return value;
+}
+
+}  // namespace ros_params
+}  // namespace uw_multislam

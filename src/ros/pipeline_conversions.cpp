@@ -1,0 +1,263 @@
+#include "uw_multislam/ros/pipeline_conversions.h"
+
+#include <opencv2/core.hpp>
+
+#include <cmath>
+#include <sstream>
+
+#include "uw_multislam/ros/conversions.h"
+
+namespace uw_multislam {
+namespace ros_conversions {
+
+namespace {
+
+bool fail(std::string* why, const std::string& reason) {
+  if (why) *why = reason;
+  return false;
+}
+
+bool finitePose(const geometry_msgs::Pose2D& p) {
+  return std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.theta);
+}
+
+}  // namespace
+
+void toArray(const Eigen::Matrix3d& c, boost::array<double, 9>* out) {
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) (*out)[r * 3 + k] = c(r, k);
+  }
+}
+
+Eigen::Matrix3d fromArray(const boost::array<double, 9>& a) {
+  Eigen::Matrix3d c;
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) c(r, k) = a[r * 3 + k];
+  }
+  return c;
+}
+
+KeyframeData keyframeData(const core::Odometry& odometry, const core::Odometry::NewKeyframe& kf,
+                          const core::OdometryUpdate& update, int session) {
+  const core::KeyframeInfo& info = odometry.keyframes().at(kf.id);
+  KeyframeData k;
+  k.session = session;
+  k.keyframe = kf.id;
+  k.frame_index = info.frame_index;
+  k.altitude_m = info.altitude_m;
+  k.camera = odometry.camera();
+  k.features = kf.features;
+  k.odometry_pose = odometry.trajectory().absolutePose(kf.id);
+  if (kf.id == 0) {
+    k.motion = core::UncertainPose2::exact(core::Pose2());
+    k.quality = KeyframeQuality::kFirst;
+  } else {
+    k.motion = odometry.trajectory().motion(kf.id);
+    k.quality = info.fallback ? KeyframeQuality::kFallback : KeyframeQuality::kMatched;
+  }
+  if (info.frame_index == update.index && k.quality == KeyframeQuality::kMatched) {
+    k.matches = update.matches;
+    k.inliers = update.inliers;
+    k.overlap = update.overlap;
+    k.scale = update.scale;
+  }
+  return k;
+}
+
+uw_multislam::Keyframe toKeyframeMsg(const KeyframeData& k, const std_msgs::Header& header) {
+  uw_multislam::Keyframe m;
+  m.header = header;
+  m.session = k.session;
+  m.keyframe = k.keyframe;
+  m.frame_index = k.frame_index;
+  m.altitude_m = k.altitude_m;
+  m.width = static_cast<std::uint32_t>(k.camera.width);
+  m.height = static_cast<std::uint32_t>(k.camera.height);
+  m.fx = k.camera.fx;
+  m.fy = k.camera.fy;
+  m.cx = k.camera.cx;
+  m.cy = k.camera.cy;
+  const std::size_t n = k.features.size();
+  m.u_px.resize(n);
+  m.v_px.resize(n);
+  m.x_m.resize(n);
+  m.y_m.resize(n);
+  m.response.resize(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const cv::KeyPoint& kp = k.features.keypoints[i];
+    m.u_px[i] = kp.pt.x;
+    m.v_px[i] = kp.pt.y;
+    m.response[i] = kp.response;
+    if (k.camera.fx > 0 && k.camera.fy > 0) {
+      const Eigen::Vector2d xy = core::pixelToMetres(kp.pt, k.camera, k.altitude_m);
+      m.x_m[i] = static_cast<float>(xy.x());
+      m.y_m[i] = static_cast<float>(xy.y());
+    }
+  }
+  const cv::Mat& d = k.features.descriptors;
+  m.descriptor_size = static_cast<std::uint32_t>(d.empty() ? core::HalocProjections::kDescriptorSize : d.cols);
+  if (!d.empty()) {
+    cv::Mat bytes;
+    d.convertTo(bytes, CV_8U);  // rounds and saturates
+    if (!bytes.isContinuous()) bytes = bytes.clone();
+    m.descriptors.assign(bytes.data, bytes.data + bytes.total());
+  }
+  m.motion = toPose2DMsg(k.motion.mean);
+  toArray(k.motion.covariance, &m.motion_covariance);
+  m.odometry_pose = toPose2DMsg(k.odometry_pose);
+  switch (k.quality) {
+    case KeyframeQuality::kFirst: m.status = uw_multislam::Keyframe::FIRST; break;
+    case KeyframeQuality::kMatched: m.status = uw_multislam::Keyframe::MATCHED; break;
+    case KeyframeQuality::kFallback: m.status = uw_multislam::Keyframe::FALLBACK; break;
+  }
+  m.matches = k.matches;
+  m.inliers = k.inliers;
+  m.overlap = static_cast<float>(k.overlap);
+  m.scale = static_cast<float>(k.scale);
+  return m;
+}
+
+bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* why) {
+  std::ostringstream os;
+  os << "keyframe " << m.keyframe << " of session " << m.session << ": ";
+  const std::string who = os.str();
+  if (m.session < 0 || m.keyframe < 0) return fail(why, who + "negative session or keyframe id");
+  core::CameraIntrinsics camera{static_cast<int>(m.width), static_cast<int>(m.height), m.fx, m.fy, m.cx, m.cy};
+  const std::string bad_camera = camera.validate();
+  if (!bad_camera.empty()) return fail(why, who + "camera: " + bad_camera);
+  if (!(std::isfinite(m.altitude_m) && m.altitude_m > 0)) return fail(why, who + "altitude must be positive");
+  const std::size_t n = m.u_px.size();
+  if (m.v_px.size() != n || m.response.size() != n) {
+    return fail(why, who + "u_px, v_px and response must have the same length");
+  }
+  if (m.descriptor_size != static_cast<std::uint32_t>(core::HalocProjections::kDescriptorSize)) {
+    return fail(why, who + "descriptor_size must be 128 (SIFT)");
+  }
+  if (m.descriptors.size() != n * m.descriptor_size) {
+    return fail(why, who + "descriptors must hold n x descriptor_size bytes");
+  }
+  if (m.status > uw_multislam::Keyframe::FALLBACK) return fail(why, who + "unknown status");
+  if (!finitePose(m.motion) || !finitePose(m.odometry_pose)) return fail(why, who + "non-finite pose");
+  const Eigen::Matrix3d cov = fromArray(m.motion_covariance);
+  const bool first = m.status == uw_multislam::Keyframe::FIRST;
+  if (!first) {
+    const std::string bad_cov = core::checkCovariance(cov);
+    if (!bad_cov.empty()) return fail(why, who + "motion covariance: " + bad_cov);
+  } else if (!cov.allFinite()) {
+    return fail(why, who + "non-finite motion covariance");
+  }
+  KeyframeData k;
+  k.session = m.session;
+  k.keyframe = m.keyframe;
+  k.frame_index = m.frame_index;
+  k.altitude_m = m.altitude_m;
+  k.camera = camera;
+  k.features.image_size = cv::Size(camera.width, camera.height);
+  k.features.keypoints.reserve(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!std::isfinite(m.u_px[i]) || !std::isfinite(m.v_px[i])) return fail(why, who + "non-finite feature position");
+    cv::KeyPoint kp;
+    kp.pt = cv::Point2f(m.u_px[i], m.v_px[i]);
+    kp.response = m.response[i];
+    k.features.keypoints.push_back(kp);
+  }
+  if (n > 0) {
+    // The message's bytes viewed as an n x 128 matrix, then widened to the extractor's CV_32F.
+    const cv::Mat bytes(static_cast<int>(n), static_cast<int>(m.descriptor_size), CV_8U,
+                        const_cast<std::uint8_t*>(m.descriptors.data()));
+    bytes.convertTo(k.features.descriptors, CV_32F);
+  } else {
+    k.features.descriptors = cv::Mat(0, core::HalocProjections::kDescriptorSize, CV_32F);
+  }
+  k.motion = first ? core::UncertainPose2::exact(core::Pose2()) : core::UncertainPose2(fromMsg(m.motion), cov);
+  k.odometry_pose = fromMsg(m.odometry_pose);
+  k.quality = first ? KeyframeQuality::kFirst
+                    : (m.status == uw_multislam::Keyframe::FALLBACK ? KeyframeQuality::kFallback
+                                                                     : KeyframeQuality::kMatched);
+  k.matches = m.matches;
+  k.inliers = m.inliers;
+  k.overlap = m.overlap;
+  k.scale = m.scale;
+  *out = std::move(k);
+  return true;
+}
+
+uw_multislam::Loop toLoopMsg(const core::Loop& l, const std_msgs::Header& header) {
+  uw_multislam::Loop m;
+  m.header = header;
+  m.kind = l.kind == core::Loop::Kind::kLocal ? uw_multislam::Loop::LOCAL : uw_multislam::Loop::GLOBAL;
+  m.session_a = l.session_a;
+  m.keyframe_a = l.keyframe_a;
+  m.frame_a = l.frame_a;
+  m.session_b = l.session_b;
+  m.keyframe_b = l.keyframe_b;
+  m.frame_b = l.frame_b;
+  m.pose = toPose2DMsg(l.z.mean);
+  toArray(l.z.covariance, &m.covariance);
+  m.inliers = l.inliers;
+  m.hash_l1 = l.hash_l1;
+  return m;
+}
+
+bool fromMsg(const uw_multislam::Loop& m, core::Loop* out, std::string* why) {
+  if (m.kind > uw_multislam::Loop::GLOBAL) return fail(why, "loop: unknown kind");
+  if (m.session_a < 0 || m.session_b < 0 || m.keyframe_a < 0 || m.keyframe_b < 0) {
+    return fail(why, "loop: negative session or keyframe id");
+  }
+  if (!finitePose(m.pose)) return fail(why, "loop: non-finite pose");
+  const Eigen::Matrix3d cov = fromArray(m.covariance);
+  const std::string bad = core::checkCovariance(cov);
+  if (!bad.empty()) return fail(why, "loop: covariance: " + bad);
+  core::Loop l;
+  l.kind = m.kind == uw_multislam::Loop::LOCAL ? core::Loop::Kind::kLocal : core::Loop::Kind::kGlobal;
+  l.session_a = m.session_a;
+  l.keyframe_a = m.keyframe_a;
+  l.frame_a = m.frame_a;
+  l.session_b = m.session_b;
+  l.keyframe_b = m.keyframe_b;
+  l.frame_b = m.frame_b;
+  l.z = core::UncertainPose2(fromMsg(m.pose), cov);
+  l.inliers = m.inliers;
+  l.hash_l1 = m.hash_l1;
+  *out = l;
+  return true;
+}
+
+uw_multislam::KeyframeHash toKeyframeHashMsg(const KeyframeHashData& h, const std_msgs::Header& header) {
+  uw_multislam::KeyframeHash m;
+  m.header = header;
+  m.session = h.session;
+  m.keyframe = h.keyframe;
+  m.frame_index = h.frame_index;
+  m.hash_mode = h.mode == core::HashMode::kHaloc ? uw_multislam::KeyframeHash::HALOC
+                                                 : uw_multislam::KeyframeHash::SORTED_DCT;
+  m.projection_seed = h.projection_seed;
+  m.num_features = h.num_features;
+  m.values.assign(h.values.data(), h.values.data() + h.values.size());
+  return m;
+}
+
+bool fromMsg(const uw_multislam::KeyframeHash& m, KeyframeHashData* out, std::string* why) {
+  if (m.hash_mode > uw_multislam::KeyframeHash::SORTED_DCT) return fail(why, "keyframe hash: unknown hash_mode");
+  if (m.values.size() != static_cast<std::size_t>(core::HalocProjections::kHashSize)) {
+    return fail(why, "keyframe hash: values must have 384 entries (3 x 128)");
+  }
+  if (m.num_features < 1) return fail(why, "keyframe hash: num_features must be positive");
+  KeyframeHashData h;
+  h.session = m.session;
+  h.keyframe = m.keyframe;
+  h.frame_index = m.frame_index;
+  h.mode = m.hash_mode == uw_multislam::KeyframeHash::HALOC ? core::HashMode::kHaloc : core::HashMode::kSortedDct;
+  h.projection_seed = m.projection_seed;
+  h.num_features = m.num_features;
+  h.values.resize(static_cast<Eigen::Index>(m.values.size()));
+  for (std::size_t i = 0; i < m.values.size(); ++i) {
+    if (!std::isfinite(m.values[i])) return fail(why, "keyframe hash: non-finite value");
+    h.values[static_cast<Eigen::Index>(i)] = m.values[i];
+  }
+  *out = std::move(h);
+  return true;
+}
+
+}  // namespace ros_conversions
+}  // namespace uw_multislam

@@ -1,0 +1,243 @@
+// Keyframe, Loop and KeyframeHash messages <-> core types (no master needed).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+
+#include "../common/rendered_seabed.h"
+#include "uw_multislam/core/features.h"
+#include "uw_multislam/core/haloc.h"
+#include "uw_multislam/core/odometry.h"
+#include "uw_multislam/ros/pipeline_conversions.h"
+
+namespace uw_multislam {
+namespace {
+
+using core::Pose2;
+using core::UncertainPose2;
+namespace rc = ros_conversions;
+
+class PipelineConversions : public testing_util::RenderedSeabedTest {
+ protected:
+  rc::KeyframeData someKeyframe() const {
+    const core::FeatureExtractor extractor{core::FeatureOptions()};
+    cv::Mat grey;
+    cv::cvtColor(render(Pose2(4.0, 3.0, 0.3), 2.0), grey, cv::COLOR_BGR2GRAY);
+    rc::KeyframeData k;
+    k.session = 2;
+    k.keyframe = 7;
+    k.frame_index = 31;
+    k.altitude_m = 2.0;
+    k.camera = camera_;
+    k.features = extractor.extract(grey);
+    Eigen::Matrix3d c;
+    c << 4e-4, 1e-5, 2e-6, 1e-5, 9e-4, -3e-6, 2e-6, -3e-6, 1e-4;
+    k.motion = UncertainPose2(Pose2(0.4, -0.1, 0.05), c);
+    k.odometry_pose = Pose2(3.0, 1.0, -2.0);
+    k.quality = rc::KeyframeQuality::kMatched;
+    k.matches = 300;
+    k.inliers = 250;
+    k.overlap = 0.45;
+    k.scale = 1.01;
+    return k;
+  }
+  static std_msgs::Header header() {
+    std_msgs::Header h;
+    h.stamp = ros::Time(1700000123, 456);
+    h.frame_id = "camera";
+    return h;
+  }
+};
+
+TEST_F(PipelineConversions, KeyframeRoundTripIsLossless) {
+  const rc::KeyframeData k = someKeyframe();
+  ASSERT_GT(k.features.size(), 300u);
+  const uw_multislam::Keyframe m = rc::toKeyframeMsg(k, header());
+  EXPECT_EQ(m.header.stamp, header().stamp);
+  EXPECT_EQ(m.session, 2);
+  EXPECT_EQ(m.keyframe, 7);
+  EXPECT_EQ(m.frame_index, 31);
+  EXPECT_EQ(m.status, uw_multislam::Keyframe::MATCHED);
+  EXPECT_EQ(m.descriptor_size, 128u);
+  EXPECT_EQ(m.descriptors.size(), k.features.size() * 128);
+  EXPECT_DOUBLE_EQ(m.motion_covariance[1], 1e-5);  // row-major (x, y)
+  EXPECT_DOUBLE_EQ(m.motion_covariance[7], -3e-6);  // (yaw, y)
+  // The metric coordinates are apply_altitude's.
+  const Eigen::Vector2d xy = core::pixelToMetres(k.features.keypoints[5].pt, camera_, 2.0);
+  EXPECT_NEAR(m.x_m[5], xy.x(), 1e-6);
+  EXPECT_NEAR(m.y_m[5], xy.y(), 1e-6);
+
+  rc::KeyframeData back;
+  std::string why;
+  ASSERT_TRUE(rc::fromMsg(m, &back, &why)) << why;
+  EXPECT_EQ(back.session, 2);
+  EXPECT_EQ(back.keyframe, 7);
+  EXPECT_EQ(back.frame_index, 31);
+  EXPECT_EQ(back.quality, rc::KeyframeQuality::kMatched);
+  EXPECT_EQ(back.inliers, 250);
+  EXPECT_DOUBLE_EQ(back.camera.fx, camera_.fx);
+  EXPECT_EQ(back.features.image_size, cv::Size(camera_.width, camera_.height));
+  ASSERT_EQ(back.features.size(), k.features.size());
+  for (std::size_t i = 0; i < k.features.size(); ++i) {
+    EXPECT_EQ(back.features.keypoints[i].pt, k.features.keypoints[i].pt);
+  }
+  // SIFT's descriptor values are integers in 0..255: 8 bits lose nothing.
+  ASSERT_EQ(back.features.descriptors.type(), CV_32F);
+  EXPECT_EQ(cv::norm(back.features.descriptors, k.features.descriptors, cv::NORM_INF), 0.0);
+  EXPECT_TRUE(back.motion.covariance.isApprox(k.motion.covariance));
+  EXPECT_TRUE(core::approxEqual(back.motion.mean, k.motion.mean, 1e-12, 1e-12));
+  EXPECT_TRUE(core::approxEqual(back.odometry_pose, k.odometry_pose, 1e-12, 1e-12));
+
+  // The loop detector's hash of the received features is the sender's.
+  const core::ImageHasher hasher(core::HashMode::kSortedDct, 500, 20231122);
+  EXPECT_LT((hasher.hash(back.features.descriptors) - hasher.hash(k.features.descriptors)).cwiseAbs().maxCoeff(),
+            1e-6);
+}
+
+TEST_F(PipelineConversions, BadKeyframeMessagesAreRefusedWithAReason) {
+  const uw_multislam::Keyframe good = rc::toKeyframeMsg(someKeyframe(), header());
+  rc::KeyframeData out;
+  std::string why;
+  auto refused = [&](uw_multislam::Keyframe m, const std::string& expected) {
+    why.clear();
+    EXPECT_FALSE(rc::fromMsg(m, &out, &why)) << expected;
+    EXPECT_NE(why.find(expected), std::string::npos) << "reason: " << why;
+  };
+  auto m = good;
+  m.v_px.pop_back();
+  refused(m, "same length");
+  m = good;
+  m.descriptors.resize(m.descriptors.size() - 1);
+  refused(m, "descriptors");
+  m = good;
+  m.descriptor_size = 64;
+  refused(m, "descriptor_size");
+  m = good;
+  m.fx = 0.0;
+  refused(m, "camera");
+  m = good;
+  m.altitude_m = std::numeric_limits<double>::quiet_NaN();
+  refused(m, "altitude");
+  m = good;
+  m.motion_covariance[0] = -1.0;
+  refused(m, "covariance");
+  m = good;
+  m.status = 9;
+  refused(m, "status");
+  m = good;
+  m.u_px[3] = std::numeric_limits<float>::infinity();
+  refused(m, "feature position");
+  m = good;
+  m.keyframe = -1;
+  refused(m, "negative");
+  EXPECT_TRUE(rc::fromMsg(good, &out, &why)) << why;
+}
+
+TEST_F(PipelineConversions, KeyframeDataFromARunningOdometry) {
+  core::Odometry odometry(camera_, core::OdometryOptions());
+  core::OdometryUpdate u = odometry.process({0, 0.0, 2.0, render(Pose2(4.0, 3.0, 0.0), 2.0)});
+  ASSERT_EQ(odometry.newKeyframes().size(), 1u);
+  rc::KeyframeData first = rc::keyframeData(odometry, odometry.newKeyframes()[0], u, 3);
+  EXPECT_EQ(first.session, 3);
+  EXPECT_EQ(first.keyframe, 0);
+  EXPECT_EQ(first.quality, rc::KeyframeQuality::kFirst);
+  EXPECT_TRUE(first.motion.covariance.isZero());
+  EXPECT_EQ(rc::toKeyframeMsg(first, header()).status, uw_multislam::Keyframe::FIRST);
+
+  // Far enough for the overlap rule: the second frame is a matched keyframe.
+  u = odometry.process({1, 1.0, 2.0, render(Pose2(5.3, 3.0, 0.0), 2.0)});
+  ASSERT_EQ(odometry.newKeyframes().size(), 1u) << core::statusName(u.status) << " " << u.reason;
+  const rc::KeyframeData second = rc::keyframeData(odometry, odometry.newKeyframes()[0], u, 3);
+  EXPECT_EQ(second.keyframe, 1);
+  EXPECT_EQ(second.frame_index, 1);
+  EXPECT_EQ(second.quality, rc::KeyframeQuality::kMatched);
+  EXPECT_EQ(second.inliers, u.inliers);
+  EXPECT_GT(second.inliers, 20);
+  EXPECT_NEAR(second.motion.mean.x(), 1.3, 0.05);
+  EXPECT_GT(second.motion.covariance(0, 0), 0.0);
+  EXPECT_TRUE(core::approxEqual(second.odometry_pose, odometry.trajectory().absolutePose(1)));
+}
+
+TEST(PipelineConversionsLoop, RoundTripAndRefusals) {
+  core::Loop l;
+  l.kind = core::Loop::Kind::kGlobal;
+  l.session_a = 0;
+  l.keyframe_a = 12;
+  l.frame_a = 40;
+  l.session_b = 1;
+  l.keyframe_b = 3;
+  l.frame_b = 9;
+  Eigen::Matrix3d c = Eigen::Matrix3d::Identity() * 1e-3;
+  c(0, 2) = c(2, 0) = 2e-4;
+  l.z = UncertainPose2(Pose2(0.2, -0.3, 1.0), c);
+  l.inliers = 77;
+  l.hash_l1 = 12.5f;
+  std_msgs::Header h;
+  h.stamp = ros::Time(5, 0);
+  const uw_multislam::Loop m = rc::toLoopMsg(l, h);
+  EXPECT_EQ(m.kind, uw_multislam::Loop::GLOBAL);
+  EXPECT_DOUBLE_EQ(m.covariance[2], 2e-4);
+  EXPECT_DOUBLE_EQ(m.pose.theta, 1.0);
+  core::Loop back;
+  ASSERT_TRUE(rc::fromMsg(m, &back));
+  EXPECT_EQ(back.kind, core::Loop::Kind::kGlobal);
+  EXPECT_EQ(back.keyframe_a, 12);
+  EXPECT_EQ(back.frame_b, 9);
+  EXPECT_EQ(back.inliers, 77);
+  EXPECT_FLOAT_EQ(back.hash_l1, 12.5f);
+  EXPECT_TRUE(back.z.covariance.isApprox(c));
+  EXPECT_TRUE(core::approxEqual(back.z.mean, l.z.mean));
+
+  l.kind = core::Loop::Kind::kLocal;
+  EXPECT_EQ(rc::toLoopMsg(l, h).kind, uw_multislam::Loop::LOCAL);
+
+  std::string why;
+  auto bad = m;
+  bad.kind = 5;
+  EXPECT_FALSE(rc::fromMsg(bad, &back, &why));
+  EXPECT_NE(why.find("kind"), std::string::npos);
+  bad = m;
+  bad.covariance[1] = 0.5;  // not symmetric
+  EXPECT_FALSE(rc::fromMsg(bad, &back, &why));
+  EXPECT_NE(why.find("covariance"), std::string::npos);
+  bad = m;
+  bad.pose.x = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(rc::fromMsg(bad, &back, &why));
+}
+
+TEST(PipelineConversionsHash, RoundTripAndRefusals) {
+  rc::KeyframeHashData h;
+  h.session = 1;
+  h.keyframe = 4;
+  h.frame_index = 17;
+  h.mode = core::HashMode::kHaloc;
+  h.projection_seed = 0xFFFFFFFFFFull + 3;  // needs the 64 bits
+  h.num_features = 500;
+  h.values = Eigen::VectorXf::LinSpaced(core::HalocProjections::kHashSize, -0.3f, 0.3f);
+  const uw_multislam::KeyframeHash m = rc::toKeyframeHashMsg(h, std_msgs::Header());
+  EXPECT_EQ(m.hash_mode, uw_multislam::KeyframeHash::HALOC);
+  EXPECT_EQ(m.values.size(), 384u);
+  rc::KeyframeHashData back;
+  ASSERT_TRUE(rc::fromMsg(m, &back));
+  EXPECT_EQ(back.mode, core::HashMode::kHaloc);
+  EXPECT_EQ(back.projection_seed, h.projection_seed);
+  EXPECT_EQ(back.frame_index, 17);
+  EXPECT_EQ(back.values, h.values);
+  h.mode = core::HashMode::kSortedDct;
+  EXPECT_EQ(rc::toKeyframeHashMsg(h, std_msgs::Header()).hash_mode, uw_multislam::KeyframeHash::SORTED_DCT);
+
+  std::string why;
+  auto bad = m;
+  bad.values.pop_back();
+  EXPECT_FALSE(rc::fromMsg(bad, &back, &why));
+  EXPECT_NE(why.find("384"), std::string::npos);
+  bad = m;
+  bad.hash_mode = 7;
+  EXPECT_FALSE(rc::fromMsg(bad, &back, &why));
+  bad = m;
+  bad.values[0] = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_FALSE(rc::fromMsg(bad, &back, &why));
+}
+
+}  // namespace
+}  // namespace uw_multislam

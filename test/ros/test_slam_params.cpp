@@ -1,0 +1,73 @@
+// The SLAM configuration from a parameter-server tree (no master needed: the tree is built here
+// as rosparam would load config/slam.yaml).
+#include <gtest/gtest.h>
+
+#include "uw_multislam/ros/slam_params.h"
+
+namespace uw_multislam {
+namespace {
+
+XmlRpc::XmlRpcValue tree() {
+  XmlRpc::XmlRpcValue t;
+  t["odometry"]["features"]["num_features"] = 321;
+  t["odometry"]["features"]["contrast_threshold"] = 0.0123456789012345;
+  t["odometry"]["enhancement"]["mode"] = std::string("dehaze_clahe");
+  t["odometry"]["matching"]["mutual"] = false;
+  t["loops"]["global"]["hash_mode"] = std::string("haloc");
+  t["loops"]["global"]["projection_seed"] = 20231122;
+  // PyYAML (rosparam) reads "1e-06" without a dot as a string: it must still parse as a number.
+  t["backend"]["tolerance"] = std::string("1e-06");
+  return t;
+}
+
+TEST(SlamParams, TreeBecomesTheCoreConfiguration) {
+  const core::SlamConfig c = ros_params::slamConfigFromXmlRpc(tree(), "/uw_multislam/slam");
+  EXPECT_EQ(c.odometry.features.num_features, 321);
+  EXPECT_DOUBLE_EQ(c.odometry.features.contrast_threshold, 0.0123456789012345);  // full precision
+  EXPECT_EQ(c.odometry.enhancement.mode, core::EnhancementMode::kDehazeClahe);
+  EXPECT_FALSE(c.odometry.matching.mutual);
+  EXPECT_EQ(c.loops.global.hash_mode, core::HashMode::kHaloc);
+  EXPECT_DOUBLE_EQ(c.backend.iekf.tolerance, 1e-6);
+  // Untouched keys keep the defaults.
+  EXPECT_EQ(c.loops.local.min_inliers, core::LocalLoopOptions().min_inliers);
+}
+
+TEST(SlamParams, DefaultsRoundTripThroughTheParameterForm) {
+  // config/slam.yaml as rosparam holds it: every key; it gives back the built-in defaults.
+  const std::string yaml = core::slamConfigToYaml(core::SlamConfig());
+  const core::SlamConfig c = core::slamConfigFromYaml(yaml);
+  EXPECT_EQ(core::slamConfigToYaml(c), yaml);
+  XmlRpc::XmlRpcValue t = tree();
+  EXPECT_NE(core::slamConfigToYaml(ros_params::slamConfigFromXmlRpc(t, "x")), yaml);
+}
+
+TEST(SlamParams, UnknownKeysAndBadValuesNameTheKey) {
+  XmlRpc::XmlRpcValue t = tree();
+  t["odometry"]["features"]["num_featurs"] = 5;
+  try {
+    ros_params::slamConfigFromXmlRpc(t, "/uw_multislam/slam");
+    FAIL() << "unknown key accepted";
+  } catch (const std::invalid_argument& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("/uw_multislam/slam"), std::string::npos) << what;
+    EXPECT_NE(what.find("num_featurs"), std::string::npos) << what;
+  }
+  XmlRpc::XmlRpcValue bad = tree();
+  bad["loops"]["global"]["hash_mode"] = std::string("md5");
+  EXPECT_THROW(ros_params::slamConfigFromXmlRpc(bad, "x"), std::invalid_argument);
+  XmlRpc::XmlRpcValue scalar = 3;
+  EXPECT_THROW(ros_params::slamConfigFromXmlRpc(scalar, "x"), std::invalid_argument);
+}
+
+TEST(SlamParams, YamlOfScalarsAndLists) {
+  XmlRpc::XmlRpcValue t;
+  t["a"] = 1;
+  t["b"][0] = 2.5;
+  t["b"][1] = std::string("x");
+  const std::string y = ros_params::xmlRpcToYaml(t);
+  EXPECT_NE(y.find("a: 1"), std::string::npos) << y;
+  EXPECT_NE(y.find("b: [2.5, x]"), std::string::npos) << y;
+}
+
+}  // namespace
+}  // namespace uw_multislam

@@ -1,0 +1,219 @@
+#!/usr/bin/python3
+"""rostest: a generated two-session mission played through slam.launch (odometry and loop
+detection) gives the keyframes, loops and hashes that offline_slam computes from the same data.
+
+The bags are generated at test time (make_survey, small images) in a temporary directory and
+played one after the other with rosbag play; the second session's stamps start 1000 s after the
+first's, so the odometry starts session 1 by its stamp gap rule. offline_slam runs the same core
+on the dataset folders, with the intra-map IEKF off: the loop nodelet takes its local-loop
+candidates from the odometry chain (no back-end yet), as offline_slam then does.
+"""
+import csv
+import os
+import shutil
+import subprocess
+import tempfile
+import threading
+import time
+import unittest
+
+import rosgraph
+import roslib.packages
+import rospy
+import rostest
+import rosnode
+from geometry_msgs.msg import PoseStamped
+from sensor_msgs.msg import CameraInfo, Image, Range
+from uw_multislam.msg import Keyframe, KeyframeHash, Loop
+
+SURVEY = """
+seed: 5
+world: {width_m: 12, height_m: 10, metres_per_px: 0.008, featureless_fraction: 0.0}
+sessions:
+  - name: s0
+    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
+    mission: {pattern: loop, start_m: [6.0, 5.0], length_m: 3.5, width_m: 2.5, laps: 1.3, speed_m_s: 0.35,
+              frame_period_s: 1.0, altitude_m: 1.6, start_time_s: 0}
+  - name: s1
+    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
+    mission: {pattern: loop, start_m: [6.5, 5.5], heading_rad: 1.5708, length_m: 2.5, width_m: 3.0, laps: 1.0,
+              speed_m_s: 0.35, frame_period_s: 1.0, altitude_m: 1.7, start_time_s: 1000}
+"""
+PLAY_RATE = 4.0  # 4 frames per second: far below the odometry's speed on these 240 x 180 images
+NS = "/uw_multislam"
+
+
+def tool(name):
+    found = roslib.packages.find_node("uw_multislam", name)
+    if not found:
+        raise RuntimeError("uw_multislam/%s not built" % name)
+    return found[0]
+
+
+def read_csv(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+class SlamPipelineTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="uwms_pipeline_")
+        with open(os.path.join(cls.tmp, "survey.yaml"), "w") as f:
+            f.write(SURVEY)
+        out = os.path.join(cls.tmp, "mission")
+        subprocess.run([tool("make_survey"), "--config", os.path.join(cls.tmp, "survey.yaml"), "--out", out,
+                        "--quiet"], check=True, timeout=120)
+        cls.bags = [os.path.join(out, "s0.bag"), os.path.join(out, "s1.bag")]
+        # The reference: offline_slam on the same folders, local loops from the odometry chain.
+        with open(os.path.join(cls.tmp, "slam.yaml"), "w") as f:
+            f.write("backend: {intra_map_iekf: false}\n")
+        run = os.path.join(cls.tmp, "run")
+        subprocess.run([tool("offline_slam"), "--session", os.path.join(out, "s0"), "--session",
+                        os.path.join(out, "s1"), "--out", run, "--config", os.path.join(cls.tmp, "slam.yaml"),
+                        "--quiet"], check=True, timeout=300)
+        cls.expected_keyframes = [(int(r["session"]), int(r["index"]), float(r["x_m"]), float(r["y_m"]))
+                                  for r in read_csv(os.path.join(run, "odometry.csv"))]
+        cls.expected_loops = {(int(r["session_a"]), int(r["index_a"]), int(r["session_b"]), int(r["index_b"]),
+                               r["kind"]) for r in read_csv(os.path.join(run, "loops.csv"))}
+
+        cls.lock = threading.Lock()
+        cls.keyframes, cls.loops, cls.hashes, cls.poses = [], [], [], []
+        cls.last_message = time.time()
+
+        def keep(store):
+            def callback(msg):
+                with cls.lock:
+                    store.append(msg)
+                    cls.last_message = time.time()
+            return callback
+
+        cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, keep(cls.keyframes), queue_size=1000),
+                    rospy.Subscriber(NS + "/loops", Loop, keep(cls.loops), queue_size=1000),
+                    rospy.Subscriber(NS + "/keyframe_hashes", KeyframeHash, keep(cls.hashes), queue_size=1000),
+                    rospy.Subscriber(NS + "/odometry/pose", PoseStamped, keep(cls.poses), queue_size=1000)]
+        cls.wait_for_pipeline()
+        for bag in cls.bags:
+            subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", str(PLAY_RATE), bag, "--topics",
+                            "/camera/image_raw", "/camera/camera_info", "/altitude"], check=True, timeout=120)
+            cls.wait_until_quiet(5.0)
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    @classmethod
+    def wait_for_pipeline(cls, timeout=60.0):
+        """Until the odometry subscribes to the three sensor topics and the loop detector and this
+        test to the keyframes and loops (nodelet or standalone: whichever node does)."""
+        master = rosgraph.Master("/check_slam_pipeline")
+        wanted = ["/camera/image_raw", "/camera/camera_info", "/altitude", NS + "/keyframes"]
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            _, subscribers, _ = master.getSystemState()
+            subscribed = {topic: nodes for topic, nodes in subscribers}
+            if all(any(n != rospy.get_name() for n in subscribed.get(t, [])) for t in wanted):
+                time.sleep(2.0)  # connections
+                return
+            time.sleep(0.5)
+        raise AssertionError("the pipeline did not subscribe to %s within %.0f s" % (wanted, timeout))
+
+    @classmethod
+    def wait_until_quiet(cls, quiet_s, timeout=120.0):
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            with cls.lock:
+                if time.time() - cls.last_message > quiet_s:
+                    return
+            time.sleep(0.2)
+
+    def test_keyframes_of_both_sessions_match_offline_slam(self):
+        got = [(k.session, k.frame_index, k.odometry_pose.x, k.odometry_pose.y) for k in self.keyframes]
+        self.assertEqual([g[:2] for g in got], [e[:2] for e in self.expected_keyframes])
+        self.assertGreaterEqual(len([g for g in got if g[0] == 1]), 8)
+        for g, e in zip(got, self.expected_keyframes):
+            self.assertAlmostEqual(g[2], e[2], delta=2e-3, msg="x of keyframe %s" % (g[:2],))
+            self.assertAlmostEqual(g[3], e[3], delta=2e-3, msg="y of keyframe %s" % (g[:2],))
+
+    def test_keyframes_are_complete(self):
+        per_session = {}
+        for k in self.keyframes:
+            per_session.setdefault(k.session, []).append(k.keyframe)
+            n = len(k.u_px)
+            self.assertGreater(n, 100)
+            self.assertEqual(len(k.descriptors), 128 * n)
+            self.assertEqual((k.width, k.height), (240, 180))
+            self.assertAlmostEqual(k.fx, 220.0)
+            self.assertGreater(k.altitude_m, 1.4)
+            self.assertEqual(k.status, Keyframe.FIRST if k.keyframe == 0 else Keyframe.MATCHED)
+            if k.keyframe > 0:
+                self.assertGreater(k.motion_covariance[0], 0.0)
+                self.assertGreater(k.inliers, 20)
+        self.assertEqual(sorted(per_session), [0, 1])
+        for ids in per_session.values():
+            self.assertEqual(ids, list(range(len(ids))))
+        self.assertGreater(len(self.poses), len(self.keyframes))
+        self.assertEqual({p.header.frame_id for p in self.poses}, {"session_0", "session_1"})
+
+    def test_loops_local_and_global_match_offline_slam(self):
+        got = {(l.session_a, l.frame_a, l.session_b, l.frame_b, "local" if l.kind == Loop.LOCAL else "global")
+               for l in self.loops}
+        kinds = [g[4] for g in got]
+        rospy.loginfo("loops: %d local, %d global (offline_slam: %d)", kinds.count("local"), kinds.count("global"),
+                      len(self.expected_loops))
+        self.assertGreaterEqual(kinds.count("local"), 5)
+        self.assertGreaterEqual(kinds.count("global"), 5)
+        self.assertEqual(len(got), len(self.loops), "a loop was published twice")
+        self.assertEqual(got, self.expected_loops)
+        for l in self.loops:
+            self.assertGreaterEqual(l.inliers, 25)
+            self.assertGreater(l.covariance[0], 0.0)
+            if l.kind == Loop.GLOBAL:
+                self.assertNotEqual(l.session_a, l.session_b)
+            else:
+                self.assertEqual(l.session_a, l.session_b)
+
+    def test_one_hash_per_keyframe(self):
+        self.assertEqual([(h.session, h.keyframe) for h in self.hashes],
+                         [(k.session, k.keyframe) for k in self.keyframes])
+        for h in self.hashes:
+            self.assertEqual(len(h.values), 384)
+            self.assertEqual(h.hash_mode, KeyframeHash.SORTED_DCT)
+
+    def test_bad_input_is_skipped_without_crashing(self):
+        """A float image, an empty image and a camera_info without focal length, each with a NaN
+        altitude: skipped (no pose, no keyframe), and the node keeps running."""
+        pubs = [rospy.Publisher(t, m, queue_size=10) for t, m in
+                (("/camera/image_raw", Image), ("/camera/camera_info", CameraInfo), ("/altitude", Range))]
+        deadline = time.time() + 10
+        while time.time() < deadline and any(p.get_num_connections() == 0 for p in pubs):
+            time.sleep(0.2)
+        with self.lock:
+            poses_before, keyframes_before = len(self.poses), len(self.keyframes)
+        stamp = rospy.Time(1700005000)  # after both sessions
+        good_info = CameraInfo(width=240, height=180, K=[220, 0, 119.5, 0, 220, 89.5, 0, 0, 1])
+        cases = [(Image(encoding="32FC1", width=240, height=180, step=960, data=bytes(960 * 180)), good_info),
+                 (Image(encoding="mono8", width=0, height=0, step=0, data=b""), good_info),
+                 (Image(encoding="mono8", width=240, height=180, step=240, data=bytes(range(240)) * 180),
+                  CameraInfo(width=240, height=180, K=[0] * 9))]
+        for i, (image, info) in enumerate(cases):
+            image.header.stamp = info.header.stamp = stamp + rospy.Duration(i)
+            altitude = Range(range=float("nan"), min_range=0.1, max_range=100)
+            altitude.header.stamp = image.header.stamp
+            for p, m in zip(pubs, (image, info, altitude)):
+                p.publish(m)
+            time.sleep(0.5)
+        time.sleep(2.0)
+        with self.lock:
+            self.assertEqual(len(self.poses), poses_before, "a bad frame was processed")
+            self.assertEqual(len(self.keyframes), keyframes_before)
+        state = rosgraph.Master("/check_slam_pipeline").getSystemState()
+        nodes = dict(state[0]).get(NS + "/odometry/pose", [])
+        self.assertTrue(nodes, "nobody publishes the odometry pose any more")
+        for node in nodes:
+            self.assertTrue(rosnode.rosnode_ping(node, max_count=1), "%s does not answer" % node)
+
+
+if __name__ == "__main__":
+    rospy.init_node("check_slam_pipeline")
+    rostest.rosrun("uw_multislam", "check_slam_pipeline", SlamPipelineTest)
