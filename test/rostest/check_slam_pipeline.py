@@ -5,8 +5,9 @@ detection) gives the keyframes, loops and hashes that offline_slam computes from
 The bags are generated at test time (make_survey, small images) in a temporary directory and
 played one after the other with rosbag play; the second session's stamps start 1000 s after the
 first's, so the odometry starts session 1 by its stamp gap rule. offline_slam runs the same core
-on the dataset folders, with the intra-map IEKF off: the loop nodelet takes its local-loop
-candidates from the odometry chain (no back-end yet), as offline_slam then does.
+on the dataset folders. Both run with backend.optimise false, so that the loop nodelet's local-loop
+candidates come from the odometry chain (the back-end then publishes the odometry's poses), as
+offline_slam's do; test/rostest/check_backend.py covers the optimising back-end.
 """
 import csv
 import os
@@ -67,7 +68,7 @@ class SlamPipelineTest(unittest.TestCase):
         cls.bags = [os.path.join(out, "s0.bag"), os.path.join(out, "s1.bag")]
         # The reference: offline_slam on the same folders, local loops from the odometry chain.
         with open(os.path.join(cls.tmp, "slam.yaml"), "w") as f:
-            f.write("backend: {intra_map_iekf: false}\n")
+            f.write("backend: {optimise: false}\n")
         run = os.path.join(cls.tmp, "run")
         subprocess.run([tool("offline_slam"), "--session", os.path.join(out, "s0"), "--session",
                         os.path.join(out, "s1"), "--out", run, "--config", os.path.join(cls.tmp, "slam.yaml"),

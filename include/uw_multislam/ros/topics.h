@@ -49,6 +49,9 @@ constexpr char kActiveSession[] = "active_session";
 /// joins, uw_multislam/SessionState[] via the list_sessions service.
 constexpr char kSessionPathPrefix[] = "paths/session_";
 constexpr char kLoopMarkers[] = "loop_markers";
+/// geometry_msgs/PoseStamped: the current camera pose in the map frame (back-end: the odometry
+/// pose corrected by the active session's optimisation).
+constexpr char kCurrentPose[] = "pose";
 
 // --- Services of the session manager (uw_multislam/srv) ---------------------------------------
 constexpr char kJoinSessionsService[] = "join_sessions";

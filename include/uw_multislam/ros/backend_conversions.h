@@ -1,0 +1,40 @@
+// Conversions between the back-end (core/backend.h) and its ROS messages: service statuses,
+// session states, paths and the loop / join markers. One place for them (STYLE.md), each tested in
+// test/ros/test_backend_conversions.cpp.
+#pragma once
+
+#include <nav_msgs/Path.h>
+#include <ros/time.h>
+#include <visualization_msgs/MarkerArray.h>
+
+#include <string>
+#include <vector>
+
+#include "uw_multislam/SessionState.h"
+#include "uw_multislam/Status.h"
+#include "uw_multislam/core/backend.h"
+
+namespace uw_multislam {
+namespace ros_conversions {
+
+/// The back-end's status as the services' Status (codes as cartographer_ros: OK, NOT_FOUND, ...).
+uw_multislam::Status toStatusMsg(const core::BackendStatus& s);
+uw_multislam::Status statusMsg(std::uint8_t code, const std::string& message);
+
+/// A session's keyframe poses (in its map's frame) as a Path in `frame_id`; stamps[k] per pose
+/// (missing stamps: the last one given, or `fallback`).
+nav_msgs::Path toPathMsg(const std::vector<core::Pose2>& poses, const std::vector<ros::Time>& stamps,
+                         const std::string& frame_id, const ros::Time& fallback);
+
+/// One segment to draw: two keyframe positions in a map's frame.
+struct Segment {
+  core::Pose2 a, b;
+  enum class Kind { kLocal, kGlobal, kJoin } kind = Kind::kLocal;
+};
+/// LINE_LIST markers in `frame_id`, one per kind (namespaces "local_loops", "global_loops",
+/// "joins"; green, orange, red), each with a DELETEALL first so removed segments disappear.
+visualization_msgs::MarkerArray toMarkerArrayMsg(const std::vector<Segment>& segments, const std::string& frame_id,
+                                                 const ros::Time& stamp);
+
+}  // namespace ros_conversions
+}  // namespace uw_multislam

@@ -1,0 +1,575 @@
+// uw_multislam/Backend: the back-end and session manager (paper 000 §8, §9) around
+// core::MultiSessionBackend, which does the optimisation, the joins and the splits.
+//
+// Inputs:  keyframes (uw_multislam/Keyframe, odometry nodelet): each keyframe's motion from the
+//            previous one; a new session id starts a session (the previous one stops recording)
+//          loops (uw_multislam/Loop, loop detector nodelet(s)), local and global
+//          odometry/pose (geometry_msgs/PoseStamped, odometry nodelet): for tf and the current pose
+// Outputs: session_trajectory (uw_multislam/SessionTrajectory): a session's optimised poses in its
+//            own frame, for the loop detector's local candidates
+//          paths/session_<id> (nav_msgs/Path, latched): each session's keyframes in its map's frame
+//          loop_markers (visualization_msgs/MarkerArray, latched): loops and joins
+//          pose (geometry_msgs/PoseStamped): the current camera pose in the map frame
+//          active_session (uw_multislam/SessionState, latched): set by start_session
+//          tf: map_frame -> <session_frame_prefix><id> (the correction optimisation applied to that
+//            session's odometry) and <session_frame_prefix><active> -> base_frame (the odometry)
+// Services: join_sessions, split_session, list_sessions, start_session, reload_session (the
+//          session store is issue 8: reload answers UNIMPLEMENTED until then).
+//
+// Maps: every map is drawn in map_frame with its first session's origin at map_frame's origin
+// (maps that are not joined are not related, so they overlap in rviz).
+//
+// Threading model: the keyframe and loop callbacks push the message pointers onto one bounded
+// FIFO (~queue_size; when full the OLDEST is dropped and counted) and return, so that loops keep
+// their order relative to keyframes. One worker thread takes them in order and calls the core
+// under state_mutex_; the services take the same mutex, so they wait for at most one message's
+// processing (an optimisation: ~0.6 s at 10 k keyframes). A loop that names a keyframe the
+// back-end has not received yet waits (up to ~max_waiting_loops, oldest dropped and counted) and is
+// retried after each keyframe. The odometry/pose callback only reads the active session's
+// correction under the mutex and publishes.
+#include <geometry_msgs/PoseStamped.h>
+#include <geometry_msgs/TransformStamped.h>
+#include <nodelet/nodelet.h>
+#include <ros/ros.h>
+#include <tf2_ros/transform_broadcaster.h>
+
+#include <pluginlib/class_list_macros.hpp>
+
+#include <condition_variable>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <set>
+#include <thread>
+#include <variant>
+#include <vector>
+
+#include "uw_multislam/JoinSessions.h"
+#include "uw_multislam/Keyframe.h"
+#include "uw_multislam/ListSessions.h"
+#include "uw_multislam/Loop.h"
+#include "uw_multislam/ReloadSession.h"
+#include "uw_multislam/SessionState.h"
+#include "uw_multislam/SessionTrajectory.h"
+#include "uw_multislam/SplitSession.h"
+#include "uw_multislam/StartSession.h"
+#include "uw_multislam/core/backend.h"
+#include "uw_multislam/core/slam_config.h"
+#include "uw_multislam/ros/backend_conversions.h"
+#include "uw_multislam/ros/conversions.h"
+#include "uw_multislam/ros/pipeline_conversions.h"
+#include "uw_multislam/ros/slam_params.h"
+#include "uw_multislam/ros/topics.h"
+
+namespace uw_multislam {
+namespace nodelets {
+
+namespace rc = ros_conversions;
+
+class BackendNodelet : public nodelet::Nodelet {
+ public:
+  ~BackendNodelet() override;
+
+ private:
+  using Message = std::variant<uw_multislam::KeyframeConstPtr, uw_multislam::LoopConstPtr>;
+  /// What the nodelet keeps of a session beside the core: ids, stamps and odometry poses.
+  struct Session {
+    int internal = 0;                      // the core's id
+    std::string name;
+    std::vector<ros::Time> stamps;         // per keyframe
+    std::vector<core::Pose2> odometry;     // X_k^0 of the odometry, per keyframe
+    std::set<int> phantoms;                // keyframes never received (bridged)
+    int loops = 0;
+  };
+  struct Counters {
+    long keyframes = 0, loops = 0, dropped = 0, bad = 0, stale = 0, gaps = 0, refused = 0, waiting_dropped = 0;
+  };
+
+  void onInit() override;
+  void readParameters();
+  void enqueue(Message m);
+  void work();
+  void processKeyframe(const uw_multislam::Keyframe& msg);
+  /// Adds a loop to the core; false when one of its keyframes has not arrived yet.
+  bool processLoop(const uw_multislam::Loop& msg);
+  void retryWaitingLoops();
+  void publishAll(bool all_sessions);
+  void publishSession(int ext);
+  core::Pose2 correction(int ext) const;
+  int externalOf(int internal) const;
+  void onOdometryPose(const geometry_msgs::PoseStampedConstPtr& msg);
+  bool onJoin(uw_multislam::JoinSessions::Request& req, uw_multislam::JoinSessions::Response& res);
+  bool onSplit(uw_multislam::SplitSession::Request& req, uw_multislam::SplitSession::Response& res);
+  bool onList(uw_multislam::ListSessions::Request& req, uw_multislam::ListSessions::Response& res);
+  bool onStart(uw_multislam::StartSession::Request& req, uw_multislam::StartSession::Response& res);
+  bool onReload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res);
+  void logStats(const char* when);
+
+  core::SlamConfig config_;
+  std::string map_frame_ = "map", session_prefix_ = "session_", base_frame_ = "base_link";
+  int queue_size_ = 1000, max_waiting_loops_ = 1000;
+  bool publish_tf_ = true;
+  double stats_period_s_ = 30.0;
+
+  std::mutex queue_mutex_;
+  std::condition_variable wake_;
+  std::deque<Message> queue_;  // guarded by queue_mutex_
+  bool stopping_ = false;      // guarded by queue_mutex_
+  long dropped_ = 0;           // guarded by queue_mutex_
+  std::thread worker_;
+
+  mutable std::mutex state_mutex_;  // guards everything below
+  std::unique_ptr<core::MultiSessionBackend> backend_;
+  std::map<int, Session> sessions_;  // by external (odometry) id
+  int active_ = -1;                  // external id of the recording session
+  std::deque<uw_multislam::LoopConstPtr> waiting_;
+  std::vector<core::Loop> accepted_;  // for the markers (external session ids)
+  int last_optimisations_ = 0, last_joins_ = 0, last_splits_ = 0;
+  Counters counts_;
+  ros::WallTime last_stats_;
+
+  ros::Publisher trajectory_pub_, markers_pub_, pose_pub_, active_pub_;
+  std::map<int, ros::Publisher> path_pubs_;
+  std::unique_ptr<tf2_ros::TransformBroadcaster> tf_;
+  ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_;
+  ros::Subscriber keyframe_sub_, loop_sub_, pose_sub_;  // last: destroyed first
+};
+
+BackendNodelet::~BackendNodelet() {
+  keyframe_sub_.shutdown();
+  loop_sub_.shutdown();
+  pose_sub_.shutdown();
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    stopping_ = true;
+  }
+  wake_.notify_all();
+  if (worker_.joinable()) worker_.join();
+  if (backend_) logStats("at shutdown");
+}
+
+void BackendNodelet::readParameters() {
+  ros::NodeHandle& pnh = getPrivateNodeHandle();
+  ros::NodeHandle& nh = getNodeHandle();
+  using ros_params::param;
+  auto nonempty = [](const std::string& s) { return !s.empty(); };
+  map_frame_ = param(nh, "frames/map_frame", std::string("map"), nonempty, "a frame id");
+  session_prefix_ = param(nh, "frames/session_frame_prefix", std::string("session_"), nonempty, "a frame id prefix");
+  base_frame_ = param(nh, "frames/base_frame", std::string("base_link"), nonempty, "a frame id");
+  queue_size_ = param(pnh, "queue_size", 1000, [](int v) { return v >= 1 && v <= 1000000; }, "in [1, 1000000]");
+  max_waiting_loops_ =
+      param(pnh, "max_waiting_loops", 1000, [](int v) { return v >= 1 && v <= 1000000; }, "in [1, 1000000]");
+  publish_tf_ = param(pnh, "publish_tf", true, [](bool) { return true; }, "a bool");
+  stats_period_s_ = param(pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
+  config_ = ros_params::slamConfigFromParams(nh);
+  const std::string bad = config_.validate();
+  if (!bad.empty()) throw std::invalid_argument(nh.resolveName("slam") + ": " + bad);
+}
+
+void BackendNodelet::onInit() {
+  try {
+    readParameters();
+    backend_ = std::make_unique<core::MultiSessionBackend>(
+        config_.backend, [this](const std::string& line) { NODELET_INFO("back-end: %s", line.c_str()); });
+  } catch (const std::exception& e) {
+    NODELET_FATAL("back-end: invalid parameters, not starting: %s", e.what());
+    throw;
+  }
+  const auto& b = config_.backend;
+  NODELET_INFO(
+      "back-end: optimiser %s (optimise %s, every %d pending loops), join after %d global loops (gate %.2f m), "
+      "frames %s -> %s<id> -> %s, tf %s, queue_size %d",
+      core::optimizerName(b.optimizer), b.optimise ? "on" : "off", b.optimise_every, b.join_min_loops, b.join_gate_m,
+      map_frame_.c_str(), session_prefix_.c_str(), base_frame_.c_str(), publish_tf_ ? "on" : "off", queue_size_);
+
+  ros::NodeHandle& nh = getNodeHandle();
+  trajectory_pub_ = nh.advertise<uw_multislam::SessionTrajectory>(topics::kSessionTrajectory, 10);
+  markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>(topics::kLoopMarkers, 1, true);
+  pose_pub_ = nh.advertise<geometry_msgs::PoseStamped>(topics::kCurrentPose, 10);
+  active_pub_ = nh.advertise<uw_multislam::SessionState>(topics::kActiveSession, 1, true);
+  if (publish_tf_) tf_ = std::make_unique<tf2_ros::TransformBroadcaster>();
+  join_srv_ = nh.advertiseService(topics::kJoinSessionsService, &BackendNodelet::onJoin, this);
+  split_srv_ = nh.advertiseService(topics::kSplitSessionService, &BackendNodelet::onSplit, this);
+  list_srv_ = nh.advertiseService(topics::kListSessionsService, &BackendNodelet::onList, this);
+  start_srv_ = nh.advertiseService(topics::kStartSessionService, &BackendNodelet::onStart, this);
+  reload_srv_ = nh.advertiseService(topics::kReloadSessionService, &BackendNodelet::onReload, this);
+  worker_ = std::thread([this] { work(); });
+  keyframe_sub_ = nh.subscribe<uw_multislam::Keyframe>(topics::kKeyframes, 100,
+                                                       [this](const uw_multislam::KeyframeConstPtr& m) { enqueue(m); });
+  loop_sub_ = nh.subscribe<uw_multislam::Loop>(topics::kLoops, 100,
+                                               [this](const uw_multislam::LoopConstPtr& m) { enqueue(m); });
+  pose_sub_ = nh.subscribe(topics::kOdometryPose, 10, &BackendNodelet::onOdometryPose, this);
+}
+
+void BackendNodelet::enqueue(Message m) {
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    if (static_cast<int>(queue_.size()) >= queue_size_) {
+      queue_.pop_front();
+      ++dropped_;
+    }
+    queue_.push_back(std::move(m));
+  }
+  wake_.notify_one();
+}
+
+void BackendNodelet::work() {
+  last_stats_ = ros::WallTime::now();
+  for (;;) {
+    Message m;
+    long dropped = 0;
+    {
+      std::unique_lock<std::mutex> lock(queue_mutex_);
+      wake_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
+      if (stopping_) return;
+      m = std::move(queue_.front());
+      queue_.pop_front();
+      dropped = dropped_;
+    }
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    counts_.dropped = dropped;
+    try {
+      if (const auto* k = std::get_if<uw_multislam::KeyframeConstPtr>(&m)) {
+        processKeyframe(**k);
+        retryWaitingLoops();
+      } else {
+        const auto& l = std::get<uw_multislam::LoopConstPtr>(m);
+        ++counts_.loops;
+        if (!processLoop(*l)) {
+          if (static_cast<int>(waiting_.size()) >= max_waiting_loops_) {
+            waiting_.pop_front();
+            ++counts_.waiting_dropped;
+          }
+          waiting_.push_back(l);
+        }
+      }
+      const core::BackendStats& st = backend_->stats();
+      const bool changed =
+          st.optimisations != last_optimisations_ || st.joins != last_joins_ || st.splits != last_splits_;
+      last_optimisations_ = st.optimisations;
+      last_joins_ = st.joins;
+      last_splits_ = st.splits;
+      publishAll(changed);
+    } catch (const std::exception& e) {
+      ++counts_.bad;
+      NODELET_ERROR_THROTTLE(5, "back-end: message skipped: %s", e.what());
+    }
+    if ((ros::WallTime::now() - last_stats_).toSec() > stats_period_s_) {
+      logStats("so far");
+      last_stats_ = ros::WallTime::now();
+    }
+  }
+}
+
+void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
+  rc::KeyframeData k;
+  std::string why;
+  if (!rc::fromMsg(msg, &k, &why)) {
+    ++counts_.bad;
+    NODELET_WARN_THROTTLE(5, "back-end: keyframe skipped: %s", why.c_str());
+    return;
+  }
+  ++counts_.keyframes;
+  auto it = sessions_.find(k.session);
+  if (it == sessions_.end()) {
+    if (k.session < active_) {
+      ++counts_.stale;
+      NODELET_WARN_THROTTLE(5, "back-end: keyframe of old session %d skipped (session %d is recording)", k.session,
+                            active_);
+      return;
+    }
+    if (active_ >= 0) backend_->endSession(sessions_.at(active_).internal);
+    Session s;
+    s.name = "session_" + std::to_string(k.session);
+    s.internal = backend_->startSession(s.name);
+    s.stamps.push_back(msg.header.stamp);
+    s.odometry.push_back(core::Pose2());
+    it = sessions_.emplace(k.session, std::move(s)).first;
+    active_ = k.session;
+    NODELET_INFO("back-end: session %d started", k.session);
+    if (k.keyframe == 0) return;
+  }
+  Session& s = it->second;
+  if (k.session != active_) {
+    ++counts_.stale;
+    NODELET_WARN_THROTTLE(5, "back-end: keyframe of finished session %d skipped", k.session);
+    return;
+  }
+  const int expected = static_cast<int>(s.stamps.size());
+  if (k.keyframe == 0 && expected == 1) {  // the origin of a session opened by start_session
+    s.stamps[0] = msg.header.stamp;
+    return;
+  }
+  if (k.keyframe < expected) {
+    ++counts_.stale;
+    NODELET_WARN_THROTTLE(5, "back-end: keyframe %d of session %d received twice or out of order, skipped", k.keyframe,
+                          k.session);
+    return;
+  }
+  core::UncertainPose2 motion = k.motion;
+  if (k.keyframe > expected) {
+    // Keyframes lost on the way (queue overflow): they stay where the last one received is
+    // (phantoms, no loop may use them), and this one gets the odometry's motion across the gap.
+    ++counts_.gaps;
+    NODELET_WARN_THROTTLE(5, "back-end: session %d keyframes %d..%d never arrived, bridged by the odometry", k.session,
+                          expected, k.keyframe - 1);
+    const core::Pose2 last = s.odometry.back();
+    for (int g = expected; g < k.keyframe; ++g) {
+      backend_->addMotion(s.internal, core::UncertainPose2(core::Pose2(), Eigen::Matrix3d::Identity() * 1e-8));
+      s.phantoms.insert(g);
+      s.stamps.push_back(msg.header.stamp);
+      s.odometry.push_back(last);
+    }
+    motion = core::UncertainPose2(core::between(last, k.odometry_pose),
+                                  k.motion.covariance * static_cast<double>(k.keyframe - expected + 1));
+  }
+  backend_->addMotion(s.internal, motion);
+  s.stamps.push_back(msg.header.stamp);
+  s.odometry.push_back(k.odometry_pose);
+}
+
+bool BackendNodelet::processLoop(const uw_multislam::Loop& msg) {
+  core::Loop l;
+  std::string why;
+  if (!rc::fromMsg(msg, &l, &why)) {
+    ++counts_.refused;
+    NODELET_WARN_THROTTLE(5, "back-end: loop skipped: %s", why.c_str());
+    return true;
+  }
+  const auto a = sessions_.find(l.session_a), b = sessions_.find(l.session_b);
+  if (a == sessions_.end() || b == sessions_.end() || l.keyframe_a >= static_cast<int>(a->second.stamps.size()) ||
+      l.keyframe_b >= static_cast<int>(b->second.stamps.size())) {
+    return false;  // a keyframe still on its way
+  }
+  if (a->second.phantoms.count(l.keyframe_a) || b->second.phantoms.count(l.keyframe_b)) {
+    ++counts_.refused;
+    NODELET_WARN_THROTTLE(5, "back-end: loop on a keyframe that never arrived, skipped");
+    return true;
+  }
+  try {
+    backend_->addLoop({a->second.internal, l.keyframe_a, b->second.internal, l.keyframe_b, l.z});
+  } catch (const std::invalid_argument& e) {
+    ++counts_.refused;
+    NODELET_WARN_THROTTLE(5, "back-end: loop refused: %s", e.what());
+    return true;
+  }
+  ++a->second.loops;
+  if (l.session_b != l.session_a) ++b->second.loops;
+  accepted_.push_back(l);
+  return true;
+}
+
+void BackendNodelet::retryWaitingLoops() {
+  std::deque<uw_multislam::LoopConstPtr> still;
+  for (const auto& l : waiting_)
+    if (!processLoop(*l)) still.push_back(l);
+  waiting_.swap(still);
+}
+
+int BackendNodelet::externalOf(int internal) const {
+  for (const auto& [ext, s] : sessions_)
+    if (s.internal == internal) return ext;
+  return -1;
+}
+
+core::Pose2 BackendNodelet::correction(int ext) const {
+  const Session& s = sessions_.at(ext);
+  const std::vector<core::Pose2> opt = backend_->sessionPoses(s.internal);
+  return core::compose(opt.back(), core::invert(s.odometry.back()));
+}
+
+void BackendNodelet::publishSession(int ext) {
+  const Session& s = sessions_.at(ext);
+  const std::vector<core::Pose2> poses = backend_->sessionPoses(s.internal);
+  const ros::Time now = s.stamps.empty() ? ros::Time::now() : s.stamps.back();
+  uw_multislam::SessionTrajectory t;
+  t.header.stamp = now;
+  t.header.frame_id = session_prefix_ + std::to_string(ext);
+  t.session = ext;
+  t.map = externalOf(backend_->mapOf(s.internal));
+  const core::Pose2 origin_inv = core::invert(poses.front());
+  for (const core::Pose2& p : poses) t.poses.push_back(rc::toPose2DMsg(core::compose(origin_inv, p)));
+  trajectory_pub_.publish(t);
+  auto pub = path_pubs_.find(ext);
+  if (pub == path_pubs_.end()) {
+    pub = path_pubs_
+              .emplace(ext, getNodeHandle().advertise<nav_msgs::Path>(
+                                topics::kSessionPathPrefix + std::to_string(ext), 1, true))
+              .first;
+  }
+  pub->second.publish(rc::toPathMsg(poses, s.stamps, map_frame_, now));
+  if (tf_) {
+    geometry_msgs::TransformStamped tr;
+    tr.header.stamp = now;
+    tr.header.frame_id = map_frame_;
+    tr.child_frame_id = session_prefix_ + std::to_string(ext);
+    tr.transform = rc::toTransformMsg(correction(ext));
+    tf_->sendTransform(tr);
+  }
+}
+
+void BackendNodelet::publishAll(bool all_sessions) {
+  if (all_sessions) {
+    for (const auto& [ext, s] : sessions_) publishSession(ext);
+  } else if (active_ >= 0) {
+    publishSession(active_);
+  }
+  std::vector<rc::Segment> segments;
+  for (const core::Loop& l : accepted_) {
+    const int ia = sessions_.at(l.session_a).internal, ib = sessions_.at(l.session_b).internal;
+    if (backend_->mapOf(ia) != backend_->mapOf(ib)) continue;
+    segments.push_back({backend_->sessionPoses(ia)[l.keyframe_a], backend_->sessionPoses(ib)[l.keyframe_b],
+                        l.kind == core::Loop::Kind::kLocal ? rc::Segment::Kind::kLocal : rc::Segment::Kind::kGlobal});
+  }
+  for (int m : backend_->mapIds())
+    for (const core::LinkInfo& link : backend_->links(m))
+      segments.push_back({backend_->sessionPoses(link.previous).back(), backend_->sessionPoses(link.current).front(),
+                          rc::Segment::Kind::kJoin});
+  markers_pub_.publish(rc::toMarkerArrayMsg(segments, map_frame_, ros::Time::now()));
+}
+
+void BackendNodelet::onOdometryPose(const geometry_msgs::PoseStampedConstPtr& msg) {
+  core::Pose2 odo;
+  if (!rc::fromMsg(msg->pose, &odo)) return;
+  core::Pose2 corr;
+  int active;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    if (active_ < 0 || sessions_.empty()) return;
+    active = active_;
+    corr = correction(active_);
+  }
+  geometry_msgs::PoseStamped p;
+  p.header.stamp = msg->header.stamp;
+  p.header.frame_id = map_frame_;
+  p.pose = rc::toPoseMsg(core::compose(corr, odo));
+  pose_pub_.publish(p);
+  if (tf_) {
+    geometry_msgs::TransformStamped tr;
+    tr.header.stamp = msg->header.stamp;
+    tr.header.frame_id = session_prefix_ + std::to_string(active);
+    tr.child_frame_id = base_frame_;
+    tr.transform = rc::toTransformMsg(odo);
+    tf_->sendTransform(tr);
+  }
+}
+
+bool BackendNodelet::onJoin(uw_multislam::JoinSessions::Request& req, uw_multislam::JoinSessions::Response& res) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  for (int s : {req.session_a, req.session_b}) {
+    if (!sessions_.count(s)) {
+      res.status = rc::statusMsg(uw_multislam::Status::NOT_FOUND,
+                                 "no session " + std::to_string(s) + " (call list_sessions for the ids)");
+      return true;
+    }
+  }
+  if (req.min_loops < 0) {
+    res.status = rc::statusMsg(uw_multislam::Status::INVALID_ARGUMENT, "min_loops must be >= 0 (0: the configured K)");
+    return true;
+  }
+  const int min_loops = req.min_loops > 0 ? req.min_loops : std::max(1, config_.backend.join_min_loops);
+  const core::BackendStatus st =
+      backend_->join(sessions_.at(req.session_a).internal, sessions_.at(req.session_b).internal, min_loops);
+  res.status = rc::toStatusMsg(st);
+  res.map = externalOf(backend_->mapOf(sessions_.at(req.session_a).internal));
+  if (st.ok()) {
+    NODELET_INFO("back-end: join_sessions %d %d: %s", req.session_a, req.session_b, st.message.c_str());
+    publishAll(true);
+  }
+  return true;
+}
+
+bool BackendNodelet::onSplit(uw_multislam::SplitSession::Request& req, uw_multislam::SplitSession::Response& res) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  if (!sessions_.count(req.session)) {
+    res.status = rc::statusMsg(uw_multislam::Status::NOT_FOUND,
+                               "no session " + std::to_string(req.session) + " (call list_sessions for the ids)");
+    return true;
+  }
+  const core::BackendStatus st = backend_->split(sessions_.at(req.session).internal);
+  res.status = rc::toStatusMsg(st);
+  if (st.ok()) {
+    NODELET_INFO("back-end: split_session %d: %s", req.session, st.message.c_str());
+    publishAll(true);
+  }
+  return true;
+}
+
+bool BackendNodelet::onList(uw_multislam::ListSessions::Request&, uw_multislam::ListSessions::Response& res) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  for (const auto& [ext, s] : sessions_) {
+    const core::SessionInfo info = backend_->session(s.internal);
+    uw_multislam::SessionState st;
+    st.session = ext;
+    st.name = s.name;
+    st.state = info.recording ? uw_multislam::SessionState::ACTIVE : uw_multislam::SessionState::FINISHED;
+    st.map = externalOf(info.map);
+    st.num_keyframes = info.keyframes;
+    st.num_loops = s.loops;
+    if (!s.stamps.empty()) {
+      st.first_stamp = s.stamps.front();
+      st.last_stamp = s.stamps.back();
+    }
+    res.sessions.push_back(st);
+  }
+  res.status = rc::statusMsg(uw_multislam::Status::OK, "");
+  return true;
+}
+
+bool BackendNodelet::onStart(uw_multislam::StartSession::Request& req, uw_multislam::StartSession::Response& res) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  for (const auto& [ext, s] : sessions_) {
+    if (!req.name.empty() && s.name == req.name) {
+      res.status = rc::statusMsg(uw_multislam::Status::ALREADY_EXISTS,
+                                 "a session is already named '" + req.name + "' (session " + std::to_string(ext) + ")");
+      return true;
+    }
+  }
+  const int ext = sessions_.empty() ? 0 : sessions_.rbegin()->first + 1;
+  if (active_ >= 0) backend_->endSession(sessions_.at(active_).internal);
+  Session s;
+  s.name = req.name.empty() ? "session_" + std::to_string(ext) : req.name;
+  s.internal = backend_->startSession(s.name);
+  s.stamps.push_back(ros::Time::now());
+  s.odometry.push_back(core::Pose2());
+  sessions_.emplace(ext, std::move(s));
+  active_ = ext;
+  uw_multislam::SessionState st;
+  st.session = ext;
+  st.name = sessions_.at(ext).name;
+  st.state = uw_multislam::SessionState::ACTIVE;
+  st.map = ext;
+  st.num_keyframes = 1;
+  active_pub_.publish(st);
+  res.session = ext;
+  res.status = rc::statusMsg(uw_multislam::Status::OK, "");
+  NODELET_INFO("back-end: start_session: session %d '%s' started; the odometry's next keyframe is its origin", ext,
+               st.name.c_str());
+  publishAll(true);
+  return true;
+}
+
+bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res) {
+  res.status = rc::statusMsg(uw_multislam::Status::UNIMPLEMENTED,
+                             "reload_session '" + req.name +
+                                 "': this build has no session store yet (issue 8); sessions live in memory only");
+  res.session = -1;
+  return true;
+}
+
+void BackendNodelet::logStats(const char* when) {
+  const core::BackendStats& b = backend_->stats();
+  NODELET_INFO(
+      "back-end %s: %ld keyframes (%ld stale, %ld gaps), %ld loops (%ld refused, %zu waiting, %ld dropped while "
+      "waiting), %ld messages dropped (queue full), %ld bad; %d joins, %d splits, %d optimisations (%.1f ms max), %zu "
+      "maps",
+      when, counts_.keyframes, counts_.stale, counts_.gaps, counts_.loops, counts_.refused, waiting_.size(),
+      counts_.waiting_dropped, counts_.dropped, counts_.bad, b.joins, b.splits, b.optimisations, b.optimise_ms_max,
+      backend_->mapIds().size());
+}
+
+}  // namespace nodelets
+}  // namespace uw_multislam
+
+PLUGINLIB_EXPORT_CLASS(uw_multislam::nodelets::BackendNodelet, nodelet::Nodelet)

@@ -1,0 +1,224 @@
+#!/usr/bin/python3
+"""rostest: the back-end / session manager in slam.launch on a generated two-session mission.
+
+The bags are generated at test time (make_survey, small images) and played one after the other;
+the second session's stamps start 1000 s later, so the odometry starts session 1 by its stamp gap
+rule. Automatic joining is off (join_min_loops 0): the test joins the sessions with join_sessions,
+checks the joined trajectory against the ground truth, splits them again, and makes wrong calls.
+"""
+import csv
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import unittest
+
+import rosgraph
+import roslib.packages
+import rosnode
+import rospy
+import rostest
+from nav_msgs.msg import Path
+from uw_multislam.msg import Loop, Status
+from uw_multislam.srv import JoinSessions, ListSessions, SplitSession, StartSession, ReloadSession
+from visualization_msgs.msg import MarkerArray
+
+SURVEY = """
+seed: 5
+world: {width_m: 12, height_m: 10, metres_per_px: 0.008, featureless_fraction: 0.0}
+sessions:
+  - name: s0
+    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
+    mission: {pattern: loop, start_m: [6.0, 5.0], length_m: 3.5, width_m: 2.5, laps: 1.3, speed_m_s: 0.35,
+              frame_period_s: 1.0, altitude_m: 1.6, start_time_s: 0}
+  - name: s1
+    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
+    mission: {pattern: loop, start_m: [6.5, 5.5], heading_rad: 1.5708, length_m: 2.5, width_m: 3.0, laps: 1.0,
+              speed_m_s: 0.35, frame_period_s: 1.0, altitude_m: 1.7, start_time_s: 1000}
+"""
+NS = "/uw_multislam"
+JOIN_TOLERANCE_M = 0.10  # joined session 1 vs the ground truth in session 0's frame (about 3 m away)
+
+
+def tool(name):
+    found = roslib.packages.find_node("uw_multislam", name)
+    if not found:
+        raise RuntimeError("uw_multislam/%s not built" % name)
+    return found[0]
+
+
+def yaw_of(q):
+    return 2.0 * math.atan2(q.z, q.w)
+
+
+class BackendTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="uwms_backend_")
+        with open(os.path.join(cls.tmp, "survey.yaml"), "w") as f:
+            f.write(SURVEY)
+        cls.mission = os.path.join(cls.tmp, "mission")
+        subprocess.run([tool("make_survey"), "--config", os.path.join(cls.tmp, "survey.yaml"), "--out", cls.mission,
+                        "--quiet"], check=True, timeout=120)
+        cls.lock = threading.Lock()
+        cls.paths, cls.loops, cls.markers = {}, [], []
+        cls.last_message = time.time()
+
+        def on_path(session):
+            def callback(msg):
+                with cls.lock:
+                    cls.paths[session] = msg
+            return callback
+
+        def on_loop(msg):
+            with cls.lock:
+                cls.loops.append(msg)
+                cls.last_message = time.time()
+
+        def on_markers(msg):
+            with cls.lock:
+                cls.markers.append(msg)
+
+        cls.subs = [rospy.Subscriber(NS + "/paths/session_0", Path, on_path(0)),
+                    rospy.Subscriber(NS + "/paths/session_1", Path, on_path(1)),
+                    rospy.Subscriber(NS + "/loops", Loop, on_loop, queue_size=1000),
+                    rospy.Subscriber(NS + "/loop_markers", MarkerArray, on_markers)]
+        for srv in ("join_sessions", "split_session", "list_sessions", "start_session", "reload_session"):
+            rospy.wait_for_service(NS + "/" + srv, timeout=60)
+        cls.join = rospy.ServiceProxy(NS + "/join_sessions", JoinSessions)
+        cls.split = rospy.ServiceProxy(NS + "/split_session", SplitSession)
+        cls.list = rospy.ServiceProxy(NS + "/list_sessions", ListSessions)
+        cls.start = rospy.ServiceProxy(NS + "/start_session", StartSession)
+        cls.reload = rospy.ServiceProxy(NS + "/reload_session", ReloadSession)
+        cls.wait_for_subscribers()
+        for name in ("s0", "s1"):
+            subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", "4", os.path.join(cls.mission, name + ".bag"),
+                            "--topics", "/camera/image_raw", "/camera/camera_info", "/altitude"], check=True,
+                           timeout=120)
+            cls.wait_until_quiet(5.0)
+        with open(os.path.join(cls.mission, "world_gt.csv")) as f:
+            cls.world = {(int(r["session"]), int(r["index"])): (float(r["x_m"]), float(r["y_m"]), float(r["yaw_rad"]))
+                         for r in csv.DictReader(f)}
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    @classmethod
+    def wait_for_subscribers(cls, timeout=60.0):
+        master = rosgraph.Master("/check_backend")
+        wanted = ["/camera/image_raw", NS + "/keyframes", NS + "/loops"]
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            subscribed = {t: n for t, n in master.getSystemState()[1]}
+            if all(any(n != rospy.get_name() for n in subscribed.get(t, [])) for t in wanted):
+                time.sleep(2.0)
+                return
+            time.sleep(0.5)
+        raise AssertionError("the pipeline did not subscribe to %s" % wanted)
+
+    @classmethod
+    def wait_until_quiet(cls, quiet_s, timeout=120.0):
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            with cls.lock:
+                if time.time() - cls.last_message > quiet_s:
+                    return
+            time.sleep(0.2)
+
+    def sessions(self):
+        res = self.list()
+        self.assertEqual(res.status.code, Status.OK)
+        return {s.session: s for s in res.sessions}
+
+    def path(self, session, timeout=10.0):
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            with self.lock:
+                if session in self.paths:
+                    return self.paths[session]
+            time.sleep(0.2)
+        self.fail("no path for session %d" % session)
+
+    def joined_error(self):
+        """Largest distance of session 1's keyframes (in map 0, i.e. session 0's frame) from the
+        ground truth expressed in session 0's first frame. Keyframes are matched to frames by
+        their stamps (frame_period 1 s, session 1 starting 1000 s later)."""
+        p1 = self.path(1).poses
+        t0 = self.path(1).poses[0].header.stamp.to_sec()
+        ox, oy, oyaw = self.world[(0, 0)]
+        c, s = math.cos(oyaw), math.sin(oyaw)
+        worst = 0.0
+        for p in p1:
+            index = int(round(p.header.stamp.to_sec() - t0))
+            gx, gy, _ = self.world[(1, index)]
+            tx, ty = c * (gx - ox) + s * (gy - oy), -s * (gx - ox) + c * (gy - oy)
+            worst = max(worst, math.hypot(p.pose.position.x - tx, p.pose.position.y - ty))
+        return worst
+
+    def test_1_a_path_per_session_and_loops_of_both_kinds(self):
+        kinds = [l.kind for l in self.loops]
+        self.assertGreaterEqual(kinds.count(Loop.LOCAL), 3)
+        self.assertGreaterEqual(kinds.count(Loop.GLOBAL), 3)
+        listed = self.sessions()
+        self.assertEqual(sorted(listed), [0, 1])
+        for s in (0, 1):
+            self.assertEqual(len(self.path(s).poses), listed[s].num_keyframes)
+            self.assertGreater(listed[s].num_keyframes, 5)
+            self.assertEqual(self.path(s).header.frame_id, "map")
+            self.assertEqual(listed[s].map, s)  # not joined: automatic joining is off
+        self.assertEqual(listed[1].state, listed[1].ACTIVE)
+        self.assertEqual(listed[0].state, listed[0].FINISHED)
+        first = self.path(1).poses[0].pose.position
+        self.assertEqual((first.x, first.y), (0.0, 0.0))  # its own frame before the join
+
+    def test_2_join_then_split(self):
+        res = self.join(0, 1, 3)
+        self.assertEqual(res.status.code, Status.OK, res.status.message)
+        self.assertEqual(res.map, 0)
+        time.sleep(1.0)
+        listed = self.sessions()
+        self.assertEqual(listed[1].map, 0)
+        error = self.joined_error()
+        sys.stderr.write("joined session 1: largest error %.3f m from the ground truth\n" % error)
+        self.assertLess(error, JOIN_TOLERANCE_M)
+        with self.lock:
+            self.assertTrue(any(m.ns == "joins" for a in self.markers for m in a.markers), "no join marker")
+        # Joining again: already in one map.
+        self.assertEqual(self.join(1, 0, 0).status.code, Status.FAILED_PRECONDITION)
+
+        res = self.split(1)
+        self.assertEqual(res.status.code, Status.OK, res.status.message)
+        time.sleep(1.0)
+        self.assertEqual(self.sessions()[1].map, 1)
+        first = self.path(1).poses[0].pose.position
+        self.assertAlmostEqual(first.x, 0.0, places=9)  # back in its own frame
+        self.assertEqual(self.split(1).status.code, Status.FAILED_PRECONDITION)  # alone: nothing to split
+
+    def test_3_wrong_calls_get_an_error_and_the_node_keeps_running(self):
+        before = self.sessions()
+        res = self.join(0, 42, 0)
+        self.assertEqual(res.status.code, Status.NOT_FOUND)
+        self.assertIn("42", res.status.message)
+        self.assertEqual(self.join(0, 1, -3).status.code, Status.INVALID_ARGUMENT)
+        self.assertEqual(self.split(-1).status.code, Status.NOT_FOUND)
+        self.assertEqual(self.start("s1_name_taken").status.code, Status.OK)
+        self.assertEqual(self.start("s1_name_taken").status.code, Status.ALREADY_EXISTS)
+        self.assertEqual(self.reload("yesterday").status.code, Status.UNIMPLEMENTED)
+        after = self.sessions()
+        self.assertEqual(len(after), len(before) + 1)  # only the good start_session changed anything
+        for s in before:
+            self.assertEqual((after[s].map, after[s].num_keyframes), (before[s].map, before[s].num_keyframes))
+        nodes = dict(rosgraph.Master("/check_backend").getSystemState()[2]).get(NS + "/list_sessions", [])
+        self.assertTrue(nodes)
+        for node in nodes:
+            self.assertTrue(rosnode.rosnode_ping(node, max_count=1), "%s does not answer" % node)
+
+
+if __name__ == "__main__":
+    rospy.init_node("check_backend")
+    rostest.rosrun("uw_multislam", "check_backend", BackendTest)
