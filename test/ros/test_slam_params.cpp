@@ -16,7 +16,7 @@ XmlRpc::XmlRpcValue tree() {
   t["loops"]["global"]["hash_mode"] = std::string("haloc");
   t["loops"]["global"]["projection_seed"] = 20231122;
   // PyYAML (rosparam) reads "1e-06" without a dot as a string: it must still parse as a number.
-  t["backend"]["tolerance"] = std::string("1e-06");
+  t["backend"]["iekf"]["tolerance"] = std::string("1e-06");
   return t;
 }
 
