@@ -1,0 +1,91 @@
+// Tracking loss (core/tracking.h): a blank stretch closes the session, the next textured frame
+// starts a new one; short dropouts and blank starts do not make sessions.
+#include <gtest/gtest.h>
+
+#include "../common/rendered_seabed.h"
+#include "uw_multislam/core/tracking.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+class TrackingTest : public testing_util::RenderedSeabedTest {
+ protected:
+  // A straight pass 0.25 m per frame; frames in [blank_from, blank_to) are uniform grey water.
+  std::vector<SegmentedOdometry::Step> fly(SegmentedOdometry* odo, int frames, int blank_from, int blank_to,
+                                           std::vector<int>* keyframes_per_session = nullptr) {
+    std::vector<SegmentedOdometry::Step> steps;
+    const cv::Mat grey(240, 320, CV_8UC3, cv::Scalar(90, 110, 60));
+    for (int k = 0; k < frames; ++k) {
+      const cv::Mat image = (k >= blank_from && k < blank_to) ? grey : render(Pose2(2.0 + 0.25 * k, 4.0, 0.0), 2.0);
+      steps.push_back(odo->process({k, 1.0 * k, 2.0, image}));
+      if (keyframes_per_session && steps.back().session_started) keyframes_per_session->push_back(0);
+      if (keyframes_per_session && odo->odometry() && !keyframes_per_session->empty())
+        keyframes_per_session->back() = static_cast<int>(odo->odometry()->keyframes().size());
+    }
+    return steps;
+  }
+};
+
+TEST_F(TrackingTest, ABlankStretchClosesTheSessionAndTheNextTexturedFrameStartsOne) {
+  TrackingLossOptions loss;
+  loss.max_fallbacks = 3;
+  SegmentedOdometry odo(camera_, OdometryOptions(), loss);
+  std::vector<int> kfs;
+  const auto steps = fly(&odo, 30, 10, 18, &kfs);
+  int closed_at = -1, started_at = -1;
+  for (int k = 0; k < 30; ++k) {
+    if (steps[k].session_closed) closed_at = k;
+    if (steps[k].session_started && k > 0) started_at = k;
+  }
+  EXPECT_TRUE(steps[0].session_started);
+  EXPECT_EQ(closed_at, 12) << "the third unmatched frame closes the session";
+  EXPECT_EQ(started_at, 18) << "the first textured frame after the stretch is the new origin";
+  for (int k = 13; k < 18; ++k) EXPECT_EQ(steps[k].update.status, FrameStatus::kSkipped) << k;
+  EXPECT_EQ(odo.sessions(), 2);
+  EXPECT_EQ(odo.losses(), 1);
+  EXPECT_EQ(odo.framesLost(), 5);
+  ASSERT_EQ(kfs.size(), 2u);
+  EXPECT_GE(kfs[1], 3);  // the second session tracks again (2.75 m, a keyframe a metre)
+  // The new session's own frame: its origin is frame 18, its last keyframe ~2.75 m further on.
+  const Pose2 last = odo.odometry()->trajectory().absolutePoses().back();
+  EXPECT_NEAR(last.x(), 0.25 * (odo.odometry()->keyframes().back().frame_index - 18), 0.05);
+}
+
+TEST_F(TrackingTest, AShortDropoutStaysInTheSession) {
+  TrackingLossOptions loss;
+  loss.max_fallbacks = 5;
+  SegmentedOdometry odo(camera_, OdometryOptions(), loss);
+  const auto steps = fly(&odo, 20, 8, 10);
+  EXPECT_EQ(odo.sessions(), 1);
+  EXPECT_EQ(odo.losses(), 0);
+  for (const auto& s : steps) EXPECT_FALSE(s.session_closed);
+}
+
+TEST_F(TrackingTest, ABlankStartWaitsForTexture) {
+  SegmentedOdometry odo(camera_, OdometryOptions(), TrackingLossOptions());
+  const auto steps = fly(&odo, 8, 0, 3);
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_EQ(steps[k].update.status, FrameStatus::kSkipped);
+    EXPECT_FALSE(steps[k].session_started);
+    EXPECT_NE(steps[k].update.reason.find("needed to start"), std::string::npos) << steps[k].update.reason;
+  }
+  EXPECT_TRUE(steps[3].session_started);
+  EXPECT_EQ(odo.sessions(), 1);
+  EXPECT_EQ(odo.framesLost(), 0);  // before the first session nothing is "lost"
+}
+
+TEST_F(TrackingTest, ZeroNeverClosesAndBadOptionsAreRefused) {
+  TrackingLossOptions never;
+  never.max_fallbacks = 0;
+  SegmentedOdometry odo(camera_, OdometryOptions(), never);
+  fly(&odo, 24, 6, 20);
+  EXPECT_EQ(odo.sessions(), 1);
+  TrackingLossOptions bad;
+  bad.min_features = 0;
+  EXPECT_THROW(SegmentedOdometry(camera_, OdometryOptions(), bad), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam
