@@ -159,6 +159,10 @@ void visitBackend(V& v, B& b) {
 template <typename V, typename C>
 void visitConfig(V& v, C& c) {
   v.block("odometry", [&](V& o) { visitOdometry(o, c.odometry); });
+  v.block("tracking", [&](V& t) {
+    t("max_fallbacks", c.tracking.max_fallbacks);
+    t("min_features", c.tracking.min_features);
+  });
   v.block("loops", [&](V& l) { visitLoops(l, c.loops); });
   v.block("backend", [&](V& b) { visitBackend(b, c.backend); });
 }
@@ -168,6 +172,8 @@ void visitConfig(V& v, C& c) {
 std::string SlamConfig::validate() const {
   const std::string o = odometry.validate();
   if (!o.empty()) return "odometry." + o;
+  const std::string t = tracking.validate();
+  if (!t.empty()) return "tracking." + t;
   const std::string l = loops.validate();
   if (!l.empty()) return "loops." + l;
   const std::string b = backend.validate();

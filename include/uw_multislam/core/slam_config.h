@@ -7,12 +7,14 @@
 #include "uw_multislam/core/backend.h"
 #include "uw_multislam/core/loop_detector.h"
 #include "uw_multislam/core/odometry.h"
+#include "uw_multislam/core/tracking.h"
 
 namespace uw_multislam {
 namespace core {
 
 struct SlamConfig {
   OdometryOptions odometry;
+  TrackingLossOptions tracking;
   LoopOptions loops;
   BackendOptions backend;
 
