@@ -4,6 +4,9 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -74,6 +77,21 @@ std::string codeText(int rc) {
     case SQLITE_BUSY: case SQLITE_LOCKED: return "the database is locked by another process";
     default: return sqlite3_errstr(rc);
   }
+}
+
+// A path as the path part of an SQLite URI filename.
+std::string uriEscape(const std::string& path) {
+  std::string out;
+  for (unsigned char c : path) {
+    if (std::isalnum(c) || c == '/' || c == '.' || c == '_' || c == '-' || c == '~') {
+      out += static_cast<char>(c);
+    } else {
+      char buf[4];
+      std::snprintf(buf, sizeof buf, "%%%02X", c);
+      out += buf;
+    }
+  }
+  return out;
 }
 
 template <typename T>
@@ -179,8 +197,12 @@ SessionStore::SessionStore(const std::string& path) : path_(path) {
       in.read(header, sizeof header);
       if (in.gcount() < 16 || std::memcmp(header, "SQLite format 3", 16) != 0)
         throw StoreError("session store " + path + ": not an SQLite database (wrong header); the file was left as it is");
+      // Read-only; without a WAL beside it (no crash, no other writer) also "immutable", so that
+      // SQLite creates no -wal/-shm files next to a file it then refuses.
       sqlite3* ro = nullptr;
-      const int rc = sqlite3_open_v2(path.c_str(), &ro, SQLITE_OPEN_READONLY, nullptr);
+      const bool has_wal = fs::exists(path + "-wal", ec);
+      const std::string uri = "file:" + uriEscape(fs::absolute(path, ec).string()) + (has_wal ? "" : "?immutable=1");
+      const int rc = sqlite3_open_v2(uri.c_str(), &ro, SQLITE_OPEN_READONLY | SQLITE_OPEN_URI, nullptr);
       auto refuse = [&](const std::string& why) {
         sqlite3_close(ro);
         throw StoreError("session store " + path + ": " + why + "; the file was left as it is");
@@ -226,10 +248,13 @@ SessionStore::SessionStore(const std::string& path) : path_(path) {
   const int rc = sqlite3_open_v2(path.c_str(), &db_, flags, nullptr);
   if (rc != SQLITE_OK) {
     const int ext = db_ ? sqlite3_extended_errcode(db_) : rc;
+    const int sys = db_ ? sqlite3_system_errno(db_) : 0;
     sqlite3_close(db_);
     db_ = nullptr;
     std::string why = codeText(ext);
-    if (access(fs::path(path).parent_path().empty() ? "." : fs::path(path).parent_path().c_str(), W_OK) != 0 ||
+    if (sys != 0) why += ": " + std::string(std::strerror(sys));
+    if (sys == EACCES || sys == EROFS || sys == EPERM) why = "read-only path (" + why + ")";
+    else if (access(fs::path(path).parent_path().empty() ? "." : fs::path(path).parent_path().c_str(), W_OK) != 0 ||
         (exists && access(path.c_str(), W_OK) != 0))
       why = "read-only path (" + why + ")";
     throw StoreError("session store " + path + ": " + (fresh ? "cannot create: " : "cannot open for writing: ") + why);
