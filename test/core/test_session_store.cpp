@@ -437,6 +437,50 @@ TEST(Store, KillNineLosesAtMostTheKeyframeInFlight) {
   EXPECT_EQ(rs.keyframes, sessions[0].keyframes);
 }
 
+
+// A mission cut by a crash: the last session never ended and its map was saved before its last
+// keyframes. The reload has every keyframe; the saved part of the map comes back exactly, the
+// rest with its odometry, and the loops pending are optimised at the next flush.
+TEST(Store, ASessionCutByACrashComesBackWithEveryKeyframe) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  BackendOptions opt;
+  opt.optimise_every = 1;
+  MultiSessionBackend original(opt);
+  std::vector<Pose2> saved_poses;
+  {
+    SessionStore store(path);
+    Recorder r(&store, &original);
+    recordMission(&r);
+    const int d = r.start("d");  // along session 0, 0.1 m beside it
+    for (int k = 1; k < 12; ++k) {
+      std::vector<BackendLoop> loops;
+      if (k >= 2 && k <= 6) {
+        loops.push_back({0, k, d, k, UncertainPose2(Pose2(0.0, 0.1, 0.0), diag(0.01, 0.005))});
+      }
+      if (k == 11) loops.push_back({d, 1, d, 11, UncertainPose2(Pose2(5.0, 0.0, 0.0), diag(0.01, 0.005))});
+      r.step(d, Pose2(0.5, 0.0, 0.0), loops);
+      if (k == 8) {  // the join happened at k = 6: the map is saved, then the crash comes later
+        ASSERT_EQ(original.mapOf(d), 0);
+        saveBackendMaps(&store, original, r.session_ids, r.loop_ids);
+        saved_poses = original.sessionPoses(d);
+      }
+    }
+  }  // no endSession, no saveMaps: as if killed
+  SessionStore store(path);
+  MultiSessionBackend restored(opt);
+  restoreStore(store, &restored, nullptr, nullptr);
+  ASSERT_EQ(restored.numSessions(), 4);
+  EXPECT_FALSE(restored.session(3).recording);
+  EXPECT_EQ(restored.session(3).keyframes, 12);
+  EXPECT_EQ(restored.mapOf(3), 0);
+  const std::vector<Pose2> poses = restored.sessionPoses(3);
+  for (std::size_t k = 0; k < saved_poses.size(); ++k) EXPECT_NEAR(poses[k].x(), saved_poses[k].x(), 1e-12) << k;
+  EXPECT_NEAR(between(poses[8], poses[11]).x(), 1.5, 1e-9);  // the odometry after the save
+  restored.flush();  // the intra-session loop, not yet optimised when the map was saved
+  EXPECT_GT(restored.stats().optimisations, 0);
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam
