@@ -598,5 +598,136 @@ Trajectory MultiSessionBackend::sessionTrajectory(int s) const {
   return t;
 }
 
+// --- Session store: export and exact restore ---------------------------------------------------
+
+MapState MultiSessionBackend::mapState(int map) const {
+  chain(map);
+  const Map& m = mapAt(map);
+  MapState st;
+  st.chain = m.chain;
+  for (const Link& l : m.links) st.links.push_back({l.measured, l.loops});
+  for (int k = 0; k < m.numMotions(); ++k) st.motions.emplace_back(m.motion(k), m.motionCov(k));
+  st.pending = m.pending;
+  return st;
+}
+
+LoopRecord MultiSessionBackend::loopRecord(int id) const {
+  if (id < 0 || id >= numLoops()) throw std::invalid_argument("backend: no loop " + std::to_string(id));
+  const LoopState& st = loops_[id];
+  return {st.loop, st.summarised, st.applied, st.refused};
+}
+
+int MultiSessionBackend::restoreSession(const std::string& name, const std::vector<UncertainPose2>& odometry) {
+  for (std::size_t k = 0; k < odometry.size(); ++k) {
+    const std::string bad = checkCovariance(odometry[k].covariance);
+    if (!bad.empty() || !odometry[k].mean.isFinite())
+      throw std::invalid_argument("backend: restored session '" + name + "': motion " + std::to_string(k + 1) + ": " +
+                                  (bad.empty() ? std::string("not finite") : bad));
+  }
+  const int id = numSessions();
+  Session s;
+  s.name = name.empty() ? "session_" + std::to_string(id) : name;
+  s.recording = false;
+  s.map = id;
+  s.odometry = odometry;
+  sessions_.push_back(s);
+  Map m;
+  m.chain = {id};
+  for (const UncertainPose2& u : odometry) {
+    m.motions.push_back(u.mean);
+    m.cov.push_back(u.covariance);
+  }
+  if (options_.optimise && options_.optimizer == OptimizerKind::kIekf && m.numMotions() + 1 <= options_.max_keyframes) {
+    Eigen::MatrixXd p = Eigen::MatrixXd::Zero(3 * m.numMotions(), 3 * m.numMotions());
+    for (int k = 0; k < m.numMotions(); ++k) p.block<3, 3>(3 * k, 3 * k) = m.cov[k];
+    m.iekf.emplace(options_.iekf, m.motions, std::move(p));
+    m.motions.clear();
+    m.cov.clear();
+  }
+  maps_.emplace(id, std::move(m));
+  return id;
+}
+
+int MultiSessionBackend::restoreLoop(const LoopRecord& r) {
+  const BackendLoop& l = r.loop;
+  for (const auto& [s, k] : {std::pair<int, int>{l.session_a, l.keyframe_a}, {l.session_b, l.keyframe_b}}) {
+    if (!hasSession(s) || k < 0 || k >= sessions_[s].keyframes())
+      throw std::invalid_argument("backend: restored loop: no keyframe " + std::to_string(k) + " in session " +
+                                  std::to_string(s));
+  }
+  const std::string bad = checkCovariance(l.z.covariance);
+  if (!bad.empty() || !l.z.mean.isFinite())
+    throw std::invalid_argument("backend: restored loop: " + (bad.empty() ? std::string("mean not finite") : bad));
+  loops_.push_back({l, r.summarised, r.applied, r.refused});
+  ++stats_.loops;
+  return numLoops() - 1;
+}
+
+BackendStatus MultiSessionBackend::restoreMap(const MapState& state) {
+  if (state.chain.empty()) return {StatusCode::kInvalidArgument, "restored map: empty chain"};
+  if (state.links.size() + 1 != state.chain.size())
+    return {StatusCode::kInvalidArgument, "restored map: " + std::to_string(state.chain.size()) + " sessions need " +
+                                              std::to_string(state.chain.size() - 1) + " links, got " +
+                                              std::to_string(state.links.size())};
+  int motions = static_cast<int>(state.links.size());
+  for (int s : state.chain) {
+    if (!hasSession(s)) return {StatusCode::kNotFound, "restored map: no session " + std::to_string(s)};
+    if (sessions_[s].recording || mapAt(sessions_[s].map).chain.size() != 1)
+      return {StatusCode::kFailedPrecondition,
+              "restored map: session " + std::to_string(s) + " is recording or already in a map of several sessions"};
+    motions += sessions_[s].keyframes() - 1;
+  }
+  if (!state.motions.empty() && static_cast<int>(state.motions.size()) != motions)
+    return {StatusCode::kInvalidArgument, "restored map " + std::to_string(state.chain.front()) + ": " +
+                                              std::to_string(state.motions.size()) + " motions, its chain has " +
+                                              std::to_string(motions)};
+  for (const MapLinkState& l : state.links)
+    for (int id : l.loops)
+      if (id < 0 || id >= numLoops())
+        return {StatusCode::kNotFound, "restored map: a link summarises loop " + std::to_string(id) + ", not restored"};
+  Map m;
+  m.chain = state.chain;
+  m.pending = state.pending;
+  for (std::size_t c = 0; c < state.chain.size(); ++c) {
+    if (state.motions.empty()) {
+      const Map& own = mapAt(sessions_[state.chain[c]].map);
+      for (int k = 0; k < own.numMotions(); ++k) {
+        m.motions.push_back(own.motion(k));
+        m.cov.push_back(own.motionCov(k));
+      }
+      if (c + 1 < state.chain.size()) {
+        m.motions.push_back(state.links[c].measured.mean);
+        m.cov.push_back(state.links[c].measured.covariance);
+      }
+    }
+    if (c + 1 < state.chain.size()) m.links.push_back({state.links[c].measured, state.links[c].loops});
+  }
+  for (const UncertainPose2& u : state.motions) {
+    m.motions.push_back(u.mean);
+    m.cov.push_back(u.covariance);
+  }
+  if (options_.optimise && options_.optimizer == OptimizerKind::kIekf && m.numMotions() + 1 <= options_.max_keyframes) {
+    // The joint covariance is not stored: block-diagonal from the marginals.
+    Eigen::MatrixXd p = Eigen::MatrixXd::Zero(3 * m.numMotions(), 3 * m.numMotions());
+    for (int k = 0; k < m.numMotions(); ++k) p.block<3, 3>(3 * k, 3 * k) = m.cov[k];
+    m.iekf.emplace(options_.iekf, m.motions, std::move(p));
+    m.motions.clear();
+    m.cov.clear();
+  }
+  for (const MapLinkState& l : state.links)
+    for (int id : l.loops) loops_[id].summarised = true;
+  for (int s : state.chain) maps_.erase(sessions_[s].map);
+  const int id = state.chain.front();
+  maps_[id] = std::move(m);
+  for (int s : state.chain) sessions_[s].map = id;
+  return {};
+}
+
+void MultiSessionBackend::restoreSplitPair(int session_a, int session_b) {
+  sessionAt(session_a);
+  sessionAt(session_b);
+  split_pairs_.insert({std::min(session_a, session_b), std::max(session_a, session_b)});
+}
+
 }  // namespace core
 }  // namespace uw_multislam

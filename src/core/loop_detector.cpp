@@ -155,6 +155,28 @@ std::vector<Loop> LoopDetector::addKeyframe(int session, int keyframe, int frame
   }
 
   // Store the keyframe for later queries.
+  last_hash_ = hash;
+  store(session, keyframe, frame_index, altitude_m, camera, features, hash);
+  return loops;
+}
+
+void LoopDetector::addStoredKeyframe(int session, int keyframe, int frame_index, double altitude_m,
+                                     const CameraIntrinsics* camera, const FrameFeatures& features,
+                                     const Eigen::VectorXf& hash) {
+  if (hash.size() != HalocProjections::kHashSize)
+    throw std::invalid_argument("loops: stored keyframe " + std::to_string(keyframe) + " of session " +
+                                std::to_string(session) + ": hash of " + std::to_string(hash.size()) + " values, " +
+                                std::to_string(HalocProjections::kHashSize) + " expected");
+  if (session < 0 || keyframe < 0 ||
+      (session < static_cast<int>(by_session_.size()) && keyframe < static_cast<int>(by_session_[session].size()) &&
+       by_session_[session][keyframe] >= 0))
+    throw std::invalid_argument("loops: stored keyframe " + std::to_string(keyframe) + " of session " +
+                                std::to_string(session) + " is already there");
+  store(session, keyframe, frame_index, altitude_m, camera, features, hash);
+}
+
+void LoopDetector::store(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
+                         const FrameFeatures& features, const Eigen::VectorXf& hash) {
   Stored st{session, keyframe, frame_index, altitude_m, camera, FrameFeatures()};
   st.features.keypoints = features.keypoints;
   st.features.image_size = features.image_size;
@@ -166,7 +188,6 @@ std::vector<Loop> LoopDetector::addKeyframe(int session, int keyframe, int frame
   auto& mine = by_session_[session];
   if (keyframe >= static_cast<int>(mine.size())) mine.resize(keyframe + 1, -1);
   mine[keyframe] = index;
-  return loops;
 }
 
 }  // namespace core

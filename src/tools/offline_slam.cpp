@@ -2,6 +2,7 @@
 // and output files are the contract of ../shared/DESIGN.md ("The offline runner's contract").
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include <chrono>
 #include <cstdio>
@@ -16,6 +17,7 @@
 #include "uw_multislam/core/backend.h"
 #include "uw_multislam/core/loop_detector.h"
 #include "uw_multislam/core/odometry.h"
+#include "uw_multislam/core/session_store.h"
 #include "uw_multislam/core/slam_config.h"
 
 namespace core = uw_multislam::core;
@@ -23,7 +25,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-const char* kUsage = R"(usage: offline_slam --session DIR [--session DIR ...] --out OUT [--config FILE] [options]
+const char* kUsage = R"(usage: offline_slam --session DIR [--session DIR ...] --out OUT [--config FILE] [--db FILE] [options]
 
 Runs uw_multislam over dataset folders (frames.csv, camera.yaml, images; see
 ../shared/data/README.md), in the order given, as consecutive missions. Writes into OUT:
@@ -40,10 +42,17 @@ link them (paper §9); each map is optimised with its loops by the selected back
 (backend.optimizer: sparse, the default, or the paper's iekf). `map` in trajectory.csv is the
 id of the map's first session, whose frame the poses are in; a session left alone is its own map.
 
+With --db FILE (the session store, created if missing) the sessions already stored are loaded
+first and take the numbers 0..k-1 in store order; the folders follow from k. Global loops are
+searched against the stored sessions too, stored sessions appear in every output file, and the
+new sessions, keyframes, loops, joins and splits are written to the store as they happen (one
+transaction per keyframe).
+
 options:
   --session DIR     a dataset folder (repeat for several missions)
   --out OUT         output directory (created)
   --config FILE     YAML configuration (see config/slam.yaml; --dump-config shows every key)
+  --db FILE         the session store (SQLite) to read and extend
   --threads N       OpenCV threads (default 1: one core, as onboard)
   --dump-config     print the effective configuration and exit
   --quiet           no per-session summary
@@ -53,10 +62,29 @@ Exit status 0 on success, 2 on bad arguments, 1 with a one-line reason on bad in
 
 struct Args {
   std::vector<std::string> sessions;
-  std::string out, config;
+  std::string out, config, db;
   int threads = 1;
   bool dump = false, quiet = false;
 };
+
+// A small grey JPEG of a keyframe for viewing the store (empty if there is no image).
+std::vector<std::uint8_t> thumbnail(const cv::Mat& image) {
+  std::vector<std::uint8_t> jpeg;
+  if (image.empty()) return jpeg;
+  cv::Mat grey, small;
+  if (image.channels() == 3) cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
+  else grey = image;
+  const double f = 96.0 / std::max(grey.cols, grey.rows);
+  cv::resize(grey, small, cv::Size(), f, f, cv::INTER_AREA);
+  cv::imencode(".jpg", small, jpeg, {cv::IMWRITE_JPEG_QUALITY, 70});
+  return jpeg;
+}
+
+const core::FrameRecord& frameOf(const core::Dataset& d, int index) {
+  for (const core::FrameRecord& f : d.frames)
+    if (f.index == index) return f;
+  throw std::logic_error("no frame " + std::to_string(index));
+}
 
 int badArgs(const std::string& why) {
   std::fprintf(stderr, "offline_slam: %s (see --help)\n", why.c_str());
@@ -86,6 +114,8 @@ int main(int argc, char** argv) {
       a.sessions.push_back(argv[++i]);
     } else if (arg == "--out" && has_value) {
       a.out = argv[++i];
+    } else if (arg == "--db" && has_value) {
+      a.db = argv[++i];
     } else if (arg == "--config" && has_value) {
       a.config = argv[++i];
     } else if (arg == "--threads" && has_value) {
@@ -114,6 +144,10 @@ int main(int argc, char** argv) {
     // Check every folder before any work, so a typo in the last one does not cost a long run.
     std::vector<core::Dataset> datasets;
     for (const auto& dir : a.sessions) datasets.push_back(core::loadDataset(dir));
+    // The session store is checked before anything is written, too.
+    std::optional<core::SessionStore> store;
+    const auto store_t0 = std::chrono::steady_clock::now();
+    if (!a.db.empty()) store.emplace(a.db);
     fs::create_directories(a.out);
 
     std::ofstream odo(fs::path(a.out) / "odometry.csv"), traj(fs::path(a.out) / "trajectory.csv");
@@ -128,11 +162,62 @@ int main(int argc, char** argv) {
     core::MultiSessionBackend backend(config.backend, [&](const std::string& line) {
       if (!a.quiet) std::printf("backend: %s\n", line.c_str());
     });
-    std::vector<std::vector<int>> frame_of_keyframe(datasets.size());
-    for (std::size_t s = 0; s < datasets.size(); ++s) {
-      const core::Dataset& d = datasets[s];
+    // The session store: stored sessions first (numbers 0..k-1), then the folders.
+    std::vector<std::unique_ptr<core::CameraIntrinsics>> stored_cameras;
+    core::RestoredStore restored;
+    std::vector<std::int64_t> store_session_ids, store_loop_ids;  // back-end id -> store id
+    if (store) {
+      core::ScopedStage stage(&times, "store_load");
+      store->checkHashSettings({config.loops.global.hash_mode, config.loops.global.projection_seed,
+                                config.odometry.features.num_features, loops.hasher().projections().toText()});
+      restored = core::restoreStore(*store, &backend, &loops, &stored_cameras);
+      store_session_ids = restored.session_ids;
+      store_loop_ids = restored.loop_ids;
+      if (!a.quiet)
+        std::printf("store %s: %d sessions, %d keyframes, %d loops loaded in %.1f ms\n", a.db.c_str(),
+                    backend.numSessions(), restored.keyframes, backend.numLoops(),
+                    std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - store_t0).count());
+    }
+    const int first_new = backend.numSessions();
+    std::vector<std::vector<int>> frame_of_keyframe = restored.frame_of_keyframe;
+    frame_of_keyframe.resize(first_new + datasets.size());
+    // Stored sessions in odometry.csv and loops.csv like the others.
+    for (int s = 0; s < first_new; ++s) {
+      core::Trajectory t;
+      for (const core::UncertainPose2& m : store->odometry(store_session_ids[s])) t.append(m);
+      for (std::size_t k = 0; k < t.numKeyframes(); ++k) {
+        const core::Pose2 p = t.absolutePose(static_cast<int>(k));
+        odo << s << "," << frame_of_keyframe[s][k] << "," << std::setprecision(6) << p.x() << "," << p.y() << ","
+            << std::setprecision(7) << p.yaw() << "\n";
+      }
+    }
+    for (int id = 0; id < backend.numLoops(); ++id) {
+      const core::BackendLoop l = backend.loopRecord(id).loop;
+      const int fa = frame_of_keyframe[l.session_a][l.keyframe_a], fb = frame_of_keyframe[l.session_b][l.keyframe_b];
+      loops_csv << l.session_a << "," << fa << "," << l.session_b << "," << fb << ","
+                << (restored.loops[id].global ? "global" : "local") << "," << restored.loops[id].inliers << "\n";
+      loop_poses << l.session_a << "," << fa << "," << l.session_b << "," << fb << "," << l.z.mean.x() << ","
+                 << l.z.mean.y() << "," << l.z.mean.yaw() << "\n";
+    }
+    int saved_joins = backend.stats().joins, saved_splits = backend.stats().splits;
+    auto saveMaps = [&]() {
+      if (!store) return;
+      core::ScopedStage stage(&times, "store");
+      core::saveBackendMaps(&*store, backend, store_session_ids, store_loop_ids);
+      saved_joins = backend.stats().joins;
+      saved_splits = backend.stats().splits;
+    };
+    for (std::size_t ds = 0; ds < datasets.size(); ++ds) {
+      const core::Dataset& d = datasets[ds];
+      const std::size_t s = first_new + ds;
       core::Odometry odometry(d.camera, config.odometry);
       const int session = backend.startSession(d.directory);
+      if (session != static_cast<int>(s)) throw std::logic_error("session numbering");
+      if (store) {
+        core::ScopedStage stage(&times, "store");
+        store_session_ids.push_back(
+            store->addSession(d.directory, d.camera, d.frames.empty() ? 0.0 : d.frames.front().stamp_s));
+      }
       for (const auto& f : d.frames) {
         cv::Mat image;
         {
@@ -157,6 +242,36 @@ int main(int argc, char** argv) {
           if (kf.id > 0) backend.addMotion(session, odometry.trajectory().motion(kf.id));  // (10)(11)
           const std::vector<core::Loop> found = loops.addKeyframe(session, kf.id, info.frame_index, info.altitude_m,
                                                                   &d.camera, kf.features, backend.sessionTrajectory(session));
+          std::vector<core::StoredLoop> stored_loops;
+          if (store) {
+            // One transaction: the keyframe, its odometry motion, the loops it closed.
+            core::ScopedStage stage(&times, "store");
+            core::StoredKeyframe sk;
+            sk.session = store_session_ids[s];
+            sk.keyframe = kf.id;
+            sk.frame_index = info.frame_index;
+            sk.stamp_s = info.stamp_s;
+            sk.altitude_m = info.altitude_m;
+            sk.image_size = kf.features.image_size;
+            for (const cv::KeyPoint& p : kf.features.keypoints) sk.points.push_back(p.pt);
+            sk.descriptors = kf.features.descriptors;
+            sk.hash = loops.lastHash();
+            sk.thumbnail = thumbnail(info.frame_index == f.index ? image : cv::imread(d.imagePath(frameOf(d, info.frame_index)), cv::IMREAD_COLOR));
+            for (const core::Loop& l : found) {
+              core::StoredLoop sl;
+              sl.session_a = store_session_ids[l.session_a];
+              sl.keyframe_a = l.keyframe_a;
+              sl.session_b = store_session_ids[l.session_b];
+              sl.keyframe_b = l.keyframe_b;
+              sl.global = l.kind == core::Loop::Kind::kGlobal;
+              sl.inliers = l.inliers;
+              sl.z = l.z;
+              stored_loops.push_back(sl);
+            }
+            const core::UncertainPose2 motion = kf.id > 0 ? odometry.trajectory().motion(kf.id) : core::UncertainPose2();
+            store->addKeyframe(sk, kf.id > 0 ? &motion : nullptr, &stored_loops);
+            for (const core::StoredLoop& sl : stored_loops) store_loop_ids.push_back(sl.id);
+          }
           core::ScopedStage stage(&times, "backend");
           for (const core::Loop& l : found) {
             loops_csv << l.session_a << "," << l.frame_a << "," << l.session_b << "," << l.frame_b << ","
@@ -165,13 +280,21 @@ int main(int argc, char** argv) {
                        << l.z.mean.x() << "," << l.z.mean.y() << "," << l.z.mean.yaw() << "\n";
             backend.addLoop({l.session_a, l.keyframe_a, l.session_b, l.keyframe_b, l.z});
           }
+          if (store && !store_loop_ids.empty() && static_cast<int>(store_loop_ids.size()) != backend.numLoops())
+            throw std::logic_error("store and back-end loop counts differ");
+          if (backend.stats().joins != saved_joins || backend.stats().splits != saved_splits) saveMaps();
         }
       }
       {
         core::ScopedStage stage(&times, "backend");
         backend.endSession(session);
       }
+      if (store) {
+        store->endSession(store_session_ids[s], d.frames.empty() ? 0.0 : d.frames.back().stamp_s);
+        saveMaps();
+      }
       const auto& poses = odometry.trajectory().absolutePoses();
+      // (s is the session's number: stored sessions come first)
       for (std::size_t k = 0; k < poses.size(); ++k) {
         odo << s << "," << frame_of_keyframe[s][k] << "," << std::setprecision(6) << poses[k].x() << ","
             << poses[k].y() << "," << std::setprecision(7) << poses[k].yaw() << "\n";
@@ -191,6 +314,7 @@ int main(int argc, char** argv) {
       core::ScopedStage stage(&times, "backend");
       backend.flush();
     }
+    saveMaps();
     // The final optimised poses, each session in the frame of its map.
     std::ofstream links_csv(fs::path(a.out) / "links.csv");
     links_csv << "map,previous_session,current_session,loops,x_m,y_m,yaw_rad\n" << std::fixed << std::setprecision(6);

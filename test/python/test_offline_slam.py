@@ -226,3 +226,71 @@ def test_an_unwritable_output_file_is_an_error(tmp_path, survey):
     (out / "loops.csv").mkdir(parents=True)  # a directory where the file must go
     r = run("offline_slam", "--session", str(survey / "a"), "--out", str(out))
     assert r.returncode == 1 and "cannot write" in r.stderr
+
+
+# --- --db FILE: the session store -------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def stored_runs(survey, tmp_path_factory):
+    """Session a processed with --db, then session b with the same --db (tomorrow's mission)."""
+    base = tmp_path_factory.mktemp("db")
+    db = base / "maps.db"
+    r1 = run("offline_slam", "--session", str(survey / "a"), "--out", str(base / "r1"), "--db", str(db))
+    assert r1.returncode == 0, r1.stderr
+    r2 = run("offline_slam", "--session", str(survey / "b"), "--out", str(base / "r2"), "--db", str(db))
+    assert r2.returncode == 0, r2.stderr
+    return base, r1, r2
+
+
+def test_db_stored_sessions_come_first_and_are_joined_like_one_run(stored_runs, result):
+    base, r1, r2 = stored_runs
+    out = base / "r2"
+    traj = rows(out / "trajectory.csv")
+    assert {t["session"] for t in traj} == {"0", "1"}  # 0 from the store, 1 from the command line
+    assert {o["session"] for o in rows(out / "odometry.csv")} == {"0", "1"}
+    stored = [(t["session"], t["index"]) for t in rows(base / "r1" / "trajectory.csv")]
+    assert [(t["session"], t["index"]) for t in traj if t["session"] == "0"] == stored
+    assert "1 sessions" in r2.stdout and "joined map 1 to map 0" in r2.stdout
+    assert {t["map"] for t in traj} == {"0"}  # b joined to the stored session's map
+    loops = rows(out / "loops.csv")
+    glob = [l for l in loops if l["kind"] == "global"]
+    assert len(glob) >= 5 and all(l["session_a"] == "0" and l["session_b"] == "1" for l in glob)
+    # The stored session's local loops are reported again, like the others.
+    assert {tuple(l.values()) for l in rows(base / "r1" / "loops.csv")} <= {tuple(l.values()) for l in loops}
+    # The same as processing both folders in one run: same loops, same trajectories.
+    one_run, _ = result
+    key = lambda l: tuple(l.values())
+    assert sorted(map(key, loops)) == sorted(map(key, rows(one_run / "loops.csv")))
+    for a, b in zip(traj, rows(one_run / "trajectory.csv")):
+        assert (a["session"], a["index"], a["map"]) == (b["session"], b["index"], b["map"])
+        assert abs(float(a["x_m"]) - float(b["x_m"])) < 1e-5 and abs(float(a["y_m"]) - float(b["y_m"])) < 1e-5
+    assert rows(out / "links.csv") == rows(one_run / "links.csv")
+
+
+def test_db_keeps_the_joined_map_for_the_next_run(stored_runs, survey, tmp_path):
+    """A third run finds both stored sessions in one map and appends session 2."""
+    base, _, r2 = stored_runs
+    db = tmp_path / "copy.db"
+    db.write_bytes((base / "maps.db").read_bytes())
+    r = run("offline_slam", "--session", str(survey / "a"), "--out", str(tmp_path / "o"), "--db", str(db))
+    assert r.returncode == 0, r.stderr
+    traj = rows(tmp_path / "o" / "trajectory.csv")
+    assert {t["session"] for t in traj} == {"0", "1", "2"}
+    before = {(t["session"], t["index"]): t for t in rows(base / "r2" / "trajectory.csv")}
+    for t in traj:
+        if t["session"] == "1":
+            assert t["map"] == "0"  # still joined
+    # a second time over the same ground: globally looped to the stored sessions and joined
+    assert {t["map"] for t in traj if t["session"] == "2"} == {"0"}
+    assert len(before) == len([t for t in traj if t["session"] in ("0", "1")])
+
+
+def test_db_bad_file_fails_with_one_line_and_is_left_as_it_is(tmp_path, survey):
+    bad = tmp_path / "notes.db"
+    bad.write_text("these are notes, not a session store\n" * 10)
+    before = bad.read_bytes()
+    r = run("offline_slam", "--session", str(survey / "a"), "--out", str(tmp_path / "o"), "--db", str(bad))
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1
+    assert str(bad) in r.stderr and "not an SQLite database" in r.stderr
+    assert bad.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.db"]  # nothing written beside it, no output

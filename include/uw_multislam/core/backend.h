@@ -100,6 +100,30 @@ struct LinkInfo {
   int loops = 0;            // global loops it summarises
 };
 
+/// A stored loop with its state in the back-end (for the session store).
+struct LoopRecord {
+  BackendLoop loop;
+  bool summarised = false;  // used by a link
+  bool applied = false;     // in an IEKF state
+  bool refused = false;     // refused as inconsistent at a join
+};
+
+/// One link of a map as stored: its measurement and the ids of the loops it summarises.
+struct MapLinkState {
+  UncertainPose2 measured;
+  std::vector<int> loops;
+};
+
+/// A map as the session store keeps it: its chain, links, and the current (optimised) motions
+/// of the whole chain with their marginal covariances (concatenation (33): the sessions' motions
+/// with each link between them), and the loops pending optimisation.
+struct MapState {
+  std::vector<int> chain;
+  std::vector<MapLinkState> links;        // links[i] joins chain[i] -> chain[i+1]
+  std::vector<UncertainPose2> motions;
+  int pending = 0;
+};
+
 struct BackendStats {
   int loops = 0;            // loops received
   int loops_refused = 0;    // refused at a join as inconsistent with the others
@@ -148,6 +172,31 @@ class MultiSessionBackend {
   int pendingJoinLoops(int session_a, int session_b) const;
   const BackendStats& stats() const { return stats_; }
   const BackendOptions& options() const { return options_; }
+
+  // --- Session store (session_store.h): export the state, put it back exactly. ---
+  /// A map's chain, links, current motions and pending count. Throws std::invalid_argument.
+  MapState mapState(int map) const;
+  int numLoops() const { return static_cast<int>(loops_.size()); }
+  /// Loop `id` (ids count addLoop/restoreLoop calls from 0). Throws std::invalid_argument.
+  LoopRecord loopRecord(int id) const;
+  /// Pairs of sessions split apart by the user (automatic joining leaves them apart).
+  std::vector<std::pair<int, int>> splitPairs() const {
+    return std::vector<std::pair<int, int>>(split_pairs_.begin(), split_pairs_.end());
+  }
+  /// A finished session from its stored odometry motions, alone in a new map whose estimate is
+  /// the odometry (restoreMap puts the optimised motions back). Nothing is optimised. Returns its
+  /// id. Throws std::invalid_argument on a bad motion.
+  int restoreSession(const std::string& name, const std::vector<UncertainPose2>& odometry);
+  /// A stored loop with its state, as it was: no optimisation, no join. Returns its id.
+  /// Throws std::invalid_argument like addLoop.
+  int restoreLoop(const LoopRecord& record);
+  /// Puts a stored map back exactly: every session of `state.chain` must be finished and alone in
+  /// its map; `state.motions` must hold the chain's motions and links (or be empty: the
+  /// sessions' current motions and the links' measurements). The loops named by the links are
+  /// marked summarised. Nothing is optimised. The map's id becomes chain.front().
+  BackendStatus restoreMap(const MapState& state);
+  /// Marks two sessions as split apart by the user.
+  void restoreSplitPair(int session_a, int session_b);
 
  private:
   struct Session {

@@ -88,6 +88,15 @@ class LoopDetector {
                                 const CameraIntrinsics* camera, const FrameFeatures& features,
                                 const Trajectory& trajectory);
 
+  /// Stores a keyframe of a stored session (session store) without searching for loops, so that
+  /// later keyframes find loops against it. `hash` is the one stored with it (same hash mode,
+  /// seed and n as this detector: the caller checks); descriptors CV_8U or CV_32F. Throws
+  /// std::invalid_argument on a bad hash size or a keyframe stored twice.
+  void addStoredKeyframe(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
+                         const FrameFeatures& features, const Eigen::VectorXf& hash);
+  /// The hash of the keyframe last given to addKeyframe (what the session store keeps).
+  const Eigen::VectorXf& lastHash() const { return last_hash_; }
+
   const ImageHasher& hasher() const { return hasher_; }
   const HashStore& hashes() const { return hashes_; }
   const LoopStats& stats() const { return stats_; }
@@ -102,6 +111,8 @@ class LoopDetector {
     FrameFeatures features;  // keypoint positions; descriptors as CV_8U
   };
   bool verify(const Stored& old, const View& now, Loop* loop);
+  void store(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
+             const FrameFeatures& features, const Eigen::VectorXf& hash);
   std::vector<int> localCandidates(int session, int keyframe, const Trajectory& trajectory) const;
 
   LoopOptions options_;
@@ -112,6 +123,7 @@ class LoopDetector {
   std::vector<Stored> keyframes_;
   std::vector<std::vector<int>> by_session_;  // [session][keyframe] -> index into keyframes_
   std::vector<HashCandidate> scratch_;
+  Eigen::VectorXf last_hash_;
   LoopStats stats_;
   StageTimes times_;
 };

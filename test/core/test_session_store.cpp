@@ -1,0 +1,486 @@
+// The session store (core/session_store.h): round trip into the back-end and the loop detector,
+// bad files refused without being modified, a full disk, kill -9 during writing.
+#include <gtest/gtest.h>
+#include <sqlite3.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <csignal>
+#include <fstream>
+#include <iterator>
+#include <random>
+
+#include "../common/scoped_temp_dir.h"
+#include "uw_multislam/core/loop_detector.h"
+#include "uw_multislam/core/session_store.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+using testing_util::ScopedTempDir;
+
+std::string readBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+void writeBytes(const std::string& path, const std::string& bytes) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out << bytes;
+}
+
+Eigen::Matrix3d diag(double sxy, double syaw) { return Eigen::Vector3d(sxy * sxy, sxy * sxy, syaw * syaw).asDiagonal(); }
+
+CameraIntrinsics camera() {
+  CameraIntrinsics c;
+  c.width = 320;
+  c.height = 240;
+  c.fx = c.fy = 300.0;
+  c.cx = 160.0;
+  c.cy = 120.0;
+  return c;
+}
+
+// A keyframe with random features (n points) and a random hash.
+StoredKeyframe randomKeyframe(std::int64_t session, int k, int n, std::mt19937* rng) {
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  StoredKeyframe kf;
+  kf.session = session;
+  kf.keyframe = k;
+  kf.frame_index = 3 * k + 1;
+  kf.stamp_s = 0.25 * k;
+  kf.altitude_m = 2.0 + 0.01 * k;
+  kf.image_size = cv::Size(320, 240);
+  for (int i = 0; i < n; ++i) kf.points.emplace_back(320 * u(*rng), 240 * u(*rng));
+  kf.descriptors = cv::Mat(n, 128, CV_8U);
+  cv::randu(kf.descriptors, 0, 256);
+  kf.hash = Eigen::VectorXf(HalocProjections::kHashSize);
+  for (int i = 0; i < kf.hash.size(); ++i) kf.hash[i] = 0.2f * u(*rng) - 0.05f;
+  kf.thumbnail = {0xff, 0xd8, 0xff, 0xd9};
+  return kf;
+}
+
+// Records sessions into a back-end and a store the way offline_slam does.
+struct Recorder {
+  Recorder(SessionStore* st, MultiSessionBackend* b) : store(st), backend(b) {}
+  SessionStore* store;
+  MultiSessionBackend* backend;
+  std::vector<std::int64_t> session_ids, loop_ids;
+  std::mt19937 rng{5};
+
+  int start(const std::string& name) {
+    const int s = backend->startSession(name);
+    session_ids.push_back(store->addSession(name, camera(), 0.0));
+    StoredKeyframe kf = randomKeyframe(session_ids[s], 0, 20, &rng);
+    store->addKeyframe(kf, nullptr, nullptr);
+    return s;
+  }
+  void step(int s, const Pose2& m, const std::vector<BackendLoop>& loops = {}) {
+    const UncertainPose2 motion(m, diag(0.02, 0.01));
+    backend->addMotion(s, motion);
+    const int k = backend->session(s).keyframes - 1;
+    std::vector<StoredLoop> stored;
+    for (const BackendLoop& l : loops) {
+      StoredLoop sl;
+      sl.session_a = session_ids[l.session_a];
+      sl.keyframe_a = l.keyframe_a;
+      sl.session_b = session_ids[l.session_b];
+      sl.keyframe_b = l.keyframe_b;
+      sl.global = l.session_a != l.session_b;
+      sl.inliers = 40;
+      sl.z = l.z;
+      stored.push_back(sl);
+    }
+    StoredKeyframe kf = randomKeyframe(session_ids[s], k, 20, &rng);
+    store->addKeyframe(kf, &motion, &stored);
+    for (std::size_t i = 0; i < loops.size(); ++i) {
+      backend->addLoop(loops[i]);
+      loop_ids.push_back(stored[i].id);
+    }
+  }
+  void end(int s) {
+    backend->endSession(s);
+    store->endSession(session_ids[s], 1.0);
+    saveBackendMaps(store, *backend, session_ids, loop_ids);
+  }
+};
+
+// Truth: session 0 a line along x, session 1 a parallel line 1 m beside it, going back; session
+// 2 along the first one again.
+Pose2 truth(int s, int k) {
+  if (s == 0) return Pose2(0.5 * k, 0.0, 0.0);
+  if (s == 1) return Pose2(6.0 - 0.5 * k, 1.0, M_PI);
+  return Pose2(0.5 * k + 0.2, 0.1, 0.05);
+}
+
+BackendLoop truthLoop(int sa, int ka, int sb, int kb, double err) {
+  return {sa, ka, sb, kb,
+          UncertainPose2(compose(between(truth(sa, ka), truth(sb, kb)), Pose2(err, -err, 0.01 * err)), diag(0.01, 0.005))};
+}
+
+// Three sessions: 1 joined to 0 by five global loops, 2 joined by an explicit join and split
+// off again, intra-session loops; noisy odometry so that optimisation moves things.
+void recordMission(Recorder* r) {
+  std::mt19937 rng(11);
+  std::normal_distribution<double> n(0.0, 0.02);
+  auto noisy = [&](int s, int k) {
+    const Pose2 m = between(truth(s, k - 1), truth(s, k));
+    return Pose2(m.x() + n(rng), m.y() + n(rng), m.yaw() + 0.5 * n(rng));
+  };
+  const int s0 = r->start("a");
+  for (int k = 1; k < 13; ++k) r->step(s0, noisy(0, k), k == 12 ? std::vector<BackendLoop>{truthLoop(0, 2, 0, 12, 0.01)} : std::vector<BackendLoop>{});
+  r->end(s0);
+  const int s1 = r->start("b");
+  for (int k = 1; k < 12; ++k) {
+    std::vector<BackendLoop> loops;
+    if (k >= 3 && k <= 7) loops.push_back(truthLoop(0, 12 - k, 1, k, 0.002 * k));
+    r->step(s1, noisy(1, k), loops);
+  }
+  r->end(s1);
+  const int s2 = r->start("c");
+  for (int k = 1; k < 8; ++k) r->step(s2, noisy(2, k), k == 4 ? std::vector<BackendLoop>{truthLoop(0, 3, 2, 4, 0.0)} : std::vector<BackendLoop>{});
+  r->end(s2);
+  ASSERT_TRUE(r->backend->join(0, 2, 1).ok());
+  saveBackendMaps(r->store, *r->backend, r->session_ids, r->loop_ids);
+  ASSERT_TRUE(r->backend->split(2).ok());
+  saveBackendMaps(r->store, *r->backend, r->session_ids, r->loop_ids);
+}
+
+void expectSameBackends(const MultiSessionBackend& a, const MultiSessionBackend& b) {
+  ASSERT_EQ(a.numSessions(), b.numSessions());
+  ASSERT_EQ(a.mapIds(), b.mapIds());
+  for (int s = 0; s < a.numSessions(); ++s) {
+    EXPECT_EQ(a.session(s).name, b.session(s).name);
+    EXPECT_EQ(a.mapOf(s), b.mapOf(s));
+    const auto pa = a.sessionPoses(s), pb = b.sessionPoses(s);
+    ASSERT_EQ(pa.size(), pb.size());
+    for (std::size_t k = 0; k < pa.size(); ++k) {
+      EXPECT_NEAR(pa[k].x(), pb[k].x(), 1e-12) << "session " << s << " keyframe " << k;
+      EXPECT_NEAR(pa[k].y(), pb[k].y(), 1e-12);
+      EXPECT_NEAR(pa[k].yaw(), pb[k].yaw(), 1e-12);
+    }
+  }
+  for (int m : a.mapIds()) {
+    EXPECT_EQ(a.chain(m), b.chain(m));
+    const auto la = a.links(m), lb = b.links(m);
+    ASSERT_EQ(la.size(), lb.size());
+    for (std::size_t i = 0; i < la.size(); ++i) {
+      EXPECT_EQ(la[i].previous, lb[i].previous);
+      EXPECT_EQ(la[i].current, lb[i].current);
+      EXPECT_EQ(la[i].loops, lb[i].loops);
+      EXPECT_NEAR(la[i].estimate.x(), lb[i].estimate.x(), 1e-12);
+      EXPECT_NEAR(la[i].measured.mean.yaw(), lb[i].measured.mean.yaw(), 1e-12);
+      EXPECT_TRUE(la[i].measured.covariance.isApprox(lb[i].measured.covariance, 1e-12));
+    }
+  }
+  ASSERT_EQ(a.numLoops(), b.numLoops());
+  for (int id = 0; id < a.numLoops(); ++id) {
+    const LoopRecord x = a.loopRecord(id), y = b.loopRecord(id);
+    EXPECT_EQ(x.loop.session_a, y.loop.session_a);
+    EXPECT_EQ(x.loop.keyframe_b, y.loop.keyframe_b);
+    EXPECT_EQ(x.summarised, y.summarised) << "loop " << id;
+    EXPECT_EQ(x.refused, y.refused);
+    EXPECT_EQ(x.applied, y.applied);
+    EXPECT_EQ(x.loop.z.mean.x(), y.loop.z.mean.x());
+  }
+  EXPECT_EQ(a.splitPairs(), b.splitPairs());
+}
+
+class StoreBothOptimizers : public ::testing::TestWithParam<OptimizerKind> {};
+
+TEST_P(StoreBothOptimizers, RoundTripGivesIdenticalTrajectoriesLoopsAndMaps) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  BackendOptions opt;
+  opt.optimizer = GetParam();
+  opt.optimise_every = 1;
+  MultiSessionBackend original(opt);
+  {
+    SessionStore store(path);
+    Recorder r(&store, &original);
+    recordMission(&r);
+    ASSERT_EQ(original.mapOf(1), 0) << "the five global loops should have joined session 1 to 0";
+    ASSERT_EQ(original.mapOf(2), 2) << "session 2 was split off";
+  }
+  SessionStore store(path);
+  MultiSessionBackend restored(opt);
+  LoopOptions lo;
+  LoopDetector detector(lo, MatchOptions(), RansacOptions(), 20);
+  std::vector<std::unique_ptr<CameraIntrinsics>> cameras;
+  const RestoredStore rs = restoreStore(store, &restored, &detector, &cameras);
+  expectSameBackends(original, restored);
+  EXPECT_EQ(rs.keyframes, 13 + 12 + 8);
+  EXPECT_EQ(detector.size(), 33u);
+  EXPECT_EQ(rs.frame_of_keyframe[1][4], 13);
+  EXPECT_EQ(store.sessions()[2].name, "c");
+  EXPECT_EQ(store.sessions()[2].state, StoredSessionState::kFinished);
+  EXPECT_EQ(store.keyframes(store.sessions()[1].id)[3].thumbnail.size(), 4u);
+
+  // The restored back-end goes on like the original: a new session, joined from loops.
+  for (MultiSessionBackend* b : {&original, &restored}) {
+    const int s = b->startSession("d");
+    EXPECT_EQ(s, 3);
+    for (int k = 1; k < 6; ++k) b->addMotion(s, UncertainPose2(Pose2(0.5, 0, 0), diag(0.02, 0.01)));
+    for (int k = 0; k < 5; ++k) b->addLoop({0, k + 1, s, k, UncertainPose2(Pose2(0, 0.1, 0), diag(0.01, 0.005))});
+    b->endSession(s);
+  }
+  expectSameBackends(original, restored);
+}
+
+INSTANTIATE_TEST_SUITE_P(Store, StoreBothOptimizers, ::testing::Values(OptimizerKind::kSparse, OptimizerKind::kIekf),
+                         [](const auto& info) { return std::string(optimizerName(info.param)); });
+
+TEST(Store, KeyframeFeaturesComeBackExactly) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  std::mt19937 rng(2);
+  StoredKeyframe kf = randomKeyframe(0, 0, 500, &rng);
+  {
+    SessionStore store(path);
+    kf.session = store.addSession("s", camera(), 10.0);
+    store.addKeyframe(kf, nullptr, nullptr);
+  }
+  SessionStore store(path);
+  const auto back = store.keyframes(kf.session);
+  ASSERT_EQ(back.size(), 1u);
+  EXPECT_EQ(back[0].points, kf.points);
+  EXPECT_EQ(cv::norm(back[0].descriptors, kf.descriptors, cv::NORM_L1), 0.0);
+  EXPECT_EQ(back[0].hash, kf.hash);
+  EXPECT_EQ(back[0].altitude_m, kf.altitude_m);
+  EXPECT_EQ(store.sessions()[0].camera.fx, 300.0);
+  EXPECT_EQ(store.sessions()[0].state, StoredSessionState::kRecording);
+}
+
+TEST(Store, RefusesOtherHashSettings) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  SessionStore store(path);
+  HashSettings h{HashMode::kSortedDct, 7, 500, "x"};
+  store.checkHashSettings(h);
+  store.checkHashSettings(h);  // the same again: fine
+  h.seed = 8;
+  try {
+    store.checkHashSettings(h);
+    FAIL() << "other seed accepted";
+  } catch (const StoreError& e) {
+    EXPECT_NE(std::string(e.what()).find("projection_seed 7"), std::string::npos) << e.what();
+  }
+}
+
+// Expects opening `path` to throw a StoreError mentioning the path and `words`, with the file
+// left byte-identical.
+void expectRefusedUnchanged(const std::string& path, const std::string& words) {
+  const std::string before = readBytes(path);
+  try {
+    SessionStore store(path);
+    FAIL() << path << " was opened";
+  } catch (const StoreError& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find(path), std::string::npos) << msg;
+    EXPECT_NE(msg.find(words), std::string::npos) << msg;
+  }
+  EXPECT_EQ(readBytes(path), before) << "a failed open modified " << path;
+}
+
+TEST(Store, RefusesAFileThatIsNotADatabase) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "notes.txt").string();
+  writeBytes(path, "session,index\n0,1\nthis is not a database at all, but longer than a header\n");
+  expectRefusedUnchanged(path, "not an SQLite database");
+}
+
+std::string makeStore(const ScopedTempDir& dir) {
+  const std::string path = (dir.path() / "maps.db").string();
+  SessionStore store(path);
+  BackendOptions opt;
+  MultiSessionBackend backend(opt);
+  Recorder r(&store, &backend);
+  recordMission(&r);
+  store.checkpoint();
+  return path;
+}
+
+TEST(Store, RefusesACorruptFile) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = makeStore(dir);
+  std::string bytes = readBytes(path);
+  ASSERT_GT(bytes.size(), 3 * 4096u);
+  std::mt19937 rng(1);
+  for (std::size_t i = 4096; i < bytes.size(); ++i) bytes[i] = static_cast<char>(rng());  // pages 2.. garbage
+  writeBytes(path, bytes);
+  expectRefusedUnchanged(path, "corrupt");
+}
+
+TEST(Store, RefusesAnotherSchemaVersionAndAnotherApplication) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = makeStore(dir);
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  ASSERT_EQ(sqlite3_exec(db, "PRAGMA user_version=99", nullptr, nullptr, nullptr), SQLITE_OK);
+  sqlite3_close(db);
+  expectRefusedUnchanged(path, "schema version 99, this build reads version 1");
+
+  const std::string other = (dir.path() / "other.db").string();
+  ASSERT_EQ(sqlite3_open(other.c_str(), &db), SQLITE_OK);
+  ASSERT_EQ(sqlite3_exec(db, "CREATE TABLE t(x); INSERT INTO t VALUES (1)", nullptr, nullptr, nullptr), SQLITE_OK);
+  sqlite3_close(db);
+  expectRefusedUnchanged(other, "not a uw_multislam session store");
+}
+
+TEST(Store, RefusesAReadOnlyOrMissingPath) {
+  ScopedTempDir dir("uwms_store");
+  std::string path;
+  if (::geteuid() == 0) {
+    // root writes anywhere it has mode bits for; sysfs refuses new files even to root.
+    path = "/sys/uwms_store_test.db";
+  } else {
+    const auto ro = dir.path() / "ro";
+    std::filesystem::create_directories(ro);
+    ::chmod(ro.c_str(), 0555);
+    path = (ro / "maps.db").string();
+  }
+  try {
+    SessionStore store(path);
+    FAIL() << path << " was created";
+  } catch (const StoreError& e) {
+    EXPECT_NE(std::string(e.what()).find(path + ": cannot create"), std::string::npos) << e.what();
+  }
+  const std::string missing = (dir.path() / "no" / "such" / "maps.db").string();
+  try {
+    SessionStore store(missing);
+    FAIL() << missing << " was created";
+  } catch (const StoreError& e) {
+    EXPECT_NE(std::string(e.what()).find("does not exist"), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "no"));
+}
+
+TEST(Store, AFullDiskIsReportedAndLosesOnlyThatKeyframe) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  SessionStore store(path);
+  const std::int64_t s = store.addSession("s", camera(), 0.0);
+  std::mt19937 rng(3);
+  // Simulate a full disk: the file may not grow past its current size plus a little.
+  sqlite3_stmt* st = nullptr;
+  ASSERT_EQ(sqlite3_prepare_v2(store.handle(), "PRAGMA page_count", -1, &st, nullptr), SQLITE_OK);
+  ASSERT_EQ(sqlite3_step(st), SQLITE_ROW);
+  const int pages = sqlite3_column_int(st, 0);
+  sqlite3_finalize(st);
+  const std::string limit = "PRAGMA max_page_count=" + std::to_string(pages + 40);
+  ASSERT_EQ(sqlite3_exec(store.handle(), limit.c_str(), nullptr, nullptr, nullptr), SQLITE_OK);
+  int written = 0;
+  try {
+    for (int k = 0; k < 100; ++k) {
+      const UncertainPose2 m(Pose2(0.5, 0, 0), diag(0.02, 0.01));
+      store.addKeyframe(randomKeyframe(s, k, 500, &rng), k > 0 ? &m : nullptr, nullptr);
+      ++written;
+    }
+    FAIL() << "no full disk";
+  } catch (const StoreError& e) {
+    EXPECT_NE(std::string(e.what()).find("the disk is full"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
+  }
+  EXPECT_GT(written, 0);
+  EXPECT_EQ(static_cast<int>(store.keyframes(s, false).size()), written);
+  EXPECT_EQ(static_cast<int>(store.odometry(s).size()), written - 1);
+}
+
+// A child process writes keyframes and reports each commit through a pipe; it is killed with
+// SIGKILL mid-run. Every reported keyframe must be in the store, with its motion.
+TEST(Store, KillNineLosesAtMostTheKeyframeInFlight) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  int fds[2];
+  ASSERT_EQ(::pipe(fds), 0);
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    ::close(fds[0]);
+    try {
+      SessionStore store(path);
+      const std::int64_t s = store.addSession("crash", camera(), 0.0);
+      std::mt19937 rng(4);
+      for (int k = 0;; ++k) {
+        const UncertainPose2 m(Pose2(0.5, 0, 0.01), diag(0.02, 0.01));
+        store.addKeyframe(randomKeyframe(s, k, 500, &rng), k > 0 ? &m : nullptr, nullptr);
+        const int committed = k + 1;
+        if (::write(fds[1], &committed, sizeof committed) != sizeof committed) ::_exit(3);
+      }
+    } catch (...) {
+      ::_exit(2);
+    }
+  }
+  ::close(fds[1]);
+  int committed = 0, n = 0;
+  while (committed < 25 && ::read(fds[0], &n, sizeof n) == sizeof n) committed = n;
+  ::kill(child, SIGKILL);
+  int status = 0;
+  ::waitpid(child, &status, 0);
+  while (::read(fds[0], &n, sizeof n) == sizeof n) committed = n;  // reported before the kill
+  ::close(fds[0]);
+  ASSERT_TRUE(WIFSIGNALED(status)) << "the writer ended by itself (status " << status << ")";
+  ASSERT_GE(committed, 25);
+
+  SessionStore store(path);
+  const auto sessions = store.sessions();
+  ASSERT_EQ(sessions.size(), 1u);
+  EXPECT_GE(sessions[0].keyframes, committed);
+  EXPECT_LE(sessions[0].keyframes, committed + 1);  // the one in flight may have committed
+  EXPECT_EQ(static_cast<int>(store.odometry(sessions[0].id).size()), sessions[0].keyframes - 1);
+  MultiSessionBackend backend{BackendOptions()};
+  const RestoredStore rs = restoreStore(store, &backend, nullptr, nullptr);
+  EXPECT_EQ(backend.session(0).keyframes, sessions[0].keyframes);
+  EXPECT_NEAR(backend.sessionPoses(0).back().x(), 0.5 * (sessions[0].keyframes - 1), 0.5 * sessions[0].keyframes);
+  EXPECT_EQ(rs.keyframes, sessions[0].keyframes);
+}
+
+
+// A mission cut by a crash: the last session never ended and its map was saved before its last
+// keyframes. The reload has every keyframe; the saved part of the map comes back exactly, the
+// rest with its odometry, and the loops pending are optimised at the next flush.
+TEST(Store, ASessionCutByACrashComesBackWithEveryKeyframe) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  BackendOptions opt;
+  opt.optimise_every = 1;
+  MultiSessionBackend original(opt);
+  std::vector<Pose2> saved_poses;
+  {
+    SessionStore store(path);
+    Recorder r(&store, &original);
+    recordMission(&r);
+    const int d = r.start("d");  // along session 0, 0.1 m beside it
+    for (int k = 1; k < 12; ++k) {
+      std::vector<BackendLoop> loops;
+      if (k >= 2 && k <= 6) {
+        loops.push_back({0, k, d, k, UncertainPose2(Pose2(0.0, 0.1, 0.0), diag(0.01, 0.005))});
+      }
+      if (k == 11) loops.push_back({d, 1, d, 11, UncertainPose2(Pose2(5.0, 0.0, 0.0), diag(0.01, 0.005))});
+      r.step(d, Pose2(0.5, 0.0, 0.0), loops);
+      if (k == 8) {  // the join happened at k = 6: the map is saved, then the crash comes later
+        ASSERT_EQ(original.mapOf(d), 0);
+        saveBackendMaps(&store, original, r.session_ids, r.loop_ids);
+        saved_poses = original.sessionPoses(d);
+      }
+    }
+  }  // no endSession, no saveMaps: as if killed
+  SessionStore store(path);
+  MultiSessionBackend restored(opt);
+  restoreStore(store, &restored, nullptr, nullptr);
+  ASSERT_EQ(restored.numSessions(), 4);
+  EXPECT_FALSE(restored.session(3).recording);
+  EXPECT_EQ(restored.session(3).keyframes, 12);
+  EXPECT_EQ(restored.mapOf(3), 0);
+  const std::vector<Pose2> poses = restored.sessionPoses(3);
+  for (std::size_t k = 0; k < saved_poses.size(); ++k) EXPECT_NEAR(poses[k].x(), saved_poses[k].x(), 1e-12) << k;
+  EXPECT_NEAR(between(poses[8], poses[11]).x(), 1.5, 1e-9);  // the odometry after the save
+  restored.flush();  // the intra-session loop, not yet optimised when the map was saved
+  EXPECT_GT(restored.stats().optimisations, 0);
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam
