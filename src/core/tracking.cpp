@@ -28,6 +28,7 @@ StageTimes SegmentedOdometry::times() const {
 
 SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input) {
   Step step;
+  released_.clear();
   if (closed_) {
     times_.merge(odometry_->times());
     odometry_.reset();
@@ -50,20 +51,38 @@ SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input) {
     }
     odometry_ = std::move(candidate);
     consecutive_fallbacks_ = 0;
+    pending_.clear();
+    released_ = odometry_->newKeyframes();
+    kept_ = static_cast<int>(released_.size());
     ++sessions_;
     step.session_started = true;
     return step;
   }
   step.update = odometry_->process(input);
-  if (step.update.status == FrameStatus::kFallback) {
+  const FrameStatus st = step.update.status;
+  if (st == FrameStatus::kFallback) {
     ++consecutive_fallbacks_;
-  } else if (step.update.status != FrameStatus::kSkipped) {
+  } else if (st != FrameStatus::kSkipped) {
     consecutive_fallbacks_ = 0;
   }
+  // Hold fallback keyframes (and any after them) until a frame is matched again.
+  for (const auto& kf : odometry_->newKeyframes()) {
+    if (pending_.empty() && !odometry_->keyframes()[kf.id].fallback) {
+      released_.push_back(kf);
+    } else {
+      pending_.push_back(kf);
+    }
+  }
+  if (st == FrameStatus::kTracked || st == FrameStatus::kKeyframe) {
+    released_.insert(released_.end(), pending_.begin(), pending_.end());
+    pending_.clear();
+  }
+  kept_ += static_cast<int>(released_.size());
   if (loss_.max_fallbacks > 0 && consecutive_fallbacks_ >= loss_.max_fallbacks) {
     step.session_closed = true;
     closed_ = true;
     ++losses_;
+    pending_.clear();  // dropped: the session ends at its last measured keyframe
   }
   return step;
 }

@@ -19,6 +19,7 @@
 #include "uw_multislam/core/odometry.h"
 #include "uw_multislam/core/session_store.h"
 #include "uw_multislam/core/slam_config.h"
+#include "uw_multislam/core/tracking.h"
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;
@@ -180,7 +181,7 @@ int main(int argc, char** argv) {
     }
     const int first_new = backend.numSessions();
     std::vector<std::vector<int>> frame_of_keyframe = restored.frame_of_keyframe;
-    frame_of_keyframe.resize(first_new + datasets.size());
+    frame_of_keyframe.resize(first_new);
     // Stored sessions in odometry.csv and loops.csv like the others.
     for (int s = 0; s < first_new; ++s) {
       core::Trajectory t;
@@ -207,17 +208,54 @@ int main(int argc, char** argv) {
       saved_joins = backend.stats().joins;
       saved_splits = backend.stats().splits;
     };
+    // Back-end sessions: stored ones first, then one or more per folder (a new one each time
+    // tracking is lost, see core/tracking.h). The CSV files number sessions by folder (DESIGN.md).
+    std::vector<int> csv_of(first_new);
+    for (int b = 0; b < first_new; ++b) csv_of[b] = b;
     for (std::size_t ds = 0; ds < datasets.size(); ++ds) {
       const core::Dataset& d = datasets[ds];
-      const std::size_t s = first_new + ds;
-      core::Odometry odometry(d.camera, config.odometry);
-      const int session = backend.startSession(d.directory);
-      if (session != static_cast<int>(s)) throw std::logic_error("session numbering");
-      if (store) {
-        core::ScopedStage stage(&times, "store");
-        store_session_ids.push_back(
-            store->addSession(d.directory, d.camera, d.frames.empty() ? 0.0 : d.frames.front().stamp_s));
-      }
+      const int csv = first_new + static_cast<int>(ds);
+      core::SegmentedOdometry segmented(d.camera, config.odometry, config.tracking);
+      int session = -1;  // the back-end session of the current piece of this folder
+      int pieces = 0;
+      auto startPiece = [&](double stamp_s) {
+        const std::string name = pieces == 0 ? d.directory : d.directory + "#" + std::to_string(pieces);
+        ++pieces;
+        session = backend.startSession(name);
+        csv_of.push_back(csv);
+        frame_of_keyframe.resize(backend.numSessions());
+        if (store) {
+          core::ScopedStage stage(&times, "store");
+          store_session_ids.push_back(store->addSession(name, d.camera, stamp_s));
+        }
+      };
+      auto endPiece = [&](double stamp_s) {
+        {
+          core::ScopedStage stage(&times, "backend");
+          backend.endSession(session);
+        }
+        if (store) {
+          store->endSession(store_session_ids[session], stamp_s);
+          saveMaps();
+        }
+        const core::Odometry& odometry = *segmented.odometry();
+        const auto& poses = odometry.trajectory().absolutePoses();
+        for (std::size_t k = 0; k < static_cast<std::size_t>(segmented.keptKeyframes()); ++k) {
+          odo << csv << "," << frame_of_keyframe[session][k] << "," << std::setprecision(6) << poses[k].x() << ","
+              << poses[k].y() << "," << std::setprecision(7) << poses[k].yaw() << "\n";
+        }
+        if (!a.quiet) {
+          const core::OdometryStats& st = odometry.stats();
+          std::printf(
+              "session %d (%s%s): %d frames, %d keyframes, %d tracked, %d fallbacks, %d promotions, %d skipped "
+              "(%d image, %d altitude), %d altitudes reused, %.1f ms/frame\n",
+              csv, d.directory.c_str(), pieces > 1 ? (" piece " + std::to_string(pieces)).c_str() : "", st.frames,
+              st.keyframes, st.tracked, st.fallbacks, st.promotions, st.skipped_image + st.skipped_altitude,
+              st.skipped_image, st.skipped_altitude, st.altitude_reused,
+              odometry.times().get("odometry_total").meanMs());
+        }
+        session = -1;
+      };
       for (const auto& f : d.frames) {
         cv::Mat image;
         {
@@ -228,17 +266,25 @@ int main(int argc, char** argv) {
           std::fprintf(stderr, "offline_slam: %s: cannot decode image of frame %d, skipped\n", d.imagePath(f).c_str(),
                        f.index);
         }
-        const core::OdometryUpdate u = odometry.process({f.index, f.stamp_s, f.altitude_m, image});
+        const core::SegmentedOdometry::Step step = segmented.process({f.index, f.stamp_s, f.altitude_m, image});
+        const core::OdometryUpdate& u = step.update;
+        if (step.session_started) {
+          startPiece(f.stamp_s);
+          if (pieces > 1 && !a.quiet)
+            std::printf("session %d: tracking resumed at frame %d: new back-end session %d\n", csv, f.index, session);
+        }
         if (u.status == core::FrameStatus::kSkipped && !image.empty()) {
-          std::fprintf(stderr, "offline_slam: session %zu frame %d skipped: %s\n", s, f.index, u.reason.c_str());
+          std::fprintf(stderr, "offline_slam: session %d frame %d skipped: %s\n", csv, f.index, u.reason.c_str());
         }
         if (u.status == core::FrameStatus::kFallback && !a.quiet) {
-          std::fprintf(stderr, "offline_slam: session %zu frame %d: odometry fallback (%s)\n", s, f.index,
+          std::fprintf(stderr, "offline_slam: session %d frame %d: odometry fallback (%s)\n", csv, f.index,
                        u.reason.c_str());
         }
-        for (const auto& kf : odometry.newKeyframes()) {
+        if (session < 0) continue;  // no session open: tracking lost
+        const core::Odometry& odometry = *segmented.odometry();
+        for (const auto& kf : segmented.newKeyframes()) {
           const core::KeyframeInfo& info = odometry.keyframes()[kf.id];
-          frame_of_keyframe[s].push_back(info.frame_index);
+          frame_of_keyframe[session].push_back(info.frame_index);
           if (kf.id > 0) backend.addMotion(session, odometry.trajectory().motion(kf.id));  // (10)(11)
           const std::vector<core::Loop> found = loops.addKeyframe(session, kf.id, info.frame_index, info.altitude_m,
                                                                   &d.camera, kf.features, backend.sessionTrajectory(session));
@@ -247,7 +293,7 @@ int main(int argc, char** argv) {
             // One transaction: the keyframe, its odometry motion, the loops it closed.
             core::ScopedStage stage(&times, "store");
             core::StoredKeyframe sk;
-            sk.session = store_session_ids[s];
+            sk.session = store_session_ids[session];
             sk.keyframe = kf.id;
             sk.frame_index = info.frame_index;
             sk.stamp_s = info.stamp_s;
@@ -274,9 +320,9 @@ int main(int argc, char** argv) {
           }
           core::ScopedStage stage(&times, "backend");
           for (const core::Loop& l : found) {
-            loops_csv << l.session_a << "," << l.frame_a << "," << l.session_b << "," << l.frame_b << ","
+            loops_csv << csv_of[l.session_a] << "," << l.frame_a << "," << csv_of[l.session_b] << "," << l.frame_b << ","
                       << core::loopKindName(l.kind) << "," << l.inliers << "\n";
-            loop_poses << l.session_a << "," << l.frame_a << "," << l.session_b << "," << l.frame_b << ","
+            loop_poses << csv_of[l.session_a] << "," << l.frame_a << "," << csv_of[l.session_b] << "," << l.frame_b << ","
                        << l.z.mean.x() << "," << l.z.mean.y() << "," << l.z.mean.yaw() << "\n";
             backend.addLoop({l.session_a, l.keyframe_a, l.session_b, l.keyframe_b, l.z});
           }
@@ -284,31 +330,15 @@ int main(int argc, char** argv) {
             throw std::logic_error("store and back-end loop counts differ");
           if (backend.stats().joins != saved_joins || backend.stats().splits != saved_splits) saveMaps();
         }
+        if (step.session_closed) {
+          if (!a.quiet)
+            std::printf("session %d: tracking lost at frame %d (%d unmatched frames): back-end session %d closed\n",
+                        csv, f.index, config.tracking.max_fallbacks, session);
+          endPiece(f.stamp_s);
+        }
       }
-      {
-        core::ScopedStage stage(&times, "backend");
-        backend.endSession(session);
-      }
-      if (store) {
-        store->endSession(store_session_ids[s], d.frames.empty() ? 0.0 : d.frames.back().stamp_s);
-        saveMaps();
-      }
-      const auto& poses = odometry.trajectory().absolutePoses();
-      // (s is the session's number: stored sessions come first)
-      for (std::size_t k = 0; k < poses.size(); ++k) {
-        odo << s << "," << frame_of_keyframe[s][k] << "," << std::setprecision(6) << poses[k].x() << ","
-            << poses[k].y() << "," << std::setprecision(7) << poses[k].yaw() << "\n";
-      }
-      times.merge(odometry.times());
-      if (!a.quiet) {
-        const core::OdometryStats& st = odometry.stats();
-        std::printf(
-            "session %zu (%s): %d frames, %d keyframes, %d tracked, %d fallbacks, %d promotions, %d skipped "
-            "(%d image, %d altitude), %d altitudes reused, %.1f ms/frame\n",
-            s, d.directory.c_str(), st.frames, st.keyframes, st.tracked, st.fallbacks, st.promotions,
-            st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude, st.altitude_reused,
-            odometry.times().get("odometry_total").meanMs());
-      }
+      if (session >= 0) endPiece(d.frames.empty() ? 0.0 : d.frames.back().stamp_s);
+      times.merge(segmented.times());
     }
     {
       core::ScopedStage stage(&times, "backend");
@@ -318,16 +348,22 @@ int main(int argc, char** argv) {
     // The final optimised poses, each session in the frame of its map.
     std::ofstream links_csv(fs::path(a.out) / "links.csv");
     links_csv << "map,previous_session,current_session,loops,x_m,y_m,yaw_rad\n" << std::fixed << std::setprecision(6);
+    // Map labels: a map is named after its first session; a folder's first piece keeps the folder's
+    // number, further pieces (tracking loss) take numbers after the last folder's.
+    std::vector<int> label(backend.numSessions());
+    int next_label = first_new + static_cast<int>(datasets.size());
+    for (int b = 0; b < backend.numSessions(); ++b) label[b] = (b > 0 && csv_of[b] == csv_of[b - 1]) ? next_label++ : csv_of[b];
     for (int s = 0; s < backend.numSessions(); ++s) {
       const std::vector<core::Pose2> slam = backend.sessionPoses(s);
       for (std::size_t k = 0; k < slam.size(); ++k) {
-        traj << s << "," << frame_of_keyframe[s][k] << "," << backend.mapOf(s) << "," << std::setprecision(6)
+        traj << csv_of[s] << "," << frame_of_keyframe[s][k] << "," << label[backend.mapOf(s)] << "," << std::setprecision(6)
              << slam[k].x() << "," << slam[k].y() << "," << std::setprecision(7) << slam[k].yaw() << "\n";
       }
     }
     for (int m : backend.mapIds()) {
       for (const core::LinkInfo& l : backend.links(m)) {
-        links_csv << m << "," << l.previous << "," << l.current << "," << l.loops << "," << l.estimate.x() << ","
+        links_csv << label[m] << "," << csv_of[l.previous] << "," << csv_of[l.current] << "," << l.loops << ","
+                  << l.estimate.x() << ","
                   << l.estimate.y() << "," << l.estimate.yaw() << "\n";
       }
     }

@@ -19,12 +19,21 @@ class TrackingTest : public testing_util::RenderedSeabedTest {
     for (int k = 0; k < frames; ++k) {
       const cv::Mat image = (k >= blank_from && k < blank_to) ? grey : render(Pose2(2.0 + 0.25 * k, 4.0, 0.0), 2.0);
       steps.push_back(odo->process({k, 1.0 * k, 2.0, image}));
+      if (steps.back().session_closed) {
+        kept_at_close = odo->keptKeyframes();
+        made_at_close = static_cast<int>(odo->odometry()->keyframes().size());
+        fallback_kept_at_close = false;
+        for (int i = 0; i < kept_at_close; ++i) fallback_kept_at_close |= odo->odometry()->keyframes()[i].fallback;
+      }
+      released += static_cast<int>(odo->newKeyframes().size());
       if (keyframes_per_session && steps.back().session_started) keyframes_per_session->push_back(0);
       if (keyframes_per_session && odo->odometry() && !keyframes_per_session->empty())
         keyframes_per_session->back() = static_cast<int>(odo->odometry()->keyframes().size());
     }
     return steps;
   }
+  int kept_at_close = -1, made_at_close = -1, released = 0;
+  bool fallback_kept_at_close = true;
 };
 
 TEST_F(TrackingTest, ABlankStretchClosesTheSessionAndTheNextTexturedFrameStartsOne) {
@@ -45,6 +54,11 @@ TEST_F(TrackingTest, ABlankStretchClosesTheSessionAndTheNextTexturedFrameStartsO
   EXPECT_EQ(odo.sessions(), 2);
   EXPECT_EQ(odo.losses(), 1);
   EXPECT_EQ(odo.framesLost(), 5);
+  // The unmatched frames' keyframes (reused motions) were held back and dropped at the close:
+  // the first session ends at its last measured keyframe.
+  EXPECT_LT(kept_at_close, made_at_close);
+  EXPECT_FALSE(fallback_kept_at_close);
+  EXPECT_EQ(released, kept_at_close + odo.keptKeyframes());  // exactly the kept ones were released
   ASSERT_EQ(kfs.size(), 2u);
   EXPECT_GE(kfs[1], 3);  // the second session tracks again (2.75 m, a keyframe a metre)
   // The new session's own frame: its origin is frame 18, its last keyframe ~2.75 m further on.

@@ -294,3 +294,47 @@ def test_db_bad_file_fails_with_one_line_and_is_left_as_it_is(tmp_path, survey):
     assert str(bad) in r.stderr and "not an SQLite database" in r.stderr
     assert bad.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.db"]  # nothing written beside it, no output
+
+
+LOST = """
+seed: 3
+world: {width_m: 12, height_m: 10, featureless_fraction: 0}
+sessions:
+  - name: a
+    mission: {pattern: loop, start_m: [3.5, 2.5], length_m: 4.0, width_m: 3.0, laps: 2.1,
+              speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.0}
+    water:
+      stretches:
+        - {first_frame: 10, num_frames: 7, kind: blank}
+"""
+
+
+def test_tracking_loss_starts_a_session_that_global_loops_join_back(tmp_path):
+    """Seven blank frames in the first of two laps: tracking is lost, the session is closed and a
+    new one starts when the seabed is back; the second lap's global loops join the pieces, and
+    the joined map is within a few cm of the ground truth."""
+    (tmp_path / "s.yaml").write_text(LOST)
+    r = run("make_survey", "--config", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "m"), "--no-bag", "--quiet")
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "o"
+    r = run("offline_slam", "--session", str(tmp_path / "m" / "a"), "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "tracking lost at frame" in r.stdout and "tracking resumed at frame" in r.stdout
+    traj = rows(out / "trajectory.csv")
+    assert {t["session"] for t in traj} == {"0"}  # the folder's number for both pieces
+    assert {t["map"] for t in traj} == {"0"}      # joined again
+    links = rows(out / "links.csv")
+    assert len(links) == 1 and links[0]["previous_session"] == "0" and links[0]["current_session"] == "0"
+    indexes = [int(t["index"]) for t in traj]
+    assert len(indexes) == len(set(indexes))  # unique within the folder
+    assert not any(10 <= i < 17 for i in indexes)  # no keyframe in the blank stretch
+    gt = {int(g["index"]): (float(g["x_m"]), float(g["y_m"])) for g in rows(tmp_path / "m" / "a" / "gt.csv")}
+    worst = max(math.hypot(float(t["x_m"]) - gt[int(t["index"])][0], float(t["y_m"]) - gt[int(t["index"])][1])
+                for t in traj)
+    assert worst < 0.05, worst
+    # Without the split (max_fallbacks 0) the same run keeps one session with reused motions.
+    cfg = tmp_path / "never.yaml"
+    cfg.write_text("tracking:\n  max_fallbacks: 0\n")
+    r = run("offline_slam", "--session", str(tmp_path / "m" / "a"), "--out", str(tmp_path / "o2"), "--config", str(cfg))
+    assert r.returncode == 0 and "tracking lost" not in r.stdout
+    assert rows(tmp_path / "o2" / "links.csv") == []

@@ -4,8 +4,11 @@
 // occluded or featureless water, a camera restart), the session is closed; a new session starts
 // at the first later frame with at least min_features features, its origin (the first session
 // too starts at the first such frame). Global loops then
-// join the pieces back (core/backend.h). The fallback keyframes made before the session closes
-// stay in it, with their large covariance.
+// join the pieces back (core/backend.h).
+//
+// Keyframes whose motion is a fallback (a reused motion: the frame could not be matched) are held
+// back until a later frame is matched again; if the session closes first they are dropped, so a
+// session ends at its last keyframe with a measured motion, not at extrapolated guesses.
 #pragma once
 
 #include <memory>
@@ -39,6 +42,12 @@ class SegmentedOdometry {
   /// The current session's odometry (after a closing frame: the closed one, until the next
   /// process()); nullptr while no session is open.
   const Odometry* odometry() const { return odometry_.get(); }
+  /// The keyframes released by the last process(), in order: the odometry's new keyframes, with
+  /// fallback keyframes held back until tracking is confirmed.
+  const std::vector<Odometry::NewKeyframe>& newKeyframes() const { return released_; }
+  /// Keyframes of the current (or just closed) session that count: its trajectory's first
+  /// keptKeyframes() keyframes; fallback keyframes dropped at a close are not among them.
+  int keptKeyframes() const { return kept_; }
   /// Sessions started so far.
   int sessions() const { return sessions_; }
   /// Frames processed while lost (no session), and sessions closed by tracking loss.
@@ -53,6 +62,8 @@ class SegmentedOdometry {
   TrackingLossOptions loss_;
   std::unique_ptr<Odometry> odometry_;
   bool closed_ = false;  // odometry_ is the session just closed
+  std::vector<Odometry::NewKeyframe> pending_, released_;
+  int kept_ = 0;
   int consecutive_fallbacks_ = 0;
   int sessions_ = 0, frames_lost_ = 0, losses_ = 0;
   StageTimes times_;  // finished odometries' timings
