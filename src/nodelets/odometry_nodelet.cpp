@@ -22,8 +22,11 @@
 //
 // Sessions: the first session has id ~session. A new session starts (the odometry restarts, the
 // next keyframe is the new origin) when the back-end asks for another id on active_session, when
-// the image stamps jump back in time or forward by more than ~session_gap_s, or when the camera
-// intrinsics change. Without a back-end the ids simply count up.
+// the image stamps jump back in time or forward by more than ~session_gap_s, when the camera
+// intrinsics change, or when tracking is lost (core/tracking.h: tracking.max_fallbacks unmatched
+// frames close the session, the next frame with tracking.min_features features starts the next;
+// keyframes with reused motions are published only once tracking is confirmed). Without a
+// back-end the ids simply count up.
 //
 // Bad input never stops the node: an image of an unusable encoding or size, a camera_info
 // without a focal length and an altitude that is NaN or outside the sensor's range are counted
@@ -59,6 +62,7 @@
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/core/odometry.h"
 #include "uw_multislam/core/slam_config.h"
+#include "uw_multislam/core/tracking.h"
 #include "uw_multislam/ros/conversions.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 #include "uw_multislam/ros/sensor_conversions.h"
@@ -95,7 +99,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   };
   struct Counters {
     long frames = 0, dropped = 0, bad_image = 0, bad_camera = 0, bad_altitude = 0, keyframes = 0, fallbacks = 0,
-         sessions = 0;
+         sessions = 0, losses = 0;
   };
   using SyncWithAltitude = message_filters::sync_policies::ApproximateTime<sensor_msgs::Image, sensor_msgs::CameraInfo,
                                                                            sensor_msgs::Range>;
@@ -125,7 +129,8 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::thread worker_;
 
   // Worker-only state.
-  std::unique_ptr<core::Odometry> odometry_;
+  std::unique_ptr<core::SegmentedOdometry> odometry_;  // the stream's odometry, a new session on tracking loss
+  core::CameraIntrinsics camera_;
   int session_ = 0;
   int frame_index_ = 0;
   ros::Time last_stamp_;
@@ -278,7 +283,8 @@ void OdometryNodelet::work() {
 
 void OdometryNodelet::startSession(int id, const core::CameraIntrinsics& camera, const std::string& why) {
   if (odometry_) logStats(("at the end of session " + std::to_string(session_)).c_str());
-  odometry_ = std::make_unique<core::Odometry>(camera, config_.odometry);
+  odometry_ = std::make_unique<core::SegmentedOdometry>(camera, config_.odometry, config_.tracking);
+  camera_ = camera;
   session_ = id;
   frame_index_ = 0;
   ++counts_.sessions;
@@ -336,7 +342,7 @@ void OdometryNodelet::process(const Frame& f) {
     startSession(session_ + 1, camera,
                  "image stamps jumped by " + std::to_string((stamp - last_stamp_).toSec()) + " s");
   } else {
-    const core::CameraIntrinsics& c = odometry_->camera();
+    const core::CameraIntrinsics& c = camera_;
     if (c.width != camera.width || c.height != camera.height || c.fx != camera.fx || c.fy != camera.fy ||
         c.cx != camera.cx || c.cy != camera.cy) {
       startSession(session_ + 1, camera, "camera intrinsics changed");
@@ -344,7 +350,13 @@ void OdometryNodelet::process(const Frame& f) {
   }
   last_stamp_ = stamp;
 
-  const core::OdometryUpdate u = odometry_->process({frame_index_++, stamp.toSec(), altitude, image});
+  const core::SegmentedOdometry::Step step = odometry_->process({frame_index_++, stamp.toSec(), altitude, image});
+  const core::OdometryUpdate& u = step.update;
+  if (step.session_started && odometry_->sessions() > 1) {
+    ++session_;
+    ++counts_.sessions;
+    NODELET_INFO("odometry: tracking resumed at frame %d: session %d starts", u.index, session_);
+  }
   if (u.status == core::FrameStatus::kSkipped) {
     NODELET_WARN_THROTTLE(5, "odometry: frame %d skipped: %s", u.index, u.reason.c_str());
     return;
@@ -354,6 +366,12 @@ void OdometryNodelet::process(const Frame& f) {
     NODELET_WARN_THROTTLE(5, "odometry: frame %d: fallback motion (%s)", u.index, u.reason.c_str());
   }
   publishKeyframes(f, image, u);
+  if (step.session_closed) {
+    ++counts_.losses;
+    NODELET_WARN("odometry: tracking lost at frame %d (%d unmatched frames): session %d closed; the next frame with "
+                 "%d features starts session %d",
+                 u.index, config_.tracking.max_fallbacks, session_, config_.tracking.min_features, session_ + 1);
+  }
 
   auto pose = boost::make_shared<geometry_msgs::PoseStamped>();
   pose->header.stamp = stamp;
@@ -363,10 +381,11 @@ void OdometryNodelet::process(const Frame& f) {
 }
 
 void OdometryNodelet::publishKeyframes(const Frame& f, const cv::Mat& image, const core::OdometryUpdate& u) {
+  const core::Odometry& odometry = *odometry_->odometry();
   for (const auto& kf : odometry_->newKeyframes()) {
-    const rc::KeyframeData data = rc::keyframeData(*odometry_, kf, u, session_);
+    const rc::KeyframeData data = rc::keyframeData(odometry, kf, u, session_);
     std_msgs::Header header = f.image->header;
-    if (data.frame_index != u.index) header.stamp.fromSec(odometry_->keyframes()[kf.id].stamp_s);  // promoted
+    if (data.frame_index != u.index) header.stamp.fromSec(odometry.keyframes()[kf.id].stamp_s);  // promoted or held
     keyframe_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::toKeyframeMsg(data, header)));
     ++counts_.keyframes;
     if (data.frame_index == u.index && keyframe_image_pub_.getNumSubscribers() > 0) {
@@ -378,14 +397,16 @@ void OdometryNodelet::publishKeyframes(const Frame& f, const cv::Mat& image, con
 }
 
 void OdometryNodelet::logStats(const char* when) {
-  const core::OdometryStats s = odometry_ ? odometry_->stats() : core::OdometryStats();
+  const core::Odometry* odo = odometry_ ? odometry_->odometry() : nullptr;
+  const core::OdometryStats s = odo ? odo->stats() : core::OdometryStats();
   const double ms = odometry_ ? odometry_->times().get("odometry_total").meanMs() : 0.0;
   NODELET_INFO(
       "odometry %s: %ld frames received, %ld dropped (queue full), %ld bad images, %ld bad camera_info, "
-      "%ld bad altitudes, %ld keyframes published, %ld fallbacks, %ld sessions; current session %d: %d frames, "
+      "%ld bad altitudes, %ld keyframes published, %ld fallbacks, %ld sessions (%ld after tracking loss); current "
+      "session %d: %d frames, "
       "%d keyframes, %d altitudes reused, %.1f ms/frame",
       when, counts_.frames, counts_.dropped, counts_.bad_image, counts_.bad_camera, counts_.bad_altitude,
-      counts_.keyframes, counts_.fallbacks, counts_.sessions, session_, s.frames, s.keyframes, s.altitude_reused, ms);
+      counts_.keyframes, counts_.fallbacks, counts_.sessions, counts_.losses, session_, s.frames, s.keyframes, s.altitude_reused, ms);
 }
 
 }  // namespace nodelets
