@@ -381,19 +381,33 @@ void SessionStore::addKeyframe(const StoredKeyframe& kf, const UncertainPose2* m
       m.bind(1, kf.session).bind(2, kf.keyframe).bind(3, motion->mean.x()).bind(4, motion->mean.y());
       m.bind(5, motion->mean.yaw()).blob(6, cov).run();
     }
-    if (loops) {
-      Statement& l = cached(
-          "INSERT INTO loops(session_a, keyframe_a, session_b, keyframe_b, kind, inliers, x, y, yaw, cov, summarised, "
-          "applied, refused) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
-      for (StoredLoop& lp : *loops) {
-        const std::vector<double> cov = covBlob(lp.z.covariance);
-        l.bind(1, lp.session_a).bind(2, lp.keyframe_a).bind(3, lp.session_b).bind(4, lp.keyframe_b);
-        l.bind(5, std::string(lp.global ? "global" : "local")).bind(6, lp.inliers);
-        l.bind(7, lp.z.mean.x()).bind(8, lp.z.mean.y()).bind(9, lp.z.mean.yaw()).blob(10, cov);
-        l.bind(11, lp.summarised ? 1 : 0).bind(12, lp.applied ? 1 : 0).bind(13, lp.refused ? 1 : 0).run();
-        lp.id = sqlite3_last_insert_rowid(db_);
-      }
-    }
+    if (loops) insertLoops(loops);
+    commit();
+  } catch (...) {
+    rollback();
+    throw;
+  }
+}
+
+void SessionStore::insertLoops(std::vector<StoredLoop>* loops) {
+  Statement& l = cached(
+      "INSERT INTO loops(session_a, keyframe_a, session_b, keyframe_b, kind, inliers, x, y, yaw, cov, summarised, "
+      "applied, refused) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  for (StoredLoop& lp : *loops) {
+    const std::vector<double> cov = covBlob(lp.z.covariance);
+    l.bind(1, lp.session_a).bind(2, lp.keyframe_a).bind(3, lp.session_b).bind(4, lp.keyframe_b);
+    l.bind(5, std::string(lp.global ? "global" : "local")).bind(6, lp.inliers);
+    l.bind(7, lp.z.mean.x()).bind(8, lp.z.mean.y()).bind(9, lp.z.mean.yaw()).blob(10, cov);
+    l.bind(11, lp.summarised ? 1 : 0).bind(12, lp.applied ? 1 : 0).bind(13, lp.refused ? 1 : 0).run();
+    lp.id = sqlite3_last_insert_rowid(db_);
+  }
+}
+
+void SessionStore::addLoops(std::vector<StoredLoop>* loops) {
+  if (loops->empty()) return;
+  begin();
+  try {
+    insertLoops(loops);
     commit();
   } catch (...) {
     rollback();

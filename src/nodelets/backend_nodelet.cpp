@@ -13,8 +13,17 @@
 //          active_session (uw_multislam/SessionState, latched): set by start_session
 //          tf: map_frame -> <session_frame_prefix><id> (the correction optimisation applied to that
 //            session's odometry) and <session_frame_prefix><active> -> base_frame (the odometry)
-// Services: join_sessions, split_session, list_sessions, start_session, reload_session (the
-//          session store is issue 8: reload answers UNIMPLEMENTED until then).
+//          reloaded_keyframes (uw_multislam/Keyframe): a reloaded session's keyframes, for the
+//            loop detector(s) to keep as global-loop candidates
+// Services: join_sessions, split_session, list_sessions, start_session, reload_session.
+//
+// Session store (~store_path, default $ROS_HOME/uw_multislam/sessions.db; "" = none; see
+// core/session_store.h): every keyframe (features, descriptors, hash), its motion and each loop
+// are written as they arrive, one transaction each (WAL), the maps at every join, split and
+// session end, so a kill -9 loses at most what was in flight. At start-up the stored sessions,
+// loops and maps are put back into the back-end (they take ids 0..k-1; active_session asks the
+// odometry to continue from k) and listed UNLOADED: their trajectories are there, but the loop
+// detector does not know their keyframes until reload_session publishes them.
 //
 // Maps: every map is drawn in map_frame with its first session's origin at map_frame's origin
 // (maps that are not joined are not related, so they overlap in rviz).
@@ -36,7 +45,9 @@
 #include <pluginlib/class_list_macros.hpp>
 
 #include <condition_variable>
+#include <cstdlib>
 #include <deque>
+#include <filesystem>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -55,6 +66,8 @@
 #include "uw_multislam/SplitSession.h"
 #include "uw_multislam/StartSession.h"
 #include "uw_multislam/core/backend.h"
+#include "uw_multislam/core/haloc.h"
+#include "uw_multislam/core/session_store.h"
 #include "uw_multislam/core/slam_config.h"
 #include "uw_multislam/ros/backend_conversions.h"
 #include "uw_multislam/ros/conversions.h"
@@ -105,8 +118,23 @@ class BackendNodelet : public nodelet::Nodelet {
   bool onStart(uw_multislam::StartSession::Request& req, uw_multislam::StartSession::Response& res);
   bool onReload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res);
   void logStats(const char* when);
+  void openStore();
+  /// Runs a store write; a failure (disk full, I/O error) is counted and logged, never fatal:
+  /// the map lives on in memory.
+  template <typename F>
+  void storeWrite(const char* what, F write);
+  void storeKeyframe(int ext, int keyframe, const rc::KeyframeData* k, const core::UncertainPose2* motion,
+                     const ros::Time& stamp);
+  void saveMaps();
 
   core::SlamConfig config_;
+  std::string store_path_;
+  std::unique_ptr<core::SessionStore> store_;
+  std::unique_ptr<core::ImageHasher> hasher_;
+  std::vector<std::int64_t> store_sessions_;  // back-end session -> store id (-1: not yet)
+  std::vector<std::int64_t> store_loops_;     // back-end loop -> store id
+  std::set<int> unloaded_;                    // stored sessions the loop detector does not know
+  long store_errors_ = 0;
   std::string map_frame_ = "map", session_prefix_ = "session_", base_frame_ = "base_link";
   int queue_size_ = 1000, max_waiting_loops_ = 1000;
   bool publish_tf_ = true;
@@ -129,7 +157,7 @@ class BackendNodelet : public nodelet::Nodelet {
   Counters counts_;
   ros::WallTime last_stats_;
 
-  ros::Publisher trajectory_pub_, markers_pub_, pose_pub_, active_pub_;
+  ros::Publisher trajectory_pub_, markers_pub_, pose_pub_, active_pub_, reloaded_pub_;
   std::map<int, ros::Publisher> path_pubs_;
   std::unique_ptr<tf2_ros::TransformBroadcaster> tf_;
   ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_;
@@ -162,6 +190,11 @@ void BackendNodelet::readParameters() {
       param(pnh, "max_waiting_loops", 1000, [](int v) { return v >= 1 && v <= 1000000; }, "in [1, 1000000]");
   publish_tf_ = param(pnh, "publish_tf", true, [](bool) { return true; }, "a bool");
   stats_period_s_ = param(pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
+  const char* ros_home = std::getenv("ROS_HOME");
+  const char* home = std::getenv("HOME");
+  const std::string default_store =
+      (ros_home ? std::string(ros_home) : std::string(home ? home : ".") + "/.ros") + "/uw_multislam/sessions.db";
+  store_path_ = param(pnh, "store_path", default_store, [](const std::string&) { return true; }, "a path");
   config_ = ros_params::slamConfigFromParams(nh);
   const std::string bad = config_.validate();
   if (!bad.empty()) throw std::invalid_argument(nh.resolveName("slam") + ": " + bad);
@@ -194,12 +227,127 @@ void BackendNodelet::onInit() {
   list_srv_ = nh.advertiseService(topics::kListSessionsService, &BackendNodelet::onList, this);
   start_srv_ = nh.advertiseService(topics::kStartSessionService, &BackendNodelet::onStart, this);
   reload_srv_ = nh.advertiseService(topics::kReloadSessionService, &BackendNodelet::onReload, this);
+  reloaded_pub_ = nh.advertise<uw_multislam::Keyframe>(topics::kReloadedKeyframes, 10000);
+  try {
+    openStore();
+  } catch (const std::exception& e) {
+    NODELET_FATAL("back-end: session store: %s (set ~store_path to another file, or \"\" to run without a store)",
+                  e.what());
+    throw;
+  }
+  if (!sessions_.empty()) {
+    // Stored sessions hold ids 0..k-1: the odometry continues from k.
+    uw_multislam::SessionState st;
+    st.session = sessions_.rbegin()->first + 1;
+    st.name = "session_" + std::to_string(st.session);
+    st.state = uw_multislam::SessionState::ACTIVE;
+    st.map = st.session;
+    active_pub_.publish(st);
+  }
   worker_ = std::thread([this] { work(); });
   keyframe_sub_ = nh.subscribe<uw_multislam::Keyframe>(topics::kKeyframes, 100,
                                                        [this](const uw_multislam::KeyframeConstPtr& m) { enqueue(m); });
   loop_sub_ = nh.subscribe<uw_multislam::Loop>(topics::kLoops, 100,
                                                [this](const uw_multislam::LoopConstPtr& m) { enqueue(m); });
   pose_sub_ = nh.subscribe(topics::kOdometryPose, 10, &BackendNodelet::onOdometryPose, this);
+}
+
+void BackendNodelet::openStore() {
+  const auto& g = config_.loops.global;
+  hasher_ = std::make_unique<core::ImageHasher>(g.hash_mode, config_.odometry.features.num_features, g.projection_seed);
+  if (store_path_.empty()) {
+    NODELET_WARN("back-end: no session store (~store_path is empty): sessions live in memory only");
+    return;
+  }
+  const std::filesystem::path dir = std::filesystem::path(store_path_).parent_path();
+  std::error_code ec;
+  if (!dir.empty()) std::filesystem::create_directories(dir, ec);  // a failure shows in the open below
+  store_ = std::make_unique<core::SessionStore>(store_path_);
+  store_->checkHashSettings(
+      {g.hash_mode, g.projection_seed, config_.odometry.features.num_features, hasher_->projections().toText()});
+  std::vector<std::unique_ptr<core::CameraIntrinsics>> no_cameras;
+  const core::RestoredStore restored = core::restoreStore(*store_, backend_.get(), nullptr, &no_cameras);
+  store_sessions_ = restored.session_ids;
+  store_loops_ = restored.loop_ids;
+  for (int s = 0; s < backend_->numSessions(); ++s) {
+    Session x;
+    x.internal = s;
+    x.name = backend_->session(s).name;
+    const std::vector<core::StoredKeyframe> kfs = store_->keyframes(store_sessions_[s], false);
+    for (const auto& k : kfs) x.stamps.push_back(ros::Time(std::max(0.0, k.stamp_s)));
+    x.odometry.push_back(core::Pose2());
+    for (const core::UncertainPose2& m : store_->odometry(store_sessions_[s]))
+      x.odometry.push_back(core::compose(x.odometry.back(), m.mean));
+    sessions_[s] = std::move(x);
+    unloaded_.insert(s);
+  }
+  for (std::size_t i = 0; i < restored.loops.size(); ++i) {
+    const core::BackendLoop l = backend_->loopRecord(static_cast<int>(i)).loop;
+    core::Loop loop;
+    loop.kind = restored.loops[i].global ? core::Loop::Kind::kGlobal : core::Loop::Kind::kLocal;
+    loop.session_a = l.session_a;
+    loop.keyframe_a = l.keyframe_a;
+    loop.session_b = l.session_b;
+    loop.keyframe_b = l.keyframe_b;
+    loop.z = l.z;
+    loop.inliers = restored.loops[i].inliers;
+    accepted_.push_back(loop);
+    ++sessions_[l.session_a].loops;
+    if (l.session_b != l.session_a) ++sessions_[l.session_b].loops;
+  }
+  last_joins_ = backend_->stats().joins;
+  NODELET_INFO("back-end: session store %s: %d stored sessions (%d keyframes, %zu loops, %zu maps) listed UNLOADED",
+               store_path_.c_str(), backend_->numSessions(), restored.keyframes, restored.loops.size(),
+               backend_->mapIds().size());
+  if (!sessions_.empty()) publishAll(true);
+}
+
+template <typename F>
+void BackendNodelet::storeWrite(const char* what, F write) {
+  if (!store_) return;
+  try {
+    write();
+  } catch (const std::exception& e) {
+    ++store_errors_;
+    NODELET_ERROR_THROTTLE(5, "back-end: session store %s: %s failed (%ld failures so far; the map lives on in memory): %s",
+                           store_path_.c_str(), what, store_errors_, e.what());
+  }
+}
+
+void BackendNodelet::storeKeyframe(int ext, int keyframe, const rc::KeyframeData* k, const core::UncertainPose2* motion,
+                                   const ros::Time& stamp) {
+  if (!store_) return;
+  const Session& s = sessions_.at(ext);
+  if (store_sessions_.size() <= static_cast<std::size_t>(s.internal)) store_sessions_.resize(s.internal + 1, -1);
+  storeWrite("writing a keyframe", [&] {
+    if (store_sessions_[s.internal] < 0) {
+      store_sessions_[s.internal] = store_->addSession(s.name, k ? k->camera : core::CameraIntrinsics(), stamp.toSec());
+    }
+    core::StoredKeyframe sk;
+    sk.session = store_sessions_[s.internal];
+    sk.keyframe = keyframe;
+    sk.stamp_s = stamp.toSec();
+    sk.hash = Eigen::VectorXf::Zero(core::HalocProjections::kHashSize);
+    if (k) {  // else a keyframe that never arrived: no features
+      sk.frame_index = k->frame_index;
+      sk.altitude_m = k->altitude_m;
+      sk.image_size = cv::Size(k->camera.width, k->camera.height);
+      for (const cv::KeyPoint& p : k->features.keypoints) sk.points.push_back(p.pt);
+      sk.descriptors = k->features.descriptors;
+      if (!k->features.descriptors.empty()) sk.hash = hasher_->hash(k->features.descriptors);
+    }
+    store_->addKeyframe(sk, motion, nullptr);
+  });
+}
+
+void BackendNodelet::saveMaps() {
+  storeWrite("saving the maps", [&] {
+    std::vector<std::int64_t> ids = store_sessions_;
+    ids.resize(backend_->numSessions(), -1);
+    for (std::int64_t id : ids)
+      if (id < 0) return;  // a session without a keyframe yet: saved at the next change
+    core::saveBackendMaps(store_.get(), *backend_, ids, store_loops_);
+  });
 }
 
 void BackendNodelet::enqueue(Message m) {
@@ -247,6 +395,7 @@ void BackendNodelet::work() {
       const core::BackendStats& st = backend_->stats();
       const bool changed =
           st.optimisations != last_optimisations_ || st.joins != last_joins_ || st.splits != last_splits_;
+      if (st.joins != last_joins_ || st.splits != last_splits_) saveMaps();
       last_optimisations_ = st.optimisations;
       last_joins_ = st.joins;
       last_splits_ = st.splits;
@@ -279,7 +428,14 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
                             active_);
       return;
     }
-    if (active_ >= 0) backend_->endSession(sessions_.at(active_).internal);
+    if (active_ >= 0) {
+      backend_->endSession(sessions_.at(active_).internal);
+      storeWrite("ending a session", [&] {
+        const std::int64_t id = store_sessions_.at(sessions_.at(active_).internal);
+        if (id >= 0) store_->endSession(id, sessions_.at(active_).stamps.back().toSec());
+      });
+      saveMaps();
+    }
     Session s;
     s.name = "session_" + std::to_string(k.session);
     s.internal = backend_->startSession(s.name);
@@ -288,6 +444,7 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
     it = sessions_.emplace(k.session, std::move(s)).first;
     active_ = k.session;
     NODELET_INFO("back-end: session %d started", k.session);
+    storeKeyframe(k.session, 0, k.keyframe == 0 ? &k : nullptr, nullptr, msg.header.stamp);
     if (k.keyframe == 0) return;
   }
   Session& s = it->second;
@@ -299,6 +456,7 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
   const int expected = static_cast<int>(s.stamps.size());
   if (k.keyframe == 0 && expected == 1) {  // the origin of a session opened by start_session
     s.stamps[0] = msg.header.stamp;
+    storeKeyframe(k.session, 0, &k, nullptr, msg.header.stamp);
     return;
   }
   if (k.keyframe < expected) {
@@ -316,10 +474,12 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
                           expected, k.keyframe - 1);
     const core::Pose2 last = s.odometry.back();
     for (int g = expected; g < k.keyframe; ++g) {
-      backend_->addMotion(s.internal, core::UncertainPose2(core::Pose2(), Eigen::Matrix3d::Identity() * 1e-8));
+      const core::UncertainPose2 still(core::Pose2(), Eigen::Matrix3d::Identity() * 1e-8);
+      backend_->addMotion(s.internal, still);
       s.phantoms.insert(g);
       s.stamps.push_back(msg.header.stamp);
       s.odometry.push_back(last);
+      storeKeyframe(k.session, g, nullptr, &still, msg.header.stamp);
     }
     motion = core::UncertainPose2(core::between(last, k.odometry_pose),
                                   k.motion.covariance * static_cast<double>(k.keyframe - expected + 1));
@@ -327,6 +487,7 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
   backend_->addMotion(s.internal, motion);
   s.stamps.push_back(msg.header.stamp);
   s.odometry.push_back(k.odometry_pose);
+  storeKeyframe(k.session, k.keyframe, &k, &motion, msg.header.stamp);
 }
 
 bool BackendNodelet::processLoop(const uw_multislam::Loop& msg) {
@@ -357,6 +518,21 @@ bool BackendNodelet::processLoop(const uw_multislam::Loop& msg) {
   ++a->second.loops;
   if (l.session_b != l.session_a) ++b->second.loops;
   accepted_.push_back(l);
+  std::int64_t stored = -1;
+  storeWrite("writing a loop", [&] {
+    std::vector<core::StoredLoop> one(1);
+    core::StoredLoop& sl = one[0];
+    sl.session_a = store_sessions_.at(a->second.internal);
+    sl.session_b = store_sessions_.at(b->second.internal);
+    sl.keyframe_a = l.keyframe_a;
+    sl.keyframe_b = l.keyframe_b;
+    sl.global = l.kind == core::Loop::Kind::kGlobal;
+    sl.inliers = l.inliers;
+    sl.z = l.z;
+    store_->addLoops(&one);
+    stored = sl.id;
+  });
+  if (store_) store_loops_.push_back(stored);
   return true;
 }
 
@@ -475,6 +651,8 @@ bool BackendNodelet::onJoin(uw_multislam::JoinSessions::Request& req, uw_multisl
   res.map = externalOf(backend_->mapOf(sessions_.at(req.session_a).internal));
   if (st.ok()) {
     NODELET_INFO("back-end: join_sessions %d %d: %s", req.session_a, req.session_b, st.message.c_str());
+    last_joins_ = backend_->stats().joins;
+    saveMaps();
     publishAll(true);
   }
   return true;
@@ -491,6 +669,8 @@ bool BackendNodelet::onSplit(uw_multislam::SplitSession::Request& req, uw_multis
   res.status = rc::toStatusMsg(st);
   if (st.ok()) {
     NODELET_INFO("back-end: split_session %d: %s", req.session, st.message.c_str());
+    last_splits_ = backend_->stats().splits;
+    saveMaps();
     publishAll(true);
   }
   return true;
@@ -503,7 +683,9 @@ bool BackendNodelet::onList(uw_multislam::ListSessions::Request&, uw_multislam::
     uw_multislam::SessionState st;
     st.session = ext;
     st.name = s.name;
-    st.state = info.recording ? uw_multislam::SessionState::ACTIVE : uw_multislam::SessionState::FINISHED;
+    st.state = info.recording           ? uw_multislam::SessionState::ACTIVE
+               : unloaded_.count(ext) ? uw_multislam::SessionState::UNLOADED
+                                      : uw_multislam::SessionState::FINISHED;
     st.map = externalOf(info.map);
     st.num_keyframes = info.keyframes;
     st.num_loops = s.loops;
@@ -527,7 +709,13 @@ bool BackendNodelet::onStart(uw_multislam::StartSession::Request& req, uw_multis
     }
   }
   const int ext = sessions_.empty() ? 0 : sessions_.rbegin()->first + 1;
-  if (active_ >= 0) backend_->endSession(sessions_.at(active_).internal);
+  if (active_ >= 0) {
+    backend_->endSession(sessions_.at(active_).internal);
+    storeWrite("ending a session", [&] {
+      const std::int64_t id = store_sessions_.at(sessions_.at(active_).internal);
+      if (id >= 0) store_->endSession(id, sessions_.at(active_).stamps.back().toSec());
+    });
+  }
   Session s;
   s.name = req.name.empty() ? "session_" + std::to_string(ext) : req.name;
   s.internal = backend_->startSession(s.name);
@@ -551,10 +739,61 @@ bool BackendNodelet::onStart(uw_multislam::StartSession::Request& req, uw_multis
 }
 
 bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res) {
-  res.status = rc::statusMsg(uw_multislam::Status::UNIMPLEMENTED,
-                             "reload_session '" + req.name +
-                                 "': this build has no session store yet (issue 8); sessions live in memory only");
+  std::lock_guard<std::mutex> lock(state_mutex_);
   res.session = -1;
+  if (!store_) {
+    res.status = rc::statusMsg(uw_multislam::Status::FAILED_PRECONDITION,
+                               "no session store: ~store_path is empty, nothing to reload");
+    return true;
+  }
+  // By name, or by id ("3").
+  int ext = -1;
+  for (const auto& [id, s] : sessions_)
+    if (s.name == req.name || std::to_string(id) == req.name) ext = id;
+  if (ext < 0 || store_sessions_.size() <= static_cast<std::size_t>(ext) || store_sessions_[ext] < 0) {
+    res.status = rc::statusMsg(uw_multislam::Status::NOT_FOUND,
+                               "no stored session named '" + req.name + "' in " + store_path_ +
+                                   " (list_sessions shows the stored ones as UNLOADED)");
+    return true;
+  }
+  if (!unloaded_.count(ext)) {
+    res.status = rc::statusMsg(uw_multislam::Status::ALREADY_EXISTS,
+                               "session " + std::to_string(ext) + " ('" + sessions_.at(ext).name + "') is already loaded");
+    res.session = ext;
+    return true;
+  }
+  std::vector<core::StoredKeyframe> kfs;
+  core::CameraIntrinsics camera;
+  try {
+    kfs = store_->keyframes(store_sessions_[ext], true);
+    for (const core::StoredSession& s : store_->sessions())
+      if (s.id == store_sessions_[ext]) camera = s.camera;
+  } catch (const std::exception& e) {
+    res.status = rc::statusMsg(uw_multislam::Status::DATA_LOSS, "reading " + store_path_ + ": " + e.what());
+    return true;
+  }
+  for (const core::StoredKeyframe& k : kfs) {
+    rc::KeyframeData d;
+    d.session = ext;
+    d.keyframe = k.keyframe;
+    d.frame_index = k.frame_index;
+    d.altitude_m = k.altitude_m > 0 ? k.altitude_m : 1.0;
+    d.camera = camera;
+    d.features.image_size = k.image_size;
+    for (const cv::Point2f& p : k.points) d.features.keypoints.emplace_back(p, 1.0f);
+    if (!k.descriptors.empty()) k.descriptors.convertTo(d.features.descriptors, CV_32F);
+    d.motion = core::UncertainPose2(core::Pose2(), Eigen::Matrix3d::Identity() * 1e-6);
+    d.quality = k.keyframe == 0 ? rc::KeyframeQuality::kFirst : rc::KeyframeQuality::kMatched;
+    std_msgs::Header h;
+    h.stamp = ros::Time(std::max(0.0, k.stamp_s));
+    h.frame_id = session_prefix_ + std::to_string(ext);
+    reloaded_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::toKeyframeMsg(d, h)));
+  }
+  unloaded_.erase(ext);
+  res.session = ext;
+  res.status = rc::statusMsg(uw_multislam::Status::OK, "");
+  NODELET_INFO("back-end: reload_session '%s': session %d, %zu keyframes handed to the loop detector", req.name.c_str(),
+               ext, kfs.size());
   return true;
 }
 
@@ -562,10 +801,10 @@ void BackendNodelet::logStats(const char* when) {
   const core::BackendStats& b = backend_->stats();
   NODELET_INFO(
       "back-end %s: %ld keyframes (%ld stale, %ld gaps), %ld loops (%ld refused, %zu waiting, %ld dropped while "
-      "waiting), %ld messages dropped (queue full), %ld bad; %d joins, %d splits, %d optimisations (%.1f ms max), %zu "
-      "maps",
+      "waiting), %ld messages dropped (queue full), %ld bad, %ld store failures; %d joins, %d splits, %d "
+      "optimisations (%.1f ms max), %zu maps",
       when, counts_.keyframes, counts_.stale, counts_.gaps, counts_.loops, counts_.refused, waiting_.size(),
-      counts_.waiting_dropped, counts_.dropped, counts_.bad, b.joins, b.splits, b.optimisations, b.optimise_ms_max,
+      counts_.waiting_dropped, counts_.dropped, counts_.bad, store_errors_, b.joins, b.splits, b.optimisations, b.optimise_ms_max,
       backend_->mapIds().size());
 }
 

@@ -67,13 +67,16 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
     std::vector<core::Pose2> odometry_poses;  // per keyframe id, as the messages said
   };
   struct Counters {
-    long keyframes = 0, dropped = 0, bad = 0, gaps = 0, local = 0, global = 0, hashes = 0;
+    long keyframes = 0, dropped = 0, bad = 0, gaps = 0, local = 0, global = 0, hashes = 0, reloaded = 0;
   };
 
   void onInit() override;
   void readParameters();
   void onKeyframe(const uw_multislam::KeyframeConstPtr& msg);
   void onTrajectory(const uw_multislam::SessionTrajectoryConstPtr& msg);
+  void onReloaded(const uw_multislam::KeyframeConstPtr& msg);
+  /// A keyframe of a session reloaded from the store: stored as a candidate, not searched.
+  void processReloaded(const uw_multislam::Keyframe& msg);
   void work();
   void process(const uw_multislam::Keyframe& msg);
   /// Appends keyframe k's motion to its session's chain (bridging lost keyframes); false if k
@@ -93,6 +96,7 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   std::mutex mutex_;
   std::condition_variable wake_;
   std::deque<uw_multislam::KeyframeConstPtr> queue_;                      // guarded by mutex_
+  std::deque<uw_multislam::KeyframeConstPtr> reloaded_;                   // guarded by mutex_ (never dropped)
   std::map<int, uw_multislam::SessionTrajectoryConstPtr> optimised_;      // guarded by mutex_
   bool stopping_ = false;                                                 // guarded by mutex_
   long dropped_ = 0;                                                      // guarded by mutex_
@@ -104,12 +108,13 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   ros::WallTime last_stats_;
 
   ros::Publisher loop_pub_, hash_pub_;
-  ros::Subscriber keyframe_sub_, trajectory_sub_;  // last: destroyed first
+  ros::Subscriber keyframe_sub_, trajectory_sub_, reloaded_sub_;  // last: destroyed first
 };
 
 LoopDetectorNodelet::~LoopDetectorNodelet() {
   keyframe_sub_.shutdown();
   trajectory_sub_.shutdown();
+  reloaded_sub_.shutdown();
   {
     std::lock_guard<std::mutex> lock(mutex_);
     stopping_ = true;
@@ -159,6 +164,7 @@ void LoopDetectorNodelet::onInit() {
   worker_ = std::thread([this] { work(); });
   keyframe_sub_ = nh.subscribe(topics::kKeyframes, 100, &LoopDetectorNodelet::onKeyframe, this);
   trajectory_sub_ = nh.subscribe(topics::kSessionTrajectory, 10, &LoopDetectorNodelet::onTrajectory, this);
+  reloaded_sub_ = nh.subscribe(topics::kReloadedKeyframes, 10000, &LoopDetectorNodelet::onReloaded, this);
 }
 
 void LoopDetectorNodelet::onKeyframe(const uw_multislam::KeyframeConstPtr& msg) {
@@ -173,6 +179,31 @@ void LoopDetectorNodelet::onKeyframe(const uw_multislam::KeyframeConstPtr& msg) 
   wake_.notify_one();
 }
 
+void LoopDetectorNodelet::onReloaded(const uw_multislam::KeyframeConstPtr& msg) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    reloaded_.push_back(msg);
+  }
+  wake_.notify_one();
+}
+
+void LoopDetectorNodelet::processReloaded(const uw_multislam::Keyframe& msg) {
+  rc::KeyframeData k;
+  std::string why;
+  if (!rc::fromMsg(msg, &k, &why)) {
+    ++counts_.bad;
+    NODELET_WARN_THROTTLE(5, "loop detector: bad reloaded keyframe skipped: %s", why.c_str());
+    return;
+  }
+  Session& s = sessions_[k.session];
+  if (s.cameras.empty() || s.cameras.back().fx != k.camera.fx || s.cameras.back().width != k.camera.width)
+    s.cameras.push_back(k.camera);
+  if (k.features.keypoints.empty()) return;  // a keyframe that never arrived live: no candidate
+  detector_->addStoredKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m, &s.cameras.back(), k.features,
+                               detector_->hasher().hash(k.features.descriptors));
+  ++counts_.reloaded;
+}
+
 void LoopDetectorNodelet::onTrajectory(const uw_multislam::SessionTrajectoryConstPtr& msg) {
   if (msg->session < 0) return;
   std::lock_guard<std::mutex> lock(mutex_);
@@ -183,15 +214,26 @@ void LoopDetectorNodelet::work() {
   last_stats_ = ros::WallTime::now();
   for (;;) {
     uw_multislam::KeyframeConstPtr msg;
+    bool reloaded = false;
     {
       std::unique_lock<std::mutex> lock(mutex_);
-      wake_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
+      wake_.wait(lock, [this] { return stopping_ || !queue_.empty() || !reloaded_.empty(); });
       if (stopping_) return;
-      msg = queue_.front();
-      queue_.pop_front();
+      if (!reloaded_.empty()) {
+        reloaded = true;
+        msg = reloaded_.front();
+        reloaded_.pop_front();
+      } else {
+        msg = queue_.front();
+        queue_.pop_front();
+      }
       counts_.dropped = dropped_;
     }
     try {
+      if (reloaded) {
+        processReloaded(*msg);
+        continue;
+      }
       process(*msg);
     } catch (const std::exception& e) {
       ++counts_.bad;

@@ -134,6 +134,9 @@ class SessionStore {
   /// and the loops it closed (their ids are set). Throws StoreError (the transaction is rolled
   /// back: nothing of the keyframe is kept).
   void addKeyframe(const StoredKeyframe& keyframe, const UncertainPose2* motion, std::vector<StoredLoop>* loops);
+  /// One transaction: loops that arrive on their own (the live system's loop messages); their
+  /// ids are set. Both keyframes must be stored.
+  void addLoops(std::vector<StoredLoop>* loops);
 
   /// One transaction: replaces the map state (maps, links, split pairs) and updates the states
   /// of the given loops.
@@ -165,6 +168,7 @@ class SessionStore {
   void begin();
   void commit();
   void rollback() noexcept;
+  void insertLoops(std::vector<StoredLoop>* loops);
   Statement& cached(const char* sql);
 
   std::string path_;

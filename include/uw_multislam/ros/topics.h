@@ -49,6 +49,9 @@ constexpr char kActiveSession[] = "active_session";
 /// joins, uw_multislam/SessionState[] via the list_sessions service.
 constexpr char kSessionPathPrefix[] = "paths/session_";
 constexpr char kLoopMarkers[] = "loop_markers";
+/// uw_multislam/Keyframe: the keyframes of a session reload_session brought back from the session
+/// store (back-end), for the loop detector(s) to store as candidates without searching.
+constexpr char kReloadedKeyframes[] = "reloaded_keyframes";
 /// geometry_msgs/PoseStamped: the current camera pose in the map frame (back-end: the odometry
 /// pose corrected by the active session's optimisation).
 constexpr char kCurrentPose[] = "pose";
