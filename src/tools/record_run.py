@@ -1,0 +1,204 @@
+#!/usr/bin/python3
+"""Records a live or replayed SLAM run into the offline runner's files (DESIGN.md, "The offline
+runner's contract"), so that evaluate.py scores a ROS run like an offline_slam one.
+
+    record_run.py --out OUT [--session-dir DIR ...] [--bag-start SEC] [--ns /uw_multislam]
+
+Subscribes to the back-end's outputs and, when it is stopped (SIGINT / SIGTERM / rosnode kill),
+writes into OUT:
+
+  odometry.csv    session,index,x_m,y_m,yaw_rad            Keyframe.odometry_pose (session frame)
+  trajectory.csv  session,index,map,x_m,y_m,yaw_rad        the last paths/session_<id> (nav_msgs/Path
+                                                            in the map frame, one pose per keyframe in
+                                                            order) and the map of the last
+                                                            session_trajectory of each session
+  loops.csv       session_a,index_a,session_b,index_b,kind,inliers    every Loop message
+  loop_poses.csv  session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad the loops' measured X_b^a
+
+Numbering. The contract numbers sessions by dataset folder and frames by their frames.csv index.
+With --session-dir (the folders whose bags are played, in order) a keyframe is placed by its stamp:
+frame k of folder i was played at bag-start + stamp_s (make_survey and folder_to_bag use
+--bag-start 1700000000 by default). So a session the odometry starts inside one folder (tracking
+loss) keeps that folder's number, as offline_slam does, and dropped frames do not shift indexes.
+Without folders the ROS session id and Keyframe.frame_index are used as they are. A map is named by
+its first session, converted to the folder number the same way.
+
+Sessions are found as they appear: a new session id in keyframes or session_trajectory opens a
+subscriber to its latched paths/session_<id>. Wall time only (no rospy.sleep): under use_sim_time
+the clock stops with the bag.
+"""
+import argparse
+import csv
+import math
+import os
+import sys
+import threading
+
+import rospy
+from nav_msgs.msg import Path
+from uw_multislam.msg import Keyframe, Loop, SessionTrajectory
+
+
+def yaw_of(q):
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def stamp_key(seconds):
+    return int(round(seconds * 1000.0))  # milliseconds: bag stamps are start + stamp_s
+
+
+def read_frame_stamps(folders, bag_start):
+    """(stamp in ms) -> (folder number, frame index) over every frame of every folder."""
+    table = {}
+    for number, folder in enumerate(folders):
+        path = os.path.join(folder, "frames.csv")
+        with open(path, newline="") as f:
+            for row in csv.DictReader(f):
+                key = stamp_key(bag_start + float(row["stamp_s"]))
+                if key in table:
+                    raise ValueError("%s: frame %s has the stamp of another frame (%s)" % (path, row["index"],
+                                                                                           table[key]))
+                table[key] = (number, int(row["index"]))
+    return table
+
+
+class Recorder:
+    def __init__(self, ns, frame_stamps):
+        self.ns = ns.rstrip("/")
+        self.frame_stamps = frame_stamps  # None: ROS ids as they are
+        self.lock = threading.Lock()
+        self.keyframes = {}  # (ros session, keyframe id) -> Keyframe fields we keep
+        self.loops = []
+        self.paths = {}  # ros session -> last Path
+        self.maps = {}  # ros session -> map (ros session id) of its last session_trajectory
+        self.path_subs = {}
+        self.unplaced = 0
+        rospy.Subscriber(self.ns + "/keyframes", Keyframe, self.on_keyframe, queue_size=1000, buff_size=2 ** 24)
+        rospy.Subscriber(self.ns + "/loops", Loop, self.on_loop, queue_size=1000)
+        rospy.Subscriber(self.ns + "/session_trajectory", SessionTrajectory, self.on_trajectory, queue_size=100)
+
+    def watch(self, session):
+        """Subscribes to a session's latched path once (caller holds the lock)."""
+        if session in self.path_subs:
+            return
+        self.path_subs[session] = rospy.Subscriber(
+            "%s/paths/session_%d" % (self.ns, session), Path, lambda msg: self.on_path(session, msg), queue_size=10)
+
+    def place(self, session, frame_index, stamp):
+        """(folder number, frame index) of a keyframe."""
+        if self.frame_stamps is None:
+            return session, frame_index
+        found = self.frame_stamps.get(stamp_key(stamp.to_sec()))
+        if found is None:
+            self.unplaced += 1
+        return found
+
+    def on_keyframe(self, msg):
+        with self.lock:
+            if not any(s == msg.session for s, _ in self.keyframes):
+                print("[record_run] session %d: first keyframe" % msg.session, flush=True)
+            self.watch(msg.session)
+            self.keyframes[(msg.session, msg.keyframe)] = {
+                "key": self.place(msg.session, msg.frame_index, msg.header.stamp),
+                "odometry": (msg.odometry_pose.x, msg.odometry_pose.y, msg.odometry_pose.theta),
+                "stamp": msg.header.stamp,
+            }
+
+    def on_loop(self, msg):
+        with self.lock:
+            self.loops.append(msg)
+
+    def on_trajectory(self, msg):
+        with self.lock:
+            self.maps[msg.session] = msg.map
+            self.watch(msg.session)
+
+    def on_path(self, session, msg):
+        with self.lock:
+            self.paths[session] = msg
+
+    def key_of(self, session, keyframe, stamp=None):
+        kf = self.keyframes.get((session, keyframe))
+        if kf is not None:
+            return kf["key"]
+        if stamp is not None and self.frame_stamps is not None:
+            return self.frame_stamps.get(stamp_key(stamp.to_sec()))
+        return None
+
+    def write(self, out):
+        with self.lock:
+            os.makedirs(out, exist_ok=True)
+            counts = {"odometry": 0, "trajectory": 0, "loops": 0, "missing": 0}
+            with open(os.path.join(out, "odometry.csv"), "w") as f:
+                f.write("session,index,x_m,y_m,yaw_rad\n")
+                for _, kf in sorted(self.keyframes.items()):
+                    if kf["key"] is None:
+                        continue
+                    x, y, yaw = kf["odometry"]
+                    f.write("%d,%d,%.6f,%.6f,%.7f\n" % (kf["key"] + (x, y, yaw)))
+                    counts["odometry"] += 1
+            first_key = {}  # ros session -> its first keyframe's folder number
+            for (session, keyframe), kf in sorted(self.keyframes.items()):
+                if kf["key"] is not None and session not in first_key:
+                    first_key[session] = kf["key"][0]
+            with open(os.path.join(out, "trajectory.csv"), "w") as f:
+                f.write("session,index,map,x_m,y_m,yaw_rad\n")
+                for session, path in sorted(self.paths.items()):
+                    ros_map = self.maps.get(session, session)
+                    map_id = first_key.get(ros_map, ros_map)
+                    for k, p in enumerate(path.poses):
+                        key = self.key_of(session, k, p.header.stamp)
+                        if key is None:
+                            counts["missing"] += 1
+                            continue
+                        f.write("%d,%d,%d,%.6f,%.6f,%.7f\n" % (key[0], key[1], map_id, p.pose.position.x,
+                                                               p.pose.position.y, yaw_of(p.pose.orientation)))
+                        counts["trajectory"] += 1
+            with open(os.path.join(out, "loops.csv"), "w") as f, \
+                    open(os.path.join(out, "loop_poses.csv"), "w") as g:
+                f.write("session_a,index_a,session_b,index_b,kind,inliers\n")
+                g.write("session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad\n")
+                for loop in self.loops:
+                    a = self.key_of(loop.session_a, loop.keyframe_a)
+                    b = self.key_of(loop.session_b, loop.keyframe_b, loop.header.stamp)
+                    if a is None or b is None:
+                        counts["missing"] += 1
+                        continue
+                    kind = "local" if loop.kind == Loop.LOCAL else "global"
+                    f.write("%d,%d,%d,%d,%s,%d\n" % (a + b + (kind, loop.inliers)))
+                    g.write("%d,%d,%d,%d,%.6f,%.6f,%.7f\n" % (a + b + (loop.pose.x, loop.pose.y, loop.pose.theta)))
+                    counts["loops"] += 1
+            sessions = sorted({s for s, _ in self.keyframes})
+            print("[record_run] %d sessions %s, %d keyframes (%d odometry rows), %d trajectory rows from %d paths, "
+                  "%d loops; %d keyframes not placed by stamp, %d rows skipped -> %s" % (
+                      len(sessions), sessions, len(self.keyframes), counts["odometry"], counts["trajectory"],
+                      len(self.paths), counts["loops"], self.unplaced, counts["missing"], out), flush=True)
+            return counts
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", required=True, help="directory for the run's CSV files")
+    parser.add_argument("--session-dir", action="append", default=[], metavar="DIR",
+                        help="dataset folder whose bag is played, in order (repeat); places keyframes by stamp")
+    parser.add_argument("--bag-start", type=float, default=1700000000.0,
+                        help="stamp of stamp_s = 0 in the bags (default 1700000000, make_survey's)")
+    parser.add_argument("--ns", default="/uw_multislam", help="namespace of the SLAM topics")
+    parser.add_argument("--ready-file", help="created once subscribed (for scripts that wait for it)")
+    args = parser.parse_args(rospy.myargv()[1:])
+    try:
+        frame_stamps = read_frame_stamps(args.session_dir, args.bag_start) if args.session_dir else None
+    except (OSError, ValueError, KeyError) as e:
+        sys.exit("record_run: %s" % e)
+
+    rospy.init_node("record_run", disable_signals=False)
+    recorder = Recorder(args.ns, frame_stamps)
+    if args.ready_file:
+        open(args.ready_file, "w").close()
+    rospy.spin()  # until SIGINT / SIGTERM / rosnode kill
+    recorder.write(args.out)
+
+
+if __name__ == "__main__":
+    main()
