@@ -18,37 +18,17 @@ import time
 import unittest
 
 import rosgraph
-import roslib.packages
 import rosnode
 import rospy
 import rostest
+from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers
 from nav_msgs.msg import Path
 from uw_multislam.msg import Loop, Status
 from uw_multislam.srv import JoinSessions, ListSessions, SplitSession, StartSession, ReloadSession
 from visualization_msgs.msg import MarkerArray
 
-SURVEY = """
-seed: 5
-world: {width_m: 12, height_m: 10, metres_per_px: 0.008, featureless_fraction: 0.0}
-sessions:
-  - name: s0
-    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
-    mission: {pattern: loop, start_m: [6.0, 5.0], length_m: 3.5, width_m: 2.5, laps: 1.3, speed_m_s: 0.35,
-              frame_period_s: 1.0, altitude_m: 1.6, start_time_s: 0}
-  - name: s1
-    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
-    mission: {pattern: loop, start_m: [6.5, 5.5], heading_rad: 1.5708, length_m: 2.5, width_m: 3.0, laps: 1.0,
-              speed_m_s: 0.35, frame_period_s: 1.0, altitude_m: 1.7, start_time_s: 1000}
-"""
-NS = "/uw_multislam"
 JOIN_TOLERANCE_M = 0.10  # joined session 1 vs the ground truth in session 0's frame (about 3 m away)
 
-
-def tool(name):
-    found = roslib.packages.find_node("uw_multislam", name)
-    if not found:
-        raise RuntimeError("uw_multislam/%s not built" % name)
-    return found[0]
 
 
 def yaw_of(q):
@@ -94,10 +74,10 @@ class BackendTest(unittest.TestCase):
         cls.list = rospy.ServiceProxy(NS + "/list_sessions", ListSessions)
         cls.start = rospy.ServiceProxy(NS + "/start_session", StartSession)
         cls.reload = rospy.ServiceProxy(NS + "/reload_session", ReloadSession)
-        cls.wait_for_subscribers()
+        wait_for_subscribers(["/camera/image_raw", NS + "/keyframes", NS + "/loops"], "/check_backend")
         for name in ("s0", "s1"):
             subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", "4", os.path.join(cls.mission, name + ".bag"),
-                            "--topics", "/camera/image_raw", "/camera/camera_info", "/altitude"], check=True,
+                            "--topics"] + SENSOR_TOPICS, check=True,
                            timeout=120)
             cls.wait_until_quiet(5.0)
         with open(os.path.join(cls.mission, "world_gt.csv")) as f:
@@ -107,19 +87,6 @@ class BackendTest(unittest.TestCase):
     @classmethod
     def tearDownClass(cls):
         shutil.rmtree(cls.tmp, ignore_errors=True)
-
-    @classmethod
-    def wait_for_subscribers(cls, timeout=60.0):
-        master = rosgraph.Master("/check_backend")
-        wanted = ["/camera/image_raw", NS + "/keyframes", NS + "/loops"]
-        deadline = time.time() + timeout
-        while time.time() < deadline:
-            subscribed = {t: n for t, n in master.getSystemState()[1]}
-            if all(any(n != rospy.get_name() for n in subscribed.get(t, [])) for t in wanted):
-                time.sleep(2.0)
-                return
-            time.sleep(0.5)
-        raise AssertionError("the pipeline did not subscribe to %s" % wanted)
 
     @classmethod
     def wait_until_quiet(cls, quiet_s, timeout=120.0):

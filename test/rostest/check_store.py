@@ -17,34 +17,13 @@ import threading
 import time
 import unittest
 
-import rosgraph
-import roslib.packages
 import rospy
 import rostest
+from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
 from uw_multislam.srv import ListSessions, ReloadSession
 
-SURVEY = """
-seed: 5
-world: {width_m: 12, height_m: 10, metres_per_px: 0.008, featureless_fraction: 0.0}
-sessions:
-  - name: s0
-    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
-    mission: {pattern: loop, start_m: [6.0, 5.0], length_m: 3.5, width_m: 2.5, laps: 1.3, speed_m_s: 0.35,
-              frame_period_s: 1.0, altitude_m: 1.6, start_time_s: 0}
-  - name: s1
-    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
-    mission: {pattern: loop, start_m: [6.5, 5.5], heading_rad: 1.5708, length_m: 2.5, width_m: 3.0, laps: 1.0,
-              speed_m_s: 0.35, frame_period_s: 1.0, altitude_m: 1.7, start_time_s: 1000}
-"""
-NS = "/uw_multislam"
 
-
-def tool(name):
-    found = roslib.packages.find_node("uw_multislam", name)
-    if not found:
-        raise RuntimeError("uw_multislam/%s not built" % name)
-    return found[0]
 
 
 def backend_pid():
@@ -77,19 +56,10 @@ class StoreTest(unittest.TestCase):
         cls.list = rospy.ServiceProxy(NS + "/list_sessions", ListSessions, persistent=False)
         cls.reload = rospy.ServiceProxy(NS + "/reload_session", ReloadSession, persistent=False)
         rospy.wait_for_service(NS + "/list_sessions", timeout=60)
-        master = rosgraph.Master("/check_store")
-        deadline = time.time() + 60
-        while time.time() < deadline:
-            subscribed = {t: n for t, n in master.getSystemState()[1]}
-            if all(any(n != rospy.get_name() for n in subscribed.get(t, []))
-                   for t in ("/camera/image_raw", NS + "/keyframes", NS + "/loops")):
-                break
-            time.sleep(0.5)
-        time.sleep(2.0)
+        wait_for_subscribers(["/camera/image_raw", NS + "/keyframes", NS + "/loops"], "/check_store")
 
         # 1. Replay session 0 and kill the back-end after 8 keyframes.
-        play = subprocess.Popen(["rosbag", "play", "-q", "-r", "3", os.path.join(cls.mission, "s0.bag"), "--topics",
-                                 "/camera/image_raw", "/camera/camera_info", "/altitude"])
+        play = subprocess.Popen(["rosbag", "play", "-q", "-r", "3", os.path.join(cls.mission, "s0.bag"), "--topics"] + SENSOR_TOPICS)
         cls.killed_after = None
         deadline = time.time() + 120
         while time.time() < deadline and cls.killed_after is None:
@@ -144,7 +114,7 @@ class StoreTest(unittest.TestCase):
         with self.lock:
             loops_before = len(self.loops)
         subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", "4", os.path.join(self.mission, "s1.bag"),
-                        "--topics", "/camera/image_raw", "/camera/camera_info", "/altitude"], check=True, timeout=120)
+                        "--topics"] + SENSOR_TOPICS, check=True, timeout=120)
         deadline = time.time() + 60
         while time.time() < deadline:
             with self.lock:

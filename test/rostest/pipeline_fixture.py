@@ -1,0 +1,45 @@
+"""Shared by the rostests: the small two-session mission they replay, the tool lookup, and the
+waits for the pipeline's subscriptions."""
+import time
+
+import rosgraph
+import roslib.packages
+import rospy
+
+# Two overlapping loops (240 x 180 images); session 1's stamps start 1000 s after session 0's, so
+# the odometry starts session 1 by its stamp gap rule when the bags are played one after another.
+SURVEY = """
+seed: 5
+world: {width_m: 12, height_m: 10, metres_per_px: 0.008, featureless_fraction: 0.0}
+sessions:
+  - name: s0
+    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
+    mission: {pattern: loop, start_m: [6.0, 5.0], length_m: 3.5, width_m: 2.5, laps: 1.3, speed_m_s: 0.35,
+              frame_period_s: 1.0, altitude_m: 1.6, start_time_s: 0}
+  - name: s1
+    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
+    mission: {pattern: loop, start_m: [6.5, 5.5], heading_rad: 1.5708, length_m: 2.5, width_m: 3.0, laps: 1.0,
+              speed_m_s: 0.35, frame_period_s: 1.0, altitude_m: 1.7, start_time_s: 1000}
+"""
+NS = "/uw_multislam"
+SENSOR_TOPICS = ["/camera/image_raw", "/camera/camera_info", "/altitude"]
+
+
+def tool(name):
+    found = roslib.packages.find_node("uw_multislam", name)
+    if not found:
+        raise RuntimeError("uw_multislam/%s not built" % name)
+    return found[0]
+
+
+def wait_for_subscribers(topics, caller, timeout=60.0):
+    """Until a node other than this test subscribes to each topic, then 2 s for the connections."""
+    master = rosgraph.Master(caller)
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        subscribed = {t: n for t, n in master.getSystemState()[1]}
+        if all(any(n != rospy.get_name() for n in subscribed.get(t, [])) for t in topics):
+            time.sleep(2.0)
+            return
+        time.sleep(0.5)
+    raise AssertionError("the pipeline did not subscribe to %s within %.0f s" % (topics, timeout))
