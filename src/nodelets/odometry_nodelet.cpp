@@ -167,8 +167,15 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::thread worker_;
 
   // Arrivals, written by the callbacks (wall seconds of the last one, 0 = never).
-  std::atomic<long> images_in_{0}, infos_in_{0}, ranges_in_{0}, synced_{0};
+  std::atomic<long> images_in_{0}, infos_in_{0}, ranges_in_{0};
   std::atomic<double> last_image_{0.0}, last_info_{0.0}, last_range_{0.0}, last_synced_{0.0};
+  // Images since the last altitude, and the wall time of the first of them: the altitude topic is
+  // silent when images have kept coming without one for ~input_timeout_s (a pause of every input
+  // is not a silent altitude).
+  std::atomic<long> images_since_range_{0}, images_since_sync_{0};
+  std::atomic<double> first_image_since_range_{0.0}, first_image_since_sync_{0.0};
+  long synced_ = 0;             // guarded by mutex_: frames handed to the FIFO (or dropped by it)
+  long taken_ = 0;              // guarded by mutex_: frames the worker took from the FIFO
   const double started_ = wallNow();
 
   // The worker's counters as last published, for the diagnostics thread.
@@ -285,14 +292,19 @@ void OdometryNodelet::onInit() {
   info_sub_.subscribe(nh, topics::kCameraInfo, o.sync_queue_size);
   // Arrivals per input, for the silent-input watchdog and images_not_paired.
   image_sub_.registerCallback(boost::function<void(const sensor_msgs::ImageConstPtr&)>(
-      [this](const sensor_msgs::ImageConstPtr&) { ++images_in_, last_image_ = wallNow(); }));
+      [this](const sensor_msgs::ImageConstPtr&) {
+        const double now = wallNow();
+        ++images_in_, last_image_ = now;
+        if (images_since_range_++ == 0) first_image_since_range_ = now;
+        if (images_since_sync_++ == 0) first_image_since_sync_ = now;
+      }));
   info_sub_.registerCallback(boost::function<void(const sensor_msgs::CameraInfoConstPtr&)>(
       [this](const sensor_msgs::CameraInfoConstPtr&) { ++infos_in_, last_info_ = wallNow(); }));
   const ros::Duration max_interval(o.sync_max_interval_s);
   if (o.use_altitude_topic) {
     range_sub_.subscribe(nh, topics::kAltitude, o.sync_queue_size);
     range_sub_.registerCallback(boost::function<void(const sensor_msgs::RangeConstPtr&)>(
-        [this](const sensor_msgs::RangeConstPtr&) { ++ranges_in_, last_range_ = wallNow(); }));
+        [this](const sensor_msgs::RangeConstPtr&) { ++ranges_in_, last_range_ = wallNow(), images_since_range_ = 0; }));
     sync3_ = std::make_unique<message_filters::Synchronizer<SyncWithAltitude>>(SyncWithAltitude(o.sync_queue_size),
                                                                                image_sub_, info_sub_, range_sub_);
     sync3_->setMaxIntervalDuration(max_interval);
@@ -316,14 +328,14 @@ void OdometryNodelet::onSynced(const sensor_msgs::ImageConstPtr& image, const se
   Frame f{image, info, range, false};
   if (!range && options_.use_altitude_topic) {
     // The image + camera_info pairing with a fallback altitude: only while the topic is silent.
-    const double now = wallNow(), last = last_range_;
-    if (now - (last > 0 ? last : started_) < options_.input_timeout_s) return;
+    if (images_since_range_ == 0 || wallNow() - first_image_since_range_ < options_.input_timeout_s) return;
     f.fixed_altitude = true;
   }
-  ++synced_;
   last_synced_ = wallNow();
+  images_since_sync_ = 0;
   {
     std::lock_guard<std::mutex> lock(mutex_);
+    ++synced_;
     if (static_cast<int>(queue_.size()) >= options_.queue_size) {
       queue_.pop_front();
       ++dropped_;
@@ -352,6 +364,7 @@ void OdometryNodelet::work() {
       if (stopping_) return;
       f = queue_.front();
       queue_.pop_front();
+      ++taken_;
       counts_.dropped = dropped_;
     }
     const ros::WallTime start = ros::WallTime::now();
@@ -527,16 +540,16 @@ void OdometryNodelet::publishKeyframes(const Frame& f, const cv::Mat& image, con
 
 std::string OdometryNodelet::silentInput(double now) const {
   const double timeout = options_.input_timeout_s;
-  const double image = last_image_, synced = last_synced_;
-  if (image <= 0 || now - image > timeout) return "";                      // no images: nothing to pair
-  if (now - (synced > 0 ? synced : started_) <= timeout) return "";         // pairs are coming
+  const double image = last_image_;
+  if (image <= 0 || now - image > timeout) return "";  // no images (a pause of every input): nothing to pair
+  if (images_since_sync_ == 0 || now - first_image_since_sync_ <= timeout) return "";  // pairs are coming
   auto age = [&](double last) { return now - (last > 0 ? last : started_); };
   std::ostringstream os;
   os << "images arrive on " << image_sub_.getTopic() << " but none was paired for " << std::fixed
-     << std::setprecision(0) << age(synced) << " s: ";
+     << std::setprecision(0) << now - first_image_since_sync_ << " s: ";
   if (age(last_info_) > timeout) {
     os << "no camera_info on " << info_sub_.getTopic();
-  } else if (options_.use_altitude_topic && age(last_range_) > timeout) {
+  } else if (options_.use_altitude_topic && images_since_range_ > 0 && now - first_image_since_range_ > timeout) {
     os << "no altitude on " << range_sub_.getTopic()
        << " (set ~fallback_altitude to fly on a fixed altitude, or ~use_altitude_topic false)";
   } else {
@@ -557,16 +570,18 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
     std::lock_guard<std::mutex> lock(stats_mutex_);
     c = published_;
   }
-  long dropped = 0, queued = 0;
+  long dropped = 0, queued = 0, synced = 0, taken = 0;
+  const long images = images_in_;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     dropped = dropped_;
     queued = static_cast<long>(queue_.size());
+    synced = synced_;
+    taken = taken_;
   }
-  const long images = images_in_, synced = synced_;
   // Images the synchroniser has not paired (a few are always waiting in its queue).
   const long not_paired = std::max(0L, images - synced);
-  const double processed = static_cast<double>(c.frames);
+  const double processed = static_cast<double>(c.frames);  // frames finished (for the mean time)
   using ros_diagnostics::Counter;
   diagnostic_status_.fill(
       stat,
@@ -575,7 +590,7 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
        {"altitudes_received", static_cast<double>(ranges_in_)},
        {"frames_synchronised", static_cast<double>(synced)},
        {"images_not_paired", static_cast<double>(not_paired)},
-       {"frames_processed", processed},
+       {"frames_processed", static_cast<double>(taken)},  // taken by the worker (finished or in progress)
        {"dropped_queue_full", static_cast<double>(dropped), true},
        {"queue_length", static_cast<double>(queued)},
        {"skipped_empty_image", static_cast<double>(c.empty_image), true},
