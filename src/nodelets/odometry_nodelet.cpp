@@ -477,9 +477,12 @@ void OdometryNodelet::process(const Frame& f) {
     startSession(requested, camera, "requested on " + std::string(topics::kActiveSession));
   } else if (core::StampGuard::startsSession(timing)) {
     ++(timing == core::StampClass::kJumpBack ? counts_.jumps_back : counts_.jumps_forward);
-    NODELET_WARN("odometry: image stamps jumped %s by %.3f s (%s)", timing == core::StampClass::kJumpBack ? "back" : "forward",
-                 (stamp - last_stamp_).toSec(),
-                 timing == core::StampClass::kJumpBack ? "a bag that loops, or a clock reset" : "a gap in the images");
+    if (timing == core::StampClass::kJumpBack) {
+      NODELET_WARN("odometry: image stamps jumped back by %.3f s (a bag that loops, or a clock reset)",
+                   (last_stamp_ - stamp).toSec());
+    } else {
+      NODELET_INFO("odometry: image stamps jumped forward by %.3f s (a gap in the images)", (stamp - last_stamp_).toSec());
+    }
     startSession(session_ + 1, camera,
                  "image stamps jumped by " + std::to_string((stamp - last_stamp_).toSec()) + " s");
   } else {
