@@ -53,7 +53,7 @@ total() {  # total STAGE...: the sum of their total_ms in the two-session run
   done
   echo "$sum"
 }
-per_kf() { printf "%.2f" "$(echo "$(total "$@") / $kf2" | bc -l)"; }
+per_kf() { printf "%.3f" "$(echo "$(total "$@") / $kf2" | bc -l)"; }
 frames2=$(awk -F, '$1=="odometry_total" {print $2}' "$timing")
 features_ms=$(total features)
 pipeline_ms=$(total odometry_total hash hash_query local_candidates local_verify global_verify backend)
@@ -90,7 +90,10 @@ store_n=1000; [ "$quick" = 1 ] || store_n="1000 10000"
 log "bench_store"
 # shellcheck disable=SC2086
 "$bin/bench_store" $(for n in $store_n; do echo --keyframes "$n"; done) > "$out/bench_store.md" 2>&1 || true
-store_kb=$(awk -F'|' '$2 ~ /[0-9]/ {gsub(/ /, "", $3); print $3; exit}' "$out/bench_store.md")
+store_row() {  # store_row N -> "kB per keyframe|write ms per keyframe"
+  awk -F'|' -v n="$1" '{gsub(/ /, "", $2)} $2==n {gsub(/ /, "", $4); gsub(/ /, "", $5); printf "%.1f|%s", $4 / 1000, $5; exit}' \
+    "$out/bench_store.md"
+}
 
 # --- odometry against the OpenCV baseline ------------------------------------------------------------
 odo="skipped (--quick)"
@@ -121,6 +124,11 @@ done
 IFS='|' read -r so sl sr <<< "${sparse[1000]}"
 IFS='|' read -r io il ir <<< "$iekf1k"
 label=$(IFS=/; echo "${sizes[*]}")
+store_cells=""
+for n in $store_n; do
+  IFS='|' read -r skb sms <<< "$(store_row "$n")"
+  store_cells+="${store_cells:+; }$n keyframes: $skb kB, $sms ms written"
+done
 
 echo "### uw_multislam benchmark: $(date -u '+%F %H:%M UTC'), $cpu, $(nproc) cores$([ "$quick" = 1 ] && echo ', --quick')"
 echo
@@ -138,13 +146,13 @@ echo "| | optimisation (sparse back-end) | $(per_kf backend) |"
 echo "| | whole pipeline (odometry of every frame + loops + back-end) | $(per_kf odometry_total hash hash_query local_candidates local_verify global_verify backend) |"
 echo "| | whole pipeline / feature extraction (target ≤ 1.3×) | ${ratio}× |"
 echo "| memory | per keyframe, pipeline (peak RSS, $kf1 → $kf2 keyframes: $((rss1 / 1024)) → $((rss2 / 1024)) MB) | $mem_per_kf kB |"
-echo "| | per keyframe in the session store (bench_store) | ${store_kb:-n/a} |"
-echo "| growth, $label keyframes | hash query, median ms | $q100 / $q1k / $q10k |"
+echo "| | per keyframe in the session store on disk (bench_store, fsync per keyframe) | ${store_cells:-n/a} |"
+echo "| growth, 100 / 1000 / 10000 keyframes | hash query, median ms | $q100 / $q1k / $q10k |"
 echo "| | hash store, MB | $m100 / $m1k / $m10k |"
-echo "| | sparse optimisation, all loops (10 % of keyframes), ms | $growth_opt |"
+echo "| growth, $label keyframes (bench_backend --cost) | sparse optimisation of all loops (10 % of keyframes), ms | $growth_opt |"
 echo "| | sparse optimisation, peak RSS MB | $growth_rss |"
 echo "| IEKF vs sparse (1000 keyframes, 100 loops) | optimise all loops ms; one more loop ms; peak RSS MB | IEKF $io; $il; $ir — sparse $so; $sl; $sr |"
-echo "| HALOC (k = 10) vs brute force (demo s1 → s0) | accepted / correct / recall / ms per keyframe | HALOC $h5a / $h5c / $h5r / $h5ms — brute force $bfa / $bfc / $bfr / $bfms |"
+echo "| the paper's HALOC hash (k = 10) vs brute force (bench_loops, demo s1 → s0) | accepted / correct / recall / ms per keyframe | HALOC $h5a / $h5c / $h5r / $h5ms — brute force $bfa / $bfc / $bfr / $bfms |"
 echo "| our odometry vs naive OpenCV baseline | end drift | $odo |"
 echo
 echo "Run time $(( $(date +%s) - start_s )) s; raw outputs in $out."

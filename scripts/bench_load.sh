@@ -4,11 +4,11 @@
 # read from /diagnostics (scripts/diagnostics_snapshot.py) and the nodelet manager's peak RSS
 # (VmHWM) from /proc. Prints one markdown table and the highest rate held without a dropped or
 # unpaired frame. Not a test: numbers for this machine.
-# usage: scripts/bench_load.sh [--rates "1 2 5 10 20 40"] [--preset NAME] [OUT_DIR]
-#   default mission: make_survey --preset demo, session s0 (its bag); rates 1 2 5 10 20 40.
+# usage: scripts/bench_load.sh [--rates "1 2 5 10 20 40 80 160"] [--preset NAME] [OUT_DIR]
+#   default mission: make_survey --preset demo, session s0 (its bag); rates 1 2 5 10 20 40 80 160.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
-rates="1 2 5 10 20 40"
+rates="1 2 5 10 20 40 80 160"
 preset=demo
 while [ $# -gt 0 ]; do
   case "$1" in
