@@ -36,6 +36,7 @@
 // back-end has not received yet waits (up to ~max_waiting_loops, oldest dropped and counted) and is
 // retried after each keyframe. The odometry/pose callback only reads the active session's
 // correction under the mutex and publishes.
+#include <diagnostic_updater/diagnostic_updater.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/TransformStamped.h>
 #include <nodelet/nodelet.h>
@@ -71,6 +72,7 @@
 #include "uw_multislam/core/slam_config.h"
 #include "uw_multislam/ros/backend_conversions.h"
 #include "uw_multislam/ros/conversions.h"
+#include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 #include "uw_multislam/ros/slam_params.h"
 #include "uw_multislam/ros/topics.h"
@@ -126,8 +128,13 @@ class BackendNodelet : public nodelet::Nodelet {
   void storeKeyframe(int ext, int keyframe, const rc::KeyframeData* k, const core::UncertainPose2* motion,
                      const ros::Time& stamp);
   void saveMaps();
+  void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
   core::SlamConfig config_;
+  double diagnostic_period_s_ = 1.0;
+  std::unique_ptr<diagnostic_updater::Updater> updater_;
+  ros_diagnostics::CounterStatus diagnostic_status_;  // the timer's thread only
+  ros::WallTimer diagnostic_timer_;
   std::string store_path_;
   std::unique_ptr<core::SessionStore> store_;
   std::unique_ptr<core::ImageHasher> hasher_;
@@ -165,6 +172,7 @@ class BackendNodelet : public nodelet::Nodelet {
 };
 
 BackendNodelet::~BackendNodelet() {
+  diagnostic_timer_.stop();
   keyframe_sub_.shutdown();
   loop_sub_.shutdown();
   pose_sub_.shutdown();
@@ -190,6 +198,7 @@ void BackendNodelet::readParameters() {
       param(pnh, "max_waiting_loops", 1000, [](int v) { return v >= 1 && v <= 1000000; }, "in [1, 1000000]");
   publish_tf_ = param(pnh, "publish_tf", true, [](bool) { return true; }, "a bool");
   stats_period_s_ = param(pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
+  diagnostic_period_s_ = param(pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
   const char* ros_home = std::getenv("ROS_HOME");
   const char* home = std::getenv("HOME");
   const std::string default_store =
@@ -235,6 +244,11 @@ void BackendNodelet::onInit() {
                   e.what());
     throw;
   }
+  updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
+  updater_->setHardwareID("none");
+  updater_->add("backend", this, &BackendNodelet::fillDiagnostics);
+  diagnostic_timer_ = nh.createWallTimer(ros::WallDuration(diagnostic_period_s_),
+                                         [this](const ros::WallTimerEvent&) { updater_->force_update(); });
   if (!sessions_.empty()) {
     // Stored sessions hold ids 0..k-1: the odometry continues from k.
     uw_multislam::SessionState st;
@@ -795,6 +809,41 @@ bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_mult
   NODELET_INFO("back-end: reload_session '%s': session %d, %zu keyframes handed to the loop detector", req.name.c_str(),
                ext, kfs.size());
   return true;
+}
+
+void BackendNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat) {
+  long dropped = 0, queued = 0;
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    dropped = dropped_;
+    queued = static_cast<long>(queue_.size());
+  }
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  const core::BackendStats& b = backend_->stats();
+  auto d = [](auto v) { return static_cast<double>(v); };
+  stat.add("optimizer", core::optimizerName(config_.backend.optimizer));
+  stat.add("store", store_ ? store_path_ : std::string("none"));
+  diagnostic_status_.fill(stat,
+                          {{"keyframes_received", d(counts_.keyframes)},
+                           {"keyframes_stale", d(counts_.stale), true},
+                           {"keyframe_gaps", d(counts_.gaps), true},
+                           {"loops_received", d(counts_.loops)},
+                           {"loops_refused", d(counts_.refused), true},
+                           {"loops_waiting", d(waiting_.size())},
+                           {"loops_dropped_waiting", d(counts_.waiting_dropped), true},
+                           {"dropped_queue_full", d(dropped), true},
+                           {"queue_length", d(queued)},
+                           {"bad_messages", d(counts_.bad), true},
+                           {"store_failures", d(store_errors_), true},
+                           {"sessions", d(sessions_.size())},
+                           {"sessions_unloaded", d(unloaded_.size())},
+                           {"maps", d(backend_->mapIds().size())},
+                           {"joins", d(b.joins)},
+                           {"splits", d(b.splits)},
+                           {"loops_refused_at_join", d(b.loops_refused)},
+                           {"optimisations", d(b.optimisations)},
+                           {"optimise_ms_max", b.optimise_ms_max}},
+                          ros::WallTime::now().toSec());
 }
 
 void BackendNodelet::logStats(const char* when) {

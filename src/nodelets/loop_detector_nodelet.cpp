@@ -24,12 +24,15 @@
 // is then never a loop candidate; a keyframe id gap is bridged with the next keyframe's odometry
 // pose). The session_trajectory callback swaps the poses in under the same mutex. One worker
 // thread owns the core::LoopDetector (hashing, candidate search, RANSAC verification) and
-// publishes. Counters are logged every ~stats_period_s and at shutdown.
+// publishes. Counters are logged every ~stats_period_s and at shutdown, and published on
+// /diagnostics every ~diagnostic_period s (WARN while drops, bad keyframes or id gaps grow).
+#include <diagnostic_updater/diagnostic_updater.h>
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
 
 #include <pluginlib/class_list_macros.hpp>
 
+#include <algorithm>
 #include <condition_variable>
 #include <deque>
 #include <map>
@@ -45,6 +48,7 @@
 #include "uw_multislam/core/loop_detector.h"
 #include "uw_multislam/core/slam_config.h"
 #include "uw_multislam/ros/conversions.h"
+#include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 #include "uw_multislam/ros/slam_params.h"
 #include "uw_multislam/ros/topics.h"
@@ -68,6 +72,8 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   };
   struct Counters {
     long keyframes = 0, dropped = 0, bad = 0, gaps = 0, local = 0, global = 0, hashes = 0, reloaded = 0;
+    long sessions = 0, stored = 0, local_candidates = 0, global_candidates = 0;
+    double total_ms = 0.0, max_ms = 0.0;
   };
 
   void onInit() override;
@@ -85,10 +91,12 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   /// The poses used for local candidates: optimised where the back-end has them.
   core::Trajectory candidateTrajectory(int session, const Session& s);
   void logStats(const char* when);
+  void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
   std::string mode_ = "both";
   int queue_size_ = 100;
   double stats_period_s_ = 30.0;
+  double diagnostic_period_s_ = 1.0;
   bool publish_hashes_ = true;
   core::SlamConfig config_;
   std::unique_ptr<core::LoopDetector> detector_;
@@ -107,11 +115,18 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   Counters counts_;
   ros::WallTime last_stats_;
 
+  std::mutex stats_mutex_;
+  Counters published_;  // guarded by stats_mutex_: the worker's counters for the diagnostics
+  std::unique_ptr<diagnostic_updater::Updater> updater_;
+  ros_diagnostics::CounterStatus diagnostic_status_;  // the timer's thread only
+  ros::WallTimer diagnostic_timer_;
+
   ros::Publisher loop_pub_, hash_pub_;
   ros::Subscriber keyframe_sub_, trajectory_sub_, reloaded_sub_;  // last: destroyed first
 };
 
 LoopDetectorNodelet::~LoopDetectorNodelet() {
+  diagnostic_timer_.stop();
   keyframe_sub_.shutdown();
   trajectory_sub_.shutdown();
   reloaded_sub_.shutdown();
@@ -132,6 +147,7 @@ void LoopDetectorNodelet::readParameters() {
                 "one of both, local, global");
   queue_size_ = param(pnh, "queue_size", 100, [](int v) { return v >= 1 && v <= 100000; }, "in [1, 100000]");
   stats_period_s_ = param(pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
+  diagnostic_period_s_ = param(pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
   config_ = ros_params::slamConfigFromParams(getNodeHandle());
   const std::string bad = config_.validate();
   if (!bad.empty()) throw std::invalid_argument(getNodeHandle().resolveName("slam") + ": " + bad);
@@ -161,6 +177,11 @@ void LoopDetectorNodelet::onInit() {
   ros::NodeHandle& nh = getNodeHandle();
   loop_pub_ = nh.advertise<uw_multislam::Loop>(topics::kLoops, 100);
   if (publish_hashes_) hash_pub_ = nh.advertise<uw_multislam::KeyframeHash>(topics::kKeyframeHashes, 100);
+  updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
+  updater_->setHardwareID("none");
+  updater_->add("loop_detector", this, &LoopDetectorNodelet::fillDiagnostics);
+  diagnostic_timer_ = nh.createWallTimer(ros::WallDuration(diagnostic_period_s_),
+                                         [this](const ros::WallTimerEvent&) { updater_->force_update(); });
   worker_ = std::thread([this] { work(); });
   keyframe_sub_ = nh.subscribe(topics::kKeyframes, 100, &LoopDetectorNodelet::onKeyframe, this);
   trajectory_sub_ = nh.subscribe(topics::kSessionTrajectory, 10, &LoopDetectorNodelet::onTrajectory, this);
@@ -229,16 +250,28 @@ void LoopDetectorNodelet::work() {
       }
       counts_.dropped = dropped_;
     }
+    const ros::WallTime start = ros::WallTime::now();
     try {
       if (reloaded) {
         processReloaded(*msg);
-        continue;
+      } else {
+        process(*msg);
       }
-      process(*msg);
     } catch (const std::exception& e) {
       ++counts_.bad;
       NODELET_ERROR_THROTTLE(5, "loop detector: keyframe %d of session %d skipped: %s", msg->keyframe, msg->session,
                              e.what());
+    }
+    const double ms = (ros::WallTime::now() - start).toSec() * 1e3;
+    counts_.total_ms += ms;
+    counts_.max_ms = std::max(counts_.max_ms, ms);
+    counts_.sessions = static_cast<long>(sessions_.size());
+    counts_.stored = static_cast<long>(detector_->size());
+    counts_.local_candidates = detector_->stats().local_candidates;
+    counts_.global_candidates = detector_->stats().global_candidates;
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      published_ = counts_;
     }
     if ((ros::WallTime::now() - last_stats_).toSec() >= stats_period_s_) {
       logStats("so far");
@@ -339,6 +372,39 @@ void LoopDetectorNodelet::process(const uw_multislam::Keyframe& msg) {
     hash_pub_.publish(boost::make_shared<uw_multislam::KeyframeHash>(rc::toKeyframeHashMsg(h, msg.header)));
     ++counts_.hashes;
   }
+}
+
+void LoopDetectorNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat) {
+  Counters c;
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    c = published_;
+  }
+  long dropped = 0, queued = 0;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    dropped = dropped_;
+    queued = static_cast<long>(queue_.size());
+  }
+  const double n = static_cast<double>(c.keyframes);
+  stat.add("mode", mode_);
+  diagnostic_status_.fill(stat,
+                          {{"keyframes_received", n},
+                           {"dropped_queue_full", static_cast<double>(dropped), true},
+                           {"queue_length", static_cast<double>(queued)},
+                           {"skipped_bad_keyframe", static_cast<double>(c.bad), true},
+                           {"keyframe_id_gaps", static_cast<double>(c.gaps), true},
+                           {"sessions", static_cast<double>(c.sessions)},
+                           {"keyframes_stored", static_cast<double>(c.stored)},
+                           {"local_candidates", static_cast<double>(c.local_candidates)},
+                           {"global_candidates", static_cast<double>(c.global_candidates)},
+                           {"local_loops", static_cast<double>(c.local)},
+                           {"global_loops", static_cast<double>(c.global)},
+                           {"hashes", static_cast<double>(c.hashes)},
+                           {"keyframes_reloaded", static_cast<double>(c.reloaded)},
+                           {"ms_per_keyframe_mean", n > 0 ? c.total_ms / n : 0.0},
+                           {"ms_per_keyframe_max", c.max_ms}},
+                          ros::WallTime::now().toSec());
 }
 
 void LoopDetectorNodelet::logStats(const char* when) {

@@ -28,10 +28,25 @@
 // keyframes with reused motions are published only once tracking is confirmed). Without a
 // back-end the ids simply count up.
 //
-// Bad input never stops the node: an image of an unusable encoding or size, a camera_info
-// without a focal length and an altitude that is NaN or outside the sensor's range are counted
-// and logged (throttled); such a frame is skipped, except a bad altitude, which the core replaces
-// by the last valid one (it counts that too). Counters are logged every ~stats_period_s.
+// Bad input never stops the node and never reaches the map; each kind is counted, logged
+// (throttled) and published on /diagnostics (diagnostic_updater, every ~diagnostic_period s,
+// WARN while a drop or skip counter grows; keys in README "Diagnostics"):
+//   - images: encodings are converted or refused as ros/sensor_conversions.h documents
+//     (rgba/bgra drop alpha, 16 bits scaled, Bayer debayered; float/YUV refused); empty, tiny
+//     (< 32 px) or wrongly laid out images and images whose size differs from camera_info are
+//     skipped;
+//   - camera_info without a focal length, or with the principal point outside: frame skipped;
+//   - altitude NaN, <= 0 or outside the sensor's range: the core reuses the last valid one (a
+//     frame before any valid altitude is skipped);
+//   - stamps (core/stamp_guard.h): the same stamp twice is a duplicate, a stamp up to
+//     ~reorder_tolerance_s back is late: both skipped; further back (a bag that loops, a clock
+//     reset) or forward by more than ~session_gap_s: a new session;
+//   - a silent input: images arrive but no synchronised set for ~input_timeout_s (altitude or
+//     camera_info missing, or stamps too far apart): a warning naming the input, diagnostics
+//     WARN. With ~fallback_altitude > 0 frames are then processed at that fixed altitude
+//     (counted); by default they are not (a wrong scale would corrupt the map).
+//   - bursts: the worker's FIFO drops the oldest frame when full (counted); images the
+//     synchroniser never pairs are counted as images_not_paired.
 #include <boost/bind/bind.hpp>
 #include <cv_bridge/cv_bridge.h>
 #include <geometry_msgs/PoseStamped.h>
@@ -40,6 +55,7 @@
 #include <message_filters/subscriber.h>
 #include <message_filters/sync_policies/approximate_time.h>
 #include <message_filters/synchronizer.h>
+#include <diagnostic_updater/diagnostic_updater.h>
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
@@ -50,11 +66,15 @@
 #include <opencv2/imgproc.hpp>
 #include <pluginlib/class_list_macros.hpp>
 
+#include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <condition_variable>
 #include <deque>
+#include <iomanip>
 #include <memory>
+#include <sstream>
 #include <mutex>
 #include <thread>
 
@@ -62,8 +82,10 @@
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/core/odometry.h"
 #include "uw_multislam/core/slam_config.h"
+#include "uw_multislam/core/stamp_guard.h"
 #include "uw_multislam/core/tracking.h"
 #include "uw_multislam/ros/conversions.h"
+#include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 #include "uw_multislam/ros/sensor_conversions.h"
 #include "uw_multislam/ros/slam_params.h"
@@ -83,6 +105,10 @@ struct OdometryNodeletOptions {
   double sync_max_interval_s = 0.1;
   int session = 0;             // id of the first session
   double session_gap_s = 10.0;  // stamps jumping forward more than this start a session; 0 = never
+  double reorder_tolerance_s = 1.0;  // stamps at most this far back are late frames (skipped)
+  double input_timeout_s = 5.0;      // images without a synchronised set this long: warn
+  double fallback_altitude_m = 0.0;  // > 0: used when the altitude topic is silent; 0 = off
+  double diagnostic_period_s = 1.0;
   double stats_period_s = 30.0;
   std::string session_frame_prefix = "session_";
 };
@@ -96,10 +122,17 @@ class OdometryNodelet : public nodelet::Nodelet {
     sensor_msgs::ImageConstPtr image;
     sensor_msgs::CameraInfoConstPtr info;
     sensor_msgs::RangeConstPtr range;  // null without altitude topic
+    bool fixed_altitude = false;       // the altitude topic was silent: ~fallback_altitude is used
   };
   struct Counters {
     long frames = 0, dropped = 0, bad_image = 0, bad_camera = 0, bad_altitude = 0, keyframes = 0, fallbacks = 0,
          sessions = 0, losses = 0;
+    // Image refusals by kind (their sum is bad_image), stamps, altitude fallback, core skips.
+    long empty_image = 0, bad_encoding = 0, bad_layout = 0, tiny_image = 0, size_mismatch = 0;
+    long duplicates = 0, out_of_order = 0, jumps_back = 0, jumps_forward = 0;
+    long fixed_altitude = 0, skipped_by_odometry = 0;
+    double total_ms = 0.0, max_ms = 0.0, last_ms = 0.0;
+    int session = 0;
   };
   using SyncWithAltitude = message_filters::sync_policies::ApproximateTime<sensor_msgs::Image, sensor_msgs::CameraInfo,
                                                                            sensor_msgs::Range>;
@@ -115,6 +148,11 @@ class OdometryNodelet : public nodelet::Nodelet {
   void startSession(int id, const core::CameraIntrinsics& camera, const std::string& why);
   void publishKeyframes(const Frame& f, const cv::Mat& image, const core::OdometryUpdate& u);
   void logStats(const char* when);
+  void onWatchdog(const ros::WallTimerEvent&);
+  void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
+  /// Why synchronised frames are not coming although images are (empty: they are, or no images).
+  std::string silentInput(double now) const;
+  static double wallNow() { return ros::WallTime::now().toSec(); }
 
   OdometryNodeletOptions options_;
   core::SlamConfig config_;
@@ -128,12 +166,32 @@ class OdometryNodelet : public nodelet::Nodelet {
   long dropped_ = 0;            // guarded by mutex_
   std::thread worker_;
 
+  // Arrivals, written by the callbacks (wall seconds of the last one, 0 = never).
+  std::atomic<long> images_in_{0}, infos_in_{0}, ranges_in_{0};
+  std::atomic<double> last_image_{0.0}, last_info_{0.0}, last_range_{0.0}, last_synced_{0.0};
+  // Images since the last altitude, and the wall time of the first of them: the altitude topic is
+  // silent when images have kept coming without one for ~input_timeout_s (a pause of every input
+  // is not a silent altitude).
+  std::atomic<long> images_since_range_{0}, images_since_sync_{0};
+  std::atomic<double> first_image_since_range_{0.0}, first_image_since_sync_{0.0};
+  long synced_ = 0;             // guarded by mutex_: frames handed to the FIFO (or dropped by it)
+  long taken_ = 0;              // guarded by mutex_: frames the worker took from the FIFO
+  const double started_ = wallNow();
+
+  // The worker's counters as last published, for the diagnostics thread.
+  std::mutex stats_mutex_;
+  Counters published_;  // guarded by stats_mutex_
+  std::unique_ptr<diagnostic_updater::Updater> updater_;
+  ros_diagnostics::CounterStatus diagnostic_status_;  // used by the updater's thread only
+  ros::WallTimer watchdog_;
+
   // Worker-only state.
   std::unique_ptr<core::SegmentedOdometry> odometry_;  // the stream's odometry, a new session on tracking loss
   core::CameraIntrinsics camera_;
   int session_ = 0;
   int frame_index_ = 0;
   ros::Time last_stamp_;
+  std::unique_ptr<core::StampGuard> stamps_;
   Counters counts_;
   ros::WallTime last_stats_;
   bool warned_distortion_ = false;
@@ -151,6 +209,7 @@ class OdometryNodelet : public nodelet::Nodelet {
 };
 
 OdometryNodelet::~OdometryNodelet() {
+  watchdog_.stop();
   {
     std::lock_guard<std::mutex> lock(mutex_);
     stopping_ = true;
@@ -178,6 +237,12 @@ void OdometryNodelet::readParameters() {
   options_.session = param(pnh, "session", 0, [](int v) { return v >= 0; }, ">= 0");
   options_.session_gap_s = param(pnh, "session_gap_s", 10.0, [](double v) { return v >= 0; }, ">= 0 (0 = off)");
   options_.stats_period_s = param(pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
+  options_.reorder_tolerance_s =
+      param(pnh, "reorder_tolerance_s", 1.0, [](double v) { return std::isfinite(v) && v >= 0; }, ">= 0");
+  options_.input_timeout_s = param(pnh, "input_timeout_s", 5.0, [](double v) { return v > 0; }, "positive");
+  options_.fallback_altitude_m = param(pnh, "fallback_altitude", 0.0, [](double v) { return std::isfinite(v) && v >= 0; },
+                                       ">= 0 metres (0 = off)");
+  options_.diagnostic_period_s = param(pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
   options_.session_frame_prefix = param(getNodeHandle(), "frames/session_frame_prefix", std::string("session_"),
                                         [](const std::string& s) { return !s.empty(); }, "non-empty");
   config_ = ros_params::slamConfigFromParams(getNodeHandle());
@@ -195,14 +260,18 @@ void OdometryNodelet::onInit() {
   const auto& o = options_;
   NODELET_INFO(
       "odometry: altitude from %s, queue_size %d (oldest dropped when full), sync_queue_size %d, "
-      "sync_max_interval_s %.3f, first session %d, session_gap_s %.1f, stats every %.0f s; n = %d features, "
+      "sync_max_interval_s %.3f, first session %d, session_gap_s %.1f, reorder_tolerance_s %.2f, "
+      "input_timeout_s %.1f, fallback_altitude %s, stats every %.0f s, diagnostics every %.1f s; n = %d features, "
       "enhancement %s, keyframes at overlap < %.2f",
       o.use_altitude_topic ? "the altitude topic" : ("the fixed altitude " + std::to_string(o.altitude_m) + " m").c_str(),
-      o.queue_size, o.sync_queue_size, o.sync_max_interval_s, o.session, o.session_gap_s, o.stats_period_s,
+      o.queue_size, o.sync_queue_size, o.sync_max_interval_s, o.session, o.session_gap_s, o.reorder_tolerance_s,
+      o.input_timeout_s, o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off",
+      o.stats_period_s, o.diagnostic_period_s,
       config_.odometry.features.num_features, core::enhancementName(config_.odometry.enhancement.mode).c_str(),
       config_.odometry.keyframes.min_overlap);
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config_));
   session_ = o.session;
+  stamps_ = std::make_unique<core::StampGuard>(core::StampGuardOptions{o.reorder_tolerance_s, o.session_gap_s});
 
   ros::NodeHandle& nh = getNodeHandle();
   keyframe_pub_ = nh.advertise<uw_multislam::Keyframe>(topics::kKeyframes, 50);
@@ -210,20 +279,40 @@ void OdometryNodelet::onInit() {
   it_ = std::make_unique<image_transport::ImageTransport>(nh);
   keyframe_image_pub_ = it_->advertise(topics::kKeyframeImage, 1);
 
+  updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
+  updater_->setHardwareID("none");
+  updater_->add("odometry", this, &OdometryNodelet::fillDiagnostics);
+  watchdog_ = nh.createWallTimer(ros::WallDuration(o.diagnostic_period_s), &OdometryNodelet::onWatchdog, this);
+
   worker_ = std::thread([this] { work(); });
 
   session_sub_ = nh.subscribe(topics::kActiveSession, 1, &OdometryNodelet::onActiveSession, this);
   const image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
   image_sub_.subscribe(*it_, topics::kImage, o.sync_queue_size, hints);
   info_sub_.subscribe(nh, topics::kCameraInfo, o.sync_queue_size);
+  // Arrivals per input, for the silent-input watchdog and images_not_paired.
+  image_sub_.registerCallback(boost::function<void(const sensor_msgs::ImageConstPtr&)>(
+      [this](const sensor_msgs::ImageConstPtr&) {
+        const double now = wallNow();
+        ++images_in_, last_image_ = now;
+        if (images_since_range_++ == 0) first_image_since_range_ = now;
+        if (images_since_sync_++ == 0) first_image_since_sync_ = now;
+      }));
+  info_sub_.registerCallback(boost::function<void(const sensor_msgs::CameraInfoConstPtr&)>(
+      [this](const sensor_msgs::CameraInfoConstPtr&) { ++infos_in_, last_info_ = wallNow(); }));
   const ros::Duration max_interval(o.sync_max_interval_s);
   if (o.use_altitude_topic) {
     range_sub_.subscribe(nh, topics::kAltitude, o.sync_queue_size);
+    range_sub_.registerCallback(boost::function<void(const sensor_msgs::RangeConstPtr&)>(
+        [this](const sensor_msgs::RangeConstPtr&) { ++ranges_in_, last_range_ = wallNow(), images_since_range_ = 0; }));
     sync3_ = std::make_unique<message_filters::Synchronizer<SyncWithAltitude>>(SyncWithAltitude(o.sync_queue_size),
                                                                                image_sub_, info_sub_, range_sub_);
     sync3_->setMaxIntervalDuration(max_interval);
     sync3_->registerCallback(boost::bind(&OdometryNodelet::onSynced, this, boost::placeholders::_1, boost::placeholders::_2, boost::placeholders::_3));
-  } else {
+  }
+  if (!o.use_altitude_topic || o.fallback_altitude_m > 0) {
+    // Without an altitude topic the only pairing; with one and a fallback altitude, the pairs
+    // used while the altitude topic is silent (onSynced drops them otherwise).
     sync2_ = std::make_unique<message_filters::Synchronizer<SyncNoAltitude>>(SyncNoAltitude(o.sync_queue_size),
                                                                              image_sub_, info_sub_);
     sync2_->setMaxIntervalDuration(max_interval);
@@ -236,9 +325,17 @@ void OdometryNodelet::onInit() {
 
 void OdometryNodelet::onSynced(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info,
                                const sensor_msgs::RangeConstPtr& range) {
-  const Frame f{image, info, range};
+  Frame f{image, info, range, false};
+  if (!range && options_.use_altitude_topic) {
+    // The image + camera_info pairing with a fallback altitude: only while the topic is silent.
+    if (images_since_range_ == 0 || wallNow() - first_image_since_range_ < options_.input_timeout_s) return;
+    f.fixed_altitude = true;
+  }
+  last_synced_ = wallNow();
+  images_since_sync_ = 0;
   {
     std::lock_guard<std::mutex> lock(mutex_);
+    ++synced_;
     if (static_cast<int>(queue_.size()) >= options_.queue_size) {
       queue_.pop_front();
       ++dropped_;
@@ -267,12 +364,23 @@ void OdometryNodelet::work() {
       if (stopping_) return;
       f = queue_.front();
       queue_.pop_front();
+      ++taken_;
       counts_.dropped = dropped_;
     }
+    const ros::WallTime start = ros::WallTime::now();
     try {
       process(f);
     } catch (const std::exception& e) {  // the core throws only on programming errors: log, keep going
       NODELET_ERROR_THROTTLE(5, "odometry: frame skipped, %s", e.what());
+    }
+    const double ms = (ros::WallTime::now() - start).toSec() * 1e3;
+    counts_.total_ms += ms;
+    counts_.max_ms = std::max(counts_.max_ms, ms);
+    counts_.last_ms = ms;
+    counts_.session = session_;
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      published_ = counts_;
     }
     if ((ros::WallTime::now() - last_stats_).toSec() >= options_.stats_period_s) {
       logStats("so far");
@@ -307,23 +415,54 @@ void OdometryNodelet::process(const Frame& f) {
     warned_distortion_ = true;
   }
   cv::Mat image;
-  if (!rc::imageFromMsg(f.image, &image, &why)) {
+  rc::ImageRefusal refusal = rc::ImageRefusal::kNone;
+  if (!rc::imageFromMsg(f.image, &image, &why, &refusal)) {
     ++counts_.bad_image;
+    switch (refusal) {
+      case rc::ImageRefusal::kEmpty: ++counts_.empty_image; break;
+      case rc::ImageRefusal::kTooSmall: ++counts_.tiny_image; break;
+      case rc::ImageRefusal::kLayout: ++counts_.bad_layout; break;
+      default: ++counts_.bad_encoding; break;
+    }
     NODELET_WARN_THROTTLE(5, "odometry: frame skipped: %s (%ld so far)", why.c_str(), counts_.bad_image);
     return;
   }
   if (image.cols != camera.width || image.rows != camera.height) {
     ++counts_.bad_image;
+    ++counts_.size_mismatch;
     NODELET_WARN_THROTTLE(5, "odometry: frame skipped: image %dx%d but camera_info says %dx%d (%ld so far)",
                           image.cols, image.rows, camera.width, camera.height, counts_.bad_image);
     return;
   }
   double altitude = options_.altitude_m;
+  if (f.fixed_altitude) {
+    altitude = options_.fallback_altitude_m;
+    ++counts_.fixed_altitude;
+    NODELET_WARN_THROTTLE(10, "odometry: no altitude on %s for %.0f s: the fixed ~fallback_altitude %.2f m is used "
+                          "(%ld frames so far)", range_sub_.getTopic().c_str(), options_.input_timeout_s,
+                          altitude, counts_.fixed_altitude);
+  }
   if (f.range && !rc::altitudeFromMsg(*f.range, &altitude, &why)) {
     ++counts_.bad_altitude;
     NODELET_WARN_THROTTLE(5, "odometry: %s: the last valid altitude is used (%ld so far)", why.c_str(),
                           counts_.bad_altitude);
     altitude = std::numeric_limits<double>::quiet_NaN();  // the core reuses the last valid one, or skips
+  }
+
+  // Stamps: duplicates and late frames are skipped before they touch the odometry.
+  const ros::Time stamp = f.image->header.stamp;
+  const core::StampClass timing = stamps_->accept(stamp.toSec());
+  if (timing == core::StampClass::kDuplicate) {
+    ++counts_.duplicates;
+    NODELET_WARN_THROTTLE(5, "odometry: frame skipped: stamp %.6f seen before (duplicated frame; %ld so far)",
+                          stamp.toSec(), counts_.duplicates);
+    return;
+  }
+  if (timing == core::StampClass::kOutOfOrder) {
+    ++counts_.out_of_order;
+    NODELET_WARN_THROTTLE(5, "odometry: frame skipped: stamp %.6f is %.3f s before the last frame's (out of order; "
+                          "%ld so far)", stamp.toSec(), (last_stamp_ - stamp).toSec(), counts_.out_of_order);
+    return;
   }
 
   // Session changes, in order of precedence: the back-end's request, a time jump, a new camera.
@@ -332,13 +471,18 @@ void OdometryNodelet::process(const Frame& f) {
     std::lock_guard<std::mutex> lock(mutex_);
     std::swap(requested, requested_session_);
   }
-  const ros::Time stamp = f.image->header.stamp;
   if (!odometry_) {
     startSession(requested >= 0 ? requested : session_, camera, "first frame");
   } else if (requested >= 0 && requested != session_) {
     startSession(requested, camera, "requested on " + std::string(topics::kActiveSession));
-  } else if (stamp < last_stamp_ ||
-             (options_.session_gap_s > 0 && (stamp - last_stamp_).toSec() > options_.session_gap_s)) {
+  } else if (core::StampGuard::startsSession(timing)) {
+    ++(timing == core::StampClass::kJumpBack ? counts_.jumps_back : counts_.jumps_forward);
+    if (timing == core::StampClass::kJumpBack) {
+      NODELET_WARN("odometry: image stamps jumped back by %.3f s (a bag that loops, or a clock reset)",
+                   (last_stamp_ - stamp).toSec());
+    } else {
+      NODELET_INFO("odometry: image stamps jumped forward by %.3f s (a gap in the images)", (stamp - last_stamp_).toSec());
+    }
     startSession(session_ + 1, camera,
                  "image stamps jumped by " + std::to_string((stamp - last_stamp_).toSec()) + " s");
   } else {
@@ -358,6 +502,7 @@ void OdometryNodelet::process(const Frame& f) {
     NODELET_INFO("odometry: tracking resumed at frame %d: session %d starts", u.index, session_);
   }
   if (u.status == core::FrameStatus::kSkipped) {
+    ++counts_.skipped_by_odometry;
     NODELET_WARN_THROTTLE(5, "odometry: frame %d skipped: %s", u.index, u.reason.c_str());
     return;
   }
@@ -396,16 +541,96 @@ void OdometryNodelet::publishKeyframes(const Frame& f, const cv::Mat& image, con
   }
 }
 
+std::string OdometryNodelet::silentInput(double now) const {
+  const double timeout = options_.input_timeout_s;
+  const double image = last_image_;
+  if (image <= 0 || now - image > timeout) return "";  // no images (a pause of every input): nothing to pair
+  if (images_since_sync_ == 0 || now - first_image_since_sync_ <= timeout) return "";  // pairs are coming
+  auto age = [&](double last) { return now - (last > 0 ? last : started_); };
+  std::ostringstream os;
+  os << "images arrive on " << image_sub_.getTopic() << " but none was paired for " << std::fixed
+     << std::setprecision(0) << now - first_image_since_sync_ << " s: ";
+  if (age(last_info_) > timeout) {
+    os << "no camera_info on " << info_sub_.getTopic();
+  } else if (options_.use_altitude_topic && images_since_range_ > 0 && now - first_image_since_range_ > timeout) {
+    os << "no altitude on " << range_sub_.getTopic()
+       << " (set ~fallback_altitude to fly on a fixed altitude, or ~use_altitude_topic false)";
+  } else {
+    os << "their stamps are further apart than ~sync_max_interval_s " << options_.sync_max_interval_s << " s";
+  }
+  return os.str();
+}
+
+void OdometryNodelet::onWatchdog(const ros::WallTimerEvent&) {
+  const std::string silent = silentInput(wallNow());
+  if (!silent.empty()) NODELET_WARN_THROTTLE(10, "odometry: %s", silent.c_str());
+  updater_->force_update();
+}
+
+void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat) {
+  Counters c;
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    c = published_;
+  }
+  long dropped = 0, queued = 0, synced = 0, taken = 0;
+  const long images = images_in_;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    dropped = dropped_;
+    queued = static_cast<long>(queue_.size());
+    synced = synced_;
+    taken = taken_;
+  }
+  // Images the synchroniser has not paired (a few are always waiting in its queue).
+  const long not_paired = std::max(0L, images - synced);
+  const double processed = static_cast<double>(c.frames);  // frames finished (for the mean time)
+  using ros_diagnostics::Counter;
+  diagnostic_status_.fill(
+      stat,
+      {{"images_received", static_cast<double>(images)},
+       {"camera_infos_received", static_cast<double>(infos_in_)},
+       {"altitudes_received", static_cast<double>(ranges_in_)},
+       {"frames_synchronised", static_cast<double>(synced)},
+       {"images_not_paired", static_cast<double>(not_paired)},
+       {"frames_processed", static_cast<double>(taken)},  // taken by the worker (finished or in progress)
+       {"dropped_queue_full", static_cast<double>(dropped), true},
+       {"queue_length", static_cast<double>(queued)},
+       {"skipped_empty_image", static_cast<double>(c.empty_image), true},
+       {"skipped_encoding", static_cast<double>(c.bad_encoding), true},
+       {"skipped_image_layout", static_cast<double>(c.bad_layout), true},
+       {"skipped_tiny_image", static_cast<double>(c.tiny_image), true},
+       {"skipped_size_mismatch", static_cast<double>(c.size_mismatch), true},
+       {"skipped_camera_info", static_cast<double>(c.bad_camera), true},
+       {"skipped_duplicate_stamp", static_cast<double>(c.duplicates), true},
+       {"skipped_out_of_order", static_cast<double>(c.out_of_order), true},
+       {"skipped_by_odometry", static_cast<double>(c.skipped_by_odometry), true},
+       {"bad_altitude_replaced", static_cast<double>(c.bad_altitude), true},
+       {"fixed_altitude_frames", static_cast<double>(c.fixed_altitude), true},
+       {"time_jumps_back", static_cast<double>(c.jumps_back), true},
+       {"time_jumps_forward", static_cast<double>(c.jumps_forward), true},
+       {"fallbacks", static_cast<double>(c.fallbacks), true},
+       {"tracking_losses", static_cast<double>(c.losses), true},
+       {"sessions", static_cast<double>(c.sessions)},
+       {"session", static_cast<double>(c.session)},
+       {"keyframes", static_cast<double>(c.keyframes)},
+       {"ms_per_frame_mean", processed > 0 ? c.total_ms / processed : 0.0},
+       {"ms_per_frame_max", c.max_ms},
+       {"ms_last_frame", c.last_ms}},
+      wallNow(), silentInput(wallNow()));
+}
+
 void OdometryNodelet::logStats(const char* when) {
   const core::Odometry* odo = odometry_ ? odometry_->odometry() : nullptr;
   const core::OdometryStats s = odo ? odo->stats() : core::OdometryStats();
   const double ms = odometry_ ? odometry_->times().get("odometry_total").meanMs() : 0.0;
   NODELET_INFO(
       "odometry %s: %ld frames received, %ld dropped (queue full), %ld bad images, %ld bad camera_info, "
-      "%ld bad altitudes, %ld keyframes published, %ld fallbacks, %ld sessions (%ld after tracking loss); current "
+      "%ld bad altitudes, %ld duplicated and %ld late stamps skipped, %ld time jumps, %ld keyframes published, %ld fallbacks, %ld sessions (%ld after tracking loss); current "
       "session %d: %d frames, "
       "%d keyframes, %d altitudes reused, %.1f ms/frame",
       when, counts_.frames, counts_.dropped, counts_.bad_image, counts_.bad_camera, counts_.bad_altitude,
+      counts_.duplicates, counts_.out_of_order, counts_.jumps_back + counts_.jumps_forward,
       counts_.keyframes, counts_.fallbacks, counts_.sessions, counts_.losses, session_, s.frames, s.keyframes, s.altitude_reused, ms);
 }
 

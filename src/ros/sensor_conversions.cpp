@@ -19,15 +19,67 @@ bool fail(std::string* why, const std::string& reason) {
 }
 }  // namespace
 
-bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::string* why) {
+std::string imageRefusalName(ImageRefusal r) {
+  switch (r) {
+    case ImageRefusal::kNone: return "none";
+    case ImageRefusal::kEmpty: return "empty";
+    case ImageRefusal::kEncoding: return "encoding";
+    case ImageRefusal::kLayout: return "layout";
+    case ImageRefusal::kTooSmall: return "too_small";
+  }
+  return "?";
+}
+
+namespace {
+
+/// OpenCV's debayering code for a ROS Bayer encoding (OpenCV names the pattern by the second
+/// row's first two pixels, as cv_bridge does), or -1.
+int bayerCode(const std::string& e) {
   namespace enc = sensor_msgs::image_encodings;
-  if (!msg) return fail(why, "no image");
-  if (msg->width == 0 || msg->height == 0) return fail(why, "empty image (0 x 0)");
+  if (e == enc::BAYER_RGGB8 || e == enc::BAYER_RGGB16) return cv::COLOR_BayerBG2BGR;
+  if (e == enc::BAYER_BGGR8 || e == enc::BAYER_BGGR16) return cv::COLOR_BayerRG2BGR;
+  if (e == enc::BAYER_GBRG8 || e == enc::BAYER_GBRG16) return cv::COLOR_BayerGR2BGR;
+  if (e == enc::BAYER_GRBG8 || e == enc::BAYER_GRBG16) return cv::COLOR_BayerGB2BGR;
+  return -1;
+}
+
+/// 16 bits -> 8 bits by the smallest 2^b - 1 >= the frame's maximum (b >= 8).
+cv::Mat scaleTo8Bit(const cv::Mat& in16) {
+  double max_value = 0.0;
+  cv::minMaxLoc(in16.reshape(1), nullptr, &max_value);
+  double range = 255.0;
+  while (range < max_value && range < 65535.0) range = range * 2.0 + 1.0;
+  cv::Mat out;
+  in16.convertTo(out, CV_MAKETYPE(CV_8U, in16.channels()), 255.0 / range);
+  return out;
+}
+
+bool refuse(std::string* why, ImageRefusal* refusal, ImageRefusal kind, const std::string& reason) {
+  if (refusal) *refusal = kind;
+  return fail(why, reason);
+}
+
+}  // namespace
+
+bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::string* why, ImageRefusal* refusal) {
+  namespace enc = sensor_msgs::image_encodings;
+  if (refusal) *refusal = ImageRefusal::kNone;
+  if (!msg) return refuse(why, refusal, ImageRefusal::kEmpty, "no image");
+  if (msg->width == 0 || msg->height == 0 || msg->data.empty()) {
+    std::ostringstream os;
+    os << "empty image (" << msg->width << " x " << msg->height << ", " << msg->data.size() << " bytes)";
+    return refuse(why, refusal, ImageRefusal::kEmpty, os.str());
+  }
   const std::string& e = msg->encoding;
-  const bool grey = e == enc::MONO8 || e == enc::MONO16 || e == enc::TYPE_8UC1;
-  const bool colour = e == enc::BGR8 || e == enc::RGB8 || e == enc::BGRA8 || e == enc::RGBA8 || e == enc::TYPE_8UC3;
-  if (!grey && !colour) {
-    return fail(why, "unsupported encoding '" + e + "' (mono8, mono16, bgr8, rgb8, bgra8, rgba8 are)");
+  const bool shared = e == enc::MONO8 || e == enc::BGR8 || e == enc::TYPE_8UC1 || e == enc::TYPE_8UC3;
+  const bool grey16 = e == enc::MONO16 || e == enc::TYPE_16UC1;
+  const bool colour8 = e == enc::RGB8 || e == enc::BGRA8 || e == enc::RGBA8 || e == enc::TYPE_8UC4;
+  const bool colour16 = e == enc::BGR16 || e == enc::RGB16 || e == enc::BGRA16 || e == enc::RGBA16;
+  const int bayer = bayerCode(e);
+  if (!shared && !grey16 && !colour8 && !colour16 && bayer < 0) {
+    return refuse(why, refusal, ImageRefusal::kEncoding,
+                  "unsupported encoding '" + e +
+                      "' (mono8/16, bgr8/16, rgb8/16, bgra8/16, rgba8/16, bayer_*8/16, 8UC1/3/4, 16UC1 are)");
   }
   // cv_bridge views the data through step without checking its length: checked here.
   const std::size_t pixel_bytes = static_cast<std::size_t>(enc::numChannels(e)) * (enc::bitDepth(e) / 8);
@@ -36,20 +88,37 @@ bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::stri
     std::ostringstream os;
     os << "image data (" << msg->data.size() << " bytes, step " << msg->step << ") does not fit " << msg->width << "x"
        << msg->height << " " << e;
-    return fail(why, os.str());
+    return refuse(why, refusal, ImageRefusal::kLayout, os.str());
+  }
+  if (msg->width < kMinImageSide || msg->height < kMinImageSide) {
+    std::ostringstream os;
+    os << "image " << msg->width << "x" << msg->height << " is smaller than " << kMinImageSide << "x" << kMinImageSide;
+    return refuse(why, refusal, ImageRefusal::kTooSmall, os.str());
   }
   try {
-    if (e == enc::MONO8 || e == enc::BGR8 || e == enc::TYPE_8UC1 || e == enc::TYPE_8UC3) {
-      *out = cv_bridge::toCvShare(msg)->image;  // no copy: shares the message's buffer
-    } else if (grey) {
-      *out = cv_bridge::toCvCopy(msg, enc::MONO8)->image;
+    const cv::Mat view = cv_bridge::toCvShare(msg)->image;  // no copy: shares the message's buffer
+    if (shared) {
+      *out = view;
     } else {
-      *out = cv_bridge::toCvCopy(msg, enc::BGR8)->image;
+      const cv::Mat eight = view.depth() == CV_16U ? scaleTo8Bit(view) : view;
+      if (bayer >= 0) {
+        cv::cvtColor(eight, *out, bayer);
+      } else if (grey16) {
+        *out = eight;
+      } else if (e == enc::RGB8 || e == enc::RGB16) {
+        cv::cvtColor(eight, *out, cv::COLOR_RGB2BGR);
+      } else if (e == enc::RGBA8 || e == enc::RGBA16) {
+        cv::cvtColor(eight, *out, cv::COLOR_RGBA2BGR);
+      } else if (e == enc::BGRA8 || e == enc::BGRA16 || e == enc::TYPE_8UC4) {
+        cv::cvtColor(eight, *out, cv::COLOR_BGRA2BGR);
+      } else {
+        *out = eight;  // bgr16
+      }
     }
   } catch (const std::exception& ex) {
-    return fail(why, std::string("cannot convert the image: ") + ex.what());
+    return refuse(why, refusal, ImageRefusal::kEncoding, std::string("cannot convert the image: ") + ex.what());
   }
-  if (out->empty()) return fail(why, "empty image after conversion");
+  if (out->empty()) return refuse(why, refusal, ImageRefusal::kEmpty, "empty image after conversion");
   return true;
 }
 

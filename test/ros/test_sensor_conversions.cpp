@@ -28,48 +28,125 @@ sensor_msgs::ImagePtr image(const std::string& encoding, int width, int height, 
 
 TEST(SensorConversions, Mono8AndBgr8AreSharedNotCopied) {
   for (const auto& [e, bpp] : {std::pair<std::string, int>{enc::MONO8, 1}, {enc::BGR8, 3}}) {
-    const sensor_msgs::ImageConstPtr m = image(e, 40, 30, bpp);
+    const sensor_msgs::ImageConstPtr m = image(e, 40, 32, bpp);
     cv::Mat out;
     std::string why;
     ASSERT_TRUE(rc::imageFromMsg(m, &out, &why)) << why;
     EXPECT_EQ(out.cols, 40);
-    EXPECT_EQ(out.rows, 30);
+    EXPECT_EQ(out.rows, 32);
     EXPECT_EQ(out.channels(), bpp);
     EXPECT_EQ(out.data, m->data.data()) << e;
   }
 }
 
-TEST(SensorConversions, RgbIsTurnedIntoBgrAndMono16IntoMono8) {
-  auto rgb = image(enc::RGB8, 4, 2, 3);
-  rgb->data[0] = 10;  // R of pixel 0
+TEST(SensorConversions, RgbIsTurnedIntoBgrAndAlphaDropped) {
+  auto rgb = image(enc::RGB8, 40, 32, 3);
+  rgb->data[0] = 10;   // R of pixel 0
   rgb->data[2] = 200;  // B
   cv::Mat out;
   ASSERT_TRUE(rc::imageFromMsg(rgb, &out));
   ASSERT_EQ(out.type(), CV_8UC3);
   EXPECT_EQ(out.at<cv::Vec3b>(0, 0)[0], 200);  // B first
   EXPECT_EQ(out.at<cv::Vec3b>(0, 0)[2], 10);
-  ASSERT_TRUE(rc::imageFromMsg(image(enc::MONO16, 4, 2, 2), &out));
-  EXPECT_EQ(out.type(), CV_8UC1);
-  ASSERT_TRUE(rc::imageFromMsg(image(enc::BGRA8, 4, 2, 4), &out));
+  for (const std::string& e : {enc::BGRA8, enc::RGBA8, enc::TYPE_8UC4}) {
+    auto m = image(e, 40, 32, 4);
+    m->data[0] = 30, m->data[1] = 60, m->data[2] = 90, m->data[3] = 7;  // pixel 0, alpha 7
+    std::string why;
+    ASSERT_TRUE(rc::imageFromMsg(m, &out, &why)) << e << ": " << why;
+    ASSERT_EQ(out.type(), CV_8UC3) << e;
+    const cv::Vec3b p = out.at<cv::Vec3b>(0, 0);
+    if (e == enc::RGBA8) {
+      EXPECT_EQ(p, cv::Vec3b(90, 60, 30)) << e;
+    } else {
+      EXPECT_EQ(p, cv::Vec3b(30, 60, 90)) << e;
+    }
+  }
+}
+
+sensor_msgs::ImagePtr image16(const std::string& encoding, int channels, std::uint16_t first, std::uint16_t rest) {
+  auto m = image(encoding, 40, 32, 2 * channels);
+  auto* p = reinterpret_cast<std::uint16_t*>(m->data.data());
+  for (std::size_t i = 0; i < m->data.size() / 2; ++i) p[i] = i == 0 ? first : rest;
+  m->is_bigendian = false;
+  return m;
+}
+
+TEST(SensorConversions, SixteenBitsAreScaledByThePowerOfTwoRangeOfTheFrame) {
+  cv::Mat out;
+  // A 12-bit sensor in mono16: 4000 is near its top, so near 255, not 4000 / 257 = 15.
+  ASSERT_TRUE(rc::imageFromMsg(image16(enc::MONO16, 1, 4000, 1000), &out));
+  ASSERT_EQ(out.type(), CV_8UC1);
+  EXPECT_EQ(out.at<std::uint8_t>(0, 0), 249);  // 4000 * 255 / 4095
+  EXPECT_EQ(out.at<std::uint8_t>(0, 1), 62);   // 1000 * 255 / 4095
+  // A full 16-bit frame.
+  ASSERT_TRUE(rc::imageFromMsg(image16(enc::TYPE_16UC1, 1, 65535, 257), &out));
+  EXPECT_EQ(out.at<std::uint8_t>(0, 0), 255);
+  EXPECT_EQ(out.at<std::uint8_t>(0, 1), 1);
+  // An 8-bit range in 16 bits stays as it is.
+  ASSERT_TRUE(rc::imageFromMsg(image16(enc::MONO16, 1, 200, 100), &out));
+  EXPECT_EQ(out.at<std::uint8_t>(0, 0), 200);
+  // Colour: rgb16 -> bgr8.
+  ASSERT_TRUE(rc::imageFromMsg(image16(enc::RGB16, 3, 65535, 0), &out));
+  ASSERT_EQ(out.type(), CV_8UC3);
+  EXPECT_EQ(out.at<cv::Vec3b>(0, 0), cv::Vec3b(0, 0, 255));  // R of pixel 0 is now its third channel
+}
+
+TEST(SensorConversions, BayerIsDebayered) {
+  // An RGGB mosaic of a flat colour: R = 200, G = 100, B = 50.
+  auto m = image(enc::BAYER_RGGB8, 40, 32, 1);
+  for (int r = 0; r < 32; ++r) {
+    for (int c = 0; c < 40; ++c) {
+      m->data[r * 40 + c] = (r % 2 == 0 && c % 2 == 0) ? 200 : (r % 2 == 1 && c % 2 == 1) ? 50 : 100;
+    }
+  }
+  cv::Mat out;
+  std::string why;
+  ASSERT_TRUE(rc::imageFromMsg(m, &out, &why)) << why;
+  ASSERT_EQ(out.type(), CV_8UC3);
+  EXPECT_EQ(out.at<cv::Vec3b>(16, 20), cv::Vec3b(50, 100, 200));  // B, G, R
+  // The other patterns and 16 bits are accepted too.
+  for (const std::string& e : {enc::BAYER_BGGR8, enc::BAYER_GBRG8, enc::BAYER_GRBG8}) {
+    EXPECT_TRUE(rc::imageFromMsg(image(e, 40, 32, 1), &out, &why)) << e << ": " << why;
+  }
+  ASSERT_TRUE(rc::imageFromMsg(image16(enc::BAYER_GRBG16, 1, 1000, 500), &out, &why)) << why;
   EXPECT_EQ(out.type(), CV_8UC3);
 }
 
-TEST(SensorConversions, UnusableImagesAreRefusedWithAReason) {
+TEST(SensorConversions, UnusableImagesAreRefusedWithAReasonAndAKind) {
   cv::Mat out;
   std::string why;
-  EXPECT_FALSE(rc::imageFromMsg(image(enc::BAYER_RGGB8, 8, 8, 1), &out, &why));
-  EXPECT_NE(why.find("bayer_rggb8"), std::string::npos) << why;
-  EXPECT_FALSE(rc::imageFromMsg(image(enc::TYPE_32FC1, 8, 8, 4), &out, &why));
-  EXPECT_FALSE(rc::imageFromMsg(image(enc::MONO8, 0, 0, 1), &out, &why));
+  rc::ImageRefusal kind = rc::ImageRefusal::kNone;
+  for (const auto& [e, bpp] : {std::pair<std::string, int>{enc::TYPE_32FC1, 4}, {enc::YUV422, 2}, {enc::TYPE_8SC1, 1},
+                               {enc::TYPE_8UC2, 2}, {"h264", 1}}) {
+    EXPECT_FALSE(rc::imageFromMsg(image(e, 40, 32, bpp), &out, &why, &kind)) << e;
+    EXPECT_EQ(kind, rc::ImageRefusal::kEncoding) << e;
+    EXPECT_NE(why.find(e), std::string::npos) << why;
+  }
+  EXPECT_FALSE(rc::imageFromMsg(image(enc::MONO8, 0, 0, 1), &out, &why, &kind));
+  EXPECT_EQ(kind, rc::ImageRefusal::kEmpty);
   EXPECT_NE(why.find("empty"), std::string::npos) << why;
-  auto short_data = image(enc::BGR8, 8, 8, 3);
+  auto no_data = image(enc::MONO8, 40, 32, 1);
+  no_data->data.clear();
+  EXPECT_FALSE(rc::imageFromMsg(no_data, &out, &why, &kind));
+  EXPECT_EQ(kind, rc::ImageRefusal::kEmpty);
+  auto short_data = image(enc::BGR8, 40, 32, 3);
   short_data->data.resize(10);
-  EXPECT_FALSE(rc::imageFromMsg(short_data, &out, &why));
+  EXPECT_FALSE(rc::imageFromMsg(short_data, &out, &why, &kind));
   EXPECT_NE(why.find("does not fit"), std::string::npos) << why;
-  auto bad_step = image(enc::BGR8, 8, 8, 3);
-  bad_step->step = 8;  // less than width x 3
-  EXPECT_FALSE(rc::imageFromMsg(bad_step, &out, &why));
-  EXPECT_FALSE(rc::imageFromMsg(sensor_msgs::ImageConstPtr(), &out, &why));
+  EXPECT_EQ(kind, rc::ImageRefusal::kLayout);
+  auto bad_step = image(enc::BGR8, 40, 32, 3);
+  bad_step->step = 40;  // less than width x 3
+  EXPECT_FALSE(rc::imageFromMsg(bad_step, &out, &why, &kind));
+  EXPECT_EQ(kind, rc::ImageRefusal::kLayout);
+  for (const auto& [w, h] : {std::pair<int, int>{8, 8}, {1, 1}, {640, 8}, {31, 480}}) {
+    EXPECT_FALSE(rc::imageFromMsg(image(enc::MONO8, w, h, 1), &out, &why, &kind)) << w << "x" << h;
+    EXPECT_EQ(kind, rc::ImageRefusal::kTooSmall);
+    EXPECT_NE(why.find("smaller"), std::string::npos) << why;
+  }
+  EXPECT_TRUE(rc::imageFromMsg(image(enc::MONO8, 32, 32, 1), &out, &why, &kind)) << why;
+  EXPECT_EQ(kind, rc::ImageRefusal::kNone);
+  EXPECT_FALSE(rc::imageFromMsg(sensor_msgs::ImageConstPtr(), &out, &why, &kind));
+  EXPECT_EQ(rc::imageRefusalName(rc::ImageRefusal::kTooSmall), "too_small");
 }
 
 sensor_msgs::CameraInfo cameraInfo() {

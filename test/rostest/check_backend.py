@@ -25,6 +25,7 @@ from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribe
 from nav_msgs.msg import Path
 from uw_multislam.msg import Loop, Status
 from uw_multislam.srv import JoinSessions, ListSessions, SplitSession, StartSession, ReloadSession
+from diagnostic_msgs.msg import DiagnosticArray
 from visualization_msgs.msg import MarkerArray
 
 JOIN_TOLERANCE_M = 0.10  # joined session 1 vs the ground truth in session 0's frame (about 3 m away)
@@ -184,6 +185,22 @@ class BackendTest(unittest.TestCase):
         self.assertTrue(nodes)
         for node in nodes:
             self.assertTrue(rosnode.rosnode_ping(node, max_count=1), "%s does not answer" % node)
+
+    def test_4_diagnostics_count_what_the_back_end_did(self):
+        msg = rospy.wait_for_message("/diagnostics", DiagnosticArray, timeout=20)
+        deadline = time.time() + 20
+        status = None
+        while status is None and time.time() < deadline:
+            status = next((s for s in msg.status if s.name.endswith(": backend")), None)
+            if status is None:
+                msg = rospy.wait_for_message("/diagnostics", DiagnosticArray, timeout=20)
+        self.assertIsNotNone(status, "no back-end status on /diagnostics")
+        values = {kv.key: kv.value for kv in status.values}
+        listed = self.sessions()
+        self.assertEqual(int(values["keyframes_received"]), sum(s.num_keyframes for s in listed.values() if s.session < 2))
+        self.assertGreaterEqual(int(values["joins"]), 1)  # test_2 joined
+        self.assertGreaterEqual(int(values["splits"]), 1)
+        self.assertEqual(values["store"], "none")
 
 
 if __name__ == "__main__":

@@ -16,10 +16,28 @@
 namespace uw_multislam {
 namespace ros_conversions {
 
-/// mono8 and bgr8 are shared without a copy (the Mat keeps the message alive); rgb8, bgra8 and
-/// rgba8 are converted to bgr8, mono16 scaled to mono8. Anything else (Bayer, float, YUV),
-/// an empty image or a step / data size mismatch is refused.
-bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::string* why = nullptr);
+/// Why imageFromMsg refused an image (the odometry nodelet counts each kind separately).
+enum class ImageRefusal { kNone, kEmpty, kEncoding, kLayout, kTooSmall };
+/// "none", "empty", "encoding", "layout", "too_small".
+std::string imageRefusalName(ImageRefusal r);
+
+/// Images narrower or lower than this are refused (kTooSmall): SIFT finds nothing useful in
+/// them, and the odometry would start a session on a keyframe without features.
+constexpr unsigned kMinImageSide = 32;
+
+/// The image as the core takes it (8-bit grey or BGR). What is done with each encoding:
+///   mono8, 8UC1, bgr8, 8UC3              shared without a copy (the Mat keeps the message alive)
+///   rgb8, bgra8, rgba8, 8UC4 (as bgra)   converted to bgr8, alpha dropped
+///   mono16, 16UC1                        scaled to 8 bits by the smallest power-of-two range that
+///                                        holds the frame's maximum (a 12-bit sensor in mono16 uses
+///                                        the full 8 bits, and the scale stays the same frame to frame)
+///   bgr16, rgb16, bgra16, rgba16         the same scaling, then to bgr8
+///   bayer_{rggb,bggr,gbrg,grbg}{8,16}    debayered (OpenCV, bilinear) to bgr8 (16 bits scaled as above)
+///   anything else (float, YUV, 2-channel, signed) refused (kEncoding), as are an empty image
+///   (kEmpty), a step / data size that does not fit (kLayout) and an image smaller than
+///   kMinImageSide in either direction (kTooSmall). Never throws.
+bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::string* why = nullptr,
+                  ImageRefusal* refusal = nullptr);
 
 /// The pinhole intrinsics of K. Refuses a zero or non-finite focal length, a zero image size or
 /// a principal point outside the image. `distorted` (optional) tells whether D has a non-zero

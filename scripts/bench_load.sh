@@ -1,0 +1,90 @@
+#!/usr/bin/env bash
+# Load benchmark (issue 9): a generated mission bag replayed through slam.launch (nodelet manager,
+# default queues) at increasing rates. For each rate a fresh pipeline; at the end the counters are
+# read from /diagnostics (scripts/diagnostics_snapshot.py) and the nodelet manager's peak RSS
+# (VmHWM) from /proc. Prints one markdown table and the highest rate held without a dropped or
+# unpaired frame. Not a test: numbers for this machine.
+# usage: scripts/bench_load.sh [--rates "1 2 5 10 20 40 80 160"] [--preset NAME] [OUT_DIR]
+#   default mission: make_survey --preset demo, session s0 (its bag); rates 1 2 5 10 20 40 80 160.
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
+rates="1 2 5 10 20 40 80 160"
+preset=demo
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --rates) rates=$2; shift 2 ;;
+    --preset) preset=$2; shift 2 ;;
+    *) break ;;
+  esac
+done
+out=${1:-$(mktemp -d /tmp/uwms_bench_load.XXXXXX)}
+mkdir -p "$out"
+bin="$UWMS_WS/devel/lib/uw_multislam"
+[ -x "$bin/make_survey" ] || { echo "bench_load: build first (scripts/build.sh)" >&2; exit 1; }
+set +u; source "$UWMS_WS/devel/setup.bash"; set -u
+export ROS_MASTER_URI=${BENCH_MASTER_URI:-http://localhost:11391}  # a master of its own
+log() { echo "[bench_load] $*" >&2; }
+
+[ -d "$out/mission" ] || { log "make_survey --preset $preset"; "$bin/make_survey" --preset "$preset" --out "$out/mission" --quiet > /dev/null; }
+bag="$out/mission/s0.bag"
+frames=$(/usr/bin/python3 -c 'import rosbag,sys; b=rosbag.Bag(sys.argv[1]); print(b.get_message_count("/camera/image_raw")); print(b.get_end_time()-b.get_start_time())' "$bag" | paste -sd' ')
+read -r n_frames duration_s <<< "$frames"
+log "bag: $n_frames frames over $duration_s s"
+
+port=${ROS_MASTER_URI##*:}
+roscore -p "$port" > "$out/roscore.log" 2>&1 &
+core_pid=$!
+launch_pid=""
+cleanup() {
+  [ -n "$launch_pid" ] && kill -INT "$launch_pid" 2> /dev/null && wait "$launch_pid" 2> /dev/null || true
+  kill -INT "$core_pid" 2> /dev/null && wait "$core_pid" 2> /dev/null || true
+}
+trap cleanup EXIT
+for _ in $(seq 50); do rostopic list > /dev/null 2>&1 && break; sleep 0.2; done
+
+echo "### Load: $(basename "$bag") ($n_frames frames, $(printf %.0f "$duration_s") s) through slam.launch, $(date -u +%F), $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores"
+echo
+echo "| rate | frames/s offered | images received | processed | dropped (odometry queue) | not paired | keyframes | keyframes/s | loop detector dropped | loops | odometry ms/frame mean / max | manager peak RSS MB |"
+echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
+best=""
+for rate in $rates; do
+  rosparam delete /uw_multislam > /dev/null 2>&1 || true
+  roslaunch uw_multislam slam.launch > "$out/launch_$rate.log" 2>&1 &
+  launch_pid=$!
+  for _ in $(seq 100); do
+    rostopic info /camera/image_raw 2> /dev/null | grep -q odometry && break; sleep 0.2
+  done
+  sleep 2
+  manager_pid=$(rosnode info /uw_multislam/manager 2> /dev/null | sed -n 's/^Pid: \([0-9]*\)/\1/p')
+  rosbag play -q -r "$rate" "$bag" --topics /camera/image_raw /camera/camera_info /altitude > "$out/play_$rate.log" 2>&1
+  sleep 3  # the queues drain
+  /usr/bin/python3 "$UWMS_REPO/scripts/diagnostics_snapshot.py" --wait 2.5 > "$out/diag_$rate.json" || true
+  rss_kb=$(awk '/VmHWM/ {print $2}' "/proc/$manager_pid/status" 2> /dev/null || echo 0)
+  alive=yes; kill -0 "$manager_pid" 2> /dev/null || alive=no
+  kill -INT "$launch_pid" 2> /dev/null || true
+  wait "$launch_pid" 2> /dev/null || true
+  launch_pid=""
+  row=$(/usr/bin/python3 - "$out/diag_$rate.json" "$rate" "$duration_s" "$rss_kb" "$alive" "$n_frames" <<'PY'
+import json, sys
+d = json.load(open(sys.argv[1])); rate = float(sys.argv[2]); dur = float(sys.argv[3]); rss = int(sys.argv[4] or 0)
+alive = sys.argv[5]; fps = rate * (float(sys.argv[6]) - 1) / dur
+odo = next((v for k, v in d.items() if k.endswith(": odometry")), {})
+loop = next((v for k, v in d.items() if k.endswith(": loop_detector")), {})
+g = lambda m, k: m.get(k, float("nan"))
+play_s = dur / rate
+kf = g(odo, "keyframes")
+lost = g(odo, "dropped_queue_full") + g(odo, "images_not_paired") + g(loop, "dropped_queue_full")
+print("| %g | %.1f | %d | %d | %d | %d | %d | %.2f | %d | %d | %.1f / %.1f | %.0f%s |" % (
+    rate, fps, g(odo, "images_received"), g(odo, "frames_processed"), g(odo, "dropped_queue_full"),
+    g(odo, "images_not_paired"), kf, kf / play_s, g(loop, "dropped_queue_full"),
+    g(loop, "local_loops") + g(loop, "global_loops"), g(odo, "ms_per_frame_mean"), g(odo, "ms_per_frame_max"),
+    rss / 1024.0, "" if alive == "yes" else " (manager died!)"))
+print("NODROP" if lost == 0 and alive == "yes" else "DROP")
+PY
+) || row="| $rate | (no diagnostics: see $out/launch_$rate.log) |
+DROP"
+  echo "$row" | head -n 1
+  if [ "$(echo "$row" | tail -n 1)" = NODROP ]; then best=$rate; fi
+done
+echo
+echo "Highest rate without a dropped or unpaired frame: ${best:-none} (logs in $out)."

@@ -1,0 +1,353 @@
+#!/usr/bin/python3
+"""rostest: bad input never crashes the pipeline or reaches the map, and every kind is counted on
+/diagnostics (issue 9).
+
+Frames of a generated mission (make_survey, read back from its bag) are published one by one
+with the test's own stamps and encodings, phase after phase:
+
+  good frames; an empty image, an 8x8 image, a float image, a camera_info without focal length,
+  an image whose size differs from camera_info (each skipped and counted by kind); the next
+  frames as rgba8, mono16 (12-bit values) and bayer_rggb8 (converted and processed); a NaN and a
+  negative altitude (the last valid altitude is reused, counted); a duplicated stamp and a late
+  stamp (skipped, counted); the mission again from its first stamp, as a bag that loops (a new
+  session); a burst (frames dropped by the worker's short queue, counted); images and camera_info
+  without altitude for longer than input_timeout_s (a WARN naming the altitude topic; with
+  ~fallback_altitude > 0 the frames are processed at that altitude instead, counted).
+
+The assertions then read the last odometry and loop-detector statuses on /diagnostics.
+"""
+import math
+import os
+import shutil
+import subprocess
+import tempfile
+import threading
+import time
+import unittest
+
+import numpy as np
+import rosbag
+import rosgraph
+import roslib.packages
+import rospy
+import rostest
+import rosnode
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from sensor_msgs.msg import CameraInfo, Image, Range
+from uw_multislam.msg import Keyframe
+
+SURVEY = """
+seed: 5
+world: {width_m: 12, height_m: 10, metres_per_px: 0.008, featureless_fraction: 0.0}
+sessions:
+  - name: s0
+    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
+    mission: {pattern: loop, start_m: [6.0, 5.0], length_m: 3.5, width_m: 2.5, laps: 1.0, speed_m_s: 0.35,
+              frame_period_s: 1.0, altitude_m: 1.6, start_time_s: 0}
+"""
+NS = "/uw_multislam"
+RATE_HZ = 5.0
+
+
+def tool(name):
+    found = roslib.packages.find_node("uw_multislam", name)
+    if not found:
+        raise RuntimeError("uw_multislam/%s not built" % name)
+    return found[0]
+
+
+def values(status):
+    out = {}
+    for kv in status.values:
+        try:
+            out[kv.key] = float(kv.value)
+        except ValueError:
+            out[kv.key] = kv.value
+    return out
+
+
+class BadInputTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.fallback = float(rospy.get_param("~fallback_altitude", 0.0))
+        cls.tmp = tempfile.mkdtemp(prefix="uwms_bad_input_")
+        with open(os.path.join(cls.tmp, "survey.yaml"), "w") as f:
+            f.write(SURVEY)
+        out = os.path.join(cls.tmp, "mission")
+        subprocess.run([tool("make_survey"), "--config", os.path.join(cls.tmp, "survey.yaml"), "--out", out,
+                        "--quiet"], check=True, timeout=120)
+        cls.frames = cls.read_bag(os.path.join(out, "s0.bag"))
+        assert len(cls.frames) >= 20, len(cls.frames)
+
+        cls.lock = threading.Lock()
+        cls.poses, cls.keyframes, cls.odometry_statuses, cls.loop_statuses = [], [], [], []
+
+        def keep(store):
+            def callback(msg):
+                with cls.lock:
+                    store.append(msg)
+            return callback
+
+        def on_diagnostics(msg):
+            with cls.lock:
+                for s in msg.status:
+                    if s.name.endswith(": odometry"):
+                        cls.odometry_statuses.append(s)
+                    elif s.name.endswith(": loop_detector"):
+                        cls.loop_statuses.append(s)
+
+        cls.subs = [rospy.Subscriber(NS + "/odometry/pose", PoseStamped, keep(cls.poses), queue_size=1000),
+                    rospy.Subscriber(NS + "/keyframes", Keyframe, keep(cls.keyframes), queue_size=1000),
+                    rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
+        cls.pubs = [rospy.Publisher("/camera/image_raw", Image, queue_size=100),
+                    rospy.Publisher("/camera/camera_info", CameraInfo, queue_size=100),
+                    rospy.Publisher("/altitude", Range, queue_size=100)]
+        cls.wait_for_pipeline()
+        cls.run_phases()
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    @staticmethod
+    def read_bag(path):
+        by_stamp = {}
+        with rosbag.Bag(path) as bag:
+            for topic, msg, _ in bag.read_messages(topics=["/camera/image_raw", "/camera/camera_info", "/altitude"]):
+                by_stamp.setdefault(msg.header.stamp.to_nsec(), {})[topic] = msg
+        frames = []
+        for stamp in sorted(by_stamp):
+            f = by_stamp[stamp]
+            if len(f) == 3:
+                frames.append((f["/camera/image_raw"], f["/camera/camera_info"], f["/altitude"]))
+        return frames
+
+    @classmethod
+    def wait_for_pipeline(cls, timeout=60.0):
+        master = rosgraph.Master("/check_bad_input")
+        wanted = ["/camera/image_raw", "/camera/camera_info", "/altitude"]
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            _, subscribers, _ = master.getSystemState()
+            subscribed = {topic: nodes for topic, nodes in subscribers}
+            if all(subscribed.get(t) for t in wanted) and all(p.get_num_connections() > 0 for p in cls.pubs):
+                time.sleep(1.0)
+                return
+            time.sleep(0.5)
+        raise AssertionError("the odometry did not subscribe to %s within %.0f s" % (wanted, timeout))
+
+    @classmethod
+    def publish(cls, image, info, altitude, stamp, period=1.0 / RATE_HZ):
+        for m in (image, info, altitude):
+            if m is not None:
+                m.header.stamp = stamp
+        cls.pubs[0].publish(image)
+        cls.pubs[1].publish(info)
+        if altitude is not None:
+            cls.pubs[2].publish(altitude)
+        time.sleep(period)
+
+    @classmethod
+    def frame(cls, i):
+        image, info, altitude = cls.frames[i % len(cls.frames)]
+        return Image(header=image.header, height=image.height, width=image.width, encoding=image.encoding,
+                     is_bigendian=image.is_bigendian, step=image.step, data=image.data), \
+            CameraInfo(header=info.header, width=info.width, height=info.height, distortion_model=info.distortion_model,
+                       D=list(info.D), K=list(info.K), R=list(info.R), P=list(info.P)), \
+            Range(header=altitude.header, radiation_type=altitude.radiation_type, field_of_view=altitude.field_of_view,
+                  min_range=altitude.min_range, max_range=altitude.max_range, range=altitude.range)
+
+    @staticmethod
+    def pixels(image):
+        channels = image.step // image.width
+        return np.frombuffer(image.data, dtype=np.uint8).reshape(image.height, image.width, channels)
+
+    @classmethod
+    def reencoded(cls, image, encoding):
+        bgr = cls.pixels(image)
+        if bgr.shape[2] == 1:
+            bgr = np.repeat(bgr, 3, axis=2)
+        out = Image(header=image.header, height=image.height, width=image.width, encoding=encoding)
+        if encoding == "rgba8":
+            px = np.dstack([bgr[:, :, ::-1], np.full(bgr.shape[:2], 255, np.uint8)])
+            out.step, out.data = image.width * 4, px.tobytes()
+        elif encoding == "mono16":  # a 12-bit sensor
+            grey = bgr.mean(axis=2).astype(np.uint16) * 16
+            out.step, out.data = image.width * 2, grey.astype("<u2").tobytes()
+        elif encoding == "bayer_rggb8":
+            mosaic = np.empty(bgr.shape[:2], np.uint8)
+            mosaic[0::2, 0::2] = bgr[0::2, 0::2, 2]
+            mosaic[0::2, 1::2] = bgr[0::2, 1::2, 1]
+            mosaic[1::2, 0::2] = bgr[1::2, 0::2, 1]
+            mosaic[1::2, 1::2] = bgr[1::2, 1::2, 0]
+            out.step, out.data = image.width, mosaic.tobytes()
+        return out
+
+    @classmethod
+    def stamp_of(cls, i):
+        return cls.frames[i % len(cls.frames)][0].header.stamp
+
+    @classmethod
+    def run_phases(cls):
+        d = rospy.Duration
+        # 1. Good frames.
+        for i in range(8):
+            cls.publish(*cls.frame(i), cls.stamp_of(i))
+        last = cls.stamp_of(7)
+        cls.poses_after_good = cls.count_after(cls.poses, 2.0)
+        # 2. Bad images and camera_infos, stamps after the last good one.
+        image, info, altitude = cls.frame(8)
+        bad = [
+            (Image(encoding="mono8", width=0, height=0, step=0, data=b""), info),                    # empty
+            (Image(encoding="mono8", width=8, height=8, step=8, data=bytes(range(64))),            # tiny
+             CameraInfo(width=8, height=8, K=[8, 0, 4, 0, 8, 4, 0, 0, 1])),
+            (Image(encoding="32FC1", width=240, height=180, step=960, data=bytes(960 * 180)), info),  # float
+            (Image(encoding="yuv422", width=240, height=180, step=480, data=bytes(480 * 180)), info),  # YUV
+            (image, CameraInfo(width=240, height=180, K=[0] * 9)),                                 # zero focal length
+            (image, CameraInfo(width=320, height=240, K=[220, 0, 159.5, 0, 220, 119.5, 0, 0, 1])),  # size mismatch
+        ]
+        for k, (im, ci) in enumerate(bad):
+            cls.publish(im, ci, cls.frame(8)[2], last + d(0.1 * (k + 1)))
+        cls.poses_after_bad = cls.count_after(cls.poses, 1.5)
+        # 3. Converted encodings, the next frames of the mission.
+        for i, encoding in zip((8, 9, 10), ("rgba8", "mono16", "bayer_rggb8")):
+            image, info, altitude = cls.frame(i)
+            cls.publish(cls.reencoded(image, encoding), info, altitude, cls.stamp_of(i))
+        # 4. NaN and negative altitude (the last valid one is reused).
+        for i, bad_range in ((11, float("nan")), (12, -1.0)):
+            image, info, altitude = cls.frame(i)
+            altitude.range = bad_range
+            cls.publish(image, info, altitude, cls.stamp_of(i))
+        # 5. The same frame twice, then a late one, then a good one.
+        cls.publish(*cls.frame(12), cls.stamp_of(12))
+        cls.publish(*cls.frame(11), cls.stamp_of(12) - d(0.5))
+        cls.publish(*cls.frame(13), cls.stamp_of(13))
+        cls.publish(*cls.frame(14), cls.stamp_of(14))
+        cls.poses_before_loop = cls.count_after(cls.poses, 2.0)
+        # 6. The bag loops: its first frames again, with their first stamps.
+        for i in range(6):
+            cls.publish(*cls.frame(i), cls.stamp_of(i))
+        base = cls.stamp_of(5)
+        # 7. A burst: 40 frames as fast as they can be sent.
+        for k in range(40):
+            cls.publish(*cls.frame(6 + k), base + d(0.2 * (k + 1)), period=0.002)
+        time.sleep(3.0)
+        base = base + d(0.2 * 41)
+        # 8. The altitude topic falls silent: images and camera_info only.
+        with cls.lock:
+            cls.poses_before_silence = len(cls.poses)
+            cls.statuses_before_silence = len(cls.odometry_statuses)
+        n_silent = int((2.0 + 2.5) * RATE_HZ)
+        for k in range(n_silent):
+            image, info, _ = cls.frame(k)
+            cls.publish(image, info, None, base + d(0.2 * (k + 1)))
+        time.sleep(1.5)
+        with cls.lock:
+            cls.poses_in_silence = len(cls.poses) - cls.poses_before_silence
+            cls.silence_statuses = cls.odometry_statuses[cls.statuses_before_silence:]
+            cls.final_odometry = cls.odometry_statuses[-1] if cls.odometry_statuses else None
+            cls.final_loops = cls.loop_statuses[-1] if cls.loop_statuses else None
+            cls.all_odometry = list(cls.odometry_statuses)
+
+    @classmethod
+    def count_after(cls, store, wait_s):
+        time.sleep(wait_s)
+        with cls.lock:
+            return len(store)
+
+    def odometry(self):
+        self.assertIsNotNone(self.final_odometry, "no odometry status on /diagnostics")
+        return values(self.final_odometry)
+
+    def test_good_frames_are_processed(self):
+        self.assertGreaterEqual(self.poses_after_good, 6)
+
+    def test_each_bad_image_and_camera_info_is_skipped_and_counted_by_kind(self):
+        v = self.odometry()
+        self.assertEqual(self.poses_after_bad, self.poses_after_good, "a bad frame produced a pose")
+        self.assertEqual(v["skipped_empty_image"], 1)
+        self.assertEqual(v["skipped_tiny_image"], 1)
+        self.assertEqual(v["skipped_encoding"], 2)  # 32FC1, yuv422
+        self.assertEqual(v["skipped_camera_info"], 1)
+        self.assertEqual(v["skipped_size_mismatch"], 1)
+        self.assertEqual(v["skipped_image_layout"], 0)
+
+    def test_convertible_encodings_and_bad_altitudes_are_processed(self):
+        v = self.odometry()
+        self.assertEqual(v["bad_altitude_replaced"], 2)
+        # 8 good + 3 converted + 2 with a bad altitude + 2 good after the duplicate and the late frame.
+        self.assertGreaterEqual(self.poses_before_loop, self.poses_after_bad + 5 + 2 - 1)
+        self.assertEqual(v["skipped_by_odometry"], 0, "a frame reached the odometry and was refused there")
+
+    def test_duplicated_and_late_stamps_are_skipped(self):
+        v = self.odometry()
+        self.assertEqual(v["skipped_duplicate_stamp"], 1)
+        self.assertEqual(v["skipped_out_of_order"], 1)
+
+    def test_a_looping_bag_starts_a_new_session(self):
+        v = self.odometry()
+        self.assertEqual(v["time_jumps_back"], 1)
+        self.assertEqual(v["time_jumps_forward"], 0)
+        self.assertGreaterEqual(v["sessions"], 2)
+        with self.lock:
+            sessions = {k.session for k in self.keyframes}
+        self.assertGreaterEqual(len(sessions), 2)
+        for s in sessions:  # keyframe ids count up from 0 in each session: nothing interleaved
+            ids = [k.keyframe for k in self.keyframes if k.session == s]
+            self.assertEqual(ids, list(range(len(ids))), "session %d" % s)
+
+    def test_a_burst_drops_frames_and_counts_every_one(self):
+        v = self.odometry()
+        self.assertGreater(v["dropped_queue_full"], 0)
+        # Every synchronised frame is processed, dropped or still queued.
+        self.assertEqual(v["frames_synchronised"], v["frames_processed"] + v["dropped_queue_full"] + v["queue_length"])
+        self.assertEqual(v["images_received"], v["frames_synchronised"] + v["images_not_paired"])
+        self.assertGreater(v["ms_per_frame_mean"], 0.0)
+        self.assertGreaterEqual(v["ms_per_frame_max"], v["ms_per_frame_mean"])
+        self.assertGreater(v["keyframes"], 3)
+        with self.lock:
+            self.assertEqual(v["keyframes"], len(self.keyframes))
+
+    def test_drops_and_skips_raise_a_warning(self):
+        levels = [s.level for s in self.all_odometry]
+        self.assertIn(DiagnosticStatus.OK, levels, "the good frames at the start should report OK")
+        warned = [s.message for s in self.all_odometry if s.level == DiagnosticStatus.WARN]
+        self.assertTrue(any("skipped_empty_image" in m for m in warned), warned[:5])
+        self.assertTrue(any("dropped_queue_full" in m for m in warned), warned[:5])
+
+    def test_a_silent_altitude_topic(self):
+        v = self.odometry()
+        warned = [s.message for s in self.silence_statuses if s.level == DiagnosticStatus.WARN]
+        if self.fallback > 0:
+            self.assertGreater(v["fixed_altitude_frames"], 0)
+            self.assertGreater(self.poses_in_silence, 0, "the fixed altitude should keep the odometry going")
+            self.assertTrue(any("fixed_altitude_frames" in m for m in warned), warned[-3:])
+        else:
+            self.assertEqual(v["fixed_altitude_frames"], 0)
+            self.assertEqual(self.poses_in_silence, 0, "frames without altitude were processed")
+            self.assertTrue(any("no altitude on /altitude" in m for m in warned), warned[-3:])
+
+    def test_loop_detector_diagnostics(self):
+        self.assertIsNotNone(self.final_loops, "no loop_detector status on /diagnostics")
+        v = values(self.final_loops)
+        with self.lock:
+            n = len(self.keyframes)
+        self.assertEqual(v["keyframes_received"], n)
+        self.assertEqual(v["dropped_queue_full"], 0)
+        self.assertEqual(v["skipped_bad_keyframe"], 0)
+        self.assertGreaterEqual(v["sessions"], 2)
+        self.assertEqual(v["hashes"], n)
+        self.assertEqual(v["mode"], "both")
+
+    def test_nodes_still_run(self):
+        state = rosgraph.Master("/check_bad_input").getSystemState()
+        nodes = dict(state[0]).get(NS + "/odometry/pose", [])
+        self.assertTrue(nodes, "nobody publishes the odometry pose any more")
+        for node in nodes:
+            self.assertTrue(rosnode.rosnode_ping(node, max_count=1), "%s does not answer" % node)
+
+
+if __name__ == "__main__":
+    rospy.init_node("check_bad_input")
+    rostest.rosrun("uw_multislam", "check_bad_input", BadInputTest)
