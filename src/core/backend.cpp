@@ -121,6 +121,16 @@ void MultiSessionBackend::toSparse(Map& m, const std::string& why) {
   say("map " + std::to_string(m.chain.front()) + ": " + why + ": optimised by the sparse back-end from now on");
 }
 
+void MultiSessionBackend::toDenseIfIekf(Map& m) const {
+  if (!options_.optimise || options_.optimizer != OptimizerKind::kIekf || m.numMotions() + 1 > options_.max_keyframes)
+    return;
+  Eigen::MatrixXd p = Eigen::MatrixXd::Zero(3 * m.numMotions(), 3 * m.numMotions());
+  for (int k = 0; k < m.numMotions(); ++k) p.block<3, 3>(3 * k, 3 * k) = m.cov[k];
+  m.iekf.emplace(options_.iekf, m.motions, std::move(p));
+  m.motions.clear();
+  m.cov.clear();
+}
+
 void MultiSessionBackend::addMotion(int session, const UncertainPose2& motion) {
   const Session& s = sessionAt(session);
   if (!s.recording) throw std::invalid_argument("backend: session " + std::to_string(session) + " is not recording");
@@ -637,13 +647,7 @@ int MultiSessionBackend::restoreSession(const std::string& name, const std::vect
     m.motions.push_back(u.mean);
     m.cov.push_back(u.covariance);
   }
-  if (options_.optimise && options_.optimizer == OptimizerKind::kIekf && m.numMotions() + 1 <= options_.max_keyframes) {
-    Eigen::MatrixXd p = Eigen::MatrixXd::Zero(3 * m.numMotions(), 3 * m.numMotions());
-    for (int k = 0; k < m.numMotions(); ++k) p.block<3, 3>(3 * k, 3 * k) = m.cov[k];
-    m.iekf.emplace(options_.iekf, m.motions, std::move(p));
-    m.motions.clear();
-    m.cov.clear();
-  }
+  toDenseIfIekf(m);
   maps_.emplace(id, std::move(m));
   return id;
 }
@@ -706,14 +710,7 @@ BackendStatus MultiSessionBackend::restoreMap(const MapState& state) {
     m.motions.push_back(u.mean);
     m.cov.push_back(u.covariance);
   }
-  if (options_.optimise && options_.optimizer == OptimizerKind::kIekf && m.numMotions() + 1 <= options_.max_keyframes) {
-    // The joint covariance is not stored: block-diagonal from the marginals.
-    Eigen::MatrixXd p = Eigen::MatrixXd::Zero(3 * m.numMotions(), 3 * m.numMotions());
-    for (int k = 0; k < m.numMotions(); ++k) p.block<3, 3>(3 * k, 3 * k) = m.cov[k];
-    m.iekf.emplace(options_.iekf, m.motions, std::move(p));
-    m.motions.clear();
-    m.cov.clear();
-  }
+  toDenseIfIekf(m);  // the joint covariance is not stored: block-diagonal from the marginals
   for (const MapLinkState& l : state.links)
     for (int id : l.loops) loops_[id].summarised = true;
   for (int s : state.chain) maps_.erase(sessions_[s].map);

@@ -237,6 +237,9 @@ class MultiSessionBackend {
   void optimiseSparse(Map& m);
   void optimiseIekf(Map& m);
   void toSparse(Map& m, const std::string& why);
+  /// A sparse map (motions, marginal covariances) into the IEKF's dense form, when the IEKF is the
+  /// optimiser and the map fits; block-diagonal, the cross-covariances being unknown.
+  void toDenseIfIekf(Map& m) const;
   BackendStatus joinMaps(int map_a, int map_b, int min_loops, bool automatic);
   std::vector<int> loopsBetween(int map_a, int map_b, bool automatic) const;
   bool barred(int sa, int sb) const;
