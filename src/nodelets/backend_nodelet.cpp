@@ -52,6 +52,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <thread>
 #include <variant>
@@ -110,8 +111,8 @@ class BackendNodelet : public nodelet::Nodelet {
   bool processLoop(const uw_multislam::Loop& msg);
   void retryWaitingLoops();
   void publishAll(bool all_sessions);
-  void publishSession(int ext);
-  core::Pose2 correction(int ext) const;
+  /// Publishes a session's trajectory, path and tf from its poses in its map's frame.
+  void publishSession(int ext, const std::vector<core::Pose2>& poses);
   int externalOf(int internal) const;
   void onOdometryPose(const geometry_msgs::PoseStampedConstPtr& msg);
   bool onJoin(uw_multislam::JoinSessions::Request& req, uw_multislam::JoinSessions::Response& res);
@@ -128,6 +129,8 @@ class BackendNodelet : public nodelet::Nodelet {
   void storeKeyframe(int ext, int keyframe, const rc::KeyframeData* k, const core::UncertainPose2* motion,
                      const ros::Time& stamp);
   void saveMaps();
+  /// Stops the recording session in the back-end and the store (its map may be optimised).
+  void endActiveSession();
   void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
   core::SlamConfig config_;
@@ -158,6 +161,7 @@ class BackendNodelet : public nodelet::Nodelet {
   std::unique_ptr<core::MultiSessionBackend> backend_;
   std::map<int, Session> sessions_;  // by external (odometry) id
   int active_ = -1;                  // external id of the recording session
+  std::optional<core::Pose2> active_correction_;  // its map <- odometry correction, as last published
   std::deque<uw_multislam::LoopConstPtr> waiting_;
   std::vector<core::Loop> accepted_;  // for the markers (external session ids)
   int last_optimisations_ = 0, last_joins_ = 0, last_splits_ = 0;
@@ -354,6 +358,17 @@ void BackendNodelet::storeKeyframe(int ext, int keyframe, const rc::KeyframeData
   });
 }
 
+void BackendNodelet::endActiveSession() {
+  if (active_ < 0) return;
+  const Session& s = sessions_.at(active_);
+  backend_->endSession(s.internal);
+  storeWrite("ending a session", [&] {
+    const std::int64_t id = store_sessions_.at(s.internal);
+    if (id >= 0) store_->endSession(id, s.stamps.back().toSec());
+  });
+  saveMaps();
+}
+
 void BackendNodelet::saveMaps() {
   storeWrite("saving the maps", [&] {
     std::vector<std::int64_t> ids = store_sessions_;
@@ -442,14 +457,7 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
                             active_);
       return;
     }
-    if (active_ >= 0) {
-      backend_->endSession(sessions_.at(active_).internal);
-      storeWrite("ending a session", [&] {
-        const std::int64_t id = store_sessions_.at(sessions_.at(active_).internal);
-        if (id >= 0) store_->endSession(id, sessions_.at(active_).stamps.back().toSec());
-      });
-      saveMaps();
-    }
+    endActiveSession();
     Session s;
     s.name = "session_" + std::to_string(k.session);
     s.internal = backend_->startSession(s.name);
@@ -563,15 +571,11 @@ int BackendNodelet::externalOf(int internal) const {
   return -1;
 }
 
-core::Pose2 BackendNodelet::correction(int ext) const {
+void BackendNodelet::publishSession(int ext, const std::vector<core::Pose2>& poses) {
   const Session& s = sessions_.at(ext);
-  const std::vector<core::Pose2> opt = backend_->sessionPoses(s.internal);
-  return core::compose(opt.back(), core::invert(s.odometry.back()));
-}
-
-void BackendNodelet::publishSession(int ext) {
-  const Session& s = sessions_.at(ext);
-  const std::vector<core::Pose2> poses = backend_->sessionPoses(s.internal);
+  // The correction optimisation applied to the session's odometry (map -> session frame).
+  const core::Pose2 correction = core::compose(poses.back(), core::invert(s.odometry.back()));
+  if (ext == active_) active_correction_ = correction;
   const ros::Time now = s.stamps.empty() ? ros::Time::now() : s.stamps.back();
   uw_multislam::SessionTrajectory t;
   t.header.stamp = now;
@@ -594,27 +598,34 @@ void BackendNodelet::publishSession(int ext) {
     tr.header.stamp = now;
     tr.header.frame_id = map_frame_;
     tr.child_frame_id = session_prefix_ + std::to_string(ext);
-    tr.transform = rc::toTransformMsg(correction(ext));
+    tr.transform = rc::toTransformMsg(correction);
     tf_->sendTransform(tr);
   }
 }
 
 void BackendNodelet::publishAll(bool all_sessions) {
+  // Each session's poses once (sessionPoses walks its map's chain).
+  std::map<int, std::vector<core::Pose2>> poses;  // by back-end session
+  auto posesOf = [&](int internal) -> const std::vector<core::Pose2>& {
+    auto it = poses.find(internal);
+    if (it == poses.end()) it = poses.emplace(internal, backend_->sessionPoses(internal)).first;
+    return it->second;
+  };
   if (all_sessions) {
-    for (const auto& [ext, s] : sessions_) publishSession(ext);
+    for (const auto& [ext, s] : sessions_) publishSession(ext, posesOf(s.internal));
   } else if (active_ >= 0) {
-    publishSession(active_);
+    publishSession(active_, posesOf(sessions_.at(active_).internal));
   }
   std::vector<rc::Segment> segments;
   for (const core::Loop& l : accepted_) {
     const int ia = sessions_.at(l.session_a).internal, ib = sessions_.at(l.session_b).internal;
     if (backend_->mapOf(ia) != backend_->mapOf(ib)) continue;
-    segments.push_back({backend_->sessionPoses(ia)[l.keyframe_a], backend_->sessionPoses(ib)[l.keyframe_b],
+    segments.push_back({posesOf(ia)[l.keyframe_a], posesOf(ib)[l.keyframe_b],
                         l.kind == core::Loop::Kind::kLocal ? rc::Segment::Kind::kLocal : rc::Segment::Kind::kGlobal});
   }
   for (int m : backend_->mapIds())
     for (const core::LinkInfo& link : backend_->links(m))
-      segments.push_back({backend_->sessionPoses(link.previous).back(), backend_->sessionPoses(link.current).front(),
+      segments.push_back({posesOf(link.previous).back(), posesOf(link.current).front(),
                           rc::Segment::Kind::kJoin});
   markers_pub_.publish(rc::toMarkerArrayMsg(segments, map_frame_, ros::Time::now()));
 }
@@ -626,9 +637,9 @@ void BackendNodelet::onOdometryPose(const geometry_msgs::PoseStampedConstPtr& ms
   int active;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
-    if (active_ < 0 || sessions_.empty()) return;
+    if (active_ < 0 || !active_correction_) return;
     active = active_;
-    corr = correction(active_);
+    corr = *active_correction_;  // kept by publishSession: no walk of the map per frame
   }
   geometry_msgs::PoseStamped p;
   p.header.stamp = msg->header.stamp;
@@ -723,13 +734,7 @@ bool BackendNodelet::onStart(uw_multislam::StartSession::Request& req, uw_multis
     }
   }
   const int ext = sessions_.empty() ? 0 : sessions_.rbegin()->first + 1;
-  if (active_ >= 0) {
-    backend_->endSession(sessions_.at(active_).internal);
-    storeWrite("ending a session", [&] {
-      const std::int64_t id = store_sessions_.at(sessions_.at(active_).internal);
-      if (id >= 0) store_->endSession(id, sessions_.at(active_).stamps.back().toSec());
-    });
-  }
+  endActiveSession();
   Session s;
   s.name = req.name.empty() ? "session_" + std::to_string(ext) : req.name;
   s.internal = backend_->startSession(s.name);
