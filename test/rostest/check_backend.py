@@ -21,7 +21,7 @@ import rosgraph
 import rosnode
 import rospy
 import rostest
-from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers
+from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers, wait_until_quiet
 from nav_msgs.msg import Path
 from uw_multislam.msg import Loop, Status
 from uw_multislam.srv import JoinSessions, ListSessions, SplitSession, StartSession, ReloadSession
@@ -80,7 +80,7 @@ class BackendTest(unittest.TestCase):
             subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", "4", os.path.join(cls.mission, name + ".bag"),
                             "--topics"] + SENSOR_TOPICS, check=True,
                            timeout=120)
-            cls.wait_until_quiet(5.0)
+            wait_until_quiet(cls.lock, lambda: cls.last_message, 5.0)
         with open(os.path.join(cls.mission, "world_gt.csv")) as f:
             cls.world = {(int(r["session"]), int(r["index"])): (float(r["x_m"]), float(r["y_m"]), float(r["yaw_rad"]))
                          for r in csv.DictReader(f)}
@@ -88,15 +88,6 @@ class BackendTest(unittest.TestCase):
     @classmethod
     def tearDownClass(cls):
         shutil.rmtree(cls.tmp, ignore_errors=True)
-
-    @classmethod
-    def wait_until_quiet(cls, quiet_s, timeout=120.0):
-        deadline = time.time() + timeout
-        while time.time() < deadline:
-            with cls.lock:
-                if time.time() - cls.last_message > quiet_s:
-                    return
-            time.sleep(0.2)
 
     def sessions(self):
         res = self.list()

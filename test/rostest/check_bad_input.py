@@ -16,7 +16,6 @@ with the test's own stamps and encodings, phase after phase:
 
 The assertions then read the last odometry and loop-detector statuses on /diagnostics.
 """
-import math
 import os
 import shutil
 import subprocess
@@ -28,9 +27,9 @@ import unittest
 import numpy as np
 import rosbag
 import rosgraph
-import roslib.packages
 import rospy
 import rostest
+from pipeline_fixture import NS, tool
 import rosnode
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
@@ -46,15 +45,8 @@ sessions:
     mission: {pattern: loop, start_m: [6.0, 5.0], length_m: 3.5, width_m: 2.5, laps: 1.0, speed_m_s: 0.35,
               frame_period_s: 1.0, altitude_m: 1.6, start_time_s: 0}
 """
-NS = "/uw_multislam"
 RATE_HZ = 5.0
 
-
-def tool(name):
-    found = roslib.packages.find_node("uw_multislam", name)
-    if not found:
-        raise RuntimeError("uw_multislam/%s not built" % name)
-    return found[0]
 
 
 def values(status):

@@ -19,36 +19,16 @@ import time
 import unittest
 
 import rosgraph
-import roslib.packages
 import rospy
 import rostest
+from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers, wait_until_quiet
 import rosnode
 from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import CameraInfo, Image, Range
 from uw_multislam.msg import Keyframe, KeyframeHash, Loop
 
-SURVEY = """
-seed: 5
-world: {width_m: 12, height_m: 10, metres_per_px: 0.008, featureless_fraction: 0.0}
-sessions:
-  - name: s0
-    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
-    mission: {pattern: loop, start_m: [6.0, 5.0], length_m: 3.5, width_m: 2.5, laps: 1.3, speed_m_s: 0.35,
-              frame_period_s: 1.0, altitude_m: 1.6, start_time_s: 0}
-  - name: s1
-    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
-    mission: {pattern: loop, start_m: [6.5, 5.5], heading_rad: 1.5708, length_m: 2.5, width_m: 3.0, laps: 1.0,
-              speed_m_s: 0.35, frame_period_s: 1.0, altitude_m: 1.7, start_time_s: 1000}
-"""
 PLAY_RATE = 4.0  # 4 frames per second: far below the odometry's speed on these 240 x 180 images
-NS = "/uw_multislam"
 
-
-def tool(name):
-    found = roslib.packages.find_node("uw_multislam", name)
-    if not found:
-        raise RuntimeError("uw_multislam/%s not built" % name)
-    return found[0]
 
 
 def read_csv(path):
@@ -93,40 +73,15 @@ class SlamPipelineTest(unittest.TestCase):
                     rospy.Subscriber(NS + "/loops", Loop, keep(cls.loops), queue_size=1000),
                     rospy.Subscriber(NS + "/keyframe_hashes", KeyframeHash, keep(cls.hashes), queue_size=1000),
                     rospy.Subscriber(NS + "/odometry/pose", PoseStamped, keep(cls.poses), queue_size=1000)]
-        cls.wait_for_pipeline()
+        wait_for_subscribers(SENSOR_TOPICS + [NS + "/keyframes"], "/check_slam_pipeline")
         for bag in cls.bags:
             subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", str(PLAY_RATE), bag, "--topics",
                             "/camera/image_raw", "/camera/camera_info", "/altitude"], check=True, timeout=120)
-            cls.wait_until_quiet(5.0)
+            wait_until_quiet(cls.lock, lambda: cls.last_message, 5.0)
 
     @classmethod
     def tearDownClass(cls):
         shutil.rmtree(cls.tmp, ignore_errors=True)
-
-    @classmethod
-    def wait_for_pipeline(cls, timeout=60.0):
-        """Until the odometry subscribes to the three sensor topics and the loop detector and this
-        test to the keyframes and loops (nodelet or standalone: whichever node does)."""
-        master = rosgraph.Master("/check_slam_pipeline")
-        wanted = ["/camera/image_raw", "/camera/camera_info", "/altitude", NS + "/keyframes"]
-        deadline = time.time() + timeout
-        while time.time() < deadline:
-            _, subscribers, _ = master.getSystemState()
-            subscribed = {topic: nodes for topic, nodes in subscribers}
-            if all(any(n != rospy.get_name() for n in subscribed.get(t, [])) for t in wanted):
-                time.sleep(2.0)  # connections
-                return
-            time.sleep(0.5)
-        raise AssertionError("the pipeline did not subscribe to %s within %.0f s" % (wanted, timeout))
-
-    @classmethod
-    def wait_until_quiet(cls, quiet_s, timeout=120.0):
-        deadline = time.time() + timeout
-        while time.time() < deadline:
-            with cls.lock:
-                if time.time() - cls.last_message > quiet_s:
-                    return
-            time.sleep(0.2)
 
     def test_keyframes_of_both_sessions_match_offline_slam(self):
         got = [(k.session, k.frame_index, k.odometry_pose.x, k.odometry_pose.y) for k in self.keyframes]

@@ -19,7 +19,7 @@ import unittest
 
 import rospy
 import rostest
-from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers
+from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers, wait_until_quiet
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
 from uw_multislam.srv import ListSessions, ReloadSession
 
@@ -115,12 +115,7 @@ class StoreTest(unittest.TestCase):
             loops_before = len(self.loops)
         subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", "4", os.path.join(self.mission, "s1.bag"),
                         "--topics"] + SENSOR_TOPICS, check=True, timeout=120)
-        deadline = time.time() + 60
-        while time.time() < deadline:
-            with self.lock:
-                if time.time() - self.last > 5.0:
-                    break
-            time.sleep(0.2)
+        wait_until_quiet(self.lock, lambda: self.last, 5.0, timeout=60)
         with self.lock:
             against = [l for l in self.loops[loops_before:] if l.kind == Loop.GLOBAL and l.session_a == 0]
         self.assertGreaterEqual(len(against), 3, "global loops against the reloaded session")

@@ -43,3 +43,13 @@ def wait_for_subscribers(topics, caller, timeout=60.0):
             return
         time.sleep(0.5)
     raise AssertionError("the pipeline did not subscribe to %s within %.0f s" % (topics, timeout))
+
+
+def wait_until_quiet(lock, last_message_time, quiet_s, timeout=120.0):
+    """Until no message arrived for quiet_s seconds: last_message_time() is read under lock."""
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        with lock:
+            if time.time() - last_message_time() > quiet_s:
+                return
+        time.sleep(0.2)
