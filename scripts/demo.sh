@@ -30,8 +30,6 @@ out=${UWMS_DEMO_OUT:-$UWMS_REPO/out/demo}
 rate=${UWMS_DEMO_RATE:-4}
 started=$(date +%s)
 
-echo "[demo] core self-check"
-"$bin/self_check" | tail -n 1
 echo "[demo] generating the two-session demo survey into $out/survey"
 "$bin/make_survey" --preset demo --out "$out/survey" --quiet
 

@@ -18,7 +18,7 @@
 // Services: join_sessions, split_session, list_sessions, start_session, reload_session.
 //
 // Session store (~store_path, default $ROS_HOME/uw_multislam/sessions.db; "" = none; see
-// core/session_store.h): every keyframe (features, descriptors, hash), its motion and each loop
+// core/session/session_store.h): every keyframe (features, descriptors, hash), its motion and each loop
 // are written as they arrive, one transaction each (WAL), the maps at every join, split and
 // session end, so a kill -9 loses at most what was in flight. At start-up the stored sessions,
 // loops and maps are put back into the back-end (they take ids 0..k-1; active_session asks the
@@ -67,10 +67,11 @@
 #include "uw_multislam/SessionTrajectory.h"
 #include "uw_multislam/SplitSession.h"
 #include "uw_multislam/StartSession.h"
-#include "uw_multislam/core/backend.h"
-#include "uw_multislam/core/haloc.h"
-#include "uw_multislam/core/session_store.h"
-#include "uw_multislam/core/slam_config.h"
+#include "uw_multislam/core/backend/backend.h"
+#include "uw_multislam/core/loops/haloc.h"
+#include "uw_multislam/core/session/map_persistence.h"
+#include "uw_multislam/core/session/session_store.h"
+#include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/backend_conversions.h"
 #include "uw_multislam/ros/conversions.h"
 #include "uw_multislam/ros/diagnostics.h"

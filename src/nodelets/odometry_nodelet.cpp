@@ -23,7 +23,7 @@
 // Sessions: the first session has id ~session. A new session starts (the odometry restarts, the
 // next keyframe is the new origin) when the back-end asks for another id on active_session, when
 // the image stamps jump back in time or forward by more than ~session_gap_s, when the camera
-// intrinsics change, or when tracking is lost (core/tracking.h: tracking.max_fallbacks unmatched
+// intrinsics change, or when tracking is lost (core/frontend/tracking.h: tracking.max_fallbacks unmatched
 // frames close the session, the next frame with tracking.min_features features starts the next;
 // keyframes with reused motions are published only once tracking is confirmed). Without a
 // back-end the ids simply count up.
@@ -38,7 +38,7 @@
 //   - camera_info without a focal length, or with the principal point outside: frame skipped;
 //   - altitude NaN, <= 0 or outside the sensor's range: the core reuses the last valid one (a
 //     frame before any valid altitude is skipped);
-//   - stamps (core/stamp_guard.h): the same stamp twice is a duplicate, a stamp up to
+//   - stamps (core/frontend/stamp_guard.h): the same stamp twice is a duplicate, a stamp up to
 //     ~reorder_tolerance_s back is late: both skipped; further back (a bag that loops, a clock
 //     reset) or forward by more than ~session_gap_s: a new session;
 //   - a silent input: images arrive but no synchronised set for ~input_timeout_s (altitude or
@@ -80,10 +80,10 @@
 
 #include "uw_multislam/Keyframe.h"
 #include "uw_multislam/SessionState.h"
-#include "uw_multislam/core/odometry.h"
-#include "uw_multislam/core/slam_config.h"
-#include "uw_multislam/core/stamp_guard.h"
-#include "uw_multislam/core/tracking.h"
+#include "uw_multislam/core/frontend/odometry.h"
+#include "uw_multislam/core/session/slam_config.h"
+#include "uw_multislam/core/frontend/stamp_guard.h"
+#include "uw_multislam/core/frontend/tracking.h"
 #include "uw_multislam/ros/conversions.h"
 #include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/pipeline_conversions.h"

@@ -12,18 +12,9 @@ uw_multislam::Status statusMsg(std::uint8_t code, const std::string& message) {
   return s;
 }
 
-uw_multislam::Status toStatusMsg(const core::BackendStatus& s) {
-  switch (s.code) {
-    case core::StatusCode::kOk:
-      return statusMsg(uw_multislam::Status::OK, "");
-    case core::StatusCode::kInvalidArgument:
-      return statusMsg(uw_multislam::Status::INVALID_ARGUMENT, s.message);
-    case core::StatusCode::kNotFound:
-      return statusMsg(uw_multislam::Status::NOT_FOUND, s.message);
-    case core::StatusCode::kFailedPrecondition:
-      return statusMsg(uw_multislam::Status::FAILED_PRECONDITION, s.message);
-  }
-  return statusMsg(uw_multislam::Status::INTERNAL, "unknown back-end status: " + s.message);
+uw_multislam::Status toStatusMsg(const core::Status& s) {
+  // core::StatusCode takes its values from Status.msg (test_conversions checks each one).
+  return statusMsg(static_cast<std::uint8_t>(s.code), s.ok() ? std::string() : s.message);
 }
 
 nav_msgs::Path toPathMsg(const std::vector<core::Pose2>& poses, const std::vector<ros::Time>& stamps,

@@ -16,9 +16,9 @@
 #include <string>
 #include <vector>
 
-#include "uw_multislam/core/dataset.h"
-#include "uw_multislam/core/features.h"
-#include "uw_multislam/core/stage_timer.h"
+#include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/frontend/features.h"
+#include "uw_multislam/core/common/stage_timer.h"
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;

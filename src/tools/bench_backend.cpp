@@ -26,8 +26,8 @@
 #include <string>
 #include <vector>
 
-#include "uw_multislam/core/backend.h"
-#include "uw_multislam/core/dataset.h"
+#include "uw_multislam/core/backend/backend.h"
+#include "uw_multislam/core/frontend/dataset.h"
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;

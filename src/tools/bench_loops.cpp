@@ -26,14 +26,14 @@
 #include <utility>
 #include <vector>
 
-#include "uw_multislam/core/dataset.h"
-#include "uw_multislam/core/enhancement.h"
-#include "uw_multislam/core/features.h"
-#include "uw_multislam/core/haloc.h"
-#include "uw_multislam/core/loop_detector.h"
-#include "uw_multislam/core/odometry.h"
-#include "uw_multislam/core/pair_motion.h"
-#include "uw_multislam/core/se2.h"
+#include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/frontend/enhancement.h"
+#include "uw_multislam/core/frontend/features.h"
+#include "uw_multislam/core/loops/haloc.h"
+#include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/frontend/odometry.h"
+#include "uw_multislam/core/frontend/pair_motion.h"
+#include "uw_multislam/core/geometry/se2.h"
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;

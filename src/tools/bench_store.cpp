@@ -13,8 +13,9 @@
 #include <string>
 #include <vector>
 
-#include "uw_multislam/core/loop_detector.h"
-#include "uw_multislam/core/session_store.h"
+#include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/session/map_persistence.h"
+#include "uw_multislam/core/session/session_store.h"
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;

@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "uw_multislam/core/dataset.h"
+#include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/ros/dataset_bag.h"
 
 namespace core = uw_multislam::core;

@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "uw_multislam/core/survey_config.h"
+#include "uw_multislam/sim/survey_config.h"
 #include "uw_multislam/ros/dataset_bag.h"
 
 namespace core = uw_multislam::core;

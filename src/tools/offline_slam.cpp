@@ -13,13 +13,14 @@
 #include <string>
 #include <vector>
 
-#include "uw_multislam/core/dataset.h"
-#include "uw_multislam/core/backend.h"
-#include "uw_multislam/core/loop_detector.h"
-#include "uw_multislam/core/odometry.h"
-#include "uw_multislam/core/session_store.h"
-#include "uw_multislam/core/slam_config.h"
-#include "uw_multislam/core/tracking.h"
+#include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/backend/backend.h"
+#include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/frontend/odometry.h"
+#include "uw_multislam/core/session/map_persistence.h"
+#include "uw_multislam/core/session/session_store.h"
+#include "uw_multislam/core/session/slam_config.h"
+#include "uw_multislam/core/frontend/tracking.h"
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;
@@ -209,7 +210,7 @@ int main(int argc, char** argv) {
       saved_splits = backend.stats().splits;
     };
     // Back-end sessions: stored ones first, then one or more per folder (a new one each time
-    // tracking is lost, see core/tracking.h). The CSV files number sessions by folder (DESIGN.md).
+    // tracking is lost, see core/frontend/tracking.h). The CSV files number sessions by folder (DESIGN.md).
     std::vector<int> csv_of(first_new);
     for (int b = 0; b < first_new; ++b) csv_of[b] = b;
     for (std::size_t ds = 0; ds < datasets.size(); ++ds) {

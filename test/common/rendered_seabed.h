@@ -4,7 +4,7 @@
 
 #include <gtest/gtest.h>
 
-#include "uw_multislam/core/seabed_world.h"
+#include "uw_multislam/sim/seabed_world.h"
 
 namespace uw_multislam {
 namespace testing_util {

@@ -1,4 +1,4 @@
-// The multi-session back-end (core/backend.h): sessions, automatic and explicit joins, splits,
+// The multi-session back-end (core/backend/backend.h): sessions, automatic and explicit joins, splits,
 // delayed optimisation, both optimisers on the same graph.
 #include <gtest/gtest.h>
 
@@ -6,7 +6,7 @@
 
 #include <random>
 
-#include "uw_multislam/core/backend.h"
+#include "uw_multislam/core/backend/backend.h"
 
 namespace uw_multislam {
 namespace core {

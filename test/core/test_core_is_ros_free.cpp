@@ -75,7 +75,7 @@ TEST(CoreIsRosFree, DetectorFlagsRosIncludes) {
 TEST(CoreIsRosFree, NoCoreFileIncludesRos) {
   const fs::path root(UWMS_SOURCE_DIR);
   std::vector<fs::path> files;
-  for (const char* dir : {"include/uw_multislam/core", "src/core"}) {
+  for (const char* dir : {"include/uw_multislam/core", "src/core", "include/uw_multislam/sim", "src/sim"}) {
     ASSERT_TRUE(fs::is_directory(root / dir)) << (root / dir) << " is missing";
     const auto f = sourcesUnder(root / dir);
     files.insert(files.end(), f.begin(), f.end());
@@ -89,6 +89,25 @@ TEST(CoreIsRosFree, NoCoreFileIncludesRos) {
   std::string report;
   for (const auto& b : bad) report += "  " + b + "\n";
   EXPECT_TRUE(bad.empty()) << "ROS includes in the core library:\n" << report;
+}
+
+TEST(CoreIsRosFree, CoreDoesNotIncludeTheSimulator) {
+  // The simulator is its own library (uw_multislam_sim) that the vehicle's code does not link:
+  // a core file including a sim header would pull it back in.
+  const fs::path root(UWMS_SOURCE_DIR);
+  std::vector<std::string> bad;
+  for (const char* dir : {"include/uw_multislam/core", "src/core"}) {
+    for (const auto& f : sourcesUnder(root / dir)) {
+      std::ifstream in(f);
+      std::string line;
+      while (std::getline(in, line))
+        if (line.find("#include") != std::string::npos && line.find("uw_multislam/sim/") != std::string::npos)
+          bad.push_back(f.string() + ": " + line);
+    }
+  }
+  std::string report;
+  for (const auto& b : bad) report += "  " + b + "\n";
+  EXPECT_TRUE(bad.empty()) << "core files including the simulator:\n" << report;
 }
 
 }  // namespace

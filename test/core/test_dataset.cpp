@@ -5,7 +5,7 @@
 #include <fstream>
 
 #include "../common/scoped_temp_dir.h"
-#include "uw_multislam/core/dataset.h"
+#include "uw_multislam/core/frontend/dataset.h"
 
 namespace uw_multislam {
 namespace core {

@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "uw_multislam/core/enhancement.h"
+#include "uw_multislam/core/frontend/enhancement.h"
 
 namespace uw_multislam {
 namespace core {

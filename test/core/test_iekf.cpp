@@ -5,7 +5,7 @@
 
 #include <random>
 
-#include "uw_multislam/core/iekf.h"
+#include "uw_multislam/core/backend/iekf.h"
 
 namespace uw_multislam {
 namespace core {

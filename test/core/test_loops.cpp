@@ -7,9 +7,9 @@
 #include <random>
 
 #include "../common/rendered_seabed.h"
-#include "uw_multislam/core/loop_detector.h"
-#include "uw_multislam/core/odometry.h"
-#include "uw_multislam/core/seabed_world.h"
+#include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/frontend/odometry.h"
+#include "uw_multislam/sim/seabed_world.h"
 
 namespace uw_multislam {
 namespace core {

@@ -3,7 +3,7 @@
 
 #include <random>
 
-#include "uw_multislam/core/map_joining.h"
+#include "uw_multislam/core/backend/map_joining.h"
 
 namespace uw_multislam {
 namespace core {

@@ -7,11 +7,11 @@
 #include <random>
 
 #include "../common/rendered_seabed.h"
-#include "uw_multislam/core/features.h"
-#include "uw_multislam/core/matching.h"
-#include "uw_multislam/core/odometry.h"
-#include "uw_multislam/core/rigid_ransac.h"
-#include "uw_multislam/core/seabed_world.h"
+#include "uw_multislam/core/frontend/features.h"
+#include "uw_multislam/core/frontend/matching.h"
+#include "uw_multislam/core/frontend/odometry.h"
+#include "uw_multislam/core/frontend/rigid_ransac.h"
+#include "uw_multislam/sim/seabed_world.h"
 
 namespace uw_multislam {
 namespace core {

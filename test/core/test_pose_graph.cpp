@@ -1,4 +1,4 @@
-// The sparse back-end (core/pose_graph.h): Ceres pose graph, robust loss, marginals, and its
+// The sparse back-end (core/backend/pose_graph.h): Ceres pose graph, robust loss, marginals, and its
 // agreement with the paper's IEKF on small problems.
 #include <gtest/gtest.h>
 
@@ -6,9 +6,9 @@
 
 #include <random>
 
-#include "uw_multislam/core/iekf.h"
-#include "uw_multislam/core/pose_graph.h"
-#include "uw_multislam/core/trajectory.h"
+#include "uw_multislam/core/backend/iekf.h"
+#include "uw_multislam/core/backend/pose_graph.h"
+#include "uw_multislam/core/geometry/trajectory.h"
 
 namespace uw_multislam {
 namespace core {

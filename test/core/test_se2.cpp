@@ -9,7 +9,7 @@
 
 #include <Eigen/Dense>
 
-#include "uw_multislam/core/se2.h"
+#include "uw_multislam/core/geometry/se2.h"
 
 namespace uw_multislam {
 namespace core {

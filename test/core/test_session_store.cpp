@@ -1,4 +1,4 @@
-// The session store (core/session_store.h): round trip into the back-end and the loop detector,
+// The session store (core/session/session_store.h): round trip into the back-end and the loop detector,
 // bad files refused without being modified, a full disk, kill -9 during writing.
 #include <gtest/gtest.h>
 #include <sqlite3.h>
@@ -12,8 +12,9 @@
 #include <random>
 
 #include "../common/scoped_temp_dir.h"
-#include "uw_multislam/core/loop_detector.h"
-#include "uw_multislam/core/session_store.h"
+#include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/session/map_persistence.h"
+#include "uw_multislam/core/session/session_store.h"
 
 namespace uw_multislam {
 namespace core {

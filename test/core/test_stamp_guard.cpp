@@ -4,7 +4,7 @@
 #include <limits>
 #include <stdexcept>
 
-#include "uw_multislam/core/stamp_guard.h"
+#include "uw_multislam/core/frontend/stamp_guard.h"
 
 namespace uw_multislam {
 namespace core {

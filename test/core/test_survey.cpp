@@ -10,9 +10,9 @@
 #include <sstream>
 
 #include "../common/scoped_temp_dir.h"
-#include "uw_multislam/core/dataset.h"
-#include "uw_multislam/core/survey_config.h"
-#include "uw_multislam/core/survey_generator.h"
+#include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/sim/survey_config.h"
+#include "uw_multislam/sim/survey_generator.h"
 
 namespace uw_multislam {
 namespace core {

@@ -1,9 +1,9 @@
-// Tracking loss (core/tracking.h): a blank stretch closes the session, the next textured frame
+// Tracking loss (core/frontend/tracking.h): a blank stretch closes the session, the next textured frame
 // starts a new one; short dropouts and blank starts do not make sessions.
 #include <gtest/gtest.h>
 
 #include "../common/rendered_seabed.h"
-#include "uw_multislam/core/tracking.h"
+#include "uw_multislam/core/frontend/tracking.h"
 
 namespace uw_multislam {
 namespace core {

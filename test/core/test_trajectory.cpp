@@ -6,7 +6,7 @@
 #include <random>
 #include <stdexcept>
 
-#include "uw_multislam/core/trajectory.h"
+#include "uw_multislam/core/geometry/trajectory.h"
 
 namespace uw_multislam {
 namespace core {

@@ -13,7 +13,7 @@
 
 #include <random>
 
-#include "uw_multislam/core/uncertain_pose.h"
+#include "uw_multislam/core/geometry/uncertain_pose.h"
 
 namespace uw_multislam {
 namespace core {

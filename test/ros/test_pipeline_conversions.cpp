@@ -5,9 +5,9 @@
 #include <limits>
 
 #include "../common/rendered_seabed.h"
-#include "uw_multislam/core/features.h"
-#include "uw_multislam/core/haloc.h"
-#include "uw_multislam/core/odometry.h"
+#include "uw_multislam/core/frontend/features.h"
+#include "uw_multislam/core/loops/haloc.h"
+#include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 
 namespace uw_multislam {

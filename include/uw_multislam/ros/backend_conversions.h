@@ -1,4 +1,4 @@
-// Conversions between the back-end (core/backend.h) and its ROS messages: service statuses,
+// Conversions between the back-end (core/backend/backend.h) and its ROS messages: service statuses,
 // session states, paths and the loop / join markers. One place for them (STYLE.md), each tested in
 // test/ros/test_backend_conversions.cpp.
 #pragma once
@@ -12,13 +12,13 @@
 
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/Status.h"
-#include "uw_multislam/core/backend.h"
+#include "uw_multislam/core/backend/backend.h"
 
 namespace uw_multislam {
 namespace ros_conversions {
 
-/// The back-end's status as the services' Status (codes as cartographer_ros: OK, NOT_FOUND, ...).
-uw_multislam::Status toStatusMsg(const core::BackendStatus& s);
+/// The core's status as the services' Status (the same codes: OK, NOT_FOUND, ...).
+uw_multislam::Status toStatusMsg(const core::Status& s);
 uw_multislam::Status statusMsg(std::uint8_t code, const std::string& message);
 
 /// A session's keyframe poses (in its map's frame) as a Path in `frame_id`; stamps[k] per pose

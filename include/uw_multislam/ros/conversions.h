@@ -7,7 +7,7 @@
 #include <geometry_msgs/PoseWithCovariance.h>
 #include <geometry_msgs/Transform.h>
 
-#include "uw_multislam/core/uncertain_pose.h"
+#include "uw_multislam/core/geometry/uncertain_pose.h"
 
 namespace uw_multislam {
 namespace ros_conversions {

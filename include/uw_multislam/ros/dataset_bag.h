@@ -25,7 +25,7 @@
 #include <string>
 #include <vector>
 
-#include "uw_multislam/core/dataset.h"
+#include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/ros/topics.h"
 
 namespace uw_multislam {

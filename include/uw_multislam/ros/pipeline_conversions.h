@@ -16,12 +16,12 @@
 #include "uw_multislam/Keyframe.h"
 #include "uw_multislam/KeyframeHash.h"
 #include "uw_multislam/Loop.h"
-#include "uw_multislam/core/dataset.h"
-#include "uw_multislam/core/features.h"
-#include "uw_multislam/core/haloc.h"
-#include "uw_multislam/core/loop_detector.h"
-#include "uw_multislam/core/odometry.h"
-#include "uw_multislam/core/uncertain_pose.h"
+#include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/frontend/features.h"
+#include "uw_multislam/core/loops/haloc.h"
+#include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/frontend/odometry.h"
+#include "uw_multislam/core/geometry/uncertain_pose.h"
 
 namespace uw_multislam {
 namespace ros_conversions {

@@ -11,7 +11,7 @@
 #include <opencv2/core.hpp>
 #include <string>
 
-#include "uw_multislam/core/dataset.h"
+#include "uw_multislam/core/frontend/dataset.h"
 
 namespace uw_multislam {
 namespace ros_conversions {

@@ -12,7 +12,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "uw_multislam/core/slam_config.h"
+#include "uw_multislam/core/session/slam_config.h"
 
 namespace uw_multislam {
 namespace ros_params {

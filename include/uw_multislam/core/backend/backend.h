@@ -1,0 +1,254 @@
+// The multi-session back-end: sessions, maps, links, optimisation (paper 000 §8 and §9).
+//
+// A *session* is one continuous trajectory of keyframes, built from odometry motions (10)(11).
+// A *map* is a chain of sessions [s_0, s_1, ..., s_m] joined by single links: link i is the motion
+// from the LAST keyframe of s_i to the FIRST keyframe of s_{i+1}. The map's state is the
+// concatenation (33)(34): s_0's motions, link 0, s_1's motions, ..., so that every keyframe of the
+// map has one index and every loop inside the map is a measurement of X_j^i (14) over that chain.
+// A map's id is the id of its first session and its frame is that session's frame (DESIGN.md).
+//
+// Joining two maps A and B (Algorithm 2) puts one after the other: "the end of the previous
+// session" is the last keyframe of the last session of the map placed first, "the start of the
+// current session" is the first keyframe of the first session of the map placed second. The map
+// holding a session that is still recording is placed second (a recording session must stay at
+// the end of its chain, where its new motions are appended); otherwise the map whose first session
+// is older (smaller id) is placed first. The link is estimated from every stored global loop
+// between the two maps (at least K = join_min_loops; the loops may involve any of their sessions,
+// X_pe^pi and X_ci^cs are taken through the chains) by map_joining.h, after refusing loops that
+// disagree with the others; those loops are then summarised by the link and not used again.
+//
+// Splitting session s off its map removes it from the chain; it becomes a map of its own and
+// keeps its optimised motions, and so does the rest. If s was in the middle, its neighbours stay
+// joined by the composed link L_in ⊕ X_s ⊕ L_out (its covariance propagated through the joint
+// covariance), so the rest stays one chain. The global loops that tied s to the rest become
+// inter-map loops again, available to join later; automatic joining will not use loops between
+// a split pair again until the user joins them explicitly.
+//
+// Two optimisers over the same graph (odometry motions, links, loops not summarised by a link):
+//  - "iekf": the paper's intra-map IEKF (iekf.h), a dense 3N x 3N covariance per map, applying
+//    each loop once. A map larger than max_keyframes falls back to the sparse optimiser (logged).
+//  - "sparse" (default): the Ceres pose graph of pose_graph.h, re-solved over the whole map,
+//    warm-started, with a robust loss on loops. Memory O(N + loops).
+// Optimisation is delayed until optimise_every (M) loops are pending in a map, or a session
+// ends, or flush() is called.
+#pragma once
+
+#include <Eigen/Core>
+
+#include <functional>
+#include <map>
+#include <optional>
+#include <set>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "uw_multislam/core/backend/iekf.h"
+#include "uw_multislam/core/common/status.h"
+#include "uw_multislam/core/backend/pose_graph.h"
+#include "uw_multislam/core/geometry/trajectory.h"
+
+namespace uw_multislam {
+namespace core {
+
+enum class OptimizerKind { kIekf, kSparse };
+const char* optimizerName(OptimizerKind k);
+/// "iekf" or "sparse"; false otherwise.
+bool parseOptimizer(const std::string& name, OptimizerKind* out);
+
+struct BackendOptions {
+  bool optimise = true;                            // false: trajectories stay the odometry's (joins still happen)
+  OptimizerKind optimizer = OptimizerKind::kSparse;
+  int optimise_every = 3;      // M: optimise a map when this many loops are pending in it
+  int join_min_loops = 5;      // K: global loops needed to join two maps automatically (0 = never)
+  double join_gate_m = 0.5;    // a loop whose position disagrees with the joined link by more
+                               // than this is refused (metres, not χ²: odometry covariances are
+                               // over-confident over long chains, a χ² gate refused true loops)
+  IekfOptions iekf;
+  int max_keyframes = 1500;    // iekf: a larger map uses the sparse optimiser (dense P is 3N x 3N)
+  SparseOptions sparse;
+
+  std::string validate() const;
+};
+
+/// A loop as the back-end stores it: z is the pose of (session_b, keyframe_b) in (session_a, keyframe_a).
+struct BackendLoop {
+  int session_a = 0, keyframe_a = 0;
+  int session_b = 0, keyframe_b = 0;
+  UncertainPose2 z;
+};
+
+using BackendStatus = Status;
+
+struct SessionInfo {
+  int id = 0;
+  std::string name;
+  bool recording = false;
+  int map = 0;
+  int keyframes = 0;
+};
+
+struct LinkInfo {
+  int previous = 0;   // the session whose last keyframe the link starts from
+  int current = 0;    // the session whose first keyframe it reaches
+  UncertainPose2 measured;  // from the join (or composed by a split)
+  Pose2 estimate;           // after optimisation
+  int loops = 0;            // global loops it summarises
+};
+
+/// A stored loop with its state in the back-end (for the session store).
+struct LoopRecord {
+  BackendLoop loop;
+  bool summarised = false;  // used by a link
+  bool applied = false;     // in an IEKF state
+  bool refused = false;     // refused as inconsistent at a join
+};
+
+/// One link of a map as stored: its measurement and the ids of the loops it summarises.
+struct MapLinkState {
+  UncertainPose2 measured;
+  std::vector<int> loops;
+};
+
+/// A map as the session store keeps it: its chain, links, and the current (optimised) motions
+/// of the whole chain with their marginal covariances (concatenation (33): the sessions' motions
+/// with each link between them), and the loops pending optimisation.
+struct MapState {
+  std::vector<int> chain;
+  std::vector<MapLinkState> links;        // links[i] joins chain[i] -> chain[i+1]
+  std::vector<UncertainPose2> motions;
+  int pending = 0;
+};
+
+struct BackendStats {
+  int loops = 0;            // loops received
+  int loops_refused = 0;    // refused at a join as inconsistent with the others
+  int joins = 0, splits = 0;
+  int optimisations = 0;
+  double optimise_ms_total = 0.0, optimise_ms_max = 0.0;
+};
+
+class MultiSessionBackend {
+ public:
+  using Log = std::function<void(const std::string&)>;
+  /// Throws std::invalid_argument on bad options. `log` receives one line per join, split,
+  /// refused loop or optimiser fallback.
+  explicit MultiSessionBackend(const BackendOptions& options, Log log = {});
+
+  /// A new recording session with one keyframe (its origin), alone in a new map. Returns its id.
+  int startSession(const std::string& name = "");
+  /// Stops recording: optimises its map if loops are pending.
+  void endSession(int session);
+  /// Appends the odometry motion X_k^{k-1} to a recording session (10)(11).
+  void addMotion(int session, const UncertainPose2& motion);
+  /// Stores a loop (both keyframes must exist). Inside a map it is pending for optimisation;
+  /// between maps it is stored and may trigger a join (K loops). Throws std::invalid_argument.
+  void addLoop(const BackendLoop& loop);
+  /// Optimises every map with pending loops.
+  void flush();
+
+  /// Joins the maps of two sessions from their stored global loops (at least min_loops >= 1).
+  BackendStatus join(int session_a, int session_b, int min_loops = 1);
+  /// Splits a session off its map.
+  BackendStatus split(int session);
+
+  int numSessions() const { return static_cast<int>(sessions_.size()); }
+  bool hasSession(int s) const { return s >= 0 && s < numSessions(); }
+  SessionInfo session(int s) const;
+  int mapOf(int s) const { return sessionAt(s).map; }
+  std::vector<int> mapIds() const;
+  const std::vector<int>& chain(int map) const;
+  std::vector<LinkInfo> links(int map) const;
+  /// The session's keyframe poses in its map's frame.
+  std::vector<Pose2> sessionPoses(int s) const;
+  /// The session's current motions with their covariances, in its own frame (for the local loop
+  /// search: with the sparse optimiser the covariances are the odometry's, an upper bound).
+  Trajectory sessionTrajectory(int s) const;
+  /// Global loops stored between the maps of two sessions and not yet used by a join.
+  int pendingJoinLoops(int session_a, int session_b) const;
+  const BackendStats& stats() const { return stats_; }
+  const BackendOptions& options() const { return options_; }
+
+  // --- Session store (session_store.h): export the state, put it back exactly. ---
+  /// A map's chain, links, current motions and pending count. Throws std::invalid_argument.
+  MapState mapState(int map) const;
+  int numLoops() const { return static_cast<int>(loops_.size()); }
+  /// Loop `id` (ids count addLoop/restoreLoop calls from 0). Throws std::invalid_argument.
+  LoopRecord loopRecord(int id) const;
+  /// Pairs of sessions split apart by the user (automatic joining leaves them apart).
+  std::vector<std::pair<int, int>> splitPairs() const {
+    return std::vector<std::pair<int, int>>(split_pairs_.begin(), split_pairs_.end());
+  }
+  /// A finished session from its stored odometry motions, alone in a new map whose estimate is
+  /// the odometry (restoreMap puts the optimised motions back). Nothing is optimised. Returns its
+  /// id. Throws std::invalid_argument on a bad motion.
+  int restoreSession(const std::string& name, const std::vector<UncertainPose2>& odometry);
+  /// A stored loop with its state, as it was: no optimisation, no join. Returns its id.
+  /// Throws std::invalid_argument like addLoop.
+  int restoreLoop(const LoopRecord& record);
+  /// Puts a stored map back exactly: every session of `state.chain` must be finished and alone in
+  /// its map; `state.motions` must hold the chain's motions and links (or be empty: the
+  /// sessions' current motions and the links' measurements). The loops named by the links are
+  /// marked summarised. Nothing is optimised. The map's id becomes chain.front().
+  BackendStatus restoreMap(const MapState& state);
+  /// Marks two sessions as split apart by the user.
+  void restoreSplitPair(int session_a, int session_b);
+
+ private:
+  struct Session {
+    std::string name;
+    bool recording = false;
+    int map = 0;
+    std::vector<UncertainPose2> odometry;  // measured motions, odometry[k-1] = X_k^{k-1}
+    int keyframes() const { return static_cast<int>(odometry.size()) + 1; }
+  };
+  struct Link {
+    UncertainPose2 measured;
+    std::vector<int> loops;  // ids of the loops it summarises
+  };
+  struct LoopState {
+    BackendLoop loop;
+    bool summarised = false;  // used by a link
+    bool applied = false;     // in the IEKF state
+    bool refused = false;     // inconsistent at a join
+  };
+  struct Map {
+    std::vector<int> chain;
+    std::vector<Link> links;                // links[i] joins chain[i] -> chain[i+1]
+    std::vector<Pose2> motions;             // concatenated motion estimates (sparse maps)
+    std::vector<Eigen::Matrix3d> cov;       // their covariances (sparse maps)
+    std::optional<TrajectoryIekf> iekf;     // dense maps: motions and joint covariance
+    int pending = 0;                        // loops waiting for optimisation
+    int numMotions() const;
+    Pose2 motion(int k) const;              // k = 0-based motion index (motion k reaches keyframe k+1)
+    Eigen::Matrix3d motionCov(int k) const;
+  };
+
+  const Session& sessionAt(int s) const;
+  Map& mapAt(int id);
+  const Map& mapAt(int id) const;
+  int offset(const Map& m, int session) const;  // index of the session's first keyframe in the map
+  int indexOf(int session, int keyframe) const { return offset(mapAt(mapOf(session)), session) + keyframe; }
+  void optimise(int map_id);
+  void optimiseSparse(Map& m);
+  void optimiseIekf(Map& m);
+  void toSparse(Map& m, const std::string& why);
+  /// A sparse map (motions, marginal covariances) into the IEKF's dense form, when the IEKF is the
+  /// optimiser and the map fits; block-diagonal, the cross-covariances being unknown.
+  void toDenseIfIekf(Map& m) const;
+  BackendStatus joinMaps(int map_a, int map_b, int min_loops, bool automatic);
+  std::vector<int> loopsBetween(int map_a, int map_b, bool automatic) const;
+  bool barred(int sa, int sb) const;
+  void say(const std::string& line) const;
+
+  BackendOptions options_;
+  Log log_;
+  std::vector<Session> sessions_;
+  std::map<int, Map> maps_;
+  std::vector<LoopState> loops_;
+  std::set<std::pair<int, int>> split_pairs_;  // sessions split apart by the user
+  BackendStats stats_;
+};
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,32 @@
+// The outcome of a request to the core (join, split, start, reload, ...). The codes are those of
+// msg/Status.msg (cartographer_ros' StatusCode, gRPC's numbering), so the ROS layer copies the
+// value and never translates. A request that fails changes nothing.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+namespace uw_multislam {
+namespace core {
+
+enum class StatusCode : std::uint8_t {
+  kOk = 0,
+  kInvalidArgument = 3,     // a bad value in the request (the message names it)
+  kNotFound = 5,            // no session / map with that id or name
+  kAlreadyExists = 6,       // e.g. a session name already taken, a session already loaded
+  kFailedPrecondition = 9,  // a valid request the current state does not allow
+  kInternal = 13,
+  kDataLoss = 15,           // the session store could not be read
+};
+
+struct Status {
+  StatusCode code = StatusCode::kOk;
+  std::string message;  // a sentence a person can act on; empty when OK
+  bool ok() const { return code == StatusCode::kOk; }
+  static Status Ok(std::string message = "") { return {StatusCode::kOk, std::move(message)}; }
+};
+
+const char* statusCodeName(StatusCode c);
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,85 @@
+// Reading option structs from YAML maps: every key read into its field, unknown keys rejected
+// with the path of the map ("sessions[1].water: unknown key 'turbidty'"), so a typo never falls
+// back silently to a default.
+#pragma once
+
+#include <yaml-cpp/yaml.h>
+#include <Eigen/Core>
+
+#include <set>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/frontend/dataset.h"
+
+namespace uw_multislam {
+namespace core {
+
+/// Reads the keys of one YAML map into fields; throws std::invalid_argument naming the map.
+class MapReader {
+ public:
+  MapReader(const YAML::Node& node, std::string where) : node_(node), where_(std::move(where)) {
+    if (present() && !node_.IsMap()) fail("must be a map");
+  }
+  // Call after the last read: rejects every key that was not read.
+  void finish() const {
+    if (!present()) return;
+    for (const auto& kv : node_) {
+      const std::string key = kv.first.as<std::string>();
+      if (!used_.count(key)) fail("unknown key '" + key + "'");
+    }
+  }
+  template <typename T>
+  void read(const char* key, T* out) {
+    used_.insert(key);
+    if (!present() || !node_[key]) return;
+    try {
+      *out = node_[key].template as<T>();
+    } catch (const YAML::Exception&) {
+      fail(std::string("bad value for '") + key + "'");
+    }
+  }
+  void readVector2(const char* key, Eigen::Vector2d* out) { readVector<2>(key, out); }
+  void readVector3(const char* key, Eigen::Vector3d* out) { readVector<3>(key, out); }
+  YAML::Node child(const char* key) {
+    used_.insert(key);
+    return present() ? node_[key] : YAML::Node();
+  }
+  /// A missing or null (empty) map reads as "all defaults".
+  bool present() const { return node_ && !node_.IsNull(); }
+  [[noreturn]] void fail(const std::string& what) const { throw std::invalid_argument(where_ + ": " + what); }
+  const std::string& where() const { return where_; }
+
+ private:
+  template <int N, typename V>
+  void readVector(const char* key, V* out) {
+    std::vector<double> v;
+    read(key, &v);
+    if (!present() || !node_[key]) return;
+    if (static_cast<int>(v.size()) != N) fail(std::string("'") + key + "' needs " + std::to_string(N) + " numbers");
+    for (int i = 0; i < N; ++i) (*out)[i] = v[i];
+  }
+  const YAML::Node node_;
+  std::string where_;
+  std::set<std::string> used_;
+};
+
+/// Parses YAML text; a syntax error becomes std::invalid_argument("<what> YAML: ..."). An empty
+/// document is an empty map (all defaults).
+YAML::Node parseYaml(const std::string& text, const std::string& what);
+
+/// Reads a YAML file and hands its text to `parse`; an unreadable file throws DatasetError and
+/// a bad one std::invalid_argument, both starting with the path.
+template <typename Parse>
+auto parseYamlFile(const std::string& path, Parse parse) -> decltype(parse(std::string())) {
+  const std::string text = readTextFile(path);
+  try {
+    return parse(text);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(path + ": " + e.what());
+  }
+}
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,78 @@
+// Dataset folders (../shared/data/README.md): frames.csv, camera.yaml, images, optional gt.csv.
+// The project reads and writes this format: the survey generator writes it, folder_to_bag and
+// offline_slam read it. Errors are reported as DatasetError with the file and line at fault.
+#pragma once
+
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/geometry/se2.h"
+
+namespace uw_multislam {
+namespace core {
+
+class DatasetError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// Pinhole intrinsics of camera.yaml, in pixels.
+struct CameraIntrinsics {
+  int width = 0;
+  int height = 0;
+  double fx = 0.0;
+  double fy = 0.0;
+  double cx = 0.0;
+  double cy = 0.0;
+
+  /// Empty when usable, else a sentence naming the bad value.
+  std::string validate() const;
+};
+
+/// One row of frames.csv.
+struct FrameRecord {
+  int index = 0;
+  std::string image;  // file name relative to the folder
+  double stamp_s = 0.0;
+  double altitude_m = 0.0;
+};
+
+/// One row of gt.csv: the pose of the image centre in the first frame's image axes.
+struct GroundTruthRecord {
+  int index = 0;
+  std::string image;
+  Pose2 pose;
+};
+
+struct Dataset {
+  std::string directory;
+  CameraIntrinsics camera;
+  std::vector<FrameRecord> frames;
+  std::vector<GroundTruthRecord> ground_truth;  // empty when the folder has no gt.csv
+
+  /// Full path of a frame's image.
+  std::string imagePath(const FrameRecord& f) const;
+};
+
+/// Reads camera.yaml ("key: value" lines; the six keys are required).
+CameraIntrinsics readCameraYaml(const std::string& path);
+void writeCameraYaml(const std::string& path, const CameraIntrinsics& c);
+
+/// Reads frames.csv: header "index,image,stamp_s,altitude_m", indexes unique. Altitudes and
+/// stamps are read as written (NaN or negative values are the consumer's to reject).
+std::vector<FrameRecord> readFramesCsv(const std::string& path);
+void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& frames);
+
+std::vector<GroundTruthRecord> readGroundTruthCsv(const std::string& path);
+void writeGroundTruthCsv(const std::string& path, const std::vector<GroundTruthRecord>& gt);
+
+/// The whole content of a text file; throws DatasetError("<path>: cannot open") when unreadable.
+std::string readTextFile(const std::string& path);
+
+/// Loads a dataset folder; throws DatasetError with a one-line reason when it is not one
+/// (missing files, bad header, unparsable number, duplicate index, missing image file).
+Dataset loadDataset(const std::string& directory, bool check_images_exist = true);
+
+}  // namespace core
+}  // namespace uw_multislam

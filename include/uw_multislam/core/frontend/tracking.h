@@ -1,0 +1,73 @@
+// Tracking loss, the multi-session way (paper 003 §5.1 starts a new sub-map when tracking fails
+// and re-links it later; we do it with sessions). SegmentedOdometry wraps the odometry of one
+// camera stream: after max_fallbacks consecutive frames the odometry could not match (blank,
+// occluded or featureless water, a camera restart), the session is closed; a new session starts
+// at the first later frame with at least min_features features, its origin (the first session
+// too starts at the first such frame). Global loops then
+// join the pieces back (core/backend/backend.h).
+//
+// Keyframes whose motion is a fallback (a reused motion: the frame could not be matched) are held
+// back until a later frame is matched again; if the session closes first they are dropped, so a
+// session ends at its last keyframe with a measured motion, not at extrapolated guesses.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "uw_multislam/core/frontend/odometry.h"
+
+namespace uw_multislam {
+namespace core {
+
+struct TrackingLossOptions {
+  int max_fallbacks = 5;    // consecutive unmatched frames that close the session (0 = never)
+  int min_features = 100;   // features a frame needs to start the next session
+
+  std::string validate() const;
+};
+
+class SegmentedOdometry {
+ public:
+  struct Step {
+    OdometryUpdate update;         // of the current session's odometry (status kSkipped while lost)
+    bool session_started = false;  // this frame is the origin of a session (the first one too)
+    bool session_closed = false;   // this frame closed the session (tracking lost)
+  };
+
+  /// Throws std::invalid_argument on bad options.
+  SegmentedOdometry(const CameraIntrinsics& camera, const OdometryOptions& odometry, const TrackingLossOptions& loss);
+
+  Step process(const OdometryInput& input);
+
+  /// The current session's odometry (after a closing frame: the closed one, until the next
+  /// process()); nullptr while no session is open.
+  const Odometry* odometry() const { return odometry_.get(); }
+  /// The keyframes released by the last process(), in order: the odometry's new keyframes, with
+  /// fallback keyframes held back until tracking is confirmed.
+  const std::vector<Odometry::NewKeyframe>& newKeyframes() const { return released_; }
+  /// Keyframes of the current (or just closed) session that count: its trajectory's first
+  /// keptKeyframes() keyframes; fallback keyframes dropped at a close are not among them.
+  int keptKeyframes() const { return kept_; }
+  /// Sessions started so far.
+  int sessions() const { return sessions_; }
+  /// Frames processed while lost (no session), and sessions closed by tracking loss.
+  int framesLost() const { return frames_lost_; }
+  int losses() const { return losses_; }
+  /// The timings of every odometry so far, the finished ones included.
+  StageTimes times() const;
+
+ private:
+  CameraIntrinsics camera_;
+  OdometryOptions options_;
+  TrackingLossOptions loss_;
+  std::unique_ptr<Odometry> odometry_;
+  bool closed_ = false;  // odometry_ is the session just closed
+  std::vector<Odometry::NewKeyframe> pending_, released_;
+  int kept_ = 0;
+  int consecutive_fallbacks_ = 0;
+  int sessions_ = 0, frames_lost_ = 0, losses_ = 0;
+  StageTimes times_;  // finished odometries' timings
+};
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,137 @@
+// Loop detection (paper 000 §6 and §7).
+//
+// Local loops (4)(5): keyframes of the same session whose estimated position lies within
+// radius δ of the new keyframe's, leaving out the `exclude_recent` previous keyframes; δ may be
+// widened by the position uncertainty accumulated between the two keyframes (k-sigma of the
+// summed motion covariances). The nearest `max_candidates` are verified by RANSAC.
+//
+// Global loops (8)(9): the new keyframe's HALOC hash is compared by L1 distance with the
+// hashes of every keyframe of the other sessions; the best `best_k` (and, if set, those within
+// `max_l1`) are verified by RANSAC.
+//
+// A loop is accepted when RANSAC succeeds with at least `min_inliers` inliers; its measurement
+// is the motion of the new keyframe in the old one's frame with the RANSAC covariance.
+//
+// Every keyframe's features are kept (descriptors as 8 bits: OpenCV's SIFT values are integers
+// in 0..255) for later verification: about 66 kB per keyframe with n = 500.
+#pragma once
+
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/loops/haloc.h"
+#include "uw_multislam/core/frontend/pair_motion.h"
+#include "uw_multislam/core/geometry/trajectory.h"
+
+namespace uw_multislam {
+namespace core {
+
+struct LocalLoopOptions {
+  bool enabled = true;
+  double radius_m = 1.5;        // δ of (4)
+  double sigma_widening = 2.0;  // δ += k * sigma of the relative position (0 = off)...
+  double max_radius_m = 5.0;    // ...up to this
+  int exclude_recent = 2;       // the previous keyframes left out (they are odometry's)
+  int max_candidates = 3;       // nearest candidates verified per keyframe
+  int min_inliers = 25;         // the paper's 25
+
+  std::string validate() const;
+};
+
+struct GlobalLoopOptions {
+  bool enabled = true;
+  // Candidates verified per keyframe (the paper used 5). With the sorted-DCT hash, 10 gives an
+  // inter-session recall of 0.73 on the demo survey and 1.0 on flights/acfr_test4 (5: 0.45 and
+  // 0.94), precision 1.0, for about 7-12 ms of verification per keyframe.
+  int best_k = 10;
+  double max_l1 = 0.0;  // δ' of (8); 0 = no threshold, best_k only
+  /// kSortedDct (default, see haloc.h: it ranks true revisits far better) or the paper's kHaloc.
+  HashMode hash_mode = HashMode::kSortedDct;
+  int min_inliers = 25;
+  std::uint64_t projection_seed = 20231122;  // the HALOC vectors; stored with the maps
+
+  std::string validate() const;
+};
+
+struct LoopOptions {
+  LocalLoopOptions local;
+  GlobalLoopOptions global;
+  std::string validate() const;
+};
+
+struct Loop {
+  enum class Kind { kLocal, kGlobal };
+  Kind kind = Kind::kLocal;
+  int session_a = 0, keyframe_a = 0, frame_a = 0;  // the stored (older) keyframe
+  int session_b = 0, keyframe_b = 0, frame_b = 0;  // the new keyframe
+  UncertainPose2 z;                                // pose of b in a's frame
+  int inliers = 0;
+  float hash_l1 = 0.0f;  // global loops: the hash distance
+};
+
+struct LoopStats {
+  int keyframes = 0;
+  int local_candidates = 0, local_accepted = 0;
+  int global_candidates = 0, global_accepted = 0;
+};
+
+class LoopDetector {
+ public:
+  /// `num_features` is the n of the hashes (the extractor's). Throws std::invalid_argument.
+  LoopDetector(const LoopOptions& options, const MatchOptions& matching, const RansacOptions& ransac, int num_features);
+
+  /// Stores a new keyframe and returns the loops it closes. `trajectory` is the current estimate
+  /// of its session (keyframe ids index its poses); `camera` must outlive the detector.
+  /// `hash`: the keyframe's hash when it was computed upstream (each keyframe is hashed once:
+  /// core::Pipeline and the odometry nodelet hash it, see session_manager.h); nullptr or empty:
+  /// computed here.
+  std::vector<Loop> addKeyframe(int session, int keyframe, int frame_index, double altitude_m,
+                                const CameraIntrinsics* camera, const FrameFeatures& features,
+                                const Trajectory& trajectory, const Eigen::VectorXf* hash = nullptr);
+
+  /// Stores a keyframe of a stored session (session store) without searching for loops, so that
+  /// later keyframes find loops against it. `hash` is the one stored with it (same hash mode,
+  /// seed and n as this detector: the caller checks); descriptors CV_8U or CV_32F. Throws
+  /// std::invalid_argument on a bad hash size or a keyframe stored twice.
+  void addStoredKeyframe(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
+                         const FrameFeatures& features, const Eigen::VectorXf& hash);
+  /// The hash of the keyframe last given to addKeyframe (what the session store keeps).
+  const Eigen::VectorXf& lastHash() const { return last_hash_; }
+
+  const ImageHasher& hasher() const { return hasher_; }
+  const HashStore& hashes() const { return hashes_; }
+  const LoopStats& stats() const { return stats_; }
+  const StageTimes& times() const { return times_; }
+  std::size_t size() const { return keyframes_.size(); }
+
+ private:
+  struct Stored {
+    int session, keyframe, frame_index;
+    double altitude_m;
+    const CameraIntrinsics* camera;
+    FrameFeatures features;  // keypoint positions; descriptors as CV_8U
+  };
+  bool verify(const Stored& old, const View& now, Loop* loop);
+  void store(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
+             const FrameFeatures& features, const Eigen::VectorXf& hash);
+  std::vector<int> localCandidates(int session, int keyframe, const Trajectory& trajectory) const;
+
+  LoopOptions options_;
+  MatchOptions matching_;
+  RansacOptions ransac_;
+  ImageHasher hasher_;
+  HashStore hashes_;  // entry i <-> keyframes_[i]; range set by the hash mode
+  std::vector<Stored> keyframes_;
+  std::vector<std::vector<int>> by_session_;  // [session][keyframe] -> index into keyframes_
+  std::vector<HashCandidate> scratch_;
+  Eigen::VectorXf last_hash_;
+  LoopStats stats_;
+  StageTimes times_;
+};
+
+std::string loopKindName(Loop::Kind k);
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,42 @@
+// The narrow bridge between the session store and the back-end: the store knows nothing of
+// MultiSessionBackend (it keeps sessions, keyframes, loops and maps in its own store ids), and
+// the back-end knows nothing of SQLite. These two functions translate one into the other, with
+// the remapping of store ids to live ids (cf. cartographer's LoadState returning its remapping).
+// Only the SessionManager (session_manager.h) and the store's tools call them.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "uw_multislam/core/backend/backend.h"
+#include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/session/session_store.h"
+
+namespace uw_multislam {
+namespace core {
+
+/// Everything a store holds, put into a back-end and a loop detector (offline_slam, the
+/// session manager's reload). Sessions are restored in store order as finished sessions (the
+/// back-end's ids follow the order); a session without keyframes is skipped.
+struct RestoredStore {
+  std::vector<std::int64_t> session_ids;   // back-end session -> store session id
+  std::vector<std::int64_t> loop_ids;      // back-end loop -> store loop id
+  std::vector<std::vector<int>> frame_of_keyframe;  // per restored session
+  std::vector<StoredLoop> loops;           // the stored loops, in back-end loop order
+  int keyframes = 0;
+};
+
+/// Restores every stored session, loop, map and split pair into an empty back-end and, when
+/// `detector` is not null, every keyframe into it (the cameras are appended to `cameras`, which
+/// must outlive the detector). Throws StoreError or std::invalid_argument.
+RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backend, LoopDetector* detector,
+                           std::vector<std::unique_ptr<CameraIntrinsics>>* cameras);
+
+/// The back-end's maps and loop states in store ids (session_ids / loop_ids map back-end ids to
+/// store ids), then SessionStore::saveMaps.
+void saveBackendMaps(SessionStore* store, const MultiSessionBackend& backend,
+                     const std::vector<std::int64_t>& session_ids, const std::vector<std::int64_t>& loop_ids);
+
+}  // namespace core
+}  // namespace uw_multislam

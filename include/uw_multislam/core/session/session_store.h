@@ -1,0 +1,177 @@
+// The session store: one SQLite file that keeps every session of every mission (issue 8).
+//
+// What it holds (schema version kSchemaVersion, tables in session_store.cpp):
+//  - the hash settings (mode, seed, n, the HALOC vectors as exact text): hashes of different
+//    runs are comparable only with the same vectors, so a store refuses other settings;
+//  - sessions (name, stamps, state, camera intrinsics);
+//  - keyframes (frame index, stamp, altitude, keypoint pixel coordinates as float32, descriptors
+//    as uint8, the hash as float32, an optional small JPEG thumbnail) with the odometry motion
+//    that reaches each (mean and covariance) and the loops it closed;
+//  - maps (chains of sessions, links with the loops they summarise, the optimised motions with
+//    their marginal covariances), loop states and the user's split pairs.
+//
+// Crash safety: WAL journal, synchronous=FULL, one transaction per keyframe (keyframe, its motion
+// and its loops together). A kill -9 or a power cut loses at most the keyframe in flight; the map
+// state (saveMaps) is written at joins, splits and session ends, and a reload of a map whose
+// sessions grew since its last save extends it with their odometry.
+//
+// Bad files: the file is checked read-only first (SQLite header, application id, schema version,
+// quick_check), so a failed open never writes to it. Every error is a StoreError whose message
+// names the file and the problem.
+//
+// Not thread-safe: one store object per thread (SQLite serialises writers across processes).
+#pragma once
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include <cstdint>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/loops/haloc.h"
+#include "uw_multislam/core/geometry/uncertain_pose.h"
+
+struct sqlite3;
+struct sqlite3_stmt;
+
+namespace uw_multislam {
+namespace core {
+
+class StoreError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+enum class StoredSessionState { kRecording, kFinished };
+
+struct StoredSession {
+  std::int64_t id = 0;  // the store's id (store order)
+  std::string name;
+  StoredSessionState state = StoredSessionState::kRecording;
+  double start_stamp_s = 0.0, end_stamp_s = 0.0;
+  CameraIntrinsics camera;
+  int keyframes = 0;
+};
+
+struct StoredKeyframe {
+  std::int64_t session = 0;  // store id
+  int keyframe = 0;          // 0, 1, ... within the session
+  int frame_index = 0;
+  double stamp_s = 0.0;
+  double altitude_m = 0.0;
+  cv::Size image_size;
+  std::vector<cv::Point2f> points;  // keypoint pixel coordinates, descending response
+  cv::Mat descriptors;              // points.size() x 128, CV_8U (CV_32F accepted when writing)
+  Eigen::VectorXf hash;             // HalocProjections::kHashSize values
+  std::vector<std::uint8_t> thumbnail;  // JPEG, may be empty
+};
+
+/// A loop as stored: store session ids, keyframe ids, what offline_slam reports, its state.
+struct StoredLoop {
+  std::int64_t id = -1;  // store id (set by the store)
+  std::int64_t session_a = 0, session_b = 0;
+  int keyframe_a = 0, keyframe_b = 0;
+  bool global = false;
+  int inliers = 0;
+  UncertainPose2 z;  // pose of b in a
+  bool summarised = false, applied = false, refused = false;
+};
+
+struct StoredLink {
+  UncertainPose2 measured;
+  std::vector<std::int64_t> loops;  // store loop ids
+};
+
+/// A map: store session ids; motions as MapState (empty: not yet optimised, use the odometry).
+struct StoredMap {
+  std::vector<std::int64_t> chain;
+  std::vector<StoredLink> links;
+  std::vector<UncertainPose2> motions;
+  int pending = 0;
+};
+
+struct HashSettings {
+  HashMode mode = HashMode::kSortedDct;
+  std::uint64_t seed = 0;
+  int num_features = 0;
+  std::string projections;  // HalocProjections::toText
+};
+
+class SessionStore {
+ public:
+  static constexpr int kSchemaVersion = 1;
+  static constexpr std::int32_t kApplicationId = 0x55574d53;  // "UWMS"
+
+  /// Opens the store at `path`, creating it (and nothing else) when missing or empty. The file
+  /// is checked read-only before anything is written. Throws StoreError.
+  explicit SessionStore(const std::string& path);
+  ~SessionStore();
+  SessionStore(const SessionStore&) = delete;
+  SessionStore& operator=(const SessionStore&) = delete;
+
+  const std::string& path() const { return path_; }
+
+  /// The store's hash settings: a store without them takes `mine`; one with other settings is
+  /// refused (StoreError naming both).
+  void checkHashSettings(const HashSettings& mine);
+  /// The stored settings, if any.
+  bool hashSettings(HashSettings* out) const;
+
+  /// A new session (state recording). Returns its store id.
+  std::int64_t addSession(const std::string& name, const CameraIntrinsics& camera, double start_stamp_s);
+  /// Marks a session finished.
+  void endSession(std::int64_t session, double end_stamp_s);
+
+  /// One transaction: the keyframe, the odometry motion reaching it (nullptr for keyframe 0)
+  /// and the loops it closed (their ids are set). Throws StoreError (the transaction is rolled
+  /// back: nothing of the keyframe is kept).
+  void addKeyframe(const StoredKeyframe& keyframe, const UncertainPose2* motion, std::vector<StoredLoop>* loops);
+  /// One transaction: loops that arrive on their own (the live system's loop messages); their
+  /// ids are set. Both keyframes must be stored.
+  void addLoops(std::vector<StoredLoop>* loops);
+
+  /// One transaction: replaces the map state (maps, links, split pairs) and updates the states
+  /// of the given loops.
+  void saveMaps(const std::vector<StoredMap>& maps, const std::vector<StoredLoop>& loop_states,
+                const std::vector<std::pair<std::int64_t, std::int64_t>>& split_pairs);
+
+  std::vector<StoredSession> sessions() const;
+  /// The keyframes of a session in order; `with_features` false leaves points, descriptors,
+  /// hash and thumbnail empty.
+  std::vector<StoredKeyframe> keyframes(std::int64_t session, bool with_features = true) const;
+  /// The session's odometry motions, [k-1] reaching keyframe k.
+  std::vector<UncertainPose2> odometry(std::int64_t session) const;
+  std::vector<StoredLoop> loops() const;
+  std::vector<StoredMap> maps() const;
+  std::vector<std::pair<std::int64_t, std::int64_t>> splitPairs() const;
+
+  /// Bytes on disk: the file and its WAL.
+  std::uint64_t bytesOnDisk() const;
+  /// Writes the WAL back into the file (e.g. before measuring or copying it).
+  void checkpoint();
+
+  /// For tests: the SQLite handle (e.g. to set max_page_count to simulate a full disk).
+  sqlite3* handle() { return db_; }
+
+ private:
+  class Statement;
+  void exec(const std::string& sql) const;
+  [[noreturn]] void fail(const std::string& what) const;
+  void begin();
+  void commit();
+  void rollback() noexcept;
+  void insertLoops(std::vector<StoredLoop>* loops);
+  Statement& cached(const char* sql);
+
+  std::string path_;
+  sqlite3* db_ = nullptr;
+  std::vector<std::pair<const char*, std::unique_ptr<Statement>>> cache_;
+};
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,730 @@
+#include "uw_multislam/core/backend/backend.h"
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <sstream>
+#include <stdexcept>
+
+#include "uw_multislam/core/backend/map_joining.h"
+
+namespace uw_multislam {
+namespace core {
+
+const char* optimizerName(OptimizerKind k) { return k == OptimizerKind::kIekf ? "iekf" : "sparse"; }
+
+bool parseOptimizer(const std::string& name, OptimizerKind* out) {
+  if (name == "iekf") *out = OptimizerKind::kIekf;
+  else if (name == "sparse") *out = OptimizerKind::kSparse;
+  else return false;
+  return true;
+}
+
+std::string BackendOptions::validate() const {
+  std::string bad = iekf.validate();
+  if (!bad.empty()) return bad;
+  bad = sparse.validate();
+  if (!bad.empty()) return bad;
+  if (optimise_every < 1) return "optimise_every must be >= 1";
+  if (join_min_loops < 0) return "join_min_loops must be >= 0 (0 = no automatic joining)";
+  if (!(join_gate_m > 0)) return "join_gate_m must be positive";
+  if (max_keyframes < 2) return "max_keyframes must be >= 2";
+  return {};
+}
+
+namespace {
+
+std::string describe(const Pose2& p) {
+  char buf[96];
+  std::snprintf(buf, sizeof buf, "(%.3f m, %.3f m, %.4f rad)", p.x(), p.y(), p.yaw());
+  return buf;
+}
+
+template <typename Derived>
+Eigen::Matrix3d block3(const Eigen::MatrixBase<Derived>& p, Eigen::Index i, Eigen::Index j) {
+  return p.template block<3, 3>(3 * i, 3 * j);
+}
+
+// Means-only trajectory of a list of motions.
+Trajectory meansTrajectory(const std::vector<Pose2>& motions) {
+  Trajectory t;
+  for (const Pose2& m : motions) t.append(UncertainPose2::exact(m));
+  return t;
+}
+
+}  // namespace
+
+int MultiSessionBackend::Map::numMotions() const {
+  return static_cast<int>(iekf ? iekf->motions().size() : motions.size());
+}
+Pose2 MultiSessionBackend::Map::motion(int k) const { return iekf ? iekf->motions()[k] : motions[k]; }
+Eigen::Matrix3d MultiSessionBackend::Map::motionCov(int k) const {
+  return iekf ? block3(iekf->covariance(), k, k) : cov[k];
+}
+
+MultiSessionBackend::MultiSessionBackend(const BackendOptions& options, Log log)
+    : options_(options), log_(std::move(log)) {
+  const std::string bad = options.validate();
+  if (!bad.empty()) throw std::invalid_argument("backend: " + bad);
+}
+
+void MultiSessionBackend::say(const std::string& line) const {
+  if (log_) log_(line);
+}
+
+const MultiSessionBackend::Session& MultiSessionBackend::sessionAt(int s) const {
+  if (!hasSession(s)) throw std::invalid_argument("backend: no session " + std::to_string(s));
+  return sessions_[s];
+}
+
+MultiSessionBackend::Map& MultiSessionBackend::mapAt(int id) { return maps_.at(id); }
+const MultiSessionBackend::Map& MultiSessionBackend::mapAt(int id) const { return maps_.at(id); }
+
+int MultiSessionBackend::offset(const Map& m, int session) const {
+  int o = 0;
+  for (int s : m.chain) {
+    if (s == session) return o;
+    o += sessions_[s].keyframes();
+  }
+  throw std::logic_error("backend: session not in its map's chain");
+}
+
+int MultiSessionBackend::startSession(const std::string& name) {
+  const int id = numSessions();
+  Session s;
+  s.name = name.empty() ? "session_" + std::to_string(id) : name;
+  s.recording = true;
+  s.map = id;
+  sessions_.push_back(s);
+  Map m;
+  m.chain = {id};
+  if (options_.optimise && options_.optimizer == OptimizerKind::kIekf) m.iekf.emplace(options_.iekf);
+  maps_.emplace(id, std::move(m));
+  return id;
+}
+
+void MultiSessionBackend::endSession(int session) {
+  sessionAt(session);
+  sessions_[session].recording = false;
+  Map& m = mapAt(mapOf(session));
+  if (m.pending > 0) optimise(mapOf(session));
+}
+
+void MultiSessionBackend::toSparse(Map& m, const std::string& why) {
+  if (!m.iekf) return;
+  m.motions = m.iekf->motions();
+  m.cov.clear();
+  for (int k = 0; k < static_cast<int>(m.motions.size()); ++k) m.cov.push_back(block3(m.iekf->covariance(), k, k));
+  m.iekf.reset();
+  say("map " + std::to_string(m.chain.front()) + ": " + why + ": optimised by the sparse back-end from now on");
+}
+
+void MultiSessionBackend::toDenseIfIekf(Map& m) const {
+  if (!options_.optimise || options_.optimizer != OptimizerKind::kIekf || m.numMotions() + 1 > options_.max_keyframes)
+    return;
+  Eigen::MatrixXd p = Eigen::MatrixXd::Zero(3 * m.numMotions(), 3 * m.numMotions());
+  for (int k = 0; k < m.numMotions(); ++k) p.block<3, 3>(3 * k, 3 * k) = m.cov[k];
+  m.iekf.emplace(options_.iekf, m.motions, std::move(p));
+  m.motions.clear();
+  m.cov.clear();
+}
+
+void MultiSessionBackend::addMotion(int session, const UncertainPose2& motion) {
+  const Session& s = sessionAt(session);
+  if (!s.recording) throw std::invalid_argument("backend: session " + std::to_string(session) + " is not recording");
+  const std::string bad = checkCovariance(motion.covariance);
+  if (!bad.empty() || !motion.mean.isFinite())
+    throw std::invalid_argument("backend: motion: " + (bad.empty() ? std::string("not finite") : bad));
+  Map& m = mapAt(s.map);
+  if (m.chain.back() != session) throw std::logic_error("backend: a recording session is not at the end of its map");
+  if (m.iekf && m.numMotions() + 2 > options_.max_keyframes) {
+    toSparse(m, "more than backend.max_keyframes = " + std::to_string(options_.max_keyframes) + " keyframes");
+  }
+  if (m.iekf) {
+    m.iekf->addMotion(motion);
+  } else {
+    m.motions.push_back(motion.mean);
+    m.cov.push_back(motion.covariance);
+  }
+  sessions_[session].odometry.push_back(motion);
+}
+
+void MultiSessionBackend::addLoop(const BackendLoop& l) {
+  auto check = [&](int s, int k) {
+    if (!hasSession(s)) throw std::invalid_argument("backend: loop: no session " + std::to_string(s));
+    if (k < 0 || k >= sessions_[s].keyframes())
+      throw std::invalid_argument("backend: loop: session " + std::to_string(s) + " has no keyframe " +
+                                  std::to_string(k));
+  };
+  check(l.session_a, l.keyframe_a);
+  check(l.session_b, l.keyframe_b);
+  if (l.session_a == l.session_b && l.keyframe_a == l.keyframe_b)
+    throw std::invalid_argument("backend: loop from a keyframe to itself");
+  const std::string bad = checkCovariance(l.z.covariance);
+  if (!bad.empty() || !l.z.mean.isFinite() || l.z.covariance.determinant() <= 0.0)
+    throw std::invalid_argument("backend: loop: " + (bad.empty() ? std::string("mean not finite or covariance singular") : bad));
+  loops_.push_back({l, false, false, false});
+  ++stats_.loops;
+  const int ma = mapOf(l.session_a), mb = mapOf(l.session_b);
+  if (ma == mb) {
+    Map& m = mapAt(ma);
+    ++m.pending;
+    if (options_.optimise && m.pending >= options_.optimise_every) optimise(ma);
+    return;
+  }
+  if (options_.join_min_loops > 0 && !barred(l.session_a, l.session_b) &&
+      static_cast<int>(loopsBetween(ma, mb, true).size()) >= options_.join_min_loops) {
+    const BackendStatus st = joinMaps(ma, mb, options_.join_min_loops, true);
+    if (!st.ok()) say("automatic join of maps " + std::to_string(ma) + " and " + std::to_string(mb) + " postponed: " +
+                      st.message);
+  }
+}
+
+void MultiSessionBackend::flush() {
+  for (auto& [id, m] : maps_)
+    if (m.pending > 0) optimise(id);
+}
+
+bool MultiSessionBackend::barred(int sa, int sb) const {
+  return split_pairs_.count({std::min(sa, sb), std::max(sa, sb)}) > 0;
+}
+
+std::vector<int> MultiSessionBackend::loopsBetween(int map_a, int map_b, bool automatic) const {
+  std::vector<int> ids;
+  for (int k = 0; k < static_cast<int>(loops_.size()); ++k) {
+    const LoopState& st = loops_[k];
+    if (st.summarised || st.refused) continue;
+    const int ma = mapOf(st.loop.session_a), mb = mapOf(st.loop.session_b);
+    if (!((ma == map_a && mb == map_b) || (ma == map_b && mb == map_a))) continue;
+    if (automatic && barred(st.loop.session_a, st.loop.session_b)) continue;
+    ids.push_back(k);
+  }
+  return ids;
+}
+
+int MultiSessionBackend::pendingJoinLoops(int session_a, int session_b) const {
+  const int ma = mapOf(session_a), mb = mapOf(session_b);
+  return ma == mb ? 0 : static_cast<int>(loopsBetween(ma, mb, false).size());
+}
+
+void MultiSessionBackend::optimise(int map_id) {
+  Map& m = mapAt(map_id);
+  if (!options_.optimise) {
+    m.pending = 0;
+    return;
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  if (m.iekf) {
+    optimiseIekf(m);
+  } else {
+    optimiseSparse(m);
+  }
+  m.pending = 0;
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  ++stats_.optimisations;
+  stats_.optimise_ms_total += ms;
+  stats_.optimise_ms_max = std::max(stats_.optimise_ms_max, ms);
+}
+
+void MultiSessionBackend::optimiseIekf(Map& m) {
+  std::vector<LoopMeasurement> z;
+  std::vector<int> ids;
+  const int id = m.chain.front();
+  for (int k = 0; k < static_cast<int>(loops_.size()); ++k) {
+    const LoopState& st = loops_[k];
+    if (st.summarised || st.refused || st.applied) continue;
+    if (mapOf(st.loop.session_a) != id || mapOf(st.loop.session_b) != id) continue;
+    z.push_back({indexOf(st.loop.session_a, st.loop.keyframe_a), indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z});
+    ids.push_back(k);
+  }
+  if (z.empty()) return;
+  m.iekf->update(z);
+  for (int k : ids) loops_[k].applied = true;
+}
+
+void MultiSessionBackend::optimiseSparse(Map& m) {
+  const int id = m.chain.front();
+  std::vector<Pose2> poses{Pose2()};
+  for (int k = 0; k < m.numMotions(); ++k) poses.push_back(compose(poses.back(), m.motions[k]));
+  std::vector<PoseGraphEdge> edges;
+  int o = 0;
+  for (std::size_t c = 0; c < m.chain.size(); ++c) {
+    const Session& s = sessions_[m.chain[c]];
+    for (int k = 1; k < s.keyframes(); ++k) edges.push_back({o + k - 1, o + k, s.odometry[k - 1], false});
+    o += s.keyframes();
+    if (c + 1 < m.chain.size()) edges.push_back({o - 1, o, m.links[c].measured, false});
+  }
+  bool any_loop = false;
+  for (const LoopState& st : loops_) {
+    if (st.summarised || st.refused) continue;
+    if (mapOf(st.loop.session_a) != id || mapOf(st.loop.session_b) != id) continue;
+    edges.push_back({indexOf(st.loop.session_a, st.loop.keyframe_a), indexOf(st.loop.session_b, st.loop.keyframe_b),
+                     st.loop.z, true});
+    any_loop = true;
+  }
+  if (!any_loop) return;
+  optimisePoseGraph(&poses, edges, options_.sparse, 0);
+  for (int k = 0; k < m.numMotions(); ++k) m.motions[k] = between(poses[k], poses[k + 1]);
+}
+
+BackendStatus MultiSessionBackend::join(int session_a, int session_b, int min_loops) {
+  for (int s : {session_a, session_b})
+    if (!hasSession(s))
+      return {StatusCode::kNotFound, "no session " + std::to_string(s) + " (there are " +
+                                         std::to_string(numSessions()) + "; see list_sessions)"};
+  if (min_loops < 1) return {StatusCode::kInvalidArgument, "min_loops must be >= 1"};
+  return joinMaps(mapOf(session_a), mapOf(session_b), min_loops, false);
+}
+
+BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops, bool automatic) {
+  if (map_a == map_b)
+    return {StatusCode::kFailedPrecondition, "the sessions are already in the same map " + std::to_string(map_a)};
+  auto recording = [&](int map) {
+    for (int s : mapAt(map).chain)
+      if (sessions_[s].recording) return true;
+    return false;
+  };
+  const bool rec_a = recording(map_a), rec_b = recording(map_b);
+  if (rec_a && rec_b)
+    return {StatusCode::kFailedPrecondition, "maps " + std::to_string(map_a) + " and " + std::to_string(map_b) +
+                                                 " both hold a recording session; join them after one ends"};
+  const int first = rec_a ? map_b : rec_b ? map_a : std::min(map_a, map_b);
+  const int second = first == map_a ? map_b : map_a;
+  std::vector<int> ids = loopsBetween(first, second, automatic);
+  if (static_cast<int>(ids.size()) < min_loops)
+    return {StatusCode::kFailedPrecondition, std::to_string(ids.size()) + " global loops stored between map " +
+                                                 std::to_string(first) + " and map " + std::to_string(second) +
+                                                 ", " + std::to_string(min_loops) + " needed"};
+  const Map& p = mapAt(first);
+  const Map& c = mapAt(second);
+  Trajectory tp, tc;  // the two chains with their motions' covariances
+  for (int k = 0; k < p.numMotions(); ++k) tp.append(UncertainPose2(p.motion(k), p.motionCov(k)));
+  for (int k = 0; k < c.numMotions(); ++k) tc.append(UncertainPose2(c.motion(k), c.motionCov(k)));
+  const int pe = static_cast<int>(tp.numKeyframes()) - 1;
+
+  struct Candidate {
+    int id;
+    UncertainPose2 pe_from_pi, ci_from_cs, z;
+  };
+  std::vector<Candidate> cand;
+  for (int id : ids) {
+    const BackendLoop& l = loops_[id].loop;
+    const bool a_first = mapOf(l.session_a) == first;
+    const int pi = a_first ? indexOf(l.session_a, l.keyframe_a) : indexOf(l.session_b, l.keyframe_b);
+    const int ci = a_first ? indexOf(l.session_b, l.keyframe_b) : indexOf(l.session_a, l.keyframe_a);
+    cand.push_back({id, tp.relative(pi, pe), tc.relative(0, ci), a_first ? l.z : invert(l.z)});
+  }
+  // Estimate, refuse loops whose position disagrees by more than the gate, re-estimate with the
+  // rest; a few rounds.
+  std::vector<bool> in(cand.size(), true);
+  JoinResult res;
+  for (int round = 0; round < 4; ++round) {
+    std::vector<JoinLoop> jl;
+    for (std::size_t k = 0; k < cand.size(); ++k)
+      if (in[k]) jl.push_back({cand[k].pe_from_pi.mean, cand[k].ci_from_cs.mean, cand[k].z});
+    if (static_cast<int>(jl.size()) < min_loops) {
+      return {StatusCode::kFailedPrecondition,
+              std::to_string(jl.size()) + " of the " + std::to_string(cand.size()) + " global loops between map " +
+                  std::to_string(first) + " and map " + std::to_string(second) + " agree, " +
+                  std::to_string(min_loops) + " needed"};
+    }
+    res = estimateJoinLink(jl, options_.iekf);
+    bool changed = false;
+    for (std::size_t k = 0; k < cand.size(); ++k) {
+      const Pose2 pred = compose(compose(cand[k].pe_from_pi.mean, res.link.mean), cand[k].ci_from_cs.mean);
+      const bool ok = poseError(cand[k].z.mean, pred).head<2>().norm() <= options_.join_gate_m;
+      if (ok != in[k]) changed = true;
+      in[k] = ok;
+    }
+    if (!changed) break;
+  }
+
+  Map j;
+  j.chain = p.chain;
+  j.chain.insert(j.chain.end(), c.chain.begin(), c.chain.end());
+  j.links = p.links;
+  Link link{res.link, {}};
+  int used = 0, refused = 0;
+  for (std::size_t k = 0; k < cand.size(); ++k) {
+    if (in[k]) {
+      link.loops.push_back(cand[k].id);
+      ++used;
+    } else {
+      ++refused;
+    }
+  }
+  j.links.push_back(link);
+  j.links.insert(j.links.end(), c.links.begin(), c.links.end());
+  const int total_motions = p.numMotions() + 1 + c.numMotions();
+  if (p.iekf && c.iekf && total_motions + 1 <= options_.max_keyframes) {
+    // (34): the joint covariance is block-diagonal in the two maps and the link.
+    std::vector<Pose2> motions = p.iekf->motions();
+    motions.push_back(res.link.mean);
+    motions.insert(motions.end(), c.iekf->motions().begin(), c.iekf->motions().end());
+    const Eigen::Index np = p.iekf->covariance().rows(), nc = c.iekf->covariance().rows();
+    Eigen::MatrixXd cov = Eigen::MatrixXd::Zero(np + 3 + nc, np + 3 + nc);
+    cov.topLeftCorner(np, np) = p.iekf->covariance();
+    cov.block<3, 3>(np, np) = res.link.covariance;
+    cov.bottomRightCorner(nc, nc) = c.iekf->covariance();
+    j.iekf.emplace(options_.iekf, std::move(motions), std::move(cov));
+  } else {
+    for (int k = 0; k < p.numMotions(); ++k) {
+      j.motions.push_back(p.motion(k));
+      j.cov.push_back(p.motionCov(k));
+    }
+    j.motions.push_back(res.link.mean);
+    j.cov.push_back(res.link.covariance);
+    for (int k = 0; k < c.numMotions(); ++k) {
+      j.motions.push_back(c.motion(k));
+      j.cov.push_back(c.motionCov(k));
+    }
+    if (p.iekf || c.iekf)
+      say("map " + std::to_string(first) + ": joined map exceeds backend.max_keyframes = " +
+          std::to_string(options_.max_keyframes) + ": optimised by the sparse back-end from now on");
+  }
+  j.pending = p.pending + c.pending;
+  for (std::size_t k = 0; k < cand.size(); ++k) {
+    if (in[k]) {
+      loops_[cand[k].id].summarised = true;
+    } else {
+      loops_[cand[k].id].refused = true;
+      ++stats_.loops_refused;
+    }
+  }
+  if (!automatic) {
+    for (int a : p.chain)
+      for (int b : c.chain) split_pairs_.erase({std::min(a, b), std::max(a, b)});
+  }
+  const int prev_session = p.chain.back(), cur_session = c.chain.front();
+  maps_.erase(second);
+  Map& joined = maps_[first] = std::move(j);
+  for (int s : joined.chain) sessions_[s].map = first;
+  // Loops between the two maps that did not take part (barred ones) are now intra-map.
+  for (const LoopState& st : loops_)
+    if (!st.summarised && !st.refused && !st.applied && mapOf(st.loop.session_a) == first &&
+        mapOf(st.loop.session_b) == first && barred(st.loop.session_a, st.loop.session_b))
+      ++joined.pending;
+  ++stats_.joins;
+  std::ostringstream msg;
+  msg << "joined map " << second << " to map " << first << ": link from the end of session " << prev_session
+      << " to the start of session " << cur_session << " = " << describe(res.link.mean) << " from " << used
+      << " global loops (rms " << res.rms_residual_m << " m";
+  if (refused > 0) msg << ", " << refused << " inconsistent loops refused";
+  msg << ")";
+  say(msg.str());
+  if (options_.optimise && joined.pending >= options_.optimise_every) optimise(first);
+  return {StatusCode::kOk, msg.str()};
+}
+
+BackendStatus MultiSessionBackend::split(int session) {
+  if (!hasSession(session))
+    return {StatusCode::kNotFound, "no session " + std::to_string(session) + " (there are " +
+                                       std::to_string(numSessions()) + "; see list_sessions)"};
+  const int old_id = mapOf(session);
+  const Map& m = mapAt(old_id);
+  if (m.chain.size() == 1)
+    return {StatusCode::kFailedPrecondition,
+            "session " + std::to_string(session) + " is alone in its map: nothing to split"};
+  const int q = static_cast<int>(std::find(m.chain.begin(), m.chain.end(), session) - m.chain.begin());
+  const int last = static_cast<int>(m.chain.size()) - 1;
+  const int o = offset(m, session), n = sessions_[session].keyframes();
+  const int d = m.numMotions();
+  // Motion k (0-based) reaches keyframe k + 1. The session's own motions are [o, o + n - 1); the
+  // link into it is motion o - 1, the link out of it motion o + n - 1.
+  auto slice = [&](Map* out, const std::vector<std::pair<int, int>>& ranges, const Eigen::MatrixXd* composed_j,
+                   int composed_at) {
+    // ranges: motion index ranges [a, b) to keep, in order; if composed_j, the range numbered
+    // composed_at is replaced by one motion, its composition.
+    std::vector<Pose2> motions;
+    std::vector<Eigen::Matrix3d> cov;
+    for (std::size_t r = 0; r < ranges.size(); ++r) {
+      const auto [a, b] = ranges[r];
+      if (composed_j && static_cast<int>(r) == composed_at) {
+        std::vector<Pose2> chain;
+        for (int k = a; k < b; ++k) chain.push_back(m.motion(k));
+        const Trajectory t = meansTrajectory(chain);
+        motions.push_back(t.relative(0, t.numKeyframes() - 1).mean);
+        if (!m.iekf) {
+          Eigen::MatrixXd blk = Eigen::MatrixXd::Zero(3 * (b - a), 3 * (b - a));
+          for (int k = a; k < b; ++k) blk.block<3, 3>(3 * (k - a), 3 * (k - a)) = m.cov[k];
+          cov.push_back(*composed_j * blk * composed_j->transpose());
+        }
+        continue;
+      }
+      for (int k = a; k < b; ++k) {
+        motions.push_back(m.motion(k));
+        if (!m.iekf) cov.push_back(m.cov[k]);
+      }
+    }
+    if (!m.iekf) {
+      out->motions = std::move(motions);
+      out->cov = std::move(cov);
+      return;
+    }
+    // Dense: the kept blocks of P, and for a composed motion J P Jᵀ with its cross terms J P.
+    const auto p = m.iekf->covariance();
+    Eigen::Index dim = 0;
+    std::vector<std::pair<Eigen::Index, Eigen::Index>> src;  // (start, length) in the old state
+    for (std::size_t r = 0; r < ranges.size(); ++r) {
+      const auto [a, b] = ranges[r];
+      src.emplace_back(3 * a, 3 * (b - a));
+      dim += (composed_j && static_cast<int>(r) == composed_at) ? 3 : 3 * (b - a);
+    }
+    Eigen::MatrixXd np = Eigen::MatrixXd::Zero(dim, dim);
+    Eigen::Index ri = 0;
+    for (std::size_t r = 0; r < ranges.size(); ++r) {
+      const bool cr = composed_j && static_cast<int>(r) == composed_at;
+      const Eigen::Index rl = cr ? 3 : src[r].second;
+      Eigen::Index ci = 0;
+      for (std::size_t c = 0; c < ranges.size(); ++c) {
+        const bool cc = composed_j && static_cast<int>(c) == composed_at;
+        const Eigen::Index cl = cc ? 3 : src[c].second;
+        Eigen::MatrixXd b = p.block(src[r].first, src[c].first, src[r].second, src[c].second);
+        if (cr) b = *composed_j * b;
+        if (cc) b = b * composed_j->transpose();
+        np.block(ri, ci, rl, cl) = b;
+        ci += cl;
+      }
+      ri += rl;
+    }
+    out->iekf.emplace(options_.iekf, std::move(motions), 0.5 * (np + np.transpose()));
+  };
+
+  Map alone;
+  alone.chain = {session};
+  slice(&alone, {{o, o + n - 1}}, nullptr, -1);
+
+  Map rest;
+  std::vector<int> released;  // loops summarised by removed links that involve the session
+  auto release = [&](const Link& l) {
+    for (int id : l.loops) {
+      const BackendLoop& lp = loops_[id].loop;
+      if (lp.session_a == session || lp.session_b == session) released.push_back(id);
+    }
+  };
+  if (q == 0) {
+    rest.chain.assign(m.chain.begin() + 1, m.chain.end());
+    rest.links.assign(m.links.begin() + 1, m.links.end());
+    release(m.links[0]);
+    slice(&rest, {{o + n, d}}, nullptr, -1);
+  } else if (q == last) {
+    rest.chain.assign(m.chain.begin(), m.chain.end() - 1);
+    rest.links.assign(m.links.begin(), m.links.end() - 1);
+    release(m.links.back());
+    slice(&rest, {{0, o - 1}}, nullptr, -1);
+  } else {
+    rest.chain.assign(m.chain.begin(), m.chain.begin() + q);
+    rest.chain.insert(rest.chain.end(), m.chain.begin() + q + 1, m.chain.end());
+    // The composed link over motions [o - 1, o + n]: link in, the session, link out.
+    std::vector<Pose2> chain;
+    for (int k = o - 1; k <= o + n - 1; ++k) chain.push_back(m.motion(k));
+    const Trajectory t = meansTrajectory(chain);
+    const Eigen::MatrixXd jac = t.relativeJacobian(0, t.numKeyframes() - 1);
+    Link composed;
+    const Link& lin = m.links[q - 1];
+    const Link& lout = m.links[q];
+    release(lin);
+    release(lout);
+    for (const Link* l : {&lin, &lout})
+      for (int id : l->loops)
+        if (std::find(released.begin(), released.end(), id) == released.end()) composed.loops.push_back(id);
+    rest.links.assign(m.links.begin(), m.links.begin() + q - 1);
+    slice(&rest, {{0, o - 1}, {o - 1, o + n}, {o + n, d}}, &jac, 1);
+    composed.measured = UncertainPose2(rest.motion(o - 1), rest.motionCov(o - 1));
+    rest.links.push_back(composed);
+    rest.links.insert(rest.links.end(), m.links.begin() + q + 1, m.links.end());
+  }
+  for (int id : released) {
+    loops_[id].summarised = false;
+    loops_[id].applied = false;
+  }
+  // Loops between the session and the rest that the IEKF had applied are inter-map again.
+  for (LoopState& st : loops_) {
+    const bool a_in = st.loop.session_a == session, b_in = st.loop.session_b == session;
+    if (a_in != b_in && mapOf(st.loop.session_a) == old_id && mapOf(st.loop.session_b) == old_id) st.applied = false;
+  }
+  for (int t : rest.chain) split_pairs_.insert({std::min(session, t), std::max(session, t)});
+  const int rest_id = rest.chain.front();
+  maps_.erase(old_id);
+  maps_[session] = std::move(alone);
+  sessions_[session].map = session;
+  maps_[rest_id] = std::move(rest);
+  for (int s : maps_[rest_id].chain) sessions_[s].map = rest_id;
+  ++stats_.splits;
+  const std::string msg = "split session " + std::to_string(session) + " off map " + std::to_string(old_id) +
+                          ": maps " + std::to_string(session) + " and " + std::to_string(rest_id) + ", " +
+                          std::to_string(released.size()) + " global loops between them kept for a later join";
+  say(msg);
+  return {StatusCode::kOk, msg};
+}
+
+SessionInfo MultiSessionBackend::session(int s) const {
+  const Session& x = sessionAt(s);
+  return {s, x.name, x.recording, x.map, x.keyframes()};
+}
+
+std::vector<int> MultiSessionBackend::mapIds() const {
+  std::vector<int> ids;
+  for (const auto& [id, m] : maps_) ids.push_back(id);
+  return ids;
+}
+
+const std::vector<int>& MultiSessionBackend::chain(int map) const {
+  const auto it = maps_.find(map);
+  if (it == maps_.end()) throw std::invalid_argument("backend: no map " + std::to_string(map));
+  return it->second.chain;
+}
+
+std::vector<LinkInfo> MultiSessionBackend::links(int map) const {
+  chain(map);
+  const Map& m = mapAt(map);
+  std::vector<LinkInfo> out;
+  for (std::size_t i = 0; i + 1 < m.chain.size(); ++i) {
+    const int at = offset(m, m.chain[i + 1]) - 1;
+    out.push_back({m.chain[i], m.chain[i + 1], m.links[i].measured, m.motion(at), static_cast<int>(m.links[i].loops.size())});
+  }
+  return out;
+}
+
+std::vector<Pose2> MultiSessionBackend::sessionPoses(int s) const {
+  const Map& m = mapAt(mapOf(s));
+  const int o = offset(m, s), n = sessions_[s].keyframes();
+  std::vector<Pose2> out;
+  Pose2 x;
+  for (int k = 0; k < o + n; ++k) {
+    if (k > 0) x = compose(x, m.motion(k - 1));
+    if (k >= o) out.push_back(x);
+  }
+  return out;
+}
+
+Trajectory MultiSessionBackend::sessionTrajectory(int s) const {
+  const Map& m = mapAt(mapOf(s));
+  const int o = offset(m, s), n = sessions_[s].keyframes();
+  Trajectory t;
+  for (int k = o; k < o + n - 1; ++k) t.append(UncertainPose2(m.motion(k), m.motionCov(k)));
+  return t;
+}
+
+// --- Session store: export and exact restore ---------------------------------------------------
+
+MapState MultiSessionBackend::mapState(int map) const {
+  chain(map);
+  const Map& m = mapAt(map);
+  MapState st;
+  st.chain = m.chain;
+  for (const Link& l : m.links) st.links.push_back({l.measured, l.loops});
+  for (int k = 0; k < m.numMotions(); ++k) st.motions.emplace_back(m.motion(k), m.motionCov(k));
+  st.pending = m.pending;
+  return st;
+}
+
+LoopRecord MultiSessionBackend::loopRecord(int id) const {
+  if (id < 0 || id >= numLoops()) throw std::invalid_argument("backend: no loop " + std::to_string(id));
+  const LoopState& st = loops_[id];
+  return {st.loop, st.summarised, st.applied, st.refused};
+}
+
+int MultiSessionBackend::restoreSession(const std::string& name, const std::vector<UncertainPose2>& odometry) {
+  for (std::size_t k = 0; k < odometry.size(); ++k) {
+    const std::string bad = checkCovariance(odometry[k].covariance);
+    if (!bad.empty() || !odometry[k].mean.isFinite())
+      throw std::invalid_argument("backend: restored session '" + name + "': motion " + std::to_string(k + 1) + ": " +
+                                  (bad.empty() ? std::string("not finite") : bad));
+  }
+  const int id = numSessions();
+  Session s;
+  s.name = name.empty() ? "session_" + std::to_string(id) : name;
+  s.recording = false;
+  s.map = id;
+  s.odometry = odometry;
+  sessions_.push_back(s);
+  Map m;
+  m.chain = {id};
+  for (const UncertainPose2& u : odometry) {
+    m.motions.push_back(u.mean);
+    m.cov.push_back(u.covariance);
+  }
+  toDenseIfIekf(m);
+  maps_.emplace(id, std::move(m));
+  return id;
+}
+
+int MultiSessionBackend::restoreLoop(const LoopRecord& r) {
+  const BackendLoop& l = r.loop;
+  for (const auto& [s, k] : {std::pair<int, int>{l.session_a, l.keyframe_a}, {l.session_b, l.keyframe_b}}) {
+    if (!hasSession(s) || k < 0 || k >= sessions_[s].keyframes())
+      throw std::invalid_argument("backend: restored loop: no keyframe " + std::to_string(k) + " in session " +
+                                  std::to_string(s));
+  }
+  const std::string bad = checkCovariance(l.z.covariance);
+  if (!bad.empty() || !l.z.mean.isFinite())
+    throw std::invalid_argument("backend: restored loop: " + (bad.empty() ? std::string("mean not finite") : bad));
+  loops_.push_back({l, r.summarised, r.applied, r.refused});
+  ++stats_.loops;
+  return numLoops() - 1;
+}
+
+BackendStatus MultiSessionBackend::restoreMap(const MapState& state) {
+  if (state.chain.empty()) return {StatusCode::kInvalidArgument, "restored map: empty chain"};
+  if (state.links.size() + 1 != state.chain.size())
+    return {StatusCode::kInvalidArgument, "restored map: " + std::to_string(state.chain.size()) + " sessions need " +
+                                              std::to_string(state.chain.size() - 1) + " links, got " +
+                                              std::to_string(state.links.size())};
+  int motions = static_cast<int>(state.links.size());
+  for (int s : state.chain) {
+    if (!hasSession(s)) return {StatusCode::kNotFound, "restored map: no session " + std::to_string(s)};
+    if (sessions_[s].recording || mapAt(sessions_[s].map).chain.size() != 1)
+      return {StatusCode::kFailedPrecondition,
+              "restored map: session " + std::to_string(s) + " is recording or already in a map of several sessions"};
+    motions += sessions_[s].keyframes() - 1;
+  }
+  if (!state.motions.empty() && static_cast<int>(state.motions.size()) != motions)
+    return {StatusCode::kInvalidArgument, "restored map " + std::to_string(state.chain.front()) + ": " +
+                                              std::to_string(state.motions.size()) + " motions, its chain has " +
+                                              std::to_string(motions)};
+  for (const MapLinkState& l : state.links)
+    for (int id : l.loops)
+      if (id < 0 || id >= numLoops())
+        return {StatusCode::kNotFound, "restored map: a link summarises loop " + std::to_string(id) + ", not restored"};
+  Map m;
+  m.chain = state.chain;
+  m.pending = state.pending;
+  for (std::size_t c = 0; c < state.chain.size(); ++c) {
+    if (state.motions.empty()) {
+      const Map& own = mapAt(sessions_[state.chain[c]].map);
+      for (int k = 0; k < own.numMotions(); ++k) {
+        m.motions.push_back(own.motion(k));
+        m.cov.push_back(own.motionCov(k));
+      }
+      if (c + 1 < state.chain.size()) {
+        m.motions.push_back(state.links[c].measured.mean);
+        m.cov.push_back(state.links[c].measured.covariance);
+      }
+    }
+    if (c + 1 < state.chain.size()) m.links.push_back({state.links[c].measured, state.links[c].loops});
+  }
+  for (const UncertainPose2& u : state.motions) {
+    m.motions.push_back(u.mean);
+    m.cov.push_back(u.covariance);
+  }
+  toDenseIfIekf(m);  // the joint covariance is not stored: block-diagonal from the marginals
+  for (const MapLinkState& l : state.links)
+    for (int id : l.loops) loops_[id].summarised = true;
+  for (int s : state.chain) maps_.erase(sessions_[s].map);
+  const int id = state.chain.front();
+  maps_[id] = std::move(m);
+  for (int s : state.chain) sessions_[s].map = id;
+  return {};
+}
+
+void MultiSessionBackend::restoreSplitPair(int session_a, int session_b) {
+  sessionAt(session_a);
+  sessionAt(session_b);
+  split_pairs_.insert({std::min(session_a, session_b), std::max(session_a, session_b)});
+}
+
+}  // namespace core
+}  // namespace uw_multislam

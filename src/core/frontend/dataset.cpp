@@ -1,0 +1,224 @@
+#include "uw_multislam/core/frontend/dataset.h"
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <map>
+#include <set>
+#include <sstream>
+
+namespace uw_multislam {
+namespace core {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string trim(const std::string& s) {
+  const auto b = s.find_first_not_of(" \t\r\n");
+  if (b == std::string::npos) return "";
+  const auto e = s.find_last_not_of(" \t\r\n");
+  return s.substr(b, e - b + 1);
+}
+
+std::vector<std::string> splitCsv(const std::string& line) {
+  std::vector<std::string> out;
+  std::stringstream ss(line);
+  std::string cell;
+  while (std::getline(ss, cell, ',')) out.push_back(trim(cell));
+  if (!line.empty() && line.back() == ',') out.emplace_back();
+  return out;
+}
+
+[[noreturn]] void fail(const std::string& path, int line, const std::string& what) {
+  std::ostringstream os;
+  os << path;
+  if (line > 0) os << ":" << line;
+  os << ": " << what;
+  throw DatasetError(os.str());
+}
+
+double parseDouble(const std::string& s, const std::string& path, int line, const char* column) {
+  char* end = nullptr;
+  const double v = std::strtod(s.c_str(), &end);
+  if (s.empty() || end == s.c_str() || *end != '\0')
+    fail(path, line, std::string("bad number in ") + column + ": '" + s + "'");
+  return v;
+}
+
+int parseInt(const std::string& s, const std::string& path, int line, const char* column) {
+  char* end = nullptr;
+  const long v = std::strtol(s.c_str(), &end, 10);
+  if (s.empty() || end == s.c_str() || *end != '\0' || v < 0 || v > 100000000) {
+    fail(path, line, std::string("bad ") + column + ": '" + s + "' (expected a non-negative integer)");
+  }
+  return static_cast<int>(v);
+}
+
+// Reads a CSV with the expected header; calls row(cells, line_number) for each non-empty row.
+template <typename F>
+void readCsv(const std::string& path, const std::vector<std::string>& header, F row) {
+  std::string expected;
+  for (const auto& c : header) expected += (expected.empty() ? "" : ",") + c;
+  std::ifstream in(path);
+  if (!in) fail(path, 0, "cannot open");
+  std::string line;
+  if (!std::getline(in, line)) fail(path, 0, "empty file (expected header '" + expected + "')");
+  if (splitCsv(trim(line)) != header) {
+    fail(path, 1, "unexpected header '" + trim(line) + "' (expected '" + expected + "')");
+  }
+  int n = 1;
+  while (std::getline(in, line)) {
+    ++n;
+    if (trim(line).empty()) continue;
+    const auto cells = splitCsv(trim(line));
+    if (cells.size() != header.size()) {
+      fail(path, n, "expected " + std::to_string(header.size()) + " columns, found " + std::to_string(cells.size()));
+    }
+    row(cells, n);
+  }
+}
+
+}  // namespace
+
+std::string CameraIntrinsics::validate() const {
+  std::ostringstream os;
+  if (width <= 0 || height <= 0) {
+    os << "image size " << width << "x" << height << " is not positive";
+  } else if (!(std::isfinite(fx) && fx > 0.0) || !(std::isfinite(fy) && fy > 0.0)) {
+    os << "focal length fx=" << fx << " fy=" << fy << " must be positive";
+  } else if (!std::isfinite(cx) || !std::isfinite(cy)) {
+    os << "principal point cx=" << cx << " cy=" << cy << " is not finite";
+  }
+  return os.str();
+}
+
+std::string Dataset::imagePath(const FrameRecord& f) const { return (fs::path(directory) / f.image).string(); }
+
+CameraIntrinsics readCameraYaml(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) fail(path, 0, "cannot open");
+  std::map<std::string, std::string> kv;
+  std::string line;
+  int n = 0;
+  while (std::getline(in, line)) {
+    ++n;
+    const auto hash = line.find('#');
+    if (hash != std::string::npos) line = line.substr(0, hash);
+    if (trim(line).empty() || trim(line).rfind("%YAML", 0) == 0 || trim(line) == "---") continue;
+    const auto colon = line.find(':');
+    if (colon == std::string::npos) fail(path, n, "expected 'key: value', found '" + trim(line) + "'");
+    kv[trim(line.substr(0, colon))] = trim(line.substr(colon + 1));
+  }
+  auto get = [&](const char* key) {
+    const auto it = kv.find(key);
+    if (it == kv.end()) fail(path, 0, std::string("missing key '") + key + "'");
+    return parseDouble(it->second, path, 0, key);
+  };
+  CameraIntrinsics c;
+  const double w = get("image_width"), h = get("image_height");
+  if (!(w >= 1 && w <= 1e6 && h >= 1 && h <= 1e6) || w != std::floor(w) || h != std::floor(h)) {
+    fail(path, 0, "image size must be whole numbers of pixels in [1, 1000000]");
+  }
+  c.width = static_cast<int>(w);
+  c.height = static_cast<int>(h);
+  c.fx = get("fx");
+  c.fy = get("fy");
+  c.cx = get("cx");
+  c.cy = get("cy");
+  const std::string bad = c.validate();
+  if (!bad.empty()) fail(path, 0, bad);
+  return c;
+}
+
+void writeCameraYaml(const std::string& path, const CameraIntrinsics& c) {
+  std::ofstream out(path);
+  if (!out) throw DatasetError(path + ": cannot write");
+  out << std::setprecision(10) << "image_width: " << c.width << "\nimage_height: " << c.height << "\nfx: " << c.fx
+      << "\nfy: " << c.fy << "\ncx: " << c.cx << "\ncy: " << c.cy << "\n";
+  if (!out) throw DatasetError(path + ": write failed");
+}
+
+std::vector<FrameRecord> readFramesCsv(const std::string& path) {
+  std::vector<FrameRecord> frames;
+  std::set<int> seen;
+  readCsv(path, {"index", "image", "stamp_s", "altitude_m"}, [&](const std::vector<std::string>& c, int n) {
+    FrameRecord f;
+    f.index = parseInt(c[0], path, n, "index");
+    f.image = c[1];
+    if (f.image.empty()) fail(path, n, "empty image name");
+    f.stamp_s = parseDouble(c[2], path, n, "stamp_s");
+    f.altitude_m = parseDouble(c[3], path, n, "altitude_m");
+    if (!seen.insert(f.index).second) fail(path, n, "duplicate index " + c[0]);
+    frames.push_back(f);
+  });
+  return frames;
+}
+
+void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& frames) {
+  std::ofstream out(path);
+  if (!out) throw DatasetError(path + ": cannot write");
+  out << "index,image,stamp_s,altitude_m\n" << std::fixed;
+  for (const auto& f : frames) {
+    out << f.index << "," << f.image << "," << std::setprecision(6) << f.stamp_s << "," << std::setprecision(4)
+        << f.altitude_m << "\n";
+  }
+  if (!out) throw DatasetError(path + ": write failed");
+}
+
+std::vector<GroundTruthRecord> readGroundTruthCsv(const std::string& path) {
+  std::vector<GroundTruthRecord> gt;
+  readCsv(path, {"index", "image", "x_m", "y_m", "yaw_rad"}, [&](const std::vector<std::string>& c, int n) {
+    GroundTruthRecord g;
+    g.index = parseInt(c[0], path, n, "index");
+    g.image = c[1];
+    g.pose = Pose2(parseDouble(c[2], path, n, "x_m"), parseDouble(c[3], path, n, "y_m"),
+                   parseDouble(c[4], path, n, "yaw_rad"));
+    gt.push_back(g);
+  });
+  return gt;
+}
+
+void writeGroundTruthCsv(const std::string& path, const std::vector<GroundTruthRecord>& gt) {
+  std::ofstream out(path);
+  if (!out) throw DatasetError(path + ": cannot write");
+  out << "index,image,x_m,y_m,yaw_rad\n" << std::fixed;
+  for (const auto& g : gt) {
+    out << g.index << "," << g.image << "," << std::setprecision(6) << g.pose.x() << "," << g.pose.y() << ","
+        << std::setprecision(7) << g.pose.yaw() << "\n";
+  }
+  if (!out) throw DatasetError(path + ": write failed");
+}
+
+std::string readTextFile(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw DatasetError(path + ": cannot open");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+Dataset loadDataset(const std::string& directory, bool check_images_exist) {
+  if (!fs::is_directory(directory)) throw DatasetError(directory + ": not a directory");
+  Dataset d;
+  d.directory = directory;
+  d.camera = readCameraYaml((fs::path(directory) / "camera.yaml").string());
+  const std::string frames_path = (fs::path(directory) / "frames.csv").string();
+  d.frames = readFramesCsv(frames_path);
+  if (d.frames.empty()) throw DatasetError(frames_path + ": no frames");
+  if (check_images_exist) {
+    for (const auto& f : d.frames) {
+      if (!fs::is_regular_file(d.imagePath(f))) {
+        throw DatasetError(frames_path + ": image '" + f.image + "' of frame " + std::to_string(f.index) +
+                           " does not exist");
+      }
+    }
+  }
+  const fs::path gt = fs::path(directory) / "gt.csv";
+  if (fs::exists(gt)) d.ground_truth = readGroundTruthCsv(gt.string());
+  return d;
+}
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,110 @@
+#include "uw_multislam/core/frontend/features.h"
+
+#include <algorithm>
+#include <sstream>
+#include <stdexcept>
+
+namespace uw_multislam {
+namespace core {
+
+std::string FeatureOptions::validate() const {
+  std::ostringstream os;
+  if (num_features < 8 || num_features > 20000) {
+    os << "num_features " << num_features << " must be in [8, 20000]";
+  } else if (grid_rows < 1 || grid_cols < 1 || grid_rows > num_features || grid_cols > num_features ||
+             static_cast<long long>(grid_rows) * grid_cols > num_features) {
+    os << "grid " << grid_rows << "x" << grid_cols << " must have 1..num_features cells";
+  } else if (!(candidate_factor >= 1.0 && candidate_factor <= 20.0)) {
+    os << "candidate_factor " << candidate_factor << " must be in [1, 20]";
+  } else if (!(contrast_threshold > 0.0 && contrast_threshold < 1.0)) {
+    os << "contrast_threshold " << contrast_threshold << " must be in (0, 1)";
+  } else if (!(edge_threshold > 1.0) || !(sigma > 0.0) || octave_layers < 1) {
+    os << "edge_threshold must be > 1, sigma > 0, octave_layers >= 1";
+  } else if (border_px < 0) {
+    os << "border_px must be >= 0";
+  }
+  return os.str();
+}
+
+FeatureExtractor::FeatureExtractor(const FeatureOptions& options) : options_(options) {
+  const std::string bad = options.validate();
+  if (!bad.empty()) throw std::invalid_argument("features: " + bad);
+  sift_ = cv::SIFT::create(static_cast<int>(options.num_features * options.candidate_factor), options.octave_layers,
+                           options.contrast_threshold, options.edge_threshold, options.sigma);
+}
+
+std::vector<int> FeatureExtractor::bucket(const std::vector<cv::KeyPoint>& candidates, cv::Size size) const {
+  const auto stronger = [&](int a, int b) {
+    const cv::KeyPoint &ka = candidates[a], &kb = candidates[b];
+    if (ka.response != kb.response) return ka.response > kb.response;
+    if (ka.pt.y != kb.pt.y) return ka.pt.y < kb.pt.y;  // deterministic order on ties
+    return ka.pt.x < kb.pt.x;
+  };
+  std::vector<int> order(candidates.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = static_cast<int>(i);
+  std::sort(order.begin(), order.end(), stronger);
+  const int cells = options_.grid_rows * options_.grid_cols;
+  const int quota = std::max(1, options_.num_features / cells);
+  std::vector<int> used(cells, 0);
+  std::vector<int> kept, rest;
+  for (int i : order) {
+    const cv::KeyPoint& k = candidates[i];
+    const int r = std::min(options_.grid_rows - 1, static_cast<int>(k.pt.y * options_.grid_rows / size.height));
+    const int c = std::min(options_.grid_cols - 1, static_cast<int>(k.pt.x * options_.grid_cols / size.width));
+    int& n = used[r * options_.grid_cols + c];
+    (n < quota ? kept : rest).push_back(i);
+    n += n < quota;
+  }
+  for (int i : rest) {
+    if (static_cast<int>(kept.size()) >= options_.num_features) break;
+    kept.push_back(i);
+  }
+  if (static_cast<int>(kept.size()) > options_.num_features) kept.resize(options_.num_features);
+  std::sort(kept.begin(), kept.end(), stronger);
+  return kept;
+}
+
+FrameFeatures FeatureExtractor::extract(const cv::Mat& grey) const {
+  if (grey.empty() || grey.type() != CV_8UC1) {
+    throw std::invalid_argument("features: expected a non-empty 8-bit grey image");
+  }
+  FrameFeatures f;
+  f.image_size = grey.size();
+  // One pass over the scale space for candidates and their descriptors (a separate compute()
+  // would build the pyramid again, which costs as much as the detection).
+  std::vector<cv::KeyPoint> candidates;
+  cv::Mat descriptors;
+  sift_->detectAndCompute(grey, cv::noArray(), candidates, descriptors);
+  const float b = static_cast<float>(options_.border_px);
+  std::vector<cv::KeyPoint> inside;
+  std::vector<int> rows;
+  for (std::size_t i = 0; i < candidates.size(); ++i) {
+    const cv::KeyPoint& k = candidates[i];
+    if (k.pt.x < b || k.pt.y < b || k.pt.x > grey.cols - 1 - b || k.pt.y > grey.rows - 1 - b) continue;
+    inside.push_back(k);
+    rows.push_back(static_cast<int>(i));
+  }
+  const std::vector<int> kept = bucket(inside, grey.size());
+  f.keypoints.reserve(kept.size());
+  f.descriptors.create(static_cast<int>(kept.size()), 128, CV_32F);
+  for (std::size_t i = 0; i < kept.size(); ++i) {
+    f.keypoints.push_back(inside[kept[i]]);
+    descriptors.row(rows[kept[i]]).copyTo(f.descriptors.row(static_cast<int>(i)));
+  }
+  return f;
+}
+
+Eigen::Vector2d pixelToMetres(const cv::Point2f& px, const CameraIntrinsics& c, double altitude_m) {
+  return Eigen::Vector2d((px.x - c.cx) * altitude_m / c.fx, (px.y - c.cy) * altitude_m / c.fy);
+}
+
+std::vector<Eigen::Vector2d> applyAltitude(const std::vector<cv::KeyPoint>& keypoints, const CameraIntrinsics& c,
+                                           double altitude_m) {
+  std::vector<Eigen::Vector2d> out;
+  out.reserve(keypoints.size());
+  for (const auto& k : keypoints) out.push_back(pixelToMetres(k.pt, c, altitude_m));
+  return out;
+}
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,215 @@
+#include "uw_multislam/core/frontend/odometry.h"
+
+#include <opencv2/imgproc.hpp>
+
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+namespace uw_multislam {
+namespace core {
+
+std::string KeyframeOptions::validate() const {
+  std::ostringstream os;
+  if (!(min_overlap >= 0.0 && min_overlap < 1.0)) {
+    os << "min_overlap " << min_overlap << " must be in [0, 1)";
+  } else if (!(max_rotation_rad > 0.0)) {
+    os << "max_rotation_rad must be positive";
+  } else if (!(max_interval_s >= 0.0)) {
+    os << "max_interval_s must be >= 0 (0 = off)";
+  } else if (min_tracking_inliers < 0) {
+    os << "min_tracking_inliers must be >= 0";
+  }
+  return os.str();
+}
+
+std::string FallbackOptions::validate() const {
+  if (!(min_sigma_m > 0) || !(relative_sigma >= 0) || !(sigma_yaw_rad > 0)) {
+    return "min_sigma_m and sigma_yaw_rad must be positive, relative_sigma >= 0";
+  }
+  return {};
+}
+
+std::string OdometryOptions::validate() const {
+  const std::pair<const char*, std::string> checks[] = {
+      {"enhancement", enhancement.validate()}, {"features", features.validate()},   {"matching", matching.validate()},
+      {"ransac", ransac.validate()},           {"keyframes", keyframes.validate()}, {"fallback", fallback.validate()}};
+  for (const auto& c : checks) {
+    if (!c.second.empty()) return std::string(c.first) + ": " + c.second;
+  }
+  return {};
+}
+
+std::string statusName(FrameStatus s) {
+  switch (s) {
+    case FrameStatus::kFirstKeyframe:
+      return "first_keyframe";
+    case FrameStatus::kTracked:
+      return "tracked";
+    case FrameStatus::kKeyframe:
+      return "keyframe";
+    case FrameStatus::kFallback:
+      return "fallback";
+    case FrameStatus::kSkipped:
+      return "skipped";
+  }
+  return "unknown";
+}
+
+namespace {
+const OdometryOptions& checked(const OdometryOptions& o, const CameraIntrinsics& c) {
+  std::string bad = o.validate();
+  if (bad.empty()) bad = c.validate();
+  if (!bad.empty()) throw std::invalid_argument("odometry: " + bad);
+  return o;
+}
+}  // namespace
+
+Odometry::Odometry(const CameraIntrinsics& camera, const OdometryOptions& options)
+    : camera_(camera),
+      options_(checked(options, camera)),
+      enhancer_(options.enhancement),
+      extractor_(options.features) {}
+
+PairMotion Odometry::matchToKeyframe(const FrameFeatures& f, double altitude_m) {
+  return estimatePairMotion({&last_kf_.features, last_kf_.altitude_m, &camera_}, {&f, altitude_m, &camera_},
+                            options_.matching, options_.ransac, &times_);
+}
+
+double Odometry::footprintOverlap(const Pose2& motion, double kf_altitude, double altitude) const {
+  auto corners = [&](double alt, const Pose2& to_kf) {
+    std::vector<cv::Point2f> poly;
+    for (const cv::Point2f px : {cv::Point2f(0, 0), cv::Point2f(camera_.width, 0),
+                                 cv::Point2f(camera_.width, camera_.height), cv::Point2f(0, camera_.height)}) {
+      const Eigen::Vector2d p = transformPoint(to_kf, pixelToMetres(px, camera_, alt));
+      poly.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
+    }
+    return poly;
+  };
+  const std::vector<cv::Point2f> kf = corners(kf_altitude, Pose2()), cur = corners(altitude, motion);
+  std::vector<cv::Point2f> inter;
+  const double area = cv::intersectConvexConvex(kf, cur, inter, true);
+  const double cur_area = cv::contourArea(cur);
+  return cur_area > 0 ? std::max(0.0, area) / cur_area : 0.0;
+}
+
+bool Odometry::needsKeyframe(const RansacResult& r, double overlap, double stamp_s) const {
+  const KeyframeOptions& k = options_.keyframes;
+  return overlap < k.min_overlap || std::abs(r.motion.yaw()) > k.max_rotation_rad ||
+         (k.max_interval_s > 0 && stamp_s - last_kf_.stamp_s > k.max_interval_s) ||
+         static_cast<int>(r.inliers.size()) < k.min_tracking_inliers;
+}
+
+void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback) {
+  trajectory_.append(motion);
+  new_keyframes_.push_back({static_cast<int>(keyframes_.size()), frame.features});
+  keyframes_.push_back({frame.index, frame.stamp_s, frame.altitude_m, fallback});
+  last_kf_ = frame;
+  last_kf_.pose = trajectory_.absolutePoses().back();
+  last_kf_.motion = motion;
+  ++stats_.keyframes;
+}
+
+OdometryUpdate Odometry::process(const OdometryInput& in) {
+  ScopedStage total(&times_, "odometry_total");
+  ++stats_.frames;
+  new_keyframes_.clear();
+  OdometryUpdate up;
+  up.index = in.index;
+  if (in.image.empty()) {
+    ++stats_.skipped_image;
+    up.reason = "empty image";
+    return up;
+  }
+  if (in.image.cols != camera_.width || in.image.rows != camera_.height) {
+    // The intrinsics would scale every feature wrongly: a silently wrong trajectory.
+    ++stats_.skipped_image;
+    up.reason = "image is " + std::to_string(in.image.cols) + "x" + std::to_string(in.image.rows) + ", the camera " +
+                std::to_string(camera_.width) + "x" + std::to_string(camera_.height);
+    return up;
+  }
+  double alt = in.altitude_m;
+  if (std::isfinite(alt) && alt > 0.0) {
+    last_altitude_ = alt;
+  } else if (last_altitude_ > 0.0) {
+    alt = last_altitude_;
+    ++stats_.altitude_reused;
+  } else {
+    ++stats_.skipped_altitude;
+    up.reason = "no valid altitude yet";
+    return up;
+  }
+
+  TrackedFrame cur;
+  cur.index = in.index;
+  cur.stamp_s = in.stamp_s;
+  cur.altitude_m = alt;
+  try {
+    cv::Mat grey;
+    {
+      ScopedStage s(&times_, "enhance");
+      grey = enhancer_.enhance(in.image);
+    }
+    ScopedStage s(&times_, "features");
+    cur.features = extractor_.extract(grey);
+  } catch (const std::invalid_argument& e) {
+    ++stats_.skipped_image;
+    up.reason = e.what();
+    return up;
+  }
+  up.features = static_cast<int>(cur.features.size());
+
+  if (keyframes_.empty()) {
+    new_keyframes_.push_back({0, cur.features});
+    cur.pose = Pose2();
+    keyframes_.push_back({cur.index, cur.stamp_s, cur.altitude_m, false});
+    last_kf_ = cur;
+    prev_ = cur;
+    ++stats_.keyframes;
+    up.status = FrameStatus::kFirstKeyframe;
+    up.keyframe_id = 0;
+    return up;
+  }
+
+  PairMotion m = matchToKeyframe(cur.features, alt);
+  if (!m.ransac.success && prev_.index != last_kf_.index) {
+    // Promote the last tracked frame and try again from there.
+    addKeyframe(prev_, prev_.motion, false);
+    ++stats_.promotions;
+    m = matchToKeyframe(cur.features, alt);
+  }
+  up.matches = m.matches;
+  if (m.ransac.success) {
+    cur.motion = UncertainPose2(m.ransac.motion, m.ransac.covariance);
+    cur.pose = compose(last_kf_.pose, cur.motion.mean);
+    last_step_ = between(prev_.pose, cur.pose);
+    up.inliers = static_cast<int>(m.ransac.inliers.size());
+    up.scale = m.ransac.scale;
+    up.overlap = footprintOverlap(m.ransac.motion, last_kf_.altitude_m, alt);
+    if (needsKeyframe(m.ransac, up.overlap, cur.stamp_s)) {
+      addKeyframe(cur, cur.motion, false);
+      up.status = FrameStatus::kKeyframe;
+      up.keyframe_id = static_cast<int>(keyframes_.size()) - 1;
+    } else {
+      ++stats_.tracked;
+      up.status = FrameStatus::kTracked;
+    }
+  } else {
+    // Reuse the previous frame-to-frame motion (paper §5), with a deliberately large covariance.
+    cur.pose = compose(prev_.pose, last_step_);
+    const FallbackOptions& f = options_.fallback;
+    const double sxy = std::max(f.min_sigma_m, f.relative_sigma * last_step_.translation().norm());
+    const Eigen::Matrix3d cov = Eigen::Vector3d(sxy * sxy, sxy * sxy, f.sigma_yaw_rad * f.sigma_yaw_rad).asDiagonal();
+    addKeyframe(cur, UncertainPose2(between(last_kf_.pose, cur.pose), cov), true);
+    ++stats_.fallbacks;
+    up.status = FrameStatus::kFallback;
+    up.reason = m.ransac.failure;
+    up.keyframe_id = static_cast<int>(keyframes_.size()) - 1;
+  }
+  up.pose = cur.pose;
+  prev_ = cur;
+  return up;
+}
+
+}  // namespace core
+}  // namespace uw_multislam

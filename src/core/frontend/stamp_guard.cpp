@@ -1,0 +1,56 @@
+#include "uw_multislam/core/frontend/stamp_guard.h"
+
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+namespace uw_multislam {
+namespace core {
+
+std::string StampGuardOptions::validate() const {
+  std::ostringstream os;
+  if (!(std::isfinite(reorder_tolerance_s) && reorder_tolerance_s >= 0)) {
+    os << "reorder_tolerance_s = " << reorder_tolerance_s << ": must be >= 0";
+  } else if (!(std::isfinite(session_gap_s) && session_gap_s >= 0)) {
+    os << "session_gap_s = " << session_gap_s << ": must be >= 0 (0 = off)";
+  }
+  return os.str();
+}
+
+std::string stampClassName(StampClass c) {
+  switch (c) {
+    case StampClass::kFirst: return "first";
+    case StampClass::kNext: return "next";
+    case StampClass::kDuplicate: return "duplicate";
+    case StampClass::kOutOfOrder: return "out_of_order";
+    case StampClass::kJumpBack: return "jump_back";
+    case StampClass::kJumpForward: return "jump_forward";
+  }
+  return "?";
+}
+
+StampGuard::StampGuard(const StampGuardOptions& options) : options_(options) {
+  const std::string bad = options_.validate();
+  if (!bad.empty()) throw std::invalid_argument("stamp guard: " + bad);
+}
+
+StampClass StampGuard::accept(double stamp_s) {
+  if (!std::isfinite(stamp_s)) return StampClass::kOutOfOrder;
+  StampClass c = StampClass::kNext;
+  if (!have_last_) {
+    c = StampClass::kFirst;
+  } else if (stamp_s == last_) {
+    return StampClass::kDuplicate;
+  } else if (stamp_s < last_) {
+    if (last_ - stamp_s <= options_.reorder_tolerance_s) return StampClass::kOutOfOrder;
+    c = StampClass::kJumpBack;
+  } else if (options_.session_gap_s > 0 && stamp_s - last_ > options_.session_gap_s) {
+    c = StampClass::kJumpForward;
+  }
+  have_last_ = true;
+  last_ = stamp_s;
+  return c;
+}
+
+}  // namespace core
+}  // namespace uw_multislam

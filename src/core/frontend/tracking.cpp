@@ -1,0 +1,91 @@
+#include "uw_multislam/core/frontend/tracking.h"
+
+#include <stdexcept>
+
+namespace uw_multislam {
+namespace core {
+
+std::string TrackingLossOptions::validate() const {
+  if (max_fallbacks < 0) return "max_fallbacks must be >= 0 (0 = never close a session)";
+  if (min_features < 1) return "min_features must be >= 1";
+  return {};
+}
+
+SegmentedOdometry::SegmentedOdometry(const CameraIntrinsics& camera, const OdometryOptions& odometry,
+                                     const TrackingLossOptions& loss)
+    : camera_(camera), options_(odometry), loss_(loss) {
+  const std::string bad = loss.validate();
+  if (!bad.empty()) throw std::invalid_argument("tracking: " + bad);
+  const std::string bad_odometry = odometry.validate();
+  if (!bad_odometry.empty()) throw std::invalid_argument("odometry: " + bad_odometry);
+}
+
+StageTimes SegmentedOdometry::times() const {
+  StageTimes all = times_;
+  if (odometry_) all.merge(odometry_->times());
+  return all;
+}
+
+SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input) {
+  Step step;
+  released_.clear();
+  if (closed_) {
+    times_.merge(odometry_->times());
+    odometry_.reset();
+    closed_ = false;
+  }
+  if (!odometry_) {
+    // No session open: this frame starts one if it has enough features.
+    auto candidate = std::make_unique<Odometry>(camera_, options_);
+    step.update = candidate->process(input);
+    if (step.update.status != FrameStatus::kFirstKeyframe || step.update.features < loss_.min_features) {
+      times_.merge(candidate->times());
+      if (sessions_ > 0) ++frames_lost_;
+      if (step.update.status != FrameStatus::kSkipped) {
+        step.update.reason = "no session: " + std::to_string(step.update.features) + " features, " +
+                             std::to_string(loss_.min_features) + " needed to start one";
+      }
+      step.update.status = FrameStatus::kSkipped;
+      step.update.keyframe_id = -1;
+      return step;
+    }
+    odometry_ = std::move(candidate);
+    consecutive_fallbacks_ = 0;
+    pending_.clear();
+    released_ = odometry_->newKeyframes();
+    kept_ = static_cast<int>(released_.size());
+    ++sessions_;
+    step.session_started = true;
+    return step;
+  }
+  step.update = odometry_->process(input);
+  const FrameStatus st = step.update.status;
+  if (st == FrameStatus::kFallback) {
+    ++consecutive_fallbacks_;
+  } else if (st != FrameStatus::kSkipped) {
+    consecutive_fallbacks_ = 0;
+  }
+  // Hold fallback keyframes (and any after them) until a frame is matched again.
+  for (const auto& kf : odometry_->newKeyframes()) {
+    if (pending_.empty() && !odometry_->keyframes()[kf.id].fallback) {
+      released_.push_back(kf);
+    } else {
+      pending_.push_back(kf);
+    }
+  }
+  if (st == FrameStatus::kTracked || st == FrameStatus::kKeyframe) {
+    released_.insert(released_.end(), pending_.begin(), pending_.end());
+    pending_.clear();
+  }
+  kept_ += static_cast<int>(released_.size());
+  if (loss_.max_fallbacks > 0 && consecutive_fallbacks_ >= loss_.max_fallbacks) {
+    step.session_closed = true;
+    closed_ = true;
+    ++losses_;
+    pending_.clear();  // dropped: the session ends at its last measured keyframe
+  }
+  return step;
+}
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,38 @@
+#include "uw_multislam/core/geometry/uncertain_pose.h"
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <sstream>
+
+namespace uw_multislam {
+namespace core {
+
+UncertainPose2 compose(const UncertainPose2& a, const UncertainPose2& b) {
+  const Eigen::Matrix3d j1 = composeJacobianFirst(a.mean, b.mean);
+  const Eigen::Matrix3d j2 = composeJacobianSecond(a.mean, b.mean);
+  return UncertainPose2(compose(a.mean, b.mean),
+                        j1 * a.covariance * j1.transpose() + j2 * b.covariance * j2.transpose());
+}
+
+UncertainPose2 invert(const UncertainPose2& a) {
+  const Eigen::Matrix3d j = invertJacobian(a.mean);
+  return UncertainPose2(invert(a.mean), j * a.covariance * j.transpose());
+}
+
+std::string checkCovariance(const Eigen::Matrix3d& p) {
+  if (!p.allFinite()) return "covariance has non-finite entries";
+  const double scale = std::max(p.cwiseAbs().maxCoeff(), 1e-300);
+  if ((p - p.transpose()).cwiseAbs().maxCoeff() > 1e-9 * scale) return "covariance is not symmetric";
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(p);
+  const double min_eig = eig.eigenvalues().minCoeff();
+  if (min_eig < -1e-12 * scale) {
+    std::ostringstream os;
+    os << "covariance is not positive semi-definite (smallest eigenvalue " << min_eig << ")";
+    return os.str();
+  }
+  return {};
+}
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,196 @@
+#include "uw_multislam/core/loops/loop_detector.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+namespace uw_multislam {
+namespace core {
+
+std::string LocalLoopOptions::validate() const {
+  std::ostringstream os;
+  if (!(radius_m > 0) || !(max_radius_m >= radius_m)) {
+    os << "radius_m must be positive and max_radius_m >= radius_m";
+  } else if (!(sigma_widening >= 0)) {
+    os << "sigma_widening must be >= 0";
+  } else if (exclude_recent < 1 || max_candidates < 1 || min_inliers < 3) {
+    os << "exclude_recent >= 1, max_candidates >= 1 and min_inliers >= 3 are required";
+  }
+  return os.str();
+}
+
+std::string GlobalLoopOptions::validate() const {
+  std::ostringstream os;
+  if (best_k < 1 || best_k > 100) {
+    os << "best_k must be in [1, 100]";
+  } else if (!(max_l1 >= 0)) {
+    os << "max_l1 must be >= 0 (0 = no threshold)";
+  } else if (min_inliers < 3) {
+    os << "min_inliers must be >= 3";
+  }
+  return os.str();
+}
+
+std::string LoopOptions::validate() const {
+  std::string bad = local.validate();
+  if (!bad.empty()) return "local: " + bad;
+  bad = global.validate();
+  if (!bad.empty()) return "global: " + bad;
+  return {};
+}
+
+std::string loopKindName(Loop::Kind k) { return k == Loop::Kind::kLocal ? "local" : "global"; }
+
+namespace {
+const LoopOptions& checked(const LoopOptions& o) {
+  const std::string bad = o.validate();
+  if (!bad.empty()) throw std::invalid_argument("loops: " + bad);
+  return o;
+}
+}  // namespace
+
+LoopDetector::LoopDetector(const LoopOptions& options, const MatchOptions& matching, const RansacOptions& ransac,
+                           int num_features)
+    : options_(checked(options)),
+      matching_(matching),
+      ransac_(ransac),
+      hasher_(options.global.hash_mode, num_features, options.global.projection_seed),
+      // Quantisation range of the store: sorted-DCT hashes stay within about [-0.06, 0.16],
+      // HALOC's within about [-0.37, 0.37] (measured on the demo and flight frames).
+      hashes_(options.global.hash_mode == HashMode::kSortedDct ? 0.25f : 0.5f) {}
+
+bool LoopDetector::verify(const Stored& old, const View& now, Loop* loop) {
+  FrameFeatures f = old.features;  // keypoints shared; descriptors back to float for matching
+  old.features.descriptors.convertTo(f.descriptors, CV_32F);
+  const PairMotion m = estimatePairMotion({&f, old.altitude_m, old.camera}, now, matching_, ransac_, &times_);
+  const int needed = loop->kind == Loop::Kind::kLocal ? options_.local.min_inliers : options_.global.min_inliers;
+  if (!m.ransac.success || static_cast<int>(m.ransac.inliers.size()) < needed) return false;
+  loop->session_a = old.session;
+  loop->keyframe_a = old.keyframe;
+  loop->frame_a = old.frame_index;
+  loop->z = UncertainPose2(m.ransac.motion, m.ransac.covariance);
+  loop->inliers = static_cast<int>(m.ransac.inliers.size());
+  return true;
+}
+
+std::vector<int> LoopDetector::localCandidates(int session, int keyframe, const Trajectory& t) const {
+  std::vector<std::pair<double, int>> near;
+  if (session >= static_cast<int>(by_session_.size())) return {};
+  const auto& mine = by_session_[session];
+  const int newest = keyframe - options_.local.exclude_recent - 1;
+  if (newest < 0) return {};
+  const Pose2& now = t.absolutePose(keyframe);
+  // X_t^i with its covariance, built backwards: X_t^i = X_{i+1}^i ⊕ X_t^{i+1}. Its position
+  // variance includes the heading uncertainty times the lever arm, which dominates after turns
+  // and odometry fallbacks. O(1) per step.
+  UncertainPose2 rel = UncertainPose2::exact(Pose2());
+  for (int i = keyframe - 1; i >= 0; --i) {
+    rel = compose(t.motion(i + 1), rel);
+    if (i > newest || i >= static_cast<int>(mine.size()) || mine[i] < 0) continue;
+    const double sigma = std::sqrt(std::max(0.0, rel.covariance.topLeftCorner<2, 2>().trace()));
+    const double radius =
+        std::min(options_.local.max_radius_m, options_.local.radius_m + options_.local.sigma_widening * sigma);
+    const double d = (t.absolutePose(i).translation() - now.translation()).norm();
+    if (d <= radius) near.push_back({d, mine[i]});
+  }
+  std::sort(near.begin(), near.end());
+  std::vector<int> out;
+  for (std::size_t i = 0; i < near.size() && static_cast<int>(i) < options_.local.max_candidates; ++i) {
+    out.push_back(near[i].second);
+  }
+  return out;
+}
+
+std::vector<Loop> LoopDetector::addKeyframe(int session, int keyframe, int frame_index, double altitude_m,
+                                            const CameraIntrinsics* camera, const FrameFeatures& features,
+                                            const Trajectory& trajectory, const Eigen::VectorXf* given_hash) {
+  if (session < 0 || keyframe < 0 || keyframe >= static_cast<int>(trajectory.numKeyframes())) {
+    throw std::invalid_argument("loops: keyframe " + std::to_string(keyframe) + " of session " +
+                                std::to_string(session) + " is not in its trajectory");
+  }
+  ++stats_.keyframes;
+  std::vector<Loop> loops;
+  const View now{&features, altitude_m, camera};
+  Eigen::VectorXf hash;
+  if (given_hash && given_hash->size() == HalocProjections::kHashSize) {
+    hash = *given_hash;
+  } else {
+    ScopedStage s(&times_, "hash");
+    hash = hasher_.hash(features.descriptors);
+  }
+  if (options_.local.enabled) {
+    std::vector<int> candidates;
+    {
+      ScopedStage s(&times_, "local_candidates");
+      candidates = localCandidates(session, keyframe, trajectory);
+    }
+    ScopedStage s(&times_, "local_verify");
+    for (int c : candidates) {
+      ++stats_.local_candidates;
+      Loop l;
+      l.kind = Loop::Kind::kLocal;
+      if (verify(keyframes_[c], now, &l)) loops.push_back(l);
+    }
+  }
+  if (options_.global.enabled && hashes_.size() > 0) {
+    {
+      ScopedStage s(&times_, "hash_query");
+      const float max_l1 = options_.global.max_l1 > 0 ? static_cast<float>(options_.global.max_l1)
+                                                      : std::numeric_limits<float>::infinity();
+      hashes_.query(hash, session, options_.global.best_k, max_l1, &scratch_);
+    }
+    ScopedStage s(&times_, "global_verify");
+    for (const HashCandidate& c : scratch_) {
+      ++stats_.global_candidates;
+      Loop l;
+      l.kind = Loop::Kind::kGlobal;
+      l.hash_l1 = c.l1;
+      if (verify(keyframes_[c.entry], now, &l)) loops.push_back(l);
+    }
+  }
+  for (Loop& l : loops) {
+    l.session_b = session;
+    l.keyframe_b = keyframe;
+    l.frame_b = frame_index;
+    (l.kind == Loop::Kind::kLocal ? stats_.local_accepted : stats_.global_accepted) += 1;
+  }
+
+  // Store the keyframe for later queries.
+  last_hash_ = hash;
+  store(session, keyframe, frame_index, altitude_m, camera, features, hash);
+  return loops;
+}
+
+void LoopDetector::addStoredKeyframe(int session, int keyframe, int frame_index, double altitude_m,
+                                     const CameraIntrinsics* camera, const FrameFeatures& features,
+                                     const Eigen::VectorXf& hash) {
+  if (hash.size() != HalocProjections::kHashSize)
+    throw std::invalid_argument("loops: stored keyframe " + std::to_string(keyframe) + " of session " +
+                                std::to_string(session) + ": hash of " + std::to_string(hash.size()) + " values, " +
+                                std::to_string(HalocProjections::kHashSize) + " expected");
+  if (session < 0 || keyframe < 0 ||
+      (session < static_cast<int>(by_session_.size()) && keyframe < static_cast<int>(by_session_[session].size()) &&
+       by_session_[session][keyframe] >= 0))
+    throw std::invalid_argument("loops: stored keyframe " + std::to_string(keyframe) + " of session " +
+                                std::to_string(session) + " is already there");
+  store(session, keyframe, frame_index, altitude_m, camera, features, hash);
+}
+
+void LoopDetector::store(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
+                         const FrameFeatures& features, const Eigen::VectorXf& hash) {
+  Stored st{session, keyframe, frame_index, altitude_m, camera, FrameFeatures()};
+  st.features.keypoints = features.keypoints;
+  st.features.image_size = features.image_size;
+  features.descriptors.convertTo(st.features.descriptors, CV_8U);
+  const int index = static_cast<int>(keyframes_.size());
+  keyframes_.push_back(std::move(st));
+  hashes_.add({session, keyframe}, hash);
+  if (session >= static_cast<int>(by_session_.size())) by_session_.resize(session + 1);
+  auto& mine = by_session_[session];
+  if (keyframe >= static_cast<int>(mine.size())) mine.resize(keyframe + 1, -1);
+  mine[keyframe] = index;
+}
+
+}  // namespace core
+}  // namespace uw_multislam

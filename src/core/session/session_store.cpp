@@ -1,0 +1,626 @@
+#include "uw_multislam/core/session/session_store.h"
+
+#include <sqlite3.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+
+
+namespace uw_multislam {
+namespace core {
+
+namespace {
+
+// Blobs are raw arrays in the host's byte order (little-endian on x86-64 and the Jetson's ARM).
+const char* kSchema = R"sql(
+CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE sessions(
+  id INTEGER PRIMARY KEY,
+  name TEXT NOT NULL,
+  state TEXT NOT NULL CHECK(state IN ('recording', 'finished')),
+  start_stamp REAL NOT NULL, end_stamp REAL NOT NULL,
+  cam_width INTEGER NOT NULL, cam_height INTEGER NOT NULL,
+  cam_fx REAL NOT NULL, cam_fy REAL NOT NULL, cam_cx REAL NOT NULL, cam_cy REAL NOT NULL);
+CREATE TABLE keyframes(
+  session INTEGER NOT NULL REFERENCES sessions(id),
+  keyframe INTEGER NOT NULL,
+  frame_index INTEGER NOT NULL, stamp REAL NOT NULL, altitude REAL NOT NULL,
+  image_width INTEGER NOT NULL, image_height INTEGER NOT NULL,
+  num_features INTEGER NOT NULL,
+  points BLOB,       -- num_features x 2 float32, pixel coordinates
+  descriptors BLOB,  -- num_features x 128 uint8
+  hash BLOB NOT NULL,-- 384 float32
+  thumbnail BLOB,    -- JPEG or NULL
+  PRIMARY KEY(session, keyframe));
+CREATE TABLE motions(  -- odometry X_k^{k-1}, written with keyframe k
+  session INTEGER NOT NULL, keyframe INTEGER NOT NULL,
+  x REAL NOT NULL, y REAL NOT NULL, yaw REAL NOT NULL,
+  cov BLOB NOT NULL,  -- 9 float64, row-major
+  PRIMARY KEY(session, keyframe));
+CREATE TABLE loops(
+  id INTEGER PRIMARY KEY,
+  session_a INTEGER NOT NULL, keyframe_a INTEGER NOT NULL,
+  session_b INTEGER NOT NULL, keyframe_b INTEGER NOT NULL,
+  kind TEXT NOT NULL CHECK(kind IN ('local', 'global')), inliers INTEGER NOT NULL,
+  x REAL NOT NULL, y REAL NOT NULL, yaw REAL NOT NULL, cov BLOB NOT NULL,
+  summarised INTEGER NOT NULL DEFAULT 0, applied INTEGER NOT NULL DEFAULT 0, refused INTEGER NOT NULL DEFAULT 0);
+CREATE TABLE maps(
+  id INTEGER PRIMARY KEY,   -- store id of its first session
+  pending INTEGER NOT NULL,
+  motions BLOB);            -- n x 12 float64 (x, y, yaw, covariance row-major) or NULL
+CREATE TABLE map_sessions(map INTEGER NOT NULL, position INTEGER NOT NULL, session INTEGER NOT NULL,
+  PRIMARY KEY(map, position));
+CREATE TABLE links(map INTEGER NOT NULL, position INTEGER NOT NULL,  -- joins chain[position] -> chain[position + 1]
+  x REAL NOT NULL, y REAL NOT NULL, yaw REAL NOT NULL, cov BLOB NOT NULL,
+  loops BLOB,               -- int64 store loop ids it summarises
+  PRIMARY KEY(map, position));
+CREATE TABLE split_pairs(session_a INTEGER NOT NULL, session_b INTEGER NOT NULL, PRIMARY KEY(session_a, session_b));
+)sql";
+
+std::string codeText(int rc) {
+  switch (rc & 0xff) {
+    case SQLITE_FULL: return "the disk is full";
+    case SQLITE_READONLY: return "the file or its directory is read-only";
+    case SQLITE_CANTOPEN: return "cannot open or create the file (missing directory or no permission?)";
+    case SQLITE_CORRUPT: return "the database is corrupt";
+    case SQLITE_NOTADB: return "not an SQLite database";
+    case SQLITE_IOERR: return "input/output error";
+    case SQLITE_PERM: return "permission denied";
+    case SQLITE_BUSY: case SQLITE_LOCKED: return "the database is locked by another process";
+    default: return sqlite3_errstr(rc);
+  }
+}
+
+// A path as the path part of an SQLite URI filename.
+std::string uriEscape(const std::string& path) {
+  std::string out;
+  for (unsigned char c : path) {
+    if (std::isalnum(c) || c == '/' || c == '.' || c == '_' || c == '-' || c == '~') {
+      out += static_cast<char>(c);
+    } else {
+      char buf[4];
+      std::snprintf(buf, sizeof buf, "%%%02X", c);
+      out += buf;
+    }
+  }
+  return out;
+}
+
+template <typename T>
+std::vector<T> blobVector(sqlite3_stmt* st, int col) {
+  const int n = sqlite3_column_bytes(st, col);
+  const void* p = sqlite3_column_blob(st, col);
+  std::vector<T> out(static_cast<std::size_t>(n) / sizeof(T));
+  if (p && !out.empty()) std::memcpy(out.data(), p, out.size() * sizeof(T));
+  return out;
+}
+
+std::vector<double> covBlob(const Eigen::Matrix3d& c) {
+  std::vector<double> v(9);
+  for (int r = 0; r < 3; ++r)
+    for (int k = 0; k < 3; ++k) v[3 * r + k] = c(r, k);
+  return v;
+}
+
+Eigen::Matrix3d covFrom(const double* v) {
+  Eigen::Matrix3d c;
+  for (int r = 0; r < 3; ++r)
+    for (int k = 0; k < 3; ++k) c(r, k) = v[3 * r + k];
+  return c;
+}
+
+}  // namespace
+
+// A prepared statement; reset after each use.
+class SessionStore::Statement {
+ public:
+  Statement(const SessionStore* store, const char* sql) : store_(store) {
+    if (sqlite3_prepare_v2(store->db_, sql, -1, &st_, nullptr) != SQLITE_OK) store->fail("preparing a statement");
+  }
+  ~Statement() { sqlite3_finalize(st_); }
+  Statement& bind(int i, std::int64_t v) { return check(sqlite3_bind_int64(st_, i, v)); }
+  Statement& bind(int i, int v) { return check(sqlite3_bind_int64(st_, i, v)); }
+  Statement& bind(int i, double v) { return check(sqlite3_bind_double(st_, i, v)); }
+  Statement& bind(int i, const std::string& v) {
+    return check(sqlite3_bind_text(st_, i, v.c_str(), static_cast<int>(v.size()), SQLITE_TRANSIENT));
+  }
+  Statement& blob(int i, const void* p, std::size_t n) {
+    if (n == 0) return check(sqlite3_bind_null(st_, i));
+    return check(sqlite3_bind_blob(st_, i, p, static_cast<int>(n), SQLITE_STATIC));
+  }
+  template <typename T>
+  Statement& blob(int i, const std::vector<T>& v) { return blob(i, v.data(), v.size() * sizeof(T)); }
+  /// true while rows come.
+  bool step() {
+    const int rc = sqlite3_step(st_);
+    if (rc == SQLITE_ROW) return true;
+    if (rc == SQLITE_DONE) return false;
+    store_->fail("writing or reading");
+  }
+  void run() {
+    step();
+    reset();
+  }
+  void reset() {
+    sqlite3_reset(st_);
+    sqlite3_clear_bindings(st_);
+  }
+  sqlite3_stmt* get() { return st_; }
+
+ private:
+  Statement& check(int rc) {
+    if (rc != SQLITE_OK) store_->fail("binding a value");
+    return *this;
+  }
+  const SessionStore* store_;
+  sqlite3_stmt* st_ = nullptr;
+};
+
+void SessionStore::fail(const std::string& what) const {
+  const int rc = db_ ? sqlite3_extended_errcode(db_) : SQLITE_CANTOPEN;
+  std::string detail = db_ ? sqlite3_errmsg(db_) : "";
+  std::string msg = "session store " + path_ + ": " + what + ": " + codeText(rc);
+  if (!detail.empty() && detail != codeText(rc) && detail != sqlite3_errstr(rc)) msg += " (" + detail + ")";
+  throw StoreError(msg);
+}
+
+void SessionStore::exec(const std::string& sql) const {
+  char* err = nullptr;
+  if (sqlite3_exec(db_, sql.c_str(), nullptr, nullptr, &err) != SQLITE_OK) {
+    sqlite3_free(err);
+    fail("'" + sql.substr(0, 40) + "'");
+  }
+}
+
+SessionStore::SessionStore(const std::string& path) : path_(path) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  const bool exists = fs::exists(path, ec);
+  bool fresh = !exists;
+  if (exists) {
+    if (!fs::is_regular_file(path, ec)) throw StoreError("session store " + path + ": not a regular file");
+    const auto size = fs::file_size(path, ec);
+    fresh = !ec && size == 0;  // created but never written (a crash before the first commit)
+    if (!fresh) {
+      // Check before SQLite touches it: the header, then a read-only open.
+      char header[16] = {};
+      std::ifstream in(path, std::ios::binary);
+      if (!in) throw StoreError("session store " + path + ": cannot read the file (permission denied?)");
+      in.read(header, sizeof header);
+      if (in.gcount() < 16 || std::memcmp(header, "SQLite format 3", 16) != 0)
+        throw StoreError("session store " + path + ": not an SQLite database (wrong header); the file was left as it is");
+      // Read-only; without a WAL beside it (no crash, no other writer) also "immutable", so that
+      // SQLite creates no -wal/-shm files next to a file it then refuses.
+      sqlite3* ro = nullptr;
+      const bool has_wal = fs::exists(path + "-wal", ec);
+      const std::string uri = "file:" + uriEscape(fs::absolute(path, ec).string()) + (has_wal ? "" : "?immutable=1");
+      const int rc = sqlite3_open_v2(uri.c_str(), &ro, SQLITE_OPEN_READONLY | SQLITE_OPEN_URI, nullptr);
+      auto refuse = [&](const std::string& why) {
+        sqlite3_close(ro);
+        throw StoreError("session store " + path + ": " + why + "; the file was left as it is");
+      };
+      if (rc != SQLITE_OK) refuse(codeText(rc));
+      auto scalar = [&](const char* sql, std::string* out) {
+        sqlite3_stmt* st = nullptr;
+        int r = sqlite3_prepare_v2(ro, sql, -1, &st, nullptr);
+        if (r == SQLITE_OK) r = sqlite3_step(st);
+        if (r == SQLITE_ROW) {
+          const unsigned char* t = sqlite3_column_text(st, 0);
+          *out = t ? reinterpret_cast<const char*>(t) : "";
+          r = SQLITE_OK;
+        } else if (r == SQLITE_DONE) {
+          out->clear();
+          r = SQLITE_OK;
+        } else {
+          r = sqlite3_extended_errcode(ro);
+        }
+        sqlite3_finalize(st);
+        return r;
+      };
+      std::string v;
+      int r = scalar("PRAGMA application_id", &v);
+      if (r != SQLITE_OK) refuse(codeText(r));
+      if (v != std::to_string(kApplicationId)) refuse("an SQLite database, but not a uw_multislam session store");
+      r = scalar("PRAGMA user_version", &v);
+      if (r != SQLITE_OK) refuse(codeText(r));
+      if (v != std::to_string(kSchemaVersion))
+        refuse("schema version " + v + ", this build reads version " + std::to_string(kSchemaVersion) +
+               " (use the matching uw_multislam, or a new file)");
+      r = scalar("PRAGMA quick_check", &v);
+      if (r != SQLITE_OK) refuse(codeText(r));
+      if (v != "ok") refuse("the database is corrupt (" + v + ")");
+      sqlite3_close(ro);
+    }
+  } else {
+    const fs::path parent = fs::path(path).parent_path();
+    if (!parent.empty() && !fs::is_directory(parent, ec))
+      throw StoreError("session store " + path + ": the directory " + parent.string() + " does not exist");
+  }
+  const int flags = SQLITE_OPEN_READWRITE | (fresh ? SQLITE_OPEN_CREATE : 0);
+  const int rc = sqlite3_open_v2(path.c_str(), &db_, flags, nullptr);
+  if (rc != SQLITE_OK) {
+    const int ext = db_ ? sqlite3_extended_errcode(db_) : rc;
+    const int sys = db_ ? sqlite3_system_errno(db_) : 0;
+    sqlite3_close(db_);
+    db_ = nullptr;
+    std::string why = codeText(ext);
+    if (sys != 0) why += ": " + std::string(std::strerror(sys));
+    if (sys == EACCES || sys == EROFS || sys == EPERM) why = "read-only path (" + why + ")";
+    else if (access(fs::path(path).parent_path().empty() ? "." : fs::path(path).parent_path().c_str(), W_OK) != 0 ||
+        (exists && access(path.c_str(), W_OK) != 0))
+      why = "read-only path (" + why + ")";
+    throw StoreError("session store " + path + ": " + (fresh ? "cannot create: " : "cannot open for writing: ") + why);
+  }
+  sqlite3_extended_result_codes(db_, 1);
+  sqlite3_busy_timeout(db_, 2000);
+  try {
+    exec("PRAGMA journal_mode=WAL");
+    exec("PRAGMA synchronous=FULL");
+    exec("PRAGMA foreign_keys=ON");
+    if (fresh) {
+      begin();
+      exec(kSchema);
+      exec("PRAGMA application_id=" + std::to_string(kApplicationId));
+      exec("PRAGMA user_version=" + std::to_string(kSchemaVersion));
+      commit();
+    }
+  } catch (...) {
+    sqlite3_close(db_);
+    db_ = nullptr;
+    throw;
+  }
+}
+
+SessionStore::~SessionStore() {
+  cache_.clear();
+  if (db_) sqlite3_close(db_);
+}
+
+void SessionStore::begin() { exec("BEGIN IMMEDIATE"); }
+void SessionStore::commit() { exec("COMMIT"); }
+void SessionStore::rollback() noexcept {
+  if (db_ && !sqlite3_get_autocommit(db_)) sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
+}
+
+SessionStore::Statement& SessionStore::cached(const char* sql) {
+  for (auto& [s, st] : cache_)
+    if (s == sql) return *st;
+  cache_.emplace_back(sql, std::make_unique<Statement>(this, sql));
+  return *cache_.back().second;
+}
+
+bool SessionStore::hashSettings(HashSettings* out) const {
+  Statement st(this, "SELECT key, value FROM meta");
+  std::map<std::string, std::string> kv;
+  while (st.step())
+    kv[reinterpret_cast<const char*>(sqlite3_column_text(st.get(), 0))] =
+        reinterpret_cast<const char*>(sqlite3_column_text(st.get(), 1));
+  if (!kv.count("hash_mode")) return false;
+  if (!parseHashMode(kv["hash_mode"], &out->mode))
+    throw StoreError("session store " + path_ + ": unknown hash mode '" + kv["hash_mode"] + "'");
+  out->seed = std::stoull(kv["projection_seed"]);
+  out->num_features = std::stoi(kv["num_features"]);
+  out->projections = kv["projections"];
+  return true;
+}
+
+void SessionStore::checkHashSettings(const HashSettings& mine) {
+  HashSettings stored;
+  if (hashSettings(&stored)) {
+    if (stored.mode != mine.mode || stored.seed != mine.seed || stored.num_features != mine.num_features)
+      throw StoreError("session store " + path_ + ": its hashes were made with hash_mode " +
+                       hashModeName(stored.mode) + ", projection_seed " + std::to_string(stored.seed) + ", n = " +
+                       std::to_string(stored.num_features) + "; this configuration has " + hashModeName(mine.mode) +
+                       ", " + std::to_string(mine.seed) + ", n = " + std::to_string(mine.num_features) +
+                       ": hashes would not be comparable");
+    return;
+  }
+  begin();
+  try {
+    Statement st(this, "INSERT INTO meta(key, value) VALUES (?, ?)");
+    for (const auto& [k, v] : std::vector<std::pair<std::string, std::string>>{
+             {"hash_mode", hashModeName(mine.mode)},
+             {"projection_seed", std::to_string(mine.seed)},
+             {"num_features", std::to_string(mine.num_features)},
+             {"projections", mine.projections}}) {
+      st.bind(1, k).bind(2, v).run();
+    }
+    commit();
+  } catch (...) {
+    rollback();
+    throw;
+  }
+}
+
+std::int64_t SessionStore::addSession(const std::string& name, const CameraIntrinsics& c, double start_stamp_s) {
+  Statement st(this,
+               "INSERT INTO sessions(name, state, start_stamp, end_stamp, cam_width, cam_height, cam_fx, cam_fy, "
+               "cam_cx, cam_cy) VALUES (?, 'recording', ?, ?, ?, ?, ?, ?, ?, ?)");
+  st.bind(1, name).bind(2, start_stamp_s).bind(3, start_stamp_s).bind(4, c.width).bind(5, c.height);
+  st.bind(6, c.fx).bind(7, c.fy).bind(8, c.cx).bind(9, c.cy).run();
+  return sqlite3_last_insert_rowid(db_);
+}
+
+void SessionStore::endSession(std::int64_t session, double end_stamp_s) {
+  Statement st(this, "UPDATE sessions SET state = 'finished', end_stamp = ? WHERE id = ?");
+  st.bind(1, end_stamp_s).bind(2, session).run();
+}
+
+void SessionStore::addKeyframe(const StoredKeyframe& kf, const UncertainPose2* motion, std::vector<StoredLoop>* loops) {
+  if (kf.hash.size() != HalocProjections::kHashSize)
+    throw StoreError("session store " + path_ + ": keyframe " + std::to_string(kf.keyframe) + ": hash of " +
+                     std::to_string(kf.hash.size()) + " values");
+  cv::Mat desc;
+  if (!kf.descriptors.empty()) kf.descriptors.convertTo(desc, CV_8U);
+  if (!desc.empty() && (desc.rows != static_cast<int>(kf.points.size()) || desc.cols != 128 || !desc.isContinuous()))
+    throw StoreError("session store " + path_ + ": keyframe " + std::to_string(kf.keyframe) +
+                     ": descriptors do not match the points");
+  begin();
+  try {
+    Statement& k = cached(
+        "INSERT INTO keyframes(session, keyframe, frame_index, stamp, altitude, image_width, image_height, "
+        "num_features, points, descriptors, hash, thumbnail) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+    k.bind(1, kf.session).bind(2, kf.keyframe).bind(3, kf.frame_index).bind(4, kf.stamp_s).bind(5, kf.altitude_m);
+    k.bind(6, kf.image_size.width).bind(7, kf.image_size.height).bind(8, static_cast<int>(kf.points.size()));
+    k.blob(9, kf.points.data(), kf.points.size() * sizeof(cv::Point2f));
+    k.blob(10, desc.data, desc.total());
+    k.blob(11, kf.hash.data(), sizeof(float) * kf.hash.size());
+    k.blob(12, kf.thumbnail);
+    k.run();
+    if (motion) {
+      const std::vector<double> cov = covBlob(motion->covariance);
+      Statement& m = cached("INSERT INTO motions(session, keyframe, x, y, yaw, cov) VALUES (?, ?, ?, ?, ?, ?)");
+      m.bind(1, kf.session).bind(2, kf.keyframe).bind(3, motion->mean.x()).bind(4, motion->mean.y());
+      m.bind(5, motion->mean.yaw()).blob(6, cov).run();
+    }
+    if (loops) insertLoops(loops);
+    commit();
+  } catch (...) {
+    rollback();
+    throw;
+  }
+}
+
+void SessionStore::insertLoops(std::vector<StoredLoop>* loops) {
+  Statement& l = cached(
+      "INSERT INTO loops(session_a, keyframe_a, session_b, keyframe_b, kind, inliers, x, y, yaw, cov, summarised, "
+      "applied, refused) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  for (StoredLoop& lp : *loops) {
+    const std::vector<double> cov = covBlob(lp.z.covariance);
+    l.bind(1, lp.session_a).bind(2, lp.keyframe_a).bind(3, lp.session_b).bind(4, lp.keyframe_b);
+    l.bind(5, std::string(lp.global ? "global" : "local")).bind(6, lp.inliers);
+    l.bind(7, lp.z.mean.x()).bind(8, lp.z.mean.y()).bind(9, lp.z.mean.yaw()).blob(10, cov);
+    l.bind(11, lp.summarised ? 1 : 0).bind(12, lp.applied ? 1 : 0).bind(13, lp.refused ? 1 : 0).run();
+    lp.id = sqlite3_last_insert_rowid(db_);
+  }
+}
+
+void SessionStore::addLoops(std::vector<StoredLoop>* loops) {
+  if (loops->empty()) return;
+  begin();
+  try {
+    insertLoops(loops);
+    commit();
+  } catch (...) {
+    rollback();
+    throw;
+  }
+}
+
+void SessionStore::saveMaps(const std::vector<StoredMap>& maps, const std::vector<StoredLoop>& loop_states,
+                            const std::vector<std::pair<std::int64_t, std::int64_t>>& split_pairs) {
+  begin();
+  try {
+    exec("DELETE FROM maps; DELETE FROM map_sessions; DELETE FROM links; DELETE FROM split_pairs;");
+    Statement m(this, "INSERT INTO maps(id, pending, motions) VALUES (?, ?, ?)");
+    Statement ms(this, "INSERT INTO map_sessions(map, position, session) VALUES (?, ?, ?)");
+    Statement ln(this, "INSERT INTO links(map, position, x, y, yaw, cov, loops) VALUES (?, ?, ?, ?, ?, ?, ?)");
+    for (const StoredMap& map : maps) {
+      if (map.chain.empty() || map.links.size() + 1 != map.chain.size())
+        throw StoreError("session store " + path_ + ": a map to save has a bad chain");
+      const std::int64_t id = map.chain.front();
+      std::vector<double> motions;
+      for (const UncertainPose2& u : map.motions) {
+        motions.insert(motions.end(), {u.mean.x(), u.mean.y(), u.mean.yaw()});
+        const std::vector<double> c = covBlob(u.covariance);
+        motions.insert(motions.end(), c.begin(), c.end());
+      }
+      m.bind(1, id).bind(2, map.pending).blob(3, motions).run();
+      for (std::size_t i = 0; i < map.chain.size(); ++i)
+        ms.bind(1, id).bind(2, static_cast<int>(i)).bind(3, map.chain[i]).run();
+      for (std::size_t i = 0; i < map.links.size(); ++i) {
+        const StoredLink& l = map.links[i];
+        const std::vector<double> cov = covBlob(l.measured.covariance);
+        ln.bind(1, id).bind(2, static_cast<int>(i)).bind(3, l.measured.mean.x()).bind(4, l.measured.mean.y());
+        ln.bind(5, l.measured.mean.yaw()).blob(6, cov).blob(7, l.loops).run();
+      }
+    }
+    Statement ls(this, "UPDATE loops SET summarised = ?, applied = ?, refused = ? WHERE id = ?");
+    for (const StoredLoop& l : loop_states)
+      ls.bind(1, l.summarised ? 1 : 0).bind(2, l.applied ? 1 : 0).bind(3, l.refused ? 1 : 0).bind(4, l.id).run();
+    Statement sp(this, "INSERT OR IGNORE INTO split_pairs(session_a, session_b) VALUES (?, ?)");
+    for (const auto& [a, b] : split_pairs) sp.bind(1, a).bind(2, b).run();
+    commit();
+  } catch (...) {
+    rollback();
+    throw;
+  }
+}
+
+std::vector<StoredSession> SessionStore::sessions() const {
+  Statement st(this,
+               "SELECT s.id, s.name, s.state, s.start_stamp, s.end_stamp, s.cam_width, s.cam_height, s.cam_fx, "
+               "s.cam_fy, s.cam_cx, s.cam_cy, (SELECT COUNT(*) FROM keyframes k WHERE k.session = s.id) "
+               "FROM sessions s ORDER BY s.id");
+  std::vector<StoredSession> out;
+  while (st.step()) {
+    sqlite3_stmt* q = st.get();
+    StoredSession s;
+    s.id = sqlite3_column_int64(q, 0);
+    s.name = reinterpret_cast<const char*>(sqlite3_column_text(q, 1));
+    s.state = std::strcmp(reinterpret_cast<const char*>(sqlite3_column_text(q, 2)), "finished") == 0
+                  ? StoredSessionState::kFinished
+                  : StoredSessionState::kRecording;
+    s.start_stamp_s = sqlite3_column_double(q, 3);
+    s.end_stamp_s = sqlite3_column_double(q, 4);
+    s.camera.width = sqlite3_column_int(q, 5);
+    s.camera.height = sqlite3_column_int(q, 6);
+    s.camera.fx = sqlite3_column_double(q, 7);
+    s.camera.fy = sqlite3_column_double(q, 8);
+    s.camera.cx = sqlite3_column_double(q, 9);
+    s.camera.cy = sqlite3_column_double(q, 10);
+    s.keyframes = sqlite3_column_int(q, 11);
+    out.push_back(s);
+  }
+  return out;
+}
+
+std::vector<StoredKeyframe> SessionStore::keyframes(std::int64_t session, bool with_features) const {
+  Statement st(this, with_features
+                         ? "SELECT keyframe, frame_index, stamp, altitude, image_width, image_height, num_features, "
+                           "points, descriptors, hash, thumbnail FROM keyframes WHERE session = ? ORDER BY keyframe"
+                         : "SELECT keyframe, frame_index, stamp, altitude, image_width, image_height, num_features "
+                           "FROM keyframes WHERE session = ? ORDER BY keyframe");
+  st.bind(1, session);
+  std::vector<StoredKeyframe> out;
+  while (st.step()) {
+    sqlite3_stmt* q = st.get();
+    StoredKeyframe k;
+    k.session = session;
+    k.keyframe = sqlite3_column_int(q, 0);
+    k.frame_index = sqlite3_column_int(q, 1);
+    k.stamp_s = sqlite3_column_double(q, 2);
+    k.altitude_m = sqlite3_column_double(q, 3);
+    k.image_size = cv::Size(sqlite3_column_int(q, 4), sqlite3_column_int(q, 5));
+    const int n = sqlite3_column_int(q, 6);
+    if (with_features) {
+      k.points = blobVector<cv::Point2f>(q, 7);
+      const std::vector<std::uint8_t> d = blobVector<std::uint8_t>(q, 8);
+      const std::vector<float> h = blobVector<float>(q, 9);
+      if (static_cast<int>(k.points.size()) != n || d.size() != static_cast<std::size_t>(n) * 128 ||
+          h.size() != static_cast<std::size_t>(HalocProjections::kHashSize))
+        throw StoreError("session store " + path_ + ": keyframe " + std::to_string(k.keyframe) + " of session " +
+                         std::to_string(session) + " has blobs of the wrong size (corrupt)");
+      k.descriptors = cv::Mat(n, 128, CV_8U);
+      if (n > 0) std::memcpy(k.descriptors.data, d.data(), d.size());
+      k.hash = Eigen::Map<const Eigen::VectorXf>(h.data(), static_cast<Eigen::Index>(h.size()));
+      k.thumbnail = blobVector<std::uint8_t>(q, 10);
+    }
+    out.push_back(std::move(k));
+  }
+  return out;
+}
+
+std::vector<UncertainPose2> SessionStore::odometry(std::int64_t session) const {
+  Statement st(this, "SELECT keyframe, x, y, yaw, cov FROM motions WHERE session = ? ORDER BY keyframe");
+  st.bind(1, session);
+  std::vector<UncertainPose2> out;
+  while (st.step()) {
+    sqlite3_stmt* q = st.get();
+    if (sqlite3_column_int(q, 0) != static_cast<int>(out.size()) + 1)
+      throw StoreError("session store " + path_ + ": session " + std::to_string(session) + " misses the motion to keyframe " +
+                       std::to_string(out.size() + 1));
+    const std::vector<double> c = blobVector<double>(q, 4);
+    if (c.size() != 9) throw StoreError("session store " + path_ + ": a motion covariance has the wrong size");
+    out.emplace_back(Pose2(sqlite3_column_double(q, 1), sqlite3_column_double(q, 2), sqlite3_column_double(q, 3)),
+                     covFrom(c.data()));
+  }
+  return out;
+}
+
+std::vector<StoredLoop> SessionStore::loops() const {
+  Statement st(this,
+               "SELECT id, session_a, keyframe_a, session_b, keyframe_b, kind, inliers, x, y, yaw, cov, summarised, "
+               "applied, refused FROM loops ORDER BY id");
+  std::vector<StoredLoop> out;
+  while (st.step()) {
+    sqlite3_stmt* q = st.get();
+    StoredLoop l;
+    l.id = sqlite3_column_int64(q, 0);
+    l.session_a = sqlite3_column_int64(q, 1);
+    l.keyframe_a = sqlite3_column_int(q, 2);
+    l.session_b = sqlite3_column_int64(q, 3);
+    l.keyframe_b = sqlite3_column_int(q, 4);
+    l.global = std::strcmp(reinterpret_cast<const char*>(sqlite3_column_text(q, 5)), "global") == 0;
+    l.inliers = sqlite3_column_int(q, 6);
+    const std::vector<double> c = blobVector<double>(q, 10);
+    if (c.size() != 9) throw StoreError("session store " + path_ + ": a loop covariance has the wrong size");
+    l.z = UncertainPose2(Pose2(sqlite3_column_double(q, 7), sqlite3_column_double(q, 8), sqlite3_column_double(q, 9)),
+                         covFrom(c.data()));
+    l.summarised = sqlite3_column_int(q, 11) != 0;
+    l.applied = sqlite3_column_int(q, 12) != 0;
+    l.refused = sqlite3_column_int(q, 13) != 0;
+    out.push_back(l);
+  }
+  return out;
+}
+
+std::vector<StoredMap> SessionStore::maps() const {
+  std::vector<StoredMap> out;
+  std::map<std::int64_t, std::size_t> at;
+  Statement st(this, "SELECT id, pending, motions FROM maps ORDER BY id");
+  while (st.step()) {
+    sqlite3_stmt* q = st.get();
+    StoredMap m;
+    m.pending = sqlite3_column_int(q, 1);
+    const std::vector<double> v = blobVector<double>(q, 2);
+    if (v.size() % 12 != 0) throw StoreError("session store " + path_ + ": map motions have the wrong size");
+    for (std::size_t i = 0; i < v.size(); i += 12)
+      m.motions.emplace_back(Pose2(v[i], v[i + 1], v[i + 2]), covFrom(&v[i + 3]));
+    at[sqlite3_column_int64(q, 0)] = out.size();
+    out.push_back(std::move(m));
+  }
+  Statement ms(this, "SELECT map, session FROM map_sessions ORDER BY map, position");
+  while (ms.step()) {
+    const auto it = at.find(sqlite3_column_int64(ms.get(), 0));
+    if (it == at.end()) throw StoreError("session store " + path_ + ": a map session of no map");
+    out[it->second].chain.push_back(sqlite3_column_int64(ms.get(), 1));
+  }
+  Statement ln(this, "SELECT map, x, y, yaw, cov, loops FROM links ORDER BY map, position");
+  while (ln.step()) {
+    sqlite3_stmt* q = ln.get();
+    const auto it = at.find(sqlite3_column_int64(q, 0));
+    if (it == at.end()) throw StoreError("session store " + path_ + ": a link of no map");
+    const std::vector<double> c = blobVector<double>(q, 4);
+    if (c.size() != 9) throw StoreError("session store " + path_ + ": a link covariance has the wrong size");
+    StoredLink l;
+    l.measured = UncertainPose2(Pose2(sqlite3_column_double(q, 1), sqlite3_column_double(q, 2), sqlite3_column_double(q, 3)),
+                                covFrom(c.data()));
+    l.loops = blobVector<std::int64_t>(q, 5);
+    out[it->second].links.push_back(std::move(l));
+  }
+  for (const StoredMap& m : out)
+    if (m.chain.empty() || m.links.size() + 1 != m.chain.size())
+      throw StoreError("session store " + path_ + ": a stored map has " + std::to_string(m.chain.size()) +
+                       " sessions and " + std::to_string(m.links.size()) + " links (corrupt)");
+  return out;
+}
+
+std::vector<std::pair<std::int64_t, std::int64_t>> SessionStore::splitPairs() const {
+  Statement st(this, "SELECT session_a, session_b FROM split_pairs ORDER BY session_a, session_b");
+  std::vector<std::pair<std::int64_t, std::int64_t>> out;
+  while (st.step()) out.emplace_back(sqlite3_column_int64(st.get(), 0), sqlite3_column_int64(st.get(), 1));
+  return out;
+}
+
+std::uint64_t SessionStore::bytesOnDisk() const {
+  std::uint64_t total = 0;
+  std::error_code ec;
+  for (const std::string& p : {path_, path_ + "-wal"}) {
+    const auto n = std::filesystem::file_size(p, ec);
+    if (!ec) total += n;
+  }
+  return total;
+}
+
+void SessionStore::checkpoint() { exec("PRAGMA wal_checkpoint(TRUNCATE)"); }
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,209 @@
+#include "uw_multislam/core/session/slam_config.h"
+
+#include <fstream>
+#include <sstream>
+
+#include "uw_multislam/core/common/yaml_map_reader.h"
+
+namespace uw_multislam {
+namespace core {
+
+namespace {
+
+// Every option block lists its keys once, in visit*(); the same list reads the YAML (Reader)
+// and writes it (Writer), so the file format cannot drift between the two.
+
+class Reader {
+ public:
+  Reader(const YAML::Node& node, const std::string& where) : r_(node, where), where_(where) {}
+  template <typename T>
+  void operator()(const char* key, T& field) {
+    r_.read(key, &field);
+  }
+  template <typename E, typename Name, typename Parse>
+  void enumeration(const char* key, E& field, Name name, Parse parse, const char* choices) {
+    std::string text = name(field);
+    r_.read(key, &text);
+    if (!parse(text, &field)) r_.fail("unknown " + std::string(key) + " '" + text + "' (" + choices + ")");
+  }
+  template <typename F>
+  void block(const char* key, F visit) {
+    Reader child(r_.child(key), where_ + "." + key);
+    visit(child);
+    child.finish();
+  }
+  void finish() const { r_.finish(); }
+
+ private:
+  MapReader r_;
+  std::string where_;
+};
+
+class Writer {
+ public:
+  explicit Writer(YAML::Emitter& out) : out_(out) {}
+  template <typename T>
+  void operator()(const char* key, const T& field) {
+    out_ << YAML::Key << key << YAML::Value << field;
+  }
+  template <typename E, typename Name, typename Parse>
+  void enumeration(const char* key, const E& field, Name name, Parse, const char*) {
+    out_ << YAML::Key << key << YAML::Value << name(field);
+  }
+  template <typename F>
+  void block(const char* key, F visit) {
+    out_ << YAML::Key << key << YAML::Value << YAML::BeginMap;
+    visit(*this);
+    out_ << YAML::EndMap;
+  }
+
+ private:
+  YAML::Emitter& out_;
+};
+
+template <typename V, typename O>
+void visitOdometry(V& v, O& o) {
+  v.block("enhancement", [&](V& e) {
+    e.enumeration("mode", o.enhancement.mode, enhancementName, parseEnhancement, "none, clahe, dehaze, dehaze_clahe");
+    e("clahe_clip_limit", o.enhancement.clahe_clip_limit);
+    e("clahe_tile_grid", o.enhancement.clahe_tile_grid);
+    e("dark_channel_patch_px", o.enhancement.dark_channel_patch_px);
+    e("dehaze_omega", o.enhancement.dehaze_omega);
+    e("dehaze_t0", o.enhancement.dehaze_t0);
+    e("guided_filter_radius_px", o.enhancement.guided_filter_radius_px);
+    e("guided_filter_eps", o.enhancement.guided_filter_eps);
+    e("stretch_low_percentile", o.enhancement.stretch_low_percentile);
+    e("stretch_high_percentile", o.enhancement.stretch_high_percentile);
+  });
+  v.block("features", [&](V& f) {
+    f("num_features", o.features.num_features);
+    f("grid_rows", o.features.grid_rows);
+    f("grid_cols", o.features.grid_cols);
+    f("candidate_factor", o.features.candidate_factor);
+    f("contrast_threshold", o.features.contrast_threshold);
+    f("edge_threshold", o.features.edge_threshold);
+    f("sigma", o.features.sigma);
+    f("octave_layers", o.features.octave_layers);
+    f("border_px", o.features.border_px);
+  });
+  v.block("matching", [&](V& m) {
+    m("ratio", o.matching.ratio);
+    m("mutual", o.matching.mutual);
+  });
+  v.block("ransac", [&](V& a) {
+    a("inlier_threshold_px", o.ransac.inlier_threshold_px);
+    a("min_inliers", o.ransac.min_inliers);
+    a("confidence", o.ransac.confidence);
+    a("min_iterations", o.ransac.min_iterations);
+    a("max_iterations", o.ransac.max_iterations);
+    a("refine_iterations", o.ransac.refine_iterations);
+    a("min_noise_px", o.ransac.min_noise_px);
+    a("seed", o.ransac.seed);
+    a("estimate_scale", o.ransac.estimate_scale);
+    a("max_scale_change", o.ransac.max_scale_change);
+  });
+  v.block("keyframes", [&](V& k) {
+    k("min_overlap", o.keyframes.min_overlap);
+    k("max_rotation_rad", o.keyframes.max_rotation_rad);
+    k("max_interval_s", o.keyframes.max_interval_s);
+    k("min_tracking_inliers", o.keyframes.min_tracking_inliers);
+  });
+  v.block("fallback", [&](V& b) {
+    b("min_sigma_m", o.fallback.min_sigma_m);
+    b("relative_sigma", o.fallback.relative_sigma);
+    b("sigma_yaw_rad", o.fallback.sigma_yaw_rad);
+  });
+}
+
+template <typename V, typename O>
+void visitLoops(V& v, O& o) {
+  v.block("local", [&](V& l) {
+    l("enabled", o.local.enabled);
+    l("radius_m", o.local.radius_m);
+    l("sigma_widening", o.local.sigma_widening);
+    l("max_radius_m", o.local.max_radius_m);
+    l("exclude_recent", o.local.exclude_recent);
+    l("max_candidates", o.local.max_candidates);
+    l("min_inliers", o.local.min_inliers);
+  });
+  v.block("global", [&](V& g) {
+    g("enabled", o.global.enabled);
+    g("best_k", o.global.best_k);
+    g("max_l1", o.global.max_l1);
+    g("min_inliers", o.global.min_inliers);
+    g("projection_seed", o.global.projection_seed);
+    g.enumeration("hash_mode", o.global.hash_mode, hashModeName, parseHashMode, "sorted_dct, haloc");
+  });
+}
+
+template <typename V, typename B>
+void visitBackend(V& v, B& b) {
+  v("optimise", b.optimise);
+  v.enumeration("optimizer", b.optimizer, optimizerName, parseOptimizer, "sparse, iekf");
+  v("optimise_every", b.optimise_every);
+  v("join_min_loops", b.join_min_loops);
+  v("join_gate_m", b.join_gate_m);
+  v.block("iekf", [&](V& i) {
+    i("max_iterations", b.iekf.max_iterations);
+    i("tolerance", b.iekf.tolerance);
+    i("max_keyframes", b.max_keyframes);
+  });
+  v.block("sparse", [&](V& s) {
+    s("max_iterations", b.sparse.max_iterations);
+    s("function_tolerance", b.sparse.function_tolerance);
+    s.enumeration("robust_loss", b.sparse.robust_loss, robustLossName, parseRobustLoss, "none, huber, cauchy");
+    s("loss_scale", b.sparse.loss_scale);
+  });
+}
+
+template <typename V, typename C>
+void visitConfig(V& v, C& c) {
+  v.block("odometry", [&](V& o) { visitOdometry(o, c.odometry); });
+  v.block("tracking", [&](V& t) {
+    t("max_fallbacks", c.tracking.max_fallbacks);
+    t("min_features", c.tracking.min_features);
+  });
+  v.block("loops", [&](V& l) { visitLoops(l, c.loops); });
+  v.block("backend", [&](V& b) { visitBackend(b, c.backend); });
+}
+
+}  // namespace
+
+std::string SlamConfig::validate() const {
+  const std::string o = odometry.validate();
+  if (!o.empty()) return "odometry." + o;
+  const std::string t = tracking.validate();
+  if (!t.empty()) return "tracking." + t;
+  const std::string l = loops.validate();
+  if (!l.empty()) return "loops." + l;
+  const std::string b = backend.validate();
+  return b.empty() ? b : "backend: " + b;
+}
+
+SlamConfig slamConfigFromYaml(const std::string& yaml_text) {
+  const YAML::Node root = parseYaml(yaml_text, "config");
+  SlamConfig c;
+  Reader r(root, "config");
+  visitConfig(r, c);
+  r.finish();
+  const std::string bad = c.validate();
+  if (!bad.empty()) throw std::invalid_argument("config: " + bad);
+  return c;
+}
+
+SlamConfig loadSlamConfig(const std::string& path) {
+  return parseYamlFile(path, [](const std::string& text) { return slamConfigFromYaml(text); });
+}
+
+std::string slamConfigToYaml(const SlamConfig& c) {
+  YAML::Emitter out;
+  out.SetDoublePrecision(10);
+  out << YAML::BeginMap;
+  Writer w(out);
+  visitConfig(w, c);
+  out << YAML::EndMap;
+  return std::string(out.c_str()) + "\n";
+}
+
+}  // namespace core
+}  // namespace uw_multislam
