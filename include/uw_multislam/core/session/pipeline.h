@@ -1,0 +1,78 @@
+// Every stage of the mission in one process, around a SessionManager: what offline_slam runs
+// (and what tests drive). The same components the nodelets host, composed in-process:
+//   frames -> SegmentedOdometry (frontend/tracking.h: odometry, keyframes, tracking loss)
+//          -> the keyframe's hash, computed once (SessionManager's ImageHasher)
+//          -> LoopDetector (loops/loop_detector.h: local and global loops), whose local search
+//             trajectory comes from SessionChain::candidateTrajectory as in the loop nodelet
+//          -> SessionManager (session_manager.h: sessions, ids, back-end, store, joins).
+// A camera stream (a dataset folder, or a bag's camera) is begun, fed frame by frame and ended;
+// tracking loss inside a stream closes its session and the next good frame starts another
+// (named "<stream>#<piece>").
+#pragma once
+
+#include <opencv2/core.hpp>
+
+#include <deque>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/frontend/tracking.h"
+#include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/loops/session_chain.h"
+#include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/core/session/slam_config.h"
+
+namespace uw_multislam {
+namespace core {
+
+class Pipeline {
+ public:
+  using Log = std::function<void(const std::string&)>;
+  /// A stream's image of a frame index (for a keyframe's store thumbnail; may return empty).
+  using ImageOf = std::function<cv::Mat(int frame_index)>;
+
+  /// `manager` must outlive the pipeline. Every stored session of the manager is reloaded into
+  /// the loop detector, so that new keyframes find global loops against them. `log` receives
+  /// one line per session piece and per tracking loss; `verbose` adds skipped and fallback frames.
+  Pipeline(const SlamConfig& config, SessionManager* manager, Log log = {}, bool verbose = true);
+
+  void beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of = {});
+  /// One frame of the current stream.
+  SegmentedOdometry::Step processFrame(const OdometryInput& frame);
+  /// Ends the stream (its open session ends at `stamp_s`).
+  void endStream(double stamp_s);
+  /// Optimises what is pending and saves the maps.
+  void finish();
+
+  /// The sessions begun for each stream, in order (several when tracking was lost).
+  const std::vector<std::vector<int>>& streamSessions() const { return stream_sessions_; }
+  const LoopDetector& loopDetector() const { return detector_; }
+  /// Every stage's timing: odometry (all streams), hashing, loop detection, session manager.
+  StageTimes times() const;
+
+ private:
+  void startPiece(double stamp_s);
+  void endPiece(double stamp_s);
+  static std::vector<std::uint8_t> thumbnail(const cv::Mat& image);
+  void say(const std::string& line) const;
+
+  SlamConfig config_;
+  SessionManager* manager_;
+  Log log_;
+  bool verbose_;
+  LoopDetector detector_;
+  std::deque<CameraIntrinsics> cameras_;  // the detector keeps pointers: never moved
+  std::string stream_;
+  ImageOf image_of_;
+  std::unique_ptr<SegmentedOdometry> segmented_;
+  SessionChain chain_;
+  int session_ = -1;  // the manager's id of the stream's open piece; -1 while lost
+  int pieces_ = 0;
+  std::vector<std::vector<int>> stream_sessions_;
+  StageTimes times_, finished_;
+};
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,25 @@
+// The offline runner's output files (DESIGN.md "The offline runner's contract"), written from a
+// SessionManager's final state: odometry.csv, trajectory.csv, loops.csv, loop_poses.csv,
+// links.csv and timing.csv. The CSV `session` column is the caller's numbering (offline_slam:
+// the folder's position on the command line; a stored session: its id), given per session id.
+#pragma once
+
+#include <map>
+#include <string>
+
+#include "uw_multislam/core/common/stage_timer.h"
+#include "uw_multislam/core/session/session_manager.h"
+
+namespace uw_multislam {
+namespace core {
+
+/// Writes every file into `out_dir` (which must exist). `csv_of` numbers each session id for the
+/// CSV files (sessions not in it keep their id). Maps are labelled by their first session's CSV
+/// number, except when that number is shared by an earlier session (pieces of one folder after a
+/// tracking loss): such maps take numbers after `first_free_label`. Throws DatasetError when a
+/// file cannot be written.
+void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, const std::map<int, int>& csv_of,
+                     int first_free_label, const StageTimes& times);
+
+}  // namespace core
+}  // namespace uw_multislam

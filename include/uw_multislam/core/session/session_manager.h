@@ -1,0 +1,251 @@
+// The session manager: the one object that owns sessions, their ids, maps, joins and splits, and
+// the session store (DESIGN.md "Layout and the one engine"; cf. cartographer's MapBuilder).
+//
+// Both heads drive it: offline_slam through core::Pipeline (pipeline.h, every stage in one
+// process), and the back-end nodelet, which hosts it and feeds it the Keyframe and Loop messages
+// of the odometry and loop-detector nodelets. Nothing else starts a session, assigns an id or
+// writes the store.
+//
+// One id space. A session's id is what services, messages, the store's rows as the user sees
+// them, CSV outputs, rviz frames and logs call it. Sessions restored from the store take ids
+// 0..k-1 in store order (the store's own row ids are remapped here and never leave this class);
+// a live session takes the id its first keyframe names (the odometry continues from nextId(),
+// which the back-end announces) or, from startSession, nextId(). Ids only grow. A map is named
+// by the id of its first session, its frame is that session's frame.
+//
+// What changed is reported through an EventSink: session started/ended, keyframe added, loop
+// accepted/refused, maps joined/split, map optimised. The ROS layer turns events into messages
+// and tf; offline_slam into log lines.
+//
+// Requests answer with a core::Status whose codes are Status.msg's; a request that fails changes
+// nothing. Store writes that fail (disk full, I/O error) are counted and logged, never fatal: the
+// map lives on in memory, and the next successful save of the maps writes it whole.
+//
+// Not thread-safe: one caller at a time (the back-end nodelet serialises its worker and services).
+#pragma once
+
+#include <Eigen/Core>
+
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/backend/backend.h"
+#include "uw_multislam/core/common/status.h"
+#include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/frontend/features.h"
+#include "uw_multislam/core/loops/haloc.h"
+#include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/session/session_store.h"
+#include "uw_multislam/core/session/slam_config.h"
+
+namespace uw_multislam {
+namespace core {
+
+struct SessionManagerOptions {
+  BackendOptions backend;
+  /// The keyframe hashes (paper (6)(7)): the store keeps them and refuses other settings.
+  HashMode hash_mode = HashMode::kSortedDct;
+  std::uint64_t projection_seed = 20231122;
+  int num_features = 500;
+  /// The session store (SQLite); empty: sessions live in memory only.
+  std::string store_path;
+  /// A keyframe id further than this past the expected one is refused (a corrupt message),
+  /// instead of bridging the gap with placeholder keyframes.
+  int max_keyframe_gap = 1000;
+
+  std::string validate() const;
+};
+
+/// The manager's options from the SLAM configuration (back-end, hash settings) and a store path.
+SessionManagerOptions sessionManagerOptions(const SlamConfig& config, const std::string& store_path);
+
+enum class SessionState { kActive, kFinished, kUnloaded };
+const char* sessionStateName(SessionState s);
+
+/// A keyframe as the session manager takes it (from the odometry, in process or by message).
+struct KeyframeInput {
+  int session = 0;
+  int keyframe = 0;         // 0 is the session's origin
+  int frame_index = 0;
+  double stamp_s = 0.0;
+  double altitude_m = 0.0;
+  CameraIntrinsics camera;
+  FrameFeatures features;   // may be empty (then nothing is stored to verify loops later)
+  UncertainPose2 motion;    // X_k^{k-1} (1), ignored for keyframe 0
+  Pose2 odometry_pose;      // X_k^0 of the odometry chain
+  Eigen::VectorXf hash;     // the keyframe's hash; empty: the manager computes it (once)
+  std::vector<std::uint8_t> thumbnail;  // small JPEG for the store, may be empty
+};
+
+struct SessionSummary {
+  int id = 0;
+  std::string name;
+  SessionState state = SessionState::kFinished;
+  int map = 0;
+  int keyframes = 0;
+  int loops = 0;
+  double first_stamp_s = 0.0, last_stamp_s = 0.0;
+};
+
+/// A link of a map in session ids.
+struct SessionLink {
+  int map = 0, previous = 0, current = 0, loops = 0;
+  UncertainPose2 measured;
+  Pose2 estimate;
+};
+
+struct SessionEvent {
+  enum class Kind {
+    kSessionStarted, kSessionEnded, kKeyframeAdded, kLoopAccepted, kLoopRefused, kMapsJoined, kMapSplit,
+    kMapOptimised
+  };
+  Kind kind = Kind::kKeyframeAdded;
+  int session = -1;  // the session concerned (a loop's new keyframe's session; a join's second session)
+  int other = -1;    // a loop's or a join's other session
+  int map = -1;
+  std::string message;
+};
+const char* sessionEventName(SessionEvent::Kind k);
+
+struct SessionManagerStats {
+  long keyframes = 0, keyframes_stale = 0, keyframes_refused = 0, keyframe_gaps = 0;
+  long loops = 0, loops_refused = 0;
+  long store_failures = 0;
+};
+
+/// A stored session's keyframes, as reload() hands them back (for the loop detector).
+struct ReloadedSession {
+  int id = -1;
+  CameraIntrinsics camera;
+  std::vector<StoredKeyframe> keyframes;
+};
+
+class SessionManager {
+ public:
+  using EventSink = std::function<void(const SessionEvent&)>;
+  using Log = std::function<void(const std::string&)>;
+
+  /// Opens the store (if any), checks its hash settings and restores every stored session,
+  /// loop and map (listed UNLOADED until reload()). Throws std::invalid_argument on bad options,
+  /// StoreError on a store that cannot be used (the file is left untouched).
+  SessionManager(const SessionManagerOptions& options, EventSink events = {}, Log log = {});
+  ~SessionManager();
+  SessionManager(const SessionManager&) = delete;
+  SessionManager& operator=(const SessionManager&) = delete;
+
+  // --- Requests ----------------------------------------------------------------------------
+  /// Ends the active session and starts a new one, `id` or (-1) nextId(), named `name` (empty:
+  /// "session_<id>"). ALREADY_EXISTS when the name is taken, INVALID_ARGUMENT for an id that is
+  /// not new. The session has its origin keyframe; the next keyframe 0 given to it fills it in.
+  Status startSession(const std::string& name, double stamp_s, int id = -1, int* started = nullptr);
+  /// Stops the active session (its map may be optimised); the maps are saved.
+  Status endSession(double stamp_s);
+  /// A keyframe of the active session, or keyframe 0..k of a new session (ending the active one).
+  /// `loops` (optional) are loops it closed, stored with it in one transaction (offline). A
+  /// keyframe of an older session, or repeated, is FAILED_PRECONDITION (stale); lost keyframes
+  /// (a gap in the ids) are bridged by placeholders that no loop may use, up to max_keyframe_gap.
+  Status addKeyframe(const KeyframeInput& keyframe, const std::vector<Loop>& loops = {});
+  /// A loop in session ids. UNAVAILABLE-like answer through `waiting`: true when one of its
+  /// keyframes has not arrived yet (try again after the next keyframe); else OK (accepted) or a
+  /// refusal (FAILED_PRECONDITION / INVALID_ARGUMENT with the reason).
+  Status addLoop(const Loop& loop, bool* waiting = nullptr);
+  /// Joins the maps of two sessions from the global loops between them (min_loops 0: K).
+  Status join(int session_a, int session_b, int min_loops = 0);
+  /// Splits a session off its map.
+  Status split(int session);
+  /// Brings a stored (UNLOADED) session back by name or id: its keyframes with features, for the
+  /// loop detector. NOT_FOUND, ALREADY_EXISTS (loaded), FAILED_PRECONDITION (no store), DATA_LOSS.
+  Status reload(const std::string& name_or_id, ReloadedSession* out);
+  /// Optimises every map with pending loops; saves the maps.
+  void flush();
+
+  // --- What is there -----------------------------------------------------------------------
+  std::vector<SessionSummary> list() const;
+  bool has(int session) const { return sessions_.count(session) > 0; }
+  std::vector<int> sessionIds() const;
+  int activeSession() const { return active_; }
+  /// The id the next new session takes (one past the largest so far).
+  int nextId() const { return sessions_.empty() ? 0 : sessions_.rbegin()->first + 1; }
+  const std::string& name(int session) const { return at(session).name; }
+  /// The session named `name`, or -1.
+  int idOfName(const std::string& name) const;
+  int mapOf(int session) const;
+  std::vector<int> mapIds() const;
+  /// The session's keyframe poses in its map's frame, and in its own frame.
+  std::vector<Pose2> poses(int session) const;
+  std::vector<Pose2> posesInSessionFrame(int session) const;
+  /// The odometry's poses of the session's keyframes (X_k^0 as received).
+  const std::vector<Pose2>& odometryPoses(int session) const { return at(session).odometry; }
+  const std::vector<double>& stamps(int session) const { return at(session).stamps; }
+  const std::vector<int>& frames(int session) const { return at(session).frames; }
+  /// map <- odometry correction of the session: its last pose in the map times the inverse of its
+  /// last odometry pose.
+  Pose2 correction(int session) const;
+  std::vector<SessionLink> links() const;
+  /// The accepted loops (session ids), in order, restored ones first.
+  const std::vector<Loop>& loops() const { return loops_; }
+  const SessionManagerStats& stats() const { return stats_; }
+  const BackendStats& backendStats() const { return backend_->stats(); }
+  const SessionManagerOptions& options() const { return options_; }
+  const ImageHasher& hasher() const { return hasher_; }
+  bool hasStore() const { return store_ != nullptr; }
+  const std::string& storePath() const { return options_.store_path; }
+  int restoredSessions() const { return restored_sessions_; }
+
+ private:
+  struct Session {
+    std::string name;
+    int backend = -1;                 // the back-end's index (private)
+    std::int64_t store_id = -1;       // the store's row (private)
+    CameraIntrinsics camera;
+    std::vector<double> stamps;       // per keyframe
+    std::vector<Pose2> odometry;      // X_k^0 per keyframe
+    std::vector<int> frames;          // frame index per keyframe
+    std::set<int> phantoms;           // keyframes that never arrived (bridged)
+    bool origin_received = false;     // keyframe 0 arrived (not only start_session)
+    bool unloaded = false;
+    int loops = 0;
+  };
+
+  const Session& at(int session) const;
+  Session& at(int session);
+  int idOfBackend(int backend_session) const { return id_of_backend_.at(backend_session); }
+  void restore();
+  Status open(int id, const std::string& name, double stamp_s);
+  void storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion,
+                     double stamp_s, std::vector<StoredLoop>* loops);
+  /// Adds an accepted loop to the back-end (throws std::invalid_argument as the back-end does).
+  void acceptLoop(const Loop& l);
+  StoredLoop toStored(const Loop& l) const;
+  /// After a back-end call: events for joins, splits and optimisations, and the maps saved when
+  /// a join or split happened.
+  void afterBackendChange();
+  void saveMaps();
+  template <typename F>
+  bool storeWrite(const char* what, F write);
+  void emit(SessionEvent::Kind kind, int session, int other, int map, const std::string& message) const;
+  void say(const std::string& line) const;
+
+  SessionManagerOptions options_;
+  EventSink events_;
+  Log log_;
+  ImageHasher hasher_;
+  std::unique_ptr<MultiSessionBackend> backend_;
+  std::unique_ptr<SessionStore> store_;
+  std::map<int, Session> sessions_;
+  std::vector<int> id_of_backend_;         // back-end index -> session id
+  std::vector<std::int64_t> store_loops_;  // back-end loop index -> store loop id (-1: not stored)
+  std::vector<Loop> loops_;                // accepted loops, session ids
+  int active_ = -1;
+  int restored_sessions_ = 0;
+  int seen_joins_ = 0, seen_splits_ = 0, seen_optimisations_ = 0;
+  SessionManagerStats stats_;
+};
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,163 @@
+#include "uw_multislam/core/session/pipeline.h"
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
+#include <cstdio>
+
+namespace uw_multislam {
+namespace core {
+
+Pipeline::Pipeline(const SlamConfig& config, SessionManager* manager, Log log, bool verbose)
+    : config_(config),
+      manager_(manager),
+      log_(std::move(log)),
+      verbose_(verbose),
+      detector_(config.loops, config.odometry.matching, config.odometry.ransac, config.odometry.features.num_features) {
+  ScopedStage stage(&times_, "store_load");
+  for (const SessionSummary& s : manager_->list()) {
+    if (s.state != SessionState::kUnloaded) continue;
+    ReloadedSession r;
+    const Status st = manager_->reload(std::to_string(s.id), &r);
+    if (!st.ok()) throw StoreError(st.message);
+    cameras_.push_back(r.camera);
+    for (const StoredKeyframe& k : r.keyframes) {
+      FrameFeatures f;
+      f.image_size = k.image_size;
+      f.keypoints.reserve(k.points.size());
+      for (const cv::Point2f& p : k.points) f.keypoints.emplace_back(p, 1.0f);
+      f.descriptors = k.descriptors;
+      detector_.addStoredKeyframe(r.id, k.keyframe, k.frame_index, k.altitude_m, &cameras_.back(), f, k.hash);
+    }
+  }
+}
+
+void Pipeline::say(const std::string& line) const {
+  if (log_) log_(line);
+}
+
+void Pipeline::beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of) {
+  stream_ = name;
+  image_of_ = std::move(image_of);
+  cameras_.push_back(camera);
+  segmented_ = std::make_unique<SegmentedOdometry>(camera, config_.odometry, config_.tracking);
+  pieces_ = 0;
+  session_ = -1;
+  stream_sessions_.emplace_back();
+}
+
+void Pipeline::startPiece(double stamp_s) {
+  // Names are unique (start_session and reload_session address sessions by them): a folder run
+  // again against the same store becomes "<folder> (2)", and so on.
+  std::string name = pieces_ == 0 ? stream_ : stream_ + "#" + std::to_string(pieces_);
+  for (int run = 2; manager_->idOfName(name) >= 0; ++run)
+    name = (pieces_ == 0 ? stream_ : stream_ + "#" + std::to_string(pieces_)) + " (" + std::to_string(run) + ")";
+  ++pieces_;
+  ScopedStage stage(&times_, "session_manager");
+  const Status st = manager_->startSession(name, stamp_s, -1, &session_);
+  if (!st.ok()) throw std::invalid_argument(stream_ + ": " + st.message);
+  stream_sessions_.back().push_back(session_);
+  chain_ = SessionChain();
+}
+
+void Pipeline::endPiece(double stamp_s) {
+  {
+    ScopedStage stage(&times_, "session_manager");
+    manager_->endSession(stamp_s);
+  }
+  const Odometry& odometry = *segmented_->odometry();
+  const OdometryStats& st = odometry.stats();
+  char line[400];
+  std::snprintf(line, sizeof line,
+                "session %d (%s): %d frames, %d keyframes, %d tracked, %d fallbacks, %d promotions, %d skipped "
+                "(%d image, %d altitude), %d altitudes reused, %.1f ms/frame",
+                session_, manager_->name(session_).c_str(), st.frames, st.keyframes, st.tracked, st.fallbacks,
+                st.promotions, st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude,
+                st.altitude_reused, odometry.times().get("odometry_total").meanMs());
+  say(line);
+  session_ = -1;
+}
+
+std::vector<std::uint8_t> Pipeline::thumbnail(const cv::Mat& image) {
+  std::vector<std::uint8_t> jpeg;
+  if (image.empty()) return jpeg;
+  cv::Mat grey, small;
+  if (image.channels() == 3) cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
+  else grey = image;
+  const double f = 96.0 / std::max(grey.cols, grey.rows);
+  cv::resize(grey, small, cv::Size(), f, f, cv::INTER_AREA);
+  cv::imencode(".jpg", small, jpeg, {cv::IMWRITE_JPEG_QUALITY, 70});
+  return jpeg;
+}
+
+SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& frame) {
+  const SegmentedOdometry::Step step = segmented_->process(frame);
+  const OdometryUpdate& u = step.update;
+  if (step.session_started) {
+    startPiece(frame.stamp_s);
+    if (pieces_ > 1) say("stream " + stream_ + ": tracking resumed at frame " + std::to_string(frame.index) +
+                         ": session " + std::to_string(session_) + " starts");
+  }
+  if (verbose_ && u.status == FrameStatus::kSkipped && !frame.image.empty())
+    say("stream " + stream_ + " frame " + std::to_string(frame.index) + " skipped: " + u.reason);
+  if (verbose_ && u.status == FrameStatus::kFallback)
+    say("stream " + stream_ + " frame " + std::to_string(frame.index) + ": odometry fallback (" + u.reason + ")");
+  if (session_ < 0) return step;  // no session open: tracking lost
+  const Odometry& odometry = *segmented_->odometry();
+  for (const auto& kf : segmented_->newKeyframes()) {
+    const KeyframeInfo& info = odometry.keyframes()[kf.id];
+    KeyframeInput k;
+    k.session = session_;
+    k.keyframe = kf.id;
+    k.frame_index = info.frame_index;
+    k.stamp_s = info.stamp_s;
+    k.altitude_m = info.altitude_m;
+    k.camera = cameras_.back();
+    k.features = kf.features;
+    if (kf.id > 0) k.motion = odometry.trajectory().motion(kf.id);  // (10)(11)
+    k.odometry_pose = odometry.trajectory().absolutePose(kf.id);
+    {
+      ScopedStage stage(&times_, "hash");
+      k.hash = manager_->hasher().hash(kf.features.descriptors);  // once: the detector and the store share it
+    }
+    chain_.append(kf.id, k.motion, k.odometry_pose);
+    const std::vector<Loop> loops =
+        detector_.addKeyframe(session_, kf.id, info.frame_index, info.altitude_m, &cameras_.back(), kf.features,
+                              chain_.candidateTrajectory(manager_->posesInSessionFrame(session_)), &k.hash);
+    if (manager_->hasStore() && image_of_)
+      k.thumbnail = thumbnail(info.frame_index == frame.index ? frame.image : image_of_(info.frame_index));
+    ScopedStage stage(&times_, "session_manager");
+    const Status st = manager_->addKeyframe(k, loops);
+    if (!st.ok()) throw std::logic_error("session manager refused an in-process keyframe: " + st.message);
+  }
+  if (step.session_closed) {
+    say("stream " + stream_ + ": tracking lost at frame " + std::to_string(frame.index) + " (" +
+        std::to_string(config_.tracking.max_fallbacks) + " unmatched frames): session " + std::to_string(session_) +
+        " closed");
+    endPiece(frame.stamp_s);
+  }
+  return step;
+}
+
+void Pipeline::endStream(double stamp_s) {
+  if (session_ >= 0) endPiece(stamp_s);
+  if (segmented_) finished_.merge(segmented_->times());
+  segmented_.reset();
+}
+
+void Pipeline::finish() {
+  ScopedStage stage(&times_, "session_manager");
+  manager_->flush();
+}
+
+StageTimes Pipeline::times() const {
+  StageTimes t = finished_;
+  if (segmented_) t.merge(segmented_->times());
+  t.merge(detector_.times());
+  t.merge(times_);
+  return t;
+}
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,67 @@
+#include "uw_multislam/core/session/run_outputs.h"
+
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+
+#include "uw_multislam/core/frontend/dataset.h"
+
+namespace uw_multislam {
+namespace core {
+
+void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, const std::map<int, int>& csv_of,
+                     int first_free_label, const StageTimes& times) {
+  namespace fs = std::filesystem;
+  auto csv = [&](int id) {
+    const auto it = csv_of.find(id);
+    return it == csv_of.end() ? id : it->second;
+  };
+  std::ofstream odo(fs::path(out_dir) / "odometry.csv"), traj(fs::path(out_dir) / "trajectory.csv");
+  std::ofstream loops(fs::path(out_dir) / "loops.csv"), loop_poses(fs::path(out_dir) / "loop_poses.csv");
+  std::ofstream links(fs::path(out_dir) / "links.csv"), timing(fs::path(out_dir) / "timing.csv");
+  odo << "session,index,x_m,y_m,yaw_rad\n" << std::fixed;
+  traj << "session,index,map,x_m,y_m,yaw_rad\n" << std::fixed;
+  loops << "session_a,index_a,session_b,index_b,kind,inliers\n";
+  loop_poses << "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad\n" << std::fixed << std::setprecision(6);
+  links << "map,previous_session,current_session,loops,x_m,y_m,yaw_rad\n" << std::fixed << std::setprecision(6);
+  // Map labels: a session that shares its CSV number with the session before it (a later piece
+  // of one folder) labels its map with the next free number.
+  std::map<int, int> label;
+  int previous = -1, next_label = first_free_label;
+  for (int id : manager.sessionIds()) {
+    label[id] = previous >= 0 && csv(id) == csv(previous) ? next_label++ : csv(id);
+    previous = id;
+  }
+  for (int id : manager.sessionIds()) {
+    const std::vector<Pose2>& o = manager.odometryPoses(id);
+    const std::vector<int>& frames = manager.frames(id);
+    for (std::size_t k = 0; k < o.size(); ++k)
+      odo << csv(id) << "," << frames[k] << "," << std::setprecision(6) << o[k].x() << "," << o[k].y() << ","
+          << std::setprecision(7) << o[k].yaw() << "\n";
+  }
+  for (int id : manager.sessionIds()) {
+    const std::vector<Pose2> p = manager.poses(id);
+    const std::vector<int>& frames = manager.frames(id);
+    const int map = label.at(manager.mapOf(id));
+    for (std::size_t k = 0; k < p.size(); ++k)
+      traj << csv(id) << "," << frames[k] << "," << map << "," << std::setprecision(6) << p[k].x() << "," << p[k].y()
+           << "," << std::setprecision(7) << p[k].yaw() << "\n";
+  }
+  for (const Loop& l : manager.loops()) {
+    loops << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b) << "," << l.frame_b << ","
+          << loopKindName(l.kind) << "," << l.inliers << "\n";
+    loop_poses << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b) << "," << l.frame_b << ","
+               << l.z.mean.x() << "," << l.z.mean.y() << "," << l.z.mean.yaw() << "\n";
+  }
+  for (const SessionLink& l : manager.links())
+    links << label.at(l.map) << "," << csv(l.previous) << "," << csv(l.current) << "," << l.loops << ","
+          << l.estimate.x() << "," << l.estimate.y() << "," << l.estimate.yaw() << "\n";
+  timing << "stage,calls,total_ms,mean_ms,max_ms\n" << std::fixed << std::setprecision(3);
+  for (const auto& s : times.stats())
+    timing << s.stage << "," << s.calls << "," << s.total_ms << "," << s.meanMs() << "," << s.max_ms << "\n";
+  if (!odo || !traj || !loops || !loop_poses || !links || !timing)
+    throw DatasetError(out_dir + ": cannot write the output files");
+}
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,546 @@
+#include "uw_multislam/core/session/session_manager.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <stdexcept>
+
+#include "uw_multislam/core/session/map_persistence.h"
+
+namespace uw_multislam {
+namespace core {
+
+std::string SessionManagerOptions::validate() const {
+  const std::string b = backend.validate();
+  if (!b.empty()) return b;
+  if (num_features < 1) return "num_features must be >= 1";
+  if (max_keyframe_gap < 0) return "max_keyframe_gap must be >= 0";
+  return "";
+}
+
+SessionManagerOptions sessionManagerOptions(const SlamConfig& config, const std::string& store_path) {
+  SessionManagerOptions o;
+  o.backend = config.backend;
+  o.hash_mode = config.loops.global.hash_mode;
+  o.projection_seed = config.loops.global.projection_seed;
+  o.num_features = config.odometry.features.num_features;
+  o.store_path = store_path;
+  return o;
+}
+
+const char* sessionStateName(SessionState s) {
+  switch (s) {
+    case SessionState::kActive: return "ACTIVE";
+    case SessionState::kFinished: return "FINISHED";
+    case SessionState::kUnloaded: return "UNLOADED";
+  }
+  return "?";
+}
+
+const char* sessionEventName(SessionEvent::Kind k) {
+  using K = SessionEvent::Kind;
+  switch (k) {
+    case K::kSessionStarted: return "session_started";
+    case K::kSessionEnded: return "session_ended";
+    case K::kKeyframeAdded: return "keyframe_added";
+    case K::kLoopAccepted: return "loop_accepted";
+    case K::kLoopRefused: return "loop_refused";
+    case K::kMapsJoined: return "maps_joined";
+    case K::kMapSplit: return "map_split";
+    case K::kMapOptimised: return "map_optimised";
+  }
+  return "?";
+}
+
+namespace {
+
+BackendOptions checked(const SessionManagerOptions& o) {
+  const std::string bad = o.validate();
+  if (!bad.empty()) throw std::invalid_argument("session manager: " + bad);
+  return o.backend;
+}
+
+Status notFound(int session) {
+  return {StatusCode::kNotFound, "no session " + std::to_string(session) + " (call list_sessions for the ids)"};
+}
+
+}  // namespace
+
+SessionManager::SessionManager(const SessionManagerOptions& options, EventSink events, Log log)
+    : options_(options),
+      events_(std::move(events)),
+      log_(std::move(log)),
+      hasher_(options.hash_mode, options.num_features, options.projection_seed),
+      backend_(std::make_unique<MultiSessionBackend>(checked(options), [this](const std::string& l) { say(l); })) {
+  if (options_.store_path.empty()) return;
+  const std::filesystem::path dir = std::filesystem::path(options_.store_path).parent_path();
+  std::error_code ec;
+  if (!dir.empty()) std::filesystem::create_directories(dir, ec);  // a failure shows in the open below
+  store_ = std::make_unique<SessionStore>(options_.store_path);
+  store_->checkHashSettings(
+      {options_.hash_mode, options_.projection_seed, options_.num_features, hasher_.projections().toText()});
+  restore();
+}
+
+SessionManager::~SessionManager() = default;
+
+void SessionManager::restore() {
+  const RestoredStore r = restoreStore(*store_, backend_.get(), nullptr, nullptr);
+  const std::vector<StoredSession> stored = store_->sessions();
+  for (std::size_t b = 0; b < r.session_ids.size(); ++b) {
+    const int id = static_cast<int>(b);  // store order: ids 0..k-1
+    Session s;
+    s.backend = static_cast<int>(b);
+    s.store_id = r.session_ids[b];
+    s.name = backend_->session(s.backend).name;
+    for (const StoredSession& st : stored)
+      if (st.id == s.store_id) s.camera = st.camera;
+    for (const StoredKeyframe& k : store_->keyframes(s.store_id, false)) {
+      s.stamps.push_back(k.stamp_s);
+      s.frames.push_back(k.frame_index);
+    }
+    s.odometry.push_back(Pose2());
+    for (const UncertainPose2& m : store_->odometry(s.store_id)) s.odometry.push_back(compose(s.odometry.back(), m.mean));
+    s.origin_received = true;
+    s.unloaded = true;
+    sessions_.emplace(id, std::move(s));
+    id_of_backend_.push_back(id);
+  }
+  store_loops_ = r.loop_ids;
+  for (std::size_t i = 0; i < r.loops.size(); ++i) {
+    const BackendLoop bl = backend_->loopRecord(static_cast<int>(i)).loop;
+    Loop l;
+    l.kind = r.loops[i].global ? Loop::Kind::kGlobal : Loop::Kind::kLocal;
+    l.session_a = idOfBackend(bl.session_a);
+    l.keyframe_a = bl.keyframe_a;
+    l.frame_a = at(l.session_a).frames.at(bl.keyframe_a);
+    l.session_b = idOfBackend(bl.session_b);
+    l.keyframe_b = bl.keyframe_b;
+    l.frame_b = at(l.session_b).frames.at(bl.keyframe_b);
+    l.z = bl.z;
+    l.inliers = r.loops[i].inliers;
+    loops_.push_back(l);
+    ++at(l.session_a).loops;
+    if (l.session_b != l.session_a) ++at(l.session_b).loops;
+  }
+  restored_sessions_ = static_cast<int>(sessions_.size());
+  seen_joins_ = backend_->stats().joins;
+  seen_splits_ = backend_->stats().splits;
+  seen_optimisations_ = backend_->stats().optimisations;
+  say("session store " + options_.store_path + ": " + std::to_string(sessions_.size()) + " stored sessions (" +
+      std::to_string(r.keyframes) + " keyframes, " + std::to_string(loops_.size()) + " loops, " +
+      std::to_string(backend_->mapIds().size()) + " maps) listed UNLOADED");
+}
+
+const SessionManager::Session& SessionManager::at(int session) const {
+  const auto it = sessions_.find(session);
+  if (it == sessions_.end()) throw std::invalid_argument("session manager: no session " + std::to_string(session));
+  return it->second;
+}
+
+SessionManager::Session& SessionManager::at(int session) {
+  return const_cast<Session&>(static_cast<const SessionManager*>(this)->at(session));
+}
+
+void SessionManager::say(const std::string& line) const {
+  if (log_) log_(line);
+}
+
+void SessionManager::emit(SessionEvent::Kind kind, int session, int other, int map, const std::string& message) const {
+  if (events_) events_({kind, session, other, map, message});
+}
+
+template <typename F>
+bool SessionManager::storeWrite(const char* what, F write) {
+  if (!store_) return false;
+  try {
+    write();
+    return true;
+  } catch (const std::exception& e) {
+    ++stats_.store_failures;
+    say("session store " + options_.store_path + ": " + what + " failed (" + std::to_string(stats_.store_failures) +
+        " failures so far; the map lives on in memory): " + e.what());
+    return false;
+  }
+}
+
+// --- Sessions ---------------------------------------------------------------------------------
+
+Status SessionManager::open(int id, const std::string& name, double stamp_s) {
+  if (active_ >= 0) endSession(at(active_).stamps.back());
+  Session s;
+  s.name = name.empty() ? "session_" + std::to_string(id) : name;
+  s.backend = backend_->startSession(s.name);
+  if (s.backend != static_cast<int>(id_of_backend_.size())) throw std::logic_error("session manager: back-end ids drifted");
+  id_of_backend_.push_back(id);
+  s.stamps.push_back(stamp_s);
+  s.odometry.push_back(Pose2());
+  s.frames.push_back(0);
+  const std::string n = s.name;
+  sessions_.emplace(id, std::move(s));
+  active_ = id;
+  emit(SessionEvent::Kind::kSessionStarted, id, -1, id, "session " + std::to_string(id) + " '" + n + "' started");
+  return Status::Ok();
+}
+
+Status SessionManager::startSession(const std::string& name, double stamp_s, int id, int* started) {
+  const int other = name.empty() ? -1 : idOfName(name);
+  if (other >= 0)
+    return {StatusCode::kAlreadyExists, "a session is already named '" + name + "' (session " + std::to_string(other) + ")"};
+  if (id < 0) id = nextId();
+  if (id < nextId())
+    return {StatusCode::kInvalidArgument,
+            "session id " + std::to_string(id) + " is not new (the next free id is " + std::to_string(nextId()) + ")"};
+  open(id, name, stamp_s);
+  if (started) *started = id;
+  return Status::Ok();
+}
+
+Status SessionManager::endSession(double stamp_s) {
+  if (active_ < 0) return {StatusCode::kFailedPrecondition, "no session is recording"};
+  const int id = active_;
+  Session& s = at(id);
+  backend_->endSession(s.backend);
+  active_ = -1;
+  storeWrite("ending a session", [&] {
+    if (s.store_id >= 0) store_->endSession(s.store_id, stamp_s);
+  });
+  emit(SessionEvent::Kind::kSessionEnded, id, -1, mapOf(id),
+       "session " + std::to_string(id) + " ended with " + std::to_string(s.stamps.size()) + " keyframes");
+  afterBackendChange();
+  saveMaps();
+  return Status::Ok();
+}
+
+// --- Keyframes --------------------------------------------------------------------------------
+
+void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyframe,
+                                   const UncertainPose2* motion, double stamp_s, std::vector<StoredLoop>* loops) {
+  storeWrite("writing a keyframe", [&] {
+    if (s.store_id < 0) s.store_id = store_->addSession(s.name, k ? k->camera : CameraIntrinsics(), stamp_s);
+    StoredKeyframe sk;
+    sk.session = s.store_id;
+    sk.keyframe = keyframe;
+    sk.stamp_s = stamp_s;
+    sk.hash = Eigen::VectorXf::Zero(HalocProjections::kHashSize);
+    if (k) {  // else a keyframe that never arrived: no features
+      sk.frame_index = k->frame_index;
+      sk.altitude_m = k->altitude_m;
+      sk.image_size = k->features.image_size.area() > 0 ? k->features.image_size
+                                                         : cv::Size(k->camera.width, k->camera.height);
+      for (const cv::KeyPoint& p : k->features.keypoints) sk.points.push_back(p.pt);
+      sk.descriptors = k->features.descriptors;
+      if (k->hash.size() == HalocProjections::kHashSize) sk.hash = k->hash;
+      sk.thumbnail = k->thumbnail;
+    }
+    store_->addKeyframe(sk, motion, loops);
+  });
+}
+
+Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector<Loop>& loops) {
+  if (input.keyframe < 0) {
+    ++stats_.keyframes_refused;
+    return {StatusCode::kInvalidArgument, "keyframe id " + std::to_string(input.keyframe) + " is negative"};
+  }
+  KeyframeInput k = input;
+  if (k.hash.size() != HalocProjections::kHashSize && !k.features.descriptors.empty())
+    k.hash = hasher_.hash(k.features.descriptors);  // the one place a keyframe is hashed when nobody upstream did
+  auto it = sessions_.find(k.session);
+  if (it == sessions_.end()) {
+    if (k.session < nextId()) {
+      ++stats_.keyframes_stale;
+      return {StatusCode::kFailedPrecondition, "keyframe of old session " + std::to_string(k.session) +
+                                                   " skipped (session " + std::to_string(active_) + " is recording)"};
+    }
+    if (k.keyframe > options_.max_keyframe_gap) {
+      ++stats_.keyframes_refused;
+      return {StatusCode::kInvalidArgument, "keyframe " + std::to_string(k.keyframe) + " starts session " +
+                                                std::to_string(k.session) + ": more than max_keyframe_gap (" +
+                                                std::to_string(options_.max_keyframe_gap) + ") keyframes missing"};
+    }
+    open(k.session, "", k.stamp_s);
+    it = sessions_.find(k.session);
+  }
+  Session& s = it->second;
+  const int id = k.session;
+  if (id != active_) {
+    ++stats_.keyframes_stale;
+    return {StatusCode::kFailedPrecondition, "keyframe of finished session " + std::to_string(id) + " skipped"};
+  }
+  const int expected = static_cast<int>(s.stamps.size());
+  if (k.keyframe > expected && k.keyframe - expected > options_.max_keyframe_gap) {
+    ++stats_.keyframes_refused;
+    return {StatusCode::kInvalidArgument,
+            "keyframe " + std::to_string(k.keyframe) + " of session " + std::to_string(id) + ": " +
+                std::to_string(k.keyframe - expected) + " keyframes missing, more than max_keyframe_gap (" +
+                std::to_string(options_.max_keyframe_gap) + ")"};
+  }
+  UncertainPose2 motion = k.motion;
+  const UncertainPose2* stored_motion = &motion;
+  if (!s.origin_received && k.keyframe == 0) {
+    // The origin: the session's first keyframe, or fills in start_session's placeholder origin.
+    s.origin_received = true;
+    s.camera = k.camera;
+    s.stamps[0] = k.stamp_s;
+    s.frames[0] = k.frame_index;
+    stored_motion = nullptr;
+  } else {
+    if (!s.origin_received) {  // keyframe 0 never arrived: a placeholder origin
+      s.origin_received = true;
+      s.camera = k.camera;
+      s.phantoms.insert(0);
+      storeKeyframe(s, nullptr, 0, nullptr, k.stamp_s, nullptr);
+    }
+    if (k.keyframe < expected) {
+      ++stats_.keyframes_stale;
+      return {StatusCode::kFailedPrecondition, "keyframe " + std::to_string(k.keyframe) + " of session " +
+                                                   std::to_string(id) + " received twice or out of order, skipped"};
+    }
+    if (k.keyframe > expected) {
+      // Keyframes lost on the way (a queue overflow): they stay where the last received one is
+      // (phantoms: no loop may use them) and this one gets the odometry's motion across the gap.
+      ++stats_.keyframe_gaps;
+      say("session " + std::to_string(id) + " keyframes " + std::to_string(expected) + ".." +
+          std::to_string(k.keyframe - 1) + " never arrived, bridged by the odometry");
+      const Pose2 last = s.odometry.back();
+      for (int g = expected; g < k.keyframe; ++g) {
+        const UncertainPose2 still(Pose2(), Eigen::Matrix3d::Identity() * 1e-8);
+        backend_->addMotion(s.backend, still);
+        s.phantoms.insert(g);
+        s.stamps.push_back(k.stamp_s);
+        s.odometry.push_back(last);
+        s.frames.push_back(k.frame_index);
+        storeKeyframe(s, nullptr, g, &still, k.stamp_s, nullptr);
+      }
+      motion = UncertainPose2(between(last, k.odometry_pose),
+                              k.motion.covariance * static_cast<double>(k.keyframe - expected + 1));
+    }
+    backend_->addMotion(s.backend, motion);
+    s.stamps.push_back(k.stamp_s);
+    s.odometry.push_back(k.odometry_pose);
+    s.frames.push_back(k.frame_index);
+  }
+  ++stats_.keyframes;
+  // The loops it closed go into the store with it (one transaction), then into the back-end.
+  std::vector<StoredLoop> stored;
+  for (const Loop& l : loops) stored.push_back(toStored(l));
+  storeKeyframe(s, &k, k.keyframe, stored_motion, k.stamp_s, store_ ? &stored : nullptr);
+  emit(SessionEvent::Kind::kKeyframeAdded, id, -1, mapOf(id), "");
+  for (std::size_t i = 0; i < loops.size(); ++i) {
+    ++stats_.loops;
+    try {
+      acceptLoop(loops[i]);
+      store_loops_.push_back(store_ && i < stored.size() ? stored[i].id : -1);
+    } catch (const std::invalid_argument& e) {
+      ++stats_.loops_refused;
+      emit(SessionEvent::Kind::kLoopRefused, loops[i].session_b, loops[i].session_a, -1, e.what());
+    }
+  }
+  afterBackendChange();
+  return Status::Ok();
+}
+
+// --- Loops ------------------------------------------------------------------------------------
+
+StoredLoop SessionManager::toStored(const Loop& l) const {
+  StoredLoop sl;
+  const auto a = sessions_.find(l.session_a), b = sessions_.find(l.session_b);
+  sl.session_a = a == sessions_.end() ? -1 : a->second.store_id;
+  sl.session_b = b == sessions_.end() ? -1 : b->second.store_id;
+  sl.keyframe_a = l.keyframe_a;
+  sl.keyframe_b = l.keyframe_b;
+  sl.global = l.kind == Loop::Kind::kGlobal;
+  sl.inliers = l.inliers;
+  sl.z = l.z;
+  return sl;
+}
+
+void SessionManager::acceptLoop(const Loop& l) {
+  const Session& a = at(l.session_a);
+  const Session& b = at(l.session_b);
+  if (a.phantoms.count(l.keyframe_a) || b.phantoms.count(l.keyframe_b))
+    throw std::invalid_argument("loop on a keyframe that never arrived");
+  backend_->addLoop({a.backend, l.keyframe_a, b.backend, l.keyframe_b, l.z});
+  Loop named = l;
+  if (l.keyframe_a < static_cast<int>(a.frames.size())) named.frame_a = a.frames[l.keyframe_a];
+  if (l.keyframe_b < static_cast<int>(b.frames.size())) named.frame_b = b.frames[l.keyframe_b];
+  loops_.push_back(named);
+  ++at(l.session_a).loops;
+  if (l.session_b != l.session_a) ++at(l.session_b).loops;
+  emit(SessionEvent::Kind::kLoopAccepted, l.session_b, l.session_a, mapOf(l.session_b), "");
+}
+
+Status SessionManager::addLoop(const Loop& l, bool* waiting) {
+  if (waiting) *waiting = false;
+  const auto a = sessions_.find(l.session_a), b = sessions_.find(l.session_b);
+  if (a == sessions_.end() || b == sessions_.end() || l.keyframe_a >= static_cast<int>(a->second.stamps.size()) ||
+      l.keyframe_b >= static_cast<int>(b->second.stamps.size())) {
+    if (waiting) *waiting = true;
+    return {StatusCode::kFailedPrecondition, "a keyframe of the loop has not arrived yet"};
+  }
+  ++stats_.loops;
+  try {
+    acceptLoop(l);
+  } catch (const std::invalid_argument& e) {
+    ++stats_.loops_refused;
+    emit(SessionEvent::Kind::kLoopRefused, l.session_b, l.session_a, -1, e.what());
+    return {StatusCode::kFailedPrecondition, std::string("loop refused: ") + e.what()};
+  }
+  std::int64_t stored_id = -1;
+  storeWrite("writing a loop", [&] {
+    std::vector<StoredLoop> one{toStored(l)};
+    store_->addLoops(&one);
+    stored_id = one[0].id;
+  });
+  store_loops_.push_back(stored_id);
+  afterBackendChange();
+  return Status::Ok();
+}
+
+// --- Maps -------------------------------------------------------------------------------------
+
+void SessionManager::afterBackendChange() {
+  const BackendStats& st = backend_->stats();
+  const bool joined = st.joins != seen_joins_, split = st.splits != seen_splits_;
+  if (joined) emit(SessionEvent::Kind::kMapsJoined, -1, -1, -1, "maps joined");
+  if (split) emit(SessionEvent::Kind::kMapSplit, -1, -1, -1, "map split");
+  if (st.optimisations != seen_optimisations_) emit(SessionEvent::Kind::kMapOptimised, -1, -1, -1, "");
+  seen_joins_ = st.joins;
+  seen_splits_ = st.splits;
+  seen_optimisations_ = st.optimisations;
+  if (joined || split) saveMaps();
+}
+
+void SessionManager::saveMaps() {
+  storeWrite("saving the maps", [&] {
+    std::vector<std::int64_t> ids(id_of_backend_.size(), -1);
+    for (std::size_t b = 0; b < ids.size(); ++b) ids[b] = at(id_of_backend_[b]).store_id;
+    // A session whose store row could not be written (a failed write) gets it now: every
+    // session of every map must have one, or the maps could not be saved at all.
+    for (std::size_t b = 0; b < ids.size(); ++b) {
+      if (ids[b] >= 0) continue;
+      Session& s = at(id_of_backend_[b]);
+      s.store_id = store_->addSession(s.name, s.camera, s.stamps.front());
+      ids[b] = s.store_id;
+    }
+    saveBackendMaps(store_.get(), *backend_, ids, store_loops_);
+  });
+}
+
+Status SessionManager::join(int session_a, int session_b, int min_loops) {
+  for (int s : {session_a, session_b})
+    if (!has(s)) return notFound(s);
+  if (min_loops < 0) return {StatusCode::kInvalidArgument, "min_loops must be >= 0 (0: the configured K)"};
+  const int k = min_loops > 0 ? min_loops : std::max(1, options_.backend.join_min_loops);
+  const Status st = backend_->join(at(session_a).backend, at(session_b).backend, k);
+  if (st.ok()) {
+    say("join_sessions " + std::to_string(session_a) + " " + std::to_string(session_b) + ": " + st.message);
+    afterBackendChange();
+  }
+  return st;
+}
+
+Status SessionManager::split(int session) {
+  if (!has(session)) return notFound(session);
+  const Status st = backend_->split(at(session).backend);
+  if (st.ok()) {
+    say("split_session " + std::to_string(session) + ": " + st.message);
+    afterBackendChange();
+  }
+  return st;
+}
+
+void SessionManager::flush() {
+  backend_->flush();
+  afterBackendChange();
+  saveMaps();
+}
+
+Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* out) {
+  if (!store_) return {StatusCode::kFailedPrecondition, "no session store: nothing to reload"};
+  int id = -1;
+  for (const auto& [sid, s] : sessions_)
+    if (s.name == name_or_id || std::to_string(sid) == name_or_id) id = sid;
+  if (id < 0 || at(id).store_id < 0 || id >= restored_sessions_)
+    return {StatusCode::kNotFound, "no stored session named '" + name_or_id + "' in " + options_.store_path +
+                                       " (list_sessions shows the stored ones as UNLOADED)"};
+  Session& s = at(id);
+  if (!s.unloaded) {
+    out->id = id;
+    return {StatusCode::kAlreadyExists, "session " + std::to_string(id) + " ('" + s.name + "') is already loaded"};
+  }
+  ReloadedSession r;
+  try {
+    r.keyframes = store_->keyframes(s.store_id, true);
+  } catch (const std::exception& e) {
+    return {StatusCode::kDataLoss, "reading " + options_.store_path + ": " + e.what()};
+  }
+  r.id = id;
+  r.camera = s.camera;
+  s.unloaded = false;
+  *out = std::move(r);
+  return Status::Ok();
+}
+
+// --- Queries ----------------------------------------------------------------------------------
+
+int SessionManager::idOfName(const std::string& name) const {
+  for (const auto& [id, s] : sessions_)
+    if (s.name == name) return id;
+  return -1;
+}
+
+std::vector<int> SessionManager::sessionIds() const {
+  std::vector<int> ids;
+  for (const auto& [id, s] : sessions_) ids.push_back(id);
+  return ids;
+}
+
+int SessionManager::mapOf(int session) const { return idOfBackend(backend_->mapOf(at(session).backend)); }
+
+std::vector<int> SessionManager::mapIds() const {
+  std::vector<int> ids;
+  for (int m : backend_->mapIds()) ids.push_back(idOfBackend(m));
+  return ids;
+}
+
+std::vector<Pose2> SessionManager::poses(int session) const { return backend_->sessionPoses(at(session).backend); }
+
+std::vector<Pose2> SessionManager::posesInSessionFrame(int session) const {
+  std::vector<Pose2> p = poses(session);
+  const Pose2 origin_inv = invert(p.front());
+  for (Pose2& x : p) x = compose(origin_inv, x);
+  return p;
+}
+
+Pose2 SessionManager::correction(int session) const {
+  const Session& s = at(session);
+  return compose(backend_->sessionPoses(s.backend).back(), invert(s.odometry.back()));
+}
+
+std::vector<SessionLink> SessionManager::links() const {
+  std::vector<SessionLink> out;
+  for (int m : backend_->mapIds())
+    for (const LinkInfo& l : backend_->links(m))
+      out.push_back({idOfBackend(m), idOfBackend(l.previous), idOfBackend(l.current), l.loops, l.measured, l.estimate});
+  return out;
+}
+
+std::vector<SessionSummary> SessionManager::list() const {
+  std::vector<SessionSummary> out;
+  for (const auto& [id, s] : sessions_) {
+    SessionSummary x;
+    x.id = id;
+    x.name = s.name;
+    x.state = id == active_ ? SessionState::kActive : s.unloaded ? SessionState::kUnloaded : SessionState::kFinished;
+    x.map = mapOf(id);
+    x.keyframes = static_cast<int>(s.stamps.size());
+    x.loops = s.loops;
+    x.first_stamp_s = s.stamps.front();
+    x.last_stamp_s = s.stamps.back();
+    out.push_back(x);
+  }
+  return out;
+}
+
+}  // namespace core
+}  // namespace uw_multislam

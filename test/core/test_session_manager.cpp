@@ -1,0 +1,226 @@
+// SessionManager (session/session_manager.h): one id space, requests with status codes that change
+// nothing when they fail, events, and the session store behind it (restart, reload).
+#include <gtest/gtest.h>
+
+#include <climits>
+#include <filesystem>
+#include <fstream>
+
+#include "../common/scoped_temp_dir.h"
+#include "uw_multislam/core/session/session_manager.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+SessionManagerOptions options(const std::string& store = "") {
+  SessionManagerOptions o;
+  o.backend.join_min_loops = 0;  // joins only when asked
+  o.store_path = store;
+  return o;
+}
+
+KeyframeInput keyframe(int session, int k, const Pose2& pose, const Pose2& previous) {
+  KeyframeInput in;
+  in.session = session;
+  in.keyframe = k;
+  in.frame_index = 10 * k;
+  in.stamp_s = 100.0 * session + k;
+  in.altitude_m = 2.0;
+  in.camera.width = 640;
+  in.camera.height = 480;
+  in.camera.fx = in.camera.fy = 500;
+  in.camera.cx = 320;
+  in.camera.cy = 240;
+  in.motion = UncertainPose2(between(previous, pose), Eigen::Matrix3d::Identity() * 1e-4);
+  in.odometry_pose = pose;
+  return in;
+}
+
+/// Session `s`: n keyframes one metre apart along x, starting at the session's origin.
+void addStraightSession(SessionManager* m, int s, int n) {
+  for (int k = 0; k < n; ++k) {
+    const Status st = m->addKeyframe(keyframe(s, k, Pose2(k, 0, 0), Pose2(std::max(0, k - 1), 0, 0)));
+    ASSERT_TRUE(st.ok()) << st.message;
+  }
+}
+
+/// A global loop: keyframe ka of session a sees keyframe kb of session b at `z`.
+Loop globalLoop(int a, int ka, int b, int kb, const Pose2& z) {
+  Loop l;
+  l.kind = Loop::Kind::kGlobal;
+  l.session_a = a;
+  l.keyframe_a = ka;
+  l.session_b = b;
+  l.keyframe_b = kb;
+  l.z = UncertainPose2(z, Eigen::Matrix3d::Identity() * 1e-6);
+  l.inliers = 50;
+  return l;
+}
+
+/// Two straight sessions, the second one metre to the side of the first (z = (0, 1, 0) for
+/// keyframe k of both), with five global loops between them.
+void twoSessionsWithLoops(SessionManager* m) {
+  addStraightSession(m, 0, 8);
+  addStraightSession(m, 1, 8);
+  for (int k = 1; k <= 5; ++k) ASSERT_TRUE(m->addLoop(globalLoop(0, k, 1, k, Pose2(0, 1, 0))).ok());
+}
+
+TEST(SessionManager, SessionsTakeTheIdsTheirKeyframesNameAndIdsOnlyGrow) {
+  std::vector<SessionEvent> events;
+  SessionManager m(options(), [&](const SessionEvent& e) { events.push_back(e); });
+  addStraightSession(&m, 0, 3);
+  EXPECT_EQ(m.activeSession(), 0);
+  addStraightSession(&m, 3, 2);  // the odometry skipped ids 1, 2: the manager follows it
+  EXPECT_EQ(m.activeSession(), 3);
+  EXPECT_EQ(m.sessionIds(), (std::vector<int>{0, 3}));
+  EXPECT_EQ(m.nextId(), 4);
+  // Session 0 ended when 3 started: its keyframes are refused as stale, nothing changes.
+  const Status stale = m.addKeyframe(keyframe(0, 3, Pose2(3, 0, 0), Pose2(2, 0, 0)));
+  EXPECT_EQ(stale.code, StatusCode::kFailedPrecondition);
+  EXPECT_EQ(m.list()[0].keyframes, 3);
+  EXPECT_EQ(m.list()[0].state, SessionState::kFinished);
+  EXPECT_EQ(m.list()[1].state, SessionState::kActive);
+  // start_session takes the next id and refuses a name in use or an old id.
+  int id = -1;
+  EXPECT_EQ(m.startSession("session_0", 5.0).code, StatusCode::kAlreadyExists);
+  EXPECT_EQ(m.startSession("x", 5.0, 2).code, StatusCode::kInvalidArgument);
+  EXPECT_EQ(m.activeSession(), 3);  // refused requests changed nothing
+  ASSERT_TRUE(m.startSession("dive 2", 5.0, -1, &id).ok());
+  EXPECT_EQ(id, 4);
+  EXPECT_EQ(m.name(4), "dive 2");
+  int started = 0, ended = 0;
+  for (const SessionEvent& e : events) {
+    started += e.kind == SessionEvent::Kind::kSessionStarted;
+    ended += e.kind == SessionEvent::Kind::kSessionEnded;
+  }
+  EXPECT_EQ(started, 3);
+  EXPECT_EQ(ended, 2);
+}
+
+TEST(SessionManager, AKeyframeIdFarPastTheLastIsRefusedWithoutBridging) {
+  SessionManager m(options());
+  addStraightSession(&m, 0, 3);
+  const Status st = m.addKeyframe(keyframe(0, INT_MAX, Pose2(3, 0, 0), Pose2(2, 0, 0)));
+  EXPECT_EQ(st.code, StatusCode::kInvalidArgument);
+  EXPECT_NE(st.message.find("max_keyframe_gap"), std::string::npos) << st.message;
+  EXPECT_EQ(m.list()[0].keyframes, 3);
+  EXPECT_EQ(m.addKeyframe(keyframe(7, INT_MAX, Pose2(), Pose2())).code, StatusCode::kInvalidArgument);
+  EXPECT_FALSE(m.has(7));
+  // A small gap is bridged: placeholders at the last pose, no loop may use them.
+  ASSERT_TRUE(m.addKeyframe(keyframe(0, 6, Pose2(6, 0, 0), Pose2(2, 0, 0))).ok());
+  EXPECT_EQ(m.list()[0].keyframes, 7);
+  EXPECT_EQ(m.stats().keyframe_gaps, 1);
+  EXPECT_NEAR(m.poses(0)[4].x(), 2.0, 1e-9);
+  EXPECT_NEAR(m.poses(0)[6].x(), 6.0, 1e-9);
+  Loop onPlaceholder = globalLoop(0, 4, 0, 6, Pose2(4, 0, 0));
+  onPlaceholder.kind = Loop::Kind::kLocal;
+  EXPECT_EQ(m.addLoop(onPlaceholder).code, StatusCode::kFailedPrecondition);
+  EXPECT_EQ(m.loops().size(), 0u);
+}
+
+TEST(SessionManager, LoopsOnKeyframesNotYetArrivedWait) {
+  SessionManager m(options());
+  addStraightSession(&m, 0, 3);
+  bool waiting = false;
+  EXPECT_FALSE(m.addLoop(globalLoop(0, 1, 1, 0, Pose2(0, 1, 0)), &waiting).ok());
+  EXPECT_TRUE(waiting);
+  addStraightSession(&m, 1, 1);
+  EXPECT_TRUE(m.addLoop(globalLoop(0, 1, 1, 0, Pose2(0, 1, 0)), &waiting).ok());
+  EXPECT_FALSE(waiting);
+  EXPECT_EQ(m.list()[1].loops, 1);
+}
+
+TEST(SessionManager, JoinAndSplitAnswerInSessionIdsAndFailedRequestsChangeNothing) {
+  std::vector<SessionEvent> events;
+  SessionManager m(options(), [&](const SessionEvent& e) { events.push_back(e); });
+  twoSessionsWithLoops(&m);
+  EXPECT_EQ(m.join(0, 42).code, StatusCode::kNotFound);
+  EXPECT_EQ(m.join(0, 1, -1).code, StatusCode::kInvalidArgument);
+  const Status six = m.join(0, 1, 6);
+  EXPECT_EQ(six.code, StatusCode::kFailedPrecondition) << six.message;  // 5 loops only
+  EXPECT_EQ(m.mapIds(), (std::vector<int>{0, 1}));
+  ASSERT_TRUE(m.join(0, 1, 5).ok());
+  EXPECT_EQ(m.mapOf(1), 0);
+  ASSERT_EQ(m.links().size(), 1u);
+  EXPECT_EQ(m.links()[0].previous, 0);
+  EXPECT_EQ(m.links()[0].current, 1);
+  // Session 1's keyframe k lies one metre to the side of session 0's keyframe k.
+  const std::vector<Pose2> p0 = m.poses(0), p1 = m.poses(1);
+  for (int k = 0; k < 8; ++k) {
+    EXPECT_NEAR(p1[k].x(), p0[k].x(), 1e-6) << k;
+    EXPECT_NEAR(p1[k].y(), p0[k].y() + 1.0, 1e-6) << k;
+  }
+  EXPECT_EQ(m.split(42).code, StatusCode::kNotFound);
+  ASSERT_TRUE(m.split(1).ok());
+  EXPECT_EQ(m.mapOf(1), 1);
+  const Status again = m.split(1);
+  EXPECT_EQ(again.code, StatusCode::kFailedPrecondition) << again.message;
+  bool joined = false, split = false;
+  for (const SessionEvent& e : events) {
+    joined |= e.kind == SessionEvent::Kind::kMapsJoined;
+    split |= e.kind == SessionEvent::Kind::kMapSplit;
+  }
+  EXPECT_TRUE(joined && split);
+}
+
+TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBackKeyframes) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  std::vector<Pose2> joined;
+  {
+    SessionManager m(options(db));
+    twoSessionsWithLoops(&m);
+    ASSERT_TRUE(m.join(0, 1, 5).ok());
+    joined = m.poses(1);
+    // A session opened by start_session that no keyframe follows must not stop the maps from
+    // being saved (it used to: the join was lost at the next start).
+    ASSERT_TRUE(m.startSession("empty", 20.0).ok());
+    ASSERT_TRUE(m.endSession(21.0).ok());
+    ASSERT_TRUE(m.split(1).ok());
+    ASSERT_TRUE(m.join(0, 1, 5).ok());
+    EXPECT_EQ(m.stats().store_failures, 0);
+  }
+  SessionManager again(options(db));
+  ASSERT_EQ(again.restoredSessions(), 2);
+  const std::vector<SessionSummary> list = again.list();
+  ASSERT_EQ(list.size(), 2u);
+  EXPECT_EQ(list[0].state, SessionState::kUnloaded);
+  EXPECT_EQ(list[1].map, 0);  // still joined after the restart
+  EXPECT_EQ(list[1].keyframes, 8);
+  EXPECT_EQ(list[1].loops, 5);
+  const std::vector<Pose2> back = again.poses(1);
+  for (std::size_t k = 0; k < back.size(); ++k) EXPECT_NEAR(back[k].y(), joined[k].y(), 1e-9) << k;
+  EXPECT_EQ(again.nextId(), 2);
+  ReloadedSession r;
+  EXPECT_EQ(again.reload("nope", &r).code, StatusCode::kNotFound);
+  ASSERT_TRUE(again.reload("1", &r).ok());
+  EXPECT_EQ(r.id, 1);
+  EXPECT_EQ(r.keyframes.size(), 8u);
+  EXPECT_EQ(r.camera.width, 640);
+  EXPECT_EQ(again.reload("session_1", &r).code, StatusCode::kAlreadyExists);
+  EXPECT_EQ(again.list()[1].state, SessionState::kFinished);
+  // New sessions continue after the stored ones.
+  addStraightSession(&again, again.nextId(), 2);
+  EXPECT_EQ(again.activeSession(), 2);
+  SessionManager none(options());
+  EXPECT_EQ(none.reload("0", &r).code, StatusCode::kFailedPrecondition);
+}
+
+TEST(SessionManager, BadOptionsAndABadStoreAreRefusedAtConstruction) {
+  SessionManagerOptions bad = options();
+  bad.max_keyframe_gap = -1;
+  EXPECT_THROW(SessionManager{bad}, std::invalid_argument);
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::filesystem::path junk = dir.path() / "junk.db";
+  {
+    std::ofstream out(junk);
+    out << std::string(4096, 'x');
+  }
+  EXPECT_THROW(SessionManager{options(junk.string())}, StoreError);
+  EXPECT_EQ(std::filesystem::file_size(junk), 4096u);  // left untouched
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam
