@@ -2,6 +2,8 @@
 
 #include "uw_multislam/ros/conversions.h"
 
+#include <map>
+
 namespace uw_multislam {
 namespace ros_conversions {
 
@@ -15,6 +17,79 @@ uw_multislam::Status statusMsg(std::uint8_t code, const std::string& message) {
 uw_multislam::Status toStatusMsg(const core::Status& s) {
   // core::StatusCode takes its values from Status.msg (test_conversions checks each one).
   return statusMsg(static_cast<std::uint8_t>(s.code), s.ok() ? std::string() : s.message);
+}
+
+core::KeyframeInput toKeyframeInput(const KeyframeData& k, double stamp_s) {
+  core::KeyframeInput in;
+  in.session = k.session;
+  in.keyframe = k.keyframe;
+  in.frame_index = k.frame_index;
+  in.stamp_s = stamp_s;
+  in.altitude_m = k.altitude_m;
+  in.camera = k.camera;
+  in.features = k.features;
+  in.motion = k.motion;
+  in.odometry_pose = k.odometry_pose;
+  return in;
+}
+
+KeyframeData reloadedKeyframe(const core::ReloadedSession& session, const core::StoredKeyframe& k) {
+  KeyframeData d;
+  d.session = session.id;
+  d.keyframe = k.keyframe;
+  d.frame_index = k.frame_index;
+  d.altitude_m = k.altitude_m > 0 ? k.altitude_m : 1.0;
+  d.camera = session.camera;
+  d.features.image_size = k.image_size;
+  for (const cv::Point2f& p : k.points) d.features.keypoints.emplace_back(p, 1.0f);
+  if (!k.descriptors.empty()) k.descriptors.convertTo(d.features.descriptors, CV_32F);
+  d.motion = core::UncertainPose2(core::Pose2(), Eigen::Matrix3d::Identity() * 1e-6);
+  d.quality = k.keyframe == 0 ? KeyframeQuality::kFirst : KeyframeQuality::kMatched;
+  return d;
+}
+
+uw_multislam::SessionState toSessionStateMsg(const core::SessionSummary& s) {
+  uw_multislam::SessionState st;
+  st.session = s.id;
+  st.name = s.name;
+  st.state = s.state == core::SessionState::kActive     ? uw_multislam::SessionState::ACTIVE
+             : s.state == core::SessionState::kUnloaded ? uw_multislam::SessionState::UNLOADED
+                                                        : uw_multislam::SessionState::FINISHED;
+  st.map = s.map;
+  st.num_keyframes = s.keyframes;
+  st.num_loops = s.loops;
+  st.first_stamp = ros::Time(std::max(0.0, s.first_stamp_s));
+  st.last_stamp = ros::Time(std::max(0.0, s.last_stamp_s));
+  return st;
+}
+
+std::vector<Segment> loopSegments(const core::SessionManager& manager) {
+  std::map<int, std::vector<core::Pose2>> poses;  // each session's poses once
+  auto posesOf = [&](int id) -> const std::vector<core::Pose2>& {
+    auto it = poses.find(id);
+    if (it == poses.end()) it = poses.emplace(id, manager.poses(id)).first;
+    return it->second;
+  };
+  std::vector<Segment> segments;
+  for (const core::Loop& l : manager.loops()) {
+    if (manager.mapOf(l.session_a) != manager.mapOf(l.session_b)) continue;
+    segments.push_back({posesOf(l.session_a)[l.keyframe_a], posesOf(l.session_b)[l.keyframe_b],
+                        l.kind == core::Loop::Kind::kLocal ? Segment::Kind::kLocal : Segment::Kind::kGlobal});
+  }
+  for (const core::SessionLink& link : manager.links())
+    segments.push_back({posesOf(link.previous).back(), posesOf(link.current).front(), Segment::Kind::kJoin});
+  return segments;
+}
+
+uw_multislam::SessionTrajectory toSessionTrajectoryMsg(int session, int map, const std::vector<core::Pose2>& poses,
+                                                       const ros::Time& stamp, const std::string& frame_id) {
+  uw_multislam::SessionTrajectory t;
+  t.header.stamp = stamp;
+  t.header.frame_id = frame_id;
+  t.session = session;
+  t.map = map;
+  for (const core::Pose2& p : poses) t.poses.push_back(toPose2DMsg(p));
+  return t;
 }
 
 nav_msgs::Path toPathMsg(const std::vector<core::Pose2>& poses, const std::vector<ros::Time>& stamps,

@@ -1,5 +1,7 @@
 #include "uw_multislam/ros/slam_params.h"
 
+#include <cstdlib>
+
 #include <yaml-cpp/yaml.h>
 
 namespace uw_multislam {
@@ -53,6 +55,12 @@ core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::stri
   XmlRpc::XmlRpcValue tree;
   if (!nh.getParam(key, tree)) return core::SlamConfig();
   return slamConfigFromXmlRpc(tree, nh.resolveName(key));
+}
+
+std::string defaultStorePath() {
+  const char* ros_home = std::getenv("ROS_HOME");
+  const char* home = std::getenv("HOME");
+  return (ros_home ? std::string(ros_home) : std::string(home ? home : ".") + "/.ros") + "/uw_multislam/sessions.db";
 }
 
 }  // namespace ros_params

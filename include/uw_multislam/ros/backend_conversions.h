@@ -11,8 +11,11 @@
 #include <vector>
 
 #include "uw_multislam/SessionState.h"
+#include "uw_multislam/SessionTrajectory.h"
 #include "uw_multislam/Status.h"
 #include "uw_multislam/core/backend/backend.h"
+#include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/ros/pipeline_conversions.h"
 
 namespace uw_multislam {
 namespace ros_conversions {
@@ -20,6 +23,14 @@ namespace ros_conversions {
 /// The core's status as the services' Status (the same codes: OK, NOT_FOUND, ...).
 uw_multislam::Status toStatusMsg(const core::Status& s);
 uw_multislam::Status statusMsg(std::uint8_t code, const std::string& message);
+
+/// A Keyframe message's content as the session manager takes it (stamp in seconds).
+core::KeyframeInput toKeyframeInput(const KeyframeData& k, double stamp_s);
+/// A stored keyframe handed back by reload_session, as the loop detector(s) take it: features,
+/// camera and altitude; its motion is not needed (an exact identity, quality MATCHED).
+KeyframeData reloadedKeyframe(const core::ReloadedSession& session, const core::StoredKeyframe& k);
+/// One session of list_sessions.
+uw_multislam::SessionState toSessionStateMsg(const core::SessionSummary& s);
 
 /// A session's keyframe poses (in its map's frame) as a Path in `frame_id`; stamps[k] per pose
 /// (missing stamps: the last one given, or `fallback`).
@@ -31,6 +42,11 @@ struct Segment {
   core::Pose2 a, b;
   enum class Kind { kLocal, kGlobal, kJoin } kind = Kind::kLocal;
 };
+/// The segments to draw for a manager's state: its accepted loops inside a map, and its links.
+std::vector<Segment> loopSegments(const core::SessionManager& manager);
+/// A session's poses in its own frame, for the loop detectors' local candidates.
+uw_multislam::SessionTrajectory toSessionTrajectoryMsg(int session, int map, const std::vector<core::Pose2>& poses,
+                                                       const ros::Time& stamp, const std::string& frame_id);
 /// LINE_LIST markers in `frame_id`, one per kind (namespaces "local_loops", "global_loops",
 /// "joins"; green, orange, red), each with a DELETEALL first so removed segments disappear.
 visualization_msgs::MarkerArray toMarkerArrayMsg(const std::vector<Segment>& segments, const std::string& frame_id,

@@ -28,6 +28,10 @@ core::SlamConfig slamConfigFromXmlRpc(const XmlRpc::XmlRpcValue& tree, const std
 /// Throws std::invalid_argument "<resolved key>: <reason>" for an unknown key or a bad value.
 core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::string& key = "slam");
 
+/// The session store's default path: $ROS_HOME/uw_multislam/sessions.db (ROS_HOME defaulting to
+/// ~/.ros, as roslaunch's logs).
+std::string defaultStorePath();
+
 /// A required-or-defaulted scalar parameter with a check; throws std::invalid_argument
 /// "<resolved name> = <value>: must be <requirement>" when `ok(value)` is false.
 template <typename T, typename Check>

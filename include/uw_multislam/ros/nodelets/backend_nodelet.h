@@ -1,0 +1,135 @@
+// uw_multislam/Backend: the back-end and session manager nodelet (paper 000 §8, §9), a thin
+// adapter around core::SessionManager (core/session/session_manager.h), which owns the sessions,
+// their ids, the back-end, the store, the joins and the splits. This class only translates
+// messages and services and publishes what the manager's events say changed.
+//
+// Inputs:  keyframes (uw_multislam/Keyframe, odometry nodelet): each keyframe's motion from the
+//            previous one; a new session id starts a session (the previous one stops recording)
+//          loops (uw_multislam/Loop, loop detector nodelet(s)), local and global
+//          odometry/pose (geometry_msgs/PoseStamped, odometry nodelet): for tf and the current pose
+// Outputs: session_trajectory (uw_multislam/SessionTrajectory): a session's optimised poses in its
+//            own frame, for the loop detector's local candidates
+//          paths/session_<id> (nav_msgs/Path, latched): each session's keyframes in its map's frame
+//          loop_markers (visualization_msgs/MarkerArray, latched): loops and joins
+//          pose (geometry_msgs/PoseStamped): the current camera pose in the map frame
+//          active_session (uw_multislam/SessionState, latched): set by start_session
+//          tf: map_frame -> <session_frame_prefix><id> (the correction optimisation applied to that
+//            session's odometry) and <session_frame_prefix><active> -> base_frame (the odometry)
+//          reloaded_keyframes (uw_multislam/Keyframe): a reloaded session's keyframes, for the
+//            loop detector(s) to keep as global-loop candidates
+// Services: join_sessions, split_session, list_sessions, start_session, reload_session.
+//
+// Session store (~store_path, default $ROS_HOME/uw_multislam/sessions.db; "" = none; see
+// core/session/session_store.h): every keyframe (features, descriptors, hash), its motion and each loop
+// are written as they arrive, one transaction each (WAL), the maps at every join, split and
+// session end, so a kill -9 loses at most what was in flight. At start-up the stored sessions,
+// loops and maps are put back into the back-end (they take ids 0..k-1; active_session asks the
+// odometry to continue from k) and listed UNLOADED: their trajectories are there, but the loop
+// detector does not know their keyframes until reload_session publishes them.
+//
+// Maps: every map is drawn in map_frame with its first session's origin at map_frame's origin
+// (maps that are not joined are not related, so they overlap in rviz).
+//
+// Threading model: the keyframe and loop callbacks push the message pointers onto one bounded
+// work queue (ros/work_queue.h, ~queue_size; when full the OLDEST is dropped and counted) and
+// return, so that loops keep their order relative to keyframes. One worker thread takes them in
+// order and calls the core::SessionManager under state_mutex_; the services take the same mutex,
+// so they wait for at most one message's processing (an optimisation: ~0.6 s at 10 k keyframes).
+// A loop that names a keyframe the back-end has not received yet waits (up to
+// ~max_waiting_loops, oldest dropped and counted) and is retried after each keyframe. The
+// odometry/pose callback never takes state_mutex_: it reads the active session's correction from
+// a snapshot (snapshot_mutex_) that the worker refreshes after each publication, so the per-frame
+// pose and tf never wait for an optimisation. On unload the queue is closed, what is queued is
+// processed, and the maps are optimised and saved.
+#pragma once
+
+#include <diagnostic_updater/diagnostic_updater.h>
+#include <geometry_msgs/PoseStamped.h>
+#include <nodelet/nodelet.h>
+#include <ros/ros.h>
+#include <tf2_ros/transform_broadcaster.h>
+
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <thread>
+#include <variant>
+
+#include "uw_multislam/JoinSessions.h"
+#include "uw_multislam/Keyframe.h"
+#include "uw_multislam/ListSessions.h"
+#include "uw_multislam/Loop.h"
+#include "uw_multislam/ReloadSession.h"
+#include "uw_multislam/SplitSession.h"
+#include "uw_multislam/StartSession.h"
+#include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/ros/diagnostics.h"
+#include "uw_multislam/ros/work_queue.h"
+
+namespace uw_multislam {
+namespace nodelets {
+
+class BackendNodelet : public nodelet::Nodelet {
+ public:
+  ~BackendNodelet() override;
+
+ private:
+  using Message = std::variant<uw_multislam::KeyframeConstPtr, uw_multislam::LoopConstPtr>;
+  struct Counters {
+    long keyframes = 0, loops = 0, bad = 0, waiting_dropped = 0;
+  };
+
+  void onInit() override;
+  void readParameters();
+  void work();
+  void processKeyframe(const uw_multislam::Keyframe& msg);
+  void processLoop(const uw_multislam::LoopConstPtr& msg, bool retry);
+  void onEvent(const core::SessionEvent& e);
+  void publishAll(bool all_sessions);
+  void publishSession(int id);
+  void announceNextSession();
+  void onOdometryPose(const geometry_msgs::PoseStampedConstPtr& msg);
+  bool onJoin(uw_multislam::JoinSessions::Request& req, uw_multislam::JoinSessions::Response& res);
+  bool onSplit(uw_multislam::SplitSession::Request& req, uw_multislam::SplitSession::Response& res);
+  bool onList(uw_multislam::ListSessions::Request& req, uw_multislam::ListSessions::Response& res);
+  bool onStart(uw_multislam::StartSession::Request& req, uw_multislam::StartSession::Response& res);
+  bool onReload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res);
+  /// Every counter, for /diagnostics and the periodic log line (under state_mutex_).
+  std::vector<ros_diagnostics::Counter> counters() const;
+  void logStats(const char* when);
+  void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
+
+  core::SlamConfig config_;
+  std::string store_path_, map_frame_ = "map", session_prefix_ = "session_", base_frame_ = "base_link";
+  int queue_size_ = 1000, max_waiting_loops_ = 1000, max_keyframe_gap_ = 1000;
+  bool publish_tf_ = true;
+  double stats_period_s_ = 30.0, diagnostic_period_s_ = 1.0;
+  std::unique_ptr<diagnostic_updater::Updater> updater_;
+  ros_diagnostics::CounterStatus diagnostic_status_;  // the timer's thread only
+  ros::WallTimer diagnostic_timer_;
+
+  std::unique_ptr<ros_util::BoundedWorkQueue<Message>> queue_;
+  std::thread worker_;
+
+  mutable std::mutex state_mutex_;  // guards everything below, up to snapshot_mutex_
+  std::unique_ptr<core::SessionManager> manager_;
+  std::deque<uw_multislam::LoopConstPtr> waiting_;
+  bool publish_all_ = false;  // an event asked for every session to be published
+  Counters counts_;
+  ros::WallTime last_stats_;
+
+  std::mutex snapshot_mutex_;  // the per-frame pose's snapshot
+  int snapshot_session_ = -1;
+  std::optional<core::Pose2> snapshot_correction_;  // map <- odometry of the active session
+
+  ros::Publisher trajectory_pub_, markers_pub_, pose_pub_, active_pub_, reloaded_pub_;
+  std::map<int, ros::Publisher> path_pubs_;
+  std::unique_ptr<tf2_ros::TransformBroadcaster> tf_;
+  ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_;
+  ros::Subscriber keyframe_sub_, loop_sub_, pose_sub_;  // last: destroyed first
+};
+
+}  // namespace nodelets
+}  // namespace uw_multislam
