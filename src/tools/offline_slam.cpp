@@ -28,7 +28,7 @@ Runs uw_multislam over dataset folders (frames.csv, camera.yaml, images; see
   odometry.csv    session,index,x_m,y_m,yaw_rad          odometry keyframe poses, each session in its own frame
   trajectory.csv  session,index,map,x_m,y_m,yaw_rad      final keyframe poses in the frame of map `map`
   loops.csv       session_a,index_a,session_b,index_b,kind,inliers   accepted loops
-  loop_poses.csv  session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad  each loop's measured pose of b in a
+  loop_poses.csv  session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad,cov_xx,...  each loop's measured pose of b in a
   links.csv       map,previous_session,current_session,loops,x_m,y_m,yaw_rad   the links joining sessions
   timing.csv      stage,calls,total_ms,mean_ms,max_ms    one row per pipeline stage
 `session` is the folder's position on the command line, `index` the frame's index in frames.csv.

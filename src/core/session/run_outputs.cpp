@@ -22,7 +22,8 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
   odo << "session,index,x_m,y_m,yaw_rad\n" << std::fixed;
   traj << "session,index,map,x_m,y_m,yaw_rad\n" << std::fixed;
   loops << "session_a,index_a,session_b,index_b,kind,inliers\n";
-  loop_poses << "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad\n" << std::fixed << std::setprecision(6);
+  loop_poses << "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw\n"
+             << std::fixed << std::setprecision(6);
   links << "map,previous_session,current_session,loops,x_m,y_m,yaw_rad\n" << std::fixed << std::setprecision(6);
   // Map labels: a session that shares its CSV number with the session before it (a later piece
   // of one folder) labels its map with the next free number.
@@ -51,7 +52,10 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
     loops << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b) << "," << l.frame_b << ","
           << loopKindName(l.kind) << "," << l.inliers << "\n";
     loop_poses << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b) << "," << l.frame_b << ","
-               << l.z.mean.x() << "," << l.z.mean.y() << "," << l.z.mean.yaw() << "\n";
+               << l.z.mean.x() << "," << l.z.mean.y() << "," << l.z.mean.yaw() << std::scientific << std::setprecision(9);
+    const Eigen::Matrix3d& c = l.z.covariance;
+    loop_poses << "," << c(0, 0) << "," << c(0, 1) << "," << c(0, 2) << "," << c(1, 1) << "," << c(1, 2) << "," << c(2, 2)
+               << "\n" << std::fixed << std::setprecision(6);
   }
   for (const SessionLink& l : manager.links())
     links << label.at(l.map) << "," << csv(l.previous) << "," << csv(l.current) << "," << l.loops << ","
