@@ -98,7 +98,7 @@ void BackendNodelet::onInit() {
   updater_->add("backend", this, &BackendNodelet::fillDiagnostics);
   diagnostic_timer_ = nh.createWallTimer(ros::WallDuration(diagnostic_period_s_),
                                          [this](const ros::WallTimerEvent&) { updater_->force_update(); });
-  queue_ = std::make_unique<ros_util::BoundedWorkQueue<Message>>(queue_size_);
+  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Message>>(queue_size_);
   worker_ = std::thread([this] { work(); });
   keyframe_sub_ = nh.subscribe<uw_multislam::Keyframe>(topics::kKeyframes, 100,
                                                        [this](const uw_multislam::KeyframeConstPtr& m) { queue_->push(m); });

@@ -1,45 +1,82 @@
-// The bounded work queue every nodelet uses between its callbacks and its worker thread: push()
-// never blocks (when full the OLDEST item is dropped and counted), pop() blocks until an item or
-// close(). After close(), pop() still hands out what is queued, then returns false: a clean
-// shutdown processes everything that arrived. ROS-free, header-only.
+// The bounded FIFO between a nodelet's subscriber callbacks and its one worker thread (STYLE.md
+// 5: callbacks enqueue, heavy work runs on a worker with a bounded queue and an explicit,
+// counted drop policy). Header-only and ROS-free, so its test needs neither ROS nor a master.
+//
+// Drop policy: push() on a full queue drops the OLDEST item and counts it (live, the newest
+// data matters most). pushPriority() is for the few items that must never be lost (e.g. a
+// reload of stored keyframes): they are served before the bounded ones, are never dropped and
+// do not count against the capacity.
+//
+// Shutdown: close() wakes every pop(); pop() then still returns what is queued, in order (a clean
+// shutdown processes it: nothing queued is lost), and false once the queue is empty. Items pushed
+// after close() are refused.
 #pragma once
 
 #include <condition_variable>
 #include <cstddef>
 #include <deque>
 #include <mutex>
+#include <stdexcept>
+#include <utility>
 
 namespace uw_multislam {
-namespace ros_util {
+namespace ros_work {
 
 template <typename T>
 class BoundedWorkQueue {
  public:
-  explicit BoundedWorkQueue(std::size_t capacity) : capacity_(capacity < 1 ? 1 : capacity) {}
+  /// `capacity`: the most bounded items waiting (>= 1).
+  explicit BoundedWorkQueue(std::size_t capacity) : capacity_(capacity) {
+    if (capacity < 1) throw std::invalid_argument("BoundedWorkQueue: capacity must be at least 1");
+  }
+  BoundedWorkQueue(const BoundedWorkQueue&) = delete;
+  BoundedWorkQueue& operator=(const BoundedWorkQueue&) = delete;
 
-  /// Adds an item; when full the oldest is dropped (counted). After close(): ignored, false.
+  /// Enqueues `item`; when the queue is full the oldest bounded item is dropped and counted.
+  /// Returns false (and drops `item`, uncounted) after close().
   bool push(T item) {
     {
       std::lock_guard<std::mutex> lock(mutex_);
       if (closed_) return false;
-      if (queue_.size() >= capacity_) {
-        queue_.pop_front();
+      if (items_.size() >= capacity_) {
+        items_.pop_front();
         ++dropped_;
       }
-      queue_.push_back(std::move(item));
+      items_.push_back(std::move(item));
+      ++pushed_;
     }
     wake_.notify_one();
     return true;
   }
-  /// Waits for an item; false once closed and empty.
-  bool pop(T* out) {
-    std::unique_lock<std::mutex> lock(mutex_);
-    wake_.wait(lock, [this] { return closed_ || !queue_.empty(); });
-    if (queue_.empty()) return false;
-    *out = std::move(queue_.front());
-    queue_.pop_front();
+
+  /// Enqueues `item` ahead of the bounded items (after earlier priority items); never dropped.
+  /// Returns false after close().
+  bool pushPriority(T item) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (closed_) return false;
+      priority_.push_back(std::move(item));
+    }
+    wake_.notify_one();
     return true;
   }
+
+  /// Blocks until an item is available (priority items first) or the queue is closed and empty.
+  /// Returns false only then.
+  bool pop(T* out) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    ++waiting_;
+    wake_.wait(lock, [this] { return closed_ || !priority_.empty() || !items_.empty(); });
+    --waiting_;
+    std::deque<T>& from = !priority_.empty() ? priority_ : items_;
+    if (from.empty()) return false;  // closed and drained
+    *out = std::move(from.front());
+    from.pop_front();
+    ++popped_;
+    return true;
+  }
+
+  /// No more pushes; every waiting pop() wakes. What is queued is still handed out.
   void close() {
     {
       std::lock_guard<std::mutex> lock(mutex_);
@@ -47,23 +84,50 @@ class BoundedWorkQueue {
     }
     wake_.notify_all();
   }
+
+  std::size_t capacity() const { return capacity_; }
+  /// Items dropped because the queue was full.
   long dropped() const {
     std::lock_guard<std::mutex> lock(mutex_);
     return dropped_;
   }
+  /// Items waiting (bounded and priority).
   std::size_t size() const {
     std::lock_guard<std::mutex> lock(mutex_);
-    return queue_.size();
+    return items_.size() + priority_.size();
+  }
+  /// Bounded items accepted by push() (including those dropped later).
+  long pushed() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return pushed_;
+  }
+  /// Items handed out by pop().
+  long popped() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return popped_;
+  }
+  /// Threads blocked in pop() right now (lets a test wait until the worker is idle).
+  int waiting() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return waiting_;
+  }
+  bool closed() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return closed_;
   }
 
  private:
   const std::size_t capacity_;
   mutable std::mutex mutex_;
   std::condition_variable wake_;
-  std::deque<T> queue_;
-  bool closed_ = false;
-  long dropped_ = 0;
+  std::deque<T> items_;     // guarded by mutex_
+  std::deque<T> priority_;  // guarded by mutex_
+  bool closed_ = false;     // guarded by mutex_
+  long dropped_ = 0;        // guarded by mutex_
+  long pushed_ = 0;         // guarded by mutex_
+  long popped_ = 0;         // guarded by mutex_
+  int waiting_ = 0;         // guarded by mutex_
 };
 
-}  // namespace ros_util
+}  // namespace ros_work
 }  // namespace uw_multislam

@@ -110,7 +110,7 @@ class BackendNodelet : public nodelet::Nodelet {
   ros_diagnostics::CounterStatus diagnostic_status_;  // the timer's thread only
   ros::WallTimer diagnostic_timer_;
 
-  std::unique_ptr<ros_util::BoundedWorkQueue<Message>> queue_;
+  std::unique_ptr<ros_work::BoundedWorkQueue<Message>> queue_;
   std::thread worker_;
 
   mutable std::mutex state_mutex_;  // guards everything below, up to snapshot_mutex_

@@ -1,0 +1,152 @@
+// BoundedWorkQueue (ros/work_queue.h): drop policy, shutdown drain, wake-ups, thread safety.
+// Threads are awaited on conditions (waiting(), futures); the timeouts are only deadlines that
+// turn a hang into a failure, never the thing asserted.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <future>
+#include <memory>
+#include <thread>
+#include <vector>
+
+#include "uw_multislam/ros/work_queue.h"
+
+namespace uw_multislam {
+namespace ros_work {
+namespace {
+
+constexpr auto kDeadline = std::chrono::seconds(10);
+
+/// Waits until `q` has `n` threads blocked in pop(); false after the deadline.
+template <typename T>
+bool awaitWaiting(const BoundedWorkQueue<T>& q, int n) {
+  const auto end = std::chrono::steady_clock::now() + kDeadline;
+  while (q.waiting() != n) {
+    if (std::chrono::steady_clock::now() > end) return false;
+    std::this_thread::yield();
+  }
+  return true;
+}
+
+TEST(BoundedWorkQueue, RefusesZeroCapacity) { EXPECT_THROW(BoundedWorkQueue<int>(0), std::invalid_argument); }
+
+TEST(BoundedWorkQueue, DropsTheOldestWhenFullAndCountsIt) {
+  BoundedWorkQueue<int> q(3);
+  for (int i = 1; i <= 5; ++i) EXPECT_TRUE(q.push(i));
+  EXPECT_EQ(q.size(), 3u);
+  EXPECT_EQ(q.dropped(), 2);
+  EXPECT_EQ(q.pushed(), 5);
+  int v = 0;
+  ASSERT_TRUE(q.pop(&v));
+  EXPECT_EQ(v, 3);  // 1 and 2 were the oldest
+  q.push(6);
+  ASSERT_TRUE(q.pop(&v));
+  EXPECT_EQ(v, 4);
+  ASSERT_TRUE(q.pop(&v));
+  EXPECT_EQ(v, 5);
+  ASSERT_TRUE(q.pop(&v));
+  EXPECT_EQ(v, 6);
+  EXPECT_EQ(q.size(), 0u);
+  EXPECT_EQ(q.dropped(), 2);  // room again: nothing more dropped
+  EXPECT_EQ(q.popped(), 4);
+}
+
+TEST(BoundedWorkQueue, CloseDrainsWhatIsQueuedThenReturnsFalse) {
+  BoundedWorkQueue<std::unique_ptr<int>> q(4);  // move-only items
+  q.push(std::make_unique<int>(1));
+  q.push(std::make_unique<int>(2));
+  q.close();
+  EXPECT_FALSE(q.push(std::make_unique<int>(3)));  // refused after close
+  EXPECT_FALSE(q.pushPriority(std::make_unique<int>(4)));
+  std::unique_ptr<int> v;
+  ASSERT_TRUE(q.pop(&v));
+  EXPECT_EQ(*v, 1);
+  ASSERT_TRUE(q.pop(&v));
+  EXPECT_EQ(*v, 2);
+  EXPECT_FALSE(q.pop(&v));
+  EXPECT_FALSE(q.pop(&v));  // and stays closed
+  EXPECT_EQ(q.dropped(), 0);
+}
+
+TEST(BoundedWorkQueue, PriorityItemsComeFirstAndAreNeverDropped) {
+  BoundedWorkQueue<int> q(2);
+  q.push(1);
+  q.push(2);
+  for (int i = 100; i < 110; ++i) q.pushPriority(i);  // beyond the capacity: none dropped
+  q.push(3);                                         // drops 1 (the oldest bounded item)
+  EXPECT_EQ(q.dropped(), 1);
+  EXPECT_EQ(q.size(), 12u);
+  int v = 0;
+  for (int i = 100; i < 110; ++i) {
+    ASSERT_TRUE(q.pop(&v));
+    EXPECT_EQ(v, i);
+  }
+  ASSERT_TRUE(q.pop(&v));
+  EXPECT_EQ(v, 2);
+  ASSERT_TRUE(q.pop(&v));
+  EXPECT_EQ(v, 3);
+}
+
+TEST(BoundedWorkQueue, ABlockedPopWakesOnPush) {
+  BoundedWorkQueue<int> q(2);
+  std::future<std::pair<bool, int>> popped = std::async(std::launch::async, [&q] {
+    int v = -1;
+    const bool ok = q.pop(&v);
+    return std::make_pair(ok, v);
+  });
+  ASSERT_TRUE(awaitWaiting(q, 1)) << "the worker never blocked in pop()";
+  q.push(42);
+  ASSERT_EQ(popped.wait_for(kDeadline), std::future_status::ready) << "pop() did not wake on push()";
+  const auto r = popped.get();
+  EXPECT_TRUE(r.first);
+  EXPECT_EQ(r.second, 42);
+}
+
+TEST(BoundedWorkQueue, BlockedPopsWakeOnClose) {
+  BoundedWorkQueue<int> q(2);
+  std::vector<std::future<bool>> pops;
+  for (int i = 0; i < 3; ++i) {
+    pops.push_back(std::async(std::launch::async, [&q] {
+      int v = 0;
+      return q.pop(&v);
+    }));
+  }
+  ASSERT_TRUE(awaitWaiting(q, 3)) << "the workers never blocked in pop()";
+  q.close();
+  for (auto& p : pops) {
+    ASSERT_EQ(p.wait_for(kDeadline), std::future_status::ready) << "pop() did not wake on close()";
+    EXPECT_FALSE(p.get());
+  }
+}
+
+TEST(BoundedWorkQueue, ConcurrentProducersLoseOnlyWhatIsCountedAsDropped) {
+  BoundedWorkQueue<int> q(8);
+  std::atomic<long> received{0};
+  std::atomic<long> sum{0};
+  std::thread worker([&] {
+    int v = 0;
+    while (q.pop(&v)) {
+      ++received;
+      sum += v;
+    }
+  });
+  constexpr int kProducers = 4, kEach = 5000;
+  std::vector<std::thread> producers;
+  for (int p = 0; p < kProducers; ++p) {
+    producers.emplace_back([&q] {
+      for (int i = 0; i < kEach; ++i) q.push(1);
+    });
+  }
+  for (auto& t : producers) t.join();
+  q.close();
+  worker.join();  // the worker drains what was queued at close, then pop() returns false
+  EXPECT_EQ(q.pushed(), kProducers * kEach);
+  EXPECT_EQ(received.load() + q.dropped(), kProducers * kEach);
+  EXPECT_EQ(sum.load(), received.load());
+  EXPECT_EQ(q.size(), 0u);
+}
+
+}  // namespace
+}  // namespace ros_work
+}  // namespace uw_multislam
