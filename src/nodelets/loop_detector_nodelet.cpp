@@ -20,11 +20,13 @@
 // publishes session_trajectory, the odometry chain is what is used.
 //
 // Threading model: the keyframe callback only pushes the message pointer onto a bounded FIFO
-// (~queue_size keyframes) and returns; when full the OLDEST keyframe is dropped and counted (it
-// is then never a loop candidate; a keyframe id gap is bridged with the next keyframe's odometry
-// pose). The session_trajectory callback swaps the poses in under the same mutex. One worker
-// thread owns the core::LoopDetector (hashing, candidate search, RANSAC verification) and
-// publishes. Counters are logged every ~stats_period_s and at shutdown, and published on
+// (~queue_size keyframes, ros/work_queue.h) and returns; when full the OLDEST keyframe is dropped
+// and counted (it is then never a loop candidate; a keyframe id gap is bridged with the next
+// keyframe's odometry pose). Reloaded keyframes go into the same FIFO as priority items: served
+// first, never dropped. The session_trajectory callback swaps the poses in under a mutex of its
+// own. One worker thread owns the core::LoopDetector (hashing, candidate search, RANSAC
+// verification) and publishes. On unload the FIFO is closed and the worker processes the
+// keyframes still in it before it is joined. Counters are logged every ~stats_period_s and at shutdown, and published on
 // /diagnostics every ~diagnostic_period s (WARN while drops, bad keyframes or id gaps grow).
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <nodelet/nodelet.h>
@@ -33,7 +35,6 @@
 #include <pluginlib/class_list_macros.hpp>
 
 #include <algorithm>
-#include <condition_variable>
 #include <deque>
 #include <map>
 #include <memory>
@@ -52,6 +53,7 @@
 #include "uw_multislam/ros/pipeline_conversions.h"
 #include "uw_multislam/ros/slam_params.h"
 #include "uw_multislam/ros/topics.h"
+#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace nodelets {
@@ -69,6 +71,11 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
     std::deque<core::CameraIntrinsics> cameras;
     core::Trajectory odometry;
     std::vector<core::Pose2> odometry_poses;  // per keyframe id, as the messages said
+  };
+  /// A keyframe waiting for the worker: live (searched) or reloaded from the store (stored only).
+  struct Work {
+    uw_multislam::KeyframeConstPtr msg;
+    bool reloaded = false;
   };
   struct Counters {
     long keyframes = 0, dropped = 0, bad = 0, gaps = 0, local = 0, global = 0, hashes = 0, reloaded = 0;
@@ -101,14 +108,11 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   core::SlamConfig config_;
   std::unique_ptr<core::LoopDetector> detector_;
 
-  std::mutex mutex_;
-  std::condition_variable wake_;
-  std::deque<uw_multislam::KeyframeConstPtr> queue_;                      // guarded by mutex_
-  std::deque<uw_multislam::KeyframeConstPtr> reloaded_;                   // guarded by mutex_ (never dropped)
-  std::map<int, uw_multislam::SessionTrajectoryConstPtr> optimised_;      // guarded by mutex_
-  bool stopping_ = false;                                                 // guarded by mutex_
-  long dropped_ = 0;                                                      // guarded by mutex_
+  // FIFO between the callbacks and the worker (created once ~queue_size is known).
+  std::unique_ptr<ros_work::BoundedWorkQueue<Work>> queue_;
   std::thread worker_;
+  std::mutex optimised_mutex_;
+  std::map<int, uw_multislam::SessionTrajectoryConstPtr> optimised_;  // guarded by optimised_mutex_
 
   // Worker-only state.
   std::map<int, Session> sessions_;
@@ -130,11 +134,7 @@ LoopDetectorNodelet::~LoopDetectorNodelet() {
   keyframe_sub_.shutdown();
   trajectory_sub_.shutdown();
   reloaded_sub_.shutdown();
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    stopping_ = true;
-  }
-  wake_.notify_all();
+  if (queue_) queue_->close();  // the worker processes what is queued, then returns
   if (worker_.joinable()) worker_.join();
   if (detector_) logStats("at shutdown");
 }
@@ -159,6 +159,7 @@ void LoopDetectorNodelet::readParameters() {
 void LoopDetectorNodelet::onInit() {
   try {
     readParameters();
+    queue_ = std::make_unique<ros_work::BoundedWorkQueue<Work>>(static_cast<std::size_t>(queue_size_));
     detector_ = std::make_unique<core::LoopDetector>(config_.loops, config_.odometry.matching, config_.odometry.ransac,
                                                      config_.odometry.features.num_features);
   } catch (const std::exception& e) {
@@ -188,24 +189,10 @@ void LoopDetectorNodelet::onInit() {
   reloaded_sub_ = nh.subscribe(topics::kReloadedKeyframes, 10000, &LoopDetectorNodelet::onReloaded, this);
 }
 
-void LoopDetectorNodelet::onKeyframe(const uw_multislam::KeyframeConstPtr& msg) {
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    if (static_cast<int>(queue_.size()) >= queue_size_) {
-      queue_.pop_front();
-      ++dropped_;
-    }
-    queue_.push_back(msg);
-  }
-  wake_.notify_one();
-}
+void LoopDetectorNodelet::onKeyframe(const uw_multislam::KeyframeConstPtr& msg) { queue_->push(Work{msg, false}); }
 
 void LoopDetectorNodelet::onReloaded(const uw_multislam::KeyframeConstPtr& msg) {
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    reloaded_.push_back(msg);
-  }
-  wake_.notify_one();
+  queue_->pushPriority(Work{msg, true});  // never dropped
 }
 
 void LoopDetectorNodelet::processReloaded(const uw_multislam::Keyframe& msg) {
@@ -227,40 +214,26 @@ void LoopDetectorNodelet::processReloaded(const uw_multislam::Keyframe& msg) {
 
 void LoopDetectorNodelet::onTrajectory(const uw_multislam::SessionTrajectoryConstPtr& msg) {
   if (msg->session < 0) return;
-  std::lock_guard<std::mutex> lock(mutex_);
+  std::lock_guard<std::mutex> lock(optimised_mutex_);
   optimised_[msg->session] = msg;
 }
 
 void LoopDetectorNodelet::work() {
   last_stats_ = ros::WallTime::now();
-  for (;;) {
-    uw_multislam::KeyframeConstPtr msg;
-    bool reloaded = false;
-    {
-      std::unique_lock<std::mutex> lock(mutex_);
-      wake_.wait(lock, [this] { return stopping_ || !queue_.empty() || !reloaded_.empty(); });
-      if (stopping_) return;
-      if (!reloaded_.empty()) {
-        reloaded = true;
-        msg = reloaded_.front();
-        reloaded_.pop_front();
-      } else {
-        msg = queue_.front();
-        queue_.pop_front();
-      }
-      counts_.dropped = dropped_;
-    }
+  Work w;
+  while (queue_->pop(&w)) {  // false once closed and drained
+    counts_.dropped = queue_->dropped();
     const ros::WallTime start = ros::WallTime::now();
     try {
-      if (reloaded) {
-        processReloaded(*msg);
+      if (w.reloaded) {
+        processReloaded(*w.msg);
       } else {
-        process(*msg);
+        process(*w.msg);
       }
     } catch (const std::exception& e) {
       ++counts_.bad;
-      NODELET_ERROR_THROTTLE(5, "loop detector: keyframe %d of session %d skipped: %s", msg->keyframe, msg->session,
-                             e.what());
+      NODELET_ERROR_THROTTLE(5, "loop detector: keyframe %d of session %d skipped: %s", w.msg->keyframe,
+                             w.msg->session, e.what());
     }
     const double ms = (ros::WallTime::now() - start).toSec() * 1e3;
     counts_.total_ms += ms;
@@ -310,7 +283,7 @@ bool LoopDetectorNodelet::extendChain(Session* s, const rc::KeyframeData& k) {
 core::Trajectory LoopDetectorNodelet::candidateTrajectory(int session, const Session& s) {
   uw_multislam::SessionTrajectoryConstPtr opt;
   {
-    std::lock_guard<std::mutex> lock(mutex_);
+    std::lock_guard<std::mutex> lock(optimised_mutex_);
     auto it = optimised_.find(session);
     if (it != optimised_.end()) opt = it->second;
   }
@@ -380,12 +353,7 @@ void LoopDetectorNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWr
     std::lock_guard<std::mutex> lock(stats_mutex_);
     c = published_;
   }
-  long dropped = 0, queued = 0;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    dropped = dropped_;
-    queued = static_cast<long>(queue_.size());
-  }
+  const long dropped = queue_->dropped(), queued = static_cast<long>(queue_->size());
   const double n = static_cast<double>(c.keyframes);
   stat.add("mode", mode_);
   diagnostic_status_.fill(stat,

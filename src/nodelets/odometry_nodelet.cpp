@@ -13,12 +13,14 @@
 //   odometry/keyframe_image  the new keyframe's image with its features (only when subscribed)
 //
 // Threading model: the synchroniser's callback (any of the manager's threads) only pushes the
-// message pointers onto a bounded FIFO of ~queue_size frames and returns; when the FIFO is full
-// the OLDEST frame is dropped and counted (live, the newest image matters; a gap is bridged by
-// the keyframe rule or the fallback). One worker thread owns core::Odometry and does everything
-// else: conversion, SIFT, RANSAC, publishing. Session switches requested on active_session are
-// handed to the worker through the same mutex. Messages are published as shared pointers, so
-// the loop nodelets in the same manager receive them without a copy.
+// message pointers onto a bounded FIFO of ~queue_size frames (ros/work_queue.h) and returns; when
+// the FIFO is full the OLDEST frame is dropped and counted (live, the newest image matters; a gap
+// is bridged by the keyframe rule or the fallback). One worker thread owns core::Odometry and
+// does everything else: conversion, SIFT, RANSAC, publishing. Session switches requested on
+// active_session are handed to the worker under a small mutex of their own. On unload the FIFO is
+// closed and the worker processes the frames still in it before it is joined. Messages are
+// published as shared pointers, so the loop nodelets in the same manager receive them without a
+// copy.
 //
 // Sessions: the first session has id ~session. A new session starts (the odometry restarts, the
 // next keyframe is the new origin) when the back-end asks for another id on active_session, when
@@ -70,8 +72,6 @@
 #include <atomic>
 #include <cmath>
 #include <limits>
-#include <condition_variable>
-#include <deque>
 #include <iomanip>
 #include <memory>
 #include <sstream>
@@ -90,6 +90,7 @@
 #include "uw_multislam/ros/sensor_conversions.h"
 #include "uw_multislam/ros/slam_params.h"
 #include "uw_multislam/ros/topics.h"
+#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace nodelets {
@@ -157,14 +158,12 @@ class OdometryNodelet : public nodelet::Nodelet {
   OdometryNodeletOptions options_;
   core::SlamConfig config_;
 
-  // FIFO between the callbacks and the worker.
-  std::mutex mutex_;
-  std::condition_variable wake_;
-  std::deque<Frame> queue_;     // guarded by mutex_
-  int requested_session_ = -1;  // guarded by mutex_; -1: none
-  bool stopping_ = false;       // guarded by mutex_
-  long dropped_ = 0;            // guarded by mutex_
+  // FIFO between the callbacks and the worker (created once ~queue_size is known); its pushed()
+  // count is the frames synchronised, popped() the frames the worker took.
+  std::unique_ptr<ros_work::BoundedWorkQueue<Frame>> queue_;
   std::thread worker_;
+  std::mutex session_mutex_;
+  int requested_session_ = -1;  // guarded by session_mutex_; -1: none
 
   // Arrivals, written by the callbacks (wall seconds of the last one, 0 = never).
   std::atomic<long> images_in_{0}, infos_in_{0}, ranges_in_{0};
@@ -174,8 +173,6 @@ class OdometryNodelet : public nodelet::Nodelet {
   // is not a silent altitude).
   std::atomic<long> images_since_range_{0}, images_since_sync_{0};
   std::atomic<double> first_image_since_range_{0.0}, first_image_since_sync_{0.0};
-  long synced_ = 0;             // guarded by mutex_: frames handed to the FIFO (or dropped by it)
-  long taken_ = 0;              // guarded by mutex_: frames the worker took from the FIFO
   const double started_ = wallNow();
 
   // The worker's counters as last published, for the diagnostics thread.
@@ -210,11 +207,7 @@ class OdometryNodelet : public nodelet::Nodelet {
 
 OdometryNodelet::~OdometryNodelet() {
   watchdog_.stop();
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    stopping_ = true;
-  }
-  wake_.notify_all();
+  if (queue_) queue_->close();      // later frames are refused; the queued ones are still processed
   if (worker_.joinable()) worker_.join();
   sync3_.reset();
   sync2_.reset();
@@ -271,6 +264,7 @@ void OdometryNodelet::onInit() {
       config_.odometry.keyframes.min_overlap);
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config_));
   session_ = o.session;
+  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(static_cast<std::size_t>(o.queue_size));
   stamps_ = std::make_unique<core::StampGuard>(core::StampGuardOptions{o.reorder_tolerance_s, o.session_gap_s});
 
   ros::NodeHandle& nh = getNodeHandle();
@@ -333,16 +327,7 @@ void OdometryNodelet::onSynced(const sensor_msgs::ImageConstPtr& image, const se
   }
   last_synced_ = wallNow();
   images_since_sync_ = 0;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    ++synced_;
-    if (static_cast<int>(queue_.size()) >= options_.queue_size) {
-      queue_.pop_front();
-      ++dropped_;
-    }
-    queue_.push_back(f);
-  }
-  wake_.notify_one();
+  queue_->push(std::move(f));
 }
 
 void OdometryNodelet::onActiveSession(const uw_multislam::SessionStateConstPtr& msg) {
@@ -350,23 +335,15 @@ void OdometryNodelet::onActiveSession(const uw_multislam::SessionStateConstPtr& 
     NODELET_WARN_THROTTLE(10, "odometry: ignoring active_session with negative id %d", msg->session);
     return;
   }
-  std::lock_guard<std::mutex> lock(mutex_);
+  std::lock_guard<std::mutex> lock(session_mutex_);
   requested_session_ = msg->session;
 }
 
 void OdometryNodelet::work() {
   last_stats_ = ros::WallTime::now();
-  for (;;) {
-    Frame f;
-    {
-      std::unique_lock<std::mutex> lock(mutex_);
-      wake_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
-      if (stopping_) return;
-      f = queue_.front();
-      queue_.pop_front();
-      ++taken_;
-      counts_.dropped = dropped_;
-    }
+  Frame f;
+  while (queue_->pop(&f)) {  // false once closed and drained
+    counts_.dropped = queue_->dropped();
     const ros::WallTime start = ros::WallTime::now();
     try {
       process(f);
@@ -468,7 +445,7 @@ void OdometryNodelet::process(const Frame& f) {
   // Session changes, in order of precedence: the back-end's request, a time jump, a new camera.
   int requested = -1;
   {
-    std::lock_guard<std::mutex> lock(mutex_);
+    std::lock_guard<std::mutex> lock(session_mutex_);
     std::swap(requested, requested_session_);
   }
   if (!odometry_) {
@@ -573,15 +550,9 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
     std::lock_guard<std::mutex> lock(stats_mutex_);
     c = published_;
   }
-  long dropped = 0, queued = 0, synced = 0, taken = 0;
   const long images = images_in_;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    dropped = dropped_;
-    queued = static_cast<long>(queue_.size());
-    synced = synced_;
-    taken = taken_;
-  }
+  const long dropped = queue_->dropped(), queued = static_cast<long>(queue_->size());
+  const long synced = queue_->pushed(), taken = queue_->popped();
   // Images the synchroniser has not paired (a few are always waiting in its queue).
   const long not_paired = std::max(0L, images - synced);
   const double processed = static_cast<double>(c.frames);  // frames finished (for the mean time)
