@@ -1,133 +1,21 @@
-// uw_multislam/LoopDetector: loop detection of paper 000 §6 (local) and §7 (global) around
-// core::LoopDetector, which does both in one object.
-//
-// ~mode selects what this instance does:
-//   both   (default) local and global loops in one nodelet: one copy of the stored keyframes.
-//   local  only local loops (same session, by pose radius (4), verified (5)).
-//   global only global loops (other sessions, by hash (8), verified (9)); publishes the hashes.
-// The "local loops" and "global loops" nodelets are this nodelet loaded twice with
-// mode local and mode global (launch/slam.launch, arg split_loops:=true); each instance then
-// keeps its own copy of the keyframes' features (~66 kB per keyframe). loops.local.enabled and
-// loops.global.enabled of the SLAM configuration still apply on top of the mode.
-//
-// Inputs:  keyframes (uw_multislam/Keyframe, from the odometry nodelet)
-//          session_trajectory (uw_multislam/SessionTrajectory, from the back-end, optional)
-// Outputs: loops (uw_multislam/Loop), keyframe_hashes (uw_multislam/KeyframeHash, global/both)
-//
-// Poses for local candidates: the latest optimised poses of the session when the back-end has
-// published them (for the keyframes they cover, with the odometry covariances of the motions),
-// else the chain of odometry motions carried by the Keyframe messages. Until the back-end
-// publishes session_trajectory, the odometry chain is what is used.
-//
-// Threading model: the keyframe callback only pushes the message pointer onto a bounded FIFO
-// (~queue_size keyframes, ros/work_queue.h) and returns; when full the OLDEST keyframe is dropped
-// and counted (it is then never a loop candidate; a keyframe id gap is bridged with the next
-// keyframe's odometry pose). Reloaded keyframes go into the same FIFO as priority items: served
-// first, never dropped. The session_trajectory callback swaps the poses in under a mutex of its
-// own. One worker thread owns the core::LoopDetector (hashing, candidate search, RANSAC
-// verification) and publishes. On unload the FIFO is closed and the worker processes the
-// keyframes still in it before it is joined. Counters are logged every ~stats_period_s and at shutdown, and published on
-// /diagnostics every ~diagnostic_period s (WARN while drops, bad keyframes or id gaps grow).
-#include <diagnostic_updater/diagnostic_updater.h>
-#include <nodelet/nodelet.h>
-#include <ros/ros.h>
+// uw_multislam/LoopDetector: the nodelet's definitions; modes, topics and threading are
+// documented with the class in include/uw_multislam/ros/nodelets/loop_detector_nodelet.h.
+#include "uw_multislam/ros/nodelets/loop_detector_nodelet.h"
 
 #include <pluginlib/class_list_macros.hpp>
 
 #include <algorithm>
-#include <deque>
-#include <map>
-#include <memory>
-#include <mutex>
-#include <thread>
-#include <vector>
 
-#include "uw_multislam/Keyframe.h"
 #include "uw_multislam/KeyframeHash.h"
 #include "uw_multislam/Loop.h"
-#include "uw_multislam/SessionTrajectory.h"
-#include "uw_multislam/core/loops/loop_detector.h"
-#include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/conversions.h"
-#include "uw_multislam/ros/diagnostics.h"
-#include "uw_multislam/ros/pipeline_conversions.h"
 #include "uw_multislam/ros/slam_params.h"
 #include "uw_multislam/ros/topics.h"
-#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace nodelets {
 
 namespace rc = ros_conversions;
-
-class LoopDetectorNodelet : public nodelet::Nodelet {
- public:
-  ~LoopDetectorNodelet() override;
-
- private:
-  /// What is known of one session: its cameras (the detector keeps pointers: never moved) and
-  /// the chain of odometry motions, keyframe id = trajectory index.
-  struct Session {
-    std::deque<core::CameraIntrinsics> cameras;
-    core::Trajectory odometry;
-    std::vector<core::Pose2> odometry_poses;  // per keyframe id, as the messages said
-  };
-  /// A keyframe waiting for the worker: live (searched) or reloaded from the store (stored only).
-  struct Work {
-    uw_multislam::KeyframeConstPtr msg;
-    bool reloaded = false;
-  };
-  struct Counters {
-    long keyframes = 0, dropped = 0, bad = 0, gaps = 0, local = 0, global = 0, hashes = 0, reloaded = 0;
-    long sessions = 0, stored = 0, local_candidates = 0, global_candidates = 0;
-    double total_ms = 0.0, max_ms = 0.0;
-  };
-
-  void onInit() override;
-  void readParameters();
-  void onKeyframe(const uw_multislam::KeyframeConstPtr& msg);
-  void onTrajectory(const uw_multislam::SessionTrajectoryConstPtr& msg);
-  void onReloaded(const uw_multislam::KeyframeConstPtr& msg);
-  /// A keyframe of a session reloaded from the store: stored as a candidate, not searched.
-  void processReloaded(const uw_multislam::Keyframe& msg);
-  void work();
-  void process(const uw_multislam::Keyframe& msg);
-  /// Appends keyframe k's motion to its session's chain (bridging lost keyframes); false if k
-  /// is not after the chain's last keyframe.
-  bool extendChain(Session* s, const rc::KeyframeData& k);
-  /// The poses used for local candidates: optimised where the back-end has them.
-  core::Trajectory candidateTrajectory(int session, const Session& s);
-  void logStats(const char* when);
-  void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
-
-  std::string mode_ = "both";
-  int queue_size_ = 100;
-  double stats_period_s_ = 30.0;
-  double diagnostic_period_s_ = 1.0;
-  bool publish_hashes_ = true;
-  core::SlamConfig config_;
-  std::unique_ptr<core::LoopDetector> detector_;
-
-  // FIFO between the callbacks and the worker (created once ~queue_size is known).
-  std::unique_ptr<ros_work::BoundedWorkQueue<Work>> queue_;
-  std::thread worker_;
-  std::mutex optimised_mutex_;
-  std::map<int, uw_multislam::SessionTrajectoryConstPtr> optimised_;  // guarded by optimised_mutex_
-
-  // Worker-only state.
-  std::map<int, Session> sessions_;
-  Counters counts_;
-  ros::WallTime last_stats_;
-
-  std::mutex stats_mutex_;
-  Counters published_;  // guarded by stats_mutex_: the worker's counters for the diagnostics
-  std::unique_ptr<diagnostic_updater::Updater> updater_;
-  ros_diagnostics::CounterStatus diagnostic_status_;  // the timer's thread only
-  ros::WallTimer diagnostic_timer_;
-
-  ros::Publisher loop_pub_, hash_pub_;
-  ros::Subscriber keyframe_sub_, trajectory_sub_, reloaded_sub_;  // last: destroyed first
-};
 
 LoopDetectorNodelet::~LoopDetectorNodelet() {
   diagnostic_timer_.stop();

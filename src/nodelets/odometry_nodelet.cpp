@@ -1,209 +1,32 @@
-// uw_multislam/Odometry: the visual odometry of paper 000 §5 (core::Odometry) on live images.
-//
-// Inputs (relative names, remapped in launch files; include/uw_multislam/ros/topics.h):
-//   camera/image_raw    image_transport (raw by default; ~image_transport: compressed etc.)
-//   camera/camera_info  sensor_msgs/CameraInfo
-//   altitude            sensor_msgs/Range (only with ~use_altitude_topic: true, else ~altitude)
-//   active_session      uw_multislam/SessionState from the back-end: a new id starts a session
-// The three sensor topics are paired by message_filters' ApproximateTime (images without an
-// altitude within ~sync_max_interval_s are never paired, so they are not processed).
-// Outputs:
-//   keyframes                uw_multislam/Keyframe, each new keyframe with its features
-//   odometry/pose            geometry_msgs/PoseStamped, each processed frame, session frame
-//   odometry/keyframe_image  the new keyframe's image with its features (only when subscribed)
-//
-// Threading model: the synchroniser's callback (any of the manager's threads) only pushes the
-// message pointers onto a bounded FIFO of ~queue_size frames (ros/work_queue.h) and returns; when
-// the FIFO is full the OLDEST frame is dropped and counted (live, the newest image matters; a gap
-// is bridged by the keyframe rule or the fallback). One worker thread owns core::Odometry and
-// does everything else: conversion, SIFT, RANSAC, publishing. Session switches requested on
-// active_session are handed to the worker under a small mutex of their own. On unload the FIFO is
-// closed and the worker processes the frames still in it before it is joined. Messages are
-// published as shared pointers, so the loop nodelets in the same manager receive them without a
-// copy.
-//
-// Sessions: the first session has id ~session. A new session starts (the odometry restarts, the
-// next keyframe is the new origin) when the back-end asks for another id on active_session, when
-// the image stamps jump back in time or forward by more than ~session_gap_s, when the camera
-// intrinsics change, or when tracking is lost (core/frontend/tracking.h: tracking.max_fallbacks unmatched
-// frames close the session, the next frame with tracking.min_features features starts the next;
-// keyframes with reused motions are published only once tracking is confirmed). Without a
-// back-end the ids simply count up.
-//
-// Bad input never stops the node and never reaches the map; each kind is counted, logged
-// (throttled) and published on /diagnostics (diagnostic_updater, every ~diagnostic_period s,
-// WARN while a drop or skip counter grows; keys in README "Diagnostics"):
-//   - images: encodings are converted or refused as ros/sensor_conversions.h documents
-//     (rgba/bgra drop alpha, 16 bits scaled, Bayer debayered; float/YUV refused); empty, tiny
-//     (< 32 px) or wrongly laid out images and images whose size differs from camera_info are
-//     skipped;
-//   - camera_info without a focal length, or with the principal point outside: frame skipped;
-//   - altitude NaN, <= 0 or outside the sensor's range: the core reuses the last valid one (a
-//     frame before any valid altitude is skipped);
-//   - stamps (core/frontend/stamp_guard.h): the same stamp twice is a duplicate, a stamp up to
-//     ~reorder_tolerance_s back is late: both skipped; further back (a bag that loops, a clock
-//     reset) or forward by more than ~session_gap_s: a new session;
-//   - a silent input: images arrive but no synchronised set for ~input_timeout_s (altitude or
-//     camera_info missing, or stamps too far apart): a warning naming the input, diagnostics
-//     WARN. With ~fallback_altitude > 0 frames are then processed at that fixed altitude
-//     (counted); by default they are not (a wrong scale would corrupt the map).
-//   - bursts: the worker's FIFO drops the oldest frame when full (counted); images the
-//     synchroniser never pairs are counted as images_not_paired.
+// uw_multislam/Odometry: the nodelet's definitions; topics, sessions, bad input and threading
+// are documented with the class in include/uw_multislam/ros/nodelets/odometry_nodelet.h.
+#include "uw_multislam/ros/nodelets/odometry_nodelet.h"
+
 #include <boost/bind/bind.hpp>
 #include <cv_bridge/cv_bridge.h>
 #include <geometry_msgs/PoseStamped.h>
-#include <image_transport/image_transport.h>
-#include <image_transport/subscriber_filter.h>
-#include <message_filters/subscriber.h>
-#include <message_filters/sync_policies/approximate_time.h>
-#include <message_filters/synchronizer.h>
-#include <diagnostic_updater/diagnostic_updater.h>
-#include <nodelet/nodelet.h>
-#include <ros/ros.h>
-#include <sensor_msgs/CameraInfo.h>
-#include <sensor_msgs/Image.h>
-#include <sensor_msgs/Range.h>
 
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
 #include <pluginlib/class_list_macros.hpp>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
-#include <limits>
 #include <iomanip>
-#include <memory>
+#include <limits>
 #include <sstream>
-#include <mutex>
-#include <thread>
 
 #include "uw_multislam/Keyframe.h"
-#include "uw_multislam/SessionState.h"
-#include "uw_multislam/core/frontend/odometry.h"
-#include "uw_multislam/core/session/slam_config.h"
-#include "uw_multislam/core/frontend/stamp_guard.h"
-#include "uw_multislam/core/frontend/tracking.h"
 #include "uw_multislam/ros/conversions.h"
-#include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 #include "uw_multislam/ros/sensor_conversions.h"
 #include "uw_multislam/ros/slam_params.h"
 #include "uw_multislam/ros/topics.h"
-#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace nodelets {
 
 namespace rc = ros_conversions;
-
-/// The nodelet's own parameters (private namespace), read once.
-struct OdometryNodeletOptions {
-  bool use_altitude_topic = true;
-  double altitude_m = 0.0;  // used when use_altitude_topic is false
-  int queue_size = 5;       // frames waiting for the worker
-  int sync_queue_size = 10;
-  double sync_max_interval_s = 0.1;
-  int session = 0;             // id of the first session
-  double session_gap_s = 10.0;  // stamps jumping forward more than this start a session; 0 = never
-  double reorder_tolerance_s = 1.0;  // stamps at most this far back are late frames (skipped)
-  double input_timeout_s = 5.0;      // images without a synchronised set this long: warn
-  double fallback_altitude_m = 0.0;  // > 0: used when the altitude topic is silent; 0 = off
-  double diagnostic_period_s = 1.0;
-  double stats_period_s = 30.0;
-  std::string session_frame_prefix = "session_";
-};
-
-class OdometryNodelet : public nodelet::Nodelet {
- public:
-  ~OdometryNodelet() override;
-
- private:
-  struct Frame {
-    sensor_msgs::ImageConstPtr image;
-    sensor_msgs::CameraInfoConstPtr info;
-    sensor_msgs::RangeConstPtr range;  // null without altitude topic
-    bool fixed_altitude = false;       // the altitude topic was silent: ~fallback_altitude is used
-  };
-  struct Counters {
-    long frames = 0, dropped = 0, bad_image = 0, bad_camera = 0, bad_altitude = 0, keyframes = 0, fallbacks = 0,
-         sessions = 0, losses = 0;
-    // Image refusals by kind (their sum is bad_image), stamps, altitude fallback, core skips.
-    long empty_image = 0, bad_encoding = 0, bad_layout = 0, tiny_image = 0, size_mismatch = 0;
-    long duplicates = 0, out_of_order = 0, jumps_back = 0, jumps_forward = 0;
-    long fixed_altitude = 0, skipped_by_odometry = 0;
-    double total_ms = 0.0, max_ms = 0.0, last_ms = 0.0;
-    int session = 0;
-  };
-  using SyncWithAltitude = message_filters::sync_policies::ApproximateTime<sensor_msgs::Image, sensor_msgs::CameraInfo,
-                                                                           sensor_msgs::Range>;
-  using SyncNoAltitude = message_filters::sync_policies::ApproximateTime<sensor_msgs::Image, sensor_msgs::CameraInfo>;
-
-  void onInit() override;
-  void readParameters();
-  void onSynced(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info,
-                const sensor_msgs::RangeConstPtr& range);
-  void onActiveSession(const uw_multislam::SessionStateConstPtr& msg);
-  void work();
-  void process(const Frame& f);
-  void startSession(int id, const core::CameraIntrinsics& camera, const std::string& why);
-  void publishKeyframes(const Frame& f, const cv::Mat& image, const core::OdometryUpdate& u);
-  void logStats(const char* when);
-  void onWatchdog(const ros::WallTimerEvent&);
-  void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
-  /// Why synchronised frames are not coming although images are (empty: they are, or no images).
-  std::string silentInput(double now) const;
-  static double wallNow() { return ros::WallTime::now().toSec(); }
-
-  OdometryNodeletOptions options_;
-  core::SlamConfig config_;
-
-  // FIFO between the callbacks and the worker (created once ~queue_size is known); its pushed()
-  // count is the frames synchronised, popped() the frames the worker took.
-  std::unique_ptr<ros_work::BoundedWorkQueue<Frame>> queue_;
-  std::thread worker_;
-  std::mutex session_mutex_;
-  int requested_session_ = -1;  // guarded by session_mutex_; -1: none
-
-  // Arrivals, written by the callbacks (wall seconds of the last one, 0 = never).
-  std::atomic<long> images_in_{0}, infos_in_{0}, ranges_in_{0};
-  std::atomic<double> last_image_{0.0}, last_info_{0.0}, last_range_{0.0}, last_synced_{0.0};
-  // Images since the last altitude, and the wall time of the first of them: the altitude topic is
-  // silent when images have kept coming without one for ~input_timeout_s (a pause of every input
-  // is not a silent altitude).
-  std::atomic<long> images_since_range_{0}, images_since_sync_{0};
-  std::atomic<double> first_image_since_range_{0.0}, first_image_since_sync_{0.0};
-  const double started_ = wallNow();
-
-  // The worker's counters as last published, for the diagnostics thread.
-  std::mutex stats_mutex_;
-  Counters published_;  // guarded by stats_mutex_
-  std::unique_ptr<diagnostic_updater::Updater> updater_;
-  ros_diagnostics::CounterStatus diagnostic_status_;  // used by the updater's thread only
-  ros::WallTimer watchdog_;
-
-  // Worker-only state.
-  std::unique_ptr<core::SegmentedOdometry> odometry_;  // the stream's odometry, a new session on tracking loss
-  core::CameraIntrinsics camera_;
-  int session_ = 0;
-  int frame_index_ = 0;
-  ros::Time last_stamp_;
-  std::unique_ptr<core::StampGuard> stamps_;
-  Counters counts_;
-  ros::WallTime last_stats_;
-  bool warned_distortion_ = false;
-
-  ros::Publisher keyframe_pub_, pose_pub_;
-  std::unique_ptr<image_transport::ImageTransport> it_;
-  image_transport::Publisher keyframe_image_pub_;
-  // Subscribers last: destroyed first, so no callback runs into destroyed members.
-  ros::Subscriber session_sub_;
-  image_transport::SubscriberFilter image_sub_;
-  message_filters::Subscriber<sensor_msgs::CameraInfo> info_sub_;
-  message_filters::Subscriber<sensor_msgs::Range> range_sub_;
-  std::unique_ptr<message_filters::Synchronizer<SyncWithAltitude>> sync3_;
-  std::unique_ptr<message_filters::Synchronizer<SyncNoAltitude>> sync2_;
-};
 
 OdometryNodelet::~OdometryNodelet() {
   watchdog_.stop();
