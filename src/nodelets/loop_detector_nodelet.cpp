@@ -34,6 +34,8 @@ void LoopDetectorNodelet::readParameters() {
                 [](const std::string& m) { return m == "both" || m == "local" || m == "global"; },
                 "one of both, local, global");
   queue_size_ = param(pnh, "queue_size", 100, [](int v) { return v >= 1 && v <= 100000; }, "in [1, 100000]");
+  max_keyframe_gap_ =
+      param(pnh, "max_keyframe_gap", 1000, [](int v) { return v >= 1 && v <= 1000000; }, "in [1, 1000000]");
   stats_period_s_ = param(pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
   diagnostic_period_s_ = param(pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
   config_ = ros_params::slamConfigFromParams(getNodeHandle());
@@ -57,11 +59,12 @@ void LoopDetectorNodelet::onInit() {
   const auto& l = config_.loops;
   NODELET_INFO(
       "loop detector: mode %s (local %s: radius %.2f m up to %.2f m, %d candidates, %d inliers; global %s: "
-      "hash %s, best_k %d, %d inliers, seed %llu), queue_size %d (oldest dropped when full), hashes %s",
+      "hash %s, best_k %d, %d inliers, seed %llu), queue_size %d (oldest dropped when full), max_keyframe_gap %d, "
+      "hashes %s",
       mode_.c_str(), l.local.enabled ? "on" : "off", l.local.radius_m, l.local.max_radius_m, l.local.max_candidates,
       l.local.min_inliers, l.global.enabled ? "on" : "off", core::hashModeName(l.global.hash_mode).c_str(),
       l.global.best_k, l.global.min_inliers, static_cast<unsigned long long>(l.global.projection_seed), queue_size_,
-      publish_hashes_ ? "published" : "not published");
+      max_keyframe_gap_, publish_hashes_ ? "published" : "not published");
 
   ros::NodeHandle& nh = getNodeHandle();
   loop_pub_ = nh.advertise<uw_multislam::Loop>(topics::kLoops, 100);
@@ -91,7 +94,7 @@ void LoopDetectorNodelet::processReloaded(const uw_multislam::Keyframe& msg) {
     NODELET_WARN_THROTTLE(5, "loop detector: bad reloaded keyframe skipped: %s", why.c_str());
     return;
   }
-  Session& s = sessions_[k.session];
+  Session& s = session(k.session);
   if (s.cameras.empty() || s.cameras.back().fx != k.camera.fx || s.cameras.back().width != k.camera.width)
     s.cameras.push_back(k.camera);
   if (k.features.keypoints.empty()) return;  // a keyframe that never arrived live: no candidate
@@ -141,54 +144,22 @@ void LoopDetectorNodelet::work() {
   }
 }
 
-bool LoopDetectorNodelet::extendChain(Session* s, const rc::KeyframeData& k) {
-  const int next = static_cast<int>(s->odometry.numKeyframes());
-  if (s->odometry_poses.empty()) {
-    s->odometry_poses.push_back(core::Pose2());  // keyframe 0 is the session's origin
-    if (k.keyframe == 0) return true;
-  } else if (k.keyframe < next) {
-    return false;  // repeated or out of order
-  }
-  if (k.keyframe > next) {
-    // Lost keyframes: placeholders at the last known pose (never candidates: not stored in the
-    // detector), then one motion from there to this keyframe by the odometry poses.
-    ++counts_.gaps;
-    NODELET_WARN_THROTTLE(5, "loop detector: session %d keyframes %d..%d lost, bridged by odometry poses", k.session,
-                          next, k.keyframe - 1);
-    const core::Pose2 last = s->odometry_poses.back();
-    while (static_cast<int>(s->odometry.numKeyframes()) < k.keyframe) {
-      s->odometry.append(core::UncertainPose2::exact(core::Pose2()));
-      s->odometry_poses.push_back(last);
-    }
-    s->odometry.append(core::UncertainPose2(core::between(last, k.odometry_pose), k.motion.covariance));
-  } else {
-    s->odometry.append(k.motion);
-  }
-  s->odometry_poses.push_back(k.odometry_pose);
-  return true;
+LoopDetectorNodelet::Session& LoopDetectorNodelet::session(int id) {
+  return sessions_.try_emplace(id, max_keyframe_gap_).first->second;
 }
 
-core::Trajectory LoopDetectorNodelet::candidateTrajectory(int session, const Session& s) {
+std::vector<core::Pose2> LoopDetectorNodelet::optimisedPoses(int session) {
   uw_multislam::SessionTrajectoryConstPtr opt;
   {
     std::lock_guard<std::mutex> lock(optimised_mutex_);
     auto it = optimised_.find(session);
     if (it != optimised_.end()) opt = it->second;
   }
-  if (!opt || opt->poses.size() < 2) return s.odometry;
-  core::Trajectory t;
-  const std::size_t n = s.odometry.numKeyframes();
-  const std::size_t m = std::min(opt->poses.size(), n);
-  for (std::size_t k = 1; k < n; ++k) {
-    const core::UncertainPose2& odo = s.odometry.motion(k);
-    if (k < m) {
-      t.append(core::UncertainPose2(core::between(rc::fromMsg(opt->poses[k - 1]), rc::fromMsg(opt->poses[k])),
-                                    odo.covariance));
-    } else {
-      t.append(odo);
-    }
-  }
-  return t;
+  std::vector<core::Pose2> poses;
+  if (!opt) return poses;
+  poses.reserve(opt->poses.size());
+  for (const auto& p : opt->poses) poses.push_back(rc::fromMsg(p));
+  return poses;
 }
 
 void LoopDetectorNodelet::process(const uw_multislam::Keyframe& msg) {
@@ -200,19 +171,34 @@ void LoopDetectorNodelet::process(const uw_multislam::Keyframe& msg) {
     NODELET_WARN_THROTTLE(5, "loop detector: bad keyframe skipped: %s (%ld so far)", why.c_str(), counts_.bad);
     return;
   }
-  Session& s = sessions_[k.session];
-  if (!extendChain(&s, k)) {
-    ++counts_.bad;
-    NODELET_WARN_THROTTLE(5, "loop detector: keyframe %d of session %d skipped: not after keyframe %zu", k.keyframe,
-                          k.session, s.odometry.numKeyframes() - 1);
-    return;
+  Session& s = session(k.session);
+  const int before = s.chain.numKeyframes();
+  switch (s.chain.append(k.keyframe, k.motion, k.odometry_pose)) {
+    case core::SessionChain::Append::kAppended:
+      break;
+    case core::SessionChain::Append::kBridged:
+      ++counts_.gaps;
+      NODELET_WARN_THROTTLE(5, "loop detector: session %d keyframes %d..%d lost, bridged by odometry poses", k.session,
+                            before, k.keyframe - 1);
+      break;
+    case core::SessionChain::Append::kStale:
+      ++counts_.bad;
+      NODELET_WARN_THROTTLE(5, "loop detector: keyframe %d of session %d skipped: not after keyframe %d (%ld bad so far)",
+                            k.keyframe, k.session, before - 1, counts_.bad);
+      return;
+    case core::SessionChain::Append::kTooFar:
+      ++counts_.bad;
+      NODELET_WARN_THROTTLE(5, "loop detector: keyframe %d of session %d skipped: the id jumped too far, more than "
+                            "~max_keyframe_gap %d keyframes after keyframe %d (a corrupt id?) (%ld bad so far)",
+                            k.keyframe, k.session, max_keyframe_gap_, before - 1, counts_.bad);
+      return;
   }
   if (s.cameras.empty() || s.cameras.back().width != k.camera.width || s.cameras.back().fx != k.camera.fx ||
       s.cameras.back().fy != k.camera.fy || s.cameras.back().cx != k.camera.cx ||
       s.cameras.back().cy != k.camera.cy || s.cameras.back().height != k.camera.height) {
     s.cameras.push_back(k.camera);
   }
-  const core::Trajectory trajectory = candidateTrajectory(k.session, s);
+  const core::Trajectory trajectory = s.chain.candidateTrajectory(optimisedPoses(k.session));
   const std::vector<core::Loop> loops = detector_->addKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m,
                                                                &s.cameras.back(), k.features, trajectory);
   for (const core::Loop& l : loops) {

@@ -14,10 +14,14 @@
 //          session_trajectory (uw_multislam/SessionTrajectory, from the back-end, optional)
 // Outputs: loops (uw_multislam/Loop), keyframe_hashes (uw_multislam/KeyframeHash, global/both)
 //
-// Poses for local candidates: the latest optimised poses of the session when the back-end has
-// published them (for the keyframes they cover, with the odometry covariances of the motions),
-// else the chain of odometry motions carried by the Keyframe messages. Until the back-end
-// publishes session_trajectory, the odometry chain is what is used.
+// Poses for local candidates: each session's core::SessionChain (core/loops/session_chain.h, the
+// same code the offline pipeline uses) of the odometry motions carried by the Keyframe messages,
+// with the latest optimised poses of the session where the back-end has published them (for the
+// keyframes they cover, with the odometry covariances of the motions). Until the back-end
+// publishes session_trajectory, the odometry chain is what is used. A gap in the keyframe ids
+// (keyframes dropped on the way) is bridged by placeholders that are never loop candidates; a
+// keyframe repeated or out of order, or whose id jumps more than ~max_keyframe_gap past the
+// chain's end (a corrupt id), is counted as bad and skipped.
 //
 // Threading model: the keyframe callback only pushes the message pointer onto a bounded FIFO
 // (~queue_size keyframes, ros/work_queue.h) and returns; when full the OLDEST keyframe is dropped
@@ -45,6 +49,7 @@
 #include "uw_multislam/Keyframe.h"
 #include "uw_multislam/SessionTrajectory.h"
 #include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/loops/session_chain.h"
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
@@ -61,9 +66,9 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   /// What is known of one session: its cameras (the detector keeps pointers: never moved) and
   /// the chain of odometry motions, keyframe id = trajectory index.
   struct Session {
+    explicit Session(int max_keyframe_gap) : chain(max_keyframe_gap) {}
     std::deque<core::CameraIntrinsics> cameras;
-    core::Trajectory odometry;
-    std::vector<core::Pose2> odometry_poses;  // per keyframe id, as the messages said
+    core::SessionChain chain;
   };
   /// A keyframe waiting for the worker: live (searched) or reloaded from the store (stored only).
   struct Work {
@@ -85,16 +90,16 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   void processReloaded(const uw_multislam::Keyframe& msg);
   void work();
   void process(const uw_multislam::Keyframe& msg);
-  /// Appends keyframe k's motion to its session's chain (bridging lost keyframes); false if k
-  /// is not after the chain's last keyframe.
-  bool extendChain(Session* s, const ros_conversions::KeyframeData& k);
-  /// The poses used for local candidates: optimised where the back-end has them.
-  core::Trajectory candidateTrajectory(int session, const Session& s);
+  /// The session `id`, created empty on first use.
+  Session& session(int id);
+  /// The optimised poses the back-end last published for `session` (empty: none yet).
+  std::vector<core::Pose2> optimisedPoses(int session);
   void logStats(const char* when);
   void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
   std::string mode_ = "both";
   int queue_size_ = 100;
+  int max_keyframe_gap_ = 1000;  // the most lost keyframes a gap in the ids may bridge
   double stats_period_s_ = 30.0;
   double diagnostic_period_s_ = 1.0;
   bool publish_hashes_ = true;
