@@ -98,8 +98,8 @@ void LoopDetectorNodelet::processReloaded(const uw_multislam::Keyframe& msg) {
   if (s.cameras.empty() || s.cameras.back().fx != k.camera.fx || s.cameras.back().width != k.camera.width)
     s.cameras.push_back(k.camera);
   if (k.features.keypoints.empty()) return;  // a keyframe that never arrived live: no candidate
-  detector_->addStoredKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m, &s.cameras.back(), k.features,
-                               detector_->hasher().hash(k.features.descriptors));
+  const Eigen::VectorXf hash = k.hash.size() > 0 ? k.hash : detector_->hasher().hash(k.features.descriptors);
+  detector_->addStoredKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m, &s.cameras.back(), k.features, hash);
   ++counts_.reloaded;
 }
 
@@ -200,7 +200,8 @@ void LoopDetectorNodelet::process(const uw_multislam::Keyframe& msg) {
   }
   const core::Trajectory trajectory = s.chain.candidateTrajectory(optimisedPoses(k.session));
   const std::vector<core::Loop> loops = detector_->addKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m,
-                                                               &s.cameras.back(), k.features, trajectory);
+                                                               &s.cameras.back(), k.features, trajectory,
+                                                               &k.hash);  // hashed here only when k.hash is empty
   for (const core::Loop& l : loops) {
     loop_pub_.publish(boost::make_shared<uw_multislam::Loop>(rc::toLoopMsg(l, msg.header)));
     ++(l.kind == core::Loop::Kind::kLocal ? counts_.local : counts_.global);
@@ -215,7 +216,7 @@ void LoopDetectorNodelet::process(const uw_multislam::Keyframe& msg) {
     h.mode = config_.loops.global.hash_mode;
     h.projection_seed = config_.loops.global.projection_seed;
     h.num_features = config_.odometry.features.num_features;
-    h.values = detector_->hasher().hash(k.features.descriptors);  // the detector's own hash, recomputed
+    h.values = detector_->lastHash();  // the message's hash (or the detector's when it had none)
     hash_pub_.publish(boost::make_shared<uw_multislam::KeyframeHash>(rc::toKeyframeHashMsg(h, msg.header)));
     ++counts_.hashes;
   }

@@ -87,6 +87,8 @@ void OdometryNodelet::onInit() {
       config_.odometry.keyframes.min_overlap);
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config_));
   session_ = o.session;
+  const auto& g = config_.loops.global;
+  hasher_ = std::make_unique<core::ImageHasher>(g.hash_mode, config_.odometry.features.num_features, g.projection_seed);
   queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(static_cast<std::size_t>(o.queue_size));
   stamps_ = std::make_unique<core::StampGuard>(core::StampGuardOptions{o.reorder_tolerance_s, o.session_gap_s});
 
@@ -328,7 +330,8 @@ void OdometryNodelet::process(const Frame& f) {
 void OdometryNodelet::publishKeyframes(const Frame& f, const cv::Mat& image, const core::OdometryUpdate& u) {
   const core::Odometry& odometry = *odometry_->odometry();
   for (const auto& kf : odometry_->newKeyframes()) {
-    const rc::KeyframeData data = rc::keyframeData(odometry, kf, u, session_);
+    rc::KeyframeData data = rc::keyframeData(odometry, kf, u, session_);
+    data.hash = hasher_->hash(kf.features.descriptors);  // once here; the loop detector and back-end reuse it
     std_msgs::Header header = f.image->header;
     if (data.frame_index != u.index) header.stamp.fromSec(odometry.keyframes()[kf.id].stamp_s);  // promoted or held
     keyframe_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::toKeyframeMsg(data, header)));

@@ -102,6 +102,7 @@ uw_multislam::Keyframe toKeyframeMsg(const KeyframeData& k, const std_msgs::Head
     if (!bytes.isContinuous()) bytes = bytes.clone();
     m.descriptors.assign(bytes.data, bytes.data + bytes.total());
   }
+  m.hash.assign(k.hash.data(), k.hash.data() + k.hash.size());
   m.motion = toPose2DMsg(k.motion.mean);
   toArray(k.motion.covariance, &m.motion_covariance);
   m.odometry_pose = toPose2DMsg(k.odometry_pose);
@@ -136,6 +137,12 @@ bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* wh
   if (m.descriptors.size() != n * m.descriptor_size) {
     return fail(why, who + "descriptors must hold n x descriptor_size bytes");
   }
+  if (!m.hash.empty() && m.hash.size() != static_cast<std::size_t>(core::HalocProjections::kHashSize)) {
+    return fail(why, who + "hash must have 384 values (3 x 128) or none, not " + std::to_string(m.hash.size()));
+  }
+  for (float v : m.hash) {
+    if (!std::isfinite(v)) return fail(why, who + "non-finite hash value");
+  }
   if (m.status > uw_multislam::Keyframe::FALLBACK) return fail(why, who + "unknown status");
   if (!finitePose(m.motion) || !finitePose(m.odometry_pose)) return fail(why, who + "non-finite pose");
   const Eigen::Matrix3d cov = fromArray(m.motion_covariance);
@@ -169,6 +176,7 @@ bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* wh
   } else {
     k.features.descriptors = cv::Mat(0, core::HalocProjections::kDescriptorSize, CV_32F);
   }
+  k.hash = Eigen::Map<const Eigen::VectorXf>(m.hash.data(), static_cast<Eigen::Index>(m.hash.size()));
   k.motion = first ? core::UncertainPose2::exact(core::Pose2()) : core::UncertainPose2(fromMsg(m.motion), cov);
   k.odometry_pose = fromMsg(m.odometry_pose);
   k.quality = first ? KeyframeQuality::kFirst

@@ -130,7 +130,37 @@ TEST_F(PipelineConversions, BadKeyframeMessagesAreRefusedWithAReason) {
   m = good;
   m.keyframe = -1;
   refused(m, "negative");
+  m = good;
+  m.hash.assign(core::HalocProjections::kHashSize - 1, 0.1f);
+  refused(m, "hash must have 384 values");
+  m.hash.assign(core::HalocProjections::kHashSize + 1, 0.1f);
+  refused(m, "hash must have 384 values");
+  m.hash.assign(core::HalocProjections::kHashSize, 0.1f);
+  m.hash[17] = std::numeric_limits<float>::quiet_NaN();
+  refused(m, "non-finite hash");
   EXPECT_TRUE(rc::fromMsg(good, &out, &why)) << why;
+}
+
+TEST_F(PipelineConversions, KeyframeHashTravelsWithTheKeyframe) {
+  rc::KeyframeData k = someKeyframe();
+  const core::ImageHasher hasher(core::HashMode::kSortedDct, 500, 20231122);
+  k.hash = hasher.hash(k.features.descriptors);
+  ASSERT_EQ(k.hash.size(), core::HalocProjections::kHashSize);
+  const uw_multislam::Keyframe m = rc::toKeyframeMsg(k, header());
+  ASSERT_EQ(m.hash.size(), static_cast<std::size_t>(core::HalocProjections::kHashSize));
+  EXPECT_EQ(m.hash[100], k.hash[100]);
+  rc::KeyframeData back;
+  std::string why;
+  ASSERT_TRUE(rc::fromMsg(m, &back, &why)) << why;
+  ASSERT_EQ(back.hash.size(), core::HalocProjections::kHashSize);
+  EXPECT_EQ((back.hash - k.hash).cwiseAbs().maxCoeff(), 0.0f);  // float32 both ways: exact
+
+  // A sender that does not hash (an older one): no hash, accepted.
+  k.hash.resize(0);
+  const uw_multislam::Keyframe old = rc::toKeyframeMsg(k, header());
+  EXPECT_TRUE(old.hash.empty());
+  ASSERT_TRUE(rc::fromMsg(old, &back, &why)) << why;
+  EXPECT_EQ(back.hash.size(), 0);
 }
 
 TEST_F(PipelineConversions, KeyframeDataFromARunningOdometry) {

@@ -39,6 +39,9 @@ struct KeyframeData {
   /// Keypoints (position and response only travel) and descriptors (CV_32F from the extractor;
   /// fromMsg gives CV_32F too, the values of the 8-bit message).
   core::FrameFeatures features;
+  /// The keyframe's hash (core::HalocProjections::kHashSize values), or empty when not computed
+  /// (messages from older senders): receivers hash the features themselves then.
+  Eigen::VectorXf hash;
   core::UncertainPose2 motion;  // X_k^{k-1}; exact identity for keyframe 0
   core::Pose2 odometry_pose;    // X_k^0 of the odometry
   KeyframeQuality quality = KeyframeQuality::kFirst;

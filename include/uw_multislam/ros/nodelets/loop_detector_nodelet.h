@@ -13,6 +13,8 @@
 // Inputs:  keyframes (uw_multislam/Keyframe, from the odometry nodelet)
 //          session_trajectory (uw_multislam/SessionTrajectory, from the back-end, optional)
 // Outputs: loops (uw_multislam/Loop), keyframe_hashes (uw_multislam/KeyframeHash, global/both)
+// The keyframe's hash comes with the Keyframe message (computed once by the odometry nodelet);
+// only a message without one (an older sender) is hashed here.
 //
 // Poses for local candidates: each session's core::SessionChain (core/loops/session_chain.h, the
 // same code the offline pipeline uses) of the odometry motions carried by the Keyframe messages,
@@ -28,10 +30,10 @@
 // and counted (it is then never a loop candidate; a keyframe id gap is bridged with the next
 // keyframe's odometry pose). Reloaded keyframes go into the same FIFO as priority items: served
 // first, never dropped. The session_trajectory callback swaps the poses in under a mutex of its
-// own. One worker thread owns the core::LoopDetector (hashing, candidate search, RANSAC
-// verification) and publishes. On unload the FIFO is closed and the worker processes the
-// keyframes still in it before it is joined. Counters are logged every ~stats_period_s and at shutdown, and published on
-// /diagnostics every ~diagnostic_period s (WARN while drops, bad keyframes or id gaps grow).
+// own. One worker thread owns the core::LoopDetector (candidate search, RANSAC verification)
+// and publishes. On unload the FIFO is closed and the worker processes the keyframes still in it
+// before it is joined. Counters are logged every ~stats_period_s and at shutdown, and published
+// on /diagnostics every ~diagnostic_period s (WARN while drops, bad keyframes or id gaps grow).
 #pragma once
 
 #include <diagnostic_updater/diagnostic_updater.h>

@@ -8,7 +8,8 @@
 // The three sensor topics are paired by message_filters' ApproximateTime (images without an
 // altitude within ~sync_max_interval_s are never paired, so they are not processed).
 // Outputs:
-//   keyframes                uw_multislam/Keyframe, each new keyframe with its features
+//   keyframes                uw_multislam/Keyframe, each new keyframe with its features and its
+//                            hash (computed here once, with the slam/loops/global hash options)
 //   odometry/pose            geometry_msgs/PoseStamped, each processed frame, session frame
 //   odometry/keyframe_image  the new keyframe's image with its features (only when subscribed)
 //
@@ -75,6 +76,7 @@
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/frontend/stamp_guard.h"
 #include "uw_multislam/core/frontend/tracking.h"
+#include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/work_queue.h"
@@ -168,6 +170,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   ros::WallTimer watchdog_;
 
   // Worker-only state.
+  std::unique_ptr<core::ImageHasher> hasher_;  // each keyframe's hash, paper (6)(7), for the Keyframe message
   std::unique_ptr<core::SegmentedOdometry> odometry_;  // the stream's odometry, a new session on tracking loss
   core::CameraIntrinsics camera_;
   int session_ = 0;
