@@ -123,7 +123,7 @@ void OdometryNodelet::onInit() {
   if (o.use_altitude_topic) {
     range_sub_.subscribe(nh, topics::kAltitude, o.sync_queue_size);
     range_sub_.registerCallback(boost::function<void(const sensor_msgs::RangeConstPtr&)>(
-        [this](const sensor_msgs::RangeConstPtr&) { ++ranges_in_, last_range_ = wallNow(), images_since_range_ = 0; }));
+        [this](const sensor_msgs::RangeConstPtr&) { ++ranges_in_, images_since_range_ = 0; }));
     sync3_ = std::make_unique<message_filters::Synchronizer<SyncWithAltitude>>(SyncWithAltitude(o.sync_queue_size),
                                                                                image_sub_, info_sub_, range_sub_);
     sync3_->setMaxIntervalDuration(max_interval);
@@ -150,7 +150,6 @@ void OdometryNodelet::onSynced(const sensor_msgs::ImageConstPtr& image, const se
     if (images_since_range_ == 0 || wallNow() - first_image_since_range_ < options_.input_timeout_s) return;
     f.fixed_altitude = true;
   }
-  last_synced_ = wallNow();
   images_since_sync_ = 0;
   queue_->push(std::move(f));
 }

@@ -80,19 +80,12 @@ uw_multislam::Keyframe toKeyframeMsg(const KeyframeData& k, const std_msgs::Head
   const std::size_t n = k.features.size();
   m.u_px.resize(n);
   m.v_px.resize(n);
-  m.x_m.resize(n);
-  m.y_m.resize(n);
   m.response.resize(n);
   for (std::size_t i = 0; i < n; ++i) {
     const cv::KeyPoint& kp = k.features.keypoints[i];
     m.u_px[i] = kp.pt.x;
     m.v_px[i] = kp.pt.y;
     m.response[i] = kp.response;
-    if (k.camera.fx > 0 && k.camera.fy > 0) {
-      const Eigen::Vector2d xy = core::pixelToMetres(kp.pt, k.camera, k.altitude_m);
-      m.x_m[i] = static_cast<float>(xy.x());
-      m.y_m[i] = static_cast<float>(xy.y());
-    }
   }
   const cv::Mat& d = k.features.descriptors;
   m.descriptor_size = static_cast<std::uint32_t>(d.empty() ? core::HalocProjections::kDescriptorSize : d.cols);

@@ -62,10 +62,6 @@ TEST_F(PipelineConversions, KeyframeRoundTripIsLossless) {
   EXPECT_EQ(m.descriptors.size(), k.features.size() * 128);
   EXPECT_DOUBLE_EQ(m.motion_covariance[1], 1e-5);  // row-major (x, y)
   EXPECT_DOUBLE_EQ(m.motion_covariance[7], -3e-6);  // (yaw, y)
-  // The metric coordinates are apply_altitude's.
-  const Eigen::Vector2d xy = core::pixelToMetres(k.features.keypoints[5].pt, camera_, 2.0);
-  EXPECT_NEAR(m.x_m[5], xy.x(), 1e-6);
-  EXPECT_NEAR(m.y_m[5], xy.y(), 1e-6);
 
   rc::KeyframeData back;
   std::string why;

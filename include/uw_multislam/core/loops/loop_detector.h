@@ -101,7 +101,6 @@ class LoopDetector {
   const Eigen::VectorXf& lastHash() const { return last_hash_; }
 
   const ImageHasher& hasher() const { return hasher_; }
-  const HashStore& hashes() const { return hashes_; }
   const LoopStats& stats() const { return stats_; }
   const StageTimes& times() const { return times_; }
   std::size_t size() const { return keyframes_.size(); }

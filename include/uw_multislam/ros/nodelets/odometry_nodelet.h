@@ -154,7 +154,7 @@ class OdometryNodelet : public nodelet::Nodelet {
 
   // Arrivals, written by the callbacks (wall seconds of the last one, 0 = never).
   std::atomic<long> images_in_{0}, infos_in_{0}, ranges_in_{0};
-  std::atomic<double> last_image_{0.0}, last_info_{0.0}, last_range_{0.0}, last_synced_{0.0};
+  std::atomic<double> last_image_{0.0}, last_info_{0.0};
   // Images since the last altitude, and the wall time of the first of them: the altitude topic is
   // silent when images have kept coming without one for ~input_timeout_s (a pause of every input
   // is not a silent altitude).
