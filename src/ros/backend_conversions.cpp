@@ -30,6 +30,7 @@ core::KeyframeInput toKeyframeInput(const KeyframeData& k, double stamp_s) {
   in.features = k.features;
   in.motion = k.motion;
   in.odometry_pose = k.odometry_pose;
+  in.hash = k.hash;  // computed once, by the odometry (empty from older senders: the manager hashes)
   return in;
 }
 

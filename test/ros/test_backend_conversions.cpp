@@ -58,6 +58,7 @@ TEST(BackendConversions, KeyframeDataAsManagerInput) {
   k.camera.width = 320;
   k.motion = core::UncertainPose2(core::Pose2(0.1, 0.2, 0.3), Eigen::Matrix3d::Identity() * 2e-4);
   k.odometry_pose = core::Pose2(1, 2, 0.5);
+  k.hash = Eigen::VectorXf::LinSpaced(384, 0.0f, 1.0f);
   const core::KeyframeInput in = toKeyframeInput(k, 123.5);
   EXPECT_EQ(in.session, 3);
   EXPECT_EQ(in.keyframe, 7);
@@ -68,6 +69,8 @@ TEST(BackendConversions, KeyframeDataAsManagerInput) {
   EXPECT_DOUBLE_EQ(in.motion.mean.yaw(), 0.3);
   EXPECT_DOUBLE_EQ(in.motion.covariance(1, 1), 2e-4);
   EXPECT_DOUBLE_EQ(in.odometry_pose.y(), 2.0);
+  ASSERT_EQ(in.hash.size(), 384);
+  EXPECT_FLOAT_EQ(in.hash(383), 1.0f);
 }
 
 }  // namespace
