@@ -5,11 +5,13 @@
 
 #include <pluginlib/class_list_macros.hpp>
 
+#include <cstdio>
+#include <utility>
+
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/SessionTrajectory.h"
 #include "uw_multislam/ros/backend_conversions.h"
 #include "uw_multislam/ros/conversions.h"
-#include "uw_multislam/ros/pipeline_conversions.h"
 #include "uw_multislam/ros/slam_params.h"
 #include "uw_multislam/ros/topics.h"
 
@@ -20,10 +22,14 @@ namespace rc = ros_conversions;
 
 BackendNodelet::~BackendNodelet() {
   diagnostic_timer_.stop();
+  stats_timer_.stop();
   keyframe_sub_.shutdown();
   loop_sub_.shutdown();
   pose_sub_.shutdown();
-  if (queue_) queue_->close();  // the worker processes what is queued, then stops
+  if (queue_) {
+    say("unloading: " + std::to_string(queue_->size()) + " messages queued, processed before the maps are saved");
+    queue_->close();  // the worker processes what is queued, then stops
+  }
   if (worker_.joinable()) worker_.join();
   if (!manager_) return;
   std::lock_guard<std::mutex> lock(state_mutex_);
@@ -32,21 +38,8 @@ BackendNodelet::~BackendNodelet() {
 }
 
 void BackendNodelet::readParameters() {
-  ros::NodeHandle& pnh = getPrivateNodeHandle();
   ros::NodeHandle& nh = getNodeHandle();
-  using ros_params::param;
-  auto nonempty = [](const std::string& s) { return !s.empty(); };
-  auto count = [](int v) { return v >= 1 && v <= 1000000; };
-  map_frame_ = param(nh, "frames/map_frame", std::string("map"), nonempty, "a frame id");
-  session_prefix_ = param(nh, "frames/session_frame_prefix", std::string("session_"), nonempty, "a frame id prefix");
-  base_frame_ = param(nh, "frames/base_frame", std::string("base_link"), nonempty, "a frame id");
-  queue_size_ = param(pnh, "queue_size", 1000, count, "in [1, 1000000]");
-  max_waiting_loops_ = param(pnh, "max_waiting_loops", 1000, count, "in [1, 1000000]");
-  max_keyframe_gap_ = param(pnh, "max_keyframe_gap", 1000, count, "in [1, 1000000]");
-  publish_tf_ = param(pnh, "publish_tf", true, [](bool) { return true; }, "a bool");
-  stats_period_s_ = param(pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
-  diagnostic_period_s_ = param(pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
-  store_path_ = param(pnh, "store_path", ros_params::defaultStorePath(), [](const std::string&) { return true; }, "a path");
+  options_ = ros_params::backendNodeletOptions(nh, getPrivateNodeHandle());
   config_ = ros_params::slamConfigFromParams(nh);
   const std::string bad = config_.validate();
   if (!bad.empty()) throw std::invalid_argument(nh.resolveName("slam") + ": " + bad);
@@ -58,31 +51,32 @@ void BackendNodelet::onInit() {
   // whole nodelet manager down with it).
   try {
     readParameters();
-    core::SessionManagerOptions options = core::sessionManagerOptions(config_, store_path_);
-    options.max_keyframe_gap = max_keyframe_gap_;
+    core::SessionManagerOptions options = core::sessionManagerOptions(config_, options_.store_path);
+    options.max_keyframe_gap = options_.max_keyframe_gap;
     manager_ = std::make_unique<core::SessionManager>(
-        options, [this](const core::SessionEvent& e) { onEvent(e); },
-        [this](const std::string& line) { NODELET_INFO("back-end: %s", line.c_str()); });
+        options, [this](const core::SessionEvent& e) { onEvent(e); }, [this](const std::string& line) { say(line); });
   } catch (const std::exception& e) {
-    NODELET_FATAL("back-end: not starting (no topics, no services): %s%s", e.what(),
-                  store_path_.empty() ? "" : " (set ~store_path to another file, or \"\" to run without a store)");
+    NODELET_FATAL(
+        "back-end: not starting (no topics, no services): %s%s", e.what(),
+        options_.store_path.empty() ? "" : " (set ~store_path to another file, or \"\" to run without a store)");
     return;
   }
-  if (store_path_.empty()) NODELET_WARN("back-end: no session store (~store_path is empty): sessions live in memory only");
+  if (options_.store_path.empty()) NODELET_WARN("back-end: no session store (~store_path empty): in memory only");
   const auto& b = config_.backend;
   NODELET_INFO(
       "back-end: optimiser %s (optimise %s, every %d pending loops), join after %d global loops (gate %.2f m), "
       "frames %s -> %s<id> -> %s, tf %s, queue_size %d, store %s",
       core::optimizerName(b.optimizer), b.optimise ? "on" : "off", b.optimise_every, b.join_min_loops, b.join_gate_m,
-      map_frame_.c_str(), session_prefix_.c_str(), base_frame_.c_str(), publish_tf_ ? "on" : "off", queue_size_,
-      store_path_.empty() ? "none" : store_path_.c_str());
+      options_.map_frame.c_str(), options_.session_frame_prefix.c_str(), options_.base_frame.c_str(),
+      options_.publish_tf ? "on" : "off", options_.queue_size,
+      options_.store_path.empty() ? "none" : options_.store_path.c_str());
   ros::NodeHandle& nh = getNodeHandle();
   trajectory_pub_ = nh.advertise<uw_multislam::SessionTrajectory>(topics::kSessionTrajectory, 10);
   markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>(topics::kLoopMarkers, 1, true);
   pose_pub_ = nh.advertise<geometry_msgs::PoseStamped>(topics::kCurrentPose, 10);
   active_pub_ = nh.advertise<uw_multislam::SessionState>(topics::kActiveSession, 1, true);
   reloaded_pub_ = nh.advertise<uw_multislam::Keyframe>(topics::kReloadedKeyframes, 10000);
-  if (publish_tf_) tf_ = std::make_unique<tf2_ros::TransformBroadcaster>();
+  if (options_.publish_tf) tf_ = std::make_unique<tf2_ros::TransformBroadcaster>();
   if (manager_->restoredSessions() > 0) {
     std::lock_guard<std::mutex> lock(state_mutex_);
     publishAll(true);
@@ -96,40 +90,35 @@ void BackendNodelet::onInit() {
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
   updater_->setHardwareID("none");
   updater_->add("backend", this, &BackendNodelet::fillDiagnostics);
-  diagnostic_timer_ = nh.createWallTimer(ros::WallDuration(diagnostic_period_s_),
+  diagnostic_timer_ = nh.createWallTimer(ros::WallDuration(options_.diagnostic_period_s),
                                          [this](const ros::WallTimerEvent&) { updater_->force_update(); });
-  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Message>>(queue_size_);
+  stats_timer_ = nh.createWallTimer(ros::WallDuration(options_.stats_period_s), [this](const ros::WallTimerEvent&) {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    logStats("so far");
+  });
+  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Message>>(options_.queue_size);
   worker_ = std::thread([this] { work(); });
-  keyframe_sub_ = nh.subscribe<uw_multislam::Keyframe>(topics::kKeyframes, 100,
-                                                       [this](const uw_multislam::KeyframeConstPtr& m) { queue_->push(m); });
-  loop_sub_ = nh.subscribe<uw_multislam::Loop>(topics::kLoops, 100,
-                                               [this](const uw_multislam::LoopConstPtr& m) { queue_->push(m); });
+  auto push = [this](const auto& m) { queue_->push(Message(m)); };  // keyframes and loops keep their order
+  keyframe_sub_ = nh.subscribe<uw_multislam::Keyframe>(topics::kKeyframes, 100, push);
+  loop_sub_ = nh.subscribe<uw_multislam::Loop>(topics::kLoops, 100, push);
   pose_sub_ = nh.subscribe(topics::kOdometryPose, 10, &BackendNodelet::onOdometryPose, this);
 }
 
 void BackendNodelet::work() {
-  last_stats_ = ros::WallTime::now();
   Message m;
   while (queue_->pop(&m)) {
     std::lock_guard<std::mutex> lock(state_mutex_);
     try {
       if (const auto* k = std::get_if<uw_multislam::KeyframeConstPtr>(&m)) {
         processKeyframe(**k);
-        std::deque<uw_multislam::LoopConstPtr> retry;
-        retry.swap(waiting_);
-        for (const auto& l : retry) processLoop(l, true);
+        for (const auto& l : std::exchange(waiting_, {})) processLoop(l, true);  // their keyframe may be here
       } else {
         processLoop(std::get<uw_multislam::LoopConstPtr>(m), false);
       }
-      publishAll(publish_all_);
-      publish_all_ = false;
+      publishAll(std::exchange(publish_all_, false));
     } catch (const std::exception& e) {
       ++counts_.bad;
       NODELET_ERROR_THROTTLE(5, "back-end: message skipped: %s", e.what());
-    }
-    if ((ros::WallTime::now() - last_stats_).toSec() > stats_period_s_) {
-      logStats("so far");
-      last_stats_ = ros::WallTime::now();
     }
   }
 }
@@ -141,7 +130,8 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
   const bool ok = rc::fromMsg(msg, &k, &why);
   const core::Status st = ok ? manager_->addKeyframe(rc::toKeyframeInput(k, msg.header.stamp.toSec())) : core::Status();
   counts_.bad += ok ? 0 : 1;
-  if (!ok || !st.ok()) NODELET_WARN_THROTTLE(5, "back-end: keyframe skipped: %s", ok ? st.message.c_str() : why.c_str());
+  if (!ok || !st.ok())
+    NODELET_WARN_THROTTLE(5, "back-end: keyframe skipped: %s", ok ? st.message.c_str() : why.c_str());
 }
 
 void BackendNodelet::processLoop(const uw_multislam::LoopConstPtr& msg, bool retry) {
@@ -156,10 +146,9 @@ void BackendNodelet::processLoop(const uw_multislam::LoopConstPtr& msg, bool ret
   bool waiting = false;
   const core::Status st = manager_->addLoop(l, &waiting);
   if (waiting) {
-    if (static_cast<int>(waiting_.size()) >= max_waiting_loops_) {
-      waiting_.pop_front();
-      ++counts_.waiting_dropped;
-    }
+    const bool full = static_cast<int>(waiting_.size()) >= options_.max_waiting_loops;
+    if (full) waiting_.pop_front();  // the oldest, counted
+    counts_.waiting_dropped += full ? 1 : 0;
     waiting_.push_back(msg);
   } else if (!st.ok()) {
     NODELET_WARN_THROTTLE(5, "back-end: %s", st.message.c_str());
@@ -168,10 +157,9 @@ void BackendNodelet::processLoop(const uw_multislam::LoopConstPtr& msg, bool ret
 
 void BackendNodelet::onEvent(const core::SessionEvent& e) {
   using K = core::SessionEvent::Kind;
-  if (e.kind != K::kKeyframeAdded && e.kind != K::kLoopAccepted) publish_all_ = true;
-  if (e.kind == K::kSessionStarted || e.kind == K::kSessionEnded || e.kind == K::kMapsJoined ||
-      e.kind == K::kMapSplit || e.kind == K::kLoopRefused)
-    NODELET_INFO("back-end: %s: %s", core::sessionEventName(e.kind), e.message.c_str());
+  const bool changed = e.kind != K::kKeyframeAdded && e.kind != K::kLoopAccepted;  // every session to publish
+  publish_all_ = publish_all_ || changed;
+  if (changed && e.kind != K::kMapOptimised) say(std::string(core::sessionEventName(e.kind)) + ": " + e.message);
 }
 
 void BackendNodelet::publishSession(int id) {
@@ -181,17 +169,19 @@ void BackendNodelet::publishSession(int id) {
   for (double s : manager_->stamps(id)) stamps.emplace_back(std::max(0.0, s));
   const ros::Time now = stamps.empty() ? ros::Time::now() : stamps.back();
   trajectory_pub_.publish(rc::toSessionTrajectoryMsg(id, manager_->mapOf(id), manager_->posesInSessionFrame(id), now,
-                                                    session_prefix_ + std::to_string(id)));
+                                                     options_.session_frame_prefix + std::to_string(id)));
   auto pub = path_pubs_.find(id);
   if (pub == path_pubs_.end())
-    pub = path_pubs_.emplace(id, getNodeHandle().advertise<nav_msgs::Path>(
-                                     topics::kSessionPathPrefix + std::to_string(id), 1, true)).first;
-  pub->second.publish(rc::toPathMsg(poses, stamps, map_frame_, now));
+    pub = path_pubs_
+              .emplace(id, getNodeHandle().advertise<nav_msgs::Path>(topics::kSessionPathPrefix + std::to_string(id), 1,
+                                                                     true))
+              .first;
+  pub->second.publish(rc::toPathMsg(poses, stamps, options_.map_frame, now));
   if (tf_) {
     geometry_msgs::TransformStamped tr;
     tr.header.stamp = now;
-    tr.header.frame_id = map_frame_;
-    tr.child_frame_id = session_prefix_ + std::to_string(id);
+    tr.header.frame_id = options_.map_frame;
+    tr.child_frame_id = options_.session_frame_prefix + std::to_string(id);
     tr.transform = rc::toTransformMsg(correction);
     tf_->sendTransform(tr);
   }
@@ -209,7 +199,7 @@ void BackendNodelet::publishAll(bool all_sessions) {
     publishSession(manager_->activeSession());
   }
   if (!all_sessions && manager_->loops().empty()) return;
-  markers_pub_.publish(rc::toMarkerArrayMsg(rc::loopSegments(*manager_), map_frame_, ros::Time::now()));
+  markers_pub_.publish(rc::toMarkerArrayMsg(rc::loopSegments(*manager_), options_.map_frame, ros::Time::now()));
 }
 
 void BackendNodelet::announceNextSession() {
@@ -234,14 +224,14 @@ void BackendNodelet::onOdometryPose(const geometry_msgs::PoseStampedConstPtr& ms
   }
   geometry_msgs::PoseStamped p;
   p.header.stamp = msg->header.stamp;
-  p.header.frame_id = map_frame_;
+  p.header.frame_id = options_.map_frame;
   p.pose = rc::toPoseMsg(core::compose(corr, odo));
   pose_pub_.publish(p);
   if (!tf_) return;
   geometry_msgs::TransformStamped tr;
   tr.header.stamp = msg->header.stamp;
-  tr.header.frame_id = session_prefix_ + std::to_string(active);
-  tr.child_frame_id = base_frame_;
+  tr.header.frame_id = options_.session_frame_prefix + std::to_string(active);
+  tr.child_frame_id = options_.base_frame;
   tr.transform = rc::toTransformMsg(odo);
   tf_->sendTransform(tr);
 }
@@ -294,7 +284,7 @@ bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_mult
   for (const core::StoredKeyframe& k : r.keyframes) {
     std_msgs::Header h;
     h.stamp = ros::Time(std::max(0.0, k.stamp_s));
-    h.frame_id = session_prefix_ + std::to_string(r.id);
+    h.frame_id = options_.session_frame_prefix + std::to_string(r.id);
     reloaded_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::toKeyframeMsg(rc::reloadedKeyframe(r, k), h)));
   }
   NODELET_INFO("back-end: reload_session '%s': session %d, %zu keyframes handed to the loop detector", req.name.c_str(),
@@ -308,7 +298,8 @@ std::vector<ros_diagnostics::Counter> BackendNodelet::counters() const {
   int unloaded = 0;
   for (const core::SessionSummary& s : manager_->list()) unloaded += s.state == core::SessionState::kUnloaded;
   auto d = [](auto v) { return static_cast<double>(v); };
-  return {{"keyframes_received", d(counts_.keyframes)},
+  return {{"messages_received", d(queue_ ? queue_->pushed() : 0)},
+          {"keyframes_received", d(counts_.keyframes)},
           {"keyframes_stale", d(m.keyframes_stale), true},
           {"keyframes_refused", d(m.keyframes_refused), true},
           {"keyframe_gaps", d(m.keyframe_gaps), true},
@@ -333,14 +324,24 @@ std::vector<ros_diagnostics::Counter> BackendNodelet::counters() const {
 void BackendNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat) {
   std::lock_guard<std::mutex> lock(state_mutex_);
   stat.add("optimizer", core::optimizerName(config_.backend.optimizer));
-  stat.add("store", manager_->hasStore() ? store_path_ : std::string("none"));
+  stat.add("store", manager_->hasStore() ? options_.store_path : std::string("none"));
   diagnostic_status_.fill(stat, counters(), ros::WallTime::now().toSec());
 }
 
 void BackendNodelet::logStats(const char* when) {
-  std::string line;
-  for (const ros_diagnostics::Counter& c : counters()) line += " " + c.key + " " + ros_diagnostics::formatValue(c.value);
-  NODELET_INFO("back-end %s:%s", when, line.c_str());
+  std::string line = std::string("counters ") + when + ":";
+  for (const ros_diagnostics::Counter& c : counters())
+    line += " " + c.key + " " + ros_diagnostics::formatValue(c.value);
+  say(line);
+}
+
+void BackendNodelet::say(const std::string& line) const {
+  // After ros::shutdown() (SIGINT of a standalone node) rosconsole is shut down and drops every
+  // line: the unload's own report then goes to stderr, so the operator sees what was saved.
+  if (ros::isShuttingDown() || !ros::ok())
+    std::fprintf(stderr, "[ INFO] back-end: %s\n", line.c_str());
+  else
+    NODELET_INFO("back-end: %s", line.c_str());
 }
 
 }  // namespace nodelets

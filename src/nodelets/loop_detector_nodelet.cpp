@@ -28,28 +28,18 @@ LoopDetectorNodelet::~LoopDetectorNodelet() {
 }
 
 void LoopDetectorNodelet::readParameters() {
-  ros::NodeHandle& pnh = getPrivateNodeHandle();
-  using ros_params::param;
-  mode_ = param(pnh, "mode", std::string("both"),
-                [](const std::string& m) { return m == "both" || m == "local" || m == "global"; },
-                "one of both, local, global");
-  queue_size_ = param(pnh, "queue_size", 100, [](int v) { return v >= 1 && v <= 100000; }, "in [1, 100000]");
-  max_keyframe_gap_ =
-      param(pnh, "max_keyframe_gap", 1000, [](int v) { return v >= 1 && v <= 1000000; }, "in [1, 1000000]");
-  stats_period_s_ = param(pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
-  diagnostic_period_s_ = param(pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
+  options_ = ros_params::loopDetectorNodeletOptions(getPrivateNodeHandle());
   config_ = ros_params::slamConfigFromParams(getNodeHandle());
   const std::string bad = config_.validate();
   if (!bad.empty()) throw std::invalid_argument(getNodeHandle().resolveName("slam") + ": " + bad);
-  config_.loops.local.enabled = config_.loops.local.enabled && mode_ != "global";
-  config_.loops.global.enabled = config_.loops.global.enabled && mode_ != "local";
-  publish_hashes_ = mode_ != "local";
+  config_.loops.local.enabled = config_.loops.local.enabled && options_.mode != "global";
+  config_.loops.global.enabled = config_.loops.global.enabled && options_.mode != "local";
 }
 
 void LoopDetectorNodelet::onInit() {
   try {
     readParameters();
-    queue_ = std::make_unique<ros_work::BoundedWorkQueue<Work>>(static_cast<std::size_t>(queue_size_));
+    queue_ = std::make_unique<ros_work::BoundedWorkQueue<Work>>(static_cast<std::size_t>(options_.queue_size));
     detector_ = std::make_unique<core::LoopDetector>(config_.loops, config_.odometry.matching, config_.odometry.ransac,
                                                      config_.odometry.features.num_features);
   } catch (const std::exception& e) {
@@ -61,18 +51,19 @@ void LoopDetectorNodelet::onInit() {
       "loop detector: mode %s (local %s: radius %.2f m up to %.2f m, %d candidates, %d inliers; global %s: "
       "hash %s, best_k %d, %d inliers, seed %llu), queue_size %d (oldest dropped when full), max_keyframe_gap %d, "
       "hashes %s",
-      mode_.c_str(), l.local.enabled ? "on" : "off", l.local.radius_m, l.local.max_radius_m, l.local.max_candidates,
-      l.local.min_inliers, l.global.enabled ? "on" : "off", core::hashModeName(l.global.hash_mode).c_str(),
-      l.global.best_k, l.global.min_inliers, static_cast<unsigned long long>(l.global.projection_seed), queue_size_,
-      max_keyframe_gap_, publish_hashes_ ? "published" : "not published");
+      options_.mode.c_str(), l.local.enabled ? "on" : "off", l.local.radius_m, l.local.max_radius_m,
+      l.local.max_candidates, l.local.min_inliers, l.global.enabled ? "on" : "off",
+      core::hashModeName(l.global.hash_mode).c_str(), l.global.best_k, l.global.min_inliers,
+      static_cast<unsigned long long>(l.global.projection_seed), options_.queue_size, options_.max_keyframe_gap,
+      options_.publishHashes() ? "published" : "not published");
 
   ros::NodeHandle& nh = getNodeHandle();
   loop_pub_ = nh.advertise<uw_multislam::Loop>(topics::kLoops, 100);
-  if (publish_hashes_) hash_pub_ = nh.advertise<uw_multislam::KeyframeHash>(topics::kKeyframeHashes, 100);
+  if (options_.publishHashes()) hash_pub_ = nh.advertise<uw_multislam::KeyframeHash>(topics::kKeyframeHashes, 100);
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
   updater_->setHardwareID("none");
   updater_->add("loop_detector", this, &LoopDetectorNodelet::fillDiagnostics);
-  diagnostic_timer_ = nh.createWallTimer(ros::WallDuration(diagnostic_period_s_),
+  diagnostic_timer_ = nh.createWallTimer(ros::WallDuration(options_.diagnostic_period_s),
                                          [this](const ros::WallTimerEvent&) { updater_->force_update(); });
   worker_ = std::thread([this] { work(); });
   keyframe_sub_ = nh.subscribe(topics::kKeyframes, 100, &LoopDetectorNodelet::onKeyframe, this);
@@ -123,8 +114,8 @@ void LoopDetectorNodelet::work() {
       }
     } catch (const std::exception& e) {
       ++counts_.bad;
-      NODELET_ERROR_THROTTLE(5, "loop detector: keyframe %d of session %d skipped: %s", w.msg->keyframe,
-                             w.msg->session, e.what());
+      NODELET_ERROR_THROTTLE(5, "loop detector: keyframe %d of session %d skipped: %s", w.msg->keyframe, w.msg->session,
+                             e.what());
     }
     const double ms = (ros::WallTime::now() - start).toSec() * 1e3;
     counts_.total_ms += ms;
@@ -137,7 +128,7 @@ void LoopDetectorNodelet::work() {
       std::lock_guard<std::mutex> lock(stats_mutex_);
       published_ = counts_;
     }
-    if ((ros::WallTime::now() - last_stats_).toSec() >= stats_period_s_) {
+    if ((ros::WallTime::now() - last_stats_).toSec() >= options_.stats_period_s) {
       logStats("so far");
       last_stats_ = ros::WallTime::now();
     }
@@ -145,7 +136,7 @@ void LoopDetectorNodelet::work() {
 }
 
 LoopDetectorNodelet::Session& LoopDetectorNodelet::session(int id) {
-  return sessions_.try_emplace(id, max_keyframe_gap_).first->second;
+  return sessions_.try_emplace(id, options_.max_keyframe_gap).first->second;
 }
 
 std::vector<core::Pose2> LoopDetectorNodelet::optimisedPoses(int session) {
@@ -183,19 +174,21 @@ void LoopDetectorNodelet::process(const uw_multislam::Keyframe& msg) {
       break;
     case core::SessionChain::Append::kStale:
       ++counts_.bad;
-      NODELET_WARN_THROTTLE(5, "loop detector: keyframe %d of session %d skipped: not after keyframe %d (%ld bad so far)",
+      NODELET_WARN_THROTTLE(5,
+                            "loop detector: keyframe %d of session %d skipped: not after keyframe %d (%ld bad so far)",
                             k.keyframe, k.session, before - 1, counts_.bad);
       return;
     case core::SessionChain::Append::kTooFar:
       ++counts_.bad;
-      NODELET_WARN_THROTTLE(5, "loop detector: keyframe %d of session %d skipped: the id jumped too far, more than "
+      NODELET_WARN_THROTTLE(5,
+                            "loop detector: keyframe %d of session %d skipped: the id jumped too far, more than "
                             "~max_keyframe_gap %d keyframes after keyframe %d (a corrupt id?) (%ld bad so far)",
-                            k.keyframe, k.session, max_keyframe_gap_, before - 1, counts_.bad);
+                            k.keyframe, k.session, options_.max_keyframe_gap, before - 1, counts_.bad);
       return;
   }
   if (s.cameras.empty() || s.cameras.back().width != k.camera.width || s.cameras.back().fx != k.camera.fx ||
-      s.cameras.back().fy != k.camera.fy || s.cameras.back().cx != k.camera.cx ||
-      s.cameras.back().cy != k.camera.cy || s.cameras.back().height != k.camera.height) {
+      s.cameras.back().fy != k.camera.fy || s.cameras.back().cx != k.camera.cx || s.cameras.back().cy != k.camera.cy ||
+      s.cameras.back().height != k.camera.height) {
     s.cameras.push_back(k.camera);
   }
   const core::Trajectory trajectory = s.chain.candidateTrajectory(optimisedPoses(k.session));
@@ -205,10 +198,10 @@ void LoopDetectorNodelet::process(const uw_multislam::Keyframe& msg) {
   for (const core::Loop& l : loops) {
     loop_pub_.publish(boost::make_shared<uw_multislam::Loop>(rc::toLoopMsg(l, msg.header)));
     ++(l.kind == core::Loop::Kind::kLocal ? counts_.local : counts_.global);
-    NODELET_DEBUG("loop detector: %s loop %d/%d -> %d/%d, %d inliers", core::loopKindName(l.kind).c_str(),
-                  l.session_a, l.keyframe_a, l.session_b, l.keyframe_b, l.inliers);
+    NODELET_DEBUG("loop detector: %s loop %d/%d -> %d/%d, %d inliers", core::loopKindName(l.kind).c_str(), l.session_a,
+                  l.keyframe_a, l.session_b, l.keyframe_b, l.inliers);
   }
-  if (publish_hashes_) {
+  if (options_.publishHashes()) {
     rc::KeyframeHashData h;
     h.session = k.session;
     h.keyframe = k.keyframe;
@@ -230,7 +223,7 @@ void LoopDetectorNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWr
   }
   const long dropped = queue_->dropped(), queued = static_cast<long>(queue_->size());
   const double n = static_cast<double>(c.keyframes);
-  stat.add("mode", mode_);
+  stat.add("mode", options_.mode);
   diagnostic_status_.fill(stat,
                           {{"keyframes_received", n},
                            {"dropped_queue_full", static_cast<double>(dropped), true},
@@ -255,7 +248,7 @@ void LoopDetectorNodelet::logStats(const char* when) {
   NODELET_INFO(
       "loop detector (%s) %s: %ld keyframes received, %ld dropped (queue full), %ld bad, %ld id gaps; "
       "%ld local loops (%d candidates), %ld global loops (%d candidates), %ld hashes, %zu keyframes stored",
-      mode_.c_str(), when, counts_.keyframes, counts_.dropped, counts_.bad, counts_.gaps, counts_.local,
+      options_.mode.c_str(), when, counts_.keyframes, counts_.dropped, counts_.bad, counts_.gaps, counts_.local,
       s.local_candidates, counts_.global, s.global_candidates, counts_.hashes, detector_->size());
 }
 

@@ -11,10 +11,18 @@ namespace {
 
 void emit(YAML::Emitter& out, XmlRpc::XmlRpcValue& v) {
   switch (v.getType()) {
-    case XmlRpc::XmlRpcValue::TypeBoolean: out << static_cast<bool>(v); break;
-    case XmlRpc::XmlRpcValue::TypeInt: out << static_cast<int>(v); break;
-    case XmlRpc::XmlRpcValue::TypeDouble: out << static_cast<double>(v); break;
-    case XmlRpc::XmlRpcValue::TypeString: out << static_cast<std::string>(v); break;
+    case XmlRpc::XmlRpcValue::TypeBoolean:
+      out << static_cast<bool>(v);
+      break;
+    case XmlRpc::XmlRpcValue::TypeInt:
+      out << static_cast<int>(v);
+      break;
+    case XmlRpc::XmlRpcValue::TypeDouble:
+      out << static_cast<double>(v);
+      break;
+    case XmlRpc::XmlRpcValue::TypeString:
+      out << static_cast<std::string>(v);
+      break;
     case XmlRpc::XmlRpcValue::TypeArray:
       out << YAML::Flow << YAML::BeginSeq;
       for (int i = 0; i < v.size(); ++i) emit(out, v[i]);
@@ -28,7 +36,9 @@ void emit(YAML::Emitter& out, XmlRpc::XmlRpcValue& v) {
       }
       out << YAML::EndMap;
       break;
-    default: out << YAML::Null; break;  // invalid, date-time, base64: not in our parameters
+    default:
+      out << YAML::Null;
+      break;  // invalid, date-time, base64: not in our parameters
   }
 }
 
@@ -55,6 +65,44 @@ core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::stri
   XmlRpc::XmlRpcValue tree;
   if (!nh.getParam(key, tree)) return core::SlamConfig();
   return slamConfigFromXmlRpc(tree, nh.resolveName(key));
+}
+
+BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros::NodeHandle& pnh) {
+  BackendNodeletOptions o;
+  auto nonempty = [](const std::string& s) { return !s.empty(); };
+  auto count = [](int v) { return v >= 1 && v <= 1000000; };
+  o.map_frame = param(nh, "frames/map_frame", std::string("map"), nonempty, "a frame id");
+  o.session_frame_prefix =
+      param(nh, "frames/session_frame_prefix", std::string("session_"), nonempty, "a frame id prefix");
+  o.base_frame = param(nh, "frames/base_frame", std::string("base_link"), nonempty, "a frame id");
+  o.queue_size = param(pnh, "queue_size", 1000, count, "in [1, 1000000]");
+  o.max_waiting_loops = param(pnh, "max_waiting_loops", 1000, count, "in [1, 1000000]");
+  o.max_keyframe_gap = param(pnh, "max_keyframe_gap", 1000, count, "in [1, 1000000]");
+  o.publish_tf = param(
+      pnh, "publish_tf", true, [](bool) { return true; }, "a bool");
+  o.stats_period_s = param(
+      pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
+  o.diagnostic_period_s = param(
+      pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
+  o.store_path = param(
+      pnh, "store_path", ros_params::defaultStorePath(), [](const std::string&) { return true; }, "a path");
+  return o;
+}
+
+LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh) {
+  LoopDetectorNodeletOptions o;
+  o.mode = param(
+      pnh, "mode", std::string("both"),
+      [](const std::string& m) { return m == "both" || m == "local" || m == "global"; }, "one of both, local, global");
+  o.queue_size = param(
+      pnh, "queue_size", 100, [](int v) { return v >= 1 && v <= 100000; }, "in [1, 100000]");
+  o.max_keyframe_gap = param(
+      pnh, "max_keyframe_gap", 1000, [](int v) { return v >= 1 && v <= 1000000; }, "in [1, 1000000]");
+  o.stats_period_s = param(
+      pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
+  o.diagnostic_period_s = param(
+      pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
+  return o;
 }
 
 std::string defaultStorePath() {

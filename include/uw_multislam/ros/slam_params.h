@@ -28,6 +28,32 @@ core::SlamConfig slamConfigFromXmlRpc(const XmlRpc::XmlRpcValue& tree, const std
 /// Throws std::invalid_argument "<resolved key>: <reason>" for an unknown key or a bad value.
 core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::string& key = "slam");
 
+/// The nodelet's own parameters (~ private ones and the shared frames/ block; config/default.yaml
+/// documents each), read once by backendNodeletOptions(). The algorithms' are core::SlamConfig.
+struct BackendNodeletOptions {
+  std::string store_path;  // "" = no store; default $ROS_HOME/uw_multislam/sessions.db
+  std::string map_frame = "map", session_frame_prefix = "session_", base_frame = "base_link";
+  int queue_size = 1000, max_waiting_loops = 1000, max_keyframe_gap = 1000;
+  bool publish_tf = true;
+  double stats_period_s = 30.0, diagnostic_period_s = 1.0;
+};
+
+/// Reads and validates the back-end nodelet's parameters (std::invalid_argument naming the key).
+BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros::NodeHandle& pnh);
+
+/// The loop-detector nodelet's own parameters (~ private; config/default.yaml documents each).
+struct LoopDetectorNodeletOptions {
+  std::string mode = "both";    // both, local (same-session loops) or global (other sessions, hashes)
+  int queue_size = 100;         // keyframes waiting for the worker (oldest dropped when full)
+  int max_keyframe_gap = 1000;  // the most lost keyframes a gap in the ids may bridge
+  double stats_period_s = 30.0;
+  double diagnostic_period_s = 1.0;
+  bool publishHashes() const { return mode != "local"; }
+};
+
+/// Reads and validates the loop-detector nodelet's parameters (std::invalid_argument naming the key).
+LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh);
+
 /// The session store's default path: $ROS_HOME/uw_multislam/sessions.db (ROS_HOME defaulting to
 /// ~/.ros, as roslaunch's logs).
 std::string defaultStorePath();

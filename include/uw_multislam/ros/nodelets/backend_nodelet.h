@@ -66,6 +66,7 @@
 #include "uw_multislam/StartSession.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/ros/diagnostics.h"
+#include "uw_multislam/ros/slam_params.h"
 #include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
@@ -99,16 +100,15 @@ class BackendNodelet : public nodelet::Nodelet {
   /// Every counter, for /diagnostics and the periodic log line (under state_mutex_).
   std::vector<ros_diagnostics::Counter> counters() const;
   void logStats(const char* when);
+  /// One INFO line, also when rosconsole is already shut down (see the .cpp).
+  void say(const std::string& line) const;
   void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
   core::SlamConfig config_;
-  std::string store_path_, map_frame_ = "map", session_prefix_ = "session_", base_frame_ = "base_link";
-  int queue_size_ = 1000, max_waiting_loops_ = 1000, max_keyframe_gap_ = 1000;
-  bool publish_tf_ = true;
-  double stats_period_s_ = 30.0, diagnostic_period_s_ = 1.0;
+  ros_params::BackendNodeletOptions options_;
   std::unique_ptr<diagnostic_updater::Updater> updater_;
   ros_diagnostics::CounterStatus diagnostic_status_;  // the timer's thread only
-  ros::WallTimer diagnostic_timer_;
+  ros::WallTimer diagnostic_timer_, stats_timer_;
 
   std::unique_ptr<ros_work::BoundedWorkQueue<Message>> queue_;
   std::thread worker_;
@@ -118,7 +118,6 @@ class BackendNodelet : public nodelet::Nodelet {
   std::deque<uw_multislam::LoopConstPtr> waiting_;
   bool publish_all_ = false;  // an event asked for every session to be published
   Counters counts_;
-  ros::WallTime last_stats_;
 
   std::mutex snapshot_mutex_;  // the per-frame pose's snapshot
   int snapshot_session_ = -1;

@@ -55,6 +55,7 @@
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
+#include "uw_multislam/ros/slam_params.h"
 #include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
@@ -99,12 +100,7 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   void logStats(const char* when);
   void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
-  std::string mode_ = "both";
-  int queue_size_ = 100;
-  int max_keyframe_gap_ = 1000;  // the most lost keyframes a gap in the ids may bridge
-  double stats_period_s_ = 30.0;
-  double diagnostic_period_s_ = 1.0;
-  bool publish_hashes_ = true;
+  ros_params::LoopDetectorNodeletOptions options_;
   core::SlamConfig config_;
   std::unique_ptr<core::LoopDetector> detector_;
 

@@ -1,0 +1,139 @@
+#!/usr/bin/python3
+"""rostest: a clean shutdown of the back-end loses nothing that was queued.
+
+The back-end node (standalone, its own session store) receives N keyframes with features and a
+local loop per keyframe, far faster than it stores and optimises them. As soon as its
+/diagnostics say every message has been received (messages_received), it gets SIGINT. It must
+then process what is still queued, save the maps and exit: the store holds all N keyframes and
+all the loops, and the node's log says how many messages were still queued at the close (more
+than zero, or the run did not exercise the drain: then it is repeated with more keyframes).
+"""
+import os
+import re
+import shutil
+import signal
+import sqlite3
+import subprocess
+import tempfile
+import time
+import unittest
+
+import rospy
+import rostest
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Pose2D
+from pipeline_fixture import tool
+from uw_multislam.msg import Keyframe, Loop
+
+NS = "/shutdown_test"
+FEATURES = 300
+
+
+def keyframe(k):
+    m = Keyframe()
+    m.header.stamp = rospy.Time(1000 + k)
+    m.header.frame_id = "camera"
+    m.session, m.keyframe, m.frame_index, m.altitude_m = 0, k, k, 2.0
+    m.width, m.height, m.fx, m.fy, m.cx, m.cy = 320, 240, 300.0, 300.0, 159.5, 119.5
+    m.u_px = [float((7 * i) % 320) for i in range(FEATURES)]
+    m.v_px = [float((13 * i) % 240) for i in range(FEATURES)]
+    m.response = [float(FEATURES - i) for i in range(FEATURES)]
+    m.descriptor_size = 128
+    m.descriptors = os.urandom(128 * FEATURES)
+    m.odometry_pose = Pose2D(0.5 * k, 0.0, 0.0)
+    if k > 0:
+        m.motion = Pose2D(0.5, 0.0, 0.0)
+        m.motion_covariance = [1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-4]
+        m.status, m.matches, m.inliers, m.overlap, m.scale = Keyframe.MATCHED, 200, 150, 0.8, 1.0
+    else:
+        m.status, m.scale = Keyframe.FIRST, 1.0
+    return m
+
+
+def loop(k):
+    """Keyframe k seen from keyframe k - 2: one metre ahead."""
+    m = Loop()
+    m.header.stamp = rospy.Time(1000 + k)
+    m.kind = Loop.LOCAL
+    m.session_a, m.keyframe_a, m.frame_a = 0, k - 2, k - 2
+    m.session_b, m.keyframe_b, m.frame_b = 0, k, k
+    m.pose = Pose2D(1.0, 0.0, 0.0)
+    m.covariance = [1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-4]
+    m.inliers = 100
+    return m
+
+
+class BackendShutdownTest(unittest.TestCase):
+    def setUp(self):
+        self.tmp = tempfile.mkdtemp(prefix="uwms_shutdown_")
+        self.received = None
+        self.diag_sub = rospy.Subscriber("/diagnostics", DiagnosticArray, self.on_diagnostics, queue_size=100)
+        # One pair of publishers for every run (each run starts a fresh back-end node).
+        self.kf_pub = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=100000)
+        self.loop_pub = rospy.Publisher(NS + "/loops", Loop, queue_size=100000)
+
+    def tearDown(self):
+        self.diag_sub.unregister()
+        self.kf_pub.unregister()
+        self.loop_pub.unregister()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def on_diagnostics(self, msg):
+        for status in msg.status:
+            values = {kv.key: kv.value for kv in status.values}
+            if "messages_received" in values:
+                self.received = int(float(values["messages_received"]))
+
+    def run_once(self, n):
+        db = os.path.join(self.tmp, "store_%d.db" % n)
+        self.received = None
+        node = subprocess.Popen([tool("backend_node"), "__ns:=" + NS, "__name:=backend_%d" % n, "_store_path:=" + db,
+                                 "_diagnostic_period:=0.2", "_queue_size:=100000"],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            kf_pub, loop_pub = self.kf_pub, self.loop_pub
+            deadline = time.time() + 60
+            while time.time() < deadline and (kf_pub.get_num_connections() == 0 or loop_pub.get_num_connections() == 0):
+                time.sleep(0.1)
+            self.assertGreater(kf_pub.get_num_connections(), 0, "the back-end never subscribed")
+            time.sleep(1.0)  # both connections up before the first message
+            for k in range(n):
+                kf_pub.publish(keyframe(k))
+                if k >= 2:
+                    loop_pub.publish(loop(k))
+            expected = n + (n - 2)
+            deadline = time.time() + 120
+            while time.time() < deadline and (self.received is None or self.received < expected):
+                time.sleep(0.05)
+            self.assertEqual(self.received, expected, "the back-end did not receive every message")
+            node.send_signal(signal.SIGINT)
+            out, _ = node.communicate(timeout=120)
+        finally:
+            if node.poll() is None:
+                node.kill()
+                node.communicate()
+        self.assertEqual(node.returncode, 0, out[-3000:])
+        queued = re.search(r"unloading: (\d+) messages queued", out)
+        self.assertIsNotNone(queued, "no unloading line in the back-end's output:\n" + out[-3000:])
+        with sqlite3.connect(db) as c:
+            keyframes = c.execute("SELECT COUNT(*) FROM keyframes").fetchone()[0]
+            loops = c.execute("SELECT COUNT(*) FROM loops").fetchone()[0]
+            maps = c.execute("SELECT COUNT(*) FROM maps").fetchone()[0]
+        return int(queued.group(1)), keyframes, loops, maps
+
+    def test_queued_keyframes_and_loops_are_stored_at_a_clean_shutdown(self):
+        for n in (300, 1000, 3000):
+            queued, keyframes, loops, maps = self.run_once(n)
+            print("n %d: %d messages queued at SIGINT; stored %d keyframes, %d loops, %d maps"
+                  % (n, queued, keyframes, loops, maps), flush=True)
+            self.assertEqual(keyframes, n, "keyframes lost at shutdown")
+            self.assertEqual(loops, n - 2, "loops lost at shutdown")
+            self.assertEqual(maps, 1, "the maps were not saved at shutdown")
+            if queued > 0:
+                return
+        self.fail("the back-end never had a backlog at SIGINT: the drain was not exercised")
+
+
+if __name__ == "__main__":
+    rospy.init_node("check_backend_shutdown")
+    rostest.rosrun("uw_multislam", "check_backend_shutdown", BackendShutdownTest)
