@@ -2,7 +2,7 @@
 """evaluate: score an offline_slam run against ground truth.
 
 Reads the run's output directory (odometry.csv, trajectory.csv, loops.csv, timing.csv; see
-"The offline runner's contract" in DESIGN.md) and the dataset folders of its sessions (gt.csv,
+the offline runner contract in offline_slam --help) and the dataset folders of its sessions (gt.csv,
 frames.csv, camera.yaml; session number N = the N-th folder), plus the optional world_gt.csv
 (every session in one world frame) and loops_gt.csv (the revisits a detector should find).
 Writes metrics.csv, metrics.json, metrics.md and PNG plots into the report directory and prints

@@ -1,4 +1,4 @@
-// folder_to_bag: converts a dataset folder (../shared/data/README.md) to a ROS bag that replays
+// folder_to_bag: converts a dataset folder (doc/dataset_format.md) to a ROS bag that replays
 // through the same nodelets as a recorded mission. No ROS master needed.
 // Exit status: 0 on success (one summary line on stdout, warnings on stderr), 1 on bad input or
 // a failed write (one line on stderr), 2 on a bad command line.

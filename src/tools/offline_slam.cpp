@@ -1,6 +1,6 @@
 // offline_slam: runs the SLAM core over dataset folders without a ROS master: argument parsing,
 // dataset reading and calls into core::Pipeline / core::SessionManager (the same engine the
-// nodelets host). The command line and output files are DESIGN.md's "offline runner's contract".
+// nodelets host). The command line and output files are the offline runner contract of offline_slam --help.
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
@@ -24,7 +24,7 @@ namespace {
 const char* kUsage = R"(usage: offline_slam --session DIR [--session DIR ...] --out OUT [--config FILE] [--db FILE] [options]
 
 Runs uw_multislam over dataset folders (frames.csv, camera.yaml, images; see
-../shared/data/README.md), in the order given, as consecutive missions. Writes into OUT:
+doc/dataset_format.md), in the order given, as consecutive missions. Writes into OUT:
   odometry.csv    session,index,x_m,y_m,yaw_rad          odometry keyframe poses, each session in its own frame
   trajectory.csv  session,index,map,x_m,y_m,yaw_rad      final keyframe poses in the frame of map `map`
   loops.csv       session_a,index_a,session_b,index_b,kind,inliers   accepted loops

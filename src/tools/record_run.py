@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Records a live or replayed SLAM run into the offline runner's files (DESIGN.md, "The offline
+"""Records a live or replayed SLAM run into the offline runner's files (offline_slam --help, "The offline
 runner's contract"), so that evaluate.py scores a ROS run like an offline_slam one.
 
     record_run.py --out OUT [--session-dir DIR ...] [--bag-start SEC] [--ns /uw_multislam]

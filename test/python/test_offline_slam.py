@@ -1,4 +1,4 @@
-"""offline_slam's contract (../shared/DESIGN.md): command line, output files and their columns,
+"""offline_slam's contract (offline_slam --help): command line, output files and their columns,
 session numbering, and clear failures on bad input. Runs on a small generated survey."""
 import math
 import os

@@ -1,7 +1,7 @@
 // Default topic names and frame ids of uw_multislam, declared once (STYLE.md). Nodelets, tools and
 // launch files use these; users change them by remapping (topics) or by parameters (frame ids).
 //
-// Topic names are relative (DESIGN.md): a node resolves them in its own namespace and launch
+// Topic names are relative: a node resolves them in its own namespace and launch
 // files remap them. Bags store absolute names, so tools that write bags prefix them with "/"
 // (see globalName), e.g. "/camera/image_raw".
 #pragma once
@@ -20,7 +20,7 @@ constexpr char kAltitude[] = "altitude";
 /// nav_msgs/Odometry: ground-truth pose of the camera, for evaluation only (never fed to SLAM).
 constexpr char kGroundTruthOdom[] = "ground_truth/odom";
 
-// --- The pipeline (DESIGN.md): odometry -> keyframes -> loop detection -> back-end ------------
+// --- The pipeline (README "Architecture"): odometry -> keyframes -> loop detection -> back-end ------------
 
 /// uw_multislam/Keyframe: each new keyframe with its features (odometry nodelet).
 constexpr char kKeyframes[] = "keyframes";
@@ -78,7 +78,7 @@ constexpr char kCamera[] = "camera";
 /// The altimeter's frame (its beam along +x, as sensor_msgs/Range defines).
 constexpr char kAltimeter[] = "altimeter";
 /// The ground-truth frame of a dataset folder: the first frame's image axes in metres, origin at
-/// its image centre (../shared/data/README.md). Same axis convention as kCamera.
+/// its image centre (doc/dataset_format.md). Same axis convention as kCamera.
 constexpr char kGroundTruthOrigin[] = "gt_origin";
 
 }  // namespace frames

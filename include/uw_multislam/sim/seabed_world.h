@@ -4,7 +4,7 @@
 //
 // Two sources: a built-in procedural seabed (seedable: sand with grain and ripples, rocks,
 // pebbles and shells, seagrass patches, featureless sand areas, at several scales), or a
-// georeferenced mosaic image (e.g. ../shared/data/acfr/test4/mosaic.jpg with mosaic.txt), whose
+// georeferenced mosaic image (e.g. a survey photomosaic, mosaic.jpg with its mosaic.txt), whose
 // black areas outside the imaged seabed are marked invalid so that no frame ever shows them.
 #pragma once
 

@@ -1,6 +1,6 @@
 // The survey generator: renders bottom-looking camera missions over a seabed world with exact
-// ground truth, one dataset folder per session (../shared/data/README.md format) plus the
-// mission's world_gt.csv and loops_gt.csv, as in ../shared/data/flights/acfr_test4.
+// ground truth, one dataset folder per session (doc/dataset_format.md) plus the
+// mission's world_gt.csv and loops_gt.csv.
 #pragma once
 
 #include <cstdint>

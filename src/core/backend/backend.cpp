@@ -194,7 +194,7 @@ bool MultiSessionBackend::barred(int sa, int sb) const {
 std::vector<int> MultiSessionBackend::loopsBetween(int map_a, int map_b, bool automatic) const {
   std::vector<int> ids;
   for (int k = 0; k < static_cast<int>(loops_.size()); ++k) {
-    const LoopState& st = loops_[k];
+    const LoopRecord& st = loops_[k];
     if (st.summarised || st.refused) continue;
     const int ma = mapOf(st.loop.session_a), mb = mapOf(st.loop.session_b);
     if (!((ma == map_a && mb == map_b) || (ma == map_b && mb == map_a))) continue;
@@ -233,7 +233,7 @@ void MultiSessionBackend::optimiseIekf(Map& m) {
   std::vector<int> ids;
   const int id = m.chain.front();
   for (int k = 0; k < static_cast<int>(loops_.size()); ++k) {
-    const LoopState& st = loops_[k];
+    const LoopRecord& st = loops_[k];
     if (st.summarised || st.refused || st.applied) continue;
     if (mapOf(st.loop.session_a) != id || mapOf(st.loop.session_b) != id) continue;
     z.push_back({indexOf(st.loop.session_a, st.loop.keyframe_a), indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z});
@@ -257,7 +257,7 @@ void MultiSessionBackend::optimiseSparse(Map& m) {
     if (c + 1 < m.chain.size()) edges.push_back({o - 1, o, m.links[c].measured, false});
   }
   bool any_loop = false;
-  for (const LoopState& st : loops_) {
+  for (const LoopRecord& st : loops_) {
     if (st.summarised || st.refused) continue;
     if (mapOf(st.loop.session_a) != id || mapOf(st.loop.session_b) != id) continue;
     edges.push_back({indexOf(st.loop.session_a, st.loop.keyframe_a), indexOf(st.loop.session_b, st.loop.keyframe_b),
@@ -345,7 +345,7 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
   j.chain = p.chain;
   j.chain.insert(j.chain.end(), c.chain.begin(), c.chain.end());
   j.links = p.links;
-  Link link{res.link, {}};
+  MapLinkState link{res.link, {}};
   int used = 0, refused = 0;
   for (std::size_t k = 0; k < cand.size(); ++k) {
     if (in[k]) {
@@ -402,7 +402,7 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
   Map& joined = maps_[first] = std::move(j);
   for (int s : joined.chain) sessions_[s].map = first;
   // Loops between the two maps that did not take part (barred ones) are now intra-map.
-  for (const LoopState& st : loops_)
+  for (const LoopRecord& st : loops_)
     if (!st.summarised && !st.refused && !st.applied && mapOf(st.loop.session_a) == first &&
         mapOf(st.loop.session_b) == first && barred(st.loop.session_a, st.loop.session_b))
       ++joined.pending;
@@ -498,7 +498,7 @@ BackendStatus MultiSessionBackend::split(int session) {
 
   Map rest;
   std::vector<int> released;  // loops summarised by removed links that involve the session
-  auto release = [&](const Link& l) {
+  auto release = [&](const MapLinkState& l) {
     for (int id : l.loops) {
       const BackendLoop& lp = loops_[id].loop;
       if (lp.session_a == session || lp.session_b == session) released.push_back(id);
@@ -522,12 +522,12 @@ BackendStatus MultiSessionBackend::split(int session) {
     for (int k = o - 1; k <= o + n - 1; ++k) chain.push_back(m.motion(k));
     const Trajectory t = meansTrajectory(chain);
     const Eigen::MatrixXd jac = t.relativeJacobian(0, t.numKeyframes() - 1);
-    Link composed;
-    const Link& lin = m.links[q - 1];
-    const Link& lout = m.links[q];
+    MapLinkState composed;
+    const MapLinkState& lin = m.links[q - 1];
+    const MapLinkState& lout = m.links[q];
     release(lin);
     release(lout);
-    for (const Link* l : {&lin, &lout})
+    for (const MapLinkState* l : {&lin, &lout})
       for (int id : l->loops)
         if (std::find(released.begin(), released.end(), id) == released.end()) composed.loops.push_back(id);
     rest.links.assign(m.links.begin(), m.links.begin() + q - 1);
@@ -541,7 +541,7 @@ BackendStatus MultiSessionBackend::split(int session) {
     loops_[id].applied = false;
   }
   // Loops between the session and the rest that the IEKF had applied are inter-map again.
-  for (LoopState& st : loops_) {
+  for (LoopRecord& st : loops_) {
     const bool a_in = st.loop.session_a == session, b_in = st.loop.session_b == session;
     if (a_in != b_in && mapOf(st.loop.session_a) == old_id && mapOf(st.loop.session_b) == old_id) st.applied = false;
   }
@@ -615,7 +615,7 @@ MapState MultiSessionBackend::mapState(int map) const {
   const Map& m = mapAt(map);
   MapState st;
   st.chain = m.chain;
-  for (const Link& l : m.links) st.links.push_back({l.measured, l.loops});
+  st.links = m.links;
   for (int k = 0; k < m.numMotions(); ++k) st.motions.emplace_back(m.motion(k), m.motionCov(k));
   st.pending = m.pending;
   return st;
@@ -623,8 +623,7 @@ MapState MultiSessionBackend::mapState(int map) const {
 
 LoopRecord MultiSessionBackend::loopRecord(int id) const {
   if (id < 0 || id >= numLoops()) throw std::invalid_argument("backend: no loop " + std::to_string(id));
-  const LoopState& st = loops_[id];
-  return {st.loop, st.summarised, st.applied, st.refused};
+  return loops_[id];
 }
 
 int MultiSessionBackend::restoreSession(const std::string& name, const std::vector<UncertainPose2>& odometry) {

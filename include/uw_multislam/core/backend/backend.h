@@ -5,7 +5,7 @@
 // from the LAST keyframe of s_i to the FIRST keyframe of s_{i+1}. The map's state is the
 // concatenation (33)(34): s_0's motions, link 0, s_1's motions, ..., so that every keyframe of the
 // map has one index and every loop inside the map is a measurement of X_j^i (14) over that chain.
-// A map's id is the id of its first session and its frame is that session's frame (DESIGN.md).
+// A map's id is the id of its first session and its frame is that session.s frame (doc/dataset_format.md).
 //
 // Joining two maps A and B (Algorithm 2) puts one after the other: "the end of the previous
 // session" is the last keyframe of the last session of the map placed first, "the start of the
@@ -96,7 +96,7 @@ struct LinkInfo {
   int loops = 0;            // global loops it summarises
 };
 
-/// A stored loop with its state in the back-end (for the session store).
+/// A loop with its state in the back-end (as it keeps it and the session store saves it).
 struct LoopRecord {
   BackendLoop loop;
   bool summarised = false;  // used by a link
@@ -104,7 +104,8 @@ struct LoopRecord {
   bool refused = false;     // refused as inconsistent at a join
 };
 
-/// One link of a map as stored: its measurement and the ids of the loops it summarises.
+/// One link of a map (as the back-end keeps it and the store saves it): its measurement and the
+/// ids of the loops it summarises.
 struct MapLinkState {
   UncertainPose2 measured;
   std::vector<int> loops;
@@ -202,19 +203,9 @@ class MultiSessionBackend {
     std::vector<UncertainPose2> odometry;  // measured motions, odometry[k-1] = X_k^{k-1}
     int keyframes() const { return static_cast<int>(odometry.size()) + 1; }
   };
-  struct Link {
-    UncertainPose2 measured;
-    std::vector<int> loops;  // ids of the loops it summarises
-  };
-  struct LoopState {
-    BackendLoop loop;
-    bool summarised = false;  // used by a link
-    bool applied = false;     // in the IEKF state
-    bool refused = false;     // inconsistent at a join
-  };
   struct Map {
     std::vector<int> chain;
-    std::vector<Link> links;                // links[i] joins chain[i] -> chain[i+1]
+    std::vector<MapLinkState> links;        // links[i] joins chain[i] -> chain[i+1]
     std::vector<Pose2> motions;             // concatenated motion estimates (sparse maps)
     std::vector<Eigen::Matrix3d> cov;       // their covariances (sparse maps)
     std::optional<TrajectoryIekf> iekf;     // dense maps: motions and joint covariance
@@ -245,7 +236,7 @@ class MultiSessionBackend {
   Log log_;
   std::vector<Session> sessions_;
   std::map<int, Map> maps_;
-  std::vector<LoopState> loops_;
+  std::vector<LoopRecord> loops_;
   std::set<std::pair<int, int>> split_pairs_;  // sessions split apart by the user
   BackendStats stats_;
 };

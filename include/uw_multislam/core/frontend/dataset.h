@@ -1,4 +1,4 @@
-// Dataset folders (../shared/data/README.md): frames.csv, camera.yaml, images, optional gt.csv.
+// Dataset folders (doc/dataset_format.md): frames.csv, camera.yaml, images, optional gt.csv.
 // The project reads and writes this format: the survey generator writes it, folder_to_bag and
 // offline_slam read it. Errors are reported as DatasetError with the file and line at fault.
 #pragma once

@@ -1,7 +1,7 @@
 // SE(2) poses and the compounding / inversion operators of Smith, Self & Cheeseman,
 // as used throughout paper 000 (§4, equations (1)-(2)).
 //
-// Conventions (../shared/DESIGN.md): x along the image columns, y along the rows, yaw turns
+// Conventions (doc/dataset_format.md): x along the image columns, y along the rows, yaw turns
 // x towards y; all angles in radians and normalised to (-pi, pi].
 #pragma once
 

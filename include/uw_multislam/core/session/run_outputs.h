@@ -1,4 +1,4 @@
-// The offline runner's output files (DESIGN.md "The offline runner's contract"), written from a
+// The offline runner's output files (the contract offline_slam --help states), written from a
 // SessionManager's final state: odometry.csv, trajectory.csv, loops.csv, loop_poses.csv,
 // links.csv and timing.csv. The CSV `session` column is the caller's numbering (offline_slam:
 // the folder's position on the command line; a stored session: its id), given per session id.

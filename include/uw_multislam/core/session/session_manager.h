@@ -1,5 +1,5 @@
 // The session manager: the one object that owns sessions, their ids, maps, joins and splits, and
-// the session store (DESIGN.md "Layout and the one engine"; cf. cartographer's MapBuilder).
+// the session store (README "Architecture"; cf. cartographer's MapBuilder).
 //
 // Both heads drive it: offline_slam through core::Pipeline (pipeline.h, every stage in one
 // process), and the back-end nodelet, which hosts it and feeds it the Keyframe and Loop messages
