@@ -3,7 +3,8 @@
 # default queues) at increasing rates. For each rate a fresh pipeline; at the end the counters are
 # read from /diagnostics (scripts/diagnostics_snapshot.py) and the nodelet manager's peak RSS
 # (VmHWM) from /proc. Prints one markdown table and the highest rate held without a dropped or
-# unpaired frame. Not a test: numbers for this machine.
+# unpaired frame; then the longest gap in the back-end's current pose during an optimisation of
+# a 5,000-keyframe map (scripts/bench_pose_gap.py). Not a test: numbers for this machine.
 # usage: scripts/bench_load.sh [--rates "1 2 5 10 20 40 80 160"] [--preset NAME] [OUT_DIR]
 #   default mission: make_survey --preset demo, session s0 (its bag); rates 1 2 5 10 20 40 80 160.
 set -euo pipefail
@@ -88,3 +89,7 @@ DROP"
 done
 echo
 echo "Highest rate without a dropped or unpaired frame: ${best:-none} (logs in $out)."
+echo
+# The per-frame pose while the back-end optimises a 5,000-keyframe map (issue 14: target <= 100 ms).
+/usr/bin/python3 "$UWMS_REPO/scripts/bench_pose_gap.py" --keyframes "${BENCH_POSE_GAP_KEYFRAMES:-5000}" \
+  || echo "pose gap: the benchmark failed (see above)"
