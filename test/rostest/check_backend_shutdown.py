@@ -1,5 +1,6 @@
 #!/usr/bin/python3
-"""rostest: a clean shutdown of the back-end loses nothing that was queued.
+"""rostest: the back-end's start-up and shutdown. A clean shutdown loses nothing that was queued;
+an unusable store leaves the node inert (and the file untouched) instead of crashing.
 
 The back-end node (standalone, its own session store) receives N keyframes with features and a
 local loop per keyframe, far faster than it stores and optimises them. As soon as its
@@ -15,9 +16,11 @@ import signal
 import sqlite3
 import subprocess
 import tempfile
+import threading
 import time
 import unittest
 
+import rosgraph
 import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
@@ -120,6 +123,41 @@ class BackendShutdownTest(unittest.TestCase):
             loops = c.execute("SELECT COUNT(*) FROM loops").fetchone()[0]
             maps = c.execute("SELECT COUNT(*) FROM maps").fetchone()[0]
         return int(queued.group(1)), keyframes, loops, maps
+
+    def test_an_unusable_store_leaves_the_node_inert_and_the_file_untouched(self):
+        """1 MB of random bytes as the store: a FATAL line naming the file, no service advertised,
+        the process keeps running (it used to take the whole nodelet manager down with a SIGSEGV),
+        SIGINT ends it cleanly, and the file is byte-identical."""
+        junk = os.path.join(self.tmp, "junk.db")
+        data = os.urandom(1 << 20)
+        with open(junk, "wb") as f:
+            f.write(data)
+        ns = NS + "_junk"
+        node = subprocess.Popen([tool("backend_node"), "__ns:=" + ns, "__name:=backend", "_store_path:=" + junk],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        lines = []
+        reader = threading.Thread(target=lambda: lines.extend(node.stdout), daemon=True)
+        reader.start()
+        try:
+            master = rosgraph.Master("/check_backend_shutdown")
+            deadline = time.time() + 60
+            while time.time() < deadline and not any("not starting" in l for l in lines):
+                time.sleep(0.1)
+            self.assertTrue(any("not starting" in l and junk in l for l in lines), "".join(lines))
+            self.assertIsNone(node.poll(), "the node died:\n" + "".join(lines))
+            ours = ("join_sessions", "split_session", "list_sessions", "start_session", "reload_session")
+            services = [name for name, _ in master.getSystemState()[2] if name.rsplit("/", 1)[-1] in ours
+                        and name.startswith(ns + "/")]
+            self.assertEqual(services, [], "services advertised over an unusable store")
+            node.send_signal(signal.SIGINT)
+            node.wait(timeout=60)
+        finally:
+            if node.poll() is None:
+                node.kill()
+                node.wait()
+        self.assertEqual(node.returncode, 0, "".join(lines))
+        with open(junk, "rb") as f:
+            self.assertEqual(f.read(), data, "the refused store was modified")
 
     def test_queued_keyframes_and_loops_are_stored_at_a_clean_shutdown(self):
         for n in (300, 1000, 3000):
