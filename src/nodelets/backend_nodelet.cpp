@@ -205,7 +205,7 @@ void BackendNodelet::publishAll(bool all_sessions) {
 void BackendNodelet::announceNextSession() {
   uw_multislam::SessionState st;
   st.session = manager_->activeSession() >= 0 ? manager_->activeSession() : manager_->nextId();
-  st.name = manager_->has(st.session) ? manager_->name(st.session) : "session_" + std::to_string(st.session);
+  st.name = manager_->has(st.session) ? manager_->name(st.session) : core::defaultSessionName(st.session);
   st.state = uw_multislam::SessionState::ACTIVE;
   st.map = st.session;
   active_pub_.publish(st);

@@ -2,9 +2,9 @@
 // are documented with the class in include/uw_multislam/ros/nodelets/odometry_nodelet.h.
 #include "uw_multislam/ros/nodelets/odometry_nodelet.h"
 
-#include <boost/bind/bind.hpp>
 #include <cv_bridge/cv_bridge.h>
 #include <geometry_msgs/PoseStamped.h>
+#include <boost/bind/bind.hpp>
 
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
@@ -30,7 +30,7 @@ namespace rc = ros_conversions;
 
 OdometryNodelet::~OdometryNodelet() {
   watchdog_.stop();
-  if (queue_) queue_->close();      // later frames are refused; the queued ones are still processed
+  if (queue_) queue_->close();  // later frames are refused; the queued ones are still processed
   if (worker_.joinable()) worker_.join();
   sync3_.reset();
   sync2_.reset();
@@ -40,27 +40,35 @@ OdometryNodelet::~OdometryNodelet() {
 void OdometryNodelet::readParameters() {
   ros::NodeHandle& pnh = getPrivateNodeHandle();
   using ros_params::param;
-  options_.use_altitude_topic = param(pnh, "use_altitude_topic", true, [](bool) { return true; }, "a bool");
-  options_.altitude_m = param(pnh, "altitude", 0.0, [](double) { return true; }, "");
+  options_.use_altitude_topic = param(
+      pnh, "use_altitude_topic", true, [](bool) { return true; }, "a bool");
+  options_.altitude_m = param(
+      pnh, "altitude", 0.0, [](double) { return true; }, "");
   if (!options_.use_altitude_topic && !(std::isfinite(options_.altitude_m) && options_.altitude_m > 0)) {
     throw std::invalid_argument(pnh.resolveName("altitude") + " = " + std::to_string(options_.altitude_m) +
                                 ": must be a positive altitude in metres when use_altitude_topic is false");
   }
-  options_.queue_size = param(pnh, "queue_size", 5, [](int v) { return v >= 1 && v <= 10000; }, "in [1, 10000]");
-  options_.sync_queue_size =
-      param(pnh, "sync_queue_size", 10, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
-  options_.sync_max_interval_s = param(pnh, "sync_max_interval_s", 0.1, [](double v) { return v > 0; }, "positive");
-  options_.session = param(pnh, "session", 0, [](int v) { return v >= 0; }, ">= 0");
-  options_.session_gap_s = param(pnh, "session_gap_s", 10.0, [](double v) { return v >= 0; }, ">= 0 (0 = off)");
-  options_.stats_period_s = param(pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
-  options_.reorder_tolerance_s =
-      param(pnh, "reorder_tolerance_s", 1.0, [](double v) { return std::isfinite(v) && v >= 0; }, ">= 0");
-  options_.input_timeout_s = param(pnh, "input_timeout_s", 5.0, [](double v) { return v > 0; }, "positive");
-  options_.fallback_altitude_m = param(pnh, "fallback_altitude", 0.0, [](double v) { return std::isfinite(v) && v >= 0; },
-                                       ">= 0 metres (0 = off)");
-  options_.diagnostic_period_s = param(pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
-  options_.session_frame_prefix = param(getNodeHandle(), "frames/session_frame_prefix", std::string("session_"),
-                                        [](const std::string& s) { return !s.empty(); }, "non-empty");
+  options_.queue_size = param(
+      pnh, "queue_size", 5, [](int v) { return v >= 1 && v <= 10000; }, "in [1, 10000]");
+  options_.sync_queue_size = param(
+      pnh, "sync_queue_size", 10, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
+  options_.sync_max_interval_s = param(
+      pnh, "sync_max_interval_s", 0.1, [](double v) { return v > 0; }, "positive");
+  options_.session = param(
+      pnh, "session", 0, [](int v) { return v >= 0; }, ">= 0");
+  options_.session_gap_s = param(
+      pnh, "session_gap_s", 10.0, [](double v) { return v >= 0; }, ">= 0 (0 = off)");
+  options_.stats_period_s = param(
+      pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
+  options_.reorder_tolerance_s = param(
+      pnh, "reorder_tolerance_s", 1.0, [](double v) { return std::isfinite(v) && v >= 0; }, ">= 0");
+  options_.input_timeout_s = param(
+      pnh, "input_timeout_s", 5.0, [](double v) { return v > 0; }, "positive");
+  options_.fallback_altitude_m = param(
+      pnh, "fallback_altitude", 0.0, [](double v) { return std::isfinite(v) && v >= 0; }, ">= 0 metres (0 = off)");
+  options_.diagnostic_period_s = param(
+      pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
+  options_.session_frame_prefix = ros_params::sessionFramePrefix(getNodeHandle());
   config_ = ros_params::slamConfigFromParams(getNodeHandle());
   const std::string bad = config_.validate();
   if (!bad.empty()) throw std::invalid_argument(getNodeHandle().resolveName("slam") + ": " + bad);
@@ -79,12 +87,12 @@ void OdometryNodelet::onInit() {
       "sync_max_interval_s %.3f, first session %d, session_gap_s %.1f, reorder_tolerance_s %.2f, "
       "input_timeout_s %.1f, fallback_altitude %s, stats every %.0f s, diagnostics every %.1f s; n = %d features, "
       "enhancement %s, keyframes at overlap < %.2f",
-      o.use_altitude_topic ? "the altitude topic" : ("the fixed altitude " + std::to_string(o.altitude_m) + " m").c_str(),
+      o.use_altitude_topic ? "the altitude topic"
+                           : ("the fixed altitude " + std::to_string(o.altitude_m) + " m").c_str(),
       o.queue_size, o.sync_queue_size, o.sync_max_interval_s, o.session, o.session_gap_s, o.reorder_tolerance_s,
       o.input_timeout_s, o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off",
-      o.stats_period_s, o.diagnostic_period_s,
-      config_.odometry.features.num_features, core::enhancementName(config_.odometry.enhancement.mode).c_str(),
-      config_.odometry.keyframes.min_overlap);
+      o.stats_period_s, o.diagnostic_period_s, config_.odometry.features.num_features,
+      core::enhancementName(config_.odometry.enhancement.mode).c_str(), config_.odometry.keyframes.min_overlap);
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config_));
   session_ = o.session;
   const auto& g = config_.loops.global;
@@ -110,8 +118,8 @@ void OdometryNodelet::onInit() {
   image_sub_.subscribe(*it_, topics::kImage, o.sync_queue_size, hints);
   info_sub_.subscribe(nh, topics::kCameraInfo, o.sync_queue_size);
   // Arrivals per input, for the silent-input watchdog and images_not_paired.
-  image_sub_.registerCallback(boost::function<void(const sensor_msgs::ImageConstPtr&)>(
-      [this](const sensor_msgs::ImageConstPtr&) {
+  image_sub_.registerCallback(
+      boost::function<void(const sensor_msgs::ImageConstPtr&)>([this](const sensor_msgs::ImageConstPtr&) {
         const double now = wallNow();
         ++images_in_, last_image_ = now;
         if (images_since_range_++ == 0) first_image_since_range_ = now;
@@ -127,7 +135,8 @@ void OdometryNodelet::onInit() {
     sync3_ = std::make_unique<message_filters::Synchronizer<SyncWithAltitude>>(SyncWithAltitude(o.sync_queue_size),
                                                                                image_sub_, info_sub_, range_sub_);
     sync3_->setMaxIntervalDuration(max_interval);
-    sync3_->registerCallback(boost::bind(&OdometryNodelet::onSynced, this, boost::placeholders::_1, boost::placeholders::_2, boost::placeholders::_3));
+    sync3_->registerCallback(boost::bind(&OdometryNodelet::onSynced, this, boost::placeholders::_1,
+                                         boost::placeholders::_2, boost::placeholders::_3));
   }
   if (!o.use_altitude_topic || o.fallback_altitude_m > 0) {
     // Without an altitude topic the only pairing; with one and a fallback altitude, the pairs
@@ -135,8 +144,9 @@ void OdometryNodelet::onInit() {
     sync2_ = std::make_unique<message_filters::Synchronizer<SyncNoAltitude>>(SyncNoAltitude(o.sync_queue_size),
                                                                              image_sub_, info_sub_);
     sync2_->setMaxIntervalDuration(max_interval);
-    sync2_->registerCallback(boost::bind(&OdometryNodelet::onSynced, this, boost::placeholders::_1, boost::placeholders::_2,
-                                         sensor_msgs::RangeConstPtr()));;
+    sync2_->registerCallback(boost::bind(&OdometryNodelet::onSynced, this, boost::placeholders::_1,
+                                         boost::placeholders::_2, sensor_msgs::RangeConstPtr()));
+    ;
   }
   NODELET_INFO("odometry: image transport '%s' on %s", image_sub_.getTransport().c_str(),
                image_sub_.getTopic().c_str());
@@ -220,10 +230,18 @@ void OdometryNodelet::process(const Frame& f) {
   if (!rc::imageFromMsg(f.image, &image, &why, &refusal)) {
     ++counts_.bad_image;
     switch (refusal) {
-      case rc::ImageRefusal::kEmpty: ++counts_.empty_image; break;
-      case rc::ImageRefusal::kTooSmall: ++counts_.tiny_image; break;
-      case rc::ImageRefusal::kLayout: ++counts_.bad_layout; break;
-      default: ++counts_.bad_encoding; break;
+      case rc::ImageRefusal::kEmpty:
+        ++counts_.empty_image;
+        break;
+      case rc::ImageRefusal::kTooSmall:
+        ++counts_.tiny_image;
+        break;
+      case rc::ImageRefusal::kLayout:
+        ++counts_.bad_layout;
+        break;
+      default:
+        ++counts_.bad_encoding;
+        break;
     }
     NODELET_WARN_THROTTLE(5, "odometry: frame skipped: %s (%ld so far)", why.c_str(), counts_.bad_image);
     return;
@@ -231,17 +249,18 @@ void OdometryNodelet::process(const Frame& f) {
   if (image.cols != camera.width || image.rows != camera.height) {
     ++counts_.bad_image;
     ++counts_.size_mismatch;
-    NODELET_WARN_THROTTLE(5, "odometry: frame skipped: image %dx%d but camera_info says %dx%d (%ld so far)",
-                          image.cols, image.rows, camera.width, camera.height, counts_.bad_image);
+    NODELET_WARN_THROTTLE(5, "odometry: frame skipped: image %dx%d but camera_info says %dx%d (%ld so far)", image.cols,
+                          image.rows, camera.width, camera.height, counts_.bad_image);
     return;
   }
   double altitude = options_.altitude_m;
   if (f.fixed_altitude) {
     altitude = options_.fallback_altitude_m;
     ++counts_.fixed_altitude;
-    NODELET_WARN_THROTTLE(10, "odometry: no altitude on %s for %.0f s: the fixed ~fallback_altitude %.2f m is used "
-                          "(%ld frames so far)", range_sub_.getTopic().c_str(), options_.input_timeout_s,
-                          altitude, counts_.fixed_altitude);
+    NODELET_WARN_THROTTLE(10,
+                          "odometry: no altitude on %s for %.0f s: the fixed ~fallback_altitude %.2f m is used "
+                          "(%ld frames so far)",
+                          range_sub_.getTopic().c_str(), options_.input_timeout_s, altitude, counts_.fixed_altitude);
   }
   if (f.range && !rc::altitudeFromMsg(*f.range, &altitude, &why)) {
     ++counts_.bad_altitude;
@@ -261,8 +280,10 @@ void OdometryNodelet::process(const Frame& f) {
   }
   if (timing == core::StampClass::kOutOfOrder) {
     ++counts_.out_of_order;
-    NODELET_WARN_THROTTLE(5, "odometry: frame skipped: stamp %.6f is %.3f s before the last frame's (out of order; "
-                          "%ld so far)", stamp.toSec(), (last_stamp_ - stamp).toSec(), counts_.out_of_order);
+    NODELET_WARN_THROTTLE(5,
+                          "odometry: frame skipped: stamp %.6f is %.3f s before the last frame's (out of order; "
+                          "%ld so far)",
+                          stamp.toSec(), (last_stamp_ - stamp).toSec(), counts_.out_of_order);
     return;
   }
 
@@ -282,7 +303,8 @@ void OdometryNodelet::process(const Frame& f) {
       NODELET_WARN("odometry: image stamps jumped back by %.3f s (a bag that loops, or a clock reset)",
                    (last_stamp_ - stamp).toSec());
     } else {
-      NODELET_INFO("odometry: image stamps jumped forward by %.3f s (a gap in the images)", (stamp - last_stamp_).toSec());
+      NODELET_INFO("odometry: image stamps jumped forward by %.3f s (a gap in the images)",
+                   (stamp - last_stamp_).toSec());
     }
     startSession(session_ + 1, camera,
                  "image stamps jumped by " + std::to_string((stamp - last_stamp_).toSec()) + " s");
@@ -314,9 +336,10 @@ void OdometryNodelet::process(const Frame& f) {
   publishKeyframes(f, image, u);
   if (step.session_closed) {
     ++counts_.losses;
-    NODELET_WARN("odometry: tracking lost at frame %d (%d unmatched frames): session %d closed; the next frame with "
-                 "%d features starts session %d",
-                 u.index, config_.tracking.max_fallbacks, session_, config_.tracking.min_features, session_ + 1);
+    NODELET_WARN(
+        "odometry: tracking lost at frame %d (%d unmatched frames): session %d closed; the next frame with "
+        "%d features starts session %d",
+        u.index, config_.tracking.max_fallbacks, session_, config_.tracking.min_features, session_ + 1);
   }
 
   auto pose = boost::make_shared<geometry_msgs::PoseStamped>();
@@ -422,12 +445,13 @@ void OdometryNodelet::logStats(const char* when) {
   const double ms = odometry_ ? odometry_->times().get("odometry_total").meanMs() : 0.0;
   NODELET_INFO(
       "odometry %s: %ld frames received, %ld dropped (queue full), %ld bad images, %ld bad camera_info, "
-      "%ld bad altitudes, %ld duplicated and %ld late stamps skipped, %ld time jumps, %ld keyframes published, %ld fallbacks, %ld sessions (%ld after tracking loss); current "
+      "%ld bad altitudes, %ld duplicated and %ld late stamps skipped, %ld time jumps, %ld keyframes published, %ld "
+      "fallbacks, %ld sessions (%ld after tracking loss); current "
       "session %d: %d frames, "
       "%d keyframes, %d altitudes reused, %.1f ms/frame",
       when, counts_.frames, counts_.dropped, counts_.bad_image, counts_.bad_camera, counts_.bad_altitude,
-      counts_.duplicates, counts_.out_of_order, counts_.jumps_back + counts_.jumps_forward,
-      counts_.keyframes, counts_.fallbacks, counts_.sessions, counts_.losses, session_, s.frames, s.keyframes, s.altitude_reused, ms);
+      counts_.duplicates, counts_.out_of_order, counts_.jumps_back + counts_.jumps_forward, counts_.keyframes,
+      counts_.fallbacks, counts_.sessions, counts_.losses, session_, s.frames, s.keyframes, s.altitude_reused, ms);
 }
 
 }  // namespace nodelets

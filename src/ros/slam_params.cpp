@@ -72,8 +72,7 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
   auto nonempty = [](const std::string& s) { return !s.empty(); };
   auto count = [](int v) { return v >= 1 && v <= 1000000; };
   o.map_frame = param(nh, "frames/map_frame", std::string("map"), nonempty, "a frame id");
-  o.session_frame_prefix =
-      param(nh, "frames/session_frame_prefix", std::string("session_"), nonempty, "a frame id prefix");
+  o.session_frame_prefix = sessionFramePrefix(nh);
   o.base_frame = param(nh, "frames/base_frame", std::string("base_link"), nonempty, "a frame id");
   o.queue_size = param(pnh, "queue_size", 1000, count, "in [1, 1000000]");
   o.max_waiting_loops = param(pnh, "max_waiting_loops", 1000, count, "in [1, 1000000]");
@@ -103,6 +102,12 @@ LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh
   o.diagnostic_period_s = param(
       pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
   return o;
+}
+
+std::string sessionFramePrefix(const ros::NodeHandle& nh) {
+  return param(
+      nh, "frames/session_frame_prefix", std::string(topics::kDefaultSessionFramePrefix),
+      [](const std::string& s) { return !s.empty(); }, "a non-empty frame id prefix");
 }
 
 std::string defaultStorePath() {

@@ -13,6 +13,7 @@
 #include <string>
 
 #include "uw_multislam/core/session/slam_config.h"
+#include "uw_multislam/ros/topics.h"
 
 namespace uw_multislam {
 namespace ros_params {
@@ -32,7 +33,7 @@ core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::stri
 /// documents each), read once by backendNodeletOptions(). The algorithms' are core::SlamConfig.
 struct BackendNodeletOptions {
   std::string store_path;  // "" = no store; default $ROS_HOME/uw_multislam/sessions.db
-  std::string map_frame = "map", session_frame_prefix = "session_", base_frame = "base_link";
+  std::string map_frame = "map", session_frame_prefix = topics::kDefaultSessionFramePrefix, base_frame = "base_link";
   int queue_size = 1000, max_waiting_loops = 1000, max_keyframe_gap = 1000;
   bool publish_tf = true;
   double stats_period_s = 30.0, diagnostic_period_s = 1.0;
@@ -53,6 +54,9 @@ struct LoopDetectorNodeletOptions {
 
 /// Reads and validates the loop-detector nodelet's parameters (std::invalid_argument naming the key).
 LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh);
+
+/// frames/session_frame_prefix of the nodelets' namespace (default topics::kDefaultSessionFramePrefix).
+std::string sessionFramePrefix(const ros::NodeHandle& nh);
 
 /// The session store's default path: $ROS_HOME/uw_multislam/sessions.db (ROS_HOME defaulting to
 /// ~/.ros, as roslaunch's logs).

@@ -24,6 +24,9 @@ constexpr char kGroundTruthOdom[] = "ground_truth/odom";
 
 /// uw_multislam/Keyframe: each new keyframe with its features (odometry nodelet).
 constexpr char kKeyframes[] = "keyframes";
+/// Default of frames/session_frame_prefix: session `id`'s frame is "<prefix><id>" (ros_params::
+/// sessionFramePrefix reads it for every nodelet).
+constexpr char kDefaultSessionFramePrefix[] = "session_";
 /// geometry_msgs/PoseStamped: the odometry-only pose of the latest frame in its session's frame
 /// (odometry nodelet; frame_id = frames/session_frame_prefix + session id).
 constexpr char kOdometryPose[] = "odometry/pose";

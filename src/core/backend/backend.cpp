@@ -13,6 +13,8 @@
 namespace uw_multislam {
 namespace core {
 
+std::string defaultSessionName(int id) { return "session_" + std::to_string(id); }
+
 const char* optimizerName(OptimizerKind k) { return k == OptimizerKind::kIekf ? "iekf" : "sparse"; }
 
 bool parseOptimizer(const std::string& name, OptimizerKind* out) {
@@ -94,7 +96,7 @@ int MultiSessionBackend::offset(const Map& m, int session) const {
 int MultiSessionBackend::startSession(const std::string& name) {
   const int id = numSessions();
   Session s;
-  s.name = name.empty() ? "session_" + std::to_string(id) : name;
+  s.name = name.empty() ? defaultSessionName(id) : name;
   s.recording = true;
   s.map = id;
   sessions_.push_back(s);
@@ -635,7 +637,7 @@ int MultiSessionBackend::restoreSession(const std::string& name, const std::vect
   }
   const int id = numSessions();
   Session s;
-  s.name = name.empty() ? "session_" + std::to_string(id) : name;
+  s.name = name.empty() ? defaultSessionName(id) : name;
   s.recording = false;
   s.map = id;
   s.odometry = odometry;

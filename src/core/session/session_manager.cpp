@@ -168,7 +168,7 @@ bool SessionManager::storeWrite(const char* what, F write) {
 Status SessionManager::open(int id, const std::string& name, double stamp_s) {
   if (active_ >= 0) endSession(at(active_).stamps.back());
   Session s;
-  s.name = name.empty() ? "session_" + std::to_string(id) : name;
+  s.name = name.empty() ? defaultSessionName(id) : name;
   s.backend = backend_->startSession(s.name);
   if (s.backend != static_cast<int>(id_of_backend_.size())) throw std::logic_error("session manager: back-end ids drifted");
   id_of_backend_.push_back(id);

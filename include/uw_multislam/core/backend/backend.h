@@ -53,6 +53,9 @@ namespace core {
 
 enum class OptimizerKind { kIekf, kSparse };
 const char* optimizerName(OptimizerKind k);
+/// "session_<id>": the name of a session started without one (the one place that spells it; the
+/// ROS frames' default prefix, topics::kDefaultSessionFramePrefix, is the same word).
+std::string defaultSessionName(int id);
 /// "iekf" or "sparse"; false otherwise.
 bool parseOptimizer(const std::string& name, OptimizerKind* out);
 

@@ -79,6 +79,7 @@
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/diagnostics.h"
+#include "uw_multislam/ros/topics.h"
 #include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
@@ -98,7 +99,7 @@ struct OdometryNodeletOptions {
   double fallback_altitude_m = 0.0;  // > 0: used when the altitude topic is silent; 0 = off
   double diagnostic_period_s = 1.0;
   double stats_period_s = 30.0;
-  std::string session_frame_prefix = "session_";
+  std::string session_frame_prefix = topics::kDefaultSessionFramePrefix;
 };
 
 class OdometryNodelet : public nodelet::Nodelet {
