@@ -41,9 +41,8 @@ KeyframeData reloadedKeyframe(const core::ReloadedSession& session, const core::
   d.frame_index = k.frame_index;
   d.altitude_m = k.altitude_m > 0 ? k.altitude_m : 1.0;
   d.camera = session.camera;
-  d.features.image_size = k.image_size;
-  for (const cv::Point2f& p : k.points) d.features.keypoints.emplace_back(p, 1.0f);
-  if (!k.descriptors.empty()) k.descriptors.convertTo(d.features.descriptors, CV_32F);
+  d.features = k.features();
+  if (!k.descriptors.empty()) k.descriptors.convertTo(d.features.descriptors, CV_32F);  // as the extractor's
   d.motion = core::UncertainPose2(core::Pose2(), Eigen::Matrix3d::Identity() * 1e-6);
   d.quality = k.keyframe == 0 ? KeyframeQuality::kFirst : KeyframeQuality::kMatched;
   return d;

@@ -37,12 +37,7 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
       out.frame_of_keyframe.back().push_back(k.frame_index);
       ++out.keyframes;
       if (!detector) continue;
-      FrameFeatures f;
-      f.image_size = k.image_size;
-      f.keypoints.reserve(k.points.size());
-      for (const cv::Point2f& p : k.points) f.keypoints.emplace_back(p, 1.0f);
-      f.descriptors = k.descriptors;
-      detector->addStoredKeyframe(id, k.keyframe, k.frame_index, k.altitude_m, cam, f, k.hash);
+      detector->addStoredKeyframe(id, k.keyframe, k.frame_index, k.altitude_m, cam, k.features(), k.hash);
     }
   }
   std::map<std::int64_t, int> loop_of;

@@ -22,14 +22,9 @@ Pipeline::Pipeline(const SlamConfig& config, SessionManager* manager, Log log, b
     const Status st = manager_->reload(std::to_string(s.id), &r);
     if (!st.ok()) throw StoreError(st.message);
     cameras_.push_back(r.camera);
-    for (const StoredKeyframe& k : r.keyframes) {
-      FrameFeatures f;
-      f.image_size = k.image_size;
-      f.keypoints.reserve(k.points.size());
-      for (const cv::Point2f& p : k.points) f.keypoints.emplace_back(p, 1.0f);
-      f.descriptors = k.descriptors;
-      detector_.addStoredKeyframe(r.id, k.keyframe, k.frame_index, k.altitude_m, &cameras_.back(), f, k.hash);
-    }
+    for (const StoredKeyframe& k : r.keyframes)
+      detector_.addStoredKeyframe(r.id, k.keyframe, k.frame_index, k.altitude_m, &cameras_.back(), k.features(),
+                                  k.hash);
   }
 }
 
@@ -83,8 +78,10 @@ std::vector<std::uint8_t> Pipeline::thumbnail(const cv::Mat& image) {
   std::vector<std::uint8_t> jpeg;
   if (image.empty()) return jpeg;
   cv::Mat grey, small;
-  if (image.channels() == 3) cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
-  else grey = image;
+  if (image.channels() == 3)
+    cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
+  else
+    grey = image;
   const double f = 96.0 / std::max(grey.cols, grey.rows);
   cv::resize(grey, small, cv::Size(), f, f, cv::INTER_AREA);
   cv::imencode(".jpg", small, jpeg, {cv::IMWRITE_JPEG_QUALITY, 70});
@@ -96,8 +93,9 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& frame) {
   const OdometryUpdate& u = step.update;
   if (step.session_started) {
     startPiece(frame.stamp_s);
-    if (pieces_ > 1) say("stream " + stream_ + ": tracking resumed at frame " + std::to_string(frame.index) +
-                         ": session " + std::to_string(session_) + " starts");
+    if (pieces_ > 1)
+      say("stream " + stream_ + ": tracking resumed at frame " + std::to_string(frame.index) + ": session " +
+          std::to_string(session_) + " starts");
   }
   if (verbose_ && u.status == FrameStatus::kSkipped && !frame.image.empty())
     say("stream " + stream_ + " frame " + std::to_string(frame.index) + " skipped: " + u.reason);

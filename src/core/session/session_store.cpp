@@ -622,5 +622,14 @@ std::uint64_t SessionStore::bytesOnDisk() const {
 
 void SessionStore::checkpoint() { exec("PRAGMA wal_checkpoint(TRUNCATE)"); }
 
+FrameFeatures StoredKeyframe::features() const {
+  FrameFeatures f;
+  f.image_size = image_size;
+  f.keypoints.reserve(points.size());
+  for (const cv::Point2f& p : points) f.keypoints.emplace_back(p, 1.0f);
+  f.descriptors = descriptors;
+  return f;
+}
+
 }  // namespace core
 }  // namespace uw_multislam

@@ -33,6 +33,7 @@
 #include <vector>
 
 #include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/frontend/features.h"
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/geometry/uncertain_pose.h"
 
@@ -69,6 +70,10 @@ struct StoredKeyframe {
   cv::Mat descriptors;              // points.size() x 128, CV_8U (CV_32F accepted when writing)
   Eigen::VectorXf hash;             // HalocProjections::kHashSize values
   std::vector<std::uint8_t> thumbnail;  // JPEG, may be empty
+
+  /// Its features as the loop detector takes them: keypoints at the stored pixel positions (size
+  /// 1; response order kept), the stored descriptors (CV_8U) and image size.
+  FrameFeatures features() const;
 };
 
 /// A loop as stored: store session ids, keyframe ids, what offline_slam reports, its state.
