@@ -4,7 +4,9 @@
 
 #include <Eigen/Dense>
 
+#include <algorithm>
 #include <random>
+#include <tuple>
 
 #include "uw_multislam/core/backend/backend.h"
 
@@ -240,6 +242,106 @@ TEST_P(BothOptimizers, OptimisationWaitsForMPendingLoops) {
   EXPECT_EQ(b.stats().optimisations, 1);
   b.endSession(s);  // a session's end flushes its map
   EXPECT_EQ(b.stats().optimisations, 2);
+}
+
+// Runs every due map's optimisation the way the back-end nodelet does (prepare, solve, apply).
+int runDue(MultiSessionBackend* b) {
+  int applied = 0;
+  for (std::vector<int> due = b->dueMaps(); !due.empty(); due = b->dueMaps()) {
+    OptimisationJob job = b->prepareOptimisation(due.front());
+    MultiSessionBackend::solveOptimisation(&job);
+    if (!b->applyOptimisation(job)) ADD_FAILURE() << "nothing changed, yet the job was dropped";
+    ++applied;
+  }
+  return applied;
+}
+
+TEST_P(BothOptimizers, DeferredOptimisationGivesTheSynchronousNumbers) {
+  // Two noisy sessions, loops inside the first (optimised every 2), global loops that join them
+  // automatically, then loops inside the second: synchronous, and deferred with the due maps run after every request.
+  auto run = [](OptimizerKind k, bool deferred, std::vector<int>* due_after_request) {
+    World w;
+    w.odo_noise = 0.01;
+    w.sessions = {line(Pose2(0, 0, 0), 12), line(Pose2(2.0, -2.0, M_PI / 2), 12)};
+    BackendOptions o = optionsFor(k);
+    o.optimise_every = 2;
+    o.join_min_loops = 3;
+    MultiSessionBackend b(o);
+    b.setDeferred(deferred);
+    auto request = [&](auto f) {
+      f();
+      if (!deferred) return;
+      due_after_request->push_back(static_cast<int>(b.dueMaps().size()));
+      const int before = b.stats().optimisations;
+      runDue(&b);
+      EXPECT_EQ(b.stats().optimisations - before, due_after_request->back());
+    };
+    const int s0 = b.startSession();
+    for (int k = 1; k < 12; ++k) request([&] { b.addMotion(s0, w.motion(0, k)); });
+    for (int k = 0; k < 4; ++k) request([&] { b.addLoop(w.loop(0, k, 0, 11 - k, Pose2(0.02, 0.0, 0.0))); });
+    request([&] { b.endSession(s0); });
+    w.feed(&b, 1);
+    for (int k = 0; k < 3; ++k) request([&] { b.addLoop(w.loop(0, 4 + k, 1, 5)); });
+    for (int k = 0; k < 2; ++k) request([&] { b.addLoop(w.loop(1, k, 1, 11 - k, Pose2(0.02, 0.0, 0.0))); });
+    b.flush();
+    EXPECT_EQ(b.mapOf(1), b.mapOf(0));
+    return std::make_tuple(b.sessionPoses(0), b.sessionPoses(1), b.stats().optimisations);
+  };
+  std::vector<int> due;
+  const auto sync = run(GetParam(), false, nullptr), deferred = run(GetParam(), true, &due);
+  EXPECT_EQ(std::get<2>(sync), std::get<2>(deferred));
+  EXPECT_GT(std::get<2>(sync), 2);
+  // A request only marks maps due (it never optimises): loops 2 and 4 of session 0, then loop 2
+  // of session 1 in the joined map.
+  EXPECT_EQ(std::count(due.begin(), due.end(), 1), 3);
+  auto identical = [](const std::vector<Pose2>& a, const std::vector<Pose2>& b) {
+    if (a.size() != b.size()) return false;
+    for (std::size_t k = 0; k < a.size(); ++k)
+      if (a[k].x() != b[k].x() || a[k].y() != b[k].y() || a[k].yaw() != b[k].yaw()) return false;
+    return true;
+  };
+  EXPECT_TRUE(identical(std::get<0>(sync), std::get<0>(deferred)));  // the same arithmetic, bit for bit
+  EXPECT_TRUE(identical(std::get<1>(sync), std::get<1>(deferred)));
+}
+
+TEST_P(BothOptimizers, AResultForAMapThatChangedMeanwhileIsDroppedAndTheMapStaysDue) {
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(0, 1.0, 0), 10)};
+  BackendOptions o = optionsFor(GetParam());
+  o.join_min_loops = 0;
+  MultiSessionBackend b(o);
+  b.setDeferred(true);
+  const int s0 = w.feed(&b, 0);
+  const int s1 = w.feed(&b, 1);
+  for (int k = 0; k < 3; ++k) b.addLoop(w.loop(s0, k, s1, k));  // between maps: stored, no join
+  b.addLoop(w.loop(s0, 0, s0, 9, Pose2(0.05, 0.0, 0.0)));      // inside map 0: due
+  ASSERT_EQ(b.dueMaps(), std::vector<int>{0});
+  EXPECT_EQ(b.stats().optimisations, 0);
+  const std::vector<Pose2> before = b.sessionPoses(s0);
+
+  // A join while the job is being solved: the map the job was taken from is gone.
+  OptimisationJob job = b.prepareOptimisation(0);
+  MultiSessionBackend::solveOptimisation(&job);
+  ASSERT_TRUE(b.join(s0, s1, 3).ok());
+  EXPECT_FALSE(b.applyOptimisation(job));
+  EXPECT_EQ(b.stats().optimisations_discarded, 1);
+  EXPECT_EQ(b.stats().optimisations, 0);
+  EXPECT_EQ(worstError(b.sessionPoses(s0), before), 0.0);  // nothing written
+  ASSERT_EQ(b.dueMaps(), std::vector<int>{0});             // the joined map still waits for it
+
+  // A loop added while solving changes the map: dropped again; the next job has both loops.
+  job = b.prepareOptimisation(0);
+  MultiSessionBackend::solveOptimisation(&job);
+  b.addLoop(w.loop(s1, 0, s1, 9, Pose2(0.05, 0.0, 0.0)));
+  EXPECT_FALSE(b.applyOptimisation(job));
+  EXPECT_EQ(runDue(&b), 1);
+  EXPECT_EQ(b.stats().optimisations, 1);
+  EXPECT_TRUE(b.dueMaps().empty());
+  EXPECT_GT(worstError(b.sessionPoses(s0), before), 1e-3);  // the loops moved the trajectory
+
+  OptimisationJob unsolved = b.prepareOptimisation(0);
+  EXPECT_THROW(b.applyOptimisation(unsolved), std::invalid_argument);
+  EXPECT_THROW(b.prepareOptimisation(5), std::invalid_argument);
 }
 
 INSTANTIATE_TEST_SUITE_P(Backend, BothOptimizers, ::testing::Values(OptimizerKind::kIekf, OptimizerKind::kSparse),

@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <sstream>
@@ -120,6 +121,7 @@ void MultiSessionBackend::toSparse(Map& m, const std::string& why) {
   m.cov.clear();
   for (int k = 0; k < static_cast<int>(m.motions.size()); ++k) m.cov.push_back(block3(m.iekf->covariance(), k, k));
   m.iekf.reset();
+  touch(m);
   say("map " + std::to_string(m.chain.front()) + ": " + why + ": optimised by the sparse back-end from now on");
 }
 
@@ -131,6 +133,7 @@ void MultiSessionBackend::toDenseIfIekf(Map& m) const {
   m.iekf.emplace(options_.iekf, m.motions, std::move(p));
   m.motions.clear();
   m.cov.clear();
+  touch(m);
 }
 
 void MultiSessionBackend::addMotion(int session, const UncertainPose2& motion) {
@@ -150,6 +153,7 @@ void MultiSessionBackend::addMotion(int session, const UncertainPose2& motion) {
     m.motions.push_back(motion.mean);
     m.cov.push_back(motion.covariance);
   }
+  touch(m);
   sessions_[session].odometry.push_back(motion);
 }
 
@@ -173,6 +177,7 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
   if (ma == mb) {
     Map& m = mapAt(ma);
     ++m.pending;
+    touch(m);
     if (options_.optimise && m.pending >= options_.optimise_every) optimise(ma);
     return;
   }
@@ -186,7 +191,7 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
 
 void MultiSessionBackend::flush() {
   for (auto& [id, m] : maps_)
-    if (m.pending > 0) optimise(id);
+    if (m.pending > 0) optimiseNow(id);
 }
 
 bool MultiSessionBackend::barred(int sa, int sb) const {
@@ -211,64 +216,114 @@ int MultiSessionBackend::pendingJoinLoops(int session_a, int session_b) const {
   return ma == mb ? 0 : static_cast<int>(loopsBetween(ma, mb, false).size());
 }
 
+std::uint64_t MultiSessionBackend::nextRevision() {
+  static std::atomic<std::uint64_t> next{1};
+  return next++;
+}
+
 void MultiSessionBackend::optimise(int map_id) {
   Map& m = mapAt(map_id);
   if (!options_.optimise) {
     m.pending = 0;
     return;
   }
-  const auto t0 = std::chrono::steady_clock::now();
-  if (m.iekf) {
-    optimiseIekf(m);
-  } else {
-    optimiseSparse(m);
+  if (deferred_) {
+    due_.insert(map_id);
+    return;
   }
-  m.pending = 0;
-  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-  ++stats_.optimisations;
-  stats_.optimise_ms_total += ms;
-  stats_.optimise_ms_max = std::max(stats_.optimise_ms_max, ms);
+  optimiseNow(map_id);
 }
 
-void MultiSessionBackend::optimiseIekf(Map& m) {
-  std::vector<LoopMeasurement> z;
+void MultiSessionBackend::optimiseNow(int map_id) {
+  if (!options_.optimise) {
+    mapAt(map_id).pending = 0;
+    return;
+  }
+  OptimisationJob job = prepareOptimisation(map_id);
+  solveOptimisation(&job);
+  if (!applyOptimisation(job)) throw std::logic_error("backend: a map changed during its own optimisation");
+}
+
+std::vector<int> MultiSessionBackend::dueMaps() const {
   std::vector<int> ids;
-  const int id = m.chain.front();
-  for (int k = 0; k < static_cast<int>(loops_.size()); ++k) {
-    const LoopRecord& st = loops_[k];
-    if (st.summarised || st.refused || st.applied) continue;
-    if (mapOf(st.loop.session_a) != id || mapOf(st.loop.session_b) != id) continue;
-    z.push_back({indexOf(st.loop.session_a, st.loop.keyframe_a), indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z});
-    ids.push_back(k);
+  for (int id : due_) {
+    const auto it = maps_.find(id);
+    if (it != maps_.end() && it->second.pending > 0) ids.push_back(id);
   }
-  if (z.empty()) return;
-  m.iekf->update(z);
-  for (int k : ids) loops_[k].applied = true;
+  return ids;
 }
 
-void MultiSessionBackend::optimiseSparse(Map& m) {
-  const int id = m.chain.front();
-  std::vector<Pose2> poses{Pose2()};
-  for (int k = 0; k < m.numMotions(); ++k) poses.push_back(compose(poses.back(), m.motions[k]));
-  std::vector<PoseGraphEdge> edges;
+OptimisationJob MultiSessionBackend::prepareOptimisation(int map_id) const {
+  chain(map_id);  // throws for an unknown map
+  const Map& m = mapAt(map_id);
+  OptimisationJob job;
+  job.map = map_id;
+  job.revision = m.revision;
+  if (m.iekf) {
+    job.iekf = true;
+    for (int k = 0; k < static_cast<int>(loops_.size()); ++k) {
+      const LoopRecord& st = loops_[k];
+      if (st.summarised || st.refused || st.applied) continue;
+      if (mapOf(st.loop.session_a) != map_id || mapOf(st.loop.session_b) != map_id) continue;
+      job.measurements.push_back(
+          {indexOf(st.loop.session_a, st.loop.keyframe_a), indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z});
+      job.loop_ids.push_back(k);
+    }
+    if (!job.measurements.empty()) job.filter = *m.iekf;  // the copy is O(N^2), the update O(N^2 m)
+    return job;
+  }
+  job.sparse = options_.sparse;
+  job.poses.push_back(Pose2());
+  for (int k = 0; k < m.numMotions(); ++k) job.poses.push_back(compose(job.poses.back(), m.motions[k]));
   int o = 0;
   for (std::size_t c = 0; c < m.chain.size(); ++c) {
     const Session& s = sessions_[m.chain[c]];
-    for (int k = 1; k < s.keyframes(); ++k) edges.push_back({o + k - 1, o + k, s.odometry[k - 1], false});
+    for (int k = 1; k < s.keyframes(); ++k) job.edges.push_back({o + k - 1, o + k, s.odometry[k - 1], false});
     o += s.keyframes();
-    if (c + 1 < m.chain.size()) edges.push_back({o - 1, o, m.links[c].measured, false});
+    if (c + 1 < m.chain.size()) job.edges.push_back({o - 1, o, m.links[c].measured, false});
   }
-  bool any_loop = false;
   for (const LoopRecord& st : loops_) {
     if (st.summarised || st.refused) continue;
-    if (mapOf(st.loop.session_a) != id || mapOf(st.loop.session_b) != id) continue;
-    edges.push_back({indexOf(st.loop.session_a, st.loop.keyframe_a), indexOf(st.loop.session_b, st.loop.keyframe_b),
-                     st.loop.z, true});
-    any_loop = true;
+    if (mapOf(st.loop.session_a) != map_id || mapOf(st.loop.session_b) != map_id) continue;
+    job.edges.push_back({indexOf(st.loop.session_a, st.loop.keyframe_a), indexOf(st.loop.session_b, st.loop.keyframe_b),
+                         st.loop.z, true});
+    job.any_loop = true;
   }
-  if (!any_loop) return;
-  optimisePoseGraph(&poses, edges, options_.sparse, 0);
-  for (int k = 0; k < m.numMotions(); ++k) m.motions[k] = between(poses[k], poses[k + 1]);
+  return job;
+}
+
+void MultiSessionBackend::solveOptimisation(OptimisationJob* job) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (job->iekf) {
+    if (job->filter) job->filter->update(job->measurements);
+  } else if (job->any_loop) {
+    optimisePoseGraph(&job->poses, job->edges, job->sparse, 0);
+  }
+  job->solve_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  job->solved = true;
+}
+
+bool MultiSessionBackend::applyOptimisation(const OptimisationJob& job) {
+  if (!job.solved) throw std::invalid_argument("backend: applyOptimisation of a job that was not solved");
+  const auto it = maps_.find(job.map);
+  if (it == maps_.end() || it->second.revision != job.revision || job.iekf != it->second.iekf.has_value()) {
+    ++stats_.optimisations_discarded;
+    return false;
+  }
+  Map& m = it->second;
+  if (job.iekf) {
+    if (job.filter) m.iekf = job.filter;
+    for (int k : job.loop_ids) loops_[k].applied = true;
+  } else if (job.any_loop) {
+    for (int k = 0; k < m.numMotions(); ++k) m.motions[k] = between(job.poses[k], job.poses[k + 1]);
+  }
+  m.pending = 0;
+  touch(m);
+  due_.erase(job.map);
+  ++stats_.optimisations;
+  stats_.optimise_ms_total += job.solve_ms;
+  stats_.optimise_ms_max = std::max(stats_.optimise_ms_max, job.solve_ms);
+  return true;
 }
 
 BackendStatus MultiSessionBackend::join(int session_a, int session_b, int min_loops) {
@@ -400,8 +455,10 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
       for (int b : c.chain) split_pairs_.erase({std::min(a, b), std::max(a, b)});
   }
   const int prev_session = p.chain.back(), cur_session = c.chain.front();
+  const bool was_due = due_.erase(first) + due_.erase(second) > 0;
   maps_.erase(second);
   Map& joined = maps_[first] = std::move(j);
+  if (was_due) due_.insert(first);  // what it waited for is still pending in the joined map
   for (int s : joined.chain) sessions_[s].map = first;
   // Loops between the two maps that did not take part (barred ones) are now intra-map.
   for (const LoopRecord& st : loops_)
@@ -549,6 +606,7 @@ BackendStatus MultiSessionBackend::split(int session) {
   }
   for (int t : rest.chain) split_pairs_.insert({std::min(session, t), std::max(session, t)});
   const int rest_id = rest.chain.front();
+  if (due_.erase(old_id) > 0) due_.insert({session, rest_id});  // dueMaps() skips those with nothing pending
   maps_.erase(old_id);
   maps_[session] = std::move(alone);
   sessions_[session].map = session;

@@ -31,10 +31,19 @@
 //    warm-started, with a robust loss on loops. Memory O(N + loops).
 // Optimisation is delayed until optimise_every (M) loops are pending in a map, or a session
 // ends, or flush() is called.
+//
+// Deferred optimisation (setDeferred): a host that serves other threads meanwhile (the back-end
+// nodelet: services, the per-frame pose) does not let a request optimise. Requests only mark maps
+// due; the host takes each due map's problem out (prepareOptimisation, a copy), solves it without
+// holding its lock (solveOptimisation touches nothing but the job) and hands the result back
+// (applyOptimisation), which writes it only if the map did not change in between (its revision:
+// a new motion, loop, join, split or restore changes it), else the map stays due and is solved
+// again. Prepare + solve + apply is also the synchronous path, so both give the same numbers.
 #pragma once
 
 #include <Eigen/Core>
 
+#include <cstdint>
 #include <functional>
 #include <map>
 #include <optional>
@@ -129,7 +138,26 @@ struct BackendStats {
   int loops_refused = 0;    // refused at a join as inconsistent with the others
   int joins = 0, splits = 0;
   int optimisations = 0;
+  int optimisations_discarded = 0;  // deferred results dropped: their map changed while they were solved
   double optimise_ms_total = 0.0, optimise_ms_max = 0.0;
+};
+
+/// One map's optimisation problem taken out of the back-end (see "Deferred optimisation" above).
+struct OptimisationJob {
+  int map = -1;
+  std::uint64_t revision = 0;  // the map's revision when the job was prepared
+  bool iekf = false;
+  // sparse: the map's whole pose graph at its current estimate (empty edges: no loop, nothing to solve)
+  std::vector<Pose2> poses;
+  std::vector<PoseGraphEdge> edges;
+  bool any_loop = false;
+  SparseOptions sparse;
+  // iekf: a copy of the map's filter and the loops it has not applied yet
+  std::optional<TrajectoryIekf> filter;
+  std::vector<LoopMeasurement> measurements;
+  std::vector<int> loop_ids;
+  double solve_ms = 0.0;
+  bool solved = false;
 };
 
 class MultiSessionBackend {
@@ -148,8 +176,22 @@ class MultiSessionBackend {
   /// Stores a loop (both keyframes must exist). Inside a map it is pending for optimisation;
   /// between maps it is stored and may trigger a join (K loops). Throws std::invalid_argument.
   void addLoop(const BackendLoop& loop);
-  /// Optimises every map with pending loops.
+  /// Optimises every map with pending loops, now (also when deferred).
   void flush();
+
+  // --- Deferred optimisation ---
+  /// true: requests only mark maps due (dueMaps); the host optimises them with the three calls below.
+  void setDeferred(bool deferred) { deferred_ = deferred; }
+  bool deferred() const { return deferred_; }
+  /// Maps waiting for an optimisation, in id order.
+  std::vector<int> dueMaps() const;
+  /// A copy of map `map`'s problem. Throws std::invalid_argument for an unknown map.
+  OptimisationJob prepareOptimisation(int map) const;
+  /// Solves a prepared job; reads and writes nothing but `job` (call it without the host's lock).
+  static void solveOptimisation(OptimisationJob* job);
+  /// Writes a solved job's result into its map: true. false (nothing written, the map stays due)
+  /// when the map changed or vanished since prepareOptimisation.
+  bool applyOptimisation(const OptimisationJob& job);
 
   /// Joins the maps of two sessions from their stored global loops (at least min_loops >= 1).
   BackendStatus join(int session_a, int session_b, int min_loops = 1);
@@ -213,6 +255,7 @@ class MultiSessionBackend {
     std::vector<Eigen::Matrix3d> cov;       // their covariances (sparse maps)
     std::optional<TrajectoryIekf> iekf;     // dense maps: motions and joint covariance
     int pending = 0;                        // loops waiting for optimisation
+    std::uint64_t revision = nextRevision();  // changes with every change of the map (touch)
     int numMotions() const;
     Pose2 motion(int k) const;              // k = 0-based motion index (motion k reaches keyframe k+1)
     Eigen::Matrix3d motionCov(int k) const;
@@ -223,9 +266,12 @@ class MultiSessionBackend {
   const Map& mapAt(int id) const;
   int offset(const Map& m, int session) const;  // index of the session's first keyframe in the map
   int indexOf(int session, int keyframe) const { return offset(mapAt(mapOf(session)), session) + keyframe; }
+  /// Every new map, and every change of one, takes a revision never used before (process-wide).
+  static std::uint64_t nextRevision();
+  static void touch(Map& m) { m.revision = nextRevision(); }
+  /// Optimises map `map_id` now, or (deferred) marks it due.
   void optimise(int map_id);
-  void optimiseSparse(Map& m);
-  void optimiseIekf(Map& m);
+  void optimiseNow(int map_id);
   void toSparse(Map& m, const std::string& why);
   /// A sparse map (motions, marginal covariances) into the IEKF's dense form, when the IEKF is the
   /// optimiser and the map fits; block-diagonal, the cross-covariances being unknown.
@@ -242,6 +288,8 @@ class MultiSessionBackend {
   std::vector<LoopRecord> loops_;
   std::set<std::pair<int, int>> split_pairs_;  // sessions split apart by the user
   BackendStats stats_;
+  bool deferred_ = false;
+  std::set<int> due_;  // maps marked for a deferred optimisation
 };
 
 }  // namespace core
