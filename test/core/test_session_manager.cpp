@@ -5,6 +5,7 @@
 #include <climits>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 
 #include "../common/scoped_temp_dir.h"
 #include "uw_multislam/core/session/session_manager.h"
@@ -205,6 +206,39 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
   EXPECT_EQ(again.activeSession(), 2);
   SessionManager none(options());
   EXPECT_EQ(none.reload("0", &r).code, StatusCode::kFailedPrecondition);
+}
+
+TEST(SessionManager, DeferredOptimisationRunsOutsideRequestsAndSavesTheFinishedMap) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  std::vector<Pose2> optimised;
+  {
+    SessionManagerOptions o = options(db);
+    o.backend.optimise_every = 1;
+    int optimisations = 0;
+    SessionManager m(o, [&](const SessionEvent& e) { optimisations += e.kind == SessionEvent::Kind::kMapOptimised; });
+    m.setDeferredOptimisation(true);
+    addStraightSession(&m, 0, 8);
+    Loop l = globalLoop(0, 0, 0, 7, Pose2(7.3, 0, 0));  // the odometry says 7 m
+    l.kind = Loop::Kind::kLocal;
+    ASSERT_TRUE(m.addLoop(l).ok());
+    EXPECT_EQ(optimisations, 0);
+    EXPECT_DOUBLE_EQ(m.poses(0).back().x(), 7.0);  // the request did not optimise
+    std::optional<MapOptimisation> job = m.nextOptimisation();
+    ASSERT_TRUE(job.has_value());
+    EXPECT_EQ(job->map, 0);
+    SessionManager::solveOptimisation(&*job);
+    addStraightSession(&m, 1, 2);  // meanwhile session 0 ends: its map's problem is unchanged
+    EXPECT_TRUE(m.applyOptimisation(*job));
+    EXPECT_EQ(optimisations, 1);
+    EXPECT_FALSE(m.nextOptimisation().has_value());
+    optimised = m.poses(0);
+    EXPECT_GT(optimised.back().x(), 7.1);
+  }  // no flush: what the store holds now is what applyOptimisation saved
+  SessionManager again(options(db));
+  const std::vector<Pose2> back = again.poses(0);
+  ASSERT_EQ(back.size(), optimised.size());
+  for (std::size_t k = 0; k < back.size(); ++k) EXPECT_NEAR(back[k].x(), optimised[k].x(), 1e-9) << k;
 }
 
 TEST(SessionManager, BadOptionsAndABadStoreAreRefusedAtConstruction) {

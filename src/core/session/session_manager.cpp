@@ -455,6 +455,24 @@ void SessionManager::flush() {
   saveMaps();
 }
 
+std::optional<MapOptimisation> SessionManager::nextOptimisation() const {
+  const std::vector<int> due = backend_->dueMaps();
+  if (due.empty()) return std::nullopt;
+  return MapOptimisation{idOfBackend(due.front()), backend_->prepareOptimisation(due.front())};
+}
+
+bool SessionManager::applyOptimisation(const MapOptimisation& o) {
+  if (!backend_->applyOptimisation(o.job)) {
+    say("map " + std::to_string(o.map) + " changed while it was optimised: the result is dropped, optimised again");
+    return false;
+  }
+  afterBackendChange();
+  bool recording = false;
+  for (int s : backend_->chain(o.job.map)) recording = recording || backend_->session(s).recording;
+  if (!recording) saveMaps();  // a finished map's optimisation is not lost with the next crash
+  return true;
+}
+
 Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* out) {
   if (!store_) return {StatusCode::kFailedPrecondition, "no session store: nothing to reload"};
   int id = -1;

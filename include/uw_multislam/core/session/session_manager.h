@@ -30,6 +30,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <optional>
 #include <set>
 #include <string>
 #include <vector>
@@ -125,6 +126,12 @@ struct ReloadedSession {
   std::vector<StoredKeyframe> keyframes;
 };
 
+/// A due map's optimisation problem, taken out of the manager (deferred optimisation).
+struct MapOptimisation {
+  int map = -1;  // the map's id (its first session)
+  OptimisationJob job;
+};
+
 class SessionManager {
  public:
   using EventSink = std::function<void(const SessionEvent&)>;
@@ -161,8 +168,21 @@ class SessionManager {
   /// Brings a stored (UNLOADED) session back by name or id: its keyframes with features, for the
   /// loop detector. NOT_FOUND, ALREADY_EXISTS (loaded), FAILED_PRECONDITION (no store), DATA_LOSS.
   Status reload(const std::string& name_or_id, ReloadedSession* out);
-  /// Optimises every map with pending loops; saves the maps.
+  /// Optimises every map with pending loops (now, also when deferred); saves the maps.
   void flush();
+
+  // --- Deferred optimisation (the back-end nodelet) -----------------------------------------
+  // With it on, requests never optimise: they leave the maps that need it due (backend.h,
+  // "Deferred optimisation"). The host takes each due map's problem with nextOptimisation() under
+  // its lock, solves it with solveOptimisation() without the lock (other requests and queries go
+  // on meanwhile), and hands it back with applyOptimisation() under the lock again.
+  void setDeferredOptimisation(bool on) { backend_->setDeferred(on); }
+  /// The first due map's problem (its map in session ids), or nullopt when none is due.
+  std::optional<MapOptimisation> nextOptimisation() const;
+  static void solveOptimisation(MapOptimisation* o) { MultiSessionBackend::solveOptimisation(&o->job); }
+  /// true: the result is in (kMapOptimised; the maps are saved when the map holds no recording
+  /// session). false: the map changed while it was solved; nothing written, it is still due.
+  bool applyOptimisation(const MapOptimisation& o);
 
   // --- What is there -----------------------------------------------------------------------
   std::vector<SessionSummary> list() const;
