@@ -1,10 +1,12 @@
 #!/usr/bin/python3
-"""The current pose during a large optimisation (issue 14): the back-end must never make the
-per-frame pose wait for an optimisation. Starts backend_node (no store) on the running master,
-feeds it one session of N featureless keyframes in a straight line, then, while odometry/pose
-arrives at RATE Hz, the loops that make it optimise the whole N-keyframe map. Prints one line:
+"""The current pose and a service during a large optimisation (issue 14): the back-end must never
+make the per-frame pose or a service call wait for an optimisation. Starts backend_node (no
+store) on the running master, feeds it one session of N featureless keyframes in a straight
+line, then, while odometry/pose arrives at RATE Hz and list_sessions is called back to back, the
+loops that make it optimise the whole N-keyframe map. Prints one line:
 
-  pose gap: N keyframes, optimisation X ms, longest gap in pose Y ms (odometry/pose every P ms), gap / optimisation Y/X
+  pose gap: N keyframes, optimisation X ms, longest gap in pose Y ms (odometry/pose every P ms), gap / optimisation Y/X,
+  longest list_sessions call S ms (C calls), call / optimisation S/X
 
 Not a test: numbers for this machine. usage: bench_pose_gap.py [--keyframes N] [--rate HZ]
 """
@@ -18,6 +20,7 @@ import rospy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose2D, PoseStamped
 from uw_multislam.msg import Keyframe, Loop
+from uw_multislam.srv import ListSessions
 
 NS = "/pose_gap_bench"
 
@@ -54,7 +57,7 @@ def main():
     parser.add_argument("--rate", type=float, default=100.0)
     args = parser.parse_args()
     rospy.init_node("bench_pose_gap", anonymous=True)
-    state = {"optimisations": 0, "optimise_ms_max": 0.0, "keyframes": 0, "arrivals": []}
+    state = {"optimisations": 0, "optimise_ms_max": 0.0, "keyframes": 0, "arrivals": [], "calls": []}
     lock = threading.Lock()
 
     def on_diag(msg):
@@ -104,12 +107,24 @@ def main():
                 nxt += period
                 time.sleep(max(0.0, nxt - time.monotonic()))
 
-        thread = threading.Thread(target=odometry)
-        thread.start()
+        def caller():
+            rospy.wait_for_service(NS + "/list_sessions", timeout=30)
+            call = rospy.ServiceProxy(NS + "/list_sessions", ListSessions, persistent=True)
+            while not stop.is_set():
+                t0 = time.monotonic()
+                call()
+                with lock:
+                    state["calls"].append(time.monotonic() - t0)
+                time.sleep(0.005)
+
+        threads = [threading.Thread(target=odometry), threading.Thread(target=caller)]
+        for thread in threads:
+            thread.start()
         time.sleep(2.0)
         with lock:
             before = state["optimisations"]
             state["arrivals"] = []
+            state["calls"] = []
         for a, b in ((0, n - 1), (1, n - 2), (2, n - 3)):  # optimise_every = 3: one optimisation of the map
             loop_pub.publish(loop(a, b))
         deadline = time.time() + 120
@@ -117,19 +132,25 @@ def main():
             time.sleep(0.05)
         time.sleep(2.0)
         stop.set()
-        thread.join()
+        for thread in threads:
+            thread.join()
         with lock:
             t = state["arrivals"]
             gaps = [b - a for a, b in zip(t, t[1:])]
+            calls = list(state["calls"])
             optimised = state["optimisations"] > before
             ms = state["optimise_ms_max"]
         longest = 1e3 * max(gaps) if gaps else float("nan")
+        longest_call = 1e3 * max(calls) if calls else float("nan")
         period_ms = 1e3 / args.rate
-        # The reference, measured in the same run: a pose that waited for the optimisation (the
-        # back-end before issue 14 took its state lock for it) would miss the whole optimisation.
+        ratio = (lambda x: x / ms if optimised and ms > 0 else float("nan"))
+        # The reference, measured in the same run: a pose or a call that waited for the
+        # optimisation (the back-end before issue 14 took its state lock for it) would take the
+        # whole optimisation.
         print("pose gap: %d keyframes, optimisation %s ms, longest gap in pose %.1f ms (odometry/pose every %.1f ms), "
-              "gap / optimisation %.2f" % (n, "%.0f" % ms if optimised else "NOT RUN", longest, period_ms,
-                                           longest / ms if optimised and ms > 0 else float("nan")))
+              "gap / optimisation %.2f, longest list_sessions call %.1f ms (%d calls), call / optimisation %.2f"
+              % (n, "%.0f" % ms if optimised else "NOT RUN", longest, period_ms, ratio(longest), longest_call,
+                 len(calls), ratio(longest_call)))
     finally:
         node.terminate()
         node.wait(timeout=60)

@@ -1,8 +1,6 @@
 // The back-end / session manager nodelet: see its header for topics, services and threading.
 #include "uw_multislam/ros/nodelets/backend_nodelet.h"
 
-#include <geometry_msgs/TransformStamped.h>
-
 #include <pluginlib/class_list_macros.hpp>
 
 #include <cstdio>
@@ -37,24 +35,21 @@ BackendNodelet::~BackendNodelet() {
   logStats("at shutdown");
 }
 
-void BackendNodelet::readParameters() {
-  ros::NodeHandle& nh = getNodeHandle();
-  options_ = ros_params::backendNodeletOptions(nh, getPrivateNodeHandle());
-  config_ = ros_params::slamConfigFromParams(nh);
-  const std::string bad = config_.validate();
-  if (!bad.empty()) throw std::invalid_argument(nh.resolveName("slam") + ": " + bad);
-}
-
 void BackendNodelet::onInit() {
   // The manager (and the store behind it) first: nothing is advertised before it is usable, and
   // a refused store leaves the nodelet inert instead of throwing out of onInit (which took the
   // whole nodelet manager down with it).
+  ros::NodeHandle& nh = getNodeHandle();
   try {
-    readParameters();
+    options_ = ros_params::backendNodeletOptions(nh, getPrivateNodeHandle());
+    config_ = ros_params::slamConfigFromParams(nh);
+    const std::string bad = config_.validate();
+    if (!bad.empty()) throw std::invalid_argument(nh.resolveName("slam") + ": " + bad);
     core::SessionManagerOptions options = core::sessionManagerOptions(config_, options_.store_path);
     options.max_keyframe_gap = options_.max_keyframe_gap;
     manager_ = std::make_unique<core::SessionManager>(
         options, [this](const core::SessionEvent& e) { onEvent(e); }, [this](const std::string& line) { say(line); });
+    manager_->setDeferredOptimisation(true);  // optimised by the worker, outside state_mutex_
   } catch (const std::exception& e) {
     NODELET_FATAL(
         "back-end: not starting (no topics, no services): %s%s", e.what(),
@@ -70,7 +65,6 @@ void BackendNodelet::onInit() {
       options_.map_frame.c_str(), options_.session_frame_prefix.c_str(), options_.base_frame.c_str(),
       options_.publish_tf ? "on" : "off", options_.queue_size,
       options_.store_path.empty() ? "none" : options_.store_path.c_str());
-  ros::NodeHandle& nh = getNodeHandle();
   trajectory_pub_ = nh.advertise<uw_multislam::SessionTrajectory>(topics::kSessionTrajectory, 10);
   markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>(topics::kLoopMarkers, 1, true);
   pose_pub_ = nh.advertise<geometry_msgs::PoseStamped>(topics::kCurrentPose, 10);
@@ -82,6 +76,7 @@ void BackendNodelet::onInit() {
     publishAll(true);
     announceNextSession();  // stored sessions hold ids 0..k-1: the odometry continues from k
   }
+  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Message>>(options_.queue_size);  // services wake it
   join_srv_ = nh.advertiseService(topics::kJoinSessionsService, &BackendNodelet::onJoin, this);
   split_srv_ = nh.advertiseService(topics::kSplitSessionService, &BackendNodelet::onSplit, this);
   list_srv_ = nh.advertiseService(topics::kListSessionsService, &BackendNodelet::onList, this);
@@ -96,7 +91,6 @@ void BackendNodelet::onInit() {
     std::lock_guard<std::mutex> lock(state_mutex_);
     logStats("so far");
   });
-  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Message>>(options_.queue_size);
   worker_ = std::thread([this] { work(); });
   auto push = [this](const auto& m) { queue_->push(Message(m)); };  // keyframes and loops keep their order
   keyframe_sub_ = nh.subscribe<uw_multislam::Keyframe>(topics::kKeyframes, 100, push);
@@ -107,19 +101,50 @@ void BackendNodelet::onInit() {
 void BackendNodelet::work() {
   Message m;
   while (queue_->pop(&m)) {
+    if (const auto* k = std::get_if<uw_multislam::KeyframeConstPtr>(&m)) {
+      std::deque<uw_multislam::LoopConstPtr> retry;
+      step([&] { processKeyframe(**k), retry = std::exchange(waiting_, {}); });
+      for (const auto& l : retry) step([&] { processLoop(l, true); });  // their keyframe may be here
+    } else if (const auto* l = std::get_if<uw_multislam::LoopConstPtr>(&m)) {
+      step([&] { processLoop(*l, false); });
+    } else {
+      optimiseDue();
+    }
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    publishAll(std::exchange(publish_all_, false));
+  }
+}
+
+template <typename F>
+void BackendNodelet::step(F process) {
+  {
     std::lock_guard<std::mutex> lock(state_mutex_);
     try {
-      if (const auto* k = std::get_if<uw_multislam::KeyframeConstPtr>(&m)) {
-        processKeyframe(**k);
-        for (const auto& l : std::exchange(waiting_, {})) processLoop(l, true);  // their keyframe may be here
-      } else {
-        processLoop(std::get<uw_multislam::LoopConstPtr>(m), false);
-      }
-      publishAll(std::exchange(publish_all_, false));
+      process();
     } catch (const std::exception& e) {
       ++counts_.bad;
       NODELET_ERROR_THROTTLE(5, "back-end: message skipped: %s", e.what());
     }
+  }
+  optimiseDue();  // after each keyframe or loop, as offline_slam's synchronous manager does
+}
+
+void BackendNodelet::optimiseDue() {
+  for (;;) {
+    std::optional<core::MapOptimisation> o;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      o = manager_->nextOptimisation();
+    }
+    if (!o) return;
+    try {
+      core::SessionManager::solveOptimisation(&*o);  // without the mutex: services and diagnostics go on
+    } catch (const std::exception& e) {              // the map stays due: tried again after the next message
+      NODELET_ERROR_THROTTLE(5, "back-end: optimising map %d failed: %s", o->map, e.what());
+      return;
+    }
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    manager_->applyOptimisation(*o);
   }
 }
 
@@ -170,21 +195,12 @@ void BackendNodelet::publishSession(int id) {
   const ros::Time now = stamps.empty() ? ros::Time::now() : stamps.back();
   trajectory_pub_.publish(rc::toSessionTrajectoryMsg(id, manager_->mapOf(id), manager_->posesInSessionFrame(id), now,
                                                      options_.session_frame_prefix + std::to_string(id)));
-  auto pub = path_pubs_.find(id);
-  if (pub == path_pubs_.end())
-    pub = path_pubs_
-              .emplace(id, getNodeHandle().advertise<nav_msgs::Path>(topics::kSessionPathPrefix + std::to_string(id), 1,
-                                                                     true))
-              .first;
-  pub->second.publish(rc::toPathMsg(poses, stamps, options_.map_frame, now));
-  if (tf_) {
-    geometry_msgs::TransformStamped tr;
-    tr.header.stamp = now;
-    tr.header.frame_id = options_.map_frame;
-    tr.child_frame_id = options_.session_frame_prefix + std::to_string(id);
-    tr.transform = rc::toTransformMsg(correction);
-    tf_->sendTransform(tr);
-  }
+  ros::Publisher& path = path_pubs_[id];  // latched, advertised with the session's first publication
+  if (!path) path = getNodeHandle().advertise<nav_msgs::Path>(topics::kSessionPathPrefix + std::to_string(id), 1, true);
+  path.publish(rc::toPathMsg(poses, stamps, options_.map_frame, now));
+  if (tf_)
+    tf_->sendTransform(rc::toTransformStampedMsg(correction, options_.map_frame,
+                                                 options_.session_frame_prefix + std::to_string(id), now));
   if (id == manager_->activeSession()) {
     std::lock_guard<std::mutex> lock(snapshot_mutex_);
     snapshot_session_ = id;
@@ -227,13 +243,9 @@ void BackendNodelet::onOdometryPose(const geometry_msgs::PoseStampedConstPtr& ms
   p.header.frame_id = options_.map_frame;
   p.pose = rc::toPoseMsg(core::compose(corr, odo));
   pose_pub_.publish(p);
-  if (!tf_) return;
-  geometry_msgs::TransformStamped tr;
-  tr.header.stamp = msg->header.stamp;
-  tr.header.frame_id = options_.session_frame_prefix + std::to_string(active);
-  tr.child_frame_id = options_.base_frame;
-  tr.transform = rc::toTransformMsg(odo);
-  tf_->sendTransform(tr);
+  if (tf_)
+    tf_->sendTransform(rc::toTransformStampedMsg(odo, options_.session_frame_prefix + std::to_string(active),
+                                                 options_.base_frame, msg->header.stamp));
 }
 
 bool BackendNodelet::onJoin(uw_multislam::JoinSessions::Request& req, uw_multislam::JoinSessions::Response& res) {
@@ -242,6 +254,7 @@ bool BackendNodelet::onJoin(uw_multislam::JoinSessions::Request& req, uw_multisl
   res.status = rc::toStatusMsg(st);
   res.map = manager_->has(req.session_a) ? manager_->mapOf(req.session_a) : -1;
   if (st.ok()) publishAll(true);
+  queue_->pushPriority(Message());  // the worker optimises what the join left due
   return true;
 }
 
@@ -250,6 +263,7 @@ bool BackendNodelet::onSplit(uw_multislam::SplitSession::Request& req, uw_multis
   const core::Status st = manager_->split(req.session);
   res.status = rc::toStatusMsg(st);
   if (st.ok()) publishAll(true);
+  queue_->pushPriority(Message());
   return true;
 }
 
@@ -267,6 +281,7 @@ bool BackendNodelet::onStart(uw_multislam::StartSession::Request& req, uw_multis
   res.status = rc::toStatusMsg(st);
   res.session = id;
   if (!st.ok()) return true;
+  queue_->pushPriority(Message());  // the ended session's map may be due
   announceNextSession();
   NODELET_INFO("back-end: start_session: session %d '%s' started; the odometry's next keyframe is its origin", id,
                manager_->name(id).c_str());
@@ -281,44 +296,26 @@ bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_mult
   res.status = rc::toStatusMsg(st);
   res.session = r.id;
   if (!st.ok()) return true;
-  for (const core::StoredKeyframe& k : r.keyframes) {
-    std_msgs::Header h;
-    h.stamp = ros::Time(std::max(0.0, k.stamp_s));
-    h.frame_id = options_.session_frame_prefix + std::to_string(r.id);
-    reloaded_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::toKeyframeMsg(rc::reloadedKeyframe(r, k), h)));
-  }
+  const std::string frame = options_.session_frame_prefix + std::to_string(r.id);
+  for (const core::StoredKeyframe& k : r.keyframes)
+    reloaded_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::reloadedKeyframeMsg(r, k, frame)));
   NODELET_INFO("back-end: reload_session '%s': session %d, %zu keyframes handed to the loop detector", req.name.c_str(),
                r.id, r.keyframes.size());
   return true;
 }
 
 std::vector<ros_diagnostics::Counter> BackendNodelet::counters() const {
-  const core::SessionManagerStats& m = manager_->stats();
-  const core::BackendStats& b = manager_->backendStats();
-  int unloaded = 0;
-  for (const core::SessionSummary& s : manager_->list()) unloaded += s.state == core::SessionState::kUnloaded;
   auto d = [](auto v) { return static_cast<double>(v); };
-  return {{"messages_received", d(queue_ ? queue_->pushed() : 0)},
-          {"keyframes_received", d(counts_.keyframes)},
-          {"keyframes_stale", d(m.keyframes_stale), true},
-          {"keyframes_refused", d(m.keyframes_refused), true},
-          {"keyframe_gaps", d(m.keyframe_gaps), true},
-          {"loops_received", d(counts_.loops)},
-          {"loops_refused", d(m.loops_refused), true},
-          {"loops_waiting", d(waiting_.size())},
-          {"loops_dropped_waiting", d(counts_.waiting_dropped), true},
-          {"dropped_queue_full", d(queue_ ? queue_->dropped() : 0), true},
-          {"queue_length", d(queue_ ? queue_->size() : 0)},
-          {"bad_messages", d(counts_.bad), true},
-          {"store_failures", d(m.store_failures), true},
-          {"sessions", d(manager_->sessionIds().size())},
-          {"sessions_unloaded", d(unloaded)},
-          {"maps", d(manager_->mapIds().size())},
-          {"joins", d(b.joins)},
-          {"splits", d(b.splits)},
-          {"loops_refused_at_join", d(b.loops_refused)},
-          {"optimisations", d(b.optimisations)},
-          {"optimise_ms_max", b.optimise_ms_max}};
+  std::vector<ros_diagnostics::Counter> c = {{"messages_received", d(queue_ ? queue_->pushed() : 0)},
+                                             {"keyframes_received", d(counts_.keyframes)},
+                                             {"loops_received", d(counts_.loops)},
+                                             {"loops_waiting", d(waiting_.size())},
+                                             {"loops_dropped_waiting", d(counts_.waiting_dropped), true},
+                                             {"dropped_queue_full", d(queue_ ? queue_->dropped() : 0), true},
+                                             {"queue_length", d(queue_ ? queue_->size() : 0)},
+                                             {"bad_messages", d(counts_.bad), true}};
+  for (ros_diagnostics::Counter& m : rc::managerCounters(*manager_)) c.push_back(std::move(m));
+  return c;
 }
 
 void BackendNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat) {

@@ -48,6 +48,14 @@ KeyframeData reloadedKeyframe(const core::ReloadedSession& session, const core::
   return d;
 }
 
+uw_multislam::Keyframe reloadedKeyframeMsg(const core::ReloadedSession& session, const core::StoredKeyframe& k,
+                                           const std::string& frame_id) {
+  std_msgs::Header h;
+  h.stamp = ros::Time(std::max(0.0, k.stamp_s));
+  h.frame_id = frame_id;
+  return toKeyframeMsg(reloadedKeyframe(session, k), h);
+}
+
 uw_multislam::SessionState toSessionStateMsg(const core::SessionSummary& s) {
   uw_multislam::SessionState st;
   st.session = s.id;
@@ -150,6 +158,28 @@ visualization_msgs::MarkerArray toMarkerArrayMsg(const std::vector<Segment>& seg
     if (!m.points.empty()) out.markers.push_back(m);
   }
   return out;
+}
+
+std::vector<ros_diagnostics::Counter> managerCounters(const core::SessionManager& manager) {
+  const core::SessionManagerStats& m = manager.stats();
+  const core::BackendStats& b = manager.backendStats();
+  int unloaded = 0;
+  for (const core::SessionSummary& s : manager.list()) unloaded += s.state == core::SessionState::kUnloaded;
+  auto d = [](auto v) { return static_cast<double>(v); };
+  return {{"keyframes_stale", d(m.keyframes_stale), true},
+          {"keyframes_refused", d(m.keyframes_refused), true},
+          {"keyframe_gaps", d(m.keyframe_gaps), true},
+          {"loops_refused", d(m.loops_refused), true},
+          {"store_failures", d(m.store_failures), true},
+          {"sessions", d(manager.sessionIds().size())},
+          {"sessions_unloaded", d(unloaded)},
+          {"maps", d(manager.mapIds().size())},
+          {"joins", d(b.joins)},
+          {"splits", d(b.splits)},
+          {"loops_refused_at_join", d(b.loops_refused)},
+          {"optimisations", d(b.optimisations)},
+          {"optimisations_discarded", d(b.optimisations_discarded)},
+          {"optimise_ms_max", b.optimise_ms_max}};
 }
 
 }  // namespace ros_conversions

@@ -63,6 +63,16 @@ geometry_msgs::Transform toTransformMsg(const core::Pose2& p) {
   return t;
 }
 
+geometry_msgs::TransformStamped toTransformStampedMsg(const core::Pose2& p, const std::string& parent,
+                                                      const std::string& child, const ros::Time& stamp) {
+  geometry_msgs::TransformStamped t;
+  t.header.stamp = stamp;
+  t.header.frame_id = parent;
+  t.child_frame_id = child;
+  t.transform = toTransformMsg(p);
+  return t;
+}
+
 geometry_msgs::PoseWithCovariance toPoseWithCovarianceMsg(const core::UncertainPose2& p) {
   geometry_msgs::PoseWithCovariance m;
   m.pose = toPoseMsg(p.mean);

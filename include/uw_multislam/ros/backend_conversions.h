@@ -15,6 +15,7 @@
 #include "uw_multislam/Status.h"
 #include "uw_multislam/core/backend/backend.h"
 #include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 
 namespace uw_multislam {
@@ -29,8 +30,17 @@ core::KeyframeInput toKeyframeInput(const KeyframeData& k, double stamp_s);
 /// A stored keyframe handed back by reload_session, as the loop detector(s) take it: features,
 /// camera and altitude; its motion is not needed (an exact identity, quality MATCHED).
 KeyframeData reloadedKeyframe(const core::ReloadedSession& session, const core::StoredKeyframe& k);
+/// The same as the Keyframe message reload_session publishes: stamped with the keyframe's stamp,
+/// in `frame_id` (the session's frame).
+uw_multislam::Keyframe reloadedKeyframeMsg(const core::ReloadedSession& session, const core::StoredKeyframe& k,
+                                           const std::string& frame_id);
 /// One session of list_sessions.
 uw_multislam::SessionState toSessionStateMsg(const core::SessionSummary& s);
+
+/// The session manager's own counters for /diagnostics and the back-end's log line (keyframes
+/// stale, refused and bridged, loops refused, store failures, sessions, maps, joins, splits,
+/// optimisations and their longest time); the drops and refusals WARN while they grow.
+std::vector<ros_diagnostics::Counter> managerCounters(const core::SessionManager& manager);
 
 /// A session's keyframe poses (in its map's frame) as a Path in `frame_id`; stamps[k] per pose
 /// (missing stamps: the last one given, or `fallback`).

@@ -6,6 +6,10 @@
 #include <geometry_msgs/Pose2D.h>
 #include <geometry_msgs/PoseWithCovariance.h>
 #include <geometry_msgs/Transform.h>
+#include <geometry_msgs/TransformStamped.h>
+#include <ros/time.h>
+
+#include <string>
 
 #include "uw_multislam/core/geometry/uncertain_pose.h"
 
@@ -25,6 +29,9 @@ geometry_msgs::Pose toPoseMsg(const core::Pose2& p);
 bool fromMsg(const geometry_msgs::Pose& m, core::Pose2* out);
 
 geometry_msgs::Transform toTransformMsg(const core::Pose2& p);
+/// `child` in `parent` (the pose of child's origin in parent's frame), stamped.
+geometry_msgs::TransformStamped toTransformStampedMsg(const core::Pose2& p, const std::string& parent,
+                                                      const std::string& child, const ros::Time& stamp);
 
 /// 6x6 row-major covariance (x, y, z, roll, pitch, yaw) from the 3x3 (x, y, yaw) one.
 geometry_msgs::PoseWithCovariance toPoseWithCovarianceMsg(const core::UncertainPose2& p);

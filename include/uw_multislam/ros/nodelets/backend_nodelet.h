@@ -33,8 +33,12 @@
 // Threading model: the keyframe and loop callbacks push the message pointers onto one bounded
 // work queue (ros/work_queue.h, ~queue_size; when full the OLDEST is dropped and counted) and
 // return, so that loops keep their order relative to keyframes. One worker thread takes them in
-// order and calls the core::SessionManager under state_mutex_; the services take the same mutex,
-// so they wait for at most one message's processing (an optimisation: ~0.6 s at 10 k keyframes).
+// order and calls the core::SessionManager under state_mutex_; the services take the same mutex.
+// No request optimises under it: the manager runs with deferred optimisation, so a keyframe, loop
+// or service only marks maps due, and the worker then takes each due map's problem out under the
+// mutex, solves it WITHOUT the mutex, and applies it under the mutex again (a map changed by a
+// service in between is solved again). A service therefore waits for one message's bookkeeping,
+// never for an optimisation; one that leaves maps due (join, split, start) wakes the worker.
 // A loop that names a keyframe the back-end has not received yet waits (up to
 // ~max_waiting_loops, oldest dropped and counted) and is retried after each keyframe. The
 // odometry/pose callback never takes state_mutex_: it reads the active session's correction from
@@ -77,14 +81,19 @@ class BackendNodelet : public nodelet::Nodelet {
   ~BackendNodelet() override;
 
  private:
-  using Message = std::variant<uw_multislam::KeyframeConstPtr, uw_multislam::LoopConstPtr>;
+  /// monostate: a service left maps due, optimise them.
+  using Message = std::variant<std::monostate, uw_multislam::KeyframeConstPtr, uw_multislam::LoopConstPtr>;
   struct Counters {
     long keyframes = 0, loops = 0, bad = 0, waiting_dropped = 0;
   };
 
   void onInit() override;
-  void readParameters();
   void work();
+  /// Runs `process` under state_mutex_ (a throw is a counted, logged skip), then optimiseDue().
+  template <typename F>
+  void step(F process);
+  /// Solves every due map outside state_mutex_ (see "Threading model").
+  void optimiseDue();
   void processKeyframe(const uw_multislam::Keyframe& msg);
   void processLoop(const uw_multislam::LoopConstPtr& msg, bool retry);
   void onEvent(const core::SessionEvent& e);
