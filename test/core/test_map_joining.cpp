@@ -1,6 +1,7 @@
 // Map joining by a single link (paper 000 §9, (21)-(34)).
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <random>
 
 #include "uw_multislam/core/backend/map_joining.h"
@@ -84,6 +85,50 @@ TEST(MapJoining, RefusesNoLoopsAndBadCovariances) {
   JoinLoop l = s.loop(1, 1);
   l.z.covariance(0, 0) = -1;
   EXPECT_THROW(estimateJoinLink({l}), std::invalid_argument);
+}
+
+// (25) as printed in paper 000, literally (s, c: sin, cos of theta_pe^pi + theta_cs^pe).
+Eigen::Matrix3d printedEq25(const JoinLoop& l, const Pose2& link) {
+  const double tp = l.pe_from_pi.yaw(), a = tp + link.yaw();
+  const double x = l.ci_from_cs.x(), y = l.ci_from_cs.y();
+  Eigen::Matrix3d j;
+  j << std::cos(tp), -std::sin(tp), -y * std::cos(a) - x * std::sin(a),  //
+      std::sin(tp), std::cos(tp), x * std::sin(a) - y * std::cos(a),     // row 2, column 3 as printed
+      0, 0, 1;
+  return j;
+}
+
+TEST(MapJoining, TheLinkJacobianFollowsTheDerivationNotTheMisprintInEq25) {
+  std::mt19937 rng(25);
+  std::uniform_real_distribution<double> u(-2.0, 2.0), yaw(-3.0, 3.0);
+  int printed_wrong = 0;
+  for (int trial = 0; trial < 50; ++trial) {
+    JoinLoop l;
+    l.pe_from_pi = Pose2(u(rng), u(rng), yaw(rng));
+    l.ci_from_cs = Pose2(u(rng), u(rng), yaw(rng));
+    const Pose2 link(u(rng), u(rng), yaw(rng));
+    // Central differences of g(L) = X_pe^pi ⊕ L ⊕ X_ci^cs (23), the yaw difference wrapped.
+    Eigen::Matrix3d numeric;
+    const double h = 1e-6;
+    for (int c = 0; c < 3; ++c) {
+      Eigen::Vector3d d = Eigen::Vector3d::Zero();
+      d[c] = h;
+      const Pose2 gp = compose(compose(l.pe_from_pi, Pose2::fromVector(link.vector() + d)), l.ci_from_cs);
+      const Pose2 gm = compose(compose(l.pe_from_pi, Pose2::fromVector(link.vector() - d)), l.ci_from_cs);
+      Eigen::Vector3d diff = gp.vector() - gm.vector();
+      diff[2] = normalizeAngle(diff[2]);
+      numeric.col(c) = diff / (2 * h);
+    }
+    const Eigen::Matrix3d code = joinLinkJacobian(l, link);
+    EXPECT_LT((code - numeric).cwiseAbs().maxCoeff(), 1e-6) << trial;
+    // The printed (25) agrees everywhere but row 2, column 3.
+    Eigen::Matrix3d printed = printedEq25(l, link);
+    const double wrong = std::abs(printed(1, 2) - numeric(1, 2));
+    printed(1, 2) = numeric(1, 2);
+    EXPECT_LT((printed - numeric).cwiseAbs().maxCoeff(), 1e-6) << trial;
+    printed_wrong += wrong > 1e-3 ? 1 : 0;
+  }
+  EXPECT_EQ(printed_wrong, 50);  // the misprint is not a corner case
 }
 
 }  // namespace

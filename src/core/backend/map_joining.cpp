@@ -12,13 +12,13 @@ namespace {
 
 Pose2 predict(const JoinLoop& l, const Pose2& link) { return compose(compose(l.pe_from_pi, link), l.ci_from_cs); }
 
-// d g / d link = J1⊕(X_pe^pi ⊕ L, X_ci^cs) · J2⊕(X_pe^pi, L), i.e. (25).
-Eigen::Matrix3d jacobian(const JoinLoop& l, const Pose2& link) {
+}  // namespace
+
+// d g / d link = J1⊕(X_pe^pi ⊕ L, X_ci^cs) · J2⊕(X_pe^pi, L), i.e. (25) as derived.
+Eigen::Matrix3d joinLinkJacobian(const JoinLoop& l, const Pose2& link) {
   const Pose2 a = compose(l.pe_from_pi, link);
   return composeJacobianFirst(a, l.ci_from_cs) * composeJacobianSecond(l.pe_from_pi, link);
 }
-
-}  // namespace
 
 JoinResult estimateJoinLink(const std::vector<JoinLoop>& loops, const IekfOptions& options) {
   if (loops.empty()) throw std::invalid_argument("map joining: no global loop");
@@ -45,7 +45,7 @@ JoinResult estimateJoinLink(const std::vector<JoinLoop>& loops, const IekfOption
   auto linearise = [&](const Pose2& at) {
     for (std::size_t k = 0; k < loops.size(); ++k) {
       nu.segment<3>(3 * k) = poseError(loops[k].z.mean, predict(loops[k], at));
-      g.block<3, 3>(3 * k, 0) = jacobian(loops[k], at);
+      g.block<3, 3>(3 * k, 0) = joinLinkJacobian(loops[k], at);
     }
   };
   for (int it = 0; it < options.max_iterations; ++it) {

@@ -11,6 +11,8 @@
 // change is below a tolerance ((29)-(31); the Jacobian (24)-(28) is J1⊕ · J2⊕ of se2.h).
 #pragma once
 
+#include <Eigen/Core>
+
 #include <string>
 #include <vector>
 
@@ -32,6 +34,11 @@ struct JoinResult {
   int iterations = 0;
   double rms_residual_m = 0.0;  // of the loops' positions after the fit
 };
+
+/// d g^i / d L at `link`, the Jacobian (25) of one loop's prediction (23), as J1⊕ · J2⊕. It follows
+/// the derivation: the printed (25) has a wrong entry in row 2, column 3 (doc/references.md;
+/// test/core/test_map_joining.cpp compares both with numeric differentiation).
+Eigen::Matrix3d joinLinkJacobian(const JoinLoop& loop, const Pose2& link);
 
 /// Estimates the link from K >= 1 loops. Throws std::invalid_argument on no loop or an invalid
 /// loop covariance.
