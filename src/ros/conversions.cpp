@@ -1,5 +1,7 @@
 #include "uw_multislam/ros/conversions.h"
 
+#include <charconv>
+
 #include <tf2/LinearMath/Matrix3x3.h>
 #include <tf2/LinearMath/Quaternion.h>
 
@@ -54,6 +56,15 @@ bool fromMsg(const geometry_msgs::Pose& m, core::Pose2* out) {
   return true;
 }
 
+bool fromMsg(const geometry_msgs::Transform& m, core::Pose2* out) {
+  geometry_msgs::Pose p;
+  p.position.x = m.translation.x;
+  p.position.y = m.translation.y;
+  p.position.z = m.translation.z;
+  p.orientation = m.rotation;
+  return fromMsg(p, out);
+}
+
 geometry_msgs::Transform toTransformMsg(const core::Pose2& p) {
   geometry_msgs::Transform t;
   t.translation.x = p.x();
@@ -71,6 +82,14 @@ geometry_msgs::TransformStamped toTransformStampedMsg(const core::Pose2& p, cons
   t.child_frame_id = child;
   t.transform = toTransformMsg(p);
   return t;
+}
+
+int sessionOfFrame(const std::string& frame, const std::string& prefix) {
+  if (frame.size() <= prefix.size() || frame.compare(0, prefix.size(), prefix) != 0) return -1;
+  int id = -1;
+  const char* end = frame.data() + frame.size();
+  const auto [ptr, ec] = std::from_chars(frame.data() + prefix.size(), end, id);
+  return ec == std::errc() && ptr == end && id >= 0 ? id : -1;
 }
 
 geometry_msgs::PoseWithCovariance toPoseWithCovarianceMsg(const core::UncertainPose2& p) {

@@ -83,6 +83,16 @@ TEST(Conversions, CovarianceLandsInXYYawSlots) {
   EXPECT_FALSE(rc::fromMsg(bad, &back));
 }
 
+TEST(Conversions, SessionOfFrame) {
+  EXPECT_EQ(rc::sessionOfFrame("session_12", "session_"), 12);
+  EXPECT_EQ(rc::sessionOfFrame("dive0", "dive"), 0);
+  EXPECT_EQ(rc::sessionOfFrame("session_", "session_"), -1);
+  EXPECT_EQ(rc::sessionOfFrame("session_1x", "session_"), -1);
+  EXPECT_EQ(rc::sessionOfFrame("session_-1", "session_"), -1);
+  EXPECT_EQ(rc::sessionOfFrame("odom", "session_"), -1);
+  EXPECT_EQ(rc::sessionOfFrame("session_99999999999", "session_"), -1);  // out of range
+}
+
 TEST(Conversions, TransformMatchesPose) {
   const Pose2 p(0.5, 0.25, -2.0);
   const auto t = rc::toTransformMsg(p);
@@ -90,6 +100,19 @@ TEST(Conversions, TransformMatchesPose) {
   EXPECT_DOUBLE_EQ(t.translation.x, m.position.x);
   EXPECT_DOUBLE_EQ(t.rotation.z, m.orientation.z);
   EXPECT_DOUBLE_EQ(t.rotation.w, m.orientation.w);
+  Pose2 back;
+  ASSERT_TRUE(rc::fromMsg(t, &back));
+  EXPECT_NEAR(back.x(), 0.5, 1e-12);
+  EXPECT_NEAR(back.y(), 0.25, 1e-12);
+  EXPECT_NEAR(back.yaw(), -2.0, 1e-12);
+  const auto stamped = rc::toTransformStampedMsg(p, "map", "odom", ros::Time(12.5));
+  EXPECT_EQ(stamped.header.frame_id, "map");
+  EXPECT_EQ(stamped.child_frame_id, "odom");
+  EXPECT_EQ(stamped.header.stamp, ros::Time(12.5));
+  EXPECT_DOUBLE_EQ(stamped.transform.translation.y, 0.25);
+  geometry_msgs::Transform broken = t;
+  broken.rotation.w = broken.rotation.z = 0.0;
+  EXPECT_FALSE(rc::fromMsg(broken, &back));
 }
 
 }  // namespace

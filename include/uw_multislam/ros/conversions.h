@@ -29,9 +29,14 @@ geometry_msgs::Pose toPoseMsg(const core::Pose2& p);
 bool fromMsg(const geometry_msgs::Pose& m, core::Pose2* out);
 
 geometry_msgs::Transform toTransformMsg(const core::Pose2& p);
+/// The planar part of a transform, as fromMsg(Pose) does.
+bool fromMsg(const geometry_msgs::Transform& m, core::Pose2* out);
 /// `child` in `parent` (the pose of child's origin in parent's frame), stamped.
 geometry_msgs::TransformStamped toTransformStampedMsg(const core::Pose2& p, const std::string& parent,
                                                       const std::string& child, const ros::Time& stamp);
+
+/// The session id of a frame named "<prefix><id>" (the odometry's pose), or -1 for another name.
+int sessionOfFrame(const std::string& frame, const std::string& prefix);
 
 /// 6x6 row-major covariance (x, y, z, roll, pitch, yaw) from the 3x3 (x, y, yaw) one.
 geometry_msgs::PoseWithCovariance toPoseWithCovarianceMsg(const core::UncertainPose2& p);
