@@ -74,7 +74,7 @@ def main():
             state["arrivals"].append(time.monotonic())
 
     node = subprocess.Popen([roslib.packages.find_node("uw_multislam", "backend_node")[0], "__ns:=" + NS,
-                             "__name:=backend", "_store_path:=", "_diagnostic_period:=0.2", "_queue_size:=100000",
+                             "__name:=backend_node", "_store_path:=", "_diagnostic_period:=0.2", "_queue_size:=100000",
                              "_publish_tf:=false"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)

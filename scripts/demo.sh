@@ -97,7 +97,7 @@ wait_for 30 "the ROS master" master_up
 
 # A fresh session store for this run (the back-end writes every keyframe, loop and join to it).
 rm -f "$out/sessions.db" "$out/sessions.db-wal" "$out/sessions.db-shm"
-rosparam set /uw_multislam/backend/store_path "$out/sessions.db"
+rosparam set /uw_multislam/backend_node/store_path "$out/sessions.db"
 
 /usr/bin/python3 "$UWMS_REPO/src/tools/record_run.py" --out "$run" \
   --session-dir "$out/survey/s0" --session-dir "$out/survey/s1" --ready-file "$logs/recorder.ready" \

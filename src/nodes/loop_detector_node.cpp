@@ -4,7 +4,7 @@
 #include <ros/ros.h>
 
 int main(int argc, char** argv) {
-  ros::init(argc, argv, "loop_detector");
+  ros::init(argc, argv, "loop_detector_node");
   nodelet::Loader loader(false);  // no manager services: a plain node
   const nodelet::M_string remappings;  // the process's own remappings already apply
   const nodelet::V_string nodelet_argv;

@@ -90,7 +90,7 @@ class BackendShutdownTest(unittest.TestCase):
     def run_once(self, n):
         db = os.path.join(self.tmp, "store_%d.db" % n)
         self.received = None
-        node = subprocess.Popen([tool("backend_node"), "__ns:=" + NS, "__name:=backend_%d" % n, "_store_path:=" + db,
+        node = subprocess.Popen([tool("backend_node"), "__ns:=" + NS, "__name:=backend_node_%d" % n, "_store_path:=" + db,
                                  "_diagnostic_period:=0.2", "_queue_size:=100000"],
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
@@ -133,7 +133,7 @@ class BackendShutdownTest(unittest.TestCase):
         with open(junk, "wb") as f:
             f.write(data)
         ns = NS + "_junk"
-        node = subprocess.Popen([tool("backend_node"), "__ns:=" + ns, "__name:=backend", "_store_path:=" + junk],
+        node = subprocess.Popen([tool("backend_node"), "__ns:=" + ns, "__name:=backend_node", "_store_path:=" + junk],
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         lines = []
         reader = threading.Thread(target=lambda: lines.extend(node.stdout), daemon=True)

@@ -27,7 +27,7 @@ from uw_multislam.srv import ListSessions, ReloadSession
 
 
 def backend_pid():
-    out = subprocess.run(["pgrep", "-f", "backend_node.*__name:=backend"], capture_output=True, text=True).stdout
+    out = subprocess.run(["pgrep", "-f", "backend_node.*__name:=backend_node"], capture_output=True, text=True).stdout
     pids = [int(p) for p in out.split()]
     return pids[0] if pids else None
 
