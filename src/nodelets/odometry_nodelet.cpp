@@ -39,6 +39,7 @@ OdometryNodelet::~OdometryNodelet() {
 
 void OdometryNodelet::readParameters() {
   ros::NodeHandle& pnh = getPrivateNodeHandle();
+  ros_params::warnAboutFormerPrivateNamespace(pnh);
   using ros_params::param;
   options_.use_altitude_topic = param(
       pnh, "use_altitude_topic", true, [](bool) { return true; }, "a bool");

@@ -1,5 +1,8 @@
 #include "uw_multislam/ros/slam_params.h"
 
+#include <ros/console.h>
+#include <ros/param.h>
+
 #include <cstdlib>
 
 #include <yaml-cpp/yaml.h>
@@ -68,6 +71,7 @@ core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::stri
 }
 
 BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros::NodeHandle& pnh) {
+  warnAboutFormerPrivateNamespace(pnh);
   BackendNodeletOptions o;
   auto nonempty = [](const std::string& s) { return !s.empty(); };
   auto count = [](int v) { return v >= 1 && v <= 1000000; };
@@ -89,6 +93,7 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
 }
 
 LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh) {
+  warnAboutFormerPrivateNamespace(pnh);
   LoopDetectorNodeletOptions o;
   o.mode = param(
       pnh, "mode", std::string("both"),
@@ -102,6 +107,34 @@ LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh
   o.diagnostic_period_s = param(
       pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
   return o;
+}
+
+std::string formerPrivateNamespace(const std::string& private_ns) {
+  static const char* const kFormerNames[] = {"odometry", "loop_detector", "local_loops", "global_loops", "backend"};
+  const std::size_t slash = private_ns.rfind('/');
+  const std::string parent = slash == std::string::npos ? std::string() : private_ns.substr(0, slash + 1);
+  const std::string name = slash == std::string::npos ? private_ns : private_ns.substr(slash + 1);
+  for (const char* former : kFormerNames) {
+    if (name == std::string(former) + "_node") return parent + former;
+  }
+  return "";
+}
+
+bool warnAboutFormerPrivateNamespace(const ros::NodeHandle& pnh) {
+  const std::string current = pnh.getNamespace();
+  const std::string former = formerPrivateNamespace(current);
+  XmlRpc::XmlRpcValue old;
+  if (former.empty() || !ros::param::get(former, old) || old.getType() != XmlRpc::XmlRpcValue::TypeStruct ||
+      old.size() == 0) {
+    return false;
+  }
+  std::string keys;
+  for (const auto& kv : old) keys += (keys.empty() ? "" : ", ") + kv.first;
+  ROS_WARN_STREAM("parameters under " << former << " are not read any more: this node's parameters are " << current
+                                      << "/... (the node was renamed; rename that block of your config file, see "
+                                         "config/default.yaml). Not read: "
+                                      << keys);
+  return true;
 }
 
 std::string sessionFramePrefix(const ros::NodeHandle& nh) {

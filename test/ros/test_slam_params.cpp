@@ -59,6 +59,26 @@ TEST(SlamParams, UnknownKeysAndBadValuesNameTheKey) {
   EXPECT_THROW(ros_params::slamConfigFromXmlRpc(scalar, "x"), std::invalid_argument);
 }
 
+TEST(SlamParams, FormerPrivateNamespaceOfTheRenamedNodes) {
+  // launch/slam.launch names the nodes after their executables; before, their names (and so their
+  // private namespaces, config/default.yaml's blocks) were those of config/slam.yaml's sections.
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/uw_multislam/odometry_node"), "/uw_multislam/odometry");
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/uw_multislam/loop_detector_node"), "/uw_multislam/loop_detector");
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/uw_multislam/local_loops_node"), "/uw_multislam/local_loops");
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/uw_multislam/global_loops_node"), "/uw_multislam/global_loops");
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/uw_multislam/backend_node"), "/uw_multislam/backend");
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/a/b/backend_node"), "/a/b/backend");
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/backend_node"), "/backend");
+  // Any other name had no former one: nothing to warn about.
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/uw_multislam/backend"), "");
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/uw_multislam/backend_node_3"), "");
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/uw_multislam/my_backend_node"), "");
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/uw_multislam/manager"), "");
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/uw_multislam/slam_node"), "");
+  EXPECT_EQ(ros_params::formerPrivateNamespace("/uw_multislam/_node"), "");
+  EXPECT_EQ(ros_params::formerPrivateNamespace(""), "");
+}
+
 TEST(SlamParams, YamlOfScalarsAndLists) {
   XmlRpc::XmlRpcValue t;
   t["a"] = 1;

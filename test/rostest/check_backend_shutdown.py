@@ -116,6 +116,7 @@ class BackendShutdownTest(unittest.TestCase):
                 node.kill()
                 node.communicate()
         self.assertEqual(node.returncode, 0, out[-3000:])
+        self.assertNotIn("are not read any more", out)  # nothing under a former name of backend_node_<n>
         queued = re.search(r"unloading: (\d+) messages queued", out)
         self.assertIsNotNone(queued, "no unloading line in the back-end's output:\n" + out[-3000:])
         with sqlite3.connect(db) as c:
@@ -133,6 +134,9 @@ class BackendShutdownTest(unittest.TestCase):
         with open(junk, "wb") as f:
             f.write(data)
         ns = NS + "_junk"
+        # An old config file's block: the node was named backend before; it warns once that these
+        # are not read any more.
+        rospy.set_param(ns + "/backend", {"queue_size": 5, "publish_tf": False})
         node = subprocess.Popen([tool("backend_node"), "__ns:=" + ns, "__name:=backend_node", "_store_path:=" + junk],
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         lines = []
@@ -144,6 +148,11 @@ class BackendShutdownTest(unittest.TestCase):
             while time.time() < deadline and not any("not starting" in l for l in lines):
                 time.sleep(0.1)
             self.assertTrue(any("not starting" in l and junk in l for l in lines), "".join(lines))
+            warned = [l for l in lines if "are not read any more" in l]
+            self.assertEqual(len(warned), 1, "".join(lines))
+            self.assertIn("parameters under %s/backend are not read any more: this node's parameters are "
+                          "%s/backend_node/..." % (ns, ns), warned[0])
+            self.assertIn("publish_tf, queue_size", warned[0])
             self.assertIsNone(node.poll(), "the node died:\n" + "".join(lines))
             ours = ("join_sessions", "split_session", "list_sessions", "start_session", "reload_session")
             services = [name for name, _ in master.getSystemState()[2] if name.rsplit("/", 1)[-1] in ours
@@ -152,6 +161,7 @@ class BackendShutdownTest(unittest.TestCase):
             node.send_signal(signal.SIGINT)
             node.wait(timeout=60)
         finally:
+            rospy.delete_param(ns + "/backend")
             if node.poll() is None:
                 node.kill()
                 node.wait()

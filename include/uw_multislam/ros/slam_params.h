@@ -39,7 +39,8 @@ struct BackendNodeletOptions {
   double stats_period_s = 30.0, diagnostic_period_s = 1.0;
 };
 
-/// Reads and validates the back-end nodelet's parameters (std::invalid_argument naming the key).
+/// Reads and validates the back-end nodelet's parameters (std::invalid_argument naming the key);
+/// warns about an old config file's block (warnAboutFormerPrivateNamespace).
 BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros::NodeHandle& pnh);
 
 /// The loop-detector nodelet's own parameters (~ private; config/default.yaml documents each).
@@ -52,8 +53,22 @@ struct LoopDetectorNodeletOptions {
   bool publishHashes() const { return mode != "local"; }
 };
 
-/// Reads and validates the loop-detector nodelet's parameters (std::invalid_argument naming the key).
+/// Reads and validates the loop-detector nodelet's parameters (std::invalid_argument naming the key);
+/// warns about an old config file's block (warnAboutFormerPrivateNamespace).
 LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh);
+
+/// The private namespace a node had before the nodes were named after their executables
+/// (launch/slam.launch): `private_ns` with its last name odometry_node, loop_detector_node,
+/// local_loops_node, global_loops_node or backend_node turned back into odometry, loop_detector,
+/// local_loops, global_loops or backend ("/uw_multislam/odometry_node" -> "/uw_multislam/odometry");
+/// "" for any other name.
+std::string formerPrivateNamespace(const std::string& private_ns);
+
+/// For an old config file: when the parameter server holds parameters under the node's former
+/// private namespace (formerPrivateNamespace of `pnh`'s namespace), logs one WARN naming both
+/// namespaces (those parameters are not read any more) and returns true; else false. Every
+/// nodelet calls it once while reading its parameters.
+bool warnAboutFormerPrivateNamespace(const ros::NodeHandle& pnh);
 
 /// frames/session_frame_prefix of the nodelets' namespace (default topics::kDefaultSessionFramePrefix).
 std::string sessionFramePrefix(const ros::NodeHandle& nh);
