@@ -16,7 +16,9 @@ import tempfile
 import threading
 import time
 import unittest
+import xmlrpc.client
 
+import rosgraph
 import rospy
 import rostest
 from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers, wait_until_quiet
@@ -27,9 +29,15 @@ from uw_multislam.srv import ListSessions, ReloadSession
 
 
 def backend_pid():
-    out = subprocess.run(["pgrep", "-f", "backend_node.*__name:=backend_node"], capture_output=True, text=True).stdout
-    pids = [int(p) for p in out.split()]
-    return pids[0] if pids else None
+    """The pid of this test's back-end, asked of the node through this test's master: a machine-wide
+    pgrep for backend_node also finds the back-ends of other workspaces' tests and benchmarks running
+    at the same time (and killed one of them)."""
+    try:
+        uri = rosgraph.Master("/check_store").lookupNode(NS + "/backend_node")
+        code, _, pid = xmlrpc.client.ServerProxy(uri).getPid("/check_store")
+    except (rosgraph.MasterError, OSError, xmlrpc.client.Error):
+        return None
+    return pid if code == 1 else None
 
 
 class StoreTest(unittest.TestCase):
