@@ -58,19 +58,20 @@ void BackendNodelet::onInit() {
   }
   if (options_.store_path.empty()) NODELET_WARN("back-end: no session store (~store_path empty): in memory only");
   const auto& b = config_.backend;
+  const ros_frames::FrameOptions& f = options_.frames;
   NODELET_INFO(
       "back-end: optimiser %s (optimise %s, every %d pending loops), join after %d global loops (gate %.2f m), "
-      "frames %s -> %s<id> -> %s, tf %s, queue_size %d, store %s",
+      "tf %s (%s -> %s at %.0f Hz, %s -> %s from %s), queue_size %d, store %s",
       core::optimizerName(b.optimizer), b.optimise ? "on" : "off", b.optimise_every, b.join_min_loops, b.join_gate_m,
-      options_.map_frame.c_str(), options_.session_frame_prefix.c_str(), options_.base_frame.c_str(),
-      options_.publish_tf ? "on" : "off", options_.queue_size,
+      f.publish_tf ? "on" : "off", f.map_frame.c_str(), f.odom_frame.c_str(), f.tf_rate_hz, f.odom_frame.c_str(),
+      f.base_frame.c_str(), f.publish_odom_tf ? "the visual odometry" : "the vehicle (tf)", options_.queue_size,
       options_.store_path.empty() ? "none" : options_.store_path.c_str());
   trajectory_pub_ = nh.advertise<uw_multislam::SessionTrajectory>(topics::kSessionTrajectory, 10);
   markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>(topics::kLoopMarkers, 1, true);
   pose_pub_ = nh.advertise<geometry_msgs::PoseStamped>(topics::kCurrentPose, 10);
   active_pub_ = nh.advertise<uw_multislam::SessionState>(topics::kActiveSession, 1, true);
   reloaded_pub_ = nh.advertise<uw_multislam::Keyframe>(topics::kReloadedKeyframes, 10000);
-  if (options_.publish_tf) tf_ = std::make_unique<tf2_ros::TransformBroadcaster>();
+  frames_ = std::make_unique<ros_frames::FramePublisher>(nh, options_.frames);
   if (manager_->restoredSessions() > 0) {
     std::lock_guard<std::mutex> lock(state_mutex_);
     publishAll(true);
@@ -194,18 +195,12 @@ void BackendNodelet::publishSession(int id) {
   for (double s : manager_->stamps(id)) stamps.emplace_back(std::max(0.0, s));
   const ros::Time now = stamps.empty() ? ros::Time::now() : stamps.back();
   trajectory_pub_.publish(rc::toSessionTrajectoryMsg(id, manager_->mapOf(id), manager_->posesInSessionFrame(id), now,
-                                                     options_.session_frame_prefix + std::to_string(id)));
+                                                     options_.frames.session_frame_prefix + std::to_string(id)));
   ros::Publisher& path = path_pubs_[id];  // latched, advertised with the session's first publication
   if (!path) path = getNodeHandle().advertise<nav_msgs::Path>(topics::kSessionPathPrefix + std::to_string(id), 1, true);
-  path.publish(rc::toPathMsg(poses, stamps, options_.map_frame, now));
-  if (tf_)
-    tf_->sendTransform(rc::toTransformStampedMsg(correction, options_.map_frame,
-                                                 options_.session_frame_prefix + std::to_string(id), now));
-  if (id == manager_->activeSession()) {
-    std::lock_guard<std::mutex> lock(snapshot_mutex_);
-    snapshot_session_ = id;
-    snapshot_correction_ = correction;
-  }
+  path.publish(rc::toPathMsg(poses, stamps, options_.frames.map_frame, now));
+  frames_->setSessionFrames({{id, correction}});
+  if (id == manager_->activeSession()) frames_->setActive(id, correction, poses.back(), now);
 }
 
 void BackendNodelet::publishAll(bool all_sessions) {
@@ -215,7 +210,7 @@ void BackendNodelet::publishAll(bool all_sessions) {
     publishSession(manager_->activeSession());
   }
   if (!all_sessions && manager_->loops().empty()) return;
-  markers_pub_.publish(rc::toMarkerArrayMsg(rc::loopSegments(*manager_), options_.map_frame, ros::Time::now()));
+  markers_pub_.publish(rc::toMarkerArrayMsg(rc::loopSegments(*manager_), options_.frames.map_frame, ros::Time::now()));
 }
 
 void BackendNodelet::announceNextSession() {
@@ -230,22 +225,14 @@ void BackendNodelet::announceNextSession() {
 void BackendNodelet::onOdometryPose(const geometry_msgs::PoseStampedConstPtr& msg) {
   core::Pose2 odo;
   if (!rc::fromMsg(msg->pose, &odo)) return;
-  core::Pose2 corr;
-  int active;
-  {
-    std::lock_guard<std::mutex> lock(snapshot_mutex_);  // never the state mutex: no wait for an optimisation
-    if (snapshot_session_ < 0 || !snapshot_correction_) return;
-    active = snapshot_session_;
-    corr = *snapshot_correction_;
-  }
+  const int session = rc::sessionOfFrame(msg->header.frame_id, options_.frames.session_frame_prefix);
+  const std::optional<core::Pose2> in_map = frames_->onOdometry(session, odo, msg->header.stamp);  // never waits
+  if (!in_map) return;
   geometry_msgs::PoseStamped p;
   p.header.stamp = msg->header.stamp;
-  p.header.frame_id = options_.map_frame;
-  p.pose = rc::toPoseMsg(core::compose(corr, odo));
+  p.header.frame_id = options_.frames.map_frame;
+  p.pose = rc::toPoseMsg(*in_map);
   pose_pub_.publish(p);
-  if (tf_)
-    tf_->sendTransform(rc::toTransformStampedMsg(odo, options_.session_frame_prefix + std::to_string(active),
-                                                 options_.base_frame, msg->header.stamp));
 }
 
 bool BackendNodelet::onJoin(uw_multislam::JoinSessions::Request& req, uw_multislam::JoinSessions::Response& res) {
@@ -296,7 +283,7 @@ bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_mult
   res.status = rc::toStatusMsg(st);
   res.session = r.id;
   if (!st.ok()) return true;
-  const std::string frame = options_.session_frame_prefix + std::to_string(r.id);
+  const std::string frame = options_.frames.session_frame_prefix + std::to_string(r.id);
   for (const core::StoredKeyframe& k : r.keyframes)
     reloaded_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::reloadedKeyframeMsg(r, k, frame)));
   NODELET_INFO("back-end: reload_session '%s': session %d, %zu keyframes handed to the loop detector", req.name.c_str(),
@@ -314,6 +301,10 @@ std::vector<ros_diagnostics::Counter> BackendNodelet::counters() const {
                                              {"dropped_queue_full", d(queue_ ? queue_->dropped() : 0), true},
                                              {"queue_length", d(queue_ ? queue_->size() : 0)},
                                              {"bad_messages", d(counts_.bad), true}};
+  const ros_frames::FrameStats f = frames_->stats();
+  c.push_back({"map_to_odom_published", d(f.map_to_odom_published)});
+  c.push_back({"map_to_odom_rate_hz", f.map_to_odom_rate_hz});
+  c.push_back({"odom_lookup_failures", d(f.odom_lookup_failures), true});
   for (ros_diagnostics::Counter& m : rc::managerCounters(*manager_)) c.push_back(std::move(m));
   return c;
 }

@@ -75,14 +75,26 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
   BackendNodeletOptions o;
   auto nonempty = [](const std::string& s) { return !s.empty(); };
   auto count = [](int v) { return v >= 1 && v <= 1000000; };
-  o.map_frame = param(nh, "frames/map_frame", std::string("map"), nonempty, "a frame id");
-  o.session_frame_prefix = sessionFramePrefix(nh);
-  o.base_frame = param(nh, "frames/base_frame", std::string("base_link"), nonempty, "a frame id");
+  o.frames.map_frame = param(nh, "frames/map_frame", std::string("map"), nonempty, "a frame id");
+  o.frames.session_frame_prefix = sessionFramePrefix(nh);
+  o.frames.base_frame = param(nh, "frames/base_frame", std::string("base_link"), nonempty, "a frame id");
+  o.frames.odom_frame = param(nh, "frames/odom_frame", std::string("odom"), nonempty, "a frame id");
+  if (o.frames.odom_frame == o.frames.map_frame || o.frames.odom_frame == o.frames.base_frame ||
+      o.frames.map_frame == o.frames.base_frame)
+    throw std::invalid_argument(nh.resolveName("frames") + ": map_frame, odom_frame and base_frame must differ");
   o.queue_size = param(pnh, "queue_size", 1000, count, "in [1, 1000000]");
   o.max_waiting_loops = param(pnh, "max_waiting_loops", 1000, count, "in [1, 1000000]");
   o.max_keyframe_gap = param(pnh, "max_keyframe_gap", 1000, count, "in [1, 1000000]");
-  o.publish_tf = param(
+  o.frames.publish_tf = param(
       pnh, "publish_tf", true, [](bool) { return true; }, "a bool");
+  o.frames.publish_odom_tf = param(
+      pnh, "publish_odom_tf", true, [](bool) { return true; }, "a bool");
+  o.frames.publish_session_frames = param(
+      pnh, "publish_session_frames", true, [](bool) { return true; }, "a bool");
+  o.frames.tf_rate_hz = param(
+      pnh, "tf_rate", 20.0, [](double v) { return v > 0 && v <= 1000; }, "in (0, 1000] Hz");
+  o.frames.tf_future_s = param(
+      pnh, "tf_future_s", 0.0, [](double v) { return v >= 0 && v <= 1; }, "in [0, 1] s");
   o.stats_period_s = param(
       pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
   o.diagnostic_period_s = param(

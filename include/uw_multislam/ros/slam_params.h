@@ -13,6 +13,7 @@
 #include <string>
 
 #include "uw_multislam/core/session/slam_config.h"
+#include "uw_multislam/ros/frame_publisher.h"
 #include "uw_multislam/ros/topics.h"
 
 namespace uw_multislam {
@@ -33,9 +34,8 @@ core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::stri
 /// documents each), read once by backendNodeletOptions(). The algorithms' are core::SlamConfig.
 struct BackendNodeletOptions {
   std::string store_path;  // "" = no store; default $ROS_HOME/uw_multislam/sessions.db
-  std::string map_frame = "map", session_frame_prefix = topics::kDefaultSessionFramePrefix, base_frame = "base_link";
+  ros_frames::FrameOptions frames;  // frames/* and the tf switches and rates
   int queue_size = 1000, max_waiting_loops = 1000, max_keyframe_gap = 1000;
-  bool publish_tf = true;
   double stats_period_s = 30.0, diagnostic_period_s = 1.0;
 };
 

@@ -13,8 +13,9 @@
 //          loop_markers (visualization_msgs/MarkerArray, latched): loops and joins
 //          pose (geometry_msgs/PoseStamped): the current camera pose in the map frame
 //          active_session (uw_multislam/SessionState, latched): set by start_session
-//          tf: map_frame -> <session_frame_prefix><id> (the correction optimisation applied to that
-//            session's odometry) and <session_frame_prefix><active> -> base_frame (the odometry)
+//          tf (ros/frame_publisher.h): map -> odom at ~tf_rate with fresh stamps, odom -> base_link
+//            from the visual odometry (unless ~publish_odom_tf is false: the vehicle's), and
+//            map -> <session_frame_prefix><id> as static transforms (~publish_session_frames)
 //          reloaded_keyframes (uw_multislam/Keyframe): a reloaded session's keyframes, for the
 //            loop detector(s) to keep as global-loop candidates
 // Services: join_sessions, split_session, list_sessions, start_session, reload_session.
@@ -41,9 +42,9 @@
 // never for an optimisation; one that leaves maps due (join, split, start) wakes the worker.
 // A loop that names a keyframe the back-end has not received yet waits (up to
 // ~max_waiting_loops, oldest dropped and counted) and is retried after each keyframe. The
-// odometry/pose callback never takes state_mutex_: it reads the active session's correction from
-// a snapshot (snapshot_mutex_) that the worker refreshes after each publication, so the per-frame
-// pose and tf never wait for an optimisation. On unload the queue is closed, what is queued is
+// odometry/pose callback never takes state_mutex_: the frame publisher keeps the active session's
+// correction, which the worker refreshes after each publication, so the per-frame pose and tf
+// never wait for an optimisation. On unload the queue is closed, what is queued is
 // processed, and the maps are optimised and saved.
 #pragma once
 
@@ -51,7 +52,6 @@
 #include <geometry_msgs/PoseStamped.h>
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
-#include <tf2_ros/transform_broadcaster.h>
 
 #include <deque>
 #include <map>
@@ -70,6 +70,7 @@
 #include "uw_multislam/StartSession.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/ros/diagnostics.h"
+#include "uw_multislam/ros/frame_publisher.h"
 #include "uw_multislam/ros/slam_params.h"
 #include "uw_multislam/ros/work_queue.h"
 
@@ -122,19 +123,17 @@ class BackendNodelet : public nodelet::Nodelet {
   std::unique_ptr<ros_work::BoundedWorkQueue<Message>> queue_;
   std::thread worker_;
 
-  mutable std::mutex state_mutex_;  // guards everything below, up to snapshot_mutex_
+  mutable std::mutex state_mutex_;  // guards everything below, up to frames_
   std::unique_ptr<core::SessionManager> manager_;
   std::deque<uw_multislam::LoopConstPtr> waiting_;
   bool publish_all_ = false;  // an event asked for every session to be published
   Counters counts_;
 
-  std::mutex snapshot_mutex_;  // the per-frame pose's snapshot
-  int snapshot_session_ = -1;
-  std::optional<core::Pose2> snapshot_correction_;  // map <- odometry of the active session
+  std::unique_ptr<ros_frames::FramePublisher> frames_;  // thread-safe on its own
+  ros_frames::FrameStats frame_stats_;                  // the diagnostics timer's thread only
 
   ros::Publisher trajectory_pub_, markers_pub_, pose_pub_, active_pub_, reloaded_pub_;
   std::map<int, ros::Publisher> path_pubs_;
-  std::unique_ptr<tf2_ros::TransformBroadcaster> tf_;
   ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_;
   ros::Subscriber keyframe_sub_, loop_sub_, pose_sub_;  // last: destroyed first
 };

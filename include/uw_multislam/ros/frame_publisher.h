@@ -1,0 +1,97 @@
+// The back-end's tf: map -> odom -> base_link (REP-105), and the per-session frames
+// map -> session_<id> (README "Frames"). Thread-safe: the worker reports corrections, the
+// odometry/pose callback reports poses, a steady timer publishes map -> odom; none of them waits
+// for the others longer than a copy under this class's own mutex.
+//
+//  - odom -> base_link: with publish_odom_tf (visual odometry, the default) from every
+//    odometry/pose, stamped with it, through core::OdomChain (one continuous odom frame over the
+//    sessions). Without it the vehicle's nav stack publishes odom -> base_link, and this class
+//    reads it from tf.
+//  - map -> odom: published at tf_rate_hz, stamped now + tf_future_s (fresh stamps, each later
+//    than the last: tf2 drops a repeated stamp, and listeners can look base_link up in map at any
+//    time up to now), and at once when the worker reports a new correction (a join reaches
+//    listeners without waiting for the next tick). Visual odometry: from the active session's correction and its place in
+//    odom. Vehicle odometry: from the active session's last keyframe, map <- base at its stamp t,
+//    and the vehicle's odom <- base at t looked up in tf (retried on each tick until tf has it;
+//    failures counted).
+//  - map -> session_<id>: static transforms (latched; they change only when a map is optimised,
+//    joined or split), sent again when a correction changes.
+#pragma once
+
+#include <ros/ros.h>
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/static_transform_broadcaster.h>
+#include <tf2_ros/transform_broadcaster.h>
+#include <tf2_ros/transform_listener.h>
+
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+
+#include "uw_multislam/core/session/odom_chain.h"
+#include "uw_multislam/ros/topics.h"
+
+namespace uw_multislam {
+namespace ros_frames {
+
+struct FrameOptions {
+  std::string map_frame = "map", odom_frame = "odom", base_frame = "base_link";
+  std::string session_frame_prefix = topics::kDefaultSessionFramePrefix;
+  bool publish_tf = true;              // false: no tf at all (the pose is still computed)
+  bool publish_odom_tf = true;         // false: the vehicle publishes odom -> base_link
+  bool publish_session_frames = true;  // map -> session_<id>
+  double tf_rate_hz = 20.0;            // map -> odom
+  double tf_future_s = 0.0;            // its stamp: now + this
+};
+
+struct FrameStats {
+  long map_to_odom_published = 0;
+  long odom_lookup_failures = 0;     // the vehicle's odom -> base_link missing at a keyframe's stamp
+  double map_to_odom_rate_hz = 0.0;  // measured over the last second or so
+};
+
+class FramePublisher {
+ public:
+  /// Starts the timer on `nh` (steady: it runs while a bag is paused, and publishes nothing new then).
+  /// Rates and frames are checked by ros_params::backendNodeletOptions.
+  FramePublisher(ros::NodeHandle nh, const FrameOptions& options);
+
+  /// From the worker after each publication of the active session: its correction map <- session,
+  /// and its last keyframe's pose in the map with its stamp.
+  void setActive(int session, const core::Pose2& map_from_session, const core::Pose2& map_from_last_keyframe,
+                 const ros::Time& keyframe_stamp);
+  /// map -> session_<id> for these sessions; those that changed are sent, in one message.
+  void setSessionFrames(const std::map<int, core::Pose2>& map_from_session);
+  /// An odometry pose (session frame): odom -> base_link when publishing it. Returns the pose in
+  /// the map (the active session's correction applied) or nullopt before any correction.
+  std::optional<core::Pose2> onOdometry(int session, const core::Pose2& pose, const ros::Time& stamp);
+  FrameStats stats() const;
+
+ private:
+  void tick();
+
+  FrameOptions options_;
+  ros::SteadyTimer timer_;
+  tf2_ros::TransformBroadcaster tf_;
+  tf2_ros::StaticTransformBroadcaster static_tf_;
+  std::unique_ptr<tf2_ros::Buffer> buffer_;  // vehicle odometry only
+  std::unique_ptr<tf2_ros::TransformListener> listener_;
+
+  mutable std::mutex mutex_;  // guards everything below
+  core::OdomChain chain_;
+  int active_ = -1;
+  std::optional<core::Pose2> map_from_session_;                // of the active session
+  std::optional<std::pair<core::Pose2, ros::Time>> keyframe_;  // vehicle odometry: waiting for its lookup
+  std::optional<core::Pose2> map_from_odom_;
+  std::optional<core::Pose2> sent_;  // map_from_odom_ as last published
+  ros::Time last_stamp_;
+  std::map<int, core::Pose2> session_frames_;
+  FrameStats stats_;
+  long published_at_window_ = 0;  // the rate's window: publications and start
+  ros::SteadyTime window_start_;
+};
+
+}  // namespace ros_frames
+}  // namespace uw_multislam

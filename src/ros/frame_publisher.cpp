@@ -1,0 +1,128 @@
+#include "uw_multislam/ros/frame_publisher.h"
+
+#include <vector>
+
+#include "uw_multislam/ros/conversions.h"
+
+namespace uw_multislam {
+namespace ros_frames {
+
+namespace rc = ros_conversions;
+
+namespace {
+bool same(const core::Pose2& a, const core::Pose2& b) { return a.x() == b.x() && a.y() == b.y() && a.yaw() == b.yaw(); }
+}  // namespace
+
+FramePublisher::FramePublisher(ros::NodeHandle nh, const FrameOptions& options) : options_(options) {
+  if (options_.publish_tf && !options_.publish_odom_tf) {
+    buffer_ = std::make_unique<tf2_ros::Buffer>();
+    listener_ = std::make_unique<tf2_ros::TransformListener>(*buffer_, nh);
+  }
+  window_start_ = ros::SteadyTime::now();
+  if (!options_.publish_tf) return;
+  timer_ = nh.createSteadyTimer(ros::WallDuration(1.0 / options_.tf_rate_hz),
+                                [this](const ros::SteadyTimerEvent&) { tick(); });
+}
+
+void FramePublisher::setActive(int session, const core::Pose2& map_from_session,
+                               const core::Pose2& map_from_last_keyframe, const ros::Time& keyframe_stamp) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    active_ = session;
+    map_from_session_ = map_from_session;
+    if (options_.publish_tf && !options_.publish_odom_tf)
+      keyframe_ = std::make_pair(map_from_last_keyframe, keyframe_stamp);
+  }
+  if (options_.publish_tf) tick();  // a new correction (a join, an optimisation) goes out now, not at the next tick
+}
+
+void FramePublisher::setSessionFrames(const std::map<int, core::Pose2>& map_from_session) {
+  if (!options_.publish_tf || !options_.publish_session_frames) return;
+  std::vector<geometry_msgs::TransformStamped> changed;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const auto& [id, p] : map_from_session) {
+      const auto it = session_frames_.find(id);
+      if (it != session_frames_.end() && same(it->second, p)) continue;
+      session_frames_[id] = p;
+      changed.push_back(rc::toTransformStampedMsg(
+          p, options_.map_frame, options_.session_frame_prefix + std::to_string(id), ros::Time::now()));
+    }
+  }
+  if (!changed.empty()) static_tf_.sendTransform(changed);  // the broadcaster replaces them by child frame
+}
+
+std::optional<core::Pose2> FramePublisher::onOdometry(int session, const core::Pose2& pose, const ros::Time& stamp) {
+  std::optional<core::Pose2> in_map;
+  core::Pose2 in_odom;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (session < 0) session = active_;  // a pose in a frame not named after a session
+    in_odom = chain_.toOdom(session, pose);
+    if (map_from_session_ && session == active_) {
+      in_map = core::compose(*map_from_session_, pose);
+    } else if (options_.publish_odom_tf && map_from_odom_) {
+      in_map = core::compose(*map_from_odom_, in_odom);  // a session the back-end has not seen yet
+    }
+  }
+  if (options_.publish_tf && options_.publish_odom_tf)
+    tf_.sendTransform(rc::toTransformStampedMsg(in_odom, options_.odom_frame, options_.base_frame, stamp));
+  return in_map;
+}
+
+void FramePublisher::tick() {
+  geometry_msgs::TransformStamped t;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const ros::SteadyTime wall = ros::SteadyTime::now();
+    if ((wall - window_start_).toSec() >= 1.0) {
+      stats_.map_to_odom_rate_hz =
+          (stats_.map_to_odom_published - published_at_window_) / (wall - window_start_).toSec();
+      published_at_window_ = stats_.map_to_odom_published;
+      window_start_ = wall;
+    }
+    const ros::Time now = ros::Time::now();
+    if (now.isZero()) return;  // simulated time not started yet
+    if (options_.publish_odom_tf) {
+      const std::optional<core::Pose2> offset = chain_.offset(active_);
+      if (map_from_session_ && offset) map_from_odom_ = core::mapFromOdom(*map_from_session_, *offset);
+    } else if (keyframe_) {
+      const auto& [map_from_base, at] = *keyframe_;
+      core::Pose2 odom_from_base;
+      if (buffer_->canTransform(options_.odom_frame, options_.base_frame, at) &&
+          rc::fromMsg(buffer_->lookupTransform(options_.odom_frame, options_.base_frame, at).transform,
+                      &odom_from_base)) {
+        map_from_odom_ = core::mapFromOdom(map_from_base, odom_from_base);
+        keyframe_.reset();
+      } else if (now - at > ros::Duration(5.0)) {  // tf will not have it any more: keep the last correction
+        ++stats_.odom_lookup_failures;
+        ROS_WARN_THROTTLE(5, "frames: no %s -> %s at the keyframe stamp %.3f: map -> %s not updated",
+                          options_.odom_frame.c_str(), options_.base_frame.c_str(), at.toSec(),
+                          options_.odom_frame.c_str());
+        keyframe_.reset();
+      }
+    }
+    if (!map_from_odom_) return;
+    ros::Time stamp = now + ros::Duration(options_.tf_future_s);
+    if (stamp <= last_stamp_) {
+      // The clock stands still (a paused or finished bag): tf2 would drop a repeated stamp, so
+      // nothing is sent, unless the correction changed (a join): then 1 us after the last one, so
+      // that listeners asking for the latest transform see it.
+      if (sent_ && same(*sent_, *map_from_odom_)) return;
+      stamp = last_stamp_ + ros::Duration(0, 1000);
+    }
+    last_stamp_ = stamp;
+    sent_ = map_from_odom_;
+    t = rc::toTransformStampedMsg(*map_from_odom_, options_.map_frame, options_.odom_frame, stamp);
+    ++stats_.map_to_odom_published;
+  }
+  tf_.sendTransform(t);
+}
+
+FrameStats FramePublisher::stats() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return stats_;
+}
+
+}  // namespace ros_frames
+}  // namespace uw_multislam

@@ -1,0 +1,227 @@
+#!/usr/bin/python3
+"""rostest: the back-end beside a vehicle's own navigation (issue 15, REP-105 frames).
+
+The vehicle's nav stack is this test: for every image it broadcasts odom -> base_link at the
+image's stamp, from the ground truth (odom = the survey's world frame), and the back-end runs
+with ~publish_odom_tf false, so it publishes only map -> odom. The bags play with --clock
+(use_sim_time).
+
+1. While the bags play, base_link is looked up in map at random times between the last images:
+   every lookup succeeds, and in session 0 (whose first frame is the map) the pose is the ground
+   truth within TOLERANCE_M.
+2. map -> odom goes out with strictly increasing stamps (no TF_REPEATED_DATA), and /diagnostics
+   reports its rate, about ~tf_rate (20 Hz).
+3. After join_sessions(0, 1), with the clock running (the test keeps it and the vehicle's odom
+   going after the bags end), base_link looked up in map at the latest time moves to session 1's
+   place in session 0's map within 0.1 s of the service's answer.
+"""
+import csv
+import math
+import os
+import random
+import shutil
+import subprocess
+import tempfile
+import threading
+import time
+import unittest
+
+import rospy
+import rostest
+import tf2_ros
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import TransformStamped
+from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Image
+from tf2_msgs.msg import TFMessage
+from uw_multislam.srv import JoinSessions, ListSessions
+
+TOLERANCE_M = 0.10  # SLAM's pose of base_link in session 0 vs the ground truth (the odometry drifts ~cm)
+JOIN_LATENCY_S = 0.1
+
+
+def transform(parent, child, stamp, x, y, yaw):
+    t = TransformStamped()
+    t.header.stamp = stamp
+    t.header.frame_id = parent
+    t.child_frame_id = child
+    t.transform.translation.x, t.transform.translation.y = x, y
+    t.transform.rotation.z, t.transform.rotation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    return t
+
+
+def planar(t):
+    q = t.transform.rotation
+    return t.transform.translation.x, t.transform.translation.y, 2.0 * math.atan2(q.z, q.w)
+
+
+def in_frame(origin, p):
+    """p (world) in the frame whose origin is `origin` (world)."""
+    ox, oy, oyaw = origin
+    c, s = math.cos(oyaw), math.sin(oyaw)
+    return c * (p[0] - ox) + s * (p[1] - oy), -s * (p[0] - ox) + c * (p[1] - oy)
+
+
+class FramesTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="uwms_frames_")
+        with open(os.path.join(cls.tmp, "survey.yaml"), "w") as f:
+            f.write(SURVEY)
+        cls.mission = os.path.join(cls.tmp, "mission")
+        subprocess.run([tool("make_survey"), "--config", os.path.join(cls.tmp, "survey.yaml"), "--out", cls.mission,
+                        "--quiet"], check=True, timeout=120)
+        with open(os.path.join(cls.mission, "world_gt.csv")) as f:
+            cls.world = {(int(r["session"]), int(r["index"])): (float(r["x_m"]), float(r["y_m"]), float(r["yaw_rad"]))
+                         for r in csv.DictReader(f)}
+        cls.lock = threading.Lock()
+        cls.images = []  # (stamp, session, index)
+        cls.session_start = {}
+        cls.map_odom_stamps = []
+        cls.rates = []
+        cls.lookups = {"ok": 0, "failed": [], "errors": []}
+        cls.buffer = tf2_ros.Buffer(rospy.Duration(3600))
+        cls.listener = tf2_ros.TransformListener(cls.buffer)
+        cls.broadcaster = tf2_ros.TransformBroadcaster()
+
+        def on_image(msg):
+            stamp = msg.header.stamp
+            with cls.lock:
+                session = cls.images[-1][1] if cls.images else 0
+                if cls.images and (stamp - cls.images[-1][0]).to_sec() > 100:  # session 1: stamps 1000 s later
+                    session += 1
+                cls.session_start.setdefault(session, stamp)
+                index = int(round((stamp - cls.session_start[session]).to_sec()))  # one frame per second
+                cls.images.append((stamp, session, index))
+            x, y, yaw = cls.world[(session, index)]
+            cls.broadcaster.sendTransform(transform("odom", "base_link", stamp, x, y, yaw))
+            cls.check_between_images()
+
+        def on_tf(msg):
+            with cls.lock:
+                for t in msg.transforms:
+                    if t.header.frame_id == "map" and t.child_frame_id == "odom":
+                        cls.map_odom_stamps.append(t.header.stamp)
+
+        def on_diagnostics(msg):
+            for s in msg.status:
+                values = {kv.key: kv.value for kv in s.values}
+                if "map_to_odom_rate_hz" in values:
+                    with cls.lock:
+                        cls.rates.append(float(values["map_to_odom_rate_hz"]))
+
+        cls.subs = [rospy.Subscriber("/camera/image_raw", Image, on_image, queue_size=100),
+                    rospy.Subscriber("/tf", TFMessage, on_tf, queue_size=1000),
+                    rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
+        rospy.wait_for_service(NS + "/join_sessions", timeout=60)
+        cls.join = rospy.ServiceProxy(NS + "/join_sessions", JoinSessions)
+        cls.list = rospy.ServiceProxy(NS + "/list_sessions", ListSessions)
+        wait_for_subscribers(["/camera/image_raw", NS + "/keyframes", NS + "/loops"], "/check_frames")
+        for name in ("s0", "s1"):
+            subprocess.run(["rosbag", "play", "-q", "--clock", "-d", "1", "-r", "4",
+                            os.path.join(cls.mission, name + ".bag"), "--topics"] + SENSOR_TOPICS, check=True,
+                           timeout=120)
+        with cls.lock:
+            cls.rates_while_playing = list(cls.rates)
+        # The bags are over: the vehicle's clock and odometry go on (it holds its last pose).
+        cls.stop = threading.Event()
+        cls.clock_thread = threading.Thread(target=cls.keep_time)
+        cls.clock_thread.start()
+        time.sleep(3.0)  # the back-end's queue drains at bag speed; the last loops arrive
+
+    @classmethod
+    def keep_time(cls):
+        pub = rospy.Publisher("/clock", Clock, queue_size=10)
+        with cls.lock:
+            now, session, index = cls.images[-1]
+        pose = cls.world[(session, index)]
+        start = time.monotonic()
+        while not cls.stop.is_set():
+            t = now + rospy.Duration(time.monotonic() - start)
+            pub.publish(Clock(clock=t))
+            cls.broadcaster.sendTransform(transform("odom", "base_link", t, *pose))
+            time.sleep(0.01)
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.stop.set()
+        cls.clock_thread.join()
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    @classmethod
+    def check_between_images(cls):
+        """base_link in map at a random time between the two images before the last one."""
+        with cls.lock:
+            if len(cls.images) < 3 or not cls.map_odom_stamps or cls.images[-3][1] != cls.images[-1][1]:
+                return
+            (a, session, ia), (b, _, ib) = cls.images[-3], cls.images[-2]
+            if cls.map_odom_stamps[0] > a:
+                return  # map -> odom did not exist yet
+        u = random.random()
+        t = a + rospy.Duration(u * (b - a).to_sec())
+        try:
+            got = planar(cls.buffer.lookup_transform("map", "base_link", t, rospy.Duration(2.0)))
+        except (tf2_ros.LookupException, tf2_ros.ExtrapolationException, tf2_ros.ConnectivityException) as e:
+            with cls.lock:
+                cls.lookups["failed"].append("%.3f: %s" % (t.to_sec(), e))
+            return
+        with cls.lock:
+            cls.lookups["ok"] += 1
+            if session == 0:  # the map is session 0's first frame: the truth there, interpolated
+                pa, pb = cls.world[(0, ia)], cls.world[(0, ib)]
+                truth = (pa[0] + u * (pb[0] - pa[0]), pa[1] + u * (pb[1] - pa[1]))
+                tx, ty = in_frame(cls.world[(0, 0)], truth)
+                cls.lookups["errors"].append(math.hypot(got[0] - tx, got[1] - ty))
+
+    def test_1_base_link_in_map_at_any_time_between_images(self):
+        with self.lock:
+            ok, failed, errors = self.lookups["ok"], list(self.lookups["failed"]), list(self.lookups["errors"])
+        print("base_link in map between images: %d lookups, %d failed, session 0: worst %.3f m, mean %.3f m from the "
+              "ground truth" % (ok, len(failed), max(errors or [0]), sum(errors) / max(1, len(errors))))
+        self.assertEqual(failed, [])
+        self.assertGreaterEqual(ok, 40)
+        self.assertGreaterEqual(len(errors), 20)
+        self.assertLess(max(errors), TOLERANCE_M, "worst %.3f m, mean %.3f m" % (max(errors), sum(errors) / len(errors)))
+
+    def test_2_fresh_stamps_and_the_rate_in_diagnostics(self):
+        with self.lock:
+            stamps = list(self.map_odom_stamps)
+            rates = list(self.rates_while_playing)
+        self.assertGreater(len(stamps), 100)
+        repeated = sum(1 for s, t in zip(stamps, stamps[1:]) if t <= s)
+        self.assertEqual(repeated, 0)
+        self.assertGreater(len(rates), 5)
+        busy = [r for r in rates if r > 0]
+        median = sorted(busy)[len(busy) // 2]
+        print("map -> odom: %d stamps, %d repeated, median rate in /diagnostics %.1f Hz" % (len(stamps), repeated, median))
+        self.assertGreater(median, 15.0)  # ~tf_rate = 20 Hz while the clock runs
+        self.assertLess(median, 30.0)
+
+    def test_3_after_a_join_base_link_moves_to_the_joined_map_within_0_1_s(self):
+        with self.lock:
+            _, session, index = self.images[-1]
+        self.assertEqual(session, 1)
+        here = self.world[(1, index)]
+        in_map0 = in_frame(self.world[(0, 0)], here)
+        before = planar(self.buffer.lookup_transform("map", "base_link", rospy.Time(0), rospy.Duration(2.0)))
+        # Before the join session 1 is a map of its own: base_link is far from its place in map 0.
+        self.assertGreater(math.hypot(before[0] - in_map0[0], before[1] - in_map0[1]), 0.5)
+        res = self.join(0, 1, 0)
+        answered = time.monotonic()
+        self.assertEqual(res.status.code, 0, res.status.message)
+        moved = None
+        while time.monotonic() - answered < 2.0:
+            got = planar(self.buffer.lookup_transform("map", "base_link", rospy.Time(0)))
+            if math.hypot(got[0] - in_map0[0], got[1] - in_map0[1]) < TOLERANCE_M:
+                moved = time.monotonic() - answered
+                break
+            time.sleep(0.002)
+        self.assertIsNotNone(moved, "base_link never reached its place in the joined map")
+        print("base_link in the joined map %.3f s after join_sessions answered" % moved)
+        self.assertLess(moved, JOIN_LATENCY_S)
+
+
+if __name__ == "__main__":
+    rospy.init_node("check_frames")
+    rostest.rosrun("uw_multislam", "check_frames", FramesTest)
