@@ -94,8 +94,9 @@ void BackendNodelet::onInit() {
   });
   worker_ = std::thread([this] { work(); });
   auto push = [this](const auto& m) { queue_->push(Message(m)); };  // keyframes and loops keep their order
-  keyframe_sub_ = nh.subscribe<uw_multislam::Keyframe>(topics::kKeyframes, 100, push);
-  loop_sub_ = nh.subscribe<uw_multislam::Loop>(topics::kLoops, 100, push);
+  // roscpp's own queues as deep as ours: a starved callback thread must not drop uncounted.
+  keyframe_sub_ = nh.subscribe<uw_multislam::Keyframe>(topics::kKeyframes, options_.queue_size, push);
+  loop_sub_ = nh.subscribe<uw_multislam::Loop>(topics::kLoops, options_.queue_size, push);
   pose_sub_ = nh.subscribe(topics::kOdometryPose, 10, &BackendNodelet::onOdometryPose, this);
 }
 
