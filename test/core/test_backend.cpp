@@ -32,7 +32,8 @@ struct World {
                           diag(std::max(e, 0.01), std::max(e, 0.01)));
   }
   BackendLoop loop(int sa, int ka, int sb, int kb, const Pose2& error = Pose2()) const {
-    return {sa, ka, sb, kb, UncertainPose2(compose(between(sessions[sa][ka], sessions[sb][kb]), error), diag(0.005, 0.005))};
+    return {sa, ka, sb, kb,
+            UncertainPose2(compose(between(sessions[sa][ka], sessions[sb][kb]), error), diag(0.005, 0.005))};
   }
   // Feeds session s into the back-end (start, motions, end).
   int feed(MultiSessionBackend* b, int s, bool end = true) {
@@ -158,7 +159,7 @@ TEST_P(BothOptimizers, SplitThenJoinReturnsTheSameTrajectory) {
   EXPECT_EQ(b.chain(0), (std::vector<int>{0, 2}));
   EXPECT_LT(worstError(b.sessionPoses(2), joined[2]), 1e-9);
   EXPECT_LT(worstError(b.sessionPoses(1), w.truthIn(1, 1)), 1e-6);  // its own frame, its own motions
-  EXPECT_EQ(b.pendingJoinLoops(0, 1), 3);  // its loops are stored again
+  EXPECT_EQ(b.pendingJoinLoops(0, 1), 3);                           // its loops are stored again
 
   // New loops between the split pair do not re-join it automatically...
   for (int k = 0; k < 6; ++k) b.addLoop(w.loop(0, k, 1, 5));
@@ -314,7 +315,7 @@ TEST_P(BothOptimizers, AResultForAMapThatChangedMeanwhileIsDroppedAndTheMapStays
   const int s0 = w.feed(&b, 0);
   const int s1 = w.feed(&b, 1);
   for (int k = 0; k < 3; ++k) b.addLoop(w.loop(s0, k, s1, k));  // between maps: stored, no join
-  b.addLoop(w.loop(s0, 0, s0, 9, Pose2(0.05, 0.0, 0.0)));      // inside map 0: due
+  b.addLoop(w.loop(s0, 0, s0, 9, Pose2(0.05, 0.0, 0.0)));       // inside map 0: due
   ASSERT_EQ(b.dueMaps(), std::vector<int>{0});
   EXPECT_EQ(b.stats().optimisations, 0);
   const std::vector<Pose2> before = b.sessionPoses(s0);
@@ -380,6 +381,49 @@ TEST(Backend, TheIekfHandsALargeMapToTheSparseOptimiser) {
   b.addLoop({s, 0, s, 11, UncertainPose2(Pose2(0, 0, M_PI), diag(0.01, 0.01))});
   EXPECT_EQ(b.stats().optimisations, 1);
   EXPECT_EQ(b.sessionPoses(s).size(), 13u);
+}
+
+TEST(Backend, AKeyframesCovarianceInTheMapAgreesWithMonteCarlo) {
+  // Motions with correlated covariances along a turning path; the propagated covariance of the
+  // last keyframe against the sample covariance of 20000 composed draws (independent motions).
+  BackendOptions o;
+  o.optimise = false;
+  MultiSessionBackend b(o);
+  const int s = b.startSession();
+  std::vector<UncertainPose2> motions;
+  for (int k = 0; k < 6; ++k) {
+    Eigen::Matrix3d c;
+    c << 4e-4, 1e-4, 2e-5,  //
+        1e-4, 3e-4, -1e-5,  //
+        2e-5, -1e-5, 2e-4;
+    motions.emplace_back(Pose2(0.5, 0.1 * k, 0.3), c * (1.0 + 0.2 * k));
+    b.addMotion(s, motions.back());
+  }
+  const UncertainPose2 got = b.keyframeInMap(s, 6);
+  std::mt19937 rng(7);
+  std::normal_distribution<double> n(0.0, 1.0);
+  const int draws = 20000;
+  std::vector<Eigen::Vector3d> samples;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (int d = 0; d < draws; ++d) {
+    Pose2 x;
+    for (const UncertainPose2& m : motions) {
+      const Eigen::Matrix3d l = m.covariance.llt().matrixL();
+      x = compose(x, Pose2::fromVector(m.mean.vector() + l * Eigen::Vector3d(n(rng), n(rng), n(rng))));
+    }
+    samples.push_back(x.vector());
+    mean += x.vector() / draws;
+  }
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (const Eigen::Vector3d& v : samples) cov += (v - mean) * (v - mean).transpose() / (draws - 1);
+  EXPECT_LT((got.mean.vector() - mean).norm(), 0.01);
+  // First order against the truth: within 5 % of the largest entry (the sampling error is ~1 %).
+  EXPECT_LT((got.covariance - cov).cwiseAbs().maxCoeff(), 0.05 * cov.cwiseAbs().maxCoeff())
+      << "propagated\n"
+      << got.covariance << "\nsampled\n"
+      << cov;
+  EXPECT_THROW(b.keyframeInMap(s, 7), std::invalid_argument);
+  EXPECT_EQ(b.keyframeInMap(s, 0).covariance.norm(), 0.0);  // the map's origin
 }
 
 TEST(Backend, RefusesBadOptions) {

@@ -2,6 +2,7 @@
 // nothing when they fail, events, and the session store behind it (restart, reload).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <climits>
 #include <filesystem>
 #include <fstream>
@@ -182,8 +183,13 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
     ASSERT_TRUE(m.join(0, 1, 5).ok());
     EXPECT_EQ(m.stats().store_failures, 0);
   }
-  SessionManager again(options(db));
+  std::vector<std::string> log;
+  SessionManager again(options(db), {}, [&](const std::string& line) { log.push_back(line); });
   ASSERT_EQ(again.restoredSessions(), 2);
+  // The start-up log names what an earlier run left.
+  EXPECT_NE(std::find(log.begin(), log.end(),
+                      "restored sessions: 0 'session_0' (8 keyframes, map 0), 1 'session_1' (8 keyframes, map 0)"),
+            log.end());
   const std::vector<SessionSummary> list = again.list();
   ASSERT_EQ(list.size(), 2u);
   EXPECT_EQ(list[0].state, SessionState::kUnloaded);

@@ -19,9 +19,12 @@ std::string defaultSessionName(int id) { return "session_" + std::to_string(id);
 const char* optimizerName(OptimizerKind k) { return k == OptimizerKind::kIekf ? "iekf" : "sparse"; }
 
 bool parseOptimizer(const std::string& name, OptimizerKind* out) {
-  if (name == "iekf") *out = OptimizerKind::kIekf;
-  else if (name == "sparse") *out = OptimizerKind::kSparse;
-  else return false;
+  if (name == "iekf")
+    *out = OptimizerKind::kIekf;
+  else if (name == "sparse")
+    *out = OptimizerKind::kSparse;
+  else
+    return false;
   return true;
 }
 
@@ -170,7 +173,8 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
     throw std::invalid_argument("backend: loop from a keyframe to itself");
   const std::string bad = checkCovariance(l.z.covariance);
   if (!bad.empty() || !l.z.mean.isFinite() || l.z.covariance.determinant() <= 0.0)
-    throw std::invalid_argument("backend: loop: " + (bad.empty() ? std::string("mean not finite or covariance singular") : bad));
+    throw std::invalid_argument("backend: loop: " +
+                                (bad.empty() ? std::string("mean not finite or covariance singular") : bad));
   loops_.push_back({l, false, false, false});
   ++stats_.loops;
   const int ma = mapOf(l.session_a), mb = mapOf(l.session_b);
@@ -184,8 +188,8 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
   if (options_.join_min_loops > 0 && !barred(l.session_a, l.session_b) &&
       static_cast<int>(loopsBetween(ma, mb, true).size()) >= options_.join_min_loops) {
     const BackendStatus st = joinMaps(ma, mb, options_.join_min_loops, true);
-    if (!st.ok()) say("automatic join of maps " + std::to_string(ma) + " and " + std::to_string(mb) + " postponed: " +
-                      st.message);
+    if (!st.ok())
+      say("automatic join of maps " + std::to_string(ma) + " and " + std::to_string(mb) + " postponed: " + st.message);
   }
 }
 
@@ -352,8 +356,8 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
   std::vector<int> ids = loopsBetween(first, second, automatic);
   if (static_cast<int>(ids.size()) < min_loops)
     return {StatusCode::kFailedPrecondition, std::to_string(ids.size()) + " global loops stored between map " +
-                                                 std::to_string(first) + " and map " + std::to_string(second) +
-                                                 ", " + std::to_string(min_loops) + " needed"};
+                                                 std::to_string(first) + " and map " + std::to_string(second) + ", " +
+                                                 std::to_string(min_loops) + " needed"};
   const Map& p = mapAt(first);
   const Map& c = mapAt(second);
   Trajectory tp, tc;  // the two chains with their motions' covariances
@@ -382,10 +386,10 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
     for (std::size_t k = 0; k < cand.size(); ++k)
       if (in[k]) jl.push_back({cand[k].pe_from_pi.mean, cand[k].ci_from_cs.mean, cand[k].z});
     if (static_cast<int>(jl.size()) < min_loops) {
-      return {StatusCode::kFailedPrecondition,
-              std::to_string(jl.size()) + " of the " + std::to_string(cand.size()) + " global loops between map " +
-                  std::to_string(first) + " and map " + std::to_string(second) + " agree, " +
-                  std::to_string(min_loops) + " needed"};
+      return {StatusCode::kFailedPrecondition, std::to_string(jl.size()) + " of the " + std::to_string(cand.size()) +
+                                                   " global loops between map " + std::to_string(first) + " and map " +
+                                                   std::to_string(second) + " agree, " + std::to_string(min_loops) +
+                                                   " needed"};
     }
     res = estimateJoinLink(jl, options_.iekf);
     bool changed = false;
@@ -643,7 +647,8 @@ std::vector<LinkInfo> MultiSessionBackend::links(int map) const {
   std::vector<LinkInfo> out;
   for (std::size_t i = 0; i + 1 < m.chain.size(); ++i) {
     const int at = offset(m, m.chain[i + 1]) - 1;
-    out.push_back({m.chain[i], m.chain[i + 1], m.links[i].measured, m.motion(at), static_cast<int>(m.links[i].loops.size())});
+    out.push_back(
+        {m.chain[i], m.chain[i + 1], m.links[i].measured, m.motion(at), static_cast<int>(m.links[i].loops.size())});
   }
   return out;
 }
@@ -658,6 +663,17 @@ std::vector<Pose2> MultiSessionBackend::sessionPoses(int s) const {
     if (k >= o) out.push_back(x);
   }
   return out;
+}
+
+UncertainPose2 MultiSessionBackend::keyframeInMap(int s, int keyframe) const {
+  const Session& session = sessionAt(s);
+  if (keyframe < 0 || keyframe >= session.keyframes())
+    throw std::invalid_argument("backend: session " + std::to_string(s) + " has no keyframe " +
+                                std::to_string(keyframe));
+  const Map& m = mapAt(session.map);
+  UncertainPose2 x = UncertainPose2::exact(Pose2());
+  for (int k = 0; k < offset(m, s) + keyframe; ++k) x = compose(x, UncertainPose2(m.motion(k), m.motionCov(k)));
+  return x;
 }
 
 Trajectory MultiSessionBackend::sessionTrajectory(int s) const {

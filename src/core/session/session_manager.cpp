@@ -29,9 +29,12 @@ SessionManagerOptions sessionManagerOptions(const SlamConfig& config, const std:
 
 const char* sessionStateName(SessionState s) {
   switch (s) {
-    case SessionState::kActive: return "ACTIVE";
-    case SessionState::kFinished: return "FINISHED";
-    case SessionState::kUnloaded: return "UNLOADED";
+    case SessionState::kActive:
+      return "ACTIVE";
+    case SessionState::kFinished:
+      return "FINISHED";
+    case SessionState::kUnloaded:
+      return "UNLOADED";
   }
   return "?";
 }
@@ -39,14 +42,22 @@ const char* sessionStateName(SessionState s) {
 const char* sessionEventName(SessionEvent::Kind k) {
   using K = SessionEvent::Kind;
   switch (k) {
-    case K::kSessionStarted: return "session_started";
-    case K::kSessionEnded: return "session_ended";
-    case K::kKeyframeAdded: return "keyframe_added";
-    case K::kLoopAccepted: return "loop_accepted";
-    case K::kLoopRefused: return "loop_refused";
-    case K::kMapsJoined: return "maps_joined";
-    case K::kMapSplit: return "map_split";
-    case K::kMapOptimised: return "map_optimised";
+    case K::kSessionStarted:
+      return "session_started";
+    case K::kSessionEnded:
+      return "session_ended";
+    case K::kKeyframeAdded:
+      return "keyframe_added";
+    case K::kLoopAccepted:
+      return "loop_accepted";
+    case K::kLoopRefused:
+      return "loop_refused";
+    case K::kMapsJoined:
+      return "maps_joined";
+    case K::kMapSplit:
+      return "map_split";
+    case K::kMapOptimised:
+      return "map_optimised";
   }
   return "?";
 }
@@ -99,7 +110,8 @@ void SessionManager::restore() {
       s.frames.push_back(k.frame_index);
     }
     s.odometry.push_back(Pose2());
-    for (const UncertainPose2& m : store_->odometry(s.store_id)) s.odometry.push_back(compose(s.odometry.back(), m.mean));
+    for (const UncertainPose2& m : store_->odometry(s.store_id))
+      s.odometry.push_back(compose(s.odometry.back(), m.mean));
     s.origin_received = true;
     s.unloaded = true;
     sessions_.emplace(id, std::move(s));
@@ -129,6 +141,18 @@ void SessionManager::restore() {
   say("session store " + options_.store_path + ": " + std::to_string(sessions_.size()) + " stored sessions (" +
       std::to_string(r.keyframes) + " keyframes, " + std::to_string(loops_.size()) + " loops, " +
       std::to_string(backend_->mapIds().size()) + " maps) listed UNLOADED");
+  // Which ones, so that an operator sees at start-up what an earlier run left (at most 20 named).
+  std::string which;
+  int named = 0;
+  for (const auto& [id, s] : sessions_) {
+    if (named++ == 20) {
+      which += ", ... (list_sessions shows all)";
+      break;
+    }
+    which += (which.empty() ? "" : ", ") + std::to_string(id) + " '" + s.name + "' (" +
+             std::to_string(s.stamps.size()) + " keyframes, map " + std::to_string(mapOf(id)) + ")";
+  }
+  if (!which.empty()) say("restored sessions: " + which);
 }
 
 const SessionManager::Session& SessionManager::at(int session) const {
@@ -170,7 +194,8 @@ Status SessionManager::open(int id, const std::string& name, double stamp_s) {
   Session s;
   s.name = name.empty() ? defaultSessionName(id) : name;
   s.backend = backend_->startSession(s.name);
-  if (s.backend != static_cast<int>(id_of_backend_.size())) throw std::logic_error("session manager: back-end ids drifted");
+  if (s.backend != static_cast<int>(id_of_backend_.size()))
+    throw std::logic_error("session manager: back-end ids drifted");
   id_of_backend_.push_back(id);
   s.stamps.push_back(stamp_s);
   s.odometry.push_back(Pose2());
@@ -185,7 +210,8 @@ Status SessionManager::open(int id, const std::string& name, double stamp_s) {
 Status SessionManager::startSession(const std::string& name, double stamp_s, int id, int* started) {
   const int other = name.empty() ? -1 : idOfName(name);
   if (other >= 0)
-    return {StatusCode::kAlreadyExists, "a session is already named '" + name + "' (session " + std::to_string(other) + ")"};
+    return {StatusCode::kAlreadyExists,
+            "a session is already named '" + name + "' (session " + std::to_string(other) + ")"};
   if (id < 0) id = nextId();
   if (id < nextId())
     return {StatusCode::kInvalidArgument,
@@ -213,8 +239,8 @@ Status SessionManager::endSession(double stamp_s) {
 
 // --- Keyframes --------------------------------------------------------------------------------
 
-void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyframe,
-                                   const UncertainPose2* motion, double stamp_s, std::vector<StoredLoop>* loops) {
+void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion,
+                                   double stamp_s, std::vector<StoredLoop>* loops) {
   storeWrite("writing a keyframe", [&] {
     if (s.store_id < 0) s.store_id = store_->addSession(s.name, k ? k->camera : CameraIntrinsics(), stamp_s);
     StoredKeyframe sk;
@@ -225,8 +251,8 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
     if (k) {  // else a keyframe that never arrived: no features
       sk.frame_index = k->frame_index;
       sk.altitude_m = k->altitude_m;
-      sk.image_size = k->features.image_size.area() > 0 ? k->features.image_size
-                                                         : cv::Size(k->camera.width, k->camera.height);
+      sk.image_size =
+          k->features.image_size.area() > 0 ? k->features.image_size : cv::Size(k->camera.width, k->camera.height);
       for (const cv::KeyPoint& p : k->features.keypoints) sk.points.push_back(p.pt);
       sk.descriptors = k->features.descriptors;
       if (k->hash.size() == HalocProjections::kHashSize) sk.hash = k->hash;
@@ -269,10 +295,10 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
   const int expected = static_cast<int>(s.stamps.size());
   if (k.keyframe > expected && k.keyframe - expected > options_.max_keyframe_gap) {
     ++stats_.keyframes_refused;
-    return {StatusCode::kInvalidArgument,
-            "keyframe " + std::to_string(k.keyframe) + " of session " + std::to_string(id) + ": " +
-                std::to_string(k.keyframe - expected) + " keyframes missing, more than max_keyframe_gap (" +
-                std::to_string(options_.max_keyframe_gap) + ")"};
+    return {StatusCode::kInvalidArgument, "keyframe " + std::to_string(k.keyframe) + " of session " +
+                                              std::to_string(id) + ": " + std::to_string(k.keyframe - expected) +
+                                              " keyframes missing, more than max_keyframe_gap (" +
+                                              std::to_string(options_.max_keyframe_gap) + ")"};
   }
   UncertainPose2 motion = k.motion;
   const UncertainPose2* stored_motion = &motion;
@@ -528,6 +554,11 @@ std::vector<Pose2> SessionManager::posesInSessionFrame(int session) const {
   const Pose2 origin_inv = invert(p.front());
   for (Pose2& x : p) x = compose(origin_inv, x);
   return p;
+}
+
+UncertainPose2 SessionManager::lastKeyframeInMap(int session) const {
+  const Session& s = at(session);
+  return backend_->keyframeInMap(s.backend, static_cast<int>(s.stamps.size()) - 1);
 }
 
 Pose2 SessionManager::correction(int session) const {

@@ -53,8 +53,8 @@
 #include <vector>
 
 #include "uw_multislam/core/backend/iekf.h"
-#include "uw_multislam/core/common/status.h"
 #include "uw_multislam/core/backend/pose_graph.h"
+#include "uw_multislam/core/common/status.h"
 #include "uw_multislam/core/geometry/trajectory.h"
 
 namespace uw_multislam {
@@ -69,15 +69,15 @@ std::string defaultSessionName(int id);
 bool parseOptimizer(const std::string& name, OptimizerKind* out);
 
 struct BackendOptions {
-  bool optimise = true;                            // false: trajectories stay the odometry's (joins still happen)
+  bool optimise = true;  // false: trajectories stay the odometry's (joins still happen)
   OptimizerKind optimizer = OptimizerKind::kSparse;
-  int optimise_every = 3;      // M: optimise a map when this many loops are pending in it
-  int join_min_loops = 5;      // K: global loops needed to join two maps automatically (0 = never)
-  double join_gate_m = 0.5;    // a loop whose position disagrees with the joined link by more
-                               // than this is refused (metres, not χ²: odometry covariances are
-                               // over-confident over long chains, a χ² gate refused true loops)
+  int optimise_every = 3;    // M: optimise a map when this many loops are pending in it
+  int join_min_loops = 5;    // K: global loops needed to join two maps automatically (0 = never)
+  double join_gate_m = 0.5;  // a loop whose position disagrees with the joined link by more
+                             // than this is refused (metres, not χ²: odometry covariances are
+                             // over-confident over long chains, a χ² gate refused true loops)
   IekfOptions iekf;
-  int max_keyframes = 1500;    // iekf: a larger map uses the sparse optimiser (dense P is 3N x 3N)
+  int max_keyframes = 1500;  // iekf: a larger map uses the sparse optimiser (dense P is 3N x 3N)
   SparseOptions sparse;
 
   std::string validate() const;
@@ -101,8 +101,8 @@ struct SessionInfo {
 };
 
 struct LinkInfo {
-  int previous = 0;   // the session whose last keyframe the link starts from
-  int current = 0;    // the session whose first keyframe it reaches
+  int previous = 0;         // the session whose last keyframe the link starts from
+  int current = 0;          // the session whose first keyframe it reaches
   UncertainPose2 measured;  // from the join (or composed by a split)
   Pose2 estimate;           // after optimisation
   int loops = 0;            // global loops it summarises
@@ -128,14 +128,14 @@ struct MapLinkState {
 /// with each link between them), and the loops pending optimisation.
 struct MapState {
   std::vector<int> chain;
-  std::vector<MapLinkState> links;        // links[i] joins chain[i] -> chain[i+1]
+  std::vector<MapLinkState> links;  // links[i] joins chain[i] -> chain[i+1]
   std::vector<UncertainPose2> motions;
   int pending = 0;
 };
 
 struct BackendStats {
-  int loops = 0;            // loops received
-  int loops_refused = 0;    // refused at a join as inconsistent with the others
+  int loops = 0;          // loops received
+  int loops_refused = 0;  // refused at a join as inconsistent with the others
   int joins = 0, splits = 0;
   int optimisations = 0;
   int optimisations_discarded = 0;  // deferred results dropped: their map changed while they were solved
@@ -210,6 +210,11 @@ class MultiSessionBackend {
   /// The session's current motions with their covariances, in its own frame (for the local loop
   /// search: with the sparse optimiser the covariances are the odometry's, an upper bound).
   Trajectory sessionTrajectory(int s) const;
+  /// Keyframe `keyframe` of session `s` in its map's frame with a covariance: the map's motions
+  /// up to it composed to first order (uncertain_pose.h). The motions' covariances are marginals
+  /// (the IEKF's diagonal blocks, or the odometry's with the sparse optimiser), their correlations
+  /// left out. Throws std::invalid_argument for an unknown keyframe.
+  UncertainPose2 keyframeInMap(int s, int keyframe) const;
   /// Global loops stored between the maps of two sessions and not yet used by a join.
   int pendingJoinLoops(int session_a, int session_b) const;
   const BackendStats& stats() const { return stats_; }
@@ -250,14 +255,14 @@ class MultiSessionBackend {
   };
   struct Map {
     std::vector<int> chain;
-    std::vector<MapLinkState> links;        // links[i] joins chain[i] -> chain[i+1]
-    std::vector<Pose2> motions;             // concatenated motion estimates (sparse maps)
-    std::vector<Eigen::Matrix3d> cov;       // their covariances (sparse maps)
-    std::optional<TrajectoryIekf> iekf;     // dense maps: motions and joint covariance
-    int pending = 0;                        // loops waiting for optimisation
+    std::vector<MapLinkState> links;          // links[i] joins chain[i] -> chain[i+1]
+    std::vector<Pose2> motions;               // concatenated motion estimates (sparse maps)
+    std::vector<Eigen::Matrix3d> cov;         // their covariances (sparse maps)
+    std::optional<TrajectoryIekf> iekf;       // dense maps: motions and joint covariance
+    int pending = 0;                          // loops waiting for optimisation
     std::uint64_t revision = nextRevision();  // changes with every change of the map (touch)
     int numMotions() const;
-    Pose2 motion(int k) const;              // k = 0-based motion index (motion k reaches keyframe k+1)
+    Pose2 motion(int k) const;  // k = 0-based motion index (motion k reaches keyframe k+1)
     Eigen::Matrix3d motionCov(int k) const;
   };
 

@@ -199,6 +199,8 @@ class SessionManager {
   /// The session's keyframe poses in its map's frame, and in its own frame.
   std::vector<Pose2> poses(int session) const;
   std::vector<Pose2> posesInSessionFrame(int session) const;
+  /// The session's last keyframe in its map's frame with its covariance (MultiSessionBackend::keyframeInMap).
+  UncertainPose2 lastKeyframeInMap(int session) const;
   /// The odometry's poses of the session's keyframes (X_k^0 as received).
   const std::vector<Pose2>& odometryPoses(int session) const { return at(session).odometry; }
   const std::vector<double>& stamps(int session) const { return at(session).stamps; }
