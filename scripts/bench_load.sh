@@ -50,10 +50,11 @@ echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
 best=""
 for rate in $rates; do
   rosparam delete /uw_multislam > /dev/null 2>&1 || true
-  roslaunch uw_multislam slam.launch > "$out/launch_$rate.log" 2>&1 &
+  # A fresh pipeline per rate: no session store, so nothing carries over from the last rate.
+  roslaunch uw_multislam slam.launch store_path:=none > "$out/launch_$rate.log" 2>&1 &
   launch_pid=$!
-  for _ in $(seq 100); do
-    rostopic info /camera/image_raw 2> /dev/null | grep -q odometry && break; sleep 0.2
+  for _ in $(seq 100); do  # the odometry subscribes (through the nodelet manager)
+    rostopic info /camera/image_raw 2> /dev/null | grep -q "/uw_multislam/manager" && break; sleep 0.2
   done
   sleep 2
   manager_pid=$(rosnode info /uw_multislam/manager 2> /dev/null | sed -n 's/^Pid: \([0-9]*\)/\1/p')

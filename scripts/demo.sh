@@ -97,7 +97,6 @@ wait_for 30 "the ROS master" master_up
 
 # A fresh session store for this run (the back-end writes every keyframe, loop and join to it).
 rm -f "$out/sessions.db" "$out/sessions.db-wal" "$out/sessions.db-shm"
-rosparam set /uw_multislam/backend_node/store_path "$out/sessions.db"
 
 /usr/bin/python3 "$UWMS_REPO/src/tools/record_run.py" --out "$run" \
   --session-dir "$out/survey/s0" --session-dir "$out/survey/s1" --ready-file "$logs/recorder.ready" \
@@ -108,7 +107,7 @@ wait_for 30 "the recorder" test -e "$logs/recorder.ready"
 # Both bags in one rosbag play, merged by stamp; skip-empty jumps over the day between the
 # missions (the odometry starts session 1 at the stamp gap); playing waits for the odometry.
 echo "[demo] replay.launch: s0.bag then s1.bag at rate $rate on simulated time, rviz off"
-roslaunch uw_multislam replay.launch rviz:=false rate:="$rate" \
+roslaunch uw_multislam replay.launch rviz:=false rate:="$rate" store_path:="$out/sessions.db" \
   bag:="$out/survey/s0.bag $out/survey/s1.bag" \
   play_args:="-q --skip-empty=5 --wait-for-subscribers --topics /camera/image_raw /camera/camera_info /altitude" \
   >"$logs/launch.log" 2>&1 &

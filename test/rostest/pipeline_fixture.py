@@ -1,5 +1,6 @@
 """Shared by the rostests: the small two-session mission they replay, the tool lookup, and the
 waits for the pipeline's subscriptions."""
+import os
 import time
 
 import rosgraph
@@ -21,7 +22,7 @@ sessions:
     mission: {pattern: loop, start_m: [6.5, 5.5], heading_rad: 1.5708, length_m: 2.5, width_m: 3.0, laps: 1.0,
               speed_m_s: 0.35, frame_period_s: 1.0, altitude_m: 1.7, start_time_s: 1000}
 """
-NS = "/uw_multislam"
+NS = os.environ.get("UWMS_TEST_NS", "/uw_multislam")  # the pipeline's namespace (a .test may move it)
 SENSOR_TOPICS = ["/camera/image_raw", "/camera/camera_info", "/altitude"]
 
 
