@@ -1,6 +1,7 @@
 // The back-end / session manager nodelet: see its header for topics, services and threading.
 #include "uw_multislam/ros/nodelets/backend_nodelet.h"
 
+#include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <pluginlib/class_list_macros.hpp>
 
 #include <cstdio>
@@ -69,6 +70,7 @@ void BackendNodelet::onInit() {
   trajectory_pub_ = nh.advertise<uw_multislam::SessionTrajectory>(topics::kSessionTrajectory, 10);
   markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>(topics::kLoopMarkers, 1, true);
   pose_pub_ = nh.advertise<geometry_msgs::PoseStamped>(topics::kCurrentPose, 10);
+  keyframe_pose_pub_ = nh.advertise<geometry_msgs::PoseWithCovarianceStamped>(topics::kKeyframePoseWithCovariance, 10);
   active_pub_ = nh.advertise<uw_multislam::SessionState>(topics::kActiveSession, 1, true);
   reloaded_pub_ = nh.advertise<uw_multislam::Keyframe>(topics::kReloadedKeyframes, 10000);
   frames_ = std::make_unique<ros_frames::FramePublisher>(nh, options_.frames);
@@ -201,7 +203,13 @@ void BackendNodelet::publishSession(int id) {
   if (!path) path = getNodeHandle().advertise<nav_msgs::Path>(topics::kSessionPathPrefix + std::to_string(id), 1, true);
   path.publish(rc::toPathMsg(poses, stamps, options_.frames.map_frame, now));
   frames_->setSessionFrames({{id, correction}});
-  if (id == manager_->activeSession()) frames_->setActive(id, correction, poses.back(), now);
+  if (id != manager_->activeSession()) return;
+  frames_->setActive(id, correction, poses.back(), now);
+  geometry_msgs::PoseWithCovarianceStamped k;
+  k.header.stamp = now;
+  k.header.frame_id = options_.frames.map_frame;
+  k.pose = rc::toPoseWithCovarianceMsg(manager_->lastKeyframeInMap(id));
+  keyframe_pose_pub_.publish(k);
 }
 
 void BackendNodelet::publishAll(bool all_sessions) {

@@ -11,7 +11,10 @@ with ~publish_odom_tf false, so it publishes only map -> odom. The bags play wit
    truth within TOLERANCE_M.
 2. map -> odom goes out with strictly increasing stamps (no TF_REPEATED_DATA), and /diagnostics
    reports its rate, about ~tf_rate (20 Hz).
-3. After join_sessions(0, 1), with the clock running (the test keeps it and the vehicle's odom
+3. keyframe_pose (PoseWithCovarianceStamped) carries what the core computes: its mean and
+   covariance are recomputed here, independently, by composing session 1's optimised motions
+   (session_trajectory) with the odometry's motion covariances (Keyframe messages) to first order.
+4. After join_sessions(0, 1), with the clock running (the test keeps it and the vehicle's odom
    going after the bags end), base_link looked up in map at the latest time moves to session 1's
    place in session 0's map within 0.1 s of the service's answer.
 """
@@ -30,11 +33,12 @@ import rospy
 import rostest
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import TransformStamped
+from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image
 from tf2_msgs.msg import TFMessage
+from uw_multislam.msg import Keyframe, SessionTrajectory
 from uw_multislam.srv import JoinSessions, ListSessions
 
 TOLERANCE_M = 0.10  # SLAM's pose of base_link in session 0 vs the ground truth (the odometry drifts ~cm)
@@ -111,7 +115,20 @@ class FramesTest(unittest.TestCase):
                     with cls.lock:
                         cls.rates.append(float(values["map_to_odom_rate_hz"]))
 
-        cls.subs = [rospy.Subscriber("/camera/image_raw", Image, on_image, queue_size=100),
+        cls.keyframes, cls.trajectories, cls.keyframe_poses = [], [], []
+
+        def keep(store):
+            def callback(msg):
+                with cls.lock:
+                    store.append(msg)
+            return callback
+
+        cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, keep(cls.keyframes), queue_size=1000),
+                    rospy.Subscriber(NS + "/session_trajectory", SessionTrajectory, keep(cls.trajectories),
+                                     queue_size=1000),
+                    rospy.Subscriber(NS + "/keyframe_pose", PoseWithCovarianceStamped, keep(cls.keyframe_poses),
+                                     queue_size=1000),
+                    rospy.Subscriber("/camera/image_raw", Image, on_image, queue_size=100),
                     rospy.Subscriber("/tf", TFMessage, on_tf, queue_size=1000),
                     rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
         rospy.wait_for_service(NS + "/join_sessions", timeout=60)
@@ -198,7 +215,45 @@ class FramesTest(unittest.TestCase):
         self.assertGreater(median, 15.0)  # ~tf_rate = 20 Hz while the clock runs
         self.assertLess(median, 30.0)
 
-    def test_3_after_a_join_base_link_moves_to_the_joined_map_within_0_1_s(self):
+    def test_3_keyframe_pose_carries_the_cores_covariance(self):
+        # Session 1, the active one at the end of the bags (a map of its own: automatic joining
+        # is off): its last session_trajectory and keyframe_pose come from one publication.
+        with self.lock:
+            keyframes = [k for k in self.keyframes if k.session == 1]
+            trajectory = [t for t in self.trajectories if t.session == 1][-1]
+            last = self.keyframe_poses[-1]
+        self.assertEqual(last.header.stamp, trajectory.header.stamp)
+        poses = trajectory.poses
+        covariances = {k.keyframe: [list(k.motion_covariance[3 * r:3 * r + 3]) for r in range(3)] for k in keyframes}
+        self.assertEqual(sorted(covariances), list(range(len(poses))))
+        # First-order composition, written out: x_k = x_{k-1} (+) m_k, P_k = J1 P J1' + J2 C_k J2'.
+        x, y, yaw = 0.0, 0.0, 0.0
+        cov = [[0.0] * 3 for _ in range(3)]
+        mat = lambda a, b: [[sum(a[i][k] * b[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+        tr = lambda a: [list(r) for r in zip(*a)]
+        for k in range(1, len(poses)):
+            a, b = poses[k - 1], poses[k]
+            ca, sa = math.cos(a.theta), math.sin(a.theta)
+            mx, my = ca * (b.x - a.x) + sa * (b.y - a.y), -sa * (b.x - a.x) + ca * (b.y - a.y)
+            myaw = math.atan2(math.sin(b.theta - a.theta), math.cos(b.theta - a.theta))
+            c, s = math.cos(yaw), math.sin(yaw)
+            j1 = [[1, 0, -s * mx - c * my], [0, 1, c * mx - s * my], [0, 0, 1]]
+            j2 = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+            p1, p2 = mat(mat(j1, cov), tr(j1)), mat(mat(j2, covariances[k]), tr(j2))
+            cov = [[p1[i][j] + p2[i][j] for j in range(3)] for i in range(3)]
+            x, y, yaw = x + c * mx - s * my, y + s * mx + c * my, yaw + myaw
+        got = last.pose.pose
+        self.assertAlmostEqual(got.position.x, x, delta=1e-9)
+        self.assertAlmostEqual(got.position.y, y, delta=1e-9)
+        slots = (0, 1, 5)  # x, y, yaw of the 6 x 6 (x, y, z, roll, pitch, yaw)
+        worst = max(abs(last.pose.covariance[6 * slots[i] + slots[j]] - cov[i][j]) for i in range(3) for j in range(3))
+        scale = max(abs(v) for r in cov for v in r)
+        print("keyframe_pose: %d keyframes composed, covariance worst difference %.2e of %.2e" % (len(poses), worst, scale))
+        self.assertLess(worst, 1e-9 * scale)
+        for unknown in (2, 3, 4):  # z, roll, pitch: unknown, as robot_localization reads it
+            self.assertGreaterEqual(last.pose.covariance[7 * unknown], 1e5)
+
+    def test_4_after_a_join_base_link_moves_to_the_joined_map_within_0_1_s(self):
         with self.lock:
             _, session, index = self.images[-1]
         self.assertEqual(session, 1)

@@ -58,6 +58,9 @@ constexpr char kReloadedKeyframes[] = "reloaded_keyframes";
 /// geometry_msgs/PoseStamped: the current camera pose in the map frame (back-end: the odometry
 /// pose corrected by the active session's optimisation).
 constexpr char kCurrentPose[] = "pose";
+/// geometry_msgs/PoseWithCovarianceStamped (back-end): the active session's last keyframe in the
+/// map frame with its covariance (6x6, z / roll / pitch unknown), at each keyframe and optimisation.
+constexpr char kKeyframePoseWithCovariance[] = "keyframe_pose";
 
 // --- Services of the session manager (uw_multislam/srv) ---------------------------------------
 constexpr char kJoinSessionsService[] = "join_sessions";
