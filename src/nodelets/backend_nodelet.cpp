@@ -69,6 +69,7 @@ void BackendNodelet::onInit() {
       options_.store_path.empty() ? "none" : options_.store_path.c_str());
   trajectory_pub_ = nh.advertise<uw_multislam::SessionTrajectory>(topics::kSessionTrajectory, 10);
   markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>(topics::kLoopMarkers, 1, true);
+  trajectory_markers_pub_ = nh.advertise<visualization_msgs::MarkerArray>(topics::kTrajectoryMarkers, 1, true);
   pose_pub_ = nh.advertise<geometry_msgs::PoseStamped>(topics::kCurrentPose, 10);
   keyframe_pose_pub_ = nh.advertise<geometry_msgs::PoseWithCovarianceStamped>(topics::kKeyframePoseWithCovariance, 10);
   active_pub_ = nh.advertise<uw_multislam::SessionState>(topics::kActiveSession, 1, true);
@@ -213,13 +214,18 @@ void BackendNodelet::publishSession(int id) {
 }
 
 void BackendNodelet::publishAll(bool all_sessions) {
-  if (all_sessions) {
-    for (int id : manager_->sessionIds()) publishSession(id);
-  } else if (manager_->activeSession() >= 0) {
-    publishSession(manager_->activeSession());
+  if (all_sessions) offsets_ = rc::mapOffsets(*manager_);  // maps change only with events
+  for (int id : all_sessions ? manager_->sessionIds() : std::vector<int>{manager_->activeSession()})
+    if (id >= 0) publishSession(id);
+  const ros::WallTime now = ros::WallTime::now();  // every session's markers: on events, else at most 1 Hz
+  if (trajectory_markers_pub_.getNumSubscribers() > 0 && (all_sessions || (now - markers_sent_).toSec() >= 1.0)) {
+    markers_sent_ = now;
+    trajectory_markers_pub_.publish(
+        rc::toTrajectoryMarkersMsg(*manager_, offsets_, options_.frames.map_frame, ros::Time::now()));
   }
   if (!all_sessions && manager_->loops().empty()) return;
-  markers_pub_.publish(rc::toMarkerArrayMsg(rc::loopSegments(*manager_), options_.frames.map_frame, ros::Time::now()));
+  markers_pub_.publish(
+      rc::toMarkerArrayMsg(rc::loopSegments(*manager_, offsets_), options_.frames.map_frame, ros::Time::now()));
 }
 
 void BackendNodelet::announceNextSession() {
@@ -326,10 +332,7 @@ void BackendNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper
 }
 
 void BackendNodelet::logStats(const char* when) {
-  std::string line = std::string("counters ") + when + ":";
-  for (const ros_diagnostics::Counter& c : counters())
-    line += " " + c.key + " " + ros_diagnostics::formatValue(c.value);
-  say(line);
+  say(ros_diagnostics::countersLine(std::string("counters ") + when + ":", counters()));
 }
 
 void BackendNodelet::say(const std::string& line) const {

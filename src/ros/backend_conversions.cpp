@@ -2,6 +2,8 @@
 
 #include "uw_multislam/ros/conversions.h"
 
+#include <algorithm>
+#include <cmath>
 #include <map>
 
 namespace uw_multislam {
@@ -71,11 +73,36 @@ uw_multislam::SessionState toSessionStateMsg(const core::SessionSummary& s) {
   return st;
 }
 
-std::vector<Segment> loopSegments(const core::SessionManager& manager) {
-  std::map<int, std::vector<core::Pose2>> poses;  // each session's poses once
+std::map<int, double> mapOffsets(const core::SessionManager& manager) {
+  std::map<int, std::pair<double, double>> extent;  // map -> min x, max x
+  for (int id : manager.sessionIds()) {
+    auto& e = extent.emplace(manager.mapOf(id), std::make_pair(1e300, -1e300)).first->second;
+    for (const core::Pose2& p : manager.poses(id)) e = {std::min(e.first, p.x()), std::max(e.second, p.x())};
+  }
+  std::map<int, double> offsets;
+  if (extent.empty()) return offsets;
+  const int anchor = manager.activeSession() >= 0 ? manager.mapOf(manager.activeSession()) : extent.begin()->first;
+  offsets[anchor] = 0.0;
+  double right = extent[anchor].second;  // the rightmost x drawn so far
+  for (const auto& [map, e] : extent) {
+    if (map == anchor) continue;
+    offsets[map] = right + 1.0 - e.first;
+    right = right + 1.0 + (e.second - e.first);
+  }
+  return offsets;
+}
+
+std::vector<Segment> loopSegments(const core::SessionManager& manager, const std::map<int, double>& offsets) {
+  std::map<int, std::vector<core::Pose2>> poses;  // each session's poses once, shifted with its map
   auto posesOf = [&](int id) -> const std::vector<core::Pose2>& {
     auto it = poses.find(id);
-    if (it == poses.end()) it = poses.emplace(id, manager.poses(id)).first;
+    if (it == poses.end()) {
+      const auto o = offsets.find(manager.mapOf(id));
+      std::vector<core::Pose2> p = manager.poses(id);
+      if (o != offsets.end())
+        for (core::Pose2& x : p) x = core::Pose2(x.x() + o->second, x.y(), x.yaw());
+      it = poses.emplace(id, std::move(p)).first;
+    }
     return it->second;
   };
   std::vector<Segment> segments;
@@ -87,6 +114,77 @@ std::vector<Segment> loopSegments(const core::SessionManager& manager) {
   for (const core::SessionLink& link : manager.links())
     segments.push_back({posesOf(link.previous).back(), posesOf(link.current).front(), Segment::Kind::kJoin});
   return segments;
+}
+
+std_msgs::ColorRGBA sessionColour(int id) {
+  // HSV (h, 0.75, 0.95) to RGB, h = frac(id * golden ratio): neighbours get far-apart hues.
+  const double h = std::fmod(0.12 + 0.6180339887 * id, 1.0) * 6.0, s = 0.75, v = 0.95;
+  const int i = static_cast<int>(h);
+  const double f = h - i, p = v * (1 - s), q = v * (1 - s * f), t = v * (1 - s * (1 - f));
+  const double rgb[6][3] = {{v, t, p}, {q, v, p}, {p, v, t}, {p, q, v}, {t, p, v}, {v, p, q}};
+  std_msgs::ColorRGBA c;
+  c.r = static_cast<float>(rgb[i % 6][0]);
+  c.g = static_cast<float>(rgb[i % 6][1]);
+  c.b = static_cast<float>(rgb[i % 6][2]);
+  c.a = 1.0f;
+  return c;
+}
+
+visualization_msgs::MarkerArray toTrajectoryMarkersMsg(const core::SessionManager& manager,
+                                                       const std::map<int, double>& offsets,
+                                                       const std::string& frame_id, const ros::Time& stamp) {
+  visualization_msgs::MarkerArray out;
+  auto marker = [&](const char* ns, int id, int type) {
+    visualization_msgs::Marker m;
+    m.header.frame_id = frame_id;
+    m.header.stamp = stamp;
+    m.ns = ns;
+    m.id = id;
+    m.type = type;
+    m.action = visualization_msgs::Marker::ADD;
+    m.pose.orientation.w = 1.0;
+    return m;
+  };
+  visualization_msgs::Marker clear = marker("", 0, visualization_msgs::Marker::LINE_STRIP);
+  clear.action = visualization_msgs::Marker::DELETEALL;
+  out.markers.push_back(clear);
+  std::map<int, std::pair<double, double>> top_left;  // shifted maps: where to put their label
+  for (int id : manager.sessionIds()) {
+    const int map = manager.mapOf(id);
+    const auto o = offsets.find(map);
+    const double dx = o == offsets.end() ? 0.0 : o->second;
+    visualization_msgs::Marker line = marker("trajectories", id, visualization_msgs::Marker::LINE_STRIP);
+    line.scale.x = id == manager.activeSession() ? 0.06 : 0.03;
+    line.color = sessionColour(id);
+    for (const core::Pose2& p : manager.poses(id)) {
+      geometry_msgs::Point q;
+      q.x = p.x() + dx;
+      q.y = p.y();
+      line.points.push_back(q);
+      if (dx != 0.0) {
+        auto& tl = top_left.emplace(map, std::make_pair(q.x, q.y)).first->second;
+        tl = {std::min(tl.first, q.x), std::min(tl.second, q.y)};
+      }
+    }
+    if (line.points.size() == 1) line.points.push_back(line.points.front());  // a LINE_STRIP needs two
+    visualization_msgs::Marker label = marker("labels", id, visualization_msgs::Marker::TEXT_VIEW_FACING);
+    label.pose.position = line.points.back();
+    label.scale.z = 0.25;
+    label.color = line.color;
+    label.text = "session " + std::to_string(id);
+    out.markers.push_back(line);
+    out.markers.push_back(label);
+  }
+  for (const auto& [map, tl] : top_left) {
+    visualization_msgs::Marker label = marker("maps", map, visualization_msgs::Marker::TEXT_VIEW_FACING);
+    label.pose.position.x = tl.first;
+    label.pose.position.y = tl.second - 0.5;
+    label.scale.z = 0.35;
+    label.color.r = label.color.g = label.color.b = label.color.a = 1.0f;
+    label.text = "map " + std::to_string(map) + " (not joined; drawn shifted)";
+    out.markers.push_back(label);
+  }
+  return out;
 }
 
 uw_multislam::SessionTrajectory toSessionTrajectoryMsg(int session, int map, const std::vector<core::Pose2>& poses,

@@ -60,5 +60,11 @@ void CounterStatus::fill(diagnostic_updater::DiagnosticStatusWrapper& stat, cons
   }
 }
 
+std::string countersLine(const std::string& prefix, const std::vector<Counter>& counters) {
+  std::string line = prefix;
+  for (const Counter& c : counters) line += " " + c.key + " " + formatValue(c.value);
+  return line;
+}
+
 }  // namespace ros_diagnostics
 }  // namespace uw_multislam

@@ -1,6 +1,9 @@
 // The session manager's answers and state as ROS messages (ros/backend_conversions.h).
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <map>
+
 #include "uw_multislam/ros/backend_conversions.h"
 
 namespace uw_multislam {
@@ -71,6 +74,67 @@ TEST(BackendConversions, KeyframeDataAsManagerInput) {
   EXPECT_DOUBLE_EQ(in.odometry_pose.y(), 2.0);
   ASSERT_EQ(in.hash.size(), 384);
   EXPECT_FLOAT_EQ(in.hash(383), 1.0f);
+}
+
+TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMapsSideBySide) {
+  // Six sessions, none joined (six maps), each a line of 4 keyframes 0.5 m apart that turns a
+  // little; session 5 is recording.
+  core::SessionManagerOptions o;
+  o.backend.join_min_loops = 0;
+  core::SessionManager m(o);
+  for (int s = 0; s < 6; ++s) {
+    core::Pose2 previous;
+    for (int k = 0; k < 4; ++k) {
+      core::KeyframeInput in;
+      in.session = s;
+      in.keyframe = k;
+      in.stamp_s = 100.0 * s + k;
+      in.odometry_pose = core::Pose2(0.5 * k, 0.1 * s * k, 0.05 * k);
+      in.motion = core::UncertainPose2(core::between(previous, in.odometry_pose), Eigen::Matrix3d::Identity() * 1e-4);
+      previous = in.odometry_pose;
+      ASSERT_TRUE(m.addKeyframe(in).ok());
+    }
+  }
+  ASSERT_EQ(m.mapIds().size(), 6u);
+  const std::map<int, double> offsets = mapOffsets(m);
+  ASSERT_EQ(offsets.size(), 6u);
+  EXPECT_EQ(offsets.at(m.mapOf(5)), 0.0);  // the recording session's map stays where tf has it
+  // The maps' x ranges, shifted, do not overlap.
+  std::vector<std::pair<double, double>> ranges;
+  for (int s = 0; s < 6; ++s) {
+    double lo = 1e9, hi = -1e9;
+    for (const core::Pose2& p : m.poses(s))
+      lo = std::min(lo, p.x() + offsets.at(m.mapOf(s))), hi = std::max(hi, p.x() + offsets.at(m.mapOf(s)));
+    ranges.emplace_back(lo, hi);
+  }
+  for (int a = 0; a < 6; ++a)
+    for (int b = a + 1; b < 6; ++b)
+      EXPECT_TRUE(ranges[a].second < ranges[b].first || ranges[b].second < ranges[a].first) << a << " " << b;
+
+  const visualization_msgs::MarkerArray all = toTrajectoryMarkersMsg(m, offsets, "map", ros::Time(5.0));
+  ASSERT_FALSE(all.markers.empty());
+  EXPECT_EQ(all.markers.front().action, visualization_msgs::Marker::DELETEALL);
+  std::map<int, visualization_msgs::Marker> lines;
+  int labels = 0, map_labels = 0;
+  for (const visualization_msgs::Marker& k : all.markers) {
+    if (k.ns == "trajectories") lines[k.id] = k;
+    labels += k.ns == "labels";
+    map_labels += k.ns == "maps";
+  }
+  ASSERT_EQ(lines.size(), 6u);
+  EXPECT_EQ(labels, 6);
+  EXPECT_EQ(map_labels, 5);  // every map but the active one is drawn shifted, and says so
+  for (int s = 0; s < 6; ++s) {
+    EXPECT_EQ(lines[s].points.size(), 4u);
+    EXPECT_DOUBLE_EQ(lines[s].points.back().x, m.poses(s).back().x() + offsets.at(m.mapOf(s)));
+    EXPECT_DOUBLE_EQ(lines[s].scale.x, s == 5 ? 0.06 : 0.03);
+    for (int t = s + 1; t < 6; ++t) {  // colours far apart
+      const auto &a = lines[s].color, &b = lines[t].color;
+      EXPECT_GT(std::abs(a.r - b.r) + std::abs(a.g - b.g) + std::abs(a.b - b.b), 0.15f) << s << " " << t;
+    }
+  }
+  // The loop segments move with their maps.
+  EXPECT_TRUE(loopSegments(m, offsets).empty());  // no loops here
 }
 
 }  // namespace

@@ -65,5 +65,10 @@ TEST(Diagnostics, ACounterAlreadyNonZeroAtTheFirstReportWarns) {
   EXPECT_EQ(s.level, DiagnosticStatus::WARN);
 }
 
+TEST(Diagnostics, CountersLine) {
+  EXPECT_EQ(ros_diagnostics::countersLine("counters so far:", {{"frames", 12}, {"rate_hz", 2.5}, {"drops", 0, true}}),
+            "counters so far: frames 12 rate_hz 2.500 drops 0");
+}
+
 }  // namespace
 }  // namespace uw_multislam

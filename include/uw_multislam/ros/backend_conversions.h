@@ -5,8 +5,10 @@
 
 #include <nav_msgs/Path.h>
 #include <ros/time.h>
+#include <std_msgs/ColorRGBA.h>
 #include <visualization_msgs/MarkerArray.h>
 
+#include <map>
 #include <string>
 #include <vector>
 
@@ -52,8 +54,23 @@ struct Segment {
   core::Pose2 a, b;
   enum class Kind { kLocal, kGlobal, kJoin } kind = Kind::kLocal;
 };
-/// The segments to draw for a manager's state: its accepted loops inside a map, and its links.
-std::vector<Segment> loopSegments(const core::SessionManager& manager);
+/// Where each map is drawn along the map frame's x axis (metres added to x): the active session's
+/// map (else the lowest id) where it is, so that it agrees with tf and the pose; every other map
+/// after it in id order, shifted to start 1 m past the previous one's extent, so that maps that
+/// are not joined (not related) do not sit on top of each other in rviz.
+std::map<int, double> mapOffsets(const core::SessionManager& manager);
+/// The segments to draw for a manager's state: its accepted loops inside a map, and its links,
+/// each map shifted by its offset (missing: 0).
+std::vector<Segment> loopSegments(const core::SessionManager& manager, const std::map<int, double>& offsets = {});
+/// rviz markers for any number of sessions: each session's keyframes as a LINE_STRIP (namespace
+/// "trajectories", id = session id, a colour of its own; the active session twice as wide) with a
+/// text label "session <id>" at its last keyframe (namespace "labels"), and a label "map <id>"
+/// over each shifted map (namespace "maps"), maps shifted by `offsets`, after a DELETEALL.
+visualization_msgs::MarkerArray toTrajectoryMarkersMsg(const core::SessionManager& manager,
+                                                       const std::map<int, double>& offsets,
+                                                       const std::string& frame_id, const ros::Time& stamp);
+/// A distinct, saturated colour for session `id` (hues spread by the golden ratio).
+std_msgs::ColorRGBA sessionColour(int id);
 /// A session's poses in its own frame, for the loop detectors' local candidates.
 uw_multislam::SessionTrajectory toSessionTrajectoryMsg(int session, int map, const std::vector<core::Pose2>& poses,
                                                        const ros::Time& stamp, const std::string& frame_id);

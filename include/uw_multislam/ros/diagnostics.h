@@ -47,6 +47,8 @@ class CounterStatus {
 
 /// Formats a value as the key/value pairs show it: integers without decimals, else 3 decimals.
 std::string formatValue(double v);
+/// The counters as one log line: "<prefix> key value key value ...".
+std::string countersLine(const std::string& prefix, const std::vector<Counter>& counters);
 
 }  // namespace ros_diagnostics
 }  // namespace uw_multislam

@@ -52,6 +52,9 @@ constexpr char kActiveSession[] = "active_session";
 /// joins, uw_multislam/SessionState[] via the list_sessions service.
 constexpr char kSessionPathPrefix[] = "paths/session_";
 constexpr char kLoopMarkers[] = "loop_markers";
+/// visualization_msgs/MarkerArray (back-end, latched): every session's trajectory in its own
+/// colour with labels, maps that are not joined drawn side by side (ros_conversions::mapOffsets).
+constexpr char kTrajectoryMarkers[] = "trajectory_markers";
 /// uw_multislam/Keyframe: the keyframes of a session reload_session brought back from the session
 /// store (back-end), for the loop detector(s) to store as candidates without searching.
 constexpr char kReloadedKeyframes[] = "reloaded_keyframes";

@@ -11,6 +11,8 @@
 //            own frame, for the loop detector's local candidates
 //          paths/session_<id> (nav_msgs/Path, latched): each session's keyframes in its map's frame
 //          loop_markers (visualization_msgs/MarkerArray, latched): loops and joins
+//          trajectory_markers (visualization_msgs/MarkerArray, latched, built while subscribed):
+//            every session in its own colour, labelled; maps not joined drawn side by side
 //          pose (geometry_msgs/PoseStamped): the current camera pose in the map frame
 //          keyframe_pose (geometry_msgs/PoseWithCovarianceStamped): the active session's last
 //            keyframe in the map frame with its covariance, for a robot_localization EKF
@@ -134,7 +136,10 @@ class BackendNodelet : public nodelet::Nodelet {
   std::unique_ptr<ros_frames::FramePublisher> frames_;  // thread-safe on its own
   ros_frames::FrameStats frame_stats_;                  // the diagnostics timer's thread only
 
-  ros::Publisher trajectory_pub_, markers_pub_, pose_pub_, keyframe_pose_pub_, active_pub_, reloaded_pub_;
+  std::map<int, double> offsets_;  // where each map is drawn in rviz (under state_mutex_)
+  ros::WallTime markers_sent_;      // the last trajectory_markers
+  ros::Publisher trajectory_pub_, markers_pub_, trajectory_markers_pub_, pose_pub_, keyframe_pose_pub_, active_pub_,
+      reloaded_pub_;
   std::map<int, ros::Publisher> path_pubs_;
   ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_;
   ros::Subscriber keyframe_sub_, loop_sub_, pose_sub_;  // last: destroyed first
