@@ -30,10 +30,12 @@ namespace rc = ros_conversions;
 
 OdometryNodelet::~OdometryNodelet() {
   watchdog_.stop();
+  pairing_timer_.stop();
+  image_sub_.shutdown();
+  info_sub_.shutdown();
+  range_sub_.shutdown();
   if (queue_) queue_->close();  // later frames are refused; the queued ones are still processed
   if (worker_.joinable()) worker_.join();
-  sync3_.reset();
-  sync2_.reset();
   if (odometry_) logStats("at shutdown");
 }
 
@@ -55,6 +57,9 @@ void OdometryNodelet::readParameters() {
       pnh, "sync_queue_size", 10, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
   options_.sync_max_interval_s = param(
       pnh, "sync_max_interval_s", 0.1, [](double v) { return v > 0; }, "positive");
+  options_.altitude_max_age_s = param(
+      pnh, "altitude_max_age_s", 1.0, [](double v) { return std::isfinite(v) && v > 0 && v <= 60; },
+      "in (0, 60] seconds");
   options_.session = param(
       pnh, "session", 0, [](int v) { return v >= 0; }, ">= 0");
   options_.session_gap_s = param(
@@ -84,15 +89,17 @@ void OdometryNodelet::onInit() {
   }
   const auto& o = options_;
   NODELET_INFO(
-      "odometry: altitude from %s, queue_size %d (oldest dropped when full), sync_queue_size %d, "
-      "sync_max_interval_s %.3f, first session %d, session_gap_s %.1f, reorder_tolerance_s %.2f, "
+      "odometry: altitude from %s (interpolated at the image stamp, altitude_max_age_s %.2f), queue_size %d "
+      "(oldest dropped when full), sync_queue_size %d, sync_max_interval_s %.3f, first session %d, session_gap_s %.1f, "
+      "reorder_tolerance_s %.2f, "
       "input_timeout_s %.1f, fallback_altitude %s, stats every %.0f s, diagnostics every %.1f s; n = %d features, "
       "enhancement %s, keyframes at overlap < %.2f",
       o.use_altitude_topic ? "the altitude topic"
                            : ("the fixed altitude " + std::to_string(o.altitude_m) + " m").c_str(),
-      o.queue_size, o.sync_queue_size, o.sync_max_interval_s, o.session, o.session_gap_s, o.reorder_tolerance_s,
-      o.input_timeout_s, o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off",
-      o.stats_period_s, o.diagnostic_period_s, config_.odometry.features.num_features,
+      o.altitude_max_age_s, o.queue_size, o.sync_queue_size, o.sync_max_interval_s, o.session, o.session_gap_s,
+      o.reorder_tolerance_s, o.input_timeout_s,
+      o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off", o.stats_period_s,
+      o.diagnostic_period_s, config_.odometry.features.num_features,
       core::enhancementName(config_.odometry.enhancement.mode).c_str(), config_.odometry.keyframes.min_overlap);
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config_));
   session_ = o.session;
@@ -114,53 +121,138 @@ void OdometryNodelet::onInit() {
 
   worker_ = std::thread([this] { work(); });
 
+  if (o.use_altitude_topic) {
+    core::AltitudeBufferOptions ao;
+    ao.max_age_s = o.altitude_max_age_s;
+    ao.reorder_tolerance_s = o.reorder_tolerance_s;
+    altitudes_ = std::make_unique<core::AltitudeBuffer>(ao);
+  }
+  // Images waiting past their bound are decided by this timer when no message comes.
+  pairing_timer_ = nh.createWallTimer(ros::WallDuration(std::min(0.1, o.altitude_max_age_s / 4)),
+                                      &OdometryNodelet::onPairingTimer, this);
+
   session_sub_ = nh.subscribe(topics::kActiveSession, 1, &OdometryNodelet::onActiveSession, this);
   const image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
-  image_sub_.subscribe(*it_, topics::kImage, o.sync_queue_size, hints);
-  info_sub_.subscribe(nh, topics::kCameraInfo, o.sync_queue_size);
-  // Arrivals per input, for the silent-input watchdog and images_not_paired.
-  image_sub_.registerCallback(
-      boost::function<void(const sensor_msgs::ImageConstPtr&)>([this](const sensor_msgs::ImageConstPtr&) {
-        const double now = wallNow();
-        ++images_in_, last_image_ = now;
-        if (images_since_range_++ == 0) first_image_since_range_ = now;
-        if (images_since_sync_++ == 0) first_image_since_sync_ = now;
-      }));
-  info_sub_.registerCallback(boost::function<void(const sensor_msgs::CameraInfoConstPtr&)>(
-      [this](const sensor_msgs::CameraInfoConstPtr&) { ++infos_in_, last_info_ = wallNow(); }));
-  const ros::Duration max_interval(o.sync_max_interval_s);
+  image_sub_ = it_->subscribe(topics::kImage, o.sync_queue_size, &OdometryNodelet::onImage, this, hints);
+  info_sub_ = nh.subscribe(topics::kCameraInfo, o.sync_queue_size, &OdometryNodelet::onCameraInfo, this);
   if (o.use_altitude_topic) {
-    range_sub_.subscribe(nh, topics::kAltitude, o.sync_queue_size);
-    range_sub_.registerCallback(boost::function<void(const sensor_msgs::RangeConstPtr&)>(
-        [this](const sensor_msgs::RangeConstPtr&) { ++ranges_in_, images_since_range_ = 0; }));
-    sync3_ = std::make_unique<message_filters::Synchronizer<SyncWithAltitude>>(SyncWithAltitude(o.sync_queue_size),
-                                                                               image_sub_, info_sub_, range_sub_);
-    sync3_->setMaxIntervalDuration(max_interval);
-    sync3_->registerCallback(boost::bind(&OdometryNodelet::onSynced, this, boost::placeholders::_1,
-                                         boost::placeholders::_2, boost::placeholders::_3));
-  }
-  if (!o.use_altitude_topic || o.fallback_altitude_m > 0) {
-    // Without an altitude topic the only pairing; with one and a fallback altitude, the pairs
-    // used while the altitude topic is silent (onSynced drops them otherwise).
-    sync2_ = std::make_unique<message_filters::Synchronizer<SyncNoAltitude>>(SyncNoAltitude(o.sync_queue_size),
-                                                                             image_sub_, info_sub_);
-    sync2_->setMaxIntervalDuration(max_interval);
-    sync2_->registerCallback(boost::bind(&OdometryNodelet::onSynced, this, boost::placeholders::_1,
-                                         boost::placeholders::_2, sensor_msgs::RangeConstPtr()));
-    ;
+    range_sub_ = nh.subscribe(topics::kAltitude, o.sync_queue_size, &OdometryNodelet::onRange, this);
   }
   NODELET_INFO("odometry: image transport '%s' on %s", image_sub_.getTransport().c_str(),
                image_sub_.getTopic().c_str());
 }
 
-void OdometryNodelet::onSynced(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info,
-                               const sensor_msgs::RangeConstPtr& range) {
-  Frame f{image, info, range, false};
-  if (!range && options_.use_altitude_topic) {
-    // The image + camera_info pairing with a fallback altitude: only while the topic is silent.
-    if (images_since_range_ == 0 || wallNow() - first_image_since_range_ < options_.input_timeout_s) return;
-    f.fixed_altitude = true;
+void OdometryNodelet::onImage(const sensor_msgs::ImageConstPtr& image) {
+  const double now = wallNow();
+  ++images_in_, last_image_ = now;
+  if (images_since_range_++ == 0) first_image_since_range_ = now;
+  if (images_since_sync_++ == 0) first_image_since_sync_ = now;
+  std::lock_guard<std::mutex> lock(pairing_mutex_);
+  pending_.push_back({image, now});
+  pairPending(now);
+}
+
+void OdometryNodelet::onCameraInfo(const sensor_msgs::CameraInfoConstPtr& info) {
+  const double now = wallNow();
+  ++infos_in_, last_info_ = now;
+  std::lock_guard<std::mutex> lock(pairing_mutex_);
+  // A stamp far back (a bag that loops): the older ones belong to another time.
+  if (!infos_.empty() &&
+      info->header.stamp.toSec() < infos_.back()->header.stamp.toSec() - options_.reorder_tolerance_s) {
+    infos_.clear();
   }
+  infos_.push_back(info);
+  while (infos_.size() > kCameraInfosKept) infos_.pop_front();
+  pairPending(now);
+}
+
+void OdometryNodelet::onRange(const sensor_msgs::RangeConstPtr& range) {
+  const double now = wallNow();
+  ++ranges_in_, images_since_range_ = 0;
+  double altitude = std::numeric_limits<double>::quiet_NaN();
+  std::string why;
+  if (!rc::altitudeFromMsg(*range, &altitude, &why)) {
+    altitude = std::numeric_limits<double>::quiet_NaN();  // kept as an invalid reading
+    NODELET_WARN_THROTTLE(
+        5, "odometry: %s: images at this reading's stamp get no altitude (the last valid one is used)", why.c_str());
+  }
+  std::lock_guard<std::mutex> lock(pairing_mutex_);
+  const double last = altitudes_->empty() ? 0.0 : altitudes_->newest();
+  if (altitudes_->add(range->header.stamp.toSec(), altitude) == core::AltitudeBuffer::AddResult::kCleared) {
+    ++altitude_clears_;
+    NODELET_WARN(
+        "odometry: altitude stamps jumped back by %.3f s (a bag that loops, or a clock reset): earlier "
+        "readings dropped",
+        last - range->header.stamp.toSec());
+  }
+  pairPending(now);
+}
+
+void OdometryNodelet::onPairingTimer(const ros::WallTimerEvent&) {
+  std::lock_guard<std::mutex> lock(pairing_mutex_);
+  pairPending(wallNow());
+}
+
+bool OdometryNodelet::cameraInfoAt(double stamp_s, bool final_answer, sensor_msgs::CameraInfoConstPtr* info) const {
+  info->reset();
+  double best = std::numeric_limits<double>::infinity();
+  bool later = false;  // one at or after the stamp has arrived: later ones cannot be nearer
+  for (const auto& i : infos_) {
+    const double t = i->header.stamp.toSec();
+    later = later || t >= stamp_s;
+    const double d = std::abs(t - stamp_s);
+    if (d <= options_.sync_max_interval_s && d <= best) best = d, *info = i;  // the latest of equals
+  }
+  // Without a candidate yet, a later camera_info does not settle it: the image's own may come late.
+  return final_answer || best == 0.0 || (later && *info);
+}
+
+void OdometryNodelet::pairPending(double now) {
+  const std::size_t max_pending = 2 * static_cast<std::size_t>(options_.sync_queue_size);
+  while (!pending_.empty()) {
+    const Pending& p = pending_.front();
+    const double stamp = p.image->header.stamp.toSec();
+    // Waited long enough, or too many waiting: decide with what has arrived.
+    const bool final_answer = now - p.arrived >= options_.altitude_max_age_s || pending_.size() > max_pending;
+    Frame f;
+    f.image = p.image;
+    if (!cameraInfoAt(stamp, final_answer, &f.info)) return;
+    core::AltitudeAt altitude;
+    if (altitudes_) {
+      altitude = altitudes_->at(stamp, final_answer);
+      if (altitude.status == core::AltitudeStatus::kPending) return;
+    }
+    pending_.pop_front();
+    if (!f.info) {
+      ++no_camera_info_;
+      NODELET_WARN_THROTTLE(5,
+                            "odometry: image at %.3f skipped: no camera_info within ~sync_max_interval_s %.3f s of "
+                            "its stamp (%ld so far)",
+                            stamp, options_.sync_max_interval_s, no_camera_info_.load());
+      continue;
+    }
+    if (altitudes_) {
+      f.altitude_m = altitude.altitude_m;
+      f.bad_altitude = altitude.status == core::AltitudeStatus::kInvalid;
+      if (altitude.status == core::AltitudeStatus::kStale) {
+        // The fallback altitude only while the topic is silent (images without a reading for input_timeout_s).
+        const bool silent = images_since_range_ > 0 && now - first_image_since_range_ >= options_.input_timeout_s;
+        if (!(options_.fallback_altitude_m > 0 && silent)) {
+          ++no_altitude_;
+          NODELET_WARN_THROTTLE(5,
+                                "odometry: image at %.3f skipped: no altitude reading within ~altitude_max_age_s "
+                                "%.2f s of its stamp (%ld so far)",
+                                stamp, options_.altitude_max_age_s, no_altitude_.load());
+          continue;
+        }
+        f.fixed_altitude = true;
+      }
+    }
+    push(std::move(f));
+  }
+}
+
+void OdometryNodelet::push(Frame f) {
   images_since_sync_ = 0;
   queue_->push(std::move(f));
 }
@@ -254,23 +346,7 @@ void OdometryNodelet::process(const Frame& f) {
                           image.rows, camera.width, camera.height, counts_.bad_image);
     return;
   }
-  double altitude = options_.altitude_m;
-  if (f.fixed_altitude) {
-    altitude = options_.fallback_altitude_m;
-    ++counts_.fixed_altitude;
-    NODELET_WARN_THROTTLE(10,
-                          "odometry: no altitude on %s for %.0f s: the fixed ~fallback_altitude %.2f m is used "
-                          "(%ld frames so far)",
-                          range_sub_.getTopic().c_str(), options_.input_timeout_s, altitude, counts_.fixed_altitude);
-  }
-  if (f.range && !rc::altitudeFromMsg(*f.range, &altitude, &why)) {
-    ++counts_.bad_altitude;
-    NODELET_WARN_THROTTLE(5, "odometry: %s: the last valid altitude is used (%ld so far)", why.c_str(),
-                          counts_.bad_altitude);
-    altitude = std::numeric_limits<double>::quiet_NaN();  // the core reuses the last valid one, or skips
-  }
-
-  // Stamps: duplicates and late frames are skipped before they touch the odometry.
+  // Stamps: duplicates and late frames are skipped before they touch the odometry (or count a bad altitude).
   const ros::Time stamp = f.image->header.stamp;
   const core::StampClass timing = stamps_->accept(stamp.toSec());
   if (timing == core::StampClass::kDuplicate) {
@@ -286,6 +362,26 @@ void OdometryNodelet::process(const Frame& f) {
                           "%ld so far)",
                           stamp.toSec(), (last_stamp_ - stamp).toSec(), counts_.out_of_order);
     return;
+  }
+
+  double altitude = options_.altitude_m;
+  if (f.fixed_altitude) {
+    altitude = options_.fallback_altitude_m;
+    ++counts_.fixed_altitude;
+    NODELET_WARN_THROTTLE(10,
+                          "odometry: no altitude on %s for %.0f s: the fixed ~fallback_altitude %.2f m is used "
+                          "(%ld frames so far)",
+                          range_sub_.getTopic().c_str(), options_.input_timeout_s, altitude, counts_.fixed_altitude);
+  } else if (options_.use_altitude_topic) {
+    altitude = f.altitude_m;
+    if (f.bad_altitude) {
+      ++counts_.bad_altitude;
+      NODELET_WARN_THROTTLE(5,
+                            "odometry: the altitude at %.3f would use an invalid reading (NaN, <= 0 or out of "
+                            "range): the last valid altitude is used (%ld so far)",
+                            stamp.toSec(), counts_.bad_altitude);
+      altitude = std::numeric_limits<double>::quiet_NaN();  // the core reuses the last valid one, or skips
+    }
   }
 
   // Session changes, in order of precedence: the back-end's request, a time jump, a new camera.
@@ -382,7 +478,8 @@ std::string OdometryNodelet::silentInput(double now) const {
     os << "no altitude on " << range_sub_.getTopic()
        << " (set ~fallback_altitude to fly on a fixed altitude, or ~use_altitude_topic false)";
   } else {
-    os << "their stamps are further apart than ~sync_max_interval_s " << options_.sync_max_interval_s << " s";
+    os << "their stamps are further apart than ~sync_max_interval_s " << options_.sync_max_interval_s
+       << " s (camera_info) or ~altitude_max_age_s " << options_.altitude_max_age_s << " s (altitude)";
   }
   return os.str();
 }
@@ -402,8 +499,13 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
   const long images = images_in_;
   const long dropped = queue_->dropped(), queued = static_cast<long>(queue_->size());
   const long synced = queue_->pushed(), taken = queue_->popped();
-  // Images the synchroniser has not paired (a few are always waiting in its queue).
+  // Images not paired: skipped for want of a camera_info or an altitude, or still waiting.
   const long not_paired = std::max(0L, images - synced);
+  long waiting = 0;
+  {
+    std::lock_guard<std::mutex> lock(pairing_mutex_);
+    waiting = static_cast<long>(pending_.size());
+  }
   const double processed = static_cast<double>(c.frames);  // frames finished (for the mean time)
   using ros_diagnostics::Counter;
   diagnostic_status_.fill(
@@ -413,6 +515,10 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
        {"altitudes_received", static_cast<double>(ranges_in_)},
        {"frames_synchronised", static_cast<double>(synced)},
        {"images_not_paired", static_cast<double>(not_paired)},
+       {"images_waiting_pairing", static_cast<double>(waiting)},
+       {"skipped_no_camera_info", static_cast<double>(no_camera_info_), true},
+       {"skipped_no_altitude", static_cast<double>(no_altitude_), true},
+       {"altitude_stamps_jumped_back", static_cast<double>(altitude_clears_)},
        {"frames_processed", static_cast<double>(taken)},  // taken by the worker (finished or in progress)
        {"dropped_queue_full", static_cast<double>(dropped), true},
        {"queue_length", static_cast<double>(queued)},

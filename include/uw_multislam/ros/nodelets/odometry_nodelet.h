@@ -5,23 +5,38 @@
 //   camera/camera_info  sensor_msgs/CameraInfo
 //   altitude            sensor_msgs/Range (only with ~use_altitude_topic: true, else ~altitude)
 //   active_session      uw_multislam/SessionState from the back-end: a new id starts a session
-// The three sensor topics are paired by message_filters' ApproximateTime (images without an
-// altitude within ~sync_max_interval_s are never paired, so they are not processed).
+// Pairing by stamp (issue 15): each image waits (in arrival order, in a short list of pending
+// images) for
+//   - its camera_info: the one with the nearest stamp within ~sync_max_interval_s, reused by as
+//     many images as need it. Decided as soon as one with the image's own stamp, or a later one,
+//     has arrived (later ones cannot be nearer). A camera_info per image, not just the latest one,
+//     so a change of intrinsics takes effect at its own image; nearest, not exact, so a driver
+//     that stamps camera_info a little apart still pairs.
+//   - its altitude (with ~use_altitude_topic): core::AltitudeBuffer over the recent readings,
+//     linear between the two readings around the image stamp (at most ~altitude_max_age_s
+//     apart), else the nearest reading within ~altitude_max_age_s. Decided as soon as a reading
+//     at or after the image stamp has arrived, so every image of a 10 Hz camera is used with a
+//     2 Hz altimeter (an image waits for the next reading, at most ~0.5 s then).
+// An image waits at most ~altitude_max_age_s (wall time) from its arrival; it is then decided
+// with what has arrived (the last reading if within ~altitude_max_age_s of its stamp). Images
+// without a camera_info or an altitude by then are skipped and counted (skipped_no_camera_info,
+// skipped_no_altitude). At most 2 x ~sync_queue_size images wait; beyond that the oldest is
+// decided at once.
 // Outputs:
 //   keyframes                uw_multislam/Keyframe, each new keyframe with its features and its
 //                            hash (computed here once, with the slam/loops/global hash options)
 //   odometry/pose            geometry_msgs/PoseStamped, each processed frame, session frame
 //   odometry/keyframe_image  the new keyframe's image with its features (only when subscribed)
 //
-// Threading model: the synchroniser's callback (any of the manager's threads) only pushes the
-// message pointers onto a bounded FIFO of ~queue_size frames (ros/work_queue.h) and returns; when
-// the FIFO is full the OLDEST frame is dropped and counted (live, the newest image matters; a gap
-// is bridged by the keyframe rule or the fallback). One worker thread owns core::Odometry and
-// does everything else: conversion, SIFT, RANSAC, publishing. Session switches requested on
-// active_session are handed to the worker under a small mutex of their own. On unload the FIFO is
-// closed and the worker processes the frames still in it before it is joined. Messages are
-// published as shared pointers, so the loop nodelets in the same manager receive them without a
-// copy.
+// Threading model: the image, camera_info and altitude callbacks (any of the manager's threads)
+// pair under a mutex of their own and push the paired message pointers onto a bounded FIFO of
+// ~queue_size frames (ros/work_queue.h); when the FIFO is full the OLDEST frame is dropped and
+// counted (live, the newest image matters; a gap is bridged by the keyframe rule or the
+// fallback). One worker thread owns core::Odometry and does everything else: conversion, SIFT,
+// RANSAC, publishing. Session switches requested on active_session are handed to the worker
+// under a small mutex of their own. On unload the FIFO is closed and the worker processes the
+// frames still in it before it is joined. Messages are published as shared pointers, so the loop
+// nodelets in the same manager receive them without a copy.
 //
 // Sessions: the first session has id ~session. A new session starts (the odometry restarts, the
 // next keyframe is the new origin) when the back-end asks for another id on active_session, when
@@ -39,25 +54,25 @@
 //     (< 32 px) or wrongly laid out images and images whose size differs from camera_info are
 //     skipped;
 //   - camera_info without a focal length, or with the principal point outside: frame skipped;
-//   - altitude NaN, <= 0 or outside the sensor's range: the core reuses the last valid one (a
+//   - altitude NaN, <= 0 or outside the sensor's range: such a reading is kept as invalid; an
+//     image whose altitude would use it gets none and the core reuses the last valid one (a
 //     frame before any valid altitude is skipped);
 //   - stamps (core/frontend/stamp_guard.h): the same stamp twice is a duplicate, a stamp up to
 //     ~reorder_tolerance_s back is late: both skipped; further back (a bag that loops, a clock
 //     reset) or forward by more than ~session_gap_s: a new session;
-//   - a silent input: images arrive but no synchronised set for ~input_timeout_s (altitude or
+//   - altitude and camera_info stamps: an image without an altitude reading within
+//     ~altitude_max_age_s of its stamp, or without a camera_info within ~sync_max_interval_s,
+//     is skipped (counted). Altitude stamps jumping back (a bag that loops) clear the readings.
+//   - a silent input: images arrive but none is paired for ~input_timeout_s (altitude or
 //     camera_info missing, or stamps too far apart): a warning naming the input, diagnostics
 //     WARN. With ~fallback_altitude > 0 frames are then processed at that fixed altitude
 //     (counted); by default they are not (a wrong scale would corrupt the map).
-//   - bursts: the worker's FIFO drops the oldest frame when full (counted); images the
-//     synchroniser never pairs are counted as images_not_paired.
+//   - bursts: the worker's FIFO drops the oldest frame when full (counted); images not (yet)
+//     paired are counted as images_not_paired.
 #pragma once
 
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <image_transport/image_transport.h>
-#include <image_transport/subscriber_filter.h>
-#include <message_filters/subscriber.h>
-#include <message_filters/sync_policies/approximate_time.h>
-#include <message_filters/synchronizer.h>
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
@@ -67,12 +82,14 @@
 #include <opencv2/core.hpp>
 
 #include <atomic>
+#include <deque>
 #include <memory>
 #include <mutex>
 #include <string>
 #include <thread>
 
 #include "uw_multislam/SessionState.h"
+#include "uw_multislam/core/frontend/altitude_buffer.h"
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/frontend/stamp_guard.h"
 #include "uw_multislam/core/frontend/tracking.h"
@@ -88,12 +105,13 @@ namespace nodelets {
 /// The nodelet's own parameters (private namespace), read once.
 struct OdometryNodeletOptions {
   bool use_altitude_topic = true;
-  double altitude_m = 0.0;  // used when use_altitude_topic is false
-  int queue_size = 5;       // frames waiting for the worker
-  int sync_queue_size = 10;
-  double sync_max_interval_s = 0.1;
-  int session = 0;             // id of the first session
-  double session_gap_s = 10.0;  // stamps jumping forward more than this start a session; 0 = never
+  double altitude_m = 0.0;           // used when use_altitude_topic is false
+  int queue_size = 5;                // frames waiting for the worker
+  int sync_queue_size = 10;          // subscriber queues; 2x: images waiting for their pairing
+  double sync_max_interval_s = 0.1;  // largest image - camera_info stamp difference
+  double altitude_max_age_s = 1.0;   // altitude: largest gap interpolated / age used alone; longest wait
+  int session = 0;                   // id of the first session
+  double session_gap_s = 10.0;       // stamps jumping forward more than this start a session; 0 = never
   double reorder_tolerance_s = 1.0;  // stamps at most this far back are late frames (skipped)
   double input_timeout_s = 5.0;      // images without a synchronised set this long: warn
   double fallback_altitude_m = 0.0;  // > 0: used when the altitude topic is silent; 0 = off
@@ -110,8 +128,16 @@ class OdometryNodelet : public nodelet::Nodelet {
   struct Frame {
     sensor_msgs::ImageConstPtr image;
     sensor_msgs::CameraInfoConstPtr info;
-    sensor_msgs::RangeConstPtr range;  // null without altitude topic
-    bool fixed_altitude = false;       // the altitude topic was silent: ~fallback_altitude is used
+    double altitude_m = 0.0;      // at the image stamp (with the altitude topic)
+    bool bad_altitude = false;    // it would use an invalid reading: the core reuses the last valid one
+    bool fixed_altitude = false;  // the altitude topic was silent: ~fallback_altitude is used
+  };
+  // The recent camera_infos searched for an image's.
+  static constexpr std::size_t kCameraInfosKept = 100;
+  // An image waiting for its camera_info and altitude.
+  struct Pending {
+    sensor_msgs::ImageConstPtr image;
+    double arrived = 0.0;  // wall seconds
   };
   struct Counters {
     long frames = 0, dropped = 0, bad_image = 0, bad_camera = 0, bad_altitude = 0, keyframes = 0, fallbacks = 0,
@@ -123,14 +149,19 @@ class OdometryNodelet : public nodelet::Nodelet {
     double total_ms = 0.0, max_ms = 0.0, last_ms = 0.0;
     int session = 0;
   };
-  using SyncWithAltitude = message_filters::sync_policies::ApproximateTime<sensor_msgs::Image, sensor_msgs::CameraInfo,
-                                                                           sensor_msgs::Range>;
-  using SyncNoAltitude = message_filters::sync_policies::ApproximateTime<sensor_msgs::Image, sensor_msgs::CameraInfo>;
 
   void onInit() override;
   void readParameters();
-  void onSynced(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info,
-                const sensor_msgs::RangeConstPtr& range);
+  void onImage(const sensor_msgs::ImageConstPtr& image);
+  void onCameraInfo(const sensor_msgs::CameraInfoConstPtr& info);
+  void onRange(const sensor_msgs::RangeConstPtr& range);
+  void onPairingTimer(const ros::WallTimerEvent&);
+  /// Pairs the pending images, oldest first, until one must wait longer. Under pairing_mutex_.
+  void pairPending(double now);
+  /// The camera_info for an image stamp: set when decided (null: none within
+  /// ~sync_max_interval_s); false while a nearer one may still come. Under pairing_mutex_.
+  bool cameraInfoAt(double stamp_s, bool final_answer, sensor_msgs::CameraInfoConstPtr* info) const;
+  void push(Frame f);
   void onActiveSession(const uw_multislam::SessionStateConstPtr& msg);
   void work();
   void process(const Frame& f);
@@ -153,6 +184,15 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::mutex session_mutex_;
   int requested_session_ = -1;  // guarded by session_mutex_; -1: none
 
+  // Pairing state, written by the callbacks under pairing_mutex_.
+  std::mutex pairing_mutex_;
+  std::deque<Pending> pending_;
+  // The recent camera_infos, in arrival order.
+  std::deque<sensor_msgs::CameraInfoConstPtr> infos_;
+  std::unique_ptr<core::AltitudeBuffer> altitudes_;  // with the altitude topic
+  std::atomic<long> no_camera_info_{0}, no_altitude_{0}, altitude_clears_{0};
+  ros::WallTimer pairing_timer_;
+
   // Arrivals, written by the callbacks (wall seconds of the last one, 0 = never).
   std::atomic<long> images_in_{0}, infos_in_{0}, ranges_in_{0};
   std::atomic<double> last_image_{0.0}, last_info_{0.0};
@@ -171,7 +211,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   ros::WallTimer watchdog_;
 
   // Worker-only state.
-  std::unique_ptr<core::ImageHasher> hasher_;  // each keyframe's hash, paper (6)(7), for the Keyframe message
+  std::unique_ptr<core::ImageHasher> hasher_;          // each keyframe's hash, paper (6)(7), for the Keyframe message
   std::unique_ptr<core::SegmentedOdometry> odometry_;  // the stream's odometry, a new session on tracking loss
   core::CameraIntrinsics camera_;
   int session_ = 0;
@@ -187,11 +227,9 @@ class OdometryNodelet : public nodelet::Nodelet {
   image_transport::Publisher keyframe_image_pub_;
   // Subscribers last: destroyed first, so no callback runs into destroyed members.
   ros::Subscriber session_sub_;
-  image_transport::SubscriberFilter image_sub_;
-  message_filters::Subscriber<sensor_msgs::CameraInfo> info_sub_;
-  message_filters::Subscriber<sensor_msgs::Range> range_sub_;
-  std::unique_ptr<message_filters::Synchronizer<SyncWithAltitude>> sync3_;
-  std::unique_ptr<message_filters::Synchronizer<SyncNoAltitude>> sync2_;
+  image_transport::Subscriber image_sub_;
+  ros::Subscriber info_sub_;
+  ros::Subscriber range_sub_;
 };
 
 }  // namespace nodelets
