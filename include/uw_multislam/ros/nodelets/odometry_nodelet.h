@@ -8,10 +8,11 @@
 // Pairing by stamp (issue 15): each image waits (in arrival order, in a short list of pending
 // images) for
 //   - its camera_info: the one with the nearest stamp within ~sync_max_interval_s, reused by as
-//     many images as need it. Decided as soon as one with the image's own stamp, or a later one,
-//     has arrived (later ones cannot be nearer). A camera_info per image, not just the latest one,
-//     so a change of intrinsics takes effect at its own image; nearest, not exact, so a driver
-//     that stamps camera_info a little apart still pairs.
+//     many images as need it. Decided as soon as the one with the image's own stamp has arrived,
+//     or a later one while one within the bound is there (later ones cannot be nearer). A
+//     camera_info per image, not just the latest one, so a change of intrinsics takes effect at
+//     its own image; nearest, not exact, so a driver that stamps camera_info a little apart still
+//     pairs.
 //   - its altitude (with ~use_altitude_topic): core::AltitudeBuffer over the recent readings,
 //     linear between the two readings around the image stamp (at most ~altitude_max_age_s
 //     apart), else the nearest reading within ~altitude_max_age_s. Decided as soon as a reading
