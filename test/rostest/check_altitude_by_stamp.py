@@ -11,8 +11,6 @@ keyframes' altitudes (linear between the two readings around each keyframe's sta
 """
 import os
 import shutil
-import subprocess
-import tempfile
 import threading
 import time
 import unittest
@@ -22,7 +20,7 @@ import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
-from pipeline_fixture import NS, SENSOR_TOPICS, tool, wait_for_subscribers
+from pipeline_fixture import NS, SENSOR_TOPICS, diagnostic_values, make_mission, wait_for_subscribers
 from sensor_msgs.msg import CameraInfo, Image, Range
 from uw_multislam.msg import Keyframe
 
@@ -41,25 +39,11 @@ ALTITUDE_EVERY = 5  # 2 Hz
 LAST_WITH_ALTITUDE = 54  # images 55..59 come after the last reading
 
 
-def values(status):
-    out = {}
-    for kv in status.values:
-        try:
-            out[kv.key] = float(kv.value)
-        except ValueError:
-            out[kv.key] = kv.value
-    return out
-
 
 class AltitudeByStampTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
-        cls.tmp = tempfile.mkdtemp(prefix="uwms_altitude_")
-        with open(os.path.join(cls.tmp, "survey.yaml"), "w") as f:
-            f.write(SURVEY)
-        out = os.path.join(cls.tmp, "mission")
-        subprocess.run([tool("make_survey"), "--config", os.path.join(cls.tmp, "survey.yaml"), "--out", out,
-                        "--quiet"], check=True, timeout=180)
+        cls.tmp, out = make_mission("uwms_altitude_", SURVEY, timeout=180)
         cls.frames = cls.read_bag(os.path.join(out, "s0.bag"))[:N_IMAGES]
         assert len(cls.frames) == N_IMAGES, len(cls.frames)
 
@@ -100,13 +84,13 @@ class AltitudeByStampTest(unittest.TestCase):
         def done():
             if not cls.statuses:
                 return False
-            v = values(cls.statuses[-1])
+            v = diagnostic_values(cls.statuses[-1])
             return (v.get("images_received") == N_IMAGES and v.get("images_waiting_pairing") == 0 and
                     v.get("queue_length") == 0 and v.get("frames_processed") == v.get("frames_synchronised") and
                     len(cls.poses) >= v.get("frames_processed", float("inf")))
         cls.await_condition(done, 60.0, "every image received, paired or skipped, and processed")
         with cls.lock:
-            cls.final = values(cls.statuses[-1])
+            cls.final = diagnostic_values(cls.statuses[-1])
             cls.n_poses = len(cls.poses)
             cls.kfs = list(cls.keyframes)
         rospy.loginfo("altitude by stamp: %d images sent at %.0f Hz in %.1f s, %d altitudes at %.0f Hz; odometry: "
@@ -128,7 +112,7 @@ class AltitudeByStampTest(unittest.TestCase):
                     return
             time.sleep(0.1)
         with cls.lock:
-            last = values(cls.statuses[-1]) if cls.statuses else None
+            last = diagnostic_values(cls.statuses[-1]) if cls.statuses else None
         raise AssertionError("timed out after %.0f s waiting for %s; last odometry status %s" % (timeout, what, last))
 
     @staticmethod

@@ -12,7 +12,6 @@ import os
 import shutil
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 import unittest
@@ -21,7 +20,7 @@ import rosgraph
 import rosnode
 import rospy
 import rostest
-from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers, wait_until_quiet
+from pipeline_fixture import NS, SENSOR_TOPICS, make_mission, wait_for_subscribers, wait_until_quiet
 from nav_msgs.msg import Path
 from uw_multislam.msg import Loop, Status
 from uw_multislam.srv import JoinSessions, ListSessions, SplitSession, StartSession, ReloadSession
@@ -39,12 +38,7 @@ def yaw_of(q):
 class BackendTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
-        cls.tmp = tempfile.mkdtemp(prefix="uwms_backend_")
-        with open(os.path.join(cls.tmp, "survey.yaml"), "w") as f:
-            f.write(SURVEY)
-        cls.mission = os.path.join(cls.tmp, "mission")
-        subprocess.run([tool("make_survey"), "--config", os.path.join(cls.tmp, "survey.yaml"), "--out", cls.mission,
-                        "--quiet"], check=True, timeout=120)
+        cls.tmp, cls.mission = make_mission("uwms_backend_")
         cls.lock = threading.Lock()
         cls.paths, cls.loops, cls.markers = {}, [], []
         cls.last_message = time.time()

@@ -19,8 +19,6 @@ The assertions then read the last odometry and loop-detector statuses on /diagno
 import copy
 import os
 import shutil
-import subprocess
-import tempfile
 import threading
 import time
 import unittest
@@ -30,7 +28,7 @@ import rosbag
 import rosgraph
 import rospy
 import rostest
-from pipeline_fixture import NS, tool
+from pipeline_fixture import NS, diagnostic_values, make_mission
 import rosnode
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
@@ -51,26 +49,12 @@ ALTITUDE_MAX_AGE_S = 1.0  # odometry_node/altitude_max_age_s (default)
 
 
 
-def values(status):
-    out = {}
-    for kv in status.values:
-        try:
-            out[kv.key] = float(kv.value)
-        except ValueError:
-            out[kv.key] = kv.value
-    return out
-
 
 class BadInputTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.fallback = float(rospy.get_param("~fallback_altitude", 0.0))
-        cls.tmp = tempfile.mkdtemp(prefix="uwms_bad_input_")
-        with open(os.path.join(cls.tmp, "survey.yaml"), "w") as f:
-            f.write(SURVEY)
-        out = os.path.join(cls.tmp, "mission")
-        subprocess.run([tool("make_survey"), "--config", os.path.join(cls.tmp, "survey.yaml"), "--out", out,
-                        "--quiet"], check=True, timeout=120)
+        cls.tmp, out = make_mission("uwms_bad_input_")
         cls.frames = cls.read_bag(os.path.join(out, "s0.bag"))
         assert len(cls.frames) >= 20, len(cls.frames)
 
@@ -259,7 +243,7 @@ class BadInputTest(unittest.TestCase):
 
     def odometry(self):
         self.assertIsNotNone(self.final_odometry, "no odometry status on /diagnostics")
-        return values(self.final_odometry)
+        return diagnostic_values(self.final_odometry)
 
     def test_good_frames_are_processed(self):
         self.assertGreaterEqual(self.poses_after_good, 6)
@@ -333,7 +317,7 @@ class BadInputTest(unittest.TestCase):
 
     def test_loop_detector_diagnostics(self):
         self.assertIsNotNone(self.final_loops, "no loop_detector status on /diagnostics")
-        v = values(self.final_loops)
+        v = diagnostic_values(self.final_loops)
         with self.lock:
             n = len(self.keyframes)
         self.assertEqual(v["keyframes_received"], n)

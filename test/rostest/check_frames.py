@@ -24,7 +24,6 @@ import os
 import random
 import shutil
 import subprocess
-import tempfile
 import threading
 import time
 import unittest
@@ -34,7 +33,7 @@ import rostest
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
-from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers
+from pipeline_fixture import NS, SENSOR_TOPICS, make_mission, wait_for_subscribers
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image
 from tf2_msgs.msg import TFMessage
@@ -70,12 +69,7 @@ def in_frame(origin, p):
 class FramesTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
-        cls.tmp = tempfile.mkdtemp(prefix="uwms_frames_")
-        with open(os.path.join(cls.tmp, "survey.yaml"), "w") as f:
-            f.write(SURVEY)
-        cls.mission = os.path.join(cls.tmp, "mission")
-        subprocess.run([tool("make_survey"), "--config", os.path.join(cls.tmp, "survey.yaml"), "--out", cls.mission,
-                        "--quiet"], check=True, timeout=120)
+        cls.tmp, cls.mission = make_mission("uwms_frames_")
         with open(os.path.join(cls.mission, "world_gt.csv")) as f:
             cls.world = {(int(r["session"]), int(r["index"])): (float(r["x_m"]), float(r["y_m"]), float(r["yaw_rad"]))
                          for r in csv.DictReader(f)}

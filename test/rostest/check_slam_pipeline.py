@@ -16,7 +16,6 @@ import csv
 import os
 import shutil
 import subprocess
-import tempfile
 import threading
 import time
 import unittest
@@ -24,7 +23,7 @@ import unittest
 import rosgraph
 import rospy
 import rostest
-from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers, wait_until_quiet
+from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, make_mission, tool, wait_for_subscribers, wait_until_quiet
 import rosnode
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
@@ -52,12 +51,7 @@ def read_csv(path):
 class SlamPipelineTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
-        cls.tmp = tempfile.mkdtemp(prefix="uwms_pipeline_")
-        with open(os.path.join(cls.tmp, "survey.yaml"), "w") as f:
-            f.write(EXACT_SURVEY)
-        out = os.path.join(cls.tmp, "mission")
-        subprocess.run([tool("make_survey"), "--config", os.path.join(cls.tmp, "survey.yaml"), "--out", out,
-                        "--quiet"], check=True, timeout=120)
+        cls.tmp, out = make_mission("uwms_pipeline_", EXACT_SURVEY)
         cls.bags = [os.path.join(out, "s0.bag"), os.path.join(out, "s1.bag")]
         # The reference: offline_slam on the same folders, local loops from the odometry chain.
         with open(os.path.join(cls.tmp, "slam.yaml"), "w") as f:

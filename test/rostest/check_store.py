@@ -12,7 +12,6 @@ import os
 import shutil
 import signal
 import subprocess
-import tempfile
 import threading
 import time
 import unittest
@@ -21,7 +20,7 @@ import xmlrpc.client
 import rosgraph
 import rospy
 import rostest
-from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, tool, wait_for_subscribers, wait_until_quiet
+from pipeline_fixture import NS, SENSOR_TOPICS, make_mission, wait_for_subscribers, wait_until_quiet
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
 from uw_multislam.srv import ListSessions, ReloadSession
 
@@ -43,12 +42,7 @@ def backend_pid():
 class StoreTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
-        cls.tmp = tempfile.mkdtemp(prefix="uwms_store_")
-        with open(os.path.join(cls.tmp, "survey.yaml"), "w") as f:
-            f.write(SURVEY)
-        cls.mission = os.path.join(cls.tmp, "mission")
-        subprocess.run([tool("make_survey"), "--config", os.path.join(cls.tmp, "survey.yaml"), "--out", cls.mission,
-                        "--quiet"], check=True, timeout=120)
+        cls.tmp, cls.mission = make_mission("uwms_store_")
         cls.lock = threading.Lock()
         cls.keyframes, cls.loops = [], []
         cls.last = time.time()

@@ -1,6 +1,8 @@
 """Shared by the rostests: the small two-session mission they replay, the tool lookup, and the
 waits for the pipeline's subscriptions."""
 import os
+import subprocess
+import tempfile
 import time
 
 import rosgraph
@@ -54,3 +56,26 @@ def wait_until_quiet(lock, last_message_time, quiet_s, timeout=120.0):
             if time.time() - last_message_time() > quiet_s:
                 return
         time.sleep(0.2)
+
+
+def make_mission(prefix, survey=SURVEY, timeout=120):
+    """A new temporary directory holding survey.yaml and the mission make_survey generates from it
+    (dataset folders, bags, world_gt.csv): returns (the directory, the mission folder)."""
+    tmp = tempfile.mkdtemp(prefix=prefix)
+    with open(os.path.join(tmp, "survey.yaml"), "w") as f:
+        f.write(survey)
+    mission = os.path.join(tmp, "mission")
+    subprocess.run([tool("make_survey"), "--config", os.path.join(tmp, "survey.yaml"), "--out", mission, "--quiet"],
+                   check=True, timeout=timeout)
+    return tmp, mission
+
+
+def diagnostic_values(status):
+    """A diagnostic_msgs/DiagnosticStatus's key/value pairs, numbers as floats."""
+    out = {}
+    for kv in status.values:
+        try:
+            out[kv.key] = float(kv.value)
+        except ValueError:
+            out[kv.key] = kv.value
+    return out
