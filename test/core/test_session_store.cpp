@@ -32,7 +32,9 @@ void writeBytes(const std::string& path, const std::string& bytes) {
   out << bytes;
 }
 
-Eigen::Matrix3d diag(double sxy, double syaw) { return Eigen::Vector3d(sxy * sxy, sxy * sxy, syaw * syaw).asDiagonal(); }
+Eigen::Matrix3d diag(double sxy, double syaw) {
+  return Eigen::Vector3d(sxy * sxy, sxy * sxy, syaw * syaw).asDiagonal();
+}
 
 CameraIntrinsics camera() {
   CameraIntrinsics c;
@@ -117,8 +119,9 @@ Pose2 truth(int s, int k) {
 }
 
 BackendLoop truthLoop(int sa, int ka, int sb, int kb, double err) {
-  return {sa, ka, sb, kb,
-          UncertainPose2(compose(between(truth(sa, ka), truth(sb, kb)), Pose2(err, -err, 0.01 * err)), diag(0.01, 0.005))};
+  return {
+      sa, ka, sb, kb,
+      UncertainPose2(compose(between(truth(sa, ka), truth(sb, kb)), Pose2(err, -err, 0.01 * err)), diag(0.01, 0.005))};
 }
 
 // Three sessions: 1 joined to 0 by five global loops, 2 joined by an explicit join and split
@@ -131,7 +134,9 @@ void recordMission(Recorder* r) {
     return Pose2(m.x() + n(rng), m.y() + n(rng), m.yaw() + 0.5 * n(rng));
   };
   const int s0 = r->start("a");
-  for (int k = 1; k < 13; ++k) r->step(s0, noisy(0, k), k == 12 ? std::vector<BackendLoop>{truthLoop(0, 2, 0, 12, 0.01)} : std::vector<BackendLoop>{});
+  for (int k = 1; k < 13; ++k)
+    r->step(s0, noisy(0, k),
+            k == 12 ? std::vector<BackendLoop>{truthLoop(0, 2, 0, 12, 0.01)} : std::vector<BackendLoop>{});
   r->end(s0);
   const int s1 = r->start("b");
   for (int k = 1; k < 12; ++k) {
@@ -141,7 +146,9 @@ void recordMission(Recorder* r) {
   }
   r->end(s1);
   const int s2 = r->start("c");
-  for (int k = 1; k < 8; ++k) r->step(s2, noisy(2, k), k == 4 ? std::vector<BackendLoop>{truthLoop(0, 3, 2, 4, 0.0)} : std::vector<BackendLoop>{});
+  for (int k = 1; k < 8; ++k)
+    r->step(s2, noisy(2, k),
+            k == 4 ? std::vector<BackendLoop>{truthLoop(0, 3, 2, 4, 0.0)} : std::vector<BackendLoop>{});
   r->end(s2);
   ASSERT_TRUE(r->backend->join(0, 2, 1).ok());
   saveBackendMaps(r->store, *r->backend, r->session_ids, r->loop_ids);
@@ -438,6 +445,53 @@ TEST(Store, KillNineLosesAtMostTheKeyframeInFlight) {
   EXPECT_EQ(rs.keyframes, sessions[0].keyframes);
 }
 
+TEST(Store, ASecondWriterIsRefusedWithTheHolderNamedAndADeadHolderReleasesIt) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  auto refusal = [&] {
+    try {
+      SessionStore second(path);
+    } catch (const StoreError& e) {
+      return std::string(e.what());
+    }
+    return std::string("(opened)");
+  };
+  {
+    SessionStore first(path);
+    first.addSession("mine", camera(), 0.0);
+    const std::string why = refusal();  // the same process, a second object: refused too
+    EXPECT_NE(why.find("in use by pid " + std::to_string(::getpid())), std::string::npos) << why;
+    EXPECT_EQ(first.sessions().size(), 1u);  // the holder goes on
+  }
+  // Another process holds it: refused, naming that process; once it is killed, the store opens.
+  int ready[2], hold[2];
+  ASSERT_EQ(::pipe(ready), 0);
+  ASSERT_EQ(::pipe(hold), 0);
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    try {
+      SessionStore store(path);
+      const char c = 1;
+      if (::write(ready[1], &c, 1) != 1) ::_exit(3);
+      char wait = 0;
+      if (::read(hold[0], &wait, 1) < 0) ::_exit(4);  // until the parent kills it
+    } catch (...) {
+      ::_exit(2);
+    }
+    ::_exit(0);
+  }
+  char c = 0;
+  ASSERT_EQ(::read(ready[0], &c, 1), 1);
+  const std::string why = refusal();
+  EXPECT_NE(why.find("in use by pid " + std::to_string(child)), std::string::npos) << why;
+  EXPECT_NE(why.find("one process writes a store at a time"), std::string::npos) << why;
+  ::kill(child, SIGKILL);
+  int status = 0;
+  ::waitpid(child, &status, 0);
+  SessionStore after(path);  // the kernel released the dead holder's lock
+  EXPECT_EQ(after.sessions().size(), 1u);
+}
 
 // A mission cut by a crash: the last session never ended and its map was saved before its last
 // keyframes. The reload has every keyframe; the saved part of the map comes back exactly, the

@@ -1,6 +1,8 @@
 #include "uw_multislam/core/session/session_store.h"
 
+#include <fcntl.h>
 #include <sqlite3.h>
+#include <sys/file.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -8,10 +10,10 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <map>
-
 
 namespace uw_multislam {
 namespace core {
@@ -66,15 +68,25 @@ CREATE TABLE split_pairs(session_a INTEGER NOT NULL, session_b INTEGER NOT NULL,
 
 std::string codeText(int rc) {
   switch (rc & 0xff) {
-    case SQLITE_FULL: return "the disk is full";
-    case SQLITE_READONLY: return "the file or its directory is read-only";
-    case SQLITE_CANTOPEN: return "cannot open or create the file (missing directory or no permission?)";
-    case SQLITE_CORRUPT: return "the database is corrupt";
-    case SQLITE_NOTADB: return "not an SQLite database";
-    case SQLITE_IOERR: return "input/output error";
-    case SQLITE_PERM: return "permission denied";
-    case SQLITE_BUSY: case SQLITE_LOCKED: return "the database is locked by another process";
-    default: return sqlite3_errstr(rc);
+    case SQLITE_FULL:
+      return "the disk is full";
+    case SQLITE_READONLY:
+      return "the file or its directory is read-only";
+    case SQLITE_CANTOPEN:
+      return "cannot open or create the file (missing directory or no permission?)";
+    case SQLITE_CORRUPT:
+      return "the database is corrupt";
+    case SQLITE_NOTADB:
+      return "not an SQLite database";
+    case SQLITE_IOERR:
+      return "input/output error";
+    case SQLITE_PERM:
+      return "permission denied";
+    case SQLITE_BUSY:
+    case SQLITE_LOCKED:
+      return "the database is locked by another process";
+    default:
+      return sqlite3_errstr(rc);
   }
 }
 
@@ -136,7 +148,9 @@ class SessionStore::Statement {
     return check(sqlite3_bind_blob(st_, i, p, static_cast<int>(n), SQLITE_STATIC));
   }
   template <typename T>
-  Statement& blob(int i, const std::vector<T>& v) { return blob(i, v.data(), v.size() * sizeof(T)); }
+  Statement& blob(int i, const std::vector<T>& v) {
+    return blob(i, v.data(), v.size() * sizeof(T));
+  }
   /// true while rows come.
   bool step() {
     const int rc = sqlite3_step(st_);
@@ -195,7 +209,8 @@ SessionStore::SessionStore(const std::string& path) : path_(path) {
       if (!in) throw StoreError("session store " + path + ": cannot read the file (permission denied?)");
       in.read(header, sizeof header);
       if (in.gcount() < 16 || std::memcmp(header, "SQLite format 3", 16) != 0)
-        throw StoreError("session store " + path + ": not an SQLite database (wrong header); the file was left as it is");
+        throw StoreError("session store " + path +
+                         ": not an SQLite database (wrong header); the file was left as it is");
       // Read-only; without a WAL beside it (no crash, no other writer) also "immutable", so that
       // SQLite creates no -wal/-shm files next to a file it then refuses.
       sqlite3* ro = nullptr;
@@ -252,15 +267,17 @@ SessionStore::SessionStore(const std::string& path) : path_(path) {
     db_ = nullptr;
     std::string why = codeText(ext);
     if (sys != 0) why += ": " + std::string(std::strerror(sys));
-    if (sys == EACCES || sys == EROFS || sys == EPERM) why = "read-only path (" + why + ")";
+    if (sys == EACCES || sys == EROFS || sys == EPERM)
+      why = "read-only path (" + why + ")";
     else if (access(fs::path(path).parent_path().empty() ? "." : fs::path(path).parent_path().c_str(), W_OK) != 0 ||
-        (exists && access(path.c_str(), W_OK) != 0))
+             (exists && access(path.c_str(), W_OK) != 0))
       why = "read-only path (" + why + ")";
     throw StoreError("session store " + path + ": " + (fresh ? "cannot create: " : "cannot open for writing: ") + why);
   }
   sqlite3_extended_result_codes(db_, 1);
   sqlite3_busy_timeout(db_, 2000);
   try {
+    lockForWriting();  // before anything is written (opening writes nothing but an empty new file)
     exec("PRAGMA journal_mode=WAL");
     exec("PRAGMA synchronous=FULL");
     exec("PRAGMA foreign_keys=ON");
@@ -281,6 +298,44 @@ SessionStore::SessionStore(const std::string& path) : path_(path) {
 SessionStore::~SessionStore() {
   cache_.clear();
   if (db_) sqlite3_close(db_);
+}  // then lock_ releases the lock (the kernel does too if the process dies)
+
+SessionStore::LockFile::~LockFile() {
+  if (fd >= 0) close(fd);
+}
+
+void SessionStore::lockForWriting() {
+  // One writer per store for the whole run. SQLite's own locks are per transaction: two processes
+  // writing one store both succeed, and the last one to save the maps silently wins. An flock()
+  // on "<store>.lock" is held while this object lives and released by the kernel when the
+  // process dies (kill -9 included), so a stale lock never blocks a restart. The file holds the
+  // holder's description, for the refusal's message; it is left in place (deleting it would race).
+  const std::string lock_path = path_ + ".lock";
+  LockFile lock;
+  lock.fd = open(lock_path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0600);
+  if (lock.fd < 0)
+    throw StoreError("session store " + path_ + ": cannot open its lock file " + lock_path + ": " +
+                     std::strerror(errno));
+  if (flock(lock.fd, LOCK_EX | LOCK_NB) != 0) {
+    const int err = errno;
+    char holder[256] = {};
+    const ssize_t n = pread(lock.fd, holder, sizeof holder - 1, 0);
+    std::string who = n > 0 ? std::string(holder, static_cast<std::size_t>(n)) : std::string("another process");
+    while (!who.empty() && (who.back() == '\n' || who.back() == ' ')) who.pop_back();
+    if (err == EWOULDBLOCK)
+      throw StoreError("session store " + path_ + ": in use by " + who +
+                       "; one process writes a store at a time (stop it, or give this run another store)");
+    throw StoreError("session store " + path_ + ": cannot lock " + lock_path + ": " + std::strerror(err));
+  }
+  char host[128] = {};
+  gethostname(host, sizeof host - 1);
+  const std::string me = "pid " + std::to_string(getpid()) + " on " + host + " since " +
+                         std::to_string(static_cast<long long>(std::time(nullptr))) + " (unix time)\n";
+  if (ftruncate(lock.fd, 0) != 0 || pwrite(lock.fd, me.data(), me.size(), 0) != static_cast<ssize_t>(me.size())) {
+    // The lock holds without the description; only a refused second writer's message is poorer.
+  }
+  lock_.fd = lock.fd;
+  lock.fd = -1;
 }
 
 void SessionStore::begin() { exec("BEGIN IMMEDIATE"); }
@@ -315,21 +370,21 @@ void SessionStore::checkHashSettings(const HashSettings& mine) {
   HashSettings stored;
   if (hashSettings(&stored)) {
     if (stored.mode != mine.mode || stored.seed != mine.seed || stored.num_features != mine.num_features)
-      throw StoreError("session store " + path_ + ": its hashes were made with hash_mode " +
-                       hashModeName(stored.mode) + ", projection_seed " + std::to_string(stored.seed) + ", n = " +
-                       std::to_string(stored.num_features) + "; this configuration has " + hashModeName(mine.mode) +
-                       ", " + std::to_string(mine.seed) + ", n = " + std::to_string(mine.num_features) +
-                       ": hashes would not be comparable");
+      throw StoreError("session store " + path_ + ": its hashes were made with hash_mode " + hashModeName(stored.mode) +
+                       ", projection_seed " + std::to_string(stored.seed) +
+                       ", n = " + std::to_string(stored.num_features) + "; this configuration has " +
+                       hashModeName(mine.mode) + ", " + std::to_string(mine.seed) +
+                       ", n = " + std::to_string(mine.num_features) + ": hashes would not be comparable");
     return;
   }
   begin();
   try {
     Statement st(this, "INSERT INTO meta(key, value) VALUES (?, ?)");
-    for (const auto& [k, v] : std::vector<std::pair<std::string, std::string>>{
-             {"hash_mode", hashModeName(mine.mode)},
-             {"projection_seed", std::to_string(mine.seed)},
-             {"num_features", std::to_string(mine.num_features)},
-             {"projections", mine.projections}}) {
+    for (const auto& [k, v] :
+         std::vector<std::pair<std::string, std::string>>{{"hash_mode", hashModeName(mine.mode)},
+                                                          {"projection_seed", std::to_string(mine.seed)},
+                                                          {"num_features", std::to_string(mine.num_features)},
+                                                          {"projections", mine.projections}}) {
       st.bind(1, k).bind(2, v).run();
     }
     commit();
@@ -525,8 +580,8 @@ std::vector<UncertainPose2> SessionStore::odometry(std::int64_t session) const {
   while (st.step()) {
     sqlite3_stmt* q = st.get();
     if (sqlite3_column_int(q, 0) != static_cast<int>(out.size()) + 1)
-      throw StoreError("session store " + path_ + ": session " + std::to_string(session) + " misses the motion to keyframe " +
-                       std::to_string(out.size() + 1));
+      throw StoreError("session store " + path_ + ": session " + std::to_string(session) +
+                       " misses the motion to keyframe " + std::to_string(out.size() + 1));
     const std::vector<double> c = blobVector<double>(q, 4);
     if (c.size() != 9) throw StoreError("session store " + path_ + ": a motion covariance has the wrong size");
     out.emplace_back(Pose2(sqlite3_column_double(q, 1), sqlite3_column_double(q, 2), sqlite3_column_double(q, 3)),
@@ -591,8 +646,9 @@ std::vector<StoredMap> SessionStore::maps() const {
     const std::vector<double> c = blobVector<double>(q, 4);
     if (c.size() != 9) throw StoreError("session store " + path_ + ": a link covariance has the wrong size");
     StoredLink l;
-    l.measured = UncertainPose2(Pose2(sqlite3_column_double(q, 1), sqlite3_column_double(q, 2), sqlite3_column_double(q, 3)),
-                                covFrom(c.data()));
+    l.measured =
+        UncertainPose2(Pose2(sqlite3_column_double(q, 1), sqlite3_column_double(q, 2), sqlite3_column_double(q, 3)),
+                       covFrom(c.data()));
     l.loops = blobVector<std::int64_t>(q, 5);
     out[it->second].links.push_back(std::move(l));
   }

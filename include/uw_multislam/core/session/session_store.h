@@ -34,8 +34,8 @@
 
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/features.h"
-#include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/geometry/uncertain_pose.h"
+#include "uw_multislam/core/loops/haloc.h"
 
 struct sqlite3;
 struct sqlite3_stmt;
@@ -66,9 +66,9 @@ struct StoredKeyframe {
   double stamp_s = 0.0;
   double altitude_m = 0.0;
   cv::Size image_size;
-  std::vector<cv::Point2f> points;  // keypoint pixel coordinates, descending response
-  cv::Mat descriptors;              // points.size() x 128, CV_8U (CV_32F accepted when writing)
-  Eigen::VectorXf hash;             // HalocProjections::kHashSize values
+  std::vector<cv::Point2f> points;      // keypoint pixel coordinates, descending response
+  cv::Mat descriptors;                  // points.size() x 128, CV_8U (CV_32F accepted when writing)
+  Eigen::VectorXf hash;                 // HalocProjections::kHashSize values
   std::vector<std::uint8_t> thumbnail;  // JPEG, may be empty
 
   /// Its features as the loop detector takes them: keypoints at the stored pixel positions (size
@@ -113,7 +113,9 @@ class SessionStore {
   static constexpr std::int32_t kApplicationId = 0x55574d53;  // "UWMS"
 
   /// Opens the store at `path`, creating it (and nothing else) when missing or empty. The file
-  /// is checked read-only before anything is written. Throws StoreError.
+  /// is checked read-only before anything is written; then an exclusive lock on "<path>.lock" is
+  /// held as long as this object lives: a second writer (another process, or a second
+  /// SessionStore on the same file) is refused with the holder named. Throws StoreError.
   explicit SessionStore(const std::string& path);
   ~SessionStore();
   SessionStore(const SessionStore&) = delete;
@@ -164,6 +166,15 @@ class SessionStore {
   sqlite3* handle() { return db_; }
 
  private:
+  struct LockFile {  // the descriptor is closed (the lock released) with it, also when the constructor throws
+    int fd = -1;
+    LockFile() = default;
+    LockFile(const LockFile&) = delete;
+    LockFile& operator=(const LockFile&) = delete;
+    ~LockFile();
+  };
+  void lockForWriting();
+  LockFile lock_;  // the held lock on "<path>.lock"
   class Statement;
   void exec(const std::string& sql) const;
   [[noreturn]] void fail(const std::string& what) const;
