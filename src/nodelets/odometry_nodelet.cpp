@@ -168,7 +168,7 @@ void OdometryNodelet::onCameraInfo(const sensor_msgs::CameraInfoConstPtr& info) 
 
 void OdometryNodelet::onRange(const sensor_msgs::RangeConstPtr& range) {
   const double now = wallNow();
-  ++ranges_in_, images_since_range_ = 0;
+  ++ranges_in_, images_since_range_ = 0, last_range_ = now;
   double altitude = std::numeric_limits<double>::quiet_NaN();
   std::string why;
   if (!rc::altitudeFromMsg(*range, &altitude, &why)) {
@@ -466,6 +466,20 @@ void OdometryNodelet::publishKeyframes(const Frame& f, const cv::Mat& image, con
 std::string OdometryNodelet::silentInput(double now) const {
   const double timeout = options_.input_timeout_s;
   const double image = last_image_;
+  // No image: a wrong topic or transport when none ever came (and start-up is long past), or a
+  // dead camera when camera_info or altitude keep coming. A pause of every input (a bag that
+  // ended) is not a silent image.
+  const bool others = now - last_info_ <= timeout || now - last_range_ <= timeout;
+  if ((image <= 0 && now - started_ > timeout) || (image > 0 && now - image > timeout && others)) {
+    std::ostringstream os;
+    os << "no image on " << image_sub_.getTopic() << " (transport '" << image_sub_.getTransport() << "') "
+       << (image > 0 ? "for " : "in the ") << std::fixed << std::setprecision(0)
+       << now - (image > 0 ? image : started_) << (image > 0 ? " s" : " s since start") << ", while "
+       << (now - last_info_ <= timeout ? "camera_info arrives" : "no camera_info arrives either") << " and "
+       << (now - last_range_ <= timeout ? "altitude arrives" : "no altitude arrives either")
+       << ": check the topic name (rostopic list; launch argument image:=) and the transport";
+    return os.str();
+  }
   if (image <= 0 || now - image > timeout) return "";  // no images (a pause of every input): nothing to pair
   if (images_since_sync_ == 0 || now - first_image_since_sync_ <= timeout) return "";  // pairs are coming
   auto age = [&](double last) { return now - (last > 0 ? last : started_); };

@@ -12,7 +12,8 @@ with the test's own stamps and encodings, phase after phase:
   stamp (skipped, counted); the mission again from its first stamp, as a bag that loops (a new
   session); a burst (frames dropped by the worker's short queue, counted); images and camera_info
   without altitude for longer than input_timeout_s (a WARN naming the altitude topic; with
-  ~fallback_altitude > 0 the frames are processed at that altitude instead, counted).
+  ~fallback_altitude > 0 the frames are processed at that altitude instead, counted); then
+  camera_info and altitude without images (a WARN naming the image topic).
 
 The assertions then read the last odometry and loop-detector statuses on /diagnostics.
 """
@@ -234,6 +235,19 @@ class BadInputTest(unittest.TestCase):
             cls.final_odometry = cls.odometry_statuses[-1] if cls.odometry_statuses else None
             cls.final_loops = cls.loop_statuses[-1] if cls.loop_statuses else None
             cls.all_odometry = list(cls.odometry_statuses)
+            before_image_silence = len(cls.odometry_statuses)
+        # 9. The image topic falls silent (a dead camera, a wrong topic): camera_info and altitude
+        # keep coming for 4 s, twice input_timeout_s.
+        stamp = last_altitude + d(offsets[-1])
+        for k in range(int(4.0 * RATE_HZ)):
+            _, info, altitude = cls.frame(k)
+            stamp = stamp + d(1.0 / RATE_HZ)
+            info.header.stamp = altitude.header.stamp = stamp
+            cls.pubs[1].publish(info)
+            cls.pubs[2].publish(altitude)
+            time.sleep(1.0 / RATE_HZ)
+        with cls.lock:
+            cls.image_silence_statuses = cls.odometry_statuses[before_image_silence:]
 
     @classmethod
     def count_after(cls, store, wait_s):
@@ -314,6 +328,11 @@ class BadInputTest(unittest.TestCase):
             self.assertEqual(self.poses_in_silence, self.n_silent_with_altitude, "frames without altitude were processed")
             self.assertGreater(v["skipped_no_altitude"], 0)
             self.assertTrue(any("no altitude on /altitude" in m for m in warned), warned[-3:])
+
+    def test_a_silent_image_topic_is_named(self):
+        warned = [s.message for s in self.image_silence_statuses if s.level == DiagnosticStatus.WARN]
+        self.assertTrue(any("no image on /camera/image_raw" in m and "while camera_info arrives and altitude arrives"
+                            in m for m in warned), warned[-3:])
 
     def test_loop_detector_diagnostics(self):
         self.assertIsNotNone(self.final_loops, "no loop_detector status on /diagnostics")

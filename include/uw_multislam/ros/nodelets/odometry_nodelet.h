@@ -64,6 +64,8 @@
 //   - altitude and camera_info stamps: an image without an altitude reading within
 //     ~altitude_max_age_s of its stamp, or without a camera_info within ~sync_max_interval_s,
 //     is skipped (counted). Altitude stamps jumping back (a bag that loops) clear the readings.
+//   - a silent image topic: no image in ~input_timeout_s since start, or none for that long
+//     while camera_info or altitude keep arriving (the topic, the transport, a dead camera);
 //   - a silent input: images arrive but none is paired for ~input_timeout_s (altitude or
 //     camera_info missing, or stamps too far apart): a warning naming the input, diagnostics
 //     WARN. With ~fallback_altitude > 0 frames are then processed at that fixed altitude
@@ -196,7 +198,7 @@ class OdometryNodelet : public nodelet::Nodelet {
 
   // Arrivals, written by the callbacks (wall seconds of the last one, 0 = never).
   std::atomic<long> images_in_{0}, infos_in_{0}, ranges_in_{0};
-  std::atomic<double> last_image_{0.0}, last_info_{0.0};
+  std::atomic<double> last_image_{0.0}, last_info_{0.0}, last_range_{0.0};
   // Images since the last altitude, and the wall time of the first of them: the altitude topic is
   // silent when images have kept coming without one for ~input_timeout_s (a pause of every input
   // is not a silent altitude).
