@@ -1,6 +1,5 @@
-// offline_slam: runs the SLAM core over dataset folders without a ROS master: argument parsing,
-// dataset reading and calls into core::Pipeline / core::SessionManager (the same engine the
-// nodelets host). The command line and output files are the offline runner contract of offline_slam --help.
+// offline_slam: the SLAM core over dataset folders, no ROS master: argument parsing, dataset reading and
+// calls into core::Pipeline / core::SessionManager (the nodelets' engine); contract: --help, doc/run_outputs.md.
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
@@ -24,27 +23,24 @@ namespace {
 const char* kUsage = R"(usage: offline_slam --session DIR [--session DIR ...] --out OUT [--config FILE] [--db FILE] [options]
 
 Runs uw_multislam over dataset folders (frames.csv, camera.yaml, images; see
-doc/dataset_format.md), in the order given, as consecutive missions. Writes into OUT:
-  odometry.csv    session,index,x_m,y_m,yaw_rad          odometry keyframe poses, each session in its own frame
-  trajectory.csv  session,index,map,x_m,y_m,yaw_rad      final keyframe poses in the frame of map `map`
-  loops.csv       session_a,index_a,session_b,index_b,kind,inliers   accepted loops
-  loop_poses.csv  session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad,cov_xx,...  each loop's measured pose of b in a
-  links.csv       map,previous_session,current_session,loops,x_m,y_m,yaw_rad   the links joining sessions
-  timing.csv      stage,calls,total_ms,mean_ms,max_ms    one row per pipeline stage
+doc/dataset_format.md), in the order given, as consecutive missions. Writes into OUT (columns in
+doc/run_outputs.md): odometry.csv (odometry keyframe poses, each session in its own frame),
+trajectory.csv (final keyframe poses in the frame of their map), loops.csv, loop_poses.csv (each
+loop's measured pose and covariance), links.csv (the links joining sessions), timing.csv.
 `session` is the folder's position on the command line, `index` the frame's index in frames.csv.
-Local and global loops are detected; sessions are joined into maps once backend.join_min_loops
-global loops link them (paper §9) and each map is optimised (backend.optimizer: sparse or iekf).
-`map` is the number of the map's first session, whose frame the poses are in.
+Sessions are joined into maps once backend.join_min_loops global loops link them (paper §9), and
+each map is optimised (backend.optimizer); `map` is the map's first session, whose frame it is.
 
-With --db FILE (the session store, created if missing) the stored sessions come first as
-sessions 0..k-1 and the folders follow from k; global loops are searched against them and every
-new session, keyframe, loop, join and split is written to the store as it happens.
+With --db FILE (the session store, created if missing) the stored sessions come first as 0..k-1,
+the folders follow from k; global loops are searched against them and everything is written to the
+store as it happens. A folder already in it (frame indexes and stamps) is refused without --again.
 
 options:
   --session DIR     a dataset folder (repeat for several missions)
   --out OUT         output directory (created)
   --config FILE     YAML configuration (see config/slam.yaml; --dump-config shows every key)
   --db FILE         the session store (SQLite) to read and extend
+  --again           process folders already in the store once more (as new sessions)
   --threads N       OpenCV threads (default 1: one core, as onboard)
   --dump-config     print the effective configuration and exit
   --quiet           no per-session summary
@@ -63,7 +59,7 @@ int main(int argc, char** argv) {
   std::vector<std::string> folders;
   std::string out, config_file, db;
   int threads = 1;
-  bool dump = false, quiet = false;
+  bool dump = false, quiet = false, again = false;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     const bool has_value = i + 1 < argc;
@@ -74,6 +70,7 @@ int main(int argc, char** argv) {
     else if (arg == "--config" && has_value) config_file = argv[++i];
     else if (arg == "--dump-config") dump = true;
     else if (arg == "--quiet") quiet = true;
+    else if (arg == "--again") again = true;
     else if (arg == "--threads" && has_value) {
       char* end = nullptr;
       const long n = std::strtol(argv[++i], &end, 10);
@@ -101,6 +98,9 @@ int main(int argc, char** argv) {
     core::SessionManager manager(core::sessionManagerOptions(config, db), {}, print("backend: "));
     core::Pipeline pipeline(config, &manager, print(""), !quiet);
     const int stored = manager.restoredSessions();
+    for (std::size_t ds = 0; !again && ds < datasets.size(); ++ds)
+      if (const std::vector<int> s = manager.storedSessionsOf(datasets[ds].frames); !s.empty())
+        return badArgs(folders[ds] + " is already in " + db + " (session " + std::to_string(s.front()) + "): --again");
     if (!db.empty() && !quiet)
       std::printf("store %s: %d sessions, %d loops loaded in %.1f ms\n", db.c_str(), stored,
                   static_cast<int>(manager.loops().size()),

@@ -199,6 +199,12 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
   const std::vector<Pose2> back = again.poses(1);
   for (std::size_t k = 0; k < back.size(); ++k) EXPECT_NEAR(back[k].y(), joined[k].y(), 1e-9) << k;
   EXPECT_EQ(again.nextId(), 2);
+  // The frames session 1 was made from are recognised (a folder run into the store again).
+  std::vector<FrameRecord> frames;
+  for (int k = 0; k < 8; ++k) frames.push_back({10 * k, "", 100.0 + k, 2.0});
+  EXPECT_EQ(again.storedSessionsOf(frames), std::vector<int>{1});
+  frames[3].stamp_s += 0.5;  // other stamps: another recording
+  EXPECT_TRUE(again.storedSessionsOf(frames).empty());
   ReloadedSession r;
   EXPECT_EQ(again.reload("nope", &r).code, StatusCode::kNotFound);
   ASSERT_TRUE(again.reload("1", &r).ok());

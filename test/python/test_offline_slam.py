@@ -272,7 +272,7 @@ def test_db_keeps_the_joined_map_for_the_next_run(stored_runs, survey, tmp_path)
     base, _, r2 = stored_runs
     db = tmp_path / "copy.db"
     db.write_bytes((base / "maps.db").read_bytes())
-    r = run("offline_slam", "--session", str(survey / "a"), "--out", str(tmp_path / "o"), "--db", str(db))
+    r = run("offline_slam", "--session", str(survey / "a"), "--out", str(tmp_path / "o"), "--db", str(db), "--again")
     assert r.returncode == 0, r.stderr
     traj = rows(tmp_path / "o" / "trajectory.csv")
     assert {t["session"] for t in traj} == {"0", "1", "2"}
@@ -283,6 +283,23 @@ def test_db_keeps_the_joined_map_for_the_next_run(stored_runs, survey, tmp_path)
     # a second time over the same ground: globally looped to the stored sessions and joined
     assert {t["map"] for t in traj if t["session"] == "2"} == {"0"}
     assert len(before) == len([t for t in traj if t["session"] in ("0", "1")])
+
+
+def test_db_refuses_a_folder_already_in_the_store_unless_again(stored_runs, survey, tmp_path):
+    """Folder a is session 0 of the store: running it again is refused, naming the folder and the
+    stored session, and the store is left as it is; so is b."""
+    base, _, _ = stored_runs
+    db = tmp_path / "copy.db"
+    db.write_bytes((base / "maps.db").read_bytes())
+    before = db.read_bytes()
+    for folder, session in (("a", 0), ("b", 1)):
+        r = run("offline_slam", "--session", str(survey / folder), "--out", str(tmp_path / folder), "--db", str(db))
+        assert r.returncode == 2, r.stderr
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and str(survey / folder) in lines[0] and "(session %d)" % session in lines[0], lines
+        assert "--again" in lines[0]
+        assert not (tmp_path / folder).exists()  # refused before any output
+    assert db.read_bytes() == before
 
 
 def test_db_bad_file_fails_with_one_line_and_is_left_as_it_is(tmp_path, survey):

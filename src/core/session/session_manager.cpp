@@ -1,6 +1,7 @@
 #include "uw_multislam/core/session/session_manager.h"
 
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <stdexcept>
 
@@ -526,6 +527,22 @@ Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* ou
 }
 
 // --- Queries ----------------------------------------------------------------------------------
+
+std::vector<int> SessionManager::storedSessionsOf(const std::vector<FrameRecord>& frames) const {
+  std::map<int, double> stamp_of;
+  for (const FrameRecord& f : frames) stamp_of[f.index] = f.stamp_s;
+  std::vector<int> ids;
+  for (const auto& [id, s] : sessions_) {
+    if (id >= restored_sessions_ || s.frames.empty()) continue;
+    bool all = true;
+    for (std::size_t k = 0; all && k < s.frames.size(); ++k) {
+      const auto it = stamp_of.find(s.frames[k]);
+      all = it != stamp_of.end() && std::abs(it->second - s.stamps[k]) < 1e-6;
+    }
+    if (all) ids.push_back(id);
+  }
+  return ids;
+}
 
 int SessionManager::idOfName(const std::string& name) const {
   for (const auto& [id, s] : sessions_)

@@ -71,15 +71,15 @@ const char* sessionStateName(SessionState s);
 /// A keyframe as the session manager takes it (from the odometry, in process or by message).
 struct KeyframeInput {
   int session = 0;
-  int keyframe = 0;         // 0 is the session's origin
+  int keyframe = 0;  // 0 is the session's origin
   int frame_index = 0;
   double stamp_s = 0.0;
   double altitude_m = 0.0;
   CameraIntrinsics camera;
-  FrameFeatures features;   // may be empty (then nothing is stored to verify loops later)
-  UncertainPose2 motion;    // X_k^{k-1} (1), ignored for keyframe 0
-  Pose2 odometry_pose;      // X_k^0 of the odometry chain
-  Eigen::VectorXf hash;     // the keyframe's hash; empty: the manager computes it (once)
+  FrameFeatures features;               // may be empty (then nothing is stored to verify loops later)
+  UncertainPose2 motion;                // X_k^{k-1} (1), ignored for keyframe 0
+  Pose2 odometry_pose;                  // X_k^0 of the odometry chain
+  Eigen::VectorXf hash;                 // the keyframe's hash; empty: the manager computes it (once)
   std::vector<std::uint8_t> thumbnail;  // small JPEG for the store, may be empty
 };
 
@@ -102,7 +102,13 @@ struct SessionLink {
 
 struct SessionEvent {
   enum class Kind {
-    kSessionStarted, kSessionEnded, kKeyframeAdded, kLoopAccepted, kLoopRefused, kMapsJoined, kMapSplit,
+    kSessionStarted,
+    kSessionEnded,
+    kKeyframeAdded,
+    kLoopAccepted,
+    kLoopRefused,
+    kMapsJoined,
+    kMapSplit,
     kMapOptimised
   };
   Kind kind = Kind::kKeyframeAdded;
@@ -218,18 +224,21 @@ class SessionManager {
   bool hasStore() const { return store_ != nullptr; }
   const std::string& storePath() const { return options_.store_path; }
   int restoredSessions() const { return restored_sessions_; }
+  /// The stored sessions made from these frames before (a dataset folder run into the store
+  /// again): every keyframe of such a session is one of `frames`, same index and stamp (to 1 us).
+  std::vector<int> storedSessionsOf(const std::vector<FrameRecord>& frames) const;
 
  private:
   struct Session {
     std::string name;
-    int backend = -1;                 // the back-end's index (private)
-    std::int64_t store_id = -1;       // the store's row (private)
+    int backend = -1;            // the back-end's index (private)
+    std::int64_t store_id = -1;  // the store's row (private)
     CameraIntrinsics camera;
-    std::vector<double> stamps;       // per keyframe
-    std::vector<Pose2> odometry;      // X_k^0 per keyframe
-    std::vector<int> frames;          // frame index per keyframe
-    std::set<int> phantoms;           // keyframes that never arrived (bridged)
-    bool origin_received = false;     // keyframe 0 arrived (not only start_session)
+    std::vector<double> stamps;    // per keyframe
+    std::vector<Pose2> odometry;   // X_k^0 per keyframe
+    std::vector<int> frames;       // frame index per keyframe
+    std::set<int> phantoms;        // keyframes that never arrived (bridged)
+    bool origin_received = false;  // keyframe 0 arrived (not only start_session)
     bool unloaded = false;
     int loops = 0;
   };
@@ -239,8 +248,8 @@ class SessionManager {
   int idOfBackend(int backend_session) const { return id_of_backend_.at(backend_session); }
   void restore();
   Status open(int id, const std::string& name, double stamp_s);
-  void storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion,
-                     double stamp_s, std::vector<StoredLoop>* loops);
+  void storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion, double stamp_s,
+                     std::vector<StoredLoop>* loops);
   /// Adds an accepted loop to the back-end (throws std::invalid_argument as the back-end does).
   void acceptLoop(const Loop& l);
   StoredLoop toStored(const Loop& l) const;
