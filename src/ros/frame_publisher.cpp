@@ -24,6 +24,8 @@ FramePublisher::FramePublisher(ros::NodeHandle nh, const FrameOptions& options) 
                                 [this](const ros::SteadyTimerEvent&) { tick(); });
 }
 
+FramePublisher::~FramePublisher() { timer_.stop(); }
+
 void FramePublisher::setActive(int session, const core::Pose2& map_from_session,
                                const core::Pose2& map_from_last_keyframe, const ros::Time& keyframe_stamp) {
   {

@@ -10,10 +10,9 @@
 //  - map -> odom: published at tf_rate_hz, stamped now + tf_future_s (fresh stamps, each later
 //    than the last: tf2 drops a repeated stamp, and listeners can look base_link up in map at any
 //    time up to now), and at once when the worker reports a new correction (a join reaches
-//    listeners without waiting for the next tick). Visual odometry: from the active session's correction and its place in
-//    odom. Vehicle odometry: from the active session's last keyframe, map <- base at its stamp t,
-//    and the vehicle's odom <- base at t looked up in tf (retried on each tick until tf has it;
-//    failures counted).
+//    listeners without waiting for the next tick). Visual odometry: from the active session's correction and its place
+//    in odom. Vehicle odometry: from the active session's last keyframe, map <- base at its stamp t, and the vehicle's
+//    odom <- base at t looked up in tf (retried on each tick until tf has it; failures counted).
 //  - map -> session_<id>: static transforms (latched; they change only when a map is optimised,
 //    joined or split), sent again when a correction changes.
 #pragma once
@@ -57,6 +56,9 @@ class FramePublisher {
   /// Starts the timer on `nh` (steady: it runs while a bag is paused, and publishes nothing new then).
   /// Rates and frames are checked by ros_params::backendNodeletOptions.
   FramePublisher(ros::NodeHandle nh, const FrameOptions& options);
+  ~FramePublisher();  // stops the timer before anything it reads goes
+  FramePublisher(const FramePublisher&) = delete;
+  FramePublisher& operator=(const FramePublisher&) = delete;
 
   /// From the worker after each publication of the active session: its correction map <- session,
   /// and its last keyframe's pose in the map with its stamp.
