@@ -1,7 +1,6 @@
 // The back-end / session manager nodelet: see its header for topics, services and threading.
 #include "uw_multislam/ros/nodelets/backend_nodelet.h"
 
-#include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <pluginlib/class_list_macros.hpp>
 
 #include <cstdio>
@@ -192,7 +191,7 @@ void BackendNodelet::onEvent(const core::SessionEvent& e) {
   if (changed && e.kind != K::kMapOptimised) say(std::string(core::sessionEventName(e.kind)) + ": " + e.message);
 }
 
-void BackendNodelet::publishSession(int id) {
+core::Pose2 BackendNodelet::publishSession(int id) {
   const std::vector<core::Pose2> poses = manager_->poses(id);
   const core::Pose2 correction = manager_->correction(id);
   std::vector<ros::Time> stamps;
@@ -203,20 +202,19 @@ void BackendNodelet::publishSession(int id) {
   ros::Publisher& path = path_pubs_[id];  // latched, advertised with the session's first publication
   if (!path) path = getNodeHandle().advertise<nav_msgs::Path>(topics::kSessionPathPrefix + std::to_string(id), 1, true);
   path.publish(rc::toPathMsg(poses, stamps, options_.frames.map_frame, now));
-  frames_->setSessionFrames({{id, correction}});
-  if (id != manager_->activeSession()) return;
+  if (id != manager_->activeSession()) return correction;
   frames_->setActive(id, correction, poses.back(), now);
-  geometry_msgs::PoseWithCovarianceStamped k;
-  k.header.stamp = now;
-  k.header.frame_id = options_.frames.map_frame;
-  k.pose = rc::toPoseWithCovarianceMsg(manager_->lastKeyframeInMap(id));
-  keyframe_pose_pub_.publish(k);
+  keyframe_pose_pub_.publish(
+      rc::toPoseWithCovarianceStampedMsg(manager_->lastKeyframeInMap(id), options_.frames.map_frame, now));
+  return correction;
 }
 
 void BackendNodelet::publishAll(bool all_sessions) {
   if (all_sessions) offsets_ = rc::mapOffsets(*manager_);  // maps change only with events
+  std::map<int, core::Pose2> corrections;                  // map -> session_<id>: sent together
   for (int id : all_sessions ? manager_->sessionIds() : std::vector<int>{manager_->activeSession()})
-    if (id >= 0) publishSession(id);
+    if (id >= 0) corrections[id] = publishSession(id);
+  frames_->setSessionFrames(corrections);
   const ros::WallTime now = ros::WallTime::now();  // every session's markers: on events, else at most 1 Hz
   if (trajectory_markers_pub_.getNumSubscribers() > 0 && (all_sessions || (now - markers_sent_).toSec() >= 1.0)) {
     markers_sent_ = now;

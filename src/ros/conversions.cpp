@@ -103,6 +103,16 @@ geometry_msgs::PoseWithCovariance toPoseWithCovarianceMsg(const core::UncertainP
   return m;
 }
 
+geometry_msgs::PoseWithCovarianceStamped toPoseWithCovarianceStampedMsg(const core::UncertainPose2& p,
+                                                                        const std::string& frame_id,
+                                                                        const ros::Time& stamp) {
+  geometry_msgs::PoseWithCovarianceStamped m;
+  m.header.stamp = stamp;
+  m.header.frame_id = frame_id;
+  m.pose = toPoseWithCovarianceMsg(p);
+  return m;
+}
+
 bool fromMsg(const geometry_msgs::PoseWithCovariance& m, core::UncertainPose2* out) {
   core::Pose2 mean;
   if (!fromMsg(m.pose, &mean)) return false;

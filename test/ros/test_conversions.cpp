@@ -83,6 +83,19 @@ TEST(Conversions, CovarianceLandsInXYYawSlots) {
   EXPECT_FALSE(rc::fromMsg(bad, &back));
 }
 
+TEST(Conversions, PoseWithCovarianceStampedCarriesFrameStampAndCovariance) {
+  Eigen::Matrix3d c;
+  c << 4e-4, 1e-5, 2e-6, 1e-5, 3e-4, -1e-6, 2e-6, -1e-6, 1e-4;
+  const auto m =
+      rc::toPoseWithCovarianceStampedMsg(core::UncertainPose2(Pose2(1.0, -2.0, 0.5), c), "map", ros::Time(7.25));
+  EXPECT_EQ(m.header.frame_id, "map");
+  EXPECT_EQ(m.header.stamp, ros::Time(7.25));
+  EXPECT_DOUBLE_EQ(m.pose.pose.position.y, -2.0);
+  EXPECT_DOUBLE_EQ(m.pose.covariance[0 * 6 + 5], 2e-6);                     // x-yaw
+  EXPECT_DOUBLE_EQ(m.pose.covariance[5 * 6 + 5], 1e-4);                     // yaw-yaw
+  EXPECT_DOUBLE_EQ(m.pose.covariance[2 * 6 + 2], rc::kUnobservedVariance);  // z unknown
+}
+
 TEST(Conversions, SessionOfFrame) {
   EXPECT_EQ(rc::sessionOfFrame("session_12", "session_"), 12);
   EXPECT_EQ(rc::sessionOfFrame("dive0", "dive"), 0);

@@ -5,6 +5,7 @@
 #include <geometry_msgs/Pose.h>
 #include <geometry_msgs/Pose2D.h>
 #include <geometry_msgs/PoseWithCovariance.h>
+#include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <geometry_msgs/Transform.h>
 #include <geometry_msgs/TransformStamped.h>
 #include <ros/time.h>
@@ -40,6 +41,9 @@ int sessionOfFrame(const std::string& frame, const std::string& prefix);
 
 /// 6x6 row-major covariance (x, y, z, roll, pitch, yaw) from the 3x3 (x, y, yaw) one.
 geometry_msgs::PoseWithCovariance toPoseWithCovarianceMsg(const core::UncertainPose2& p);
+geometry_msgs::PoseWithCovarianceStamped toPoseWithCovarianceStampedMsg(const core::UncertainPose2& p,
+                                                                        const std::string& frame_id,
+                                                                        const ros::Time& stamp);
 /// The (x, y, yaw) part; false for non-finite input or an invalid covariance.
 bool fromMsg(const geometry_msgs::PoseWithCovariance& m, core::UncertainPose2* out);
 

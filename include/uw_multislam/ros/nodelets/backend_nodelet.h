@@ -103,7 +103,8 @@ class BackendNodelet : public nodelet::Nodelet {
   void processLoop(const uw_multislam::LoopConstPtr& msg, bool retry);
   void onEvent(const core::SessionEvent& e);
   void publishAll(bool all_sessions);
-  void publishSession(int id);
+  /// Its path, trajectory and (active) pose and tf; returns its correction map <- session.
+  core::Pose2 publishSession(int id);
   void announceNextSession();
   void onOdometryPose(const geometry_msgs::PoseStampedConstPtr& msg);
   bool onJoin(uw_multislam::JoinSessions::Request& req, uw_multislam::JoinSessions::Response& res);
