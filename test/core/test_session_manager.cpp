@@ -253,6 +253,14 @@ TEST(SessionManager, DeferredOptimisationRunsOutsideRequestsAndSavesTheFinishedM
   for (std::size_t k = 0; k < back.size(); ++k) EXPECT_NEAR(back[k].x(), optimised[k].x(), 1e-9) << k;
 }
 
+TEST(SessionManager, TheStoresDirectoryItCreatesIsTheOwnersOnly) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::filesystem::path store_dir = dir.path() / "missions";
+  { SessionManager m(options((store_dir / "s.db").string())); }
+  const auto perms = std::filesystem::status(store_dir).permissions();
+  EXPECT_EQ(perms & std::filesystem::perms::all, std::filesystem::perms::owner_all);
+}
+
 TEST(SessionManager, BadOptionsAndABadStoreAreRefusedAtConstruction) {
   SessionManagerOptions bad = options();
   bad.max_keyframe_gap = -1;

@@ -445,6 +445,38 @@ TEST(Store, KillNineLosesAtMostTheKeyframeInFlight) {
   EXPECT_EQ(rs.keyframes, sessions[0].keyframes);
 }
 
+TEST(Store, FilesAreTheOwnersOnlyAndASymbolicLinkIsRefused) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  auto mode = [](const std::string& p) {
+    struct stat st {};
+    return ::stat(p.c_str(), &st) == 0 ? static_cast<int>(st.st_mode & 0777) : -1;
+  };
+  {
+    SessionStore store(path);
+    store.addSession("mine", camera(), 0.0);
+    EXPECT_EQ(mode(path), 0600);
+    EXPECT_EQ(mode(path + "-wal"), 0600);
+    EXPECT_EQ(mode(path + ".lock"), 0600);
+  }
+  const std::string link = (dir.path() / "link.db").string();
+  ASSERT_EQ(::symlink(path.c_str(), link.c_str()), 0);
+  const std::uintmax_t size = std::filesystem::file_size(path);
+  try {
+    SessionStore store(link);
+    FAIL() << "a store opened through a symbolic link";
+  } catch (const StoreError& e) {
+    EXPECT_NE(std::string(e.what()).find("symbolic link"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(std::filesystem::file_size(path), size);
+  EXPECT_FALSE(std::filesystem::exists(link + ".lock"));
+  // A link to nowhere: refused too, and nothing is created where it points.
+  const std::string dangling = (dir.path() / "dangling.db").string();
+  ASSERT_EQ(::symlink((dir.path() / "elsewhere.db").c_str(), dangling.c_str()), 0);
+  EXPECT_THROW(SessionStore{dangling}, StoreError);
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "elsewhere.db"));
+}
+
 TEST(Store, ASecondWriterIsRefusedWithTheHolderNamedAndADeadHolderReleasesIt) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();

@@ -86,7 +86,10 @@ SessionManager::SessionManager(const SessionManagerOptions& options, EventSink e
   if (options_.store_path.empty()) return;
   const std::filesystem::path dir = std::filesystem::path(options_.store_path).parent_path();
   std::error_code ec;
-  if (!dir.empty()) std::filesystem::create_directories(dir, ec);  // a failure shows in the open below
+  if (!dir.empty() && !std::filesystem::exists(dir, ec)) {  // a failure shows in the open below
+    std::filesystem::create_directories(dir, ec);
+    std::filesystem::permissions(dir, std::filesystem::perms::owner_all, ec);  // 0700: the owner's missions only
+  }
   store_ = std::make_unique<SessionStore>(options_.store_path);
   store_->checkHashSettings(
       {options_.hash_mode, options_.projection_seed, options_.num_features, hasher_.projections().toText()});

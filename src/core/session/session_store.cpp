@@ -196,6 +196,11 @@ void SessionStore::exec(const std::string& sql) const {
 SessionStore::SessionStore(const std::string& path) : path_(path) {
   namespace fs = std::filesystem;
   std::error_code ec;
+  // A store holds a mission's images' features and the vehicle's track: never through a symbolic
+  // link (it could point anywhere), and created readable by its owner only (0600; SQLite gives
+  // its -wal and -shm files the database's mode, the lock file is made 0600 too).
+  if (fs::is_symlink(fs::symlink_status(path, ec)))
+    throw StoreError("session store " + path + ": a symbolic link; give the file's own path");
   const bool exists = fs::exists(path, ec);
   bool fresh = !exists;
   if (exists) {
@@ -258,6 +263,10 @@ SessionStore::SessionStore(const std::string& path) : path_(path) {
     if (!parent.empty() && !fs::is_directory(parent, ec))
       throw StoreError("session store " + path + ": the directory " + parent.string() + " does not exist");
   }
+  if (!exists) {  // created here first, 0600, refusing a link or a file that appeared meanwhile
+    const int fd = open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0600);
+    if (fd >= 0) close(fd);  // a failure (read-only path, ...) shows in SQLite's open below
+  }
   const int flags = SQLITE_OPEN_READWRITE | (fresh ? SQLITE_OPEN_CREATE : 0);
   const int rc = sqlite3_open_v2(path.c_str(), &db_, flags, nullptr);
   if (rc != SQLITE_OK) {
@@ -312,7 +321,7 @@ void SessionStore::lockForWriting() {
   // holder's description, for the refusal's message; it is left in place (deleting it would race).
   const std::string lock_path = path_ + ".lock";
   LockFile lock;
-  lock.fd = open(lock_path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0600);
+  lock.fd = open(lock_path.c_str(), O_RDWR | O_CREAT | O_NOFOLLOW | O_CLOEXEC, 0600);
   if (lock.fd < 0)
     throw StoreError("session store " + path_ + ": cannot open its lock file " + lock_path + ": " +
                      std::strerror(errno));
