@@ -20,7 +20,7 @@ import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
-from pipeline_fixture import NS, SENSOR_TOPICS, diagnostic_values, make_mission, wait_for_subscribers
+from pipeline_fixture import NS, SENSOR_TOPICS, appender, diagnostic_values, make_mission, wait_for_subscribers
 from sensor_msgs.msg import CameraInfo, Image, Range
 from uw_multislam.msg import Keyframe
 
@@ -50,18 +50,12 @@ class AltitudeByStampTest(unittest.TestCase):
         cls.lock = threading.Lock()
         cls.poses, cls.keyframes, cls.statuses = [], [], []
 
-        def keep(store):
-            def callback(msg):
-                with cls.lock:
-                    store.append(msg)
-            return callback
-
         def on_diagnostics(msg):
             with cls.lock:
                 cls.statuses.extend(s for s in msg.status if s.name.endswith(": odometry"))
 
-        cls.subs = [rospy.Subscriber(NS + "/odometry/pose", PoseStamped, keep(cls.poses), queue_size=1000),
-                    rospy.Subscriber(NS + "/keyframes", Keyframe, keep(cls.keyframes), queue_size=1000),
+        cls.subs = [rospy.Subscriber(NS + "/odometry/pose", PoseStamped, appender(cls.lock, cls.poses), queue_size=1000),
+                    rospy.Subscriber(NS + "/keyframes", Keyframe, appender(cls.lock, cls.keyframes), queue_size=1000),
                     rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
         cls.pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(SENSOR_TOPICS, (Image, CameraInfo, Range))]
         wait_for_subscribers(SENSOR_TOPICS, "/check_altitude_by_stamp")

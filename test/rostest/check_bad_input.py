@@ -29,7 +29,7 @@ import rosbag
 import rosgraph
 import rospy
 import rostest
-from pipeline_fixture import NS, diagnostic_values, make_mission
+from pipeline_fixture import NS, appender, diagnostic_values, make_mission
 import rosnode
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
@@ -62,12 +62,6 @@ class BadInputTest(unittest.TestCase):
         cls.lock = threading.Lock()
         cls.poses, cls.keyframes, cls.odometry_statuses, cls.loop_statuses = [], [], [], []
 
-        def keep(store):
-            def callback(msg):
-                with cls.lock:
-                    store.append(msg)
-            return callback
-
         def on_diagnostics(msg):
             with cls.lock:
                 for s in msg.status:
@@ -76,8 +70,8 @@ class BadInputTest(unittest.TestCase):
                     elif s.name.endswith(": loop_detector"):
                         cls.loop_statuses.append(s)
 
-        cls.subs = [rospy.Subscriber(NS + "/odometry/pose", PoseStamped, keep(cls.poses), queue_size=1000),
-                    rospy.Subscriber(NS + "/keyframes", Keyframe, keep(cls.keyframes), queue_size=1000),
+        cls.subs = [rospy.Subscriber(NS + "/odometry/pose", PoseStamped, appender(cls.lock, cls.poses), queue_size=1000),
+                    rospy.Subscriber(NS + "/keyframes", Keyframe, appender(cls.lock, cls.keyframes), queue_size=1000),
                     rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
         cls.pubs = [rospy.Publisher("/camera/image_raw", Image, queue_size=100),
                     rospy.Publisher("/camera/camera_info", CameraInfo, queue_size=100),

@@ -33,7 +33,7 @@ import rostest
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
-from pipeline_fixture import NS, SENSOR_TOPICS, make_mission, wait_for_subscribers
+from pipeline_fixture import NS, SENSOR_TOPICS, appender, make_mission, wait_for_subscribers
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image
 from tf2_msgs.msg import TFMessage
@@ -111,16 +111,10 @@ class FramesTest(unittest.TestCase):
 
         cls.keyframes, cls.trajectories, cls.keyframe_poses = [], [], []
 
-        def keep(store):
-            def callback(msg):
-                with cls.lock:
-                    store.append(msg)
-            return callback
-
-        cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, keep(cls.keyframes), queue_size=1000),
-                    rospy.Subscriber(NS + "/session_trajectory", SessionTrajectory, keep(cls.trajectories),
+        cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, appender(cls.lock, cls.keyframes), queue_size=1000),
+                    rospy.Subscriber(NS + "/session_trajectory", SessionTrajectory, appender(cls.lock, cls.trajectories),
                                      queue_size=1000),
-                    rospy.Subscriber(NS + "/keyframe_pose", PoseWithCovarianceStamped, keep(cls.keyframe_poses),
+                    rospy.Subscriber(NS + "/keyframe_pose", PoseWithCovarianceStamped, appender(cls.lock, cls.keyframe_poses),
                                      queue_size=1000),
                     rospy.Subscriber("/camera/image_raw", Image, on_image, queue_size=100),
                     rospy.Subscriber("/tf", TFMessage, on_tf, queue_size=1000),

@@ -79,3 +79,11 @@ def diagnostic_values(status):
         except ValueError:
             out[kv.key] = kv.value
     return out
+
+
+def appender(lock, store):
+    """A subscriber callback that appends each message to `store` under `lock`."""
+    def callback(msg):
+        with lock:
+            store.append(msg)
+    return callback
