@@ -50,6 +50,7 @@ void BackendNodelet::onInit() {
     manager_ = std::make_unique<core::SessionManager>(
         options, [this](const core::SessionEvent& e) { onEvent(e); }, [this](const std::string& line) { say(line); });
     manager_->setDeferredOptimisation(true);  // optimised by the worker, outside state_mutex_
+    frames_ = std::make_unique<ros_frames::FramePublisher>(nh, options_.frames);  // a tilted camera throws
   } catch (const std::exception& e) {
     NODELET_FATAL(
         "back-end: not starting (no topics, no services): %s%s", e.what(),
@@ -73,7 +74,6 @@ void BackendNodelet::onInit() {
   keyframe_pose_pub_ = nh.advertise<geometry_msgs::PoseWithCovarianceStamped>(topics::kKeyframePoseWithCovariance, 10);
   active_pub_ = nh.advertise<uw_multislam::SessionState>(topics::kActiveSession, 1, true);
   reloaded_pub_ = nh.advertise<uw_multislam::Keyframe>(topics::kReloadedKeyframes, 10000);
-  frames_ = std::make_unique<ros_frames::FramePublisher>(nh, options_.frames);
   if (manager_->restoredSessions() > 0) {
     std::lock_guard<std::mutex> lock(state_mutex_);
     publishAll(true);
@@ -201,17 +201,18 @@ core::Pose2 BackendNodelet::publishSession(int id) {
                                                      options_.frames.session_frame_prefix + std::to_string(id)));
   ros::Publisher& path = path_pubs_[id];  // latched, advertised with the session's first publication
   if (!path) path = getNodeHandle().advertise<nav_msgs::Path>(topics::kSessionPathPrefix + std::to_string(id), 1, true);
-  path.publish(rc::toPathMsg(poses, stamps, options_.frames.map_frame, now));
+  const std::string& map = options_.frames.map_frame;
+  path.publish(rc::toPathMsg(rc::vehiclePoses(*manager_, id, frames_->mount()), stamps, map, now));
   if (id != manager_->activeSession()) return correction;
   frames_->setActive(id, correction, poses.back(), now);
   keyframe_pose_pub_.publish(
-      rc::toPoseWithCovarianceStampedMsg(manager_->lastKeyframeInMap(id), options_.frames.map_frame, now));
+      rc::toPoseWithCovarianceStampedMsg(frames_->vehicle(manager_->lastKeyframeInMap(id)), map, now));
   return correction;
 }
 
 void BackendNodelet::publishAll(bool all_sessions) {
-  if (all_sessions) offsets_ = rc::mapOffsets(*manager_);  // maps change only with events
-  std::map<int, core::Pose2> corrections;                  // map -> session_<id>: sent together
+  if (all_sessions) offsets_ = rc::mapOffsets(*manager_, frames_->mount());  // maps change only with events
+  std::map<int, core::Pose2> corrections;                                    // map -> session_<id>: sent together
   for (int id : all_sessions ? manager_->sessionIds() : std::vector<int>{manager_->activeSession()})
     if (id >= 0) corrections[id] = publishSession(id);
   frames_->setSessionFrames(corrections);
@@ -219,11 +220,11 @@ void BackendNodelet::publishAll(bool all_sessions) {
   if (trajectory_markers_pub_.getNumSubscribers() > 0 && (all_sessions || (now - markers_sent_).toSec() >= 1.0)) {
     markers_sent_ = now;
     trajectory_markers_pub_.publish(
-        rc::toTrajectoryMarkersMsg(*manager_, offsets_, options_.frames.map_frame, ros::Time::now()));
+        rc::toTrajectoryMarkersMsg(*manager_, frames_->mount(), offsets_, options_.frames.map_frame, ros::Time::now()));
   }
   if (!all_sessions && manager_->loops().empty()) return;
-  markers_pub_.publish(
-      rc::toMarkerArrayMsg(rc::loopSegments(*manager_, offsets_), options_.frames.map_frame, ros::Time::now()));
+  markers_pub_.publish(rc::toMarkerArrayMsg(rc::loopSegments(*manager_, frames_->mount(), offsets_),
+                                            options_.frames.map_frame, ros::Time::now()));
 }
 
 void BackendNodelet::announceNextSession() {

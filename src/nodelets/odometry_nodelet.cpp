@@ -17,6 +17,7 @@
 #include <sstream>
 
 #include "uw_multislam/Keyframe.h"
+#include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/conversions.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 #include "uw_multislam/ros/sensor_conversions.h"
@@ -78,6 +79,11 @@ void OdometryNodelet::readParameters() {
   config_ = ros_params::slamConfigFromParams(getNodeHandle());
   const std::string bad = config_.validate();
   if (!bad.empty()) throw std::invalid_argument(getNodeHandle().resolveName("slam") + ": " + bad);
+  std::string note;  // where the camera sits on the vehicle (frames/ parameters or tf)
+  if (ros_frames::resolveCameraMount(getNodeHandle(), ros_frames::mountOptions(getNodeHandle()), &mount_, &note))
+    NODELET_INFO("odometry: camera mount %s", note.c_str());
+  else
+    NODELET_WARN("odometry: %s", note.c_str());
 }
 
 void OdometryNodelet::onInit() {
@@ -232,7 +238,7 @@ void OdometryNodelet::pairPending(double now) {
       continue;
     }
     if (altitudes_) {
-      f.altitude_m = altitude.altitude_m;
+      f.altitude_m = core::cameraAltitude(altitude.altitude_m, mount_);  // the altimeter's range -> the camera's
       f.bad_altitude = altitude.status == core::AltitudeStatus::kInvalid;
       if (altitude.status == core::AltitudeStatus::kStale) {
         // The fallback altitude only while the topic is silent (images without a reading for input_timeout_s).
@@ -442,7 +448,7 @@ void OdometryNodelet::process(const Frame& f) {
   auto pose = boost::make_shared<geometry_msgs::PoseStamped>();
   pose->header.stamp = stamp;
   pose->header.frame_id = options_.session_frame_prefix + std::to_string(session_);
-  pose->pose = rc::toPoseMsg(u.pose);
+  pose->pose = rc::toPoseMsg(core::vehicleFromCamera(u.pose, mount_));  // base_link in the z-up session frame
   pose_pub_.publish(pose);
 }
 

@@ -73,11 +73,18 @@ uw_multislam::SessionState toSessionStateMsg(const core::SessionSummary& s) {
   return st;
 }
 
-std::map<int, double> mapOffsets(const core::SessionManager& manager) {
+std::vector<core::Pose2> vehiclePoses(const core::SessionManager& manager, int id, const core::CameraMount& mount) {
+  std::vector<core::Pose2> p = manager.poses(id);
+  for (core::Pose2& x : p) x = core::vehicleFromCamera(x, mount);
+  return p;
+}
+
+std::map<int, double> mapOffsets(const core::SessionManager& manager, const core::CameraMount& mount) {
   std::map<int, std::pair<double, double>> extent;  // map -> min x, max x
   for (int id : manager.sessionIds()) {
     auto& e = extent.emplace(manager.mapOf(id), std::make_pair(1e300, -1e300)).first->second;
-    for (const core::Pose2& p : manager.poses(id)) e = {std::min(e.first, p.x()), std::max(e.second, p.x())};
+    for (const core::Pose2& p : vehiclePoses(manager, id, mount))
+      e = {std::min(e.first, p.x()), std::max(e.second, p.x())};
   }
   std::map<int, double> offsets;
   if (extent.empty()) return offsets;
@@ -92,13 +99,14 @@ std::map<int, double> mapOffsets(const core::SessionManager& manager) {
   return offsets;
 }
 
-std::vector<Segment> loopSegments(const core::SessionManager& manager, const std::map<int, double>& offsets) {
+std::vector<Segment> loopSegments(const core::SessionManager& manager, const core::CameraMount& mount,
+                                  const std::map<int, double>& offsets) {
   std::map<int, std::vector<core::Pose2>> poses;  // each session's poses once, shifted with its map
   auto posesOf = [&](int id) -> const std::vector<core::Pose2>& {
     auto it = poses.find(id);
     if (it == poses.end()) {
       const auto o = offsets.find(manager.mapOf(id));
-      std::vector<core::Pose2> p = manager.poses(id);
+      std::vector<core::Pose2> p = vehiclePoses(manager, id, mount);
       if (o != offsets.end())
         for (core::Pose2& x : p) x = core::Pose2(x.x() + o->second, x.y(), x.yaw());
       it = poses.emplace(id, std::move(p)).first;
@@ -131,6 +139,7 @@ std_msgs::ColorRGBA sessionColour(int id) {
 }
 
 visualization_msgs::MarkerArray toTrajectoryMarkersMsg(const core::SessionManager& manager,
+                                                       const core::CameraMount& mount,
                                                        const std::map<int, double>& offsets,
                                                        const std::string& frame_id, const ros::Time& stamp) {
   visualization_msgs::MarkerArray out;
@@ -156,7 +165,7 @@ visualization_msgs::MarkerArray toTrajectoryMarkersMsg(const core::SessionManage
     visualization_msgs::Marker line = marker("trajectories", id, visualization_msgs::Marker::LINE_STRIP);
     line.scale.x = id == manager.activeSession() ? 0.06 : 0.03;
     line.color = sessionColour(id);
-    for (const core::Pose2& p : manager.poses(id)) {
+    for (const core::Pose2& p : vehiclePoses(manager, id, mount)) {
       geometry_msgs::Point q;
       q.x = p.x() + dx;
       q.y = p.y();

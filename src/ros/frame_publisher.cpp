@@ -14,6 +14,13 @@ bool same(const core::Pose2& a, const core::Pose2& b) { return a.x() == b.x() &&
 }  // namespace
 
 FramePublisher::FramePublisher(ros::NodeHandle nh, const FrameOptions& options) : options_(options) {
+  std::string note;
+  if (resolveCameraMount(nh, options_.mount, &mount_, &note))
+    ROS_INFO("frames: camera mount %s", note.c_str());
+  else
+    ROS_WARN("frames: %s", note.c_str());
+  if (options_.publish_tf && options_.mount.publish_tf)
+    static_tf_.sendTransform(mountTransforms(options_.mount, ros::Time::now()));
   if (options_.publish_tf && !options_.publish_odom_tf) {
     buffer_ = std::make_unique<tf2_ros::Buffer>();
     listener_ = std::make_unique<tf2_ros::TransformListener>(*buffer_, nh);
@@ -31,9 +38,9 @@ void FramePublisher::setActive(int session, const core::Pose2& map_from_session,
   {
     std::lock_guard<std::mutex> lock(mutex_);
     active_ = session;
-    map_from_session_ = map_from_session;
+    map_from_session_ = core::zUp(map_from_session);
     if (options_.publish_tf && !options_.publish_odom_tf)
-      keyframe_ = std::make_pair(map_from_last_keyframe, keyframe_stamp);
+      keyframe_ = std::make_pair(vehicle(map_from_last_keyframe), keyframe_stamp);
   }
   if (options_.publish_tf) tick();  // a new correction (a join, an optimisation) goes out now, not at the next tick
 }
@@ -48,7 +55,7 @@ void FramePublisher::setSessionFrames(const std::map<int, core::Pose2>& map_from
       if (it != session_frames_.end() && same(it->second, p)) continue;
       session_frames_[id] = p;
       changed.push_back(rc::toTransformStampedMsg(
-          p, options_.map_frame, options_.session_frame_prefix + std::to_string(id), ros::Time::now()));
+          core::zUp(p), options_.map_frame, options_.session_frame_prefix + std::to_string(id), ros::Time::now()));
     }
   }
   if (!changed.empty()) static_tf_.sendTransform(changed);  // the broadcaster replaces them by child frame

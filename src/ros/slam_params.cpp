@@ -91,6 +91,7 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
       pnh, "publish_odom_tf", true, [](bool) { return true; }, "a bool");
   o.frames.publish_session_frames = param(
       pnh, "publish_session_frames", true, [](bool) { return true; }, "a bool");
+  o.frames.mount = ros_frames::mountOptions(nh);
   o.frames.tf_rate_hz = param(
       pnh, "tf_rate", 20.0, [](double v) { return v > 0 && v <= 1000; }, "in (0, 1000] Hz");
   o.frames.tf_future_s = param(

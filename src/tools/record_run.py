@@ -11,7 +11,10 @@ writes into OUT:
   trajectory.csv  session,index,map,x_m,y_m,yaw_rad        the last paths/session_<id> (nav_msgs/Path
                                                             in the map frame, one pose per keyframe in
                                                             order) and the map of the last
-                                                            session_trajectory of each session
+                                                            session_trajectory of each session; the
+                                                            paths give base_link in the z-up map, the
+                                                            file the camera in image axes as
+                                                            offline_slam (camera_pose())
   loops.csv       session_a,index_a,session_b,index_b,kind,inliers    every Loop message
   loop_poses.csv  session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad the loops' measured X_b^a
 
@@ -43,6 +46,30 @@ def yaw_of(q):
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
+def camera_pose(x, y, yaw, mount):
+    """The camera's pose in the core's frame (image axes, z into the seabed) from base_link's pose
+    in the z-up map, the mount being (x, y, yaw) of the camera in base_link:
+    zUp(vehicle (+) base_from_camera), as core::cameraFromVehicle (core/geometry/vehicle_frame.h)."""
+    mx, my, myaw = mount
+    cx = x + math.cos(yaw) * mx - math.sin(yaw) * my
+    cy = y + math.sin(yaw) * mx + math.cos(yaw) * my
+    c = -(yaw + myaw)
+    return cx, -cy, math.atan2(math.sin(c), math.cos(c))
+
+
+def mount_of(ns):
+    """The camera's (x, y, yaw) in base_link from the frames/ parameters the back-end publishes as tf
+    (frames/publish_mount_tf). When the vehicle's own tf places the camera instead, this tool does not
+    read it and assumes the default mount (said on stderr)."""
+    p = ns.rstrip("/") + "/frames/"
+    if not rospy.get_param(p + "publish_mount_tf", True):
+        print("[record_run] frames/publish_mount_tf is false: trajectory.csv assumes the camera at base_link",
+              file=sys.stderr, flush=True)
+        return 0.0, 0.0, 0.0
+    position = rospy.get_param(p + "camera_position", [0.0, 0.0, 0.0])
+    return float(position[0]), float(position[1]), float(rospy.get_param(p + "camera_yaw", 0.0))
+
+
 def stamp_key(seconds):
     return int(round(seconds * 1000.0))  # milliseconds: bag stamps are start + stamp_s
 
@@ -63,8 +90,9 @@ def read_frame_stamps(folders, bag_start):
 
 
 class Recorder:
-    def __init__(self, ns, frame_stamps):
+    def __init__(self, ns, frame_stamps, mount=(0.0, 0.0, 0.0)):
         self.ns = ns.rstrip("/")
+        self.mount = mount  # the camera in base_link: paths give base_link, the files the camera
         self.frame_stamps = frame_stamps  # None: ROS ids as they are
         self.lock = threading.Lock()
         self.keyframes = {}  # (ros session, keyframe id) -> Keyframe fields we keep
@@ -151,8 +179,9 @@ class Recorder:
                         if key is None:
                             counts["missing"] += 1
                             continue
-                        f.write("%d,%d,%d,%.6f,%.6f,%.7f\n" % (key[0], key[1], map_id, p.pose.position.x,
-                                                               p.pose.position.y, yaw_of(p.pose.orientation)))
+                        x, y, yaw = camera_pose(p.pose.position.x, p.pose.position.y, yaw_of(p.pose.orientation),
+                                                self.mount)
+                        f.write("%d,%d,%d,%.6f,%.6f,%.7f\n" % (key[0], key[1], map_id, x, y, yaw))
                         counts["trajectory"] += 1
             with open(os.path.join(out, "loops.csv"), "w") as f, \
                     open(os.path.join(out, "loop_poses.csv"), "w") as g:
@@ -193,7 +222,7 @@ def main():
         sys.exit("record_run: %s" % e)
 
     rospy.init_node("record_run", disable_signals=False)
-    recorder = Recorder(args.ns, frame_stamps)
+    recorder = Recorder(args.ns, frame_stamps, mount_of(args.ns))
     if args.ready_file:
         open(args.ready_file, "w").close()
     rospy.spin()  # until SIGINT / SIGTERM / rosnode kill

@@ -81,8 +81,8 @@ TEST(VehicleFrame, CovarianceMatchesNumericDifferentiation) {
     d(k) = h;
     const Pose2 plus = vehicleFromCamera(Pose2(mean.x() + d(0), mean.y() + d(1), mean.yaw() + d(2)), mount);
     const Pose2 minus = vehicleFromCamera(Pose2(mean.x() - d(0), mean.y() - d(1), mean.yaw() - d(2)), mount);
-    j.col(k) = Eigen::Vector3d(plus.x() - minus.x(), plus.y() - minus.y(), normalizeAngle(plus.yaw() - minus.yaw())) /
-               (2 * h);
+    j.col(k) =
+        Eigen::Vector3d(plus.x() - minus.x(), plus.y() - minus.y(), normalizeAngle(plus.yaw() - minus.yaw())) / (2 * h);
   }
   const UncertainPose2 got = vehicleFromCamera(UncertainPose2(mean, p), mount);
   EXPECT_TRUE(approxEqual(got.mean, vehicleFromCamera(mean, mount)));

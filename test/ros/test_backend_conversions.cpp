@@ -96,14 +96,16 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
     }
   }
   ASSERT_EQ(m.mapIds().size(), 6u);
-  const std::map<int, double> offsets = mapOffsets(m);
+  core::CameraMount mount;  // a lever arm: the markers draw the vehicle, not the camera
+  mount.base_from_camera = core::Pose2(0.3, -0.2, 0.4);
+  const std::map<int, double> offsets = mapOffsets(m, mount);
   ASSERT_EQ(offsets.size(), 6u);
   EXPECT_EQ(offsets.at(m.mapOf(5)), 0.0);  // the recording session's map stays where tf has it
   // The maps' x ranges, shifted, do not overlap.
   std::vector<std::pair<double, double>> ranges;
   for (int s = 0; s < 6; ++s) {
     double lo = 1e9, hi = -1e9;
-    for (const core::Pose2& p : m.poses(s))
+    for (const core::Pose2& p : vehiclePoses(m, s, mount))
       lo = std::min(lo, p.x() + offsets.at(m.mapOf(s))), hi = std::max(hi, p.x() + offsets.at(m.mapOf(s)));
     ranges.emplace_back(lo, hi);
   }
@@ -111,7 +113,7 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
     for (int b = a + 1; b < 6; ++b)
       EXPECT_TRUE(ranges[a].second < ranges[b].first || ranges[b].second < ranges[a].first) << a << " " << b;
 
-  const visualization_msgs::MarkerArray all = toTrajectoryMarkersMsg(m, offsets, "map", ros::Time(5.0));
+  const visualization_msgs::MarkerArray all = toTrajectoryMarkersMsg(m, mount, offsets, "map", ros::Time(5.0));
   ASSERT_FALSE(all.markers.empty());
   EXPECT_EQ(all.markers.front().action, visualization_msgs::Marker::DELETEALL);
   std::map<int, visualization_msgs::Marker> lines;
@@ -126,7 +128,10 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
   EXPECT_EQ(map_labels, 5);  // every map but the active one is drawn shifted, and says so
   for (int s = 0; s < 6; ++s) {
     EXPECT_EQ(lines[s].points.size(), 4u);
-    EXPECT_DOUBLE_EQ(lines[s].points.back().x, m.poses(s).back().x() + offsets.at(m.mapOf(s)));
+    // z-up: (x, -y) of the camera, then the lever arm (core::vehicleFromCamera, tested on its own).
+    const core::Pose2 v = core::vehicleFromCamera(m.poses(s).back(), mount);
+    EXPECT_DOUBLE_EQ(lines[s].points.back().x, v.x() + offsets.at(m.mapOf(s)));
+    EXPECT_DOUBLE_EQ(lines[s].points.back().y, v.y());
     EXPECT_DOUBLE_EQ(lines[s].scale.x, s == 5 ? 0.06 : 0.03);
     for (int t = s + 1; t < 6; ++t) {  // colours far apart
       const auto &a = lines[s].color, &b = lines[t].color;
@@ -134,7 +139,7 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
     }
   }
   // The loop segments move with their maps.
-  EXPECT_TRUE(loopSegments(m, offsets).empty());  // no loops here
+  EXPECT_TRUE(loopSegments(m, mount, offsets).empty());  // no loops here
 }
 
 }  // namespace

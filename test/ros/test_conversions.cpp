@@ -6,6 +6,10 @@
 #include <cmath>
 #include <limits>
 
+#include <Eigen/Geometry>
+#include <random>
+
+#include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/conversions.h"
 
 namespace uw_multislam {
@@ -126,6 +130,81 @@ TEST(Conversions, TransformMatchesPose) {
   geometry_msgs::Transform broken = t;
   broken.rotation.w = broken.rotation.z = 0.0;
   EXPECT_FALSE(rc::fromMsg(broken, &back));
+}
+
+// --- The camera mount (ros/camera_mount.h) ---
+
+geometry_msgs::Transform transformOf(const Eigen::Vector3d& t, const Eigen::Matrix3d& r) {
+  const Eigen::Quaterniond q(r);
+  geometry_msgs::Transform m;
+  m.translation.x = t.x();
+  m.translation.y = t.y();
+  m.translation.z = t.z();
+  m.rotation.x = q.x();
+  m.rotation.y = q.y();
+  m.rotation.z = q.z();
+  m.rotation.w = q.w();
+  return m;
+}
+
+TEST(CameraMount, OpticalAxesWrittenByHandGiveTheMount) {
+  // Camera 0.5 m forward, 0.1 m to port, 0.2 m below base_link, its image columns along base_link's
+  // y (to port): optical x = base y, optical y (rows) = base x, optical z = -base z (down).
+  Eigen::Matrix3d r;
+  r.col(0) = Eigen::Vector3d::UnitY();
+  r.col(1) = Eigen::Vector3d::UnitX();
+  r.col(2) = -Eigen::Vector3d::UnitZ();
+  core::CameraMount m;
+  std::string why;
+  ASSERT_TRUE(ros_frames::mountFromTransforms(transformOf({0.5, 0.1, -0.2}, r),
+                                              transformOf({0.0, 0.0, -0.35}, Eigen::Matrix3d::Identity()), 0.1, &m,
+                                              &why))
+      << why;
+  EXPECT_TRUE(core::approxEqual(m.base_from_camera, Pose2(0.5, 0.1, M_PI / 2), 1e-12, 1e-12)) << m.base_from_camera;
+  EXPECT_NEAR(m.camera_above_altimeter_m, 0.15, 1e-12);
+}
+
+TEST(CameraMount, PublishedTransformsReadBackAsTheirOptions) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (int i = 0; i < 50; ++i) {
+    ros_frames::MountOptions o;
+    o.camera_position = {u(rng), u(rng), u(rng)};
+    o.camera_yaw = 3 * u(rng);
+    o.altimeter_position = {u(rng), u(rng), u(rng)};
+    const auto t = ros_frames::mountTransforms(o, ros::Time(0));
+    ASSERT_EQ(t.size(), 2u);
+    EXPECT_EQ(t[0].header.frame_id, "base_link");
+    EXPECT_EQ(t[0].child_frame_id, "camera_optical");
+    EXPECT_EQ(t[1].child_frame_id, "altimeter");
+    // The optical axis points down in base_link (an independent rotation of (0, 0, 1)).
+    const auto& q = t[0].transform.rotation;
+    const Eigen::Vector3d axis = Eigen::Quaterniond(q.w, q.x, q.y, q.z) * Eigen::Vector3d::UnitZ();
+    EXPECT_NEAR((axis + Eigen::Vector3d::UnitZ()).norm(), 0.0, 1e-12);
+    core::CameraMount m;
+    std::string why;
+    ASSERT_TRUE(ros_frames::mountFromTransforms(t[0].transform, t[1].transform, 1e-6, &m, &why)) << why;
+    EXPECT_TRUE(core::approxEqual(
+        m.base_from_camera, Pose2(o.camera_position[0], o.camera_position[1], o.camera_yaw), 1e-12, 1e-9));
+    EXPECT_NEAR(m.camera_above_altimeter_m, o.camera_position[2] - o.altimeter_position[2], 1e-12);
+  }
+}
+
+TEST(CameraMount, TiltedOrBrokenTransformsAreRefusedWithAReason) {
+  const Eigen::Matrix3d down = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  const auto alt = transformOf({0, 0, 0}, Eigen::Matrix3d::Identity());
+  core::CameraMount m;
+  m.camera_above_altimeter_m = 42.0;
+  std::string why;
+  const Eigen::Matrix3d tilted = Eigen::AngleAxisd(10 * M_PI / 180, Eigen::Vector3d::UnitY()).toRotationMatrix() * down;
+  EXPECT_FALSE(ros_frames::mountFromTransforms(transformOf({0, 0, 0}, tilted), alt, 5 * M_PI / 180, &m, &why));
+  EXPECT_NE(why.find("10 deg from straight down"), std::string::npos) << why;
+  EXPECT_TRUE(ros_frames::mountFromTransforms(transformOf({0, 0, 0}, tilted), alt, 11 * M_PI / 180, &m, &why));
+  auto broken = transformOf({0, 0, 0}, down);
+  broken.translation.x = std::numeric_limits<double>::quiet_NaN();
+  m.camera_above_altimeter_m = 42.0;
+  EXPECT_FALSE(ros_frames::mountFromTransforms(broken, alt, 1.0, &m, &why));
+  EXPECT_EQ(m.camera_above_altimeter_m, 42.0);  // untouched
 }
 
 }  // namespace

@@ -110,7 +110,8 @@ class BackendTest(unittest.TestCase):
             index = int(round(p.header.stamp.to_sec() - t0))
             gx, gy, _ = self.world[(1, index)]
             tx, ty = c * (gx - ox) + s * (gy - oy), -s * (gx - ox) + c * (gy - oy)
-            worst = max(worst, math.hypot(p.pose.position.x - tx, p.pose.position.y - ty))
+            # The path gives base_link in the z-up map (camera at base_link): y is the image axes' -y.
+            worst = max(worst, math.hypot(p.pose.position.x - tx, -p.pose.position.y - ty))
         return worst
 
     def test_1_a_path_per_session_and_loops_of_both_kinds(self):

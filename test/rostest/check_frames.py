@@ -33,7 +33,8 @@ import rostest
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
-from pipeline_fixture import NS, SENSOR_TOPICS, appender, make_mission, wait_for_subscribers
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, compose, invert, make_mission, mount_of_params,
+                              vehicle_from_camera, wait_for_subscribers)
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image
 from tf2_msgs.msg import TFMessage
@@ -42,6 +43,7 @@ from uw_multislam.srv import JoinSessions, ListSessions
 
 TOLERANCE_M = 0.10  # SLAM's pose of base_link in session 0 vs the ground truth (the odometry drifts ~cm)
 JOIN_LATENCY_S = 0.1
+MOUNT = (0.0, 0.0, 0.0)  # the camera in base_link (x, y, yaw): frames.test's frames/ parameters, read at start
 
 
 def transform(parent, child, stamp, x, y, yaw):
@@ -60,10 +62,9 @@ def planar(t):
 
 
 def in_frame(origin, p):
-    """p (world) in the frame whose origin is `origin` (world)."""
-    ox, oy, oyaw = origin
-    c, s = math.cos(oyaw), math.sin(oyaw)
-    return c * (p[0] - ox) + s * (p[1] - oy), -s * (p[0] - ox) + c * (p[1] - oy)
+    """p (world, the camera's) in the frame whose origin is `origin` (world), as the vehicle's pose
+    there: base_link in the z-up frame of session 0's first image, as the map frame has it."""
+    return vehicle_from_camera(compose(invert(origin), p), MOUNT)
 
 
 class FramesTest(unittest.TestCase):
@@ -92,7 +93,8 @@ class FramesTest(unittest.TestCase):
                 cls.session_start.setdefault(session, stamp)
                 index = int(round((stamp - cls.session_start[session]).to_sec()))  # one frame per second
                 cls.images.append((stamp, session, index))
-            x, y, yaw = cls.world[(session, index)]
+            # The vehicle's navigation: base_link (not the camera) in a z-up odom.
+            x, y, yaw = vehicle_from_camera(cls.world[(session, index)], MOUNT)
             cls.broadcaster.sendTransform(transform("odom", "base_link", stamp, x, y, yaw))
             cls.check_between_images()
 
@@ -140,7 +142,7 @@ class FramesTest(unittest.TestCase):
         pub = rospy.Publisher("/clock", Clock, queue_size=10)
         with cls.lock:
             now, session, index = cls.images[-1]
-        pose = cls.world[(session, index)]
+        pose = vehicle_from_camera(cls.world[(session, index)], MOUNT)
         start = time.monotonic()
         while not cls.stop.is_set():
             t = now + rospy.Duration(time.monotonic() - start)
@@ -175,8 +177,9 @@ class FramesTest(unittest.TestCase):
             cls.lookups["ok"] += 1
             if session == 0:  # the map is session 0's first frame: the truth there, interpolated
                 pa, pb = cls.world[(0, ia)], cls.world[(0, ib)]
-                truth = (pa[0] + u * (pb[0] - pa[0]), pa[1] + u * (pb[1] - pa[1]))
-                tx, ty = in_frame(cls.world[(0, 0)], truth)
+                truth = (pa[0] + u * (pb[0] - pa[0]), pa[1] + u * (pb[1] - pa[1]),
+                         pa[2] + u * math.remainder(pb[2] - pa[2], 2 * math.pi))
+                tx, ty, _ = in_frame(cls.world[(0, 0)], truth)
                 cls.lookups["errors"].append(math.hypot(got[0] - tx, got[1] - ty))
 
     def test_1_base_link_in_map_at_any_time_between_images(self):
@@ -230,9 +233,19 @@ class FramesTest(unittest.TestCase):
             p1, p2 = mat(mat(j1, cov), tr(j1)), mat(mat(j2, covariances[k]), tr(j2))
             cov = [[p1[i][j] + p2[i][j] for j in range(3)] for i in range(3)]
             x, y, yaw = x + c * mx - s * my, y + s * mx + c * my, yaw + myaw
+        # The vehicle's (README "Frames"): z-up flips y and yaw (F = diag(1, -1, -1)), then (+) the
+        # inverse mount, whose Jacobian in its first argument is J1 again.
+        f = [[1, 0, 0], [0, -1, 0], [0, 0, -1]]
+        cov = mat(mat(f, cov), f)
+        b = invert(MOUNT)
+        c, s = math.cos(-yaw), math.sin(-yaw)
+        j1 = [[1, 0, -s * b[0] - c * b[1]], [0, 1, c * b[0] - s * b[1]], [0, 0, 1]]
+        cov = mat(mat(j1, cov), tr(j1))
+        x, y, yaw = vehicle_from_camera((x, y, yaw), MOUNT)
         got = last.pose.pose
         self.assertAlmostEqual(got.position.x, x, delta=1e-9)
         self.assertAlmostEqual(got.position.y, y, delta=1e-9)
+        self.assertAlmostEqual(2 * math.atan2(got.orientation.z, got.orientation.w), yaw, delta=1e-9)
         slots = (0, 1, 5)  # x, y, yaw of the 6 x 6 (x, y, z, roll, pitch, yaw)
         worst = max(abs(last.pose.covariance[6 * slots[i] + slots[j]] - cov[i][j]) for i in range(3) for j in range(3))
         scale = max(abs(v) for r in cov for v in r)
@@ -248,6 +261,10 @@ class FramesTest(unittest.TestCase):
         here = self.world[(1, index)]
         in_map0 = in_frame(self.world[(0, 0)], here)
         before = planar(self.buffer.lookup_transform("map", "base_link", rospy.Time(0), rospy.Duration(2.0)))
+        # The mount's static tf is there too: base_link -> camera_optical looks straight down.
+        optical = self.buffer.lookup_transform("base_link", "camera_optical", rospy.Time(0)).transform
+        self.assertAlmostEqual(optical.translation.x, MOUNT[0], delta=1e-9)
+        self.assertAlmostEqual(abs(optical.rotation.w) + abs(optical.rotation.z), 0.0, delta=1e-9)  # pi about a level axis
         # Before the join session 1 is a map of its own: base_link is far from its place in map 0.
         self.assertGreater(math.hypot(before[0] - in_map0[0], before[1] - in_map0[1]), 0.5)
         res = self.join(0, 1, 0)
@@ -267,4 +284,5 @@ class FramesTest(unittest.TestCase):
 
 if __name__ == "__main__":
     rospy.init_node("check_frames")
+    MOUNT = mount_of_params()
     rostest.rosrun("uw_multislam", "check_frames", FramesTest)

@@ -1,5 +1,6 @@
 """Shared by the rostests: the small two-session mission they replay, the tool lookup, and the
 waits for the pipeline's subscriptions."""
+import math
 import os
 import subprocess
 import tempfile
@@ -87,3 +88,27 @@ def appender(lock, store):
         with lock:
             store.append(msg)
     return callback
+
+
+def compose(a, b):
+    """Planar poses (x, y, yaw): a (+) b."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], math.remainder(a[2] + b[2], 2 * math.pi)
+
+
+def invert(a):
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return -c * a[0] - s * a[1], s * a[0] - c * a[1], -a[2]
+
+
+def mount_of_params():
+    """The camera's (x, y, yaw) in base_link from the pipeline's frames/ parameters."""
+    position = rospy.get_param(NS + "/frames/camera_position", [0.0, 0.0, 0.0])
+    return float(position[0]), float(position[1]), float(rospy.get_param(NS + "/frames/camera_yaw", 0.0))
+
+
+def vehicle_from_camera(p, mount=(0.0, 0.0, 0.0)):
+    """base_link's pose in a z-up frame from a camera pose in the core's (image axes, z into the
+    seabed; ground truth and offline_slam's files): (x, -y, -yaw) (+) (-)mount, as
+    core::vehicleFromCamera (README "Frames")."""
+    return compose((p[0], -p[1], -p[2]), invert(mount))

@@ -16,6 +16,7 @@
 #include "uw_multislam/SessionTrajectory.h"
 #include "uw_multislam/Status.h"
 #include "uw_multislam/core/backend/backend.h"
+#include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
@@ -49,7 +50,11 @@ std::vector<ros_diagnostics::Counter> managerCounters(const core::SessionManager
 nav_msgs::Path toPathMsg(const std::vector<core::Pose2>& poses, const std::vector<ros::Time>& stamps,
                          const std::string& frame_id, const ros::Time& fallback);
 
-/// One segment to draw: two keyframe positions in a map's frame.
+/// A session's keyframe poses in its map's frame as the vehicle's (z-up, base_link; the core's are
+/// the camera's: core/geometry/vehicle_frame.h), as every output in the map frame gives them.
+std::vector<core::Pose2> vehiclePoses(const core::SessionManager& manager, int id, const core::CameraMount& mount);
+
+/// One segment to draw: two vehicle positions in a map's frame.
 struct Segment {
   core::Pose2 a, b;
   enum class Kind { kLocal, kGlobal, kJoin } kind = Kind::kLocal;
@@ -58,15 +63,17 @@ struct Segment {
 /// map (else the lowest id) where it is, so that it agrees with tf and the pose; every other map
 /// after it in id order, shifted to start 1 m past the previous one's extent, so that maps that
 /// are not joined (not related) do not sit on top of each other in rviz.
-std::map<int, double> mapOffsets(const core::SessionManager& manager);
+std::map<int, double> mapOffsets(const core::SessionManager& manager, const core::CameraMount& mount);
 /// The segments to draw for a manager's state: its accepted loops inside a map, and its links,
 /// each map shifted by its offset (missing: 0).
-std::vector<Segment> loopSegments(const core::SessionManager& manager, const std::map<int, double>& offsets = {});
+std::vector<Segment> loopSegments(const core::SessionManager& manager, const core::CameraMount& mount,
+                                  const std::map<int, double>& offsets = {});
 /// rviz markers for any number of sessions: each session's keyframes as a LINE_STRIP (namespace
 /// "trajectories", id = session id, a colour of its own; the active session twice as wide) with a
 /// text label "session <id>" at its last keyframe (namespace "labels"), and a label "map <id>"
 /// over each shifted map (namespace "maps"), maps shifted by `offsets`, after a DELETEALL.
 visualization_msgs::MarkerArray toTrajectoryMarkersMsg(const core::SessionManager& manager,
+                                                       const core::CameraMount& mount,
                                                        const std::map<int, double>& offsets,
                                                        const std::string& frame_id, const ros::Time& stamp);
 /// A distinct, saturated colour for session `id` (hues spread by the golden ratio).

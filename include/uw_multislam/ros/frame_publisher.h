@@ -15,6 +15,12 @@
 //    odom <- base at t looked up in tf (retried on each tick until tf has it; failures counted).
 //  - map -> session_<id>: static transforms (latched; they change only when a map is optimised,
 //    joined or split), sent again when a correction changes.
+//  - base_link -> camera optical frame, base_link -> altimeter: static, from the frames/ mount
+//    parameters (frames/publish_mount_tf, the default), else the vehicle's tf gives them
+//    (ros/camera_mount.h).
+// The class takes the core's poses (the camera's, image axes) where it says so and publishes
+// REP-103 ones (z-up, base_link: core/geometry/vehicle_frame.h); odometry/pose comes in as the
+// vehicle's already (the odometry nodelet converts it).
 #pragma once
 
 #include <ros/ros.h>
@@ -30,6 +36,7 @@
 #include <string>
 
 #include "uw_multislam/core/session/odom_chain.h"
+#include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/topics.h"
 
 namespace uw_multislam {
@@ -43,6 +50,7 @@ struct FrameOptions {
   bool publish_session_frames = true;  // map -> session_<id>
   double tf_rate_hz = 20.0;            // map -> odom
   double tf_future_s = 0.0;            // its stamp: now + this
+  MountOptions mount;                  // frames/ camera and altimeter on the vehicle
 };
 
 struct FrameStats {
@@ -53,28 +61,38 @@ struct FrameStats {
 
 class FramePublisher {
  public:
-  /// Starts the timer on `nh` (steady: it runs while a bag is paused, and publishes nothing new then).
-  /// Rates and frames are checked by ros_params::backendNodeletOptions.
+  /// Resolves the camera mount (resolveCameraMount: may wait up to options.mount.wait_s for the
+  /// vehicle's tf; std::invalid_argument for a tilted camera), publishes it when it comes from the
+  /// parameters, and starts the timer on `nh` (steady: it runs while a bag is paused, and
+  /// publishes nothing new then). Rates and frames are checked by ros_params::backendNodeletOptions.
   FramePublisher(ros::NodeHandle nh, const FrameOptions& options);
   ~FramePublisher();  // stops the timer before anything it reads goes
   FramePublisher(const FramePublisher&) = delete;
   FramePublisher& operator=(const FramePublisher&) = delete;
 
   /// From the worker after each publication of the active session: its correction map <- session,
-  /// and its last keyframe's pose in the map with its stamp.
+  /// and its last keyframe's pose in the map with its stamp (the core's).
   void setActive(int session, const core::Pose2& map_from_session, const core::Pose2& map_from_last_keyframe,
                  const ros::Time& keyframe_stamp);
-  /// map -> session_<id> for these sessions; those that changed are sent, in one message.
+  /// map -> session_<id> for these sessions (the core's corrections); those that changed are sent, in one message.
   void setSessionFrames(const std::map<int, core::Pose2>& map_from_session);
-  /// An odometry pose (session frame): odom -> base_link when publishing it. Returns the pose in
-  /// the map (the active session's correction applied) or nullopt before any correction.
+  /// An odometry pose (the vehicle's, in the session's z-up frame): odom -> base_link when
+  /// publishing it. Returns the vehicle's pose in the map (the active session's correction
+  /// applied) or nullopt before any correction.
   std::optional<core::Pose2> onOdometry(int session, const core::Pose2& pose, const ros::Time& stamp);
+  /// The vehicle's pose (z-up, base_link) from a core pose of the camera.
+  core::Pose2 vehicle(const core::Pose2& camera) const { return core::vehicleFromCamera(camera, mount_); }
+  core::UncertainPose2 vehicle(const core::UncertainPose2& camera) const {
+    return core::vehicleFromCamera(camera, mount_);
+  }
+  const core::CameraMount& mount() const { return mount_; }
   FrameStats stats() const;
 
  private:
   void tick();
 
   FrameOptions options_;
+  core::CameraMount mount_;
   ros::SteadyTimer timer_;
   tf2_ros::TransformBroadcaster tf_;
   tf2_ros::StaticTransformBroadcaster static_tf_;

@@ -27,8 +27,8 @@ UncertainPose2 vehicleFromCamera(const UncertainPose2& camera, const CameraMount
 std::string describe(const CameraMount& mount) {
   char s[160];
   std::snprintf(s, sizeof(s), "camera at x %.3f m, y %.3f m, yaw %.1f deg in base_link, %.3f m above the altimeter",
-                mount.base_from_camera.x(), mount.base_from_camera.y(), mount.base_from_camera.yaw() * 57.29577951308232,
-                mount.camera_above_altimeter_m);
+                mount.base_from_camera.x(), mount.base_from_camera.y(),
+                mount.base_from_camera.yaw() * 57.29577951308232, mount.camera_above_altimeter_m);
   return s;
 }
 

@@ -96,6 +96,7 @@
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/frontend/stamp_guard.h"
 #include "uw_multislam/core/frontend/tracking.h"
+#include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/diagnostics.h"
@@ -179,6 +180,7 @@ class OdometryNodelet : public nodelet::Nodelet {
 
   OdometryNodeletOptions options_;
   core::SlamConfig config_;
+  core::CameraMount mount_;  // the altimeter's range + its camera_above_altimeter_m; odometry/pose is base_link's
 
   // FIFO between the callbacks and the worker (created once ~queue_size is known); its pushed()
   // count is the frames synchronised, popped() the frames the worker took.
