@@ -40,6 +40,9 @@ LAST_WITH_ALTITUDE = 54  # images 55..59 come after the last reading
 
 
 
+# altitude_by_stamp.test's mount: camera at z -0.10 m, altimeter at z -0.35 m in base_link.
+CAMERA_ABOVE_ALTIMETER_M = 0.25
+
 class AltitudeByStampTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
@@ -71,6 +74,7 @@ class AltitudeByStampTest(unittest.TestCase):
             cls.pubs[0].publish(image)
             cls.pubs[1].publish(info)
             if i % ALTITUDE_EVERY == 0:
+                altitude.range -= CAMERA_ABOVE_ALTIMETER_M  # the altimeter sits lower: its range is shorter
                 cls.pubs[2].publish(altitude)
                 cls.readings.append((altitude.header.stamp.to_sec(), altitude.range))
         cls.publish_s = time.time() - start
@@ -144,7 +148,9 @@ class AltitudeByStampTest(unittest.TestCase):
         between = 0
         for kf in self.kfs:
             stamp = kf.header.stamp.to_sec()
-            self.assertAlmostEqual(kf.altitude_m, self.interpolated(stamp), places=6, msg="keyframe at %.3f" % stamp)
+            # The camera's altitude: the altimeter's range plus the camera's height above it (the mount).
+            self.assertAlmostEqual(kf.altitude_m, self.interpolated(stamp) + CAMERA_ABOVE_ALTIMETER_M, places=6,
+                                   msg="keyframe at %.3f" % stamp)
             between += all(abs(stamp - t) > 1e-6 for t, _ in self.readings)
         self.assertGreater(between, 0, "no keyframe between two readings: the interpolation was not exercised")
 
