@@ -18,7 +18,7 @@ import time
 import roslib.packages
 import rospy
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import Pose2D, PoseStamped
+from geometry_msgs.msg import Pose2D, PoseStamped, PoseWithCovarianceStamped
 from uw_multislam.msg import Keyframe, Loop
 from uw_multislam.srv import ListSessions
 
@@ -81,7 +81,7 @@ def main():
         rospy.Subscriber(NS + "/pose", PoseStamped, on_pose, queue_size=1000)
         kf_pub = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=100000)
         loop_pub = rospy.Publisher(NS + "/loops", Loop, queue_size=100)
-        odo_pub = rospy.Publisher(NS + "/odometry/pose", PoseStamped, queue_size=100)
+        odo_pub = rospy.Publisher(NS + "/odometry/pose", PoseWithCovarianceStamped, queue_size=100)
         deadline = time.time() + 60
         while time.time() < deadline and (kf_pub.get_num_connections() == 0 or odo_pub.get_num_connections() == 0):
             time.sleep(0.1)
@@ -98,11 +98,11 @@ def main():
             period = 1.0 / args.rate
             nxt = time.monotonic()
             while not stop.is_set():
-                p = PoseStamped()
+                p = PoseWithCovarianceStamped()
                 p.header.stamp = rospy.Time.now()
                 p.header.frame_id = "session_0"
-                p.pose.position.x = 0.5 * (n - 1)
-                p.pose.orientation.w = 1.0
+                p.pose.pose.position.x = 0.5 * (n - 1)
+                p.pose.pose.orientation.w = 1.0
                 odo_pub.publish(p)
                 nxt += period
                 time.sleep(max(0.0, nxt - time.monotonic()))

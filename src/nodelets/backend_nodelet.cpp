@@ -236,8 +236,8 @@ void BackendNodelet::announceNextSession() {
   active_pub_.publish(st);
 }
 
-void BackendNodelet::onOdometryPose(const geometry_msgs::PoseStampedConstPtr& msg) {
-  core::Pose2 odo;
+void BackendNodelet::onOdometryPose(const geometry_msgs::PoseWithCovarianceStampedConstPtr& msg) {
+  core::UncertainPose2 odo;
   if (!rc::fromMsg(msg->pose, &odo)) return;
   const int session = rc::sessionOfFrame(msg->header.frame_id, options_.frames.session_frame_prefix);
   const std::optional<core::Pose2> in_map = frames_->onOdometry(session, odo, msg->header.stamp);  // never waits

@@ -3,7 +3,7 @@
 #include "uw_multislam/ros/nodelets/odometry_nodelet.h"
 
 #include <cv_bridge/cv_bridge.h>
-#include <geometry_msgs/PoseStamped.h>
+#include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <boost/bind/bind.hpp>
 
 #include <opencv2/features2d.hpp>
@@ -116,7 +116,7 @@ void OdometryNodelet::onInit() {
 
   ros::NodeHandle& nh = getNodeHandle();
   keyframe_pub_ = nh.advertise<uw_multislam::Keyframe>(topics::kKeyframes, 50);
-  pose_pub_ = nh.advertise<geometry_msgs::PoseStamped>(topics::kOdometryPose, 10);
+  pose_pub_ = nh.advertise<geometry_msgs::PoseWithCovarianceStamped>(topics::kOdometryPose, 10);
   it_ = std::make_unique<image_transport::ImageTransport>(nh);
   keyframe_image_pub_ = it_->advertise(topics::kKeyframeImage, 1);
 
@@ -445,11 +445,10 @@ void OdometryNodelet::process(const Frame& f) {
         u.index, config_.tracking.max_fallbacks, session_, config_.tracking.min_features, session_ + 1);
   }
 
-  auto pose = boost::make_shared<geometry_msgs::PoseStamped>();
-  pose->header.stamp = stamp;
-  pose->header.frame_id = options_.session_frame_prefix + std::to_string(session_);
-  pose->pose = rc::toPoseMsg(core::vehicleFromCamera(u.pose, mount_));  // base_link in the z-up session frame
-  pose_pub_.publish(pose);
+  // base_link in the z-up session frame, with the covariance of the motions since its first frame.
+  pose_pub_.publish(rc::toPoseWithCovarianceStampedMsg(
+      core::vehicleFromCamera(core::UncertainPose2(u.pose, u.covariance), mount_),
+      options_.session_frame_prefix + std::to_string(session_), stamp));
 }
 
 void OdometryNodelet::publishKeyframes(const Frame& f, const cv::Mat& image, const core::OdometryUpdate& u) {

@@ -125,5 +125,23 @@ bool fromMsg(const geometry_msgs::PoseWithCovariance& m, core::UncertainPose2* o
   return true;
 }
 
+nav_msgs::Odometry toOdometryMsg(const core::UncertainPose2& pose, const core::Pose2* previous, double dt_s,
+                                 const std::string& frame_id, const std::string& child_frame_id,
+                                 const ros::Time& stamp) {
+  nav_msgs::Odometry m;
+  m.header.stamp = stamp;
+  m.header.frame_id = frame_id;
+  m.child_frame_id = child_frame_id;
+  m.pose = toPoseWithCovarianceMsg(pose);
+  if (previous && dt_s > 0) {
+    const core::Pose2 step = core::between(*previous, pose.mean);  // in the previous base_link
+    m.twist.twist.linear.x = step.x() / dt_s;
+    m.twist.twist.linear.y = step.y() / dt_s;
+    m.twist.twist.angular.z = step.yaw() / dt_s;
+  }
+  for (int k = 0; k < 6; ++k) m.twist.covariance[7 * k] = kUnobservedVariance;
+  return m;
+}
+
 }  // namespace ros_conversions
 }  // namespace uw_multislam

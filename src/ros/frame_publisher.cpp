@@ -26,6 +26,7 @@ FramePublisher::FramePublisher(ros::NodeHandle nh, const FrameOptions& options) 
     listener_ = std::make_unique<tf2_ros::TransformListener>(*buffer_, nh);
   }
   window_start_ = ros::SteadyTime::now();
+  if (options_.publish_odom_tf) odom_pub_ = nh.advertise<nav_msgs::Odometry>(topics::kOdometry, 10);
   if (!options_.publish_tf) return;
   timer_ = nh.createSteadyTimer(ros::WallDuration(1.0 / options_.tf_rate_hz),
                                 [this](const ros::SteadyTimerEvent&) { tick(); });
@@ -61,21 +62,33 @@ void FramePublisher::setSessionFrames(const std::map<int, core::Pose2>& map_from
   if (!changed.empty()) static_tf_.sendTransform(changed);  // the broadcaster replaces them by child frame
 }
 
-std::optional<core::Pose2> FramePublisher::onOdometry(int session, const core::Pose2& pose, const ros::Time& stamp) {
+std::optional<core::Pose2> FramePublisher::onOdometry(int session, const core::UncertainPose2& pose,
+                                                       const ros::Time& stamp) {
   std::optional<core::Pose2> in_map;
   core::Pose2 in_odom;
+  nav_msgs::Odometry odom;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (session < 0) session = active_;  // a pose in a frame not named after a session
-    in_odom = chain_.toOdom(session, pose);
+    in_odom = chain_.toOdom(session, pose.mean);
     if (map_from_session_ && session == active_) {
-      in_map = core::compose(*map_from_session_, pose);
+      in_map = core::compose(*map_from_session_, pose.mean);
     } else if (options_.publish_odom_tf && map_from_odom_) {
       in_map = core::compose(*map_from_odom_, in_odom);  // a session the back-end has not seen yet
+    }
+    if (options_.publish_odom_tf) {
+      // odom <- base = (odom <- session, exact) (+) (session <- base): the covariance turns with the placement.
+      const core::UncertainPose2 u = core::compose(core::UncertainPose2::exact(*chain_.offset(session)), pose);
+      const bool later = last_odom_ && stamp > last_odom_->second;
+      odom = rc::toOdometryMsg(u, later ? &last_odom_->first : nullptr,
+                               later ? (stamp - last_odom_->second).toSec() : 0.0, options_.odom_frame,
+                               options_.base_frame, stamp);
+      last_odom_ = std::make_pair(in_odom, stamp);
     }
   }
   if (options_.publish_tf && options_.publish_odom_tf)
     tf_.sendTransform(rc::toTransformStampedMsg(in_odom, options_.odom_frame, options_.base_frame, stamp));
+  if (options_.publish_odom_tf) odom_pub_.publish(odom);
   return in_map;
 }
 

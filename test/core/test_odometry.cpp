@@ -259,6 +259,37 @@ TEST_F(OdometryTest, StraightRunDriftsLittleAndTakesKeyframesByOverlap) {
   EXPECT_GT(odo.stats().tracked, 10);
 }
 
+TEST_F(OdometryTest, EachFramesCovarianceIsTheChainsComposedToFirstOrder) {
+  // Keyframes: exactly Trajectory::absolute (an independent composition of all motions from the
+  // first); tracked frames: more than their keyframe's (one more motion), less than the next's
+  // would be without it, and never zero after the first frame.
+  Odometry odo(camera_, OdometryOptions());
+  double last_keyframe_trace = 0.0;
+  int tracked = 0;
+  for (int k = 0; k < 20; ++k) {
+    const Pose2 p(1.8 + 0.15 * k, 3.0 + 0.05 * k, 0.1 * std::sin(k * 0.4));
+    const OdometryUpdate u = odo.process({k, 0.5 * k, 2.0, render(p, 2.0)});
+    ASSERT_NE(u.status, FrameStatus::kSkipped) << u.reason;
+    if (k == 0) {
+      EXPECT_TRUE(u.covariance.isZero());
+      continue;
+    }
+    EXPECT_TRUE(checkCovariance(u.covariance).empty()) << u.covariance;
+    if (u.keyframe_id >= 0) {
+      const UncertainPose2 a = odo.trajectory().absolute(static_cast<std::size_t>(u.keyframe_id));
+      EXPECT_LT((u.covariance - a.covariance).cwiseAbs().maxCoeff(), 1e-12 * a.covariance.cwiseAbs().maxCoeff())
+          << "keyframe " << u.keyframe_id;
+      EXPECT_GT(u.covariance.trace(), last_keyframe_trace);
+      last_keyframe_trace = u.covariance.trace();
+    } else {
+      ++tracked;
+      EXPECT_GT(u.covariance.trace(), last_keyframe_trace) << "frame " << k;
+    }
+  }
+  EXPECT_GT(tracked, 5);
+  EXPECT_GE(odo.stats().keyframes, 3);
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam

@@ -132,6 +132,34 @@ TEST(Conversions, TransformMatchesPose) {
   EXPECT_FALSE(rc::fromMsg(broken, &back));
 }
 
+TEST(Conversions, OdometryCarriesThePoseCovarianceAndAFiniteDifferenceTwist) {
+  Eigen::Matrix3d p;
+  p << 0.04, 0.01, 0.002, 0.01, 0.09, -0.003, 0.002, -0.003, 0.01;
+  const UncertainPose2 now(Pose2(2.0, 1.0, 0.5), p);
+  // 0.5 s earlier the vehicle was 0.2 m behind along its heading, and turned 0.1 rad less.
+  const Pose2 before = core::compose(now.mean, core::invert(Pose2(0.2, 0.0, 0.1)));
+  const nav_msgs::Odometry m = rc::toOdometryMsg(now, &before, 0.5, "odom", "base_link", ros::Time(7.0));
+  EXPECT_EQ(m.header.frame_id, "odom");
+  EXPECT_EQ(m.child_frame_id, "base_link");
+  EXPECT_EQ(m.header.stamp, ros::Time(7.0));
+  UncertainPose2 back;
+  ASSERT_TRUE(rc::fromMsg(m.pose, &back));
+  EXPECT_TRUE(core::approxEqual(back.mean, now.mean, 1e-12, 1e-12));
+  EXPECT_EQ(back.covariance, p);
+  EXPECT_GE(m.pose.covariance[7 * 2], rc::kUnobservedVariance);  // z unknown
+  // The step in the earlier base_link: 0.2 m along x (rotated by the 0.1 rad turn), over 0.5 s.
+  const Pose2 step = core::between(before, now.mean);
+  EXPECT_NEAR(m.twist.twist.linear.x, step.x() / 0.5, 1e-12);
+  EXPECT_NEAR(m.twist.twist.linear.y, step.y() / 0.5, 1e-12);
+  EXPECT_NEAR(std::hypot(m.twist.twist.linear.x, m.twist.twist.linear.y), 0.4, 1e-12);
+  EXPECT_NEAR(m.twist.twist.angular.z, 0.2, 1e-12);
+  for (int k = 0; k < 6; ++k) EXPECT_EQ(m.twist.covariance[7 * k], rc::kUnobservedVariance);
+  // No earlier pose: no twist.
+  const nav_msgs::Odometry first = rc::toOdometryMsg(now, nullptr, 0.0, "odom", "base_link", ros::Time(7.0));
+  EXPECT_EQ(first.twist.twist.linear.x, 0.0);
+  EXPECT_EQ(first.twist.twist.angular.z, 0.0);
+}
+
 // --- The camera mount (ros/camera_mount.h) ---
 
 geometry_msgs::Transform transformOf(const Eigen::Vector3d& t, const Eigen::Matrix3d& r) {

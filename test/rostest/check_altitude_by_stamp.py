@@ -19,7 +19,7 @@ import rosbag
 import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from pipeline_fixture import NS, SENSOR_TOPICS, appender, diagnostic_values, make_mission, wait_for_subscribers
 from sensor_msgs.msg import CameraInfo, Image, Range
 from uw_multislam.msg import Keyframe
@@ -57,7 +57,8 @@ class AltitudeByStampTest(unittest.TestCase):
             with cls.lock:
                 cls.statuses.extend(s for s in msg.status if s.name.endswith(": odometry"))
 
-        cls.subs = [rospy.Subscriber(NS + "/odometry/pose", PoseStamped, appender(cls.lock, cls.poses), queue_size=1000),
+        cls.subs = [rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, appender(cls.lock, cls.poses),
+                                     queue_size=1000),
                     rospy.Subscriber(NS + "/keyframes", Keyframe, appender(cls.lock, cls.keyframes), queue_size=1000),
                     rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
         cls.pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(SENSOR_TOPICS, (Image, CameraInfo, Range))]

@@ -32,7 +32,7 @@ import rostest
 from pipeline_fixture import NS, appender, diagnostic_values, make_mission
 import rosnode
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from sensor_msgs.msg import CameraInfo, Image, Range
 from uw_multislam.msg import Keyframe
 
@@ -70,7 +70,8 @@ class BadInputTest(unittest.TestCase):
                     elif s.name.endswith(": loop_detector"):
                         cls.loop_statuses.append(s)
 
-        cls.subs = [rospy.Subscriber(NS + "/odometry/pose", PoseStamped, appender(cls.lock, cls.poses), queue_size=1000),
+        cls.subs = [rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, appender(cls.lock, cls.poses),
+                                     queue_size=1000),
                     rospy.Subscriber(NS + "/keyframes", Keyframe, appender(cls.lock, cls.keyframes), queue_size=1000),
                     rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
         cls.pubs = [rospy.Publisher("/camera/image_raw", Image, queue_size=100),

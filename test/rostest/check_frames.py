@@ -33,8 +33,8 @@ import rostest
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
-from pipeline_fixture import (NS, SENSOR_TOPICS, appender, compose, invert, make_mission, mount_of_params,
-                              vehicle_from_camera, wait_for_subscribers)
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, chain_covariance, compose, invert, make_mission, matmul3,
+                              mount_of_params, transpose3, vehicle_from_camera, wait_for_subscribers)
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image
 from tf2_msgs.msg import TFMessage
@@ -217,22 +217,13 @@ class FramesTest(unittest.TestCase):
         poses = trajectory.poses
         covariances = {k.keyframe: [list(k.motion_covariance[3 * r:3 * r + 3]) for r in range(3)] for k in keyframes}
         self.assertEqual(sorted(covariances), list(range(len(poses))))
-        # First-order composition, written out: x_k = x_{k-1} (+) m_k, P_k = J1 P J1' + J2 C_k J2'.
-        x, y, yaw = 0.0, 0.0, 0.0
-        cov = [[0.0] * 3 for _ in range(3)]
-        mat = lambda a, b: [[sum(a[i][k] * b[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
-        tr = lambda a: [list(r) for r in zip(*a)]
-        for k in range(1, len(poses)):
-            a, b = poses[k - 1], poses[k]
-            ca, sa = math.cos(a.theta), math.sin(a.theta)
-            mx, my = ca * (b.x - a.x) + sa * (b.y - a.y), -sa * (b.x - a.x) + ca * (b.y - a.y)
-            myaw = math.atan2(math.sin(b.theta - a.theta), math.cos(b.theta - a.theta))
-            c, s = math.cos(yaw), math.sin(yaw)
-            j1 = [[1, 0, -s * mx - c * my], [0, 1, c * mx - s * my], [0, 0, 1]]
-            j2 = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
-            p1, p2 = mat(mat(j1, cov), tr(j1)), mat(mat(j2, covariances[k]), tr(j2))
-            cov = [[p1[i][j] + p2[i][j] for j in range(3)] for i in range(3)]
-            x, y, yaw = x + c * mx - s * my, y + s * mx + c * my, yaw + myaw
+        # First-order composition, written out (pipeline_fixture.chain_covariance); the session's
+        # frame is its first keyframe's, so the last pose in it is the composed mean.
+        self.assertEqual((poses[0].x, poses[0].y, poses[0].theta), (0.0, 0.0, 0.0))
+        cov = chain_covariance([(p.x, p.y, p.theta) for p in poses],
+                               [covariances.get(k) for k in range(len(poses))])
+        x, y, yaw = poses[-1].x, poses[-1].y, poses[-1].theta
+        mat, tr = matmul3, transpose3
         # The vehicle's (README "Frames"): z-up flips y and yaw (F = diag(1, -1, -1)), then (+) the
         # inverse mount, whose Jacobian in its first argument is J1 again.
         f = [[1, 0, 0], [0, -1, 0], [0, 0, -1]]

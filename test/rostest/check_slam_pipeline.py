@@ -23,10 +23,11 @@ import unittest
 import rosgraph
 import rospy
 import rostest
-from pipeline_fixture import (NS, SENSOR_TOPICS, SURVEY, make_mission, tool, vehicle_from_camera, wait_for_subscribers,
-                              wait_until_quiet)
+from pipeline_fixture import (NS, SENSOR_TOPICS, SURVEY, chain_covariance, make_mission, matmul3, planar_covariance,
+                              tool, vehicle_from_camera, wait_for_subscribers, wait_until_quiet)
 import rosnode
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path
 from uw_multislam.srv import ListSessions
 from sensor_msgs.msg import CameraInfo, Image, Range
@@ -71,7 +72,7 @@ class SlamPipelineTest(unittest.TestCase):
         cls.expected_links = read_csv(os.path.join(run, "links.csv"))
 
         cls.lock = threading.Lock()
-        cls.keyframes, cls.loops, cls.hashes, cls.poses = [], [], [], []
+        cls.keyframes, cls.loops, cls.hashes, cls.poses, cls.odoms = [], [], [], [], []
         cls.last_message = time.time()
 
         def keep(store):
@@ -84,7 +85,9 @@ class SlamPipelineTest(unittest.TestCase):
         cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, keep(cls.keyframes), queue_size=1000),
                     rospy.Subscriber(NS + "/loops", Loop, keep(cls.loops), queue_size=1000),
                     rospy.Subscriber(NS + "/keyframe_hashes", KeyframeHash, keep(cls.hashes), queue_size=1000),
-                    rospy.Subscriber(NS + "/odometry/pose", PoseStamped, keep(cls.poses), queue_size=1000)]
+                    rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, keep(cls.poses),
+                                     queue_size=1000),
+                    rospy.Subscriber(NS + "/odom", Odometry, keep(cls.odoms), queue_size=1000)]
         wait_for_subscribers(SENSOR_TOPICS + [NS + "/keyframes"], "/check_slam_pipeline")
         for bag in cls.bags:
             subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", str(PLAY_RATE), bag, "--topics",
@@ -102,6 +105,46 @@ class SlamPipelineTest(unittest.TestCase):
         for g, e in zip(got, self.expected_keyframes):
             self.assertAlmostEqual(g[2], e[2], delta=TOLERANCE, msg="x of keyframe %s" % (g[:2],))
             self.assertAlmostEqual(g[3], e[3], delta=TOLERANCE, msg="y of keyframe %s" % (g[:2],))
+
+    def test_odometry_covariances_are_the_cores(self):
+        """odometry/pose at each keyframe: the keyframes' motion covariances composed (written out in
+        Python), turned z-up (F = diag(1, -1, -1), the default mount). odom (nav_msgs/Odometry) at the
+        same stamp: that pose placed in the odom frame, where session 0 is odom's origin and later
+        sessions are rotated in (the covariance keeps its trace and determinant)."""
+        poses = {p.header.stamp: p for p in self.poses}
+        odoms = {o.header.stamp: o for o in self.odoms}
+        f = [[1, 0, 0], [0, -1, 0], [0, 0, -1]]
+        checked = 0
+        for session in (0, 1):
+            kfs = [k for k in self.keyframes if k.session == session]
+            chain = [(k.odometry_pose.x, k.odometry_pose.y, k.odometry_pose.theta) for k in kfs]
+            covs = [[list(k.motion_covariance[3 * r:3 * r + 3]) for r in range(3)] for k in kfs]
+            for n in range(2, len(kfs) + 1):
+                expected = matmul3(matmul3(f, chain_covariance(chain[:n], covs[:n])), f)
+                pose = poses.get(kfs[n - 1].header.stamp)
+                if pose is None:
+                    continue  # not every pose message need arrive (queue), most do
+                got = planar_covariance(pose.pose.covariance)
+                scale = max(abs(v) for r in expected for v in r)
+                for i in range(3):
+                    for j in range(3):
+                        self.assertAlmostEqual(got[i][j], expected[i][j], delta=1e-9 * scale,
+                                               msg="odometry/pose covariance, session %d keyframe %d" % (session, n - 1))
+                odom = odoms.get(kfs[n - 1].header.stamp)
+                self.assertIsNotNone(odom, "no odom message at keyframe %d of session %d" % (n - 1, session))
+                self.assertEqual((odom.header.frame_id, odom.child_frame_id), ("odom", "base_link"))
+                o = planar_covariance(odom.pose.covariance)
+                if session == 0:
+                    self.assertAlmostEqual(odom.pose.pose.position.x, pose.pose.pose.position.x, delta=1e-9)
+                    self.assertAlmostEqual(odom.pose.pose.position.y, pose.pose.pose.position.y, delta=1e-9)
+                    self.assertEqual(o, got)
+                self.assertAlmostEqual(o[0][0] + o[1][1], got[0][0] + got[1][1], delta=1e-9 * scale)
+                self.assertAlmostEqual(o[0][0] * o[1][1] - o[0][1] ** 2, got[0][0] * got[1][1] - got[0][1] ** 2,
+                                       delta=1e-9 * scale * scale)
+                self.assertAlmostEqual(o[2][2], got[2][2], delta=1e-12 * scale)
+                checked += 1
+        print("odometry/pose and odom covariances checked at %d keyframes" % checked)
+        self.assertGreater(checked, 15)
 
     def test_loop_measurements_match_offline_slam(self):
         """Each loop's measured pose of b in a and its covariance, as offline_slam measured them."""

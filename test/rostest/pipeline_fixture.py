@@ -112,3 +112,36 @@ def vehicle_from_camera(p, mount=(0.0, 0.0, 0.0)):
     seabed; ground truth and offline_slam's files): (x, -y, -yaw) (+) (-)mount, as
     core::vehicleFromCamera (README "Frames")."""
     return compose((p[0], -p[1], -p[2]), invert(mount))
+
+
+def matmul3(a, b):
+    return [[sum(a[i][k] * b[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+
+
+def transpose3(a):
+    return [list(r) for r in zip(*a)]
+
+
+def chain_covariance(poses, covariances):
+    """The last pose's covariance in the first one's frame, the motions between consecutive
+    `poses` (x, y, yaw) with covariances[k] (3x3 lists, k >= 1) composed to first order, written
+    out: x_k = x_{k-1} (+) m_k, P_k = J1 P J1' + J2 C_k J2'."""
+    yaw = 0.0
+    cov = [[0.0] * 3 for _ in range(3)]
+    for k in range(1, len(poses)):
+        a, b = poses[k - 1], poses[k]
+        ca, sa = math.cos(a[2]), math.sin(a[2])
+        mx, my = ca * (b[0] - a[0]) + sa * (b[1] - a[1]), -sa * (b[0] - a[0]) + ca * (b[1] - a[1])
+        c, s = math.cos(yaw), math.sin(yaw)
+        j1 = [[1, 0, -s * mx - c * my], [0, 1, c * mx - s * my], [0, 0, 1]]
+        j2 = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+        p1, p2 = matmul3(matmul3(j1, cov), transpose3(j1)), matmul3(matmul3(j2, covariances[k]), transpose3(j2))
+        cov = [[p1[i][j] + p2[i][j] for j in range(3)] for i in range(3)]
+        yaw += math.atan2(math.sin(b[2] - a[2]), math.cos(b[2] - a[2]))
+    return cov
+
+
+def planar_covariance(msg_covariance):
+    """The (x, y, yaw) block of a 6x6 row-major ROS covariance."""
+    slots = (0, 1, 5)
+    return [[msg_covariance[6 * slots[i] + slots[j]] for j in range(3)] for i in range(3)]

@@ -8,6 +8,7 @@
 #include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <geometry_msgs/Transform.h>
 #include <geometry_msgs/TransformStamped.h>
+#include <nav_msgs/Odometry.h>
 #include <ros/time.h>
 
 #include <string>
@@ -46,6 +47,14 @@ geometry_msgs::PoseWithCovarianceStamped toPoseWithCovarianceStampedMsg(const co
                                                                         const ros::Time& stamp);
 /// The (x, y, yaw) part; false for non-finite input or an invalid covariance.
 bool fromMsg(const geometry_msgs::PoseWithCovariance& m, core::UncertainPose2* out);
+
+/// nav_msgs/Odometry: `pose` in `frame_id` with its covariance (as toPoseWithCovarianceMsg), child
+/// `child_frame_id`. The twist (in the child frame) is the motion from `previous` over `dt_s`
+/// (x, y, yaw rates) when previous is given and dt_s > 0, else zero; it is a finite difference,
+/// not an estimate: its covariance says unknown (kUnobservedVariance on the diagonal).
+nav_msgs::Odometry toOdometryMsg(const core::UncertainPose2& pose, const core::Pose2* previous, double dt_s,
+                                 const std::string& frame_id, const std::string& child_frame_id,
+                                 const ros::Time& stamp);
 
 }  // namespace ros_conversions
 }  // namespace uw_multislam

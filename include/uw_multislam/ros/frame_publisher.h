@@ -76,10 +76,12 @@ class FramePublisher {
                  const ros::Time& keyframe_stamp);
   /// map -> session_<id> for these sessions (the core's corrections); those that changed are sent, in one message.
   void setSessionFrames(const std::map<int, core::Pose2>& map_from_session);
-  /// An odometry pose (the vehicle's, in the session's z-up frame): odom -> base_link when
-  /// publishing it. Returns the vehicle's pose in the map (the active session's correction
-  /// applied) or nullopt before any correction.
-  std::optional<core::Pose2> onOdometry(int session, const core::Pose2& pose, const ros::Time& stamp);
+  /// An odometry pose (the vehicle's, in the session's z-up frame, with its covariance): with
+  /// publish_odom_tf, odom -> base_link and the odom topic (nav_msgs/Odometry: the pose in odom,
+  /// its covariance carried through the session's placement; the twist from the last pose).
+  /// Returns the vehicle's pose in the map (the active session's correction applied) or nullopt
+  /// before any correction.
+  std::optional<core::Pose2> onOdometry(int session, const core::UncertainPose2& pose, const ros::Time& stamp);
   /// The vehicle's pose (z-up, base_link) from a core pose of the camera.
   core::Pose2 vehicle(const core::Pose2& camera) const { return core::vehicleFromCamera(camera, mount_); }
   core::UncertainPose2 vehicle(const core::UncertainPose2& camera) const {
@@ -96,6 +98,7 @@ class FramePublisher {
   ros::SteadyTimer timer_;
   tf2_ros::TransformBroadcaster tf_;
   tf2_ros::StaticTransformBroadcaster static_tf_;
+  ros::Publisher odom_pub_;  // topics::kOdometry, with publish_odom_tf
   std::unique_ptr<tf2_ros::Buffer> buffer_;  // vehicle odometry only
   std::unique_ptr<tf2_ros::TransformListener> listener_;
 
@@ -106,6 +109,7 @@ class FramePublisher {
   std::optional<std::pair<core::Pose2, ros::Time>> keyframe_;  // vehicle odometry: waiting for its lookup
   std::optional<core::Pose2> map_from_odom_;
   std::optional<core::Pose2> sent_;  // map_from_odom_ as last published
+  std::optional<std::pair<core::Pose2, ros::Time>> last_odom_;  // for the twist
   ros::Time last_stamp_;
   std::map<int, core::Pose2> session_frames_;
   FrameStats stats_;

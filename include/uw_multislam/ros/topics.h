@@ -27,9 +27,13 @@ constexpr char kKeyframes[] = "keyframes";
 /// Default of frames/session_frame_prefix: session `id`'s frame is "<prefix><id>" (ros_params::
 /// sessionFramePrefix reads it for every nodelet).
 constexpr char kDefaultSessionFramePrefix[] = "session_";
-/// geometry_msgs/PoseStamped: the odometry-only pose of the latest frame in its session's frame
-/// (odometry nodelet; frame_id = frames/session_frame_prefix + session id).
+/// geometry_msgs/PoseWithCovarianceStamped: the odometry-only pose of the latest frame (base_link)
+/// in its session's z-up frame with its covariance (odometry nodelet; frame_id =
+/// frames/session_frame_prefix + session id).
 constexpr char kOdometryPose[] = "odometry/pose";
+/// nav_msgs/Odometry (back-end, while it publishes odom -> base_link): the visual odometry in
+/// the continuous odom frame, child base_link, with the pose covariance of odometry/pose.
+constexpr char kOdometry[] = "odom";
 /// sensor_msgs/Image: the latest keyframe's image with its features drawn (odometry nodelet,
 /// only while someone subscribes).
 constexpr char kKeyframeImage[] = "odometry/keyframe_image";
@@ -58,7 +62,7 @@ constexpr char kTrajectoryMarkers[] = "trajectory_markers";
 /// uw_multislam/Keyframe: the keyframes of a session reload_session brought back from the session
 /// store (back-end), for the loop detector(s) to store as candidates without searching.
 constexpr char kReloadedKeyframes[] = "reloaded_keyframes";
-/// geometry_msgs/PoseStamped: the current camera pose in the map frame (back-end: the odometry
+/// geometry_msgs/PoseStamped: the current base_link pose in the map frame (back-end: the odometry
 /// pose corrected by the active session's optimisation).
 constexpr char kCurrentPose[] = "pose";
 /// geometry_msgs/PoseWithCovarianceStamped (back-end): the active session's last keyframe in the

@@ -101,6 +101,8 @@ bool Odometry::needsKeyframe(const RansacResult& r, double overlap, double stamp
 }
 
 void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback) {
+  // Incremental: Trajectory::absolute(k) would compose all k motions again at every frame.
+  last_kf_covariance_ = compose(UncertainPose2(trajectory_.absolutePoses().back(), last_kf_covariance_), motion).covariance;
   trajectory_.append(motion);
   new_keyframes_.push_back({static_cast<int>(keyframes_.size()), frame.features});
   keyframes_.push_back({frame.index, frame.stamp_s, frame.altitude_m, fallback});
@@ -186,6 +188,7 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
     up.inliers = static_cast<int>(m.ransac.inliers.size());
     up.scale = m.ransac.scale;
     up.overlap = footprintOverlap(m.ransac.motion, last_kf_.altitude_m, alt);
+    up.covariance = compose(UncertainPose2(last_kf_.pose, last_kf_covariance_), cur.motion).covariance;
     if (needsKeyframe(m.ransac, up.overlap, cur.stamp_s)) {
       addKeyframe(cur, cur.motion, false);
       up.status = FrameStatus::kKeyframe;
@@ -201,6 +204,7 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
     const double sxy = std::max(f.min_sigma_m, f.relative_sigma * last_step_.translation().norm());
     const Eigen::Matrix3d cov = Eigen::Vector3d(sxy * sxy, sxy * sxy, f.sigma_yaw_rad * f.sigma_yaw_rad).asDiagonal();
     addKeyframe(cur, UncertainPose2(between(last_kf_.pose, cur.pose), cov), true);
+    up.covariance = last_kf_covariance_;
     ++stats_.fallbacks;
     up.status = FrameStatus::kFallback;
     up.reason = m.ransac.failure;

@@ -92,6 +92,9 @@ struct OdometryUpdate {
   FrameStatus status = FrameStatus::kSkipped;
   std::string reason;    // why skipped / why a fallback
   Pose2 pose;            // the frame's pose in the session frame (when not skipped)
+  /// Its covariance: the motions since the session's first frame composed to first order (the
+  /// keyframes' chain, then this frame's motion from the last keyframe), as Trajectory::absolute.
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
   int keyframe_id = -1;  // new keyframe's id (trajectory index) when one was made
   int features = 0;
   int matches = 0;
@@ -160,6 +163,7 @@ class Odometry {
   Trajectory trajectory_;
   std::vector<KeyframeInfo> keyframes_;
   TrackedFrame last_kf_;
+  Eigen::Matrix3d last_kf_covariance_ = Eigen::Matrix3d::Zero();  // of last_kf_.pose, kept as keyframes are added
   TrackedFrame prev_;            // the last frame processed (tracked or keyframe)
   Pose2 last_step_;              // frame-to-frame motion of the last successful step
   double last_altitude_ = -1.0;  // last valid altitude

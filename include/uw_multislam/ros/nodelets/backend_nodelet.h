@@ -6,14 +6,16 @@
 // Inputs:  keyframes (uw_multislam/Keyframe, odometry nodelet): each keyframe's motion from the
 //            previous one; a new session id starts a session (the previous one stops recording)
 //          loops (uw_multislam/Loop, loop detector nodelet(s)), local and global
-//          odometry/pose (geometry_msgs/PoseStamped, odometry nodelet): for tf and the current pose
+//          odometry/pose (geometry_msgs/PoseWithCovarianceStamped, odometry nodelet): for tf, odom
+//            and the current pose
 // Outputs: session_trajectory (uw_multislam/SessionTrajectory): a session's optimised poses in its
 //            own frame, for the loop detector's local candidates
 //          paths/session_<id> (nav_msgs/Path, latched): each session's keyframes in its map's frame
 //          loop_markers (visualization_msgs/MarkerArray, latched): loops and joins
 //          trajectory_markers (visualization_msgs/MarkerArray, latched, built while subscribed):
 //            every session in its own colour, labelled; maps not joined drawn side by side
-//          pose (geometry_msgs/PoseStamped): the current camera pose in the map frame
+//          pose (geometry_msgs/PoseStamped): the current base_link pose in the map frame
+//          odom (nav_msgs/Odometry, with ~publish_odom_tf): the visual odometry in odom
 //          keyframe_pose (geometry_msgs/PoseWithCovarianceStamped): the active session's last
 //            keyframe in the map frame with its covariance, for a robot_localization EKF
 //          active_session (uw_multislam/SessionState, latched): set by start_session
@@ -54,6 +56,7 @@
 
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <geometry_msgs/PoseStamped.h>
+#include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
 
@@ -106,7 +109,7 @@ class BackendNodelet : public nodelet::Nodelet {
   /// Its path, trajectory and (active) pose and tf; returns its correction map <- session.
   core::Pose2 publishSession(int id);
   void announceNextSession();
-  void onOdometryPose(const geometry_msgs::PoseStampedConstPtr& msg);
+  void onOdometryPose(const geometry_msgs::PoseWithCovarianceStampedConstPtr& msg);
   bool onJoin(uw_multislam::JoinSessions::Request& req, uw_multislam::JoinSessions::Response& res);
   bool onSplit(uw_multislam::SplitSession::Request& req, uw_multislam::SplitSession::Response& res);
   bool onList(uw_multislam::ListSessions::Request& req, uw_multislam::ListSessions::Response& res);

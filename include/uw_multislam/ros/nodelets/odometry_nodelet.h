@@ -26,7 +26,8 @@
 // Outputs:
 //   keyframes                uw_multislam/Keyframe, each new keyframe with its features and its
 //                            hash (computed here once, with the slam/loops/global hash options)
-//   odometry/pose            geometry_msgs/PoseStamped, each processed frame, session frame
+//   odometry/pose            geometry_msgs/PoseWithCovarianceStamped, each processed frame: base_link
+//                            in the session's z-up frame, the covariance of the motions composed
 //   odometry/keyframe_image  the new keyframe's image with its features (only when subscribed)
 //
 // Threading model: the image, camera_info and altitude callbacks (any of the manager's threads)
