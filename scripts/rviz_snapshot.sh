@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Checks that rviz renders the SLAM outputs: generates the demo survey, replays both bags through
-# replay.launch with rviz:=true inside a virtual X server (xvfb-run), and once the bags have played
-# takes a screenshot of the screen (ImageMagick's import) into a PNG.
+# Checks that rviz renders the SLAM outputs for any number of sessions: generates the six-session
+# mission (config/missions/six_sessions.yaml: three maps once the joins are made), replays its six
+# bags through replay.launch with rviz:=true inside a virtual X server (xvfb-run), and once the
+# bags have played takes a screenshot of the screen (ImageMagick's import) into a PNG.
 #
 #   bash scripts/rviz_snapshot.sh [OUT.png]     # default <repo>/out/rviz/rviz_demo.png
 #
@@ -27,8 +28,10 @@ set +u
 source "$UWMS_WS/devel/setup.bash"
 set -u
 mkdir -p "$work" "$(dirname "$png")"
-echo "[rviz_snapshot] generating the demo survey into $work/survey (display $DISPLAY)"
-"$bin/make_survey" --preset demo --out "$work/survey" --quiet
+echo "[rviz_snapshot] generating the six-session mission into $work/survey (display $DISPLAY)"
+rm -rf "$work/survey"
+"$bin/make_survey" --config "$UWMS_REPO/config/missions/six_sessions.yaml" --out "$work/survey" --quiet
+bags=$(for s in 0 1 2 3 4 5; do printf '%s ' "$work/survey/s$s.bag"; done)
 
 port=$(/usr/bin/python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 export ROS_MASTER_URI="http://127.0.0.1:$port" ROS_HOSTNAME=127.0.0.1
@@ -49,10 +52,10 @@ trap 'exit 130' INT
 trap 'exit 143' TERM
 
 # roslaunch starts the master (port above), the nodelets, rosbag play and rviz; playing waits for
-# the odometry to subscribe, and skip-empty jumps over the day between the two missions.
+# the odometry to subscribe, and skip-empty jumps over the day between the missions.
 echo "[rviz_snapshot] replay.launch with rviz, rate $rate"
 roslaunch -p "$port" uw_multislam replay.launch rviz:=true rate:="$rate" delay:=5 \
-  bag:="$work/survey/s0.bag $work/survey/s1.bag" \
+  bag:="${bags% }" \
   play_args:="-q --skip-empty=5 --wait-for-subscribers --topics /camera/image_raw /camera/camera_info /altitude" \
   >"$work/launch.log" 2>&1 &
 launch_pid=$!

@@ -178,7 +178,7 @@ visualization_msgs::MarkerArray toTrajectoryMarkersMsg(const core::SessionManage
     if (line.points.size() == 1) line.points.push_back(line.points.front());  // a LINE_STRIP needs two
     visualization_msgs::Marker label = marker("labels", id, visualization_msgs::Marker::TEXT_VIEW_FACING);
     label.pose.position = line.points.back();
-    label.scale.z = 0.25;
+    label.scale.z = 0.5;
     label.color = line.color;
     label.text = "session " + std::to_string(id);
     out.markers.push_back(line);
@@ -187,8 +187,8 @@ visualization_msgs::MarkerArray toTrajectoryMarkersMsg(const core::SessionManage
   for (const auto& [map, tl] : top_left) {
     visualization_msgs::Marker label = marker("maps", map, visualization_msgs::Marker::TEXT_VIEW_FACING);
     label.pose.position.x = tl.first;
-    label.pose.position.y = tl.second - 0.5;
-    label.scale.z = 0.35;
+    label.pose.position.y = tl.second - 0.8;
+    label.scale.z = 0.6;
     label.color.r = label.color.g = label.color.b = label.color.a = 1.0f;
     label.text = "map " + std::to_string(map) + " (not joined; drawn shifted)";
     out.markers.push_back(label);
