@@ -7,6 +7,7 @@ PACKAGES=(
   build-essential cmake git
   catkin ros-core-dev libroscpp-dev libnodeletlib-dev libnodeletlib-tools
   libtf2-ros-dev libtf2-geometry-msgs-dev libimage-transport-dev libcv-bridge-dev
+  libimage-geometry-dev libcamera-calibration-parsers-dev libroslib-dev
   libmessage-filters-dev librosbag-dev python3-rosbag
   ros-message-generation ros-message-runtime ros-std-msgs ros-sensor-msgs ros-nav-msgs ros-geometry-msgs
   ros-visualization-msgs ros-diagnostic-msgs libdiagnostic-updater-dev python3-diagnostic-msgs

@@ -75,6 +75,20 @@ void OdometryNodelet::readParameters() {
       pnh, "fallback_altitude", 0.0, [](double v) { return std::isfinite(v) && v >= 0; }, ">= 0 metres (0 = off)");
   options_.diagnostic_period_s = param(
       pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
+  options_.rectified_images = param(
+      pnh, "rectified_images", false, [](bool) { return true; }, "a bool");
+  options_.camera_info_url = param(
+      pnh, "camera_info_url", std::string(), [](const std::string&) { return true; }, "");
+  if (!options_.camera_info_url.empty()) {
+    auto info = boost::make_shared<sensor_msgs::CameraInfo>();
+    core::CameraIntrinsics camera;
+    std::string why;
+    if (!rc::cameraInfoFromUrl(options_.camera_info_url, info.get(), &why) ||
+        !rc::cameraFromMsg(*info, options_.rectified_images, &camera, &why)) {
+      throw std::invalid_argument(pnh.resolveName("camera_info_url") + ": " + why);
+    }
+    fallback_info_ = info;
+  }
   options_.session_frame_prefix = ros_params::sessionFramePrefix(getNodeHandle());
   config_ = ros_params::slamConfigFromParams(getNodeHandle());
   const std::string bad = config_.validate();
@@ -107,6 +121,10 @@ void OdometryNodelet::onInit() {
       o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off", o.stats_period_s,
       o.diagnostic_period_s, config_.odometry.features.num_features,
       core::enhancementName(config_.odometry.enhancement.mode).c_str(), config_.odometry.keyframes.min_overlap);
+  NODELET_INFO("odometry: camera from camera_info, %s%s%s",
+               o.rectified_images ? "rectified images (P)" : "raw images (K, D)",
+               o.camera_info_url.empty() ? "" : "; while none arrives, from ~camera_info_url ",
+               o.camera_info_url.c_str());
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config_));
   session_ = o.session;
   const auto& g = config_.loops.global;
@@ -209,6 +227,11 @@ bool OdometryNodelet::cameraInfoAt(double stamp_s, bool final_answer, sensor_msg
     const double d = std::abs(t - stamp_s);
     if (d <= options_.sync_max_interval_s && d <= best) best = d, *info = i;  // the latest of equals
   }
+  // No camera_info ever: the calibration of ~camera_info_url, once an image has waited its longest.
+  if (!*info && fallback_info_ && infos_in_ == 0 && (final_answer || fallback_in_use_)) {
+    *info = fallback_info_;
+    return true;
+  }
   // Without a candidate yet, a later camera_info does not settle it: the image's own may come late.
   return final_answer || best == 0.0 || (later && *info);
 }
@@ -229,6 +252,11 @@ void OdometryNodelet::pairPending(double now) {
       if (altitude.status == core::AltitudeStatus::kPending) return;
     }
     pending_.pop_front();
+    if (f.info && f.info == fallback_info_ && !fallback_in_use_) {
+      fallback_in_use_ = true;
+      NODELET_WARN("odometry: no camera_info on %s: images use the calibration of ~camera_info_url %s",
+                   info_sub_.getTopic().c_str(), options_.camera_info_url.c_str());
+    }
     if (!f.info) {
       ++no_camera_info_;
       NODELET_WARN_THROTTLE(5,
@@ -306,23 +334,21 @@ void OdometryNodelet::startSession(int id, const core::CameraIntrinsics& camera,
   session_ = id;
   frame_index_ = 0;
   ++counts_.sessions;
-  NODELET_INFO("odometry: session %d starts (%s), camera %dx%d fx %.1f fy %.1f", id, why.c_str(), camera.width,
-               camera.height, camera.fx, camera.fy);
+  std::ostringstream d;
+  for (double k : camera.distortion) d << " " << k;
+  NODELET_INFO("odometry: session %d starts (%s), camera %dx%d fx %.1f fy %.1f cx %.1f cy %.1f, distortion %s%s", id,
+               why.c_str(), camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
+               core::distortionModelName(camera.distortion_model).c_str(), d.str().c_str());
 }
 
 void OdometryNodelet::process(const Frame& f) {
   ++counts_.frames;
   std::string why;
   core::CameraIntrinsics camera;
-  bool distorted = false;
-  if (!rc::cameraFromMsg(*f.info, &camera, &distorted, &why)) {
+  if (!rc::cameraFromMsg(*f.info, options_.rectified_images, &camera, &why)) {
     ++counts_.bad_camera;
     NODELET_WARN_THROTTLE(5, "odometry: frame skipped: %s (%ld so far)", why.c_str(), counts_.bad_camera);
     return;
-  }
-  if (distorted && !warned_distortion_) {
-    NODELET_WARN("odometry: camera_info has distortion coefficients; they are ignored (rectify the images first)");
-    warned_distortion_ = true;
   }
   cv::Mat image;
   rc::ImageRefusal refusal = rc::ImageRefusal::kNone;
@@ -412,9 +438,7 @@ void OdometryNodelet::process(const Frame& f) {
     startSession(session_ + 1, camera,
                  "image stamps jumped by " + std::to_string((stamp - last_stamp_).toSec()) + " s");
   } else {
-    const core::CameraIntrinsics& c = camera_;
-    if (c.width != camera.width || c.height != camera.height || c.fx != camera.fx || c.fy != camera.fy ||
-        c.cx != camera.cx || c.cy != camera.cy) {
+    if (camera_ != camera) {
       startSession(session_ + 1, camera, "camera intrinsics changed");
     }
   }
@@ -491,7 +515,7 @@ std::string OdometryNodelet::silentInput(double now) const {
   std::ostringstream os;
   os << "images arrive on " << image_sub_.getTopic() << " but none was paired for " << std::fixed
      << std::setprecision(0) << now - first_image_since_sync_ << " s: ";
-  if (age(last_info_) > timeout) {
+  if (age(last_info_) > timeout && !fallback_in_use_) {
     os << "no camera_info on " << info_sub_.getTopic();
   } else if (options_.use_altitude_topic && images_since_range_ > 0 && now - first_image_since_range_ > timeout) {
     os << "no altitude on " << range_sub_.getTopic()

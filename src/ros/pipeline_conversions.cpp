@@ -45,7 +45,7 @@ KeyframeData keyframeData(const core::Odometry& odometry, const core::Odometry::
   k.keyframe = kf.id;
   k.frame_index = info.frame_index;
   k.altitude_m = info.altitude_m;
-  k.camera = odometry.camera();
+  k.camera = odometry.featureCamera();  // the keypoints are undistorted
   k.features = kf.features;
   k.odometry_pose = odometry.trajectory().absolutePose(kf.id);
   if (kf.id == 0) {

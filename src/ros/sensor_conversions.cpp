@@ -1,6 +1,10 @@
 #include "uw_multislam/ros/sensor_conversions.h"
 
+#include <camera_calibration_parsers/parse.h>
 #include <cv_bridge/cv_bridge.h>
+#include <image_geometry/pinhole_camera_model.h>
+#include <ros/package.h>
+#include <sensor_msgs/distortion_models.h>
 #include <sensor_msgs/image_encodings.h>
 
 #include <opencv2/imgproc.hpp>
@@ -122,15 +126,42 @@ bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::stri
   return true;
 }
 
-bool cameraFromMsg(const sensor_msgs::CameraInfo& msg, core::CameraIntrinsics* out, bool* distorted,
+bool cameraFromMsg(const sensor_msgs::CameraInfo& msg, bool rectified, core::CameraIntrinsics* out,
                    std::string* why) {
+  image_geometry::PinholeCameraModel model;
+  try {
+    model.fromCameraInfo(msg);
+  } catch (const std::exception& e) {
+    return fail(why, std::string("camera_info: ") + e.what());
+  }
   core::CameraIntrinsics c;
-  c.width = static_cast<int>(msg.width);
-  c.height = static_cast<int>(msg.height);
-  c.fx = msg.K[0];
-  c.fy = msg.K[4];
-  c.cx = msg.K[2];
-  c.cy = msg.K[5];
+  const cv::Size size = model.reducedResolution();  // ROI and binning applied
+  c.width = size.width;
+  c.height = size.height;
+  if (rectified) {
+    const cv::Matx34d& p = model.projectionMatrix();
+    if (p(0, 0) == 0.0 && p(1, 1) == 0.0) {
+      return fail(why, "camera_info: P is zero, so rectified images have no camera");
+    }
+    c.fx = p(0, 0), c.fy = p(1, 1), c.cx = p(0, 2), c.cy = p(1, 2);
+  } else {
+    const cv::Matx33d& k = model.intrinsicMatrix();
+    c.fx = k(0, 0), c.fy = k(1, 1), c.cx = k(0, 2), c.cy = k(1, 2);
+    const bool distorted = std::any_of(msg.D.begin(), msg.D.end(), [](double d) { return d != 0.0; });
+    namespace dm = sensor_msgs::distortion_models;
+    if (distorted) {
+      if (msg.distortion_model == dm::PLUMB_BOB) {
+        c.distortion_model = core::DistortionModel::kPlumbBob;
+      } else if (msg.distortion_model == dm::RATIONAL_POLYNOMIAL) {
+        c.distortion_model = core::DistortionModel::kRationalPolynomial;
+      } else {
+        return fail(why, "camera_info: distortion model '" + msg.distortion_model +
+                             "' is not supported (plumb_bob, rational_polynomial): rectify the images "
+                             "(image_proc) and set ~rectified_images");
+      }
+      c.distortion.assign(msg.D.begin(), msg.D.end());
+    }
+  }
   const std::string bad = c.validate();
   if (!bad.empty()) return fail(why, "camera_info: " + bad);
   if (c.cx < 0 || c.cx > c.width || c.cy < 0 || c.cy > c.height) {
@@ -139,8 +170,32 @@ bool cameraFromMsg(const sensor_msgs::CameraInfo& msg, core::CameraIntrinsics* o
        << " image";
     return fail(why, os.str());
   }
-  if (distorted) *distorted = std::any_of(msg.D.begin(), msg.D.end(), [](double d) { return d != 0.0; });
   *out = c;
+  return true;
+}
+
+bool cameraInfoFromUrl(const std::string& url, sensor_msgs::CameraInfo* out, std::string* why) {
+  std::string path;
+  const std::string file = "file://", package = "package://";
+  if (url.rfind(file, 0) == 0) {
+    path = url.substr(file.size());
+  } else if (url.rfind(package, 0) == 0) {
+    const std::string rest = url.substr(package.size());
+    const auto slash = rest.find('/');
+    const std::string dir = slash == std::string::npos ? "" : ros::package::getPath(rest.substr(0, slash));
+    if (dir.empty()) return fail(why, "camera_info_url " + url + ": no such package");
+    path = dir + rest.substr(slash);
+  } else if (url.rfind("/", 0) == 0) {
+    path = url;
+  } else {
+    return fail(why, "camera_info_url " + url + ": expected file:///absolute/path, package://pkg/path or /path");
+  }
+  std::string name;
+  sensor_msgs::CameraInfo info;
+  if (!camera_calibration_parsers::readCalibration(path, name, info)) {
+    return fail(why, "camera_info_url " + url + ": cannot read a calibration from " + path);
+  }
+  *out = info;
   return true;
 }
 

@@ -5,8 +5,13 @@
 
 #include <boost/make_shared.hpp>
 
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
 #include <limits>
 
+#include "uw_multislam/core/frontend/camera_model.h"
 #include "uw_multislam/ros/sensor_conversions.h"
 
 namespace uw_multislam {
@@ -153,36 +158,129 @@ sensor_msgs::CameraInfo cameraInfo() {
   sensor_msgs::CameraInfo c;
   c.width = 320;
   c.height = 240;
+  c.distortion_model = "plumb_bob";
   c.K = {300, 0, 159.5, 0, 310, 119.5, 0, 0, 1};
   c.D = {0, 0, 0, 0, 0};
+  c.R = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  c.P = {280, 0, 150.5, 0, 0, 290, 110.5, 0, 0, 0, 1, 0};
   return c;
 }
 
 TEST(SensorConversions, CameraFromK) {
   core::CameraIntrinsics cam;
-  bool distorted = true;
-  ASSERT_TRUE(rc::cameraFromMsg(cameraInfo(), &cam, &distorted));
+  ASSERT_TRUE(rc::cameraFromMsg(cameraInfo(), false, &cam));
   EXPECT_EQ(cam.width, 320);
   EXPECT_DOUBLE_EQ(cam.fy, 310);
   EXPECT_DOUBLE_EQ(cam.cx, 159.5);
-  EXPECT_FALSE(distorted);
-  auto d = cameraInfo();
-  d.D[0] = -0.1;
-  ASSERT_TRUE(rc::cameraFromMsg(d, &cam, &distorted));
-  EXPECT_TRUE(distorted);
+  EXPECT_FALSE(cam.distorted());
+  EXPECT_EQ(cam.distortion_model, core::DistortionModel::kNone) << "zero D: nothing to undistort";
 
   std::string why;
   auto zero = cameraInfo();
   zero.K[0] = 0.0;
-  EXPECT_FALSE(rc::cameraFromMsg(zero, &cam, nullptr, &why));
+  EXPECT_FALSE(rc::cameraFromMsg(zero, false, &cam, &why));
   EXPECT_NE(why.find("focal"), std::string::npos) << why;
   auto no_size = cameraInfo();
   no_size.width = 0;
-  EXPECT_FALSE(rc::cameraFromMsg(no_size, &cam, nullptr, &why));
+  EXPECT_FALSE(rc::cameraFromMsg(no_size, false, &cam, &why));
   auto outside = cameraInfo();
   outside.K[2] = 900;
-  EXPECT_FALSE(rc::cameraFromMsg(outside, &cam, nullptr, &why));
+  EXPECT_FALSE(rc::cameraFromMsg(outside, false, &cam, &why));
   EXPECT_NE(why.find("principal point"), std::string::npos) << why;
+}
+
+TEST(SensorConversions, CameraKeepsTheDistortionOfRawImages) {
+  core::CameraIntrinsics cam;
+  auto d = cameraInfo();
+  d.D = {-0.25, 0.08, 0.001, -0.002, 0.01};
+  ASSERT_TRUE(rc::cameraFromMsg(d, false, &cam));
+  EXPECT_EQ(cam.distortion_model, core::DistortionModel::kPlumbBob);
+  EXPECT_EQ(cam.distortion, d.D);
+  EXPECT_DOUBLE_EQ(cam.fx, 300) << "raw images: K, not P";
+  d.distortion_model = "rational_polynomial";
+  d.D = {-0.25, 0.08, 0.001, -0.002, 0.01, 0.1, 0.02, 0.003};
+  ASSERT_TRUE(rc::cameraFromMsg(d, false, &cam));
+  EXPECT_EQ(cam.distortion_model, core::DistortionModel::kRationalPolynomial);
+  EXPECT_EQ(cam.distortion, d.D);
+
+  std::string why;
+  d.distortion_model = "equidistant";
+  d.D = {0.1, 0.01, 0.0, 0.0};
+  EXPECT_FALSE(rc::cameraFromMsg(d, false, &cam, &why));
+  EXPECT_NE(why.find("'equidistant' is not supported"), std::string::npos) << why;
+  d.distortion_model = "plumb_bob";
+  d.D = {0.1, 0.01, 0.0};
+  EXPECT_FALSE(rc::cameraFromMsg(d, false, &cam, &why));
+  EXPECT_NE(why.find("plumb_bob with 3 coefficients"), std::string::npos) << why;
+}
+
+TEST(SensorConversions, RectifiedImagesTakeP) {
+  core::CameraIntrinsics cam;
+  auto d = cameraInfo();
+  d.D = {-0.25, 0.08, 0.001, -0.002, 0.01};
+  ASSERT_TRUE(rc::cameraFromMsg(d, true, &cam));
+  EXPECT_EQ(cam, (core::CameraIntrinsics{320, 240, 280, 290, 150.5, 110.5})) << "P, and no distortion";
+  std::string why;
+  d.P = {};
+  EXPECT_FALSE(rc::cameraFromMsg(d, true, &cam, &why));
+  EXPECT_NE(why.find("P is zero"), std::string::npos) << why;
+}
+
+TEST(SensorConversions, BinningAndRoiAreApplied) {
+  core::CameraIntrinsics cam;
+  auto b = cameraInfo();
+  b.D = {-0.25, 0.08, 0.001, -0.002, 0.01};
+  b.binning_x = 2;
+  b.binning_y = 2;
+  ASSERT_TRUE(rc::cameraFromMsg(b, false, &cam));
+  EXPECT_EQ(cam.width, 160);
+  EXPECT_EQ(cam.height, 120);
+  EXPECT_DOUBLE_EQ(cam.fx, 150);
+  EXPECT_DOUBLE_EQ(cam.fy, 155);
+  EXPECT_DOUBLE_EQ(cam.cx, 159.5 / 2);
+  EXPECT_EQ(cam.distortion, b.D) << "D is in normalised coordinates: unchanged by binning";
+  ASSERT_TRUE(rc::cameraFromMsg(b, true, &cam));
+  EXPECT_DOUBLE_EQ(cam.fx, 140);
+  EXPECT_DOUBLE_EQ(cam.cy, 110.5 / 2);
+
+  auto roi = cameraInfo();
+  roi.roi.x_offset = 40;
+  roi.roi.y_offset = 20;
+  roi.roi.width = 200;
+  roi.roi.height = 180;
+  ASSERT_TRUE(rc::cameraFromMsg(roi, false, &cam));
+  EXPECT_EQ(cam.width, 200);
+  EXPECT_EQ(cam.height, 180);
+  EXPECT_DOUBLE_EQ(cam.fx, 300);
+  EXPECT_DOUBLE_EQ(cam.cx, 119.5);
+  EXPECT_DOUBLE_EQ(cam.cy, 99.5);
+}
+
+TEST(SensorConversions, CameraInfoFromUrl) {
+  const std::string dir = ::testing::TempDir() + "uwms_camera_info_url_" + std::to_string(::getpid());
+  std::filesystem::create_directories(dir);
+  core::CameraIntrinsics written{320, 240, 300.0, 305.0, 161.0, 118.0};
+  written.distortion_model = core::DistortionModel::kPlumbBob;
+  written.distortion = {-0.28, 0.09, 0.001, -0.0007, -0.01};
+  const std::string path = dir + "/cam.yaml";
+  std::ofstream(path) << core::rosCalibrationYaml(written, "down");
+  for (const std::string& url : {"file://" + path, path}) {
+    sensor_msgs::CameraInfo info;
+    std::string why;
+    ASSERT_TRUE(rc::cameraInfoFromUrl(url, &info, &why)) << why;
+    core::CameraIntrinsics cam;
+    ASSERT_TRUE(rc::cameraFromMsg(info, false, &cam, &why)) << why;
+    EXPECT_EQ(cam, written) << url;
+  }
+  sensor_msgs::CameraInfo info;
+  std::string why;
+  EXPECT_FALSE(rc::cameraInfoFromUrl("file://" + dir + "/missing.yaml", &info, &why));
+  EXPECT_NE(why.find("cannot read a calibration from " + dir + "/missing.yaml"), std::string::npos) << why;
+  EXPECT_FALSE(rc::cameraInfoFromUrl("http://example.org/cam.yaml", &info, &why));
+  EXPECT_NE(why.find("expected file:///absolute/path"), std::string::npos) << why;
+  EXPECT_FALSE(rc::cameraInfoFromUrl("package://no_such_package_uwms/cam.yaml", &info, &why));
+  EXPECT_NE(why.find("no such package"), std::string::npos) << why;
+  std::filesystem::remove_all(dir);
 }
 
 TEST(SensorConversions, AltitudeFromRange) {

@@ -119,7 +119,8 @@ std::string summarize(const DatasetBagStats& stats, const DatasetBagOptions& opt
 /// One sentence per anomaly counted in stats (skipped altitudes, non-increasing stamps, ...).
 std::vector<std::string> warnings(const DatasetBagStats& stats);
 
-/// CameraInfo of a pinhole camera.yaml: plumb_bob with zero distortion, R = I, P = [K | 0].
+/// CameraInfo of a dataset's camera: its distortion (plumb_bob with zeros for a pinhole), R = I,
+/// P = [K | 0].
 sensor_msgs::CameraInfo toCameraInfoMsg(const core::CameraIntrinsics& camera);
 
 }  // namespace ros_bag

@@ -39,11 +39,18 @@ constexpr unsigned kMinImageSide = 32;
 bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::string* why = nullptr,
                   ImageRefusal* refusal = nullptr);
 
-/// The pinhole intrinsics of K. Refuses a zero or non-finite focal length, a zero image size or
-/// a principal point outside the image. `distorted` (optional) tells whether D has a non-zero
-/// coefficient (the core assumes rectified images: the nodelet warns once).
-bool cameraFromMsg(const sensor_msgs::CameraInfo& msg, core::CameraIntrinsics* out, bool* distorted = nullptr,
+/// The camera of the images, through image_geometry::PinholeCameraModel (binning and ROI applied:
+/// the size, K and P of the image as it arrives). `rectified` (images from image_proc's
+/// image_rect): P's fx, fy, cx, cy and no distortion; otherwise K with D (plumb_bob or
+/// rational_polynomial; the core undistorts the feature points). Refuses a zero or non-finite
+/// focal length, a zero image size, a principal point outside the image, a zero P for rectified
+/// images, and a distortion model the core does not have (equidistant, unknown) with a non-zero D.
+bool cameraFromMsg(const sensor_msgs::CameraInfo& msg, bool rectified, core::CameraIntrinsics* out,
                    std::string* why = nullptr);
+
+/// A calibration file (camera_calibration_parsers: YAML or INI) named by a camera_info_url
+/// (file:///abs/path, package://pkg/path or a plain absolute path), for bags without camera_info.
+bool cameraInfoFromUrl(const std::string& url, sensor_msgs::CameraInfo* out, std::string* why = nullptr);
 
 /// The range as altitude; refuses non-finite or non-positive values and ones outside
 /// [min_range, max_range] (sensor_msgs/Range: such readings must be discarded).

@@ -1,5 +1,8 @@
 #include "uw_multislam/core/frontend/dataset.h"
 
+#include "uw_multislam/core/frontend/camera_model.h"
+
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -82,16 +85,62 @@ void readCsv(const std::string& path, const std::vector<std::string>& header, F 
 
 }  // namespace
 
+std::string distortionModelName(DistortionModel m) {
+  switch (m) {
+    case DistortionModel::kPlumbBob:
+      return "plumb_bob";
+    case DistortionModel::kRationalPolynomial:
+      return "rational_polynomial";
+    default:
+      return "none";
+  }
+}
+
+bool parseDistortionModel(const std::string& name, DistortionModel* m) {
+  for (const DistortionModel c :
+       {DistortionModel::kNone, DistortionModel::kPlumbBob, DistortionModel::kRationalPolynomial}) {
+    if (name == distortionModelName(c)) {
+      *m = c;
+      return true;
+    }
+  }
+  return false;
+}
+
 std::string CameraIntrinsics::validate() const {
   std::ostringstream os;
+  const std::size_t n = distortion.size();
   if (width <= 0 || height <= 0) {
     os << "image size " << width << "x" << height << " is not positive";
   } else if (!(std::isfinite(fx) && fx > 0.0) || !(std::isfinite(fy) && fy > 0.0)) {
     os << "focal length fx=" << fx << " fy=" << fy << " must be positive";
   } else if (!std::isfinite(cx) || !std::isfinite(cy)) {
     os << "principal point cx=" << cx << " cy=" << cy << " is not finite";
+  } else if ((distortion_model == DistortionModel::kNone && n != 0) ||
+             (distortion_model == DistortionModel::kPlumbBob && n != 4 && n != 5) ||
+             (distortion_model == DistortionModel::kRationalPolynomial && n != 8)) {
+    os << "distortion model " << distortionModelName(distortion_model) << " with " << n
+       << " coefficients (plumb_bob takes 4 or 5, rational_polynomial 8, none 0)";
+  } else if (!std::all_of(distortion.begin(), distortion.end(), [](double d) { return std::isfinite(d); })) {
+    os << "a distortion coefficient is not finite";
   }
   return os.str();
+}
+
+bool CameraIntrinsics::distorted() const {
+  return std::any_of(distortion.begin(), distortion.end(), [](double d) { return d != 0.0; });
+}
+
+CameraIntrinsics CameraIntrinsics::pinhole() const {
+  CameraIntrinsics c = *this;
+  c.distortion_model = DistortionModel::kNone;
+  c.distortion.clear();
+  return c;
+}
+
+bool CameraIntrinsics::operator==(const CameraIntrinsics& o) const {
+  return width == o.width && height == o.height && fx == o.fx && fy == o.fy && cx == o.cx && cy == o.cy &&
+         distortion_model == o.distortion_model && distortion == o.distortion;
 }
 
 std::string Dataset::imagePath(const FrameRecord& f) const { return (fs::path(directory) / f.image).string(); }
@@ -99,6 +148,14 @@ std::string Dataset::imagePath(const FrameRecord& f) const { return (fs::path(di
 CameraIntrinsics readCameraYaml(const std::string& path) {
   std::ifstream in(path);
   if (!in) fail(path, 0, "cannot open");
+  const std::string text = readTextFile(path);
+  if (text.find("camera_matrix") != std::string::npos) {
+    try {
+      return parseRosCalibrationYaml(text, path);
+    } catch (const std::invalid_argument& e) {
+      throw DatasetError(e.what());
+    }
+  }
   std::map<std::string, std::string> kv;
   std::string line;
   int n = 0;
@@ -135,6 +192,11 @@ CameraIntrinsics readCameraYaml(const std::string& path) {
 void writeCameraYaml(const std::string& path, const CameraIntrinsics& c) {
   std::ofstream out(path);
   if (!out) throw DatasetError(path + ": cannot write");
+  if (c.distorted()) {
+    out << rosCalibrationYaml(c);
+    if (!out) throw DatasetError(path + ": write failed");
+    return;
+  }
   out << std::setprecision(10) << "image_width: " << c.width << "\nimage_height: " << c.height << "\nfx: " << c.fx
       << "\nfy: " << c.fy << "\ncx: " << c.cx << "\ncy: " << c.cy << "\n";
   if (!out) throw DatasetError(path + ": write failed");

@@ -4,6 +4,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "uw_multislam/core/frontend/camera_model.h"
+
 namespace uw_multislam {
 namespace core {
 
@@ -95,14 +97,19 @@ FrameFeatures FeatureExtractor::extract(const cv::Mat& grey) const {
 }
 
 Eigen::Vector2d pixelToMetres(const cv::Point2f& px, const CameraIntrinsics& c, double altitude_m) {
-  return Eigen::Vector2d((px.x - c.cx) * altitude_m / c.fx, (px.y - c.cy) * altitude_m / c.fy);
+  const cv::Point2f p = c.distorted() ? undistortPixels({px}, c).front() : px;
+  return Eigen::Vector2d((p.x - c.cx) * altitude_m / c.fx, (p.y - c.cy) * altitude_m / c.fy);
 }
 
 std::vector<Eigen::Vector2d> applyAltitude(const std::vector<cv::KeyPoint>& keypoints, const CameraIntrinsics& c,
                                            double altitude_m) {
+  std::vector<cv::Point2f> px;
+  px.reserve(keypoints.size());
+  for (const auto& k : keypoints) px.push_back(k.pt);
+  const CameraIntrinsics pinhole = c.pinhole();
   std::vector<Eigen::Vector2d> out;
   out.reserve(keypoints.size());
-  for (const auto& k : keypoints) out.push_back(pixelToMetres(k.pt, c, altitude_m));
+  for (const auto& p : undistortPixels(px, c)) out.push_back(pixelToMetres(p, pinhole, altitude_m));
   return out;
 }
 

@@ -6,6 +6,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "uw_multislam/core/frontend/camera_model.h"
+
 namespace uw_multislam {
 namespace core {
 
@@ -67,12 +69,14 @@ const OdometryOptions& checked(const OdometryOptions& o, const CameraIntrinsics&
 
 Odometry::Odometry(const CameraIntrinsics& camera, const OdometryOptions& options)
     : camera_(camera),
+      feature_camera_(camera.pinhole()),
       options_(checked(options, camera)),
       enhancer_(options.enhancement),
       extractor_(options.features) {}
 
 PairMotion Odometry::matchToKeyframe(const FrameFeatures& f, double altitude_m) {
-  return estimatePairMotion({&last_kf_.features, last_kf_.altitude_m, &camera_}, {&f, altitude_m, &camera_},
+  return estimatePairMotion({&last_kf_.features, last_kf_.altitude_m, &feature_camera_},
+                            {&f, altitude_m, &feature_camera_},
                             options_.matching, options_.ransac, &times_);
 }
 
@@ -154,6 +158,7 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
     }
     ScopedStage s(&times_, "features");
     cur.features = extractor_.extract(grey);
+    undistortKeypoints(&cur.features.keypoints, camera_);  // only the points, never the image
   } catch (const std::invalid_argument& e) {
     ++stats_.skipped_image;
     up.reason = e.what();

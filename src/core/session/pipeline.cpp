@@ -35,7 +35,7 @@ void Pipeline::say(const std::string& line) const {
 void Pipeline::beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of) {
   stream_ = name;
   image_of_ = std::move(image_of);
-  cameras_.push_back(camera);
+  cameras_.push_back(camera.pinhole());  // the camera of the (undistorted) features keyframes carry
   segmented_ = std::make_unique<SegmentedOdometry>(camera, config_.odometry, config_.tracking);
   pieces_ = 0;
   session_ = -1;

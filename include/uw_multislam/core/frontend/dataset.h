@@ -17,7 +17,20 @@ class DatasetError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-/// Pinhole intrinsics of camera.yaml, in pixels.
+/// Lens distortion models, named and ordered as a ROS CameraInfo's (and OpenCV's) D.
+enum class DistortionModel {
+  kNone,                // a pinhole: rectified images, or a lens without measurable distortion
+  kPlumbBob,            // k1, k2, p1, p2, k3 (4 or 5 coefficients)
+  kRationalPolynomial,  // k1, k2, p1, p2, k3, k4, k5, k6
+};
+/// "none", "plumb_bob", "rational_polynomial".
+std::string distortionModelName(DistortionModel m);
+/// False for any other name (ROS's "equidistant" included: rectify such images first).
+bool parseDistortionModel(const std::string& name, DistortionModel* m);
+
+/// The camera of the images, in pixels: the pinhole K (fx, fy, cx, cy) and, for raw images, the
+/// lens distortion D. Only feature points are undistorted (core/frontend/camera_model.h), never
+/// the image.
 struct CameraIntrinsics {
   int width = 0;
   int height = 0;
@@ -25,9 +38,17 @@ struct CameraIntrinsics {
   double fy = 0.0;
   double cx = 0.0;
   double cy = 0.0;
+  DistortionModel distortion_model = DistortionModel::kNone;
+  std::vector<double> distortion{};  // D, OpenCV's order; empty for kNone
 
   /// Empty when usable, else a sentence naming the bad value.
   std::string validate() const;
+  /// Some coefficient of D is not zero.
+  bool distorted() const;
+  /// The same K without distortion: the camera of undistorted feature points.
+  CameraIntrinsics pinhole() const;
+  bool operator==(const CameraIntrinsics& o) const;
+  bool operator!=(const CameraIntrinsics& o) const { return !(*this == o); }
 };
 
 /// One row of frames.csv.
@@ -55,8 +76,12 @@ struct Dataset {
   std::string imagePath(const FrameRecord& f) const;
 };
 
-/// Reads camera.yaml ("key: value" lines; the six keys are required).
+/// Reads camera.yaml in either format (doc/dataset_format.md): "key: value" lines with the six
+/// keys image_width, image_height, fx, fy, cx, cy (a pinhole), or a ROS calibration YAML (the
+/// camera_calibration_parsers format, recognised by its camera_matrix key; see
+/// parseRosCalibrationYaml in core/frontend/camera_model.h).
 CameraIntrinsics readCameraYaml(const std::string& path);
+/// Writes the six-key format for a pinhole, the ROS calibration format for a distorted camera.
 void writeCameraYaml(const std::string& path, const CameraIntrinsics& c);
 
 /// Reads frames.csv: header "index,image,stamp_s,altitude_m", indexes unique. Altitudes and

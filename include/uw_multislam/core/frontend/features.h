@@ -64,7 +64,9 @@ class FeatureExtractor {
 };
 
 /// apply_altitude (Algorithm 1): pixel (u, v) to metres on the seabed in the image axes of the
-/// frame, origin under the principal point: ((u - cx) a / fx, (v - cy) a / fy).
+/// frame, origin under the principal point: ((u - cx) a / fx, (v - cy) a / fy), (u, v) first
+/// undistorted when the camera has distortion (a raw pixel; features already undistorted go with
+/// camera.pinhole()).
 Eigen::Vector2d pixelToMetres(const cv::Point2f& px, const CameraIntrinsics& camera, double altitude_m);
 std::vector<Eigen::Vector2d> applyAltitude(const std::vector<cv::KeyPoint>& keypoints, const CameraIntrinsics& camera,
                                            double altitude_m);

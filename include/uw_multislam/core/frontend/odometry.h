@@ -14,6 +14,10 @@
 // does: the frame becomes a keyframe whose motion is marked as a fallback, with the fallback
 // covariance, and is counted.
 //
+// Distortion: features are extracted on the raw image and only their coordinates are undistorted
+// (core/frontend/camera_model.h); from there on, and in the keyframes, the camera is the pinhole
+// featureCamera().
+//
 // Bad input: an empty image, one of another size than the camera's or of an unsupported type is
 // skipped and counted (with the reason in the update); a non-finite or non-positive altitude is
 // replaced by the last valid one (counted), or the frame is skipped when there is none yet.
@@ -140,7 +144,11 @@ class Odometry {
   const std::vector<NewKeyframe>& newKeyframes() const { return new_keyframes_; }
   const OdometryStats& stats() const { return stats_; }
   const StageTimes& times() const { return times_; }
+  /// The camera of the images (with their distortion).
   const CameraIntrinsics& camera() const { return camera_; }
+  /// The camera of the features' coordinates: camera().pinhole(), the keypoints being undistorted
+  /// right after extraction. Keyframes carry this one.
+  const CameraIntrinsics& featureCamera() const { return feature_camera_; }
 
  private:
   struct TrackedFrame {
@@ -157,6 +165,7 @@ class Odometry {
   bool needsKeyframe(const RansacResult& r, double overlap, double stamp_s) const;
 
   CameraIntrinsics camera_;
+  CameraIntrinsics feature_camera_;
   OdometryOptions options_;
   FeatureImageEnhancer enhancer_;
   FeatureExtractor extractor_;

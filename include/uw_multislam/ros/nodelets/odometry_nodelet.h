@@ -2,7 +2,10 @@
 //
 // Inputs (relative names, remapped in launch files; include/uw_multislam/ros/topics.h):
 //   camera/image_raw    image_transport (raw by default; ~image_transport: compressed etc.)
-//   camera/camera_info  sensor_msgs/CameraInfo
+//   camera/camera_info  sensor_msgs/CameraInfo (read with image_geometry::PinholeCameraModel, binning
+//                       and ROI applied): K with D (plumb_bob, rational_polynomial), only the feature
+//                       points undistorted; P when ~rectified_images (image_proc's image_rect).
+//                       Without any camera_info, the calibration file of ~camera_info_url is used.
 //   altitude            sensor_msgs/Range (only with ~use_altitude_topic: true, else ~altitude)
 //   active_session      uw_multislam/SessionState from the back-end: a new id starts a session
 // Pairing by stamp (issue 15): each image waits (in arrival order, in a short list of pending
@@ -55,7 +58,10 @@
 //     (rgba/bgra drop alpha, 16 bits scaled, Bayer debayered; float/YUV refused); empty, tiny
 //     (< 32 px) or wrongly laid out images and images whose size differs from camera_info are
 //     skipped;
-//   - camera_info without a focal length, or with the principal point outside: frame skipped;
+//   - camera_info without a focal length, with the principal point outside, a zero P for rectified
+//     images or an unsupported distortion model (equidistant: rectify first): frame skipped;
+//   - no camera_info at all: with ~camera_info_url, images that waited ~altitude_max_age_s without
+//     one are paired with that file's calibration from then on (until a camera_info arrives);
 //   - altitude NaN, <= 0 or outside the sensor's range: such a reading is kept as invalid; an
 //     image whose altitude would use it gets none and the core reuses the last valid one (a
 //     frame before any valid altitude is skipped);
@@ -122,6 +128,8 @@ struct OdometryNodeletOptions {
   double fallback_altitude_m = 0.0;  // > 0: used when the altitude topic is silent; 0 = off
   double diagnostic_period_s = 1.0;
   double stats_period_s = 30.0;
+  bool rectified_images = false;  // the images are rectified: P, no distortion; else K with D
+  std::string camera_info_url;    // calibration used when no camera_info arrives; empty = none
   std::string session_frame_prefix = topics::kDefaultSessionFramePrefix;
 };
 
@@ -195,6 +203,10 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::deque<Pending> pending_;
   // The recent camera_infos, in arrival order.
   std::deque<sensor_msgs::CameraInfoConstPtr> infos_;
+  // The calibration of ~camera_info_url (null without one), and whether images use it: once an
+  // image has waited its longest with no camera_info ever received.
+  sensor_msgs::CameraInfoConstPtr fallback_info_;
+  std::atomic<bool> fallback_in_use_{false};
   std::unique_ptr<core::AltitudeBuffer> altitudes_;  // with the altitude topic
   std::atomic<long> no_camera_info_{0}, no_altitude_{0}, altitude_clears_{0};
   ros::WallTimer pairing_timer_;
@@ -226,7 +238,6 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::unique_ptr<core::StampGuard> stamps_;
   Counters counts_;
   ros::WallTime last_stats_;
-  bool warned_distortion_ = false;
 
   ros::Publisher keyframe_pub_, pose_pub_;
   std::unique_ptr<image_transport::ImageTransport> it_;
