@@ -24,6 +24,18 @@ void readCamera(const YAML::Node& n, const std::string& where, CameraIntrinsics*
   r.read("fy", &c->fy);
   r.read("cx", &c->cx);
   r.read("cy", &c->cy);
+  // Lens distortion of the rendered images (make_survey --distortion does the same): k1, k2[, p1,
+  // p2, k3] is plumb_bob (padded with zeros to five), eight numbers rational_polynomial.
+  std::vector<double> d;
+  r.read("distortion", &d);
+  if (!d.empty()) {
+    if (d.size() > 5 && d.size() != 8) {
+      r.fail("'distortion' needs 1 to 5 numbers (plumb_bob) or 8 (rational_polynomial)");
+    }
+    c->distortion_model = d.size() == 8 ? DistortionModel::kRationalPolynomial : DistortionModel::kPlumbBob;
+    d.resize(d.size() == 8 ? 8 : 5, 0.0);
+    c->distortion = d;
+  }
   r.finish();
 }
 
@@ -186,7 +198,9 @@ std::string surveyToYaml(const SurveySpec& spec) {
     out << YAML::Key << "image_width" << YAML::Value << s.camera.width << YAML::Key << "image_height" << YAML::Value
         << s.camera.height << YAML::Key << "fx" << YAML::Value << s.camera.fx << YAML::Key << "fy" << YAML::Value
         << s.camera.fy << YAML::Key << "cx" << YAML::Value << s.camera.cx << YAML::Key << "cy" << YAML::Value
-        << s.camera.cy << YAML::EndMap;
+        << s.camera.cy;
+    if (s.camera.distorted()) out << YAML::Key << "distortion" << YAML::Value << YAML::Flow << s.camera.distortion;
+    out << YAML::EndMap;
     const auto& m = s.mission;
     out << YAML::Key << "mission" << YAML::Value << YAML::BeginMap;
     out << YAML::Key << "pattern" << YAML::Value << patternName(m.pattern);

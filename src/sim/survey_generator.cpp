@@ -1,6 +1,7 @@
 #include "uw_multislam/sim/survey_generator.h"
 
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -13,6 +14,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "uw_multislam/core/frontend/camera_model.h"
+
 namespace uw_multislam {
 namespace core {
 
@@ -23,6 +26,50 @@ namespace {
 double footprintHeight(const CameraIntrinsics& c, double altitude_m) { return c.height * altitude_m / c.fy; }
 
 double lowestAltitude(const MissionSpec& m) { return m.altitude_m - m.altitude_amplitude_m; }
+
+// A camera with lens distortion: the ideal pinhole view is rendered with a margin wide enough for
+// every raw pixel's ray, then resampled at the undistorted position of each raw pixel. A pinhole
+// camera renders directly (no maps).
+struct Lens {
+  CameraIntrinsics view;  // the pinhole camera rendered
+  cv::Mat map_x, map_y;   // raw pixel -> pixel of `view`; empty without distortion
+};
+
+Lens lensOf(const CameraIntrinsics& camera) {
+  Lens lens;
+  lens.view = camera.pinhole();
+  if (!camera.distorted()) return lens;
+  std::vector<cv::Point2f> raw;
+  raw.reserve(static_cast<std::size_t>(camera.width) * camera.height);
+  for (int v = 0; v < camera.height; ++v) {
+    for (int u = 0; u < camera.width; ++u) raw.emplace_back(static_cast<float>(u), static_cast<float>(v));
+  }
+  const std::vector<cv::Point2f> ideal = undistortPixels(raw, camera);
+  double margin = 0.0;
+  for (const auto& p : ideal) {
+    const double x = p.x, y = p.y;
+    margin = std::max({margin, -x, -y, x - (camera.width - 1), y - (camera.height - 1)});
+  }
+  const int m = static_cast<int>(std::ceil(margin)) + 2;
+  lens.view.width += 2 * m, lens.view.height += 2 * m, lens.view.cx += m, lens.view.cy += m;
+  lens.map_x.create(camera.height, camera.width, CV_32F);
+  lens.map_y.create(camera.height, camera.width, CV_32F);
+  for (int v = 0, i = 0; v < camera.height; ++v) {
+    for (int u = 0; u < camera.width; ++u, ++i) {
+      lens.map_x.at<float>(v, u) = ideal[i].x + m;
+      lens.map_y.at<float>(v, u) = ideal[i].y + m;
+    }
+  }
+  return lens;
+}
+
+cv::Mat renderThrough(const Lens& lens, const SeabedWorld& world, const Pose2& pose, double altitude_m) {
+  const cv::Mat view = world.render(pose, altitude_m, lens.view);
+  if (lens.map_x.empty()) return view;
+  cv::Mat raw;
+  cv::remap(view, raw, lens.map_x, lens.map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+  return raw;
+}
 
 // A seed per (survey, session, frame) so that every frame is reproducible on its own.
 std::uint64_t frameSeed(std::uint64_t seed, int session, int frame) {
@@ -83,8 +130,9 @@ std::vector<std::vector<MissionFrame>> planSurvey(const SurveySpec& spec, const 
   for (const auto& s : spec.sessions) {
     plans.push_back(planMission(s.mission));
     const auto& frames = plans.back();
+    const CameraIntrinsics view = lensOf(s.camera).view;  // with a distorted lens, the wider pinhole rendered
     for (std::size_t k = 0; k < frames.size(); ++k) {
-      if (!world.viewIsValid(frames[k].pose, frames[k].altitude_m, s.camera)) {
+      if (!world.viewIsValid(frames[k].pose, frames[k].altitude_m, view)) {
         std::ostringstream os;
         os << std::fixed << std::setprecision(2) << "session '" << s.name << "' frame " << k << " at ("
            << frames[k].pose.x() << ", " << frames[k].pose.y() << ") m leaves the seabed world (" << world.widthM()
@@ -125,6 +173,7 @@ SurveyResult generateSurvey(const SurveySpec& spec, const std::string& out_dir,
   for (std::size_t si = 0; si < spec.sessions.size(); ++si) {
     const SessionSpec& s = spec.sessions[si];
     const auto& plan = plans[si];
+    const Lens lens = lensOf(s.camera);
     const fs::path dir = fs::path(out_dir) / s.name;
     fs::remove_all(dir);
     fs::create_directories(dir);
@@ -137,7 +186,7 @@ SurveyResult generateSurvey(const SurveySpec& spec, const std::string& out_dir,
     for (std::size_t k = 0; k < plan.size(); ++k) {
       const MissionFrame& mf = plan[k];
       const int index = static_cast<int>(k);
-      const cv::Mat clean = world.render(mf.pose, mf.altitude_m, s.camera);
+      const cv::Mat clean = renderThrough(lens, world, mf.pose, mf.altitude_m);
       WaterFrame wf;
       wf.index = index;
       wf.altitude_m = mf.altitude_m;

@@ -1,11 +1,13 @@
 // make_survey: renders bottom-looking camera missions over a seabed world with exact ground
 // truth. See --help, and README.md "Survey generator".
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -38,6 +40,9 @@ options:
   --mosaic IMAGE TXT  fly over a georeferenced mosaic instead of the procedural seabed, e.g.
                       ../shared/data/acfr/test4/mosaic.jpg ../shared/data/acfr/test4/mosaic.txt
                       (the missions must then fit inside the imaged area)
+  --distortion K1,K2  radial lens distortion of every session's camera (plumb_bob k1, k2; up to
+                      five numbers k1,k2,p1,p2,k3): the images are rendered through that lens and
+                      camera.yaml / camera_info carry D (a camera's "distortion" key does the same)
   --no-bag            write the dataset folders only
   --dump-config       print the effective spec as YAML and exit
   --list-presets      print the preset names and exit
@@ -48,6 +53,7 @@ Exit status 0 on success, 2 on bad arguments, 1 with a one-line reason on any ot
 
 struct Args {
   std::string out, preset = "demo", config, mosaic_image, mosaic_georef;
+  std::vector<double> distortion;
   bool seed_given = false, no_bag = false, dump = false, list = false, quiet = false;
   unsigned long long seed = 1;
 };
@@ -96,6 +102,21 @@ int main(int argc, char** argv) {
       if (i + 2 >= argc) return badArgs("--mosaic needs an image and its georeference text file");
       a.mosaic_image = argv[++i];
       a.mosaic_georef = argv[++i];
+    } else if (arg == "--distortion") {
+      const char* v = value("K1,K2");
+      if (!v) return badArgs("--distortion needs k1,k2");
+      std::stringstream ss(v);
+      std::string cell;
+      a.distortion.clear();
+      while (std::getline(ss, cell, ',')) {
+        char* end = nullptr;
+        const double d = std::strtod(cell.c_str(), &end);
+        if (cell.empty() || *end != '\0' || !std::isfinite(d)) {
+          return badArgs("--distortion: bad number '" + cell + "'");
+        }
+        a.distortion.push_back(d);
+      }
+      if (a.distortion.empty() || a.distortion.size() > 5) return badArgs("--distortion needs 1 to 5 numbers");
     } else if (arg == "--no-bag") {
       a.no_bag = true;
     } else if (arg == "--dump-config") {
@@ -117,6 +138,12 @@ int main(int argc, char** argv) {
   try {
     core::SurveySpec spec = a.config.empty() ? core::surveyPreset(a.preset) : core::loadSurveyYaml(a.config);
     if (a.seed_given) spec.seed = a.seed;
+    for (auto& s : spec.sessions) {
+      if (a.distortion.empty()) break;
+      s.camera.distortion_model = core::DistortionModel::kPlumbBob;
+      s.camera.distortion = a.distortion;
+      s.camera.distortion.resize(5, 0.0);
+    }
     if (!a.mosaic_image.empty()) {
       spec.world.mosaic_image = a.mosaic_image;
       spec.world.mosaic_georef = a.mosaic_georef;

@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "../common/scoped_temp_dir.h"
+#include "uw_multislam/core/frontend/camera_model.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/sim/survey_config.h"
 #include "uw_multislam/sim/survey_generator.h"
@@ -295,6 +296,42 @@ TEST_F(SurveyTest, ConsecutiveFramesMatchTheirGroundTruthMotion) {
     const double bad = residual(k, compose(motion, Pose2(0.02, 0.0, 0.0)));  // 2 cm off
     EXPECT_LT(good, 0.6 * bad) << "frame " << k << ": residual " << good << " vs " << bad;
   }
+}
+
+TEST_F(SurveyTest, ADistortedLensSeesThePinholeViewWhereItsModelSays) {
+  // The same session through a pinhole and through a lens with radial distortion: each raw pixel
+  // of the distorted image shows what the pinhole image shows at its undistorted position.
+  spec_.sessions.resize(1);
+  spec_.sessions[0].water.noise_sigma = 0;
+  spec_.sessions[0].water.vignetting = 0;
+  spec_.sessions[0].mission.length_m = 1.0;
+  const Dataset pinhole = loadDataset(generateSurvey(spec_, (out_ / "pinhole").string()).session_dirs[0]);
+  spec_.sessions[0].camera.distortion_model = DistortionModel::kPlumbBob;
+  spec_.sessions[0].camera.distortion = {-0.3, 0.1, 0.0, 0.0, 0.0};
+  const Dataset lens = loadDataset(generateSurvey(spec_, (out_ / "lens").string()).session_dirs[0]);
+  EXPECT_EQ(lens.camera, spec_.sessions[0].camera) << "camera.yaml carries D";
+  EXPECT_EQ(pinhole.camera, kCam);
+  const cv::Mat a = cv::imread(pinhole.imagePath(pinhole.frames[0]), cv::IMREAD_GRAYSCALE);
+  const cv::Mat b = cv::imread(lens.imagePath(lens.frames[0]), cv::IMREAD_GRAYSCALE);
+  std::vector<cv::Point2f> raw;
+  for (int v = 0; v < b.rows; ++v)
+    for (int u = 0; u < b.cols; ++u) raw.emplace_back(static_cast<float>(u), static_cast<float>(v));
+  const std::vector<cv::Point2f> ideal = undistortPixels(raw, lens.camera);
+  cv::Mat map_x(b.size(), CV_32F), map_y(b.size(), CV_32F), inside(b.size(), CV_8U);
+  for (std::size_t i = 0; i < raw.size(); ++i) {
+    const int u = static_cast<int>(raw[i].x), v = static_cast<int>(raw[i].y);
+    map_x.at<float>(v, u) = ideal[i].x;
+    map_y.at<float>(v, u) = ideal[i].y;
+    inside.at<std::uint8_t>(v, u) =
+        ideal[i].x >= 1 && ideal[i].y >= 1 && ideal[i].x <= a.cols - 2 && ideal[i].y <= a.rows - 2 ? 255 : 0;
+  }
+  cv::Mat through, diff_model, diff_none;
+  cv::remap(a, through, map_x, map_y, cv::INTER_LINEAR);
+  cv::absdiff(b, through, diff_model);
+  cv::absdiff(b, a, diff_none);
+  const double with_model = cv::mean(diff_model, inside)[0], without = cv::mean(diff_none, inside)[0];
+  EXPECT_LT(with_model, 0.35 * without) << with_model << " vs " << without;
+  EXPECT_GT(cv::countNonZero(inside), b.total() / 2);
 }
 
 TEST_F(SurveyTest, SameSeedSameOutputOtherSeedOtherWorld) {
