@@ -15,6 +15,8 @@
 #include <iomanip>
 #include <limits>
 #include <sstream>
+#include <string>
+#include <vector>
 
 #include "uw_multislam/Keyframe.h"
 #include "uw_multislam/ros/camera_mount.h"
@@ -33,6 +35,7 @@ OdometryNodelet::~OdometryNodelet() {
   watchdog_.stop();
   pairing_timer_.stop();
   image_sub_.shutdown();
+  compressed_sub_.shutdown();
   info_sub_.shutdown();
   range_sub_.shutdown();
   if (queue_) queue_->close();  // later frames are refused; the queued ones are still processed
@@ -137,6 +140,7 @@ void OdometryNodelet::onInit() {
   pose_pub_ = nh.advertise<geometry_msgs::PoseWithCovarianceStamped>(topics::kOdometryPose, 10);
   it_ = std::make_unique<image_transport::ImageTransport>(nh);
   keyframe_image_pub_ = it_->advertise(topics::kKeyframeImage, 1);
+  chooseImageTransport();
 
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
   updater_->setHardwareID("none");
@@ -156,23 +160,66 @@ void OdometryNodelet::onInit() {
                                       &OdometryNodelet::onPairingTimer, this);
 
   session_sub_ = nh.subscribe(topics::kActiveSession, 1, &OdometryNodelet::onActiveSession, this);
-  const image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
-  image_sub_ = it_->subscribe(topics::kImage, o.sync_queue_size, &OdometryNodelet::onImage, this, hints);
+  if (builtin_decoder_) {
+    compressed_sub_ = nh.subscribe(image_topic_, o.sync_queue_size, &OdometryNodelet::onCompressedImage, this);
+  } else {
+    const image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
+    image_sub_ = it_->subscribe(topics::kImage, o.sync_queue_size, &OdometryNodelet::onImage, this, hints);
+  }
   info_sub_ = nh.subscribe(topics::kCameraInfo, o.sync_queue_size, &OdometryNodelet::onCameraInfo, this);
   if (o.use_altitude_topic) {
     range_sub_ = nh.subscribe(topics::kAltitude, o.sync_queue_size, &OdometryNodelet::onRange, this);
   }
-  NODELET_INFO("odometry: image transport '%s' on %s", image_sub_.getTransport().c_str(),
-               image_sub_.getTopic().c_str());
 }
 
-void OdometryNodelet::onImage(const sensor_msgs::ImageConstPtr& image) {
+void OdometryNodelet::chooseImageTransport() {
+  // ~image_transport, as image_transport itself reads it (default raw).
+  const std::string transport =
+      image_transport::TransportHints("raw", ros::TransportHints(), getPrivateNodeHandle()).getTransport();
+  // Plugins that load, as "<package>/<transport>" (image_transport/raw, image_transport/compressed, ...).
+  const std::vector<std::string> loadable = it_->getLoadableTransports();
+  std::string names;
+  bool installed = false;
+  for (const std::string& l : loadable) {
+    const std::string name = l.substr(l.rfind('/') + 1);
+    installed = installed || name == transport;
+    names += (names.empty() ? "" : ", ") + name;
+  }
+  const std::string base = getNodeHandle().resolveName(topics::kImage);
+  image_transport_ = transport;
+  image_topic_ = transport == "raw" ? base : base + "/" + transport;
+  builtin_decoder_ = transport == "compressed" && !installed;
+  if (builtin_decoder_) {
+    NODELET_INFO(
+        "odometry: image transport 'compressed' on %s (sensor_msgs/CompressedImage, jpeg or png): the built-in "
+        "OpenCV decoder, as image_transport has no compressed plugin (loadable: %s)",
+        image_topic_.c_str(), names.c_str());
+  } else if (installed) {
+    NODELET_INFO("odometry: image transport '%s' on %s: image_transport's plugin", transport.c_str(),
+                 image_topic_.c_str());
+  } else {
+    const std::string why = getPrivateNodeHandle().resolveName("image_transport") + " = '" + transport +
+                            "': no image_transport plugin for it is installed (loadable: " + names +
+                            "; 'compressed' also works without its plugin)";
+    NODELET_FATAL("odometry: not starting: %s", why.c_str());
+    throw std::invalid_argument(why);
+  }
+}
+
+void OdometryNodelet::onImage(const sensor_msgs::ImageConstPtr& image) { addPending({image, nullptr, 0.0}); }
+
+void OdometryNodelet::onCompressedImage(const sensor_msgs::CompressedImageConstPtr& image) {
+  addPending({nullptr, image, 0.0});  // decoded by the worker, so a corrupt one is counted like any bad image
+}
+
+void OdometryNodelet::addPending(Pending p) {
   const double now = wallNow();
   ++images_in_, last_image_ = now;
   if (images_since_range_++ == 0) first_image_since_range_ = now;
   if (images_since_sync_++ == 0) first_image_since_sync_ = now;
+  p.arrived = now;
   std::lock_guard<std::mutex> lock(pairing_mutex_);
-  pending_.push_back({image, now});
+  pending_.push_back(std::move(p));
   pairPending(now);
 }
 
@@ -240,11 +287,12 @@ void OdometryNodelet::pairPending(double now) {
   const std::size_t max_pending = 2 * static_cast<std::size_t>(options_.sync_queue_size);
   while (!pending_.empty()) {
     const Pending& p = pending_.front();
-    const double stamp = p.image->header.stamp.toSec();
+    const double stamp = p.header().stamp.toSec();
     // Waited long enough, or too many waiting: decide with what has arrived.
     const bool final_answer = now - p.arrived >= options_.altitude_max_age_s || pending_.size() > max_pending;
     Frame f;
     f.image = p.image;
+    f.compressed = p.compressed;
     if (!cameraInfoAt(stamp, final_answer, &f.info)) return;
     core::AltitudeAt altitude;
     if (altitudes_) {
@@ -352,7 +400,10 @@ void OdometryNodelet::process(const Frame& f) {
   }
   cv::Mat image;
   rc::ImageRefusal refusal = rc::ImageRefusal::kNone;
-  if (!rc::imageFromMsg(f.image, &image, &why, &refusal)) {
+  // A compressed image (the built-in decoder) is decoded here, then takes the raw path.
+  sensor_msgs::ImagePtr decoded;
+  const bool decodes = !f.compressed || rc::imageFromCompressedMsg(*f.compressed, &decoded, &why, &refusal);
+  if (!decodes || !rc::imageFromMsg(f.compressed ? decoded : f.image, &image, &why, &refusal)) {
     ++counts_.bad_image;
     switch (refusal) {
       case rc::ImageRefusal::kEmpty:
@@ -363,6 +414,9 @@ void OdometryNodelet::process(const Frame& f) {
         break;
       case rc::ImageRefusal::kLayout:
         ++counts_.bad_layout;
+        break;
+      case rc::ImageRefusal::kCorrupt:
+        ++counts_.corrupt_image;
         break;
       default:
         ++counts_.bad_encoding;
@@ -379,7 +433,7 @@ void OdometryNodelet::process(const Frame& f) {
     return;
   }
   // Stamps: duplicates and late frames are skipped before they touch the odometry (or count a bad altitude).
-  const ros::Time stamp = f.image->header.stamp;
+  const ros::Time stamp = f.header().stamp;
   const core::StampClass timing = stamps_->accept(stamp.toSec());
   if (timing == core::StampClass::kDuplicate) {
     ++counts_.duplicates;
@@ -480,7 +534,7 @@ void OdometryNodelet::publishKeyframes(const Frame& f, const cv::Mat& image, con
   for (const auto& kf : odometry_->newKeyframes()) {
     rc::KeyframeData data = rc::keyframeData(odometry, kf, u, session_);
     data.hash = hasher_->hash(kf.features.descriptors);  // once here; the loop detector and back-end reuse it
-    std_msgs::Header header = f.image->header;
+    std_msgs::Header header = f.header();
     if (data.frame_index != u.index) header.stamp.fromSec(odometry.keyframes()[kf.id].stamp_s);  // promoted or held
     keyframe_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::toKeyframeMsg(data, header)));
     ++counts_.keyframes;
@@ -501,7 +555,7 @@ std::string OdometryNodelet::silentInput(double now) const {
   const bool others = now - last_info_ <= timeout || now - last_range_ <= timeout;
   if ((image <= 0 && now - started_ > timeout) || (image > 0 && now - image > timeout && others)) {
     std::ostringstream os;
-    os << "no image on " << image_sub_.getTopic() << " (transport '" << image_sub_.getTransport() << "') "
+    os << "no image on " << image_topic_ << " (transport '" << image_transport_ << "') "
        << (image > 0 ? "for " : "in the ") << std::fixed << std::setprecision(0)
        << now - (image > 0 ? image : started_) << (image > 0 ? " s" : " s since start") << ", while "
        << (now - last_info_ <= timeout ? "camera_info arrives" : "no camera_info arrives either") << " and "
@@ -513,7 +567,7 @@ std::string OdometryNodelet::silentInput(double now) const {
   if (images_since_sync_ == 0 || now - first_image_since_sync_ <= timeout) return "";  // pairs are coming
   auto age = [&](double last) { return now - (last > 0 ? last : started_); };
   std::ostringstream os;
-  os << "images arrive on " << image_sub_.getTopic() << " but none was paired for " << std::fixed
+  os << "images arrive on " << image_topic_ << " but none was paired for " << std::fixed
      << std::setprecision(0) << now - first_image_since_sync_ << " s: ";
   if (age(last_info_) > timeout && !fallback_in_use_) {
     os << "no camera_info on " << info_sub_.getTopic();
@@ -567,6 +621,7 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
        {"queue_length", static_cast<double>(queued)},
        {"skipped_empty_image", static_cast<double>(c.empty_image), true},
        {"skipped_encoding", static_cast<double>(c.bad_encoding), true},
+       {"skipped_corrupt_image", static_cast<double>(c.corrupt_image), true},
        {"skipped_image_layout", static_cast<double>(c.bad_layout), true},
        {"skipped_tiny_image", static_cast<double>(c.tiny_image), true},
        {"skipped_size_mismatch", static_cast<double>(c.size_mismatch), true},

@@ -7,9 +7,11 @@
 #include <sensor_msgs/distortion_models.h>
 #include <sensor_msgs/image_encodings.h>
 
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <sstream>
 
@@ -30,6 +32,7 @@ std::string imageRefusalName(ImageRefusal r) {
     case ImageRefusal::kEncoding: return "encoding";
     case ImageRefusal::kLayout: return "layout";
     case ImageRefusal::kTooSmall: return "too_small";
+    case ImageRefusal::kCorrupt: return "corrupt";
   }
   return "?";
 }
@@ -123,6 +126,107 @@ bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::stri
     return refuse(why, refusal, ImageRefusal::kEncoding, std::string("cannot convert the image: ") + ex.what());
   }
   if (out->empty()) return refuse(why, refusal, ImageRefusal::kEmpty, "empty image after conversion");
+  return true;
+}
+
+bool isTruncatedJpeg(const std::vector<std::uint8_t>& b) {
+  if (b.size() < 3 || b[0] != 0xFF || b[1] != 0xD8 || b[2] != 0xFF) return false;  // not a JPEG
+  std::size_t end = b.size();
+  while (end > 2 && (b[end - 1] == 0x00 || std::isspace(b[end - 1]))) --end;
+  return !(end >= 4 && b[end - 2] == 0xFF && b[end - 1] == 0xD9);
+}
+
+namespace {
+
+enum class Codec { kUnknown, kJpeg, kPng };
+
+/// The codec a CompressedImage format names: after the ';' when there is one
+/// (compressed_image_transport), else the whole field ("jpeg", "png").
+Codec codecOf(const std::string& format) {
+  const std::size_t split = format.find(';');
+  std::string c = split == std::string::npos ? format : format.substr(split + 1);
+  std::transform(c.begin(), c.end(), c.begin(), [](unsigned char ch) { return std::tolower(ch); });
+  if (c.find("compresseddepth") != std::string::npos) return Codec::kUnknown;
+  std::istringstream words(c);
+  std::string first;
+  words >> first;
+  if (first == "jpeg" || first == "jpg") return Codec::kJpeg;
+  if (first == "png") return Codec::kPng;
+  return Codec::kUnknown;
+}
+
+bool startsAs(const std::vector<std::uint8_t>& data, Codec codec) {
+  static const std::uint8_t kJpeg[] = {0xFF, 0xD8, 0xFF};
+  static const std::uint8_t kPng[] = {0x89, 'P', 'N', 'G', 0x0D, 0x0A, 0x1A, 0x0A};
+  const std::uint8_t* magic = codec == Codec::kJpeg ? kJpeg : kPng;
+  const std::size_t n = codec == Codec::kJpeg ? sizeof(kJpeg) : sizeof(kPng);
+  return data.size() >= n && std::equal(magic, magic + n, data.begin());
+}
+
+/// The encoding of a decoded image: the one before compression when it fits (one channel, same
+/// depth), else grey or BGR(A) by the decoded type; empty for a type the raw path cannot take.
+std::string decodedEncoding(const cv::Mat& m, const std::string& before) {
+  namespace enc = sensor_msgs::image_encodings;
+  const bool sixteen = m.depth() == CV_16U;
+  if (m.depth() != CV_8U && !sixteen) return "";
+  if (m.channels() == 3) return sixteen ? enc::BGR16 : enc::BGR8;
+  if (m.channels() == 4) return sixteen ? enc::BGRA16 : enc::BGRA8;
+  if (m.channels() != 1) return "";
+  try {
+    if (!before.empty() && enc::numChannels(before) == 1 && enc::bitDepth(before) == (sixteen ? 16 : 8) &&
+        (enc::isMono(before) || enc::isBayer(before) || before == enc::TYPE_8UC1 || before == enc::TYPE_16UC1)) {
+      return before;
+    }
+  } catch (const std::exception&) {  // an encoding cv_bridge does not know: by the decoded type
+  }
+  return sixteen ? enc::MONO16 : enc::MONO8;
+}
+
+}  // namespace
+
+bool imageFromCompressedMsg(const sensor_msgs::CompressedImage& msg, sensor_msgs::ImagePtr* out, std::string* why,
+                            ImageRefusal* refusal) {
+  if (refusal) *refusal = ImageRefusal::kNone;
+  if (msg.data.empty()) return refuse(why, refusal, ImageRefusal::kEmpty, "empty compressed image (no data)");
+  const Codec codec = codecOf(msg.format);
+  if (codec == Codec::kUnknown) {
+    return refuse(why, refusal, ImageRefusal::kEncoding,
+                  "unsupported compressed image format '" + msg.format +
+                      "' (jpeg and png are, e.g. 'bgr8; jpeg compressed bgr8' or 'png')");
+  }
+  const char* name = codec == Codec::kJpeg ? "JPEG" : "PNG";
+  std::ostringstream os;
+  os << "corrupt compressed image (" << msg.data.size() << " bytes, format '" << msg.format << "'): ";
+  if (!startsAs(msg.data, codec)) {
+    return refuse(why, refusal, ImageRefusal::kCorrupt, os.str() + "not " + name + " data");
+  }
+  if (codec == Codec::kJpeg && isTruncatedJpeg(msg.data)) {
+    return refuse(why, refusal, ImageRefusal::kCorrupt, os.str() + "truncated JPEG (no end-of-image marker)");
+  }
+  cv::Mat image;
+  try {
+    image = cv::imdecode(msg.data, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception& e) {
+    return refuse(why, refusal, ImageRefusal::kCorrupt, os.str() + "OpenCV cannot decode it (" + e.err + ")");
+  }
+  if (image.empty()) return refuse(why, refusal, ImageRefusal::kCorrupt, os.str() + "OpenCV cannot decode it");
+  // The encoding before compression: what compressed_image_transport writes before the ';'.
+  const std::size_t split = msg.format.find(';');
+  std::string before = split == std::string::npos ? "" : msg.format.substr(0, split);
+  before.erase(std::remove_if(before.begin(), before.end(), [](unsigned char c) { return std::isspace(c); }),
+               before.end());
+  const std::string encoding = decodedEncoding(image, before);
+  if (encoding.empty()) {
+    std::ostringstream bad;
+    bad << "compressed image decodes to " << image.channels() << " channel(s) of OpenCV depth " << image.depth()
+        << " (8 or 16 bits, 1, 3 or 4 channels are supported)";
+    return refuse(why, refusal, ImageRefusal::kEncoding, bad.str());
+  }
+  try {
+    *out = cv_bridge::CvImage(msg.header, encoding, image).toImageMsg();
+  } catch (const std::exception& e) {
+    return refuse(why, refusal, ImageRefusal::kEncoding, std::string("cannot convert the decoded image: ") + e.what());
+  }
   return true;
 }
 

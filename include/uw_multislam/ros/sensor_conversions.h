@@ -1,15 +1,19 @@
 // The odometry nodelet's inputs in core types: sensor_msgs/Image -> cv::Mat (8-bit grey or BGR,
-// what core::Odometry takes), CameraInfo -> core::CameraIntrinsics, Range -> altitude. Each
+// what core::Odometry takes), sensor_msgs/CompressedImage -> sensor_msgs/Image (the built-in
+// decoder), CameraInfo -> core::CameraIntrinsics, Range -> altitude. Each
 // returns false with a one-line reason for input the core cannot use (the nodelet counts and
 // skips it); none throws. Tested in test/ros/test_sensor_conversions.cpp.
 #pragma once
 
 #include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/Range.h>
 
 #include <opencv2/core.hpp>
+#include <cstdint>
 #include <string>
+#include <vector>
 
 #include "uw_multislam/core/frontend/dataset.h"
 
@@ -17,8 +21,8 @@ namespace uw_multislam {
 namespace ros_conversions {
 
 /// Why imageFromMsg refused an image (the odometry nodelet counts each kind separately).
-enum class ImageRefusal { kNone, kEmpty, kEncoding, kLayout, kTooSmall };
-/// "none", "empty", "encoding", "layout", "too_small".
+enum class ImageRefusal { kNone, kEmpty, kEncoding, kLayout, kTooSmall, kCorrupt };
+/// "none", "empty", "encoding", "layout", "too_small", "corrupt".
 std::string imageRefusalName(ImageRefusal r);
 
 /// Images narrower or lower than this are refused (kTooSmall): SIFT finds nothing useful in
@@ -38,6 +42,29 @@ constexpr unsigned kMinImageSide = 32;
 ///   kMinImageSide in either direction (kTooSmall). Never throws.
 bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::string* why = nullptr,
                   ImageRefusal* refusal = nullptr);
+
+/// A sensor_msgs/CompressedImage decoded with OpenCV (cv::imdecode, unchanged depth and
+/// channels) into a sensor_msgs/Image with the same header, for the odometry when image_transport
+/// has no `compressed` plugin (Debian ships none). The result then goes through imageFromMsg like
+/// any raw image. The format field is read as compressed_image_transport writes it,
+/// "<encoding>; <jpeg|png> compressed [<target>]" (e.g. "bgr8; jpeg compressed bgr8",
+/// "mono8; png compressed "), or as the message definition allows, plain "jpeg" / "png":
+///   - colour data decodes to bgr8 / bgr16 (bgra8 / bgra16 with alpha), whatever the encoding
+///     before compression (the plugin compresses colour as BGR);
+///   - one channel decodes to the encoding before compression when it has one channel and the
+///     same depth (mono8, mono16, 8UC1, 16UC1, bayer_*: then debayered by imageFromMsg), else to
+///     mono8 / mono16.
+/// Refused: no data (kEmpty); a format that is neither jpeg nor png, or compressedDepth
+/// (kEncoding); data that is not of the format's kind, a JPEG without its end-of-image marker
+/// (truncated: libjpeg would only warn and fill grey), or data OpenCV cannot decode (kCorrupt).
+/// Bytes damaged inside a JPEG's entropy-coded data may still decode (libjpeg only warns), into
+/// a damaged image. Never throws.
+bool imageFromCompressedMsg(const sensor_msgs::CompressedImage& msg, sensor_msgs::ImagePtr* out,
+                            std::string* why = nullptr, ImageRefusal* refusal = nullptr);
+
+/// Whether bytes starting as a JPEG (FF D8 FF) lack the end-of-image marker FF D9 (trailing
+/// zero or white-space padding allowed): libjpeg decodes such a cut-off file with only a warning.
+bool isTruncatedJpeg(const std::vector<std::uint8_t>& bytes);
 
 /// The camera of the images, through image_geometry::PinholeCameraModel (binning and ROI applied:
 /// the size, K and P of the image as it arrives). `rectified` (images from image_proc's

@@ -1,7 +1,12 @@
 // uw_multislam/Odometry: the visual odometry of paper 000 §5 (core::Odometry) on live images.
 //
 // Inputs (relative names, remapped in launch files; include/uw_multislam/ros/topics.h):
-//   camera/image_raw    image_transport (raw by default; ~image_transport: compressed etc.)
+//   camera/image_raw    image_transport (raw by default; ~image_transport: compressed etc.).
+//                       ~image_transport compressed without image_transport's compressed plugin
+//                       (Debian ships none): sensor_msgs/CompressedImage on
+//                       camera/image_raw/compressed, decoded by the worker with OpenCV
+//                       (ros_conversions::imageFromCompressedMsg), then the raw path. Which of
+//                       the two is used is logged at start-up.
 //   camera/camera_info  sensor_msgs/CameraInfo (read with image_geometry::PinholeCameraModel, binning
 //                       and ROI applied): K with D (plumb_bob, rational_polynomial), only the feature
 //                       points undistorted; P when ~rectified_images (image_proc's image_rect).
@@ -57,7 +62,8 @@
 //   - images: encodings are converted or refused as ros/sensor_conversions.h documents
 //     (rgba/bgra drop alpha, 16 bits scaled, Bayer debayered; float/YUV refused); empty, tiny
 //     (< 32 px) or wrongly laid out images and images whose size differs from camera_info are
-//     skipped;
+//     skipped; so are compressed images (built-in decoder) that do not decode (corrupt) or whose
+//     format is neither jpeg nor png;
 //   - camera_info without a focal length, with the principal point outside, a zero P for rectified
 //     images or an unsupported distortion model (equidistant: rectify first): frame skipped;
 //   - no camera_info at all: with ~camera_info_url, images that waited ~altitude_max_age_s without
@@ -86,6 +92,7 @@
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/Range.h>
 
@@ -140,23 +147,27 @@ class OdometryNodelet : public nodelet::Nodelet {
  private:
   struct Frame {
     sensor_msgs::ImageConstPtr image;
+    sensor_msgs::CompressedImageConstPtr compressed;  // instead of image: the built-in decoder's input
     sensor_msgs::CameraInfoConstPtr info;
     double altitude_m = 0.0;      // at the image stamp (with the altitude topic)
     bool bad_altitude = false;    // it would use an invalid reading: the core reuses the last valid one
     bool fixed_altitude = false;  // the altitude topic was silent: ~fallback_altitude is used
+    const std_msgs::Header& header() const { return image ? image->header : compressed->header; }
   };
   // The recent camera_infos searched for an image's.
   static constexpr std::size_t kCameraInfosKept = 100;
   // An image waiting for its camera_info and altitude.
   struct Pending {
     sensor_msgs::ImageConstPtr image;
-    double arrived = 0.0;  // wall seconds
+    sensor_msgs::CompressedImageConstPtr compressed;  // instead of image (built-in decoder)
+    double arrived = 0.0;                             // wall seconds
+    const std_msgs::Header& header() const { return image ? image->header : compressed->header; }
   };
   struct Counters {
     long frames = 0, dropped = 0, bad_image = 0, bad_camera = 0, bad_altitude = 0, keyframes = 0, fallbacks = 0,
          sessions = 0, losses = 0;
     // Image refusals by kind (their sum is bad_image), stamps, altitude fallback, core skips.
-    long empty_image = 0, bad_encoding = 0, bad_layout = 0, tiny_image = 0, size_mismatch = 0;
+    long empty_image = 0, bad_encoding = 0, bad_layout = 0, tiny_image = 0, size_mismatch = 0, corrupt_image = 0;
     long duplicates = 0, out_of_order = 0, jumps_back = 0, jumps_forward = 0;
     long fixed_altitude = 0, skipped_by_odometry = 0;
     double total_ms = 0.0, max_ms = 0.0, last_ms = 0.0;
@@ -165,7 +176,14 @@ class OdometryNodelet : public nodelet::Nodelet {
 
   void onInit() override;
   void readParameters();
+  /// Decides how images come (image_topic_, image_transport_, builtin_decoder_): through
+  /// image_transport with ~image_transport's plugin, or, for `compressed` without its plugin,
+  /// from <image>/compressed through the built-in decoder. Throws for another missing plugin.
+  void chooseImageTransport();
   void onImage(const sensor_msgs::ImageConstPtr& image);
+  void onCompressedImage(const sensor_msgs::CompressedImageConstPtr& image);
+  /// An image (raw or compressed) joins the images waiting for their pairing.
+  void addPending(Pending p);
   void onCameraInfo(const sensor_msgs::CameraInfoConstPtr& info);
   void onRange(const sensor_msgs::RangeConstPtr& range);
   void onPairingTimer(const ros::WallTimerEvent&);
@@ -227,6 +245,9 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::unique_ptr<diagnostic_updater::Updater> updater_;
   ros_diagnostics::CounterStatus diagnostic_status_;  // used by the updater's thread only
   ros::WallTimer watchdog_;
+  // How images come, decided in onInit before any callback (chooseImageTransport).
+  std::string image_topic_, image_transport_;
+  bool builtin_decoder_ = false;
 
   // Worker-only state.
   std::unique_ptr<core::ImageHasher> hasher_;          // each keyframe's hash, paper (6)(7), for the Keyframe message
@@ -245,6 +266,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   // Subscribers last: destroyed first, so no callback runs into destroyed members.
   ros::Subscriber session_sub_;
   image_transport::Subscriber image_sub_;
+  ros::Subscriber compressed_sub_;  // the built-in decoder's subscription (instead of image_sub_)
   ros::Subscriber info_sub_;
   ros::Subscriber range_sub_;
 };
