@@ -4,7 +4,9 @@
 #include <nav_msgs/Odometry.h>
 #include <ros/names.h>
 #include <rosbag/bag.h>
+#include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
+#include <sensor_msgs/image_encodings.h>
 
 #include <algorithm>
 #include <cctype>
@@ -20,6 +22,7 @@
 #include <sstream>
 
 #include "uw_multislam/ros/conversions.h"
+#include "uw_multislam/ros/sensor_conversions.h"
 
 namespace uw_multislam {
 namespace ros_bag {
@@ -128,21 +131,12 @@ std::vector<uchar> readFile(const std::string& path) {
   return bytes;
 }
 
-// libjpeg decodes a truncated JPEG with only a warning on stderr (the missing rows come out
-// grey), so a cut-off file would pass silently: require the end-of-image marker FF D9, allowing
-// trailing padding.
-bool isTruncatedJpeg(const std::vector<uchar>& b) {
-  if (b.size() < 3 || b[0] != 0xFF || b[1] != 0xD8 || b[2] != 0xFF) return false;  // not a JPEG
-  std::size_t end = b.size();
-  while (end > 2 && (b[end - 1] == 0x00 || std::isspace(b[end - 1]))) --end;
-  return !(end >= 4 && b[end - 2] == 0xFF && b[end - 1] == 0xD9);
-}
-
 // The image file as stored (ANYCOLOR | ANYDEPTH keeps grey grey and 16 bits 16 bits) and its
 // encoding; throws naming the file when it is unreadable, of an unsupported type or of the wrong size.
 cv::Mat readImage(const std::string& path, const core::CameraIntrinsics& camera, std::string* encoding) {
   const std::vector<uchar> bytes = readFile(path);
-  if (isTruncatedJpeg(bytes)) fail(path + ": corrupt image (truncated JPEG: no end-of-image marker)");
+  // libjpeg decodes a cut-off JPEG with only a warning (the missing rows come out grey).
+  if (ros_conversions::isTruncatedJpeg(bytes)) fail(path + ": corrupt image (truncated JPEG: no end-of-image marker)");
   cv::Mat image;
   try {
     image = cv::imdecode(bytes, cv::IMREAD_ANYCOLOR | cv::IMREAD_ANYDEPTH);
@@ -183,6 +177,34 @@ sensor_msgs::ImagePtr toImageMsg(const cv::Mat& image, const std::string& encodi
   } catch (const cv_bridge::Exception& e) {
     fail(path + ": cannot convert " + encoding + " to " + wanted + " (" + e.what() + ")");
   }
+}
+
+// The image as compressed_image_transport would publish it: colour as BGR (8 bits for JPEG, the
+// same depth for PNG) with the target in the format, grey as it is.
+sensor_msgs::CompressedImage toCompressedMsg(const sensor_msgs::Image& image, const DatasetBagOptions& o,
+                                             const std::string& path) {
+  namespace enc = sensor_msgs::image_encodings;
+  const bool jpeg = o.image_format == ImageFormat::kJpeg;
+  const bool colour = enc::isColor(image.encoding);
+  const int depth = enc::bitDepth(image.encoding);
+  if (jpeg && !colour && depth != 8) {
+    fail(path + ": a " + image.encoding + " image cannot be written as JPEG (8 bits): use png, or encoding mono8");
+  }
+  const std::string target = colour ? (jpeg || depth == 8 ? "bgr8" : "bgr16") : "";
+  sensor_msgs::CompressedImage m;
+  m.header = image.header;
+  m.format = image.encoding + (jpeg ? "; jpeg compressed " : "; png compressed ") + target;
+  const std::vector<int> params = jpeg ? std::vector<int>{cv::IMWRITE_JPEG_QUALITY, o.jpeg_quality}
+                                       : std::vector<int>{cv::IMWRITE_PNG_COMPRESSION, 3};
+  try {
+    const cv::Mat pixels = cv_bridge::toCvCopy(image, target)->image;
+    if (!cv::imencode(jpeg ? ".jpg" : ".png", pixels, m.data, params)) fail(path + ": cannot compress the image");
+  } catch (const cv_bridge::Exception& e) {
+    fail(path + ": cannot compress the image (" + e.what() + ")");
+  } catch (const cv::Exception& e) {
+    fail(path + ": cannot compress the image (" + e.err + ")");
+  }
+  return m;
 }
 
 sensor_msgs::Range toRangeMsg(const AltimeterModel& a, double altitude_m, const std_msgs::Header& header) {
@@ -289,7 +311,12 @@ void writeFrame(const FrameContext& c, const core::FrameRecord& f, const ros::Ti
   std::string encoding;
   const cv::Mat image = readImage(path, c.dataset.camera, &encoding);
   header.frame_id = o.frames.camera;
-  bag->write(o.topics.image, stamp, *toImageMsg(image, encoding, o.image_encoding, header, path));
+  const sensor_msgs::ImagePtr msg = toImageMsg(image, encoding, o.image_encoding, header, path);
+  if (o.image_format == ImageFormat::kRaw) {
+    bag->write(o.topics.image, stamp, *msg);
+  } else {
+    bag->write(o.imageTopic(), stamp, toCompressedMsg(*msg, o, path));
+  }
   ++stats->images;
 
   sensor_msgs::CameraInfo info = toCameraInfoMsg(c.dataset.camera);
@@ -337,7 +364,20 @@ std::string DatasetBagOptions::validate() const {
     bad = "image encoding '" + image_encoding + "' is not one of mono8, mono16, bgr8, rgb8, bgr16, rgb16";
   }
   if (bad.empty() && start_time.isZero()) bad = "start time is 0, which ROS treats as no time";
+  if (bad.empty() && !(jpeg_quality >= 1 && jpeg_quality <= 100)) {
+    bad = "JPEG quality " + std::to_string(jpeg_quality) + " is not in 1..100";
+  }
+  if (bad.empty() && image_format != ImageFormat::kRaw) {
+    // The compressed topic must not be another of the bag's topics.
+    for (const std::string* t : {&topics.camera_info, &topics.altitude, &topics.ground_truth}) {
+      if (ros::names::clean(*t) == ros::names::clean(imageTopic())) bad = "topic '" + *t + "' is used twice";
+    }
+  }
   return bad;
+}
+
+std::string DatasetBagOptions::imageTopic() const {
+  return image_format == ImageFormat::kRaw ? topics.image : topics.image + "/compressed";
 }
 
 sensor_msgs::CameraInfo toCameraInfoMsg(const core::CameraIntrinsics& c) {
@@ -387,7 +427,7 @@ DatasetBagStats writeDatasetBag(const core::Dataset& dataset, const DatasetBagOp
 
 std::string summarize(const DatasetBagStats& s, const DatasetBagOptions& o) {
   std::ostringstream os;
-  os << s.bag_path << ": " << s.frames << " frames; " << o.topics.image << " " << s.images << ", "
+  os << s.bag_path << ": " << s.frames << " frames; " << o.imageTopic() << " " << s.images << ", "
      << o.topics.camera_info << " " << s.camera_infos << ", " << o.topics.altitude << " " << s.altitudes;
   if (s.ground_truth_poses > 0) os << ", " << o.topics.ground_truth << " " << s.ground_truth_poses;
   os << std::fixed << std::setprecision(3) << "; stamps " << s.first_stamp.toSec() << " .. " << s.last_stamp.toSec()

@@ -42,6 +42,10 @@ int usage(int code) {
                "  --gt-topic NAME           (default %s)\n"
                "  --encoding ENC            convert images to mono8, mono16, bgr8, rgb8, bgr16 or rgb16\n"
                "                            (default: as stored)\n"
+               "  --image-format F          raw (sensor_msgs/Image), or jpeg / png: sensor_msgs/CompressedImage\n"
+               "                            on IMAGE_TOPIC/compressed instead, as compressed_image_transport\n"
+               "                            writes it (default raw)\n"
+               "  --jpeg-quality Q          JPEG quality 1..100 (default %d)\n"
                "  --compression C           none, lz4 or bz2 (default none)\n"
                "  -h, --help                this text\n"
                "Exit status 0 on success, 1 on bad input or a failed write, 2 on a bad command line.\n",
@@ -50,7 +54,7 @@ int usage(int code) {
                d.topics.ground_truth.c_str(), d.frames.ground_truth_origin.c_str(), "", rb::kDefaultStartTimeSec,
                d.frames.camera.c_str(), d.frames.altimeter.c_str(), d.frames.ground_truth_origin.c_str(),
                d.topics.image.c_str(), d.topics.camera_info.c_str(), d.topics.altitude.c_str(),
-               d.topics.ground_truth.c_str());
+               d.topics.ground_truth.c_str(), d.jpeg_quality);
   return code;
 }
 
@@ -64,6 +68,26 @@ bool parseStartTime(const std::string& s, ros::Time* out) {
   const double v = std::strtod(s.c_str(), &end);
   if (s.empty() || *end != '\0' || !std::isfinite(v) || v <= 0.0 || v >= 4294967295.0) return false;
   out->fromSec(v);
+  return true;
+}
+
+bool parseImageFormat(const std::string& s, rb::ImageFormat* out) {
+  if (s == "raw")
+    *out = rb::ImageFormat::kRaw;
+  else if (s == "jpeg")
+    *out = rb::ImageFormat::kJpeg;
+  else if (s == "png")
+    *out = rb::ImageFormat::kPng;
+  else
+    return false;
+  return true;
+}
+
+bool parseQuality(const std::string& s, int* out) {
+  char* end = nullptr;
+  const long v = std::strtol(s.c_str(), &end, 10);
+  if (s.empty() || *end != '\0' || v < 1 || v > 100) return false;
+  *out = static_cast<int>(v);
   return true;
 }
 
@@ -96,6 +120,8 @@ bool applyOption(const std::string& name, const std::string& value, rb::DatasetB
   }
   if (name == "--start-time") return parseStartTime(value, &o->start_time);
   if (name == "--compression") return parseCompression(value, &o->compression);
+  if (name == "--image-format") return parseImageFormat(value, &o->image_format);
+  if (name == "--jpeg-quality") return parseQuality(value, &o->jpeg_quality);
   return false;
 }
 

@@ -7,6 +7,7 @@
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
 #include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/Range.h>
 #include <unistd.h>
@@ -23,6 +24,7 @@
 
 #include "../common/scoped_temp_dir.h"
 #include "uw_multislam/ros/dataset_bag.h"
+#include "uw_multislam/ros/sensor_conversions.h"
 
 namespace uw_multislam {
 namespace ros_bag {
@@ -259,6 +261,76 @@ TEST_F(DatasetBagTest, ForcedMono8EncodingConvertsColourImages) {
     ASSERT_EQ(back.type(), CV_8UC1);
     EXPECT_EQ(cv::norm(back, expected, cv::NORM_INF), 0.0) << "frame " << i;
   }
+}
+
+TEST_F(DatasetBagTest, CompressedImagesGoToTheCompressedTopicInThePluginsFormat) {
+  writeDataset();
+  for (const ImageFormat format : {ImageFormat::kPng, ImageFormat::kJpeg}) {
+    const bool jpeg = format == ImageFormat::kJpeg;
+    DatasetBagOptions o;
+    o.image_format = format;
+    o.jpeg_quality = 90;
+    const DatasetBagStats s = convert(o);
+    EXPECT_EQ(s.images, 5u);
+    const auto topics = topicsOf(bag_);
+    EXPECT_EQ(topics.count("/camera/image_raw"), 0u) << "the raw topic is not written as well";
+    ASSERT_EQ(topics.count("/camera/image_raw/compressed"), 1u);
+    EXPECT_EQ(topics.at("/camera/image_raw/compressed").datatype, "sensor_msgs/CompressedImage");
+    EXPECT_EQ(topics.at("/camera/camera_info").count, 5u);
+    EXPECT_NE(summarize(s, o).find("/camera/image_raw/compressed 5"), std::string::npos) << summarize(s, o);
+
+    std::vector<ros::Time> times;
+    const auto images = read<sensor_msgs::CompressedImage>(bag_, "/camera/image_raw/compressed", &times);
+    ASSERT_EQ(images.size(), images_.size());
+    for (std::size_t i = 0; i < images.size(); ++i) {
+      const bool grey = frames_[i].index == kGreyFrame;
+      const std::string codec = jpeg ? "jpeg" : "png";
+      // compressed_image_transport's format: the encoding; the codec; colour's target.
+      EXPECT_EQ(images[i]->format, grey ? "mono8; " + codec + " compressed " : "bgr8; " + codec + " compressed bgr8");
+      EXPECT_EQ(images[i]->header.stamp, times[i]);
+      EXPECT_EQ(images[i]->header.stamp, ros::Time(kDefaultStartTimeSec, 0) + ros::Duration(frames_[i].stamp_s));
+      EXPECT_EQ(images[i]->header.frame_id, "camera");
+      sensor_msgs::ImagePtr decoded;
+      std::string why;
+      ASSERT_TRUE(ros_conversions::imageFromCompressedMsg(*images[i], &decoded, &why)) << why;
+      const cv::Mat back = cv_bridge::toCvShare(decoded)->image;
+      ASSERT_EQ(back.type(), images_[i].type());
+      if (jpeg) {
+        // At the quality asked for: the pixels OpenCV's own JPEG round trip at 90 gives.
+        std::vector<uchar> bytes;
+        cv::imencode(".jpg", images_[i], bytes, {cv::IMWRITE_JPEG_QUALITY, 90});
+        EXPECT_EQ(cv::norm(back, cv::imdecode(bytes, cv::IMREAD_UNCHANGED), cv::NORM_INF), 0.0) << "frame " << i;
+      } else {
+        EXPECT_EQ(cv::norm(back, images_[i], cv::NORM_INF), 0.0) << "frame " << i << ": PNG is lossless";
+      }
+    }
+  }
+  // The quality is applied: lower quality, smaller images.
+  auto bytesAt = [&](int quality) {
+    DatasetBagOptions o;
+    o.image_format = ImageFormat::kJpeg;
+    o.jpeg_quality = quality;
+    convert(o);
+    std::size_t n = 0;
+    for (const auto& m : read<sensor_msgs::CompressedImage>(bag_, "/camera/image_raw/compressed")) n += m->data.size();
+    return n;
+  };
+  EXPECT_LT(bytesAt(30), bytesAt(95));
+}
+
+TEST_F(DatasetBagTest, SixteenBitGreyIsNotWrittenAsJpeg) {
+  writeDataset();
+  DatasetBagOptions o;
+  o.image_encoding = "mono16";
+  o.image_format = ImageFormat::kJpeg;
+  expectError(o, {"mono16", "JPEG", "png"});
+  EXPECT_FALSE(fs::exists(bag_));
+  o.image_format = ImageFormat::kPng;  // lossless 16 bits
+  convert(o);
+  const auto images = read<sensor_msgs::CompressedImage>(bag_, "/camera/image_raw/compressed");
+  ASSERT_EQ(images.size(), 5u);
+  EXPECT_EQ(images[0]->format, "mono16; png compressed ");
+  EXPECT_EQ(cv::imdecode(images[0]->data, cv::IMREAD_UNCHANGED).type(), CV_16UC1);
 }
 
 TEST_F(DatasetBagTest, CameraInfoCarriesCameraYaml) {
@@ -500,6 +572,13 @@ TEST(DatasetBagOptions, ValidateNamesTheBadOption) {
             std::string::npos);
   EXPECT_NE(bad([](DatasetBagOptions& o) { o.image_encoding = "jpeg"; }).find("'jpeg'"), std::string::npos);
   EXPECT_NE(bad([](DatasetBagOptions& o) { o.start_time = ros::Time(); }).find("start time"), std::string::npos);
+  EXPECT_NE(bad([](DatasetBagOptions& o) { o.jpeg_quality = 0; }).find("JPEG quality 0"), std::string::npos);
+  EXPECT_NE(bad([](DatasetBagOptions& o) { o.jpeg_quality = 101; }).find("JPEG quality 101"), std::string::npos);
+  EXPECT_NE(bad([](DatasetBagOptions& o) {
+              o.image_format = ImageFormat::kPng;
+              o.topics.altitude = "/camera/image_raw/compressed";
+            }).find("twice"),
+            std::string::npos);
   EXPECT_NE(bad([](DatasetBagOptions& o) { o.altimeter.field_of_view_rad = 0.0; }).find("field_of_view"),
             std::string::npos);
   EXPECT_NE(bad([](DatasetBagOptions& o) { o.altimeter.max_range_m = 0.05; }).find("range"), std::string::npos);

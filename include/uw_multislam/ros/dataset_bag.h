@@ -6,6 +6,9 @@
 //
 //   topic (default)        type                    content
 //   /camera/image_raw      sensor_msgs/Image       the image file, lossless (bgr8 colour, mono8 grey)
+//     or, with image_format jpeg / png, instead:
+//   /camera/image_raw/compressed  sensor_msgs/CompressedImage  as compressed_image_transport
+//                                 writes it (format "bgr8; jpeg compressed bgr8", "mono8; png compressed ")
 //   /camera/camera_info    sensor_msgs/CameraInfo  plumb_bob, D = 0, K/P from camera.yaml
 //   /altitude              sensor_msgs/Range       altitude_m, frame "altimeter"
 //   /ground_truth/odom     nav_msgs/Odometry       gt.csv pose; only when gt.csv exists
@@ -67,6 +70,10 @@ struct AltimeterModel {
 
 enum class BagCompression { kNone, kBz2, kLz4 };
 
+/// How images are written: sensor_msgs/Image (raw), or sensor_msgs/CompressedImage on
+/// "<image topic>/compressed" (what compressed_image_transport publishes and records).
+enum class ImageFormat { kRaw, kJpeg, kPng };
+
 struct DatasetBagOptions {
   BagTopics topics;
   BagFrames frames;
@@ -79,7 +86,15 @@ struct DatasetBagOptions {
   /// Otherwise every image is converted to this encoding: mono8, mono16, bgr8, rgb8, bgr16, rgb16.
   std::string image_encoding;
   BagCompression compression = BagCompression::kNone;
+  /// kJpeg, kPng: CompressedImage on "<topics.image>/compressed" instead of Image on topics.image,
+  /// after the encoding conversion above. As compressed_image_transport does: colour compressed as
+  /// BGR (JPEG: 8 bits), grey as it is (16-bit grey only as PNG: JPEG is 8 bits).
+  ImageFormat image_format = ImageFormat::kRaw;
+  /// JPEG quality, 1..100 (compressed_image_transport's default: 80).
+  int jpeg_quality = 80;
 
+  /// The topic the images go to: topics.image, or topics.image + "/compressed".
+  std::string imageTopic() const;
   /// Empty when usable, else a sentence naming the bad option.
   std::string validate() const;
 };
