@@ -284,6 +284,7 @@ std::vector<ros_diagnostics::Counter> managerCounters(const core::SessionManager
           {"joins", d(b.joins)},
           {"splits", d(b.splits)},
           {"loops_refused_at_join", d(b.loops_refused)},
+          {"joins_refused", d(b.joins_refused)},
           {"optimisations", d(b.optimisations)},
           {"optimisations_discarded", d(b.optimisations_discarded)},
           {"optimise_ms_max", b.optimise_ms_max}};

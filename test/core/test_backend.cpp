@@ -228,6 +228,86 @@ TEST_P(BothOptimizers, AnInconsistentLoopIsRefusedAtTheJoin) {
   EXPECT_LT(worstError(b.sessionPoses(1), w.truthIn(0, 1)), 1e-3);
 }
 
+// --- join_policy: consistent (core/backend/loop_consistency.h) ---
+
+BackendOptions consistentOptions(OptimizerKind k) {
+  BackendOptions o = optionsFor(k);
+  o.join_policy = JoinPolicy::kConsistent;
+  o.join_min_consistent = 2;
+  o.join_min_inliers = 60;
+  o.join_min_spread_m = 0.2;
+  return o;
+}
+
+BackendLoop withInliers(BackendLoop l, int inliers) {
+  l.inliers = inliers;
+  return l;
+}
+
+TEST_P(BothOptimizers, ConsistentPolicyJoinsAShortRevisitFromTwoLoops) {
+  // A second pass 0.3 m beside the first: two correct loops 1 m apart join it, where the count
+  // policy (K = 5) would wait for loops that never come.
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(0.5, 0.3, 0.05), 10)};
+  MultiSessionBackend b(consistentOptions(GetParam()));
+  w.feed(&b, 0);
+  w.feed(&b, 1);
+  b.addLoop(withInliers(w.loop(0, 3, 1, 2), 40));
+  EXPECT_EQ(b.mapOf(1), 1) << "one loop is no set";
+  b.addLoop(withInliers(w.loop(0, 5, 1, 4), 40));
+  ASSERT_EQ(b.mapOf(1), 0);
+  EXPECT_EQ(b.links(0)[0].loops, 2);
+  EXPECT_EQ(b.stats().joins_refused, 0);
+  EXPECT_LT(worstError(b.sessionPoses(1), w.truthIn(0, 1)), 1e-3);
+
+  BackendOptions count = optionsFor(GetParam());  // the same loops under the count policy: no join
+  MultiSessionBackend c(count);
+  w.feed(&c, 0);
+  w.feed(&c, 1);
+  c.addLoop(w.loop(0, 3, 1, 2));
+  c.addLoop(w.loop(0, 5, 1, 4));
+  EXPECT_EQ(c.mapOf(1), 1);
+}
+
+TEST_P(BothOptimizers, ConsistentPolicyLeavesAWrongLoopOut) {
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(1.0, -2.0, M_PI / 2), 10)};
+  BackendOptions o = consistentOptions(GetParam());
+  o.join_min_consistent = 4;
+  MultiSessionBackend b(o);
+  w.feed(&b, 0);
+  w.feed(&b, 1);
+  b.addLoop(withInliers(w.loop(0, 7, 1, 4, Pose2(2.0, 0.0, 0.3)), 300));  // wrong, and strong
+  for (int k = 0; k < 3; ++k) b.addLoop(withInliers(w.loop(0, 2, 1, 3 + k), 40));
+  EXPECT_EQ(b.mapOf(1), 1) << "3 consistent loops of 4: 4 needed";
+  EXPECT_EQ(b.stats().joins_refused, 1);
+  b.addLoop(withInliers(w.loop(0, 3, 1, 6), 40));
+  ASSERT_EQ(b.mapOf(1), 0);
+  EXPECT_EQ(b.stats().loops_refused, 1);
+  EXPECT_EQ(b.links(0)[0].loops, 4);
+  EXPECT_LT(worstError(b.sessionPoses(1), w.truthIn(0, 1)), 1e-3);
+}
+
+TEST_P(BothOptimizers, ConsistentPolicyRefusesLoopsAtOnePlaceAndSaysWhy) {
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(0.5, 0.3, 0.05), 10)};
+  MultiSessionBackend b(consistentOptions(GetParam()));
+  w.feed(&b, 0);
+  w.feed(&b, 1);
+  for (int k = 0; k < 3; ++k) b.addLoop(withInliers(w.loop(0, 4, 1, 3), 80));
+  EXPECT_EQ(b.mapOf(1), 1);
+  EXPECT_EQ(b.stats().joins_refused, 2);  // tried at the second and the third loop
+  EXPECT_NE(b.stats().last_join_refusal.find("spread 0 m"), std::string::npos) << b.stats().last_join_refusal;
+  // Too few inliers is refused the same way.
+  MultiSessionBackend weak(consistentOptions(GetParam()));
+  w.feed(&weak, 0);
+  w.feed(&weak, 1);
+  weak.addLoop(withInliers(w.loop(0, 3, 1, 2), 20));
+  weak.addLoop(withInliers(w.loop(0, 6, 1, 5), 20));
+  EXPECT_EQ(weak.mapOf(1), 1);
+  EXPECT_NE(weak.stats().last_join_refusal.find("40 inliers"), std::string::npos) << weak.stats().last_join_refusal;
+}
+
 TEST_P(BothOptimizers, OptimisationWaitsForMPendingLoops) {
   BackendOptions o = optionsFor(GetParam());
   o.optimise_every = 3;

@@ -28,6 +28,18 @@ bool parseOptimizer(const std::string& name, OptimizerKind* out) {
   return true;
 }
 
+const char* joinPolicyName(JoinPolicy p) { return p == JoinPolicy::kCount ? "count" : "consistent"; }
+
+bool parseJoinPolicy(const std::string& name, JoinPolicy* out) {
+  if (name == "count")
+    *out = JoinPolicy::kCount;
+  else if (name == "consistent")
+    *out = JoinPolicy::kConsistent;
+  else
+    return false;
+  return true;
+}
+
 std::string BackendOptions::validate() const {
   std::string bad = iekf.validate();
   if (!bad.empty()) return bad;
@@ -37,6 +49,11 @@ std::string BackendOptions::validate() const {
   if (join_min_loops < 0) return "join_min_loops must be >= 0 (0 = no automatic joining)";
   if (!(join_gate_m > 0)) return "join_gate_m must be positive";
   if (max_keyframes < 2) return "max_keyframes must be >= 2";
+  if (join_min_consistent < 1) return "join_min_consistent must be >= 1";
+  if (join_min_inliers < 0) return "join_min_inliers must be >= 0";
+  if (!(join_min_spread_m >= 0 && std::isfinite(join_min_spread_m))) return "join_min_spread_m must be >= 0";
+  bad = consistency.validate();
+  if (!bad.empty()) return bad;
   return {};
 }
 
@@ -185,11 +202,20 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
     if (options_.optimise && m.pending >= options_.optimise_every) optimise(ma);
     return;
   }
+  // The count policy waits for K loops; the consistency policy tries from its minimum set on
+  // (join_min_loops 0 turns automatic joining off for both).
+  const int needed = options_.join_policy == JoinPolicy::kCount ? options_.join_min_loops
+                                                                 : options_.join_min_consistent;
   if (options_.join_min_loops > 0 && !barred(l.session_a, l.session_b) &&
-      static_cast<int>(loopsBetween(ma, mb, true).size()) >= options_.join_min_loops) {
-    const BackendStatus st = joinMaps(ma, mb, options_.join_min_loops, true);
-    if (!st.ok())
+      static_cast<int>(loopsBetween(ma, mb, true).size()) >= needed) {
+    const BackendStatus st = joinMaps(ma, mb, needed, true);
+    if (!st.ok()) {
+      if (options_.join_policy == JoinPolicy::kConsistent) {
+        ++stats_.joins_refused;
+        stats_.last_join_refusal = "maps " + std::to_string(ma) + " and " + std::to_string(mb) + ": " + st.message;
+      }
       say("automatic join of maps " + std::to_string(ma) + " and " + std::to_string(mb) + " postponed: " + st.message);
+    }
   }
 }
 
@@ -377,11 +403,38 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
     const int ci = a_first ? indexOf(l.session_b, l.keyframe_b) : indexOf(l.session_a, l.keyframe_a);
     cand.push_back({id, tp.relative(pi, pe), tc.relative(0, ci), a_first ? l.z : invert(l.z)});
   }
-  // Estimate, refuse loops whose position disagrees by more than the gate, re-estimate with the
-  // rest; a few rounds.
   std::vector<bool> in(cand.size(), true);
   JoinResult res;
-  for (int round = 0; round < 4; ++round) {
+  if (options_.join_policy == JoinPolicy::kConsistent) {
+    // The largest pairwise-consistent set, if it is big, strong and spread enough; the link from it.
+    std::vector<CrossLoop> cl;
+    for (int id : ids) {
+      const BackendLoop& l = loops_[id].loop;
+      const bool a_first = mapOf(l.session_a) == first;
+      cl.push_back({a_first ? indexOf(l.session_a, l.keyframe_a) : indexOf(l.session_b, l.keyframe_b),
+                    a_first ? indexOf(l.session_b, l.keyframe_b) : indexOf(l.session_a, l.keyframe_a),
+                    a_first ? l.z : invert(l.z), l.inliers});
+    }
+    const ConsistentSet set = largestConsistentSet(cl, tp, tc, options_.consistency);
+    std::ostringstream why;
+    why << "the largest consistent set of the " << cand.size() << " global loops between map " << first << " and map "
+        << second << " (" << set.consistent_pairs << " of " << set.pairs << " pairs consistent) has "
+        << set.loops.size() << " loops, " << set.inliers << " inliers, spread " << set.spread_m << " m; needed "
+        << min_loops << " loops, " << options_.join_min_inliers << " inliers, " << options_.join_min_spread_m << " m";
+    if (set.loops.empty() || static_cast<int>(set.loops.size()) < min_loops || set.inliers < options_.join_min_inliers ||
+        set.spread_m < options_.join_min_spread_m)
+      return {StatusCode::kFailedPrecondition, why.str()};
+    std::fill(in.begin(), in.end(), false);
+    std::vector<JoinLoop> jl;
+    for (int k : set.loops) {
+      in[k] = true;
+      jl.push_back({cand[k].pe_from_pi.mean, cand[k].ci_from_cs.mean, cand[k].z});
+    }
+    res = estimateJoinLink(jl, options_.iekf);
+  }
+  // Count policy: estimate, refuse loops whose position disagrees by more than the gate,
+  // re-estimate with the rest; a few rounds.
+  for (int round = 0; options_.join_policy == JoinPolicy::kCount && round < 4; ++round) {
     std::vector<JoinLoop> jl;
     for (std::size_t k = 0; k < cand.size(); ++k)
       if (in[k]) jl.push_back({cand[k].pe_from_pi.mean, cand[k].ci_from_cs.mean, cand[k].z});

@@ -44,7 +44,7 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
   for (const StoredLoop& l : store.loops()) {
     const auto a = session_of.find(l.session_a), b = session_of.find(l.session_b);
     if (a == session_of.end() || b == session_of.end()) continue;  // a session without keyframes
-    LoopRecord r{{a->second, l.keyframe_a, b->second, l.keyframe_b, l.z}, l.summarised, l.applied, l.refused};
+    LoopRecord r{{a->second, l.keyframe_a, b->second, l.keyframe_b, l.z, l.inliers}, l.summarised, l.applied, l.refused};
     loop_of[l.id] = backend->restoreLoop(r);
     out.loop_ids.push_back(l.id);
     out.loops.push_back(l);

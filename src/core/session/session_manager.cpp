@@ -389,7 +389,7 @@ void SessionManager::acceptLoop(const Loop& l) {
   const Session& b = at(l.session_b);
   if (a.phantoms.count(l.keyframe_a) || b.phantoms.count(l.keyframe_b))
     throw std::invalid_argument("loop on a keyframe that never arrived");
-  backend_->addLoop({a.backend, l.keyframe_a, b.backend, l.keyframe_b, l.z});
+  backend_->addLoop({a.backend, l.keyframe_a, b.backend, l.keyframe_b, l.z, l.inliers});
   Loop named = l;
   if (l.keyframe_a < static_cast<int>(a.frames.size())) named.frame_a = a.frames[l.keyframe_a];
   if (l.keyframe_b < static_cast<int>(b.frames.size())) named.frame_b = b.frames[l.keyframe_b];

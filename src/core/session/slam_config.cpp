@@ -143,6 +143,16 @@ void visitBackend(V& v, B& b) {
   v("optimise_every", b.optimise_every);
   v("join_min_loops", b.join_min_loops);
   v("join_gate_m", b.join_gate_m);
+  v.enumeration("join_policy", b.join_policy, joinPolicyName, parseJoinPolicy, "count, consistent");
+  v("join_min_consistent", b.join_min_consistent);
+  v("join_min_inliers", b.join_min_inliers);
+  v("join_min_spread_m", b.join_min_spread_m);
+  v.block("consistency", [&](V& c) {
+    c("confidence", b.consistency.confidence);
+    c("min_sigma_m", b.consistency.min_sigma_m);
+    c("min_sigma_rad", b.consistency.min_sigma_rad);
+    c("max_loops", b.consistency.max_loops);
+  });
   v.block("iekf", [&](V& i) {
     i("max_iterations", b.iekf.max_iterations);
     i("tolerance", b.iekf.tolerance);

@@ -53,6 +53,7 @@
 #include <vector>
 
 #include "uw_multislam/core/backend/iekf.h"
+#include "uw_multislam/core/backend/loop_consistency.h"
 #include "uw_multislam/core/backend/pose_graph.h"
 #include "uw_multislam/core/common/status.h"
 #include "uw_multislam/core/geometry/trajectory.h"
@@ -68,6 +69,14 @@ std::string defaultSessionName(int id);
 /// "iekf" or "sparse"; false otherwise.
 bool parseOptimizer(const std::string& name, OptimizerKind* out);
 
+/// How the global loops between two maps decide a join: kCount, K loops (join_min_loops) and a
+/// metric gate on each (join_gate_m); kConsistent, the largest pairwise-consistent set
+/// (core/backend/loop_consistency.h) with at least join_min_consistent loops, join_min_inliers
+/// inliers in total and join_min_spread_m between its loops' keyframes.
+enum class JoinPolicy { kCount, kConsistent };
+const char* joinPolicyName(JoinPolicy p);
+bool parseJoinPolicy(const std::string& name, JoinPolicy* out);
+
 struct BackendOptions {
   bool optimise = true;  // false: trajectories stay the odometry's (joins still happen)
   OptimizerKind optimizer = OptimizerKind::kSparse;
@@ -76,6 +85,11 @@ struct BackendOptions {
   double join_gate_m = 0.5;  // a loop whose position disagrees with the joined link by more
                              // than this is refused (metres, not χ²: odometry covariances are
                              // over-confident over long chains, a χ² gate refused true loops)
+  JoinPolicy join_policy = JoinPolicy::kCount;
+  int join_min_consistent = 2;       // kConsistent: loops in the consistent set
+  int join_min_inliers = 60;         // kConsistent: their total RANSAC inliers
+  double join_min_spread_m = 0.2;    // kConsistent: distance between their keyframes (both maps)
+  ConsistencyOptions consistency;    // kConsistent: the pairwise test
   IekfOptions iekf;
   int max_keyframes = 1500;  // iekf: a larger map uses the sparse optimiser (dense P is 3N x 3N)
   SparseOptions sparse;
@@ -88,6 +102,7 @@ struct BackendLoop {
   int session_a = 0, keyframe_a = 0;
   int session_b = 0, keyframe_b = 0;
   UncertainPose2 z;
+  int inliers = 0;  // RANSAC's (the consistency policy's support)
 };
 
 using BackendStatus = Status;
@@ -136,6 +151,8 @@ struct MapState {
 struct BackendStats {
   int loops = 0;          // loops received
   int loops_refused = 0;  // refused at a join as inconsistent with the others
+  int joins_refused = 0;  // automatic joins the consistency policy refused (reason: last_join_refusal)
+  std::string last_join_refusal;
   int joins = 0, splits = 0;
   int optimisations = 0;
   int optimisations_discarded = 0;  // deferred results dropped: their map changed while they were solved
