@@ -355,3 +355,41 @@ def test_tracking_loss_starts_a_session_that_global_loops_join_back(tmp_path):
     r = run("offline_slam", "--session", str(tmp_path / "m" / "a"), "--out", str(tmp_path / "o2"), "--config", str(cfg))
     assert r.returncode == 0 and "tracking lost" not in r.stdout
     assert rows(tmp_path / "o2" / "links.csv") == []
+
+
+@pytest.fixture(scope="module")
+def short_revisits(tmp_path_factory):
+    """config/missions/short_revisits.yaml: five 4-5 frame passes over one patch, a sixth elsewhere."""
+    base = tmp_path_factory.mktemp("short")
+    mission = os.path.join(HERE, "..", "..", "config", "missions", "short_revisits.yaml")
+    r = run("make_survey", "--config", mission, "--out", str(base / "m"), "--no-bag", "--quiet")
+    assert r.returncode == 0, r.stderr
+    runs = {}
+    for policy in ("count", "consistent"):
+        (base / (policy + ".yaml")).write_text("backend:\n  join_policy: %s\n" % policy)
+        out = base / policy
+        r = run("offline_slam", *[a for s in range(6) for a in ("--session", str(base / "m" / ("p%d" % s)))],
+                "--out", str(out), "--config", str(base / (policy + ".yaml")))
+        assert r.returncode == 0, r.stderr
+        runs[policy] = out
+    return base / "m", runs
+
+
+def test_consistency_joins_every_short_revisit_and_nothing_else(short_revisits):
+    """Issue 17: the five passes over one patch share 2-4 correct loops per pair, never K = 5: the
+    count policy leaves six maps, the consistent one joins the five passes into one map (in its
+    first pass's frame, within 3 cm of the truth) and leaves the pass over other ground alone."""
+    mission, runs = short_revisits
+    assert rows(runs["count"] / "links.csv") == []
+    traj = rows(runs["consistent"] / "trajectory.csv")
+    maps = {}
+    for t in traj:
+        maps.setdefault(t["map"], set()).add(int(t["session"]))
+    assert sorted(maps.values(), key=min) == [{0, 1, 2, 3, 4}, {5}]
+    world = {(g["session"], g["index"]): (float(g["x_m"]), float(g["y_m"]), float(g["yaw_rad"]))
+             for g in rows(mission / "world_gt.csv")}
+    origin = world[("0", traj[0]["index"])]
+    errs = [math.hypot(float(t["x_m"]) - gt[0], float(t["y_m"]) - gt[1])
+            for t in traj if t["session"] != "5" for gt in [_in_frame(origin, world[(t["session"], t["index"])])]]
+    assert len(errs) >= 10
+    assert max(errs) < 0.03, errs  # measured 6 mm ATE; a wrong link puts a pass ~1 m off
