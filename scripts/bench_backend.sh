@@ -3,8 +3,9 @@
 #   1. accuracy: offline_slam on generated missions with one, two and three sessions, the IEKF
 #      and the sparse optimiser side by side (ATE, the paper's e_k before and after, joins);
 #   2. cost: time and peak memory per optimiser at 100, 1k and 10k keyframes (bench_backend --cost);
-#   3. robustness, the paper's Table 3 (bench_backend --robustness), with RUNS runs per level.
-# usage: scripts/bench_backend.sh [OUT_DIR]   env RUNS (default 20), SKIP_ROBUSTNESS=1
+#   3. robustness, the paper's Table 3 (bench_backend --robustness), with RUNS runs per level;
+#   4. wrong loops, 0-50 % between sessions, both join policies (bench_backend --outliers).
+# usage: scripts/bench_backend.sh [OUT_DIR]   env RUNS (default 20), SKIP_ROBUSTNESS=1, OUTLIER_RUNS (default 5)
 # Needs a build (scripts/build.sh). Takes about 15 minutes on one core.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
@@ -72,3 +73,9 @@ if [ "${SKIP_ROBUSTNESS:-0}" != 1 ]; then
   echo; echo "## 3. Robustness (the paper's Table 3) on the three-session mission"; echo
   "$bin/bench_backend" --robustness --mission "$out/m3" --runs "${RUNS:-20}"
 fi
+
+# 4. Wrong loops (issue 17): the two-session demo mission's true loops plus 0-50 % wrong ones
+# between sessions, both join policies (bench_backend --outliers).
+echo; echo "## 4. Wrong loops on the demo mission (bench_backend --outliers)"; echo
+[ -d "$out/demo" ] || "$bin/make_survey" --preset demo --out "$out/demo" --no-bag --quiet
+"$bin/bench_backend" --outliers 0,10,30,50 --mission "$out/demo" --runs "${OUTLIER_RUNS:-5}"

@@ -6,6 +6,10 @@
 //       5 cm / 5° to 25 cm / 25° per motion), every ground-truth loop measured with 1 cm / 0.5°
 //       noise, `--runs` seeds per level, joined with K = 1, 10, 20, 30 loops, by both optimisers.
 //       Prints mean ± σ of the errors before (odometry) and after SLAM.
+//   --outliers P[,P...] --mission DIR   wrong loops (issue 17): the mission's ground-truth loops
+//       (1 cm / 0.5° noise, 30-120 inliers) plus P % as many wrong ones (random keyframe pairs of
+//       different sessions, 30-120 inliers, poses off by 2-5 m and any yaw), odometry 2σ = 1 cm /
+//       1°, both join policies, the sparse optimiser; prints map ATE, wrong loops kept, joins.
 //   --cost N --loops L --optimizer iekf|sparse   one synthetic single-session survey of N
 //       keyframes (rows of 50 keyframes 0.5 m apart, 1 cm / 0.5° odometry noise) with L loops
 //       between neighbouring rows; prints the time to add the motions, to optimise with all the
@@ -36,6 +40,7 @@ using Clock = std::chrono::steady_clock;
 namespace {
 
 const char* kUsage = R"(usage: bench_backend --robustness --mission DIR [--runs N]
+       bench_backend --outliers P[,P...] --mission DIR [--runs N]
        bench_backend --cost N --loops L --optimizer iekf|sparse
 
 --robustness: Table 3 of the paper on a generated mission (make_survey output: world_gt.csv and
@@ -46,6 +51,13 @@ const char* kUsage = R"(usage: bench_backend --robustness --mission DIR [--runs 
     e_k intra  the same after SLAM
     e_k inter  over the inter-session pairs, in the joined map (only runs that joined)
     map ATE    every keyframe in the joined map's frame vs the ground truth in that frame
+--outliers: the same mission with its true loops and P % wrong ones added (e.g. 0,10,30,50):
+  random keyframe pairs of different sessions (the loops a join decides on; wrong loops inside
+  one map meet only the optimiser's Huber kernel today) with plausible inlier counts whose
+  measured pose is 2-5 m and any yaw off; odometry 2σ = 1 cm / 1°; join_policy count (K = 5,
+  gate 0.5 m) and consistent; sparse optimiser (Huber on loops). Mean over N runs (default 5) of the map ATE (runs that joined),
+  the wrong loops kept (not refused), the joins made and refused; "wrong joins" counts runs
+  whose map ATE exceeds 1 m.
 --cost: time and peak memory of one optimiser on a synthetic survey of N keyframes, L loops.)";
 
 double ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
@@ -107,6 +119,16 @@ Mission loadMission(const fs::path& dir) {
 struct RunErrors {
   double odo_ek = 0, ek_intra = 0, ek_inter = NAN, map_ate = NAN, ms = 0;
   bool joined = false;
+  int wrong = 0, wrong_kept = 0, joins = 0, joins_refused = 0;
+};
+
+// One run's set-up beyond the noise level: the join rule and the wrong loops to add.
+struct RunSpec {
+  int k_join = 5;
+  core::OptimizerKind optimizer = core::OptimizerKind::kSparse;
+  core::JoinPolicy policy = core::JoinPolicy::kCount;
+  double outlier_fraction = 0.0;  // wrong loops per true loop
+  bool true_loops_only = true;    // --robustness: no gate (the loops are true)
 };
 
 double ekOver(const std::vector<std::vector<core::Pose2>>& est, const Mission& m, bool inter) {
@@ -123,21 +145,43 @@ double ekOver(const std::vector<std::vector<core::Pose2>>& est, const Mission& m
   return n ? sum / n : NAN;
 }
 
-RunErrors runOnce(const Mission& m, double level, int k_join, core::OptimizerKind opt, unsigned seed) {
+RunErrors runOnce(const Mission& m, double level, const RunSpec& spec, unsigned seed) {
   std::mt19937 rng(seed);
   std::normal_distribution<double> n01(0.0, 1.0);
+  std::uniform_int_distribution<int> inliers(30, 120);
   const double s_xy = 0.5 * level, s_yaw = 0.5 * level * 100.0 * M_PI / 180.0;  // 2σ = level m, level*100 deg
   const double l_xy = 0.01, l_yaw = 0.5 * M_PI / 180.0;
   core::BackendOptions o;
-  o.optimizer = opt;
-  o.join_min_loops = k_join;
+  o.optimizer = spec.optimizer;
+  o.join_min_loops = spec.k_join;
+  o.join_policy = spec.policy;
   o.optimise_every = 1;
-  o.join_gate_m = 1e9;  // the loops are true: measure the optimiser, not the gate
+  if (spec.true_loops_only) o.join_gate_m = 1e9;  // the loops are true: measure the optimiser, not the gate
   o.max_keyframes = 100000;
   core::MultiSessionBackend b(o);
+  // The loops, true ones first, then the wrong ones: random keyframe pairs, 2-5 m and any yaw off.
+  auto loops = m.loops;
+  const std::size_t n_true = loops.size();
+  std::vector<core::Pose2> wrong_offset;
+  const int n_wrong = static_cast<int>(std::lround(spec.outlier_fraction * static_cast<double>(n_true)));
+  for (int w = 0; w < n_wrong; ++w) {
+    std::pair<int, int> a, c;
+    do {
+      a.first = std::uniform_int_distribution<int>(0, static_cast<int>(m.sessions.size()) - 1)(rng);
+      c.first = std::uniform_int_distribution<int>(0, static_cast<int>(m.sessions.size()) - 1)(rng);
+      a.second = std::uniform_int_distribution<int>(0, static_cast<int>(m.sessions[a.first].size()) - 1)(rng);
+      c.second = std::uniform_int_distribution<int>(0, static_cast<int>(m.sessions[c.first].size()) - 1)(rng);
+      if (a > c) std::swap(a, c);
+    } while (a.first == c.first);  // between sessions: the join's question (intra-map ones: see --help)
+    loops.push_back({a, c});
+    const double r = std::uniform_real_distribution<double>(2.0, 5.0)(rng);
+    const double th = std::uniform_real_distribution<double>(-M_PI, M_PI)(rng);
+    wrong_offset.emplace_back(r * std::cos(th), r * std::sin(th), std::uniform_real_distribution<double>(-M_PI, M_PI)(rng));
+  }
   // Loops indexed by their later end, added when that keyframe arrives.
   std::map<std::pair<int, int>, std::vector<std::size_t>> at;
-  for (std::size_t i = 0; i < m.loops.size(); ++i) at[m.loops[i].second].push_back(i);
+  for (std::size_t i = 0; i < loops.size(); ++i) at[loops[i].second].push_back(i);
+  std::vector<bool> is_wrong;  // per loop as added to the back-end
   std::vector<std::vector<core::Pose2>> odo(m.sessions.size());
   RunErrors r;
   const auto t0 = Clock::now();
@@ -152,10 +196,12 @@ RunErrors runOnce(const Mission& m, double level, int k_join, core::OptimizerKin
         odo[s].push_back(core::compose(odo[s].back(), z));
       }
       for (std::size_t i : at[{s, k}]) {
-        const auto [a, c] = m.loops[i];
-        const core::Pose2 t = core::between(m.sessions[a.first][a.second], m.sessions[c.first][c.second]);
+        const auto [a, c] = loops[i];
+        core::Pose2 t = core::between(m.sessions[a.first][a.second], m.sessions[c.first][c.second]);
+        if (i >= n_true) t = core::compose(t, wrong_offset[i - n_true]);
         const core::Pose2 z(t.x() + l_xy * n01(rng), t.y() + l_xy * n01(rng), t.yaw() + l_yaw * n01(rng));
-        b.addLoop({a.first, a.second, c.first, c.second, core::UncertainPose2(z, diag(l_xy, l_yaw))});
+        b.addLoop({a.first, a.second, c.first, c.second, core::UncertainPose2(z, diag(l_xy, l_yaw)), inliers(rng)});
+        is_wrong.push_back(i >= n_true);
       }
     }
     b.endSession(id);
@@ -167,6 +213,12 @@ RunErrors runOnce(const Mission& m, double level, int k_join, core::OptimizerKin
   r.odo_ek = ekOver(odo, m, false);
   r.ek_intra = ekOver(est, m, false);
   r.joined = b.mapIds().size() == 1;
+  r.joins = b.stats().joins;
+  r.joins_refused = b.stats().joins_refused;
+  for (std::size_t i = 0; i < is_wrong.size(); ++i) {
+    r.wrong += is_wrong[i];
+    r.wrong_kept += is_wrong[i] && !b.loopRecord(static_cast<int>(i)).refused;
+  }
   if (r.joined) {
     r.ek_inter = ekOver(est, m, true);
     double sq = 0;
@@ -211,7 +263,10 @@ int robustness(const fs::path& dir, int runs) {
         std::vector<double> odo, ei, ee, ate, t;
         int joined = 0;
         for (int r = 0; r < runs; ++r) {
-          const RunErrors e = runOnce(m, lv, k, opt, 1000u * level + r);  // same seeds for both optimisers
+          RunSpec spec;
+          spec.k_join = k;
+          spec.optimizer = opt;
+          const RunErrors e = runOnce(m, lv, spec, 1000u * level + r);  // same seeds for both optimisers
           odo.push_back(e.odo_ek);
           ei.push_back(e.ek_intra);
           ee.push_back(e.ek_inter);
@@ -224,6 +279,38 @@ int robustness(const fs::path& dir, int runs) {
                     meanSd(ate).c_str(), joined, runs, meanSd(t).c_str());
         std::fflush(stdout);
       }
+    }
+  }
+  return 0;
+}
+
+int outliers(const fs::path& dir, const std::vector<int>& percents, int runs) {
+  const Mission m = loadMission(dir);
+  std::printf("mission %s: %zu sessions, %zu true loops, %d runs per row; odometry 2σ = 1 cm / 1°, sparse optimiser\n\n",
+              dir.c_str(), m.sessions.size(), m.loops.size(), runs);
+  std::printf("| wrong loops | policy | map ATE (m) | wrong loops kept | joins made | joins refused | wrong joins |\n");
+  std::printf("|---|---|---|---|---|---|---|\n");
+  for (int p : percents) {
+    for (auto policy : {core::JoinPolicy::kCount, core::JoinPolicy::kConsistent}) {
+      std::vector<double> ate;
+      double kept = 0, wrong = 0, joins = 0, refused = 0;
+      int wrong_joins = 0;
+      for (int r = 0; r < runs; ++r) {
+        RunSpec spec;
+        spec.policy = policy;
+        spec.outlier_fraction = p / 100.0;
+        spec.true_loops_only = false;
+        const RunErrors e = runOnce(m, 0.01, spec, 7000u + 31u * static_cast<unsigned>(p) + r);  // same seeds per policy
+        ate.push_back(e.map_ate);
+        kept += e.wrong_kept;
+        wrong += e.wrong;
+        joins += e.joins;
+        refused += e.joins_refused;
+        wrong_joins += e.joined && !(e.map_ate <= 1.0);
+      }
+      std::printf("| %d %% | %s | %s | %.1f of %.1f | %.1f | %.1f | %d/%d |\n", p, core::joinPolicyName(policy),
+                  meanSd(ate).c_str(), kept / runs, wrong / runs, joins / runs, refused / runs, wrong_joins, runs);
+      std::fflush(stdout);
     }
   }
   return 0;
@@ -281,7 +368,8 @@ int cost(int n, int loops, core::OptimizerKind opt) {
 int main(int argc, char** argv) {
   std::string mission, optimizer = "sparse";
   int runs = 20, n = 0, loops = 0;
-  bool robust = false;
+  bool robust = false, runs_given = false;
+  std::vector<int> percents;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     const bool v = i + 1 < argc;
@@ -294,6 +382,19 @@ int main(int argc, char** argv) {
       mission = argv[++i];
     } else if (a == "--runs" && v) {
       runs = std::atoi(argv[++i]);
+      runs_given = true;
+    } else if (a == "--outliers" && v) {
+      std::istringstream list(argv[++i]);
+      std::string item;
+      while (std::getline(list, item, ',')) {
+        char* end = nullptr;
+        const long p = std::strtol(item.c_str(), &end, 10);
+        if (item.empty() || *end != '\0' || p < 0 || p > 500) {
+          std::fprintf(stderr, "bench_backend: --outliers takes percentages in [0, 500], e.g. 0,10,30,50\n");
+          return 2;
+        }
+        percents.push_back(static_cast<int>(p));
+      }
     } else if (a == "--cost" && v) {
       n = std::atoi(argv[++i]);
     } else if (a == "--loops" && v) {
@@ -306,6 +407,13 @@ int main(int argc, char** argv) {
     }
   }
   try {
+    if (!percents.empty()) {
+      if (mission.empty() || runs < 1) {
+        std::fprintf(stderr, "bench_backend: --outliers needs --mission DIR and --runs >= 1\n");
+        return 2;
+      }
+      return outliers(mission, percents, runs_given ? runs : 5);
+    }
     if (robust) {
       if (mission.empty() || runs < 1) {
         std::fprintf(stderr, "bench_backend: --robustness needs --mission DIR and --runs >= 1\n");

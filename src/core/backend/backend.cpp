@@ -50,6 +50,7 @@ std::string BackendOptions::validate() const {
   if (!(join_gate_m > 0)) return "join_gate_m must be positive";
   if (max_keyframes < 2) return "max_keyframes must be >= 2";
   if (join_min_consistent < 1) return "join_min_consistent must be >= 1";
+  if (!(intra_gate_inflation >= 1 && std::isfinite(intra_gate_inflation))) return "intra_gate_inflation must be >= 1";
   if (join_min_inliers < 0) return "join_min_inliers must be >= 0";
   if (!(join_min_spread_m >= 0 && std::isfinite(join_min_spread_m))) return "join_min_spread_m must be >= 0";
   bad = consistency.validate();
@@ -197,6 +198,33 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
   const int ma = mapOf(l.session_a), mb = mapOf(l.session_b);
   if (ma == mb) {
     Map& m = mapAt(ma);
+    if (options_.intra_loop_gate) {
+      // The loop against the map's estimate: the chain between its keyframes, composed to first
+      // order (the odometry's covariances: looser than the optimised estimate, a conservative gate).
+      const int ia = indexOf(l.session_a, l.keyframe_a), ib = indexOf(l.session_b, l.keyframe_b);
+      UncertainPose2 chain = UncertainPose2::exact(Pose2());
+      for (int k = std::min(ia, ib); k < std::max(ia, ib); ++k)
+        chain = compose(chain, UncertainPose2(m.motion(k), m.motionCov(k)));
+      if (ia > ib) chain = invert(chain);  // the pose of b in a
+      const Pose2 e = between(chain.mean, l.z.mean);
+      const Eigen::Vector3d r(e.x(), e.y(), normalizeAngle(e.yaw()));
+      Eigen::Matrix3d p = options_.intra_gate_inflation * chain.covariance + l.z.covariance;
+      const ConsistencyOptions& c = options_.consistency;
+      p.diagonal() += Eigen::Vector3d(c.min_sigma_m * c.min_sigma_m, c.min_sigma_m * c.min_sigma_m,
+                                      c.min_sigma_rad * c.min_sigma_rad);
+      const double d2 = r.dot(p.ldlt().solve(r));
+      if (!(d2 <= chiSquare3Quantile(c.confidence))) {
+        loops_.back().refused = true;
+        ++stats_.loops_refused;
+        ++stats_.loops_gated;
+        std::ostringstream os;
+        os << "loop " << l.session_a << ":" << l.keyframe_a << " -> " << l.session_b << ":" << l.keyframe_b
+           << " refused: it disagrees with map " << ma << " by " << r.head<2>().norm() << " m, "
+           << std::abs(r(2)) << " rad (chi-square " << d2 << ")";
+        say(os.str());
+        return;
+      }
+    }
     ++m.pending;
     touch(m);
     if (options_.optimise && m.pending >= options_.optimise_every) optimise(ma);

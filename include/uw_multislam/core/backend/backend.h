@@ -90,6 +90,15 @@ struct BackendOptions {
   int join_min_inliers = 60;         // kConsistent: their total RANSAC inliers
   double join_min_spread_m = 0.2;    // kConsistent: distance between their keyframes (both maps)
   ConsistencyOptions consistency;    // kConsistent: the pairwise test
+  /// A loop inside one map is refused when it disagrees with the map's current estimate beyond
+  /// the chi-square gate of consistency.confidence, the covariance being the chain's between its
+  /// two keyframes plus the loop's plus the consistency floors (both optimisers; before the
+  /// IEKF's update). A refused loop is kept as refused (store, loops.csv) and counted.
+  bool intra_loop_gate = true;
+  /// The chain's covariance is multiplied by this in the gate: odometry covariances are first
+  /// order and over-confident over many motions (a loop closing a drifted square at 5 sigma of
+  /// its own covariance is a true loop); wrong loops are metres off.
+  double intra_gate_inflation = 10.0;
   IekfOptions iekf;
   int max_keyframes = 1500;  // iekf: a larger map uses the sparse optimiser (dense P is 3N x 3N)
   SparseOptions sparse;
@@ -152,6 +161,7 @@ struct BackendStats {
   int loops = 0;          // loops received
   int loops_refused = 0;  // refused at a join as inconsistent with the others
   int joins_refused = 0;  // automatic joins the consistency policy refused (reason: last_join_refusal)
+  int loops_gated = 0;    // loops inside a map refused by intra_loop_gate (also in loops_refused)
   std::string last_join_refusal;
   int joins = 0, splits = 0;
   int optimisations = 0;
