@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Back-end benchmark (issue 6), three tables:
+# Back-end benchmark (issue 6), four tables:
 #   1. accuracy: offline_slam on generated missions with one, two and three sessions, the IEKF
 #      and the sparse optimiser side by side (ATE, the paper's e_k before and after, joins);
 #   2. cost: time and peak memory per optimiser at 100, 1k and 10k keyframes (bench_backend --cost);
