@@ -1,9 +1,18 @@
 #!/usr/bin/env bash
 # Builds uw_multislam with catkin_make. Extra arguments go to CMake, e.g. -DUWMS_WERROR=ON.
-# Environment: UWMS_WS (workspace, default <repo>/.catkin_ws), UWMS_BUILD_TYPE (default
+# Environment: UWMS_WS (workspace, default <repo>_ws beside the repository), UWMS_BUILD_TYPE (default
 # RelWithDebInfo), UWMS_JOBS (default: number of cores).
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
+
+# A workspace inside the repository makes rosrun find every tool several times (common.sh).
+ws_real=$(realpath -m "$UWMS_WS")
+for ws in "$ws_real" "$UWMS_REPO/.catkin_ws"; do
+  if [[ "$ws/" == "$UWMS_REPO"/* ]] && [[ "$ws" == "$ws_real" || ( -e "$ws" && "$ws" != "$ws_real" ) ]]; then
+    echo "[build] warning: $ws is a workspace inside the repository: rosrun finds each tool in it again" \
+      "('non-unique executable'); remove it (rm -rf $ws) and build beside the repository (UWMS_WS)" >&2
+  fi
+done
 
 mkdir -p "$UWMS_WS/src"
 ln -sfn "$UWMS_REPO" "$UWMS_WS/src/uw_multislam"

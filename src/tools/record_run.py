@@ -37,9 +37,15 @@ import os
 import sys
 import threading
 
-import rospy
-from nav_msgs.msg import Path
-from uw_multislam.msg import Keyframe, Loop, SessionTrajectory
+# --help works without a sourced workspace (setup.bash puts the package's messages on PYTHONPATH);
+# a run without them stops with a line that says so.
+try:
+    import rospy
+    from nav_msgs.msg import Path
+    from uw_multislam.msg import Keyframe, Loop, SessionTrajectory
+    ROS_IMPORT_ERROR = None
+except ImportError as e:
+    ROS_IMPORT_ERROR = e
 
 
 def yaw_of(q):
@@ -215,7 +221,10 @@ def main():
                         help="stamp of stamp_s = 0 in the bags (default 1700000000, make_survey's)")
     parser.add_argument("--ns", default="/uw_multislam", help="namespace of the SLAM topics")
     parser.add_argument("--ready-file", help="created once subscribed (for scripts that wait for it)")
-    args = parser.parse_args(rospy.myargv()[1:])
+    args = parser.parse_args(rospy.myargv()[1:] if not ROS_IMPORT_ERROR else None)
+    if ROS_IMPORT_ERROR:
+        sys.exit("record_run: %s (source the workspace's devel/setup.bash or install/setup.bash first)" %
+                 ROS_IMPORT_ERROR)
     try:
         frame_stamps = read_frame_stamps(args.session_dir, args.bag_start) if args.session_dir else None
     except (OSError, ValueError, KeyError) as e:

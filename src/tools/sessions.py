@@ -13,16 +13,23 @@ Exit status: 0 when the service answered (whatever its status code: the answer i
 import argparse
 import sys
 
-import rospy
-from uw_multislam.msg import SessionState, Status
-from uw_multislam.srv import JoinSessions, ListSessions, SplitSession, StartSession
+# --help works without a sourced workspace (setup.bash puts the package's messages on PYTHONPATH);
+# any command without them stops with a line that says so.
+try:
+    import rospy
+    from uw_multislam.msg import SessionState, Status
+    from uw_multislam.srv import JoinSessions, ListSessions, SplitSession, StartSession
+    ROS_IMPORT_ERROR = None
+except ImportError as e:
+    ROS_IMPORT_ERROR = e
 
-CODES = {v: k for k, v in vars(Status).items() if k.isupper() and isinstance(v, int)}
-STATES = {v: k for k, v in vars(SessionState).items() if k.isupper() and isinstance(v, int)}
+
+def constants(kind):
+    return {v: k for k, v in vars(kind).items() if k.isupper() and isinstance(v, int)}
 
 
 def status_text(status):
-    text = CODES.get(status.code, str(status.code))
+    text = constants(Status).get(status.code, str(status.code))
     return text + (": " + status.message if status.message else "")
 
 
@@ -38,13 +45,18 @@ def main():
     parser.add_argument("command", choices=("list", "join", "split", "start"))
     parser.add_argument("args", nargs="*")
     args = parser.parse_args()
+    if ROS_IMPORT_ERROR:
+        print("sessions.py: %s (source the workspace's devel/setup.bash or install/setup.bash first)" %
+              ROS_IMPORT_ERROR, file=sys.stderr)
+        return 1
     try:
         if args.command == "list":
             res = call(args.ns, "list_sessions", ListSessions)
             print("list_sessions -> %s, %d sessions" % (status_text(res.status), len(res.sessions)))
             for s in res.sessions:
                 print("  session %d %-10s %-8s map %d  %4d keyframes  %3d loops" % (
-                    s.session, s.name, STATES.get(s.state, str(s.state)), s.map, s.num_keyframes, s.num_loops))
+                    s.session, s.name, constants(SessionState).get(s.state, str(s.state)), s.map, s.num_keyframes,
+                    s.num_loops))
         elif args.command == "join":
             a, b = int(args.args[0]), int(args.args[1])
             k = int(args.args[2]) if len(args.args) > 2 else 0

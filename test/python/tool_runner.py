@@ -1,14 +1,15 @@
 """Shared helpers of the tool tests: run a built uw_multislam binary, read a CSV.
 
-The binaries come from UWMS_BIN_DIR (set by CMake to the devel space), or the default workspace.
+The binaries come from UWMS_BIN_DIR (set by CMake to the devel space), or the default workspace
+(<repo>_ws beside the repository, scripts/common.sh).
 """
 import csv
 import os
 import subprocess
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-BIN_DIR = os.environ.get(
-    "UWMS_BIN_DIR", os.path.join(HERE, "..", "..", ".catkin_ws", "devel", "lib", "uw_multislam"))
+REPO = os.path.dirname(os.path.dirname(os.path.realpath(__file__)))
+BIN_DIR = os.environ.get("UWMS_BIN_DIR", os.path.join(REPO + "_ws", "devel", "lib", "uw_multislam"))
 
 
 def run_tool(tool, *args, timeout=300):
