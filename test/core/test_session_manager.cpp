@@ -9,6 +9,7 @@
 #include <optional>
 
 #include "../common/scoped_temp_dir.h"
+#include "uw_multislam/core/session/run_outputs.h"
 #include "uw_multislam/core/session/session_manager.h"
 
 namespace uw_multislam {
@@ -274,6 +275,35 @@ TEST(SessionManager, BadOptionsAndABadStoreAreRefusedAtConstruction) {
   }
   EXPECT_THROW(SessionManager{options(junk.string())}, StoreError);
   EXPECT_EQ(std::filesystem::file_size(junk), 4096u);  // left untouched
+}
+
+TEST(SessionManager, AGatedLoopIsMarkedRefusedAndWrittenApartFromTheAcceptedOnes) {
+  // A straight session of 8 keyframes 1 m apart: a local loop that agrees, and one 3 m off.
+  SessionManager m(options());
+  addStraightSession(&m, 0, 8);
+  Loop good = globalLoop(0, 1, 0, 6, Pose2(5.0, 0.0, 0.0));
+  good.kind = Loop::Kind::kLocal;
+  Loop wrong = globalLoop(0, 2, 0, 7, Pose2(5.0, 3.0, 0.0));
+  wrong.kind = Loop::Kind::kLocal;
+  ASSERT_TRUE(m.addLoop(good).ok());
+  ASSERT_TRUE(m.addLoop(wrong).ok());  // received; the back-end refuses it
+  ASSERT_EQ(m.loops().size(), 2u);
+  EXPECT_FALSE(m.loopRefused(0));
+  EXPECT_TRUE(m.loopRefused(1));
+  EXPECT_FALSE(m.loopRefused(5));  // no such loop
+  EXPECT_EQ(m.backendStats().loops_gated, 1);
+  testing_util::ScopedTempDir dir("run_outputs");
+  writeRunOutputs(dir.path().string(), m, {}, 1, StageTimes());
+  auto lines = [&](const char* name) {
+    std::ifstream f(dir.path() / name);
+    std::vector<std::string> out;
+    for (std::string line; std::getline(f, line);) out.push_back(line);
+    return out;
+  };
+  EXPECT_EQ(lines("loops.csv"), (std::vector<std::string>{"session_a,index_a,session_b,index_b,kind,inliers",
+                                                          "0,10,0,60,local,50"}));
+  EXPECT_EQ(lines("loops_refused.csv"), (std::vector<std::string>{"session_a,index_a,session_b,index_b,kind,inliers",
+                                                                  "0,20,0,70,local,50"}));
 }
 
 }  // namespace

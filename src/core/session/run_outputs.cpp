@@ -22,6 +22,10 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
   odo << "session,index,x_m,y_m,yaw_rad\n" << std::fixed;
   traj << "session,index,map,x_m,y_m,yaw_rad\n" << std::fixed;
   loops << "session_a,index_a,session_b,index_b,kind,inliers\n";
+  // The loops the back-end refused (inconsistent at a join, or gated inside a map): not in
+  // loops.csv, whose contract is the accepted loops; the same columns in a file of their own.
+  std::ofstream refused(fs::path(out_dir) / "loops_refused.csv");
+  refused << "session_a,index_a,session_b,index_b,kind,inliers\n";
   loop_poses << "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw\n"
              << std::fixed << std::setprecision(6);
   links << "map,previous_session,current_session,loops,x_m,y_m,yaw_rad\n" << std::fixed << std::setprecision(6);
@@ -48,9 +52,11 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
       traj << csv(id) << "," << frames[k] << "," << map << "," << std::setprecision(6) << p[k].x() << "," << p[k].y()
            << "," << std::setprecision(7) << p[k].yaw() << "\n";
   }
-  for (const Loop& l : manager.loops()) {
-    loops << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b) << "," << l.frame_b << ","
-          << loopKindName(l.kind) << "," << l.inliers << "\n";
+  for (std::size_t i = 0; i < manager.loops().size(); ++i) {
+    const Loop& l = manager.loops()[i];
+    (manager.loopRefused(i) ? refused : loops) << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b)
+                                                << "," << l.frame_b << "," << loopKindName(l.kind) << "," << l.inliers
+                                                << "\n";
     loop_poses << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b) << "," << l.frame_b << ","
                << l.z.mean.x() << "," << l.z.mean.y() << "," << l.z.mean.yaw() << std::scientific << std::setprecision(9);
     const Eigen::Matrix3d& c = l.z.covariance;

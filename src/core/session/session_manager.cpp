@@ -384,6 +384,10 @@ StoredLoop SessionManager::toStored(const Loop& l) const {
   return sl;
 }
 
+bool SessionManager::loopRefused(std::size_t i) const {
+  return i < loops_.size() && backend_->loopRecord(static_cast<int>(i)).refused;
+}
+
 void SessionManager::acceptLoop(const Loop& l) {
   const Session& a = at(l.session_a);
   const Session& b = at(l.session_b);

@@ -217,6 +217,8 @@ class SessionManager {
   std::vector<SessionLink> links() const;
   /// The accepted loops (session ids), in order, restored ones first.
   const std::vector<Loop>& loops() const { return loops_; }
+  /// Whether loops()[i] was refused by the back-end (inconsistent at a join, or gated inside a map).
+  bool loopRefused(std::size_t i) const;
   const SessionManagerStats& stats() const { return stats_; }
   const BackendStats& backendStats() const { return backend_->stats(); }
   const SessionManagerOptions& options() const { return options_; }
