@@ -6,9 +6,10 @@
     sessions.py join A B [MIN_LOOPS]      (MIN_LOOPS 0: the back-end's K)
     sessions.py split S
     sessions.py start [NAME]
+    sessions.py reload NAME               (a stored session's name or id, back into memory)
 
 Exit status: 0 when the service answered (whatever its status code: the answer is printed),
-1 when it could not be called.
+1 when it could not be called (no master, or no back-end within --timeout), 2 for wrong arguments.
 """
 import argparse
 import sys
@@ -16,9 +17,10 @@ import sys
 # --help works without a sourced workspace (setup.bash puts the package's messages on PYTHONPATH);
 # any command without them stops with a line that says so.
 try:
+    import rosgraph
     import rospy
     from uw_multislam.msg import SessionState, Status
-    from uw_multislam.srv import JoinSessions, ListSessions, SplitSession, StartSession
+    from uw_multislam.srv import JoinSessions, ListSessions, ReloadSession, SplitSession, StartSession
     ROS_IMPORT_ERROR = None
 except ImportError as e:
     ROS_IMPORT_ERROR = e
@@ -33,22 +35,37 @@ def status_text(status):
     return text + (": " + status.message if status.message else "")
 
 
-def call(ns, name, kind, *request):
+# command -> (fewest, most) arguments
+ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1)}
+
+
+def call_service(ns, name, kind, *request, timeout=30.0):
+    if not rosgraph.is_master_online():  # rospy would fail with "time is not initialized"
+        raise rospy.ROSException("no ROS master at %s (is the SLAM running? ROS_MASTER_URI)" % rosgraph.get_master_uri())
     service = "%s/%s" % (ns.rstrip("/"), name)
-    rospy.wait_for_service(service, timeout=30.0)
+    rospy.wait_for_service(service, timeout=timeout)
     return rospy.ServiceProxy(service, kind)(*request)
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--ns", default="/uw_multislam")
-    parser.add_argument("command", choices=("list", "join", "split", "start"))
+    parser.add_argument("--ns", default="/uw_multislam", help="namespace of the back-end's services")
+    parser.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the service (default 30)")
+    parser.add_argument("command", choices=tuple(ARITY))
     parser.add_argument("args", nargs="*")
     args = parser.parse_args()
     if ROS_IMPORT_ERROR:
         print("sessions.py: %s (source the workspace's devel/setup.bash or install/setup.bash first)" %
               ROS_IMPORT_ERROR, file=sys.stderr)
         return 1
+    fewest, most = ARITY[args.command]
+    if not fewest <= len(args.args) <= most:
+        parser.error("%s takes %s argument(s), got %d: %s" % (
+            args.command, fewest if fewest == most else "%d to %d" % (fewest, most), len(args.args), args.args))
+
+    def call(ns, name, kind, *request):
+        return call_service(ns, name, kind, *request, timeout=args.timeout)
+
     try:
         if args.command == "list":
             res = call(args.ns, "list_sessions", ListSessions)
@@ -67,6 +84,11 @@ def main():
             s = int(args.args[0])
             res = call(args.ns, "split_session", SplitSession, s)
             print("split_session %d -> %s" % (s, status_text(res.status)))
+        elif args.command == "reload":
+            name = args.args[0]
+            res = call(args.ns, "reload_session", ReloadSession, name)
+            print("reload_session '%s' -> %s%s" % (name, status_text(res.status),
+                                                  ", session %d" % res.session if res.status.code == Status.OK else ""))
         else:
             name = args.args[0] if args.args else ""
             res = call(args.ns, "start_session", StartSession, name)

@@ -27,6 +27,7 @@ from uw_multislam.srv import JoinSessions, ListSessions, SplitSession, StartSess
 from diagnostic_msgs.msg import DiagnosticArray
 from visualization_msgs.msg import MarkerArray
 
+SESSIONS_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "sessions.py")
 JOIN_TOLERANCE_M = 0.10  # joined session 1 vs the ground truth in session 0's frame (about 3 m away)
 
 
@@ -163,6 +164,11 @@ class BackendTest(unittest.TestCase):
         self.assertEqual(self.start("s1_name_taken").status.code, Status.OK)
         self.assertEqual(self.start("s1_name_taken").status.code, Status.ALREADY_EXISTS)
         self.assertEqual(self.reload("yesterday").status.code, Status.FAILED_PRECONDITION)  # no store in this test
+        # The same answer through sessions.py (its argument checks: test/python/test_sessions.py).
+        tool = subprocess.run(["/usr/bin/python3", SESSIONS_TOOL, "--ns", NS, "reload", "yesterday"],
+                              capture_output=True, text=True, timeout=60)
+        self.assertEqual(tool.returncode, 0, tool.stderr)
+        self.assertIn("reload_session 'yesterday' -> FAILED_PRECONDITION: no session store", tool.stdout)
         after = self.sessions()
         self.assertEqual(len(after), len(before) + 1)  # only the good start_session changed anything
         for s in before:

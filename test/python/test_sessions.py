@@ -1,0 +1,53 @@
+"""sessions.py without a ROS master: the argument checks of every command (reload included) and
+the error when nothing answers. The answers of a live back-end are checked by
+test/rostest/check_backend.py (test_3), which runs the tool against it."""
+import os
+import socket
+import subprocess
+import sys
+
+import pytest
+
+TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "sessions.py")
+
+
+def closed_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def run(*args):
+    env = dict(os.environ, ROS_MASTER_URI="http://127.0.0.1:%d" % closed_port())
+    return subprocess.run([sys.executable, TOOL, *args], capture_output=True, text=True, timeout=60, env=env)
+
+
+@pytest.mark.parametrize("args, why", [
+    (["reload"], "reload takes 1 argument(s), got 0"),
+    (["reload", "a", "b"], "reload takes 1 argument(s), got 2"),
+    (["split", "1", "2"], "split takes 1 argument(s), got 2"),
+    (["join", "0"], "join takes 2 to 3 argument(s), got 1"),
+    (["list", "x"], "list takes 0 argument(s), got 1"),
+    (["start", "a", "b"], "start takes 0 to 1 argument(s), got 2"),
+    (["join", "0", "one"], "join: wrong arguments"),
+    (["rename", "0"], "invalid choice: 'rename'"),
+])
+def test_wrong_arguments_exit_2_with_the_reason(args, why):
+    res = run(*args)
+    assert res.returncode == 2, res
+    assert why in res.stderr
+    assert res.stdout == ""
+
+
+@pytest.mark.parametrize("args", [["reload", "yesterday"], ["list"], ["join", "0", "1"]])
+def test_no_master_exits_1_naming_it(args):
+    res = run("--timeout", "1", *args)
+    assert res.returncode == 1, res
+    assert "sessions.py %s: no ROS master at http://127.0.0.1:" % args[0] in res.stderr
+    assert "Traceback" not in res.stderr
+
+
+def test_help_lists_reload():
+    res = run("--help")
+    assert res.returncode == 0
+    assert "reload" in res.stdout
