@@ -2,7 +2,7 @@
 """Records a live or replayed SLAM run into the offline runner's files (offline_slam --help, "The offline
 runner's contract"), so that evaluate.py scores a ROS run like an offline_slam one.
 
-    record_run.py --out OUT [--session-dir DIR ...] [--bag-start SEC] [--ns /uw_multislam]
+    record_run.py --out OUT [--session-dir DIR [--bag-start SEC] ...] [--ns /uw_multislam]
 
 Subscribes to the back-end's outputs and, when it is stopped (SIGINT / SIGTERM / rosnode kill),
 writes into OUT:
@@ -20,11 +20,15 @@ writes into OUT:
 
 Numbering. The contract numbers sessions by dataset folder and frames by their frames.csv index.
 With --session-dir (the folders whose bags are played, in order) a keyframe is placed by its stamp:
-frame k of folder i was played at bag-start + stamp_s (make_survey and folder_to_bag use
---bag-start 1700000000 by default). So a session the odometry starts inside one folder (tracking
-loss) keeps that folder's number, as offline_slam does, and dropped frames do not shift indexes.
-Without folders the ROS session id and Keyframe.frame_index are used as they are. A map is named by
-its first session, converted to the folder number the same way.
+frame k of folder i was played at bag-start_i + stamp_s, bag-start_i being the start time its bag
+was written with (folder_to_bag --start-time; make_survey and folder_to_bag use 1700000000 by
+default). Give --bag-start once for all folders (their stamps must then differ, as make_survey's
+do), or once per --session-dir, in the same order, when the folders' stamps overlap (two folders
+both starting at stamp_s 0, bags written with different start times). So a session the odometry
+starts inside one folder (tracking loss) keeps that folder's number, as offline_slam does, and
+dropped frames do not shift indexes. Without folders the ROS session id and Keyframe.frame_index
+are used as they are. A map is named by its first session, converted to the folder number the same
+way.
 
 Sessions are found as they appear: a new session id in keyframes or session_trajectory opens a
 subscriber to its latched paths/session_<id>. Wall time only (no rospy.sleep): under use_sim_time
@@ -76,27 +80,83 @@ def mount_of(ns):
     return float(position[0]), float(position[1]), float(rospy.get_param(p + "camera_yaw", 0.0))
 
 
+DEFAULT_BAG_START = 1700000000.0  # folder_to_bag's and make_survey's default start time
+
+
 def stamp_key(seconds):
     return int(round(seconds * 1000.0))  # milliseconds: bag stamps are start + stamp_s
 
 
-def read_frame_stamps(folders, bag_start):
-    """(stamp in ms) -> (folder number, frame index) over every frame of every folder."""
-    table = {}
-    for number, folder in enumerate(folders):
-        path = os.path.join(folder, "frames.csv")
+def bag_starts_of(folders, bag_starts):
+    """One bag start per folder: none given, the default; one, for all; else one per folder."""
+    if not bag_starts:
+        return [DEFAULT_BAG_START] * len(folders)
+    if len(bag_starts) == 1:
+        return bag_starts * len(folders)
+    if len(bag_starts) != len(folders):
+        raise ValueError("%d --bag-start values for %d --session-dir folders (%s): give one for all, or one per "
+                         "folder in the same order" % (len(bag_starts), len(folders), ", ".join(folders)))
+    return list(bag_starts)
+
+
+def read_frames(folder):
+    """[(frame index, stamp_s)] of a dataset folder's frames.csv; every error names the file."""
+    path = os.path.join(folder, "frames.csv")
+    if not os.path.isdir(folder):
+        raise ValueError("%s: --session-dir is not a folder" % folder)
+    try:
         with open(path, newline="") as f:
-            for row in csv.DictReader(f):
-                key = stamp_key(bag_start + float(row["stamp_s"]))
-                if key in table:
-                    raise ValueError("%s: frame %s has the stamp of another frame (%s)" % (path, row["index"],
-                                                                                           table[key]))
-                table[key] = (number, int(row["index"]))
+            reader = csv.DictReader(f)
+            missing = {"index", "stamp_s"} - set(reader.fieldnames or [])
+            if missing:
+                raise ValueError("%s: no column %s (a dataset folder's frames.csv has index,image,stamp_s,"
+                                 "altitude_m)" % (path, " and ".join(sorted(missing))))
+            frames = []
+            for line, row in enumerate(reader, start=2):
+                try:
+                    frames.append((int(row["index"]), float(row["stamp_s"])))
+                except (TypeError, ValueError):
+                    raise ValueError("%s:%d: cannot read index '%s' / stamp_s '%s'" % (
+                        path, line, row["index"], row["stamp_s"])) from None
+    except OSError as e:
+        raise ValueError("%s: %s" % (path, e.strerror or e)) from None
+    if not frames:
+        raise ValueError("%s: no frames" % path)
+    return frames
+
+
+def read_frame_stamps(folders, bag_starts):
+    """(stamp in ms) -> (folder number, frame index) over every frame of every folder, frame k of folder
+    i at bag_starts[i] + stamp_s. Raises ValueError naming the folder(s) when a stamp is not unique."""
+    table = {}
+    for number, (folder, start) in enumerate(zip(folders, bag_starts_of(folders, bag_starts))):
+        for index, stamp_s in read_frames(folder):
+            key = stamp_key(start + stamp_s)
+            if key in table:
+                other, other_index = table[key]
+                if other == number:
+                    raise ValueError("%s: frames %d and %d have the same stamp %.3f s" % (
+                        os.path.join(folder, "frames.csv"), other_index, index, stamp_s))
+                raise ValueError(
+                    "%s (frame %d) and %s (frame %d) would be played at the same time %.3f: their stamps overlap. "
+                    "Give each folder the start time its bag was written with (folder_to_bag --start-time), "
+                    "--bag-start once per --session-dir, in the same order" % (
+                        folders[other], other_index, folder, index, key / 1000.0))
+            table[key] = (number, index)
     return table
 
 
+def stamp_ranges(folders, table):
+    """'folder: first..last' of the placed stamps of each folder, for messages."""
+    ranges = []
+    for number, folder in enumerate(folders):
+        keys = [k for k, v in table.items() if v[0] == number]
+        ranges.append("%s: %.3f..%.3f" % (folder, min(keys) / 1000.0, max(keys) / 1000.0))
+    return "; ".join(ranges)
+
+
 class Recorder:
-    def __init__(self, ns, frame_stamps, mount=(0.0, 0.0, 0.0)):
+    def __init__(self, ns, frame_stamps, mount=(0.0, 0.0, 0.0), describe_folders=""):
         self.ns = ns.rstrip("/")
         self.mount = mount  # the camera in base_link: paths give base_link, the files the camera
         self.frame_stamps = frame_stamps  # None: ROS ids as they are
@@ -107,6 +167,7 @@ class Recorder:
         self.maps = {}  # ros session -> map (ros session id) of its last session_trajectory
         self.path_subs = {}
         self.unplaced = 0
+        self.describe_folders = describe_folders  # the folders' stamp ranges, for the unplaced warning
         rospy.Subscriber(self.ns + "/keyframes", Keyframe, self.on_keyframe, queue_size=1000, buff_size=2 ** 24)
         rospy.Subscriber(self.ns + "/loops", Loop, self.on_loop, queue_size=1000)
         rospy.Subscriber(self.ns + "/session_trajectory", SessionTrajectory, self.on_trajectory, queue_size=100)
@@ -125,6 +186,10 @@ class Recorder:
         found = self.frame_stamps.get(stamp_key(stamp.to_sec()))
         if found is None:
             self.unplaced += 1
+            if self.unplaced == 1:
+                print("[record_run] keyframe %d of session %d (stamp %.3f) is no frame of the folders (%s): wrong "
+                      "--bag-start or --session-dir? Such keyframes are left out" % (
+                          frame_index, session, stamp.to_sec(), self.describe_folders), file=sys.stderr, flush=True)
         return found
 
     def on_keyframe(self, msg):
@@ -217,21 +282,25 @@ def main():
     parser.add_argument("--out", required=True, help="directory for the run's CSV files")
     parser.add_argument("--session-dir", action="append", default=[], metavar="DIR",
                         help="dataset folder whose bag is played, in order (repeat); places keyframes by stamp")
-    parser.add_argument("--bag-start", type=float, default=1700000000.0,
-                        help="stamp of stamp_s = 0 in the bags (default 1700000000, make_survey's)")
+    parser.add_argument("--bag-start", type=float, action="append", default=[], metavar="SEC",
+                        help="time of stamp_s = 0 in the bags (folder_to_bag --start-time): once for all folders, "
+                             "or once per --session-dir in the same order (default 1700000000, make_survey's)")
     parser.add_argument("--ns", default="/uw_multislam", help="namespace of the SLAM topics")
     parser.add_argument("--ready-file", help="created once subscribed (for scripts that wait for it)")
     args = parser.parse_args(rospy.myargv()[1:] if not ROS_IMPORT_ERROR else None)
     if ROS_IMPORT_ERROR:
         sys.exit("record_run: %s (source the workspace's devel/setup.bash or install/setup.bash first)" %
                  ROS_IMPORT_ERROR)
+    if args.bag_start and not args.session_dir:
+        parser.error("--bag-start places keyframes in --session-dir folders: give the folders too")
     try:
         frame_stamps = read_frame_stamps(args.session_dir, args.bag_start) if args.session_dir else None
-    except (OSError, ValueError, KeyError) as e:
+    except ValueError as e:
         sys.exit("record_run: %s" % e)
 
     rospy.init_node("record_run", disable_signals=False)
-    recorder = Recorder(args.ns, frame_stamps, mount_of(args.ns))
+    recorder = Recorder(args.ns, frame_stamps, mount_of(args.ns),
+                        stamp_ranges(args.session_dir, frame_stamps) if frame_stamps else "")
     if args.ready_file:
         open(args.ready_file, "w").close()
     rospy.spin()  # until SIGINT / SIGTERM / rosnode kill

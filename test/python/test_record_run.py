@@ -1,10 +1,13 @@
 """record_run.py's conversion of the published vehicle poses (base_link, z-up map) back to the
-core's camera poses (image axes), against an independent 3-D chain of 4x4 transforms."""
+core's camera poses (image axes), against an independent 3-D chain of 4x4 transforms; and its
+placement of keyframes in the --session-dir folders by stamp (one --bag-start per folder)."""
 import importlib.util
 import math
 import os
 
 import numpy as np
+import pytest
+import rospy
 
 TOOL = os.path.join(os.path.dirname(__file__), "..", "..", "src", "tools", "record_run.py")
 _spec = importlib.util.spec_from_file_location("record_run", TOOL)
@@ -41,3 +44,85 @@ def test_camera_pose_inverts_the_chain_map_base_camera():
 
 def test_default_mount_is_the_flip_of_y_and_yaw():
     assert rr.camera_pose(2.0, -1.0, -0.3, (0.0, 0.0, 0.0)) == (2.0, 1.0, 0.3)
+
+
+# --- placing keyframes by stamp in the --session-dir folders (no ROS master) ---
+
+def write_folder(root, name, stamps, header="index,image,stamp_s,altitude_m"):
+    folder = os.path.join(str(root), name)
+    os.makedirs(folder)
+    with open(os.path.join(folder, "frames.csv"), "w") as f:
+        f.write(header + "\n")
+        for k, t in enumerate(stamps):
+            f.write("%d,%04d.png,%.3f,1.5\n" % (k, k, t))
+    return folder
+
+
+def test_one_bag_start_per_folder_places_overlapping_folders(tmp_path):
+    # Both folders start at stamp_s 0 (the shared flight folders); their bags were written with
+    # folder_to_bag --start-time 1700000000 and 1700003600.
+    a = write_folder(tmp_path, "a", [0.0, 1.0, 2.0])
+    b = write_folder(tmp_path, "b", [0.0, 1.0, 2.0, 3.0])
+    table = rr.read_frame_stamps([a, b], [1700000000.0, 1700003600.0])
+    assert table[rr.stamp_key(1700000001.0)] == (0, 1)
+    assert table[rr.stamp_key(1700003601.0)] == (1, 1)
+    assert table[rr.stamp_key(1700003603.0)] == (1, 3)
+    assert len(table) == 7
+
+
+def test_one_bag_start_for_all_folders_with_distinct_stamps(tmp_path):
+    a = write_folder(tmp_path, "a", [0.0, 1.0])
+    b = write_folder(tmp_path, "b", [86400.0, 86401.0])  # make_survey's second mission, a day later
+    for starts in ([], [1700000000.0]):
+        table = rr.read_frame_stamps([a, b], starts)
+        assert table[rr.stamp_key(1700086401.0)] == (1, 1)
+        assert table[rr.stamp_key(1700000000.0)] == (0, 0)
+
+
+def test_overlapping_folders_with_one_start_name_both_folders_and_the_fix(tmp_path):
+    a = write_folder(tmp_path, "flight_a", [0.0, 1.0])
+    b = write_folder(tmp_path, "flight_b", [0.0, 1.0])
+    with pytest.raises(ValueError) as e:
+        rr.read_frame_stamps([a, b], [1700000000.0])
+    assert a in str(e.value) and b in str(e.value)
+    assert "--bag-start once per --session-dir" in str(e.value)
+
+
+@pytest.mark.parametrize("header, rows, why", [
+    ("index,image,stamp_s,altitude_m", "0,0000.png,0.0,1.5\n1,0001.png,0.0,1.5\n", "frames 0 and 1 have the same stamp"),
+    ("index,image,altitude_m", "0,0000.png,1.5\n", "no column stamp_s"),
+    ("index,image,stamp_s,altitude_m", "0,0000.png,soon,1.5\n", ":2: cannot read index '0' / stamp_s 'soon'"),
+    ("index,image,stamp_s,altitude_m", "", "no frames"),
+])
+def test_every_error_names_the_folder(tmp_path, header, rows, why):
+    folder = os.path.join(str(tmp_path), "dive")
+    os.makedirs(folder)
+    with open(os.path.join(folder, "frames.csv"), "w") as f:
+        f.write(header + "\n" + rows)
+    with pytest.raises(ValueError) as e:
+        rr.read_frame_stamps([folder], [])
+    assert os.path.join(folder, "frames.csv") in str(e.value)
+    assert why in str(e.value)
+
+
+def test_missing_folder_and_wrong_number_of_starts_are_named(tmp_path):
+    a = write_folder(tmp_path, "a", [0.0])
+    with pytest.raises(ValueError, match="no_such_dir: --session-dir is not a folder"):
+        rr.read_frame_stamps([a, os.path.join(str(tmp_path), "no_such_dir")], [])
+    b = write_folder(tmp_path, "b", [0.0])
+    c = write_folder(tmp_path, "c", [0.0])
+    with pytest.raises(ValueError) as e:
+        rr.read_frame_stamps([a, b, c], [1.0, 2.0])
+    assert "2 --bag-start values for 3 --session-dir folders" in str(e.value) and c in str(e.value)
+
+
+def test_unplaced_keyframes_are_counted_and_placed_ones_keep_the_folder(tmp_path):
+    a = write_folder(tmp_path, "a", [0.0, 1.0])
+    b = write_folder(tmp_path, "b", [0.0, 1.0])
+    table = rr.read_frame_stamps([a, b], [100.0, 200.0])
+    recorder = rr.Recorder.__new__(rr.Recorder)  # placement only: no subscribers, no master
+    recorder.frame_stamps, recorder.unplaced, recorder.describe_folders = table, 0, rr.stamp_ranges([a, b], table)
+    assert "a: 100.000..101.000" in recorder.describe_folders and "b: 200.000..201.000" in recorder.describe_folders
+    assert recorder.place(7, 3, rospy.Time(201)) == (1, 1)  # ROS session 7 (a tracking loss) in folder 1
+    assert recorder.place(7, 4, rospy.Time(150)) is None
+    assert recorder.unplaced == 1
