@@ -60,6 +60,12 @@ Metrics (loops, rows intra / inter / all)
 
 Timing: timing.csv copied as rows (scope timing, id = stage).
 
+The run must be the run of the folders given, else it is refused with the reason: one folder per
+session of the run (no folder without keyframes, no session without a folder), every keyframe a
+frame of its folder's gt.csv, and, when the run has inputs.csv (offline_slam and record_run.py
+--session-dir write it: session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m), each
+session's folder with the same number of frames, first and last stamp_s and mean altitude.
+
 Outputs
   metrics.csv   long format: scope,id,estimate,metric,value (value n/a when not computable)
   metrics.json  {scope: {id: {estimate: {metric: value}}}}, n/a as null
@@ -92,6 +98,8 @@ LOOP_POSES_COLUMNS = (("session_a", int), ("index_a", int), ("session_b", int), 
 LOOP_POSE_TOL_FRACTION = 0.1
 LOOP_POSE_TOL_YAW = math.radians(5.0)
 TIMING_COLUMNS = (("stage", str), ("calls", int), ("total_ms", float), ("mean_ms", float), ("max_ms", float))
+INPUTS_COLUMNS = (("session", int), ("folder", str), ("frames", int), ("first_stamp_s", float),
+                  ("last_stamp_s", float), ("altitude_mean_m", float))
 GT_COLUMNS = (("index", int), ("image", str), ("x_m", float), ("y_m", float), ("yaw_rad", float))
 FRAMES_COLUMNS = (("index", int), ("image", str), ("stamp_s", float), ("altitude_m", float))
 WORLD_GT_COLUMNS = ODOMETRY_COLUMNS
@@ -229,6 +237,7 @@ class SessionTruth:
     poses: dict
     altitude: dict
     camera: dict
+    stamps: list = field(default_factory=list)  # frames.csv's stamp_s, in file order
 
     def footprint_height(self, index):
         """Height in metres of the seabed seen by frame `index`."""
@@ -267,9 +276,10 @@ def load_session_truth(directory):
     gt_path = os.path.join(directory, "gt.csv")
     frames_path = os.path.join(directory, "frames.csv")
     poses = keyed_poses(read_table(gt_path, GT_COLUMNS), gt_path, lambda r: r["index"])
-    altitude = {r["index"]: r["altitude_m"] for r in read_table(frames_path, FRAMES_COLUMNS)}
+    frames = read_table(frames_path, FRAMES_COLUMNS)
+    altitude = {r["index"]: r["altitude_m"] for r in frames}
     camera = read_camera_yaml(os.path.join(directory, "camera.yaml"))
-    return SessionTruth(directory, poses, altitude, camera)
+    return SessionTruth(directory, poses, altitude, camera, [r["stamp_s"] for r in frames])
 
 
 def unordered(a, b):
@@ -319,6 +329,7 @@ class Run:
     loops: list = None     # None without loops.csv
     timing: list = None    # None without timing.csv
     loop_poses: dict = None  # (key_a, key_b) -> measured pose of b in a, from loop_poses.csv
+    inputs: list = None  # inputs.csv rows: the folders the run was made from (None: not written)
 
     def estimates(self):
         return [e for e in (self.odometry, self.slam) if e is not None]
@@ -346,22 +357,62 @@ def load_run(directory):
     loop_poses = None
     if measured is not None:
         loop_poses = {((r["session_a"], r["index_a"]), (r["session_b"], r["index_b"])): pose_of(r) for r in measured}
-    return Run(odometry, slam, None if loops is None else loop_pairs(loops), timing, loop_poses)
+    inputs = read_table(os.path.join(directory, "inputs.csv"), INPUTS_COLUMNS, required=False)
+    return Run(odometry, slam, None if loops is None else loop_pairs(loops), timing, loop_poses, inputs)
+
+
+def folder_summary(truth):
+    """(frames, first stamp, last stamp, mean finite altitude or nan) of a folder's frames.csv."""
+    altitudes = [a for a in truth.altitude.values() if math.isfinite(a)]
+    stamps = truth.stamps or [0.0]
+    return (len(truth.stamps), stamps[0], stamps[-1], float(np.mean(altitudes)) if altitudes else math.nan)
+
+
+def describe_summary(summary):
+    return "%d frames, stamps %.3f..%.3f s, mean altitude %.4f m" % summary
+
+
+def same_summary(a, b):
+    """Equal frame counts; stamps within 1 ms and mean altitudes within 0.1 mm (as written, 6 decimals)."""
+    def close(x, y, tol):
+        return (math.isnan(x) and math.isnan(y)) or abs(x - y) <= tol
+    return a[0] == b[0] and close(a[1], b[1], 1e-3) and close(a[2], b[2], 1e-3) and close(a[3], b[3], 1e-4)
 
 
 def check_run_against_truth(run, gt):
-    """Every key of the run must name a ground-truth folder and a frame of its gt.csv."""
+    """Refuses (EvalError with the reason) a run that is not the run of the folders given: one folder per
+    session, every key a frame of its folder's gt.csv, and the folders the run's inputs.csv describes.
+    Returns notes for the report."""
     keys = set(run.keyframes())
     for pair in run.loops or []:
         keys.update(pair)
     for session, index in sorted(keys):
         if session < 0 or session >= len(gt.sessions):
-            raise EvalError("the run has session %d but only %d ground-truth folder(s) were given" % (
-                session, len(gt.sessions)))
+            raise EvalError("the run has session %d but only %d ground-truth folder(s) were given: give one folder per "
+                            "session of the run, in its order" % (session, len(gt.sessions)))
         truth = gt.sessions[session]
         if index not in truth.poses:
-            raise EvalError("%s: no ground truth for frame %d (session %d of the run)" % (
-                os.path.join(truth.directory, "gt.csv"), index, session))
+            raise EvalError("%s: no ground truth for frame %d (session %d of the run): not the folder of that "
+                            "session?" % (os.path.join(truth.directory, "gt.csv"), index, session))
+    empty = [n for n in range(len(gt.sessions)) if n not in {k[0] for k in keys}]
+    if empty:
+        raise EvalError("%d folder(s) given but the run has no keyframe of session(s) %s (%s): give only the run's "
+                        "folders, in its order" % (len(gt.sessions), ", ".join(map(str, empty)),
+                                                   ", ".join(gt.sessions[n].directory for n in empty)))
+    if run.inputs is None:
+        return ["the run has no inputs.csv: its folders were checked by session count and frame indexes only"]
+    for row in run.inputs:
+        n = row["session"]
+        if n < 0 or n >= len(gt.sessions):
+            raise EvalError("the run was made from folder %s as session %d (inputs.csv) but only %d folder(s) were "
+                            "given" % (row["folder"], n, len(gt.sessions)))
+        made = (row["frames"], row["first_stamp_s"], row["last_stamp_s"], row["altitude_mean_m"])
+        given = folder_summary(gt.sessions[n])
+        if not same_summary(made, given):
+            raise EvalError("session %d of the run was made from %s (%s), but %s has %s: not the same folder (give "
+                            "the run's folders, in its order)" % (n, row["folder"], describe_summary(made),
+                                                                  gt.sessions[n].directory, describe_summary(given)))
+    return []
 
 
 # ---------------------------------------------------------------------------------------------
@@ -884,8 +935,9 @@ def main(argv=None):
         session_dirs, world_gt, loops_gt = resolve_truth_inputs(args)
         gt = load_ground_truth(session_dirs, world_gt, loops_gt)
         run = load_run(args.run)
-        check_run_against_truth(run, gt)
+        notes = check_run_against_truth(run, gt)
         ev = evaluate(run, gt, args.loop_true_dist)
+        ev.notes += notes
         text = write_report(ev, args.report)
         if not args.no_plots:
             write_plots(ev, run, gt, args.report)

@@ -26,7 +26,7 @@ Runs uw_multislam over dataset folders (frames.csv, camera.yaml, images; see
 doc/dataset_format.md), in the order given, as consecutive missions. Writes into OUT (columns in
 doc/run_outputs.md): odometry.csv (odometry keyframe poses, each session in its own frame),
 trajectory.csv (final keyframe poses in the frame of their map), loops.csv, loop_poses.csv (each
-loop's measured pose and covariance), links.csv (the links joining sessions), timing.csv.
+loop's measured pose and covariance), links.csv (the links joining sessions), timing.csv, inputs.csv.
 `session` is the folder's position on the command line, `index` the frame's index in frames.csv.
 Sessions are joined into maps once backend.join_min_loops global loops link them (paper §9), and
 each map is optimised (backend.optimizer); `map` is the map's first session, whose frame it is.
@@ -105,7 +105,7 @@ int main(int argc, char** argv) {
       std::printf("store %s: %d sessions, %d loops loaded in %.1f ms\n", db.c_str(), stored,
                   static_cast<int>(manager.loops().size()),
                   std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
-    std::filesystem::create_directories(out);
+    core::writeRunInputs(out, datasets, stored);  // creates OUT; evaluate.py checks its folders against it
 
     std::map<int, int> csv_of;  // session id -> the folder's number (stored sessions keep their id)
     for (std::size_t ds = 0; ds < datasets.size(); ++ds) {

@@ -4,8 +4,8 @@ runner's contract"), so that evaluate.py scores a ROS run like an offline_slam o
 
     record_run.py --out OUT [--session-dir DIR [--bag-start SEC] ...] [--ns /uw_multislam]
 
-Subscribes to the back-end's outputs and, when it is stopped (SIGINT / SIGTERM / rosnode kill),
-writes into OUT:
+Subscribes to the back-end's outputs and, when it is stopped (SIGINT / SIGTERM / rosnode kill), or
+with --until-idle SEC once nothing has arrived for SEC seconds after the first keyframe, writes into OUT:
 
   odometry.csv    session,index,x_m,y_m,yaw_rad            Keyframe.odometry_pose (session frame)
   trajectory.csv  session,index,map,x_m,y_m,yaw_rad        the last paths/session_<id> (nav_msgs/Path
@@ -17,6 +17,8 @@ writes into OUT:
                                                             offline_slam (camera_pose())
   loops.csv       session_a,index_a,session_b,index_b,kind,inliers    every Loop message
   loop_poses.csv  session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad the loops' measured X_b^a
+  inputs.csv      session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m  with --session-dir:
+                                                            the folders, for evaluate.py's check
 
 Numbering. The contract numbers sessions by dataset folder and frames by their frames.csv index.
 With --session-dir (the folders whose bags are played, in order) a keyframe is placed by its stamp:
@@ -40,6 +42,7 @@ import math
 import os
 import sys
 import threading
+import time
 
 # --help works without a sourced workspace (setup.bash puts the package's messages on PYTHONPATH);
 # a run without them stops with a line that says so.
@@ -100,24 +103,24 @@ def bag_starts_of(folders, bag_starts):
 
 
 def read_frames(folder):
-    """[(frame index, stamp_s)] of a dataset folder's frames.csv; every error names the file."""
+    """[(frame index, stamp_s, altitude_m)] of a dataset folder's frames.csv; every error names the file."""
     path = os.path.join(folder, "frames.csv")
     if not os.path.isdir(folder):
         raise ValueError("%s: --session-dir is not a folder" % folder)
     try:
         with open(path, newline="") as f:
             reader = csv.DictReader(f)
-            missing = {"index", "stamp_s"} - set(reader.fieldnames or [])
+            missing = {"index", "stamp_s", "altitude_m"} - set(reader.fieldnames or [])
             if missing:
                 raise ValueError("%s: no column %s (a dataset folder's frames.csv has index,image,stamp_s,"
                                  "altitude_m)" % (path, " and ".join(sorted(missing))))
             frames = []
             for line, row in enumerate(reader, start=2):
                 try:
-                    frames.append((int(row["index"]), float(row["stamp_s"])))
+                    frames.append((int(row["index"]), float(row["stamp_s"]), float(row["altitude_m"])))
                 except (TypeError, ValueError):
-                    raise ValueError("%s:%d: cannot read index '%s' / stamp_s '%s'" % (
-                        path, line, row["index"], row["stamp_s"])) from None
+                    raise ValueError("%s:%d: cannot read index '%s' / stamp_s '%s' / altitude_m '%s'" % (
+                        path, line, row["index"], row["stamp_s"], row["altitude_m"])) from None
     except OSError as e:
         raise ValueError("%s: %s" % (path, e.strerror or e)) from None
     if not frames:
@@ -130,7 +133,7 @@ def read_frame_stamps(folders, bag_starts):
     i at bag_starts[i] + stamp_s. Raises ValueError naming the folder(s) when a stamp is not unique."""
     table = {}
     for number, (folder, start) in enumerate(zip(folders, bag_starts_of(folders, bag_starts))):
-        for index, stamp_s in read_frames(folder):
+        for index, stamp_s, _ in read_frames(folder):
             key = stamp_key(start + stamp_s)
             if key in table:
                 other, other_index = table[key]
@@ -146,6 +149,18 @@ def read_frame_stamps(folders, bag_starts):
     return table
 
 
+def run_inputs(folders):
+    """inputs.csv's rows, as offline_slam writes them (core::writeRunInputs): evaluate.py compares them
+    with the folders it is given. (session, folder, frames, first stamp_s, last stamp_s, mean altitude)."""
+    rows = []
+    for number, folder in enumerate(folders):
+        frames = read_frames(folder)
+        altitudes = [a for _, _, a in frames if math.isfinite(a)]
+        rows.append((number, folder, len(frames), frames[0][1], frames[-1][1],
+                     sum(altitudes) / len(altitudes) if altitudes else math.nan))
+    return rows
+
+
 def stamp_ranges(folders, table):
     """'folder: first..last' of the placed stamps of each folder, for messages."""
     ranges = []
@@ -156,7 +171,7 @@ def stamp_ranges(folders, table):
 
 
 class Recorder:
-    def __init__(self, ns, frame_stamps, mount=(0.0, 0.0, 0.0), describe_folders=""):
+    def __init__(self, ns, frame_stamps, mount=(0.0, 0.0, 0.0), describe_folders="", inputs=None):
         self.ns = ns.rstrip("/")
         self.mount = mount  # the camera in base_link: paths give base_link, the files the camera
         self.frame_stamps = frame_stamps  # None: ROS ids as they are
@@ -167,7 +182,9 @@ class Recorder:
         self.maps = {}  # ros session -> map (ros session id) of its last session_trajectory
         self.path_subs = {}
         self.unplaced = 0
+        self.last_message = None  # wall time (time.time()) of the last message
         self.describe_folders = describe_folders  # the folders' stamp ranges, for the unplaced warning
+        self.inputs = inputs  # inputs.csv rows (run_inputs), None without folders
         rospy.Subscriber(self.ns + "/keyframes", Keyframe, self.on_keyframe, queue_size=1000, buff_size=2 ** 24)
         rospy.Subscriber(self.ns + "/loops", Loop, self.on_loop, queue_size=1000)
         rospy.Subscriber(self.ns + "/session_trajectory", SessionTrajectory, self.on_trajectory, queue_size=100)
@@ -194,6 +211,7 @@ class Recorder:
 
     def on_keyframe(self, msg):
         with self.lock:
+            self.last_message = time.time()
             if not any(s == msg.session for s, _ in self.keyframes):
                 print("[record_run] session %d: first keyframe" % msg.session, flush=True)
             self.watch(msg.session)
@@ -205,16 +223,24 @@ class Recorder:
 
     def on_loop(self, msg):
         with self.lock:
+            self.last_message = time.time()
             self.loops.append(msg)
 
     def on_trajectory(self, msg):
         with self.lock:
+            self.last_message = time.time()
             self.maps[msg.session] = msg.map
             self.watch(msg.session)
 
     def on_path(self, session, msg):
         with self.lock:
+            self.last_message = time.time()
             self.paths[session] = msg
+
+    def idle_for(self):
+        """Seconds since the last message, or 0 before the first keyframe."""
+        with self.lock:
+            return 0.0 if not self.keyframes else time.time() - self.last_message
 
     def key_of(self, session, keyframe, stamp=None):
         kf = self.keyframes.get((session, keyframe))
@@ -268,6 +294,12 @@ class Recorder:
                     f.write("%d,%d,%d,%d,%s,%d\n" % (a + b + (kind, loop.inliers)))
                     g.write("%d,%d,%d,%d,%.6f,%.6f,%.7f\n" % (a + b + (loop.pose.x, loop.pose.y, loop.pose.theta)))
                     counts["loops"] += 1
+            if self.inputs is not None:
+                with open(os.path.join(out, "inputs.csv"), "w", newline="") as f:
+                    rows = csv.writer(f, lineterminator="\n")
+                    rows.writerow(("session", "folder", "frames", "first_stamp_s", "last_stamp_s", "altitude_mean_m"))
+                    rows.writerows((n, folder, frames, "%.6f" % first, "%.6f" % last, "%.6f" % altitude)
+                                   for n, folder, frames, first, last, altitude in self.inputs)
             sessions = sorted({s for s, _ in self.keyframes})
             print("[record_run] %d sessions %s, %d keyframes (%d odometry rows), %d trajectory rows from %d paths, "
                   "%d loops; %d keyframes not placed by stamp, %d rows skipped -> %s" % (
@@ -287,6 +319,9 @@ def main():
                              "or once per --session-dir in the same order (default 1700000000, make_survey's)")
     parser.add_argument("--ns", default="/uw_multislam", help="namespace of the SLAM topics")
     parser.add_argument("--ready-file", help="created once subscribed (for scripts that wait for it)")
+    parser.add_argument("--until-idle", type=float, metavar="SEC",
+                        help="write and exit once no message has arrived for SEC seconds (wall time) after the "
+                             "first keyframe, e.g. when the bags are played; default: until stopped")
     args = parser.parse_args(rospy.myargv()[1:] if not ROS_IMPORT_ERROR else None)
     if ROS_IMPORT_ERROR:
         sys.exit("record_run: %s (source the workspace's devel/setup.bash or install/setup.bash first)" %
@@ -295,15 +330,20 @@ def main():
         parser.error("--bag-start places keyframes in --session-dir folders: give the folders too")
     try:
         frame_stamps = read_frame_stamps(args.session_dir, args.bag_start) if args.session_dir else None
+        inputs = run_inputs(args.session_dir) if args.session_dir else None
     except ValueError as e:
         sys.exit("record_run: %s" % e)
 
     rospy.init_node("record_run", disable_signals=False)
     recorder = Recorder(args.ns, frame_stamps, mount_of(args.ns),
-                        stamp_ranges(args.session_dir, frame_stamps) if frame_stamps else "")
+                        stamp_ranges(args.session_dir, frame_stamps) if frame_stamps else "", inputs)
     if args.ready_file:
         open(args.ready_file, "w").close()
-    rospy.spin()  # until SIGINT / SIGTERM / rosnode kill
+    if args.until_idle is None:
+        rospy.spin()  # until SIGINT / SIGTERM / rosnode kill
+    else:
+        while not rospy.is_shutdown() and recorder.idle_for() <= args.until_idle:
+            time.sleep(0.2)  # wall time: under use_sim_time the clock stops with the bag
     recorder.write(args.out)
 
 

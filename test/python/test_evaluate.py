@@ -499,3 +499,55 @@ def test_measured_loop_poses_decide_correctness_and_nan_altitude_is_na(tmp_path)
     assert ev.judge_loops(gt, [((0, 0), (0, 2))]) == {((0, 0), (0, 2)): True}
     gt.sessions[0].altitude[2] = float("nan")
     assert ev.judge_loops(gt, [((0, 0), (0, 2))]) == {((0, 0), (0, 2)): None}
+
+
+# ---------------------------------------------------------------------------------------------
+# The run must be the run of the folders given (issue 22: test1's run scored against test2).
+
+def write_inputs(run, rows):
+    """inputs.csv as offline_slam writes it: (session, folder, frames, first, last, mean altitude)."""
+    write_csv(os.path.join(run, "inputs.csv"), "session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m",
+              rows)
+
+
+def test_run_scored_against_another_folder_is_refused_with_the_reason(tmp_path, capsys):
+    gt = lawnmower()
+    s0 = write_session(tmp_path / "test1", gt)
+    # test2: the same frame indexes and stamps (as the ACFR folders), other altitudes.
+    other = write_session(tmp_path / "test2", gt)
+    write_csv(os.path.join(other, "frames.csv"), "index,image,stamp_s,altitude_m",
+              [(i, "%04d.png" % i, 0.5 * i, ALTITUDE + 0.01 * i) for i in range(len(gt))])
+    run = write_run(tmp_path / "run", {0: indexed(gt)})
+    write_inputs(run, [(0, s0, len(gt), 0.0, 0.5 * (len(gt) - 1), ALTITUDE)])
+    report = ["--report", tmp_path / "report", "--no-plots"]
+    assert run_main(["--run", run, "--session", s0] + report) == 0
+    assert "inputs.csv" not in (tmp_path / "report" / "metrics.md").read_text()
+    check_fails(capsys, ["--run", run, "--session", other] + report,
+                ["session 0 of the run was made from %s" % s0, "12 frames, stamps 0.000..5.500 s, mean altitude 2.0000 m",
+                 "but %s has 12 frames, stamps 0.000..5.500 s, mean altitude 2.0550 m" % other, "not the same folder"])
+    # Other stamps or another frame count are refused the same way.
+    for frames in ([(i, "%04d.png" % i, 10.0 + 0.5 * i, ALTITUDE) for i in range(len(gt))],
+                   [(i, "%04d.png" % i, 0.5 * i, ALTITUDE) for i in range(len(gt) + 1)]):
+        write_csv(os.path.join(other, "frames.csv"), "index,image,stamp_s,altitude_m", frames)
+        check_fails(capsys, ["--run", run, "--session", other] + report, ["not the same folder"])
+
+
+def test_session_count_must_match_the_folders(tmp_path, capsys):
+    gt = lawnmower()
+    s0 = write_session(tmp_path / "s0", gt)
+    s1 = write_session(tmp_path / "s1", gt)
+    run = write_run(tmp_path / "run", {0: indexed(gt)})
+    report = ["--report", tmp_path / "report", "--no-plots"]
+    check_fails(capsys, ["--run", run, "--session", s0, "--session", s1] + report,
+                ["2 folder(s) given but the run has no keyframe of session(s) 1 (%s)" % s1])
+    write_inputs(run, [(0, s0, len(gt), 0.0, 5.5, ALTITUDE), (1, s1, len(gt), 0.0, 5.5, ALTITUDE)])
+    check_fails(capsys, ["--run", run, "--session", s0] + report,
+                ["made from folder %s as session 1" % s1, "only 1 folder(s)"])
+
+
+def test_run_without_inputs_csv_is_scored_with_a_note(tmp_path):
+    gt = lawnmower()
+    s0 = write_session(tmp_path / "s0", gt)
+    run = write_run(tmp_path / "run", {0: indexed(gt)})
+    evaluate_dirs(tmp_path, [s0], run)
+    assert "no inputs.csv" in (tmp_path / "report" / "metrics.md").read_text()

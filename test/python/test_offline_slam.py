@@ -2,6 +2,8 @@
 session numbering, and clear failures on bad input. Runs on a small generated survey."""
 import math
 import os
+import shutil
+import subprocess
 
 import pytest
 import yaml
@@ -393,3 +395,38 @@ def test_consistency_joins_every_short_revisit_and_nothing_else(short_revisits):
             for t in traj if t["session"] != "5" for gt in [_in_frame(origin, world[(t["session"], t["index"])])]]
     assert len(errs) >= 10
     assert max(errs) < 0.03, errs  # measured 6 mm ATE; a wrong link puts a pass ~1 m off
+
+
+EVALUATE = os.path.join(HERE, "..", "..", "src", "tools", "evaluate.py")
+
+
+def test_inputs_csv_lets_evaluate_refuse_another_folder(result, survey, tmp_path):
+    out, _ = result
+    inputs = rows(out / "inputs.csv")
+    assert [(i["session"], i["folder"]) for i in inputs] == [("0", str(survey / "a")), ("1", str(survey / "b"))]
+    frames = rows(survey / "a" / "frames.csv")
+    assert int(inputs[0]["frames"]) == len(frames)
+    assert float(inputs[0]["last_stamp_s"]) == pytest.approx(float(frames[-1]["stamp_s"]), abs=1e-6)
+
+    def evaluate(*folders):
+        args = ["/usr/bin/python3", EVALUATE, "--run", str(out), "--report", str(tmp_path / "report"), "--no-plots"]
+        for folder in folders:
+            args += ["--session", str(folder)]
+        return subprocess.run(args, capture_output=True, text=True, timeout=120)
+
+    assert evaluate(survey / "a", survey / "b").returncode == 0
+    # A copy of folder a with other altitudes (same indexes and stamps, like ACFR test1 and test2).
+    shutil.copytree(survey / "a", tmp_path / "a2")
+    with open(tmp_path / "a2" / "frames.csv", "w") as f:
+        f.write("index,image,stamp_s,altitude_m\n")
+        f.writelines("%s,%s,%s,%.4f\n" % (r["index"], r["image"], r["stamp_s"], float(r["altitude_m"]) + 0.05)
+                     for r in frames)
+    refused = evaluate(tmp_path / "a2", survey / "b")
+    assert refused.returncode == 1
+    assert "session 0 of the run was made from %s" % (survey / "a") in refused.stderr
+    assert "not the same folder" in refused.stderr
+
+
+def test_db_inputs_csv_numbers_the_folders_after_the_stored_sessions(stored_runs, survey):
+    base, _, _ = stored_runs
+    assert [(i["session"], i["folder"]) for i in rows(base / "r2" / "inputs.csv")] == [("1", str(survey / "b"))]

@@ -4,6 +4,8 @@ placement of keyframes in the --session-dir folders by stamp (one --bag-start pe
 import importlib.util
 import math
 import os
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -126,3 +128,37 @@ def test_unplaced_keyframes_are_counted_and_placed_ones_keep_the_folder(tmp_path
     assert recorder.place(7, 3, rospy.Time(201)) == (1, 1)  # ROS session 7 (a tracking loss) in folder 1
     assert recorder.place(7, 4, rospy.Time(150)) is None
     assert recorder.unplaced == 1
+
+
+def test_inputs_csv_is_what_evaluate_checks_the_folders_against(tmp_path):
+    _spec_ev = importlib.util.spec_from_file_location(
+        "evaluate", os.path.join(os.path.dirname(TOOL), "evaluate.py"))
+    ev = importlib.util.module_from_spec(_spec_ev)
+    _spec_ev.loader.exec_module(ev)
+    a = write_folder(tmp_path, "a", [0.0, 1.0, 2.5])
+    b = write_folder(tmp_path, "b", [4.0, 5.0])
+    with open(os.path.join(b, "frames.csv"), "a") as f:
+        f.write("2,0002.png,6.0,nan\n3,0003.png,7.0,2.5\n")  # an altitude missing: left out of the mean
+    recorder = rr.Recorder.__new__(rr.Recorder)
+    recorder.lock, recorder.keyframes, recorder.paths, recorder.maps, recorder.loops = threading.Lock(), {}, {}, {}, []
+    recorder.unplaced, recorder.inputs = 0, rr.run_inputs([a, b])
+    recorder.write(str(tmp_path / "run"))
+    rows = ev.read_table(str(tmp_path / "run" / "inputs.csv"), ev.INPUTS_COLUMNS)
+    assert [(r["session"], r["folder"], r["frames"]) for r in rows] == [(0, a, 3), (1, b, 4)]
+    assert rows[1]["altitude_mean_m"] == pytest.approx((1.5 + 1.5 + 2.5) / 3)
+    for row, folder in zip(rows, (a, b)):
+        frames = rr.read_frames(folder)
+        truth = ev.SessionTruth(folder, {}, {k: alt for k, _, alt in frames}, {}, [t for _, t, _ in frames])
+        made = (row["frames"], row["first_stamp_s"], row["last_stamp_s"], row["altitude_mean_m"])
+        assert ev.same_summary(made, ev.folder_summary(truth))
+    truth_a = ev.SessionTruth(a, {}, {k: alt for k, _, alt in rr.read_frames(a)}, {}, [t for _, t, _ in rr.read_frames(a)])
+    other = (rows[1]["frames"], rows[1]["first_stamp_s"], rows[1]["last_stamp_s"], rows[1]["altitude_mean_m"])
+    assert not ev.same_summary(other, ev.folder_summary(truth_a))
+
+
+def test_until_idle_counts_from_the_last_message_once_a_keyframe_came(tmp_path):
+    recorder = rr.Recorder.__new__(rr.Recorder)
+    recorder.lock, recorder.keyframes, recorder.last_message = threading.Lock(), {}, time.time() - 100.0
+    assert recorder.idle_for() == 0.0  # a latched path before the bag plays does not start the count
+    recorder.keyframes[(0, 0)] = {}
+    assert 99.0 < recorder.idle_for() < 110.0

@@ -1,5 +1,6 @@
 #include "uw_multislam/core/session/run_outputs.h"
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
@@ -71,6 +72,30 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
     timing << s.stage << "," << s.calls << "," << s.total_ms << "," << s.meanMs() << "," << s.max_ms << "\n";
   if (!odo || !traj || !loops || !loop_poses || !links || !timing)
     throw DatasetError(out_dir + ": cannot write the output files");
+}
+
+void writeRunInputs(const std::string& out_dir, const std::vector<Dataset>& datasets, int first_number) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  fs::create_directories(out_dir, ec);
+  std::ofstream f(fs::path(out_dir) / "inputs.csv");
+  f << "session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m\n" << std::fixed << std::setprecision(6);
+  for (std::size_t ds = 0; ds < datasets.size(); ++ds) {
+    const Dataset& d = datasets[ds];
+    std::string folder;  // CSV-quoted: a path may hold a comma
+    for (char c : d.directory) folder += c == '"' ? std::string("\"\"") : std::string(1, c);
+    double sum = 0.0;
+    int finite = 0;
+    for (const FrameRecord& r : d.frames) {
+      if (!std::isfinite(r.altitude_m)) continue;
+      sum += r.altitude_m;
+      ++finite;
+    }
+    f << first_number + static_cast<int>(ds) << ",\"" << folder << "\"," << d.frames.size() << ","
+      << (d.frames.empty() ? 0.0 : d.frames.front().stamp_s) << "," << (d.frames.empty() ? 0.0 : d.frames.back().stamp_s)
+      << "," << (finite ? sum / finite : std::nan("")) << "\n";
+  }
+  if (!f) throw DatasetError(out_dir + ": cannot write inputs.csv");
 }
 
 }  // namespace core

@@ -1,13 +1,16 @@
 // The offline runner's output files (the contract offline_slam --help states), written from a
 // SessionManager's final state: odometry.csv, trajectory.csv, loops.csv, loop_poses.csv,
-// links.csv and timing.csv. The CSV `session` column is the caller's numbering (offline_slam:
-// the folder's position on the command line; a stored session: its id), given per session id.
+// links.csv and timing.csv (and inputs.csv, the folders the run was made from). The CSV `session`
+// column is the caller's numbering (offline_slam: the folder's position on the command line; a
+// stored session: its id), given per session id.
 #pragma once
 
 #include <map>
 #include <string>
+#include <vector>
 
 #include "uw_multislam/core/common/stage_timer.h"
+#include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/session/session_manager.h"
 
 namespace uw_multislam {
@@ -20,6 +23,11 @@ namespace core {
 /// file cannot be written.
 void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, const std::map<int, int>& csv_of,
                      int first_free_label, const StageTimes& times);
+
+/// Creates `out_dir` and writes inputs.csv (session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m):
+/// one row per dataset folder, numbered from `first_number`, so that evaluate.py can refuse to score
+/// the run against other folders. The altitude mean is over the finite altitudes (nan when none).
+void writeRunInputs(const std::string& out_dir, const std::vector<Dataset>& datasets, int first_number);
 
 }  // namespace core
 }  // namespace uw_multislam
