@@ -45,10 +45,8 @@ void BackendNodelet::onInit() {
     config_ = ros_params::slamConfigFromParams(nh);
     const std::string bad = config_.validate();
     if (!bad.empty()) throw std::invalid_argument(nh.resolveName("slam") + ": " + bad);
-    core::SessionManagerOptions options = core::sessionManagerOptions(config_, options_.store_path);
-    options.max_keyframe_gap = options_.max_keyframe_gap;
     manager_ = std::make_unique<core::SessionManager>(
-        options, [this](const core::SessionEvent& e) { onEvent(e); }, [this](const std::string& line) { say(line); });
+        ros_params::sessionManagerOptions(options_, config_), [this](const core::SessionEvent& e) { onEvent(e); }, [this](const std::string& line) { say(line); });
     manager_->setDeferredOptimisation(true);  // optimised by the worker, outside state_mutex_
     frames_ = std::make_unique<ros_frames::FramePublisher>(nh, options_.frames);  // a tilted camera throws
   } catch (const std::exception& e) {
@@ -199,10 +197,11 @@ core::Pose2 BackendNodelet::publishSession(int id) {
   const ros::Time now = stamps.empty() ? ros::Time::now() : stamps.back();
   trajectory_pub_.publish(rc::toSessionTrajectoryMsg(id, manager_->mapOf(id), manager_->posesInSessionFrame(id), now,
                                                      options_.frames.session_frame_prefix + std::to_string(id)));
-  ros::Publisher& path = path_pubs_[id];  // latched, advertised with the session's first publication
-  if (!path) path = getNodeHandle().advertise<nav_msgs::Path>(topics::kSessionPathPrefix + std::to_string(id), 1, true);
+  ros::Publisher& path = path_pubs_[id];  // latched, advertised with the session's first keyframe
+  if (!path && manager_->hasKeyframe(id))
+    path = getNodeHandle().advertise<nav_msgs::Path>(topics::kSessionPathPrefix + std::to_string(id), 1, true);
   const std::string& map = options_.frames.map_frame;
-  path.publish(rc::toPathMsg(rc::vehiclePoses(*manager_, id, frames_->mount()), stamps, map, now));
+  if (path) path.publish(rc::toPathMsg(rc::vehiclePoses(*manager_, id, frames_->mount()), stamps, map, now));
   if (id != manager_->activeSession()) return correction;
   frames_->setActive(id, correction, poses.back(), now);
   keyframe_pose_pub_.publish(

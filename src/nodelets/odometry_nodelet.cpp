@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "uw_multislam/Keyframe.h"
+#include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/conversions.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
@@ -65,7 +66,8 @@ void OdometryNodelet::readParameters() {
       pnh, "altitude_max_age_s", 1.0, [](double v) { return std::isfinite(v) && v > 0 && v <= 60; },
       "in (0, 60] seconds");
   options_.session = param(
-      pnh, "session", 0, [](int v) { return v >= 0; }, ">= 0");
+      pnh, "session", 0, [](int v) { return v >= 0 && v <= core::kMaxSessionId; },
+      "in [0, " + std::to_string(core::kMaxSessionId) + "]");
   options_.session_gap_s = param(
       pnh, "session_gap_s", 10.0, [](double v) { return v >= 0; }, ">= 0 (0 = off)");
   options_.stats_period_s = param(
@@ -340,8 +342,9 @@ void OdometryNodelet::push(Frame f) {
 }
 
 void OdometryNodelet::onActiveSession(const uw_multislam::SessionStateConstPtr& msg) {
-  if (msg->session < 0) {
-    NODELET_WARN_THROTTLE(10, "odometry: ignoring active_session with negative id %d", msg->session);
+  if (msg->session < 0 || msg->session > core::kMaxSessionId) {
+    NODELET_WARN_THROTTLE(10, "odometry: ignoring active_session with id %d, outside [0, %d]", msg->session,
+                          core::kMaxSessionId);
     return;
   }
   std::lock_guard<std::mutex> lock(session_mutex_);

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <sstream>
 
+#include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/ros/conversions.h"
 
 namespace uw_multislam {
@@ -116,6 +117,8 @@ bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* wh
   os << "keyframe " << m.keyframe << " of session " << m.session << ": ";
   const std::string who = os.str();
   if (m.session < 0 || m.keyframe < 0) return fail(why, who + "negative session or keyframe id");
+  if (m.session > core::kMaxSessionId)
+    return fail(why, who + "session id past the largest, " + std::to_string(core::kMaxSessionId));
   core::CameraIntrinsics camera{static_cast<int>(m.width), static_cast<int>(m.height), m.fx, m.fy, m.cx, m.cy};
   const std::string bad_camera = camera.validate();
   if (!bad_camera.empty()) return fail(why, who + "camera: " + bad_camera);
@@ -205,6 +208,8 @@ bool fromMsg(const uw_multislam::Loop& m, core::Loop* out, std::string* why) {
   if (m.session_a < 0 || m.session_b < 0 || m.keyframe_a < 0 || m.keyframe_b < 0) {
     return fail(why, "loop: negative session or keyframe id");
   }
+  if (m.session_a > core::kMaxSessionId || m.session_b > core::kMaxSessionId)
+    return fail(why, "loop: session id past the largest, " + std::to_string(core::kMaxSessionId));
   if (!finitePose(m.pose)) return fail(why, "loop: non-finite pose");
   const Eigen::Matrix3d cov = fromArray(m.covariance);
   const std::string bad = core::checkCovariance(cov);
@@ -244,6 +249,9 @@ bool fromMsg(const uw_multislam::KeyframeHash& m, KeyframeHashData* out, std::st
     return fail(why, "keyframe hash: values must have 384 entries (3 x 128)");
   }
   if (m.num_features < 1) return fail(why, "keyframe hash: num_features must be positive");
+  if (m.session < 0 || m.session > core::kMaxSessionId || m.keyframe < 0)
+    return fail(why, "keyframe hash: session id outside [0, " + std::to_string(core::kMaxSessionId) +
+                         "] or negative keyframe id");
   KeyframeHashData h;
   h.session = m.session;
   h.keyframe = m.keyframe;

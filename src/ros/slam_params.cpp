@@ -85,6 +85,8 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
   o.queue_size = param(pnh, "queue_size", 1000, count, "in [1, 1000000]");
   o.max_waiting_loops = param(pnh, "max_waiting_loops", 1000, count, "in [1, 1000000]");
   o.max_keyframe_gap = param(pnh, "max_keyframe_gap", 1000, count, "in [1, 1000000]");
+  o.max_empty_sessions = param(
+      pnh, "max_empty_sessions", 1, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
   o.frames.publish_tf = param(
       pnh, "publish_tf", true, [](bool) { return true; }, "a bool");
   o.frames.publish_odom_tf = param(
@@ -103,6 +105,13 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
   o.store_path = param(
       pnh, "store_path", ros_params::defaultStorePath(), [](const std::string&) { return true; }, "a path");
   return o;
+}
+
+core::SessionManagerOptions sessionManagerOptions(const BackendNodeletOptions& o, const core::SlamConfig& config) {
+  core::SessionManagerOptions m = core::sessionManagerOptions(config, o.store_path);
+  m.max_keyframe_gap = o.max_keyframe_gap;
+  m.max_empty_sessions = o.max_empty_sessions;
+  return m;
 }
 
 LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh) {

@@ -155,6 +155,8 @@ TEST(SessionManager, JoinAndSplitAnswerInSessionIdsAndFailedRequestsChangeNothin
     EXPECT_NEAR(p1[k].y(), p0[k].y() + 1.0, 1e-6) << k;
   }
   EXPECT_EQ(m.split(42).code, StatusCode::kNotFound);
+  EXPECT_EQ(m.split(-1).code, StatusCode::kInvalidArgument);  // outside the ids: said so
+  EXPECT_EQ(m.join(0, INT_MAX).code, StatusCode::kInvalidArgument);
   ASSERT_TRUE(m.split(1).ok());
   EXPECT_EQ(m.mapOf(1), 1);
   const Status again = m.split(1);
@@ -261,6 +263,80 @@ TEST(SessionManager, TheStoresDirectoryItCreatesIsTheOwnersOnly) {
   { SessionManager m(options((store_dir / "s.db").string())); }
   const auto perms = std::filesystem::status(store_dir).permissions();
   EXPECT_EQ(perms & std::filesystem::perms::all, std::filesystem::perms::owner_all);
+}
+
+TEST(SessionManager, SessionIdsBeyondTheMaximumAreRefusedAndIdsNeverWrap) {
+  SessionManager m(options());
+  addStraightSession(&m, 0, 2);
+  // A corrupt message naming session 2^31 - 1 (issue 21, 7): it used to open that session, and
+  // the next start_session wrapped to -2^31 and every later one failed.
+  for (int id : {INT_MAX, kMaxSessionId + 1}) {
+    const Status st = m.addKeyframe(keyframe(id, 0, Pose2(), Pose2()));
+    EXPECT_EQ(st.code, StatusCode::kInvalidArgument) << id;
+    EXPECT_NE(st.message.find(std::to_string(kMaxSessionId)), std::string::npos) << st.message;
+    EXPECT_FALSE(m.has(id));
+  }
+  EXPECT_EQ(m.stats().keyframes_refused, 2);
+  EXPECT_EQ(m.nextId(), 1);
+  EXPECT_EQ(m.activeSession(), 0);
+  // A loop naming such a session is refused at once: it does not wait for a keyframe that may
+  // never come.
+  bool waiting = true;
+  EXPECT_EQ(m.addLoop(globalLoop(0, 1, INT_MAX, 0, Pose2()), &waiting).code, StatusCode::kInvalidArgument);
+  EXPECT_FALSE(waiting);
+  EXPECT_EQ(m.addLoop(globalLoop(-1, 0, 0, 1, Pose2()), &waiting).code, StatusCode::kInvalidArgument);
+  EXPECT_FALSE(waiting);
+  int id = -1;
+  ASSERT_TRUE(m.startSession("next", 5.0, -1, &id).ok());
+  EXPECT_EQ(id, 1);
+  EXPECT_EQ(m.startSession("too far", 6.0, INT_MAX).code, StatusCode::kInvalidArgument);
+  // The largest id is still usable; past it start_session answers, and nothing wraps.
+  addStraightSession(&m, kMaxSessionId, 2);
+  EXPECT_EQ(m.activeSession(), kMaxSessionId);
+  const Status full = m.startSession("past the last id", 7.0);
+  EXPECT_EQ(full.code, StatusCode::kResourceExhausted) << full.message;
+  EXPECT_EQ(m.activeSession(), kMaxSessionId);
+  for (int s : m.sessionIds()) EXPECT_GE(s, 0);
+}
+
+TEST(SessionManager, StartSessionIsRefusedWhileTooManySessionsInARowHaveNoKeyframe) {
+  SessionManagerOptions o = options();
+  o.max_empty_sessions = 2;
+  SessionManager m(o);
+  addStraightSession(&m, 0, 2);
+  ASSERT_TRUE(m.startSession("a", 3.0).ok());
+  ASSERT_TRUE(m.startSession("b", 4.0).ok());
+  // Sessions 1 and 2 have no keyframe: a third empty one is refused, with a reason.
+  const Status st = m.startSession("c", 5.0);
+  EXPECT_EQ(st.code, StatusCode::kResourceExhausted) << st.message;
+  EXPECT_NE(st.message.find("max_empty_sessions"), std::string::npos) << st.message;
+  EXPECT_EQ(m.sessionIds(), (std::vector<int>{0, 1, 2}));
+  EXPECT_EQ(m.activeSession(), 2);
+  EXPECT_FALSE(m.hasKeyframe(2));
+  EXPECT_TRUE(m.hasKeyframe(0));
+  // The session's first keyframe lifts the limit.
+  addStraightSession(&m, 2, 1);
+  EXPECT_TRUE(m.hasKeyframe(2));
+  EXPECT_TRUE(m.startSession("c", 5.0).ok());
+  // 3,000 calls leave at most max_empty_sessions empty sessions (issue 21, 10).
+  for (int i = 0; i < 3000; ++i) m.startSession("x" + std::to_string(i), 6.0 + i);
+  EXPECT_EQ(m.sessionIds().size(), 5u);
+  SessionManagerOptions bad = options();
+  bad.max_empty_sessions = -1;  // 0 is no limit (offline_slam)
+  EXPECT_THROW(SessionManager{bad}, std::invalid_argument);
+}
+
+TEST(SessionManager, RepliesNameTheStoreByItsFileNameOnly) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "private_missions" / "s.db").string();
+  { SessionManager m(options(db)); }
+  SessionManager again(options(db));
+  ReloadedSession r;
+  const Status st = again.reload("nope", &r);
+  EXPECT_EQ(st.code, StatusCode::kNotFound);
+  EXPECT_NE(st.message.find("s.db"), std::string::npos) << st.message;
+  EXPECT_EQ(st.message.find("private_missions"), std::string::npos) << st.message;
+  EXPECT_EQ(st.message.find(dir.path().string()), std::string::npos) << st.message;
 }
 
 TEST(SessionManager, BadOptionsAndABadStoreAreRefusedAtConstruction) {

@@ -127,6 +127,13 @@ TEST_F(PipelineConversions, BadKeyframeMessagesAreRefusedWithAReason) {
   m.keyframe = -1;
   refused(m, "negative");
   m = good;
+  m.session = std::numeric_limits<int>::max();  // would make the session ids wrap (issue 21, 7)
+  refused(m, "session id past the largest, 1000000");
+  m.session = 1000001;
+  refused(m, "session id past the largest");
+  m.session = 1000000;
+  EXPECT_TRUE(rc::fromMsg(m, &out, &why)) << why;
+  m = good;
   m.hash.assign(core::HalocProjections::kHashSize - 1, 0.1f);
   refused(m, "hash must have 384 values");
   m.hash.assign(core::HalocProjections::kHashSize + 1, 0.1f);
@@ -229,6 +236,13 @@ TEST(PipelineConversionsLoop, RoundTripAndRefusals) {
   bad = m;
   bad.pose.x = std::numeric_limits<double>::quiet_NaN();
   EXPECT_FALSE(rc::fromMsg(bad, &back, &why));
+  for (int session : {std::numeric_limits<int>::max(), 1000001}) {
+    bad = m;
+    bad.session_b = session;
+    why.clear();
+    EXPECT_FALSE(rc::fromMsg(bad, &back, &why)) << session;
+    EXPECT_NE(why.find("past the largest"), std::string::npos) << why;
+  }
 }
 
 TEST(PipelineConversionsHash, RoundTripAndRefusals) {

@@ -160,9 +160,19 @@ class BackendTest(unittest.TestCase):
         self.assertEqual(res.status.code, Status.NOT_FOUND)
         self.assertIn("42", res.status.message)
         self.assertEqual(self.join(0, 1, -3).status.code, Status.INVALID_ARGUMENT)
-        self.assertEqual(self.split(-1).status.code, Status.NOT_FOUND)
+        self.assertEqual(self.split(-1).status.code, Status.INVALID_ARGUMENT)  # outside the ids [0, 1000000]
+        self.assertEqual(self.join(0, 2 ** 31 - 1, 0).status.code, Status.INVALID_ARGUMENT)
         self.assertEqual(self.start("s1_name_taken").status.code, Status.OK)
         self.assertEqual(self.start("s1_name_taken").status.code, Status.ALREADY_EXISTS)
+        # Session 2 has no keyframe yet: another start_session is refused (~max_empty_sessions 1),
+        # so that calls in a loop cannot pile up empty sessions (issue 21, 10).
+        res = self.start("another")
+        self.assertEqual(res.status.code, Status.RESOURCE_EXHAUSTED, res.status.message)
+        self.assertIn("max_empty_sessions", res.status.message)
+        # A session's path topic is advertised with its first keyframe, not by start_session.
+        published = [t for t, _ in rosgraph.Master("/check_backend").getSystemState()[0]]
+        self.assertIn(NS + "/paths/session_1", published)
+        self.assertNotIn(NS + "/paths/session_2", published)
         self.assertEqual(self.reload("yesterday").status.code, Status.FAILED_PRECONDITION)  # no store in this test
         # The same answer through sessions.py (its argument checks: test/python/test_sessions.py).
         tool = subprocess.run(["/usr/bin/python3", SESSIONS_TOOL, "--ns", NS, "reload", "yesterday"],

@@ -6,7 +6,8 @@
    the odometry published before the kill (at most the one in flight may be missing).
 2. reload_session brings session 0 back into the loop search; the second session's bag is played
    and global loops are found against the reloaded session.
-3. Wrong reloads: an unknown name (NOT_FOUND) and a second reload (ALREADY_EXISTS).
+3. Wrong reloads: an unknown name (NOT_FOUND, the store named by its file name only) and a second
+   reload (ALREADY_EXISTS).
 """
 import os
 import shutil
@@ -126,6 +127,10 @@ class StoreTest(unittest.TestCase):
         res = self.reload("no_such_session")
         self.assertEqual(res.status.code, Status.NOT_FOUND)
         self.assertIn("no_such_session", res.status.message)
+        # The store by its file name only: a reply never discloses where the missions are kept.
+        store = rospy.get_param(NS + "/backend_node/store_path")
+        self.assertIn(os.path.basename(store), res.status.message)
+        self.assertNotIn(os.path.dirname(store), res.status.message)
         self.reload("0")
         self.assertEqual(self.reload("0").status.code, Status.ALREADY_EXISTS)
 

@@ -12,6 +12,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/frame_publisher.h"
 #include "uw_multislam/ros/topics.h"
@@ -36,12 +37,17 @@ struct BackendNodeletOptions {
   std::string store_path;  // "" = no store; default $ROS_HOME/uw_multislam/sessions.db
   ros_frames::FrameOptions frames;  // frames/* and the tf switches and rates
   int queue_size = 1000, max_waiting_loops = 1000, max_keyframe_gap = 1000;
+  int max_empty_sessions = 1;  // start_session refused while this many sessions in a row have no keyframe
   double stats_period_s = 30.0, diagnostic_period_s = 1.0;
 };
 
 /// Reads and validates the back-end nodelet's parameters (std::invalid_argument naming the key);
 /// warns about an old config file's block (warnAboutFormerPrivateNamespace).
 BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros::NodeHandle& pnh);
+
+/// The session manager's options for the back-end nodelet: the SLAM configuration's, the store
+/// path and the nodelet's limits (max_keyframe_gap, max_empty_sessions).
+core::SessionManagerOptions sessionManagerOptions(const BackendNodeletOptions& o, const core::SlamConfig& config);
 
 /// The loop-detector nodelet's own parameters (~ private; config/default.yaml documents each).
 struct LoopDetectorNodeletOptions {

@@ -15,6 +15,7 @@ std::string SessionManagerOptions::validate() const {
   if (!b.empty()) return b;
   if (num_features < 1) return "num_features must be >= 1";
   if (max_keyframe_gap < 0) return "max_keyframe_gap must be >= 0";
+  if (max_empty_sessions < 0) return "max_empty_sessions must be >= 0 (0: no limit)";
   return "";
 }
 
@@ -73,6 +74,13 @@ BackendOptions checked(const SessionManagerOptions& o) {
 
 Status notFound(int session) {
   return {StatusCode::kNotFound, "no session " + std::to_string(session) + " (call list_sessions for the ids)"};
+}
+
+bool validSessionId(int id) { return id >= 0 && id <= kMaxSessionId; }
+
+Status badSessionId(const std::string& what, int id) {
+  return {StatusCode::kInvalidArgument, what + " names session " + std::to_string(id) + ", outside the ids [0, " +
+                                            std::to_string(kMaxSessionId) + "]"};
 }
 
 }  // namespace
@@ -173,6 +181,16 @@ void SessionManager::say(const std::string& line) const {
   if (log_) log_(line);
 }
 
+std::string SessionManager::storeName() const {
+  return std::filesystem::path(options_.store_path).filename().string();
+}
+
+int SessionManager::trailingEmptySessions() const {
+  int n = 0;
+  for (auto it = sessions_.rbegin(); it != sessions_.rend() && !it->second.origin_received; ++it) ++n;
+  return n;
+}
+
 void SessionManager::emit(SessionEvent::Kind kind, int session, int other, int map, const std::string& message) const {
   if (events_) events_({kind, session, other, map, message});
 }
@@ -216,7 +234,18 @@ Status SessionManager::startSession(const std::string& name, double stamp_s, int
   if (other >= 0)
     return {StatusCode::kAlreadyExists,
             "a session is already named '" + name + "' (session " + std::to_string(other) + ")"};
+  const int empty = trailingEmptySessions();
+  if (options_.max_empty_sessions > 0 && empty >= options_.max_empty_sessions)
+    return {StatusCode::kResourceExhausted,
+            "session " + std::to_string(sessions_.rbegin()->first) + " '" + sessions_.rbegin()->second.name +
+                "' has no keyframe yet (" + std::to_string(empty) + " sessions in a row without one, " +
+                "max_empty_sessions " + std::to_string(options_.max_empty_sessions) +
+                "): the odometry's next keyframe starts it; call again once it has one"};
+  if (id < 0 && nextId() > kMaxSessionId)
+    return {StatusCode::kResourceExhausted,
+            "no session id left: the largest, " + std::to_string(kMaxSessionId) + ", is taken"};
   if (id < 0) id = nextId();
+  if (id > kMaxSessionId) return badSessionId("start_session", id);
   if (id < nextId())
     return {StatusCode::kInvalidArgument,
             "session id " + std::to_string(id) + " is not new (the next free id is " + std::to_string(nextId()) + ")"};
@@ -267,6 +296,10 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
 }
 
 Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector<Loop>& loops) {
+  if (!validSessionId(input.session)) {
+    ++stats_.keyframes_refused;
+    return badSessionId("keyframe " + std::to_string(input.keyframe), input.session);
+  }
   if (input.keyframe < 0) {
     ++stats_.keyframes_refused;
     return {StatusCode::kInvalidArgument, "keyframe id " + std::to_string(input.keyframe) + " is negative"};
@@ -405,6 +438,12 @@ void SessionManager::acceptLoop(const Loop& l) {
 
 Status SessionManager::addLoop(const Loop& l, bool* waiting) {
   if (waiting) *waiting = false;
+  if (!validSessionId(l.session_a) || !validSessionId(l.session_b) || l.keyframe_a < 0 || l.keyframe_b < 0) {
+    ++stats_.loops_refused;
+    return validSessionId(l.session_a) && validSessionId(l.session_b)
+               ? Status{StatusCode::kInvalidArgument, "a loop names a negative keyframe id"}
+               : badSessionId("a loop", validSessionId(l.session_a) ? l.session_b : l.session_a);
+  }
   const auto a = sessions_.find(l.session_a), b = sessions_.find(l.session_b);
   if (a == sessions_.end() || b == sessions_.end() || l.keyframe_a >= static_cast<int>(a->second.stamps.size()) ||
       l.keyframe_b >= static_cast<int>(b->second.stamps.size())) {
@@ -461,8 +500,10 @@ void SessionManager::saveMaps() {
 }
 
 Status SessionManager::join(int session_a, int session_b, int min_loops) {
-  for (int s : {session_a, session_b})
+  for (int s : {session_a, session_b}) {
+    if (!validSessionId(s)) return badSessionId("join_sessions", s);
     if (!has(s)) return notFound(s);
+  }
   if (min_loops < 0) return {StatusCode::kInvalidArgument, "min_loops must be >= 0 (0: the configured K)"};
   const int k = min_loops > 0 ? min_loops : std::max(1, options_.backend.join_min_loops);
   const Status st = backend_->join(at(session_a).backend, at(session_b).backend, k);
@@ -474,6 +515,7 @@ Status SessionManager::join(int session_a, int session_b, int min_loops) {
 }
 
 Status SessionManager::split(int session) {
+  if (!validSessionId(session)) return badSessionId("split_session", session);
   if (!has(session)) return notFound(session);
   const Status st = backend_->split(at(session).backend);
   if (st.ok()) {
@@ -513,7 +555,7 @@ Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* ou
   for (const auto& [sid, s] : sessions_)
     if (s.name == name_or_id || std::to_string(sid) == name_or_id) id = sid;
   if (id < 0 || at(id).store_id < 0 || id >= restored_sessions_)
-    return {StatusCode::kNotFound, "no stored session named '" + name_or_id + "' in " + options_.store_path +
+    return {StatusCode::kNotFound, "no stored session named '" + name_or_id + "' in " + storeName() +
                                        " (list_sessions shows the stored ones as UNLOADED)"};
   Session& s = at(id);
   if (!s.unloaded) {
@@ -524,7 +566,14 @@ Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* ou
   try {
     r.keyframes = store_->keyframes(s.store_id, true);
   } catch (const std::exception& e) {
-    return {StatusCode::kDataLoss, "reading " + options_.store_path + ": " + e.what()};
+    say("reload_session '" + name_or_id + "': reading " + options_.store_path + " failed: " + e.what());
+    // The reply names the file only: the store's errors carry its full path.
+    std::string why = e.what();
+    const std::string& path = options_.store_path;
+    const std::string name = storeName();
+    for (std::size_t at = why.find(path); at != std::string::npos; at = why.find(path, at + name.size()))
+      why.replace(at, path.size(), name);
+    return {StatusCode::kDataLoss, "reading " + storeName() + ": " + why};
   }
   r.id = id;
   r.camera = s.camera;

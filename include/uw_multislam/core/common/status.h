@@ -14,6 +14,7 @@ enum class StatusCode : std::uint8_t {
   kInvalidArgument = 3,     // a bad value in the request (the message names it)
   kNotFound = 5,            // no session / map with that id or name
   kAlreadyExists = 6,       // e.g. a session name already taken, a session already loaded
+  kResourceExhausted = 8,   // a limit is reached (e.g. too many empty sessions, no session id left)
   kFailedPrecondition = 9,  // a valid request the current state does not allow
   kInternal = 13,
   kDataLoss = 15,           // the session store could not be read

@@ -10,8 +10,10 @@
 // them, CSV outputs, rviz frames and logs call it. Sessions restored from the store take ids
 // 0..k-1 in store order (the store's own row ids are remapped here and never leave this class);
 // a live session takes the id its first keyframe names (the odometry continues from nextId(),
-// which the back-end announces) or, from startSession, nextId(). Ids only grow. A map is named
-// by the id of its first session, its frame is that session's frame.
+// which the back-end announces) or, from startSession, nextId(). Ids only grow, and never past
+// kMaxSessionId: a keyframe, loop or request naming a larger (or negative) id is refused, so a
+// corrupt message cannot make the ids wrap. A map is named by the id of its first session, its
+// frame is that session's frame.
 //
 // What changed is reported through an EventSink: session started/ended, keyframe added, loop
 // accepted/refused, maps joined/split, map optimised. The ROS layer turns events into messages
@@ -47,6 +49,11 @@
 namespace uw_multislam {
 namespace core {
 
+/// The largest session id (a million sessions: far more than any fleet records). Keyframes and
+/// loops naming a larger one are refused (INVALID_ARGUMENT), and so is start_session once
+/// nextId() would pass it (RESOURCE_EXHAUSTED): ids never overflow an int.
+constexpr int kMaxSessionId = 1000000;
+
 struct SessionManagerOptions {
   BackendOptions backend;
   /// The keyframe hashes (paper (6)(7)): the store keeps them and refuses other settings.
@@ -58,6 +65,10 @@ struct SessionManagerOptions {
   /// A keyframe id further than this past the expected one is refused (a corrupt message),
   /// instead of bridging the gap with placeholder keyframes.
   int max_keyframe_gap = 1000;
+  /// startSession is refused (RESOURCE_EXHAUSTED) while this many sessions in a row, the newest
+  /// ones, have no keyframe yet (start_session in a loop must not pile up empty sessions); 0: no
+  /// limit (offline_slam, whose sessions always start from a keyframe).
+  int max_empty_sessions = 0;
 
   std::string validate() const;
 };
@@ -154,22 +165,27 @@ class SessionManager {
   // --- Requests ----------------------------------------------------------------------------
   /// Ends the active session and starts a new one, `id` or (-1) nextId(), named `name` (empty:
   /// "session_<id>"). ALREADY_EXISTS when the name is taken, INVALID_ARGUMENT for an id that is
-  /// not new. The session has its origin keyframe; the next keyframe 0 given to it fills it in.
+  /// not new or past kMaxSessionId, RESOURCE_EXHAUSTED when max_empty_sessions sessions in a row
+  /// have no keyframe or no id is left. The session has its origin keyframe; the next keyframe 0
+  /// given to it fills it in.
   Status startSession(const std::string& name, double stamp_s, int id = -1, int* started = nullptr);
   /// Stops the active session (its map may be optimised); the maps are saved.
   Status endSession(double stamp_s);
   /// A keyframe of the active session, or keyframe 0..k of a new session (ending the active one).
+  /// A session id outside [0, kMaxSessionId] or a negative keyframe id is INVALID_ARGUMENT.
   /// `loops` (optional) are loops it closed, stored with it in one transaction (offline). A
   /// keyframe of an older session, or repeated, is FAILED_PRECONDITION (stale); lost keyframes
   /// (a gap in the ids) are bridged by placeholders that no loop may use, up to max_keyframe_gap.
   Status addKeyframe(const KeyframeInput& keyframe, const std::vector<Loop>& loops = {});
   /// A loop in session ids. UNAVAILABLE-like answer through `waiting`: true when one of its
   /// keyframes has not arrived yet (try again after the next keyframe); else OK (accepted) or a
-  /// refusal (FAILED_PRECONDITION / INVALID_ARGUMENT with the reason).
+  /// refusal (FAILED_PRECONDITION / INVALID_ARGUMENT with the reason). A session id outside
+  /// [0, kMaxSessionId] or a negative keyframe id is INVALID_ARGUMENT at once (never waiting).
   Status addLoop(const Loop& loop, bool* waiting = nullptr);
   /// Joins the maps of two sessions from the global loops between them (min_loops 0: K).
+  /// INVALID_ARGUMENT for an id outside [0, kMaxSessionId], NOT_FOUND for an unknown one.
   Status join(int session_a, int session_b, int min_loops = 0);
-  /// Splits a session off its map.
+  /// Splits a session off its map (INVALID_ARGUMENT, NOT_FOUND as join).
   Status split(int session);
   /// Brings a stored (UNLOADED) session back by name or id: its keyframes with features, for the
   /// loop detector. NOT_FOUND, ALREADY_EXISTS (loaded), FAILED_PRECONDITION (no store), DATA_LOSS.
@@ -193,6 +209,9 @@ class SessionManager {
   // --- What is there -----------------------------------------------------------------------
   std::vector<SessionSummary> list() const;
   bool has(int session) const { return sessions_.count(session) > 0; }
+  /// Whether the session has received a keyframe (false for one start_session opened that no
+  /// keyframe has followed yet; true for the stored ones).
+  bool hasKeyframe(int session) const { return at(session).origin_received; }
   std::vector<int> sessionIds() const;
   int activeSession() const { return active_; }
   /// The id the next new session takes (one past the largest so far).
@@ -225,6 +244,8 @@ class SessionManager {
   const ImageHasher& hasher() const { return hasher_; }
   bool hasStore() const { return store_ != nullptr; }
   const std::string& storePath() const { return options_.store_path; }
+  /// The store as replies name it: its file name only (the log keeps the full path).
+  std::string storeName() const;
   int restoredSessions() const { return restored_sessions_; }
   /// The stored sessions made from these frames before (a dataset folder run into the store
   /// again): every keyframe of such a session is one of `frames`, same index and stamp (to 1 us).
@@ -263,6 +284,8 @@ class SessionManager {
   bool storeWrite(const char* what, F write);
   void emit(SessionEvent::Kind kind, int session, int other, int map, const std::string& message) const;
   void say(const std::string& line) const;
+  /// The newest sessions in a row that have no keyframe.
+  int trailingEmptySessions() const;
 
   SessionManagerOptions options_;
   EventSink events_;

@@ -10,7 +10,8 @@
 //            and the current pose
 // Outputs: session_trajectory (uw_multislam/SessionTrajectory): a session's optimised poses in its
 //            own frame, for the loop detector's local candidates
-//          paths/session_<id> (nav_msgs/Path, latched): each session's keyframes in its map's frame
+//          paths/session_<id> (nav_msgs/Path, latched): each session's keyframes in its map's frame,
+//            advertised with the session's first keyframe (an empty session has none)
 //          loop_markers (visualization_msgs/MarkerArray, latched): loops and joins
 //          trajectory_markers (visualization_msgs/MarkerArray, latched, built while subscribed):
 //            every session in its own colour, labelled; maps not joined drawn side by side
@@ -24,7 +25,9 @@
 //            map -> <session_frame_prefix><id> as static transforms (~publish_session_frames)
 //          reloaded_keyframes (uw_multislam/Keyframe): a reloaded session's keyframes, for the
 //            loop detector(s) to keep as global-loop candidates
-// Services: join_sessions, split_session, list_sessions, start_session, reload_session.
+// Services: join_sessions, split_session, list_sessions, start_session, reload_session. Replies
+// name the store by its file name only. start_session answers RESOURCE_EXHAUSTED while the newest
+// ~max_empty_sessions sessions have no keyframe (core::SessionManagerOptions::max_empty_sessions).
 //
 // Session store (~store_path, default $ROS_HOME/uw_multislam/sessions.db; "" = none; see
 // core/session/session_store.h): every keyframe (features, descriptors, hash), its motion and each loop
