@@ -80,6 +80,10 @@ void OdometryNodelet::readParameters() {
       pnh, "fallback_altitude", 0.0, [](double v) { return std::isfinite(v) && v >= 0; }, ">= 0 metres (0 = off)");
   options_.diagnostic_period_s = param(
       pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
+  options_.max_image_pixels = param(
+      pnh, "max_image_pixels", static_cast<int>(rc::kDefaultMaxImagePixels),
+      [](int v) { return v >= static_cast<int>(rc::kMinImageSide * rc::kMinImageSide) && v <= 1000000000; },
+      "in [1024, 1000000000] pixels");
   options_.rectified_images = param(
       pnh, "rectified_images", false, [](bool) { return true; }, "a bool");
   options_.camera_info_url = param(
@@ -115,13 +119,13 @@ void OdometryNodelet::onInit() {
   const auto& o = options_;
   NODELET_INFO(
       "odometry: altitude from %s (interpolated at the image stamp, altitude_max_age_s %.2f), queue_size %d "
-      "(oldest dropped when full), sync_queue_size %d, sync_max_interval_s %.3f, first session %d, session_gap_s %.1f, "
+      "(oldest dropped when full), max_image_pixels %d, sync_queue_size %d, sync_max_interval_s %.3f, first session %d, session_gap_s %.1f, "
       "reorder_tolerance_s %.2f, "
       "input_timeout_s %.1f, fallback_altitude %s, stats every %.0f s, diagnostics every %.1f s; n = %d features, "
       "enhancement %s, keyframes at overlap < %.2f",
       o.use_altitude_topic ? "the altitude topic"
                            : ("the fixed altitude " + std::to_string(o.altitude_m) + " m").c_str(),
-      o.altitude_max_age_s, o.queue_size, o.sync_queue_size, o.sync_max_interval_s, o.session, o.session_gap_s,
+      o.altitude_max_age_s, o.queue_size, o.max_image_pixels, o.sync_queue_size, o.sync_max_interval_s, o.session, o.session_gap_s,
       o.reorder_tolerance_s, o.input_timeout_s,
       o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off", o.stats_period_s,
       o.diagnostic_period_s, config_.odometry.features.num_features,
@@ -134,7 +138,13 @@ void OdometryNodelet::onInit() {
   session_ = o.session;
   const auto& g = config_.loops.global;
   hasher_ = std::make_unique<core::ImageHasher>(g.hash_mode, config_.odometry.features.num_features, g.projection_seed);
-  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(static_cast<std::size_t>(o.queue_size));
+  // A dropped frame's stamp travels on with the frame after it, which the worker passes over
+  // first: the queue's own drops never look like a gap in the images (a new session).
+  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(
+      static_cast<std::size_t>(o.queue_size), [](Frame& dropped, Frame& next) {
+        dropped.passed_over.push_back(dropped.header().stamp.toSec());
+        next.passed_over.insert(next.passed_over.begin(), dropped.passed_over.begin(), dropped.passed_over.end());
+      });
   stamps_ = std::make_unique<core::StampGuard>(core::StampGuardOptions{o.reorder_tolerance_s, o.session_gap_s});
 
   ros::NodeHandle& nh = getNodeHandle();
@@ -394,6 +404,7 @@ void OdometryNodelet::startSession(int id, const core::CameraIntrinsics& camera,
 
 void OdometryNodelet::process(const Frame& f) {
   ++counts_.frames;
+  for (double t : f.passed_over) stamps_->passOver(t);  // dropped by our queue: seen, not a gap
   std::string why;
   core::CameraIntrinsics camera;
   if (!rc::cameraFromMsg(*f.info, options_.rectified_images, &camera, &why)) {
@@ -405,8 +416,10 @@ void OdometryNodelet::process(const Frame& f) {
   rc::ImageRefusal refusal = rc::ImageRefusal::kNone;
   // A compressed image (the built-in decoder) is decoded here, then takes the raw path.
   sensor_msgs::ImagePtr decoded;
-  const bool decodes = !f.compressed || rc::imageFromCompressedMsg(*f.compressed, &decoded, &why, &refusal);
-  if (!decodes || !rc::imageFromMsg(f.compressed ? decoded : f.image, &image, &why, &refusal)) {
+  const std::uint64_t max_pixels = static_cast<std::uint64_t>(options_.max_image_pixels);
+  const bool decodes =
+      !f.compressed || rc::imageFromCompressedMsg(*f.compressed, &decoded, &why, &refusal, max_pixels);
+  if (!decodes || !rc::imageFromMsg(f.compressed ? decoded : f.image, &image, &why, &refusal, max_pixels)) {
     ++counts_.bad_image;
     switch (refusal) {
       case rc::ImageRefusal::kEmpty:
@@ -420,6 +433,9 @@ void OdometryNodelet::process(const Frame& f) {
         break;
       case rc::ImageRefusal::kCorrupt:
         ++counts_.corrupt_image;
+        break;
+      case rc::ImageRefusal::kTooLarge:
+        ++counts_.too_large;
         break;
       default:
         ++counts_.bad_encoding;
@@ -449,7 +465,7 @@ void OdometryNodelet::process(const Frame& f) {
     NODELET_WARN_THROTTLE(5,
                           "odometry: frame skipped: stamp %.6f is %.3f s before the last frame's (out of order; "
                           "%ld so far)",
-                          stamp.toSec(), (last_stamp_ - stamp).toSec(), counts_.out_of_order);
+                          stamp.toSec(), stamps_->last() - stamp.toSec(), counts_.out_of_order);
     return;
   }
 
@@ -487,19 +503,16 @@ void OdometryNodelet::process(const Frame& f) {
     ++(timing == core::StampClass::kJumpBack ? counts_.jumps_back : counts_.jumps_forward);
     if (timing == core::StampClass::kJumpBack) {
       NODELET_WARN("odometry: image stamps jumped back by %.3f s (a bag that loops, or a clock reset)",
-                   (last_stamp_ - stamp).toSec());
+                   -stamps_->lastJump());
     } else {
-      NODELET_INFO("odometry: image stamps jumped forward by %.3f s (a gap in the images)",
-                   (stamp - last_stamp_).toSec());
+      NODELET_INFO("odometry: image stamps jumped forward by %.3f s (a gap in the images)", stamps_->lastJump());
     }
-    startSession(session_ + 1, camera,
-                 "image stamps jumped by " + std::to_string((stamp - last_stamp_).toSec()) + " s");
+    startSession(session_ + 1, camera, "image stamps jumped by " + std::to_string(stamps_->lastJump()) + " s");
   } else {
     if (camera_ != camera) {
       startSession(session_ + 1, camera, "camera intrinsics changed");
     }
   }
-  last_stamp_ = stamp;
 
   const core::SegmentedOdometry::Step step = odometry_->process({frame_index_++, stamp.toSec(), altitude, image});
   const core::OdometryUpdate& u = step.update;
@@ -627,6 +640,7 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
        {"skipped_corrupt_image", static_cast<double>(c.corrupt_image), true},
        {"skipped_image_layout", static_cast<double>(c.bad_layout), true},
        {"skipped_tiny_image", static_cast<double>(c.tiny_image), true},
+       {"skipped_image_too_large", static_cast<double>(c.too_large), true},
        {"skipped_size_mismatch", static_cast<double>(c.size_mismatch), true},
        {"skipped_camera_info", static_cast<double>(c.bad_camera), true},
        {"skipped_duplicate_stamp", static_cast<double>(c.duplicates), true},
@@ -652,12 +666,13 @@ void OdometryNodelet::logStats(const char* when) {
   const core::OdometryStats s = odo ? odo->stats() : core::OdometryStats();
   const double ms = odometry_ ? odometry_->times().get("odometry_total").meanMs() : 0.0;
   NODELET_INFO(
-      "odometry %s: %ld frames received, %ld dropped (queue full), %ld bad images, %ld bad camera_info, "
+      "odometry %s: %ld frames received, %ld dropped (queue full), %ld bad images (%ld too large), %ld bad "
+      "camera_info, "
       "%ld bad altitudes, %ld duplicated and %ld late stamps skipped, %ld time jumps, %ld keyframes published, %ld "
       "fallbacks, %ld sessions (%ld after tracking loss); current "
       "session %d: %d frames, "
       "%d keyframes, %d altitudes reused, %.1f ms/frame",
-      when, counts_.frames, counts_.dropped, counts_.bad_image, counts_.bad_camera, counts_.bad_altitude,
+      when, counts_.frames, counts_.dropped, counts_.bad_image, counts_.too_large, counts_.bad_camera, counts_.bad_altitude,
       counts_.duplicates, counts_.out_of_order, counts_.jumps_back + counts_.jumps_forward, counts_.keyframes,
       counts_.fallbacks, counts_.sessions, counts_.losses, session_, s.frames, s.keyframes, s.altitude_reused, ms);
 }

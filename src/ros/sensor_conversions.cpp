@@ -33,6 +33,7 @@ std::string imageRefusalName(ImageRefusal r) {
     case ImageRefusal::kLayout: return "layout";
     case ImageRefusal::kTooSmall: return "too_small";
     case ImageRefusal::kCorrupt: return "corrupt";
+    case ImageRefusal::kTooLarge: return "too_large";
   }
   return "?";
 }
@@ -66,12 +67,23 @@ bool refuse(std::string* why, ImageRefusal* refusal, ImageRefusal kind, const st
   return fail(why, reason);
 }
 
+bool refuseTooLarge(std::string* why, ImageRefusal* refusal, std::uint64_t width, std::uint64_t height,
+                    std::uint64_t max_pixels, const std::string& what) {
+  std::ostringstream os;
+  os << what << width << "x" << height << " (" << width * height << " pixels) is larger than ~max_image_pixels "
+     << max_pixels;
+  return refuse(why, refusal, ImageRefusal::kTooLarge, os.str());
+}
+
 }  // namespace
 
-bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::string* why, ImageRefusal* refusal) {
+bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::string* why, ImageRefusal* refusal,
+                  std::uint64_t max_pixels) {
   namespace enc = sensor_msgs::image_encodings;
   if (refusal) *refusal = ImageRefusal::kNone;
   if (!msg) return refuse(why, refusal, ImageRefusal::kEmpty, "no image");
+  if (static_cast<std::uint64_t>(msg->width) * msg->height > max_pixels)
+    return refuseTooLarge(why, refusal, msg->width, msg->height, max_pixels, "image ");
   if (msg->width == 0 || msg->height == 0 || msg->data.empty()) {
     std::ostringstream os;
     os << "empty image (" << msg->width << " x " << msg->height << ", " << msg->data.size() << " bytes)";
@@ -184,8 +196,45 @@ std::string decodedEncoding(const cv::Mat& m, const std::string& before) {
 
 }  // namespace
 
+bool compressedImageSize(const std::vector<std::uint8_t>& b, std::uint64_t* width, std::uint64_t* height) {
+  auto be16 = [&](std::size_t i) { return static_cast<std::uint64_t>(b[i]) << 8 | b[i + 1]; };
+  if (startsAs(b, Codec::kPng)) {  // signature, then the IHDR chunk: length, "IHDR", width, height
+    if (b.size() < 24 || std::string(b.begin() + 12, b.begin() + 16) != "IHDR") return false;
+    *width = be16(16) << 16 | be16(18);
+    *height = be16(20) << 16 | be16(22);
+    return true;
+  }
+  if (!startsAs(b, Codec::kJpeg)) return false;
+  // JPEG markers (ITU T.81 B.1): FF xx, most followed by a 2-byte length that counts itself. The
+  // frame header SOFn (C0-CF but C4 DHT, C8 JPG, CC DAC) comes before the first scan (DA).
+  std::size_t i = 2;
+  while (i + 3 < b.size()) {
+    if (b[i] != 0xFF) return false;
+    const std::uint8_t marker = b[i + 1];
+    if (marker == 0xFF) {  // a fill byte
+      ++i;
+      continue;
+    }
+    if (marker == 0x01 || (marker >= 0xD0 && marker <= 0xD8)) {  // no length
+      i += 2;
+      continue;
+    }
+    if (marker == 0xD9 || marker == 0xDA) return false;  // the end, or a scan before any frame header
+    const std::size_t length = be16(i + 2);
+    if (length < 2) return false;
+    if ((marker & 0xF0) == 0xC0 && marker != 0xC4 && marker != 0xC8 && marker != 0xCC) {
+      if (i + 8 >= b.size()) return false;  // length, precision, height, width
+      *height = be16(i + 5);
+      *width = be16(i + 7);
+      return true;
+    }
+    i += 2 + length;
+  }
+  return false;
+}
+
 bool imageFromCompressedMsg(const sensor_msgs::CompressedImage& msg, sensor_msgs::ImagePtr* out, std::string* why,
-                            ImageRefusal* refusal) {
+                            ImageRefusal* refusal, std::uint64_t max_pixels) {
   if (refusal) *refusal = ImageRefusal::kNone;
   if (msg.data.empty()) return refuse(why, refusal, ImageRefusal::kEmpty, "empty compressed image (no data)");
   const Codec codec = codecOf(msg.format);
@@ -203,6 +252,16 @@ bool imageFromCompressedMsg(const sensor_msgs::CompressedImage& msg, sensor_msgs
   if (codec == Codec::kJpeg && isTruncatedJpeg(msg.data)) {
     return refuse(why, refusal, ImageRefusal::kCorrupt, os.str() + "truncated JPEG (no end-of-image marker)");
   }
+  // The size before decoding: the header's, and no more data than 8 bytes a pixel (16-bit BGRA).
+  std::uint64_t width = 0, height = 0;
+  if (compressedImageSize(msg.data, &width, &height) && width * height > max_pixels)
+    return refuseTooLarge(why, refusal, width, height, max_pixels, std::string("compressed ") + name + " image ");
+  if (msg.data.size() / 8 > max_pixels) {
+    std::ostringstream big;
+    big << "compressed image of " << msg.data.size() << " bytes: more than an image of ~max_image_pixels "
+        << max_pixels << " takes";
+    return refuse(why, refusal, ImageRefusal::kTooLarge, big.str());
+  }
   cv::Mat image;
   try {
     image = cv::imdecode(msg.data, cv::IMREAD_UNCHANGED);
@@ -210,6 +269,8 @@ bool imageFromCompressedMsg(const sensor_msgs::CompressedImage& msg, sensor_msgs
     return refuse(why, refusal, ImageRefusal::kCorrupt, os.str() + "OpenCV cannot decode it (" + e.err + ")");
   }
   if (image.empty()) return refuse(why, refusal, ImageRefusal::kCorrupt, os.str() + "OpenCV cannot decode it");
+  if (image.total() > max_pixels)  // a header that hid its size: the decoded one
+    return refuseTooLarge(why, refusal, image.cols, image.rows, max_pixels, std::string("decoded ") + name + " image ");
   // The encoding before compression: what compressed_image_transport writes before the ';'.
   const std::size_t split = msg.format.find(';');
   std::string before = split == std::string::npos ? "" : msg.format.substr(0, split);

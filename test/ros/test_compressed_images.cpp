@@ -175,6 +175,37 @@ TEST_F(CompressedImages, EmptyDataAndUnknownFormatsAreRefused) {
   EXPECT_EQ(rc::imageRefusalName(rc::ImageRefusal::kCorrupt), "corrupt");
 }
 
+TEST_F(CompressedImages, ImagesLargerThanTheLimitAreRefusedFromTheirHeaderBeforeDecoding) {
+  const std::uint64_t pixels = static_cast<std::uint64_t>(grey_.cols) * grey_.rows;
+  for (const auto& m : {compressed(grey_, ".png", "mono8; png compressed "),
+                        compressed(bgr_, ".jpg", "bgr8; jpeg compressed bgr8")}) {
+    sensor_msgs::ImagePtr out;
+    std::string why;
+    rc::ImageRefusal kind = rc::ImageRefusal::kNone;
+    EXPECT_FALSE(rc::imageFromCompressedMsg(m, &out, &why, &kind, pixels - 1)) << m.format;
+    EXPECT_EQ(rc::imageRefusalName(kind), "too_large") << why;
+    EXPECT_NE(why.find(std::to_string(grey_.cols) + "x" + std::to_string(grey_.rows)), std::string::npos) << why;
+    EXPECT_FALSE(out);
+    EXPECT_TRUE(rc::imageFromCompressedMsg(m, &out, &why, &kind, pixels)) << why;
+  }
+  // Headers that claim a huge image (the data behind them is the small one): refused as too
+  // large by the default limit, before the decoder would allocate it.
+  auto png = compressed(grey_, ".png", "mono8; png compressed ");
+  for (int i : {16, 20}) {  // IHDR width, height (big-endian): 100000 x 100000
+    png.data[i] = 0x00, png.data[i + 1] = 0x01, png.data[i + 2] = 0x86, png.data[i + 3] = 0xA0;
+  }
+  expectRefused(png, rc::ImageRefusal::kTooLarge, "100000x100000");
+  auto jpeg = compressed(bgr_, ".jpg", "bgr8; jpeg compressed bgr8");
+  std::size_t sof = 2;  // the first SOFn marker: precision, then height and width (big-endian)
+  while (sof + 9 < jpeg.data.size() && !(jpeg.data[sof] == 0xFF && (jpeg.data[sof + 1] & 0xF0) == 0xC0 &&
+                                          jpeg.data[sof + 1] != 0xC4 && jpeg.data[sof + 1] != 0xC8 &&
+                                          jpeg.data[sof + 1] != 0xCC))
+    sof += 2 + (jpeg.data[sof + 2] << 8 | jpeg.data[sof + 3]);
+  ASSERT_LT(sof + 9, jpeg.data.size());
+  for (std::size_t i : {sof + 5, sof + 7}) jpeg.data[i] = 0xEA, jpeg.data[i + 1] = 0x60;  // 60000 x 60000
+  expectRefused(jpeg, rc::ImageRefusal::kTooLarge, "60000x60000");
+}
+
 TEST_F(CompressedImages, UnusualDecodedTypesAreMappedOrRefused) {
   cv::Mat bgra;
   cv::cvtColor(bgr_, bgra, cv::COLOR_BGR2BGRA);

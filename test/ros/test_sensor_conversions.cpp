@@ -154,6 +154,29 @@ TEST(SensorConversions, UnusableImagesAreRefusedWithAReasonAndAKind) {
   EXPECT_EQ(rc::imageRefusalName(rc::ImageRefusal::kTooSmall), "too_small");
 }
 
+TEST(SensorConversions, ImagesLargerThanTheLimitAreRefusedBeforeAnyConversion) {
+  cv::Mat out;
+  std::string why;
+  rc::ImageRefusal kind = rc::ImageRefusal::kNone;
+  // 200 x 100 = 20000 pixels: one over the limit is refused, at the limit converted.
+  EXPECT_FALSE(rc::imageFromMsg(image(enc::BGR8, 200, 100, 3), &out, &why, &kind, 19999));
+  EXPECT_EQ(kind, rc::ImageRefusal::kTooLarge);
+  EXPECT_NE(why.find("200x100"), std::string::npos) << why;
+  EXPECT_NE(why.find("19999"), std::string::npos) << why;
+  EXPECT_TRUE(out.empty());
+  EXPECT_TRUE(rc::imageFromMsg(image(enc::BGR8, 200, 100, 3), &out, &why, &kind, 20000)) << why;
+  EXPECT_EQ(kind, rc::ImageRefusal::kNone);
+  // The default limit (a survey camera's 25 Mpx) refuses the probe's 10000 x 10000 image by its
+  // header alone: the check needs neither its data nor any allocation.
+  auto huge = image(enc::MONO8, 32, 32, 1);
+  huge->width = huge->height = huge->step = 10000;
+  EXPECT_FALSE(rc::imageFromMsg(huge, &out, &why, &kind));
+  EXPECT_EQ(kind, rc::ImageRefusal::kTooLarge) << why;
+  EXPECT_GE(rc::kDefaultMaxImagePixels, 4096u * 4096u);
+  EXPECT_LT(rc::kDefaultMaxImagePixels, 10000u * 10000u);
+  EXPECT_EQ(rc::imageRefusalName(rc::ImageRefusal::kTooLarge), "too_large");
+}
+
 sensor_msgs::CameraInfo cameraInfo() {
   sensor_msgs::CameraInfo c;
   c.width = 320;

@@ -52,6 +52,36 @@ TEST(BoundedWorkQueue, DropsTheOldestWhenFullAndCountsIt) {
   EXPECT_EQ(q.popped(), 4);
 }
 
+TEST(BoundedWorkQueue, TheDropHandlerHandsTheDroppedItemToItsSuccessor) {
+  // As the odometry uses it: each frame carries the stamps of the frames dropped just before it,
+  // so that the worker sees every stamp and a gap made by our own drops is not a time gap.
+  struct Frame {
+    double stamp = 0.0;
+    std::vector<double> dropped_before;
+  };
+  BoundedWorkQueue<Frame> q(2, [](Frame& dropped, Frame& successor) {
+    dropped.dropped_before.push_back(dropped.stamp);
+    successor.dropped_before.insert(successor.dropped_before.begin(), dropped.dropped_before.begin(),
+                                    dropped.dropped_before.end());
+  });
+  for (int i = 0; i < 6; ++i) q.push(Frame{static_cast<double>(i), {}});  // 0..3 dropped
+  EXPECT_EQ(q.dropped(), 4);
+  Frame f;
+  ASSERT_TRUE(q.pop(&f));
+  EXPECT_EQ(f.stamp, 4.0);
+  EXPECT_EQ(f.dropped_before, (std::vector<double>{0, 1, 2, 3}));
+  ASSERT_TRUE(q.pop(&f));
+  EXPECT_EQ(f.stamp, 5.0);
+  EXPECT_TRUE(f.dropped_before.empty());
+  // Capacity 1: the successor is the item just pushed.
+  BoundedWorkQueue<Frame> one(1, [](Frame& dropped, Frame& successor) { successor.dropped_before.push_back(dropped.stamp); });
+  one.push(Frame{7.0, {}});
+  one.push(Frame{8.0, {}});
+  ASSERT_TRUE(one.pop(&f));
+  EXPECT_EQ(f.stamp, 8.0);
+  EXPECT_EQ(f.dropped_before, (std::vector<double>{7.0}));
+}
+
 TEST(BoundedWorkQueue, CloseDrainsWhatIsQueuedThenReturnsFalse) {
   BoundedWorkQueue<std::unique_ptr<int>> q(4);  // move-only items
   q.push(std::make_unique<int>(1));

@@ -6,11 +6,13 @@ Frames of a generated mission (make_survey, read back from its bag) are publishe
 with the test's own stamps and encodings, phase after phase:
 
   good frames; an empty image, an 8x8 image, a float image, a camera_info without focal length,
-  an image whose size differs from camera_info (each skipped and counted by kind); the next
+  an image whose size differs from camera_info, an image larger than ~max_image_pixels with a
+  matching camera_info (each skipped and counted by kind); the next
   frames as rgba8, mono16 (12-bit values) and bayer_rggb8 (converted and processed); a NaN and a
   negative altitude (the last valid altitude is reused, counted); a duplicated stamp and a late
   stamp (skipped, counted); the mission again from its first stamp, as a bag that loops (a new
-  session); a burst (frames dropped by the worker's short queue, counted); images and camera_info
+  session); a burst (frames dropped by the worker's short queue, counted; the gaps the drops
+  leave in the stamps, longer than session_gap_s, must not start a session); images and camera_info
   without altitude for longer than input_timeout_s (a WARN naming the altitude topic; with
   ~fallback_altitude > 0 the frames are processed at that altitude instead, counted); then
   camera_info and altitude without images (a WARN naming the image topic).
@@ -47,6 +49,8 @@ sessions:
 """
 RATE_HZ = 5.0
 ALTITUDE_MAX_AGE_S = 1.0  # odometry_node/altitude_max_age_s (default)
+MAX_IMAGE_PIXELS = 100000  # odometry_node/max_image_pixels in bad_input.test
+SESSION_GAP_S = 2.5  # odometry_node/session_gap_s in bad_input.test: 3 frames of the burst
 
 
 
@@ -184,7 +188,10 @@ class BadInputTest(unittest.TestCase):
             (Image(encoding="yuv422", width=240, height=180, step=480, data=bytes(480 * 180)), info),  # YUV
             (image, CameraInfo(width=240, height=180, K=[0] * 9)),                                 # zero focal length
             (image, CameraInfo(width=320, height=240, K=[220, 0, 159.5, 0, 220, 119.5, 0, 0, 1])),  # size mismatch
+            (Image(encoding="mono8", width=400, height=300, step=400, data=bytes(range(200)) * 600),  # too large
+             CameraInfo(width=400, height=300, K=[220, 0, 199.5, 0, 220, 149.5, 0, 0, 1])),
         ]
+        assert 400 * 300 > MAX_IMAGE_PIXELS
         for k, (im, ci) in enumerate(bad):
             cls.publish(im, ci, cls.frame(8)[2], last + d(0.1 * (k + 1)))
         cls.poses_after_bad = cls.count_after(cls.poses, 1.5)
@@ -207,11 +214,12 @@ class BadInputTest(unittest.TestCase):
         for i in range(6):
             cls.publish(*cls.frame(i), cls.stamp_of(i))
         base = cls.stamp_of(5)
-        # 7. A burst: 40 frames as fast as they can be sent.
+        # 7. A burst: 40 frames as fast as they can be sent, their stamps 1 s apart (as recorded):
+        # every 3 frames the queue drops in a row leave a gap longer than session_gap_s.
         for k in range(40):
-            cls.publish(*cls.frame(6 + k), base + d(0.2 * (k + 1)), period=0.002)
+            cls.publish(*cls.frame(6 + k), base + d(1.0 * (k + 1)), period=0.002)
         time.sleep(3.0)
-        last_altitude = base + d(0.2 * 40)
+        last_altitude = base + d(1.0 * 40)
         # 8. The altitude topic falls silent: images and camera_info only. The first ones are within
         # altitude_max_age_s of the last reading and use it; the others have no altitude.
         with cls.lock:
@@ -266,6 +274,7 @@ class BadInputTest(unittest.TestCase):
         self.assertEqual(v["skipped_camera_info"], 1)
         self.assertEqual(v["skipped_size_mismatch"], 1)
         self.assertEqual(v["skipped_image_layout"], 0)
+        self.assertEqual(v["skipped_image_too_large"], 1)
 
     def test_convertible_encodings_and_bad_altitudes_are_processed(self):
         v = self.odometry()
@@ -294,6 +303,8 @@ class BadInputTest(unittest.TestCase):
     def test_a_burst_drops_frames_and_counts_every_one(self):
         v = self.odometry()
         self.assertGreater(v["dropped_queue_full"], 0)
+        # Our own drops are no gap in the recording: no session from them (issue 21, 9).
+        self.assertEqual(v["time_jumps_forward"], 0)
         # Every synchronised frame is processed, dropped or still queued.
         self.assertEqual(v["frames_synchronised"], v["frames_processed"] + v["dropped_queue_full"] + v["queue_length"])
         self.assertEqual(v["images_received"], v["frames_synchronised"] + v["images_not_paired"])

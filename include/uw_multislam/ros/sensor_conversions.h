@@ -21,13 +21,20 @@ namespace uw_multislam {
 namespace ros_conversions {
 
 /// Why imageFromMsg refused an image (the odometry nodelet counts each kind separately).
-enum class ImageRefusal { kNone, kEmpty, kEncoding, kLayout, kTooSmall, kCorrupt };
-/// "none", "empty", "encoding", "layout", "too_small", "corrupt".
+enum class ImageRefusal { kNone, kEmpty, kEncoding, kLayout, kTooSmall, kCorrupt, kTooLarge };
+/// "none", "empty", "encoding", "layout", "too_small", "corrupt", "too_large".
 std::string imageRefusalName(ImageRefusal r);
 
 /// Images narrower or lower than this are refused (kTooSmall): SIFT finds nothing useful in
 /// them, and the odometry would start a session on a keyframe without features.
 constexpr unsigned kMinImageSide = 32;
+
+/// The default largest image (pixels, width x height) the odometry takes: 25 Mpx, more than a
+/// survey camera gives (4096 x 4096 is 16.8 Mpx, 6000 x 4000 is 24 Mpx). A larger image is
+/// refused (kTooLarge) from its header, before anything is converted, decoded or allocated: a
+/// 10000 x 10000 image used to take 14 s and 5 GB (issue 21, 6). The odometry's
+/// ~max_image_pixels sets it.
+constexpr std::uint64_t kDefaultMaxImagePixels = 25000000;
 
 /// The image as the core takes it (8-bit grey or BGR). What is done with each encoding:
 ///   mono8, 8UC1, bgr8, 8UC3              shared without a copy (the Mat keeps the message alive)
@@ -38,10 +45,11 @@ constexpr unsigned kMinImageSide = 32;
 ///   bgr16, rgb16, bgra16, rgba16         the same scaling, then to bgr8
 ///   bayer_{rggb,bggr,gbrg,grbg}{8,16}    debayered (OpenCV, bilinear) to bgr8 (16 bits scaled as above)
 ///   anything else (float, YUV, 2-channel, signed) refused (kEncoding), as are an empty image
-///   (kEmpty), a step / data size that does not fit (kLayout) and an image smaller than
-///   kMinImageSide in either direction (kTooSmall). Never throws.
+///   (kEmpty), a step / data size that does not fit (kLayout), an image smaller than
+///   kMinImageSide in either direction (kTooSmall) and one of more than `max_pixels` pixels
+///   (kTooLarge, from width and height before anything else). Never throws.
 bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::string* why = nullptr,
-                  ImageRefusal* refusal = nullptr);
+                  ImageRefusal* refusal = nullptr, std::uint64_t max_pixels = kDefaultMaxImagePixels);
 
 /// A sensor_msgs/CompressedImage decoded with OpenCV (cv::imdecode, unchanged depth and
 /// channels) into a sensor_msgs/Image with the same header, for the odometry when image_transport
@@ -56,11 +64,19 @@ bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::stri
 ///     mono8 / mono16.
 /// Refused: no data (kEmpty); a format that is neither jpeg nor png, or compressedDepth
 /// (kEncoding); data that is not of the format's kind, a JPEG without its end-of-image marker
-/// (truncated: libjpeg would only warn and fill grey), or data OpenCV cannot decode (kCorrupt).
-/// Bytes damaged inside a JPEG's entropy-coded data may still decode (libjpeg only warns), into
-/// a damaged image. Never throws.
+/// (truncated: libjpeg would only warn and fill grey), or data OpenCV cannot decode (kCorrupt);
+/// an image of more than `max_pixels` pixels (kTooLarge), by the size its header declares
+/// (compressedImageSize) before it is decoded, by more data than such an image could take
+/// (8 bytes a pixel), and by the decoded size. Bytes damaged inside a JPEG's entropy-coded data
+/// may still decode (libjpeg only warns), into a damaged image. Never throws.
 bool imageFromCompressedMsg(const sensor_msgs::CompressedImage& msg, sensor_msgs::ImagePtr* out,
-                            std::string* why = nullptr, ImageRefusal* refusal = nullptr);
+                            std::string* why = nullptr, ImageRefusal* refusal = nullptr,
+                            std::uint64_t max_pixels = kDefaultMaxImagePixels);
+
+/// The width and height a PNG (its IHDR chunk) or a JPEG (its first SOFn frame header) declares,
+/// read from the header without decoding. False when the data is neither or its header cannot be
+/// read (the decoder then decides).
+bool compressedImageSize(const std::vector<std::uint8_t>& data, std::uint64_t* width, std::uint64_t* height);
 
 /// Whether bytes starting as a JPEG (FF D8 FF) lack the end-of-image marker FF D9 (trailing
 /// zero or white-space padding allowed): libjpeg decodes such a cut-off file with only a warning.

@@ -3,7 +3,9 @@
 // counted drop policy). Header-only and ROS-free, so its test needs neither ROS nor a master.
 //
 // Drop policy: push() on a full queue drops the OLDEST item and counts it (live, the newest
-// data matters most). pushPriority() is for the few items that must never be lost (e.g. a
+// data matters most). An optional drop handler sees each dropped item together with its
+// successor (the item that now heads the queue), to hand on what must survive the drop (the
+// odometry hands on the dropped frame's stamp, so its own drops never look like a time gap). pushPriority() is for the few items that must never be lost (e.g. a
 // reload of stored keyframes): they are served before the bounded ones, are never dropped and
 // do not count against the capacity.
 //
@@ -15,6 +17,7 @@
 #include <condition_variable>
 #include <cstddef>
 #include <deque>
+#include <functional>
 #include <mutex>
 #include <stdexcept>
 #include <utility>
@@ -25,8 +28,13 @@ namespace ros_work {
 template <typename T>
 class BoundedWorkQueue {
  public:
+  /// Called under the queue's lock for each item dropped to make room, with its successor: the
+  /// oldest item left (the one just pushed when the capacity is 1). It must not touch the queue.
+  using DropHandler = std::function<void(T& dropped, T& successor)>;
+
   /// `capacity`: the most bounded items waiting (>= 1).
-  explicit BoundedWorkQueue(std::size_t capacity) : capacity_(capacity) {
+  explicit BoundedWorkQueue(std::size_t capacity, DropHandler on_drop = {})
+      : capacity_(capacity), on_drop_(std::move(on_drop)) {
     if (capacity < 1) throw std::invalid_argument("BoundedWorkQueue: capacity must be at least 1");
   }
   BoundedWorkQueue(const BoundedWorkQueue&) = delete;
@@ -39,10 +47,14 @@ class BoundedWorkQueue {
       std::lock_guard<std::mutex> lock(mutex_);
       if (closed_) return false;
       if (items_.size() >= capacity_) {
+        T oldest = std::move(items_.front());
         items_.pop_front();
         ++dropped_;
+        items_.push_back(std::move(item));
+        if (on_drop_) on_drop_(oldest, items_.front());
+      } else {
+        items_.push_back(std::move(item));
       }
-      items_.push_back(std::move(item));
       ++pushed_;
     }
     wake_.notify_one();
@@ -118,6 +130,7 @@ class BoundedWorkQueue {
 
  private:
   const std::size_t capacity_;
+  const DropHandler on_drop_;
   mutable std::mutex mutex_;
   std::condition_variable wake_;
   std::deque<T> items_;     // guarded by mutex_

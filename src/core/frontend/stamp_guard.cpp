@@ -34,22 +34,39 @@ StampGuard::StampGuard(const StampGuardOptions& options) : options_(options) {
   if (!bad.empty()) throw std::invalid_argument("stamp guard: " + bad);
 }
 
-StampClass StampGuard::accept(double stamp_s) {
+StampClass StampGuard::classify(double stamp_s) const {
   if (!std::isfinite(stamp_s)) return StampClass::kOutOfOrder;
-  StampClass c = StampClass::kNext;
-  if (!have_last_) {
-    c = StampClass::kFirst;
-  } else if (stamp_s == last_) {
-    return StampClass::kDuplicate;
-  } else if (stamp_s < last_) {
-    if (last_ - stamp_s <= options_.reorder_tolerance_s) return StampClass::kOutOfOrder;
-    c = StampClass::kJumpBack;
-  } else if (options_.session_gap_s > 0 && stamp_s - last_ > options_.session_gap_s) {
-    c = StampClass::kJumpForward;
+  if (!have_last_) return StampClass::kFirst;
+  if (stamp_s == last_) return StampClass::kDuplicate;
+  if (stamp_s < last_)
+    return last_ - stamp_s <= options_.reorder_tolerance_s ? StampClass::kOutOfOrder : StampClass::kJumpBack;
+  if (options_.session_gap_s > 0 && stamp_s - last_ > options_.session_gap_s) return StampClass::kJumpForward;
+  return StampClass::kNext;
+}
+
+StampClass StampGuard::accept(double stamp_s) {
+  StampClass c = classify(stamp_s);
+  if (skips(c)) return c;
+  if (startsSession(c)) {
+    last_jump_s_ = stamp_s - last_;
+  } else if (startsSession(held_)) {
+    c = held_;  // the jump happened among the frames passed over since the last accepted one
   }
+  held_ = StampClass::kNext;
   have_last_ = true;
   last_ = stamp_s;
   return c;
+}
+
+void StampGuard::passOver(double stamp_s) {
+  const StampClass c = classify(stamp_s);
+  if (skips(c)) return;
+  if (startsSession(c)) {
+    last_jump_s_ = stamp_s - last_;
+    if (!startsSession(held_)) held_ = c;  // the first jump decides the class
+  }
+  have_last_ = true;
+  last_ = stamp_s;
 }
 
 }  // namespace core

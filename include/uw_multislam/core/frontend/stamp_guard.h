@@ -8,8 +8,14 @@
 //   stamp > last + session_gap_s         kJumpForward  new session (a gap in the recording; 0 = never)
 //   otherwise                            kNext         process
 //
-// Skipped stamps do not move `last`; a jump does (the new session starts from it). ROS-free:
-// the odometry nodelet uses it with header stamps in seconds. Tested in test/core/test_stamp_guard.cpp.
+// Skipped stamps do not move `last`; a jump does (the new session starts from it).
+//
+// Frames the node received but dropped itself (its worker queue was full) are passOver()ed: their
+// stamps move `last` as processed ones do, so the gap our own drops leave between two processed
+// frames is no time gap (issue 21, 9: a burst used to split a session several times), while a
+// jump among them (the camera did pause, or the bag looped) is held and reported by the next
+// accept(). ROS-free: the odometry nodelet uses it with header stamps in seconds. Tested in
+// test/core/test_stamp_guard.cpp.
 #pragma once
 
 #include <string>
@@ -33,6 +39,13 @@ class StampGuard {
   /// Classifies `stamp_s` and, unless it is skipped (duplicate, out of order), accepts it as the
   /// new last stamp. A non-finite stamp is classified kOutOfOrder (skipped) and not accepted.
   StampClass accept(double stamp_s);
+  /// A frame that was received but not processed (dropped by the node's own queue): its stamp
+  /// is classified and accepted like accept()'s, but a jump is held and returned by the next
+  /// accept() that is not skipped. Duplicates, late and non-finite stamps change nothing.
+  void passOver(double stamp_s);
+  /// How far the stamps jumped at the last jump (seconds; negative back, positive forward),
+  /// measured from the stamp before it, passed over or not.
+  double lastJump() const { return last_jump_s_; }
   /// True for the classes whose frame must be skipped.
   static bool skips(StampClass c) { return c == StampClass::kDuplicate || c == StampClass::kOutOfOrder; }
   /// True for the classes that start a new session.
@@ -43,8 +56,13 @@ class StampGuard {
 
  private:
   StampGuardOptions options_;
+  /// The class of a stamp against last_ (does not change anything).
+  StampClass classify(double stamp_s) const;
+
   bool have_last_ = false;
   double last_ = 0.0;
+  double last_jump_s_ = 0.0;
+  StampClass held_ = StampClass::kNext;  // a jump among passed-over stamps, for the next accept()
 };
 
 }  // namespace core

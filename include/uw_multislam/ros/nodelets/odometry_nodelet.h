@@ -62,7 +62,8 @@
 //   - images: encodings are converted or refused as ros/sensor_conversions.h documents
 //     (rgba/bgra drop alpha, 16 bits scaled, Bayer debayered; float/YUV refused); empty, tiny
 //     (< 32 px) or wrongly laid out images and images whose size differs from camera_info are
-//     skipped; so are compressed images (built-in decoder) that do not decode (corrupt) or whose
+//     skipped; so are images of more than ~max_image_pixels, by the size their header declares
+//     (raw or compressed), before anything is converted, decoded or allocated; so are compressed images (built-in decoder) that do not decode (corrupt) or whose
 //     format is neither jpeg nor png;
 //   - camera_info without a focal length, with the principal point outside, a zero P for rectified
 //     images or an unsupported distortion model (equidistant: rectify first): frame skipped;
@@ -73,7 +74,9 @@
 //     frame before any valid altitude is skipped);
 //   - stamps (core/frontend/stamp_guard.h): the same stamp twice is a duplicate, a stamp up to
 //     ~reorder_tolerance_s back is late: both skipped; further back (a bag that loops, a clock
-//     reset) or forward by more than ~session_gap_s: a new session;
+//     reset) or forward by more than ~session_gap_s: a new session. The stamps of frames the
+//     worker's FIFO dropped count as seen (each travels on with the frame after it), so a gap
+//     made by our own drops never starts a session;
 //   - altitude and camera_info stamps: an image without an altitude reading within
 //     ~altitude_max_age_s of its stamp, or without a camera_info within ~sync_max_interval_s,
 //     is skipped (counted). Altitude stamps jumping back (a bag that loops) clear the readings.
@@ -104,6 +107,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/core/frontend/altitude_buffer.h"
@@ -135,6 +139,7 @@ struct OdometryNodeletOptions {
   double fallback_altitude_m = 0.0;  // > 0: used when the altitude topic is silent; 0 = off
   double diagnostic_period_s = 1.0;
   double stats_period_s = 30.0;
+  int max_image_pixels = 25000000;  // larger images are skipped before any conversion (counted)
   bool rectified_images = false;  // the images are rectified: P, no distortion; else K with D
   std::string camera_info_url;    // calibration used when no camera_info arrives; empty = none
   std::string session_frame_prefix = topics::kDefaultSessionFramePrefix;
@@ -152,6 +157,7 @@ class OdometryNodelet : public nodelet::Nodelet {
     double altitude_m = 0.0;      // at the image stamp (with the altitude topic)
     bool bad_altitude = false;    // it would use an invalid reading: the core reuses the last valid one
     bool fixed_altitude = false;  // the altitude topic was silent: ~fallback_altitude is used
+    std::vector<double> passed_over;  // stamps of the frames the queue dropped just before this one
     const std_msgs::Header& header() const { return image ? image->header : compressed->header; }
   };
   // The recent camera_infos searched for an image's.
@@ -167,7 +173,8 @@ class OdometryNodelet : public nodelet::Nodelet {
     long frames = 0, dropped = 0, bad_image = 0, bad_camera = 0, bad_altitude = 0, keyframes = 0, fallbacks = 0,
          sessions = 0, losses = 0;
     // Image refusals by kind (their sum is bad_image), stamps, altitude fallback, core skips.
-    long empty_image = 0, bad_encoding = 0, bad_layout = 0, tiny_image = 0, size_mismatch = 0, corrupt_image = 0;
+    long empty_image = 0, bad_encoding = 0, bad_layout = 0, tiny_image = 0, size_mismatch = 0, corrupt_image = 0,
+         too_large = 0;
     long duplicates = 0, out_of_order = 0, jumps_back = 0, jumps_forward = 0;
     long fixed_altitude = 0, skipped_by_odometry = 0;
     double total_ms = 0.0, max_ms = 0.0, last_ms = 0.0;
@@ -255,7 +262,6 @@ class OdometryNodelet : public nodelet::Nodelet {
   core::CameraIntrinsics camera_;
   int session_ = 0;
   int frame_index_ = 0;
-  ros::Time last_stamp_;
   std::unique_ptr<core::StampGuard> stamps_;
   Counters counts_;
   ros::WallTime last_stats_;
