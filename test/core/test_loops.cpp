@@ -90,7 +90,13 @@ TEST(HashStore, QueryReturnsTheNearestOfOtherSessionsWithoutAllocating) {
   store.query(q, 1, 3, std::numeric_limits<float>::infinity(), &out);
   for (const auto& c : out) EXPECT_EQ(store.entry(c.entry).session, 0);
   store.query(q, 0, 3, 0.5f * all[0].first, &out);
-  EXPECT_TRUE(out.empty() || out[0].entry == 30);
+  EXPECT_TRUE(out.empty()) << out.size() << " entries, the nearest " << (out.empty() ? 0.0f : out[0].l1);
+  // A threshold between the second and the third nearest keeps exactly the first two.
+  ASSERT_LT(all[1].first, all[2].first);
+  store.query(q, 0, 3, 0.5f * (all[1].first + all[2].first), &out);
+  ASSERT_EQ(out.size(), 2u);
+  EXPECT_EQ(out[0].entry, 30);
+  EXPECT_EQ(out[1].entry, all[1].second);
   // The same `out` is reused: its capacity does not grow across queries.
   const std::size_t cap = out.capacity();
   for (int i = 0; i < 20; ++i) store.query(hashes[i], 1, 3, std::numeric_limits<float>::infinity(), &out);
