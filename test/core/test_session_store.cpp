@@ -441,7 +441,14 @@ TEST(Store, KillNineLosesAtMostTheKeyframeInFlight) {
   MultiSessionBackend backend{BackendOptions()};
   const RestoredStore rs = restoreStore(store, &backend, nullptr, nullptr);
   EXPECT_EQ(backend.session(0).keyframes, sessions[0].keyframes);
-  EXPECT_NEAR(backend.sessionPoses(0).back().x(), 0.5 * (sessions[0].keyframes - 1), 0.5 * sessions[0].keyframes);
+  // Nothing to optimise (no loop): the restored trajectory is the stored motions composed, exactly.
+  const std::vector<Pose2> poses = backend.sessionPoses(0);
+  ASSERT_EQ(static_cast<int>(poses.size()), sessions[0].keyframes);
+  Pose2 composed;
+  for (int k = 0; k < sessions[0].keyframes; ++k) {
+    if (k > 0) composed = compose(composed, Pose2(0.5, 0, 0.01));
+    EXPECT_TRUE(approxEqual(poses[k], composed, 1e-12, 1e-12)) << k << ": " << poses[k] << " vs " << composed;
+  }
   EXPECT_EQ(rs.keyframes, sessions[0].keyframes);
 }
 
@@ -545,7 +552,8 @@ TEST(Store, ASessionCutByACrashComesBackWithEveryKeyframe) {
       if (k >= 2 && k <= 6) {
         loops.push_back({0, k, d, k, UncertainPose2(Pose2(0.0, 0.1, 0.0), diag(0.01, 0.005))});
       }
-      if (k == 11) loops.push_back({d, 1, d, 11, UncertainPose2(Pose2(5.0, 0.0, 0.0), diag(0.01, 0.005))});
+      // 4.8 m where the odometry says 5.0 m: optimising must move the trajectory (checked below).
+      if (k == 11) loops.push_back({d, 1, d, 11, UncertainPose2(Pose2(4.8, 0.0, 0.0), diag(0.01, 0.005))});
       r.step(d, Pose2(0.5, 0.0, 0.0), loops);
       if (k == 8) {  // the join happened at k = 6: the map is saved, then the crash comes later
         ASSERT_EQ(original.mapOf(d), 0);
@@ -564,8 +572,23 @@ TEST(Store, ASessionCutByACrashComesBackWithEveryKeyframe) {
   const std::vector<Pose2> poses = restored.sessionPoses(3);
   for (std::size_t k = 0; k < saved_poses.size(); ++k) EXPECT_NEAR(poses[k].x(), saved_poses[k].x(), 1e-12) << k;
   EXPECT_NEAR(between(poses[8], poses[11]).x(), 1.5, 1e-9);  // the odometry after the save
+  EXPECT_NEAR(between(poses[1], poses[11]).x(), 5.0, 1e-9);  // the loop is not applied yet
   restored.flush();  // the intra-session loop, not yet optimised when the map was saved
   EXPECT_GT(restored.stats().optimisations, 0);
+  // The correction, in closed form: session d hangs off the rest of the map by one link, its
+  // motions are pure x (0.5 m, sigma_o = 0.02 m each) and the loop over the 10 motions from
+  // keyframe 1 to 11 says 4.8 m (sigma_l = 0.01 m). The problem is linear in x: the sum of the
+  // motions is the precision-weighted mean of 10 x 0.5 m (variance 10 sigma_o^2) and 4.8 m,
+  // 4.8049 m; the loop's residual, 0.5 sigma_l, is well inside the robust loss's quadratic part.
+  const double var_odo = 10 * 0.02 * 0.02, var_loop = 0.01 * 0.01;
+  const double expected = (5.0 * var_loop + 4.8 * var_odo) / (var_loop + var_odo);
+  const std::vector<Pose2> after = restored.sessionPoses(3);
+  const Pose2 span = between(after[1], after[11]);
+  EXPECT_NEAR(span.x(), expected, 1e-6);
+  EXPECT_NEAR(span.y(), 0.0, 1e-6);
+  EXPECT_NEAR(span.yaw(), 0.0, 1e-6);
+  for (int k = 2; k <= 11; ++k)  // spread evenly over the motions
+    EXPECT_NEAR(between(after[k - 1], after[k]).x(), expected / 10, 1e-6) << k;
 }
 
 }  // namespace
