@@ -3,15 +3,19 @@
 
 1. Session 0 is replayed; after 8 keyframes the back-end process gets SIGKILL mid-replay and
    roslaunch respawns it. It reopens the store: session 0 is there (UNLOADED) with every keyframe
-   the odometry published before the kill (at most the one in flight may be missing).
-2. reload_session brings session 0 back into the loop search; the second session's bag is played
-   and global loops are found against the reloaded session.
+   the odometry published before the kill (at most the one in flight may be missing). The store
+   file itself (read-only) holds keyframes 0..n-1 of session 0, each the published one (frame,
+   stamp, motion), n at least the number published before the kill less one.
+2. reload_session brings session 0 back into the loop search: it hands the stored keyframes to the
+   loop detector (reloaded_keyframes, each one once); the second session's bag is played and
+   global loops are found against the reloaded session.
 3. Wrong reloads: an unknown name (NOT_FOUND, the store named by its file name only) and a second
    reload (ALREADY_EXISTS).
 """
 import os
 import shutil
 import signal
+import sqlite3
 import subprocess
 import threading
 import time
@@ -45,7 +49,7 @@ class StoreTest(unittest.TestCase):
     def setUpClass(cls):
         cls.tmp, cls.mission = make_mission("uwms_store_")
         cls.lock = threading.Lock()
-        cls.keyframes, cls.loops = [], []
+        cls.keyframes, cls.loops, cls.reloaded = [], [], []
         cls.last = time.time()
 
         def keep(store):
@@ -55,7 +59,8 @@ class StoreTest(unittest.TestCase):
                     cls.last = time.time()
             return cb
         cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, keep(cls.keyframes), queue_size=1000),
-                    rospy.Subscriber(NS + "/loops", Loop, keep(cls.loops), queue_size=1000)]
+                    rospy.Subscriber(NS + "/loops", Loop, keep(cls.loops), queue_size=1000),
+                    rospy.Subscriber(NS + "/reloaded_keyframes", Keyframe, keep(cls.reloaded), queue_size=1000)]
         cls.list = rospy.ServiceProxy(NS + "/list_sessions", ListSessions, persistent=False)
         cls.reload = rospy.ServiceProxy(NS + "/reload_session", ReloadSession, persistent=False)
         rospy.wait_for_service(NS + "/list_sessions", timeout=60)
@@ -80,10 +85,25 @@ class StoreTest(unittest.TestCase):
         time.sleep(3.0)
         rospy.wait_for_service(NS + "/list_sessions", timeout=60)  # respawned
         cls.after_restart = cls.sessions()
+        cls.stored_rows = cls.read_store(cls.after_restart[0].name) if 0 in cls.after_restart else None
 
     @classmethod
     def tearDownClass(cls):
         shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    @classmethod
+    def read_store(cls, name):
+        """Session `name`'s keyframes in the store file, read-only: [(keyframe, frame_index, stamp,
+        motion (x, y, yaw) or None)] by keyframe."""
+        path = rospy.get_param(NS + "/backend_node/store_path")
+        with sqlite3.connect("file:%s?mode=ro" % path, uri=True) as c:
+            ids = [r[0] for r in c.execute("SELECT id FROM sessions WHERE name = ?", (name,))]
+            assert len(ids) == 1, "session %r in %s: %s" % (name, path, ids)
+            motions = {r[0]: r[1:] for r in
+                       c.execute("SELECT keyframe, x, y, yaw FROM motions WHERE session = ?", (ids[0],))}
+            return [(k, f, t, motions.get(k)) for k, f, t in
+                    c.execute("SELECT keyframe, frame_index, stamp FROM keyframes WHERE session = ? ORDER BY keyframe",
+                              (ids[0],))]
 
     @classmethod
     def sessions(cls):
@@ -108,12 +128,38 @@ class StoreTest(unittest.TestCase):
         sys.stderr.write(sys_msg + "\n")
         self.assertGreaterEqual(stored.num_keyframes, published_session0 - 1, sys_msg)  # at most one in flight
         self.assertGreaterEqual(stored.num_keyframes, 7)
+        # Which ones: the file holds keyframes 0..n-1, each the one the odometry published.
+        rows = self.stored_rows
+        self.assertEqual([r[0] for r in rows], list(range(stored.num_keyframes)), "keyframes in the store file")
+        with self.lock:
+            published = {k.keyframe: k for k in self.keyframes if k.session == 0}
+        for keyframe, frame_index, stamp, motion in rows:
+            self.assertIn(keyframe, published, "stored keyframe %d was never published" % keyframe)
+            k = published[keyframe]
+            self.assertEqual(frame_index, k.frame_index, "keyframe %d" % keyframe)
+            self.assertAlmostEqual(stamp, k.header.stamp.to_sec(), places=6, msg="keyframe %d" % keyframe)
+            if keyframe == 0:
+                self.assertIsNone(motion, "the origin has no motion")
+            else:
+                self.assertIsNotNone(motion, "keyframe %d has no motion" % keyframe)
+                for got, sent in zip(motion, (k.motion.x, k.motion.y, k.motion.theta)):
+                    self.assertAlmostEqual(got, sent, places=12, msg="keyframe %d's motion" % keyframe)
 
     def test_2_reload_then_global_loops_against_it(self):
         res = self.reload("0")
         self.assertEqual(res.status.code, Status.OK, res.status.message)
         self.assertEqual(res.session, 0)
         self.assertEqual(self.sessions()[0].state, SessionState.FINISHED)
+        # The stored keyframes reach the loop detector, each once, as they are in the file.
+        stored = [(r[0], r[1]) for r in self.stored_rows]
+        deadline = time.time() + 30
+        while time.time() < deadline:
+            with self.lock:
+                got = [(k.keyframe, k.frame_index) for k in self.reloaded if k.session == 0]
+            if len(got) >= len(stored):
+                break
+            time.sleep(0.2)
+        self.assertEqual(sorted(got), stored, "reloaded_keyframes")
         with self.lock:
             loops_before = len(self.loops)
         subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", "4", os.path.join(self.mission, "s1.bag"),
@@ -131,8 +177,12 @@ class StoreTest(unittest.TestCase):
         store = rospy.get_param(NS + "/backend_node/store_path")
         self.assertIn(os.path.basename(store), res.status.message)
         self.assertNotIn(os.path.dirname(store), res.status.message)
-        self.reload("0")
-        self.assertEqual(self.reload("0").status.code, Status.ALREADY_EXISTS)
+        first = self.reload("0")  # test_2 reloaded it already
+        self.assertIn(first.status.code, (Status.OK, Status.ALREADY_EXISTS), first.status.message)
+        again = self.reload("0")
+        self.assertEqual(again.status.code, Status.ALREADY_EXISTS, again.status.message)
+        self.assertEqual(again.session, 0)
+        self.assertIn("already loaded", again.status.message)
 
 
 if __name__ == "__main__":
