@@ -7,6 +7,7 @@ rule. Automatic joining is off (join_min_loops 0): the test joins the sessions w
 checks the joined trajectory against the ground truth, splits them again, and makes wrong calls.
 """
 import csv
+import heapq
 import math
 import os
 import shutil
@@ -127,31 +128,56 @@ class BackendTest(unittest.TestCase):
 
     def join_tolerance(self):
         """3 x the largest rms position error that the altimeter's noise gives a keyframe of session
-        1 once joined. Each keyframe motion is scaled by one altitude reading, off by N(0, noise /
-        altitude) relatively, so a motion of length d (from the ground truth) errs by d x that along
-        itself, independently of the others. Through one global loop (pi in session 0, ci in
-        session 1), keyframe j of session 1 sits at the end of session 0's motions from its origin
-        to pi, the loop, and session 1's motions between ci and j: mean squared error (noise /
-        altitude)^2 x sum d^2 over them. The link weighs the loops, so its error is at most the
-        largest of theirs; the local loops, which only shrink it, are left out, and so is the
-        feature registration (about 0.5 px / sqrt(inliers), under a millimetre a motion). Beyond 3
-        x rms with probability < 0.3 % (all of it on one axis at worst)."""
-        def squared_lengths(session):
-            indexes = self.keyframe_indexes(session)
-            out = []
-            for a, b in zip(indexes, indexes[1:]):
-                (xa, ya, _), (xb, yb, _) = self.world[(session, a)], self.world[(session, b)]
-                out.append(((xb - xa) ** 2 + (yb - ya) ** 2) * (ALTIMETER_NOISE_M / ALTITUDES_M[session]) ** 2)
-            return out  # out[k]: motion k -> k + 1
-        s0, s1 = squared_lengths(0), squared_lengths(1)
+        1 once joined. Each measured motion, odometry or loop, is scaled by one altitude reading
+        (that of its first keyframe), off by N(0, noise / altitude) relatively, so a motion of
+        length d (from the ground truth) errs by d x that along itself, independently of the
+        others. An optimised keyframe is at least as good as its best single chain of measurements:
+        within a session the cheapest path (summed variances) from a keyframe through its motions
+        and local loops. Session 1 hangs off session 0 by the link, which weighs the global loops,
+        so its error is at most the largest through one of them (pi in session 0, ci in session
+        1): best chain from session 0's origin to pi + the loop + best chain from ci to j in session
+        1. The feature registration (about 0.5 px / sqrt(inliers), under a millimetre a motion) is
+        left out. Beyond 3 x rms with probability < 0.3 % (all of it on one axis at worst)."""
+        indexes = {s: self.keyframe_indexes(s) for s in (0, 1)}
+
+        def variance(sa, ka, sb, kb):  # of the measured motion from keyframe ka of sa to kb of sb
+            (xa, ya, _), (xb, yb, _) = self.world[(sa, indexes[sa][ka])], self.world[(sb, indexes[sb][kb])]
+            return ((xb - xa) ** 2 + (yb - ya) ** 2) * (ALTIMETER_NOISE_M / ALTITUDES_M[sa]) ** 2
+
         with self.lock:
-            pairs = [(l.keyframe_a, l.keyframe_b) if l.session_a == 0 else (l.keyframe_b, l.keyframe_a)
-                     for l in self.loops if l.kind == Loop.GLOBAL and {l.session_a, l.session_b} == {0, 1}]
-        self.assertTrue(pairs, "no global loop between sessions 0 and 1")
+            loops = list(self.loops)
+
+        def cheapest(session, start):  # Dijkstra over the session's motions and local loops
+            n = len(indexes[session])
+            edges = {k: [] for k in range(n)}
+            for k in range(n - 1):
+                edges[k].append((k + 1, variance(session, k, session, k + 1)))
+                edges[k + 1].append((k, variance(session, k, session, k + 1)))
+            for l in loops:
+                if l.kind == Loop.LOCAL and l.session_a == session and max(l.keyframe_a, l.keyframe_b) < n:
+                    v = variance(session, l.keyframe_a, session, l.keyframe_b)
+                    edges[l.keyframe_a].append((l.keyframe_b, v))
+                    edges[l.keyframe_b].append((l.keyframe_a, v))
+            best, queue = {start: 0.0}, [(0.0, start)]
+            while queue:
+                d, k = heapq.heappop(queue)
+                if d > best[k]:
+                    continue
+                for m, v in edges[k]:
+                    if d + v < best.get(m, math.inf):
+                        best[m] = d + v
+                        heapq.heappush(queue, (d + v, m))
+            return best
+
+        from_origin = cheapest(0, 0)
         worst = 0.0
-        for pi, ci in pairs:
-            for j in range(len(s1) + 1):
-                worst = max(worst, sum(s0[:pi]) + sum(s1[min(ci, j):max(ci, j)]))
+        for l in loops:
+            if l.kind != Loop.GLOBAL or {l.session_a, l.session_b} != {0, 1}:
+                continue
+            pi, ci = (l.keyframe_a, l.keyframe_b) if l.session_a == 0 else (l.keyframe_b, l.keyframe_a)
+            through = from_origin[pi] + variance(0, pi, 1, ci)
+            worst = max(worst, through + max(cheapest(1, ci).values()))
+        self.assertGreater(worst, 0.0, "no global loop between sessions 0 and 1")
         return 3.0 * math.sqrt(worst)
 
     def test_1_a_path_per_session_and_loops_of_both_kinds(self):
