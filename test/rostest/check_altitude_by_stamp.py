@@ -20,7 +20,8 @@ import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from pipeline_fixture import NS, SENSOR_TOPICS, appender, diagnostic_values, make_mission, wait_for_subscribers
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, diagnostic_values, make_mission,
+                              wait_for_subscribers)
 from sensor_msgs.msg import CameraInfo, Image, Range
 from uw_multislam.msg import Keyframe
 
@@ -104,15 +105,8 @@ class AltitudeByStampTest(unittest.TestCase):
 
     @classmethod
     def await_condition(cls, condition, timeout, what):
-        deadline = time.time() + timeout
-        while time.time() < deadline:
-            with cls.lock:
-                if condition():
-                    return
-            time.sleep(0.1)
-        with cls.lock:
-            last = diagnostic_values(cls.statuses[-1]) if cls.statuses else None
-        raise AssertionError("timed out after %.0f s waiting for %s; last odometry status %s" % (timeout, what, last))
+        await_condition(cls.lock, condition, timeout, what, lambda: "; last odometry status %s" % (
+            diagnostic_values(cls.statuses[-1]) if cls.statuses else None))
 
     @staticmethod
     def read_bag(path):

@@ -27,7 +27,7 @@ import rostest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from pipeline_fixture import appender, diagnostic_values, make_mission, tool, wait_for_subscribers
+from pipeline_fixture import appender, await_condition, diagnostic_values, make_mission, tool, wait_for_subscribers
 from sensor_msgs.msg import CameraInfo, Image, Range
 
 SURVEY = """
@@ -125,17 +125,8 @@ class CameraModelTest(unittest.TestCase):
 
     @classmethod
     def await_condition(cls, condition, timeout, what):
-        deadline = time.time() + timeout
-        while time.time() < deadline:
-            with cls.lock:
-                if condition():
-                    return
-            time.sleep(0.1)
-        with cls.lock:
-            counts = {run: len(p) for run, p in cls.poses.items()}
-            status = dict(cls.status)
-        raise AssertionError("timed out after %.0f s waiting for %s; poses %s; odometry status %s" %
-                             (timeout, what, counts, status))
+        await_condition(cls.lock, condition, timeout, what, lambda: "; poses %s; odometry status %s" % (
+            {run: len(p) for run, p in cls.poses.items()}, dict(cls.status)))
 
     @classmethod
     def ate_of(cls, poses):

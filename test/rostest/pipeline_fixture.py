@@ -145,3 +145,16 @@ def planar_covariance(msg_covariance):
     """The (x, y, yaw) block of a 6x6 row-major ROS covariance."""
     slots = (0, 1, 5)
     return [[msg_covariance[6 * slots[i] + slots[j]] for j in range(3)] for i in range(3)]
+
+
+def await_condition(lock, condition, timeout, what, state=lambda: ""):
+    """Until condition() (called under `lock`) holds, polling every 0.1 s for at most `timeout`
+    seconds; then an AssertionError naming `what` and state() (also under the lock)."""
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        with lock:
+            if condition():
+                return
+        time.sleep(0.1)
+    with lock:
+        raise AssertionError("timed out after %.0f s waiting for %s%s" % (timeout, what, state()))
