@@ -59,7 +59,9 @@ def test_only_the_install_space_is_sourced():
     assert INSTALL and os.path.isfile(os.path.join(INSTALL, "setup.bash")), "UWMS_INSTALL=%r" % INSTALL
     for var in ("ROS_PACKAGE_PATH", "CMAKE_PREFIX_PATH", "PYTHONPATH", "LD_LIBRARY_PATH"):
         for entry in filter(None, os.environ.get(var, "").split(":")):
-            assert "devel" not in entry.split(os.sep) and not entry.startswith(REPO), "%s has %s" % (var, entry)
+            # REPO + os.sep: the default workspace <clone>_ws sits beside the clone and shares its prefix.
+            inside_repo = entry == REPO or entry.startswith(REPO + os.sep)
+            assert "devel" not in entry.split(os.sep) and not inside_repo, "%s has %s" % (var, entry)
 
 
 def test_package_and_messages_resolve_to_the_install_space():
