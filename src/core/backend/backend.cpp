@@ -207,20 +207,16 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
         chain = compose(chain, UncertainPose2(m.motion(k), m.motionCov(k)));
       if (ia > ib) chain = invert(chain);  // the pose of b in a
       const Pose2 e = between(chain.mean, l.z.mean);
-      const Eigen::Vector3d r(e.x(), e.y(), normalizeAngle(e.yaw()));
-      Eigen::Matrix3d p = options_.intra_gate_inflation * chain.covariance + l.z.covariance;
-      const ConsistencyOptions& c = options_.consistency;
-      p.diagonal() += Eigen::Vector3d(c.min_sigma_m * c.min_sigma_m, c.min_sigma_m * c.min_sigma_m,
-                                      c.min_sigma_rad * c.min_sigma_rad);
-      const double d2 = r.dot(p.ldlt().solve(r));
-      if (!(d2 <= chiSquare3Quantile(c.confidence))) {
+      const double d2 =
+          mahalanobis2(e, options_.intra_gate_inflation * chain.covariance + l.z.covariance, options_.consistency);
+      if (!(d2 <= chiSquare3Quantile(options_.consistency.confidence))) {
         loops_.back().refused = true;
         ++stats_.loops_refused;
         ++stats_.loops_gated;
         std::ostringstream os;
         os << "loop " << l.session_a << ":" << l.keyframe_a << " -> " << l.session_b << ":" << l.keyframe_b
-           << " refused: it disagrees with map " << ma << " by " << r.head<2>().norm() << " m, "
-           << std::abs(r(2)) << " rad (chi-square " << d2 << ")";
+           << " refused: it disagrees with map " << ma << " by " << e.translation().norm() << " m, "
+           << std::abs(normalizeAngle(e.yaw())) << " rad (chi-square " << d2 << ")";
         say(os.str());
         return;
       }

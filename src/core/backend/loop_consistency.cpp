@@ -32,14 +32,18 @@ UncertainPose2 loopCycle(const CrossLoop& a, const CrossLoop& b, const Trajector
 double cycleDistance2(const CrossLoop& a, const CrossLoop& b, const Trajectory& previous, const Trajectory& current,
                       const ConsistencyOptions& options) {
   const UncertainPose2 e = loopCycle(a, b, previous, current);
-  const Eigen::Vector3d r(e.mean.x(), e.mean.y(), normalizeAngle(e.mean.yaw()));
-  Eigen::Matrix3d p = e.covariance;
+  return mahalanobis2(e.mean, e.covariance, options);
+}
+
+double mahalanobis2(const Pose2& error, const Eigen::Matrix3d& covariance, const ConsistencyOptions& options) {
+  const Eigen::Vector3d r(error.x(), error.y(), normalizeAngle(error.yaw()));
+  Eigen::Matrix3d p = covariance;
   p(0, 0) += options.min_sigma_m * options.min_sigma_m;
   p(1, 1) += options.min_sigma_m * options.min_sigma_m;
   p(2, 2) += options.min_sigma_rad * options.min_sigma_rad;
   const Eigen::LDLT<Eigen::Matrix3d> ldlt(p);
   if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().array() > 0).all())
-    return r.isZero() ? 0.0 : std::numeric_limits<double>::infinity();  // an exact cycle: only identity agrees
+    return r.isZero() ? 0.0 : std::numeric_limits<double>::infinity();  // exact: only the identity agrees
   return r.dot(ldlt.solve(r));
 }
 

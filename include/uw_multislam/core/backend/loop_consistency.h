@@ -48,7 +48,12 @@ struct CrossLoop {
 
 /// The cycle E_ij above, with its first-order covariance (floors not added).
 UncertainPose2 loopCycle(const CrossLoop& a, const CrossLoop& b, const Trajectory& previous, const Trajectory& current);
-/// Its squared Mahalanobis distance from the identity, with the options' floors.
+/// The squared Mahalanobis distance of a pose error (x, y, yaw; yaw wrapped) from the identity
+/// under `covariance` plus the options' floors (min_sigma_m on x and y, min_sigma_rad on yaw);
+/// infinite for a non-zero error under a singular covariance. The pairwise test below and the
+/// back-end's gate inside a map both use it.
+double mahalanobis2(const Pose2& error, const Eigen::Matrix3d& covariance, const ConsistencyOptions& options);
+/// The cycle's squared Mahalanobis distance from the identity, with the options' floors.
 double cycleDistance2(const CrossLoop& a, const CrossLoop& b, const Trajectory& previous, const Trajectory& current,
                       const ConsistencyOptions& options);
 /// The chi-square quantile of 3 degrees of freedom at `confidence` (boost::math).
