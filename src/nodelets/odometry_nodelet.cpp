@@ -319,6 +319,7 @@ void OdometryNodelet::pairPending(double now) {
     }
     if (!f.info) {
       ++no_camera_info_;
+      skipStamp(stamp);
       NODELET_WARN_THROTTLE(5,
                             "odometry: image at %.3f skipped: no camera_info within ~sync_max_interval_s %.3f s of "
                             "its stamp (%ld so far)",
@@ -333,6 +334,7 @@ void OdometryNodelet::pairPending(double now) {
         const bool silent = images_since_range_ > 0 && now - first_image_since_range_ >= options_.input_timeout_s;
         if (!(options_.fallback_altitude_m > 0 && silent)) {
           ++no_altitude_;
+          skipStamp(stamp);
           NODELET_WARN_THROTTLE(5,
                                 "odometry: image at %.3f skipped: no altitude reading within ~altitude_max_age_s "
                                 "%.2f s of its stamp (%ld so far)",
@@ -346,8 +348,18 @@ void OdometryNodelet::pairPending(double now) {
   }
 }
 
+void OdometryNodelet::skipStamp(double stamp_s) {
+  // Bounded: after this many unpaired images in a row (minutes of them) the oldest are forgotten,
+  // and the gap they leave may start a session, as a long outage should.
+  constexpr std::size_t kMaxSkippedStamps = 4096;
+  if (skipped_stamps_.size() >= kMaxSkippedStamps) skipped_stamps_.erase(skipped_stamps_.begin());
+  skipped_stamps_.push_back(stamp_s);
+}
+
 void OdometryNodelet::push(Frame f) {
   images_since_sync_ = 0;
+  f.passed_over = std::move(skipped_stamps_);  // images received before it, unpaired: seen, not a gap
+  skipped_stamps_.clear();
   queue_->push(std::move(f));
 }
 
@@ -404,7 +416,7 @@ void OdometryNodelet::startSession(int id, const core::CameraIntrinsics& camera,
 
 void OdometryNodelet::process(const Frame& f) {
   ++counts_.frames;
-  for (double t : f.passed_over) stamps_->passOver(t);  // dropped by our queue: seen, not a gap
+  for (double t : f.passed_over) stamps_->passOver(t);  // received but not processed: seen, not a gap
   std::string why;
   core::CameraIntrinsics camera;
   if (!rc::cameraFromMsg(*f.info, options_.rectified_images, &camera, &why)) {

@@ -10,7 +10,8 @@ with the test's own stamps and encodings, phase after phase:
   matching camera_info (each skipped and counted by kind); the next
   frames as rgba8, mono16 (12-bit values) and bayer_rggb8 (converted and processed); a NaN and a
   negative altitude (the last valid altitude is reused, counted); a duplicated stamp and a late
-  stamp (skipped, counted); the mission again from its first stamp, as a bag that loops (a new
+  stamp (skipped, counted); a hovering camera whose camera_info is lost for 3 frames (skipped,
+  counted, and the next frame continues the session); the mission again from its first stamp, as a bag that loops (a new
   session); a burst (frames dropped by the worker's short queue, counted; the gaps the drops
   leave in the stamps, longer than session_gap_s, must not start a session); images and camera_info
   without altitude for longer than input_timeout_s (a WARN naming the altitude topic; with
@@ -64,6 +65,7 @@ class BadInputTest(unittest.TestCase):
         assert len(cls.frames) >= 20, len(cls.frames)
 
         cls.lock = threading.Lock()
+        cls.images_published = 0
         cls.poses, cls.keyframes, cls.odometry_statuses, cls.loop_statuses = [], [], [], []
 
         def on_diagnostics(msg):
@@ -120,8 +122,10 @@ class BadInputTest(unittest.TestCase):
         for m in (image, info, altitude):
             if m is not None:
                 m.header.stamp = stamp
+        cls.images_published += 1
         cls.pubs[0].publish(image)
-        cls.pubs[1].publish(info)
+        if info is not None:
+            cls.pubs[1].publish(info)
         if altitude is not None:
             cls.pubs[2].publish(altitude)
         time.sleep(period)
@@ -211,6 +215,18 @@ class BadInputTest(unittest.TestCase):
         cls.publish(*cls.frame(14), cls.stamp_of(14))
         cls.poses_before_loop = cls.count_after(cls.poses, 2.0)
         cls.status_before_loop = cls.next_odometry_status()
+        # 5b. The camera hovers (the same image) and its camera_info is lost for 3 frames, stamps 1 s
+        # apart: the images are skipped (nothing pairs with them), the next one is processed, and
+        # the 4 s since the last processed frame are no gap in the recording (no session).
+        image, info, altitude = cls.frame(14)
+        with cls.lock:
+            cls.poses_before_unpaired = len(cls.poses)
+        for k in range(1, 4):
+            cls.publish(image, None, altitude, cls.stamp_of(14) + d(1.0 * k))
+        cls.publish(image, info, altitude, cls.stamp_of(14) + d(4.0))
+        cls.poses_after_unpaired = cls.await_count(cls.poses, cls.poses_before_unpaired + 1, 5.0)
+        cls.next_odometry_status()  # the second status from now on was computed after the frame's processing
+        cls.status_after_unpaired = cls.next_odometry_status()
         # 6. The bag loops: its first frames again, with their first stamps.
         for i in range(6):
             cls.publish(*cls.frame(i), cls.stamp_of(i))
@@ -267,6 +283,16 @@ class BadInputTest(unittest.TestCase):
         return None
 
     @classmethod
+    def await_count(cls, store, count, timeout):
+        """len(store) once it reaches `count`, or after `timeout` seconds (then below it)."""
+        deadline = time.time() + timeout
+        while True:
+            with cls.lock:
+                if len(store) >= count or time.time() > deadline:
+                    return len(store)
+            time.sleep(0.05)
+
+    @classmethod
     def count_after(cls, store, wait_s):
         time.sleep(wait_s)
         with cls.lock:
@@ -275,6 +301,12 @@ class BadInputTest(unittest.TestCase):
     def odometry(self):
         self.assertIsNotNone(self.final_odometry, "no odometry status on /diagnostics")
         return diagnostic_values(self.final_odometry)
+
+    def where_frames_went(self, v):
+        """The counts that tell where the frames went, for a failure's message."""
+        keys = ("images_received", "images_not_paired", "skipped_no_camera_info", "skipped_no_altitude",
+                "dropped_queue_full", "frames_processed", "fixed_altitude_frames", "time_jumps_forward")
+        return "images published %d; %s" % (self.images_published, ", ".join("%s %g" % (k, v[k]) for k in keys))
 
     def test_good_frames_are_processed(self):
         self.assertGreaterEqual(self.poses_after_good, 6)
@@ -304,6 +336,15 @@ class BadInputTest(unittest.TestCase):
         # pose, the previous motion reused (a fallback). None on this textured seabed, so far.
         self.assertEqual(before["fallbacks"], 0, "a converted frame was not matched")
 
+    def test_images_without_camera_info_are_skipped_without_splitting_the_session(self):
+        v = self.status_after_unpaired
+        self.assertIsNotNone(v, "no odometry status after the images without camera_info")
+        self.assertEqual(v["skipped_no_camera_info"], 3, self.where_frames_went(v))
+        self.assertEqual(self.poses_after_unpaired - self.poses_before_unpaired, 1, "the frame after them")
+        # The skipped images were received: the 4 s since the last processed frame are no gap.
+        self.assertEqual(v["time_jumps_forward"], 0, self.where_frames_went(v))
+        self.assertEqual(v["sessions"], self.status_before_loop["sessions"])
+
     def test_duplicated_and_late_stamps_are_skipped(self):
         v = self.odometry()
         self.assertEqual(v["skipped_duplicate_stamp"], 1)
@@ -312,7 +353,7 @@ class BadInputTest(unittest.TestCase):
     def test_a_looping_bag_starts_a_new_session(self):
         v = self.odometry()
         self.assertEqual(v["time_jumps_back"], 1)
-        self.assertEqual(v["time_jumps_forward"], 0)
+        self.assertEqual(v["time_jumps_forward"], 0, self.where_frames_went(v))
         self.assertGreaterEqual(v["sessions"], 2)
         with self.lock:
             sessions = {k.session for k in self.keyframes}
@@ -325,7 +366,7 @@ class BadInputTest(unittest.TestCase):
         v = self.odometry()
         self.assertGreater(v["dropped_queue_full"], 0)
         # Our own drops are no gap in the recording: no session from them (issue 21, 9).
-        self.assertEqual(v["time_jumps_forward"], 0)
+        self.assertEqual(v["time_jumps_forward"], 0, self.where_frames_went(v))
         # Every synchronised frame is processed, dropped or still queued.
         self.assertEqual(v["frames_synchronised"], v["frames_processed"] + v["dropped_queue_full"] + v["queue_length"])
         self.assertEqual(v["images_received"], v["frames_synchronised"] + v["images_not_paired"])

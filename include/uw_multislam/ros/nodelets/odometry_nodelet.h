@@ -157,7 +157,9 @@ class OdometryNodelet : public nodelet::Nodelet {
     double altitude_m = 0.0;      // at the image stamp (with the altitude topic)
     bool bad_altitude = false;    // it would use an invalid reading: the core reuses the last valid one
     bool fixed_altitude = false;  // the altitude topic was silent: ~fallback_altitude is used
-    std::vector<double> passed_over;  // stamps of the frames the queue dropped just before this one
+    // Stamps of the images received just before this one but not processed (the queue dropped
+    // them, or no camera_info or altitude paired with them): seen, so no time gap (issue 21, 9).
+    std::vector<double> passed_over;
     const std_msgs::Header& header() const { return image ? image->header : compressed->header; }
   };
   // The recent camera_infos searched for an image's.
@@ -196,6 +198,8 @@ class OdometryNodelet : public nodelet::Nodelet {
   void onPairingTimer(const ros::WallTimerEvent&);
   /// Pairs the pending images, oldest first, until one must wait longer. Under pairing_mutex_.
   void pairPending(double now);
+  /// An image pairing skipped (no camera_info or altitude): its stamp goes with the next frame pushed.
+  void skipStamp(double stamp_s);
   /// The camera_info for an image stamp: set when decided (null: none within
   /// ~sync_max_interval_s); false while a nearer one may still come. Under pairing_mutex_.
   bool cameraInfoAt(double stamp_s, bool final_answer, sensor_msgs::CameraInfoConstPtr* info) const;
@@ -226,6 +230,8 @@ class OdometryNodelet : public nodelet::Nodelet {
   // Pairing state, written by the callbacks under pairing_mutex_.
   std::mutex pairing_mutex_;
   std::deque<Pending> pending_;
+  // Stamps of the images pairing skipped since the last frame pushed: the next one carries them.
+  std::vector<double> skipped_stamps_;
   // The recent camera_infos, in arrival order.
   std::deque<sensor_msgs::CameraInfoConstPtr> infos_;
   // The calibration of ~camera_info_url (null without one), and whether images use it: once an
