@@ -34,11 +34,15 @@ echo "[demo] generating the two-session demo survey into $out/survey"
 "$bin/make_survey" --preset demo --out "$out/survey" --quiet
 
 if [ "$mode" = offline ]; then
-  echo "[demo] offline_slam over both sessions into $out/run"
-  "$bin/offline_slam" --session "$out/survey/s0" --session "$out/survey/s1" --out "$out/run"
+  # Its own run and report folders: the ROS demo's (ros_run, report) stay as they are.
+  rm -rf "$out/offline_run" "$out/offline_report"
+  echo "[demo] offline_slam over both sessions into $out/offline_run"
+  "$bin/offline_slam" --session "$out/survey/s0" --session "$out/survey/s1" --out "$out/offline_run"
   echo "[demo] scoring the run against the ground truth"
-  /usr/bin/python3 "$UWMS_REPO/src/tools/evaluate.py" --run "$out/run" --mission "$out/survey" --report "$out/report"
-  echo "[demo] done in $(($(date +%s) - started)) s: survey in $out/survey, run in $out/run, metrics and plots in $out/report"
+  /usr/bin/python3 "$UWMS_REPO/src/tools/evaluate.py" --run "$out/offline_run" --mission "$out/survey" \
+    --report "$out/offline_report" --html
+  echo "[demo] done in $(($(date +%s) - started)) s: survey in $out/survey, run in $out/offline_run,"
+  echo "[demo] metrics, plots and report.html (one self-contained page) in $out/offline_report"
   exit 0
 fi
 
@@ -145,6 +149,6 @@ stop "$core_pid"
 core_pid=""
 
 echo "[demo] scoring the run against the ground truth"
-/usr/bin/python3 "$UWMS_REPO/src/tools/evaluate.py" --run "$run" --mission "$out/survey" --report "$out/report"
+/usr/bin/python3 "$UWMS_REPO/src/tools/evaluate.py" --run "$run" --mission "$out/survey" --report "$out/report" --html
 echo "[demo] done in $(($(date +%s) - started)) s: survey in $out/survey, ROS run in $run (logs in $logs),"
-echo "[demo] metrics and trajectory plots (map_0.png, session_<s>.png) in $out/report"
+echo "[demo] metrics, trajectory plots (map_0.png, session_<s>.png) and report.html in $out/report"

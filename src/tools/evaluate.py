@@ -70,7 +70,14 @@ Outputs
   metrics.csv   long format: scope,id,estimate,metric,value (value n/a when not computable)
   metrics.json  {scope: {id: {estimate: {metric: value}}}}, n/a as null
   metrics.md    per-session, per-map, loop and timing tables
-  session_<s>.png, map_<m>.png unless --no-plots (x right, y down like the image axes)
+  session_<s>.png, map_<m>.png unless --no-plots (x right, y down like the image axes): each
+                session in its own colour, ground truth dotted, the odometry dashed under the
+                SLAM line (from where the SLAM puts the session's first keyframe), the accepted
+                loops green (correct) / red (wrong) / grey (not judged), the join links of
+                links.csv thick black; a map more than 5 times longer than wide gets a second,
+                stretched view below the equal-axes one
+  report.html   with --html: one self-contained file (no external link) with the figures, the
+                tables, the run's inputs.csv and config.yaml, and the command
 
 Exit status 0 on success; 1 with a one-line reason on stderr for bad input (2 for a bad command line).
 """
@@ -98,6 +105,8 @@ LOOP_POSES_COLUMNS = (("session_a", int), ("index_a", int), ("session_b", int), 
 LOOP_POSE_TOL_FRACTION = 0.1
 LOOP_POSE_TOL_YAW = math.radians(5.0)
 TIMING_COLUMNS = (("stage", str), ("calls", int), ("total_ms", float), ("mean_ms", float), ("max_ms", float))
+LINKS_COLUMNS = (("map", int), ("previous_session", int), ("current_session", int), ("loops", int), ("x_m", float),
+                 ("y_m", float), ("yaw_rad", float))
 INPUTS_COLUMNS = (("session", int), ("folder", str), ("frames", int), ("first_stamp_s", float),
                   ("last_stamp_s", float), ("altitude_mean_m", float))
 GT_COLUMNS = (("index", int), ("image", str), ("x_m", float), ("y_m", float), ("yaw_rad", float))
@@ -330,6 +339,7 @@ class Run:
     timing: list = None    # None without timing.csv
     loop_poses: dict = None  # (key_a, key_b) -> measured pose of b in a, from loop_poses.csv
     inputs: list = None  # inputs.csv rows: the folders the run was made from (None: not written)
+    links: list = None   # links.csv rows: the join links (None: not written)
 
     def estimates(self):
         return [e for e in (self.odometry, self.slam) if e is not None]
@@ -358,7 +368,8 @@ def load_run(directory):
     if measured is not None:
         loop_poses = {((r["session_a"], r["index_a"]), (r["session_b"], r["index_b"])): pose_of(r) for r in measured}
     inputs = read_table(os.path.join(directory, "inputs.csv"), INPUTS_COLUMNS, required=False)
-    return Run(odometry, slam, None if loops is None else loop_pairs(loops), timing, loop_poses, inputs)
+    links = read_table(os.path.join(directory, "links.csv"), LINKS_COLUMNS, required=False)
+    return Run(odometry, slam, None if loops is None else loop_pairs(loops), timing, loop_poses, inputs, links)
 
 
 def folder_summary(truth):
@@ -788,60 +799,157 @@ def slam_in_session_frame(ev, slam, session_gt, keys):
     return {k: compose(to_session[slam.frame[k]], slam.poses[k]) for k in keys if slam.frame[k] in to_session}
 
 
-def draw_path(ax, poses, keys, label, style, marker_start=True):
-    keys = [k for k in keys if k in poses]
-    if not keys:
-        return
-    xy = np.array([poses[k][:2] for k in keys])
-    line, = ax.plot(xy[:, 0], xy[:, 1], style, label=label, linewidth=1.2, markersize=2.5)
-    if marker_start:
-        ax.plot(xy[0, 0], xy[0, 1], "o", color=line.get_color(), markersize=7, markerfacecolor="none")
+@dataclass
+class Layer:
+    """One thing drawn in a figure: a polyline (or separate segments) in one style."""
+    kind: str      # ground_truth, odometry, slam, loop_correct, loop_wrong, loop_unjudged, join_link
+    label: str     # legend entry ("" for none)
+    segments: list  # arrays of (x, y) rows: one polyline each
+    colour: str
+    style: str     # matplotlib line style: "-", "--", ":"
+    width: float
+    zorder: float
+    start_marker: bool = False
 
 
-def finish_axes(ax, fig, title, path):
-    ax.set_title(title)
-    ax.set_xlabel("x (m, image u axis)")
-    ax.set_ylabel("y (m, image v axis)")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.invert_yaxis()
-    ax.grid(True, linewidth=0.3)
-    ax.legend(fontsize=7, loc="best")
-    fig.savefig(path, dpi=110, bbox_inches="tight")
+# Sessions in their own colours (matplotlib's tab10, cycled); loops and links in colours of their own.
+SESSION_COLOURS = ("tab:blue", "tab:orange", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan",
+                   "tab:gray")
+LOOP_STYLE = {True: ("loop_correct", "correct loop", "tab:green"), False: ("loop_wrong", "wrong loop", "tab:red"),
+              None: ("loop_unjudged", "loop (not judged)", "darkgray")}
+# A map whose extent is this many times longer than wide gets a second, stretched view.
+THIN_MAP_RATIO = 5.0
 
 
-def plot_session(plt, ev, run, gt, session, path):
-    keys = sorted(k for k in run.keyframes() if k[0] == session)
-    truth = session_frame_truth(gt, keys)
-    fig, ax = plt.subplots(figsize=(7, 6))
-    draw_path(ax, truth, keys, "ground truth", "k.-")
-    draw_path(ax, run.odometry.poses, keys, "odometry", ".-")
-    if run.slam is not None:
-        draw_path(ax, slam_in_session_frame(ev, run.slam, truth, run.slam.keys(lambda k: k[0] == session)),
-                  keys, "SLAM", ".-")
-    finish_axes(ax, fig, "session %d (session frame; o = start)" % session, path)
-    plt.close(fig)
+def session_colour(session):
+    return SESSION_COLOURS[session % len(SESSION_COLOURS)]
 
 
-LOOP_COLOURS = {True: "tab:green", False: "tab:red", None: "tab:gray"}
+def anchored(poses, keys, anchor_key, anchor_pose):
+    """Poses of `keys` moved rigidly so that anchor_key lands on anchor_pose (odometry drawn from
+    where the SLAM puts the session's first keyframe, so the two can be compared by eye)."""
+    if anchor_key not in poses:
+        return {}
+    to_anchor = compose(anchor_pose, invert(poses[anchor_key]))
+    return {k: compose(to_anchor, poses[k]) for k in keys if k in poses}
 
 
-def plot_map(plt, ev, run, map_id, path):
+def polyline(poses, keys):
+    xy = [poses[k][:2] for k in keys if k in poses]
+    return [np.array(xy)] if xy else []
+
+
+def trajectory_layers(session, keys, gt, odometry, slam, with_label):
+    """Ground truth (black, dotted), odometry (dashed, under) and SLAM (solid, over) of one session."""
+    colour = session_colour(session)
+    layers = [Layer("ground_truth", "ground truth" if with_label else "", polyline(gt, keys), "black", ":", 1.0, 2)]
+    if slam:
+        first = next((k for k in keys if k in slam), None)
+        odometry = anchored(odometry, keys, first, slam[first]) if first is not None else {}
+    layers.append(Layer("odometry", "odometry s%d" % session, polyline(odometry, keys), colour, "--", 1.0, 1))
+    if slam:
+        layers.append(Layer("slam", "SLAM s%d" % session, polyline(slam, keys), colour, "-", 1.6, 3, True))
+    return [layer for layer in layers if layer.segments]
+
+
+def loop_layers(verdict, positions, inside):
+    """Accepted loops between keyframes that `inside` accepts, drawn between `positions`, one layer per verdict."""
+    by_verdict = {}
+    for pair, ok in sorted(verdict.items(), key=lambda item: item[0]):
+        if all(inside(k) and k in positions for k in pair):
+            by_verdict.setdefault(ok, []).append(np.array([positions[k][:2] for k in pair]))
+    return [Layer(LOOP_STYLE[ok][0], LOOP_STYLE[ok][1], segs, LOOP_STYLE[ok][2], "-", 0.7, 2.5)
+            for ok, segs in sorted(by_verdict.items(), key=lambda item: str(item[0]))]
+
+
+def join_link_layers(links, slam, map_id):
+    """The join links of a map (links.csv): from the last keyframe of the earlier session to the
+    first of the later one, as the SLAM places them."""
+    segs = []
+    for link in links or []:
+        a, b = link["previous_session"], link["current_session"]
+        if link["map"] != map_id or a == b:  # a == b: pieces of one folder (tracking loss), not locatable
+            continue
+        ka = [k for k in slam.keys(lambda k: k[0] == a) if slam.frame[k] == map_id]
+        kb = [k for k in slam.keys(lambda k: k[0] == b) if slam.frame[k] == map_id]
+        if ka and kb:
+            segs.append(np.array([slam.poses[ka[-1]][:2], slam.poses[kb[0]][:2]]))
+    return [Layer("join_link", "join link", segs, "black", "-", 2.4, 4)] if segs else []
+
+
+def map_layers(ev, run, map_id):
     slam = run.slam
     keys = slam.keys(lambda k: slam.frame[k] == map_id)
-    gt_map = ev.gt_poses["slam"]
-    fig, ax = plt.subplots(figsize=(7, 6))
-    for pair, ok in ev.verdict.items():
-        if all(slam.frame.get(k) == map_id for k in pair):
-            xy = np.array([slam.poses[k][:2] for k in pair])
-            ax.plot(xy[:, 0], xy[:, 1], "-", color=LOOP_COLOURS[ok], linewidth=0.7, alpha=0.9, zorder=3)
+    layers = []
     for n, session in enumerate(sorted({k[0] for k in keys})):
         skeys = [k for k in keys if k[0] == session]
-        draw_path(ax, gt_map, skeys, None if n else "ground truth", "k--")
-        draw_path(ax, slam.poses, skeys, "SLAM s%d" % session, ".-")
-    for ok, name in ((True, "correct loop"), (False, "wrong loop")):
-        ax.plot([], [], "-", color=LOOP_COLOURS[ok], linewidth=0.8, label=name)
-    finish_axes(ax, fig, "map %d (map frame; o = start)" % map_id, path)
+        layers += trajectory_layers(session, skeys, ev.gt_poses["slam"], run.odometry.poses, slam.poses, n == 0)
+    layers += loop_layers(ev.verdict, slam.poses, lambda k: slam.frame.get(k) == map_id)
+    layers += join_link_layers(run.links, slam, map_id)
+    return layers
+
+
+def session_layers(ev, run, gt, session):
+    keys = sorted(k for k in run.keyframes() if k[0] == session)
+    truth = session_frame_truth(gt, keys)
+    slam = {}
+    if run.slam is not None:
+        slam = slam_in_session_frame(ev, run.slam, truth, run.slam.keys(lambda k: k[0] == session))
+    layers = trajectory_layers(session, keys, truth, run.odometry.poses, slam, True)
+    # Loops inside the session, between the SLAM positions (the odometry's without SLAM).
+    positions = slam or anchored(run.odometry.poses, keys, keys[0], truth[keys[0]])
+    return layers + loop_layers(ev.verdict, positions, lambda k: k[0] == session)
+
+
+def extent(layers):
+    xy = np.vstack([seg for layer in layers for seg in layer.segments])
+    return xy.min(axis=0), xy.max(axis=0)
+
+
+def is_thin(layers):
+    lo, hi = extent(layers)
+    size = np.maximum(hi - lo, 1e-9)
+    return size.max() / size.min() > THIN_MAP_RATIO
+
+
+def draw_layers(ax, layers):
+    for layer in layers:
+        for n, seg in enumerate(layer.segments):
+            ax.plot(seg[:, 0], seg[:, 1], layer.style, color=layer.colour, linewidth=layer.width, zorder=layer.zorder,
+                    label=layer.label if n == 0 and layer.label else None, marker="." if layer.kind == "slam" else None,
+                    markersize=2.5)
+        if layer.start_marker and layer.segments:
+            x, y = layer.segments[0][0]
+            ax.plot(x, y, "o", color=layer.colour, markersize=7, markerfacecolor="none", zorder=layer.zorder)
+
+
+def style_axes(ax, title, equal=True):
+    ax.set_title(title, fontsize=10)
+    ax.set_xlabel("x (m, image u axis)")
+    ax.set_ylabel("y (m, image v axis)")
+    if equal:
+        ax.set_aspect("equal", adjustable="datalim")
+    ax.invert_yaxis()
+    ax.grid(True, linewidth=0.3)
+
+
+def render(plt, layers, title, path):
+    """One figure: equal axes; a long thin one (is_thin) gets a second, stretched view below, so
+    its detail stays legible. Returns the number of views drawn."""
+    thin = is_thin(layers)
+    if thin:
+        fig, (ax, stretched) = plt.subplots(2, 1, figsize=(8, 8), gridspec_kw={"height_ratios": [1, 2]})
+    else:
+        fig, ax = plt.subplots(figsize=(7, 6))
+    draw_layers(ax, layers)
+    style_axes(ax, title + " (equal axes; o = start)")
+    if thin:
+        draw_layers(stretched, layers)
+        style_axes(stretched, "the same, stretched across (not to scale)", equal=False)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
+    return 2 if thin else 1
 
 
 def write_plots(ev, run, gt, report_dir):
@@ -851,12 +959,88 @@ def write_plots(ev, run, gt, report_dir):
     written = []
     for session in sorted({k[0] for k in run.keyframes()}):
         written.append(os.path.join(report_dir, "session_%d.png" % session))
-        plot_session(plt, ev, run, gt, session, written[-1])
+        render(plt, session_layers(ev, run, gt, session), "session %d (session frame)" % session, written[-1])
     if run.slam is not None:
         for map_id in sorted(set(run.slam.frame.values())):
             written.append(os.path.join(report_dir, "map_%d.png" % map_id))
-            plot_map(plt, ev, run, map_id, written[-1])
+            render(plt, map_layers(ev, run, map_id), "map %d (map frame)" % map_id, written[-1])
     return written
+
+
+# ---------------------------------------------------------------------------------------------
+# HTML report: one self-contained file (inline style, figures as data: URIs, no external link).
+
+HTML_STYLE = """body{font-family:sans-serif;margin:2em auto;max-width:1100px;color:#222}
+table{border-collapse:collapse;margin:0.5em 0 1.5em}th,td{border:1px solid #bbb;padding:3px 8px;text-align:right}
+th{background:#eef}td:first-child,th:first-child{text-align:left}figure{display:inline-block;vertical-align:top;width:48%;margin:0 1% 1em 0}
+figcaption{font-size:90%;color:#555}pre{background:#f6f6f6;padding:0.8em;overflow-x:auto;font-size:85%}"""
+
+
+def markdown_to_html(text):
+    """The subset of markdown that markdown() writes: # headings, | tables |, - lists."""
+    import html
+    out, table, items = [], [], []
+
+    def flush():
+        if table:
+            head, body = table[0], table[2:]  # table[1] is the |---| rule
+            out.append("<table><tr>%s</tr>%s</table>" % ("".join("<th>%s</th>" % html.escape(c) for c in head), "".join(
+                "<tr>%s</tr>" % "".join("<td>%s</td>" % html.escape(c) for c in row) for row in body)))
+            table.clear()
+        if items:
+            out.append("<ul>%s</ul>" % "".join("<li>%s</li>" % html.escape(i) for i in items))
+            items.clear()
+
+    for line in text.splitlines():
+        if line.startswith("|"):
+            table.append([c.strip() for c in line.strip().strip("|").split("|")])
+            continue
+        if line.startswith("- "):
+            items.append(line[2:])
+            continue
+        flush()
+        level = len(line) - len(line.lstrip("#"))
+        if 0 < level <= 3 and line[level:level + 1] == " ":
+            out.append("<h%d>%s</h%d>" % (level + 1, html.escape(line[level + 1:]), level + 1))
+    flush()
+    return "\n".join(out)
+
+
+def write_html(ev, run_dir, report_dir, figures, command):
+    """report.html: the metrics tables, the figures, the run's inputs and configuration, the command."""
+    import base64
+    import html
+    parts = ["<!DOCTYPE html>", "<html><head><meta charset=\"utf-8\"><title>uw_multislam report: %s</title>"
+             % html.escape(os.path.basename(os.path.normpath(run_dir))), "<style>%s</style></head><body>" % HTML_STYLE,
+             "<h1>uw_multislam report</h1>",
+             "<p>Run <code>%s</code>, scored by <code>%s</code>.</p>" % (html.escape(run_dir), html.escape(command))]
+    parts.append(markdown_to_html(markdown(ev).replace("# SLAM evaluation", "## Metrics", 1)))
+    parts.append("<h2>Figures</h2>")
+    for path in figures:
+        with open(path, "rb") as f:
+            data = base64.b64encode(f.read()).decode("ascii")
+        name = os.path.splitext(os.path.basename(path))[0].replace("_", " ")
+        parts.append("<figure><img alt=\"%s\" src=\"data:image/png;base64,%s\" style=\"width:100%%\">"
+                     "<figcaption>%s</figcaption></figure>" % (name, data, name))
+    inputs = os.path.join(run_dir, "inputs.csv")
+    if os.path.isfile(inputs):
+        with open(inputs) as f:
+            rows = list(csv.reader(f))
+        parts.append("<h2>Inputs</h2>" + markdown_to_html("\n".join(
+            "| " + " | ".join(r) + " |" + ("\n|" + "---|" * len(r) if n == 0 else "") for n, r in enumerate(rows))))
+    config = os.path.join(run_dir, "config.yaml")
+    parts.append("<h2>Configuration</h2>")
+    if os.path.isfile(config):
+        with open(config) as f:
+            parts.append("<pre>%s</pre>" % html.escape(f.read()))
+    else:
+        parts.append("<p>The run has no config.yaml (record_run.py does not write one; see the launch parameters).</p>")
+    parts.append("</body></html>")
+    path = os.path.join(report_dir, "report.html")
+    with open(path + ".tmp", "w") as f:
+        f.write("\n".join(parts) + "\n")
+    os.replace(path + ".tmp", path)
+    return path
 
 
 # ---------------------------------------------------------------------------------------------
@@ -894,6 +1078,9 @@ def parse_args(argv):
     parser.add_argument("--loops-gt", metavar="FILE", help="loops_gt.csv: the revisits to find")
     parser.add_argument("--report", required=True, metavar="REPORT_DIR", help="where to write the report")
     parser.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
+    parser.add_argument("--html", action="store_true",
+                        help="also write report.html: one self-contained file with the tables, the plots, the "
+                             "run's inputs and configuration (without figures under --no-plots)")
     parser.add_argument("--loop-true-dist", type=positive_float, metavar="M",
                         help="gt distance (m) below which an accepted loop is correct "
                              "(default: the image footprint height at the frames' mean altitude)")
@@ -939,8 +1126,10 @@ def main(argv=None):
         ev = evaluate(run, gt, args.loop_true_dist)
         ev.notes += notes
         text = write_report(ev, args.report)
-        if not args.no_plots:
-            write_plots(ev, run, gt, args.report)
+        figures = [] if args.no_plots else write_plots(ev, run, gt, args.report)
+        if args.html:
+            command = "evaluate.py " + " ".join(sys.argv[1:] if argv is None else [str(a) for a in argv])
+            write_html(ev, args.run, args.report, sorted(figures, key=lambda p: "map" not in p), command)
     except (EvalError, OSError) as e:
         print("evaluate.py: error: %s" % e, file=sys.stderr)
         return 1

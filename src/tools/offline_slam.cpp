@@ -105,7 +105,7 @@ int main(int argc, char** argv) {
       std::printf("store %s: %d sessions, %d loops loaded in %.1f ms\n", db.c_str(), stored,
                   static_cast<int>(manager.loops().size()),
                   std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
-    core::writeRunInputs(out, datasets, stored);  // creates OUT; evaluate.py checks its folders against it
+    core::writeRunInputs(out, datasets, stored, core::slamConfigToYaml(config));  // creates OUT; folders + config
 
     std::map<int, int> csv_of;  // session id -> the folder's number (stored sessions keep their id)
     for (std::size_t ds = 0; ds < datasets.size(); ++ds) {

@@ -402,18 +402,24 @@ def test_report_files_agree_and_timing_is_copied(tmp_path, capsys):
     assert "## Sessions" in capsys.readouterr().out
 
 
-def is_png(path):
-    with open(path, "rb") as f:
-        return f.read(8) == b"\x89PNG\r\n\x1a\n"
-
-
-def test_plots_are_written_unless_disabled(tmp_path):
+def two_session_folders(tmp_path):
+    """two_session_world's folders, world_gt.csv and an exact SLAM trajectory (both in map 0)."""
     local0, local1, world0, world1 = two_session_world()
     s0 = write_session(tmp_path / "s0", local0)
     s1 = write_session(tmp_path / "s1", local1)
     world = write_world_gt(tmp_path / "world_gt.csv", [world0, world1])
     trajectory = {0: [(i, 0, p) for i, p in indexed(in_frame(world0[0], world0))],
                   1: [(i, 0, p) for i, p in indexed(in_frame(world0[0], world1))]}
+    return s0, s1, world, trajectory, local0, local1
+
+
+def is_png(path):
+    with open(path, "rb") as f:
+        return f.read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_plots_are_written_unless_disabled(tmp_path):
+    s0, s1, world, trajectory, local0, local1 = two_session_folders(tmp_path)
     run = write_run(tmp_path / "run", {0: indexed(local0), 1: indexed(local1)}, trajectory,
                     loops=[((0, 0), (1, 0)), ((0, 0), (0, 9))])
     base = ["--run", run, "--session", s0, "--session", s1, "--world-gt", world]
@@ -423,6 +429,89 @@ def test_plots_are_written_unless_disabled(tmp_path):
     pngs = sorted(n for n in os.listdir(tmp_path / "plots") if n.endswith(".png"))
     assert pngs == ["map_0.png", "session_0.png", "session_1.png"]
     assert all(is_png(tmp_path / "plots" / n) for n in pngs)
+
+
+def figure_inputs(tmp_path, odometry_scale=1.0):
+    """Two sessions joined in map 0 (links.csv), one correct and one wrong loop; the odometry of
+    session 1 scaled by `odometry_scale` (a drift no rigid motion removes)."""
+    s0, s1, world, trajectory, local0, local1 = two_session_folders(tmp_path)
+    odo1 = [(odometry_scale * x, odometry_scale * y, yaw) for x, y, yaw in local1]
+    # (0,0)-(1,0) are near each other in the world (a correct loop); (0,9)-(1,0) are not.
+    run = write_run(tmp_path / "run", {0: indexed(local0), 1: indexed(odo1)}, trajectory,
+                    loops=[((0, 0), (1, 0)), ((0, 9), (1, 0))])
+    write_csv(os.path.join(run, "links.csv"), "map,previous_session,current_session,loops,x_m,y_m,yaw_rad",
+              [(0, 0, 1, 1, 0.0, 0.0, 0.0)])
+    gt = ev.load_ground_truth([s0, s1], world)
+    loaded = ev.load_run(run)
+    return ev.evaluate(loaded, gt, 0.3), loaded, gt
+
+
+def layers_of(layers, kind):
+    return [layer for layer in layers if layer.kind == kind]
+
+
+def test_map_figure_colours_sessions_and_draws_odometry_under_slam_loops_and_join_links(tmp_path):
+    evaluation, run, _ = figure_inputs(tmp_path, odometry_scale=1.1)
+    layers = ev.map_layers(evaluation, run, 0)
+    slam, odometry = layers_of(layers, "slam"), layers_of(layers, "odometry")
+    assert [layer.label for layer in slam] == ["SLAM s0", "SLAM s1"]
+    assert len({layer.colour for layer in slam}) == 2  # each session its own colour
+    for s, o in zip(slam, odometry):
+        assert o.colour == s.colour and o.style == "--" and s.style == "-" and o.zorder < s.zorder
+        # The odometry starts where the SLAM puts the session's first keyframe.
+        np.testing.assert_allclose(o.segments[0][0], s.segments[0][0], atol=1e-12)
+    # Session 1's odometry drifts off its SLAM by the injected scale: 10 % of its 1.1 m path.
+    drift = np.linalg.norm(odometry[1].segments[0][-1] - slam[1].segments[0][-1])
+    assert drift == pytest.approx(0.1 * math.hypot(0.15 * 7, 0.05 * 7), rel=1e-9)
+    np.testing.assert_allclose(odometry[0].segments[0], slam[0].segments[0], atol=1e-9)
+    # Loops in two colours by verdict; the join link from s0's last keyframe to s1's first.
+    assert [(layer.kind, len(layer.segments)) for layer in layers if layer.kind.startswith("loop")] == [
+        ("loop_wrong", 1), ("loop_correct", 1)]
+    assert layers_of(layers, "loop_correct")[0].colour != layers_of(layers, "loop_wrong")[0].colour
+    link, = layers_of(layers, "join_link")
+    np.testing.assert_allclose(link.segments[0], [slam[0].segments[0][-1], slam[1].segments[0][0]], atol=1e-12)
+
+
+def test_a_long_thin_map_gets_a_stretched_second_view(tmp_path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    thin = [ev.Layer("slam", "SLAM s0", [np.array([[0.03 * i, 0.1 * (i % 2)] for i in range(101)])], "tab:blue",
+                     "-", 1.0, 3)]
+    square = [ev.Layer("slam", "SLAM s0", [np.array([[0, 0], [3, 0], [3, 2.5], [0, 2.5]])], "tab:blue", "-", 1.0, 3)]
+    assert ev.is_thin(thin) and not ev.is_thin(square)  # 3 m x 0.1 m against 3 m x 2.5 m
+    assert ev.render(plt, thin, "thin", str(tmp_path / "thin.png")) == 2
+    assert ev.render(plt, square, "square", str(tmp_path / "square.png")) == 1
+    assert is_png(tmp_path / "thin.png") and is_png(tmp_path / "square.png")
+
+
+def test_html_report_is_one_self_contained_file_with_tables_figures_and_configuration(tmp_path):
+    import base64
+    import re
+    evaluation, run, _ = figure_inputs(tmp_path)
+    with open(os.path.join(tmp_path / "run", "config.yaml"), "w") as f:
+        f.write("backend:\n  join_min_loops: 7  # <marker>\n")
+    base = ["--run", tmp_path / "run", "--session", tmp_path / "s0", "--session", tmp_path / "s1", "--world-gt",
+            tmp_path / "world_gt.csv", "--loop-true-dist", "0.3"]
+    assert run_main(base + ["--report", tmp_path / "r"]) == 0
+    assert not os.path.exists(tmp_path / "r" / "report.html")  # only with --html
+    assert run_main(base + ["--report", tmp_path / "r", "--html"]) == 0
+    page = (tmp_path / "r" / "report.html").read_text()
+    # Nothing outside the file: every src/href is a data: URI.
+    assert re.findall(r'(?:src|href)="(?!data:)', page) == []
+    # Each figure embedded, byte for byte.
+    images = re.findall(r'src="data:image/png;base64,([^"]+)"', page)
+    pngs = sorted(n for n in os.listdir(tmp_path / "r") if n.endswith(".png"))
+    assert sorted(base64.b64decode(i) for i in images) == sorted((tmp_path / "r" / n).read_bytes() for n in pngs)
+    assert len(images) == 3
+    # The tables of metrics.md, with their values: the map's ATE as the markdown prints it.
+    md = (tmp_path / "r" / "metrics.md").read_text()
+    assert page.count("<table>") == sum(line.startswith("|---") for line in md.splitlines())
+    assert "<h2>Inputs</h2>" not in page  # this run has no inputs.csv
+    map_ate = ev.md_value(json.loads((tmp_path / "r" / "metrics.json").read_text())["map"]["0"]["slam"]["ate_rmse_m"])
+    assert "<td>%s</td>" % map_ate in page
+    # The configuration, escaped.
+    assert "join_min_loops: 7  # &lt;marker&gt;" in page
 
 
 def test_mission_folder_finds_sessions_and_truth_files(tmp_path):

@@ -125,6 +125,11 @@ def test_no_join_when_the_configuration_forbids_it(survey, tmp_path):
     r = run("offline_slam", "--session", str(survey / "a"), "--session", str(survey / "b"), "--out", str(out),
             "--config", str(cfg))
     assert r.returncode == 0, r.stderr
+    # The run records the configuration it ran with: the changed value, and it reads back the same.
+    recorded = (out / "config.yaml").read_text()
+    assert yaml.safe_load(recorded)["backend"]["join_min_loops"] == 0
+    dumped = run("offline_slam", "--config", str(cfg), "--dump-config").stdout
+    assert run("offline_slam", "--config", str(out / "config.yaml"), "--dump-config").stdout == dumped
     traj = rows(out / "trajectory.csv")
     for t in traj:
         assert t["map"] == t["session"]  # each session its own map, in its own frame

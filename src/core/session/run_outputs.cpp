@@ -74,7 +74,8 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
     throw DatasetError(out_dir + ": cannot write the output files");
 }
 
-void writeRunInputs(const std::string& out_dir, const std::vector<Dataset>& datasets, int first_number) {
+void writeRunInputs(const std::string& out_dir, const std::vector<Dataset>& datasets, int first_number,
+                    const std::string& config_yaml) {
   namespace fs = std::filesystem;
   std::error_code ec;
   fs::create_directories(out_dir, ec);
@@ -96,6 +97,10 @@ void writeRunInputs(const std::string& out_dir, const std::vector<Dataset>& data
       << "," << (finite ? sum / finite : std::nan("")) << "\n";
   }
   if (!f) throw DatasetError(out_dir + ": cannot write inputs.csv");
+  if (config_yaml.empty()) return;
+  std::ofstream c(fs::path(out_dir) / "config.yaml");
+  c << "# The effective configuration of this run (offline_slam --config reads it back).\n" << config_yaml;
+  if (!c) throw DatasetError(out_dir + ": cannot write config.yaml");
 }
 
 }  // namespace core

@@ -27,7 +27,9 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
 /// Creates `out_dir` and writes inputs.csv (session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m):
 /// one row per dataset folder, numbered from `first_number`, so that evaluate.py can refuse to score
 /// the run against other folders. The altitude mean is over the finite altitudes (nan when none).
-void writeRunInputs(const std::string& out_dir, const std::vector<Dataset>& datasets, int first_number);
+/// With `config_yaml` (slamConfigToYaml of the run's configuration) also config.yaml.
+void writeRunInputs(const std::string& out_dir, const std::vector<Dataset>& datasets, int first_number,
+                    const std::string& config_yaml = "");
 
 }  // namespace core
 }  // namespace uw_multislam
