@@ -1,5 +1,6 @@
 // make_survey: renders bottom-looking camera missions over a seabed world with exact ground
 // truth. See --help, and README.md "Survey generator".
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -10,6 +11,8 @@
 #include <sstream>
 #include <string>
 #include <vector>
+
+#include <unistd.h>  // isatty
 
 #include "uw_multislam/sim/survey_config.h"
 #include "uw_multislam/ros/dataset_bag.h"
@@ -156,16 +159,27 @@ int main(int argc, char** argv) {
 
     const auto t0 = std::chrono::steady_clock::now();
     int last_session = -1;
+    // On a terminal one line per session, rewritten in place; in a log (not a terminal) a line at
+    // every 10 % and at the end of each session, so that logs stay readable.
+    const bool terminal = isatty(fileno(stderr)) != 0;
     const auto progress = [&](int session, int frame, int total) {
       if (a.quiet) return;
-      if (session != last_session) {
-        last_session = session;
-        std::fprintf(stderr, "\n");
+      const char* name = spec.sessions[session].name.c_str();
+      if (!terminal) {
+        const int step = std::max(1, (total + 9) / 10);  // at most 10 lines and the last
+        if ((frame + 1) % step == 0 || frame + 1 == total) {
+          std::fprintf(stderr, "rendering %s: %d/%d\n", name, frame + 1, total);
+        }
+        return;
       }
-      std::fprintf(stderr, "\rrendering %s: %d/%d", spec.sessions[session].name.c_str(), frame + 1, total);
+      if (session != last_session) {
+        if (last_session >= 0) std::fprintf(stderr, "\n");
+        last_session = session;
+      }
+      std::fprintf(stderr, "\rrendering %s: %d/%d", name, frame + 1, total);
     };
     const core::SurveyResult r = core::generateSurvey(spec, a.out, progress);
-    if (!a.quiet) std::fprintf(stderr, "\n");
+    if (!a.quiet && terminal && last_session >= 0) std::fprintf(stderr, "\n");
     {
       std::ofstream yaml(fs::path(a.out) / "survey.yaml");
       yaml << "# Effective survey spec written by make_survey; rerun with --config this file.\n"

@@ -118,3 +118,20 @@ def test_effective_spec_reproduces_the_survey(survey, tmp_path):
         for f in ["frames.csv", "gt.csv", "0003.png" if name == "first" else "0003.jpg"]:
             assert (again / name / f).read_bytes() == (out / name / f).read_bytes(), f
     assert not (again / "first.bag").exists()
+
+
+def test_progress_in_a_log_is_a_few_whole_lines(survey, tmp_path):
+    """stderr is a pipe here, as in a log: no carriage returns, a line per 10 % of each session,
+    ending at its last frame (issue 22, 7: progress was one huge line)."""
+    out, _ = survey
+    config = tmp_path / "tiny.yaml"
+    config.write_text(TINY)
+    result = run("--config", str(config), "--out", str(tmp_path / "again"), "--no-bag")
+    assert result.returncode == 0, result.stderr
+    assert "\r" not in result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.startswith("rendering ")]
+    for name in ("first", "second"):
+        frames = len(read_csv(out / name / "frames.csv"))
+        mine = [line for line in lines if line.startswith("rendering %s: " % name)]
+        assert mine[-1] == "rendering %s: %d/%d" % (name, frames, frames)
+        assert len(mine) == len(set(mine)) and len(mine) <= 11, mine
