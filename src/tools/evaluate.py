@@ -19,6 +19,10 @@ Estimates and frames
   from world_gt.csv.
 
 Metrics (per session, for both estimates; keyframes in index order)
+  A folder that a tracking loss split into pieces (the run's pieces.csv: session,piece,
+  store_session,first_index,last_index,keyframes,map) is scored per piece, in rows "S.P" (piece P
+  of session S), each piece's odometry in its own frame (it restarts at the origin) and a note
+  says so; without pieces.csv or a split, one row per session as below.
   n_keyframes          keyframes of the session in the estimate.
   path_length_m        sum of distances between consecutive gt keyframe positions.
   ate_rmse_m           RMSE of estimated minus gt keyframe positions, no alignment.
@@ -37,7 +41,8 @@ Metrics (per session, for both estimates; keyframes in index order)
   Consecutive pairs and e_k pairs are used only when both keyframes lie in the same map.
 
 Metrics (per map, slam)
-  n_sessions, n_keyframes, ate_rmse_m, ate_aligned_rmse_m over all keyframes of the map,
+  n_sessions (the pieces of a split folder counted apart), n_keyframes, ate_rmse_m,
+  ate_aligned_rmse_m over all keyframes of the map,
   ek_intra_m / ek_inter_m (+ _pairs) over the loops_gt.csv pairs inside the map.
 
 Metrics (loops, rows intra / inter / all)
@@ -107,6 +112,8 @@ LOOP_POSE_TOL_YAW = math.radians(5.0)
 TIMING_COLUMNS = (("stage", str), ("calls", int), ("total_ms", float), ("mean_ms", float), ("max_ms", float))
 LINKS_COLUMNS = (("map", int), ("previous_session", int), ("current_session", int), ("loops", int), ("x_m", float),
                  ("y_m", float), ("yaw_rad", float))
+PIECES_COLUMNS = (("session", int), ("piece", int), ("store_session", int), ("first_index", int),
+                  ("last_index", int), ("keyframes", int), ("map", int))
 INPUTS_COLUMNS = (("session", int), ("folder", str), ("frames", int), ("first_stamp_s", float),
                   ("last_stamp_s", float), ("altitude_mean_m", float))
 GT_COLUMNS = (("index", int), ("image", str), ("x_m", float), ("y_m", float), ("yaw_rad", float))
@@ -157,8 +164,9 @@ def relative(a, b):
 # ---------------------------------------------------------------------------------------------
 # Input.
 
-def read_table(path, columns, required=True):
-    """Reads a CSV file with the given (name, type) columns into a list of dicts.
+def read_table(path, columns, required=True, optional=()):
+    """Reads a CSV file with the given (name, type) columns into a list of dicts; the `optional`
+    (name, type) columns too when the header has them (else their value is None).
 
     A missing optional file gives None; a zero-byte file gives no rows. Raises EvalError for a
     missing required file, a header lacking a column, or a value that does not parse."""
@@ -176,12 +184,13 @@ def read_table(path, columns, required=True):
     if missing:
         raise EvalError("%s: header '%s' lacks column(s) %s (expected %s)" % (
             path, ",".join(header), ",".join(missing), ",".join(name for name, _ in columns)))
+    columns = tuple(columns) + tuple(c for c in optional if c[0] in header)
     where = {name: header.index(name) for name, _ in columns}
     rows = []
     for n, line in enumerate(lines[1:], start=2):
         if len(line) != len(header):
             raise EvalError("%s:%d: %d fields, the header has %d" % (path, n, len(line), len(header)))
-        row = {}
+        row = dict.fromkeys((name for name, _ in optional), None)
         for name, kind in columns:
             text = line[where[name]].strip()
             try:
@@ -340,6 +349,15 @@ class Run:
     loop_poses: dict = None  # (key_a, key_b) -> measured pose of b in a, from loop_poses.csv
     inputs: list = None  # inputs.csv rows: the folders the run was made from (None: not written)
     links: list = None   # links.csv rows: the join links (None: not written)
+    pieces: dict = None  # key -> "S.P" for the keyframes of folders split by tracking loss (pieces.csv)
+
+    def units(self, session):
+        """The scored units of a session: [(id, keys)], one per piece when tracking loss split it."""
+        keys = sorted(k for k in self.keyframes() if k[0] == session)
+        labels = sorted({self.pieces[k] for k in keys if k in (self.pieces or {})}, key=lambda p: int(p.split(".")[1]))
+        if not labels:
+            return [(session, keys)]
+        return [(label, [k for k in keys if self.pieces.get(k) == label]) for label in labels]
 
     def estimates(self):
         return [e for e in (self.odometry, self.slam) if e is not None]
@@ -368,8 +386,30 @@ def load_run(directory):
     if measured is not None:
         loop_poses = {((r["session_a"], r["index_a"]), (r["session_b"], r["index_b"])): pose_of(r) for r in measured}
     inputs = read_table(os.path.join(directory, "inputs.csv"), INPUTS_COLUMNS, required=False)
-    links = read_table(os.path.join(directory, "links.csv"), LINKS_COLUMNS, required=False)
-    return Run(odometry, slam, None if loops is None else loop_pairs(loops), timing, loop_poses, inputs, links)
+    links = read_table(os.path.join(directory, "links.csv"), LINKS_COLUMNS, required=False,
+                       optional=(("previous_piece", int), ("current_piece", int)))
+    pieces = split_pieces(read_table(os.path.join(directory, "pieces.csv"), PIECES_COLUMNS, required=False), odometry)
+    if pieces:  # each piece of a split folder is its own odometry frame (it starts at the origin)
+        odometry = Estimate("odometry", odometry.poses, {k: pieces.get(k, str(k[0])) for k in odometry.poses})
+    return Run(odometry, slam, None if loops is None else loop_pairs(loops), timing, loop_poses, inputs, links,
+               pieces)
+
+
+def split_pieces(rows, odometry):
+    """key -> "S.P" for the keyframes of the folders pieces.csv splits into several pieces (a
+    tracking loss); empty without pieces.csv or when no folder was split."""
+    by_session = {}
+    for row in rows or []:
+        by_session.setdefault(row["session"], []).append(row)
+    out = {}
+    for session, pieces in by_session.items():
+        if len(pieces) < 2:
+            continue
+        for key in odometry.keys(lambda k: k[0] == session):
+            for row in pieces:
+                if row["first_index"] <= key[1] <= row["last_index"]:
+                    out[key] = "%d.%d" % (session, row["piece"])
+    return out
 
 
 def folder_summary(truth):
@@ -543,22 +583,26 @@ def ek_metrics(estimate, gt, pairs, kind):
     return {"ek_%s_m" % kind: value, "ek_%s_pairs" % kind: used}
 
 
-def session_metrics(estimate, gt, gt_poses, session):
-    keys = estimate.keys(lambda k: k[0] == session)
+def session_metrics(estimate, gt, gt_poses, session, unit_keys=None):
+    """Metrics of a session, or of the keys `unit_keys` of one of its pieces."""
+    keys = estimate.keys(lambda k: k[0] == session and (unit_keys is None or k in unit_keys))
     out = {"n_keyframes": len(keys)}
     out.update(absolute_metrics(estimate, gt_poses, keys))
     out.update(rpe(estimate, gt, keys))
     gt_pairs = gt.loops or []
-    out.update(ek_metrics(estimate, gt, [p for p in gt_pairs if p[0][0] == p[1][0] == session], "intra"))
+    inside = set(keys)
+    out.update(ek_metrics(estimate, gt, [p for p in gt_pairs if p[0][0] == p[1][0] == session and (
+        unit_keys is None or (p[0] in inside and p[1] in inside))], "intra"))
     if estimate.name == "slam":
         inter = [p for p in gt_pairs if p[0][0] != p[1][0] and session in (p[0][0], p[1][0])]
         out.update(ek_metrics(estimate, gt, inter, "inter"))
     return out
 
 
-def map_metrics(estimate, gt, gt_poses, map_id):
+def map_metrics(estimate, gt, gt_poses, map_id, pieces=None):
+    """Metrics of a map; n_sessions counts the pieces of split folders (`pieces`: key -> "S.P") apart."""
     keys = estimate.keys(lambda k: estimate.frame[k] == map_id)
-    out = {"n_sessions": len({k[0] for k in keys}), "n_keyframes": len(keys)}
+    out = {"n_sessions": len({(pieces or {}).get(k, k[0]) for k in keys}), "n_keyframes": len(keys)}
     out.update(absolute_metrics(estimate, gt_poses, keys, with_drift=False))
     inside = [p for p in (gt.loops or []) if estimate.frame.get(p[0]) == map_id]
     out.update(ek_metrics(estimate, gt, [p for p in inside if p[0][0] == p[1][0]], "intra"))
@@ -686,13 +730,18 @@ def evaluate(run, gt, loop_true_dist=None):
         ev.notes.append("no loops.csv: loop precision and recall are n/a")
     sessions = sorted(set().union(*(e.sessions() for e in run.estimates())))
     for session in sessions:
-        for estimate in run.estimates():
-            if session in estimate.sessions():
-                ev.add("session", session, estimate.name,
-                       session_metrics(estimate, gt, ev.gt_poses[estimate.name], session))
+        units = run.units(session)
+        if len(units) > 1:
+            ev.notes.append("session %d was split by tracking loss into %d pieces (pieces.csv): scored per piece, "
+                            "%s" % (session, len(units), ", ".join(str(u) for u, _ in units)))
+        for unit, keys in units:
+            for estimate in run.estimates():
+                if session in estimate.sessions():
+                    ev.add("session", unit, estimate.name, session_metrics(
+                        estimate, gt, ev.gt_poses[estimate.name], session, None if len(units) == 1 else set(keys)))
     if run.slam is not None:
         for map_id in sorted(set(run.slam.frame.values())):
-            ev.add("map", map_id, "slam", map_metrics(run.slam, gt, ev.gt_poses["slam"], map_id))
+            ev.add("map", map_id, "slam", map_metrics(run.slam, gt, ev.gt_poses["slam"], map_id, run.pieces))
     ev.verdict = judge_loops(gt, run.loops or [], loop_true_dist, run.loop_poses)
     for kind, metrics in loop_metrics(run, gt, ev.verdict).items():
         ev.add("loops", kind, "loops", metrics)
@@ -839,16 +888,21 @@ def polyline(poses, keys):
     return [np.array(xy)] if xy else []
 
 
-def trajectory_layers(session, keys, gt, odometry, slam, with_label):
-    """Ground truth (black, dotted), odometry (dashed, under) and SLAM (solid, over) of one session."""
+def trajectory_layers(session, keys, gt, odometry, slam, with_label, pieces=None):
+    """Ground truth (black, dotted), odometry (dashed, under) and SLAM (solid, over) of one session.
+    The odometry of each piece (`pieces`: key lists; a tracking loss restarts the odometry at the
+    origin) starts where the SLAM, or without it the ground truth, puts the piece's first keyframe."""
     colour = session_colour(session)
     layers = [Layer("ground_truth", "ground truth" if with_label else "", polyline(gt, keys), "black", ":", 1.0, 2)]
+    segments = []
+    for piece in pieces or [keys]:
+        first = next((k for k in piece if k in odometry), None)
+        anchor = (slam or gt).get(first) if first is not None else None
+        segments += polyline(anchored(odometry, piece, first, anchor) if anchor is not None else odometry, piece)
+    layers.append(Layer("odometry", "odometry s%d" % session, segments, colour, "--", 1.0, 1))
     if slam:
-        first = next((k for k in keys if k in slam), None)
-        odometry = anchored(odometry, keys, first, slam[first]) if first is not None else {}
-    layers.append(Layer("odometry", "odometry s%d" % session, polyline(odometry, keys), colour, "--", 1.0, 1))
-    if slam:
-        layers.append(Layer("slam", "SLAM s%d" % session, polyline(slam, keys), colour, "-", 1.6, 3, True))
+        segments = [seg for piece in pieces or [keys] for seg in polyline(slam, piece)]  # broken between pieces
+        layers.append(Layer("slam", "SLAM s%d" % session, segments, colour, "-", 1.6, 3, True))
     return [layer for layer in layers if layer.segments]
 
 
@@ -862,16 +916,21 @@ def loop_layers(verdict, positions, inside):
             for ok, segs in sorted(by_verdict.items(), key=lambda item: str(item[0]))]
 
 
-def join_link_layers(links, slam, map_id):
+def join_link_layers(links, slam, map_id, pieces=None):
     """The join links of a map (links.csv): from the last keyframe of the earlier session to the
     first of the later one, as the SLAM places them."""
     segs = []
     for link in links or []:
         a, b = link["previous_session"], link["current_session"]
-        if link["map"] != map_id or a == b:  # a == b: pieces of one folder (tracking loss), not locatable
+        if link["map"] != map_id:
             continue
         ka = [k for k in slam.keys(lambda k: k[0] == a) if slam.frame[k] == map_id]
         kb = [k for k in slam.keys(lambda k: k[0] == b) if slam.frame[k] == map_id]
+        if a == b:  # pieces of one folder (a tracking loss): located by pieces.csv
+            if pieces is None or link.get("previous_piece") is None:
+                continue
+            ka = [k for k in ka if pieces.get(k) == "%d.%d" % (a, link["previous_piece"])]
+            kb = [k for k in kb if pieces.get(k) == "%d.%d" % (b, link["current_piece"])]
         if ka and kb:
             segs.append(np.array([slam.poses[ka[-1]][:2], slam.poses[kb[0]][:2]]))
     return [Layer("join_link", "join link", segs, "black", "-", 2.4, 4)] if segs else []
@@ -883,9 +942,11 @@ def map_layers(ev, run, map_id):
     layers = []
     for n, session in enumerate(sorted({k[0] for k in keys})):
         skeys = [k for k in keys if k[0] == session]
-        layers += trajectory_layers(session, skeys, ev.gt_poses["slam"], run.odometry.poses, slam.poses, n == 0)
+        pieces = [[k for k in unit if k in skeys] for _, unit in run.units(session)]
+        layers += trajectory_layers(session, skeys, ev.gt_poses["slam"], run.odometry.poses, slam.poses, n == 0,
+                                    [p for p in pieces if p])
     layers += loop_layers(ev.verdict, slam.poses, lambda k: slam.frame.get(k) == map_id)
-    layers += join_link_layers(run.links, slam, map_id)
+    layers += join_link_layers(run.links, slam, map_id, run.pieces)
     return layers
 
 
@@ -895,7 +956,8 @@ def session_layers(ev, run, gt, session):
     slam = {}
     if run.slam is not None:
         slam = slam_in_session_frame(ev, run.slam, truth, run.slam.keys(lambda k: k[0] == session))
-    layers = trajectory_layers(session, keys, truth, run.odometry.poses, slam, True)
+    layers = trajectory_layers(session, keys, truth, run.odometry.poses, slam, True,
+                               [unit for _, unit in run.units(session)])
     # Loops inside the session, between the SLAM positions (the odometry's without SLAM).
     positions = slam or anchored(run.odometry.poses, keys, keys[0], truth[keys[0]])
     return layers + loop_layers(ev.verdict, positions, lambda k: k[0] == session)

@@ -24,9 +24,9 @@ const char* kUsage = R"(usage: offline_slam --session DIR [--session DIR ...] --
 
 Runs uw_multislam over dataset folders (frames.csv, camera.yaml, images; see
 doc/dataset_format.md), in the order given, as consecutive missions. Writes into OUT (columns in
-doc/run_outputs.md): odometry.csv (odometry keyframe poses, each session in its own frame),
-trajectory.csv (final keyframe poses in the frame of their map), loops.csv, loop_poses.csv (each
-loop's measured pose and covariance), links.csv (the links joining sessions), timing.csv, inputs.csv.
+doc/run_outputs.md): odometry.csv (odometry keyframe poses, each session in its own frame), trajectory.csv
+(final keyframe poses in the frame of their map), loops.csv, loop_poses.csv (measured pose and covariance),
+links.csv (joins), pieces.csv (the pieces tracking loss splits a folder into), timing.csv, inputs.csv, config.yaml.
 `session` is the folder's position on the command line, `index` the frame's index in frames.csv.
 Sessions are joined into maps once backend.join_min_loops global loops link them (paper §9), and
 each map is optimised (backend.optimizer); `map` is the map's first session, whose frame it is.

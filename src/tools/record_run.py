@@ -17,6 +17,9 @@ with --until-idle SEC once nothing has arrived for SEC seconds after the first k
                                                             offline_slam (camera_pose())
   loops.csv       session_a,index_a,session_b,index_b,kind,inliers    every Loop message
   loop_poses.csv  session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad the loops' measured X_b^a
+  pieces.csv      session,piece,store_session,first_index,last_index,keyframes,map  one row per ROS
+                  session: its folder, its piece in the folder (a tracking loss splits a folder), its
+                  id, the folder indexes it spans and its map (evaluate.py scores pieces apart)
   inputs.csv      session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m  with --session-dir:
                                                             the folders, for evaluate.py's check
 
@@ -266,11 +269,12 @@ class Recorder:
             for (session, keyframe), kf in sorted(self.keyframes.items()):
                 if kf["key"] is not None and session not in first_key:
                     first_key[session] = kf["key"][0]
+            piece, label = pieces_and_map_labels(first_key)
             with open(os.path.join(out, "trajectory.csv"), "w") as f:
                 f.write("session,index,map,x_m,y_m,yaw_rad\n")
                 for session, path in sorted(self.paths.items()):
                     ros_map = self.maps.get(session, session)
-                    map_id = first_key.get(ros_map, ros_map)
+                    map_id = label.get(ros_map, ros_map)
                     for k, p in enumerate(path.poses):
                         key = self.key_of(session, k, p.header.stamp)
                         if key is None:
@@ -294,6 +298,13 @@ class Recorder:
                     f.write("%d,%d,%d,%d,%s,%d\n" % (a + b + (kind, loop.inliers)))
                     g.write("%d,%d,%d,%d,%.6f,%.6f,%.7f\n" % (a + b + (loop.pose.x, loop.pose.y, loop.pose.theta)))
                     counts["loops"] += 1
+            with open(os.path.join(out, "pieces.csv"), "w") as f:
+                f.write("session,piece,store_session,first_index,last_index,keyframes,map\n")
+                for session in sorted(piece):
+                    indexes = [kf["key"][1] for (s, _), kf in self.keyframes.items() if s == session and kf["key"]]
+                    ros_map = self.maps.get(session, session)
+                    f.write("%d,%d,%d,%d,%d,%d,%d\n" % (first_key[session], piece[session], session, min(indexes),
+                                                        max(indexes), len(indexes), label.get(ros_map, ros_map)))
             if self.inputs is not None:
                 with open(os.path.join(out, "inputs.csv"), "w", newline="") as f:
                     rows = csv.writer(f, lineterminator="\n")
@@ -306,6 +317,23 @@ class Recorder:
                       len(sessions), sessions, len(self.keyframes), counts["odometry"], counts["trajectory"],
                       len(self.paths), counts["loops"], self.unplaced, counts["missing"], out), flush=True)
             return counts
+
+
+def pieces_and_map_labels(folder_of):
+    """For ROS sessions (id -> folder number of their first keyframe): each one's piece number in
+    its folder (0, 1, ... in id order: a tracking loss split the folder) and the label of the map
+    it names, as offline_slam labels them (core::writeRunOutputs): a first piece's map takes the
+    folder's number, a later piece's the next number no folder uses."""
+    piece, label = {}, {}
+    next_label = max(folder_of.values(), default=-1) + 1
+    for session in sorted(folder_of):
+        earlier = [s for s in piece if folder_of[s] == folder_of[session]]
+        piece[session] = len(earlier)
+        if earlier:
+            label[session], next_label = next_label, next_label + 1
+        else:
+            label[session] = folder_of[session]
+    return piece, label
 
 
 def main():

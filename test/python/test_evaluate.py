@@ -514,6 +514,46 @@ def test_html_report_is_one_self_contained_file_with_tables_figures_and_configur
     assert "join_min_loops: 7  # &lt;marker&gt;" in page
 
 
+def test_a_folder_split_by_tracking_loss_is_scored_and_drawn_per_piece(tmp_path):
+    """pieces.csv (offline_slam): folder 0 in two pieces, frames 0-5 and 8-11, each piece's odometry
+    exact in its own frame (restarting at the origin), the SLAM exact in one map joined by a link."""
+    poses = lawnmower(12)
+    s0 = write_session(tmp_path / "s0", poses)
+    first, second = list(range(6)), list(range(8, 12))
+    odometry = {0: [(i, p) for i, p in zip(first, in_frame(poses[0], [poses[i] for i in first]))] +
+                [(i, p) for i, p in zip(second, in_frame(poses[8], [poses[i] for i in second]))]}
+    trajectory = {0: [(i, 0, in_frame(poses[0], [poses[i]])[0]) for i in first + second]}
+    run = write_run(tmp_path / "run", odometry, trajectory)
+    base = ["--run", run, "--session", s0]
+    # Without pieces.csv: one row, the second piece scored in the first piece's frame (metres off).
+    assert run_main(base + ["--report", tmp_path / "whole", "--no-plots"]) == 0
+    whole = json.loads((tmp_path / "whole" / "metrics.json").read_text())["session"]
+    assert sorted(whole) == ["0"] and whole["0"]["odometry"]["ate_rmse_m"] > 0.3
+    write_csv(os.path.join(run, "pieces.csv"), "session,piece,store_session,first_index,last_index,keyframes,map",
+              [(0, 0, 0, 0, 5, 6, 0), (0, 1, 1, 8, 11, 4, 0)])
+    write_csv(os.path.join(run, "links.csv"),
+              "map,previous_session,current_session,loops,x_m,y_m,yaw_rad,previous_piece,current_piece",
+              [(0, 0, 0, 3, 0.0, 0.0, 0.0, 0, 1)])
+    assert run_main(base + ["--report", tmp_path / "pieces", "--no-plots"]) == 0
+    scored = json.loads((tmp_path / "pieces" / "metrics.json").read_text())
+    assert sorted(scored["session"]) == ["0.0", "0.1"]
+    for name, n in (("0.0", 6), ("0.1", 4)):
+        odo = scored["session"][name]["odometry"]
+        assert odo["n_keyframes"] == n and odo["ate_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+    assert scored["map"]["0"]["slam"]["n_sessions"] == 2  # two pieces
+    assert "split by tracking loss into 2 pieces" in (tmp_path / "pieces" / "metrics.md").read_text()
+    # Drawn per piece: the odometry and SLAM lines broken between the pieces, each piece's odometry
+    # on its SLAM, and the join link from piece 0's last keyframe to piece 1's first.
+    loaded = ev.load_run(run)
+    evaluation = ev.evaluate(loaded, ev.load_ground_truth([s0]))
+    layers = ev.map_layers(evaluation, loaded, 0)
+    (odo,), (slam,), (link,) = (layers_of(layers, kind) for kind in ("odometry", "slam", "join_link"))
+    assert [len(seg) for seg in odo.segments] == [len(seg) for seg in slam.segments] == [6, 4]
+    for o, s in zip(odo.segments, slam.segments):
+        np.testing.assert_allclose(o, s, atol=1e-9)
+    np.testing.assert_allclose(link.segments[0], [slam.segments[0][-1], slam.segments[1][0]], atol=1e-12)
+
+
 def test_mission_folder_finds_sessions_and_truth_files(tmp_path):
     local0, local1, world0, world1 = two_session_world()
     mission = tmp_path / "mission"

@@ -370,6 +370,25 @@ def test_tracking_loss_starts_a_session_that_global_loops_join_back(tmp_path):
     assert {t["map"] for t in traj} == {"0"}      # joined again
     links = rows(out / "links.csv")
     assert len(links) == 1 and links[0]["previous_session"] == "0" and links[0]["current_session"] == "0"
+    assert (links[0]["previous_piece"], links[0]["current_piece"]) == ("0", "1")  # issue 22, 6
+    # pieces.csv: the folder's two pieces, their own store sessions, split around the blank frames.
+    pieces = rows(out / "pieces.csv")
+    assert [(p["session"], p["piece"]) for p in pieces] == [("0", "0"), ("0", "1")]
+    assert pieces[0]["store_session"] != pieces[1]["store_session"]
+    assert int(pieces[0]["last_index"]) < 10 and int(pieces[1]["first_index"]) >= 17
+    assert sum(int(p["keyframes"]) for p in pieces) == len(traj) == len(rows(out / "odometry.csv"))
+    assert {p["map"] for p in pieces} == {"0"}
+    # evaluate.py scores each piece in its own row ("0.0", "0.1"), its odometry in its own frame.
+    report = tmp_path / "report"
+    r = subprocess.run(["/usr/bin/python3", os.path.join(HERE, "..", "..", "src", "tools", "evaluate.py"), "--run",
+                        str(out), "--session", str(tmp_path / "m" / "a"), "--report", str(report), "--no-plots"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    scored = yaml.safe_load((report / "metrics.json").read_text())["session"]
+    assert sorted(scored) == ["0.0", "0.1"]
+    for name, piece in zip(("0.0", "0.1"), pieces):
+        assert scored[name]["odometry"]["n_keyframes"] == int(piece["keyframes"])
+        assert scored[name]["odometry"]["ate_rmse_m"] < 0.05, (name, scored[name]["odometry"])
     indexes = [int(t["index"]) for t in traj]
     assert len(indexes) == len(set(indexes))  # unique within the folder
     assert not any(10 <= i < 17 for i in indexes)  # no keyframe in the blank stretch

@@ -162,3 +162,13 @@ def test_until_idle_counts_from_the_last_message_once_a_keyframe_came(tmp_path):
     assert recorder.idle_for() == 0.0  # a latched path before the bag plays does not start the count
     recorder.keyframes[(0, 0)] = {}
     assert 99.0 < recorder.idle_for() < 110.0
+
+
+def test_pieces_of_a_split_folder_and_their_map_labels_follow_offline_slam():
+    """ROS sessions 3, 4 (folder 0, split by a tracking loss), 5 (folder 1), 7 (folder 0 again):
+    pieces 0, 1, 0, 2; the first piece of a folder names its map by the folder, later pieces by
+    the next numbers no folder uses (2, 3), as core::writeRunOutputs labels them."""
+    piece, label = rr.pieces_and_map_labels({3: 0, 4: 0, 5: 1, 7: 0})
+    assert piece == {3: 0, 4: 1, 5: 0, 7: 2}
+    assert label == {3: 0, 4: 2, 5: 1, 7: 3}
+    assert rr.pieces_and_map_labels({}) == ({}, {})

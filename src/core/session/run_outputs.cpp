@@ -29,14 +29,26 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
   refused << "session_a,index_a,session_b,index_b,kind,inliers\n";
   loop_poses << "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw\n"
              << std::fixed << std::setprecision(6);
-  links << "map,previous_session,current_session,loops,x_m,y_m,yaw_rad\n" << std::fixed << std::setprecision(6);
+  links << "map,previous_session,current_session,loops,x_m,y_m,yaw_rad,previous_piece,current_piece\n" << std::fixed
+        << std::setprecision(6);
   // Map labels: a session that shares its CSV number with the session before it (a later piece
-  // of one folder) labels its map with the next free number.
-  std::map<int, int> label;
+  // of one folder, after a tracking loss) labels its map with the next free number. Pieces are
+  // numbered from 0 within their folder, in session order.
+  std::map<int, int> label, piece;
   int previous = -1, next_label = first_free_label;
   for (int id : manager.sessionIds()) {
-    label[id] = previous >= 0 && csv(id) == csv(previous) ? next_label++ : csv(id);
+    const bool later_piece = previous >= 0 && csv(id) == csv(previous);
+    label[id] = later_piece ? next_label++ : csv(id);
+    piece[id] = later_piece ? piece[previous] + 1 : 0;
     previous = id;
+  }
+  // pieces.csv: which session of the engine (and of the store) each piece of a folder is.
+  std::ofstream pieces(fs::path(out_dir) / "pieces.csv");
+  pieces << "session,piece,store_session,first_index,last_index,keyframes,map\n";
+  for (int id : manager.sessionIds()) {
+    const std::vector<int>& frames = manager.frames(id);
+    pieces << csv(id) << "," << piece.at(id) << "," << id << "," << (frames.empty() ? -1 : frames.front()) << ","
+           << (frames.empty() ? -1 : frames.back()) << "," << frames.size() << "," << label.at(manager.mapOf(id)) << "\n";
   }
   for (int id : manager.sessionIds()) {
     const std::vector<Pose2>& o = manager.odometryPoses(id);
@@ -66,11 +78,12 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
   }
   for (const SessionLink& l : manager.links())
     links << label.at(l.map) << "," << csv(l.previous) << "," << csv(l.current) << "," << l.loops << ","
-          << l.estimate.x() << "," << l.estimate.y() << "," << l.estimate.yaw() << "\n";
+          << l.estimate.x() << "," << l.estimate.y() << "," << l.estimate.yaw() << "," << piece.at(l.previous) << ","
+          << piece.at(l.current) << "\n";
   timing << "stage,calls,total_ms,mean_ms,max_ms\n" << std::fixed << std::setprecision(3);
   for (const auto& s : times.stats())
     timing << s.stage << "," << s.calls << "," << s.total_ms << "," << s.meanMs() << "," << s.max_ms << "\n";
-  if (!odo || !traj || !loops || !loop_poses || !links || !timing)
+  if (!odo || !traj || !loops || !loop_poses || !links || !timing || !pieces)
     throw DatasetError(out_dir + ": cannot write the output files");
 }
 
