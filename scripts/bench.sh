@@ -12,8 +12,8 @@
 #     demo mission (bench_loops), our odometry against the naive OpenCV baseline on
 #     ../shared/data/acfr (scripts/bench_odometry.sh; skipped when the data is not there).
 # usage: scripts/bench.sh [--quick] [OUT_DIR]   (needs a build: scripts/build.sh)
-#   --quick: no 10k-keyframe optimisation, no 10k-keyframe store, no odometry baseline (about 3 min
-#   instead of about 8 on this 2-core machine). The raw outputs stay in OUT_DIR.
+#   --quick: no 10k-keyframe optimisation, no 10k-keyframe store, no odometry baseline (155 s on
+#   2026-11-23 on this 2-core machine; without it several minutes more). The raw outputs stay in OUT_DIR.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 quick=0

@@ -135,3 +135,14 @@ def test_progress_in_a_log_is_a_few_whole_lines(survey, tmp_path):
         mine = [line for line in lines if line.startswith("rendering %s: " % name)]
         assert mine[-1] == "rendering %s: %d/%d" % (name, frames, frames)
         assert len(mine) == len(set(mine)) and len(mine) <= 11, mine
+
+
+def test_the_readme_mosaic_mission_flies_inside_the_imaged_reef(tmp_path):
+    """README's mosaic example (issue 22, 5: the one it showed left the mosaic and was refused)."""
+    repo = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
+    data = os.path.join(repo, "..", "shared", "data", "acfr", "test4")
+    result = run("--config", os.path.join(repo, "config", "missions", "acfr_test4_mosaic.yaml"), "--mosaic",
+                 os.path.join(data, "mosaic.jpg"), os.path.join(data, "mosaic.txt"), "--out", str(tmp_path / "m"),
+                 "--no-bag", "--quiet")
+    assert result.returncode == 0, result.stderr
+    assert len(read_csv(tmp_path / "m" / "s0" / "frames.csv")) == 28
