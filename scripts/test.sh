@@ -54,7 +54,7 @@ if [ ! -s "$install_xml" ]; then
 XML
 fi
 echo "[test] install space done in $((SECONDS - install_started)) s"
-/usr/bin/python3 "$UWMS_REPO/scripts/test_summary.py" "$results"
+/usr/bin/python3 "$UWMS_REPO/scripts/test_summary.py" "$results" --expected "$UWMS_REPO/test/expected_results.txt"
 summary_status=$?
 if [ $run_status -ne 0 ] && [ $summary_status -eq 0 ]; then
   echo "[test] run_tests itself failed (status $run_status); see $log" >&2
