@@ -475,3 +475,40 @@ def test_inputs_csv_lets_evaluate_refuse_another_folder(result, survey, tmp_path
 def test_db_inputs_csv_numbers_the_folders_after_the_stored_sessions(stored_runs, survey):
     base, _, _ = stored_runs
     assert [(i["session"], i["folder"]) for i in rows(base / "r2" / "inputs.csv")] == [("1", str(survey / "b"))]
+
+
+def unrelated_folder(path):
+    """A dataset folder of ../shared/data/posidonia_queries: 75 real seagrass and rock frames from
+    another sea (480x270, not a sequence), with a plausible camera and altitude."""
+    source = os.path.join(HERE, "..", "..", "..", "shared", "data", "posidonia_queries")
+    names = sorted(n for n in os.listdir(source) if n.endswith(".jpg"))
+    os.makedirs(path)
+    for n in names:
+        shutil.copy(os.path.join(source, n), path / n)
+    (path / "frames.csv").write_text("index,image,stamp_s,altitude_m\n" + "".join(
+        "%d,%s,%.1f,2.0\n" % (i, n, 1000.0 + i) for i, n in enumerate(names)))
+    (path / "camera.yaml").write_text("image_width: 480\nimage_height: 270\nfx: 400\nfy: 400\ncx: 239.5\ncy: 134.5\n")
+    return path
+
+
+def test_an_unrelated_session_between_two_of_one_mission_gets_no_loop_and_no_join(survey, tmp_path):
+    """Issue 17: real frames of another sea between the two sessions of one mission: no loop
+    touches them and they join nothing, while the mission's two sessions still join."""
+    unrelated = unrelated_folder(tmp_path / "posidonia")
+    out = tmp_path / "o"
+    r = run("offline_slam", "--session", str(survey / "a"), "--session", str(unrelated), "--session", str(survey / "b"),
+            "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    # (Loops among the unrelated frames themselves may be right: some of them show the same marker.)
+    across = [loop for loop in rows(out / "loops.csv") if "1" in (loop["session_a"], loop["session_b"]) and
+              {loop["session_a"], loop["session_b"]} != {"1"}]
+    assert not across
+    traj = rows(out / "trajectory.csv")
+    maps_of = {}
+    for t in traj:
+        maps_of.setdefault(t["session"], set()).add(t["map"])
+    assert maps_of["0"] == maps_of["2"] and len(maps_of["0"]) == 1  # a and b joined again
+    for m in maps_of.get("1", set()):  # whatever of the unrelated frames became keyframes, alone
+        assert {t["session"] for t in traj if t["map"] == m} == {"1"}
+    assert not [link for link in rows(out / "links.csv") if "1" in (link["previous_session"], link["current_session"])
+                and {link["previous_session"], link["current_session"]} != {"1"}]
