@@ -60,7 +60,7 @@ pipeline_ms=$(total odometry_total hash hash_query local_candidates local_verify
 ratio=$(printf "%.2f" "$(echo "$pipeline_ms / $features_ms" | bc -l)")
 mem_per_kf=$(printf "%.0f" "$(echo "($rss2 - $rss1) / ($kf2 - $kf1)" | bc -l)")
 
-# --- loop search: hash store growth, HALOC against brute force -------------------------------------
+# --- loop search: hash store growth, the default hash and HALOC against brute force ----------------
 log "bench_loops"
 "$bin/bench_loops" --session "$out/demo/s0" --session "$out/demo/s1" --sizes 100,1000,10000 > "$out/bench_loops.md" 2>&1
 query_row() {  # query_row N -> "median ms|store MB"
@@ -114,7 +114,8 @@ cpu=$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)
 IFS='|' read -r q100 m100 <<< "$(query_row 100)"
 IFS='|' read -r q1k m1k <<< "$(query_row 1000)"
 IFS='|' read -r q10k m10k <<< "$(query_row 10000)"
-IFS='|' read -r h5a h5c h5r h5ms <<< "$(method_row 'HALOC k = 10')"
+IFS='|' read -r h5a h5c h5r h5ms <<< "$(method_row 'haloc (paper) k = 10')"
+IFS='|' read -r sda sdc sdr sdms <<< "$(method_row 'sorted_dct (default) k = 10')"
 IFS='|' read -r bfa bfc bfr bfms <<< "$(method_row 'brute force')"
 growth_opt="" growth_rss=""
 for n in "${sizes[@]}"; do
@@ -152,7 +153,7 @@ echo "| | hash store, MB | $m100 / $m1k / $m10k |"
 echo "| growth, $label keyframes (bench_backend --cost) | sparse optimisation of all loops (10 % of keyframes), ms | $growth_opt |"
 echo "| | sparse optimisation, peak RSS MB | $growth_rss |"
 echo "| IEKF vs sparse (1000 keyframes, 100 loops) | optimise all loops ms; one more loop ms; peak RSS MB | IEKF $io; $il; $ir — sparse $so; $sl; $sr |"
-echo "| the paper's HALOC hash (k = 10) vs brute force (bench_loops, demo s1 → s0) | accepted / correct / recall / ms per keyframe | HALOC $h5a / $h5c / $h5r / $h5ms — brute force $bfa / $bfc / $bfr / $bfms |"
+echo "| the default hash (sorted_dct, k = 10), the paper's HALOC (k = 10) and brute force (bench_loops, demo s1 → s0) | accepted / correct / recall / ms per keyframe | sorted_dct $sda / $sdc / $sdr / $sdms — HALOC $h5a / $h5c / $h5r / $h5ms — brute force $bfa / $bfc / $bfr / $bfms |"
 echo "| our odometry vs naive OpenCV baseline | end drift | $odo |"
 echo
 echo "Run time $(( $(date +%s) - start_s )) s; raw outputs in $out."

@@ -1,6 +1,7 @@
 // bench_loops: loop detection benchmark (paper 000 §7, (6)-(9)). Prints markdown tables:
 //   1. HashStore::query speed with 1k / 10k / 100k stored hashes and the store's memory;
-//   2. HALOC best-k candidates + RANSAC against brute-force RANSAC over every keyframe, per
+//   2. best-k hash candidates + RANSAC, for each hash mode (--hash-mode: the default sorted_dct,
+//      the paper's HALOC, or both), against brute-force RANSAC over every keyframe, per
 //      two-session mission: loops accepted, correct against ground truth, recall, time;
 //   3. negatives: unrelated images (Posidonia) queried against every mission keyframe.
 // A benchmark, not a test: it asserts nothing about the numbers. One core (cv::setNumThreads(1)).
@@ -48,8 +49,8 @@ in pairs, one pair per mission: A is the earlier session, B the later one whose 
 for loops in A. Ground truth (optional) is read from world_gt.csv and loops_gt.csv one level
 above the folders (make_survey and ../shared/data/flights write them). Prints markdown tables:
   1. HashStore::query time for each store size (best k = 10), bytes per stored hash;
-  2. per mission: HALOC (best k = 5, 10, 20 by hash, RANSAC-verified) against brute force
-     (RANSAC against every keyframe of A): loops accepted, correct, recall, time per keyframe;
+  2. per mission: each hash mode (best k = 5, 10, 20 by hash, RANSAC-verified) against brute
+     force (RANSAC against every keyframe of A): loops accepted, correct, recall, time per keyframe;
   3. with --posidonia: each image of DIR as a single-frame view (altitude 2 m, fx = fy = 400,
      principal point at the image centre) queried against every mission keyframe; a loop
      accepted there is a false loop.
@@ -60,6 +61,8 @@ options:
   --session DIR       a dataset folder (an even number of them: A B per mission)
   --posidonia DIR     a folder of unrelated images (jpg/png) for the negatives
   --sizes N,N,...     store sizes for the query timing (default 1000,10000,100000)
+  --hash-mode MODE    sorted_dct (the pipeline's default), haloc (the paper's) or both (default both:
+                      the first listed mode also hashes the timing section's frames)
   -h, --help          this text
 
 Exit status 0 on success, 2 on bad arguments, 1 with a one-line reason on bad input.)";
@@ -81,6 +84,7 @@ struct Args {
   std::vector<std::string> sessions;
   std::string posidonia;
   std::vector<int> sizes = {1000, 10000, 100000};
+  std::vector<core::HashMode> modes = {core::HashMode::kSortedDct, core::HashMode::kHaloc};
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -149,8 +153,18 @@ Args parseArgs(int argc, char** argv, bool* help) {
       a.posidonia = argv[++i];
     } else if (arg == "--sizes" && has_value) {
       a.sizes = parseSizes(argv[++i]);
+    } else if (arg == "--hash-mode" && has_value) {
+      const std::string name = argv[++i];
+      core::HashMode mode;
+      if (name == "both") {
+        a.modes = {core::HashMode::kSortedDct, core::HashMode::kHaloc};
+      } else if (core::parseHashMode(name, &mode)) {
+        a.modes = {mode};
+      } else {
+        throw BadArgs("--hash-mode '" + name + "': sorted_dct, haloc or both");
+      }
     } else {
-      const bool known = arg == "--session" || arg == "--posidonia" || arg == "--sizes";
+      const bool known = arg == "--session" || arg == "--posidonia" || arg == "--sizes" || arg == "--hash-mode";
       throw BadArgs(known ? arg + " needs a value" : "unknown argument '" + arg + "'");
     }
   }
@@ -165,16 +179,33 @@ Args parseArgs(int argc, char** argv, bool* help) {
 // The pipeline's pieces, with offline_slam's default configuration.
 
 struct Pipeline {
+  explicit Pipeline(const std::vector<core::HashMode>& hash_modes) : modes(hash_modes) {
+    for (core::HashMode m : modes) hashers.emplace_back(m, odometry.features.num_features, global.projection_seed);
+  }
   core::OdometryOptions odometry;
   core::GlobalLoopOptions global;
-  core::HalocProjections projections{odometry.features.num_features, global.projection_seed};
+  std::vector<core::HashMode> modes;  // the modes compared; hashes are kept in this order
+  std::vector<core::ImageHasher> hashers;
+  /// The keyframe hash of every mode, in the order of `modes`.
+  std::vector<Eigen::VectorXf> hashes(const cv::Mat& descriptors) const {
+    std::vector<Eigen::VectorXf> out;
+    for (const auto& h : hashers) out.push_back(h.hash(descriptors));
+    return out;
+  }
+  /// The store the loop detector uses for mode number `m` (its quantisation range).
+  core::HashStore store(std::size_t m) const {
+    return core::HashStore(modes[m] == core::HashMode::kSortedDct ? 0.25f : 0.5f);
+  }
+  std::string name(std::size_t m) const {
+    return core::hashModeName(modes[m]) + (modes[m] == core::GlobalLoopOptions().hash_mode ? " (default)" : " (paper)");
+  }
 };
 
 struct Keyframe {
   int frame_index = 0;
   double altitude_m = 0.0;
   core::FrameFeatures features;
-  Eigen::VectorXf hash;
+  std::vector<Eigen::VectorXf> hashes;  // one per Pipeline::modes
 };
 
 struct Session {
@@ -183,7 +214,7 @@ struct Session {
   std::vector<Eigen::VectorXf> frame_hashes;  // every frame (query timing)
   core::OdometryStats stats;
   double odometry_ms = 0.0;
-  double hash_ms = 0.0;  // HalocProjections::hash, summed over the frames
+  double hash_ms = 0.0;  // the first mode's hash, summed over the frames
   fs::path truth_dir;    // where its world_gt.csv is (empty: none)
   int world_session = -1;
 };
@@ -194,7 +225,7 @@ core::View viewOf(const Keyframe& k, const core::CameraIntrinsics& camera) {
 
 Eigen::VectorXf timedHash(const Pipeline& p, const core::FrameFeatures& f, double* ms) {
   const auto t0 = Clock::now();
-  Eigen::VectorXf h = p.projections.hash(f.descriptors);
+  Eigen::VectorXf h = p.hashers.front().hash(f.descriptors);
   *ms += msSince(t0);
   return h;
 }
@@ -212,7 +243,7 @@ void runSession(const Pipeline& p, Session* s) {
     s->odometry_ms += msSince(t0);
     for (const auto& kf : odometry.newKeyframes()) {
       const core::KeyframeInfo& info = odometry.keyframes()[kf.id];
-      s->keyframes.push_back({info.frame_index, info.altitude_m, kf.features, timedHash(p, kf.features, &s->hash_ms)});
+      s->keyframes.push_back({info.frame_index, info.altitude_m, kf.features, p.hashes(kf.features.descriptors)});
     }
     if (!image.empty())
       s->frame_hashes.push_back(timedHash(p, extractor.extract(enhancer.enhance(image)), &s->hash_ms));
@@ -383,7 +414,7 @@ std::vector<std::string> timeQueries(const std::vector<Eigen::VectorXf>& base, i
 }
 
 void benchQueries(const std::vector<Session>& sessions, const std::vector<Eigen::VectorXf>& extra,
-                  const std::vector<int>& sizes) {
+                  const std::vector<int>& sizes, const std::string& mode) {
   std::vector<Eigen::VectorXf> base;
   double hash_ms = 0.0;
   for (const auto& s : sessions) {
@@ -402,9 +433,10 @@ void benchQueries(const std::vector<Session>& sessions, const std::vector<Eigen:
       "mission, not stored), so every entry is compared. %d timed queries (perturbed real hashes) after 5 warm-up. "
       "Bytes/entry: layout = 384 B code + %zu B HashEntry; heap = malloc'd bytes (glibc mallinfo2) the filled store "
       "added / entries. "
-      "HalocProjections::hash: %.3f ms per image (mean over %zu).\n\n",
+      "Hash (%s): %.3f ms per image (mean over %zu).\n\n",
       base.size(), hashed_frames, extra.size(), sigma, kPerturbation * 100, sigma / kPerturbation, sigma / kQuantStep,
-      kEntriesPerSession, kTimedQueries, sizeof(core::HashEntry), hashed_frames ? hash_ms / hashed_frames : 0.0,
+      kEntriesPerSession, kTimedQueries, sizeof(core::HashEntry), mode.c_str(),
+      hashed_frames ? hash_ms / hashed_frames : 0.0,
       hashed_frames);
   std::vector<std::vector<std::string>> rows;
   for (int size : sizes) rows.push_back(timeQueries(base, size, sigma));
@@ -436,16 +468,17 @@ struct Mission {
   const WorldTruth* truth;  // null without world_gt.csv for both sessions
 };
 
-/// For every keyframe of B: the best k of A by hash, each verified.
-MethodRun runHaloc(const Pipeline& p, const Mission& m, int k) {
-  core::HashStore store;
-  for (std::size_t i = 0; i < m.a->keyframes.size(); ++i) store.add({0, static_cast<int>(i)}, m.a->keyframes[i].hash);
-  MethodRun run{"HALOC k = " + std::to_string(k), k, 0, 0.0, 0.0, {}};
+/// For every keyframe of B: the best k of A by the hash of mode number `mode`, each verified.
+MethodRun runHash(const Pipeline& p, const Mission& m, std::size_t mode, int k) {
+  core::HashStore store = p.store(mode);
+  for (std::size_t i = 0; i < m.a->keyframes.size(); ++i)
+    store.add({0, static_cast<int>(i)}, m.a->keyframes[i].hashes[mode]);
+  MethodRun run{p.name(mode) + " k = " + std::to_string(k), k, 0, 0.0, 0.0, {}};
   std::vector<core::HashCandidate> cands;
   for (std::size_t j = 0; j < m.b->keyframes.size(); ++j) {
     const Keyframe& kb = m.b->keyframes[j];
     auto t0 = Clock::now();
-    store.query(kb.hash, 1, k, std::numeric_limits<float>::infinity(), &cands);
+    store.query(kb.hashes[mode], 1, k, std::numeric_limits<float>::infinity(), &cands);
     run.query_ms += msSince(t0);
     t0 = Clock::now();
     for (const auto& c : cands) {
@@ -573,16 +606,18 @@ std::string rankSummary(std::vector<int> ranks) {
   return os.str();
 }
 
-/// Where the correct brute-force loops rank by hash distance among all of A's keyframes.
-void printHashRanks(const Mission& m, const std::set<std::pair<int, int>>& bf_correct) {
-  core::HashStore store;
-  for (std::size_t i = 0; i < m.a->keyframes.size(); ++i) store.add({0, static_cast<int>(i)}, m.a->keyframes[i].hash);
+/// Where the correct brute-force loops rank by the hash of mode number `mode` among all of A's keyframes.
+void printHashRanks(const Pipeline& p, const Mission& m, const std::set<std::pair<int, int>>& bf_correct,
+                    std::size_t mode) {
+  core::HashStore store = p.store(mode);
+  for (std::size_t i = 0; i < m.a->keyframes.size(); ++i)
+    store.add({0, static_cast<int>(i)}, m.a->keyframes[i].hashes[mode]);
   std::vector<core::HashCandidate> all;
   std::map<int, int> best;  // B keyframe -> best rank of its correct loops
   std::vector<int> ranks;
   for (const auto& [a, b] : bf_correct) {
-    store.query(m.b->keyframes[b].hash, 1, static_cast<int>(store.size()), std::numeric_limits<float>::infinity(),
-                &all);
+    const float inf = std::numeric_limits<float>::infinity();
+    store.query(m.b->keyframes[b].hashes[mode], 1, static_cast<int>(store.size()), inf, &all);
     const auto it =
         std::find_if(all.begin(), all.end(), [a = a](const core::HashCandidate& c) { return c.entry == a; });
     const int rank = static_cast<int>(it - all.begin()) + 1;
@@ -592,16 +627,17 @@ void printHashRanks(const Mission& m, const std::set<std::pair<int, int>>& bf_co
   std::vector<int> best_ranks;
   for (const auto& kv : best) best_ranks.push_back(kv.second);
   std::printf(
-      "Hash rank (1 = nearest of A's %zu keyframes by L1) of the correct brute-force loops: %s pairs; the best "
+      "%s hash rank (1 = nearest of A's %zu keyframes by L1) of the correct brute-force loops: %s pairs; the best "
       "rank per B keyframe that has one: %s keyframes.\n\n",
-      m.a->keyframes.size(), rankSummary(ranks).c_str(), rankSummary(best_ranks).c_str());
+      p.name(mode).c_str(), m.a->keyframes.size(), rankSummary(ranks).c_str(), rankSummary(best_ranks).c_str());
 }
 
 void benchMission(const Pipeline& p, const Mission& m, int number) {
   std::printf("### Mission %d: A = %s (%zu keyframes), B = %s (%zu keyframes)\n\n", number, m.a->data.directory.c_str(),
               m.a->keyframes.size(), m.b->data.directory.c_str(), m.b->keyframes.size());
   std::vector<MethodRun> runs;
-  for (int k : kBestK) runs.push_back(runHaloc(p, m, k));
+  for (std::size_t mode = 0; mode < p.modes.size(); ++mode)
+    for (int k : kBestK) runs.push_back(runHash(p, m, mode, k));
   runs.push_back(runBruteForce(p, m));
   const auto gt = truthPairs(m);
   std::set<std::pair<int, int>> bf_correct;
@@ -615,11 +651,15 @@ void benchMission(const Pipeline& p, const Mission& m, int number) {
               "total ms"},
              rows);
   if (m.truth) printWrongLoops(m, runs);
-  if (!bf_correct.empty()) printHashRanks(m, bf_correct);
+  for (std::size_t mode = 0; !bf_correct.empty() && mode < p.modes.size(); ++mode) {
+    printHashRanks(p, m, bf_correct, mode);
+  }
 }
 
 void benchMissions(const Pipeline& p, const std::vector<Session>& sessions, const std::vector<WorldTruth>& truths) {
-  std::printf("## 2. HALOC best-k against brute force (loops from B's keyframes to A's)\n\n");
+  std::string names;
+  for (std::size_t mode = 0; mode < p.modes.size(); ++mode) names += (mode ? ", " : "") + p.name(mode);
+  std::printf("## 2. Hash best-k (%s) against brute force (loops from B's keyframes to A's)\n\n", names.c_str());
   std::printf(
       "Keyframes from the odometry (default OdometryOptions). A loop is accepted when RANSAC (the odometry's "
       "MatchOptions/RansacOptions) succeeds with >= %d inliers; it is correct when its measured pose of B's "
@@ -667,7 +707,7 @@ std::vector<Negative> loadNegatives(const Pipeline& p, const std::string& dir) {
     n.camera = {image.cols, image.rows, kPosidoniaFocal, kPosidoniaFocal, image.cols / 2.0, image.rows / 2.0};
     n.view.altitude_m = kPosidoniaAltitude;
     n.view.features = extractor.extract(enhancer.enhance(image));
-    n.view.hash = p.projections.hash(n.view.features.descriptors);
+    n.view.hashes = p.hashes(n.view.features.descriptors);
     out.push_back(std::move(n));
   }
   return out;
@@ -714,19 +754,26 @@ void benchNegatives(const Pipeline& p, const std::vector<Session>& sessions, con
     if (!seen.insert(fs::weakly_canonical(s.data.directory).string()).second) continue;
     for (const Keyframe& k : s.keyframes) stored.push_back({&s, &k});
   }
-  core::HashStore store;
-  for (std::size_t i = 0; i < stored.size(); ++i) store.add({0, static_cast<int>(i)}, stored[i].keyframe->hash);
-  NegativeRun haloc{"HALOC k = " + std::to_string(kQueryK), 0, 0.0, {}, 0, "-"};
-  NegativeRun brute{"brute force", 0, 0.0, {}, 0, "-"};
+  std::vector<NegativeRun> runs;
   std::vector<core::HashCandidate> cands;
+  for (std::size_t mode = 0; mode < p.modes.size(); ++mode) {
+    core::HashStore store = p.store(mode);
+    for (std::size_t i = 0; i < stored.size(); ++i) {
+      store.add({0, static_cast<int>(i)}, stored[i].keyframe->hashes[mode]);
+    }
+    runs.push_back({p.name(mode) + " k = " + std::to_string(kQueryK), 0, 0.0, {}, 0, "-"});
+    for (const Negative& n : negatives) {
+      const auto t0 = Clock::now();
+      store.query(n.view.hashes[mode], 1, kQueryK, std::numeric_limits<float>::infinity(), &cands);
+      for (const auto& c : cands) checkNegative(p, n, stored[c.entry], &runs.back());
+      runs.back().ms += msSince(t0);
+    }
+  }
+  runs.push_back({"brute force", 0, 0.0, {}, 0, "-"});
   for (const Negative& n : negatives) {
-    auto t0 = Clock::now();
-    store.query(n.view.hash, 1, kQueryK, std::numeric_limits<float>::infinity(), &cands);
-    for (const auto& c : cands) checkNegative(p, n, stored[c.entry], &haloc);
-    haloc.ms += msSince(t0);
-    t0 = Clock::now();
-    for (const auto& s : stored) checkNegative(p, n, s, &brute);
-    brute.ms += msSince(t0);
+    const auto t0 = Clock::now();
+    for (const auto& s : stored) checkNegative(p, n, s, &runs.back());
+    runs.back().ms += msSince(t0);
   }
   std::printf("## 3. Negatives: %zu unrelated images against %zu mission keyframes\n\n", negatives.size(),
               stored.size());
@@ -739,7 +786,7 @@ void benchNegatives(const Pipeline& p, const std::vector<Session>& sessions, con
       "that diagnostic re-run.\n\n",
       kPosidoniaAltitude, kPosidoniaFocal, p.global.min_inliers);
   std::vector<std::vector<std::string>> rows;
-  for (const NegativeRun* r : {&haloc, &brute}) {
+  for (const NegativeRun* r = runs.data(); r != runs.data() + runs.size(); ++r) {
     rows.push_back({r->name, std::to_string(r->candidates), std::to_string(r->accepted.size()),
                     std::to_string(r->best_rejected), std::to_string(p.global.min_inliers - r->best_rejected),
                     r->best_pair, std::to_string(r->most_matches), fmt(r->ms / negatives.size(), 1)});
@@ -747,7 +794,8 @@ void benchNegatives(const Pipeline& p, const std::vector<Session>& sessions, con
   printTable({"method", "candidates verified", "accepted (false loops)", "highest rejected inliers",
               "margin to threshold", "highest rejected pair", "most matches (rejected)", "ms/query"},
              rows);
-  for (const NegativeRun* r : {&haloc, &brute}) {
+  for (const NegativeRun& r0 : runs) {
+    const NegativeRun* r = &r0;
     for (const auto& a : r->accepted) std::printf("- false loop (%s): %s\n", r->name.c_str(), a.c_str());
   }
 }
@@ -769,7 +817,7 @@ void printSessions(const std::vector<Session>& sessions) {
 
 int run(const Args& args) {
   cv::setNumThreads(1);
-  const Pipeline p{};
+  const Pipeline p(args.modes);
   // Check every input before any work.
   std::vector<Session> sessions(args.sessions.size());
   std::vector<WorldTruth> truths(args.sessions.size());
@@ -794,8 +842,8 @@ int run(const Args& args) {
   std::puts("# bench_loops\n");
   printSessions(sessions);
   std::vector<Eigen::VectorXf> extra;
-  for (const auto& n : negatives) extra.push_back(n.view.hash);
-  benchQueries(sessions, extra, args.sizes);
+  for (const auto& n : negatives) extra.push_back(n.view.hashes.front());
+  benchQueries(sessions, extra, args.sizes, p.name(0));
   benchMissions(p, sessions, truths);
   if (!negatives.empty()) benchNegatives(p, sessions, negatives);
   return 0;
