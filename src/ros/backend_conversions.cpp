@@ -114,10 +114,13 @@ std::vector<Segment> loopSegments(const core::SessionManager& manager, const cor
     return it->second;
   };
   std::vector<Segment> segments;
-  for (const core::Loop& l : manager.loops()) {
+  for (std::size_t i = 0; i < manager.loops().size(); ++i) {
+    const core::Loop& l = manager.loops()[i];
     if (manager.mapOf(l.session_a) != manager.mapOf(l.session_b)) continue;
-    segments.push_back({posesOf(l.session_a)[l.keyframe_a], posesOf(l.session_b)[l.keyframe_b],
-                        l.kind == core::Loop::Kind::kLocal ? Segment::Kind::kLocal : Segment::Kind::kGlobal});
+    const Segment::Kind kind = manager.loopRefused(i)                 ? Segment::Kind::kRefused
+                               : l.kind == core::Loop::Kind::kLocal ? Segment::Kind::kLocal
+                                                                      : Segment::Kind::kGlobal;
+    segments.push_back({posesOf(l.session_a)[l.keyframe_a], posesOf(l.session_b)[l.keyframe_b], kind});
   }
   for (const core::SessionLink& link : manager.links())
     segments.push_back({posesOf(link.previous).back(), posesOf(link.current).front(), Segment::Kind::kJoin});
@@ -237,7 +240,9 @@ visualization_msgs::MarkerArray toMarkerArrayMsg(const std::vector<Segment>& seg
   };
   const Style styles[] = {{Segment::Kind::kLocal, "local_loops", 0.1f, 0.8f, 0.2f, 0.02f},
                           {Segment::Kind::kGlobal, "global_loops", 1.0f, 0.55f, 0.0f, 0.02f},
-                          {Segment::Kind::kJoin, "joins", 0.9f, 0.1f, 0.1f, 0.05f}};
+                          {Segment::Kind::kJoin, "joins", 0.9f, 0.1f, 0.1f, 0.05f},
+                          // Loops the back-end refused (gated, or inconsistent at a join): thin, magenta.
+                          {Segment::Kind::kRefused, "refused_loops", 0.85f, 0.1f, 0.85f, 0.01f}};
   int id = 0;
   for (const Style& st : styles) {
     visualization_msgs::Marker m;

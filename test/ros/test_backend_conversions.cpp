@@ -140,6 +140,31 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
   }
   // The loop segments move with their maps.
   EXPECT_TRUE(loopSegments(m, mount, offsets).empty());  // no loops here
+  // Issue 17: a local loop that agrees with the odometry, and one 3 m off that the back-end's gate
+  // refuses: drawn apart, in a namespace and colour of their own.
+  for (const core::Pose2& off : {core::Pose2(), core::Pose2(0.0, 3.0, 0.0)}) {
+    core::Loop l;
+    l.kind = core::Loop::Kind::kLocal;
+    l.session_a = l.session_b = 0;
+    l.keyframe_a = 0;
+    l.keyframe_b = 3;
+    l.z = core::UncertainPose2(core::compose(core::between(m.odometryPoses(0)[0], m.odometryPoses(0)[3]), off),
+                               Eigen::Matrix3d::Identity() * 1e-4);
+    l.inliers = 50;
+    ASSERT_TRUE(m.addLoop(l).ok());
+  }
+  ASSERT_TRUE(m.loopRefused(1) && !m.loopRefused(0));
+  const std::vector<Segment> segments = loopSegments(m, mount, offsets);
+  ASSERT_EQ(segments.size(), 2u);
+  EXPECT_EQ(segments[0].kind, Segment::Kind::kLocal);
+  EXPECT_EQ(segments[1].kind, Segment::Kind::kRefused);
+  std::map<std::string, visualization_msgs::Marker> by_ns;
+  for (const visualization_msgs::Marker& k : toMarkerArrayMsg(segments, "map", ros::Time(5.0)).markers) by_ns[k.ns] = k;
+  ASSERT_TRUE(by_ns.count("local_loops") && by_ns.count("refused_loops"));
+  EXPECT_EQ(by_ns["refused_loops"].points.size(), 2u);
+  EXPECT_EQ(by_ns["local_loops"].points.size(), 2u);
+  const auto &a = by_ns["refused_loops"].color, &b = by_ns["local_loops"].color;
+  EXPECT_GT(std::abs(a.r - b.r) + std::abs(a.g - b.g) + std::abs(a.b - b.b), 0.5f);
 }
 
 }  // namespace

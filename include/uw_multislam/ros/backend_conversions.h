@@ -57,15 +57,15 @@ std::vector<core::Pose2> vehiclePoses(const core::SessionManager& manager, int i
 /// One segment to draw: two vehicle positions in a map's frame.
 struct Segment {
   core::Pose2 a, b;
-  enum class Kind { kLocal, kGlobal, kJoin } kind = Kind::kLocal;
+  enum class Kind { kLocal, kGlobal, kJoin, kRefused } kind = Kind::kLocal;
 };
 /// Where each map is drawn along the map frame's x axis (metres added to x): the active session's
 /// map (else the lowest id) where it is, so that it agrees with tf and the pose; every other map
 /// after it in id order, shifted to start 1 m past the previous one's extent, so that maps that
 /// are not joined (not related) do not sit on top of each other in rviz.
 std::map<int, double> mapOffsets(const core::SessionManager& manager, const core::CameraMount& mount);
-/// The segments to draw for a manager's state: its accepted loops inside a map, and its links,
-/// each map shifted by its offset (missing: 0).
+/// The segments to draw for a manager's state: its loops inside a map (those the back-end refused
+/// as kRefused), and its links, each map shifted by its offset (missing: 0).
 std::vector<Segment> loopSegments(const core::SessionManager& manager, const core::CameraMount& mount,
                                   const std::map<int, double>& offsets = {});
 /// rviz markers for any number of sessions: each session's keyframes as a LINE_STRIP (namespace
