@@ -23,7 +23,7 @@ import rospy
 import rostest
 from pipeline_fixture import NS, SENSOR_TOPICS, make_mission, wait_for_subscribers, wait_until_quiet
 from nav_msgs.msg import Path
-from uw_multislam.msg import Loop, Status
+from uw_multislam.msg import Keyframe, Loop, SessionState, Status
 from uw_multislam.srv import JoinSessions, ListSessions, SplitSession, StartSession, ReloadSession
 from diagnostic_msgs.msg import DiagnosticArray
 from visualization_msgs.msg import MarkerArray
@@ -275,6 +275,68 @@ class BackendTest(unittest.TestCase):
         self.assertGreaterEqual(int(values["joins"]), 1)  # test_2 joined
         self.assertGreaterEqual(int(values["splits"]), 1)
         self.assertEqual(values["store"], "none")
+
+
+    def backend_values(self, condition=lambda v: True, timeout=20.0):
+        """The values of the first back-end status on /diagnostics (published every second) for which
+        condition(values) holds, or of the last one seen when none did within `timeout` seconds."""
+        seen = []
+        cond = threading.Condition()
+
+        def on_diagnostics(msg):
+            with cond:
+                for s in msg.status:
+                    if s.name.endswith(": backend"):
+                        seen.append({kv.key: kv.value for kv in s.values})
+                        cond.notify_all()
+
+        sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
+        try:
+            deadline = time.time() + timeout
+            with cond:
+                while time.time() < deadline and not (seen and condition(seen[-1])):
+                    cond.wait(0.2)
+                return seen[-1] if seen else None
+        finally:
+            sub.unregister()
+
+    def test_5_malformed_keyframes_and_loops_are_counted_and_change_nothing(self):
+        """Issue 21, 4: a keyframe of a negative session (refused by the message conversion:
+        bad_messages), one far beyond its session's last (a gap over ~max_keyframe_gap: refused by
+        the session manager, keyframes_refused; sent to the active session, as a finished session's
+        keyframes are stale whatever their id), and loops on keyframes that never arrived (held
+        in the bounded waiting list, loops_waiting, ~max_waiting_loops, in case their keyframes
+        come): each counted, the sessions unchanged, the node still answering."""
+        first = self.backend_values()
+        self.assertIsNotNone(first, "no back-end status on /diagnostics")
+        before = self.sessions()
+        keyframes = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=10)
+        loops = rospy.Publisher(NS + "/loops", Loop, queue_size=10)
+        deadline = time.time() + 10
+        while time.time() < deadline and (keyframes.get_num_connections() == 0 or loops.get_num_connections() == 0):
+            time.sleep(0.1)
+        active = [s.session for s in before.values() if s.state == SessionState.ACTIVE]
+        self.assertEqual(len(active), 1, before)
+        for session, keyframe in ((-5, 0), (active[0], 1000000)):
+            k = Keyframe(session=session, keyframe=keyframe, altitude_m=2.0, width=240, height=180, fx=220, fy=220,
+                         cx=119.5, cy=89.5, descriptor_size=128, status=Keyframe.MATCHED)
+            k.header.stamp = rospy.Time.now()
+            k.motion_covariance = [1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-4]
+            keyframes.publish(k)
+        for a, b in (((0, 999999), (1, 0)), ((0, 0), (77, 3))):
+            loop = Loop(kind=Loop.GLOBAL, session_a=a[0], keyframe_a=a[1], session_b=b[0], keyframe_b=b[1], inliers=60)
+            loop.covariance = [1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-4]
+            loops.publish(loop)
+        counters = ("bad_messages", "keyframes_refused", "loops_waiting")
+        start = {c: int(first[c]) for c in counters}
+        values = self.backend_values(lambda v: all(int(v[c]) >= start[c] + 1 + (c == "loops_waiting") for c in counters))
+        self.assertEqual([int(values[c]) - start[c] for c in counters], [1, 1, 2], values)
+        self.assertEqual(int(values["loops_refused"]), int(first["loops_refused"]), values)
+        after = self.sessions()
+        self.assertEqual(sorted(after), sorted(before))
+        for s in before:
+            self.assertEqual((after[s].map, after[s].num_keyframes, after[s].num_loops),
+                             (before[s].map, before[s].num_keyframes, before[s].num_loops))
 
 
 if __name__ == "__main__":
