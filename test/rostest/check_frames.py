@@ -34,7 +34,7 @@ import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from pipeline_fixture import (NS, SENSOR_TOPICS, appender, chain_covariance, compose, invert, make_mission, matmul3,
-                              mount_of_params, transpose3, vehicle_from_camera, wait_for_subscribers)
+                              mount_of_params, transpose3, vehicle_from_camera, wait_for_subscribers, wait_until_quiet)
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image
 from tf2_msgs.msg import TFMessage
@@ -112,10 +112,15 @@ class FramesTest(unittest.TestCase):
                         cls.rates.append(float(values["map_to_odom_rate_hz"]))
 
         cls.keyframes, cls.trajectories, cls.keyframe_poses = [], [], []
+        cls.last_trajectory = [time.time()]  # when the back-end last published a session trajectory
+
+        def on_trajectory(msg):
+            with cls.lock:
+                cls.trajectories.append(msg)
+                cls.last_trajectory[0] = time.time()
 
         cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, appender(cls.lock, cls.keyframes), queue_size=1000),
-                    rospy.Subscriber(NS + "/session_trajectory", SessionTrajectory, appender(cls.lock, cls.trajectories),
-                                     queue_size=1000),
+                    rospy.Subscriber(NS + "/session_trajectory", SessionTrajectory, on_trajectory, queue_size=1000),
                     rospy.Subscriber(NS + "/keyframe_pose", PoseWithCovarianceStamped, appender(cls.lock, cls.keyframe_poses),
                                      queue_size=1000),
                     rospy.Subscriber("/camera/image_raw", Image, on_image, queue_size=100),
@@ -135,7 +140,9 @@ class FramesTest(unittest.TestCase):
         cls.stop = threading.Event()
         cls.clock_thread = threading.Thread(target=cls.keep_time)
         cls.clock_thread.start()
-        time.sleep(3.0)  # the back-end's queue drains at bag speed; the last loops arrive
+        # The back-end's queue drains at bag speed and the last loops arrive: until it has published
+        # no trajectory for 3 s.
+        wait_until_quiet(cls.lock, lambda: cls.last_trajectory[0], 3.0, timeout=60.0)
 
     @classmethod
     def keep_time(cls):

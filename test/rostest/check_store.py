@@ -80,10 +80,15 @@ class StoreTest(unittest.TestCase):
                     with cls.lock:
                         cls.killed_after = len(cls.keyframes)
                     os.kill(pid, signal.SIGKILL)
+                    cls.killed_pid = pid
             time.sleep(0.05)
         play.wait(timeout=120)
-        time.sleep(3.0)
-        rospy.wait_for_service(NS + "/list_sessions", timeout=60)  # respawned
+        # Respawned: a back-end with another pid answers through the master (the dead one's service
+        # registration may linger until the new one registers).
+        deadline = time.time() + 60
+        while time.time() < deadline and backend_pid() in (None, getattr(cls, "killed_pid", None)):
+            time.sleep(0.2)
+        rospy.wait_for_service(NS + "/list_sessions", timeout=60)
         cls.after_restart = cls.sessions()
         cls.stored_rows = cls.read_store(cls.after_restart[0].name) if 0 in cls.after_restart else None
 
