@@ -23,8 +23,9 @@ import unittest
 import rosgraph
 import rospy
 import rostest
-from pipeline_fixture import (NS, SENSOR_TOPICS, SURVEY, chain_covariance, make_mission, matmul3, planar_covariance,
-                              tool, vehicle_from_camera, wait_for_subscribers, wait_until_quiet)
+from diagnostic_msgs.msg import DiagnosticArray
+from pipeline_fixture import (NS, SENSOR_TOPICS, SURVEY, chain_covariance, diagnostic_values, make_mission, matmul3,
+                              planar_covariance, tool, vehicle_from_camera, wait_for_subscribers, wait_until_quiet)
 import rosnode
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
@@ -237,6 +238,20 @@ class SlamPipelineTest(unittest.TestCase):
                  (Image(encoding="mono8", width=0, height=0, step=0, data=b""), good_info),
                  (Image(encoding="mono8", width=240, height=180, step=240, data=bytes(range(240)) * 180),
                   CameraInfo(width=240, height=180, K=[0] * 9))]
+        statuses = []
+        cond = threading.Condition()
+
+        def on_diagnostics(msg):
+            with cond:
+                statuses.extend(diagnostic_values(st) for st in msg.status if st.name.endswith(": odometry"))
+                cond.notify_all()
+
+        diagnostics = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
+        kinds = ("skipped_encoding", "skipped_empty_image", "skipped_camera_info")
+        with cond:
+            cond.wait_for(lambda: statuses, timeout=20)
+            start = dict(statuses[-1]) if statuses else None
+        self.assertIsNotNone(start, "no odometry status on /diagnostics")
         for i, (image, info) in enumerate(cases):
             image.header.stamp = info.header.stamp = stamp + rospy.Duration(i)
             altitude = Range(range=float("nan"), min_range=0.1, max_range=100)
@@ -244,7 +259,12 @@ class SlamPipelineTest(unittest.TestCase):
             for p, m in zip(pubs, (image, info, altitude)):
                 p.publish(m)
             time.sleep(0.5)
-        time.sleep(2.0)
+        # Until the odometry has counted each bad frame as skipped (its worker is done with them).
+        with cond:
+            cond.wait_for(lambda: all(statuses[-1][k] >= start[k] + 1 for k in kinds), timeout=30)
+            end = dict(statuses[-1])
+        diagnostics.unregister()
+        self.assertEqual([end[k] - start[k] for k in kinds], [1, 1, 1])
         with self.lock:
             self.assertEqual(len(self.poses), poses_before, "a bad frame was processed")
             self.assertEqual(len(self.keyframes), keyframes_before)
