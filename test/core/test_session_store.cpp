@@ -591,6 +591,43 @@ TEST(Store, ASessionCutByACrashComesBackWithEveryKeyframe) {
     EXPECT_NEAR(between(after[k - 1], after[k]).x(), expected / 10, 1e-6) << k;
 }
 
+// Read-only (export_survey): a missing or empty file is refused and not created; a store reads the
+// same as through a writer, every write is refused, and nothing appears beside the file (no lock,
+// no -wal/-shm) nor changes in it.
+TEST(Store, ReadOnlyReadsEverythingAndWritesNothing) {
+  ScopedTempDir dir("uwms_store");
+  const std::string missing = (dir.path() / "none.db").string();
+  EXPECT_THROW(SessionStore(missing, StoreAccess::kReadOnly), StoreError);
+  EXPECT_FALSE(std::filesystem::exists(missing));
+  const std::string empty = (dir.path() / "empty.db").string();
+  writeBytes(empty, "");
+  EXPECT_THROW(SessionStore(empty, StoreAccess::kReadOnly), StoreError);
+  EXPECT_EQ(readBytes(empty), "");
+
+  ScopedTempDir dir2("uwms_store");
+  const std::string path = makeStore(dir2);
+  std::filesystem::remove(path + ".lock");
+  {
+    const SessionStore rw(path);
+    const SessionStore ro(path, StoreAccess::kReadOnly);  // beside a writer: no lock taken
+    ASSERT_EQ(ro.sessions().size(), rw.sessions().size());
+    EXPECT_EQ(ro.loops().size(), rw.loops().size());
+    EXPECT_EQ(ro.maps().size(), rw.maps().size());
+    for (const StoredSession& s : rw.sessions()) EXPECT_EQ(ro.odometry(s.id).size(), rw.odometry(s.id).size());
+  }
+  std::filesystem::remove(path + ".lock");
+  const std::string before = readBytes(path);
+  {
+    SessionStore ro(path, StoreAccess::kReadOnly);
+    EXPECT_THROW(ro.addSession("x", camera(), 0.0), StoreError);
+    EXPECT_THROW(ro.saveMaps({}, {}, {}), StoreError);
+  }
+  EXPECT_EQ(readBytes(path), before);
+  std::vector<std::string> names;
+  for (const auto& e : std::filesystem::directory_iterator(dir2.path())) names.push_back(e.path().filename().string());
+  EXPECT_EQ(names, std::vector<std::string>{"maps.db"});
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam

@@ -193,7 +193,7 @@ void SessionStore::exec(const std::string& sql) const {
   }
 }
 
-SessionStore::SessionStore(const std::string& path) : path_(path) {
+SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(path) {
   namespace fs = std::filesystem;
   std::error_code ec;
   // A store holds a mission's images' features and the vehicle's track: never through a symbolic
@@ -202,11 +202,14 @@ SessionStore::SessionStore(const std::string& path) : path_(path) {
   if (fs::is_symlink(fs::symlink_status(path, ec)))
     throw StoreError("session store " + path + ": a symbolic link; give the file's own path");
   const bool exists = fs::exists(path, ec);
+  const bool read_only = mode == StoreAccess::kReadOnly;
+  if (read_only && !exists) throw StoreError("session store " + path + ": no such file");
   bool fresh = !exists;
   if (exists) {
     if (!fs::is_regular_file(path, ec)) throw StoreError("session store " + path + ": not a regular file");
     const auto size = fs::file_size(path, ec);
     fresh = !ec && size == 0;  // created but never written (a crash before the first commit)
+    if (read_only && fresh) throw StoreError("session store " + path + ": an empty file (no session was ever stored)");
     if (!fresh) {
       // Check before SQLite touches it: the header, then a read-only open.
       char header[16] = {};
@@ -256,6 +259,12 @@ SessionStore::SessionStore(const std::string& path) : path_(path) {
       r = scalar("PRAGMA quick_check", &v);
       if (r != SQLITE_OK) refuse(codeText(r));
       if (v != "ok") refuse("the database is corrupt (" + v + ")");
+      if (read_only) {  // the checked read-only connection is the store's
+        db_ = ro;
+        sqlite3_extended_result_codes(db_, 1);
+        sqlite3_busy_timeout(db_, 2000);
+        return;
+      }
       sqlite3_close(ro);
     }
   } else {

@@ -107,6 +107,11 @@ struct HashSettings {
   std::string projections;  // HalocProjections::toText
 };
 
+/// How a store is opened: kReadWrite (the default: created when missing, locked for writing) or
+/// kReadOnly (for tools that only read it, e.g. export_survey: a missing or empty file is an
+/// error, nothing is created or locked, and every write is refused by SQLite).
+enum class StoreAccess { kReadWrite, kReadOnly };
+
 class SessionStore {
  public:
   static constexpr int kSchemaVersion = 1;
@@ -116,7 +121,8 @@ class SessionStore {
   /// is checked read-only before anything is written; then an exclusive lock on "<path>.lock" is
   /// held as long as this object lives: a second writer (another process, or a second
   /// SessionStore on the same file) is refused with the holder named. Throws StoreError.
-  explicit SessionStore(const std::string& path);
+  /// kReadOnly: the same checks, then a read-only open (no lock, no file created).
+  explicit SessionStore(const std::string& path, StoreAccess mode = StoreAccess::kReadWrite);
   ~SessionStore();
   SessionStore(const SessionStore&) = delete;
   SessionStore& operator=(const SessionStore&) = delete;
