@@ -26,6 +26,8 @@ CMAKE_PACKAGE_KEYS = {
     "yaml-cpp": "yaml-cpp",
     "Ceres": "libceres-dev",
     "SQLite3": "libsqlite3-dev",
+    "GeographicLib": "geographiclib",
+    "GDAL": "libgdal-dev",
     "Threads": None,  # the C library, no key
     "catkin": "catkin",
     "roslaunch": "roslaunch",
@@ -38,16 +40,18 @@ INCLUDE_KEYS = {
     "Eigen": "eigen",
     "ceres": "libceres-dev",
     "yaml-cpp": "yaml-cpp",
+    "GeographicLib": "geographiclib",
     "boost": "boost",
     "gtest": "gtest",
     "sys": None,
     "uw_multislam": None,
     "ros": "roscpp",  # roscpp's headers are ros/*.h
 }
-INCLUDE_FILE_KEYS = {"sqlite3.h": "libsqlite3-dev"}
+INCLUDE_FILE_KEYS = {"sqlite3.h": "libsqlite3-dev", "gdal_priv.h": "libgdal-dev", "ogr_spatialref.h": "libgdal-dev",
+                     "cpl_conv.h": "libgdal-dev"}
 # Python modules that are not ROS packages -> rosdep key.
 PYTHON_KEYS = {"numpy": "python3-numpy", "matplotlib": "python3-matplotlib", "yaml": "python3-yaml",
-               "pytest": "python3-pytest", "catkin_pkg": "python3-catkin-pkg", "rospkg": "python3-rospkg"}
+               "pytest": "python3-pytest", "osgeo": "python3-gdal", "catkin_pkg": "python3-catkin-pkg", "rospkg": "python3-rospkg"}
 # ROS packages whose Python module has another name.
 ROS_PYTHON_MODULES = {"xmlrpc": None}
 

@@ -1,0 +1,559 @@
+#include "uw_multislam/core/session/mosaic.h"
+
+#include <cpl_conv.h>
+#include <gdal_priv.h>
+#include <ogr_spatialref.h>
+#include <unistd.h>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/stitching/detail/blenders.hpp>
+#include <opencv2/stitching/detail/exposure_compensate.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <iomanip>
+#include <list>
+#include <memory>
+#include <ostream>
+
+namespace uw_multislam {
+namespace core {
+
+const char* mosaicBlendName(MosaicBlend b) {
+  switch (b) {
+    case MosaicBlend::kFeather:
+      return "feather";
+    case MosaicBlend::kMultiBand:
+      return "multiband";
+    case MosaicBlend::kNone:
+      return "none";
+  }
+  return "?";
+}
+
+bool parseMosaicBlend(const std::string& name, MosaicBlend* out) {
+  for (MosaicBlend b : {MosaicBlend::kFeather, MosaicBlend::kMultiBand, MosaicBlend::kNone}) {
+    if (name == mosaicBlendName(b)) {
+      *out = b;
+      return true;
+    }
+  }
+  return false;
+}
+
+std::string MosaicOptions::validate() const {
+  if (!(resolution_m >= 0.0) || !std::isfinite(resolution_m))
+    return "resolution " + std::to_string(resolution_m) + " m/px: must be positive (0: automatic)";
+  if (tile_px < 64 || tile_px > 16384) return "tile size " + std::to_string(tile_px) + " px: must be in [64, 16384]";
+  if (!(max_megapixels > 0.0)) return "max_megapixels must be positive";
+  if (gdal_cache_mb < 8) return "gdal_cache_mb must be at least 8";
+  return "";
+}
+
+namespace {
+
+CameraIntrinsics scaledTo(const CameraIntrinsics& c, const cv::Size& size) {
+  CameraIntrinsics s = c;
+  const double kx = static_cast<double>(size.width) / c.width, ky = static_cast<double>(size.height) / c.height;
+  s.width = size.width;
+  s.height = size.height;
+  s.fx *= kx;
+  s.cx = (c.cx + 0.5) * kx - 0.5;  // pixel centres: the resize maps edge to edge
+  s.fy *= ky;
+  s.cy = (c.cy + 0.5) * ky - 0.5;
+  return s;
+}
+
+// Pixel (u, v, 1) of the image seen through `cam` -> ground point in the map's image axes (the
+// store's convention; the exported pose is z-up, hence the signs).
+cv::Matx23d groundFromPixel(const ExportKeyframe& k, const CameraIntrinsics& cam) {
+  const double tx = k.pose.mean.x(), ty = -k.pose.mean.y(), psi = -k.pose.mean.yaw();
+  const double c = std::cos(psi), s = std::sin(psi), a = k.altitude_m / cam.fx, b = k.altitude_m / cam.fy;
+  return {c * a, -s * b, tx - c * a * cam.cx + s * b * cam.cy, s * a, c * b, ty - s * a * cam.cx - c * b * cam.cy};
+}
+
+// The raster: ground (image axes) -> pixel centre coordinates.
+struct Raster {
+  double x0 = 0.0, ytop = 0.0;  // image-axes x of the left edge, image-axes y of the top edge
+  double res = 0.0;
+  int width = 0, height = 0;
+  cv::Matx23d fromPixel(const cv::Matx23d& ground) const {
+    cv::Matx23d m = ground * (1.0 / res);
+    m(0, 2) -= x0 / res + 0.5;
+    m(1, 2) -= ytop / res + 0.5;
+    return m;
+  }
+};
+
+cv::Rect2d footprint(const cv::Matx23d& m, const cv::Size& size) {
+  double x_lo = 1e300, x_hi = -1e300, y_lo = 1e300, y_hi = -1e300;
+  for (const cv::Point2d p : {cv::Point2d(-0.5, -0.5), cv::Point2d(size.width - 0.5, -0.5),
+                              cv::Point2d(-0.5, size.height - 0.5), cv::Point2d(size.width - 0.5, size.height - 0.5)}) {
+    const double x = m(0, 0) * p.x + m(0, 1) * p.y + m(0, 2), y = m(1, 0) * p.x + m(1, 1) * p.y + m(1, 2);
+    x_lo = std::min(x_lo, x);
+    x_hi = std::max(x_hi, x);
+    y_lo = std::min(y_lo, y);
+    y_hi = std::max(y_hi, y);
+  }
+  return {x_lo, y_lo, x_hi - x_lo, y_hi - y_lo};
+}
+
+cv::Rect pixelBox(const cv::Rect2d& r) {
+  const int x = static_cast<int>(std::floor(r.x)), y = static_cast<int>(std::floor(r.y));
+  return {x, y, static_cast<int>(std::ceil(r.x + r.width)) - x + 1,
+          static_cast<int>(std::ceil(r.y + r.height)) - y + 1};
+}
+
+// Decoded images between tiles, least recently used evicted beyond a byte budget.
+class ImageCache {
+ public:
+  struct Entry {
+    cv::Mat image;
+    CameraIntrinsics camera;
+    bool full = false;
+  };
+  ImageCache(const MosaicImages& images, std::size_t budget, int n)
+      : source(static_cast<std::size_t>(n), kNotLoaded), images_(images), budget_(budget) {}
+  enum Source : char { kNotLoaded, kNone, kFrame, kThumbnail };
+  std::vector<char> source;  // what each keyframe was drawn from
+  const Entry& get(int index, const ExportKeyframe& k, const CameraIntrinsics& cam) {
+    auto it = where_.find(index);
+    if (it != where_.end()) {
+      order_.splice(order_.begin(), order_, it->second);
+      return it->second->second;
+    }
+    Entry e;
+    e.image = images_.load(k, cam, &e.camera, &e.full);
+    source[static_cast<std::size_t>(index)] = e.image.empty() ? kNone : e.full ? kFrame : kThumbnail;
+    bytes_ += e.image.total() * e.image.elemSize();
+    order_.emplace_front(index, std::move(e));
+    where_[index] = order_.begin();
+    while (bytes_ > budget_ && order_.size() > 1) {
+      const auto& last = order_.back();
+      bytes_ -= last.second.image.total() * last.second.image.elemSize();
+      where_.erase(last.first);
+      order_.pop_back();
+    }
+    return order_.front().second;
+  }
+
+ private:
+  const MosaicImages& images_;
+  std::size_t budget_, bytes_ = 0;
+  std::list<std::pair<int, Entry>> order_;
+  std::map<int, std::list<std::pair<int, Entry>>::iterator> where_;
+};
+
+// One gain per keyframe and colour channel (cv::detail::ChannelsCompensator: the missions' water
+// casts differ by channel) from small warped copies. Its system is
+// dense N x N (N^2 x 12 bytes): long tracks are solved in windows of consecutive keyframes (the
+// overlaps that matter are between neighbours along the track), each window's gains scaled to
+// agree with the previous window's on their shared keyframes.
+std::vector<cv::Scalar> exposureGains(const ExportTrack& track, const SurveyExport& survey, const MosaicImages& images,
+                                      const Raster& raster) {
+  const int n = static_cast<int>(track.keyframes.size());
+  std::vector<cv::Scalar> gains(n, cv::Scalar::all(1.0));
+  if (n < 2) return gains;
+  // A coarse raster: the median keyframe about 48 px wide.
+  std::vector<double> widths;
+  for (const ExportKeyframe& k : track.keyframes) {
+    const CameraIntrinsics& c = survey.camera(k.session);
+    widths.push_back(c.width * k.altitude_m / c.fx);
+  }
+  std::nth_element(widths.begin(), widths.begin() + n / 2, widths.end());
+  Raster low = raster;
+  low.res = std::max(raster.res, widths[n / 2] / 48.0);
+  std::vector<cv::UMat> small(n), masks(n);
+  std::vector<cv::Point> corners(n);
+  std::vector<bool> ok(n, false);
+  for (int i = 0; i < n; ++i) {
+    const ExportKeyframe& k = track.keyframes[i];
+    CameraIntrinsics cam;
+    const cv::Mat img = images.loadSmall(k, survey.camera(k.session), &cam);
+    if (img.empty()) continue;
+    cv::Matx23d m = low.fromPixel(groundFromPixel(k, cam));
+    const cv::Rect box = pixelBox(footprint(m, img.size()));
+    m(0, 2) -= box.x;
+    m(1, 2) -= box.y;
+    cv::Mat w, mask;
+    cv::warpAffine(img, w, m, box.size(), cv::INTER_AREA, cv::BORDER_REPLICATE);
+    cv::warpAffine(cv::Mat(img.size(), CV_8U, cv::Scalar(255)), mask, m, box.size(), cv::INTER_NEAREST,
+                   cv::BORDER_CONSTANT, cv::Scalar(0));
+    w.copyTo(small[i]);
+    mask.copyTo(masks[i]);
+    corners[i] = box.tl();
+    ok[i] = true;
+  }
+  constexpr int kWindow = 1000, kOverlap = 200;
+  for (int start = 0; start < n; start += kWindow - kOverlap) {
+    const int end = std::min(n, start + kWindow);
+    std::vector<int> ids;
+    std::vector<cv::Point> c;
+    std::vector<cv::UMat> im;
+    std::vector<std::pair<cv::UMat, uchar>> mk;
+    for (int i = start; i < end; ++i) {
+      if (!ok[i]) continue;
+      ids.push_back(i);
+      c.push_back(corners[i]);
+      im.push_back(small[i]);
+      mk.emplace_back(masks[i], static_cast<uchar>(255));
+    }
+    if (ids.size() >= 2) {
+      cv::detail::ChannelsCompensator compensator;
+      compensator.feed(c, im, mk);
+      const std::vector<cv::Scalar> g = compensator.gains();
+      for (int ch = 0; ch < 3; ++ch) {
+        double num = 0.0, den = 0.0;
+        for (std::size_t j = 0; j < ids.size(); ++j)
+          if (start > 0 && ids[j] < start + kOverlap) num += gains[ids[j]][ch], den += g[j][ch];
+        const double scale = den > 0.0 ? num / den : 1.0;
+        for (std::size_t j = 0; j < ids.size(); ++j) gains[ids[j]][ch] = g[j][ch] * scale;
+      }
+    }
+    if (end == n) break;
+  }
+  return gains;
+}
+
+std::string tempName(const std::string& path, const char* ext) {
+  return path + ".tmp" + std::to_string(getpid()) + ext;
+}
+
+}  // namespace
+
+void MosaicImages::addDataset(const std::string& directory) {
+  datasets_.push_back(loadDataset(directory));
+  row_of_index_.emplace_back();
+  for (std::size_t i = 0; i < datasets_.back().frames.size(); ++i)
+    row_of_index_.back()[datasets_.back().frames[i].index] = static_cast<int>(i);
+}
+
+const FrameRecord* MosaicImages::frameOf(int dataset, const ExportKeyframe& k) const {
+  const auto it = row_of_index_[dataset].find(k.frame_index);
+  if (it == row_of_index_[dataset].end()) return nullptr;
+  const FrameRecord& f = datasets_[dataset].frames[it->second];
+  return std::abs(f.stamp_s - k.stamp_s) <= 1e-6 ? &f : nullptr;
+}
+
+std::vector<std::string> MosaicImages::matchSessions(const SurveyExport& survey) {
+  std::vector<std::string> lines;
+  auto same = [](const std::string& a, const std::string& b) {
+    std::error_code ec;
+    return std::filesystem::weakly_canonical(a, ec) == std::filesystem::weakly_canonical(b, ec);
+  };
+  for (const ExportTrack& s : survey.sessions) {
+    // Most keyframes found; among equals (simulated missions share stamps and indexes), the
+    // folder the session is named after (offline_slam names a session by its folder).
+    int best = -1, best_n = 0, ties = 0;
+    bool best_named = false;
+    for (int d = 0; d < static_cast<int>(datasets_.size()); ++d) {
+      int n = 0;
+      for (const ExportKeyframe& k : s.keyframes) n += frameOf(d, k) != nullptr;
+      const bool named = same(datasets_[d].directory, s.name);
+      if (n == 0) continue;
+      if (n > best_n || (n == best_n && named && !best_named)) {
+        ties = n == best_n ? ties : 0;
+        best = d, best_n = n, best_named = named;
+      } else if (n == best_n && named == best_named) {
+        ++ties;
+      }
+    }
+    if (best >= 0) dataset_of_session_[s.sessions.front()] = best;
+    std::string line = s.label + " (" + s.name + "): ";
+    if (best < 0) {
+      line += "no folder holds its keyframes (thumbnails drawn)";
+    } else {
+      line += datasets_[best].directory + ", " + std::to_string(best_n) + " of " + std::to_string(s.keyframes.size()) +
+              " keyframes";
+      if (ties > 0)
+        line += " (ambiguous: " + std::to_string(ties) + " other folders hold them as well; the first taken)";
+    }
+    lines.push_back(line);
+  }
+  return lines;
+}
+
+cv::Mat MosaicImages::frame(const ExportKeyframe& k, const CameraIntrinsics& camera, CameraIntrinsics* scaled) const {
+  const auto it = dataset_of_session_.find(k.session);
+  if (it == dataset_of_session_.end()) return {};
+  const FrameRecord* f = frameOf(it->second, k);
+  if (!f) return {};
+  cv::Mat img = cv::imread(datasets_[it->second].imagePath(*f), cv::IMREAD_COLOR);
+  if (!img.empty()) *scaled = scaledTo(camera, img.size());
+  return img;
+}
+
+cv::Mat MosaicImages::thumbnail(const ExportKeyframe& k, const CameraIntrinsics& camera, CameraIntrinsics* scaled) {
+  if (k.thumbnail.empty()) return {};
+  cv::Mat img = cv::imdecode(k.thumbnail, cv::IMREAD_COLOR);
+  // The thumbnail is the whole image resized (session_store.h): the camera scales with it.
+  if (!img.empty()) *scaled = scaledTo(camera, img.size());
+  return img;
+}
+
+cv::Mat MosaicImages::load(const ExportKeyframe& k, const CameraIntrinsics& camera, CameraIntrinsics* scaled,
+                           bool* full) const {
+  cv::Mat img = frame(k, camera, scaled);
+  *full = !img.empty();
+  return *full ? img : thumbnail(k, camera, scaled);
+}
+
+cv::Mat MosaicImages::loadSmall(const ExportKeyframe& k, const CameraIntrinsics& camera,
+                                CameraIntrinsics* scaled) const {
+  cv::Mat img = thumbnail(k, camera, scaled);
+  return img.empty() ? frame(k, camera, scaled) : img;
+}
+
+MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, const MosaicImages& images,
+                         const MosaicOptions& options, const std::string& png_path, const GeoOrigin* origin,
+                         const std::string& geotiff_path) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (const std::string why = options.validate(); !why.empty()) throw ExportError("mosaic: " + why);
+  if (track.keyframes.empty()) throw ExportError(png_path + ": " + track.label + " has no keyframes");
+  MosaicResult result;
+  const int n = static_cast<int>(track.keyframes.size());
+  // Resolution: given, or the median keyframe's ground pixel of the images drawn.
+  Raster raster;
+  raster.res = options.resolution_m;
+  if (raster.res <= 0.0) {
+    std::vector<double> px;
+    for (const ExportKeyframe& k : track.keyframes) {
+      const CameraIntrinsics& c = survey.camera(k.session);
+      const double thumb = k.thumbnail.empty() ? 1.0 : c.width / 96.0;
+      px.push_back(k.altitude_m / c.fx * (images.hasDatasets() ? 1.0 : thumb));
+    }
+    std::nth_element(px.begin(), px.begin() + n / 2, px.end());
+    raster.res = px[n / 2];
+  }
+  // Extent: every footprint (the full camera's corners).
+  std::vector<cv::Rect2d> ground(n);
+  double x_lo = 1e300, x_hi = -1e300, y_lo = 1e300, y_hi = -1e300;
+  for (int i = 0; i < n; ++i) {
+    const ExportKeyframe& k = track.keyframes[i];
+    const CameraIntrinsics& c = survey.camera(k.session);
+    ground[i] = footprint(groundFromPixel(k, c), cv::Size(c.width, c.height));
+    x_lo = std::min(x_lo, ground[i].x);
+    y_lo = std::min(y_lo, ground[i].y);
+    x_hi = std::max(x_hi, ground[i].x + ground[i].width);
+    y_hi = std::max(y_hi, ground[i].y + ground[i].height);
+  }
+  raster.x0 = x_lo;
+  raster.ytop = y_lo;
+  const double w = std::ceil((x_hi - x_lo) / raster.res), h = std::ceil((y_hi - y_lo) / raster.res);
+  if (!(w * h <= options.max_megapixels * 1e6))
+    throw ExportError(png_path + ": " + std::to_string(static_cast<long long>(w)) + " x " +
+                      std::to_string(static_cast<long long>(h)) + " px at " + std::to_string(raster.res) +
+                      " m/px is more than " + std::to_string(options.max_megapixels) +
+                      " megapixels: give a coarser --resolution");
+  raster.width = std::max(1, static_cast<int>(w));
+  raster.height = std::max(1, static_cast<int>(h));
+  result.width = raster.width;
+  result.height = raster.height;
+  result.resolution_m = raster.res;
+  result.x0 = raster.x0;
+  result.y0 = -raster.ytop;
+  result.keyframes = n;
+
+  const std::vector<cv::Scalar> gains = options.exposure ? exposureGains(track, survey, images, raster)
+                                                         : std::vector<cv::Scalar>(n, cv::Scalar::all(1.0));
+
+  // Tiles and the keyframes touching each (with the blending margin).
+  const int tile = options.tile_px;
+  const int margin = options.blend == MosaicBlend::kMultiBand ? 128 : options.blend == MosaicBlend::kFeather ? 52 : 0;
+  const int nx = (raster.width + tile - 1) / tile, ny = (raster.height + tile - 1) / tile;
+  std::vector<std::vector<int>> touching(static_cast<std::size_t>(nx) * ny);
+  std::vector<cv::Rect> box(n);
+  for (int i = 0; i < n; ++i) {
+    const cv::Rect2d r((ground[i].x - raster.x0) / raster.res - 0.5, (ground[i].y - raster.ytop) / raster.res - 0.5,
+                       ground[i].width / raster.res, ground[i].height / raster.res);
+    box[i] = pixelBox(r);
+    const int tx0 = std::max(0, (box[i].x - margin) / tile), tx1 = std::min(nx - 1, (box[i].br().x + margin) / tile);
+    const int ty0 = std::max(0, (box[i].y - margin) / tile), ty1 = std::min(ny - 1, (box[i].br().y + margin) / tile);
+    for (int ty = ty0; ty <= ty1; ++ty)
+      for (int tx = tx0; tx <= tx1; ++tx) touching[static_cast<std::size_t>(ty) * nx + tx].push_back(i);
+  }
+
+  GDALAllRegister();
+  CPLSetConfigOption("GDAL_CACHEMAX", std::to_string(options.gdal_cache_mb).c_str());
+  CPLSetConfigOption("GDAL_PAM_ENABLED", "NO");  // no .aux.xml beside the outputs
+  const std::string tmp_tif = tempName(png_path, ".tif"), tmp_png = tempName(png_path, ".png");
+  auto cleanup = [&] {
+    std::error_code ec;
+    std::filesystem::remove(tmp_tif, ec);
+    std::filesystem::remove(tmp_png, ec);
+  };
+  GDALDriver* gtiff = GetGDALDriverManager()->GetDriverByName("GTiff");
+  GDALDriver* png = GetGDALDriverManager()->GetDriverByName("PNG");
+  if (!gtiff || !png) throw ExportError("GDAL has no GTiff or PNG driver");
+  char** create = nullptr;
+  create = CSLSetNameValue(create, "TILED", "YES");
+  create = CSLSetNameValue(create, "COMPRESS", "DEFLATE");
+  create = CSLSetNameValue(create, "PHOTOMETRIC", "RGB");
+  create = CSLSetNameValue(create, "ALPHA", "YES");
+  create = CSLSetNameValue(create, "BIGTIFF", "IF_SAFER");
+  GDALDataset* ds = gtiff->Create(tmp_tif.c_str(), raster.width, raster.height, 4, GDT_Byte, create);
+  CSLDestroy(create);
+  if (!ds) {
+    cleanup();
+    throw ExportError(png_path + ": GDAL cannot create " + tmp_tif + ": " + CPLGetLastErrorMsg());
+  }
+  try {
+    ImageCache cache(images, options.cache_bytes, n);
+    double seam_sum = 0.0, all_sum = 0.0;
+    long long seam_n = 0, all_n = 0;
+    for (int ty = 0; ty < ny; ++ty) {
+      for (int tx = 0; tx < nx; ++tx) {
+        const cv::Rect core(tx * tile, ty * tile, std::min(tile, raster.width - tx * tile),
+                            std::min(tile, raster.height - ty * tile));
+        const cv::Rect region(core.x - margin, core.y - margin, core.width + 2 * margin, core.height + 2 * margin);
+        const std::vector<int>& list = touching[static_cast<std::size_t>(ty) * nx + tx];
+        cv::Mat rgba(core.size(), CV_8UC4, cv::Scalar::all(0));
+        cv::Mat coverage(region.size(), CV_16U, cv::Scalar(0));
+        std::unique_ptr<cv::detail::Blender> blender;
+        if (options.blend == MosaicBlend::kFeather) blender = std::make_unique<cv::detail::FeatherBlender>();
+        if (options.blend == MosaicBlend::kMultiBand) blender = std::make_unique<cv::detail::MultiBandBlender>();
+        cv::Mat plain(region.size(), CV_8UC3, cv::Scalar::all(0)), plain_mask(region.size(), CV_8U, cv::Scalar(0));
+        if (blender) blender->prepare(region);
+        int fed = 0;
+        for (int i : list) {
+          const cv::Rect b = box[i] & region;
+          if (b.empty()) continue;
+          const ExportKeyframe& k = track.keyframes[i];
+          const ImageCache::Entry& e = cache.get(i, k, survey.camera(k.session));
+          if (e.image.empty()) continue;
+          cv::Matx23d m = raster.fromPixel(groundFromPixel(k, e.camera));
+          m(0, 2) -= b.x;
+          m(1, 2) -= b.y;
+          cv::Mat warped, mask;
+          cv::warpAffine(e.image, warped, m, b.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+          cv::warpAffine(cv::Mat(e.image.size(), CV_8U, cv::Scalar(255)), mask, m, b.size(), cv::INTER_NEAREST,
+                         cv::BORDER_CONSTANT, cv::Scalar(0));
+          if (cv::countNonZero(mask) == 0) continue;
+          const cv::Rect local(b.tl() - region.tl(), b.size());
+          cv::add(coverage(local), cv::Scalar(1), coverage(local), mask);
+          if (blender) {
+            cv::Mat w16;
+            cv::multiply(warped, gains[i], w16, 1.0, CV_16SC3);
+            blender->feed(w16, mask, b.tl());
+          } else {
+            cv::Mat w8;
+            cv::multiply(warped, gains[i], w8, 1.0, CV_8UC3);
+            w8.copyTo(plain(local), mask);
+            plain_mask(local).setTo(255, mask);
+          }
+          ++fed;
+        }
+        if (fed > 0) {
+          cv::Mat out8, out_mask;
+          if (blender) {
+            cv::Mat dst, dst_mask;
+            blender->blend(dst, dst_mask);
+            dst.convertTo(out8, CV_8UC3);
+            out_mask = dst_mask;
+          } else {
+            out8 = plain;
+            out_mask = plain_mask;
+          }
+          const cv::Rect inner(margin, margin, core.width, core.height);
+          cv::Mat bgr = out8(inner), alpha = out_mask(inner).clone(), cov = coverage(inner);
+          alpha.setTo(0, cov == 0);  // multi-band blending spreads its mask; only drawn pixels count
+          cv::cvtColor(bgr, rgba, cv::COLOR_BGR2RGBA);
+          std::vector<cv::Mat> ch;
+          cv::split(rgba, ch);
+          ch[3] = alpha;
+          ch[0].setTo(0, alpha == 0);
+          ch[1].setTo(0, alpha == 0);
+          ch[2].setTo(0, alpha == 0);
+          cv::merge(ch, rgba);
+          // Seam measure: gradient on the edges between coverage counts, against all covered pixels.
+          cv::Mat gray, gx, gy, grad;
+          cv::cvtColor(bgr, gray, cv::COLOR_BGR2GRAY);
+          cv::Sobel(gray, gx, CV_32F, 1, 0);
+          cv::Sobel(gray, gy, CV_32F, 0, 1);
+          grad = cv::abs(gx) + cv::abs(gy);
+          cv::Mat inside;
+          cv::erode(alpha, inside, cv::Mat::ones(5, 5, CV_8U));
+          for (int r = 0; r + 1 < cov.rows; ++r) {
+            const auto* c0 = cov.ptr<std::uint16_t>(r);
+            const auto* c1 = cov.ptr<std::uint16_t>(r + 1);
+            const auto* in = inside.ptr<uchar>(r);
+            const auto* g = grad.ptr<float>(r);
+            for (int c = 0; c + 1 < cov.cols; ++c) {
+              if (!in[c]) continue;
+              all_sum += g[c];
+              ++all_n;
+              if (c0[c] != c0[c + 1] || c0[c] != c1[c]) {
+                seam_sum += g[c];
+                ++seam_n;
+              }
+            }
+          }
+        }
+        if (ds->RasterIO(GF_Write, core.x, core.y, core.width, core.height, rgba.data, core.width, core.height,
+                         GDT_Byte, 4, nullptr, 4, static_cast<GSpacing>(rgba.step), 1, nullptr) != CE_None)
+          throw ExportError(png_path + ": GDAL cannot write " + tmp_tif + ": " + CPLGetLastErrorMsg());
+        ++result.tiles;
+      }
+    }
+    result.seam_ratio = seam_n > 0 && all_n > 0 && all_sum > 0.0 ? (seam_sum / seam_n) / (all_sum / all_n) : 0.0;
+    for (char c : cache.source) {
+      result.from_frames += c == ImageCache::kFrame;
+      result.from_thumbnails += c == ImageCache::kThumbnail;
+      result.missing += c == ImageCache::kNone || c == ImageCache::kNotLoaded;
+    }
+    if (origin) {
+      // A transverse Mercator centred on the origin (WGS84): at survey scale its grid is the
+      // local tangent plane of the GeoJSON tracks to well under a millimetre per kilometre.
+      OGRSpatialReference srs;
+      srs.SetWellKnownGeogCS("WGS84");
+      srs.SetTM(origin->lat_deg, origin->lon_deg, 1.0, 0.0, 0.0);
+      srs.SetLinearUnits(SRS_UL_METER, 1.0);
+      // Pixel corner (c, r) -> map z-up (x0 + c res, y0 - r res) -> (east, north).
+      const double hd = origin->heading_deg * M_PI / 180.0, sh = std::sin(hd), chd = std::cos(hd);
+      const double x0 = result.x0, y0 = result.y0, res = raster.res;
+      double gt[6] = {x0 * sh - y0 * chd, res * sh, res * chd, x0 * chd + y0 * sh, res * chd, -res * sh};
+      ds->SetGeoTransform(gt);
+      ds->SetSpatialRef(&srs);
+    }
+    GDALClose(ds);
+    ds = nullptr;
+    GDALDataset* src = static_cast<GDALDataset*>(GDALOpen(tmp_tif.c_str(), GA_ReadOnly));
+    if (!src) throw ExportError(png_path + ": GDAL cannot reopen " + tmp_tif);
+    char** copy = CSLSetNameValue(nullptr, "WORLDFILE", "NO");
+    GDALDataset* out = png->CreateCopy(tmp_png.c_str(), src, FALSE, copy, nullptr, nullptr);
+    CSLDestroy(copy);
+    GDALClose(src);
+    if (!out) throw ExportError(png_path + ": GDAL cannot write the PNG: " + CPLGetLastErrorMsg());
+    GDALClose(out);
+    std::error_code ec;
+    std::filesystem::rename(tmp_png, png_path, ec);
+    if (ec) throw ExportError(png_path + ": cannot rename " + tmp_png + ": " + ec.message());
+    // World file: pixel size, rotation terms, then the centre of the upper-left pixel (z-up map frame).
+    std::filesystem::path world(png_path);
+    world.replace_extension(".pgw");
+    writeFileAtomically(world.string(), [&](std::ostream& f) {
+      f << std::setprecision(12) << raster.res << "\n0\n0\n"
+        << -raster.res << "\n"
+        << result.x0 + raster.res / 2.0 << "\n"
+        << result.y0 - raster.res / 2.0 << "\n";
+    });
+    if (origin) {
+      std::filesystem::rename(tmp_tif, geotiff_path, ec);
+      if (ec) throw ExportError(geotiff_path + ": cannot rename " + tmp_tif + ": " + ec.message());
+    } else {
+      std::filesystem::remove(tmp_tif, ec);
+    }
+  } catch (...) {
+    if (ds) GDALClose(ds);
+    cleanup();
+    throw;
+  }
+  result.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return result;
+}
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,183 @@
+// export_survey: the survey's products from a session store (issue 18): argument parsing and calls
+// into core/session/survey_export.h; contract: --help, README "Exporting a survey".
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/session/mosaic.h"
+#include "uw_multislam/core/session/session_store.h"
+#include "uw_multislam/core/session/survey_export.h"
+
+namespace core = uw_multislam::core;
+
+namespace {
+
+const char* kUsage = R"usage(usage: export_survey --db STORE --out DIR [--origin LAT,LON,HEADING_DEG] [options]
+
+Reads a session store (offline_slam --db, the back-end's store) read-only and writes, per session
+(session_<id>) and per map (map_<id>, id = its first session's store id) into DIR:
+  <name>.tum      stamp x y z qx qy qz qw per keyframe (evo, TUM RGB-D format)
+  <name>.kitti    the 3x4 pose matrix [R | t] per keyframe, row-major on one line
+  <name>.csv      stamp_s,session,keyframe,frame_index,x_m,y_m,yaw_rad,altitude_m and the pose's
+                  covariance cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw
+  <name>.g2o      VERTEX_SE2 per keyframe (index in the file's keyframe order), FIX 0, EDGE_SE2
+                  per odometry motion, link and loop with its information matrix (inverse covariance)
+  <name>.geojson  the track in WGS84 (lon, lat) when --origin is given
+  <name>.png      the photomosaic (RGBA, transparent where no image), and <name>.pgw its world
+                  file (metres per pixel, centre of the upper-left pixel in the map frame)
+  <name>.tif      the mosaic as a GeoTIFF when --origin is given (transverse Mercator centred
+                  on the origin, WGS84)
+Poses are in the map frame the back-end publishes (z up, x along the map's first image columns,
+y against its rows; README "Frames (REP-105)"): the camera's level frame, z = 0 on the seabed,
+yaw about z. A session's files hold its keyframes in its map's frame. Each file is written to a
+temporary name and renamed, so none is ever half-written. The store is never modified.
+
+options:
+  --db STORE        the session store (SQLite) to read
+  --out DIR         output directory (created if missing)
+  --origin LAT,LON,HEADING_DEG
+                    WGS84 latitude and longitude (degrees) of the map frame's origin and the
+                    compass heading of its x axis (degrees clockwise from north): GeoJSON tracks
+  --resolution M    mosaic metres per pixel (default: the median keyframe's ground pixel size
+                    of the images drawn)
+  --images DIR...   dataset folders whose frames (matched by stamp and frame index) are drawn at
+                    full resolution; without them the store's thumbnails are drawn
+  --blend B         feather (default), multiband or none (cv::detail blenders; none: each
+                    keyframe drawn over the earlier ones)
+  --no-exposure     no gain compensation between keyframes (per colour channel)
+  --tile PX         mosaic tile side in pixels (default 1024; memory grows with its square)
+  --no-mosaic       tracks and graphs only
+  --quiet           no summary
+  -h, --help        this text
+
+Exit status 0 on success, 2 on bad arguments, 1 with a one-line reason on bad input.)usage";
+
+int badArgs(const std::string& why) {
+  std::fprintf(stderr, "export_survey: %s (see --help)\n", why.c_str());
+  return 2;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string db, out, origin_text;
+  bool quiet = false, mosaic = true;
+  core::MosaicOptions mosaic_options;
+  std::vector<std::string> image_dirs;
+  auto number = [](const char* text, double* v) {
+    char* end = nullptr;
+    *v = std::strtod(text, &end);
+    return end != text && *end == '\0' && std::isfinite(*v);
+  };
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    const bool has_value = i + 1 < argc;
+    if (arg == "-h" || arg == "--help") return std::puts(kUsage), 0;
+    if (arg == "--db" && has_value) {
+      db = argv[++i];
+    } else if (arg == "--out" && has_value) {
+      out = argv[++i];
+    } else if (arg == "--origin" && has_value) {
+      origin_text = argv[++i];
+    } else if (arg == "--quiet") {
+      quiet = true;
+    } else if (arg == "--no-mosaic") {
+      mosaic = false;
+    } else if (arg == "--no-exposure") {
+      mosaic_options.exposure = false;
+    } else if (arg == "--resolution" && has_value) {
+      double v = 0.0;
+      if (!number(argv[++i], &v) || v <= 0.0 || v > 100.0)
+        return badArgs(std::string("bad --resolution '") + argv[i] + "': metres per pixel, in (0, 100]");
+      mosaic_options.resolution_m = v;
+    } else if (arg == "--tile" && has_value) {
+      double v = 0.0;
+      if (!number(argv[++i], &v) || v != std::floor(v) || v < 64 || v > 16384)
+        return badArgs(std::string("bad --tile '") + argv[i] + "': pixels, an integer in [64, 16384]");
+      mosaic_options.tile_px = static_cast<int>(v);
+    } else if (arg == "--blend" && has_value) {
+      if (!core::parseMosaicBlend(argv[++i], &mosaic_options.blend))
+        return badArgs(std::string("bad --blend '") + argv[i] + "': multiband, feather or none");
+    } else if (arg == "--images" && has_value) {
+      const std::size_t before = image_dirs.size();
+      while (i + 1 < argc && std::string(argv[i + 1]).rfind("--", 0) != 0) image_dirs.push_back(argv[++i]);
+      if (image_dirs.size() == before) return badArgs("--images needs at least one dataset folder");
+    } else {
+      return badArgs(has_value || arg.rfind("--", 0) != 0 ? "unknown argument '" + arg + "'" : arg + " needs a value");
+    }
+  }
+  if (db.empty()) return badArgs("--db STORE is required");
+  if (out.empty()) return badArgs("--out DIR is required");
+  core::GeoOrigin origin;
+  std::string why;
+  if (!origin_text.empty() && !core::parseGeoOrigin(origin_text, &origin, &why)) return badArgs("bad --origin: " + why);
+  try {
+    const core::SurveyExport survey = core::loadSurveyExport(db);
+    core::MosaicImages images;
+    for (const std::string& dir : image_dirs) images.addDataset(dir);  // checked before any output
+    if (images.hasDatasets())
+      for (const std::string& line : images.matchSessions(survey))
+        if (!quiet) std::printf("images of %s\n", line.c_str());
+    namespace fs = std::filesystem;
+    std::error_code ec;
+    fs::create_directories(out, ec);
+    if (!fs::is_directory(out, ec)) {
+      std::fprintf(stderr, "export_survey: %s: cannot create the output directory\n", out.c_str());
+      return 1;
+    }
+    auto tracksOf = [&](const core::ExportTrack& t) {
+      std::vector<const core::ExportTrack*> sessions;
+      for (std::int64_t id : t.sessions)
+        for (const core::ExportTrack& s : survey.sessions)
+          if (s.sessions.front() == id) sessions.push_back(&s);
+      return sessions;
+    };
+    int files = 0;
+    auto writeAll = [&](const core::ExportTrack& t) {
+      const std::string base = (fs::path(out) / t.label).string();
+      core::writeTum(base + ".tum", t);
+      core::writeKitti(base + ".kitti", t);
+      core::writeTrackCsv(base + ".csv", t);
+      core::writeG2o(base + ".g2o", t);
+      files += 4;
+      if (!origin_text.empty()) {
+        core::writeGeoJson(base + ".geojson", tracksOf(t), origin);
+        ++files;
+      }
+      if (!mosaic) return;
+      const core::MosaicResult r = core::writeMosaic(t, survey, images, mosaic_options, base + ".png",
+                                                     origin_text.empty() ? nullptr : &origin, base + ".tif");
+      files += origin_text.empty() ? 2 : 3;
+      if (!quiet)
+        std::printf(
+            "%s.png: %d x %d px at %.4f m/px, %d tiles, %s blending%s, %.0f ms, seam ratio %.3f; images: %d "
+            "frames, %d thumbnails, %d missing\n",
+            t.label.c_str(), r.width, r.height, r.resolution_m, r.tiles, core::mosaicBlendName(mosaic_options.blend),
+            mosaic_options.exposure ? " + gains" : "", r.ms, r.seam_ratio, r.from_frames, r.from_thumbnails, r.missing);
+    };
+    for (const core::ExportTrack& s : survey.sessions) writeAll(s);
+    for (const core::ExportTrack& m : survey.maps) writeAll(m);
+    if (!quiet) {
+      for (const core::ExportTrack& m : survey.maps)
+        std::printf("%s (%s): %zu sessions, %zu keyframes, %zu edges\n", m.label.c_str(), m.name.c_str(),
+                    m.sessions.size(), m.keyframes.size(), m.edges.size());
+      std::printf("%zu sessions, %zu maps: %d files in %s%s\n", survey.sessions.size(), survey.maps.size(), files,
+                  out.c_str(), origin_text.empty() ? " (no --origin: no GeoJSON)" : "");
+      if (mosaic && image_dirs.empty())
+        std::printf(
+            "note: mosaics drawn from the store's thumbnails (small): give --images DATASET_DIR... for "
+            "full-resolution frames\n");
+      if (survey.pending_loops > 0)
+        std::printf("note: %d loops were pending optimisation in the store; the poses are as stored\n",
+                    survey.pending_loops);
+    }
+    return 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "export_survey: %s\n", e.what());
+    return 1;
+  }
+}

@@ -1,0 +1,491 @@
+"""export_survey's contract (export_survey --help): on a store made by offline_slam --db from a small
+generated two-session survey, the TUM files score like evaluate.py, the g2o files hold the store's
+graph, the GeoJSON tracks sit where the origin puts them, and bad input gets a clear error with the
+store left byte-identical."""
+import hashlib
+import json
+import math
+import os
+import sqlite3
+import struct
+
+import numpy as np
+import pytest
+from test_offline_slam import SURVEY
+from tool_runner import HERE, read_csv as rows, run_tool as run
+
+EVALUATE = os.path.join(HERE, "..", "..", "src", "tools", "evaluate.py")
+ORIGIN = (43.2, 5.3, 30.0)  # lat, lon, heading of the map frame's x axis
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory):
+    base = tmp_path_factory.mktemp("export_survey")
+    (base / "survey.yaml").write_text(SURVEY)
+    r = run("make_survey", "--config", base / "survey.yaml", "--out", base / "m", "--no-bag", "--quiet")
+    assert r.returncode == 0, r.stderr
+    return base / "m"
+
+
+@pytest.fixture(scope="module")
+def store(survey, tmp_path_factory):
+    base = tmp_path_factory.mktemp("store")
+    db = base / "survey.db"
+    r = run("offline_slam", "--session", survey / "a", "--session", survey / "b", "--out", base / "run", "--db", db,
+            "--quiet")
+    assert r.returncode == 0, r.stderr
+    return db, base / "run"
+
+
+def digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def exported(store, tmp_path_factory):
+    db, _ = store
+    before = digest(db)
+    out = tmp_path_factory.mktemp("exported") / "out"
+    r = run("export_survey", "--db", db, "--out", out, "--origin", ",".join(map(str, ORIGIN)))
+    assert r.returncode == 0, r.stderr
+    assert digest(db) == before  # read-only
+    return out, r
+
+
+def store_rows(db, sql):
+    con = sqlite3.connect("file:%s?mode=ro" % db, uri=True)
+    try:
+        return con.execute(sql).fetchall()
+    finally:
+        con.close()
+
+
+def read_tum(path):
+    out = []
+    for line in path.read_text().splitlines():
+        v = [float(t) for t in line.split()]
+        assert len(v) == 8 and v[3] == 0.0 and v[4] == 0.0 and v[5] == 0.0
+        out.append((v[0], v[1], v[2], 2.0 * math.atan2(v[6], v[7])))
+    return out
+
+
+def aligned_rmse(est, gt):
+    """Best rigid 2-D fit (Kabsch through an SVD, no scale) of est onto gt, then the RMSE."""
+    est, gt = np.asarray(est, float), np.asarray(gt, float)
+    ce, cg = est.mean(axis=0), gt.mean(axis=0)
+    u, _, vt = np.linalg.svd((est - ce).T @ (gt - cg))
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    r = vt.T @ np.diag([1.0, d]) @ u.T
+    res = (est - ce) @ r.T + cg - gt
+    return float(np.sqrt(np.mean(np.sum(res * res, axis=1))))
+
+
+def evaluate_metrics(survey, run_dir, report):
+    import subprocess
+    r = subprocess.run(["/usr/bin/python3", EVALUATE, "--run", str(run_dir), "--session", str(survey / "a"),
+                        "--session", str(survey / "b"), "--world-gt", str(survey / "world_gt.csv"), "--report",
+                        str(report), "--no-plots"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    return json.loads((report / "metrics.json").read_text())
+
+
+def truth_by_stamp(folder):
+    stamp = {int(f["index"]): float(f["stamp_s"]) for f in rows(folder / "frames.csv")}
+    return {round(stamp[int(g["index"])], 6): (float(g["x_m"]), float(g["y_m"])) for g in rows(folder / "gt.csv")}
+
+
+def test_tum_tracks_score_like_evaluate(exported, store, survey, tmp_path):
+    out, _ = exported
+    metrics = evaluate_metrics(survey, store[1], tmp_path / "report")
+    sessions = sorted(p for p in os.listdir(out) if p.startswith("session_") and p.endswith(".tum"))
+    assert len(sessions) == 2
+    for number, (name, folder) in enumerate(zip(sessions, ("a", "b"))):
+        tum = read_tum(out / name)
+        truth = truth_by_stamp(survey / folder)
+        # z-up map frame -> the image axes gt.csv uses: (x, y) -> (x, -y) (README "Frames")
+        est = [(x, -y) for _, x, y, _ in tum]
+        gt = [truth[round(t, 6)] for t, _, _, _ in tum]
+        mine = aligned_rmse(est, gt)
+        theirs = metrics["session"][str(number)]["slam"]["ate_aligned_rmse_m"]
+        assert len(tum) == metrics["session"][str(number)]["slam"]["n_keyframes"]
+        assert abs(mine - theirs) < 1e-6, (name, mine, theirs)
+    # the joined map: one TUM file holding both sessions, scored against world_gt.csv
+    maps = sorted(p for p in os.listdir(out) if p.startswith("map_") and p.endswith(".tum"))
+    assert len(maps) == 1
+    sessions_in_store = sorted({int(c["session"]) for c in rows(out / maps[0].replace(".tum", ".csv"))})
+    world = {}  # (store session, stamp) -> world gt; the two folders' stamps may coincide
+    for number, folder in enumerate(("a", "b")):
+        stamp = {int(f["index"]): float(f["stamp_s"]) for f in rows(survey / folder / "frames.csv")}
+        for w in rows(survey / "world_gt.csv"):
+            if int(w["session"]) == number:
+                world[(sessions_in_store[number], round(stamp[int(w["index"])], 6))] = (float(w["x_m"]), float(w["y_m"]))
+    tum = read_tum(out / maps[0])
+    keys = [(int(c["session"]), round(float(c["stamp_s"]), 6)) for c in rows(out / maps[0].replace(".tum", ".csv"))]
+    mine = aligned_rmse([(x, -y) for _, x, y, _ in tum], [world[k] for k in keys])
+    theirs = metrics["map"]["0"]["slam"]["ate_aligned_rmse_m"]
+    assert abs(mine - theirs) < 1e-6, (mine, theirs)
+
+
+def test_kitti_and_csv_hold_the_same_poses(exported):
+    out, _ = exported
+    for tum_name in [p for p in os.listdir(out) if p.endswith(".tum")]:
+        base = out / tum_name[:-4]
+        tum = read_tum(out / tum_name)
+        kitti = [[float(v) for v in line.split()] for line in (base.with_suffix(".kitti")).read_text().splitlines()]
+        csv_rows = rows(base.with_suffix(".csv"))
+        assert len(kitti) == len(tum) == len(csv_rows)
+        for (t, x, y, yaw), k, c in zip(tum, kitti, csv_rows):
+            assert len(k) == 12
+            assert k[3] == pytest.approx(x, abs=1e-8) and k[7] == pytest.approx(y, abs=1e-8)
+            assert math.atan2(k[4], k[0]) == pytest.approx(yaw, abs=1e-8)
+            assert float(c["stamp_s"]) == pytest.approx(t, abs=1e-6)
+            cov = np.array([[float(c["cov_xx"]), float(c["cov_xy"]), float(c["cov_xyaw"])],
+                            [float(c["cov_xy"]), float(c["cov_yy"]), float(c["cov_yyaw"])],
+                            [float(c["cov_xyaw"]), float(c["cov_yyaw"]), float(c["cov_yawyaw"])]])
+            assert np.all(np.linalg.eigvalsh(cov) >= -1e-12)
+        first = csv_rows[0]
+        if tum_name.startswith("map_"):
+            assert float(first["cov_xx"]) == 0.0  # the map's origin is exact
+        # the covariance grows along the track (composed motions)
+        assert float(csv_rows[-1]["cov_xx"]) + float(csv_rows[-1]["cov_yy"]) > \
+            float(csv_rows[1]["cov_xx"]) + float(csv_rows[1]["cov_yy"])
+
+
+def parse_g2o(path):
+    vertices, edges, fixed = {}, [], []
+    for line in path.read_text().splitlines():
+        t = line.split()
+        if t[0] == "VERTEX_SE2":
+            vertices[int(t[1])] = tuple(map(float, t[2:5]))
+        elif t[0] == "EDGE_SE2":
+            v = list(map(float, t[3:]))
+            info = np.array([[v[3], v[4], v[5]], [v[4], v[6], v[7]], [v[5], v[7], v[8]]])
+            edges.append((int(t[1]), int(t[2]), tuple(v[:3]), info))
+        elif t[0] == "FIX":
+            fixed.append(int(t[1]))
+        else:
+            raise AssertionError("unknown g2o line " + line)
+    return vertices, edges, fixed
+
+
+def flipped(x, y, yaw, cov_blob):
+    """A stored (image axes) measurement in the z-up frame, with its information matrix."""
+    c = np.array(struct.unpack("9d", cov_blob)).reshape(3, 3)
+    f = np.diag([1.0, -1.0, -1.0])
+    return (x, -y, -yaw), np.linalg.inv(f @ c @ f)
+
+
+def test_g2o_round_trips_the_store_graph(exported, store):
+    out, _ = exported
+    db, _ = store
+    sessions = [s for (s,) in store_rows(db, "SELECT id FROM sessions ORDER BY id")]
+    loops = store_rows(db, "SELECT session_a, keyframe_a, session_b, keyframe_b, x, y, yaw, cov FROM loops "
+                           "WHERE refused = 0 AND summarised = 0")
+    for s in sessions:
+        vertices, edges, fixed = parse_g2o(out / ("session_%d.g2o" % s))
+        tum = read_tum(out / ("session_%d.tum" % s))
+        assert fixed == [0] and sorted(vertices) == list(range(len(tum)))
+        for i, (_, x, y, yaw) in enumerate(tum):
+            assert vertices[i] == pytest.approx((x, y, yaw), abs=1e-8)
+        expected = {}
+        for k, x, y, yaw, cov in store_rows(db, "SELECT keyframe, x, y, yaw, cov FROM motions WHERE session = %d" % s):
+            expected[(k - 1, k)] = flipped(x, y, yaw, cov)
+        for sa, ka, sb, kb, x, y, yaw, cov in loops:
+            if sa == s and sb == s:
+                expected[(ka, kb)] = flipped(x, y, yaw, cov)
+        assert len(edges) == len(expected) and len(expected) > len(tum) - 1  # loops included
+        for a, b, z, info in edges:
+            z_ref, info_ref = expected[(a, b)]
+            assert z == pytest.approx(z_ref, abs=1e-9)
+            assert np.allclose(info, info_ref, rtol=1e-9, atol=1e-9)
+    # the map: both sessions, the link between them
+    (map_file,) = [p for p in os.listdir(out) if p.startswith("map_") and p.endswith(".g2o")]
+    vertices, edges, _ = parse_g2o(out / map_file)
+    n = [len(read_tum(out / ("session_%d.tum" % s))) for s in sessions]
+    assert len(vertices) == sum(n)
+    (link,) = store_rows(db, "SELECT x, y, yaw, cov FROM links")
+    z_ref, info_ref = flipped(*link)
+    joined = [e for e in edges if e[0] == n[0] - 1 and e[1] == n[0]]
+    assert len(joined) == 1 and joined[0][2] == pytest.approx(z_ref, abs=1e-9)
+    assert np.allclose(joined[0][3], info_ref, rtol=1e-9)
+
+
+def meridian_and_normal_radii(lat_deg):
+    a, f = 6378137.0, 1 / 298.257223563
+    e2 = f * (2 - f)
+    s = math.sin(math.radians(lat_deg))
+    w = math.sqrt(1 - e2 * s * s)
+    return a * (1 - e2) / w ** 3, a / w
+
+
+def test_geojson_tracks_are_the_map_tracks_in_wgs84(exported):
+    out, _ = exported
+    lat0, lon0, heading = ORIGIN
+    m, n = meridian_and_normal_radii(lat0)
+    h = math.radians(heading)
+    for name in [p for p in os.listdir(out) if p.endswith(".geojson")]:
+        data = json.loads((out / name).read_text())
+        assert data["type"] == "FeatureCollection"
+        tum = read_tum(out / name.replace(".geojson", ".tum"))
+        coords = [c for f in data["features"] for c in f["geometry"]["coordinates"]]
+        assert len(coords) == len(tum)
+        for (lon, lat), (_, x, y, _) in zip(coords, tum):
+            north = math.radians(lat - lat0) * m
+            east = math.radians(lon - lon0) * n * math.cos(math.radians(lat0))
+            # x points at compass heading h, y 90 degrees anticlockwise of it
+            assert east == pytest.approx(x * math.sin(h) - y * math.cos(h), abs=2e-3)
+            assert north == pytest.approx(x * math.cos(h) + y * math.sin(h), abs=2e-3)
+
+
+def test_help_lists_every_option():
+    r = run("export_survey", "--help")
+    assert r.returncode == 0
+    for option in ("--db", "--out", "--origin", "--quiet", "--resolution", "--images", "--blend", "--no-exposure",
+                   "--tile", "--no-mosaic"):
+        assert option in r.stdout
+
+
+def test_missing_store_is_a_clear_error(tmp_path):
+    r = run("export_survey", "--db", tmp_path / "none.db", "--out", tmp_path / "out")
+    assert r.returncode == 1 and "none.db" in r.stderr and "no such file" in r.stderr
+    assert not (tmp_path / "none.db").exists() and not (tmp_path / "out").exists()
+
+
+def test_corrupt_store_is_left_byte_identical(store, tmp_path):
+    db, _ = store
+    bad = tmp_path / "bad.db"
+    data = bytearray(db.read_bytes())
+    page = 4096
+    for i in range(page * 2, min(len(data), page * 6)):
+        data[i] = (i * 7) & 0xFF
+    bad.write_bytes(bytes(data))
+    before = digest(bad)
+    r = run("export_survey", "--db", bad, "--out", tmp_path / "out")
+    assert r.returncode == 1 and "bad.db" in r.stderr and "corrupt" in r.stderr, r.stderr
+    assert digest(bad) == before and not (tmp_path / "out").exists()
+    assert sorted(os.listdir(tmp_path)) == ["bad.db"]  # no -wal, -shm or .lock beside it
+
+
+def test_not_a_store_and_empty_file(tmp_path):
+    (tmp_path / "text.db").write_text("hello")
+    r = run("export_survey", "--db", tmp_path / "text.db", "--out", tmp_path / "out")
+    assert r.returncode == 1 and "not an SQLite database" in r.stderr
+    (tmp_path / "empty.db").write_bytes(b"")
+    r = run("export_survey", "--db", tmp_path / "empty.db", "--out", tmp_path / "out")
+    assert r.returncode == 1 and "empty" in r.stderr
+
+
+def test_bad_images_folder_is_refused_before_any_output(store, tmp_path):
+    db, _ = store
+    r = run("export_survey", "--db", db, "--out", tmp_path / "out", "--images", tmp_path / "nowhere")
+    assert r.returncode == 1 and "nowhere" in r.stderr, r.stderr
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("option,value", [("--origin", v) for v in ("91,5,0", "43,181,0", "43,5", "a,b,c", "43,5,0,1",
+                                                                      "43,5,nan")] +
+                         [("--resolution", v) for v in ("0", "-0.01", "abc", "nan", "1e9", "")] +
+                         [("--blend", "gaussian"), ("--tile", "10"), ("--tile", "100.5")])
+def test_bad_option_values_are_refused(store, tmp_path, option, value):
+    db, _ = store
+    r = run("export_survey", "--db", db, "--out", tmp_path / "out", option, value)
+    assert r.returncode == 2 and option in r.stderr, r.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_missing_arguments(tmp_path):
+    assert run("export_survey", "--out", tmp_path).returncode == 2
+    assert run("export_survey", "--db", tmp_path / "x.db").returncode == 2
+    r = run("export_survey", "--db")
+    assert r.returncode == 2 and "needs a value" in r.stderr
+
+
+def test_map_covariances_are_the_stored_motions_composed(exported, store):
+    """First-order composition (Smith, Self and Cheeseman) of the map's stored optimised motions,
+    done here in numpy, gives every row's covariance in the map's CSV (z-up: F P F)."""
+    out, _ = exported
+    db, _ = store
+    (map_id, blob), = store_rows(db, "SELECT id, motions FROM maps WHERE motions IS NOT NULL")
+    motions = np.frombuffer(blob, dtype="<f8").reshape(-1, 12)
+    csv_rows = rows(out / ("map_%d.csv" % map_id))
+    assert len(csv_rows) == len(motions) + 1
+    pose, cov = np.zeros(3), np.zeros((3, 3))
+    f = np.diag([1.0, -1.0, -1.0])
+    for row, m in zip(csv_rows[1:], motions):
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        j1 = np.array([[1, 0, -s * m[0] - c * m[1]], [0, 1, c * m[0] - s * m[1]], [0, 0, 1]])
+        j2 = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+        cov = j1 @ cov @ j1.T + j2 @ m[3:].reshape(3, 3) @ j2.T
+        pose = np.array([pose[0] + c * m[0] - s * m[1], pose[1] + s * m[0] + c * m[1], pose[2] + m[2]])
+        mine = f @ cov @ f
+        got = np.array([[float(row["cov_xx"]), float(row["cov_xy"]), float(row["cov_xyaw"])],
+                        [float(row["cov_xy"]), float(row["cov_yy"]), float(row["cov_yyaw"])],
+                        [float(row["cov_xyaw"]), float(row["cov_yyaw"]), float(row["cov_yawyaw"])]])
+        assert np.allclose(got, mine, rtol=1e-7, atol=1e-15), (row, mine)
+        assert float(row["x_m"]) == pytest.approx(pose[0], abs=1e-8)
+        assert float(row["y_m"]) == pytest.approx(-pose[1], abs=1e-8)
+
+
+# --- mosaics ------------------------------------------------------------------------------------
+
+def read_raster(path):
+    """(rows, cols, bands) uint8 array and the GDAL dataset's geotransform and projection."""
+    from osgeo import gdal
+    ds = gdal.Open(str(path))
+    assert ds is not None, path
+    data = np.dstack([ds.GetRasterBand(b + 1).ReadAsArray() for b in range(ds.RasterCount)])
+    return data, ds.GetGeoTransform(), ds.GetProjection()
+
+
+def read_world_file(path):
+    a, d, b, e, c, f = (float(v) for v in path.read_text().split())
+    return a, d, b, e, c, f
+
+
+def read_camera(folder):
+    cam = {}
+    for line in (folder / "camera.yaml").read_text().splitlines():
+        if ":" in line:
+            k, v = line.split(":", 1)
+            cam[k.strip()] = v.strip()
+    return {k: float(cam[k]) for k in ("fx", "fy", "cx", "cy")}
+
+
+def gray(rgb):
+    return rgb[..., :3].astype(float) @ np.array([0.299, 0.587, 0.114])
+
+
+def ncc(a, b):
+    a, b = a - a.mean(), b - b.mean()
+    return float((a * b).sum() / math.sqrt((a * a).sum() * (b * b).sum()))
+
+
+def expected_patch(keyframe, camera, image, world, centre_px, half):
+    """The source image sampled (nearest) at the mosaic pixels around centre_px, by the test's own
+    geometry: world file -> z-up map point -> image axes -> camera pixel at the keyframe's pose."""
+    a, _, _, e, c, f = world
+    cols = np.arange(centre_px[0] - half, centre_px[0] + half)
+    rows_ = np.arange(centre_px[1] - half, centre_px[1] + half)
+    cc, rr = np.meshgrid(cols, rows_)
+    x, y = c + cc * a, f + rr * e                       # z-up map frame
+    X, Y = x, -y                                        # image axes
+    tx, ty, psi = float(keyframe["x_m"]), -float(keyframe["y_m"]), -float(keyframe["yaw_rad"])
+    dx, dy = X - tx, Y - ty
+    u = camera["cx"] + (math.cos(psi) * dx + math.sin(psi) * dy) * camera["fx"] / float(keyframe["altitude_m"])
+    v = camera["cy"] + (-math.sin(psi) * dx + math.cos(psi) * dy) * camera["fy"] / float(keyframe["altitude_m"])
+    ui, vi = np.rint(u).astype(int), np.rint(v).astype(int)
+    assert ui.min() >= 0 and vi.min() >= 0 and ui.max() < image.shape[1] and vi.max() < image.shape[0]
+    return gray(image[vi, ui])
+
+
+@pytest.fixture(scope="module")
+def full_mosaics(store, survey, tmp_path_factory):
+    db, _ = store
+    out = tmp_path_factory.mktemp("mosaics") / "out"
+    r = run("export_survey", "--db", db, "--out", out, "--images", survey / "a", survey / "b", "--resolution", "0.01")
+    assert r.returncode == 0, r.stderr
+    return out, r
+
+
+def test_mosaic_puts_each_keyframe_image_at_its_pose(full_mosaics, survey):
+    out, r = full_mosaics
+    assert "0 thumbnails, 0 missing" in r.stdout, r.stdout
+    # both folders hold frames with the same indexes and stamps: each session gets its own
+    matched = [line for line in r.stdout.splitlines() if line.startswith("images of session_")]
+    assert len(matched) == 2 and "ambiguous" not in r.stdout
+    for line, folder in zip(matched, ("a", "b")):
+        assert line.endswith("%s, %s keyframes" % (survey / folder, line.split(", ")[-1].split(" keyframes")[0]))
+    sessions = sorted(int(p[8:-4]) for p in os.listdir(out) if p.startswith("session_") and p.endswith(".csv"))
+    checked = 0
+    for s, folder in zip(sessions, ("a", "b")):
+        for prefix in ("session_%d" % s, [p[:-4] for p in os.listdir(out) if p.startswith("map_")
+                                           and p.endswith(".png")][0]):
+            mosaic, _, _ = read_raster(out / (prefix + ".png"))
+            world = read_world_file(out / (prefix + ".pgw"))
+            assert world[0] == pytest.approx(0.01) and world[3] == pytest.approx(-0.01) and world[1] == world[2] == 0
+            rows_csv = [k for k in rows(out / (prefix + ".csv")) if int(k["session"]) == s]
+            frames = {int(f["index"]): f["image"] for f in rows(survey / folder / "frames.csv")}
+            camera = read_camera(survey / folder)
+            for k in (rows_csv[len(rows_csv) // 3], rows_csv[2 * len(rows_csv) // 3]):
+                image, _, _ = read_raster(survey / folder / frames[int(k["frame_index"])])
+                centre = (int(round((float(k["x_m"]) - world[4]) / world[0])),
+                          int(round((float(k["y_m"]) - world[5]) / world[3])))
+                half = 40
+                assert mosaic[centre[1] - half:centre[1] + half, centre[0] - half:centre[0] + half, 3].min() == 255
+                expected = expected_patch(k, camera, image, world, centre, half)
+                # The blend averages overlapping frames (noise, marine snow, light differ), so the
+                # registration is judged by where the correlation peaks: at the pose, to a pixel.
+                scores = {(dx, dy): ncc(gray(mosaic[centre[1] - half + dy:centre[1] + half + dy,
+                                                    centre[0] - half + dx:centre[0] + half + dx]), expected)
+                          for dx in range(-4, 5) for dy in range(-4, 5)}
+                peak = max(scores, key=scores.get)
+                assert abs(peak[0]) <= 1 and abs(peak[1]) <= 1, (prefix, k["keyframe"], peak, scores[peak])
+                assert scores[peak] > 0.8, (prefix, k["keyframe"], scores[peak])
+                assert scores[(4, 4)] < scores[peak] - 0.2
+                checked += 1
+    assert checked == 8
+
+
+def test_unblended_mosaic_shows_the_last_keyframe_as_it_is(store, survey, tmp_path):
+    """--blend none draws the keyframes in order, each over the earlier ones: around its centre the
+    last keyframe of a session is its own image, placed by the world file."""
+    db, _ = store
+    out = tmp_path / "out"
+    r = run("export_survey", "--db", db, "--out", out, "--images", survey / "a", survey / "b", "--resolution", "0.01",
+            "--blend", "none", "--no-exposure")
+    assert r.returncode == 0, r.stderr
+    sessions = sorted(int(p[8:-4]) for p in os.listdir(out) if p.startswith("session_") and p.endswith(".csv"))
+    for s, folder in zip(sessions, ("a", "b")):
+        mosaic, _, _ = read_raster(out / ("session_%d.png" % s))
+        world = read_world_file(out / ("session_%d.pgw" % s))
+        k = rows(out / ("session_%d.csv" % s))[-1]
+        frames = {int(f["index"]): f["image"] for f in rows(survey / folder / "frames.csv")}
+        image, _, _ = read_raster(survey / folder / frames[int(k["frame_index"])])
+        centre = (int(round((float(k["x_m"]) - world[4]) / world[0])),
+                  int(round((float(k["y_m"]) - world[5]) / world[3])))
+        patch = mosaic[centre[1] - 40:centre[1] + 40, centre[0] - 40:centre[0] + 40]
+        score = ncc(gray(patch), expected_patch(k, read_camera(survey / folder), image, world, centre, 40))
+        assert score > 0.95, (s, score)
+
+
+def test_mosaic_outputs_and_transparency(exported):
+    out, r = exported
+    assert "thumbnails" in r.stdout  # no --images: says what was drawn
+    for png in [p for p in os.listdir(out) if p.endswith(".png")]:
+        data, _, _ = read_raster(out / png)
+        assert data.shape[2] == 4
+        alpha = data[..., 3]
+        assert 0.2 < (alpha == 255).mean() < 1.0  # covered and uncovered pixels
+        assert (data[..., :3][alpha == 0] == 0).all()
+        assert (out / png.replace(".png", ".pgw")).exists()
+    assert not [p for p in os.listdir(out) if ".tmp" in p]  # nothing half-written left behind
+
+
+def test_geotiff_carries_the_origin(exported):
+    out, _ = exported
+    lat0, lon0, heading = ORIGIN
+    h = math.radians(heading)
+    tifs = [p for p in os.listdir(out) if p.endswith(".tif")]
+    assert len(tifs) == 3  # two sessions, one map
+    for tif in tifs:
+        data, gt, wkt = read_raster(out / tif)
+        png, _, _ = read_raster(out / tif.replace(".tif", ".png"))
+        assert np.array_equal(data, png)
+        a, _, _, e, c, f = read_world_file(out / tif.replace(".tif", ".pgw"))
+        x0, y0 = c - a / 2, f - e / 2  # the upper-left corner in the z-up map frame
+        east0 = x0 * math.sin(h) - y0 * math.cos(h)
+        north0 = x0 * math.cos(h) + y0 * math.sin(h)
+        assert gt == pytest.approx((east0, a * math.sin(h), a * math.cos(h), north0, a * math.cos(h), -a * math.sin(h)),
+                                   abs=1e-9)
+        assert "Transverse_Mercator" in wkt and "WGS" in wkt
+        assert '"latitude_of_origin",%s' % lat0 in wkt.replace(" ", "") and \
+            '"central_meridian",%s' % lon0 in wkt.replace(" ", "")
+
+
+def test_no_geotiff_without_origin(store, tmp_path):
+    db, _ = store
+    r = run("export_survey", "--db", db, "--out", tmp_path / "out", "--blend", "feather", "--no-exposure")
+    assert r.returncode == 0, r.stderr
+    names = os.listdir(tmp_path / "out")
+    assert not [p for p in names if p.endswith(".tif") or p.endswith(".geojson")]
+    assert len([p for p in names if p.endswith(".png")]) == 3
