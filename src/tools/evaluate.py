@@ -45,6 +45,19 @@ Metrics (per map, slam)
   ate_aligned_rmse_m over all keyframes of the map,
   ek_intra_m / ek_inter_m (+ _pairs) over the loops_gt.csv pairs inside the map.
 
+Mosaic consistency (per map, slam; with --mosaic-score, which reads the keyframes' images)
+  mosaic_disagreement     the photometric disagreement of the map's mosaic: for every pair of
+                          keyframes whose images overlap in the ground truth, a 24 x 18 grid of
+                          pixels of the first is put on the seabed by the estimated poses and
+                          altitudes (pixel (u, v) at pose (+) ((u - cx) h / fx, (v - cy) h / fy))
+                          and looked up in the second; the mean absolute difference of the two
+                          images' intensities there, each image z-scored (exposure and contrast
+                          normalised), over all such points of all pairs. 0 = the images agree.
+  mosaic_disagreement_gt  the same with the ground-truth poses (the frames' noise, light and
+                          haze leave it above 0: the best a map can do).
+  mosaic_ratio            mosaic_disagreement / mosaic_disagreement_gt: 1 = as consistent as the
+                          ground truth; mosaic_pairs = pairs used.
+
 Metrics (loops, rows intra / inter / all)
   accepted             distinct unordered pairs in loops.csv.
   correct              when the run has loop_poses.csv (offline_slam writes it: the measured
@@ -256,6 +269,7 @@ class SessionTruth:
     altitude: dict
     camera: dict
     stamps: list = field(default_factory=list)  # frames.csv's stamp_s, in file order
+    images: dict = field(default_factory=dict)  # index -> image file name (frames.csv)
 
     def footprint_height(self, index):
         """Height in metres of the seabed seen by frame `index`."""
@@ -297,7 +311,8 @@ def load_session_truth(directory):
     frames = read_table(frames_path, FRAMES_COLUMNS)
     altitude = {r["index"]: r["altitude_m"] for r in frames}
     camera = read_camera_yaml(os.path.join(directory, "camera.yaml"))
-    return SessionTruth(directory, poses, altitude, camera, [r["stamp_s"] for r in frames])
+    return SessionTruth(directory, poses, altitude, camera, [r["stamp_s"] for r in frames],
+                        {r["index"]: r["image"] for r in frames})
 
 
 def unordered(a, b):
@@ -610,6 +625,107 @@ def map_metrics(estimate, gt, gt_poses, map_id, pieces=None):
     return out
 
 
+# ---------------------------------------------------------------------------------------------
+# Mosaic consistency.
+
+MOSAIC_GRID = (24, 18)  # sample pixels per image (columns, rows)
+MOSAIC_MIN_SHARED = 0.25  # a pair overlaps when this fraction of the first's grid falls in the second
+
+
+def normalised_gray(path):
+    """The image as z-scored grey levels (PIL; Debian python3-pil, a matplotlib dependency)."""
+    from PIL import Image
+    try:
+        with Image.open(path) as im:
+            g = np.asarray(im.convert("L"), float)
+    except OSError as e:
+        raise EvalError("%s: cannot read the image (%s)" % (path, e)) from None
+    return (g - g.mean()) / (g.std() or 1.0)
+
+
+def rotate_rows(xy, yaw):
+    """rotate() for each row of an N x 2 array."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return xy @ np.array([[c, s], [-s, c]])
+
+
+def seabed_points(pose, pixels, camera, altitude):
+    """Pixels (N x 2) of a nadir camera at `pose` and `altitude` -> seabed points (N x 2)."""
+    ab = np.stack([(pixels[:, 0] - camera["cx"]) * altitude / camera["fx"],
+                   (pixels[:, 1] - camera["cy"]) * altitude / camera["fy"]], axis=1)
+    return np.asarray(pose[:2], float) + rotate_rows(ab, pose[2])
+
+
+def image_pixels(pose, points, camera, altitude):
+    """Seabed points (N x 2) -> pixels (N x 2) of the camera at `pose` (inverse of seabed_points)."""
+    ab = rotate_rows(points - np.asarray(pose[:2], float), -pose[2])
+    return np.stack([camera["cx"] + ab[:, 0] * camera["fx"] / altitude,
+                     camera["cy"] + ab[:, 1] * camera["fy"] / altitude], axis=1)
+
+
+def mosaic_consistency(keys, pose_sets, gt):
+    """{set name: disagreement} over the pairs of `keys` overlapping under pose_sets["gt"], and the
+    number of pairs (see the docstring's "Mosaic consistency")."""
+    cams = {k: gt.sessions[k[0]].camera for k in keys}
+    alt = {k: gt.sessions[k[0]].altitude[k[1]] for k in keys}
+    grid = {}
+    for k in keys:
+        c = cams[k]
+        u = np.linspace(0.05, 0.95, MOSAIC_GRID[0]) * (c["image_width"] - 1)
+        v = np.linspace(0.05, 0.95, MOSAIC_GRID[1]) * (c["image_height"] - 1)
+        grid[k] = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2)
+
+    def inside(px, c):
+        return (px[:, 0] >= 0) & (px[:, 1] >= 0) & (px[:, 0] <= c["image_width"] - 1) & \
+            (px[:, 1] <= c["image_height"] - 1)
+
+    truth = pose_sets["gt"]
+    pairs = []
+    for i, a in enumerate(keys):
+        for b in keys[i + 1:]:
+            reach = max(cams[a]["image_width"], cams[a]["image_height"]) * alt[a] / cams[a]["fx"] + \
+                max(cams[b]["image_width"], cams[b]["image_height"]) * alt[b] / cams[b]["fx"]
+            if np.hypot(truth[a][0] - truth[b][0], truth[a][1] - truth[b][1]) > reach:
+                continue
+            px = image_pixels(truth[b], seabed_points(truth[a], grid[a], cams[a], alt[a]), cams[b], alt[b])
+            if inside(px, cams[b]).mean() >= MOSAIC_MIN_SHARED:
+                pairs.append((a, b))
+    images = {}
+
+    def image(k):
+        if k not in images:
+            truth_k = gt.sessions[k[0]]
+            images[k] = normalised_gray(os.path.join(truth_k.directory, truth_k.images[k[1]]))
+        return images[k]
+
+    out = {}
+    for name, poses in pose_sets.items():
+        total, count = 0.0, 0
+        for a, b in pairs:
+            px = image_pixels(poses[b], seabed_points(poses[a], grid[a], cams[a], alt[a]), cams[b], alt[b])
+            ok = inside(px, cams[b])
+            if not ok.any():
+                continue
+            ia, ib = image(a), image(b)
+            pa = np.rint(grid[a][ok]).astype(int)
+            pb = np.rint(px[ok]).astype(int)
+            total += float(np.abs(ia[pa[:, 1], pa[:, 0]] - ib[pb[:, 1], pb[:, 0]]).sum())
+            count += int(ok.sum())
+        out[name] = total / count if count else NA
+    return out, len(pairs)
+
+
+def mosaic_metrics(estimate, gt_poses, gt, map_id):
+    keys = estimate.keys(lambda k: estimate.frame[k] == map_id)
+    if any(k not in gt_poses for k in keys):
+        return dict.fromkeys(("mosaic_disagreement", "mosaic_disagreement_gt", "mosaic_ratio", "mosaic_pairs"), NA)
+    scores, pairs = mosaic_consistency(keys, {"slam": {k: estimate.poses[k] for k in keys},
+                                              "gt": {k: gt_poses[k] for k in keys}}, gt)
+    est, best = scores["slam"], scores["gt"]
+    return {"mosaic_disagreement": est, "mosaic_disagreement_gt": best,
+            "mosaic_ratio": est / best if est is not NA and best else NA, "mosaic_pairs": pairs}
+
+
 def loop_kind(pair):
     return "intra" if pair[0][0] == pair[1][0] else "inter"
 
@@ -713,7 +829,7 @@ class Evaluation:
         return out
 
 
-def evaluate(run, gt, loop_true_dist=None):
+def evaluate(run, gt, loop_true_dist=None, mosaic_score=False):
     ev = Evaluation()
     for estimate in run.estimates():
         poses, unavailable = gt_in_estimate_frames(estimate, gt)
@@ -741,7 +857,10 @@ def evaluate(run, gt, loop_true_dist=None):
                         estimate, gt, ev.gt_poses[estimate.name], session, None if len(units) == 1 else set(keys)))
     if run.slam is not None:
         for map_id in sorted(set(run.slam.frame.values())):
-            ev.add("map", map_id, "slam", map_metrics(run.slam, gt, ev.gt_poses["slam"], map_id, run.pieces))
+            metrics = map_metrics(run.slam, gt, ev.gt_poses["slam"], map_id, run.pieces)
+            if mosaic_score:
+                metrics.update(mosaic_metrics(run.slam, ev.gt_poses["slam"], gt, map_id))
+            ev.add("map", map_id, "slam", metrics)
     ev.verdict = judge_loops(gt, run.loops or [], loop_true_dist, run.loop_poses)
     for kind, metrics in loop_metrics(run, gt, ev.verdict).items():
         ev.add("loops", kind, "loops", metrics)
@@ -783,6 +902,8 @@ SESSION_COLUMNS = (("keyframes", "n_keyframes"), ("path (m)", "path_length_m"), 
                    ("RPE trans (m)", "rpe_trans_rmse_m"), ("RPE rot (deg)", "rpe_rot_rmse_deg"))
 MAP_COLUMNS = (("sessions", "n_sessions"), ("keyframes", "n_keyframes"), ("ATE (m)", "ate_rmse_m"),
                ("aligned ATE (m)", "ate_aligned_rmse_m"))
+MOSAIC_COLUMNS = (("disagreement", "mosaic_disagreement"), ("ground truth's", "mosaic_disagreement_gt"),
+                  ("ratio", "mosaic_ratio"), ("pairs", "mosaic_pairs"))
 LOOP_COLUMNS = ("accepted", "correct", "precision", "gt_pairs", "gt_pairs_keyframes", "found", "recall")
 EK_HEADERS = ("e_k intra (m) (pairs)", "e_k inter (m) (pairs)")
 
@@ -803,6 +924,10 @@ def markdown(ev):
             for mid, m in data.get("map", {}).items()]
     if rows:
         parts += ["## Maps (slam)", md_table(["map"] + [h for h, _ in MAP_COLUMNS] + list(EK_HEADERS), rows)]
+    rows = [[mid] + metric_cells(m["slam"], MOSAIC_COLUMNS) for mid, m in data.get("map", {}).items()
+            if "mosaic_ratio" in m["slam"]]
+    if rows:
+        parts += ["## Mosaic consistency (slam)", md_table(["map"] + [h for h, _ in MOSAIC_COLUMNS], rows)]
     rows = [[kind] + [md_value(m["loops"][c]) for c in LOOP_COLUMNS] for kind, m in data.get("loops", {}).items()]
     parts += ["## Loops", md_table(["pairs"] + list(LOOP_COLUMNS), rows)]
     if "timing" in data:
@@ -1143,6 +1268,8 @@ def parse_args(argv):
     parser.add_argument("--html", action="store_true",
                         help="also write report.html: one self-contained file with the tables, the plots, the "
                              "run's inputs and configuration (without figures under --no-plots)")
+    parser.add_argument("--mosaic-score", action="store_true",
+                        help="per map, the mosaic consistency score (reads the keyframes' images)")
     parser.add_argument("--loop-true-dist", type=positive_float, metavar="M",
                         help="gt distance (m) below which an accepted loop is correct "
                              "(default: the image footprint height at the frames' mean altitude)")
@@ -1185,7 +1312,7 @@ def main(argv=None):
         gt = load_ground_truth(session_dirs, world_gt, loops_gt)
         run = load_run(args.run)
         notes = check_run_against_truth(run, gt)
-        ev = evaluate(run, gt, args.loop_true_dist)
+        ev = evaluate(run, gt, args.loop_true_dist, args.mosaic_score)
         ev.notes += notes
         text = write_report(ev, args.report)
         figures = [] if args.no_plots else write_plots(ev, run, gt, args.report)

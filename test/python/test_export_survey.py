@@ -489,3 +489,44 @@ def test_no_geotiff_without_origin(store, tmp_path):
     names = os.listdir(tmp_path / "out")
     assert not [p for p in names if p.endswith(".tif") or p.endswith(".geojson")]
     assert len([p for p in names if p.endswith(".png")]) == 3
+
+
+# --- evaluate.py --mosaic-score (issue 18, item 4) ------------------------------------------------
+
+def mosaic_scores(survey, run_dir, report):
+    import subprocess
+    r = subprocess.run(["/usr/bin/python3", EVALUATE, "--run", str(run_dir), "--session", str(survey / "a"),
+                        "--session", str(survey / "b"), "--world-gt", str(survey / "world_gt.csv"), "--report",
+                        str(report), "--no-plots", "--mosaic-score"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "## Mosaic consistency (slam)" in r.stdout
+    return json.loads((report / "metrics.json").read_text())["map"]["0"]["slam"]
+
+
+def test_mosaic_score_of_the_map_is_close_to_the_ground_truths(store, survey, tmp_path):
+    _, run_dir = store
+    m = mosaic_scores(survey, run_dir, tmp_path / "report")
+    assert m["mosaic_pairs"] > 20
+    # z-scored unrelated images differ by 2/sqrt(pi) = 1.13 on average: the ground truth's
+    # overlaps agree far better (what is left is the frames' own noise, light and haze)
+    assert m["mosaic_disagreement_gt"] < 0.8
+    assert abs(m["mosaic_ratio"] - 1.0) < 0.1, m
+    # a map with session b turned by 3 degrees about its first keyframe scores clearly worse
+    bad = tmp_path / "bad_run"
+    bad.mkdir()
+    for name in os.listdir(run_dir):
+        (bad / name).write_bytes((run_dir / name).read_bytes())
+    lines = (run_dir / "trajectory.csv").read_text().splitlines()
+    header, body = lines[0], [line.split(",") for line in lines[1:]]
+    first_b = next(r for r in body if r[0] == "1")
+    x0, y0, t = float(first_b[3]), float(first_b[4]), math.radians(3.0)
+    for r in body:
+        if r[0] == "1":
+            dx, dy = float(r[3]) - x0, float(r[4]) - y0
+            r[3] = "%.6f" % (x0 + math.cos(t) * dx - math.sin(t) * dy)
+            r[4] = "%.6f" % (y0 + math.sin(t) * dx + math.cos(t) * dy)
+            r[5] = "%.7f" % (float(r[5]) + t)
+    (bad / "trajectory.csv").write_text("\n".join([header] + [",".join(r) for r in body]) + "\n")
+    worse = mosaic_scores(survey, bad, tmp_path / "bad_report")
+    assert worse["mosaic_disagreement_gt"] == pytest.approx(m["mosaic_disagreement_gt"], rel=1e-9)
+    assert worse["mosaic_ratio"] > m["mosaic_ratio"] + 0.1, (worse, m)

@@ -51,7 +51,7 @@ INCLUDE_FILE_KEYS = {"sqlite3.h": "libsqlite3-dev", "gdal_priv.h": "libgdal-dev"
                      "cpl_conv.h": "libgdal-dev"}
 # Python modules that are not ROS packages -> rosdep key.
 PYTHON_KEYS = {"numpy": "python3-numpy", "matplotlib": "python3-matplotlib", "yaml": "python3-yaml",
-               "pytest": "python3-pytest", "osgeo": "python3-gdal", "catkin_pkg": "python3-catkin-pkg", "rospkg": "python3-rospkg"}
+               "pytest": "python3-pytest", "osgeo": "python3-gdal", "PIL": "python3-pil", "catkin_pkg": "python3-catkin-pkg", "rospkg": "python3-rospkg"}
 # ROS packages whose Python module has another name.
 ROS_PYTHON_MODULES = {"xmlrpc": None}
 
