@@ -613,7 +613,13 @@ TEST(Store, ReadOnlyReadsEverythingAndWritesNothing) {
     ASSERT_EQ(ro.sessions().size(), rw.sessions().size());
     EXPECT_EQ(ro.loops().size(), rw.loops().size());
     EXPECT_EQ(ro.maps().size(), rw.maps().size());
-    for (const StoredSession& s : rw.sessions()) EXPECT_EQ(ro.odometry(s.id).size(), rw.odometry(s.id).size());
+    for (const StoredSession& s : rw.sessions()) {
+      EXPECT_EQ(ro.odometry(s.id).size(), rw.odometry(s.id).size());
+      const std::vector<StoredKeyframe> kfs = rw.keyframes(s.id, true);
+      const std::vector<std::vector<std::uint8_t>> thumbs = ro.thumbnails(s.id);
+      ASSERT_EQ(thumbs.size(), kfs.size());
+      for (std::size_t k = 0; k < kfs.size(); ++k) EXPECT_EQ(thumbs[k], kfs[k].thumbnail) << k;
+    }
   }
   std::filesystem::remove(path + ".lock");
   const std::string before = readBytes(path);

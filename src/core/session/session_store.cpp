@@ -591,6 +591,14 @@ std::vector<StoredKeyframe> SessionStore::keyframes(std::int64_t session, bool w
   return out;
 }
 
+std::vector<std::vector<std::uint8_t>> SessionStore::thumbnails(std::int64_t session) const {
+  Statement st(this, "SELECT thumbnail FROM keyframes WHERE session = ? ORDER BY keyframe");
+  st.bind(1, session);
+  std::vector<std::vector<std::uint8_t>> out;
+  while (st.step()) out.push_back(blobVector<std::uint8_t>(st.get(), 0));
+  return out;
+}
+
 std::vector<UncertainPose2> SessionStore::odometry(std::int64_t session) const {
   Statement st(this, "SELECT keyframe, x, y, yaw, cov FROM motions WHERE session = ? ORDER BY keyframe");
   st.bind(1, session);

@@ -77,7 +77,7 @@ SurveyExport loadSurveyExport(const std::string& store_path) {
       track.sessions.push_back(sid);
       track.name += (c ? "+" : "") + stored_session.at(sid).name;
       const std::vector<StoredKeyframe> kfs = store.keyframes(sid, false);
-      const std::vector<StoredKeyframe> thumbs = store.keyframes(sid, true);
+      const std::vector<std::vector<std::uint8_t>> thumbs = store.thumbnails(sid);
       const std::vector<UncertainPose2> odometry = store.odometry(sid);
       if (c > 0) {
         at = compose(at, state.motions.empty() ? state.links[c - 1].measured : state.motions.at(motion));
@@ -100,7 +100,7 @@ SurveyExport loadSurveyExport(const std::string& store_path) {
         e.stamp_s = kfs[k].stamp_s;
         e.altitude_m = kfs[k].altitude_m;
         e.image_size = kfs[k].image_size;
-        e.thumbnail = thumbs[k].thumbnail;
+        e.thumbnail = thumbs.at(k);
         // The back-end's mean (the same compositions; kept so that the files match
         // trajectory.csv exactly) with the composed covariance.
         e.pose = zUp(UncertainPose2(means.at(k), at.covariance));

@@ -157,6 +157,9 @@ class SessionStore {
   /// The keyframes of a session in order; `with_features` false leaves points, descriptors,
   /// hash and thumbnail empty.
   std::vector<StoredKeyframe> keyframes(std::int64_t session, bool with_features = true) const;
+  /// The session's keyframes' JPEG thumbnails in keyframe order (empty where none), without the
+  /// features (a 10k-keyframe session's descriptors are 640 MB; export_survey needs only these).
+  std::vector<std::vector<std::uint8_t>> thumbnails(std::int64_t session) const;
   /// The session's odometry motions, [k-1] reaching keyframe k.
   std::vector<UncertainPose2> odometry(std::int64_t session) const;
   std::vector<StoredLoop> loops() const;
