@@ -293,6 +293,24 @@ def test_bad_option_values_are_refused(store, tmp_path, option, value):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_keyframe_without_valid_altitude_is_left_out_of_the_mosaic(store, tmp_path):
+    """A bad row (altitude -1, as a damaged store could hold) is counted as missing, not drawn at a
+    NaN place; every file is still written."""
+    db, _ = store
+    bad = tmp_path / "bad_altitude.db"
+    bad.write_bytes(db.read_bytes())
+    con = sqlite3.connect(str(bad))
+    first = con.execute("SELECT MIN(id) FROM sessions").fetchone()[0]
+    con.execute("UPDATE keyframes SET altitude = -1 WHERE session = ? AND keyframe = 3", (first,))
+    con.commit()
+    con.close()
+    r = run("export_survey", "--db", bad, "--out", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+    line = next(x for x in r.stdout.splitlines() if x.startswith("session_%d.png" % first))
+    assert line.endswith(", 1 missing"), line
+    assert len([p for p in os.listdir(tmp_path / "out") if p.endswith(".png")]) == 3
+
+
 def test_missing_arguments(tmp_path):
     assert run("export_survey", "--out", tmp_path).returncode == 2
     assert run("export_survey", "--db", tmp_path / "x.db").returncode == 2

@@ -67,6 +67,12 @@ CameraIntrinsics scaledTo(const CameraIntrinsics& c, const cv::Size& size) {
   return s;
 }
 
+// A keyframe the mosaic can place: finite pose, positive finite altitude (anything else is a
+// bad store row: left out and counted as missing, never a NaN extent).
+bool drawable(const ExportKeyframe& k) {
+  return k.pose.mean.isFinite() && std::isfinite(k.altitude_m) && k.altitude_m > 0.0;
+}
+
 // Pixel (u, v, 1) of the image seen through `cam` -> ground point in the map's image axes (the
 // store's convention; the exported pose is z-up, hence the signs).
 cv::Matx23d groundFromPixel(const ExportKeyframe& k, const CameraIntrinsics& cam) {
@@ -161,16 +167,18 @@ std::vector<cv::Scalar> exposureGains(const ExportTrack& track, const SurveyExpo
   std::vector<double> widths;
   for (const ExportKeyframe& k : track.keyframes) {
     const CameraIntrinsics& c = survey.camera(k.session);
-    widths.push_back(c.width * k.altitude_m / c.fx);
+    if (drawable(k)) widths.push_back(c.width * k.altitude_m / c.fx);
   }
-  std::nth_element(widths.begin(), widths.begin() + n / 2, widths.end());
+  if (widths.size() < 2) return gains;
+  std::nth_element(widths.begin(), widths.begin() + widths.size() / 2, widths.end());
   Raster low = raster;
-  low.res = std::max(raster.res, widths[n / 2] / 48.0);
+  low.res = std::max(raster.res, widths[widths.size() / 2] / 48.0);
   std::vector<cv::UMat> small(n), masks(n);
   std::vector<cv::Point> corners(n);
   std::vector<bool> ok(n, false);
   for (int i = 0; i < n; ++i) {
     const ExportKeyframe& k = track.keyframes[i];
+    if (!drawable(k)) continue;
     CameraIntrinsics cam;
     const cv::Mat img = images.loadSmall(k, survey.camera(k.session), &cam);
     if (img.empty()) continue;
@@ -323,10 +331,11 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
     for (const ExportKeyframe& k : track.keyframes) {
       const CameraIntrinsics& c = survey.camera(k.session);
       const double thumb = k.thumbnail.empty() ? 1.0 : c.width / 96.0;
-      px.push_back(k.altitude_m / c.fx * (images.hasDatasets() ? 1.0 : thumb));
+      if (drawable(k)) px.push_back(k.altitude_m / c.fx * (images.hasDatasets() ? 1.0 : thumb));
     }
-    std::nth_element(px.begin(), px.begin() + n / 2, px.end());
-    raster.res = px[n / 2];
+    if (px.empty()) throw ExportError(png_path + ": no keyframe of " + track.label + " has a valid pose and altitude");
+    std::nth_element(px.begin(), px.begin() + px.size() / 2, px.end());
+    raster.res = px[px.size() / 2];
   }
   // Extent: every footprint (the full camera's corners).
   std::vector<cv::Rect2d> ground(n);
@@ -334,12 +343,14 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
   for (int i = 0; i < n; ++i) {
     const ExportKeyframe& k = track.keyframes[i];
     const CameraIntrinsics& c = survey.camera(k.session);
+    if (!drawable(k)) continue;
     ground[i] = footprint(groundFromPixel(k, c), cv::Size(c.width, c.height));
     x_lo = std::min(x_lo, ground[i].x);
     y_lo = std::min(y_lo, ground[i].y);
     x_hi = std::max(x_hi, ground[i].x + ground[i].width);
     y_hi = std::max(y_hi, ground[i].y + ground[i].height);
   }
+  if (x_lo > x_hi) throw ExportError(png_path + ": no keyframe of " + track.label + " has a valid pose and altitude");
   raster.x0 = x_lo;
   raster.ytop = y_lo;
   const double w = std::ceil((x_hi - x_lo) / raster.res), h = std::ceil((y_hi - y_lo) / raster.res);
@@ -367,6 +378,7 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
   std::vector<std::vector<int>> touching(static_cast<std::size_t>(nx) * ny);
   std::vector<cv::Rect> box(n);
   for (int i = 0; i < n; ++i) {
+    if (!drawable(track.keyframes[i])) continue;  // counted missing: never loaded
     const cv::Rect2d r((ground[i].x - raster.x0) / raster.res - 0.5, (ground[i].y - raster.ytop) / raster.res - 0.5,
                        ground[i].width / raster.res, ground[i].height / raster.res);
     box[i] = pixelBox(r);
