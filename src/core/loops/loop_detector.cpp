@@ -136,17 +136,13 @@ std::vector<Loop> LoopDetector::addKeyframe(int session, int keyframe, int frame
   if (options_.global.enabled && hashes_.size() > 0) {
     {
       ScopedStage s(&times_, "hash_query");
-      const float max_l1 = options_.global.max_l1 > 0 ? static_cast<float>(options_.global.max_l1)
-                                                      : std::numeric_limits<float>::infinity();
-      hashes_.query(hash, session, options_.global.best_k, max_l1, &scratch_);
+      globalCandidates(hash, session);
     }
     ScopedStage s(&times_, "global_verify");
     for (const HashCandidate& c : scratch_) {
       ++stats_.global_candidates;
       Loop l;
-      l.kind = Loop::Kind::kGlobal;
-      l.hash_l1 = c.l1;
-      if (verify(keyframes_[c.entry], now, &l)) loops.push_back(l);
+      if (verifyCandidate(c, now, &l)) loops.push_back(l);
     }
   }
   for (Loop& l : loops) {
@@ -160,6 +156,21 @@ std::vector<Loop> LoopDetector::addKeyframe(int session, int keyframe, int frame
   last_hash_ = hash;
   store(session, keyframe, frame_index, altitude_m, camera, features, hash);
   return loops;
+}
+
+const std::vector<HashCandidate>& LoopDetector::globalCandidates(const Eigen::VectorXf& hash, int session) {
+  const float max_l1 = options_.global.max_l1 > 0 ? static_cast<float>(options_.global.max_l1)
+                                                  : std::numeric_limits<float>::infinity();
+  hashes_.query(hash, session, options_.global.best_k, max_l1, &scratch_);
+  return scratch_;
+}
+
+bool LoopDetector::verifyCandidate(const HashCandidate& candidate, const View& now, Loop* loop) {
+  if (candidate.entry < 0 || candidate.entry >= static_cast<int>(keyframes_.size()))
+    throw std::invalid_argument("loops: candidate " + std::to_string(candidate.entry) + " is not a stored keyframe");
+  loop->kind = Loop::Kind::kGlobal;
+  loop->hash_l1 = candidate.l1;
+  return verify(keyframes_[candidate.entry], now, loop);
 }
 
 void LoopDetector::addStoredKeyframe(int session, int keyframe, int frame_index, double altitude_m,

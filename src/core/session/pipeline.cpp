@@ -16,16 +16,23 @@ Pipeline::Pipeline(const SlamConfig& config, SessionManager* manager, Log log, b
       verbose_(verbose),
       detector_(config.loops, config.odometry.matching, config.odometry.ransac, config.odometry.features.num_features) {
   ScopedStage stage(&times_, "store_load");
-  for (const SessionSummary& s : manager_->list()) {
+  loadStoredSessions(manager_, &detector_, &cameras_);
+}
+
+int loadStoredSessions(SessionManager* manager, LoopDetector* detector, std::deque<CameraIntrinsics>* cameras) {
+  int keyframes = 0;
+  for (const SessionSummary& s : manager->list()) {
     if (s.state != SessionState::kUnloaded) continue;
     ReloadedSession r;
-    const Status st = manager_->reload(std::to_string(s.id), &r);
+    const Status st = manager->reload(std::to_string(s.id), &r);
     if (!st.ok()) throw StoreError(st.message);
-    cameras_.push_back(r.camera);
+    cameras->push_back(r.camera);
     for (const StoredKeyframe& k : r.keyframes)
-      detector_.addStoredKeyframe(r.id, k.keyframe, k.frame_index, k.altitude_m, &cameras_.back(), k.features(),
+      detector->addStoredKeyframe(r.id, k.keyframe, k.frame_index, k.altitude_m, &cameras->back(), k.features(),
                                   k.hash);
+    keyframes += static_cast<int>(r.keyframes.size());
   }
+  return keyframes;
 }
 
 void Pipeline::say(const std::string& line) const {

@@ -100,6 +100,14 @@ class LoopDetector {
   /// The hash of the keyframe last given to addKeyframe (what the session store keeps).
   const Eigen::VectorXf& lastHash() const { return last_hash_; }
 
+  /// The global search of addKeyframe alone: the best_k stored keyframes of sessions other than
+  /// `session` nearest to `hash` (and within max_l1), nearest first. The reference stays valid
+  /// until the next call (its storage is reused).
+  const std::vector<HashCandidate>& globalCandidates(const Eigen::VectorXf& hash, int session);
+  /// The verification of addKeyframe for one global candidate (RANSAC (9) between the stored
+  /// keyframe and `now`): true and `loop` filled (kind global, keyframe a) when accepted.
+  bool verifyCandidate(const HashCandidate& candidate, const View& now, Loop* loop);
+
   const ImageHasher& hasher() const { return hasher_; }
   const LoopStats& stats() const { return stats_; }
   const StageTimes& times() const { return times_; }

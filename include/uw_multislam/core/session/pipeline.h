@@ -27,6 +27,12 @@
 namespace uw_multislam {
 namespace core {
 
+/// Hands every stored (UNLOADED) session of `manager` to `detector` (SessionManager::reload), so
+/// that new keyframes find global loops against them; their cameras are appended to `cameras`
+/// (the detector keeps pointers to them: a deque, never shrunk while the detector lives).
+/// Returns the number of keyframes handed over. Throws StoreError.
+int loadStoredSessions(SessionManager* manager, LoopDetector* detector, std::deque<CameraIntrinsics>* cameras);
+
 class Pipeline {
  public:
   using Log = std::function<void(const std::string&)>;
