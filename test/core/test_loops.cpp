@@ -6,7 +6,7 @@
 
 #include <random>
 
-#include "../common/rendered_seabed.h"
+#include "../common/seabed_features.h"
 #include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/sim/seabed_world.h"
@@ -118,15 +118,7 @@ TEST(HashStore, SumAbsDiffMatchesScalar) {
 
 // Rendered frames over one seabed: hashes of the same place are close, of other places far,
 // and the detectors find a planted revisit with the right relative pose.
-class LoopTest : public testing_util::RenderedSeabedTest {
- protected:
-  FrameFeatures features(const Pose2& p, double alt, double gain = 1.0) const {
-    cv::Mat img = render(p, alt);
-    img.convertTo(img, -1, gain, 0.0);
-    FeatureImageEnhancer enhancer(OdometryOptions().enhancement);
-    return FeatureExtractor(FeatureOptions()).extract(enhancer.enhance(img));
-  }
-};
+class LoopTest : public testing_util::SeabedFeaturesTest {};
 
 TEST_F(LoopTest, SamePlaceHashesCloseOtherPlacesFar) {
   const HalocProjections p(500, 20231122);

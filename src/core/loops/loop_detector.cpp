@@ -37,6 +37,7 @@ std::string LoopOptions::validate() const {
   if (!bad.empty()) return "local: " + bad;
   bad = global.validate();
   if (!bad.empty()) return "global: " + bad;
+  if (!(feature_cache_mb >= 0) || feature_cache_mb > 1e6) return "feature_cache_mb must be in [0, 1e6] (MiB)";
   return {};
 }
 
@@ -61,8 +62,23 @@ LoopDetector::LoopDetector(const LoopOptions& options, const MatchOptions& match
       hashes_(options.global.hash_mode == HashMode::kSortedDct ? 0.25f : 0.5f) {}
 
 bool LoopDetector::verify(const Stored& old, const View& now, Loop* loop) {
-  FrameFeatures f = old.features;  // keypoints shared; descriptors back to float for matching
-  old.features.descriptors.convertTo(f.descriptors, CV_32F);
+  const FrameFeatures* stored = &old.features;
+  std::shared_ptr<const FrameFeatures> paged;
+  if (old.paged) {
+    try {
+      ScopedStage s(&times_, "feature_read");
+      paged = cache_->get(old.session, old.keyframe);
+    } catch (const std::exception& e) {
+      ++stats_.feature_read_failures;
+      last_read_error_ = e.what();
+      return false;
+    }
+    stored = paged.get();
+  }
+  FrameFeatures f;  // descriptors back to float for matching
+  f.keypoints = stored->keypoints;
+  f.image_size = stored->image_size;
+  stored->descriptors.convertTo(f.descriptors, CV_32F);
   const PairMotion m = estimatePairMotion({&f, old.altitude_m, old.camera}, now, matching_, ransac_, &times_);
   const int needed = loop->kind == Loop::Kind::kLocal ? options_.local.min_inliers : options_.global.min_inliers;
   if (!m.ransac.success || static_cast<int>(m.ransac.inliers.size()) < needed) return false;
@@ -154,7 +170,7 @@ std::vector<Loop> LoopDetector::addKeyframe(int session, int keyframe, int frame
 
   // Store the keyframe for later queries.
   last_hash_ = hash;
-  store(session, keyframe, frame_index, altitude_m, camera, features, hash);
+  store(session, keyframe, frame_index, altitude_m, camera, &features, hash);
   return loops;
 }
 
@@ -176,6 +192,23 @@ bool LoopDetector::verifyCandidate(const HashCandidate& candidate, const View& n
 void LoopDetector::addStoredKeyframe(int session, int keyframe, int frame_index, double altitude_m,
                                      const CameraIntrinsics* camera, const FrameFeatures& features,
                                      const Eigen::VectorXf& hash) {
+  checkStored(session, keyframe, hash);
+  store(session, keyframe, frame_index, altitude_m, camera, &features, hash);
+}
+
+void LoopDetector::setFeatureLoader(FeatureCache::Loader loader) {
+  cache_ = std::make_unique<FeatureCache>(static_cast<std::size_t>(options_.feature_cache_mb * 1024.0 * 1024.0),
+                                          std::move(loader));
+}
+
+void LoopDetector::addPagedKeyframe(int session, int keyframe, int frame_index, double altitude_m,
+                                    const CameraIntrinsics* camera, const Eigen::VectorXf& hash) {
+  if (!cache_) throw std::invalid_argument("loops: a paged keyframe needs setFeatureLoader first");
+  checkStored(session, keyframe, hash);
+  store(session, keyframe, frame_index, altitude_m, camera, nullptr, hash);
+}
+
+void LoopDetector::checkStored(int session, int keyframe, const Eigen::VectorXf& hash) const {
   if (hash.size() != HalocProjections::kHashSize)
     throw std::invalid_argument("loops: stored keyframe " + std::to_string(keyframe) + " of session " +
                                 std::to_string(session) + ": hash of " + std::to_string(hash.size()) + " values, " +
@@ -185,15 +218,16 @@ void LoopDetector::addStoredKeyframe(int session, int keyframe, int frame_index,
        by_session_[session][keyframe] >= 0))
     throw std::invalid_argument("loops: stored keyframe " + std::to_string(keyframe) + " of session " +
                                 std::to_string(session) + " is already there");
-  store(session, keyframe, frame_index, altitude_m, camera, features, hash);
 }
 
 void LoopDetector::store(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
-                         const FrameFeatures& features, const Eigen::VectorXf& hash) {
-  Stored st{session, keyframe, frame_index, altitude_m, camera, FrameFeatures()};
-  st.features.keypoints = features.keypoints;
-  st.features.image_size = features.image_size;
-  features.descriptors.convertTo(st.features.descriptors, CV_8U);
+                         const FrameFeatures* features, const Eigen::VectorXf& hash) {
+  Stored st{session, keyframe, frame_index, altitude_m, camera, FrameFeatures(), features == nullptr};
+  if (features) {
+    st.features.keypoints = features->keypoints;
+    st.features.image_size = features->image_size;
+    features->descriptors.convertTo(st.features.descriptors, CV_8U);
+  }
   const int index = static_cast<int>(keyframes_.size());
   keyframes_.push_back(std::move(st));
   hashes_.add({session, keyframe}, hash);

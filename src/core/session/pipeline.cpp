@@ -21,15 +21,17 @@ Pipeline::Pipeline(const SlamConfig& config, SessionManager* manager, Log log, b
 
 int loadStoredSessions(SessionManager* manager, LoopDetector* detector, std::deque<CameraIntrinsics>* cameras) {
   int keyframes = 0;
+  detector->setFeatureLoader([manager](int session, int keyframe) {
+    return manager->storedFeatures(session, keyframe).features();
+  });
   for (const SessionSummary& s : manager->list()) {
     if (s.state != SessionState::kUnloaded) continue;
     ReloadedSession r;
-    const Status st = manager->reload(std::to_string(s.id), &r);
+    const Status st = manager->reload(std::to_string(s.id), &r, false);
     if (!st.ok()) throw StoreError(st.message);
     cameras->push_back(r.camera);
     for (const StoredKeyframe& k : r.keyframes)
-      detector->addStoredKeyframe(r.id, k.keyframe, k.frame_index, k.altitude_m, &cameras->back(), k.features(),
-                                  k.hash);
+      detector->addPagedKeyframe(r.id, k.keyframe, k.frame_index, k.altitude_m, &cameras->back(), k.hash);
     keyframes += static_cast<int>(r.keyframes.size());
   }
   return keyframes;
@@ -130,6 +132,11 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& frame) {
     const std::vector<Loop> loops =
         detector_.addKeyframe(session_, kf.id, info.frame_index, info.altitude_m, &cameras_.back(), kf.features,
                               chain_.candidateTrajectory(manager_->posesInSessionFrame(session_)), &k.hash);
+    if (detector_.stats().feature_read_failures > read_failures_) {
+      read_failures_ = detector_.stats().feature_read_failures;
+      say("stream " + stream_ + " keyframe " + std::to_string(kf.id) + ": a stored loop candidate skipped (" +
+          std::to_string(read_failures_) + " so far): " + detector_.lastReadError());
+    }
     if (manager_->hasStore() && image_of_)
       k.thumbnail = thumbnail(info.frame_index == frame.index ? frame.image : image_of_(info.frame_index));
     ScopedStage stage(&times_, "session_manager");

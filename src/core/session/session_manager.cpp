@@ -549,7 +549,18 @@ bool SessionManager::applyOptimisation(const MapOptimisation& o) {
   return true;
 }
 
-Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* out) {
+StoredKeyframe SessionManager::storedFeatures(int session, int keyframe) const {
+  if (!store_) throw StoreError("no session store: no stored features");
+  const auto it = sessions_.find(session);
+  if (it == sessions_.end() || it->second.store_id < 0 || session >= restored_sessions_)
+    throw StoreError("session store " + options_.store_path + ": session " + std::to_string(session) +
+                     " is not a stored session");
+  StoredKeyframe k = store_->keyframeFeatures(it->second.store_id, keyframe);
+  k.session = session;
+  return k;
+}
+
+Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* out, bool with_features) {
   if (!store_) return {StatusCode::kFailedPrecondition, "no session store: nothing to reload"};
   int id = -1;
   for (const auto& [sid, s] : sessions_)
@@ -564,7 +575,8 @@ Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* ou
   }
   ReloadedSession r;
   try {
-    r.keyframes = store_->keyframes(s.store_id, true);
+    r.keyframes = store_->keyframes(s.store_id, with_features ? SessionStore::KeyframeColumns::kAll
+                                                              : SessionStore::KeyframeColumns::kHash);
   } catch (const std::exception& e) {
     say("reload_session '" + name_or_id + "': reading " + options_.store_path + " failed: " + e.what());
     // The reply names the file only: the store's errors carry its full path.

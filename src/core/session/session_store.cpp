@@ -555,37 +555,54 @@ std::vector<StoredSession> SessionStore::sessions() const {
   return out;
 }
 
-std::vector<StoredKeyframe> SessionStore::keyframes(std::int64_t session, bool with_features) const {
-  Statement st(this, with_features
-                         ? "SELECT keyframe, frame_index, stamp, altitude, image_width, image_height, num_features, "
-                           "points, descriptors, hash, thumbnail FROM keyframes WHERE session = ? ORDER BY keyframe"
-                         : "SELECT keyframe, frame_index, stamp, altitude, image_width, image_height, num_features "
-                           "FROM keyframes WHERE session = ? ORDER BY keyframe");
+// The columns of a keyframe row as keyframes() and keyframeFeatures() read them: frame data from
+// column 0 (keyframe, frame_index, stamp, altitude, image size, num_features), then points,
+// descriptors, hash and thumbnail (NULL where not read).
+void SessionStore::readKeyframe(sqlite3_stmt* q, std::int64_t session, KeyframeColumns columns, bool features,
+                                StoredKeyframe* k) const {
+  k->session = session;
+  k->keyframe = sqlite3_column_int(q, 0);
+  k->frame_index = sqlite3_column_int(q, 1);
+  k->stamp_s = sqlite3_column_double(q, 2);
+  k->altitude_m = sqlite3_column_double(q, 3);
+  k->image_size = cv::Size(sqlite3_column_int(q, 4), sqlite3_column_int(q, 5));
+  const int n = sqlite3_column_int(q, 6);
+  const auto corrupt = [&] {
+    return StoreError("session store " + path_ + ": keyframe " + std::to_string(k->keyframe) + " of session " +
+                      std::to_string(session) + " has blobs of the wrong size (corrupt)");
+  };
+  if (features) {
+    k->points = blobVector<cv::Point2f>(q, 7);
+    const std::vector<std::uint8_t> d = blobVector<std::uint8_t>(q, 8);
+    if (n < 0 || static_cast<int>(k->points.size()) != n || d.size() != static_cast<std::size_t>(n) * 128)
+      throw corrupt();
+    k->descriptors = cv::Mat(n, 128, CV_8U);
+    if (n > 0) std::memcpy(k->descriptors.data, d.data(), d.size());
+  }
+  if (columns != KeyframeColumns::kFrame) {
+    const std::vector<float> h = blobVector<float>(q, 9);
+    if (h.size() != static_cast<std::size_t>(HalocProjections::kHashSize)) throw corrupt();
+    k->hash = Eigen::Map<const Eigen::VectorXf>(h.data(), static_cast<Eigen::Index>(h.size()));
+  }
+  if (columns == KeyframeColumns::kAll) k->thumbnail = blobVector<std::uint8_t>(q, 10);
+}
+
+std::vector<StoredKeyframe> SessionStore::keyframes(std::int64_t session, KeyframeColumns columns) const {
+  const char* sql =
+      columns == KeyframeColumns::kAll
+          ? "SELECT keyframe, frame_index, stamp, altitude, image_width, image_height, num_features, points, "
+            "descriptors, hash, thumbnail FROM keyframes WHERE session = ? ORDER BY keyframe"
+      : columns == KeyframeColumns::kHash
+          ? "SELECT keyframe, frame_index, stamp, altitude, image_width, image_height, num_features, NULL, NULL, "
+            "hash, NULL FROM keyframes WHERE session = ? ORDER BY keyframe"
+          : "SELECT keyframe, frame_index, stamp, altitude, image_width, image_height, num_features "
+            "FROM keyframes WHERE session = ? ORDER BY keyframe";
+  Statement st(this, sql);
   st.bind(1, session);
   std::vector<StoredKeyframe> out;
   while (st.step()) {
-    sqlite3_stmt* q = st.get();
     StoredKeyframe k;
-    k.session = session;
-    k.keyframe = sqlite3_column_int(q, 0);
-    k.frame_index = sqlite3_column_int(q, 1);
-    k.stamp_s = sqlite3_column_double(q, 2);
-    k.altitude_m = sqlite3_column_double(q, 3);
-    k.image_size = cv::Size(sqlite3_column_int(q, 4), sqlite3_column_int(q, 5));
-    const int n = sqlite3_column_int(q, 6);
-    if (with_features) {
-      k.points = blobVector<cv::Point2f>(q, 7);
-      const std::vector<std::uint8_t> d = blobVector<std::uint8_t>(q, 8);
-      const std::vector<float> h = blobVector<float>(q, 9);
-      if (static_cast<int>(k.points.size()) != n || d.size() != static_cast<std::size_t>(n) * 128 ||
-          h.size() != static_cast<std::size_t>(HalocProjections::kHashSize))
-        throw StoreError("session store " + path_ + ": keyframe " + std::to_string(k.keyframe) + " of session " +
-                         std::to_string(session) + " has blobs of the wrong size (corrupt)");
-      k.descriptors = cv::Mat(n, 128, CV_8U);
-      if (n > 0) std::memcpy(k.descriptors.data, d.data(), d.size());
-      k.hash = Eigen::Map<const Eigen::VectorXf>(h.data(), static_cast<Eigen::Index>(h.size()));
-      k.thumbnail = blobVector<std::uint8_t>(q, 10);
-    }
+    readKeyframe(st.get(), session, columns, columns == KeyframeColumns::kAll, &k);
     out.push_back(std::move(k));
   }
   return out;
@@ -597,6 +614,19 @@ std::vector<std::vector<std::uint8_t>> SessionStore::thumbnails(std::int64_t ses
   std::vector<std::vector<std::uint8_t>> out;
   while (st.step()) out.push_back(blobVector<std::uint8_t>(st.get(), 0));
   return out;
+}
+
+StoredKeyframe SessionStore::keyframeFeatures(std::int64_t session, int keyframe) const {
+  Statement st(this,
+               "SELECT keyframe, frame_index, stamp, altitude, image_width, image_height, num_features, points, "
+               "descriptors FROM keyframes WHERE session = ? AND keyframe = ?");
+  st.bind(1, session).bind(2, keyframe);
+  if (!st.step())
+    throw StoreError("session store " + path_ + ": keyframe " + std::to_string(keyframe) + " of session " +
+                     std::to_string(session) + " is not in the store");
+  StoredKeyframe k;
+  readKeyframe(st.get(), session, KeyframeColumns::kFrame, true, &k);
+  return k;
 }
 
 std::vector<UncertainPose2> SessionStore::odometry(std::int64_t session) const {

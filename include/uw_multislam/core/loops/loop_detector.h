@@ -13,14 +13,20 @@
 // is the motion of the new keyframe in the old one's frame with the RANSAC covariance.
 //
 // Every keyframe's features are kept (descriptors as 8 bits: OpenCV's SIFT values are integers
-// in 0..255) for later verification: about 66 kB per keyframe with n = 500.
+// in 0..255) for later verification: about 66 kB per keyframe with n = 500. Except with paging
+// (issue 20): a keyframe of a stored session added by addPagedKeyframe keeps only its hash and
+// ids in RAM (about 0.5 kB); its features are read from the session store when it is a
+// candidate, through an LRU cache of `feature_cache_mb` (feature_cache.h). The search is the same
+// exact one, and so are the loops found (tested).
 #pragma once
 
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <string>
 #include <vector>
 
+#include "uw_multislam/core/loops/feature_cache.h"
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/frontend/pair_motion.h"
 #include "uw_multislam/core/geometry/trajectory.h"
@@ -58,6 +64,9 @@ struct GlobalLoopOptions {
 struct LoopOptions {
   LocalLoopOptions local;
   GlobalLoopOptions global;
+  /// Paging: the byte budget (MiB) of the cache of stored keyframes' features read from the
+  /// session store for verification (about 78 kB each at n = 500: 64 MiB keeps about 850).
+  double feature_cache_mb = 64.0;
   std::string validate() const;
 };
 
@@ -75,6 +84,7 @@ struct LoopStats {
   int keyframes = 0;
   int local_candidates = 0, local_accepted = 0;
   int global_candidates = 0, global_accepted = 0;
+  int feature_read_failures = 0;  // paged candidates skipped: their features could not be read
 };
 
 class LoopDetector {
@@ -97,6 +107,20 @@ class LoopDetector {
   /// std::invalid_argument on a bad hash size or a keyframe stored twice.
   void addStoredKeyframe(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
                          const FrameFeatures& features, const Eigen::VectorXf& hash);
+  /// Paging: where the features of keyframes added by addPagedKeyframe are read from (the
+  /// session store, by session and keyframe id), through an LRU cache of
+  /// options.feature_cache_mb. Call before addPagedKeyframe; a second call replaces the cache.
+  void setFeatureLoader(FeatureCache::Loader loader);
+  /// A keyframe of a stored session that keeps only its hash and ids in RAM; its features are
+  /// read with the loader when it is a candidate (a failed read: the candidate is skipped,
+  /// counted in stats().feature_read_failures, the message in lastReadError()). Throws
+  /// std::invalid_argument without a loader, on a bad hash size or a keyframe stored twice.
+  void addPagedKeyframe(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
+                        const Eigen::VectorXf& hash);
+  /// The cache of paged keyframes' features (nullptr before setFeatureLoader).
+  const FeatureCache* featureCache() const { return cache_.get(); }
+  const std::string& lastReadError() const { return last_read_error_; }
+
   /// The hash of the keyframe last given to addKeyframe (what the session store keeps).
   const Eigen::VectorXf& lastHash() const { return last_hash_; }
 
@@ -118,11 +142,13 @@ class LoopDetector {
     int session, keyframe, frame_index;
     double altitude_m;
     const CameraIntrinsics* camera;
-    FrameFeatures features;  // keypoint positions; descriptors as CV_8U
+    FrameFeatures features;  // keypoint positions; descriptors as CV_8U (empty when paged)
+    bool paged;              // features read through cache_ when needed
   };
   bool verify(const Stored& old, const View& now, Loop* loop);
+  void checkStored(int session, int keyframe, const Eigen::VectorXf& hash) const;
   void store(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
-             const FrameFeatures& features, const Eigen::VectorXf& hash);
+             const FrameFeatures* features, const Eigen::VectorXf& hash);
   std::vector<int> localCandidates(int session, int keyframe, const Trajectory& trajectory) const;
 
   LoopOptions options_;
@@ -134,6 +160,8 @@ class LoopDetector {
   std::vector<std::vector<int>> by_session_;  // [session][keyframe] -> index into keyframes_
   std::vector<HashCandidate> scratch_;
   Eigen::VectorXf last_hash_;
+  std::unique_ptr<FeatureCache> cache_;
+  std::string last_read_error_;
   LoopStats stats_;
   StageTimes times_;
 };

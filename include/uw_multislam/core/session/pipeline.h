@@ -29,8 +29,10 @@ namespace core {
 
 /// Hands every stored (UNLOADED) session of `manager` to `detector` (SessionManager::reload), so
 /// that new keyframes find global loops against them; their cameras are appended to `cameras`
-/// (the detector keeps pointers to them: a deque, never shrunk while the detector lives).
-/// Returns the number of keyframes handed over. Throws StoreError.
+/// (the detector keeps pointers to them: a deque, never shrunk while the detector lives). Paged:
+/// only hashes and ids go into RAM, features are read from the store (through the manager) when
+/// a stored keyframe is a candidate, cached within loops.feature_cache_mb. `manager` must
+/// outlive the detector. Returns the number of keyframes handed over. Throws StoreError.
 int loadStoredSessions(SessionManager* manager, LoopDetector* detector, std::deque<CameraIntrinsics>* cameras);
 
 class Pipeline {
@@ -75,6 +77,7 @@ class Pipeline {
   std::unique_ptr<SegmentedOdometry> segmented_;
   SessionChain chain_;
   int session_ = -1;  // the manager's id of the stream's open piece; -1 while lost
+  int read_failures_ = 0;  // the detector's feature_read_failures already logged
   int pieces_ = 0;
   std::vector<std::vector<int>> stream_sessions_;
   StageTimes times_, finished_;

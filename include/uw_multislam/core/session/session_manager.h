@@ -189,7 +189,12 @@ class SessionManager {
   Status split(int session);
   /// Brings a stored (UNLOADED) session back by name or id: its keyframes with features, for the
   /// loop detector. NOT_FOUND, ALREADY_EXISTS (loaded), FAILED_PRECONDITION (no store), DATA_LOSS.
-  Status reload(const std::string& name_or_id, ReloadedSession* out);
+  /// `with_features` false: only the frame data and hashes (paging: features are read later
+  /// with storedFeatures).
+  Status reload(const std::string& name_or_id, ReloadedSession* out, bool with_features = true);
+  /// One keyframe of a stored session as the store keeps it (points, descriptors; paging, issue
+  /// 20). Throws StoreError: no store, not a stored session, a missing or corrupt keyframe.
+  StoredKeyframe storedFeatures(int session, int keyframe) const;
   /// Optimises every map with pending loops (now, also when deferred); saves the maps.
   void flush();
 

@@ -154,9 +154,19 @@ class SessionStore {
                 const std::vector<std::pair<std::int64_t, std::int64_t>>& split_pairs);
 
   std::vector<StoredSession> sessions() const;
+  /// What keyframes() reads besides the frame data (index, stamp, altitude, image size): nothing,
+  /// the hash only (what the hash search keeps in RAM: paging, issue 20), or every blob.
+  enum class KeyframeColumns { kFrame, kHash, kAll };
   /// The keyframes of a session in order; `with_features` false leaves points, descriptors,
   /// hash and thumbnail empty.
-  std::vector<StoredKeyframe> keyframes(std::int64_t session, bool with_features = true) const;
+  std::vector<StoredKeyframe> keyframes(std::int64_t session, bool with_features = true) const {
+    return keyframes(session, with_features ? KeyframeColumns::kAll : KeyframeColumns::kFrame);
+  }
+  std::vector<StoredKeyframe> keyframes(std::int64_t session, KeyframeColumns columns) const;
+  /// One keyframe's frame data, points and descriptors (hash and thumbnail left empty): what
+  /// verifying a loop against it needs. StoreError naming the keyframe when it is not stored or
+  /// its blobs have the wrong size.
+  StoredKeyframe keyframeFeatures(std::int64_t session, int keyframe) const;
   /// The session's keyframes' JPEG thumbnails in keyframe order (empty where none), without the
   /// features (a 10k-keyframe session's descriptors are 640 MB; export_survey needs only these).
   std::vector<std::vector<std::uint8_t>> thumbnails(std::int64_t session) const;
@@ -191,6 +201,8 @@ class SessionStore {
   void commit();
   void rollback() noexcept;
   void insertLoops(std::vector<StoredLoop>* loops);
+  void readKeyframe(sqlite3_stmt* row, std::int64_t session, KeyframeColumns columns, bool features,
+                    StoredKeyframe* out) const;
   Statement& cached(const char* sql);
 
   std::string path_;
