@@ -261,6 +261,48 @@ TEST(Store, KeyframeFeaturesComeBackExactly) {
   EXPECT_EQ(store.sessions()[0].state, StoredSessionState::kRecording);
 }
 
+// Start-up (issue 20): the keyframes' frame data come from a covering index (about 60 bytes a
+// keyframe) instead of each 74 kB row's first page; a store written before the index gets it when
+// opened, with its contents unchanged.
+TEST(Store, FrameDataAreReadFromACoveringIndexThatOlderStoresGetWhenOpened) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  std::mt19937 rng(4);
+  std::int64_t s = 0;
+  auto plan = [&](SessionStore& store) {
+    sqlite3_stmt* st = nullptr;
+    EXPECT_EQ(sqlite3_prepare_v2(store.handle(),
+                                 "EXPLAIN QUERY PLAN SELECT keyframe, frame_index, stamp, altitude, image_width, "
+                                 "image_height, num_features FROM keyframes WHERE session = 1 ORDER BY keyframe",
+                                 -1, &st, nullptr),
+              SQLITE_OK);
+    std::string detail;
+    while (sqlite3_step(st) == SQLITE_ROW) detail += reinterpret_cast<const char*>(sqlite3_column_text(st, 3));
+    sqlite3_finalize(st);
+    return detail;
+  };
+  {
+    SessionStore store(path);
+    s = store.addSession("s", camera(), 10.0);
+    for (int k = 0; k < 3; ++k) store.addKeyframe(randomKeyframe(s, k, 50, &rng), nullptr, nullptr);
+    EXPECT_NE(plan(store).find("COVERING INDEX keyframes_frame"), std::string::npos) << plan(store);
+    // As a store written before the index was.
+    ASSERT_EQ(sqlite3_exec(store.handle(), "DROP INDEX keyframes_frame", nullptr, nullptr, nullptr), SQLITE_OK);
+    EXPECT_EQ(plan(store).find("keyframes_frame"), std::string::npos);
+  }
+  SessionStore store(path);
+  EXPECT_NE(plan(store).find("COVERING INDEX keyframes_frame"), std::string::npos) << plan(store);
+  const std::vector<StoredKeyframe> back = store.keyframes(s, false);
+  ASSERT_EQ(back.size(), 3u);
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_EQ(back[k].keyframe, k);
+    EXPECT_EQ(back[k].frame_index, 3 * k + 1);
+    EXPECT_EQ(back[k].stamp_s, 0.25 * k);
+    EXPECT_EQ(back[k].altitude_m, 2.0 + 0.01 * k);
+    EXPECT_EQ(back[k].image_size, cv::Size(320, 240));
+  }
+}
+
 TEST(Store, RefusesOtherHashSettings) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
