@@ -321,6 +321,10 @@ TEST(SessionManager, StartSessionIsRefusedWhileTooManySessionsInARowHaveNoKeyfra
   // 3,000 calls leave at most max_empty_sessions empty sessions (issue 21, 10).
   for (int i = 0; i < 3000; ++i) m.startSession("x" + std::to_string(i), 6.0 + i);
   EXPECT_EQ(m.sessionIds().size(), 5u);
+  // A name past kMaxSessionNameLength is refused and changes nothing (issue 21: a 100 kB name was stored).
+  const std::vector<int> ids = m.sessionIds();
+  EXPECT_EQ(m.startSession(std::string(100000, 'n'), 9000.0).code, StatusCode::kInvalidArgument);
+  EXPECT_EQ(m.sessionIds(), ids);
   SessionManagerOptions bad = options();
   bad.max_empty_sessions = -1;  // 0 is no limit (offline_slam)
   EXPECT_THROW(SessionManager{bad}, std::invalid_argument);

@@ -405,6 +405,21 @@ TEST(Store, RefusesAReadOnlyOrMissingPath) {
     EXPECT_NE(std::string(e.what()).find("does not exist"), std::string::npos) << e.what();
   }
   EXPECT_FALSE(std::filesystem::exists(dir.path() / "no"));
+  // A store nobody may write (chmod 444) is refused, even as root, and left as it is (issue 21, 11).
+  const std::string locked = (dir.path() / "locked.db").string();
+  { SessionStore made(locked); }
+  ::chmod(locked.c_str(), 0444);
+  const auto before = std::filesystem::last_write_time(locked);
+  const auto size = std::filesystem::file_size(locked);
+  try {
+    SessionStore store(locked);
+    FAIL() << locked << " was opened for writing";
+  } catch (const StoreError& e) {
+    EXPECT_NE(std::string(e.what()).find("the file is read-only"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(std::filesystem::last_write_time(locked), before);
+  EXPECT_EQ(std::filesystem::file_size(locked), size);
+  EXPECT_NO_THROW(SessionStore(locked, StoreAccess::kReadOnly));  // reading it stays possible
 }
 
 TEST(Store, AFullDiskIsReportedAndLosesOnlyThatKeyframe) {

@@ -213,6 +213,23 @@ std::vector<FrameRecord> readFramesCsv(const std::string& path) {
     f.stamp_s = parseDouble(c[2], path, n, "stamp_s");
     f.altitude_m = parseDouble(c[3], path, n, "altitude_m");
     if (!seen.insert(f.index).second) fail(path, n, "duplicate index " + c[0]);
+    // One folder is one camera stream: its stamps go forward, without a gap of hours (two missions
+    // in one folder). Either is refused with the line and the fix (the live odometry skips a late
+    // frame and starts a session at a jump; offline the folder says what it is).
+    if (!frames.empty() && std::isfinite(f.stamp_s) && std::isfinite(frames.back().stamp_s)) {
+      const double step = f.stamp_s - frames.back().stamp_s;
+      std::ostringstream os;
+      if (!(step > 0)) {
+        os << "stamp_s " << c[2] << " is not after the previous frame's (" << frames.back().stamp_s
+           << "): frames must be in stamp order";
+        fail(path, n, os.str());
+      }
+      if (step > kMaxFrameGapS) {
+        os << "stamp_s jumps by " << step << " s (more than " << kMaxFrameGapS
+           << " s): two missions in one folder? give each its own folder";
+        fail(path, n, os.str());
+      }
+    }
     frames.push_back(f);
   });
   return frames;

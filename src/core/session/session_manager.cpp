@@ -230,6 +230,9 @@ Status SessionManager::open(int id, const std::string& name, double stamp_s) {
 }
 
 Status SessionManager::startSession(const std::string& name, double stamp_s, int id, int* started) {
+  if (name.size() > kMaxSessionNameLength)
+    return {StatusCode::kInvalidArgument, "a session name of " + std::to_string(name.size()) + " bytes: at most " +
+                                              std::to_string(kMaxSessionNameLength)};
   const int other = name.empty() ? -1 : idOfName(name);
   if (other >= 0)
     return {StatusCode::kAlreadyExists,

@@ -282,6 +282,14 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
     if (!parent.empty() && !fs::is_directory(parent, ec))
       throw StoreError("session store " + path + ": the directory " + parent.string() + " does not exist");
   }
+  if (exists) {
+    // A file nobody may write (chmod a-w) is refused even as root, for whom access(W_OK) and the
+    // open succeed: its owner marked it read-only on purpose (issue 21, 11).
+    const fs::perms p = fs::status(path, ec).permissions();
+    if (!ec && (p & (fs::perms::owner_write | fs::perms::group_write | fs::perms::others_write)) == fs::perms::none)
+      throw StoreError("session store " + path + ": cannot open for writing: the file is read-only (no write "
+                       "permission for anyone; chmod u+w it to extend it, or use another file)");
+  }
   if (!exists) {  // created here first, 0600, refusing a link or a file that appeared meanwhile
     const int fd = open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0600);
     if (fd >= 0) close(fd);  // a failure (read-only path, ...) shows in SQLite's open below

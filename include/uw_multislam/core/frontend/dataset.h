@@ -84,8 +84,11 @@ CameraIntrinsics readCameraYaml(const std::string& path);
 /// Writes the six-key format for a pinhole, the ROS calibration format for a distorted camera.
 void writeCameraYaml(const std::string& path, const CameraIntrinsics& c);
 
-/// Reads frames.csv: header "index,image,stamp_s,altitude_m", indexes unique. Altitudes and
-/// stamps are read as written (NaN or negative values are the consumer's to reject).
+/// The longest step between two frames' stamps in one folder (one mission): an hour.
+constexpr double kMaxFrameGapS = 3600.0;
+/// Reads frames.csv: header "index,image,stamp_s,altitude_m", indexes unique, stamps increasing
+/// by at most kMaxFrameGapS (DatasetError naming the line otherwise). Altitudes are read as
+/// written (NaN or negative values are the consumer's to reject), as are non-finite stamps.
 std::vector<FrameRecord> readFramesCsv(const std::string& path);
 void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& frames);
 

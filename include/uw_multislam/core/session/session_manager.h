@@ -53,6 +53,9 @@ namespace core {
 /// loops naming a larger one are refused (INVALID_ARGUMENT), and so is start_session once
 /// nextId() would pass it (RESOURCE_EXHAUSTED): ids never overflow an int.
 constexpr int kMaxSessionId = 1000000;
+/// The longest session name start_session accepts (bytes): names go into topics' and files'
+/// names, the store and every reply (a 100 kB name was accepted before, issue 21, 6).
+constexpr std::size_t kMaxSessionNameLength = 256;
 
 struct SessionManagerOptions {
   BackendOptions backend;
@@ -165,7 +168,7 @@ class SessionManager {
   // --- Requests ----------------------------------------------------------------------------
   /// Ends the active session and starts a new one, `id` or (-1) nextId(), named `name` (empty:
   /// "session_<id>"). ALREADY_EXISTS when the name is taken, INVALID_ARGUMENT for an id that is
-  /// not new or past kMaxSessionId, RESOURCE_EXHAUSTED when max_empty_sessions sessions in a row
+  /// not new or past kMaxSessionId or the name longer than kMaxSessionNameLength, RESOURCE_EXHAUSTED when max_empty_sessions sessions in a row
   /// have no keyframe or no id is left. The session has its origin keyframe; the next keyframe 0
   /// given to it fills it in.
   Status startSession(const std::string& name, double stamp_s, int id = -1, int* started = nullptr);
