@@ -270,6 +270,36 @@ void writeGroundTruthCsv(const std::string& path, const std::vector<GroundTruthR
   if (!out) throw DatasetError(path + ": write failed");
 }
 
+std::vector<NavRecord> readNavCsv(const std::string& path) {
+  std::vector<NavRecord> nav;
+  const std::vector<std::string> header = {"stamp_s", "x_m", "y_m", "yaw_rad", "sigma_xy_m", "sigma_yaw_rad"};
+  readCsv(path, header, [&](const std::vector<std::string>& c, int n) {
+    double v[6];
+    for (int i = 0; i < 6; ++i) {
+      v[i] = parseDouble(c[i], path, n, header[i].c_str());
+      if (!std::isfinite(v[i])) fail(path, n, header[i] + " is not finite: '" + c[i] + "'");
+    }
+    if (v[4] < 0 || v[5] < 0) fail(path, n, "sigma_xy_m and sigma_yaw_rad must be >= 0");
+    if (!nav.empty() && !(v[0] > nav.back().stamp_s))
+      fail(path, n, "stamp " + c[0] + " is not after the previous row's (stamps must increase)");
+    nav.push_back({v[0], Pose2(v[1], v[2], v[3]), v[4], v[5]});
+  });
+  if (nav.empty()) fail(path, 0, "no rows");
+  return nav;
+}
+
+void writeNavCsv(const std::string& path, const std::vector<NavRecord>& nav) {
+  std::ofstream out(path);
+  if (!out) throw DatasetError(path + ": cannot write");
+  out << "stamp_s,x_m,y_m,yaw_rad,sigma_xy_m,sigma_yaw_rad\n" << std::fixed;
+  for (const auto& r : nav) {
+    out << std::setprecision(6) << r.stamp_s << "," << r.pose.x() << "," << r.pose.y() << "," << std::setprecision(7)
+        << r.pose.yaw() << "," << std::setprecision(6) << r.sigma_xy_m << "," << std::setprecision(7) << r.sigma_yaw_rad
+        << "\n";
+  }
+  if (!out) throw DatasetError(path + ": write failed");
+}
+
 std::string readTextFile(const std::string& path) {
   std::ifstream in(path);
   if (!in) throw DatasetError(path + ": cannot open");
@@ -296,6 +326,8 @@ Dataset loadDataset(const std::string& directory, bool check_images_exist) {
   }
   const fs::path gt = fs::path(directory) / "gt.csv";
   if (fs::exists(gt)) d.ground_truth = readGroundTruthCsv(gt.string());
+  const fs::path nav = fs::path(directory) / "nav.csv";
+  if (fs::exists(nav)) d.nav = readNavCsv(nav.string());
   return d;
 }
 

@@ -1,4 +1,5 @@
-// Dataset folders (doc/dataset_format.md): frames.csv, camera.yaml, images, optional gt.csv.
+// Dataset folders (doc/dataset_format.md): frames.csv, camera.yaml, images, optional gt.csv and
+// nav.csv.
 // The project reads and writes this format: the survey generator writes it, folder_to_bag and
 // offline_slam read it. Errors are reported as DatasetError with the file and line at fault.
 #pragma once
@@ -66,11 +67,22 @@ struct GroundTruthRecord {
   Pose2 pose;
 };
 
+/// One row of nav.csv: the vehicle's dead-reckoned (DVL/INS) pose of the image centre, in the same
+/// frame and conventions as gt.csv, with the standard deviations of its accumulated error
+/// (sigma_xy_m of each of x and y, sigma_yaw_rad of yaw).
+struct NavRecord {
+  double stamp_s = 0.0;
+  Pose2 pose;
+  double sigma_xy_m = 0.0;
+  double sigma_yaw_rad = 0.0;
+};
+
 struct Dataset {
   std::string directory;
   CameraIntrinsics camera;
   std::vector<FrameRecord> frames;
   std::vector<GroundTruthRecord> ground_truth;  // empty when the folder has no gt.csv
+  std::vector<NavRecord> nav;                   // empty when the folder has no nav.csv
 
   /// Full path of a frame's image.
   std::string imagePath(const FrameRecord& f) const;
@@ -95,11 +107,17 @@ void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& fra
 std::vector<GroundTruthRecord> readGroundTruthCsv(const std::string& path);
 void writeGroundTruthCsv(const std::string& path, const std::vector<GroundTruthRecord>& gt);
 
+/// Reads nav.csv: header "stamp_s,x_m,y_m,yaw_rad,sigma_xy_m,sigma_yaw_rad", every value finite,
+/// sigmas >= 0, stamps strictly increasing, at least one row; DatasetError with the line otherwise.
+std::vector<NavRecord> readNavCsv(const std::string& path);
+void writeNavCsv(const std::string& path, const std::vector<NavRecord>& nav);
+
 /// The whole content of a text file; throws DatasetError("<path>: cannot open") when unreadable.
 std::string readTextFile(const std::string& path);
 
 /// Loads a dataset folder; throws DatasetError with a one-line reason when it is not one
-/// (missing files, bad header, unparsable number, duplicate index, missing image file).
+/// (missing files, bad header, unparsable number, duplicate index, missing image file). nav.csv
+/// is read when present; it must cover the stamps of the frames it is used for (see NavTrack).
 Dataset loadDataset(const std::string& directory, bool check_images_exist = true);
 
 }  // namespace core

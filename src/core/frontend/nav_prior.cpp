@@ -1,0 +1,131 @@
+#include "uw_multislam/core/frontend/nav_prior.h"
+
+#include <Eigen/Cholesky>
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+#include "uw_multislam/core/backend/loop_consistency.h"
+
+namespace uw_multislam {
+namespace core {
+
+std::string trackingLossPolicyName(TrackingLossPolicy p) {
+  return p == TrackingLossPolicy::kNewSession ? "new_session" : "dead_reckoning";
+}
+
+bool parseTrackingLossPolicy(const std::string& name, TrackingLossPolicy* p) {
+  for (const TrackingLossPolicy c : {TrackingLossPolicy::kNewSession, TrackingLossPolicy::kDeadReckoning}) {
+    if (name == trackingLossPolicyName(c)) {
+      *p = c;
+      return true;
+    }
+  }
+  return false;
+}
+
+const char* motionSourceName(MotionSource s) {
+  switch (s) {
+    case MotionSource::kVisual:
+      return "visual";
+    case MotionSource::kNav:
+      return "nav";
+    case MotionSource::kFused:
+      return "fused";
+    case MotionSource::kFallback:
+      return "fallback";
+  }
+  return "visual";
+}
+
+bool parseMotionSource(const std::string& name, MotionSource* s) {
+  for (const MotionSource c :
+       {MotionSource::kVisual, MotionSource::kNav, MotionSource::kFused, MotionSource::kFallback}) {
+    if (name == motionSourceName(c)) {
+      *s = c;
+      return true;
+    }
+  }
+  return false;
+}
+
+std::string NavPriorOptions::validate() const {
+  std::ostringstream os;
+  if (!(inflation >= 1.0 && std::isfinite(inflation))) {
+    os << "inflation " << inflation << " must be >= 1 (the nav is never trusted more than it claims)";
+  } else if (!(min_sigma_m > 0.0) || !(min_sigma_rad > 0.0) || !std::isfinite(min_sigma_m) ||
+             !std::isfinite(min_sigma_rad)) {
+    os << "min_sigma_m and min_sigma_rad must be positive";
+  } else if (!(gate_confidence == 0.0 || (gate_confidence > 0.5 && gate_confidence < 1.0))) {
+    os << "gate_confidence " << gate_confidence << " must be in (0.5, 1), or 0 for no gate";
+  } else if (min_features_to_restart < 1) {
+    os << "min_features_to_restart must be >= 1";
+  }
+  return os.str();
+}
+
+NavTrack::NavTrack(std::vector<NavRecord> rows) : rows_(std::move(rows)) {
+  for (std::size_t i = 0; i < rows_.size(); ++i) {
+    const NavRecord& r = rows_[i];
+    if (!std::isfinite(r.stamp_s) || !r.pose.isFinite() || !(r.sigma_xy_m >= 0) || !(r.sigma_yaw_rad >= 0) ||
+        !std::isfinite(r.sigma_xy_m) || !std::isfinite(r.sigma_yaw_rad))
+      throw std::invalid_argument("nav row " + std::to_string(i) + ": a value is not finite or a sigma is negative");
+    if (i > 0 && !(r.stamp_s > rows_[i - 1].stamp_s))
+      throw std::invalid_argument("nav row " + std::to_string(i) + ": stamps must increase strictly");
+  }
+}
+
+bool NavTrack::at(double stamp_s, NavRecord* out) const {
+  if (rows_.empty() || !(stamp_s >= rows_.front().stamp_s) || !(stamp_s <= rows_.back().stamp_s)) return false;
+  const auto hi =
+      std::lower_bound(rows_.begin(), rows_.end(), stamp_s, [](const NavRecord& r, double s) { return r.stamp_s < s; });
+  if (hi->stamp_s == stamp_s) {
+    *out = *hi;
+    return true;
+  }
+  const NavRecord& b = *hi;
+  const NavRecord& a = *(hi - 1);
+  const double t = (stamp_s - a.stamp_s) / (b.stamp_s - a.stamp_s);
+  auto lerp = [t](double u, double v) { return u + t * (v - u); };
+  // Yaw on the circle: a's yaw plus t times the wrapped difference (the shorter arc).
+  const double yaw = a.pose.yaw() + t * normalizeAngle(b.pose.yaw() - a.pose.yaw());
+  out->stamp_s = stamp_s;
+  out->pose = Pose2(lerp(a.pose.x(), b.pose.x()), lerp(a.pose.y(), b.pose.y()), yaw);
+  out->sigma_xy_m = lerp(a.sigma_xy_m, b.sigma_xy_m);
+  out->sigma_yaw_rad = lerp(a.sigma_yaw_rad, b.sigma_yaw_rad);
+  return true;
+}
+
+UncertainPose2 navMotion(const NavRecord& a, const NavRecord& b, const NavPriorOptions& o) {
+  const double sxy = std::max(o.min_sigma_m, o.inflation * std::abs(b.sigma_xy_m - a.sigma_xy_m));
+  const double syaw = std::max(o.min_sigma_rad, o.inflation * std::abs(b.sigma_yaw_rad - a.sigma_yaw_rad));
+  return UncertainPose2(between(a.pose, b.pose), Eigen::Vector3d(sxy * sxy, sxy * sxy, syaw * syaw).asDiagonal());
+}
+
+double navGateDistance2(const UncertainPose2& visual, const UncertainPose2& nav) {
+  ConsistencyOptions no_floor;  // the nav covariance has its own floors
+  no_floor.min_sigma_m = 0.0;
+  no_floor.min_sigma_rad = 0.0;
+  const Pose2 error(visual.mean.x() - nav.mean.x(), visual.mean.y() - nav.mean.y(), visual.mean.yaw() - nav.mean.yaw());
+  return mahalanobis2(error, visual.covariance + nav.covariance, no_floor);
+}
+
+double navGateThreshold(const NavPriorOptions& o) {
+  return o.gate_confidence > 0 ? chiSquare3Quantile(o.gate_confidence) : std::numeric_limits<double>::infinity();
+}
+
+UncertainPose2 fuseMotions(const UncertainPose2& visual, const UncertainPose2& nav) {
+  // Kalman update of `visual` by the direct measurement `nav` (H = I), in (x, y, yaw) with the
+  // yaw innovation wrapped: K = Pv (Pv + Pn)^-1, x = v + K (n - v), P = (I - K) Pv.
+  const Eigen::Matrix3d s = visual.covariance + nav.covariance;
+  const Eigen::Matrix3d k = s.ldlt().solve(visual.covariance.transpose()).transpose();
+  const Eigen::Vector3d innovation(nav.mean.x() - visual.mean.x(), nav.mean.y() - visual.mean.y(),
+                                   normalizeAngle(nav.mean.yaw() - visual.mean.yaw()));
+  const Eigen::Matrix3d p = (Eigen::Matrix3d::Identity() - k) * visual.covariance;
+  return UncertainPose2(Pose2::fromVector(visual.mean.vector() + k * innovation), 0.5 * (p + p.transpose()));
+}
+
+}  // namespace core
+}  // namespace uw_multislam

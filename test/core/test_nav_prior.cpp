@@ -1,0 +1,164 @@
+// nav.csv (reader errors, round trip), the nav track's interpolation at image stamps (yaw on the
+// circle), the relative nav motion's covariance model, the chi-square gate and the fusion.
+#include <gtest/gtest.h>
+
+#include <Eigen/Cholesky>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "../common/scoped_temp_dir.h"
+#include "uw_multislam/core/backend/loop_consistency.h"
+#include "uw_multislam/core/frontend/nav_prior.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+namespace fs = std::filesystem;
+
+class NavCsvTest : public ::testing::Test {
+ protected:
+  std::string write(const std::string& text) {
+    const std::string p = (tmp_.path() / "nav.csv").string();
+    std::ofstream(p) << text;
+    return p;
+  }
+  void expectError(const std::string& text, const std::string& needle) {
+    const std::string p = write(text);
+    try {
+      readNavCsv(p);
+      FAIL() << "no error, expected one containing '" << needle << "'";
+    } catch (const DatasetError& e) {
+      EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(p), std::string::npos) << e.what();
+    }
+  }
+  testing_util::ScopedTempDir tmp_{"uwms_nav"};
+};
+
+const char* kHeader = "stamp_s,x_m,y_m,yaw_rad,sigma_xy_m,sigma_yaw_rad\n";
+
+TEST_F(NavCsvTest, RoundTrip) {
+  const std::vector<NavRecord> rows = {{0.0, Pose2(0, 0, 0), 0.0, 0.0}, {1.5, Pose2(0.5, -0.25, 3.1), 0.01, 0.002}};
+  const std::string p = (tmp_.path() / "nav.csv").string();
+  writeNavCsv(p, rows);
+  const std::vector<NavRecord> back = readNavCsv(p);
+  ASSERT_EQ(back.size(), 2u);
+  EXPECT_EQ(back[1].stamp_s, 1.5);
+  EXPECT_TRUE(approxEqual(back[1].pose, rows[1].pose, 1e-6, 1e-6));
+  EXPECT_NEAR(back[1].sigma_xy_m, 0.01, 1e-9);
+  EXPECT_NEAR(back[1].sigma_yaw_rad, 0.002, 1e-9);
+}
+
+TEST_F(NavCsvTest, BadFilesAreRefusedWithTheLine) {
+  expectError("stamp_s,x_m,y_m,yaw_rad\n0,0,0,0\n", "unexpected header");
+  expectError(std::string(kHeader) + "0,0,0,0,0,0\n1,nan,0,0,0,0\n", ":3: x_m is not finite");
+  expectError(std::string(kHeader) + "0,0,0,0,0,inf\n", "sigma_yaw_rad is not finite");
+  expectError(std::string(kHeader) + "0,0,0,0,-1,0\n", "must be >= 0");
+  expectError(std::string(kHeader) + "0,0,0,0,0,0\n2,0,0,0,0,0\n1,0,0,0,0,0\n", ":4: stamp 1 is not after");
+  expectError(std::string(kHeader) + "0,0,0,0,0,0\n0,0,0,0,0,0\n", "stamps must increase");
+  expectError(std::string(kHeader) + "0,0,zero,0,0,0\n", "bad number in y_m");
+  expectError(std::string(kHeader), "no rows");
+  expectError(std::string(kHeader) + "0,0,0,0,0\n", "expected 6 columns");
+}
+
+TEST_F(NavCsvTest, DatasetReadsItWhenPresent) {
+  const fs::path d = tmp_.path() / "set";
+  fs::create_directories(d);
+  writeCameraYaml((d / "camera.yaml").string(), CameraIntrinsics{320, 240, 300.0, 300.0, 160.0, 120.0});
+  writeFramesCsv((d / "frames.csv").string(), {{0, "0000.jpg", 0.0, 2.5}});
+  std::ofstream(d / "0000.jpg") << "x";
+  EXPECT_TRUE(loadDataset(d.string()).nav.empty());
+  std::ofstream(d / "nav.csv") << kHeader << "0,1,2,0.5,0,0\n";
+  const Dataset ds = loadDataset(d.string());
+  ASSERT_EQ(ds.nav.size(), 1u);
+  EXPECT_EQ(ds.nav[0].pose.y(), 2.0);
+  std::ofstream(d / "nav.csv") << kHeader << "0,1,2,0.5,0,0\n0,1,2,0.5,0,0\n";
+  EXPECT_THROW(loadDataset(d.string()), DatasetError);
+}
+
+TEST(NavTrack, InterpolatesLinearlyAndYawAlongTheShorterArc) {
+  // Yaw crosses +-pi between the rows: the naive average of 3.0 and -3.0 would be 0.
+  const NavTrack track({{10.0, Pose2(0, 0, 3.0), 0.0, 0.0}, {12.0, Pose2(2, -4, -3.0), 0.02, 0.004}});
+  NavRecord r;
+  ASSERT_TRUE(track.at(11.0, &r));
+  EXPECT_NEAR(r.pose.x(), 1.0, 1e-12);
+  EXPECT_NEAR(r.pose.y(), -2.0, 1e-12);
+  EXPECT_NEAR(std::abs(r.pose.yaw()), M_PI, 1e-12);  // 3.0 + (2pi - 6)/2 = pi
+  EXPECT_NEAR(r.sigma_xy_m, 0.01, 1e-12);
+  ASSERT_TRUE(track.at(11.5, &r));
+  EXPECT_NEAR(r.pose.yaw(), normalizeAngle(3.0 + 0.75 * (2 * M_PI - 6.0)), 1e-12);
+  ASSERT_TRUE(track.at(12.0, &r));  // a row's stamp: the row itself
+  EXPECT_EQ(r.pose.yaw(), -3.0);
+  EXPECT_FALSE(track.at(9.99, &r));  // no extrapolation
+  EXPECT_FALSE(track.at(12.01, &r));
+  EXPECT_FALSE(track.at(std::nan(""), &r));
+  EXPECT_THROW(NavTrack({{1.0, Pose2(), 0, 0}, {1.0, Pose2(), 0, 0}}), std::invalid_argument);
+}
+
+TEST(NavPrior, MotionCovarianceIsTheInflatedGrowthOfSigmaWithFloors) {
+  NavPriorOptions o;
+  o.inflation = 3.0;
+  o.min_sigma_m = 0.001;
+  o.min_sigma_rad = 0.002;
+  const NavRecord a{0.0, Pose2(1, 1, M_PI / 2), 0.10, 0.010};
+  const NavRecord b{1.0, Pose2(1, 2, M_PI / 2), 0.11, 0.010};
+  const UncertainPose2 m = navMotion(a, b, o);
+  EXPECT_TRUE(approxEqual(m.mean, Pose2(1, 0, 0), 1e-12, 1e-12));  // 1 m ahead in a's frame
+  EXPECT_NEAR(m.covariance(0, 0), std::pow(3.0 * 0.01, 2), 1e-12);
+  EXPECT_NEAR(m.covariance(1, 1), std::pow(3.0 * 0.01, 2), 1e-12);
+  EXPECT_NEAR(m.covariance(2, 2), std::pow(0.002, 2), 1e-15);  // sigma_yaw did not grow: the floor
+  EXPECT_EQ(m.covariance(0, 1), 0.0);
+  NavPriorOptions bad = o;
+  bad.inflation = 0.5;
+  EXPECT_NE(bad.validate().find("inflation"), std::string::npos);
+  bad = o;
+  bad.gate_confidence = 1.0;
+  EXPECT_NE(bad.validate().find("gate_confidence"), std::string::npos);
+}
+
+TEST(NavPrior, GateThresholdHoldsItsConfidenceUnderTheModel) {
+  // Monte-Carlo: visual and nav drawn around one true motion with their covariances; the fraction
+  // passing the gate must be the gate's confidence (an independent check of distance and quantile).
+  NavPriorOptions o;
+  o.gate_confidence = 0.95;
+  const double threshold = navGateThreshold(o);
+  EXPECT_NEAR(threshold, 7.8147, 1e-3);  // chi-square 3 dof, 95 % (tables)
+  const Pose2 truth(0.4, -0.1, 0.05);
+  Eigen::Matrix3d cv, cn;
+  cv << 4e-6, 1e-6, 0, 1e-6, 9e-6, 2e-7, 0, 2e-7, 1e-6;
+  cn = Eigen::Vector3d(1e-4, 1e-4, 4e-5).asDiagonal();
+  const Eigen::Matrix3d lv = cv.llt().matrixL(), ln = cn.llt().matrixL();
+  std::mt19937 rng(3);
+  std::normal_distribution<double> g;
+  int pass = 0;
+  const int n = 20000;
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector3d ev = lv * Eigen::Vector3d(g(rng), g(rng), g(rng));
+    const Eigen::Vector3d en = ln * Eigen::Vector3d(g(rng), g(rng), g(rng));
+    const UncertainPose2 v(Pose2::fromVector(truth.vector() + ev), cv), nav(Pose2::fromVector(truth.vector() + en), cn);
+    if (navGateDistance2(v, nav) <= threshold) ++pass;
+  }
+  EXPECT_NEAR(pass / static_cast<double>(n), 0.95, 0.006);  // 4 sigma of a binomial at n = 20000
+  // A visual motion 10 cm off a nav of 1 cm sigma fails.
+  EXPECT_GT(navGateDistance2(UncertainPose2(Pose2(0.5, -0.1, 0.05), cv), UncertainPose2(truth, cn)), threshold);
+}
+
+TEST(NavPrior, FusionIsTheInformationWeightedMean) {
+  const UncertainPose2 v(Pose2(1.0, 0.0, 0.1), Eigen::Vector3d(1e-4, 4e-4, 1e-4).asDiagonal());
+  const UncertainPose2 n(Pose2(1.3, 0.2, 0.4), Eigen::Vector3d(3e-4, 4e-4, 1e-4).asDiagonal());
+  const UncertainPose2 f = fuseMotions(v, n);
+  // Diagonal covariances: per component (x_v / s_v + x_n / s_n) / (1 / s_v + 1 / s_n).
+  EXPECT_NEAR(f.mean.x(), (1.0 / 1e-4 + 1.3 / 3e-4) / (1 / 1e-4 + 1 / 3e-4), 1e-12);
+  EXPECT_NEAR(f.mean.y(), 0.1, 1e-12);
+  EXPECT_NEAR(f.mean.yaw(), 0.25, 1e-12);
+  EXPECT_NEAR(f.covariance(0, 0), 1.0 / (1 / 1e-4 + 1 / 3e-4), 1e-15);
+  EXPECT_NEAR(f.covariance(1, 1), 2e-4, 1e-15);
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam
