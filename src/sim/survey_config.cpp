@@ -148,6 +148,16 @@ SurveySpec surveyFromYaml(const std::string& yaml_text, const std::string& base_
       readCamera(sr.child("camera"), where + ".camera", &s.camera);
       readMission(sr.child("mission"), where + ".mission", &s.mission);
       readWater(sr.child("water"), where + ".water", &s.water);
+      {
+        // The dead-reckoning nav written to nav.csv (survey_generator.h, NavErrorSpec).
+        MapReader nr(sr.child("nav"), where + ".nav");
+        nr.read("enabled", &s.nav.enabled);
+        nr.read("scale_error", &s.nav.scale_error);
+        nr.read("heading_bias_rad", &s.nav.heading_bias_rad);
+        nr.read("random_walk_m_per_sqrt_m", &s.nav.random_walk_m_per_sqrt_m);
+        nr.read("heading_random_walk_rad_per_sqrt_m", &s.nav.heading_random_walk_rad_per_sqrt_m);
+        nr.finish();
+      }
       sr.finish();
       spec.sessions.push_back(s);
     }
@@ -244,6 +254,13 @@ std::string surveyToYaml(const SurveySpec& spec) {
           << (st.kind == FrameStretch::Kind::kBlank ? "blank" : "occluded") << YAML::EndMap;
     }
     out << YAML::EndSeq;
+    out << YAML::EndMap;
+    out << YAML::Key << "nav" << YAML::Value << YAML::BeginMap;
+    out << YAML::Key << "enabled" << YAML::Value << s.nav.enabled;
+    out << YAML::Key << "scale_error" << YAML::Value << s.nav.scale_error;
+    out << YAML::Key << "heading_bias_rad" << YAML::Value << s.nav.heading_bias_rad;
+    out << YAML::Key << "random_walk_m_per_sqrt_m" << YAML::Value << s.nav.random_walk_m_per_sqrt_m;
+    out << YAML::Key << "heading_random_walk_rad_per_sqrt_m" << YAML::Value << s.nav.heading_random_walk_rad_per_sqrt_m;
     out << YAML::EndMap;
     out << YAML::EndMap;
   }

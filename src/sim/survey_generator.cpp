@@ -81,6 +81,48 @@ std::uint64_t frameSeed(std::uint64_t seed, int session, int frame) {
 
 }  // namespace
 
+std::string NavErrorSpec::validate() const {
+  for (const double v : {scale_error, heading_bias_rad, random_walk_m_per_sqrt_m, heading_random_walk_rad_per_sqrt_m})
+    if (!std::isfinite(v)) return "nav: every error must be finite";
+  if (!(std::abs(scale_error) < 0.5)) return "nav: scale_error must be in (-0.5, 0.5)";
+  if (!(std::abs(heading_bias_rad) < 1.0)) return "nav: heading_bias_rad must be in (-1, 1)";
+  if (random_walk_m_per_sqrt_m < 0 || heading_random_walk_rad_per_sqrt_m < 0) return "nav: random walks must be >= 0";
+  return {};
+}
+
+std::vector<NavRecord> simulateNav(const std::vector<MissionFrame>& plan, const NavErrorSpec& spec, std::uint64_t seed) {
+  std::vector<NavRecord> nav;
+  if (plan.empty()) return nav;
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> g(0.0, 1.0);
+  std::bernoulli_distribution sign(0.5);
+  const double scale = (sign(rng) ? 1 : -1) * spec.scale_error;
+  const double bias = (sign(rng) ? 1 : -1) * spec.heading_bias_rad;
+  const double drift = std::hypot(spec.scale_error, spec.heading_bias_rad);
+  Eigen::Vector2d position = plan.front().pose.translation();
+  double heading_walk = 0.0;
+  double heading = 0.0;  // the INS heading of the previous frame
+  for (std::size_t k = 0; k < plan.size(); ++k) {
+    const MissionFrame& f = plan[k];
+    if (k > 0) {
+      const Pose2& prev = plan[k - 1].pose;
+      const double step = (f.pose.translation() - prev.translation()).norm();
+      // The DVL's displacement in the body frame, scaled, turned into the world by the INS heading.
+      const Eigen::Vector2d body = prev.rotation().transpose() * (f.pose.translation() - prev.translation());
+      position += Pose2(0, 0, heading).rotation() * ((1.0 + scale) * body) +
+                  spec.random_walk_m_per_sqrt_m * std::sqrt(step) * Eigen::Vector2d(g(rng), g(rng));
+      heading_walk += spec.heading_random_walk_rad_per_sqrt_m * std::sqrt(step) * g(rng);
+    }
+    heading = normalizeAngle(f.pose.yaw() + bias + heading_walk);
+    const double d = f.path_m - plan.front().path_m;
+    const Pose2 world(position.x(), position.y(), heading);
+    nav.push_back({f.stamp_s, between(plan.front().pose, world),
+                   drift * d + spec.random_walk_m_per_sqrt_m * std::sqrt(d),
+                   std::abs(spec.heading_bias_rad) + spec.heading_random_walk_rad_per_sqrt_m * std::sqrt(d)});
+  }
+  return nav;
+}
+
 std::string SurveySpec::validate() const {
   if (sessions.empty()) return "the survey has no sessions";
   if (!(loop_distance_fraction > 0 && loop_distance_fraction <= 2)) return "loop_distance_fraction must be in (0, 2]";
@@ -102,6 +144,7 @@ std::string SurveySpec::validate() const {
     if (s.image_format != "jpg" && s.image_format != "png") return where + "image_format must be jpg or png";
     if (s.jpeg_quality < 1 || s.jpeg_quality > 100) return where + "jpeg_quality must be in 1..100";
     if (!(s.altimeter_noise_m >= 0 && s.altimeter_noise_m < 1)) return where + "altimeter_noise_m must be in [0, 1)";
+    if (const std::string nav = s.nav.validate(); !nav.empty()) return where + nav;
   }
   return {};
 }
@@ -211,6 +254,8 @@ SurveyResult generateSurvey(const SurveySpec& spec, const std::string& out_dir,
     writeCameraYaml((dir / "camera.yaml").string(), s.camera);
     writeFramesCsv((dir / "frames.csv").string(), frames);
     writeGroundTruthCsv((dir / "gt.csv").string(), gt);
+    if (s.nav.enabled)
+      writeNavCsv((dir / "nav.csv").string(), simulateNav(plan, s.nav, frameSeed(spec.seed, static_cast<int>(si), -2)));
     result.session_dirs.push_back(dir.string());
   }
 

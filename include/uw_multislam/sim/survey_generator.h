@@ -16,6 +16,31 @@
 namespace uw_multislam {
 namespace core {
 
+/// The vehicle's dead-reckoning navigation (DVL + INS) written to nav.csv, and its errors. The
+/// DVL's body-frame displacement between frames is scaled by (1 + scale_error) and rotated into
+/// the world by the INS heading, true heading + heading_bias_rad + a heading random walk; each
+/// step's translation gets a white error (a random walk in position). Signs of the scale error
+/// and the bias are drawn per session from the survey seed, their magnitudes are fixed: on a
+/// straight track the position error is then sqrt(scale_error^2 + heading_bias_rad^2) of the
+/// distance travelled (about 1 % with the defaults) plus the random walk's
+/// random_walk_m_per_sqrt_m * sqrt(distance) per axis (a heading random walk h adds a cross-track
+/// variance h^2 d^3 / 3). The first frame's nav position is exact, its yaw off by the bias.
+/// nav.csv's sigma columns: sigma_xy_m = sqrt(scale^2 + bias^2) * d + random_walk * sqrt(d),
+/// sigma_yaw_rad = |heading_bias_rad| + heading_random_walk * sqrt(d), d the distance so far.
+struct NavErrorSpec {
+  bool enabled = false;  // write nav.csv (off: the folders are as before)
+  double scale_error = 0.007;
+  double heading_bias_rad = 0.007;
+  double random_walk_m_per_sqrt_m = 0.002;
+  double heading_random_walk_rad_per_sqrt_m = 0.0005;
+
+  std::string validate() const;
+};
+
+/// The nav track of a planned mission (rows at the frame stamps, in the first frame's image axes
+/// as gt.csv), drawn with `seed`.
+std::vector<NavRecord> simulateNav(const std::vector<MissionFrame>& plan, const NavErrorSpec& spec, std::uint64_t seed);
+
 struct SessionSpec {
   std::string name = "s0";  // folder name
   MissionSpec mission;
@@ -27,6 +52,7 @@ struct SessionSpec {
   /// "jpg" or "png".
   std::string image_format = "jpg";
   int jpeg_quality = 95;
+  NavErrorSpec nav;
 };
 
 struct WorldSpec {
