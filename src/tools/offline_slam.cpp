@@ -41,6 +41,7 @@ options:
   --config FILE     YAML configuration (see config/slam.yaml; --dump-config shows every key)
   --db FILE         the session store (SQLite) to read and extend
   --again           process folders already in the store once more (as new sessions)
+  --nav on|off      use a folder's nav.csv (dead reckoning) as a prior (default: nav.enabled, on)
   --threads N       OpenCV threads (default 1: one core, as onboard)
   --dump-config     print the effective configuration and exit
   --quiet           no per-session summary
@@ -57,7 +58,7 @@ int badArgs(const std::string& why) {
 
 int main(int argc, char** argv) {
   std::vector<std::string> folders;
-  std::string out, config_file, db;
+  std::string out, config_file, db, nav;
   int threads = 1;
   bool dump = false, quiet = false, again = false;
   for (int i = 1; i < argc; ++i) {
@@ -71,6 +72,7 @@ int main(int argc, char** argv) {
     else if (arg == "--dump-config") dump = true;
     else if (arg == "--quiet") quiet = true;
     else if (arg == "--again") again = true;
+    else if (arg == "--nav" && has_value) nav = argv[++i];
     else if (arg == "--threads" && has_value) {
       char* end = nullptr;
       const long n = std::strtol(argv[++i], &end, 10);
@@ -81,7 +83,9 @@ int main(int argc, char** argv) {
     }
   }
   try {
-    const core::SlamConfig config = config_file.empty() ? core::SlamConfig() : core::loadSlamConfig(config_file);
+    core::SlamConfig config = config_file.empty() ? core::SlamConfig() : core::loadSlamConfig(config_file);
+    if (!nav.empty() && nav != "on" && nav != "off") return badArgs("--nav takes on or off, not '" + nav + "'");
+    if (!nav.empty()) config.odometry.nav.enabled = nav == "on";
     if (dump) return std::fputs(core::slamConfigToYaml(config).c_str(), stdout), 0;
     if (folders.empty()) return badArgs("at least one --session DIR is required");
     if (out.empty()) return badArgs("--out OUT is required");
@@ -110,11 +114,7 @@ int main(int argc, char** argv) {
     std::map<int, int> csv_of;  // session id -> the folder's number (stored sessions keep their id)
     for (std::size_t ds = 0; ds < datasets.size(); ++ds) {
       const core::Dataset& d = datasets[ds];
-      pipeline.beginStream(d.directory, d.camera, [&d](int index) {
-        for (const core::FrameRecord& f : d.frames)
-          if (f.index == index) return cv::imread(d.imagePath(f), cv::IMREAD_COLOR);
-        return cv::Mat();
-      });
+      pipeline.beginStream(d);  // its camera, its images (thumbnails), its nav.csv
       for (const core::FrameRecord& f : d.frames) {
         const cv::Mat image = cv::imread(d.imagePath(f), cv::IMREAD_COLOR);
         if (image.empty())

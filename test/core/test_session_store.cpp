@@ -303,6 +303,29 @@ TEST(Store, FrameDataAreReadFromACoveringIndexThatOlderStoresGetWhenOpened) {
   }
 }
 
+TEST(Store, EachMotionKeepsItsSource) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  std::mt19937 rng(3);
+  const std::vector<MotionSource> sources = {MotionSource::kVisual, MotionSource::kNav, MotionSource::kFused,
+                                             MotionSource::kFallback, MotionSource::kNav};
+  std::int64_t session = 0;
+  {
+    SessionStore store(path);
+    session = store.addSession("s", camera(), 10.0);
+    store.addKeyframe(randomKeyframe(session, 0, 10, &rng), nullptr, nullptr);
+    for (std::size_t k = 0; k < sources.size(); ++k) {
+      StoredKeyframe kf = randomKeyframe(session, static_cast<int>(k) + 1, 10, &rng);
+      kf.motion_source = sources[k];
+      const UncertainPose2 m(Pose2(0.1 * k, 0, 0), diag(0.01, 0.01));
+      store.addKeyframe(kf, &m, nullptr);
+    }
+  }
+  SessionStore store(path);
+  EXPECT_EQ(store.motionSources(session), sources);
+  EXPECT_EQ(store.odometry(session).size(), sources.size());
+}
+
 TEST(Store, RefusesOtherHashSettings) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
@@ -370,7 +393,7 @@ TEST(Store, RefusesAnotherSchemaVersionAndAnotherApplication) {
   ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
   ASSERT_EQ(sqlite3_exec(db, "PRAGMA user_version=99", nullptr, nullptr, nullptr), SQLITE_OK);
   sqlite3_close(db);
-  expectRefusedUnchanged(path, "schema version 99, this build reads version 1");
+  expectRefusedUnchanged(path, "schema version 99, this build reads version 2");
 
   const std::string other = (dir.path() / "other.db").string();
   ASSERT_EQ(sqlite3_open(other.c_str(), &db), SQLITE_OK);

@@ -1,9 +1,12 @@
 // Tracking loss (core/frontend/tracking.h): a blank stretch closes the session, the next textured frame
-// starts a new one; short dropouts and blank starts do not make sessions.
+// starts a new one; short dropouts and blank starts do not make sessions. With a nav prior
+// (core/frontend/nav_prior.h) the nav carries the blank stretch and a wrong visual motion is refused.
 #include <gtest/gtest.h>
 
 #include "../common/rendered_seabed.h"
 #include "uw_multislam/core/frontend/tracking.h"
+
+#include <functional>
 
 namespace uw_multislam {
 namespace core {
@@ -18,7 +21,9 @@ class TrackingTest : public testing_util::RenderedSeabedTest {
     const cv::Mat grey(240, 320, CV_8UC3, cv::Scalar(90, 110, 60));
     for (int k = 0; k < frames; ++k) {
       const cv::Mat image = (k >= blank_from && k < blank_to) ? grey : render(Pose2(2.0 + 0.25 * k, 4.0, 0.0), 2.0);
-      steps.push_back(odo->process({k, 1.0 * k, 2.0, image}));
+      OdometryInput in{k, 1.0 * k, 2.0, image};
+      if (nav) in.nav = nav(k);
+      steps.push_back(odo->process(in));
       if (steps.back().session_closed) {
         kept_at_close = odo->keptKeyframes();
         made_at_close = static_cast<int>(odo->odometry()->keyframes().size());
@@ -32,6 +37,7 @@ class TrackingTest : public testing_util::RenderedSeabedTest {
     }
     return steps;
   }
+  std::function<NavRecord(int)> nav;  // the nav pose of frame k (none when empty)
   int kept_at_close = -1, made_at_close = -1, released = 0;
   bool fallback_kept_at_close = true;
 };
@@ -98,6 +104,74 @@ TEST_F(TrackingTest, ZeroNeverClosesAndBadOptionsAreRefused) {
   TrackingLossOptions bad;
   bad.min_features = 0;
   EXPECT_THROW(SegmentedOdometry(camera_, OdometryOptions(), bad), std::invalid_argument);
+}
+
+// The nav of the straight pass: the truth in the first frame's axes, scaled by (1 + scale) (a DVL
+// scale error), its sigma growing 1 % of the distance.
+NavRecord straightNav(int k, double scale = 0.0) {
+  return {1.0 * k, Pose2(0.25 * k * (1.0 + scale), 0.0, 0.0), 0.01 * 0.25 * k, 0.001};
+}
+
+TEST_F(TrackingTest, WithNavTheBlankStretchIsDeadReckonedInOneSession) {
+  TrackingLossOptions loss;
+  loss.max_fallbacks = 3;
+  nav = [](int k) { return straightNav(k, 0.01); };
+  SegmentedOdometry odo(camera_, OdometryOptions(), loss);
+  const auto steps = fly(&odo, 30, 10, 18);
+  EXPECT_EQ(odo.sessions(), 1);
+  EXPECT_EQ(odo.losses(), 0);
+  const Odometry& o = *odo.odometry();
+  EXPECT_EQ(o.stats().fallbacks, 0);
+  EXPECT_GE(o.stats().nav_frames, 8);  // the 8 blank frames, and the first one back (its keyframe is blank)
+  int nav_keyframes = 0;
+  for (const KeyframeInfo& kf : o.keyframes()) {
+    if (kf.source != MotionSource::kNav) continue;
+    ++nav_keyframes;
+    EXPECT_GE(kf.frame_index, 10);
+    EXPECT_LE(kf.frame_index, 18);
+  }
+  EXPECT_GE(nav_keyframes, 2);
+  for (int k = 10; k < 18; ++k) EXPECT_EQ(steps[k].update.source, MotionSource::kNav) << k;
+  EXPECT_EQ(steps[25].update.source, MotionSource::kVisual);
+  // The end: within the nav's 1 % scale error over the 2 m blind (5 mm with the visual chain).
+  const Pose2 end = o.trajectory().absolutePoses().back();
+  const double truth = 0.25 * o.keyframes().back().frame_index;
+  EXPECT_NEAR(end.x(), truth, 0.01 * 2.0 + 0.005);
+  EXPECT_NEAR(end.y(), 0.0, 0.005);
+  // Policy new_session: as without nav, the stretch closes the session.
+  OdometryOptions split;
+  split.nav.on_tracking_loss = TrackingLossPolicy::kNewSession;
+  SegmentedOdometry odo2(camera_, split, loss);
+  fly(&odo2, 30, 10, 18);
+  EXPECT_EQ(odo2.losses(), 1);
+  EXPECT_EQ(odo2.sessions(), 2);
+}
+
+TEST_F(TrackingTest, AVisualMotionTheNavContradictsIsRefusedAndCounted) {
+  // From frame 12 on the nav says the vehicle moved 0.3 m sideways: every visual motion from a
+  // keyframe before it disagrees by 0.3 m (nav sigma ~1 cm): refused, the nav's used.
+  nav = [](int k) {
+    NavRecord r = straightNav(k);
+    if (k >= 12) r.pose = Pose2(r.pose.x(), 0.3, 0.0);
+    return r;
+  };
+  SegmentedOdometry odo(camera_, OdometryOptions(), TrackingLossOptions());
+  const auto steps = fly(&odo, 16, 100, 100);
+  const OdometryStats& st = odo.odometry()->stats();
+  EXPECT_GE(st.gate_checks, 14);
+  EXPECT_GE(st.gate_refusals, 1);
+  EXPECT_TRUE(steps[12].update.gate_refused);
+  EXPECT_EQ(steps[12].update.source, MotionSource::kNav);
+  EXPECT_NE(steps[12].update.reason.find("refused by the nav gate"), std::string::npos) << steps[12].update.reason;
+  for (int k = 1; k < 12; ++k) EXPECT_FALSE(steps[k].update.gate_refused) << k << " d2 " << steps[k].update.gate_distance2;
+  // A nav that agrees, with nav.fuse: the motions are combined (source fused), none refused.
+  nav = [](int k) { return straightNav(k); };
+  OdometryOptions fused;
+  fused.nav.fuse = true;
+  SegmentedOdometry odo3(camera_, fused, TrackingLossOptions());
+  const auto fused_steps = fly(&odo3, 8, 100, 100);
+  EXPECT_EQ(fused_steps[5].update.source, MotionSource::kFused);
+  EXPECT_EQ(odo3.odometry()->stats().gate_refusals, 0);
 }
 
 }  // namespace

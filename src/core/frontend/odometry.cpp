@@ -3,6 +3,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 #include <stdexcept>
 
@@ -35,7 +36,8 @@ std::string FallbackOptions::validate() const {
 std::string OdometryOptions::validate() const {
   const std::pair<const char*, std::string> checks[] = {
       {"enhancement", enhancement.validate()}, {"features", features.validate()},   {"matching", matching.validate()},
-      {"ransac", ransac.validate()},           {"keyframes", keyframes.validate()}, {"fallback", fallback.validate()}};
+      {"ransac", ransac.validate()},           {"keyframes", keyframes.validate()}, {"fallback", fallback.validate()},
+      {"nav", nav.validate()}};
   for (const auto& c : checks) {
     if (!c.second.empty()) return std::string(c.first) + ": " + c.second;
   }
@@ -104,16 +106,38 @@ bool Odometry::needsKeyframe(const RansacResult& r, double overlap, double stamp
          static_cast<int>(r.inliers.size()) < k.min_tracking_inliers;
 }
 
-void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback) {
+void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback,
+                           MotionSource source) {
   // Incremental: Trajectory::absolute(k) would compose all k motions again at every frame.
   last_kf_covariance_ = compose(UncertainPose2(trajectory_.absolutePoses().back(), last_kf_covariance_), motion).covariance;
   trajectory_.append(motion);
   new_keyframes_.push_back({static_cast<int>(keyframes_.size()), frame.features});
-  keyframes_.push_back({frame.index, frame.stamp_s, frame.altitude_m, fallback});
+  keyframes_.push_back({frame.index, frame.stamp_s, frame.altitude_m, fallback, fallback ? MotionSource::kFallback : source});
   last_kf_ = frame;
   last_kf_.pose = trajectory_.absolutePoses().back();
   last_kf_.motion = motion;
   ++stats_.keyframes;
+}
+
+void Odometry::carryByNav(TrackedFrame* cur, const UncertainPose2& m, OdometryUpdate* up) {
+  cur->motion = m;
+  cur->source = MotionSource::kNav;
+  cur->pose = compose(last_kf_.pose, m.mean);
+  last_step_ = between(prev_.pose, cur->pose);
+  up->source = MotionSource::kNav;
+  up->overlap = footprintOverlap(m.mean, last_kf_.altitude_m, cur->altitude_m);  // predicted by the nav
+  up->covariance = compose(UncertainPose2(last_kf_.pose, last_kf_covariance_), m).covariance;
+  ++stats_.nav_frames;
+  const KeyframeOptions& k = options_.keyframes;
+  const int restart = options_.nav.min_features_to_restart;
+  if (up->overlap < k.min_overlap || std::abs(m.mean.yaw()) > k.max_rotation_rad ||
+      (static_cast<int>(cur->features.size()) >= restart && static_cast<int>(last_kf_.features.size()) < restart)) {
+    addKeyframe(*cur, m, false, MotionSource::kNav);
+    up->status = FrameStatus::kKeyframe;
+    up->keyframe_id = static_cast<int>(keyframes_.size()) - 1;
+  } else {
+    up->status = FrameStatus::kTracked;
+  }
 }
 
 OdometryUpdate Odometry::process(const OdometryInput& in) {
@@ -150,6 +174,7 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
   cur.index = in.index;
   cur.stamp_s = in.stamp_s;
   cur.altitude_m = alt;
+  if (options_.nav.enabled) cur.nav = in.nav;
   try {
     cv::Mat grey;
     {
@@ -179,23 +204,52 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
   }
 
   PairMotion m = matchToKeyframe(cur.features, alt);
-  if (!m.ransac.success && prev_.index != last_kf_.index) {
-    // Promote the last tracked frame and try again from there.
-    addKeyframe(prev_, prev_.motion, false);
+  if (!m.ransac.success && prev_.index != last_kf_.index && prev_.source != MotionSource::kNav) {
+    // Promote the last tracked frame and try again from there (not a frame the nav carried: it
+    // was not matched either).
+    addKeyframe(prev_, prev_.motion, false, prev_.source);
     ++stats_.promotions;
     m = matchToKeyframe(cur.features, alt);
   }
   up.matches = m.matches;
-  if (m.ransac.success) {
+  const bool nav = cur.nav && last_kf_.nav;
+  const UncertainPose2 nav_motion = nav ? navMotion(*last_kf_.nav, *cur.nav, options_.nav) : UncertainPose2();
+  if (m.ransac.success && nav && options_.nav.gate_confidence > 0) {
+    // (c) The visual motion against the nav's: refused beyond the chi-square gate.
+    ++stats_.gate_checks;
+    up.gate_distance2 = navGateDistance2(UncertainPose2(m.ransac.motion, m.ransac.covariance), nav_motion);
+    const double threshold = navGateThreshold(options_.nav);
+    if (up.gate_distance2 > threshold) {
+      ++stats_.gate_refusals;
+      up.gate_refused = true;
+      char why[160];
+      std::snprintf(why, sizeof why, "visual motion refused by the nav gate (d2 %.1f > %.1f)", up.gate_distance2,
+                    threshold);
+      up.reason = why;
+    }
+  }
+  if (nav && (up.gate_refused || (!m.ransac.success &&
+                                  options_.nav.on_tracking_loss == TrackingLossPolicy::kDeadReckoning))) {
+    // (b) The nav carries the frame: vision failed (dead reckoning) or was refused.
+    if (!up.gate_refused) up.reason = "dead reckoning: " + m.ransac.failure;
+    up.inliers = m.ransac.success ? static_cast<int>(m.ransac.inliers.size()) : 0;
+    carryByNav(&cur, nav_motion, &up);
+  } else if (m.ransac.success) {
     cur.motion = UncertainPose2(m.ransac.motion, m.ransac.covariance);
+    if (nav && options_.nav.fuse) {
+      cur.motion = fuseMotions(cur.motion, nav_motion);
+      cur.source = MotionSource::kFused;
+      up.source = MotionSource::kFused;
+      ++stats_.fused;
+    }
     cur.pose = compose(last_kf_.pose, cur.motion.mean);
     last_step_ = between(prev_.pose, cur.pose);
     up.inliers = static_cast<int>(m.ransac.inliers.size());
     up.scale = m.ransac.scale;
-    up.overlap = footprintOverlap(m.ransac.motion, last_kf_.altitude_m, alt);
+    up.overlap = footprintOverlap(cur.motion.mean, last_kf_.altitude_m, alt);
     up.covariance = compose(UncertainPose2(last_kf_.pose, last_kf_covariance_), cur.motion).covariance;
     if (needsKeyframe(m.ransac, up.overlap, cur.stamp_s)) {
-      addKeyframe(cur, cur.motion, false);
+      addKeyframe(cur, cur.motion, false, cur.source);
       up.status = FrameStatus::kKeyframe;
       up.keyframe_id = static_cast<int>(keyframes_.size()) - 1;
     } else {
@@ -212,6 +266,7 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
     up.covariance = last_kf_covariance_;
     ++stats_.fallbacks;
     up.status = FrameStatus::kFallback;
+    up.source = MotionSource::kFallback;
     up.reason = m.ransac.failure;
     up.keyframe_id = static_cast<int>(keyframes_.size()) - 1;
   }

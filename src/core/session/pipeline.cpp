@@ -41,14 +41,26 @@ void Pipeline::say(const std::string& line) const {
   if (log_) log_(line);
 }
 
-void Pipeline::beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of) {
+void Pipeline::beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of, NavTrack nav) {
   stream_ = name;
   image_of_ = std::move(image_of);
+  nav_ = config_.odometry.nav.enabled ? std::move(nav) : NavTrack();
   cameras_.push_back(camera.pinhole());  // the camera of the (undistorted) features keyframes carry
   segmented_ = std::make_unique<SegmentedOdometry>(camera, config_.odometry, config_.tracking);
   pieces_ = 0;
   session_ = -1;
   stream_sessions_.emplace_back();
+}
+
+void Pipeline::beginStream(const Dataset& d) {
+  beginStream(
+      d.directory, d.camera,
+      [&d](int index) {
+        for (const FrameRecord& f : d.frames)
+          if (f.index == index) return cv::imread(d.imagePath(f), cv::IMREAD_COLOR);
+        return cv::Mat();
+      },
+      NavTrack(d.nav));
 }
 
 void Pipeline::startPiece(double stamp_s) {
@@ -80,6 +92,13 @@ void Pipeline::endPiece(double stamp_s) {
                 st.promotions, st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude,
                 st.altitude_reused, odometry.times().get("odometry_total").meanMs());
   say(line);
+  if (st.gate_checks > 0 || st.nav_frames > 0) {
+    std::snprintf(line, sizeof line,
+                  "session %d: nav prior: %d frames carried by the nav, %d visual motions checked, %d refused by the "
+                  "gate, %d fused",
+                  session_, st.nav_frames, st.gate_checks, st.gate_refusals, st.fused);
+    say(line);
+  }
   session_ = -1;
 }
 
@@ -97,7 +116,14 @@ std::vector<std::uint8_t> Pipeline::thumbnail(const cv::Mat& image) {
   return jpeg;
 }
 
-SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& frame) {
+SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input) {
+  OdometryInput with_nav;
+  NavRecord nav;
+  if (!input.nav && !nav_.empty() && nav_.at(input.stamp_s, &nav)) {
+    with_nav = input;  // shares the image
+    with_nav.nav = nav;
+  }
+  const OdometryInput& frame = with_nav.nav ? with_nav : input;
   const SegmentedOdometry::Step step = segmented_->process(frame);
   const OdometryUpdate& u = step.update;
   if (step.session_started) {
@@ -110,6 +136,8 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& frame) {
     say("stream " + stream_ + " frame " + std::to_string(frame.index) + " skipped: " + u.reason);
   if (verbose_ && u.status == FrameStatus::kFallback)
     say("stream " + stream_ + " frame " + std::to_string(frame.index) + ": odometry fallback (" + u.reason + ")");
+  if (verbose_ && u.source == MotionSource::kNav)
+    say("stream " + stream_ + " frame " + std::to_string(frame.index) + ": nav motion (" + u.reason + ")");
   if (session_ < 0) return step;  // no session open: tracking lost
   const Odometry& odometry = *segmented_->odometry();
   for (const auto& kf : segmented_->newKeyframes()) {
@@ -123,6 +151,7 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& frame) {
     k.camera = cameras_.back();
     k.features = kf.features;
     if (kf.id > 0) k.motion = odometry.trajectory().motion(kf.id);  // (10)(11)
+    k.motion_source = info.source;
     k.odometry_pose = odometry.trajectory().absolutePose(kf.id);
     {
       ScopedStage stage(&times_, "hash");

@@ -20,6 +20,8 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
   std::ofstream odo(fs::path(out_dir) / "odometry.csv"), traj(fs::path(out_dir) / "trajectory.csv");
   std::ofstream loops(fs::path(out_dir) / "loops.csv"), loop_poses(fs::path(out_dir) / "loop_poses.csv");
   std::ofstream links(fs::path(out_dir) / "links.csv"), timing(fs::path(out_dir) / "timing.csv");
+  std::ofstream motions(fs::path(out_dir) / "motions.csv");
+  motions << "session,index,source\n";
   odo << "session,index,x_m,y_m,yaw_rad\n" << std::fixed;
   traj << "session,index,map,x_m,y_m,yaw_rad\n" << std::fixed;
   loops << "session_a,index_a,session_b,index_b,kind,inliers\n";
@@ -58,6 +60,12 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
           << std::setprecision(7) << o[k].yaw() << "\n";
   }
   for (int id : manager.sessionIds()) {
+    const std::vector<MotionSource>& sources = manager.motionSources(id);
+    const std::vector<int>& frames = manager.frames(id);
+    for (std::size_t k = 1; k < sources.size() && k < frames.size(); ++k)
+      motions << csv(id) << "," << frames[k] << "," << motionSourceName(sources[k]) << "\n";
+  }
+  for (int id : manager.sessionIds()) {
     const std::vector<Pose2> p = manager.poses(id);
     const std::vector<int>& frames = manager.frames(id);
     const int map = label.at(manager.mapOf(id));
@@ -83,7 +91,7 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
   timing << "stage,calls,total_ms,mean_ms,max_ms\n" << std::fixed << std::setprecision(3);
   for (const auto& s : times.stats())
     timing << s.stage << "," << s.calls << "," << s.total_ms << "," << s.meanMs() << "," << s.max_ms << "\n";
-  if (!odo || !traj || !loops || !loop_poses || !links || !timing || !pieces)
+  if (!odo || !traj || !loops || !loop_poses || !links || !timing || !pieces || !motions)
     throw DatasetError(out_dir + ": cannot write the output files");
 }
 

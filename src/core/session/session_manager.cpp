@@ -124,6 +124,8 @@ void SessionManager::restore() {
     s.odometry.push_back(Pose2());
     for (const UncertainPose2& m : store_->odometry(s.store_id))
       s.odometry.push_back(compose(s.odometry.back(), m.mean));
+    s.sources.push_back(MotionSource::kVisual);
+    for (const MotionSource m : store_->motionSources(s.store_id)) s.sources.push_back(m);
     s.origin_received = true;
     s.unloaded = true;
     sessions_.emplace(id, std::move(s));
@@ -222,6 +224,7 @@ Status SessionManager::open(int id, const std::string& name, double stamp_s) {
   s.stamps.push_back(stamp_s);
   s.odometry.push_back(Pose2());
   s.frames.push_back(0);
+  s.sources.push_back(MotionSource::kVisual);
   const std::string n = s.name;
   sessions_.emplace(id, std::move(s));
   active_ = id;
@@ -293,6 +296,7 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
       sk.descriptors = k->features.descriptors;
       if (k->hash.size() == HalocProjections::kHashSize) sk.hash = k->hash;
       sk.thumbnail = k->thumbnail;
+      sk.motion_source = k->motion_source;
     }
     store_->addKeyframe(sk, motion, loops);
   });
@@ -375,6 +379,7 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
         s.stamps.push_back(k.stamp_s);
         s.odometry.push_back(last);
         s.frames.push_back(k.frame_index);
+        s.sources.push_back(MotionSource::kVisual);
         storeKeyframe(s, nullptr, g, &still, k.stamp_s, nullptr);
       }
       motion = UncertainPose2(between(last, k.odometry_pose),
@@ -384,6 +389,7 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
     s.stamps.push_back(k.stamp_s);
     s.odometry.push_back(k.odometry_pose);
     s.frames.push_back(k.frame_index);
+    s.sources.push_back(k.motion_source);
   }
   ++stats_.keyframes;
   // The loops it closed go into the store with it (one transaction), then into the back-end.

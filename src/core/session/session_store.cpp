@@ -45,6 +45,7 @@ CREATE TABLE motions(  -- odometry X_k^{k-1}, written with keyframe k
   session INTEGER NOT NULL, keyframe INTEGER NOT NULL,
   x REAL NOT NULL, y REAL NOT NULL, yaw REAL NOT NULL,
   cov BLOB NOT NULL,  -- 9 float64, row-major
+  source TEXT NOT NULL DEFAULT 'visual' CHECK(source IN ('visual', 'nav', 'fused', 'fallback')),
   PRIMARY KEY(session, keyframe));
 CREATE TABLE loops(
   id INTEGER PRIMARY KEY,
@@ -468,9 +469,10 @@ void SessionStore::addKeyframe(const StoredKeyframe& kf, const UncertainPose2* m
     k.run();
     if (motion) {
       const std::vector<double> cov = covBlob(motion->covariance);
-      Statement& m = cached("INSERT INTO motions(session, keyframe, x, y, yaw, cov) VALUES (?, ?, ?, ?, ?, ?)");
+      Statement& m =
+          cached("INSERT INTO motions(session, keyframe, x, y, yaw, cov, source) VALUES (?, ?, ?, ?, ?, ?, ?)");
       m.bind(1, kf.session).bind(2, kf.keyframe).bind(3, motion->mean.x()).bind(4, motion->mean.y());
-      m.bind(5, motion->mean.yaw()).blob(6, cov).run();
+      m.bind(5, motion->mean.yaw()).blob(6, cov).bind(7, std::string(motionSourceName(kf.motion_source))).run();
     }
     if (loops) insertLoops(loops);
     commit();
@@ -661,6 +663,20 @@ std::vector<UncertainPose2> SessionStore::odometry(std::int64_t session) const {
     if (c.size() != 9) throw StoreError("session store " + path_ + ": a motion covariance has the wrong size");
     out.emplace_back(Pose2(sqlite3_column_double(q, 1), sqlite3_column_double(q, 2), sqlite3_column_double(q, 3)),
                      covFrom(c.data()));
+  }
+  return out;
+}
+
+std::vector<MotionSource> SessionStore::motionSources(std::int64_t session) const {
+  Statement st(this, "SELECT source FROM motions WHERE session = ? ORDER BY keyframe");
+  st.bind(1, session);
+  std::vector<MotionSource> out;
+  while (st.step()) {
+    const unsigned char* t = sqlite3_column_text(st.get(), 0);
+    MotionSource s = MotionSource::kVisual;
+    if (!t || !parseMotionSource(reinterpret_cast<const char*>(t), &s))
+      throw StoreError("session store " + path_ + ": a motion has an unknown source");
+    out.push_back(s);
   }
   return out;
 }

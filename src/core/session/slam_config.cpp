@@ -176,6 +176,18 @@ void visitConfig(V& v, C& c) {
     t("max_fallbacks", c.tracking.max_fallbacks);
     t("min_features", c.tracking.min_features);
   });
+  v.block("nav", [&](V& n) {
+    auto& o = c.odometry.nav;
+    n("enabled", o.enabled);
+    n.enumeration("on_tracking_loss", o.on_tracking_loss, trackingLossPolicyName, parseTrackingLossPolicy,
+                  "new_session, dead_reckoning");
+    n("inflation", o.inflation);
+    n("min_sigma_m", o.min_sigma_m);
+    n("min_sigma_rad", o.min_sigma_rad);
+    n("gate_confidence", o.gate_confidence);
+    n("fuse", o.fuse);
+    n("min_features_to_restart", o.min_features_to_restart);
+  });
   v.block("loops", [&](V& l) { visitLoops(l, c.loops); });
   v.block("backend", [&](V& b) { visitBackend(b, c.backend); });
 }

@@ -14,6 +14,17 @@
 // does: the frame becomes a keyframe whose motion is marked as a fallback, with the fallback
 // covariance, and is counted.
 //
+// Navigation prior (core/frontend/nav_prior.h; issue 16), when the input carries the vehicle's
+// dead-reckoned nav and options.nav.enabled: (c) every visual motion is compared with the nav's
+// motion over the same interval by a chi-square gate; a motion that fails is refused (counted,
+// the reason in the update) and the nav's motion used instead; with nav.fuse a motion that passes
+// is combined with the nav's. (b) With on_tracking_loss dead_reckoning a frame that cannot be
+// matched is carried by the nav's motion (not a fallback: the session goes on); such a frame
+// becomes a keyframe when the nav-predicted footprint overlap drops below keyframes.min_overlap,
+// it turned by more than max_rotation_rad, or it has nav.min_features_to_restart features while
+// the last keyframe has fewer (a blank): so vision restarts at the first good frame. Without
+// nav every frame is processed exactly as before. Every keyframe's motion has its source.
+//
 // Distortion: features are extracted on the raw image and only their coordinates are undistorted
 // (core/frontend/camera_model.h); from there on, and in the keyframes, the camera is the pinhole
 // featureCamera().
@@ -25,6 +36,7 @@
 
 #include <opencv2/core.hpp>
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -32,6 +44,7 @@
 #include "uw_multislam/core/frontend/enhancement.h"
 #include "uw_multislam/core/frontend/features.h"
 #include "uw_multislam/core/frontend/matching.h"
+#include "uw_multislam/core/frontend/nav_prior.h"
 #include "uw_multislam/core/frontend/pair_motion.h"
 #include "uw_multislam/core/frontend/rigid_ransac.h"
 #include "uw_multislam/core/common/stage_timer.h"
@@ -70,6 +83,7 @@ struct OdometryOptions {
   RansacOptions ransac;
   KeyframeOptions keyframes;
   FallbackOptions fallback;
+  NavPriorOptions nav;  // used only for frames that carry a nav pose
 
   /// Empty when usable, else a sentence naming the component and value.
   std::string validate() const;
@@ -80,6 +94,8 @@ struct OdometryInput {
   double stamp_s = 0.0;
   double altitude_m = 0.0;
   cv::Mat image;  // 8-bit BGR or grey
+  /// The vehicle's dead-reckoned nav at stamp_s (frame and conventions of gt.csv), if any.
+  std::optional<NavRecord> nav = std::nullopt;
 };
 
 enum class FrameStatus {
@@ -105,6 +121,10 @@ struct OdometryUpdate {
   int inliers = 0;
   double overlap = 0.0;  // with the last keyframe, when matched
   double scale = 1.0;    // RANSAC's scale correction (altitude inconsistency), when matched
+  /// Where the frame's motion from the last keyframe came from (kNav: vision failed or refused).
+  MotionSource source = MotionSource::kVisual;
+  bool gate_refused = false;  // the visual motion failed the nav gate
+  double gate_distance2 = -1.0;  // the gate's squared Mahalanobis distance, -1 when not checked
 };
 
 /// What is kept about each keyframe (the features only for the last one).
@@ -113,6 +133,7 @@ struct KeyframeInfo {
   double stamp_s = 0.0;
   double altitude_m = 0.0;
   bool fallback = false;  // its motion from the previous keyframe is a reused one
+  MotionSource source = MotionSource::kVisual;  // of that motion (kFallback when fallback)
 };
 
 struct OdometryStats {
@@ -124,6 +145,10 @@ struct OdometryStats {
   int skipped_image = 0;
   int skipped_altitude = 0;
   int altitude_reused = 0;
+  int nav_frames = 0;     // frames whose motion is the nav's (vision failed or was refused)
+  int gate_checks = 0;    // visual motions compared with the nav
+  int gate_refusals = 0;  // ... refused by the gate
+  int fused = 0;          // ... combined with the nav (nav.fuse)
 };
 
 class Odometry {
@@ -158,10 +183,15 @@ class Odometry {
     FrameFeatures features;
     Pose2 pose;             // in the session frame
     UncertainPose2 motion;  // from the keyframe it was matched to
+    MotionSource source = MotionSource::kVisual;
+    std::optional<NavRecord> nav;
   };
+  // The frame carried by the nav's motion `m` from the last keyframe (vision failed or refused).
+  void carryByNav(TrackedFrame* cur, const UncertainPose2& m, OdometryUpdate* up);
   PairMotion matchToKeyframe(const FrameFeatures& f, double altitude_m);
   double footprintOverlap(const Pose2& motion, double kf_altitude, double altitude) const;
-  void addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback);
+  void addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback,
+                   MotionSource source = MotionSource::kVisual);
   bool needsKeyframe(const RansacResult& r, double overlap, double stamp_s) const;
 
   CameraIntrinsics camera_;

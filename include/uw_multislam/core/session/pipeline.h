@@ -46,7 +46,13 @@ class Pipeline {
   /// one line per session piece and per tracking loss; `verbose` adds skipped and fallback frames.
   Pipeline(const SlamConfig& config, SessionManager* manager, Log log = {}, bool verbose = true);
 
-  void beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of = {});
+  /// `nav` (may be empty): the stream's dead-reckoned nav; each frame without a nav of its own
+  /// gets the track's pose at its stamp (config odometry.nav.enabled).
+  void beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of = {},
+                   NavTrack nav = {});
+  /// A dataset folder as a stream: named by its directory, its camera, its images read from the
+  /// folder for thumbnails, its nav.csv as `nav`. `d` must outlive the stream.
+  void beginStream(const Dataset& d);
   /// One frame of the current stream.
   SegmentedOdometry::Step processFrame(const OdometryInput& frame);
   /// Ends the stream (its open session ends at `stamp_s`).
@@ -74,6 +80,7 @@ class Pipeline {
   std::deque<CameraIntrinsics> cameras_;  // the detector keeps pointers: never moved
   std::string stream_;
   ImageOf image_of_;
+  NavTrack nav_;
   std::unique_ptr<SegmentedOdometry> segmented_;
   SessionChain chain_;
   int session_ = -1;  // the manager's id of the stream's open piece; -1 while lost

@@ -92,6 +92,7 @@ struct KeyframeInput {
   CameraIntrinsics camera;
   FrameFeatures features;               // may be empty (then nothing is stored to verify loops later)
   UncertainPose2 motion;                // X_k^{k-1} (1), ignored for keyframe 0
+  MotionSource motion_source = MotionSource::kVisual;  // where `motion` came from
   Pose2 odometry_pose;                  // X_k^0 of the odometry chain
   Eigen::VectorXf hash;                 // the keyframe's hash; empty: the manager computes it (once)
   std::vector<std::uint8_t> thumbnail;  // small JPEG for the store, may be empty
@@ -238,6 +239,8 @@ class SessionManager {
   const std::vector<Pose2>& odometryPoses(int session) const { return at(session).odometry; }
   const std::vector<double>& stamps(int session) const { return at(session).stamps; }
   const std::vector<int>& frames(int session) const { return at(session).frames; }
+  /// Where each keyframe's odometry motion came from ([0], the origin: kVisual).
+  const std::vector<MotionSource>& motionSources(int session) const { return at(session).sources; }
   /// map <- odometry correction of the session: its last pose in the map times the inverse of its
   /// last odometry pose.
   Pose2 correction(int session) const;
@@ -268,6 +271,7 @@ class SessionManager {
     std::vector<double> stamps;    // per keyframe
     std::vector<Pose2> odometry;   // X_k^0 per keyframe
     std::vector<int> frames;       // frame index per keyframe
+    std::vector<MotionSource> sources;  // per keyframe, of the motion reaching it
     std::set<int> phantoms;        // keyframes that never arrived (bridged)
     bool origin_received = false;  // keyframe 0 arrived (not only start_session)
     bool unloaded = false;

@@ -34,6 +34,7 @@
 
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/features.h"
+#include "uw_multislam/core/frontend/nav_prior.h"
 #include "uw_multislam/core/geometry/uncertain_pose.h"
 #include "uw_multislam/core/loops/haloc.h"
 
@@ -70,6 +71,7 @@ struct StoredKeyframe {
   cv::Mat descriptors;                  // points.size() x 128, CV_8U (CV_32F accepted when writing)
   Eigen::VectorXf hash;                 // HalocProjections::kHashSize values
   std::vector<std::uint8_t> thumbnail;  // JPEG, may be empty
+  MotionSource motion_source = MotionSource::kVisual;  // of the motion written with it
 
   /// Its features as the loop detector takes them: keypoints at the stored pixel positions (size
   /// 1; response order kept), the stored descriptors (CV_8U) and image size.
@@ -114,7 +116,7 @@ enum class StoreAccess { kReadWrite, kReadOnly };
 
 class SessionStore {
  public:
-  static constexpr int kSchemaVersion = 1;
+  static constexpr int kSchemaVersion = 2;  // 2: motions.source
   static constexpr std::int32_t kApplicationId = 0x55574d53;  // "UWMS"
 
   /// Opens the store at `path`, creating it (and nothing else) when missing or empty. The file
@@ -172,6 +174,8 @@ class SessionStore {
   std::vector<std::vector<std::uint8_t>> thumbnails(std::int64_t session) const;
   /// The session's odometry motions, [k-1] reaching keyframe k.
   std::vector<UncertainPose2> odometry(std::int64_t session) const;
+  /// Where each of those motions came from (visual, nav, fused, fallback), [k-1] for keyframe k.
+  std::vector<MotionSource> motionSources(std::int64_t session) const;
   std::vector<StoredLoop> loops() const;
   std::vector<StoredMap> maps() const;
   std::vector<std::pair<std::int64_t, std::int64_t>> splitPairs() const;
