@@ -21,6 +21,7 @@
 #include <set>
 #include <sstream>
 
+#include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/ros/conversions.h"
 #include "uw_multislam/ros/sensor_conversions.h"
 
@@ -61,7 +62,8 @@ std::string checkTopics(const BagTopics& t) {
   const std::pair<const std::string*, const char*> all[] = {{&t.image, "image"},
                                                             {&t.camera_info, "camera info"},
                                                             {&t.altitude, "altitude"},
-                                                            {&t.ground_truth, "ground truth"}};
+                                                            {&t.ground_truth, "ground truth"},
+                                                            {&t.nav, "nav"}};
   std::set<std::string> seen;
   for (const auto& [name, what] : all) {
     const std::string bad = checkTopic(*name, what);
@@ -233,6 +235,29 @@ nav_msgs::Odometry toOdometryMsg(const core::Pose2& pose, const std_msgs::Header
   return o;
 }
 
+}  // namespace
+
+nav_msgs::Odometry toNavOdometryMsg(const core::NavRecord& nav, const ros::Time& stamp, const BagFrames& frames) {
+  const double sxy = nav.sigma_xy_m * nav.sigma_xy_m, syaw = nav.sigma_yaw_rad * nav.sigma_yaw_rad;
+  const core::UncertainPose2 camera(nav.pose, Eigen::Vector3d(sxy, sxy, syaw).asDiagonal());
+  return ros_conversions::toOdometryMsg(core::vehicleFromCamera(camera, core::CameraMount()), nullptr, 0.0,
+                                        frames.nav_odom, frames.nav_child, stamp);
+}
+
+bool fromNavOdometryMsg(const nav_msgs::Odometry& msg, core::NavRecord* nav) {
+  core::UncertainPose2 vehicle;
+  if (!ros_conversions::fromMsg(msg.pose, &vehicle)) return false;
+  nav->stamp_s = msg.header.stamp.toSec();
+  nav->pose = core::cameraFromVehicle(vehicle.mean, core::CameraMount());
+  // The default mount turns x, y and yaw by signs only: the diagonal is kept; an anisotropic x/y
+  // variance is rounded up to the larger.
+  nav->sigma_xy_m = std::sqrt(std::max(vehicle.covariance(0, 0), vehicle.covariance(1, 1)));
+  nav->sigma_yaw_rad = std::sqrt(vehicle.covariance(2, 2));
+  return std::isfinite(nav->sigma_xy_m) && std::isfinite(nav->sigma_yaw_rad);
+}
+
+namespace {
+
 // ------------------------------------------------------------------------------------------------
 // The bag: written to "<path>.active", renamed to <path> by commit(), removed if never committed.
 
@@ -358,6 +383,8 @@ std::string DatasetBagOptions::validate() const {
   if (bad.empty()) bad = checkFrame(frames.camera, "camera");
   if (bad.empty()) bad = checkFrame(frames.altimeter, "altimeter");
   if (bad.empty()) bad = checkFrame(frames.ground_truth_origin, "ground-truth origin");
+  if (bad.empty()) bad = checkFrame(frames.nav_odom, "nav odom");
+  if (bad.empty()) bad = checkFrame(frames.nav_child, "nav child");
   if (bad.empty()) bad = checkAltimeter(altimeter);
   if (bad.empty() && !image_encoding.empty() &&
       std::find(kEncodings.begin(), kEncodings.end(), image_encoding) == kEncodings.end()) {
@@ -369,7 +396,7 @@ std::string DatasetBagOptions::validate() const {
   }
   if (bad.empty() && image_format != ImageFormat::kRaw) {
     // The compressed topic must not be another of the bag's topics.
-    for (const std::string* t : {&topics.camera_info, &topics.altitude, &topics.ground_truth}) {
+    for (const std::string* t : {&topics.camera_info, &topics.altitude, &topics.ground_truth, &topics.nav}) {
       if (ros::names::clean(*t) == ros::names::clean(imageTopic())) bad = "topic '" + *t + "' is used twice";
     }
   }
@@ -421,6 +448,13 @@ DatasetBagStats writeDatasetBag(const core::Dataset& dataset, const DatasetBagOp
     writeFrame(context, dataset.frames[i], stamps[i], static_cast<std::uint32_t>(i), &bag, &stats);
     ++stats.frames;
   }
+  if (options.include_nav) {
+    for (const core::NavRecord& r : dataset.nav) {
+      const ros::Time stamp = options.start_time + ros::Duration(r.stamp_s);
+      bag.write(options.topics.nav, stamp, toNavOdometryMsg(r, stamp, options.frames));
+      ++stats.nav_poses;
+    }
+  }
   stats.bag_bytes = bag.commit();
   return stats;
 }
@@ -430,6 +464,7 @@ std::string summarize(const DatasetBagStats& s, const DatasetBagOptions& o) {
   os << s.bag_path << ": " << s.frames << " frames; " << o.imageTopic() << " " << s.images << ", "
      << o.topics.camera_info << " " << s.camera_infos << ", " << o.topics.altitude << " " << s.altitudes;
   if (s.ground_truth_poses > 0) os << ", " << o.topics.ground_truth << " " << s.ground_truth_poses;
+  if (s.nav_poses > 0) os << ", " << o.topics.nav << " " << s.nav_poses;
   os << std::fixed << std::setprecision(3) << "; stamps " << s.first_stamp.toSec() << " .. " << s.last_stamp.toSec()
      << " s; " << std::setprecision(1) << static_cast<double>(s.bag_bytes) / (1024.0 * 1024.0) << " MiB";
   return os.str();

@@ -30,9 +30,12 @@ int usage(int code) {
                "  %-22s                         not written for a NaN or out-of-range altitude\n"
                "  %-22s nav_msgs/Odometry       gt.csv pose in frame '%s', child the camera frame;\n"
                "  %-22s                         only when the folder has gt.csv\n"
+               "and per nav.csv row (the vehicle's dead reckoning), at start time + its stamp_s:\n"
+               "  %-22s nav_msgs/Odometry       base_link in 'odom', z-up, with its covariance\n"
                "options:\n"
                "  --start-time SEC          time of stamp_s = 0, seconds since the epoch (default %u)\n"
                "  --no-ground-truth         do not write the ground-truth odometry\n"
+               "  --no-nav                  do not write the nav odometry\n"
                "  --camera-frame ID         frame id of Image/CameraInfo, odometry child (default '%s')\n"
                "  --altimeter-frame ID      frame id of the Range messages (default '%s')\n"
                "  --gt-frame ID             frame id of the ground-truth odometry (default '%s')\n"
@@ -51,7 +54,8 @@ int usage(int code) {
                "Exit status 0 on success, 1 on bad input or a failed write, 2 on a bad command line.\n",
                d.topics.image.c_str(), d.topics.camera_info.c_str(), d.topics.altitude.c_str(),
                d.altimeter.field_of_view_rad * 180.0 / M_PI, d.altimeter.min_range_m, d.altimeter.max_range_m, "",
-               d.topics.ground_truth.c_str(), d.frames.ground_truth_origin.c_str(), "", rb::kDefaultStartTimeSec,
+               d.topics.ground_truth.c_str(), d.frames.ground_truth_origin.c_str(), "", d.topics.nav.c_str(),
+               rb::kDefaultStartTimeSec,
                d.frames.camera.c_str(), d.frames.altimeter.c_str(), d.frames.ground_truth_origin.c_str(),
                d.topics.image.c_str(), d.topics.camera_info.c_str(), d.topics.altitude.c_str(),
                d.topics.ground_truth.c_str(), d.jpeg_quality);
@@ -147,6 +151,8 @@ int main(int argc, char** argv) {
     if (a == "-h" || a == "--help") return usage(0);
     if (a == "--no-ground-truth") {
       options.include_ground_truth = false;
+    } else if (a == "--no-nav") {
+      options.include_nav = false;
     } else if (a.size() > 1 && a[0] == '-') {
       if (i + 1 >= argc) return badArgument("option " + a + " needs a value");
       if (!applyOption(a, argv[i + 1], &options)) return badArgument("bad option '" + a + " " + argv[i + 1] + "'");

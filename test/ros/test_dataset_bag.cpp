@@ -387,6 +387,46 @@ TEST_F(DatasetBagTest, OdometryIsTheGroundTruthPose) {
   }
 }
 
+TEST_F(DatasetBagTest, NavCsvBecomesTheVehiclesNavOdometry) {
+  writeDataset();
+  // Two nav rows per frame (denser than the images), a yaw across +-pi.
+  std::vector<core::NavRecord> nav;
+  for (int i = 0; i < 10; ++i)
+    nav.push_back({0.25 * i, core::Pose2(0.1 * i, -0.05 * i, 3.0 + 0.05 * i), 0.001 * i, 0.002});
+  core::writeNavCsv((data_ / "nav.csv").string(), nav);
+  nav = load().nav;  // as nav.csv holds them (7 decimals)
+  ASSERT_EQ(nav.size(), 10u);
+  const DatasetBagStats s = convert();
+  EXPECT_EQ(s.nav_poses, nav.size());
+  EXPECT_NE(summarize(s, DatasetBagOptions()).find("/nav/odom 10"), std::string::npos);
+  const auto odom = read<nav_msgs::Odometry>(bag_, "/nav/odom");
+  ASSERT_EQ(odom.size(), nav.size());
+  for (std::size_t i = 0; i < odom.size(); ++i) {
+    const auto& m = *odom[i];
+    EXPECT_EQ(m.header.frame_id, "odom");
+    EXPECT_EQ(m.child_frame_id, "base_link");
+    EXPECT_EQ(m.header.stamp, ros::Time(kDefaultStartTimeSec, 0) + ros::Duration(nav[i].stamp_s));
+    // z-up (REP-103): (x, y, yaw) of the image axes -> (x, -y, -yaw) for the default mount.
+    EXPECT_NEAR(m.pose.pose.position.x, nav[i].pose.x(), 1e-6);
+    EXPECT_NEAR(m.pose.pose.position.y, -nav[i].pose.y(), 1e-6);
+    EXPECT_NEAR(core::normalizeAngle(yawOf(m.pose.pose.orientation) + nav[i].pose.yaw()), 0.0, 1e-6);
+    EXPECT_NEAR(m.pose.covariance[0], nav[i].sigma_xy_m * nav[i].sigma_xy_m, 1e-12);
+    EXPECT_NEAR(m.pose.covariance[35], 0.002 * 0.002, 1e-12);
+    core::NavRecord back;
+    ASSERT_TRUE(fromNavOdometryMsg(m, &back));
+    EXPECT_TRUE(core::approxEqual(back.pose, nav[i].pose, 1e-9, 1e-9)) << back.pose << " vs " << nav[i].pose;
+    EXPECT_NEAR(back.sigma_xy_m, nav[i].sigma_xy_m, 1e-9);
+    EXPECT_NEAR(back.sigma_yaw_rad, 0.002, 1e-9);
+  }
+  DatasetBagOptions without;
+  without.include_nav = false;
+  EXPECT_EQ(convert(without).nav_poses, 0u);
+  nav_msgs::Odometry bad = *odom[0];
+  bad.pose.pose.position.x = std::nan("");
+  core::NavRecord r;
+  EXPECT_FALSE(fromNavOdometryMsg(bad, &r));
+}
+
 TEST_F(DatasetBagTest, NoGroundTruthTopicWithoutGtCsv) {
   writeDataset(/*with_ground_truth=*/false);
   const DatasetBagStats s = convert();

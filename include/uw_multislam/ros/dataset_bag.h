@@ -13,11 +13,19 @@
 //   /altitude              sensor_msgs/Range       altitude_m, frame "altimeter"
 //   /ground_truth/odom     nav_msgs/Odometry       gt.csv pose; only when gt.csv exists
 //
+// and, when the folder has nav.csv, one message per nav.csv row at start_time + its stamp_s:
+//   /nav/odom              nav_msgs/Odometry       the dead-reckoned pose as the vehicle's navigation
+//                                                  publishes it: base_link in "odom", z-up (REP-105),
+//                                                  for the default mount (camera at base_link's origin,
+//                                                  looking down, image columns along x); covariance
+//                                                  diag(sigma_xy^2, sigma_xy^2, -, -, -, sigma_yaw^2)
+//
 // Errors are thrown as DatasetBagError with a one-line message that starts with the file at
 // fault. On any error no bag is left at the output path: the bag is written to "<path>.active"
 // and renamed when complete.
 #pragma once
 
+#include <nav_msgs/Odometry.h>
 #include <ros/time.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Range.h>
@@ -50,6 +58,7 @@ struct BagTopics {
   std::string camera_info = topics::globalName(topics::kCameraInfo);        // "/camera/camera_info"
   std::string altitude = topics::globalName(topics::kAltitude);             // "/altitude"
   std::string ground_truth = topics::globalName(topics::kGroundTruthOdom);  // "/ground_truth/odom"
+  std::string nav = topics::globalName(topics::kNavOdom);                   // "/nav/odom"
 };
 
 /// Frame ids written into the headers (no leading '/', as tf2 requires).
@@ -57,6 +66,8 @@ struct BagFrames {
   std::string camera = frames::kCamera;                          // Image, CameraInfo; odometry child
   std::string altimeter = frames::kAltimeter;                    // Range
   std::string ground_truth_origin = frames::kGroundTruthOrigin;  // Odometry header
+  std::string nav_odom = "odom";                                 // the nav's Odometry header...
+  std::string nav_child = "base_link";                           // ...and child
 };
 
 /// What the Range messages say about the altimeter. Underwater altimeters (and DVLs) are
@@ -82,6 +93,8 @@ struct DatasetBagOptions {
   ros::Time start_time{kDefaultStartTimeSec, 0};
   /// Write /ground_truth/odom when the folder has gt.csv.
   bool include_ground_truth = true;
+  /// Write /nav/odom when the folder has nav.csv.
+  bool include_nav = true;
   /// Empty: as stored (8-bit colour -> bgr8, 8-bit grey -> mono8, 16-bit -> bgr16/mono16).
   /// Otherwise every image is converted to this encoding: mono8, mono16, bgr8, rgb8, bgr16, rgb16.
   std::string image_encoding;
@@ -107,6 +120,7 @@ struct DatasetBagStats {
   std::size_t camera_infos = 0;
   std::size_t altitudes = 0;
   std::size_t ground_truth_poses = 0;
+  std::size_t nav_poses = 0;
   /// Frames whose altitude is non-finite or outside the altimeter's [min, max] range: their Range
   /// is not written (a consumer must ignore such a reading anyway, sensor_msgs/Range); the image
   /// and camera info still are.
@@ -120,7 +134,7 @@ struct DatasetBagStats {
   ros::Time last_stamp;
   std::uintmax_t bag_bytes = 0;
 
-  std::size_t messages() const { return images + camera_infos + altitudes + ground_truth_poses; }
+  std::size_t messages() const { return images + camera_infos + altitudes + ground_truth_poses + nav_poses; }
 };
 
 /// Writes the dataset's frames to a new bag at bag_path (replacing any file there).
@@ -137,6 +151,11 @@ std::vector<std::string> warnings(const DatasetBagStats& stats);
 /// CameraInfo of a dataset's camera: its distortion (plumb_bob with zeros for a pinhole), R = I,
 /// P = [K | 0].
 sensor_msgs::CameraInfo toCameraInfoMsg(const core::CameraIntrinsics& camera);
+
+/// A nav.csv row as the vehicle's navigation publishes it (see /nav/odom above), and back
+/// (false for a message that is not finite or whose covariance is not usable).
+nav_msgs::Odometry toNavOdometryMsg(const core::NavRecord& nav, const ros::Time& stamp, const BagFrames& frames);
+bool fromNavOdometryMsg(const nav_msgs::Odometry& msg, core::NavRecord* nav);
 
 }  // namespace ros_bag
 }  // namespace uw_multislam

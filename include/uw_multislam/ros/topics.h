@@ -19,6 +19,9 @@ constexpr char kCameraInfo[] = "camera/camera_info";
 constexpr char kAltitude[] = "altitude";
 /// nav_msgs/Odometry: ground-truth pose of the camera, for evaluation only (never fed to SLAM).
 constexpr char kGroundTruthOdom[] = "ground_truth/odom";
+/// nav_msgs/Odometry: the vehicle's dead-reckoned navigation (DVL/INS), base_link in odom, with
+/// its covariance (a dataset's nav.csv in a bag; the navigation prior of issue 16).
+constexpr char kNavOdom[] = "nav/odom";
 
 // --- The pipeline (README "Architecture"): odometry -> keyframes -> loop detection -> back-end ------------
 
