@@ -8,6 +8,7 @@
 #include <random>
 
 #include "../common/rendered_seabed.h"
+#include "uw_multislam/core/backend/loop_consistency.h"
 #include "uw_multislam/core/frontend/features.h"
 #include "uw_multislam/core/frontend/matching.h"
 #include "uw_multislam/core/frontend/odometry.h"
@@ -46,6 +47,34 @@ TEST(RigidFit, ExactOnNoiseFreePoints) {
   EXPECT_TRUE(approxEqual(fit, t, 1e-12, 1e-12)) << fit;
   EXPECT_FALSE(fitRigid2D(s.a, s.b, {3}, &fit));                           // one point
   EXPECT_FALSE(fitRigid2D({s.a[0], s.a[0]}, {s.b[0], s.b[0]}, {}, &fit));  // coincident points
+}
+
+TEST(Ransac, APriorGatesTheHypothesesAwayFromAStrongerWrongConsensus) {
+  // Two consistent groups, as a repetitive seabed gives: 120 correspondences moving by `wrong`,
+  // 80 by `truth`. Alone RANSAC takes the larger group; a nav prior near the truth (1 cm, 10 mrad)
+  // gates the wrong hypotheses away and the truth wins. A prior that knows nothing changes nothing.
+  const double mpp = 0.005;
+  const Pose2 truth(0.30, 0.02, 0.05), wrong(0.05, -0.20, -0.10);
+  Synthetic s = makeCorrespondences(wrong, 120, 0.3 * mpp, 0.0, 21);
+  const Synthetic t = makeCorrespondences(truth, 80, 0.3 * mpp, 0.0, 22);
+  s.a.insert(s.a.end(), t.a.begin(), t.a.end());
+  s.b.insert(s.b.end(), t.b.begin(), t.b.end());
+  RansacOptions o;
+  o.estimate_scale = false;
+  const RansacResult alone = estimateRigidRansac(s.a, s.b, mpp, o);
+  ASSERT_TRUE(alone.success);
+  EXPECT_TRUE(approxEqual(alone.motion, wrong, 2e-3, 2e-3)) << alone.motion;
+  EXPECT_EQ(alone.hypotheses_gated, 0);
+  const MotionPrior nav{Pose2(0.31, 0.01, 0.06), Eigen::Vector3d(1e-4, 1e-4, 1e-4).asDiagonal(), chiSquare3Quantile(0.999)};
+  const RansacResult gated = estimateRigidRansac(s.a, s.b, mpp, o, &nav);
+  ASSERT_TRUE(gated.success) << gated.failure;
+  EXPECT_TRUE(approxEqual(gated.motion, truth, 2e-3, 2e-3)) << gated.motion;
+  EXPECT_GT(gated.hypotheses_gated, 0);
+  for (int i : gated.inliers) EXPECT_GE(i, 120);
+  const MotionPrior vague{Pose2(), Eigen::Matrix3d::Identity() * 1e6, chiSquare3Quantile(0.999)};
+  const RansacResult same = estimateRigidRansac(s.a, s.b, mpp, o, &vague);
+  EXPECT_EQ(same.inliers, alone.inliers);
+  EXPECT_EQ(same.hypotheses_gated, 0);
 }
 
 TEST(Ransac, RecoversKnownMotionWithHalfOutliers) {

@@ -155,15 +155,27 @@ TEST_F(TrackingTest, AVisualMotionTheNavContradictsIsRefusedAndCounted) {
     if (k >= 12) r.pose = Pose2(r.pose.x(), 0.3, 0.0);
     return r;
   };
-  SegmentedOdometry odo(camera_, OdometryOptions(), TrackingLossOptions());
+  OdometryOptions no_ransac_gate;  // (c) alone: RANSAC finds the visual motion, the gate refuses it
+  no_ransac_gate.nav.gate_ransac = false;
+  SegmentedOdometry odo(camera_, no_ransac_gate, TrackingLossOptions());
   const auto steps = fly(&odo, 16, 100, 100);
   const OdometryStats& st = odo.odometry()->stats();
+  EXPECT_EQ(st.hypotheses_gated, 0);
   EXPECT_GE(st.gate_checks, 14);
   EXPECT_GE(st.gate_refusals, 1);
   EXPECT_TRUE(steps[12].update.gate_refused);
   EXPECT_EQ(steps[12].update.source, MotionSource::kNav);
   EXPECT_NE(steps[12].update.reason.find("refused by the nav gate"), std::string::npos) << steps[12].update.reason;
   for (int k = 1; k < 12; ++k) EXPECT_FALSE(steps[k].update.gate_refused) << k << " d2 " << steps[k].update.gate_distance2;
+  // (a) with the RANSAC gate (the default) no hypothesis near the visual motion is even scored:
+  // frame 12 finds no consensus and the nav carries it.
+  SegmentedOdometry odo2(camera_, OdometryOptions(), TrackingLossOptions());
+  const auto steps2 = fly(&odo2, 16, 100, 100);
+  EXPECT_EQ(steps2[12].update.source, MotionSource::kNav);
+  EXPECT_FALSE(steps2[12].update.gate_refused);
+  EXPECT_NE(steps2[12].update.reason.find("dead reckoning"), std::string::npos) << steps2[12].update.reason;
+  EXPECT_GT(odo2.odometry()->stats().hypotheses_gated, 0);
+  for (int k = 1; k < 12; ++k) EXPECT_EQ(steps2[k].update.source, MotionSource::kVisual) << k;
   // A nav that agrees, with nav.fuse: the motions are combined (source fused), none refused.
   nav = [](int k) { return straightNav(k); };
   OdometryOptions fused;

@@ -76,10 +76,19 @@ Odometry::Odometry(const CameraIntrinsics& camera, const OdometryOptions& option
       enhancer_(options.enhancement),
       extractor_(options.features) {}
 
-PairMotion Odometry::matchToKeyframe(const FrameFeatures& f, double altitude_m) {
-  return estimatePairMotion({&last_kf_.features, last_kf_.altitude_m, &feature_camera_},
-                            {&f, altitude_m, &feature_camera_},
-                            options_.matching, options_.ransac, &times_);
+PairMotion Odometry::matchToKeyframe(const FrameFeatures& f, double altitude_m, const std::optional<NavRecord>& nav) {
+  // (a) With the nav at both frames, its motion gates RANSAC's hypotheses (nav.gate_ransac).
+  MotionPrior prior;
+  const bool gated = options_.nav.gate_ransac && options_.nav.gate_confidence > 0 && nav && last_kf_.nav;
+  if (gated) {
+    const UncertainPose2 m = navMotion(*last_kf_.nav, *nav, options_.nav);
+    prior = {m.mean, m.covariance, navGateThreshold(options_.nav)};
+  }
+  PairMotion p = estimatePairMotion({&last_kf_.features, last_kf_.altitude_m, &feature_camera_},
+                                    {&f, altitude_m, &feature_camera_}, options_.matching, options_.ransac, &times_,
+                                    gated ? &prior : nullptr);
+  stats_.hypotheses_gated += p.ransac.hypotheses_gated;
+  return p;
 }
 
 double Odometry::footprintOverlap(const Pose2& motion, double kf_altitude, double altitude) const {
@@ -203,13 +212,13 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
     return up;
   }
 
-  PairMotion m = matchToKeyframe(cur.features, alt);
+  PairMotion m = matchToKeyframe(cur.features, alt, cur.nav);
   if (!m.ransac.success && prev_.index != last_kf_.index && prev_.source != MotionSource::kNav) {
     // Promote the last tracked frame and try again from there (not a frame the nav carried: it
     // was not matched either).
     addKeyframe(prev_, prev_.motion, false, prev_.source);
     ++stats_.promotions;
-    m = matchToKeyframe(cur.features, alt);
+    m = matchToKeyframe(cur.features, alt, cur.nav);
   }
   up.matches = m.matches;
   const bool nav = cur.nav && last_kf_.nav;

@@ -4,7 +4,7 @@ namespace uw_multislam {
 namespace core {
 
 PairMotion estimatePairMotion(const View& a, const View& b, const MatchOptions& matching, const RansacOptions& ransac,
-                              StageTimes* times) {
+                              StageTimes* times, const MotionPrior* prior) {
   PairMotion out;
   std::vector<FeatureMatch> matches;
   {
@@ -22,7 +22,7 @@ PairMotion estimatePairMotion(const View& a, const View& b, const MatchOptions& 
   ScopedStage s(times, "ransac");
   // Pixel thresholds in metres at the scale of the second view (the newer one).
   const double metres_per_px = b.altitude_m / (0.5 * (b.camera->fx + b.camera->fy));
-  out.ransac = estimateRigidRansac(pa, pb, metres_per_px, ransac);
+  out.ransac = estimateRigidRansac(pa, pb, metres_per_px, ransac, prior);
   return out;
 }
 

@@ -8,6 +8,8 @@
 #include <random>
 #include <sstream>
 
+#include "uw_multislam/core/backend/loop_consistency.h"
+
 namespace uw_multislam {
 namespace core {
 
@@ -132,7 +134,7 @@ std::string RansacOptions::validate() const {
 }
 
 RansacResult estimateRigidRansac(const std::vector<Eigen::Vector2d>& a, const std::vector<Eigen::Vector2d>& b,
-                                 double metres_per_px, const RansacOptions& o) {
+                                 double metres_per_px, const RansacOptions& o, const MotionPrior* prior) {
   RansacResult res;
   const int n = static_cast<int>(a.size());
   if (a.size() != b.size()) {
@@ -161,6 +163,17 @@ RansacResult estimateRigidRansac(const std::vector<Eigen::Vector2d>& a, const st
     Model t;
     if (!fitModel(a, b, {i, j}, o.estimate_scale, &t)) continue;
     if (std::abs(t.scale - 1.0) > o.max_scale_change) continue;
+    if (prior) {
+      const double d = std::max((b[i] - b[j]).norm(), thr);
+      const Eigen::Matrix3d own = Eigen::Vector3d(thr2, thr2, thr2 / (d * d)).asDiagonal();
+      ConsistencyOptions no_floor;
+      no_floor.min_sigma_m = no_floor.min_sigma_rad = 0.0;
+      const Pose2 e(t.pose.x() - prior->motion.x(), t.pose.y() - prior->motion.y(), t.pose.yaw() - prior->motion.yaw());
+      if (mahalanobis2(e, prior->covariance + own, no_floor) > prior->gate) {
+        ++res.hypotheses_gated;
+        continue;
+      }
+    }
     squaredResiduals(t, a, b, &r2);
     const double cost = msacCost(r2, thr2);
     if (cost < best_cost) {

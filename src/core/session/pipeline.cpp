@@ -95,8 +95,8 @@ void Pipeline::endPiece(double stamp_s) {
   if (st.gate_checks > 0 || st.nav_frames > 0) {
     std::snprintf(line, sizeof line,
                   "session %d: nav prior: %d frames carried by the nav, %d visual motions checked, %d refused by the "
-                  "gate, %d fused",
-                  session_, st.nav_frames, st.gate_checks, st.gate_refusals, st.fused);
+                  "gate, %d fused, %ld RANSAC hypotheses gated",
+                  session_, st.nav_frames, st.gate_checks, st.gate_refusals, st.fused, st.hypotheses_gated);
     say(line);
   }
   session_ = -1;

@@ -186,6 +186,7 @@ void visitConfig(V& v, C& c) {
     n("min_sigma_rad", o.min_sigma_rad);
     n("gate_confidence", o.gate_confidence);
     n("fuse", o.fuse);
+    n("gate_ransac", o.gate_ransac);
     n("min_features_to_restart", o.min_features_to_restart);
   });
   v.block("loops", [&](V& l) { visitLoops(l, c.loops); });

@@ -62,6 +62,8 @@ struct NavPriorOptions {
   /// Combine a visual motion that passes the gate with the nav's (information-weighted);
   /// off: the visual motion is kept as it is (source visual).
   bool fuse = false;
+  /// Gate RANSAC's hypotheses by the nav's motion (rigid_ransac.h MotionPrior) at the same confidence.
+  bool gate_ransac = true;
   /// A frame carried by the nav becomes a keyframe when the nav-predicted footprint overlap with
   /// the last keyframe drops below keyframes.min_overlap, or when it has at least this many
   /// features and the last keyframe was itself not matched (so that the next frame can match it).

@@ -15,7 +15,9 @@
 // covariance, and is counted.
 //
 // Navigation prior (core/frontend/nav_prior.h; issue 16), when the input carries the vehicle's
-// dead-reckoned nav and options.nav.enabled: (c) every visual motion is compared with the nav's
+// dead-reckoned nav and options.nav.enabled: (a) RANSAC's 2-point hypotheses far from the nav's
+// motion (the same chi-square gate, with the hypothesis's own noise added) are not scored, so a
+// repetitive seabed cannot lead the consensus astray (nav.gate_ransac); (c) every visual motion is compared with the nav's
 // motion over the same interval by a chi-square gate; a motion that fails is refused (counted,
 // the reason in the update) and the nav's motion used instead; with nav.fuse a motion that passes
 // is combined with the nav's. (b) With on_tracking_loss dead_reckoning a frame that cannot be
@@ -149,6 +151,7 @@ struct OdometryStats {
   int gate_checks = 0;    // visual motions compared with the nav
   int gate_refusals = 0;  // ... refused by the gate
   int fused = 0;          // ... combined with the nav (nav.fuse)
+  long hypotheses_gated = 0;  // RANSAC hypotheses the nav prior refused (nav.gate_ransac)
 };
 
 class Odometry {
@@ -188,7 +191,7 @@ class Odometry {
   };
   // The frame carried by the nav's motion `m` from the last keyframe (vision failed or refused).
   void carryByNav(TrackedFrame* cur, const UncertainPose2& m, OdometryUpdate* up);
-  PairMotion matchToKeyframe(const FrameFeatures& f, double altitude_m);
+  PairMotion matchToKeyframe(const FrameFeatures& f, double altitude_m, const std::optional<NavRecord>& nav);
   double footprintOverlap(const Pose2& motion, double kf_altitude, double altitude) const;
   void addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback,
                    MotionSource source = MotionSource::kVisual);

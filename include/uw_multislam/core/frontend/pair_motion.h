@@ -25,8 +25,9 @@ struct PairMotion {
 };
 
 /// `times` (optional) receives the "match" and "ransac" stages.
+/// `prior` (optional): RANSAC's hypotheses are gated by it (rigid_ransac.h).
 PairMotion estimatePairMotion(const View& a, const View& b, const MatchOptions& matching, const RansacOptions& ransac,
-                              StageTimes* times = nullptr);
+                              StageTimes* times = nullptr, const MotionPrior* prior = nullptr);
 
 }  // namespace core
 }  // namespace uw_multislam

@@ -77,12 +77,25 @@ struct RansacResult {
   double rms_residual_m = 0.0;
   double scale = 1.0;  // the fitted scale correction (1 for the rigid model)
   int iterations = 0;
+  int hypotheses_gated = 0;  // 2-point hypotheses refused by the prior
+};
+
+/// A prior on the motion (the vehicle's nav, core/frontend/nav_prior.h): a 2-point hypothesis
+/// whose squared Mahalanobis distance from `motion` exceeds `gate` is not scored. The distance
+/// uses `covariance` plus the hypothesis's own noise, diag(t^2, t^2, (t / d)^2) with t the inlier
+/// threshold in metres and d the sample's point distance (a 2-point fit is only that good).
+struct MotionPrior {
+  Pose2 motion;
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+  double gate = 0.0;
 };
 
 /// Algorithm 1 on correspondences a[i] <-> b[i] (metres). `metres_per_px` turns the pixel
 /// thresholds into metres (altitude / focal length).
+/// `prior` (optional) gates the hypotheses; without it the result is as it always was.
 RansacResult estimateRigidRansac(const std::vector<Eigen::Vector2d>& a, const std::vector<Eigen::Vector2d>& b,
-                                 double metres_per_px, const RansacOptions& options);
+                                 double metres_per_px, const RansacOptions& options,
+                                 const MotionPrior* prior = nullptr);
 
 }  // namespace core
 }  // namespace uw_multislam
