@@ -12,6 +12,7 @@
 #include "../common/scoped_temp_dir.h"
 #include "uw_multislam/core/backend/loop_consistency.h"
 #include "uw_multislam/core/frontend/nav_prior.h"
+#include "uw_multislam/core/session/slam_config.h"
 
 namespace uw_multislam {
 namespace core {
@@ -118,6 +119,18 @@ TEST(NavPrior, MotionCovarianceIsTheInflatedGrowthOfSigmaWithFloors) {
   bad = o;
   bad.gate_confidence = 1.0;
   EXPECT_NE(bad.validate().find("gate_confidence"), std::string::npos);
+  // In the SLAM configuration the block is `nav`, and an error names it so.
+  try {
+    slamConfigFromYaml("nav: {inflation: 0.5}\n");
+    ADD_FAILURE() << "no error";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("nav.inflation"), std::string::npos) << e.what();
+  }
+  const SlamConfig c = slamConfigFromYaml("nav: {on_tracking_loss: new_session, gate_ransac: false}\n");
+  EXPECT_EQ(c.odometry.nav.on_tracking_loss, TrackingLossPolicy::kNewSession);
+  EXPECT_FALSE(c.odometry.nav.gate_ransac);
+  EXPECT_EQ(slamConfigToYaml(slamConfigFromYaml(slamConfigToYaml(c))), slamConfigToYaml(c));
+  EXPECT_THROW(slamConfigFromYaml("nav: {on_tracking_loss: pray}\n"), std::invalid_argument);
 }
 
 TEST(NavPrior, GateThresholdHoldsItsConfidenceUnderTheModel) {

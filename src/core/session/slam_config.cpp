@@ -196,6 +196,8 @@ void visitConfig(V& v, C& c) {
 }  // namespace
 
 std::string SlamConfig::validate() const {
+  const std::string n = odometry.nav.validate();  // its keys are the top-level block `nav`
+  if (!n.empty()) return "nav." + n;
   const std::string o = odometry.validate();
   if (!o.empty()) return "odometry." + o;
   const std::string t = tracking.validate();
