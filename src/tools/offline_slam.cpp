@@ -92,7 +92,7 @@ int main(int argc, char** argv) {
     cv::setNumThreads(threads);
     // Every folder and the store are checked before any work or any output.
     std::vector<core::Dataset> datasets;
-    for (const auto& dir : folders) datasets.push_back(core::loadDataset(dir));
+    for (const auto& dir : folders) datasets.push_back(core::loadDataset(dir, true, core::StampOrder::kRequired));
     auto print = [quiet](const char* prefix) {
       return [quiet, prefix](const std::string& line) {
         if (!quiet) std::printf("%s%s\n", prefix, line.c_str());

@@ -20,7 +20,7 @@ class DatasetTest : public ::testing::Test {
   // Expects loadDataset to throw a DatasetError whose message contains `needle`.
   void expectError(const std::string& needle) {
     try {
-      loadDataset(dir_.string());
+      loadDataset(dir_.string(), true, StampOrder::kRequired);  // as a SLAM run reads a folder
       FAIL() << "no error, expected one containing '" << needle << "'";
     } catch (const DatasetError& e) {
       EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
@@ -77,15 +77,17 @@ TEST_F(DatasetTest, ClearErrors) {
   expectError("frames.csv:2: bad number in altitude_m");
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,2\n0,0001.jpg,0.5,2\n");
   expectError("duplicate index 0");
-  // Stamps out of order, repeated, or jumping by more than an hour (two missions in one folder).
+  // Stamps out of order, repeated, or jumping by more than an hour (two missions in one folder):
+  // refused for a SLAM run (kRequired), read as written otherwise (folder_to_bag writes them, counted).
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,10.0,2\n1,0001.jpg,5.0,2\n");
   expectError("frames.csv:3: stamp_s 5.0 is not after the previous frame's");
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,10.0,2\n1,0001.jpg,10.0,2\n");
   expectError("frames.csv:3: stamp_s 10.0 is not after");
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,10.0,2\n1,0001.jpg,86410.0,2\n");
   expectError("frames.csv:3: stamp_s jumps by 86400 s (more than 3600 s): two missions in one folder?");
+  EXPECT_EQ(loadDataset(dir_.string()).frames.size(), 2u);  // read as written (folder_to_bag)
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,10.0,2\n1,0001.jpg,3610.0,2\n");
-  EXPECT_EQ(readFramesCsv((dir_ / "frames.csv").string()).size(), 2u);  // an hour exactly: one mission
+  EXPECT_EQ(readFramesCsv((dir_ / "frames.csv").string(), StampOrder::kRequired).size(), 2u);  // an hour: one mission
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,2\n1,missing.jpg,0.5,2\n");
   expectError("image 'missing.jpg' of frame 1 does not exist");
   write("frames.csv", "index,image,stamp_s,altitude_m\n");

@@ -202,7 +202,7 @@ void writeCameraYaml(const std::string& path, const CameraIntrinsics& c) {
   if (!out) throw DatasetError(path + ": write failed");
 }
 
-std::vector<FrameRecord> readFramesCsv(const std::string& path) {
+std::vector<FrameRecord> readFramesCsv(const std::string& path, StampOrder order) {
   std::vector<FrameRecord> frames;
   std::set<int> seen;
   readCsv(path, {"index", "image", "stamp_s", "altitude_m"}, [&](const std::vector<std::string>& c, int n) {
@@ -213,10 +213,12 @@ std::vector<FrameRecord> readFramesCsv(const std::string& path) {
     f.stamp_s = parseDouble(c[2], path, n, "stamp_s");
     f.altitude_m = parseDouble(c[3], path, n, "altitude_m");
     if (!seen.insert(f.index).second) fail(path, n, "duplicate index " + c[0]);
-    // One folder is one camera stream: its stamps go forward, without a gap of hours (two missions
-    // in one folder). Either is refused with the line and the fix (the live odometry skips a late
-    // frame and starts a session at a jump; offline the folder says what it is).
-    if (!frames.empty() && std::isfinite(f.stamp_s) && std::isfinite(frames.back().stamp_s)) {
+    // For a SLAM run one folder is one camera stream: its stamps go forward, without a gap of hours
+    // (two missions in one folder). Either is refused with the line and the fix (the live odometry
+    // skips a late frame and starts a session at a jump; offline the folder says what it is).
+    // folder_to_bag reads them as they are (it writes such bags on purpose, counted).
+    if (order == StampOrder::kRequired && !frames.empty() && std::isfinite(f.stamp_s) &&
+        std::isfinite(frames.back().stamp_s)) {
       const double step = f.stamp_s - frames.back().stamp_s;
       std::ostringstream os;
       if (!(step > 0)) {
@@ -308,13 +310,13 @@ std::string readTextFile(const std::string& path) {
   return ss.str();
 }
 
-Dataset loadDataset(const std::string& directory, bool check_images_exist) {
+Dataset loadDataset(const std::string& directory, bool check_images_exist, StampOrder order) {
   if (!fs::is_directory(directory)) throw DatasetError(directory + ": not a directory");
   Dataset d;
   d.directory = directory;
   d.camera = readCameraYaml((fs::path(directory) / "camera.yaml").string());
   const std::string frames_path = (fs::path(directory) / "frames.csv").string();
-  d.frames = readFramesCsv(frames_path);
+  d.frames = readFramesCsv(frames_path, order);
   if (d.frames.empty()) throw DatasetError(frames_path + ": no frames");
   if (check_images_exist) {
     for (const auto& f : d.frames) {

@@ -98,10 +98,13 @@ void writeCameraYaml(const std::string& path, const CameraIntrinsics& c);
 
 /// The longest step between two frames' stamps in one folder (one mission): an hour.
 constexpr double kMaxFrameGapS = 3600.0;
-/// Reads frames.csv: header "index,image,stamp_s,altitude_m", indexes unique, stamps increasing
-/// by at most kMaxFrameGapS (DatasetError naming the line otherwise). Altitudes are read as
-/// written (NaN or negative values are the consumer's to reject), as are non-finite stamps.
-std::vector<FrameRecord> readFramesCsv(const std::string& path);
+/// kRequired: frames.csv's stamps must increase by at most kMaxFrameGapS (the SLAM runs: one
+/// folder is one mission); kAsWritten: read as they are (folder_to_bag, the benches).
+enum class StampOrder { kAsWritten, kRequired };
+/// Reads frames.csv: header "index,image,stamp_s,altitude_m", indexes unique, the stamps' order
+/// checked as `order` says (DatasetError naming the line). Altitudes are read as written (NaN or
+/// negative values are the consumer's to reject), as are non-finite stamps.
+std::vector<FrameRecord> readFramesCsv(const std::string& path, StampOrder order = StampOrder::kAsWritten);
 void writeFramesCsv(const std::string& path, const std::vector<FrameRecord>& frames);
 
 std::vector<GroundTruthRecord> readGroundTruthCsv(const std::string& path);
@@ -118,7 +121,8 @@ std::string readTextFile(const std::string& path);
 /// Loads a dataset folder; throws DatasetError with a one-line reason when it is not one
 /// (missing files, bad header, unparsable number, duplicate index, missing image file). nav.csv
 /// is read when present; it must cover the stamps of the frames it is used for (see NavTrack).
-Dataset loadDataset(const std::string& directory, bool check_images_exist = true);
+Dataset loadDataset(const std::string& directory, bool check_images_exist = true,
+                    StampOrder order = StampOrder::kAsWritten);
 
 }  // namespace core
 }  // namespace uw_multislam
