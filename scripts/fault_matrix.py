@@ -1,0 +1,462 @@
+#!/usr/bin/python3
+"""The fault matrix (issue 21, 6): runs each fault against the offline runner (offline_slam --db) or
+the live nodelets (slam.launch on a ROS master of its own) and prints one markdown table row per
+case, `| case | expected | observed | verdict |` (held / FAILED), then `N of M held`.
+
+    scripts/fault_matrix.sh [--only SUBSTRING ...] [--offline] [--junit FILE] [--keep]
+
+Every case runs in a temporary directory of its own (live cases with a master of their own on a
+free port: it never talks to another master), waits for conditions with deadlines, and stops what
+it started and removes its directory even when it fails (--keep leaves the directories). The
+survey (make_survey, two short missions, their bags) is generated once and only read.
+Exit status 0 only when every case held.
+"""
+import argparse
+import hashlib
+import os
+import random
+import re
+import shutil
+import signal
+import sqlite3
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+import xml.sax.saxutils
+
+SURVEY = """
+seed: 11
+world: {width_m: 9, height_m: 6, featureless_fraction: 0}
+sessions:
+  - name: a
+    mission: {pattern: out_and_back, start_m: [2.0, 2.0], length_m: 4.0, leg_spacing_m: 1.0,
+              speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.0}
+  - name: b
+    mission: {pattern: loop, start_m: [5.5, 3.0], heading_rad: 1.5708, length_m: 2.0, width_m: 1.6,
+              laps: 1.0, speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.2}
+"""
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+
+
+def wait_for(condition, timeout_s, step_s=0.05):
+    """Polls condition() until it is true or the deadline passes; returns its last value."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = condition()
+        if value or time.monotonic() >= deadline:
+            return value
+        time.sleep(step_s)
+
+
+def md5(path):
+    with open(path, "rb") as f:
+        return hashlib.md5(f.read()).hexdigest()
+
+
+def ro_connect(path):
+    """A read-only connection that never creates or checkpoints anything beside the store."""
+    return sqlite3.connect("file:%s?mode=ro" % os.path.abspath(path), uri=True, timeout=5)
+
+
+def keyframe_count(path):
+    """Keyframes in the store, read-only; None while it cannot be read (not yet created, locked)."""
+    try:
+        con = ro_connect(path)
+        try:
+            return con.execute("SELECT count(*) FROM keyframes").fetchone()[0]
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return None
+
+
+def integrity(path):
+    try:
+        con = ro_connect(path)
+        try:
+            return con.execute("PRAGMA integrity_check").fetchone()[0]
+        finally:
+            con.close()
+    except sqlite3.Error as e:
+        return "error: %s" % e
+
+
+def session_states(path):
+    con = ro_connect(path)
+    try:
+        return con.execute("SELECT name, state FROM sessions ORDER BY rowid").fetchall()
+    finally:
+        con.close()
+
+
+def reason(stderr):
+    """The one-line reason of a refusal: stderr's non-empty lines (a clear refusal has exactly one)."""
+    return [line for line in stderr.splitlines() if line.strip()]
+
+
+def short(text, n=150):
+    text = " ".join(text.split()).replace("|", "/")
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+class Matrix:
+    def __init__(self, keep):
+        self.keep = keep
+        self.rows = []  # (case, expected, observed, held, seconds)
+
+    def row(self, case, expected, observed, held, seconds=0.0):
+        observed = re.sub(r"/tmp/uwms_fault_survey\.[^/ ]+/m", "<survey>", observed)
+        observed = re.sub(r"/tmp/uwms_fault_[^/ ]+", "<tmp>", observed)
+        self.rows.append((case, expected, observed, held, seconds))
+        print("| %s | %s | %s | %s |" % (case, expected, short(observed, 400), "held" if held else "FAILED"), flush=True)
+
+    def tempdir(self, case):
+        return tempfile.mkdtemp(prefix="uwms_fault_%s." % case.split()[0].replace("/", "_"))
+
+    def done(self, path):
+        if not self.keep:
+            subprocess.run(["chmod", "-R", "u+w", path], check=False)
+            shutil.rmtree(path, ignore_errors=True)
+
+
+class Offline:
+    """offline_slam and make_survey from the workspace's bin directory."""
+
+    def __init__(self, bin_dir, base):
+        self.bin = bin_dir
+        self.base = base
+        with open(os.path.join(base, "survey.yaml"), "w") as f:
+            f.write(SURVEY)
+        self.survey = os.path.join(base, "m")
+        r = subprocess.run([os.path.join(bin_dir, "make_survey"), "--config", os.path.join(base, "survey.yaml"), "--out",
+                            self.survey, "--quiet"], capture_output=True, text=True, timeout=120)
+        if r.returncode != 0:
+            raise RuntimeError("make_survey failed: " + r.stderr)
+        # A valid, closed store (session a), for the cases that damage one.
+        self.valid_store = os.path.join(base, "valid.db")
+        r = self.run(["--session", self.folder("a"), "--out", os.path.join(base, "valid_out"), "--db", self.valid_store])
+        if r.returncode != 0 or os.path.exists(self.valid_store + "-wal"):
+            raise RuntimeError("the reference store was not written cleanly: " + r.stderr)
+
+    def folder(self, name):
+        return os.path.join(self.survey, name)
+
+    def cmd(self, args, quiet=True):
+        return [os.path.join(self.bin, "offline_slam")] + (["--quiet"] if quiet else []) + args
+
+    def run(self, args, timeout=180, quiet=True):
+        return subprocess.run(self.cmd(args, quiet), capture_output=True, text=True, timeout=timeout)
+
+    def start(self, args, log):
+        return subprocess.Popen(self.cmd(args), stdout=log, stderr=subprocess.STDOUT, text=True)
+
+
+def stop(proc):
+    if proc is not None and proc.poll() is None:
+        proc.kill()
+        proc.wait(timeout=30)
+
+
+# ---- offline cases -----------------------------------------------------------------------------
+
+
+def case_kill_offline(m, off):
+    case = "offline_slam --db killed -9 mid-run, re-run"
+    expected = "integrity ok; the re-run refused in one line naming the folder; keyframes unchanged"
+    d = m.tempdir(case)
+    proc = None
+    try:
+        store = os.path.join(d, "s.db")
+        args = ["--session", off.folder("a"), "--session", off.folder("b"), "--out", os.path.join(d, "out"), "--db", store]
+        with open(os.path.join(d, "run1.log"), "w") as log:
+            proc = off.start(args, log)
+            got = wait_for(lambda: (keyframe_count(store) or 0) >= 5 or proc.poll() is not None, 60, 0.02)
+            if proc.poll() is not None:
+                return m.row(case, expected, "the run ended (status %s) before it could be killed" % proc.returncode, False)
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(timeout=30)
+        before = keyframe_count(store)
+        ok = integrity(store)
+        states = session_states(store)
+        r = off.run(args)
+        after = keyframe_count(store)
+        lines = reason(r.stderr)
+        held = (bool(got) and ok == "ok" and r.returncode != 0 and len(lines) == 1 and off.folder("a") in lines[0]
+                and after == before)
+        observed = "killed at %d keyframes (sessions %s); integrity %s; re-run status %d: %s; keyframes after %s" % (
+            before, states, ok, r.returncode, " / ".join(lines) or "(no message)", after)
+        m.row(case, expected, observed, held)
+    finally:
+        stop(proc)
+        m.done(d)
+
+
+def case_two_writers(m, off):
+    case = "two offline_slam --db writers on one store"
+    expected = "the second refused at once in one line naming the holder; the first exits 0; integrity ok"
+    d = m.tempdir(case)
+    first = None
+    try:
+        store = os.path.join(d, "s.db")
+        log = open(os.path.join(d, "first.log"), "w")
+        first = off.start(["--session", off.folder("a"), "--session", off.folder("b"), "--out", os.path.join(d, "o1"), "--db",
+                           store], log)
+        wait_for(lambda: (keyframe_count(store) or 0) >= 1 or first.poll() is not None, 60, 0.02)
+        still_running = first.poll() is None
+        r = off.run(["--session", off.folder("b"), "--out", os.path.join(d, "o2"), "--db", store])
+        first_running_after = first.poll() is None
+        status = first.wait(timeout=180)
+        log.close()
+        ok = integrity(store)
+        lines = reason(r.stderr)
+        held = (still_running and first_running_after and r.returncode != 0 and len(lines) == 1 and "in use by pid" in lines[0]
+                and status == 0 and ok == "ok")
+        observed = "second: status %d, %s (first still running: %s); first: status %d; integrity %s" % (
+            r.returncode, " / ".join(lines) or "(no message)", first_running_after, status, ok)
+        m.row(case, expected, observed, held)
+    finally:
+        stop(first)
+        m.done(d)
+
+
+def bad_store_case(m, off, label, make, expect_refusal=True, expected=None):
+    case = "store: " + label
+    expected = expected or "refused: one line naming the file; the file byte-identical"
+    d = m.tempdir("store")
+    try:
+        store = make(d)
+        is_file = os.path.isfile(store)
+        before = md5(store) if is_file else sorted(os.listdir(store)) if os.path.isdir(store) else None
+        r = off.run(["--session", off.folder("b"), "--out", os.path.join(d, "out"), "--db", store])
+        after = md5(store) if is_file else sorted(os.listdir(store)) if os.path.isdir(store) else None
+        lines = reason(r.stderr)
+        crashed = r.returncode < 0 or r.returncode > 2
+        if expect_refusal:
+            held = (r.returncode in (1, 2) and len(lines) == 1 and store in lines[0] and before == after)
+            observed = "status %d: %s; %s" % (r.returncode, " / ".join(lines) or "(no message)",
+                                               "unchanged" if before == after else "CHANGED")
+        else:
+            held, observed = expect_refusal_free(r, store, lines, crashed)
+        m.row(case, expected, observed, held)
+    finally:
+        m.done(d)
+
+
+def expect_refusal_free(r, store, lines, crashed):
+    if crashed:
+        return False, "crashed (status %d): %s" % (r.returncode, " / ".join(lines[-2:]))
+    if r.returncode != 0:
+        return False, "status %d: %s" % (r.returncode, " / ".join(lines))
+    dmode = oct(os.stat(os.path.dirname(store)).st_mode & 0o777)
+    fmode = oct(os.stat(store).st_mode & 0o777)
+    return (dmode == "0o700" and fmode == "0o600" and integrity(store) == "ok"), \
+        "status 0; directory created %s, store %s, %s keyframes, integrity %s" % (dmode, fmode, keyframe_count(store),
+                                                                                integrity(store))
+
+
+def offline_store_cases(m, off):
+    def truncated(d):
+        p = os.path.join(d, "s.db")
+        with open(off.valid_store, "rb") as f:
+            data = f.read()
+        with open(p, "wb") as f:
+            f.write(data[: len(data) // 2])
+        return p
+
+    def random_bytes(d):
+        p = os.path.join(d, "s.db")
+        with open(p, "wb") as f:
+            f.write(random.Random(21).randbytes(1 << 20))
+        return p
+
+    def foreign(d):
+        p = os.path.join(d, "s.db")
+        con = sqlite3.connect(p)
+        con.execute("CREATE TABLE customers (id INTEGER PRIMARY KEY, name TEXT)")
+        con.execute("INSERT INTO customers (name) VALUES ('x')")
+        con.commit()
+        con.close()
+        return p
+
+    def directory(d):
+        p = os.path.join(d, "s.db")
+        os.mkdir(p)
+        return p
+
+    def missing_dir(d):
+        return os.path.join(d, "no", "such", "dir", "s.db")
+
+    def read_only(d):
+        p = os.path.join(d, "s.db")
+        shutil.copyfile(off.valid_store, p)
+        os.chmod(p, 0o444)
+        return p
+
+    bad_store_case(m, off, "valid store cut in half", truncated)
+    bad_store_case(m, off, "1 MiB of random bytes", random_bytes)
+    bad_store_case(m, off, "foreign schema (another SQLite database)", foreign)
+    bad_store_case(m, off, "a directory as the store path", directory)
+    bad_store_case(m, off, "in a missing directory", missing_dir, expect_refusal=False,
+                   expected="README: the directory created 0700, the store 0600; the run succeeds")
+    bad_store_case(m, off, "read-only file (chmod 444, run as %s)" % ("root" if os.geteuid() == 0 else "a user"),
+                   read_only)
+
+
+def dataset_case(m, off, label, mutate, expected, judge):
+    case = "dataset: " + label
+    d = m.tempdir("dataset")
+    try:
+        folder = os.path.join(d, "a")
+        shutil.copytree(off.folder("a"), folder)
+        mutate(folder)
+        r = off.run(["--session", folder, "--out", os.path.join(d, "out")], quiet=False)
+        out = os.path.join(d, "out")
+        held, observed = judge(r, out)
+        m.row(case, expected, observed, held)
+    finally:
+        m.done(d)
+
+
+def read_frames(folder):
+    with open(os.path.join(folder, "frames.csv")) as f:
+        lines = f.read().splitlines()
+    return lines[0], [line.split(",") for line in lines[1:] if line]
+
+
+def write_frames(folder, header, rows):
+    with open(os.path.join(folder, "frames.csv"), "w") as f:
+        f.write(header + "\n" + "".join(",".join(r) + "\n" for r in rows))
+
+
+def offline_dataset_cases(m, off):
+    def summary(r):
+        return " / ".join(line for line in r.stdout.splitlines() if line.startswith("session ")) or short(r.stdout, 120)
+
+    def pieces(out):
+        p = os.path.join(out, "pieces.csv")
+        if not os.path.exists(p):
+            return "no pieces.csv"
+        with open(p) as f:
+            return "%d pieces" % (len(f.read().splitlines()) - 1)
+
+    def counted(*marks):
+        """Exit 0 with one of marks in the summary (the fault counted), or a one-line refusal (1 or 2)."""
+        return lambda r, out: clear(r, out, marks)
+
+    def clear(r, out, marks):
+        lines = reason(r.stderr)
+        if r.returncode == 0:
+            seen = summary(r) + "; " + pieces(out)
+            return any(k in seen for k in marks), "status 0; %s" % seen
+        if r.returncode in (1, 2) and len(lines) == 1:
+            return True, "status %d: %s" % (r.returncode, lines[0])
+        return False, "status %d: %s" % (r.returncode, " / ".join(lines[-3:]) or "(no message)")
+
+    def corrupt_image(folder):
+        _, rows = read_frames(folder)
+        with open(os.path.join(folder, rows[len(rows) // 2][1]), "wb") as f:
+            f.write(random.Random(3).randbytes(5000))
+
+    def one_skip(r, out):
+        held = r.returncode == 0 and "1 skipped (1 image" in r.stdout
+        return held, "status %d; %s" % (r.returncode, summary(r) if r.returncode == 0 else " / ".join(reason(r.stderr)))
+
+    dataset_case(m, off, "a corrupt image file", corrupt_image, "a counted skip (1 image), exit 0", one_skip)
+
+    def altitude(value):
+        def mutate(folder):
+            header, rows = read_frames(folder)
+            rows[len(rows) // 2][3] = value
+            write_frames(folder, header, rows)
+        return mutate
+
+    expected = ("README Bad input: the frame skipped or given the last valid altitude (counted), exit 0; "
+                "or a one-line refusal naming frames.csv; no crash")
+    for label, value in [("NaN", "nan"), ("inf", "inf"), ("negative", "-2.0"), ("empty", "")]:
+        dataset_case(m, off, "frames.csv altitude %s" % label, altitude(value), expected,
+                     counted("1 skipped (0 image, 1 altitude)", " 1 altitudes reused"))
+
+    def backwards(folder):
+        header, rows = read_frames(folder)
+        i = len(rows) // 2
+        rows[i][2] = "%.6f" % (float(rows[i - 1][2]) - 5.0)
+        write_frames(folder, header, rows)
+
+    def day_jump(folder):
+        header, rows = read_frames(folder)
+        for r in rows[len(rows) // 2:]:
+            r[2] = "%.6f" % (float(r[2]) + 86400.0)
+        write_frames(folder, header, rows)
+
+    dataset_case(m, off, "stamps going backwards (one frame 5 s back)", backwards,
+                 "README Bad input: skipped (counted) or a new session; or a one-line refusal; no crash",
+                 counted("1 skipped (1 image", "2 pieces"))
+    dataset_case(m, off, "stamps jumping a day forward (second half)", day_jump,
+                 "README Bad input: a new session (2 pieces); or a one-line refusal; no crash", counted("2 pieces"))
+
+
+OFFLINE_CASES = [case_kill_offline, case_two_writers, offline_store_cases, offline_dataset_cases]
+
+
+def junit(path, rows, seconds):
+    failures = sum(1 for r in rows if not r[3])
+    with open(path, "w") as f:
+        f.write('<?xml version="1.0" encoding="utf-8"?>\n')
+        f.write('<testsuite name="fault_matrix" tests="%d" failures="%d" errors="0" skipped="0" time="%.1f">\n' %
+                (len(rows), failures, seconds))
+        for case, expected, observed, held, _ in rows:
+            f.write('  <testcase classname="fault_matrix" name=%s>\n' % xml.sax.saxutils.quoteattr(case))
+            if not held:
+                f.write('    <failure message=%s/>\n' % xml.sax.saxutils.quoteattr("expected: %s; observed: %s" %
+                                                                                  (expected, observed)))
+            f.write("  </testcase>\n")
+        f.write("</testsuite>\n")
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--bin-dir", default=os.environ.get("UWMS_BIN_DIR", ""), help="offline_slam's directory")
+    p.add_argument("--only", action="append", default=[], help="run the case groups whose name contains this")
+    p.add_argument("--offline", action="store_true", help="offline cases only (no ROS)")
+    p.add_argument("--junit", help="also write the result as JUnit XML")
+    p.add_argument("--keep", action="store_true", help="leave the temporary directories")
+    a = p.parse_args()
+    if not a.bin_dir or not os.path.exists(os.path.join(a.bin_dir, "offline_slam")):
+        p.error("offline_slam not found: give --bin-dir or UWMS_BIN_DIR (fault_matrix.sh sets it)")
+    started = time.monotonic()
+    m = Matrix(a.keep)
+    base = tempfile.mkdtemp(prefix="uwms_fault_survey.")
+    print("| case | expected | observed | verdict |\n| --- | --- | --- | --- |", flush=True)
+    try:
+        off = Offline(a.bin_dir, base)
+        groups = list(OFFLINE_CASES)
+        if not a.offline:
+            import fault_matrix_live  # noqa: E402 (needs rospy: only for the live cases)
+            groups += fault_matrix_live.cases(off)
+        for group in groups:
+            if a.only and not any(s in group.__name__ for s in a.only):
+                continue
+            t0 = time.monotonic()
+            try:
+                group(m, off)
+            except Exception as e:  # a case that breaks is a row that failed, and the others still run
+                traceback.print_exc()
+                m.row(group.__name__, "runs to its verdict", "the case itself failed: %s" % short(repr(e)), False)
+            print("[fault_matrix] %s: %.1f s" % (group.__name__, time.monotonic() - t0), file=sys.stderr, flush=True)
+    finally:
+        m.done(base)
+    held = sum(1 for r in m.rows if r[3])
+    seconds = time.monotonic() - started
+    print("\n%d of %d held" % (held, len(m.rows)))
+    print("[fault_matrix] %.0f s in all" % seconds, file=sys.stderr)
+    if a.junit:
+        junit(a.junit, m.rows, seconds)
+    return 0 if held == len(m.rows) and m.rows else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
