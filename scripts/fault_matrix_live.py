@@ -1,0 +1,477 @@
+#!/usr/bin/python3
+"""The live cases of the fault matrix (scripts/fault_matrix.py): each runs in a process of its own
+(rospy talks to one master per process), with a ROS master of its own on a free port, slam.launch
+with a session store in its temporary directory, and prints its rows as `ROW <json>` lines.
+
+    fault_matrix_live.py CASE --survey DIR --dir DIR     (run by fault_matrix.py)
+"""
+import argparse
+import json
+import os
+import signal
+import socket
+import sqlite3
+import subprocess
+import sys
+import threading
+import time
+import xmlrpc.client
+
+NS = "/uw_multislam"
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TOPICS = ["/camera/image_raw", "/camera/camera_info", "/altitude"]
+
+
+def wait_for(condition, timeout_s, step_s=0.1):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = condition()
+        if value or time.monotonic() >= deadline:
+            return value
+        time.sleep(step_s)
+
+
+def integrity(path):
+    try:
+        con = sqlite3.connect("file:%s?mode=ro" % path, uri=True, timeout=5)
+        try:
+            return con.execute("PRAGMA integrity_check").fetchone()[0]
+        finally:
+            con.close()
+    except sqlite3.Error as e:
+        return "error: %s" % e
+
+
+def keyframe_count(path):
+    try:
+        con = sqlite3.connect("file:%s?mode=ro" % path, uri=True, timeout=5)
+        try:
+            return con.execute("SELECT count(*) FROM keyframes").fetchone()[0]
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return None
+
+
+def rss_mb(pid):
+    try:
+        with open("/proc/%d/status" % pid) as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except (OSError, TypeError):
+        pass
+    return None
+
+
+def fmt_mb(v):
+    return "?" if v is None else "%.0f MB" % v
+
+
+class Stack:
+    """roscore on a free port and slam.launch, each in a process group of its own; stop() ends both."""
+
+    def __init__(self, work):
+        self.work = work
+        self.store = os.path.join(work, "store", "s.db")
+        s = socket.socket()
+        s.bind(("127.0.0.1", 0))
+        self.port = s.getsockname()[1]
+        s.close()
+        self.uri = "http://127.0.0.1:%d" % self.port
+        os.environ.update(ROS_MASTER_URI=self.uri, ROS_HOSTNAME="127.0.0.1", ROS_HOME=os.path.join(work, "ros_home"),
+                          ROS_LOG_DIR=os.path.join(work, "ros_home", "log"))
+        self.procs = []
+        self.core = self.spawn(["roscore", "-p", str(self.port)], "roscore.log")
+        import rosgraph
+        self.master = rosgraph.Master("/fault_matrix", master_uri=self.uri)
+        if not wait_for(self.master_up, 30):
+            raise RuntimeError("the ROS master on port %d did not come up" % self.port)
+        self.launch = None
+
+    def master_up(self):
+        try:
+            self.master.getPid()
+            return True
+        except Exception:
+            return False
+
+    def spawn(self, cmd, log):
+        p = subprocess.Popen(cmd, stdout=open(os.path.join(self.work, log), "a"), stderr=subprocess.STDOUT,
+                             start_new_session=True)
+        self.procs.append(p)
+        return p
+
+    def start_slam(self, *args):
+        self.launch = self.spawn(["roslaunch", "--wait", "uw_multislam", "slam.launch", "store_path:=" + self.store] +
+                                 list(args), "launch.log")
+        if not wait_for(lambda: self.launch.poll() is not None or self.services_ready(), 60, 0.2) or \
+                self.launch.poll() is not None:
+            raise RuntimeError("slam.launch: list_sessions did not answer OK within 60 s (launch.log: %s)" %
+                               self.log_tail("launch.log"))
+
+    def log_tail(self, name):
+        with open(os.path.join(self.work, name), errors="replace") as f:
+            return " / ".join(line.strip() for line in f.read().splitlines()[-2:])
+
+    def services_ready(self):
+        try:
+            from uw_multislam.msg import Status
+            return self.call("list_sessions", timeout=2).status.code == Status.OK
+        except Exception:
+            return False
+
+    def call(self, name, *request, timeout=10.0):
+        import rospy
+        from uw_multislam import srv
+        kinds = {"list_sessions": srv.ListSessions, "join_sessions": srv.JoinSessions, "split_session": srv.SplitSession,
+                 "start_session": srv.StartSession, "reload_session": srv.ReloadSession}
+        rospy.wait_for_service(NS + "/" + name, timeout=timeout)
+        return rospy.ServiceProxy(NS + "/" + name, kinds[name])(*request)
+
+    def node_pid(self, node):
+        try:
+            import rosnode
+            api = rosnode.get_api_uri(self.master, node, skip_cache=True)
+            return xmlrpc.client.ServerProxy(api).getPid("/fault_matrix")[2] if api else None
+        except Exception:
+            return None
+
+    def manager_pid(self):
+        return self.node_pid(NS + "/manager")
+
+    def alive(self):
+        """Every node of the namespace answers a ping."""
+        import rosnode
+        nodes = [n for n in rosnode.get_node_names() if n.startswith(NS + "/")]
+        dead = [n for n in nodes if not rosnode.rosnode_ping(n, max_count=1, verbose=False)]
+        return nodes, dead
+
+    def sessions(self):
+        r = self.call("list_sessions")
+        return [(s.session, s.name, s.state, s.map, s.num_keyframes) for s in r.sessions]
+
+    def play(self, bag, rate=4.0, timeout=120):
+        p = self.spawn(["rosbag", "play", "-q", "-r", str(rate), bag, "--topics"] + TOPICS, "play.log")
+        p.wait(timeout=timeout)
+        return p.returncode
+
+    @staticmethod
+    def stop_group(p, sig=signal.SIGINT):
+        if p.poll() is not None:
+            return
+        for s, wait_s in ((sig, 15), (signal.SIGTERM, 5), (signal.SIGKILL, 5)):
+            try:
+                os.killpg(p.pid, s)
+            except ProcessLookupError:
+                return
+            try:
+                p.wait(timeout=wait_s)
+                return
+            except subprocess.TimeoutExpired:
+                pass
+
+    def stop(self):
+        for p in reversed(self.procs):
+            self.stop_group(p)
+
+
+def row(case, expected, observed, held):
+    print("ROW " + json.dumps([case, expected, observed, bool(held)]), flush=True)
+
+
+def status_code(res):
+    return res.status.code, res.status.message
+
+
+# ---- cases -------------------------------------------------------------------------------------
+
+
+def two_sessions(st, survey):
+    """Two sessions from the survey's two bags (the second's stamps start again: a new session)."""
+    st.play(os.path.join(survey, "a.bag"))
+    wait_for(lambda: len(st.sessions()) >= 1 and st.sessions()[0][4] > 2, 30, 0.5)
+    st.play(os.path.join(survey, "b.bag"))
+    return wait_for(lambda: len(st.sessions()) >= 2 and st.sessions()[1][4] > 2, 30, 0.5)
+
+
+def case_service_misuse(st, survey):
+    # start_session is rate-limited to max_empty_sessions empty sessions (default 1): raised here so
+    # that each of the names below reaches the name checks.
+    with open(os.path.join(REPO, "config", "default.yaml")) as f:
+        config = f.read()
+    if "max_empty_sessions: 1\n" not in config:
+        raise RuntimeError("config/default.yaml: max_empty_sessions: 1 not found")
+    mine = os.path.join(st.work, "default.yaml")
+    with open(mine, "w") as f:
+        f.write(config.replace("max_empty_sessions: 1\n", "max_empty_sessions: 10\n"))
+    st.start_slam("config:=" + mine)
+    two_sessions(st, survey)
+    pid = st.manager_pid()
+    rss0 = rss_mb(pid)
+    before = st.sessions()
+    big = 2 ** 31 - 1
+    calls = [
+        ("join_sessions 0 0 (self-join)", "join_sessions", (0, 0, 0)),
+        ("join_sessions 0 7 (unknown id)", "join_sessions", (0, 7, 0)),
+        ("join_sessions -1 0 (negative id)", "join_sessions", (-1, 0, 0)),
+        ("join_sessions 0 2^31-1 (huge id)", "join_sessions", (0, big, 0)),
+        ("join_sessions 0 1 -5 (negative min_loops)", "join_sessions", (0, 1, -5)),
+        ("split_session -1", "split_session", (-1,)),
+        ("split_session 2^31-1", "split_session", (big,)),
+        ("reload_session of an unknown name", "reload_session", ("no_such_session",)),
+    ]
+    # A split that succeeds, then the same split again; then the join back (both may fail for too few loops).
+    names = [("quotes", "it's \"a\" name", "ok"), ("SQL", "x'); DROP TABLE sessions; --", "ok"),
+             ("100 kB", "n" * 100000, "refused"), ("newline and tab", "a\nb\tc", "either")]
+    bad = []
+    for label, name, request in calls:
+        code, msg = status_code(st.call(name, *request))
+        if code == 0 or not msg:
+            bad.append("%s: code %d '%s'" % (label, code, msg))
+    after_misuse = st.sessions()
+    # The one legitimate split (the two sessions joined by their global loops), then the same again.
+    joined = len(before) > 1 and before[0][3] == before[1][3]
+    split_note = "sessions 0 and 1 not joined: no double split"
+    if joined:
+        c1, m1 = status_code(st.call("split_session", 1))
+        c2, m2 = status_code(st.call("split_session", 1))
+        split_note = "split 1: code %d, again: code %d '%s'" % (c1, c2, m2[:60])
+        if c1 != 0 or c2 == 0 or not m2:
+            bad.append("double split: " + split_note)
+        st.call("join_sessions", 0, 1, 0)
+    else:
+        bad.append(split_note)
+    # Quotes and SQL metacharacters are a name like any other (kept verbatim, listed once); a
+    # 100 kB name is a wrong call (refused with a message); control characters: either, reported.
+    name_notes = []
+    for label, name, must in names:
+        code, msg = status_code(st.call("start_session", name))
+        name_notes.append("%s: %s" % (label, "OK" if code == 0 else "code %d '%s'" % (code, msg[:50])))
+        listed = [s for s in st.sessions() if s[1] == name]
+        if must == "ok" and (code != 0 or len(listed) != 1):
+            bad.append("start_session %s: code %d, listed %d times" % (label, code, len(listed)))
+        if must == "refused" and (code == 0 or not msg):
+            bad.append("start_session %s answered OK (a %d-byte name listed %d times)" % (label, len(name), len(listed)))
+        if code != 0 and not msg:
+            bad.append("start_session %s: code %d without a message" % (label, code))
+    # Wrong argument counts through sessions.py: a usage error, non-zero, nothing called.
+    for args in (["join", "0"], ["split"], ["join", "0", "1", "2", "3"], ["split", "x"]):
+        r = subprocess.run(["/usr/bin/python3", os.path.join(REPO, "src", "tools", "sessions.py")] + args,
+                           capture_output=True, text=True, timeout=60)
+        if r.returncode == 0 or not r.stderr.strip():
+            bad.append("sessions.py %s: status %d" % (" ".join(args), r.returncode))
+    nodes, dead = st.alive()
+    state_same = after_misuse == before
+    rss1 = rss_mb(pid)
+    st.stop_group(st.launch)
+    ok = integrity(st.store)
+    held = not bad and not dead and nodes and state_same and ok == "ok"
+    observed = ("%d wrong calls each answered non-OK with a message%s; list_sessions %s; %s; start_session names %s; "
+                "%d nodes alive%s; integrity %s; manager RSS %s -> %s") % (
+        len(calls) + 4, "" if not bad else " EXCEPT " + "; ".join(bad), "unchanged" if state_same else "CHANGED",
+        split_note, ", ".join(name_notes), len(nodes), "" if not dead else ", DEAD: %s" % dead, ok, fmt_mb(rss0),
+        fmt_mb(rss1))
+    row("live: service misuse (ids, double split, names, argument counts)",
+        "each wrong call non-OK with a message (a 100 kB name too); quoted/SQL names kept verbatim; nodes up; "
+        "list_sessions unchanged by wrong calls; integrity ok", observed, held)
+
+
+def case_concurrent(st, survey, seconds=20.0, threads=20, deadline_s=10.0):
+    st.start_slam()
+    two_sessions(st, survey)
+    pid = st.manager_pid()
+    rss0 = rss_mb(pid)
+    import rospy
+    from uw_multislam import srv
+    rospy.wait_for_service(NS + "/join_sessions", timeout=10)
+    stats = {"calls": 0, "slowest": 0.0, "errors": []}
+    lock = threading.Lock()
+    stop_at = time.monotonic() + seconds
+
+    def worker(i):
+        join = rospy.ServiceProxy(NS + "/join_sessions", srv.JoinSessions, persistent=False)
+        split = rospy.ServiceProxy(NS + "/split_session", srv.SplitSession, persistent=False)
+        n = 0
+        while time.monotonic() < stop_at:
+            t0 = time.monotonic()
+            try:
+                if (i + n) % 2:
+                    join(0, 1, 0)
+                else:
+                    split(1)
+            except Exception as e:
+                with lock:
+                    stats["errors"].append(repr(e)[:80])
+            dt = time.monotonic() - t0
+            n += 1
+            with lock:
+                stats["calls"] += 1
+                stats["slowest"] = max(stats["slowest"], dt)
+
+    pool = [threading.Thread(target=worker, args=(i,), daemon=True) for i in range(threads)]
+    for t in pool:
+        t.start()
+    for t in pool:
+        t.join(timeout=seconds + deadline_s + 5)
+    hung = sum(1 for t in pool if t.is_alive())
+    nodes, dead = st.alive()
+    listed = st.sessions()
+    rss1 = rss_mb(pid)
+    st.stop_group(st.launch)
+    ok = integrity(st.store)
+    held = (not hung and not stats["errors"] and stats["slowest"] < deadline_s and not dead and nodes and ok == "ok"
+            and len(listed) >= 2)
+    observed = "%d calls in %.0f s by %d threads, slowest %.2f s, %d errors%s, %d threads hung; %d nodes alive%s; " \
+               "integrity %s; manager RSS %s -> %s" % (
+                   stats["calls"], seconds, threads, stats["slowest"], len(stats["errors"]),
+                   (" (%s)" % stats["errors"][0]) if stats["errors"] else "", hung, len(nodes),
+                   "" if not dead else ", DEAD: %s" % dead, ok, fmt_mb(rss0), fmt_mb(rss1))
+    row("live: %d concurrent join/split callers for %.0f s" % (threads, seconds),
+        "every call answered within %.0f s; nodes alive; integrity ok" % deadline_s, observed, held)
+
+
+def case_kill_manager(st, survey):
+    st.start_slam("standalone:=false")
+    import rospy
+    from uw_multislam.msg import Keyframe
+    published = []
+    rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
+    rospy.Subscriber(NS + "/keyframes", Keyframe, lambda m: published.append(m), queue_size=1000)
+    pid = st.manager_pid()
+    rss0 = rss_mb(pid)
+    player = st.spawn(["rosbag", "play", "-q", "-r", "2", os.path.join(survey, "a.bag"), "--topics"] + TOPICS,
+                      "play.log")
+    wait_for(lambda: len(published) >= 6, 60, 0.05)
+    n_published = len(published)
+    rss1 = rss_mb(pid)
+    os.kill(pid, signal.SIGKILL)
+    st.stop_group(player)
+    st.stop_group(st.launch)
+    stored = keyframe_count(st.store)
+    ok = integrity(st.store)
+    st.start_slam("standalone:=false")
+    listed = st.sessions()
+    held = (n_published >= 6 and ok == "ok" and stored is not None and stored >= n_published - 1 and len(listed) >= 1
+            and listed[0][4] >= n_published - 1)
+    observed = ("killed after %d keyframes published; store: %s keyframes, integrity %s; relaunched: list_sessions %s; "
+                "manager RSS %s -> %s before the kill") % (n_published, stored, ok,
+                                                          [(s[0], s[4]) for s in listed], fmt_mb(rss0), fmt_mb(rss1))
+    row("live: kill -9 of the nodelet manager during a replay, relaunch on the store",
+        "sessions listed again; stored keyframes >= published - 1; integrity ok", observed, held)
+
+
+def case_bad_images(st, survey):
+    st.start_slam("standalone:=false")
+    import rosbag
+    import rospy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import Image
+    rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
+    latest = {}
+    diag_count = [0]
+
+    def on_diag(msg):
+        diag_count[0] += 1
+        for s in msg.status:
+            if "odometry" in s.name:
+                latest.update({kv.key: kv.value for kv in s.values})
+
+    rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=50)
+    pubs = [rospy.Publisher(TOPICS[0], Image, queue_size=50)]
+    from sensor_msgs.msg import CameraInfo, Range
+    pubs += [rospy.Publisher(TOPICS[1], CameraInfo, queue_size=50), rospy.Publisher(TOPICS[2], Range, queue_size=50)]
+    frames = {}
+    with rosbag.Bag(os.path.join(survey, "a.bag")) as bag:
+        for topic, msg, _ in bag.read_messages(topics=TOPICS):
+            frames.setdefault(msg.header.stamp.to_nsec(), {})[topic] = msg
+    frames = [f for _, f in sorted(frames.items()) if len(f) == 3]
+    wait_for(lambda: all(p.get_num_connections() > 0 for p in pubs) and latest, 30, 0.1)
+    pid = st.manager_pid()
+    rss0 = rss_mb(pid)
+    t = [frames[0][TOPICS[0]].header.stamp.to_sec()]
+
+    def send(image, info, rng):
+        t[0] += 1.0
+        stamp = rospy.Time.from_sec(t[0])
+        for msg in (image, info, rng):
+            msg.header.stamp = stamp
+        pubs[1].publish(info)
+        pubs[2].publish(rng)
+        pubs[0].publish(image)
+        time.sleep(0.2)  # publishing pace (5 Hz), not a wait for a condition
+
+    def image(encoding, w, h, bpp):
+        im = Image(height=h, width=w, encoding=encoding, step=w * bpp)
+        im.data = bytes(w * h * bpp)
+        return im
+
+    import copy
+    base_img, base_info, base_rng = frames[0][TOPICS[0]], frames[0][TOPICS[1]], frames[0][TOPICS[2]]
+    # A few good frames first: the session starts and the altitude has a valid value to reuse.
+    for f in frames[:3]:
+        send(copy.deepcopy(f[TOPICS[0]]), copy.deepcopy(f[TOPICS[1]]), copy.deepcopy(f[TOPICS[2]]))
+    start = dict(latest)
+    w, h = base_info.width, base_info.height
+    bad = [("16UC1", image("16UC1", w, h, 2), base_info), ("32FC1", image("32FC1", w, h, 4), base_info),
+           ("yuv422", image("yuv422", w, h, 2), base_info)]
+    tiny_info = copy.deepcopy(base_info)
+    tiny_info.width, tiny_info.height = 1, 1
+    bad.append(("1x1", image("mono8", 1, 1, 1), tiny_info))
+    huge_info = copy.deepcopy(base_info)
+    huge_info.width, huge_info.height = 10000, 10000
+    bad.append(("10000x10000", image("mono8", 10000, 10000, 1), huge_info))
+    for _, im, info in bad:
+        send(im, copy.deepcopy(info), copy.deepcopy(base_rng))
+    for value in (float("nan"), float("inf"), -2.0):
+        rng = copy.deepcopy(base_rng)
+        rng.range = value
+        send(copy.deepcopy(base_img), copy.deepcopy(base_info), rng)
+    # The counters from statuses published after the last frame (one a diagnostic_period).
+    seen = diag_count[0]
+    wait_for(lambda: diag_count[0] >= seen + 3, 15, 0.1)
+    end = dict(latest)
+
+    def delta(key):
+        try:
+            return int(float(end.get(key, 0))) - int(float(start.get(key, 0)))
+        except ValueError:
+            return 0
+
+    keys = ["skipped_encoding", "skipped_tiny_image", "skipped_image_too_large", "bad_altitude_replaced",
+            "skipped_size_mismatch", "skipped_image_layout"]
+    counts = {k: delta(k) for k in keys}
+    nodes, dead = st.alive()
+    rss1 = rss_mb(pid)
+    held = (counts["skipped_encoding"] >= 3 and counts["skipped_tiny_image"] + counts["skipped_size_mismatch"] >= 1
+            and counts["skipped_image_too_large"] >= 1 and counts["bad_altitude_replaced"] >= 3 and nodes and not dead)
+    observed = "counter increments %s; %d nodes alive%s; manager RSS %s -> %s" % (
+        ", ".join("%s +%d" % kv for kv in counts.items()), len(nodes), "" if not dead else ", DEAD: %s" % dead,
+        fmt_mb(rss0), fmt_mb(rss1))
+    row("live: images 16UC1, 32FC1, yuv422, 1x1, 10000x10000; altitudes NaN, inf, -2",
+        "skipped_encoding +3, a tiny/size skip +1, skipped_image_too_large +1, bad_altitude_replaced +3; nodes alive",
+        observed, held)
+
+
+CASES = {"service_misuse": case_service_misuse, "concurrent": case_concurrent, "kill_manager": case_kill_manager,
+         "bad_images": case_bad_images}
+
+
+def main():
+    p = argparse.ArgumentParser()
+    p.add_argument("case", choices=sorted(CASES))
+    p.add_argument("--survey", required=True)
+    p.add_argument("--dir", required=True)
+    a = p.parse_args()
+    st = None
+    try:
+        st = Stack(a.dir)
+        CASES[a.case](st, a.survey)
+    finally:
+        if st is not None:
+            st.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
