@@ -63,27 +63,25 @@ def ro_connect(path):
     return sqlite3.connect("file:%s?mode=ro" % os.path.abspath(path), uri=True, timeout=5)
 
 
-def keyframe_count(path):
-    """Keyframes in the store, read-only; None while it cannot be read (not yet created, locked)."""
+def ro_scalar(path, sql):
+    """One value read from the store through a read-only connection; None when it cannot be read."""
     try:
         con = ro_connect(path)
         try:
-            return con.execute("SELECT count(*) FROM keyframes").fetchone()[0]
+            return con.execute(sql).fetchone()[0]
         finally:
             con.close()
     except sqlite3.Error:
         return None
 
 
+def keyframe_count(path):
+    """Keyframes in the store; None while it cannot be read (not yet created, locked)."""
+    return ro_scalar(path, "SELECT count(*) FROM keyframes")
+
+
 def integrity(path):
-    try:
-        con = ro_connect(path)
-        try:
-            return con.execute("PRAGMA integrity_check").fetchone()[0]
-        finally:
-            con.close()
-    except sqlite3.Error as e:
-        return "error: %s" % e
+    return ro_scalar(path, "PRAGMA integrity_check") or "unreadable"
 
 
 def session_states(path):
@@ -110,8 +108,8 @@ class Matrix:
         self.rows = []  # (case, expected, observed, held, seconds)
 
     def row(self, case, expected, observed, held, seconds=0.0):
-        observed = re.sub(r"/tmp/uwms_fault_survey\.[^/ ]+/m", "<survey>", observed)
-        observed = re.sub(r"/tmp/uwms_fault_[^/ ]+", "<tmp>", observed)
+        observed = re.sub(r"/tmp/uwms_fault_survey\.[^/ ]+/m", "{survey}", observed)
+        observed = re.sub(r"/tmp/uwms_fault_[^/ ]+", "{tmp}", observed)
         self.rows.append((case, expected, observed, held, seconds))
         print("| %s | %s | %s | %s |" % (case, expected, short(observed, 400), "held" if held else "FAILED"), flush=True)
 
@@ -200,7 +198,7 @@ def case_two_writers(m, off):
     case = "two offline_slam --db writers on one store"
     expected = "the second refused at once in one line naming the holder; the first exits 0; integrity ok"
     d = m.tempdir(case)
-    first = None
+    first = log = None
     try:
         store = os.path.join(d, "s.db")
         log = open(os.path.join(d, "first.log"), "w")
@@ -211,7 +209,6 @@ def case_two_writers(m, off):
         r = off.run(["--session", off.folder("b"), "--out", os.path.join(d, "o2"), "--db", store])
         first_running_after = first.poll() is None
         status = first.wait(timeout=180)
-        log.close()
         ok = integrity(store)
         lines = reason(r.stderr)
         held = (still_running and first_running_after and r.returncode != 0 and len(lines) == 1 and "in use by pid" in lines[0]
@@ -221,6 +218,8 @@ def case_two_writers(m, off):
         m.row(case, expected, observed, held)
     finally:
         stop(first)
+        if log is not None:
+            log.close()
         m.done(d)
 
 
@@ -413,16 +412,24 @@ def live_case(name, timeout):
         proc = subprocess.Popen(["/usr/bin/python3", os.path.join(HERE, "fault_matrix_live.py"), name, "--survey",
                                  off.survey, "--dir", d], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 start_new_session=True)
+        err_note = ""
         try:
-            out, err = proc.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGINT)  # its finally stops the master and the launch it started
+            try:
+                out, err = proc.communicate(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                err_note = "timed out after %d s; " % timeout
+                raise
+        except BaseException:  # a timeout, Ctrl-C, SIGTERM: SIGINT makes the case stop what it started
+            os.killpg(proc.pid, signal.SIGINT)
             try:
                 out, err = proc.communicate(timeout=60)
             except subprocess.TimeoutExpired:
                 os.killpg(proc.pid, signal.SIGKILL)
                 out, err = proc.communicate()
-            err = "timed out after %d s; %s" % (timeout, err)
+            if not err_note:
+                m.done(d)
+                raise
+        err = err_note + err
         rows = [json.loads(line[4:]) for line in out.splitlines() if line.startswith("ROW ")]
         for r in rows:
             m.row(*r)
@@ -465,9 +472,14 @@ def main():
     base = tempfile.mkdtemp(prefix="uwms_fault_survey.")
     print("| case | expected | observed | verdict |\n| --- | --- | --- | --- |", flush=True)
     try:
-        off = Offline(a.bin_dir, base)
-        groups = list(OFFLINE_CASES)
-        if not a.offline:
+        try:
+            off = Offline(a.bin_dir, base)
+        except Exception as e:  # no survey, no case: a row that failed, and the summary line
+            m.row("setup (make_survey, a reference store)", "succeeds", short(str(e), 300), False)
+            groups = []
+        else:
+            groups = list(OFFLINE_CASES)
+        if not a.offline and groups:
             groups += [live_case(name, timeout) for name, timeout in LIVE_CASES]
         for group in groups:
             if a.only and not any(s in group.__name__ for s in a.only):
@@ -490,5 +502,10 @@ def main():
     return 0 if held == len(m.rows) and m.rows else 1
 
 
+def on_term(signum, frame):
+    raise KeyboardInterrupt("SIGTERM")  # the same clean-up as Ctrl-C
+
+
 if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, on_term)
     sys.exit(main())

@@ -15,5 +15,10 @@ if ! rospack find uw_multislam >/dev/null 2>&1; then
   source "$UWMS_WS/devel/setup.bash"
   set -u
 fi
-export UWMS_BIN_DIR=${UWMS_BIN_DIR:-$UWMS_WS/devel/lib/uw_multislam}
+# The tools of the package found first on ROS's paths (the sourced workspace's), unless given.
+if [ -z "${UWMS_BIN_DIR:-}" ]; then
+  tool=$(catkin_find --first-only --libexec uw_multislam offline_slam 2>/dev/null || true)
+  UWMS_BIN_DIR=$(dirname "${tool:-$UWMS_WS/devel/lib/uw_multislam/offline_slam}")
+fi
+export UWMS_BIN_DIR
 exec /usr/bin/python3 "$UWMS_REPO/scripts/fault_matrix.py" "$@"
