@@ -77,6 +77,13 @@ const char* kFrameIndex =
     "CREATE INDEX IF NOT EXISTS keyframes_frame ON keyframes(session, keyframe, frame_index, stamp, altitude, "
     "image_width, image_height, num_features)";
 
+// Where merged sessions came from (merge_stores, issue 20, 4). Like kFrameIndex, created when the
+// store is opened for writing: no build before it reads it, so no new schema version.
+const char* kProvenanceTable =
+    "CREATE TABLE IF NOT EXISTS provenance(session INTEGER PRIMARY KEY REFERENCES sessions(id), "
+    "source_file TEXT NOT NULL, source_session INTEGER NOT NULL, source_name TEXT NOT NULL, "
+    "vehicle TEXT NOT NULL, dive TEXT NOT NULL)";
+
 std::string codeText(int rc) {
   switch (rc & 0xff) {
     case SQLITE_FULL:
@@ -326,6 +333,7 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
       commit();
     }
     exec(kFrameIndex);
+    exec(kProvenanceTable);
   } catch (...) {
     sqlite3_close(db_);
     db_ = nullptr;
@@ -754,6 +762,48 @@ std::vector<std::pair<std::int64_t, std::int64_t>> SessionStore::splitPairs() co
   Statement st(this, "SELECT session_a, session_b FROM split_pairs ORDER BY session_a, session_b");
   std::vector<std::pair<std::int64_t, std::int64_t>> out;
   while (st.step()) out.emplace_back(sqlite3_column_int64(st.get(), 0), sqlite3_column_int64(st.get(), 1));
+  return out;
+}
+
+void SessionStore::addProvenance(const SessionProvenance& p) {
+  bool stored = false;
+  {
+    Statement st(this, "SELECT 1 FROM sessions WHERE id = ?");
+    st.bind(1, p.session);
+    stored = st.step();
+  }
+  if (!stored)
+    throw StoreError("session store " + path_ + ": provenance of session " + std::to_string(p.session) +
+                     ", which is not stored");
+  Statement st(this,
+               "INSERT OR REPLACE INTO provenance(session, source_file, source_session, source_name, vehicle, dive) "
+               "VALUES (?, ?, ?, ?, ?, ?)");
+  st.bind(1, p.session).bind(2, p.source_file).bind(3, p.source_session).bind(4, p.source_name);
+  st.bind(5, p.vehicle).bind(6, p.dive).run();
+}
+
+std::vector<SessionProvenance> SessionStore::provenance() const {
+  std::vector<SessionProvenance> out;
+  {  // a store opened read-only that was never opened for writing by this build has no table
+    Statement t(this, "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'provenance'");
+    if (!t.step()) return out;
+  }
+  Statement st(this,
+               "SELECT session, source_file, source_session, source_name, vehicle, dive FROM provenance ORDER BY session");
+  auto text = [&](int col) {
+    const unsigned char* t = sqlite3_column_text(st.get(), col);
+    return std::string(t ? reinterpret_cast<const char*>(t) : "");
+  };
+  while (st.step()) {
+    SessionProvenance p;
+    p.session = sqlite3_column_int64(st.get(), 0);
+    p.source_file = text(1);
+    p.source_session = sqlite3_column_int64(st.get(), 2);
+    p.source_name = text(3);
+    p.vehicle = text(4);
+    p.dive = text(5);
+    out.push_back(std::move(p));
+  }
   return out;
 }
 

@@ -109,6 +109,18 @@ struct HashSettings {
   std::string projections;  // HalocProjections::toText
 };
 
+/// Where a session of a merged store came from (merge_stores, issue 20, 4): one row per session
+/// copied from another store. Kept in the table `provenance`, which a store gets when it is opened
+/// for writing (like the keyframes_frame index: no build before it reads it, so no new schema
+/// version); a store without the table, or a session never merged, has no row.
+struct SessionProvenance {
+  std::int64_t session = 0;         // store id in this store
+  std::string source_file;          // the store it was copied from (as given to merge_stores)
+  std::int64_t source_session = 0;  // its store id there
+  std::string source_name;          // its name there (merge_stores renames a clash)
+  std::string vehicle, dive;        // labels given to merge_stores (default: the file's stem, the name)
+};
+
 /// How a store is opened: kReadWrite (the default: created when missing, locked for writing) or
 /// kReadOnly (for tools that only read it, e.g. export_survey: a missing or empty file is an
 /// error, nothing is created or locked, and every write is refused by SQLite).
@@ -179,6 +191,10 @@ class SessionStore {
   std::vector<StoredLoop> loops() const;
   std::vector<StoredMap> maps() const;
   std::vector<std::pair<std::int64_t, std::int64_t>> splitPairs() const;
+  /// Records where a session came from (merge_stores). StoreError when the session is not stored.
+  void addProvenance(const SessionProvenance& p);
+  /// Every session's provenance, by session id; empty for a store never merged into.
+  std::vector<SessionProvenance> provenance() const;
 
   /// Bytes on disk: the file and its WAL.
   std::uint64_t bytesOnDisk() const;

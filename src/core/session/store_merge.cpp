@@ -1,0 +1,292 @@
+#include "uw_multislam/core/session/store_merge.h"
+
+#include <sqlite3.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <deque>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <set>
+#include <stdexcept>
+
+#include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/core/session/session_store.h"
+
+namespace uw_multislam {
+namespace core {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+// The temporary output and what SQLite and the store put beside it; removed unless renamed.
+class TemporaryStore {
+ public:
+  explicit TemporaryStore(std::string path) : path_(std::move(path)) {}
+  ~TemporaryStore() {
+    std::error_code ec;
+    for (const char* suffix : {"", "-wal", "-shm", ".lock"}) fs::remove(path_ + suffix, ec);
+  }
+  TemporaryStore(const TemporaryStore&) = delete;
+  TemporaryStore& operator=(const TemporaryStore&) = delete;
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+};
+
+std::string settingsText(const HashSettings& h) {
+  return std::string("hash_mode ") + hashModeName(h.mode) + ", projection_seed " + std::to_string(h.seed) +
+         ", n = " + std::to_string(h.num_features);
+}
+
+// What the loop search needs of a copied keyframe (the features are read from the store).
+struct CopiedKeyframe {
+  int frame_index = 0;
+  double altitude_m = 0.0;
+  Eigen::VectorXf hash;
+};
+
+struct CopiedSession {
+  int input = 0;
+  CameraIntrinsics camera;
+  std::vector<CopiedKeyframe> keyframes;
+};
+
+}  // namespace
+
+MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& inputs, SlamConfig config,
+                        bool search_loops, const std::function<void(const std::string&)>& log) {
+  auto say = [&](const std::string& line) {
+    if (log) log(line);
+  };
+  MergeReport report;
+  if (inputs.empty()) throw std::invalid_argument("merge_stores: no input store");
+  std::error_code ec;
+  if (fs::exists(fs::symlink_status(out, ec)))
+    throw std::invalid_argument(out + ": exists; merge_stores writes a new store and never overwrites one");
+  const fs::path parent = fs::path(out).parent_path();
+  if (!parent.empty() && !fs::is_directory(parent, ec))
+    throw std::invalid_argument(out + ": the directory " + parent.string() + " does not exist");
+
+  // --- Inputs: read-only, distinct, comparable hashes, nothing recording ----------------------
+  std::vector<std::unique_ptr<SessionStore>> in;
+  std::set<fs::path> seen;
+  HashSettings settings;
+  for (std::size_t i = 0; i < inputs.size(); ++i) {
+    const std::string& path = inputs[i].path;
+    if (!fs::exists(path, ec)) throw std::invalid_argument(path + ": no such store");
+    const fs::path canonical = fs::canonical(path, ec);
+    if (!seen.insert(canonical).second)
+      throw std::invalid_argument(path + ": given twice (" + canonical.string() + "); each store once");
+    in.push_back(std::make_unique<SessionStore>(path, StoreAccess::kReadOnly));
+    HashSettings h;
+    if (!in.back()->hashSettings(&h))
+      throw std::invalid_argument(path + ": has no hash settings (no session was ever stored in it)");
+    if (i == 0) {
+      settings = h;
+    } else if (h.mode != settings.mode || h.seed != settings.seed || h.num_features != settings.num_features ||
+               h.projections != settings.projections) {
+      throw std::invalid_argument(path + ": its hashes were made with " + settingsText(h) + ", " + inputs[0].path +
+                                  "'s with " + settingsText(settings) +
+                                  (h.projections != settings.projections && h.mode == settings.mode &&
+                                           h.seed == settings.seed && h.num_features == settings.num_features
+                                       ? " but other projection vectors"
+                                       : "") +
+                                  ": hashes of the two could not be compared, so no loop could be found between them");
+    }
+    for (const StoredSession& s : in.back()->sessions())
+      if (s.state == StoredSessionState::kRecording && s.keyframes > 0)
+        throw std::invalid_argument(path + ": session " + std::to_string(s.id) + " '" + s.name +
+                                    "' is still recording (an interrupted run): finish or discard it first");
+  }
+  config.loops.global.hash_mode = settings.mode;
+  config.loops.global.projection_seed = settings.seed;
+  config.odometry.features.num_features = settings.num_features;
+  report.inputs = static_cast<int>(inputs.size());
+
+  // --- Copy into a temporary file beside OUT ----------------------------------------------------
+  const TemporaryStore tmp(out + ".partial-" + std::to_string(getpid()));
+  std::vector<CopiedSession> copied;  // index = the merged store's session id as the manager numbers them
+  {
+    SessionStore dst(tmp.path());
+    // The temporary file is renamed only when complete, so a crash loses nothing durable:
+    // per-keyframe fsyncs (synchronous=FULL, one transaction per keyframe) would make a 100-dive
+    // merge take hours. Synced once at the end (checkpoint), and by the manager's own writes.
+    sqlite3_exec(dst.handle(), "PRAGMA synchronous=OFF", nullptr, nullptr, nullptr);
+    dst.checkHashSettings(settings);
+    std::set<std::string> names;
+    std::vector<StoredMap> maps;
+    std::vector<StoredLoop> states;
+    std::vector<std::pair<std::int64_t, std::int64_t>> pairs;
+    for (std::size_t i = 0; i < in.size(); ++i) {
+      const SessionStore& src = *in[i];
+      const std::string vehicle = inputs[i].vehicle.empty() ? fs::path(inputs[i].path).stem().string() : inputs[i].vehicle;
+      std::map<std::int64_t, std::int64_t> session_of;  // source store id -> merged store id
+      for (const StoredSession& s : src.sessions()) {
+        if (s.keyframes == 0) {  // created, then nothing (the back-end never restores it either)
+          ++report.skipped_empty_sessions;
+          continue;
+        }
+        std::string name = s.name;
+        if (names.count(name)) {
+          name = s.name + "@" + vehicle;
+          for (int k = 2; names.count(name); ++k) name = s.name + "@" + vehicle + "#" + std::to_string(k);
+          ++report.renamed_sessions;
+        }
+        names.insert(name);
+        const std::vector<StoredKeyframe> keyframes = src.keyframes(s.id, SessionStore::KeyframeColumns::kAll);
+        const std::vector<UncertainPose2> odometry = src.odometry(s.id);
+        const std::vector<MotionSource> sources = src.motionSources(s.id);
+        if (odometry.size() + 1 != keyframes.size() || sources.size() != odometry.size())
+          throw StoreError("session store " + inputs[i].path + ": session " + std::to_string(s.id) + " has " +
+                           std::to_string(keyframes.size()) + " keyframes and " + std::to_string(odometry.size()) +
+                           " motions");
+        const std::int64_t id = dst.addSession(name, s.camera, s.start_stamp_s);
+        session_of[s.id] = id;
+        CopiedSession c;
+        c.input = static_cast<int>(i);
+        c.camera = s.camera;
+        for (std::size_t k = 0; k < keyframes.size(); ++k) {
+          StoredKeyframe kf = keyframes[k];
+          if (kf.keyframe != static_cast<int>(k))
+            throw StoreError("session store " + inputs[i].path + ": session " + std::to_string(s.id) +
+                             " misses keyframe " + std::to_string(k));
+          kf.session = id;
+          kf.motion_source = k > 0 ? sources[k - 1] : MotionSource::kVisual;
+          dst.addKeyframe(kf, k > 0 ? &odometry[k - 1] : nullptr, nullptr);
+          c.keyframes.push_back({kf.frame_index, kf.altitude_m, kf.hash});
+        }
+        dst.endSession(id, s.end_stamp_s);
+        dst.addProvenance({id, inputs[i].path, s.id, s.name, vehicle, inputs[i].dive.empty() ? s.name : inputs[i].dive});
+        report.keyframes += static_cast<int>(keyframes.size());
+        ++report.sessions;
+        copied.push_back(std::move(c));
+      }
+      std::vector<StoredLoop> loops, sources;
+      for (const StoredLoop& l : src.loops()) {
+        if (!session_of.count(l.session_a) || !session_of.count(l.session_b)) continue;
+        StoredLoop c = l;
+        c.session_a = session_of[l.session_a];
+        c.session_b = session_of[l.session_b];
+        loops.push_back(c);
+        sources.push_back(l);
+      }
+      dst.addLoops(&loops);  // sets their new ids
+      std::map<std::int64_t, std::int64_t> loop_of;
+      for (std::size_t k = 0; k < loops.size(); ++k) {
+        loop_of[sources[k].id] = loops[k].id;
+        states.push_back(loops[k]);  // summarised / applied / refused as in the source
+      }
+      report.copied_loops += static_cast<int>(loops.size());
+      for (const StoredMap& m : src.maps()) {
+        StoredMap c = m;
+        bool complete = true;
+        for (std::int64_t& s : c.chain) {
+          complete = complete && session_of.count(s) > 0;
+          if (complete) s = session_of[s];
+        }
+        if (!complete) continue;  // names a session without keyframes: restore skips it too
+        for (StoredLink& l : c.links) {
+          std::vector<std::int64_t> ids;
+          for (std::int64_t id : l.loops)
+            if (loop_of.count(id)) ids.push_back(loop_of[id]);
+          l.loops = ids;
+        }
+        maps.push_back(std::move(c));
+      }
+      for (const auto& [a, b] : src.splitPairs())
+        if (session_of.count(a) && session_of.count(b)) pairs.emplace_back(session_of[a], session_of[b]);
+      say(inputs[i].path + ": " + std::to_string(session_of.size()) + " sessions, " + std::to_string(loops.size()) +
+          " loops copied (vehicle '" + vehicle + "')");
+    }
+    dst.saveMaps(maps, states, pairs);
+    sqlite3_exec(dst.handle(), "PRAGMA synchronous=FULL", nullptr, nullptr, nullptr);
+    dst.checkpoint();
+  }
+  in.clear();
+
+  // --- Global loops between the inputs, joins by the manager's policy ---------------------------
+  {
+    SessionManager manager(sessionManagerOptions(config, tmp.path()), {}, say);
+    if (manager.hasher().projections().toText() != settings.projections)
+      throw std::invalid_argument("the inputs' projection vectors are not the ones this build makes from " +
+                                  settingsText(settings) + ": no loop could be found between them");
+    if (static_cast<int>(manager.sessionIds().size()) != report.sessions)
+      throw StoreError("merge_stores: the merged store restores " + std::to_string(manager.sessionIds().size()) +
+                       " sessions, " + std::to_string(report.sessions) + " were copied");
+    const int joins_before = manager.backendStats().joins;
+    if (search_loops && inputs.size() > 1) {
+      LoopDetector detector(config.loops, config.odometry.matching, config.odometry.ransac, settings.num_features);
+      detector.setFeatureLoader([&manager](int session, int keyframe) {
+        return manager.storedFeatures(session, keyframe).features();
+      });
+      std::deque<CameraIntrinsics> cameras;  // the detector keeps pointers
+      for (const CopiedSession& c : copied) cameras.push_back(c.camera);
+      for (int input = 0; input < report.inputs; ++input) {
+        for (std::size_t s = 0; s < copied.size() && input > 0; ++s) {
+          if (copied[s].input != input) continue;
+          const int session = static_cast<int>(s);
+          for (std::size_t k = 0; k < copied[s].keyframes.size(); ++k) {
+            const CopiedKeyframe& kf = copied[s].keyframes[k];
+            const std::vector<HashCandidate> candidates = detector.globalCandidates(kf.hash, session);
+            ++report.queries;
+            if (candidates.empty()) continue;
+            FrameFeatures now = manager.storedFeatures(session, static_cast<int>(k)).features();
+            now.descriptors.convertTo(now.descriptors, CV_32F);
+            const View view{&now, kf.altitude_m, &cameras[s]};
+            for (const HashCandidate& candidate : candidates) {
+              ++report.candidates;
+              Loop loop;
+              if (!detector.verifyCandidate(candidate, view, &loop)) continue;
+              loop.session_b = session;
+              loop.keyframe_b = static_cast<int>(k);
+              loop.frame_b = kf.frame_index;
+              ++report.loops_found;
+              const Status st = manager.addLoop(loop);
+              if (st.ok()) {
+                ++report.loops_accepted;
+              } else {
+                ++report.loops_refused;
+                say("loop " + std::to_string(loop.session_a) + ":" + std::to_string(loop.keyframe_a) + " -> " +
+                    std::to_string(session) + ":" + std::to_string(k) + " refused: " + st.message);
+              }
+            }
+          }
+        }
+        for (std::size_t s = 0; s < copied.size(); ++s) {
+          if (copied[s].input != input) continue;
+          for (std::size_t k = 0; k < copied[s].keyframes.size(); ++k) {
+            const CopiedKeyframe& kf = copied[s].keyframes[k];
+            detector.addPagedKeyframe(static_cast<int>(s), static_cast<int>(k), kf.frame_index, kf.altitude_m,
+                                      &cameras[s], kf.hash);
+          }
+        }
+      }
+      if (detector.stats().feature_read_failures > 0)
+        throw StoreError("merge_stores: " + std::to_string(detector.stats().feature_read_failures) +
+                         " stored keyframes could not be read back: " + detector.lastReadError());
+    }
+    manager.flush();  // optimises what the new loops made due, saves the maps
+    if (manager.stats().store_failures > 0)
+      throw StoreError("merge_stores: " + std::to_string(manager.stats().store_failures) +
+                       " writes to the merged store failed (see the log)");
+    report.joins = manager.backendStats().joins - joins_before;
+    report.maps = static_cast<int>(manager.mapIds().size());
+  }
+
+  // --- Publish: a hard link never replaces an OUT that appeared meanwhile -----------------------
+  // The manager's connection was the last: SQLite checkpointed its WAL into the file and removed it.
+  if (fs::exists(tmp.path() + "-wal", ec) && fs::file_size(tmp.path() + "-wal", ec) > 0)
+    throw StoreError(tmp.path() + ": its write-ahead log was not checkpointed; nothing was written to " + out);
+  if (::link(tmp.path().c_str(), out.c_str()) != 0)
+    throw StoreError(out + ": cannot create the merged store: " + std::strerror(errno));
+  return report;
+}
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,183 @@
+"""merge_stores (issue 20, item 4): two stores made separately, one session each, merged into one,
+against one offline_slam run over both folders into one store. Also every refusal (OUT exists, an
+input twice, hash settings that differ, a recording session) with the inputs untouched and no
+OUT or temporary file left."""
+import hashlib
+import math
+import os
+import shutil
+import sqlite3
+import struct
+
+import pytest
+from tool_runner import read_csv as rows, run_tool as run
+from test_offline_slam import SURVEY
+
+
+def md5(path):
+    with open(path, "rb") as f:
+        return hashlib.md5(f.read()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def stores(tmp_path_factory):
+    base = tmp_path_factory.mktemp("merge")
+    (base / "survey.yaml").write_text(SURVEY)
+    r = run("make_survey", "--config", base / "survey.yaml", "--out", base / "m", "--no-bag", "--quiet")
+    assert r.returncode == 0, r.stderr
+    made = {}
+    for name, folders in {"a": ["a"], "b": ["b"], "both": ["a", "b"]}.items():
+        args = []
+        for f in folders:
+            args += ["--session", base / "m" / f]
+        r = run("offline_slam", *args, "--out", base / ("run_" + name), "--db", base / (name + ".db"), "--quiet")
+        assert r.returncode == 0, r.stderr
+        made[name] = base / (name + ".db")
+    return base, made
+
+
+@pytest.fixture(scope="module")
+def merged(stores):
+    base, made = stores
+    before = {k: md5(p) for k, p in made.items()}
+    out = base / "merged.db"
+    r = run("merge_stores", out, made["a"], made["b"], "--vehicle", "auv1", "--vehicle", "auv2", "--dive", "d7")
+    assert r.returncode == 0, r.stdout + r.stderr
+    return base, made, before, out, r
+
+
+def summary(stdout):
+    line = [l for l in stdout.splitlines() if l.startswith("merge_stores ")][-1]
+    return dict(kv.split("=", 1) for kv in line.split()[1:])
+
+
+def store_maps(path):
+    """map id -> (chain of session ids, links as (x, y, yaw)) read straight from the store's tables."""
+    db = sqlite3.connect("file:%s?mode=ro" % path, uri=True)
+    try:
+        maps = {}
+        for (m,) in db.execute("SELECT id FROM maps ORDER BY id"):
+            chain = [s for (s,) in db.execute("SELECT session FROM map_sessions WHERE map=? ORDER BY position", (m,))]
+            links = list(db.execute("SELECT x, y, yaw FROM links WHERE map=? ORDER BY position", (m,)))
+            maps[m] = (chain, links)
+        return maps
+    finally:
+        db.close()
+
+
+def map_poses(base, store, name):
+    """export_survey's per-map CSV of a store: (session name, keyframe) -> (x, y, yaw)."""
+    out = base / ("export_" + name)
+    r = run("export_survey", "--db", store, "--out", out, "--no-mosaic", "--quiet")
+    assert r.returncode == 0, r.stderr
+    db = sqlite3.connect("file:%s?mode=ro" % store, uri=True)
+    names = dict(db.execute("SELECT id, name FROM sessions"))
+    db.close()
+    maps = sorted(p for p in os.listdir(out) if p.startswith("map_") and p.endswith(".csv"))
+    assert len(maps) == 1, maps  # one map: both sessions joined
+    poses = {}
+    for row in rows(out / maps[0]):
+        poses[(os.path.basename(names[int(row["session"])]), int(row["keyframe"]))] = (
+            float(row["x_m"]), float(row["y_m"]), float(row["yaw_rad"]))
+    return poses
+
+
+def test_merge_joins_the_two_stores_like_one_run(merged):
+    base, made, _, out, r = merged
+    s = summary(r.stdout)
+    assert s["inputs"] == "2" and s["sessions"] == "2" and s["maps"] == "1" and s["joins"] == "1", r.stdout
+    assert int(s["new_loops"]) >= 5, r.stdout  # the count policy's K
+    # The same map as one run over both folders: one map, one link, the same poses.
+    one = store_maps(made["both"])
+    two = store_maps(out)
+    assert len(one) == 1 and len(two) == 1
+    (chain1, links1), = one.values()
+    (chain2, links2), = two.values()
+    assert len(chain1) == len(chain2) == 2 and len(links1) == len(links2) == 1
+    # The loops are the same ones (the same stored hashes and features; the live run's query
+    # features are the extractor's, stored losslessly), and the link is made from the first K of
+    # them in the same keyframe order: equal but for float rounding.
+    for u, v in zip(links1[0], links2[0]):
+        assert abs(u - v) < 1e-6, (links1, links2)
+    p1 = map_poses(base, made["both"], "both")
+    p2 = map_poses(base, out, "merged")
+    assert p1.keys() == p2.keys() and len(p1) > 10
+    # After the final optimisation both solve the same problem (odometry, link, loops); only the
+    # order the loops came in differs (one run: interleaved with b's keyframes). 1 mm bounds the
+    # solver's stopping tolerance on this 9 m survey; a wrong link or a lost loop moves b by cm.
+    worst = max(math.hypot(p1[k][0] - p2[k][0], p1[k][1] - p2[k][1]) for k in p1)
+    assert worst < 1e-3, worst
+
+
+def test_inputs_untouched_and_provenance_kept(merged):
+    base, made, before, out, _ = merged
+    assert {k: md5(p) for k, p in made.items()} == before
+    for p in (made["a"], made["b"]):
+        for suffix in ("-wal", "-shm", ".lock"):
+            assert not os.path.exists(str(p) + suffix) or suffix == ".lock", p  # nothing new beside them
+    assert not [f for f in os.listdir(base) if ".partial-" in f]
+    db = sqlite3.connect("file:%s?mode=ro" % out, uri=True)
+    prov = list(db.execute("SELECT session, source_file, source_session, vehicle, dive FROM provenance ORDER BY session"))
+    sessions = list(db.execute("SELECT id, name, state FROM sessions ORDER BY id"))
+    db.close()
+    # --dive d7 names the first input's dive; the second's defaults to its session's name.
+    assert [(p[1], p[3], p[4]) for p in prov] == [(str(made["a"]), "auv1", "d7"),
+                                                  (str(made["b"]), "auv2", sessions[1][1])]
+    assert [p[0] for p in prov] == [s[0] for s in sessions]
+    assert all(s[2] == "finished" for s in sessions)
+
+
+def test_merged_store_loads_in_offline_slam(merged):
+    """offline_slam --db restores the merged store (both sessions, one map) and recognises a
+    folder already in it."""
+    base, _, _, out, _ = merged
+    copy = base / "merged_copy.db"
+    shutil.copy(out, copy)
+    r = run("offline_slam", "--session", base / "m" / "b", "--out", base / "run_again", "--db", copy)
+    assert r.returncode != 0
+    assert "already" in (r.stdout + r.stderr), r.stdout + r.stderr
+
+
+def test_refusals_leave_nothing(stores, tmp_path):
+    base, made = stores
+    before = {k: md5(p) for k, p in made.items()}
+    out = tmp_path / "o.db"
+    out.write_bytes(b"precious")
+    r = run("merge_stores", out, made["a"], made["b"])
+    assert r.returncode == 1 and "never overwrites" in r.stderr, r.stderr
+    assert out.read_bytes() == b"precious"
+    out.unlink()
+    r = run("merge_stores", out, made["a"], made["a"])
+    assert r.returncode == 1 and "given twice" in r.stderr, r.stderr
+    # A store made with other hash settings.
+    cfg = tmp_path / "seed.yaml"
+    cfg.write_text("loops:\n  global:\n    projection_seed: 7\n")
+    other = tmp_path / "other.db"
+    r = run("offline_slam", "--session", base / "m" / "b", "--out", tmp_path / "run", "--db", other,
+            "--config", cfg, "--quiet")
+    assert r.returncode == 0, r.stderr
+    r = run("merge_stores", out, made["a"], other)
+    assert r.returncode == 1 and "projection_seed 7" in r.stderr and "projection_seed 20231122" in r.stderr, r.stderr
+    # A session still recording (an interrupted run).
+    rec = tmp_path / "recording.db"
+    shutil.copy(made["b"], rec)
+    db = sqlite3.connect(str(rec))
+    db.execute("UPDATE sessions SET state = 'recording'")
+    db.commit()
+    db.close()
+    r = run("merge_stores", out, made["a"], rec)
+    assert r.returncode == 1 and "still recording" in r.stderr, r.stderr
+    r = run("merge_stores", out, made["a"])
+    assert r.returncode == 2, r.stderr
+    assert not out.exists()
+    assert not [f for f in os.listdir(tmp_path) if ".partial-" in f]
+    assert {k: md5(p) for k, p in made.items()} == before
+
+
+def test_copy_only_keeps_two_maps(stores, tmp_path):
+    _, made = stores
+    r = run("merge_stores", tmp_path / "c.db", made["a"], made["b"], "--no-loops")
+    assert r.returncode == 0, r.stderr
+    s = summary(r.stdout)
+    assert s["maps"] == "2" and s["joins"] == "0" and s["new_loops"] == "0", r.stdout
+    assert len(store_maps(tmp_path / "c.db")) == 2
