@@ -279,9 +279,16 @@ Status SessionManager::endSession(double stamp_s) {
 // --- Keyframes --------------------------------------------------------------------------------
 
 void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion,
-                                   double stamp_s, std::vector<StoredLoop>* loops) {
+                                   double stamp_s, const std::vector<Loop>* loops, std::vector<StoredLoop>* stored) {
   storeWrite("writing a keyframe", [&] {
     if (s.store_id < 0) s.store_id = store_->addSession(s.name, k ? k->camera : CameraIntrinsics(), stamp_s);
+    // The loops in store ids only now: a new session's row is made with its first keyframe, and
+    // the loops that keyframe closed name it (they were stored with session -1 and lost at the
+    // next restart when converted before the row existed).
+    if (loops && stored) {
+      stored->clear();
+      for (const Loop& l : *loops) stored->push_back(toStored(l));
+    }
     StoredKeyframe sk;
     sk.session = s.store_id;
     sk.keyframe = keyframe;
@@ -298,7 +305,7 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
       sk.thumbnail = k->thumbnail;
       sk.motion_source = k->motion_source;
     }
-    store_->addKeyframe(sk, motion, loops);
+    store_->addKeyframe(sk, motion, stored);
   });
 }
 
@@ -358,7 +365,7 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
       s.origin_received = true;
       s.camera = k.camera;
       s.phantoms.insert(0);
-      storeKeyframe(s, nullptr, 0, nullptr, k.stamp_s, nullptr);
+      storeKeyframe(s, nullptr, 0, nullptr, k.stamp_s, nullptr, nullptr);
     }
     if (k.keyframe < expected) {
       ++stats_.keyframes_stale;
@@ -380,7 +387,7 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
         s.odometry.push_back(last);
         s.frames.push_back(k.frame_index);
         s.sources.push_back(MotionSource::kVisual);
-        storeKeyframe(s, nullptr, g, &still, k.stamp_s, nullptr);
+        storeKeyframe(s, nullptr, g, &still, k.stamp_s, nullptr, nullptr);
       }
       motion = UncertainPose2(between(last, k.odometry_pose),
                               k.motion.covariance * static_cast<double>(k.keyframe - expected + 1));
@@ -393,9 +400,8 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
   }
   ++stats_.keyframes;
   // The loops it closed go into the store with it (one transaction), then into the back-end.
-  std::vector<StoredLoop> stored;
-  for (const Loop& l : loops) stored.push_back(toStored(l));
-  storeKeyframe(s, &k, k.keyframe, stored_motion, k.stamp_s, store_ ? &stored : nullptr);
+  std::vector<StoredLoop> stored;  // their store ids (set when written)
+  storeKeyframe(s, &k, k.keyframe, stored_motion, k.stamp_s, &loops, store_ ? &stored : nullptr);
   emit(SessionEvent::Kind::kKeyframeAdded, id, -1, mapOf(id), "");
   for (std::size_t i = 0; i < loops.size(); ++i) {
     ++stats_.loops;

@@ -283,8 +283,9 @@ class SessionManager {
   int idOfBackend(int backend_session) const { return id_of_backend_.at(backend_session); }
   void restore();
   Status open(int id, const std::string& name, double stamp_s);
+  /// Writes a keyframe with its motion and `loops` (converted to `stored`, whose ids are set).
   void storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion, double stamp_s,
-                     std::vector<StoredLoop>* loops);
+                     const std::vector<Loop>* loops, std::vector<StoredLoop>* stored);
   /// Adds an accepted loop to the back-end (throws std::invalid_argument as the back-end does).
   void acceptLoop(const Loop& l);
   StoredLoop toStored(const Loop& l) const;
