@@ -575,6 +575,17 @@ StoredKeyframe SessionManager::storedFeatures(int session, int keyframe) const {
   return k;
 }
 
+std::vector<StoredKeyframe> SessionManager::storedHashes(int session) const {
+  if (!store_) throw StoreError("no session store: no stored hashes");
+  const auto it = sessions_.find(session);
+  if (it == sessions_.end() || it->second.store_id < 0 || session >= restored_sessions_)
+    throw StoreError("session store " + options_.store_path + ": session " + std::to_string(session) +
+                     " is not a stored session");
+  std::vector<StoredKeyframe> out = store_->keyframes(it->second.store_id, SessionStore::KeyframeColumns::kHash);
+  for (StoredKeyframe& k : out) k.session = session;
+  return out;
+}
+
 Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* out, bool with_features) {
   if (!store_) return {StatusCode::kFailedPrecondition, "no session store: nothing to reload"};
   int id = -1;

@@ -5,16 +5,15 @@
 
 #include <cerrno>
 #include <cstring>
-#include <deque>
 #include <filesystem>
 #include <map>
 #include <memory>
 #include <set>
 #include <stdexcept>
 
-#include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/session_store.h"
+#include "uw_multislam/core/session/stored_loops.h"
 
 namespace uw_multislam {
 namespace core {
@@ -43,19 +42,6 @@ std::string settingsText(const HashSettings& h) {
   return std::string("hash_mode ") + hashModeName(h.mode) + ", projection_seed " + std::to_string(h.seed) +
          ", n = " + std::to_string(h.num_features);
 }
-
-// What the loop search needs of a copied keyframe (the features are read from the store).
-struct CopiedKeyframe {
-  int frame_index = 0;
-  double altitude_m = 0.0;
-  Eigen::VectorXf hash;
-};
-
-struct CopiedSession {
-  int input = 0;
-  CameraIntrinsics camera;
-  std::vector<CopiedKeyframe> keyframes;
-};
 
 }  // namespace
 
@@ -111,7 +97,7 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
 
   // --- Copy into a temporary file beside OUT ----------------------------------------------------
   const TemporaryStore tmp(out + ".partial-" + std::to_string(getpid()));
-  std::vector<CopiedSession> copied;  // index = the merged store's session id as the manager numbers them
+  std::vector<int> input_of;  // the input of each merged session, by the id the manager gives it (copy order)
   {
     SessionStore dst(tmp.path());
     // The temporary file is renamed only when complete, so a crash loses nothing durable:
@@ -148,9 +134,6 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
                            " motions");
         const std::int64_t id = dst.addSession(name, s.camera, s.start_stamp_s);
         session_of[s.id] = id;
-        CopiedSession c;
-        c.input = static_cast<int>(i);
-        c.camera = s.camera;
         for (std::size_t k = 0; k < keyframes.size(); ++k) {
           StoredKeyframe kf = keyframes[k];
           if (kf.keyframe != static_cast<int>(k))
@@ -159,13 +142,12 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
           kf.session = id;
           kf.motion_source = k > 0 ? sources[k - 1] : MotionSource::kVisual;
           dst.addKeyframe(kf, k > 0 ? &odometry[k - 1] : nullptr, nullptr);
-          c.keyframes.push_back({kf.frame_index, kf.altitude_m, kf.hash});
         }
         dst.endSession(id, s.end_stamp_s);
         dst.addProvenance({id, inputs[i].path, s.id, s.name, vehicle, inputs[i].dive.empty() ? s.name : inputs[i].dive});
         report.keyframes += static_cast<int>(keyframes.size());
         ++report.sessions;
-        copied.push_back(std::move(c));
+        input_of.push_back(static_cast<int>(i));
       }
       std::vector<StoredLoop> loops, sources;
       for (const StoredLoop& l : src.loops()) {
@@ -221,55 +203,14 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
                        " sessions, " + std::to_string(report.sessions) + " were copied");
     const int joins_before = manager.backendStats().joins;
     if (search_loops && inputs.size() > 1) {
-      LoopDetector detector(config.loops, config.odometry.matching, config.odometry.ransac, settings.num_features);
-      detector.setFeatureLoader([&manager](int session, int keyframe) {
-        return manager.storedFeatures(session, keyframe).features();
-      });
-      std::deque<CameraIntrinsics> cameras;  // the detector keeps pointers
-      for (const CopiedSession& c : copied) cameras.push_back(c.camera);
-      for (int input = 0; input < report.inputs; ++input) {
-        for (std::size_t s = 0; s < copied.size() && input > 0; ++s) {
-          if (copied[s].input != input) continue;
-          const int session = static_cast<int>(s);
-          for (std::size_t k = 0; k < copied[s].keyframes.size(); ++k) {
-            const CopiedKeyframe& kf = copied[s].keyframes[k];
-            const std::vector<HashCandidate> candidates = detector.globalCandidates(kf.hash, session);
-            ++report.queries;
-            if (candidates.empty()) continue;
-            FrameFeatures now = manager.storedFeatures(session, static_cast<int>(k)).features();
-            now.descriptors.convertTo(now.descriptors, CV_32F);
-            const View view{&now, kf.altitude_m, &cameras[s]};
-            for (const HashCandidate& candidate : candidates) {
-              ++report.candidates;
-              Loop loop;
-              if (!detector.verifyCandidate(candidate, view, &loop)) continue;
-              loop.session_b = session;
-              loop.keyframe_b = static_cast<int>(k);
-              loop.frame_b = kf.frame_index;
-              ++report.loops_found;
-              const Status st = manager.addLoop(loop);
-              if (st.ok()) {
-                ++report.loops_accepted;
-              } else {
-                ++report.loops_refused;
-                say("loop " + std::to_string(loop.session_a) + ":" + std::to_string(loop.keyframe_a) + " -> " +
-                    std::to_string(session) + ":" + std::to_string(k) + " refused: " + st.message);
-              }
-            }
-          }
-        }
-        for (std::size_t s = 0; s < copied.size(); ++s) {
-          if (copied[s].input != input) continue;
-          for (std::size_t k = 0; k < copied[s].keyframes.size(); ++k) {
-            const CopiedKeyframe& kf = copied[s].keyframes[k];
-            detector.addPagedKeyframe(static_cast<int>(s), static_cast<int>(k), kf.frame_index, kf.altitude_m,
-                                      &cameras[s], kf.hash);
-          }
-        }
-      }
-      if (detector.stats().feature_read_failures > 0)
-        throw StoreError("merge_stores: " + std::to_string(detector.stats().feature_read_failures) +
-                         " stored keyframes could not be read back: " + detector.lastReadError());
+      std::vector<std::vector<int>> groups(inputs.size());  // the merged sessions of each input
+      for (std::size_t s = 0; s < input_of.size(); ++s) groups[input_of[s]].push_back(static_cast<int>(s));
+      const StoredLoopSearch found = searchStoredLoops(&manager, config, groups, say);
+      report.queries = found.queries;
+      report.candidates = found.candidates;
+      report.loops_found = found.found;
+      report.loops_accepted = found.accepted;
+      report.loops_refused = found.refused;
     }
     manager.flush();  // optimises what the new loops made due, saves the maps
     if (manager.stats().store_failures > 0)

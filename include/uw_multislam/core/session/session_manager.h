@@ -199,6 +199,9 @@ class SessionManager {
   /// One keyframe of a stored session as the store keeps it (points, descriptors; paging, issue
   /// 20). Throws StoreError: no store, not a stored session, a missing or corrupt keyframe.
   StoredKeyframe storedFeatures(int session, int keyframe) const;
+  /// A stored session's keyframes with their frame data and hashes only (no features), without
+  /// reloading it. Throws StoreError as storedFeatures.
+  std::vector<StoredKeyframe> storedHashes(int session) const;
   /// Optimises every map with pending loops (now, also when deferred); saves the maps.
   void flush();
 
@@ -226,6 +229,8 @@ class SessionManager {
   /// The id the next new session takes (one past the largest so far).
   int nextId() const { return sessions_.empty() ? 0 : sessions_.rbegin()->first + 1; }
   const std::string& name(int session) const { return at(session).name; }
+  /// The camera its keyframes were made with (the store's, for a stored session).
+  const CameraIntrinsics& camera(int session) const { return at(session).camera; }
   /// The session named `name`, or -1.
   int idOfName(const std::string& name) const;
   int mapOf(int session) const;

@@ -11,7 +11,8 @@
 // 2. Refusals, before anything is written: hash settings (mode, seed, n, the projection vectors)
 //    that differ between inputs (the reason names both), a session still `recording` (an
 //    interrupted run: finish or discard it first), the same file twice, OUT existing.
-// 3. Loops. The sessions of input i search the sessions of inputs 0..i-1 for global loops, as if
+// 3. Loops (core/session/stored_loops.h, one group per input). The sessions of input i search the
+//    sessions of inputs 0..i-1 for global loops, as if
 //    they had been recorded after them in one run: each keyframe's stored hash is queried
 //    (LoopDetector::globalCandidates, best_k candidates among the earlier inputs' sessions only),
 //    each candidate verified by RANSAC on the stored features, and every accepted loop handed to

@@ -1,0 +1,37 @@
+// Global loops between stored sessions (issue 16, item 3: "loops are also searched among reloaded
+// sessions, so two stored sessions can be joined without a live one"; issue 20, item 4: the
+// loops between merged stores).
+//
+// The sessions come in groups; the keyframes of group g are queried against the sessions of
+// groups 0..g-1 only, as if group g had been recorded after them: the stored hash of each keyframe
+// (LoopDetector::globalCandidates, best_k candidates among the earlier groups' keyframes), each
+// candidate verified by RANSAC on the stored features (paged: read from the store through the
+// detector's LRU cache), and each accepted loop that the manager does not hold yet handed to
+// SessionManager::addLoop in keyframe order. The manager's join policy decides the joins as it does
+// live. Loops within a group are not searched (they were found when it was recorded).
+#pragma once
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/core/session/slam_config.h"
+
+namespace uw_multislam {
+namespace core {
+
+struct StoredLoopSearch {
+  int queries = 0, candidates = 0, found = 0, accepted = 0, refused = 0, duplicates = 0;
+};
+
+/// See the file comment. Every session named must be a stored session of `manager` (restored from
+/// its store). `config` gives the loop verification (the hash settings must be the manager's).
+/// Throws std::invalid_argument (a session named twice or not stored) or StoreError (a stored
+/// keyframe that cannot be read: nothing is handed to the manager after it).
+StoredLoopSearch searchStoredLoops(SessionManager* manager, const SlamConfig& config,
+                                   const std::vector<std::vector<int>>& groups,
+                                   const std::function<void(const std::string&)>& log = {});
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,92 @@
+#include "uw_multislam/core/session/stored_loops.h"
+
+#include <deque>
+#include <set>
+#include <stdexcept>
+#include <tuple>
+
+#include "uw_multislam/core/loops/loop_detector.h"
+
+namespace uw_multislam {
+namespace core {
+
+StoredLoopSearch searchStoredLoops(SessionManager* manager, const SlamConfig& config,
+                                   const std::vector<std::vector<int>>& groups,
+                                   const std::function<void(const std::string&)>& log) {
+  auto say = [&](const std::string& line) {
+    if (log) log(line);
+  };
+  std::set<int> named;
+  for (const std::vector<int>& g : groups)
+    for (int s : g) {
+      if (!manager->has(s) || s >= manager->restoredSessions())
+        throw std::invalid_argument("session " + std::to_string(s) + " is not a stored session");
+      if (!named.insert(s).second) throw std::invalid_argument("session " + std::to_string(s) + " is named twice");
+    }
+  // The pairs the manager holds already (either direction): a stored session recorded after
+  // another found its loops against it then.
+  std::set<std::tuple<int, int, int, int>> held;
+  for (const Loop& l : manager->loops()) {
+    held.emplace(l.session_a, l.keyframe_a, l.session_b, l.keyframe_b);
+    held.emplace(l.session_b, l.keyframe_b, l.session_a, l.keyframe_a);
+  }
+  StoredLoopSearch r;
+  LoopDetector detector(config.loops, config.odometry.matching, config.odometry.ransac,
+                        config.odometry.features.num_features);
+  detector.setFeatureLoader([manager](int session, int keyframe) {
+    return manager->storedFeatures(session, keyframe).features();
+  });
+  std::deque<CameraIntrinsics> cameras;  // the detector keeps pointers: never moved
+  for (std::size_t g = 0; g < groups.size(); ++g) {
+    std::vector<std::pair<int, std::vector<StoredKeyframe>>> group;
+    for (int s : groups[g]) {
+      cameras.push_back(manager->camera(s));
+      group.emplace_back(s, manager->storedHashes(s));
+    }
+    const std::size_t first_camera = cameras.size() - group.size();
+    for (std::size_t i = 0; i < group.size() && g > 0; ++i) {
+      const int session = group[i].first;
+      for (const StoredKeyframe& kf : group[i].second) {
+        const std::vector<HashCandidate> candidates = detector.globalCandidates(kf.hash, session);
+        ++r.queries;
+        if (candidates.empty()) continue;
+        FrameFeatures now = manager->storedFeatures(session, kf.keyframe).features();
+        now.descriptors.convertTo(now.descriptors, CV_32F);  // as the extractor gives them
+        const View view{&now, kf.altitude_m, &cameras[first_camera + i]};
+        for (const HashCandidate& candidate : candidates) {
+          ++r.candidates;
+          Loop loop;
+          if (!detector.verifyCandidate(candidate, view, &loop)) continue;
+          loop.session_b = session;
+          loop.keyframe_b = kf.keyframe;
+          loop.frame_b = kf.frame_index;
+          ++r.found;
+          if (held.count({loop.session_a, loop.keyframe_a, loop.session_b, loop.keyframe_b})) {
+            ++r.duplicates;
+            continue;
+          }
+          const Status st = manager->addLoop(loop);
+          if (st.ok()) {
+            ++r.accepted;
+            held.emplace(loop.session_a, loop.keyframe_a, loop.session_b, loop.keyframe_b);
+            held.emplace(loop.session_b, loop.keyframe_b, loop.session_a, loop.keyframe_a);
+          } else {
+            ++r.refused;
+            say("loop " + std::to_string(loop.session_a) + ":" + std::to_string(loop.keyframe_a) + " -> " +
+                std::to_string(session) + ":" + std::to_string(kf.keyframe) + " refused: " + st.message);
+          }
+        }
+        if (detector.stats().feature_read_failures > 0)
+          throw StoreError("stored keyframes could not be read back: " + detector.lastReadError());
+      }
+    }
+    for (std::size_t i = 0; i < group.size(); ++i)
+      for (const StoredKeyframe& kf : group[i].second)
+        detector.addPagedKeyframe(group[i].first, kf.keyframe, kf.frame_index, kf.altitude_m,
+                                  &cameras[first_camera + i], kf.hash);
+  }
+  return r;
+}
+
+}  // namespace core
+}  // namespace uw_multislam
