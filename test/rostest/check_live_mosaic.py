@@ -152,7 +152,7 @@ class LiveMosaicTest(unittest.TestCase):
     def sessions(self):
         res = self.list()
         self.assertEqual(res.status.code, Status.OK)
-        return [(s.session, s.name, s.state, s.map, s.keyframes) for s in res.sessions]
+        return [(s.session, s.name, s.state, s.map, s.num_keyframes, s.num_loops) for s in res.sessions]
 
     def test_3_export_writes_the_files_below_the_root(self):
         res = self.export(session="0", map=True, folder="dive/products", origin="", resolution_m=0.02,
