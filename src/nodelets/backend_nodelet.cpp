@@ -3,11 +3,19 @@
 
 #include <pluginlib/class_list_macros.hpp>
 
+#include <cv_bridge/cv_bridge.h>
+#include <sensor_msgs/Image.h>
+
+#include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <utility>
 
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/SessionTrajectory.h"
+#include "uw_multislam/core/session/export_root.h"
+#include "uw_multislam/core/session/track_files.h"
 #include "uw_multislam/ros/backend_conversions.h"
 #include "uw_multislam/ros/conversions.h"
 #include "uw_multislam/ros/slam_params.h"
@@ -19,6 +27,14 @@ namespace nodelets {
 namespace rc = ros_conversions;
 
 BackendNodelet::~BackendNodelet() {
+  if (mosaic_thread_.joinable()) {  // first: it takes state_mutex_
+    {
+      std::lock_guard<std::mutex> lock(mosaic_wait_mutex_);
+      mosaic_stop_ = true;
+    }
+    mosaic_wake_.notify_all();
+    mosaic_thread_.join();
+  }
   diagnostic_timer_.stop();
   stats_timer_.stop();
   keyframe_sub_.shutdown();
@@ -46,7 +62,8 @@ void BackendNodelet::onInit() {
     const std::string bad = config_.validate();
     if (!bad.empty()) throw std::invalid_argument(nh.resolveName("slam") + ": " + bad);
     manager_ = std::make_unique<core::SessionManager>(
-        ros_params::sessionManagerOptions(options_, config_), [this](const core::SessionEvent& e) { onEvent(e); }, [this](const std::string& line) { say(line); });
+        ros_params::sessionManagerOptions(options_, config_), [this](const core::SessionEvent& e) { onEvent(e); },
+        [this](const std::string& line) { say(line); });
     manager_->setDeferredOptimisation(true);  // optimised by the worker, outside state_mutex_
     frames_ = std::make_unique<ros_frames::FramePublisher>(nh, options_.frames);  // a tilted camera throws
   } catch (const std::exception& e) {
@@ -72,6 +89,18 @@ void BackendNodelet::onInit() {
   keyframe_pose_pub_ = nh.advertise<geometry_msgs::PoseWithCovarianceStamped>(topics::kKeyframePoseWithCovariance, 10);
   active_pub_ = nh.advertise<uw_multislam::SessionState>(topics::kActiveSession, 1, true);
   reloaded_pub_ = nh.advertise<uw_multislam::Keyframe>(topics::kReloadedKeyframes, 10000);
+  mosaic_pub_ = nh.advertise<sensor_msgs::Image>(topics::kLiveMosaic, 1, true);
+  if (!options_.export_root.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(options_.export_root, ec);
+    if (ec)
+      NODELET_WARN("back-end: cannot create ~export_root %s (%s): export answers FAILED_PRECONDITION",
+                   options_.export_root.c_str(), ec.message().c_str());
+  }
+  NODELET_INFO("back-end: live mosaic %s (%.2f Hz, %.3f m/px, at most %d px), exports below %s",
+               options_.mosaic_rate_hz > 0 ? "on" : "off", options_.mosaic_rate_hz, options_.mosaic.resolution_m,
+               options_.mosaic.max_side_px,
+               options_.export_root.empty() ? "(none: off)" : options_.export_root.c_str());
   if (manager_->restoredSessions() > 0) {
     std::lock_guard<std::mutex> lock(state_mutex_);
     publishAll(true);
@@ -83,6 +112,7 @@ void BackendNodelet::onInit() {
   list_srv_ = nh.advertiseService(topics::kListSessionsService, &BackendNodelet::onList, this);
   start_srv_ = nh.advertiseService(topics::kStartSessionService, &BackendNodelet::onStart, this);
   reload_srv_ = nh.advertiseService(topics::kReloadSessionService, &BackendNodelet::onReload, this);
+  export_srv_ = nh.advertiseService(topics::kExportService, &BackendNodelet::onExport, this);
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
   updater_->setHardwareID("none");
   updater_->add("backend", this, &BackendNodelet::fillDiagnostics);
@@ -93,6 +123,7 @@ void BackendNodelet::onInit() {
     logStats("so far");
   });
   worker_ = std::thread([this] { work(); });
+  if (options_.mosaic_rate_hz > 0) mosaic_thread_ = std::thread([this] { drawMosaics(); });
   auto push = [this](const auto& m) { queue_->push(Message(m)); };  // keyframes and loops keep their order
   // roscpp's own queues as deep as ours: a starved callback thread must not drop uncounted.
   keyframe_sub_ = nh.subscribe<uw_multislam::Keyframe>(topics::kKeyframes, options_.queue_size, push);
@@ -156,6 +187,8 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
   ++counts_.keyframes;
   const bool ok = rc::fromMsg(msg, &k, &why);
   const core::Status st = ok ? manager_->addKeyframe(rc::toKeyframeInput(k, msg.header.stamp.toSec())) : core::Status();
+  if (ok && st.ok() && !k.thumbnail.empty())
+    mosaic_images_.add(k.session, k.keyframe, k.altitude_m, k.camera, std::move(k.thumbnail));
   counts_.bad += ok ? 0 : 1;
   if (!ok || !st.ok())
     NODELET_WARN_THROTTLE(5, "back-end: keyframe skipped: %s", ok ? st.message.c_str() : why.c_str());
@@ -184,6 +217,7 @@ void BackendNodelet::processLoop(const uw_multislam::LoopConstPtr& msg, bool ret
 
 void BackendNodelet::onEvent(const core::SessionEvent& e) {
   using K = core::SessionEvent::Kind;
+  mosaic_due_ = true;  // a keyframe, a join, a split, an optimisation: the active map may look different
   const bool changed = e.kind != K::kKeyframeAdded && e.kind != K::kLoopAccepted;  // every session to publish
   publish_all_ = publish_all_ || changed;
   if (changed && e.kind != K::kMapOptimised) say(std::string(core::sessionEventName(e.kind)) + ": " + e.message);
@@ -298,10 +332,114 @@ bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_mult
   if (!st.ok()) return true;
   const std::string frame = options_.frames.session_frame_prefix + std::to_string(r.id);
   for (const core::StoredKeyframe& k : r.keyframes)
+    if (!k.thumbnail.empty()) mosaic_images_.add(r.id, k.keyframe, k.altitude_m, r.camera, k.thumbnail);
+  mosaic_due_ = true;
+  for (const core::StoredKeyframe& k : r.keyframes)
     reloaded_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::reloadedKeyframeMsg(r, k, frame)));
   NODELET_INFO("back-end: reload_session '%s': session %d, %zu keyframes handed to the loop detector", req.name.c_str(),
                r.id, r.keyframes.size());
   return true;
+}
+
+void BackendNodelet::drawMosaics() {
+  const auto period = std::chrono::duration<double>(1.0 / options_.mosaic_rate_hz);
+  std::unique_lock<std::mutex> wait(mosaic_wait_mutex_);
+  while (!mosaic_wake_.wait_for(wait, period, [this] { return mosaic_stop_; })) {
+    if (!mosaic_due_ || mosaic_pub_.getNumSubscribers() == 0) continue;  // latched: the last one stays
+    wait.unlock();
+    core::LiveMosaicSnapshot snapshot;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      mosaic_due_ = false;
+      snapshot = core::liveMosaicSnapshot(*manager_, mosaic_images_);  // poses copied, images shared
+    }
+    const core::LiveMosaicImage m = core::drawLiveMosaic(snapshot, options_.mosaic);  // without state_mutex_
+    if (!m.bgr.empty()) {
+      std_msgs::Header header;
+      header.stamp = ros::Time::now();
+      header.frame_id = options_.frames.map_frame;
+      mosaic_pub_.publish(cv_bridge::CvImage(header, "bgr8", m.bgr).toImageMsg());
+    }
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      mosaic_stats_.published += m.bgr.empty() ? 0 : 1;
+      mosaic_stats_.drawn = m.drawn;
+      mosaic_stats_.missing = m.missing;
+      mosaic_stats_.ms = m.ms;
+      mosaic_stats_.resolution_m = m.resolution_m;
+    }
+    if (!m.bgr.empty())
+      NODELET_DEBUG("back-end: live mosaic of map %d: %d x %d px at %.4f m/px, %d keyframes drawn, %d missing, %.1f ms",
+                    snapshot.map, m.bgr.cols, m.bgr.rows, m.resolution_m, m.drawn, m.missing, m.ms);
+    wait.lock();
+  }
+}
+
+bool BackendNodelet::onExport(uw_multislam::ExportSurvey::Request& req, uw_multislam::ExportSurvey::Response& res) {
+  auto answer = [&](core::Status st) {
+    res.status = rc::toStatusMsg(st);
+    if (!st.ok()) NODELET_WARN("back-end: export '%s' refused: %s", req.session.c_str(), st.message.c_str());
+    return true;
+  };
+  using C = core::StatusCode;
+  auto refuse = [&](C code, const std::string& message) { return answer(core::Status{code, message}); };
+  std::unique_lock<std::mutex> one(export_mutex_, std::try_to_lock);
+  if (!one.owns_lock()) return refuse(C::kUnavailable, "another export is running: try again when it has answered");
+  core::TrackFilesOptions o;
+  core::GeoOrigin origin;
+  std::string why;
+  if (!req.origin.empty() && !core::parseGeoOrigin(req.origin, &origin, &why))
+    return refuse(C::kInvalidArgument, "bad origin '" + req.origin + "': " + why);
+  if (!req.origin.empty()) o.origin = &origin;
+  if (!std::isfinite(req.resolution_m) || req.resolution_m < 0.0 || req.resolution_m > 100.0)
+    return refuse(C::kInvalidArgument, "resolution_m " + std::to_string(req.resolution_m) +
+                                           ": metres per pixel in (0, 100], or 0 for automatic");
+  o.mosaic = !req.no_mosaic;
+  o.mosaic_options.resolution_m = req.resolution_m;
+  if (options_.export_root.empty())
+    return refuse(C::kFailedPrecondition, "no export root (~export_root is empty): exports are off");
+  std::string directory;
+  if (!core::resolveExportFolder(options_.export_root, req.folder, &directory, &why))
+    return refuse(C::kInvalidArgument, why);
+  std::string name, label, store;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    int id = manager_->idOfName(req.session);
+    if (id < 0 && !req.session.empty() && req.session.find_first_not_of("0123456789") == std::string::npos &&
+        req.session.size() < 8 && manager_->has(std::stoi(req.session)))
+      id = std::stoi(req.session);
+    if (id < 0)
+      return refuse(C::kNotFound, "no session named or numbered '" + req.session + "' (list_sessions shows them)");
+    if (!manager_->hasStore())
+      return refuse(C::kFailedPrecondition, "no session store (~store_path is empty): nothing to export from");
+    name = manager_->name(id);
+    label = req.map ? "map_" + std::to_string(manager_->mapOf(id)) : "session_" + std::to_string(id);
+    store = manager_->storePath();
+  }
+  try {  // without state_mutex_: the store read-only, the files written
+    const core::SurveyExport survey = core::loadSurveyExport(store);
+    const core::ExportTrack* session = nullptr;
+    for (const core::ExportTrack& t : survey.sessions)
+      if (t.name == name) session = &t;
+    if (!session) return refuse(C::kFailedPrecondition, "session '" + name + "' has no keyframe in the store yet");
+    core::ExportTrack track = *session;
+    if (req.map)
+      for (const core::ExportTrack& m : survey.maps)
+        for (std::int64_t s : m.sessions)
+          if (s == session->sessions.front()) track = m;
+    track.label = label;  // the ids the services use (the store's own ids differ)
+    std::error_code ec;
+    std::filesystem::create_directories(directory, ec);
+    if (ec) return refuse(C::kInternal, "cannot create " + directory + ": " + ec.message());
+    const core::TrackFiles written = core::writeTrackFiles(track, survey, core::MosaicImages(), directory, o);
+    res.directory = directory;
+    res.files = written.files;
+    NODELET_INFO("back-end: export: %s (%s, %zu keyframes) written to %s: %zu files", label.c_str(), track.name.c_str(),
+                 track.keyframes.size(), directory.c_str(), written.files.size());
+    return answer(core::Status::Ok());
+  } catch (const std::exception& e) {
+    return refuse(C::kInternal, std::string("export failed: ") + e.what());
+  }
 }
 
 std::vector<ros_diagnostics::Counter> BackendNodelet::counters() const {
@@ -318,6 +456,12 @@ std::vector<ros_diagnostics::Counter> BackendNodelet::counters() const {
   c.push_back({"map_to_odom_published", d(f.map_to_odom_published)});
   c.push_back({"map_to_odom_rate_hz", f.map_to_odom_rate_hz});
   c.push_back({"odom_lookup_failures", d(f.odom_lookup_failures), true});
+  c.push_back({"mosaic_published", d(mosaic_stats_.published)});
+  c.push_back({"mosaic_keyframes_drawn", d(mosaic_stats_.drawn)});
+  c.push_back({"mosaic_keyframes_missing", d(mosaic_stats_.missing)});
+  c.push_back({"mosaic_draw_ms", mosaic_stats_.ms});
+  c.push_back({"mosaic_resolution_m", mosaic_stats_.resolution_m});
+  c.push_back({"mosaic_images_kB", d(mosaic_images_.bytes()) / 1024.0});
   for (ros_diagnostics::Counter& m : rc::managerCounters(*manager_)) c.push_back(std::move(m));
   return c;
 }

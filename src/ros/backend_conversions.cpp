@@ -33,6 +33,7 @@ core::KeyframeInput toKeyframeInput(const KeyframeData& k, double stamp_s) {
   in.motion = k.motion;
   in.odometry_pose = k.odometry_pose;
   in.hash = k.hash;  // computed once, by the odometry (empty from older senders: the manager hashes)
+  in.thumbnail = k.thumbnail;  // kept by the store (empty: none)
   return in;
 }
 

@@ -13,6 +13,8 @@ namespace ros_conversions {
 
 namespace {
 
+constexpr std::size_t kMaxThumbnailBytes = 4u << 20;  // Keyframe.msg: a thumbnail is a small JPEG
+
 bool fail(std::string* why, const std::string& reason) {
   if (why) *why = reason;
   return false;
@@ -97,6 +99,7 @@ uw_multislam::Keyframe toKeyframeMsg(const KeyframeData& k, const std_msgs::Head
     m.descriptors.assign(bytes.data, bytes.data + bytes.total());
   }
   m.hash.assign(k.hash.data(), k.hash.data() + k.hash.size());
+  m.thumbnail = k.thumbnail;
   m.motion = toPose2DMsg(k.motion.mean);
   toArray(k.motion.covariance, &m.motion_covariance);
   m.odometry_pose = toPose2DMsg(k.odometry_pose);
@@ -173,6 +176,9 @@ bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* wh
     k.features.descriptors = cv::Mat(0, core::HalocProjections::kDescriptorSize, CV_32F);
   }
   k.hash = Eigen::Map<const Eigen::VectorXf>(m.hash.data(), static_cast<Eigen::Index>(m.hash.size()));
+  if (m.thumbnail.size() > kMaxThumbnailBytes)
+    return fail(why, who + "thumbnail of " + std::to_string(m.thumbnail.size()) + " bytes, more than 4 MB");
+  k.thumbnail = m.thumbnail;
   k.motion = first ? core::UncertainPose2::exact(core::Pose2()) : core::UncertainPose2(fromMsg(m.motion), cov);
   k.odometry_pose = fromMsg(m.odometry_pose);
   k.quality = first ? KeyframeQuality::kFirst

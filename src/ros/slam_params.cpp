@@ -104,6 +104,14 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
       pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
   o.store_path = param(
       pnh, "store_path", ros_params::defaultStorePath(), [](const std::string&) { return true; }, "a path");
+  o.mosaic_rate_hz = param(
+      pnh, "mosaic_rate", 0.2, [](double v) { return v >= 0 && v <= 10; }, "in [0, 10] Hz (0: no live mosaic)");
+  o.mosaic.resolution_m = param(
+      pnh, "mosaic_resolution", 0.05, [](double v) { return v > 0 && v <= 100; }, "in (0, 100] m/px");
+  o.mosaic.max_side_px = param(
+      pnh, "mosaic_max_side", 1024, [](int v) { return v >= 16 && v <= 8192; }, "in [16, 8192] px");
+  o.export_root = param(
+      pnh, "export_root", ros_params::defaultExportRoot(), [](const std::string&) { return true; }, "a path");
   return o;
 }
 
@@ -163,6 +171,12 @@ std::string sessionFramePrefix(const ros::NodeHandle& nh) {
   return param(
       nh, "frames/session_frame_prefix", std::string(topics::kDefaultSessionFramePrefix),
       [](const std::string& s) { return !s.empty(); }, "a non-empty frame id prefix");
+}
+
+std::string defaultExportRoot() {
+  const char* ros_home = std::getenv("ROS_HOME");
+  const char* home = std::getenv("HOME");
+  return (ros_home ? std::string(ros_home) : std::string(home ? home : ".") + "/.ros") + "/uw_multislam/exports";
 }
 
 std::string defaultStorePath() {

@@ -11,6 +11,7 @@
 #include "uw_multislam/core/session/mosaic.h"
 #include "uw_multislam/core/session/session_store.h"
 #include "uw_multislam/core/session/survey_export.h"
+#include "uw_multislam/core/session/track_files.h"
 
 namespace core = uw_multislam::core;
 
@@ -129,35 +130,21 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "export_survey: %s: cannot create the output directory\n", out.c_str());
       return 1;
     }
-    auto tracksOf = [&](const core::ExportTrack& t) {
-      std::vector<const core::ExportTrack*> sessions;
-      for (std::int64_t id : t.sessions)
-        for (const core::ExportTrack& s : survey.sessions)
-          if (s.sessions.front() == id) sessions.push_back(&s);
-      return sessions;
-    };
     int files = 0;
+    core::TrackFilesOptions track_options;
+    track_options.mosaic = mosaic;
+    track_options.mosaic_options = mosaic_options;
+    track_options.origin = origin_text.empty() ? nullptr : &origin;
     auto writeAll = [&](const core::ExportTrack& t) {
-      const std::string base = (fs::path(out) / t.label).string();
-      core::writeTum(base + ".tum", t);
-      core::writeKitti(base + ".kitti", t);
-      core::writeTrackCsv(base + ".csv", t);
-      core::writeG2o(base + ".g2o", t);
-      files += 4;
-      if (!origin_text.empty()) {
-        core::writeGeoJson(base + ".geojson", tracksOf(t), origin);
-        ++files;
-      }
-      if (!mosaic) return;
-      const core::MosaicResult r = core::writeMosaic(t, survey, images, mosaic_options, base + ".png",
-                                                     origin_text.empty() ? nullptr : &origin, base + ".tif");
-      files += origin_text.empty() ? 2 : 3;
-      if (!quiet)
-        std::printf(
-            "%s.png: %d x %d px at %.4f m/px, %d tiles, %s blending%s, %.0f ms, seam ratio %.3f; images: %d "
-            "frames, %d thumbnails, %d missing\n",
-            t.label.c_str(), r.width, r.height, r.resolution_m, r.tiles, core::mosaicBlendName(mosaic_options.blend),
-            mosaic_options.exposure ? " + gains" : "", r.ms, r.seam_ratio, r.from_frames, r.from_thumbnails, r.missing);
+      const core::TrackFiles written = core::writeTrackFiles(t, survey, images, out, track_options);
+      files += static_cast<int>(written.files.size());
+      if (!written.mosaic || quiet) return;
+      const core::MosaicResult& r = written.mosaic_result;
+      std::printf(
+          "%s.png: %d x %d px at %.4f m/px, %d tiles, %s blending%s, %.0f ms, seam ratio %.3f; images: %d "
+          "frames, %d thumbnails, %d missing\n",
+          t.label.c_str(), r.width, r.height, r.resolution_m, r.tiles, core::mosaicBlendName(mosaic_options.blend),
+          mosaic_options.exposure ? " + gains" : "", r.ms, r.seam_ratio, r.from_frames, r.from_thumbnails, r.missing);
     };
     for (const core::ExportTrack& s : survey.sessions) writeAll(s);
     for (const core::ExportTrack& m : survey.maps) writeAll(m);

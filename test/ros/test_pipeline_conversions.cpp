@@ -8,6 +8,7 @@
 #include "uw_multislam/core/frontend/features.h"
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/frontend/odometry.h"
+#include "uw_multislam/ros/backend_conversions.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 
 namespace uw_multislam {
@@ -164,6 +165,24 @@ TEST_F(PipelineConversions, KeyframeHashTravelsWithTheKeyframe) {
   EXPECT_TRUE(old.hash.empty());
   ASSERT_TRUE(rc::fromMsg(old, &back, &why)) << why;
   EXPECT_EQ(back.hash.size(), 0);
+}
+
+TEST_F(PipelineConversions, KeyframeThumbnailTravelsWithTheKeyframeAndIsBounded) {
+  rc::KeyframeData k = someKeyframe();
+  k.thumbnail = {0xff, 0xd8, 0xff, 0x01, 0x02, 0xff, 0xd9};
+  uw_multislam::Keyframe m = rc::toKeyframeMsg(k, header());
+  EXPECT_EQ(m.thumbnail, k.thumbnail);
+  rc::KeyframeData back;
+  std::string why;
+  ASSERT_TRUE(rc::fromMsg(m, &back, &why)) << why;
+  EXPECT_EQ(back.thumbnail, k.thumbnail);
+  EXPECT_EQ(rc::toKeyframeInput(back, 1.0).thumbnail, k.thumbnail);  // on to the store and the live mosaic
+  m.thumbnail.assign((4u << 20) + 1, 0);
+  EXPECT_FALSE(rc::fromMsg(m, &back, &why));
+  EXPECT_NE(why.find("more than 4 MB"), std::string::npos) << why;
+  m.thumbnail.clear();  // an older sender, or a promoted keyframe: none
+  ASSERT_TRUE(rc::fromMsg(m, &back, &why)) << why;
+  EXPECT_TRUE(back.thumbnail.empty());
 }
 
 TEST_F(PipelineConversions, KeyframeDataFromARunningOdometry) {

@@ -12,6 +12,7 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "uw_multislam/Keyframe.h"
 #include "uw_multislam/KeyframeHash.h"
@@ -42,6 +43,8 @@ struct KeyframeData {
   /// The keyframe's hash (core::HalocProjections::kHashSize values), or empty when not computed
   /// (messages from older senders): receivers hash the features themselves then.
   Eigen::VectorXf hash;
+  /// The keyframe's image as a small JPEG (the store's thumbnail; the live mosaic), may be empty.
+  std::vector<std::uint8_t> thumbnail;
   core::UncertainPose2 motion;  // X_k^{k-1}; exact identity for keyframe 0
   core::Pose2 odometry_pose;    // X_k^0 of the odometry
   KeyframeQuality quality = KeyframeQuality::kFirst;

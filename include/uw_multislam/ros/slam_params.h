@@ -12,6 +12,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "uw_multislam/core/session/live_mosaic.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/frame_publisher.h"
@@ -39,6 +40,13 @@ struct BackendNodeletOptions {
   int queue_size = 1000, max_waiting_loops = 1000, max_keyframe_gap = 1000;
   int max_empty_sessions = 1;  // start_session refused while this many sessions in a row have no keyframe
   double stats_period_s = 30.0, diagnostic_period_s = 1.0;
+  /// The live mosaic (core/session/live_mosaic.h): redrawn at most at mosaic_rate_hz when the
+  /// active map changed (0: off), at mosaic_resolution_m, coarser when wider than mosaic_max_side_px.
+  double mosaic_rate_hz = 0.2;
+  core::LiveMosaicOptions mosaic;
+  /// The `export` service writes below this folder (created at start-up; "" = no exports);
+  /// default $ROS_HOME/uw_multislam/exports.
+  std::string export_root;
 };
 
 /// Reads and validates the back-end nodelet's parameters (std::invalid_argument naming the key);
@@ -82,6 +90,8 @@ std::string sessionFramePrefix(const ros::NodeHandle& nh);
 /// The session store's default path: $ROS_HOME/uw_multislam/sessions.db (ROS_HOME defaulting to
 /// ~/.ros, as roslaunch's logs).
 std::string defaultStorePath();
+/// $ROS_HOME/uw_multislam/exports (ROS_HOME defaults to ~/.ros): the export service's default root.
+std::string defaultExportRoot();
 
 /// A required-or-defaulted scalar parameter with a check; throws std::invalid_argument
 /// "<resolved name> = <value>: must be <requirement>" when `ok(value)` is false.

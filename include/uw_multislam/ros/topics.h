@@ -71,6 +71,10 @@ constexpr char kCurrentPose[] = "pose";
 /// geometry_msgs/PoseWithCovarianceStamped (back-end): the active session's last keyframe in the
 /// map frame with its covariance (6x6, z / roll / pitch unknown), at each keyframe and optimisation.
 constexpr char kKeyframePoseWithCovariance[] = "keyframe_pose";
+/// sensor_msgs/Image (back-end, latched, bgr8, drawn only while subscribed): the live mosaic of the
+/// active map (core/session/live_mosaic.h), the active keyframe outlined in red; rows along the
+/// map's image-axes y, redrawn at most at ~mosaic_rate after keyframes, joins, splits and optimisations.
+constexpr char kLiveMosaic[] = "mosaic";
 
 // --- Services of the session manager (uw_multislam/srv) ---------------------------------------
 constexpr char kJoinSessionsService[] = "join_sessions";
@@ -78,6 +82,7 @@ constexpr char kSplitSessionService[] = "split_session";
 constexpr char kReloadSessionService[] = "reload_session";
 constexpr char kListSessionsService[] = "list_sessions";
 constexpr char kStartSessionService[] = "start_session";
+constexpr char kExportService[] = "export";
 
 /// The absolute form of a relative name ("camera/image_raw" -> "/camera/image_raw").
 inline std::string globalName(const std::string& relative) {

@@ -19,6 +19,8 @@
 #include <memory>
 #include <ostream>
 
+#include "uw_multislam/core/session/mosaic_geometry.h"
+
 namespace uw_multislam {
 namespace core {
 
@@ -55,17 +57,7 @@ std::string MosaicOptions::validate() const {
 
 namespace {
 
-CameraIntrinsics scaledTo(const CameraIntrinsics& c, const cv::Size& size) {
-  CameraIntrinsics s = c;
-  const double kx = static_cast<double>(size.width) / c.width, ky = static_cast<double>(size.height) / c.height;
-  s.width = size.width;
-  s.height = size.height;
-  s.fx *= kx;
-  s.cx = (c.cx + 0.5) * kx - 0.5;  // pixel centres: the resize maps edge to edge
-  s.fy *= ky;
-  s.cy = (c.cy + 0.5) * ky - 0.5;
-  return s;
-}
+CameraIntrinsics scaledTo(const CameraIntrinsics& c, const cv::Size& size) { return cameraScaledTo(c, size); }
 
 // A keyframe the mosaic can place: finite pose, positive finite altitude (anything else is a
 // bad store row: left out and counted as missing, never a NaN extent).
@@ -74,44 +66,14 @@ bool drawable(const ExportKeyframe& k) {
 }
 
 // Pixel (u, v, 1) of the image seen through `cam` -> ground point in the map's image axes (the
-// store's convention; the exported pose is z-up, hence the signs).
+// store's convention; the exported pose is z-up, hence the signs): mosaic_geometry.h's warp.
 cv::Matx23d groundFromPixel(const ExportKeyframe& k, const CameraIntrinsics& cam) {
-  const double tx = k.pose.mean.x(), ty = -k.pose.mean.y(), psi = -k.pose.mean.yaw();
-  const double c = std::cos(psi), s = std::sin(psi), a = k.altitude_m / cam.fx, b = k.altitude_m / cam.fy;
-  return {c * a, -s * b, tx - c * a * cam.cx + s * b * cam.cy, s * a, c * b, ty - s * a * cam.cx - c * b * cam.cy};
+  return core::groundFromPixel(Pose2(k.pose.mean.x(), -k.pose.mean.y(), -k.pose.mean.yaw()), k.altitude_m, cam);
 }
 
-// The raster: ground (image axes) -> pixel centre coordinates.
-struct Raster {
-  double x0 = 0.0, ytop = 0.0;  // image-axes x of the left edge, image-axes y of the top edge
-  double res = 0.0;
-  int width = 0, height = 0;
-  cv::Matx23d fromPixel(const cv::Matx23d& ground) const {
-    cv::Matx23d m = ground * (1.0 / res);
-    m(0, 2) -= x0 / res + 0.5;
-    m(1, 2) -= ytop / res + 0.5;
-    return m;
-  }
-};
+using Raster = MosaicRaster;
 
-cv::Rect2d footprint(const cv::Matx23d& m, const cv::Size& size) {
-  double x_lo = 1e300, x_hi = -1e300, y_lo = 1e300, y_hi = -1e300;
-  for (const cv::Point2d p : {cv::Point2d(-0.5, -0.5), cv::Point2d(size.width - 0.5, -0.5),
-                              cv::Point2d(-0.5, size.height - 0.5), cv::Point2d(size.width - 0.5, size.height - 0.5)}) {
-    const double x = m(0, 0) * p.x + m(0, 1) * p.y + m(0, 2), y = m(1, 0) * p.x + m(1, 1) * p.y + m(1, 2);
-    x_lo = std::min(x_lo, x);
-    x_hi = std::max(x_hi, x);
-    y_lo = std::min(y_lo, y);
-    y_hi = std::max(y_hi, y);
-  }
-  return {x_lo, y_lo, x_hi - x_lo, y_hi - y_lo};
-}
-
-cv::Rect pixelBox(const cv::Rect2d& r) {
-  const int x = static_cast<int>(std::floor(r.x)), y = static_cast<int>(std::floor(r.y));
-  return {x, y, static_cast<int>(std::ceil(r.x + r.width)) - x + 1,
-          static_cast<int>(std::ceil(r.y + r.height)) - y + 1};
-}
+cv::Rect2d footprint(const cv::Matx23d& m, const cv::Size& size) { return warpedFootprint(m, size); }
 
 // Decoded images between tiles, least recently used evicted beyond a byte budget.
 class ImageCache {

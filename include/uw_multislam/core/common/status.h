@@ -17,6 +17,7 @@ enum class StatusCode : std::uint8_t {
   kResourceExhausted = 8,   // a limit is reached (e.g. too many empty sessions, no session id left)
   kFailedPrecondition = 9,  // a valid request the current state does not allow
   kInternal = 13,
+  kUnavailable = 14,        // busy now (e.g. another export running): try again
   kDataLoss = 15,           // the session store could not be read
 };
 

@@ -65,11 +65,13 @@ class Pipeline {
   const LoopDetector& loopDetector() const { return detector_; }
   /// Every stage's timing: odometry (all streams), hashing, loop detection, session manager.
   StageTimes times() const;
+  /// A keyframe's image as the store keeps it (a small JPEG); public so that the odometry
+  /// nodelet makes the Keyframe message's thumbnail the same way.
+  static std::vector<std::uint8_t> thumbnail(const cv::Mat& image);
 
  private:
   void startPiece(double stamp_s);
   void endPiece(double stamp_s);
-  static std::vector<std::uint8_t> thumbnail(const cv::Mat& image);
   void say(const std::string& line) const;
 
   SlamConfig config_;

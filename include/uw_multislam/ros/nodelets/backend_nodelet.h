@@ -25,7 +25,12 @@
 //            map -> <session_frame_prefix><id> as static transforms (~publish_session_frames)
 //          reloaded_keyframes (uw_multislam/Keyframe): a reloaded session's keyframes, for the
 //            loop detector(s) to keep as global-loop candidates
-// Services: join_sessions, split_session, list_sessions, start_session, reload_session. Replies
+//          mosaic (sensor_msgs/Image, latched, only while subscribed): the live mosaic of the active
+//            map (core/session/live_mosaic.h), the active keyframe outlined, redrawn at most at
+//            ~mosaic_rate (default 0.2 Hz) when keyframes, joins, splits or optimisations changed it
+// Services: join_sessions, split_session, list_sessions, start_session, reload_session, export
+// (export_survey's files of a session or its map, from the store, into a folder below
+// ~export_root; a folder outside it is refused INVALID_ARGUMENT). Replies
 // name the store by its file name only. start_session answers RESOURCE_EXHAUSTED while the newest
 // ~max_empty_sessions sessions have no keyframe (core::SessionManagerOptions::max_empty_sessions).
 //
@@ -55,6 +60,12 @@
 // correction, which the worker refreshes after each publication, so the per-frame pose and tf
 // never wait for an optimisation. On unload the queue is closed, what is queued is
 // processed, and the maps are optimised and saved.
+// The live mosaic has its own thread: at most every 1 / ~mosaic_rate seconds, when something
+// changed and someone subscribes, it copies the active map's poses out under state_mutex_
+// (core::liveMosaicSnapshot: poses only, the images are shared) and warps and draws WITHOUT it.
+// The export service takes state_mutex_ only to resolve the session's name; it reads the store
+// read-only (SQLite WAL: beside the writer) and writes the files without the mutex, one export at
+// a time (another one meanwhile is answered UNAVAILABLE).
 #pragma once
 
 #include <diagnostic_updater/diagnostic_updater.h>
@@ -63,6 +74,8 @@
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
 
+#include <atomic>
+#include <condition_variable>
 #include <deque>
 #include <map>
 #include <memory>
@@ -71,6 +84,7 @@
 #include <thread>
 #include <variant>
 
+#include "uw_multislam/ExportSurvey.h"
 #include "uw_multislam/JoinSessions.h"
 #include "uw_multislam/Keyframe.h"
 #include "uw_multislam/ListSessions.h"
@@ -78,6 +92,7 @@
 #include "uw_multislam/ReloadSession.h"
 #include "uw_multislam/SplitSession.h"
 #include "uw_multislam/StartSession.h"
+#include "uw_multislam/core/session/live_mosaic.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/frame_publisher.h"
@@ -118,6 +133,9 @@ class BackendNodelet : public nodelet::Nodelet {
   bool onList(uw_multislam::ListSessions::Request& req, uw_multislam::ListSessions::Response& res);
   bool onStart(uw_multislam::StartSession::Request& req, uw_multislam::StartSession::Response& res);
   bool onReload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res);
+  bool onExport(uw_multislam::ExportSurvey::Request& req, uw_multislam::ExportSurvey::Response& res);
+  /// The live mosaic's thread (see "Threading model").
+  void drawMosaics();
   /// Every counter, for /diagnostics and the periodic log line (under state_mutex_).
   std::vector<ros_diagnostics::Counter> counters() const;
   void logStats(const char* when);
@@ -139,6 +157,12 @@ class BackendNodelet : public nodelet::Nodelet {
   std::deque<uw_multislam::LoopConstPtr> waiting_;
   bool publish_all_ = false;  // an event asked for every session to be published
   Counters counts_;
+  core::LiveMosaicImages mosaic_images_;  // each keyframe's image, for the live mosaic
+  struct MosaicStats {
+    long published = 0;
+    int drawn = 0, missing = 0;
+    double ms = 0.0, resolution_m = 0.0;
+  } mosaic_stats_;
 
   std::unique_ptr<ros_frames::FramePublisher> frames_;  // thread-safe on its own
   ros_frames::FrameStats frame_stats_;                  // the diagnostics timer's thread only
@@ -148,7 +172,14 @@ class BackendNodelet : public nodelet::Nodelet {
   ros::Publisher trajectory_pub_, markers_pub_, trajectory_markers_pub_, pose_pub_, keyframe_pose_pub_, active_pub_,
       reloaded_pub_;
   std::map<int, ros::Publisher> path_pubs_;
-  ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_;
+  ros::Publisher mosaic_pub_;
+  std::thread mosaic_thread_;
+  std::mutex mosaic_wait_mutex_;  // guards mosaic_stop_ (with mosaic_wake_)
+  std::condition_variable mosaic_wake_;
+  bool mosaic_stop_ = false;
+  std::atomic<bool> mosaic_due_{true};  // the active map changed since the last drawing
+  std::mutex export_mutex_;             // one export at a time
+  ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_, export_srv_;
   ros::Subscriber keyframe_sub_, loop_sub_, pose_sub_;  // last: destroyed first
 };
 

@@ -1,0 +1,34 @@
+// The files of one exported track (a session or a map): what export_survey writes per track and
+// the back-end's `export` service writes for the track it is asked for (README "Exporting a
+// survey"): <label>.tum, .kitti, .csv, .g2o, .geojson (with an origin), .png + .pgw (mosaic) and
+// .tif (mosaic with an origin). Each file is written atomically (survey_export.h).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/session/mosaic.h"
+#include "uw_multislam/core/session/survey_export.h"
+
+namespace uw_multislam {
+namespace core {
+
+struct TrackFilesOptions {
+  bool mosaic = true;
+  MosaicOptions mosaic_options;
+  const GeoOrigin* origin = nullptr;  // GeoJSON and GeoTIFF when set
+};
+
+struct TrackFiles {
+  std::vector<std::string> files;  // the paths written, in order
+  bool mosaic = false;             // whether `mosaic` below was drawn
+  MosaicResult mosaic_result;
+};
+
+/// Writes `track`'s files into `directory` (which must exist), named by track.label. Throws
+/// ExportError (or StoreError / DatasetError from the images) naming the file.
+TrackFiles writeTrackFiles(const ExportTrack& track, const SurveyExport& survey, const MosaicImages& images,
+                           const std::string& directory, const TrackFilesOptions& options);
+
+}  // namespace core
+}  // namespace uw_multislam

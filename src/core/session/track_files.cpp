@@ -1,0 +1,40 @@
+#include "uw_multislam/core/session/track_files.h"
+
+#include <filesystem>
+
+namespace uw_multislam {
+namespace core {
+
+TrackFiles writeTrackFiles(const ExportTrack& t, const SurveyExport& survey, const MosaicImages& images,
+                           const std::string& directory, const TrackFilesOptions& options) {
+  TrackFiles out;
+  const std::string base = (std::filesystem::path(directory) / t.label).string();
+  auto wrote = [&](const std::string& ext) { out.files.push_back(base + ext); };
+  writeTum(base + ".tum", t);
+  wrote(".tum");
+  writeKitti(base + ".kitti", t);
+  wrote(".kitti");
+  writeTrackCsv(base + ".csv", t);
+  wrote(".csv");
+  writeG2o(base + ".g2o", t);
+  wrote(".g2o");
+  if (options.origin) {
+    std::vector<const ExportTrack*> sessions;  // the track's sessions, one GeoJSON feature each
+    for (std::int64_t id : t.sessions)
+      for (const ExportTrack& s : survey.sessions)
+        if (s.sessions.front() == id) sessions.push_back(&s);
+    writeGeoJson(base + ".geojson", sessions, *options.origin);
+    wrote(".geojson");
+  }
+  if (!options.mosaic) return out;
+  out.mosaic_result =
+      writeMosaic(t, survey, images, options.mosaic_options, base + ".png", options.origin, base + ".tif");
+  out.mosaic = true;
+  wrote(".png");
+  wrote(".pgw");
+  if (options.origin) wrote(".tif");
+  return out;
+}
+
+}  // namespace core
+}  // namespace uw_multislam
