@@ -5,8 +5,9 @@
 //    runs are comparable only with the same vectors, so a store refuses other settings;
 //  - sessions (name, stamps, state, camera intrinsics);
 //  - keyframes (frame index, stamp, altitude, keypoint pixel coordinates as float32, descriptors
-//    as uint8, the hash as float32, an optional grey JPEG of the keyframe, core/session/keyframe_image.h) with the odometry motion
-//    that reaches each (mean and covariance) and the loops it closed;
+//    as uint8, the hash as float32, an optional grey JPEG of the keyframe,
+//    core/session/keyframe_image.h) with the odometry motion that reaches each (mean and
+//    covariance) and the loops it closed;
 //  - maps (chains of sessions, links with the loops they summarise, the optimised motions with
 //    their marginal covariances), loop states and the user's split pairs.
 //
