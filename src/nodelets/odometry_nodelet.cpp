@@ -19,8 +19,8 @@
 #include <vector>
 
 #include "uw_multislam/Keyframe.h"
+#include "uw_multislam/core/session/keyframe_image.h"
 #include "uw_multislam/core/session/session_manager.h"
-#include "uw_multislam/core/session/pipeline.h"
 #include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/conversions.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
@@ -563,8 +563,9 @@ void OdometryNodelet::publishKeyframes(const Frame& f, const cv::Mat& image, con
   for (const auto& kf : odometry_->newKeyframes()) {
     rc::KeyframeData data = rc::keyframeData(odometry, kf, u, session_);
     data.hash = hasher_->hash(kf.features.descriptors);  // once here; the loop detector and back-end reuse it
-    // The store's thumbnail, made as offline_slam makes it; a promoted keyframe's image is gone.
-    if (data.frame_index == u.index) data.thumbnail = core::Pipeline::thumbnail(image);
+    // The store's keyframe image (config store.*), made as offline_slam makes it; a promoted
+    // keyframe's image is gone.
+    if (data.frame_index == u.index) data.thumbnail = core::encodeKeyframeImage(image, config_.store_image);
     std_msgs::Header header = f.header();
     if (data.frame_index != u.index) header.stamp.fromSec(odometry.keyframes()[kf.id].stamp_s);  // promoted or held
     keyframe_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::toKeyframeMsg(data, header)));

@@ -3,7 +3,13 @@
 // reload a session of N keyframes into a back-end and a loop detector (every keyframe's
 // features and hash). Synthetic keyframes: n SIFT-sized features with random coordinates and
 // descriptors (incompressible, as real ones nearly are), a 96 px JPEG-sized thumbnail.
+// Then the keyframe image the store keeps (issue 18, item 2; config `store`): for each longest
+// side and JPEG quality, the bytes it adds per keyframe on disk, its encode and write times, on
+// real-looking frames (the survey simulator's seabed through its water model, 1280 x 960, or the
+// frames of a dataset folder given with --images), so that the default is chosen from them.
 #include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include <chrono>
 #include <cstdio>
@@ -14,22 +20,156 @@
 #include <vector>
 
 #include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/session/keyframe_image.h"
 #include "uw_multislam/core/session/map_persistence.h"
 #include "uw_multislam/core/session/session_store.h"
+#include "uw_multislam/sim/seabed_world.h"
+#include "uw_multislam/sim/water_model.h"
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;
 
 namespace {
 
-const char* kUsage = R"(usage: bench_store [--keyframes N ...] [--features n] [--dir DIR]
+const char* kUsage = R"(usage: bench_store [--keyframes N ...] [--features n] [--dir DIR] [--images DATASET_DIR]
+                   [--image-keyframes N] [--no-images] [--images-only]
 
 Writes one session of N keyframes (default: 1000 and 10000) into a fresh store in DIR (default:
 the system temporary directory; removed afterwards) and prints bytes per keyframe, write ms per
-keyframe and the reload time into a back-end and a loop detector.)";
+keyframe and the reload time into a back-end and a loop detector.
+
+Then the keyframe image (config store.image_max_side_px / image_jpeg_quality): for longest sides
+96, 160, 320, 640, 960 and qualities 75 and 90, a store of --image-keyframes keyframes (default
+200) each with its image, and prints the image's mean JPEG bytes, its PSNR against the same resize
+without JPEG, the store's bytes per keyframe
+(and the image's share of them, against the same store without images), encode ms and write ms
+per keyframe. The frames: a dataset
+folder's images (--images, cycled), else 20 views of the simulator's procedural seabed through
+its water model at 1280 x 960 (2 mm ground pixel).)";
 
 double msSince(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// One synthetic keyframe as the store benchmarks write it (features random, incompressible).
+core::StoredKeyframe syntheticKeyframe(std::int64_t session, int k, int features, std::mt19937& rng) {
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  core::StoredKeyframe kf;
+  kf.session = session;
+  kf.keyframe = k;
+  kf.frame_index = k;
+  kf.stamp_s = k;
+  kf.altitude_m = 2.0;
+  kf.image_size = cv::Size(320, 240);
+  for (int i = 0; i < features; ++i) kf.points.emplace_back(320 * u(rng), 240 * u(rng));
+  kf.descriptors = cv::Mat(features, 128, CV_8U);
+  cv::randu(kf.descriptors, 0, 256);
+  kf.hash = Eigen::VectorXf::Random(core::HalocProjections::kHashSize) * 0.1f;
+  return kf;
+}
+
+// Frames for the image table: a dataset folder's, or rendered seabed views.
+std::vector<cv::Mat> benchFrames(const std::string& dataset_dir) {
+  std::vector<cv::Mat> frames;
+  if (!dataset_dir.empty()) {
+    const core::Dataset d = core::loadDataset(dataset_dir);
+    for (const core::FrameRecord& f : d.frames) {
+      cv::Mat img = cv::imread(d.imagePath(f), cv::IMREAD_COLOR);
+      if (!img.empty()) frames.push_back(img);
+      if (frames.size() >= 50) break;
+    }
+    if (frames.empty()) throw std::runtime_error(dataset_dir + ": no readable image");
+    return frames;
+  }
+  core::ProceduralSeabedOptions po;
+  po.width_m = 8.0;
+  po.height_m = 4.0;
+  po.metres_per_px = 0.0016;  // 0.8 x the camera's 2 mm ground pixel, as make_survey does
+  const core::SeabedWorld world = core::SeabedWorld::procedural(po);
+  const core::CameraIntrinsics cam{1280, 960, 1000.0, 1000.0, 639.5, 479.5};
+  const core::WaterOptions water;
+  for (int i = 0; i < 20; ++i) {
+    const core::Pose2 pose(1.5 + 0.25 * i, 2.0, 0.05 * i);
+    core::WaterFrame wf;
+    wf.index = i;
+    wf.altitude_m = 2.0;
+    cv::RNG rng(1000 + i);
+    frames.push_back(core::applyWater(world.render(pose, 2.0, cam), water, wf, rng));
+  }
+  return frames;
+}
+
+struct ImageCost {
+  double jpeg_bytes = 0.0, store_bytes = 0.0, encode_ms = 0.0, write_ms = 0.0;
+  double psnr_db = 0.0;  // decoded image against the same resize without JPEG: what the quality costs
+  cv::Size size;
+};
+
+// A store of n keyframes with the images of `options` (max_side_px 0: none): bytes per keyframe on
+// disk, encode and write ms per keyframe.
+ImageCost imageCost(const std::string& dir, const std::vector<cv::Mat>& frames, const core::KeyframeImageOptions& options,
+                    int n, int features) {
+  const std::string path = (fs::path(dir) / "bench_store_images.db").string();
+  for (const char* suffix : {"", "-wal", "-shm"}) fs::remove(path + suffix);
+  ImageCost cost;
+  std::mt19937 rng(1);
+  {
+    core::SessionStore store(path);
+    const std::int64_t s = store.addSession("bench", core::CameraIntrinsics{320, 240, 300.0, 300.0, 159.5, 119.5}, 0.0);
+    const core::UncertainPose2 m(core::Pose2(0.3, 0.01, 0.001), Eigen::Matrix3d::Identity() * 1e-4);
+    for (int k = 0; k < n; ++k) {
+      core::StoredKeyframe kf = syntheticKeyframe(s, k, features, rng);
+      auto t0 = std::chrono::steady_clock::now();
+      kf.thumbnail = core::encodeKeyframeImage(frames[k % frames.size()], options);
+      cost.encode_ms += msSince(t0);
+      cost.jpeg_bytes += kf.thumbnail.size();
+      if (!kf.thumbnail.empty() && k < static_cast<int>(frames.size())) {
+        const cv::Mat decoded = cv::imdecode(kf.thumbnail, cv::IMREAD_GRAYSCALE);
+        cv::Mat grey, resized;
+        cv::cvtColor(frames[k], grey, cv::COLOR_BGR2GRAY);
+        cv::resize(grey, resized, decoded.size(), 0, 0, cv::INTER_AREA);
+        cost.size = decoded.size();
+        cost.psnr_db += cv::PSNR(decoded, resized) / static_cast<double>(std::min<std::size_t>(frames.size(), n));
+      }
+      std::vector<core::StoredLoop> loops;
+      t0 = std::chrono::steady_clock::now();
+      store.addKeyframe(kf, k > 0 ? &m : nullptr, &loops);
+      cost.write_ms += msSince(t0);
+    }
+    store.endSession(s, n);
+    store.checkpoint();
+  }
+  cost.store_bytes = static_cast<double>(fs::file_size(path)) / n;
+  cost.jpeg_bytes /= n;
+  cost.encode_ms /= n;
+  cost.write_ms /= n;
+  for (const char* suffix : {"", "-wal", "-shm"}) fs::remove(path + suffix);
+  return cost;
+}
+
+void printImageTable(const std::string& dir, const std::string& dataset_dir, int n, int features) {
+  const std::vector<cv::Mat> frames = benchFrames(dataset_dir);
+  std::printf("\nkeyframe image (config store), %d keyframes of %d features, frames %d x %d from %s:\n", n, features,
+              frames.front().cols, frames.front().rows, dataset_dir.empty() ? "the simulator" : dataset_dir.c_str());
+  std::printf("| image_max_side_px | image_jpeg_quality | stored size | JPEG bytes | PSNR dB | store bytes per keyframe | image share | encode ms | write ms per keyframe |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|\n");
+  core::KeyframeImageOptions none;
+  none.max_side_px = 0;
+  const ImageCost base = imageCost(dir, frames, none, n, features);
+  std::printf("| 0 (none) | - | - | 0 | - | %.0f | 0 %% | 0 | %.2f |\n", base.store_bytes, base.write_ms);
+  std::fflush(stdout);
+  for (int side : {96, 160, 320, 640, 960}) {
+    for (int quality : {75, 90}) {
+      core::KeyframeImageOptions o;
+      o.max_side_px = side;
+      o.jpeg_quality = quality;
+      const ImageCost c = imageCost(dir, frames, o, n, features);
+      std::printf("| %d | %d | %d x %d | %.0f | %.1f | %.0f | %.0f %% | %.2f | %.2f |\n", side, quality, c.size.width,
+                  c.size.height, c.jpeg_bytes, c.psnr_db, c.store_bytes,
+                  100.0 * (c.store_bytes - base.store_bytes) / c.store_bytes, c.encode_ms, c.write_ms);
+      std::fflush(stdout);
+    }
+  }
 }
 
 }  // namespace
@@ -38,9 +178,16 @@ int main(int argc, char** argv) {
   std::vector<int> sizes;
   int features = 500;
   std::string dir = fs::temp_directory_path().string();
+  std::string dataset_dir;
+  int image_keyframes = 200;
+  bool images = true, images_only = false;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--keyframes" && i + 1 < argc) sizes.push_back(std::atoi(argv[++i]));
+    else if (a == "--images" && i + 1 < argc) dataset_dir = argv[++i];
+    else if (a == "--image-keyframes" && i + 1 < argc) image_keyframes = std::atoi(argv[++i]);
+    else if (a == "--no-images") images = false;
+    else if (a == "--images-only") images_only = true;
     else if (a == "--features" && i + 1 < argc) features = std::atoi(argv[++i]);
     else if (a == "--dir" && i + 1 < argc) dir = argv[++i];
     else {
@@ -49,8 +196,13 @@ int main(int argc, char** argv) {
     }
   }
   if (sizes.empty()) sizes = {1000, 10000};
-  std::printf("| keyframes | features | bytes per keyframe | write ms per keyframe | reload ms (back-end + detector) | reload ms (back-end only) |\n");
-  std::printf("|---|---|---|---|---|---|\n");
+  if (image_keyframes < 1 || features < 1) {
+    std::fprintf(stderr, "bench_store: --image-keyframes and --features must be at least 1\n");
+    return 2;
+  }
+  if (images_only) sizes.clear();
+  if (!sizes.empty()) std::printf("| keyframes | features | bytes per keyframe | write ms per keyframe | reload ms (back-end + detector) | reload ms (back-end only) |\n");
+  if (!sizes.empty()) std::printf("|---|---|---|---|---|---|\n");
   try {
     for (int n : sizes) {
       const std::string path = (fs::path(dir) / ("bench_store_" + std::to_string(n) + ".db")).string();
@@ -130,6 +282,7 @@ int main(int argc, char** argv) {
       std::fflush(stdout);
       fs::remove(path);
     }
+    if (images) printImageTable(dir, dataset_dir, image_keyframes, features);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "bench_store: %s\n", e.what());
     return 1;

@@ -46,7 +46,8 @@ options:
   --resolution M    mosaic metres per pixel (default: the median keyframe's ground pixel size
                     of the images drawn)
   --images DIR...   dataset folders whose frames (matched by stamp and frame index) are drawn at
-                    full resolution; without them the store's thumbnails are drawn
+                    full resolution; without them the keyframe images kept in the store are
+                    drawn (their size: config store.image_max_side_px of the run that wrote it)
   --blend B         feather (default), multiband or none (cv::detail blenders; none: each
                     keyframe drawn over the earlier ones)
   --no-exposure     no gain compensation between keyframes (per colour channel)
@@ -156,8 +157,8 @@ int main(int argc, char** argv) {
                   out.c_str(), origin_text.empty() ? " (no --origin: no GeoJSON)" : "");
       if (mosaic && image_dirs.empty())
         std::printf(
-            "note: mosaics drawn from the store's thumbnails (small): give --images DATASET_DIR... for "
-            "full-resolution frames\n");
+            "note: mosaics drawn from the keyframe images kept in the store (config store.image_max_side_px): "
+            "give --images DATASET_DIR... for full-resolution frames\n");
       if (survey.pending_loops > 0)
         std::printf("note: %d loops were pending optimisation in the store; the poses are as stored\n",
                     survey.pending_loops);

@@ -548,3 +548,111 @@ def test_mosaic_score_of_the_map_is_close_to_the_ground_truths(store, survey, tm
     worse = mosaic_scores(survey, bad, tmp_path / "bad_report")
     assert worse["mosaic_disagreement_gt"] == pytest.approx(m["mosaic_disagreement_gt"], rel=1e-9)
     assert worse["mosaic_ratio"] > m["mosaic_ratio"] + 0.1, (worse, m)
+
+
+# --- keyframe images in the store (issue 18, item 2) ----------------------------------------------
+
+# IJG's luminance quantisation table (JPEG Annex K.1), natural order, and libjpeg's scaling by quality
+IJG_LUMA = [16, 11, 10, 16, 24, 40, 51, 61, 12, 12, 14, 19, 26, 58, 60, 55, 14, 13, 16, 24, 40, 57, 69, 56,
+            14, 17, 22, 29, 51, 87, 80, 62, 18, 22, 37, 56, 68, 109, 103, 77, 24, 35, 55, 64, 81, 104, 113, 92,
+            49, 64, 78, 87, 103, 121, 120, 101, 72, 92, 95, 98, 112, 100, 103, 99]
+
+
+def ijg_luma_table(quality):
+    scale = 5000 // quality if quality < 50 else 200 - 2 * quality
+    return [min(255, max(1, (q * scale + 50) // 100)) for q in IJG_LUMA]
+
+
+def jpeg_header(blob):
+    """(width, height, components, first quantisation table) read from the JPEG's markers."""
+    assert blob[:2] == b"\xff\xd8", "not a JPEG"
+    i, size, table = 2, None, None
+    while i + 4 <= len(blob) and (size is None or table is None):
+        assert blob[i] == 0xFF, i
+        marker, length = blob[i + 1], struct.unpack(">H", blob[i + 2:i + 4])[0]
+        if marker == 0xDB and table is None:  # DQT: Pq/Tq byte, then 64 8-bit values (zigzag order)
+            assert blob[i + 4] >> 4 == 0
+            table = list(blob[i + 5:i + 69])
+        elif marker in (0xC0, 0xC1, 0xC2):  # SOF: precision, height, width, components
+            h, w = struct.unpack(">HH", blob[i + 5:i + 9])
+            size = (w, h, blob[i + 9])
+        i += 2 + length
+    return size + (table,)
+
+
+def stored_images(db):
+    return [bytes(b) for (b,) in store_rows(db, "SELECT thumbnail FROM keyframes ORDER BY session, keyframe")]
+
+
+@pytest.fixture(scope="module")
+def stores_by_image(survey, tmp_path_factory):
+    """Stores written by offline_slam --db with the old 96 px thumbnail and a non-default 240 px, quality 85."""
+    out = {}
+    for side, quality in ((96, 70), (240, 85)):
+        base = tmp_path_factory.mktemp("store_%d" % side)
+        (base / "slam.yaml").write_text("store: {image_max_side_px: %d, image_jpeg_quality: %d}\n" % (side, quality))
+        r = run("offline_slam", "--config", base / "slam.yaml", "--session", survey / "a", "--session", survey / "b",
+                "--out", base / "run", "--db", base / "survey.db", "--quiet")
+        assert r.returncode == 0, r.stderr
+        out[side] = base / "survey.db"
+    return out
+
+
+def test_offline_slam_keeps_keyframe_images_of_the_configured_size_and_quality(store, stores_by_image):
+    # the frames are 320 x 240: the default (320, quality 75) keeps them whole
+    for db, size, quality in ((store[0], (320, 240), 75), (stores_by_image[240], (240, 180), 85),
+                              (stores_by_image[96], (96, 72), 70)):
+        images = stored_images(db)
+        assert len(images) >= 15
+        for blob in images:
+            w, h, components, table = jpeg_header(blob)
+            assert (w, h) == size and components == 1, (db, w, h, components)
+            assert sorted(table) == sorted(ijg_luma_table(quality)), (db, quality, table)
+    # a larger image costs more bytes, as bench_store measures
+    mean = {side: np.mean([len(b) for b in stored_images(db)]) for side, db in stores_by_image.items()}
+    assert mean[240] > 2 * mean[96], mean
+
+
+def mosaic_line(stdout, prefix):
+    line = next(x for x in stdout.splitlines() if x.startswith(prefix) and ".png:" in x)
+    return line, float(line.split(" at ")[1].split(" m/px")[0])
+
+
+def covered_grey(path):
+    data, _, _ = read_raster(path)
+    return gray(data), data[..., 3] == 255
+
+
+def test_store_only_mosaics_are_finer_and_sharper_with_larger_images(stores_by_image, survey, tmp_path):
+    """From the store alone (no --images) the automatic resolution is the stored image's ground pixel,
+    and at a common resolution a 240 px image's mosaic is closer to the full-resolution frames'
+    mosaic (correlation) and keeps more of its detail (gradient energy) than a 96 px thumbnail's."""
+    results = {}
+    for side, db in stores_by_image.items():
+        r = run("export_survey", "--db", db, "--out", tmp_path / ("auto_%d" % side))
+        assert r.returncode == 0, r.stderr
+        line, res = mosaic_line(r.stdout, "map_")
+        assert "0 frames" in line and "0 missing" in line, line  # the stored images only
+        common = "--resolution", "0.007"
+        r = run("export_survey", "--db", db, "--out", tmp_path / ("store_%d" % side), *common)
+        assert r.returncode == 0, r.stderr
+        r = run("export_survey", "--db", db, "--out", tmp_path / ("full_%d" % side), "--images", survey / "a",
+                survey / "b", *common)
+        assert r.returncode == 0, r.stderr
+        name = [p for p in os.listdir(tmp_path / ("store_%d" % side)) if p.startswith("map_") and p.endswith(".png")][0]
+        small, covered = covered_grey(tmp_path / ("store_%d" % side) / name)
+        full, covered_full = covered_grey(tmp_path / ("full_%d" % side) / name)
+        assert small.shape == full.shape
+        both = covered & covered_full
+        assert both.mean() > 0.5
+        gy, gx = np.gradient(small)
+        fy, fx = np.gradient(full)
+        results[side] = dict(res=res, ncc=ncc(small[both], full[both]),
+                             energy=float(np.hypot(gx, gy)[both].mean() / np.hypot(fx, fy)[both].mean()))
+    print(results)
+    # automatic resolution: the camera's ground pixel (2 m / 300 px at 320 px) times 320 / stored width
+    assert results[240]["res"] == pytest.approx(results[96]["res"] * 96 / 240, rel=0.05), results
+    # measured: 96 px NCC 0.947, gradient energy 0.35 of the full frames'; 240 px 0.993, 0.81
+    assert 1.0 - results[240]["ncc"] < (1.0 - results[96]["ncc"]) / 3, results
+    assert results[240]["energy"] > results[96]["energy"] + 0.3, results
+    assert results[240]["ncc"] > 0.98, results

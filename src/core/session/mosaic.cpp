@@ -290,10 +290,22 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
   raster.res = options.resolution_m;
   if (raster.res <= 0.0) {
     std::vector<double> px;
+    // A stored image's ground pixel grows by camera width / stored width. The stored size is set
+    // per run (config `store`), so one decoded image per session gives it.
+    std::map<std::int64_t, double> stored_scale;
+    auto storedScale = [&](const ExportKeyframe& k, const CameraIntrinsics& c) {
+      auto it = stored_scale.find(k.session);
+      if (it != stored_scale.end()) return it->second;
+      const cv::Mat img = cv::imdecode(k.thumbnail, cv::IMREAD_GRAYSCALE);
+      const double scale = img.empty() ? 1.0 : static_cast<double>(c.width) / img.cols;
+      if (!img.empty()) stored_scale[k.session] = scale;
+      return scale;
+    };
     for (const ExportKeyframe& k : track.keyframes) {
       const CameraIntrinsics& c = survey.camera(k.session);
-      const double thumb = k.thumbnail.empty() ? 1.0 : c.width / 96.0;
-      if (drawable(k)) px.push_back(k.altitude_m / c.fx * (images.hasDatasets() ? 1.0 : thumb));
+      if (!drawable(k)) continue;
+      const double scale = images.hasDatasets() || k.thumbnail.empty() ? 1.0 : storedScale(k, c);
+      px.push_back(k.altitude_m / c.fx * scale);
     }
     if (px.empty()) throw ExportError(png_path + ": no keyframe of " + track.label + " has a valid pose and altitude");
     std::nth_element(px.begin(), px.begin() + px.size() / 2, px.end());

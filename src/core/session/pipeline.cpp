@@ -102,20 +102,6 @@ void Pipeline::endPiece(double stamp_s) {
   session_ = -1;
 }
 
-std::vector<std::uint8_t> Pipeline::thumbnail(const cv::Mat& image) {
-  std::vector<std::uint8_t> jpeg;
-  if (image.empty()) return jpeg;
-  cv::Mat grey, small;
-  if (image.channels() == 3)
-    cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
-  else
-    grey = image;
-  const double f = 96.0 / std::max(grey.cols, grey.rows);
-  cv::resize(grey, small, cv::Size(), f, f, cv::INTER_AREA);
-  cv::imencode(".jpg", small, jpeg, {cv::IMWRITE_JPEG_QUALITY, 70});
-  return jpeg;
-}
-
 SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input) {
   OdometryInput with_nav;
   NavRecord nav;
@@ -167,7 +153,8 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input) {
           std::to_string(read_failures_) + " so far): " + detector_.lastReadError());
     }
     if (manager_->hasStore() && image_of_)
-      k.thumbnail = thumbnail(info.frame_index == frame.index ? frame.image : image_of_(info.frame_index));
+      k.thumbnail = encodeKeyframeImage(info.frame_index == frame.index ? frame.image : image_of_(info.frame_index),
+                                        config_.store_image);
     ScopedStage stage(&times_, "session_manager");
     const Status st = manager_->addKeyframe(k, loops);
     if (!st.ok()) throw std::logic_error("session manager refused an in-process keyframe: " + st.message);

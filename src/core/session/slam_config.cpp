@@ -191,6 +191,10 @@ void visitConfig(V& v, C& c) {
   });
   v.block("loops", [&](V& l) { visitLoops(l, c.loops); });
   v.block("backend", [&](V& b) { visitBackend(b, c.backend); });
+  v.block("store", [&](V& s) {
+    s("image_max_side_px", c.store_image.max_side_px);
+    s("image_jpeg_quality", c.store_image.jpeg_quality);
+  });
 }
 
 }  // namespace
@@ -205,7 +209,9 @@ std::string SlamConfig::validate() const {
   const std::string l = loops.validate();
   if (!l.empty()) return "loops." + l;
   const std::string b = backend.validate();
-  return b.empty() ? b : "backend: " + b;
+  if (!b.empty()) return "backend: " + b;
+  const std::string s = store_image.validate();
+  return s.empty() ? s : "store." + s;
 }
 
 SlamConfig slamConfigFromYaml(const std::string& yaml_text) {

@@ -21,6 +21,7 @@
 #include "uw_multislam/core/frontend/tracking.h"
 #include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/loops/session_chain.h"
+#include "uw_multislam/core/session/keyframe_image.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/slam_config.h"
 
@@ -38,7 +39,7 @@ int loadStoredSessions(SessionManager* manager, LoopDetector* detector, std::deq
 class Pipeline {
  public:
   using Log = std::function<void(const std::string&)>;
-  /// A stream's image of a frame index (for a keyframe's store thumbnail; may return empty).
+  /// A stream's image of a frame index (for a keyframe's stored image, config `store`; may return empty).
   using ImageOf = std::function<cv::Mat(int frame_index)>;
 
   /// `manager` must outlive the pipeline. Every stored session of the manager is reloaded into
@@ -51,7 +52,7 @@ class Pipeline {
   void beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of = {},
                    NavTrack nav = {});
   /// A dataset folder as a stream: named by its directory, its camera, its images read from the
-  /// folder for thumbnails, its nav.csv as `nav`. `d` must outlive the stream.
+  /// folder for the keyframes' stored images, its nav.csv as `nav`. `d` must outlive the stream.
   void beginStream(const Dataset& d);
   /// One frame of the current stream.
   SegmentedOdometry::Step processFrame(const OdometryInput& frame);
@@ -65,9 +66,6 @@ class Pipeline {
   const LoopDetector& loopDetector() const { return detector_; }
   /// Every stage's timing: odometry (all streams), hashing, loop detection, session manager.
   StageTimes times() const;
-  /// A keyframe's image as the store keeps it (a small JPEG); public so that the odometry
-  /// nodelet makes the Keyframe message's thumbnail the same way.
-  static std::vector<std::uint8_t> thumbnail(const cv::Mat& image);
 
  private:
   void startPiece(double stamp_s);

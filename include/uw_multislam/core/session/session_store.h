@@ -5,8 +5,9 @@
 //    runs are comparable only with the same vectors, so a store refuses other settings;
 //  - sessions (name, stamps, state, camera intrinsics);
 //  - keyframes (frame index, stamp, altitude, keypoint pixel coordinates as float32, descriptors
-//    as uint8, the hash as float32, an optional small JPEG thumbnail) with the odometry motion
-//    that reaches each (mean and covariance) and the loops it closed;
+//    as uint8, the hash as float32, an optional grey JPEG of the keyframe,
+//    core/session/keyframe_image.h) with the odometry motion that reaches each (mean and
+//    covariance) and the loops it closed;
 //  - maps (chains of sessions, links with the loops they summarise, the optimised motions with
 //    their marginal covariances), loop states and the user's split pairs.
 //
@@ -70,7 +71,7 @@ struct StoredKeyframe {
   std::vector<cv::Point2f> points;      // keypoint pixel coordinates, descending response
   cv::Mat descriptors;                  // points.size() x 128, CV_8U (CV_32F accepted when writing)
   Eigen::VectorXf hash;                 // HalocProjections::kHashSize values
-  std::vector<std::uint8_t> thumbnail;  // JPEG, may be empty
+  std::vector<std::uint8_t> thumbnail;  // the keyframe image (keyframe_image.h; JPEG), may be empty
   MotionSource motion_source = MotionSource::kVisual;  // of the motion written with it
 
   /// Its features as the loop detector takes them: keypoints at the stored pixel positions (size

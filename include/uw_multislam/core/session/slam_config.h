@@ -8,6 +8,7 @@
 #include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/frontend/tracking.h"
+#include "uw_multislam/core/session/keyframe_image.h"
 
 namespace uw_multislam {
 namespace core {
@@ -17,6 +18,7 @@ struct SlamConfig {
   TrackingLossOptions tracking;
   LoopOptions loops;
   BackendOptions backend;
+  KeyframeImageOptions store_image;  // YAML block `store`: the keyframe image the store keeps
 
   /// Empty when usable, else "<component>: <reason>".
   std::string validate() const;
