@@ -104,6 +104,8 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
       pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
   o.store_path = param(
       pnh, "store_path", ros_params::defaultStorePath(), [](const std::string&) { return true; }, "a path");
+  o.store_max_mb = param(
+      pnh, "store_max_mb", 0.0, [](double v) { return v >= 0 && v <= 1e9; }, "in [0, 1e9] MB (0: no cap)");
   return o;
 }
 
@@ -111,6 +113,7 @@ core::SessionManagerOptions sessionManagerOptions(const BackendNodeletOptions& o
   core::SessionManagerOptions m = core::sessionManagerOptions(config, o.store_path);
   m.max_keyframe_gap = o.max_keyframe_gap;
   m.max_empty_sessions = o.max_empty_sessions;
+  m.store_max_mb = o.store_max_mb;
   return m;
 }
 
