@@ -165,7 +165,8 @@ def stop(proc):
 
 def case_kill_offline(m, off):
     case = "offline_slam --db killed -9 mid-run, re-run"
-    expected = "integrity ok; the re-run refused in one line naming the folder; keyframes unchanged"
+    expected = ("integrity ok; the re-run refused (status 3) in one line naming the folder and --interrupted; "
+                "keyframes unchanged; with --interrupted discard: status 0, each folder once, no session recording")
     d = m.tempdir(case)
     proc = None
     try:
@@ -184,10 +185,16 @@ def case_kill_offline(m, off):
         r = off.run(args)
         after = keyframe_count(store)
         lines = reason(r.stderr)
-        held = (bool(got) and ok == "ok" and r.returncode != 0 and len(lines) == 1 and off.folder("a") in lines[0]
-                and after == before)
-        observed = "killed at %d keyframes (sessions %s); integrity %s; re-run status %d: %s; keyframes after %s" % (
-            before, states, ok, r.returncode, " / ".join(lines) or "(no message)", after)
+        d2 = off.run(args + ["--interrupted", "discard"])
+        states2 = session_states(store)
+        held = (bool(got) and ok == "ok" and r.returncode == 3 and len(lines) == 1 and off.folder("a") in lines[0]
+                and "--interrupted discard" in lines[0] and after == before and d2.returncode == 0
+                and integrity(store) == "ok" and [n for n, _ in states2] == [off.folder("a"), off.folder("b")]
+                and all(st == "finished" for _, st in states2))
+        observed = ("killed at %d keyframes (sessions %s); integrity %s; re-run status %d: %s; keyframes after %s; "
+                    "--interrupted discard: status %d, sessions %s, integrity %s") % (
+            before, states, ok, r.returncode, " / ".join(lines) or "(no message)", after, d2.returncode, states2,
+            integrity(store))
         m.row(case, expected, observed, held)
     finally:
         stop(proc)

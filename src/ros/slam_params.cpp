@@ -112,6 +112,8 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
       pnh, "mosaic_max_side", 1024, [](int v) { return v >= 16 && v <= 8192; }, "in [16, 8192] px");
   o.export_root = param(
       pnh, "export_root", ros_params::defaultExportRoot(), [](const std::string&) { return true; }, "a path");
+  o.store_max_mb = param(
+      pnh, "store_max_mb", 0.0, [](double v) { return v >= 0 && v <= 1e9; }, "in [0, 1e9] MB (0: no cap)");
   return o;
 }
 
@@ -119,6 +121,7 @@ core::SessionManagerOptions sessionManagerOptions(const BackendNodeletOptions& o
   core::SessionManagerOptions m = core::sessionManagerOptions(config, o.store_path);
   m.max_keyframe_gap = o.max_keyframe_gap;
   m.max_empty_sessions = o.max_empty_sessions;
+  m.store_max_mb = o.store_max_mb;
   return m;
 }
 

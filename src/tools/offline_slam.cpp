@@ -3,14 +3,17 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <set>
 #include <string>
 #include <vector>
 
 #include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/session/interrupted_run.h"
 #include "uw_multislam/core/session/pipeline.h"
 #include "uw_multislam/core/session/run_outputs.h"
 #include "uw_multislam/core/session/session_manager.h"
@@ -33,7 +36,14 @@ each map is optimised (backend.optimizer); `map` is the map's first session, who
 
 With --db FILE (the session store, created if missing) the stored sessions come first as 0..k-1,
 the folders follow from k; global loops are searched against them and everything is written to the
-store as it happens. A folder already in it (frame indexes and stamps) is refused without --again.
+store as it happens. A folder already in it (frame indexes and stamps) is refused (exit status 3)
+without --again. A run killed before it ended (kill -9, power cut) leaves the folder's session
+`recording` in the store: running the folder again is refused (exit status 3) until you choose
+with --interrupted:
+  discard   delete the interrupted run's sessions (keyframes, motions, loops; the maps lose them)
+            in one transaction, then process the folder again as usual;
+  finish    keep what was stored, mark the session finished, and skip the folder in this run
+            (when every folder is skipped, the run ends with status 0 and writes nothing to OUT).
 
 options:
   --session DIR     a dataset folder (repeat for several missions)
@@ -41,24 +51,83 @@ options:
   --config FILE     YAML configuration (see config/slam.yaml; --dump-config shows every key)
   --db FILE         the session store (SQLite) to read and extend
   --again           process folders already in the store once more (as new sessions)
+  --interrupted discard|finish
+                    what to do with a folder's run that was interrupted (above)
   --nav on|off      use a folder's nav.csv (dead reckoning) as a prior (default: nav.enabled, on)
   --threads N       OpenCV threads (default 1: one core, as onboard)
   --dump-config     print the effective configuration and exit
   --quiet           no per-session summary
   -h, --help        this text
 
-Exit status 0 on success, 2 on bad arguments, 1 with a one-line reason on bad input.)";
+Exit status 0 on success, 2 on bad arguments, 1 with a one-line reason on bad input, 3 when a
+folder is already in the store (the one-line reason names the option to pass: --again, or
+--interrupted discard|finish).)";
+
+constexpr int kInStore = 3;  // a folder already in the store: finished (--again) or interrupted (--interrupted)
 
 int badArgs(const std::string& why) {
   std::fprintf(stderr, "offline_slam: %s (see --help)\n", why.c_str());
   return 2;
 }
 
+int inStore(const std::string& why) {
+  std::fprintf(stderr, "offline_slam: %s\n", why.c_str());
+  return kInStore;
+}
+
+// Folders whose run in the store `db` was interrupted (issue 21, 8): without a choice the first
+// is refused (kInStore, naming the option); `discard` deletes the run and keeps the folder,
+// `finish` marks it finished and drops the folder from `folders` and `datasets`. Only an
+// existing store is opened (a new one is created by the session manager); the store is closed
+// again before the manager opens it. `finished` gets the ids of the sessions marked finished
+// (the folder they belong to is skipped: another folder with the same frames must not be taken
+// for it). Returns 0 or the exit status.
+int resolveInterrupted(const std::string& db, const std::string& choice, std::vector<std::string>* folders,
+                       std::vector<core::Dataset>* datasets, std::set<int>* finished) {
+  std::error_code ec;
+  if (db.empty() || !std::filesystem::is_regular_file(db, ec) || std::filesystem::file_size(db, ec) == 0) return 0;
+  core::SessionStore store(db);
+  std::vector<std::string> kept_folders;
+  std::vector<core::Dataset> kept;
+  for (std::size_t ds = 0; ds < datasets->size(); ++ds) {
+    const std::vector<core::InterruptedRun> runs = core::findInterruptedRuns(store, (*datasets)[ds].frames);
+    bool skip = false;
+    for (const core::InterruptedRun& r : runs) {
+      const std::string what = "session " + std::to_string(r.ids.back()) + " '" + r.name + "', " +
+                               std::to_string(r.keyframes) + " keyframes in " + std::to_string(r.ids.size()) +
+                               " session(s)";
+      if (choice.empty())
+        return inStore((*folders)[ds] + " is in " + db + " from an interrupted run (" + what +
+                       ", still recording): pass --interrupted discard (delete it and process the folder again) "
+                       "or --interrupted finish (keep it as stored and skip the folder)");
+      if (choice == "discard") {
+        core::resolveInterruptedRun(&store, r, core::InterruptedChoice::kDiscard);
+        std::fprintf(stderr,
+                     "offline_slam: %s: the interrupted run (%s) deleted from %s; processing the folder again\n",
+                     (*folders)[ds].c_str(), what.c_str(), db.c_str());
+      } else {
+        core::resolveInterruptedRun(&store, r, core::InterruptedChoice::kFinish);
+        finished->insert(r.ids.begin(), r.ids.end());
+        std::fprintf(stderr,
+                     "offline_slam: %s: the interrupted run (%s) marked finished as stored in %s; folder skipped\n",
+                     (*folders)[ds].c_str(), what.c_str(), db.c_str());
+        skip = true;
+      }
+    }
+    if (skip) continue;
+    kept_folders.push_back((*folders)[ds]);
+    kept.push_back(std::move((*datasets)[ds]));
+  }
+  *folders = std::move(kept_folders);
+  *datasets = std::move(kept);
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   std::vector<std::string> folders;
-  std::string out, config_file, db, nav;
+  std::string out, config_file, db, nav, interrupted;
   int threads = 1;
   bool dump = false, quiet = false, again = false;
   for (int i = 1; i < argc; ++i) {
@@ -73,6 +142,7 @@ int main(int argc, char** argv) {
     else if (arg == "--quiet") quiet = true;
     else if (arg == "--again") again = true;
     else if (arg == "--nav" && has_value) nav = argv[++i];
+    else if (arg == "--interrupted" && has_value) interrupted = argv[++i];
     else if (arg == "--threads" && has_value) {
       char* end = nullptr;
       const long n = std::strtol(argv[++i], &end, 10);
@@ -86,6 +156,9 @@ int main(int argc, char** argv) {
     core::SlamConfig config = config_file.empty() ? core::SlamConfig() : core::loadSlamConfig(config_file);
     if (!nav.empty() && nav != "on" && nav != "off") return badArgs("--nav takes on or off, not '" + nav + "'");
     if (!nav.empty()) config.odometry.nav.enabled = nav == "on";
+    if (!interrupted.empty() && interrupted != "discard" && interrupted != "finish")
+      return badArgs("--interrupted takes discard or finish, not '" + interrupted + "'");
+    if (!interrupted.empty() && db.empty()) return badArgs("--interrupted needs --db FILE");
     if (dump) return std::fputs(core::slamConfigToYaml(config).c_str(), stdout), 0;
     if (folders.empty()) return badArgs("at least one --session DIR is required");
     if (out.empty()) return badArgs("--out OUT is required");
@@ -93,6 +166,13 @@ int main(int argc, char** argv) {
     // Every folder and the store are checked before any work or any output.
     std::vector<core::Dataset> datasets;
     for (const auto& dir : folders) datasets.push_back(core::loadDataset(dir, true, core::StampOrder::kRequired));
+    std::set<int> finished_now;
+    if (const int refused = resolveInterrupted(db, interrupted, &folders, &datasets, &finished_now); refused != 0)
+      return refused;
+    if (datasets.empty()) {
+      std::printf("offline_slam: every folder was skipped: nothing to process\n");
+      return 0;
+    }
     auto print = [quiet](const char* prefix) {
       return [quiet, prefix](const std::string& line) {
         if (!quiet) std::printf("%s%s\n", prefix, line.c_str());
@@ -102,9 +182,13 @@ int main(int argc, char** argv) {
     core::SessionManager manager(core::sessionManagerOptions(config, db), {}, print("backend: "));
     core::Pipeline pipeline(config, &manager, print(""), !quiet);
     const int stored = manager.restoredSessions();
-    for (std::size_t ds = 0; !again && ds < datasets.size(); ++ds)
-      if (const std::vector<int> s = manager.storedSessionsOf(datasets[ds].frames); !s.empty())
-        return badArgs(folders[ds] + " is already in " + db + " (session " + std::to_string(s.front()) + "): --again");
+    for (std::size_t ds = 0; !again && ds < datasets.size(); ++ds) {
+      std::vector<int> s = manager.storedSessionsOf(datasets[ds].frames);
+      s.erase(std::remove_if(s.begin(), s.end(), [&](int id) { return finished_now.count(id) > 0; }), s.end());
+      if (!s.empty())
+        return inStore(folders[ds] + " is already in " + db + " (session " + std::to_string(s.front()) +
+                       "): pass --again to process it once more as new sessions");
+    }
     if (!db.empty() && !quiet)
       std::printf("store %s: %d sessions, %d loops loaded in %.1f ms\n", db.c_str(), stored,
                   static_cast<int>(manager.loops().size()),

@@ -414,6 +414,58 @@ TEST(SessionManager, AGatedLoopIsMarkedRefusedAndWrittenApartFromTheAcceptedOnes
                                                                   "0,20,0,70,local,50"}));
 }
 
+// A store that cannot grow (store_max_mb just above the file's size: a full disk, issue 21, 4): each write
+// that does not fit is counted (store_failures) and logged, the manager goes on in memory (keyframes,
+// loops, a join answered OK), and the store stays restorable: a session's stored keyframes stay a
+// prefix (a big keyframe that fails is not followed by a small one that would fit: a gap would make
+// the store unrestorable), and no loop is stored on a keyframe the store lacks.
+TEST(SessionManager, AFullStoreIsCountedAndTheManagerGoesOnWithARestorableStore) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 4);
+    ASSERT_TRUE(m.endSession(4.0).ok());
+  }
+  SessionManagerOptions o = options(db);
+  // Room for small writes (64 kB more than the file holds), none for a 390 kB keyframe.
+  o.store_max_mb = static_cast<double>(std::filesystem::file_size(db) + 65536) / 1048576.0;
+  {
+    std::vector<std::string> log;
+    SessionManager m(o, {}, [&](const std::string& line) { log.push_back(line); });
+    ASSERT_EQ(m.restoredSessions(), 1);
+    for (int k = 0; k < 8; ++k) {
+      KeyframeInput in = keyframe(1, k, Pose2(k, 0, 0), Pose2(std::max(0, k - 1), 0, 0));
+      if (k % 2 == 0) {  // big ones (3000 features, 390 kB) between small ones (no features)
+        in.features.image_size = cv::Size(640, 480);
+        for (int i = 0; i < 3000; ++i) in.features.keypoints.emplace_back(cv::Point2f(i % 640, i / 640), 1.0f);
+        in.features.descriptors = cv::Mat(3000, 128, CV_8U, cv::Scalar(7));
+      }
+      ASSERT_TRUE(m.addKeyframe(in).ok());  // the manager goes on
+    }
+    for (int k = 1; k <= 3; ++k) ASSERT_TRUE(m.addLoop(globalLoop(0, k, 1, k, Pose2(0, 1, 0))).ok());
+    ASSERT_TRUE(m.join(0, 1, 3).ok());
+    EXPECT_EQ(m.mapOf(1), 0);  // joined in memory
+    EXPECT_GT(m.stats().store_failures, 0);
+    bool full = false;
+    for (const std::string& line : log) full = full || line.find("the disk is full") != std::string::npos;
+    EXPECT_TRUE(full) << "no store failure logged";
+    const long failures = m.stats().store_failures;
+    ASSERT_TRUE(m.endSession(9.0).ok());
+    EXPECT_GE(m.stats().store_failures, failures);
+  }
+  // What the store kept restores: session 1's keyframes are a prefix, every stored loop on
+  // stored keyframes.
+  SessionManager again(options(db));
+  const std::vector<SessionSummary> list = again.list();
+  ASSERT_GE(list.size(), 1u);
+  EXPECT_EQ(list[0].keyframes, 4);
+  if (list.size() > 1) {
+    EXPECT_LT(list[1].keyframes, 8);
+  }
+  EXPECT_EQ(again.stats().store_failures, 0);
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam

@@ -9,10 +9,12 @@
 #include <csignal>
 #include <fstream>
 #include <iterator>
+#include <map>
 #include <random>
 
 #include "../common/scoped_temp_dir.h"
 #include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/session/interrupted_run.h"
 #include "uw_multislam/core/session/map_persistence.h"
 #include "uw_multislam/core/session/session_store.h"
 
@@ -474,6 +476,11 @@ TEST(Store, AFullDiskIsReportedAndLosesOnlyThatKeyframe) {
   EXPECT_GT(written, 0);
   EXPECT_EQ(static_cast<int>(store.keyframes(s, false).size()), written);
   EXPECT_EQ(static_cast<int>(store.odometry(s).size()), written - 1);
+  // With room again (the cap lifted: space freed) the same store object writes on.
+  store.setMaxBytes(0);
+  const UncertainPose2 m(Pose2(0.5, 0, 0), diag(0.02, 0.01));
+  EXPECT_NO_THROW(store.addKeyframe(randomKeyframe(s, written, 500, &rng), &m, nullptr));
+  EXPECT_EQ(static_cast<int>(store.keyframes(s, false).size()), written + 1);
 }
 
 // A child process writes keyframes and reports each commit through a pipe; it is killed with
@@ -712,6 +719,330 @@ TEST(Store, ReadOnlyReadsEverythingAndWritesNothing) {
   std::vector<std::string> names;
   for (const auto& e : std::filesystem::directory_iterator(dir2.path())) names.push_back(e.path().filename().string());
   EXPECT_EQ(names, std::vector<std::string>{"maps.db"});
+}
+
+// Every row a query gives, byte for byte (type and bytes of each column), for comparing a table
+// before and after a change through another connection (read-only).
+std::string rowBytes(const std::string& path, const std::string& sql) {
+  sqlite3* db = nullptr;
+  EXPECT_EQ(sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READONLY, nullptr), SQLITE_OK);
+  sqlite3_stmt* st = nullptr;
+  EXPECT_EQ(sqlite3_prepare_v2(db, sql.c_str(), -1, &st, nullptr), SQLITE_OK) << sql;
+  std::string out;
+  while (sqlite3_step(st) == SQLITE_ROW) {
+    for (int c = 0; c < sqlite3_column_count(st); ++c) {
+      const int type = sqlite3_column_type(st, c);
+      out += std::to_string(type) + ":";
+      if (type == SQLITE_FLOAT) {
+        const double v = sqlite3_column_double(st, c);
+        out.append(reinterpret_cast<const char*>(&v), sizeof v);
+      } else if (type != SQLITE_NULL) {
+        const void* p = sqlite3_column_blob(st, c);
+        out.append(static_cast<const char*>(p), static_cast<std::size_t>(sqlite3_column_bytes(st, c)));
+      }
+      out += "|";
+    }
+    out += "\n";
+  }
+  sqlite3_finalize(st);
+  sqlite3_close(db);
+  return out;
+}
+
+std::string integrityOf(const std::string& path) {
+  sqlite3* db = nullptr;
+  sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READONLY, nullptr);
+  sqlite3_stmt* st = nullptr;
+  std::string v = "unreadable";
+  if (sqlite3_prepare_v2(db, "PRAGMA integrity_check", -1, &st, nullptr) == SQLITE_OK && sqlite3_step(st) == SQLITE_ROW)
+    v = reinterpret_cast<const char*>(sqlite3_column_text(st, 0));
+  sqlite3_finalize(st);
+  sqlite3_close(db);
+  return v;
+}
+
+// What a session owns in the store, byte for byte: its session row, keyframes (every blob) and
+// motions.
+std::string sessionRows(const std::string& path, std::int64_t id) {
+  const std::string s = std::to_string(id);
+  return rowBytes(path, "SELECT * FROM sessions WHERE id = " + s) +
+         rowBytes(path, "SELECT * FROM keyframes WHERE session = " + s + " ORDER BY keyframe") +
+         rowBytes(path, "SELECT * FROM motions WHERE session = " + s + " ORDER BY keyframe");
+}
+
+// The loops that do not touch session `id`, byte for byte.
+std::string loopsWithout(const std::string& path, std::int64_t id) {
+  const std::string s = std::to_string(id);
+  return rowBytes(path, "SELECT * FROM loops WHERE session_a != " + s + " AND session_b != " + s + " ORDER BY id");
+}
+
+// Deleting a session (an interrupted run discarded, issue 21, 8): one transaction that takes out
+// its rows and its loops, cuts it out of the maps, and leaves every other session's rows byte for
+// byte as they were; the store passes integrity_check and restores into a back-end.
+TEST(Store, DeletingASessionLeavesTheOthersByteForByteAndCutsItOutOfTheMaps) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  BackendOptions opt;
+  opt.optimise_every = 1;
+  MultiSessionBackend original(opt);
+  std::vector<std::int64_t> ids;
+  {
+    SessionStore store(path);
+    Recorder r(&store, &original);
+    recordMission(&r);  // 1 joined to 0; 2 split off again
+    ids = r.session_ids;
+    ASSERT_TRUE(original.join(0, 2, 1).ok());  // now one map of three sessions
+    saveBackendMaps(&store, original, r.session_ids, r.loop_ids);
+  }
+  const std::vector<int> chain = original.chain(0);
+  ASSERT_EQ(chain.size(), 3u);
+  const int middle = chain[1], end = chain[2];
+  std::vector<std::string> before;
+  for (std::int64_t id : ids) before.push_back(sessionRows(path, id));
+  const std::string m = std::to_string(ids[static_cast<std::size_t>(middle)]);
+  const std::string other_loops = loopsWithout(path, ids[static_cast<std::size_t>(middle)]);
+  const std::string all_loops = rowBytes(path, "SELECT * FROM loops ORDER BY id");
+  const std::string splits_kept = rowBytes(path, "SELECT * FROM split_pairs WHERE session_a != " + m +
+                                                     " AND session_b != " + m + " ORDER BY session_a, session_b");
+
+  // An unknown id among the ones to delete: refused, naming it, and nothing is deleted.
+  {
+    SessionStore store(path);
+    try {
+      store.deleteSessions({ids[static_cast<std::size_t>(middle)], 999});
+      FAIL() << "an unknown session was deleted";
+    } catch (const StoreError& e) {
+      EXPECT_NE(std::string(e.what()).find("999"), std::string::npos) << e.what();
+    }
+  }
+  for (std::size_t i = 0; i < ids.size(); ++i) EXPECT_EQ(sessionRows(path, ids[i]), before[i]) << i;
+  EXPECT_EQ(rowBytes(path, "SELECT * FROM loops ORDER BY id"), all_loops);
+
+  // The middle session of the chain: the map falls apart into the sessions before and after it.
+  {
+    SessionStore store(path);
+    store.deleteSessions({ids[static_cast<std::size_t>(middle)]});
+  }
+  EXPECT_EQ(integrityOf(path), "ok");
+  for (std::size_t i = 0; i < ids.size(); ++i) {
+    if (static_cast<int>(i) == middle) {
+      EXPECT_EQ(rowBytes(path, "SELECT * FROM keyframes WHERE session = " + std::to_string(ids[i])), "");
+      EXPECT_EQ(rowBytes(path, "SELECT * FROM motions WHERE session = " + std::to_string(ids[i])), "");
+      EXPECT_EQ(sessionRows(path, ids[i]), "");
+    } else {
+      EXPECT_EQ(sessionRows(path, ids[i]), before[i]) << "session " << i << " changed";
+    }
+  }
+  EXPECT_EQ(rowBytes(path, "SELECT * FROM loops ORDER BY id"), other_loops);  // its own loops gone, the rest kept
+  EXPECT_EQ(rowBytes(path, "SELECT count(*) FROM map_sessions WHERE session = " +
+                               std::to_string(ids[static_cast<std::size_t>(middle)])),
+            rowBytes(path, "SELECT 0"));
+  {
+    SessionStore store(path);
+    EXPECT_EQ(store.sessions().size(), 2u);
+    const std::vector<StoredMap> maps = store.maps();
+    ASSERT_EQ(maps.size(), 2u);  // [chain[0]] and [chain[2]]
+    for (const StoredMap& m : maps) {
+      EXPECT_EQ(m.chain.size(), 1u);
+      EXPECT_TRUE(m.links.empty());
+      EXPECT_TRUE(m.motions.empty());  // optimised again from the odometry
+      EXPECT_GE(m.pending, 1);
+    }
+    EXPECT_EQ(maps[0].chain.front(), ids[static_cast<std::size_t>(chain[0])]);
+    EXPECT_EQ(maps[1].chain.front(), ids[static_cast<std::size_t>(end)]);
+    for (const StoredLoop& l : store.loops()) {
+      EXPECT_NE(l.session_a, ids[static_cast<std::size_t>(middle)]);
+      EXPECT_NE(l.session_b, ids[static_cast<std::size_t>(middle)]);
+    }
+    MultiSessionBackend restored(opt);
+    const RestoredStore rs = restoreStore(store, &restored, nullptr, nullptr);
+    EXPECT_EQ(restored.numSessions(), 2);
+    EXPECT_NE(restored.mapOf(0), restored.mapOf(1));
+    EXPECT_EQ(rs.keyframes, 33 - original.session(middle).keyframes);
+    restored.flush();
+    // The restored sessions' odometry is the stored one, motion for motion.
+    for (int s = 0; s < 2; ++s) {
+      const std::vector<UncertainPose2> odo = store.odometry(rs.session_ids[static_cast<std::size_t>(s)]);
+      EXPECT_EQ(restored.session(s).keyframes, static_cast<int>(odo.size()) + 1);
+    }
+  }
+  EXPECT_EQ(rowBytes(path, "SELECT * FROM split_pairs ORDER BY session_a, session_b"), splits_kept);
+  EXPECT_EQ(rowBytes(path, "SELECT count(*) FROM split_pairs WHERE session_a = " + m + " OR session_b = " + m),
+            rowBytes(path, "SELECT 0"));
+}
+
+// The session at the end of a chain (what an interrupted run usually is: joined to a stored map
+// by its global loops): the chain keeps the rest; a map it was not in stays byte for byte.
+TEST(Store, DeletingTheLastSessionOfAChainKeepsTheRestOfTheMap) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  BackendOptions opt;
+  opt.optimise_every = 1;
+  MultiSessionBackend original(opt);
+  std::vector<std::int64_t> ids;
+  {
+    SessionStore store(path);
+    Recorder r(&store, &original);
+    recordMission(&r);  // map 0: [0, 1]; map 2: [2]
+    ids = r.session_ids;
+  }
+  ASSERT_EQ(original.chain(0), (std::vector<int>{0, 1}));
+  const std::string map2 = "SELECT * FROM maps WHERE id = " + std::to_string(ids[2]);
+  const std::string map2_before = rowBytes(path, map2);
+  ASSERT_NE(map2_before, "");
+  const std::string s0 = sessionRows(path, ids[0]), s2 = sessionRows(path, ids[2]);
+  const std::string other_loops = loopsWithout(path, ids[1]);
+  {
+    SessionStore store(path);
+    store.deleteSessions({ids[1]});
+  }
+  EXPECT_EQ(integrityOf(path), "ok");
+  EXPECT_EQ(rowBytes(path, map2), map2_before);
+  EXPECT_EQ(sessionRows(path, ids[0]), s0);
+  EXPECT_EQ(sessionRows(path, ids[2]), s2);
+  EXPECT_EQ(rowBytes(path, "SELECT * FROM loops ORDER BY id"), other_loops);
+  SessionStore store(path);
+  const std::vector<StoredMap> maps = store.maps();
+  ASSERT_EQ(maps.size(), 2u);
+  EXPECT_EQ(maps[0].chain, std::vector<std::int64_t>{ids[0]});
+  EXPECT_TRUE(maps[0].links.empty());
+  EXPECT_GE(maps[0].pending, 1);
+  MultiSessionBackend restored(opt);
+  restoreStore(store, &restored, nullptr, nullptr);
+  ASSERT_EQ(restored.numSessions(), 2);
+  EXPECT_EQ(restored.session(0).keyframes, 13);
+  EXPECT_EQ(restored.session(1).keyframes, 8);
+  EXPECT_NE(restored.mapOf(0), restored.mapOf(1));
+}
+
+// An interrupted run over a folder (frames 100..140): its recording piece and the finished piece
+// of the same run before it are found; an earlier complete run of the folder, another folder's
+// session and a session without keyframes are not part of it. finish ends it as stored, discard
+// deletes exactly its sessions.
+TEST(Store, AnInterruptedRunIsFoundWithItsPiecesAndFinishedOrDiscarded) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  std::vector<FrameRecord> folder;
+  for (int i = 100; i <= 140; ++i) folder.push_back({i, "", 10.0 + 0.1 * i, 2.0});
+  std::mt19937 rng(7);
+  std::map<std::string, std::int64_t> id;
+  {
+    SessionStore store(path);
+    auto add = [&](const std::string& name, const std::vector<int>& frames, bool finished, double offset = 0.0) {
+      id[name] = store.addSession(name, camera(), 0.0);
+      for (std::size_t k = 0; k < frames.size(); ++k) {
+        StoredKeyframe kf = randomKeyframe(id[name], static_cast<int>(k), 10, &rng);
+        if (frames[k] >= 0) {
+          kf.frame_index = frames[k];
+          kf.stamp_s = 10.0 + 0.1 * frames[k] + offset;
+        }
+        const UncertainPose2 m(Pose2(0.5, 0, 0), diag(0.02, 0.01));
+        store.addKeyframe(kf, k > 0 ? &m : nullptr, nullptr);
+      }
+      if (finished) store.endSession(id[name], 99.0);
+    };
+    add("empty", {}, false);                  // a crash before its first keyframe: no id
+    add("other folder", {-1, -1, -1}, true);  // frames 1, 4, 7: not the folder's
+    add("complete", {100, 120, 140}, true);   // an earlier complete run of the folder
+    add("shifted", {100, 104}, true, 1e-3);   // same indexes, other stamps: not the folder's
+    add("f", {100, 102, 104}, true);          // the interrupted run's first piece
+    add("f#1", {110, 112}, false);            // ... and its second, cut by the kill
+  }
+  {
+    SessionStore store(path);
+    const std::vector<InterruptedRun> runs = findInterruptedRuns(store, folder);
+    ASSERT_EQ(runs.size(), 1u);
+    EXPECT_EQ(runs[0].store_ids, (std::vector<std::int64_t>{id["f"], id["f#1"]}));
+    EXPECT_EQ(runs[0].ids, (std::vector<int>{3, 4}));  // "empty" has no id
+    EXPECT_EQ(runs[0].name, "f#1");
+    EXPECT_EQ(runs[0].keyframes, 5);
+    EXPECT_DOUBLE_EQ(runs[0].last_stamp_s, 10.0 + 0.1 * 112);
+    std::vector<FrameRecord> other = folder;
+    other.erase(other.begin() + 12);  // frame 112 missing: f#1 is not made of these frames
+    ASSERT_EQ(findInterruptedRuns(store, other).size(), 0u);
+  }
+  const std::string copy = (dir.path() / "copy.db").string();
+  std::filesystem::copy_file(path, copy);
+  {
+    SessionStore store(path);
+    resolveInterruptedRun(&store, findInterruptedRuns(store, folder).at(0), InterruptedChoice::kFinish);
+    EXPECT_TRUE(findInterruptedRuns(store, folder).empty());
+    const StoredSession last = store.sessions().back();
+    EXPECT_EQ(last.state, StoredSessionState::kFinished);
+    EXPECT_DOUBLE_EQ(last.end_stamp_s, 10.0 + 0.1 * 112);
+    EXPECT_EQ(store.sessions().size(), 6u);
+  }
+  {
+    SessionStore store(copy);
+    resolveInterruptedRun(&store, findInterruptedRuns(store, folder).at(0), InterruptedChoice::kDiscard);
+    std::vector<std::string> names;
+    for (const StoredSession& s : store.sessions()) names.push_back(s.name);
+    EXPECT_EQ(names, (std::vector<std::string>{"empty", "other folder", "complete", "shifted"}));
+  }
+  EXPECT_EQ(integrityOf(copy), "ok");
+}
+
+// A full disk in the middle of saving the maps (issue 21, 4; the cap is SQLite's max_page_count):
+// the new state is refused with "the disk is full" after its first rows were written, the
+// transaction is rolled back, and the store keeps the previous maps byte for byte and restores
+// exactly as before. With room again the same save succeeds.
+TEST(Store, AFullDiskWhileSavingTheMapsKeepsThePreviousMapsAndTheSameRestore) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  BackendOptions opt;
+  opt.optimise_every = 1;
+  MultiSessionBackend original(opt);
+  {
+    SessionStore store(path);
+    Recorder r(&store, &original);
+    recordMission(&r);
+  }
+  const std::vector<std::string> tables = {
+      "SELECT * FROM maps ORDER BY id", "SELECT * FROM map_sessions ORDER BY map, position",
+      "SELECT * FROM links ORDER BY map, position", "SELECT * FROM split_pairs", "SELECT * FROM loops ORDER BY id"};
+  std::vector<std::string> before;
+  for (const std::string& t : tables) before.push_back(rowBytes(path, t));
+  MultiSessionBackend before_restore(opt);
+  std::vector<StoredMap> bigger;
+  std::vector<StoredLoop> states;
+  {
+    SessionStore store(path);
+    restoreStore(store, &before_restore, nullptr, nullptr);
+    // The next state: every map as it is, then one whose motions need about 2 MB more than the
+    // file has (written last, so the save fails in its middle, after rows were written).
+    bigger = store.maps();
+    ASSERT_EQ(bigger.size(), 2u);
+    StoredMap big = bigger[0];
+    big.motions.resize(20000, big.motions.front());
+    bigger[0] = bigger[1];
+    bigger[1] = big;
+    states = store.loops();
+    for (StoredLoop& l : states) l.applied = !l.applied;  // every loop's state changes too
+    store.checkpoint();
+    store.setMaxBytes(std::filesystem::file_size(path));
+    try {
+      store.saveMaps(bigger, states, {});
+      FAIL() << "the save fitted under the cap";
+    } catch (const StoreError& e) {
+      EXPECT_NE(std::string(e.what()).find("the disk is full"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
+    }
+    // The store is still usable: reads work, and the failed save left nothing half-written.
+    EXPECT_EQ(store.maps().size(), 2u);
+  }
+  EXPECT_EQ(integrityOf(path), "ok");
+  for (std::size_t i = 0; i < tables.size(); ++i) EXPECT_EQ(rowBytes(path, tables[i]), before[i]) << tables[i];
+  {
+    SessionStore store(path);
+    MultiSessionBackend restored(opt);
+    restoreStore(store, &restored, nullptr, nullptr);
+    expectSameBackends(before_restore, restored);
+    store.saveMaps(bigger, states, {});  // no cap in this open: the same save goes through
+    std::size_t most = 0;
+    for (const StoredMap& map : store.maps()) most = std::max(most, map.motions.size());
+    EXPECT_EQ(most, 20000u);
+  }
+  EXPECT_EQ(integrityOf(path), "ok");
 }
 
 }  // namespace

@@ -3,11 +3,13 @@ session numbering, and clear failures on bad input. Runs on a small generated su
 import math
 import os
 import shutil
+import sqlite3
 import subprocess
+import time
 
 import pytest
 import yaml
-from tool_runner import HERE, read_csv as rows, run_tool as run
+from tool_runner import BIN_DIR, HERE, read_csv as rows, run_tool as run
 
 SURVEY = """
 seed: 11
@@ -322,12 +324,115 @@ def test_db_refuses_a_folder_already_in_the_store_unless_again(stored_runs, surv
     before = db.read_bytes()
     for folder, session in (("a", 0), ("b", 1)):
         r = run("offline_slam", "--session", str(survey / folder), "--out", str(tmp_path / folder), "--db", str(db))
-        assert r.returncode == 2, r.stderr
+        assert r.returncode == 3, r.stderr  # its own status: 2 is for bad arguments
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and str(survey / folder) in lines[0] and "(session %d)" % session in lines[0], lines
         assert "--again" in lines[0]
         assert not (tmp_path / folder).exists()  # refused before any output
     assert db.read_bytes() == before
+
+
+def store_rows(db, sql):
+    con = sqlite3.connect("file:%s?mode=ro" % db, uri=True, timeout=5)
+    try:
+        return con.execute(sql).fetchall()
+    finally:
+        con.close()
+
+
+def keyframes_in(db):
+    try:
+        return store_rows(db, "SELECT count(*) FROM keyframes")[0][0]
+    except sqlite3.Error:
+        return 0  # not created yet, or locked for a moment
+
+
+@pytest.fixture
+def interrupted(survey, tmp_path):
+    """offline_slam --db over folders a and b, killed -9 once 5 keyframes are stored: folder a's
+    session is left `recording`. Returns the store and the command's arguments."""
+    db = tmp_path / "s.db"
+    args = ["--session", str(survey / "a"), "--session", str(survey / "b"), "--out", str(tmp_path / "o1"),
+            "--db", str(db)]
+    proc = subprocess.Popen([os.path.join(BIN_DIR, "offline_slam"), "--quiet", *args], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while keyframes_in(db) < 5 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert proc.poll() is None, "the run ended before it could be killed"
+        assert keyframes_in(db) >= 5
+    finally:
+        proc.kill()
+        proc.wait()
+    assert store_rows(db, "SELECT name, state FROM sessions") == [(str(survey / "a"), "recording")]
+    return db, args
+
+
+def test_db_rerun_after_kill_is_refused_naming_the_interrupted_option(interrupted, survey):
+    """Issue 21, 8: the re-run of the killed command is refused with its own status (3, not the
+    bad-arguments 2), in one line naming the folder and both choices; the store is left as it is."""
+    db, args = interrupted
+    before = store_rows(db, "SELECT session, keyframe, frame_index, stamp FROM keyframes ORDER BY session, keyframe")
+    r = run("offline_slam", "--quiet", *args)
+    assert r.returncode == 3, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(survey / "a") in lines[0], lines
+    assert "--interrupted discard" in lines[0] and "--interrupted finish" in lines[0], lines
+    assert store_rows(db, "SELECT session, keyframe, frame_index, stamp FROM keyframes ORDER BY session, keyframe") == before
+    assert store_rows(db, "SELECT name, state FROM sessions") == [(str(survey / "a"), "recording")]
+    assert "--interrupted discard|finish" in run("offline_slam", "--help").stdout
+    bad = run("offline_slam", "--quiet", *args, "--interrupted", "keep")
+    assert bad.returncode == 2 and "discard or finish" in bad.stderr
+
+
+def test_db_rerun_after_kill_with_discard_processes_the_folder_again_as_one_clean_run(interrupted, survey, result):
+    """--interrupted discard deletes the interrupted session (its keyframes, motions, loops) and
+    processes both folders again: the store holds each folder once, and the outputs are those of
+    a run that was never interrupted (same keyframes, loops and links; poses to 1e-5 m)."""
+    db, args = interrupted
+    out = args[args.index("--out") + 1]
+    r = run("offline_slam", "--quiet", *args, "--interrupted", "discard")
+    assert r.returncode == 0, r.stderr
+    assert "deleted" in r.stderr and str(survey / "a") in r.stderr
+    assert store_rows(db, "SELECT name, state FROM sessions ORDER BY id") == [
+        (str(survey / "a"), "finished"), (str(survey / "b"), "finished")]
+    assert store_rows(db, "PRAGMA integrity_check") == [("ok",)]
+    one_run, _ = result
+    key = lambda l: tuple(l.values())
+    assert sorted(map(key, rows(os.path.join(out, "loops.csv")))) == sorted(map(key, rows(one_run / "loops.csv")))
+    assert rows(os.path.join(out, "links.csv")) == rows(one_run / "links.csv")
+    traj, clean = rows(os.path.join(out, "trajectory.csv")), rows(one_run / "trajectory.csv")
+    assert len(traj) == len(clean)
+    for a, b in zip(traj, clean):
+        assert (a["session"], a["index"], a["map"]) == (b["session"], b["index"], b["map"])
+        assert abs(float(a["x_m"]) - float(b["x_m"])) < 1e-5 and abs(float(a["y_m"]) - float(b["y_m"])) < 1e-5
+    # Each stored keyframe once: as many as the run's trajectory has.
+    assert keyframes_in(db) == len(traj)
+    # A third run of the same command: folder a is in the store, finished: --again is named.
+    again = run("offline_slam", "--quiet", *args)
+    assert again.returncode == 3 and "--again" in again.stderr
+
+
+def test_db_rerun_after_kill_with_finish_keeps_the_stored_part_and_skips_the_folder(interrupted, survey):
+    """--interrupted finish keeps the keyframes stored before the kill, marks the session
+    finished, skips folder a and processes b (stored session 0, then b as session 1)."""
+    db, args = interrupted
+    kept = store_rows(db, "SELECT session, keyframe, frame_index, stamp, hash FROM keyframes ORDER BY session, keyframe")
+    r = run("offline_slam", "--quiet", *args, "--interrupted", "finish")
+    assert r.returncode == 0, r.stderr
+    assert "marked finished" in r.stderr and "skipped" in r.stderr
+    assert store_rows(db, "SELECT name, state FROM sessions ORDER BY id") == [
+        (str(survey / "a"), "finished"), (str(survey / "b"), "finished")]
+    first = kept[0][0]
+    assert store_rows(db, "SELECT session, keyframe, frame_index, stamp, hash FROM keyframes WHERE session = %d "
+                          "ORDER BY keyframe" % first) == kept
+    assert store_rows(db, "PRAGMA integrity_check") == [("ok",)]
+    out = args[args.index("--out") + 1]
+    traj = rows(os.path.join(out, "trajectory.csv"))
+    assert len([t for t in traj if t["session"] == "0"]) == len(kept)
+    assert {t["session"] for t in traj} == {"0", "1"}
+    assert [i["folder"] for i in rows(os.path.join(out, "inputs.csv"))] == [str(survey / "b")]
 
 
 def test_db_bad_file_fails_with_one_line_and_is_left_as_it_is(tmp_path, survey):

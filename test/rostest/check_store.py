@@ -11,6 +11,8 @@
    global loops are found against the reloaded session.
 3. Wrong reloads: an unknown name (NOT_FOUND, the store named by its file name only) and a second
    reload (ALREADY_EXISTS).
+4. join_sessions, then split_session through the services, each followed by kill -9 of the
+   back-end and its respawn: list_sessions comes back the same (sessions, maps, keyframes, loops).
 """
 import os
 import shutil
@@ -27,7 +29,7 @@ import rospy
 import rostest
 from pipeline_fixture import NS, SENSOR_TOPICS, make_mission, wait_for_subscribers, wait_until_quiet
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
-from uw_multislam.srv import ListSessions, ReloadSession
+from uw_multislam.srv import JoinSessions, ListSessions, ReloadSession, SplitSession
 
 
 
@@ -188,6 +190,46 @@ class StoreTest(unittest.TestCase):
         self.assertEqual(again.status.code, Status.ALREADY_EXISTS, again.status.message)
         self.assertEqual(again.session, 0)
         self.assertIn("already loaded", again.status.message)
+
+    def kill_backend_and_wait_for_respawn(self):
+        pid = backend_pid()
+        self.assertIsNotNone(pid, "no back-end to kill")
+        os.kill(pid, signal.SIGKILL)
+        deadline = time.time() + 60
+        while time.time() < deadline and backend_pid() in (None, pid):
+            time.sleep(0.2)
+        self.assertNotIn(backend_pid(), (None, pid), "the back-end was not respawned")
+        rospy.wait_for_service(NS + "/list_sessions", timeout=60)
+
+    @staticmethod
+    def summary(listed):
+        return {i: (s.name, s.map, s.num_keyframes, s.num_loops) for i, s in listed.items()}
+
+    def test_4_join_and_split_through_the_services_survive_kill_9(self):
+        """Issue 21, 4: a join, then a split, each answered OK through the services with the store
+        on; after each a kill -9 of the back-end and its respawn: list_sessions comes back with
+        the same sessions, maps (the links), keyframes and loops."""
+        join = rospy.ServiceProxy(NS + "/join_sessions", JoinSessions, persistent=False)
+        split = rospy.ServiceProxy(NS + "/split_session", SplitSession, persistent=False)
+        listed = self.sessions()
+        self.assertIn(1, listed, "session 1 (the second bag) is missing: %s" % listed)
+        if listed[1].map == listed[0].map:  # joined by the global loops already: split first
+            res = split(1)
+            self.assertEqual(res.status.code, Status.OK, res.status.message)
+        res = join(0, 1, 3)
+        self.assertEqual(res.status.code, Status.OK, res.status.message)
+        joined = self.summary(self.sessions())
+        self.assertEqual(joined[1][1], joined[0][1], "join_sessions answered OK but the maps differ")
+        self.kill_backend_and_wait_for_respawn()
+        after = self.sessions()
+        self.assertEqual(self.summary(after), joined, "after kill -9 of a back-end that had joined 0 and 1")
+        self.assertTrue(all(s.state == SessionState.UNLOADED for s in after.values()), str(after))
+        res = split(1)
+        self.assertEqual(res.status.code, Status.OK, res.status.message)
+        was_split = self.summary(self.sessions())
+        self.assertNotEqual(was_split[1][1], was_split[0][1])
+        self.kill_backend_and_wait_for_respawn()
+        self.assertEqual(self.summary(self.sessions()), was_split, "after kill -9 of a back-end that had split 1")
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include "uw_multislam/core/session/interrupted_run.h"
 #include "uw_multislam/core/session/map_persistence.h"
 
 namespace uw_multislam {
@@ -16,6 +17,7 @@ std::string SessionManagerOptions::validate() const {
   if (num_features < 1) return "num_features must be >= 1";
   if (max_keyframe_gap < 0) return "max_keyframe_gap must be >= 0";
   if (max_empty_sessions < 0) return "max_empty_sessions must be >= 0 (0: no limit)";
+  if (!(store_max_mb >= 0.0) || store_max_mb > 1e9) return "store_max_mb must be in [0, 1e9] (0: no cap)";
   return "";
 }
 
@@ -99,6 +101,7 @@ SessionManager::SessionManager(const SessionManagerOptions& options, EventSink e
     std::filesystem::permissions(dir, std::filesystem::perms::owner_all, ec);  // 0700: the owner's missions only
   }
   store_ = std::make_unique<SessionStore>(options_.store_path);
+  if (options_.store_max_mb > 0.0) store_->setMaxBytes(static_cast<std::uint64_t>(options_.store_max_mb * 1048576.0));
   store_->checkHashSettings(
       {options_.hash_mode, options_.projection_seed, options_.num_features, hasher_.projections().toText()});
   restore();
@@ -128,6 +131,7 @@ void SessionManager::restore() {
     for (const MotionSource m : store_->motionSources(s.store_id)) s.sources.push_back(m);
     s.origin_received = true;
     s.unloaded = true;
+    s.stored = static_cast<int>(s.stamps.size());
     sessions_.emplace(id, std::move(s));
     id_of_backend_.push_back(id);
   }
@@ -278,9 +282,20 @@ Status SessionManager::endSession(double stamp_s) {
 
 // --- Keyframes --------------------------------------------------------------------------------
 
+bool SessionManager::keyframeStored(int session, int keyframe, int pending_session, int pending_keyframe) const {
+  if (session == pending_session && keyframe == pending_keyframe) return true;
+  const auto it = sessions_.find(session);
+  return it != sessions_.end() && keyframe >= 0 && keyframe < it->second.stored;
+}
+
 void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion,
                                    double stamp_s, const std::vector<Loop>* loops, std::vector<StoredLoop>* stored) {
-  storeWrite("writing a keyframe", [&] {
+  if (!store_) return;
+  if (s.store_cut || keyframe != s.stored) {  // after a failed write: not stored, counted
+    ++stats_.store_failures;
+    return;
+  }
+  const bool ok = storeWrite("writing a keyframe", [&] {
     if (s.store_id < 0) s.store_id = store_->addSession(s.name, k ? k->camera : CameraIntrinsics(), stamp_s);
     // The loops in store ids only now: a new session's row is made with its first keyframe, and
     // the loops that keyframe closed name it (they were stored with session -1 and lost at the
@@ -307,6 +322,14 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
     }
     store_->addKeyframe(sk, motion, stored);
   });
+  if (ok) {
+    ++s.stored;
+    return;
+  }
+  s.store_cut = true;
+  say("session store " + options_.store_path + ": session '" + s.name + "': keyframes from " +
+      std::to_string(keyframe) + " on are not stored (each counted a store failure); the " + std::to_string(s.stored) +
+      " stored before stay restorable");
 }
 
 Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector<Loop>& loops) {
@@ -400,14 +423,28 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
   }
   ++stats_.keyframes;
   // The loops it closed go into the store with it (one transaction), then into the back-end.
-  std::vector<StoredLoop> stored;  // their store ids (set when written)
-  storeKeyframe(s, &k, k.keyframe, stored_motion, k.stamp_s, &loops, store_ ? &stored : nullptr);
+  // Only loops whose keyframes are (or are being) stored: a stored loop on a keyframe the store
+  // lacks would make it unrestorable.
+  std::vector<Loop> to_store;
+  std::vector<int> stored_at(loops.size(), -1);
+  for (std::size_t i = 0; i < loops.size(); ++i) {
+    const Loop& l = loops[i];
+    if (!keyframeStored(l.session_a, l.keyframe_a, id, k.keyframe) ||
+        !keyframeStored(l.session_b, l.keyframe_b, id, k.keyframe))
+      continue;
+    stored_at[i] = static_cast<int>(to_store.size());
+    to_store.push_back(l);
+  }
+  std::vector<StoredLoop> stored;  // to_store in store ids, their ids set when written
+  const int stored_before = s.stored;
+  storeKeyframe(s, &k, k.keyframe, stored_motion, k.stamp_s, &to_store, store_ ? &stored : nullptr);
+  if (s.stored == stored_before) stored_at.assign(loops.size(), -1);  // the keyframe, and its loops, not written
   emit(SessionEvent::Kind::kKeyframeAdded, id, -1, mapOf(id), "");
   for (std::size_t i = 0; i < loops.size(); ++i) {
     ++stats_.loops;
     try {
       acceptLoop(loops[i]);
-      store_loops_.push_back(store_ && i < stored.size() ? stored[i].id : -1);
+      store_loops_.push_back(store_ && stored_at[i] >= 0 ? stored[static_cast<std::size_t>(stored_at[i])].id : -1);
     } catch (const std::invalid_argument& e) {
       ++stats_.loops_refused;
       emit(SessionEvent::Kind::kLoopRefused, loops[i].session_b, loops[i].session_a, -1, e.what());
@@ -474,11 +511,14 @@ Status SessionManager::addLoop(const Loop& l, bool* waiting) {
     return {StatusCode::kFailedPrecondition, std::string("loop refused: ") + e.what()};
   }
   std::int64_t stored_id = -1;
-  storeWrite("writing a loop", [&] {
-    std::vector<StoredLoop> one{toStored(l)};
-    store_->addLoops(&one);
-    stored_id = one[0].id;
-  });
+  if (store_ && (!keyframeStored(l.session_a, l.keyframe_a) || !keyframeStored(l.session_b, l.keyframe_b)))
+    ++stats_.store_failures;  // on a keyframe the store lacks (a failed write): kept in memory only
+  else
+    storeWrite("writing a loop", [&] {
+      std::vector<StoredLoop> one{toStored(l)};
+      store_->addLoops(&one);
+      stored_id = one[0].id;
+    });
   store_loops_.push_back(stored_id);
   afterBackendChange();
   return Status::Ok();
@@ -623,18 +663,9 @@ Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* ou
 // --- Queries ----------------------------------------------------------------------------------
 
 std::vector<int> SessionManager::storedSessionsOf(const std::vector<FrameRecord>& frames) const {
-  std::map<int, double> stamp_of;
-  for (const FrameRecord& f : frames) stamp_of[f.index] = f.stamp_s;
   std::vector<int> ids;
-  for (const auto& [id, s] : sessions_) {
-    if (id >= restored_sessions_ || s.frames.empty()) continue;
-    bool all = true;
-    for (std::size_t k = 0; all && k < s.frames.size(); ++k) {
-      const auto it = stamp_of.find(s.frames[k]);
-      all = it != stamp_of.end() && std::abs(it->second - s.stamps[k]) < 1e-6;
-    }
-    if (all) ids.push_back(id);
-  }
+  for (const auto& [id, s] : sessions_)
+    if (id < restored_sessions_ && keyframesAreFramesOf(s.frames, s.stamps, frames)) ids.push_back(id);
   return ids;
 }
 

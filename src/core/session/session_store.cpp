@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <set>
 
 namespace uw_multislam {
 namespace core {
@@ -174,7 +175,14 @@ class SessionStore::Statement {
     const int rc = sqlite3_step(st_);
     if (rc == SQLITE_ROW) return true;
     if (rc == SQLITE_DONE) return false;
-    store_->fail("writing or reading");
+    // Reset after the error is read: a cached statement left in its failed state answered every
+    // later use with SQLITE_MISUSE, so one full disk failed every later write, space or not.
+    try {
+      store_->fail("writing or reading");
+    } catch (...) {
+      reset();
+      throw;
+    }
   }
   void run() {
     step();
@@ -520,7 +528,23 @@ void SessionStore::saveMaps(const std::vector<StoredMap>& maps, const std::vecto
                             const std::vector<std::pair<std::int64_t, std::int64_t>>& split_pairs) {
   begin();
   try {
-    exec("DELETE FROM maps; DELETE FROM map_sessions; DELETE FROM links; DELETE FROM split_pairs;");
+    exec("DELETE FROM split_pairs;");
+    writeMaps(maps);
+    Statement ls(this, "UPDATE loops SET summarised = ?, applied = ?, refused = ? WHERE id = ?");
+    for (const StoredLoop& l : loop_states)
+      ls.bind(1, l.summarised ? 1 : 0).bind(2, l.applied ? 1 : 0).bind(3, l.refused ? 1 : 0).bind(4, l.id).run();
+    Statement sp(this, "INSERT OR IGNORE INTO split_pairs(session_a, session_b) VALUES (?, ?)");
+    for (const auto& [a, b] : split_pairs) sp.bind(1, a).bind(2, b).run();
+    commit();
+  } catch (...) {
+    rollback();
+    throw;
+  }
+}
+
+void SessionStore::writeMaps(const std::vector<StoredMap>& maps) {
+  exec("DELETE FROM maps; DELETE FROM map_sessions; DELETE FROM links;");
+  {
     Statement m(this, "INSERT INTO maps(id, pending, motions) VALUES (?, ?, ?)");
     Statement ms(this, "INSERT INTO map_sessions(map, position, session) VALUES (?, ?, ?)");
     Statement ln(this, "INSERT INTO links(map, position, x, y, yaw, cov, loops) VALUES (?, ?, ?, ?, ?, ?, ?)");
@@ -544,16 +568,67 @@ void SessionStore::saveMaps(const std::vector<StoredMap>& maps, const std::vecto
         ln.bind(5, l.measured.mean.yaw()).blob(6, cov).blob(7, l.loops).run();
       }
     }
-    Statement ls(this, "UPDATE loops SET summarised = ?, applied = ?, refused = ? WHERE id = ?");
-    for (const StoredLoop& l : loop_states)
-      ls.bind(1, l.summarised ? 1 : 0).bind(2, l.applied ? 1 : 0).bind(3, l.refused ? 1 : 0).bind(4, l.id).run();
-    Statement sp(this, "INSERT OR IGNORE INTO split_pairs(session_a, session_b) VALUES (?, ?)");
-    for (const auto& [a, b] : split_pairs) sp.bind(1, a).bind(2, b).run();
+  }
+}
+
+void SessionStore::deleteSessions(const std::vector<std::int64_t>& sessions) {
+  begin();
+  try {
+    for (const std::int64_t s : sessions) deleteOne(s);
     commit();
   } catch (...) {
     rollback();
     throw;
   }
+}
+
+void SessionStore::deleteOne(std::int64_t session) {
+  Statement has(this, "SELECT count(*) FROM sessions WHERE id = ?");
+  has.bind(1, session);
+  if (!has.step() || sqlite3_column_int(has.get(), 0) == 0)
+    throw StoreError("session store " + path_ + ": no session with store id " + std::to_string(session) + " to delete");
+  has.reset();
+  std::set<std::int64_t> gone_loops;
+  Statement gl(this, "SELECT id FROM loops WHERE session_a = ? OR session_b = ?");
+  gl.bind(1, session).bind(2, session);
+  while (gl.step()) gone_loops.insert(sqlite3_column_int64(gl.get(), 0));
+  // The maps without the session: a chain loses it and the link(s) that reached it; a chain it
+  // sat in the middle of falls apart into the sessions before and those after (their link to
+  // it measured nothing between them). A map that changed keeps no optimised motions (their
+  // layout was the whole chain's): it is restored from the odometry and its links, and
+  // optimised again at the next flush (pending >= 1).
+  std::vector<StoredMap> kept;
+  for (const StoredMap& m : maps()) {
+    const auto at = std::find(m.chain.begin(), m.chain.end(), session);
+    if (at == m.chain.end()) {
+      StoredMap c = m;
+      for (StoredLink& l : c.links)
+        l.loops.erase(
+            std::remove_if(l.loops.begin(), l.loops.end(), [&](std::int64_t id) { return gone_loops.count(id) > 0; }),
+            l.loops.end());
+      kept.push_back(std::move(c));
+      continue;
+    }
+    const std::size_t i = static_cast<std::size_t>(at - m.chain.begin());
+    for (const auto& [first, last] : {std::make_pair(std::size_t{0}, i), std::make_pair(i + 1, m.chain.size())}) {
+      if (first >= last) continue;
+      StoredMap part;
+      part.chain.assign(m.chain.begin() + static_cast<std::ptrdiff_t>(first),
+                        m.chain.begin() + static_cast<std::ptrdiff_t>(last));
+      part.links.assign(m.links.begin() + static_cast<std::ptrdiff_t>(first),
+                        m.links.begin() + static_cast<std::ptrdiff_t>(last - 1));
+      part.pending = std::max(m.pending, 1);
+      kept.push_back(std::move(part));
+    }
+  }
+  for (const char* sql :
+       {"DELETE FROM keyframes WHERE session = ?1", "DELETE FROM motions WHERE session = ?1",
+        "DELETE FROM loops WHERE session_a = ?1 OR session_b = ?1",
+        "DELETE FROM split_pairs WHERE session_a = ?1 OR session_b = ?1", "DELETE FROM sessions WHERE id = ?1"}) {
+    Statement d(this, sql);
+    d.bind(1, session).run();
+  }
+  writeMaps(kept);
 }
 
 std::vector<StoredSession> SessionStore::sessions() const {
@@ -815,6 +890,16 @@ std::uint64_t SessionStore::bytesOnDisk() const {
     if (!ec) total += n;
   }
   return total;
+}
+
+void SessionStore::setMaxBytes(std::uint64_t bytes) {
+  Statement size(this, "PRAGMA page_size");
+  const std::int64_t page = size.step() ? sqlite3_column_int64(size.get(), 0) : 4096;
+  size.reset();
+  // SQLite's largest page count (4294967294) stands for "no cap".
+  const std::uint64_t pages =
+      bytes == 0 ? 4294967294ULL : std::max<std::uint64_t>(1, bytes / static_cast<std::uint64_t>(page));
+  exec("PRAGMA max_page_count=" + std::to_string(pages));
 }
 
 void SessionStore::checkpoint() { exec("PRAGMA wal_checkpoint(TRUNCATE)"); }

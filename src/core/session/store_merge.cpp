@@ -88,7 +88,7 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
     for (const StoredSession& s : in.back()->sessions())
       if (s.state == StoredSessionState::kRecording && s.keyframes > 0)
         throw std::invalid_argument(path + ": session " + std::to_string(s.id) + " '" + s.name +
-                                    "' is still recording (an interrupted run): finish or discard it first");
+                                    "' is still recording (an interrupted run): finish or discard it first (offline_slam --db " + path + " --session ITS_FOLDER --interrupted finish|discard)");
   }
   config.loops.global.hash_mode = settings.mode;
   config.loops.global.projection_seed = settings.seed;

@@ -65,6 +65,9 @@ struct SessionManagerOptions {
   int num_features = 500;
   /// The session store (SQLite); empty: sessions live in memory only.
   std::string store_path;
+  /// A cap on the store file (MB; 0: none): writes past it fail as on a full disk, counted
+  /// (store_failures) and logged, and the manager goes on in memory (SessionStore::setMaxBytes).
+  double store_max_mb = 0.0;
   /// A keyframe id further than this past the expected one is refused (a corrupt message),
   /// instead of bridging the gap with placeholder keyframes.
   int max_keyframe_gap = 1000;
@@ -281,7 +284,13 @@ class SessionManager {
     bool origin_received = false;  // keyframe 0 arrived (not only start_session)
     bool unloaded = false;
     int loops = 0;
+    // The store keeps a prefix 0..stored-1 of the keyframes: after a failed keyframe write
+    // (store_cut) the later ones are not written either (a gap would make the store unrestorable).
+    int stored = 0;
+    bool store_cut = false;
   };
+  /// Whether the keyframe is in the store (or `pending`: written in the same transaction).
+  bool keyframeStored(int session, int keyframe, int pending_session = -1, int pending_keyframe = -1) const;
 
   const Session& at(int session) const;
   Session& at(int session);

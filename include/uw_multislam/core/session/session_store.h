@@ -168,6 +168,14 @@ class SessionStore {
   void saveMaps(const std::vector<StoredMap>& maps, const std::vector<StoredLoop>& loop_states,
                 const std::vector<std::pair<std::int64_t, std::int64_t>>& split_pairs);
 
+  /// One transaction: deletes sessions, each with everything that names it (keyframes, motions, the
+  /// loops on it, split pairs) and takes it out of the maps: a chain it ends or starts loses it
+  /// and its link; a chain it sits inside splits into the sessions before and after it. A map
+  /// that changed keeps no optimised motions (restored from the odometry and its links, pending
+  /// optimisation); links lose the ids of deleted loops. Every other row is left as it is.
+  /// StoreError naming the id when one of them is not stored (then nothing changed).
+  void deleteSessions(const std::vector<std::int64_t>& sessions);
+
   std::vector<StoredSession> sessions() const;
   /// What keyframes() reads besides the frame data (index, stamp, altitude, image size): nothing,
   /// the hash only (what the hash search keeps in RAM: paging, issue 20), or every blob.
@@ -197,6 +205,11 @@ class SessionStore {
   /// Every session's provenance, by session id; empty for a store never merged into.
   std::vector<SessionProvenance> provenance() const;
 
+  /// A cap on the file's size (SQLite's max_page_count, rounded down to whole pages; never below
+  /// what the file holds already): a write that would grow it past the cap fails as on a full
+  /// disk ("the disk is full"), its transaction rolled back. 0: no cap.
+  void setMaxBytes(std::uint64_t bytes);
+
   /// Bytes on disk: the file and its WAL.
   std::uint64_t bytesOnDisk() const;
   /// Writes the WAL back into the file (e.g. before measuring or copying it).
@@ -222,6 +235,9 @@ class SessionStore {
   void commit();
   void rollback() noexcept;
   void insertLoops(std::vector<StoredLoop>* loops);
+  /// Replaces maps, map_sessions and links (inside the caller's transaction).
+  void writeMaps(const std::vector<StoredMap>& maps);
+  void deleteOne(std::int64_t session);  // inside the caller's transaction
   void readKeyframe(sqlite3_stmt* row, std::int64_t session, KeyframeColumns columns, bool features,
                     StoredKeyframe* out) const;
   Statement& cached(const char* sql);
