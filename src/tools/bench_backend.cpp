@@ -17,6 +17,7 @@
 //       once per process (scripts/bench_backend.sh) so that the peak memory is this case's.
 #include <sys/resource.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -40,7 +41,7 @@ using Clock = std::chrono::steady_clock;
 namespace {
 
 const char* kUsage = R"(usage: bench_backend --robustness --mission DIR [--runs N]
-       bench_backend --outliers P[,P...] --mission DIR [--runs N]
+       bench_backend --outliers P[,P...] --mission DIR [--runs N] [--optimizer sparse|iekf]
        bench_backend --cost N --loops L --optimizer iekf|sparse
 
 --robustness: Table 3 of the paper on a generated mission (make_survey output: world_gt.csv and
@@ -52,12 +53,14 @@ const char* kUsage = R"(usage: bench_backend --robustness --mission DIR [--runs 
     e_k inter  over the inter-session pairs, in the joined map (only runs that joined)
     map ATE    every keyframe in the joined map's frame vs the ground truth in that frame
 --outliers: the same mission with its true loops and P % wrong ones added (e.g. 0,10,30,50):
-  random keyframe pairs of different sessions (the loops a join decides on; wrong loops inside
-  one map meet only the optimiser's Huber kernel today) with plausible inlier counts whose
-  measured pose is 2-5 m and any yaw off; odometry 2σ = 1 cm / 1°; join_policy count (K = 5,
-  gate 0.5 m) and consistent; sparse optimiser (Huber on loops). Mean over N runs (default 5) of the map ATE (runs that joined),
-  the wrong loops kept (not refused), the joins made and refused; "wrong joins" counts runs
-  whose map ATE exceeds 1 m.
+  random keyframe pairs of different sessions (before a join they meet the join's policy, after
+  it the gates inside the map) with plausible inlier counts whose measured pose is 2-5 m and any
+  yaw off; odometry 2σ = 1 cm / 1°; join_policy count (K = 5, gate 0.5 m) and consistent; the
+  sparse optimiser (Huber on loops) or --optimizer iekf; backend defaults otherwise. Mean over N
+  runs (default 5) of the map ATE (runs that joined); the ATE change against the same run (same
+  odometry, same true loops) without the wrong loops, mean and max over the runs; the wrong loops
+  kept (not refused), the true loops refused, the joins made and refused; "wrong joins" counts
+  runs whose map ATE exceeds 1 m.
 --cost: time and peak memory of one optimiser on a synthetic survey of N keyframes, L loops.)";
 
 double ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
@@ -119,7 +122,7 @@ Mission loadMission(const fs::path& dir) {
 struct RunErrors {
   double odo_ek = 0, ek_intra = 0, ek_inter = NAN, map_ate = NAN, ms = 0;
   bool joined = false;
-  int wrong = 0, wrong_kept = 0, joins = 0, joins_refused = 0;
+  int wrong = 0, wrong_kept = 0, true_refused = 0, joins = 0, joins_refused = 0;
 };
 
 // One run's set-up beyond the noise level: the join rule and the wrong loops to add.
@@ -147,8 +150,11 @@ double ekOver(const std::vector<std::vector<core::Pose2>>& est, const Mission& m
 
 RunErrors runOnce(const Mission& m, double level, const RunSpec& spec, unsigned seed) {
   std::mt19937 rng(seed);
-  std::normal_distribution<double> n01(0.0, 1.0);
-  std::uniform_int_distribution<int> inliers(30, 120);
+  // The wrong loops draw from their own generator, so that a run with them and the run without
+  // (same seed) have the same odometry and true loops: the ATE change is theirs alone.
+  std::mt19937 rng_wrong(seed ^ 0x5bd1e995u);
+  std::normal_distribution<double> n01(0.0, 1.0), n01_wrong(0.0, 1.0);
+  std::uniform_int_distribution<int> inliers(30, 120), inliers_wrong(30, 120);
   const double s_xy = 0.5 * level, s_yaw = 0.5 * level * 100.0 * M_PI / 180.0;  // 2σ = level m, level*100 deg
   const double l_xy = 0.01, l_yaw = 0.5 * M_PI / 180.0;
   core::BackendOptions o;
@@ -158,7 +164,15 @@ RunErrors runOnce(const Mission& m, double level, const RunSpec& spec, unsigned 
   o.optimise_every = 1;
   if (spec.true_loops_only) o.join_gate_m = 1e9;  // the loops are true: measure the optimiser, not the gate
   o.max_keyframes = 100000;
-  core::MultiSessionBackend b(o);
+  // UWMS_BENCH_ENTRY_INFLATION=F: intra_gate_inflation F (0: the entry gate off), for experiments.
+  if (const char* f = std::getenv("UWMS_BENCH_ENTRY_INFLATION")) {
+    o.intra_gate_inflation = std::max(1.0, std::atof(f));
+    o.intra_loop_gate = std::atof(f) > 0;
+  }
+  // UWMS_BENCH_LOG=1: the back-end's log (joins, refused and switched-off loops) on stderr.
+  core::MultiSessionBackend::Log log;
+  if (std::getenv("UWMS_BENCH_LOG") != nullptr) log = [](const std::string& l) { std::fprintf(stderr, "%s\n", l.c_str()); };
+  core::MultiSessionBackend b(o, log);
   // The loops, true ones first, then the wrong ones: random keyframe pairs, 2-5 m and any yaw off.
   auto loops = m.loops;
   const std::size_t n_true = loops.size();
@@ -167,16 +181,17 @@ RunErrors runOnce(const Mission& m, double level, const RunSpec& spec, unsigned 
   for (int w = 0; w < n_wrong; ++w) {
     std::pair<int, int> a, c;
     do {
-      a.first = std::uniform_int_distribution<int>(0, static_cast<int>(m.sessions.size()) - 1)(rng);
-      c.first = std::uniform_int_distribution<int>(0, static_cast<int>(m.sessions.size()) - 1)(rng);
-      a.second = std::uniform_int_distribution<int>(0, static_cast<int>(m.sessions[a.first].size()) - 1)(rng);
-      c.second = std::uniform_int_distribution<int>(0, static_cast<int>(m.sessions[c.first].size()) - 1)(rng);
+      a.first = std::uniform_int_distribution<int>(0, static_cast<int>(m.sessions.size()) - 1)(rng_wrong);
+      c.first = std::uniform_int_distribution<int>(0, static_cast<int>(m.sessions.size()) - 1)(rng_wrong);
+      a.second = std::uniform_int_distribution<int>(0, static_cast<int>(m.sessions[a.first].size()) - 1)(rng_wrong);
+      c.second = std::uniform_int_distribution<int>(0, static_cast<int>(m.sessions[c.first].size()) - 1)(rng_wrong);
       if (a > c) std::swap(a, c);
     } while (a.first == c.first);  // between sessions: the join's question (intra-map ones: see --help)
     loops.push_back({a, c});
-    const double r = std::uniform_real_distribution<double>(2.0, 5.0)(rng);
-    const double th = std::uniform_real_distribution<double>(-M_PI, M_PI)(rng);
-    wrong_offset.emplace_back(r * std::cos(th), r * std::sin(th), std::uniform_real_distribution<double>(-M_PI, M_PI)(rng));
+    const double r = std::uniform_real_distribution<double>(2.0, 5.0)(rng_wrong);
+    const double th = std::uniform_real_distribution<double>(-M_PI, M_PI)(rng_wrong);
+    wrong_offset.emplace_back(r * std::cos(th), r * std::sin(th),
+                              std::uniform_real_distribution<double>(-M_PI, M_PI)(rng_wrong));
   }
   // Loops indexed by their later end, added when that keyframe arrives.
   std::map<std::pair<int, int>, std::vector<std::size_t>> at;
@@ -199,8 +214,13 @@ RunErrors runOnce(const Mission& m, double level, const RunSpec& spec, unsigned 
         const auto [a, c] = loops[i];
         core::Pose2 t = core::between(m.sessions[a.first][a.second], m.sessions[c.first][c.second]);
         if (i >= n_true) t = core::compose(t, wrong_offset[i - n_true]);
-        const core::Pose2 z(t.x() + l_xy * n01(rng), t.y() + l_xy * n01(rng), t.yaw() + l_yaw * n01(rng));
-        b.addLoop({a.first, a.second, c.first, c.second, core::UncertainPose2(z, diag(l_xy, l_yaw)), inliers(rng)});
+        // Own distributions too: std::normal_distribution caches its second draw.
+        const bool w = i >= n_true;
+        auto noise = [&]() { return w ? n01_wrong(rng_wrong) : n01(rng); };
+        const double ex = noise(), ey = noise(), eyaw = noise();
+        const core::Pose2 z(t.x() + l_xy * ex, t.y() + l_xy * ey, t.yaw() + l_yaw * eyaw);
+        b.addLoop({a.first, a.second, c.first, c.second, core::UncertainPose2(z, diag(l_xy, l_yaw)),
+                   w ? inliers_wrong(rng_wrong) : inliers(rng)});
         is_wrong.push_back(i >= n_true);
       }
     }
@@ -218,6 +238,11 @@ RunErrors runOnce(const Mission& m, double level, const RunSpec& spec, unsigned 
   for (std::size_t i = 0; i < is_wrong.size(); ++i) {
     r.wrong += is_wrong[i];
     r.wrong_kept += is_wrong[i] && !b.loopRecord(static_cast<int>(i)).refused;
+    r.true_refused += !is_wrong[i] && b.loopRecord(static_cast<int>(i)).refused;
+    if (log && !is_wrong[i] && b.loopRecord(static_cast<int>(i)).refused) {
+      const core::BackendLoop& l = b.loopRecord(static_cast<int>(i)).loop;
+      std::fprintf(stderr, "true loop %d:%d -> %d:%d refused\n", l.session_a, l.keyframe_a, l.session_b, l.keyframe_b);
+    }
   }
   if (r.joined) {
     r.ek_inter = ekOver(est, m, true);
@@ -284,32 +309,49 @@ int robustness(const fs::path& dir, int runs) {
   return 0;
 }
 
-int outliers(const fs::path& dir, const std::vector<int>& percents, int runs) {
+int outliers(const fs::path& dir, const std::vector<int>& percents, int runs, core::OptimizerKind optimizer) {
   const Mission m = loadMission(dir);
-  std::printf("mission %s: %zu sessions, %zu true loops, %d runs per row; odometry 2σ = 1 cm / 1°, sparse optimiser\n\n",
-              dir.c_str(), m.sessions.size(), m.loops.size(), runs);
-  std::printf("| wrong loops | policy | map ATE (m) | wrong loops kept | joins made | joins refused | wrong joins |\n");
-  std::printf("|---|---|---|---|---|---|---|\n");
+  std::printf("mission %s: %zu sessions, %zu true loops, %d runs per row; odometry 2σ = 1 cm / 1°, %s optimiser\n\n",
+              dir.c_str(), m.sessions.size(), m.loops.size(), runs, core::optimizerName(optimizer));
+  std::printf("| wrong loops | policy | map ATE (m) | ATE change, mean / max (mm) | wrong loops kept | true loops "
+              "refused | joins made | joins refused | wrong joins |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|\n");
   for (int p : percents) {
     for (auto policy : {core::JoinPolicy::kCount, core::JoinPolicy::kConsistent}) {
       std::vector<double> ate;
-      double kept = 0, wrong = 0, joins = 0, refused = 0;
-      int wrong_joins = 0;
+      double kept = 0, wrong = 0, true_refused = 0, joins = 0, refused = 0, change_sum = 0, change_max = 0;
+      int wrong_joins = 0, changes = 0;
       for (int r = 0; r < runs; ++r) {
         RunSpec spec;
         spec.policy = policy;
+        spec.optimizer = optimizer;
         spec.outlier_fraction = p / 100.0;
         spec.true_loops_only = false;
-        const RunErrors e = runOnce(m, 0.01, spec, 7000u + 31u * static_cast<unsigned>(p) + r);  // same seeds per policy
+        const unsigned seed = 7000u + 31u * static_cast<unsigned>(p) + static_cast<unsigned>(r);  // same per policy
+        const RunErrors e = runOnce(m, 0.01, spec, seed);
+        // The same run without the wrong loops (same odometry, same true loops).
+        RunSpec clean = spec;
+        clean.outlier_fraction = 0.0;
+        const RunErrors c = p > 0 ? runOnce(m, 0.01, clean, seed) : e;
         ate.push_back(e.map_ate);
         kept += e.wrong_kept;
         wrong += e.wrong;
+        true_refused += e.true_refused;
         joins += e.joins;
         refused += e.joins_refused;
         wrong_joins += e.joined && !(e.map_ate <= 1.0);
+        if (e.joined && c.joined) {
+          const double d = 1000.0 * std::abs(e.map_ate - c.map_ate);
+          change_sum += d;
+          change_max = std::max(change_max, d);
+          ++changes;
+        }
       }
-      std::printf("| %d %% | %s | %s | %.1f of %.1f | %.1f | %.1f | %d/%d |\n", p, core::joinPolicyName(policy),
-                  meanSd(ate).c_str(), kept / runs, wrong / runs, joins / runs, refused / runs, wrong_joins, runs);
+      char change[64] = "n/a";
+      if (changes > 0) std::snprintf(change, sizeof change, "%.2f / %.2f", change_sum / changes, change_max);
+      std::printf("| %d %% | %s | %s | %s | %.1f of %.1f | %.1f | %.1f | %.1f | %d/%d |\n", p,
+                  core::joinPolicyName(policy), meanSd(ate).c_str(), change, kept / runs, wrong / runs,
+                  true_refused / runs, joins / runs, refused / runs, wrong_joins, runs);
       std::fflush(stdout);
     }
   }
@@ -412,7 +454,12 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "bench_backend: --outliers needs --mission DIR and --runs >= 1\n");
         return 2;
       }
-      return outliers(mission, percents, runs_given ? runs : 5);
+      core::OptimizerKind k;
+      if (!core::parseOptimizer(optimizer, &k)) {
+        std::fprintf(stderr, "bench_backend: --optimizer iekf|sparse\n");
+        return 2;
+      }
+      return outliers(mission, percents, runs_given ? runs : 5, k);
     }
     if (robust) {
       if (mission.empty() || runs < 1) {

@@ -328,6 +328,7 @@ TEST_P(BothOptimizers, AWrongLoopInsideAMapIsGatedAndAMildlyDriftedTrueOneIsNot)
   for (std::size_t k = 0; k < before.size(); ++k) EXPECT_TRUE(approxEqual(b.sessionPoses(0)[k], before[k])) << k;
   BackendOptions off = optionsFor(GetParam());  // without the gate the same wrong loop bends the map
   off.intra_loop_gate = false;
+  off.loop_residual_gate = false;  // the second line (switched off after the solve) too
   MultiSessionBackend c(off);
   World w2;
   w2.odo_noise = 0.01;
@@ -336,6 +337,79 @@ TEST_P(BothOptimizers, AWrongLoopInsideAMapIsGatedAndAMildlyDriftedTrueOneIsNot)
   c.addLoop(w2.loop(0, 4, 0, 12, Pose2(2.0, 0.0, 0.0)));
   c.flush();
   EXPECT_GT(worstError(c.sessionPoses(0), w2.truthIn(0, 0)), 0.3);
+}
+
+// --- loop_residual_gate: a loop that disagrees with the solution is switched off ---
+
+// One 30-keyframe session with 1 cm odometry noise, three true loops and (optionally) a wrong one
+// 1.5 m off between them, optimised once at the end. intra_loop_gate is off: the wrong loop
+// stands for one the entry gate lets through (a long chain with a wide covariance).
+struct ResidualGateRun {
+  std::vector<Pose2> poses, truth;
+  BackendStats stats;
+  std::vector<LoopRecord> loops;
+};
+ResidualGateRun residualGateRun(OptimizerKind k, bool with_wrong, bool residual_gate) {
+  World w;
+  w.odo_noise = 0.01;
+  w.sessions = {line(Pose2(0, 0, 0), 30)};
+  BackendOptions o = optionsFor(k);
+  o.optimise_every = 100;
+  o.intra_loop_gate = false;
+  o.loop_residual_gate = residual_gate;
+  MultiSessionBackend b(o);
+  w.feed(&b, 0, false);
+  b.addLoop(w.loop(0, 2, 0, 12));
+  b.addLoop(w.loop(0, 5, 0, 20));
+  if (with_wrong) b.addLoop(w.loop(0, 4, 0, 25, Pose2(1.5, 0.0, 0.0)));
+  b.addLoop(w.loop(0, 10, 0, 28));
+  b.flush();
+  ResidualGateRun r{b.sessionPoses(0), w.truthIn(0, 0), b.stats(), {}};
+  for (int id = 0; id < b.numLoops(); ++id) r.loops.push_back(b.loopRecord(id));
+  return r;
+}
+
+TEST_P(BothOptimizers, AWrongLoopInTheSolveIsSwitchedOffAndTheSolutionIsTheOneWithoutIt) {
+  const ResidualGateRun gated = residualGateRun(GetParam(), true, true);
+  const ResidualGateRun clean = residualGateRun(GetParam(), false, true);
+  ASSERT_EQ(gated.loops.size(), 4u);
+  EXPECT_TRUE(gated.loops[2].refused);  // the wrong one
+  for (int id : {0, 1, 3}) EXPECT_FALSE(gated.loops[id].refused) << id;
+  EXPECT_EQ(gated.stats.loops_switched_off, 1);
+  EXPECT_EQ(gated.stats.loops_refused, 1);
+  EXPECT_EQ(clean.stats.loops_switched_off, 0);  // true loops stay in
+  // Switched off = solved again from the same start without it: the solve that never saw it.
+  ASSERT_EQ(gated.poses.size(), clean.poses.size());
+  for (std::size_t k = 0; k < clean.poses.size(); ++k)
+    EXPECT_TRUE(approxEqual(gated.poses[k], clean.poses[k], 1e-9, 1e-9)) << k << " " << gated.poses[k];
+  // Without the gate the same wrong loop stays in and bends the map.
+  const ResidualGateRun open = residualGateRun(GetParam(), true, false);
+  EXPECT_FALSE(open.loops[2].refused);
+  const double err_clean = worstError(clean.poses, clean.truth), err_open = worstError(open.poses, open.truth);
+  EXPECT_GT(err_open, err_clean + 0.05) << "clean " << err_clean << " m, with the wrong loop " << err_open << " m";
+}
+
+TEST_P(BothOptimizers, DriftedTrueLoopsAreNotSwitchedOff) {
+  // 200 draws of a drifting 30-keyframe line (1 cm / 0.01 rad per motion, as its covariance says)
+  // with three true loops measured with 5 mm noise: the residual gate (defaults) switches none off.
+  int switched = 0;
+  std::mt19937 rng(11);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  for (int draw = 0; draw < 200; ++draw) {
+    World w;
+    w.rng.seed(100 + draw);
+    w.odo_noise = 0.01;
+    w.sessions = {line(Pose2(0, 0, 0), 30)};
+    BackendOptions o = optionsFor(GetParam());
+    o.optimise_every = 100;
+    MultiSessionBackend b(o);
+    w.feed(&b, 0, false);
+    for (auto [i, j] : {std::pair<int, int>{2, 12}, {5, 20}, {10, 28}})
+      b.addLoop(w.loop(0, i, 0, j, Pose2(0.005 * n01(rng), 0.005 * n01(rng), 0.005 * n01(rng))));
+    b.flush();
+    switched += b.stats().loops_switched_off + b.stats().loops_gated;
+  }
+  EXPECT_EQ(switched, 0);
 }
 
 TEST_P(BothOptimizers, OptimisationWaitsForMPendingLoops) {

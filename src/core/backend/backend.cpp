@@ -78,6 +78,28 @@ Trajectory meansTrajectory(const std::vector<Pose2>& motions) {
   return t;
 }
 
+// X_j^i from the motions of a chain (motion k reaches keyframe k + 1), means only.
+Pose2 relativeOfMotions(const std::vector<Pose2>& motions, int i, int j) {
+  Pose2 x;
+  for (int k = std::min(i, j); k < std::max(i, j); ++k) x = compose(x, motions[k]);
+  return i <= j ? x : invert(x);
+}
+
+// The squared Mahalanobis distance of a loop's measurement from its prediction in a solution,
+// under the residual gate's covariance (the loop's, inflated, plus the floors).
+double residualDistance2(const Pose2& predicted, const UncertainPose2& z, const OptimisationJob& job) {
+  return mahalanobis2(between(predicted, z.mean), job.residual_gate_inflation * z.covariance,
+                      job.residual_gate_floors);
+}
+
+// The index of the loop with the largest distance beyond the job's residual gate, or -1.
+int worstBeyondGate(const std::vector<double>& d2, double gate) {
+  int worst = -1;
+  for (int k = 0; k < static_cast<int>(d2.size()); ++k)
+    if (d2[k] > gate && (worst < 0 || d2[k] > d2[worst])) worst = k;
+  return worst;
+}
+
 }  // namespace
 
 int MultiSessionBackend::Map::numMotions() const {
@@ -313,6 +335,11 @@ OptimisationJob MultiSessionBackend::prepareOptimisation(int map_id) const {
   OptimisationJob job;
   job.map = map_id;
   job.revision = m.revision;
+  if (options_.loop_residual_gate) {
+    job.residual_gate_chi2 = chiSquare3Quantile(options_.consistency.confidence);
+    job.residual_gate_inflation = options_.intra_gate_inflation;
+    job.residual_gate_floors = options_.consistency;
+  }
   if (m.iekf) {
     job.iekf = true;
     for (int k = 0; k < static_cast<int>(loops_.size()); ++k) {
@@ -336,11 +363,14 @@ OptimisationJob MultiSessionBackend::prepareOptimisation(int map_id) const {
     o += s.keyframes();
     if (c + 1 < m.chain.size()) job.edges.push_back({o - 1, o, m.links[c].measured, false});
   }
-  for (const LoopRecord& st : loops_) {
+  job.edge_loop_ids.assign(job.edges.size(), -1);
+  for (int id = 0; id < static_cast<int>(loops_.size()); ++id) {
+    const LoopRecord& st = loops_[id];
     if (st.summarised || st.refused) continue;
     if (mapOf(st.loop.session_a) != map_id || mapOf(st.loop.session_b) != map_id) continue;
     job.edges.push_back({indexOf(st.loop.session_a, st.loop.keyframe_a), indexOf(st.loop.session_b, st.loop.keyframe_b),
                          st.loop.z, true});
+    job.edge_loop_ids.push_back(id);
     job.any_loop = true;
   }
   return job;
@@ -348,10 +378,48 @@ OptimisationJob MultiSessionBackend::prepareOptimisation(int map_id) const {
 
 void MultiSessionBackend::solveOptimisation(OptimisationJob* job) {
   const auto t0 = std::chrono::steady_clock::now();
-  if (job->iekf) {
-    if (job->filter) job->filter->update(job->measurements);
-  } else if (job->any_loop) {
-    optimisePoseGraph(&job->poses, job->edges, job->sparse, 0);
+  const bool gate = job->residual_gate_chi2 > 0.0;
+  // Solve; with the residual gate, switch off the loop that disagrees most with the solution and
+  // solve again from the same start, until none is beyond the gate (loop_residual_gate).
+  if (job->iekf && job->filter) {
+    const TrajectoryIekf start = *job->filter;
+    while (!job->measurements.empty()) {
+      job->filter = start;
+      job->filter->update(job->measurements);
+      if (!gate) break;
+      std::vector<double> d2;
+      for (const LoopMeasurement& l : job->measurements)
+        d2.push_back(residualDistance2(relativeOfMotions(job->filter->motions(), l.i, l.j), l.z, *job));
+      const int worst = worstBeyondGate(d2, job->residual_gate_chi2);
+      if (worst < 0) break;
+      job->switched_off.push_back(job->loop_ids[worst]);
+      job->switched_off_chi2.push_back(d2[worst]);
+      job->measurements.erase(job->measurements.begin() + worst);
+      job->loop_ids.erase(job->loop_ids.begin() + worst);
+      if (job->measurements.empty()) job->filter = start;
+    }
+  } else if (!job->iekf && job->any_loop) {
+    const std::vector<Pose2> start = job->poses;
+    for (;;) {
+      job->poses = start;
+      optimisePoseGraph(&job->poses, job->edges, job->sparse, 0);
+      if (!gate) break;
+      std::vector<double> d2(job->edges.size(), 0.0);
+      for (std::size_t e = 0; e < job->edges.size(); ++e)
+        if (job->edges[e].robust)
+          d2[e] = residualDistance2(between(job->poses[job->edges[e].from], job->poses[job->edges[e].to]),
+                                    job->edges[e].z, *job);
+      const int worst = worstBeyondGate(d2, job->residual_gate_chi2);
+      if (worst < 0) break;
+      job->switched_off.push_back(job->edge_loop_ids[worst]);
+      job->switched_off_chi2.push_back(d2[worst]);
+      job->edges.erase(job->edges.begin() + worst);
+      job->edge_loop_ids.erase(job->edge_loop_ids.begin() + worst);
+      if (std::none_of(job->edges.begin(), job->edges.end(), [](const PoseGraphEdge& e) { return e.robust; })) {
+        job->poses = start;
+        break;
+      }
+    }
   }
   job->solve_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   job->solved = true;
@@ -365,6 +433,17 @@ bool MultiSessionBackend::applyOptimisation(const OptimisationJob& job) {
     return false;
   }
   Map& m = it->second;
+  for (std::size_t k = 0; k < job.switched_off.size(); ++k) {
+    LoopRecord& st = loops_[job.switched_off[k]];
+    st.refused = true;
+    ++stats_.loops_refused;
+    ++stats_.loops_switched_off;
+    std::ostringstream os;
+    os << "loop " << st.loop.session_a << ":" << st.loop.keyframe_a << " -> " << st.loop.session_b << ":"
+       << st.loop.keyframe_b << " switched off: it disagrees with map " << job.map << "'s solution (chi-square "
+       << job.switched_off_chi2[k] << " > " << job.residual_gate_chi2 << ")";
+    say(os.str());
+  }
   if (job.iekf) {
     if (job.filter) m.iekf = job.filter;
     for (int k : job.loop_ids) loops_[k].applied = true;

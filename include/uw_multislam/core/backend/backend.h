@@ -99,6 +99,14 @@ struct BackendOptions {
   /// order and over-confident over many motions (a loop closing a drifted square at 5 sigma of
   /// its own covariance is a true loop); wrong loops are metres off.
   double intra_gate_inflation = 10.0;
+  /// After each optimisation of a map (both optimisers), the loop whose residual in the solution
+  /// exceeds the chi-square gate of consistency.confidence (covariance: the loop's times
+  /// intra_gate_inflation plus the consistency floors) is switched off: refused, kept refused in
+  /// the store and loops.csv, counted (loops_switched_off), and the map solved again from the same
+  /// start without it; worst first, one at a time, until every loop left agrees with the solution.
+  /// It catches what the gate above lets through: a wrong loop arriving while the chain between
+  /// its keyframes is long and its covariance wide, which no later true loop would undo.
+  bool loop_residual_gate = true;
   IekfOptions iekf;
   int max_keyframes = 1500;  // iekf: a larger map uses the sparse optimiser (dense P is 3N x 3N)
   SparseOptions sparse;
@@ -162,6 +170,7 @@ struct BackendStats {
   int loops_refused = 0;  // refused at a join as inconsistent with the others
   int joins_refused = 0;  // automatic joins the consistency policy refused (reason: last_join_refusal)
   int loops_gated = 0;    // loops inside a map refused by intra_loop_gate (also in loops_refused)
+  int loops_switched_off = 0;  // loops refused by loop_residual_gate after a solve (also in loops_refused)
   std::string last_join_refusal;
   int joins = 0, splits = 0;
   int optimisations = 0;
@@ -183,6 +192,14 @@ struct OptimisationJob {
   std::optional<TrajectoryIekf> filter;
   std::vector<LoopMeasurement> measurements;
   std::vector<int> loop_ids;
+  // both: the loop id of each loop edge / measurement (sparse: -1 for odometry and links), the
+  // residual gate (loop_residual_gate; threshold <= 0: off) and the loops it switched off
+  std::vector<int> edge_loop_ids;
+  double residual_gate_chi2 = 0.0;
+  double residual_gate_inflation = 1.0;
+  ConsistencyOptions residual_gate_floors;
+  std::vector<int> switched_off;
+  std::vector<double> switched_off_chi2;
   double solve_ms = 0.0;
   bool solved = false;
 };
