@@ -18,6 +18,7 @@
 #include "uw_multislam/core/session/run_outputs.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/slam_config.h"
+#include "uw_multislam/core/session/stored_loops.h"
 
 namespace core = uw_multislam::core;
 
@@ -51,6 +52,10 @@ options:
   --config FILE     YAML configuration (see config/slam.yaml; --dump-config shows every key)
   --db FILE         the session store (SQLite) to read and extend
   --again           process folders already in the store once more (as new sessions)
+  --detect-loops    first search global loops among the stored sessions (each against those
+                    stored before it; loops already stored are skipped) and join what they
+                    support (backend.join_policy), so stored sessions join without a new one;
+                    --session may then be left out
   --interrupted discard|finish
                     what to do with a folder's run that was interrupted (above)
   --nav on|off      use a folder's nav.csv (dead reckoning) as a prior (default: nav.enabled, on)
@@ -129,7 +134,7 @@ int main(int argc, char** argv) {
   std::vector<std::string> folders;
   std::string out, config_file, db, nav, interrupted;
   int threads = 1;
-  bool dump = false, quiet = false, again = false;
+  bool dump = false, quiet = false, again = false, detect_loops = false;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     const bool has_value = i + 1 < argc;
@@ -141,6 +146,7 @@ int main(int argc, char** argv) {
     else if (arg == "--dump-config") dump = true;
     else if (arg == "--quiet") quiet = true;
     else if (arg == "--again") again = true;
+    else if (arg == "--detect-loops") detect_loops = true;
     else if (arg == "--nav" && has_value) nav = argv[++i];
     else if (arg == "--interrupted" && has_value) interrupted = argv[++i];
     else if (arg == "--threads" && has_value) {
@@ -160,7 +166,8 @@ int main(int argc, char** argv) {
       return badArgs("--interrupted takes discard or finish, not '" + interrupted + "'");
     if (!interrupted.empty() && db.empty()) return badArgs("--interrupted needs --db FILE");
     if (dump) return std::fputs(core::slamConfigToYaml(config).c_str(), stdout), 0;
-    if (folders.empty()) return badArgs("at least one --session DIR is required");
+    if (detect_loops && db.empty()) return badArgs("--detect-loops needs --db FILE");
+    if (folders.empty() && !detect_loops) return badArgs("at least one --session DIR is required");
     if (out.empty()) return badArgs("--out OUT is required");
     cv::setNumThreads(threads);
     // Every folder and the store are checked before any work or any output.
@@ -169,7 +176,7 @@ int main(int argc, char** argv) {
     std::set<int> finished_now;
     if (const int refused = resolveInterrupted(db, interrupted, &folders, &datasets, &finished_now); refused != 0)
       return refused;
-    if (datasets.empty()) {
+    if (datasets.empty() && !detect_loops) {
       std::printf("offline_slam: every folder was skipped: nothing to process\n");
       return 0;
     }
@@ -194,6 +201,18 @@ int main(int argc, char** argv) {
                   static_cast<int>(manager.loops().size()),
                   std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
     core::writeRunInputs(out, datasets, stored, core::slamConfigToYaml(config));  // creates OUT; folders + config
+    if (detect_loops) {
+      // Global loops among the stored sessions (issue 16, 3): each one searches the ones stored
+      // before it; loops the store holds already are skipped; the back-end joins by its policy.
+      std::vector<std::vector<int>> groups;
+      for (int s = 0; s < stored; ++s) groups.push_back({s});
+      const core::StoredLoopSearch f = core::searchStoredLoops(&manager, config, groups, print(""));
+      if (!quiet)
+        std::printf("detect-loops among %d stored sessions: %d keyframes queried, %d candidates verified, %d loops "
+                    "(%d already stored), %d accepted, %d refused; %d joins\n",
+                    stored, f.queries, f.candidates, f.found, f.duplicates, f.accepted, f.refused,
+                    manager.backendStats().joins);
+    }
 
     std::map<int, int> csv_of;  // session id -> the folder's number (stored sessions keep their id)
     for (std::size_t ds = 0; ds < datasets.size(); ++ds) {

@@ -181,3 +181,32 @@ def test_copy_only_keeps_two_maps(stores, tmp_path):
     s = summary(r.stdout)
     assert s["maps"] == "2" and s["joins"] == "0" and s["new_loops"] == "0", r.stdout
     assert len(store_maps(tmp_path / "c.db")) == 2
+
+
+def test_detect_loops_joins_stored_sessions_without_a_new_one(merged, tmp_path):
+    """Issue 16, item 3: loops are searched among stored sessions (offline_slam --db --detect-loops,
+    no folder): the copy-only merge's two maps are joined like merge_stores joins them, and a
+    second search finds only loops the store already holds."""
+    _, made, _, loops_db, _ = merged
+    db = tmp_path / "copy_only.db"
+    r = run("merge_stores", db, made["a"], made["b"], "--no-loops", "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert len(store_maps(db)) == 2
+    r = run("offline_slam", "--db", db, "--detect-loops", "--out", tmp_path / "o1")
+    assert r.returncode == 0, r.stdout + r.stderr
+    line = [l for l in r.stdout.splitlines() if l.startswith("detect-loops")][0]
+    assert "0 already stored" in line and "1 joins" in line, line
+    maps = store_maps(db)
+    assert len(maps) == 1
+    (_, links), = maps.values()
+    (_, merged_links), = store_maps(loops_db).values()
+    for u, v in zip(links[0], merged_links[0]):  # the same loops in the same order: the same link
+        assert abs(u - v) < 1e-9, (links, merged_links)
+    assert len(rows(tmp_path / "o1" / "links.csv")) == 1
+    r = run("offline_slam", "--db", db, "--detect-loops", "--out", tmp_path / "o2")
+    assert r.returncode == 0, r.stdout + r.stderr
+    line = [l for l in r.stdout.splitlines() if l.startswith("detect-loops")][0]
+    found, held = int(line.split(" loops (")[0].split()[-1]), int(line.split(" loops (")[1].split()[0])
+    assert found > 5 and held == found and " 0 accepted" in line, line
+    r = run("offline_slam", "--detect-loops", "--out", tmp_path / "o3")
+    assert r.returncode == 2 and "--db" in r.stderr
