@@ -656,3 +656,96 @@ def test_store_only_mosaics_are_finer_and_sharper_with_larger_images(stores_by_i
     assert 1.0 - results[240]["ncc"] < (1.0 - results[96]["ncc"]) / 3, results
     assert results[240]["energy"] > results[96]["energy"] + 0.3, results
     assert results[240]["ncc"] > 0.98, results
+
+
+# --- evaluate.py --mosaic-png: the mosaics side by side (issue 18, item 4) --------------------------
+
+def mosaic_pngs(survey, run_dir, directory):
+    import subprocess
+    from PIL import Image
+    r = subprocess.run(["/usr/bin/python3", EVALUATE, "--run", str(run_dir), "--session", str(survey / "a"),
+                        "--session", str(survey / "b"), "--world-gt", str(survey / "world_gt.csv"), "--report",
+                        str(directory / "report"), "--no-plots", "--mosaic-png", str(directory / "png")],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "mosaic PNGs of map 0: " in r.stdout and "ratio " in r.stdout, r.stdout
+    out = {}
+    for name in ("slam", "gt"):
+        path = directory / "png" / ("map_0_%s.png" % name)
+        world = [float(v) for v in path.with_suffix(".pgw").read_text().split()]
+        with Image.open(path) as im:
+            assert im.mode == "RGBA"
+            out[name] = (np.asarray(im, float), world)
+    return out
+
+
+def on_shared_window(a, b):
+    """The two mosaics (RGBA array, world file) cut to the ground both rasters cover; the world files
+    must share the resolution and a pixel grid."""
+    (ia, wa), (ib, wb) = a, b
+    assert wa[:4] == wb[:4]
+    res = wa[0]
+    dc, dr = (wb[4] - wa[4]) / res, (wa[5] - wb[5]) / res  # b's upper-left pixel in a's pixels
+    assert abs(dc - round(dc)) < 1e-6 and abs(dr - round(dr)) < 1e-6, (dc, dr)
+    dc, dr = int(round(dc)), int(round(dr))
+    r0, c0 = max(0, dr), max(0, dc)
+    r1, c1 = min(ia.shape[0], dr + ib.shape[0]), min(ia.shape[1], dc + ib.shape[1])
+    assert r1 - r0 > 50 and c1 - c0 > 50
+    return ia[r0:r1, c0:c1], ib[r0 - dr:r1 - dr, c0 - dc:c1 - dc]
+
+
+def mean_colour_difference(a, b):
+    both = (a[..., 3] > 0) & (b[..., 3] > 0)
+    assert both.sum() > 10000
+    return float(np.abs(a[both, :3] - b[both, :3]).mean())
+
+
+def test_mosaic_pngs_of_estimate_and_ground_truth_side_by_side(store, survey, tmp_path):
+    _, run_dir = store
+    m = mosaic_pngs(survey, run_dir, tmp_path / "good")
+    est, truth = m["slam"], m["gt"]
+    assert est[0].shape == truth[0].shape and est[1] == truth[1]  # one extent, one resolution
+    assert (truth[0][..., 3] > 0).mean() > 0.3
+    close = mean_colour_difference(est[0], truth[0])  # a good map: its mosaic looks like the truth's
+    # the whole map turned by 4 degrees about its origin (the first keyframe of session a)
+    turned = tmp_path / "turned_run"
+    turned.mkdir()
+    for name in os.listdir(run_dir):
+        (turned / name).write_bytes((run_dir / name).read_bytes())
+    lines = (run_dir / "trajectory.csv").read_text().splitlines()
+    t = math.radians(4.0)
+    body = []
+    for line in lines[1:]:
+        r = line.split(",")
+        x, y = float(r[3]), float(r[4])
+        r[3], r[4] = "%.6f" % (math.cos(t) * x - math.sin(t) * y), "%.6f" % (math.sin(t) * x + math.cos(t) * y)
+        r[5] = "%.7f" % (float(r[5]) + t)
+        body.append(",".join(r))
+    (turned / "trajectory.csv").write_text("\n".join([lines[0]] + body) + "\n")
+    w = mosaic_pngs(survey, turned, tmp_path / "turned")
+    assert w["slam"][0].shape == w["gt"][0].shape and w["slam"][1] == w["gt"][1]
+    # the ground truth's mosaic is the same pixels at the same places
+    a, b = on_shared_window(truth, w["gt"])
+    assert np.array_equal(a, b)
+    assert (a[..., 3] > 0).sum() == (truth[0][..., 3] > 0).sum()  # nothing of it was cut off
+    # the estimated one is visibly turned: far from the first estimate and from the truth
+    a, b = on_shared_window(est, w["slam"])
+    moved = mean_colour_difference(a, b)
+    off = mean_colour_difference(w["slam"][0], w["gt"][0])
+    # ... and turned by the poses: each of its pixels turned back by 4 degrees about the map's origin
+    # lands on the same colour of the first estimate's mosaic
+    (img, world), (first, first_world) = w["slam"], est
+    res = world[0]
+    rows_, cols_ = np.nonzero(img[..., 3] > 0)
+    x = world[4] + cols_ * res  # pixel centres, image axes (trajectory.csv's): y = -(z-up y)
+    y = -(world[5] - rows_ * res)
+    bx, by = math.cos(t) * x + math.sin(t) * y, -math.sin(t) * x + math.cos(t) * y
+    c = np.rint((bx - first_world[4]) / res).astype(int)
+    r = np.rint((-by - first_world[5]) / -res).astype(int)
+    ok = (c >= 0) & (r >= 0) & (c < first.shape[1]) & (r < first.shape[0])
+    ok[ok] &= first[r[ok], c[ok], 3] > 0
+    assert ok.mean() > 0.9
+    back = float(np.abs(img[rows_[ok], cols_[ok], :3] - first[r[ok], c[ok], :3]).mean())
+    assert moved > 2.0 * close and off > 2.0 * close and back < 0.5 * moved, (close, moved, off, back)
+    print("mosaic colour difference: good map vs truth %.2f, turned vs first %.2f, turned vs truth %.2f, "
+          "turned back vs first %.2f" % (close, moved, off, back))
