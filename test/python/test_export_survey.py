@@ -241,7 +241,7 @@ def test_help_lists_every_option():
     r = run("export_survey", "--help")
     assert r.returncode == 0
     for option in ("--db", "--out", "--origin", "--quiet", "--resolution", "--images", "--blend", "--no-exposure",
-                   "--tile", "--no-mosaic"):
+                   "--tile", "--no-mosaic", "--run", "--session"):
         assert option in r.stdout
 
 
@@ -316,6 +316,101 @@ def test_missing_arguments(tmp_path):
     assert run("export_survey", "--db", tmp_path / "x.db").returncode == 2
     r = run("export_survey", "--db")
     assert r.returncode == 2 and "needs a value" in r.stderr
+
+
+# --- export_survey --run: from an offline_slam output folder and its dataset folders (issue 18, item 1)
+
+@pytest.fixture(scope="module")
+def exported_run(store, survey, tmp_path_factory):
+    _, run_dir = store
+    out = tmp_path_factory.mktemp("exported_run") / "out"
+    r = run("export_survey", "--run", run_dir, "--session", survey / "a", survey / "b", "--out", out, "--origin",
+            ",".join(map(str, ORIGIN)))
+    assert r.returncode == 0, r.stderr
+    return out, r
+
+
+def test_run_folder_export_gives_the_stores_tum_poses(exported, exported_run):
+    from_store, _ = exported
+    from_run, r = exported_run
+    def tum_files(folder):  # sessions by id, then the map (a store numbers from 1, the run's engine from 0)
+        names = [p for p in os.listdir(folder) if p.endswith(".tum")]
+        return sorted(names, key=lambda p: (p.startswith("map_"), int(p.split("_")[1].split(".")[0])))
+
+    tums = list(zip(tum_files(from_store), tum_files(from_run)))
+    assert len(tums) == 3  # two sessions and their map
+    for name, theirs in tums:
+        assert name.split("_")[0] == theirs.split("_")[0]
+        a, b = read_tum(from_store / name), read_tum(from_run / theirs)
+        assert len(a) == len(b) > 5, name
+        for (ta, xa, ya, yaw_a), (tb, xb, yb, yaw_b) in zip(a, b):
+            assert tb == pytest.approx(ta, abs=1e-6)
+            # trajectory.csv prints 6 decimals (x, y) and 7 (yaw)
+            assert abs(xa - xb) <= 6e-7 and abs(ya - yb) <= 6e-7, (name, xa, xb, ya, yb)
+            assert abs(math.remainder(yaw_a - yaw_b, 2 * math.pi)) <= 1e-6, (name, yaw_a, yaw_b)
+    for name, theirs in tums:  # the KITTI files hold the same poses
+        ka = np.loadtxt(from_store / name.replace(".tum", ".kitti"))
+        kb = np.loadtxt(from_run / theirs.replace(".tum", ".kitti"))
+        assert np.abs(ka - kb).max() < 2e-6
+    assert "note: from an offline_slam output folder" in r.stdout
+
+
+def test_run_folder_export_marks_what_the_folder_lacks(exported, exported_run):
+    from_store, _ = exported
+    from_run, _ = exported_run
+    def renumbered(name):  # the store's name of a run file: ids one higher (see --help)
+        kind, rest = name.split("_", 1)
+        number, ext = rest.split(".", 1)
+        return "%s_%d.%s" % (kind, int(number) + 1, ext)
+
+    for name in (p for p in os.listdir(from_run) if p.endswith(".csv")):
+        store_rows, run_rows = rows(from_store / renumbered(name)), rows(from_run / name)
+        assert [r["frame_index"] for r in run_rows] == [r["frame_index"] for r in store_rows]
+        assert [int(r["session"]) + 1 for r in run_rows] == [int(r["session"]) for r in store_rows]
+        for r in run_rows:  # no covariance in the folder: unknown, not invented
+            assert [r[c] for c in ("cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw")] == ["nan"] * 6
+    g2o = sorted(p for p in os.listdir(from_run) if p.endswith(".g2o"))
+    assert sorted(map(renumbered, g2o)) == sorted(p for p in os.listdir(from_store) if p.endswith(".g2o"))
+    for name in g2o:
+        lines = (from_run / name).read_text().splitlines()
+        stored = (from_store / renumbered(name)).read_text().splitlines()
+        assert sum(v.startswith("VERTEX_SE2") for v in lines) == sum(v.startswith("VERTEX_SE2") for v in stored)
+        unknown = [v for v in lines if v.startswith("# EDGE_SE2") and v.endswith(")")]
+        edges = [v.split() for v in lines if v.startswith("EDGE_SE2")]
+        assert all("information unknown" in v for v in unknown)
+        # every odometry motion (and link) is there, without information; the loops with theirs
+        n_vertices = sum(v.startswith("VERTEX_SE2") for v in lines)
+        assert len(unknown) == n_vertices - 1, name
+        for e in edges:
+            info = [float(v) for v in e[6:]]
+            assert len(info) == 6 and all(math.isfinite(v) for v in info) and info[0] > 0
+    maps = [p for p in g2o if p.startswith("map_")]
+    assert any(v.startswith("EDGE_SE2") for v in (from_run / maps[0]).read_text().splitlines())  # loops
+    names = os.listdir(from_run)
+    for ext in (".geojson", ".png", ".pgw", ".tif"):
+        assert len([p for p in names if p.endswith(ext)]) == 3, ext
+
+
+def test_run_folder_mosaics_are_drawn_from_the_folders_frames(exported_run):
+    _, r = exported_run
+    drawn = [line for line in r.stdout.splitlines() if ".png: " in line]
+    assert len(drawn) == 3
+    for line in drawn:
+        frames = int(line.split("images: ")[1].split(" frames")[0])
+        assert frames > 5 and " 0 thumbnails, 0 missing" in line, line
+
+
+def test_run_folder_with_other_dataset_folders_is_refused(store, survey, tmp_path):
+    _, run_dir = store
+    r = run("export_survey", "--run", run_dir, "--session", survey / "b", survey / "a", "--out", tmp_path / "out")
+    assert r.returncode == 1 and "not the same folder" in r.stderr, r.stderr
+    assert not (tmp_path / "out").exists()
+    r = run("export_survey", "--run", tmp_path / "nowhere", "--out", tmp_path / "out")
+    assert r.returncode == 1 and "nowhere" in r.stderr
+    r = run("export_survey", "--run", run_dir, "--db", tmp_path / "x.db", "--out", tmp_path / "out")
+    assert r.returncode == 2
+    r = run("export_survey", "--run", run_dir, "--images", survey / "a", "--out", tmp_path / "out")
+    assert r.returncode == 2 and "--images" in r.stderr
 
 
 def test_map_covariances_are_the_stored_motions_composed(exported, store):
