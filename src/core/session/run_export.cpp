@@ -48,8 +48,8 @@ struct Table {
   int integer(std::size_t r, const std::string& name) const {
     const double v = number(r, name);
     if (v != std::floor(v) || std::abs(v) > INT_MAX)
-      throw ExportError(path + ":" + std::to_string(lines[r]) + ": " + name + " is not an integer: '" +
-                        cell(r, name) + "'");
+      throw ExportError(path + ":" + std::to_string(lines[r]) + ": " + name + " is not an integer: '" + cell(r, name) +
+                        "'");
     return static_cast<int>(v);
   }
 };
@@ -112,12 +112,12 @@ RunExport loadRunExport(const std::string& run_dir, std::vector<std::string> dir
   const auto file = [&](const char* name) { return (fs::path(run_dir) / name).string(); };
   const Table traj = *readTable(file("trajectory.csv"), true, {"session", "index", "map", "x_m", "y_m", "yaw_rad"});
   const Table odo = *readTable(file("odometry.csv"), true, {"session", "index", "x_m", "y_m", "yaw_rad"});
-  const auto inputs = readTable(file("inputs.csv"), false, {"session", "folder", "frames", "first_stamp_s",
-                                                            "last_stamp_s"});
-  const auto pieces = readTable(file("pieces.csv"), false, {"session", "piece", "store_session", "first_index",
-                                                            "last_index"});
-  const auto links = readTable(file("links.csv"), false, {"map", "previous_session", "current_session", "x_m",
-                                                          "y_m", "yaw_rad"});
+  const auto inputs =
+      readTable(file("inputs.csv"), false, {"session", "folder", "frames", "first_stamp_s", "last_stamp_s"});
+  const auto pieces =
+      readTable(file("pieces.csv"), false, {"session", "piece", "store_session", "first_index", "last_index"});
+  const auto links =
+      readTable(file("links.csv"), false, {"map", "previous_session", "current_session", "x_m", "y_m", "yaw_rad"});
   const auto loops = readTable(file("loops.csv"), false, {"session_a", "index_a", "session_b", "index_b"});
   const auto loop_poses = readTable(file("loop_poses.csv"), false,
                                     {"session_a", "index_a", "session_b", "index_b", "x_m", "y_m", "yaw_rad", "cov_xx",
@@ -303,8 +303,8 @@ RunExport loadRunExport(const std::string& run_dir, std::vector<std::string> dir
         e.stamp_s = f.stamp_s;
         e.altitude_m = f.altitude_m;
         e.image_size = cv::Size(d.camera.width, d.camera.height);
-        e.pose = zUp(UncertainPose2::exact(
-            Pose2(traj.number(r, "x_m"), traj.number(r, "y_m"), traj.number(r, "yaw_rad"))));
+        e.pose =
+            zUp(UncertainPose2::exact(Pose2(traj.number(r, "x_m"), traj.number(r, "y_m"), traj.number(r, "yaw_rad"))));
         e.covariance_known = false;
         index_of[{u.session, index}] = static_cast<int>(track.keyframes.size());
         track.keyframes.push_back(std::move(e));
