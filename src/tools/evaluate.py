@@ -57,6 +57,19 @@ Mosaic consistency (per map, slam; with --mosaic-score, which reads the keyframe
                           haze leave it above 0: the best a map can do).
   mosaic_ratio            mosaic_disagreement / mosaic_disagreement_gt: 1 = as consistent as the
                           ground truth; mosaic_pairs = pairs used.
+  --mosaic-png DIR        (implies --mosaic-score) per map, the mosaic drawn from the estimated
+                          poses (DIR/map_<m>_slam.png) and from the ground truth's
+                          (DIR/map_<m>_gt.png), side by side material for a person: one raster
+                          for both (the same extent, covering both, and resolution: the median
+                          keyframe's ground pixel, coarser when the ground truth's extent would
+                          pass 600 px; the grid in multiples of it, so the ground truth's mosaic
+                          does not move with the estimate), every raster pixel put on the seabed
+                          and looked up in each keyframe seeing it with the projection above
+                          (nearest pixel of the frame shrunk to the raster's resolution), the
+                          keyframes seeing it averaged (a misplaced keyframe shows as a ghost),
+                          each frame's colour channels scaled to the map's mean; RGBA PNG
+                          (transparent where nothing is drawn) and a world file (.pgw: the z-up
+                          map frame, as export_survey writes it).
 
 Metrics (loops, rows intra / inter / all)
   accepted             distinct unordered pairs in loops.csv.
@@ -726,6 +739,131 @@ def mosaic_metrics(estimate, gt_poses, gt, map_id):
             "mosaic_ratio": est / best if est is not NA and best else NA, "mosaic_pairs": pairs}
 
 
+MOSAIC_PNG_MAX_SIDE = 600  # --mosaic-png: the coarsest raster keeps the ground truth's extent within this
+
+
+def mosaic_footprint(pose, camera, altitude):
+    """Seabed corners (4 x 2) of a keyframe's image: the pixel edges put down by seabed_points."""
+    w, h = camera["image_width"], camera["image_height"]
+    return seabed_points(pose, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]]),
+                         camera, altitude)
+
+
+def mosaic_raster(keys, pose_sets, gt):
+    """(x0, y0, res, width, height) of one raster for every pose set: image axes (x right, y down),
+    x0 / y0 the left / top edge. The resolution comes from the ground truth alone (the median
+    keyframe's ground pixel, coarser when its extent would exceed MOSAIC_PNG_MAX_SIDE) and the
+    edges are multiples of it, so a pixel of the ground truth's mosaic stays the same pixel, at the
+    same place, whatever the estimate; the extent covers every pose set's footprints."""
+    corners = {name: np.concatenate([mosaic_footprint(poses[k], gt.sessions[k[0]].camera,
+                                                      gt.sessions[k[0]].altitude[k[1]]) for k in keys])
+               for name, poses in pose_sets.items()}
+    truth = corners["gt"]
+    side = float(np.max(truth.max(axis=0) - truth.min(axis=0)))
+    ground_px = float(np.median([gt.sessions[k[0]].altitude[k[1]] / gt.sessions[k[0]].camera["fx"] for k in keys]))
+    res = max(ground_px, side / MOSAIC_PNG_MAX_SIDE)
+    everything = np.concatenate(list(corners.values()))
+    lo = np.floor(everything.min(axis=0) / res) * res
+    hi = np.ceil(everything.max(axis=0) / res) * res
+    width, height = (int(round(v)) for v in (hi - lo) / res)
+    return float(lo[0]), float(lo[1]), res, max(width, 1), max(height, 1)
+
+
+def mosaic_colour(path, gains, factor):
+    """The image as float RGB, multiplied by its per-channel gains, shrunk by `factor` (<= 1; PIL's
+    box filter, so a coarse mosaic is not aliased) -> (image, x scale, y scale)."""
+    from PIL import Image
+    try:
+        with Image.open(path) as im:
+            rgb = im.convert("RGB")
+            if factor < 1.0:
+                size = (max(1, int(round(rgb.width * factor))), max(1, int(round(rgb.height * factor))))
+                scale = (size[0] / rgb.width, size[1] / rgb.height)
+                rgb = rgb.resize(size, Image.BOX)
+            else:
+                scale = (1.0, 1.0)
+            return np.asarray(rgb, float) * gains, scale
+    except OSError as e:
+        raise EvalError("%s: cannot read the image (%s)" % (path, e)) from None
+
+
+def render_mosaics(keys, pose_sets, gt):
+    """{set name: H x W x 4 uint8 RGBA} of the keyframes `keys` drawn by each pose set on the same
+    raster (mosaic_raster), and the raster. Each raster pixel is put on the seabed and looked up in
+    every keyframe that sees it by image_pixels (the projection of the mosaic score), nearest pixel;
+    the keyframes seeing a pixel are averaged, so a misplaced keyframe shows as a ghost. Each image
+    is scaled per colour channel to the map's mean colour (the missions' light and water differ);
+    alpha 0 where no keyframe is drawn."""
+    x0, y0, res, width, height = raster = mosaic_raster(keys, pose_sets, gt)
+    paths = {k: os.path.join(gt.sessions[k[0]].directory, gt.sessions[k[0]].images[k[1]]) for k in keys}
+    means = {}
+    for k in keys:
+        image, _ = mosaic_colour(paths[k], 1.0, 0.25)
+        means[k] = image.reshape(-1, 3).mean(axis=0)
+    target = np.mean(list(means.values()), axis=0)
+    out = {}
+    for name, poses in pose_sets.items():
+        total = np.zeros((height, width, 3))
+        count = np.zeros((height, width))
+        for k in keys:
+            cam, alt = gt.sessions[k[0]].camera, gt.sessions[k[0]].altitude[k[1]]
+            corners = (mosaic_footprint(poses[k], cam, alt) - (x0, y0)) / res
+            c0, r0 = np.maximum(np.floor(corners.min(axis=0)).astype(int), 0)
+            c1, r1 = np.minimum(np.ceil(corners.max(axis=0)).astype(int), (width, height))
+            if c0 >= c1 or r0 >= r1:
+                continue
+            cc, rr = np.meshgrid(np.arange(c0, c1), np.arange(r0, r1))
+            ground = np.stack([x0 + (cc.ravel() + 0.5) * res, y0 + (rr.ravel() + 0.5) * res], axis=1)
+            image, (sx, sy) = mosaic_colour(paths[k], target / np.maximum(means[k], 1e-6),
+                                            min(1.0, alt / cam["fx"] / res))
+            px = image_pixels(poses[k], ground, cam, alt)
+            u = np.rint((px[:, 0] + 0.5) * sx - 0.5).astype(int)  # pixel centres: the shrink maps edge to edge
+            v = np.rint((px[:, 1] + 0.5) * sy - 0.5).astype(int)
+            ok = (u >= 0) & (v >= 0) & (u < image.shape[1]) & (v < image.shape[0])
+            r, c = rr.ravel()[ok], cc.ravel()[ok]
+            total[r, c] += image[v[ok], u[ok]]
+            count[r, c] += 1
+        rgba = np.zeros((height, width, 4), np.uint8)
+        seen = count > 0
+        rgba[seen, :3] = np.clip(np.rint(total[seen] / count[seen][:, None]), 0, 255).astype(np.uint8)
+        rgba[seen, 3] = 255
+        out[name] = rgba
+    return out, raster
+
+
+def write_mosaic_pngs(ev, run, gt, directory):
+    """--mosaic-png: per map whose ground truth is known, map_<m>_slam.png (the estimated poses) and
+    map_<m>_gt.png (the ground truth's), each with a world file (.pgw, z-up map frame as
+    export_survey writes it). Returns the lines printed."""
+    from PIL import Image
+    os.makedirs(directory, exist_ok=True)
+    lines = []
+    gt_poses = ev.gt_poses.get("slam", {})
+    scores = ev.nested().get("map", {})
+    for map_id in sorted(set(run.slam.frame.values())):
+        keys = run.slam.keys(lambda k: run.slam.frame[k] == map_id)
+        if any(k not in gt_poses for k in keys):
+            lines.append("map %d: no mosaic PNGs (its ground truth needs world_gt.csv)" % map_id)
+            continue
+        images, (x0, y0, res, width, height) = render_mosaics(
+            keys, {"slam": {k: run.slam.poses[k] for k in keys}, "gt": {k: gt_poses[k] for k in keys}}, gt)
+        written = []
+        for name in ("slam", "gt"):
+            path = os.path.join(directory, "map_%d_%s.png" % (map_id, name))
+            Image.fromarray(images[name], "RGBA").save(path, optimize=True)
+            with open(path[:-4] + ".pgw", "w") as f:  # image-axes y down = z-up y up: -y
+                f.write("%.12g\n0\n0\n%.12g\n%.12g\n%.12g\n" % (res, -res, x0 + res / 2, -(y0 + res / 2)))
+            written.append(path)
+        m = scores.get(str(map_id), {}).get("slam", {})
+        score = ""
+        if m.get("mosaic_disagreement") is not None:
+            score = "; disagreement %s, ground truth's %s, ratio %s" % tuple(
+                md_value(m[n]) for n in ("mosaic_disagreement", "mosaic_disagreement_gt", "mosaic_ratio"))
+        lines.append("map %d: %s and %s, %d x %d px at %.4f m/px, %d keyframes%s" % (
+            map_id, written[0], written[1], width, height, res, len(keys), score))
+    return lines
+
+
 def loop_kind(pair):
     return "intra" if pair[0][0] == pair[1][0] else "inter"
 
@@ -1270,6 +1408,10 @@ def parse_args(argv):
                              "run's inputs and configuration (without figures under --no-plots)")
     parser.add_argument("--mosaic-score", action="store_true",
                         help="per map, the mosaic consistency score (reads the keyframes' images)")
+    parser.add_argument("--mosaic-png", metavar="DIR",
+                        help="per map, its mosaic drawn from the estimated poses (map_<m>_slam.png) and from the "
+                             "ground truth's (map_<m>_gt.png), same extent and resolution, with world files, into "
+                             "DIR (implies --mosaic-score)")
     parser.add_argument("--loop-true-dist", type=positive_float, metavar="M",
                         help="gt distance (m) below which an accepted loop is correct "
                              "(default: the image footprint height at the frames' mean altitude)")
@@ -1312,17 +1454,24 @@ def main(argv=None):
         gt = load_ground_truth(session_dirs, world_gt, loops_gt)
         run = load_run(args.run)
         notes = check_run_against_truth(run, gt)
-        ev = evaluate(run, gt, args.loop_true_dist, args.mosaic_score)
+        ev = evaluate(run, gt, args.loop_true_dist, args.mosaic_score or args.mosaic_png is not None)
         ev.notes += notes
         text = write_report(ev, args.report)
         figures = [] if args.no_plots else write_plots(ev, run, gt, args.report)
         if args.html:
             command = "evaluate.py " + " ".join(sys.argv[1:] if argv is None else [str(a) for a in argv])
             write_html(ev, args.run, args.report, sorted(figures, key=lambda p: "map" not in p), command)
+        mosaic_lines = []
+        if args.mosaic_png is not None:
+            if run.slam is None:
+                raise EvalError("%s: no trajectory.csv: --mosaic-png draws the slam estimate" % args.run)
+            mosaic_lines = write_mosaic_pngs(ev, run, gt, args.mosaic_png)
     except (EvalError, OSError) as e:
         print("evaluate.py: error: %s" % e, file=sys.stderr)
         return 1
     print(text, end="")
+    for line in mosaic_lines:
+        print("mosaic PNGs of " + line)
     return 0
 
 

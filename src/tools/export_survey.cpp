@@ -1,5 +1,6 @@
-// export_survey: the survey's products from a session store (issue 18): argument parsing and calls
-// into core/session/survey_export.h; contract: --help, README "Exporting a survey".
+// export_survey: the survey's products from a session store or an offline_slam output folder (issue
+// 18): argument parsing and calls into core/session/survey_export.h and run_export.h; contract:
+// --help, README "Exporting a survey".
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -9,6 +10,7 @@
 #include <vector>
 
 #include "uw_multislam/core/session/mosaic.h"
+#include "uw_multislam/core/session/run_export.h"
 #include "uw_multislam/core/session/session_store.h"
 #include "uw_multislam/core/session/survey_export.h"
 #include "uw_multislam/core/session/track_files.h"
@@ -18,9 +20,11 @@ namespace core = uw_multislam::core;
 namespace {
 
 const char* kUsage = R"usage(usage: export_survey --db STORE --out DIR [--origin LAT,LON,HEADING_DEG] [options]
+       export_survey --run RUN_DIR [--session DIR ...] --out DIR [--origin ...] [options]
 
-Reads a session store (offline_slam --db, the back-end's store) read-only and writes, per session
-(session_<id>) and per map (map_<id>, id = its first session's store id) into DIR:
+Reads a session store (offline_slam --db, the back-end's store) read-only, or an offline_slam output
+folder (--run) with its dataset folders, and writes, per session (session_<id>) and per map
+(map_<id>, id = its first session's store id) into DIR:
   <name>.tum      stamp x y z qx qy qz qw per keyframe (evo, TUM RGB-D format)
   <name>.kitti    the 3x4 pose matrix [R | t] per keyframe, row-major on one line
   <name>.csv      stamp_s,session,keyframe,frame_index,x_m,y_m,yaw_rad,altitude_m and the pose's
@@ -37,8 +41,24 @@ y against its rows; README "Frames (REP-105)"): the camera's level frame, z = 0 
 yaw about z. A session's files hold its keyframes in its map's frame. Each file is written to a
 temporary name and renamed, so none is ever half-written. The store is never modified.
 
+From an offline_slam output folder (--run; doc/run_outputs.md): the poses of trajectory.csv
+(6 decimals), sessions numbered by pieces.csv's store_session, the engine's session id (the
+folder's number unless a tracking loss split a folder; a store numbers from 1, so the store's
+export of the same run is one higher), maps chained by links.csv, odometry motions from odometry.csv, loops from loops.csv
+with their measured pose and covariance from loop_poses.csv; stamps, altitudes, cameras and the
+mosaics' images from the dataset folders. What the folder does not record is not invented: the
+CSV's six covariance columns are "nan" (no pose covariance is written by offline_slam), the g2o
+odometry and link edges are comment lines "# EDGE_SE2 i j dx dy dyaw information unknown" (their
+covariance is not written either), and the g2o holds every accepted loop with a measured pose (the
+folder does not say which ones a join link summarised).
+
 options:
   --db STORE        the session store (SQLite) to read
+  --run RUN_DIR     instead of --db: an offline_slam output folder (trajectory.csv, odometry.csv,
+                    loops.csv, loop_poses.csv, links.csv, pieces.csv, inputs.csv)
+  --session DIR...  with --run: the dataset folders of run session 0, 1, ... in order (default:
+                    the folders inputs.csv names, as written); each is checked against inputs.csv
+                    (frame count, first and last stamp) and its frames are drawn in the mosaics
   --out DIR         output directory (created if missing)
   --origin LAT,LON,HEADING_DEG
                     WGS84 latitude and longitude (degrees) of the map frame's origin and the
@@ -66,7 +86,8 @@ int badArgs(const std::string& why) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string db, out, origin_text;
+  std::string db, run_dir, out, origin_text;
+  std::vector<std::string> session_dirs;
   bool quiet = false, mosaic = true;
   core::MosaicOptions mosaic_options;
   std::vector<std::string> image_dirs;
@@ -81,6 +102,12 @@ int main(int argc, char** argv) {
     if (arg == "-h" || arg == "--help") return std::puts(kUsage), 0;
     if (arg == "--db" && has_value) {
       db = argv[++i];
+    } else if (arg == "--run" && has_value) {
+      run_dir = argv[++i];
+    } else if (arg == "--session" && has_value) {
+      const std::size_t before = session_dirs.size();
+      while (i + 1 < argc && std::string(argv[i + 1]).rfind("--", 0) != 0) session_dirs.push_back(argv[++i]);
+      if (session_dirs.size() == before) return badArgs("--session needs a dataset folder");
     } else if (arg == "--out" && has_value) {
       out = argv[++i];
     } else if (arg == "--origin" && has_value) {
@@ -112,13 +139,25 @@ int main(int argc, char** argv) {
       return badArgs(has_value || arg.rfind("--", 0) != 0 ? "unknown argument '" + arg + "'" : arg + " needs a value");
     }
   }
-  if (db.empty()) return badArgs("--db STORE is required");
+  if (db.empty() == run_dir.empty()) return badArgs("one of --db STORE or --run RUN_DIR is required");
+  if (!session_dirs.empty() && run_dir.empty()) return badArgs("--session goes with --run");
+  if (!run_dir.empty() && !image_dirs.empty())
+    return badArgs("--images goes with --db (with --run the --session folders' frames are drawn)");
   if (out.empty()) return badArgs("--out DIR is required");
   core::GeoOrigin origin;
   std::string why;
   if (!origin_text.empty() && !core::parseGeoOrigin(origin_text, &origin, &why)) return badArgs("bad --origin: " + why);
   try {
-    const core::SurveyExport survey = core::loadSurveyExport(db);
+    std::vector<std::string> notes;
+    core::SurveyExport survey;
+    if (run_dir.empty()) {
+      survey = core::loadSurveyExport(db);
+    } else {
+      core::RunExport run = core::loadRunExport(run_dir, session_dirs);
+      survey = std::move(run.survey);
+      image_dirs = run.dataset_dirs;
+      notes = run.notes;
+    }
     core::MosaicImages images;
     for (const std::string& dir : image_dirs) images.addDataset(dir);  // checked before any output
     if (images.hasDatasets())
@@ -155,6 +194,7 @@ int main(int argc, char** argv) {
                     m.sessions.size(), m.keyframes.size(), m.edges.size());
       std::printf("%zu sessions, %zu maps: %d files in %s%s\n", survey.sessions.size(), survey.maps.size(), files,
                   out.c_str(), origin_text.empty() ? " (no --origin: no GeoJSON)" : "");
+      for (const std::string& note : notes) std::printf("note: %s\n", note.c_str());
       if (mosaic && image_dirs.empty())
         std::printf(
             "note: mosaics drawn from the keyframe images kept in the store (config store.image_max_side_px): "

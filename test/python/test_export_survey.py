@@ -241,7 +241,7 @@ def test_help_lists_every_option():
     r = run("export_survey", "--help")
     assert r.returncode == 0
     for option in ("--db", "--out", "--origin", "--quiet", "--resolution", "--images", "--blend", "--no-exposure",
-                   "--tile", "--no-mosaic"):
+                   "--tile", "--no-mosaic", "--run", "--session"):
         assert option in r.stdout
 
 
@@ -316,6 +316,101 @@ def test_missing_arguments(tmp_path):
     assert run("export_survey", "--db", tmp_path / "x.db").returncode == 2
     r = run("export_survey", "--db")
     assert r.returncode == 2 and "needs a value" in r.stderr
+
+
+# --- export_survey --run: from an offline_slam output folder and its dataset folders (issue 18, item 1)
+
+@pytest.fixture(scope="module")
+def exported_run(store, survey, tmp_path_factory):
+    _, run_dir = store
+    out = tmp_path_factory.mktemp("exported_run") / "out"
+    r = run("export_survey", "--run", run_dir, "--session", survey / "a", survey / "b", "--out", out, "--origin",
+            ",".join(map(str, ORIGIN)))
+    assert r.returncode == 0, r.stderr
+    return out, r
+
+
+def test_run_folder_export_gives_the_stores_tum_poses(exported, exported_run):
+    from_store, _ = exported
+    from_run, r = exported_run
+    def tum_files(folder):  # sessions by id, then the map (a store numbers from 1, the run's engine from 0)
+        names = [p for p in os.listdir(folder) if p.endswith(".tum")]
+        return sorted(names, key=lambda p: (p.startswith("map_"), int(p.split("_")[1].split(".")[0])))
+
+    tums = list(zip(tum_files(from_store), tum_files(from_run)))
+    assert len(tums) == 3  # two sessions and their map
+    for name, theirs in tums:
+        assert name.split("_")[0] == theirs.split("_")[0]
+        a, b = read_tum(from_store / name), read_tum(from_run / theirs)
+        assert len(a) == len(b) > 5, name
+        for (ta, xa, ya, yaw_a), (tb, xb, yb, yaw_b) in zip(a, b):
+            assert tb == pytest.approx(ta, abs=1e-6)
+            # trajectory.csv prints 6 decimals (x, y) and 7 (yaw)
+            assert abs(xa - xb) <= 6e-7 and abs(ya - yb) <= 6e-7, (name, xa, xb, ya, yb)
+            assert abs(math.remainder(yaw_a - yaw_b, 2 * math.pi)) <= 1e-6, (name, yaw_a, yaw_b)
+    for name, theirs in tums:  # the KITTI files hold the same poses
+        ka = np.loadtxt(from_store / name.replace(".tum", ".kitti"))
+        kb = np.loadtxt(from_run / theirs.replace(".tum", ".kitti"))
+        assert np.abs(ka - kb).max() < 2e-6
+    assert "note: from an offline_slam output folder" in r.stdout
+
+
+def test_run_folder_export_marks_what_the_folder_lacks(exported, exported_run):
+    from_store, _ = exported
+    from_run, _ = exported_run
+    def renumbered(name):  # the store's name of a run file: ids one higher (see --help)
+        kind, rest = name.split("_", 1)
+        number, ext = rest.split(".", 1)
+        return "%s_%d.%s" % (kind, int(number) + 1, ext)
+
+    for name in (p for p in os.listdir(from_run) if p.endswith(".csv")):
+        store_rows, run_rows = rows(from_store / renumbered(name)), rows(from_run / name)
+        assert [r["frame_index"] for r in run_rows] == [r["frame_index"] for r in store_rows]
+        assert [int(r["session"]) + 1 for r in run_rows] == [int(r["session"]) for r in store_rows]
+        for r in run_rows:  # no covariance in the folder: unknown, not invented
+            assert [r[c] for c in ("cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw")] == ["nan"] * 6
+    g2o = sorted(p for p in os.listdir(from_run) if p.endswith(".g2o"))
+    assert sorted(map(renumbered, g2o)) == sorted(p for p in os.listdir(from_store) if p.endswith(".g2o"))
+    for name in g2o:
+        lines = (from_run / name).read_text().splitlines()
+        stored = (from_store / renumbered(name)).read_text().splitlines()
+        assert sum(v.startswith("VERTEX_SE2") for v in lines) == sum(v.startswith("VERTEX_SE2") for v in stored)
+        unknown = [v for v in lines if v.startswith("# EDGE_SE2") and v.endswith(")")]
+        edges = [v.split() for v in lines if v.startswith("EDGE_SE2")]
+        assert all("information unknown" in v for v in unknown)
+        # every odometry motion (and link) is there, without information; the loops with theirs
+        n_vertices = sum(v.startswith("VERTEX_SE2") for v in lines)
+        assert len(unknown) == n_vertices - 1, name
+        for e in edges:
+            info = [float(v) for v in e[6:]]
+            assert len(info) == 6 and all(math.isfinite(v) for v in info) and info[0] > 0
+    maps = [p for p in g2o if p.startswith("map_")]
+    assert any(v.startswith("EDGE_SE2") for v in (from_run / maps[0]).read_text().splitlines())  # loops
+    names = os.listdir(from_run)
+    for ext in (".geojson", ".png", ".pgw", ".tif"):
+        assert len([p for p in names if p.endswith(ext)]) == 3, ext
+
+
+def test_run_folder_mosaics_are_drawn_from_the_folders_frames(exported_run):
+    _, r = exported_run
+    drawn = [line for line in r.stdout.splitlines() if ".png: " in line]
+    assert len(drawn) == 3
+    for line in drawn:
+        frames = int(line.split("images: ")[1].split(" frames")[0])
+        assert frames > 5 and " 0 thumbnails, 0 missing" in line, line
+
+
+def test_run_folder_with_other_dataset_folders_is_refused(store, survey, tmp_path):
+    _, run_dir = store
+    r = run("export_survey", "--run", run_dir, "--session", survey / "b", survey / "a", "--out", tmp_path / "out")
+    assert r.returncode == 1 and "not the same folder" in r.stderr, r.stderr
+    assert not (tmp_path / "out").exists()
+    r = run("export_survey", "--run", tmp_path / "nowhere", "--out", tmp_path / "out")
+    assert r.returncode == 1 and "nowhere" in r.stderr
+    r = run("export_survey", "--run", run_dir, "--db", tmp_path / "x.db", "--out", tmp_path / "out")
+    assert r.returncode == 2
+    r = run("export_survey", "--run", run_dir, "--images", survey / "a", "--out", tmp_path / "out")
+    assert r.returncode == 2 and "--images" in r.stderr
 
 
 def test_map_covariances_are_the_stored_motions_composed(exported, store):
@@ -656,3 +751,96 @@ def test_store_only_mosaics_are_finer_and_sharper_with_larger_images(stores_by_i
     assert 1.0 - results[240]["ncc"] < (1.0 - results[96]["ncc"]) / 3, results
     assert results[240]["energy"] > results[96]["energy"] + 0.3, results
     assert results[240]["ncc"] > 0.98, results
+
+
+# --- evaluate.py --mosaic-png: the mosaics side by side (issue 18, item 4) --------------------------
+
+def mosaic_pngs(survey, run_dir, directory):
+    import subprocess
+    from PIL import Image
+    r = subprocess.run(["/usr/bin/python3", EVALUATE, "--run", str(run_dir), "--session", str(survey / "a"),
+                        "--session", str(survey / "b"), "--world-gt", str(survey / "world_gt.csv"), "--report",
+                        str(directory / "report"), "--no-plots", "--mosaic-png", str(directory / "png")],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "mosaic PNGs of map 0: " in r.stdout and "ratio " in r.stdout, r.stdout
+    out = {}
+    for name in ("slam", "gt"):
+        path = directory / "png" / ("map_0_%s.png" % name)
+        world = [float(v) for v in path.with_suffix(".pgw").read_text().split()]
+        with Image.open(path) as im:
+            assert im.mode == "RGBA"
+            out[name] = (np.asarray(im, float), world)
+    return out
+
+
+def on_shared_window(a, b):
+    """The two mosaics (RGBA array, world file) cut to the ground both rasters cover; the world files
+    must share the resolution and a pixel grid."""
+    (ia, wa), (ib, wb) = a, b
+    assert wa[:4] == wb[:4]
+    res = wa[0]
+    dc, dr = (wb[4] - wa[4]) / res, (wa[5] - wb[5]) / res  # b's upper-left pixel in a's pixels
+    assert abs(dc - round(dc)) < 1e-6 and abs(dr - round(dr)) < 1e-6, (dc, dr)
+    dc, dr = int(round(dc)), int(round(dr))
+    r0, c0 = max(0, dr), max(0, dc)
+    r1, c1 = min(ia.shape[0], dr + ib.shape[0]), min(ia.shape[1], dc + ib.shape[1])
+    assert r1 - r0 > 50 and c1 - c0 > 50
+    return ia[r0:r1, c0:c1], ib[r0 - dr:r1 - dr, c0 - dc:c1 - dc]
+
+
+def mean_colour_difference(a, b):
+    both = (a[..., 3] > 0) & (b[..., 3] > 0)
+    assert both.sum() > 10000
+    return float(np.abs(a[both, :3] - b[both, :3]).mean())
+
+
+def test_mosaic_pngs_of_estimate_and_ground_truth_side_by_side(store, survey, tmp_path):
+    _, run_dir = store
+    m = mosaic_pngs(survey, run_dir, tmp_path / "good")
+    est, truth = m["slam"], m["gt"]
+    assert est[0].shape == truth[0].shape and est[1] == truth[1]  # one extent, one resolution
+    assert (truth[0][..., 3] > 0).mean() > 0.3
+    close = mean_colour_difference(est[0], truth[0])  # a good map: its mosaic looks like the truth's
+    # the whole map turned by 4 degrees about its origin (the first keyframe of session a)
+    turned = tmp_path / "turned_run"
+    turned.mkdir()
+    for name in os.listdir(run_dir):
+        (turned / name).write_bytes((run_dir / name).read_bytes())
+    lines = (run_dir / "trajectory.csv").read_text().splitlines()
+    t = math.radians(4.0)
+    body = []
+    for line in lines[1:]:
+        r = line.split(",")
+        x, y = float(r[3]), float(r[4])
+        r[3], r[4] = "%.6f" % (math.cos(t) * x - math.sin(t) * y), "%.6f" % (math.sin(t) * x + math.cos(t) * y)
+        r[5] = "%.7f" % (float(r[5]) + t)
+        body.append(",".join(r))
+    (turned / "trajectory.csv").write_text("\n".join([lines[0]] + body) + "\n")
+    w = mosaic_pngs(survey, turned, tmp_path / "turned")
+    assert w["slam"][0].shape == w["gt"][0].shape and w["slam"][1] == w["gt"][1]
+    # the ground truth's mosaic is the same pixels at the same places
+    a, b = on_shared_window(truth, w["gt"])
+    assert np.array_equal(a, b)
+    assert (a[..., 3] > 0).sum() == (truth[0][..., 3] > 0).sum()  # nothing of it was cut off
+    # the estimated one is visibly turned: far from the first estimate and from the truth
+    a, b = on_shared_window(est, w["slam"])
+    moved = mean_colour_difference(a, b)
+    off = mean_colour_difference(w["slam"][0], w["gt"][0])
+    # ... and turned by the poses: each of its pixels turned back by 4 degrees about the map's origin
+    # lands on the same colour of the first estimate's mosaic
+    (img, world), (first, first_world) = w["slam"], est
+    res = world[0]
+    rows_, cols_ = np.nonzero(img[..., 3] > 0)
+    x = world[4] + cols_ * res  # pixel centres, image axes (trajectory.csv's): y = -(z-up y)
+    y = -(world[5] - rows_ * res)
+    bx, by = math.cos(t) * x + math.sin(t) * y, -math.sin(t) * x + math.cos(t) * y
+    c = np.rint((bx - first_world[4]) / res).astype(int)
+    r = np.rint((-by - first_world[5]) / -res).astype(int)
+    ok = (c >= 0) & (r >= 0) & (c < first.shape[1]) & (r < first.shape[0])
+    ok[ok] &= first[r[ok], c[ok], 3] > 0
+    assert ok.mean() > 0.9
+    back = float(np.abs(img[rows_[ok], cols_[ok], :3] - first[r[ok], c[ok], :3]).mean())
+    assert moved > 2.0 * close and off > 2.0 * close and back < 0.5 * moved, (close, moved, off, back)
+    print("mosaic colour difference: good map vs truth %.2f, turned vs first %.2f, turned vs truth %.2f, "
+          "turned back vs first %.2f" % (close, moved, off, back))

@@ -83,7 +83,7 @@ SurveyExport loadSurveyExport(const std::string& store_path) {
         at = compose(at, state.motions.empty() ? state.links[c - 1].measured : state.motions.at(motion));
         ++motion;
         track.edges.push_back({static_cast<int>(track.keyframes.size()) - 1, static_cast<int>(track.keyframes.size()),
-                               zUp(state.links[c - 1].measured), ExportEdge::Kind::kLink});
+                               zUp(state.links[c - 1].measured), ExportEdge::Kind::kLink, true});
       }
       const std::vector<Pose2> means = backend.sessionPoses(s);
       for (std::size_t k = 0; k < kfs.size(); ++k) {
@@ -91,7 +91,7 @@ SurveyExport loadSurveyExport(const std::string& store_path) {
           at = compose(at, state.motions.empty() ? odometry.at(k - 1) : state.motions.at(motion));
           ++motion;
           track.edges.push_back({static_cast<int>(track.keyframes.size()) - 1, static_cast<int>(track.keyframes.size()),
-                                 zUp(odometry.at(k - 1)), ExportEdge::Kind::kOdometry});
+                                 zUp(odometry.at(k - 1)), ExportEdge::Kind::kOdometry, true});
         }
         ExportKeyframe e;
         e.session = sid;
@@ -113,7 +113,7 @@ SurveyExport loadSurveyExport(const std::string& store_path) {
       const auto a = index_of.find({backend_of.at(l.session_a), l.keyframe_a});
       const auto b = index_of.find({backend_of.at(l.session_b), l.keyframe_b});
       if (a == index_of.end() || b == index_of.end()) continue;  // not both in this map
-      track.edges.push_back({a->second, b->second, zUp(l.z), ExportEdge::Kind::kLoop});
+      track.edges.push_back({a->second, b->second, zUp(l.z), ExportEdge::Kind::kLoop, true});
     }
     out.pending_loops += state.pending;
     out.maps.push_back(std::move(track));
@@ -121,27 +121,32 @@ SurveyExport loadSurveyExport(const std::string& store_path) {
   // Sessions: their slice of their map's track, with the edges inside the slice.
   for (std::int64_t sid : restored.session_ids) {
     for (const ExportTrack& m : out.maps) {
-      int first = -1, n = 0;
-      for (std::size_t i = 0; i < m.keyframes.size(); ++i) {
-        if (m.keyframes[i].session != sid) continue;
-        if (first < 0) first = static_cast<int>(i);
-        ++n;
-      }
-      if (first < 0) continue;
-      ExportTrack t;
-      t.label = sessionLabel(sid);
-      t.name = stored_session.at(sid).name;
-      t.map = m.map;
-      t.sessions = {sid};
-      t.keyframes.assign(m.keyframes.begin() + first, m.keyframes.begin() + first + n);
-      for (const ExportEdge& e : m.edges)
-        if (e.from >= first && e.from < first + n && e.to >= first && e.to < first + n)
-          t.edges.push_back({e.from - first, e.to - first, e.z, e.kind});
-      out.sessions.push_back(std::move(t));
+      ExportTrack t = sessionSlice(m, sid, stored_session.at(sid).name);
+      if (!t.keyframes.empty()) out.sessions.push_back(std::move(t));
     }
     out.cameras.emplace_back(sid, stored_session.at(sid).camera);
   }
   return out;
+}
+
+ExportTrack sessionSlice(const ExportTrack& m, std::int64_t sid, const std::string& name) {
+  int first = -1, n = 0;
+  for (std::size_t i = 0; i < m.keyframes.size(); ++i) {
+    if (m.keyframes[i].session != sid) continue;
+    if (first < 0) first = static_cast<int>(i);
+    ++n;
+  }
+  ExportTrack t;
+  t.label = sessionLabel(sid);
+  t.name = name;
+  t.map = m.map;
+  t.sessions = {sid};
+  if (first < 0) return t;
+  t.keyframes.assign(m.keyframes.begin() + first, m.keyframes.begin() + first + n);
+  for (const ExportEdge& e : m.edges)
+    if (e.from >= first && e.from < first + n && e.to >= first && e.to < first + n)
+      t.edges.push_back({e.from - first, e.to - first, e.z, e.kind, e.information_known});
+  return t;
 }
 
 bool parseGeoOrigin(const std::string& text, GeoOrigin* out, std::string* why) {
@@ -252,8 +257,12 @@ void writeTrackCsv(const std::string& path, const ExportTrack& track) {
       const Eigen::Matrix3d& c = k.pose.covariance;
       f << std::fixed << std::setprecision(6) << k.stamp_s << "," << k.session << "," << k.keyframe << ","
         << k.frame_index << "," << std::setprecision(9) << p.x() << "," << p.y() << "," << p.yaw() << ","
-        << std::setprecision(4) << k.altitude_m << std::scientific << std::setprecision(9) << "," << c(0, 0) << ","
-        << c(0, 1) << "," << c(0, 2) << "," << c(1, 1) << "," << c(1, 2) << "," << c(2, 2) << "\n";
+        << std::setprecision(4) << k.altitude_m << std::scientific << std::setprecision(9);
+      if (k.covariance_known)
+        f << "," << c(0, 0) << "," << c(0, 1) << "," << c(0, 2) << "," << c(1, 1) << "," << c(1, 2) << "," << c(2, 2)
+          << "\n";
+      else
+        f << ",nan,nan,nan,nan,nan,nan\n";
     }
   });
 }
@@ -261,12 +270,22 @@ void writeTrackCsv(const std::string& path, const ExportTrack& track) {
 void writeG2o(const std::string& path, const ExportTrack& track) {
   writeFileAtomically(path, [&](std::ostream& f) {
     f << std::setprecision(12);
+    int unknown = 0;
+    for (const ExportEdge& e : track.edges) unknown += !e.information_known;
+    if (unknown > 0)
+      f << "# " << unknown << " of " << track.edges.size()
+        << " edges have no known information matrix (their covariance was not recorded): written as comments\n";
     for (std::size_t i = 0; i < track.keyframes.size(); ++i) {
       const Pose2& p = track.keyframes[i].pose.mean;
       f << "VERTEX_SE2 " << i << " " << p.x() << " " << p.y() << " " << p.yaw() << "\n";
     }
     if (!track.keyframes.empty()) f << "FIX 0\n";
     for (const ExportEdge& e : track.edges) {
+      if (!e.information_known) {
+        f << "# EDGE_SE2 " << e.from << " " << e.to << " " << e.z.mean.x() << " " << e.z.mean.y() << " "
+          << e.z.mean.yaw() << " information unknown (" << edgeKindName(e.kind) << ")\n";
+        continue;
+      }
       Eigen::FullPivLU<Eigen::Matrix3d> lu(e.z.covariance);
       if (!lu.isInvertible() || !e.z.covariance.allFinite())
         throw ExportError(path + ": the " + std::string(edgeKindName(e.kind)) + " edge " + std::to_string(e.from) +

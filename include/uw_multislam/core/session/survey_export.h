@@ -50,6 +50,7 @@ struct ExportKeyframe {
   UncertainPose2 pose;
   cv::Size image_size;                  // the image the keyframe was made from
   std::vector<std::uint8_t> thumbnail;  // the store's JPEG, may be empty
+  bool covariance_known = true;         // false from an offline_slam folder (run_export.h): CSV "nan"
 };
 
 /// A pose-graph edge between two keyframes of a track (indexes into ExportTrack::keyframes):
@@ -59,6 +60,7 @@ struct ExportEdge {
   int from = 0, to = 0;
   UncertainPose2 z;
   Kind kind = Kind::kOdometry;
+  bool information_known = true;  // false: the measurement's covariance is unknown (g2o: a comment line)
 };
 
 /// A session or a map: its keyframes in order (a map's in chain order) and the graph the
@@ -83,6 +85,10 @@ struct SurveyExport {
   /// The camera of a store session. Throws ExportError when unknown.
   const CameraIntrinsics& camera(std::int64_t session) const;
 };
+
+/// The slice of `map` holding `session`'s keyframes (label session_<id>, named `name`), with the
+/// edges inside the slice; empty keyframes when the session is not in the map.
+ExportTrack sessionSlice(const ExportTrack& map, std::int64_t session, const std::string& name);
 
 /// Reads a store read-only. Throws StoreError (missing, corrupt, not a store: the message names
 /// the file; the file is never modified) or ExportError.
@@ -113,12 +119,15 @@ void writeTum(const std::string& path, const ExportTrack& track);
 /// KITTI: the 3x4 matrix [R | t] per keyframe, row-major on one line, R = Rz(yaw), t = (x, y, 0).
 void writeKitti(const std::string& path, const ExportTrack& track);
 /// CSV: stamp_s,session,keyframe,frame_index,x_m,y_m,yaw_rad,altitude_m, then the covariance
-/// cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw (as loop_poses.csv names them).
+/// cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw (as loop_poses.csv names them); "nan" in each
+/// covariance column of a keyframe whose covariance is unknown (covariance_known false).
 void writeTrackCsv(const std::string& path, const ExportTrack& track);
 /// g2o: "VERTEX_SE2 i x y yaw" per keyframe (i = index in the track), "FIX 0", and
 /// "EDGE_SE2 i j dx dy dyaw I11 I12 I13 I22 I23 I33" per edge, the information matrix being the
 /// inverse of the measurement's covariance (upper triangle). A singular covariance is an
-/// ExportError naming the edge.
+/// ExportError naming the edge. An edge whose information is unknown (information_known false)
+/// is written as a comment, "# EDGE_SE2 i j dx dy dyaw information unknown", never with invented
+/// numbers; a header comment counts them.
 void writeG2o(const std::string& path, const ExportTrack& track);
 /// GeoJSON (RFC 7946, WGS84 lon/lat): one LineString feature per session of the tracks, with
 /// properties session, name, map, keyframes, first/last stamp.
