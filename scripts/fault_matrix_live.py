@@ -247,7 +247,7 @@ def case_service_misuse(st, survey):
         "list_sessions unchanged by wrong calls; integrity ok", observed, held)
 
 
-def case_concurrent(st, survey, seconds=20.0, threads=20, deadline_s=10.0):
+def case_concurrent(st, survey, seconds=30.0, threads=20, deadline_s=10.0):
     st.start_slam()
     two_sessions(st, survey)
     pid = st.manager_pid()
@@ -329,6 +329,55 @@ def case_kill_manager(st, survey):
                                                           [(s[0], s[4]) for s in listed], fmt_mb(rss0), fmt_mb(rss1))
     row("live: kill -9 of the nodelet manager during a replay, relaunch on the store",
         "sessions listed again; stored keyframes >= published - 1; integrity ok", observed, held)
+
+
+def case_kill_manager_moments(st, survey):
+    """kill -9 of the nodelet manager at two more moments, each followed by a relaunch on the store:
+    right after split_session answered OK (the split must survive), and during start-up, as soon as
+    the manager process exists (before or while it loads the store)."""
+    st.start_slam("standalone:=false")
+    two_sessions(st, survey)
+    before = st.sessions()
+    joined = len(before) >= 2 and before[0][3] == before[1][3]
+    pid = st.manager_pid()
+    code, msg = status_code(st.call("split_session", 1))
+    os.kill(pid, signal.SIGKILL)
+    st.stop_group(st.launch)
+    ok = integrity(st.store)
+    st.start_slam("standalone:=false")
+    after = st.sessions()
+    expected = [(s[0], s[4]) for s in before]
+    held = (joined and code == 0 and ok == "ok" and [(s[0], s[4]) for s in after] == expected and len(after) >= 2
+            and after[0][3] != after[1][3])
+    row("live: kill -9 of the nodelet manager right after split_session answered OK, relaunch",
+        "the split kept (sessions 0 and 1 in different maps); the same sessions and keyframes; integrity ok",
+        "before: %s (joined: %s); split_session 1: code %d%s; killed; integrity %s; relaunched: %s" % (
+            [(s[0], s[3], s[4]) for s in before], joined, code, (" '%s'" % msg[:60]) if code else "", ok,
+            [(s[0], s[3], s[4]) for s in after]), held)
+    # During start-up: SIGINT the launch, start it again without waiting, kill -9 the manager as
+    # soon as it is registered, then relaunch and list.
+    st.stop_group(st.launch)
+    st.launch = st.spawn(["roslaunch", "--wait", "uw_multislam", "slam.launch", "store_path:=" + st.store,
+                          "standalone:=false"], "launch.log")
+    pid = [None]
+    wait_for(lambda: pid.__setitem__(0, st.manager_pid()) or pid[0], 60, 0.02)
+    answered = st.services_ready()
+    if pid[0]:
+        os.kill(pid[0], signal.SIGKILL)
+    st.stop_group(st.launch)
+    ok = integrity(st.store)
+    st.start_slam("standalone:=false")
+    again = st.sessions()
+    nodes, dead = st.alive()
+    st.stop_group(st.launch)
+    ok2 = integrity(st.store)
+    held = (pid[0] is not None and ok == "ok" and ok2 == "ok" and again == after and nodes and not dead)
+    row("live: kill -9 of the nodelet manager during start-up (store loading), relaunch",
+        "the same sessions, maps and keyframes listed after the relaunch; integrity ok; nodes alive",
+        "manager pid %s killed %s list_sessions answered; integrity %s; relaunched: %s (%s); %d nodes alive%s; "
+        "integrity after %s" % (pid[0], "after" if answered else "before", ok, [(s[0], s[3], s[4]) for s in again],
+                                "unchanged" if again == after else "CHANGED from %s" % [(s[0], s[3], s[4]) for s in after],
+                                len(nodes), "" if not dead else ", DEAD: %s" % dead, ok2), held)
 
 
 def case_bad_images(st, survey):
@@ -424,8 +473,193 @@ def case_bad_images(st, survey):
         observed, held)
 
 
+class OdometryStatus:
+    """The odometry's latest /diagnostics values (published every diagnostic period) and how many arrived."""
+
+    def __init__(self):
+        import rospy
+        from diagnostic_msgs.msg import DiagnosticArray
+        self.latest, self.count = {}, 0
+        self.sub = rospy.Subscriber("/diagnostics", DiagnosticArray, self.on_diag, queue_size=50)
+
+    def on_diag(self, msg):
+        for s in msg.status:
+            if s.name.endswith(": odometry"):
+                self.latest = {kv.key: kv.value for kv in s.values}
+                self.count += 1
+
+    def value(self, key):
+        try:
+            return int(float(self.latest.get(key, 0)))
+        except ValueError:
+            return 0
+
+    def fresh(self, timeout=15):
+        """Until two more statuses arrived (the second computed after what came before this call)."""
+        seen = self.count
+        return wait_for(lambda: self.count >= seen + 2, timeout, 0.1)
+
+
+def bag_frames(survey, name):
+    """The bag's (image, camera_info, altitude) triples in stamp order."""
+    import rosbag
+    frames = {}
+    with rosbag.Bag(os.path.join(survey, name)) as bag:
+        for topic, msg, _ in bag.read_messages(topics=TOPICS):
+            frames.setdefault(msg.header.stamp.to_nsec(), {})[topic] = msg
+    return [(f[TOPICS[0]], f[TOPICS[1]], f[TOPICS[2]]) for _, f in sorted(frames.items()) if len(f) == 3]
+
+
+def sensor_publishers():
+    import rospy
+    from sensor_msgs.msg import CameraInfo, Image, Range
+    pubs = [rospy.Publisher(TOPICS[0], Image, queue_size=2000), rospy.Publisher(TOPICS[1], CameraInfo, queue_size=2000),
+            rospy.Publisher(TOPICS[2], Range, queue_size=2000)]
+    wait_for(lambda: all(p.get_num_connections() > 0 for p in pubs), 30, 0.1)
+    return pubs
+
+
+def stored_as_published(st, odo, timeout=60):
+    """Until the back-end lists as many keyframes as the odometry says it published (both polled)."""
+    def same():
+        return odo.latest and sum(s[4] for s in st.sessions()) == odo.value("keyframes")
+    wait_for(same, timeout, 0.5)
+    return sum(s[4] for s in st.sessions()), odo.value("keyframes")
+
+
+def case_replay_rates(st, survey):
+    """The survey's bag a replayed at rate 10, then again at rate 20 (its stamps start again: a new
+    session by the stamp rule). Each: every keyframe the odometry published stored, no session from
+    the node's own drops (time_jumps_forward 0), drops counted."""
+    st.start_slam("standalone:=false")
+    import rospy
+    rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
+    odo = OdometryStatus()
+    wait_for(lambda: odo.latest, 30, 0.1)
+    pid = st.manager_pid()
+    for rate in (10, 20):
+        rss0 = rss_mb(pid)
+        odo.fresh()
+        before = dict(odo.latest)
+        t0 = time.monotonic()
+        status = st.play(os.path.join(survey, "a.bag"), rate=rate)
+        played_s = time.monotonic() - t0
+        stored, published = stored_as_published(st, odo)
+        odo.fresh()
+        delta = {k: odo.value(k) - int(float(before.get(k, 0))) for k in
+                 ("images_received", "frames_processed", "dropped_queue_full", "images_not_paired", "time_jumps_forward",
+                  "tracking_losses", "keyframes")}
+        nodes, dead = st.alive()
+        rss1 = rss_mb(pid)
+        held = (status == 0 and stored == published and delta["keyframes"] > 0 and delta["time_jumps_forward"] == 0
+                and nodes and not dead)
+        observed = ("played in %.1f s (status %s); odometry: %s; back-end lists %d keyframes, the odometry published %d; "
+                    "%d nodes alive%s; manager RSS %s -> %s") % (
+            played_s, status, ", ".join("%s +%d" % kv for kv in delta.items()), stored, published, len(nodes),
+            "" if not dead else ", DEAD: %s" % dead, fmt_mb(rss0), fmt_mb(rss1))
+        row("live: replay at rate %d" % rate,
+            "every published keyframe stored; drops counted; no session from drops (time_jumps_forward +0); nodes alive",
+            observed, held)
+    st.stop_group(st.launch)
+    ok = integrity(st.store)
+    row("live: the store after the replays at rate 10 and 20", "integrity ok", "integrity %s" % ok, ok == "ok")
+
+
+def case_silent_altitude(st, survey, silent=range(6, 14)):
+    """The survey's bag a published frame by frame (5 per second, stamps 1 s apart as recorded),
+    the altitude topic silent for frames 6-13 (8 s of stamps, beyond altitude_max_age_s)."""
+    st.start_slam("standalone:=false")
+    import copy
+    import rospy
+    rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
+    odo = OdometryStatus()
+    pubs = sensor_publishers()
+    wait_for(lambda: odo.latest, 30, 0.1)
+    frames = bag_frames(survey, "a.bag")
+    pid = st.manager_pid()
+    rss0 = rss_mb(pid)
+    odo.fresh()
+    before = dict(odo.latest)
+    for k, (image, info, rng) in enumerate(frames):
+        image, info, rng = copy.deepcopy(image), copy.deepcopy(info), copy.deepcopy(rng)
+        pubs[1].publish(info)
+        if k not in silent:
+            pubs[2].publish(rng)
+        pubs[0].publish(image)
+        time.sleep(0.2)  # publishing pace (5 Hz), not a wait for a condition
+    stored, published = stored_as_published(st, odo)
+    odo.fresh()
+    delta = {k: odo.value(k) - int(float(before.get(k, 0))) for k in
+             ("images_received", "skipped_no_altitude", "images_not_paired", "frames_processed", "time_jumps_forward",
+              "tracking_losses", "keyframes")}
+    nodes, dead = st.alive()
+    rss1 = rss_mb(pid)
+    st.stop_group(st.launch)
+    ok = integrity(st.store)
+    held = (delta["skipped_no_altitude"] >= 1 and delta["time_jumps_forward"] == 0 and stored == published
+            and delta["keyframes"] > 0 and nodes and not dead and ok == "ok")
+    observed = ("%d frames, %d without altitude; odometry: %s; back-end lists %d keyframes, the odometry published %d; "
+                "%d nodes alive%s; integrity %s; manager RSS %s -> %s") % (
+        len(frames), len([k for k in silent if k < len(frames)]), ", ".join("%s +%d" % kv for kv in delta.items()),
+        stored, published, len(nodes), "" if not dead else ", DEAD: %s" % dead, ok, fmt_mb(rss0), fmt_mb(rss1))
+    row("live: the altitude topic silent for %d frames (%d s of stamps)" % (len(silent), len(silent)),
+        "images beyond altitude_max_age_s skipped and counted (skipped_no_altitude); no session from the gap "
+        "(time_jumps_forward +0); every published keyframe stored; nodes alive; integrity ok", observed, held)
+
+
+def case_burst(st, survey, n=1000):
+    """1000 images (with camera_info and altitude) published at once, stamps 1 s apart (the bag's
+    frames over and over: out and back, so its end is near its start)."""
+    st.start_slam("standalone:=false")
+    import copy
+    import rospy
+    rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
+    odo = OdometryStatus()
+    pubs = sensor_publishers()
+    wait_for(lambda: odo.latest, 30, 0.1)
+    frames = bag_frames(survey, "a.bag")
+    pid = st.manager_pid()
+    rss0 = rss_mb(pid)
+    odo.fresh()
+    before = dict(odo.latest)
+    t = frames[0][0].header.stamp.to_sec()
+    t0 = time.monotonic()
+    for k in range(n):
+        image, info, rng = (copy.copy(m) for m in frames[k % len(frames)])
+        stamp = rospy.Time.from_sec(t + k)
+        for m in (image, info, rng):
+            m.header = copy.deepcopy(m.header)
+            m.header.stamp = stamp
+        pubs[1].publish(info)
+        pubs[2].publish(rng)
+        pubs[0].publish(image)
+    sent_s = time.monotonic() - t0
+    # Until the odometry has received or refused every image and the back-end holds its keyframes.
+    wait_for(lambda: odo.fresh(5) and odo.value("queue_length") == 0 and odo.value("images_waiting_pairing") == 0,
+             90, 0.1)
+    stored, published = stored_as_published(st, odo)
+    odo.fresh()
+    delta = {k: odo.value(k) - int(float(before.get(k, 0))) for k in
+             ("images_received", "frames_processed", "dropped_queue_full", "images_not_paired", "skipped_no_altitude",
+              "skipped_no_camera_info", "time_jumps_forward", "tracking_losses", "keyframes")}
+    nodes, dead = st.alive()
+    rss1 = rss_mb(pid)
+    st.stop_group(st.launch)
+    ok = integrity(st.store)
+    held = (delta["time_jumps_forward"] == 0 and stored == published and delta["keyframes"] > 0 and nodes and not dead
+            and ok == "ok")
+    observed = ("%d images sent in %.1f s; odometry: %s; back-end lists %d keyframes, the odometry published %d; "
+                "%d nodes alive%s; integrity %s; manager RSS %s -> %s") % (
+        n, sent_s, ", ".join("%s +%d" % kv for kv in delta.items()), stored, published, len(nodes),
+        "" if not dead else ", DEAD: %s" % dead, ok, fmt_mb(rss0), fmt_mb(rss1))
+    row("live: a burst of %d images" % n,
+        "drops counted (queue, pairing); no session from drops (time_jumps_forward +0); every published keyframe "
+        "stored; nodes alive; integrity ok", observed, held)
+
+
 CASES = {"service_misuse": case_service_misuse, "concurrent": case_concurrent, "kill_manager": case_kill_manager,
-         "bad_images": case_bad_images}
+         "bad_images": case_bad_images, "kill_manager_moments": case_kill_manager_moments,
+         "replay_rates": case_replay_rates, "silent_altitude": case_silent_altitude, "burst": case_burst}
 
 
 def main():

@@ -649,6 +649,7 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
        {"skipped_no_altitude", static_cast<double>(no_altitude_), true},
        {"altitude_stamps_jumped_back", static_cast<double>(altitude_clears_)},
        {"frames_processed", static_cast<double>(taken)},  // taken by the worker (finished or in progress)
+       {"frames_finished", processed},                     // done with (published or skipped): idle when equal
        {"dropped_queue_full", static_cast<double>(dropped), true},
        {"queue_length", static_cast<double>(queued)},
        {"skipped_empty_image", static_cast<double>(c.empty_image), true},

@@ -66,6 +66,7 @@ class BadInputTest(unittest.TestCase):
 
         cls.lock = threading.Lock()
         cls.images_published = 0
+        cls.unsettled = []  # the last status of each phase that did not settle (settle())
         cls.poses, cls.keyframes, cls.odometry_statuses, cls.loop_statuses = [], [], [], []
 
         def on_diagnostics(msg):
@@ -181,7 +182,7 @@ class BadInputTest(unittest.TestCase):
         for i in range(8):
             cls.publish(*cls.frame(i), cls.stamp_of(i))
         last = cls.stamp_of(7)
-        cls.poses_after_good = cls.count_after(cls.poses, 2.0)
+        cls.poses_after_good = cls.settle()
         # 2. Bad images and camera_infos, stamps after the last good one.
         image, info, altitude = cls.frame(8)
         bad = [
@@ -198,7 +199,7 @@ class BadInputTest(unittest.TestCase):
         assert 400 * 300 > MAX_IMAGE_PIXELS
         for k, (im, ci) in enumerate(bad):
             cls.publish(im, ci, cls.frame(8)[2], last + d(0.1 * (k + 1)))
-        cls.poses_after_bad = cls.count_after(cls.poses, 1.5)
+        cls.poses_after_bad = cls.settle()
         # 3. Converted encodings, the next frames of the mission.
         for i, encoding in zip((8, 9, 10), ("rgba8", "mono16", "bayer_rggb8")):
             image, info, altitude = cls.frame(i)
@@ -213,7 +214,7 @@ class BadInputTest(unittest.TestCase):
         cls.publish(*cls.frame(11), cls.stamp_of(12) - d(0.5))
         cls.publish(*cls.frame(13), cls.stamp_of(13))
         cls.publish(*cls.frame(14), cls.stamp_of(14))
-        cls.poses_before_loop = cls.count_after(cls.poses, 2.0)
+        cls.poses_before_loop = cls.settle()
         cls.status_before_loop = cls.next_odometry_status()
         # 5b. The camera hovers (the same image) and its camera_info is lost for 3 frames, stamps 1 s
         # apart: the images are skipped (nothing pairs with them), the next one is processed, and
@@ -235,7 +236,7 @@ class BadInputTest(unittest.TestCase):
         # every 3 frames the queue drops in a row leave a gap longer than session_gap_s.
         for k in range(40):
             cls.publish(*cls.frame(6 + k), base + d(1.0 * (k + 1)), period=0.002)
-        time.sleep(3.0)
+        cls.settle()
         last_altitude = base + d(1.0 * 40)
         # 8. The altitude topic falls silent: images and camera_info only. The first ones are within
         # altitude_max_age_s of the last reading and use it; the others have no altitude.
@@ -248,7 +249,7 @@ class BadInputTest(unittest.TestCase):
         for k in range(n_silent):
             image, info, _ = cls.frame(k)
             cls.publish(image, info, None, last_altitude + d(offsets[k]))
-        time.sleep(1.5)
+        cls.settle()
         with cls.lock:
             cls.poses_in_silence = len(cls.poses) - cls.poses_before_silence
             cls.silence_statuses = cls.odometry_statuses[cls.statuses_before_silence:]
@@ -292,11 +293,32 @@ class BadInputTest(unittest.TestCase):
                     return len(store)
             time.sleep(0.05)
 
+    @staticmethod
+    def idle(v):
+        """An odometry status of an idle pipeline: no image waiting for its pairing, none queued,
+        every frame the worker took finished (published or skipped)."""
+        return v["images_waiting_pairing"] == 0 and v["queue_length"] == 0 and v["frames_finished"] == v["frames_processed"]
+
     @classmethod
-    def count_after(cls, store, wait_s):
-        time.sleep(wait_s)
+    def settle(cls, timeout=60.0):
+        """Until the odometry is idle in two consecutive statuses published after this call (0.5 s
+        apart) that received no image between them; then len(poses). A pipeline that never settles
+        within `timeout` seconds is counted in cls.unsettled (test_each_phase_settled) and the count
+        returned as it is."""
         with cls.lock:
-            return len(store)
+            seen = len(cls.odometry_statuses)
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            with cls.lock:
+                new = [diagnostic_values(st) for st in cls.odometry_statuses[seen:]]
+            if len(new) >= 2 and cls.idle(new[-2]) and cls.idle(new[-1]) and \
+                    new[-2]["images_received"] == new[-1]["images_received"]:
+                with cls.lock:
+                    return len(cls.poses)
+            time.sleep(0.05)
+        cls.unsettled.append(new[-1] if new else None)
+        with cls.lock:
+            return len(cls.poses)
 
     def odometry(self):
         self.assertIsNotNone(self.final_odometry, "no odometry status on /diagnostics")
@@ -307,6 +329,10 @@ class BadInputTest(unittest.TestCase):
         keys = ("images_received", "images_not_paired", "skipped_no_camera_info", "skipped_no_altitude",
                 "dropped_queue_full", "frames_processed", "fixed_altitude_frames", "time_jumps_forward")
         return "images published %d; %s" % (self.images_published, ", ".join("%s %g" % (k, v[k]) for k in keys))
+
+    def test_each_phase_settled(self):
+        """Every phase ended with the odometry idle (its counts are final, not a snapshot in flight)."""
+        self.assertEqual(self.unsettled, [], "phases that did not settle (their last odometry status)")
 
     def test_good_frames_are_processed(self):
         self.assertGreaterEqual(self.poses_after_good, 6)

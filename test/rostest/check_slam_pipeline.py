@@ -215,6 +215,50 @@ class SlamPipelineTest(unittest.TestCase):
             else:
                 self.assertEqual(l.session_a, l.session_b)
 
+    def test_each_loop_detector_publishes_its_kind_and_the_back_end_receives_all(self):
+        """split_loops:=true end to end: the local detector publishes the local loops and no global
+        one, the global detector the global loops and no local one, and the back-end receives every
+        loop of both (its joins: test_sessions_maps_links_and_trajectories_match_offline_slam). In
+        one detector (split_loops false) it publishes both kinds. From the nodes' diagnostics, once
+        their counts reach the loops this test received (or the last seen after 30 s)."""
+        split = rospy.get_param("~split_loops")
+        with self.lock:
+            local = len([l for l in self.loops if l.kind == Loop.LOCAL])
+            global_ = len(self.loops) - local
+        expected = ({"local_loops_node": ("local", local, 0), "global_loops_node": ("global", 0, global_)} if split
+                    else {"loop_detector_node": ("both", local, global_)})
+        seen = {}
+        cond = threading.Condition()
+
+        def on_diagnostics(msg):
+            with cond:
+                for st in msg.status:
+                    node = st.name.split(":")[0].split("/")[-1]
+                    if node in expected or node == "backend_node":
+                        seen[node] = {kv.key: kv.value for kv in st.values}
+                cond.notify_all()
+
+        def done():
+            return (all(n in seen and (seen[n]["mode"], int(seen[n]["local_loops"]), int(seen[n]["global_loops"])) == e
+                        for n, e in expected.items())
+                    and "backend_node" in seen and int(seen["backend_node"]["loops_received"]) == local + global_)
+
+        sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
+        try:
+            with cond:
+                cond.wait_for(done, timeout=30)
+                got = dict(seen)
+        finally:
+            sub.unregister()
+        self.assertGreaterEqual(local, 5)
+        self.assertGreaterEqual(global_, 5)
+        for node, (mode, n_local, n_global) in expected.items():
+            self.assertIn(node, got, "no diagnostics of %s (seen: %s)" % (node, sorted(got)))
+            self.assertEqual((got[node]["mode"], int(got[node]["local_loops"]), int(got[node]["global_loops"])),
+                             (mode, n_local, n_global), "%s: mode, local and global loops published" % node)
+        self.assertIn("backend_node", got)
+        self.assertEqual(int(got["backend_node"]["loops_received"]), local + global_, "loops the back-end received")
+
     def test_one_hash_per_keyframe(self):
         self.assertEqual([(h.session, h.keyframe) for h in self.hashes],
                          [(k.session, k.keyframe) for k in self.keyframes])
