@@ -34,8 +34,8 @@ demo=(--session "$out/demo/s0" --session "$out/demo/s1")
 # The options: name and the slam.yaml overlay (missing keys keep the defaults).
 names=(sift sift_no_upsampling klt_sift klt_sift_no_upsampling)
 declare -A yaml
-yaml[sift]=""
-yaml[sift_no_upsampling]=$'odometry:\n  features:\n    first_octave: 0\n'
+yaml[sift]=$'odometry:\n  klt:\n    enabled: false\n'
+yaml[sift_no_upsampling]=$'odometry:\n  features:\n    first_octave: 0\n  klt:\n    enabled: false\n'
 yaml[klt_sift]=$'odometry:\n  klt:\n    enabled: true\n'
 yaml[klt_sift_no_upsampling]=$'odometry:\n  features:\n    first_octave: 0\n  klt:\n    enabled: true\n'
 declare -A label

@@ -23,6 +23,12 @@ OdometryOptions kltOn() {
   return o;
 }
 
+OdometryOptions siftOnly() {
+  OdometryOptions o;
+  o.klt.enabled = false;
+  return o;
+}
+
 // A gentle lawnmower leg with a turn: 0.12 m steps, small yaw changes.
 Pose2 missionPose(int k) {
   return Pose2(1.8 + 0.12 * k, 3.0 + 0.4 * std::sin(k * 0.15), 0.15 * std::sin(k * 0.2));
@@ -82,7 +88,7 @@ TEST_F(KltTest, ADegradedTrackFallsBackToExtraction) {
 TEST_F(KltTest, TakesTheSameKeyframesAsExtractionOnAMission) {
   // The keyframe rule on KLT's motion: the same keyframes as SIFT on every frame, each within
   // one frame, and the trajectory within 1 % of the path.
-  Odometry sift(camera_, OdometryOptions()), klt(camera_, kltOn());
+  Odometry sift(camera_, siftOnly()), klt(camera_, kltOn());
   const int n = 60;
   for (int k = 0; k < n; ++k) {
     const cv::Mat img = render(missionPose(k), 2.0);
@@ -121,7 +127,7 @@ TEST_F(KltTest, SiftWithoutUpsamplingFindsTheSameMotion) {
   // first_octave 0 (OpenCV SIFT on the halved image, keypoints x2): the keypoints must be in the
   // full image's pixels, so the motion is the truth as with today's SIFT.
   const auto render = [](const Pose2& p, double alt) { return world().render(p, alt, kVga); };
-  OdometryOptions o;
+  OdometryOptions o = siftOnly();
   o.features.first_octave = 0;
   o.keyframes.min_overlap = 0.99;
   const Pose2 p0(3.0, 3.0, 0.2), p1(3.45, 3.12, 0.32);
