@@ -74,15 +74,28 @@ TEST_F(KltTest, ADegradedTrackFallsBackToExtraction) {
   EXPECT_EQ(odo.newKeyframes().front().features.size(), 500u);
   EXPECT_EQ(blank.status, FrameStatus::kFallback);
   // Seabed elsewhere: the tracks do not give the motion, the full way does not match either
-  // (fallback keyframe); tracks start again at that keyframe and carry the next frame.
+  // (fallback keyframe). No tracks start at a fallback keyframe (on a blank frame they would sit on
+  // noise): the next frame goes the full way; tracks start again at the next measured keyframe.
   Odometry far(camera_, kltOn());
   far.process({0, 0.0, 2.0, render(Pose2(2.0, 2.0, 0.0), 2.0)});
   const OdometryUpdate elsewhere = far.process({1, 1.0, 2.0, render(Pose2(6.0, 4.5, 1.0), 2.0)});
   EXPECT_FALSE(elsewhere.klt);
   EXPECT_EQ(elsewhere.status, FrameStatus::kFallback);
   EXPECT_EQ(far.stats().klt_extracted, 1);
-  const OdometryUpdate again = far.process({2, 2.0, 2.0, render(Pose2(6.05, 4.5, 1.0), 2.0)});
-  EXPECT_TRUE(again.klt) << again.reason;
+  const OdometryUpdate next = far.process({2, 2.0, 2.0, render(Pose2(6.05, 4.5, 1.0), 2.0)});
+  EXPECT_FALSE(next.klt);
+  EXPECT_EQ(next.status, FrameStatus::kTracked) << next.reason;
+  bool measured_keyframe = false, klt_again = false;
+  for (int k = 3; k < 15 && !klt_again; ++k) {
+    const OdometryUpdate u = far.process({k, 1.0 * k, 2.0, render(Pose2(6.05 - 0.15 * (k - 2), 4.5, 1.0), 2.0)});
+    ASSERT_NE(u.status, FrameStatus::kFallback) << "frame " << k << ": " << u.reason;
+    if (measured_keyframe) klt_again = u.klt;
+    measured_keyframe = measured_keyframe || u.status == FrameStatus::kKeyframe;
+    if (!measured_keyframe) {
+      EXPECT_FALSE(u.klt) << "frame " << k;
+    }
+  }
+  EXPECT_TRUE(klt_again);
 }
 
 TEST_F(KltTest, TakesTheSameKeyframesAsExtractionOnAMission) {

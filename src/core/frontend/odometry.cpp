@@ -289,10 +289,15 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
   OdometryUpdate done = processExtracted(&cur, &up);
   if (options_.klt.enabled) {
     const int last = static_cast<int>(keyframes_.size()) - 1;
-    if (done.keyframe_id >= 0 && keyframes_[last].frame_index == cur.index) {
+    // Tracks start only at a keyframe vision measured and SIFT found texture in: corners are
+    // chosen relative to the image's strongest, so a blank or featureless frame (a fallback or
+    // nav-carried keyframe) would give corners on noise and vignetting that "track" a motion.
+    const bool textured = static_cast<int>(cur.features.size()) >= options_.klt.min_tracks;
+    if (done.keyframe_id >= 0 && keyframes_[last].frame_index == cur.index && textured &&
+        done.status != FrameStatus::kFallback && done.source != MotionSource::kNav) {
       klt_.reset(grey, last);  // the new keyframe is this frame: tracks start here
     } else if (last + 1 != keyframes_before) {
-      klt_.invalidate();  // a promoted keyframe: no tracks from it (README, odometry.h)
+      klt_.invalidate();  // another new keyframe (promoted, fallback, the nav's): no tracks from it
     }
   }
   prev_grey_.release();

@@ -35,8 +35,10 @@
 // by overlap, rotation, time or inliers, the nav refuses it) the frame goes the full way above:
 // SIFT, matching to the keyframe, the keyframe rule, promotion and fallback as documented; so
 // every keyframe's motion is still measured by SIFT matching. A promotion needs the promoted
-// frame's features: they are extracted then from its kept image. After a promotion the tracks
-// (from the old keyframe) are dropped: frames go the full way until the next keyframe.
+// frame's features: they are extracted then from its kept image. Tracks start only at a keyframe
+// with a measured motion (not a fallback, not carried by the nav) and at least klt.min_tracks SIFT
+// features; after any other new keyframe (promoted, fallback, the nav's) frames go the full way
+// until the next such keyframe, so tracking loss is detected as without KLT.
 //
 // Distortion: features are extracted on the raw image and only their coordinates are undistorted
 // (core/frontend/camera_model.h); from there on, and in the keyframes, the camera is the pinhole
