@@ -10,9 +10,13 @@
 #     and peak RSS (bench_backend --cost, loops = 10 % of the keyframes);
 #   - IEKF against sparse (bench_backend --cost 1000), HALOC against brute-force loop search on the
 #     demo mission (bench_loops), our odometry against the naive OpenCV baseline on
-#     ../shared/data/acfr (scripts/bench_odometry.sh; skipped when the data is not there).
+#     ../shared/data/acfr (scripts/bench_odometry.sh; skipped when the data is not there);
+#   - the front-end options table (scripts/bench_frontend.sh, issue 19): ms/frame per odometry option
+#     on one core at 680x512 (acfr) and 320x240 (demo) beside OpenCV SIFT alone and the naive
+#     odometer in the same run, acfr drift and demo loop precision/recall; printed after the table.
 # usage: scripts/bench.sh [--quick] [OUT_DIR]   (needs a build: scripts/build.sh)
-#   --quick: no 10k-keyframe optimisation, no 10k-keyframe store, no odometry baseline (155 s on
+#   --quick: no 10k-keyframe optimisation, no 10k-keyframe store, no odometry baseline, no front-end
+#   options table (155 s on
 #   2026-11-23 on this 2-core machine; without it several minutes more). The raw outputs stay in OUT_DIR.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
@@ -104,6 +108,9 @@ if [ "$quick" = 0 ]; then
     odo=$(awk -F'|' '$2 ~ /mean/ {gsub(/ /, "", $3); gsub(/ /, "", $4); print "mean end drift " $3 " % (ours) vs " $4 " % (baseline), ACFR test1-6"; exit}' \
       "$out/bench_odometry.md")
     [ -n "$odo" ] || odo="failed (see $out/bench_odometry.md)"
+    log "bench_frontend.sh"
+    bash "$UWMS_REPO/scripts/bench_frontend.sh" "$out/frontend" > "$out/bench_frontend.md" 2> "$out/bench_frontend.err" ||
+      echo "bench_frontend.sh failed (see $out/bench_frontend.err)" > "$out/bench_frontend.md"
   else
     odo="skipped (../shared/data/acfr not found)"
   fi
@@ -155,5 +162,6 @@ echo "| | sparse optimisation, peak RSS MB | $growth_rss |"
 echo "| IEKF vs sparse (1000 keyframes, 100 loops) | optimise all loops ms; one more loop ms; peak RSS MB | IEKF $io; $il; $ir — sparse $so; $sl; $sr |"
 echo "| the default hash (sorted_dct, k = 10), the paper's HALOC (k = 10) and brute force (bench_loops, demo s1 → s0) | accepted / correct / recall / ms per keyframe | sorted_dct $sda / $sdc / $sdr / $sdms — HALOC $h5a / $h5c / $h5r / $h5ms — brute force $bfa / $bfc / $bfr / $bfms |"
 echo "| our odometry vs naive OpenCV baseline | end drift | $odo |"
+if [ -f "$out/bench_frontend.md" ]; then echo; cat "$out/bench_frontend.md"; fi
 echo
 echo "Run time $(( $(date +%s) - start_s )) s; raw outputs in $out."

@@ -65,11 +65,20 @@ int main(int argc, char** argv) {
       double x = 0, y = 0, yaw = 0;
       int failures = 0;
       for (const auto& f : d.frames) {
+        // Stages (timing.csv): baseline_total the whole step; load_image and sift (OpenCV SIFT
+        // alone, default settings: the reference column of scripts/bench_frontend.sh) inside it.
         core::ScopedStage total(&times, "baseline_total");
-        cv::Mat grey = cv::imread(d.imagePath(f), cv::IMREAD_GRAYSCALE);
+        cv::Mat grey;
+        {
+          core::ScopedStage load(&times, "load_image");
+          grey = cv::imread(d.imagePath(f), cv::IMREAD_GRAYSCALE);
+        }
         std::vector<cv::KeyPoint> kp;
         cv::Mat desc;
-        if (!grey.empty()) sift->detectAndCompute(grey, cv::noArray(), kp, desc);
+        if (!grey.empty()) {
+          core::ScopedStage s(&times, "sift");
+          sift->detectAndCompute(grey, cv::noArray(), kp, desc);
+        }
         if (!prev_kp.empty() && !kp.empty()) {
           std::vector<std::vector<cv::DMatch>> knn;
           matcher.knnMatch(desc, prev_desc, knn, 2);

@@ -4,6 +4,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include <opencv2/imgproc.hpp>
+
 #include "uw_multislam/core/frontend/camera_model.h"
 
 namespace uw_multislam {
@@ -24,6 +26,8 @@ std::string FeatureOptions::validate() const {
     os << "edge_threshold must be > 1, sigma > 0, octave_layers >= 1";
   } else if (border_px < 0) {
     os << "border_px must be >= 0";
+  } else if (first_octave != -1 && first_octave != 0) {
+    os << "first_octave " << first_octave << " must be -1 (OpenCV's doubled image) or 0 (no doubling)";
   }
   return os.str();
 }
@@ -76,7 +80,23 @@ FrameFeatures FeatureExtractor::extract(const cv::Mat& grey) const {
   // would build the pyramid again, which costs as much as the detection).
   std::vector<cv::KeyPoint> candidates;
   cv::Mat descriptors;
-  sift_->detectAndCompute(grey, cv::noArray(), candidates, descriptors);
+  if (options_.first_octave == 0 && grey.cols >= 32 && grey.rows >= 32) {
+    // No doubling (first_octave in features.h): OpenCV's octave -1 of the halved image is at
+    // the full image's resolution. A half-image pixel i covers full pixels 2i, 2i + 1, and
+    // SIFT's doubled coordinates put i at 2i: full = 2 x half.
+    cv::Mat half;
+    cv::resize(grey, half, cv::Size(grey.cols / 2, grey.rows / 2), 0, 0, cv::INTER_AREA);
+    sift_->detectAndCompute(half, cv::noArray(), candidates, descriptors);
+    for (cv::KeyPoint& k : candidates) {
+      k.pt *= 2.0f;
+      k.size *= 2.0f;
+      // OpenCV packs octave (low byte, signed) and layer: one octave up in the full image.
+      const int octave = static_cast<signed char>(k.octave & 255) + 1;
+      k.octave = (k.octave & ~255) | (octave & 255);
+    }
+  } else {
+    sift_->detectAndCompute(grey, cv::noArray(), candidates, descriptors);
+  }
   const float b = static_cast<float>(options_.border_px);
   std::vector<cv::KeyPoint> inside;
   std::vector<int> rows;

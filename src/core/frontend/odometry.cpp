@@ -37,7 +37,7 @@ std::string OdometryOptions::validate() const {
   const std::pair<const char*, std::string> checks[] = {
       {"enhancement", enhancement.validate()}, {"features", features.validate()},   {"matching", matching.validate()},
       {"ransac", ransac.validate()},           {"keyframes", keyframes.validate()}, {"fallback", fallback.validate()},
-      {"nav", nav.validate()}};
+      {"nav", nav.validate()},                 {"klt", klt.validate()}};
   for (const auto& c : checks) {
     if (!c.second.empty()) return std::string(c.first) + ": " + c.second;
   }
@@ -74,21 +74,103 @@ Odometry::Odometry(const CameraIntrinsics& camera, const OdometryOptions& option
       feature_camera_(camera.pinhole()),
       options_(checked(options, camera)),
       enhancer_(options.enhancement),
-      extractor_(options.features) {}
+      extractor_(options.features),
+      klt_(options.klt) {}
+
+std::optional<MotionPrior> Odometry::ransacPrior(const std::optional<NavRecord>& nav) const {
+  // (a) With the nav at both frames, its motion gates RANSAC's hypotheses (nav.gate_ransac).
+  if (!(options_.nav.gate_ransac && options_.nav.gate_confidence > 0 && nav && last_kf_.nav)) return std::nullopt;
+  const UncertainPose2 m = navMotion(*last_kf_.nav, *nav, options_.nav);
+  return MotionPrior{m.mean, m.covariance, navGateThreshold(options_.nav)};
+}
 
 PairMotion Odometry::matchToKeyframe(const FrameFeatures& f, double altitude_m, const std::optional<NavRecord>& nav) {
-  // (a) With the nav at both frames, its motion gates RANSAC's hypotheses (nav.gate_ransac).
-  MotionPrior prior;
-  const bool gated = options_.nav.gate_ransac && options_.nav.gate_confidence > 0 && nav && last_kf_.nav;
-  if (gated) {
-    const UncertainPose2 m = navMotion(*last_kf_.nav, *nav, options_.nav);
-    prior = {m.mean, m.covariance, navGateThreshold(options_.nav)};
-  }
+  const std::optional<MotionPrior> prior = ransacPrior(nav);
   PairMotion p = estimatePairMotion({&last_kf_.features, last_kf_.altitude_m, &feature_camera_},
                                     {&f, altitude_m, &feature_camera_}, options_.matching, options_.ransac, &times_,
-                                    gated ? &prior : nullptr);
+                                    prior ? &*prior : nullptr);
   stats_.hypotheses_gated += p.ransac.hypotheses_gated;
   return p;
+}
+
+FrameFeatures Odometry::extractFeatures(const cv::Mat& grey) {
+  ScopedStage s(&times_, "features");
+  FrameFeatures f = extractor_.extract(grey);
+  undistortKeypoints(&f.keypoints, camera_);  // only the points, never the image
+  return f;
+}
+
+bool Odometry::trackBetweenKeyframes(const cv::Mat& grey, TrackedFrame* cur, OdometryUpdate* up) {
+  KltTracker::Tracks t;
+  {
+    ScopedStage s(&times_, "klt");
+    t = klt_.track(grey);
+  }
+  up->tracks = static_cast<int>(t.current_px.size());
+  const auto degraded = [&] {
+    ++stats_.klt_extracted;
+    ++stats_.klt_degraded;
+    return false;
+  };
+  if (up->tracks < options_.klt.min_tracks) return degraded();
+  // The same metres as for SIFT matches: undistorted pixels of the pinhole feature camera scaled
+  // by each frame's altitude, then the same RANSAC (Algorithm 1) with the same options.
+  const std::vector<cv::Point2f> kf_px = undistortPixels(t.keyframe_px, camera_);
+  const std::vector<cv::Point2f> cur_px = undistortPixels(t.current_px, camera_);
+  std::vector<Eigen::Vector2d> a, b;
+  a.reserve(kf_px.size());
+  b.reserve(cur_px.size());
+  for (std::size_t i = 0; i < kf_px.size(); ++i) {
+    a.push_back(pixelToMetres(kf_px[i], feature_camera_, last_kf_.altitude_m));
+    b.push_back(pixelToMetres(cur_px[i], feature_camera_, cur->altitude_m));
+  }
+  const std::optional<MotionPrior> prior = ransacPrior(cur->nav);
+  RansacResult r;
+  {
+    ScopedStage s(&times_, "ransac");
+    const double metres_per_px = cur->altitude_m / (0.5 * (feature_camera_.fx + feature_camera_.fy));
+    r = estimateRigidRansac(a, b, metres_per_px, options_.ransac, prior ? &*prior : nullptr);
+  }
+  stats_.hypotheses_gated += r.hypotheses_gated;
+  if (!r.success) return degraded();
+  UncertainPose2 motion(r.motion, r.covariance);
+  const bool nav = cur->nav && last_kf_.nav;
+  double d2 = -1.0;
+  UncertainPose2 nav_motion;
+  if (nav) {
+    nav_motion = navMotion(*last_kf_.nav, *cur->nav, options_.nav);
+    if (options_.nav.gate_confidence > 0) {
+      d2 = navGateDistance2(motion, nav_motion);
+      if (d2 > navGateThreshold(options_.nav)) return degraded();  // the full way decides and counts
+    }
+  }
+  const double overlap = footprintOverlap(r.motion, last_kf_.altitude_m, cur->altitude_m);
+  if (needsKeyframe(r, overlap, cur->stamp_s)) {
+    ++stats_.klt_extracted;  // a keyframe is due: SIFT measures it
+    return false;
+  }
+  if (d2 >= 0) ++stats_.gate_checks;
+  up->gate_distance2 = d2;
+  if (nav && options_.nav.fuse) {
+    motion = fuseMotions(motion, nav_motion);
+    cur->source = MotionSource::kFused;
+    up->source = MotionSource::kFused;
+    ++stats_.fused;
+  }
+  cur->motion = motion;
+  cur->pose = compose(last_kf_.pose, motion.mean);
+  last_step_ = between(prev_.pose, cur->pose);
+  up->klt = true;
+  up->matches = up->tracks;
+  up->inliers = static_cast<int>(r.inliers.size());
+  up->scale = r.scale;
+  up->overlap = overlap;
+  up->covariance = compose(UncertainPose2(last_kf_.pose, last_kf_covariance_), motion).covariance;
+  up->status = FrameStatus::kTracked;
+  up->pose = cur->pose;
+  ++stats_.tracked;
+  ++stats_.klt_tracked;
+  return true;
 }
 
 double Odometry::footprintOverlap(const Pose2& motion, double kf_altitude, double altitude) const {
@@ -184,22 +266,48 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
   cur.stamp_s = in.stamp_s;
   cur.altitude_m = alt;
   if (options_.nav.enabled) cur.nav = in.nav;
+  cv::Mat grey;
   try {
-    cv::Mat grey;
     {
       ScopedStage s(&times_, "enhance");
       grey = enhancer_.enhance(in.image);
     }
-    ScopedStage s(&times_, "features");
-    cur.features = extractor_.extract(grey);
-    undistortKeypoints(&cur.features.keypoints, camera_);  // only the points, never the image
+    if (options_.klt.enabled && !keyframes_.empty() && klt_.active(static_cast<int>(keyframes_.size()) - 1) &&
+        trackBetweenKeyframes(grey, &cur, &up)) {
+      prev_ = cur;
+      prev_grey_ = grey;  // its features are extracted only if it is ever promoted
+      return up;
+    }
+    cur.features = extractFeatures(grey);
   } catch (const std::invalid_argument& e) {
     ++stats_.skipped_image;
     up.reason = e.what();
     return up;
   }
   up.features = static_cast<int>(cur.features.size());
+  const int keyframes_before = static_cast<int>(keyframes_.size());
+  OdometryUpdate done = processExtracted(&cur, &up);
+  if (options_.klt.enabled) {
+    const int last = static_cast<int>(keyframes_.size()) - 1;
+    // Tracks start only at a keyframe vision measured and SIFT found texture in: corners are
+    // chosen relative to the image's strongest, so a blank or featureless frame (a fallback or
+    // nav-carried keyframe) would give corners on noise and vignetting that "track" a motion.
+    const bool textured = static_cast<int>(cur.features.size()) >= options_.klt.min_tracks;
+    if (done.keyframe_id >= 0 && keyframes_[last].frame_index == cur.index && textured &&
+        done.status != FrameStatus::kFallback && done.source != MotionSource::kNav) {
+      klt_.reset(grey, last);  // the new keyframe is this frame: tracks start here
+    } else if (last + 1 != keyframes_before) {
+      klt_.invalidate();  // another new keyframe (promoted, fallback, the nav's): no tracks from it
+    }
+  }
+  prev_grey_.release();
+  return done;
+}
 
+OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate* up_ptr) {
+  TrackedFrame& cur = *cur_ptr;
+  OdometryUpdate& up = *up_ptr;
+  const double alt = cur.altitude_m;
   if (keyframes_.empty()) {
     new_keyframes_.push_back({0, cur.features});
     cur.pose = Pose2();
@@ -215,7 +323,8 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
   PairMotion m = matchToKeyframe(cur.features, alt, cur.nav);
   if (!m.ransac.success && prev_.index != last_kf_.index && prev_.source != MotionSource::kNav) {
     // Promote the last tracked frame and try again from there (not a frame the nav carried: it
-    // was not matched either).
+    // was not matched either). A frame tracked by KLT has no features yet: extracted now.
+    if (prev_.features.empty() && !prev_grey_.empty()) prev_.features = extractFeatures(prev_grey_);
     addKeyframe(prev_, prev_.motion, false, prev_.source);
     ++stats_.promotions;
     m = matchToKeyframe(cur.features, alt, cur.nav);

@@ -99,6 +99,13 @@ void Pipeline::endPiece(double stamp_s) {
                   session_, st.nav_frames, st.gate_checks, st.gate_refusals, st.fused, st.hypotheses_gated);
     say(line);
   }
+  if (st.klt_tracked > 0 || st.klt_extracted > 0) {
+    std::snprintf(line, sizeof line,
+                  "session %d: KLT between keyframes: %d frames tracked without SIFT, %d extracted (%d of them "
+                  "degraded tracks)",
+                  session_, st.klt_tracked, st.klt_extracted, st.klt_degraded);
+    say(line);
+  }
   session_ = -1;
 }
 

@@ -85,6 +85,7 @@ void visitOdometry(V& v, O& o) {
     f("sigma", o.features.sigma);
     f("octave_layers", o.features.octave_layers);
     f("border_px", o.features.border_px);
+    f("first_octave", o.features.first_octave);
   });
   v.block("matching", [&](V& m) {
     m("ratio", o.matching.ratio);
@@ -112,6 +113,17 @@ void visitOdometry(V& v, O& o) {
     b("min_sigma_m", o.fallback.min_sigma_m);
     b("relative_sigma", o.fallback.relative_sigma);
     b("sigma_yaw_rad", o.fallback.sigma_yaw_rad);
+  });
+  v.block("klt", [&](V& k) {
+    k("enabled", o.klt.enabled);
+    k("max_corners", o.klt.max_corners);
+    k("corner_quality", o.klt.corner_quality);
+    k("corner_min_distance_px", o.klt.corner_min_distance_px);
+    k("border_px", o.klt.border_px);
+    k("window_px", o.klt.window_px);
+    k("pyramid_levels", o.klt.pyramid_levels);
+    k("max_error", o.klt.max_error);
+    k("min_tracks", o.klt.min_tracks);
   });
 }
 

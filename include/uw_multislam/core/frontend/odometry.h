@@ -27,6 +27,19 @@
 // the last keyframe has fewer (a blank): so vision restarts at the first good frame. Without
 // nav every frame is processed exactly as before. Every keyframe's motion has its source.
 //
+// Tracking between keyframes (options.klt.enabled; core/frontend/klt_tracker.h): each frame after
+// a keyframe is first tracked by KLT from the keyframe's corners; its motion comes from the same
+// RANSAC (with the altitude scale, the nav prior's gating and the nav gate) on the tracked pairs.
+// When that motion exists, passes the nav gate and the keyframe rule would not take the frame,
+// the frame is tracked without SIFT. Otherwise (too few tracks, RANSAC fails, a keyframe is due
+// by overlap, rotation, time or inliers, the nav refuses it) the frame goes the full way above:
+// SIFT, matching to the keyframe, the keyframe rule, promotion and fallback as documented; so
+// every keyframe's motion is still measured by SIFT matching. A promotion needs the promoted
+// frame's features: they are extracted then from its kept image. Tracks start only at a keyframe
+// with a measured motion (not a fallback, not carried by the nav) and at least klt.min_tracks SIFT
+// features; after any other new keyframe (promoted, fallback, the nav's) frames go the full way
+// until the next such keyframe, so tracking loss is detected as without KLT.
+//
 // Distortion: features are extracted on the raw image and only their coordinates are undistorted
 // (core/frontend/camera_model.h); from there on, and in the keyframes, the camera is the pinhole
 // featureCamera().
@@ -45,6 +58,7 @@
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/enhancement.h"
 #include "uw_multislam/core/frontend/features.h"
+#include "uw_multislam/core/frontend/klt_tracker.h"
 #include "uw_multislam/core/frontend/matching.h"
 #include "uw_multislam/core/frontend/nav_prior.h"
 #include "uw_multislam/core/frontend/pair_motion.h"
@@ -86,6 +100,7 @@ struct OdometryOptions {
   KeyframeOptions keyframes;
   FallbackOptions fallback;
   NavPriorOptions nav;  // used only for frames that carry a nav pose
+  KltOptions klt;       // tracking between keyframes (off: SIFT on every frame)
 
   /// Empty when usable, else a sentence naming the component and value.
   std::string validate() const;
@@ -118,7 +133,9 @@ struct OdometryUpdate {
   /// keyframes' chain, then this frame's motion from the last keyframe), as Trajectory::absolute.
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
   int keyframe_id = -1;  // new keyframe's id (trajectory index) when one was made
-  int features = 0;
+  int features = 0;      // SIFT features extracted (0 for a frame tracked by KLT)
+  int tracks = 0;        // KLT tracks from the last keyframe, when tracked (klt.enabled)
+  bool klt = false;      // the frame's motion is KLT's (no extraction)
   int matches = 0;
   int inliers = 0;
   double overlap = 0.0;  // with the last keyframe, when matched
@@ -152,6 +169,9 @@ struct OdometryStats {
   int gate_refusals = 0;  // ... refused by the gate
   int fused = 0;          // ... combined with the nav (nav.fuse)
   long hypotheses_gated = 0;  // RANSAC hypotheses the nav prior refused (nav.gate_ransac)
+  int klt_tracked = 0;    // frames whose motion came from KLT tracks (klt.enabled), no extraction
+  int klt_extracted = 0;  // frames KLT tracked but that went the full way (keyframe due or degraded)
+  int klt_degraded = 0;   // ... of them, because the tracks failed (too few, RANSAC, nav gate)
 };
 
 class Odometry {
@@ -192,6 +212,16 @@ class Odometry {
   // The frame carried by the nav's motion `m` from the last keyframe (vision failed or refused).
   void carryByNav(TrackedFrame* cur, const UncertainPose2& m, OdometryUpdate* up);
   PairMotion matchToKeyframe(const FrameFeatures& f, double altitude_m, const std::optional<NavRecord>& nav);
+  // The nav prior gating RANSAC's hypotheses for a frame with `nav`, if any (nav.gate_ransac).
+  std::optional<MotionPrior> ransacPrior(const std::optional<NavRecord>& nav) const;
+  // SIFT features of an enhanced grey image, keypoints undistorted.
+  FrameFeatures extractFeatures(const cv::Mat& grey);
+  // KLT: the motion from the last keyframe by its tracked corners. True when the frame was
+  // tracked that way (up and cur filled, state updated); false: the full way is needed.
+  bool trackBetweenKeyframes(const cv::Mat& grey, TrackedFrame* cur, OdometryUpdate* up);
+  // The full way for a frame with its features: first keyframe, matching, keyframe rule,
+  // promotion, nav, fallback.
+  OdometryUpdate processExtracted(TrackedFrame* cur, OdometryUpdate* up);
   double footprintOverlap(const Pose2& motion, double kf_altitude, double altitude) const;
   void addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback,
                    MotionSource source = MotionSource::kVisual);
@@ -202,6 +232,8 @@ class Odometry {
   OdometryOptions options_;
   FeatureImageEnhancer enhancer_;
   FeatureExtractor extractor_;
+  KltTracker klt_;
+  cv::Mat prev_grey_;  // prev_'s enhanced image when it was tracked by KLT (no features yet)
   Trajectory trajectory_;
   std::vector<KeyframeInfo> keyframes_;
   TrackedFrame last_kf_;
