@@ -20,7 +20,7 @@ namespace core {
 
 struct KltOptions {
   /// Track between keyframes (false: SIFT on every frame, as before).
-  bool enabled = true;
+  bool enabled = false;
   /// Shi-Tomasi corners started at each keyframe (cv::goodFeaturesToTrack).
   int max_corners = 400;
   double corner_quality = 0.01;         // relative to the strongest corner, (0, 1)
