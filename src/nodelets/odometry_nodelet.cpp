@@ -173,6 +173,8 @@ void OdometryNodelet::onInit() {
                                       &OdometryNodelet::onPairingTimer, this);
 
   session_sub_ = nh.subscribe(topics::kActiveSession, 1, &OdometryNodelet::onActiveSession, this);
+  pause_srv_ = nh.advertiseService(topics::kPauseService, &OdometryNodelet::onPause, this);
+  resume_srv_ = nh.advertiseService(topics::kResumeService, &OdometryNodelet::onResume, this);
   if (builtin_decoder_) {
     compressed_sub_ = nh.subscribe(image_topic_, o.sync_queue_size, &OdometryNodelet::onCompressedImage, this);
   } else {
@@ -364,6 +366,30 @@ void OdometryNodelet::push(Frame f) {
   queue_->push(std::move(f));
 }
 
+bool OdometryNodelet::onPause(uw_multislam::OperatorCommand::Request&, uw_multislam::OperatorCommand::Response& res) {
+  return setPaused(true, &res);
+}
+
+bool OdometryNodelet::onResume(uw_multislam::OperatorCommand::Request&, uw_multislam::OperatorCommand::Response& res) {
+  return setPaused(false, &res);
+}
+
+bool OdometryNodelet::setPaused(bool paused, uw_multislam::OperatorCommand::Response* res) {
+  std::lock_guard<std::mutex> lock(pause_mutex_);
+  if (paused_ == paused) {
+    res->status.code = uw_multislam::Status::FAILED_PRECONDITION;
+    res->status.message = paused ? "the odometry is already paused (call resume)" : "the odometry is not paused";
+  } else {
+    paused_ = paused;
+    res->status.code = uw_multislam::Status::OK;
+    NODELET_INFO("odometry: %s (%ld frames dropped while paused so far)",
+                 paused ? "paused by the operator: frames are dropped until resume" : "resumed", dropped_paused_.load());
+  }
+  res->paused = paused_;
+  res->frames_dropped_paused = dropped_paused_;
+  return true;
+}
+
 void OdometryNodelet::onActiveSession(const uw_multislam::SessionStateConstPtr& msg) {
   if (msg->session < 0 || msg->session > core::kMaxSessionId) {
     NODELET_WARN_THROTTLE(10, "odometry: ignoring active_session with id %d, outside [0, %d]", msg->session,
@@ -418,6 +444,12 @@ void OdometryNodelet::startSession(int id, const core::CameraIntrinsics& camera,
 void OdometryNodelet::process(const Frame& f) {
   ++counts_.frames;
   for (double t : f.passed_over) stamps_->passOver(t);  // received but not processed: seen, not a gap
+  if (paused_) {  // dropped and counted; its stamp seen like a queue drop's (the pause is no time gap)
+    stamps_->passOver(f.header().stamp.toSec());
+    ++counts_.dropped_paused;
+    dropped_paused_ = counts_.dropped_paused;
+    return;
+  }
   std::string why;
   core::CameraIntrinsics camera;
   if (!rc::cameraFromMsg(*f.info, options_.rectified_images, &camera, &why)) {
@@ -651,6 +683,8 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
        {"frames_processed", static_cast<double>(taken)},  // taken by the worker (finished or in progress)
        {"frames_finished", processed},                     // done with (published or skipped): idle when equal
        {"dropped_queue_full", static_cast<double>(dropped), true},
+       {"paused", paused_ ? 1.0 : 0.0},
+       {"frames_dropped_paused", static_cast<double>(c.dropped_paused)},
        {"queue_length", static_cast<double>(queued)},
        {"skipped_empty_image", static_cast<double>(c.empty_image), true},
        {"skipped_encoding", static_cast<double>(c.bad_encoding), true},

@@ -7,6 +7,8 @@
     sessions.py split S
     sessions.py start [NAME]
     sessions.py reload NAME               (a stored session's name or id, back into memory)
+    sessions.py pause                     (the odometry drops frames, counted, until resume)
+    sessions.py resume
 
 Exit status: 0 when the service answered (whatever its status code: the answer is printed),
 1 when it could not be called (no master, or no back-end within --timeout), 2 for wrong arguments.
@@ -20,7 +22,7 @@ try:
     import rosgraph
     import rospy
     from uw_multislam.msg import SessionState, Status
-    from uw_multislam.srv import JoinSessions, ListSessions, ReloadSession, SplitSession, StartSession
+    from uw_multislam.srv import JoinSessions, ListSessions, OperatorCommand, ReloadSession, SplitSession, StartSession
     ROS_IMPORT_ERROR = None
 except ImportError as e:
     ROS_IMPORT_ERROR = e
@@ -36,7 +38,8 @@ def status_text(status):
 
 
 # command -> (fewest, most) arguments
-ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1)}
+ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1), "pause": (0, 0),
+         "resume": (0, 0)}
 
 
 def call_service(ns, name, kind, *request, timeout=30.0):
@@ -89,6 +92,10 @@ def main():
             res = call(args.ns, "reload_session", ReloadSession, name)
             print("reload_session '%s' -> %s%s" % (name, status_text(res.status),
                                                   ", session %d" % res.session if res.status.code == Status.OK else ""))
+        elif args.command in ("pause", "resume"):
+            res = call(args.ns, args.command, OperatorCommand)
+            print("%s -> %s, %s, %d frames dropped while paused" % (
+                args.command, status_text(res.status), "paused" if res.paused else "running", res.frames_dropped_paused))
         else:
             name = args.args[0] if args.args else ""
             res = call(args.ns, "start_session", StartSession, name)

@@ -12,6 +12,12 @@ tracking_loss  One session flown over two laps with seven blank frames in the fi
                offline test_offline_slam.py tracking-loss mission, at 240 x 180): tracking is lost,
                the odometry closes session 0 and starts session 1 when the seabed is back, and the
                second lap's global loops join the two again in one map, within 5 cm of the truth.
+pause          The operator's pause / resume (issue 16, item 4) on the odometry: the test publishes a
+               one-session mission frame by frame (each awaited: its odometry pose, or for a frame
+               sent while paused the count of frames dropped on /diagnostics). Frames sent while
+               paused are dropped and counted (no pose, no keyframe), the session goes on after
+               resume (one session, no time jump, no tracking loss); pause while paused and resume
+               while running are refused with FAILED_PRECONDITION and change nothing.
 """
 import csv
 import math
@@ -22,12 +28,17 @@ import threading
 import time
 import unittest
 
+import rosbag
 import rospy
 import rostest
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Path
-from pipeline_fixture import NS, SENSOR_TOPICS, await_condition, make_mission, vehicle_from_camera, wait_for_subscribers
+from sensor_msgs.msg import CameraInfo, Image, Range
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, diagnostic_values, make_mission,
+                              vehicle_from_camera, wait_for_subscribers)
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
-from uw_multislam.srv import ListSessions, StartSession
+from uw_multislam.srv import ListSessions, OperatorCommand, StartSession
 
 PLAY_RATE = 4.0  # frames per second: far below the odometry's speed on 240 x 180 images
 KEYFRAMES_BEFORE_START = 4  # session 0's keyframes received before start_session is called
@@ -45,6 +56,18 @@ sessions:
         - {first_frame: 10, num_frames: 7, kind: blank}
 """
 BLANK = range(10, 17)
+# One session at 2 frames per second (0.175 m between frames: three frames dropped leave the
+# next frame well inside the last keyframe's footprint, so the pause alone is what is tested).
+PAUSE_MISSION = """
+seed: 5
+world: {width_m: 12, height_m: 10, metres_per_px: 0.008, featureless_fraction: 0.0}
+sessions:
+  - name: a
+    camera: {image_width: 240, image_height: 180, fx: 220, fy: 220, cx: 119.5, cy: 89.5}
+    mission: {pattern: loop, start_m: [6.0, 5.0], length_m: 3.5, width_m: 2.5, laps: 0.5, speed_m_s: 0.35,
+              frame_period_s: 0.5, altitude_m: 1.6, start_time_s: 0}
+"""
+PAUSED = range(10, 13)  # the frames sent while paused
 # Offline, the same mission's joined keyframes are within 5 cm of the truth (test_offline_slam.py).
 JOINED_TOLERANCE_M = 0.05
 
@@ -73,6 +96,8 @@ class LiveSessionsTest(unittest.TestCase):
         wait_for_subscribers(SENSOR_TOPICS + [NS + "/keyframes"], "/check_live_sessions")
         if cls.case == "tracking_loss":
             cls.tmp, cls.mission = make_mission("uwms_live_sessions_", LOST)
+        elif cls.case == "pause":
+            cls.tmp, cls.mission = make_mission("uwms_live_sessions_", PAUSE_MISSION)
         else:
             cls.tmp, cls.mission = make_mission("uwms_live_sessions_")
 
@@ -108,6 +133,8 @@ class LiveSessionsTest(unittest.TestCase):
             self.start_session_while_a_bag_plays()
         elif self.case == "tracking_loss":
             self.tracking_loss_gives_two_sessions_that_global_loops_join()
+        elif self.case == "pause":
+            self.pause_drops_frames_and_the_session_goes_on()
         else:
             self.fail("unknown ~case %r" % self.case)
 
@@ -197,6 +224,93 @@ class LiveSessionsTest(unittest.TestCase):
                   min(stamps[0]), max(stamps[0]), len(stamps[0]), min(stamps[1]), max(stamps[1]), len(stamps[1]),
                   len(global_loops), worst))
         self.assertLess(worst, JOINED_TOLERANCE_M)
+
+    def pause_drops_frames_and_the_session_goes_on(self):
+        poses, status = [], {}
+
+        def on_diag(msg):
+            for s in msg.status:
+                if s.name.endswith(": odometry"):
+                    with self.lock:
+                        status.update(diagnostic_values(s))
+
+        subs = [rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, appender(self.lock, poses),
+                                 queue_size=1000),
+                rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)]
+        pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(SENSOR_TOPICS, (Image, CameraInfo, Range))]
+        await_condition(self.lock, lambda: all(p.get_num_connections() > 0 for p in pubs) and status, 30,
+                        "the odometry's subscriptions and diagnostics")
+        frames = {}
+        with rosbag.Bag(os.path.join(self.mission, "a.bag")) as bag:
+            for topic, msg, _ in bag.read_messages(topics=SENSOR_TOPICS):
+                frames.setdefault(msg.header.stamp.to_nsec(), {})[topic] = msg
+        frames = [[f[t] for t in SENSOR_TOPICS] for _, f in sorted(frames.items()) if len(f) == 3]
+        self.assertGreater(len(frames), PAUSED.stop + 5)
+        rospy.wait_for_service(NS + "/pause", timeout=30)
+        pause = rospy.ServiceProxy(NS + "/pause", OperatorCommand)
+        resume = rospy.ServiceProxy(NS + "/resume", OperatorCommand)
+        # Called wrong: resume while running.
+        r = resume()
+        self.assertEqual(r.status.code, Status.FAILED_PRECONDITION)
+        self.assertIn("not paused", r.status.message)
+        self.assertFalse(r.paused)
+        self.assertEqual(r.frames_dropped_paused, 0)
+
+        def dropped():
+            return status.get("frames_dropped_paused", -1)
+
+        for i, (image, info, altitude) in enumerate(frames):
+            if i == PAUSED.start:
+                r = pause()
+                self.assertEqual(r.status.code, Status.OK, r.status.message)
+                self.assertTrue(r.paused)
+                again = pause()  # called wrong: already paused; still paused
+                self.assertEqual(again.status.code, Status.FAILED_PRECONDITION)
+                self.assertIn("already paused", again.status.message)
+                self.assertTrue(again.paused)
+            if i == PAUSED.stop:
+                r = resume()
+                self.assertEqual(r.status.code, Status.OK, r.status.message)
+                self.assertFalse(r.paused)
+                self.assertEqual(r.frames_dropped_paused, len(PAUSED))
+            pubs[2].publish(altitude)
+            pubs[1].publish(info)
+            pubs[0].publish(image)
+            stamp = image.header.stamp
+            if i in PAUSED:
+                n = i - PAUSED.start + 1
+                await_condition(self.lock, lambda: dropped() == n and status.get("frames_finished") == i + 1, 30,
+                                "frame %d dropped while paused" % i, lambda: ": %s" % status)
+                with self.lock:
+                    self.assertEqual(status.get("paused"), 1.0)
+            else:
+                await_condition(self.lock, lambda: any(p.header.stamp == stamp for p in poses), 30,
+                                "the odometry pose of frame %d" % i, lambda: ": %d poses" % len(poses))
+        await_condition(self.lock, lambda: status.get("frames_finished") == len(frames) and
+                        status.get("keyframes") == len(self.keyframes), 30, "the last frame finished",
+                        lambda: ": %s" % status)
+        for s in subs:
+            s.unregister()
+        with self.lock:
+            final = dict(status)
+            stamps = [p.header.stamp for p in poses]
+            keyframes = list(self.keyframes)
+        paused = {frames[i][0].header.stamp for i in PAUSED}
+        self.assertEqual(len(stamps), len(frames) - len(PAUSED), "a pose for every frame not paused")
+        self.assertFalse(paused & set(stamps), "no pose for a paused frame")
+        self.assertFalse(paused & {k.header.stamp for k in keyframes}, "no keyframe from a paused frame")
+        self.assertEqual({k.session for k in keyframes}, {0}, "one session through the pause")
+        self.assertGreater(len([k for k in keyframes if k.header.stamp > frames[PAUSED.stop][0].header.stamp]), 0,
+                           "keyframes after resume")
+        self.assertEqual(final["frames_dropped_paused"], len(PAUSED))
+        self.assertEqual(final["paused"], 0.0)
+        for key in ("time_jumps_forward", "tracking_losses", "fallbacks", "dropped_queue_full"):
+            self.assertEqual(final[key], 0, key)
+        listed = self.await_listed(lambda l: sorted(l) == [0] and l[0].num_keyframes == len(keyframes), 30,
+                                   "session 0 with every keyframe")
+        self.assertEqual(listed[0].state, SessionState.ACTIVE)
+        print("pause: %d frames, %d dropped while paused (frames %d-%d), %d poses, %d keyframes, one session" % (
+            len(frames), final["frames_dropped_paused"], PAUSED.start, PAUSED.stop - 1, len(stamps), len(keyframes)))
 
 
 if __name__ == "__main__":

@@ -83,6 +83,10 @@ constexpr char kReloadSessionService[] = "reload_session";
 constexpr char kListSessionsService[] = "list_sessions";
 constexpr char kStartSessionService[] = "start_session";
 constexpr char kExportService[] = "export";
+// --- Services of the odometry (uw_multislam/srv/OperatorCommand) ---------------------------------
+/// Frames are dropped (counted, their stamps seen: no time gap) until resume; the session goes on.
+constexpr char kPauseService[] = "pause";
+constexpr char kResumeService[] = "resume";
 
 /// The absolute form of a relative name ("camera/image_raw" -> "/camera/image_raw").
 inline std::string globalName(const std::string& relative) {

@@ -56,6 +56,13 @@
 // keyframes with reused motions are published only once tracking is confirmed). Without a
 // back-end the ids simply count up.
 //
+// Pause (services pause / resume, uw_multislam/OperatorCommand): while paused the worker drops
+// every frame it takes, counted (frames_dropped_paused on /diagnostics), its stamp passed over like
+// a queue drop, so the pause is no time gap and the session goes on: the first frame after resume
+// is matched to the last keyframe as usual (a long pause over moving seabed ends in the tracking
+// loss rule, as a blackout would). A second pause, or resume while running, is refused with
+// FAILED_PRECONDITION and changes nothing.
+//
 // Bad input never stops the node and never reaches the map; each kind is counted, logged
 // (throttled) and published on /diagnostics (diagnostic_updater, every ~diagnostic_period s,
 // WARN while a drop or skip counter grows; keys in README "Diagnostics"):
@@ -109,6 +116,7 @@
 #include <thread>
 #include <vector>
 
+#include "uw_multislam/OperatorCommand.h"
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/core/frontend/altitude_buffer.h"
 #include "uw_multislam/core/frontend/odometry.h"
@@ -179,6 +187,7 @@ class OdometryNodelet : public nodelet::Nodelet {
          too_large = 0;
     long duplicates = 0, out_of_order = 0, jumps_back = 0, jumps_forward = 0;
     long fixed_altitude = 0, skipped_by_odometry = 0;
+    long dropped_paused = 0;  // frames the worker dropped while paused
     double total_ms = 0.0, max_ms = 0.0, last_ms = 0.0;
     int session = 0;
   };
@@ -205,6 +214,10 @@ class OdometryNodelet : public nodelet::Nodelet {
   bool cameraInfoAt(double stamp_s, bool final_answer, sensor_msgs::CameraInfoConstPtr* info) const;
   void push(Frame f);
   void onActiveSession(const uw_multislam::SessionStateConstPtr& msg);
+  /// pause / resume (operator services): refused with FAILED_PRECONDITION when already in that state.
+  bool onPause(uw_multislam::OperatorCommand::Request& req, uw_multislam::OperatorCommand::Response& res);
+  bool onResume(uw_multislam::OperatorCommand::Request& req, uw_multislam::OperatorCommand::Response& res);
+  bool setPaused(bool paused, uw_multislam::OperatorCommand::Response* res);
   void work();
   void process(const Frame& f);
   void startSession(int id, const core::CameraIntrinsics& camera, const std::string& why);
@@ -226,6 +239,10 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::thread worker_;
   std::mutex session_mutex_;
   int requested_session_ = -1;  // guarded by session_mutex_; -1: none
+  // Paused by the operator: the worker drops each frame (counted, its stamp passed over).
+  std::atomic<bool> paused_{false};
+  std::atomic<long> dropped_paused_{0};
+  std::mutex pause_mutex_;  // serialises pause / resume calls
 
   // Pairing state, written by the callbacks under pairing_mutex_.
   std::mutex pairing_mutex_;
@@ -273,6 +290,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   ros::WallTime last_stats_;
 
   ros::Publisher keyframe_pub_, pose_pub_;
+  ros::ServiceServer pause_srv_, resume_srv_;
   std::unique_ptr<image_transport::ImageTransport> it_;
   image_transport::Publisher keyframe_image_pub_;
   // Subscribers last: destroyed first, so no callback runs into destroyed members.
