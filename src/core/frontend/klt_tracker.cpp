@@ -26,6 +26,8 @@ std::string KltOptions::validate() const {
     os << "pyramid_levels " << pyramid_levels << " must be in [0, 8]";
   } else if (!(max_error > 0.0)) {
     os << "max_error must be > 0";
+  } else if (!(max_forward_backward_px >= 0.0)) {
+    os << "max_forward_backward_px must be >= 0 (0: no check)";
   } else if (min_tracks < 3) {
     os << "min_tracks " << min_tracks << " must be >= 3";
   }
@@ -83,11 +85,28 @@ KltTracker::Tracks KltTracker::track(const cv::Mat& grey) {
                            options_.pyramid_levels,
                            cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 0.01),
                            cv::OPTFLOW_USE_INITIAL_FLOW);
+  // Back from the new frame to the previous one, started where each track came from.
+  std::vector<unsigned char> back_status;
+  std::vector<cv::Point2f> back;
+  const bool check = options_.max_forward_backward_px > 0.0 && !next.empty();
+  if (check) {
+    back = previous_px_;
+    std::vector<float> back_error;
+    cv::calcOpticalFlowPyrLK(pyramid, previous_pyramid_, next, back, back_status, back_error, window,
+                             options_.pyramid_levels,
+                             cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 0.01),
+                             cv::OPTFLOW_USE_INITIAL_FLOW);
+  }
+  const double fb2 = options_.max_forward_backward_px * options_.max_forward_backward_px;
   std::vector<cv::Point2f> kept_keyframe, kept_previous, kept_step;
   const float w = static_cast<float>(grey.cols - 1), h = static_cast<float>(grey.rows - 1);
   for (std::size_t i = 0; i < next.size(); ++i) {
     const cv::Point2f& p = next[i];
     if (!status[i] || !(error[i] <= options_.max_error) || !(p.x >= 0 && p.y >= 0 && p.x <= w && p.y <= h)) continue;
+    if (check) {
+      const cv::Point2f d = back[i] - previous_px_[i];
+      if (!back_status[i] || !(static_cast<double>(d.dot(d)) <= fb2)) continue;
+    }
     kept_keyframe.push_back(keyframe_px_[i]);
     kept_previous.push_back(p);
     kept_step.push_back(p - previous_px_[i]);

@@ -123,6 +123,7 @@ void visitOdometry(V& v, O& o) {
     k("window_px", o.klt.window_px);
     k("pyramid_levels", o.klt.pyramid_levels);
     k("max_error", o.klt.max_error);
+    k("max_forward_backward_px", o.klt.max_forward_backward_px);
     k("min_tracks", o.klt.min_tracks);
   });
 }

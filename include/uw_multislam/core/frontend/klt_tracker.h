@@ -32,6 +32,11 @@ struct KltOptions {
   /// A track is dropped when its LK error (mean absolute difference of the window, grey
   /// levels) exceeds this, or when it leaves the image.
   double max_error = 30.0;
+  /// Forward-backward check (Kalal et al. 2010): each track is followed back from the new frame to
+  /// the previous one and dropped when it lands more than this many pixels from where it started
+  /// (0: no check). On repetitive texture LK can lock every track onto one wrong displacement,
+  /// which RANSAC would take as a consistent motion (README, front-end options).
+  double max_forward_backward_px = 1.0;
   /// Fewer surviving tracks than this: tracking is degraded, the frame is extracted.
   int min_tracks = 40;
 
