@@ -111,6 +111,7 @@ void BackendNodelet::onInit() {
   split_srv_ = nh.advertiseService(topics::kSplitSessionService, &BackendNodelet::onSplit, this);
   list_srv_ = nh.advertiseService(topics::kListSessionsService, &BackendNodelet::onList, this);
   start_srv_ = nh.advertiseService(topics::kStartSessionService, &BackendNodelet::onStart, this);
+  finish_srv_ = nh.advertiseService(topics::kFinishSessionService, &BackendNodelet::onFinish, this);
   reload_srv_ = nh.advertiseService(topics::kReloadSessionService, &BackendNodelet::onReload, this);
   export_srv_ = nh.advertiseService(topics::kExportService, &BackendNodelet::onExport, this);
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
@@ -319,6 +320,28 @@ bool BackendNodelet::onStart(uw_multislam::StartSession::Request& req, uw_multis
   announceNextSession();
   NODELET_INFO("back-end: start_session: session %d '%s' started; the odometry's next keyframe is its origin", id,
                manager_->name(id).c_str());
+  publishAll(true);
+  return true;
+}
+
+bool BackendNodelet::onFinish(uw_multislam::FinishSession::Request&, uw_multislam::FinishSession::Response& res) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  const int id = manager_->activeSession();
+  const core::Status st = manager_->endSession(ros::Time::now().toSec());
+  res.status = rc::toStatusMsg(st);
+  res.session = st.ok() ? id : -1;
+  if (!st.ok()) return true;
+  queue_->pushPriority(Message());  // the ended session's map may be due
+  // No session records now: the odometry drops frames until start_session or resume, then
+  // starts the session with the next id.
+  uw_multislam::SessionState next;
+  next.session = manager_->nextId();
+  next.name = core::defaultSessionName(next.session);
+  next.state = uw_multislam::SessionState::FINISHED;
+  next.map = next.session;
+  active_pub_.publish(next);
+  NODELET_INFO("back-end: finish_session: session %d '%s' finished; the odometry waits for start_session or resume",
+               id, manager_->name(id).c_str());
   publishAll(true);
   return true;
 }

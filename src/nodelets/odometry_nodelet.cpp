@@ -381,6 +381,7 @@ bool OdometryNodelet::setPaused(bool paused, uw_multislam::OperatorCommand::Resp
     res->status.message = paused ? "the odometry is already paused (call resume)" : "the odometry is not paused";
   } else {
     paused_ = paused;
+    paused_by_finish_ = false;
     res->status.code = uw_multislam::Status::OK;
     NODELET_INFO("odometry: %s (%ld frames dropped while paused so far)",
                  paused ? "paused by the operator: frames are dropped until resume" : "resumed", dropped_paused_.load());
@@ -396,8 +397,22 @@ void OdometryNodelet::onActiveSession(const uw_multislam::SessionStateConstPtr& 
                           core::kMaxSessionId);
     return;
   }
-  std::lock_guard<std::mutex> lock(session_mutex_);
-  requested_session_ = msg->session;
+  {
+    std::lock_guard<std::mutex> lock(session_mutex_);
+    requested_session_ = msg->session;
+  }
+  std::lock_guard<std::mutex> lock(pause_mutex_);
+  if (msg->state == uw_multislam::SessionState::FINISHED) {
+    // finish_session: no session records; frames are dropped until start_session or resume.
+    paused_ = true;
+    paused_by_finish_ = true;
+    NODELET_INFO("odometry: the session was finished: frames are dropped until start_session or resume (then "
+                 "session %d starts)", msg->session);
+  } else if (paused_by_finish_) {
+    paused_ = false;
+    paused_by_finish_ = false;
+    NODELET_INFO("odometry: session %d requested after finish_session: frames are processed again", msg->session);
+  }
 }
 
 void OdometryNodelet::work() {

@@ -7,6 +7,7 @@
     sessions.py split S
     sessions.py start [NAME]
     sessions.py reload NAME               (a stored session's name or id, back into memory)
+    sessions.py finish                    (ends the recording session; none starts until start or resume)
     sessions.py pause                     (the odometry drops frames, counted, until resume)
     sessions.py resume
 
@@ -22,7 +23,8 @@ try:
     import rosgraph
     import rospy
     from uw_multislam.msg import SessionState, Status
-    from uw_multislam.srv import JoinSessions, ListSessions, OperatorCommand, ReloadSession, SplitSession, StartSession
+    from uw_multislam.srv import (FinishSession, JoinSessions, ListSessions, OperatorCommand, ReloadSession, SplitSession,
+                                  StartSession)
     ROS_IMPORT_ERROR = None
 except ImportError as e:
     ROS_IMPORT_ERROR = e
@@ -39,7 +41,7 @@ def status_text(status):
 
 # command -> (fewest, most) arguments
 ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1), "pause": (0, 0),
-         "resume": (0, 0)}
+         "resume": (0, 0), "finish": (0, 0)}
 
 
 def call_service(ns, name, kind, *request, timeout=30.0):
@@ -92,6 +94,10 @@ def main():
             res = call(args.ns, "reload_session", ReloadSession, name)
             print("reload_session '%s' -> %s%s" % (name, status_text(res.status),
                                                   ", session %d" % res.session if res.status.code == Status.OK else ""))
+        elif args.command == "finish":
+            res = call(args.ns, "finish_session", FinishSession)
+            print("finish_session -> %s%s" % (status_text(res.status),
+                                               ", session %d" % res.session if res.status.code == Status.OK else ""))
         elif args.command in ("pause", "resume"):
             res = call(args.ns, args.command, OperatorCommand)
             print("%s -> %s, %s, %d frames dropped while paused" % (

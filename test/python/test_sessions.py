@@ -33,6 +33,7 @@ def run(*args):
     (["rename", "0"], "invalid choice: 'rename'"),
     (["pause", "now"], "pause takes 0 argument(s), got 1"),
     (["resume", "1"], "resume takes 0 argument(s), got 1"),
+    (["finish", "0"], "finish takes 0 argument(s), got 1"),
 ])
 def test_wrong_arguments_exit_2_with_the_reason(args, why):
     res = run(*args)
@@ -41,7 +42,7 @@ def test_wrong_arguments_exit_2_with_the_reason(args, why):
     assert res.stdout == ""
 
 
-@pytest.mark.parametrize("args", [["reload", "yesterday"], ["list"], ["join", "0", "1"], ["pause"], ["resume"]])
+@pytest.mark.parametrize("args", [["reload", "yesterday"], ["list"], ["join", "0", "1"], ["pause"], ["resume"], ["finish"]])
 def test_no_master_exits_1_naming_it(args):
     res = run("--timeout", "1", *args)
     assert res.returncode == 1, res

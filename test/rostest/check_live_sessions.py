@@ -18,6 +18,9 @@ pause          The operator's pause / resume (issue 16, item 4) on the odometry:
                paused are dropped and counted (no pose, no keyframe), the session goes on after
                resume (one session, no time jump, no tracking loss); pause while paused and resume
                while running are refused with FAILED_PRECONDITION and change nothing.
+finish         finish_session on the same mission: session 0 FINISHED with every keyframe sent
+               before it, frames dropped until resume, the first frame after resume the origin of
+               session 1; a second finish_session is refused (nothing records).
 """
 import csv
 import math
@@ -38,7 +41,7 @@ from sensor_msgs.msg import CameraInfo, Image, Range
 from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, diagnostic_values, make_mission,
                               vehicle_from_camera, wait_for_subscribers)
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
-from uw_multislam.srv import ListSessions, OperatorCommand, StartSession
+from uw_multislam.srv import FinishSession, ListSessions, OperatorCommand, StartSession
 
 PLAY_RATE = 4.0  # frames per second: far below the odometry's speed on 240 x 180 images
 KEYFRAMES_BEFORE_START = 4  # session 0's keyframes received before start_session is called
@@ -96,7 +99,7 @@ class LiveSessionsTest(unittest.TestCase):
         wait_for_subscribers(SENSOR_TOPICS + [NS + "/keyframes"], "/check_live_sessions")
         if cls.case == "tracking_loss":
             cls.tmp, cls.mission = make_mission("uwms_live_sessions_", LOST)
-        elif cls.case == "pause":
+        elif cls.case in ("pause", "finish"):
             cls.tmp, cls.mission = make_mission("uwms_live_sessions_", PAUSE_MISSION)
         else:
             cls.tmp, cls.mission = make_mission("uwms_live_sessions_")
@@ -135,6 +138,8 @@ class LiveSessionsTest(unittest.TestCase):
             self.tracking_loss_gives_two_sessions_that_global_loops_join()
         elif self.case == "pause":
             self.pause_drops_frames_and_the_session_goes_on()
+        elif self.case == "finish":
+            self.finish_session_ends_it_and_resume_starts_the_next()
         else:
             self.fail("unknown ~case %r" % self.case)
 
@@ -225,7 +230,10 @@ class LiveSessionsTest(unittest.TestCase):
                   len(global_loops), worst))
         self.assertLess(worst, JOINED_TOLERANCE_M)
 
-    def pause_drops_frames_and_the_session_goes_on(self):
+    def frame_by_frame(self):
+        """Subscriptions to odometry/pose and the odometry's /diagnostics, publishers of the sensor
+        topics, the mission's frames; and send(i, dropped): frame i published and awaited, by its
+        pose, or (dropped = the paused count it must make) by the odometry's frames_dropped_paused."""
         poses, status = [], {}
 
         def on_diag(msg):
@@ -246,6 +254,36 @@ class LiveSessionsTest(unittest.TestCase):
                 frames.setdefault(msg.header.stamp.to_nsec(), {})[topic] = msg
         frames = [[f[t] for t in SENSOR_TOPICS] for _, f in sorted(frames.items()) if len(f) == 3]
         self.assertGreater(len(frames), PAUSED.stop + 5)
+
+        def send(i, dropped=None):
+            image, info, altitude = frames[i]
+            pubs[2].publish(altitude)
+            pubs[1].publish(info)
+            pubs[0].publish(image)
+            stamp = image.header.stamp
+            if dropped is not None:
+                await_condition(self.lock, lambda: status.get("frames_dropped_paused") == dropped and
+                                status.get("frames_finished") == i + 1, 30, "frame %d dropped while paused" % i,
+                                lambda: ": %s" % status)
+                with self.lock:
+                    self.assertEqual(status.get("paused"), 1.0)
+            else:
+                await_condition(self.lock, lambda: any(p.header.stamp == stamp for p in poses), 30,
+                                "the odometry pose of frame %d" % i, lambda: ": %d poses" % len(poses))
+
+        def finished():
+            await_condition(self.lock, lambda: status.get("frames_finished") == len(frames) and
+                            status.get("keyframes") == len(self.keyframes), 30, "the last frame finished",
+                            lambda: ": %s" % status)
+            for s in subs:
+                s.unregister()
+            with self.lock:
+                return dict(status), [p.header.stamp for p in poses], list(self.keyframes)
+
+        return frames, send, finished
+
+    def pause_drops_frames_and_the_session_goes_on(self):
+        frames, send, finished = self.frame_by_frame()
         rospy.wait_for_service(NS + "/pause", timeout=30)
         pause = rospy.ServiceProxy(NS + "/pause", OperatorCommand)
         resume = rospy.ServiceProxy(NS + "/resume", OperatorCommand)
@@ -255,11 +293,7 @@ class LiveSessionsTest(unittest.TestCase):
         self.assertIn("not paused", r.status.message)
         self.assertFalse(r.paused)
         self.assertEqual(r.frames_dropped_paused, 0)
-
-        def dropped():
-            return status.get("frames_dropped_paused", -1)
-
-        for i, (image, info, altitude) in enumerate(frames):
+        for i in range(len(frames)):
             if i == PAUSED.start:
                 r = pause()
                 self.assertEqual(r.status.code, Status.OK, r.status.message)
@@ -273,28 +307,8 @@ class LiveSessionsTest(unittest.TestCase):
                 self.assertEqual(r.status.code, Status.OK, r.status.message)
                 self.assertFalse(r.paused)
                 self.assertEqual(r.frames_dropped_paused, len(PAUSED))
-            pubs[2].publish(altitude)
-            pubs[1].publish(info)
-            pubs[0].publish(image)
-            stamp = image.header.stamp
-            if i in PAUSED:
-                n = i - PAUSED.start + 1
-                await_condition(self.lock, lambda: dropped() == n and status.get("frames_finished") == i + 1, 30,
-                                "frame %d dropped while paused" % i, lambda: ": %s" % status)
-                with self.lock:
-                    self.assertEqual(status.get("paused"), 1.0)
-            else:
-                await_condition(self.lock, lambda: any(p.header.stamp == stamp for p in poses), 30,
-                                "the odometry pose of frame %d" % i, lambda: ": %d poses" % len(poses))
-        await_condition(self.lock, lambda: status.get("frames_finished") == len(frames) and
-                        status.get("keyframes") == len(self.keyframes), 30, "the last frame finished",
-                        lambda: ": %s" % status)
-        for s in subs:
-            s.unregister()
-        with self.lock:
-            final = dict(status)
-            stamps = [p.header.stamp for p in poses]
-            keyframes = list(self.keyframes)
+            send(i, i - PAUSED.start + 1 if i in PAUSED else None)
+        final, stamps, keyframes = finished()
         paused = {frames[i][0].header.stamp for i in PAUSED}
         self.assertEqual(len(stamps), len(frames) - len(PAUSED), "a pose for every frame not paused")
         self.assertFalse(paused & set(stamps), "no pose for a paused frame")
@@ -312,6 +326,50 @@ class LiveSessionsTest(unittest.TestCase):
         print("pause: %d frames, %d dropped while paused (frames %d-%d), %d poses, %d keyframes, one session" % (
             len(frames), final["frames_dropped_paused"], PAUSED.start, PAUSED.stop - 1, len(stamps), len(keyframes)))
 
+    def finish_session_ends_it_and_resume_starts_the_next(self):
+        frames, send, finished = self.frame_by_frame()
+        rospy.wait_for_service(NS + "/finish_session", timeout=30)
+        finish = rospy.ServiceProxy(NS + "/finish_session", FinishSession)
+        resume = rospy.ServiceProxy(NS + "/resume", OperatorCommand)
+        for i in range(len(frames)):
+            if i == PAUSED.start:
+                # The back-end holds every keyframe sent so far (one in flight when finish_session is
+                # answered would be skipped as stale: README, finish_session).
+                self.await_listed(lambda l: sorted(l) == [0] and l[0].num_keyframes == len(self.keyframes) > 0, 30,
+                                  "the back-end to hold every keyframe of session 0 sent so far")
+                with self.lock:
+                    sent = len(self.keyframes)
+                r = finish()
+                self.assertEqual(r.status.code, Status.OK, r.status.message)
+                self.assertEqual(r.session, 0)
+                again = finish()  # called wrong: nothing records now; nothing changes
+                self.assertEqual(again.status.code, Status.FAILED_PRECONDITION)
+                self.assertIn("no session is recording", again.status.message)
+                self.assertEqual(again.session, -1)
+                listed = self.sessions()
+                self.assertEqual(sorted(listed), [0])
+                self.assertEqual(listed[0].state, SessionState.FINISHED)
+            if i == PAUSED.stop:
+                r = resume()
+                self.assertEqual(r.status.code, Status.OK, r.status.message)
+            send(i, i - PAUSED.start + 1 if i in PAUSED else None)
+        final, stamps, keyframes = finished()
+        before = len([k for k in keyframes if k.session == 0])
+        self.assertEqual(before, sent)
+        first = keyframes[before]
+        self.assertEqual([k.session for k in keyframes], [0] * before + [1] * (len(keyframes) - before))
+        self.assertEqual((first.session, first.keyframe, first.status), (1, 0, Keyframe.FIRST))
+        self.assertEqual(first.header.stamp, frames[PAUSED.stop][0].header.stamp, "the first frame after resume")
+        self.assertEqual(final["frames_dropped_paused"], len(PAUSED))
+        self.assertEqual(len(stamps), len(frames) - len(PAUSED))
+        listed = self.await_listed(lambda l: sorted(l) == [0, 1] and l[1].num_keyframes == len(keyframes) - before,
+                                   30, "session 1 with every keyframe after resume")
+        self.assertEqual(listed[0].num_keyframes, before, "session 0 kept every keyframe sent before finish")
+        self.assertEqual(listed[0].state, SessionState.FINISHED)
+        self.assertEqual(listed[1].state, SessionState.ACTIVE)
+        print("finish_session after frame %d: session 0 FINISHED with %d keyframes, %d frames dropped, session 1 "
+              "from frame %d with %d keyframes" % (PAUSED.start - 1, before, final["frames_dropped_paused"],
+                                                   PAUSED.stop, len(keyframes) - before))
 
 if __name__ == "__main__":
     rospy.init_node("check_live_sessions")

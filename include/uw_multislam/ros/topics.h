@@ -52,7 +52,9 @@ constexpr char kKeyframeHashes[] = "keyframe_hashes";
 /// from the odometry motions of the Keyframe messages.
 constexpr char kSessionTrajectory[] = "session_trajectory";
 /// uw_multislam/SessionState, latched: the session keyframes go to now. When its id differs
-/// from the odometry's current one, the odometry closes its session and starts this one.
+/// from the odometry's current one, the odometry closes its session and starts this one. State
+/// FINISHED (after finish_session): no session records; the odometry drops frames (as paused)
+/// until an ACTIVE one or resume, then starts the session with this id.
 constexpr char kActiveSession[] = "active_session";
 /// Suggested names for the back-end's outputs (one place, so rviz and launch files agree):
 /// nav_msgs/Path per session "paths/session_<id>", visualization_msgs/MarkerArray of loops and
@@ -82,6 +84,7 @@ constexpr char kSplitSessionService[] = "split_session";
 constexpr char kReloadSessionService[] = "reload_session";
 constexpr char kListSessionsService[] = "list_sessions";
 constexpr char kStartSessionService[] = "start_session";
+constexpr char kFinishSessionService[] = "finish_session";
 constexpr char kExportService[] = "export";
 // --- Services of the odometry (uw_multislam/srv/OperatorCommand) ---------------------------------
 /// Frames are dropped (counted, their stamps seen: no time gap) until resume; the session goes on.

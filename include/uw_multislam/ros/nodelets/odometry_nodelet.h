@@ -242,7 +242,8 @@ class OdometryNodelet : public nodelet::Nodelet {
   // Paused by the operator: the worker drops each frame (counted, its stamp passed over).
   std::atomic<bool> paused_{false};
   std::atomic<long> dropped_paused_{0};
-  std::mutex pause_mutex_;  // serialises pause / resume calls
+  std::mutex pause_mutex_;  // serialises pause / resume calls and finish_session's pause
+  bool paused_by_finish_ = false;  // guarded by pause_mutex_: an ACTIVE active_session resumes
 
   // Pairing state, written by the callbacks under pairing_mutex_.
   std::mutex pairing_mutex_;
