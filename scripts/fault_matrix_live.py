@@ -486,9 +486,9 @@ def case_bad_images(st, survey):
         observed, held)
 
 
-class OdometryStatus:
-    """The odometry's (or another node's, by its status name) latest /diagnostics values (published
-    every diagnostic period) and how many arrived."""
+class NodeStatus:
+    """A node's latest /diagnostics values (the odometry's unless another status name suffix is
+    given; published every diagnostic period) and how many arrived."""
 
     def __init__(self, suffix=": odometry"):
         import rospy
@@ -534,6 +534,23 @@ def sensor_publishers():
     return pubs
 
 
+def publishing_frames(st, survey, *launch_args):
+    """slam.launch (nodelets in one manager) for a case that publishes bag a's frames itself: this
+    process's node, the odometry's status, the sensor publishers (connected), the frames, the
+    manager's pid and RSS, and the odometry's counters before anything is sent."""
+    st.start_slam("standalone:=false", *launch_args)
+    import rospy
+    rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
+    odo = NodeStatus()
+    pubs = sensor_publishers()
+    wait_for(lambda: odo.latest, 30, 0.1)
+    frames = bag_frames(survey, "a.bag")
+    pid = st.manager_pid()
+    rss0 = rss_mb(pid)
+    odo.fresh()
+    return odo, pubs, frames, pid, rss0, dict(odo.latest)
+
+
 def stored_as_published(st, odo, timeout=60):
     """Until the back-end lists as many keyframes as the odometry says it published (both polled)."""
     def same():
@@ -549,7 +566,7 @@ def case_replay_rates(st, survey):
     st.start_slam("standalone:=false")
     import rospy
     rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
-    odo = OdometryStatus()
+    odo = NodeStatus()
     wait_for(lambda: odo.latest, 30, 0.1)
     pid = st.manager_pid()
     for rate in (10, 20):
@@ -583,18 +600,8 @@ def case_replay_rates(st, survey):
 def case_silent_altitude(st, survey, silent=range(6, 14)):
     """The survey's bag a published frame by frame (5 per second, stamps 1 s apart as recorded),
     the altitude topic silent for frames 6-13 (8 s of stamps, beyond altitude_max_age_s)."""
-    st.start_slam("standalone:=false")
     import copy
-    import rospy
-    rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
-    odo = OdometryStatus()
-    pubs = sensor_publishers()
-    wait_for(lambda: odo.latest, 30, 0.1)
-    frames = bag_frames(survey, "a.bag")
-    pid = st.manager_pid()
-    rss0 = rss_mb(pid)
-    odo.fresh()
-    before = dict(odo.latest)
+    odo, pubs, frames, pid, rss0, before = publishing_frames(st, survey)
     for k, (image, info, rng) in enumerate(frames):
         image, info, rng = copy.deepcopy(image), copy.deepcopy(info), copy.deepcopy(rng)
         pubs[1].publish(info)
@@ -631,19 +638,10 @@ def case_burst(st, survey, n=1000):
     them is a gap in the stamps the node cannot tell from an outage (a CI run with the default lost
     117 of the 1000 images there and started 3 sessions). What the case holds the node to is its
     own drops: its frame queue (queue_size 5) and its pairing must never start a session."""
-    st.start_slam("standalone:=false",
-                  "config:=" + config_with(st, "burst.yaml", {"odometry_node": {"sync_queue_size": n}}))
     import copy
     import rospy
-    rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
-    odo = OdometryStatus()
-    pubs = sensor_publishers()
-    wait_for(lambda: odo.latest, 30, 0.1)
-    frames = bag_frames(survey, "a.bag")
-    pid = st.manager_pid()
-    rss0 = rss_mb(pid)
-    odo.fresh()
-    before = dict(odo.latest)
+    odo, pubs, frames, pid, rss0, before = publishing_frames(
+        st, survey, "config:=" + config_with(st, "burst.yaml", {"odometry_node": {"sync_queue_size": n}}))
     t = frames[0][0].header.stamp.to_sec()
     t0 = time.monotonic()
     for k in range(n):
@@ -715,7 +713,7 @@ def case_store_cap(st, survey, room_kb=64):
     st.start_slam("standalone:=false", "config:=" + capped)
     import rospy
     rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
-    backend = OdometryStatus(": backend")
+    backend = NodeStatus(": backend")
     wait_for(lambda: backend.latest, 30, 0.1)
     pid = st.manager_pid()
     rss0 = rss_mb(pid)

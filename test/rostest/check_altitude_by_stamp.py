@@ -15,13 +15,12 @@ import threading
 import time
 import unittest
 
-import rosbag
 import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, diagnostic_values, make_mission,
-                              wait_for_subscribers)
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, diagnostic_values,
+                              make_mission, wait_for_subscribers)
 from sensor_msgs.msg import CameraInfo, Image, Range
 from uw_multislam.msg import Keyframe
 
@@ -48,7 +47,7 @@ class AltitudeByStampTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.tmp, out = make_mission("uwms_altitude_", SURVEY, timeout=180)
-        cls.frames = cls.read_bag(os.path.join(out, "s0.bag"))[:N_IMAGES]
+        cls.frames = bag_frames(os.path.join(out, "s0.bag"))[:N_IMAGES]
         assert len(cls.frames) == N_IMAGES, len(cls.frames)
 
         cls.lock = threading.Lock()
@@ -107,14 +106,6 @@ class AltitudeByStampTest(unittest.TestCase):
     def await_condition(cls, condition, timeout, what):
         await_condition(cls.lock, condition, timeout, what, lambda: "; last odometry status %s" % (
             diagnostic_values(cls.statuses[-1]) if cls.statuses else None))
-
-    @staticmethod
-    def read_bag(path):
-        by_stamp = {}
-        with rosbag.Bag(path) as bag:
-            for topic, msg, _ in bag.read_messages(topics=SENSOR_TOPICS):
-                by_stamp.setdefault(msg.header.stamp.to_nsec(), {})[topic] = msg
-        return [tuple(f[t] for t in SENSOR_TOPICS) for _, f in sorted(by_stamp.items()) if len(f) == 3]
 
     def interpolated(self, stamp):
         r = self.readings

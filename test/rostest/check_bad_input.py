@@ -28,11 +28,10 @@ import time
 import unittest
 
 import numpy as np
-import rosbag
 import rosgraph
 import rospy
 import rostest
-from pipeline_fixture import NS, appender, diagnostic_values, make_mission
+from pipeline_fixture import NS, appender, bag_frames, diagnostic_values, make_mission
 import rosnode
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped
@@ -61,7 +60,7 @@ class BadInputTest(unittest.TestCase):
     def setUpClass(cls):
         cls.fallback = float(rospy.get_param("~fallback_altitude", 0.0))
         cls.tmp, out = make_mission("uwms_bad_input_")
-        cls.frames = cls.read_bag(os.path.join(out, "s0.bag"))
+        cls.frames = bag_frames(os.path.join(out, "s0.bag"))
         assert len(cls.frames) >= 20, len(cls.frames)
 
         cls.lock = threading.Lock()
@@ -90,19 +89,6 @@ class BadInputTest(unittest.TestCase):
     @classmethod
     def tearDownClass(cls):
         shutil.rmtree(cls.tmp, ignore_errors=True)
-
-    @staticmethod
-    def read_bag(path):
-        by_stamp = {}
-        with rosbag.Bag(path) as bag:
-            for topic, msg, _ in bag.read_messages(topics=["/camera/image_raw", "/camera/camera_info", "/altitude"]):
-                by_stamp.setdefault(msg.header.stamp.to_nsec(), {})[topic] = msg
-        frames = []
-        for stamp in sorted(by_stamp):
-            f = by_stamp[stamp]
-            if len(f) == 3:
-                frames.append((f["/camera/image_raw"], f["/camera/camera_info"], f["/altitude"]))
-        return frames
 
     @classmethod
     def wait_for_pipeline(cls, timeout=60.0):

@@ -21,13 +21,13 @@ import threading
 import time
 import unittest
 
-import rosbag
 import rospy
 import rostest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from pipeline_fixture import appender, await_condition, diagnostic_values, make_mission, tool, wait_for_subscribers
+from pipeline_fixture import (appender, await_condition, bag_frames, diagnostic_values, make_mission, tool,
+                              wait_for_subscribers)
 from sensor_msgs.msg import CameraInfo, Image, Range
 
 SURVEY = """
@@ -49,14 +49,6 @@ RATE_HZ = 10.0
 SAME_WITHIN_M = 0.001  # the must-show: the distorted runs within 1 mm ATE of the pinhole run
 
 
-def read_bag(path):
-    by_stamp = {}
-    with rosbag.Bag(path) as bag:
-        for topic, msg, _ in bag.read_messages(topics=BAG_TOPICS):
-            by_stamp.setdefault(msg.header.stamp.to_nsec(), {})[topic] = msg
-    return [tuple(f[t] for t in BAG_TOPICS) for _, f in sorted(by_stamp.items()) if len(f) == 3]
-
-
 def ground_truth(folder, frames):
     """Image stamp (ns) -> (x, y) of gt.csv: the bag's frames in order are frames.csv's rows."""
     with open(os.path.join(folder, "gt.csv")) as f:
@@ -73,7 +65,7 @@ class CameraModelTest(unittest.TestCase):
         subprocess.run([tool("make_survey"), "--config", os.path.join(cls.tmp, "survey.yaml"), "--out", distorted,
                         "--distortion", DISTORTION, "--quiet"], check=True, timeout=180)
         cls.missions = {"pinhole": pinhole, "distorted": distorted}
-        cls.frames = {m: read_bag(os.path.join(d, "s0.bag")) for m, d in cls.missions.items()}
+        cls.frames = {m: bag_frames(os.path.join(d, "s0.bag")) for m, d in cls.missions.items()}
         cls.gt = ground_truth(os.path.join(pinhole, "s0"), cls.frames["pinhole"])
         assert len(cls.frames["pinhole"]) == len(cls.frames["distorted"]) == len(cls.gt) > 20
 

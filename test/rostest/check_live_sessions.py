@@ -31,15 +31,14 @@ import threading
 import time
 import unittest
 
-import rosbag
 import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Path
 from sensor_msgs.msg import CameraInfo, Image, Range
-from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, diagnostic_values, make_mission,
-                              vehicle_from_camera, wait_for_subscribers)
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, diagnostic_values,
+                              make_mission, vehicle_from_camera, wait_for_subscribers)
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
 from uw_multislam.srv import FinishSession, ListSessions, OperatorCommand, StartSession
 
@@ -248,11 +247,7 @@ class LiveSessionsTest(unittest.TestCase):
         pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(SENSOR_TOPICS, (Image, CameraInfo, Range))]
         await_condition(self.lock, lambda: all(p.get_num_connections() > 0 for p in pubs) and status, 30,
                         "the odometry's subscriptions and diagnostics")
-        frames = {}
-        with rosbag.Bag(os.path.join(self.mission, "a.bag")) as bag:
-            for topic, msg, _ in bag.read_messages(topics=SENSOR_TOPICS):
-                frames.setdefault(msg.header.stamp.to_nsec(), {})[topic] = msg
-        frames = [[f[t] for t in SENSOR_TOPICS] for _, f in sorted(frames.items()) if len(f) == 3]
+        frames = bag_frames(os.path.join(self.mission, "a.bag"))
         self.assertGreater(len(frames), PAUSED.stop + 5)
 
         def send(i, dropped=None):
