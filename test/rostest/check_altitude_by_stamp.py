@@ -19,7 +19,7 @@ import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, diagnostic_values,
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, connected, diagnostic_values,
                               make_mission, wait_for_subscribers)
 from sensor_msgs.msg import CameraInfo, Image, Range
 from uw_multislam.msg import Keyframe
@@ -63,7 +63,7 @@ class AltitudeByStampTest(unittest.TestCase):
                     rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
         cls.pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(SENSOR_TOPICS, (Image, CameraInfo, Range))]
         wait_for_subscribers(SENSOR_TOPICS, "/check_altitude_by_stamp")
-        cls.await_condition(lambda: all(p.get_num_connections() > 0 for p in cls.pubs), 30.0, "publisher connections")
+        cls.await_condition(lambda: connected(cls.pubs), 30.0, "publisher connections")
 
         # Publish: images + camera_info at 10 Hz, the altitude with every 5th image.
         cls.readings = []  # (stamp s, altitude m) as sent

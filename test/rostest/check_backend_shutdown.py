@@ -25,32 +25,11 @@ import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose2D
-from pipeline_fixture import tool
+from pipeline_fixture import connected, synthetic_keyframe, tool
 from uw_multislam.msg import Keyframe, Loop
 
 NS = "/shutdown_test"
 FEATURES = 300
-
-
-def keyframe(k):
-    m = Keyframe()
-    m.header.stamp = rospy.Time(1000 + k)
-    m.header.frame_id = "camera"
-    m.session, m.keyframe, m.frame_index, m.altitude_m = 0, k, k, 2.0
-    m.width, m.height, m.fx, m.fy, m.cx, m.cy = 320, 240, 300.0, 300.0, 159.5, 119.5
-    m.u_px = [float((7 * i) % 320) for i in range(FEATURES)]
-    m.v_px = [float((13 * i) % 240) for i in range(FEATURES)]
-    m.response = [float(FEATURES - i) for i in range(FEATURES)]
-    m.descriptor_size = 128
-    m.descriptors = os.urandom(128 * FEATURES)
-    m.odometry_pose = Pose2D(0.5 * k, 0.0, 0.0)
-    if k > 0:
-        m.motion = Pose2D(0.5, 0.0, 0.0)
-        m.motion_covariance = [1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-4]
-        m.status, m.matches, m.inliers, m.overlap, m.scale = Keyframe.MATCHED, 200, 150, 0.8, 1.0
-    else:
-        m.status, m.scale = Keyframe.FIRST, 1.0
-    return m
 
 
 def loop(k):
@@ -96,12 +75,11 @@ class BackendShutdownTest(unittest.TestCase):
         try:
             kf_pub, loop_pub = self.kf_pub, self.loop_pub
             deadline = time.time() + 60
-            while time.time() < deadline and (kf_pub.get_num_connections() == 0 or loop_pub.get_num_connections() == 0):
+            while time.time() < deadline and not connected([kf_pub, loop_pub]):
                 time.sleep(0.1)
-            self.assertGreater(kf_pub.get_num_connections(), 0, "the back-end never subscribed")
-            time.sleep(1.0)  # both connections up before the first message
+            self.assertTrue(connected([kf_pub, loop_pub]), "the back-end never subscribed")
             for k in range(n):
-                kf_pub.publish(keyframe(k))
+                kf_pub.publish(synthetic_keyframe(0, k, FEATURES))
                 if k >= 2:
                     loop_pub.publish(loop(k))
             expected = n + (n - 2)

@@ -31,7 +31,7 @@ import numpy as np
 import rosgraph
 import rospy
 import rostest
-from pipeline_fixture import NS, appender, bag_frames, diagnostic_values, make_mission
+from pipeline_fixture import NS, appender, bag_frames, connected, diagnostic_values, make_mission
 import rosnode
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped
@@ -98,8 +98,7 @@ class BadInputTest(unittest.TestCase):
         while time.time() < deadline:
             _, subscribers, _ = master.getSystemState()
             subscribed = {topic: nodes for topic, nodes in subscribers}
-            if all(subscribed.get(t) for t in wanted) and all(p.get_num_connections() > 0 for p in cls.pubs):
-                time.sleep(1.0)
+            if all(subscribed.get(t) for t in wanted) and connected(cls.pubs):
                 return
             time.sleep(0.5)
         raise AssertionError("the odometry did not subscribe to %s within %.0f s" % (wanted, timeout))

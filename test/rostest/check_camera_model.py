@@ -26,7 +26,7 @@ import rostest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from pipeline_fixture import (appender, await_condition, bag_frames, diagnostic_values, make_mission, tool,
+from pipeline_fixture import (appender, await_condition, bag_frames, connected, diagnostic_values, make_mission, tool,
                               wait_for_subscribers)
 from sensor_msgs.msg import CameraInfo, Image, Range
 
@@ -87,8 +87,8 @@ class CameraModelTest(unittest.TestCase):
         cls.pubs = {run: [rospy.Publisher("/%s%s" % (run, t), m, queue_size=100)
                           for t, m in zip(BAG_TOPICS, (Image, CameraInfo, Range))] for run in RUNS}
         wait_for_subscribers(["/%s%s" % (run, t) for run in RUNS for t in BAG_TOPICS], "/check_camera_model")
-        cls.await_condition(lambda: all(p.get_num_connections() > 0 for run in RUNS for p in cls.pubs[run]
-                                        if RUNS[run][1] or not p.name.endswith("camera_info")),
+        cls.await_condition(lambda: connected([p for run in RUNS for p in cls.pubs[run]
+                                               if RUNS[run][1] or not p.name.endswith("camera_info")]),
                             30.0, "publisher connections")
 
         n = len(cls.gt)

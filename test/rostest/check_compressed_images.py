@@ -25,7 +25,7 @@ import rosgraph
 import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
-from pipeline_fixture import NS, appender, diagnostic_values, make_mission, tool, wait_for_subscribers
+from pipeline_fixture import NS, appender, connected, diagnostic_values, make_mission, tool, wait_for_subscribers
 from sensor_msgs.msg import CameraInfo, CompressedImage, Range
 from uw_multislam.msg import Keyframe
 
@@ -135,7 +135,7 @@ class CompressedImagesTest(unittest.TestCase):
         pubs = {t: rospy.Publisher(t, m, queue_size=10) for t, m in
                 zip(SENSOR_TOPICS, (CompressedImage, CameraInfo, Range))}
         deadline = time.time() + 30
-        while any(p.get_num_connections() == 0 for p in pubs.values()):
+        while not connected(pubs.values()):
             if time.time() > deadline:
                 raise AssertionError("no connection to the odometry's subscriptions")
             time.sleep(0.1)

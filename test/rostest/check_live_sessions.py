@@ -37,7 +37,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Path
 from sensor_msgs.msg import CameraInfo, Image, Range
-from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, diagnostic_values,
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, connected, diagnostic_values,
                               make_mission, vehicle_from_camera, wait_for_subscribers)
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
 from uw_multislam.srv import FinishSession, ListSessions, OperatorCommand, StartSession
@@ -245,7 +245,7 @@ class LiveSessionsTest(unittest.TestCase):
                                  queue_size=1000),
                 rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)]
         pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(SENSOR_TOPICS, (Image, CameraInfo, Range))]
-        await_condition(self.lock, lambda: all(p.get_num_connections() > 0 for p in pubs) and status, 30,
+        await_condition(self.lock, lambda: connected(pubs) and status, 30,
                         "the odometry's subscriptions and diagnostics")
         frames = bag_frames(os.path.join(self.mission, "a.bag"))
         self.assertGreater(len(frames), PAUSED.stop + 5)

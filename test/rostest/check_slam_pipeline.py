@@ -25,7 +25,8 @@ import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from pipeline_fixture import (NS, SENSOR_TOPICS, SURVEY, chain_covariance, diagnostic_values, make_mission, matmul3,
-                              planar_covariance, tool, vehicle_from_camera, wait_for_subscribers, wait_until_quiet)
+                              planar_covariance, tool, vehicle_from_camera, wait_for_subscribers, wait_until_quiet,
+                              connected)
 import rosnode
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
@@ -272,7 +273,7 @@ class SlamPipelineTest(unittest.TestCase):
         pubs = [rospy.Publisher(t, m, queue_size=10) for t, m in
                 (("/camera/image_raw", Image), ("/camera/camera_info", CameraInfo), ("/altitude", Range))]
         deadline = time.time() + 10
-        while time.time() < deadline and any(p.get_num_connections() == 0 for p in pubs):
+        while time.time() < deadline and not connected(pubs):
             time.sleep(0.2)
         with self.lock:
             poses_before, keyframes_before = len(self.poses), len(self.keyframes)

@@ -9,6 +9,8 @@ import time
 import rosgraph
 import roslib.packages
 import rospy
+from geometry_msgs.msg import Pose2D
+from uw_multislam.msg import Keyframe
 
 # Two overlapping loops (240 x 180 images); session 1's stamps start 1000 s after session 0's, so
 # the odometry starts session 1 by its stamp gap rule when the bags are played one after another.
@@ -47,6 +49,44 @@ def wait_for_subscribers(topics, caller, timeout=60.0):
             return
         time.sleep(0.5)
     raise AssertionError("the pipeline did not subscribe to %s within %.0f s" % (topics, timeout))
+
+
+def connected(publishers, caller="/rostest_connections"):
+    """True when each publisher has an open connection to every node the master lists as
+    subscribed to its topic (and there is at least one). `get_num_connections() > 0` is not
+    enough: this test node's own subscriber, or one of several pipeline nodes, may connect first;
+    and rospy keeps counting a connection to a node that has gone until a publish finds it closed.
+    A message published then is lost for the node that has not connected yet."""
+    subscribed = {t: set(nodes) for t, nodes in rosgraph.Master(caller).getSystemState()[1]}
+    for p in publishers:
+        nodes = subscribed.get(p.resolved_name, set())
+        open_to = {c.endpoint_id for c in list(p.impl.connections) if not c.done}
+        if not nodes or not nodes <= open_to:
+            return False
+    return True
+
+
+def synthetic_keyframe(session, k, features):
+    """Keyframe k of a session driven straight along x, 0.5 m per keyframe (stamp 1000 + 100 *
+    session + k s), with `features` random descriptors: for tests that feed the back-end directly."""
+    m = Keyframe()
+    m.header.stamp = rospy.Time(1000 + 100 * session + k)
+    m.header.frame_id = "camera"
+    m.session, m.keyframe, m.frame_index, m.altitude_m = session, k, k, 2.0
+    m.width, m.height, m.fx, m.fy, m.cx, m.cy = 320, 240, 300.0, 300.0, 159.5, 119.5
+    m.u_px = [float((7 * i) % 320) for i in range(features)]
+    m.v_px = [float((13 * i) % 240) for i in range(features)]
+    m.response = [float(features - i) for i in range(features)]
+    m.descriptor_size = 128
+    m.descriptors = os.urandom(128 * features)
+    m.odometry_pose = Pose2D(0.5 * k, 0.0, 0.0)
+    if k > 0:
+        m.motion = Pose2D(0.5, 0.0, 0.0)
+        m.motion_covariance = [1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-4]
+        m.status, m.matches, m.inliers, m.overlap, m.scale = Keyframe.MATCHED, 200, 150, 0.8, 1.0
+    else:
+        m.status, m.scale = Keyframe.FIRST, 1.0
+    return m
 
 
 def wait_until_quiet(lock, last_message_time, quiet_s, timeout=120.0):
