@@ -112,6 +112,8 @@ void BackendNodelet::onInit() {
   list_srv_ = nh.advertiseService(topics::kListSessionsService, &BackendNodelet::onList, this);
   start_srv_ = nh.advertiseService(topics::kStartSessionService, &BackendNodelet::onStart, this);
   finish_srv_ = nh.advertiseService(topics::kFinishSessionService, &BackendNodelet::onFinish, this);
+  link_srv_ = nh.advertiseService(topics::kAddLinkService, &BackendNodelet::onAddLink, this);
+  optimise_srv_ = nh.advertiseService(topics::kOptimiseService, &BackendNodelet::onOptimise, this);
   reload_srv_ = nh.advertiseService(topics::kReloadSessionService, &BackendNodelet::onReload, this);
   export_srv_ = nh.advertiseService(topics::kExportService, &BackendNodelet::onExport, this);
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
@@ -343,6 +345,30 @@ bool BackendNodelet::onFinish(uw_multislam::FinishSession::Request&, uw_multisla
   NODELET_INFO("back-end: finish_session: session %d '%s' finished; the odometry waits for start_session or resume",
                id, manager_->name(id).c_str());
   publishAll(true);
+  return true;
+}
+
+bool BackendNodelet::onAddLink(uw_multislam::AddLink::Request& req, uw_multislam::AddLink::Response& res) {
+  core::Loop l;  // checked as a detector's loop is, then by the manager
+  std::string why;
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  const core::Status st = rc::fromAddLinkRequest(req, &l, &why)
+                              ? manager_->addLink(l)
+                              : core::Status{core::StatusCode::kInvalidArgument, "add_link: " + why};
+  res.status = rc::toStatusMsg(st);
+  if (!st.ok()) return true;
+  publishAll(true);
+  queue_->pushPriority(Message());  // the link's map may be due
+  return true;
+}
+
+bool BackendNodelet::onOptimise(uw_multislam::Optimise::Request&, uw_multislam::Optimise::Response& res) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  int maps = 0;
+  const core::Status st = manager_->optimisePending(&maps);
+  res.status = rc::toStatusMsg(st);
+  res.maps = maps;
+  if (st.ok() && maps > 0) queue_->pushPriority(Message());  // the worker solves the due maps
   return true;
 }
 

@@ -21,6 +21,19 @@ uw_multislam::Status toStatusMsg(const core::Status& s) {
   return statusMsg(static_cast<std::uint8_t>(s.code), s.ok() ? std::string() : s.message);
 }
 
+bool fromAddLinkRequest(const uw_multislam::AddLink::Request& r, core::Loop* out, std::string* why) {
+  uw_multislam::Loop m;
+  m.kind = r.session_a == r.session_b ? uw_multislam::Loop::LOCAL : uw_multislam::Loop::GLOBAL;
+  m.session_a = r.session_a;
+  m.keyframe_a = r.keyframe_a;
+  m.session_b = r.session_b;
+  m.keyframe_b = r.keyframe_b;
+  m.pose = r.pose;
+  m.covariance = r.covariance;
+  m.inliers = r.inliers;
+  return fromMsg(m, out, why);
+}
+
 core::KeyframeInput toKeyframeInput(const KeyframeData& k, double stamp_s) {
   core::KeyframeInput in;
   in.session = k.session;

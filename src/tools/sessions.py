@@ -10,6 +10,10 @@
     sessions.py finish                    (ends the recording session; none starts until start or resume)
     sessions.py pause                     (the odometry drops frames, counted, until resume)
     sessions.py resume
+    sessions.py link A KA B KB X Y YAW SIGMA_XY SIGMA_YAW [INLIERS]
+                                          (add_link: keyframe KB of session B at (X, Y, YAW) in keyframe KA
+                                           of session A, metres and radians, diagonal covariance)
+    sessions.py optimise                  (optimises now the maps whose loops wait)
 
 Exit status: 0 when the service answered (whatever its status code: the answer is printed),
 1 when it could not be called (no master, or no back-end within --timeout), 2 for wrong arguments.
@@ -23,8 +27,9 @@ try:
     import rosgraph
     import rospy
     from uw_multislam.msg import SessionState, Status
-    from uw_multislam.srv import (FinishSession, JoinSessions, ListSessions, OperatorCommand, ReloadSession, SplitSession,
-                                  StartSession)
+    from geometry_msgs.msg import Pose2D
+    from uw_multislam.srv import (AddLink, FinishSession, JoinSessions, ListSessions, OperatorCommand, Optimise,
+                                  ReloadSession, SplitSession, StartSession)
     ROS_IMPORT_ERROR = None
 except ImportError as e:
     ROS_IMPORT_ERROR = e
@@ -41,7 +46,7 @@ def status_text(status):
 
 # command -> (fewest, most) arguments
 ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1), "pause": (0, 0),
-         "resume": (0, 0), "finish": (0, 0)}
+         "resume": (0, 0), "finish": (0, 0), "link": (9, 10), "optimise": (0, 0)}
 
 
 def call_service(ns, name, kind, *request, timeout=30.0):
@@ -98,6 +103,18 @@ def main():
             res = call(args.ns, "finish_session", FinishSession)
             print("finish_session -> %s%s" % (status_text(res.status),
                                                ", session %d" % res.session if res.status.code == Status.OK else ""))
+        elif args.command == "link":
+            a, ka, b, kb = (int(v) for v in args.args[:4])
+            x, y, yaw, sxy, syaw = (float(v) for v in args.args[4:9])
+            inliers = int(args.args[9]) if len(args.args) > 9 else 0
+            if not (sxy > 0 and syaw > 0):
+                raise ValueError("the sigmas must be positive")
+            covariance = [sxy * sxy, 0, 0, 0, sxy * sxy, 0, 0, 0, syaw * syaw]
+            res = call(args.ns, "add_link", AddLink, a, ka, b, kb, Pose2D(x, y, yaw), covariance, inliers)
+            print("add_link %d:%d -> %d:%d -> %s" % (a, ka, b, kb, status_text(res.status)))
+        elif args.command == "optimise":
+            res = call(args.ns, "optimise", Optimise)
+            print("optimise -> %s, %d maps due" % (status_text(res.status), res.maps))
         elif args.command in ("pause", "resume"):
             res = call(args.ns, args.command, OperatorCommand)
             print("%s -> %s, %s, %d frames dropped while paused" % (

@@ -285,6 +285,110 @@ TEST(SessionManager, DeferredOptimisationRunsOutsideRequestsAndSavesTheFinishedM
   for (std::size_t k = 0; k < back.size(); ++k) EXPECT_NEAR(back[k].x(), optimised[k].x(), 1e-9) << k;
 }
 
+// add_link (issue 16, item 4): an operator's loop with a measured pose. Every misuse is refused
+// with its code and changes nothing; an accepted link is a loop like a detector's: it carries its
+// measured pose into a join and survives a restart.
+TEST(SessionManager, AManualLinkIsALoopLikeADetectorsAndAMisuseChangesNothing) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 8);
+    addStraightSession(&m, 1, 3);
+    ASSERT_TRUE(m.addKeyframe(keyframe(1, 7, Pose2(7, 0, 0), Pose2(2, 0, 0))).ok());  // 3..6 bridged
+    auto link = [](int a, int ka, int b, int kb) { return globalLoop(a, ka, b, kb, Pose2(0, 1, 0)); };
+    Loop nan = link(0, 2, 1, 2), asymmetric = nan, indefinite = nan, singular = nan, negative = nan;
+    nan.z.mean = Pose2(std::nan(""), 0, 0);
+    singular.z.covariance(2, 2) = 0.0;
+    asymmetric.z.covariance(0, 1) = 1e-7;
+    indefinite.z.covariance(2, 2) = -1e-6;
+    negative.inliers = -1;
+    const std::vector<std::pair<Loop, StatusCode>> misuses{
+        {link(0, 2, 42, 2), StatusCode::kNotFound},          {link(-1, 2, 1, 2), StatusCode::kInvalidArgument},
+        {link(0, 8, 1, 2), StatusCode::kNotFound},           {link(0, -1, 1, 2), StatusCode::kInvalidArgument},
+        {link(1, 2, 1, 2), StatusCode::kInvalidArgument},    {link(0, 2, 1, 4), StatusCode::kFailedPrecondition},
+        {nan, StatusCode::kInvalidArgument},                 {asymmetric, StatusCode::kInvalidArgument},
+        {indefinite, StatusCode::kInvalidArgument},          {singular, StatusCode::kInvalidArgument},
+        {negative, StatusCode::kInvalidArgument}};
+    for (std::size_t i = 0; i < misuses.size(); ++i) {
+      const Status st = m.addLink(misuses[i].first);
+      EXPECT_EQ(st.code, misuses[i].second) << i << ": " << st.message;
+      EXPECT_FALSE(st.message.empty()) << i;
+    }
+    EXPECT_TRUE(m.loops().empty());
+    EXPECT_EQ(m.list()[0].loops + m.list()[1].loops, 0);
+    // Accepted: global between the sessions, local inside one (kind from the sessions, not the
+    // request), frames filled in.
+    Loop local = link(0, 1, 0, 5);
+    local.z = UncertainPose2(Pose2(4, 0, 0), Eigen::Matrix3d::Identity() * 1e-6);
+    local.kind = Loop::Kind::kGlobal;
+    ASSERT_TRUE(m.addLink(link(0, 2, 1, 2)).ok());
+    ASSERT_TRUE(m.addLink(local).ok());
+    ASSERT_EQ(m.loops().size(), 2u);
+    EXPECT_EQ(m.loops()[0].kind, Loop::Kind::kGlobal);
+    EXPECT_EQ(m.loops()[1].kind, Loop::Kind::kLocal);
+    EXPECT_EQ(m.loops()[0].frame_b, 20);
+    EXPECT_EQ(m.list()[0].loops, 2);
+    // One link is enough for an operator's join with min_loops 1; it places session 1 one metre
+    // to the side of session 0 (keyframe 2 of both).
+    ASSERT_TRUE(m.join(0, 1, 1).ok());
+    EXPECT_NEAR(m.poses(1)[2].x(), m.poses(0)[2].x(), 1e-6);
+    EXPECT_NEAR(m.poses(1)[2].y(), m.poses(0)[2].y() + 1.0, 1e-6);
+    ASSERT_TRUE(m.endSession(200.0).ok());
+  }
+  SessionManager again(options(db));
+  ASSERT_EQ(again.loops().size(), 2u);
+  EXPECT_EQ(again.mapOf(1), 0);
+  EXPECT_NEAR(again.loops()[0].z.mean.y(), 1.0, 1e-12);
+}
+
+// optimise (issue 16, item 4): maps with fewer than optimise_every loops pending wait; the
+// operator's optimise solves them now (deferred: marks them due), and says when nothing waits.
+TEST(SessionManager, OptimiseNowSolvesTheMapsWhoseLoopsWaitAndOnlyThose) {
+  SessionManagerOptions o = options();
+  o.backend.optimise_every = 100;
+  o.backend.intra_loop_gate = false;  // the loop is 0.3 m off a 1 cm odometry on purpose
+  SessionManager m(o);
+  addStraightSession(&m, 0, 8);
+  addStraightSession(&m, 1, 8);  // session 0 ends: with nothing pending, nothing to solve
+  Loop l = globalLoop(1, 0, 1, 7, Pose2(7.3, 0, 0));
+  l.kind = Loop::Kind::kLocal;
+  ASSERT_TRUE(m.addLoop(l).ok());
+  EXPECT_DOUBLE_EQ(m.poses(1).back().x(), 7.0);  // 1 of 100 loops: waiting
+  const int before = m.backendStats().optimisations;
+  int maps = -1;
+  const Status st = m.optimisePending(&maps);
+  ASSERT_TRUE(st.ok()) << st.message;
+  EXPECT_EQ(maps, 1);
+  EXPECT_EQ(m.backendStats().optimisations, before + 1);
+  EXPECT_GT(m.poses(1).back().x(), 7.1);
+  EXPECT_DOUBLE_EQ(m.poses(0).back().x(), 7.0);  // the other map was not touched
+  const Status again = m.optimisePending(&maps);
+  EXPECT_TRUE(again.ok());
+  EXPECT_EQ(maps, 0);
+  EXPECT_NE(again.message.find("no map"), std::string::npos) << again.message;
+  EXPECT_EQ(m.backendStats().optimisations, before + 1);
+
+  // Deferred (the back-end nodelet): marked due, solved by the host.
+  SessionManager d(o);
+  d.setDeferredOptimisation(true);
+  addStraightSession(&d, 0, 8);
+  Loop l0 = l;
+  l0.session_a = l0.session_b = 0;
+  ASSERT_TRUE(d.addLoop(l0).ok());
+  EXPECT_FALSE(d.nextOptimisation().has_value());
+  ASSERT_TRUE(d.optimisePending(&maps).ok());
+  EXPECT_EQ(maps, 1);
+  EXPECT_DOUBLE_EQ(d.poses(0).back().x(), 7.0);
+  ASSERT_TRUE(d.nextOptimisation().has_value());
+
+  o.backend.optimise = false;
+  SessionManager off(o);
+  addStraightSession(&off, 0, 2);
+  EXPECT_EQ(off.optimisePending(&maps).code, StatusCode::kFailedPrecondition);
+  EXPECT_EQ(maps, 0);
+}
+
 TEST(SessionManager, TheStoresDirectoryItCreatesIsTheOwnersOnly) {
   testing_util::ScopedTempDir dir("session_manager");
   const std::filesystem::path store_dir = dir.path() / "missions";

@@ -34,6 +34,10 @@ def run(*args):
     (["pause", "now"], "pause takes 0 argument(s), got 1"),
     (["resume", "1"], "resume takes 0 argument(s), got 1"),
     (["finish", "0"], "finish takes 0 argument(s), got 1"),
+    (["optimise", "0"], "optimise takes 0 argument(s), got 1"),
+    (["link", "0", "1", "1", "1", "0", "1", "0", "0.1"], "link takes 9 to 10 argument(s), got 8"),
+    (["link", "0", "1", "1", "one", "0", "1", "0", "0.1", "0.01"], "link: wrong arguments"),
+    (["link", "0", "1", "1", "1", "0", "1", "0", "0", "0.01"], "link: wrong arguments"),  # sigma 0
 ])
 def test_wrong_arguments_exit_2_with_the_reason(args, why):
     res = run(*args)
@@ -42,7 +46,8 @@ def test_wrong_arguments_exit_2_with_the_reason(args, why):
     assert res.stdout == ""
 
 
-@pytest.mark.parametrize("args", [["reload", "yesterday"], ["list"], ["join", "0", "1"], ["pause"], ["resume"], ["finish"]])
+@pytest.mark.parametrize("args", [["reload", "yesterday"], ["list"], ["join", "0", "1"], ["pause"], ["resume"], ["finish"],
+                                  ["optimise"], ["link", "0", "1", "1", "1", "0", "1", "0", "0.1", "0.01"]])
 def test_no_master_exits_1_naming_it(args):
     res = run("--timeout", "1", *args)
     assert res.returncode == 1, res

@@ -2,7 +2,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <map>
+#include <tuple>
 
 #include "uw_multislam/ros/backend_conversions.h"
 
@@ -50,6 +52,39 @@ TEST(BackendConversions, SessionSummaryAsSessionState) {
   EXPECT_EQ(toSessionStateMsg(s).state, uw_multislam::SessionState::ACTIVE);
   s.state = core::SessionState::kFinished;
   EXPECT_EQ(toSessionStateMsg(s).state, uw_multislam::SessionState::FINISHED);
+}
+
+TEST(BackendConversions, AddLinkRequestAsTheLoopItAsksForCheckedAsALoopMessage) {
+  uw_multislam::AddLink::Request r;
+  r.session_a = 2;
+  r.keyframe_a = 5;
+  r.session_b = 3;
+  r.keyframe_b = 7;
+  r.pose.x = 0.4;
+  r.pose.y = -0.1;
+  r.pose.theta = 0.05;
+  r.covariance = {1e-4, 0, 0, 0, 2e-4, 0, 0, 0, 3e-4};
+  r.inliers = 12;
+  core::Loop l;
+  std::string why;
+  ASSERT_TRUE(fromAddLinkRequest(r, &l, &why)) << why;
+  EXPECT_EQ(l.kind, core::Loop::Kind::kGlobal);
+  EXPECT_EQ(std::make_tuple(l.session_a, l.keyframe_a, l.session_b, l.keyframe_b, l.inliers), std::make_tuple(2, 5, 3, 7, 12));
+  EXPECT_DOUBLE_EQ(l.z.mean.x(), 0.4);
+  EXPECT_DOUBLE_EQ(l.z.mean.y(), -0.1);
+  EXPECT_DOUBLE_EQ(l.z.mean.yaw(), 0.05);
+  EXPECT_DOUBLE_EQ(l.z.covariance(1, 1), 2e-4);
+  EXPECT_DOUBLE_EQ(l.z.covariance(2, 2), 3e-4);
+  r.session_b = 2;
+  ASSERT_TRUE(fromAddLinkRequest(r, &l, &why));
+  EXPECT_EQ(l.kind, core::Loop::Kind::kLocal);
+  r.pose.theta = std::nan("");
+  EXPECT_FALSE(fromAddLinkRequest(r, &l, &why));
+  EXPECT_NE(why.find("pose"), std::string::npos) << why;
+  r.pose.theta = 0.0;
+  r.covariance[1] = 5e-5;  // not symmetric
+  EXPECT_FALSE(fromAddLinkRequest(r, &l, &why));
+  EXPECT_NE(why.find("symmetric"), std::string::npos) << why;
 }
 
 TEST(BackendConversions, KeyframeDataAsManagerInput) {

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "uw_multislam/AddLink.h"
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/SessionTrajectory.h"
 #include "uw_multislam/Status.h"
@@ -30,6 +31,9 @@ uw_multislam::Status statusMsg(std::uint8_t code, const std::string& message);
 
 /// A Keyframe message's content as the session manager takes it (stamp in seconds).
 core::KeyframeInput toKeyframeInput(const KeyframeData& k, double stamp_s);
+/// add_link's request as the loop it asks for, checked as a detector's Loop message is (ids, a
+/// finite pose, a covariance): false with the reason in `why`. The kind follows the sessions.
+bool fromAddLinkRequest(const uw_multislam::AddLink::Request& r, core::Loop* out, std::string* why);
 /// A stored keyframe handed back by reload_session, as the loop detector(s) take it: features,
 /// camera and altitude; its motion is not needed (an exact identity, quality MATCHED).
 KeyframeData reloadedKeyframe(const core::ReloadedSession& session, const core::StoredKeyframe& k);

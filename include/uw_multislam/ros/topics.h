@@ -85,6 +85,8 @@ constexpr char kReloadSessionService[] = "reload_session";
 constexpr char kListSessionsService[] = "list_sessions";
 constexpr char kStartSessionService[] = "start_session";
 constexpr char kFinishSessionService[] = "finish_session";
+constexpr char kAddLinkService[] = "add_link";
+constexpr char kOptimiseService[] = "optimise";
 constexpr char kExportService[] = "export";
 // --- Services of the odometry (uw_multislam/srv/OperatorCommand) ---------------------------------
 /// Frames are dropped (counted, their stamps seen: no time gap) until resume; the session goes on.

@@ -270,6 +270,15 @@ void MultiSessionBackend::flush() {
     if (m.pending > 0) optimiseNow(id);
 }
 
+int MultiSessionBackend::optimisePending() {
+  if (!options_.optimise) return 0;
+  std::vector<int> ids;
+  for (const auto& [id, m] : maps_)
+    if (m.pending > 0) ids.push_back(id);
+  for (int id : ids) optimise(id);
+  return static_cast<int>(ids.size());
+}
+
 bool MultiSessionBackend::barred(int sa, int sb) const {
   return split_pairs_.count({std::min(sa, sb), std::max(sa, sb)}) > 0;
 }

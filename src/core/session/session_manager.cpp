@@ -5,6 +5,8 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include <Eigen/Cholesky>
+
 #include "uw_multislam/core/session/interrupted_run.h"
 #include "uw_multislam/core/session/map_persistence.h"
 
@@ -522,6 +524,53 @@ Status SessionManager::addLoop(const Loop& l, bool* waiting) {
   store_loops_.push_back(stored_id);
   afterBackendChange();
   return Status::Ok();
+}
+
+Status SessionManager::addLink(Loop l) {
+  for (int s : {l.session_a, l.session_b}) {
+    if (!validSessionId(s)) return badSessionId("add_link", s);
+    if (!has(s)) return notFound(s);
+  }
+  for (const auto& [s, k] : {std::pair<int, int>{l.session_a, l.keyframe_a}, {l.session_b, l.keyframe_b}}) {
+    const int n = static_cast<int>(at(s).stamps.size());
+    if (k < 0) return {StatusCode::kInvalidArgument, "add_link: keyframe ids are >= 0"};
+    if (k >= n)
+      return {StatusCode::kNotFound, "add_link: session " + std::to_string(s) + " has no keyframe " +
+                                         std::to_string(k) + " (it has " + std::to_string(n) + ")"};
+    if (at(s).phantoms.count(k))
+      return {StatusCode::kFailedPrecondition, "add_link: keyframe " + std::to_string(k) + " of session " +
+                                                   std::to_string(s) + " never arrived (bridged)"};
+  }
+  if (l.session_a == l.session_b && l.keyframe_a == l.keyframe_b)
+    return {StatusCode::kInvalidArgument, "add_link: a keyframe cannot be linked to itself"};
+  if (!l.z.mean.isFinite()) return {StatusCode::kInvalidArgument, "add_link: the pose must be finite"};
+  std::string bad = checkCovariance(l.z.covariance);  // finite, symmetric, not indefinite
+  if (bad.empty() && Eigen::LLT<Eigen::Matrix3d>(l.z.covariance).info() != Eigen::Success)
+    bad = "covariance is singular: a link needs some uncertainty in x, y and yaw";
+  if (!bad.empty())
+    return {StatusCode::kInvalidArgument, "add_link: " + bad + " (x, y, yaw; m^2, rad^2, row-major)"};
+  if (l.inliers < 0) return {StatusCode::kInvalidArgument, "add_link: inliers must be >= 0"};
+  l.kind = l.session_a == l.session_b ? Loop::Kind::kLocal : Loop::Kind::kGlobal;
+  l.frame_a = at(l.session_a).frames.at(l.keyframe_a);
+  l.frame_b = at(l.session_b).frames.at(l.keyframe_b);
+  l.hash_l1 = 0.0f;
+  const Status st = addLoop(l);
+  if (st.ok())
+    say("add_link " + std::to_string(l.session_a) + ":" + std::to_string(l.keyframe_a) + " -> " +
+        std::to_string(l.session_b) + ":" + std::to_string(l.keyframe_b) + " (" +
+        (l.kind == Loop::Kind::kLocal ? "local" : "global") + ")");
+  return st;
+}
+
+Status SessionManager::optimisePending(int* maps) {
+  if (maps) *maps = 0;
+  if (!options_.backend.optimise)
+    return {StatusCode::kFailedPrecondition, "optimisation is off (backend.optimise: false)"};
+  const int n = backend_->optimisePending();
+  if (maps) *maps = n;
+  afterBackendChange();
+  return Status::Ok(n == 0 ? "no map has loops waiting for optimisation"
+                           : std::to_string(n) + (n == 1 ? " map" : " maps") + " optimised");
 }
 
 // --- Maps -------------------------------------------------------------------------------------

@@ -222,6 +222,9 @@ class MultiSessionBackend {
   void addLoop(const BackendLoop& loop);
   /// Optimises every map with pending loops, now (also when deferred).
   void flush();
+  /// The operator's "optimise now": every map with pending loops (fewer than optimise_every) is
+  /// optimised now, or (deferred) marked due. Returns how many; 0 when optimise is off.
+  int optimisePending();
 
   // --- Deferred optimisation ---
   /// true: requests only mark maps due (dueMaps); the host optimises them with the three calls below.

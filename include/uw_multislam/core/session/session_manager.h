@@ -189,6 +189,20 @@ class SessionManager {
   /// refusal (FAILED_PRECONDITION / INVALID_ARGUMENT with the reason). A session id outside
   /// [0, kMaxSessionId] or a negative keyframe id is INVALID_ARGUMENT at once (never waiting).
   Status addLoop(const Loop& loop, bool* waiting = nullptr);
+  /// The operator's manual link (add_link): a loop between two keyframes the manager holds (in
+  /// memory or restored from the store), with the measured pose of b in a's frame and its
+  /// covariance (`loop.z`) and the support it counts for in the join rule (`loop.inliers`, >= 0).
+  /// Its kind follows the sessions (local inside one, global between two); it is then a loop like
+  /// a detector's: stored, optimised, counted towards joins. Refused with nothing changed:
+  /// INVALID_ARGUMENT (an id out of range, a keyframe linked to itself, a pose or covariance not
+  /// finite, a covariance not symmetric positive definite, negative inliers), NOT_FOUND (an unknown
+  /// session or keyframe), FAILED_PRECONDITION (a bridged keyframe that never arrived, or the
+  /// back-end refusing the loop).
+  Status addLink(Loop loop);
+  /// The operator's "optimise now": every map with loops waiting for optimisation (fewer than
+  /// optimise_every) is optimised now, or (deferred) marked due. `maps`: how many.
+  /// FAILED_PRECONDITION when optimisation is off (backend.optimise false).
+  Status optimisePending(int* maps = nullptr);
   /// Joins the maps of two sessions from the global loops between them (min_loops 0: K).
   /// INVALID_ARGUMENT for an id outside [0, kMaxSessionId], NOT_FOUND for an unknown one.
   Status join(int session_a, int session_b, int min_loops = 0);

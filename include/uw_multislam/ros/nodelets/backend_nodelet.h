@@ -91,7 +91,9 @@
 #include "uw_multislam/Loop.h"
 #include "uw_multislam/ReloadSession.h"
 #include "uw_multislam/SplitSession.h"
+#include "uw_multislam/AddLink.h"
 #include "uw_multislam/FinishSession.h"
+#include "uw_multislam/Optimise.h"
 #include "uw_multislam/StartSession.h"
 #include "uw_multislam/core/session/live_mosaic.h"
 #include "uw_multislam/core/session/session_manager.h"
@@ -135,6 +137,10 @@ class BackendNodelet : public nodelet::Nodelet {
   bool onStart(uw_multislam::StartSession::Request& req, uw_multislam::StartSession::Response& res);
   /// finish_session: ends the recording session; active_session says FINISHED with the next id.
   bool onFinish(uw_multislam::FinishSession::Request& req, uw_multislam::FinishSession::Response& res);
+  /// add_link: the operator's loop (SessionManager::addLink); the worker optimises what it left due.
+  bool onAddLink(uw_multislam::AddLink::Request& req, uw_multislam::AddLink::Response& res);
+  /// optimise: marks the maps whose loops wait due and wakes the worker, which solves them.
+  bool onOptimise(uw_multislam::Optimise::Request& req, uw_multislam::Optimise::Response& res);
   bool onReload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res);
   bool onExport(uw_multislam::ExportSurvey::Request& req, uw_multislam::ExportSurvey::Response& res);
   /// The live mosaic's thread (see "Threading model").
@@ -182,7 +188,8 @@ class BackendNodelet : public nodelet::Nodelet {
   bool mosaic_stop_ = false;
   std::atomic<bool> mosaic_due_{true};  // the active map changed since the last drawing
   std::mutex export_mutex_;             // one export at a time
-  ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_, export_srv_, finish_srv_;
+  ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_, export_srv_, finish_srv_, link_srv_,
+      optimise_srv_;
   ros::Subscriber keyframe_sub_, loop_sub_, pose_sub_;  // last: destroyed first
 };
 
