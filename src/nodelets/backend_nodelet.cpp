@@ -15,6 +15,7 @@
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/SessionTrajectory.h"
 #include "uw_multislam/core/session/export_root.h"
+#include "uw_multislam/core/session/stored_loops.h"
 #include "uw_multislam/core/session/track_files.h"
 #include "uw_multislam/ros/backend_conversions.h"
 #include "uw_multislam/ros/conversions.h"
@@ -114,6 +115,7 @@ void BackendNodelet::onInit() {
   finish_srv_ = nh.advertiseService(topics::kFinishSessionService, &BackendNodelet::onFinish, this);
   link_srv_ = nh.advertiseService(topics::kAddLinkService, &BackendNodelet::onAddLink, this);
   optimise_srv_ = nh.advertiseService(topics::kOptimiseService, &BackendNodelet::onOptimise, this);
+  detect_srv_ = nh.advertiseService(topics::kDetectLoopsService, &BackendNodelet::onDetectLoops, this);
   reload_srv_ = nh.advertiseService(topics::kReloadSessionService, &BackendNodelet::onReload, this);
   export_srv_ = nh.advertiseService(topics::kExportService, &BackendNodelet::onExport, this);
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
@@ -369,6 +371,31 @@ bool BackendNodelet::onOptimise(uw_multislam::Optimise::Request&, uw_multislam::
   res.status = rc::toStatusMsg(st);
   res.maps = maps;
   if (st.ok() && maps > 0) queue_->pushPriority(Message());  // the worker solves the due maps
+  return true;
+}
+
+bool BackendNodelet::onDetectLoops(uw_multislam::DetectLoops::Request& req, uw_multislam::DetectLoops::Response& res) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  const int joins = manager_->backendStats().joins;
+  core::StoredLoopSearch f;
+  const core::Status st = core::detectStoredLoops(manager_.get(), config_, req.sessions, &f,
+                                                  [this](const std::string& line) { say(line); });
+  res.status = rc::toStatusMsg(st);
+  res.queries = f.queries;
+  res.candidates = f.candidates;
+  res.found = f.found;
+  res.already_held = f.duplicates;
+  res.accepted = f.accepted;
+  res.refused = f.refused;
+  res.joins = manager_->backendStats().joins - joins;
+  NODELET_INFO("back-end: detect_loops: %s; %d keyframes queried, %d candidates, %d loops (%d held already), "
+               "%d accepted, %d refused, %d joins",
+               st.ok() ? "OK" : st.message.c_str(), f.queries, f.candidates, f.found, f.duplicates, f.accepted,
+               f.refused, res.joins);
+  if (f.accepted > 0) {
+    publishAll(true);
+    queue_->pushPriority(Message());  // the maps the loops touched may be due
+  }
   return true;
 }
 

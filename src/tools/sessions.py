@@ -14,6 +14,7 @@
                                           (add_link: keyframe KB of session B at (X, Y, YAW) in keyframe KA
                                            of session A, metres and radians, diagonal covariance)
     sessions.py optimise                  (optimises now the maps whose loops wait)
+    sessions.py detect S1 S2 [S3 ...]     (detect_loops among stored sessions, each against those before it)
 
 Exit status: 0 when the service answered (whatever its status code: the answer is printed),
 1 when it could not be called (no master, or no back-end within --timeout), 2 for wrong arguments.
@@ -28,8 +29,8 @@ try:
     import rospy
     from uw_multislam.msg import SessionState, Status
     from geometry_msgs.msg import Pose2D
-    from uw_multislam.srv import (AddLink, FinishSession, JoinSessions, ListSessions, OperatorCommand, Optimise,
-                                  ReloadSession, SplitSession, StartSession)
+    from uw_multislam.srv import (AddLink, DetectLoops, FinishSession, JoinSessions, ListSessions, OperatorCommand,
+                                  Optimise, ReloadSession, SplitSession, StartSession)
     ROS_IMPORT_ERROR = None
 except ImportError as e:
     ROS_IMPORT_ERROR = e
@@ -46,7 +47,8 @@ def status_text(status):
 
 # command -> (fewest, most) arguments
 ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1), "pause": (0, 0),
-         "resume": (0, 0), "finish": (0, 0), "link": (9, 10), "optimise": (0, 0)}
+         "resume": (0, 0), "finish": (0, 0), "link": (9, 10), "optimise": (0, 0),
+         "detect": (2, 1000)}
 
 
 def call_service(ns, name, kind, *request, timeout=30.0):
@@ -115,6 +117,13 @@ def main():
         elif args.command == "optimise":
             res = call(args.ns, "optimise", Optimise)
             print("optimise -> %s, %d maps due" % (status_text(res.status), res.maps))
+        elif args.command == "detect":
+            sessions = [int(v) for v in args.args]
+            res = call(args.ns, "detect_loops", DetectLoops, sessions)
+            print("detect_loops %s -> %s; %d keyframes queried, %d candidates, %d loops (%d held already), "
+                  "%d accepted, %d refused, %d joins" % (
+                      " ".join(map(str, sessions)), status_text(res.status), res.queries, res.candidates, res.found,
+                      res.already_held, res.accepted, res.refused, res.joins))
         elif args.command in ("pause", "resume"):
             res = call(args.ns, args.command, OperatorCommand)
             print("%s -> %s, %s, %d frames dropped while paused" % (

@@ -11,6 +11,7 @@
 #include "../common/scoped_temp_dir.h"
 #include "uw_multislam/core/session/run_outputs.h"
 #include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/core/session/stored_loops.h"
 
 namespace uw_multislam {
 namespace core {
@@ -387,6 +388,40 @@ TEST(SessionManager, OptimiseNowSolvesTheMapsWhoseLoopsWaitAndOnlyThose) {
   addStraightSession(&off, 0, 2);
   EXPECT_EQ(off.optimisePending(&maps).code, StatusCode::kFailedPrecondition);
   EXPECT_EQ(maps, 0);
+}
+
+// detect_loops (issue 16, item 3): every misuse is refused before anything is searched; the
+// search itself is tested on real images through the service (rostest operator_services) and
+// offline_slam --detect-loops (pytest test_merge_stores.py).
+TEST(SessionManager, DetectLoopsIsRefusedWithNothingChangedForEveryMisuse) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 4);
+    addStraightSession(&m, 1, 4);
+    ASSERT_TRUE(m.endSession(200.0).ok());
+  }
+  SessionManager m(options(db));
+  addStraightSession(&m, 2, 3);  // recorded in this run
+  const SlamConfig config;
+  StoredLoopSearch f;
+  const std::vector<std::pair<std::vector<int>, StatusCode>> misuses{
+      {{}, StatusCode::kInvalidArgument},        {{0}, StatusCode::kInvalidArgument},
+      {{0, 0}, StatusCode::kInvalidArgument},    {{0, 9}, StatusCode::kNotFound},
+      {{0, 2}, StatusCode::kFailedPrecondition}, {{-1, 0}, StatusCode::kNotFound}};
+  for (const auto& [sessions, code] : misuses) {
+    const Status st = detectStoredLoops(&m, config, sessions, &f);
+    EXPECT_EQ(st.code, code) << ::testing::PrintToString(sessions) << ": " << st.message;
+    EXPECT_FALSE(st.message.empty());
+    EXPECT_EQ(f.queries, 0);
+  }
+  SessionManager none(options());
+  addStraightSession(&none, 0, 2);
+  addStraightSession(&none, 1, 2);
+  EXPECT_EQ(detectStoredLoops(&none, config, {0, 1}, &f).code, StatusCode::kFailedPrecondition);
+  EXPECT_TRUE(m.loops().empty());
+  EXPECT_EQ(m.mapIds(), (std::vector<int>{0, 1, 2}));
 }
 
 TEST(SessionManager, TheStoresDirectoryItCreatesIsTheOwnersOnly) {

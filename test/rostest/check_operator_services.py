@@ -1,6 +1,6 @@
 #!/usr/bin/python3
-"""rostest: the back-end's operator services add_link and optimise (issue 16, item 4), called right
-and called wrong, on a back-end node this test starts with its own store and feeds directly.
+"""rostest: the back-end's operator services add_link, optimise (issue 16, item 4) and detect_loops
+(item 3), called right and called wrong, on back-end nodes this test starts with their own stores.
 
 Session 0 (8 keyframes) and session 1 (5), each driven straight along x at 0.5 m per keyframe;
 optimise_every is 100, so a loop inside a map waits for the operator's optimise. Every wrong call
@@ -8,6 +8,11 @@ gets its status code and a message and changes nothing (list_sessions identical)
 waits, optimise solves it (the diagnostics count one optimisation), a second optimise finds
 nothing waiting; one global link lets join_sessions with min_loops 1 join the two maps, and the
 store holds both links after a clean shutdown.
+
+detect_loops: the fixture mission's two sessions, each run alone by offline_slam into its own store
+and merged without loops (merge_stores --no-loops): two stored maps. The service finds the global
+loops between them and the back-end joins the maps by its rule (K loops); a second call finds only
+loops it holds already; wrong calls are refused with nothing changed.
 """
 import math
 import os
@@ -24,9 +29,9 @@ import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose2D
-from pipeline_fixture import await_condition, connected, diagnostic_values, synthetic_keyframe, tool
-from uw_multislam.msg import Keyframe, Status
-from uw_multislam.srv import AddLink, JoinSessions, ListSessions, Optimise
+from pipeline_fixture import await_condition, connected, diagnostic_values, make_mission, synthetic_keyframe, tool
+from uw_multislam.msg import Keyframe, SessionState, Status
+from uw_multislam.srv import AddLink, DetectLoops, JoinSessions, ListSessions, Optimise
 
 NS = "/operator_test"
 SESSIONS_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "sessions.py")
@@ -42,19 +47,24 @@ class OperatorServicesTest(unittest.TestCase):
         self.lock = threading.RLock()  # await_condition holds it while optimisations() takes it
         self.status = {}
         self.diag_sub = rospy.Subscriber("/diagnostics", DiagnosticArray, self.on_diagnostics, queue_size=100)
-        rospy.set_param(NS + "/slam/backend", {"optimise_every": 100, "intra_loop_gate": False})
+        self.node = None
+
+    def start_backend(self, db, backend_params=None):
+        if backend_params:
+            rospy.set_param(NS + "/slam/backend", backend_params)
         self.node = subprocess.Popen([tool("backend_node"), "__ns:=" + NS, "__name:=backend_node",
-                                      "_store_path:=" + self.db, "_diagnostic_period:=0.2"],
+                                      "_store_path:=" + db, "_diagnostic_period:=0.2"],
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         self.lines = []
         threading.Thread(target=lambda: self.lines.extend(self.node.stdout), daemon=True).start()
 
     def tearDown(self):
         self.diag_sub.unregister()
-        if self.node.poll() is None:
+        if self.node is not None and self.node.poll() is None:
             self.node.kill()
             self.node.wait()
-        rospy.delete_param(NS + "/slam")
+        if rospy.has_param(NS + "/slam"):
+            rospy.delete_param(NS + "/slam")
         shutil.rmtree(self.tmp, ignore_errors=True)
 
     def on_diagnostics(self, msg):
@@ -76,6 +86,7 @@ class OperatorServicesTest(unittest.TestCase):
         return rospy.ServiceProxy(NS + "/add_link", AddLink)(a, ka, b, kb, Pose2D(*pose), covariance, inliers)
 
     def test_add_link_and_optimise_called_right_and_wrong(self):
+        self.start_backend(self.db, {"optimise_every": 100, "intra_loop_gate": False})
         for name in ("list_sessions", "add_link", "optimise", "join_sessions"):
             rospy.wait_for_service(NS + "/" + name, timeout=60)
         kf_pub = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=100)
@@ -142,6 +153,52 @@ class OperatorServicesTest(unittest.TestCase):
         with sqlite3.connect(self.db) as c:
             stored = c.execute("SELECT keyframe_a, keyframe_b, kind FROM loops ORDER BY id").fetchall()
         self.assertEqual([tuple(r) for r in stored], [(0, 4, "local"), (2, 2, "global")])
+
+    def test_detect_loops_joins_two_stored_maps(self):
+        tmp, mission = make_mission("uwms_detect_")
+        try:
+            stores = []
+            for name in ("s0", "s1"):
+                stores.append(os.path.join(tmp, name + ".db"))
+                subprocess.run([tool("offline_slam"), "--session", os.path.join(mission, name), "--db", stores[-1],
+                                "--out", os.path.join(tmp, "run_" + name), "--quiet"], check=True, timeout=300)
+            merged = os.path.join(tmp, "merged.db")
+            subprocess.run([tool("merge_stores"), merged] + stores + ["--no-loops", "--quiet"], check=True, timeout=300)
+            self.start_backend(merged)
+            rospy.wait_for_service(NS + "/detect_loops", timeout=60)
+            detect = rospy.ServiceProxy(NS + "/detect_loops", DetectLoops)
+            before = self.sessions()
+            self.assertEqual([(s, v[0], v[1]) for s, v in before.items()],
+                             [(0, SessionState.UNLOADED, 0), (1, SessionState.UNLOADED, 1)], before)
+            loops_before = before[0][3] + before[1][3]
+            for sessions, code in (([], Status.INVALID_ARGUMENT), ([0], Status.INVALID_ARGUMENT),
+                                   ([1, 1], Status.INVALID_ARGUMENT), ([0, 5], Status.NOT_FOUND)):
+                res = detect(sessions)
+                self.assertEqual(res.status.code, code, "%s: %s" % (sessions, res.status.message))
+                self.assertTrue(res.status.message)
+                self.assertEqual(res.queries, 0)
+            self.assertEqual(self.sessions(), before)
+
+            res = detect([0, 1])
+            self.assertEqual(res.status.code, Status.OK, res.status.message)
+            print("detect_loops [0, 1]: %d queried, %d candidates, %d found, %d held, %d accepted, %d refused, %d joins"
+                  % (res.queries, res.candidates, res.found, res.already_held, res.accepted, res.refused, res.joins),
+                  flush=True)
+            self.assertEqual(res.queries, before[1][2])  # every keyframe of session 1
+            self.assertEqual(res.already_held, 0)
+            self.assertGreaterEqual(res.accepted, 5)  # the back-end's K: enough for its join rule
+            self.assertEqual(res.joins, 1)
+            after = self.sessions()
+            self.assertEqual(after[1][1], 0, after)
+            self.assertEqual(after[0][3] + after[1][3], loops_before + 2 * res.accepted, after)
+            again = subprocess.run([SESSIONS_TOOL, "--ns", NS, "detect", "0", "1"], capture_output=True, text=True,
+                                   timeout=120)  # through sessions.py: only loops held already
+            self.assertEqual(again.returncode, 0, again)
+            self.assertIn("detect_loops 0 1 -> OK; %d keyframes queried, %d candidates, %d loops (%d held already), "
+                          "0 accepted, 0 refused, 0 joins" % (res.queries, res.candidates, res.found, res.found),
+                          again.stdout)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 if __name__ == "__main__":

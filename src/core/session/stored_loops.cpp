@@ -88,5 +88,34 @@ StoredLoopSearch searchStoredLoops(SessionManager* manager, const SlamConfig& co
   return r;
 }
 
+Status detectStoredLoops(SessionManager* manager, const SlamConfig& config, const std::vector<int>& sessions,
+                         StoredLoopSearch* out, const std::function<void(const std::string&)>& log) {
+  *out = StoredLoopSearch();
+  if (sessions.size() < 2)
+    return {StatusCode::kInvalidArgument, "detect_loops needs two or more stored sessions (list_sessions ids)"};
+  if (!manager->hasStore()) return {StatusCode::kFailedPrecondition, "detect_loops: no session store"};
+  std::set<int> seen;
+  for (int s : sessions) {
+    if (!seen.insert(s).second)
+      return {StatusCode::kInvalidArgument, "detect_loops names session " + std::to_string(s) + " twice"};
+    if (!manager->has(s))
+      return {StatusCode::kNotFound, "detect_loops: no session " + std::to_string(s) + " (call list_sessions for the ids)"};
+    if (s >= manager->restoredSessions())
+      return {StatusCode::kFailedPrecondition, "detect_loops: session " + std::to_string(s) +
+                                                   " was recorded in this run (its loops were searched live); "
+                                                   "only sessions restored from the store are searched"};
+  }
+  std::vector<std::vector<int>> groups;
+  for (int s : sessions) groups.push_back({s});
+  const int loops_before = static_cast<int>(manager->loops().size());
+  try {
+    *out = searchStoredLoops(manager, config, groups, log);
+  } catch (const StoreError& e) {
+    out->accepted = static_cast<int>(manager->loops().size()) - loops_before;
+    return {StatusCode::kDataLoss, std::string("detect_loops: ") + e.what()};
+  }
+  return Status::Ok();
+}
+
 }  // namespace core
 }  // namespace uw_multislam

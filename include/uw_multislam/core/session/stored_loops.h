@@ -33,5 +33,14 @@ StoredLoopSearch searchStoredLoops(SessionManager* manager, const SlamConfig& co
                                    const std::vector<std::vector<int>>& groups,
                                    const std::function<void(const std::string&)>& log = {});
 
+/// The back-end's detect_loops service: searchStoredLoops over `sessions` as groups of one, in the
+/// order given (each searched against those before it). Checked first, nothing changed on refusal:
+/// INVALID_ARGUMENT for fewer than two sessions or one named twice, NOT_FOUND for an unknown id,
+/// FAILED_PRECONDITION without a store or for a session not restored from it (recorded in this
+/// run: its loops were searched live). DATA_LOSS when a stored keyframe cannot be read: the loops
+/// accepted before it stay (counted in `out`).
+Status detectStoredLoops(SessionManager* manager, const SlamConfig& config, const std::vector<int>& sessions,
+                         StoredLoopSearch* out, const std::function<void(const std::string&)>& log = {});
+
 }  // namespace core
 }  // namespace uw_multislam
