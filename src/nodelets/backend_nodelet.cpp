@@ -66,6 +66,7 @@ void BackendNodelet::onInit() {
         ros_params::sessionManagerOptions(options_, config_), [this](const core::SessionEvent& e) { onEvent(e); },
         [this](const std::string& line) { say(line); });
     manager_->setDeferredOptimisation(true);  // optimised by the worker, outside state_mutex_
+    if (options_.localisation) manager_->setLocalisation(true);  // ~mode: nothing written from the start
     frames_ = std::make_unique<ros_frames::FramePublisher>(nh, options_.frames);  // a tilted camera throws
   } catch (const std::exception& e) {
     NODELET_FATAL(
@@ -116,6 +117,7 @@ void BackendNodelet::onInit() {
   link_srv_ = nh.advertiseService(topics::kAddLinkService, &BackendNodelet::onAddLink, this);
   optimise_srv_ = nh.advertiseService(topics::kOptimiseService, &BackendNodelet::onOptimise, this);
   detect_srv_ = nh.advertiseService(topics::kDetectLoopsService, &BackendNodelet::onDetectLoops, this);
+  mode_srv_ = nh.advertiseService(topics::kSetModeService, &BackendNodelet::onSetMode, this);
   reload_srv_ = nh.advertiseService(topics::kReloadSessionService, &BackendNodelet::onReload, this);
   export_srv_ = nh.advertiseService(topics::kExportService, &BackendNodelet::onExport, this);
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
@@ -399,6 +401,20 @@ bool BackendNodelet::onDetectLoops(uw_multislam::DetectLoops::Request& req, uw_m
   return true;
 }
 
+bool BackendNodelet::onSetMode(uw_multislam::SetMode::Request& req, uw_multislam::SetMode::Response& res) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  core::Status st;
+  if (req.mode == "mapping" || req.mode == "localisation")
+    st = manager_->setLocalisation(req.mode == "localisation");
+  else
+    st = {core::StatusCode::kInvalidArgument, "set_mode: mode '" + req.mode.substr(0, 64) +
+                                                  "' is neither 'mapping' nor 'localisation'"};
+  res.status = rc::toStatusMsg(st);
+  res.mode = manager_->localising() ? "localisation" : "mapping";
+  if (st.ok()) NODELET_INFO("back-end: set_mode %s: %s", res.mode.c_str(), st.message.c_str());
+  return true;
+}
+
 bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res) {
   std::lock_guard<std::mutex> lock(state_mutex_);
   core::ReloadedSession r;
@@ -546,6 +562,7 @@ void BackendNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper
   std::lock_guard<std::mutex> lock(state_mutex_);
   stat.add("optimizer", core::optimizerName(config_.backend.optimizer));
   stat.add("store", manager_->hasStore() ? options_.store_path : std::string("none"));
+  stat.add("mode", manager_->localising() ? "localisation" : "mapping");
   diagnostic_status_.fill(stat, counters(), ros::WallTime::now().toSec());
 }
 

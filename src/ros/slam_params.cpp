@@ -114,6 +114,10 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
       pnh, "export_root", ros_params::defaultExportRoot(), [](const std::string&) { return true; }, "a path");
   o.store_max_mb = param(
       pnh, "store_max_mb", 0.0, [](double v) { return v >= 0 && v <= 1e9; }, "in [0, 1e9] MB (0: no cap)");
+  o.localisation = param(
+                       pnh, "mode", std::string("mapping"),
+                       [](const std::string& m) { return m == "mapping" || m == "localisation"; },
+                       "mapping or localisation") == "localisation";
   return o;
 }
 

@@ -15,6 +15,7 @@
                                            of session A, metres and radians, diagonal covariance)
     sessions.py optimise                  (optimises now the maps whose loops wait)
     sessions.py detect S1 S2 [S3 ...]     (detect_loops among stored sessions, each against those before it)
+    sessions.py mode mapping|localisation (set_mode: localisation writes nothing to the store)
 
 Exit status: 0 when the service answered (whatever its status code: the answer is printed),
 1 when it could not be called (no master, or no back-end within --timeout), 2 for wrong arguments.
@@ -30,7 +31,7 @@ try:
     from uw_multislam.msg import SessionState, Status
     from geometry_msgs.msg import Pose2D
     from uw_multislam.srv import (AddLink, DetectLoops, FinishSession, JoinSessions, ListSessions, OperatorCommand,
-                                  Optimise, ReloadSession, SplitSession, StartSession)
+                                  Optimise, ReloadSession, SetMode, SplitSession, StartSession)
     ROS_IMPORT_ERROR = None
 except ImportError as e:
     ROS_IMPORT_ERROR = e
@@ -48,7 +49,7 @@ def status_text(status):
 # command -> (fewest, most) arguments
 ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1), "pause": (0, 0),
          "resume": (0, 0), "finish": (0, 0), "link": (9, 10), "optimise": (0, 0),
-         "detect": (2, 1000)}
+         "detect": (2, 1000), "mode": (1, 1)}
 
 
 def call_service(ns, name, kind, *request, timeout=30.0):
@@ -124,6 +125,9 @@ def main():
                   "%d accepted, %d refused, %d joins" % (
                       " ".join(map(str, sessions)), status_text(res.status), res.queries, res.candidates, res.found,
                       res.already_held, res.accepted, res.refused, res.joins))
+        elif args.command == "mode":
+            res = call(args.ns, "set_mode", SetMode, args.args[0])
+            print("set_mode %s -> %s, %s mode" % (args.args[0], status_text(res.status), res.mode))
         elif args.command in ("pause", "resume"):
             res = call(args.ns, args.command, OperatorCommand)
             print("%s -> %s, %s, %d frames dropped while paused" % (

@@ -6,6 +6,7 @@
 #include <climits>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <optional>
 
 #include "../common/scoped_temp_dir.h"
@@ -422,6 +423,77 @@ TEST(SessionManager, DetectLoopsIsRefusedWithNothingChangedForEveryMisuse) {
   EXPECT_EQ(detectStoredLoops(&none, config, {0, 1}, &f).code, StatusCode::kFailedPrecondition);
   EXPECT_TRUE(m.loops().empty());
   EXPECT_EQ(m.mapIds(), (std::vector<int>{0, 1, 2}));
+}
+
+std::string fileBytes(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
+}
+
+// set_mode localisation (issue 16, item 4): the store stays byte-identical while sessions are
+// tracked, the requests that would change a stored map are refused, automatic joins wait; a
+// session cut by the mode keeps its stored prefix and the store restores.
+TEST(SessionManager, LocalisationModeWritesNothingChangesNoStoredMapAndLeavesARestorableStore) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  SessionManagerOptions o = options(db);
+  o.backend.join_min_loops = 1;  // one global loop joins automatically (in mapping mode)
+  {
+    SessionManager m(o);
+    addStraightSession(&m, 0, 8);
+    ASSERT_TRUE(m.endSession(8.0).ok());
+  }
+  const std::string before = fileBytes(db);
+  ASSERT_FALSE(before.empty());
+  {
+    SessionManager m(o);
+    EXPECT_TRUE(m.setLocalisation(true).ok());
+    EXPECT_TRUE(m.localising());
+    addStraightSession(&m, 1, 5);
+    Loop local = globalLoop(1, 0, 1, 4, Pose2(4, 0, 0));
+    local.kind = Loop::Kind::kLocal;
+    ASSERT_TRUE(m.addLoop(local).ok());
+    ASSERT_TRUE(m.addLoop(globalLoop(0, 2, 1, 2, Pose2(0, 1, 0))).ok());
+    EXPECT_EQ(m.mapIds(), (std::vector<int>{0, 1}));  // the automatic join waits
+    int maps = 0;
+    const std::vector<Status> refused{m.join(0, 1, 1), m.split(1), m.addLink(globalLoop(0, 3, 1, 3, Pose2(0, 1, 0))),
+                                      m.optimisePending(&maps)};
+    for (const Status& st : refused) {
+      EXPECT_EQ(st.code, StatusCode::kFailedPrecondition) << st.message;
+      EXPECT_NE(st.message.find("localisation mode"), std::string::npos) << st.message;
+    }
+    StoredLoopSearch f;
+    const Status detect = detectStoredLoops(&m, SlamConfig(), {0, 1}, &f);
+    EXPECT_EQ(detect.code, StatusCode::kFailedPrecondition);
+    EXPECT_NE(detect.message.find("localisation mode"), std::string::npos) << detect.message;
+    EXPECT_EQ(m.list()[1].keyframes, 5);  // tracked all the same
+    EXPECT_EQ(m.loops().size(), 2u);
+    ASSERT_TRUE(m.endSession(20.0).ok());
+    EXPECT_EQ(m.stats().store_failures, 0);
+  }
+  EXPECT_EQ(fileBytes(db), before) << "localisation mode changed the store";
+  EXPECT_FALSE(std::filesystem::exists(db + "-wal") && std::filesystem::file_size(db + "-wal") > 0);
+  {
+    // Mapping, then localisation in the middle of a session, then mapping again: the session keeps
+    // its 3 stored keyframes; a loop on a memory-only keyframe joins in memory, written nowhere.
+    SessionManager m(o);
+    ASSERT_EQ(m.restoredSessions(), 1);  // the localisation session was never stored
+    addStraightSession(&m, 1, 3);
+    EXPECT_TRUE(m.setLocalisation(true).ok());
+    EXPECT_TRUE(m.setLocalisation(true).ok());  // again: said, nothing changes
+    for (int k = 3; k < 5; ++k) ASSERT_TRUE(m.addKeyframe(keyframe(1, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok());
+    EXPECT_TRUE(m.setLocalisation(false).ok());
+    for (int k = 5; k < 7; ++k) ASSERT_TRUE(m.addKeyframe(keyframe(1, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok());
+    ASSERT_TRUE(m.addLoop(globalLoop(0, 2, 1, 5, Pose2(-3, 1, 0))).ok());
+    EXPECT_EQ(m.mapOf(1), 0);  // mapping again: the automatic join happens
+    ASSERT_TRUE(m.endSession(30.0).ok());
+    EXPECT_EQ(m.stats().store_failures, 0);
+  }
+  SessionManager again(o);
+  ASSERT_EQ(again.restoredSessions(), 2);
+  EXPECT_EQ(again.list()[0].keyframes, 8);
+  EXPECT_EQ(again.list()[1].keyframes, 3);
+  EXPECT_TRUE(again.loops().empty());  // the only loop was on a memory-only keyframe
 }
 
 TEST(SessionManager, TheStoresDirectoryItCreatesIsTheOwnersOnly) {

@@ -32,7 +32,7 @@ def test_every_argument_is_documented_and_only_the_bags_are_required(name):
 
 
 def test_the_default_words_expand_to_nothing():
-    """slam.launch with the defaults sets none of the four config-backed parameters and gives the
+    """slam.launch with the defaults sets none of the five config-backed parameters and gives the
     manager no prefix; with values it sets them; replay.launch passes no play_args by default."""
     import roslaunch.config
     import roslaunch.xmlloader
@@ -44,7 +44,7 @@ def test_the_default_words_expand_to_nothing():
         return config
 
     keys = ("backend_node/store_path", "odometry_node/image_transport", "odometry_node/camera_info_url",
-            "odometry_node/rectified_images")
+            "odometry_node/rectified_images", "backend_node/mode")
     config = load("slam.launch")
     set_here = [k for k in config.params if k.startswith("/uw_multislam/") and k.endswith(keys)]
     # config/default.yaml (loaded by core.launch with rosparam) sets some of them: values from it only.
@@ -53,9 +53,9 @@ def test_the_default_words_expand_to_nothing():
     manager, = [n for n in config.nodes if n.name == "manager"]
     assert manager.launch_prefix in (None, "")
     given = load("slam.launch", "store_path:=/tmp/s.db", "transport:=compressed", "camera_info_url:=file:///c.yaml",
-                 "rectified_images:=true", "launch_prefix:=nice")
+                 "rectified_images:=true", "launch_prefix:=nice", "mode:=localisation")
     values = {k.rsplit("/uw_multislam/", 1)[1]: p.value for k, p in given.params.items() if k.startswith("/uw_multislam/")}
-    assert [values[k] for k in keys] == ["/tmp/s.db", "compressed", "file:///c.yaml", True]
+    assert [values[k] for k in keys] == ["/tmp/s.db", "compressed", "file:///c.yaml", True, "localisation"]
     assert [n for n in given.nodes if n.name == "manager"][0].launch_prefix == "nice"
     none = load("slam.launch", "store_path:=none")
     assert none.params["/uw_multislam/backend_node/store_path"].value == ""

@@ -40,6 +40,7 @@ def run(*args):
     (["link", "0", "1", "1", "1", "0", "1", "0", "0", "0.01"], "link: wrong arguments"),  # sigma 0
     (["detect", "0"], "detect takes 2 to 1000 argument(s), got 1"),
     (["detect", "0", "x"], "detect: wrong arguments"),
+    (["mode"], "mode takes 1 argument(s), got 0"),
 ])
 def test_wrong_arguments_exit_2_with_the_reason(args, why):
     res = run(*args)
@@ -50,7 +51,7 @@ def test_wrong_arguments_exit_2_with_the_reason(args, why):
 
 @pytest.mark.parametrize("args", [["reload", "yesterday"], ["list"], ["join", "0", "1"], ["pause"], ["resume"], ["finish"],
                                   ["optimise"], ["link", "0", "1", "1", "1", "0", "1", "0", "0.1", "0.01"],
-                                  ["detect", "0", "1"]])
+                                  ["detect", "0", "1"], ["mode", "localisation"]])
 def test_no_master_exits_1_naming_it(args):
     res = run("--timeout", "1", *args)
     assert res.returncode == 1, res

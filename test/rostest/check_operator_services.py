@@ -14,6 +14,7 @@ and merged without loops (merge_stores --no-loops): two stored maps. The service
 loops between them and the back-end joins the maps by its rule (K loops); a second call finds only
 loops it holds already; wrong calls are refused with nothing changed.
 """
+import hashlib
 import math
 import os
 import shutil
@@ -30,8 +31,8 @@ import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose2D
 from pipeline_fixture import await_condition, connected, diagnostic_values, make_mission, synthetic_keyframe, tool
-from uw_multislam.msg import Keyframe, SessionState, Status
-from uw_multislam.srv import AddLink, DetectLoops, JoinSessions, ListSessions, Optimise
+from uw_multislam.msg import Keyframe, Loop, SessionState, Status
+from uw_multislam.srv import AddLink, DetectLoops, JoinSessions, ListSessions, Optimise, SetMode
 
 NS = "/operator_test"
 SESSIONS_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "sessions.py")
@@ -49,11 +50,11 @@ class OperatorServicesTest(unittest.TestCase):
         self.diag_sub = rospy.Subscriber("/diagnostics", DiagnosticArray, self.on_diagnostics, queue_size=100)
         self.node = None
 
-    def start_backend(self, db, backend_params=None):
+    def start_backend(self, db, backend_params=None, name="backend_node", args=()):
         if backend_params:
             rospy.set_param(NS + "/slam/backend", backend_params)
-        self.node = subprocess.Popen([tool("backend_node"), "__ns:=" + NS, "__name:=backend_node",
-                                      "_store_path:=" + db, "_diagnostic_period:=0.2"],
+        self.node = subprocess.Popen([tool("backend_node"), "__ns:=" + NS, "__name:=" + name,
+                                      "_store_path:=" + db, "_diagnostic_period:=0.2", *args],
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         self.lines = []
         threading.Thread(target=lambda: self.lines.extend(self.node.stdout), daemon=True).start()
@@ -61,8 +62,12 @@ class OperatorServicesTest(unittest.TestCase):
     def tearDown(self):
         self.diag_sub.unregister()
         if self.node is not None and self.node.poll() is None:
-            self.node.kill()
-            self.node.wait()
+            self.node.send_signal(signal.SIGINT)  # a clean exit unregisters its topics from the master
+            try:
+                self.node.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.node.kill()
+                self.node.wait()
         if rospy.has_param(NS + "/slam"):
             rospy.delete_param(NS + "/slam")
         shutil.rmtree(self.tmp, ignore_errors=True)
@@ -82,6 +87,31 @@ class OperatorServicesTest(unittest.TestCase):
         with self.lock:
             return int(self.status.get("optimisations", -1))
 
+    def stop_backend(self):
+        self.node.send_signal(signal.SIGINT)
+        self.node.wait(timeout=60)
+        self.assertEqual(self.node.returncode, 0, "".join(self.lines)[-3000:])
+
+    def feed(self, keyframes, loops=()):
+        """Publishes {session: n} keyframes and the loops, with a publisher of this call's own (a
+        publisher kept from an earlier back-end node could count its dead connection)."""
+        kf_pub = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=100)
+        loop_pub = rospy.Publisher(NS + "/loops", Loop, queue_size=100)
+        try:
+            await_condition(self.lock, lambda: connected([kf_pub, loop_pub]), 30, "the back-end's subscriptions")
+            for session, n in keyframes.items():
+                for k in range(n):
+                    kf_pub.publish(synthetic_keyframe(session, k, FEATURES))
+            for loop in loops:
+                loop_pub.publish(loop)
+            deadline = time.time() + 60
+            while time.time() < deadline and any(self.sessions().get(s, (0, 0, 0, 0))[2] != n
+                                                 for s, n in keyframes.items()):
+                time.sleep(0.1)
+        finally:
+            kf_pub.unregister()
+            loop_pub.unregister()
+
     def link(self, a, ka, b, kb, pose=(0.0, 1.0, 0.0), covariance=COV, inliers=0):
         return rospy.ServiceProxy(NS + "/add_link", AddLink)(a, ka, b, kb, Pose2D(*pose), covariance, inliers)
 
@@ -89,14 +119,7 @@ class OperatorServicesTest(unittest.TestCase):
         self.start_backend(self.db, {"optimise_every": 100, "intra_loop_gate": False})
         for name in ("list_sessions", "add_link", "optimise", "join_sessions"):
             rospy.wait_for_service(NS + "/" + name, timeout=60)
-        kf_pub = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=100)
-        await_condition(self.lock, lambda: connected([kf_pub]), 30, "the back-end's keyframe subscription")
-        for session, n in KEYFRAMES.items():
-            for k in range(n):
-                kf_pub.publish(synthetic_keyframe(session, k, FEATURES))
-        deadline = time.time() + 60
-        while time.time() < deadline and [v[2] for v in self.sessions().values()] != list(KEYFRAMES.values()):
-            time.sleep(0.1)
+        self.feed(KEYFRAMES)
         before = self.sessions()
         self.assertEqual([v[2] for v in before.values()], list(KEYFRAMES.values()), before)
         self.assertEqual([v[1] for v in before.values()], [0, 1])  # two maps
@@ -147,9 +170,7 @@ class OperatorServicesTest(unittest.TestCase):
         self.assertEqual(tool_says.returncode, 0, tool_says)
         self.assertTrue(tool_says.stdout.startswith("add_link 0:2 -> 7:2 -> NOT_FOUND: no session 7"), tool_says.stdout)
 
-        self.node.send_signal(signal.SIGINT)
-        self.node.wait(timeout=60)
-        self.assertEqual(self.node.returncode, 0, "".join(self.lines)[-3000:])
+        self.stop_backend()
         with sqlite3.connect(self.db) as c:
             stored = c.execute("SELECT keyframe_a, keyframe_b, kind FROM loops ORDER BY id").fetchall()
         self.assertEqual([tuple(r) for r in stored], [(0, 4, "local"), (2, 2, "global")])
@@ -199,6 +220,59 @@ class OperatorServicesTest(unittest.TestCase):
                           again.stdout)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+
+    def test_localisation_mode_leaves_the_store_byte_identical(self):
+        """set_mode (issue 16, item 4; must-show: the store byte-identical by md5)."""
+        self.start_backend(self.db, name="mapping_node")
+        rospy.wait_for_service(NS + "/list_sessions", timeout=60)
+        self.feed({0: 8})
+        self.assertEqual(self.sessions()[0][2], 8)
+        self.stop_backend()
+        stored = md5(self.db)
+
+        self.start_backend(self.db, name="switched_node")
+        for name in ("set_mode", "join_sessions", "add_link", "optimise", "detect_loops"):
+            rospy.wait_for_service(NS + "/" + name, timeout=60)
+        set_mode = rospy.ServiceProxy(NS + "/set_mode", SetMode)
+        res = set_mode("survey")
+        self.assertEqual((res.status.code, res.mode), (Status.INVALID_ARGUMENT, "mapping"), res.status.message)
+        tool_says = subprocess.run([SESSIONS_TOOL, "--ns", NS, "mode", "localisation"], capture_output=True, text=True,
+                                   timeout=60)
+        self.assertEqual((tool_says.returncode, tool_says.stdout.strip()),
+                         (0, "set_mode localisation -> OK, localisation mode"), tool_says)
+        res = set_mode("localisation")  # again: OK, said
+        self.assertEqual((res.status.code, res.mode), (Status.OK, "localisation"), res.status.message)
+        await_condition(self.lock, lambda: self.status.get("mode") == "localisation", 30, "mode on /diagnostics")
+        local = Loop(kind=Loop.LOCAL, session_a=1, keyframe_a=0, session_b=1, keyframe_b=4, pose=Pose2D(2.0, 0, 0),
+                     covariance=COV, inliers=80)
+        across = Loop(kind=Loop.GLOBAL, session_a=0, keyframe_a=2, session_b=1, keyframe_b=2,
+                      pose=Pose2D(0, 1.0, 0), covariance=COV, inliers=80)
+        self.feed({1: 5}, [local, across])
+        await_condition(self.lock, lambda: self.sessions()[1][3] == 2, 30, "the two loops")
+        tracked = self.sessions()
+        self.assertEqual((tracked[1][2], tracked[1][1]), (5, 1), tracked)  # tracked, alone in its map
+        refused = [rospy.ServiceProxy(NS + "/join_sessions", JoinSessions)(0, 1, 1).status,
+                   self.link(0, 3, 1, 3).status, rospy.ServiceProxy(NS + "/optimise", Optimise)().status,
+                   rospy.ServiceProxy(NS + "/detect_loops", DetectLoops)([0, 1]).status]
+        for status in refused:
+            self.assertEqual(status.code, Status.FAILED_PRECONDITION, status.message)
+            self.assertIn("localisation mode", status.message)
+        self.assertEqual(self.sessions(), tracked)
+        self.stop_backend()
+        self.assertEqual(md5(self.db), stored, "localisation mode changed the store")
+
+        # ~mode at start: nothing written from the start; the localisation session was never stored.
+        self.start_backend(self.db, name="localising_node", args=["_mode:=localisation"])
+        rospy.wait_for_service(NS + "/list_sessions", timeout=60)
+        await_condition(self.lock, lambda: self.status.get("mode") == "localisation", 30, "mode on /diagnostics")
+        self.assertEqual(sorted(self.sessions()), [0])
+        self.stop_backend()
+        self.assertEqual(md5(self.db), stored, "a start in localisation mode changed the store")
+
+
+def md5(path):
+    with open(path, "rb") as f:
+        return hashlib.md5(f.read()).hexdigest()
 
 
 if __name__ == "__main__":

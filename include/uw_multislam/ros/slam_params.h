@@ -37,6 +37,7 @@ core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::stri
 struct BackendNodeletOptions {
   std::string store_path;  // "" = no store; default $ROS_HOME/uw_multislam/sessions.db
   double store_max_mb = 0.0;  // a cap on the store file (0: none); writes past it are counted failures
+  bool localisation = false;  // ~mode localisation at start (SessionManager::setLocalisation); set_mode changes it
   ros_frames::FrameOptions frames;  // frames/* and the tf switches and rates
   int queue_size = 1000, max_waiting_loops = 1000, max_keyframe_gap = 1000;
   int max_empty_sessions = 1;  // start_session refused while this many sessions in a row have no keyframe

@@ -252,7 +252,7 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
   // (join_min_loops 0 turns automatic joining off for both).
   const int needed = options_.join_policy == JoinPolicy::kCount ? options_.join_min_loops
                                                                  : options_.join_min_consistent;
-  if (options_.join_min_loops > 0 && !barred(l.session_a, l.session_b) &&
+  if (automatic_joins_ && options_.join_min_loops > 0 && !barred(l.session_a, l.session_b) &&
       static_cast<int>(loopsBetween(ma, mb, true).size()) >= needed) {
     const BackendStatus st = joinMaps(ma, mb, needed, true);
     if (!st.ok()) {

@@ -80,6 +80,11 @@ Status notFound(int session) {
   return {StatusCode::kNotFound, "no session " + std::to_string(session) + " (call list_sessions for the ids)"};
 }
 
+Status refusedWhileLocalising(const std::string& what) {
+  return {StatusCode::kFailedPrecondition, what + " is refused in localisation mode (no stored map changes): "
+                                                  "set_mode mapping first"};
+}
+
 bool validSessionId(int id) { return id >= 0 && id <= kMaxSessionId; }
 
 Status badSessionId(const std::string& what, int id) {
@@ -205,7 +210,7 @@ void SessionManager::emit(SessionEvent::Kind kind, int session, int other, int m
 
 template <typename F>
 bool SessionManager::storeWrite(const char* what, F write) {
-  if (!store_) return false;
+  if (!store_ || localising_) return false;  // localisation mode: nothing written (not a failure)
   try {
     write();
     return true;
@@ -293,6 +298,12 @@ bool SessionManager::keyframeStored(int session, int keyframe, int pending_sessi
 void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion,
                                    double stamp_s, const std::vector<Loop>* loops, std::vector<StoredLoop>* stored) {
   if (!store_) return;
+  if (localising_ && !s.memory_only) {
+    s.memory_only = true;
+    say("localisation mode: session " + std::to_string(idOfBackend(s.backend)) + " '" + s.name + "': keyframes from " +
+        std::to_string(keyframe) + " on are kept in memory only (" + std::to_string(s.stored) + " stored)");
+  }
+  if (s.memory_only) return;
   if (s.store_cut || keyframe != s.stored) {  // after a failed write: not stored, counted
     ++stats_.store_failures;
     return;
@@ -513,14 +524,18 @@ Status SessionManager::addLoop(const Loop& l, bool* waiting) {
     return {StatusCode::kFailedPrecondition, std::string("loop refused: ") + e.what()};
   }
   std::int64_t stored_id = -1;
-  if (store_ && (!keyframeStored(l.session_a, l.keyframe_a) || !keyframeStored(l.session_b, l.keyframe_b)))
+  auto memoryOnly = [&](int s, int k) { return !keyframeStored(s, k) && at(s).memory_only; };
+  if (!store_ || localising_ || memoryOnly(l.session_a, l.keyframe_a) || memoryOnly(l.session_b, l.keyframe_b)) {
+    // nothing written: no store, or localisation mode (not a failure)
+  } else if (!keyframeStored(l.session_a, l.keyframe_a) || !keyframeStored(l.session_b, l.keyframe_b)) {
     ++stats_.store_failures;  // on a keyframe the store lacks (a failed write): kept in memory only
-  else
+  } else {
     storeWrite("writing a loop", [&] {
       std::vector<StoredLoop> one{toStored(l)};
       store_->addLoops(&one);
       stored_id = one[0].id;
     });
+  }
   store_loops_.push_back(stored_id);
   afterBackendChange();
   return Status::Ok();
@@ -550,6 +565,7 @@ Status SessionManager::addLink(Loop l) {
   if (!bad.empty())
     return {StatusCode::kInvalidArgument, "add_link: " + bad + " (x, y, yaw; m^2, rad^2, row-major)"};
   if (l.inliers < 0) return {StatusCode::kInvalidArgument, "add_link: inliers must be >= 0"};
+  if (localising_) return refusedWhileLocalising("add_link");
   l.kind = l.session_a == l.session_b ? Loop::Kind::kLocal : Loop::Kind::kGlobal;
   l.frame_a = at(l.session_a).frames.at(l.keyframe_a);
   l.frame_b = at(l.session_b).frames.at(l.keyframe_b);
@@ -562,8 +578,18 @@ Status SessionManager::addLink(Loop l) {
   return st;
 }
 
+Status SessionManager::setLocalisation(bool on) {
+  if (on == localising_) return Status::Ok(on ? "already in localisation mode" : "already in mapping mode");
+  localising_ = on;
+  backend_->setAutomaticJoins(!on);
+  say(on ? "localisation mode: nothing is written to the store, no stored map changes, automatic joins wait"
+         : "mapping mode: the store is written again (keyframes kept in memory only stay so)");
+  return Status::Ok();
+}
+
 Status SessionManager::optimisePending(int* maps) {
   if (maps) *maps = 0;
+  if (localising_) return refusedWhileLocalising("optimise");
   if (!options_.backend.optimise)
     return {StatusCode::kFailedPrecondition, "optimisation is off (backend.optimise: false)"};
   const int n = backend_->optimisePending();
@@ -609,6 +635,7 @@ Status SessionManager::join(int session_a, int session_b, int min_loops) {
     if (!has(s)) return notFound(s);
   }
   if (min_loops < 0) return {StatusCode::kInvalidArgument, "min_loops must be >= 0 (0: the configured K)"};
+  if (localising_) return refusedWhileLocalising("join_sessions");
   const int k = min_loops > 0 ? min_loops : std::max(1, options_.backend.join_min_loops);
   const Status st = backend_->join(at(session_a).backend, at(session_b).backend, k);
   if (st.ok()) {
@@ -621,6 +648,7 @@ Status SessionManager::join(int session_a, int session_b, int min_loops) {
 Status SessionManager::split(int session) {
   if (!validSessionId(session)) return badSessionId("split_session", session);
   if (!has(session)) return notFound(session);
+  if (localising_) return refusedWhileLocalising("split_session");
   const Status st = backend_->split(at(session).backend);
   if (st.ok()) {
     say("split_session " + std::to_string(session) + ": " + st.message);

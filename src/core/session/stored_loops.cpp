@@ -94,6 +94,9 @@ Status detectStoredLoops(SessionManager* manager, const SlamConfig& config, cons
   if (sessions.size() < 2)
     return {StatusCode::kInvalidArgument, "detect_loops needs two or more stored sessions (list_sessions ids)"};
   if (!manager->hasStore()) return {StatusCode::kFailedPrecondition, "detect_loops: no session store"};
+  if (manager->localising())
+    return {StatusCode::kFailedPrecondition,
+            "detect_loops is refused in localisation mode (no stored map changes): set_mode mapping first"};
   std::set<int> seen;
   for (int s : sessions) {
     if (!seen.insert(s).second)

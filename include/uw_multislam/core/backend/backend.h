@@ -225,6 +225,9 @@ class MultiSessionBackend {
   /// The operator's "optimise now": every map with pending loops (fewer than optimise_every) is
   /// optimised now, or (deferred) marked due. Returns how many; 0 when optimise is off.
   int optimisePending();
+  /// false: no automatic join (the loops between maps are kept and counted towards the next one);
+  /// joins asked for (join) still happen. The session manager's localisation mode.
+  void setAutomaticJoins(bool on) { automatic_joins_ = on; }
 
   // --- Deferred optimisation ---
   /// true: requests only mark maps due (dueMaps); the host optimises them with the three calls below.
@@ -341,6 +344,7 @@ class MultiSessionBackend {
   std::set<std::pair<int, int>> split_pairs_;  // sessions split apart by the user
   BackendStats stats_;
   bool deferred_ = false;
+  bool automatic_joins_ = true;
   std::set<int> due_;  // maps marked for a deferred optimisation
 };
 

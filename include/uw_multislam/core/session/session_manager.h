@@ -203,6 +203,14 @@ class SessionManager {
   /// optimise_every) is optimised now, or (deferred) marked due. `maps`: how many.
   /// FAILED_PRECONDITION when optimisation is off (backend.optimise false).
   Status optimisePending(int* maps = nullptr);
+  /// Localisation mode (set_mode, issue 16 item 4): nothing is written to the store and no stored
+  /// map changes, while sessions are still tracked. A session recording when it is switched on
+  /// keeps what is stored and the rest in memory only; sessions started in it are memory only;
+  /// neither is ever written later (a store keeps a prefix of each session). Automatic joins wait;
+  /// join, split, add_link, optimise and detect_loops are refused (FAILED_PRECONDITION). Back in
+  /// mapping mode everything goes on as before (the memory-only keyframes stay unstored).
+  Status setLocalisation(bool on);
+  bool localising() const { return localising_; }
   /// Joins the maps of two sessions from the global loops between them (min_loops 0: K).
   /// INVALID_ARGUMENT for an id outside [0, kMaxSessionId], NOT_FOUND for an unknown one.
   Status join(int session_a, int session_b, int min_loops = 0);
@@ -302,6 +310,7 @@ class SessionManager {
     // (store_cut) the later ones are not written either (a gap would make the store unrestorable).
     int stored = 0;
     bool store_cut = false;
+    bool memory_only = false;  // keyframes from `stored` on are not written: localisation mode
   };
   /// Whether the keyframe is in the store (or `pending`: written in the same transaction).
   bool keyframeStored(int session, int keyframe, int pending_session = -1, int pending_keyframe = -1) const;
@@ -336,6 +345,7 @@ class SessionManager {
   std::unique_ptr<SessionStore> store_;
   std::map<int, Session> sessions_;
   std::vector<int> id_of_backend_;         // back-end index -> session id
+  bool localising_ = false;
   std::vector<std::int64_t> store_loops_;  // back-end loop index -> store loop id (-1: not stored)
   std::vector<Loop> loops_;                // accepted loops, session ids
   int active_ = -1;

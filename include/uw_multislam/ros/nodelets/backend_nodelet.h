@@ -95,6 +95,7 @@
 #include "uw_multislam/DetectLoops.h"
 #include "uw_multislam/FinishSession.h"
 #include "uw_multislam/Optimise.h"
+#include "uw_multislam/SetMode.h"
 #include "uw_multislam/StartSession.h"
 #include "uw_multislam/core/session/live_mosaic.h"
 #include "uw_multislam/core/session/session_manager.h"
@@ -144,6 +145,8 @@ class BackendNodelet : public nodelet::Nodelet {
   bool onOptimise(uw_multislam::Optimise::Request& req, uw_multislam::Optimise::Response& res);
   /// detect_loops: core::detectStoredLoops under the state lock (the worker waits meanwhile).
   bool onDetectLoops(uw_multislam::DetectLoops::Request& req, uw_multislam::DetectLoops::Response& res);
+  /// set_mode: mapping | localisation (SessionManager::setLocalisation).
+  bool onSetMode(uw_multislam::SetMode::Request& req, uw_multislam::SetMode::Response& res);
   bool onReload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res);
   bool onExport(uw_multislam::ExportSurvey::Request& req, uw_multislam::ExportSurvey::Response& res);
   /// The live mosaic's thread (see "Threading model").
@@ -192,7 +195,7 @@ class BackendNodelet : public nodelet::Nodelet {
   std::atomic<bool> mosaic_due_{true};  // the active map changed since the last drawing
   std::mutex export_mutex_;             // one export at a time
   ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_, export_srv_, finish_srv_, link_srv_,
-      optimise_srv_, detect_srv_;
+      optimise_srv_, detect_srv_, mode_srv_;
   ros::Subscriber keyframe_sub_, loop_sub_, pose_sub_;  // last: destroyed first
 };
 
