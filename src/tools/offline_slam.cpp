@@ -58,6 +58,10 @@ options:
                     --session may then be left out
   --interrupted discard|finish
                     what to do with a folder's run that was interrupted (above)
+  --localise-only   with --db: the store is read, never written (localisation mode, as the
+                    back-end's set_mode localisation): the folders are tracked and their loops to
+                    the stored sessions found, automatic joins wait, OUT gets the outputs; the
+                    store stays byte-identical. Not with --detect-loops or --interrupted
   --nav on|off      use a folder's nav.csv (dead reckoning) as a prior (default: nav.enabled, on)
   --threads N       OpenCV threads (default 1: one core, as onboard)
   --dump-config     print the effective configuration and exit
@@ -134,7 +138,7 @@ int main(int argc, char** argv) {
   std::vector<std::string> folders;
   std::string out, config_file, db, nav, interrupted;
   int threads = 1;
-  bool dump = false, quiet = false, again = false, detect_loops = false;
+  bool dump = false, quiet = false, again = false, detect_loops = false, localise_only = false;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     const bool has_value = i + 1 < argc;
@@ -147,6 +151,7 @@ int main(int argc, char** argv) {
     else if (arg == "--quiet") quiet = true;
     else if (arg == "--again") again = true;
     else if (arg == "--detect-loops") detect_loops = true;
+    else if (arg == "--localise-only") localise_only = true;
     else if (arg == "--nav" && has_value) nav = argv[++i];
     else if (arg == "--interrupted" && has_value) interrupted = argv[++i];
     else if (arg == "--threads" && has_value) {
@@ -167,8 +172,15 @@ int main(int argc, char** argv) {
     if (!interrupted.empty() && db.empty()) return badArgs("--interrupted needs --db FILE");
     if (dump) return std::fputs(core::slamConfigToYaml(config).c_str(), stdout), 0;
     if (detect_loops && db.empty()) return badArgs("--detect-loops needs --db FILE");
+    if (localise_only && db.empty()) return badArgs("--localise-only needs --db FILE");
+    if (localise_only && (detect_loops || !interrupted.empty()))
+      return badArgs("--localise-only writes nothing to the store: not with --detect-loops or --interrupted");
     if (folders.empty() && !detect_loops) return badArgs("at least one --session DIR is required");
     if (out.empty()) return badArgs("--out OUT is required");
+    if (localise_only && !std::filesystem::exists(db)) {
+      std::fprintf(stderr, "offline_slam: --localise-only: no store %s (it would not be created)\n", db.c_str());
+      return 1;
+    }
     cv::setNumThreads(threads);
     // Every folder and the store are checked before any work or any output.
     std::vector<core::Dataset> datasets;
@@ -187,6 +199,7 @@ int main(int argc, char** argv) {
     };
     const auto t0 = std::chrono::steady_clock::now();
     core::SessionManager manager(core::sessionManagerOptions(config, db), {}, print("backend: "));
+    if (localise_only) manager.setLocalisation(true);  // before any keyframe: nothing is written
     core::Pipeline pipeline(config, &manager, print(""), !quiet);
     const int stored = manager.restoredSessions();
     for (std::size_t ds = 0; !again && ds < datasets.size(); ++ds) {

@@ -210,3 +210,36 @@ def test_detect_loops_joins_stored_sessions_without_a_new_one(merged, tmp_path):
     assert found > 5 and held == found and " 0 accepted" in line, line
     r = run("offline_slam", "--detect-loops", "--out", tmp_path / "o3")
     assert r.returncode == 2 and "--db" in r.stderr
+
+
+def test_localise_only_leaves_the_store_byte_identical(stores, tmp_path):
+    """Issue 16, item 4 (offline equivalent of set_mode localisation): offline_slam --localise-only
+    over folder b against store a (session 0) tracks b, finds its global loops to session 0, does not
+    join (automatic joins wait), writes its outputs, and leaves the store byte-identical; the same run
+    without the flag writes to the store (so the md5 check can fail). Bad combinations exit 2."""
+    base, made = stores
+    db = tmp_path / "a.db"
+    shutil.copy(made["a"], db)
+    before = md5(db)
+    r = run("offline_slam", "--session", base / "m" / "b", "--db", db, "--localise-only", "--out", tmp_path / "loc")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "localisation mode" in r.stdout
+    assert md5(db) == before, "--localise-only changed the store"
+    trajectory = rows(tmp_path / "loc" / "trajectory.csv")
+    assert {int(t["session"]) for t in trajectory} == {0, 1}
+    assert {int(t["map"]) for t in trajectory if int(t["session"]) == 1} == {1}  # no join
+    across = [l for l in rows(tmp_path / "loc" / "loops.csv") if l["kind"] == "global"]
+    assert len(across) >= 5, across  # found against the stored session all the same
+    r = run("offline_slam", "--session", base / "m" / "b", "--db", db, "--out", tmp_path / "map", "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert md5(db) != before
+    for extra in (["--detect-loops"], ["--interrupted", "finish"]):
+        r = run("offline_slam", "--session", base / "m" / "b", "--db", db, "--localise-only", *extra,
+                "--out", tmp_path / "x")
+        assert r.returncode == 2 and "--localise-only" in r.stderr, r.stderr
+    r = run("offline_slam", "--session", base / "m" / "b", "--localise-only", "--out", tmp_path / "y")
+    assert r.returncode == 2 and "--db" in r.stderr, r.stderr
+    r = run("offline_slam", "--session", base / "m" / "b", "--db", tmp_path / "none.db", "--localise-only",
+            "--out", tmp_path / "z")
+    assert r.returncode == 1 and "would not be created" in r.stderr, r.stderr
+    assert not (tmp_path / "none.db").exists()
