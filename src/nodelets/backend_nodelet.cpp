@@ -356,11 +356,15 @@ bool BackendNodelet::onAddLink(uw_multislam::AddLink::Request& req, uw_multislam
   core::Loop l;  // checked as a detector's loop is, then by the manager
   std::string why;
   std::lock_guard<std::mutex> lock(state_mutex_);
-  const core::Status st = rc::fromAddLinkRequest(req, &l, &why)
-                              ? manager_->addLink(l)
-                              : core::Status{core::StatusCode::kInvalidArgument, "add_link: " + why};
+  core::Status st = rc::fromAddLinkRequest(req, &l, &why)
+                        ? core::Status::Ok()
+                        : core::Status{core::StatusCode::kInvalidArgument, "add_link: " + why};
+  if (st.ok() && req.find) st = core::findStoredLink(*manager_, config_, &l);  // RANSAC on the stored features
+  if (st.ok()) st = manager_->addLink(l);
   res.status = rc::toStatusMsg(st);
   if (!st.ok()) return true;
+  res.pose = rc::toPose2DMsg(l.z.mean);
+  res.inliers = l.inliers;
   publishAll(true);
   queue_->pushPriority(Message());  // the link's map may be due
   return true;

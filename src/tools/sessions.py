@@ -13,6 +13,7 @@
     sessions.py link A KA B KB X Y YAW SIGMA_XY SIGMA_YAW [INLIERS]
                                           (add_link: keyframe KB of session B at (X, Y, YAW) in keyframe KA
                                            of session A, metres and radians, diagonal covariance)
+    sessions.py find A KA B KB            (add_link "find it": RANSAC between two stored keyframes)
     sessions.py optimise                  (optimises now the maps whose loops wait)
     sessions.py detect S1 S2 [S3 ...]     (detect_loops among stored sessions, each against those before it)
     sessions.py mode mapping|localisation (set_mode: localisation writes nothing to the store)
@@ -49,7 +50,7 @@ def status_text(status):
 # command -> (fewest, most) arguments
 ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1), "pause": (0, 0),
          "resume": (0, 0), "finish": (0, 0), "link": (9, 10), "optimise": (0, 0),
-         "detect": (2, 1000), "mode": (1, 1)}
+         "detect": (2, 1000), "mode": (1, 1), "find": (4, 4)}
 
 
 def call_service(ns, name, kind, *request, timeout=30.0):
@@ -113,8 +114,14 @@ def main():
             if not (sxy > 0 and syaw > 0):
                 raise ValueError("the sigmas must be positive")
             covariance = [sxy * sxy, 0, 0, 0, sxy * sxy, 0, 0, 0, syaw * syaw]
-            res = call(args.ns, "add_link", AddLink, a, ka, b, kb, Pose2D(x, y, yaw), covariance, inliers)
+            res = call(args.ns, "add_link", AddLink, a, ka, b, kb, Pose2D(x, y, yaw), covariance, inliers, False)
             print("add_link %d:%d -> %d:%d -> %s" % (a, ka, b, kb, status_text(res.status)))
+        elif args.command == "find":
+            a, ka, b, kb = (int(v) for v in args.args)
+            res = call(args.ns, "add_link", AddLink, a, ka, b, kb, Pose2D(), [0.0] * 9, 0, True)
+            print("add_link find %d:%d -> %d:%d -> %s%s" % (
+                a, ka, b, kb, status_text(res.status), ", pose (%.3f, %.3f, %.4f), %d inliers" % (
+                    res.pose.x, res.pose.y, res.pose.theta, res.inliers) if res.status.code == Status.OK else ""))
         elif args.command == "optimise":
             res = call(args.ns, "optimise", Optimise)
             print("optimise -> %s, %d maps due" % (status_text(res.status), res.maps))

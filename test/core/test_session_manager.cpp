@@ -417,10 +417,28 @@ TEST(SessionManager, DetectLoopsIsRefusedWithNothingChangedForEveryMisuse) {
     EXPECT_FALSE(st.message.empty());
     EXPECT_EQ(f.queries, 0);
   }
+  // add_link's find form, on the same sessions (no features stored: nothing to verify).
+  const std::vector<std::pair<Loop, StatusCode>> finds{
+      {globalLoop(0, 1, 9, 1, Pose2()), StatusCode::kNotFound},
+      {globalLoop(0, 1, 1, 4, Pose2()), StatusCode::kNotFound},
+      {globalLoop(0, -1, 1, 1, Pose2()), StatusCode::kInvalidArgument},
+      {globalLoop(1, 1, 1, 1, Pose2()), StatusCode::kInvalidArgument},
+      {globalLoop(0, 1, 2, 1, Pose2()), StatusCode::kFailedPrecondition},  // recorded in this run
+      {globalLoop(0, 1, 1, 1, Pose2()), StatusCode::kFailedPrecondition}};  // no motion verified
+  for (std::size_t i = 0; i < finds.size(); ++i) {
+    Loop l = finds[i].first;
+    const Status st = findStoredLink(m, config, &l);
+    EXPECT_EQ(st.code, finds[i].second) << i << ": " << st.message;
+    EXPECT_FALSE(st.message.empty()) << i;
+  }
+  Loop unverified = globalLoop(0, 1, 1, 1, Pose2());
+  EXPECT_NE(findStoredLink(m, config, &unverified).message.find("no motion verified"), std::string::npos);
   SessionManager none(options());
   addStraightSession(&none, 0, 2);
   addStraightSession(&none, 1, 2);
   EXPECT_EQ(detectStoredLoops(&none, config, {0, 1}, &f).code, StatusCode::kFailedPrecondition);
+  Loop without_store = globalLoop(0, 1, 1, 1, Pose2());
+  EXPECT_EQ(findStoredLink(none, config, &without_store).code, StatusCode::kFailedPrecondition);
   EXPECT_TRUE(m.loops().empty());
   EXPECT_EQ(m.mapIds(), (std::vector<int>{0, 1, 2}));
 }

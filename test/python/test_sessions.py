@@ -41,6 +41,8 @@ def run(*args):
     (["detect", "0"], "detect takes 2 to 1000 argument(s), got 1"),
     (["detect", "0", "x"], "detect: wrong arguments"),
     (["mode"], "mode takes 1 argument(s), got 0"),
+    (["find", "0", "1", "1"], "find takes 4 argument(s), got 3"),
+    (["find", "0", "1", "1", "x"], "find: wrong arguments"),
 ])
 def test_wrong_arguments_exit_2_with_the_reason(args, why):
     res = run(*args)

@@ -88,6 +88,54 @@ StoredLoopSearch searchStoredLoops(SessionManager* manager, const SlamConfig& co
   return r;
 }
 
+Status findStoredLink(const SessionManager& manager, const SlamConfig& config, Loop* link) {
+  if (!manager.hasStore()) return {StatusCode::kFailedPrecondition, "add_link find: no session store"};
+  if (manager.localising())
+    return {StatusCode::kFailedPrecondition,
+            "add_link is refused in localisation mode (no stored map changes): set_mode mapping first"};
+  const Loop& l = *link;
+  if (l.session_a == l.session_b && l.keyframe_a == l.keyframe_b)
+    return {StatusCode::kInvalidArgument, "add_link: a keyframe cannot be linked to itself"};
+  for (const auto& [s, k] : {std::pair<int, int>{l.session_a, l.keyframe_a}, {l.session_b, l.keyframe_b}}) {
+    if (!manager.has(s))
+      return {StatusCode::kNotFound, "add_link: no session " + std::to_string(s) + " (call list_sessions for the ids)"};
+    if (k < 0) return {StatusCode::kInvalidArgument, "add_link: keyframe ids are >= 0"};
+    const int n = static_cast<int>(manager.stamps(s).size());
+    if (k >= n)
+      return {StatusCode::kNotFound, "add_link: session " + std::to_string(s) + " has no keyframe " +
+                                         std::to_string(k) + " (it has " + std::to_string(n) + ")"};
+    if (s >= manager.restoredSessions())
+      return {StatusCode::kFailedPrecondition,
+              "add_link find: session " + std::to_string(s) +
+                  " was recorded in this run (its features are in the loop detector node): give the pose"};
+  }
+  StoredKeyframe a, b;
+  try {
+    a = manager.storedFeatures(l.session_a, l.keyframe_a);
+    b = manager.storedFeatures(l.session_b, l.keyframe_b);
+  } catch (const StoreError& e) {
+    return {StatusCode::kDataLoss, std::string("add_link find: ") + e.what()};
+  }
+  FrameFeatures fa = a.features(), fb = b.features();
+  fa.descriptors.convertTo(fa.descriptors, CV_32F);  // as the extractor gives them
+  fb.descriptors.convertTo(fb.descriptors, CV_32F);
+  const CameraIntrinsics& ca = manager.camera(l.session_a);
+  const CameraIntrinsics& cb = manager.camera(l.session_b);
+  const PairMotion m = estimatePairMotion({&fa, a.altitude_m, &ca}, {&fb, b.altitude_m, &cb}, config.odometry.matching,
+                                          config.odometry.ransac);
+  const int needed = l.session_a == l.session_b ? config.loops.local.min_inliers : config.loops.global.min_inliers;
+  const int inliers = m.ransac.success ? static_cast<int>(m.ransac.inliers.size()) : 0;
+  if (inliers < needed)
+    return {StatusCode::kFailedPrecondition,
+            "add_link find: no motion verified between " + std::to_string(l.session_a) + ":" +
+                std::to_string(l.keyframe_a) + " and " + std::to_string(l.session_b) + ":" +
+                std::to_string(l.keyframe_b) + " (" + std::to_string(m.matches) + " matches, " +
+                std::to_string(inliers) + " inliers, " + std::to_string(needed) + " needed): give the pose"};
+  link->z = UncertainPose2(m.ransac.motion, m.ransac.covariance);
+  link->inliers = inliers;
+  return Status::Ok();
+}
+
 Status detectStoredLoops(SessionManager* manager, const SlamConfig& config, const std::vector<int>& sessions,
                          StoredLoopSearch* out, const std::function<void(const std::string&)>& log) {
   *out = StoredLoopSearch();

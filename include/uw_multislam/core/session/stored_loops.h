@@ -42,5 +42,15 @@ StoredLoopSearch searchStoredLoops(SessionManager* manager, const SlamConfig& co
 Status detectStoredLoops(SessionManager* manager, const SlamConfig& config, const std::vector<int>& sessions,
                          StoredLoopSearch* out, const std::function<void(const std::string&)>& log = {});
 
+/// add_link's "find it" form: the pose of keyframe b in keyframe a's frame measured by RANSAC
+/// between the two keyframes' stored features (the loop detector's matching and verification,
+/// `config`), into `link` (z and inliers; the ids are the caller's). Both sessions must be restored
+/// from the store (a session recorded in this run keeps its features in the loop detector node:
+/// give the pose). Nothing changes: INVALID_ARGUMENT (a negative keyframe id, a keyframe linked to
+/// itself), NOT_FOUND (an unknown session or keyframe), FAILED_PRECONDITION (no store, a session
+/// of this run, localisation mode, or no motion verified: fewer inliers than the loops'
+/// min_inliers, said with the counts), DATA_LOSS (the stored features cannot be read).
+Status findStoredLink(const SessionManager& manager, const SlamConfig& config, Loop* link);
+
 }  // namespace core
 }  // namespace uw_multislam
