@@ -507,11 +507,26 @@ TEST(SessionManager, LocalisationModeWritesNothingChangesNoStoredMapAndLeavesARe
     ASSERT_TRUE(m.endSession(30.0).ok());
     EXPECT_EQ(m.stats().store_failures, 0);
   }
-  SessionManager again(o);
-  ASSERT_EQ(again.restoredSessions(), 2);
-  EXPECT_EQ(again.list()[0].keyframes, 8);
-  EXPECT_EQ(again.list()[1].keyframes, 3);
-  EXPECT_TRUE(again.loops().empty());  // the only loop was on a memory-only keyframe
+  {
+    SessionManager again(o);
+    ASSERT_EQ(again.restoredSessions(), 2);
+    EXPECT_EQ(again.list()[0].keyframes, 8);
+    EXPECT_EQ(again.list()[1].keyframes, 3);
+    EXPECT_TRUE(again.loops().empty());  // the only loop was on a memory-only keyframe
+    // A session cut by the mode that also ends in it: its end is not written (the store keeps it
+    // as recording, like an interrupted run).
+    addStraightSession(&again, 2, 3);
+    EXPECT_TRUE(again.setLocalisation(true).ok());
+    for (int k = 3; k < 5; ++k)
+      ASSERT_TRUE(again.addKeyframe(keyframe(2, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok());
+    ASSERT_TRUE(again.endSession(40.0).ok());
+    EXPECT_EQ(again.stats().store_failures, 0);
+  }
+  // The next start restores its stored prefix all the same.
+  SessionManager last(o);
+  ASSERT_EQ(last.restoredSessions(), 3);
+  EXPECT_EQ(last.list()[2].keyframes, 3);
+  EXPECT_EQ(last.nextId(), 3);
 }
 
 TEST(SessionManager, TheStoresDirectoryItCreatesIsTheOwnersOnly) {
