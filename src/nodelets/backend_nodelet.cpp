@@ -267,11 +267,11 @@ void BackendNodelet::publishAll(bool all_sessions) {
                                             options_.frames.map_frame, ros::Time::now()));
 }
 
-void BackendNodelet::announceNextSession() {
+void BackendNodelet::announceNextSession(std::uint8_t state) {
   uw_multislam::SessionState st;
   st.session = manager_->activeSession() >= 0 ? manager_->activeSession() : manager_->nextId();
   st.name = manager_->has(st.session) ? manager_->name(st.session) : core::defaultSessionName(st.session);
-  st.state = uw_multislam::SessionState::ACTIVE;
+  st.state = state;
   st.map = st.session;
   active_pub_.publish(st);
 }
@@ -340,12 +340,7 @@ bool BackendNodelet::onFinish(uw_multislam::FinishSession::Request&, uw_multisla
   queue_->pushPriority(Message());  // the ended session's map may be due
   // No session records now: the odometry drops frames until start_session or resume, then
   // starts the session with the next id.
-  uw_multislam::SessionState next;
-  next.session = manager_->nextId();
-  next.name = core::defaultSessionName(next.session);
-  next.state = uw_multislam::SessionState::FINISHED;
-  next.map = next.session;
-  active_pub_.publish(next);
+  announceNextSession(uw_multislam::SessionState::FINISHED);
   NODELET_INFO("back-end: finish_session: session %d '%s' finished; the odometry waits for start_session or resume",
                id, manager_->name(id).c_str());
   publishAll(true);

@@ -80,11 +80,6 @@ Status notFound(int session) {
   return {StatusCode::kNotFound, "no session " + std::to_string(session) + " (call list_sessions for the ids)"};
 }
 
-Status refusedWhileLocalising(const std::string& what) {
-  return {StatusCode::kFailedPrecondition, what + " is refused in localisation mode (no stored map changes): "
-                                                  "set_mode mapping first"};
-}
-
 bool validSessionId(int id) { return id >= 0 && id <= kMaxSessionId; }
 
 Status badSessionId(const std::string& what, int id) {
@@ -541,7 +536,7 @@ Status SessionManager::addLoop(const Loop& l, bool* waiting) {
   return Status::Ok();
 }
 
-Status SessionManager::addLink(Loop l) {
+Status SessionManager::checkLinkEnds(const Loop& l) const {
   for (int s : {l.session_a, l.session_b}) {
     if (!validSessionId(s)) return badSessionId("add_link", s);
     if (!has(s)) return notFound(s);
@@ -558,6 +553,17 @@ Status SessionManager::addLink(Loop l) {
   }
   if (l.session_a == l.session_b && l.keyframe_a == l.keyframe_b)
     return {StatusCode::kInvalidArgument, "add_link: a keyframe cannot be linked to itself"};
+  return Status::Ok();
+}
+
+Status SessionManager::storedMapsMayChange(const std::string& what) const {
+  if (!localising_) return Status::Ok();
+  return {StatusCode::kFailedPrecondition,
+          what + " is refused in localisation mode (no stored map changes): set_mode mapping first"};
+}
+
+Status SessionManager::addLink(Loop l) {
+  if (const Status ends = checkLinkEnds(l); !ends.ok()) return ends;
   if (!l.z.mean.isFinite()) return {StatusCode::kInvalidArgument, "add_link: the pose must be finite"};
   std::string bad = checkCovariance(l.z.covariance);  // finite, symmetric, not indefinite
   if (bad.empty() && Eigen::LLT<Eigen::Matrix3d>(l.z.covariance).info() != Eigen::Success)
@@ -565,7 +571,7 @@ Status SessionManager::addLink(Loop l) {
   if (!bad.empty())
     return {StatusCode::kInvalidArgument, "add_link: " + bad + " (x, y, yaw; m^2, rad^2, row-major)"};
   if (l.inliers < 0) return {StatusCode::kInvalidArgument, "add_link: inliers must be >= 0"};
-  if (localising_) return refusedWhileLocalising("add_link");
+  if (const Status mode = storedMapsMayChange("add_link"); !mode.ok()) return mode;
   l.kind = l.session_a == l.session_b ? Loop::Kind::kLocal : Loop::Kind::kGlobal;
   l.frame_a = at(l.session_a).frames.at(l.keyframe_a);
   l.frame_b = at(l.session_b).frames.at(l.keyframe_b);
@@ -589,7 +595,7 @@ Status SessionManager::setLocalisation(bool on) {
 
 Status SessionManager::optimisePending(int* maps) {
   if (maps) *maps = 0;
-  if (localising_) return refusedWhileLocalising("optimise");
+  if (const Status mode = storedMapsMayChange("optimise"); !mode.ok()) return mode;
   if (!options_.backend.optimise)
     return {StatusCode::kFailedPrecondition, "optimisation is off (backend.optimise: false)"};
   const int n = backend_->optimisePending();
@@ -635,7 +641,7 @@ Status SessionManager::join(int session_a, int session_b, int min_loops) {
     if (!has(s)) return notFound(s);
   }
   if (min_loops < 0) return {StatusCode::kInvalidArgument, "min_loops must be >= 0 (0: the configured K)"};
-  if (localising_) return refusedWhileLocalising("join_sessions");
+  if (const Status mode = storedMapsMayChange("join_sessions"); !mode.ok()) return mode;
   const int k = min_loops > 0 ? min_loops : std::max(1, options_.backend.join_min_loops);
   const Status st = backend_->join(at(session_a).backend, at(session_b).backend, k);
   if (st.ok()) {
@@ -648,7 +654,7 @@ Status SessionManager::join(int session_a, int session_b, int min_loops) {
 Status SessionManager::split(int session) {
   if (!validSessionId(session)) return badSessionId("split_session", session);
   if (!has(session)) return notFound(session);
-  if (localising_) return refusedWhileLocalising("split_session");
+  if (const Status mode = storedMapsMayChange("split_session"); !mode.ok()) return mode;
   const Status st = backend_->split(at(session).backend);
   if (st.ok()) {
     say("split_session " + std::to_string(session) + ": " + st.message);

@@ -90,20 +90,10 @@ StoredLoopSearch searchStoredLoops(SessionManager* manager, const SlamConfig& co
 
 Status findStoredLink(const SessionManager& manager, const SlamConfig& config, Loop* link) {
   if (!manager.hasStore()) return {StatusCode::kFailedPrecondition, "add_link find: no session store"};
-  if (manager.localising())
-    return {StatusCode::kFailedPrecondition,
-            "add_link is refused in localisation mode (no stored map changes): set_mode mapping first"};
+  if (const Status mode = manager.storedMapsMayChange("add_link"); !mode.ok()) return mode;
   const Loop& l = *link;
-  if (l.session_a == l.session_b && l.keyframe_a == l.keyframe_b)
-    return {StatusCode::kInvalidArgument, "add_link: a keyframe cannot be linked to itself"};
-  for (const auto& [s, k] : {std::pair<int, int>{l.session_a, l.keyframe_a}, {l.session_b, l.keyframe_b}}) {
-    if (!manager.has(s))
-      return {StatusCode::kNotFound, "add_link: no session " + std::to_string(s) + " (call list_sessions for the ids)"};
-    if (k < 0) return {StatusCode::kInvalidArgument, "add_link: keyframe ids are >= 0"};
-    const int n = static_cast<int>(manager.stamps(s).size());
-    if (k >= n)
-      return {StatusCode::kNotFound, "add_link: session " + std::to_string(s) + " has no keyframe " +
-                                         std::to_string(k) + " (it has " + std::to_string(n) + ")"};
+  if (const Status ends = manager.checkLinkEnds(l); !ends.ok()) return ends;
+  for (int s : {l.session_a, l.session_b}) {
     if (s >= manager.restoredSessions())
       return {StatusCode::kFailedPrecondition,
               "add_link find: session " + std::to_string(s) +
@@ -142,9 +132,7 @@ Status detectStoredLoops(SessionManager* manager, const SlamConfig& config, cons
   if (sessions.size() < 2)
     return {StatusCode::kInvalidArgument, "detect_loops needs two or more stored sessions (list_sessions ids)"};
   if (!manager->hasStore()) return {StatusCode::kFailedPrecondition, "detect_loops: no session store"};
-  if (manager->localising())
-    return {StatusCode::kFailedPrecondition,
-            "detect_loops is refused in localisation mode (no stored map changes): set_mode mapping first"};
+  if (const Status mode = manager->storedMapsMayChange("detect_loops"); !mode.ok()) return mode;
   std::set<int> seen;
   for (int s : sessions) {
     if (!seen.insert(s).second)

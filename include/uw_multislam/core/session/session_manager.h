@@ -199,6 +199,9 @@ class SessionManager {
   /// session or keyframe), FAILED_PRECONDITION (a bridged keyframe that never arrived, or the
   /// back-end refusing the loop).
   Status addLink(Loop loop);
+  /// addLink's checks of the two ends alone (ids, keyframes, a bridged keyframe, a keyframe linked
+  /// to itself; codes as addLink's), for a caller that measures the link first (findStoredLink).
+  Status checkLinkEnds(const Loop& loop) const;
   /// The operator's "optimise now": every map with loops waiting for optimisation (fewer than
   /// optimise_every) is optimised now, or (deferred) marked due. `maps`: how many.
   /// FAILED_PRECONDITION when optimisation is off (backend.optimise false).
@@ -211,6 +214,9 @@ class SessionManager {
   /// mapping mode everything goes on as before (the memory-only keyframes stay unstored).
   Status setLocalisation(bool on);
   bool localising() const { return localising_; }
+  /// OK in mapping mode; in localisation mode the FAILED_PRECONDITION that refuses `what` (a
+  /// request that would change a stored map).
+  Status storedMapsMayChange(const std::string& what) const;
   /// Joins the maps of two sessions from the global loops between them (min_loops 0: K).
   /// INVALID_ARGUMENT for an id outside [0, kMaxSessionId], NOT_FOUND for an unknown one.
   Status join(int session_a, int session_b, int min_loops = 0);

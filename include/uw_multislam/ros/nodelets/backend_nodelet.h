@@ -84,18 +84,19 @@
 #include <thread>
 #include <variant>
 
+#include "uw_multislam/AddLink.h"
+#include "uw_multislam/DetectLoops.h"
 #include "uw_multislam/ExportSurvey.h"
+#include "uw_multislam/FinishSession.h"
 #include "uw_multislam/JoinSessions.h"
 #include "uw_multislam/Keyframe.h"
 #include "uw_multislam/ListSessions.h"
 #include "uw_multislam/Loop.h"
-#include "uw_multislam/ReloadSession.h"
-#include "uw_multislam/SplitSession.h"
-#include "uw_multislam/AddLink.h"
-#include "uw_multislam/DetectLoops.h"
-#include "uw_multislam/FinishSession.h"
 #include "uw_multislam/Optimise.h"
+#include "uw_multislam/ReloadSession.h"
+#include "uw_multislam/SessionState.h"
 #include "uw_multislam/SetMode.h"
+#include "uw_multislam/SplitSession.h"
 #include "uw_multislam/StartSession.h"
 #include "uw_multislam/core/session/live_mosaic.h"
 #include "uw_multislam/core/session/session_manager.h"
@@ -131,7 +132,9 @@ class BackendNodelet : public nodelet::Nodelet {
   void publishAll(bool all_sessions);
   /// Its path, trajectory and (active) pose and tf; returns its correction map <- session.
   core::Pose2 publishSession(int id);
-  void announceNextSession();
+  /// On active_session: the recording session, else the id the next one gets; `state` ACTIVE, or
+  /// FINISHED after finish_session (the odometry then drops frames until start_session or resume).
+  void announceNextSession(std::uint8_t state = uw_multislam::SessionState::ACTIVE);
   void onOdometryPose(const geometry_msgs::PoseWithCovarianceStampedConstPtr& msg);
   bool onJoin(uw_multislam::JoinSessions::Request& req, uw_multislam::JoinSessions::Response& res);
   bool onSplit(uw_multislam::SplitSession::Request& req, uw_multislam::SplitSession::Response& res);
