@@ -308,6 +308,69 @@ TEST_P(BothOptimizers, ConsistentPolicyRefusesLoopsAtOnePlaceAndSaysWhy) {
   EXPECT_NE(weak.stats().last_join_refusal.find("40 inliers"), std::string::npos) << weak.stats().last_join_refusal;
 }
 
+TEST_P(BothOptimizers, RelocalisesFromOneKeyframeThatTwoStoredPlacesAgreeOn) {
+  // One new keyframe verified against two stored keyframes 0.5 m apart relocalises (the spread is
+  // the stored map's), where a join under the consistency policy waits for a second place in the
+  // new session too; the same stored keyframe twice is one place, no relocalisation.
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(1.2, 0.2, 0.1), 3)};
+  MultiSessionBackend b(consistentOptions(GetParam()));
+  b.setAutomaticJoins(false);
+  w.feed(&b, 0);
+  w.feed(&b, 1, false);
+  b.addLoop(withInliers(w.loop(0, 2, 1, 2), 80));
+  b.addLoop(withInliers(w.loop(0, 2, 1, 2), 80));
+  EXPECT_FALSE(b.relocalise(1)) << "one stored place";
+  b.addLoop(withInliers(w.loop(0, 3, 1, 2), 80));
+  const auto r = b.relocalise(1);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->loops, 3);
+  EXPECT_LT(between(between(w.sessions[0][0], w.sessions[1][2]), r->pose.mean).translation().norm(), 1e-6);
+  const Status joined = b.join(0, 1, 2);
+  EXPECT_FALSE(joined.ok()) << "a join needs the spread in both maps";
+  EXPECT_NE(joined.message.find("spread 0 m"), std::string::npos) << joined.message;
+}
+
+TEST_P(BothOptimizers, RelocalisesAgainstAnotherMapWithoutJoiningIt) {
+  // Session 1 is recording with automatic joins off (localisation mode): its pose in map 0 comes
+  // from the consistent set of its loops to map 0, whatever join_policy is (count, K = 5 here),
+  // and nothing changes.
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(1.0, -2.0, M_PI / 2), 6)};
+  MultiSessionBackend b(optionsFor(GetParam()));
+  b.setAutomaticJoins(false);
+  w.feed(&b, 0);
+  w.feed(&b, 1, false);
+  EXPECT_FALSE(b.relocalise(1)) << "no loop";
+  b.addLoop(withInliers(w.loop(0, 2, 1, 4), 80));
+  EXPECT_FALSE(b.relocalise(1)) << "one loop is no set";
+  b.addLoop(withInliers(w.loop(0, 7, 1, 3, Pose2(2.0, 0.0, 0.3)), 300));  // wrong, and strong
+  EXPECT_FALSE(b.relocalise(1)) << "two loops that disagree";
+  b.addLoop(withInliers(w.loop(0, 3, 1, 5), 80));
+  const auto r = b.relocalise(1);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->map, 0);
+  EXPECT_EQ(r->loops, 2);
+  EXPECT_EQ(r->inliers, 160);
+  EXPECT_EQ(r->keyframe, 5);
+  const Pose2 truth = between(w.sessions[0][0], w.sessions[1][5]);
+  EXPECT_LT(between(truth, r->pose.mean).translation().norm(), 1e-6);
+  EXPECT_LT(std::abs(normalizeAngle(between(truth, r->pose.mean).yaw())), 1e-6);
+  const Pose2 origin = between(w.sessions[0][0], w.sessions[1][0]);
+  EXPECT_LT(between(origin, r->origin.mean).translation().norm(), 1e-6);
+  EXPECT_GT(r->pose.covariance.determinant(), r->origin.covariance.determinant()) << "its own motions add to it";
+  EXPECT_EQ(b.mapOf(1), 1) << "relocalising joins nothing";
+  EXPECT_EQ(b.stats().joins, 0);
+  EXPECT_EQ(b.stats().loops_refused, 0);
+  EXPECT_EQ(b.pendingJoinLoops(0, 1), 3);
+  // The other way round (the loops read from b to a): session 0's last keyframe in map 1.
+  const auto back = b.relocalise(0);
+  ASSERT_TRUE(back);
+  EXPECT_EQ(back->map, 1);
+  EXPECT_LT(between(between(w.sessions[1][0], w.sessions[0][9]), back->pose.mean).translation().norm(), 1e-6);
+}
+
+
 TEST_P(BothOptimizers, AWrongLoopInsideAMapIsGatedAndAMildlyDriftedTrueOneIsNot) {
   // A 20-keyframe line with 1 cm odometry noise: a true loop (5 cm measurement noise on top of the
   // drift) passes the gate, one 2 m off is refused, counted and leaves the map as it was.

@@ -529,6 +529,42 @@ TEST(SessionManager, LocalisationModeWritesNothingChangesNoStoredMapAndLeavesARe
   EXPECT_EQ(last.nextId(), 3);
 }
 
+TEST(SessionManager, ANewSessionRelocalisesInAStoredMapOnlyAndWithItsOdometryCorrection) {
+  // Session 0 stored; after a restart session 1 (1 m beside it) relocalises in map 0 from two
+  // consistent loops, in localisation mode (nothing joined). Session 2, recorded in this run, is no
+  // relocalisation target: this run's maps join as usual.
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  SessionManagerOptions o = options(db);
+  o.backend.join_min_inliers = 60;
+  {
+    SessionManager m(o);
+    addStraightSession(&m, 0, 8);
+    ASSERT_TRUE(m.endSession(8.0).ok());
+  }
+  SessionManager m(o);
+  ASSERT_TRUE(m.setLocalisation(true).ok());
+  addStraightSession(&m, 1, 4);
+  EXPECT_FALSE(m.relocalise(1));
+  ASSERT_TRUE(m.addLoop(globalLoop(0, 2, 1, 2, Pose2(0, 1, 0))).ok());
+  EXPECT_FALSE(m.relocalise(1)) << "one loop";
+  ASSERT_TRUE(m.addLoop(globalLoop(0, 3, 1, 3, Pose2(0, 1, 0))).ok());
+  const auto r = m.relocalise(1);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->map, 0);
+  EXPECT_EQ(r->loops, 2);
+  EXPECT_EQ(r->keyframe, 3);
+  EXPECT_TRUE(approxEqual(r->pose.mean, Pose2(3, 1, 0), 1e-6, 1e-6)) << r->pose.mean;  // a (+) z: (3, 0) (+) (0, 1)
+  // The correction takes the session's odometry frame into map 0: its last odometry pose lands there.
+  EXPECT_TRUE(approxEqual(compose(r->correction, m.odometryPoses(1).back()), r->pose.mean, 1e-6, 1e-6));
+  EXPECT_EQ(m.mapIds(), (std::vector<int>{0, 1}));
+  addStraightSession(&m, 2, 4);
+  ASSERT_TRUE(m.addLoop(globalLoop(1, 1, 2, 1, Pose2(0, 1, 0))).ok());
+  ASSERT_TRUE(m.addLoop(globalLoop(1, 2, 2, 2, Pose2(0, 1, 0))).ok());
+  EXPECT_FALSE(m.relocalise(2)) << "session 1's map holds no stored session";
+  EXPECT_FALSE(m.relocalise(7)) << "no such session";
+}
+
 TEST(SessionManager, TheStoresDirectoryItCreatesIsTheOwnersOnly) {
   testing_util::ScopedTempDir dir("session_manager");
   const std::filesystem::path store_dir = dir.path() / "missions";

@@ -9,7 +9,6 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "uw_multislam/core/backend/map_joining.h"
 
 namespace uw_multislam {
 namespace core {
@@ -477,25 +476,14 @@ BackendStatus MultiSessionBackend::join(int session_a, int session_b, int min_lo
   return joinMaps(mapOf(session_a), mapOf(session_b), min_loops, false);
 }
 
-BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops, bool automatic) {
-  if (map_a == map_b)
-    return {StatusCode::kFailedPrecondition, "the sessions are already in the same map " + std::to_string(map_a)};
-  auto recording = [&](int map) {
-    for (int s : mapAt(map).chain)
-      if (sessions_[s].recording) return true;
-    return false;
+MultiSessionBackend::LinkEstimate MultiSessionBackend::estimateLink(int first, int second, const std::vector<int>& ids,
+                                                                  int min_loops, JoinPolicy policy,
+                                                                  bool spread_in_first) const {
+  LinkEstimate e;
+  auto failed = [&e](const std::string& why) {
+    e.status = {StatusCode::kFailedPrecondition, why};
+    return e;
   };
-  const bool rec_a = recording(map_a), rec_b = recording(map_b);
-  if (rec_a && rec_b)
-    return {StatusCode::kFailedPrecondition, "maps " + std::to_string(map_a) + " and " + std::to_string(map_b) +
-                                                 " both hold a recording session; join them after one ends"};
-  const int first = rec_a ? map_b : rec_b ? map_a : std::min(map_a, map_b);
-  const int second = first == map_a ? map_b : map_a;
-  std::vector<int> ids = loopsBetween(first, second, automatic);
-  if (static_cast<int>(ids.size()) < min_loops)
-    return {StatusCode::kFailedPrecondition, std::to_string(ids.size()) + " global loops stored between map " +
-                                                 std::to_string(first) + " and map " + std::to_string(second) + ", " +
-                                                 std::to_string(min_loops) + " needed"};
   const Map& p = mapAt(first);
   const Map& c = mapAt(second);
   Trajectory tp, tc;  // the two chains with their motions' covariances
@@ -517,7 +505,7 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
   }
   std::vector<bool> in(cand.size(), true);
   JoinResult res;
-  if (options_.join_policy == JoinPolicy::kConsistent) {
+  if (policy == JoinPolicy::kConsistent) {
     // The largest pairwise-consistent set, if it is big, strong and spread enough; the link from it.
     std::vector<CrossLoop> cl;
     for (int id : ids) {
@@ -528,14 +516,15 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
                     a_first ? l.z : invert(l.z), l.inliers});
     }
     const ConsistentSet set = largestConsistentSet(cl, tp, tc, options_.consistency);
+    const double spread_m = spread_in_first ? set.spread_previous_m : set.spread_m;
     std::ostringstream why;
     why << "the largest consistent set of the " << cand.size() << " global loops between map " << first << " and map "
         << second << " (" << set.consistent_pairs << " of " << set.pairs << " pairs consistent) has "
-        << set.loops.size() << " loops, " << set.inliers << " inliers, spread " << set.spread_m << " m; needed "
+        << set.loops.size() << " loops, " << set.inliers << " inliers, spread " << spread_m << " m; needed "
         << min_loops << " loops, " << options_.join_min_inliers << " inliers, " << options_.join_min_spread_m << " m";
     if (set.loops.empty() || static_cast<int>(set.loops.size()) < min_loops || set.inliers < options_.join_min_inliers ||
-        set.spread_m < options_.join_min_spread_m)
-      return {StatusCode::kFailedPrecondition, why.str()};
+        spread_m < options_.join_min_spread_m)
+      return failed(why.str());
     std::fill(in.begin(), in.end(), false);
     std::vector<JoinLoop> jl;
     for (int k : set.loops) {
@@ -546,15 +535,14 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
   }
   // Count policy: estimate, refuse loops whose position disagrees by more than the gate,
   // re-estimate with the rest; a few rounds.
-  for (int round = 0; options_.join_policy == JoinPolicy::kCount && round < 4; ++round) {
+  for (int round = 0; policy == JoinPolicy::kCount && round < 4; ++round) {
     std::vector<JoinLoop> jl;
     for (std::size_t k = 0; k < cand.size(); ++k)
       if (in[k]) jl.push_back({cand[k].pe_from_pi.mean, cand[k].ci_from_cs.mean, cand[k].z});
     if (static_cast<int>(jl.size()) < min_loops) {
-      return {StatusCode::kFailedPrecondition, std::to_string(jl.size()) + " of the " + std::to_string(cand.size()) +
-                                                   " global loops between map " + std::to_string(first) + " and map " +
-                                                   std::to_string(second) + " agree, " + std::to_string(min_loops) +
-                                                   " needed"};
+      return failed(std::to_string(jl.size()) + " of the " + std::to_string(cand.size()) + " global loops between map " +
+                    std::to_string(first) + " and map " + std::to_string(second) + " agree, " +
+                    std::to_string(min_loops) + " needed");
     }
     res = estimateJoinLink(jl, options_.iekf);
     bool changed = false;
@@ -566,6 +554,41 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
     }
     if (!changed) break;
   }
+  e.in = in;
+  e.result = res;
+  for (std::size_t k = 0; k < cand.size(); ++k)
+    if (in[k]) {
+      ++e.used;
+      e.inliers += loops_[cand[k].id].loop.inliers;
+    }
+  return e;
+}
+
+BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops, bool automatic) {
+  if (map_a == map_b)
+    return {StatusCode::kFailedPrecondition, "the sessions are already in the same map " + std::to_string(map_a)};
+  auto recording = [&](int map) {
+    for (int s : mapAt(map).chain)
+      if (sessions_[s].recording) return true;
+    return false;
+  };
+  const bool rec_a = recording(map_a), rec_b = recording(map_b);
+  if (rec_a && rec_b)
+    return {StatusCode::kFailedPrecondition, "maps " + std::to_string(map_a) + " and " + std::to_string(map_b) +
+                                                 " both hold a recording session; join them after one ends"};
+  const int first = rec_a ? map_b : rec_b ? map_a : std::min(map_a, map_b);
+  const int second = first == map_a ? map_b : map_a;
+  std::vector<int> ids = loopsBetween(first, second, automatic);
+  if (static_cast<int>(ids.size()) < min_loops)
+    return {StatusCode::kFailedPrecondition, std::to_string(ids.size()) + " global loops stored between map " +
+                                                 std::to_string(first) + " and map " + std::to_string(second) + ", " +
+                                                 std::to_string(min_loops) + " needed"};
+  const LinkEstimate e = estimateLink(first, second, ids, min_loops, options_.join_policy);
+  if (!e.status.ok()) return e.status;
+  const Map& p = mapAt(first);
+  const Map& c = mapAt(second);
+  const std::vector<bool>& in = e.in;
+  const JoinResult& res = e.result;
 
   Map j;
   j.chain = p.chain;
@@ -573,9 +596,9 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
   j.links = p.links;
   MapLinkState link{res.link, {}};
   int used = 0, refused = 0;
-  for (std::size_t k = 0; k < cand.size(); ++k) {
+  for (std::size_t k = 0; k < ids.size(); ++k) {
     if (in[k]) {
-      link.loops.push_back(cand[k].id);
+      link.loops.push_back(ids[k]);
       ++used;
     } else {
       ++refused;
@@ -611,11 +634,11 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
           std::to_string(options_.max_keyframes) + ": optimised by the sparse back-end from now on");
   }
   j.pending = p.pending + c.pending;
-  for (std::size_t k = 0; k < cand.size(); ++k) {
+  for (std::size_t k = 0; k < ids.size(); ++k) {
     if (in[k]) {
-      loops_[cand[k].id].summarised = true;
+      loops_[ids[k]].summarised = true;
     } else {
-      loops_[cand[k].id].refused = true;
+      loops_[ids[k]].refused = true;
       ++stats_.loops_refused;
     }
   }
@@ -644,6 +667,33 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
   say(msg.str());
   if (options_.optimise && joined.pending >= options_.optimise_every) optimise(first);
   return {StatusCode::kOk, msg.str()};
+}
+
+std::optional<MultiSessionBackend::Relocalisation> MultiSessionBackend::relocalise(
+    int s, const std::function<bool(int map)>& eligible) const {
+  if (!hasSession(s)) return std::nullopt;
+  const int mine = mapOf(s);
+  std::optional<Relocalisation> best;
+  for (const auto& [id, m] : maps_) {
+    if (id == mine || (eligible && !eligible(id))) continue;
+    const std::vector<int> ids = loopsBetween(id, mine, false);
+    if (static_cast<int>(ids.size()) < options_.join_min_consistent) continue;
+    const LinkEstimate e = estimateLink(id, mine, ids, options_.join_min_consistent, JoinPolicy::kConsistent, true);
+    if (!e.status.ok()) continue;
+    if (best && (e.used < best->loops || (e.used == best->loops && e.inliers <= best->inliers))) continue;
+    Relocalisation r;
+    r.map = id;
+    r.loops = e.used;
+    r.inliers = e.inliers;
+    // The end of the other map's chain in its frame, then the link to this map's first keyframe.
+    UncertainPose2 end = UncertainPose2::exact(Pose2());
+    for (int k = 0; k < m.numMotions(); ++k) end = compose(end, UncertainPose2(m.motion(k), m.motionCov(k)));
+    r.origin = compose(end, e.result.link);
+    r.keyframe = sessionAt(s).keyframes() - 1;
+    r.pose = compose(r.origin, keyframeInMap(s, r.keyframe));
+    best = r;
+  }
+  return best;
 }
 
 BackendStatus MultiSessionBackend::split(int session) {

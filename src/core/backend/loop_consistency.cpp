@@ -157,6 +157,8 @@ ConsistentSet largestConsistentSet(const std::vector<CrossLoop>& loops, const Tr
     }
   }
   out.spread_m = std::min(sp, sc);
+  out.spread_previous_m = sp;
+  out.spread_current_m = sc;
   return out;
 }
 

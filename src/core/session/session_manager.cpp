@@ -791,6 +791,25 @@ Pose2 SessionManager::correction(int session) const {
   return compose(backend_->sessionPoses(s.backend).back(), invert(s.odometry.back()));
 }
 
+std::optional<SessionManager::Relocalisation> SessionManager::relocalise(int session) const {
+  if (!has(session) || !at(session).origin_received) return std::nullopt;
+  const Session& s = at(session);
+  const auto r = backend_->relocalise(s.backend, [this](int map) {
+    for (int b : backend_->chain(map))
+      if (idOfBackend(b) < restored_sessions_) return true;
+    return false;
+  });
+  if (!r) return std::nullopt;
+  Relocalisation out;
+  out.map = idOfBackend(r->map);
+  out.loops = r->loops;
+  out.inliers = r->inliers;
+  out.keyframe = r->keyframe;
+  out.pose = r->pose;
+  out.correction = compose(r->origin.mean, correction(session));
+  return out;
+}
+
 std::vector<SessionLink> SessionManager::links() const {
   std::vector<SessionLink> out;
   for (int m : backend_->mapIds())

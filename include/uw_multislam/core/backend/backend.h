@@ -54,6 +54,7 @@
 
 #include "uw_multislam/core/backend/iekf.h"
 #include "uw_multislam/core/backend/loop_consistency.h"
+#include "uw_multislam/core/backend/map_joining.h"
 #include "uw_multislam/core/backend/pose_graph.h"
 #include "uw_multislam/core/common/status.h"
 #include "uw_multislam/core/geometry/trajectory.h"
@@ -265,6 +266,22 @@ class MultiSessionBackend {
   /// (the IEKF's diagonal blocks, or the odometry's with the sparse optimiser), their correlations
   /// left out. Throws std::invalid_argument for an unknown keyframe.
   UncertainPose2 keyframeInMap(int s, int keyframe) const;
+  /// Relocalisation (issue 16, item 3): where session `s` is in another map, before (or without)
+  /// a join. For every other map with global loops to the session's map, the link a join would
+  /// take under the consistency rule (join_min_consistent loops, join_min_inliers, join_min_spread_m
+  /// and the pairwise chi-square test, whatever join_policy is; the spread is the other map's: loops
+  /// from one new keyframe to stored keyframes that agree on where it is relocalise it at once); the map whose consistent set is
+  /// largest (then: most inliers) wins. nullopt: no map passes. Nothing changes (localisation mode
+  /// uses it while joins wait).
+  struct Relocalisation {
+    int map = -1;                 // the other map
+    int loops = 0, inliers = 0;   // the consistent set's
+    UncertainPose2 origin;        // the session's map frame in `map`'s frame (the end of `map`'s chain, then the link)
+    UncertainPose2 pose;          // the session's last keyframe in `map`'s frame
+    int keyframe = -1;            // which keyframe that is
+  };
+  /// `eligible` (optional): only maps for which it says true are considered (by map id).
+  std::optional<Relocalisation> relocalise(int s, const std::function<bool(int map)>& eligible = {}) const;
   /// Global loops stored between the maps of two sessions and not yet used by a join.
   int pendingJoinLoops(int session_a, int session_b) const;
   const BackendStats& stats() const { return stats_; }
@@ -332,6 +349,19 @@ class MultiSessionBackend {
   /// optimiser and the map fits; block-diagonal, the cross-covariances being unknown.
   void toDenseIfIekf(Map& m) const;
   BackendStatus joinMaps(int map_a, int map_b, int min_loops, bool automatic);
+  /// The link a join of map `second` to the end of map `first` would take from the loops `ids`
+  /// (loopsBetween) under `policy` (min_loops as joinMaps's); nothing changes. Status not OK: the
+  /// policy refuses (the reason). in[k]: whether loop ids[k] takes part. `spread_in_first`: the
+  /// consistency policy's spread is measured in `first` alone (relocalisation: several stored
+  /// keyframes that agree on where one new keyframe is), else in the map where it is smaller.
+  struct LinkEstimate {
+    BackendStatus status;
+    std::vector<bool> in;
+    JoinResult result;
+    int used = 0, inliers = 0;
+  };
+  LinkEstimate estimateLink(int first, int second, const std::vector<int>& ids, int min_loops, JoinPolicy policy,
+                            bool spread_in_first = false) const;
   std::vector<int> loopsBetween(int map_a, int map_b, bool automatic) const;
   bool barred(int sa, int sb) const;
   void say(const std::string& line) const;

@@ -69,6 +69,7 @@ struct ConsistentSet {
   int inliers = 0;         // their total inliers
   double spread_m = 0.0;   // largest distance between two of their keyframes, the smaller of the two maps'
                            // (two loops from one keyframe, or to one, are one place)
+  double spread_previous_m = 0.0, spread_current_m = 0.0;  // each map's
   int pairs = 0, consistent_pairs = 0;
 };
 

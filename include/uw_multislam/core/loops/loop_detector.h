@@ -136,6 +136,11 @@ class LoopDetector {
   const LoopStats& stats() const { return stats_; }
   const StageTimes& times() const { return times_; }
   std::size_t size() const { return keyframes_.size(); }
+  /// Whether keyframe `keyframe` of `session` is held (live, stored or paged).
+  bool has(int session, int keyframe) const {
+    return session >= 0 && keyframe >= 0 && session < static_cast<int>(by_session_.size()) &&
+           keyframe < static_cast<int>(by_session_[session].size()) && by_session_[session][keyframe] >= 0;
+  }
 
  private:
   struct Stored {

@@ -280,6 +280,19 @@ class SessionManager {
   /// map <- odometry correction of the session: its last pose in the map times the inverse of its
   /// last odometry pose.
   Pose2 correction(int session) const;
+  /// Relocalisation (issue 16, item 3): the session in a stored map before or without a join
+  /// (MultiSessionBackend::relocalise, the consistency rule), in session ids; nullopt when no
+  /// map holding a session restored from the store has loops that pass it, or the session is
+  /// unknown. (Maps of this run's sessions only join as usual.) Changes nothing; works in
+  /// localisation mode.
+  struct Relocalisation {
+    int map = -1;                // the other map (its first session's id)
+    int loops = 0, inliers = 0;  // the consistent set's
+    int keyframe = -1;           // the session's last keyframe
+    UncertainPose2 pose;         // that keyframe in `map`'s frame
+    Pose2 correction;            // `map` <- the session's odometry frame (as correction())
+  };
+  std::optional<Relocalisation> relocalise(int session) const;
   std::vector<SessionLink> links() const;
   /// The accepted loops (session ids), in order, restored ones first.
   const std::vector<Loop>& loops() const { return loops_; }
