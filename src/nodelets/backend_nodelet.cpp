@@ -90,7 +90,11 @@ void BackendNodelet::onInit() {
   pose_pub_ = nh.advertise<geometry_msgs::PoseStamped>(topics::kCurrentPose, 10);
   keyframe_pose_pub_ = nh.advertise<geometry_msgs::PoseWithCovarianceStamped>(topics::kKeyframePoseWithCovariance, 10);
   active_pub_ = nh.advertise<uw_multislam::SessionState>(topics::kActiveSession, 1, true);
-  reloaded_pub_ = nh.advertise<uw_multislam::Keyframe>(topics::kReloadedKeyframes, 10000);
+  relocalised_pub_ = nh.advertise<geometry_msgs::PoseWithCovarianceStamped>(topics::kRelocalisedPose, 10);
+  if (options_.reload_stored) reloadStored();
+  reloaded_pub_ = nh.advertise<uw_multislam::Keyframe>(
+      topics::kReloadedKeyframes, 10000,
+      [this](const ros::SingleSubscriberPublisher& pub) { onReloadedSubscriber(pub); });
   mosaic_pub_ = nh.advertise<sensor_msgs::Image>(topics::kLiveMosaic, 1, true);
   if (!options_.export_root.empty()) {
     std::error_code ec;
@@ -244,9 +248,19 @@ core::Pose2 BackendNodelet::publishSession(int id) {
   const std::string& map = options_.frames.map_frame;
   if (path) path.publish(rc::toPathMsg(rc::vehiclePoses(*manager_, id, frames_->mount()), stamps, map, now));
   if (id != manager_->activeSession()) return correction;
-  frames_->setActive(id, correction, poses.back(), now);
-  keyframe_pose_pub_.publish(
-      rc::toPoseWithCovarianceStampedMsg(frames_->vehicle(manager_->lastKeyframeInMap(id)), map, now));
+  const std::optional<core::SessionManager::Relocalisation> reloc = relocalise(id);
+  if (!reloc) {
+    frames_->setActive(id, correction, poses.back(), now);
+    keyframe_pose_pub_.publish(
+        rc::toPoseWithCovarianceStampedMsg(frames_->vehicle(manager_->lastKeyframeInMap(id)), map, now));
+    return correction;
+  }
+  // Relocalised in another map: tf and the poses go out in that map's frame (where it is drawn).
+  frames_->setActive(id, reloc->correction, reloc->pose.mean, now);
+  const auto msg = rc::toPoseWithCovarianceStampedMsg(frames_->vehicle(reloc->pose), map, now);
+  keyframe_pose_pub_.publish(msg);
+  relocalised_pub_.publish(msg);
+  ++reloc_.published;
   return correction;
 }
 
@@ -414,6 +428,80 @@ bool BackendNodelet::onSetMode(uw_multislam::SetMode::Request& req, uw_multislam
   return true;
 }
 
+void BackendNodelet::reloadStored() {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  int keyframes = 0;
+  for (const core::SessionSummary& s : manager_->list()) {
+    if (s.state != core::SessionState::kUnloaded) continue;
+    core::ReloadedSession r;
+    const core::Status st = manager_->reload(std::to_string(s.id), &r, false);  // features stay in the store
+    if (!st.ok()) {
+      NODELET_ERROR("back-end: ~reload_stored: session %d '%s' not reloaded: %s", s.id, s.name.c_str(),
+                    st.message.c_str());
+      continue;
+    }
+    for (const core::StoredKeyframe& k : r.keyframes)
+      if (!k.thumbnail.empty()) mosaic_images_.add(r.id, k.keyframe, k.altitude_m, r.camera, k.thumbnail);
+    handed_.push_back(r.id);
+    keyframes += static_cast<int>(r.keyframes.size());
+  }
+  NODELET_INFO("back-end: ~reload_stored: %zu stored sessions (%d keyframes) go to every loop detector that subscribes",
+               handed_.size(), keyframes);
+}
+
+void BackendNodelet::onReloadedSubscriber(const ros::SingleSubscriberPublisher& pub) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  long sent = 0, failed = 0;
+  for (int id : handed_) {
+    core::ReloadedSession r;
+    r.id = id;
+    r.camera = manager_->camera(id);
+    const std::string frame = options_.frames.session_frame_prefix + std::to_string(id);
+    try {
+      r.keyframes = manager_->storedHashes(id);
+    } catch (const std::exception& e) {
+      ++failed;
+      NODELET_ERROR("back-end: stored session %d not sent to %s: %s", id, pub.getSubscriberName().c_str(), e.what());
+      continue;
+    }
+    for (core::StoredKeyframe& k : r.keyframes) {
+      try {
+        const core::StoredKeyframe f = manager_->storedFeatures(id, k.keyframe);
+        k.points = f.points;
+        k.descriptors = f.descriptors;
+        k.image_size = f.image_size;
+      } catch (const std::exception& e) {  // sent without features: no candidate, as a keyframe never received
+        ++failed;
+        NODELET_WARN_THROTTLE(5, "back-end: stored keyframe %d/%d sent without features: %s", id, k.keyframe, e.what());
+      }
+      pub.publish(rc::reloadedKeyframeMsg(r, k, frame));
+      ++sent;
+    }
+  }
+  if (!handed_.empty())
+    NODELET_INFO("back-end: %ld stored keyframes of %zu sessions sent to %s (%ld without features)", sent,
+                 handed_.size(), pub.getSubscriberName().c_str(), failed);
+}
+
+std::optional<core::SessionManager::Relocalisation> BackendNodelet::relocalise(int id) {
+  std::optional<core::SessionManager::Relocalisation> r = manager_->relocalise(id);
+  const int map = r ? r->map : -1;
+  if (id != reloc_.session || map != reloc_.map) {
+    if (r)
+      say("session " + std::to_string(id) + " relocalised in map " + std::to_string(map) + " at its keyframe " +
+          std::to_string(r->keyframe) + " from " + std::to_string(r->loops) + " consistent global loops (" +
+          std::to_string(r->inliers) + " inliers)");
+    else if (id == reloc_.session && reloc_.map >= 0 && manager_->mapOf(id) != reloc_.map)  // not by a join
+      say("session " + std::to_string(id) + " no longer relocalised in map " + std::to_string(reloc_.map));
+  }
+  if (id != reloc_.session) reloc_.published = 0;
+  reloc_.session = id;
+  reloc_.map = map;
+  reloc_.loops = r ? r->loops : 0;
+  reloc_.keyframe = r ? r->keyframe : -1;
+  return r;
+}
+
 bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res) {
   std::lock_guard<std::mutex> lock(state_mutex_);
   core::ReloadedSession r;
@@ -425,6 +513,7 @@ bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_mult
   for (const core::StoredKeyframe& k : r.keyframes)
     if (!k.thumbnail.empty()) mosaic_images_.add(r.id, k.keyframe, k.altitude_m, r.camera, k.thumbnail);
   mosaic_due_ = true;
+  handed_.push_back(r.id);  // and to every loop detector that subscribes later
   for (const core::StoredKeyframe& k : r.keyframes)
     reloaded_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::reloadedKeyframeMsg(r, k, frame)));
   NODELET_INFO("back-end: reload_session '%s': session %d, %zu keyframes handed to the loop detector", req.name.c_str(),
@@ -547,6 +636,9 @@ std::vector<ros_diagnostics::Counter> BackendNodelet::counters() const {
   c.push_back({"map_to_odom_published", d(f.map_to_odom_published)});
   c.push_back({"map_to_odom_rate_hz", f.map_to_odom_rate_hz});
   c.push_back({"odom_lookup_failures", d(f.odom_lookup_failures), true});
+  c.push_back({"relocalised_map", d(reloc_.map)});
+  c.push_back({"relocalised_loops", d(reloc_.loops)});
+  c.push_back({"relocalised_poses_published", d(reloc_.published)});
   c.push_back({"mosaic_published", d(mosaic_stats_.published)});
   c.push_back({"mosaic_keyframes_drawn", d(mosaic_stats_.drawn)});
   c.push_back({"mosaic_keyframes_missing", d(mosaic_stats_.missing)});
@@ -562,6 +654,9 @@ void BackendNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper
   stat.add("optimizer", core::optimizerName(config_.backend.optimizer));
   stat.add("store", manager_->hasStore() ? options_.store_path : std::string("none"));
   stat.add("mode", manager_->localising() ? "localisation" : "mapping");
+  stat.add("relocalised", reloc_.map >= 0 ? "session " + std::to_string(reloc_.session) + " in map " +
+                                                std::to_string(reloc_.map)
+                                          : std::string("no"));
   diagnostic_status_.fill(stat, counters(), ros::WallTime::now().toSec());
 }
 

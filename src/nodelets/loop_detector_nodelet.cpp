@@ -85,6 +85,10 @@ void LoopDetectorNodelet::processReloaded(const uw_multislam::Keyframe& msg) {
     NODELET_WARN_THROTTLE(5, "loop detector: bad reloaded keyframe skipped: %s", why.c_str());
     return;
   }
+  if (detector_->has(k.session, k.keyframe)) {  // sent again (the back-end sends every subscriber all it handed over)
+    ++counts_.reloaded_again;
+    return;
+  }
   Session& s = session(k.session);
   if (s.cameras.empty() || s.cameras.back().fx != k.camera.fx || s.cameras.back().width != k.camera.width)
     s.cameras.push_back(k.camera);
@@ -238,6 +242,7 @@ void LoopDetectorNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWr
                            {"global_loops", static_cast<double>(c.global)},
                            {"hashes", static_cast<double>(c.hashes)},
                            {"keyframes_reloaded", static_cast<double>(c.reloaded)},
+                           {"keyframes_reloaded_again", static_cast<double>(c.reloaded_again)},
                            {"ms_per_keyframe_mean", n > 0 ? c.total_ms / n : 0.0},
                            {"ms_per_keyframe_max", c.max_ms}},
                           ros::WallTime::now().toSec());

@@ -118,6 +118,8 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
                        pnh, "mode", std::string("mapping"),
                        [](const std::string& m) { return m == "mapping" || m == "localisation"; },
                        "mapping or localisation") == "localisation";
+  o.reload_stored = param(
+      pnh, "reload_stored", false, [](bool) { return true; }, "true or false");
   return o;
 }
 

@@ -38,6 +38,10 @@ struct BackendNodeletOptions {
   std::string store_path;  // "" = no store; default $ROS_HOME/uw_multislam/sessions.db
   double store_max_mb = 0.0;  // a cap on the store file (0: none); writes past it are counted failures
   bool localisation = false;  // ~mode localisation at start (SessionManager::setLocalisation); set_mode changes it
+  /// ~reload_stored: every stored session is reloaded at start-up and its keyframes handed to the
+  /// loop detectors (each gets them when it subscribes), so that new sessions find global loops to
+  /// the stored maps and relocalise in them from their first keyframe. Off: reload_session by hand.
+  bool reload_stored = false;
   ros_frames::FrameOptions frames;  // frames/* and the tf switches and rates
   int queue_size = 1000, max_waiting_loops = 1000, max_keyframe_gap = 1000;
   int max_empty_sessions = 1;  // start_session refused while this many sessions in a row have no keyframe

@@ -73,6 +73,7 @@ constexpr char kCurrentPose[] = "pose";
 /// geometry_msgs/PoseWithCovarianceStamped (back-end): the active session's last keyframe in the
 /// map frame with its covariance (6x6, z / roll / pitch unknown), at each keyframe and optimisation.
 constexpr char kKeyframePoseWithCovariance[] = "keyframe_pose";
+constexpr char kRelocalisedPose[] = "relocalised_pose";
 /// sensor_msgs/Image (back-end, latched, bgr8, drawn only while subscribed): the live mosaic of the
 /// active map (core/session/live_mosaic.h), the active keyframe outlined in red; rows along the
 /// map's image-axes y, redrawn at most at ~mosaic_rate after keyframes, joins, splits and optimisations.

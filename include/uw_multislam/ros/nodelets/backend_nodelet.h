@@ -24,7 +24,12 @@
 //            from the visual odometry (unless ~publish_odom_tf is false: the vehicle's), and
 //            map -> <session_frame_prefix><id> as static transforms (~publish_session_frames)
 //          reloaded_keyframes (uw_multislam/Keyframe): a reloaded session's keyframes, for the
-//            loop detector(s) to keep as global-loop candidates
+//            loop detector(s) to keep as global-loop candidates; a new subscriber gets every session
+//            reloaded so far (~reload_stored: all stored sessions, from start-up)
+//          relocalised_pose (geometry_msgs/PoseWithCovarianceStamped): while the active session is
+//            relocalised in another map (consistent global loops to it, not joined yet, or never in
+//            localisation mode), its last keyframe in that map's frame (map_frame, where that map is
+//            drawn); map -> odom and keyframe_pose then follow that map too
 //          mosaic (sensor_msgs/Image, latched, only while subscribed): the live mosaic of the active
 //            map (core/session/live_mosaic.h), the active keyframe outlined, redrawn at most at
 //            ~mosaic_rate (default 0.2 Hz) when keyframes, joins, splits or optimisations changed it
@@ -40,7 +45,8 @@
 // session end, so a kill -9 loses at most what was in flight. At start-up the stored sessions,
 // loops and maps are put back into the back-end (they take ids 0..k-1; active_session asks the
 // odometry to continue from k) and listed UNLOADED: their trajectories are there, but the loop
-// detector does not know their keyframes until reload_session publishes them.
+// detector does not know their keyframes until reload_session publishes them (or, with
+// ~reload_stored, all of them at start-up: listed FINISHED).
 //
 // Maps: every map is drawn in map_frame with its first session's origin at map_frame's origin
 // (maps that are not joined are not related, so they overlap in rviz).
@@ -135,6 +141,14 @@ class BackendNodelet : public nodelet::Nodelet {
   /// On active_session: the recording session, else the id the next one gets; `state` ACTIVE, or
   /// FINISHED after finish_session (the odometry then drops frames until start_session or resume).
   void announceNextSession(std::uint8_t state = uw_multislam::SessionState::ACTIVE);
+  /// ~reload_stored: reloads every stored session (features stay in the store) for the loop detectors.
+  void reloadStored();
+  /// A new subscriber of reloaded_keyframes (a loop detector, also a respawned one) gets every
+  /// stored session handed over so far, its features read from the store.
+  void onReloadedSubscriber(const ros::SingleSubscriberPublisher& pub);
+  /// The active session's relocalisation in another map (SessionManager::relocalise): logged when
+  /// it changes, on /diagnostics, and its pose on relocalised_pose; nullopt when there is none.
+  std::optional<core::SessionManager::Relocalisation> relocalise(int id);
   void onOdometryPose(const geometry_msgs::PoseWithCovarianceStampedConstPtr& msg);
   bool onJoin(uw_multislam::JoinSessions::Request& req, uw_multislam::JoinSessions::Response& res);
   bool onSplit(uw_multislam::SplitSession::Request& req, uw_multislam::SplitSession::Response& res);
@@ -186,9 +200,14 @@ class BackendNodelet : public nodelet::Nodelet {
   ros_frames::FrameStats frame_stats_;                  // the diagnostics timer's thread only
 
   std::map<int, double> offsets_;  // where each map is drawn in rviz (under state_mutex_)
+  std::vector<int> handed_;         // stored sessions handed to the loop detectors (under state_mutex_)
+  struct RelocalisationState {
+    int session = -1, map = -1, loops = 0, keyframe = -1;
+    long published = 0;
+  } reloc_;  // the active session's (under state_mutex_)
   ros::WallTime markers_sent_;      // the last trajectory_markers
   ros::Publisher trajectory_pub_, markers_pub_, trajectory_markers_pub_, pose_pub_, keyframe_pose_pub_, active_pub_,
-      reloaded_pub_;
+      reloaded_pub_, relocalised_pub_;
   std::map<int, ros::Publisher> path_pubs_;
   ros::Publisher mosaic_pub_;
   std::thread mosaic_thread_;
