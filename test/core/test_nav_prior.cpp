@@ -100,6 +100,33 @@ TEST(NavTrack, InterpolatesLinearlyAndYawAlongTheShorterArc) {
   EXPECT_THROW(NavTrack({{1.0, Pose2(), 0, 0}, {1.0, Pose2(), 0, 0}}), std::invalid_argument);
 }
 
+TEST(NavTrack, ALiveTrackRefusesBadRowsAndForgetsOldOnes) {
+  NavTrack live;
+  std::string why;
+  EXPECT_TRUE(live.append({1.0, Pose2(0, 0, 0), 0.0, 0.0}, &why)) << why;
+  EXPECT_TRUE(live.append({2.0, Pose2(1, 0, 0), 0.01, 0.001}));
+  EXPECT_FALSE(live.append({2.0, Pose2(5, 5, 0), 0.01, 0.001}, &why)) << "a repeated stamp";
+  EXPECT_NE(why.find("not after"), std::string::npos) << why;
+  EXPECT_FALSE(live.append({1.5, Pose2(5, 5, 0), 0.01, 0.001}, &why)) << "out of order";
+  EXPECT_FALSE(live.append({3.0, Pose2(std::nan(""), 0, 0), 0.01, 0.001}, &why)) << "NaN";
+  EXPECT_NE(why.find("not finite"), std::string::npos) << why;
+  EXPECT_FALSE(live.append({3.0, Pose2(2, 0, 0), -0.01, 0.001}, &why)) << "a negative sigma";
+  EXPECT_EQ(live.rows().size(), 2u) << "refused rows change nothing";
+  EXPECT_TRUE(live.append({3.0, Pose2(2, 0, 0), 0.02, 0.002}));
+  EXPECT_TRUE(live.append({4.0, Pose2(3, 0, 0), 0.03, 0.003}));
+  NavRecord r;
+  ASSERT_TRUE(live.at(2.5, &r));
+  EXPECT_NEAR(r.pose.x(), 1.5, 1e-12);
+  live.dropBefore(3.5);  // keeps the row at 3.0, the last one before 3.5
+  ASSERT_EQ(live.rows().size(), 2u);
+  EXPECT_EQ(live.rows().front().stamp_s, 3.0);
+  ASSERT_TRUE(live.at(3.5, &r));
+  EXPECT_NEAR(r.pose.x(), 2.5, 1e-12);
+  EXPECT_FALSE(live.at(2.5, &r)) << "forgotten";
+  live.dropBefore(0.0);
+  EXPECT_EQ(live.rows().size(), 2u);
+}
+
 TEST(NavPrior, MotionCovarianceIsTheInflatedGrowthOfSigmaWithFloors) {
   NavPriorOptions o;
   o.inflation = 3.0;

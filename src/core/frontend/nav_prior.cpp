@@ -66,15 +66,35 @@ std::string NavPriorOptions::validate() const {
   return os.str();
 }
 
+std::string NavTrack::invalid(const NavRecord& r) {
+  if (!std::isfinite(r.stamp_s) || !r.pose.isFinite() || !(r.sigma_xy_m >= 0) || !(r.sigma_yaw_rad >= 0) ||
+      !std::isfinite(r.sigma_xy_m) || !std::isfinite(r.sigma_yaw_rad))
+    return "a value is not finite or a sigma is negative";
+  return "";
+}
+
 NavTrack::NavTrack(std::vector<NavRecord> rows) : rows_(std::move(rows)) {
   for (std::size_t i = 0; i < rows_.size(); ++i) {
-    const NavRecord& r = rows_[i];
-    if (!std::isfinite(r.stamp_s) || !r.pose.isFinite() || !(r.sigma_xy_m >= 0) || !(r.sigma_yaw_rad >= 0) ||
-        !std::isfinite(r.sigma_xy_m) || !std::isfinite(r.sigma_yaw_rad))
-      throw std::invalid_argument("nav row " + std::to_string(i) + ": a value is not finite or a sigma is negative");
-    if (i > 0 && !(r.stamp_s > rows_[i - 1].stamp_s))
+    const std::string bad = invalid(rows_[i]);
+    if (!bad.empty()) throw std::invalid_argument("nav row " + std::to_string(i) + ": " + bad);
+    if (i > 0 && !(rows_[i].stamp_s > rows_[i - 1].stamp_s))
       throw std::invalid_argument("nav row " + std::to_string(i) + ": stamps must increase strictly");
   }
+}
+
+bool NavTrack::append(const NavRecord& row, std::string* why) {
+  std::string bad = invalid(row);
+  if (bad.empty() && !rows_.empty() && !(row.stamp_s > rows_.back().stamp_s))
+    bad = "stamp " + std::to_string(row.stamp_s) + " not after the last one, " + std::to_string(rows_.back().stamp_s);
+  if (bad.empty()) rows_.push_back(row);
+  if (why) *why = bad;
+  return bad.empty();
+}
+
+void NavTrack::dropBefore(double stamp_s) {
+  const auto hi =
+      std::lower_bound(rows_.begin(), rows_.end(), stamp_s, [](const NavRecord& r, double s) { return r.stamp_s < s; });
+  if (hi - rows_.begin() > 1) rows_.erase(rows_.begin(), hi - 1);
 }
 
 bool NavTrack::at(double stamp_s, NavRecord* out) const {

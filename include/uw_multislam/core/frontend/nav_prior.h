@@ -86,7 +86,15 @@ class NavTrack {
   /// track's stamps (no extrapolation).
   bool at(double stamp_s, NavRecord* out) const;
 
+  // --- A live track (the odometry nodelet's nav topic) ---
+  /// Appends a row; false (nothing changed, `why` says why) when a value is not finite, a sigma
+  /// is negative or its stamp is not after the last row's.
+  bool append(const NavRecord& row, std::string* why = nullptr);
+  /// Forgets the rows before `stamp_s`, keeping the last one before it (so at(stamp_s) still works).
+  void dropBefore(double stamp_s);
+
  private:
+  static std::string invalid(const NavRecord& r);  // "" for a row whose values are valid
   std::vector<NavRecord> rows_;
 };
 
