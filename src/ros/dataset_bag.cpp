@@ -245,15 +245,8 @@ nav_msgs::Odometry toNavOdometryMsg(const core::NavRecord& nav, const ros::Time&
 }
 
 bool fromNavOdometryMsg(const nav_msgs::Odometry& msg, core::NavRecord* nav) {
-  core::UncertainPose2 vehicle;
-  if (!ros_conversions::fromMsg(msg.pose, &vehicle)) return false;
-  nav->stamp_s = msg.header.stamp.toSec();
-  nav->pose = core::cameraFromVehicle(vehicle.mean, core::CameraMount());
-  // The default mount turns x, y and yaw by signs only: the diagonal is kept; an anisotropic x/y
-  // variance is rounded up to the larger.
-  nav->sigma_xy_m = std::sqrt(std::max(vehicle.covariance(0, 0), vehicle.covariance(1, 1)));
-  nav->sigma_yaw_rad = std::sqrt(vehicle.covariance(2, 2));
-  return std::isfinite(nav->sigma_xy_m) && std::isfinite(nav->sigma_yaw_rad);
+  // The default mount turns x, y and yaw by signs only: the diagonal is kept.
+  return ros_conversions::navFromMsg(msg, core::CameraMount(), nav);
 }
 
 namespace {

@@ -15,6 +15,8 @@
 #include <cmath>
 #include <sstream>
 
+#include "uw_multislam/ros/conversions.h"
+
 namespace uw_multislam {
 namespace ros_conversions {
 
@@ -377,6 +379,27 @@ bool altitudeFromMsg(const sensor_msgs::Range& msg, double* altitude_m, std::str
     return fail(why, os.str());
   }
   *altitude_m = r;
+  return true;
+}
+
+bool navFromMsg(const nav_msgs::Odometry& msg, const core::CameraMount& mount, core::NavRecord* nav,
+                std::string* why) {
+  auto refuse = [why](const std::string& w) {
+    if (why) *why = w;
+    return false;
+  };
+  core::UncertainPose2 vehicle;
+  if (!fromMsg(msg.pose, &vehicle)) return refuse("nav odometry: the pose or its covariance is not usable (not finite, a negative variance)");
+  if (msg.header.stamp.isZero()) return refuse("nav odometry: zero stamp");
+  const Eigen::Matrix3d& c = vehicle.covariance;
+  if (!(c(0, 0) >= 0) || !(c(1, 1) >= 0) || !(c(2, 2) >= 0))
+    return refuse("nav odometry: a negative variance on the diagonal");
+  nav->stamp_s = msg.header.stamp.toSec();
+  nav->pose = core::cameraFromVehicle(vehicle.mean, mount);
+  nav->sigma_xy_m = std::sqrt(std::max(c(0, 0), c(1, 1)));
+  nav->sigma_yaw_rad = std::sqrt(c(2, 2));
+  if (!std::isfinite(nav->sigma_xy_m) || !std::isfinite(nav->sigma_yaw_rad))
+    return refuse("nav odometry: covariance not finite");
   return true;
 }
 

@@ -325,5 +325,43 @@ TEST(SensorConversions, AltitudeFromRange) {
   }
 }
 
+TEST(SensorConversions, NavFromOdometryUndoesTheMountAndRefusesBadReadings) {
+  // The camera 0.4 m ahead of base_link, turned 0.3 rad: two camera poses (image axes) published
+  // as the vehicle's z-up odometry come back exactly, so the nav's motions are the camera's.
+  core::CameraMount mount;
+  mount.base_from_camera = core::Pose2(0.4, -0.1, 0.3);
+  const std::vector<core::Pose2> cameras = {core::Pose2(1.0, 2.0, 0.2), core::Pose2(1.7, 2.4, -0.5)};
+  for (const core::Pose2& c : cameras) {
+    const core::Pose2 v = core::vehicleFromCamera(c, mount);
+    nav_msgs::Odometry m;
+    m.header.stamp = ros::Time(100.5);
+    m.pose.pose.position.x = v.x();
+    m.pose.pose.position.y = v.y();
+    m.pose.pose.orientation.z = std::sin(v.yaw() / 2);
+    m.pose.pose.orientation.w = std::cos(v.yaw() / 2);
+    m.pose.covariance[0] = 0.04;
+    m.pose.covariance[7] = 0.09;
+    m.pose.covariance[35] = 0.0001;
+    core::NavRecord r;
+    std::string why;
+    ASSERT_TRUE(rc::navFromMsg(m, mount, &r, &why)) << why;
+    EXPECT_TRUE(core::approxEqual(r.pose, c, 1e-9, 1e-9)) << r.pose << " vs " << c;
+    EXPECT_DOUBLE_EQ(r.stamp_s, 100.5);
+    EXPECT_NEAR(r.sigma_xy_m, 0.3, 1e-12) << "the larger of x and y";
+    EXPECT_NEAR(r.sigma_yaw_rad, 0.01, 1e-12);
+    nav_msgs::Odometry bad = m;
+    bad.pose.pose.position.x = std::nan("");
+    EXPECT_FALSE(rc::navFromMsg(bad, mount, &r, &why));
+    bad = m;
+    bad.pose.covariance[35] = -1.0;
+    EXPECT_FALSE(rc::navFromMsg(bad, mount, &r, &why));
+    EXPECT_NE(why.find("covariance"), std::string::npos) << why;
+    bad = m;
+    bad.header.stamp = ros::Time();
+    EXPECT_FALSE(rc::navFromMsg(bad, mount, &r, &why));
+    EXPECT_NE(why.find("zero stamp"), std::string::npos) << why;
+  }
+}
+
 }  // namespace
 }  // namespace uw_multislam

@@ -5,6 +5,7 @@
 // skips it); none throws. Tested in test/ros/test_sensor_conversions.cpp.
 #pragma once
 
+#include <nav_msgs/Odometry.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
@@ -16,6 +17,7 @@
 #include <vector>
 
 #include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/geometry/vehicle_frame.h"
 
 namespace uw_multislam {
 namespace ros_conversions {
@@ -98,6 +100,14 @@ bool cameraInfoFromUrl(const std::string& url, sensor_msgs::CameraInfo* out, std
 /// The range as altitude; refuses non-finite or non-positive values and ones outside
 /// [min_range, max_range] (sensor_msgs/Range: such readings must be discarded).
 bool altitudeFromMsg(const sensor_msgs::Range& msg, double* altitude_m, std::string* why = nullptr);
+
+/// The vehicle's dead reckoning (nav_msgs/Odometry: base_link in its odom frame, z-up, REP-105)
+/// as a nav row of the core (the camera's pose in the core's image axes, core::cameraFromVehicle
+/// with `mount`; only the motions between rows are used, so the odom frame's origin does not
+/// matter). sigma_xy is the larger of the x and y standard deviations, sigma_yaw the yaw's. false
+/// (`why` says why) for a pose or covariance that is not finite, a negative variance or a zero stamp.
+bool navFromMsg(const nav_msgs::Odometry& msg, const core::CameraMount& mount, core::NavRecord* nav,
+                std::string* why = nullptr);
 
 }  // namespace ros_conversions
 }  // namespace uw_multislam
