@@ -87,6 +87,12 @@ void OdometryNodelet::readParameters() {
       "in [1024, 1000000000] pixels");
   options_.rectified_images = param(
       pnh, "rectified_images", false, [](bool) { return true; }, "a bool");
+  options_.nav_source = param(
+      pnh, "nav_source", std::string("topic"), [](const std::string& s) { return s == "topic" || s == "none"; },
+      "topic (nav/odom, nav_msgs/Odometry) or none");
+  options_.nav_buffer_s = param(
+      pnh, "nav_buffer_s", 60.0, [](double v) { return std::isfinite(v) && v >= 1 && v <= 3600; },
+      "in [1, 3600] seconds");
   options_.camera_info_url = param(
       pnh, "camera_info_url", std::string(), [](const std::string&) { return true; }, "");
   if (!options_.camera_info_url.empty()) {
@@ -185,6 +191,37 @@ void OdometryNodelet::onInit() {
   if (o.use_altitude_topic) {
     range_sub_ = nh.subscribe(topics::kAltitude, o.sync_queue_size, &OdometryNodelet::onRange, this);
   }
+  if (o.nav_source == "topic") {
+    nav_sub_ = nh.subscribe(topics::kNavOdometry, 100, &OdometryNodelet::onNav, this);
+    NODELET_INFO("odometry: nav prior from %s (nav_msgs/Odometry, %s), readings kept %.0f s; frames without one "
+                 "go as without nav",
+                 nav_sub_.getTopic().c_str(), config_.odometry.nav.enabled ? "used" : "slam/odometry/nav/enabled false: ignored",
+                 o.nav_buffer_s);
+  }
+}
+
+void OdometryNodelet::onNav(const nav_msgs::OdometryConstPtr& msg) {
+  ++nav_in_;
+  core::NavRecord r;
+  std::string why;
+  bool ok = rc::navFromMsg(*msg, mount_, &r, &why);
+  if (ok) {
+    std::lock_guard<std::mutex> lock(nav_mutex_);
+    ok = nav_.append(r, &why);
+    if (ok && nav_.rows().size() > 64) nav_.dropBefore(r.stamp_s - options_.nav_buffer_s);
+  }
+  if (!ok) {
+    ++nav_refused_;
+    NODELET_WARN_THROTTLE(5, "odometry: nav reading skipped: %s (%ld so far)", why.c_str(), nav_refused_.load());
+  }
+}
+
+std::optional<core::NavRecord> OdometryNodelet::navAt(double stamp_s) {
+  if (!config_.odometry.nav.enabled) return std::nullopt;
+  std::lock_guard<std::mutex> lock(nav_mutex_);
+  core::NavRecord r;
+  if (!nav_.at(stamp_s, &r)) return std::nullopt;
+  return r;
 }
 
 void OdometryNodelet::chooseImageTransport() {
@@ -574,8 +611,13 @@ void OdometryNodelet::process(const Frame& f) {
     }
   }
 
-  const core::SegmentedOdometry::Step step = odometry_->process({frame_index_++, stamp.toSec(), altitude, image});
+  const std::optional<core::NavRecord> nav = navAt(stamp.toSec());
+  if (nav) ++counts_.frames_with_nav;
+  const core::SegmentedOdometry::Step step =
+      odometry_->process({frame_index_++, stamp.toSec(), altitude, image, nav});
   const core::OdometryUpdate& u = step.update;
+  if (u.status != core::FrameStatus::kSkipped && u.source == core::MotionSource::kNav) ++counts_.nav_motions;
+  if (u.status != core::FrameStatus::kSkipped && u.source == core::MotionSource::kFused) ++counts_.fused_motions;
   if (step.session_started && odometry_->sessions() > 1) {
     ++session_;
     ++counts_.sessions;
@@ -718,6 +760,11 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
        {"time_jumps_forward", static_cast<double>(c.jumps_forward), true},
        {"fallbacks", static_cast<double>(c.fallbacks), true},
        {"tracking_losses", static_cast<double>(c.losses), true},
+       {"nav_received", static_cast<double>(nav_in_.load())},
+       {"nav_refused", static_cast<double>(nav_refused_.load()), true},
+       {"frames_with_nav", static_cast<double>(c.frames_with_nav)},
+       {"nav_motions", static_cast<double>(c.nav_motions)},
+       {"fused_motions", static_cast<double>(c.fused_motions)},
        {"sessions", static_cast<double>(c.sessions)},
        {"session", static_cast<double>(c.session)},
        {"keyframes", static_cast<double>(c.keyframes)},

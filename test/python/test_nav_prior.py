@@ -7,6 +7,7 @@ splits as before; without nav.csv the outputs are exactly those of --nav off. Nu
 import filecmp
 import math
 import shutil
+from pathlib import Path
 
 import pytest
 from tool_runner import read_csv as rows, run_tool as run
@@ -15,22 +16,8 @@ BLACKOUT = range(8, 38)  # frames 8..37 of session a: 30 blank frames
 SCALE_ERROR, HEADING_BIAS, RANDOM_WALK = 0.007, 0.007, 0.002  # make_survey's nav defaults
 DRIFT = math.hypot(SCALE_ERROR, HEADING_BIAS)  # 0.99 % of the distance travelled
 
-MISSION = f"""
-seed: 5
-world: {{width_m: 12, height_m: 10, featureless_fraction: 0}}
-sessions:
-  - name: a
-    mission: {{pattern: loop, start_m: [3.5, 2.5], length_m: 4.0, width_m: 3.0, laps: 2.2,
-              speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.0}}
-    water:
-      stretches:
-        - {{first_frame: {BLACKOUT.start}, num_frames: {len(BLACKOUT)}, kind: blank}}
-    nav: {{enabled: true}}
-  - name: b
-    mission: {{pattern: loop, start_m: [6.5, 3.5], heading_rad: 1.5708, length_m: 3.0, width_m: 2.5,
-              laps: 1.0, speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.2, start_time_s: 86400}}
-    nav: {{enabled: true}}
-"""
+MISSION = (Path(__file__).resolve().parent.parent / "nav_blackout_survey.yaml").read_text()
+assert f"{{first_frame: {BLACKOUT.start}, num_frames: {len(BLACKOUT)}, kind: blank}}" in MISSION
 
 
 @pytest.fixture(scope="module")

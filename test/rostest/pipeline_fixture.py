@@ -111,15 +111,15 @@ def make_mission(prefix, survey=SURVEY, timeout=120):
     return tmp, mission
 
 
-def bag_frames(path):
-    """A bag's (image, camera_info, altitude) messages on SENSOR_TOPICS, grouped by header stamp, in
-    stamp order; stamps that lack one of the three are left out."""
+def bag_frames(path, topics=SENSOR_TOPICS):
+    """A bag's messages on `topics` (default the (image, camera_info, altitude) of SENSOR_TOPICS),
+    grouped by header stamp, in stamp order; stamps that lack one of them are left out."""
     import rosbag
     by_stamp = {}
     with rosbag.Bag(path) as bag:
-        for topic, msg, _ in bag.read_messages(topics=SENSOR_TOPICS):
+        for topic, msg, _ in bag.read_messages(topics=topics):
             by_stamp.setdefault(msg.header.stamp.to_nsec(), {})[topic] = msg
-    return [tuple(f[t] for t in SENSOR_TOPICS) for _, f in sorted(by_stamp.items()) if len(f) == 3]
+    return [tuple(f[t] for t in topics) for _, f in sorted(by_stamp.items()) if len(f) == len(topics)]
 
 
 def diagnostic_values(status):

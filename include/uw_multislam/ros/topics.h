@@ -17,6 +17,7 @@ constexpr char kImage[] = "camera/image_raw";
 constexpr char kCameraInfo[] = "camera/camera_info";
 /// sensor_msgs/Range: altitude of the camera above the seabed, metres.
 constexpr char kAltitude[] = "altitude";
+constexpr char kNavOdometry[] = "nav/odom";
 /// nav_msgs/Odometry: ground-truth pose of the camera, for evaluation only (never fed to SLAM).
 constexpr char kGroundTruthOdom[] = "ground_truth/odom";
 /// nav_msgs/Odometry: the vehicle's dead-reckoned navigation (DVL/INS), base_link in odom, with

@@ -13,6 +13,14 @@
 //                       Without any camera_info, the calibration file of ~camera_info_url is used.
 //   altitude            sensor_msgs/Range (only with ~use_altitude_topic: true, else ~altitude)
 //   active_session      uw_multislam/SessionState from the back-end: a new id starts a session
+//   nav/odom            nav_msgs/Odometry, the vehicle's dead reckoning (base_link in its odom
+//                       frame, with covariance; issue 16), with ~nav_source topic (the default):
+//                       kept for ~nav_buffer_s and interpolated at each frame's stamp (no
+//                       extrapolation: a frame after the last reading goes without). A frame with
+//                       a nav pose gets the core's nav prior (slam/odometry/nav: gate, dead
+//                       reckoning through vision failures, fusion); without readings the odometry
+//                       is exactly as without nav. Bad readings (not finite, negative variance,
+//                       zero stamp, not after the last one) are skipped and counted (nav_refused).
 // Pairing by stamp (issue 15): each image waits (in arrival order, in a short list of pending
 // images) for
 //   - its camera_info: the one with the nearest stamp within ~sync_max_interval_s, reused by as
@@ -99,6 +107,7 @@
 
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <image_transport/image_transport.h>
+#include <nav_msgs/Odometry.h>
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
@@ -112,6 +121,7 @@
 #include <deque>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -119,6 +129,7 @@
 #include "uw_multislam/OperatorCommand.h"
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/core/frontend/altitude_buffer.h"
+#include "uw_multislam/core/frontend/nav_prior.h"
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/frontend/stamp_guard.h"
 #include "uw_multislam/core/frontend/tracking.h"
@@ -148,6 +159,8 @@ struct OdometryNodeletOptions {
   double diagnostic_period_s = 1.0;
   double stats_period_s = 30.0;
   int max_image_pixels = 25000000;  // larger images are skipped before any conversion (counted)
+  std::string nav_source = "topic";  // topic: nav/odom (nav_msgs/Odometry); none: no nav input
+  double nav_buffer_s = 60.0;        // nav readings kept this long behind the newest
   bool rectified_images = false;  // the images are rectified: P, no distortion; else K with D
   std::string camera_info_url;    // calibration used when no camera_info arrives; empty = none
   std::string session_frame_prefix = topics::kDefaultSessionFramePrefix;
@@ -188,6 +201,7 @@ class OdometryNodelet : public nodelet::Nodelet {
     long duplicates = 0, out_of_order = 0, jumps_back = 0, jumps_forward = 0;
     long fixed_altitude = 0, skipped_by_odometry = 0;
     long dropped_paused = 0;  // frames the worker dropped while paused
+    long frames_with_nav = 0, nav_motions = 0, fused_motions = 0;  // frames given a nav pose; motions not visual
     double total_ms = 0.0, max_ms = 0.0, last_ms = 0.0;
     int session = 0;
   };
@@ -204,6 +218,10 @@ class OdometryNodelet : public nodelet::Nodelet {
   void addPending(Pending p);
   void onCameraInfo(const sensor_msgs::CameraInfoConstPtr& info);
   void onRange(const sensor_msgs::RangeConstPtr& range);
+  /// A nav reading into nav_ (under nav_mutex_); a bad one is counted and logged.
+  void onNav(const nav_msgs::OdometryConstPtr& msg);
+  /// The nav at a frame's stamp, if the readings around it are there.
+  std::optional<core::NavRecord> navAt(double stamp_s);
   void onPairingTimer(const ros::WallTimerEvent&);
   /// Pairs the pending images, oldest first, until one must wait longer. Under pairing_mutex_.
   void pairPending(double now);
@@ -299,7 +317,10 @@ class OdometryNodelet : public nodelet::Nodelet {
   image_transport::Subscriber image_sub_;
   ros::Subscriber compressed_sub_;  // the built-in decoder's subscription (instead of image_sub_)
   ros::Subscriber info_sub_;
-  ros::Subscriber range_sub_;
+  ros::Subscriber range_sub_, nav_sub_;
+  std::mutex nav_mutex_;  // guards nav_
+  core::NavTrack nav_;
+  std::atomic<long> nav_in_{0}, nav_refused_{0};
 };
 
 }  // namespace nodelets
