@@ -287,6 +287,7 @@ void BackendNodelet::announceNextSession(std::uint8_t state) {
   st.name = manager_->has(st.session) ? manager_->name(st.session) : core::defaultSessionName(st.session);
   st.state = state;
   st.map = st.session;
+  st.relocalised_map = -1;
   active_pub_.publish(st);
 }
 
@@ -324,7 +325,11 @@ bool BackendNodelet::onSplit(uw_multislam::SplitSession::Request& req, uw_multis
 
 bool BackendNodelet::onList(uw_multislam::ListSessions::Request&, uw_multislam::ListSessions::Response& res) {
   std::lock_guard<std::mutex> lock(state_mutex_);
-  for (const core::SessionSummary& s : manager_->list()) res.sessions.push_back(rc::toSessionStateMsg(s));
+  for (const core::SessionSummary& s : manager_->list()) {
+    res.sessions.push_back(rc::toSessionStateMsg(s));
+    if (s.id < manager_->restoredSessions()) continue;  // stored sessions: only this run's relocalise
+    if (const auto r = manager_->relocalise(s.id)) res.sessions.back().relocalised_map = r->map;
+  }
   res.status = rc::toStatusMsg(core::Status::Ok());
   return true;
 }

@@ -85,9 +85,10 @@ def main():
             res = call(args.ns, "list_sessions", ListSessions)
             print("list_sessions -> %s, %d sessions" % (status_text(res.status), len(res.sessions)))
             for s in res.sessions:
-                print("  session %d %-10s %-8s map %d  %4d keyframes  %3d loops" % (
+                print("  session %d %-10s %-8s map %d  %4d keyframes  %3d loops%s" % (
                     s.session, s.name, constants(SessionState).get(s.state, str(s.state)), s.map, s.num_keyframes,
-                    s.num_loops))
+                    s.num_loops,
+                    "  relocalised in map %d" % s.relocalised_map if s.relocalised_map >= 0 else ""))
         elif args.command == "join":
             a, b = int(args.args[0]), int(args.args[1])
             k = int(args.args[2]) if len(args.args) > 2 else 0

@@ -43,6 +43,7 @@ TEST(BackendConversions, SessionSummaryAsSessionState) {
   EXPECT_EQ(m.session, 4);
   EXPECT_EQ(m.name, "dive");
   EXPECT_EQ(m.state, uw_multislam::SessionState::UNLOADED);
+  EXPECT_EQ(m.relocalised_map, -1) << "not relocalised (the message's default 0 would name map 0)";
   EXPECT_EQ(m.map, 2);
   EXPECT_EQ(m.num_keyframes, 17);
   EXPECT_EQ(m.num_loops, 3);

@@ -26,8 +26,10 @@ from sensor_msgs.msg import CameraInfo, Image, Range
 from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, compose, connected,
                               diagnostic_values, invert, make_mission, mount_of_params, tool, vehicle_from_camera)
 from uw_multislam.msg import Keyframe
+from uw_multislam.srv import ListSessions
 
 WITHIN_KEYFRAMES = 3
+SESSIONS_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "sessions.py")
 MAX_ERROR_M = 0.02
 
 
@@ -141,6 +143,15 @@ class RelocaliseTest(unittest.TestCase):
         self.assertLess(yaw_error, 0.02)
         cov = first.pose.covariance
         self.assertTrue(cov[0] > 0 and cov[7] > 0 and cov[35] > 0, "a covariance: %s" % list(cov))
+
+        # list_sessions says it too (and sessions.py list prints it); the stored session is not relocalised.
+        rospy.wait_for_service(NS + "/list_sessions", timeout=30)
+        listed = {s.session: s for s in rospy.ServiceProxy(NS + "/list_sessions", ListSessions)().sessions}
+        self.assertEqual(listed[session].relocalised_map, 0)
+        self.assertEqual(listed[session].map, session, "relocalised, not joined (localisation mode)")
+        self.assertEqual(listed[0].relocalised_map, -1)
+        out = subprocess.run([SESSIONS_TOOL, "list"], capture_output=True, text=True, timeout=60)
+        self.assertIn("relocalised in map 0", out.stdout, out.stdout + out.stderr)
 
         # Localisation mode: the store is byte-identical, also after the pipeline's clean shutdown.
         self.launch.send_signal(signal.SIGINT)
