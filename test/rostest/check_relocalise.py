@@ -153,6 +153,16 @@ class RelocaliseTest(unittest.TestCase):
         out = subprocess.run([SESSIONS_TOOL, "list"], capture_output=True, text=True, timeout=60)
         self.assertIn("relocalised in map 0", out.stdout, out.stdout + out.stderr)
 
+        # A subscriber that comes late (a respawned loop detector) gets every stored keyframe, with features.
+        late = []
+        late_sub = rospy.Subscriber(NS + "/reloaded_keyframes", Keyframe, appender(lock, late), queue_size=1000)
+        await_condition(lock, lambda: len(late) >= stored, 60, "the stored keyframes for a late subscriber",
+                        lambda: ": %d" % len(late))
+        late_sub.unregister()
+        with lock:
+            self.assertEqual(sorted(k.keyframe for k in late), list(range(stored)))
+            self.assertTrue(all(k.session == 0 and len(k.u_px) > 0 for k in late))
+
         # Localisation mode: the store is byte-identical, also after the pipeline's clean shutdown.
         self.launch.send_signal(signal.SIGINT)
         self.assertEqual(self.launch.wait(timeout=60), 0)
