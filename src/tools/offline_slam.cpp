@@ -4,6 +4,8 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include <algorithm>
+#include <cmath>
+#include <cstdlib>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -56,6 +58,14 @@ options:
                     stored before it; loops already stored are skipped) and join what they
                     support (backend.join_policy), so stored sessions join without a new one;
                     --session may then be left out
+  --add-link A:KA:B:KB[:X:Y:YAW:SXY:SYAW]
+                    with --db (repeatable): the operator's link between keyframe KA of stored
+                    session A and keyframe KB of stored session B (the back-end's add_link):
+                    with the pose of KB in KA's frame (m, rad) and standard deviations, or
+                    without it measured by RANSAC between the two stored keyframes ("find it").
+                    Applied after --detect-loops, before the folders; a link is a loop like a
+                    detector's (stored, counted towards joins). Every link is checked (and
+                    measured) before any is added: one refused, none is, exit status 1.
   --interrupted discard|finish
                     what to do with a folder's run that was interrupted (above)
   --localise-only   with --db: the store is read, never written (localisation mode, as the
@@ -77,6 +87,40 @@ constexpr int kInStore = 3;  // a folder already in the store: finished (--again
 int badArgs(const std::string& why) {
   std::fprintf(stderr, "offline_slam: %s (see --help)\n", why.c_str());
   return 2;
+}
+
+// --add-link A:KA:B:KB[:X:Y:YAW:SXY:SYAW] -> a link (sessions, keyframes; z when measured). false:
+// not that shape, or a number that is not one (sigmas must be > 0).
+bool parseLink(const std::string& spec, core::Loop* link, bool* measured) {
+  std::vector<std::string> f;
+  std::size_t start = 0;
+  for (std::size_t colon; (colon = spec.find(':', start)) != std::string::npos; start = colon + 1)
+    f.push_back(spec.substr(start, colon - start));
+  f.push_back(spec.substr(start));
+  if (f.size() != 4 && f.size() != 9) return false;
+  int ids[4];
+  for (int i = 0; i < 4; ++i) {
+    char* end = nullptr;
+    const long v = std::strtol(f[i].c_str(), &end, 10);
+    if (f[i].empty() || *end != '\0' || v < 0 || v > 1000000000) return false;
+    ids[i] = static_cast<int>(v);
+  }
+  double x[5] = {0, 0, 0, 0, 0};
+  for (std::size_t i = 4; i < f.size(); ++i) {
+    char* end = nullptr;
+    x[i - 4] = std::strtod(f[i].c_str(), &end);
+    if (f[i].empty() || *end != '\0' || !std::isfinite(x[i - 4])) return false;
+  }
+  *measured = f.size() == 9;
+  if (*measured && !(x[3] > 0 && x[4] > 0)) return false;
+  link->session_a = ids[0];
+  link->keyframe_a = ids[1];
+  link->session_b = ids[2];
+  link->keyframe_b = ids[3];
+  link->z = core::UncertainPose2(core::Pose2(x[0], x[1], x[2]),
+                                 Eigen::Vector3d(x[3] * x[3], x[3] * x[3], x[4] * x[4]).asDiagonal());
+  link->inliers = 0;
+  return true;
 }
 
 int inStore(const std::string& why) {
@@ -135,7 +179,7 @@ int resolveInterrupted(const std::string& db, const std::string& choice, std::ve
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::vector<std::string> folders;
+  std::vector<std::string> folders, links;
   std::string out, config_file, db, nav, interrupted;
   int threads = 1;
   bool dump = false, quiet = false, again = false, detect_loops = false, localise_only = false;
@@ -154,6 +198,7 @@ int main(int argc, char** argv) {
     else if (arg == "--localise-only") localise_only = true;
     else if (arg == "--nav" && has_value) nav = argv[++i];
     else if (arg == "--interrupted" && has_value) interrupted = argv[++i];
+    else if (arg == "--add-link" && has_value) links.push_back(argv[++i]);
     else if (arg == "--threads" && has_value) {
       char* end = nullptr;
       const long n = std::strtol(argv[++i], &end, 10);
@@ -175,7 +220,17 @@ int main(int argc, char** argv) {
     if (localise_only && db.empty()) return badArgs("--localise-only needs --db FILE");
     if (localise_only && (detect_loops || !interrupted.empty()))
       return badArgs("--localise-only writes nothing to the store: not with --detect-loops or --interrupted");
-    if (folders.empty() && !detect_loops) return badArgs("at least one --session DIR is required");
+    if (!links.empty() && db.empty()) return badArgs("--add-link needs --db FILE");
+    if (!links.empty() && localise_only) return badArgs("--localise-only writes nothing to the store: not with --add-link");
+    std::vector<std::pair<core::Loop, bool>> parsed;  // the link, measured (else found)
+    for (const std::string& spec : links) {
+      core::Loop l;
+      bool measured = false;
+      if (!parseLink(spec, &l, &measured))
+        return badArgs("bad --add-link '" + spec + "': A:KA:B:KB (find it) or A:KA:B:KB:X:Y:YAW:SXY:SYAW (sigmas > 0)");
+      parsed.emplace_back(l, measured);
+    }
+    if (folders.empty() && !detect_loops && links.empty()) return badArgs("at least one --session DIR is required");
     if (out.empty()) return badArgs("--out OUT is required");
     if (localise_only && !std::filesystem::exists(db)) {
       std::fprintf(stderr, "offline_slam: --localise-only: no store %s (it would not be created)\n", db.c_str());
@@ -188,7 +243,7 @@ int main(int argc, char** argv) {
     std::set<int> finished_now;
     if (const int refused = resolveInterrupted(db, interrupted, &folders, &datasets, &finished_now); refused != 0)
       return refused;
-    if (datasets.empty() && !detect_loops) {
+    if (datasets.empty() && !detect_loops && links.empty()) {
       std::printf("offline_slam: every folder was skipped: nothing to process\n");
       return 0;
     }
@@ -213,6 +268,18 @@ int main(int argc, char** argv) {
       std::printf("store %s: %d sessions, %d loops loaded in %.1f ms\n", db.c_str(), stored,
                   static_cast<int>(manager.loops().size()),
                   std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    // The operator's links (issue 16, item 4, add_link offline): all checked and measured before
+    // anything is written, so that a refusal adds none of them and leaves OUT alone.
+    for (auto& [l, measured] : parsed) {
+      core::Status st = manager.checkLinkEnds(l);
+      if (st.ok()) st = manager.storedMapsMayChange("add-link");
+      if (st.ok() && !measured) st = core::findStoredLink(manager, config, &l);
+      if (!st.ok()) {
+        std::fprintf(stderr, "offline_slam: --add-link %d:%d:%d:%d refused (%s): %s; no link added\n", l.session_a,
+                     l.keyframe_a, l.session_b, l.keyframe_b, core::statusCodeName(st.code), st.message.c_str());
+        return 1;
+      }
+    }
     core::writeRunInputs(out, datasets, stored, core::slamConfigToYaml(config));  // creates OUT; folders + config
     if (detect_loops) {
       // Global loops among the stored sessions (issue 16, 3): each one searches the ones stored
@@ -225,6 +292,19 @@ int main(int argc, char** argv) {
                     "(%d already stored), %d accepted, %d refused; %d joins\n",
                     stored, f.queries, f.candidates, f.found, f.duplicates, f.accepted, f.refused,
                     manager.backendStats().joins);
+    }
+    for (const auto& [l, measured] : parsed) {  // checked above; the back-end may still refuse one
+      const core::Status st = manager.addLink(l);
+      if (!st.ok()) {
+        std::fprintf(stderr, "offline_slam: --add-link %d:%d:%d:%d refused (%s): %s (the links before it are added)\n",
+                     l.session_a, l.keyframe_a, l.session_b, l.keyframe_b, core::statusCodeName(st.code),
+                     st.message.c_str());
+        return 1;
+      }
+      if (!quiet)
+        std::printf("add-link %d:%d -> %d:%d: (%.4f, %.4f, %.4f) %s, %d inliers: added\n", l.session_a, l.keyframe_a,
+                    l.session_b, l.keyframe_b, l.z.mean.x(), l.z.mean.y(), l.z.mean.yaw(),
+                    measured ? "as given" : "found by RANSAC", l.inliers);
     }
 
     std::map<int, int> csv_of;  // session id -> the folder's number (stored sessions keep their id)

@@ -243,3 +243,56 @@ def test_localise_only_leaves_the_store_byte_identical(stores, tmp_path):
             "--out", tmp_path / "z")
     assert r.returncode == 1 and "would not be created" in r.stderr, r.stderr
     assert not (tmp_path / "none.db").exists()
+
+
+def test_add_link_offline_finds_or_takes_the_link_and_a_refusal_adds_none(stores, tmp_path):
+    """Issue 16, item 4 (offline equivalent of add_link): offline_slam --db --add-link on the two
+    stored sessions of a copy-only merge. "Find it" measures the link between two keyframes that
+    overlap in the ground truth (loops_gt.csv) by RANSAC on their stored features, within 2 cm and
+    0.01 rad of world_gt.csv; a given pose is taken as given; both are stored loops. One bad link
+    in the list adds none of them (store byte-identical, no OUT); bad specs exit 2."""
+    base, made = stores
+    db = tmp_path / "two.db"
+    r = run("merge_stores", db, made["a"], made["b"], "--no-loops", "--quiet")
+    assert r.returncode == 0, r.stderr
+    keyframes = {s: [int(t["index"]) for t in rows(base / ("run_" + n) / "trajectory.csv") if t["session"] == "0"]
+                 for s, n in ((0, "a"), (1, "b"))}
+    ia, ib = next((int(g["index_a"]), int(g["index_b"])) for g in rows(base / "m" / "loops_gt.csv")
+                  if g["session_a"] == "0" and g["session_b"] == "1" and int(g["index_a"]) in keyframes[0]
+                  and int(g["index_b"]) in keyframes[1])
+    ka, kb = keyframes[0].index(ia), keyframes[1].index(ib)
+    world = {(int(g["session"]), int(g["index"])): (float(g["x_m"]), float(g["y_m"]), float(g["yaw_rad"]))
+             for g in rows(base / "m" / "world_gt.csv")}
+    a, b = world[(0, ia)], world[(1, ib)]
+    c, s = math.cos(a[2]), math.sin(a[2])
+    truth = (c * (b[0] - a[0]) + s * (b[1] - a[1]), -s * (b[0] - a[0]) + c * (b[1] - a[1]),
+             math.remainder(b[2] - a[2], math.tau))
+
+    def loops_in(path):
+        with sqlite3.connect(path) as con:
+            return con.execute("SELECT COUNT(*) FROM loops").fetchone()[0]
+
+    before, loops_before = md5(db), loops_in(db)
+    found = f"0:{ka}:1:{kb}"
+    r = run("offline_slam", "--db", db, "--add-link", found, "--add-link", "0:0:9:0", "--out", tmp_path / "bad")
+    assert r.returncode == 1 and "no link added" in r.stderr and "NOT_FOUND" in r.stderr, r.stderr
+    assert md5(db) == before and not (tmp_path / "bad").exists()
+    for spec in ("0:0:1", "0:0:1:0:0.1:0:0:0:0.01", "0:x:1:0", "0:0:1:0:nan:0:0:0.01:0.01"):
+        r = run("offline_slam", "--db", db, "--add-link", spec, "--out", tmp_path / "bad")
+        assert r.returncode == 2 and "--add-link" in r.stderr, (spec, r.stderr)
+    r = run("offline_slam", "--db", db, "--add-link", found, "--localise-only", "--out", tmp_path / "bad")
+    assert r.returncode == 2 and "--localise-only" in r.stderr, r.stderr
+    r = run("offline_slam", "--add-link", found, "--out", tmp_path / "bad")
+    assert r.returncode == 2 and "--db" in r.stderr, r.stderr
+    assert md5(db) == before
+
+    r = run("offline_slam", "--db", db, "--add-link", found, "--add-link", f"0:{ka}:1:{kb}:0.1:0.2:0.3:0.01:0.01",
+            "--out", tmp_path / "o")
+    assert r.returncode == 0, r.stdout + r.stderr
+    line = [l for l in r.stdout.splitlines() if l.startswith("add-link") and "found by RANSAC" in l][0]
+    x, y, yaw = (float(v) for v in line.split("(")[1].split(")")[0].split(","))
+    print(f"\nadd-link {found}: ({x:.4f}, {y:.4f}, {yaw:.4f}) against the truth "
+          f"({truth[0]:.4f}, {truth[1]:.4f}, {truth[2]:.4f})")
+    assert math.hypot(x - truth[0], y - truth[1]) < 0.02 and abs(math.remainder(yaw - truth[2], math.tau)) < 0.01
+    assert "(0.1000, 0.2000, 0.3000) as given" in r.stdout
+    assert loops_in(db) == loops_before + 2
