@@ -88,8 +88,22 @@ void OdometryNodelet::readParameters() {
   options_.rectified_images = param(
       pnh, "rectified_images", false, [](bool) { return true; }, "a bool");
   options_.nav_source = param(
-      pnh, "nav_source", std::string("topic"), [](const std::string& s) { return s == "topic" || s == "none"; },
-      "topic (nav/odom, nav_msgs/Odometry) or none");
+      pnh, "nav_source", std::string("topic"),
+      [](const std::string& s) { return s == "topic" || s == "tf" || s == "none"; },
+      "topic (nav/odom, nav_msgs/Odometry), tf (odom -> base_link) or none");
+  options_.nav_tf_wait_s = param(
+      pnh, "nav_tf_wait_s", 0.05, [](double v) { return std::isfinite(v) && v >= 0 && v <= 1; }, "in [0, 1] s");
+  options_.nav_tf_drift = param(
+      pnh, "nav_tf_drift", 0.01, [](double v) { return std::isfinite(v) && v > 0 && v <= 1; }, "in (0, 1]");
+  options_.nav_tf_yaw_drift = param(
+      pnh, "nav_tf_yaw_drift", 0.001, [](double v) { return std::isfinite(v) && v > 0 && v <= 1; },
+      "in (0, 1] rad per metre");
+  if (options_.nav_source == "tf" && getNodeHandle().param("backend_node/publish_odom_tf", true))
+    throw std::invalid_argument(pnh.resolveName("nav_source") +
+                                ": tf needs the vehicle's own odom -> base_link, but the back-end publishes it from "
+                                "the visual odometry (set backend_node/publish_odom_tf false)");
+  odom_frame_ = getNodeHandle().param("frames/odom_frame", std::string("odom"));
+  base_frame_ = getNodeHandle().param("frames/base_frame", std::string("base_link"));
   options_.nav_buffer_s = param(
       pnh, "nav_buffer_s", 60.0, [](double v) { return std::isfinite(v) && v >= 1 && v <= 3600; },
       "in [1, 3600] seconds");
@@ -191,6 +205,13 @@ void OdometryNodelet::onInit() {
   if (o.use_altitude_topic) {
     range_sub_ = nh.subscribe(topics::kAltitude, o.sync_queue_size, &OdometryNodelet::onRange, this);
   }
+  if (o.nav_source == "tf") {
+    tf_buffer_ = std::make_unique<tf2_ros::Buffer>(ros::Duration(std::max(10.0, o.nav_buffer_s)));
+    tf_listener_ = std::make_unique<tf2_ros::TransformListener>(*tf_buffer_, nh);
+    NODELET_INFO("odometry: nav prior from tf %s -> %s at each image stamp (waiting up to %.2f s), sigma %.3f x and "
+                 "%.4f rad/m x the distance travelled",
+                 odom_frame_.c_str(), base_frame_.c_str(), o.nav_tf_wait_s, o.nav_tf_drift, o.nav_tf_yaw_drift);
+  }
   if (o.nav_source == "topic") {
     nav_sub_ = nh.subscribe(topics::kNavOdometry, 100, &OdometryNodelet::onNav, this);
     NODELET_INFO("odometry: nav prior from %s (nav_msgs/Odometry, %s), readings kept %.0f s; frames without one "
@@ -214,6 +235,33 @@ void OdometryNodelet::onNav(const nav_msgs::OdometryConstPtr& msg) {
     ++nav_refused_;
     NODELET_WARN_THROTTLE(5, "odometry: nav reading skipped: %s (%ld so far)", why.c_str(), nav_refused_.load());
   }
+}
+
+std::optional<core::NavRecord> OdometryNodelet::navFromTf(const ros::Time& stamp) {
+  geometry_msgs::TransformStamped t;
+  try {
+    t = tf_buffer_->lookupTransform(odom_frame_, base_frame_, stamp, ros::Duration(options_.nav_tf_wait_s));
+  } catch (const tf2::TransformException& e) {
+    ++counts_.nav_tf_missing;
+    NODELET_WARN_THROTTLE(5, "odometry: no nav for the frame at %.3f: %s (%ld frames so far)", stamp.toSec(), e.what(),
+                          counts_.nav_tf_missing);
+    return std::nullopt;
+  }
+  const geometry_msgs::Quaternion& q = t.transform.rotation;
+  const core::Pose2 vehicle(t.transform.translation.x, t.transform.translation.y,
+                            std::atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z)));
+  if (!vehicle.isFinite()) {
+    ++counts_.nav_tf_missing;
+    return std::nullopt;
+  }
+  if (last_tf_nav_) tf_nav_distance_m_ += (vehicle.translation() - last_tf_nav_->translation()).norm();
+  last_tf_nav_ = vehicle;
+  core::NavRecord r;
+  r.stamp_s = stamp.toSec();
+  r.pose = core::cameraFromVehicle(vehicle, mount_);
+  r.sigma_xy_m = options_.nav_tf_drift * tf_nav_distance_m_;
+  r.sigma_yaw_rad = options_.nav_tf_yaw_drift * tf_nav_distance_m_;
+  return r;
 }
 
 std::optional<core::NavRecord> OdometryNodelet::navAt(double stamp_s) {
@@ -611,7 +659,8 @@ void OdometryNodelet::process(const Frame& f) {
     }
   }
 
-  const std::optional<core::NavRecord> nav = navAt(stamp.toSec());
+  const std::optional<core::NavRecord> nav =
+      !config_.odometry.nav.enabled ? std::nullopt : tf_buffer_ ? navFromTf(stamp) : navAt(stamp.toSec());
   if (nav) ++counts_.frames_with_nav;
   const core::SegmentedOdometry::Step step =
       odometry_->process({frame_index_++, stamp.toSec(), altitude, image, nav});
@@ -765,6 +814,7 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
        {"frames_with_nav", static_cast<double>(c.frames_with_nav)},
        {"nav_motions", static_cast<double>(c.nav_motions)},
        {"fused_motions", static_cast<double>(c.fused_motions)},
+       {"nav_tf_missing", static_cast<double>(c.nav_tf_missing), true},
        {"sessions", static_cast<double>(c.sessions)},
        {"session", static_cast<double>(c.session)},
        {"keyframes", static_cast<double>(c.keyframes)},

@@ -9,6 +9,8 @@ turn (the nav first), waiting for each frame's odometry pose.
   are carried by the nav (nav_motions), the odometry's error over the blackout stays within the
   nav's drift, and after b's loops the map of both sessions is back below 1 cm rms over the
   keyframes that see the seabed.
+- ~case tf: the same with the nav sent as tf odom -> base_link (odometry_node/nav_source tf, the
+  back-end's publish_odom_tf false), its covariance from the distance model (nav_tf_drift).
 - ~case no_nav (the nav messages are not published): the behaviour as today, the blackout ends
   session a (a tracking loss, a second session).
 """
@@ -22,7 +24,8 @@ import unittest
 import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseWithCovarianceStamped
+import tf2_ros
+from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from nav_msgs.msg import Odometry, Path
 from sensor_msgs.msg import CameraInfo, Image, Range
 from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, compose, connected,
@@ -69,15 +72,27 @@ class NavPriorTest(unittest.TestCase):
                                  queue_size=1000),
                 rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)]
         pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(TOPICS, (Image, CameraInfo, Range, Odometry))]
-        await_condition(lock, lambda: connected(pubs) and "odometry" in status and "backend" in status, 60,
+        broadcaster = tf2_ros.TransformBroadcaster() if self.case == "tf" else None
+        # With tf the odometry listens to /tf (every node's tf listener too), not to /nav/odom.
+        listened = pubs if self.case != "tf" else pubs[:3] + [broadcaster.pub_tf]
+        await_condition(lock, lambda: connected(listened) and "odometry" in status and "backend" in status, 60,
                         "the odometry's subscriptions and diagnostics")
-        with_nav = self.case == "nav"
+        with_nav = self.case in ("nav", "tf")
         frames = {name: bag_frames(os.path.join(self.mission, name + ".bag"), TOPICS) for name in ("a", "b")}
         frame_of = {}  # image stamp -> (session name, frame index)
         for name in ("a", "b"):
             for i, (image, info, altitude, nav) in enumerate(frames[name]):
                 frame_of[image.header.stamp] = (name, i)
-                if with_nav:
+                if broadcaster:
+                    t = TransformStamped()
+                    t.header = nav.header
+                    t.child_frame_id = nav.child_frame_id
+                    t.transform.translation.x = nav.pose.pose.position.x
+                    t.transform.translation.y = nav.pose.pose.position.y
+                    t.transform.translation.z = nav.pose.pose.position.z
+                    t.transform.rotation = nav.pose.pose.orientation
+                    broadcaster.sendTransform(t)
+                elif with_nav:
                     pubs[3].publish(nav)
                 pubs[2].publish(altitude)
                 pubs[1].publish(info)
@@ -108,11 +123,12 @@ class NavPriorTest(unittest.TestCase):
             return
 
         rospy.loginfo("after a: %s", {k: after_a[k] for k in ("tracking_losses", "frames_with_nav", "nav_motions",
-                                                               "nav_received", "nav_refused")})
+                                                               "nav_received", "nav_refused", "nav_tf_missing")})
         self.assertEqual(after_a["tracking_losses"], 0, "no split in the blackout")
         self.assertEqual(len(sessions_a), 1, "session a stays one session: %s" % sessions_a)
-        self.assertEqual(after_a["nav_received"], len(frames["a"]))
+        self.assertEqual(after_a["nav_received"], len(frames["a"]) if self.case == "nav" else 0)
         self.assertEqual(after_a["nav_refused"], 0)
+        self.assertEqual(after_a["nav_tf_missing"], 0)
         self.assertEqual(after_a["frames_with_nav"], len(frames["a"]))
         self.assertGreaterEqual(after_a["nav_motions"], 5, "the blind frames carried by the nav")
 

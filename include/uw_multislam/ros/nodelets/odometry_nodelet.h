@@ -21,6 +21,14 @@
 //                       reckoning through vision failures, fusion); without readings the odometry
 //                       is exactly as without nav. Bad readings (not finite, negative variance,
 //                       zero stamp, not after the last one) are skipped and counted (nav_refused).
+//   tf odom -> base_link with ~nav_source tf: the vehicle's dead reckoning from tf (frames/odom_frame
+//                       -> frames/base_frame) at each frame's stamp (waiting up to ~nav_tf_wait_s);
+//                       tf has no covariance, so sigma grows with the distance travelled:
+//                       ~nav_tf_drift (fraction, default 0.01) and ~nav_tf_yaw_drift (rad per m,
+//                       default 0.001). Refused at start-up while the back-end publishes
+//                       odom -> base_link itself (backend_node/publish_odom_tf true: it would be the
+//                       visual odometry fed back). A frame without the transform goes without nav
+//                       (counted nav_tf_missing).
 // Pairing by stamp (issue 15): each image waits (in arrival order, in a short list of pending
 // images) for
 //   - its camera_info: the one with the nearest stamp within ~sync_max_interval_s, reused by as
@@ -114,6 +122,8 @@
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/Range.h>
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/transform_listener.h>
 
 #include <opencv2/core.hpp>
 
@@ -159,7 +169,10 @@ struct OdometryNodeletOptions {
   double diagnostic_period_s = 1.0;
   double stats_period_s = 30.0;
   int max_image_pixels = 25000000;  // larger images are skipped before any conversion (counted)
-  std::string nav_source = "topic";  // topic: nav/odom (nav_msgs/Odometry); none: no nav input
+  std::string nav_source = "topic";  // topic: nav/odom (nav_msgs/Odometry); tf: odom -> base_link; none
+  double nav_tf_wait_s = 0.05;       // tf: how long a frame waits for its transform
+  double nav_tf_drift = 0.01;        // tf: sigma_xy = this x the distance travelled
+  double nav_tf_yaw_drift = 0.001;   // tf: sigma_yaw = this (rad/m) x the distance travelled
   double nav_buffer_s = 60.0;        // nav readings kept this long behind the newest
   bool rectified_images = false;  // the images are rectified: P, no distortion; else K with D
   std::string camera_info_url;    // calibration used when no camera_info arrives; empty = none
@@ -202,6 +215,7 @@ class OdometryNodelet : public nodelet::Nodelet {
     long fixed_altitude = 0, skipped_by_odometry = 0;
     long dropped_paused = 0;  // frames the worker dropped while paused
     long frames_with_nav = 0, nav_motions = 0, fused_motions = 0;  // frames given a nav pose; motions not visual
+    long nav_tf_missing = 0;  // ~nav_source tf: frames whose transform was not there
     double total_ms = 0.0, max_ms = 0.0, last_ms = 0.0;
     int session = 0;
   };
@@ -222,6 +236,8 @@ class OdometryNodelet : public nodelet::Nodelet {
   void onNav(const nav_msgs::OdometryConstPtr& msg);
   /// The nav at a frame's stamp, if the readings around it are there.
   std::optional<core::NavRecord> navAt(double stamp_s);
+  /// ~nav_source tf: odom -> base_link at the stamp as a nav row (worker thread only).
+  std::optional<core::NavRecord> navFromTf(const ros::Time& stamp);
   void onPairingTimer(const ros::WallTimerEvent&);
   /// Pairs the pending images, oldest first, until one must wait longer. Under pairing_mutex_.
   void pairPending(double now);
@@ -321,6 +337,11 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::mutex nav_mutex_;  // guards nav_
   core::NavTrack nav_;
   std::atomic<long> nav_in_{0}, nav_refused_{0};
+  std::unique_ptr<tf2_ros::Buffer> tf_buffer_;  // ~nav_source tf
+  std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
+  std::string odom_frame_, base_frame_;
+  std::optional<core::Pose2> last_tf_nav_;  // the last tf nav pose and the distance travelled to it
+  double tf_nav_distance_m_ = 0.0;
 };
 
 }  // namespace nodelets
