@@ -261,7 +261,7 @@ core::Pose2 BackendNodelet::publishSession(int id) {
   keyframe_pose_pub_.publish(msg);
   relocalised_pub_.publish(msg);
   ++reloc_.published;
-  return correction;
+  return reloc->correction;  // map -> session_<id> as map -> odom: the stored map's
 }
 
 void BackendNodelet::publishAll(bool all_sessions) {
@@ -360,6 +360,7 @@ bool BackendNodelet::onFinish(uw_multislam::FinishSession::Request&, uw_multisla
   // No session records now: the odometry drops frames until start_session or resume, then
   // starts the session with the next id.
   announceNextSession(uw_multislam::SessionState::FINISHED);
+  reloc_ = RelocalisationState();  // no active session: nothing relocalised (diagnostics)
   NODELET_INFO("back-end: finish_session: session %d '%s' finished; the odometry waits for start_session or resume",
                id, manager_->name(id).c_str());
   publishAll(true);

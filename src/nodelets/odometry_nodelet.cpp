@@ -228,7 +228,9 @@ void OdometryNodelet::onNav(const nav_msgs::OdometryConstPtr& msg) {
   bool ok = rc::navFromMsg(*msg, mount_, &r, &why);
   if (ok) {
     std::lock_guard<std::mutex> lock(nav_mutex_);
-    ok = nav_.append(r, &why);
+    // Further back than a late reading may be: a new clock (a bag played again), the track restarts.
+    ok = nav_.append(r, &why, std::max(options_.reorder_tolerance_s, 1e-6));
+    if (ok && !why.empty()) NODELET_WARN("odometry: nav reading at %.3f: %s", r.stamp_s, why.c_str());
     if (ok && nav_.rows().size() > 64) nav_.dropBefore(r.stamp_s - options_.nav_buffer_s);
   }
   if (!ok) {

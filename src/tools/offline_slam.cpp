@@ -112,7 +112,7 @@ bool parseLink(const std::string& spec, core::Loop* link, bool* measured) {
     if (f[i].empty() || *end != '\0' || !std::isfinite(x[i - 4])) return false;
   }
   *measured = f.size() == 9;
-  if (*measured && !(x[3] > 0 && x[4] > 0)) return false;
+  if (*measured && !(x[3] >= 1e-6 && x[4] >= 1e-6)) return false;  // squared: a covariance the back-end takes
   link->session_a = ids[0];
   link->keyframe_a = ids[1];
   link->session_b = ids[2];
@@ -227,7 +227,8 @@ int main(int argc, char** argv) {
       core::Loop l;
       bool measured = false;
       if (!parseLink(spec, &l, &measured))
-        return badArgs("bad --add-link '" + spec + "': A:KA:B:KB (find it) or A:KA:B:KB:X:Y:YAW:SXY:SYAW (sigmas > 0)");
+        return badArgs("bad --add-link '" + spec +
+                       "': A:KA:B:KB (find it) or A:KA:B:KB:X:Y:YAW:SXY:SYAW (sigmas >= 1e-6)");
       parsed.emplace_back(l, measured);
     }
     if (folders.empty() && !detect_loops && links.empty()) return badArgs("at least one --session DIR is required");

@@ -370,6 +370,23 @@ TEST_P(BothOptimizers, RelocalisesAgainstAnotherMapWithoutJoiningIt) {
   EXPECT_LT(between(between(w.sessions[1][0], w.sessions[0][9]), back->pose.mean).translation().norm(), 1e-6);
 }
 
+TEST_P(BothOptimizers, ASplitTheUserAskedForStandsAgainstRelocalisation) {
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(1.0, -2.0, M_PI / 2), 6)};
+  MultiSessionBackend b(optionsFor(GetParam()));
+  b.setAutomaticJoins(false);
+  w.feed(&b, 0);
+  w.feed(&b, 1, false);
+  b.addLoop(withInliers(w.loop(0, 2, 1, 4), 80));
+  b.addLoop(withInliers(w.loop(0, 3, 1, 5), 80));
+  ASSERT_TRUE(b.relocalise(1));
+  const Status joined = b.join(0, 1, 2);
+  ASSERT_TRUE(joined.ok()) << joined.message;
+  EXPECT_FALSE(b.relocalise(1)) << "in one map: nothing to relocalise against";
+  ASSERT_TRUE(b.split(1).ok());
+  EXPECT_FALSE(b.relocalise(1)) << "the same loops do not undo the split";
+}
+
 
 TEST_P(BothOptimizers, AWrongLoopInsideAMapIsGatedAndAMildlyDriftedTrueOneIsNot) {
   // A 20-keyframe line with 1 cm odometry noise: a true loop (5 cm measurement noise on top of the

@@ -125,6 +125,16 @@ TEST(NavTrack, ALiveTrackRefusesBadRowsAndForgetsOldOnes) {
   EXPECT_FALSE(live.at(2.5, &r)) << "forgotten";
   live.dropBefore(0.0);
   EXPECT_EQ(live.rows().size(), 2u);
+  // With a restart threshold: a little back is refused as before, far back starts a new track.
+  EXPECT_FALSE(live.append({3.8, Pose2(0, 0, 0), 0.0, 0.0}, &why, 1.0));
+  EXPECT_EQ(live.rows().size(), 2u);
+  EXPECT_TRUE(live.append({0.5, Pose2(9, 9, 0), 0.0, 0.0}, &why, 1.0)) << why;
+  EXPECT_NE(why.find("starts again"), std::string::npos) << why;
+  ASSERT_EQ(live.rows().size(), 1u);
+  EXPECT_FALSE(live.at(3.5, &r)) << "the old clock's rows are gone";
+  EXPECT_TRUE(live.append({1.5, Pose2(10, 9, 0), 0.0, 0.0}, &why, 1.0));
+  ASSERT_TRUE(live.at(1.0, &r));
+  EXPECT_NEAR(r.pose.x(), 9.5, 1e-12);
 }
 
 TEST(NavPrior, MotionCovarianceIsTheInflatedGrowthOfSigmaWithFloors) {

@@ -676,7 +676,7 @@ std::optional<MultiSessionBackend::Relocalisation> MultiSessionBackend::relocali
   std::optional<Relocalisation> best;
   for (const auto& [id, m] : maps_) {
     if (id == mine || (eligible && !eligible(id))) continue;
-    const std::vector<int> ids = loopsBetween(id, mine, false);
+    const std::vector<int> ids = loopsBetween(id, mine, true);  // not across a split the user asked for
     if (static_cast<int>(ids.size()) < options_.join_min_consistent) continue;
     const LinkEstimate e = estimateLink(id, mine, ids, options_.join_min_consistent, JoinPolicy::kConsistent, true);
     if (!e.status.ok()) continue;

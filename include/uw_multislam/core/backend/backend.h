@@ -271,7 +271,8 @@ class MultiSessionBackend {
   /// take under the consistency rule (join_min_consistent loops, join_min_inliers, join_min_spread_m
   /// and the pairwise chi-square test, whatever join_policy is; the spread is the other map's: loops
   /// from one new keyframe to stored keyframes that agree on where it is relocalise it at once); the map whose consistent set is
-  /// largest (then: most inliers) wins. nullopt: no map passes. Nothing changes (localisation mode
+  /// largest (then: most inliers) wins; loops between sessions the user split apart do not count.
+  /// nullopt: no map passes. Nothing changes (localisation mode
   /// uses it while joins wait).
   struct Relocalisation {
     int map = -1;                 // the other map

@@ -88,8 +88,10 @@ class NavTrack {
 
   // --- A live track (the odometry nodelet's nav topic) ---
   /// Appends a row; false (nothing changed, `why` says why) when a value is not finite, a sigma
-  /// is negative or its stamp is not after the last row's.
-  bool append(const NavRecord& row, std::string* why = nullptr);
+  /// is negative or its stamp is not after the last row's. A stamp more than `restart_after_s`
+  /// (> 0) before the last row's is a new clock (a bag played again, a clock reset): the track
+  /// starts again from this row (true, `why` says so).
+  bool append(const NavRecord& row, std::string* why = nullptr, double restart_after_s = 0.0);
   /// Forgets the rows before `stamp_s`, keeping the last one before it (so at(stamp_s) still works).
   void dropBefore(double stamp_s);
 
