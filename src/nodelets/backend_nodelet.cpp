@@ -440,14 +440,13 @@ void BackendNodelet::reloadStored() {
   for (const core::SessionSummary& s : manager_->list()) {
     if (s.state != core::SessionState::kUnloaded) continue;
     core::ReloadedSession r;
-    const core::Status st = manager_->reload(std::to_string(s.id), &r, false);  // features stay in the store
+    // Features (and thumbnails: the live mosaic lacks these keyframes) stay in the store.
+    const core::Status st = manager_->reload(std::to_string(s.id), &r, false);
     if (!st.ok()) {
       NODELET_ERROR("back-end: ~reload_stored: session %d '%s' not reloaded: %s", s.id, s.name.c_str(),
                     st.message.c_str());
       continue;
     }
-    for (const core::StoredKeyframe& k : r.keyframes)
-      if (!k.thumbnail.empty()) mosaic_images_.add(r.id, k.keyframe, k.altitude_m, r.camera, k.thumbnail);
     handed_.push_back(r.id);
     keyframes += static_cast<int>(r.keyframes.size());
   }

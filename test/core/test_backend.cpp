@@ -308,6 +308,17 @@ TEST_P(BothOptimizers, ConsistentPolicyRefusesLoopsAtOnePlaceAndSaysWhy) {
   EXPECT_NE(weak.stats().last_join_refusal.find("40 inliers"), std::string::npos) << weak.stats().last_join_refusal;
 }
 
+// Relocalisation's set-up: session 0 (10 keyframes) finished, session 1 (6 keyframes, starting
+// 1 m ahead and 2 m beside it, turned pi/2) recording, automatic joins off (localisation mode).
+World storedAndRecording(MultiSessionBackend* b) {
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(1.0, -2.0, M_PI / 2), 6)};
+  b->setAutomaticJoins(false);
+  w.feed(b, 0);
+  w.feed(b, 1, false);
+  return w;
+}
+
 TEST_P(BothOptimizers, RelocalisesFromOneKeyframeThatTwoStoredPlacesAgreeOn) {
   // One new keyframe verified against two stored keyframes 0.5 m apart relocalises (the spread is
   // the stored map's), where a join under the consistency policy waits for a second place in the
@@ -335,12 +346,8 @@ TEST_P(BothOptimizers, RelocalisesAgainstAnotherMapWithoutJoiningIt) {
   // Session 1 is recording with automatic joins off (localisation mode): its pose in map 0 comes
   // from the consistent set of its loops to map 0, whatever join_policy is (count, K = 5 here),
   // and nothing changes.
-  World w;
-  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(1.0, -2.0, M_PI / 2), 6)};
   MultiSessionBackend b(optionsFor(GetParam()));
-  b.setAutomaticJoins(false);
-  w.feed(&b, 0);
-  w.feed(&b, 1, false);
+  World w = storedAndRecording(&b);
   EXPECT_FALSE(b.relocalise(1)) << "no loop";
   b.addLoop(withInliers(w.loop(0, 2, 1, 4), 80));
   EXPECT_FALSE(b.relocalise(1)) << "one loop is no set";
@@ -371,12 +378,8 @@ TEST_P(BothOptimizers, RelocalisesAgainstAnotherMapWithoutJoiningIt) {
 }
 
 TEST_P(BothOptimizers, ASplitTheUserAskedForStandsAgainstRelocalisation) {
-  World w;
-  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(1.0, -2.0, M_PI / 2), 6)};
   MultiSessionBackend b(optionsFor(GetParam()));
-  b.setAutomaticJoins(false);
-  w.feed(&b, 0);
-  w.feed(&b, 1, false);
+  World w = storedAndRecording(&b);
   b.addLoop(withInliers(w.loop(0, 2, 1, 4), 80));
   b.addLoop(withInliers(w.loop(0, 3, 1, 5), 80));
   ASSERT_TRUE(b.relocalise(1));
