@@ -249,10 +249,8 @@ std::optional<core::NavRecord> OdometryNodelet::navFromTf(const ros::Time& stamp
                           counts_.nav_tf_missing);
     return std::nullopt;
   }
-  const geometry_msgs::Quaternion& q = t.transform.rotation;
-  const core::Pose2 vehicle(t.transform.translation.x, t.transform.translation.y,
-                            std::atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z)));
-  if (!vehicle.isFinite()) {
+  core::Pose2 vehicle;
+  if (!rc::fromMsg(t.transform, &vehicle)) {  // not finite, or a zero quaternion
     ++counts_.nav_tf_missing;
     return std::nullopt;
   }
