@@ -72,6 +72,10 @@ options:
                     back-end's set_mode localisation): the folders are tracked and their loops to
                     the stored sessions found, automatic joins wait, OUT gets the outputs; the
                     store stays byte-identical. Not with --detect-loops or --interrupted
+  --finish-after N  end each folder's session after its first N frames (as the back-end's
+                    finish_session): the folder's later frames are dropped, counted and printed,
+                    the session is finished (stored as finished with --db) and the next folder
+                    starts the next session as usual
   --nav on|off      use a folder's nav.csv (dead reckoning) as a prior (default: nav.enabled, on)
   --threads N       OpenCV threads (default 1: one core, as onboard)
   --dump-config     print the effective configuration and exit
@@ -182,6 +186,7 @@ int main(int argc, char** argv) {
   std::vector<std::string> folders, links;
   std::string out, config_file, db, nav, interrupted;
   int threads = 1;
+  long finish_after = 0;  // 0: every frame
   bool dump = false, quiet = false, again = false, detect_loops = false, localise_only = false;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
@@ -199,7 +204,12 @@ int main(int argc, char** argv) {
     else if (arg == "--nav" && has_value) nav = argv[++i];
     else if (arg == "--interrupted" && has_value) interrupted = argv[++i];
     else if (arg == "--add-link" && has_value) links.push_back(argv[++i]);
-    else if (arg == "--threads" && has_value) {
+    else if (arg == "--finish-after" && has_value) {
+      char* end = nullptr;
+      finish_after = std::strtol(argv[++i], &end, 10);
+      if (*end != '\0' || finish_after < 1 || finish_after > 100000000)
+        return badArgs(std::string("bad --finish-after '") + argv[i] + "': a number of frames, 1 or more");
+    } else if (arg == "--threads" && has_value) {
       char* end = nullptr;
       const long n = std::strtol(argv[++i], &end, 10);
       if (*end != '\0' || n < 1 || n > 64) return badArgs(std::string("bad --threads '") + argv[i] + "'");
@@ -312,14 +322,22 @@ int main(int argc, char** argv) {
     for (std::size_t ds = 0; ds < datasets.size(); ++ds) {
       const core::Dataset& d = datasets[ds];
       pipeline.beginStream(d);  // its camera, its images (thumbnails), its nav.csv
-      for (const core::FrameRecord& f : d.frames) {
+      // --finish-after (finish_session offline, issue 16 item 4): the frames after the first N
+      // are dropped and counted, as the odometry drops them after finish_session.
+      const std::size_t taken =
+          finish_after > 0 ? std::min(d.frames.size(), static_cast<std::size_t>(finish_after)) : d.frames.size();
+      for (std::size_t i = 0; i < taken; ++i) {
+        const core::FrameRecord& f = d.frames[i];
         const cv::Mat image = cv::imread(d.imagePath(f), cv::IMREAD_COLOR);
         if (image.empty())
           std::fprintf(stderr, "offline_slam: %s: cannot decode image of frame %d, skipped\n", d.imagePath(f).c_str(),
                        f.index);
         pipeline.processFrame({f.index, f.stamp_s, f.altitude_m, image});
       }
-      pipeline.endStream(d.frames.empty() ? 0.0 : d.frames.back().stamp_s);
+      pipeline.endStream(taken == 0 ? 0.0 : d.frames[taken - 1].stamp_s);
+      if (taken < d.frames.size() && !quiet)
+        std::printf("%s: session finished after %zu frames (--finish-after), %zu frames dropped\n",
+                    folders[ds].c_str(), taken, d.frames.size() - taken);
       for (int id : pipeline.streamSessions().back()) csv_of[id] = stored + static_cast<int>(ds);
     }
     pipeline.finish();

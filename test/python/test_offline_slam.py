@@ -617,3 +617,38 @@ def test_an_unrelated_session_between_two_of_one_mission_gets_no_loop_and_no_joi
         assert {t["session"] for t in traj if t["map"] == m} == {"1"}
     assert not [link for link in rows(out / "links.csv") if "1" in (link["previous_session"], link["current_session"])
                 and {link["previous_session"], link["current_session"]} != {"1"}]
+
+
+def test_finish_after_ends_each_folder_session_like_a_folder_cut_there(survey, tmp_path):
+    """--finish-after N (issue 16, item 4: finish_session offline): each folder's session ends after
+    its first N frames; the rest are dropped and counted. The run equals one over copies of the
+    folders whose frames.csv stops at N (same keyframes, same poses), its sessions are finished in
+    the store, and the next folder is the next session. Bad values exit 2."""
+    n = 12
+    cut = {}
+    for name in ("a", "b"):
+        cut[name] = tmp_path / ("cut_" + name)
+        shutil.copytree(survey / name, cut[name])
+        lines = (survey / name / "frames.csv").read_text().splitlines()
+        assert len(lines) > n + 1
+        (cut[name] / "frames.csv").write_text("\n".join(lines[:n + 1]) + "\n")
+    r = run("offline_slam", "--session", survey / "a", "--session", survey / "b", "--finish-after", n,
+            "--db", tmp_path / "f.db", "--out", tmp_path / "f")
+    assert r.returncode == 0, r.stdout + r.stderr
+    for name in ("a", "b"):
+        dropped = len((survey / name / "frames.csv").read_text().splitlines()) - 1 - n
+        assert f"{survey / name}: session finished after {n} frames (--finish-after), {dropped} frames dropped" \
+            in r.stdout, r.stdout
+    r = run("offline_slam", "--session", cut["a"], "--session", cut["b"], "--out", tmp_path / "c", "--quiet")
+    assert r.returncode == 0, r.stderr
+    finished, whole = rows(tmp_path / "f" / "odometry.csv"), rows(tmp_path / "c" / "odometry.csv")
+    assert [(t["session"], t["index"]) for t in finished] == [(t["session"], t["index"]) for t in whole]
+    assert {t["session"] for t in finished} == {"0", "1"}
+    assert max(int(t["index"]) for t in finished) < n
+    for p, q in zip(finished, whole):
+        assert all(abs(float(p[k]) - float(q[k])) < 1e-9 for k in ("x_m", "y_m", "yaw_rad")), (p, q)
+    assert store_rows(tmp_path / "f.db", "SELECT state FROM sessions ORDER BY id") == [("finished",), ("finished",)]
+    for bad in ("0", "-3", "x", "2.5"):
+        r = run("offline_slam", "--session", survey / "a", "--finish-after", bad, "--out", tmp_path / "bad")
+        assert r.returncode == 2 and "--finish-after" in r.stderr, (bad, r.stderr)
+    assert not (tmp_path / "bad").exists()
