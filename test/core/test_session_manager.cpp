@@ -529,6 +529,78 @@ TEST(SessionManager, LocalisationModeWritesNothingChangesNoStoredMapAndLeavesARe
   EXPECT_EQ(last.nextId(), 3);
 }
 
+TEST(SessionManager, TheAuditTrailRecordsJoinsSplitsLinksAndModeChangesWithCauseAndLoopsAndSurvivesARestart) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  SessionManagerOptions o = options(db);
+  o.backend.join_min_loops = 5;  // the rule joins at the fifth loop
+  o.requester = "service";
+  std::vector<HistoryEntry> written;
+  {
+    SessionManager m(o);
+    twoSessionsWithLoops(&m);
+    ASSERT_EQ(m.mapOf(1), 0);
+    ASSERT_TRUE(m.split(1).ok());
+    Loop link = globalLoop(0, 6, 1, 6, Pose2(0, 1, 0));
+    ASSERT_TRUE(m.addLink(link).ok());
+    ASSERT_EQ(m.mapOf(1), 1);  // a split pair: the rule does not join it again by itself
+    ASSERT_TRUE(m.join(0, 1, 1).ok());
+    ASSERT_TRUE(m.setLocalisation(true).ok());
+    ASSERT_TRUE(m.setLocalisation(false).ok());
+    ASSERT_TRUE(m.split(1).ok());
+    written = m.history();
+  }
+  ASSERT_EQ(written.size(), 6u);
+  const std::vector<std::string> kinds{"join", "split", "link", "join", "mode", "split"};
+  const std::vector<std::string> causes{"automatic", "service", "service", "service", "service", "service"};
+  for (std::size_t i = 0; i < written.size(); ++i) {
+    const HistoryEntry& e = written[i];
+    EXPECT_EQ(e.id, static_cast<std::int64_t>(i + 1));
+    EXPECT_EQ(e.kind, kinds[i]) << i;
+    EXPECT_EQ(e.cause, causes[i]) << i;
+    ASSERT_EQ(e.time_utc.size(), 20u) << e.time_utc;  // 2026-11-25T02:13:04Z
+    EXPECT_EQ(e.time_utc[10], 'T');
+    EXPECT_EQ(e.time_utc.back(), 'Z');
+  }
+  EXPECT_EQ(written[0].sessions, "0+1");
+  EXPECT_EQ(written[0].loops, "0:1>1:1 0:2>1:2 0:3>1:3 0:4>1:4 0:5>1:5");
+  EXPECT_NE(written[0].message.find("from 5 loops"), std::string::npos) << written[0].message;
+  EXPECT_EQ(written[1].sessions, "1+0");
+  EXPECT_EQ(written[1].loops, written[0].loops);  // released for a later join
+  EXPECT_NE(written[1].message.find("undoes join #1"), std::string::npos) << written[1].message;
+  EXPECT_EQ(written[2].sessions, "0,1");
+  EXPECT_EQ(written[2].loops, "0:6>1:6");
+  EXPECT_NE(written[2].message.find("global link 0:6>1:6: pose (0.0000 m, 1.0000 m, 0.0000 rad)"), std::string::npos)
+      << written[2].message;
+  EXPECT_NE(written[3].loops.find("0:6>1:6"), std::string::npos) << written[3].loops;
+  EXPECT_NE(written[4].message.find("localisation mode from"), std::string::npos) << written[4].message;
+  // The last change of the maps before it was join #4 (the mode entry in between does not count).
+  EXPECT_NE(written[5].message.find("undoes join #4"), std::string::npos) << written[5].message;
+
+  // In the store: a restart restores it, and the next entry follows on.
+  SessionManager again(o);
+  const std::vector<HistoryEntry>& h = again.history();
+  ASSERT_EQ(h.size(), written.size());
+  for (std::size_t i = 0; i < h.size(); ++i) {
+    EXPECT_EQ(h[i].id, written[i].id);
+    EXPECT_EQ(h[i].time_utc, written[i].time_utc);
+    EXPECT_EQ(h[i].kind + h[i].cause + h[i].sessions + h[i].loops + h[i].message,
+              written[i].kind + written[i].cause + written[i].sessions + written[i].loops + written[i].message);
+  }
+  ASSERT_TRUE(again.join(0, 1, 1).ok());
+  EXPECT_EQ(again.history().back().id, 7);
+
+  // offline_slam's manager (requester tool) without a store: the trail lives in memory.
+  SessionManager tool(options());
+  twoSessionsWithLoops(&tool);
+  ASSERT_TRUE(tool.join(0, 1, 5).ok());
+  ASSERT_EQ(tool.history().size(), 1u);
+  EXPECT_EQ(tool.history()[0].cause, "tool");
+  SessionManagerOptions bad = options();
+  bad.requester = "operator";
+  EXPECT_THROW(SessionManager{bad}, std::invalid_argument);
+}
+
 TEST(SessionManager, ANewSessionRelocalisesInAStoredMapOnlyAndWithItsOdometryCorrection) {
   // Session 0 stored; after a restart session 1 (1 m beside it) relocalises in map 0 from two
   // consistent loops, in localisation mode (nothing joined). Session 2, recorded in this run, is no

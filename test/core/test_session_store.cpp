@@ -305,6 +305,39 @@ TEST(Store, FrameDataAreReadFromACoveringIndexThatOlderStoresGetWhenOpened) {
   }
 }
 
+TEST(Store, TheHistoryTableComesWithOpeningForWritingAndKeepsItsEntries) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  const HistoryEntry e{1, "2026-11-25T02:13:04Z", "join", "automatic", "0+1", "0:1>1:1 0:2>1:2", "map 1 joined"};
+  {
+    SessionStore store(path);
+    store.addSession("s", camera(), 10.0);
+    store.addHistory(e);
+    EXPECT_THROW(store.addHistory(e), StoreError);  // the same id twice
+    // As a store written before the table was.
+    ASSERT_EQ(sqlite3_exec(store.handle(), "DROP TABLE history", nullptr, nullptr, nullptr), SQLITE_OK);
+  }
+  {
+    const SessionStore read_only(path, StoreAccess::kReadOnly);
+    EXPECT_TRUE(read_only.history().empty());  // no table: no history, nothing created
+  }
+  SessionStore store(path);  // opened for writing: the table again, empty
+  EXPECT_TRUE(store.history().empty());
+  store.addHistory(e);
+  HistoryEntry second = e;
+  second.id = 2;
+  second.kind = "split";
+  second.loops = "";
+  store.addHistory(second);
+  const std::vector<HistoryEntry> back = store.history();
+  ASSERT_EQ(back.size(), 2u);
+  for (const auto& [got, want] : {std::pair{back[0], e}, std::pair{back[1], second}}) {
+    EXPECT_EQ(got.id, want.id);
+    EXPECT_EQ(got.time_utc + got.kind + got.cause + got.sessions + "|" + got.loops + "|" + got.message,
+              want.time_utc + want.kind + want.cause + want.sessions + "|" + want.loops + "|" + want.message);
+  }
+}
+
 TEST(Store, EachMotionKeepsItsSource) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();

@@ -398,6 +398,10 @@ def test_db_rerun_after_kill_with_discard_processes_the_folder_again_as_one_clea
     assert store_rows(db, "SELECT name, state FROM sessions ORDER BY id") == [
         (str(survey / "a"), "finished"), (str(survey / "b"), "finished")]
     assert store_rows(db, "PRAGMA integrity_check") == [("ok",)]
+    # The audit trail (issue 16, item 5): the deletion by the tool, then the rule's join of the new run.
+    history = store_rows(db, "SELECT id, kind, cause, sessions, message FROM history ORDER BY id")
+    assert history[0][:4] == (1, "delete", "tool", "0") and str(survey / "a") in history[0][4], history
+    assert [h[1:4] for h in history[1:]] == [("join", "automatic", "0+1")], history
     one_run, _ = result
     key = lambda l: tuple(l.values())
     assert sorted(map(key, rows(os.path.join(out, "loops.csv")))) == sorted(map(key, rows(one_run / "loops.csv")))

@@ -647,6 +647,7 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
       for (int b : c.chain) split_pairs_.erase({std::min(a, b), std::max(a, b)});
   }
   const int prev_session = p.chain.back(), cur_session = c.chain.front();
+  MapChange change{true, p.chain, c.chain, link.loops, refused, {}};
   const bool was_due = due_.erase(first) + due_.erase(second) > 0;
   maps_.erase(second);
   Map& joined = maps_[first] = std::move(j);
@@ -665,6 +666,8 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
   if (refused > 0) msg << ", " << refused << " inconsistent loops refused";
   msg << ")";
   say(msg.str());
+  change.message = msg.str();
+  changes_.push_back(std::move(change));
   if (options_.optimise && joined.pending >= options_.optimise_every) optimise(first);
   return {StatusCode::kOk, msg.str()};
 }
@@ -836,6 +839,7 @@ BackendStatus MultiSessionBackend::split(int session) {
                           ": maps " + std::to_string(session) + " and " + std::to_string(rest_id) + ", " +
                           std::to_string(released.size()) + " global loops between them kept for a later join";
   say(msg);
+  changes_.push_back({false, {session}, maps_[rest_id].chain, released, 0, msg});
   return {StatusCode::kOk, msg};
 }
 

@@ -59,10 +59,18 @@ std::vector<InterruptedRun> findInterruptedRuns(const SessionStore& store, const
 }
 
 void resolveInterruptedRun(SessionStore* store, const InterruptedRun& run, InterruptedChoice choice) {
-  if (choice == InterruptedChoice::kDiscard)
+  if (choice == InterruptedChoice::kDiscard) {
     store->deleteSessions(run.store_ids);
-  else
+    // The audit trail (issue 16, item 5): a deletion by the tool.
+    std::string ids;
+    for (int id : run.ids) ids += (ids.empty() ? "" : ",") + std::to_string(id);
+    store->addHistory({0, utcTimestamp(), "delete", "tool", ids, "",
+                       "offline_slam --interrupted discard: the interrupted run of '" + run.name + "' deleted (" +
+                           std::to_string(run.store_ids.size()) + " sessions, " + std::to_string(run.keyframes) +
+                           " keyframes, their loops and their places in the maps)"});
+  } else {
     store->endSession(run.store_ids.back(), run.last_stamp_s);
+  }
 }
 
 }  // namespace core

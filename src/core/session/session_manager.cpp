@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <stdexcept>
 
@@ -20,6 +21,7 @@ std::string SessionManagerOptions::validate() const {
   if (max_keyframe_gap < 0) return "max_keyframe_gap must be >= 0";
   if (max_empty_sessions < 0) return "max_empty_sessions must be >= 0 (0: no limit)";
   if (!(store_max_mb >= 0.0) || store_max_mb > 1e9) return "store_max_mb must be in [0, 1e9] (0: no cap)";
+  if (requester != "tool" && requester != "service") return "requester must be tool or service";
   return "";
 }
 
@@ -155,6 +157,8 @@ void SessionManager::restore() {
     if (l.session_b != l.session_a) ++at(l.session_b).loops;
   }
   restored_sessions_ = static_cast<int>(sessions_.size());
+  history_ = store_->history();
+  backend_->takeMapChanges();  // restoring is no join
   seen_joins_ = backend_->stats().joins;
   seen_splits_ = backend_->stats().splits;
   seen_optimisations_ = backend_->stats().optimisations;
@@ -576,18 +580,43 @@ Status SessionManager::addLink(Loop l) {
   l.frame_a = at(l.session_a).frames.at(l.keyframe_a);
   l.frame_b = at(l.session_b).frames.at(l.keyframe_b);
   l.hash_l1 = 0.0f;
+  hold_changes_ = true;  // the link goes into the audit trail before a join it brings about
   const Status st = addLoop(l);
-  if (st.ok())
-    say("add_link " + std::to_string(l.session_a) + ":" + std::to_string(l.keyframe_a) + " -> " +
-        std::to_string(l.session_b) + ":" + std::to_string(l.keyframe_b) + " (" +
-        (l.kind == Loop::Kind::kLocal ? "local" : "global") + ")");
+  hold_changes_ = false;
+  if (st.ok()) {
+    const std::string link = std::to_string(l.session_a) + ":" + std::to_string(l.keyframe_a) + ">" +
+                             std::to_string(l.session_b) + ":" + std::to_string(l.keyframe_b);
+    const char* kind = l.kind == Loop::Kind::kLocal ? "local" : "global";
+    say("add_link " + link + " (" + kind + ")");
+    char pose[200];
+    std::snprintf(pose, sizeof pose, "pose (%.4f m, %.4f m, %.4f rad), sigma (%.4g m, %.4g m, %.4g rad), %d inliers",
+                  l.z.mean.x(), l.z.mean.y(), l.z.mean.yaw(), std::sqrt(l.z.covariance(0, 0)),
+                  std::sqrt(l.z.covariance(1, 1)), std::sqrt(l.z.covariance(2, 2)), l.inliers);
+    record("link",
+           l.session_a == l.session_b ? std::to_string(l.session_a)
+                                      : std::to_string(l.session_a) + "," + std::to_string(l.session_b),
+           link, std::string(kind) + " link " + link + ": " + pose, options_.requester.c_str());
+  }
+  recordMapChanges();
   return st;
 }
 
 Status SessionManager::setLocalisation(bool on) {
   if (on == localising_) return Status::Ok(on ? "already in localisation mode" : "already in mapping mode");
+  // The mode change goes into the audit trail when mapping resumes: in localisation mode the
+  // store is not written (a run that ends localising leaves it byte-identical).
+  if (on) localising_since_ = utcTimestamp();
   localising_ = on;
   backend_->setAutomaticJoins(!on);
+  if (!on) {
+    int memory_only = 0;
+    for (const auto& [id, x] : sessions_)
+      if (x.memory_only) memory_only += static_cast<int>(x.stamps.size()) - x.stored;
+    record("mode", "", "",
+           "localisation mode from " + localising_since_ + " to " + utcTimestamp() + " (" + std::to_string(memory_only) +
+               " keyframes kept in memory only), mapping again",
+           options_.requester.c_str());
+  }
   say(on ? "localisation mode: nothing is written to the store, no stored map changes, automatic joins wait"
          : "mapping mode: the store is written again (keyframes kept in memory only stay so)");
   return Status::Ok();
@@ -607,7 +636,58 @@ Status SessionManager::optimisePending(int* maps) {
 
 // --- Maps -------------------------------------------------------------------------------------
 
+std::string SessionManager::chainText(const std::vector<int>& backend_sessions) const {
+  std::string t;
+  for (int b : backend_sessions) t += (t.empty() ? "" : ",") + std::to_string(idOfBackend(b));
+  return t;
+}
+
+std::string SessionManager::loopsText(const std::vector<int>& backend_loops) const {
+  std::string t;
+  for (int i : backend_loops) {
+    const Loop& l = loops_.at(static_cast<std::size_t>(i));  // loops_[i] is the back-end's loop i
+    t += (t.empty() ? "" : " ") + std::to_string(l.session_a) + ":" + std::to_string(l.keyframe_a) + ">" +
+         std::to_string(l.session_b) + ":" + std::to_string(l.keyframe_b);
+  }
+  return t;
+}
+
+void SessionManager::record(const std::string& kind, const std::string& sessions, const std::string& loops,
+                            const std::string& message, const char* cause) {
+  HistoryEntry e{history_.empty() ? 1 : history_.back().id + 1, utcTimestamp(), kind, cause ? cause : cause_, sessions,
+                 loops, message};
+  storeWrite("writing the history", [&] { store_->addHistory(e); });
+  history_.push_back(std::move(e));
+}
+
+void SessionManager::recordMapChanges() {
+  for (const MapChange& c : backend_->takeMapChanges()) {
+    const std::string first = chainText(c.first), second = chainText(c.second);
+    if (c.join) {
+      record("join", first + "+" + second, loopsText(c.loops),
+             "map " + std::to_string(idOfBackend(c.second.front())) + " (sessions " + second + ") joined to map " +
+                 std::to_string(idOfBackend(c.first.front())) + " (sessions " + first + ") from " +
+                 std::to_string(c.loops.size()) + " loops" +
+                 (c.refused > 0 ? ", " + std::to_string(c.refused) + " inconsistent loops refused" : ""));
+      continue;
+    }
+    // Undoing the last join is a split, and says so: the last change of the maps was a join of
+    // exactly this session and the rest.
+    std::string undo;
+    for (auto it = history_.rbegin(); it != history_.rend(); ++it) {
+      if (it->kind != "join" && it->kind != "split") continue;
+      if (it->kind == "join" && (it->sessions == first + "+" + second || it->sessions == second + "+" + first))
+        undo = " (undoes join #" + std::to_string(it->id) + ")";
+      break;
+    }
+    record("split", first + "+" + second, loopsText(c.loops),
+           "session " + first + " split off map " + std::to_string(idOfBackend(c.second.front())) + " (sessions " +
+               second + "), " + std::to_string(c.loops.size()) + " loops between them kept for a later join" + undo);
+  }
+}
+
 void SessionManager::afterBackendChange() {
+  if (!hold_changes_) recordMapChanges();
   const BackendStats& st = backend_->stats();
   const bool joined = st.joins != seen_joins_, split = st.splits != seen_splits_;
   if (joined) emit(SessionEvent::Kind::kMapsJoined, -1, -1, -1, "maps joined");
@@ -646,7 +726,9 @@ Status SessionManager::join(int session_a, int session_b, int min_loops) {
   const Status st = backend_->join(at(session_a).backend, at(session_b).backend, k);
   if (st.ok()) {
     say("join_sessions " + std::to_string(session_a) + " " + std::to_string(session_b) + ": " + st.message);
+    cause_ = options_.requester.c_str();
     afterBackendChange();
+    cause_ = "automatic";
   }
   return st;
 }
@@ -658,7 +740,9 @@ Status SessionManager::split(int session) {
   const Status st = backend_->split(at(session).backend);
   if (st.ok()) {
     say("split_session " + std::to_string(session) + ": " + st.message);
+    cause_ = options_.requester.c_str();
     afterBackendChange();
+    cause_ = "automatic";
   }
   return st;
 }

@@ -85,6 +85,11 @@ const char* kProvenanceTable =
     "source_file TEXT NOT NULL, source_session INTEGER NOT NULL, source_name TEXT NOT NULL, "
     "vehicle TEXT NOT NULL, dive TEXT NOT NULL)";
 
+// The audit trail (issue 16, 5): created like provenance, when the store is opened for writing.
+const char* kHistoryTable =
+    "CREATE TABLE IF NOT EXISTS history(id INTEGER PRIMARY KEY, time_utc TEXT NOT NULL, kind TEXT NOT NULL, "
+    "cause TEXT NOT NULL, sessions TEXT NOT NULL, loops TEXT NOT NULL, message TEXT NOT NULL)";
+
 std::string codeText(int rc) {
   switch (rc & 0xff) {
     case SQLITE_FULL:
@@ -342,6 +347,7 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
     }
     exec(kFrameIndex);
     exec(kProvenanceTable);
+    exec(kHistoryTable);
   } catch (...) {
     sqlite3_close(db_);
     db_ = nullptr;
@@ -840,6 +846,23 @@ std::vector<std::pair<std::int64_t, std::int64_t>> SessionStore::splitPairs() co
   return out;
 }
 
+namespace {
+
+std::string columnText(sqlite3_stmt* st, int col) {
+  const unsigned char* t = sqlite3_column_text(st, col);
+  return std::string(t ? reinterpret_cast<const char*>(t) : "");
+}
+
+}  // namespace
+
+// A store opened read-only that was never opened for writing by a build that creates the table
+// (provenance, history) has none.
+bool SessionStore::hasTable(const char* name) const {
+  Statement t(this, "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = ?");
+  t.bind(1, std::string(name));
+  return t.step();
+}
+
 void SessionStore::addProvenance(const SessionProvenance& p) {
   bool stored = false;
   {
@@ -859,16 +882,10 @@ void SessionStore::addProvenance(const SessionProvenance& p) {
 
 std::vector<SessionProvenance> SessionStore::provenance() const {
   std::vector<SessionProvenance> out;
-  {  // a store opened read-only that was never opened for writing by this build has no table
-    Statement t(this, "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'provenance'");
-    if (!t.step()) return out;
-  }
+  if (!hasTable("provenance")) return out;
   Statement st(this,
                "SELECT session, source_file, source_session, source_name, vehicle, dive FROM provenance ORDER BY session");
-  auto text = [&](int col) {
-    const unsigned char* t = sqlite3_column_text(st.get(), col);
-    return std::string(t ? reinterpret_cast<const char*>(t) : "");
-  };
+  auto text = [&](int col) { return columnText(st.get(), col); };
   while (st.step()) {
     SessionProvenance p;
     p.session = sqlite3_column_int64(st.get(), 0);
@@ -879,6 +896,37 @@ std::vector<SessionProvenance> SessionStore::provenance() const {
     p.dive = text(5);
     out.push_back(std::move(p));
   }
+  return out;
+}
+
+std::string utcTimestamp() {
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char out[32];
+  std::strftime(out, sizeof out, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return out;
+}
+
+std::int64_t SessionStore::addHistory(HistoryEntry e) {
+  if (e.id == 0) {
+    Statement last(this, "SELECT COALESCE(MAX(id), 0) FROM history");
+    last.step();
+    e.id = sqlite3_column_int64(last.get(), 0) + 1;
+  }
+  Statement st(this, "INSERT INTO history(id, time_utc, kind, cause, sessions, loops, message) VALUES (?, ?, ?, ?, ?, ?, ?)");
+  st.bind(1, e.id).bind(2, e.time_utc).bind(3, e.kind).bind(4, e.cause).bind(5, e.sessions).bind(6, e.loops);
+  st.bind(7, e.message).run();
+  return e.id;
+}
+
+std::vector<HistoryEntry> SessionStore::history() const {
+  std::vector<HistoryEntry> out;
+  if (!hasTable("history")) return out;
+  Statement st(this, "SELECT id, time_utc, kind, cause, sessions, loops, message FROM history ORDER BY id");
+  auto text = [&](int col) { return columnText(st.get(), col); };
+  while (st.step())
+    out.push_back({sqlite3_column_int64(st.get(), 0), text(1), text(2), text(3), text(4), text(5), text(6)});
   return out;
 }
 

@@ -179,6 +179,16 @@ struct BackendStats {
   double optimise_ms_total = 0.0, optimise_ms_max = 0.0;
 };
 
+/// A join or a split as it happened, in back-end session ids (the session manager's audit trail,
+/// issue 16 item 5, takes them with takeMapChanges()).
+struct MapChange {
+  bool join = true;
+  std::vector<int> first, second;  // join: the two chains, second attached after first; split: {session}, the rest
+  std::vector<int> loops;          // join: the loops its link was estimated from; split: the loops it released
+  int refused = 0;                 // join: loops refused as inconsistent
+  std::string message;
+};
+
 /// One map's optimisation problem taken out of the back-end (see "Deferred optimisation" above).
 struct OptimisationJob {
   int map = -1;
@@ -287,6 +297,8 @@ class MultiSessionBackend {
   int pendingJoinLoops(int session_a, int session_b) const;
   const BackendStats& stats() const { return stats_; }
   const BackendOptions& options() const { return options_; }
+  /// The joins and splits since the last call, in order (restoreMap's are not among them).
+  std::vector<MapChange> takeMapChanges() { return std::exchange(changes_, {}); }
 
   // --- Session store (session_store.h): export the state, put it back exactly. ---
   /// A map's chain, links, current motions and pending count. Throws std::invalid_argument.
@@ -377,6 +389,7 @@ class MultiSessionBackend {
   bool deferred_ = false;
   bool automatic_joins_ = true;
   std::set<int> due_;  // maps marked for a deferred optimisation
+  std::vector<MapChange> changes_;  // joins and splits not yet taken
 };
 
 }  // namespace core

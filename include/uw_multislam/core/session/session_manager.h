@@ -75,6 +75,10 @@ struct SessionManagerOptions {
   /// ones, have no keyframe yet (start_session in a loop must not pile up empty sessions); 0: no
   /// limit (offline_slam, whose sessions always start from a keyframe).
   int max_empty_sessions = 0;
+  /// The cause the audit trail gives the requests (join, split, add_link, mode changes): "tool"
+  /// (offline_slam and the other tools) or "service" (the back-end nodelet's services); joins
+  /// the rule makes by itself are "automatic".
+  std::string requester = "tool";
 
   std::string validate() const;
 };
@@ -294,6 +298,11 @@ class SessionManager {
   };
   std::optional<Relocalisation> relocalise(int session) const;
   std::vector<SessionLink> links() const;
+  /// The audit trail (issue 16, item 5): every join, split, manual link and mode change, restored
+  /// from the store and then this run's, in order (session_store.h, HistoryEntry). Written to the
+  /// store as it happens, except in localisation mode (the store must stay byte-identical): the
+  /// mode change itself is recorded when mapping resumes. Without a store it lives in memory.
+  const std::vector<HistoryEntry>& history() const { return history_; }
   /// The accepted loops (session ids), in order, restored ones first.
   const std::vector<Loop>& loops() const { return loops_; }
   /// Whether loops()[i] was refused by the back-end (inconsistent at a join, or gated inside a map).
@@ -349,6 +358,15 @@ class SessionManager {
   /// a join or split happened.
   void afterBackendChange();
   void saveMaps();
+  /// Appends to the audit trail (and the store, unless localising); cause_ unless `cause` is given.
+  void record(const std::string& kind, const std::string& sessions, const std::string& loops,
+              const std::string& message, const char* cause = nullptr);
+  /// The back-end's joins and splits since the last call, into the audit trail.
+  void recordMapChanges();
+  /// "a,b,c" of back-end sessions, in session ids.
+  std::string chainText(const std::vector<int>& backend_sessions) const;
+  /// "a:ka>b:kb ..." of back-end loop ids.
+  std::string loopsText(const std::vector<int>& backend_loops) const;
   template <typename F>
   bool storeWrite(const char* what, F write);
   void emit(SessionEvent::Kind kind, int session, int other, int map, const std::string& message) const;
@@ -367,6 +385,10 @@ class SessionManager {
   bool localising_ = false;
   std::vector<std::int64_t> store_loops_;  // back-end loop index -> store loop id (-1: not stored)
   std::vector<Loop> loops_;                // accepted loops, session ids
+  std::vector<HistoryEntry> history_;      // the audit trail
+  const char* cause_ = "automatic";        // of the joins and splits recordMapChanges finds
+  bool hold_changes_ = false;              // afterBackendChange leaves them to the caller
+  std::string localising_since_;           // when localisation mode began (UTC), for its entry
   int active_ = -1;
   int restored_sessions_ = 0;
   int seen_joins_ = 0, seen_splits_ = 0, seen_optimisations_ = 0;

@@ -122,6 +122,24 @@ struct SessionProvenance {
   std::string vehicle, dive;        // labels given to merge_stores (default: the file's stem, the name)
 };
 
+/// One entry of the audit trail (issue 16, item 5): every join, split, manual link, deletion and
+/// mode change, when, why and with which loops. Kept in the table `history`, which a store gets
+/// when it is opened for writing (like `provenance`: no new schema version). Sessions and loops
+/// are named by the session ids of the run that wrote the entry (the services' ids, which a later
+/// run gives the same stored sessions as long as none before them is deleted).
+struct HistoryEntry {
+  std::int64_t id = 0;   // 1, 2, ... in order
+  std::string time_utc;  // wall clock, ISO 8601 (2026-11-25T02:13:04Z)
+  std::string kind;      // join, split, link, delete, mode
+  std::string cause;     // automatic (the join rule), service (a back-end service), tool (offline_slam)
+  std::string sessions;  // join: the two maps' chains "0,1+2"; split: "2+0,1" (the session, the rest); else "0,1"
+  std::string loops;     // the loops involved, "a:ka>b:kb" separated by spaces (may be empty)
+  std::string message;   // what happened, in words
+};
+
+/// Now, wall clock, UTC, as the audit trail writes it: ISO 8601 to the second (2026-11-25T02:13:04Z).
+std::string utcTimestamp();
+
 /// How a store is opened: kReadWrite (the default: created when missing, locked for writing) or
 /// kReadOnly (for tools that only read it, e.g. export_survey: a missing or empty file is an
 /// error, nothing is created or locked, and every write is refused by SQLite).
@@ -204,6 +222,11 @@ class SessionStore {
   void addProvenance(const SessionProvenance& p);
   /// Every session's provenance, by session id; empty for a store never merged into.
   std::vector<SessionProvenance> provenance() const;
+  /// Appends an entry to the audit trail with its id (past the last one; 0: the next) and
+  /// returns the id. StoreError for an id already there.
+  std::int64_t addHistory(HistoryEntry e);
+  /// The audit trail in order; empty for a store without the table.
+  std::vector<HistoryEntry> history() const;
 
   /// A cap on the file's size (SQLite's max_page_count, rounded down to whole pages; never below
   /// what the file holds already): a write that would grow it past the cap fails as on a full
@@ -241,6 +264,7 @@ class SessionStore {
   void readKeyframe(sqlite3_stmt* row, std::int64_t session, KeyframeColumns columns, bool features,
                     StoredKeyframe* out) const;
   Statement& cached(const char* sql);
+  bool hasTable(const char* name) const;
 
   std::string path_;
   sqlite3* db_ = nullptr;
