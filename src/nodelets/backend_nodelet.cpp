@@ -122,6 +122,7 @@ void BackendNodelet::onInit() {
   optimise_srv_ = nh.advertiseService(topics::kOptimiseService, &BackendNodelet::onOptimise, this);
   detect_srv_ = nh.advertiseService(topics::kDetectLoopsService, &BackendNodelet::onDetectLoops, this);
   mode_srv_ = nh.advertiseService(topics::kSetModeService, &BackendNodelet::onSetMode, this);
+  history_srv_ = nh.advertiseService(topics::kHistoryService, &BackendNodelet::onHistory, this);
   reload_srv_ = nh.advertiseService(topics::kReloadSessionService, &BackendNodelet::onReload, this);
   export_srv_ = nh.advertiseService(topics::kExportService, &BackendNodelet::onExport, this);
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
@@ -392,6 +393,19 @@ bool BackendNodelet::onOptimise(uw_multislam::Optimise::Request&, uw_multislam::
   res.status = rc::toStatusMsg(st);
   res.maps = maps;
   if (st.ok() && maps > 0) queue_->pushPriority(Message());  // the worker solves the due maps
+  return true;
+}
+
+bool BackendNodelet::onHistory(uw_multislam::History::Request& req, uw_multislam::History::Response& res) {
+  if (req.last < 0) {
+    res.status = rc::toStatusMsg({core::StatusCode::kInvalidArgument, "history: last must be >= 0 (0: all entries)"});
+    return true;
+  }
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  const std::vector<core::HistoryEntry>& h = manager_->history();
+  const std::size_t from = req.last == 0 ? 0 : h.size() - std::min(h.size(), static_cast<std::size_t>(req.last));
+  for (std::size_t i = from; i < h.size(); ++i) res.entries.push_back(rc::toHistoryEntryMsg(h[i]));
+  res.status = rc::toStatusMsg(core::Status::Ok());
   return true;
 }
 

@@ -88,6 +88,18 @@ uw_multislam::SessionState toSessionStateMsg(const core::SessionSummary& s) {
   return st;
 }
 
+uw_multislam::HistoryEntry toHistoryEntryMsg(const core::HistoryEntry& e) {
+  uw_multislam::HistoryEntry m;
+  m.id = e.id;
+  m.time_utc = e.time_utc;
+  m.kind = e.kind;
+  m.cause = e.cause;
+  m.sessions = e.sessions;
+  m.loops = e.loops;
+  m.message = e.message;
+  return m;
+}
+
 std::vector<core::Pose2> vehiclePoses(const core::SessionManager& manager, int id, const core::CameraMount& mount) {
   std::vector<core::Pose2> p = manager.poses(id);
   for (core::Pose2& x : p) x = core::vehicleFromCamera(x, mount);

@@ -128,6 +128,7 @@ core::SessionManagerOptions sessionManagerOptions(const BackendNodeletOptions& o
   m.max_keyframe_gap = o.max_keyframe_gap;
   m.max_empty_sessions = o.max_empty_sessions;
   m.store_max_mb = o.store_max_mb;
+  m.requester = "service";  // the audit trail's cause of the requests this head makes
   return m;
 }
 

@@ -17,6 +17,8 @@
     sessions.py optimise                  (optimises now the maps whose loops wait)
     sessions.py detect S1 S2 [S3 ...]     (detect_loops among stored sessions, each against those before it)
     sessions.py mode mapping|localisation (set_mode: localisation writes nothing to the store)
+    sessions.py history [N]               (the audit trail: joins, splits, links, deletions, mode changes;
+                                           the last N entries, default all)
 
 Exit status: 0 when the service answered (whatever its status code: the answer is printed),
 1 when it could not be called (no master, or no back-end within --timeout), 2 for wrong arguments.
@@ -31,7 +33,7 @@ try:
     import rospy
     from uw_multislam.msg import SessionState, Status
     from geometry_msgs.msg import Pose2D
-    from uw_multislam.srv import (AddLink, DetectLoops, FinishSession, JoinSessions, ListSessions, OperatorCommand,
+    from uw_multislam.srv import (AddLink, DetectLoops, FinishSession, History, JoinSessions, ListSessions, OperatorCommand,
                                   Optimise, ReloadSession, SetMode, SplitSession, StartSession)
     ROS_IMPORT_ERROR = None
 except ImportError as e:
@@ -50,7 +52,7 @@ def status_text(status):
 # command -> (fewest, most) arguments
 ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1), "pause": (0, 0),
          "resume": (0, 0), "finish": (0, 0), "link": (9, 10), "optimise": (0, 0),
-         "detect": (2, 1000), "mode": (1, 1), "find": (4, 4)}
+         "detect": (2, 1000), "mode": (1, 1), "find": (4, 4), "history": (0, 1)}
 
 
 def call_service(ns, name, kind, *request, timeout=30.0):
@@ -136,6 +138,13 @@ def main():
         elif args.command == "mode":
             res = call(args.ns, "set_mode", SetMode, args.args[0])
             print("set_mode %s -> %s, %s mode" % (args.args[0], status_text(res.status), res.mode))
+        elif args.command == "history":
+            last = int(args.args[0]) if args.args else 0
+            res = call(args.ns, "history", History, last)
+            print("history -> %s, %d entries" % (status_text(res.status), len(res.entries)))
+            for e in res.entries:
+                print("  #%d %s %-6s %-9s %s%s" % (e.id, e.time_utc, e.kind, e.cause, e.message,
+                                                   "; loops " + e.loops if e.loops else ""))
         elif args.command in ("pause", "resume"):
             res = call(args.ns, args.command, OperatorCommand)
             print("%s -> %s, %s, %d frames dropped while paused" % (

@@ -55,6 +55,19 @@ TEST(BackendConversions, SessionSummaryAsSessionState) {
   EXPECT_EQ(toSessionStateMsg(s).state, uw_multislam::SessionState::FINISHED);
 }
 
+TEST(BackendConversions, HistoryEntryAsItsMessageFieldByField) {
+  const core::HistoryEntry e{7, "2026-11-25T02:13:04Z", "split", "service", "2+0,1", "0:1>2:1 0:2>2:2",
+                             "session 2 split off map 0 (undoes join #6)"};
+  const uw_multislam::HistoryEntry m = toHistoryEntryMsg(e);
+  EXPECT_EQ(m.id, 7);
+  EXPECT_EQ(m.time_utc, e.time_utc);
+  EXPECT_EQ(m.kind, "split");
+  EXPECT_EQ(m.cause, "service");
+  EXPECT_EQ(m.sessions, "2+0,1");
+  EXPECT_EQ(m.loops, e.loops);
+  EXPECT_EQ(m.message, e.message);
+}
+
 TEST(BackendConversions, AddLinkRequestAsTheLoopItAsksForCheckedAsALoopMessage) {
   uw_multislam::AddLink::Request r;
   r.session_a = 2;

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
-"""rostest: the back-end's operator services add_link, optimise (issue 16, item 4) and detect_loops
-(item 3), called right and called wrong, on back-end nodes this test starts with their own stores.
+"""rostest: the back-end's operator services add_link, optimise (issue 16, item 4), detect_loops
+(item 3) and history (item 5), called right and called wrong, on back-end nodes this test starts with their own stores.
 
 Session 0 (8 keyframes) and session 1 (5), each driven straight along x at 0.5 m per keyframe;
 optimise_every is 100, so a loop inside a map waits for the operator's optimise. Every wrong call
@@ -32,7 +32,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose2D
 from pipeline_fixture import await_condition, connected, diagnostic_values, make_mission, synthetic_keyframe, tool
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
-from uw_multislam.srv import AddLink, DetectLoops, JoinSessions, ListSessions, Optimise, SetMode
+from uw_multislam.srv import AddLink, DetectLoops, History, JoinSessions, ListSessions, Optimise, SetMode, SplitSession
 
 NS = "/operator_test"
 SESSIONS_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "sessions.py")
@@ -162,6 +162,31 @@ class OperatorServicesTest(unittest.TestCase):
         self.assertEqual(after[1][1], 0, after)
         self.assertEqual((after[0][3], after[1][3]), (1, 2), after)
 
+        # The audit trail (issue 16, item 5): both links and the join, each with the service as cause;
+        # splitting the joined session off again undoes that join and says so.
+        history = rospy.ServiceProxy(NS + "/history", History)
+        res = history(0)
+        self.assertEqual(res.status.code, Status.OK, res.status.message)
+        self.assertEqual([(e.id, e.kind, e.cause, e.sessions, e.loops) for e in res.entries],
+                         [(1, "link", "service", "1", "1:0>1:4"), (2, "link", "service", "0,1", "0:2>1:2"),
+                          (3, "join", "service", "0+1", "0:2>1:2")], res.entries)
+        split = rospy.ServiceProxy(NS + "/split_session", SplitSession)(1)
+        self.assertEqual(split.status.code, Status.OK, split.status.message)
+        res = history(1)
+        self.assertEqual([(e.id, e.kind, e.cause, e.sessions) for e in res.entries], [(4, "split", "service", "1+0")])
+        self.assertIn("undoes join #3", res.entries[0].message)
+        wrong = history(-1)
+        self.assertEqual((wrong.status.code, len(wrong.entries)), (Status.INVALID_ARGUMENT, 0), wrong.status.message)
+        join = rospy.ServiceProxy(NS + "/join_sessions", JoinSessions)(0, 1, 1)  # and back, for what follows
+        self.assertEqual(join.status.code, Status.OK, join.status.message)
+        tool_says = subprocess.run([SESSIONS_TOOL, "--ns", NS, "history", "2"], capture_output=True, text=True,
+                                   timeout=60)
+        self.assertEqual(tool_says.returncode, 0, tool_says)
+        lines = tool_says.stdout.splitlines()
+        self.assertEqual(lines[0], "history -> OK, 2 entries", tool_says.stdout)
+        self.assertTrue(lines[1].startswith("  #4 ") and "split" in lines[1] and "undoes join #3" in lines[1], lines)
+        self.assertTrue(lines[2].startswith("  #5 ") and "join" in lines[2] and "loops 0:2>1:2" in lines[2], lines)
+
         # The same services through sessions.py (its argument checks: test/python/test_sessions.py).
         tool_says = subprocess.run([SESSIONS_TOOL, "--ns", NS, "optimise"], capture_output=True, text=True, timeout=60)
         self.assertEqual((tool_says.returncode, tool_says.stdout.strip()), (0, "optimise -> OK, 0 maps due"), tool_says)
@@ -173,7 +198,11 @@ class OperatorServicesTest(unittest.TestCase):
         self.stop_backend()
         with sqlite3.connect(self.db) as c:
             stored = c.execute("SELECT keyframe_a, keyframe_b, kind FROM loops ORDER BY id").fetchall()
+            trail = c.execute("SELECT id, kind, cause FROM history ORDER BY id").fetchall()
         self.assertEqual([tuple(r) for r in stored], [(0, 4, "local"), (2, 2, "global")])
+        self.assertEqual([tuple(r) for r in trail], [(1, "link", "service"), (2, "link", "service"),
+                                                     (3, "join", "service"), (4, "split", "service"),
+                                                     (5, "join", "service")])
 
     def test_detect_loops_joins_two_stored_maps(self):
         tmp, mission = make_mission("uwms_detect_")

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "uw_multislam/AddLink.h"
+#include "uw_multislam/HistoryEntry.h"
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/SessionTrajectory.h"
 #include "uw_multislam/Status.h"
@@ -43,6 +44,8 @@ uw_multislam::Keyframe reloadedKeyframeMsg(const core::ReloadedSession& session,
                                            const std::string& frame_id);
 /// One session of list_sessions.
 uw_multislam::SessionState toSessionStateMsg(const core::SessionSummary& s);
+/// One entry of the audit trail (history service).
+uw_multislam::HistoryEntry toHistoryEntryMsg(const core::HistoryEntry& e);
 
 /// The session manager's own counters for /diagnostics and the back-end's log line (keyframes
 /// stale, refused and bridged, loops refused, store failures, sessions, maps, joins, splits,

@@ -91,6 +91,7 @@ constexpr char kAddLinkService[] = "add_link";
 constexpr char kOptimiseService[] = "optimise";
 constexpr char kDetectLoopsService[] = "detect_loops";
 constexpr char kSetModeService[] = "set_mode";
+constexpr char kHistoryService[] = "history";
 constexpr char kExportService[] = "export";
 // --- Services of the odometry (uw_multislam/srv/OperatorCommand) ---------------------------------
 /// Frames are dropped (counted, their stamps seen: no time gap) until resume; the session goes on.

@@ -98,6 +98,7 @@
 #include "uw_multislam/Keyframe.h"
 #include "uw_multislam/ListSessions.h"
 #include "uw_multislam/Loop.h"
+#include "uw_multislam/History.h"
 #include "uw_multislam/Optimise.h"
 #include "uw_multislam/ReloadSession.h"
 #include "uw_multislam/SessionState.h"
@@ -160,6 +161,8 @@ class BackendNodelet : public nodelet::Nodelet {
   bool onAddLink(uw_multislam::AddLink::Request& req, uw_multislam::AddLink::Response& res);
   /// optimise: marks the maps whose loops wait due and wakes the worker, which solves them.
   bool onOptimise(uw_multislam::Optimise::Request& req, uw_multislam::Optimise::Response& res);
+  /// history: the audit trail (SessionManager::history), the last `last` entries (0: all).
+  bool onHistory(uw_multislam::History::Request& req, uw_multislam::History::Response& res);
   /// detect_loops: core::detectStoredLoops under the state lock (the worker waits meanwhile).
   bool onDetectLoops(uw_multislam::DetectLoops::Request& req, uw_multislam::DetectLoops::Response& res);
   /// set_mode: mapping | localisation (SessionManager::setLocalisation).
@@ -217,7 +220,7 @@ class BackendNodelet : public nodelet::Nodelet {
   std::atomic<bool> mosaic_due_{true};  // the active map changed since the last drawing
   std::mutex export_mutex_;             // one export at a time
   ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_, export_srv_, finish_srv_, link_srv_,
-      optimise_srv_, detect_srv_, mode_srv_;
+      optimise_srv_, detect_srv_, mode_srv_, history_srv_;
   ros::Subscriber keyframe_sub_, loop_sub_, pose_sub_;  // last: destroyed first
 };
 
