@@ -124,6 +124,7 @@ void BackendNodelet::onInit() {
   mode_srv_ = nh.advertiseService(topics::kSetModeService, &BackendNodelet::onSetMode, this);
   history_srv_ = nh.advertiseService(topics::kHistoryService, &BackendNodelet::onHistory, this);
   reload_srv_ = nh.advertiseService(topics::kReloadSessionService, &BackendNodelet::onReload, this);
+  unload_srv_ = nh.advertiseService(topics::kUnloadSessionService, &BackendNodelet::onUnload, this);
   export_srv_ = nh.advertiseService(topics::kExportService, &BackendNodelet::onExport, this);
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
   updater_->setHardwareID("none");
@@ -540,6 +541,25 @@ bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_mult
   return true;
 }
 
+bool BackendNodelet::onUnload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  int id = -1;
+  const core::Status st = manager_->unload(req.name, &id);
+  res.status = rc::toStatusMsg(st);
+  res.session = id;
+  if (!st.ok()) {
+    NODELET_WARN("back-end: unload_session '%s' refused: %s", req.name.c_str(), st.message.c_str());
+    return true;
+  }
+  handed_.erase(std::remove(handed_.begin(), handed_.end(), id), handed_.end());
+  reloaded_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::unloadSessionMsg(id)));
+  ++sessions_unloaded_;
+  NODELET_INFO("back-end: unload_session '%s': session %d UNLOADED, the loop detectors forget its keyframes",
+               req.name.c_str(), id);
+  publishAll(true);  // list and active_session states
+  return true;
+}
+
 void BackendNodelet::drawMosaics() {
   const auto period = std::chrono::duration<double>(1.0 / options_.mosaic_rate_hz);
   std::unique_lock<std::mutex> wait(mosaic_wait_mutex_);
@@ -655,6 +675,7 @@ std::vector<ros_diagnostics::Counter> BackendNodelet::counters() const {
   c.push_back({"map_to_odom_published", d(f.map_to_odom_published)});
   c.push_back({"map_to_odom_rate_hz", f.map_to_odom_rate_hz});
   c.push_back({"odom_lookup_failures", d(f.odom_lookup_failures), true});
+  c.push_back({"sessions_unloaded", d(sessions_unloaded_)});
   c.push_back({"relocalised_map", d(reloc_.map)});
   c.push_back({"relocalised_loops", d(reloc_.loops)});
   c.push_back({"relocalised_poses_published", d(reloc_.published)});

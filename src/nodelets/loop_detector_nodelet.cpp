@@ -78,6 +78,15 @@ void LoopDetectorNodelet::onReloaded(const uw_multislam::KeyframeConstPtr& msg) 
 }
 
 void LoopDetectorNodelet::processReloaded(const uw_multislam::Keyframe& msg) {
+  if (rc::isUnloadSessionMsg(msg)) {  // unload_session: forget the session
+    const int n = detector_->dropSession(msg.session);
+    sessions_.erase(msg.session);
+    ++counts_.sessions_unloaded;
+    counts_.keyframes_unloaded += n;
+    NODELET_INFO("loop detector: session %d unloaded: %d keyframes forgotten, %zu held", msg.session, n,
+                 detector_->size());
+    return;
+  }
   rc::KeyframeData k;
   std::string why;
   if (!rc::fromMsg(msg, &k, &why)) {
@@ -243,6 +252,8 @@ void LoopDetectorNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWr
                            {"hashes", static_cast<double>(c.hashes)},
                            {"keyframes_reloaded", static_cast<double>(c.reloaded)},
                            {"keyframes_reloaded_again", static_cast<double>(c.reloaded_again)},
+                           {"sessions_unloaded", static_cast<double>(c.sessions_unloaded)},
+                           {"keyframes_unloaded", static_cast<double>(c.keyframes_unloaded)},
                            {"ms_per_keyframe_mean", n > 0 ? c.total_ms / n : 0.0},
                            {"ms_per_keyframe_max", c.max_ms}},
                           ros::WallTime::now().toSec());

@@ -67,6 +67,15 @@ KeyframeData keyframeData(const core::Odometry& odometry, const core::Odometry::
   return k;
 }
 
+uw_multislam::Keyframe unloadSessionMsg(int session) {
+  uw_multislam::Keyframe m;
+  m.session = session;
+  m.keyframe = -1;
+  return m;
+}
+
+bool isUnloadSessionMsg(const uw_multislam::Keyframe& msg) { return msg.keyframe == -1 && msg.u_px.empty(); }
+
 uw_multislam::Keyframe toKeyframeMsg(const KeyframeData& k, const std_msgs::Header& header) {
   uw_multislam::Keyframe m;
   m.header = header;

@@ -7,6 +7,7 @@
     sessions.py split S
     sessions.py start [NAME]
     sessions.py reload NAME               (a stored session's name or id, back into memory)
+    sessions.py unload NAME               (a reloaded stored session out of memory again: UNLOADED)
     sessions.py finish                    (ends the recording session; none starts until start or resume)
     sessions.py pause                     (the odometry drops frames, counted, until resume)
     sessions.py resume
@@ -50,7 +51,7 @@ def status_text(status):
 
 
 # command -> (fewest, most) arguments
-ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1), "pause": (0, 0),
+ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1), "unload": (1, 1), "pause": (0, 0),
          "resume": (0, 0), "finish": (0, 0), "link": (9, 10), "optimise": (0, 0),
          "detect": (2, 1000), "mode": (1, 1), "find": (4, 4), "history": (0, 1)}
 
@@ -105,6 +106,11 @@ def main():
             name = args.args[0]
             res = call(args.ns, "reload_session", ReloadSession, name)
             print("reload_session '%s' -> %s%s" % (name, status_text(res.status),
+                                                  ", session %d" % res.session if res.status.code == Status.OK else ""))
+        elif args.command == "unload":
+            name = args.args[0]
+            res = call(args.ns, "unload_session", ReloadSession, name)
+            print("unload_session '%s' -> %s%s" % (name, status_text(res.status),
                                                   ", session %d" % res.session if res.status.code == Status.OK else ""))
         elif args.command == "finish":
             res = call(args.ns, "finish_session", FinishSession)

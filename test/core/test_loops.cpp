@@ -5,6 +5,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <random>
+#include <set>
 
 #include "../common/seabed_features.h"
 #include "uw_multislam/core/loops/loop_detector.h"
@@ -104,6 +105,37 @@ TEST(HashStore, QueryReturnsTheNearestOfOtherSessionsWithoutAllocating) {
   EXPECT_THROW(store.add({0, 0}, Eigen::VectorXf::Zero(10)), std::invalid_argument);
 }
 
+TEST(HashStore, RemovingASessionKeepsTheOthersInOrderAndQueriesFindOnlyThem) {
+  const HalocProjections p(100, 3);
+  HashStore store;
+  std::vector<Eigen::VectorXf> hashes;
+  for (int i = 0; i < 30; ++i) {
+    hashes.push_back(p.hash(randomDescriptors(100, 200 + i)));
+    store.add({i % 3, i}, hashes.back());  // sessions 0, 1, 2 interleaved
+  }
+  EXPECT_EQ(store.removeSession(1), 10);
+  EXPECT_EQ(store.removeSession(1), 0);
+  ASSERT_EQ(store.size(), 20u);
+  std::vector<int> left;
+  for (std::size_t e = 0; e < store.size(); ++e) left.push_back(store.entry(static_cast<int>(e)).keyframe);
+  std::vector<int> expected;
+  for (int i = 0; i < 30; ++i)
+    if (i % 3 != 1) expected.push_back(i);
+  EXPECT_EQ(left, expected);
+  // Each remaining entry still carries its own hash: queried with it (session 5 excluded: none),
+  // it is the nearest at distance 0; a removed session's hash finds only the others.
+  std::vector<HashCandidate> out;
+  for (std::size_t e = 0; e < store.size(); ++e) {
+    store.query(hashes[left[e]], 5, 1, std::numeric_limits<float>::infinity(), &out);
+    ASSERT_EQ(out.size(), 1u);
+    EXPECT_EQ(out[0].entry, static_cast<int>(e));
+    EXPECT_EQ(out[0].l1, 0.0f);
+  }
+  store.query(hashes[4], 5, 20, std::numeric_limits<float>::infinity(), &out);
+  EXPECT_EQ(out.size(), 20u);
+  for (const auto& c : out) EXPECT_NE(store.entry(c.entry).session, 1);
+}
+
 TEST(HashStore, SumAbsDiffMatchesScalar) {
   std::mt19937 rng(5);
   std::vector<std::uint8_t> a(384 + 7), b(384 + 7);
@@ -196,6 +228,54 @@ TEST_F(LoopTest, PlantedRevisitIsFoundWithTheRightPoseAndAWrongCandidateIsReject
   const auto none = detector.addKeyframe(1, 1, 5, 2.0, &camera_, features(Pose2(9.0, 6.5, 2.0), 2.0), t1b);
   EXPECT_TRUE(none.empty());
   EXPECT_GT(detector.stats().global_candidates, candidates_before);
+}
+
+TEST_F(LoopTest, ADroppedSessionIsNoCandidateAndCanBeAddedAgain) {
+  // unload_session: stored sessions 0 (six keyframes along y = 3) and 2 (a copy of 0's keyframes
+  // 1..3 as its keyframes 0..2). Dropping 0 leaves only 2's loops, keyframe ids intact; adding 0
+  // again brings its loops back.
+  OdometryOptions oo;
+  LoopDetector detector(LoopOptions(), oo.matching, oo.ransac, oo.features.num_features);
+  std::vector<Pose2> world0;
+  std::vector<FrameFeatures> f0;
+  for (int k = 0; k < 6; ++k) {
+    world0.push_back(Pose2(2.5 + 1.2 * k, 3.0, 0.0));
+    f0.push_back(features(world0[k], 2.0));
+  }
+  auto addSession0 = [&] {
+    for (int k = 0; k < 6; ++k)
+      detector.addStoredKeyframe(0, k, 10 * k, 2.0, &camera_, f0[k], detector.hasher().hash(f0[k].descriptors));
+  };
+  addSession0();
+  for (int k = 0; k < 3; ++k)
+    detector.addStoredKeyframe(2, k, k, 2.0, &camera_, f0[k + 1], detector.hasher().hash(f0[k + 1].descriptors));
+  const Pose2 revisit(2.5 + 2.4 + 0.3, 3.2, 1.3);  // near session 0's keyframe 2 = session 2's keyframe 1
+  auto loopsOfARevisit = [&](int session) {
+    Trajectory t;
+    return detector.addKeyframe(session, 0, 0, 2.3, &camera_, features(revisit, 2.3, 0.7), t);
+  };
+  std::set<int> sessions;
+  for (const Loop& l : loopsOfARevisit(1)) sessions.insert(l.session_a);
+  ASSERT_EQ(sessions, (std::set<int>{0, 2}));
+
+  EXPECT_EQ(detector.dropSession(0), 6);
+  EXPECT_EQ(detector.dropSession(0), 0);
+  EXPECT_EQ(detector.size(), 4u);  // session 2's three and the revisit
+  for (int k = 0; k < 6; ++k) EXPECT_FALSE(detector.has(0, k)) << k;
+  for (int k = 0; k < 3; ++k) EXPECT_TRUE(detector.has(2, k)) << k;
+  const std::vector<Loop> after = loopsOfARevisit(3);
+  ASSERT_FALSE(after.empty());
+  for (const Loop& l : after) {
+    EXPECT_TRUE(l.session_a == 1 || l.session_a == 2) << l.session_a;  // session 1's revisit is held too
+    if (l.session_a == 2) {
+      const Pose2 truth = between(world0[l.keyframe_a + 1], revisit);  // ids still name the right keyframes
+      EXPECT_TRUE(approxEqual(l.z.mean, truth, 0.02, 0.01)) << l.keyframe_a << ": " << l.z.mean << " vs " << truth;
+    }
+  }
+  addSession0();  // reload_session after unload_session
+  sessions.clear();
+  for (const Loop& l : loopsOfARevisit(4)) sessions.insert(l.session_a);
+  EXPECT_TRUE(sessions.count(0)) << "session 0 added again is found again";
 }
 
 TEST_F(LoopTest, LocalLoopWithinRadiusLeavingOutRecentKeyframes) {

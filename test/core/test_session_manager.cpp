@@ -218,11 +218,32 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
   EXPECT_EQ(r.camera.width, 640);
   EXPECT_EQ(again.reload("session_1", &r).code, StatusCode::kAlreadyExists);
   EXPECT_EQ(again.list()[1].state, SessionState::kFinished);
+  // unload_session: back to UNLOADED, in its map with its loops, and reload brings it back.
+  int id = -1;
+  EXPECT_EQ(again.unload("0", &id).code, StatusCode::kFailedPrecondition);  // never reloaded
+  EXPECT_EQ(id, 0);
+  EXPECT_EQ(again.unload("nope", &id).code, StatusCode::kNotFound);
+  ASSERT_TRUE(again.unload("session_1", &id).ok());
+  EXPECT_EQ(id, 1);
+  EXPECT_EQ(again.list()[1].state, SessionState::kUnloaded);
+  EXPECT_EQ((std::vector<int>{again.list()[1].map, again.list()[1].keyframes, again.list()[1].loops}),
+            (std::vector<int>{0, 8, 5}));
+  const Status twice = again.unload("1");
+  EXPECT_EQ(twice.code, StatusCode::kFailedPrecondition);
+  EXPECT_NE(twice.message.find("not loaded"), std::string::npos) << twice.message;
+  ASSERT_TRUE(again.reload("1", &r).ok());
+  EXPECT_EQ(r.keyframes.size(), 8u);
+  EXPECT_EQ(again.list()[1].state, SessionState::kFinished);
   // New sessions continue after the stored ones.
   addStraightSession(&again, again.nextId(), 2);
   EXPECT_EQ(again.activeSession(), 2);
+  const Status live = again.unload("2");
+  EXPECT_EQ(live.code, StatusCode::kFailedPrecondition);  // recorded in this run
+  EXPECT_NE(live.message.find("recorded in this run"), std::string::npos) << live.message;
+  EXPECT_EQ(again.list()[2].state, SessionState::kActive);
   SessionManager none(options());
   EXPECT_EQ(none.reload("0", &r).code, StatusCode::kFailedPrecondition);
+  EXPECT_EQ(none.unload("0").code, StatusCode::kFailedPrecondition);
 }
 
 // A new session's first keyframe that closes loops (offline: they come with the keyframe) stores

@@ -43,6 +43,7 @@ def run(*args):
     (["mode"], "mode takes 1 argument(s), got 0"),
     (["find", "0", "1", "1"], "find takes 4 argument(s), got 3"),
     (["find", "0", "1", "1", "x"], "find: wrong arguments"),
+    (["unload"], "unload takes 1 argument(s), got 0"),
     (["history", "1", "2"], "history takes 0 to 1 argument(s), got 2"),
     (["history", "all"], "history: wrong arguments"),
 ])
@@ -55,7 +56,8 @@ def test_wrong_arguments_exit_2_with_the_reason(args, why):
 
 @pytest.mark.parametrize("args", [["reload", "yesterday"], ["list"], ["join", "0", "1"], ["pause"], ["resume"], ["finish"],
                                   ["optimise"], ["link", "0", "1", "1", "1", "0", "1", "0", "0.1", "0.01"],
-                                  ["detect", "0", "1"], ["mode", "localisation"], ["history"]])
+                                  ["detect", "0", "1"], ["mode", "localisation"], ["history"],
+                                  ["unload", "0"]])
 def test_no_master_exits_1_naming_it(args):
     res = run("--timeout", "1", *args)
     assert res.returncode == 1, res

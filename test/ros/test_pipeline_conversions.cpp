@@ -145,6 +145,19 @@ TEST_F(PipelineConversions, BadKeyframeMessagesAreRefusedWithAReason) {
   EXPECT_TRUE(rc::fromMsg(good, &out, &why)) << why;
 }
 
+TEST_F(PipelineConversions, UnloadSessionNoticeIsKeyframeMinusOneWithoutFeaturesAndNoKeyframeIsOne) {
+  const uw_multislam::Keyframe notice = rc::unloadSessionMsg(7);
+  EXPECT_TRUE(rc::isUnloadSessionMsg(notice));
+  EXPECT_EQ(notice.session, 7);
+  rc::KeyframeData out;
+  std::string why;
+  EXPECT_FALSE(rc::fromMsg(notice, &out, &why)) << "a notice is no keyframe";
+  uw_multislam::Keyframe k = rc::toKeyframeMsg(someKeyframe(), header());
+  EXPECT_FALSE(rc::isUnloadSessionMsg(k));
+  k.keyframe = -1;  // a corrupt keyframe with features is not taken for a notice
+  EXPECT_FALSE(rc::isUnloadSessionMsg(k));
+}
+
 TEST_F(PipelineConversions, KeyframeHashTravelsWithTheKeyframe) {
   rc::KeyframeData k = someKeyframe();
   const core::ImageHasher hasher(core::HashMode::kSortedDct, 500, 20231122);

@@ -10,7 +10,9 @@
    loop detector (reloaded_keyframes, each one once); the second session's bag is played and
    global loops are found against the reloaded session.
 3. Wrong reloads: an unknown name (NOT_FOUND, the store named by its file name only) and a second
-   reload (ALREADY_EXISTS).
+   reload (ALREADY_EXISTS). Then unload_session (issue 16, item 4): session 0 UNLOADED again, the
+   loop detector forgets exactly its keyframes (/diagnostics), wrong unloads refused with nothing
+   changed, and a reload hands every keyframe to the loop detector once more.
 4. join_sessions, then split_session through the services, each followed by kill -9 of the
    back-end and its respawn: list_sessions comes back the same (sessions, maps, keyframes, loops).
 """
@@ -27,7 +29,9 @@ import xmlrpc.client
 import rosgraph
 import rospy
 import rostest
-from pipeline_fixture import NS, SENSOR_TOPICS, make_mission, wait_for_subscribers, wait_until_quiet
+from diagnostic_msgs.msg import DiagnosticArray
+from pipeline_fixture import (NS, SENSOR_TOPICS, await_condition, diagnostic_values, make_mission, wait_for_subscribers,
+                              wait_until_quiet)
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
 from uw_multislam.srv import JoinSessions, ListSessions, ReloadSession, SplitSession
 
@@ -63,6 +67,14 @@ class StoreTest(unittest.TestCase):
         cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, keep(cls.keyframes), queue_size=1000),
                     rospy.Subscriber(NS + "/loops", Loop, keep(cls.loops), queue_size=1000),
                     rospy.Subscriber(NS + "/reloaded_keyframes", Keyframe, keep(cls.reloaded), queue_size=1000)]
+        cls.detector = {}
+
+        def on_diagnostics(msg):
+            for st in msg.status:
+                if st.name.endswith(": loop_detector"):
+                    with cls.lock:
+                        cls.detector = diagnostic_values(st)
+        cls.subs.append(rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100))
         cls.list = rospy.ServiceProxy(NS + "/list_sessions", ListSessions, persistent=False)
         cls.reload = rospy.ServiceProxy(NS + "/reload_session", ReloadSession, persistent=False)
         rospy.wait_for_service(NS + "/list_sessions", timeout=60)
@@ -190,6 +202,51 @@ class StoreTest(unittest.TestCase):
         self.assertEqual(again.status.code, Status.ALREADY_EXISTS, again.status.message)
         self.assertEqual(again.session, 0)
         self.assertIn("already loaded", again.status.message)
+
+    def test_3b_unload_then_reload(self):
+        unload = rospy.ServiceProxy(NS + "/unload_session", ReloadSession)
+        first = self.reload("0")  # test_2 reloaded it already
+        self.assertIn(first.status.code, (Status.OK, Status.ALREADY_EXISTS), first.status.message)
+        with_features = len(self.stored_rows)
+        # The loop detector held session 0 from the live replay (only the back-end was killed): the
+        # reload's keyframes are duplicates it skips.
+        await_condition(self.lock, lambda: self.detector.get("keyframes_reloaded", 0) +
+                        self.detector.get("keyframes_reloaded_again", 0) >= with_features, 30,
+                        "the reloaded keyframes in the loop detector", lambda: ": %s" % self.detector)
+        with self.lock:
+            held, reloaded = self.detector["keyframes_stored"], self.detector["keyframes_reloaded"]
+        before = self.sessions()
+        res = unload("0")
+        self.assertEqual((res.status.code, res.session), (Status.OK, 0), res.status.message)
+        listed = self.sessions()
+        self.assertEqual(listed[0].state, SessionState.UNLOADED)
+        self.assertEqual((listed[0].map, listed[0].num_keyframes, listed[0].num_loops),
+                         (before[0].map, before[0].num_keyframes, before[0].num_loops))
+        # It forgets every keyframe of session 0 it held: the live replay's (the odometry went on
+        # while the back-end was dead, so more than the store has).
+        with self.lock:
+            live = len({k.keyframe for k in self.keyframes if k.session == 0})
+        self.assertGreaterEqual(live, with_features)
+        await_condition(self.lock, lambda: self.detector.get("keyframes_unloaded") == live, 30,
+                        "the loop detector to forget session 0", lambda: ": %s" % self.detector)
+        with self.lock:
+            self.assertEqual(self.detector["keyframes_stored"], held - live, self.detector)
+            self.assertEqual(self.detector["sessions_unloaded"], 1)
+        for name, code, why in (("0", Status.FAILED_PRECONDITION, "not loaded"),
+                                ("no_such_session", Status.NOT_FOUND, "no_such_session"),
+                                ("1", Status.FAILED_PRECONDITION, "recorded in this run")):
+            wrong = unload(name)
+            self.assertEqual(wrong.status.code, code, "%s: %s" % (name, wrong.status.message))
+            self.assertIn(why, wrong.status.message)
+        self.assertEqual({i: (s.state, s.map, s.num_keyframes) for i, s in self.sessions().items()},
+                         {i: (s.state, s.map, s.num_keyframes) for i, s in listed.items()})
+        # Back again: every stored keyframe reaches the loop detector once more, now held anew.
+        res = self.reload("0")
+        self.assertEqual(res.status.code, Status.OK, res.status.message)
+        await_condition(self.lock, lambda: self.detector.get("keyframes_stored") == held - live + with_features, 30,
+                        "session 0 held again", lambda: ": %s" % self.detector)
+        with self.lock:
+            self.assertEqual(self.detector["keyframes_reloaded"], reloaded + with_features, self.detector)
 
     def kill_backend_and_wait_for_respawn(self):
         pid = backend_pid()

@@ -63,6 +63,10 @@ KeyframeData keyframeData(const core::Odometry& odometry, const core::Odometry::
 
 /// Descriptors are rounded and saturated to 8 bits (SIFT's values are integers in 0..255).
 uw_multislam::Keyframe toKeyframeMsg(const KeyframeData& k, const std_msgs::Header& header);
+/// unload_session's notice on reloaded_keyframes (in order with the keyframes reload_session sent
+/// there): keyframe -1, no features, `session`: the loop detectors forget that session.
+uw_multislam::Keyframe unloadSessionMsg(int session);
+bool isUnloadSessionMsg(const uw_multislam::Keyframe& msg);
 bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* why = nullptr);
 
 uw_multislam::Loop toLoopMsg(const core::Loop& loop, const std_msgs::Header& header);

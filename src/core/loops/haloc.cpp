@@ -232,6 +232,25 @@ int HashStore::add(const HashEntry& who, const Eigen::VectorXf& hash) {
   return static_cast<int>(entries_.size()) - 1;
 }
 
+int HashStore::removeSession(int session) {
+  std::size_t kept = 0;
+  for (std::size_t e = 0; e < entries_.size(); ++e) {
+    if (entries_[e].session == session) continue;
+    if (kept != e) {
+      entries_[kept] = entries_[e];
+      std::copy_n(codes_.begin() + e * HalocProjections::kHashSize, HalocProjections::kHashSize,
+                  codes_.begin() + kept * HalocProjections::kHashSize);
+    }
+    ++kept;
+  }
+  const int removed = static_cast<int>(entries_.size() - kept);
+  entries_.resize(kept);
+  codes_.resize(kept * HalocProjections::kHashSize);
+  entries_.shrink_to_fit();
+  codes_.shrink_to_fit();
+  return removed;
+}
+
 void HashStore::query(const Eigen::VectorXf& hash, int exclude_session, int k, float max_l1,
                       std::vector<HashCandidate>* out) const {
   out->clear();

@@ -196,6 +196,22 @@ void LoopDetector::addStoredKeyframe(int session, int keyframe, int frame_index,
   store(session, keyframe, frame_index, altitude_m, camera, &features, hash);
 }
 
+int LoopDetector::dropSession(int session) {
+  const int removed = hashes_.removeSession(session);
+  // keyframes_[i] <-> hash entry i: remove the same entries, then index the rest again.
+  keyframes_.erase(std::remove_if(keyframes_.begin(), keyframes_.end(),
+                                  [session](const Stored& k) { return k.session == session; }),
+                   keyframes_.end());
+  keyframes_.shrink_to_fit();
+  if (static_cast<int>(keyframes_.size()) != static_cast<int>(hashes_.size()))
+    throw std::logic_error("loops: keyframes and hashes drifted apart");
+  for (std::vector<int>& ids : by_session_) std::fill(ids.begin(), ids.end(), -1);
+  if (session >= 0 && session < static_cast<int>(by_session_.size())) std::vector<int>().swap(by_session_[session]);
+  for (std::size_t i = 0; i < keyframes_.size(); ++i)
+    by_session_[keyframes_[i].session][keyframes_[i].keyframe] = static_cast<int>(i);
+  return removed;
+}
+
 void LoopDetector::setFeatureLoader(FeatureCache::Loader loader) {
   cache_ = std::make_unique<FeatureCache>(static_cast<std::size_t>(options_.feature_cache_mb * 1024.0 * 1024.0),
                                           std::move(loader));

@@ -795,9 +795,7 @@ std::vector<StoredKeyframe> SessionManager::storedHashes(int session) const {
 
 Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* out, bool with_features) {
   if (!store_) return {StatusCode::kFailedPrecondition, "no session store: nothing to reload"};
-  int id = -1;
-  for (const auto& [sid, s] : sessions_)
-    if (s.name == name_or_id || std::to_string(sid) == name_or_id) id = sid;
+  const int id = sessionNamed(name_or_id);
   if (id < 0 || at(id).store_id < 0 || id >= restored_sessions_)
     return {StatusCode::kNotFound, "no stored session named '" + name_or_id + "' in " + storeName() +
                                        " (list_sessions shows the stored ones as UNLOADED)"};
@@ -827,7 +825,35 @@ Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* ou
   return Status::Ok();
 }
 
+Status SessionManager::unload(const std::string& name_or_id, int* id_out) {
+  if (id_out) *id_out = -1;
+  if (!store_) return {StatusCode::kFailedPrecondition, "no session store: nothing was reloaded, nothing to unload"};
+  const int id = sessionNamed(name_or_id);
+  if (id < 0)
+    return {StatusCode::kNotFound, "no session named or numbered '" + name_or_id + "' (list_sessions shows them)"};
+  if (id_out) *id_out = id;
+  Session& s = at(id);
+  if (id >= restored_sessions_)
+    return {StatusCode::kFailedPrecondition,
+            "session " + std::to_string(id) + " ('" + s.name +
+                "') was recorded in this run: only sessions restored from the store can be unloaded "
+                "(reload_session brings them back)"};
+  if (s.unloaded)
+    return {StatusCode::kFailedPrecondition, "session " + std::to_string(id) + " ('" + s.name + "') is not loaded"};
+  s.unloaded = true;
+  say("unload_session '" + name_or_id + "': session " + std::to_string(id) + " UNLOADED (its " +
+      std::to_string(s.stamps.size()) + " keyframes stay in the store and in map " + std::to_string(mapOf(id)) + ")");
+  return Status::Ok();
+}
+
 // --- Queries ----------------------------------------------------------------------------------
+
+int SessionManager::sessionNamed(const std::string& name_or_id) const {
+  int id = -1;
+  for (const auto& [sid, s] : sessions_)
+    if (s.name == name_or_id || std::to_string(sid) == name_or_id) id = sid;
+  return id;
+}
 
 std::vector<int> SessionManager::storedSessionsOf(const std::vector<FrameRecord>& frames) const {
   std::vector<int> ids;

@@ -109,6 +109,9 @@ class HashStore {
   std::size_t size() const { return entries_.size(); }
   const HashEntry& entry(int i) const { return entries_[i]; }
   void reserve(std::size_t n);
+  /// Removes every entry of `session` (the others keep their order, their indexes shift down);
+  /// returns how many. O(size()): an operator's unload_session, not a per-keyframe call.
+  int removeSession(int session);
 
   /// The best `k` entries of sessions other than `exclude_session` with L1 <= max_l1 (pass
   /// infinity for no threshold), nearest first, written into `out` (cleared; its capacity is

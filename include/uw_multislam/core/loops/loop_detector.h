@@ -117,6 +117,10 @@ class LoopDetector {
   /// std::invalid_argument without a loader, on a bad hash size or a keyframe stored twice.
   void addPagedKeyframe(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
                         const Eigen::VectorXf& hash);
+  /// Forgets every keyframe of `session` (unload_session): its hashes, features and ids, so it is
+  /// no candidate any more and its memory is freed; it may be added again later. Returns how
+  /// many keyframes it held. O(size()).
+  int dropSession(int session);
   /// The cache of paged keyframes' features (nullptr before setFeatureLoader).
   const FeatureCache* featureCache() const { return cache_.get(); }
   const std::string& lastReadError() const { return last_read_error_; }

@@ -231,6 +231,12 @@ class SessionManager {
   /// `with_features` false: only the frame data and hashes (paging: features are read later
   /// with storedFeatures).
   Status reload(const std::string& name_or_id, ReloadedSession* out, bool with_features = true);
+  /// unload_session (issue 16, item 4): a reloaded stored session goes back to UNLOADED, so the
+  /// host drops its features from the loop detectors (it keeps its place in its map, its poses and
+  /// loops; reload() brings it back). Nothing is lost: only sessions restored from the store,
+  /// whose keyframes are all stored, qualify. NOT_FOUND (no such stored or recorded session),
+  /// FAILED_PRECONDITION (no store, a session recorded in this run, already unloaded).
+  Status unload(const std::string& name_or_id, int* id = nullptr);
   /// One keyframe of a stored session as the store keeps it (points, descriptors; paging, issue
   /// 20). Throws StoreError: no store, not a stored session, a missing or corrupt keyframe.
   StoredKeyframe storedFeatures(int session, int keyframe) const;
@@ -343,6 +349,8 @@ class SessionManager {
   /// Whether the keyframe is in the store (or `pending`: written in the same transaction).
   bool keyframeStored(int session, int keyframe, int pending_session = -1, int pending_keyframe = -1) const;
 
+  /// The session named `name_or_id` (its name, else its id in digits), or -1.
+  int sessionNamed(const std::string& name_or_id) const;
   const Session& at(int session) const;
   Session& at(int session);
   int idOfBackend(int backend_session) const { return id_of_backend_.at(backend_session); }

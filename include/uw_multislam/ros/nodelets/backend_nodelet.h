@@ -168,6 +168,10 @@ class BackendNodelet : public nodelet::Nodelet {
   /// set_mode: mapping | localisation (SessionManager::setLocalisation).
   bool onSetMode(uw_multislam::SetMode::Request& req, uw_multislam::SetMode::Response& res);
   bool onReload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res);
+  /// unload_session (ReloadSession's request and answer): SessionManager::unload, then the loop
+  /// detectors are told to forget the session (on reloaded_keyframes, in order) and later
+  /// subscribers no longer get it.
+  bool onUnload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res);
   bool onExport(uw_multislam::ExportSurvey::Request& req, uw_multislam::ExportSurvey::Response& res);
   /// The live mosaic's thread (see "Threading model").
   void drawMosaics();
@@ -204,6 +208,7 @@ class BackendNodelet : public nodelet::Nodelet {
 
   std::map<int, double> offsets_;  // where each map is drawn in rviz (under state_mutex_)
   std::vector<int> handed_;         // stored sessions handed to the loop detectors (under state_mutex_)
+  long sessions_unloaded_ = 0;      // unload_session calls answered OK (under state_mutex_)
   struct RelocalisationState {
     int session = -1, map = -1, loops = 0, keyframe = -1;
     long published = 0;
@@ -220,7 +225,7 @@ class BackendNodelet : public nodelet::Nodelet {
   std::atomic<bool> mosaic_due_{true};  // the active map changed since the last drawing
   std::mutex export_mutex_;             // one export at a time
   ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_, export_srv_, finish_srv_, link_srv_,
-      optimise_srv_, detect_srv_, mode_srv_, history_srv_;
+      optimise_srv_, detect_srv_, mode_srv_, history_srv_, unload_srv_;
   ros::Subscriber keyframe_sub_, loop_sub_, pose_sub_;  // last: destroyed first
 };
 

@@ -81,6 +81,7 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   struct Counters {
     long keyframes = 0, dropped = 0, bad = 0, gaps = 0, local = 0, global = 0, hashes = 0, reloaded = 0, reloaded_again = 0;
     long sessions = 0, stored = 0, local_candidates = 0, global_candidates = 0;
+    long sessions_unloaded = 0, keyframes_unloaded = 0;
     double total_ms = 0.0, max_ms = 0.0;
   };
 
