@@ -125,6 +125,7 @@ void BackendNodelet::onInit() {
   history_srv_ = nh.advertiseService(topics::kHistoryService, &BackendNodelet::onHistory, this);
   reload_srv_ = nh.advertiseService(topics::kReloadSessionService, &BackendNodelet::onReload, this);
   unload_srv_ = nh.advertiseService(topics::kUnloadSessionService, &BackendNodelet::onUnload, this);
+  delete_srv_ = nh.advertiseService(topics::kDeleteSessionService, &BackendNodelet::onDelete, this);
   export_srv_ = nh.advertiseService(topics::kExportService, &BackendNodelet::onExport, this);
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
   updater_->setHardwareID("none");
@@ -541,6 +542,13 @@ bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_mult
   return true;
 }
 
+void BackendNodelet::forgetSession(int id) {
+  handed_.erase(std::remove(handed_.begin(), handed_.end(), id), handed_.end());  // no later subscriber gets it
+  reloaded_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::unloadSessionMsg(id)));
+  mosaic_images_.removeSession(id);
+  mosaic_due_ = true;
+}
+
 bool BackendNodelet::onUnload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res) {
   std::lock_guard<std::mutex> lock(state_mutex_);
   int id = -1;
@@ -551,12 +559,35 @@ bool BackendNodelet::onUnload(uw_multislam::ReloadSession::Request& req, uw_mult
     NODELET_WARN("back-end: unload_session '%s' refused: %s", req.name.c_str(), st.message.c_str());
     return true;
   }
-  handed_.erase(std::remove(handed_.begin(), handed_.end(), id), handed_.end());
-  reloaded_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::unloadSessionMsg(id)));
+  forgetSession(id);
   ++sessions_unloaded_;
   NODELET_INFO("back-end: unload_session '%s': session %d UNLOADED, the loop detectors forget its keyframes",
                req.name.c_str(), id);
   publishAll(true);  // list and active_session states
+  return true;
+}
+
+bool BackendNodelet::onDelete(uw_multislam::DeleteSession::Request& req, uw_multislam::DeleteSession::Response& res) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  int id = -1;
+  const core::Status st = manager_->deleteSession(req.name, req.confirm, &id);
+  res.status = rc::toStatusMsg(st);
+  res.session = id;
+  if (!st.ok()) {
+    NODELET_WARN("back-end: delete_session '%s' refused: %s", req.name.c_str(), st.message.c_str());
+    return true;
+  }
+  forgetSession(id);
+  const auto path = path_pubs_.find(id);
+  if (path != path_pubs_.end() && path->second) {  // latched: an empty path, or rviz would go on drawing it
+    nav_msgs::Path empty;
+    empty.header.stamp = ros::Time::now();
+    empty.header.frame_id = options_.frames.map_frame;
+    path->second.publish(empty);
+  }
+  ++sessions_deleted_;
+  NODELET_WARN("back-end: delete_session '%s': session %d deleted from the store and from memory", req.name.c_str(), id);
+  publishAll(true);
   return true;
 }
 
@@ -676,6 +707,7 @@ std::vector<ros_diagnostics::Counter> BackendNodelet::counters() const {
   c.push_back({"map_to_odom_rate_hz", f.map_to_odom_rate_hz});
   c.push_back({"odom_lookup_failures", d(f.odom_lookup_failures), true});
   c.push_back({"sessions_unloaded", d(sessions_unloaded_)});
+  c.push_back({"sessions_deleted", d(sessions_deleted_)});
   c.push_back({"relocalised_map", d(reloc_.map)});
   c.push_back({"relocalised_loops", d(reloc_.loops)});
   c.push_back({"relocalised_poses_published", d(reloc_.published)});

@@ -8,6 +8,8 @@
     sessions.py start [NAME]
     sessions.py reload NAME               (a stored session's name or id, back into memory)
     sessions.py unload NAME               (a reloaded stored session out of memory again: UNLOADED)
+    sessions.py delete NAME [confirm]     (delete_session: from the store for good; without `confirm`
+                                           the back-end answers what would go and deletes nothing)
     sessions.py finish                    (ends the recording session; none starts until start or resume)
     sessions.py pause                     (the odometry drops frames, counted, until resume)
     sessions.py resume
@@ -34,7 +36,7 @@ try:
     import rospy
     from uw_multislam.msg import SessionState, Status
     from geometry_msgs.msg import Pose2D
-    from uw_multislam.srv import (AddLink, DetectLoops, FinishSession, History, JoinSessions, ListSessions, OperatorCommand,
+    from uw_multislam.srv import (AddLink, DeleteSession, DetectLoops, FinishSession, History, JoinSessions, ListSessions, OperatorCommand,
                                   Optimise, ReloadSession, SetMode, SplitSession, StartSession)
     ROS_IMPORT_ERROR = None
 except ImportError as e:
@@ -51,7 +53,7 @@ def status_text(status):
 
 
 # command -> (fewest, most) arguments
-ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1), "unload": (1, 1), "pause": (0, 0),
+ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1), "unload": (1, 1), "delete": (1, 2), "pause": (0, 0),
          "resume": (0, 0), "finish": (0, 0), "link": (9, 10), "optimise": (0, 0),
          "detect": (2, 1000), "mode": (1, 1), "find": (4, 4), "history": (0, 1)}
 
@@ -112,6 +114,14 @@ def main():
             res = call(args.ns, "unload_session", ReloadSession, name)
             print("unload_session '%s' -> %s%s" % (name, status_text(res.status),
                                                   ", session %d" % res.session if res.status.code == Status.OK else ""))
+        elif args.command == "delete":
+            name = args.args[0]
+            if len(args.args) > 1 and args.args[1] != "confirm":
+                raise ValueError("the second argument can only be the word confirm")
+            res = call(args.ns, "delete_session", DeleteSession, name, len(args.args) > 1)
+            print("delete_session '%s'%s -> %s%s" % (name, " confirm" if len(args.args) > 1 else "",
+                                                    status_text(res.status),
+                                                    ", session %d" % res.session if res.status.code == Status.OK else ""))
         elif args.command == "finish":
             res = call(args.ns, "finish_session", FinishSession)
             print("finish_session -> %s%s" % (status_text(res.status),

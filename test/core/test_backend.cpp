@@ -613,6 +613,83 @@ TEST_P(BothOptimizers, AResultForAMapThatChangedMeanwhileIsDroppedAndTheMapStays
   EXPECT_THROW(b.prepareOptimisation(5), std::invalid_argument);
 }
 
+TEST_P(BothOptimizers, RemovingASessionShiftsTheOthersAndKeepsTheirMapsLinksAndLoops) {
+  // delete_session: sessions 0, 1, 3 joined in map 0; session 2 alone, with two loops to session
+  // 1 and one of its own. Removing 2 leaves the others' poses, links and loops as they were, under
+  // ids shifted down past 2; a job prepared before is dropped; a recording session or one that
+  // shares its map is refused with nothing changed.
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 10), line(Pose2(0, 1.0, 0), 10), line(Pose2(3.0, -2.0, M_PI / 2), 8),
+                line(Pose2(0, 2.0, 0), 10)};
+  BackendOptions o = optionsFor(GetParam());
+  o.join_min_loops = 0;
+  MultiSessionBackend b(o);
+  for (int s = 0; s < 4; ++s) w.feed(&b, s);
+  for (int k = 0; k < 3; ++k) b.addLoop(w.loop(0, 2 + k, 1, 2 + k));
+  b.addLoop(w.loop(1, 3, 2, 1));
+  b.addLoop(w.loop(1, 4, 2, 2));
+  b.addLoop(w.loop(2, 0, 2, 6));
+  for (int k = 0; k < 3; ++k) b.addLoop(w.loop(1, 5 + k, 3, 5 + k));
+  ASSERT_TRUE(b.join(0, 1, 3).ok());
+  ASSERT_TRUE(b.join(1, 3, 3).ok());
+  b.restoreSplitPair(1, 2);
+  b.restoreSplitPair(0, 3);
+  ASSERT_EQ(b.chain(0), (std::vector<int>{0, 1, 3}));
+  std::vector<std::vector<Pose2>> poses;
+  for (int s = 0; s < 4; ++s) poses.push_back(b.sessionPoses(s));
+  auto loopsOfLinks = [&](int map) {
+    std::vector<std::tuple<int, int, int, int>> out;
+    for (const MapLinkState& l : b.mapState(map).links)
+      for (int id : l.loops) {
+        const BackendLoop& x = b.loopRecord(id).loop;
+        out.emplace_back(x.session_a, x.keyframe_a, x.session_b, x.keyframe_b);
+      }
+    return out;
+  };
+  const auto linked = loopsOfLinks(0);
+  ASSERT_EQ(linked.size(), 6u);
+  b.setDeferred(true);
+  b.addLoop(w.loop(0, 0, 0, 8, Pose2(0.02, 0.0, 0.0)));  // inside map 0: due
+  OptimisationJob job = b.prepareOptimisation(0);
+  MultiSessionBackend::solveOptimisation(&job);
+
+  EXPECT_EQ(b.removeSession(1).code, StatusCode::kFailedPrecondition);  // shares map 0
+  EXPECT_EQ(b.removeSession(7).code, StatusCode::kNotFound);
+  const int recording = b.startSession("live");
+  EXPECT_EQ(b.removeSession(recording).code, StatusCode::kFailedPrecondition);
+  b.endSession(recording);
+  EXPECT_EQ(b.numSessions(), 5);
+  const BackendStatus st = b.removeSession(2);
+  ASSERT_TRUE(st.ok()) << st.message;
+  EXPECT_NE(st.message.find("3 loops"), std::string::npos) << st.message;
+
+  EXPECT_EQ(b.numSessions(), 4);
+  EXPECT_EQ(b.mapIds(), (std::vector<int>{0, 3}));  // map 0 and the empty live session, now 3
+  EXPECT_EQ(b.chain(0), (std::vector<int>{0, 1, 2}));
+  EXPECT_EQ(b.mapOf(2), 0);
+  EXPECT_EQ(b.session(2).name, "session_3");  // the old session 3, its name kept
+  for (const auto& [now, was] : {std::pair{0, 0}, {1, 1}, {2, 3}})
+    EXPECT_EQ(worstError(b.sessionPoses(now), poses[was]), 0.0) << was;
+  EXPECT_EQ(b.numLoops(), 10 - 3);
+  for (int i = 0; i < b.numLoops(); ++i) {
+    const BackendLoop& x = b.loopRecord(i).loop;
+    EXPECT_TRUE(x.session_a != 2 || x.session_b != 2 || x.keyframe_b != 6) << "session 2's own loop is gone";
+    EXPECT_LE(std::max(x.session_a, x.session_b), 2);
+  }
+  auto shifted = linked;
+  for (auto& [sa, ka, sb, kb] : shifted) {
+    sa = sa > 2 ? sa - 1 : sa;
+    sb = sb > 2 ? sb - 1 : sb;
+  }
+  EXPECT_EQ(loopsOfLinks(0), shifted);  // the links name the same loops
+  EXPECT_EQ(b.splitPairs(), (std::vector<std::pair<int, int>>{{0, 2}}));  // (1, 2) went with session 2
+  EXPECT_FALSE(b.applyOptimisation(job));  // prepared before: dropped...
+  EXPECT_EQ(b.dueMaps(), std::vector<int>{0});  // ...and map 0 still waits for it
+  b.setDeferred(false);
+  b.flush();
+  EXPECT_LT(worstError(b.sessionPoses(2), w.truthIn(0, 3)), 0.05);
+}
+
 INSTANTIATE_TEST_SUITE_P(Backend, BothOptimizers, ::testing::Values(OptimizerKind::kIekf, OptimizerKind::kSparse),
                          [](const auto& info) { return std::string(optimizerName(info.param)); });
 

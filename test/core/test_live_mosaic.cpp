@@ -150,6 +150,24 @@ TEST(LiveMosaic, ALargeMapIsDrawnCoarserToFitAndBadKeyframesAreCountedMissing) {
   EXPECT_NE(o.validate(), "");
 }
 
+TEST(LiveMosaic, ImagesOfARemovedSessionAreForgottenWithTheirBytes) {
+  LiveMosaicImages images;
+  CameraIntrinsics c;
+  for (int s = 0; s < 3; ++s)
+    for (int k = 0; k < 4; ++k) images.add(s, k, 2.0, c, std::vector<std::uint8_t>(100 * (s + 1), 7));
+  ASSERT_EQ(images.bytes(), 4u * (100 + 200 + 300));
+  EXPECT_EQ(images.removeSession(1), 4);
+  EXPECT_EQ(images.removeSession(1), 0);
+  EXPECT_EQ(images.size(), 8u);
+  EXPECT_EQ(images.bytes(), 4u * (100 + 300));
+  for (int k = 0; k < 4; ++k) {
+    EXPECT_EQ(images.find(1, k), nullptr);
+    ASSERT_NE(images.find(0, k), nullptr);
+    ASSERT_NE(images.find(2, k), nullptr);
+    EXPECT_EQ(images.find(2, k)->jpeg->size(), 300u);
+  }
+}
+
 TEST(ExportRoot, FoldersBelowTheRootAreAcceptedAndEverythingElseRefused) {
   namespace fs = std::filesystem;
   testing_util::ScopedTempDir tmp("uwms_export_root");

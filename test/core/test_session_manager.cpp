@@ -622,6 +622,80 @@ TEST(SessionManager, TheAuditTrailRecordsJoinsSplitsLinksAndModeChangesWithCause
   EXPECT_THROW(SessionManager{bad}, std::invalid_argument);
 }
 
+TEST(SessionManager, DeleteSessionRemovesASessionAloneInItsMapFromStoreAndMemoryOnlyWhenConfirmed) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  std::vector<Pose2> joined;
+  {
+    SessionManager m(options(db));
+    twoSessionsWithLoops(&m);  // sessions 0 and 1, five global loops
+    ASSERT_TRUE(m.join(0, 1, 5).ok());
+    joined = m.poses(1);
+    addStraightSession(&m, 2, 4);
+    ASSERT_TRUE(m.addLoop(globalLoop(0, 6, 2, 1, Pose2(0, -1, 0))).ok());
+    Loop own = globalLoop(2, 0, 2, 3, Pose2(3, 0, 0));
+    own.kind = Loop::Kind::kLocal;
+    ASSERT_TRUE(m.addLoop(own).ok());
+    const std::vector<SessionSummary> before = m.list();
+    auto unchanged = [&] {
+      const std::vector<SessionSummary> now = m.list();
+      ASSERT_EQ(now.size(), before.size());
+      for (std::size_t i = 0; i < now.size(); ++i)
+        EXPECT_EQ((std::vector<int>{now[i].id, now[i].map, now[i].keyframes, now[i].loops}),
+                  (std::vector<int>{before[i].id, before[i].map, before[i].keyframes, before[i].loops}));
+      EXPECT_EQ(m.loops().size(), 7u);
+    };
+    int id = -1;
+    const Status recording = m.deleteSession("2", true, &id);
+    EXPECT_EQ(recording.code, StatusCode::kFailedPrecondition);
+    EXPECT_NE(recording.message.find("finish_session first"), std::string::npos) << recording.message;
+    ASSERT_TRUE(m.endSession(30.0).ok());
+    const Status shared = m.deleteSession("1", true);
+    EXPECT_EQ(shared.code, StatusCode::kFailedPrecondition);
+    EXPECT_NE(shared.message.find("split_session it off first"), std::string::npos) << shared.message;
+    EXPECT_EQ(m.deleteSession("nope", true).code, StatusCode::kNotFound);
+    const Status unconfirmed = m.deleteSession("session_2", false, &id);
+    EXPECT_EQ(unconfirmed.code, StatusCode::kFailedPrecondition);
+    EXPECT_NE(unconfirmed.message.find("(4 keyframes, 2 loops) from the store for good: call again with confirm true"),
+              std::string::npos)
+        << unconfirmed.message;
+    EXPECT_EQ(id, 2);
+    ASSERT_TRUE(m.setLocalisation(true).ok());
+    EXPECT_EQ(m.deleteSession("2", true).code, StatusCode::kFailedPrecondition);
+    ASSERT_TRUE(m.setLocalisation(false).ok());
+    unchanged();
+
+    ASSERT_TRUE(m.deleteSession("2", true, &id).ok());
+    EXPECT_EQ(id, 2);
+    EXPECT_FALSE(m.has(2));
+    EXPECT_EQ(m.sessionIds(), (std::vector<int>{0, 1}));
+    EXPECT_EQ(m.list()[0].loops, 5);  // the loop to session 2 went with it
+    EXPECT_EQ(m.loops().size(), 5u);
+    EXPECT_EQ(m.nextId(), 3);  // its id is not given again
+    EXPECT_EQ(m.history().back().kind, "delete");
+    EXPECT_EQ(m.history().back().sessions, "2");
+    EXPECT_NE(m.history().back().message.find("'session_2' deleted (4 keyframes, 2 loops)"), std::string::npos)
+        << m.history().back().message;
+    for (std::size_t k = 0; k < joined.size(); ++k) EXPECT_NEAR(m.poses(1)[k].y(), joined[k].y(), 1e-9) << k;
+    addStraightSession(&m, m.nextId(), 2);  // sessions go on after it
+    EXPECT_EQ(m.activeSession(), 3);
+    ASSERT_TRUE(m.endSession(40.0).ok());
+    EXPECT_EQ(m.stats().store_failures, 0);
+  }
+  // The store: session 2 and its loops are gone; the joined map and session 3 (now 2) remain.
+  SessionManager again(options(db));
+  ASSERT_EQ(again.restoredSessions(), 3);
+  EXPECT_EQ(again.list()[2].keyframes, 2);
+  EXPECT_EQ(again.loops().size(), 5u);
+  EXPECT_EQ(again.mapOf(1), 0);
+  for (std::size_t k = 0; k < joined.size(); ++k) EXPECT_NEAR(again.poses(1)[k].y(), joined[k].y(), 1e-9) << k;
+  ASSERT_GE(again.history().size(), 2u);
+  EXPECT_EQ(again.history().back().kind, "delete");
+  SessionManager none(options());
+  addStraightSession(&none, 0, 2);
+  EXPECT_EQ(none.deleteSession("0", true).code, StatusCode::kFailedPrecondition);  // no store
+}
+
 TEST(SessionManager, ANewSessionRelocalisesInAStoredMapOnlyAndWithItsOdometryCorrection) {
   // Session 0 stored; after a restart session 1 (1 m beside it) relocalises in map 0 from two
   // consistent loops, in localisation mode (nothing joined). Session 2, recorded in this run, is no

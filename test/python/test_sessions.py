@@ -44,6 +44,8 @@ def run(*args):
     (["find", "0", "1", "1"], "find takes 4 argument(s), got 3"),
     (["find", "0", "1", "1", "x"], "find: wrong arguments"),
     (["unload"], "unload takes 1 argument(s), got 0"),
+    (["delete"], "delete takes 1 to 2 argument(s), got 0"),
+    (["delete", "0", "yes"], "delete: wrong arguments"),
     (["history", "1", "2"], "history takes 0 to 1 argument(s), got 2"),
     (["history", "all"], "history: wrong arguments"),
 ])
@@ -57,7 +59,7 @@ def test_wrong_arguments_exit_2_with_the_reason(args, why):
 @pytest.mark.parametrize("args", [["reload", "yesterday"], ["list"], ["join", "0", "1"], ["pause"], ["resume"], ["finish"],
                                   ["optimise"], ["link", "0", "1", "1", "1", "0", "1", "0", "0.1", "0.01"],
                                   ["detect", "0", "1"], ["mode", "localisation"], ["history"],
-                                  ["unload", "0"]])
+                                  ["unload", "0"], ["delete", "0", "confirm"]])
 def test_no_master_exits_1_naming_it(args):
     res = run("--timeout", "1", *args)
     assert res.returncode == 1, res

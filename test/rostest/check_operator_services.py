@@ -32,7 +32,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose2D
 from pipeline_fixture import await_condition, connected, diagnostic_values, make_mission, synthetic_keyframe, tool
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
-from uw_multislam.srv import AddLink, DetectLoops, History, JoinSessions, ListSessions, Optimise, SetMode, SplitSession
+from nav_msgs.msg import Path
+from uw_multislam.srv import AddLink, DeleteSession, DetectLoops, FinishSession, History, JoinSessions, ListSessions, Optimise, SetMode, SplitSession
 
 NS = "/operator_test"
 SESSIONS_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "sessions.py")
@@ -270,6 +271,66 @@ class OperatorServicesTest(unittest.TestCase):
                           again.stdout)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+
+    def test_delete_session_called_right_and_wrong(self):
+        """delete_session (issue 16, item 4): refused with nothing changed while the session records,
+        shares its map, without confirm, in localisation mode, for an unknown name; then deleted from
+        memory and store (its loops too), its path emptied, recorded in the history."""
+        self.start_backend(self.db, {"intra_loop_gate": False})
+        for name in ("list_sessions", "delete_session", "finish_session", "history", "split_session"):
+            rospy.wait_for_service(NS + "/" + name, timeout=60)
+        self.feed(KEYFRAMES)
+        delete = rospy.ServiceProxy(NS + "/delete_session", DeleteSession)
+        paths = []
+        path_sub = rospy.Subscriber(NS + "/paths/session_1", Path, lambda m: paths.append(len(m.poses)), queue_size=10)
+        await_condition(self.lock, lambda: paths and paths[-1] == KEYFRAMES[1], 30, "session 1's path")
+
+        def refused(name, confirm, code, why):
+            before = self.sessions()
+            res = delete(name, confirm)
+            self.assertEqual(res.status.code, code, "%s %s: %s" % (name, confirm, res.status.message))
+            self.assertIn(why, res.status.message)
+            self.assertEqual(self.sessions(), before, "a refused delete_session changed the sessions")
+
+        refused("1", True, Status.FAILED_PRECONDITION, "finish_session first")
+        self.assertEqual(rospy.ServiceProxy(NS + "/finish_session", FinishSession)().status.code, Status.OK)
+        self.assertEqual(self.link(0, 2, 1, 2).status.code, Status.OK)
+        self.assertEqual(rospy.ServiceProxy(NS + "/join_sessions", JoinSessions)(0, 1, 1).status.code, Status.OK)
+        refused("1", True, Status.FAILED_PRECONDITION, "split_session it off first")
+        self.assertEqual(rospy.ServiceProxy(NS + "/split_session", SplitSession)(1).status.code, Status.OK)
+        refused("1", False, Status.FAILED_PRECONDITION, "(5 keyframes, 1 loops) from the store for good: call again "
+                                                        "with confirm true")
+        refused("session_9", True, Status.NOT_FOUND, "session_9")
+        set_mode = rospy.ServiceProxy(NS + "/set_mode", SetMode)
+        self.assertEqual(set_mode("localisation").status.code, Status.OK)
+        refused("1", True, Status.FAILED_PRECONDITION, "localisation mode")
+        self.assertEqual(set_mode("mapping").status.code, Status.OK)
+        tool_says = subprocess.run([SESSIONS_TOOL, "--ns", NS, "delete", "1"], capture_output=True, text=True,
+                                   timeout=60)
+        self.assertEqual(tool_says.returncode, 0, tool_says)
+        self.assertTrue(tool_says.stdout.startswith("delete_session '1' -> FAILED_PRECONDITION: delete_session removes "
+                                                    "session 1 ('session_1')"), tool_says.stdout)
+
+        res = delete("session_1", True)
+        self.assertEqual((res.status.code, res.session), (Status.OK, 1), res.status.message)
+        self.assertEqual(sorted(self.sessions()), [0])
+        self.assertEqual(self.sessions()[0][3], 0)  # the link went with it
+        await_condition(self.lock, lambda: self.status.get("sessions_deleted") == 1, 30, "sessions_deleted")
+        await_condition(self.lock, lambda: paths[-1] == 0, 30, "the emptied path", lambda: ": %s" % paths)
+        path_sub.unregister()
+        entries = rospy.ServiceProxy(NS + "/history", History)(0).entries
+        self.assertEqual([(e.kind, e.cause, e.sessions) for e in entries],
+                         [("link", "service", "0,1"), ("join", "service", "0+1"), ("split", "service", "1+0"),
+                          ("mode", "service", ""), ("delete", "service", "1")])
+        again = delete("1", True)
+        self.assertEqual(again.status.code, Status.NOT_FOUND, again.status.message)
+        self.stop_backend()
+        with sqlite3.connect(self.db) as c:
+            self.assertEqual(c.execute("SELECT name FROM sessions").fetchall(), [("session_0",)])
+            self.assertEqual(c.execute("SELECT COUNT(*) FROM loops").fetchone()[0], 0)
+            self.assertEqual(c.execute("SELECT COUNT(*) FROM keyframes").fetchone()[0], KEYFRAMES[0])
+            self.assertEqual(c.execute("SELECT kind FROM history ORDER BY id").fetchall(),
+                             [("link",), ("join",), ("split",), ("mode",), ("delete",)])
 
     def test_localisation_mode_leaves_the_store_byte_identical(self):
         """set_mode (issue 16, item 4; must-show: the store byte-identical by md5)."""

@@ -85,6 +85,7 @@ constexpr char kJoinSessionsService[] = "join_sessions";
 constexpr char kSplitSessionService[] = "split_session";
 constexpr char kReloadSessionService[] = "reload_session";
 constexpr char kUnloadSessionService[] = "unload_session";
+constexpr char kDeleteSessionService[] = "delete_session";
 constexpr char kListSessionsService[] = "list_sessions";
 constexpr char kStartSessionService[] = "start_session";
 constexpr char kFinishSessionService[] = "finish_session";

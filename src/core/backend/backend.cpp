@@ -946,6 +946,54 @@ int MultiSessionBackend::restoreSession(const std::string& name, const std::vect
   return id;
 }
 
+BackendStatus MultiSessionBackend::removeSession(int s) {
+  if (!hasSession(s)) return {StatusCode::kNotFound, "no session " + std::to_string(s)};
+  if (sessions_[s].recording) return {StatusCode::kFailedPrecondition, "session " + std::to_string(s) + " is recording"};
+  if (mapAt(sessions_[s].map).chain.size() != 1)
+    return {StatusCode::kFailedPrecondition, "session " + std::to_string(s) + " shares map " +
+                                                 std::to_string(sessions_[s].map) + " with other sessions"};
+  auto shift = [s](int t) { return t > s ? t - 1 : t; };
+  std::vector<int> new_id(loops_.size(), -1);
+  std::vector<LoopRecord> kept;
+  for (std::size_t i = 0; i < loops_.size(); ++i) {
+    LoopRecord r = loops_[i];
+    if (r.loop.session_a == s || r.loop.session_b == s) continue;
+    r.loop.session_a = shift(r.loop.session_a);
+    r.loop.session_b = shift(r.loop.session_b);
+    new_id[i] = static_cast<int>(kept.size());
+    kept.push_back(std::move(r));
+  }
+  const int removed_loops = static_cast<int>(loops_.size() - kept.size());
+  loops_ = std::move(kept);
+  due_.erase(s);
+  maps_.erase(s);  // its own map (alone in it: the map's id is s)
+  std::map<int, Map> maps;
+  for (auto& [id, m] : maps_) {
+    for (int& c : m.chain) c = shift(c);
+    for (MapLinkState& l : m.links) {
+      for (int& i : l.loops) i = new_id[i];
+      l.loops.erase(std::remove(l.loops.begin(), l.loops.end(), -1), l.loops.end());
+    }
+    touch(m);
+    maps.emplace(shift(id), std::move(m));
+  }
+  maps_ = std::move(maps);
+  std::set<int> due;
+  for (int d : due_) due.insert(shift(d));
+  due_ = std::move(due);
+  std::set<std::pair<int, int>> pairs;
+  for (const auto& [a, b] : split_pairs_)
+    if (a != s && b != s) pairs.insert({shift(a), shift(b)});
+  split_pairs_ = std::move(pairs);
+  const std::string name = sessions_[s].name;
+  sessions_.erase(sessions_.begin() + s);
+  for (Session& t : sessions_) t.map = shift(t.map);
+  const std::string msg = "session " + std::to_string(s) + " '" + name + "' removed with its map and " +
+                          std::to_string(removed_loops) + " loops";
+  say(msg);
+  return {StatusCode::kOk, msg};
+}
+
 int MultiSessionBackend::restoreLoop(const LoopRecord& r) {
   const BackendLoop& l = r.loop;
   for (const auto& [s, k] : {std::pair<int, int>{l.session_a, l.keyframe_a}, {l.session_b, l.keyframe_b}}) {

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 
 #include "uw_multislam/core/session/mosaic_geometry.h"
 #include "uw_multislam/core/session/session_manager.h"
@@ -29,6 +30,15 @@ void LiveMosaicImages::add(int session, int keyframe, double altitude_m, const C
   e.altitude_m = altitude_m;
   e.camera = camera;
   e.jpeg = std::make_shared<const std::vector<std::uint8_t>>(std::move(jpeg));
+}
+
+int LiveMosaicImages::removeSession(int session) {
+  const auto first = entries_.lower_bound({session, std::numeric_limits<int>::min()});
+  const auto last = entries_.lower_bound({session + 1, std::numeric_limits<int>::min()});
+  int n = 0;
+  for (auto it = first; it != last; ++it, ++n) bytes_ -= it->second.jpeg ? it->second.jpeg->size() : 0;
+  entries_.erase(first, last);
+  return n;
 }
 
 const LiveMosaicImages::Entry* LiveMosaicImages::find(int session, int keyframe) const {

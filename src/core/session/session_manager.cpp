@@ -846,6 +846,67 @@ Status SessionManager::unload(const std::string& name_or_id, int* id_out) {
   return Status::Ok();
 }
 
+Status SessionManager::deleteSession(const std::string& name_or_id, bool confirm, int* id_out) {
+  if (id_out) *id_out = -1;
+  if (!store_) return {StatusCode::kFailedPrecondition, "no session store: nothing to delete from"};
+  if (const Status mode = storedMapsMayChange("delete_session"); !mode.ok()) return mode;
+  const int id = sessionNamed(name_or_id);
+  if (id < 0)
+    return {StatusCode::kNotFound, "no session named or numbered '" + name_or_id + "' (list_sessions shows them)"};
+  if (id_out) *id_out = id;
+  const Session& s = at(id);
+  const std::string what = "session " + std::to_string(id) + " ('" + s.name + "')";
+  if (id == active_)
+    return {StatusCode::kFailedPrecondition, what + " is recording: finish_session first"};
+  const std::vector<int> chain = backend_->chain(backend_->mapOf(s.backend));
+  if (chain.size() != 1)
+    return {StatusCode::kFailedPrecondition, what + " shares map " + std::to_string(mapOf(id)) + " with " +
+                                                 std::to_string(chain.size() - 1) +
+                                                 " other sessions: split_session it off first"};
+  const std::string lost = std::to_string(s.stamps.size()) + " keyframes, " + std::to_string(s.loops) + " loops";
+  if (!confirm)
+    return {StatusCode::kFailedPrecondition, "delete_session removes " + what + " (" + lost +
+                                                 ") from the store for good: call again with confirm true"};
+  if (s.store_id >= 0) {
+    try {
+      store_->deleteSessions({s.store_id});  // one transaction: all of it or nothing
+    } catch (const std::exception& e) {
+      say("delete_session '" + name_or_id + "': " + e.what());
+      return {StatusCode::kDataLoss, "the store could not be changed, nothing deleted: " + std::string(e.what())};
+    }
+  }
+  // Memory: the back-end's indexes after it move down one; the manager's loops follow its order.
+  const int b = s.backend;
+  const Status removed = backend_->removeSession(b);
+  if (!removed.ok()) throw std::logic_error("session manager: " + removed.message);  // checked above
+  std::vector<Loop> loops;
+  std::vector<std::int64_t> store_loops;
+  for (std::size_t i = 0; i < loops_.size(); ++i) {
+    const Loop& l = loops_[i];
+    if (l.session_a == id || l.session_b == id) {
+      const int other = l.session_a == id ? l.session_b : l.session_a;
+      if (other != id) --at(other).loops;
+      continue;
+    }
+    loops.push_back(l);
+    store_loops.push_back(store_loops_[i]);
+  }
+  loops_ = std::move(loops);
+  store_loops_ = std::move(store_loops);
+  id_of_backend_.erase(id_of_backend_.begin() + b);
+  for (auto& [sid, t] : sessions_)
+    if (t.backend > b) --t.backend;
+  const std::string name = s.name;
+  next_id_floor_ = std::max(next_id_floor_, nextId());
+  sessions_.erase(id);
+  backend_->takeMapChanges();
+  record("delete", std::to_string(id), "", "session " + std::to_string(id) + " '" + name + "' deleted (" + lost + ")",
+         options_.requester.c_str());
+  say("delete_session '" + name_or_id + "': session " + std::to_string(id) + " '" + name + "' deleted (" + lost +
+      ") from " + storeName() + " and from memory");
+  return Status::Ok();
+}
+
 // --- Queries ----------------------------------------------------------------------------------
 
 int SessionManager::sessionNamed(const std::string& name_or_id) const {

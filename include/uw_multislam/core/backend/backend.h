@@ -324,6 +324,13 @@ class MultiSessionBackend {
   BackendStatus restoreMap(const MapState& state);
   /// Marks two sessions as split apart by the user.
   void restoreSplitPair(int session_a, int session_b);
+  /// delete_session (issue 16, item 4): removes a finished session that is alone in its map, its
+  /// map and every loop on it. The sessions after it move down one index, their maps with them
+  /// (a map's id is its first session's), and loop ids close up (links keep naming the same
+  /// loops). Every map is touched, so an optimisation prepared before is dropped and done again.
+  /// NOT_FOUND, FAILED_PRECONDITION (recording, or in a map with other sessions); nothing changes
+  /// on a refusal.
+  BackendStatus removeSession(int session);
 
  private:
   struct Session {

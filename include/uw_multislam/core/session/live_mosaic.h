@@ -73,6 +73,8 @@ class LiveMosaicImages {
   void add(int session, int keyframe, double altitude_m, const CameraIntrinsics& camera,
            std::vector<std::uint8_t> jpeg);
   const Entry* find(int session, int keyframe) const;
+  /// Forgets the session's images (unload_session, delete_session); returns how many.
+  int removeSession(int session);
   std::size_t size() const { return entries_.size(); }
   std::size_t bytes() const { return bytes_; }
 

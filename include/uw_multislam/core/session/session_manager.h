@@ -237,6 +237,14 @@ class SessionManager {
   /// whose keyframes are all stored, qualify. NOT_FOUND (no such stored or recorded session),
   /// FAILED_PRECONDITION (no store, a session recorded in this run, already unloaded).
   Status unload(const std::string& name_or_id, int* id = nullptr);
+  /// delete_session (issue 16, item 4): removes a finished session alone in its map from the store
+  /// (keyframes, motions, its loops, its map; one transaction) and from memory, for good. The ids
+  /// of the others stay (a later restart numbers the stored sessions 0..k-1 again), ids are not
+  /// reused. Recorded in the audit trail. Refused with nothing changed: NOT_FOUND,
+  /// FAILED_PRECONDITION (no store, localisation mode, the recording session, a session sharing
+  /// its map: split it off first, `confirm` false: the message says what would go), DATA_LOSS
+  /// (the store could not be changed).
+  Status deleteSession(const std::string& name_or_id, bool confirm, int* id = nullptr);
   /// One keyframe of a stored session as the store keeps it (points, descriptors; paging, issue
   /// 20). Throws StoreError: no store, not a stored session, a missing or corrupt keyframe.
   StoredKeyframe storedFeatures(int session, int keyframe) const;
@@ -268,7 +276,7 @@ class SessionManager {
   std::vector<int> sessionIds() const;
   int activeSession() const { return active_; }
   /// The id the next new session takes (one past the largest so far).
-  int nextId() const { return sessions_.empty() ? 0 : sessions_.rbegin()->first + 1; }
+  int nextId() const { return std::max(next_id_floor_, sessions_.empty() ? 0 : sessions_.rbegin()->first + 1); }
   const std::string& name(int session) const { return at(session).name; }
   /// The camera its keyframes were made with (the store's, for a stored session).
   const CameraIntrinsics& camera(int session) const { return at(session).camera; }
@@ -399,6 +407,7 @@ class SessionManager {
   std::string localising_since_;           // when localisation mode began (UTC), for its entry
   int active_ = -1;
   int restored_sessions_ = 0;
+  int next_id_floor_ = 0;  // past every id given so far (a deleted session's id is not reused)
   int seen_joins_ = 0, seen_splits_ = 0, seen_optimisations_ = 0;
   SessionManagerStats stats_;
 };

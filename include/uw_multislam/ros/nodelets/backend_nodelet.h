@@ -98,6 +98,7 @@
 #include "uw_multislam/Keyframe.h"
 #include "uw_multislam/ListSessions.h"
 #include "uw_multislam/Loop.h"
+#include "uw_multislam/DeleteSession.h"
 #include "uw_multislam/History.h"
 #include "uw_multislam/Optimise.h"
 #include "uw_multislam/ReloadSession.h"
@@ -172,6 +173,12 @@ class BackendNodelet : public nodelet::Nodelet {
   /// detectors are told to forget the session (on reloaded_keyframes, in order) and later
   /// subscribers no longer get it.
   bool onUnload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res);
+  /// The loop detectors forget the session (the notice on reloaded_keyframes), later subscribers
+  /// do not get it, the live mosaic drops its images (under state_mutex_).
+  void forgetSession(int id);
+  /// delete_session: SessionManager::deleteSession; the loop detectors forget the session (as at
+  /// unload_session) and its latched path topic gets an empty path.
+  bool onDelete(uw_multislam::DeleteSession::Request& req, uw_multislam::DeleteSession::Response& res);
   bool onExport(uw_multislam::ExportSurvey::Request& req, uw_multislam::ExportSurvey::Response& res);
   /// The live mosaic's thread (see "Threading model").
   void drawMosaics();
@@ -209,6 +216,7 @@ class BackendNodelet : public nodelet::Nodelet {
   std::map<int, double> offsets_;  // where each map is drawn in rviz (under state_mutex_)
   std::vector<int> handed_;         // stored sessions handed to the loop detectors (under state_mutex_)
   long sessions_unloaded_ = 0;      // unload_session calls answered OK (under state_mutex_)
+  long sessions_deleted_ = 0;       // delete_session calls answered OK (under state_mutex_)
   struct RelocalisationState {
     int session = -1, map = -1, loops = 0, keyframe = -1;
     long published = 0;
@@ -225,7 +233,7 @@ class BackendNodelet : public nodelet::Nodelet {
   std::atomic<bool> mosaic_due_{true};  // the active map changed since the last drawing
   std::mutex export_mutex_;             // one export at a time
   ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_, export_srv_, finish_srv_, link_srv_,
-      optimise_srv_, detect_srv_, mode_srv_, history_srv_, unload_srv_;
+      optimise_srv_, detect_srv_, mode_srv_, history_srv_, unload_srv_, delete_srv_;
   ros::Subscriber keyframe_sub_, loop_sub_, pose_sub_;  // last: destroyed first
 };
 
