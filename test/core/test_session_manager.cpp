@@ -10,6 +10,7 @@
 #include <optional>
 
 #include "../common/scoped_temp_dir.h"
+#include "../common/seabed_features.h"
 #include "uw_multislam/core/session/run_outputs.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/stored_loops.h"
@@ -444,7 +445,7 @@ TEST(SessionManager, DetectLoopsIsRefusedWithNothingChangedForEveryMisuse) {
       {globalLoop(0, 1, 1, 4, Pose2()), StatusCode::kNotFound},
       {globalLoop(0, -1, 1, 1, Pose2()), StatusCode::kInvalidArgument},
       {globalLoop(1, 1, 1, 1, Pose2()), StatusCode::kInvalidArgument},
-      {globalLoop(0, 1, 2, 1, Pose2()), StatusCode::kFailedPrecondition},  // recorded in this run
+      {globalLoop(0, 1, 2, 1, Pose2()), StatusCode::kFailedPrecondition},  // this run's: no features stored
       {globalLoop(0, 1, 1, 1, Pose2()), StatusCode::kFailedPrecondition}};  // no motion verified
   for (std::size_t i = 0; i < finds.size(); ++i) {
     Loop l = finds[i].first;
@@ -462,6 +463,48 @@ TEST(SessionManager, DetectLoopsIsRefusedWithNothingChangedForEveryMisuse) {
   EXPECT_EQ(findStoredLink(none, config, &without_store).code, StatusCode::kFailedPrecondition);
   EXPECT_TRUE(m.loops().empty());
   EXPECT_EQ(m.mapIds(), (std::vector<int>{0, 1, 2}));
+}
+
+// add_link's "find it" between keyframes of this run's sessions: their features are read from the
+// store, where each keyframe went as it arrived (rendered seabed frames, known poses).
+class SessionManagerFeatures : public testing_util::SeabedFeaturesTest {};
+
+TEST_F(SessionManagerFeatures, FindItMeasuresALinkBetweenThisRunsStoredKeyframes) {
+  testing_util::ScopedTempDir dir("session_manager");
+  SessionManager m(options((dir.path() / "s.db").string()));
+  const std::vector<Pose2> a{Pose2(2.5, 3.0, 0.0), Pose2(3.7, 3.0, 0.0), Pose2(4.9, 3.0, 0.0)};
+  const std::vector<Pose2> b{Pose2(4.0, 3.3, 1.2), Pose2(4.0, 4.5, 1.2)};
+  auto add = [&](int s, const std::vector<Pose2>& world) {
+    for (int k = 0; k < static_cast<int>(world.size()); ++k) {
+      KeyframeInput in = keyframe(s, k, between(world[0], world[k]), between(world[0], world[std::max(0, k - 1)]));
+      in.camera = camera_;
+      in.features = features(world[k], 2.0);
+      ASSERT_TRUE(m.addKeyframe(in).ok());
+    }
+  };
+  add(0, a);
+  add(1, b);  // session 1 records; session 0 ended
+  Loop l = globalLoop(0, 1, 1, 0, Pose2());
+  ASSERT_TRUE(m.inStore(0, 1) && m.inStore(1, 0));
+  const Status st = findStoredLink(m, SlamConfig(), &l);
+  ASSERT_TRUE(st.ok()) << st.message;
+  const Pose2 truth = between(a[1], b[0]);
+  EXPECT_TRUE(approxEqual(l.z.mean, truth, 0.02, 0.01)) << l.z.mean << " vs " << truth;
+  EXPECT_GE(l.inliers, 25);
+  ASSERT_TRUE(m.addLink(l).ok());
+  EXPECT_EQ(m.loops().size(), 1u);
+  // A keyframe kept in memory only (localisation mode) cannot be measured: refused, said why.
+  ASSERT_TRUE(m.setLocalisation(true).ok());
+  KeyframeInput more = keyframe(1, 2, between(b[0], Pose2(4.0, 5.7, 1.2)), between(b[0], b[1]));
+  more.camera = camera_;
+  more.features = features(Pose2(4.0, 5.7, 1.2), 2.0);
+  ASSERT_TRUE(m.addKeyframe(more).ok());
+  ASSERT_TRUE(m.setLocalisation(false).ok());
+  EXPECT_FALSE(m.inStore(1, 2));
+  Loop memory_only = globalLoop(0, 2, 1, 2, Pose2());
+  const Status refused = findStoredLink(m, SlamConfig(), &memory_only);
+  EXPECT_EQ(refused.code, StatusCode::kFailedPrecondition);
+  EXPECT_NE(refused.message.find("keyframe 2 of session 1 is not in the store"), std::string::npos) << refused.message;
 }
 
 std::string fileBytes(const std::string& path) {

@@ -774,9 +774,9 @@ bool SessionManager::applyOptimisation(const MapOptimisation& o) {
 StoredKeyframe SessionManager::storedFeatures(int session, int keyframe) const {
   if (!store_) throw StoreError("no session store: no stored features");
   const auto it = sessions_.find(session);
-  if (it == sessions_.end() || it->second.store_id < 0 || session >= restored_sessions_)
-    throw StoreError("session store " + options_.store_path + ": session " + std::to_string(session) +
-                     " is not a stored session");
+  if (it == sessions_.end() || it->second.store_id < 0 || !keyframeStored(session, keyframe))
+    throw StoreError("session store " + options_.store_path + ": keyframe " + std::to_string(keyframe) +
+                     " of session " + std::to_string(session) + " is not stored");
   StoredKeyframe k = store_->keyframeFeatures(it->second.store_id, keyframe);
   k.session = session;
   return k;

@@ -93,11 +93,14 @@ Status findStoredLink(const SessionManager& manager, const SlamConfig& config, L
   if (const Status mode = manager.storedMapsMayChange("add_link"); !mode.ok()) return mode;
   const Loop& l = *link;
   if (const Status ends = manager.checkLinkEnds(l); !ends.ok()) return ends;
-  for (int s : {l.session_a, l.session_b}) {
-    if (s >= manager.restoredSessions())
+  // The features come from the store: a restored session's, or this run's as written with each
+  // keyframe (the loop detector node holds them too, but the back-end does not ask it).
+  for (const auto& [s, k] : {std::pair<int, int>{l.session_a, l.keyframe_a}, {l.session_b, l.keyframe_b}}) {
+    if (!manager.inStore(s, k))
       return {StatusCode::kFailedPrecondition,
-              "add_link find: session " + std::to_string(s) +
-                  " was recorded in this run (its features are in the loop detector node): give the pose"};
+              "add_link find: keyframe " + std::to_string(k) + " of session " + std::to_string(s) +
+                  " is not in the store (localisation mode keeps it in memory only, or its write failed): "
+                  "give the pose"};
   }
   StoredKeyframe a, b;
   try {

@@ -245,9 +245,13 @@ class SessionManager {
   /// its map: split it off first, `confirm` false: the message says what would go), DATA_LOSS
   /// (the store could not be changed).
   Status deleteSession(const std::string& name_or_id, bool confirm, int* id = nullptr);
-  /// One keyframe of a stored session as the store keeps it (points, descriptors; paging, issue
-  /// 20). Throws StoreError: no store, not a stored session, a missing or corrupt keyframe.
+  /// One keyframe as the store keeps it (points, descriptors): of a session restored from the
+  /// store (paging, issue 20), or of this run's sessions once written (add_link's "find it").
+  /// Throws StoreError: no store, a keyframe not in the store (not yet, or kept in memory only),
+  /// a missing or corrupt one.
   StoredKeyframe storedFeatures(int session, int keyframe) const;
+  /// Whether the keyframe is in the store (storedFeatures can read it).
+  bool inStore(int session, int keyframe) const { return store_ != nullptr && keyframeStored(session, keyframe); }
   /// A stored session's keyframes with their frame data and hashes only (no features), without
   /// reloading it. Throws StoreError as storedFeatures.
   std::vector<StoredKeyframe> storedHashes(int session) const;
