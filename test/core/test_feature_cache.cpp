@@ -35,6 +35,26 @@ struct CountingLoader {
   }
 };
 
+TEST(FeatureCache, ErasingASessionDropsOnlyItsEntriesAndTheirBytes) {
+  CountingLoader loader;
+  const std::size_t one = FeatureCache::bytesOf(fake(0, 0, 100));
+  FeatureCache cache(20 * one, [&](int s, int k) { return loader(s, k); });
+  for (int s = 0; s < 3; ++s)
+    for (int k = 0; k < 4; ++k) cache.get(s, k);
+  ASSERT_EQ(cache.size(), 12u);
+  EXPECT_EQ(cache.eraseSession(1), 4);
+  EXPECT_EQ(cache.eraseSession(1), 0);
+  EXPECT_EQ(cache.size(), 8u);
+  EXPECT_EQ(cache.bytes(), 8 * one);
+  for (int k = 0; k < 4; ++k) {
+    EXPECT_FALSE(cache.contains(1, k));
+    EXPECT_TRUE(cache.contains(0, k) && cache.contains(2, k));
+  }
+  const std::size_t reads = loader.reads.size();
+  EXPECT_EQ(cache.get(1, 2)->descriptors.at<std::uint8_t>(0, 0), 12);  // read again from the loader
+  EXPECT_EQ(loader.reads.size(), reads + 1);
+}
+
 TEST(FeatureCache, KeepsTheMostRecentlyUsedWithinTheBudget) {
   CountingLoader loader;
   const std::size_t one = FeatureCache::bytesOf(fake(0, 0, 100));

@@ -8,6 +8,7 @@
 #include <fstream>
 #include <iterator>
 #include <optional>
+#include <tuple>
 
 #include "../common/scoped_temp_dir.h"
 #include "../common/seabed_features.h"
@@ -737,6 +738,95 @@ TEST(SessionManager, DeleteSessionRemovesASessionAloneInItsMapFromStoreAndMemory
   SessionManager none(options());
   addStraightSession(&none, 0, 2);
   EXPECT_EQ(none.deleteSession("0", true).code, StatusCode::kFailedPrecondition);  // no store
+}
+
+TEST(SessionManager, DeletingTheFirstSessionLeavesTheLaterOnesTheirPosesMapsLinksAndLoops) {
+  // Session 0 alone (one loop to 1); 1 and 2 joined; 3 alone with three loops to 1. Deleting 0
+  // moves every back-end index after it: nothing the others show may change, a later join works
+  // and names the right sessions, and a restart gives the same maps (ids 0..2 then).
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  using Ends = std::tuple<int, int, int, int>;
+  auto ends = [](const std::vector<Loop>& loops) {
+    std::vector<Ends> out;
+    for (const Loop& l : loops) out.emplace_back(l.session_a, l.keyframe_a, l.session_b, l.keyframe_b);
+    return out;
+  };
+  std::vector<std::vector<Pose2>> poses;
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 6);
+    addStraightSession(&m, 1, 8);
+    addStraightSession(&m, 2, 8);
+    addStraightSession(&m, 3, 8);
+    ASSERT_TRUE(m.endSession(50.0).ok());
+    ASSERT_TRUE(m.addLoop(globalLoop(0, 2, 1, 2, Pose2(0, 1, 0))).ok());
+    for (int k = 1; k <= 5; ++k) ASSERT_TRUE(m.addLoop(globalLoop(1, k, 2, k, Pose2(0, 1, 0))).ok());
+    for (int k = 1; k <= 3; ++k) ASSERT_TRUE(m.addLoop(globalLoop(1, k, 3, k, Pose2(0, -1, 0))).ok());
+    ASSERT_TRUE(m.join(1, 2, 5).ok());
+    for (int s = 1; s <= 3; ++s) poses.push_back(m.poses(s));
+    const std::vector<SessionLink> links = m.links();
+    std::vector<Ends> kept;
+    for (const Ends& e : ends(m.loops()))
+      if (std::get<0>(e) != 0) kept.push_back(e);
+    const int loops_of_1 = m.list()[1].loops;
+
+    ASSERT_TRUE(m.deleteSession("0", true).ok());
+    EXPECT_EQ(m.sessionIds(), (std::vector<int>{1, 2, 3}));
+    for (int s = 1; s <= 3; ++s)
+      for (std::size_t k = 0; k < poses[s - 1].size(); ++k)
+        EXPECT_TRUE(approxEqual(m.poses(s)[k], poses[s - 1][k], 0.0, 0.0)) << s << " " << k;
+    EXPECT_EQ((std::vector<int>{m.mapOf(1), m.mapOf(2), m.mapOf(3)}), (std::vector<int>{1, 1, 3}));
+    ASSERT_EQ(m.links().size(), links.size());
+    for (std::size_t i = 0; i < links.size(); ++i)
+      EXPECT_EQ((std::vector<int>{m.links()[i].map, m.links()[i].previous, m.links()[i].current, m.links()[i].loops}),
+                (std::vector<int>{links[i].map, links[i].previous, links[i].current, links[i].loops}));
+    EXPECT_EQ(ends(m.loops()), kept);
+    EXPECT_EQ(m.list()[0].loops, loops_of_1 - 1);  // list()[0] is session 1 now
+    EXPECT_EQ(m.addLoop(globalLoop(0, 1, 1, 1, Pose2(0, 1, 0))).code, StatusCode::kNotFound);  // deleted: no wait
+    ASSERT_TRUE(m.join(1, 3, 3).ok());
+    EXPECT_EQ(m.history().back().kind, "join");
+    EXPECT_EQ(m.history().back().sessions, "1,2+3");
+    EXPECT_EQ(m.history().back().loops, "1:1>3:1 1:2>3:2 1:3>3:3");
+    for (int s = 1; s <= 3; ++s) poses[s - 1] = m.poses(s);
+    EXPECT_EQ(m.stats().store_failures, 0);
+  }
+  SessionManager again(options(db));
+  ASSERT_EQ(again.restoredSessions(), 3);  // ids 0..2 now: the old 1..3
+  EXPECT_EQ((std::vector<int>{again.mapOf(0), again.mapOf(1), again.mapOf(2)}), (std::vector<int>{0, 0, 0}));
+  EXPECT_EQ(again.loops().size(), 8u);
+  for (int s = 0; s < 3; ++s)
+    for (std::size_t k = 0; k < poses[s].size(); ++k)
+      EXPECT_TRUE(approxEqual(again.poses(s)[k], poses[s][k], 1e-9, 1e-9)) << s << " " << k;
+}
+
+TEST(SessionManager, ASplitAfterARestartDoesNotClaimToUndoAnEarlierRunsJoinOfOtherSessions) {
+  // Run 1 joins 4+5, then 2+3, then deletes 0 and 1. After a restart the old 4 and 5 are 2 and 3:
+  // splitting 3 off reads "3+2" like the undo of run 1's "2+3", which joined other sessions.
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  {
+    SessionManager m(options(db));
+    for (int s = 0; s < 6; ++s) addStraightSession(&m, s, 4);
+    ASSERT_TRUE(m.endSession(60.0).ok());
+    for (int s : {4, 2}) {
+      ASSERT_TRUE(m.addLoop(globalLoop(s, 1, s + 1, 1, Pose2(0, 1, 0))).ok());
+      ASSERT_TRUE(m.join(s, s + 1, 1).ok());
+    }
+    ASSERT_TRUE(m.deleteSession("0", true).ok());
+    ASSERT_TRUE(m.deleteSession("1", true).ok());
+    ASSERT_EQ(m.history().size(), 4u);
+    EXPECT_EQ(m.history()[1].sessions, "2+3");
+  }
+  SessionManager again(options(db));
+  ASSERT_EQ(again.restoredSessions(), 4);
+  ASSERT_EQ(again.mapOf(3), 2);
+  ASSERT_TRUE(again.split(3).ok());
+  EXPECT_EQ(again.history().back().sessions, "3+2");
+  EXPECT_EQ(again.history().back().message.find("undoes"), std::string::npos) << again.history().back().message;
+  ASSERT_TRUE(again.join(2, 3, 1).ok());  // this run's join: its split is an undo again
+  ASSERT_TRUE(again.split(3).ok());
+  EXPECT_NE(again.history().back().message.find("undoes join #6"), std::string::npos) << again.history().back().message;
 }
 
 TEST(SessionManager, ANewSessionRelocalisesInAStoredMapOnlyAndWithItsOdometryCorrection) {

@@ -46,5 +46,20 @@ std::shared_ptr<const FrameFeatures> FeatureCache::get(int session, int keyframe
   return f;
 }
 
+int FeatureCache::eraseSession(int session) {
+  int n = 0;
+  for (auto it = lru_.begin(); it != lru_.end();) {
+    if (static_cast<int>(static_cast<std::uint32_t>(it->key >> 32)) != session) {
+      ++it;
+      continue;
+    }
+    bytes_ -= it->bytes;
+    index_.erase(it->key);
+    it = lru_.erase(it);
+    ++n;
+  }
+  return n;
+}
+
 }  // namespace core
 }  // namespace uw_multislam

@@ -197,6 +197,7 @@ void LoopDetector::addStoredKeyframe(int session, int keyframe, int frame_index,
 }
 
 int LoopDetector::dropSession(int session) {
+  if (cache_) cache_->eraseSession(session);
   const int removed = hashes_.removeSession(session);
   // keyframes_[i] <-> hash entry i: remove the same entries, then index the rest again.
   keyframes_.erase(std::remove_if(keyframes_.begin(), keyframes_.end(),
@@ -245,8 +246,8 @@ void LoopDetector::store(int session, int keyframe, int frame_index, double alti
     features->descriptors.convertTo(st.features.descriptors, CV_8U);
   }
   const int index = static_cast<int>(keyframes_.size());
+  hashes_.add({session, keyframe}, hash);  // first: it throws on a bad hash, and the two must stay parallel
   keyframes_.push_back(std::move(st));
-  hashes_.add({session, keyframe}, hash);
   if (session >= static_cast<int>(by_session_.size())) by_session_.resize(session + 1);
   auto& mine = by_session_[session];
   if (keyframe >= static_cast<int>(mine.size())) mine.resize(keyframe + 1, -1);

@@ -158,6 +158,7 @@ void SessionManager::restore() {
   }
   restored_sessions_ = static_cast<int>(sessions_.size());
   history_ = store_->history();
+  history_restored_ = static_cast<std::ptrdiff_t>(history_.size());
   backend_->takeMapChanges();  // restoring is no join
   seen_joins_ = backend_->stats().joins;
   seen_splits_ = backend_->stats().splits;
@@ -508,6 +509,12 @@ Status SessionManager::addLoop(const Loop& l, bool* waiting) {
                ? Status{StatusCode::kInvalidArgument, "a loop names a negative keyframe id"}
                : badSessionId("a loop", validSessionId(l.session_a) ? l.session_b : l.session_a);
   }
+  for (int s : {l.session_a, l.session_b}) {
+    if (!has(s) && s < nextId() && deleted_.count(s)) {  // deleted: nothing will arrive for it
+      ++stats_.loops_refused;
+      return {StatusCode::kNotFound, "a loop names session " + std::to_string(s) + ", which was deleted"};
+    }
+  }
   const auto a = sessions_.find(l.session_a), b = sessions_.find(l.session_b);
   if (a == sessions_.end() || b == sessions_.end() || l.keyframe_a >= static_cast<int>(a->second.stamps.size()) ||
       l.keyframe_b >= static_cast<int>(b->second.stamps.size())) {
@@ -580,9 +587,16 @@ Status SessionManager::addLink(Loop l) {
   l.frame_a = at(l.session_a).frames.at(l.keyframe_a);
   l.frame_b = at(l.session_b).frames.at(l.keyframe_b);
   l.hash_l1 = 0.0f;
-  hold_changes_ = true;  // the link goes into the audit trail before a join it brings about
-  const Status st = addLoop(l);
-  hold_changes_ = false;
+  Status st;
+  {
+    // The link goes into the audit trail before a join it brings about (also when addLoop throws).
+    struct Hold {
+      bool* flag;
+      ~Hold() { *flag = false; }
+    } hold{&hold_changes_};
+    hold_changes_ = true;
+    st = addLoop(l);
+  }
   if (st.ok()) {
     const std::string link = std::to_string(l.session_a) + ":" + std::to_string(l.keyframe_a) + ">" +
                              std::to_string(l.session_b) + ":" + std::to_string(l.keyframe_b);
@@ -673,8 +687,11 @@ void SessionManager::recordMapChanges() {
     }
     // Undoing the last join is a split, and says so: the last change of the maps was a join of
     // exactly this session and the rest.
+    // Only among this run's entries: a restart numbers the stored sessions 0..k-1 again, so an
+    // earlier run's ids may name other sessions now.
     std::string undo;
-    for (auto it = history_.rbegin(); it != history_.rend(); ++it) {
+    for (auto it = history_.rbegin(); it != history_.rend() - history_restored_; ++it) {
+      if (it->kind == "delete") break;  // the ids after a deleted one could be taken for others
       if (it->kind != "join" && it->kind != "split") continue;
       if (it->kind == "join" && (it->sessions == first + "+" + second || it->sessions == second + "+" + first))
         undo = " (undoes join #" + std::to_string(it->id) + ")";
@@ -856,7 +873,7 @@ Status SessionManager::deleteSession(const std::string& name_or_id, bool confirm
   if (id_out) *id_out = id;
   const Session& s = at(id);
   const std::string what = "session " + std::to_string(id) + " ('" + s.name + "')";
-  if (id == active_)
+  if (id == active_ || backend_->session(s.backend).recording)
     return {StatusCode::kFailedPrecondition, what + " is recording: finish_session first"};
   const std::vector<int> chain = backend_->chain(backend_->mapOf(s.backend));
   if (chain.size() != 1)
@@ -867,9 +884,14 @@ Status SessionManager::deleteSession(const std::string& name_or_id, bool confirm
   if (!confirm)
     return {StatusCode::kFailedPrecondition, "delete_session removes " + what + " (" + lost +
                                                  ") from the store for good: call again with confirm true"};
+  recordMapChanges();  // none is pending; were one, it would go in before the deletion
+  const std::string name = s.name;
+  const HistoryEntry entry{history_.empty() ? 1 : history_.back().id + 1, utcTimestamp(), "delete",
+                           options_.requester, std::to_string(id), "",
+                           "session " + std::to_string(id) + " '" + name + "' deleted (" + lost + ")"};
   if (s.store_id >= 0) {
     try {
-      store_->deleteSessions({s.store_id});  // one transaction: all of it or nothing
+      store_->deleteSessions({s.store_id}, &entry);  // one transaction with its history entry: all or nothing
     } catch (const std::exception& e) {
       say("delete_session '" + name_or_id + "': " + e.what());
       return {StatusCode::kDataLoss, "the store could not be changed, nothing deleted: " + std::string(e.what())};
@@ -896,12 +918,12 @@ Status SessionManager::deleteSession(const std::string& name_or_id, bool confirm
   id_of_backend_.erase(id_of_backend_.begin() + b);
   for (auto& [sid, t] : sessions_)
     if (t.backend > b) --t.backend;
-  const std::string name = s.name;
+  const bool in_store = s.store_id >= 0;
   next_id_floor_ = std::max(next_id_floor_, nextId());
-  sessions_.erase(id);
-  backend_->takeMapChanges();
-  record("delete", std::to_string(id), "", "session " + std::to_string(id) + " '" + name + "' deleted (" + lost + ")",
-         options_.requester.c_str());
+  sessions_.erase(id);  // `s` is gone from here on
+  deleted_.insert(id);
+  if (!in_store) storeWrite("writing the history", [&] { store_->addHistory(entry); });  // never stored itself
+  history_.push_back(entry);
   say("delete_session '" + name_or_id + "': session " + std::to_string(id) + " '" + name + "' deleted (" + lost +
       ") from " + storeName() + " and from memory");
   return Status::Ok();
@@ -910,10 +932,12 @@ Status SessionManager::deleteSession(const std::string& name_or_id, bool confirm
 // --- Queries ----------------------------------------------------------------------------------
 
 int SessionManager::sessionNamed(const std::string& name_or_id) const {
-  int id = -1;
+  // A session's name first (names are unique), then its id: a session named "3" is not session 3.
   for (const auto& [sid, s] : sessions_)
-    if (s.name == name_or_id || std::to_string(sid) == name_or_id) id = sid;
-  return id;
+    if (s.name == name_or_id) return sid;
+  for (const auto& [sid, s] : sessions_)
+    if (std::to_string(sid) == name_or_id) return sid;
+  return -1;
 }
 
 std::vector<int> SessionManager::storedSessionsOf(const std::vector<FrameRecord>& frames) const {

@@ -577,10 +577,11 @@ void SessionStore::writeMaps(const std::vector<StoredMap>& maps) {
   }
 }
 
-void SessionStore::deleteSessions(const std::vector<std::int64_t>& sessions) {
+void SessionStore::deleteSessions(const std::vector<std::int64_t>& sessions, const HistoryEntry* entry) {
   begin();
   try {
     for (const std::int64_t s : sessions) deleteOne(s);
+    if (entry) addHistory(*entry);
     commit();
   } catch (...) {
     rollback();

@@ -42,6 +42,8 @@ class FeatureCache {
   std::shared_ptr<const FrameFeatures> get(int session, int keyframe);
 
   bool contains(int session, int keyframe) const { return index_.count(key(session, keyframe)) > 0; }
+  /// Drops every cached keyframe of `session` (unload_session); returns how many.
+  int eraseSession(int session);
   std::size_t bytes() const { return bytes_; }
   std::size_t budget() const { return budget_; }
   std::size_t size() const { return index_.size(); }

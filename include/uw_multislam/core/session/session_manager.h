@@ -406,12 +406,14 @@ class SessionManager {
   std::vector<std::int64_t> store_loops_;  // back-end loop index -> store loop id (-1: not stored)
   std::vector<Loop> loops_;                // accepted loops, session ids
   std::vector<HistoryEntry> history_;      // the audit trail
+  std::ptrdiff_t history_restored_ = 0;    // its entries from earlier runs (the first ones)
   const char* cause_ = "automatic";        // of the joins and splits recordMapChanges finds
   bool hold_changes_ = false;              // afterBackendChange leaves them to the caller
   std::string localising_since_;           // when localisation mode began (UTC), for its entry
   int active_ = -1;
   int restored_sessions_ = 0;
   int next_id_floor_ = 0;  // past every id given so far (a deleted session's id is not reused)
+  std::set<int> deleted_;  // ids of sessions deleted in this run
   int seen_joins_ = 0, seen_splits_ = 0, seen_optimisations_ = 0;
   SessionManagerStats stats_;
 };

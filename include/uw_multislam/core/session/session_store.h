@@ -192,7 +192,8 @@ class SessionStore {
   /// that changed keeps no optimised motions (restored from the odometry and its links, pending
   /// optimisation); links lose the ids of deleted loops. Every other row is left as it is.
   /// StoreError naming the id when one of them is not stored (then nothing changed).
-  void deleteSessions(const std::vector<std::int64_t>& sessions);
+  /// `entry` (optional): the deletion's audit-trail entry, written in the same transaction.
+  void deleteSessions(const std::vector<std::int64_t>& sessions, const HistoryEntry* entry = nullptr);
 
   std::vector<StoredSession> sessions() const;
   /// What keyframes() reads besides the frame data (index, stamp, altitude, image size): nothing,
