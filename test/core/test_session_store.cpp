@@ -271,13 +271,12 @@ TEST(Store, FrameDataAreReadFromACoveringIndexThatOlderStoresGetWhenOpened) {
   const std::string path = (dir.path() / "maps.db").string();
   std::mt19937 rng(4);
   std::int64_t s = 0;
-  auto plan = [&](SessionStore& store) {
+  auto plan = [&](SessionStore& store, const char* columns = "") {
     sqlite3_stmt* st = nullptr;
-    EXPECT_EQ(sqlite3_prepare_v2(store.handle(),
-                                 "EXPLAIN QUERY PLAN SELECT keyframe, frame_index, stamp, altitude, image_width, "
-                                 "image_height, num_features FROM keyframes WHERE session = 1 ORDER BY keyframe",
-                                 -1, &st, nullptr),
-              SQLITE_OK);
+    const std::string sql = std::string("EXPLAIN QUERY PLAN SELECT keyframe, frame_index, stamp, altitude, image_width, "
+                                        "image_height, num_features") +
+                            columns + " FROM keyframes WHERE session = 1 ORDER BY keyframe";
+    EXPECT_EQ(sqlite3_prepare_v2(store.handle(), sql.c_str(), -1, &st, nullptr), SQLITE_OK);
     std::string detail;
     while (sqlite3_step(st) == SQLITE_ROW) detail += reinterpret_cast<const char*>(sqlite3_column_text(st, 3));
     sqlite3_finalize(st);
@@ -288,12 +287,17 @@ TEST(Store, FrameDataAreReadFromACoveringIndexThatOlderStoresGetWhenOpened) {
     s = store.addSession("s", camera(), 10.0);
     for (int k = 0; k < 3; ++k) store.addKeyframe(randomKeyframe(s, k, 50, &rng), nullptr, nullptr);
     EXPECT_NE(plan(store).find("COVERING INDEX keyframes_frame"), std::string::npos) << plan(store);
-    // As a store written before the index was.
-    ASSERT_EQ(sqlite3_exec(store.handle(), "DROP INDEX keyframes_frame", nullptr, nullptr, nullptr), SQLITE_OK);
+    EXPECT_NE(plan(store, ", hash").find("COVERING INDEX keyframes_hash"), std::string::npos) << plan(store, ", hash");
+    // As a store written before the indexes were.
+    ASSERT_EQ(sqlite3_exec(store.handle(), "DROP INDEX keyframes_frame; DROP INDEX keyframes_hash", nullptr, nullptr,
+                           nullptr),
+              SQLITE_OK);
     EXPECT_EQ(plan(store).find("keyframes_frame"), std::string::npos);
+    EXPECT_EQ(plan(store, ", hash").find("keyframes_hash"), std::string::npos);
   }
   SessionStore store(path);
   EXPECT_NE(plan(store).find("COVERING INDEX keyframes_frame"), std::string::npos) << plan(store);
+  EXPECT_NE(plan(store, ", hash").find("COVERING INDEX keyframes_hash"), std::string::npos) << plan(store, ", hash");
   const std::vector<StoredKeyframe> back = store.keyframes(s, false);
   ASSERT_EQ(back.size(), 3u);
   for (int k = 0; k < 3; ++k) {
@@ -419,6 +423,53 @@ TEST(Store, RefusesACorruptFile) {
   for (std::size_t i = 4096; i < bytes.size(); ++i) bytes[i] = static_cast<char>(rng());  // pages 2.. garbage
   writeBytes(path, bytes);
   expectRefusedUnchanged(path, "corrupt");
+}
+
+TEST(Store, CorruptKeyframePagesDoNotStopTheOpenAndFailWhereTheyAreRead) {
+  // Issue 20, 2: the open checks every table but the keyframes (whose pages are most of a store);
+  // a keyframe's pages are checked when read. Every overflow page of the keyframes' rows garbage:
+  // the store opens, frame data and hashes come from their indexes intact, each keyframe's
+  // features fail to read with a StoreError.
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  std::mt19937 rng(6);
+  std::int64_t s = 0;
+  std::vector<StoredKeyframe> written;
+  std::vector<int> pages;
+  int page_size = 0;
+  {
+    SessionStore store(path);
+    s = store.addSession("s", camera(), 10.0);
+    for (int k = 0; k < 3; ++k) {
+      written.push_back(randomKeyframe(s, k, 500, &rng));
+      store.addKeyframe(written.back(), nullptr, nullptr);
+    }
+    store.checkpoint();
+    sqlite3_stmt* st = nullptr;
+    ASSERT_EQ(sqlite3_prepare_v2(store.handle(),
+                                 "SELECT pageno, pgsize FROM dbstat WHERE name = 'keyframes' AND pagetype = 'overflow'",
+                                 -1, &st, nullptr),
+              SQLITE_OK);
+    while (sqlite3_step(st) == SQLITE_ROW) {
+      pages.push_back(sqlite3_column_int(st, 0));
+      page_size = sqlite3_column_int(st, 1);
+    }
+    sqlite3_finalize(st);
+  }
+  ASSERT_GT(pages.size(), 30u);  // 3 keyframes of about 68 kB
+  std::string bytes = readBytes(path);
+  for (int p : pages)
+    for (int i = 0; i < page_size; ++i) bytes[static_cast<std::size_t>(p - 1) * page_size + i] = static_cast<char>(rng());
+  writeBytes(path, bytes);
+
+  SessionStore store(path);  // opened: the keyframes' pages are not read at the open
+  const std::vector<StoredKeyframe> frames = store.keyframes(s, SessionStore::KeyframeColumns::kHash);
+  ASSERT_EQ(frames.size(), 3u);
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_EQ(frames[k].frame_index, written[k].frame_index);
+    EXPECT_EQ((frames[k].hash - written[k].hash).cwiseAbs().maxCoeff(), 0.0f) << k;
+    EXPECT_THROW(store.keyframeFeatures(s, k), StoreError) << k;
+  }
 }
 
 TEST(Store, RefusesAnotherSchemaVersionAndAnotherApplication) {
