@@ -169,6 +169,8 @@ RunErrors runOnce(const Mission& m, double level, const RunSpec& spec, unsigned 
     o.intra_gate_inflation = std::max(1.0, std::atof(f));
     o.intra_loop_gate = std::atof(f) > 0;
   }
+  // UWMS_BENCH_RESIDUAL_INFLATION=F: residual_gate_inflation F, for experiments.
+  if (const char* f = std::getenv("UWMS_BENCH_RESIDUAL_INFLATION")) o.residual_gate_inflation = std::max(1.0, std::atof(f));
   // UWMS_BENCH_LOG=1: the back-end's log (joins, refused and switched-off loops) on stderr.
   core::MultiSessionBackend::Log log;
   if (std::getenv("UWMS_BENCH_LOG") != nullptr) log = [](const std::string& l) { std::fprintf(stderr, "%s\n", l.c_str()); };

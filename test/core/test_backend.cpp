@@ -432,7 +432,8 @@ struct ResidualGateRun {
   BackendStats stats;
   std::vector<LoopRecord> loops;
 };
-ResidualGateRun residualGateRun(OptimizerKind k, bool with_wrong, bool residual_gate) {
+ResidualGateRun residualGateRun(OptimizerKind k, bool with_wrong, bool residual_gate, double entry_inflation = 10.0,
+                                double residual_inflation = 10.0) {
   World w;
   w.odo_noise = 0.01;
   w.sessions = {line(Pose2(0, 0, 0), 30)};
@@ -440,6 +441,8 @@ ResidualGateRun residualGateRun(OptimizerKind k, bool with_wrong, bool residual_
   o.optimise_every = 100;
   o.intra_loop_gate = false;
   o.loop_residual_gate = residual_gate;
+  o.intra_gate_inflation = entry_inflation;
+  o.residual_gate_inflation = residual_inflation;
   MultiSessionBackend b(o);
   w.feed(&b, 0, false);
   b.addLoop(w.loop(0, 2, 0, 12));
@@ -470,6 +473,23 @@ TEST_P(BothOptimizers, AWrongLoopInTheSolveIsSwitchedOffAndTheSolutionIsTheOneWi
   EXPECT_FALSE(open.loops[2].refused);
   const double err_clean = worstError(clean.poses, clean.truth), err_open = worstError(open.poses, open.truth);
   EXPECT_GT(err_open, err_clean + 0.05) << "clean " << err_clean << " m, with the wrong loop " << err_open << " m";
+}
+
+TEST_P(BothOptimizers, TheResidualGateHasItsOwnInflation) {
+  // The entry gate loosened (intra_gate_inflation 100) leaves the residual gate as it was: the
+  // 1.5 m wrong loop is still switched off. The residual gate loosened the same way lets the IEKF
+  // keep it (no robust loss there), which is why the two are apart.
+  const ResidualGateRun loose_entry = residualGateRun(GetParam(), true, true, 100.0, 10.0);
+  EXPECT_TRUE(loose_entry.loops[2].refused);
+  EXPECT_EQ(loose_entry.stats.loops_switched_off, 1);
+  if (GetParam() == OptimizerKind::kIekf) {
+    const ResidualGateRun loose_residual = residualGateRun(GetParam(), true, true, 10.0, 100.0);
+    EXPECT_FALSE(loose_residual.loops[2].refused);
+    EXPECT_EQ(loose_residual.stats.loops_switched_off, 0);
+  }
+  BackendOptions bad;
+  bad.residual_gate_inflation = 0.5;
+  EXPECT_NE(bad.validate().find("residual_gate_inflation"), std::string::npos) << bad.validate();
 }
 
 TEST_P(BothOptimizers, DriftedTrueLoopsAreNotSwitchedOff) {

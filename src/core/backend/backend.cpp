@@ -50,6 +50,8 @@ std::string BackendOptions::validate() const {
   if (max_keyframes < 2) return "max_keyframes must be >= 2";
   if (join_min_consistent < 1) return "join_min_consistent must be >= 1";
   if (!(intra_gate_inflation >= 1 && std::isfinite(intra_gate_inflation))) return "intra_gate_inflation must be >= 1";
+  if (!(residual_gate_inflation >= 1 && std::isfinite(residual_gate_inflation)))
+    return "residual_gate_inflation must be >= 1";
   if (join_min_inliers < 0) return "join_min_inliers must be >= 0";
   if (!(join_min_spread_m >= 0 && std::isfinite(join_min_spread_m))) return "join_min_spread_m must be >= 0";
   bad = consistency.validate();
@@ -345,7 +347,7 @@ OptimisationJob MultiSessionBackend::prepareOptimisation(int map_id) const {
   job.revision = m.revision;
   if (options_.loop_residual_gate) {
     job.residual_gate_chi2 = chiSquare3Quantile(options_.consistency.confidence);
-    job.residual_gate_inflation = options_.intra_gate_inflation;
+    job.residual_gate_inflation = options_.residual_gate_inflation;
     job.residual_gate_floors = options_.consistency;
   }
   if (m.iekf) {

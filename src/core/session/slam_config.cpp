@@ -164,6 +164,7 @@ void visitBackend(V& v, B& b) {
   v("intra_loop_gate", b.intra_loop_gate);
   v("intra_gate_inflation", b.intra_gate_inflation);
   v("loop_residual_gate", b.loop_residual_gate);
+  v("residual_gate_inflation", b.residual_gate_inflation);
   v.block("consistency", [&](V& c) {
     c("confidence", b.consistency.confidence);
     c("min_sigma_m", b.consistency.min_sigma_m);

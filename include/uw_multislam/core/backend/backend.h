@@ -102,12 +102,16 @@ struct BackendOptions {
   double intra_gate_inflation = 10.0;
   /// After each optimisation of a map (both optimisers), the loop whose residual in the solution
   /// exceeds the chi-square gate of consistency.confidence (covariance: the loop's times
-  /// intra_gate_inflation plus the consistency floors) is switched off: refused, kept refused in
+  /// residual_gate_inflation plus the consistency floors) is switched off: refused, kept refused in
   /// the store and loops.csv, counted (loops_switched_off), and the map solved again from the same
   /// start without it; worst first, one at a time, until every loop left agrees with the solution.
   /// It catches what the gate above lets through: a wrong loop arriving while the chain between
   /// its keyframes is long and its covariance wide, which no later true loop would undo.
   bool loop_residual_gate = true;
+  /// The loop's covariance is multiplied by this in that gate. Apart from intra_gate_inflation:
+  /// the IEKF applies a loop without a robust loss, so this gate must stay tight for it even when
+  /// the entry gate is loosened.
+  double residual_gate_inflation = 10.0;
   IekfOptions iekf;
   int max_keyframes = 1500;  // iekf: a larger map uses the sparse optimiser (dense P is 3N x 3N)
   SparseOptions sparse;
