@@ -164,9 +164,10 @@ RunErrors runOnce(const Mission& m, double level, const RunSpec& spec, unsigned 
   o.optimise_every = 1;
   if (spec.true_loops_only) o.join_gate_m = 1e9;  // the loops are true: measure the optimiser, not the gate
   o.max_keyframes = 100000;
-  // UWMS_BENCH_ENTRY_INFLATION=F: intra_gate_inflation F (0: the entry gate off), for experiments.
+  // UWMS_BENCH_ENTRY_INFLATION=F: intra_gate_inflation and iekf_gate_inflation F (0: the entry
+  // gate off), for experiments.
   if (const char* f = std::getenv("UWMS_BENCH_ENTRY_INFLATION")) {
-    o.intra_gate_inflation = std::max(1.0, std::atof(f));
+    o.intra_gate_inflation = o.iekf_gate_inflation = std::max(1.0, std::atof(f));
     o.intra_loop_gate = std::atof(f) > 0;
   }
   // UWMS_BENCH_RESIDUAL_INFLATION=F: residual_gate_inflation F, for experiments.

@@ -492,6 +492,28 @@ TEST_P(BothOptimizers, TheResidualGateHasItsOwnInflation) {
   EXPECT_NE(bad.validate().find("residual_gate_inflation"), std::string::npos) << bad.validate();
 }
 
+TEST_P(BothOptimizers, TheEntryGateIsLooseForSparseMapsAndTightForIekfMaps) {
+  // A loop 1 m off along a 30-keyframe line (1 cm per motion): the chain's x variance is
+  // 29e-4 m^2, so the gate (chi-square 11.3) passes about 0.57 m at inflation 10 and 1.8 m at 100.
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 30)};
+  BackendOptions o = optionsFor(GetParam());
+  o.optimise_every = 100;
+  MultiSessionBackend b(o);
+  w.feed(&b, 0, false);
+  b.addLoop(w.loop(0, 0, 0, 29, Pose2(1.0, 0.0, 0.0)));
+  const bool iekf = GetParam() == OptimizerKind::kIekf;
+  EXPECT_EQ(b.stats().loops_gated, iekf ? 1 : 0) << "defaults: iekf_gate_inflation 10, intra_gate_inflation 100";
+  o.intra_gate_inflation = o.iekf_gate_inflation = 10.0;  // both tight: both refuse it
+  MultiSessionBackend tight(o);
+  w.feed(&tight, 0, false);
+  tight.addLoop(w.loop(0, 0, 0, 29, Pose2(1.0, 0.0, 0.0)));
+  EXPECT_EQ(tight.stats().loops_gated, 1);
+  BackendOptions bad;
+  bad.iekf_gate_inflation = 0.0;
+  EXPECT_NE(bad.validate().find("iekf_gate_inflation"), std::string::npos) << bad.validate();
+}
+
 TEST_P(BothOptimizers, DriftedTrueLoopsAreNotSwitchedOff) {
   // 200 draws of a drifting 30-keyframe line (1 cm / 0.01 rad per motion, as its covariance says)
   // with three true loops measured with 5 mm noise: the residual gate (defaults) switches none off.

@@ -50,6 +50,7 @@ std::string BackendOptions::validate() const {
   if (max_keyframes < 2) return "max_keyframes must be >= 2";
   if (join_min_consistent < 1) return "join_min_consistent must be >= 1";
   if (!(intra_gate_inflation >= 1 && std::isfinite(intra_gate_inflation))) return "intra_gate_inflation must be >= 1";
+  if (!(iekf_gate_inflation >= 1 && std::isfinite(iekf_gate_inflation))) return "iekf_gate_inflation must be >= 1";
   if (!(residual_gate_inflation >= 1 && std::isfinite(residual_gate_inflation)))
     return "residual_gate_inflation must be >= 1";
   if (join_min_inliers < 0) return "join_min_inliers must be >= 0";
@@ -230,8 +231,8 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
         chain = compose(chain, UncertainPose2(m.motion(k), m.motionCov(k)));
       if (ia > ib) chain = invert(chain);  // the pose of b in a
       const Pose2 e = between(chain.mean, l.z.mean);
-      const double d2 =
-          mahalanobis2(e, options_.intra_gate_inflation * chain.covariance + l.z.covariance, options_.consistency);
+      const double inflation = m.iekf ? options_.iekf_gate_inflation : options_.intra_gate_inflation;
+      const double d2 = mahalanobis2(e, inflation * chain.covariance + l.z.covariance, options_.consistency);
       if (!(d2 <= chiSquare3Quantile(options_.consistency.confidence))) {
         loops_.back().refused = true;
         ++stats_.loops_refused;

@@ -163,6 +163,7 @@ void visitBackend(V& v, B& b) {
   v("join_min_spread_m", b.join_min_spread_m);
   v("intra_loop_gate", b.intra_loop_gate);
   v("intra_gate_inflation", b.intra_gate_inflation);
+  v("iekf_gate_inflation", b.iekf_gate_inflation);
   v("loop_residual_gate", b.loop_residual_gate);
   v("residual_gate_inflation", b.residual_gate_inflation);
   v.block("consistency", [&](V& c) {

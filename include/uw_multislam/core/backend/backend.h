@@ -96,10 +96,15 @@ struct BackendOptions {
   /// two keyframes plus the loop's plus the consistency floors (both optimisers; before the
   /// IEKF's update). A refused loop is kept as refused (store, loops.csv) and counted.
   bool intra_loop_gate = true;
-  /// The chain's covariance is multiplied by this in the gate: odometry covariances are first
-  /// order and over-confident over many motions (a loop closing a drifted square at 5 sigma of
-  /// its own covariance is a true loop); wrong loops are metres off.
-  double intra_gate_inflation = 10.0;
+  /// The chain's covariance is multiplied by this in the gate of a sparse map: odometry
+  /// covariances are first order and over-confident over many motions (a loop closing a drifted
+  /// square at 5 sigma of its own covariance is a true loop); wrong loops are metres off. Loose
+  /// (100): the residual gate behind it switches off what gets through, and a true loop the
+  /// entry gate refuses is lost (doc/benchmarks/outliers.md, 2026-11-25: no wrong join at 50 %).
+  double intra_gate_inflation = 100.0;
+  /// The same for a map the IEKF keeps (dense): tighter, because an IEKF update cannot be taken
+  /// back (100 made the IEKF's wrong-loop bench worse: 3/5 runs off at 10 % instead of 1/5).
+  double iekf_gate_inflation = 10.0;
   /// After each optimisation of a map (both optimisers), the loop whose residual in the solution
   /// exceeds the chi-square gate of consistency.confidence (covariance: the loop's times
   /// residual_gate_inflation plus the consistency floors) is switched off: refused, kept refused in
