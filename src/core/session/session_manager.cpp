@@ -89,6 +89,12 @@ Status badSessionId(const std::string& what, int id) {
                                             std::to_string(kMaxSessionId) + "]"};
 }
 
+// A loop as the audit trail names it: "a:ka>b:kb" in session ids.
+std::string loopText(const Loop& l) {
+  return std::to_string(l.session_a) + ":" + std::to_string(l.keyframe_a) + ">" + std::to_string(l.session_b) + ":" +
+         std::to_string(l.keyframe_b);
+}
+
 }  // namespace
 
 SessionManager::SessionManager(const SessionManagerOptions& options, EventSink events, Log log)
@@ -510,7 +516,7 @@ Status SessionManager::addLoop(const Loop& l, bool* waiting) {
                : badSessionId("a loop", validSessionId(l.session_a) ? l.session_b : l.session_a);
   }
   for (int s : {l.session_a, l.session_b}) {
-    if (!has(s) && s < nextId() && deleted_.count(s)) {  // deleted: nothing will arrive for it
+    if (deleted_.count(s)) {  // deleted: nothing will arrive for it
       ++stats_.loops_refused;
       return {StatusCode::kNotFound, "a loop names session " + std::to_string(s) + ", which was deleted"};
     }
@@ -598,8 +604,7 @@ Status SessionManager::addLink(Loop l) {
     st = addLoop(l);
   }
   if (st.ok()) {
-    const std::string link = std::to_string(l.session_a) + ":" + std::to_string(l.keyframe_a) + ">" +
-                             std::to_string(l.session_b) + ":" + std::to_string(l.keyframe_b);
+    const std::string link = loopText(l);
     const char* kind = l.kind == Loop::Kind::kLocal ? "local" : "global";
     say("add_link " + link + " (" + kind + ")");
     char pose[200];
@@ -658,18 +663,20 @@ std::string SessionManager::chainText(const std::vector<int>& backend_sessions) 
 
 std::string SessionManager::loopsText(const std::vector<int>& backend_loops) const {
   std::string t;
-  for (int i : backend_loops) {
-    const Loop& l = loops_.at(static_cast<std::size_t>(i));  // loops_[i] is the back-end's loop i
-    t += (t.empty() ? "" : " ") + std::to_string(l.session_a) + ":" + std::to_string(l.keyframe_a) + ">" +
-         std::to_string(l.session_b) + ":" + std::to_string(l.keyframe_b);
-  }
+  for (int i : backend_loops)  // loops_[i] is the back-end's loop i
+    t += (t.empty() ? "" : " ") + loopText(loops_.at(static_cast<std::size_t>(i)));
   return t;
+}
+
+HistoryEntry SessionManager::nextEntry(const std::string& kind, const std::string& sessions, const std::string& loops,
+                                       const std::string& message, const char* cause) const {
+  return {history_.empty() ? 1 : history_.back().id + 1, utcTimestamp(), kind, cause ? cause : cause_, sessions, loops,
+          message};
 }
 
 void SessionManager::record(const std::string& kind, const std::string& sessions, const std::string& loops,
                             const std::string& message, const char* cause) {
-  HistoryEntry e{history_.empty() ? 1 : history_.back().id + 1, utcTimestamp(), kind, cause ? cause : cause_, sessions,
-                 loops, message};
+  HistoryEntry e = nextEntry(kind, sessions, loops, message, cause);
   storeWrite("writing the history", [&] { store_->addHistory(e); });
   history_.push_back(std::move(e));
 }
@@ -886,9 +893,9 @@ Status SessionManager::deleteSession(const std::string& name_or_id, bool confirm
                                                  ") from the store for good: call again with confirm true"};
   recordMapChanges();  // none is pending; were one, it would go in before the deletion
   const std::string name = s.name;
-  const HistoryEntry entry{history_.empty() ? 1 : history_.back().id + 1, utcTimestamp(), "delete",
-                           options_.requester, std::to_string(id), "",
-                           "session " + std::to_string(id) + " '" + name + "' deleted (" + lost + ")"};
+  const HistoryEntry entry = nextEntry("delete", std::to_string(id), "",
+                                       "session " + std::to_string(id) + " '" + name + "' deleted (" + lost + ")",
+                                       options_.requester.c_str());
   if (s.store_id >= 0) {
     try {
       store_->deleteSessions({s.store_id}, &entry);  // one transaction with its history entry: all or nothing

@@ -378,6 +378,9 @@ class SessionManager {
   /// a join or split happened.
   void afterBackendChange();
   void saveMaps();
+  /// The audit trail's next entry (its id, now), cause_ unless `cause` is given; not appended.
+  HistoryEntry nextEntry(const std::string& kind, const std::string& sessions, const std::string& loops,
+                         const std::string& message, const char* cause = nullptr) const;
   /// Appends to the audit trail (and the store, unless localising); cause_ unless `cause` is given.
   void record(const std::string& kind, const std::string& sessions, const std::string& loops,
               const std::string& message, const char* cause = nullptr);
