@@ -93,6 +93,7 @@ std::optional<core::Pose2> FramePublisher::onOdometry(int session, const core::U
 }
 
 void FramePublisher::tick() {
+  std::lock_guard<std::mutex> in_order(tick_order_);  // stamps go out in the order they are taken
   geometry_msgs::TransformStamped t;
   {
     std::lock_guard<std::mutex> lock(mutex_);

@@ -102,6 +102,10 @@ class FramePublisher {
   std::unique_ptr<tf2_ros::Buffer> buffer_;  // vehicle odometry only
   std::unique_ptr<tf2_ros::TransformListener> listener_;
 
+  // tick() runs on the timer and on setActive's caller: its stamp is taken under mutex_ and the
+  // transform sent after it, so two ticks could send their stamps out of order (rostest frames
+  // saw one map -> odom stamp older than the one before). tick_order_ holds across both.
+  std::mutex tick_order_;
   mutable std::mutex mutex_;  // guards everything below
   core::OdomChain chain_;
   int active_ = -1;
