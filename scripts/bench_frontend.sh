@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# Front-end options, measured (issue 19, items 2 and 4): ONE markdown table, every run pinned to
-# one core (taskset -c 0, offline_slam --threads 1), the references in the same run so that the
-# ratios hold on a noisy machine.
+# Front-end options, measured (issue 19, items 2, 3 and 4): two markdown tables. The first: every
+# run pinned to one core (taskset -c 0, offline_slam --threads 1), the references in the same run
+# so that the ratios hold on a noisy machine. The second: each option on two cores (taskset -c 0,1,
+# offline_slam --threads 2) against the same one-core run, wall ms/frame from offline_slam's
+# throughput line, and whether the outputs are byte-identical.
 #   rows: each odometry option (SIFT as today, SIFT without the x2 upsampling, KLT tracking between
 #   keyframes with either), then the references: OpenCV SIFT alone (default settings, as the naive
 #   odometer runs it) and the naive odometer (baseline_odometry: SIFT + ratio test +
@@ -24,7 +26,8 @@ done
 [ -d "$data" ] || { echo "bench_frontend: $data not found (the shared data sits beside the repository)" >&2; exit 1; }
 log() { echo "[bench_frontend] $*" >&2; }
 one_core=(taskset -c 0)
-command -v taskset > /dev/null || { log "taskset missing: runs are not pinned"; one_core=(); }
+two_cores=(taskset -c 0,1)
+command -v taskset > /dev/null || { log "taskset missing: runs are not pinned"; one_core=(); two_cores=(); }
 
 acfr=()
 for seq in "$data"/test*; do acfr+=(--session "$seq"); done
@@ -87,7 +90,16 @@ naive_ms() {  # whole step without the image loading, ms per frame
 sift_ms() { awk -F, '$1 == "sift" {printf "%.1f", $4}' "$1/timing.csv"; }
 naive680=$(naive_ms "$out/naive_680")
 
-declare -A row
+declare -A row two_row
+wall_ms() { sed -n 's/^throughput: .*, \([0-9.]*\) ms\/frame .*/\1/p' "$1"; }  # offline_slam's wall ms/frame
+same_outputs() {  # same_outputs RUN_A RUN_B -> "same" when every output but timing.csv is byte-identical
+  local f
+  for f in "$1"/*.csv; do
+    [ "$(basename "$f")" = timing.csv ] && continue
+    cmp -s "$f" "$2/$(basename "$f")" || { echo "DIFFERENT ($(basename "$f"))"; return; }
+  done
+  echo "same"
+}
 for n in "${names[@]}"; do
   cfg="$out/$n.yaml"
   printf "%s" "${yaml[$n]}" > "$cfg"
@@ -96,10 +108,22 @@ for n in "${names[@]}"; do
     > "$out/${n}_680.log" 2>&1 || { cat "$out/${n}_680.log" >&2; exit 1; }
   "${one_core[@]}" "$bin/offline_slam" "${demo[@]}" --out "$out/${n}_320" --threads 1 --config "$cfg" \
     > "$out/${n}_320.log" 2>&1 || { cat "$out/${n}_320.log" >&2; exit 1; }
+  # Two cores (issue 19, item 3): --threads 2 on cores 0 and 1, the same outputs expected.
+  for size in 680 320; do
+    if [ "$size" = 680 ]; then set -- "${acfr[@]}"; else set -- "${demo[@]}"; fi
+    "${two_cores[@]}" "$bin/offline_slam" "$@" --out "$out/${n}_${size}_t2" --threads 2 --config "$cfg" \
+      > "$out/${n}_${size}_t2.log" 2>&1 || { cat "$out/${n}_${size}_t2.log" >&2; exit 1; }
+  done
   evaluate "$out/${n}_680" "${acfr[@]}"
   evaluate "$out/${n}_320" --mission "$out/demo"  # the mission's world_gt.csv judges the global loops
   ms680=$(per_frame "$out/${n}_680")
   m="$out/${n}_320/report/metrics.csv"
+  two=""
+  for size in 680 320; do
+    w1=$(wall_ms "$out/${n}_${size}.log") w2=$(wall_ms "$out/${n}_${size}_t2.log")
+    two="$two | $w1 | $w2 | $(printf "%.2f" "$(echo "$w1 / $w2" | bc -l)")×"
+  done
+  two_row[$n]="| ${label[$n]}$two | $(same_outputs "$out/${n}_680" "$out/${n}_680_t2") / $(same_outputs "$out/${n}_320" "$out/${n}_320_t2") |"
   row[$n]="| ${label[$n]} | $ms680 | $(printf "%.2f" "$(echo "$ms680 / $naive680" | bc -l)")× | $(per_frame "$out/${n}_320") \
 | $(sift_share "$out/${n}_680") % / $(sift_share "$out/${n}_320") % | $(mean_drift "$out/${n}_680/report") \
 | $(metric "$m" loops all loops precision) | $(metric "$m" loops all loops recall) |"
@@ -113,5 +137,13 @@ echo "|---|---|---|---|---|---|---|---|"
 for n in "${names[@]}"; do echo "${row[$n]}"; done
 echo "| reference: OpenCV SIFT alone (default settings) | $(sift_ms "$out/naive_680") | $(printf "%.2f" "$(echo "$(sift_ms "$out/naive_680") / $naive680" | bc -l)")× | $(sift_ms "$out/naive_320") | 100 % / 100 % | | | |"
 echo "| reference: naive odometer (baseline_odometry) | $naive680 | 1.00× | $(naive_ms "$out/naive_320") | 100 % / 100 % | $(mean_drift "$out/naive_680/report") | | |"
+echo
+echo "### Two cores: offline_slam --threads 2 on cores 0 and 1 (taskset -c 0,1) against --threads 1 on core 0, same run"
+echo
+echo "| option | 680×512 one core ms/frame | two cores | speed-up | 320×240 one core ms/frame | two cores | speed-up | outputs (680 / 320) |"
+echo "|---|---|---|---|---|---|---|---|"
+for n in "${names[@]}"; do echo "${two_row[$n]}"; done
+echo
+echo "Two cores: wall ms per frame from offline_slam's throughput line (image reading included, start-up and the end's output files not); outputs: every CSV file but timing.csv compared byte for byte."
 echo
 echo "Pipeline ms/frame: offline_slam's timing.csv, stages $pipeline_stages, per frame (image loading left out, for the naive odometer too). Raw outputs in $out."

@@ -656,3 +656,30 @@ def test_finish_after_ends_each_folder_session_like_a_folder_cut_there(survey, t
         r = run("offline_slam", "--session", survey / "a", "--finish-after", bad, "--out", tmp_path / "bad")
         assert r.returncode == 2 and "--finish-after" in r.stderr, (bad, r.stderr)
     assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.parametrize("klt", [False, True])
+def test_threads_give_the_same_outputs_as_one_thread(survey, tmp_path, klt):
+    """--threads N (issue 19, item 3): workers read and prepare the next frames while the main
+    thread runs the rest; every output file is the same as with one thread, byte for byte (timing
+    aside), with a corrupt image among the frames and with KLT on or off."""
+    folder = tmp_path / "a"
+    shutil.copytree(survey / "a", folder)
+    (folder / "0004.jpg").write_bytes(b"not a jpeg")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("odometry:\n  klt:\n    enabled: %s\n" % ("true" if klt else "false"))
+    outs = {}
+    for threads in (1, 2, 3):
+        out = tmp_path / ("t%d" % threads)
+        r = run("offline_slam", "--session", str(folder), "--session", str(survey / "b"), "--out", str(out),
+                "--config", str(cfg), "--threads", str(threads))
+        assert r.returncode == 0, r.stderr
+        assert "cannot decode image" in r.stderr
+        assert "--threads %d)" % threads in r.stdout  # the throughput line
+        outs[threads] = out
+    files = sorted(p.name for p in outs[1].iterdir() if p.name != "timing.csv")
+    assert {"trajectory.csv", "odometry.csv", "loops.csv", "links.csv"} <= set(files)
+    assert len(rows(outs[1] / "links.csv")) == 1  # the two sessions joined: the loops ran too
+    for threads in (2, 3):
+        for name in files:
+            assert (outs[threads] / name).read_bytes() == (outs[1] / name).read_bytes(), (threads, name)

@@ -2,6 +2,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
@@ -73,9 +74,45 @@ Odometry::Odometry(const CameraIntrinsics& camera, const OdometryOptions& option
     : camera_(camera),
       feature_camera_(camera.pinhole()),
       options_(checked(options, camera)),
-      enhancer_(options.enhancement),
-      extractor_(options.features),
+      preparer_(camera, options_),
       klt_(options.klt) {}
+
+FramePreparer::FramePreparer(const CameraIntrinsics& camera, const OdometryOptions& options)
+    : camera_(camera),
+      extract_all_(!options.klt.enabled),
+      enhancer_(options.enhancement),
+      extractor_(options.features) {}
+
+cv::Mat FramePreparer::enhance(const cv::Mat& image) { return enhancer_.enhance(image); }
+
+FrameFeatures FramePreparer::extract(const cv::Mat& grey) const {
+  FrameFeatures f = extractor_.extract(grey);
+  undistortKeypoints(&f.keypoints, camera_);  // only the points, never the image
+  return f;
+}
+
+PreparedFrame FramePreparer::prepare(const cv::Mat& image) {
+  PreparedFrame p;
+  if (image.empty() || image.cols != camera_.width || image.rows != camera_.height) return p;
+  p.done = true;
+  using Clock = std::chrono::steady_clock;
+  const auto ms = [](Clock::time_point a, Clock::time_point b) {
+    return std::chrono::duration<double, std::milli>(b - a).count();
+  };
+  try {
+    const auto t0 = Clock::now();
+    p.grey = enhance(image);
+    const auto t1 = Clock::now();
+    p.enhance_ms = ms(t0, t1);
+    if (extract_all_) {
+      p.features = extract(p.grey);
+      p.features_ms = ms(t1, Clock::now());
+    }
+  } catch (const std::invalid_argument& e) {
+    p.error = e.what();
+  }
+  return p;
+}
 
 std::optional<MotionPrior> Odometry::ransacPrior(const std::optional<NavRecord>& nav) const {
   // (a) With the nav at both frames, its motion gates RANSAC's hypotheses (nav.gate_ransac).
@@ -95,9 +132,7 @@ PairMotion Odometry::matchToKeyframe(const FrameFeatures& f, double altitude_m, 
 
 FrameFeatures Odometry::extractFeatures(const cv::Mat& grey) {
   ScopedStage s(&times_, "features");
-  FrameFeatures f = extractor_.extract(grey);
-  undistortKeypoints(&f.keypoints, camera_);  // only the points, never the image
-  return f;
+  return preparer_.extract(grey);
 }
 
 bool Odometry::trackBetweenKeyframes(const cv::Mat& grey, TrackedFrame* cur, OdometryUpdate* up) {
@@ -231,7 +266,7 @@ void Odometry::carryByNav(TrackedFrame* cur, const UncertainPose2& m, OdometryUp
   }
 }
 
-OdometryUpdate Odometry::process(const OdometryInput& in) {
+OdometryUpdate Odometry::process(const OdometryInput& in, PreparedFrame* prepared) {
   ScopedStage total(&times_, "odometry_total");
   ++stats_.frames;
   new_keyframes_.clear();
@@ -268,9 +303,13 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
   if (options_.nav.enabled) cur.nav = in.nav;
   cv::Mat grey;
   try {
-    {
+    if (prepared && prepared->done) {
+      times_.add("enhance", prepared->enhance_ms);
+      if (!prepared->error.empty()) throw std::invalid_argument(prepared->error);
+      grey = prepared->grey;
+    } else {
       ScopedStage s(&times_, "enhance");
-      grey = enhancer_.enhance(in.image);
+      grey = preparer_.enhance(in.image);
     }
     if (options_.klt.enabled && !keyframes_.empty() && klt_.active(static_cast<int>(keyframes_.size()) - 1) &&
         trackBetweenKeyframes(grey, &cur, &up)) {
@@ -278,7 +317,12 @@ OdometryUpdate Odometry::process(const OdometryInput& in) {
       prev_grey_ = grey;  // its features are extracted only if it is ever promoted
       return up;
     }
-    cur.features = extractFeatures(grey);
+    if (prepared && prepared->done && prepared->features) {
+      times_.add("features", prepared->features_ms);
+      cur.features = std::move(*prepared->features);
+    } else {
+      cur.features = extractFeatures(grey);
+    }
   } catch (const std::invalid_argument& e) {
     ++stats_.skipped_image;
     up.reason = e.what();

@@ -26,7 +26,7 @@ StageTimes SegmentedOdometry::times() const {
   return all;
 }
 
-SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input) {
+SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input, PreparedFrame* prepared) {
   Step step;
   released_.clear();
   if (closed_) {
@@ -37,7 +37,7 @@ SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input) {
   if (!odometry_) {
     // No session open: this frame starts one if it has enough features.
     auto candidate = std::make_unique<Odometry>(camera_, options_);
-    step.update = candidate->process(input);
+    step.update = candidate->process(input, prepared);
     if (step.update.status != FrameStatus::kFirstKeyframe || step.update.features < loss_.min_features) {
       times_.merge(candidate->times());
       if (sessions_ > 0) ++frames_lost_;
@@ -58,7 +58,7 @@ SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input) {
     step.session_started = true;
     return step;
   }
-  step.update = odometry_->process(input);
+  step.update = odometry_->process(input, prepared);
   const FrameStatus st = step.update.status;
   if (st == FrameStatus::kFallback) {
     ++consecutive_fallbacks_;

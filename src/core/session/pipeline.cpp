@@ -46,6 +46,7 @@ void Pipeline::beginStream(const std::string& name, const CameraIntrinsics& came
   image_of_ = std::move(image_of);
   nav_ = config_.odometry.nav.enabled ? std::move(nav) : NavTrack();
   cameras_.push_back(camera.pinhole());  // the camera of the (undistorted) features keyframes carry
+  stream_camera_ = camera;
   segmented_ = std::make_unique<SegmentedOdometry>(camera, config_.odometry, config_.tracking);
   pieces_ = 0;
   session_ = -1;
@@ -109,7 +110,12 @@ void Pipeline::endPiece(double stamp_s) {
   session_ = -1;
 }
 
-SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input) {
+FramePreparer Pipeline::preparer() const {
+  if (!segmented_) throw std::logic_error("Pipeline::preparer: no stream begun");
+  return FramePreparer(stream_camera_, config_.odometry);
+}
+
+SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input, PreparedFrame* prepared) {
   OdometryInput with_nav;
   NavRecord nav;
   if (!input.nav && !nav_.empty() && nav_.at(input.stamp_s, &nav)) {
@@ -117,7 +123,7 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input) {
     with_nav.nav = nav;
   }
   const OdometryInput& frame = with_nav.nav ? with_nav : input;
-  const SegmentedOdometry::Step step = segmented_->process(frame);
+  const SegmentedOdometry::Step step = segmented_->process(frame, prepared);
   const OdometryUpdate& u = step.update;
   if (step.session_started) {
     startPiece(frame.stamp_s);

@@ -174,12 +174,52 @@ struct OdometryStats {
   int klt_degraded = 0;   // ... of them, because the tracks failed (too few, RANSAC, nav gate)
 };
 
+/// What Odometry::process computes from a frame's image alone, before it looks at its own state:
+/// the enhanced grey image and (SIFT on every frame, klt off) its features, keypoints undistorted.
+/// A pure function of the image and the options, so a worker thread may compute it ahead of the
+/// frame (two cores, issue 19 item 3: offline_slam --threads) and the odometry's output is the
+/// same as when it computes them itself.
+struct PreparedFrame {
+  bool done = false;   // false: nothing prepared (another image size than the camera's: process skips it)
+  cv::Mat grey;        // enhanced
+  std::optional<FrameFeatures> features;  // none with klt on: whether a frame is extracted depends on its tracks
+  std::string error;   // the image is unusable (the std::invalid_argument process would have caught)
+  double enhance_ms = 0.0;
+  double features_ms = 0.0;
+};
+
+/// The odometry's first steps for one camera: enhancement and feature extraction. Not thread-safe
+/// (one per thread); its outputs depend only on the image.
+class FramePreparer {
+ public:
+  FramePreparer(const CameraIntrinsics& camera, const OdometryOptions& options);
+  // A copy would share the SIFT and CLAHE objects (cv::Ptr) between threads: move only.
+  FramePreparer(const FramePreparer&) = delete;
+  FramePreparer& operator=(const FramePreparer&) = delete;
+  FramePreparer(FramePreparer&&) = default;
+  FramePreparer& operator=(FramePreparer&&) = default;
+  /// Throws std::invalid_argument for an unsupported image.
+  cv::Mat enhance(const cv::Mat& image);
+  /// SIFT features of an enhanced grey image, keypoints undistorted.
+  FrameFeatures extract(const cv::Mat& grey) const;
+  /// enhance() then (klt off) extract(), timed, the error kept.
+  PreparedFrame prepare(const cv::Mat& image);
+
+ private:
+  CameraIntrinsics camera_;
+  bool extract_all_;
+  FeatureImageEnhancer enhancer_;
+  FeatureExtractor extractor_;
+};
+
 class Odometry {
  public:
   /// Throws std::invalid_argument naming the bad option or camera value.
   Odometry(const CameraIntrinsics& camera, const OdometryOptions& options);
 
-  OdometryUpdate process(const OdometryInput& input);
+  /// `prepared` (may be null): the frame's FramePreparer::prepare(input.image), computed ahead by
+  /// another thread with the same options and camera; moved from. The update is the same either way.
+  OdometryUpdate process(const OdometryInput& input, PreparedFrame* prepared = nullptr);
 
   const Trajectory& trajectory() const { return trajectory_; }
   const std::vector<KeyframeInfo>& keyframes() const { return keyframes_; }
@@ -230,8 +270,7 @@ class Odometry {
   CameraIntrinsics camera_;
   CameraIntrinsics feature_camera_;
   OdometryOptions options_;
-  FeatureImageEnhancer enhancer_;
-  FeatureExtractor extractor_;
+  FramePreparer preparer_;
   KltTracker klt_;
   cv::Mat prev_grey_;  // prev_'s enhanced image when it was tracked by KLT (no features yet)
   Trajectory trajectory_;

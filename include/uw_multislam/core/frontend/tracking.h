@@ -37,7 +37,8 @@ class SegmentedOdometry {
   /// Throws std::invalid_argument on bad options.
   SegmentedOdometry(const CameraIntrinsics& camera, const OdometryOptions& odometry, const TrackingLossOptions& loss);
 
-  Step process(const OdometryInput& input);
+  /// `prepared`: as Odometry::process's (may be null).
+  Step process(const OdometryInput& input, PreparedFrame* prepared = nullptr);
 
   /// The current session's odometry (after a closing frame: the closed one, until the next
   /// process()); nullptr while no session is open.

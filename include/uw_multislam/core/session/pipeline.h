@@ -54,8 +54,12 @@ class Pipeline {
   /// A dataset folder as a stream: named by its directory, its camera, its images read from the
   /// folder for the keyframes' stored images, its nav.csv as `nav`. `d` must outlive the stream.
   void beginStream(const Dataset& d);
-  /// One frame of the current stream.
-  SegmentedOdometry::Step processFrame(const OdometryInput& frame);
+  /// One frame of the current stream. `prepared` (may be null): its image prepared ahead by
+  /// another thread (a FramePreparer made by preparer()); the result is the same.
+  SegmentedOdometry::Step processFrame(const OdometryInput& frame, PreparedFrame* prepared = nullptr);
+  /// A FramePreparer for the current stream's frames (its camera, the odometry's options), for a
+  /// worker thread that prepares frames ahead (offline_slam --threads).
+  FramePreparer preparer() const;
   /// Ends the stream (its open session ends at `stamp_s`).
   void endStream(double stamp_s);
   /// Optimises what is pending and saves the maps.
@@ -79,6 +83,7 @@ class Pipeline {
   LoopDetector detector_;
   std::deque<CameraIntrinsics> cameras_;  // the detector keeps pointers: never moved
   std::string stream_;
+  CameraIntrinsics stream_camera_;  // the stream's camera, with its distortion
   ImageOf image_of_;
   NavTrack nav_;
   std::unique_ptr<SegmentedOdometry> segmented_;

@@ -1,0 +1,165 @@
+// Issue 19, item 3: frames prepared ahead on worker threads (OrderedPrefetch + FramePreparer, what
+// offline_slam --threads N runs) give exactly the odometry of frames prepared in line.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cmath>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "../common/rendered_seabed.h"
+#include "uw_multislam/core/common/ordered_prefetch.h"
+#include "uw_multislam/core/frontend/odometry.h"
+#include "uw_multislam/core/frontend/tracking.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+TEST(OrderedPrefetch, HandsOutEveryItemInOrderWithinTheLookahead) {
+  for (int threads : {0, 1, 2, 4}) {
+    const std::size_t n = 200, ahead = 3;
+    std::atomic<std::size_t> consumed{0};
+    std::atomic<long> worst{-1000};  // max over items of (item - consumed) when it was started
+    OrderedPrefetch<std::string> p(n, threads, ahead, [&](std::size_t item, int worker) {
+      EXPECT_GE(worker, 0);
+      EXPECT_LT(worker, std::max(threads, 1));
+      const long lead = static_cast<long>(item) - static_cast<long>(consumed.load());
+      long w = worst.load();
+      while (lead > w && !worst.compare_exchange_weak(w, lead)) {
+      }
+      return "item " + std::to_string(item);
+    });
+    for (std::size_t i = 0; i < n; ++i) {
+      ASSERT_FALSE(p.done());
+      EXPECT_EQ(p.next(), "item " + std::to_string(i)) << threads << " threads";
+      consumed = i + 1;
+    }
+    EXPECT_TRUE(p.done());
+    EXPECT_THROW(p.next(), std::out_of_range);
+    // An item is started only once the one `ahead` before it was handed out (consumed is
+    // updated just after next() returns, hence the + 1).
+    EXPECT_LE(worst.load(), static_cast<long>(ahead)) << threads << " threads";
+  }
+}
+
+TEST(OrderedPrefetch, AnErrorComesOutAtItsItemAndTheRestFollow) {
+  for (int threads : {0, 2}) {
+    OrderedPrefetch<int> p(6, threads, 2, [](std::size_t item, int) {
+      if (item == 3) throw std::runtime_error("bad item 3");
+      return static_cast<int>(item) * 10;
+    });
+    for (int i = 0; i < 3; ++i) EXPECT_EQ(p.next(), i * 10);
+    try {
+      p.next();
+      ADD_FAILURE() << "item 3 should throw";
+    } catch (const std::runtime_error& e) {
+      EXPECT_STREQ(e.what(), "bad item 3");
+    }
+    EXPECT_EQ(p.next(), 40);
+    EXPECT_EQ(p.next(), 50);
+  }
+}
+
+TEST(OrderedPrefetch, StopsWithItemsNeverHandedOut) {
+  std::atomic<int> started{0};
+  {
+    OrderedPrefetch<int> p(1000, 2, 4, [&](std::size_t item, int) {
+      ++started;
+      return static_cast<int>(item);
+    });
+    EXPECT_EQ(p.next(), 0);
+  }  // the destructor returns: the workers were stopped, not left waiting
+  EXPECT_LE(started.load(), 1 + 4 + 2);  // the window, plus items taken as it moved
+}
+
+// The odometry of a stream whose frames were prepared by workers equals the odometry that
+// prepares them itself: the same statuses, keyframes, features, inliers and poses to the bit,
+// through tracking loss (blank frames), an unsupported encoding and a wrong image size.
+class PreparedFrames : public testing_util::RenderedSeabedTest {
+ protected:
+  std::vector<OdometryInput> mission() const {
+    std::vector<OdometryInput> frames;
+    for (int k = 0; k < 40; ++k) {
+      OdometryInput in;
+      in.index = k;
+      in.stamp_s = 0.5 * k;
+      in.altitude_m = 2.0 + 0.01 * (k % 5);
+      const double x = 1.8 + 0.12 * (k < 20 ? k : k + 30);  // a jump after the blank frames
+      in.image = render(Pose2(x, 3.0 + 0.3 * std::sin(0.2 * k), 0.1 * std::sin(0.15 * k)), in.altitude_m);
+      if (k >= 14 && k < 21) in.image = cv::Mat(240, 320, CV_8UC3, cv::Scalar(80, 80, 80));  // tracking lost
+      if (k == 5) in.image = cv::Mat(240, 320, CV_16UC1, cv::Scalar(1000));  // unsupported: skipped
+      if (k == 8) in.image = cv::Mat(120, 160, CV_8UC3, cv::Scalar(80, 80, 80));  // wrong size: skipped
+      frames.push_back(in);
+    }
+    return frames;
+  }
+
+  void compare(const OdometryOptions& options) {
+    const TrackingLossOptions loss;
+    const std::vector<OdometryInput> frames = mission();
+    // A lens with distortion, so that the preparer's undistortion of the keypoints counts too.
+    CameraIntrinsics lens = camera_;
+    lens.distortion_model = DistortionModel::kPlumbBob;
+    lens.distortion = {-0.05, 0.01, 0.0, 0.0, 0.0};
+    SegmentedOdometry inline_odo(lens, options, loss), prepared_odo(lens, options, loss);
+    std::vector<std::unique_ptr<FramePreparer>> preparers;
+    for (int w = 0; w < 2; ++w) preparers.push_back(std::make_unique<FramePreparer>(lens, options));
+    OrderedPrefetch<PreparedFrame> ahead(frames.size(), 2, 4, [&](std::size_t i, int worker) {
+      return preparers[worker]->prepare(frames[i].image);
+    });
+    int errors = 0, sessions_started = 0;
+    for (const OdometryInput& in : frames) {
+      PreparedFrame p = ahead.next();
+      if (!p.error.empty()) ++errors;
+      const SegmentedOdometry::Step a = inline_odo.process(in);
+      const SegmentedOdometry::Step b = prepared_odo.process(in, &p);
+      const OdometryUpdate &u = a.update, &v = b.update;
+      SCOPED_TRACE("frame " + std::to_string(in.index) + " (" + statusName(u.status) + ": " + u.reason + ")");
+      EXPECT_EQ(u.status, v.status);
+      EXPECT_EQ(u.reason, v.reason);
+      EXPECT_EQ(u.keyframe_id, v.keyframe_id);
+      EXPECT_EQ(u.features, v.features);
+      EXPECT_EQ(u.klt, v.klt);
+      EXPECT_EQ(u.matches, v.matches);
+      EXPECT_EQ(u.inliers, v.inliers);
+      EXPECT_EQ(u.pose.x(), v.pose.x());
+      EXPECT_EQ(u.pose.y(), v.pose.y());
+      EXPECT_EQ(u.pose.yaw(), v.pose.yaw());
+      EXPECT_EQ(a.session_started, b.session_started);
+      EXPECT_EQ(a.session_closed, b.session_closed);
+      sessions_started += a.session_started;
+      ASSERT_EQ(inline_odo.newKeyframes().size(), prepared_odo.newKeyframes().size());
+      for (std::size_t k = 0; k < inline_odo.newKeyframes().size(); ++k) {
+        const FrameFeatures &f = inline_odo.newKeyframes()[k].features, &g = prepared_odo.newKeyframes()[k].features;
+        ASSERT_EQ(f.size(), g.size());
+        EXPECT_EQ(cv::norm(f.descriptors, g.descriptors, cv::NORM_INF), 0.0);
+        for (std::size_t j = 0; j < f.size(); ++j) EXPECT_EQ(f.keypoints[j].pt, g.keypoints[j].pt);
+      }
+    }
+    EXPECT_EQ(errors, 1);  // the 16UC1 frame: the preparer kept the error, process skipped it
+    EXPECT_EQ(sessions_started, 2);  // the blank frames closed the first session
+    EXPECT_EQ(inline_odo.losses(), 1);
+    // The workers' extraction is counted where the odometry's own would be.
+    EXPECT_EQ(inline_odo.times().get("features").calls, prepared_odo.times().get("features").calls);
+    EXPECT_EQ(inline_odo.times().get("enhance").calls, prepared_odo.times().get("enhance").calls);
+  }
+};
+
+TEST_F(PreparedFrames, GiveTheSameOdometryWithSiftOnEveryFrame) {
+  OdometryOptions o;
+  o.klt.enabled = false;
+  compare(o);
+}
+
+TEST_F(PreparedFrames, GiveTheSameOdometryWithKltBetweenKeyframes) {
+  OdometryOptions o;
+  o.klt.enabled = true;  // the workers only enhance: whether a frame is extracted depends on its tracks
+  compare(o);
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam
