@@ -9,6 +9,8 @@
 #include <tuple>
 
 #include "uw_multislam/core/backend/backend.h"
+#include "uw_multislam/core/backend/iekf.h"
+#include "uw_multislam/core/backend/loop_consistency.h"
 
 namespace uw_multislam {
 namespace core {
@@ -494,7 +496,8 @@ TEST_P(BothOptimizers, TheResidualGateHasItsOwnInflation) {
 
 TEST_P(BothOptimizers, TheEntryGateIsLooseForSparseMapsAndTightForIekfMaps) {
   // A loop 1 m off along a 30-keyframe line (1 cm per motion): the chain's x variance is
-  // 29e-4 m^2, so the gate (chi-square 11.3) passes about 0.57 m at inflation 10 and 1.8 m at 100.
+  // 29e-4 m^2 (the IEKF's P before any update says the same), so the gate (chi-square 11.3)
+  // passes about 0.31 m at inflation 3, 0.57 m at 10 and 1.8 m at 100.
   World w;
   w.sessions = {line(Pose2(0, 0, 0), 30)};
   BackendOptions o = optionsFor(GetParam());
@@ -503,7 +506,7 @@ TEST_P(BothOptimizers, TheEntryGateIsLooseForSparseMapsAndTightForIekfMaps) {
   w.feed(&b, 0, false);
   b.addLoop(w.loop(0, 0, 0, 29, Pose2(1.0, 0.0, 0.0)));
   const bool iekf = GetParam() == OptimizerKind::kIekf;
-  EXPECT_EQ(b.stats().loops_gated, iekf ? 1 : 0) << "defaults: iekf_gate_inflation 10, intra_gate_inflation 100";
+  EXPECT_EQ(b.stats().loops_gated, iekf ? 1 : 0) << "defaults: iekf_gate_inflation 3, intra_gate_inflation 100";
   o.intra_gate_inflation = o.iekf_gate_inflation = 10.0;  // both tight: both refuse it
   MultiSessionBackend tight(o);
   w.feed(&tight, 0, false);
@@ -512,6 +515,48 @@ TEST_P(BothOptimizers, TheEntryGateIsLooseForSparseMapsAndTightForIekfMaps) {
   BackendOptions bad;
   bad.iekf_gate_inflation = 0.0;
   EXPECT_NE(bad.validate().find("iekf_gate_inflation"), std::string::npos) << bad.validate();
+}
+
+TEST(IekfEntryGate, UsesTheFiltersJointCovarianceOfTheTwoKeyframes) {
+  // A 30-keyframe line kept by the IEKF, optimised at every loop. A first, true loop 0 -> 29
+  // pins the two ends to each other: the filter's P then gives X_29^0 a covariance about the
+  // loop's, while the motions' marginal blocks (what a chain composition would use) hardly shrink.
+  // A second loop 0 -> 29 that is 0.15 m off is refused by the gate on P; a third, true one
+  // passes. The same numbers computed here on a TrajectoryIekf show that the marginal chain
+  // would have let the wrong loop through (so the test tells the two gates apart).
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 30)};
+  BackendOptions o = optionsFor(OptimizerKind::kIekf);
+  MultiSessionBackend b(o);
+  w.feed(&b, 0, false);
+  b.addLoop(w.loop(0, 0, 0, 29));
+  ASSERT_EQ(b.stats().loops_gated, 0);
+  const BackendLoop wrong = w.loop(0, 0, 0, 29, Pose2(0.15, 0.0, 0.0));
+  b.addLoop(wrong);
+  EXPECT_EQ(b.stats().loops_gated, 1) << "the loop 0.15 m off passed the gate on P";
+  b.addLoop(w.loop(0, 0, 0, 29, Pose2(0.004, -0.003, 0.002)));
+  EXPECT_EQ(b.stats().loops_gated, 1) << "a true loop was refused";
+
+  // Independently: the distances under the two covariances after the first loop.
+  World w2;
+  w2.sessions = w.sessions;
+  TrajectoryIekf f;
+  for (int k = 1; k < 30; ++k) f.addMotion(w2.motion(0, k));
+  f.update({LoopMeasurement{0, 29, w2.loop(0, 0, 0, 29).z}});
+  const double chi2 = chiSquare3Quantile(o.consistency.confidence);
+  const UncertainPose2 joint = f.relative(0, 29);
+  Eigen::Matrix3d marginal_chain = Eigen::Matrix3d::Zero();
+  UncertainPose2 chain = UncertainPose2::exact(Pose2());
+  for (int k = 0; k < 29; ++k)
+    chain = compose(chain, UncertainPose2(f.motions()[k], f.covariance().block<3, 3>(3 * k, 3 * k)));
+  marginal_chain = chain.covariance;
+  const Pose2 e = between(joint.mean, wrong.z.mean);
+  const double on_p = mahalanobis2(e, o.iekf_gate_inflation * joint.covariance + wrong.z.covariance, o.consistency);
+  const double on_chain =
+      mahalanobis2(e, o.iekf_gate_inflation * marginal_chain + wrong.z.covariance, o.consistency);
+  EXPECT_GT(on_p, chi2);
+  EXPECT_LT(on_chain, chi2) << "the marginal chain refuses it too: the test would not tell the gates apart";
+  EXPECT_LT(joint.covariance(0, 0), 0.1 * marginal_chain(0, 0));
 }
 
 TEST_P(BothOptimizers, DriftedTrueLoopsAreNotSwitchedOff) {

@@ -102,9 +102,14 @@ struct BackendOptions {
   /// (100): the residual gate behind it switches off what gets through, and a true loop the
   /// entry gate refuses is lost (doc/benchmarks/outliers.md, 2026-11-25: no wrong join at 50 %).
   double intra_gate_inflation = 100.0;
-  /// The same for a map the IEKF keeps (dense): tighter, because an IEKF update cannot be taken
-  /// back (100 made the IEKF's wrong-loop bench worse: 3/5 runs off at 10 % instead of 1/5).
-  double iekf_gate_inflation = 10.0;
+  /// The same for a map the IEKF keeps (dense), whose gate uses the filter's joint covariance P of
+  /// the two keyframes (TrajectoryIekf::relative) instead of the marginal chain: tight, because an
+  /// IEKF update cannot be taken back. 3 is the tightest that still takes a drifted square's true
+  /// loop at 5 sigma of the odometry's covariance (gtest SquareWithOneExactLoopClosesExactly: 2
+  /// refuses it). bench_backend --outliers --optimizer iekf on the demo (doc/benchmarks/outliers.md,
+  /// 2026-11-25): 3 keeps no wrong loop up to 30 % (1 run of 5 goes wrong at 50 %), 10 let one
+  /// through at 10 % already; on clean data 3 refuses about 4 true loops of 131.
+  double iekf_gate_inflation = 3.0;
   /// After each optimisation of a map (both optimisers), the loop whose residual in the solution
   /// exceeds the chi-square gate of consistency.confidence (covariance: the loop's times
   /// residual_gate_inflation plus the consistency floors) is switched off: refused, kept refused in
