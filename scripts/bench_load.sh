@@ -5,16 +5,18 @@
 # (VmHWM) from /proc. Prints one markdown table and the highest rate held without a dropped or
 # unpaired frame; then the longest gap in the back-end's current pose during an optimisation of
 # a 5,000-keyframe map (scripts/bench_pose_gap.py). Not a test: numbers for this machine.
-# usage: scripts/bench_load.sh [--rates "1 2 5 10 20 40 80 160"] [--preset NAME] [OUT_DIR]
+# usage: scripts/bench_load.sh [--rates "1 2 5 10 20 40 80 160"] [--preset NAME] [--prepare-threads N] [OUT_DIR]
 #   default mission: make_survey --preset demo, session s0 (its bag); rates 1 2 5 10 20 40 80 160.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 rates="1 2 5 10 20 40 80 160"
 preset=demo
+prepare_threads=0  # the odometry nodelet's ~prepare_threads (issue 19, item 3)
 while [ $# -gt 0 ]; do
   case "$1" in
     --rates) rates=$2; shift 2 ;;
     --preset) preset=$2; shift 2 ;;
+    --prepare-threads) prepare_threads=$2; shift 2 ;;
     *) break ;;
   esac
 done
@@ -22,6 +24,9 @@ out=${1:-$(mktemp -d /tmp/uwms_bench_load.XXXXXX)}
 mkdir -p "$out"
 bin="$UWMS_WS/devel/lib/uw_multislam"
 [ -x "$bin/make_survey" ] || { echo "bench_load: build first (scripts/build.sh)" >&2; exit 1; }
+# The ROS-side parameters with the odometry's prepare_threads set (slam.launch config:=).
+grep -q '^  prepare_threads: 0$' "$UWMS_REPO/config/default.yaml" || { echo "bench_load: prepare_threads not in config/default.yaml" >&2; exit 1; }
+sed "s/^  prepare_threads: 0$/  prepare_threads: $prepare_threads/" "$UWMS_REPO/config/default.yaml" > "$out/default.yaml"
 set +u; source "$UWMS_WS/devel/setup.bash"; set -u
 export ROS_MASTER_URI=${BENCH_MASTER_URI:-http://localhost:11391}  # a master of its own
 log() { echo "[bench_load] $*" >&2; }
@@ -43,7 +48,7 @@ cleanup() {
 trap cleanup EXIT
 for _ in $(seq 50); do rostopic list > /dev/null 2>&1 && break; sleep 0.2; done
 
-echo "### Load: $(basename "$bag") ($n_frames frames, $(printf %.0f "$duration_s") s) through slam.launch, $(date -u +%F), $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores"
+echo "### Load: $(basename "$bag") ($n_frames frames, $(printf %.0f "$duration_s") s) through slam.launch (odometry prepare_threads $prepare_threads), $(date -u +%F), $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores"
 echo
 echo "| rate | frames/s offered | images received | processed | dropped (odometry queue) | not paired | keyframes | keyframes/s | loop detector dropped | loops | odometry ms/frame mean / max | manager peak RSS MB |"
 echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
@@ -51,7 +56,7 @@ best=""
 for rate in $rates; do
   rosparam delete /uw_multislam > /dev/null 2>&1 || true
   # A fresh pipeline per rate: no session store, so nothing carries over from the last rate.
-  roslaunch uw_multislam slam.launch store_path:=none > "$out/launch_$rate.log" 2>&1 &
+  roslaunch uw_multislam slam.launch store_path:=none config:="$out/default.yaml" > "$out/launch_$rate.log" 2>&1 &
   launch_pid=$!
   for _ in $(seq 100); do  # the odometry subscribes (through the nodelet manager)
     rostopic info /camera/image_raw 2> /dev/null | grep -q "/uw_multislam/manager" && break; sleep 0.2

@@ -4,6 +4,8 @@
 
 #include <cv_bridge/cv_bridge.h>
 #include <geometry_msgs/PoseWithCovarianceStamped.h>
+#include <boost/asio/post.hpp>
+#include <boost/asio/thread_pool.hpp>
 #include <boost/bind/bind.hpp>
 
 #include <opencv2/features2d.hpp>
@@ -42,6 +44,7 @@ OdometryNodelet::~OdometryNodelet() {
   range_sub_.shutdown();
   if (queue_) queue_->close();  // later frames are refused; the queued ones are still processed
   if (worker_.joinable()) worker_.join();
+  if (prepare_pool_) prepare_pool_->join();  // idle: the worker waited for every frame it took
   if (odometry_) logStats("at shutdown");
 }
 
@@ -59,6 +62,8 @@ void OdometryNodelet::readParameters() {
   }
   options_.queue_size = param(
       pnh, "queue_size", 5, [](int v) { return v >= 1 && v <= 10000; }, "in [1, 10000]");
+  options_.prepare_threads = param(
+      pnh, "prepare_threads", 0, [](int v) { return v >= 0 && v <= 8; }, "in [0, 8]");
   options_.sync_queue_size = param(
       pnh, "sync_queue_size", 10, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
   options_.sync_max_interval_s = param(
@@ -140,13 +145,13 @@ void OdometryNodelet::onInit() {
   const auto& o = options_;
   NODELET_INFO(
       "odometry: altitude from %s (interpolated at the image stamp, altitude_max_age_s %.2f), queue_size %d "
-      "(oldest dropped when full), max_image_pixels %d, sync_queue_size %d, sync_max_interval_s %.3f, first session %d, session_gap_s %.1f, "
+      "(oldest dropped when full), prepare_threads %d, max_image_pixels %d, sync_queue_size %d, sync_max_interval_s %.3f, first session %d, session_gap_s %.1f, "
       "reorder_tolerance_s %.2f, "
       "input_timeout_s %.1f, fallback_altitude %s, stats every %.0f s, diagnostics every %.1f s; n = %d features, "
       "enhancement %s, keyframes at overlap < %.2f",
       o.use_altitude_topic ? "the altitude topic"
                            : ("the fixed altitude " + std::to_string(o.altitude_m) + " m").c_str(),
-      o.altitude_max_age_s, o.queue_size, o.max_image_pixels, o.sync_queue_size, o.sync_max_interval_s, o.session, o.session_gap_s,
+      o.altitude_max_age_s, o.queue_size, o.prepare_threads, o.max_image_pixels, o.sync_queue_size, o.sync_max_interval_s, o.session, o.session_gap_s,
       o.reorder_tolerance_s, o.input_timeout_s,
       o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off", o.stats_period_s,
       o.diagnostic_period_s, config_.odometry.features.num_features,
@@ -180,6 +185,7 @@ void OdometryNodelet::onInit() {
   updater_->add("odometry", this, &OdometryNodelet::fillDiagnostics);
   watchdog_ = nh.createWallTimer(ros::WallDuration(o.diagnostic_period_s), &OdometryNodelet::onWatchdog, this);
 
+  if (o.prepare_threads > 0) prepare_pool_ = std::make_unique<boost::asio::thread_pool>(o.prepare_threads);
   worker_ = std::thread([this] { work(); });
 
   if (o.use_altitude_topic) {
@@ -502,12 +508,43 @@ void OdometryNodelet::onActiveSession(const uw_multislam::SessionStateConstPtr& 
 
 void OdometryNodelet::work() {
   last_stats_ = ros::WallTime::now();
-  Frame f;
-  while (queue_->pop(&f)) {  // false once closed and drained
+  // Frames taken out of the FIFO, oldest first; those after the first are being prepared ahead
+  // (~prepare_threads) by prepare_pool_. Long-lived threads: a std::async thread per frame made
+  // the odometry slower than without (bench_load.sh: 32 frames/s held against 48, each new
+  // thread's allocations starting cold).
+  struct Taken {
+    Frame frame;
+    std::future<Ahead> ahead;  // not valid: processed without preparation ahead
+  };
+  std::deque<Taken> taken;
+  const std::size_t max_taken = 1 + static_cast<std::size_t>(options_.prepare_threads);
+  for (;;) {
+    if (taken.empty()) {
+      Taken t;
+      if (!queue_->pop(&t.frame)) break;  // false once closed and drained
+      taken.push_back(std::move(t));
+    }
+    // Never waits for a frame: only those already in the FIFO are taken ahead.
+    Taken next;
+    while (taken.size() < max_taken && queue_->tryPop(&next.frame)) {
+      auto task = std::make_shared<std::packaged_task<Ahead()>>([this, frame = next.frame] { return prepareAhead(frame); });
+      next.ahead = task->get_future();
+      boost::asio::post(*prepare_pool_, [task] { (*task)(); });
+      taken.push_back(std::move(next));
+      next = Taken();
+    }
+    Taken t = std::move(taken.front());
+    taken.pop_front();
+    const Frame& f = t.frame;
     counts_.dropped = queue_->dropped();
     const ros::WallTime start = ros::WallTime::now();
     try {
-      process(f);
+      if (t.ahead.valid()) {
+        Ahead a = t.ahead.get();  // prepareAhead catches everything
+        process(f, &a);
+      } else {
+        process(f);
+      }
     } catch (const std::exception& e) {  // the core throws only on programming errors: log, keep going
       NODELET_ERROR_THROTTLE(5, "odometry: frame skipped, %s", e.what());
     }
@@ -541,7 +578,33 @@ void OdometryNodelet::startSession(int id, const core::CameraIntrinsics& camera,
                core::distortionModelName(camera.distortion_model).c_str(), d.str().c_str());
 }
 
-void OdometryNodelet::process(const Frame& f) {
+OdometryNodelet::Conversion OdometryNodelet::convert(const Frame& f, core::CameraIntrinsics* camera, cv::Mat* image,
+                                                     std::string* why, rc::ImageRefusal* refusal) const {
+  if (!rc::cameraFromMsg(*f.info, options_.rectified_images, camera, why)) return Conversion::kBadCamera;
+  // A compressed image (the built-in decoder) is decoded here, then takes the raw path.
+  sensor_msgs::ImagePtr decoded;
+  const std::uint64_t max_pixels = static_cast<std::uint64_t>(options_.max_image_pixels);
+  const bool decodes = !f.compressed || rc::imageFromCompressedMsg(*f.compressed, &decoded, why, refusal, max_pixels);
+  if (!decodes || !rc::imageFromMsg(f.compressed ? decoded : f.image, image, why, refusal, max_pixels))
+    return Conversion::kBadImage;
+  return Conversion::kOk;
+}
+
+OdometryNodelet::Ahead OdometryNodelet::prepareAhead(const Frame& f) const {
+  Ahead a;
+  try {
+    cv::Mat image;
+    std::string why;
+    rc::ImageRefusal refusal = rc::ImageRefusal::kNone;
+    if (convert(f, &a.camera, &image, &why, &refusal) == Conversion::kOk)
+      a.prepared = core::FramePreparer(a.camera, config_.odometry).prepare(image);
+  } catch (const std::exception&) {
+    a.prepared = core::PreparedFrame();  // process() converts the frame again and reports what is wrong
+  }
+  return a;
+}
+
+void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   ++counts_.frames;
   for (double t : f.passed_over) stamps_->passOver(t);  // received but not processed: seen, not a gap
   if (paused_) {  // dropped and counted; its stamp seen like a queue drop's (the pause is no time gap)
@@ -552,19 +615,15 @@ void OdometryNodelet::process(const Frame& f) {
   }
   std::string why;
   core::CameraIntrinsics camera;
-  if (!rc::cameraFromMsg(*f.info, options_.rectified_images, &camera, &why)) {
+  cv::Mat image;
+  rc::ImageRefusal refusal = rc::ImageRefusal::kNone;
+  const Conversion converted = convert(f, &camera, &image, &why, &refusal);
+  if (converted == Conversion::kBadCamera) {
     ++counts_.bad_camera;
     NODELET_WARN_THROTTLE(5, "odometry: frame skipped: %s (%ld so far)", why.c_str(), counts_.bad_camera);
     return;
   }
-  cv::Mat image;
-  rc::ImageRefusal refusal = rc::ImageRefusal::kNone;
-  // A compressed image (the built-in decoder) is decoded here, then takes the raw path.
-  sensor_msgs::ImagePtr decoded;
-  const std::uint64_t max_pixels = static_cast<std::uint64_t>(options_.max_image_pixels);
-  const bool decodes =
-      !f.compressed || rc::imageFromCompressedMsg(*f.compressed, &decoded, &why, &refusal, max_pixels);
-  if (!decodes || !rc::imageFromMsg(f.compressed ? decoded : f.image, &image, &why, &refusal, max_pixels)) {
+  if (converted == Conversion::kBadImage) {
     ++counts_.bad_image;
     switch (refusal) {
       case rc::ImageRefusal::kEmpty:
@@ -662,8 +721,14 @@ void OdometryNodelet::process(const Frame& f) {
   const std::optional<core::NavRecord> nav =
       !config_.odometry.nav.enabled ? std::nullopt : tf_buffer_ ? navFromTf(stamp) : navAt(stamp.toSec());
   if (nav) ++counts_.frames_with_nav;
+  // Prepared ahead with this frame's camera: the session's (a new camera has started a session above).
+  core::PreparedFrame* prepared = nullptr;
+  if (ahead && ahead->prepared.done && ahead->camera == camera_) {
+    prepared = &ahead->prepared;
+    ++counts_.prepared_ahead;
+  }
   const core::SegmentedOdometry::Step step =
-      odometry_->process({frame_index_++, stamp.toSec(), altitude, image, nav});
+      odometry_->process({frame_index_++, stamp.toSec(), altitude, image, nav}, prepared);
   const core::OdometryUpdate& u = step.update;
   if (u.status != core::FrameStatus::kSkipped && u.source == core::MotionSource::kNav) ++counts_.nav_motions;
   if (u.status != core::FrameStatus::kSkipped && u.source == core::MotionSource::kFused) ++counts_.fused_motions;
@@ -815,6 +880,7 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
        {"nav_motions", static_cast<double>(c.nav_motions)},
        {"fused_motions", static_cast<double>(c.fused_motions)},
        {"nav_tf_missing", static_cast<double>(c.nav_tf_missing), true},
+       {"prepared_ahead", static_cast<double>(c.prepared_ahead)},
        {"sessions", static_cast<double>(c.sessions)},
        {"session", static_cast<double>(c.session)},
        {"keyframes", static_cast<double>(c.keyframes)},

@@ -52,6 +52,29 @@ TEST(BoundedWorkQueue, DropsTheOldestWhenFullAndCountsIt) {
   EXPECT_EQ(q.popped(), 4);
 }
 
+TEST(BoundedWorkQueue, TryPopTakesWhatIsQueuedWithoutWaiting) {
+  BoundedWorkQueue<int> q(3);
+  int v = -1;
+  EXPECT_FALSE(q.tryPop(&v));  // empty: returns at once
+  EXPECT_EQ(v, -1);
+  q.push(1);
+  q.pushPriority(7);
+  q.push(2);
+  ASSERT_TRUE(q.tryPop(&v));
+  EXPECT_EQ(v, 7);  // priority items first, as pop()
+  ASSERT_TRUE(q.tryPop(&v));
+  EXPECT_EQ(v, 1);
+  ASSERT_TRUE(q.pop(&v));
+  EXPECT_EQ(v, 2);
+  EXPECT_FALSE(q.tryPop(&v));
+  EXPECT_EQ(q.popped(), 3);
+  q.push(3);
+  q.close();
+  ASSERT_TRUE(q.tryPop(&v));  // what was queued is still handed out after close()
+  EXPECT_EQ(v, 3);
+  EXPECT_FALSE(q.tryPop(&v));
+}
+
 TEST(BoundedWorkQueue, TheDropHandlerHandsTheDroppedItemToItsSuccessor) {
   // As the odometry uses it: each frame carries the stamps of the frames dropped just before it,
   // so that the worker sees every stamp and a gap made by our own drops is not a time gap.

@@ -92,7 +92,8 @@ class SlamPipelineTest(unittest.TestCase):
                     rospy.Subscriber(NS + "/odom", Odometry, keep(cls.odoms), queue_size=1000)]
         wait_for_subscribers(SENSOR_TOPICS + [NS + "/keyframes"], "/check_slam_pipeline")
         for bag in cls.bags:
-            subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", str(PLAY_RATE), bag, "--topics",
+            subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", str(rospy.get_param("~play_rate", PLAY_RATE)), bag,
+                            "--topics",
                             "/camera/image_raw", "/camera/camera_info", "/altitude"], check=True, timeout=120)
             wait_until_quiet(cls.lock, lambda: cls.last_message, 5.0)
 
@@ -215,6 +216,37 @@ class SlamPipelineTest(unittest.TestCase):
                 self.assertNotEqual(l.session_a, l.session_b)
             else:
                 self.assertEqual(l.session_a, l.session_b)
+
+    def test_frames_are_prepared_ahead_only_when_asked(self):
+        """prepare_threads:=2 (issue 19, item 3): frames played at 40 per second wait in the
+        odometry's FIFO and are prepared ahead (diagnostics prepared_ahead > 0), and every other
+        test of this suite holds: the same keyframes, loops and maps as offline_slam. With the
+        default 0 none is."""
+        threads = int(rospy.get_param("~prepare_threads", 0))
+        got = {}
+        cond = threading.Condition()
+
+        def on_diagnostics(msg):
+            with cond:
+                for st in msg.status:
+                    if st.name.split(":")[0].split("/")[-1] == "odometry_node" and st.name.endswith("odometry"):
+                        got.update({kv.key: kv.value for kv in st.values})
+                cond.notify_all()
+
+        sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
+        try:
+            with cond:
+                cond.wait_for(lambda: "prepared_ahead" in got, timeout=30)
+        finally:
+            sub.unregister()
+        self.assertIn("prepared_ahead", got, "no odometry diagnostics")
+        prepared, frames = int(got["prepared_ahead"]), int(got["frames_processed"])
+        print("prepare_threads %d: %d of %d frames prepared ahead" % (threads, prepared, frames))
+        if threads > 0:
+            self.assertGreater(prepared, 0)
+            self.assertLess(prepared, frames)  # the first frame of a burst is never prepared ahead
+        else:
+            self.assertEqual(prepared, 0)
 
     def test_each_loop_detector_publishes_its_kind_and_the_back_end_receives_all(self):
         """split_loops:=true end to end: the local detector publishes the local loops and no global

@@ -88,6 +88,17 @@ class BoundedWorkQueue {
     return true;
   }
 
+  /// pop() without the wait: false when nothing is queued (now).
+  bool tryPop(T* out) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    std::deque<T>& from = !priority_.empty() ? priority_ : items_;
+    if (from.empty()) return false;
+    *out = std::move(from.front());
+    from.pop_front();
+    ++popped_;
+    return true;
+  }
+
   /// No more pushes; every waiting pop() wakes. What is queued is still handed out.
   void close() {
     {

@@ -62,7 +62,12 @@
 // RANSAC, publishing. Session switches requested on active_session are handed to the worker
 // under a small mutex of their own. On unload the FIFO is closed and the worker processes the
 // frames still in it before it is joined. Messages are published as shared pointers, so the loop
-// nodelets in the same manager receive them without a copy.
+// nodelets in the same manager receive them without a copy. With ~prepare_threads N > 0 (issue 19,
+// item 3: a second core) the worker takes up to N frames already waiting in the FIFO out early and
+// prepares each (conversion, enhancement, SIFT: core::FramePreparer) on a thread of its own while
+// it processes the frame before them; a frame is never waited for, so there is no added latency
+// when frames are not backing up, and the odometry is the same as without (the preparation is a
+// pure function of the image and camera; it is used only when its camera is the session's).
 //
 // Sessions: the first session has id ~session. A new session starts (the odometry restarts, the
 // next keyframe is the new origin) when the back-end asks for another id on active_session, when
@@ -129,6 +134,7 @@
 
 #include <atomic>
 #include <deque>
+#include <future>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -147,8 +153,15 @@
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/diagnostics.h"
+#include "uw_multislam/ros/sensor_conversions.h"
 #include "uw_multislam/ros/topics.h"
 #include "uw_multislam/ros/work_queue.h"
+
+namespace boost {
+namespace asio {
+class thread_pool;
+}  // namespace asio
+}  // namespace boost
 
 namespace uw_multislam {
 namespace nodelets {
@@ -158,6 +171,7 @@ struct OdometryNodeletOptions {
   bool use_altitude_topic = true;
   double altitude_m = 0.0;           // used when use_altitude_topic is false
   int queue_size = 5;                // frames waiting for the worker
+  int prepare_threads = 0;           // frames waiting that are prepared ahead, each on its own thread
   int sync_queue_size = 10;          // subscriber queues; 2x: images waiting for their pairing
   double sync_max_interval_s = 0.1;  // largest image - camera_info stamp difference
   double altitude_max_age_s = 1.0;   // altitude: largest gap interpolated / age used alone; longest wait
@@ -216,6 +230,7 @@ class OdometryNodelet : public nodelet::Nodelet {
     long dropped_paused = 0;  // frames the worker dropped while paused
     long frames_with_nav = 0, nav_motions = 0, fused_motions = 0;  // frames given a nav pose; motions not visual
     long nav_tf_missing = 0;  // ~nav_source tf: frames whose transform was not there
+    long prepared_ahead = 0;  // frames whose preparation (SIFT) ran ahead on another thread (~prepare_threads)
     double total_ms = 0.0, max_ms = 0.0, last_ms = 0.0;
     int session = 0;
   };
@@ -252,8 +267,20 @@ class OdometryNodelet : public nodelet::Nodelet {
   bool onPause(uw_multislam::OperatorCommand::Request& req, uw_multislam::OperatorCommand::Response& res);
   bool onResume(uw_multislam::OperatorCommand::Request& req, uw_multislam::OperatorCommand::Response& res);
   bool setPaused(bool paused, uw_multislam::OperatorCommand::Response* res);
+  // A frame's conversion and preparation, done ahead on another thread (~prepare_threads).
+  struct Ahead {
+    core::CameraIntrinsics camera;
+    core::PreparedFrame prepared;  // prepared.done false: nothing usable (process() converts and reports)
+  };
+  enum class Conversion { kOk, kBadCamera, kBadImage };
+  /// The frame's camera and image (a compressed one decoded), or why not (`refusal`: the image's).
+  Conversion convert(const Frame& f, core::CameraIntrinsics* camera, cv::Mat* image, std::string* why,
+                     ros_conversions::ImageRefusal* refusal) const;
+  /// convert() then core::FramePreparer::prepare with the frame's camera; catches everything.
+  Ahead prepareAhead(const Frame& f) const;
   void work();
-  void process(const Frame& f);
+  /// `ahead` (may be null): the frame prepared ahead.
+  void process(const Frame& f, Ahead* ahead = nullptr);
   void startSession(int id, const core::CameraIntrinsics& camera, const std::string& why);
   void publishKeyframes(const Frame& f, const cv::Mat& image, const core::OdometryUpdate& u);
   void logStats(const char* when);
@@ -271,6 +298,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   // count is the frames synchronised, popped() the frames the worker took.
   std::unique_ptr<ros_work::BoundedWorkQueue<Frame>> queue_;
   std::thread worker_;
+  std::unique_ptr<boost::asio::thread_pool> prepare_pool_;  // ~prepare_threads > 0: prepares frames ahead
   std::mutex session_mutex_;
   int requested_session_ = -1;  // guarded by session_mutex_; -1: none
   // Paused by the operator: the worker drops each frame (counted, its stamp passed over).
