@@ -36,8 +36,10 @@ doc/run_outputs.md): odometry.csv (odometry keyframe poses, each session in its 
 (final keyframe poses in the frame of their map), loops.csv, loop_poses.csv (measured pose and covariance),
 links.csv (joins), pieces.csv (the pieces tracking loss splits a folder into), timing.csv, inputs.csv, config.yaml.
 `session` is the folder's position on the command line, `index` the frame's index in frames.csv.
-Sessions are joined into maps once backend.join_min_loops global loops link them (paper §9), and
-each map is optimised (backend.optimizer); `map` is the map's first session, whose frame it is.
+Sessions are joined into maps through one link (paper §9) once the global loops between them
+support it (backend.join_policy: consistent, the default: a pairwise-consistent set of at least
+backend.join_min_consistent loops with join_min_inliers inliers and join_min_spread_m spread; count:
+backend.join_min_loops loops), and each map is optimised (backend.optimizer); `map` is the map's first session, whose frame it is.
 
 With --db FILE (the session store, created if missing) the stored sessions come first as 0..k-1,
 the folders follow from k; global loops are searched against them and everything is written to the

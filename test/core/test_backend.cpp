@@ -65,8 +65,12 @@ double worstError(const std::vector<Pose2>& est, const std::vector<Pose2>& truth
   return w;
 }
 
+// The tests below that join automatically were written for the count rule (K = join_min_loops
+// loops; default 5); join_policy consistent (the default) has tests of its own from
+// consistentOptions on.
 BackendOptions optionsFor(OptimizerKind k) {
   BackendOptions o;
+  o.join_policy = JoinPolicy::kCount;
   o.optimizer = k;
   o.optimise_every = 1;
   return o;
@@ -197,7 +201,8 @@ TEST_P(BothOptimizers, WrongRequestsChangeNothing) {
   w.feed(&b, 1);
   EXPECT_EQ(b.join(0, 7).code, StatusCode::kNotFound);
   EXPECT_EQ(b.join(-1, 0).code, StatusCode::kNotFound);
-  EXPECT_EQ(b.join(0, 1, 0).code, StatusCode::kInvalidArgument);
+  EXPECT_EQ(b.join(0, 1, -1).code, StatusCode::kInvalidArgument);
+  EXPECT_EQ(b.join(0, 1, 0).code, StatusCode::kFailedPrecondition);  // 0: the configured rule (K = 5)
   const BackendStatus none = b.join(0, 1);
   EXPECT_EQ(none.code, StatusCode::kFailedPrecondition);
   EXPECT_NE(none.message.find("0 global loops"), std::string::npos) << none.message;
@@ -339,9 +344,16 @@ TEST_P(BothOptimizers, RelocalisesFromOneKeyframeThatTwoStoredPlacesAgreeOn) {
   ASSERT_TRUE(r);
   EXPECT_EQ(r->loops, 3);
   EXPECT_LT(between(between(w.sessions[0][0], w.sessions[1][2]), r->pose.mean).translation().norm(), 1e-6);
-  const Status joined = b.join(0, 1, 2);
-  EXPECT_FALSE(joined.ok()) << "a join needs the spread in both maps";
-  EXPECT_NE(joined.message.find("spread 0 m"), std::string::npos) << joined.message;
+  const Status by_rule = b.join(0, 1, 0);  // 0: the configured rule, as the automatic join
+  EXPECT_FALSE(by_rule.ok()) << "the rule's join needs the spread in both maps";
+  EXPECT_NE(by_rule.message.find("spread 0 m"), std::string::npos) << by_rule.message;
+  EXPECT_EQ(b.mapOf(1), 1);
+  // An operator's count (join_sessions with min_loops 2): the consistent set of 3 is enough; the
+  // rule's inliers and spread are not asked for, and the link is the one relocalisation found.
+  const Status asked = b.join(0, 1, 2);
+  ASSERT_TRUE(asked.ok()) << asked.message;
+  EXPECT_NE(asked.message.find("from 3 global loops"), std::string::npos) << asked.message;
+  EXPECT_LT(worstError(b.sessionPoses(1), w.truthIn(0, 1)), 1e-6);
 }
 
 TEST_P(BothOptimizers, RelocalisesAgainstAnotherMapWithoutJoiningIt) {

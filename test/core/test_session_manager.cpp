@@ -23,6 +23,7 @@ namespace {
 SessionManagerOptions options(const std::string& store = "") {
   SessionManagerOptions o;
   o.backend.join_min_loops = 0;  // joins only when asked
+  o.backend.join_policy = JoinPolicy::kCount;  // where a test turns joins on: by K loops
   o.store_path = store;
   return o;
 }

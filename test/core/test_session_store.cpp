@@ -126,6 +126,15 @@ BackendLoop truthLoop(int sa, int ka, int sb, int kb, double err) {
       UncertainPose2(compose(between(truth(sa, ka), truth(sb, kb)), Pose2(err, -err, 0.01 * err)), diag(0.01, 0.005))};
 }
 
+// The back-end's options for recordMission: its loops carry no inlier count, so session 1 joins
+// session 0 by the count rule (K = 5 loops), not by join_policy consistent (the default), whose
+// join_min_inliers they never reach.
+BackendOptions missionOptions() {
+  BackendOptions o;
+  o.join_policy = JoinPolicy::kCount;
+  return o;
+}
+
 // Three sessions: 1 joined to 0 by five global loops, 2 joined by an explicit join and split
 // off again, intra-session loops; noisy odometry so that optimisation moves things.
 void recordMission(Recorder* r) {
@@ -203,7 +212,7 @@ class StoreBothOptimizers : public ::testing::TestWithParam<OptimizerKind> {};
 TEST_P(StoreBothOptimizers, RoundTripGivesIdenticalTrajectoriesLoopsAndMaps) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
-  BackendOptions opt;
+  BackendOptions opt = missionOptions();
   opt.optimizer = GetParam();
   opt.optimise_every = 1;
   MultiSessionBackend original(opt);
@@ -406,7 +415,7 @@ TEST(Store, RefusesAFileThatIsNotADatabase) {
 std::string makeStore(const ScopedTempDir& dir) {
   const std::string path = (dir.path() / "maps.db").string();
   SessionStore store(path);
-  BackendOptions opt;
+  BackendOptions opt = missionOptions();
   MultiSessionBackend backend(opt);
   Recorder r(&store, &backend);
   recordMission(&r);
@@ -709,7 +718,7 @@ TEST(Store, ASecondWriterIsRefusedWithTheHolderNamedAndADeadHolderReleasesIt) {
 TEST(Store, ASessionCutByACrashComesBackWithEveryKeyframe) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
-  BackendOptions opt;
+  BackendOptions opt = missionOptions();
   opt.optimise_every = 1;
   MultiSessionBackend original(opt);
   std::vector<Pose2> saved_poses;
@@ -866,7 +875,7 @@ std::string loopsWithout(const std::string& path, std::int64_t id) {
 TEST(Store, DeletingASessionLeavesTheOthersByteForByteAndCutsItOutOfTheMaps) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
-  BackendOptions opt;
+  BackendOptions opt = missionOptions();
   opt.optimise_every = 1;
   MultiSessionBackend original(opt);
   std::vector<std::int64_t> ids;
@@ -960,7 +969,7 @@ TEST(Store, DeletingASessionLeavesTheOthersByteForByteAndCutsItOutOfTheMaps) {
 TEST(Store, DeletingTheLastSessionOfAChainKeepsTheRestOfTheMap) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
-  BackendOptions opt;
+  BackendOptions opt = missionOptions();
   opt.optimise_every = 1;
   MultiSessionBackend original(opt);
   std::vector<std::int64_t> ids;
@@ -1073,7 +1082,7 @@ TEST(Store, AnInterruptedRunIsFoundWithItsPiecesAndFinishedOrDiscarded) {
 TEST(Store, AFullDiskWhileSavingTheMapsKeepsThePreviousMapsAndTheSameRestore) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
-  BackendOptions opt;
+  BackendOptions opt = missionOptions();
   opt.optimise_every = 1;
   MultiSessionBackend original(opt);
   {

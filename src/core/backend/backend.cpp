@@ -484,13 +484,19 @@ BackendStatus MultiSessionBackend::join(int session_a, int session_b, int min_lo
     if (!hasSession(s))
       return {StatusCode::kNotFound, "no session " + std::to_string(s) + " (there are " +
                                          std::to_string(numSessions()) + "; see list_sessions)"};
-  if (min_loops < 1) return {StatusCode::kInvalidArgument, "min_loops must be >= 1"};
-  return joinMaps(mapOf(session_a), mapOf(session_b), min_loops, false);
+  if (min_loops < 0) return {StatusCode::kInvalidArgument, "min_loops must be >= 0 (0: the configured rule)"};
+  // 0: the configured rule, with its support (the count policy's K, at least 1; the consistency
+  // policy's minimum set, inliers and spread); > 0: the caller's count, in the consistent set.
+  const bool rule = min_loops == 0;
+  const int k = !rule ? min_loops
+                      : options_.join_policy == JoinPolicy::kCount ? std::max(1, options_.join_min_loops)
+                                                                   : std::max(1, options_.join_min_consistent);
+  return joinMaps(mapOf(session_a), mapOf(session_b), k, false, !rule);
 }
 
 MultiSessionBackend::LinkEstimate MultiSessionBackend::estimateLink(int first, int second, const std::vector<int>& ids,
                                                                   int min_loops, JoinPolicy policy,
-                                                                  bool spread_in_first) const {
+                                                                  bool spread_in_first, bool requested) const {
   LinkEstimate e;
   auto failed = [&e](const std::string& why) {
     e.status = {StatusCode::kFailedPrecondition, why};
@@ -533,10 +539,10 @@ MultiSessionBackend::LinkEstimate MultiSessionBackend::estimateLink(int first, i
     why << "the largest consistent set of the " << cand.size() << " global loops between map " << first << " and map "
         << second << " (" << set.consistent_pairs << " of " << set.pairs << " pairs consistent) has "
         << set.loops.size() << " loops, " << set.inliers << " inliers, spread " << spread_m << " m; needed "
-        << min_loops << " loops, " << options_.join_min_inliers << " inliers, " << options_.join_min_spread_m << " m";
-    if (set.loops.empty() || static_cast<int>(set.loops.size()) < min_loops || set.inliers < options_.join_min_inliers ||
-        spread_m < options_.join_min_spread_m)
-      return failed(why.str());
+        << min_loops << " loops";
+    if (!requested) why << ", " << options_.join_min_inliers << " inliers, " << options_.join_min_spread_m << " m";
+    const bool supported = requested || (set.inliers >= options_.join_min_inliers && spread_m >= options_.join_min_spread_m);
+    if (set.loops.empty() || static_cast<int>(set.loops.size()) < min_loops || !supported) return failed(why.str());
     std::fill(in.begin(), in.end(), false);
     std::vector<JoinLoop> jl;
     for (int k : set.loops) {
@@ -576,7 +582,7 @@ MultiSessionBackend::LinkEstimate MultiSessionBackend::estimateLink(int first, i
   return e;
 }
 
-BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops, bool automatic) {
+BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops, bool automatic, bool requested) {
   if (map_a == map_b)
     return {StatusCode::kFailedPrecondition, "the sessions are already in the same map " + std::to_string(map_a)};
   auto recording = [&](int map) {
@@ -595,7 +601,7 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
     return {StatusCode::kFailedPrecondition, std::to_string(ids.size()) + " global loops stored between map " +
                                                  std::to_string(first) + " and map " + std::to_string(second) + ", " +
                                                  std::to_string(min_loops) + " needed"};
-  const LinkEstimate e = estimateLink(first, second, ids, min_loops, options_.join_policy);
+  const LinkEstimate e = estimateLink(first, second, ids, min_loops, options_.join_policy, false, requested);
   if (!e.status.ok()) return e.status;
   const Map& p = mapAt(first);
   const Map& c = mapAt(second);

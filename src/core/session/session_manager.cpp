@@ -744,10 +744,9 @@ Status SessionManager::join(int session_a, int session_b, int min_loops) {
     if (!validSessionId(s)) return badSessionId("join_sessions", s);
     if (!has(s)) return notFound(s);
   }
-  if (min_loops < 0) return {StatusCode::kInvalidArgument, "min_loops must be >= 0 (0: the configured K)"};
+  if (min_loops < 0) return {StatusCode::kInvalidArgument, "min_loops must be >= 0 (0: the configured rule)"};
   if (const Status mode = storedMapsMayChange("join_sessions"); !mode.ok()) return mode;
-  const int k = min_loops > 0 ? min_loops : std::max(1, options_.backend.join_min_loops);
-  const Status st = backend_->join(at(session_a).backend, at(session_b).backend, k);
+  const Status st = backend_->join(at(session_a).backend, at(session_b).backend, min_loops);
   if (st.ok()) {
     say("join_sessions " + std::to_string(session_a) + " " + std::to_string(session_b) + ": " + st.message);
     cause_ = options_.requester.c_str();

@@ -86,7 +86,7 @@ struct BackendOptions {
   double join_gate_m = 0.5;  // a loop whose position disagrees with the joined link by more
                              // than this is refused (metres, not χ²: odometry covariances are
                              // over-confident over long chains, a χ² gate refused true loops)
-  JoinPolicy join_policy = JoinPolicy::kCount;
+  JoinPolicy join_policy = JoinPolicy::kConsistent;
   int join_min_consistent = 2;       // kConsistent: loops in the consistent set
   int join_min_inliers = 60;         // kConsistent: their total RANSAC inliers
   double join_min_spread_m = 0.2;    // kConsistent: distance between their keyframes (both maps)
@@ -268,7 +268,11 @@ class MultiSessionBackend {
   /// when the map changed or vanished since prepareOptimisation.
   bool applyOptimisation(const OptimisationJob& job);
 
-  /// Joins the maps of two sessions from their stored global loops (at least min_loops >= 1).
+  /// Joins the maps of two sessions from their stored global loops. min_loops 0: by the configured
+  /// rule (count: join_min_loops, at least 1; consistent: the largest pairwise-consistent set with
+  /// join_min_consistent loops, join_min_inliers inliers and join_min_spread_m spread). min_loops
+  /// > 0: at least that many loops (count), or that many in the largest pairwise-consistent set,
+  /// without the automatic rule's inliers and spread (consistent: the caller has judged those).
   BackendStatus join(int session_a, int session_b, int min_loops = 1);
   /// Splits a session off its map.
   BackendStatus split(int session);
@@ -382,12 +386,16 @@ class MultiSessionBackend {
   /// A sparse map (motions, marginal covariances) into the IEKF's dense form, when the IEKF is the
   /// optimiser and the map fits; block-diagonal, the cross-covariances being unknown.
   void toDenseIfIekf(Map& m) const;
-  BackendStatus joinMaps(int map_a, int map_b, int min_loops, bool automatic);
+  /// `requested`: an explicit count of the caller's (estimateLink).
+  BackendStatus joinMaps(int map_a, int map_b, int min_loops, bool automatic, bool requested = false);
   /// The link a join of map `second` to the end of map `first` would take from the loops `ids`
   /// (loopsBetween) under `policy` (min_loops as joinMaps's); nothing changes. Status not OK: the
   /// policy refuses (the reason). in[k]: whether loop ids[k] takes part. `spread_in_first`: the
   /// consistency policy's spread is measured in `first` alone (relocalisation: several stored
   /// keyframes that agree on where one new keyframe is), else in the map where it is smaller.
+  /// `requested` (an operator's join, not the automatic rule): the consistency policy still keeps
+  /// only the largest pairwise-consistent set and needs min_loops of it, but not the automatic
+  /// rule's support (join_min_inliers, join_min_spread_m): the person asking has judged that.
   struct LinkEstimate {
     BackendStatus status;
     std::vector<bool> in;
@@ -395,7 +403,7 @@ class MultiSessionBackend {
     int used = 0, inliers = 0;
   };
   LinkEstimate estimateLink(int first, int second, const std::vector<int>& ids, int min_loops, JoinPolicy policy,
-                            bool spread_in_first = false) const;
+                            bool spread_in_first = false, bool requested = false) const;
   std::vector<int> loopsBetween(int map_a, int map_b, bool automatic) const;
   bool barred(int sa, int sb) const;
   void say(const std::string& line) const;
