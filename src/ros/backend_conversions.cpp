@@ -317,6 +317,9 @@ std::vector<ros_diagnostics::Counter> managerCounters(const core::SessionManager
           {"splits", d(b.splits)},
           {"loops_refused_at_join", d(b.loops_refused)},
           {"joins_refused", d(b.joins_refused)},
+          {"loops_gated", d(b.loops_gated)},
+          {"loops_switched_off", d(b.loops_switched_off)},
+          {"loops_readmitted", d(b.loops_readmitted)},
           {"optimisations", d(b.optimisations)},
           {"optimisations_discarded", d(b.optimisations_discarded)},
           {"optimise_ms_max", b.optimise_ms_max}};

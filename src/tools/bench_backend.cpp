@@ -172,6 +172,8 @@ RunErrors runOnce(const Mission& m, double level, const RunSpec& spec, unsigned 
   }
   // UWMS_BENCH_RESIDUAL_INFLATION=F: residual_gate_inflation F, for experiments.
   if (const char* f = std::getenv("UWMS_BENCH_RESIDUAL_INFLATION")) o.residual_gate_inflation = std::max(1.0, std::atof(f));
+  // UWMS_BENCH_READMIT=0: readmit_refused_loops off, for comparison.
+  if (const char* f = std::getenv("UWMS_BENCH_READMIT")) o.readmit_refused_loops = std::atoi(f) != 0;
   // UWMS_BENCH_LOG=1: the back-end's log (joins, refused and switched-off loops) on stderr.
   core::MultiSessionBackend::Log log;
   if (std::getenv("UWMS_BENCH_LOG") != nullptr) log = [](const std::string& l) { std::fprintf(stderr, "%s\n", l.c_str()); };

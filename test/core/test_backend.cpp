@@ -506,6 +506,66 @@ TEST_P(BothOptimizers, TheResidualGateHasItsOwnInflation) {
   EXPECT_NE(bad.validate().find("residual_gate_inflation"), std::string::npos) << bad.validate();
 }
 
+// A 30-keyframe line whose odometry turns 0.01 rad too far at every motion (its covariance says
+// 0.01 rad per motion: a steady bias, the map metres off at the end), then a long true loop 0 -> 29,
+// short true loops k -> k + 3 and a wrong loop 1.2 m off; entry gates at inflation 1 (what is
+// refused here is refused for being metres off, not for the inflation), one solve at the end.
+struct ReadmitRun {
+  std::vector<Pose2> poses, truth;
+  BackendStats stats;
+  std::vector<LoopRecord> loops;
+};
+ReadmitRun readmitRun(OptimizerKind k, bool readmit, bool entry_gate = true) {
+  World w;
+  w.sessions = {line(Pose2(0, 0, 0), 30)};
+  BackendOptions o = optionsFor(k);
+  o.optimise_every = 100;
+  o.intra_loop_gate = entry_gate;
+  o.intra_gate_inflation = 1.0;
+  o.iekf_gate_inflation = 1.0;
+  o.readmit_refused_loops = readmit;
+  MultiSessionBackend b(o);
+  const int s = b.startSession();
+  for (int i = 1; i < 30; ++i) {
+    const Pose2 m = between(w.sessions[0][i - 1], w.sessions[0][i]);
+    b.addMotion(s, UncertainPose2(Pose2(m.x(), m.y(), m.yaw() + 0.01), diag(0.01, 0.01)));
+  }
+  b.addLoop(w.loop(0, 0, 0, 29));  // id 0: long, true, metres off the odometry
+  for (int i = 0; i + 3 < 30; ++i) b.addLoop(w.loop(0, i, 0, i + 3));  // ids 1..27
+  if (entry_gate) b.addLoop(w.loop(0, 2, 0, 27, Pose2(1.2, 0.0, 0.0)));  // id 28: wrong
+  b.flush();
+  ReadmitRun r{b.sessionPoses(0), w.truthIn(0, 0), b.stats(), {}};
+  for (int id = 0; id < b.numLoops(); ++id) r.loops.push_back(b.loopRecord(id));
+  return r;
+}
+
+TEST_P(BothOptimizers, ATrueLoopRefusedWhileTheMapWasOffIsTakenBackAfterTheSolveAndAWrongOneIsNot) {
+  const ReadmitRun kept = readmitRun(GetParam(), false);
+  ASSERT_EQ(kept.loops.size(), 29u);
+  ASSERT_TRUE(kept.loops[0].refused) << "the long loop meets the biased odometry metres off";
+  ASSERT_TRUE(kept.loops[28].refused);
+  for (int id = 1; id <= 27; ++id) ASSERT_FALSE(kept.loops[id].refused) << id;
+  EXPECT_EQ(kept.stats.loops_gated, 2);
+  EXPECT_EQ(kept.stats.loops_readmitted, 0);
+
+  const ReadmitRun back = readmitRun(GetParam(), true);
+  EXPECT_FALSE(back.loops[0].refused) << "the short loops straightened the map: the long one agrees now";
+  EXPECT_TRUE(back.loops[28].refused) << "a wrong loop 1.2 m off agrees with no solution of the true ones";
+  for (int id = 1; id <= 27; ++id) EXPECT_FALSE(back.loops[id].refused) << id;
+  EXPECT_EQ(back.stats.loops_gated, 2);
+  EXPECT_EQ(back.stats.loops_readmitted, 1);
+  EXPECT_EQ(back.stats.loops_switched_off, 0);
+  // Taken back = as if it had been accepted at once: the solution of all the true loops (entry
+  // gate off, no wrong loop), and closer to the truth than without the long loop.
+  const ReadmitRun all = readmitRun(GetParam(), true, false);
+  ASSERT_EQ(all.loops.size(), 28u);
+  for (const LoopRecord& l : all.loops) ASSERT_FALSE(l.refused);
+  ASSERT_EQ(back.poses.size(), all.poses.size());
+  for (std::size_t k = 0; k < all.poses.size(); ++k)
+    EXPECT_TRUE(approxEqual(back.poses[k], all.poses[k], 1e-6, 1e-6)) << k << " " << back.poses[k] << " " << all.poses[k];
+  EXPECT_LT(worstError(back.poses, back.truth), worstError(kept.poses, kept.truth));
+}
+
 TEST_P(BothOptimizers, TheEntryGateIsLooseForSparseMapsAndTightForIekfMaps) {
   // A loop 1 m off along a 30-keyframe line (1 cm per motion): the chain's x variance is
   // 29e-4 m^2 (the IEKF's P before any update says the same), so the gate (chi-square 11.3)

@@ -360,14 +360,25 @@ OptimisationJob MultiSessionBackend::prepareOptimisation(int map_id) const {
     job.residual_gate_inflation = options_.residual_gate_inflation;
     job.residual_gate_floors = options_.consistency;
   }
+  // The refused loops inside the map, candidates to be taken back after the solve.
+  const bool readmit = options_.loop_residual_gate && options_.readmit_refused_loops;
+  auto refusedHere = [&](const LoopRecord& st) {
+    return readmit && st.refused && !st.summarised && !st.applied && mapOf(st.loop.session_a) == map_id &&
+           mapOf(st.loop.session_b) == map_id;
+  };
   if (m.iekf) {
     job.iekf = true;
     for (int k = 0; k < static_cast<int>(loops_.size()); ++k) {
       const LoopRecord& st = loops_[k];
+      const LoopMeasurement lm{indexOf(st.loop.session_a, st.loop.keyframe_a),
+                               indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z};
+      if (refusedHere(st)) {
+        job.refused_measurements.push_back(lm);
+        job.refused_loop_ids.push_back(k);
+      }
       if (st.summarised || st.refused || st.applied) continue;
       if (mapOf(st.loop.session_a) != map_id || mapOf(st.loop.session_b) != map_id) continue;
-      job.measurements.push_back(
-          {indexOf(st.loop.session_a, st.loop.keyframe_a), indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z});
+      job.measurements.push_back(lm);
       job.loop_ids.push_back(k);
     }
     if (!job.measurements.empty()) job.filter = *m.iekf;  // the copy is O(N^2), the update O(N^2 m)
@@ -386,6 +397,11 @@ OptimisationJob MultiSessionBackend::prepareOptimisation(int map_id) const {
   job.edge_loop_ids.assign(job.edges.size(), -1);
   for (int id = 0; id < static_cast<int>(loops_.size()); ++id) {
     const LoopRecord& st = loops_[id];
+    if (refusedHere(st)) {
+      job.refused_edges.push_back({indexOf(st.loop.session_a, st.loop.keyframe_a),
+                                   indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z, true});
+      job.refused_loop_ids.push_back(id);
+    }
     if (st.summarised || st.refused) continue;
     if (mapOf(st.loop.session_a) != map_id || mapOf(st.loop.session_b) != map_id) continue;
     job.edges.push_back({indexOf(st.loop.session_a, st.loop.keyframe_a), indexOf(st.loop.session_b, st.loop.keyframe_b),
@@ -400,46 +416,96 @@ void MultiSessionBackend::solveOptimisation(OptimisationJob* job) {
   const auto t0 = std::chrono::steady_clock::now();
   const bool gate = job->residual_gate_chi2 > 0.0;
   // Solve; with the residual gate, switch off the loop that disagrees most with the solution and
-  // solve again from the same start, until none is beyond the gate (loop_residual_gate).
+  // solve again from the same start, until none is beyond the gate (loop_residual_gate). Then
+  // take back the refused loops that agree with that solution (readmit_refused_loops) and solve
+  // again; each refused loop is taken back at most once per job, so this ends.
+  std::vector<bool> tried(job->refused_loop_ids.size(), false);
+  // The refused loops within the gate of a solution (pred(k): refused loop k's prediction in it),
+  // marked tried; their indexes.
+  auto takeBack = [&](const std::function<Pose2(std::size_t)>& pred) {
+    std::vector<std::size_t> back;
+    for (std::size_t k = 0; gate && k < tried.size(); ++k) {
+      if (tried[k]) continue;
+      const UncertainPose2& z =
+          job->iekf ? job->refused_measurements[k].z : job->refused_edges[k].z;
+      const double d2 = residualDistance2(pred(k), z, *job);
+      if (!(d2 <= job->residual_gate_chi2)) continue;
+      tried[k] = true;
+      back.push_back(k);
+      job->readmitted.push_back(job->refused_loop_ids[k]);
+      job->readmitted_chi2.push_back(d2);
+    }
+    return back;
+  };
   if (job->iekf && job->filter) {
     const TrajectoryIekf start = *job->filter;
-    while (!job->measurements.empty()) {
-      job->filter = start;
-      job->filter->update(job->measurements);
-      if (!gate) break;
-      std::vector<double> d2;
-      for (const LoopMeasurement& l : job->measurements)
-        d2.push_back(residualDistance2(relativeOfMotions(job->filter->motions(), l.i, l.j), l.z, *job));
-      const int worst = worstBeyondGate(d2, job->residual_gate_chi2);
-      if (worst < 0) break;
-      job->switched_off.push_back(job->loop_ids[worst]);
-      job->switched_off_chi2.push_back(d2[worst]);
-      job->measurements.erase(job->measurements.begin() + worst);
-      job->loop_ids.erase(job->loop_ids.begin() + worst);
-      if (job->measurements.empty()) job->filter = start;
+    for (;;) {
+      while (!job->measurements.empty()) {
+        job->filter = start;
+        job->filter->update(job->measurements);
+        if (!gate) break;
+        std::vector<double> d2;
+        for (const LoopMeasurement& l : job->measurements)
+          d2.push_back(residualDistance2(relativeOfMotions(job->filter->motions(), l.i, l.j), l.z, *job));
+        const int worst = worstBeyondGate(d2, job->residual_gate_chi2);
+        if (worst < 0) break;
+        job->switched_off.push_back(job->loop_ids[worst]);
+        job->switched_off_chi2.push_back(d2[worst]);
+        job->measurements.erase(job->measurements.begin() + worst);
+        job->loop_ids.erase(job->loop_ids.begin() + worst);
+        if (job->measurements.empty()) job->filter = start;
+      }
+      const std::vector<Pose2>& motions = job->filter->motions();
+      const std::vector<std::size_t> back = takeBack([&](std::size_t k) {
+        return relativeOfMotions(motions, job->refused_measurements[k].i, job->refused_measurements[k].j);
+      });
+      if (back.empty()) break;
+      for (std::size_t k : back) {
+        job->measurements.push_back(job->refused_measurements[k]);
+        job->loop_ids.push_back(job->refused_loop_ids[k]);
+      }
     }
   } else if (!job->iekf && job->any_loop) {
     const std::vector<Pose2> start = job->poses;
     for (;;) {
-      job->poses = start;
-      optimisePoseGraph(&job->poses, job->edges, job->sparse, 0);
-      if (!gate) break;
-      std::vector<double> d2(job->edges.size(), 0.0);
-      for (std::size_t e = 0; e < job->edges.size(); ++e)
-        if (job->edges[e].robust)
-          d2[e] = residualDistance2(between(job->poses[job->edges[e].from], job->poses[job->edges[e].to]),
-                                    job->edges[e].z, *job);
-      const int worst = worstBeyondGate(d2, job->residual_gate_chi2);
-      if (worst < 0) break;
-      job->switched_off.push_back(job->edge_loop_ids[worst]);
-      job->switched_off_chi2.push_back(d2[worst]);
-      job->edges.erase(job->edges.begin() + worst);
-      job->edge_loop_ids.erase(job->edge_loop_ids.begin() + worst);
-      if (std::none_of(job->edges.begin(), job->edges.end(), [](const PoseGraphEdge& e) { return e.robust; })) {
+      for (;;) {
         job->poses = start;
-        break;
+        optimisePoseGraph(&job->poses, job->edges, job->sparse, 0);
+        if (!gate) break;
+        std::vector<double> d2(job->edges.size(), 0.0);
+        for (std::size_t e = 0; e < job->edges.size(); ++e)
+          if (job->edges[e].robust)
+            d2[e] = residualDistance2(between(job->poses[job->edges[e].from], job->poses[job->edges[e].to]),
+                                      job->edges[e].z, *job);
+        const int worst = worstBeyondGate(d2, job->residual_gate_chi2);
+        if (worst < 0) break;
+        job->switched_off.push_back(job->edge_loop_ids[worst]);
+        job->switched_off_chi2.push_back(d2[worst]);
+        job->edges.erase(job->edges.begin() + worst);
+        job->edge_loop_ids.erase(job->edge_loop_ids.begin() + worst);
+        if (std::none_of(job->edges.begin(), job->edges.end(), [](const PoseGraphEdge& e) { return e.robust; })) {
+          job->poses = start;
+          break;
+        }
+      }
+      const std::vector<std::size_t> back = takeBack([&](std::size_t k) {
+        return between(job->poses[job->refused_edges[k].from], job->poses[job->refused_edges[k].to]);
+      });
+      if (back.empty()) break;
+      for (std::size_t k : back) {
+        job->edges.push_back(job->refused_edges[k]);
+        job->edge_loop_ids.push_back(job->refused_loop_ids[k]);
       }
     }
+  }
+  // A loop taken back and switched off again in the same job stays as it was: refused.
+  for (std::size_t k = job->readmitted.size(); k-- > 0;) {
+    const auto off = std::find(job->switched_off.begin(), job->switched_off.end(), job->readmitted[k]);
+    if (off == job->switched_off.end()) continue;
+    job->switched_off_chi2.erase(job->switched_off_chi2.begin() + (off - job->switched_off.begin()));
+    job->switched_off.erase(off);
+    job->readmitted.erase(job->readmitted.begin() + static_cast<std::ptrdiff_t>(k));
+    job->readmitted_chi2.erase(job->readmitted_chi2.begin() + static_cast<std::ptrdiff_t>(k));
   }
   job->solve_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   job->solved = true;
@@ -462,6 +528,16 @@ bool MultiSessionBackend::applyOptimisation(const OptimisationJob& job) {
     os << "loop " << st.loop.session_a << ":" << st.loop.keyframe_a << " -> " << st.loop.session_b << ":"
        << st.loop.keyframe_b << " switched off: it disagrees with map " << job.map << "'s solution (chi-square "
        << job.switched_off_chi2[k] << " > " << job.residual_gate_chi2 << ")";
+    say(os.str());
+  }
+  for (std::size_t k = 0; k < job.readmitted.size(); ++k) {
+    LoopRecord& st = loops_[job.readmitted[k]];
+    st.refused = false;
+    ++stats_.loops_readmitted;
+    std::ostringstream os;
+    os << "loop " << st.loop.session_a << ":" << st.loop.keyframe_a << " -> " << st.loop.session_b << ":"
+       << st.loop.keyframe_b << " taken back: refused before, it agrees with map " << job.map
+       << "'s solution (chi-square " << job.readmitted_chi2[k] << " <= " << job.residual_gate_chi2 << ")";
     say(os.str());
   }
   if (job.iekf) {

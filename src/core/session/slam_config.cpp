@@ -166,6 +166,7 @@ void visitBackend(V& v, B& b) {
   v("iekf_gate_inflation", b.iekf_gate_inflation);
   v("loop_residual_gate", b.loop_residual_gate);
   v("residual_gate_inflation", b.residual_gate_inflation);
+  v("readmit_refused_loops", b.readmit_refused_loops);
   v.block("consistency", [&](V& c) {
     c("confidence", b.consistency.confidence);
     c("min_sigma_m", b.consistency.min_sigma_m);

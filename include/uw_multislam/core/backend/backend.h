@@ -122,6 +122,14 @@ struct BackendOptions {
   /// the IEKF applies a loop without a robust loss, so this gate must stay tight for it even when
   /// the entry gate is loosened.
   double residual_gate_inflation = 10.0;
+  /// With the residual gate: after a solve, a loop inside the map that was refused before (by the
+  /// entry gate, switched off, or refused at a join) and agrees with the solution under the same
+  /// residual gate is taken back (counted, loops_readmitted) and the map solved again with it;
+  /// repeated until none is taken back. A true loop refused while a wrong one bent the map, or
+  /// while the map was still metres off before its first loops, is not lost (bench_backend
+  /// --outliers: doc/benchmarks/outliers.md, 2026-11-25 "Refused loops taken back"). A wrong loop
+  /// metres off never agrees with a solution of the true ones.
+  bool readmit_refused_loops = true;
   IekfOptions iekf;
   int max_keyframes = 1500;  // iekf: a larger map uses the sparse optimiser (dense P is 3N x 3N)
   SparseOptions sparse;
@@ -186,6 +194,7 @@ struct BackendStats {
   int joins_refused = 0;  // automatic joins the consistency policy refused (reason: last_join_refusal)
   int loops_gated = 0;    // loops inside a map refused by intra_loop_gate (also in loops_refused)
   int loops_switched_off = 0;  // loops refused by loop_residual_gate after a solve (also in loops_refused)
+  int loops_readmitted = 0;    // refused loops taken back after a solve (readmit_refused_loops)
   std::string last_join_refusal;
   int joins = 0, splits = 0;
   int optimisations = 0;
@@ -223,8 +232,15 @@ struct OptimisationJob {
   double residual_gate_chi2 = 0.0;
   double residual_gate_inflation = 1.0;
   ConsistencyOptions residual_gate_floors;
-  std::vector<int> switched_off;
+  std::vector<int> switched_off;  // loops that were in the map's solution
   std::vector<double> switched_off_chi2;
+  // readmit_refused_loops: the map's refused loops (sparse: as edges, iekf: as measurements, with
+  // their loop ids) and those the solve took back, with their distances
+  std::vector<PoseGraphEdge> refused_edges;
+  std::vector<LoopMeasurement> refused_measurements;
+  std::vector<int> refused_loop_ids;
+  std::vector<int> readmitted;
+  std::vector<double> readmitted_chi2;
   double solve_ms = 0.0;
   bool solved = false;
 };
