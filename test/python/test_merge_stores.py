@@ -86,7 +86,7 @@ def test_merge_joins_the_two_stores_like_one_run(merged):
     base, made, _, out, r = merged
     s = summary(r.stdout)
     assert s["inputs"] == "2" and s["sessions"] == "2" and s["maps"] == "1" and s["joins"] == "1", r.stdout
-    assert int(s["new_loops"]) >= 5, r.stdout  # the count policy's K
+    assert int(s["new_loops"]) >= 2, r.stdout  # join_policy consistent's minimum set
     # The same map as one run over both folders: one map, one link, the same poses.
     one = store_maps(made["both"])
     two = store_maps(out)
@@ -95,10 +95,14 @@ def test_merge_joins_the_two_stores_like_one_run(merged):
     (chain2, links2), = two.values()
     assert len(chain1) == len(chain2) == 2 and len(links1) == len(links2) == 1
     # The loops are the same ones (the same stored hashes and features; the live run's query
-    # features are the extractor's, stored losslessly), and the link is made from the first K of
-    # them in the same keyframe order: equal but for float rounding.
+    # features are the extractor's, stored losslessly), and the link is made from the same
+    # consistent set in the same keyframe order. join_policy consistent waits for a loop to b's
+    # second keyframe (the spread), so the link also rests on b's first motion: its odometry in the
+    # one run (b was recording), b's own optimised motion in the merge (b complete, with its local
+    # loops). Measured 2026-11-25: 3.7e-6 m in x, 5.0e-5 m in y, 7.7e-7 rad; a wrong link or a
+    # lost loop moves b by cm.
     for u, v in zip(links1[0], links2[0]):
-        assert abs(u - v) < 1e-6, (links1, links2)
+        assert abs(u - v) < 2e-4, (links1, links2)
     p1 = map_poses(base, made["both"], "both")
     p2 = map_poses(base, out, "merged")
     assert p1.keys() == p2.keys() and len(p1) > 10
