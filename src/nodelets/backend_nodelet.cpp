@@ -127,6 +127,7 @@ void BackendNodelet::onInit() {
   unload_srv_ = nh.advertiseService(topics::kUnloadSessionService, &BackendNodelet::onUnload, this);
   delete_srv_ = nh.advertiseService(topics::kDeleteSessionService, &BackendNodelet::onDelete, this);
   export_srv_ = nh.advertiseService(topics::kExportService, &BackendNodelet::onExport, this);
+  features_srv_ = nh.advertiseService(topics::kKeyframeFeaturesService, &BackendNodelet::onKeyframeFeatures, this);
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
   updater_->setHardwareID("none");
   updater_->add("backend", this, &BackendNodelet::fillDiagnostics);
@@ -487,10 +488,13 @@ void BackendNodelet::onReloadedSubscriber(const ros::SingleSubscriberPublisher& 
     }
     for (core::StoredKeyframe& k : r.keyframes) {
       try {
+        // Paging (slam/loops/page_stored): hashes only; the loop detector asks keyframe_features.
+        if (config_.loops.page_stored) throw std::out_of_range("paged");
         const core::StoredKeyframe f = manager_->storedFeatures(id, k.keyframe);
         k.points = f.points;
         k.descriptors = f.descriptors;
         k.image_size = f.image_size;
+      } catch (const std::out_of_range&) {  // paged: sent with its hash only
       } catch (const std::exception& e) {  // sent without features: no candidate, as a keyframe never received
         ++failed;
         NODELET_WARN_THROTTLE(5, "back-end: stored keyframe %d/%d sent without features: %s", id, k.keyframe, e.what());
@@ -535,10 +539,51 @@ bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_mult
     if (!k.thumbnail.empty()) mosaic_images_.add(r.id, k.keyframe, k.altitude_m, r.camera, k.thumbnail);
   mosaic_due_ = true;
   handed_.push_back(r.id);  // and to every loop detector that subscribes later
-  for (const core::StoredKeyframe& k : r.keyframes)
+  for (core::StoredKeyframe& k : r.keyframes) {
+    if (config_.loops.page_stored) {  // the loop detector reads them again when needed (keyframe_features)
+      k.points.clear();
+      k.descriptors.release();
+    }
     reloaded_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::reloadedKeyframeMsg(r, k, frame)));
+  }
   NODELET_INFO("back-end: reload_session '%s': session %d, %zu keyframes handed to the loop detector", req.name.c_str(),
                r.id, r.keyframes.size());
+  return true;
+}
+
+bool BackendNodelet::onKeyframeFeatures(uw_multislam::KeyframeFeatures::Request& req,
+                                        uw_multislam::KeyframeFeatures::Response& res) {
+  if (req.session < 0 || req.session > core::kMaxSessionId || req.keyframe < 0) {
+    res.status = rc::toStatusMsg({core::StatusCode::kInvalidArgument, "session " + std::to_string(req.session) +
+                                                                          ", keyframe " + std::to_string(req.keyframe) +
+                                                                          ": ids must be >= 0"});
+    return true;
+  }
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  core::ReloadedSession r;
+  r.id = req.session;
+  core::StoredKeyframe k;
+  try {
+    if (!manager_->has(req.session))
+      throw std::out_of_range("no session " + std::to_string(req.session) + " (see list_sessions)");
+    r.camera = manager_->camera(req.session);
+    k = manager_->storedFeatures(req.session, req.keyframe);
+  } catch (const std::out_of_range& e) {
+    res.status = rc::toStatusMsg({core::StatusCode::kNotFound, e.what()});
+    return true;
+  } catch (const std::exception& e) {
+    // No store; a keyframe not (yet) in it; an unreadable record.
+    const bool no_store = manager_->options().store_path.empty();
+    const bool stored = !no_store && manager_->inStore(req.session, req.keyframe);
+    res.status = rc::toStatusMsg({no_store ? core::StatusCode::kFailedPrecondition
+                                  : stored ? core::StatusCode::kDataLoss
+                                           : core::StatusCode::kNotFound,
+                                  e.what()});
+    return true;
+  }
+  k.thumbnail.clear();
+  res.keyframe = rc::reloadedKeyframeMsg(r, k, options_.frames.session_frame_prefix + std::to_string(req.session));
+  res.status = rc::toStatusMsg(core::Status::Ok());
   return true;
 }
 

@@ -42,6 +42,8 @@ void LoopDetectorNodelet::onInit() {
     queue_ = std::make_unique<ros_work::BoundedWorkQueue<Work>>(static_cast<std::size_t>(options_.queue_size));
     detector_ = std::make_unique<core::LoopDetector>(config_.loops, config_.odometry.matching, config_.odometry.ransac,
                                                      config_.odometry.features.num_features);
+    if (config_.loops.page_stored)
+      detector_->setFeatureLoader([this](int session, int keyframe) { return loadFeatures(session, keyframe); });
   } catch (const std::exception& e) {
     NODELET_FATAL("loop detector: invalid parameters, not starting: %s", e.what());
     throw;
@@ -50,12 +52,15 @@ void LoopDetectorNodelet::onInit() {
   NODELET_INFO(
       "loop detector: mode %s (local %s: radius %.2f m up to %.2f m, %d candidates, %d inliers; global %s: "
       "hash %s, best_k %d, %d inliers, seed %llu), queue_size %d (oldest dropped when full), max_keyframe_gap %d, "
-      "hashes %s",
+      "hashes %s, stored keyframes %s",
       options_.mode.c_str(), l.local.enabled ? "on" : "off", l.local.radius_m, l.local.max_radius_m,
       l.local.max_candidates, l.local.min_inliers, l.global.enabled ? "on" : "off",
       core::hashModeName(l.global.hash_mode).c_str(), l.global.best_k, l.global.min_inliers,
       static_cast<unsigned long long>(l.global.projection_seed), options_.queue_size, options_.max_keyframe_gap,
-      options_.publishHashes() ? "published" : "not published");
+      options_.publishHashes() ? "published" : "not published",
+      l.page_stored ? ("paged (features from the back-end's store through a " + std::to_string(l.feature_cache_mb) +
+                       " MiB cache)").c_str()
+                    : "kept in RAM with their features");
 
   ros::NodeHandle& nh = getNodeHandle();
   loop_pub_ = nh.advertise<uw_multislam::Loop>(topics::kLoops, 100);
@@ -101,7 +106,15 @@ void LoopDetectorNodelet::processReloaded(const uw_multislam::Keyframe& msg) {
   Session& s = session(k.session);
   if (s.cameras.empty() || s.cameras.back().fx != k.camera.fx || s.cameras.back().width != k.camera.width)
     s.cameras.push_back(k.camera);
-  if (k.features.keypoints.empty()) return;  // a keyframe that never arrived live: no candidate
+  if (k.features.keypoints.empty()) {
+    // Paged: its hash and ids only, its features asked for when it is a candidate. Without a hash
+    // (or not paging): a keyframe that never arrived live, no candidate.
+    if (!config_.loops.page_stored || k.hash.size() == 0) return;
+    detector_->addPagedKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m, &s.cameras.back(), k.hash);
+    ++counts_.reloaded;
+    ++counts_.paged;
+    return;
+  }
   const Eigen::VectorXf hash = k.hash.size() > 0 ? k.hash : detector_->hasher().hash(k.features.descriptors);
   detector_->addStoredKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m, &s.cameras.back(), k.features, hash);
   ++counts_.reloaded;
@@ -137,6 +150,12 @@ void LoopDetectorNodelet::work() {
     counts_.stored = static_cast<long>(detector_->size());
     counts_.local_candidates = detector_->stats().local_candidates;
     counts_.global_candidates = detector_->stats().global_candidates;
+    if (const core::FeatureCache* cache = detector_->featureCache()) {
+      counts_.cache_hits = cache->stats().hits;
+      counts_.cache_misses = cache->stats().misses;
+      counts_.cache_mb = static_cast<double>(cache->bytes()) / (1024.0 * 1024.0);
+    }
+    counts_.read_failures = detector_->stats().feature_read_failures;
     {
       std::lock_guard<std::mutex> lock(stats_mutex_);
       published_ = counts_;
@@ -228,6 +247,32 @@ void LoopDetectorNodelet::process(const uw_multislam::Keyframe& msg) {
   }
 }
 
+core::FrameFeatures LoopDetectorNodelet::loadFeatures(int session, int keyframe) {
+  uw_multislam::KeyframeFeatures srv;
+  srv.request.session = session;
+  srv.request.keyframe = keyframe;
+  // A persistent connection (one per candidate read otherwise); made again after a failure (the
+  // back-end respawned).
+  if (!features_client_.isValid())
+    features_client_ = getNodeHandle().serviceClient<uw_multislam::KeyframeFeatures>(
+        topics::kKeyframeFeaturesService, true);
+  if (!features_client_.call(srv)) {
+    features_client_.shutdown();
+    NODELET_WARN_THROTTLE(5, "loop detector: %s not answering: stored keyframe %d/%d not verified",
+                          getNodeHandle().resolveName(topics::kKeyframeFeaturesService).c_str(), session, keyframe);
+    throw std::runtime_error("keyframe_features: no answer from the back-end");
+  }
+  if (srv.response.status.code != uw_multislam::Status::OK) {
+    NODELET_WARN_THROTTLE(5, "loop detector: stored keyframe %d/%d not verified: %s", session, keyframe,
+                          srv.response.status.message.c_str());
+    throw std::runtime_error("keyframe_features: " + srv.response.status.message);
+  }
+  rc::KeyframeData k;
+  std::string why;
+  if (!rc::fromMsg(srv.response.keyframe, &k, &why)) throw std::runtime_error("keyframe_features: " + why);
+  return k.features;
+}
+
 void LoopDetectorNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat) {
   Counters c;
   {
@@ -254,6 +299,11 @@ void LoopDetectorNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWr
                            {"keyframes_reloaded_again", static_cast<double>(c.reloaded_again)},
                            {"sessions_unloaded", static_cast<double>(c.sessions_unloaded)},
                            {"keyframes_unloaded", static_cast<double>(c.keyframes_unloaded)},
+                           {"keyframes_paged", static_cast<double>(c.paged)},
+                           {"feature_cache_hits", static_cast<double>(c.cache_hits)},
+                           {"feature_cache_misses", static_cast<double>(c.cache_misses)},
+                           {"feature_cache_mb", c.cache_mb},
+                           {"feature_read_failures", static_cast<double>(c.read_failures), true},
                            {"ms_per_keyframe_mean", n > 0 ? c.total_ms / n : 0.0},
                            {"ms_per_keyframe_max", c.max_ms}},
                           ros::WallTime::now().toSec());

@@ -7,6 +7,9 @@ area) is played frame by frame. The back-end must publish relocalised_pose withi
 s1's first keyframe that overlaps s0 (the generator's loops_gt.csv: frame pairs whose centres are
 close), with an error of at most 2 cm against the ground truth (world_gt.csv) in s0's map frame;
 /diagnostics says "relocalised: session 1 in map 0"; nothing is written to the store (md5).
+Registered twice: with slam/loops/page_stored true (the default: the loop detector keeps the stored
+keyframes as hashes and reads a candidate's features from the back-end's store, service
+keyframe_features) and false (all features sent and kept in RAM); the same relocalisation both ways.
 """
 import csv
 import hashlib
@@ -18,6 +21,7 @@ import subprocess
 import threading
 import unittest
 
+import rospkg
 import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
@@ -49,8 +53,16 @@ class RelocaliseTest(unittest.TestCase):
         subprocess.run([tool("offline_slam"), "--session", os.path.join(self.mission, "s0"), "--db", self.db,
                         "--out", os.path.join(self.tmp, "out0"), "--quiet"], check=True, timeout=300)
         self.md5_before = md5(self.db)
+        self.page = rospy.get_param("~page_stored", True)
+        # The algorithm parameters with slam/loops/page_stored as this case asks.
+        config = os.path.join(self.tmp, "slam.yaml")
+        with open(os.path.join(rospkg.RosPack().get_path("uw_multislam"), "config", "slam.yaml")) as f:
+            text = f.read()
+        self.assertIn("  page_stored: true ", text)
+        with open(config, "w") as f:
+            f.write(text.replace("  page_stored: true ", "  page_stored: %s " % ("true" if self.page else "false")))
         self.launch = subprocess.Popen(["roslaunch", "uw_multislam", "slam.launch", "store_path:=" + self.db,
-                                        "mode:=localisation", "reload_stored:=true"],
+                                        "mode:=localisation", "reload_stored:=true", "slam_config:=" + config],
                                        stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
 
     def tearDown(self):
@@ -153,7 +165,22 @@ class RelocaliseTest(unittest.TestCase):
         out = subprocess.run([SESSIONS_TOOL, "list"], capture_output=True, text=True, timeout=60)
         self.assertIn("relocalised in map 0", out.stdout, out.stdout + out.stderr)
 
-        # A subscriber that comes late (a respawned loop detector) gets every stored keyframe, with features.
+        # Paging: every stored keyframe held as its hash, the candidates' features read through
+        # keyframe_features (misses), none failed; without it, none paged and nothing read.
+        with lock:
+            detector = status["loop_detector"]
+            rospy.loginfo("page_stored %s: loop detector %s", self.page, detector)
+            if self.page:
+                self.assertEqual(detector["keyframes_paged"], stored, detector)
+                self.assertGreater(detector["feature_cache_misses"], 0, detector)
+                self.assertGreater(detector["feature_cache_mb"], 0.0, detector)
+            else:
+                self.assertEqual(detector["keyframes_paged"], 0, detector)
+                self.assertEqual(detector["feature_cache_misses"], 0, detector)
+            self.assertEqual(detector["feature_read_failures"], 0, detector)
+
+        # A subscriber that comes late (a respawned loop detector) gets every stored keyframe: with
+        # its hash only when paging, with its features otherwise.
         late = []
         late_sub = rospy.Subscriber(NS + "/reloaded_keyframes", Keyframe, appender(lock, late), queue_size=1000)
         await_condition(lock, lambda: len(late) >= stored, 60, "the stored keyframes for a late subscriber",
@@ -161,7 +188,8 @@ class RelocaliseTest(unittest.TestCase):
         late_sub.unregister()
         with lock:
             self.assertEqual(sorted(k.keyframe for k in late), list(range(stored)))
-            self.assertTrue(all(k.session == 0 and len(k.u_px) > 0 for k in late))
+            self.assertTrue(all(k.session == 0 and len(k.hash) > 0 for k in late))
+            self.assertTrue(all((len(k.u_px) == 0) == self.page for k in late), [len(k.u_px) for k in late])
 
         # Localisation mode: the store is byte-identical, also after the pipeline's clean shutdown.
         self.launch.send_signal(signal.SIGINT)

@@ -95,6 +95,8 @@ constexpr char kDetectLoopsService[] = "detect_loops";
 constexpr char kSetModeService[] = "set_mode";
 constexpr char kHistoryService[] = "history";
 constexpr char kExportService[] = "export";
+// One stored keyframe's features for a loop detector that pages (slam/loops/page_stored).
+constexpr char kKeyframeFeaturesService[] = "keyframe_features";
 // --- Services of the odometry (uw_multislam/srv/OperatorCommand) ---------------------------------
 /// Frames are dropped (counted, their stamps seen: no time gap) until resume; the session goes on.
 constexpr char kPauseService[] = "pause";

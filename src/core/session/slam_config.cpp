@@ -131,6 +131,7 @@ void visitOdometry(V& v, O& o) {
 template <typename V, typename O>
 void visitLoops(V& v, O& o) {
   v("feature_cache_mb", o.feature_cache_mb);
+  v("page_stored", o.page_stored);
   v.block("local", [&](V& l) {
     l("enabled", o.local.enabled);
     l("radius_m", o.local.radius_m);

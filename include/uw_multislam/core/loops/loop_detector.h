@@ -67,6 +67,12 @@ struct LoopOptions {
   /// Paging: the byte budget (MiB) of the cache of stored keyframes' features read from the
   /// session store for verification (about 78 kB each at n = 500: 64 MiB keeps about 850).
   double feature_cache_mb = 64.0;
+  /// In the nodelets (issue 20, paging): the back-end hands stored keyframes to the loop
+  /// detectors with their hashes only, and a loop detector reads a candidate's features from the
+  /// back-end's store (service keyframe_features) through that cache. false: every stored
+  /// keyframe's features are sent and kept in the loop detector's RAM (about 70 kB each).
+  /// offline_slam --db always pages.
+  bool page_stored = true;
   std::string validate() const;
 };
 

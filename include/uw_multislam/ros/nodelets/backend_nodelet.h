@@ -96,6 +96,7 @@
 #include "uw_multislam/FinishSession.h"
 #include "uw_multislam/JoinSessions.h"
 #include "uw_multislam/Keyframe.h"
+#include "uw_multislam/KeyframeFeatures.h"
 #include "uw_multislam/ListSessions.h"
 #include "uw_multislam/Loop.h"
 #include "uw_multislam/DeleteSession.h"
@@ -180,6 +181,8 @@ class BackendNodelet : public nodelet::Nodelet {
   /// unload_session) and its latched path topic gets an empty path.
   bool onDelete(uw_multislam::DeleteSession::Request& req, uw_multislam::DeleteSession::Response& res);
   bool onExport(uw_multislam::ExportSurvey::Request& req, uw_multislam::ExportSurvey::Response& res);
+  /// keyframe_features: one stored keyframe's features for a loop detector that pages.
+  bool onKeyframeFeatures(uw_multislam::KeyframeFeatures::Request& req, uw_multislam::KeyframeFeatures::Response& res);
   /// The live mosaic's thread (see "Threading model").
   void drawMosaics();
   /// Every counter, for /diagnostics and the periodic log line (under state_mutex_).
@@ -233,7 +236,7 @@ class BackendNodelet : public nodelet::Nodelet {
   std::atomic<bool> mosaic_due_{true};  // the active map changed since the last drawing
   std::mutex export_mutex_;             // one export at a time
   ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_, export_srv_, finish_srv_, link_srv_,
-      optimise_srv_, detect_srv_, mode_srv_, history_srv_, unload_srv_, delete_srv_;
+      optimise_srv_, detect_srv_, mode_srv_, history_srv_, unload_srv_, delete_srv_, features_srv_;
   ros::Subscriber keyframe_sub_, loop_sub_, pose_sub_;  // last: destroyed first
 };
 

@@ -10,6 +10,13 @@
 // keeps its own copy of the keyframes' features (~66 kB per keyframe). loops.local.enabled and
 // loops.global.enabled of the SLAM configuration still apply on top of the mode.
 //
+// Paging (issue 20; slam/loops/page_stored, default true): stored keyframes arrive on
+// reloaded_keyframes with their hash only and are kept as hash + ids (core::LoopDetector's paged
+// keyframes, a few kB each); when one is a candidate, its features are asked from the back-end's
+// store (service keyframe_features, on the worker thread) through an LRU cache of
+// slam/loops/feature_cache_mb. A failed read skips that candidate (counted:
+// feature_read_failures). false: stored keyframes come with their features, all kept in RAM.
+//
 // Inputs:  keyframes (uw_multislam/Keyframe, from the odometry nodelet)
 //          session_trajectory (uw_multislam/SessionTrajectory, from the back-end, optional)
 // Outputs: loops (uw_multislam/Loop), keyframe_hashes (uw_multislam/KeyframeHash, global/both)
@@ -49,6 +56,7 @@
 #include <vector>
 
 #include "uw_multislam/Keyframe.h"
+#include "uw_multislam/KeyframeFeatures.h"
 #include "uw_multislam/SessionTrajectory.h"
 #include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/loops/session_chain.h"
@@ -82,6 +90,9 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
     long keyframes = 0, dropped = 0, bad = 0, gaps = 0, local = 0, global = 0, hashes = 0, reloaded = 0, reloaded_again = 0;
     long sessions = 0, stored = 0, local_candidates = 0, global_candidates = 0;
     long sessions_unloaded = 0, keyframes_unloaded = 0;
+    long paged = 0;  // stored keyframes kept as hash + ids (page_stored)
+    long cache_hits = 0, cache_misses = 0, read_failures = 0;
+    double cache_mb = 0.0;
     double total_ms = 0.0, max_ms = 0.0;
   };
 
@@ -99,6 +110,9 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   /// The optimised poses the back-end last published for `session` (empty: none yet).
   std::vector<core::Pose2> optimisedPoses(int session);
   void logStats(const char* when);
+  /// The loader of paged keyframes: keyframe_features from the back-end (the worker's thread).
+  /// Throws std::runtime_error with the reason when the call fails or is refused.
+  core::FrameFeatures loadFeatures(int session, int keyframe);
   void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
   ros_params::LoopDetectorNodeletOptions options_;
@@ -122,6 +136,7 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   ros_diagnostics::CounterStatus diagnostic_status_;  // the timer's thread only
   ros::WallTimer diagnostic_timer_;
 
+  ros::ServiceClient features_client_;  // the worker's only (page_stored)
   ros::Publisher loop_pub_, hash_pub_;
   ros::Subscriber keyframe_sub_, trajectory_sub_, reloaded_sub_;  // last: destroyed first
 };

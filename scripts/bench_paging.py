@@ -1,0 +1,150 @@
+#!/usr/bin/python3
+"""The loop detector's memory per stored keyframe through ROS (issue 20, paging): slam.launch
+standalone (one process per node) on a store of N synthetic keyframes (bench_scale --keep), with
+reload_stored:=true and mode:=localisation, once with slam/loops/page_stored true (the default:
+hashes in RAM, features read from the back-end's store on demand) and once false (every feature
+sent and kept). For each it waits until the loop detector's diagnostics count the N keyframes
+reloaded, reads the loop_detector_node process's VmRSS, and subtracts the same process's VmRSS
+in a run on an empty store (reload of nothing). Prints one line per case:
+
+  bench_paging keyframes=N page_stored=true loop_detector_rss_MB=X ram_per_stored_keyframe_kB=Y reload_s=Z
+
+Not a test: numbers for this machine. Needs a built workspace (devel/setup.bash sourced) and
+rostest's roslaunch; starts its own master on a free port.
+usage: scripts/bench_paging.py STORE.db [--keyframes N]
+"""
+import argparse
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+import rospkg
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def rss_kb(pid):
+    with open("/proc/%d/status" % pid) as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    raise RuntimeError("no VmRSS for %d" % pid)
+
+
+def pid_of(node):
+    """The process id of a ROS node of this master (asked of the node itself, through its API)."""
+    import rosnode
+    import xmlrpc.client
+    uri = rosnode.get_api_uri(rospy_master(), node, skip_cache=True)
+    if not uri:
+        return None
+    code, _, pid = xmlrpc.client.ServerProxy(uri).getPid("/bench_paging")
+    return pid if code == 1 else None
+
+
+def rospy_master():
+    import rosgraph
+    return rosgraph.Master("/bench_paging")
+
+
+def run_case(store, config, expect, env):
+    """slam.launch on `store` (None: an empty one) with the given slam config; the loop detector's
+    VmRSS (kB) once it reports `expect` keyframes reloaded, and the seconds that took."""
+    import rospy
+    from diagnostic_msgs.msg import DiagnosticArray
+    launch = subprocess.Popen(["roslaunch", "uw_multislam", "slam.launch", "standalone:=true",
+                               "store_path:=" + (store or "none"), "reload_stored:=" + ("true" if store else "false"),
+                               "mode:=localisation", "slam_config:=" + config],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, env=env)
+    started = time.time()
+    got = {}
+    cond = threading.Condition()
+
+    def on_diag(msg):
+        for s in msg.status:
+            if s.name.endswith(": loop_detector"):
+                with cond:
+                    got.update({v.key: v.value for v in s.values})
+                    cond.notify_all()
+
+    try:
+        for _ in range(100):
+            try:
+                rospy.get_master().getPid()
+                break
+            except Exception:
+                time.sleep(0.2)
+        if not rospy.core.is_initialized():
+            rospy.init_node("bench_paging", anonymous=True, disable_signals=True)
+        sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)
+        with cond:
+            ok = cond.wait_for(lambda: float(got.get("keyframes_reloaded", -1)) == expect and
+                               float(got.get("queue_length", 1)) == 0, timeout=600)
+        elapsed = time.time() - started
+        sub.unregister()
+        if not ok:
+            raise RuntimeError("the loop detector did not report %d keyframes reloaded: %s" % (expect, got))
+        time.sleep(2.0)  # let freed memory settle; VmRSS is read once, after the queue emptied
+        pid = pid_of("/uw_multislam/loop_detector_node")
+        if pid is None:
+            raise RuntimeError("no loop_detector_node process")
+        return rss_kb(pid), elapsed, dict(got)
+    finally:
+        launch.send_signal(signal.SIGINT)
+        try:
+            launch.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            launch.kill()
+            launch.wait()
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("store", help="a store, e.g. from bench_scale --keyframes N --dir DIR --keep")
+    p.add_argument("--keyframes", type=int, required=True, help="the store's keyframes")
+    a = p.parse_args()
+    tmp = tempfile.mkdtemp(prefix="uwms_bench_paging_")
+    port = free_port()
+    env = dict(os.environ, ROS_MASTER_URI="http://localhost:%d" % port)
+    os.environ["ROS_MASTER_URI"] = env["ROS_MASTER_URI"]
+    master = subprocess.Popen(["rosmaster", "--core", "-p", str(port)], stdout=subprocess.DEVNULL,
+                              stderr=subprocess.STDOUT, env=env)
+    try:
+        with open(os.path.join(rospkg.RosPack().get_path("uw_multislam"), "config", "slam.yaml")) as f:
+            text = f.read()
+        if "  page_stored: true " not in text:
+            sys.exit("bench_paging: page_stored not in config/slam.yaml")
+        configs = {}
+        for page in ("true", "false"):
+            configs[page] = os.path.join(tmp, "slam_%s.yaml" % page)
+            with open(configs[page], "w") as f:
+                f.write(text.replace("  page_stored: true ", "  page_stored: %s " % page))
+        # A copy per run: localisation mode writes nothing, but the store's lock is per file.
+        for page in ("true", "false"):
+            empty_kb, _, _ = run_case(None, configs[page], 0, env)
+            db = os.path.join(tmp, "store_%s.db" % page)
+            shutil.copy(a.store, db)
+            loaded_kb, seconds, diag = run_case(db, configs[page], a.keyframes, env)
+            os.remove(db)
+            print("bench_paging keyframes=%d page_stored=%s loop_detector_rss_MB=%.1f ram_per_stored_keyframe_kB=%.2f "
+                  "reload_s=%.1f keyframes_paged=%d" % (a.keyframes, page, loaded_kb / 1024.0,
+                                                        (loaded_kb - empty_kb) / float(a.keyframes), seconds,
+                                                        int(float(diag.get("keyframes_paged", 0)))), flush=True)
+    finally:
+        master.send_signal(signal.SIGINT)
+        master.wait(timeout=30)
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
