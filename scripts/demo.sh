@@ -129,7 +129,7 @@ launch_alive || { echo "[demo] replay.launch stopped early:" >&2; tail -n 20 "$l
 sleep 4  # the last keyframes and loops through the back-end
 echo "[demo] bags played (t = $(($(date +%s) - started)) s); the sessions now:"
 sessions list
-echo "[demo] split session 1 off its map, then join the two again (K global loops needed):"
+echo "[demo] split session 1 off its map, then join the two again (min_loops 0: the configured join rule):"
 sessions split 1
 sessions list
 sessions join 0 1 0
