@@ -437,6 +437,13 @@ void MultiSessionBackend::solveOptimisation(OptimisationJob* job) {
     }
     return back;
   };
+  // Loop `worst` of the solve (measurement or edge `worst`, its loop id in ids) switched off.
+  auto switchOff = [&](auto* items, std::vector<int>* ids, int worst, double d2) {
+    job->switched_off.push_back((*ids)[worst]);
+    job->switched_off_chi2.push_back(d2);
+    items->erase(items->begin() + worst);
+    ids->erase(ids->begin() + worst);
+  };
   if (job->iekf && job->filter) {
     const TrajectoryIekf start = *job->filter;
     for (;;) {
@@ -449,10 +456,7 @@ void MultiSessionBackend::solveOptimisation(OptimisationJob* job) {
           d2.push_back(residualDistance2(relativeOfMotions(job->filter->motions(), l.i, l.j), l.z, *job));
         const int worst = worstBeyondGate(d2, job->residual_gate_chi2);
         if (worst < 0) break;
-        job->switched_off.push_back(job->loop_ids[worst]);
-        job->switched_off_chi2.push_back(d2[worst]);
-        job->measurements.erase(job->measurements.begin() + worst);
-        job->loop_ids.erase(job->loop_ids.begin() + worst);
+        switchOff(&job->measurements, &job->loop_ids, worst, d2[worst]);
         if (job->measurements.empty()) job->filter = start;
       }
       const std::vector<Pose2>& motions = job->filter->motions();
@@ -479,10 +483,7 @@ void MultiSessionBackend::solveOptimisation(OptimisationJob* job) {
                                       job->edges[e].z, *job);
         const int worst = worstBeyondGate(d2, job->residual_gate_chi2);
         if (worst < 0) break;
-        job->switched_off.push_back(job->edge_loop_ids[worst]);
-        job->switched_off_chi2.push_back(d2[worst]);
-        job->edges.erase(job->edges.begin() + worst);
-        job->edge_loop_ids.erase(job->edge_loop_ids.begin() + worst);
+        switchOff(&job->edges, &job->edge_loop_ids, worst, d2[worst]);
         if (std::none_of(job->edges.begin(), job->edges.end(), [](const PoseGraphEdge& e) { return e.robust; })) {
           job->poses = start;
           break;
