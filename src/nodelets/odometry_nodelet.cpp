@@ -98,6 +98,8 @@ void OdometryNodelet::readParameters() {
       "topic (nav/odom, nav_msgs/Odometry), tf (odom -> base_link) or none");
   options_.nav_tf_wait_s = param(
       pnh, "nav_tf_wait_s", 0.05, [](double v) { return std::isfinite(v) && v >= 0 && v <= 1; }, "in [0, 1] s");
+  options_.nav_wait_s = param(
+      pnh, "nav_wait_s", 0.05, [](double v) { return std::isfinite(v) && v >= 0 && v <= 1; }, "in [0, 1] s");
   options_.nav_tf_drift = param(
       pnh, "nav_tf_drift", 0.01, [](double v) { return std::isfinite(v) && v > 0 && v <= 1; }, "in (0, 1]");
   options_.nav_tf_yaw_drift = param(
@@ -238,7 +240,9 @@ void OdometryNodelet::onNav(const nav_msgs::OdometryConstPtr& msg) {
     ok = nav_.append(r, &why, std::max(options_.reorder_tolerance_s, 1e-6));
     if (ok && !why.empty()) NODELET_WARN("odometry: nav reading at %.3f: %s", r.stamp_s, why.c_str());
     if (ok && nav_.rows().size() > 64) nav_.dropBefore(r.stamp_s - options_.nav_buffer_s);
+    if (ok) last_nav_wall_ = ros::WallTime::now();
   }
+  if (ok) nav_cv_.notify_all();
   if (!ok) {
     ++nav_refused_;
     NODELET_WARN_THROTTLE(5, "odometry: nav reading skipped: %s (%ld so far)", why.c_str(), nav_refused_.load());
@@ -272,8 +276,17 @@ std::optional<core::NavRecord> OdometryNodelet::navFromTf(const ros::Time& stamp
 
 std::optional<core::NavRecord> OdometryNodelet::navAt(double stamp_s) {
   if (!config_.odometry.nav.enabled) return std::nullopt;
-  std::lock_guard<std::mutex> lock(nav_mutex_);
+  std::unique_lock<std::mutex> lock(nav_mutex_);
   core::NavRecord r;
+  // The frame is newer than the newest reading while readings keep coming: its own is on the way
+  // (another connection than the image's), wait for it up to ~nav_wait_s.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(options_.nav_wait_s);
+  auto waiting = [&] {
+    return !nav_.empty() && nav_.rows().back().stamp_s < stamp_s && !last_nav_wall_.isZero() &&
+           (ros::WallTime::now() - last_nav_wall_).toSec() < 1.0;
+  };
+  while (waiting() && nav_cv_.wait_until(lock, deadline) != std::cv_status::timeout) {
+  }
   if (!nav_.at(stamp_s, &r)) return std::nullopt;
   return r;
 }

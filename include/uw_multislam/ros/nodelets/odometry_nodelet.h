@@ -21,6 +21,10 @@
 //                       reckoning through vision failures, fusion); without readings the odometry
 //                       is exactly as without nav. Bad readings (not finite, negative variance,
 //                       zero stamp, not after the last one) are skipped and counted (nav_refused).
+//                       A frame newer than the newest reading waits up to ~nav_wait_s for the
+//                       next one while readings keep coming (the nav and the image travel on
+//                       separate connections: the image can be first); without readings for 1 s
+//                       (a nav outage) it does not wait.
 //   tf odom -> base_link with ~nav_source tf: the vehicle's dead reckoning from tf (frames/odom_frame
 //                       -> frames/base_frame) at each frame's stamp (waiting up to ~nav_tf_wait_s);
 //                       tf has no covariance, so sigma grows with the distance travelled:
@@ -133,6 +137,7 @@
 #include <opencv2/core.hpp>
 
 #include <atomic>
+#include <condition_variable>
 #include <deque>
 #include <future>
 #include <memory>
@@ -185,6 +190,7 @@ struct OdometryNodeletOptions {
   int max_image_pixels = 25000000;  // larger images are skipped before any conversion (counted)
   std::string nav_source = "topic";  // topic: nav/odom (nav_msgs/Odometry); tf: odom -> base_link; none
   double nav_tf_wait_s = 0.05;       // tf: how long a frame waits for its transform
+  double nav_wait_s = 0.05;          // topic: how long a frame newer than the newest reading waits
   double nav_tf_drift = 0.01;        // tf: sigma_xy = this x the distance travelled
   double nav_tf_yaw_drift = 0.001;   // tf: sigma_yaw = this (rad/m) x the distance travelled
   double nav_buffer_s = 60.0;        // nav readings kept this long behind the newest
@@ -362,8 +368,10 @@ class OdometryNodelet : public nodelet::Nodelet {
   ros::Subscriber compressed_sub_;  // the built-in decoder's subscription (instead of image_sub_)
   ros::Subscriber info_sub_;
   ros::Subscriber range_sub_, nav_sub_;
-  std::mutex nav_mutex_;  // guards nav_
+  std::mutex nav_mutex_;  // guards nav_ and last_nav_wall_
+  std::condition_variable nav_cv_;  // a nav reading was appended
   core::NavTrack nav_;
+  ros::WallTime last_nav_wall_;  // when the last reading was appended (zero: none yet)
   std::atomic<long> nav_in_{0}, nav_refused_{0};
   std::unique_ptr<tf2_ros::Buffer> tf_buffer_;  // ~nav_source tf
   std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
