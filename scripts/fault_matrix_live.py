@@ -459,24 +459,32 @@ def case_bad_images(st, survey):
         rng = copy.deepcopy(base_rng)
         rng.range = value
         send(copy.deepcopy(base_img), copy.deepcopy(base_info), rng)
-    # The counters from statuses published after the last frame (one a diagnostic_period).
-    seen = diag_count[0]
-    wait_for(lambda: diag_count[0] >= seen + 3, 15, 0.1)
-    end = dict(latest)
-
-    def delta(key):
+    def delta(end, key):
         try:
             return int(float(end.get(key, 0))) - int(float(start.get(key, 0)))
         except ValueError:
             return 0
 
-    counts = {k: delta(k) for k in sorted(set(start) | set(end)) if delta(k) and k.startswith(("skipped", "bad_"))}
-    tiny = sum(counts.get(k, 0) for k in ("skipped_tiny_image", "skipped_size_mismatch", "skipped_camera_info"))
+    def counted(end):
+        return {k: delta(end, k) for k in sorted(set(start) | set(end)) if delta(end, k) and k.startswith(("skipped", "bad_"))}
+
+    def expected(counts):
+        tiny = sum(counts.get(k, 0) for k in ("skipped_tiny_image", "skipped_size_mismatch", "skipped_camera_info"))
+        # README "Bad input": 16UC1 is scaled to 8 bits (processed), float and YUV are skipped_encoding.
+        return (counts.get("skipped_encoding", 0) == 2 and tiny >= 1 and counts.get("skipped_image_too_large", 0) == 1
+                and counts.get("bad_altitude_replaced", 0) == 3)
+
+    # The counters from statuses published after the last frame (one a diagnostic_period): at least
+    # three more, and until the expected counts show (a loaded machine takes seconds over the
+    # 100 MB image: a CI run once read them 3 s after the last frame, before the last four were
+    # counted), at most 60 s.
+    seen = diag_count[0]
+    wait_for(lambda: diag_count[0] >= seen + 3 and expected(counted(dict(latest))), 60, 0.1)
+    end = dict(latest)
+    counts = counted(end)
     nodes, dead = st.alive()
     rss1 = rss_mb(pid)
-    # README "Bad input": 16UC1 is scaled to 8 bits (processed), float and YUV are skipped_encoding.
-    held = (counts.get("skipped_encoding", 0) == 2 and tiny >= 1 and counts.get("skipped_image_too_large", 0) == 1
-            and counts.get("bad_altitude_replaced", 0) == 3 and nodes and not dead)
+    held = expected(counts) and nodes and not dead
     observed = "counters changed: %s; %d nodes alive%s; manager RSS %s -> %s" % (
         ", ".join("%s +%d" % kv for kv in counts.items()) or "none", len(nodes), "" if not dead else ", DEAD: %s" % dead,
         fmt_mb(rss0), fmt_mb(rss1))

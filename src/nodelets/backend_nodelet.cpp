@@ -560,6 +560,16 @@ bool BackendNodelet::onKeyframeFeatures(uw_multislam::KeyframeFeatures::Request&
     return true;
   }
   std::lock_guard<std::mutex> lock(state_mutex_);
+  if (req.check_only) {  // whether it is there: a loop detector about to page a live keyframe out
+    const bool store = !manager_->options().store_path.empty();
+    res.status = rc::toStatusMsg(!store ? core::Status{core::StatusCode::kFailedPrecondition, "no session store"}
+                                 : manager_->inStore(req.session, req.keyframe)
+                                     ? core::Status::Ok()
+                                     : core::Status{core::StatusCode::kNotFound,
+                                                    "keyframe " + std::to_string(req.keyframe) + " of session " +
+                                                        std::to_string(req.session) + " is not in the store (yet)"});
+    return true;
+  }
   core::ReloadedSession r;
   r.id = req.session;
   core::StoredKeyframe k;

@@ -44,6 +44,7 @@ void LoopDetectorNodelet::onInit() {
                                                      config_.odometry.features.num_features);
     if (config_.loops.page_stored)
       detector_->setFeatureLoader([this](int session, int keyframe) { return loadFeatures(session, keyframe); });
+    live_paging_ = config_.loops.page_stored && config_.loops.page_live_after > 0;
   } catch (const std::exception& e) {
     NODELET_FATAL("loop detector: invalid parameters, not starting: %s", e.what());
     throw;
@@ -245,19 +246,14 @@ void LoopDetectorNodelet::process(const uw_multislam::Keyframe& msg) {
     hash_pub_.publish(boost::make_shared<uw_multislam::KeyframeHash>(rc::toKeyframeHashMsg(h, msg.header)));
     ++counts_.hashes;
   }
+  pageOutBehind(k.session, k.keyframe);  // after publishing: the loops do not wait for it
 }
 
 core::FrameFeatures LoopDetectorNodelet::loadFeatures(int session, int keyframe) {
   uw_multislam::KeyframeFeatures srv;
   srv.request.session = session;
   srv.request.keyframe = keyframe;
-  // A persistent connection (one per candidate read otherwise); made again after a failure (the
-  // back-end respawned).
-  if (!features_client_.isValid())
-    features_client_ = getNodeHandle().serviceClient<uw_multislam::KeyframeFeatures>(
-        topics::kKeyframeFeaturesService, true);
-  if (!features_client_.call(srv)) {
-    features_client_.shutdown();
+  if (!callFeatures(&srv)) {
     NODELET_WARN_THROTTLE(5, "loop detector: %s not answering: stored keyframe %d/%d not verified",
                           getNodeHandle().resolveName(topics::kKeyframeFeaturesService).c_str(), session, keyframe);
     throw std::runtime_error("keyframe_features: no answer from the back-end");
@@ -271,6 +267,43 @@ core::FrameFeatures LoopDetectorNodelet::loadFeatures(int session, int keyframe)
   std::string why;
   if (!rc::fromMsg(srv.response.keyframe, &k, &why)) throw std::runtime_error("keyframe_features: " + why);
   return k.features;
+}
+
+bool LoopDetectorNodelet::callFeatures(uw_multislam::KeyframeFeatures* srv) {
+  // A persistent connection (one per call otherwise); made again after a failure (the back-end
+  // respawned).
+  if (!features_client_.isValid())
+    features_client_ =
+        getNodeHandle().serviceClient<uw_multislam::KeyframeFeatures>(topics::kKeyframeFeaturesService, true);
+  if (features_client_.call(*srv)) return true;
+  features_client_.shutdown();
+  return false;
+}
+
+void LoopDetectorNodelet::pageOutBehind(int session_id, int newest) {
+  if (!live_paging_) return;
+  Session& s = session(session_id);
+  while (s.next_page_out <= newest - config_.loops.page_live_after) {
+    const int keyframe = s.next_page_out;
+    if (!detector_->has(session_id, keyframe)) {  // an id gap (a lost keyframe): nothing held
+      ++s.next_page_out;
+      continue;
+    }
+    uw_multislam::KeyframeFeatures srv;
+    srv.request.session = session_id;
+    srv.request.keyframe = keyframe;
+    srv.request.check_only = true;
+    if (!callFeatures(&srv)) return;  // the back-end is not answering: asked again at the next keyframe
+    if (srv.response.status.code == uw_multislam::Status::FAILED_PRECONDITION) {
+      live_paging_ = false;
+      NODELET_INFO("loop detector: the back-end has no session store (%s): live keyframes stay in RAM",
+                   srv.response.status.message.c_str());
+      return;
+    }
+    if (srv.response.status.code != uw_multislam::Status::OK) return;  // not written yet: asked again later
+    if (detector_->pageOut(session_id, keyframe)) ++counts_.paged_live;
+    ++s.next_page_out;
+  }
 }
 
 void LoopDetectorNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat) {
@@ -300,6 +333,7 @@ void LoopDetectorNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWr
                            {"sessions_unloaded", static_cast<double>(c.sessions_unloaded)},
                            {"keyframes_unloaded", static_cast<double>(c.keyframes_unloaded)},
                            {"keyframes_paged", static_cast<double>(c.paged)},
+                           {"keyframes_paged_live", static_cast<double>(c.paged_live)},
                            {"feature_cache_hits", static_cast<double>(c.cache_hits)},
                            {"feature_cache_misses", static_cast<double>(c.cache_misses)},
                            {"feature_cache_mb", c.cache_mb},

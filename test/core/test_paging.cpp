@@ -7,6 +7,7 @@
 #include <sqlite3.h>
 
 #include <deque>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -134,6 +135,52 @@ TEST_F(PagingTest, AReloadedStoreFindsTheSameLoopsWithATinyCacheAsWithAnUnlimite
   EXPECT_EQ(unlimited_cache.evictions, 0);
   EXPECT_GT(tiny_cache.misses, 8);
   EXPECT_GT(tiny_cache.evictions, 0);
+}
+
+// The live session paged out behind itself (the loop detector nodelet's ~page_live_after): a
+// session that flies east and back along its own track closes local loops on its return; paging
+// out every keyframe 2 behind the newest (its features then read through the loader, which gives
+// what the store keeps: CV_8U descriptors) finds the same loops as keeping them all in RAM.
+TEST_F(PagingTest, LiveKeyframesPagedOutBehindTheSessionFindTheSameLocalLoops) {
+  std::vector<Pose2> poses;
+  for (int k = 0; k < 6; ++k) poses.push_back(Pose2(2.0 + 0.8 * k, 1.0, 0.0));
+  for (int k = 0; k < 6; ++k) poses.push_back(Pose2(6.2 - 0.8 * k, 1.2, M_PI));
+  auto runLive = [&](int page_behind, FeatureCacheStats* cache, int* paged) {
+    LoopDetector d(config_.loops, config_.odometry.matching, config_.odometry.ransac,
+                   config_.odometry.features.num_features);
+    std::map<int, FrameFeatures> kept;  // what the store would hold
+    d.setFeatureLoader([&kept](int, int keyframe) { return kept.at(keyframe); });
+    std::vector<Loop> loops;
+    Trajectory t;
+    *paged = 0;
+    for (int k = 0; k < static_cast<int>(poses.size()); ++k) {
+      if (k > 0) t.append(UncertainPose2(between(poses[k - 1], poses[k]), Eigen::Matrix3d::Identity() * 1e-4));
+      const FrameFeatures f = features(poses[k], 2.0);
+      FrameFeatures stored = f;
+      f.descriptors.convertTo(stored.descriptors, CV_8U);
+      kept[k] = stored;
+      for (const Loop& l : d.addKeyframe(2, k, k, 2.0, &camera_, f, t)) loops.push_back(l);
+      if (page_behind > 0 && k >= page_behind) *paged += d.pageOut(2, k - page_behind);
+    }
+    if (page_behind > 0) {
+      EXPECT_FALSE(d.pageOut(2, 0)) << "paged out already";
+    }
+    EXPECT_FALSE(d.pageOut(2, 99)) << "not held";
+    *cache = d.featureCache()->stats();
+    return loops;
+  };
+  FeatureCacheStats ram_cache, paged_cache;
+  int none = 0, paged = 0;
+  const std::vector<Loop> in_ram = runLive(0, &ram_cache, &none);
+  const std::vector<Loop> paged_out = runLive(2, &paged_cache, &paged);
+  int local = 0;
+  for (const Loop& l : in_ram) local += l.kind == Loop::Kind::kLocal;
+  ASSERT_GE(local, 3) << "the return leg must close local loops to compare";
+  expectSameLoops(in_ram, paged_out, "live keyframes paged out 2 behind");
+  EXPECT_EQ(none, 0);
+  EXPECT_EQ(paged, static_cast<int>(poses.size()) - 2);
+  EXPECT_EQ(ram_cache.misses, 0);
+  EXPECT_GT(paged_cache.misses, 0) << "the return leg's candidates were read through the loader";
 }
 
 TEST_F(PagingTest, ACorruptOrMissingKeyframeIsAClearErrorAndItsCandidateIsSkipped) {

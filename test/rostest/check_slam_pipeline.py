@@ -100,6 +100,10 @@ class SlamPipelineTest(unittest.TestCase):
     @classmethod
     def tearDownClass(cls):
         shutil.rmtree(cls.tmp, ignore_errors=True)
+        store = rospy.get_param("~store_path", "")
+        for suffix in ("", "-wal", "-shm", ".lock"):  # live_paging's store (a new file per run)
+            if store and os.path.exists(store + suffix):
+                os.remove(store + suffix)
 
     def test_keyframes_of_both_sessions_match_offline_slam(self):
         got = [(k.session, k.frame_index, k.odometry_pose.x, k.odometry_pose.y) for k in self.keyframes]
@@ -216,6 +220,41 @@ class SlamPipelineTest(unittest.TestCase):
                 self.assertNotEqual(l.session_a, l.session_b)
             else:
                 self.assertEqual(l.session_a, l.session_b)
+
+    def test_live_keyframes_are_paged_out_only_with_a_store(self):
+        """live_paging:=true (issue 20, item 1): with a session store and page_live_after 3 the
+        loop detector pages out its live keyframes 3 behind the newest (keyframes_paged_live) and
+        reads the candidates among them back from the store (feature_cache_misses), none failed;
+        every other test of this suite holds (the same loops as offline_slam). Without a store
+        nothing is paged."""
+        live = bool(rospy.get_param("~live_paging", False))
+        got = {}
+        cond = threading.Condition()
+
+        def on_diagnostics(msg):
+            with cond:
+                for st in msg.status:
+                    if st.name.endswith(": loop_detector"):
+                        got.update({kv.key: kv.value for kv in st.values})
+                cond.notify_all()
+
+        sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
+        try:
+            with cond:
+                cond.wait_for(lambda: "keyframes_paged_live" in got, timeout=30)
+        finally:
+            sub.unregister()
+        self.assertIn("keyframes_paged_live", got, "no loop detector diagnostics")
+        paged, misses = int(float(got["keyframes_paged_live"])), int(float(got["feature_cache_misses"]))
+        print("live_paging %s: %d live keyframes paged out, %d read back, %s read failures" %
+              (live, paged, misses, got.get("feature_read_failures")))
+        if live:
+            self.assertGreater(paged, len(self.keyframes) // 2)
+            self.assertGreater(misses, 0)
+        else:
+            self.assertEqual(paged, 0)
+            self.assertEqual(misses, 0)
+        self.assertEqual(int(float(got["feature_read_failures"])), 0)
 
     def test_frames_are_prepared_ahead_only_when_asked(self):
         """prepare_threads:=2 (issue 19, item 3): frames played at 40 per second wait in the

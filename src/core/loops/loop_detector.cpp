@@ -38,6 +38,7 @@ std::string LoopOptions::validate() const {
   bad = global.validate();
   if (!bad.empty()) return "global: " + bad;
   if (!(feature_cache_mb >= 0) || feature_cache_mb > 1e6) return "feature_cache_mb must be in [0, 1e6] (MiB)";
+  if (page_live_after < 0) return "page_live_after must be >= 0 (0: never)";
   return {};
 }
 
@@ -223,6 +224,15 @@ void LoopDetector::addPagedKeyframe(int session, int keyframe, int frame_index, 
   if (!cache_) throw std::invalid_argument("loops: a paged keyframe needs setFeatureLoader first");
   checkStored(session, keyframe, hash);
   store(session, keyframe, frame_index, altitude_m, camera, nullptr, hash);
+}
+
+bool LoopDetector::pageOut(int session, int keyframe) {
+  if (!cache_ || !has(session, keyframe)) return false;
+  Stored& k = keyframes_[by_session_[session][keyframe]];
+  if (k.paged) return false;
+  k.features = FrameFeatures();  // its keypoints and descriptors freed
+  k.paged = true;
+  return true;
 }
 
 void LoopDetector::checkStored(int session, int keyframe, const Eigen::VectorXf& hash) const {

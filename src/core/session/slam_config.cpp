@@ -132,6 +132,7 @@ template <typename V, typename O>
 void visitLoops(V& v, O& o) {
   v("feature_cache_mb", o.feature_cache_mb);
   v("page_stored", o.page_stored);
+  v("page_live_after", o.page_live_after);
   v.block("local", [&](V& l) {
     l("enabled", o.local.enabled);
     l("radius_m", o.local.radius_m);

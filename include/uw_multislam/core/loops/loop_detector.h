@@ -73,6 +73,11 @@ struct LoopOptions {
   /// keyframe's features are sent and kept in the loop detector's RAM (about 70 kB each).
   /// offline_slam --db always pages.
   bool page_stored = true;
+  /// With page_stored, in the loop detector nodelet: a live keyframe this many keyframes behind
+  /// its session's newest is paged out too, once the back-end's store has it (asked with
+  /// keyframe_features check_only; without a store nothing is paged). The local search still
+  /// finds it (by pose); its features are read back when it is a candidate. 0: never.
+  int page_live_after = 50;
   std::string validate() const;
 };
 
@@ -123,6 +128,12 @@ class LoopDetector {
   /// std::invalid_argument without a loader, on a bad hash size or a keyframe stored twice.
   void addPagedKeyframe(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
                         const Eigen::VectorXf& hash);
+  /// Pages out a keyframe held with its features (a live one, once it is in the session store):
+  /// its features are dropped and read with the loader when it is a candidate, as a stored
+  /// keyframe's. False (nothing changed) without a loader, for a keyframe not held or already
+  /// paged. The loops found do not change as long as the loader returns what addKeyframe was
+  /// given (descriptors as CV_8U, as kept).
+  bool pageOut(int session, int keyframe);
   /// Forgets every keyframe of `session` (unload_session): its hashes, features and ids, so it is
   /// no candidate any more and its memory is freed; it may be added again later. Returns how
   /// many keyframes it held. O(size()).

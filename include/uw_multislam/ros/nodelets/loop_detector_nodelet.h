@@ -16,6 +16,10 @@
 // store (service keyframe_features, on the worker thread) through an LRU cache of
 // slam/loops/feature_cache_mb. A failed read skips that candidate (counted:
 // feature_read_failures). false: stored keyframes come with their features, all kept in RAM.
+// With page_stored, a live keyframe slam/loops/page_live_after keyframes behind its session's
+// newest is paged out as well once the back-end's store has it (keyframe_features check_only, one
+// small call per keyframe; NOT_FOUND: asked again at the next keyframe; FAILED_PRECONDITION, no
+// store: live keyframes stay in RAM from then on), so a long session's RSS stays flat.
 //
 // Inputs:  keyframes (uw_multislam/Keyframe, from the odometry nodelet)
 //          session_trajectory (uw_multislam/SessionTrajectory, from the back-end, optional)
@@ -80,6 +84,7 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
     explicit Session(int max_keyframe_gap) : chain(max_keyframe_gap) {}
     std::deque<core::CameraIntrinsics> cameras;
     core::SessionChain chain;
+    int next_page_out = 0;  // live paging: the oldest keyframe not yet paged out
   };
   /// A keyframe waiting for the worker: live (searched) or reloaded from the store (stored only).
   struct Work {
@@ -91,6 +96,7 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
     long sessions = 0, stored = 0, local_candidates = 0, global_candidates = 0;
     long sessions_unloaded = 0, keyframes_unloaded = 0;
     long paged = 0;  // stored keyframes kept as hash + ids (page_stored)
+    long paged_live = 0;  // live keyframes paged out behind their session (page_live_after)
     long cache_hits = 0, cache_misses = 0, read_failures = 0;
     double cache_mb = 0.0;
     double total_ms = 0.0, max_ms = 0.0;
@@ -113,6 +119,11 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   /// The loader of paged keyframes: keyframe_features from the back-end (the worker's thread).
   /// Throws std::runtime_error with the reason when the call fails or is refused.
   core::FrameFeatures loadFeatures(int session, int keyframe);
+  /// keyframe_features through features_client_ (made again after a failure); false: no answer.
+  bool callFeatures(uw_multislam::KeyframeFeatures* srv);
+  /// Live paging: pages out the keyframes of `session` page_live_after behind `newest` that the
+  /// back-end's store has (see above).
+  void pageOutBehind(int session, int newest);
   void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
   ros_params::LoopDetectorNodeletOptions options_;
@@ -137,6 +148,7 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   ros::WallTimer diagnostic_timer_;
 
   ros::ServiceClient features_client_;  // the worker's only (page_stored)
+  bool live_paging_ = false;            // the worker's: page_stored, page_live_after > 0 and a store
   ros::Publisher loop_pub_, hash_pub_;
   ros::Subscriber keyframe_sub_, trajectory_sub_, reloaded_sub_;  // last: destroyed first
 };
