@@ -65,10 +65,14 @@ cv::Mat tinted(const cv::Mat& shade, const cv::Scalar& bgr) {
 }
 
 // A colour varied in brightness by up to +-amount and in hue by a fifth of that.
+// Random draws here are one per declarator, never two in one call's arguments: C++ leaves their
+// order unspecified, GCC evaluates them right to left on x86-64 and left to right on aarch64, so a
+// seed gave another world on an arm64 vehicle (scripts/arm64_check.sh). They are taken in the order
+// x86-64 took them (last argument first): the worlds of every seed stay what they were there.
 cv::Scalar jitter(const cv::Scalar& c, double amount, cv::RNG& rng) {
   const double b = 1 + rng.uniform(-amount, amount), h = amount / 5;
-  return cv::Scalar(c[0] * b * (1 + rng.uniform(-h, h)), c[1] * b * (1 + rng.uniform(-h, h)),
-                    c[2] * b * (1 + rng.uniform(-h, h)));
+  const double h2 = rng.uniform(-h, h), h1 = rng.uniform(-h, h), h0 = rng.uniform(-h, h);
+  return cv::Scalar(c[0] * b * (1 + h0), c[1] * b * (1 + h1), c[2] * b * (1 + h2));
 }
 
 std::vector<cv::Point> rockOutline(cv::Point2d centre, double radius_px, cv::RNG& rng) {
@@ -157,8 +161,9 @@ SeabedWorld SeabedWorld::procedural(const ProceduralSeabedOptions& o) {
   const double area = o.width_m * o.height_m;
   const int rocks = static_cast<int>(o.rock_density_per_m2 * area);
   for (int i = 0, placed = 0; placed < rocks && i < rocks * 20; ++i) {
-    const cv::Point2d c(rng.uniform(0.0, static_cast<double>(size.width)),
-                        rng.uniform(0.0, static_cast<double>(size.height)));
+    const double cy = rng.uniform(0.0, static_cast<double>(size.height)),
+                 cx = rng.uniform(0.0, static_cast<double>(size.width));
+    const cv::Point2d c(cx, cy);
     const cv::Point ci(std::min(size.width - 1, static_cast<int>(c.x)),
                        std::min(size.height - 1, static_cast<int>(c.y)));
     if (rng.uniform(0.0, 1.0) > std::pow(cluster.at<float>(ci), 2.0) * 1.6) continue;
@@ -181,14 +186,16 @@ SeabedWorld SeabedWorld::procedural(const ProceduralSeabedOptions& o) {
   // Pebbles and shells: small light or dark ellipses.
   const int pebbles = static_cast<int>(o.pebble_density_per_m2 * area);
   for (int i = 0; i < pebbles; ++i) {
-    const cv::Point c(rng.uniform(0, size.width), rng.uniform(0, size.height));
+    const int cy = rng.uniform(0, size.height), cx = rng.uniform(0, size.width);
+    const cv::Point c(cx, cy);
     if (featureless.at<float>(c) > 0.3) continue;
     const double r = px(rng.uniform(0.008, 0.03));
     const bool shell = rng.uniform(0.0, 1.0) < 0.5;
     const cv::Scalar colour =
         shell ? jitter(cv::Scalar(205, 215, 225), 0.1, rng) : jitter(cv::Scalar(70, 80, 95), 0.3, rng);
-    cv::ellipse(img, c, cv::Size(std::max(1, cvRound(r)), std::max(1, cvRound(r * rng.uniform(0.4, 0.9)))),
-                rng.uniform(0.0, 180.0), 0, 360, colour, cv::FILLED, cv::LINE_AA);
+    const double angle = rng.uniform(0.0, 180.0), aspect = rng.uniform(0.4, 0.9);
+    cv::ellipse(img, c, cv::Size(std::max(1, cvRound(r)), std::max(1, cvRound(r * aspect))), angle, 0, 360, colour,
+                cv::FILLED, cv::LINE_AA);
   }
 
   // Seagrass blades, combed along a slowly varying direction.
@@ -196,7 +203,8 @@ SeabedWorld SeabedWorld::procedural(const ProceduralSeabedOptions& o) {
   const double grass_area = cv::sum(seagrass)[0] * mpp * mpp;
   const int blades = static_cast<int>(grass_area * 450.0);
   for (int i = 0, tries = 0; i < blades && tries < blades * 6; ++tries) {
-    const cv::Point c(rng.uniform(0, size.width), rng.uniform(0, size.height));
+    const int cy = rng.uniform(0, size.height), cx = rng.uniform(0, size.width);
+    const cv::Point c(cx, cy);
     if (rng.uniform(0.0f, 1.0f) > seagrass.at<float>(c)) continue;
     ++i;
     const double angle = 4.0 * flow.at<float>(c) + rng.gaussian(0.35), len = px(rng.uniform(0.05, 0.2));

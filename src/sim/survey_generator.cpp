@@ -109,8 +109,11 @@ std::vector<NavRecord> simulateNav(const std::vector<MissionFrame>& plan, const 
       const double step = (f.pose.translation() - prev.translation()).norm();
       // The DVL's displacement in the body frame, scaled, turned into the world by the INS heading.
       const Eigen::Vector2d body = prev.rotation().transpose() * (f.pose.translation() - prev.translation());
+      // y's draw first, as x86-64 took them (C++ leaves the order of a call's arguments
+      // unspecified; aarch64 took x first and drew another nav track for the same seed).
+      const double walk_y = g(rng), walk_x = g(rng);
       position += Pose2(0, 0, heading).rotation() * ((1.0 + scale) * body) +
-                  spec.random_walk_m_per_sqrt_m * std::sqrt(step) * Eigen::Vector2d(g(rng), g(rng));
+                  spec.random_walk_m_per_sqrt_m * std::sqrt(step) * Eigen::Vector2d(walk_x, walk_y);
       heading_walk += spec.heading_random_walk_rad_per_sqrt_m * std::sqrt(step) * g(rng);
     }
     heading = normalizeAngle(f.pose.yaw() + bias + heading_walk);

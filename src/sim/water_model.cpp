@@ -60,7 +60,10 @@ void marineSnow(cv::Mat& img, double mean_count, cv::RNG& rng) {
   for (double t = 0; (t += -std::log(std::max(1e-12, rng.uniform(0.0, 1.0)))) < mean_count;) ++n;
   cv::Mat layer = cv::Mat::zeros(img.size(), CV_32F);
   for (int i = 0; i < n; ++i) {
-    const cv::Point c(rng.uniform(0, img.cols), rng.uniform(0, img.rows));
+    // One draw per declarator, y first, as x86-64 took them (C++ leaves the order of a call's
+    // arguments unspecified; aarch64 took x first and rendered other frames for the same seed).
+    const int cy = rng.uniform(0, img.rows), cx = rng.uniform(0, img.cols);
+    const cv::Point c(cx, cy);
     const bool near = rng.uniform(0.0, 1.0) < 0.15;  // close to the lens: large and defocused
     const int r = near ? rng.uniform(4, 10) : rng.uniform(1, 3);
     cv::circle(layer, c, r, cv::Scalar(near ? rng.uniform(0.15, 0.35) : rng.uniform(0.4, 0.9)), cv::FILLED,
@@ -72,8 +75,11 @@ void marineSnow(cv::Mat& img, double mean_count, cv::RNG& rng) {
 }
 
 void occluder(cv::Mat& img, cv::RNG& rng) {
-  const cv::Point c(rng.uniform(img.cols / 3, 2 * img.cols / 3), rng.uniform(img.rows / 3, 2 * img.rows / 3));
-  const cv::Size axes(rng.uniform(img.cols / 2, img.cols), rng.uniform(img.rows / 2, img.rows));
+  // As in marineSnow: one draw per declarator, in the order x86-64 took them.
+  const int cy = rng.uniform(img.rows / 3, 2 * img.rows / 3), cx = rng.uniform(img.cols / 3, 2 * img.cols / 3);
+  const int ay = rng.uniform(img.rows / 2, img.rows), ax = rng.uniform(img.cols / 2, img.cols);
+  const cv::Point c(cx, cy);
+  const cv::Size axes(ax, ay);
   cv::ellipse(img, c, axes, rng.uniform(0.0, 180.0), 0, 360, cv::Scalar(0.05, 0.06, 0.05), cv::FILLED, cv::LINE_AA);
 }
 
