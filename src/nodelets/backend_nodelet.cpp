@@ -68,6 +68,7 @@ void BackendNodelet::onInit() {
     manager_->setDeferredOptimisation(true);  // optimised by the worker, outside state_mutex_
     if (options_.localisation) manager_->setLocalisation(true);  // ~mode: nothing written from the start
     frames_ = std::make_unique<ros_frames::FramePublisher>(nh, options_.frames);  // a tilted camera throws
+    mosaic_images_ = core::LiveMosaicImages(options_.mosaic.resolution_m);  // kept at the mosaic's resolution
   } catch (const std::exception& e) {
     NODELET_FATAL(
         "back-end: not starting (no topics, no services): %s%s", e.what(),
@@ -202,7 +203,7 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
   ++counts_.keyframes;
   const bool ok = rc::fromMsg(msg, &k, &why);
   const core::Status st = ok ? manager_->addKeyframe(rc::toKeyframeInput(k, msg.header.stamp.toSec())) : core::Status();
-  if (ok && st.ok() && !k.thumbnail.empty())
+  if (ok && st.ok() && !k.thumbnail.empty() && options_.mosaic_rate_hz > 0)  // no mosaic: no image kept
     mosaic_images_.add(k.session, k.keyframe, k.altitude_m, k.camera, std::move(k.thumbnail));
   counts_.bad += ok ? 0 : 1;
   if (!ok || !st.ok())
@@ -536,7 +537,8 @@ bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_mult
   if (!st.ok()) return true;
   const std::string frame = options_.frames.session_frame_prefix + std::to_string(r.id);
   for (const core::StoredKeyframe& k : r.keyframes)
-    if (!k.thumbnail.empty()) mosaic_images_.add(r.id, k.keyframe, k.altitude_m, r.camera, k.thumbnail);
+    if (!k.thumbnail.empty() && options_.mosaic_rate_hz > 0)
+      mosaic_images_.add(r.id, k.keyframe, k.altitude_m, r.camera, k.thumbnail);
   mosaic_due_ = true;
   handed_.push_back(r.id);  // and to every loop detector that subscribes later
   for (core::StoredKeyframe& k : r.keyframes) {

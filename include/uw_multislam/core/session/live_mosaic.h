@@ -63,8 +63,17 @@ struct LiveMosaicImage {
 
 /// The images the keyframes carried, per (session, keyframe), with the altitude and camera.
 /// Not thread-safe (the host's lock).
+///
+/// Memory (issue 20, item 1): with a resolution, an image finer on the seabed than the mosaic is
+/// ever drawn (resolution_m metres per pixel at the keyframe's altitude; the mosaic only gets
+/// coarser, max_side_px) is kept downsampled to that resolution (INTER_AREA, JPEG quality 90), so
+/// a long session costs about 1 kB per keyframe instead of its thumbnail's 13 kB (320 x 240) and
+/// the drawing decodes less. An image it cannot decode, or one without a usable camera and
+/// altitude, is kept as given (drawLiveMosaic counts it missing if it cannot draw it).
 class LiveMosaicImages {
  public:
+  /// resolution_m <= 0: images kept as given.
+  explicit LiveMosaicImages(double resolution_m = 0.0) : resolution_m_(resolution_m) {}
   struct Entry {
     double altitude_m = 0.0;
     CameraIntrinsics camera;
@@ -79,6 +88,7 @@ class LiveMosaicImages {
   std::size_t bytes() const { return bytes_; }
 
  private:
+  double resolution_m_ = 0.0;
   std::map<std::pair<int, int>, Entry> entries_;
   std::size_t bytes_ = 0;
 };
