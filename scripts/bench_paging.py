@@ -8,6 +8,11 @@ reloaded, reads the loop_detector_node process's VmRSS, and subtracts the same p
 in a run on an empty store (reload of nothing). Prints one line per case:
 
   bench_paging keyframes=N page_stored=true loop_detector_rss_MB=X ram_per_stored_keyframe_kB=Y reload_s=Z
+      keyframes_paged=P backend_ready_s=R handover_s=H
+
+reload_s: from the launch until the loop detector holds every stored keyframe; backend_ready_s:
+until the back-end's first diagnostics (its store restored, keyframes taken); handover_s: the
+back-end's handover of the stored keyframes to the loop detector (its diagnostics handover_s).
 
 Not a test: numbers for this machine. Needs a built workspace (devel/setup.bash sourced) and
 rostest's roslaunch; starts its own master on a free port.
@@ -76,6 +81,11 @@ def run_case(store, config, expect, env):
                 with cond:
                     got.update({v.key: v.value for v in s.values})
                     cond.notify_all()
+            elif s.name.endswith(": backend"):
+                with cond:
+                    # Its first diagnostics: the back-end is up (store restored), keyframes are mapped.
+                    got.setdefault("backend_ready_s", time.time() - started)
+                    got.update({"backend_" + v.key: v.value for v in s.values})
 
     try:
         for _ in range(100):
@@ -137,9 +147,10 @@ def main():
             loaded_kb, seconds, diag = run_case(db, configs[page], a.keyframes, env)
             os.remove(db)
             print("bench_paging keyframes=%d page_stored=%s loop_detector_rss_MB=%.1f ram_per_stored_keyframe_kB=%.2f "
-                  "reload_s=%.1f keyframes_paged=%d" % (a.keyframes, page, loaded_kb / 1024.0,
-                                                        (loaded_kb - empty_kb) / float(a.keyframes), seconds,
-                                                        int(float(diag.get("keyframes_paged", 0)))), flush=True)
+                  "reload_s=%.1f keyframes_paged=%d backend_ready_s=%.1f handover_s=%.1f" % (
+                      a.keyframes, page, loaded_kb / 1024.0, (loaded_kb - empty_kb) / float(a.keyframes), seconds,
+                      int(float(diag.get("keyframes_paged", 0))), float(diag.get("backend_ready_s", -1)),
+                      float(diag.get("backend_handover_s", -1))), flush=True)
     finally:
         master.send_signal(signal.SIGINT)
         master.wait(timeout=30)

@@ -93,9 +93,11 @@ void BackendNodelet::onInit() {
   active_pub_ = nh.advertise<uw_multislam::SessionState>(topics::kActiveSession, 1, true);
   relocalised_pub_ = nh.advertise<geometry_msgs::PoseWithCovarianceStamped>(topics::kRelocalisedPose, 10);
   if (options_.reload_stored) reloadStored();
-  reloaded_pub_ = nh.advertise<uw_multislam::Keyframe>(
-      topics::kReloadedKeyframes, 10000,
-      [this](const ros::SingleSubscriberPublisher& pub) { onReloadedSubscriber(pub); });
+  // Unbounded (0): a store of a hundred dives hands over more keyframes than any fixed queue holds
+  // (10000 was the limit before). The connection callback runs on the multi-threaded queue, so
+  // the keyframe callbacks and the services go on while it hands a store over.
+  reloaded_pub_ = getMTNodeHandle().advertise<uw_multislam::Keyframe>(
+      topics::kReloadedKeyframes, 0, [this](const ros::SingleSubscriberPublisher& pub) { onReloadedSubscriber(pub); });
   mosaic_pub_ = nh.advertise<sensor_msgs::Image>(topics::kLiveMosaic, 1, true);
   if (!options_.export_root.empty()) {
     std::error_code ec;
@@ -473,9 +475,23 @@ void BackendNodelet::reloadStored() {
 }
 
 void BackendNodelet::onReloadedSubscriber(const ros::SingleSubscriberPublisher& pub) {
-  std::lock_guard<std::mutex> lock(state_mutex_);
+  // Session by session, each read and published under state_mutex_ (an unload_session cannot come
+  // between a session's keyframes and its notice), so the worker maps between them: the vehicle
+  // does not wait for a large store to be handed over.
+  std::vector<int> ids;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    ids = handed_;
+    handover_.total = 0;
+    for (int id : ids) handover_.total += static_cast<long>(manager_->frames(id).size());
+    handover_.sent = 0;
+    ++handover_.subscribers;
+  }
+  const ros::WallTime start = ros::WallTime::now();
   long sent = 0, failed = 0;
-  for (int id : handed_) {
+  for (int id : ids) {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    if (std::find(handed_.begin(), handed_.end(), id) == handed_.end()) continue;  // unloaded meanwhile
     core::ReloadedSession r;
     r.id = id;
     r.camera = manager_->camera(id);
@@ -503,10 +519,13 @@ void BackendNodelet::onReloadedSubscriber(const ros::SingleSubscriberPublisher& 
       pub.publish(rc::reloadedKeyframeMsg(r, k, frame));
       ++sent;
     }
+    handover_.sent = sent;
   }
-  if (!handed_.empty())
-    NODELET_INFO("back-end: %ld stored keyframes of %zu sessions sent to %s (%ld without features)", sent,
-                 handed_.size(), pub.getSubscriberName().c_str(), failed);
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  handover_.seconds = (ros::WallTime::now() - start).toSec();
+  if (!ids.empty())
+    NODELET_INFO("back-end: %ld stored keyframes of %zu sessions sent to %s in %.1f s (%ld without features)", sent,
+                 ids.size(), pub.getSubscriberName().c_str(), handover_.seconds, failed);
 }
 
 std::optional<core::SessionManager::Relocalisation> BackendNodelet::relocalise(int id) {
@@ -764,6 +783,12 @@ std::vector<ros_diagnostics::Counter> BackendNodelet::counters() const {
   c.push_back({"map_to_odom_rate_hz", f.map_to_odom_rate_hz});
   c.push_back({"odom_lookup_failures", d(f.odom_lookup_failures), true});
   c.push_back({"sessions_unloaded", d(sessions_unloaded_)});
+  // The newest handover of the stored keyframes to a loop detector (reloaded_keyframes): its
+  // progress while it runs (sent of total), then how long it took.
+  c.push_back({"handover_subscribers", d(handover_.subscribers)});
+  c.push_back({"handover_keyframes_total", d(handover_.total)});
+  c.push_back({"handover_keyframes_sent", d(handover_.sent)});
+  c.push_back({"handover_s", handover_.seconds});
   c.push_back({"sessions_deleted", d(sessions_deleted_)});
   c.push_back({"relocalised_map", d(reloc_.map)});
   c.push_back({"relocalised_loops", d(reloc_.loops)});

@@ -74,7 +74,9 @@ void LoopDetectorNodelet::onInit() {
   worker_ = std::thread([this] { work(); });
   keyframe_sub_ = nh.subscribe(topics::kKeyframes, 100, &LoopDetectorNodelet::onKeyframe, this);
   trajectory_sub_ = nh.subscribe(topics::kSessionTrajectory, 10, &LoopDetectorNodelet::onTrajectory, this);
-  reloaded_sub_ = nh.subscribe(topics::kReloadedKeyframes, 10000, &LoopDetectorNodelet::onReloaded, this);
+  // Unbounded (0), as the back-end's publisher: a store's handover is never dropped; the callback
+  // only moves each message onto the work queue (pushPriority, never dropped either).
+  reloaded_sub_ = nh.subscribe(topics::kReloadedKeyframes, 0, &LoopDetectorNodelet::onReloaded, this);
 }
 
 void LoopDetectorNodelet::onKeyframe(const uw_multislam::KeyframeConstPtr& msg) { queue_->push(Work{msg, false}); }

@@ -147,7 +147,8 @@ class BackendNodelet : public nodelet::Nodelet {
   /// ~reload_stored: reloads every stored session (features stay in the store) for the loop detectors.
   void reloadStored();
   /// A new subscriber of reloaded_keyframes (a loop detector, also a respawned one) gets every
-  /// stored session handed over so far, its features read from the store.
+  /// stored session handed over so far (hashes only when paging, else with their features read
+  /// from the store), one session per state_mutex_ lock; diagnostics handover_*.
   void onReloadedSubscriber(const ros::SingleSubscriberPublisher& pub);
   /// The active session's relocalisation in another map (SessionManager::relocalise): logged when
   /// it changes, on /diagnostics, and its pose on relocalised_pose; nullopt when there is none.
@@ -218,6 +219,10 @@ class BackendNodelet : public nodelet::Nodelet {
 
   std::map<int, double> offsets_;  // where each map is drawn in rviz (under state_mutex_)
   std::vector<int> handed_;         // stored sessions handed to the loop detectors (under state_mutex_)
+  struct Handover {
+    long subscribers = 0, total = 0, sent = 0;
+    double seconds = 0.0;
+  } handover_;  // the newest subscriber's handover of handed_ (under state_mutex_)
   long sessions_unloaded_ = 0;      // unload_session calls answered OK (under state_mutex_)
   long sessions_deleted_ = 0;       // delete_session calls answered OK (under state_mutex_)
   struct RelocalisationState {
