@@ -21,7 +21,6 @@ usage: scripts/bench_live_rss.py [--laps 20] [--rate 6] [--page-live-after 50,0]
 import argparse
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -32,7 +31,7 @@ import rospkg
 import yaml
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_paging import free_port, pid_of, rss_kb  # noqa: E402
+from bench_paging import init_node, pid_of, rss_kb, start_master, stop  # noqa: E402
 
 NODES = ("odometry_node", "loop_detector_node", "backend_node")
 
@@ -77,14 +76,7 @@ def run_case(bag, config, store, rate, period, env):
 
     samples = []
     try:
-        for _ in range(100):
-            try:
-                rospy.get_master().getPid()
-                break
-            except Exception:
-                time.sleep(0.2)
-        if not rospy.core.is_initialized():
-            rospy.init_node("bench_live_rss", anonymous=True, disable_signals=True)
+        init_node("bench_live_rss")
         sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)
         pids, idle = {}, 0
         while launch.poll() is None:
@@ -109,12 +101,7 @@ def run_case(bag, config, store, rate, period, env):
         sub.unregister()
         return samples, l
     finally:
-        launch.send_signal(signal.SIGINT)
-        try:
-            launch.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            launch.kill()
-            launch.wait()
+        stop(launch)
 
 
 def main():
@@ -126,17 +113,15 @@ def main():
     p.add_argument("--page-live-after", default="50,0", help="values of slam/loops/page_live_after, comma-separated")
     a = p.parse_args()
     tmp = tempfile.mkdtemp(prefix="uwms_bench_live_rss_")
-    bin_dir = os.environ.get("UWMS_BIN_DIR") or os.path.join(
-        os.path.dirname(rospkg.RosPack().get_path("uw_multislam")), "..", "devel", "lib", "uw_multislam")
+    # make_survey from the sourced workspace (its devel or install space), else UWMS_BIN_DIR.
+    bin_dir = os.environ.get("UWMS_BIN_DIR", "")
     for d in os.environ.get("CMAKE_PREFIX_PATH", "").split(":"):
-        if os.path.exists(os.path.join(d, "lib", "uw_multislam", "make_survey")):
+        if d and os.path.exists(os.path.join(d, "lib", "uw_multislam", "make_survey")):
             bin_dir = os.path.join(d, "lib", "uw_multislam")
             break
-    port = free_port()
-    env = dict(os.environ, ROS_MASTER_URI="http://localhost:%d" % port)
-    os.environ["ROS_MASTER_URI"] = env["ROS_MASTER_URI"]
-    master = subprocess.Popen(["rosmaster", "--core", "-p", str(port)], stdout=subprocess.DEVNULL,
-                              stderr=subprocess.STDOUT, env=env)
+    if not os.path.exists(os.path.join(bin_dir, "make_survey")):
+        sys.exit("bench_live_rss: no make_survey (source the workspace's setup.bash, or set UWMS_BIN_DIR)")
+    master, env = start_master()
     try:
         bag = make_mission(tmp, a.laps, bin_dir)
         with open(os.path.join(rospkg.RosPack().get_path("uw_multislam"), "config", "slam.yaml")) as f:
@@ -166,8 +151,7 @@ def main():
                       last[1]["backend_node"] / 1024.0, last[2],
                       int(float(loops.get("keyframes_paged_live", 0)))), flush=True)
     finally:
-        master.send_signal(signal.SIGINT)
-        master.wait(timeout=30)
+        stop(master, 30)
         shutil.rmtree(tmp, ignore_errors=True)
 
 

@@ -11,7 +11,8 @@ in a run on an empty store (reload of nothing). Prints one line per case:
       keyframes_paged=P backend_ready_s=R handover_s=H
 
 reload_s: from the launch until the loop detector holds every stored keyframe; backend_ready_s:
-until the back-end's first diagnostics (its store restored, keyframes taken); handover_s: the
+until the back-end's first diagnostics (its store restored, keyframes taken; they come every
+second, so up to 1 s late); handover_s: the
 back-end's handover of the stored keyframes to the loop detector (its diagnostics handover_s).
 
 Not a test: numbers for this machine. Needs a built workspace (devel/setup.bash sourced) and
@@ -62,6 +63,38 @@ def rospy_master():
     return rosgraph.Master("/bench_paging")
 
 
+def start_master():
+    """A ROS master of its own on a free port (ROS_MASTER_URI set here too); returns it and the env."""
+    port = free_port()
+    env = dict(os.environ, ROS_MASTER_URI="http://localhost:%d" % port)
+    os.environ["ROS_MASTER_URI"] = env["ROS_MASTER_URI"]
+    return subprocess.Popen(["rosmaster", "--core", "-p", str(port)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.STDOUT, env=env), env
+
+
+def init_node(name):
+    """Waits (up to 20 s) for the master, then makes this process a ROS node (once)."""
+    import rospy
+    for _ in range(100):
+        try:
+            rospy.get_master().getPid()
+            break
+        except Exception:
+            time.sleep(0.2)
+    if not rospy.core.is_initialized():
+        rospy.init_node(name, anonymous=True, disable_signals=True)
+
+
+def stop(process, timeout=60):
+    """SIGINT (roslaunch and rosmaster shut down cleanly on it), then SIGKILL after `timeout` s."""
+    process.send_signal(signal.SIGINT)
+    try:
+        process.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+
+
 def run_case(store, config, expect, env):
     """slam.launch on `store` (None: an empty one) with the given slam config; the loop detector's
     VmRSS (kB) once it reports `expect` keyframes reloaded, and the seconds that took."""
@@ -80,27 +113,24 @@ def run_case(store, config, expect, env):
             if s.name.endswith(": loop_detector"):
                 with cond:
                     got.update({v.key: v.value for v in s.values})
+                    if float(got.get("keyframes_reloaded", -1)) == expect and float(got.get("queue_length", 1)) == 0:
+                        got.setdefault("reload_s", time.time() - started)
                     cond.notify_all()
             elif s.name.endswith(": backend"):
                 with cond:
                     # Its first diagnostics: the back-end is up (store restored), keyframes are mapped.
                     got.setdefault("backend_ready_s", time.time() - started)
                     got.update({"backend_" + v.key: v.value for v in s.values})
+                    cond.notify_all()
 
     try:
-        for _ in range(100):
-            try:
-                rospy.get_master().getPid()
-                break
-            except Exception:
-                time.sleep(0.2)
-        if not rospy.core.is_initialized():
-            rospy.init_node("bench_paging", anonymous=True, disable_signals=True)
+        init_node("bench_paging")
         sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)
         with cond:
-            ok = cond.wait_for(lambda: float(got.get("keyframes_reloaded", -1)) == expect and
-                               float(got.get("queue_length", 1)) == 0, timeout=600)
-        elapsed = time.time() - started
+            # The loop detector holds them all, and the back-end has reported (its handover too).
+            ok = cond.wait_for(lambda: "reload_s" in got and
+                               float(got.get("backend_handover_keyframes_sent", -1)) == expect, timeout=600)
+        elapsed = got.get("reload_s", time.time() - started)
         sub.unregister()
         if not ok:
             raise RuntimeError("the loop detector did not report %d keyframes reloaded: %s" % (expect, got))
@@ -110,12 +140,7 @@ def run_case(store, config, expect, env):
             raise RuntimeError("no loop_detector_node process")
         return rss_kb(pid), elapsed, dict(got)
     finally:
-        launch.send_signal(signal.SIGINT)
-        try:
-            launch.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            launch.kill()
-            launch.wait()
+        stop(launch)
 
 
 def main():
@@ -124,11 +149,7 @@ def main():
     p.add_argument("--keyframes", type=int, required=True, help="the store's keyframes")
     a = p.parse_args()
     tmp = tempfile.mkdtemp(prefix="uwms_bench_paging_")
-    port = free_port()
-    env = dict(os.environ, ROS_MASTER_URI="http://localhost:%d" % port)
-    os.environ["ROS_MASTER_URI"] = env["ROS_MASTER_URI"]
-    master = subprocess.Popen(["rosmaster", "--core", "-p", str(port)], stdout=subprocess.DEVNULL,
-                              stderr=subprocess.STDOUT, env=env)
+    master, env = start_master()
     try:
         with open(os.path.join(rospkg.RosPack().get_path("uw_multislam"), "config", "slam.yaml")) as f:
             text = f.read()
@@ -152,8 +173,7 @@ def main():
                       int(float(diag.get("keyframes_paged", 0))), float(diag.get("backend_ready_s", -1)),
                       float(diag.get("backend_handover_s", -1))), flush=True)
     finally:
-        master.send_signal(signal.SIGINT)
-        master.wait(timeout=30)
+        stop(master, 30)
         shutil.rmtree(tmp, ignore_errors=True)
 
 
