@@ -52,6 +52,28 @@ def read_csv(path):
         return list(csv.DictReader(f))
 
 
+def await_diagnostics(is_status, key, timeout=30.0):
+    """The values of the /diagnostics statuses whose name is_status(name) accepts, merged, once
+    `key` is among them; what came within `timeout` seconds otherwise."""
+    got = {}
+    cond = threading.Condition()
+
+    def on_diagnostics(msg):
+        with cond:
+            for st in msg.status:
+                if is_status(st.name):
+                    got.update({kv.key: kv.value for kv in st.values})
+            cond.notify_all()
+
+    sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
+    try:
+        with cond:
+            cond.wait_for(lambda: key in got, timeout=timeout)
+    finally:
+        sub.unregister()
+    return got
+
+
 class SlamPipelineTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
@@ -228,22 +250,7 @@ class SlamPipelineTest(unittest.TestCase):
         every other test of this suite holds (the same loops as offline_slam). Without a store
         nothing is paged."""
         live = bool(rospy.get_param("~live_paging", False))
-        got = {}
-        cond = threading.Condition()
-
-        def on_diagnostics(msg):
-            with cond:
-                for st in msg.status:
-                    if st.name.endswith(": loop_detector"):
-                        got.update({kv.key: kv.value for kv in st.values})
-                cond.notify_all()
-
-        sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
-        try:
-            with cond:
-                cond.wait_for(lambda: "keyframes_paged_live" in got, timeout=30)
-        finally:
-            sub.unregister()
+        got = await_diagnostics(lambda name: name.endswith(": loop_detector"), "keyframes_paged_live")
         self.assertIn("keyframes_paged_live", got, "no loop detector diagnostics")
         paged, misses = int(float(got["keyframes_paged_live"])), int(float(got["feature_cache_misses"]))
         print("live_paging %s: %d live keyframes paged out, %d read back, %s read failures" %
@@ -262,22 +269,9 @@ class SlamPipelineTest(unittest.TestCase):
         test of this suite holds: the same keyframes, loops and maps as offline_slam. With the
         default 0 none is."""
         threads = int(rospy.get_param("~prepare_threads", 0))
-        got = {}
-        cond = threading.Condition()
-
-        def on_diagnostics(msg):
-            with cond:
-                for st in msg.status:
-                    if st.name.split(":")[0].split("/")[-1] == "odometry_node" and st.name.endswith("odometry"):
-                        got.update({kv.key: kv.value for kv in st.values})
-                cond.notify_all()
-
-        sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
-        try:
-            with cond:
-                cond.wait_for(lambda: "prepared_ahead" in got, timeout=30)
-        finally:
-            sub.unregister()
+        got = await_diagnostics(
+            lambda name: name.split(":")[0].split("/")[-1] == "odometry_node" and name.endswith("odometry"),
+            "prepared_ahead")
         self.assertIn("prepared_ahead", got, "no odometry diagnostics")
         prepared, frames = int(got["prepared_ahead"]), int(got["frames_processed"])
         print("prepare_threads %d: %d of %d frames prepared ahead" % (threads, prepared, frames))
