@@ -504,17 +504,18 @@ void BackendNodelet::onReloadedSubscriber(const ros::SingleSubscriberPublisher& 
       continue;
     }
     for (core::StoredKeyframe& k : r.keyframes) {
-      try {
-        // Paging (slam/loops/page_stored): hashes only; the loop detector asks keyframe_features.
-        if (config_.loops.page_stored) throw std::out_of_range("paged");
-        const core::StoredKeyframe f = manager_->storedFeatures(id, k.keyframe);
-        k.points = f.points;
-        k.descriptors = f.descriptors;
-        k.image_size = f.image_size;
-      } catch (const std::out_of_range&) {  // paged: sent with its hash only
-      } catch (const std::exception& e) {  // sent without features: no candidate, as a keyframe never received
-        ++failed;
-        NODELET_WARN_THROTTLE(5, "back-end: stored keyframe %d/%d sent without features: %s", id, k.keyframe, e.what());
+      // Paging (slam/loops/page_stored): hashes only; the loop detector asks keyframe_features.
+      if (!config_.loops.page_stored) {
+        try {
+          const core::StoredKeyframe f = manager_->storedFeatures(id, k.keyframe);
+          k.points = f.points;
+          k.descriptors = f.descriptors;
+          k.image_size = f.image_size;
+        } catch (const std::exception& e) {  // sent without features: no candidate, as a keyframe never received
+          ++failed;
+          NODELET_WARN_THROTTLE(5, "back-end: stored keyframe %d/%d sent without features: %s", id, k.keyframe,
+                                e.what());
+        }
       }
       pub.publish(rc::reloadedKeyframeMsg(r, k, frame));
       ++sent;
