@@ -866,6 +866,94 @@ TEST(SessionManager, ANewSessionRelocalisesInAStoredMapOnlyAndWithItsOdometryCor
   EXPECT_FALSE(m.relocalise(7)) << "no such session";
 }
 
+// Issue 20, item 5: another vehicle's session (from its hashes) grows beside this vehicle's
+// recording session; the loops between them join the two maps once one of them has ended, as
+// one vehicle's two sessions joined by the same loops.
+TEST(SessionManager, AnotherVehiclesSessionGrowsBesideTheActiveOneAndJoinsOnceOneEnds) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  SessionManagerOptions o = options(db);
+  o.backend.join_min_loops = 3;  // automatic joins by 3 loops
+  std::vector<SessionEvent> events;
+  {
+    SessionManager m(o, [&](const SessionEvent& e) { events.push_back(e); });
+    // Interleaved as they arrive live: our keyframe k, then the other vehicle's keyframe k (its
+    // own session 7 there), one metre to our left; from k = 1 a loop between them.
+    for (int k = 0; k < 8; ++k) {
+      const Pose2 pose(k, 0, 0), previous(std::max(0, k - 1), 0, 0);
+      ASSERT_TRUE(m.addKeyframe(keyframe(0, k, pose, previous)).ok());
+      KeyframeInput theirs = keyframe(7, k, pose, previous);
+      theirs.features.descriptors = cv::Mat::ones(3, 128, CV_8U);  // not kept: only what crossed the link
+      int local = -1;
+      const Status st = m.addForeignKeyframe("auv_b", theirs, &local);
+      ASSERT_TRUE(st.ok()) << st.message;
+      ASSERT_EQ(local, 1);
+      if (k >= 1 && k <= 5) {
+        ASSERT_TRUE(m.addLoop(globalLoop(1, k, 0, k, Pose2(0, -1, 0))).ok());
+      }
+    }
+    EXPECT_EQ(m.activeSession(), 0);
+    EXPECT_EQ(m.foreignSession("auv_b", 7), 1);
+    EXPECT_EQ(m.vehicleOf(1), "auv_b");
+    EXPECT_EQ(m.name(1), "auv_b_session_7");
+    // Both recording, each in its own map: five loops wait, no join yet.
+    EXPECT_NE(m.mapOf(0), m.mapOf(1));
+    const std::vector<SessionSummary> l = m.list();
+    ASSERT_EQ(l.size(), 2u);
+    EXPECT_EQ(l[0].state, SessionState::kActive);
+    EXPECT_EQ(l[1].state, SessionState::kActive);
+    EXPECT_EQ(l[1].vehicle, "auv_b");
+    EXPECT_EQ(l[1].keyframes, 8);
+
+    // Misuse changes nothing.
+    EXPECT_EQ(m.addForeignKeyframe("", keyframe(7, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).code,
+              StatusCode::kInvalidArgument);
+    EXPECT_EQ(m.addForeignKeyframe("auv b/../x", keyframe(7, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).code,
+              StatusCode::kInvalidArgument);
+    EXPECT_EQ(m.addForeignKeyframe("auv_b", keyframe(7, 3, Pose2(3, 0, 0), Pose2(2, 0, 0))).code,
+              StatusCode::kFailedPrecondition);  // stale
+    EXPECT_EQ(m.addKeyframe(keyframe(1, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).code,
+              StatusCode::kFailedPrecondition);  // our odometry cannot write into their session
+    EXPECT_EQ(m.endForeignSession("auv_c", 7, 9.0).code, StatusCode::kNotFound);
+    EXPECT_EQ(m.sessionIds(), (std::vector<int>{0, 1}));
+    EXPECT_EQ(m.list()[1].keyframes, 8);
+
+    // Their session ends: the postponed join is made; ours goes on recording at the map's end.
+    ASSERT_TRUE(m.endForeignSession("auv_b", 7, 107.5).ok());
+    EXPECT_EQ(m.mapOf(0), m.mapOf(1));
+    EXPECT_EQ(m.mapOf(0), 1);  // the finished session first: the map is named by it
+    EXPECT_EQ(m.foreignSession("auv_b", 7), -1);
+    EXPECT_EQ(m.addForeignKeyframe("auv_b", keyframe(7, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).code,
+              StatusCode::kFailedPrecondition);  // ended
+    ASSERT_TRUE(m.addKeyframe(keyframe(0, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).ok());
+    const std::vector<Pose2> ours = m.poses(0), theirs = m.poses(1);
+    ASSERT_EQ(ours.size(), 9u);
+    for (int k = 0; k < 8; ++k) {
+      EXPECT_NEAR(ours[k].x(), theirs[k].x(), 1e-6) << k;
+      EXPECT_NEAR(ours[k].y(), theirs[k].y() - 1.0, 1e-6) << k;
+    }
+    EXPECT_NEAR(ours[8].x(), theirs[7].x() + 1.0, 1e-6);
+    int joins = 0;
+    for (const SessionEvent& e : events) joins += e.kind == SessionEvent::Kind::kMapsJoined;
+    EXPECT_EQ(joins, 1);
+    EXPECT_EQ(m.stats().store_failures, 0);
+  }
+  // In the store: their session (hashes and motions, no features), where it came from, the join.
+  SessionManager again(options(db));
+  ASSERT_EQ(again.restoredSessions(), 2);
+  EXPECT_EQ(again.name(1), "auv_b_session_7");
+  EXPECT_EQ(again.poses(1).size(), 8u);
+  EXPECT_EQ(again.mapOf(0), again.mapOf(1));
+  EXPECT_EQ(again.loops().size(), 5u);
+  EXPECT_TRUE(again.storedFeatures(1, 3).points.empty());
+  SessionStore store(db, StoreAccess::kReadOnly);
+  const std::vector<SessionProvenance> p = store.provenance();
+  ASSERT_EQ(p.size(), 1u);
+  EXPECT_EQ(p[0].vehicle, "auv_b");
+  EXPECT_EQ(p[0].source_session, 7);
+  EXPECT_EQ(p[0].source_file, "fleet:auv_b");
+}
+
 TEST(SessionManager, TheStoresDirectoryItCreatesIsTheOwnersOnly) {
   testing_util::ScopedTempDir dir("session_manager");
   const std::filesystem::path store_dir = dir.path() / "missions";

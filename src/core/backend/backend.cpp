@@ -6,6 +6,7 @@
 #include <atomic>
 #include <chrono>
 #include <cstdio>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 
@@ -158,6 +159,26 @@ void MultiSessionBackend::endSession(int session) {
   sessions_[session].recording = false;
   Map& m = mapAt(mapOf(session));
   if (m.pending > 0) optimise(mapOf(session));
+  // Joins postponed while both maps held a recording session (two vehicles' sessions growing side
+  // by side, issue 20 item 5) are tried again now that one has ended: the loops between them
+  // arrived while the join could not be made, and no new loop may come to trigger it.
+  bool joined = true;
+  while (joined) {
+    joined = false;
+    std::set<int> others;
+    for (const LoopRecord& r : loops_) {
+      const int ma = mapOf(r.loop.session_a), mb = mapOf(r.loop.session_b);
+      if (ma == mb || barred(r.loop.session_a, r.loop.session_b)) continue;
+      // Only maps still recording: a join with a finished map was already tried with these loops.
+      if (ma == mapOf(session) && holdsRecording(mb)) others.insert(mb);
+      if (mb == mapOf(session) && holdsRecording(ma)) others.insert(ma);
+    }
+    for (int other : others)
+      if (tryAutomaticJoin(mapOf(session), other)) {
+        joined = true;  // the maps changed: the candidates are found again
+        break;
+      }
+  }
 }
 
 void MultiSessionBackend::toSparse(Map& m, const std::string& why) {
@@ -259,21 +280,26 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
     if (options_.optimise && m.pending >= options_.optimise_every) optimise(ma);
     return;
   }
+  if (!barred(l.session_a, l.session_b)) tryAutomaticJoin(ma, mb);
+}
+
+bool MultiSessionBackend::tryAutomaticJoin(int ma, int mb) {
   // The count policy waits for K loops; the consistency policy tries from its minimum set on
   // (join_min_loops 0 turns automatic joining off for both).
   const int needed = options_.join_policy == JoinPolicy::kCount ? options_.join_min_loops
                                                                  : options_.join_min_consistent;
-  if (automatic_joins_ && options_.join_min_loops > 0 && !barred(l.session_a, l.session_b) &&
-      static_cast<int>(loopsBetween(ma, mb, true).size()) >= needed) {
-    const BackendStatus st = joinMaps(ma, mb, needed, true);
-    if (!st.ok()) {
-      if (options_.join_policy == JoinPolicy::kConsistent) {
-        ++stats_.joins_refused;
-        stats_.last_join_refusal = "maps " + std::to_string(ma) + " and " + std::to_string(mb) + ": " + st.message;
-      }
-      say("automatic join of maps " + std::to_string(ma) + " and " + std::to_string(mb) + " postponed: " + st.message);
-    }
+  if (!automatic_joins_ || options_.join_min_loops <= 0 || static_cast<int>(loopsBetween(ma, mb, true).size()) < needed)
+    return false;
+  // Both growing (two vehicles' sessions side by side): not a refusal; endSession tries again.
+  if (holdsRecording(ma) && holdsRecording(mb)) return false;
+  const BackendStatus st = joinMaps(ma, mb, needed, true);
+  if (st.ok()) return true;
+  if (options_.join_policy == JoinPolicy::kConsistent) {
+    ++stats_.joins_refused;
+    stats_.last_join_refusal = "maps " + std::to_string(ma) + " and " + std::to_string(mb) + ": " + st.message;
   }
+  say("automatic join of maps " + std::to_string(ma) + " and " + std::to_string(mb) + " postponed: " + st.message);
+  return false;
 }
 
 void MultiSessionBackend::flush() {
@@ -288,6 +314,12 @@ int MultiSessionBackend::optimisePending() {
     if (m.pending > 0) ids.push_back(id);
   for (int id : ids) optimise(id);
   return static_cast<int>(ids.size());
+}
+
+bool MultiSessionBackend::holdsRecording(int map) const {
+  for (int s : mapAt(map).chain)
+    if (sessions_[s].recording) return true;
+  return false;
 }
 
 bool MultiSessionBackend::barred(int sa, int sb) const {
@@ -662,12 +694,7 @@ MultiSessionBackend::LinkEstimate MultiSessionBackend::estimateLink(int first, i
 BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops, bool automatic, bool requested) {
   if (map_a == map_b)
     return {StatusCode::kFailedPrecondition, "the sessions are already in the same map " + std::to_string(map_a)};
-  auto recording = [&](int map) {
-    for (int s : mapAt(map).chain)
-      if (sessions_[s].recording) return true;
-    return false;
-  };
-  const bool rec_a = recording(map_a), rec_b = recording(map_b);
+  const bool rec_a = holdsRecording(map_a), rec_b = holdsRecording(map_b);
   if (rec_a && rec_b)
     return {StatusCode::kFailedPrecondition, "maps " + std::to_string(map_a) + " and " + std::to_string(map_b) +
                                                  " both hold a recording session; join them after one ends"};

@@ -1,6 +1,7 @@
 #include "uw_multislam/core/session/session_manager.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -117,7 +118,16 @@ SessionManager::SessionManager(const SessionManagerOptions& options, EventSink e
   restore();
 }
 
-SessionManager::~SessionManager() = default;
+SessionManager::~SessionManager() {
+  // Other vehicles' sessions still growing: finished in the store (their vehicle may go on, but
+  // not into this store), so a restart restores them as any finished session.
+  std::vector<std::pair<std::string, int>> open;
+  for (const auto& [key, id] : foreign_ids_) open.push_back(key);
+  for (const auto& [vehicle, remote] : open) {
+    const int id = foreignSession(vehicle, remote);
+    endForeignSession(vehicle, remote, at(id).stamps.back());
+  }
+}
 
 void SessionManager::restore() {
   const RestoredStore r = restoreStore(*store_, backend_.get(), nullptr, nullptr);
@@ -230,9 +240,13 @@ bool SessionManager::storeWrite(const char* what, F write) {
 
 // --- Sessions ---------------------------------------------------------------------------------
 
-Status SessionManager::open(int id, const std::string& name, double stamp_s) {
-  if (active_ >= 0) endSession(at(active_).stamps.back());
+Status SessionManager::open(int id, const std::string& name, double stamp_s, const std::string& vehicle,
+                            int remote_id) {
+  const bool foreign = !vehicle.empty();
+  if (!foreign && active_ >= 0) endSession(at(active_).stamps.back());
   Session s;
+  s.vehicle = vehicle;
+  s.remote_id = remote_id;
   s.name = name.empty() ? defaultSessionName(id) : name;
   s.backend = backend_->startSession(s.name);
   if (s.backend != static_cast<int>(id_of_backend_.size()))
@@ -244,8 +258,14 @@ Status SessionManager::open(int id, const std::string& name, double stamp_s) {
   s.sources.push_back(MotionSource::kVisual);
   const std::string n = s.name;
   sessions_.emplace(id, std::move(s));
-  active_ = id;
-  emit(SessionEvent::Kind::kSessionStarted, id, -1, id, "session " + std::to_string(id) + " '" + n + "' started");
+  if (foreign) {
+    foreign_ids_[{vehicle, remote_id}] = id;
+  } else {
+    active_ = id;
+  }
+  emit(SessionEvent::Kind::kSessionStarted, id, -1, id,
+       "session " + std::to_string(id) + " '" + n + "' started" +
+           (foreign ? " (vehicle " + vehicle + "'s session " + std::to_string(remote_id) + ")" : ""));
   return Status::Ok();
 }
 
@@ -315,7 +335,18 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
     return;
   }
   const bool ok = storeWrite("writing a keyframe", [&] {
-    if (s.store_id < 0) s.store_id = store_->addSession(s.name, k ? k->camera : CameraIntrinsics(), stamp_s);
+    if (s.store_id < 0) {
+      s.store_id = store_->addSession(s.name, k ? k->camera : CameraIntrinsics(), stamp_s);
+      if (!s.vehicle.empty()) {  // another vehicle's: where it came from, as merge_stores records it
+        SessionProvenance p;
+        p.session = s.store_id;
+        p.source_file = "fleet:" + s.vehicle;
+        p.source_session = s.remote_id;
+        p.source_name = s.name;
+        p.vehicle = s.vehicle;
+        store_->addProvenance(p);
+      }
+    }
     // The loops in store ids only now: a new session's row is made with its first keyframe, and
     // the loops that keyframe closed name it (they were stored with session -1 and lost at the
     // next restart when converted before the row existed).
@@ -379,12 +410,17 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
     open(k.session, "", k.stamp_s);
     it = sessions_.find(k.session);
   }
-  Session& s = it->second;
   const int id = k.session;
   if (id != active_) {
     ++stats_.keyframes_stale;
     return {StatusCode::kFailedPrecondition, "keyframe of finished session " + std::to_string(id) + " skipped"};
   }
+  return appendKeyframe(std::move(k), loops);
+}
+
+Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& loops) {
+  const int id = k.session;
+  Session& s = at(id);
   const int expected = static_cast<int>(s.stamps.size());
   if (k.keyframe > expected && k.keyframe - expected > options_.max_keyframe_gap) {
     ++stats_.keyframes_refused;
@@ -470,6 +506,83 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
     }
   }
   afterBackendChange();
+  return Status::Ok();
+}
+
+// --- Another vehicle's sessions (issue 20, item 5) ---------------------------------------------
+
+bool validVehicleName(const std::string& v) {
+  if (v.empty() || v.size() > 64) return false;
+  for (char c : v)
+    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '_' && c != '-') return false;
+  return true;
+}
+
+int SessionManager::foreignSession(const std::string& vehicle, int remote_session) const {
+  const auto it = foreign_ids_.find({vehicle, remote_session});
+  return it == foreign_ids_.end() ? -1 : it->second;
+}
+
+Status SessionManager::addForeignKeyframe(const std::string& vehicle, const KeyframeInput& input, int* local_id) {
+  if (!validVehicleName(vehicle)) {
+    ++stats_.keyframes_refused;
+    return {StatusCode::kInvalidArgument,
+            "vehicle name '" + vehicle.substr(0, 64) + "': 1 to 64 characters of A-Z a-z 0-9 _ -"};
+  }
+  if (!validSessionId(input.session) || input.keyframe < 0) {
+    ++stats_.keyframes_refused;
+    return badSessionId("vehicle " + vehicle + "'s keyframe " + std::to_string(input.keyframe), input.session);
+  }
+  int id = foreignSession(vehicle, input.session);
+  if (id < 0) {
+    if (ended_foreign_.count({vehicle, input.session})) {
+      ++stats_.keyframes_stale;
+      return {StatusCode::kFailedPrecondition, "vehicle " + vehicle + "'s session " + std::to_string(input.session) +
+                                                   " has ended: keyframe " + std::to_string(input.keyframe) +
+                                                   " skipped"};
+    }
+    if (input.keyframe > options_.max_keyframe_gap) {
+      ++stats_.keyframes_refused;
+      return {StatusCode::kInvalidArgument, "keyframe " + std::to_string(input.keyframe) + " starts vehicle " +
+                                                vehicle + "'s session " + std::to_string(input.session) +
+                                                ": more than max_keyframe_gap keyframes missing"};
+    }
+    if (nextId() > kMaxSessionId)
+      return {StatusCode::kResourceExhausted,
+              "no session id left for vehicle " + vehicle + "'s session " + std::to_string(input.session)};
+    const std::string name = vehicle + "_session_" + std::to_string(input.session);
+    if (idOfName(name) >= 0)
+      return {StatusCode::kAlreadyExists, "a session is already named '" + name + "' (from an earlier run: " +
+                                              "vehicle " + vehicle + "'s sessions are new sessions in each run)"};
+    id = nextId();
+    open(id, name, input.stamp_s, vehicle, input.session);
+  }
+  if (local_id) *local_id = id;
+  KeyframeInput k = input;
+  k.session = id;
+  // Only what crossed the link is kept: no features (asked of the vehicle when needed), no image.
+  k.features = FrameFeatures();
+  k.thumbnail.clear();
+  return appendKeyframe(std::move(k), {});
+}
+
+Status SessionManager::endForeignSession(const std::string& vehicle, int remote_session, double stamp_s) {
+  const int id = foreignSession(vehicle, remote_session);
+  if (id < 0)
+    return {StatusCode::kNotFound,
+            "vehicle " + vehicle + " has no session " + std::to_string(remote_session) + " recording here"};
+  Session& s = at(id);
+  foreign_ids_.erase({vehicle, remote_session});
+  ended_foreign_.insert({vehicle, remote_session});
+  backend_->endSession(s.backend);
+  storeWrite("ending a session", [&] {
+    if (s.store_id >= 0) store_->endSession(s.store_id, stamp_s);
+  });
+  emit(SessionEvent::Kind::kSessionEnded, id, -1, mapOf(id),
+       "session " + std::to_string(id) + " (vehicle " + vehicle + "'s session " + std::to_string(remote_session) +
+           ") ended with " + std::to_string(s.stamps.size()) + " keyframes");
+  afterBackendChange();
+  saveMaps();
   return Status::Ok();
 }
 
@@ -1025,7 +1138,11 @@ std::vector<SessionSummary> SessionManager::list() const {
     SessionSummary x;
     x.id = id;
     x.name = s.name;
-    x.state = id == active_ ? SessionState::kActive : s.unloaded ? SessionState::kUnloaded : SessionState::kFinished;
+    const bool foreign_recording = !s.vehicle.empty() && foreignSession(s.vehicle, s.remote_id) == id;
+    x.state = id == active_ || foreign_recording ? SessionState::kActive
+              : s.unloaded                       ? SessionState::kUnloaded
+                                                 : SessionState::kFinished;
+    x.vehicle = s.vehicle;
     x.map = mapOf(id);
     x.keyframes = static_cast<int>(s.stamps.size());
     x.loops = s.loops;

@@ -254,7 +254,8 @@ class MultiSessionBackend {
 
   /// A new recording session with one keyframe (its origin), alone in a new map. Returns its id.
   int startSession(const std::string& name = "");
-  /// Stops recording: optimises its map if loops are pending.
+  /// Stops recording: optimises its map if loops are pending, then tries again the automatic joins
+  /// postponed while its map and another both held a recording session.
   void endSession(int session);
   /// Appends the odometry motion X_k^{k-1} to a recording session (10)(11).
   void addMotion(int session, const UncertainPose2& motion);
@@ -421,6 +422,11 @@ class MultiSessionBackend {
   LinkEstimate estimateLink(int first, int second, const std::vector<int>& ids, int min_loops, JoinPolicy policy,
                             bool spread_in_first = false, bool requested = false) const;
   std::vector<int> loopsBetween(int map_a, int map_b, bool automatic) const;
+  /// The automatic join of two maps when the loops between them meet the rule (a refusal is
+  /// counted and logged, the loops kept for later). true: joined.
+  bool tryAutomaticJoin(int map_a, int map_b);
+  /// Whether one of the map's sessions is recording.
+  bool holdsRecording(int map) const;
   bool barred(int sa, int sb) const;
   void say(const std::string& line) const;
 

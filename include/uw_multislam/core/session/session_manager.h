@@ -86,6 +86,10 @@ struct SessionManagerOptions {
 /// The manager's options from the SLAM configuration (back-end, hash settings) and a store path.
 SessionManagerOptions sessionManagerOptions(const SlamConfig& config, const std::string& store_path);
 
+/// A vehicle's name as the hash exchange takes it (it goes into session names, the store, logs):
+/// 1 to 64 characters of A-Z a-z 0-9 _ -.
+bool validVehicleName(const std::string& vehicle);
+
 enum class SessionState { kActive, kFinished, kUnloaded };
 const char* sessionStateName(SessionState s);
 
@@ -108,6 +112,7 @@ struct KeyframeInput {
 struct SessionSummary {
   int id = 0;
   std::string name;
+  std::string vehicle;  // another vehicle's session (hash exchange): its name; empty: ours
   SessionState state = SessionState::kFinished;
   int map = 0;
   int keyframes = 0;
@@ -188,6 +193,25 @@ class SessionManager {
   /// keyframe of an older session, or repeated, is FAILED_PRECONDITION (stale); lost keyframes
   /// (a gap in the ids) are bridged by placeholders that no loop may use, up to max_keyframe_gap.
   Status addKeyframe(const KeyframeInput& keyframe, const std::vector<Loop>& loops = {});
+  /// Another vehicle's keyframe (issue 20, item 5: hash exchange): `keyframe.session` is its id
+  /// on that vehicle. The first keyframe of (vehicle, session) opens a session of this manager
+  /// (nextId(), named "<vehicle>_session_<id>", local_id says which), which grows beside the
+  /// active one: both are recording, each in its own map, until loops join them once one has
+  /// ended (MultiSessionBackend::endSession). Only what crosses the link is kept: hash, motion,
+  /// odometry pose, camera, altitude (features and image are dropped; the vehicle is asked for
+  /// features when a loop needs them). Written to the store (without features, with provenance
+  /// "fleet:<vehicle>") like any session, finished at endForeignSession or destruction. Refused:
+  /// INVALID_ARGUMENT (vehicle name not 1-64 of [A-Za-z0-9_-], ids), FAILED_PRECONDITION (stale,
+  /// or the session ended), ALREADY_EXISTS (the name is taken by an earlier run's session).
+  Status addForeignKeyframe(const std::string& vehicle, const KeyframeInput& keyframe, int* local_id = nullptr);
+  /// That vehicle's session ended (its last keyframe sent): recording stops, postponed joins are
+  /// tried. NOT_FOUND when it is not recording here. Later keyframes of it are refused.
+  Status endForeignSession(const std::string& vehicle, int remote_session, double stamp_s);
+  /// This manager's id of a vehicle's session while it records here, or -1.
+  int foreignSession(const std::string& vehicle, int remote_session) const;
+  /// The vehicle a session came from (empty: this vehicle's own), and its id there (-1: ours).
+  const std::string& vehicleOf(int session) const { return at(session).vehicle; }
+  int remoteIdOf(int session) const { return at(session).remote_id; }
   /// A loop in session ids. UNAVAILABLE-like answer through `waiting`: true when one of its
   /// keyframes has not arrived yet (try again after the next keyframe); else OK (accepted) or a
   /// refusal (FAILED_PRECONDITION / INVALID_ARGUMENT with the reason). A session id outside
@@ -357,6 +381,8 @@ class SessionManager {
     int stored = 0;
     bool store_cut = false;
     bool memory_only = false;  // keyframes from `stored` on are not written: localisation mode
+    std::string vehicle;       // another vehicle's session: its name (empty: ours)
+    int remote_id = -1;        // and its id there
   };
   /// Whether the keyframe is in the store (or `pending`: written in the same transaction).
   bool keyframeStored(int session, int keyframe, int pending_session = -1, int pending_keyframe = -1) const;
@@ -367,7 +393,11 @@ class SessionManager {
   Session& at(int session);
   int idOfBackend(int backend_session) const { return id_of_backend_.at(backend_session); }
   void restore();
-  Status open(int id, const std::string& name, double stamp_s);
+  /// Opens a session: this vehicle's (ends the active one, becomes active) or, with `vehicle`,
+  /// another vehicle's `remote_id` (beside the active one).
+  Status open(int id, const std::string& name, double stamp_s, const std::string& vehicle = "", int remote_id = -1);
+  /// Appends keyframe k of an open session (k.session in this manager's ids) with its loops.
+  Status appendKeyframe(KeyframeInput k, const std::vector<Loop>& loops);
   /// Writes a keyframe with its motion and `loops` (converted to `stored`, whose ids are set).
   void storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion, double stamp_s,
                      const std::vector<Loop>* loops, std::vector<StoredLoop>* stored);
@@ -417,6 +447,8 @@ class SessionManager {
   int restored_sessions_ = 0;
   int next_id_floor_ = 0;  // past every id given so far (a deleted session's id is not reused)
   std::set<int> deleted_;  // ids of sessions deleted in this run
+  std::map<std::pair<std::string, int>, int> foreign_ids_;  // (vehicle, its session) recording here -> id
+  std::set<std::pair<std::string, int>> ended_foreign_;     // ended in this run: later keyframes refused
   int seen_joins_ = 0, seen_splits_ = 0, seen_optimisations_ = 0;
   SessionManagerStats stats_;
 };
