@@ -8,6 +8,7 @@
 
 #include <deque>
 #include <map>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -181,6 +182,100 @@ TEST_F(PagingTest, LiveKeyframesPagedOutBehindTheSessionFindTheSameLocalLoops) {
   EXPECT_EQ(paged, static_cast<int>(poses.size()) - 2);
   EXPECT_EQ(ram_cache.misses, 0);
   EXPECT_GT(paged_cache.misses, 0) << "the return leg's candidates were read through the loader";
+}
+
+// Hash exchange between vehicles (issue 20, item 5): vehicle A's session 0 reaches vehicle B's
+// loop detector as hashes only; its features are asked for (the loader: A's store) only for a
+// keyframe that has candidates. Either way round (A's hashes before B's keyframes, or after them)
+// B finds the loops one detector finds with every feature at hand.
+TEST_F(PagingTest, AnotherVehiclesHashOnlyKeyframesFindTheLoopsBothWaysAndAreReadOnlyForCandidates) {
+  std::vector<Pose2> world0;
+  std::vector<FrameFeatures> theirs;
+  for (int k = 0; k < 8; ++k) {
+    world0.push_back(Pose2(2.5 + 1.0 * k, 3.0, 0.0));
+    theirs.push_back(features(world0.back(), 2.0));
+  }
+  auto makeDetector = [&]() {
+    return LoopDetector(config_.loops, config_.odometry.matching, config_.odometry.ransac,
+                        config_.odometry.features.num_features);
+  };
+  auto trajectory = [](const std::vector<Pose2>& w, int upto) {
+    Trajectory t;
+    for (int k = 1; k <= upto; ++k)
+      t.append(UncertainPose2(between(w[k - 1], w[k]), Eigen::Matrix3d::Identity() * 1e-4));
+    return t;
+  };
+  // Reference: one detector holding both sessions' features.
+  std::vector<Loop> reference;
+  {
+    LoopDetector d = makeDetector();
+    for (int k = 0; k < 8; ++k) d.addKeyframe(0, k, k, 2.0, &camera_, theirs[k], trajectory(world0, k));
+    for (int k = 0; k < 5; ++k)
+      for (const Loop& l : d.addKeyframe(1, k, 100 + k, 2.3, &camera_, now_[k], trajectory(world1_, k)))
+        if (l.kind == Loop::Kind::kGlobal) reference.push_back(l);
+  }
+  ASSERT_GE(reference.size(), 3u) << "the scenario must close global loops to compare";
+  const ImageHasher hasher(config_.loops.global.hash_mode, config_.odometry.features.num_features,
+                           config_.loops.global.projection_seed);
+  int reads = 0;
+  auto loader = [&](int session, int keyframe) {
+    EXPECT_EQ(session, 0) << "only A's features are asked for";
+    ++reads;
+    FrameFeatures f = theirs.at(keyframe);
+    theirs[keyframe].descriptors.convertTo(f.descriptors, CV_8U);  // as A's store keeps them
+    return f;
+  };
+
+  // A's hashes first: nothing to search against yet, so none is read; B's keyframes then find
+  // them (reading their features from A).
+  {
+    LoopDetector d = makeDetector();
+    d.setFeatureLoader(loader);
+    reads = 0;
+    for (int k = 0; k < 8; ++k)
+      EXPECT_TRUE(d.addForeignKeyframe(0, k, k, 2.0, &camera_, hasher.hash(theirs[k].descriptors)).empty());
+    EXPECT_EQ(reads, 0);
+    std::vector<Loop> found;
+    for (int k = 0; k < 5; ++k)
+      for (const Loop& l : d.addKeyframe(1, k, 100 + k, 2.3, &camera_, now_[k], trajectory(world1_, k)))
+        if (l.kind == Loop::Kind::kGlobal) found.push_back(l);
+    expectSameLoops(reference, found, "A's hashes before B's keyframes");
+    EXPECT_EQ(reads, 8);  // each of A's keyframes once, then from the cache
+  }
+  // A's hashes after B's keyframes: A's keyframes search B's, the same pairs (a and b swapped).
+  {
+    LoopDetector d = makeDetector();
+    d.setFeatureLoader(loader);
+    for (int k = 0; k < 5; ++k) d.addKeyframe(1, k, 100 + k, 2.3, &camera_, now_[k], trajectory(world1_, k));
+    reads = 0;
+    std::vector<Loop> found;
+    for (int k = 0; k < 8; ++k)
+      for (const Loop& l : d.addForeignKeyframe(0, k, k, 2.0, &camera_, hasher.hash(theirs[k].descriptors)))
+        found.push_back(l);
+    EXPECT_EQ(reads, 8);
+    EXPECT_EQ(d.stats().global_accepted, static_cast<int>(found.size()));
+    std::set<std::pair<int, int>> pairs_ref, pairs_found;
+    for (const Loop& l : reference) pairs_ref.insert({l.keyframe_a, l.keyframe_b});
+    for (const Loop& l : found) {
+      EXPECT_EQ(l.session_a, 1);
+      EXPECT_EQ(l.session_b, 0);
+      EXPECT_EQ(l.kind, Loop::Kind::kGlobal);
+      pairs_found.insert({l.keyframe_b, l.keyframe_a});
+    }
+    EXPECT_EQ(pairs_found, pairs_ref);
+    // The measurement is the same relative pose seen from the other side.
+    for (const Loop& l : found)
+      for (const Loop& r : reference)
+        if (r.keyframe_a == l.keyframe_b && r.keyframe_b == l.keyframe_a) {
+          const Pose2 back = compose(l.z.mean, r.z.mean);  // b<-a then a<-b: the identity
+          EXPECT_NEAR(back.translation().norm(), 0.0, 0.01) << l.keyframe_b << "/" << l.keyframe_a;
+          EXPECT_NEAR(back.yaw(), 0.0, 0.005);
+        }
+  }
+  // Without a loader there is nowhere to ask: refused.
+  LoopDetector bare = makeDetector();
+  EXPECT_THROW(bare.addForeignKeyframe(0, 0, 0, 2.0, &camera_, hasher.hash(theirs[0].descriptors)),
+               std::invalid_argument);
 }
 
 TEST_F(PagingTest, ACorruptOrMissingKeyframeIsAClearErrorAndItsCandidateIsSkipped) {

@@ -150,29 +150,37 @@ std::vector<Loop> LoopDetector::addKeyframe(int session, int keyframe, int frame
       if (verify(keyframes_[c], now, &l)) loops.push_back(l);
     }
   }
-  if (options_.global.enabled && hashes_.size() > 0) {
-    {
-      ScopedStage s(&times_, "hash_query");
-      globalCandidates(hash, session);
-    }
-    ScopedStage s(&times_, "global_verify");
-    for (const HashCandidate& c : scratch_) {
-      ++stats_.global_candidates;
-      Loop l;
-      if (verifyCandidate(c, now, &l)) loops.push_back(l);
-    }
-  }
-  for (Loop& l : loops) {
-    l.session_b = session;
-    l.keyframe_b = keyframe;
-    l.frame_b = frame_index;
-    (l.kind == Loop::Kind::kLocal ? stats_.local_accepted : stats_.global_accepted) += 1;
-  }
+  if (queryGlobal(hash, session)) verifyGlobal(now, &loops);
+  nameNewKeyframe(&loops, session, keyframe, frame_index);
 
   // Store the keyframe for later queries.
   last_hash_ = hash;
   store(session, keyframe, frame_index, altitude_m, camera, &features, hash);
   return loops;
+}
+
+bool LoopDetector::queryGlobal(const Eigen::VectorXf& hash, int session) {
+  if (!options_.global.enabled || hashes_.size() == 0) return false;
+  ScopedStage s(&times_, "hash_query");
+  return !globalCandidates(hash, session).empty();
+}
+
+void LoopDetector::verifyGlobal(const View& now, std::vector<Loop>* loops) {
+  ScopedStage s(&times_, "global_verify");
+  for (const HashCandidate& c : scratch_) {
+    ++stats_.global_candidates;
+    Loop l;
+    if (verifyCandidate(c, now, &l)) loops->push_back(l);
+  }
+}
+
+void LoopDetector::nameNewKeyframe(std::vector<Loop>* loops, int session, int keyframe, int frame_index) {
+  for (Loop& l : *loops) {
+    l.session_b = session;
+    l.keyframe_b = keyframe;
+    l.frame_b = frame_index;
+    (l.kind == Loop::Kind::kLocal ? stats_.local_accepted : stats_.global_accepted) += 1;
+  }
 }
 
 const std::vector<HashCandidate>& LoopDetector::globalCandidates(const Eigen::VectorXf& hash, int session) {
@@ -224,6 +232,36 @@ void LoopDetector::addPagedKeyframe(int session, int keyframe, int frame_index, 
   if (!cache_) throw std::invalid_argument("loops: a paged keyframe needs setFeatureLoader first");
   checkStored(session, keyframe, hash);
   store(session, keyframe, frame_index, altitude_m, camera, nullptr, hash);
+}
+
+std::vector<Loop> LoopDetector::addForeignKeyframe(int session, int keyframe, int frame_index, double altitude_m,
+                                                   const CameraIntrinsics* camera, const Eigen::VectorXf& hash) {
+  if (!cache_) throw std::invalid_argument("loops: another vehicle's keyframe needs setFeatureLoader first");
+  checkStored(session, keyframe, hash);
+  ++stats_.keyframes;
+  std::vector<Loop> loops;
+  if (queryGlobal(hash, session)) {
+    // Its features cross the link only now, for a keyframe with candidates (and stay in the
+    // cache: this vehicle's keyframes that find it later read them from there).
+    std::shared_ptr<const FrameFeatures> theirs;
+    try {
+      ScopedStage s(&times_, "feature_read");
+      theirs = cache_->get(session, keyframe);
+    } catch (const std::exception& e) {
+      ++stats_.feature_read_failures;
+      last_read_error_ = e.what();
+    }
+    if (theirs) {
+      FrameFeatures f;  // descriptors back to float for matching, as verify does for a stored one
+      f.keypoints = theirs->keypoints;
+      f.image_size = theirs->image_size;
+      theirs->descriptors.convertTo(f.descriptors, CV_32F);
+      verifyGlobal({&f, altitude_m, camera}, &loops);
+    }
+  }
+  nameNewKeyframe(&loops, session, keyframe, frame_index);
+  store(session, keyframe, frame_index, altitude_m, camera, nullptr, hash);
+  return loops;
 }
 
 bool LoopDetector::pageOut(int session, int keyframe) {

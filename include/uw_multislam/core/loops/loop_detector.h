@@ -128,6 +128,15 @@ class LoopDetector {
   /// std::invalid_argument without a loader, on a bad hash size or a keyframe stored twice.
   void addPagedKeyframe(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
                         const Eigen::VectorXf& hash);
+  /// Another vehicle's keyframe (issue 20, item 5), of which only the hash crossed the link: the
+  /// global search runs for it against every other session held (this vehicle's included), and
+  /// only when there are candidates are its features read with the loader (asked of that
+  /// vehicle) to verify them; it is then held paged, so this vehicle's later keyframes find it
+  /// too (searching both ways, each vehicle finds every loop between the two). Returns the
+  /// loops, a = the candidate, b = this keyframe. A failed read is counted as for paged
+  /// keyframes (no loop). Throws std::invalid_argument as addPagedKeyframe.
+  std::vector<Loop> addForeignKeyframe(int session, int keyframe, int frame_index, double altitude_m,
+                                       const CameraIntrinsics* camera, const Eigen::VectorXf& hash);
   /// Pages out a keyframe held with its features (a live one, once it is in the session store):
   /// its features are dropped and read with the loader when it is a candidate, as a stored
   /// keyframe's. False (nothing changed) without a loader, for a keyframe not held or already
@@ -172,6 +181,12 @@ class LoopDetector {
     bool paged;              // features read through cache_ when needed
   };
   bool verify(const Stored& old, const View& now, Loop* loop);
+  /// The global search (into scratch_) when it is on and something is held; true: candidates.
+  bool queryGlobal(const Eigen::VectorXf& hash, int session);
+  /// Verifies scratch_'s candidates against `now`, appending the accepted loops.
+  void verifyGlobal(const View& now, std::vector<Loop>* loops);
+  /// The new keyframe as every loop's b, counted as accepted.
+  void nameNewKeyframe(std::vector<Loop>* loops, int session, int keyframe, int frame_index);
   void checkStored(int session, int keyframe, const Eigen::VectorXf& hash) const;
   void store(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
              const FrameFeatures* features, const Eigen::VectorXf& hash);
