@@ -147,6 +147,21 @@ void BackendNodelet::onInit() {
   keyframe_sub_ = nh.subscribe<uw_multislam::Keyframe>(topics::kKeyframes, options_.queue_size, push);
   loop_sub_ = nh.subscribe<uw_multislam::Loop>(topics::kLoops, options_.queue_size, push);
   pose_sub_ = nh.subscribe(topics::kOdometryPose, 10, &BackendNodelet::onOdometryPose, this);
+  if (!options_.fleet_vehicle.empty()) {
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);  // onEvent publishes on fleet_pub_ under it
+      fleet_pub_ = nh.advertise<uw_multislam::KeyframeHash>(topics::kFleetHashesOut, options_.queue_size);
+    }
+    foreign_pub_ = nh.advertise<uw_multislam::Keyframe>(topics::kForeignKeyframes, options_.queue_size);
+    // In the work queue with our keyframes and loops: a loop on another vehicle's keyframe finds it.
+    fleet_sub_ = nh.subscribe<uw_multislam::KeyframeHash>(topics::kFleetHashesIn, options_.queue_size, push);
+    std::string peers;
+    for (const auto& [vehicle, service] : options_.fleet_peers) peers += " " + vehicle + " (" + service + ")";
+    NODELET_INFO("back-end: hash exchange as vehicle %s: our keyframes on %s, theirs from %s; features of%s",
+                 options_.fleet_vehicle.c_str(), nh.resolveName(topics::kFleetHashesOut).c_str(),
+                 nh.resolveName(topics::kFleetHashesIn).c_str(),
+                 peers.empty() ? " nobody (no ~fleet/peers)" : peers.c_str());
+  }
 }
 
 void BackendNodelet::work() {
@@ -158,6 +173,10 @@ void BackendNodelet::work() {
       for (const auto& l : retry) step([&] { processLoop(l, true); });  // their keyframe may be here
     } else if (const auto* l = std::get_if<uw_multislam::LoopConstPtr>(&m)) {
       step([&] { processLoop(*l, false); });
+    } else if (const auto* h = std::get_if<uw_multislam::KeyframeHashConstPtr>(&m)) {
+      std::deque<uw_multislam::LoopConstPtr> retry;
+      step([&] { processFleetHash(**h), retry = std::exchange(waiting_, {}); });
+      for (const auto& w : retry) step([&] { processLoop(w, true); });  // their keyframe may be here
     } else {
       optimiseDue();
     }
@@ -208,8 +227,64 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
   if (ok && st.ok() && !k.thumbnail.empty() && options_.mosaic_rate_hz > 0)  // no mosaic: no image kept
     mosaic_images_.add(k.session, k.keyframe, k.altitude_m, k.camera, std::move(k.thumbnail));
   counts_.bad += ok ? 0 : 1;
-  if (!ok || !st.ok())
+  if (!ok || !st.ok()) {
     NODELET_WARN_THROTTLE(5, "back-end: keyframe skipped: %s", ok ? st.message.c_str() : why.c_str());
+    return;
+  }
+  if (fleet_pub_) {  // the other vehicles get its hash, motion and pose (not its features)
+    if (k.hash.size() != core::HalocProjections::kHashSize) k.hash = manager_->hasher().hash(k.features.descriptors);
+    const auto& o = manager_->options();
+    const auto out = boost::make_shared<uw_multislam::KeyframeHash>(
+        rc::toFleetHashMsg(k, options_.fleet_vehicle, o.hash_mode, o.projection_seed, o.num_features, msg.header));
+    ++fleet_.hashes_sent;
+    fleet_.hash_bytes_sent += static_cast<long>(ros::serialization::serializationLength(*out));
+    fleet_pub_.publish(out);
+  }
+}
+
+void BackendNodelet::processFleetHash(const uw_multislam::KeyframeHash& msg) {
+  if (msg.vehicle == options_.fleet_vehicle) return;  // ours, come back through a relay
+  if (msg.session_ended) {
+    const core::Status st = manager_->endForeignSession(msg.vehicle, msg.session, msg.header.stamp.toSec());
+    if (st.ok())
+      ++fleet_.sessions_ended;
+    else
+      NODELET_WARN_THROTTLE(5, "back-end: vehicle %s's session-ended notice: %s", msg.vehicle.c_str(),
+                            st.message.c_str());
+    return;
+  }
+  rc::KeyframeData k;
+  rc::KeyframeHashData settings;
+  std::string why;
+  core::Status st;
+  if (!rc::fromFleetHashMsg(msg, &k, &settings, &why)) {
+    st = {core::StatusCode::kInvalidArgument, why};
+  } else if (const auto& o = manager_->options(); settings.mode != o.hash_mode ||
+                                                  settings.projection_seed != o.projection_seed ||
+                                                  settings.num_features != o.num_features) {
+    st = {core::StatusCode::kFailedPrecondition,
+          "hash settings " + core::hashModeName(settings.mode) + " seed " + std::to_string(settings.projection_seed) +
+              " n " + std::to_string(settings.num_features) + " differ from ours (" + core::hashModeName(o.hash_mode) +
+              " seed " + std::to_string(o.projection_seed) + " n " + std::to_string(o.num_features) +
+              "): its hashes cannot be compared with ours"};
+  } else {
+    int local = -1;
+    const bool opens = manager_->foreignSession(msg.vehicle, msg.session) < 0;
+    st = manager_->addForeignKeyframe(msg.vehicle, rc::toKeyframeInput(k, msg.header.stamp.toSec()), &local);
+    if (st.ok() && opens) announceNextSession(announced_state_);  // it took an id: our next session takes another
+    if (st.ok()) {
+      ++fleet_.hashes_received;
+      fleet_.hash_bytes_received += static_cast<long>(ros::serialization::serializationLength(msg));
+      k.session = local;  // in our ids, for the loop detector(s)
+      std_msgs::Header header = msg.header;
+      header.frame_id = options_.frames.session_frame_prefix + std::to_string(local);
+      foreign_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::toKeyframeMsg(k, header)));
+      return;
+    }
+  }
+  ++fleet_.refused;
+  NODELET_WARN_THROTTLE(5, "back-end: vehicle %s's keyframe %d of session %d refused: %s", msg.vehicle.c_str(),
+                        msg.keyframe, msg.session, st.message.c_str());
 }
 
 void BackendNodelet::processLoop(const uw_multislam::LoopConstPtr& msg, bool retry) {
@@ -235,6 +310,11 @@ void BackendNodelet::processLoop(const uw_multislam::LoopConstPtr& msg, bool ret
 
 void BackendNodelet::onEvent(const core::SessionEvent& e) {
   using K = core::SessionEvent::Kind;
+  if (e.kind == K::kSessionEnded && fleet_pub_ && manager_ && manager_->has(e.session) &&
+      manager_->vehicleOf(e.session).empty()) {  // ours ended: the other vehicles can join it now
+    fleet_pub_.publish(boost::make_shared<uw_multislam::KeyframeHash>(
+        rc::fleetSessionEndedMsg(options_.fleet_vehicle, e.session, ros::Time::now())));
+  }
   mosaic_due_ = true;  // a keyframe, a join, a split, an optimisation: the active map may look different
   const bool changed = e.kind != K::kKeyframeAdded && e.kind != K::kLoopAccepted;  // every session to publish
   publish_all_ = publish_all_ || changed;
@@ -295,6 +375,8 @@ void BackendNodelet::announceNextSession(std::uint8_t state) {
   st.state = state;
   st.map = st.session;
   st.relocalised_map = -1;
+  st.next_session = manager_->nextId();
+  announced_state_ = state;
   active_pub_.publish(st);
 }
 
@@ -581,7 +663,13 @@ bool BackendNodelet::onKeyframeFeatures(uw_multislam::KeyframeFeatures::Request&
                                                                           ": ids must be >= 0"});
     return true;
   }
-  std::lock_guard<std::mutex> lock(state_mutex_);
+  std::unique_lock<std::mutex> lock(state_mutex_);
+  if (manager_->has(req.session) && !manager_->vehicleOf(req.session).empty()) {  // another vehicle's
+    const std::string vehicle = manager_->vehicleOf(req.session);
+    const int remote = manager_->remoteIdOf(req.session);
+    lock.unlock();  // a call over the link: keyframes, loops and services go on meanwhile
+    return featuresFromPeer(vehicle, remote, req.session, req, res);
+  }
   if (req.check_only) {  // whether it is there: a loop detector about to page a live keyframe out
     const bool store = !manager_->options().store_path.empty();
     res.status = rc::toStatusMsg(!store ? core::Status{core::StatusCode::kFailedPrecondition, "no session store"}
@@ -616,6 +704,42 @@ bool BackendNodelet::onKeyframeFeatures(uw_multislam::KeyframeFeatures::Request&
   k.thumbnail.clear();
   res.keyframe = rc::reloadedKeyframeMsg(r, k, options_.frames.session_frame_prefix + std::to_string(req.session));
   res.status = rc::toStatusMsg(core::Status::Ok());
+  return true;
+}
+
+bool BackendNodelet::featuresFromPeer(const std::string& vehicle, int remote_session, int local_session,
+                                      uw_multislam::KeyframeFeatures::Request& req,
+                                      uw_multislam::KeyframeFeatures::Response& res) {
+  const auto peer = options_.fleet_peers.find(vehicle);
+  if (peer == options_.fleet_peers.end()) {
+    res.status = rc::toStatusMsg(
+        {core::StatusCode::kFailedPrecondition, "session " + std::to_string(local_session) + " is vehicle " + vehicle +
+                                                    "'s, and ~fleet/peers names no keyframe_features service for it"});
+    return true;
+  }
+  uw_multislam::KeyframeFeatures there;
+  there.request = req;
+  there.request.session = remote_session;
+  std::unique_lock<std::mutex> lock(peer_mutex_);
+  ros::ServiceClient& client = peer_clients_[vehicle];
+  if (!client.isValid()) client = getNodeHandle().serviceClient<uw_multislam::KeyframeFeatures>(peer->second, true);
+  ros::ServiceClient call = client;  // a copy: the call itself runs without the lock
+  lock.unlock();
+  const bool answered = call.call(there);
+  lock.lock();
+  ++fleet_.features_requested;
+  if (!answered) {
+    ++fleet_.feature_failures;
+    peer_clients_[vehicle].shutdown();  // made again at the next request
+    res.status = rc::toStatusMsg(
+        {core::StatusCode::kUnavailable, "vehicle " + vehicle + "'s " + peer->second + " did not answer"});
+    return true;
+  }
+  if (there.response.status.code != uw_multislam::Status::OK) ++fleet_.feature_failures;
+  fleet_.feature_bytes_received += static_cast<long>(ros::serialization::serializationLength(there.response));
+  res = there.response;
+  res.keyframe.session = local_session;  // in our ids
+  res.keyframe.header.frame_id = options_.frames.session_frame_prefix + std::to_string(local_session);
   return true;
 }
 
@@ -800,6 +924,18 @@ std::vector<ros_diagnostics::Counter> BackendNodelet::counters() const {
   c.push_back({"mosaic_draw_ms", mosaic_stats_.ms});
   c.push_back({"mosaic_resolution_m", mosaic_stats_.resolution_m});
   c.push_back({"mosaic_images_kB", d(mosaic_images_.bytes()) / 1024.0});
+  if (fleet_pub_) {  // the hash exchange: what crossed the link, per direction (README "Two vehicles")
+    c.push_back({"fleet_hashes_sent", d(fleet_.hashes_sent)});
+    c.push_back({"fleet_hash_bytes_sent", d(fleet_.hash_bytes_sent)});
+    c.push_back({"fleet_hashes_received", d(fleet_.hashes_received)});
+    c.push_back({"fleet_hash_bytes_received", d(fleet_.hash_bytes_received)});
+    c.push_back({"fleet_refused", d(fleet_.refused), true});
+    c.push_back({"fleet_sessions_ended", d(fleet_.sessions_ended)});
+    std::lock_guard<std::mutex> lock(peer_mutex_);
+    c.push_back({"fleet_features_requested", d(fleet_.features_requested)});
+    c.push_back({"fleet_feature_bytes_received", d(fleet_.feature_bytes_received)});
+    c.push_back({"fleet_feature_failures", d(fleet_.feature_failures), true});
+  }
   for (ros_diagnostics::Counter& m : rc::managerCounters(*manager_)) c.push_back(std::move(m));
   return c;
 }

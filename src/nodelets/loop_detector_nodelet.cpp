@@ -42,8 +42,9 @@ void LoopDetectorNodelet::onInit() {
     queue_ = std::make_unique<ros_work::BoundedWorkQueue<Work>>(static_cast<std::size_t>(options_.queue_size));
     detector_ = std::make_unique<core::LoopDetector>(config_.loops, config_.odometry.matching, config_.odometry.ransac,
                                                      config_.odometry.features.num_features);
-    if (config_.loops.page_stored)
-      detector_->setFeatureLoader([this](int session, int keyframe) { return loadFeatures(session, keyframe); });
+    // Always: stored keyframes when paging, and other vehicles' keyframes (foreign_keyframes) in
+    // any case, are read through the back-end's keyframe_features when they are candidates.
+    detector_->setFeatureLoader([this](int session, int keyframe) { return loadFeatures(session, keyframe); });
     live_paging_ = config_.loops.page_stored && config_.loops.page_live_after > 0;
   } catch (const std::exception& e) {
     NODELET_FATAL("loop detector: invalid parameters, not starting: %s", e.what());
@@ -77,6 +78,11 @@ void LoopDetectorNodelet::onInit() {
   // Unbounded (0), as the back-end's publisher: a store's handover is never dropped; the callback
   // only moves each message onto the work queue (pushPriority, never dropped either).
   reloaded_sub_ = nh.subscribe(topics::kReloadedKeyframes, 0, &LoopDetectorNodelet::onReloaded, this);
+  if (config_.loops.global.enabled)  // local loops never involve another vehicle's keyframes
+    foreign_sub_ = nh.subscribe<uw_multislam::Keyframe>(topics::kForeignKeyframes, 100,
+                                                        [this](const uw_multislam::KeyframeConstPtr& msg) {
+                                                          queue_->push(Work{msg, false, true});
+                                                        });
 }
 
 void LoopDetectorNodelet::onKeyframe(const uw_multislam::KeyframeConstPtr& msg) { queue_->push(Work{msg, false}); }
@@ -123,6 +129,32 @@ void LoopDetectorNodelet::processReloaded(const uw_multislam::Keyframe& msg) {
   ++counts_.reloaded;
 }
 
+void LoopDetectorNodelet::processForeign(const uw_multislam::Keyframe& msg) {
+  rc::KeyframeData k;
+  std::string why;
+  if (!rc::fromMsg(msg, &k, &why) || k.hash.size() == 0) {
+    ++counts_.bad;
+    NODELET_WARN_THROTTLE(5, "loop detector: another vehicle's keyframe skipped: %s",
+                          why.empty() ? "no hash" : why.c_str());
+    return;
+  }
+  if (detector_->has(k.session, k.keyframe)) {
+    ++counts_.bad;
+    return;
+  }
+  Session& s = session(k.session);
+  if (s.cameras.empty() || s.cameras.back().fx != k.camera.fx || s.cameras.back().width != k.camera.width)
+    s.cameras.push_back(k.camera);
+  const std::vector<core::Loop> loops =
+      detector_->addForeignKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m, &s.cameras.back(), k.hash);
+  ++counts_.foreign;
+  for (const core::Loop& l : loops) {
+    loop_pub_.publish(boost::make_shared<uw_multislam::Loop>(rc::toLoopMsg(l, msg.header)));
+    ++counts_.global;
+    ++counts_.foreign_loops;
+  }
+}
+
 void LoopDetectorNodelet::onTrajectory(const uw_multislam::SessionTrajectoryConstPtr& msg) {
   if (msg->session < 0) return;
   std::lock_guard<std::mutex> lock(optimised_mutex_);
@@ -138,6 +170,8 @@ void LoopDetectorNodelet::work() {
     try {
       if (w.reloaded) {
         processReloaded(*w.msg);
+      } else if (w.foreign) {
+        processForeign(*w.msg);
       } else {
         process(*w.msg);
       }
@@ -336,6 +370,8 @@ void LoopDetectorNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWr
                            {"keyframes_unloaded", static_cast<double>(c.keyframes_unloaded)},
                            {"keyframes_paged", static_cast<double>(c.paged)},
                            {"keyframes_paged_live", static_cast<double>(c.paged_live)},
+                           {"foreign_keyframes", static_cast<double>(c.foreign)},
+                           {"foreign_loops", static_cast<double>(c.foreign_loops)},
                            {"feature_cache_hits", static_cast<double>(c.cache_hits)},
                            {"feature_cache_misses", static_cast<double>(c.cache_misses)},
                            {"feature_cache_mb", c.cache_mb},

@@ -504,6 +504,7 @@ void OdometryNodelet::onActiveSession(const uw_multislam::SessionStateConstPtr& 
   {
     std::lock_guard<std::mutex> lock(session_mutex_);
     requested_session_ = msg->session;
+    next_free_session_ = msg->next_session;
   }
   std::lock_guard<std::mutex> lock(pause_mutex_);
   if (msg->state == uw_multislam::SessionState::FINISHED) {
@@ -707,11 +708,15 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   }
 
   // Session changes, in order of precedence: the back-end's request, a time jump, a new camera.
-  int requested = -1;
+  int requested = -1, next_free = 0;
   {
     std::lock_guard<std::mutex> lock(session_mutex_);
     std::swap(requested, requested_session_);
+    next_free = next_free_session_;
   }
+  // A session the odometry starts by itself takes the next id, past those other vehicles'
+  // sessions took in the back-end (active_session's next_session).
+  const int next_own = std::max(session_ + 1, next_free);
   if (!odometry_) {
     startSession(requested >= 0 ? requested : session_, camera, "first frame");
   } else if (requested >= 0 && requested != session_) {
@@ -724,10 +729,10 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
     } else {
       NODELET_INFO("odometry: image stamps jumped forward by %.3f s (a gap in the images)", stamps_->lastJump());
     }
-    startSession(session_ + 1, camera, "image stamps jumped by " + std::to_string(stamps_->lastJump()) + " s");
+    startSession(next_own, camera, "image stamps jumped by " + std::to_string(stamps_->lastJump()) + " s");
   } else {
     if (camera_ != camera) {
-      startSession(session_ + 1, camera, "camera intrinsics changed");
+      startSession(next_own, camera, "camera intrinsics changed");
     }
   }
 
@@ -746,7 +751,7 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   if (u.status != core::FrameStatus::kSkipped && u.source == core::MotionSource::kNav) ++counts_.nav_motions;
   if (u.status != core::FrameStatus::kSkipped && u.source == core::MotionSource::kFused) ++counts_.fused_motions;
   if (step.session_started && odometry_->sessions() > 1) {
-    ++session_;
+    session_ = std::max(session_ + 1, next_free);
     ++counts_.sessions;
     NODELET_INFO("odometry: tracking resumed at frame %d: session %d starts", u.index, session_);
   }

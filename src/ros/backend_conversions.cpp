@@ -86,6 +86,7 @@ uw_multislam::SessionState toSessionStateMsg(const core::SessionSummary& s) {
   st.first_stamp = ros::Time(std::max(0.0, s.first_stamp_s));
   st.last_stamp = ros::Time(std::max(0.0, s.last_stamp_s));
   st.relocalised_map = -1;
+  st.vehicle = s.vehicle;
   return st;
 }
 

@@ -283,5 +283,74 @@ bool fromMsg(const uw_multislam::KeyframeHash& m, KeyframeHashData* out, std::st
   return true;
 }
 
+namespace {
+// The fields a Keyframe and a fleet KeyframeHash share (ids, camera, altitude, motion, pose): one
+// copy for both directions.
+template <class From, class To>
+void copySharedFields(const From& f, To* t) {
+  t->header = f.header;
+  t->session = f.session;
+  t->keyframe = f.keyframe;
+  t->frame_index = f.frame_index;
+  t->altitude_m = f.altitude_m;
+  t->width = f.width;
+  t->height = f.height;
+  t->fx = f.fx;
+  t->fy = f.fy;
+  t->cx = f.cx;
+  t->cy = f.cy;
+  t->motion = f.motion;
+  t->motion_covariance = f.motion_covariance;
+  t->odometry_pose = f.odometry_pose;
+}
+}  // namespace
+
+uw_multislam::KeyframeHash toFleetHashMsg(const KeyframeData& k, const std::string& vehicle, core::HashMode mode,
+                                          std::uint64_t projection_seed, int num_features,
+                                          const std_msgs::Header& header) {
+  KeyframeData light = k;  // what crosses the link: no features, no image
+  light.features = core::FrameFeatures();
+  light.thumbnail.clear();
+  const uw_multislam::Keyframe km = toKeyframeMsg(light, header);
+  KeyframeHashData h;
+  h.session = k.session;
+  h.keyframe = k.keyframe;
+  h.frame_index = k.frame_index;
+  h.mode = mode;
+  h.projection_seed = projection_seed;
+  h.num_features = num_features;
+  h.values = k.hash;
+  uw_multislam::KeyframeHash m = toKeyframeHashMsg(h, header);
+  copySharedFields(km, &m);
+  m.vehicle = vehicle;
+  return m;
+}
+
+uw_multislam::KeyframeHash fleetSessionEndedMsg(const std::string& vehicle, int session, const ros::Time& stamp) {
+  uw_multislam::KeyframeHash m;
+  m.header.stamp = stamp;
+  m.vehicle = vehicle;
+  m.session = session;
+  m.keyframe = -1;
+  m.session_ended = true;
+  return m;
+}
+
+bool fromFleetHashMsg(const uw_multislam::KeyframeHash& m, KeyframeData* out, KeyframeHashData* settings,
+                      std::string* why) {
+  if (m.session_ended) return fail(why, "fleet hash: a session-ended notice, not a keyframe");
+  KeyframeHashData h;
+  if (!fromMsg(m, &h, why)) return false;
+  // The rest is a Keyframe without features: checked by the same rules.
+  uw_multislam::Keyframe k;
+  copySharedFields(m, &k);
+  k.descriptor_size = static_cast<std::uint32_t>(core::HalocProjections::kDescriptorSize);
+  k.hash = m.values;
+  k.status = m.keyframe == 0 ? uw_multislam::Keyframe::FIRST : uw_multislam::Keyframe::MATCHED;
+  if (!fromMsg(k, out, why)) return false;
+  if (settings) *settings = std::move(h);
+  return true;
+}
+
 }  // namespace ros_conversions
 }  // namespace uw_multislam

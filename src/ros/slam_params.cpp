@@ -120,6 +120,16 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
                        "mapping or localisation") == "localisation";
   o.reload_stored = param(
       pnh, "reload_stored", false, [](bool) { return true; }, "true or false");
+  o.fleet_vehicle = param(
+      pnh, "fleet/vehicle", std::string(), [](const std::string& v) { return v.empty() || core::validVehicleName(v); },
+      "empty (off) or 1 to 64 characters of A-Z a-z 0-9 _ -");
+  if (pnh.hasParam("fleet/peers") && !pnh.getParam("fleet/peers", o.fleet_peers))
+    throw std::invalid_argument(pnh.resolveName("fleet/peers") +
+                                ": a dictionary of vehicle name: keyframe_features service name");
+  for (const auto& [vehicle, service] : o.fleet_peers)
+    if (!core::validVehicleName(vehicle) || service.empty() || vehicle == o.fleet_vehicle)
+      throw std::invalid_argument(pnh.resolveName("fleet/peers") + ": '" + vehicle + "': '" + service +
+                                  "': another vehicle's name (A-Z a-z 0-9 _ -) and a service name");
   return o;
 }
 

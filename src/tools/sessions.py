@@ -90,10 +90,11 @@ def main():
             res = call(args.ns, "list_sessions", ListSessions)
             print("list_sessions -> %s, %d sessions" % (status_text(res.status), len(res.sessions)))
             for s in res.sessions:
-                print("  session %d %-10s %-8s map %d  %4d keyframes  %3d loops%s" % (
+                print("  session %d %-10s %-8s map %d  %4d keyframes  %3d loops%s%s" % (
                     s.session, s.name, constants(SessionState).get(s.state, str(s.state)), s.map, s.num_keyframes,
                     s.num_loops,
-                    "  relocalised in map %d" % s.relocalised_map if s.relocalised_map >= 0 else ""))
+                    "  relocalised in map %d" % s.relocalised_map if s.relocalised_map >= 0 else "",
+                    "  from vehicle %s" % s.vehicle if getattr(s, "vehicle", "") else ""))
         elif args.command == "join":
             a, b = int(args.args[0]), int(args.args[1])
             k = int(args.args[2]) if len(args.args) > 2 else 0

@@ -180,6 +180,63 @@ TEST_F(PipelineConversions, KeyframeHashTravelsWithTheKeyframe) {
   EXPECT_EQ(back.hash.size(), 0);
 }
 
+// Hash exchange between vehicles (issue 20, item 5): a keyframe crosses as its hash, motion,
+// pose, camera and altitude, without features or image, and comes back out checked as a Keyframe.
+TEST_F(PipelineConversions, AFleetHashCarriesTheKeyframeWithoutItsFeaturesAndIsCheckedAsOne) {
+  rc::KeyframeData k = someKeyframe();
+  const core::ImageHasher hasher(core::HashMode::kSortedDct, 500, 77);
+  k.hash = hasher.hash(k.features.descriptors);
+  k.thumbnail = {1, 2, 3};
+  const uw_multislam::KeyframeHash m = rc::toFleetHashMsg(k, "auv_b", core::HashMode::kSortedDct, 77, 500, header());
+  EXPECT_EQ(m.vehicle, "auv_b");
+  EXPECT_FALSE(m.session_ended);
+  EXPECT_EQ(m.values.size(), 384u);
+  EXPECT_EQ(m.projection_seed, 77u);
+  EXPECT_EQ(m.num_features, 500);
+  // About 1.6 kB on the wire against the keyframe's tens of kB.
+  const std::uint32_t bytes = ros::serialization::serializationLength(m);
+  const std::uint32_t full = ros::serialization::serializationLength(rc::toKeyframeMsg(k, header()));
+  EXPECT_LT(bytes, 1800u);
+  EXPECT_GT(full, 20u * bytes);
+
+  rc::KeyframeData back;
+  rc::KeyframeHashData settings;
+  std::string why;
+  ASSERT_TRUE(rc::fromFleetHashMsg(m, &back, &settings, &why)) << why;
+  EXPECT_EQ(settings.projection_seed, 77u);
+  EXPECT_EQ(settings.mode, core::HashMode::kSortedDct);
+  EXPECT_EQ(back.session, 2);
+  EXPECT_EQ(back.keyframe, 7);
+  EXPECT_EQ(back.frame_index, 31);
+  EXPECT_DOUBLE_EQ(back.altitude_m, 2.0);
+  EXPECT_DOUBLE_EQ(back.camera.cx, camera_.cx);
+  EXPECT_EQ(back.camera.height, camera_.height);
+  EXPECT_TRUE(back.features.keypoints.empty());
+  EXPECT_TRUE(back.thumbnail.empty());
+  EXPECT_TRUE(back.hash.isApprox(k.hash));
+  EXPECT_DOUBLE_EQ(back.motion.mean.y(), -0.1);
+  EXPECT_DOUBLE_EQ(back.motion.covariance(1, 2), -3e-6);
+  EXPECT_DOUBLE_EQ(back.odometry_pose.yaw(), -2.0);
+
+  // Refused with the reason: a notice, a broken motion, a short hash, a missing camera.
+  EXPECT_FALSE(rc::fromFleetHashMsg(rc::fleetSessionEndedMsg("auv_b", 2, ros::Time(5)), &back, &settings, &why));
+  uw_multislam::KeyframeHash bad = m;
+  bad.motion_covariance[0] = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(rc::fromFleetHashMsg(bad, &back, &settings, &why));
+  EXPECT_NE(why.find("covariance"), std::string::npos) << why;
+  bad = m;
+  bad.values.resize(100);
+  EXPECT_FALSE(rc::fromFleetHashMsg(bad, &back, &settings, &why));
+  bad = m;
+  bad.fx = 0;
+  EXPECT_FALSE(rc::fromFleetHashMsg(bad, &back, &settings, &why));
+  EXPECT_NE(why.find("camera"), std::string::npos) << why;
+  const uw_multislam::KeyframeHash ended = rc::fleetSessionEndedMsg("auv_b", 2, ros::Time(5));
+  EXPECT_TRUE(ended.session_ended);
+  EXPECT_EQ(ended.keyframe, -1);
+  EXPECT_TRUE(ended.values.empty());
+}
+
 TEST_F(PipelineConversions, KeyframeThumbnailTravelsWithTheKeyframeAndIsBounded) {
   rc::KeyframeData k = someKeyframe();
   k.thumbnail = {0xff, 0xd8, 0xff, 0x01, 0x02, 0xff, 0xd9};

@@ -85,6 +85,19 @@ struct KeyframeHashData {
 uw_multislam::KeyframeHash toKeyframeHashMsg(const KeyframeHashData& h, const std_msgs::Header& header);
 bool fromMsg(const uw_multislam::KeyframeHash& m, KeyframeHashData* out, std::string* why = nullptr);
 
+/// Hash exchange between vehicles (issue 20, item 5): keyframe `k` (its hash, motion, pose,
+/// camera and altitude; no features, no image) as vehicle `vehicle` sends it on fleet/hashes_out,
+/// with the hash settings it was made with.
+uw_multislam::KeyframeHash toFleetHashMsg(const KeyframeData& k, const std::string& vehicle, core::HashMode mode,
+                                          std::uint64_t projection_seed, int num_features,
+                                          const std_msgs::Header& header);
+/// The notice that `vehicle`'s session `session` has ended (session_ended, keyframe -1, no values).
+uw_multislam::KeyframeHash fleetSessionEndedMsg(const std::string& vehicle, int session, const ros::Time& stamp);
+/// A fleet hash as a keyframe without features (checked as fromMsg(Keyframe) checks one), and
+/// its hash settings in `settings`. A notice (session_ended) is refused here: callers test it first.
+bool fromFleetHashMsg(const uw_multislam::KeyframeHash& m, KeyframeData* out, KeyframeHashData* settings,
+                      std::string* why = nullptr);
+
 /// 3x3 covariance <-> row-major float64[9].
 void toArray(const Eigen::Matrix3d& c, boost::array<double, 9>* out);
 Eigen::Matrix3d fromArray(const boost::array<double, 9>& a);

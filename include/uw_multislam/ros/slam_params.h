@@ -8,6 +8,7 @@
 #include <ros/node_handle.h>
 #include <xmlrpcpp/XmlRpcValue.h>
 
+#include <map>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -53,6 +54,11 @@ struct BackendNodeletOptions {
   /// The `export` service writes below this folder (created at start-up; "" = no exports);
   /// default $ROS_HOME/uw_multislam/exports.
   std::string export_root;
+  /// Hash exchange between vehicles (issue 20, item 5): ~fleet/vehicle names this vehicle (""
+  /// = off); ~fleet/peers maps each other vehicle's name to its keyframe_features service (how
+  /// this back-end asks for a candidate's features).
+  std::string fleet_vehicle;
+  std::map<std::string, std::string> fleet_peers;
 };
 
 /// Reads and validates the back-end nodelet's parameters (std::invalid_argument naming the key);

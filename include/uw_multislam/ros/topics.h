@@ -68,6 +68,17 @@ constexpr char kTrajectoryMarkers[] = "trajectory_markers";
 /// uw_multislam/Keyframe: the keyframes of a session reload_session brought back from the session
 /// store (back-end), for the loop detector(s) to store as candidates without searching.
 constexpr char kReloadedKeyframes[] = "reloaded_keyframes";
+/// Hash exchange between vehicles (issue 20, item 5; with the back-end's ~fleet/vehicle set):
+/// uw_multislam/KeyframeHash, this vehicle's keyframes (hash, motion, pose, camera; no features)
+/// and session-ended notices, for the other vehicles' back-ends (a relay carries them across).
+constexpr char kFleetHashesOut[] = "fleet/hashes_out";
+/// uw_multislam/KeyframeHash: the other vehicles' fleet/hashes_out (own ones are ignored).
+constexpr char kFleetHashesIn[] = "fleet/hashes_in";
+/// uw_multislam/Keyframe: another vehicle's keyframe as the back-end took it (its session in this
+/// back-end's ids, hash only), for the loop detector(s): searched against this vehicle's keyframes
+/// and held paged (its features asked for through keyframe_features, which the back-end forwards
+/// to that vehicle's).
+constexpr char kForeignKeyframes[] = "foreign_keyframes";
 /// geometry_msgs/PoseStamped: the current base_link pose in the map frame (back-end: the odometry
 /// pose corrected by the active session's optimisation).
 constexpr char kCurrentPose[] = "pose";

@@ -33,6 +33,15 @@
 //          mosaic (sensor_msgs/Image, latched, only while subscribed): the live mosaic of the active
 //            map (core/session/live_mosaic.h), the active keyframe outlined, redrawn at most at
 //            ~mosaic_rate (default 0.2 Hz) when keyframes, joins, splits or optimisations changed it
+// Hash exchange between vehicles (issue 20, item 5; ~fleet/vehicle set, off by default): each of
+//          this vehicle's keyframes goes out on fleet/hashes_out as a KeyframeHash (hash, motion,
+//          pose, camera: ~1.9 kB against ~74 kB for the keyframe), and a notice when its session
+//          ends; another vehicle's, from fleet/hashes_in, becomes a session of this back-end
+//          (SessionManager::addForeignKeyframe: same hash settings or refused, counted) that grows
+//          beside ours, and goes to the loop detector(s) on foreign_keyframes. A loop detector asks
+//          keyframe_features for such a session's keyframe only when it is a loop candidate; this
+//          back-end forwards the request to that vehicle's service (~fleet/peers). The loops then
+//          join the two vehicles' maps by the usual rule, on each vehicle (README "Two vehicles").
 // Services: join_sessions, split_session, list_sessions, start_session, reload_session, export
 // (export_survey's files of a session or its map, from the store, into a folder below
 // ~export_root; a folder outside it is refused INVALID_ARGUMENT). Replies
@@ -91,16 +100,17 @@
 #include <variant>
 
 #include "uw_multislam/AddLink.h"
+#include "uw_multislam/DeleteSession.h"
 #include "uw_multislam/DetectLoops.h"
 #include "uw_multislam/ExportSurvey.h"
 #include "uw_multislam/FinishSession.h"
+#include "uw_multislam/History.h"
 #include "uw_multislam/JoinSessions.h"
 #include "uw_multislam/Keyframe.h"
 #include "uw_multislam/KeyframeFeatures.h"
+#include "uw_multislam/KeyframeHash.h"
 #include "uw_multislam/ListSessions.h"
 #include "uw_multislam/Loop.h"
-#include "uw_multislam/DeleteSession.h"
-#include "uw_multislam/History.h"
 #include "uw_multislam/Optimise.h"
 #include "uw_multislam/ReloadSession.h"
 #include "uw_multislam/SessionState.h"
@@ -123,7 +133,8 @@ class BackendNodelet : public nodelet::Nodelet {
 
  private:
   /// monostate: a service left maps due, optimise them.
-  using Message = std::variant<std::monostate, uw_multislam::KeyframeConstPtr, uw_multislam::LoopConstPtr>;
+  using Message = std::variant<std::monostate, uw_multislam::KeyframeConstPtr, uw_multislam::LoopConstPtr,
+                               uw_multislam::KeyframeHashConstPtr>;
   struct Counters {
     long keyframes = 0, loops = 0, bad = 0, waiting_dropped = 0;
   };
@@ -137,6 +148,12 @@ class BackendNodelet : public nodelet::Nodelet {
   void optimiseDue();
   void processKeyframe(const uw_multislam::Keyframe& msg);
   void processLoop(const uw_multislam::LoopConstPtr& msg, bool retry);
+  /// Another vehicle's keyframe or session-ended notice (fleet/hashes_in, "Hash exchange").
+  void processFleetHash(const uw_multislam::KeyframeHash& msg);
+  /// keyframe_features for another vehicle's session: forwarded to that vehicle's service
+  /// (~fleet/peers) WITHOUT state_mutex_, its ids put back into ours.
+  bool featuresFromPeer(const std::string& vehicle, int remote_session, int local_session,
+                        uw_multislam::KeyframeFeatures::Request& req, uw_multislam::KeyframeFeatures::Response& res);
   void onEvent(const core::SessionEvent& e);
   void publishAll(bool all_sessions);
   /// Its path, trajectory and (active) pose and tf; returns its correction map <- session.
@@ -218,6 +235,7 @@ class BackendNodelet : public nodelet::Nodelet {
   ros_frames::FrameStats frame_stats_;                  // the diagnostics timer's thread only
 
   std::map<int, double> offsets_;  // where each map is drawn in rviz (under state_mutex_)
+  std::uint8_t announced_state_ = uw_multislam::SessionState::ACTIVE;  // the last active_session's (under state_mutex_)
   std::vector<int> handed_;         // stored sessions handed to the loop detectors (under state_mutex_)
   struct Handover {
     long subscribers = 0, total = 0, sent = 0;
@@ -240,6 +258,17 @@ class BackendNodelet : public nodelet::Nodelet {
   bool mosaic_stop_ = false;
   std::atomic<bool> mosaic_due_{true};  // the active map changed since the last drawing
   std::mutex export_mutex_;             // one export at a time
+  // Hash exchange between vehicles (~fleet/vehicle set).
+  ros::Publisher fleet_pub_, foreign_pub_;
+  struct FleetStats {
+    long hashes_sent = 0, hash_bytes_sent = 0;          // ours, on fleet/hashes_out
+    long hashes_received = 0, hash_bytes_received = 0;  // theirs taken (foreign keyframes)
+    long refused = 0, sessions_ended = 0;               // theirs refused (settings, ids), notices
+    long features_requested = 0, feature_bytes_received = 0, feature_failures = 0;  // under peer_mutex_
+  } fleet_;                        // under state_mutex_ except the three features_* (peer_mutex_)
+  mutable std::mutex peer_mutex_;  // guards peer_clients_ and fleet_.feature*
+  std::map<std::string, ros::ServiceClient> peer_clients_;  // persistent, made again after a failure
+  ros::Subscriber fleet_sub_;
   ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_, export_srv_, finish_srv_, link_srv_,
       optimise_srv_, detect_srv_, mode_srv_, history_srv_, unload_srv_, delete_srv_, features_srv_;
   ros::Subscriber keyframe_sub_, loop_sub_, pose_sub_;  // last: destroyed first

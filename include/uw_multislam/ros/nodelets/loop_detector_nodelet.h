@@ -90,12 +90,14 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   struct Work {
     uw_multislam::KeyframeConstPtr msg;
     bool reloaded = false;
+    bool foreign = false;  // another vehicle's keyframe (foreign_keyframes), hash only
   };
   struct Counters {
     long keyframes = 0, dropped = 0, bad = 0, gaps = 0, local = 0, global = 0, hashes = 0, reloaded = 0, reloaded_again = 0;
     long sessions = 0, stored = 0, local_candidates = 0, global_candidates = 0;
     long sessions_unloaded = 0, keyframes_unloaded = 0;
     long paged = 0;  // stored keyframes kept as hash + ids (page_stored)
+    long foreign = 0, foreign_loops = 0;  // other vehicles' keyframes searched and held, the loops they closed
     long paged_live = 0;  // live keyframes paged out behind their session (page_live_after)
     long cache_hits = 0, cache_misses = 0, read_failures = 0;
     double cache_mb = 0.0;
@@ -109,6 +111,9 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   void onReloaded(const uw_multislam::KeyframeConstPtr& msg);
   /// A keyframe of a session reloaded from the store: stored as a candidate, not searched.
   void processReloaded(const uw_multislam::Keyframe& msg);
+  /// Another vehicle's keyframe (hash only): searched against ours, then held paged
+  /// (core::LoopDetector::addForeignKeyframe); the loops it closes are published.
+  void processForeign(const uw_multislam::Keyframe& msg);
   void work();
   void process(const uw_multislam::Keyframe& msg);
   /// The session `id`, created empty on first use.
@@ -150,7 +155,7 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   ros::ServiceClient features_client_;  // the worker's only (page_stored)
   bool live_paging_ = false;            // the worker's: page_stored, page_live_after > 0 and a store
   ros::Publisher loop_pub_, hash_pub_;
-  ros::Subscriber keyframe_sub_, trajectory_sub_, reloaded_sub_;  // last: destroyed first
+  ros::Subscriber keyframe_sub_, trajectory_sub_, reloaded_sub_, foreign_sub_;  // last: destroyed first
 };
 
 }  // namespace nodelets

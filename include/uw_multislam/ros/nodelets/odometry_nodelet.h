@@ -307,6 +307,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::unique_ptr<boost::asio::thread_pool> prepare_pool_;  // ~prepare_threads > 0: prepares frames ahead
   std::mutex session_mutex_;
   int requested_session_ = -1;  // guarded by session_mutex_; -1: none
+  int next_free_session_ = 0;   // guarded by session_mutex_: active_session's next_session
   // Paused by the operator: the worker drops each frame (counted, its stamp passed over).
   std::atomic<bool> paused_{false};
   std::atomic<long> dropped_paused_{0};

@@ -1,0 +1,216 @@
+#!/usr/bin/python3
+"""rostest: hash exchange between two vehicles (issue 20, item 5), test/rostest/fleet.test.
+
+Two pipelines, /auv_a and /auv_b, each with its own store, exchange only KeyframeHash messages
+(/fleet/hashes). The fixture mission's session s0 is played into auv_a and finished, then s1 into
+auv_b and finished. On each vehicle the other's session must arrive whole (hashes, motions), the
+loops between the two must be found (auv_b's keyframes against auv_a's hashes; auv_a searching
+auv_b's hashes against its own keyframes), features must cross only for candidates (at most once
+per keyframe, no failure), and the two maps must be joined on both vehicles, with auv_b's
+keyframes where the ground truth puts them in auv_a's session frame and the two vehicles agreeing.
+Prints the bandwidth per keyframe: hash only, and with the features asked for.
+"""
+import csv
+import math
+import os
+import shutil
+import subprocess
+import threading
+import unittest
+
+import rospy
+import rostest
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from nav_msgs.msg import Path
+from sensor_msgs.msg import CameraInfo, Image, Range
+from pipeline_fixture import (appender, await_condition, bag_frames, compose, connected, diagnostic_values, invert,
+                              make_mission, vehicle_from_camera)
+from uw_multislam.msg import Keyframe, Status
+from uw_multislam.srv import FinishSession, ListSessions
+
+VEHICLES = ("auv_a", "auv_b")
+SESSIONS_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "sessions.py")
+MAX_ERROR_M = 0.05  # auv_b's keyframes against the ground truth, in auv_a's session frame
+MAX_DISAGREEMENT_M = 0.02  # the two vehicles' joined maps against each other
+
+
+def yaw_of(q):
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+class FleetTest(unittest.TestCase):
+    def setUp(self):
+        self.tmp, self.mission = make_mission("uwms_fleet_")
+        self.lock = threading.RLock()
+        self.status = {}  # (vehicle, node) -> diagnostic values
+        self.keyframes = {v: [] for v in VEHICLES}
+        self.poses = {v: [] for v in VEHICLES}
+
+        def on_diag(msg):
+            for s in msg.status:
+                for v in VEHICLES:
+                    for node in ("odometry", "loop_detector", "backend"):
+                        if s.name.lstrip("/").startswith(v + "/") and s.name.endswith(": " + node):
+                            with self.lock:
+                                self.status[(v, node)] = diagnostic_values(s)
+
+        self.subs = [rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)]
+        for v in VEHICLES:
+            self.subs.append(rospy.Subscriber("/%s/keyframes" % v, Keyframe, appender(self.lock, self.keyframes[v]),
+                                              queue_size=1000))
+            self.subs.append(rospy.Subscriber("/%s/odometry/pose" % v, PoseWithCovarianceStamped,
+                                              appender(self.lock, self.poses[v]), queue_size=1000))
+
+    def tearDown(self):
+        for s in self.subs:
+            s.unregister()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+        for key in ("~store_a", "~store_b"):
+            path = rospy.get_param(key, "")
+            for suffix in ("", "-wal", "-shm"):
+                if path and os.path.exists(path + suffix):
+                    os.remove(path + suffix)
+
+    def value(self, vehicle, node, key):
+        return self.status.get((vehicle, node), {}).get(key)
+
+    def play(self, vehicle, bag):
+        pubs = [rospy.Publisher("/%s/%s" % (vehicle, t), m, queue_size=100)
+                for t, m in zip(("camera/image_raw", "camera/camera_info", "altitude"), (Image, CameraInfo, Range))]
+        await_condition(self.lock, lambda: connected(pubs), 60, "%s's odometry subscriptions" % vehicle)
+        for image, info, altitude in bag_frames(os.path.join(self.mission, bag)):
+            pubs[2].publish(altitude)
+            pubs[1].publish(info)
+            pubs[0].publish(image)
+            stamp = image.header.stamp
+            await_condition(self.lock, lambda: any(p.header.stamp == stamp for p in self.poses[vehicle]), 30,
+                            "%s's odometry pose" % vehicle)
+
+    def settled(self, vehicle):
+        """Every keyframe of `vehicle` and every loop its loop detector found are in its back-end."""
+        b = lambda k: self.value(vehicle, "backend", k)
+        d = lambda k: self.value(vehicle, "loop_detector", k)
+        return (b("keyframes_received") == len(self.keyframes[vehicle]) and
+                d("keyframes_received") == len(self.keyframes[vehicle]) and d("queue_length") == 0 and
+                b("loops_received") == (d("local_loops") or 0) + (d("global_loops") or 0) and
+                b("queue_length") == 0 and b("loops_waiting") == 0)
+
+    def finish(self, vehicle):
+        rospy.wait_for_service("/%s/finish_session" % vehicle, timeout=30)
+        r = rospy.ServiceProxy("/%s/finish_session" % vehicle, FinishSession)()
+        self.assertEqual(r.status.code, Status.OK, r.status.message)
+
+    def sessions(self, vehicle):
+        rospy.wait_for_service("/%s/list_sessions" % vehicle, timeout=30)
+        return {s.session: s for s in rospy.ServiceProxy("/%s/list_sessions" % vehicle, ListSessions)().sessions}
+
+    def path(self, vehicle, session):
+        return rospy.wait_for_message("/%s/paths/session_%d" % (vehicle, session), Path, timeout=30)
+
+    def test_two_vehicles_exchange_hashes_and_join_their_maps_on_both_sides(self):
+        state = lambda: ": %s" % self.status
+        await_condition(self.lock, lambda: all((v, "backend") in self.status for v in VEHICLES), 60,
+                        "both back-ends' diagnostics")
+        # auv_a flies s0; auv_b gets its hashes (nothing of its own to search them against yet).
+        self.play("auv_a", "s0.bag")
+        with self.lock:
+            n_a = len(self.keyframes["auv_a"])
+        self.assertGreater(n_a, 10)
+        await_condition(self.lock, lambda: self.settled("auv_a") and
+                        self.value("auv_b", "backend", "fleet_hashes_received") == n_a and
+                        self.value("auv_b", "loop_detector", "foreign_keyframes") == n_a, 60,
+                        "auv_a's keyframes on both vehicles", state)
+        self.finish("auv_a")
+        await_condition(self.lock, lambda: self.value("auv_b", "backend", "fleet_sessions_ended") == 1, 30,
+                        "auv_a's session-ended notice on auv_b", state)
+        # auv_b flies s1: its keyframes find auv_a's; auv_a searches auv_b's hashes against its own.
+        self.play("auv_b", "s1.bag")
+        with self.lock:
+            n_b = len(self.keyframes["auv_b"])
+            self.assertTrue(all(k.session == self.keyframes["auv_b"][0].session for k in self.keyframes["auv_b"]))
+        await_condition(self.lock, lambda: self.settled("auv_b") and
+                        self.value("auv_a", "backend", "fleet_hashes_received") == n_b and
+                        self.value("auv_a", "loop_detector", "foreign_keyframes") == n_b and
+                        self.settled("auv_a"), 120, "auv_b's keyframes and loops on both vehicles", state)
+        self.finish("auv_b")
+        await_condition(self.lock, lambda: self.value("auv_a", "backend", "fleet_sessions_ended") == 1 and
+                        self.value("auv_a", "backend", "queue_length") == 0, 30,
+                        "auv_b's session-ended notice on auv_a", state)
+
+        with self.lock:
+            st = dict(self.status)
+            kf = {v: list(self.keyframes[v]) for v in VEHICLES}
+        a_b, b_b = st[("auv_a", "backend")], st[("auv_b", "backend")]
+        a_d, b_d = st[("auv_a", "loop_detector")], st[("auv_b", "loop_detector")]
+        for v, b in (("auv_a", a_b), ("auv_b", b_b)):
+            self.assertEqual(b["fleet_refused"], 0, (v, b))
+            self.assertEqual(b["fleet_feature_failures"], 0, (v, b))
+        self.assertEqual(a_b["fleet_hashes_sent"], n_a)
+        self.assertEqual(b_b["fleet_hashes_sent"], n_b)
+        # Loops both ways: auv_b's own keyframes found auv_a's hashes; auv_a's search of auv_b's.
+        self.assertGreater(b_d["global_loops"], 0, b_d)
+        self.assertGreater(a_d["foreign_loops"], 0, a_d)
+        # Features crossed only for candidates, each keyframe's at most once (the cache), and some did.
+        self.assertGreater(a_b["fleet_features_requested"], 0, a_b)
+        self.assertGreater(b_b["fleet_features_requested"], 0, b_b)
+        self.assertLessEqual(a_b["fleet_features_requested"], n_b, a_b)
+        self.assertLessEqual(b_b["fleet_features_requested"], n_a, b_b)
+
+        # The bandwidth per keyframe, as a thin link would carry it.
+        hash_bytes = (a_b["fleet_hash_bytes_sent"] + b_b["fleet_hash_bytes_sent"]) / float(n_a + n_b)
+        feature_bytes = a_b["fleet_feature_bytes_received"] + b_b["fleet_feature_bytes_received"]
+        requested = a_b["fleet_features_requested"] + b_b["fleet_features_requested"]
+        line = ("fleet bandwidth: %.0f bytes per keyframe with its hash only; %.0f bytes per keyframe whose features "
+                "were asked for (%d of %d keyframes); %.0f bytes per keyframe in all"
+                % (hash_bytes, feature_bytes / requested, requested, n_a + n_b,
+                   hash_bytes + feature_bytes / float(n_a + n_b)))
+        print(line)
+        rospy.loginfo(line)
+        self.assertLess(hash_bytes, 2500)
+
+        # Both vehicles: two sessions, the other's marked with its vehicle, in one map.
+        listed = {v: self.sessions(v) for v in VEHICLES}
+        own = {v: kf[v][0].session for v in VEHICLES}
+        other = {}
+        for v, w in (("auv_a", "auv_b"), ("auv_b", "auv_a")):
+            self.assertEqual(len(listed[v]), 2, listed[v])
+            mine = listed[v][own[v]]
+            theirs = [s for s in listed[v].values() if s.session != own[v]][0]
+            other[v] = theirs.session
+            self.assertEqual(mine.vehicle, "")
+            self.assertEqual(theirs.vehicle, w)
+            self.assertEqual(theirs.num_keyframes, len(kf[w]))
+            self.assertEqual(mine.map, theirs.map, "%s: the two vehicles' sessions joined" % v)
+        out = subprocess.run([SESSIONS_TOOL, "--ns", "/auv_a", "list"], capture_output=True, text=True, timeout=60)
+        self.assertIn("auv_b_session_%d" % own["auv_b"], out.stdout, out.stdout + out.stderr)
+        self.assertIn("from vehicle auv_b", out.stdout, out.stdout + out.stderr)
+        # auv_b's session took id 1 on auv_b: auv_a's had taken 0 there first (active_session's next_session).
+        self.assertEqual((own["auv_a"], other["auv_a"], own["auv_b"], other["auv_b"]), (0, 1, 1, 0))
+
+        # Where: each map is drawn in auv_a's session frame (it ended first, so it leads both maps);
+        # auv_b's keyframes against the ground truth, and the two vehicles against each other.
+        with open(os.path.join(self.mission, "world_gt.csv")) as f:
+            world = {(int(r["session"]), int(r["index"])): (float(r["x_m"]), float(r["y_m"]), float(r["yaw_rad"]))
+                     for r in csv.DictReader(f)}
+        origin = world[(0, kf["auv_a"][0].frame_index)]
+        estimates = {}
+        for v, session in (("auv_a", other["auv_a"]), ("auv_b", own["auv_b"])):
+            p = self.path(v, session)
+            self.assertEqual(len(p.poses), n_b)
+            estimates[v] = [(q.pose.position.x, q.pose.position.y, yaw_of(q.pose.orientation)) for q in p.poses]
+            errors = []
+            for k, e in zip(kf["auv_b"], estimates[v]):
+                truth = vehicle_from_camera(compose(invert(origin), world[(1, k.frame_index)]))
+                errors.append(math.hypot(e[0] - truth[0], e[1] - truth[1]))
+            rospy.loginfo("%s: auv_b's %d keyframes against the ground truth: mean %.4f m, max %.4f m", v, n_b,
+                          sum(errors) / len(errors), max(errors))
+            self.assertLessEqual(max(errors), MAX_ERROR_M, v)
+        apart = max(math.hypot(a[0] - b[0], a[1] - b[1]) for a, b in zip(estimates["auv_a"], estimates["auv_b"]))
+        rospy.loginfo("auv_a's and auv_b's joined maps at most %.4f m apart", apart)
+        self.assertLessEqual(apart, MAX_DISAGREEMENT_M)
+
+
+if __name__ == "__main__":
+    rospy.init_node("check_fleet")
+    rostest.rosrun("uw_multislam", "fleet", FleetTest)
