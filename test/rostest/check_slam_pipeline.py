@@ -264,7 +264,7 @@ class SlamPipelineTest(unittest.TestCase):
         self.assertEqual(int(float(got["feature_read_failures"])), 0)
 
     def test_frames_are_prepared_ahead_only_when_asked(self):
-        """prepare_threads:=2 (issue 19, item 3): frames played at 40 per second wait in the
+        """prepare_threads:=2 (issue 19, item 3): frames played at 200 per second wait in the
         odometry's FIFO and are prepared ahead (diagnostics prepared_ahead > 0), and every other
         test of this suite holds: the same keyframes, loops and maps as offline_slam. With the
         default 0 none is."""
