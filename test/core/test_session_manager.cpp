@@ -936,22 +936,47 @@ TEST(SessionManager, AnotherVehiclesSessionGrowsBesideTheActiveOneAndJoinsOnceOn
     int joins = 0;
     for (const SessionEvent& e : events) joins += e.kind == SessionEvent::Kind::kMapsJoined;
     EXPECT_EQ(joins, 1);
+
+    // Its origin sent again: stale. Another keyframe 0 of its session 7 (it restarted on a new
+    // store): a new session, named apart; left recording when the manager goes.
+    EXPECT_EQ(m.addForeignKeyframe("auv_b", keyframe(7, 0, Pose2(), Pose2())).code, StatusCode::kFailedPrecondition);
+    KeyframeInput restarted = keyframe(7, 0, Pose2(), Pose2());
+    restarted.stamp_s = 500.0;
+    int local = -1;
+    ASSERT_TRUE(m.addForeignKeyframe("auv_b", restarted, &local).ok());
+    EXPECT_EQ(local, 2);
+    EXPECT_EQ(m.name(2), "auv_b_session_7_2");
+    EXPECT_EQ(m.foreignSession("auv_b", 7), 2);
+    EXPECT_EQ(m.mapOf(2), 2);  // a map of its own
     EXPECT_EQ(m.stats().store_failures, 0);
   }
   // In the store: their session (hashes and motions, no features), where it came from, the join.
   SessionManager again(options(db));
-  ASSERT_EQ(again.restoredSessions(), 2);
+  ASSERT_EQ(again.restoredSessions(), 3);
   EXPECT_EQ(again.name(1), "auv_b_session_7");
+  EXPECT_EQ(again.vehicleOf(1), "auv_b");  // whose it is, and its id there, from the provenance
+  EXPECT_EQ(again.remoteIdOf(1), 7);
+  EXPECT_EQ(again.vehicleOf(0), "");
+  EXPECT_EQ(again.list()[1].vehicle, "auv_b");
+  EXPECT_EQ(again.list()[1].state, SessionState::kUnloaded);
+  EXPECT_EQ(again.foreignSession("auv_b", 7), -1);  // not recording here any more
   EXPECT_EQ(again.poses(1).size(), 8u);
   EXPECT_EQ(again.mapOf(0), again.mapOf(1));
   EXPECT_EQ(again.loops().size(), 5u);
   EXPECT_TRUE(again.storedFeatures(1, 3).points.empty());
   SessionStore store(db, StoreAccess::kReadOnly);
   const std::vector<SessionProvenance> p = store.provenance();
-  ASSERT_EQ(p.size(), 1u);
+  ASSERT_EQ(p.size(), 2u);
   EXPECT_EQ(p[0].vehicle, "auv_b");
   EXPECT_EQ(p[0].source_session, 7);
   EXPECT_EQ(p[0].source_file, "fleet:auv_b");
+  // The other vehicle's sessions finished in the store, the one left recording by the destructor
+  // too (ours, still recording, stays so: an interrupted run's, as always).
+  for (const StoredSession& st : store.sessions())
+    EXPECT_EQ(st.state, st.name.rfind("auv_b", 0) == 0 ? StoredSessionState::kFinished : StoredSessionState::kRecording)
+        << st.name;
+  EXPECT_EQ(again.name(2), "auv_b_session_7_2");
+  EXPECT_EQ(again.vehicleOf(2), "auv_b");
 }
 
 TEST(SessionManager, TheStoresDirectoryItCreatesIsTheOwnersOnly) {

@@ -119,14 +119,20 @@ SessionManager::SessionManager(const SessionManagerOptions& options, EventSink e
 }
 
 SessionManager::~SessionManager() {
-  // Other vehicles' sessions still growing: finished in the store (their vehicle may go on, but
-  // not into this store), so a restart restores them as any finished session.
+  try {
+    finishForeignSessions();
+  } catch (const std::exception& e) {  // never out of a destructor: the store keeps what was written
+    say(std::string("other vehicles' sessions not finished at shutdown: ") + e.what());
+  }
+}
+
+int SessionManager::finishForeignSessions() {
   std::vector<std::pair<std::string, int>> open;
   for (const auto& [key, id] : foreign_ids_) open.push_back(key);
-  for (const auto& [vehicle, remote] : open) {
-    const int id = foreignSession(vehicle, remote);
-    endForeignSession(vehicle, remote, at(id).stamps.back());
-  }
+  int ended = 0;
+  for (const auto& [vehicle, remote] : open)
+    ended += endForeignSession(vehicle, remote, at(foreignSession(vehicle, remote)).stamps.back()).ok() ? 1 : 0;
+  return ended;
 }
 
 void SessionManager::restore() {
@@ -154,6 +160,16 @@ void SessionManager::restore() {
     s.stored = static_cast<int>(s.stamps.size());
     sessions_.emplace(id, std::move(s));
     id_of_backend_.push_back(id);
+  }
+  // Other vehicles' sessions (hash exchange) keep their vehicle and id there: list_sessions says
+  // whose they are, and the host can still ask that vehicle for their features.
+  for (const SessionProvenance& p : store_->provenance()) {
+    if (p.source_file.rfind("fleet:", 0) != 0) continue;
+    for (auto& [id, s] : sessions_)
+      if (s.store_id == p.session && validVehicleName(p.vehicle)) {
+        s.vehicle = p.vehicle;
+        s.remote_id = static_cast<int>(p.source_session);
+      }
   }
   store_loops_ = r.loop_ids;
   for (std::size_t i = 0; i < r.loops.size(); ++i) {
@@ -534,8 +550,22 @@ Status SessionManager::addForeignKeyframe(const std::string& vehicle, const Keyf
     return badSessionId("vehicle " + vehicle + "'s keyframe " + std::to_string(input.keyframe), input.session);
   }
   int id = foreignSession(vehicle, input.session);
+  const auto ended = ended_foreign_.find({vehicle, input.session});
+  // The vehicle started over (a restart on a new store numbers its sessions from 0 again): a
+  // keyframe 0 of one of its sessions that records here or has ended, with another stamp, is the
+  // origin of a new session (the same stamp: the origin sent twice, stale).
+  const int known = id >= 0 ? id : ended != ended_foreign_.end() ? ended->second : -1;
+  const bool again = known >= 0 && input.keyframe == 0 && at(known).stamps.front() != input.stamp_s;
+  if (again && id >= 0) {
+    say("vehicle " + vehicle + "'s session " + std::to_string(input.session) +
+        " starts again from keyframe 0 (the vehicle restarted): session " + std::to_string(id) +
+        " ends, a new one begins");
+    const Status st = endForeignSession(vehicle, input.session, at(id).stamps.back());
+    if (!st.ok()) return st;
+    id = -1;
+  }
   if (id < 0) {
-    if (ended_foreign_.count({vehicle, input.session})) {
+    if (known >= 0 && !again) {
       ++stats_.keyframes_stale;
       return {StatusCode::kFailedPrecondition, "vehicle " + vehicle + "'s session " + std::to_string(input.session) +
                                                    " has ended: keyframe " + std::to_string(input.keyframe) +
@@ -550,11 +580,12 @@ Status SessionManager::addForeignKeyframe(const std::string& vehicle, const Keyf
     if (nextId() > kMaxSessionId)
       return {StatusCode::kResourceExhausted,
               "no session id left for vehicle " + vehicle + "'s session " + std::to_string(input.session)};
-    const std::string name = vehicle + "_session_" + std::to_string(input.session);
-    if (idOfName(name) >= 0)
-      return {StatusCode::kAlreadyExists, "a session is already named '" + name + "' (from an earlier run: " +
-                                              "vehicle " + vehicle + "'s sessions are new sessions in each run)"};
+    // A name taken (this vehicle's session of an earlier run, or one it started over): _2, _3, ...
+    const std::string base = vehicle + "_session_" + std::to_string(input.session);
+    std::string name = base;
+    for (int n = 2; idOfName(name) >= 0; ++n) name = base + "_" + std::to_string(n);
     id = nextId();
+    ended_foreign_.erase({vehicle, input.session});
     open(id, name, input.stamp_s, vehicle, input.session);
   }
   if (local_id) *local_id = id;
@@ -572,9 +603,9 @@ Status SessionManager::endForeignSession(const std::string& vehicle, int remote_
     return {StatusCode::kNotFound,
             "vehicle " + vehicle + " has no session " + std::to_string(remote_session) + " recording here"};
   Session& s = at(id);
+  backend_->endSession(s.backend);  // first: a throw leaves it recording here, as it was
   foreign_ids_.erase({vehicle, remote_session});
-  ended_foreign_.insert({vehicle, remote_session});
-  backend_->endSession(s.backend);
+  ended_foreign_[{vehicle, remote_session}] = id;
   storeWrite("ending a session", [&] {
     if (s.store_id >= 0) store_->endSession(s.store_id, stamp_s);
   });

@@ -200,13 +200,20 @@ class SessionManager {
   /// ended (MultiSessionBackend::endSession). Only what crosses the link is kept: hash, motion,
   /// odometry pose, camera, altitude (features and image are dropped; the vehicle is asked for
   /// features when a loop needs them). Written to the store (without features, with provenance
-  /// "fleet:<vehicle>") like any session, finished at endForeignSession or destruction. Refused:
-  /// INVALID_ARGUMENT (vehicle name not 1-64 of [A-Za-z0-9_-], ids), FAILED_PRECONDITION (stale,
-  /// or the session ended), ALREADY_EXISTS (the name is taken by an earlier run's session).
+  /// "fleet:<vehicle>") like any session, finished at endForeignSession or destruction. A name
+  /// already taken (an earlier run's) gets _2, _3, ...; a keyframe 0 with another stamp for a
+  /// session that records or has ended here is the vehicle starting over (a restart on a new
+  /// store): the old one ends, a new one opens. Refused with nothing changed: INVALID_ARGUMENT
+  /// (vehicle name not 1-64 of [A-Za-z0-9_-], ids, a gap past max_keyframe_gap),
+  /// FAILED_PRECONDITION (stale: repeated or out of order, or the session ended).
   Status addForeignKeyframe(const std::string& vehicle, const KeyframeInput& keyframe, int* local_id = nullptr);
   /// That vehicle's session ended (its last keyframe sent): recording stops, postponed joins are
   /// tried. NOT_FOUND when it is not recording here. Later keyframes of it are refused.
   Status endForeignSession(const std::string& vehicle, int remote_session, double stamp_s);
+  /// Ends every other vehicle's session still recording here (at its last keyframe's stamp), as
+  /// endForeignSession; returns how many. The destructor does it too (a host whose event sink
+  /// must still be alive calls it first).
+  int finishForeignSessions();
   /// This manager's id of a vehicle's session while it records here, or -1.
   int foreignSession(const std::string& vehicle, int remote_session) const;
   /// The vehicle a session came from (empty: this vehicle's own), and its id there (-1: ours).
@@ -448,7 +455,7 @@ class SessionManager {
   int next_id_floor_ = 0;  // past every id given so far (a deleted session's id is not reused)
   std::set<int> deleted_;  // ids of sessions deleted in this run
   std::map<std::pair<std::string, int>, int> foreign_ids_;  // (vehicle, its session) recording here -> id
-  std::set<std::pair<std::string, int>> ended_foreign_;     // ended in this run: later keyframes refused
+  std::map<std::pair<std::string, int>, int> ended_foreign_;  // ended in this run -> id: later keyframes refused
   int seen_joins_ = 0, seen_splits_ = 0, seen_optimisations_ = 0;
   SessionManagerStats stats_;
 };
