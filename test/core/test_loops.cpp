@@ -193,6 +193,35 @@ TEST_F(LoopTest, SortedDctHashIgnoresFeatureOrderAndRanksAChangedViewFirst) {
   EXPECT_FALSE(parseHashMode("bow", &m));
 }
 
+// A hash sent as the store's 8-bit codes (the fleet link's hash_codes: 384 bytes instead of 1536)
+// comes back as values the store quantises to the same codes: every distance, so every search,
+// is the one over the original hashes; both hash modes, values clipped at the range as the store
+// clips them.
+TEST_F(LoopTest, HashCodesKeepEveryDistanceTheStoreMeasures) {
+  const Pose2 places[] = {Pose2(3, 3, 0.1), Pose2(3.1, 3.05, 0.25), Pose2(8, 5, 1.0), Pose2(9, 2.5, -2.0)};
+  for (const HashMode mode : {HashMode::kSortedDct, HashMode::kHaloc}) {
+    const ImageHasher hasher(mode, 500, 20231122);
+    const float range = hashCodeRange(mode);
+    const HashStore store(range);
+    std::vector<Eigen::VectorXf> original, sent;
+    for (const Pose2& p : places) {
+      original.push_back(hasher.hash(features(p, 2.0).descriptors));
+      const std::vector<std::uint8_t> codes = hashCodes(original.back(), range);
+      ASSERT_EQ(codes.size(), 384u);
+      sent.push_back(hashFromCodes(codes, range));
+      EXPECT_EQ(hashCodes(sent.back(), range), codes);  // the same codes again
+      EXPECT_FLOAT_EQ(store.distance(original.back(), sent.back()), 0.0f);
+      EXPECT_LE((original.back() - sent.back()).cwiseAbs().maxCoeff(), range / 255.0f + 1e-6f);
+    }
+    for (std::size_t i = 0; i < original.size(); ++i)
+      for (std::size_t j = 0; j < original.size(); ++j)
+        EXPECT_EQ(store.distance(original[i], original[j]), store.distance(sent[i], sent[j])) << i << " " << j;
+  }
+  Eigen::VectorXf wide = Eigen::VectorXf::Constant(384, 0.9f);
+  EXPECT_EQ(hashCodes(wide, 0.25f), std::vector<std::uint8_t>(384, 255));  // clipped, as the store does
+  EXPECT_THROW(hashCodes(wide, 0.0f), std::invalid_argument);
+}
+
 TEST_F(LoopTest, PlantedRevisitIsFoundWithTheRightPoseAndAWrongCandidateIsRejected) {
   // Session 0 flies east along y = 3; session 1 (another day, dimmer) crosses its start.
   OdometryOptions oo;

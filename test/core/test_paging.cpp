@@ -7,6 +7,7 @@
 #include <sqlite3.h>
 
 #include <deque>
+#include <limits>
 #include <map>
 #include <set>
 #include <string>
@@ -271,6 +272,31 @@ TEST_F(PagingTest, AnotherVehiclesHashOnlyKeyframesFindTheLoopsBothWaysAndAreRea
           EXPECT_NEAR(back.translation().norm(), 0.0, 0.01) << l.keyframe_b << "/" << l.keyframe_a;
           EXPECT_NEAR(back.yaw(), 0.0, 0.005);
         }
+  }
+  // With δ' (loops.global.max_l1) a keyframe of a place nobody here has seen has no candidate and
+  // nothing is read for it; one over B's track is read once and closes a loop.
+  {
+    const HashStore metric(hashCodeRange(config_.loops.global.hash_mode));
+    std::vector<Eigen::VectorXf> ours;
+    for (const FrameFeatures& f : now_) ours.push_back(hasher.hash(f.descriptors));
+    auto nearest = [&](const Eigen::VectorXf& h) {
+      float d = std::numeric_limits<float>::max();
+      for (const Eigen::VectorXf& o : ours) d = std::min(d, metric.distance(h, o));
+      return d;
+    };
+    const Eigen::VectorXf far = hasher.hash(features(Pose2(2.5, 6.0, 2.8), 2.0).descriptors);
+    const Eigen::VectorXf near = hasher.hash(theirs[2].descriptors);
+    ASSERT_LT(nearest(near), nearest(far)) << "the scenario needs a place far from B's track in hash space";
+    LoopOptions o = config_.loops;
+    o.global.max_l1 = 0.5 * (nearest(near) + nearest(far));
+    LoopDetector d(o, config_.odometry.matching, config_.odometry.ransac, config_.odometry.features.num_features);
+    d.setFeatureLoader(loader);
+    for (int k = 0; k < 5; ++k) d.addKeyframe(1, k, 100 + k, 2.3, &camera_, now_[k], trajectory(world1_, k));
+    reads = 0;
+    EXPECT_TRUE(d.addForeignKeyframe(0, 7, 7, 2.0, &camera_, far).empty());
+    EXPECT_EQ(reads, 0);
+    EXPECT_FALSE(d.addForeignKeyframe(0, 2, 2, 2.0, &camera_, near).empty());
+    EXPECT_EQ(reads, 1);
   }
   // Without a loader there is nowhere to ask: refused.
   LoopDetector bare = makeDetector();

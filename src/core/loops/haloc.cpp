@@ -203,17 +203,39 @@ std::uint32_t sumAbsDiff(const std::uint8_t* a, const std::uint8_t* b, int n) {
   return total;
 }
 
-HashStore::HashStore(float range) : range_(range), step_(2.0f * range / 255.0f) {
+namespace {
+float codeStep(float range) { return 2.0f * range / 255.0f; }
+std::uint8_t code(float v, float range, float step) {
+  return static_cast<std::uint8_t>(std::clamp(std::round((v + range) / step), 0.0f, 255.0f));
+}
+}  // namespace
+
+float hashCodeRange(HashMode mode) { return mode == HashMode::kSortedDct ? 0.25f : 0.5f; }
+
+std::vector<std::uint8_t> hashCodes(const Eigen::VectorXf& hash, float range) {
+  if (!(range > 0.0f)) throw std::invalid_argument("hashCodes: range must be positive");
+  std::vector<std::uint8_t> out(static_cast<std::size_t>(hash.size()));
+  const float step = codeStep(range);
+  for (Eigen::Index i = 0; i < hash.size(); ++i) out[static_cast<std::size_t>(i)] = code(hash[i], range, step);
+  return out;
+}
+
+Eigen::VectorXf hashFromCodes(const std::vector<std::uint8_t>& codes, float range) {
+  if (!(range > 0.0f)) throw std::invalid_argument("hashFromCodes: range must be positive");
+  Eigen::VectorXf out(static_cast<Eigen::Index>(codes.size()));
+  const float step = codeStep(range);
+  for (std::size_t i = 0; i < codes.size(); ++i) out[static_cast<Eigen::Index>(i)] = codes[i] * step - range;
+  return out;
+}
+
+HashStore::HashStore(float range) : range_(range), step_(codeStep(range)) {
   if (!(range > 0.0f)) throw std::invalid_argument("HashStore: range must be positive");
   query_code_.resize(HalocProjections::kHashSize);
   best_.reserve(64);
 }
 
 void HashStore::quantise(const Eigen::VectorXf& h, std::uint8_t* out) const {
-  for (int i = 0; i < HalocProjections::kHashSize; ++i) {
-    const float q = std::round((h[i] + range_) / step_);
-    out[i] = static_cast<std::uint8_t>(std::clamp(q, 0.0f, 255.0f));
-  }
+  for (int i = 0; i < HalocProjections::kHashSize; ++i) out[i] = code(h[i], range_, step_);
 }
 
 void HashStore::reserve(std::size_t n) {
@@ -276,6 +298,8 @@ void HashStore::query(const Eigen::VectorXf& hash, int exclude_session, int k, f
 }
 
 float HashStore::distance(const Eigen::VectorXf& a, const Eigen::VectorXf& b) const {
+  if (a.size() != HalocProjections::kHashSize || b.size() != HalocProjections::kHashSize)
+    throw std::invalid_argument("HashStore: a hash must hold 384 values");
   std::vector<std::uint8_t> qa(HalocProjections::kHashSize), qb(HalocProjections::kHashSize);
   quantise(a, qa.data());
   quantise(b, qb.data());

@@ -58,9 +58,7 @@ LoopDetector::LoopDetector(const LoopOptions& options, const MatchOptions& match
       matching_(matching),
       ransac_(ransac),
       hasher_(options.global.hash_mode, num_features, options.global.projection_seed),
-      // Quantisation range of the store: sorted-DCT hashes stay within about [-0.06, 0.16],
-      // HALOC's within about [-0.37, 0.37] (measured on the demo and flight frames).
-      hashes_(options.global.hash_mode == HashMode::kSortedDct ? 0.25f : 0.5f) {}
+      hashes_(hashCodeRange(options.global.hash_mode)) {}
 
 bool LoopDetector::verify(const Stored& old, const View& now, Loop* loop) {
   const FrameFeatures* stored = &old.features;

@@ -87,6 +87,16 @@ class ImageHasher {
   Eigen::VectorXf key_;
 };
 
+/// The range [-r, r] over which the loop detector's HashStore quantises the hashes of `mode` to
+/// 8 bits: sorted-DCT hashes stay within about [-0.06, 0.16], HALOC's within about [-0.37, 0.37]
+/// (measured on the demo and flight frames).
+float hashCodeRange(HashMode mode);
+/// A hash as the store's 8-bit codes over [-range, range] (what a thin link carries instead of
+/// 384 floats: 384 bytes instead of 1536), and back: values that quantise to the same codes, so
+/// the search over them is the search over the original (HashStore::distance is equal).
+std::vector<std::uint8_t> hashCodes(const Eigen::VectorXf& hash, float range);
+Eigen::VectorXf hashFromCodes(const std::vector<std::uint8_t>& codes, float range);
+
 /// One stored hash and whose it is.
 struct HashEntry {
   int session = 0;
