@@ -41,6 +41,7 @@ BackendNodelet::~BackendNodelet() {
   keyframe_sub_.shutdown();
   loop_sub_.shutdown();
   pose_sub_.shutdown();
+  fleet_sub_.shutdown();
   if (queue_) {
     say("unloading: " + std::to_string(queue_->size()) + " messages queued, processed before the maps are saved");
     queue_->close();  // the worker processes what is queued, then stops
@@ -50,6 +51,13 @@ BackendNodelet::~BackendNodelet() {
   std::lock_guard<std::mutex> lock(state_mutex_);
   manager_->flush();  // pending optimisation, and the maps saved
   logStats("at shutdown");
+  // Now, while every member is alive (onEvent reports them): other vehicles' sessions still
+  // recording are finished in the store (the manager's destructor would do it otherwise).
+  try {
+    manager_->finishForeignSessions();
+  } catch (const std::exception& e) {
+    say(std::string("back-end: other vehicles' sessions not finished at shutdown: ") + e.what());
+  }
 }
 
 void BackendNodelet::onInit() {
@@ -235,7 +243,8 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
     if (k.hash.size() != core::HalocProjections::kHashSize) k.hash = manager_->hasher().hash(k.features.descriptors);
     const auto& o = manager_->options();
     const auto out = boost::make_shared<uw_multislam::KeyframeHash>(
-        rc::toFleetHashMsg(k, options_.fleet_vehicle, o.hash_mode, o.projection_seed, o.num_features, msg.header));
+        rc::toFleetHashMsg(k, options_.fleet_vehicle, o.hash_mode, o.projection_seed, o.num_features, msg.header,
+                           options_.fleet_hash_codes));
     ++fleet_.hashes_sent;
     fleet_.hash_bytes_sent += static_cast<long>(ros::serialization::serializationLength(*out));
     fleet_pub_.publish(out);
@@ -271,7 +280,7 @@ void BackendNodelet::processFleetHash(const uw_multislam::KeyframeHash& msg) {
     int local = -1;
     const bool opens = manager_->foreignSession(msg.vehicle, msg.session) < 0;
     st = manager_->addForeignKeyframe(msg.vehicle, rc::toKeyframeInput(k, msg.header.stamp.toSec()), &local);
-    if (st.ok() && opens) announceNextSession(announced_state_);  // it took an id: our next session takes another
+    if (st.ok() && opens) announceNextId();  // it took an id: our next session takes another
     if (st.ok()) {
       ++fleet_.hashes_received;
       fleet_.hash_bytes_received += static_cast<long>(ros::serialization::serializationLength(msg));
@@ -376,7 +385,21 @@ void BackendNodelet::announceNextSession(std::uint8_t state) {
   st.map = st.session;
   st.relocalised_map = -1;
   st.next_session = manager_->nextId();
-  announced_state_ = state;
+  announced_ = st;
+  active_pub_.publish(st);
+}
+
+void BackendNodelet::announceNextId() {
+  uw_multislam::SessionState st = announced_;  // the last request, repeated for a late subscriber
+  if (st.name.empty()) {                       // none yet: what the odometry would be asked now
+    st.session = manager_->activeSession() >= 0 ? manager_->activeSession() : manager_->nextId();
+    st.name = manager_->has(st.session) ? manager_->name(st.session) : core::defaultSessionName(st.session);
+    st.state = uw_multislam::SessionState::ACTIVE;
+    st.map = st.session;
+    st.relocalised_map = -1;
+  }
+  st.next_session = manager_->nextId();
+  st.next_session_only = true;
   active_pub_.publish(st);
 }
 
@@ -712,6 +735,11 @@ bool BackendNodelet::featuresFromPeer(const std::string& vehicle, int remote_ses
                                       uw_multislam::KeyframeFeatures::Response& res) {
   const auto peer = options_.fleet_peers.find(vehicle);
   if (peer == options_.fleet_peers.end()) {
+    {
+      std::lock_guard<std::mutex> lock(peer_mutex_);
+      ++fleet_.features_requested;
+      ++fleet_.feature_failures;
+    }
     res.status = rc::toStatusMsg(
         {core::StatusCode::kFailedPrecondition, "session " + std::to_string(local_session) + " is vehicle " + vehicle +
                                                     "'s, and ~fleet/peers names no keyframe_features service for it"});

@@ -138,10 +138,16 @@ void LoopDetectorNodelet::processForeign(const uw_multislam::Keyframe& msg) {
                           why.empty() ? "no hash" : why.c_str());
     return;
   }
-  if (detector_->has(k.session, k.keyframe)) {
-    ++counts_.bad;
+  const auto own = sessions_.find(k.session);
+  if (detector_->has(k.session, k.keyframe) || (own != sessions_.end() && own->second.chain.numKeyframes() > 0)) {
+    ++counts_.bad;  // held already, or the id is one of our sessions here: never mixed
+    NODELET_WARN_THROTTLE(5,
+                          "loop detector: another vehicle's keyframe %d of session %d skipped: held already, or "
+                          "the id is one of ours here",
+                          k.keyframe, k.session);
     return;
   }
+  foreign_sessions_.insert(k.session);
   Session& s = session(k.session);
   if (s.cameras.empty() || s.cameras.back().fx != k.camera.fx || s.cameras.back().width != k.camera.width)
     s.cameras.push_back(k.camera);
@@ -229,6 +235,14 @@ void LoopDetectorNodelet::process(const uw_multislam::Keyframe& msg) {
   if (!rc::fromMsg(msg, &k, &why)) {
     ++counts_.bad;
     NODELET_WARN_THROTTLE(5, "loop detector: bad keyframe skipped: %s (%ld so far)", why.c_str(), counts_.bad);
+    return;
+  }
+  if (foreign_sessions_.count(k.session)) {  // an id another vehicle's session holds here: never mixed
+    ++counts_.bad;
+    NODELET_WARN_THROTTLE(5,
+                          "loop detector: keyframe %d of session %d skipped: that id is another vehicle's session "
+                          "here (the odometry's next session takes active_session's next_session)",
+                          k.keyframe, k.session);
     return;
   }
   Session& s = session(k.session);

@@ -503,8 +503,12 @@ void OdometryNodelet::onActiveSession(const uw_multislam::SessionStateConstPtr& 
   }
   {
     std::lock_guard<std::mutex> lock(session_mutex_);
-    requested_session_ = msg->session;
     next_free_session_ = msg->next_session;
+    // Another vehicle's session took an id: nothing is asked of us (a subscriber that comes now,
+    // a respawned odometry, takes the request it repeats).
+    if (msg->next_session_only && had_request_) return;
+    had_request_ = true;
+    requested_session_ = msg->session;
   }
   std::lock_guard<std::mutex> lock(pause_mutex_);
   if (msg->state == uw_multislam::SessionState::FINISHED) {

@@ -260,8 +260,19 @@ uw_multislam::KeyframeHash toKeyframeHashMsg(const KeyframeHashData& h, const st
 
 bool fromMsg(const uw_multislam::KeyframeHash& m, KeyframeHashData* out, std::string* why) {
   if (m.hash_mode > uw_multislam::KeyframeHash::SORTED_DCT) return fail(why, "keyframe hash: unknown hash_mode");
-  if (m.values.size() != static_cast<std::size_t>(core::HalocProjections::kHashSize)) {
-    return fail(why, "keyframe hash: values must have 384 entries (3 x 128)");
+  const std::size_t n = static_cast<std::size_t>(core::HalocProjections::kHashSize);
+  if (m.values.empty() && !m.codes.empty()) {  // sent as 8-bit codes
+    if (m.codes.size() != n) return fail(why, "keyframe hash: codes must have 384 entries (3 x 128)");
+    if (!(std::isfinite(m.code_range) && m.code_range > 0))
+      return fail(why, "keyframe hash: code_range must be positive");
+    uw_multislam::KeyframeHash v = m;
+    const Eigen::VectorXf values = core::hashFromCodes(m.codes, m.code_range);
+    v.values.assign(values.data(), values.data() + values.size());
+    v.codes.clear();
+    return fromMsg(v, out, why);
+  }
+  if (m.values.size() != n) {
+    return fail(why, "keyframe hash: values (or codes) must have 384 entries (3 x 128)");
   }
   if (m.num_features < 1) return fail(why, "keyframe hash: num_features must be positive");
   if (m.session < 0 || m.session > core::kMaxSessionId || m.keyframe < 0)
@@ -307,7 +318,7 @@ void copySharedFields(const From& f, To* t) {
 
 uw_multislam::KeyframeHash toFleetHashMsg(const KeyframeData& k, const std::string& vehicle, core::HashMode mode,
                                           std::uint64_t projection_seed, int num_features,
-                                          const std_msgs::Header& header) {
+                                          const std_msgs::Header& header, bool codes) {
   KeyframeData light = k;  // what crosses the link: no features, no image
   light.features = core::FrameFeatures();
   light.thumbnail.clear();
@@ -323,6 +334,11 @@ uw_multislam::KeyframeHash toFleetHashMsg(const KeyframeData& k, const std::stri
   uw_multislam::KeyframeHash m = toKeyframeHashMsg(h, header);
   copySharedFields(km, &m);
   m.vehicle = vehicle;
+  if (codes) {
+    m.code_range = core::hashCodeRange(mode);
+    m.codes = core::hashCodes(k.hash, m.code_range);
+    m.values.clear();
+  }
   return m;
 }
 
@@ -345,7 +361,7 @@ bool fromFleetHashMsg(const uw_multislam::KeyframeHash& m, KeyframeData* out, Ke
   uw_multislam::Keyframe k;
   copySharedFields(m, &k);
   k.descriptor_size = static_cast<std::uint32_t>(core::HalocProjections::kDescriptorSize);
-  k.hash = m.values;
+  k.hash.assign(h.values.data(), h.values.data() + h.values.size());  // from values or codes
   k.status = m.keyframe == 0 ? uw_multislam::Keyframe::FIRST : uw_multislam::Keyframe::MATCHED;
   if (!fromMsg(k, out, why)) return false;
   if (settings) *settings = std::move(h);

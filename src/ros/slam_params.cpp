@@ -1,6 +1,7 @@
 #include "uw_multislam/ros/slam_params.h"
 
 #include <ros/console.h>
+#include <ros/names.h>
 #include <ros/param.h>
 
 #include <cstdlib>
@@ -123,13 +124,19 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
   o.fleet_vehicle = param(
       pnh, "fleet/vehicle", std::string(), [](const std::string& v) { return v.empty() || core::validVehicleName(v); },
       "empty (off) or 1 to 64 characters of A-Z a-z 0-9 _ -");
+  o.fleet_hash_codes = param(
+      pnh, "fleet/hash_codes", true, [](bool) { return true; }, "true or false");
   if (pnh.hasParam("fleet/peers") && !pnh.getParam("fleet/peers", o.fleet_peers))
     throw std::invalid_argument(pnh.resolveName("fleet/peers") +
                                 ": a dictionary of vehicle name: keyframe_features service name");
-  for (const auto& [vehicle, service] : o.fleet_peers)
-    if (!core::validVehicleName(vehicle) || service.empty() || vehicle == o.fleet_vehicle)
+  for (const auto& [vehicle, service] : o.fleet_peers) {
+    std::string bad_name;
+    if (!core::validVehicleName(vehicle) || vehicle == o.fleet_vehicle || service.empty() ||
+        !ros::names::validate(service, bad_name))
       throw std::invalid_argument(pnh.resolveName("fleet/peers") + ": '" + vehicle + "': '" + service +
-                                  "': another vehicle's name (A-Z a-z 0-9 _ -) and a service name");
+                                  "': another vehicle's name (A-Z a-z 0-9 _ -) and a valid service name" +
+                                  (bad_name.empty() ? "" : " (" + bad_name + ")"));
+  }
   return o;
 }
 

@@ -193,7 +193,7 @@ TEST_F(PipelineConversions, AFleetHashCarriesTheKeyframeWithoutItsFeaturesAndIsC
   EXPECT_EQ(m.values.size(), 384u);
   EXPECT_EQ(m.projection_seed, 77u);
   EXPECT_EQ(m.num_features, 500);
-  // About 1.6 kB on the wire against the keyframe's tens of kB.
+  // Under 1.8 kB on the wire (1536 of them the hash) against the keyframe's tens of kB.
   const std::uint32_t bytes = ros::serialization::serializationLength(m);
   const std::uint32_t full = ros::serialization::serializationLength(rc::toKeyframeMsg(k, header()));
   EXPECT_LT(bytes, 1800u);
@@ -235,6 +235,27 @@ TEST_F(PipelineConversions, AFleetHashCarriesTheKeyframeWithoutItsFeaturesAndIsC
   EXPECT_TRUE(ended.session_ended);
   EXPECT_EQ(ended.keyframe, -1);
   EXPECT_TRUE(ended.values.empty());
+
+  // As 8-bit codes (~fleet/hash_codes): a third of the bytes, and a hash the loop detector's
+  // store cannot tell from the original.
+  const uw_multislam::KeyframeHash c =
+      rc::toFleetHashMsg(k, "auv_b", core::HashMode::kSortedDct, 77, 500, header(), true);
+  EXPECT_TRUE(c.values.empty());
+  EXPECT_EQ(c.codes.size(), 384u);
+  EXPECT_FLOAT_EQ(c.code_range, core::hashCodeRange(core::HashMode::kSortedDct));
+  const std::uint32_t code_bytes = ros::serialization::serializationLength(c);
+  EXPECT_EQ(code_bytes, bytes - 1536 + 384);  // the values' 1536 bytes become 384
+  ASSERT_TRUE(rc::fromFleetHashMsg(c, &back, &settings, &why)) << why;
+  const core::HashStore store(c.code_range);
+  EXPECT_FLOAT_EQ(store.distance(back.hash, k.hash), 0.0f);
+  EXPECT_DOUBLE_EQ(back.motion.mean.x(), 0.4);
+  bad = c;
+  bad.codes.resize(383);
+  EXPECT_FALSE(rc::fromFleetHashMsg(bad, &back, &settings, &why));
+  bad = c;
+  bad.code_range = 0;
+  EXPECT_FALSE(rc::fromFleetHashMsg(bad, &back, &settings, &why));
+  EXPECT_NE(why.find("code_range"), std::string::npos) << why;
 }
 
 TEST_F(PipelineConversions, KeyframeThumbnailTravelsWithTheKeyframeAndIsBounded) {

@@ -72,7 +72,8 @@ bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* wh
 uw_multislam::Loop toLoopMsg(const core::Loop& loop, const std_msgs::Header& header);
 bool fromMsg(const uw_multislam::Loop& m, core::Loop* out, std::string* why = nullptr);
 
-/// A keyframe's hash; values must have core::HalocProjections::kHashSize entries.
+/// A keyframe's hash; values must have core::HalocProjections::kHashSize entries (a message may
+/// carry them as 8-bit codes instead: fromMsg turns them back into values).
 struct KeyframeHashData {
   int session = 0;
   int keyframe = 0;
@@ -87,10 +88,11 @@ bool fromMsg(const uw_multislam::KeyframeHash& m, KeyframeHashData* out, std::st
 
 /// Hash exchange between vehicles (issue 20, item 5): keyframe `k` (its hash, motion, pose,
 /// camera and altitude; no features, no image) as vehicle `vehicle` sends it on fleet/hashes_out,
-/// with the hash settings it was made with.
+/// with the hash settings it was made with; `codes`: the hash as the loop detector's 8-bit codes
+/// (384 bytes instead of 1536, the same search) instead of values.
 uw_multislam::KeyframeHash toFleetHashMsg(const KeyframeData& k, const std::string& vehicle, core::HashMode mode,
                                           std::uint64_t projection_seed, int num_features,
-                                          const std_msgs::Header& header);
+                                          const std_msgs::Header& header, bool codes = false);
 /// The notice that `vehicle`'s session `session` has ended (session_ended, keyframe -1, no values).
 uw_multislam::KeyframeHash fleetSessionEndedMsg(const std::string& vehicle, int session, const ros::Time& stamp);
 /// A fleet hash as a keyframe without features (checked as fromMsg(Keyframe) checks one), and

@@ -59,6 +59,7 @@ struct BackendNodeletOptions {
   /// this back-end asks for a candidate's features).
   std::string fleet_vehicle;
   std::map<std::string, std::string> fleet_peers;
+  bool fleet_hash_codes = true;  // ~fleet/hash_codes: hashes as 8-bit codes (same search, 1/4 the bytes)
 };
 
 /// Reads and validates the back-end nodelet's parameters (std::invalid_argument naming the key);

@@ -35,7 +35,7 @@
 //            ~mosaic_rate (default 0.2 Hz) when keyframes, joins, splits or optimisations changed it
 // Hash exchange between vehicles (issue 20, item 5; ~fleet/vehicle set, off by default): each of
 //          this vehicle's keyframes goes out on fleet/hashes_out as a KeyframeHash (hash, motion,
-//          pose, camera: ~1.9 kB against ~74 kB for the keyframe), and a notice when its session
+//          pose, camera; README "Two vehicles" has its size), and a notice when its session
 //          ends; another vehicle's, from fleet/hashes_in, becomes a session of this back-end
 //          (SessionManager::addForeignKeyframe: same hash settings or refused, counted) that grows
 //          beside ours, and goes to the loop detector(s) on foreign_keyframes. A loop detector asks
@@ -161,6 +161,9 @@ class BackendNodelet : public nodelet::Nodelet {
   /// On active_session: the recording session, else the id the next one gets; `state` ACTIVE, or
   /// FINISHED after finish_session (the odometry then drops frames until start_session or resume).
   void announceNextSession(std::uint8_t state = uw_multislam::SessionState::ACTIVE);
+  /// On active_session, next_session_only: another vehicle's session took an id, so our
+  /// odometry's own next session takes a later one; the last request repeated, not renewed.
+  void announceNextId();
   /// ~reload_stored: reloads every stored session (features stay in the store) for the loop detectors.
   void reloadStored();
   /// A new subscriber of reloaded_keyframes (a loop detector, also a respawned one) gets every
@@ -235,7 +238,7 @@ class BackendNodelet : public nodelet::Nodelet {
   ros_frames::FrameStats frame_stats_;                  // the diagnostics timer's thread only
 
   std::map<int, double> offsets_;  // where each map is drawn in rviz (under state_mutex_)
-  std::uint8_t announced_state_ = uw_multislam::SessionState::ACTIVE;  // the last active_session's (under state_mutex_)
+  uw_multislam::SessionState announced_;  // the last active_session request (under state_mutex_)
   std::vector<int> handed_;         // stored sessions handed to the loop detectors (under state_mutex_)
   struct Handover {
     long subscribers = 0, total = 0, sent = 0;

@@ -55,6 +55,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
 #include <thread>
 #include <vector>
@@ -155,6 +156,7 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   ros::ServiceClient features_client_;  // the worker's only (page_stored)
   bool live_paging_ = false;            // the worker's: page_stored, page_live_after > 0 and a store
   ros::Publisher loop_pub_, hash_pub_;
+  std::set<int> foreign_sessions_;  // ids of other vehicles' sessions (the worker's only)
   ros::Subscriber keyframe_sub_, trajectory_sub_, reloaded_sub_, foreign_sub_;  // last: destroyed first
 };
 

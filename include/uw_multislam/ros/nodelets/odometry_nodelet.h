@@ -308,6 +308,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::mutex session_mutex_;
   int requested_session_ = -1;  // guarded by session_mutex_; -1: none
   int next_free_session_ = 0;   // guarded by session_mutex_: active_session's next_session
+  bool had_request_ = false;    // guarded by session_mutex_: an active_session request was taken
   // Paused by the operator: the worker drops each frame (counted, its stamp passed over).
   std::atomic<bool> paused_{false};
   std::atomic<long> dropped_paused_{0};
