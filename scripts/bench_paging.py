@@ -7,7 +7,7 @@ sent and kept). For each it waits until the loop detector's diagnostics count th
 reloaded, reads the loop_detector_node process's VmRSS, and subtracts the same process's VmRSS
 in a run on an empty store (reload of nothing). Prints one line per case:
 
-  bench_paging keyframes=N page_stored=true loop_detector_rss_MB=X ram_per_stored_keyframe_kB=Y reload_s=Z
+  bench_paging keyframes=N page_stored=true cache=warm loop_detector_rss_MB=X ram_per_stored_keyframe_kB=Y reload_s=Z
       keyframes_paged=P backend_ready_s=R handover_s=H
 
 reload_s: from the launch until the loop detector holds every stored keyframe; backend_ready_s:
@@ -17,7 +17,7 @@ back-end's handover of the stored keyframes to the loop detector (its diagnostic
 
 Not a test: numbers for this machine. Needs a built workspace (devel/setup.bash sourced) and
 rostest's roslaunch; starts its own master on a free port.
-usage: scripts/bench_paging.py STORE.db [--keyframes N]
+usage: scripts/bench_paging.py STORE.db --keyframes N [--page-stored true|false|both] [--cold]
 """
 import argparse
 import os
@@ -147,7 +147,13 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("store", help="a store, e.g. from bench_scale --keyframes N --dir DIR --keep")
     p.add_argument("--keyframes", type=int, required=True, help="the store's keyframes")
+    p.add_argument("--page-stored", choices=("true", "false", "both"), default="both",
+                   help="which cases to run (default both; false keeps every feature: ~133 kB a keyframe)")
+    p.add_argument("--cold", action="store_true",
+                   help="drop the page cache (root: /proc/sys/vm/drop_caches) after copying the store, so the "
+                        "launch reads it from the disk as after a power-up")
     a = p.parse_args()
+    pages = ("true", "false") if a.page_stored == "both" else (a.page_stored,)
     tmp = tempfile.mkdtemp(prefix="uwms_bench_paging_")
     master, env = start_master()
     try:
@@ -156,20 +162,25 @@ def main():
         if "  page_stored: true " not in text:
             sys.exit("bench_paging: page_stored not in config/slam.yaml")
         configs = {}
-        for page in ("true", "false"):
+        for page in pages:
             configs[page] = os.path.join(tmp, "slam_%s.yaml" % page)
             with open(configs[page], "w") as f:
                 f.write(text.replace("  page_stored: true ", "  page_stored: %s " % page))
         # A copy per run: localisation mode writes nothing, but the store's lock is per file.
-        for page in ("true", "false"):
+        for page in pages:
             empty_kb, _, _ = run_case(None, configs[page], 0, env)
             db = os.path.join(tmp, "store_%s.db" % page)
             shutil.copy(a.store, db)
+            if a.cold:
+                os.sync()
+                with open("/proc/sys/vm/drop_caches", "w") as f:
+                    f.write("3\n")
             loaded_kb, seconds, diag = run_case(db, configs[page], a.keyframes, env)
             os.remove(db)
-            print("bench_paging keyframes=%d page_stored=%s loop_detector_rss_MB=%.1f ram_per_stored_keyframe_kB=%.2f "
+            print("bench_paging keyframes=%d page_stored=%s cache=%s loop_detector_rss_MB=%.1f ram_per_stored_keyframe_kB=%.2f "
                   "reload_s=%.1f keyframes_paged=%d backend_ready_s=%.1f handover_s=%.1f" % (
-                      a.keyframes, page, loaded_kb / 1024.0, (loaded_kb - empty_kb) / float(a.keyframes), seconds,
+                      a.keyframes, page, "cold" if a.cold else "warm", loaded_kb / 1024.0,
+                      (loaded_kb - empty_kb) / float(a.keyframes), seconds,
                       int(float(diag.get("keyframes_paged", 0))), float(diag.get("backend_ready_s", -1)),
                       float(diag.get("backend_handover_s", -1))), flush=True)
     finally:

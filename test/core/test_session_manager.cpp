@@ -237,6 +237,19 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
   ASSERT_TRUE(again.reload("1", &r).ok());
   EXPECT_EQ(r.keyframes.size(), 8u);
   EXPECT_EQ(again.list()[1].state, SessionState::kFinished);
+  // Reloaded reading nothing (the back-end's ~reload_stored: the hashes are handed over later),
+  // or the hashes only; loaded all the same.
+  ASSERT_TRUE(again.unload("1").ok());
+  ASSERT_TRUE(again.reload("1", &r, SessionManager::ReloadRead::kNothing).ok());
+  EXPECT_TRUE(r.keyframes.empty());
+  EXPECT_EQ(again.list()[1].state, SessionState::kFinished);
+  EXPECT_EQ(again.storedHashes(1).size(), 8u);
+  EXPECT_EQ(again.reload("1", &r, SessionManager::ReloadRead::kNothing).code, StatusCode::kAlreadyExists);
+  ASSERT_TRUE(again.unload("1").ok());
+  ASSERT_TRUE(again.reload("1", &r, SessionManager::ReloadRead::kHashes).ok());
+  ASSERT_EQ(r.keyframes.size(), 8u);
+  EXPECT_EQ(r.keyframes[3].hash.size(), 384);
+  EXPECT_TRUE(r.keyframes[3].points.empty());
   // New sessions continue after the stored ones.
   addStraightSession(&again, again.nextId(), 2);
   EXPECT_EQ(again.activeSession(), 2);

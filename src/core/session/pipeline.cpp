@@ -27,7 +27,7 @@ int loadStoredSessions(SessionManager* manager, LoopDetector* detector, std::deq
   for (const SessionSummary& s : manager->list()) {
     if (s.state != SessionState::kUnloaded) continue;
     ReloadedSession r;
-    const Status st = manager->reload(std::to_string(s.id), &r, false);
+    const Status st = manager->reload(std::to_string(s.id), &r, SessionManager::ReloadRead::kHashes);
     if (!st.ok()) throw StoreError(st.message);
     cameras->push_back(r.camera);
     for (const StoredKeyframe& k : r.keyframes)

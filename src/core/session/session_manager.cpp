@@ -960,7 +960,7 @@ std::vector<StoredKeyframe> SessionManager::storedHashes(int session) const {
   return out;
 }
 
-Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* out, bool with_features) {
+Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* out, ReloadRead read) {
   if (!store_) return {StatusCode::kFailedPrecondition, "no session store: nothing to reload"};
   const int id = sessionNamed(name_or_id);
   if (id < 0 || at(id).store_id < 0 || id >= restored_sessions_)
@@ -973,8 +973,9 @@ Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* ou
   }
   ReloadedSession r;
   try {
-    r.keyframes = store_->keyframes(s.store_id, with_features ? SessionStore::KeyframeColumns::kAll
-                                                              : SessionStore::KeyframeColumns::kHash);
+    if (read != ReloadRead::kNothing)
+      r.keyframes = store_->keyframes(s.store_id, read == ReloadRead::kFeatures ? SessionStore::KeyframeColumns::kAll
+                                                                                : SessionStore::KeyframeColumns::kHash);
   } catch (const std::exception& e) {
     say("reload_session '" + name_or_id + "': reading " + options_.store_path + " failed: " + e.what());
     // The reply names the file only: the store's errors carry its full path.

@@ -257,11 +257,13 @@ class SessionManager {
   Status join(int session_a, int session_b, int min_loops = 0);
   /// Splits a session off its map (INVALID_ARGUMENT, NOT_FOUND as join).
   Status split(int session);
-  /// Brings a stored (UNLOADED) session back by name or id: its keyframes with features, for the
+  /// What reload() reads of a session's keyframes: everything (features, hash, thumbnail), the
+  /// frame data and hashes only (paging: features are read later with storedFeatures), or nothing
+  /// (the host hands the hashes over later with storedHashes, session by session).
+  enum class ReloadRead { kFeatures, kHashes, kNothing };
+  /// Brings a stored (UNLOADED) session back by name or id: its keyframes as `read` says, for the
   /// loop detector. NOT_FOUND, ALREADY_EXISTS (loaded), FAILED_PRECONDITION (no store), DATA_LOSS.
-  /// `with_features` false: only the frame data and hashes (paging: features are read later
-  /// with storedFeatures).
-  Status reload(const std::string& name_or_id, ReloadedSession* out, bool with_features = true);
+  Status reload(const std::string& name_or_id, ReloadedSession* out, ReloadRead read = ReloadRead::kFeatures);
   /// unload_session (issue 16, item 4): a reloaded stored session goes back to UNLOADED, so the
   /// host drops its features from the loop detectors (it keeps its place in its map, its poses and
   /// loops; reload() brings it back). Nothing is lost: only sessions restored from the store,
