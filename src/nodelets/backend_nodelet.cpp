@@ -175,16 +175,14 @@ void BackendNodelet::onInit() {
 void BackendNodelet::work() {
   Message m;
   while (queue_->pop(&m)) {
-    if (const auto* k = std::get_if<uw_multislam::KeyframeConstPtr>(&m)) {
+    const auto* k = std::get_if<uw_multislam::KeyframeConstPtr>(&m);
+    const auto* h = std::get_if<uw_multislam::KeyframeHashConstPtr>(&m);
+    if (k || h) {  // ours, or another vehicle's: the loops waiting for a keyframe are tried again
       std::deque<uw_multislam::LoopConstPtr> retry;
-      step([&] { processKeyframe(**k), retry = std::exchange(waiting_, {}); });
+      step([&] { k ? processKeyframe(**k) : processFleetHash(**h), retry = std::exchange(waiting_, {}); });
       for (const auto& l : retry) step([&] { processLoop(l, true); });  // their keyframe may be here
     } else if (const auto* l = std::get_if<uw_multislam::LoopConstPtr>(&m)) {
       step([&] { processLoop(*l, false); });
-    } else if (const auto* h = std::get_if<uw_multislam::KeyframeHashConstPtr>(&m)) {
-      std::deque<uw_multislam::LoopConstPtr> retry;
-      step([&] { processFleetHash(**h), retry = std::exchange(waiting_, {}); });
-      for (const auto& w : retry) step([&] { processLoop(w, true); });  // their keyframe may be here
     } else {
       optimiseDue();
     }
@@ -231,6 +229,10 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
   std::string why;
   ++counts_.keyframes;
   const bool ok = rc::fromMsg(msg, &k, &why);
+  // A keyframe without a hash (an older sender) is hashed once, here, when the link needs it too:
+  // the manager takes this hash instead of computing its own.
+  if (ok && fleet_pub_ && k.hash.size() != core::HalocProjections::kHashSize && !k.features.descriptors.empty())
+    k.hash = manager_->hasher().hash(k.features.descriptors);
   const core::Status st = ok ? manager_->addKeyframe(rc::toKeyframeInput(k, msg.header.stamp.toSec())) : core::Status();
   if (ok && st.ok() && !k.thumbnail.empty() && options_.mosaic_rate_hz > 0)  // no mosaic: no image kept
     mosaic_images_.add(k.session, k.keyframe, k.altitude_m, k.camera, std::move(k.thumbnail));
@@ -239,8 +241,7 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
     NODELET_WARN_THROTTLE(5, "back-end: keyframe skipped: %s", ok ? st.message.c_str() : why.c_str());
     return;
   }
-  if (fleet_pub_) {  // the other vehicles get its hash, motion and pose (not its features)
-    if (k.hash.size() != core::HalocProjections::kHashSize) k.hash = manager_->hasher().hash(k.features.descriptors);
+  if (fleet_pub_ && k.hash.size() == core::HalocProjections::kHashSize) {  // its hash, motion, pose: no features
     const auto& o = manager_->options();
     const auto out = boost::make_shared<uw_multislam::KeyframeHash>(
         rc::toFleetHashMsg(k, options_.fleet_vehicle, o.hash_mode, o.projection_seed, o.num_features, msg.header,
@@ -377,7 +378,7 @@ void BackendNodelet::publishAll(bool all_sessions) {
                                             options_.frames.map_frame, ros::Time::now()));
 }
 
-void BackendNodelet::announceNextSession(std::uint8_t state) {
+uw_multislam::SessionState BackendNodelet::sessionRequest(std::uint8_t state) const {
   uw_multislam::SessionState st;
   st.session = manager_->activeSession() >= 0 ? manager_->activeSession() : manager_->nextId();
   st.name = manager_->has(st.session) ? manager_->name(st.session) : core::defaultSessionName(st.session);
@@ -385,19 +386,17 @@ void BackendNodelet::announceNextSession(std::uint8_t state) {
   st.map = st.session;
   st.relocalised_map = -1;
   st.next_session = manager_->nextId();
-  announced_ = st;
-  active_pub_.publish(st);
+  return st;
+}
+
+void BackendNodelet::announceNextSession(std::uint8_t state) {
+  announced_ = sessionRequest(state);
+  active_pub_.publish(announced_);
 }
 
 void BackendNodelet::announceNextId() {
-  uw_multislam::SessionState st = announced_;  // the last request, repeated for a late subscriber
-  if (st.name.empty()) {                       // none yet: what the odometry would be asked now
-    st.session = manager_->activeSession() >= 0 ? manager_->activeSession() : manager_->nextId();
-    st.name = manager_->has(st.session) ? manager_->name(st.session) : core::defaultSessionName(st.session);
-    st.state = uw_multislam::SessionState::ACTIVE;
-    st.map = st.session;
-    st.relocalised_map = -1;
-  }
+  // The last request, repeated for a late subscriber (none yet: what the odometry would be asked now).
+  uw_multislam::SessionState st = announced_.name.empty() ? sessionRequest() : announced_;
   st.next_session = manager_->nextId();
   st.next_session_only = true;
   active_pub_.publish(st);

@@ -113,19 +113,18 @@ void LoopDetectorNodelet::processReloaded(const uw_multislam::Keyframe& msg) {
     return;
   }
   Session& s = session(k.session);
-  if (s.cameras.empty() || s.cameras.back().fx != k.camera.fx || s.cameras.back().width != k.camera.width)
-    s.cameras.push_back(k.camera);
+  const core::CameraIntrinsics* camera = s.camera(k.camera);
   if (k.features.keypoints.empty()) {
     // Paged: its hash and ids only, its features asked for when it is a candidate. Without a hash
     // (or not paging): a keyframe that never arrived live, no candidate.
     if (!config_.loops.page_stored || k.hash.size() == 0) return;
-    detector_->addPagedKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m, &s.cameras.back(), k.hash);
+    detector_->addPagedKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m, camera, k.hash);
     ++counts_.reloaded;
     ++counts_.paged;
     return;
   }
   const Eigen::VectorXf hash = k.hash.size() > 0 ? k.hash : detector_->hasher().hash(k.features.descriptors);
-  detector_->addStoredKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m, &s.cameras.back(), k.features, hash);
+  detector_->addStoredKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m, camera, k.features, hash);
   ++counts_.reloaded;
 }
 
@@ -148,11 +147,8 @@ void LoopDetectorNodelet::processForeign(const uw_multislam::Keyframe& msg) {
     return;
   }
   foreign_sessions_.insert(k.session);
-  Session& s = session(k.session);
-  if (s.cameras.empty() || s.cameras.back().fx != k.camera.fx || s.cameras.back().width != k.camera.width)
-    s.cameras.push_back(k.camera);
-  const std::vector<core::Loop> loops =
-      detector_->addForeignKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m, &s.cameras.back(), k.hash);
+  const std::vector<core::Loop> loops = detector_->addForeignKeyframe(
+      k.session, k.keyframe, k.frame_index, k.altitude_m, session(k.session).camera(k.camera), k.hash);
   ++counts_.foreign;
   for (const core::Loop& l : loops) {
     loop_pub_.publish(boost::make_shared<uw_multislam::Loop>(rc::toLoopMsg(l, msg.header)));
@@ -208,6 +204,14 @@ void LoopDetectorNodelet::work() {
       last_stats_ = ros::WallTime::now();
     }
   }
+}
+
+const core::CameraIntrinsics* LoopDetectorNodelet::Session::camera(const core::CameraIntrinsics& c) {
+  const core::CameraIntrinsics* last = cameras.empty() ? nullptr : &cameras.back();
+  if (!last || last->width != c.width || last->height != c.height || last->fx != c.fx || last->fy != c.fy ||
+      last->cx != c.cx || last->cy != c.cy)
+    cameras.push_back(c);
+  return &cameras.back();
 }
 
 LoopDetectorNodelet::Session& LoopDetectorNodelet::session(int id) {
@@ -269,14 +273,9 @@ void LoopDetectorNodelet::process(const uw_multislam::Keyframe& msg) {
                             k.keyframe, k.session, options_.max_keyframe_gap, before - 1, counts_.bad);
       return;
   }
-  if (s.cameras.empty() || s.cameras.back().width != k.camera.width || s.cameras.back().fx != k.camera.fx ||
-      s.cameras.back().fy != k.camera.fy || s.cameras.back().cx != k.camera.cx || s.cameras.back().cy != k.camera.cy ||
-      s.cameras.back().height != k.camera.height) {
-    s.cameras.push_back(k.camera);
-  }
   const core::Trajectory trajectory = s.chain.candidateTrajectory(optimisedPoses(k.session));
   const std::vector<core::Loop> loops = detector_->addKeyframe(k.session, k.keyframe, k.frame_index, k.altitude_m,
-                                                               &s.cameras.back(), k.features, trajectory,
+                                                               s.camera(k.camera), k.features, trajectory,
                                                                &k.hash);  // hashed here only when k.hash is empty
   for (const core::Loop& l : loops) {
     loop_pub_.publish(boost::make_shared<uw_multislam::Loop>(rc::toLoopMsg(l, msg.header)));

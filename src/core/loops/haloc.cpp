@@ -204,7 +204,10 @@ std::uint32_t sumAbsDiff(const std::uint8_t* a, const std::uint8_t* b, int n) {
 }
 
 namespace {
-float codeStep(float range) { return 2.0f * range / 255.0f; }
+float codeStep(float range) {
+  if (!(range > 0.0f)) throw std::invalid_argument("hash codes: range must be positive");
+  return 2.0f * range / 255.0f;
+}
 std::uint8_t code(float v, float range, float step) {
   return static_cast<std::uint8_t>(std::clamp(std::round((v + range) / step), 0.0f, 255.0f));
 }
@@ -213,7 +216,6 @@ std::uint8_t code(float v, float range, float step) {
 float hashCodeRange(HashMode mode) { return mode == HashMode::kSortedDct ? 0.25f : 0.5f; }
 
 std::vector<std::uint8_t> hashCodes(const Eigen::VectorXf& hash, float range) {
-  if (!(range > 0.0f)) throw std::invalid_argument("hashCodes: range must be positive");
   std::vector<std::uint8_t> out(static_cast<std::size_t>(hash.size()));
   const float step = codeStep(range);
   for (Eigen::Index i = 0; i < hash.size(); ++i) out[static_cast<std::size_t>(i)] = code(hash[i], range, step);
@@ -221,7 +223,6 @@ std::vector<std::uint8_t> hashCodes(const Eigen::VectorXf& hash, float range) {
 }
 
 Eigen::VectorXf hashFromCodes(const std::vector<std::uint8_t>& codes, float range) {
-  if (!(range > 0.0f)) throw std::invalid_argument("hashFromCodes: range must be positive");
   Eigen::VectorXf out(static_cast<Eigen::Index>(codes.size()));
   const float step = codeStep(range);
   for (std::size_t i = 0; i < codes.size(); ++i) out[static_cast<Eigen::Index>(i)] = codes[i] * step - range;
@@ -229,7 +230,6 @@ Eigen::VectorXf hashFromCodes(const std::vector<std::uint8_t>& codes, float rang
 }
 
 HashStore::HashStore(float range) : range_(range), step_(codeStep(range)) {
-  if (!(range > 0.0f)) throw std::invalid_argument("HashStore: range must be positive");
   query_code_.resize(HalocProjections::kHashSize);
   best_.reserve(64);
 }

@@ -161,6 +161,8 @@ class BackendNodelet : public nodelet::Nodelet {
   /// On active_session: the recording session, else the id the next one gets; `state` ACTIVE, or
   /// FINISHED after finish_session (the odometry then drops frames until start_session or resume).
   void announceNextSession(std::uint8_t state = uw_multislam::SessionState::ACTIVE);
+  /// What announceNextSession publishes: the recording session, else the next id, in `state`.
+  uw_multislam::SessionState sessionRequest(std::uint8_t state = uw_multislam::SessionState::ACTIVE) const;
   /// On active_session, next_session_only: another vehicle's session took an id, so our
   /// odometry's own next session takes a later one; the last request repeated, not renewed.
   void announceNextId();

@@ -85,6 +85,9 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
     explicit Session(int max_keyframe_gap) : chain(max_keyframe_gap) {}
     std::deque<core::CameraIntrinsics> cameras;
     core::SessionChain chain;
+    /// The camera to hold a keyframe with: the last one, or `c` appended when it differs (the
+    /// detector keeps pointers into the deque, which never moves its elements).
+    const core::CameraIntrinsics* camera(const core::CameraIntrinsics& c);
     int next_page_out = 0;  // live paging: the oldest keyframe not yet paged out
   };
   /// A keyframe waiting for the worker: live (searched) or reloaded from the store (stored only).
