@@ -58,7 +58,7 @@ KeyframeData reloadedKeyframe(const core::ReloadedSession& session, const core::
   d.altitude_m = k.altitude_m > 0 ? k.altitude_m : 1.0;
   d.camera = session.camera;
   d.features = k.features();
-  if (!k.descriptors.empty()) k.descriptors.convertTo(d.features.descriptors, CV_32F);  // as the extractor's
+  if (!k.descriptors.empty()) d.features.descriptors = core::extractorDescriptors(k.descriptors);  // as the extractor's
   d.hash = k.hash;  // as stored (the store refuses other hash settings): paged keyframes are found by it
   d.motion = core::UncertainPose2(core::Pose2(), Eigen::Matrix3d::Identity() * 1e-6);
   d.quality = k.keyframe == 0 ? KeyframeQuality::kFirst : KeyframeQuality::kMatched;

@@ -3,6 +3,7 @@
 #include <opencv2/core.hpp>
 
 #include <cmath>
+#include <cstring>
 #include <sstream>
 
 #include "uw_multislam/core/session/session_manager.h"
@@ -100,7 +101,8 @@ uw_multislam::Keyframe toKeyframeMsg(const KeyframeData& k, const std_msgs::Head
     m.response[i] = kp.response;
   }
   const cv::Mat& d = k.features.descriptors;
-  m.descriptor_size = static_cast<std::uint32_t>(d.empty() ? core::HalocProjections::kDescriptorSize : d.cols);
+  // The kind's width even with no feature (an empty n x 32 matrix still says ORB).
+  m.descriptor_size = static_cast<std::uint32_t>(d.cols > 0 ? d.cols : core::descriptorBytes(core::FeatureType::kSift));
   if (!d.empty()) {
     cv::Mat bytes;
     d.convertTo(bytes, CV_8U);  // rounds and saturates
@@ -139,8 +141,9 @@ bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* wh
   if (m.v_px.size() != n || m.response.size() != n) {
     return fail(why, who + "u_px, v_px and response must have the same length");
   }
-  if (m.descriptor_size != static_cast<std::uint32_t>(core::HalocProjections::kDescriptorSize)) {
-    return fail(why, who + "descriptor_size must be 128 (SIFT)");
+  if (m.descriptor_size != static_cast<std::uint32_t>(core::descriptorBytes(core::FeatureType::kSift)) &&
+      m.descriptor_size != static_cast<std::uint32_t>(core::descriptorBytes(core::FeatureType::kOrb))) {
+    return fail(why, who + "descriptor_size must be 128 (SIFT) or 32 (ORB), not " + std::to_string(m.descriptor_size));
   }
   if (m.descriptors.size() != n * m.descriptor_size) {
     return fail(why, who + "descriptors must hold n x descriptor_size bytes");
@@ -176,13 +179,12 @@ bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* wh
     kp.response = m.response[i];
     k.features.keypoints.push_back(kp);
   }
-  if (n > 0) {
-    // The message's bytes viewed as an n x 128 matrix, then widened to the extractor's CV_32F.
-    const cv::Mat bytes(static_cast<int>(n), static_cast<int>(m.descriptor_size), CV_8U,
-                        const_cast<std::uint8_t*>(m.descriptors.data()));
-    bytes.convertTo(k.features.descriptors, CV_32F);
-  } else {
-    k.features.descriptors = cv::Mat(0, core::HalocProjections::kDescriptorSize, CV_32F);
+  {
+    // The message's bytes viewed as an n x descriptor_size matrix, copied (the message goes) and
+    // turned into the extractor's form (SIFT widened to CV_32F, ORB's bytes as they are).
+    cv::Mat bytes(static_cast<int>(n), static_cast<int>(m.descriptor_size), CV_8U);
+    if (n > 0) std::memcpy(bytes.data, m.descriptors.data(), m.descriptors.size());
+    k.features.descriptors = core::extractorDescriptors(bytes);
   }
   k.hash = Eigen::Map<const Eigen::VectorXf>(m.hash.data(), static_cast<Eigen::Index>(m.hash.size()));
   if (m.thumbnail.size() > kMaxThumbnailBytes)

@@ -105,6 +105,14 @@ def test_sessions_are_joined_into_one_map_close_to_the_truth(result, survey):
     assert len(links) == 1 and links[0]["previous_session"] == "0" and links[0]["current_session"] == "1"
     assert int(links[0]["loops"]) >= 5  # join_min_loops
     assert "joined map 1 to map 0" in r.stdout
+    errs = _joined_session_errors(out, survey)
+    assert len(errs) > 3
+    assert max(errs) < 0.05, errs  # a few cm on 2 x 1.6 m, ~3 m from session a's start
+
+
+def _joined_session_errors(out, survey):
+    """Session 1's position errors (m) in map 0's frame (session 0's first keyframe), everything in
+    map 0."""
     traj = rows(out / "trajectory.csv")
     assert {t["map"] for t in traj} == {"0"}
     world = {(g["session"], g["index"]): (float(g["x_m"]), float(g["y_m"]), float(g["yaw_rad"]))
@@ -116,8 +124,45 @@ def test_sessions_are_joined_into_one_map_close_to_the_truth(result, survey):
             continue
         gt = _in_frame(origin, world[("1", t["index"])])
         errs.append(math.hypot(float(t["x_m"]) - gt[0], float(t["y_m"]) - gt[1]))
+    return errs
+
+
+def test_orb_features_join_the_sessions_and_a_store_keeps_to_their_kind(survey, tmp_path):
+    """odometry.features.type orb (issue 19, item 2): binary features, Hamming matching and their
+    hashes join the survey's two sessions through global loops, every one of them true, close to
+    the truth; a store of ORB keyframes serves the next ORB run and refuses a SIFT one with one
+    line naming both kinds, the file left as it was."""
+    cfg = tmp_path / "orb.yaml"
+    cfg.write_text("odometry:\n  features:\n    type: orb\n")
+    db = tmp_path / "maps.db"
+    r1 = run("offline_slam", "--session", str(survey / "a"), "--out", str(tmp_path / "r1"), "--db", str(db),
+             "--config", str(cfg))
+    assert r1.returncode == 0, r1.stderr
+    before = db.read_bytes()
+    sift = run("offline_slam", "--session", str(survey / "b"), "--out", str(tmp_path / "sift"), "--db", str(db))
+    assert sift.returncode != 0
+    assert "orb features" in sift.stderr and "extracts sift" in sift.stderr, sift.stderr
+    assert len(sift.stderr.strip().splitlines()) == 1, sift.stderr
+    assert db.read_bytes() == before
+    r2 = run("offline_slam", "--session", str(survey / "b"), "--out", str(tmp_path / "r2"), "--db", str(db),
+             "--config", str(cfg))
+    assert r2.returncode == 0, r2.stderr
+    assert "joined map 1 to map 0" in r2.stdout
+    errs = _joined_session_errors(tmp_path / "r2", survey)
     assert len(errs) > 3
-    assert max(errs) < 0.05, errs  # a few cm on 2 x 1.6 m, ~3 m from session a's start
+    assert max(errs) < 0.05, errs  # SIFT's bound above
+    glob = [l for l in rows(tmp_path / "r2" / "loops.csv") if l["kind"] == "global"]
+    assert len(glob) >= 5  # join_min_loops
+    # Every global loop is true: its measured pose of b in a's frame is the ground truth's within
+    # 5 cm (a wrong loop is off by a footprint, metres).
+    world = {(g["session"], g["index"]): (float(g["x_m"]), float(g["y_m"]), float(g["yaw_rad"]))
+             for g in rows(survey / "world_gt.csv")}
+    poses = rows(tmp_path / "r2" / "loop_poses.csv")
+    measured = [p for p in poses if p["session_a"] != p["session_b"]]
+    assert len(measured) == len(glob)
+    for p in measured:
+        gt = _in_frame(world[(p["session_a"], p["index_a"])], world[(p["session_b"], p["index_b"])])
+        assert math.hypot(float(p["x_m"]) - gt[0], float(p["y_m"]) - gt[1]) < 0.05, (p, gt)
 
 
 def test_no_join_when_the_configuration_forbids_it(survey, tmp_path):
@@ -658,16 +703,17 @@ def test_finish_after_ends_each_folder_session_like_a_folder_cut_there(survey, t
     assert not (tmp_path / "bad").exists()
 
 
-@pytest.mark.parametrize("klt", [False, True])
-def test_threads_give_the_same_outputs_as_one_thread(survey, tmp_path, klt):
+@pytest.mark.parametrize("klt,features", [(False, "sift"), (True, "sift"), (False, "orb")])
+def test_threads_give_the_same_outputs_as_one_thread(survey, tmp_path, klt, features):
     """--threads N (issue 19, item 3): workers read and prepare the next frames while the main
     thread runs the rest; every output file is the same as with one thread, byte for byte (timing
-    aside), with a corrupt image among the frames and with KLT on or off."""
+    aside), with a corrupt image among the frames, with KLT on or off and with ORB features."""
     folder = tmp_path / "a"
     shutil.copytree(survey / "a", folder)
     (folder / "0004.jpg").write_bytes(b"not a jpeg")
     cfg = tmp_path / "c.yaml"
-    cfg.write_text("odometry:\n  klt:\n    enabled: %s\n" % ("true" if klt else "false"))
+    cfg.write_text("odometry:\n  klt:\n    enabled: %s\n  features:\n    type: %s\n"
+                   % ("true" if klt else "false", features))
     outs = {}
     for threads in (1, 2, 3):
         out = tmp_path / ("t%d" % threads)

@@ -91,6 +91,34 @@ TEST_F(PipelineConversions, KeyframeRoundTripIsLossless) {
             1e-6);
 }
 
+TEST_F(PipelineConversions, AnOrbKeyframeTravelsAsItsBitsAndOwnsThemOnArrival) {
+  rc::KeyframeData k = someKeyframe();
+  core::FeatureOptions orb;
+  orb.type = core::FeatureType::kOrb;
+  cv::Mat grey;
+  cv::cvtColor(render(Pose2(4.0, 3.0, 0.3), 2.0), grey, cv::COLOR_BGR2GRAY);
+  k.features = core::FeatureExtractor(orb).extract(grey);
+  ASSERT_GT(k.features.size(), 300u);
+  uw_multislam::Keyframe m = rc::toKeyframeMsg(k, header());
+  EXPECT_EQ(m.descriptor_size, 32u);
+  EXPECT_EQ(m.descriptors.size(), k.features.size() * 32);
+  rc::KeyframeData back;
+  std::string why;
+  ASSERT_TRUE(rc::fromMsg(m, &back, &why)) << why;
+  ASSERT_EQ(back.features.descriptors.type(), CV_8U);
+  ASSERT_EQ(back.features.descriptors.cols, 32);
+  std::fill(m.descriptors.begin(), m.descriptors.end(), 0);  // the message's bytes are not the keyframe's
+  EXPECT_EQ(cv::norm(back.features.descriptors, k.features.descriptors, cv::NORM_HAMMING), 0.0);
+  // No feature: the kind still travels.
+  k.features.keypoints.clear();
+  k.features.descriptors = cv::Mat(0, 32, CV_8U);
+  m = rc::toKeyframeMsg(k, header());
+  EXPECT_EQ(m.descriptor_size, 32u);
+  ASSERT_TRUE(rc::fromMsg(m, &back, &why)) << why;
+  EXPECT_EQ(back.features.descriptors.cols, 32);
+  EXPECT_EQ(back.features.descriptors.type(), CV_8U);
+}
+
 TEST_F(PipelineConversions, BadKeyframeMessagesAreRefusedWithAReason) {
   const uw_multislam::Keyframe good = rc::toKeyframeMsg(someKeyframe(), header());
   rc::KeyframeData out;

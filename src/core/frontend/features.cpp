@@ -11,6 +11,41 @@
 namespace uw_multislam {
 namespace core {
 
+std::string featureTypeName(FeatureType t) { return t == FeatureType::kOrb ? "orb" : "sift"; }
+
+bool parseFeatureType(const std::string& name, FeatureType* out) {
+  if (name == "sift")
+    *out = FeatureType::kSift;
+  else if (name == "orb")
+    *out = FeatureType::kOrb;
+  else
+    return false;
+  return true;
+}
+
+int descriptorBytes(FeatureType t) { return t == FeatureType::kOrb ? 32 : 128; }
+
+FeatureType descriptorType(const cv::Mat& d) {
+  if (d.cols == descriptorBytes(FeatureType::kOrb) && d.type() == CV_8U) return FeatureType::kOrb;
+  if (d.cols == descriptorBytes(FeatureType::kSift) && (d.type() == CV_32F || d.type() == CV_8U))
+    return FeatureType::kSift;
+  throw std::invalid_argument(
+      "features: descriptors must be 128 columns (SIFT, CV_32F or CV_8U) or 32 columns of "
+      "CV_8U (ORB), not " +
+      std::to_string(d.cols) + " columns of type " + std::to_string(d.type()));
+}
+
+cv::Mat extractorDescriptors(const cv::Mat& stored) {
+  // No feature (a featureless frame, features never read): empty, of the kind it says if any.
+  if (stored.empty() && !(stored.cols == descriptorBytes(FeatureType::kOrb) && stored.type() == CV_8U))
+    return cv::Mat(0, descriptorBytes(FeatureType::kSift), CV_32F);
+  if (descriptorType(stored) == FeatureType::kOrb) return stored;
+  if (stored.type() == CV_32F) return stored;
+  cv::Mat f;
+  stored.convertTo(f, CV_32F);
+  return f;
+}
+
 std::string FeatureOptions::validate() const {
   std::ostringstream os;
   if (num_features < 8 || num_features > 20000) {
@@ -28,6 +63,12 @@ std::string FeatureOptions::validate() const {
     os << "border_px must be >= 0";
   } else if (first_octave != -1 && first_octave != 0) {
     os << "first_octave " << first_octave << " must be -1 (OpenCV's doubled image) or 0 (no doubling)";
+  } else if (type == FeatureType::kOrb && first_octave != -1) {
+    os << "first_octave is a SIFT setting: leave it at -1 with type orb";
+  } else if (orb_fast_threshold < 1 || orb_fast_threshold > 255) {
+    os << "orb_fast_threshold " << orb_fast_threshold << " must be in [1, 255]";
+  } else if (orb_levels < 1 || orb_levels > 16 || !(orb_scale_factor > 1.0 && orb_scale_factor <= 2.0)) {
+    os << "orb_levels must be in [1, 16] and orb_scale_factor in (1, 2]";
   }
   return os.str();
 }
@@ -35,8 +76,16 @@ std::string FeatureOptions::validate() const {
 FeatureExtractor::FeatureExtractor(const FeatureOptions& options) : options_(options) {
   const std::string bad = options.validate();
   if (!bad.empty()) throw std::invalid_argument("features: " + bad);
-  sift_ = cv::SIFT::create(static_cast<int>(options.num_features * options.candidate_factor), options.octave_layers,
-                           options.contrast_threshold, options.edge_threshold, options.sigma);
+  const int candidates = static_cast<int>(options.num_features * options.candidate_factor);
+  if (options.type == FeatureType::kOrb) {
+    // Harris-ranked FAST corners with rotated BRIEF, OpenCV's defaults but the FAST threshold
+    // and the pyramid (FeatureOptions). Its patch (31 px) keeps corners that far from the border.
+    detector_ = cv::ORB::create(candidates, static_cast<float>(options.orb_scale_factor), options.orb_levels, 31, 0, 2,
+                                cv::ORB::HARRIS_SCORE, 31, options.orb_fast_threshold);
+  } else {
+    detector_ = cv::SIFT::create(candidates, options.octave_layers, options.contrast_threshold, options.edge_threshold,
+                                 options.sigma);
+  }
 }
 
 std::vector<int> FeatureExtractor::bucket(const std::vector<cv::KeyPoint>& candidates, cv::Size size) const {
@@ -80,13 +129,13 @@ FrameFeatures FeatureExtractor::extract(const cv::Mat& grey) const {
   // would build the pyramid again, which costs as much as the detection).
   std::vector<cv::KeyPoint> candidates;
   cv::Mat descriptors;
-  if (options_.first_octave == 0 && grey.cols >= 32 && grey.rows >= 32) {
+  if (options_.type == FeatureType::kSift && options_.first_octave == 0 && grey.cols >= 32 && grey.rows >= 32) {
     // No doubling (first_octave in features.h): OpenCV's octave -1 of the halved image is at
     // the full image's resolution. A half-image pixel i covers full pixels 2i, 2i + 1, and
     // SIFT's doubled coordinates put i at 2i: full = 2 x half.
     cv::Mat half;
     cv::resize(grey, half, cv::Size(grey.cols / 2, grey.rows / 2), 0, 0, cv::INTER_AREA);
-    sift_->detectAndCompute(half, cv::noArray(), candidates, descriptors);
+    detector_->detectAndCompute(half, cv::noArray(), candidates, descriptors);
     for (cv::KeyPoint& k : candidates) {
       k.pt *= 2.0f;
       k.size *= 2.0f;
@@ -95,7 +144,7 @@ FrameFeatures FeatureExtractor::extract(const cv::Mat& grey) const {
       k.octave = (k.octave & ~255) | (octave & 255);
     }
   } else {
-    sift_->detectAndCompute(grey, cv::noArray(), candidates, descriptors);
+    detector_->detectAndCompute(grey, cv::noArray(), candidates, descriptors);
   }
   const float b = static_cast<float>(options_.border_px);
   std::vector<cv::KeyPoint> inside;
@@ -108,7 +157,8 @@ FrameFeatures FeatureExtractor::extract(const cv::Mat& grey) const {
   }
   const std::vector<int> kept = bucket(inside, grey.size());
   f.keypoints.reserve(kept.size());
-  f.descriptors.create(static_cast<int>(kept.size()), 128, CV_32F);
+  const int width = descriptorBytes(options_.type);
+  f.descriptors.create(static_cast<int>(kept.size()), width, options_.type == FeatureType::kOrb ? CV_8U : CV_32F);
   for (std::size_t i = 0; i < kept.size(); ++i) {
     f.keypoints.push_back(inside[kept[i]]);
     descriptors.row(rows[kept[i]]).copyTo(f.descriptors.row(static_cast<int>(i)));

@@ -15,6 +15,8 @@
 #include <arm_neon.h>
 #endif
 
+#include "uw_multislam/core/frontend/features.h"
+
 namespace uw_multislam {
 namespace core {
 
@@ -32,13 +34,26 @@ class PortableGaussian {
   std::mt19937_64 rng_;
 };
 
-// Descriptor rows as unit vectors (zero rows stay zero).
+// Descriptor rows as unit vectors (zero rows stay zero), 128 values each. A SIFT row is taken as
+// it is. An ORB row (256 bits, issue 19) is embedded first: value 4k + p is the sum of bits 2p
+// and 2p + 1 of byte k (0, 1 or 2), so that descriptors a few bits apart stay close in L2 (each
+// differing bit moves one value by 1) and the hash (and its 8-bit codes) keeps its 384 values.
+// Hand-written: HALOC is defined on real vectors and OpenCV has no embedding of binary strings.
 Eigen::MatrixXf unitRows(const cv::Mat& descriptors, int max_rows) {
   const int rows = std::min(descriptors.rows, max_rows);
+  const bool binary = descriptorType(descriptors) == FeatureType::kOrb;
   Eigen::MatrixXf m(rows, HalocProjections::kDescriptorSize);
   for (int j = 0; j < rows; ++j) {
-    for (int i = 0; i < HalocProjections::kDescriptorSize; ++i) {
-      m(j, i) = descriptors.type() == CV_32F ? descriptors.at<float>(j, i) : descriptors.at<std::uint8_t>(j, i);
+    if (binary) {
+      const std::uint8_t* bits = descriptors.ptr<std::uint8_t>(j);
+      for (int i = 0; i < HalocProjections::kDescriptorSize; ++i) {
+        const int byte = bits[i / 4] >> (2 * (i % 4));
+        m(j, i) = static_cast<float>((byte & 1) + ((byte >> 1) & 1));
+      }
+    } else {
+      for (int i = 0; i < HalocProjections::kDescriptorSize; ++i) {
+        m(j, i) = descriptors.type() == CV_32F ? descriptors.at<float>(j, i) : descriptors.at<std::uint8_t>(j, i);
+      }
     }
     const float norm = m.row(j).norm();
     if (norm > 0.0f) m.row(j) /= norm;
@@ -47,9 +62,11 @@ Eigen::MatrixXf unitRows(const cv::Mat& descriptors, int max_rows) {
 }
 
 void checkDescriptors(const cv::Mat& descriptors) {
-  if (descriptors.cols != HalocProjections::kDescriptorSize ||
-      (descriptors.type() != CV_32F && descriptors.type() != CV_8U)) {
-    throw std::invalid_argument("HALOC: descriptors must be 128 columns of CV_32F or CV_8U");
+  try {
+    descriptorType(descriptors);
+  } catch (const std::invalid_argument&) {
+    throw std::invalid_argument(
+        "HALOC: descriptors must be 128 columns of CV_32F or CV_8U (SIFT) or 32 of CV_8U (ORB)");
   }
 }
 

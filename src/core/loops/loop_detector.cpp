@@ -60,6 +60,17 @@ LoopDetector::LoopDetector(const LoopOptions& options, const MatchOptions& match
       hasher_(options.global.hash_mode, num_features, options.global.projection_seed),
       hashes_(hashCodeRange(options.global.hash_mode)) {}
 
+namespace {
+// A held (byte) copy of features as the extractor gives them, for matching.
+FrameFeatures forMatching(const FrameFeatures& held) {
+  FrameFeatures f;
+  f.keypoints = held.keypoints;
+  f.image_size = held.image_size;
+  f.descriptors = extractorDescriptors(held.descriptors);
+  return f;
+}
+}  // namespace
+
 bool LoopDetector::verify(const Stored& old, const View& now, Loop* loop) {
   const FrameFeatures* stored = &old.features;
   std::shared_ptr<const FrameFeatures> paged;
@@ -74,10 +85,16 @@ bool LoopDetector::verify(const Stored& old, const View& now, Loop* loop) {
     }
     stored = paged.get();
   }
-  FrameFeatures f;  // descriptors back to float for matching
-  f.keypoints = stored->keypoints;
-  f.image_size = stored->image_size;
-  stored->descriptors.convertTo(f.descriptors, CV_32F);
+  const FrameFeatures f = forMatching(*stored);
+  if (!f.descriptors.empty() && !now.features->descriptors.empty() &&
+      descriptorType(f.descriptors) != descriptorType(now.features->descriptors)) {
+    // Another feature kind (another vehicle's configuration): not comparable, counted as unread.
+    ++stats_.feature_read_failures;
+    last_read_error_ = "keyframe " + std::to_string(old.keyframe) + " of session " + std::to_string(old.session) +
+                       " has " + featureTypeName(descriptorType(f.descriptors)) + " features, this keyframe " +
+                       featureTypeName(descriptorType(now.features->descriptors));
+    return false;
+  }
   const PairMotion m = estimatePairMotion({&f, old.altitude_m, old.camera}, now, matching_, ransac_, &times_);
   const int needed = loop->kind == Loop::Kind::kLocal ? options_.local.min_inliers : options_.global.min_inliers;
   if (!m.ransac.success || static_cast<int>(m.ransac.inliers.size()) < needed) return false;
@@ -250,10 +267,7 @@ std::vector<Loop> LoopDetector::addForeignKeyframe(int session, int keyframe, in
       last_read_error_ = e.what();
     }
     if (theirs) {
-      FrameFeatures f;  // descriptors back to float for matching, as verify does for a stored one
-      f.keypoints = theirs->keypoints;
-      f.image_size = theirs->image_size;
-      theirs->descriptors.convertTo(f.descriptors, CV_32F);
+      const FrameFeatures f = forMatching(*theirs);
       verifyGlobal({&f, altitude_m, camera}, &loops);
     }
   }

@@ -32,6 +32,7 @@ SessionManagerOptions sessionManagerOptions(const SlamConfig& config, const std:
   o.hash_mode = config.loops.global.hash_mode;
   o.projection_seed = config.loops.global.projection_seed;
   o.num_features = config.odometry.features.num_features;
+  o.features = config.odometry.features.type;
   o.store_path = store_path;
   return o;
 }
@@ -113,8 +114,8 @@ SessionManager::SessionManager(const SessionManagerOptions& options, EventSink e
   }
   store_ = std::make_unique<SessionStore>(options_.store_path);
   if (options_.store_max_mb > 0.0) store_->setMaxBytes(static_cast<std::uint64_t>(options_.store_max_mb * 1048576.0));
-  store_->checkHashSettings(
-      {options_.hash_mode, options_.projection_seed, options_.num_features, hasher_.projections().toText()});
+  store_->checkHashSettings({options_.hash_mode, options_.projection_seed, options_.num_features,
+                             hasher_.projections().toText(), options_.features});
   restore();
 }
 

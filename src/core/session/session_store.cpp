@@ -453,6 +453,9 @@ bool SessionStore::hashSettings(HashSettings* out) const {
   out->seed = std::stoull(kv["projection_seed"]);
   out->num_features = std::stoi(kv["num_features"]);
   out->projections = kv["projections"];
+  out->features = FeatureType::kSift;
+  if (kv.count("features") && !parseFeatureType(kv["features"], &out->features))
+    throw StoreError("session store " + path_ + ": unknown feature kind '" + kv["features"] + "'");
   return true;
 }
 
@@ -465,6 +468,10 @@ void SessionStore::checkHashSettings(const HashSettings& mine) {
                        ", n = " + std::to_string(stored.num_features) + "; this configuration has " +
                        hashModeName(mine.mode) + ", " + std::to_string(mine.seed) +
                        ", n = " + std::to_string(mine.num_features) + ": hashes would not be comparable");
+    if (stored.features != mine.features)
+      throw StoreError("session store " + path_ + ": its keyframes hold " + featureTypeName(stored.features) +
+                       " features; this configuration extracts " + featureTypeName(mine.features) +
+                       " (odometry.features.type): their hashes and matches would not be comparable");
     return;
   }
   begin();
@@ -474,7 +481,8 @@ void SessionStore::checkHashSettings(const HashSettings& mine) {
          std::vector<std::pair<std::string, std::string>>{{"hash_mode", hashModeName(mine.mode)},
                                                           {"projection_seed", std::to_string(mine.seed)},
                                                           {"num_features", std::to_string(mine.num_features)},
-                                                          {"projections", mine.projections}}) {
+                                                          {"projections", mine.projections},
+                                                          {"features", featureTypeName(mine.features)}}) {
       st.bind(1, k).bind(2, v).run();
     }
     commit();
@@ -504,7 +512,10 @@ void SessionStore::addKeyframe(const StoredKeyframe& kf, const UncertainPose2* m
                      std::to_string(kf.hash.size()) + " values");
   cv::Mat desc;
   if (!kf.descriptors.empty()) kf.descriptors.convertTo(desc, CV_8U);
-  if (!desc.empty() && (desc.rows != static_cast<int>(kf.points.size()) || desc.cols != 128 || !desc.isContinuous()))
+  if (!desc.empty() &&
+      (desc.rows != static_cast<int>(kf.points.size()) ||
+       (desc.cols != descriptorBytes(FeatureType::kSift) && desc.cols != descriptorBytes(FeatureType::kOrb)) ||
+       !desc.isContinuous()))
     throw StoreError("session store " + path_ + ": keyframe " + std::to_string(kf.keyframe) +
                      ": descriptors do not match the points");
   begin();
@@ -715,9 +726,13 @@ void SessionStore::readKeyframe(sqlite3_stmt* q, std::int64_t session, KeyframeC
   if (features) {
     k->points = blobVector<cv::Point2f>(q, 7);
     const std::vector<std::uint8_t> d = blobVector<std::uint8_t>(q, 8);
-    if (n < 0 || static_cast<int>(k->points.size()) != n || d.size() != static_cast<std::size_t>(n) * 128)
+    // n x 128 bytes (SIFT) or n x 32 (ORB): the blob's size tells which (the store's meta row
+    // `features` says which kind all its sessions hold).
+    const std::size_t sift = descriptorBytes(FeatureType::kSift), orb = descriptorBytes(FeatureType::kOrb);
+    const std::size_t un = n < 0 ? 0 : static_cast<std::size_t>(n);
+    if (n < 0 || static_cast<int>(k->points.size()) != n || (d.size() != un * sift && d.size() != un * orb))
       throw corrupt();
-    k->descriptors = cv::Mat(n, 128, CV_8U);
+    k->descriptors = cv::Mat(n, static_cast<int>(n > 0 && d.size() == un * orb ? orb : sift), CV_8U);
     if (n > 0) std::memcpy(k->descriptors.data, d.data(), d.size());
   }
   if (columns != KeyframeColumns::kFrame) {

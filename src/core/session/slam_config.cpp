@@ -76,6 +76,7 @@ void visitOdometry(V& v, O& o) {
     e("stretch_high_percentile", o.enhancement.stretch_high_percentile);
   });
   v.block("features", [&](V& f) {
+    f.enumeration("type", o.features.type, featureTypeName, parseFeatureType, "sift, orb");
     f("num_features", o.features.num_features);
     f("grid_rows", o.features.grid_rows);
     f("grid_cols", o.features.grid_cols);
@@ -86,9 +87,13 @@ void visitOdometry(V& v, O& o) {
     f("octave_layers", o.features.octave_layers);
     f("border_px", o.features.border_px);
     f("first_octave", o.features.first_octave);
+    f("orb_fast_threshold", o.features.orb_fast_threshold);
+    f("orb_levels", o.features.orb_levels);
+    f("orb_scale_factor", o.features.orb_scale_factor);
   });
   v.block("matching", [&](V& m) {
     m("ratio", o.matching.ratio);
+    m("binary_ratio", o.matching.binary_ratio);
     m("mutual", o.matching.mutual);
   });
   v.block("ransac", [&](V& a) {

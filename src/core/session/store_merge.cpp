@@ -40,7 +40,7 @@ class TemporaryStore {
 
 std::string settingsText(const HashSettings& h) {
   return std::string("hash_mode ") + hashModeName(h.mode) + ", projection_seed " + std::to_string(h.seed) +
-         ", n = " + std::to_string(h.num_features);
+         ", n = " + std::to_string(h.num_features) + ", " + featureTypeName(h.features) + " features";
 }
 
 }  // namespace
@@ -76,7 +76,7 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
     if (i == 0) {
       settings = h;
     } else if (h.mode != settings.mode || h.seed != settings.seed || h.num_features != settings.num_features ||
-               h.projections != settings.projections) {
+               h.projections != settings.projections || h.features != settings.features) {
       throw std::invalid_argument(path + ": its hashes were made with " + settingsText(h) + ", " + inputs[0].path +
                                   "'s with " + settingsText(settings) +
                                   (h.projections != settings.projections && h.mode == settings.mode &&
@@ -93,6 +93,7 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
   config.loops.global.hash_mode = settings.mode;
   config.loops.global.projection_seed = settings.seed;
   config.odometry.features.num_features = settings.num_features;
+  config.odometry.features.type = settings.features;
   report.inputs = static_cast<int>(inputs.size());
 
   // --- Copy into a temporary file beside OUT ----------------------------------------------------

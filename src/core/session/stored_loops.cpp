@@ -51,7 +51,7 @@ StoredLoopSearch searchStoredLoops(SessionManager* manager, const SlamConfig& co
         ++r.queries;
         if (candidates.empty()) continue;
         FrameFeatures now = manager->storedFeatures(session, kf.keyframe).features();
-        now.descriptors.convertTo(now.descriptors, CV_32F);  // as the extractor gives them
+        now.descriptors = extractorDescriptors(now.descriptors);  // as the extractor gives them
         const View view{&now, kf.altitude_m, &cameras[first_camera + i]};
         for (const HashCandidate& candidate : candidates) {
           ++r.candidates;
@@ -110,8 +110,8 @@ Status findStoredLink(const SessionManager& manager, const SlamConfig& config, L
     return {StatusCode::kDataLoss, std::string("add_link find: ") + e.what()};
   }
   FrameFeatures fa = a.features(), fb = b.features();
-  fa.descriptors.convertTo(fa.descriptors, CV_32F);  // as the extractor gives them
-  fb.descriptors.convertTo(fb.descriptors, CV_32F);
+  fa.descriptors = extractorDescriptors(fa.descriptors);  // as the extractor gives them
+  fb.descriptors = extractorDescriptors(fb.descriptors);
   const CameraIntrinsics& ca = manager.camera(l.session_a);
   const CameraIntrinsics& cb = manager.camera(l.session_b);
   const PairMotion m = estimatePairMotion({&fa, a.altitude_m, &ca}, {&fb, b.altitude_m, &cb}, config.odometry.matching,

@@ -1,7 +1,8 @@
 // SIFT features for odometry and loop detection (paper 000 §5): a fixed number n per image,
 // the strongest by response but spread over the image by bucketing, in a fixed order
 // (descending response), so that matching and the HALOC hashes (§7) behave the same on every
-// frame.
+// frame. ORB (binary) features are an option beside SIFT (issue 19, item 2): the same n, the
+// same bucketing and order; matched by Hamming distance and hashed through a fixed embedding.
 #pragma once
 
 #include <Eigen/Core>
@@ -16,14 +17,41 @@
 namespace uw_multislam {
 namespace core {
 
+/// The feature kind. kSift: OpenCV SIFT, 128 values per feature (CV_32F in memory, the values
+/// are whole numbers 0..255 and are stored as bytes). kOrb: OpenCV ORB, 256 bits per feature
+/// (32 bytes, CV_8U), matched by Hamming distance. A store and a loop detector hold one kind:
+/// the hashes and matches of the two kinds are not comparable.
+enum class FeatureType { kSift, kOrb };
+std::string featureTypeName(FeatureType t);
+bool parseFeatureType(const std::string& name, FeatureType* out);
+/// Bytes per feature of a kind's descriptor as stored and sent (128 SIFT, 32 ORB).
+int descriptorBytes(FeatureType t);
+/// The kind of a descriptor matrix (extractor's, stored or received): 32 columns of CV_8U are
+/// ORB, 128 columns (CV_32F or CV_8U) SIFT. Throws std::invalid_argument otherwise.
+FeatureType descriptorType(const cv::Mat& descriptors);
+/// Descriptors as the extractor gives them, from their stored bytes (n x descriptorBytes CV_8U):
+/// SIFT widened to CV_32F, ORB as they are (shared, not copied). An empty matrix gives an empty
+/// one (0 x 32 CV_8U stays ORB, anything else 0 x 128 CV_32F). The one place the stored form
+/// turns back into the matched form.
+cv::Mat extractorDescriptors(const cv::Mat& stored);
+
 struct FeatureOptions {
+  /// Which features: SIFT (default) or ORB (issue 19: the README's front-end table).
+  FeatureType type = FeatureType::kSift;
+  /// ORB only: FAST's threshold (OpenCV's default 20 finds too few corners on dull seabed: the
+  /// demo's dim second session lost tracking with 10).
+  int orb_fast_threshold = 5;
+  /// ORB only: pyramid levels and scale step (OpenCV's 8 and 1.2; 5 x 1.4 spans the same scales
+  /// in fewer levels and gave the lowest acfr drift of the README's sweep).
+  int orb_levels = 5;
+  double orb_scale_factor = 1.4;
   /// n: features kept per image.
   int num_features = 500;
   /// Bucketing grid: each of rows x cols cells keeps up to n / cells of its strongest features;
   /// places left by cells with too few features go to the strongest of the rest.
   int grid_rows = 4;
   int grid_cols = 4;
-  /// SIFT keeps this many times n of its strongest candidates (with descriptors) for bucketing
+  /// SIFT (or ORB) keeps this many times n of its strongest candidates (with descriptors) for bucketing
   /// to choose from: more spreads features better, each 0.5 costs about 4 ms at 320x240.
   double candidate_factor = 1.5;
   /// OpenCV SIFT's contrast threshold (lower finds more features on dull seabed).
@@ -51,14 +79,14 @@ struct FeatureOptions {
 /// frame's altitude (apply_altitude of Algorithm 1).
 struct FrameFeatures {
   std::vector<cv::KeyPoint> keypoints;  // descending response
-  cv::Mat descriptors;                  // keypoints.size() x 128, CV_32F
+  cv::Mat descriptors;                  // keypoints.size() x 128 CV_32F (SIFT) or x 32 CV_8U (ORB)
   cv::Size image_size;
 
   std::size_t size() const { return keypoints.size(); }
   bool empty() const { return keypoints.empty(); }
 };
 
-/// Extracts features from a grey 8-bit image. Reuses one SIFT detector; not thread-safe
+/// Extracts features from a grey 8-bit image. Reuses one SIFT (or ORB) detector; not thread-safe
 /// (one extractor per thread).
 class FeatureExtractor {
  public:
@@ -70,7 +98,7 @@ class FeatureExtractor {
   /// Indices of the kept candidates, strongest first.
   std::vector<int> bucket(const std::vector<cv::KeyPoint>& candidates, cv::Size size) const;
   FeatureOptions options_;
-  cv::Ptr<cv::SIFT> sift_;
+  cv::Ptr<cv::Feature2D> detector_;
 };
 
 /// apply_altitude (Algorithm 1): pixel (u, v) to metres on the seabed in the image axes of the

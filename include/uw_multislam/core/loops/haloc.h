@@ -42,7 +42,8 @@ class HalocProjections {
   std::uint64_t seed() const { return seed_; }
   const Eigen::MatrixXd& vectors() const { return u_; }  // 3 x n
 
-  /// H_t of (6)(7) for descriptors (rows, CV_32F or CV_8U, 128 columns). Rows beyond n are
+  /// H_t of (6)(7) for descriptors (rows, CV_32F or CV_8U, 128 columns; or ORB's 32 bytes,
+  /// embedded in 128 values: haloc.cpp's unitRows). Rows beyond n are
   /// ignored; missing rows count as zero.
   Eigen::VectorXf hash(const cv::Mat& descriptors) const;
 

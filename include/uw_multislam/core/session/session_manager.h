@@ -63,6 +63,8 @@ struct SessionManagerOptions {
   HashMode hash_mode = HashMode::kSortedDct;
   std::uint64_t projection_seed = 20231122;
   int num_features = 500;
+  /// The feature kind (odometry.features.type): the store records it and refuses another.
+  FeatureType features = FeatureType::kSift;
   /// The session store (SQLite); empty: sessions live in memory only.
   std::string store_path;
   /// A cap on the store file (MB; 0: none): writes past it fail as on a full disk, counted

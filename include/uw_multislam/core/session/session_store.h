@@ -108,6 +108,9 @@ struct HashSettings {
   std::uint64_t seed = 0;
   int num_features = 0;
   std::string projections;  // HalocProjections::toText
+  /// The feature kind of every keyframe (meta row `features`; a store written before it was
+  /// recorded holds SIFT).
+  FeatureType features = FeatureType::kSift;
 };
 
 /// Where a session of a merged store came from (merge_stores, issue 20, 4): one row per session
