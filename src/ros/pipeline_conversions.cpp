@@ -64,6 +64,13 @@ KeyframeData keyframeData(const core::Odometry& odometry, const core::Odometry::
     k.inliers = update.inliers;
     k.overlap = update.overlap;
     k.scale = update.scale;
+  } else if (k.quality == KeyframeQuality::kMatched) {
+    // An earlier frame promoted to keyframe (its successor could not be matched): its own match,
+    // from when it was tracked (it was reported as 0 matches and inliers before).
+    k.matches = info.match.matches;
+    k.inliers = info.match.inliers;
+    k.overlap = info.match.overlap;
+    k.scale = info.match.scale;
   }
   return k;
 }

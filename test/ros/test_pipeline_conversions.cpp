@@ -329,6 +329,32 @@ TEST_F(PipelineConversions, KeyframeDataFromARunningOdometry) {
   EXPECT_TRUE(core::approxEqual(second.odometry_pose, odometry.trajectory().absolutePose(1)));
 }
 
+TEST_F(PipelineConversions, APromotedKeyframeCarriesItsOwnMatchFromWhenItWasTracked) {
+  // Frame 1 is tracked (0.9 m on, over half the 2.1 m footprint still shared with keyframe 0);
+  // frame 2 (2.3 m on) shares nothing with keyframe 0, so frame 1 is promoted and frame 2 matched
+  // to it. The promoted keyframe's message reported 0 matches and inliers before.
+  core::Odometry odometry(camera_, core::OdometryOptions());
+  odometry.process({0, 0.0, 2.0, render(Pose2(4.0, 3.0, 0.0), 2.0)});
+  const core::OdometryUpdate tracked = odometry.process({1, 1.0, 2.0, render(Pose2(4.9, 3.0, 0.0), 2.0)});
+  ASSERT_EQ(tracked.status, core::FrameStatus::kTracked) << tracked.reason;
+  ASSERT_GT(tracked.inliers, 20);
+  const core::OdometryUpdate u = odometry.process({2, 2.0, 2.0, render(Pose2(6.3, 3.0, 0.0), 2.0)});
+  ASSERT_EQ(odometry.stats().promotions, 1) << core::statusName(u.status) << " " << u.reason;
+  ASSERT_EQ(odometry.newKeyframes().size(), 2u);
+  const rc::KeyframeData promoted = rc::keyframeData(odometry, odometry.newKeyframes()[0], u, 0);
+  EXPECT_EQ(promoted.frame_index, 1);
+  EXPECT_EQ(promoted.quality, rc::KeyframeQuality::kMatched);
+  EXPECT_EQ(promoted.matches, tracked.matches);
+  EXPECT_EQ(promoted.inliers, tracked.inliers);
+  EXPECT_DOUBLE_EQ(promoted.overlap, tracked.overlap);
+  EXPECT_DOUBLE_EQ(promoted.scale, tracked.scale);
+  const rc::KeyframeData current = rc::keyframeData(odometry, odometry.newKeyframes()[1], u, 0);
+  EXPECT_EQ(current.frame_index, 2);
+  EXPECT_EQ(current.inliers, u.inliers);
+  EXPECT_EQ(odometry.keyframes().at(2).match.inliers, u.inliers);  // the core keeps it too
+  EXPECT_EQ(odometry.keyframes().at(1).match.inliers, tracked.inliers);
+}
+
 TEST(PipelineConversionsLoop, RoundTripAndRefusals) {
   core::Loop l;
   l.kind = core::Loop::Kind::kGlobal;

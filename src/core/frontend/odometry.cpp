@@ -238,7 +238,8 @@ void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& moti
   last_kf_covariance_ = compose(UncertainPose2(trajectory_.absolutePoses().back(), last_kf_covariance_), motion).covariance;
   trajectory_.append(motion);
   new_keyframes_.push_back({static_cast<int>(keyframes_.size()), frame.features});
-  keyframes_.push_back({frame.index, frame.stamp_s, frame.altitude_m, fallback, fallback ? MotionSource::kFallback : source});
+  keyframes_.push_back({frame.index, frame.stamp_s, frame.altitude_m, fallback,
+                        fallback ? MotionSource::kFallback : source, fallback ? MatchSummary() : frame.match});
   last_kf_ = frame;
   last_kf_.pose = trajectory_.absolutePoses().back();
   last_kf_.motion = motion;
@@ -313,7 +314,7 @@ OdometryUpdate Odometry::process(const OdometryInput& in, PreparedFrame* prepare
     }
     if (options_.klt.enabled && !keyframes_.empty() && klt_.active(static_cast<int>(keyframes_.size()) - 1) &&
         trackBetweenKeyframes(grey, &cur, &up)) {
-      prev_ = cur;
+      finishFrame(&cur, up);
       prev_grey_ = grey;  // its features are extracted only if it is ever promoted
       return up;
     }
@@ -433,8 +434,15 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
     up.keyframe_id = static_cast<int>(keyframes_.size()) - 1;
   }
   up.pose = cur.pose;
-  prev_ = cur;
+  finishFrame(&cur, up);
   return up;
+}
+
+void Odometry::finishFrame(TrackedFrame* cur, const OdometryUpdate& up) {
+  cur->match = {up.matches, up.inliers, up.overlap, up.scale};
+  if (!keyframes_.empty() && keyframes_.back().frame_index == cur->index && !keyframes_.back().fallback)
+    keyframes_.back().match = cur->match;
+  prev_ = *cur;
 }
 
 }  // namespace core

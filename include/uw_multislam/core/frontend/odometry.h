@@ -147,12 +147,23 @@ struct OdometryUpdate {
 };
 
 /// What is kept about each keyframe (the features only for the last one).
+/// How a frame's motion from its keyframe was measured (its OdometryUpdate's numbers).
+struct MatchSummary {
+  int matches = 0;
+  int inliers = 0;
+  double overlap = 0.0;
+  double scale = 1.0;
+};
+
 struct KeyframeInfo {
   int frame_index = 0;
   double stamp_s = 0.0;
   double altitude_m = 0.0;
   bool fallback = false;  // its motion from the previous keyframe is a reused one
   MotionSource source = MotionSource::kVisual;  // of that motion (kFallback when fallback)
+  /// The frame's own match to the keyframe before it: of the frame that became the keyframe, or
+  /// of a promoted frame from when it was tracked (zeros for the first keyframe and fallbacks).
+  MatchSummary match{};
 };
 
 struct OdometryStats {
@@ -248,7 +259,11 @@ class Odometry {
     UncertainPose2 motion;  // from the keyframe it was matched to
     MotionSource source = MotionSource::kVisual;
     std::optional<NavRecord> nav;
+    MatchSummary match;  // its update's, once processed
   };
+  // The end of a frame's processing: its match summary kept (on its keyframe too, if it became
+  // one; a promotion later reports it) and the frame becomes the previous one.
+  void finishFrame(TrackedFrame* cur, const OdometryUpdate& up);
   // The frame carried by the nav's motion `m` from the last keyframe (vision failed or refused).
   void carryByNav(TrackedFrame* cur, const UncertainPose2& m, OdometryUpdate* up);
   PairMotion matchToKeyframe(const FrameFeatures& f, double altitude_m, const std::optional<NavRecord>& nav);
