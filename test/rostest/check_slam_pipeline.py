@@ -82,6 +82,7 @@ class SlamPipelineTest(unittest.TestCase):
         # The reference: offline_slam on the same folders, local loops from the odometry chain.
         with open(os.path.join(cls.tmp, "slam.yaml"), "w") as f:
             f.write("backend: {optimise: false}\n")
+            f.write("odometry: {features: {type: %s}}\n" % rospy.get_param("~features", "sift"))
         run = os.path.join(cls.tmp, "run")
         subprocess.run([tool("offline_slam"), "--session", os.path.join(out, "s0"), "--session",
                         os.path.join(out, "s1"), "--out", run, "--config", os.path.join(cls.tmp, "slam.yaml"),
@@ -211,7 +212,9 @@ class SlamPipelineTest(unittest.TestCase):
             per_session.setdefault(k.session, []).append(k.keyframe)
             n = len(k.u_px)
             self.assertGreater(n, 100)
-            self.assertEqual(len(k.descriptors), 128 * n)
+            width = 32 if rospy.get_param("~features", "sift") == "orb" else 128  # ORB's 256 bits, SIFT's 128 bytes
+            self.assertEqual(k.descriptor_size, width)
+            self.assertEqual(len(k.descriptors), width * n)
             self.assertEqual((k.width, k.height), (240, 180))
             self.assertAlmostEqual(k.fx, 220.0)
             self.assertGreater(k.altitude_m, 1.4)
