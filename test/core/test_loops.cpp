@@ -153,22 +153,30 @@ TEST(HashStore, SumAbsDiffMatchesScalar) {
 class LoopTest : public testing_util::SeabedFeaturesTest {};
 
 TEST_F(LoopTest, SamePlaceHashesCloseOtherPlacesFar) {
-  const HalocProjections p(500, 20231122);
+  // The default hash (sorted_dct). The paper's HALOC ranks a view shifted by 2 cm only just
+  // before an unrelated place here (22.8 against 23.9), after it at 1 and 3 cm, and after it at
+  // 2 cm on arm64 (25.9 against 24.0: OpenCV's NEON kernels move SIFT's last digits): it is no
+  // better than chance at ranking revisits (README "Loop detection"), so only its exactness is
+  // asserted for it (the same features, distance 0).
+  const ImageHasher h(HashMode::kSortedDct, 500, 20231122);
+  const HalocProjections haloc(500, 20231122);
   HashStore store;
-  const Eigen::VectorXf a = p.hash(features(Pose2(3, 3, 0.1), 2.0).descriptors);
-  const Eigen::VectorXf same = p.hash(features(Pose2(3, 3, 0.1), 2.0).descriptors);
-  EXPECT_FLOAT_EQ(store.distance(a, same), 0.0f);
+  const FrameFeatures fa = features(Pose2(3, 3, 0.1), 2.0);
+  const Eigen::VectorXf a = h.hash(fa.descriptors);
+  EXPECT_FLOAT_EQ(store.distance(a, h.hash(features(Pose2(3, 3, 0.1), 2.0).descriptors)), 0.0f);
+  EXPECT_FLOAT_EQ(store.distance(haloc.hash(fa.descriptors), haloc.hash(features(Pose2(3, 3, 0.1), 2.0).descriptors)),
+                  0.0f);
   const Pose2 elsewhere[] = {Pose2(8, 5, 1.0), Pose2(9, 2.5, -2.0), Pose2(6, 6, 0.5), Pose2(2.5, 6, 2.8)};
   float nearest_other = std::numeric_limits<float>::max();
   for (const Pose2& e : elsewhere) {
-    nearest_other = std::min(nearest_other, store.distance(a, p.hash(features(e, 2.0).descriptors)));
+    nearest_other = std::min(nearest_other, store.distance(a, h.hash(features(e, 2.0).descriptors)));
   }
-  // Shifted by 2 cm (3 px) and 4 cm: closer than any unrelated place. (A larger change of view
-  // reorders the features by response and the hash loses its advantage: HALOC's known limit,
-  // which is why best_k candidates are verified rather than the nearest one trusted.)
-  for (double dx : {0.02, 0.04}) {
-    const float near = store.distance(a, p.hash(features(Pose2(3 + dx, 3, 0.1), 2.0).descriptors));
-    EXPECT_LT(near, nearest_other) << "shift " << dx << " m";
+  // Shifted by 1 to 4 cm (1.5 to 6 px): closer than any unrelated place with a margin, at most
+  // 0.6 of the nearest one (x86-64: 0.62, 0.64, 0.53, 0.50 against 1.41, so at most 0.45; a hash
+  // blind to the content gives about 1).
+  for (double dx : {0.01, 0.02, 0.03, 0.04}) {
+    const float near = store.distance(a, h.hash(features(Pose2(3 + dx, 3, 0.1), 2.0).descriptors));
+    EXPECT_LT(near, 0.6f * nearest_other) << "shift " << dx << " m";
   }
 }
 
