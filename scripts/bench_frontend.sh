@@ -5,13 +5,13 @@
 # offline_slam --threads 2) against the same one-core run, wall ms/frame from offline_slam's
 # throughput line, and whether the outputs are byte-identical.
 #   rows: each odometry option (SIFT as today, SIFT without the x2 upsampling, KLT tracking between
-#   keyframes with either), then the references: OpenCV SIFT alone (default settings, as the naive
+#   keyframes with either, ORB with and without KLT), then the references: OpenCV SIFT alone (default settings, as the naive
 #   odometer runs it) and the naive odometer (baseline_odometry: SIFT + ratio test +
 #   estimateAffinePartial2D between consecutive frames);
 #   columns: whole-pipeline ms per frame (odometry of every frame + hashing + loop search and
 #   verification + back-end; image loading left out, for the references too) on the real 680x512
 #   frames of ../shared/data/acfr/test1..6 and on the generated 320x240 demo mission (2 sessions);
-#   the ratio to the naive odometer at 680x512; the share of frames that ran SIFT; the mean odometry
+#   the ratio to the naive odometer at 680x512; the share of frames that ran the extractor; the mean odometry
 #   end drift on acfr test1..6 (evaluate.py); loop precision and recall on the demo mission.
 # usage: scripts/bench_frontend.sh [OUT_DIR]   (needs a build: scripts/build.sh; about 5 min)
 set -euo pipefail
@@ -35,17 +35,21 @@ for seq in "$data"/test*; do acfr+=(--session "$seq"); done
 demo=(--session "$out/demo/s0" --session "$out/demo/s1")
 
 # The options: name and the slam.yaml overlay (missing keys keep the defaults).
-names=(sift sift_no_upsampling klt_sift klt_sift_no_upsampling)
+names=(sift sift_no_upsampling klt_sift klt_sift_no_upsampling orb klt_orb)
 declare -A yaml
 yaml[sift]=$'odometry:\n  klt:\n    enabled: false\n'
 yaml[sift_no_upsampling]=$'odometry:\n  features:\n    first_octave: 0\n  klt:\n    enabled: false\n'
 yaml[klt_sift]=$'odometry:\n  klt:\n    enabled: true\n'
 yaml[klt_sift_no_upsampling]=$'odometry:\n  features:\n    first_octave: 0\n  klt:\n    enabled: true\n'
+yaml[orb]=$'odometry:\n  features:\n    type: orb\n  klt:\n    enabled: false\n'
+yaml[klt_orb]=$'odometry:\n  features:\n    type: orb\n  klt:\n    enabled: true\n'
 declare -A label
 label[sift]="SIFT (x2 upsampling, as before)"
 label[sift_no_upsampling]="SIFT without upsampling (first_octave 0)"
 label[klt_sift]="KLT between keyframes + SIFT"
 label[klt_sift_no_upsampling]="KLT between keyframes + SIFT without upsampling"
+label[orb]="ORB (binary, Hamming matching)"
+label[klt_orb]="KLT between keyframes + ORB"
 
 stage_total() {  # stage_total TIMING STAGE... -> sum of total_ms
   awk -F, -v list="${*:2}" 'BEGIN {n = split(list, s, " "); for (i = 1; i <= n; ++i) want[s[i]] = 1}
@@ -57,7 +61,7 @@ per_frame() {  # per_frame RUN_DIR -> pipeline ms per frame
   local t="$1/timing.csv"
   printf "%.1f" "$(echo "$(stage_total "$t" $pipeline_stages) / $(stage_calls "$t" odometry_total)" | bc -l)"
 }
-sift_share() {  # share of frames that ran SIFT, %
+sift_share() {  # share of frames that ran the extractor (SIFT or ORB: stage features), %
   local t="$1/timing.csv"
   printf "%.0f" "$(echo "100 * $(stage_calls "$t" features) / $(stage_calls "$t" odometry_total)" | bc -l)"
 }
@@ -132,7 +136,7 @@ done
 cpu=$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)
 echo "### Front-end options: $(date -u '+%F %H:%M UTC'), $cpu, one core (taskset -c 0), load average $(cut -d' ' -f1 /proc/loadavg) at the end"
 echo
-echo "| option | 680×512 ms/frame (acfr, 48 frames) | / naive | 320×240 ms/frame (demo, $(stage_calls "$out/sift_320/timing.csv" odometry_total) frames) | frames with SIFT (680 / 320) | acfr mean drift % | demo loop precision | demo loop recall |"
+echo "| option | 680×512 ms/frame (acfr, 48 frames) | / naive | 320×240 ms/frame (demo, $(stage_calls "$out/sift_320/timing.csv" odometry_total) frames) | frames extracted (680 / 320) | acfr mean drift % | demo loop precision | demo loop recall |"
 echo "|---|---|---|---|---|---|---|---|"
 for n in "${names[@]}"; do echo "${row[$n]}"; done
 echo "| reference: OpenCV SIFT alone (default settings) | $(sift_ms "$out/naive_680") | $(printf "%.2f" "$(echo "$(sift_ms "$out/naive_680") / $naive680" | bc -l)")× | $(sift_ms "$out/naive_320") | 100 % / 100 % | | | |"
