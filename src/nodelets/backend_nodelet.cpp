@@ -755,19 +755,39 @@ bool BackendNodelet::featuresFromPeer(const std::string& vehicle, int remote_ses
   if (!client.isValid()) client = getNodeHandle().serviceClient<uw_multislam::KeyframeFeatures>(peer->second, true);
   ros::ServiceClient call = client;  // a copy: the call itself runs without the lock
   lock.unlock();
-  const bool answered = call.call(there);
+  // On a thread of its own, waited for at most ~fleet/peer_timeout_s: a link gone quiet must not
+  // stall our loop detector's worker behind this service (it owns copies of what it touches).
+  auto exchange = std::make_shared<uw_multislam::KeyframeFeatures>(there);
+  auto answered = std::make_shared<bool>(false);
+  std::string error;
+  const core::BoundedCalls::Outcome outcome = peer_calls_.call(
+      vehicle, [call, exchange, answered]() mutable { *answered = call.call(*exchange); },
+      options_.fleet_peer_timeout_s, &error);
   lock.lock();
   ++fleet_.features_requested;
-  if (!answered) {
+  if (outcome != core::BoundedCalls::Outcome::kDone || !*answered) {
     ++fleet_.feature_failures;
-    peer_clients_[vehicle].shutdown();  // made again at the next request
-    res.status = rc::toStatusMsg(
-        {core::StatusCode::kUnavailable, "vehicle " + vehicle + "'s " + peer->second + " did not answer"});
+    std::string why = "vehicle " + vehicle + "'s " + peer->second + " did not answer";
+    if (outcome == core::BoundedCalls::Outcome::kTimedOut || outcome == core::BoundedCalls::Outcome::kBusy) {
+      ++fleet_.feature_timeouts;
+      char limit[64];
+      std::snprintf(limit, sizeof limit, "%.1f s (~fleet/peer_timeout_s)", options_.fleet_peer_timeout_s);
+      why = outcome == core::BoundedCalls::Outcome::kTimedOut
+                ? why + " within " + limit
+                : "vehicle " + vehicle + "'s " + peer->second + " has not yet answered an earlier request (over " +
+                      limit + "): not asked again until it does";
+      peer_clients_[vehicle] = ros::ServiceClient();  // the hung call keeps its own; the next request makes one
+    } else {
+      if (outcome == core::BoundedCalls::Outcome::kThrew) why += ": " + error;
+      peer_clients_[vehicle].shutdown();  // made again at the next request
+    }
+    res.status = rc::toStatusMsg({core::StatusCode::kUnavailable, why});
     return true;
   }
-  if (there.response.status.code != uw_multislam::Status::OK) ++fleet_.feature_failures;
-  fleet_.feature_bytes_received += static_cast<long>(ros::serialization::serializationLength(there.response));
-  res = there.response;
+  const uw_multislam::KeyframeFeatures::Response& answer = exchange->response;
+  if (answer.status.code != uw_multislam::Status::OK) ++fleet_.feature_failures;
+  fleet_.feature_bytes_received += static_cast<long>(ros::serialization::serializationLength(answer));
+  res = answer;
   res.keyframe.session = local_session;  // in our ids
   res.keyframe.header.frame_id = options_.frames.session_frame_prefix + std::to_string(local_session);
   return true;
@@ -965,6 +985,7 @@ std::vector<ros_diagnostics::Counter> BackendNodelet::counters() const {
     c.push_back({"fleet_features_requested", d(fleet_.features_requested)});
     c.push_back({"fleet_feature_bytes_received", d(fleet_.feature_bytes_received)});
     c.push_back({"fleet_feature_failures", d(fleet_.feature_failures), true});
+    c.push_back({"fleet_feature_timeouts", d(fleet_.feature_timeouts), true});
   }
   for (ros_diagnostics::Counter& m : rc::managerCounters(*manager_)) c.push_back(std::move(m));
   return c;

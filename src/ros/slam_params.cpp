@@ -126,6 +126,8 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
       "empty (off) or 1 to 64 characters of A-Z a-z 0-9 _ -");
   o.fleet_hash_codes = param(
       pnh, "fleet/hash_codes", true, [](bool) { return true; }, "true or false");
+  o.fleet_peer_timeout_s = param(
+      pnh, "fleet/peer_timeout_s", 30.0, [](double t) { return t > 0.0 && t <= 3600.0; }, "in (0, 3600] seconds");
   if (pnh.hasParam("fleet/peers") && !pnh.getParam("fleet/peers", o.fleet_peers))
     throw std::invalid_argument(pnh.resolveName("fleet/peers") +
                                 ": a dictionary of vehicle name: keyframe_features service name");

@@ -60,6 +60,10 @@ struct BackendNodeletOptions {
   std::string fleet_vehicle;
   std::map<std::string, std::string> fleet_peers;
   bool fleet_hash_codes = true;  // ~fleet/hash_codes: hashes as 8-bit codes (same search, 1/4 the bytes)
+  /// ~fleet/peer_timeout_s: how long a request for another vehicle's keyframe features is waited
+  /// for (UNAVAILABLE after it, counted; the vehicle's next requests are refused at once until
+  /// the hung one returns).
+  double fleet_peer_timeout_s = 30.0;
 };
 
 /// Reads and validates the back-end nodelet's parameters (std::invalid_argument naming the key);

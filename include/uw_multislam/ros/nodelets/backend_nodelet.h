@@ -117,6 +117,7 @@
 #include "uw_multislam/SetMode.h"
 #include "uw_multislam/SplitSession.h"
 #include "uw_multislam/StartSession.h"
+#include "uw_multislam/core/common/bounded_call.h"
 #include "uw_multislam/core/session/live_mosaic.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/ros/diagnostics.h"
@@ -270,9 +271,11 @@ class BackendNodelet : public nodelet::Nodelet {
     long hashes_received = 0, hash_bytes_received = 0;  // theirs taken (foreign keyframes)
     long refused = 0, sessions_ended = 0;               // theirs refused (settings, ids), notices
     long features_requested = 0, feature_bytes_received = 0, feature_failures = 0;  // under peer_mutex_
-  } fleet_;                        // under state_mutex_ except the three features_* (peer_mutex_)
+    long feature_timeouts = 0;     // calls left at ~fleet/peer_timeout_s or refused behind one (peer_mutex_)
+  } fleet_;                        // under state_mutex_ except the features_* (peer_mutex_)
   mutable std::mutex peer_mutex_;  // guards peer_clients_ and fleet_.feature*
   std::map<std::string, ros::ServiceClient> peer_clients_;  // persistent, made again after a failure
+  core::BoundedCalls peer_calls_;  // each call to another vehicle waited for at most ~fleet/peer_timeout_s
   ros::Subscriber fleet_sub_;
   ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_, export_srv_, finish_srv_, link_srv_,
       optimise_srv_, detect_srv_, mode_srv_, history_srv_, unload_srv_, delete_srv_, features_srv_;

@@ -1,0 +1,65 @@
+#include "uw_multislam/core/common/bounded_call.h"
+
+#include <chrono>
+#include <exception>
+#include <stdexcept>
+#include <thread>
+
+namespace uw_multislam {
+namespace core {
+
+BoundedCalls::Outcome BoundedCalls::call(const std::string& key, std::function<void()> fn, double timeout_s,
+                                         std::string* error) {
+  if (!(timeout_s > 0.0)) throw std::invalid_argument("BoundedCalls: the timeout must be positive");
+  auto slot = std::make_shared<Slot>();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto it = last_.find(key);
+    if (it != last_.end()) {
+      std::lock_guard<std::mutex> slot_lock(it->second->mutex);
+      if (!it->second->done) return Outcome::kBusy;
+    }
+    last_[key] = slot;
+  }
+  std::thread([slot, fn = std::move(fn)] {
+    std::string what;
+    bool threw = false;
+    try {
+      fn();
+    } catch (const std::exception& e) {
+      threw = true;
+      what = e.what();
+    } catch (...) {
+      threw = true;
+      what = "unknown exception";
+    }
+    {
+      std::lock_guard<std::mutex> lock(slot->mutex);
+      slot->done = true;
+      slot->threw = threw;
+      slot->error = what;
+    }
+    slot->done_cv.notify_all();
+  }).detach();
+  std::unique_lock<std::mutex> lock(slot->mutex);
+  if (!slot->done_cv.wait_for(lock, std::chrono::duration<double>(timeout_s), [&] { return slot->done; }))
+    return Outcome::kTimedOut;
+  if (slot->threw) {
+    if (error) *error = slot->error;
+    return Outcome::kThrew;
+  }
+  return Outcome::kDone;
+}
+
+int BoundedCalls::running() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  int n = 0;
+  for (const auto& [key, slot] : last_) {
+    std::lock_guard<std::mutex> slot_lock(slot->mutex);
+    n += !slot->done;
+  }
+  return n;
+}
+
+}  // namespace core
+}  // namespace uw_multislam

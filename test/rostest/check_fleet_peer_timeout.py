@@ -1,0 +1,119 @@
+#!/usr/bin/env python3
+"""A peer that never answers (rostest fleet_peer_timeout.test): our back-end forwards a request
+for another vehicle's keyframe features to that vehicle's keyframe_features and waits for it at
+most ~fleet/peer_timeout_s (1 s here); while the hung call has not returned, the vehicle is not
+asked again (UNAVAILABLE at once); once it returns, the next request goes through. The calls are
+counted on /diagnostics (fleet_feature_timeouts)."""
+import threading
+import time
+import unittest
+
+import rospy
+import rostest
+from diagnostic_msgs.msg import DiagnosticArray
+from pipeline_fixture import await_condition, connected, diagnostic_values
+from uw_multislam.msg import KeyframeHash, Status
+from uw_multislam.srv import KeyframeFeatures, KeyframeFeaturesResponse, ListSessions
+
+TIMEOUT_S = 1.0  # ~fleet/peer_timeout_s in the launch file
+
+
+def foreign_hash():
+    """auv_c's first keyframe of its session 4, as its back-end would send it (our hash settings)."""
+    m = KeyframeHash()
+    m.header.stamp = rospy.Time(1000.0)
+    m.session, m.keyframe, m.frame_index = 4, 0, 0
+    m.hash_mode = KeyframeHash.SORTED_DCT
+    m.projection_seed = int(rospy.get_param("/auv_a/slam/loops/global/projection_seed", 20231122))
+    m.num_features = int(rospy.get_param("/auv_a/slam/odometry/features/num_features", 500))
+    m.values = [0.01 * (i % 7) for i in range(384)]
+    m.vehicle = "auv_c"
+    m.altitude_m = 2.0
+    m.width, m.height, m.fx, m.fy, m.cx, m.cy = 240, 180, 220.0, 220.0, 119.5, 89.5
+    return m
+
+
+class FleetPeerTimeoutTest(unittest.TestCase):
+    def setUp(self):
+        self.lock = threading.Lock()
+        self.backend = {}
+        self.release = threading.Event()
+        self.served = []  # requests auv_c's service got
+
+        def on_diag(msg):
+            for s in msg.status:
+                if s.name.lstrip("/").startswith("auv_a/") and s.name.endswith(": backend"):
+                    with self.lock:
+                        self.backend = diagnostic_values(s)
+
+        def serve(req):  # auv_c: holds each request until the test releases it
+            with self.lock:
+                self.served.append(req)
+            self.release.wait(120)
+            r = KeyframeFeaturesResponse()
+            r.status.code = Status.OK
+            r.keyframe.session, r.keyframe.keyframe = req.session, req.keyframe
+            r.keyframe.descriptor_size = 128
+            return r
+
+        self.sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)
+        self.srv = rospy.Service("/auv_c/keyframe_features", KeyframeFeatures, serve)
+
+    def tearDown(self):
+        self.release.set()
+        self.srv.shutdown()
+        self.sub.unregister()
+
+    def call(self, session):
+        start = time.time()
+        r = rospy.ServiceProxy("/auv_a/keyframe_features", KeyframeFeatures)(session=session, keyframe=0)
+        return r, time.time() - start
+
+    def test_a_hung_peer_is_left_at_the_deadline_and_not_asked_again_until_it_answers(self):
+        pub = rospy.Publisher("/auv_a/fleet/hashes_in", KeyframeHash, queue_size=10)
+        await_condition(self.lock, lambda: connected([pub]), 60, "the back-end's fleet/hashes_in")
+        rospy.wait_for_service("/auv_a/list_sessions", timeout=60)
+        rospy.wait_for_service("/auv_a/keyframe_features", timeout=60)
+        pub.publish(foreign_hash())
+        sessions = lambda: rospy.ServiceProxy("/auv_a/list_sessions", ListSessions)().sessions
+        deadline = time.time() + 30
+        while not [s for s in sessions() if s.vehicle == "auv_c"] and time.time() < deadline:
+            time.sleep(0.1)
+        ours = [s for s in sessions() if s.vehicle == "auv_c"]
+        self.assertEqual(len(ours), 1, "auv_c's session was not taken")
+        local = ours[0].session
+
+        # 1: auv_c holds the request: answered UNAVAILABLE at the deadline, not when auv_c answers.
+        r, took = self.call(local)
+        self.assertEqual(r.status.code, Status.UNAVAILABLE, r.status.message)
+        self.assertIn("within 1.0 s", r.status.message)
+        self.assertGreaterEqual(took, TIMEOUT_S)
+        self.assertLess(took, TIMEOUT_S + 4.0)
+        with self.lock:
+            self.assertEqual([(q.session, q.keyframe) for q in self.served], [(4, 0)])  # in auv_c's ids
+        # 2: while that call hangs, auv_c is not asked again: refused at once.
+        r, took = self.call(local)
+        self.assertEqual(r.status.code, Status.UNAVAILABLE, r.status.message)
+        self.assertIn("has not yet answered an earlier request", r.status.message)
+        self.assertLess(took, TIMEOUT_S)
+        with self.lock:
+            self.assertEqual(len(self.served), 1)
+        await_condition(self.lock, lambda: self.backend.get("fleet_feature_timeouts") == 2, 30,
+                        "fleet_feature_timeouts 2", lambda: " (diagnostics: %s)" % self.backend)
+        # 3: auv_c answers the held request; the next one goes through (in our ids).
+        self.release.set()
+        deadline = time.time() + 30
+        while time.time() < deadline:
+            r, took = self.call(local)
+            if r.status.code == Status.OK or "earlier request" not in r.status.message:
+                break
+            time.sleep(0.1)  # the held call's thread has not returned yet
+        self.assertEqual(r.status.code, Status.OK, r.status.message)
+        self.assertEqual((r.keyframe.session, r.keyframe.keyframe), (local, 0))
+        with self.lock:
+            self.assertEqual(len(self.served), 2)
+
+
+if __name__ == "__main__":
+    rospy.init_node("check_fleet_peer_timeout")
+    rostest.rosrun("uw_multislam", "check_fleet_peer_timeout", FleetPeerTimeoutTest)
