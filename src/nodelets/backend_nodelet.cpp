@@ -244,8 +244,8 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
   if (fleet_pub_ && k.hash.size() == core::HalocProjections::kHashSize) {  // its hash, motion, pose: no features
     const auto& o = manager_->options();
     const auto out = boost::make_shared<uw_multislam::KeyframeHash>(
-        rc::toFleetHashMsg(k, options_.fleet_vehicle, o.hash_mode, o.projection_seed, o.num_features, msg.header,
-                           options_.fleet_hash_codes));
+        rc::toFleetHashMsg(k, options_.fleet_vehicle, o.hash_mode, o.projection_seed, o.num_features, o.features,
+                           msg.header, options_.fleet_hash_codes));
     ++fleet_.hashes_sent;
     fleet_.hash_bytes_sent += static_cast<long>(ros::serialization::serializationLength(*out));
     fleet_pub_.publish(out);
@@ -269,13 +269,14 @@ void BackendNodelet::processFleetHash(const uw_multislam::KeyframeHash& msg) {
   core::Status st;
   if (!rc::fromFleetHashMsg(msg, &k, &settings, &why)) {
     st = {core::StatusCode::kInvalidArgument, why};
-  } else if (const auto& o = manager_->options(); settings.mode != o.hash_mode ||
-                                                  settings.projection_seed != o.projection_seed ||
-                                                  settings.num_features != o.num_features) {
+  } else if (const auto& o = manager_->options();
+             settings.mode != o.hash_mode || settings.projection_seed != o.projection_seed ||
+             settings.num_features != o.num_features || settings.features != o.features) {
     st = {core::StatusCode::kFailedPrecondition,
           "hash settings " + core::hashModeName(settings.mode) + " seed " + std::to_string(settings.projection_seed) +
-              " n " + std::to_string(settings.num_features) + " differ from ours (" + core::hashModeName(o.hash_mode) +
-              " seed " + std::to_string(o.projection_seed) + " n " + std::to_string(o.num_features) +
+              " n " + std::to_string(settings.num_features) + " " + core::featureTypeName(settings.features) +
+              " differ from ours (" + core::hashModeName(o.hash_mode) + " seed " + std::to_string(o.projection_seed) +
+              " n " + std::to_string(o.num_features) + " " + core::featureTypeName(o.features) +
               "): its hashes cannot be compared with ours"};
   } else {
     int local = -1;

@@ -291,6 +291,7 @@ void LoopDetectorNodelet::process(const uw_multislam::Keyframe& msg) {
     h.mode = config_.loops.global.hash_mode;
     h.projection_seed = config_.loops.global.projection_seed;
     h.num_features = config_.odometry.features.num_features;
+    h.features = config_.odometry.features.type;
     h.values = detector_->lastHash();  // the message's hash (or the detector's when it had none)
     hash_pub_.publish(boost::make_shared<uw_multislam::KeyframeHash>(rc::toKeyframeHashMsg(h, msg.header)));
     ++counts_.hashes;

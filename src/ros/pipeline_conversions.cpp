@@ -263,6 +263,7 @@ uw_multislam::KeyframeHash toKeyframeHashMsg(const KeyframeHashData& h, const st
                                                  : uw_multislam::KeyframeHash::SORTED_DCT;
   m.projection_seed = h.projection_seed;
   m.num_features = h.num_features;
+  m.features = core::featureTypeName(h.features);
   m.values.assign(h.values.data(), h.values.data() + h.values.size());
   return m;
 }
@@ -284,6 +285,9 @@ bool fromMsg(const uw_multislam::KeyframeHash& m, KeyframeHashData* out, std::st
     return fail(why, "keyframe hash: values (or codes) must have 384 entries (3 x 128)");
   }
   if (m.num_features < 1) return fail(why, "keyframe hash: num_features must be positive");
+  core::FeatureType features = core::FeatureType::kSift;  // an older sender's: SIFT was the only kind
+  if (!m.features.empty() && !core::parseFeatureType(m.features, &features))
+    return fail(why, "keyframe hash: unknown features '" + m.features.substr(0, 32) + "' (sift or orb)");
   if (m.session < 0 || m.session > core::kMaxSessionId || m.keyframe < 0)
     return fail(why, "keyframe hash: session id outside [0, " + std::to_string(core::kMaxSessionId) +
                          "] or negative keyframe id");
@@ -294,6 +298,7 @@ bool fromMsg(const uw_multislam::KeyframeHash& m, KeyframeHashData* out, std::st
   h.mode = m.hash_mode == uw_multislam::KeyframeHash::HALOC ? core::HashMode::kHaloc : core::HashMode::kSortedDct;
   h.projection_seed = m.projection_seed;
   h.num_features = m.num_features;
+  h.features = features;
   h.values.resize(static_cast<Eigen::Index>(m.values.size()));
   for (std::size_t i = 0; i < m.values.size(); ++i) {
     if (!std::isfinite(m.values[i])) return fail(why, "keyframe hash: non-finite value");
@@ -326,7 +331,7 @@ void copySharedFields(const From& f, To* t) {
 }  // namespace
 
 uw_multislam::KeyframeHash toFleetHashMsg(const KeyframeData& k, const std::string& vehicle, core::HashMode mode,
-                                          std::uint64_t projection_seed, int num_features,
+                                          std::uint64_t projection_seed, int num_features, core::FeatureType features,
                                           const std_msgs::Header& header, bool codes) {
   KeyframeData light = k;  // what crosses the link: no features, no image
   light.features = core::FrameFeatures();
@@ -339,6 +344,7 @@ uw_multislam::KeyframeHash toFleetHashMsg(const KeyframeData& k, const std::stri
   h.mode = mode;
   h.projection_seed = projection_seed;
   h.num_features = num_features;
+  h.features = features;
   h.values = k.hash;
   uw_multislam::KeyframeHash m = toKeyframeHashMsg(h, header);
   copySharedFields(km, &m);

@@ -215,7 +215,8 @@ TEST_F(PipelineConversions, AFleetHashCarriesTheKeyframeWithoutItsFeaturesAndIsC
   const core::ImageHasher hasher(core::HashMode::kSortedDct, 500, 77);
   k.hash = hasher.hash(k.features.descriptors);
   k.thumbnail = {1, 2, 3};
-  const uw_multislam::KeyframeHash m = rc::toFleetHashMsg(k, "auv_b", core::HashMode::kSortedDct, 77, 500, header());
+  const uw_multislam::KeyframeHash m =
+      rc::toFleetHashMsg(k, "auv_b", core::HashMode::kSortedDct, 77, 500, core::FeatureType::kSift, header());
   EXPECT_EQ(m.vehicle, "auv_b");
   EXPECT_FALSE(m.session_ended);
   EXPECT_EQ(m.values.size(), 384u);
@@ -267,7 +268,7 @@ TEST_F(PipelineConversions, AFleetHashCarriesTheKeyframeWithoutItsFeaturesAndIsC
   // As 8-bit codes (~fleet/hash_codes): a third of the bytes, and a hash the loop detector's
   // store cannot tell from the original.
   const uw_multislam::KeyframeHash c =
-      rc::toFleetHashMsg(k, "auv_b", core::HashMode::kSortedDct, 77, 500, header(), true);
+      rc::toFleetHashMsg(k, "auv_b", core::HashMode::kSortedDct, 77, 500, core::FeatureType::kSift, header(), true);
   EXPECT_TRUE(c.values.empty());
   EXPECT_EQ(c.codes.size(), 384u);
   EXPECT_FLOAT_EQ(c.code_range, core::hashCodeRange(core::HashMode::kSortedDct));
@@ -427,6 +428,21 @@ TEST(PipelineConversionsHash, RoundTripAndRefusals) {
   EXPECT_EQ(back.projection_seed, h.projection_seed);
   EXPECT_EQ(back.frame_index, 17);
   EXPECT_EQ(back.values, h.values);
+  EXPECT_EQ(m.features, "sift");
+  EXPECT_EQ(back.features, core::FeatureType::kSift);
+  // The descriptors' kind travels: ORB's hashes are not comparable with SIFT's.
+  h.features = core::FeatureType::kOrb;
+  ASSERT_TRUE(rc::fromMsg(rc::toKeyframeHashMsg(h, std_msgs::Header()), &back));
+  EXPECT_EQ(back.features, core::FeatureType::kOrb);
+  h.features = core::FeatureType::kSift;
+  auto older = m;  // a sender from before the field: SIFT
+  older.features.clear();
+  ASSERT_TRUE(rc::fromMsg(older, &back));
+  EXPECT_EQ(back.features, core::FeatureType::kSift);
+  older.features = "akaze";
+  std::string unknown;
+  EXPECT_FALSE(rc::fromMsg(older, &back, &unknown));
+  EXPECT_NE(unknown.find("unknown features 'akaze'"), std::string::npos) << unknown;
   h.mode = core::HashMode::kSortedDct;
   EXPECT_EQ(rc::toKeyframeHashMsg(h, std_msgs::Header()).hash_mode, uw_multislam::KeyframeHash::SORTED_DCT);
 

@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""A peer that never answers (rostest fleet_peer_timeout.test): our back-end forwards a request
+"""A peer that never answers (rostest fleet_peer_timeout.test), and one whose hashes were made from
+another kind of features (refused, counted in fleet_refused). Our back-end forwards a request
 for another vehicle's keyframe features to that vehicle's keyframe_features and waits for it at
 most ~fleet/peer_timeout_s (1 s here); while the hung call has not returned, the vehicle is not
 asked again (UNAVAILABLE at once); once it returns, the next request goes through. The calls are
@@ -18,16 +19,18 @@ from uw_multislam.srv import KeyframeFeatures, KeyframeFeaturesResponse, ListSes
 TIMEOUT_S = 1.0  # ~fleet/peer_timeout_s in the launch file
 
 
-def foreign_hash():
-    """auv_c's first keyframe of its session 4, as its back-end would send it (our hash settings)."""
+def foreign_hash(vehicle="auv_c", features="sift"):
+    """`vehicle`'s first keyframe of its session 4, as its back-end would send it (our hash settings
+    but `features`)."""
     m = KeyframeHash()
     m.header.stamp = rospy.Time(1000.0)
     m.session, m.keyframe, m.frame_index = 4, 0, 0
     m.hash_mode = KeyframeHash.SORTED_DCT
     m.projection_seed = int(rospy.get_param("/auv_a/slam/loops/global/projection_seed", 20231122))
     m.num_features = int(rospy.get_param("/auv_a/slam/odometry/features/num_features", 500))
+    m.features = features
     m.values = [0.01 * (i % 7) for i in range(384)]
-    m.vehicle = "auv_c"
+    m.vehicle = vehicle
     m.altitude_m = 2.0
     m.width, m.height, m.fx, m.fy, m.cx, m.cy = 240, 180, 220.0, 220.0, 119.5, 89.5
     return m
@@ -74,6 +77,10 @@ class FleetPeerTimeoutTest(unittest.TestCase):
         await_condition(self.lock, lambda: connected([pub]), 60, "the back-end's fleet/hashes_in")
         rospy.wait_for_service("/auv_a/list_sessions", timeout=60)
         rospy.wait_for_service("/auv_a/keyframe_features", timeout=60)
+        # A vehicle whose hashes were made from ORB features: not comparable with ours (SIFT), refused.
+        pub.publish(foreign_hash("auv_d", "orb"))
+        await_condition(self.lock, lambda: self.backend.get("fleet_refused") == 1, 30, "auv_d's hash refused",
+                        lambda: " (diagnostics: %s)" % self.backend)
         pub.publish(foreign_hash())
         sessions = lambda: rospy.ServiceProxy("/auv_a/list_sessions", ListSessions)().sessions
         deadline = time.time() + 30
@@ -81,6 +88,7 @@ class FleetPeerTimeoutTest(unittest.TestCase):
             time.sleep(0.1)
         ours = [s for s in sessions() if s.vehicle == "auv_c"]
         self.assertEqual(len(ours), 1, "auv_c's session was not taken")
+        self.assertEqual([s for s in sessions() if s.vehicle == "auv_d"], [])
         local = ours[0].session
 
         # 1: auv_c holds the request: answered UNAVAILABLE at the deadline, not when auv_c answers.

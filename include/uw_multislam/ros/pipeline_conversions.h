@@ -81,6 +81,7 @@ struct KeyframeHashData {
   core::HashMode mode = core::HashMode::kSortedDct;
   std::uint64_t projection_seed = 0;
   int num_features = 0;
+  core::FeatureType features = core::FeatureType::kSift;  // of the descriptors hashed
   Eigen::VectorXf values;
 };
 uw_multislam::KeyframeHash toKeyframeHashMsg(const KeyframeHashData& h, const std_msgs::Header& header);
@@ -91,7 +92,7 @@ bool fromMsg(const uw_multislam::KeyframeHash& m, KeyframeHashData* out, std::st
 /// with the hash settings it was made with; `codes`: the hash as the loop detector's 8-bit codes
 /// (384 bytes instead of 1536, the same search) instead of values.
 uw_multislam::KeyframeHash toFleetHashMsg(const KeyframeData& k, const std::string& vehicle, core::HashMode mode,
-                                          std::uint64_t projection_seed, int num_features,
+                                          std::uint64_t projection_seed, int num_features, core::FeatureType features,
                                           const std_msgs::Header& header, bool codes = false);
 /// The notice that `vehicle`'s session `session` has ended (session_ended, keyframe -1, no values).
 uw_multislam::KeyframeHash fleetSessionEndedMsg(const std::string& vehicle, int session, const ros::Time& stamp);
