@@ -138,7 +138,10 @@ void BackendNodelet::onInit() {
   unload_srv_ = nh.advertiseService(topics::kUnloadSessionService, &BackendNodelet::onUnload, this);
   delete_srv_ = nh.advertiseService(topics::kDeleteSessionService, &BackendNodelet::onDelete, this);
   export_srv_ = nh.advertiseService(topics::kExportService, &BackendNodelet::onExport, this);
-  features_srv_ = nh.advertiseService(topics::kKeyframeFeaturesService, &BackendNodelet::onKeyframeFeatures, this);
+  // On the multi-threaded queue: a request forwarded to another vehicle waits up to
+  // ~fleet/peer_timeout_s, and the keyframes, loops and the other services must not wait with it.
+  features_srv_ =
+      getMTNodeHandle().advertiseService(topics::kKeyframeFeaturesService, &BackendNodelet::onKeyframeFeatures, this);
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
   updater_->setHardwareID("none");
   updater_->add("backend", this, &BackendNodelet::fillDiagnostics);
@@ -748,16 +751,29 @@ bool BackendNodelet::featuresFromPeer(const std::string& vehicle, int remote_ses
                                                     "'s, and ~fleet/peers names no keyframe_features service for it"});
     return true;
   }
+  const std::string who = "vehicle " + vehicle + "'s " + peer->second;
+  char limit[64];
+  std::snprintf(limit, sizeof limit, "%.1f s (~fleet/peer_timeout_s)", options_.fleet_peer_timeout_s);
+  const auto now = std::chrono::steady_clock::now();
+  std::unique_lock<std::mutex> lock(peer_mutex_);
+  if (const auto quiet = peer_quiet_until_.find(vehicle); quiet != peer_quiet_until_.end() && now < quiet->second) {
+    // It did not answer lately: not asked again for a while, so that a vehicle out of reach
+    // costs our loop detector one wait, not one per candidate.
+    ++fleet_.features_requested;
+    ++fleet_.feature_failures;
+    res.status = rc::toStatusMsg({core::StatusCode::kUnavailable, who + " did not answer its last request within " +
+                                                                      limit + ": not asked again for as long"});
+    return true;
+  }
   uw_multislam::KeyframeFeatures there;
   there.request = req;
   there.request.session = remote_session;
-  std::unique_lock<std::mutex> lock(peer_mutex_);
   ros::ServiceClient& client = peer_clients_[vehicle];
   if (!client.isValid()) client = getNodeHandle().serviceClient<uw_multislam::KeyframeFeatures>(peer->second, true);
   ros::ServiceClient call = client;  // a copy: the call itself runs without the lock
   lock.unlock();
-  // On a thread of its own, waited for at most ~fleet/peer_timeout_s: a link gone quiet must not
-  // stall our loop detector's worker behind this service (it owns copies of what it touches).
+  // On a thread of its own, waited for at most ~fleet/peer_timeout_s (core::BoundedCalls; it
+  // owns copies of what it touches): a link gone quiet holds this request that long, no longer.
   auto exchange = std::make_shared<uw_multislam::KeyframeFeatures>(there);
   auto answered = std::make_shared<bool>(false);
   std::string error;
@@ -768,17 +784,19 @@ bool BackendNodelet::featuresFromPeer(const std::string& vehicle, int remote_ses
   ++fleet_.features_requested;
   if (outcome != core::BoundedCalls::Outcome::kDone || !*answered) {
     ++fleet_.feature_failures;
-    std::string why = "vehicle " + vehicle + "'s " + peer->second + " did not answer";
-    if (outcome == core::BoundedCalls::Outcome::kTimedOut || outcome == core::BoundedCalls::Outcome::kBusy) {
+    std::string why = who + " did not answer";
+    if (outcome == core::BoundedCalls::Outcome::kTimedOut) {
       ++fleet_.feature_timeouts;
-      char limit[64];
-      std::snprintf(limit, sizeof limit, "%.1f s (~fleet/peer_timeout_s)", options_.fleet_peer_timeout_s);
-      why = outcome == core::BoundedCalls::Outcome::kTimedOut
-                ? why + " within " + limit
-                : "vehicle " + vehicle + "'s " + peer->second + " has not yet answered an earlier request (over " +
-                      limit + "): not asked again until it does";
-      peer_clients_[vehicle] = ros::ServiceClient();  // the hung call keeps its own; the next request makes one
+      why += std::string(" within ") + limit;
+      peer_quiet_until_[vehicle] =
+          std::chrono::steady_clock::now() + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                                 std::chrono::duration<double>(options_.fleet_peer_timeout_s));
+      // Our persistent link to it dropped: roscpp then fails the hung call (its thread and the
+      // key are freed; BoundedCalls refuses the key until then); the next request makes a new one.
+      call.shutdown();
+      peer_clients_[vehicle] = ros::ServiceClient();
     } else {
+      if (outcome == core::BoundedCalls::Outcome::kBusy) why = who + " has not returned an earlier request yet";
       if (outcome == core::BoundedCalls::Outcome::kThrew) why += ": " + error;
       peer_clients_[vehicle].shutdown();  // made again at the next request
     }

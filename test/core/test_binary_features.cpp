@@ -231,6 +231,14 @@ TEST(OrbStore, KeepsBinaryDescriptorsAndRefusesTheOtherKind) {
     kf.keyframe = 1;
     kf.descriptors = cv::Mat(20, 64, CV_8U, cv::Scalar(0));
     EXPECT_THROW(store.addKeyframe(kf, nullptr, nullptr), StoreError);
+    kf.descriptors = cv::Mat(20, 128, CV_8U, cv::Scalar(0));  // SIFT's width in a store of ORB keyframes
+    try {
+      store.addKeyframe(kf, nullptr, nullptr);
+      FAIL() << "a SIFT keyframe stored among ORB ones";
+    } catch (const StoreError& e) {
+      EXPECT_NE(std::string(e.what()).find("this store's kind has 32"), std::string::npos) << e.what();
+    }
+    EXPECT_EQ(store.keyframes(s, false).size(), 1u);  // nothing of the refused keyframe kept
     try {
       store.checkHashSettings({HashMode::kSortedDct, 7, 500, "x", FeatureType::kSift});
       FAIL() << "SIFT accepted by a store of ORB keyframes";
@@ -250,6 +258,7 @@ TEST(OrbStore, KeepsBinaryDescriptorsAndRefusesTheOtherKind) {
   HashSettings h;
   ASSERT_TRUE(store.hashSettings(&h));
   EXPECT_EQ(h.features, FeatureType::kSift);
+  EXPECT_THROW(store.checkHashSettings({HashMode::kSortedDct, 7, 500, "x", FeatureType::kOrb}), StoreError);
   EXPECT_NO_THROW(store.checkHashSettings({HashMode::kSortedDct, 7, 500, "x", FeatureType::kSift}));
   // SIFT bytes widen to the extractor's floats.
   const cv::Mat sift_bytes(2, 128, CV_8U, cv::Scalar(7));

@@ -50,6 +50,33 @@ TEST(BoundedCalls, AnsweredCallsReturnTheirResult) {
                std::invalid_argument);
 }
 
+TEST(BoundedCalls, CallsWithinTheirDeadlineRunSideBySideUnderOneKey) {
+  BoundedCalls calls;
+  auto gate = std::make_shared<std::promise<void>>();
+  std::shared_future<void> open = gate->get_future().share();
+  auto started = std::make_shared<std::promise<void>>();
+  std::future<void> slow_started = started->get_future();
+  std::future<BoundedCalls::Outcome> slow = std::async(std::launch::async, [&calls, open, started] {
+    return calls.call(
+        "auv_b",
+        [open, started] {
+          started->set_value();
+          open.wait();
+        },
+        30.0);
+  });
+  ASSERT_EQ(slow_started.wait_for(std::chrono::seconds(10)), std::future_status::ready);
+  // The slow call is still within its deadline: another request to the same vehicle is not refused.
+  auto result = std::make_shared<int>(0);
+  EXPECT_EQ(calls.call(
+                "auv_b", [result] { *result = 3; }, 5.0),
+            BoundedCalls::Outcome::kDone);
+  EXPECT_EQ(*result, 3);
+  gate->set_value();
+  EXPECT_EQ(slow.get(), BoundedCalls::Outcome::kDone);
+  EXPECT_EQ(calls.running(), 0);
+}
+
 TEST(BoundedCalls, AHungCallIsLeftAtItsDeadlineAndHoldsItsKeyUntilItReturns) {
   auto calls = std::make_unique<BoundedCalls>();
   auto gate = std::make_shared<std::promise<void>>();

@@ -37,8 +37,8 @@ struct KeyframeData {
   int frame_index = 0;
   double altitude_m = 0.0;
   core::CameraIntrinsics camera;
-  /// Keypoints (position and response only travel) and descriptors (CV_32F from the extractor;
-  /// fromMsg gives CV_32F too, the values of the 8-bit message).
+  /// Keypoints (position and response only travel) and descriptors as the extractor gives them
+  /// (SIFT: CV_32F, from the 8-bit message's values; ORB: 32 bytes CV_8U; core::extractorDescriptors).
   core::FrameFeatures features;
   /// The keyframe's hash (core::HalocProjections::kHashSize values), or empty when not computed
   /// (messages from older senders): receivers hash the features themselves then.

@@ -11,16 +11,18 @@ namespace core {
 BoundedCalls::Outcome BoundedCalls::call(const std::string& key, std::function<void()> fn, double timeout_s,
                                          std::string* error) {
   if (!(timeout_s > 0.0)) throw std::invalid_argument("BoundedCalls: the timeout must be positive");
-  auto slot = std::make_shared<Slot>();
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    auto it = last_.find(key);
-    if (it != last_.end()) {
+    auto it = hung_.find(key);
+    if (it != hung_.end()) {
       std::lock_guard<std::mutex> slot_lock(it->second->mutex);
       if (!it->second->done) return Outcome::kBusy;
     }
-    last_[key] = slot;
+    if (it != hung_.end()) hung_.erase(it);  // it has returned: the key is free again
   }
+  auto slot = std::make_shared<Slot>();
+  // The thread owns its copies (slot, fn): nothing of this object or of the caller. A thread that
+  // cannot be started throws here, before anything is held.
   std::thread([slot, fn = std::move(fn)] {
     std::string what;
     bool threw = false;
@@ -41,20 +43,23 @@ BoundedCalls::Outcome BoundedCalls::call(const std::string& key, std::function<v
     }
     slot->done_cv.notify_all();
   }).detach();
-  std::unique_lock<std::mutex> lock(slot->mutex);
-  if (!slot->done_cv.wait_for(lock, std::chrono::duration<double>(timeout_s), [&] { return slot->done; }))
-    return Outcome::kTimedOut;
-  if (slot->threw) {
-    if (error) *error = slot->error;
-    return Outcome::kThrew;
+  {
+    std::unique_lock<std::mutex> lock(slot->mutex);
+    if (slot->done_cv.wait_for(lock, std::chrono::duration<double>(timeout_s), [&] { return slot->done; })) {
+      if (!slot->threw) return Outcome::kDone;
+      if (error) *error = slot->error;
+      return Outcome::kThrew;
+    }
   }
-  return Outcome::kDone;
+  std::lock_guard<std::mutex> lock(mutex_);
+  hung_[key] = slot;  // the key is held until this call returns
+  return Outcome::kTimedOut;
 }
 
 int BoundedCalls::running() const {
   std::lock_guard<std::mutex> lock(mutex_);
   int n = 0;
-  for (const auto& [key, slot] : last_) {
+  for (const auto& [key, slot] : hung_) {
     std::lock_guard<std::mutex> slot_lock(slot->mutex);
     n += !slot->done;
   }

@@ -472,6 +472,7 @@ void SessionStore::checkHashSettings(const HashSettings& mine) {
       throw StoreError("session store " + path_ + ": its keyframes hold " + featureTypeName(stored.features) +
                        " features; this configuration extracts " + featureTypeName(mine.features) +
                        " (odometry.features.type): their hashes and matches would not be comparable");
+    descriptor_bytes_ = descriptorBytes(stored.features);
     return;
   }
   begin();
@@ -490,6 +491,7 @@ void SessionStore::checkHashSettings(const HashSettings& mine) {
     rollback();
     throw;
   }
+  descriptor_bytes_ = descriptorBytes(mine.features);
 }
 
 std::int64_t SessionStore::addSession(const std::string& name, const CameraIntrinsics& c, double start_stamp_s) {
@@ -518,6 +520,9 @@ void SessionStore::addKeyframe(const StoredKeyframe& kf, const UncertainPose2* m
        !desc.isContinuous()))
     throw StoreError("session store " + path_ + ": keyframe " + std::to_string(kf.keyframe) +
                      ": descriptors do not match the points");
+  if (!desc.empty() && descriptor_bytes_ > 0 && desc.cols != descriptor_bytes_)
+    throw StoreError("session store " + path_ + ": keyframe " + std::to_string(kf.keyframe) + " has descriptors of " +
+                     std::to_string(desc.cols) + " bytes; this store's kind has " + std::to_string(descriptor_bytes_));
   begin();
   try {
     Statement& k = cached(

@@ -3,8 +3,9 @@
 // keyframe_features, and behind it the loop detector's worker) is never stalled longer. roscpp
 // cannot cancel a service call, so a call that outlives its deadline keeps its thread until it
 // returns; while it does, further calls under the same key are refused at once (kBusy): hung
-// calls hold at most one thread per key. Hand-written: std::async's future blocks in its
-// destructor until the call returns, which is exactly the stall this avoids.
+// calls hold at most one thread per key. Calls within their deadline may run side by side under
+// one key. Hand-written: std::async's future blocks in its destructor until the call returns,
+// which is exactly the stall this avoids.
 #pragma once
 
 #include <condition_variable>
@@ -23,7 +24,7 @@ class BoundedCalls {
     kDone,      // fn returned within the deadline
     kThrew,     // fn threw within the deadline (what() in *error)
     kTimedOut,  // still running at the deadline: it goes on alone, its key stays busy until it returns
-    kBusy,      // an earlier call under this key is still running: fn was not started
+    kBusy,      // an earlier call under this key timed out and has not returned: fn was not started
   };
 
   /// Runs fn on a new thread and waits at most timeout_s (> 0) for it. fn must own everything it
@@ -31,7 +32,7 @@ class BoundedCalls {
   /// after this object is gone.
   Outcome call(const std::string& key, std::function<void()> fn, double timeout_s, std::string* error = nullptr);
 
-  /// Keys whose last call is still running (timed out and not yet returned).
+  /// Keys held by a call that timed out and has not returned yet.
   int running() const;
 
  private:
@@ -43,7 +44,7 @@ class BoundedCalls {
     bool threw = false;
   };
   mutable std::mutex mutex_;
-  std::map<std::string, std::shared_ptr<Slot>> last_;  // the last call of each key
+  std::map<std::string, std::shared_ptr<Slot>> hung_;  // a call of each key that timed out, until it returns
 };
 
 }  // namespace core

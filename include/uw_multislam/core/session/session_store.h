@@ -272,6 +272,7 @@ class SessionStore {
 
   std::string path_;
   sqlite3* db_ = nullptr;
+  int descriptor_bytes_ = 0;  // of the store's feature kind, once checkHashSettings knows it (0: any)
   std::vector<std::pair<const char*, std::unique_ptr<Statement>>> cache_;
 };
 

@@ -90,6 +90,7 @@
 #include <ros/ros.h>
 
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <deque>
 #include <map>
@@ -271,11 +272,13 @@ class BackendNodelet : public nodelet::Nodelet {
     long hashes_received = 0, hash_bytes_received = 0;  // theirs taken (foreign keyframes)
     long refused = 0, sessions_ended = 0;               // theirs refused (settings, ids), notices
     long features_requested = 0, feature_bytes_received = 0, feature_failures = 0;  // under peer_mutex_
-    long feature_timeouts = 0;     // calls left at ~fleet/peer_timeout_s or refused behind one (peer_mutex_)
+    long feature_timeouts = 0;     // calls left at ~fleet/peer_timeout_s (peer_mutex_)
   } fleet_;                        // under state_mutex_ except the features_* (peer_mutex_)
   mutable std::mutex peer_mutex_;  // guards peer_clients_ and fleet_.feature*
   std::map<std::string, ros::ServiceClient> peer_clients_;  // persistent, made again after a failure
   core::BoundedCalls peer_calls_;  // each call to another vehicle waited for at most ~fleet/peer_timeout_s
+  // A vehicle whose last request timed out is not asked again before this (peer_mutex_).
+  std::map<std::string, std::chrono::steady_clock::time_point> peer_quiet_until_;
   ros::Subscriber fleet_sub_;
   ros::ServiceServer join_srv_, split_srv_, list_srv_, start_srv_, reload_srv_, export_srv_, finish_srv_, link_srv_,
       optimise_srv_, detect_srv_, mode_srv_, history_srv_, unload_srv_, delete_srv_, features_srv_;
