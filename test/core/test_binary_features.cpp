@@ -239,6 +239,13 @@ TEST(OrbStore, KeepsBinaryDescriptorsAndRefusesTheOtherKind) {
       EXPECT_NE(std::string(e.what()).find("this store's kind has 32"), std::string::npos) << e.what();
     }
     EXPECT_EQ(store.keyframes(s, false).size(), 1u);  // nothing of the refused keyframe kept
+    // A featureless keyframe: read back as ORB's empty 0 x 32 (the store's kind), not SIFT's shape.
+    kf.points.clear();
+    kf.descriptors = cv::Mat(0, 32, CV_8U);
+    store.addKeyframe(kf, nullptr, nullptr);
+    const StoredKeyframe blank = store.keyframeFeatures(s, 1);
+    EXPECT_EQ(blank.descriptors.rows, 0);
+    EXPECT_EQ(blank.descriptors.cols, 32);
     try {
       store.checkHashSettings({HashMode::kSortedDct, 7, 500, "x", FeatureType::kSift});
       FAIL() << "SIFT accepted by a store of ORB keyframes";

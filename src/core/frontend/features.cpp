@@ -25,8 +25,10 @@ bool parseFeatureType(const std::string& name, FeatureType* out) {
 
 int descriptorBytes(FeatureType t) { return t == FeatureType::kOrb ? 32 : 128; }
 
+bool binaryDescriptors(const cv::Mat& d) { return d.cols == descriptorBytes(FeatureType::kOrb) && d.type() == CV_8U; }
+
 FeatureType descriptorType(const cv::Mat& d) {
-  if (d.cols == descriptorBytes(FeatureType::kOrb) && d.type() == CV_8U) return FeatureType::kOrb;
+  if (binaryDescriptors(d)) return FeatureType::kOrb;
   if (d.cols == descriptorBytes(FeatureType::kSift) && (d.type() == CV_32F || d.type() == CV_8U))
     return FeatureType::kSift;
   throw std::invalid_argument(
@@ -37,8 +39,7 @@ FeatureType descriptorType(const cv::Mat& d) {
 
 cv::Mat extractorDescriptors(const cv::Mat& stored) {
   // No feature (a featureless frame, features never read): empty, of the kind it says if any.
-  if (stored.empty() && !(stored.cols == descriptorBytes(FeatureType::kOrb) && stored.type() == CV_8U))
-    return cv::Mat(0, descriptorBytes(FeatureType::kSift), CV_32F);
+  if (stored.empty() && !binaryDescriptors(stored)) return cv::Mat(0, descriptorBytes(FeatureType::kSift), CV_32F);
   if (descriptorType(stored) == FeatureType::kOrb) return stored;
   if (stored.type() == CV_32F) return stored;
   cv::Mat f;

@@ -9,6 +9,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "uw_multislam/core/frontend/features.h"
+
 namespace uw_multislam {
 namespace core {
 
@@ -51,7 +53,7 @@ void hammingSquared256(const std::uint8_t* a, std::size_t a_step, int a_rows, co
 }  // namespace
 
 void squaredHammingTable(const cv::Mat& a, const cv::Mat& b, cv::Mat* out) {
-  if (a.type() != CV_8U || b.type() != CV_8U || a.cols != 32 || b.cols != 32)
+  if (!binaryDescriptors(a) || !binaryDescriptors(b))
     throw std::invalid_argument("matching: Hamming distances need 32 columns of CV_8U on both sides");
   out->create(a.rows, b.rows, CV_32F);
   hammingSquared256(a.data, a.step, a.rows, b.data, b.step, b.rows, out->ptr<float>(), out->step);
@@ -60,7 +62,7 @@ void squaredHammingTable(const cv::Mat& a, const cv::Mat& b, cv::Mat* out) {
 std::vector<FeatureMatch> matchDescriptors(const cv::Mat& a, const cv::Mat& b, const MatchOptions& options) {
   std::vector<FeatureMatch> matches;
   if (a.empty() || b.empty()) return matches;
-  const bool binary = a.type() == CV_8U && b.type() == CV_8U && a.cols == 32 && b.cols == 32;
+  const bool binary = binaryDescriptors(a) && binaryDescriptors(b);
   if (!binary && (a.type() != CV_32F || b.type() != CV_32F || a.cols != b.cols)) {
     throw std::invalid_argument(
         "matching: descriptors must be CV_32F with the same width, or 32 columns of CV_8U "

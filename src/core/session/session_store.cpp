@@ -737,7 +737,10 @@ void SessionStore::readKeyframe(sqlite3_stmt* q, std::int64_t session, KeyframeC
     const std::size_t un = n < 0 ? 0 : static_cast<std::size_t>(n);
     if (n < 0 || static_cast<int>(k->points.size()) != n || (d.size() != un * sift && d.size() != un * orb))
       throw corrupt();
-    k->descriptors = cv::Mat(n, static_cast<int>(n > 0 && d.size() == un * orb ? orb : sift), CV_8U);
+    // With no feature the blob says nothing: the store's kind, once known (0 x 32 stays ORB).
+    const std::size_t width = n > 0 ? (d.size() == un * orb ? orb : sift)
+                                    : (descriptor_bytes_ > 0 ? static_cast<std::size_t>(descriptor_bytes_) : sift);
+    k->descriptors = cv::Mat(n, static_cast<int>(width), CV_8U);
     if (n > 0) std::memcpy(k->descriptors.data, d.data(), d.size());
   }
   if (columns != KeyframeColumns::kFrame) {

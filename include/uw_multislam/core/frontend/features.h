@@ -26,6 +26,8 @@ std::string featureTypeName(FeatureType t);
 bool parseFeatureType(const std::string& name, FeatureType* out);
 /// Bytes per feature of a kind's descriptor as stored and sent (128 SIFT, 32 ORB).
 int descriptorBytes(FeatureType t);
+/// Whether a descriptor matrix has ORB's shape: 32 columns (256 bits) of CV_8U, any rows.
+bool binaryDescriptors(const cv::Mat& descriptors);
 /// The kind of a descriptor matrix (extractor's, stored or received): 32 columns of CV_8U are
 /// ORB, 128 columns (CV_32F or CV_8U) SIFT. Throws std::invalid_argument otherwise.
 FeatureType descriptorType(const cv::Mat& descriptors);
