@@ -247,8 +247,8 @@ void BackendNodelet::processKeyframe(const uw_multislam::Keyframe& msg) {
   if (fleet_pub_ && k.hash.size() == core::HalocProjections::kHashSize) {  // its hash, motion, pose: no features
     const auto& o = manager_->options();
     const auto out = boost::make_shared<uw_multislam::KeyframeHash>(
-        rc::toFleetHashMsg(k, options_.fleet_vehicle, o.hash_mode, o.projection_seed, o.num_features, o.features,
-                           msg.header, options_.fleet_hash_codes));
+        rc::toFleetHashMsg(std::move(k), options_.fleet_vehicle, o.hash_mode, o.projection_seed, o.num_features,
+                           o.features, msg.header, options_.fleet_hash_codes));
     ++fleet_.hashes_sent;
     fleet_.hash_bytes_sent += static_cast<long>(ros::serialization::serializationLength(*out));
     fleet_pub_.publish(out);

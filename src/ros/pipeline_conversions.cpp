@@ -3,7 +3,6 @@
 #include <opencv2/core.hpp>
 
 #include <cmath>
-#include <cstring>
 #include <sstream>
 
 #include "uw_multislam/core/session/session_manager.h"
@@ -187,11 +186,13 @@ bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* wh
     k.features.keypoints.push_back(kp);
   }
   {
-    // The message's bytes viewed as an n x descriptor_size matrix, copied (the message goes) and
-    // turned into the extractor's form (SIFT widened to CV_32F, ORB's bytes as they are).
-    cv::Mat bytes(static_cast<int>(n), static_cast<int>(m.descriptor_size), CV_8U);
-    if (n > 0) std::memcpy(bytes.data, m.descriptors.data(), m.descriptors.size());
-    k.features.descriptors = core::extractorDescriptors(bytes);
+    // The message's bytes viewed as an n x descriptor_size matrix and turned into the extractor's
+    // form: SIFT widened into new CV_32F memory; ORB's bytes copied only (the message goes).
+    const int rows = static_cast<int>(n), cols = static_cast<int>(m.descriptor_size);
+    const cv::Mat bytes =
+        n > 0 ? cv::Mat(rows, cols, CV_8U, const_cast<std::uint8_t*>(m.descriptors.data())) : cv::Mat(0, cols, CV_8U);
+    cv::Mat d = core::extractorDescriptors(bytes);
+    k.features.descriptors = n > 0 && d.data == bytes.data ? d.clone() : d;
   }
   k.hash = Eigen::Map<const Eigen::VectorXf>(m.hash.data(), static_cast<Eigen::Index>(m.hash.size()));
   if (m.thumbnail.size() > kMaxThumbnailBytes)
@@ -330,13 +331,12 @@ void copySharedFields(const From& f, To* t) {
 }
 }  // namespace
 
-uw_multislam::KeyframeHash toFleetHashMsg(const KeyframeData& k, const std::string& vehicle, core::HashMode mode,
+uw_multislam::KeyframeHash toFleetHashMsg(KeyframeData k, const std::string& vehicle, core::HashMode mode,
                                           std::uint64_t projection_seed, int num_features, core::FeatureType features,
                                           const std_msgs::Header& header, bool codes) {
-  KeyframeData light = k;  // what crosses the link: no features, no image
-  light.features = core::FrameFeatures();
-  light.thumbnail.clear();
-  const uw_multislam::Keyframe km = toKeyframeMsg(light, header);
+  k.features = core::FrameFeatures();  // what crosses the link: no features, no image
+  k.thumbnail.clear();
+  const uw_multislam::Keyframe km = toKeyframeMsg(k, header);
   KeyframeHashData h;
   h.session = k.session;
   h.keyframe = k.keyframe;

@@ -91,7 +91,9 @@ bool fromMsg(const uw_multislam::KeyframeHash& m, KeyframeHashData* out, std::st
 /// camera and altitude; no features, no image) as vehicle `vehicle` sends it on fleet/hashes_out,
 /// with the hash settings it was made with; `codes`: the hash as the loop detector's 8-bit codes
 /// (384 bytes instead of 1536, the same search) instead of values.
-uw_multislam::KeyframeHash toFleetHashMsg(const KeyframeData& k, const std::string& vehicle, core::HashMode mode,
+/// `k` by value: a caller done with it moves it in, and its features and image are not copied only
+/// to be dropped.
+uw_multislam::KeyframeHash toFleetHashMsg(KeyframeData k, const std::string& vehicle, core::HashMode mode,
                                           std::uint64_t projection_seed, int num_features, core::FeatureType features,
                                           const std_msgs::Header& header, bool codes = false);
 /// The notice that `vehicle`'s session `session` has ended (session_ended, keyframe -1, no values).

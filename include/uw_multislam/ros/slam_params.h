@@ -61,8 +61,7 @@ struct BackendNodeletOptions {
   std::map<std::string, std::string> fleet_peers;
   bool fleet_hash_codes = true;  // ~fleet/hash_codes: hashes as 8-bit codes (same search, 1/4 the bytes)
   /// ~fleet/peer_timeout_s: how long a request for another vehicle's keyframe features is waited
-  /// for (UNAVAILABLE after it, counted; the vehicle's next requests are refused at once until
-  /// the hung one returns).
+  /// for (UNAVAILABLE after it, counted); that vehicle is then not asked again for as long.
   double fleet_peer_timeout_s = 30.0;
 };
 

@@ -28,9 +28,9 @@ namespace {
 // Hand-written: cv::batchDistance(NORM_HAMMING) calls its popcount kernel once per pair through
 // a function pointer, about 10 ns a pair here: 2.70 ms per 500 x 500 match, the ORB pipeline's
 // largest stage; four 64-bit popcounts inline: 0.55 ms (offline_slam's timing.csv, stage match,
-// ORB on the demo, one core; the same matches). target_clones: the POPCNT instruction where the CPU has it (chosen at
-// load time), the portable bit count elsewhere; aarch64 has its own (NEON cnt). Checked against cv::batchDistance in
-// test_binary_features (OrbMatching.*).
+// ORB on the demo, one core; the same matches). target_clones: the POPCNT instruction where the
+// CPU has it (chosen at load time), the portable bit count elsewhere; aarch64 has its own (NEON
+// cnt). Checked against cv::batchDistance in test_binary_features (OrbMatching.*).
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 __attribute__((target_clones("popcnt", "default")))
 #endif

@@ -146,7 +146,6 @@ struct OdometryUpdate {
   double gate_distance2 = -1.0;  // the gate's squared Mahalanobis distance, -1 when not checked
 };
 
-/// What is kept about each keyframe (the features only for the last one).
 /// How a frame's motion from its keyframe was measured (its OdometryUpdate's numbers).
 struct MatchSummary {
   int matches = 0;
@@ -155,6 +154,7 @@ struct MatchSummary {
   double scale = 1.0;
 };
 
+/// What is kept about each keyframe (the features only for the last one).
 struct KeyframeInfo {
   int frame_index = 0;
   double stamp_s = 0.0;
