@@ -210,10 +210,11 @@ TEST(OrbStore, KeepsBinaryDescriptorsAndRefusesTheOtherKind) {
   testing_util::ScopedTempDir dir("uwms_orb_store");
   const std::string path = (dir.path() / "maps.db").string();
   std::mt19937 rng(9);
+  std::int64_t s = -1;
   {
     SessionStore store(path);
     store.checkHashSettings({HashMode::kSortedDct, 7, 500, "x", FeatureType::kOrb});
-    const std::int64_t s = store.addSession("orb", CameraIntrinsics{320, 240, 300, 300, 159.5, 119.5}, 0.0);
+    s = store.addSession("orb", CameraIntrinsics{320, 240, 300, 300, 159.5, 119.5}, 0.0);
     StoredKeyframe kf;
     kf.session = s;
     kf.image_size = cv::Size(320, 240);
@@ -255,6 +256,21 @@ TEST(OrbStore, KeepsBinaryDescriptorsAndRefusesTheOtherKind) {
     HashSettings h;
     ASSERT_TRUE(store.hashSettings(&h));
     EXPECT_EQ(h.features, FeatureType::kOrb);
+  }
+  {  // Opened again, before any configuration is checked: the kind comes from the meta row.
+    const StoredKeyframe blank = SessionStore(path, StoreAccess::kReadOnly).keyframeFeatures(s, 1);
+    EXPECT_EQ(blank.descriptors.rows, 0);
+    EXPECT_EQ(blank.descriptors.cols, 32);  // an export or merge reads an ORB store's blank as ORB's
+    SessionStore writer(path);
+    StoredKeyframe sift;
+    sift.session = s;
+    sift.keyframe = 2;
+    sift.image_size = cv::Size(320, 240);
+    sift.altitude_m = 2.0;
+    sift.points.assign(3, cv::Point2f(5, 5));
+    sift.descriptors = cv::Mat(3, 128, CV_8U, cv::Scalar(1));
+    sift.hash = Eigen::VectorXf::Constant(HalocProjections::kHashSize, 0.01f);
+    EXPECT_THROW(writer.addKeyframe(sift, nullptr, nullptr), StoreError);  // refused before any check
   }
   // A store written before the kind was recorded holds SIFT.
   sqlite3* db = nullptr;

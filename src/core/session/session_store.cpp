@@ -323,6 +323,13 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
         db_ = ro;
         sqlite3_extended_result_codes(db_, 1);
         sqlite3_busy_timeout(db_, 2000);
+        try {
+          learnKind();
+        } catch (...) {
+          sqlite3_close(db_);
+          db_ = nullptr;
+          throw;
+        }
         return;
       }
       sqlite3_close(ro);
@@ -378,6 +385,7 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
     exec(kHashIndex);
     exec(kProvenanceTable);
     exec(kHistoryTable);
+    learnKind();
   } catch (...) {
     sqlite3_close(db_);
     db_ = nullptr;
@@ -457,6 +465,18 @@ bool SessionStore::hashSettings(HashSettings* out) const {
   if (kv.count("features") && !parseFeatureType(kv["features"], &out->features))
     throw StoreError("session store " + path_ + ": unknown feature kind '" + kv["features"] + "'");
   return true;
+}
+
+void SessionStore::learnKind() {
+  // The kind its sessions hold, known from the open on (not only once a writer checks its
+  // configuration): a read-only reader (export, merge inputs) then reads a featureless keyframe
+  // of an ORB store as 0 x 32, and a writer refuses a keyframe of the other width at once.
+  HashSettings stored;
+  try {
+    if (hashSettings(&stored)) descriptor_bytes_ = descriptorBytes(stored.features);
+  } catch (const std::logic_error&) {  // std::stoi/stoull of a damaged meta row
+    throw StoreError("session store " + path_ + ": its meta table is damaged (hash settings unreadable)");
+  }
 }
 
 void SessionStore::checkHashSettings(const HashSettings& mine) {

@@ -254,6 +254,7 @@ class SessionStore {
     ~LockFile();
   };
   void lockForWriting();
+  void learnKind();  // descriptor_bytes_ from the meta row, if written
   LockFile lock_;  // the held lock on "<path>.lock"
   class Statement;
   void exec(const std::string& sql) const;
@@ -272,7 +273,7 @@ class SessionStore {
 
   std::string path_;
   sqlite3* db_ = nullptr;
-  int descriptor_bytes_ = 0;  // of the store's feature kind, once checkHashSettings knows it (0: any)
+  int descriptor_bytes_ = 0;  // of the store's feature kind, from its meta row once written (0: any)
   std::vector<std::pair<const char*, std::unique_ptr<Statement>>> cache_;
 };
 
