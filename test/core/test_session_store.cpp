@@ -405,6 +405,20 @@ void expectRefusedUnchanged(const std::string& path, const std::string& words) {
   EXPECT_EQ(readBytes(path), before) << "a failed open modified " << path;
 }
 
+TEST(Store, RefusesADamagedMetaRowAtTheOpen) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  SessionStore(path).checkHashSettings({HashMode::kSortedDct, 7, 500, "x"});
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  ASSERT_EQ(
+      sqlite3_exec(db, "UPDATE meta SET value = 'seven' WHERE key = 'projection_seed'", nullptr, nullptr, nullptr),
+      SQLITE_OK);
+  sqlite3_close(db);
+  expectRefusedUnchanged(path, "meta table is damaged");
+  EXPECT_THROW(SessionStore(path, StoreAccess::kReadOnly), StoreError);
+}
+
 TEST(Store, RefusesAFileThatIsNotADatabase) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "notes.txt").string();
