@@ -6,6 +6,7 @@
 
 #include "../common/scoped_temp_dir.h"
 #include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/session/slam_config.h"
 
 namespace uw_multislam {
 namespace core {
@@ -68,6 +69,18 @@ TEST_F(DatasetTest, ReadsTheSharedFormatWithSpaces) {
   EXPECT_EQ(d.frames[1].image, "0001.jpg");
 }
 
+TEST_F(DatasetTest, ATextFileThatIsADirectoryIsRefusedNotReadAsEmpty) {
+  try {
+    readTextFile(dir_.string());
+    FAIL() << "a directory read as a text file";
+  } catch (const DatasetError& e) {
+    EXPECT_NE(std::string(e.what()).find("a directory, not a file"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(loadSlamConfig(dir_.string()), std::exception);  // offline_slam --config DIR
+  write("empty.yaml", "");
+  EXPECT_EQ(readTextFile((dir_ / "empty.yaml").string()), "");  // an empty file is still read as one
+}
+
 TEST_F(DatasetTest, ClearErrors) {
   expectError("camera.yaml: cannot open");
   writeValid();
@@ -88,6 +101,15 @@ TEST_F(DatasetTest, ClearErrors) {
   EXPECT_EQ(loadDataset(dir_.string()).frames.size(), 2u);  // read as written (folder_to_bag)
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,10.0,2\n1,0001.jpg,3610.0,2\n");
   EXPECT_EQ(readFramesCsv((dir_ / "frames.csv").string(), StampOrder::kRequired).size(), 2u);  // an hour: one mission
+  // A frame without a time: refused for a SLAM run, wherever it sits (before: a nan stamp skipped the
+  // order checks and failed only when its keyframe was stored, leaving a session cut short).
+  for (const char* bad : {"nan", "inf", "-nan"}) {
+    write("frames.csv", std::string("index,image,stamp_s,altitude_m\n0,0000.jpg,10.0,2\n1,0001.jpg,") + bad + ",2\n");
+    expectError(std::string("frames.csv:3: stamp_s is not finite: '") + bad + "'");
+    write("frames.csv", std::string("index,image,stamp_s,altitude_m\n0,0000.jpg,") + bad + ",2\n1,0001.jpg,10.0,2\n");
+    expectError(std::string("frames.csv:2: stamp_s is not finite: '") + bad + "'");
+  }
+  EXPECT_EQ(loadDataset(dir_.string()).frames.size(), 2u);  // read as written (folder_to_bag refuses it itself)
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,2\n1,missing.jpg,0.5,2\n");
   expectError("image 'missing.jpg' of frame 1 does not exist");
   write("frames.csv", "index,image,stamp_s,altitude_m\n");

@@ -217,8 +217,11 @@ std::vector<FrameRecord> readFramesCsv(const std::string& path, StampOrder order
     // (two missions in one folder). Either is refused with the line and the fix (the live odometry
     // skips a late frame and starts a session at a jump; offline the folder says what it is).
     // folder_to_bag reads them as they are (it writes such bags on purpose, counted).
-    if (order == StampOrder::kRequired && !frames.empty() && std::isfinite(f.stamp_s) &&
-        std::isfinite(frames.back().stamp_s)) {
+    // A frame without a time (nan, inf) cannot be placed in the stream nor stored (a store's
+    // keyframes need their stamp): refused here, before anything runs or is written.
+    if (order == StampOrder::kRequired && !std::isfinite(f.stamp_s))
+      fail(path, n, "stamp_s is not finite: '" + c[2] + "' (every frame needs its time)");
+    if (order == StampOrder::kRequired && !frames.empty()) {
       const double step = f.stamp_s - frames.back().stamp_s;
       std::ostringstream os;
       if (!(step > 0)) {
@@ -303,10 +306,15 @@ void writeNavCsv(const std::string& path, const std::vector<NavRecord>& nav) {
 }
 
 std::string readTextFile(const std::string& path) {
+  // A directory opens as an ifstream on Linux and reads as nothing: it would pass for an empty
+  // file (a --config DIR then ran on the defaults without a word).
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) throw DatasetError(path + ": a directory, not a file");
   std::ifstream in(path);
   if (!in) throw DatasetError(path + ": cannot open");
   std::stringstream ss;
-  ss << in.rdbuf();
+  if (in.peek() != std::ifstream::traits_type::eof()) ss << in.rdbuf();
+  if (in.bad() || ss.bad()) throw DatasetError(path + ": read failed");
   return ss.str();
 }
 
