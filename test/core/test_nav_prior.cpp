@@ -170,6 +170,22 @@ TEST(NavPrior, MotionCovarianceIsTheInflatedGrowthOfSigmaWithFloors) {
   EXPECT_THROW(slamConfigFromYaml("nav: {on_tracking_loss: pray}\n"), std::invalid_argument);
 }
 
+TEST(NavPrior, AStepFasterThanTheVehicleIsAGlitchNotAMotion) {
+  NavPriorOptions o;  // max_speed_m_s 10, inflation 2, floor 5 mm
+  const NavRecord a{0.0, Pose2(0, 0, 0), 0.10, 0.01};
+  // 2 s apart, sigma growing by 0.05 m: sigma of the step 0.1 m, allowed 20 + 3 sqrt(2) 0.1 m.
+  const double allowed = 20.0 + 3.0 * std::sqrt(2.0) * 0.1;
+  EXPECT_EQ(navStepImplausible(a, NavRecord{2.0, Pose2(allowed * 0.6, allowed * 0.8 - 1e-6, 0), 0.15, 0.01}, o), "");
+  const std::string why =
+      navStepImplausible(a, NavRecord{2.0, Pose2(allowed * 0.6, allowed * 0.8 + 1e-3, 0), 0.15, 0.01}, o);
+  EXPECT_NE(why.find("nav step of 20.4 m in 2 s"), std::string::npos) << why;
+  EXPECT_EQ(navStepImplausible(NavRecord{2.0, Pose2(0, 0, 0), 0.1, 0.01}, NavRecord{0.0, Pose2(5, 0, 0), 0.1, 0.01}, o),
+            "");  // order of the two does not matter
+  EXPECT_NE(navStepImplausible(a, NavRecord{2.0, Pose2(1e300, 0, 0), 0.15, 0.01}, o), "");
+  o.max_speed_m_s = 0.0;
+  EXPECT_NE(o.validate().find("max_speed_m_s"), std::string::npos);
+}
+
 TEST(NavPrior, GateThresholdHoldsItsConfidenceUnderTheModel) {
   // Monte-Carlo: visual and nav drawn around one true motion with their covariances; the fraction
   // passing the gate must be the gate's confidence (an independent check of distance and quantile).

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 #include <stdexcept>
 
@@ -62,6 +63,8 @@ std::string NavPriorOptions::validate() const {
     os << "gate_confidence " << gate_confidence << " must be in (0.5, 1), or 0 for no gate";
   } else if (min_features_to_restart < 1) {
     os << "min_features_to_restart must be >= 1";
+  } else if (!(max_speed_m_s > 0.0 && std::isfinite(max_speed_m_s))) {
+    os << "max_speed_m_s " << max_speed_m_s << " must be positive";
   }
   return os.str();
 }
@@ -140,6 +143,20 @@ double navGateDistance2(const UncertainPose2& visual, const UncertainPose2& nav)
 
 double navGateThreshold(const NavPriorOptions& o) {
   return o.gate_confidence > 0 ? chiSquare3Quantile(o.gate_confidence) : std::numeric_limits<double>::infinity();
+}
+
+std::string navStepImplausible(const NavRecord& a, const NavRecord& b, const NavPriorOptions& o) {
+  const double distance = std::hypot(b.pose.x() - a.pose.x(), b.pose.y() - a.pose.y());
+  const double dt = std::abs(b.stamp_s - a.stamp_s);
+  // The distance of two independent axes of sigma s: sqrt(2) s; three of those above the speed.
+  const double sigma = std::sqrt(navMotion(a, b, o).covariance(0, 0));
+  const double allowed = o.max_speed_m_s * dt + 3.0 * std::sqrt(2.0) * sigma;
+  if (std::isfinite(distance) && distance <= allowed) return "";
+  char why[200];
+  std::snprintf(why, sizeof why,
+                "nav step of %.3g m in %.3g s (more than max_speed_m_s %.3g m/s and 3 sigma): not used", distance, dt,
+                o.max_speed_m_s);
+  return why;
 }
 
 UncertainPose2 fuseMotions(const UncertainPose2& visual, const UncertainPose2& nav) {

@@ -302,6 +302,16 @@ OdometryUpdate Odometry::process(const OdometryInput& in, PreparedFrame* prepare
   cur.stamp_s = in.stamp_s;
   cur.altitude_m = alt;
   if (options_.nav.enabled) cur.nav = in.nav;
+  if (cur.nav && last_kf_.nav) {
+    // A glitch of the nav (one bad row, a reset) must not overrule the camera through the gate
+    // or carry the frame: this frame is processed as one without nav.
+    const std::string bad = navStepImplausible(*last_kf_.nav, *cur.nav, options_.nav);
+    if (!bad.empty()) {
+      cur.nav.reset();
+      ++stats_.nav_implausible;
+      up.nav_note = bad;
+    }
+  }
   cv::Mat grey;
   try {
     if (prepared && prepared->done) {

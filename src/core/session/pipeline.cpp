@@ -93,11 +93,12 @@ void Pipeline::endPiece(double stamp_s) {
                 st.promotions, st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude,
                 st.altitude_reused, odometry.times().get("odometry_total").meanMs());
   say(line);
-  if (st.gate_checks > 0 || st.nav_frames > 0) {
+  if (st.gate_checks > 0 || st.nav_frames > 0 || st.nav_implausible > 0) {
     std::snprintf(line, sizeof line,
                   "session %d: nav prior: %d frames carried by the nav, %d visual motions checked, %d refused by the "
-                  "gate, %d fused, %ld RANSAC hypotheses gated",
-                  session_, st.nav_frames, st.gate_checks, st.gate_refusals, st.fused, st.hypotheses_gated);
+                  "gate, %d fused, %ld RANSAC hypotheses gated, %d nav steps too fast to be a motion (not used)",
+                  session_, st.nav_frames, st.gate_checks, st.gate_refusals, st.fused, st.hypotheses_gated,
+                  st.nav_implausible);
     say(line);
   }
   if (st.klt_tracked > 0 || st.klt_extracted > 0) {
@@ -135,6 +136,8 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input, Prepa
     say("stream " + stream_ + " frame " + std::to_string(frame.index) + " skipped: " + u.reason);
   if (verbose_ && u.status == FrameStatus::kFallback)
     say("stream " + stream_ + " frame " + std::to_string(frame.index) + ": odometry fallback (" + u.reason + ")");
+  if (verbose_ && !u.nav_note.empty())
+    say("stream " + stream_ + " frame " + std::to_string(frame.index) + ": " + u.nav_note);
   if (verbose_ && u.source == MotionSource::kNav)
     say("stream " + stream_ + " frame " + std::to_string(frame.index) + ": nav motion (" + u.reason + ")");
   if (session_ < 0) return step;  // no session open: tracking lost

@@ -212,6 +212,7 @@ void visitConfig(V& v, C& c) {
     n("fuse", o.fuse);
     n("gate_ransac", o.gate_ransac);
     n("min_features_to_restart", o.min_features_to_restart);
+    n("max_speed_m_s", o.max_speed_m_s);
   });
   v.block("loops", [&](V& l) { visitLoops(l, c.loops); });
   v.block("backend", [&](V& b) { visitBackend(b, c.backend); });

@@ -68,6 +68,10 @@ struct NavPriorOptions {
   /// the last keyframe drops below keyframes.min_overlap, or when it has at least this many
   /// features and the last keyframe was itself not matched (so that the next frame can match it).
   int min_features_to_restart = 100;
+  /// A nav step faster than this (plus three sigma of its own noise) from the last keyframe is a
+  /// glitch of the nav (a bad row, a reset), not a motion: that frame is treated as having no nav
+  /// (counted, OdometryStats::nav_implausible) instead of overruling the camera.
+  double max_speed_m_s = 10.0;
 
   std::string validate() const;
 };
@@ -107,6 +111,11 @@ UncertainPose2 navMotion(const NavRecord& a, const NavRecord& b, const NavPriorO
 /// the gate's threshold.
 double navGateDistance2(const UncertainPose2& visual, const UncertainPose2& nav);
 double navGateThreshold(const NavPriorOptions& options);
+
+/// Empty when the nav's step a -> b could be a motion of the vehicle: its distance at most
+/// max_speed_m_s times the time between them plus 3 sigma (navMotion's, on the distance);
+/// otherwise why not (for the log).
+std::string navStepImplausible(const NavRecord& a, const NavRecord& b, const NavPriorOptions& options);
 
 /// The information-weighted combination of two estimates of one motion, linearised at `visual`.
 UncertainPose2 fuseMotions(const UncertainPose2& visual, const UncertainPose2& nav);

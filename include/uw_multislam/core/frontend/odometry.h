@@ -128,6 +128,7 @@ struct OdometryUpdate {
   int index = 0;
   FrameStatus status = FrameStatus::kSkipped;
   std::string reason;    // why skipped / why a fallback
+  std::string nav_note;  // why this frame's nav was not used (nav.max_speed_m_s), else empty
   Pose2 pose;            // the frame's pose in the session frame (when not skipped)
   /// Its covariance: the motions since the session's first frame composed to first order (the
   /// keyframes' chain, then this frame's motion from the last keyframe), as Trajectory::absolute.
@@ -180,6 +181,7 @@ struct OdometryStats {
   int gate_refusals = 0;  // ... refused by the gate
   int fused = 0;          // ... combined with the nav (nav.fuse)
   long hypotheses_gated = 0;  // RANSAC hypotheses the nav prior refused (nav.gate_ransac)
+  int nav_implausible = 0;    // frames whose nav step was too fast to be a motion (nav.max_speed_m_s): no nav
   int klt_tracked = 0;    // frames whose motion came from KLT tracks (klt.enabled), no extraction
   int klt_extracted = 0;  // frames KLT tracked but that went the full way (keyframe due or degraded)
   int klt_degraded = 0;   // ... of them, because the tracks failed (too few, RANSAC, nav gate)
