@@ -53,17 +53,6 @@ int bayerCode(const std::string& e) {
   return -1;
 }
 
-/// 16 bits -> 8 bits by the smallest 2^b - 1 >= the frame's maximum (b >= 8).
-cv::Mat scaleTo8Bit(const cv::Mat& in16) {
-  double max_value = 0.0;
-  cv::minMaxLoc(in16.reshape(1), nullptr, &max_value);
-  double range = 255.0;
-  while (range < max_value && range < 65535.0) range = range * 2.0 + 1.0;
-  cv::Mat out;
-  in16.convertTo(out, CV_MAKETYPE(CV_8U, in16.channels()), 255.0 / range);
-  return out;
-}
-
 bool refuse(std::string* why, ImageRefusal* refusal, ImageRefusal kind, const std::string& reason) {
   if (refusal) *refusal = kind;
   return fail(why, reason);
@@ -121,7 +110,7 @@ bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::stri
     if (shared) {
       *out = view;
     } else {
-      const cv::Mat eight = view.depth() == CV_16U ? scaleTo8Bit(view) : view;
+      const cv::Mat eight = view.depth() == CV_16U ? core::scaleTo8Bit(view) : view;
       if (bayer >= 0) {
         cv::cvtColor(eight, *out, bayer);
       } else if (grey16) {
@@ -141,13 +130,6 @@ bool imageFromMsg(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::stri
   }
   if (out->empty()) return refuse(why, refusal, ImageRefusal::kEmpty, "empty image after conversion");
   return true;
-}
-
-bool isTruncatedJpeg(const std::vector<std::uint8_t>& b) {
-  if (b.size() < 3 || b[0] != 0xFF || b[1] != 0xD8 || b[2] != 0xFF) return false;  // not a JPEG
-  std::size_t end = b.size();
-  while (end > 2 && (b[end - 1] == 0x00 || std::isspace(b[end - 1]))) --end;
-  return !(end >= 4 && b[end - 2] == 0xFF && b[end - 1] == 0xD9);
 }
 
 namespace {

@@ -2,6 +2,7 @@
 // calls into core::Pipeline / core::SessionManager (the nodelets' engine); contract: --help, doc/run_outputs.md.
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -17,6 +18,7 @@
 
 #include "uw_multislam/core/common/ordered_prefetch.h"
 #include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/frontend/image_file.h"
 #include "uw_multislam/core/session/interrupted_run.h"
 #include "uw_multislam/core/session/pipeline.h"
 #include "uw_multislam/core/session/run_outputs.h"
@@ -345,12 +347,16 @@ int main(int argc, char** argv) {
         preparers.push_back(std::make_unique<core::FramePreparer>(pipeline.preparer()));
       struct Loaded {
         cv::Mat image;
+        std::string why;  // when the image could not be used
         core::PreparedFrame prepared;
       };
       core::OrderedPrefetch<Loaded> loaded(
           taken, threads > 1 ? threads : 0, 2 * static_cast<std::size_t>(threads), [&](std::size_t i, int worker) {
             Loaded l;
-            l.image = cv::imread(d.imagePath(d.frames[i]), cv::IMREAD_COLOR);
+            // As the live odometry reads its messages (a cut-off JPEG refused, 16 bits scaled to
+            // 8 by the frame's range); grey as BGR, as cv::IMREAD_COLOR gave it before.
+            l.image = core::readFrameImage(d.imagePath(d.frames[i]), &l.why);
+            if (!l.image.empty() && l.image.channels() == 1) cv::cvtColor(l.image, l.image, cv::COLOR_GRAY2BGR);
             if (!preparers.empty()) l.prepared = preparers[worker]->prepare(l.image);
             return l;
           });
@@ -358,9 +364,7 @@ int main(int argc, char** argv) {
       for (std::size_t i = 0; i < taken; ++i) {
         const core::FrameRecord& f = d.frames[i];
         Loaded l = loaded.next();
-        if (l.image.empty())
-          std::fprintf(stderr, "offline_slam: %s: cannot decode image of frame %d, skipped\n", d.imagePath(f).c_str(),
-                       f.index);
+        if (l.image.empty()) std::fprintf(stderr, "offline_slam: %s: frame %d skipped\n", l.why.c_str(), f.index);
         pipeline.processFrame({f.index, f.stamp_s, f.altitude_m, l.image}, preparers.empty() ? nullptr : &l.prepared);
       }
       pipeline.endStream(taken == 0 ? 0.0 : d.frames[taken - 1].stamp_s);

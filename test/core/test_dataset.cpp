@@ -3,9 +3,11 @@
 
 #include <filesystem>
 #include <fstream>
+#include <opencv2/imgcodecs.hpp>
 
 #include "../common/scoped_temp_dir.h"
 #include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/frontend/image_file.h"
 #include "uw_multislam/core/session/slam_config.h"
 
 namespace uw_multislam {
@@ -79,6 +81,58 @@ TEST_F(DatasetTest, ATextFileThatIsADirectoryIsRefusedNotReadAsEmpty) {
   EXPECT_THROW(loadSlamConfig(dir_.string()), std::exception);  // offline_slam --config DIR
   write("empty.yaml", "");
   EXPECT_EQ(readTextFile((dir_ / "empty.yaml").string()), "");  // an empty file is still read as one
+}
+
+TEST_F(DatasetTest, ImageFilesAreReadAsTheLiveOdometryReadsItsMessages) {
+  cv::Mat grey(48, 64, CV_8UC1);
+  cv::randu(grey, 0, 256);
+  std::vector<std::uint8_t> jpeg;
+  ASSERT_TRUE(cv::imencode(".jpg", grey, jpeg));
+  const auto file = [&](const std::string& name, const std::vector<std::uint8_t>& bytes) {
+    const std::string path = (dir_ / name).string();
+    std::ofstream(path, std::ios::binary)
+        .write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+    return path;
+  };
+  std::string why;
+  cv::Mat got = readFrameImage(file("ok.jpg", jpeg), &why);
+  ASSERT_EQ(got.type(), CV_8UC1) << why;
+  EXPECT_EQ(got.size(), grey.size());
+  // Cut off (a transfer that stopped): libjpeg would decode it with grey rows; refused, naming the file.
+  const std::vector<std::uint8_t> cut(jpeg.begin(), jpeg.begin() + static_cast<long>(jpeg.size() / 2));
+  const std::string cut_path = file("cut.jpg", cut);
+  ASSERT_FALSE(cv::imread(cut_path, cv::IMREAD_COLOR).empty());  // what cv::imread alone did
+  EXPECT_TRUE(readFrameImage(cut_path, &why).empty());
+  EXPECT_NE(why.find(cut_path + ": corrupt image (truncated JPEG"), std::string::npos) << why;
+  // Padding after the end-of-image marker is still a whole JPEG.
+  std::vector<std::uint8_t> padded = jpeg;
+  padded.insert(padded.end(), {0, 0, '\n'});
+  EXPECT_FALSE(readFrameImage(file("padded.jpg", padded), &why).empty()) << why;
+  // 12-bit data in a 16-bit PNG: scaled by its range (4095 -> 255), not by 65535 (-> 0..15).
+  cv::Mat twelve(48, 64, CV_16UC1);
+  cv::randu(twelve, 0, 4096);
+  twelve.at<std::uint16_t>(0, 0) = 4095;
+  std::vector<std::uint8_t> png;
+  ASSERT_TRUE(cv::imencode(".png", twelve, png));
+  got = readFrameImage(file("twelve.png", png), &why);
+  ASSERT_EQ(got.type(), CV_8UC1) << why;
+  double lo = 0, hi = 0;
+  cv::minMaxLoc(got, &lo, &hi);
+  EXPECT_EQ(hi, 255.0);
+  EXPECT_EQ(got.at<std::uint8_t>(0, 1),
+            cv::saturate_cast<std::uint8_t>(twelve.at<std::uint16_t>(0, 1) * 255.0 / 4095.0));
+  // BGRA: alpha dropped; not an image, an empty file, a missing one: refused with the reason.
+  cv::Mat bgra(8, 8, CV_8UC4, cv::Scalar(1, 2, 3, 4));
+  ASSERT_TRUE(cv::imencode(".png", bgra, png));
+  got = readFrameImage(file("bgra.png", png), &why);
+  ASSERT_EQ(got.type(), CV_8UC3) << why;
+  EXPECT_EQ(got.at<cv::Vec3b>(2, 2), cv::Vec3b(1, 2, 3));
+  EXPECT_TRUE(readFrameImage(file("text.jpg", {'n', 'o', 't'}), &why).empty());
+  EXPECT_NE(why.find("cannot decode image"), std::string::npos) << why;
+  EXPECT_TRUE(readFrameImage(file("empty.png", {}), &why).empty());
+  EXPECT_NE(why.find("empty file"), std::string::npos) << why;
+  EXPECT_TRUE(readFrameImage((dir_ / "missing.png").string(), &why).empty());
+  EXPECT_NE(why.find("cannot open"), std::string::npos) << why;
 }
 
 TEST_F(DatasetTest, ClearErrors) {

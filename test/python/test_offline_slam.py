@@ -707,10 +707,13 @@ def test_finish_after_ends_each_folder_session_like_a_folder_cut_there(survey, t
 def test_threads_give_the_same_outputs_as_one_thread(survey, tmp_path, klt, features):
     """--threads N (issue 19, item 3): workers read and prepare the next frames while the main
     thread runs the rest; every output file is the same as with one thread, byte for byte (timing
-    aside), with a corrupt image among the frames, with KLT on or off and with ORB features."""
+    aside), with a corrupt and a cut-off image among the frames (both skipped, counted), with KLT on
+    or off and with ORB features."""
     folder = tmp_path / "a"
     shutil.copytree(survey / "a", folder)
     (folder / "0004.jpg").write_bytes(b"not a jpeg")
+    whole = (folder / "0007.jpg").read_bytes()
+    (folder / "0007.jpg").write_bytes(whole[:len(whole) // 2])  # cut off: cv::imread alone decoded it half grey
     cfg = tmp_path / "c.yaml"
     cfg.write_text("odometry:\n  klt:\n    enabled: %s\n  features:\n    type: %s\n"
                    % ("true" if klt else "false", features))
@@ -720,7 +723,9 @@ def test_threads_give_the_same_outputs_as_one_thread(survey, tmp_path, klt, feat
         r = run("offline_slam", "--session", str(folder), "--session", str(survey / "b"), "--out", str(out),
                 "--config", str(cfg), "--threads", str(threads))
         assert r.returncode == 0, r.stderr
-        assert "cannot decode image" in r.stderr
+        assert "0004.jpg: cannot decode image" in r.stderr
+        assert "0007.jpg: corrupt image (truncated JPEG: no end-of-image marker): frame 7 skipped" in r.stderr
+        assert "2 skipped (2 image, 0 altitude)" in r.stdout
         assert "--threads %d)" % threads in r.stdout  # the throughput line
         outs[threads] = out
     files = sorted(p.name for p in outs[1].iterdir() if p.name != "timing.csv")

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/frontend/image_file.h"
 #include "uw_multislam/core/geometry/vehicle_frame.h"
 
 namespace uw_multislam {
@@ -80,9 +81,8 @@ bool imageFromCompressedMsg(const sensor_msgs::CompressedImage& msg, sensor_msgs
 /// read (the decoder then decides).
 bool compressedImageSize(const std::vector<std::uint8_t>& data, std::uint64_t* width, std::uint64_t* height);
 
-/// Whether bytes starting as a JPEG (FF D8 FF) lack the end-of-image marker FF D9 (trailing
-/// zero or white-space padding allowed): libjpeg decodes such a cut-off file with only a warning.
-bool isTruncatedJpeg(const std::vector<std::uint8_t>& bytes);
+/// Whether bytes starting as a JPEG lack the end-of-image marker (core/frontend/image_file.h).
+using core::isTruncatedJpeg;
 
 /// The camera of the images, through image_geometry::PinholeCameraModel (binning and ROI applied:
 /// the size, K and P of the image as it arrives). `rectified` (images from image_proc's

@@ -1,0 +1,30 @@
+#pragma once
+// Reading a dataset folder's image files the way the live odometry reads its messages
+// (ros/sensor_conversions): a cut-off JPEG is refused, 16-bit images are scaled to 8 bits by the
+// smallest power-of-two range holding the frame's maximum, alpha is dropped.
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+namespace uw_multislam {
+namespace core {
+
+/// Whether bytes starting as a JPEG (FF D8 FF) lack the end-of-image marker FF D9 (trailing
+/// zero or white-space padding allowed): libjpeg decodes such a cut-off file with only a warning
+/// (the missing rows come out grey).
+bool isTruncatedJpeg(const std::vector<std::uint8_t>& bytes);
+
+/// 16 bits -> 8 bits by the smallest 2^b - 1 >= the frame's maximum (b >= 8): a 12-bit sensor's
+/// data uses the full 8 bits, and the scale does not flicker from frame to frame.
+cv::Mat scaleTo8Bit(const cv::Mat& in16);
+
+/// An image file as the odometry takes it: 8 bits, grey or BGR (16 bits scaled as above, BGRA's
+/// alpha dropped). Empty, with `why` (naming the file), when it cannot be read or decoded, is a
+/// truncated JPEG, or has another depth or channel count.
+cv::Mat readFrameImage(const std::string& path, std::string* why);
+
+}  // namespace core
+}  // namespace uw_multislam
