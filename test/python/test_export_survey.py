@@ -266,6 +266,31 @@ def test_corrupt_store_is_left_byte_identical(store, tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["bad.db"]  # no -wal, -shm or .lock beside it
 
 
+def test_damaged_map_motions_are_refused_and_a_run_repairs_them(store, tmp_path):
+    """A NaN among a map's stored (optimised) motions: the export refuses (it would draw the map
+    unoptimised or NaN) and names the fix; offline_slam --db on the store rebuilds the map from its
+    sessions' odometry, links and loops, optimises it and saves it: then the export goes through."""
+    db, _ = store
+    bad = tmp_path / "bad.db"
+    bad.write_bytes(db.read_bytes())
+    con = sqlite3.connect(str(bad))
+    map_id, blob = con.execute("SELECT id, motions FROM maps ORDER BY id LIMIT 1").fetchone()
+    blob = bytearray(blob)
+    blob[8:16] = struct.pack("<d", float("nan"))
+    con.execute("UPDATE maps SET motions = ? WHERE id = ?", (bytes(blob), map_id))
+    con.commit()
+    con.close()
+    r = run("export_survey", "--db", bad, "--out", tmp_path / "out")
+    assert r.returncode == 1 and "stored motion 0 is damaged (not finite)" in r.stderr, r.stderr
+    assert "run offline_slam --db" in r.stderr and not (tmp_path / "out").exists()
+    r = run("offline_slam", "--db", bad, "--detect-loops", "--out", tmp_path / "run")
+    assert r.returncode == 0, r.stderr
+    assert "stored motion 0 is damaged" in r.stdout + r.stderr
+    assert all(math.isfinite(float(t["x_m"])) for t in rows(tmp_path / "run" / "trajectory.csv"))
+    r = run("export_survey", "--db", bad, "--out", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+
+
 def test_not_a_store_and_empty_file(tmp_path):
     (tmp_path / "text.db").write_text("hello")
     r = run("export_survey", "--db", tmp_path / "text.db", "--out", tmp_path / "out")

@@ -72,6 +72,19 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     }
     st.motions = sm.motions;
     st.pending = sm.pending;
+    // The optimised motions are derived data (odometry + links + loops): damaged ones (a bad
+    // page, a NaN written by an older build) are rebuilt rather than turning every pose NaN.
+    for (std::size_t k = 0; k < st.motions.size(); ++k) {
+      const std::string bad = checkCovariance(st.motions[k].covariance);
+      if (bad.empty() && st.motions[k].mean.isFinite()) continue;
+      out.notes.push_back("session store " + store.path() + ": map of session " + std::to_string(sm.chain.front()) +
+                          ": stored motion " + std::to_string(k) + " is damaged (" +
+                          (bad.empty() ? std::string("not finite") : bad) +
+                          "): the map's motions are rebuilt from its sessions' odometry and links and optimised again");
+      st.motions.clear();
+      st.pending = std::max(st.pending, 1);
+      break;
+    }
     if (!st.motions.empty() && static_cast<int>(st.motions.size()) != motions) {
       // The last session grew after the map was saved (a crash): extend with its odometry and
       // optimise again at the next flush.

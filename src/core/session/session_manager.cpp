@@ -138,6 +138,7 @@ int SessionManager::finishForeignSessions() {
 
 void SessionManager::restore() {
   const RestoredStore r = restoreStore(*store_, backend_.get(), nullptr, nullptr);
+  for (const std::string& note : r.notes) say(note);
   const std::vector<StoredSession> stored = store_->sessions();
   for (std::size_t b = 0; b < r.session_ids.size(); ++b) {
     const int id = static_cast<int>(b);  // store order: ids 0..k-1

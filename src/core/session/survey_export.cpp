@@ -53,6 +53,10 @@ SurveyExport loadSurveyExport(const std::string& store_path) {
   // are the ones the back-end had when it saved the maps.
   MultiSessionBackend backend(BackendOptions{});
   const RestoredStore restored = restoreStore(store, &backend, nullptr, nullptr);
+  // A map whose stored motions were damaged would be exported unoptimised: refused instead (a
+  // run on the store rebuilds and optimises it, and saves it again).
+  if (!restored.notes.empty())
+    throw ExportError(restored.notes.front() + "; run offline_slam --db on the store once to save it again");
   SurveyExport out;
   out.store_path = store_path;
   std::map<std::int64_t, StoredSession> stored_session;

@@ -25,6 +25,10 @@ struct RestoredStore {
   std::vector<std::vector<int>> frame_of_keyframe;  // per restored session
   std::vector<StoredLoop> loops;           // the stored loops, in back-end loop order
   int keyframes = 0;
+  /// What was repaired on the way, one line each (for the log): a map whose stored motions were
+  /// damaged (not finite, a covariance not positive definite) is rebuilt from its sessions'
+  /// odometry and links and optimised again at the next flush.
+  std::vector<std::string> notes;
 };
 
 /// Restores every stored session, loop, map and split pair into an empty back-end and, when
