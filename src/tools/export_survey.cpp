@@ -65,8 +65,9 @@ options:
                     compass heading of its x axis (degrees clockwise from north): GeoJSON tracks
   --resolution M    mosaic metres per pixel (default: the median keyframe's ground pixel size
                     of the images drawn)
-  --images DIR...   dataset folders whose frames (matched by stamp and frame index) are drawn at
-                    full resolution; without them the keyframe images kept in the store are
+  --images DIR...   dataset folders whose frames (matched by stamp and frame index; a folder whose
+                    camera.yaml gives another image size than the session's camera is left out)
+                    are drawn at full resolution; without them the keyframe images kept in the store are
                     drawn (their size: config store.image_max_side_px of the run that wrote it)
   --blend B         feather (default), multiband or none (cv::detail blenders; none: each
                     keyframe drawn over the earlier ones)

@@ -6,6 +6,8 @@ import hashlib
 import json
 import math
 import os
+import re
+import shutil
 import sqlite3
 import struct
 
@@ -514,6 +516,28 @@ def expected_patch(keyframe, camera, image, world, centre_px, half):
     ui, vi = np.rint(u).astype(int), np.rint(v).astype(int)
     assert ui.min() >= 0 and vi.min() >= 0 and ui.max() < image.shape[1] and vi.max() < image.shape[0]
     return gray(image[vi, ui])
+
+
+def test_a_folder_of_another_cameras_images_is_not_drawn(store, survey, tmp_path):
+    """--images matches frames by stamp and index, which another mission shares (simulated ones
+    do): a folder whose camera.yaml gives another image size is left out, said so, and the
+    session's own stored thumbnails are drawn instead of the other camera's frames."""
+    db, _ = store
+    foreign = tmp_path / "foreign"
+    shutil.copytree(survey / "a", foreign)
+    cam = (foreign / "camera.yaml").read_text()
+    width = int(re.search(r"image_width: *(\d+)", cam).group(1))
+    height = int(re.search(r"image_height: *(\d+)", cam).group(1))
+    cam = re.sub(r"image_width: *\d+", "image_width: %d" % (2 * width), cam)
+    (foreign / "camera.yaml").write_text(re.sub(r"image_height: *\d+", "image_height: %d" % (2 * height), cam))
+    r = run("export_survey", "--db", db, "--out", tmp_path / "out", "--images", foreign)
+    assert r.returncode == 0, r.stderr
+    matched = [line for line in r.stdout.splitlines() if line.startswith("images of session_")]
+    assert len(matched) == 2, r.stdout
+    for line in matched:
+        assert "no folder holds its keyframes (thumbnails drawn)" in line, line
+        assert "1 folder(s) of images other than its camera's %dx%d left out" % (width, height) in line, line
+    assert "0 missing" in r.stdout and ", 0 thumbnails" not in r.stdout, r.stdout
 
 
 @pytest.fixture(scope="module")

@@ -217,9 +217,20 @@ std::vector<std::string> MosaicImages::matchSessions(const SurveyExport& survey)
   for (const ExportTrack& s : survey.sessions) {
     // Most keyframes found; among equals (simulated missions share stamps and indexes), the
     // folder the session is named after (offline_slam names a session by its folder).
-    int best = -1, best_n = 0, ties = 0;
+    int best = -1, best_n = 0, ties = 0, other_size = 0;
     bool best_named = false;
+    const CameraIntrinsics* cam = nullptr;
+    for (const auto& [id, c] : survey.cameras)
+      if (id == s.sessions.front()) cam = &c;
     for (int d = 0; d < static_cast<int>(datasets_.size()); ++d) {
+      // Frames are matched by stamp and index, which another mission can share (simulated ones
+      // do, and any counter from 0): a folder whose images are not the session camera's size
+      // holds another camera's frames and is never drawn into this session's mosaic.
+      const CameraIntrinsics& dc = datasets_[d].camera;
+      if (cam && (dc.width != cam->width || dc.height != cam->height)) {
+        ++other_size;
+        continue;
+      }
       int n = 0;
       for (const ExportKeyframe& k : s.keyframes) n += frameOf(d, k) != nullptr;
       const bool named = same(datasets_[d].directory, s.name);
@@ -241,6 +252,9 @@ std::vector<std::string> MosaicImages::matchSessions(const SurveyExport& survey)
       if (ties > 0)
         line += " (ambiguous: " + std::to_string(ties) + " other folders hold them as well; the first taken)";
     }
+    if (other_size > 0 && cam)
+      line += "; " + std::to_string(other_size) + " folder(s) of images other than its camera's " +
+              std::to_string(cam->width) + "x" + std::to_string(cam->height) + " left out";
     lines.push_back(line);
   }
   return lines;
