@@ -194,8 +194,10 @@ def read_table(path, columns, required=True, optional=()):
     """Reads a CSV file with the given (name, type) columns into a list of dicts; the `optional`
     (name, type) columns too when the header has them (else their value is None).
 
-    A missing optional file gives None; a zero-byte file gives no rows. Raises EvalError for a
-    missing required file, a header lacking a column, or a value that does not parse."""
+    A missing optional file gives None; a header alone gives no rows. Raises EvalError for a
+    missing required file, a file without even a header (every tool writes one: a zero-byte file
+    is an output cut off before its first line, not an empty result), a header lacking a column,
+    or a value that does not parse."""
     if not os.path.isfile(path):
         if required:
             raise EvalError("%s: file not found" % path)
@@ -204,7 +206,7 @@ def read_table(path, columns, required=True, optional=()):
         lines = list(csv.reader(f))
     lines = [row for row in lines if any(cell.strip() for cell in row)]
     if not lines:
-        return []
+        raise EvalError("%s: empty file, not even a header (an output cut off before its first line?)" % path)
     header = [name.strip() for name in lines[0]]
     missing = [name for name, _ in columns if name not in header]
     if missing:

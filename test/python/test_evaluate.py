@@ -379,6 +379,18 @@ def test_header_only_loops_and_missing_trajectory(tmp_path):
     assert "map" not in data and list(data["session"]["0"]) == ["odometry"]
 
 
+def test_a_zero_byte_output_is_refused_not_read_as_empty(tmp_path, capsys):
+    """A header alone is an empty result (above); a file without even a header was cut off before
+    its first line (a full disk, a killed run): refused, naming it, instead of scored as if the
+    run had produced nothing (a zero-byte trajectory.csv dropped every slam metric silently)."""
+    s0, _, _, local0, _ = loop_scene(tmp_path)
+    for name in ("trajectory.csv", "loops.csv"):
+        run = write_run(tmp_path / ("run_" + name), {0: indexed(local0)}, loops=[])
+        open(os.path.join(run, name), "wb").close()  # zero bytes
+        assert run_main(["--run", run, "--report", tmp_path / "report", "--no-plots", "--session", s0]) == 1
+        assert "%s: empty file, not even a header" % name in capsys.readouterr().err
+
+
 # ---------------------------------------------------------------------------------------------
 # Outputs and the command line.
 
