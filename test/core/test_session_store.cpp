@@ -305,6 +305,55 @@ TEST(Store, DamagedMapMotionsAreRebuiltFromTheSessionsNotRestoredAsNaN) {
   std::printf("damaged map motions rebuilt: worst keyframe %.6f m from the saved map\n", worst);
 }
 
+TEST(Store, ADamagedCameraOrAMapNamingAMissingSessionIsNotedAndTheRestRestored) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  BackendOptions opt = missionOptions();
+  MultiSessionBackend original(opt);
+  {
+    SessionStore store(path);
+    Recorder r(&store, &original);
+    recordMission(&r);
+    ASSERT_EQ(original.mapOf(1), 0);
+  }
+  std::int64_t first = 0, second = 0;
+  {
+    SessionStore store(path);
+    first = store.sessions()[0].id;
+    second = store.sessions()[1].id;
+  }
+  const auto sql = [&](const std::string& statement) {
+    sqlite3* db = nullptr;
+    ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+    ASSERT_EQ(sqlite3_exec(db, statement.c_str(), nullptr, nullptr, nullptr), SQLITE_OK) << statement;
+    sqlite3_close(db);
+  };
+  // Session 0's camera row damaged: noted, its keyframes kept out of loop search, the rest as stored.
+  sql("UPDATE sessions SET cam_fx = 0 WHERE id = " + std::to_string(first));
+  {
+    SessionStore store(path);
+    MultiSessionBackend restored(opt);
+    LoopDetector detector(LoopOptions(), MatchOptions(), RansacOptions(), 20);
+    std::vector<std::unique_ptr<CameraIntrinsics>> cameras;
+    const RestoredStore rs = restoreStore(store, &restored, &detector, &cameras);
+    ASSERT_EQ(rs.notes.size(), 1u);
+    EXPECT_NE(rs.notes[0].find("stored camera is damaged (focal length"), std::string::npos) << rs.notes[0];
+    EXPECT_EQ(rs.keyframes, 13 + 12 + 8);
+    EXPECT_EQ(detector.size(), 12u + 8u);  // session 0's 13 keyframes not searched
+    EXPECT_EQ(restored.mapOf(1), 0);       // its maps as stored
+  }
+  // The map of sessions 0 and 1 names a session the store does not hold: noted, both unjoined.
+  sql("UPDATE sessions SET cam_fx = 300 WHERE id = " + std::to_string(first));
+  sql("UPDATE map_sessions SET session = 999 WHERE session = " + std::to_string(second));
+  SessionStore store(path);
+  MultiSessionBackend restored(opt);
+  const RestoredStore rs = restoreStore(store, &restored, nullptr, nullptr);
+  ASSERT_EQ(rs.notes.size(), 1u);
+  EXPECT_NE(rs.notes[0].find("names session 999, which the store does not hold"), std::string::npos) << rs.notes[0];
+  EXPECT_NE(restored.mapOf(1), restored.mapOf(0));
+  EXPECT_EQ(restored.numSessions(), 3);
+}
+
 TEST(Store, KeyframeFeaturesComeBackExactly) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();

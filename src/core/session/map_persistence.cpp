@@ -26,7 +26,13 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     out.session_ids.push_back(s.id);
     out.frame_of_keyframe.emplace_back();
     const CameraIntrinsics* cam = nullptr;
-    if (detector) {
+    // A damaged camera row (zero focal length, ...) would turn every feature into metres of inf:
+    // that session's keyframes are not searched for loops; its trajectory and maps are kept.
+    const std::string bad_camera = s.camera.validate();
+    if (!bad_camera.empty())
+      out.notes.push_back("session store " + store.path() + ": session " + std::to_string(s.id) + " '" + s.name +
+                          "': stored camera is damaged (" + bad_camera + "): its keyframes are not searched for loops");
+    if (detector && bad_camera.empty()) {
       cameras->push_back(std::make_unique<CameraIntrinsics>(s.camera));
       cam = cameras->back().get();
     }
@@ -36,7 +42,7 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
                          std::to_string(out.frame_of_keyframe.back().size()));
       out.frame_of_keyframe.back().push_back(k.frame_index);
       ++out.keyframes;
-      if (!detector) continue;
+      if (!cam) continue;
       detector->addStoredKeyframe(id, k.keyframe, k.frame_index, k.altitude_m, cam, k.features(), k.hash);
     }
   }
@@ -57,6 +63,11 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     for (std::int64_t s : sm.chain) {
       const auto it = session_of.find(s);
       if (it == session_of.end()) {
+        // A map naming a session the store does not hold (with keyframes): its sessions come back
+        // as maps of their own; their loops stay stored, so a join can be found again.
+        out.notes.push_back("session store " + store.path() + ": the map of session " +
+                            std::to_string(sm.chain.front()) + " names session " + std::to_string(s) +
+                            ", which the store does not hold with keyframes: its sessions are restored unjoined");
         ok = false;
         break;
       }
@@ -80,7 +91,8 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
       out.notes.push_back("session store " + store.path() + ": map of session " + std::to_string(sm.chain.front()) +
                           ": stored motion " + std::to_string(k) + " is damaged (" +
                           (bad.empty() ? std::string("not finite") : bad) +
-                          "): the map's motions are rebuilt from its sessions' odometry and links and optimised again");
+                          "): the map's motions are rebuilt from its sessions' odometry and links and optimised again "
+                          "(offline_slam --db on the store saves it repaired)");
       st.motions.clear();
       st.pending = std::max(st.pending, 1);
       break;

@@ -53,10 +53,9 @@ SurveyExport loadSurveyExport(const std::string& store_path) {
   // are the ones the back-end had when it saved the maps.
   MultiSessionBackend backend(BackendOptions{});
   const RestoredStore restored = restoreStore(store, &backend, nullptr, nullptr);
-  // A map whose stored motions were damaged would be exported unoptimised: refused instead (a
-  // run on the store rebuilds and optimises it, and saves it again).
-  if (!restored.notes.empty())
-    throw ExportError(restored.notes.front() + "; run offline_slam --db on the store once to save it again");
+  // A store repaired on the way (damaged map motions, a damaged camera, a map naming a missing
+  // session) would be exported as something it does not hold: refused, with what is wrong.
+  if (!restored.notes.empty()) throw ExportError(restored.notes.front() + " (export refused: the store is damaged)");
   SurveyExport out;
   out.store_path = store_path;
   std::map<std::int64_t, StoredSession> stored_session;

@@ -27,7 +27,8 @@ struct RestoredStore {
   int keyframes = 0;
   /// What was repaired on the way, one line each (for the log): a map whose stored motions were
   /// damaged (not finite, a covariance not positive definite) is rebuilt from its sessions'
-  /// odometry and links and optimised again at the next flush.
+  /// odometry and links and optimised again at the next flush; a session whose stored camera is
+  /// invalid is not searched for loops; a map naming a session not held leaves its sessions unjoined.
   std::vector<std::string> notes;
 };
 
