@@ -754,6 +754,10 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   const core::OdometryUpdate& u = step.update;
   if (u.status != core::FrameStatus::kSkipped && u.source == core::MotionSource::kNav) ++counts_.nav_motions;
   if (u.status != core::FrameStatus::kSkipped && u.source == core::MotionSource::kFused) ++counts_.fused_motions;
+  if (!u.nav_note.empty()) {
+    ++counts_.nav_implausible;
+    NODELET_WARN_THROTTLE(5, "odometry: frame %d: %s", u.index, u.nav_note.c_str());
+  }
   if (step.session_started && odometry_->sessions() > 1) {
     session_ = std::max(session_ + 1, next_free);
     ++counts_.sessions;
@@ -874,7 +878,7 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
        {"skipped_no_altitude", static_cast<double>(no_altitude_), true},
        {"altitude_stamps_jumped_back", static_cast<double>(altitude_clears_)},
        {"frames_processed", static_cast<double>(taken)},  // taken by the worker (finished or in progress)
-       {"frames_finished", processed},                     // done with (published or skipped): idle when equal
+       {"frames_finished", processed},                    // done with (published or skipped): idle when equal
        {"dropped_queue_full", static_cast<double>(dropped), true},
        {"paused", paused_ ? 1.0 : 0.0},
        {"frames_dropped_paused", static_cast<double>(c.dropped_paused)},
@@ -901,6 +905,7 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
        {"frames_with_nav", static_cast<double>(c.frames_with_nav)},
        {"nav_motions", static_cast<double>(c.nav_motions)},
        {"fused_motions", static_cast<double>(c.fused_motions)},
+       {"nav_implausible", static_cast<double>(c.nav_implausible), true},
        {"nav_tf_missing", static_cast<double>(c.nav_tf_missing), true},
        {"prepared_ahead", static_cast<double>(c.prepared_ahead)},
        {"sessions", static_cast<double>(c.sessions)},

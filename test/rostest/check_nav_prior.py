@@ -123,12 +123,14 @@ class NavPriorTest(unittest.TestCase):
             return
 
         rospy.loginfo("after a: %s", {k: after_a[k] for k in ("tracking_losses", "frames_with_nav", "nav_motions",
-                                                               "nav_received", "nav_refused", "nav_tf_missing")})
+                                                               "nav_received", "nav_refused", "nav_tf_missing",
+                                                               "nav_implausible")})
         self.assertEqual(after_a["tracking_losses"], 0, "no split in the blackout")
         self.assertEqual(len(sessions_a), 1, "session a stays one session: %s" % sessions_a)
         self.assertEqual(after_a["nav_received"], len(frames["a"]) if self.case == "nav" else 0)
         self.assertEqual(after_a["nav_refused"], 0)
         self.assertEqual(after_a["nav_tf_missing"], 0)
+        self.assertEqual(after_a["nav_implausible"], 0, "a sound nav track taken for a glitch")
         self.assertEqual(after_a["frames_with_nav"], len(frames["a"]))
         self.assertGreaterEqual(after_a["nav_motions"], 5, "the blind frames carried by the nav")
 

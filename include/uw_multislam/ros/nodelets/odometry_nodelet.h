@@ -235,6 +235,7 @@ class OdometryNodelet : public nodelet::Nodelet {
     long fixed_altitude = 0, skipped_by_odometry = 0;
     long dropped_paused = 0;  // frames the worker dropped while paused
     long frames_with_nav = 0, nav_motions = 0, fused_motions = 0;  // frames given a nav pose; motions not visual
+    long nav_implausible = 0;  // frames whose nav step was too fast to be a motion (nav.max_speed_m_s): not used
     long nav_tf_missing = 0;  // ~nav_source tf: frames whose transform was not there
     long prepared_ahead = 0;  // frames whose preparation (SIFT) ran ahead on another thread (~prepare_threads)
     double total_ms = 0.0, max_ms = 0.0, last_ms = 0.0;
