@@ -1,6 +1,7 @@
 // nav.csv (reader errors, round trip), the nav track's interpolation at image stamps (yaw on the
 // circle), the relative nav motion's covariance model, the chi-square gate and the fusion.
 #include <gtest/gtest.h>
+#include <tuple>
 
 #include <Eigen/Cholesky>
 
@@ -168,6 +169,21 @@ TEST(NavPrior, MotionCovarianceIsTheInflatedGrowthOfSigmaWithFloors) {
   EXPECT_FALSE(c.odometry.nav.gate_ransac);
   EXPECT_EQ(slamConfigToYaml(slamConfigFromYaml(slamConfigToYaml(c))), slamConfigToYaml(c));
   EXPECT_THROW(slamConfigFromYaml("nav: {on_tracking_loss: pray}\n"), std::invalid_argument);
+  // A block or key written twice (two configurations pasted together): yaml-cpp would read the
+  // first and drop the second without a word; refused with its path and line.
+  for (const auto& [text, path, line] : std::vector<std::tuple<std::string, std::string, int>>{
+           {"nav:\n  fuse: true\nbackend:\n  optimizer: iekf\nnav:\n  fuse: false\n", "nav", 5},
+           {"nav:\n  fuse: true\n  inflation: 3\n  fuse: false\n", "nav.fuse", 4}}) {
+    try {
+      slamConfigFromYaml(text);
+      ADD_FAILURE() << "accepted: " << text;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("line " + std::to_string(line) + ": key '" + path + "' appears twice"),
+                std::string::npos)
+          << e.what();
+    }
+  }
+  EXPECT_NO_THROW(slamConfigFromYaml("nav:\n  fuse: true\nbackend:\n  optimizer: iekf\n"));  // same keys, other maps
 }
 
 TEST(NavPrior, AStepFasterThanTheVehicleIsAGlitchNotAMotion) {
