@@ -305,7 +305,7 @@ TEST(Store, DamagedMapMotionsAreRebuiltFromTheSessionsNotRestoredAsNaN) {
   std::printf("damaged map motions rebuilt: worst keyframe %.6f m from the saved map\n", worst);
 }
 
-TEST(Store, ADamagedCameraOrAMapNamingAMissingSessionIsNotedAndTheRestRestored) {
+TEST(Store, AMapWithADamagedLinkOrNamingAMissingSessionIsNotedAndItsSessionsRestoredUnjoined) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
   BackendOptions opt = missionOptions();
@@ -316,42 +316,58 @@ TEST(Store, ADamagedCameraOrAMapNamingAMissingSessionIsNotedAndTheRestRestored) 
     recordMission(&r);
     ASSERT_EQ(original.mapOf(1), 0);
   }
-  std::int64_t first = 0, second = 0;
+  std::int64_t second = 0;
   {
     SessionStore store(path);
-    first = store.sessions()[0].id;
     second = store.sessions()[1].id;
   }
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
   const auto sql = [&](const std::string& statement) {
-    sqlite3* db = nullptr;
-    ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
     ASSERT_EQ(sqlite3_exec(db, statement.c_str(), nullptr, nullptr, nullptr), SQLITE_OK) << statement;
-    sqlite3_close(db);
   };
-  // Session 0's camera row damaged: noted, its keyframes kept out of loop search, the rest as stored.
-  sql("UPDATE sessions SET cam_fx = 0 WHERE id = " + std::to_string(first));
+  // A session started and never given a keyframe, with the single-session map the back-end saves
+  // for it: as always, left out without a word (not "damaged").
+  sql("INSERT INTO sessions(id, name, state, start_stamp, end_stamp, cam_width, cam_height, cam_fx, cam_fy, cam_cx, "
+      "cam_cy) VALUES (77, 'empty', 'finished', 0, 0, 0, 0, 0, 0, 0, 0)");
+  sql("INSERT INTO maps(id, pending, motions) VALUES (77, 0, NULL)");
+  sql("INSERT INTO map_sessions(map, position, session) VALUES (77, 0, 77)");
   {
     SessionStore store(path);
     MultiSessionBackend restored(opt);
-    LoopDetector detector(LoopOptions(), MatchOptions(), RansacOptions(), 20);
-    std::vector<std::unique_ptr<CameraIntrinsics>> cameras;
-    const RestoredStore rs = restoreStore(store, &restored, &detector, &cameras);
-    ASSERT_EQ(rs.notes.size(), 1u);
-    EXPECT_NE(rs.notes[0].find("stored camera is damaged (focal length"), std::string::npos) << rs.notes[0];
-    EXPECT_EQ(rs.keyframes, 13 + 12 + 8);
-    EXPECT_EQ(detector.size(), 12u + 8u);  // session 0's 13 keyframes not searched
-    EXPECT_EQ(restored.mapOf(1), 0);       // its maps as stored
+    EXPECT_EQ(restoreStore(store, &restored, nullptr, nullptr).notes, std::vector<std::string>());
+    EXPECT_EQ(restored.mapOf(1), 0);
   }
-  // The map of sessions 0 and 1 names a session the store does not hold: noted, both unjoined.
-  sql("UPDATE sessions SET cam_fx = 300 WHERE id = " + std::to_string(first));
+  // The link joining sessions 0 and 1 with a negative variance: noted, both restored unjoined.
+  std::vector<double> cov{-1, 0, 0, 0, 1, 0, 0, 0, 1};
+  sqlite3_stmt* st = nullptr;
+  ASSERT_EQ(sqlite3_prepare_v2(db, "UPDATE links SET cov = ?", -1, &st, nullptr), SQLITE_OK);
+  sqlite3_bind_blob(st, 1, cov.data(), static_cast<int>(cov.size() * sizeof(double)), SQLITE_TRANSIENT);
+  ASSERT_EQ(sqlite3_step(st), SQLITE_DONE);
+  sqlite3_finalize(st);
+  {
+    SessionStore store(path);
+    MultiSessionBackend restored(opt);
+    const RestoredStore rs = restoreStore(store, &restored, nullptr, nullptr);
+    ASSERT_EQ(rs.notes.size(), 1u);
+    EXPECT_NE(rs.notes[0].find("a link of the map of session"), std::string::npos) << rs.notes[0];
+    EXPECT_NE(restored.mapOf(1), restored.mapOf(0));
+    EXPECT_EQ(restored.numSessions(), 3);
+  }
+  // The map names a session the store does not hold at all.
+  cov[0] = 1;
+  ASSERT_EQ(sqlite3_prepare_v2(db, "UPDATE links SET cov = ?", -1, &st, nullptr), SQLITE_OK);
+  sqlite3_bind_blob(st, 1, cov.data(), static_cast<int>(cov.size() * sizeof(double)), SQLITE_TRANSIENT);
+  ASSERT_EQ(sqlite3_step(st), SQLITE_DONE);
+  sqlite3_finalize(st);
   sql("UPDATE map_sessions SET session = 999 WHERE session = " + std::to_string(second));
+  sqlite3_close(db);
   SessionStore store(path);
   MultiSessionBackend restored(opt);
   const RestoredStore rs = restoreStore(store, &restored, nullptr, nullptr);
   ASSERT_EQ(rs.notes.size(), 1u);
   EXPECT_NE(rs.notes[0].find("names session 999, which the store does not hold"), std::string::npos) << rs.notes[0];
   EXPECT_NE(restored.mapOf(1), restored.mapOf(0));
-  EXPECT_EQ(restored.numSessions(), 3);
 }
 
 TEST(Store, KeyframeFeaturesComeBackExactly) {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <map>
+#include <set>
 #include <stdexcept>
 #include <string>
 
@@ -14,7 +15,9 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     throw std::invalid_argument("restoreStore: the back-end must be empty");
   RestoredStore out;
   std::map<std::int64_t, int> session_of;  // store id -> back-end id
+  std::set<std::int64_t> rows;             // every stored session, with keyframes or not
   for (const StoredSession& s : store.sessions()) {
+    rows.insert(s.id);
     if (s.keyframes == 0) continue;  // created, then a crash before its first keyframe
     const std::vector<UncertainPose2> odo = store.odometry(s.id);
     const std::vector<StoredKeyframe> kfs = store.keyframes(s.id, detector != nullptr);
@@ -26,13 +29,7 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     out.session_ids.push_back(s.id);
     out.frame_of_keyframe.emplace_back();
     const CameraIntrinsics* cam = nullptr;
-    // A damaged camera row (zero focal length, ...) would turn every feature into metres of inf:
-    // that session's keyframes are not searched for loops; its trajectory and maps are kept.
-    const std::string bad_camera = s.camera.validate();
-    if (!bad_camera.empty())
-      out.notes.push_back("session store " + store.path() + ": session " + std::to_string(s.id) + " '" + s.name +
-                          "': stored camera is damaged (" + bad_camera + "): its keyframes are not searched for loops");
-    if (detector && bad_camera.empty()) {
+    if (detector) {
       cameras->push_back(std::make_unique<CameraIntrinsics>(s.camera));
       cam = cameras->back().get();
     }
@@ -42,7 +39,7 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
                          std::to_string(out.frame_of_keyframe.back().size()));
       out.frame_of_keyframe.back().push_back(k.frame_index);
       ++out.keyframes;
-      if (!cam) continue;
+      if (!detector) continue;
       detector->addStoredKeyframe(id, k.keyframe, k.frame_index, k.altitude_m, cam, k.features(), k.hash);
     }
   }
@@ -63,16 +60,31 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     for (std::int64_t s : sm.chain) {
       const auto it = session_of.find(s);
       if (it == session_of.end()) {
-        // A map naming a session the store does not hold (with keyframes): its sessions come back
-        // as maps of their own; their loops stay stored, so a join can be found again.
-        out.notes.push_back("session store " + store.path() + ": the map of session " +
-                            std::to_string(sm.chain.front()) + " names session " + std::to_string(s) +
-                            ", which the store does not hold with keyframes: its sessions are restored unjoined");
+        // A session without keyframes (started, never given one) is left out with its map, as
+        // always. A map naming a session the store does not hold at all is damaged: its sessions
+        // come back as maps of their own (their loops stay stored: a join can be found again).
+        if (!rows.count(s))
+          out.notes.push_back("session store " + store.path() + ": the map of session " +
+                              std::to_string(sm.chain.front()) + " names session " + std::to_string(s) +
+                              ", which the store does not hold: its sessions are restored unjoined");
         ok = false;
         break;
       }
       st.chain.push_back(it->second);
       motions += backend->session(it->second).keyframes - 1;
+    }
+    if (!ok) continue;
+    for (const StoredLink& l : sm.links) {
+      const std::string bad = checkCovariance(l.measured.covariance);
+      if (!bad.empty() || !l.measured.mean.isFinite()) {
+        // A link is a measurement (the loops it summarises), not derived data: nothing to rebuild
+        // it from here. Its sessions come back unjoined; their loops stay stored.
+        out.notes.push_back("session store " + store.path() + ": a link of the map of session " +
+                            std::to_string(sm.chain.front()) + " is damaged (" +
+                            (bad.empty() ? std::string("not finite") : bad) + "): its sessions are restored unjoined");
+        ok = false;
+        break;
+      }
     }
     if (!ok) continue;
     for (const StoredLink& l : sm.links) {

@@ -53,8 +53,8 @@ SurveyExport loadSurveyExport(const std::string& store_path) {
   // are the ones the back-end had when it saved the maps.
   MultiSessionBackend backend(BackendOptions{});
   const RestoredStore restored = restoreStore(store, &backend, nullptr, nullptr);
-  // A store repaired on the way (damaged map motions, a damaged camera, a map naming a missing
-  // session) would be exported as something it does not hold: refused, with what is wrong.
+  // A store repaired on the way (damaged map motions or links, a map naming a session it does not
+  // hold) would be exported as something it does not hold: refused, with what is wrong.
   if (!restored.notes.empty()) throw ExportError(restored.notes.front() + " (export refused: the store is damaged)");
   SurveyExport out;
   out.store_path = store_path;

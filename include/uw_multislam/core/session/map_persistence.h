@@ -26,9 +26,9 @@ struct RestoredStore {
   std::vector<StoredLoop> loops;           // the stored loops, in back-end loop order
   int keyframes = 0;
   /// What was repaired on the way, one line each (for the log): a map whose stored motions were
-  /// damaged (not finite, a covariance not positive definite) is rebuilt from its sessions'
-  /// odometry and links and optimised again at the next flush; a session whose stored camera is
-  /// invalid is not searched for loops; a map naming a session not held leaves its sessions unjoined.
+  /// damaged (not finite, a covariance checkCovariance refuses) is rebuilt from its sessions'
+  /// odometry and links and optimised again at the next flush; a map with a damaged link, or
+  /// naming a session the store does not hold, leaves its sessions unjoined.
   std::vector<std::string> notes;
 };
 
