@@ -65,6 +65,8 @@ std::string NavPriorOptions::validate() const {
     os << "min_features_to_restart must be >= 1";
   } else if (!(max_speed_m_s > 0.0 && std::isfinite(max_speed_m_s))) {
     os << "max_speed_m_s " << max_speed_m_s << " must be positive";
+  } else if (!(max_yaw_rate_rad_s > 0.0 && std::isfinite(max_yaw_rate_rad_s))) {
+    os << "max_yaw_rate_rad_s " << max_yaw_rate_rad_s << " must be positive";
   }
   return os.str();
 }
@@ -147,16 +149,27 @@ double navGateThreshold(const NavPriorOptions& o) {
 
 std::string navStepImplausible(const NavRecord& a, const NavRecord& b, const NavPriorOptions& o) {
   const double distance = std::hypot(b.pose.x() - a.pose.x(), b.pose.y() - a.pose.y());
+  const double turn = std::abs(normalizeAngle(b.pose.yaw() - a.pose.yaw()));
   const double dt = std::abs(b.stamp_s - a.stamp_s);
-  // The distance of two independent axes of sigma s: sqrt(2) s; three of those above the speed.
-  const double sigma = std::sqrt(navMotion(a, b, o).covariance(0, 0));
-  const double allowed = o.max_speed_m_s * dt + 3.0 * std::sqrt(2.0) * sigma;
-  if (std::isfinite(distance) && distance <= allowed) return "";
-  char why[200];
-  std::snprintf(why, sizeof why,
-                "nav step of %.3g m in %.3g s (more than max_speed_m_s %.3g m/s and 3 sigma): not used", distance, dt,
-                o.max_speed_m_s);
-  return why;
+  // navMotion's sigmas: the distance of two independent axes of sigma s has sigma sqrt(2) s;
+  // three sigma above what the vehicle can do in dt.
+  const Eigen::Matrix3d cov = navMotion(a, b, o).covariance;
+  const double allowed_m = o.max_speed_m_s * dt + 3.0 * std::sqrt(2.0 * cov(0, 0));
+  const double allowed_rad = o.max_yaw_rate_rad_s * dt + 3.0 * std::sqrt(cov(2, 2));
+  char why[240];
+  if (!(std::isfinite(distance) && distance <= allowed_m)) {
+    std::snprintf(why, sizeof why,
+                  "nav step of %.3g m in %.3g s (more than max_speed_m_s %.3g m/s and 3 sigma): not used", distance, dt,
+                  o.max_speed_m_s);
+    return why;
+  }
+  if (!(std::isfinite(turn) && turn <= allowed_rad)) {
+    std::snprintf(why, sizeof why,
+                  "nav turn of %.3g rad in %.3g s (more than max_yaw_rate_rad_s %.3g rad/s and 3 sigma): not used",
+                  turn, dt, o.max_yaw_rate_rad_s);
+    return why;
+  }
+  return "";
 }
 
 UncertainPose2 fuseMotions(const UncertainPose2& visual, const UncertainPose2& nav) {

@@ -302,10 +302,15 @@ OdometryUpdate Odometry::process(const OdometryInput& in, PreparedFrame* prepare
   cur.stamp_s = in.stamp_s;
   cur.altitude_m = alt;
   if (options_.nav.enabled) cur.nav = in.nav;
-  if (cur.nav && last_kf_.nav) {
+  if (cur.nav) {
     // A glitch of the nav (one bad row, a reset) must not overrule the camera through the gate
-    // or carry the frame: this frame is processed as one without nav.
-    const std::string bad = navStepImplausible(*last_kf_.nav, *cur.nav, options_.nav);
+    // or carry the frame: this frame is processed as one without nav. Checked against the last
+    // keyframe (the motion's other end) and against the previous frame (a short interval: the
+    // bound stays tight while the nav carries frames far from the last keyframe).
+    std::string bad;
+    if (last_kf_.nav) bad = navStepImplausible(*last_kf_.nav, *cur.nav, options_.nav);
+    if (bad.empty() && prev_.nav && prev_.index != last_kf_.index)
+      bad = navStepImplausible(*prev_.nav, *cur.nav, options_.nav);
     if (!bad.empty()) {
       cur.nav.reset();
       ++stats_.nav_implausible;

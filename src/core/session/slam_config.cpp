@@ -213,6 +213,7 @@ void visitConfig(V& v, C& c) {
     n("gate_ransac", o.gate_ransac);
     n("min_features_to_restart", o.min_features_to_restart);
     n("max_speed_m_s", o.max_speed_m_s);
+    n("max_yaw_rate_rad_s", o.max_yaw_rate_rad_s);
   });
   v.block("loops", [&](V& l) { visitLoops(l, c.loops); });
   v.block("backend", [&](V& b) { visitBackend(b, c.backend); });

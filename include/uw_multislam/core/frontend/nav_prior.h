@@ -68,10 +68,13 @@ struct NavPriorOptions {
   /// the last keyframe drops below keyframes.min_overlap, or when it has at least this many
   /// features and the last keyframe was itself not matched (so that the next frame can match it).
   int min_features_to_restart = 100;
-  /// A nav step faster than this (plus three sigma of its own noise) from the last keyframe is a
-  /// glitch of the nav (a bad row, a reset), not a motion: that frame is treated as having no nav
-  /// (counted, OdometryStats::nav_implausible) instead of overruling the camera.
+  /// A nav step faster than this (plus three sigma of its own noise), from the last keyframe or
+  /// from the previous frame, is a glitch of the nav (a bad row, a reset), not a motion: that
+  /// frame is treated as having no nav (counted, OdometryStats::nav_implausible) instead of
+  /// overruling the camera.
   double max_speed_m_s = 10.0;
+  /// The same for the heading: a turn faster than this (plus three sigma).
+  double max_yaw_rate_rad_s = 1.0;
 
   std::string validate() const;
 };
@@ -113,8 +116,8 @@ double navGateDistance2(const UncertainPose2& visual, const UncertainPose2& nav)
 double navGateThreshold(const NavPriorOptions& options);
 
 /// Empty when the nav's step a -> b could be a motion of the vehicle: its distance at most
-/// max_speed_m_s times the time between them plus 3 sigma (navMotion's, on the distance);
-/// otherwise why not (for the log).
+/// max_speed_m_s times the time between them plus 3 sigma (navMotion's, on the distance), its turn
+/// at most max_yaw_rate_rad_s times the time plus 3 sigma; otherwise why not (for the log).
 std::string navStepImplausible(const NavRecord& a, const NavRecord& b, const NavPriorOptions& options);
 
 /// The information-weighted combination of two estimates of one motion, linearised at `visual`.
