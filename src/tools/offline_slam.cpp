@@ -2,7 +2,6 @@
 // calls into core::Pipeline / core::SessionManager (the nodelets' engine); contract: --help, doc/run_outputs.md.
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -355,8 +354,7 @@ int main(int argc, char** argv) {
             Loaded l;
             // As the live odometry reads its messages (a cut-off JPEG refused, 16 bits scaled to
             // 8 by the frame's range); grey as BGR, as cv::IMREAD_COLOR gave it before.
-            l.image = core::readFrameImage(d.imagePath(d.frames[i]), &l.why);
-            if (!l.image.empty() && l.image.channels() == 1) cv::cvtColor(l.image, l.image, cv::COLOR_GRAY2BGR);
+            l.image = core::readFrameImageBgr(d.imagePath(d.frames[i]), &l.why);
             if (!preparers.empty()) l.prepared = preparers[worker]->prepare(l.image);
             return l;
           });

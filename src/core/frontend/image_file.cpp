@@ -50,11 +50,17 @@ cv::Mat readFrameImage(const std::string& path, std::string* why) {
   } else if (image.depth() != CV_8U) {
     return refuse("unsupported image depth (OpenCV depth " + std::to_string(image.depth()) + "; 8 or 16 bits are)");
   }
-  if (image.channels() == 4) {
+  if (image.channels() == 4) {  // the decoders drop alpha with IMREAD_ANYCOLOR; kept should one not
     cv::cvtColor(image, image, cv::COLOR_BGRA2BGR);
   } else if (image.channels() != 1 && image.channels() != 3) {
     return refuse("unsupported image (" + std::to_string(image.channels()) + " channels)");
   }
+  return image;
+}
+
+cv::Mat readFrameImageBgr(const std::string& path, std::string* why) {
+  cv::Mat image = readFrameImage(path, why);
+  if (!image.empty() && image.channels() == 1) cv::cvtColor(image, image, cv::COLOR_GRAY2BGR);
   return image;
 }
 

@@ -19,6 +19,7 @@
 #include <memory>
 #include <ostream>
 
+#include "uw_multislam/core/frontend/image_file.h"
 #include "uw_multislam/core/session/mosaic_geometry.h"
 
 namespace uw_multislam {
@@ -265,7 +266,7 @@ cv::Mat MosaicImages::frame(const ExportKeyframe& k, const CameraIntrinsics& cam
   if (it == dataset_of_session_.end()) return {};
   const FrameRecord* f = frameOf(it->second, k);
   if (!f) return {};
-  cv::Mat img = cv::imread(datasets_[it->second].imagePath(*f), cv::IMREAD_COLOR);
+  cv::Mat img = readFrameImageBgr(datasets_[it->second].imagePath(*f));
   if (!img.empty()) *scaled = scaledTo(camera, img.size());
   return img;
 }

@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <cstdio>
 
+#include "uw_multislam/core/frontend/image_file.h"
+
 namespace uw_multislam {
 namespace core {
 
@@ -58,7 +60,7 @@ void Pipeline::beginStream(const Dataset& d) {
       d.directory, d.camera,
       [&d](int index) {
         for (const FrameRecord& f : d.frames)
-          if (f.index == index) return cv::imread(d.imagePath(f), cv::IMREAD_COLOR);
+          if (f.index == index) return readFrameImageBgr(d.imagePath(f));
         return cv::Mat();
       },
       NavTrack(d.nav));

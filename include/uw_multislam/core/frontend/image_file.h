@@ -18,13 +18,18 @@ namespace core {
 bool isTruncatedJpeg(const std::vector<std::uint8_t>& bytes);
 
 /// 16 bits -> 8 bits by the smallest 2^b - 1 >= the frame's maximum (b >= 8): a 12-bit sensor's
-/// data uses the full 8 bits, and the scale does not flicker from frame to frame.
+/// data uses the full 8 bits; the scale changes only when a frame's maximum crosses a power of two.
 cv::Mat scaleTo8Bit(const cv::Mat& in16);
 
-/// An image file as the odometry takes it: 8 bits, grey or BGR (16 bits scaled as above, BGRA's
-/// alpha dropped). Empty, with `why` (naming the file), when it cannot be read or decoded, is a
-/// truncated JPEG, or has another depth or channel count.
+/// An image file as the odometry takes it: 8 bits, grey or BGR (16 bits scaled as above; the
+/// decoder drops alpha). Empty, with `why` (naming the file), when it cannot be read or decoded,
+/// is a truncated JPEG, or has another depth (float images are refused: cv::imread with
+/// IMREAD_COLOR used to convert them) or channel count.
 cv::Mat readFrameImage(const std::string& path, std::string* why);
+
+/// readFrameImage, grey turned into BGR (as cv::IMREAD_COLOR gave every image before): for the
+/// consumers that keep or draw colour images (keyframe thumbnails, mosaics, offline_slam's frames).
+cv::Mat readFrameImageBgr(const std::string& path, std::string* why = nullptr);
 
 }  // namespace core
 }  // namespace uw_multislam
