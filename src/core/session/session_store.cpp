@@ -319,19 +319,22 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
         if (r != SQLITE_OK) refuse(codeText(r));
         if (v != "ok") refuse("the database is corrupt (" + v + ")");
       }
+      // The kind its sessions hold, read on this read-only connection: a damaged meta row is
+      // refused before the writable open below touches the file (WAL mode, indexes).
+      db_ = ro;
+      try {
+        learnKind();
+      } catch (...) {
+        db_ = nullptr;
+        sqlite3_close(ro);
+        throw;
+      }
       if (read_only) {  // the checked read-only connection is the store's
-        db_ = ro;
         sqlite3_extended_result_codes(db_, 1);
         sqlite3_busy_timeout(db_, 2000);
-        try {
-          learnKind();
-        } catch (...) {
-          sqlite3_close(db_);
-          db_ = nullptr;
-          throw;
-        }
         return;
       }
+      db_ = nullptr;
       sqlite3_close(ro);
     }
   } else {
@@ -385,7 +388,6 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
     exec(kHashIndex);
     exec(kProvenanceTable);
     exec(kHistoryTable);
-    learnKind();
   } catch (...) {
     sqlite3_close(db_);
     db_ = nullptr;
