@@ -142,6 +142,8 @@ TEST_F(DatasetTest, ClearErrors) {
   expectError("unexpected header");
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,abc\n");
   expectError("frames.csv:2: bad number in altitude_m");
+  write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,0x10\n");  // strtod: 16
+  expectError("frames.csv:2: bad number in altitude_m: '0x10'");
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,2\n0,0001.jpg,0.5,2\n");
   expectError("duplicate index 0");
   // Stamps out of order, repeated, or jumping by more than an hour (two missions in one folder):
@@ -173,6 +175,10 @@ TEST_F(DatasetTest, ClearErrors) {
   writeValid();
   write("camera.yaml", "image_width: 320\nimage_height: 240\nfx: 0\nfy: 300\ncx: 160\ncy: 120\n");
   expectError("focal length");
+  write("camera.yaml", "image_width: 320\nimage_height: 240\nfx: 1e-300\nfy: 300\ncx: 160\ncy: 120\n");
+  expectError("is below one pixel");
+  write("camera.yaml", "image_width: 320\nimage_height: 240\nfx: 300\nfy: 300\ncx: 5000\ncy: 120\n");
+  expectError("principal point cx=5000 cy=120 is outside the 320x240 image");
   write("camera.yaml", "image_width: 320\nimage_height: 240\nfx: 300\nfy: 300\ncx: 160\n");
   expectError("missing key 'cy'");
 }

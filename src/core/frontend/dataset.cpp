@@ -45,7 +45,8 @@ std::vector<std::string> splitCsv(const std::string& line) {
 double parseDouble(const std::string& s, const std::string& path, int line, const char* column) {
   char* end = nullptr;
   const double v = std::strtod(s.c_str(), &end);
-  if (s.empty() || end == s.c_str() || *end != '\0')
+  // strtod also reads C's hexadecimal ("0x10" is 16): no sensor log writes that, a typo might.
+  if (s.empty() || end == s.c_str() || *end != '\0' || s.find_first_of("xX") != std::string::npos)
     fail(path, line, std::string("bad number in ") + column + ": '" + s + "'");
   return v;
 }
@@ -114,8 +115,12 @@ std::string CameraIntrinsics::validate() const {
     os << "image size " << width << "x" << height << " is not positive";
   } else if (!(std::isfinite(fx) && fx > 0.0) || !(std::isfinite(fy) && fy > 0.0)) {
     os << "focal length fx=" << fx << " fy=" << fy << " must be positive";
+  } else if (fx < 1.0 || fy < 1.0) {
+    os << "focal length fx=" << fx << " fy=" << fy << " is below one pixel (a field of view of 180 degrees)";
   } else if (!std::isfinite(cx) || !std::isfinite(cy)) {
     os << "principal point cx=" << cx << " cy=" << cy << " is not finite";
+  } else if (cx < 0.0 || cx > width || cy < 0.0 || cy > height) {
+    os << "principal point cx=" << cx << " cy=" << cy << " is outside the " << width << "x" << height << " image";
   } else if ((distortion_model == DistortionModel::kNone && n != 0) ||
              (distortion_model == DistortionModel::kPlumbBob && n != 4 && n != 5) ||
              (distortion_model == DistortionModel::kRationalPolynomial && n != 8)) {
