@@ -734,3 +734,21 @@ def test_threads_give_the_same_outputs_as_one_thread(survey, tmp_path, klt, feat
     for threads in (2, 3):
         for name in files:
             assert (outs[threads] / name).read_bytes() == (outs[1] / name).read_bytes(), (threads, name)
+
+
+def test_a_folder_with_no_usable_frame_says_so_once(survey, tmp_path):
+    """Every image unreadable: each frame is a counted skip with its reason, and the folder ends
+    with one line saying no session started and why (not silence where the session lines would
+    be); the other folder is mapped as usual."""
+    folder = tmp_path / "a"
+    shutil.copytree(survey / "a", folder)
+    images = sorted(folder.glob("*.jpg"))
+    for image in images:
+        image.write_bytes(b"not a jpeg")
+    r = run("offline_slam", "--session", folder, "--session", survey / "b", "--out", tmp_path / "o")
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.count("cannot decode image") == len(images)
+    line = "stream %s: no session started: %d frames, %d skipped" % (folder, len(images), len(images))
+    assert line in r.stdout, r.stdout
+    assert "stream %s: no session started" % (survey / "b") not in r.stdout
+    assert len({row["session"] for row in rows(tmp_path / "o" / "trajectory.csv")}) == 1  # b alone, mapped

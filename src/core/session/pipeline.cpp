@@ -51,6 +51,7 @@ void Pipeline::beginStream(const std::string& name, const CameraIntrinsics& came
   stream_camera_ = camera;
   segmented_ = std::make_unique<SegmentedOdometry>(camera, config_.odometry, config_.tracking);
   pieces_ = 0;
+  stream_frames_ = stream_skipped_ = 0;
   session_ = -1;
   stream_sessions_.emplace_back();
 }
@@ -128,6 +129,8 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input, Prepa
   const OdometryInput& frame = with_nav.nav ? with_nav : input;
   const SegmentedOdometry::Step step = segmented_->process(frame, prepared);
   const OdometryUpdate& u = step.update;
+  ++stream_frames_;
+  if (u.status == FrameStatus::kSkipped) ++stream_skipped_;
   if (step.session_started) {
     startPiece(frame.stamp_s);
     if (pieces_ > 1)
@@ -188,6 +191,12 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input, Prepa
 
 void Pipeline::endStream(double stamp_s) {
   if (session_ >= 0) endPiece(stamp_s);
+  if (pieces_ == 0 && segmented_) {
+    // Not one session: every frame unusable (unreadable images, no altitude, another size, no
+    // features). Said once, with the counts, instead of the session lines that never come.
+    say("stream " + stream_ + ": no session started: " + std::to_string(stream_frames_) + " frames, " +
+        std::to_string(stream_skipped_) + " skipped (the reasons above), none with enough features to start one");
+  }
   if (segmented_) finished_.merge(segmented_->times());
   segmented_.reset();
 }
