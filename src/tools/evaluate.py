@@ -202,7 +202,7 @@ def read_table(path, columns, required=True, optional=()):
         if required:
             raise EvalError("%s: file not found" % path)
         return None
-    with open(path, newline="") as f:
+    with open(path, newline="", encoding="utf-8-sig") as f:  # -sig: a spreadsheet's byte-order mark
         lines = list(csv.reader(f))
     lines = [row for row in lines if any(cell.strip() for cell in row)]
     if not lines:

@@ -142,6 +142,9 @@ TEST_F(DatasetTest, ClearErrors) {
   expectError("unexpected header");
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,abc\n");
   expectError("frames.csv:2: bad number in altitude_m");
+  // Saved by a spreadsheet as "CSV UTF-8": the byte-order mark is not part of the header.
+  write("frames.csv", "\xEF\xBB\xBFindex,image,stamp_s,altitude_m\n0,0000.jpg,0.0,2.5\n1,0001.jpg,0.5,2.6\n");
+  EXPECT_EQ(readFramesCsv((dir_ / "frames.csv").string(), StampOrder::kRequired).size(), 2u);
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,0x10\n");  // strtod: 16
   expectError("frames.csv:2: bad number in altitude_m: '0x10'");
   write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,2\n0,0001.jpg,0.5,2\n");

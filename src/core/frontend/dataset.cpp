@@ -69,6 +69,8 @@ void readCsv(const std::string& path, const std::vector<std::string>& header, F 
   if (!in) fail(path, 0, "cannot open");
   std::string line;
   if (!std::getline(in, line)) fail(path, 0, "empty file (expected header '" + expected + "')");
+  // A spreadsheet saving "CSV UTF-8" starts the file with a byte-order mark: not part of the header.
+  if (line.compare(0, 3, "\xEF\xBB\xBF") == 0) line.erase(0, 3);
   if (splitCsv(trim(line)) != header) {
     fail(path, 1, "unexpected header '" + trim(line) + "' (expected '" + expected + "')");
   }
