@@ -379,6 +379,26 @@ def test_header_only_loops_and_missing_trajectory(tmp_path):
     assert "map" not in data and list(data["session"]["0"]) == ["odometry"]
 
 
+def test_a_spreadsheets_byte_order_mark_is_not_part_of_the_header(tmp_path):
+    """gt.csv and frames.csv saved by a spreadsheet as "CSV UTF-8" start with a byte-order mark:
+    read as without it (same metrics)."""
+    gt = lawnmower()
+    plain = write_session(tmp_path / "plain", gt)
+    marked = write_session(tmp_path / "marked", gt)
+    for name in ("gt.csv", "frames.csv"):
+        path = os.path.join(marked, name)
+        with open(path, "rb") as f:
+            data = f.read()
+        with open(path, "wb") as f:
+            f.write(b"\xef\xbb\xbf" + data)
+    drift = [0.01 * i for i in range(len(gt))]
+    est = [(x + d, y, yaw) for (x, y, yaw), d in zip(gt, drift)]
+    a = evaluate_dirs(tmp_path / "a", [plain], write_run(tmp_path / "run_a", {0: indexed(est)}))
+    b = evaluate_dirs(tmp_path / "b", [marked], write_run(tmp_path / "run_b", {0: indexed(est)}))
+    assert a["session"]["0"]["odometry"] == b["session"]["0"]["odometry"]
+    assert a["session"]["0"]["odometry"]["ate_rmse_m"] > 0
+
+
 def test_a_zero_byte_output_is_refused_not_read_as_empty(tmp_path, capsys):
     """A header alone is an empty result (above); a file without even a header was cut off before
     its first line (a full disk, a killed run): refused, naming it, instead of scored as if the
