@@ -253,18 +253,22 @@ TEST_P(StoreBothOptimizers, RoundTripGivesIdenticalTrajectoriesLoopsAndMaps) {
 INSTANTIATE_TEST_SUITE_P(Store, StoreBothOptimizers, ::testing::Values(OptimizerKind::kSparse, OptimizerKind::kIekf),
                          [](const auto& info) { return std::string(optimizerName(info.param)); });
 
+// The mission recorded into `dir`/maps.db through `backend` (kept by the caller to compare with).
+std::string recordStore(const ScopedTempDir& dir, MultiSessionBackend* backend) {
+  const std::string path = (dir.path() / "maps.db").string();
+  SessionStore store(path);
+  Recorder r(&store, backend);
+  recordMission(&r);
+  return path;
+}
+
 TEST(Store, DamagedMapMotionsAreRebuiltFromTheSessionsNotRestoredAsNaN) {
   ScopedTempDir dir("uwms_store");
-  const std::string path = (dir.path() / "maps.db").string();
   BackendOptions opt = missionOptions();
   opt.optimise_every = 1;
   MultiSessionBackend original(opt);
-  {
-    SessionStore store(path);
-    Recorder r(&store, &original);
-    recordMission(&r);
-    ASSERT_EQ(original.mapOf(1), 0);
-  }
+  const std::string path = recordStore(dir, &original);
+  ASSERT_EQ(original.mapOf(1), 0);
   // One NaN in the stored motions of the map of sessions 0 and 1 (a bad page, an older build).
   sqlite3* db = nullptr;
   ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
@@ -307,15 +311,10 @@ TEST(Store, DamagedMapMotionsAreRebuiltFromTheSessionsNotRestoredAsNaN) {
 
 TEST(Store, AMapWithADamagedLinkOrNamingAMissingSessionIsNotedAndItsSessionsRestoredUnjoined) {
   ScopedTempDir dir("uwms_store");
-  const std::string path = (dir.path() / "maps.db").string();
   BackendOptions opt = missionOptions();
   MultiSessionBackend original(opt);
-  {
-    SessionStore store(path);
-    Recorder r(&store, &original);
-    recordMission(&r);
-    ASSERT_EQ(original.mapOf(1), 0);
-  }
+  const std::string path = recordStore(dir, &original);
+  ASSERT_EQ(original.mapOf(1), 0);
   std::int64_t second = 0;
   {
     SessionStore store(path);
@@ -338,13 +337,16 @@ TEST(Store, AMapWithADamagedLinkOrNamingAMissingSessionIsNotedAndItsSessionsRest
     EXPECT_EQ(restoreStore(store, &restored, nullptr, nullptr).notes, std::vector<std::string>());
     EXPECT_EQ(restored.mapOf(1), 0);
   }
+  const auto set_link_variance_x = [&](double v) {
+    const std::vector<double> cov{v, 0, 0, 0, 1, 0, 0, 0, 1};
+    sqlite3_stmt* st = nullptr;
+    ASSERT_EQ(sqlite3_prepare_v2(db, "UPDATE links SET cov = ?", -1, &st, nullptr), SQLITE_OK);
+    sqlite3_bind_blob(st, 1, cov.data(), static_cast<int>(cov.size() * sizeof(double)), SQLITE_TRANSIENT);
+    ASSERT_EQ(sqlite3_step(st), SQLITE_DONE);
+    sqlite3_finalize(st);
+  };
   // The link joining sessions 0 and 1 with a negative variance: noted, both restored unjoined.
-  std::vector<double> cov{-1, 0, 0, 0, 1, 0, 0, 0, 1};
-  sqlite3_stmt* st = nullptr;
-  ASSERT_EQ(sqlite3_prepare_v2(db, "UPDATE links SET cov = ?", -1, &st, nullptr), SQLITE_OK);
-  sqlite3_bind_blob(st, 1, cov.data(), static_cast<int>(cov.size() * sizeof(double)), SQLITE_TRANSIENT);
-  ASSERT_EQ(sqlite3_step(st), SQLITE_DONE);
-  sqlite3_finalize(st);
+  set_link_variance_x(-1.0);
   {
     SessionStore store(path);
     MultiSessionBackend restored(opt);
@@ -355,11 +357,7 @@ TEST(Store, AMapWithADamagedLinkOrNamingAMissingSessionIsNotedAndItsSessionsRest
     EXPECT_EQ(restored.numSessions(), 3);
   }
   // The map names a session the store does not hold at all.
-  cov[0] = 1;
-  ASSERT_EQ(sqlite3_prepare_v2(db, "UPDATE links SET cov = ?", -1, &st, nullptr), SQLITE_OK);
-  sqlite3_bind_blob(st, 1, cov.data(), static_cast<int>(cov.size() * sizeof(double)), SQLITE_TRANSIENT);
-  ASSERT_EQ(sqlite3_step(st), SQLITE_DONE);
-  sqlite3_finalize(st);
+  set_link_variance_x(1.0);
   sql("UPDATE map_sessions SET session = 999 WHERE session = " + std::to_string(second));
   sqlite3_close(db);
   SessionStore store(path);
