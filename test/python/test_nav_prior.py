@@ -166,27 +166,40 @@ def test_bad_nav_arguments_and_files_fail_with_one_line(mission, tmp_path):
     assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "o2").exists()
 
 
-@pytest.mark.parametrize("frame,bound_m", [(50, 0.005), (20, 0.05)])
-def test_a_nav_glitch_is_not_used_instead_of_the_camera(mission, nav_on, tmp_path, frame, bound_m):
-    """One nav.csv row 50 m off (a glitch, a reset of the nav): the step to it is faster than
-    nav.max_speed_m_s, so that frame goes as one without nav (counted, logged). Frame 50 sees the
-    seabed: the trajectory is the clean run's. Frame 20 is in the blackout, where the nav carries
-    the frames: that one frame reuses the previous step (a fallback), the rest as the clean run
-    (3.5 cm measured). With the check off (max_speed_m_s 1e9) the same row overrules the camera (the
-    gate refuses the right visual motion) or carries the blind frame 50 m away: the control that
+@pytest.mark.parametrize("frames,offset_m,bound_m,nav_config", [
+    ((50,), 50.0, 0.005, ""), ((20,), 50.0, 0.1, ""), ((45, 46), 12.0, 0.005, "  gate_ransac: false\n")])
+def test_a_nav_glitch_is_not_used_instead_of_the_camera(mission, nav_on, tmp_path, frames, offset_m, bound_m,
+                                                        nav_config):
+    """nav.csv rows off by metres (a glitch, a reset of the nav): the step to them is faster than
+    nav.max_speed_m_s, so that frame goes as one without nav (counted, logged), and no nav motion
+    is taken until the next keyframe. Frame 50 sees the seabed: the trajectory is the clean run's.
+    Frame 20 is in the blackout, where the nav carries the frames: that frame and the blind ones
+    up to the next keyframe reuse the previous step (fallbacks; other keyframes than the clean run's,
+    56.4 mm from it measured). Rows 45 and 46 both
+    12 m off (RANSAC not gated by the nav, as the review that found it ran it): caught where it
+    starts and where it ends, the trajectory is the clean run's (the check before this one let row
+    46 through against the last keyframe: keyframe 46 12 m off). With the check off (max_speed_m_s
+    1e9) the single rows overrule the camera or carry the blind frame metres away: the control that
     shows the glitch matters."""
     for name in ("a", "b"):
         shutil.copytree(mission / name, tmp_path / name)
     nav = (tmp_path / "a" / "nav.csv").read_text().splitlines()
     column = nav[0].split(",").index("x_m")
-    row = nav[frame + 1].split(",")  # one row per frame after the header
-    assert int(rows(mission / "a" / "frames.csv")[frame]["index"]) == frame
-    row[column] = str(float(row[column]) + 50.0)
-    nav[frame + 1] = ",".join(row)
+    for frame in frames:
+        row = nav[frame + 1].split(",")  # one row per frame after the header
+        assert int(rows(mission / "a" / "frames.csv")[frame]["index"]) == frame
+        row[column] = str(float(row[column]) + offset_m)
+        nav[frame + 1] = ",".join(row)
     (tmp_path / "a" / "nav.csv").write_text("\n".join(nav) + "\n")
+    sessions = ["--session", tmp_path / "a", "--session", tmp_path / "b"]
+    clean_run = nav_on[0]
+    if nav_config:  # the clean run with the same configuration
+        (tmp_path / "c.yaml").write_text("nav:\n" + nav_config)
+        clean_run = tmp_path / "clean"
+        slam(mission, clean_run, "--config", tmp_path / "c.yaml")
 
     def worst(out, same_keyframes):  # farthest keyframe from the clean run's, over the ones both have
-        clean = {(t["session"], t["index"]): t for t in rows(nav_on[0] / "trajectory.csv")}
+        clean = {(t["session"], t["index"]): t for t in rows(clean_run / "trajectory.csv")}
         got = rows(out / "trajectory.csv")
         if same_keyframes:
             assert {(t["session"], t["index"]) for t in got} == set(clean), "not the clean run's keyframes"
@@ -194,17 +207,20 @@ def test_a_nav_glitch_is_not_used_instead_of_the_camera(mission, nav_on, tmp_pat
         return max(math.hypot(float(t["x_m"]) - float(clean[(t["session"], t["index"])]["x_m"]),
                               float(t["y_m"]) - float(clean[(t["session"], t["index"])]["y_m"])) for t in got)
 
-    r = run("offline_slam", "--session", tmp_path / "a", "--session", tmp_path / "b", "--out", tmp_path / "o")
+    (tmp_path / "on.yaml").write_text("nav:\n" + nav_config)
+    r = run("offline_slam", *sessions, "--out", tmp_path / "o", "--config", tmp_path / "on.yaml")
     assert r.returncode == 0, r.stderr
-    assert "frame %d: nav step of" % frame in r.stdout, r.stdout
-    assert "1 nav steps too fast to be a motion" in r.stdout, r.stdout
-    error = worst(tmp_path / "o", True)
-    (tmp_path / "off.yaml").write_text("nav:\n  max_speed_m_s: 1.0e9\n")
-    r = run("offline_slam", "--session", tmp_path / "a", "--session", tmp_path / "b", "--out", tmp_path / "off",
-            "--config", tmp_path / "off.yaml")
+    assert "frame %d: nav step of" % frames[0] in r.stdout, r.stdout
+    # Refused where the glitch starts (against the last keyframe) and where it ends (the next
+    # sound row against the previous frame's glitched one, as received).
+    assert "2 nav steps too fast to be a motion" in r.stdout, r.stdout
+    error = worst(tmp_path / "o", frames[0] != 20)
+    (tmp_path / "off.yaml").write_text("nav:\n  max_speed_m_s: 1.0e9\n" + nav_config)
+    r = run("offline_slam", *sessions, "--out", tmp_path / "off", "--config", tmp_path / "off.yaml")
     assert r.returncode == 0, r.stderr
     control = worst(tmp_path / "off", False)
-    print(f"nav glitch of 50 m at frame {frame}: worst keyframe {error * 1000:.1f} mm from the clean run; "
-          f"without the check {control:.2f} m")
+    print(f"nav glitch of {offset_m:.0f} m at frames {frames}: worst keyframe {error * 1000:.1f} mm from the clean "
+          f"run; without the check {control:.2f} m")
     assert error < bound_m
-    assert control > 1.0
+    if len(frames) == 1:  # (two rows: the control is the previous check, which let row 46 through)
+        assert control > 1.0

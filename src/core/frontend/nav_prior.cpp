@@ -155,7 +155,11 @@ std::string navStepImplausible(const NavRecord& a, const NavRecord& b, const Nav
   // three sigma above what the vehicle can do in dt.
   const Eigen::Matrix3d cov = navMotion(a, b, o).covariance;
   const double allowed_m = o.max_speed_m_s * dt + 3.0 * std::sqrt(2.0 * cov(0, 0));
-  const double allowed_rad = o.max_yaw_rate_rad_s * dt + 3.0 * std::sqrt(cov(2, 2));
+  // The heading's own reading noise too (a compass reads 1-2 degrees apart from one reading to the
+  // next whatever the nav's sigma columns say): 2 degrees per reading, two readings.
+  constexpr double kHeadingNoiseRad = 2.0 * M_PI / 180.0;
+  const double allowed_rad =
+      o.max_yaw_rate_rad_s * dt + 3.0 * std::sqrt(cov(2, 2) + 2.0 * kHeadingNoiseRad * kHeadingNoiseRad);
   char why[240];
   if (!(std::isfinite(distance) && distance <= allowed_m)) {
     std::snprintf(why, sizeof why,

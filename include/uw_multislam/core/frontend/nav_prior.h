@@ -73,7 +73,8 @@ struct NavPriorOptions {
   /// frame is treated as having no nav (counted, OdometryStats::nav_implausible) instead of
   /// overruling the camera.
   double max_speed_m_s = 10.0;
-  /// The same for the heading: a turn faster than this (plus three sigma).
+  /// The same for the heading: a turn faster than this (plus three sigma, the nav's and a 2-degree
+  /// reading noise of each heading).
   double max_yaw_rate_rad_s = 1.0;
 
   std::string validate() const;

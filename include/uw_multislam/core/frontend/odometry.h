@@ -295,6 +295,7 @@ class Odometry {
   TrackedFrame last_kf_;
   Eigen::Matrix3d last_kf_covariance_ = Eigen::Matrix3d::Zero();  // of last_kf_.pose, kept as keyframes are added
   TrackedFrame prev_;            // the last frame processed (tracked or keyframe)
+  std::optional<NavRecord> prev_nav_received_;  // the previous frame's nav as received (the glitch check)
   Pose2 last_step_;              // frame-to-frame motion of the last successful step
   double last_altitude_ = -1.0;  // last valid altitude
   OdometryStats stats_;
