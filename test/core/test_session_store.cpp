@@ -355,6 +355,15 @@ TEST(Store, AMapWithADamagedLinkOrNamingAMissingSessionIsNotedAndItsSessionsRest
     EXPECT_NE(rs.notes[0].find("a link of the map of session"), std::string::npos) << rs.notes[0];
     EXPECT_NE(restored.mapOf(1), restored.mapOf(0));
     EXPECT_EQ(restored.numSessions(), 3);
+    // The loops the damaged link summarised are pending again (summarised, every later join would
+    // leave them out): the next global loop between the two sessions joins them again.
+    EXPECT_GE(restored.pendingJoinLoops(0, 1), 5);
+    int global = -1;
+    for (int id = 0; id < restored.numLoops() && global < 0; ++id)
+      if (restored.loopRecord(id).loop.session_a != restored.loopRecord(id).loop.session_b) global = id;
+    ASSERT_GE(global, 0);
+    restored.addLoop(restored.loopRecord(global).loop);  // the same place seen again
+    EXPECT_EQ(restored.mapOf(1), restored.mapOf(0)) << "the sessions stay apart for good";
   }
   // The map names a session the store does not hold at all.
   set_link_variance_x(1.0);

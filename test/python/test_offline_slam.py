@@ -748,7 +748,8 @@ def test_a_folder_with_no_usable_frame_says_so_once(survey, tmp_path):
     r = run("offline_slam", "--session", folder, "--session", survey / "b", "--out", tmp_path / "o")
     assert r.returncode == 0, r.stderr
     assert r.stderr.count("cannot decode image") == len(images)
-    line = "stream %s: no session started: %d frames, %d skipped" % (folder, len(images), len(images))
+    line = "stream %s: no session started: %d frames, %d of them without an image (unreadable)" % (
+        folder, len(images), len(images))
     assert line in r.stdout, r.stdout
     assert "stream %s: no session started" % (survey / "b") not in r.stdout
     assert len({row["session"] for row in rows(tmp_path / "o" / "trajectory.csv")}) == 1  # b alone, mapped

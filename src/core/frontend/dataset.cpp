@@ -168,6 +168,7 @@ CameraIntrinsics readCameraYaml(const std::string& path) {
   int n = 0;
   while (std::getline(in, line)) {
     ++n;
+    if (n == 1 && line.compare(0, 3, "\xEF\xBB\xBF") == 0) line.erase(0, 3);  // a byte-order mark
     const auto hash = line.find('#');
     if (hash != std::string::npos) line = line.substr(0, hash);
     if (trim(line).empty() || trim(line).rfind("%YAML", 0) == 0 || trim(line) == "---") continue;

@@ -43,17 +43,34 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
       detector->addStoredKeyframe(id, k.keyframe, k.frame_index, k.altitude_m, cam, k.features(), k.hash);
     }
   }
+  // Maps restored unjoined (a damaged link, a session the store does not hold): the loops their
+  // links summarised are pending again, so that the next optimisation can find the join again
+  // (summarised, they would be left out of every join for good).
+  const std::vector<StoredMap> maps = store.maps();
+  std::set<std::int64_t> unsummarised;
+  for (const StoredMap& sm : maps) {
+    bool damaged = false;
+    for (std::int64_t s : sm.chain) damaged = damaged || (!session_of.count(s) && !rows.count(s));
+    for (const StoredLink& l : sm.links)
+      damaged = damaged || !checkCovariance(l.measured.covariance).empty() || !l.measured.mean.isFinite();
+    if (damaged)
+      for (const StoredLink& l : sm.links) unsummarised.insert(l.loops.begin(), l.loops.end());
+  }
   std::map<std::int64_t, int> loop_of;
   for (const StoredLoop& l : store.loops()) {
     const auto a = session_of.find(l.session_a), b = session_of.find(l.session_b);
     if (a == session_of.end() || b == session_of.end()) continue;  // a session without keyframes
-    LoopRecord r{{a->second, l.keyframe_a, b->second, l.keyframe_b, l.z, l.inliers}, l.summarised, l.applied, l.refused};
+    const bool again = unsummarised.count(l.id) > 0;
+    LoopRecord r{{a->second, l.keyframe_a, b->second, l.keyframe_b, l.z, l.inliers},
+                 l.summarised && !again,
+                 l.applied && !again,
+                 l.refused};
     loop_of[l.id] = backend->restoreLoop(r);
     out.loop_ids.push_back(l.id);
     out.loops.push_back(l);
   }
   std::vector<bool> in_map(backend->numSessions(), false);
-  for (const StoredMap& sm : store.maps()) {
+  for (const StoredMap& sm : maps) {
     MapState st;
     int motions = static_cast<int>(sm.links.size());
     bool ok = true;

@@ -51,7 +51,7 @@ void Pipeline::beginStream(const std::string& name, const CameraIntrinsics& came
   stream_camera_ = camera;
   segmented_ = std::make_unique<SegmentedOdometry>(camera, config_.odometry, config_.tracking);
   pieces_ = 0;
-  stream_frames_ = stream_skipped_ = 0;
+  stream_frames_ = stream_unreadable_ = 0;
   session_ = -1;
   stream_sessions_.emplace_back();
 }
@@ -130,7 +130,7 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input, Prepa
   const SegmentedOdometry::Step step = segmented_->process(frame, prepared);
   const OdometryUpdate& u = step.update;
   ++stream_frames_;
-  if (u.status == FrameStatus::kSkipped) ++stream_skipped_;
+  if (frame.image.empty()) ++stream_unreadable_;
   if (step.session_started) {
     startPiece(frame.stamp_s);
     if (pieces_ > 1)
@@ -195,7 +195,8 @@ void Pipeline::endStream(double stamp_s) {
     // Not one session: every frame unusable (unreadable images, no altitude, another size, no
     // features). Said once, with the counts, instead of the session lines that never come.
     say("stream " + stream_ + ": no session started: " + std::to_string(stream_frames_) + " frames, " +
-        std::to_string(stream_skipped_) + " skipped (the reasons above), none with enough features to start one");
+        std::to_string(stream_unreadable_) +
+        " of them without an image (unreadable), the others unusable or with too few features to start one");
   }
   if (segmented_) finished_.merge(segmented_->times());
   segmented_.reset();

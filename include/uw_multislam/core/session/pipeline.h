@@ -91,7 +91,7 @@ class Pipeline {
   int session_ = -1;  // the manager's id of the stream's open piece; -1 while lost
   int read_failures_ = 0;  // the detector's feature_read_failures already logged
   int pieces_ = 0;
-  long stream_frames_ = 0, stream_skipped_ = 0;  // this stream's frames, and how many the odometry skipped
+  long stream_frames_ = 0, stream_unreadable_ = 0;  // this stream's frames, and how many came without an image
   std::vector<std::vector<int>> stream_sessions_;
   StageTimes times_, finished_;
 };
