@@ -178,6 +178,8 @@ TEST_F(DatasetTest, ClearErrors) {
   writeValid();
   write("camera.yaml", "image_width: 320\nimage_height: 240\nfx: 0\nfy: 300\ncx: 160\ncy: 120\n");
   expectError("focal length");
+  write("camera.yaml", "\xEF\xBB\xBFimage_width: 320\nimage_height: 240\nfx: 300\nfy: 300\ncx: 160\ncy: 120\n");
+  EXPECT_EQ(readCameraYaml(path("camera.yaml")).width, 320);  // a byte-order mark is not part of the key
   write("camera.yaml", "image_width: 320\nimage_height: 240\nfx: 1e-300\nfy: 300\ncx: 160\ncy: 120\n");
   expectError("is below one pixel");
   write("camera.yaml", "image_width: 320\nimage_height: 240\nfx: 300\nfy: 300\ncx: 5000\ncy: 120\n");
