@@ -9,6 +9,17 @@
 namespace uw_multislam {
 namespace core {
 
+namespace {
+
+// Why a stored pose with covariance cannot be used: "" when it can.
+std::string damageOf(const UncertainPose2& u) {
+  const std::string bad = checkCovariance(u.covariance);
+  if (!bad.empty()) return bad;
+  return u.mean.isFinite() ? "" : "not finite";
+}
+
+}  // namespace
+
 RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backend, LoopDetector* detector,
                            std::vector<std::unique_ptr<CameraIntrinsics>>* cameras) {
   if (backend->numSessions() != 0 || backend->numLoops() != 0)
@@ -46,14 +57,34 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
   // Maps restored unjoined (a damaged link, a session the store does not hold): the loops their
   // links summarised are pending again, so that the next optimisation can find the join again
   // (summarised, they would be left out of every join for good).
+  // unjoined[i]: why maps[i] is restored as its sessions unjoined ("" when it is restored).
   const std::vector<StoredMap> maps = store.maps();
+  std::vector<std::string> unjoined(maps.size());
   std::set<std::int64_t> unsummarised;
-  for (const StoredMap& sm : maps) {
-    bool damaged = false;
-    for (std::int64_t s : sm.chain) damaged = damaged || (!session_of.count(s) && !rows.count(s));
-    for (const StoredLink& l : sm.links)
-      damaged = damaged || !checkCovariance(l.measured.covariance).empty() || !l.measured.mean.isFinite();
-    if (damaged)
+  for (std::size_t i = 0; i < maps.size(); ++i) {
+    const StoredMap& sm = maps[i];
+    // A session without keyframes (started, never given one) is left out with its map, as
+    // always. A map naming a session the store does not hold at all is damaged.
+    const auto absent =
+        std::find_if(sm.chain.begin(), sm.chain.end(), [&](std::int64_t s) { return !session_of.count(s); });
+    if (absent != sm.chain.end()) {
+      if (!rows.count(*absent))
+        unjoined[i] = "session store " + store.path() + ": the map of session " + std::to_string(sm.chain.front()) +
+                      " names session " + std::to_string(*absent) +
+                      ", which the store does not hold: its sessions are restored unjoined";
+    } else {
+      // A link is a measurement (the loops it summarises), not derived data: nothing to rebuild
+      // it from here.
+      for (const StoredLink& l : sm.links) {
+        const std::string bad = damageOf(l.measured);
+        if (bad.empty()) continue;
+        unjoined[i] = "session store " + store.path() + ": a link of the map of session " +
+                      std::to_string(sm.chain.front()) + " is damaged (" + bad +
+                      "): its sessions are restored unjoined";
+        break;
+      }
+    }
+    if (!unjoined[i].empty())
       for (const StoredLink& l : sm.links) unsummarised.insert(l.loops.begin(), l.loops.end());
   }
   std::map<std::int64_t, int> loop_of;
@@ -70,38 +101,23 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     out.loops.push_back(l);
   }
   std::vector<bool> in_map(backend->numSessions(), false);
-  for (const StoredMap& sm : maps) {
+  for (std::size_t i = 0; i < maps.size(); ++i) {
+    const StoredMap& sm = maps[i];
+    if (!unjoined[i].empty()) {  // its sessions come back as maps of their own
+      out.notes.push_back(unjoined[i]);
+      continue;
+    }
     MapState st;
     int motions = static_cast<int>(sm.links.size());
     bool ok = true;
     for (std::int64_t s : sm.chain) {
       const auto it = session_of.find(s);
-      if (it == session_of.end()) {
-        // A session without keyframes (started, never given one) is left out with its map, as
-        // always. A map naming a session the store does not hold at all is damaged: its sessions
-        // come back as maps of their own (their loops stay stored: a join can be found again).
-        if (!rows.count(s))
-          out.notes.push_back("session store " + store.path() + ": the map of session " +
-                              std::to_string(sm.chain.front()) + " names session " + std::to_string(s) +
-                              ", which the store does not hold: its sessions are restored unjoined");
+      if (it == session_of.end()) {  // a session without keyframes (above)
         ok = false;
         break;
       }
       st.chain.push_back(it->second);
       motions += backend->session(it->second).keyframes - 1;
-    }
-    if (!ok) continue;
-    for (const StoredLink& l : sm.links) {
-      const std::string bad = checkCovariance(l.measured.covariance);
-      if (!bad.empty() || !l.measured.mean.isFinite()) {
-        // A link is a measurement (the loops it summarises), not derived data: nothing to rebuild
-        // it from here. Its sessions come back unjoined; their loops stay stored.
-        out.notes.push_back("session store " + store.path() + ": a link of the map of session " +
-                            std::to_string(sm.chain.front()) + " is damaged (" +
-                            (bad.empty() ? std::string("not finite") : bad) + "): its sessions are restored unjoined");
-        ok = false;
-        break;
-      }
     }
     if (!ok) continue;
     for (const StoredLink& l : sm.links) {
@@ -115,11 +131,10 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     // The optimised motions are derived data (odometry + links + loops): damaged ones (a bad
     // page, a NaN written by an older build) are rebuilt rather than turning every pose NaN.
     for (std::size_t k = 0; k < st.motions.size(); ++k) {
-      const std::string bad = checkCovariance(st.motions[k].covariance);
-      if (bad.empty() && st.motions[k].mean.isFinite()) continue;
+      const std::string bad = damageOf(st.motions[k]);
+      if (bad.empty()) continue;
       out.notes.push_back("session store " + store.path() + ": map of session " + std::to_string(sm.chain.front()) +
-                          ": stored motion " + std::to_string(k) + " is damaged (" +
-                          (bad.empty() ? std::string("not finite") : bad) +
+                          ": stored motion " + std::to_string(k) + " is damaged (" + bad +
                           "): the map's motions are rebuilt from its sessions' odometry and links and optimised again "
                           "(offline_slam --db on the store saves it repaired)");
       st.motions.clear();
