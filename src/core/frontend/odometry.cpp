@@ -305,11 +305,10 @@ OdometryUpdate Odometry::process(const OdometryInput& in, PreparedFrame* prepare
   if (cur.nav) {
     // A glitch of the nav (one bad row, a reset) must not overrule the camera through the gate
     // or carry the frame: this frame is processed as one without nav. Checked against the last
-    // keyframe (the motion's other end) and against the previous frame (a short interval: the
-    // bound stays tight while the nav carries frames far from the last keyframe).
-    // The previous frame's nav as received (refused or not): a glitch of several rows is then
-    // caught at its first row and again where it ends. After a refusal no nav motion is taken
-    // until the next keyframe (last_kf_.nav dropped): none may span the glitch.
+    // keyframe (the motion's other end) and against the previous frame's nav as received, refused
+    // or not (a short interval, so the bound stays tight far from the last keyframe, and a glitch
+    // of several rows is caught where it starts and where it ends). After a refusal no nav motion
+    // is taken until the next keyframe (last_kf_.nav dropped): none may span the glitch.
     std::string bad;
     if (last_kf_.nav) bad = navStepImplausible(*last_kf_.nav, *cur.nav, options_.nav);
     if (bad.empty() && prev_nav_received_) bad = navStepImplausible(*prev_nav_received_, *cur.nav, options_.nav);
