@@ -12,15 +12,14 @@
 #include <cctype>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <iomanip>
-#include <iterator>
 #include <map>
 #include <memory>
 #include <opencv2/imgcodecs.hpp>
 #include <set>
 #include <sstream>
 
+#include "uw_multislam/core/frontend/image_file.h"
 #include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/ros/conversions.h"
 #include "uw_multislam/ros/sensor_conversions.h"
@@ -125,27 +124,12 @@ std::map<int, const core::GroundTruthRecord*> groundTruthByIndex(const core::Dat
   return gt;
 }
 
-std::vector<uchar> readFile(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail(path + ": cannot open image");
-  std::vector<uchar> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) fail(path + ": read error");
-  return bytes;
-}
-
-// The image file as stored (ANYCOLOR | ANYDEPTH keeps grey grey and 16 bits 16 bits) and its
+// The image file as stored (grey stays grey, 16 bits 16 bits: core::decodeImageFile) and its
 // encoding; throws naming the file when it is unreadable, of an unsupported type or of the wrong size.
 cv::Mat readImage(const std::string& path, const core::CameraIntrinsics& camera, std::string* encoding) {
-  const std::vector<uchar> bytes = readFile(path);
-  // libjpeg decodes a cut-off JPEG with only a warning (the missing rows come out grey).
-  if (ros_conversions::isTruncatedJpeg(bytes)) fail(path + ": corrupt image (truncated JPEG: no end-of-image marker)");
-  cv::Mat image;
-  try {
-    image = cv::imdecode(bytes, cv::IMREAD_ANYCOLOR | cv::IMREAD_ANYDEPTH);
-  } catch (const cv::Exception& e) {
-    fail(path + ": cannot read image (" + e.err + ")");
-  }
-  if (image.empty()) fail(path + ": cannot read image (corrupt or not an image file)");
+  std::string why;
+  const cv::Mat image = core::decodeImageFile(path, &why);
+  if (image.empty()) fail(why);
   switch (image.type()) {
     case CV_8UC1:
       *encoding = "mono8";

@@ -476,7 +476,7 @@ TEST_F(DatasetBagTest, BrokenImageThrowsNamingTheFileAndKeepsTheOldBag) {
   writeDataset();
   std::ofstream(data_ / "0002.png") << "this is not a PNG";
   std::ofstream(bag_) << "previous bag";
-  expectError(DatasetBagOptions(), {"0002.png", "cannot read image"});
+  expectError(DatasetBagOptions(), {"0002.png", "cannot decode image"});
   std::ifstream in(bag_);
   std::string content;
   std::getline(in, content);

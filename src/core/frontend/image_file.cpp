@@ -27,7 +27,7 @@ cv::Mat scaleTo8Bit(const cv::Mat& in16) {
   return out;
 }
 
-cv::Mat readFrameImage(const std::string& path, std::string* why) {
+cv::Mat decodeImageFile(const std::string& path, std::string* why) {
   const auto refuse = [&](const std::string& reason) {
     if (why) *why = path + ": " + reason;
     return cv::Mat();
@@ -45,6 +45,16 @@ cv::Mat readFrameImage(const std::string& path, std::string* why) {
     return refuse("cannot decode image (" + e.err + ")");
   }
   if (image.empty()) return refuse("cannot decode image (corrupt or not an image file)");
+  return image;
+}
+
+cv::Mat readFrameImage(const std::string& path, std::string* why) {
+  const auto refuse = [&](const std::string& reason) {
+    if (why) *why = path + ": " + reason;
+    return cv::Mat();
+  };
+  cv::Mat image = decodeImageFile(path, why);
+  if (image.empty()) return image;
   if (image.depth() == CV_16U) {
     image = scaleTo8Bit(image);
   } else if (image.depth() != CV_8U) {

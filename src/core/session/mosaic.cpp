@@ -220,9 +220,7 @@ std::vector<std::string> MosaicImages::matchSessions(const SurveyExport& survey)
     // folder the session is named after (offline_slam names a session by its folder).
     int best = -1, best_n = 0, ties = 0, other_size = 0;
     bool best_named = false;
-    const CameraIntrinsics* cam = nullptr;
-    for (const auto& [id, c] : survey.cameras)
-      if (id == s.sessions.front()) cam = &c;
+    const CameraIntrinsics* cam = survey.findCamera(s.sessions.front());
     for (int d = 0; d < static_cast<int>(datasets_.size()); ++d) {
       // Frames are matched by stamp and index, which another mission can share (simulated ones
       // do, and any counter from 0): a folder whose images are not the session camera's size

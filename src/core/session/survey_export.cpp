@@ -41,9 +41,14 @@ const char* edgeKindName(ExportEdge::Kind kind) {
   return "?";
 }
 
-const CameraIntrinsics& SurveyExport::camera(std::int64_t session) const {
+const CameraIntrinsics* SurveyExport::findCamera(std::int64_t session) const {
   for (const auto& [id, c] : cameras)
-    if (id == session) return c;
+    if (id == session) return &c;
+  return nullptr;
+}
+
+const CameraIntrinsics& SurveyExport::camera(std::int64_t session) const {
+  if (const CameraIntrinsics* c = findCamera(session)) return *c;
   throw ExportError(store_path + ": no camera for session " + std::to_string(session));
 }
 

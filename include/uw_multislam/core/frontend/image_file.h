@@ -21,6 +21,11 @@ bool isTruncatedJpeg(const std::vector<std::uint8_t>& bytes);
 /// data uses the full 8 bits; the scale changes only when a frame's maximum crosses a power of two.
 cv::Mat scaleTo8Bit(const cv::Mat& in16);
 
+/// An image file decoded as stored (IMREAD_ANYCOLOR | IMREAD_ANYDEPTH: grey stays grey, 16 bits
+/// stay 16 bits). Empty, with `why` (naming the file), when it cannot be opened or read, is empty,
+/// is a truncated JPEG or does not decode.
+cv::Mat decodeImageFile(const std::string& path, std::string* why);
+
 /// An image file as the odometry takes it: 8 bits, grey or BGR (16 bits scaled as above; the
 /// decoder drops alpha). Empty, with `why` (naming the file), when it cannot be read or decoded,
 /// is a truncated JPEG, or has another depth (float images are refused: cv::imread with

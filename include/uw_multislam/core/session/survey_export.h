@@ -82,6 +82,8 @@ struct SurveyExport {
   std::vector<std::pair<std::int64_t, CameraIntrinsics>> cameras;  // per store session
   int pending_loops = 0;  // loops stored but not yet in an optimisation (their maps as stored)
 
+  /// The camera of a store session; nullptr when unknown.
+  const CameraIntrinsics* findCamera(std::int64_t session) const;
   /// The camera of a store session. Throws ExportError when unknown.
   const CameraIntrinsics& camera(std::int64_t session) const;
 };
