@@ -293,7 +293,7 @@ TEST(Store, DamagedMapMotionsAreRebuiltFromTheSessionsNotRestoredAsNaN) {
   MultiSessionBackend restored(opt);
   const RestoredStore rs = restoreStore(store, &restored, nullptr, nullptr);
   ASSERT_EQ(rs.notes.size(), 1u);
-  EXPECT_NE(rs.notes[0].find("stored motion 0 is damaged (not finite)"), std::string::npos) << rs.notes[0];
+  EXPECT_NE(rs.notes[0].find("stored motion 0 is damaged (mean not finite)"), std::string::npos) << rs.notes[0];
   EXPECT_EQ(restored.mapOf(1), 0);  // still joined: the links and loops are kept
   restored.flush();                 // optimised again from the sessions' odometry, links and loops
   double worst = 0.0;

@@ -140,6 +140,28 @@ TEST(CheckCovariance, AcceptsValidRejectsBroken) {
   EXPECT_NE(checkCovariance(nan).find("finite"), std::string::npos);
 }
 
+TEST(CheckUncertainPose, CovarianceThenMeanThenInverse) {
+  const UncertainPose2 good(Pose2(1, 2, 0.3), cov(0.1, 0.1, 0.01, 0.5));
+  EXPECT_EQ(checkUncertainPose(good), "");
+  EXPECT_EQ(checkUncertainPose(good, true), "");
+  UncertainPose2 nan_mean = good;
+  nan_mean.mean = Pose2(1, std::numeric_limits<double>::quiet_NaN(), 0.3);
+  EXPECT_EQ(checkUncertainPose(nan_mean), "mean not finite");
+  UncertainPose2 inf_yaw = good;
+  inf_yaw.mean = Pose2(1, 2, std::numeric_limits<double>::infinity());
+  EXPECT_EQ(checkUncertainPose(inf_yaw), "mean not finite");
+  UncertainPose2 asym = good;
+  asym.covariance(0, 1) += 0.01;
+  EXPECT_NE(checkUncertainPose(asym).find("symmetric"), std::string::npos);
+  // Singular: fine for a motion (an exact first pose), refused where an information matrix is needed.
+  UncertainPose2 singular = good;
+  singular.covariance.row(2).setZero();
+  singular.covariance.col(2).setZero();
+  EXPECT_EQ(checkUncertainPose(singular), "");
+  EXPECT_NE(checkUncertainPose(singular, true).find("singular"), std::string::npos);
+  EXPECT_NE(checkUncertainPose(UncertainPose2::exact(Pose2()), true).find("singular"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam

@@ -283,7 +283,7 @@ def test_damaged_map_motions_are_refused_and_a_run_repairs_them(store, tmp_path)
     con.commit()
     con.close()
     r = run("export_survey", "--db", bad, "--out", tmp_path / "out")
-    assert r.returncode == 1 and "stored motion 0 is damaged (not finite)" in r.stderr, r.stderr
+    assert r.returncode == 1 and "stored motion 0 is damaged (mean not finite)" in r.stderr, r.stderr
     assert "offline_slam --db on the store saves it repaired" in r.stderr and not (tmp_path / "out").exists()
     r = run("offline_slam", "--db", bad, "--detect-loops", "--out", tmp_path / "run")
     assert r.returncode == 0, r.stderr

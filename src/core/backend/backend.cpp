@@ -205,9 +205,8 @@ void MultiSessionBackend::toDenseIfIekf(Map& m) const {
 void MultiSessionBackend::addMotion(int session, const UncertainPose2& motion) {
   const Session& s = sessionAt(session);
   if (!s.recording) throw std::invalid_argument("backend: session " + std::to_string(session) + " is not recording");
-  const std::string bad = checkCovariance(motion.covariance);
-  if (!bad.empty() || !motion.mean.isFinite())
-    throw std::invalid_argument("backend: motion: " + (bad.empty() ? std::string("not finite") : bad));
+  if (const std::string bad = checkUncertainPose(motion); !bad.empty())
+    throw std::invalid_argument("backend: motion: " + bad);
   Map& m = mapAt(s.map);
   if (m.chain.back() != session) throw std::logic_error("backend: a recording session is not at the end of its map");
   if (m.iekf && m.numMotions() + 2 > options_.max_keyframes) {
@@ -234,10 +233,8 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
   check(l.session_b, l.keyframe_b);
   if (l.session_a == l.session_b && l.keyframe_a == l.keyframe_b)
     throw std::invalid_argument("backend: loop from a keyframe to itself");
-  const std::string bad = checkCovariance(l.z.covariance);
-  if (!bad.empty() || !l.z.mean.isFinite() || l.z.covariance.determinant() <= 0.0)
-    throw std::invalid_argument("backend: loop: " +
-                                (bad.empty() ? std::string("mean not finite or covariance singular") : bad));
+  if (const std::string bad = checkUncertainPose(l.z, true); !bad.empty())
+    throw std::invalid_argument("backend: loop: " + bad);
   loops_.push_back({l, false, false, false});
   ++stats_.loops;
   const int ma = mapOf(l.session_a), mb = mapOf(l.session_b);
@@ -1045,10 +1042,9 @@ LoopRecord MultiSessionBackend::loopRecord(int id) const {
 
 int MultiSessionBackend::restoreSession(const std::string& name, const std::vector<UncertainPose2>& odometry) {
   for (std::size_t k = 0; k < odometry.size(); ++k) {
-    const std::string bad = checkCovariance(odometry[k].covariance);
-    if (!bad.empty() || !odometry[k].mean.isFinite())
+    if (const std::string bad = checkUncertainPose(odometry[k]); !bad.empty())
       throw std::invalid_argument("backend: restored session '" + name + "': motion " + std::to_string(k + 1) + ": " +
-                                  (bad.empty() ? std::string("not finite") : bad));
+                                  bad);
   }
   const int id = numSessions();
   Session s;
@@ -1123,9 +1119,8 @@ int MultiSessionBackend::restoreLoop(const LoopRecord& r) {
       throw std::invalid_argument("backend: restored loop: no keyframe " + std::to_string(k) + " in session " +
                                   std::to_string(s));
   }
-  const std::string bad = checkCovariance(l.z.covariance);
-  if (!bad.empty() || !l.z.mean.isFinite())
-    throw std::invalid_argument("backend: restored loop: " + (bad.empty() ? std::string("mean not finite") : bad));
+  if (const std::string bad = checkUncertainPose(l.z); !bad.empty())
+    throw std::invalid_argument("backend: restored loop: " + bad);
   loops_.push_back({l, r.summarised, r.applied, r.refused});
   ++stats_.loops;
   return numLoops() - 1;

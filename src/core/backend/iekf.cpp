@@ -30,9 +30,8 @@ TrajectoryIekf::TrajectoryIekf(const IekfOptions& options, std::vector<Pose2> mo
 }
 
 void TrajectoryIekf::addMotion(const UncertainPose2& motion) {
-  const std::string bad = checkCovariance(motion.covariance);
-  if (!bad.empty() || !motion.mean.isFinite())
-    throw std::invalid_argument("iekf: motion: " + (bad.empty() ? "not finite" : bad));
+  if (const std::string bad = checkUncertainPose(motion); !bad.empty())
+    throw std::invalid_argument("iekf: motion: " + bad);
   // P grows by 3 rows and columns per motion. It lives in the top-left corner of a larger
   // buffer whose capacity doubles, so that trajectory building copies P O(log N) times instead of
   // at every keyframe (which made building 1000 keyframes take 14 s).

@@ -88,12 +88,9 @@ void checkEdges(std::size_t n, const std::vector<PoseGraphEdge>& edges, int fixe
       throw std::invalid_argument("pose graph: edge " + std::to_string(e.from) + " -> " + std::to_string(e.to) +
                                   " is not between two of " + std::to_string(n) + " poses");
     }
-    std::string bad = checkCovariance(e.z.covariance);
-    if (bad.empty() && Eigen::LLT<Eigen::Matrix3d>(e.z.covariance).info() != Eigen::Success)
-      bad = "covariance is singular (the edge needs an information matrix)";
-    if (!bad.empty() || !e.z.mean.isFinite())
+    if (const std::string bad = checkUncertainPose(e.z, true); !bad.empty())
       throw std::invalid_argument("pose graph: edge " + std::to_string(e.from) + " -> " + std::to_string(e.to) + ": " +
-                                  (bad.empty() ? "mean not finite" : bad));
+                                  bad);
   }
 }
 

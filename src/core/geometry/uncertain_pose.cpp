@@ -1,5 +1,6 @@
 #include "uw_multislam/core/geometry/uncertain_pose.h"
 
+#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
@@ -32,6 +33,14 @@ std::string checkCovariance(const Eigen::Matrix3d& p) {
     return os.str();
   }
   return {};
+}
+
+std::string checkUncertainPose(const UncertainPose2& u, bool invertible) {
+  std::string bad = checkCovariance(u.covariance);
+  if (bad.empty() && !u.mean.isFinite()) bad = "mean not finite";
+  if (bad.empty() && invertible && Eigen::LLT<Eigen::Matrix3d>(u.covariance).info() != Eigen::Success)
+    bad = "covariance is singular (no information matrix: some uncertainty in x, y and yaw is needed)";
+  return bad;
 }
 
 }  // namespace core

@@ -9,17 +9,6 @@
 namespace uw_multislam {
 namespace core {
 
-namespace {
-
-// Why a stored pose with covariance cannot be used: "" when it can.
-std::string damageOf(const UncertainPose2& u) {
-  const std::string bad = checkCovariance(u.covariance);
-  if (!bad.empty()) return bad;
-  return u.mean.isFinite() ? "" : "not finite";
-}
-
-}  // namespace
-
 RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backend, LoopDetector* detector,
                            std::vector<std::unique_ptr<CameraIntrinsics>>* cameras) {
   if (backend->numSessions() != 0 || backend->numLoops() != 0)
@@ -76,7 +65,7 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
       // A link is a measurement (the loops it summarises), not derived data: nothing to rebuild
       // it from here.
       for (const StoredLink& l : sm.links) {
-        const std::string bad = damageOf(l.measured);
+        const std::string bad = checkUncertainPose(l.measured);
         if (bad.empty()) continue;
         unjoined[i] = "session store " + store.path() + ": a link of the map of session " +
                       std::to_string(sm.chain.front()) + " is damaged (" + bad +
@@ -131,7 +120,7 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     // The optimised motions are derived data (odometry + links + loops): damaged ones (a bad
     // page, a NaN written by an older build) are rebuilt rather than turning every pose NaN.
     for (std::size_t k = 0; k < st.motions.size(); ++k) {
-      const std::string bad = damageOf(st.motions[k]);
+      const std::string bad = checkUncertainPose(st.motions[k]);
       if (bad.empty()) continue;
       out.notes.push_back("session store " + store.path() + ": map of session " + std::to_string(sm.chain.front()) +
                           ": stored motion " + std::to_string(k) + " is damaged (" + bad +

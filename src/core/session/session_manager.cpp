@@ -7,8 +7,6 @@
 #include <filesystem>
 #include <stdexcept>
 
-#include <Eigen/Cholesky>
-
 #include "uw_multislam/core/session/interrupted_run.h"
 #include "uw_multislam/core/session/map_persistence.h"
 
@@ -727,12 +725,9 @@ Status SessionManager::storedMapsMayChange(const std::string& what) const {
 
 Status SessionManager::addLink(Loop l) {
   if (const Status ends = checkLinkEnds(l); !ends.ok()) return ends;
-  if (!l.z.mean.isFinite()) return {StatusCode::kInvalidArgument, "add_link: the pose must be finite"};
-  std::string bad = checkCovariance(l.z.covariance);  // finite, symmetric, not indefinite
-  if (bad.empty() && Eigen::LLT<Eigen::Matrix3d>(l.z.covariance).info() != Eigen::Success)
-    bad = "covariance is singular: a link needs some uncertainty in x, y and yaw";
-  if (!bad.empty())
-    return {StatusCode::kInvalidArgument, "add_link: " + bad + " (x, y, yaw; m^2, rad^2, row-major)"};
+  if (const std::string bad = checkUncertainPose(l.z, true); !bad.empty())
+    return {StatusCode::kInvalidArgument,
+            "add_link: the pose: " + bad + " (x, y, yaw; m, rad; covariance m^2, rad^2, row-major)"};
   if (l.inliers < 0) return {StatusCode::kInvalidArgument, "add_link: inliers must be >= 0"};
   if (const Status mode = storedMapsMayChange("add_link"); !mode.ok()) return mode;
   l.kind = l.session_a == l.session_b ? Loop::Kind::kLocal : Loop::Kind::kGlobal;

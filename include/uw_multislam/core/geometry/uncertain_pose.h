@@ -32,5 +32,10 @@ UncertainPose2 invert(const UncertainPose2& a);
 /// semi-definite. Returns an empty string when it is, else a sentence saying what is wrong.
 std::string checkCovariance(const Eigen::Matrix3d& p);
 
+/// Checks that a pose with covariance is usable: checkCovariance, then a finite mean; with
+/// `invertible`, a covariance without an inverse (a measurement that needs an information matrix)
+/// is refused too. Returns an empty string when it is usable, else a sentence saying what is wrong.
+std::string checkUncertainPose(const UncertainPose2& u, bool invertible = false);
+
 }  // namespace core
 }  // namespace uw_multislam
