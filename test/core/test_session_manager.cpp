@@ -127,6 +127,28 @@ TEST(SessionManager, AKeyframeIdFarPastTheLastIsRefusedWithoutBridging) {
   EXPECT_EQ(m.loops().size(), 0u);
 }
 
+// Keyframe 0 lost on the way: the placeholder origin opens the session's store row, which gets the
+// camera of the keyframe that did arrive (it got a 0x0 camera, and export_survey --images then left
+// every folder out as "of another size").
+TEST(SessionManager, APlaceholderOriginStoresTheSessionsCamera) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  {
+    SessionManager m(options(db));
+    ASSERT_TRUE(m.addKeyframe(keyframe(0, 1, Pose2(1, 0, 0), Pose2(0, 0, 0))).ok());
+    ASSERT_TRUE(m.addKeyframe(keyframe(0, 2, Pose2(2, 0, 0), Pose2(1, 0, 0))).ok());
+    EXPECT_EQ(m.stats().store_failures, 0);
+  }
+  const SessionStore store(db, StoreAccess::kReadOnly);
+  const std::vector<StoredSession> sessions = store.sessions();
+  ASSERT_EQ(sessions.size(), 1u);
+  EXPECT_EQ(sessions[0].camera.width, 640);
+  EXPECT_EQ(sessions[0].camera.height, 480);
+  EXPECT_DOUBLE_EQ(sessions[0].camera.fx, 500.0);
+  EXPECT_DOUBLE_EQ(sessions[0].camera.cy, 240.0);
+  EXPECT_EQ(store.keyframes(sessions[0].id).size(), 3u);
+}
+
 TEST(SessionManager, LoopsOnKeyframesNotYetArrivedWait) {
   SessionManager m(options());
   addStraightSession(&m, 0, 3);

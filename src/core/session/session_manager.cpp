@@ -352,7 +352,7 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
   }
   const bool ok = storeWrite("writing a keyframe", [&] {
     if (s.store_id < 0) {
-      s.store_id = store_->addSession(s.name, k ? k->camera : CameraIntrinsics(), stamp_s);
+      s.store_id = store_->addSession(s.name, s.camera, stamp_s);  // known before a placeholder origin too
       if (!s.vehicle.empty()) {  // another vehicle's: where it came from, as merge_stores records it
         SessionProvenance p;
         p.session = s.store_id;
