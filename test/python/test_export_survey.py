@@ -540,6 +540,25 @@ def test_a_folder_of_another_cameras_images_is_not_drawn(store, survey, tmp_path
     assert "0 missing" in r.stdout and ", 0 thumbnails" not in r.stdout, r.stdout
 
 
+def test_a_session_stored_without_its_camera_still_finds_its_folder(store, survey, tmp_path):
+    """Stores written before the fix keep a 0x0 camera for a session whose keyframe 0 never
+    arrived: that camera is unknown, not "another size", so the session's own folder is drawn."""
+    db, _ = store
+    old = tmp_path / "old.db"
+    shutil.copy(db, old)
+    con = sqlite3.connect(str(old))
+    con.execute("UPDATE sessions SET cam_width = 0, cam_height = 0")
+    con.commit()
+    con.close()
+    r = run("export_survey", "--db", old, "--out", tmp_path / "out", "--images", survey / "a", survey / "b")
+    assert r.returncode == 0, r.stderr
+    matched = [line for line in r.stdout.splitlines() if line.startswith("images of session_")]
+    assert len(matched) == 2, r.stdout
+    for line in matched:
+        assert "no folder holds" not in line and "left out" not in line, line
+        assert re.search(r", (\d+) of \1 keyframes", line), line
+
+
 @pytest.fixture(scope="module")
 def full_mosaics(store, survey, tmp_path_factory):
     db, _ = store

@@ -221,6 +221,7 @@ std::vector<std::string> MosaicImages::matchSessions(const SurveyExport& survey)
     int best = -1, best_n = 0, ties = 0, other_size = 0;
     bool best_named = false;
     const CameraIntrinsics* cam = survey.findCamera(s.sessions.front());
+    if (cam && (cam->width <= 0 || cam->height <= 0)) cam = nullptr;  // stored unknown (a placeholder origin)
     for (int d = 0; d < static_cast<int>(datasets_.size()); ++d) {
       // Frames are matched by stamp and index, which another mission can share (simulated ones
       // do, and any counter from 0): a folder whose images are not the session camera's size
