@@ -63,7 +63,7 @@ int main(int argc, char** argv) {
       cv::Mat prev_desc;
       double prev_alt = 0.0;
       double x = 0, y = 0, yaw = 0;
-      int failures = 0;
+      int failures = 0, unreadable = 0;  // pairs without a motion (an unreadable frame fails two)
       for (const auto& f : d.frames) {
         // Stages (timing.csv): baseline_total the whole step; load_image and sift (OpenCV SIFT
         // alone, default settings: the reference column of scripts/bench_frontend.sh) inside it.
@@ -75,6 +75,7 @@ int main(int argc, char** argv) {
         }
         std::vector<cv::KeyPoint> kp;
         cv::Mat desc;
+        if (grey.empty()) ++unreadable;
         if (!grey.empty()) {
           core::ScopedStage s(&times, "sift");
           sift->detectAndCompute(grey, cv::noArray(), kp, desc);
@@ -105,6 +106,8 @@ int main(int argc, char** argv) {
           } else {
             ++failures;
           }
+        } else if (&f != &d.frames.front()) {
+          ++failures;  // either frame unreadable or without a keypoint: no motion, the pose held
         }
         odo << s << "," << f.index << "," << x << "," << y << "," << yaw << "\n";
         traj << s << "," << f.index << "," << s << "," << x << "," << y << "," << yaw << "\n";
@@ -112,8 +115,9 @@ int main(int argc, char** argv) {
         prev_desc = desc;
         prev_alt = f.altitude_m;
       }
-      std::printf("baseline session %zu (%s): %zu frames, %d failed pairs, %.1f ms/frame\n", s, sessions[s].c_str(),
-                  d.frames.size(), failures, times.get("baseline_total").meanMs());
+      std::printf("baseline session %zu (%s): %zu frames (%d unreadable), %d of %zu pairs failed, %.1f ms/frame\n", s,
+                  sessions[s].c_str(), d.frames.size(), unreadable, failures,
+                  d.frames.empty() ? std::size_t{0} : d.frames.size() - 1, times.get("baseline_total").meanMs());
     }
     std::ofstream(fs::path(out) / "loops.csv") << "session_a,index_a,session_b,index_b,kind,inliers\n";
     std::ofstream timing(fs::path(out) / "timing.csv");
