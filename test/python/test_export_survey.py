@@ -540,6 +540,19 @@ def test_a_folder_of_another_cameras_images_is_not_drawn(store, survey, tmp_path
     assert "0 missing" in r.stdout and ", 0 thumbnails" not in r.stdout, r.stdout
 
 
+@pytest.mark.parametrize("resolution, size", [("1e-300", r"\d\.\d+e\+30\d x \d\.\d+e\+30\d"),
+                                              ("1e-05", r"\d{6,7} x \d{6,7}")])
+def test_a_mosaic_too_large_is_refused_with_its_size(store, tmp_path, resolution, size):
+    """Too fine a --resolution: refused before anything is allocated, with the size it would have
+    had (it printed -9223372036854775808 x -9223372036854775808 px when past any integer)."""
+    db, _ = store
+    r = run("export_survey", "--db", db, "--out", tmp_path / "out", "--resolution", resolution)
+    assert r.returncode == 1, r.stdout
+    assert re.search(size + " px at %s m/px is more than 1000 megapixels: give a coarser --resolution"
+                     % resolution, r.stderr), r.stderr
+    assert ": -" not in r.stderr and "x -" not in r.stderr, r.stderr
+
+
 def test_a_session_stored_without_its_camera_still_finds_its_folder(store, survey, tmp_path):
     """Stores written before the fix keep a 0x0 camera for a session whose keyframe 0 never
     arrived: that camera is unknown, not "another size", so the session's own folder is drawn."""

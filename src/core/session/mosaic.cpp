@@ -18,6 +18,7 @@
 #include <list>
 #include <memory>
 #include <ostream>
+#include <sstream>
 
 #include "uw_multislam/core/frontend/image_file.h"
 #include "uw_multislam/core/session/mosaic_geometry.h"
@@ -342,11 +343,19 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
   raster.x0 = x_lo;
   raster.ytop = y_lo;
   const double w = std::ceil((x_hi - x_lo) / raster.res), h = std::ceil((y_hi - y_lo) / raster.res);
-  if (!(w * h <= options.max_megapixels * 1e6))
-    throw ExportError(png_path + ": " + std::to_string(static_cast<long long>(w)) + " x " +
-                      std::to_string(static_cast<long long>(h)) + " px at " + std::to_string(raster.res) +
-                      " m/px is more than " + std::to_string(options.max_megapixels) +
-                      " megapixels: give a coarser --resolution");
+  if (!(w * h <= options.max_megapixels * 1e6)) {
+    // Sizes past any integer (--resolution 1e-300) in exponent form, the others whole.
+    const auto px = [](double v) {
+      std::ostringstream os;
+      if (v < 1e15) os << std::fixed << std::setprecision(0);
+      os << v;
+      return os.str();
+    };
+    std::ostringstream os;
+    os << png_path << ": " << px(w) << " x " << px(h) << " px at " << raster.res << " m/px is more than "
+       << options.max_megapixels << " megapixels: give a coarser --resolution";
+    throw ExportError(os.str());
+  }
   raster.width = std::max(1, static_cast<int>(w));
   raster.height = std::max(1, static_cast<int>(h));
   result.width = raster.width;
