@@ -1,6 +1,7 @@
 // make_survey: renders bottom-looking camera missions over a seabed world with exact ground
 // truth. See --help, and README.md "Survey generator".
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -98,8 +99,10 @@ int main(int argc, char** argv) {
       const char* v = value("N");
       char* end = nullptr;
       if (!v) return badArgs("--seed needs a number");
+      errno = 0;
       a.seed = std::strtoull(v, &end, 10);
-      if (*v == '\0' || *end != '\0' || *v == '-') return badArgs(std::string("bad seed '") + v + "'");
+      if (*v == '\0' || *end != '\0' || *v == '-' || errno == ERANGE)  // strtoull clamps past 2^64 - 1
+        return badArgs(std::string("bad seed '") + v + "': an integer in [0, 18446744073709551615]");
       a.seed_given = true;
     } else if (arg == "--mosaic") {
       if (i + 2 >= argc) return badArgs("--mosaic needs an image and its georeference text file");
