@@ -545,6 +545,45 @@ TEST(Store, RefusesADamagedMetaRowAtTheOpen) {
   EXPECT_THROW(SessionStore(path, StoreAccess::kReadOnly), StoreError);
 }
 
+// A camera row nothing could have run with (a negative focal length, a principal point outside
+// the image) is refused by name: merge_stores copied it and the export drew mosaics with it. An
+// all-zero row is an unknown camera (older stores, keyframe 0 lost) and reads as one.
+TEST(Store, RefusesADamagedCameraRowAndReadsAnUnknownOne) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  CameraIntrinsics cam;
+  cam.width = 320;
+  cam.height = 240;
+  cam.fx = cam.fy = 300;
+  cam.cx = 160;
+  cam.cy = 120;
+  {
+    SessionStore store(path);
+    store.addSession("good", cam, 1.0);
+    store.addSession("unknown", CameraIntrinsics(), 2.0);
+  }
+  const std::vector<StoredSession> read = SessionStore(path, StoreAccess::kReadOnly).sessions();
+  ASSERT_EQ(read.size(), 2u);
+  EXPECT_EQ(read[0].camera, cam);
+  EXPECT_EQ(read[1].camera.width, 0);
+  for (const char* damage : {"cam_fx = -5", "cam_cx = 400", "cam_width = 0"}) {
+    const std::string copy = (dir.path() / "copy.db").string();
+    std::filesystem::copy_file(path, copy, std::filesystem::copy_options::overwrite_existing);
+    sqlite3* db = nullptr;
+    ASSERT_EQ(sqlite3_open(copy.c_str(), &db), SQLITE_OK);
+    const std::string sql = std::string("UPDATE sessions SET ") + damage + " WHERE name = 'good'";
+    ASSERT_EQ(sqlite3_exec(db, sql.c_str(), nullptr, nullptr, nullptr), SQLITE_OK);
+    sqlite3_close(db);
+    try {
+      SessionStore(copy, StoreAccess::kReadOnly).sessions();
+      ADD_FAILURE() << damage << ": read";
+    } catch (const StoreError& e) {
+      EXPECT_NE(std::string(e.what()).find("session 1 'good' has a damaged camera row"), std::string::npos)
+          << damage << ": " << e.what();
+    }
+  }
+}
+
 TEST(Store, RefusesAFileThatIsNotADatabase) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "notes.txt").string();

@@ -729,6 +729,13 @@ std::vector<StoredSession> SessionStore::sessions() const {
     s.camera.cx = sqlite3_column_double(q, 9);
     s.camera.cy = sqlite3_column_double(q, 10);
     s.keyframes = sqlite3_column_int(q, 11);
+    // 0x0: unknown (stores written before e2ed4d0 kept that for a session whose keyframe 0 never
+    // arrived); anything else must be a camera the odometry could have run with.
+    if (s.camera.width != 0 || s.camera.height != 0) {
+      if (const std::string bad = s.camera.validate(); !bad.empty())
+        throw StoreError("session store " + path_ + ": session " + std::to_string(s.id) + " '" + s.name +
+                         "' has a damaged camera row (" + bad + ")");
+    }
     out.push_back(s);
   }
   return out;
