@@ -386,6 +386,10 @@ def offline_dataset_cases(m, off):
     for label, value in [("NaN", "nan"), ("inf", "inf"), ("negative", "-2.0"), ("empty", "")]:
         dataset_case(m, off, "frames.csv altitude %s" % label, altitude(value), expected,
                      counted("1 skipped (0 image, 1 altitude)", " 1 altitudes reused"))
+    # Positive but absurd (a glitch, a sensor's "no bottom" value): above odometry.max_altitude_m.
+    dataset_case(m, off, "frames.csv altitude 1e308", altitude("1e308"),
+                 "the frame given the last valid altitude, counted above odometry.max_altitude_m, exit 0",
+                 counted(" 1 altitudes reused (1 above odometry.max_altitude_m)"))
 
     def backwards(folder):
         header, rows = read_frames(folder)

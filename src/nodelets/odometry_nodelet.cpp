@@ -927,10 +927,11 @@ void OdometryNodelet::logStats(const char* when) {
       "%ld bad altitudes, %ld duplicated and %ld late stamps skipped, %ld time jumps, %ld keyframes published, %ld "
       "fallbacks, %ld sessions (%ld after tracking loss); current "
       "session %d: %d frames, "
-      "%d keyframes, %d altitudes reused, %.1f ms/frame",
-      when, counts_.frames, counts_.dropped, counts_.bad_image, counts_.too_large, counts_.bad_camera, counts_.bad_altitude,
-      counts_.duplicates, counts_.out_of_order, counts_.jumps_back + counts_.jumps_forward, counts_.keyframes,
-      counts_.fallbacks, counts_.sessions, counts_.losses, session_, s.frames, s.keyframes, s.altitude_reused, ms);
+      "%d keyframes, %d altitudes reused (%d above odometry.max_altitude_m), %.1f ms/frame",
+      when, counts_.frames, counts_.dropped, counts_.bad_image, counts_.too_large, counts_.bad_camera,
+      counts_.bad_altitude, counts_.duplicates, counts_.out_of_order, counts_.jumps_back + counts_.jumps_forward,
+      counts_.keyframes, counts_.fallbacks, counts_.sessions, counts_.losses, session_, s.frames, s.keyframes,
+      s.altitude_reused, s.altitude_out_of_range, ms);
 }
 
 }  // namespace nodelets

@@ -288,6 +288,31 @@ TEST_F(OdometryTest, BadInputIsSkippedOrRepairedAndCounted) {
   EXPECT_EQ(odo.stats().frames, 6);
 }
 
+// An absurd altitude (a glitch, 1e308, a "no bottom" 9999) would scale the motion by it: above
+// max_altitude_m it is treated as missing, the last valid one reused, and counted.
+TEST_F(OdometryTest, AnAltitudeAboveTheMaximumIsReusedAndCounted) {
+  Odometry odo(camera_, OdometryOptions());
+  EXPECT_EQ(odo.process({0, 0.0, 1e308, render(Pose2(2, 2, 0), 2.0)}).status, FrameStatus::kSkipped);  // none yet
+  EXPECT_EQ(odo.process({1, 0.5, 2.0, render(Pose2(2, 2, 0), 2.0)}).status, FrameStatus::kFirstKeyframe);
+  for (const double glitch : {1e308, 9999.0, 200.5}) {
+    const OdometryUpdate u = odo.process({2, 1.0, glitch, render(Pose2(2.1, 2, 0), 2.0)});
+    EXPECT_EQ(u.status, FrameStatus::kTracked) << glitch;
+    EXPECT_NEAR(u.pose.x(), 0.1, 0.01) << glitch;  // at 2.0 m; 1e308 m gave a motion of ~1e307 m
+  }
+  EXPECT_EQ(odo.stats().altitude_out_of_range, 4);
+  EXPECT_EQ(odo.stats().altitude_reused, 3);
+  EXPECT_EQ(odo.stats().skipped_altitude, 1);
+  // The bound is the option (a camera 300 m up is not an AUV's, but the user may say so).
+  OdometryOptions high;
+  high.max_altitude_m = 400.0;
+  Odometry far(camera_, high);
+  far.process({0, 0.0, 300.0, render(Pose2(2, 2, 0), 2.0)});
+  EXPECT_EQ(far.stats().altitude_out_of_range, 0);
+  EXPECT_EQ(far.stats().skipped_altitude, 0);
+  high.max_altitude_m = std::nan("");
+  EXPECT_NE(high.validate().find("max_altitude_m"), std::string::npos);
+}
+
 TEST_F(OdometryTest, StraightRunDriftsLittleAndTakesKeyframesByOverlap) {
   OdometryOptions o;
   Odometry odo(camera_, o);

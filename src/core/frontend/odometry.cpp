@@ -42,6 +42,7 @@ std::string OdometryOptions::validate() const {
   for (const auto& c : checks) {
     if (!c.second.empty()) return std::string(c.first) + ": " + c.second;
   }
+  if (!(max_altitude_m > 0.0) || !std::isfinite(max_altitude_m)) return "max_altitude_m must be positive and finite";
   return {};
 }
 
@@ -286,7 +287,8 @@ OdometryUpdate Odometry::process(const OdometryInput& in, PreparedFrame* prepare
     return up;
   }
   double alt = in.altitude_m;
-  if (std::isfinite(alt) && alt > 0.0) {
+  if (alt > options_.max_altitude_m) ++stats_.altitude_out_of_range;  // NaN compares false: not counted here
+  if (std::isfinite(alt) && alt > 0.0 && alt <= options_.max_altitude_m) {
     last_altitude_ = alt;
   } else if (last_altitude_ > 0.0) {
     alt = last_altitude_;

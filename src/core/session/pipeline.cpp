@@ -91,10 +91,10 @@ void Pipeline::endPiece(double stamp_s) {
   char line[400];
   std::snprintf(line, sizeof line,
                 "session %d (%s): %d frames, %d keyframes, %d tracked, %d fallbacks, %d promotions, %d skipped "
-                "(%d image, %d altitude), %d altitudes reused, %.1f ms/frame",
+                "(%d image, %d altitude), %d altitudes reused (%d above odometry.max_altitude_m), %.1f ms/frame",
                 session_, manager_->name(session_).c_str(), st.frames, st.keyframes, st.tracked, st.fallbacks,
                 st.promotions, st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude,
-                st.altitude_reused, odometry.times().get("odometry_total").meanMs());
+                st.altitude_reused, st.altitude_out_of_range, odometry.times().get("odometry_total").meanMs());
   say(line);
   if (st.gate_checks > 0 || st.nav_frames > 0 || st.nav_implausible > 0) {
     std::snprintf(line, sizeof line,

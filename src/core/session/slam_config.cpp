@@ -63,6 +63,7 @@ class Writer {
 
 template <typename V, typename O>
 void visitOdometry(V& v, O& o) {
+  v("max_altitude_m", o.max_altitude_m);
   v.block("enhancement", [&](V& e) {
     e.enumeration("mode", o.enhancement.mode, enhancementName, parseEnhancement, "none, clahe, dehaze, dehaze_clahe");
     e("clahe_clip_limit", o.enhancement.clahe_clip_limit);

@@ -101,6 +101,11 @@ struct OdometryOptions {
   FallbackOptions fallback;
   NavPriorOptions nav;  // used only for frames that carry a nav pose
   KltOptions klt;       // tracking between keyframes (off: SIFT on every frame)
+  /// An altitude above this is not a reading a bottom-looking camera can use (a glitch, 1e308, a
+  /// sensor's "no bottom" value such as 9999): treated as missing, the last valid one reused and
+  /// counted (stats altitude_out_of_range). The live node also drops readings outside the
+  /// altimeter's own range.
+  double max_altitude_m = 200.0;
 
   /// Empty when usable, else a sentence naming the component and value.
   std::string validate() const;
@@ -176,6 +181,7 @@ struct OdometryStats {
   int skipped_image = 0;
   int skipped_altitude = 0;
   int altitude_reused = 0;
+  int altitude_out_of_range = 0;  // above max_altitude_m (then reused, or skipped when none yet)
   int nav_frames = 0;     // frames whose motion is the nav's (vision failed or was refused)
   int gate_checks = 0;    // visual motions compared with the nav
   int gate_refusals = 0;  // ... refused by the gate
