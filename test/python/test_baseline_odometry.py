@@ -5,16 +5,12 @@ import shutil
 
 import pytest
 from test_offline_slam import SURVEY
-from tool_runner import read_csv as rows, run_tool as run
+from tool_runner import make_survey, read_csv as rows, run_tool as run
 
 
 @pytest.fixture(scope="module")
 def survey(tmp_path_factory):
-    base = tmp_path_factory.mktemp("baseline")
-    (base / "survey.yaml").write_text(SURVEY)
-    r = run("make_survey", "--config", base / "survey.yaml", "--out", base / "m", "--no-bag", "--quiet")
-    assert r.returncode == 0, r.stderr
-    return base / "m"
+    return make_survey(tmp_path_factory.mktemp("baseline"), SURVEY)
 
 
 def baseline(folder, out):

@@ -14,7 +14,7 @@ import struct
 import numpy as np
 import pytest
 from test_offline_slam import SURVEY
-from tool_runner import HERE, read_csv as rows, run_tool as run
+from tool_runner import HERE, make_survey, read_csv as rows, run_tool as run
 
 EVALUATE = os.path.join(HERE, "..", "..", "src", "tools", "evaluate.py")
 ORIGIN = (43.2, 5.3, 30.0)  # lat, lon, heading of the map frame's x axis
@@ -22,11 +22,7 @@ ORIGIN = (43.2, 5.3, 30.0)  # lat, lon, heading of the map frame's x axis
 
 @pytest.fixture(scope="module")
 def survey(tmp_path_factory):
-    base = tmp_path_factory.mktemp("export_survey")
-    (base / "survey.yaml").write_text(SURVEY)
-    r = run("make_survey", "--config", base / "survey.yaml", "--out", base / "m", "--no-bag", "--quiet")
-    assert r.returncode == 0, r.stderr
-    return base / "m"
+    return make_survey(tmp_path_factory.mktemp("export_survey"), SURVEY)
 
 
 @pytest.fixture(scope="module")

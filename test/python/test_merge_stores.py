@@ -7,10 +7,9 @@ import math
 import os
 import shutil
 import sqlite3
-import struct
 
 import pytest
-from tool_runner import read_csv as rows, run_tool as run
+from tool_runner import make_survey, read_csv as rows, run_tool as run
 from test_offline_slam import SURVEY
 
 
@@ -22,9 +21,7 @@ def md5(path):
 @pytest.fixture(scope="module")
 def stores(tmp_path_factory):
     base = tmp_path_factory.mktemp("merge")
-    (base / "survey.yaml").write_text(SURVEY)
-    r = run("make_survey", "--config", base / "survey.yaml", "--out", base / "m", "--no-bag", "--quiet")
-    assert r.returncode == 0, r.stderr
+    make_survey(base, SURVEY)
     made = {}
     for name, folders in {"a": ["a"], "b": ["b"], "both": ["a", "b"]}.items():
         args = []

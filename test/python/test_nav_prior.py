@@ -10,7 +10,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from tool_runner import read_csv as rows, run_tool as run
+from tool_runner import make_survey, read_csv as rows, run_tool as run
 
 BLACKOUT = range(8, 38)  # frames 8..37 of session a: 30 blank frames
 SCALE_ERROR, HEADING_BIAS, RANDOM_WALK = 0.007, 0.007, 0.002  # make_survey's nav defaults
@@ -22,11 +22,7 @@ assert f"{{first_frame: {BLACKOUT.start}, num_frames: {len(BLACKOUT)}, kind: bla
 
 @pytest.fixture(scope="module")
 def mission(tmp_path_factory):
-    base = tmp_path_factory.mktemp("nav")
-    (base / "survey.yaml").write_text(MISSION)
-    r = run("make_survey", "--config", base / "survey.yaml", "--out", base / "m", "--no-bag", "--quiet")
-    assert r.returncode == 0, r.stderr
-    return base / "m"
+    return make_survey(tmp_path_factory.mktemp("nav"), MISSION)
 
 
 def slam(mission, out, *args):

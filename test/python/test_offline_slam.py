@@ -9,7 +9,7 @@ import time
 
 import pytest
 import yaml
-from tool_runner import BIN_DIR, HERE, read_csv as rows, run_tool as run
+from tool_runner import BIN_DIR, HERE, make_survey, read_csv as rows, run_tool as run
 
 SURVEY = """
 seed: 11
@@ -26,11 +26,7 @@ sessions:
 
 @pytest.fixture(scope="module")
 def survey(tmp_path_factory):
-    base = tmp_path_factory.mktemp("slam")
-    (base / "survey.yaml").write_text(SURVEY)
-    r = run("make_survey", "--config", str(base / "survey.yaml"), "--out", str(base / "m"), "--no-bag", "--quiet")
-    assert r.returncode == 0, r.stderr
-    return base / "m"
+    return make_survey(tmp_path_factory.mktemp("slam"), SURVEY)
 
 
 @pytest.fixture(scope="module")
@@ -512,9 +508,7 @@ def test_tracking_loss_starts_a_session_that_global_loops_join_back(tmp_path):
     """Seven blank frames in the first of two laps: tracking is lost, the session is closed and a
     new one starts when the seabed is back; the second lap's global loops join the pieces, and
     the joined map is within a few cm of the ground truth."""
-    (tmp_path / "s.yaml").write_text(LOST)
-    r = run("make_survey", "--config", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "m"), "--no-bag", "--quiet")
-    assert r.returncode == 0, r.stderr
+    make_survey(tmp_path, LOST)
     out = tmp_path / "o"
     r = run("offline_slam", "--session", str(tmp_path / "m" / "a"), "--out", str(out))
     assert r.returncode == 0, r.stderr
@@ -563,8 +557,7 @@ def short_revisits(tmp_path_factory):
     """config/missions/short_revisits.yaml: five 4-5 frame passes over one patch, a sixth elsewhere."""
     base = tmp_path_factory.mktemp("short")
     mission = os.path.join(HERE, "..", "..", "config", "missions", "short_revisits.yaml")
-    r = run("make_survey", "--config", mission, "--out", str(base / "m"), "--no-bag", "--quiet")
-    assert r.returncode == 0, r.stderr
+    make_survey(base, mission)
     runs = {}
     for policy in ("count", "consistent"):
         (base / (policy + ".yaml")).write_text("backend:\n  join_policy: %s\n" % policy)

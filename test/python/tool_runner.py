@@ -6,6 +6,7 @@ The binaries come from UWMS_BIN_DIR (set by CMake to the devel space), or the de
 import csv
 import os
 import subprocess
+from pathlib import Path
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(os.path.dirname(os.path.realpath(__file__)))
@@ -16,6 +17,19 @@ def run_tool(tool, *args, timeout=300):
     """Runs BIN_DIR/tool with the arguments; returns the CompletedProcess (text output)."""
     return subprocess.run([os.path.join(BIN_DIR, tool), *map(str, args)], capture_output=True, text=True,
                           timeout=timeout)
+
+
+def make_survey(base, spec):
+    """Generates the survey of `spec` (make_survey YAML text, or the path of a YAML file) into
+    base/m without bags; returns that folder (a failure fails the test with make_survey's error)."""
+    base = Path(base)
+    config = spec
+    if not os.path.isfile(str(spec)):
+        config = base / "survey.yaml"
+        config.write_text(spec)
+    r = run_tool("make_survey", "--config", config, "--out", base / "m", "--no-bag", "--quiet")
+    assert r.returncode == 0, r.stderr
+    return base / "m"
 
 
 def read_csv(path):
