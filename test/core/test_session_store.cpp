@@ -250,6 +250,43 @@ TEST_P(StoreBothOptimizers, RoundTripGivesIdenticalTrajectoriesLoopsAndMaps) {
   expectSameBackends(original, restored);
 }
 
+// A session stored with a 0x0 camera (older stores, keyframe 0 lost): restored with its poses, and
+// said when its keyframes go to the loop detector (no loop to them can be verified); export, which
+// restores without a detector, is not refused for it.
+TEST(Store, ASessionWithoutAStoredCameraIsSaidWhenItsKeyframesGoToTheLoopDetector) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  BackendOptions opt = missionOptions();
+  MultiSessionBackend original(opt);
+  {
+    SessionStore store(path);
+    Recorder r(&store, &original);
+    recordMission(&r);
+  }
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  ASSERT_EQ(sqlite3_exec(db,
+                         "UPDATE sessions SET cam_width = 0, cam_height = 0, cam_fx = 0, cam_fy = 0, cam_cx = 0, "
+                         "cam_cy = 0 WHERE name = 'b'",
+                         nullptr, nullptr, nullptr),
+            SQLITE_OK);
+  sqlite3_close(db);
+  SessionStore store(path);
+  {
+    MultiSessionBackend restored(opt);
+    EXPECT_TRUE(restoreStore(store, &restored, nullptr, nullptr).notes.empty());
+    expectSameBackends(original, restored);
+  }
+  MultiSessionBackend restored(opt);
+  LoopDetector detector(LoopOptions(), MatchOptions(), RansacOptions(), 20);
+  std::vector<std::unique_ptr<CameraIntrinsics>> cameras;
+  const RestoredStore rs = restoreStore(store, &restored, &detector, &cameras);
+  expectSameBackends(original, restored);
+  ASSERT_EQ(rs.notes.size(), 1u);
+  EXPECT_NE(rs.notes[0].find("session 2 'b' has no stored camera"), std::string::npos) << rs.notes[0];
+  EXPECT_NE(rs.notes[0].find("its 12 keyframes"), std::string::npos) << rs.notes[0];
+}
+
 INSTANTIATE_TEST_SUITE_P(Store, StoreBothOptimizers, ::testing::Values(OptimizerKind::kSparse, OptimizerKind::kIekf),
                          [](const auto& info) { return std::string(optimizerName(info.param)); });
 
