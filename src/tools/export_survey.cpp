@@ -179,6 +179,8 @@ int main(int argc, char** argv) {
     auto writeAll = [&](const core::ExportTrack& t) {
       const core::TrackFiles written = core::writeTrackFiles(t, survey, images, out, track_options);
       files += static_cast<int>(written.files.size());
+      if (!written.no_mosaic.empty())
+        std::printf("%s.png: not drawn: %s\n", t.label.c_str(), written.no_mosaic.c_str());
       if (!written.mosaic || quiet) return;
       const core::MosaicResult& r = written.mosaic_result;
       std::printf(

@@ -568,6 +568,35 @@ def test_a_session_stored_without_its_camera_still_finds_its_folder(store, surve
         assert re.search(r", (\d+) of \1 keyframes", line), line
 
 
+def test_a_session_stored_without_a_camera_is_exported_without_its_mosaic(store, tmp_path):
+    """A session stored with a 0x0 camera (older stores, keyframe 0 lost): its track files are
+    written and its mosaic left out with the reason; the map's mosaic is drawn from the other
+    session (it failed the whole export with 'no keyframe ... has a valid pose and altitude')."""
+    db, _ = store
+    old = tmp_path / "old.db"
+    shutil.copy(db, old)
+    con = sqlite3.connect(str(old))
+    (first,) = con.execute("SELECT min(id) FROM sessions").fetchone()
+    con.execute("UPDATE sessions SET cam_width = 0, cam_height = 0, cam_fx = 0, cam_fy = 0, cam_cx = 0, cam_cy = 0 "
+                "WHERE id = ?", (first,))
+    con.commit()
+    con.close()
+    out = tmp_path / "out"
+    r = run("export_survey", "--db", old, "--out", out)
+    assert r.returncode == 0, r.stderr
+    label = "session_%d" % first
+    assert "%s.png: not drawn: no session of %s has a stored camera" % (label, label) in r.stdout, r.stdout
+    assert not (out / (label + ".png")).exists()
+    for ext in (".tum", ".kitti", ".csv", ".g2o"):
+        assert (out / (label + ext)).stat().st_size > 0
+    other = [p.name for p in out.glob("session_*.png")]
+    assert len(other) == 1 and other[0] != label + ".png", other
+    (map_png,) = [line for line in r.stdout.splitlines() if line.startswith("map_") and ".png:" in line]
+    n_other, n_first = len(rows(out / other[0].replace(".png", ".csv"))), len(rows(out / (label + ".csv")))
+    # The other session's keyframes drawn from their thumbnails, the first's counted missing.
+    assert "images: 0 frames, %d thumbnails, %d missing" % (n_other, n_first) in map_png, (map_png, n_other, n_first)
+
+
 @pytest.fixture(scope="module")
 def full_mosaics(store, survey, tmp_path_factory):
     db, _ = store

@@ -63,8 +63,11 @@ CameraIntrinsics scaledTo(const CameraIntrinsics& c, const cv::Size& size) { ret
 
 // A keyframe the mosaic can place: finite pose, positive finite altitude (anything else is a
 // bad store row: left out and counted as missing, never a NaN extent).
-bool drawable(const ExportKeyframe& k) {
-  return k.pose.mean.isFinite() && std::isfinite(k.altitude_m) && k.altitude_m > 0.0;
+// A keyframe is drawn when its pose and altitude are valid and its session's camera is known (a
+// session stored with a 0x0 camera by an older version is not: restoreStore says so).
+bool drawable(const ExportKeyframe& k, const CameraIntrinsics& c) {
+  return k.pose.mean.isFinite() && std::isfinite(k.altitude_m) && k.altitude_m > 0.0 && c.width > 0 && c.height > 0 &&
+         c.fx > 0.0 && c.fy > 0.0;
 }
 
 // Pixel (u, v, 1) of the image seen through `cam` -> ground point in the map's image axes (the
@@ -131,7 +134,7 @@ std::vector<cv::Scalar> exposureGains(const ExportTrack& track, const SurveyExpo
   std::vector<double> widths;
   for (const ExportKeyframe& k : track.keyframes) {
     const CameraIntrinsics& c = survey.camera(k.session);
-    if (drawable(k)) widths.push_back(c.width * k.altitude_m / c.fx);
+    if (drawable(k, c)) widths.push_back(c.width * k.altitude_m / c.fx);
   }
   if (widths.size() < 2) return gains;
   std::nth_element(widths.begin(), widths.begin() + widths.size() / 2, widths.end());
@@ -142,7 +145,7 @@ std::vector<cv::Scalar> exposureGains(const ExportTrack& track, const SurveyExpo
   std::vector<bool> ok(n, false);
   for (int i = 0; i < n; ++i) {
     const ExportKeyframe& k = track.keyframes[i];
-    if (!drawable(k)) continue;
+    if (!drawable(k, survey.camera(k.session))) continue;
     CameraIntrinsics cam;
     const cv::Mat img = images.loadSmall(k, survey.camera(k.session), &cam);
     if (img.empty()) continue;
@@ -318,11 +321,12 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
     };
     for (const ExportKeyframe& k : track.keyframes) {
       const CameraIntrinsics& c = survey.camera(k.session);
-      if (!drawable(k)) continue;
+      if (!drawable(k, c)) continue;
       const double scale = images.hasDatasets() || k.thumbnail.empty() ? 1.0 : storedScale(k, c);
       px.push_back(k.altitude_m / c.fx * scale);
     }
-    if (px.empty()) throw ExportError(png_path + ": no keyframe of " + track.label + " has a valid pose and altitude");
+    if (px.empty())
+      throw ExportError(png_path + ": no keyframe of " + track.label + " has a valid pose, altitude and stored camera");
     std::nth_element(px.begin(), px.begin() + px.size() / 2, px.end());
     raster.res = px[px.size() / 2];
   }
@@ -332,14 +336,15 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
   for (int i = 0; i < n; ++i) {
     const ExportKeyframe& k = track.keyframes[i];
     const CameraIntrinsics& c = survey.camera(k.session);
-    if (!drawable(k)) continue;
+    if (!drawable(k, c)) continue;
     ground[i] = footprint(groundFromPixel(k, c), cv::Size(c.width, c.height));
     x_lo = std::min(x_lo, ground[i].x);
     y_lo = std::min(y_lo, ground[i].y);
     x_hi = std::max(x_hi, ground[i].x + ground[i].width);
     y_hi = std::max(y_hi, ground[i].y + ground[i].height);
   }
-  if (x_lo > x_hi) throw ExportError(png_path + ": no keyframe of " + track.label + " has a valid pose and altitude");
+  if (x_lo > x_hi)
+    throw ExportError(png_path + ": no keyframe of " + track.label + " has a valid pose, altitude and stored camera");
   raster.x0 = x_lo;
   raster.ytop = y_lo;
   const double w = std::ceil((x_hi - x_lo) / raster.res), h = std::ceil((y_hi - y_lo) / raster.res);
@@ -375,7 +380,8 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
   std::vector<std::vector<int>> touching(static_cast<std::size_t>(nx) * ny);
   std::vector<cv::Rect> box(n);
   for (int i = 0; i < n; ++i) {
-    if (!drawable(track.keyframes[i])) continue;  // counted missing: never loaded
+    const ExportKeyframe& k = track.keyframes[i];
+    if (!drawable(k, survey.camera(k.session))) continue;  // counted missing: never loaded
     const cv::Rect2d r((ground[i].x - raster.x0) / raster.res - 0.5, (ground[i].y - raster.ytop) / raster.res - 0.5,
                        ground[i].width / raster.res, ground[i].height / raster.res);
     box[i] = pixelBox(r);

@@ -1,5 +1,6 @@
 #include "uw_multislam/core/session/track_files.h"
 
+#include <algorithm>
 #include <filesystem>
 
 namespace uw_multislam {
@@ -27,6 +28,16 @@ TrackFiles writeTrackFiles(const ExportTrack& t, const SurveyExport& survey, con
     wrote(".geojson");
   }
   if (!options.mosaic) return out;
+  // A track all of whose sessions were stored without a camera (0x0, older stores) cannot be
+  // drawn: its other files are written, the mosaic is left out with the reason.
+  const bool any_camera = std::any_of(t.sessions.begin(), t.sessions.end(), [&](std::int64_t id) {
+    const CameraIntrinsics* c = survey.findCamera(id);
+    return c && c->width > 0 && c->height > 0;
+  });
+  if (!any_camera) {
+    out.no_mosaic = "no session of " + t.label + " has a stored camera (0x0: stored by an older version)";
+    return out;
+  }
   out.mosaic_result =
       writeMosaic(t, survey, images, options.mosaic_options, base + ".png", options.origin, base + ".tif");
   out.mosaic = true;

@@ -22,6 +22,7 @@ struct TrackFilesOptions {
 struct TrackFiles {
   std::vector<std::string> files;  // the paths written, in order
   bool mosaic = false;             // whether `mosaic` below was drawn
+  std::string no_mosaic;           // why it was not, when asked for but not drawn
   MosaicResult mosaic_result;
 };
 
