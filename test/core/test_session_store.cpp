@@ -588,12 +588,7 @@ TEST(Store, RefusesADamagedMetaRowAtTheOpen) {
 TEST(Store, RefusesADamagedCameraRowAndReadsAnUnknownOne) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
-  CameraIntrinsics cam;
-  cam.width = 320;
-  cam.height = 240;
-  cam.fx = cam.fy = 300;
-  cam.cx = 160;
-  cam.cy = 120;
+  const CameraIntrinsics cam = camera();
   {
     SessionStore store(path);
     store.addSession("good", cam, 1.0);
