@@ -2,6 +2,8 @@
 // matching, and the odometry on rendered seabed frames with known motion.
 #include <gtest/gtest.h>
 
+#include <limits>
+
 #include <Eigen/Dense>
 #include <opencv2/imgproc.hpp>
 
@@ -301,6 +303,10 @@ TEST_F(OdometryTest, AnAltitudeAboveTheMaximumIsReusedAndCounted) {
   }
   EXPECT_EQ(odo.stats().altitude_out_of_range, 4);
   EXPECT_EQ(odo.stats().altitude_reused, 3);
+  // inf is not a reading at all (as NaN): reused, not counted as above the maximum.
+  odo.process({3, 1.5, std::numeric_limits<double>::infinity(), render(Pose2(2.1, 2, 0), 2.0)});
+  EXPECT_EQ(odo.stats().altitude_out_of_range, 4);
+  EXPECT_EQ(odo.stats().altitude_reused, 4);
   EXPECT_EQ(odo.stats().skipped_altitude, 1);
   // The bound is the option (a camera 300 m up is not an AUV's, but the user may say so).
   OdometryOptions high;

@@ -160,6 +160,10 @@ TEST(CheckUncertainPose, CovarianceThenMeanThenInverse) {
   EXPECT_EQ(checkUncertainPose(singular), "");
   EXPECT_NE(checkUncertainPose(singular, true).find("singular"), std::string::npos);
   EXPECT_NE(checkUncertainPose(UncertainPose2::exact(Pose2()), true).find("singular"), std::string::npos);
+  // Positive definite, but an inverse that overflows (the determinant underflows to 0).
+  const UncertainPose2 tiny(Pose2(1, 2, 0.3), Eigen::Matrix3d::Identity() * 1e-110);
+  EXPECT_EQ(checkUncertainPose(tiny), "");
+  EXPECT_NE(checkUncertainPose(tiny, true).find("singular"), std::string::npos);
 }
 
 }  // namespace

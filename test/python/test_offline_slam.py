@@ -2,6 +2,7 @@
 session numbering, and clear failures on bad input. Runs on a small generated survey."""
 import math
 import os
+import re
 import shutil
 import sqlite3
 import subprocess
@@ -256,6 +257,18 @@ def test_unreadable_image_is_skipped_and_counted(tmp_path, survey):
     assert r.returncode == 0, r.stderr
     assert "0003.jpg" in r.stderr and "skipped" in r.stderr
     assert "1 skipped (1 image" in r.stdout
+
+
+def test_the_session_line_is_whole_for_a_long_folder_path(tmp_path, survey):
+    """The session's summary line names its folder: a long path (250 characters, near the 256 a
+    session name may have) must not cut the counts after it (a 400-byte buffer did)."""
+    folder = tmp_path / ("d" * (250 - len(str(tmp_path)) - 3)) / "a"
+    assert len(str(folder)) == 250
+    shutil.copytree(survey / "a", folder)
+    r = run("offline_slam", "--session", str(folder), "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr
+    (line,) = [x for x in r.stdout.splitlines() if x.startswith("session 0 (%s): " % folder)]
+    assert re.search(r"\d+ altitudes reused \(0 above odometry\.max_altitude_m\), \d+\.\d ms/frame$", line), line
 
 
 def test_dump_config_round_trips(tmp_path):

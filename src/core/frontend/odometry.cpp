@@ -287,7 +287,7 @@ OdometryUpdate Odometry::process(const OdometryInput& in, PreparedFrame* prepare
     return up;
   }
   double alt = in.altitude_m;
-  if (alt > options_.max_altitude_m) ++stats_.altitude_out_of_range;  // NaN compares false: not counted here
+  if (std::isfinite(alt) && alt > options_.max_altitude_m) ++stats_.altitude_out_of_range;  // NaN, inf: invalid
   if (std::isfinite(alt) && alt > 0.0 && alt <= options_.max_altitude_m) {
     last_altitude_ = alt;
   } else if (last_altitude_ > 0.0) {

@@ -2,6 +2,7 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
+#include <Eigen/LU>
 
 #include <algorithm>
 #include <sstream>
@@ -38,7 +39,10 @@ std::string checkCovariance(const Eigen::Matrix3d& p) {
 std::string checkUncertainPose(const UncertainPose2& u, bool invertible) {
   std::string bad = checkCovariance(u.covariance);
   if (bad.empty() && !u.mean.isFinite()) bad = "mean not finite";
-  if (bad.empty() && invertible && Eigen::LLT<Eigen::Matrix3d>(u.covariance).info() != Eigen::Success)
+  // The inverse itself must be finite: 1e-110 * I passes the Cholesky test, its inverse overflows
+  // (the pose graph's edge weight came out inf and the solver failed).
+  if (bad.empty() && invertible &&
+      (Eigen::LLT<Eigen::Matrix3d>(u.covariance).info() != Eigen::Success || !u.covariance.inverse().allFinite()))
     bad = "covariance is singular (no information matrix: some uncertainty in x, y and yaw is needed)";
   return bad;
 }

@@ -88,14 +88,14 @@ void Pipeline::endPiece(double stamp_s) {
   }
   const Odometry& odometry = *segmented_->odometry();
   const OdometryStats& st = odometry.stats();
-  char line[400];
+  char line[400];  // numbers only: the session's name (a folder path of any length) goes in as a string
   std::snprintf(line, sizeof line,
-                "session %d (%s): %d frames, %d keyframes, %d tracked, %d fallbacks, %d promotions, %d skipped "
+                "%d frames, %d keyframes, %d tracked, %d fallbacks, %d promotions, %d skipped "
                 "(%d image, %d altitude), %d altitudes reused (%d above odometry.max_altitude_m), %.1f ms/frame",
-                session_, manager_->name(session_).c_str(), st.frames, st.keyframes, st.tracked, st.fallbacks,
-                st.promotions, st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude,
-                st.altitude_reused, st.altitude_out_of_range, odometry.times().get("odometry_total").meanMs());
-  say(line);
+                st.frames, st.keyframes, st.tracked, st.fallbacks, st.promotions,
+                st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude, st.altitude_reused,
+                st.altitude_out_of_range, odometry.times().get("odometry_total").meanMs());
+  say("session " + std::to_string(session_) + " (" + manager_->name(session_) + "): " + line);
   if (st.gate_checks > 0 || st.nav_frames > 0 || st.nav_implausible > 0) {
     std::snprintf(line, sizeof line,
                   "session %d: nav prior: %d frames carried by the nav, %d visual motions checked, %d refused by the "

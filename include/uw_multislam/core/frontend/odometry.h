@@ -181,7 +181,7 @@ struct OdometryStats {
   int skipped_image = 0;
   int skipped_altitude = 0;
   int altitude_reused = 0;
-  int altitude_out_of_range = 0;  // above max_altitude_m (then reused, or skipped when none yet)
+  int altitude_out_of_range = 0;  // finite but above max_altitude_m (then reused, or skipped when none yet)
   int nav_frames = 0;     // frames whose motion is the nav's (vision failed or was refused)
   int gate_checks = 0;    // visual motions compared with the nav
   int gate_refusals = 0;  // ... refused by the gate
