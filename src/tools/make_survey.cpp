@@ -1,6 +1,7 @@
 // make_survey: renders bottom-looking camera missions over a seabed world with exact ground
 // truth. See --help, and README.md "Survey generator".
 #include <algorithm>
+#include <cctype>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -101,7 +102,9 @@ int main(int argc, char** argv) {
       if (!v) return badArgs("--seed needs a number");
       errno = 0;
       a.seed = std::strtoull(v, &end, 10);
-      if (*v == '\0' || *end != '\0' || *v == '-' || errno == ERANGE)  // strtoull clamps past 2^64 - 1
+      // Digits only: strtoull skips leading space, takes a sign (" -1" wraps to 2^64 - 1) and clamps
+      // past 2^64 - 1, each making two seeds one survey.
+      if (!std::isdigit(static_cast<unsigned char>(*v)) || *end != '\0' || errno == ERANGE)
         return badArgs(std::string("bad seed '") + v + "': an integer in [0, 18446744073709551615]");
       a.seed_given = true;
     } else if (arg == "--mosaic") {

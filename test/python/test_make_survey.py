@@ -50,7 +50,7 @@ def test_help_and_bad_arguments():
     assert not os.path.exists("/tmp/uwms_never_written")
     # Seeds past 2^64 - 1 were clamped to it by strtoull (two seeds, one survey); negative, empty
     # and trailing text refused as before.
-    for seed in ("18446744073709551616", "99999999999999999999999", "-1", "", "7x"):
+    for seed in ("18446744073709551616", "99999999999999999999999", "-1", " -1", " 7", "+7", "", "7x"):
         r = run("--preset", "demo", "--seed", seed, "--out", "/tmp/uwms_never_written")
         assert r.returncode == 2 and "bad seed '%s'" % seed in r.stderr, (seed, r.stderr)
     assert not os.path.exists("/tmp/uwms_never_written")

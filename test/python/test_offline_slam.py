@@ -7,6 +7,7 @@ import shutil
 import sqlite3
 import subprocess
 import time
+from pathlib import Path
 
 import pytest
 import yaml
@@ -569,7 +570,7 @@ def test_tracking_loss_starts_a_session_that_global_loops_join_back(tmp_path):
 def short_revisits(tmp_path_factory):
     """config/missions/short_revisits.yaml: five 4-5 frame passes over one patch, a sixth elsewhere."""
     base = tmp_path_factory.mktemp("short")
-    mission = os.path.join(HERE, "..", "..", "config", "missions", "short_revisits.yaml")
+    mission = Path(HERE, "..", "..", "config", "missions", "short_revisits.yaml")
     make_survey(base, mission)
     runs = {}
     for policy in ("count", "consistent"):

@@ -20,11 +20,11 @@ def run_tool(tool, *args, timeout=300):
 
 
 def make_survey(base, spec):
-    """Generates the survey of `spec` (make_survey YAML text, or the path of a YAML file) into
-    base/m without bags; returns that folder (a failure fails the test with make_survey's error)."""
+    """Generates the survey of `spec` (make_survey YAML text as a str, or a YAML file as a Path)
+    into base/m without bags; returns that folder (a failure fails the test with make_survey's error)."""
     base = Path(base)
     config = spec
-    if not os.path.isfile(str(spec)):
+    if isinstance(spec, str):
         config = base / "survey.yaml"
         config.write_text(spec)
     r = run_tool("make_survey", "--config", config, "--out", base / "m", "--no-bag", "--quiet")
