@@ -594,6 +594,12 @@ TEST(Store, RefusesADamagedCameraRowAndReadsAnUnknownOne) {
     store.addSession("good", cam, 1.0);
     store.addSession("unknown", CameraIntrinsics(), 2.0);
   }
+  {  // nor written
+    SessionStore store(path);
+    CameraIntrinsics bad = cam;
+    bad.fx = -5;
+    EXPECT_THROW(store.addSession("bad", bad, 3.0), StoreError);
+  }
   const std::vector<StoredSession> read = SessionStore(path, StoreAccess::kReadOnly).sessions();
   ASSERT_EQ(read.size(), 2u);
   EXPECT_EQ(read[0].camera, cam);

@@ -517,6 +517,12 @@ void SessionStore::checkHashSettings(const HashSettings& mine) {
 }
 
 std::int64_t SessionStore::addSession(const std::string& name, const CameraIntrinsics& c, double start_stamp_s) {
+  // What sessions() refuses to read is not written (one such row would block the whole store).
+  if (c.width != 0 || c.height != 0) {
+    if (const std::string bad = c.validate(); !bad.empty())
+      throw StoreError("session store " + path_ + ": session '" + name + "' not added: its camera is not usable (" +
+                       bad + ")");
+  }
   Statement st(this,
                "INSERT INTO sessions(name, state, start_stamp, end_stamp, cam_width, cam_height, cam_fx, cam_fy, "
                "cam_cx, cam_cy) VALUES (?, 'recording', ?, ?, ?, ?, ?, ?, ?, ?)");
