@@ -130,6 +130,15 @@ void OdometryNodelet::readParameters() {
   config_ = ros_params::slamConfigFromParams(getNodeHandle());
   const std::string bad = config_.validate();
   if (!bad.empty()) throw std::invalid_argument(getNodeHandle().resolveName("slam") + ": " + bad);
+  // The fixed altitudes are bounded like the readings (every frame would be skipped at one above).
+  const double max_alt = config_.odometry.max_altitude_m;
+  if (!options_.use_altitude_topic && options_.altitude_m > max_alt)
+    throw std::invalid_argument(pnh.resolveName("altitude") + " = " + std::to_string(options_.altitude_m) +
+                                ": above slam/odometry/max_altitude_m (" + std::to_string(max_alt) + ")");
+  if (options_.fallback_altitude_m > max_alt)
+    throw std::invalid_argument(pnh.resolveName("fallback_altitude") + " = " +
+                                std::to_string(options_.fallback_altitude_m) +
+                                ": above slam/odometry/max_altitude_m (" + std::to_string(max_alt) + ")");
   std::string note;  // where the camera sits on the vehicle (frames/ parameters or tf)
   if (ros_frames::resolveCameraMount(getNodeHandle(), ros_frames::mountOptions(getNodeHandle()), &mount_, &note))
     NODELET_INFO("odometry: camera mount %s", note.c_str());
@@ -361,7 +370,7 @@ void OdometryNodelet::onRange(const sensor_msgs::RangeConstPtr& range) {
   ++ranges_in_, images_since_range_ = 0, last_range_ = now;
   double altitude = std::numeric_limits<double>::quiet_NaN();
   std::string why;
-  if (!rc::altitudeFromMsg(*range, &altitude, &why)) {
+  if (!rc::altitudeFromMsg(*range, config_.odometry.max_altitude_m, &altitude, &why)) {
     altitude = std::numeric_limits<double>::quiet_NaN();  // kept as an invalid reading
     NODELET_WARN_THROTTLE(
         5, "odometry: %s: images at this reading's stamp get no altitude (the last valid one is used)", why.c_str());

@@ -348,7 +348,7 @@ bool cameraInfoFromUrl(const std::string& url, sensor_msgs::CameraInfo* out, std
   return true;
 }
 
-bool altitudeFromMsg(const sensor_msgs::Range& msg, double* altitude_m, std::string* why) {
+bool altitudeFromMsg(const sensor_msgs::Range& msg, double max_altitude_m, double* altitude_m, std::string* why) {
   const double r = msg.range;
   if (!std::isfinite(r) || r <= 0) {
     std::ostringstream os;
@@ -358,6 +358,11 @@ bool altitudeFromMsg(const sensor_msgs::Range& msg, double* altitude_m, std::str
   if ((msg.min_range > 0 && r < msg.min_range) || (msg.max_range > 0 && r > msg.max_range)) {
     std::ostringstream os;
     os << "altitude " << r << " outside the sensor's range [" << msg.min_range << ", " << msg.max_range << "]";
+    return fail(why, os.str());
+  }
+  if (r > max_altitude_m) {
+    std::ostringstream os;
+    os << "altitude " << r << " above slam/odometry/max_altitude_m (" << max_altitude_m << ")";
     return fail(why, os.str());
   }
   *altitude_m = r;

@@ -312,16 +312,26 @@ TEST(SensorConversions, AltitudeFromRange) {
   r.max_range = 100;
   r.range = 2.5;
   double a = 0;
-  ASSERT_TRUE(rc::altitudeFromMsg(r, &a));
+  ASSERT_TRUE(rc::altitudeFromMsg(r, 200.0, &a));
   EXPECT_DOUBLE_EQ(a, 2.5);
   std::string why;
   for (float bad : {std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity(), -1.0f, 0.0f,
                     0.05f, 150.0f}) {
     r.range = bad;
     a = 7;
-    EXPECT_FALSE(rc::altitudeFromMsg(r, &a, &why)) << bad;
+    EXPECT_FALSE(rc::altitudeFromMsg(r, 200.0, &a, &why)) << bad;
     EXPECT_DOUBLE_EQ(a, 7) << "untouched on failure";
     EXPECT_FALSE(why.empty());
+  }
+  // Above slam/odometry/max_altitude_m: refused even where the message claims no range (0 = none)
+  // or a range that holds it (an altimeter's "no bottom" 9999).
+  for (float claimed_max : {0.0f, 10000.0f}) {
+    r.max_range = claimed_max;
+    r.range = 9999.0f;
+    EXPECT_FALSE(rc::altitudeFromMsg(r, 200.0, &a, &why)) << claimed_max;
+    EXPECT_NE(why.find("above slam/odometry/max_altitude_m (200)"), std::string::npos) << why;
+    r.range = 150.0f;
+    EXPECT_TRUE(rc::altitudeFromMsg(r, 200.0, &a, &why)) << claimed_max;
   }
 }
 

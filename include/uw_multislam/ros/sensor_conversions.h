@@ -99,7 +99,10 @@ bool cameraInfoFromUrl(const std::string& url, sensor_msgs::CameraInfo* out, std
 
 /// The range as altitude; refuses non-finite or non-positive values and ones outside
 /// [min_range, max_range] (sensor_msgs/Range: such readings must be discarded).
-bool altitudeFromMsg(const sensor_msgs::Range& msg, double* altitude_m, std::string* why = nullptr);
+/// `max_altitude_m` (slam/odometry/max_altitude_m) bounds it too: a reading above is a glitch or an
+/// altimeter's "no bottom" value whatever range the message claims.
+bool altitudeFromMsg(const sensor_msgs::Range& msg, double max_altitude_m, double* altitude_m,
+                     std::string* why = nullptr);
 
 /// The vehicle's dead reckoning (nav_msgs/Odometry: base_link in its odom frame, z-up, REP-105)
 /// as a nav row of the core (the camera's pose in the core's image axes, core::cameraFromVehicle
