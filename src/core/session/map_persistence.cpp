@@ -32,14 +32,6 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     if (detector) {
       cameras->push_back(std::make_unique<CameraIntrinsics>(s.camera));
       cam = cameras->back().get();
-      // Stores written before e2ed4d0 kept a 0x0 camera for a session whose keyframe 0 never
-      // arrived: its features cannot be put in metres, so no loop to it verifies. Said, not refused
-      // (the poses, maps and export are unaffected).
-      if (s.camera.width == 0 && s.camera.height == 0)
-        out.notes.push_back("session store " + store.path() + ": session " + std::to_string(s.id) + " '" + s.name +
-                            "' has no stored camera (0x0: its first keyframe never arrived, stored by an older "
-                            "version): no loop to its " +
-                            std::to_string(kfs.size()) + " keyframes can be verified");
     }
     for (const StoredKeyframe& k : kfs) {
       if (k.keyframe != static_cast<int>(out.frame_of_keyframe.back().size()))

@@ -337,6 +337,19 @@ bool SessionManager::keyframeStored(int session, int keyframe, int pending_sessi
   return it != sessions_.end() && keyframe >= 0 && keyframe < it->second.stored;
 }
 
+void SessionManager::addStoreRow(Session& s, double stamp_s) {
+  s.store_id = store_->addSession(s.name, s.camera, stamp_s);
+  if (!s.vehicle.empty()) {  // another vehicle's: where it came from, as merge_stores records it
+    SessionProvenance p;
+    p.session = s.store_id;
+    p.source_file = "fleet:" + s.vehicle;
+    p.source_session = s.remote_id;
+    p.source_name = s.name;
+    p.vehicle = s.vehicle;
+    store_->addProvenance(p);
+  }
+}
+
 void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion,
                                    double stamp_s, const std::vector<Loop>* loops, std::vector<StoredLoop>* stored) {
   if (!store_) return;
@@ -352,16 +365,11 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
   }
   const bool ok = storeWrite("writing a keyframe", [&] {
     if (s.store_id < 0) {
-      s.store_id = store_->addSession(s.name, s.camera, stamp_s);  // known before a placeholder origin too
-      if (!s.vehicle.empty()) {  // another vehicle's: where it came from, as merge_stores records it
-        SessionProvenance p;
-        p.session = s.store_id;
-        p.source_file = "fleet:" + s.vehicle;
-        p.source_session = s.remote_id;
-        p.source_name = s.name;
-        p.vehicle = s.vehicle;
-        store_->addProvenance(p);
-      }
+      addStoreRow(s, stamp_s);  // the camera is known before a placeholder origin too
+    } else if (keyframe == 0) {
+      // A row made before the session's first keyframe (saveMaps after start_session) has no
+      // camera yet (0x0): it gets the one the origin (or the placeholder origin) brought.
+      store_->setSessionCamera(s.store_id, s.camera);
     }
     // The loops in store ids only now: a new session's row is made with its first keyframe, and
     // the loops that keyframe closed name it (they were stored with session -1 and lost at the
@@ -873,7 +881,7 @@ void SessionManager::saveMaps() {
     for (std::size_t b = 0; b < ids.size(); ++b) {
       if (ids[b] >= 0) continue;
       Session& s = at(id_of_backend_[b]);
-      s.store_id = store_->addSession(s.name, s.camera, s.stamps.front());
+      addStoreRow(s, s.stamps.front());
       ids[b] = s.store_id;
     }
     saveBackendMaps(store_.get(), *backend_, ids, store_loops_);
@@ -986,6 +994,11 @@ Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* ou
   r.id = id;
   r.camera = s.camera;
   s.unloaded = false;
+  // Older stores kept a 0x0 camera for some sessions with keyframes: their features cannot be put
+  // in metres, so no loop to them verifies (the loop detector refuses such keyframes).
+  if (s.camera.width == 0 && s.camera.height == 0 && !s.stamps.empty())
+    say("session " + std::to_string(id) + " '" + s.name + "' has no stored camera (0x0, written by an older " +
+        "version): no loop to its " + std::to_string(s.stamps.size()) + " keyframes can be verified");
   *out = std::move(r);
   return Status::Ok();
 }

@@ -516,19 +516,36 @@ void SessionStore::checkHashSettings(const HashSettings& mine) {
   descriptor_bytes_ = descriptorBytes(mine.features);
 }
 
+namespace {
+
+// Why a camera row cannot be stored (sessions() would refuse to read it, and one such row would
+// block the whole store): "" when it can. 0x0 is an unknown camera (a session without keyframes).
+std::string unusableCamera(const CameraIntrinsics& c) {
+  return c.width == 0 && c.height == 0 ? std::string() : c.validate();
+}
+
+}  // namespace
+
 std::int64_t SessionStore::addSession(const std::string& name, const CameraIntrinsics& c, double start_stamp_s) {
-  // What sessions() refuses to read is not written (one such row would block the whole store).
-  if (c.width != 0 || c.height != 0) {
-    if (const std::string bad = c.validate(); !bad.empty())
-      throw StoreError("session store " + path_ + ": session '" + name + "' not added: its camera is not usable (" +
-                       bad + ")");
-  }
+  if (const std::string bad = unusableCamera(c); !bad.empty())
+    throw StoreError("session store " + path_ + ": session '" + name + "' not added: its camera is not usable (" + bad +
+                     ")");
   Statement st(this,
                "INSERT INTO sessions(name, state, start_stamp, end_stamp, cam_width, cam_height, cam_fx, cam_fy, "
                "cam_cx, cam_cy) VALUES (?, 'recording', ?, ?, ?, ?, ?, ?, ?, ?)");
   st.bind(1, name).bind(2, start_stamp_s).bind(3, start_stamp_s).bind(4, c.width).bind(5, c.height);
   st.bind(6, c.fx).bind(7, c.fy).bind(8, c.cx).bind(9, c.cy).run();
   return sqlite3_last_insert_rowid(db_);
+}
+
+void SessionStore::setSessionCamera(std::int64_t session, const CameraIntrinsics& c) {
+  if (const std::string bad = unusableCamera(c); !bad.empty())
+    throw StoreError("session store " + path_ + ": session " + std::to_string(session) +
+                     ": camera not stored, it is not usable (" + bad + ")");
+  Statement st(this,
+               "UPDATE sessions SET cam_width = ?, cam_height = ?, cam_fx = ?, cam_fy = ?, cam_cx = ?, cam_cy = ? "
+               "WHERE id = ?");
+  st.bind(1, c.width).bind(2, c.height).bind(3, c.fx).bind(4, c.fy).bind(5, c.cx).bind(6, c.cy).bind(7, session).run();
 }
 
 void SessionStore::endSession(std::int64_t session, double end_stamp_s) {
@@ -735,13 +752,11 @@ std::vector<StoredSession> SessionStore::sessions() const {
     s.camera.cx = sqlite3_column_double(q, 9);
     s.camera.cy = sqlite3_column_double(q, 10);
     s.keyframes = sqlite3_column_int(q, 11);
-    // 0x0: unknown (stores written before e2ed4d0 kept that for a session whose keyframe 0 never
-    // arrived); anything else must be a camera the odometry could have run with.
-    if (s.camera.width != 0 || s.camera.height != 0) {
-      if (const std::string bad = s.camera.validate(); !bad.empty())
-        throw StoreError("session store " + path_ + ": session " + std::to_string(s.id) + " '" + s.name +
-                         "' has a damaged camera row (" + bad + ")");
-    }
+    // 0x0: unknown (a session without keyframes; older stores kept it for some with keyframes);
+    // anything else must be a camera the odometry could have run with.
+    if (const std::string bad = unusableCamera(s.camera); !bad.empty())
+      throw StoreError("session store " + path_ + ": session " + std::to_string(s.id) + " '" + s.name +
+                       "' has a damaged camera row (" + bad + ")");
     out.push_back(s);
   }
   return out;

@@ -35,7 +35,7 @@ TrackFiles writeTrackFiles(const ExportTrack& t, const SurveyExport& survey, con
     return c && c->width > 0 && c->height > 0;
   });
   if (!any_camera) {
-    out.no_mosaic = "no session of " + t.label + " has a stored camera (0x0: stored by an older version)";
+    out.no_mosaic = "no session of " + t.label + " has a stored camera (0x0, written by an older version)";
     return out;
   }
   out.mosaic_result =

@@ -409,6 +409,8 @@ class SessionManager {
   Status open(int id, const std::string& name, double stamp_s, const std::string& vehicle = "", int remote_id = -1);
   /// Appends keyframe k of an open session (k.session in this manager's ids) with its loops.
   Status appendKeyframe(KeyframeInput k, const std::vector<Loop>& loops);
+  /// The session's store row (with its provenance when it is another vehicle's); sets store_id.
+  void addStoreRow(Session& s, double stamp_s);
   /// Writes a keyframe with its motion and `loops` (converted to `stored`, whose ids are set).
   void storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion, double stamp_s,
                      const std::vector<Loop>* loops, std::vector<StoredLoop>* stored);

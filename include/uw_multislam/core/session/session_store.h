@@ -173,6 +173,9 @@ class SessionStore {
 
   /// A new session (state recording). Returns its store id.
   std::int64_t addSession(const std::string& name, const CameraIntrinsics& camera, double start_stamp_s);
+  /// Gives a session's row its camera (a row made before the session's first keyframe arrived,
+  /// e.g. by saving the maps after start_session, has none: 0x0). Refused like addSession's.
+  void setSessionCamera(std::int64_t session, const CameraIntrinsics& camera);
   /// Marks a session finished.
   void endSession(std::int64_t session, double end_stamp_s);
 
