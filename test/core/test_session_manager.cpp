@@ -122,6 +122,13 @@ TEST(SessionManager, AKeyframeIdFarPastTheLastIsRefusedWithoutBridging) {
   EXPECT_EQ(m.stats().keyframe_gaps, 1);
   EXPECT_NEAR(m.poses(0)[4].x(), 2.0, 1e-9);
   EXPECT_NEAR(m.poses(0)[6].x(), 6.0, 1e-9);
+  // A keyframe whose camera is unusable is refused before it reaches the session or the store.
+  KeyframeInput no_camera = keyframe(0, 7, Pose2(7, 0, 0), Pose2(6, 0, 0));
+  no_camera.camera.fx = 0;
+  const Status refused = m.addKeyframe(no_camera);
+  EXPECT_EQ(refused.code, StatusCode::kInvalidArgument);
+  EXPECT_NE(refused.message.find("camera: focal length"), std::string::npos) << refused.message;
+  EXPECT_EQ(m.list()[0].keyframes, 7);
   Loop onPlaceholder = globalLoop(0, 4, 0, 6, Pose2(4, 0, 0));
   onPlaceholder.kind = Loop::Kind::kLocal;
   EXPECT_EQ(m.addLoop(onPlaceholder).code, StatusCode::kFailedPrecondition);

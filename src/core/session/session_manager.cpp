@@ -415,6 +415,13 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
     ++stats_.keyframes_refused;
     return {StatusCode::kInvalidArgument, "keyframe id " + std::to_string(input.keyframe) + " is negative"};
   }
+  // The store keeps the session's camera (and refuses an unusable one): refused here, before it
+  // could make the session's row, and with it every later save of the maps, fail.
+  if (const std::string bad = unusableCamera(input.camera); !bad.empty()) {
+    ++stats_.keyframes_refused;
+    return {StatusCode::kInvalidArgument, "keyframe " + std::to_string(input.keyframe) + " of session " +
+                                              std::to_string(input.session) + ": camera: " + bad};
+  }
   KeyframeInput k = input;
   if (k.hash.size() != HalocProjections::kHashSize && !k.features.descriptors.empty())
     k.hash = hasher_.hash(k.features.descriptors);  // the one place a keyframe is hashed when nobody upstream did

@@ -516,15 +516,9 @@ void SessionStore::checkHashSettings(const HashSettings& mine) {
   descriptor_bytes_ = descriptorBytes(mine.features);
 }
 
-namespace {
-
-// Why a camera row cannot be stored (sessions() would refuse to read it, and one such row would
-// block the whole store): "" when it can. 0x0 is an unknown camera (a session without keyframes).
 std::string unusableCamera(const CameraIntrinsics& c) {
   return c.width == 0 && c.height == 0 ? std::string() : c.validate();
 }
-
-}  // namespace
 
 std::int64_t SessionStore::addSession(const std::string& name, const CameraIntrinsics& c, double start_stamp_s) {
   if (const std::string bad = unusableCamera(c); !bad.empty())

@@ -61,6 +61,11 @@ struct StoredSession {
   int keyframes = 0;
 };
 
+/// Why a camera cannot be a session's stored camera (sessions() would refuse to read the row, and
+/// one such row would block the whole store): "" when it can. 0x0 is an unknown camera (a session
+/// without keyframes yet).
+std::string unusableCamera(const CameraIntrinsics& camera);
+
 struct StoredKeyframe {
   std::int64_t session = 0;  // store id
   int keyframe = 0;          // 0, 1, ... within the session
