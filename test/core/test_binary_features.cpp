@@ -3,7 +3,6 @@
 // the store, and a loop detector meeting the other kind: all on frames rendered from the
 // procedural seabed or on random bit strings.
 #include <gtest/gtest.h>
-#include <sqlite3.h>
 
 #include <opencv2/features2d.hpp>
 
@@ -15,6 +14,7 @@
 
 #include "../common/rendered_seabed.h"
 #include "../common/scoped_temp_dir.h"
+#include "../common/sql_file.h"
 #include "uw_multislam/core/frontend/enhancement.h"
 #include "uw_multislam/core/frontend/features.h"
 #include "uw_multislam/core/frontend/matching.h"
@@ -273,10 +273,7 @@ TEST(OrbStore, KeepsBinaryDescriptorsAndRefusesTheOtherKind) {
     EXPECT_THROW(writer.addKeyframe(sift, nullptr, nullptr), StoreError);  // refused before any check
   }
   // A store written before the kind was recorded holds SIFT.
-  sqlite3* db = nullptr;
-  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
-  ASSERT_EQ(sqlite3_exec(db, "DELETE FROM meta WHERE key = 'features'", nullptr, nullptr, nullptr), SQLITE_OK);
-  sqlite3_close(db);
+  ASSERT_TRUE(testing_util::execSql(path, "DELETE FROM meta WHERE key = 'features'"));
   SessionStore store(path);
   HashSettings h;
   ASSERT_TRUE(store.hashSettings(&h));

@@ -1,7 +1,6 @@
 // SessionManager (session/session_manager.h): one id space, requests with status codes that change
 // nothing when they fail, events, and the session store behind it (restart, reload).
 #include <gtest/gtest.h>
-#include <sqlite3.h>
 
 #include <algorithm>
 #include <climits>
@@ -13,6 +12,7 @@
 
 #include "../common/scoped_temp_dir.h"
 #include "../common/seabed_features.h"
+#include "../common/sql_file.h"
 #include "uw_multislam/core/session/run_outputs.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/stored_loops.h"
@@ -188,14 +188,9 @@ TEST(SessionManager, ARowMadeBeforeTheFirstKeyframeGetsItsCamera) {
     EXPECT_EQ(store.keyframes(sessions[1].id).size(), 3u);
   }
   // An older store: the row still 0x0. Reloading the session says that its loops cannot verify.
-  sqlite3* raw = nullptr;
-  ASSERT_EQ(sqlite3_open(db.c_str(), &raw), SQLITE_OK);
-  ASSERT_EQ(sqlite3_exec(raw,
-                         "UPDATE sessions SET cam_width = 0, cam_height = 0, cam_fx = 0, cam_fy = 0, cam_cx = 0, "
-                         "cam_cy = 0 WHERE name = 'b'",
-                         nullptr, nullptr, nullptr),
-            SQLITE_OK);
-  sqlite3_close(raw);
+  ASSERT_TRUE(testing_util::execSql(db,
+                                    "UPDATE sessions SET cam_width = 0, cam_height = 0, cam_fx = 0, cam_fy = 0, "
+                                    "cam_cx = 0, cam_cy = 0 WHERE name = 'b'"));
   std::vector<std::string> log;
   SessionManager again(options(db), {}, [&](const std::string& line) { log.push_back(line); });
   ReloadedSession r;

@@ -15,6 +15,7 @@
 #include <random>
 
 #include "../common/scoped_temp_dir.h"
+#include "../common/sql_file.h"
 #include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/session/interrupted_run.h"
 #include "uw_multislam/core/session/map_persistence.h"
@@ -262,14 +263,9 @@ TEST(Store, ASessionWithoutAStoredCameraRestoresWithItsPoses) {
     Recorder r(&store, &original);
     recordMission(&r);
   }
-  sqlite3* db = nullptr;
-  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
-  ASSERT_EQ(sqlite3_exec(db,
-                         "UPDATE sessions SET cam_width = 0, cam_height = 0, cam_fx = 0, cam_fy = 0, cam_cx = 0, "
-                         "cam_cy = 0 WHERE name = 'b'",
-                         nullptr, nullptr, nullptr),
-            SQLITE_OK);
-  sqlite3_close(db);
+  ASSERT_TRUE(testing_util::execSql(path,
+                                    "UPDATE sessions SET cam_width = 0, cam_height = 0, cam_fx = 0, cam_fy = 0, "
+                                    "cam_cx = 0, cam_cy = 0 WHERE name = 'b'"));
   SessionStore store(path);
   for (const bool with_detector : {false, true}) {
     MultiSessionBackend restored(opt);
@@ -567,12 +563,7 @@ TEST(Store, RefusesADamagedMetaRowAtTheOpen) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
   SessionStore(path).checkHashSettings({HashMode::kSortedDct, 7, 500, "x"});
-  sqlite3* db = nullptr;
-  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
-  ASSERT_EQ(
-      sqlite3_exec(db, "UPDATE meta SET value = 'seven' WHERE key = 'projection_seed'", nullptr, nullptr, nullptr),
-      SQLITE_OK);
-  sqlite3_close(db);
+  ASSERT_TRUE(testing_util::execSql(path, "UPDATE meta SET value = 'seven' WHERE key = 'projection_seed'"));
   expectRefusedUnchanged(path, "meta table is damaged");
   EXPECT_THROW(SessionStore(path, StoreAccess::kReadOnly), StoreError);
 }
@@ -602,11 +593,7 @@ TEST(Store, RefusesADamagedCameraRowAndReadsAnUnknownOne) {
   for (const char* damage : {"cam_fx = -5", "cam_cx = 400", "cam_width = 0"}) {
     const std::string copy = (dir.path() / "copy.db").string();
     std::filesystem::copy_file(path, copy, std::filesystem::copy_options::overwrite_existing);
-    sqlite3* db = nullptr;
-    ASSERT_EQ(sqlite3_open(copy.c_str(), &db), SQLITE_OK);
-    const std::string sql = std::string("UPDATE sessions SET ") + damage + " WHERE name = 'good'";
-    ASSERT_EQ(sqlite3_exec(db, sql.c_str(), nullptr, nullptr, nullptr), SQLITE_OK);
-    sqlite3_close(db);
+    ASSERT_TRUE(testing_util::execSql(copy, std::string("UPDATE sessions SET ") + damage + " WHERE name = 'good'"));
     try {
       SessionStore(copy, StoreAccess::kReadOnly).sessions();
       ADD_FAILURE() << damage << ": read";
@@ -696,16 +683,11 @@ TEST(Store, CorruptKeyframePagesDoNotStopTheOpenAndFailWhereTheyAreRead) {
 TEST(Store, RefusesAnotherSchemaVersionAndAnotherApplication) {
   ScopedTempDir dir("uwms_store");
   const std::string path = makeStore(dir);
-  sqlite3* db = nullptr;
-  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
-  ASSERT_EQ(sqlite3_exec(db, "PRAGMA user_version=99", nullptr, nullptr, nullptr), SQLITE_OK);
-  sqlite3_close(db);
+  ASSERT_TRUE(testing_util::execSql(path, "PRAGMA user_version=99"));
   expectRefusedUnchanged(path, "schema version 99, this build reads version 2");
 
   const std::string other = (dir.path() / "other.db").string();
-  ASSERT_EQ(sqlite3_open(other.c_str(), &db), SQLITE_OK);
-  ASSERT_EQ(sqlite3_exec(db, "CREATE TABLE t(x); INSERT INTO t VALUES (1)", nullptr, nullptr, nullptr), SQLITE_OK);
-  sqlite3_close(db);
+  ASSERT_TRUE(testing_util::execSql(other, "CREATE TABLE t(x); INSERT INTO t VALUES (1)"));
   expectRefusedUnchanged(other, "not a uw_multislam session store");
 }
 
