@@ -622,6 +622,34 @@ std::string makeStore(const ScopedTempDir& dir) {
   return path;
 }
 
+// SQLite keeps whatever a row holds whatever the column's type: a text 'NaN' in a REAL column was
+// read as 0.0 without a word (the merge then re-optimised the map with it). Read as damaged, named.
+TEST(Store, ATextWhereANumberBelongsIsDamagedAndNamed) {
+  ScopedTempDir dir("uwms_store");
+  const std::string clean = makeStore(dir);
+  const std::string copy = (dir.path() / "copy.db").string();
+  for (const auto& [sql, words] : std::vector<std::pair<std::string, std::string>>{
+           {"UPDATE motions SET x = 'NaN' WHERE keyframe = 3", "column 'x' of table 'motions' holds the text 'NaN'"},
+           {"UPDATE loops SET yaw = 'oops' WHERE id = (SELECT min(id) FROM loops)",
+            "column 'yaw' of table 'loops' holds the text 'oops'"},
+           {"UPDATE keyframes SET altitude = x'00' WHERE keyframe = 2",
+            "column 'altitude' of table 'keyframes' holds a blob"},
+           {"UPDATE keyframes SET frame_index = 2.5 WHERE keyframe = 2", "column 'frame_index' of table 'keyframes'"},
+       }) {
+    std::filesystem::copy_file(clean, copy, std::filesystem::copy_options::overwrite_existing);
+    ASSERT_TRUE(testing_util::execSql(copy, sql));
+    SessionStore store(copy, StoreAccess::kReadOnly);
+    MultiSessionBackend restored(missionOptions());
+    try {
+      restoreStore(store, &restored, nullptr, nullptr);
+      ADD_FAILURE() << sql << ": restored";
+    } catch (const StoreError& e) {
+      EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << sql << ": " << e.what();
+      EXPECT_NE(std::string(e.what()).find("(damaged)"), std::string::npos) << e.what();
+    }
+  }
+}
+
 TEST(Store, RefusesACorruptFile) {
   ScopedTempDir dir("uwms_store");
   const std::string path = makeStore(dir);

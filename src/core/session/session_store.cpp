@@ -148,6 +148,34 @@ std::vector<T> blobVector(sqlite3_stmt* st, int col) {
   return out;
 }
 
+// A number read from a column: SQLite keeps whatever a row holds whatever the column's type, and
+// sqlite3_column_double reads a text 'NaN' (or any text, or a blob) as 0.0 without a word. A
+// value that is not a number makes the store damaged, named with the column.
+[[noreturn]] void notANumber(sqlite3_stmt* q, int col, const std::string& path) {
+  std::string held = "a blob";
+  if (sqlite3_column_type(q, col) == SQLITE_NULL) {
+    held = "NULL";
+  } else if (sqlite3_column_type(q, col) == SQLITE_TEXT) {
+    const char* t = reinterpret_cast<const char*>(sqlite3_column_text(q, col));
+    held = "the text '" + std::string(t ? t : "").substr(0, 40) + "'";
+  }
+  const char* table = sqlite3_column_table_name(q, col);  // NULL for an expression
+  throw StoreError("session store " + path + ": column '" + sqlite3_column_name(q, col) + "'" +
+                   (table ? std::string(" of table '") + table + "'" : std::string()) + " holds " + held +
+                   " where a number belongs (damaged)");
+}
+
+double realColumn(sqlite3_stmt* q, int col, const std::string& path) {
+  const int type = sqlite3_column_type(q, col);
+  if (type != SQLITE_FLOAT && type != SQLITE_INTEGER) notANumber(q, col, path);
+  return sqlite3_column_double(q, col);
+}
+
+int intColumn(sqlite3_stmt* q, int col, const std::string& path) {
+  if (sqlite3_column_type(q, col) != SQLITE_INTEGER) notANumber(q, col, path);
+  return sqlite3_column_int(q, col);
+}
+
 std::vector<double> covBlob(const Eigen::Matrix3d& c) {
   std::vector<double> v(9);
   for (int r = 0; r < 3; ++r)
@@ -737,15 +765,15 @@ std::vector<StoredSession> SessionStore::sessions() const {
     s.state = std::strcmp(reinterpret_cast<const char*>(sqlite3_column_text(q, 2)), "finished") == 0
                   ? StoredSessionState::kFinished
                   : StoredSessionState::kRecording;
-    s.start_stamp_s = sqlite3_column_double(q, 3);
-    s.end_stamp_s = sqlite3_column_double(q, 4);
-    s.camera.width = sqlite3_column_int(q, 5);
-    s.camera.height = sqlite3_column_int(q, 6);
-    s.camera.fx = sqlite3_column_double(q, 7);
-    s.camera.fy = sqlite3_column_double(q, 8);
-    s.camera.cx = sqlite3_column_double(q, 9);
-    s.camera.cy = sqlite3_column_double(q, 10);
-    s.keyframes = sqlite3_column_int(q, 11);
+    s.start_stamp_s = realColumn(q, 3, path_);
+    s.end_stamp_s = realColumn(q, 4, path_);
+    s.camera.width = intColumn(q, 5, path_);
+    s.camera.height = intColumn(q, 6, path_);
+    s.camera.fx = realColumn(q, 7, path_);
+    s.camera.fy = realColumn(q, 8, path_);
+    s.camera.cx = realColumn(q, 9, path_);
+    s.camera.cy = realColumn(q, 10, path_);
+    s.keyframes = intColumn(q, 11, path_);
     // 0x0: unknown (a session without keyframes; older stores kept it for some with keyframes);
     // anything else must be a camera the odometry could have run with.
     if (const std::string bad = unusableCamera(s.camera); !bad.empty())
@@ -762,12 +790,12 @@ std::vector<StoredSession> SessionStore::sessions() const {
 void SessionStore::readKeyframe(sqlite3_stmt* q, std::int64_t session, KeyframeColumns columns, bool features,
                                 StoredKeyframe* k) const {
   k->session = session;
-  k->keyframe = sqlite3_column_int(q, 0);
-  k->frame_index = sqlite3_column_int(q, 1);
-  k->stamp_s = sqlite3_column_double(q, 2);
-  k->altitude_m = sqlite3_column_double(q, 3);
-  k->image_size = cv::Size(sqlite3_column_int(q, 4), sqlite3_column_int(q, 5));
-  const int n = sqlite3_column_int(q, 6);
+  k->keyframe = intColumn(q, 0, path_);
+  k->frame_index = intColumn(q, 1, path_);
+  k->stamp_s = realColumn(q, 2, path_);
+  k->altitude_m = realColumn(q, 3, path_);
+  k->image_size = cv::Size(intColumn(q, 4, path_), intColumn(q, 5, path_));
+  const int n = intColumn(q, 6, path_);
   const auto corrupt = [&] {
     return StoreError("session store " + path_ + ": keyframe " + std::to_string(k->keyframe) + " of session " +
                       std::to_string(session) + " has blobs of the wrong size (corrupt)");
@@ -843,12 +871,12 @@ std::vector<UncertainPose2> SessionStore::odometry(std::int64_t session) const {
   std::vector<UncertainPose2> out;
   while (st.step()) {
     sqlite3_stmt* q = st.get();
-    if (sqlite3_column_int(q, 0) != static_cast<int>(out.size()) + 1)
+    if (intColumn(q, 0, path_) != static_cast<int>(out.size()) + 1)
       throw StoreError("session store " + path_ + ": session " + std::to_string(session) +
                        " misses the motion to keyframe " + std::to_string(out.size() + 1));
     const std::vector<double> c = blobVector<double>(q, 4);
     if (c.size() != 9) throw StoreError("session store " + path_ + ": a motion covariance has the wrong size");
-    out.emplace_back(Pose2(sqlite3_column_double(q, 1), sqlite3_column_double(q, 2), sqlite3_column_double(q, 3)),
+    out.emplace_back(Pose2(realColumn(q, 1, path_), realColumn(q, 2, path_), realColumn(q, 3, path_)),
                      covFrom(c.data()));
   }
   return out;
@@ -878,18 +906,18 @@ std::vector<StoredLoop> SessionStore::loops() const {
     StoredLoop l;
     l.id = sqlite3_column_int64(q, 0);
     l.session_a = sqlite3_column_int64(q, 1);
-    l.keyframe_a = sqlite3_column_int(q, 2);
+    l.keyframe_a = intColumn(q, 2, path_);
     l.session_b = sqlite3_column_int64(q, 3);
-    l.keyframe_b = sqlite3_column_int(q, 4);
+    l.keyframe_b = intColumn(q, 4, path_);
     l.global = std::strcmp(reinterpret_cast<const char*>(sqlite3_column_text(q, 5)), "global") == 0;
-    l.inliers = sqlite3_column_int(q, 6);
+    l.inliers = intColumn(q, 6, path_);
     const std::vector<double> c = blobVector<double>(q, 10);
     if (c.size() != 9) throw StoreError("session store " + path_ + ": a loop covariance has the wrong size");
-    l.z = UncertainPose2(Pose2(sqlite3_column_double(q, 7), sqlite3_column_double(q, 8), sqlite3_column_double(q, 9)),
+    l.z = UncertainPose2(Pose2(realColumn(q, 7, path_), realColumn(q, 8, path_), realColumn(q, 9, path_)),
                          covFrom(c.data()));
-    l.summarised = sqlite3_column_int(q, 11) != 0;
-    l.applied = sqlite3_column_int(q, 12) != 0;
-    l.refused = sqlite3_column_int(q, 13) != 0;
+    l.summarised = intColumn(q, 11, path_) != 0;
+    l.applied = intColumn(q, 12, path_) != 0;
+    l.refused = intColumn(q, 13, path_) != 0;
     out.push_back(l);
   }
   return out;
@@ -902,7 +930,7 @@ std::vector<StoredMap> SessionStore::maps() const {
   while (st.step()) {
     sqlite3_stmt* q = st.get();
     StoredMap m;
-    m.pending = sqlite3_column_int(q, 1);
+    m.pending = intColumn(q, 1, path_);
     const std::vector<double> v = blobVector<double>(q, 2);
     if (v.size() % 12 != 0) throw StoreError("session store " + path_ + ": map motions have the wrong size");
     for (std::size_t i = 0; i < v.size(); i += 12)
@@ -924,9 +952,8 @@ std::vector<StoredMap> SessionStore::maps() const {
     const std::vector<double> c = blobVector<double>(q, 4);
     if (c.size() != 9) throw StoreError("session store " + path_ + ": a link covariance has the wrong size");
     StoredLink l;
-    l.measured =
-        UncertainPose2(Pose2(sqlite3_column_double(q, 1), sqlite3_column_double(q, 2), sqlite3_column_double(q, 3)),
-                       covFrom(c.data()));
+    l.measured = UncertainPose2(Pose2(realColumn(q, 1, path_), realColumn(q, 2, path_), realColumn(q, 3, path_)),
+                                covFrom(c.data()));
     l.loops = blobVector<std::int64_t>(q, 5);
     out[it->second].links.push_back(std::move(l));
   }
