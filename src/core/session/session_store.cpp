@@ -139,13 +139,31 @@ std::string uriEscape(const std::string& path) {
   return out;
 }
 
+// A blob column as the whole values of T it holds (a keyframe's blobs, whose sizes readKeyframe
+// checks against num_features, naming the keyframe).
 template <typename T>
-std::vector<T> blobVector(sqlite3_stmt* st, int col) {
+std::vector<T> blobPrefix(sqlite3_stmt* st, int col) {
   const int n = sqlite3_column_bytes(st, col);
   const void* p = sqlite3_column_blob(st, col);
   std::vector<T> out(static_cast<std::size_t>(n) / sizeof(T));
   if (p && !out.empty()) std::memcpy(out.data(), p, out.size() * sizeof(T));
   return out;
+}
+
+// A blob column as values of T. A blob that is not a whole number of them is damaged (named with
+// its column and table): it was cut to the whole ones without a word (a link's loop list one byte
+// short summarised one loop fewer).
+template <typename T>
+std::vector<T> blobVector(sqlite3_stmt* st, int col, const std::string& path) {
+  const int n = sqlite3_column_bytes(st, col);
+  if (n % static_cast<int>(sizeof(T)) != 0) {
+    const char* table = sqlite3_column_table_name(st, col);
+    throw StoreError("session store " + path + ": column '" + sqlite3_column_name(st, col) + "'" +
+                     (table ? std::string(" of table '") + table + "'" : std::string()) + " holds a blob of " +
+                     std::to_string(n) + " bytes, not a whole number of " + std::to_string(sizeof(T)) +
+                     "-byte values (damaged)");
+  }
+  return blobPrefix<T>(st, col);
 }
 
 // A number read from a column: SQLite keeps whatever a row holds whatever the column's type, and
@@ -801,8 +819,8 @@ void SessionStore::readKeyframe(sqlite3_stmt* q, std::int64_t session, KeyframeC
                       std::to_string(session) + " has blobs of the wrong size (corrupt)");
   };
   if (features) {
-    k->points = blobVector<cv::Point2f>(q, 7);
-    const std::vector<std::uint8_t> d = blobVector<std::uint8_t>(q, 8);
+    k->points = blobPrefix<cv::Point2f>(q, 7);
+    const std::vector<std::uint8_t> d = blobPrefix<std::uint8_t>(q, 8);
     // n x 128 bytes (SIFT) or n x 32 (ORB): the blob's size tells which (the store's meta row
     // `features` says which kind all its sessions hold).
     const std::size_t sift = descriptorBytes(FeatureType::kSift), orb = descriptorBytes(FeatureType::kOrb);
@@ -816,11 +834,11 @@ void SessionStore::readKeyframe(sqlite3_stmt* q, std::int64_t session, KeyframeC
     if (n > 0) std::memcpy(k->descriptors.data, d.data(), d.size());
   }
   if (columns != KeyframeColumns::kFrame) {
-    const std::vector<float> h = blobVector<float>(q, 9);
+    const std::vector<float> h = blobPrefix<float>(q, 9);
     if (h.size() != static_cast<std::size_t>(HalocProjections::kHashSize)) throw corrupt();
     k->hash = Eigen::Map<const Eigen::VectorXf>(h.data(), static_cast<Eigen::Index>(h.size()));
   }
-  if (columns == KeyframeColumns::kAll) k->thumbnail = blobVector<std::uint8_t>(q, 10);
+  if (columns == KeyframeColumns::kAll) k->thumbnail = blobVector<std::uint8_t>(q, 10, path_);
 }
 
 std::vector<StoredKeyframe> SessionStore::keyframes(std::int64_t session, KeyframeColumns columns) const {
@@ -848,7 +866,7 @@ std::vector<std::vector<std::uint8_t>> SessionStore::thumbnails(std::int64_t ses
   Statement st(this, "SELECT thumbnail FROM keyframes WHERE session = ? ORDER BY keyframe");
   st.bind(1, session);
   std::vector<std::vector<std::uint8_t>> out;
-  while (st.step()) out.push_back(blobVector<std::uint8_t>(st.get(), 0));
+  while (st.step()) out.push_back(blobVector<std::uint8_t>(st.get(), 0, path_));
   return out;
 }
 
@@ -874,7 +892,7 @@ std::vector<UncertainPose2> SessionStore::odometry(std::int64_t session) const {
     if (intColumn(q, 0, path_) != static_cast<int>(out.size()) + 1)
       throw StoreError("session store " + path_ + ": session " + std::to_string(session) +
                        " misses the motion to keyframe " + std::to_string(out.size() + 1));
-    const std::vector<double> c = blobVector<double>(q, 4);
+    const std::vector<double> c = blobVector<double>(q, 4, path_);
     if (c.size() != 9) throw StoreError("session store " + path_ + ": a motion covariance has the wrong size");
     out.emplace_back(Pose2(realColumn(q, 1, path_), realColumn(q, 2, path_), realColumn(q, 3, path_)),
                      covFrom(c.data()));
@@ -911,7 +929,7 @@ std::vector<StoredLoop> SessionStore::loops() const {
     l.keyframe_b = intColumn(q, 4, path_);
     l.global = std::strcmp(reinterpret_cast<const char*>(sqlite3_column_text(q, 5)), "global") == 0;
     l.inliers = intColumn(q, 6, path_);
-    const std::vector<double> c = blobVector<double>(q, 10);
+    const std::vector<double> c = blobVector<double>(q, 10, path_);
     if (c.size() != 9) throw StoreError("session store " + path_ + ": a loop covariance has the wrong size");
     l.z = UncertainPose2(Pose2(realColumn(q, 7, path_), realColumn(q, 8, path_), realColumn(q, 9, path_)),
                          covFrom(c.data()));
@@ -931,7 +949,7 @@ std::vector<StoredMap> SessionStore::maps() const {
     sqlite3_stmt* q = st.get();
     StoredMap m;
     m.pending = intColumn(q, 1, path_);
-    const std::vector<double> v = blobVector<double>(q, 2);
+    const std::vector<double> v = blobVector<double>(q, 2, path_);
     if (v.size() % 12 != 0) throw StoreError("session store " + path_ + ": map motions have the wrong size");
     for (std::size_t i = 0; i < v.size(); i += 12)
       m.motions.emplace_back(Pose2(v[i], v[i + 1], v[i + 2]), covFrom(&v[i + 3]));
@@ -949,18 +967,25 @@ std::vector<StoredMap> SessionStore::maps() const {
     sqlite3_stmt* q = ln.get();
     const auto it = at.find(sqlite3_column_int64(q, 0));
     if (it == at.end()) throw StoreError("session store " + path_ + ": a link of no map");
-    const std::vector<double> c = blobVector<double>(q, 4);
+    const std::vector<double> c = blobVector<double>(q, 4, path_);
     if (c.size() != 9) throw StoreError("session store " + path_ + ": a link covariance has the wrong size");
     StoredLink l;
     l.measured = UncertainPose2(Pose2(realColumn(q, 1, path_), realColumn(q, 2, path_), realColumn(q, 3, path_)),
                                 covFrom(c.data()));
-    l.loops = blobVector<std::int64_t>(q, 5);
+    l.loops = blobVector<std::int64_t>(q, 5, path_);
     out[it->second].links.push_back(std::move(l));
   }
-  for (const StoredMap& m : out)
+  for (const StoredMap& m : out) {
     if (m.chain.empty() || m.links.size() + 1 != m.chain.size())
       throw StoreError("session store " + path_ + ": a stored map has " + std::to_string(m.chain.size()) +
                        " sessions and " + std::to_string(m.links.size()) + " links (corrupt)");
+    // A session is in one place of one chain (it silently became two maps).
+    std::set<std::int64_t> seen;
+    for (std::int64_t s : m.chain)
+      if (!seen.insert(s).second)
+        throw StoreError("session store " + path_ + ": the stored map of session " + std::to_string(m.chain.front()) +
+                         " names session " + std::to_string(s) + " twice (corrupt)");
+  }
   return out;
 }
 
