@@ -646,6 +646,14 @@ TEST(Store, TextForNumbersPartBlobsAndATwiceNamedSessionAreDamagedAndNamed) {
             "WHERE position = 0 LIMIT 1; INSERT INTO links(map, position, x, y, yaw, cov, loops) SELECT map, 99, x, y, "
             "yaw, cov, loops FROM links LIMIT 1",
             "names session"},
+           // Values no build writes, named with the row: each was kept or dropped without a word.
+           {"UPDATE keyframes SET stamp = -9e999 WHERE keyframe = 2", "keyframe 2 of session"},
+           {"UPDATE loops SET session_a = 77 WHERE id = (SELECT min(id) FROM loops)",
+            "names a session the store does not hold"},
+           {"UPDATE loops SET session_b = session_a, keyframe_b = keyframe_a WHERE id = (SELECT min(id) FROM loops)",
+            "from a keyframe to itself"},
+           {"UPDATE loops SET x = 9e999 WHERE id = (SELECT min(id) FROM loops)", "mean not finite"},
+           {"UPDATE motions SET y = 9e999 WHERE keyframe = 3", "motion 3: mean not finite"},
        }) {
     std::filesystem::copy_file(clean, copy, std::filesystem::copy_options::overwrite_existing);
     ASSERT_TRUE(testing_util::execSql(copy, sql));

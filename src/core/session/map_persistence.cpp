@@ -24,7 +24,12 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     if (static_cast<int>(odo.size()) + 1 != static_cast<int>(kfs.size()))
       throw StoreError("session store " + store.path() + ": session " + std::to_string(s.id) + " has " +
                        std::to_string(kfs.size()) + " keyframes and " + std::to_string(odo.size()) + " motions");
-    const int id = backend->restoreSession(s.name, odo);
+    int id = -1;
+    try {
+      id = backend->restoreSession(s.name, odo);
+    } catch (const std::invalid_argument& e) {  // a damaged motion: name the file and the session
+      throw StoreError("session store " + store.path() + ": session " + std::to_string(s.id) + ": " + e.what());
+    }
     session_of[s.id] = id;
     out.session_ids.push_back(s.id);
     out.frame_of_keyframe.emplace_back();
@@ -78,6 +83,16 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
   }
   std::map<std::int64_t, int> loop_of;
   for (const StoredLoop& l : store.loops()) {
+    const std::string where = "session store " + store.path() + ": loop " + std::to_string(l.id) + " (session " +
+                              std::to_string(l.session_a) + " keyframe " + std::to_string(l.keyframe_a) +
+                              " -> session " + std::to_string(l.session_b) + " keyframe " +
+                              std::to_string(l.keyframe_b) + "): ";
+    // Rows no build writes: a loop naming a session the store does not hold (it was dropped
+    // without a word), or from a keyframe to itself (it was kept).
+    if (!rows.count(l.session_a) || !rows.count(l.session_b))
+      throw StoreError(where + "names a session the store does not hold (damaged)");
+    if (l.session_a == l.session_b && l.keyframe_a == l.keyframe_b)
+      throw StoreError(where + "from a keyframe to itself (damaged)");
     const auto a = session_of.find(l.session_a), b = session_of.find(l.session_b);
     if (a == session_of.end() || b == session_of.end()) continue;  // a session without keyframes
     const bool again = unsummarised.count(l.id) > 0;
@@ -85,7 +100,11 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
                  l.summarised && !again,
                  l.applied && !again,
                  l.refused};
-    loop_of[l.id] = backend->restoreLoop(r);
+    try {
+      loop_of[l.id] = backend->restoreLoop(r);
+    } catch (const std::invalid_argument& e) {  // a damaged pose or covariance, a keyframe past the session
+      throw StoreError(where + e.what());
+    }
     out.loop_ids.push_back(l.id);
     out.loops.push_back(l);
   }

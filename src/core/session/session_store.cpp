@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <ctime>
@@ -812,6 +813,12 @@ void SessionStore::readKeyframe(sqlite3_stmt* q, std::int64_t session, KeyframeC
   k->frame_index = intColumn(q, 1, path_);
   k->stamp_s = realColumn(q, 2, path_);
   k->altitude_m = realColumn(q, 3, path_);
+  // Every stored keyframe had a finite stamp (a text 'nan' is refused above as not a number; an
+  // infinite one passed). An altitude that is not usable is the exports' to count as missing
+  // (test_export_survey: a keyframe without valid altitude is left out of the mosaic).
+  if (!std::isfinite(k->stamp_s))
+    throw StoreError("session store " + path_ + ": keyframe " + std::to_string(k->keyframe) + " of session " +
+                     std::to_string(session) + " has stamp " + std::to_string(k->stamp_s) + " (damaged)");
   k->image_size = cv::Size(intColumn(q, 4, path_), intColumn(q, 5, path_));
   const int n = intColumn(q, 6, path_);
   const auto corrupt = [&] {
