@@ -168,6 +168,18 @@ def test_refusals_leave_nothing(stores, tmp_path):
     db.close()
     r = run("merge_stores", out, made["a"], rec)
     assert r.returncode == 1 and "still recording" in r.stderr, r.stderr
+    # A damaged row (a loop naming a session the store does not hold): refused as every reader
+    # refuses it, by name (the copy took it without a word, one loop short).
+    dangling = tmp_path / "dangling.db"
+    shutil.copy(made["both"], dangling)
+    db = sqlite3.connect(str(dangling))
+    (loop,) = db.execute("SELECT min(id) FROM loops").fetchone()
+    db.execute("UPDATE loops SET session_a = 77 WHERE id = ?", (loop,))
+    db.commit()
+    db.close()
+    r = run("merge_stores", out, made["a"], dangling)
+    assert r.returncode == 1 and "loop %d (session 77" % loop in r.stderr, r.stderr
+    assert "names a session the store does not hold" in r.stderr, r.stderr
     r = run("merge_stores", out, made["a"])
     assert r.returncode == 2, r.stderr
     assert not out.exists()

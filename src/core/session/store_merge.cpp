@@ -11,6 +11,7 @@
 #include <set>
 #include <stdexcept>
 
+#include "uw_multislam/core/session/map_persistence.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/session_store.h"
 #include "uw_multislam/core/session/stored_loops.h"
@@ -89,6 +90,11 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
       if (s.state == StoredSessionState::kRecording && s.keyframes > 0)
         throw std::invalid_argument(path + ": session " + std::to_string(s.id) + " '" + s.name +
                                     "' is still recording (an interrupted run): finish or discard it first (offline_slam --db " + path + " --session ITS_FOLDER --interrupted finish|discard)");
+    {  // The checks every reader of a store applies (a damaged row refused by name), before
+       // anything is copied: the copy reads rows itself and took a dangling loop without a word.
+      MultiSessionBackend scratch{BackendOptions{}};
+      restoreStore(*in.back(), &scratch, nullptr, nullptr);
+    }
   }
   config.loops.global.hash_mode = settings.mode;
   config.loops.global.projection_seed = settings.seed;
