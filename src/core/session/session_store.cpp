@@ -140,6 +140,13 @@ std::string uriEscape(const std::string& path) {
   return out;
 }
 
+// "column 'x' of table 'motions'" (no table for an expression), for a damaged value's message.
+std::string columnLabel(sqlite3_stmt* q, int col) {
+  const char* table = sqlite3_column_table_name(q, col);
+  return std::string("column '") + sqlite3_column_name(q, col) + "'" +
+         (table ? std::string(" of table '") + table + "'" : std::string());
+}
+
 // A blob column as the whole values of T it holds (a keyframe's blobs, whose sizes readKeyframe
 // checks against num_features, naming the keyframe).
 template <typename T>
@@ -158,11 +165,8 @@ template <typename T>
 std::vector<T> blobVector(sqlite3_stmt* st, int col, const std::string& path) {
   const int n = sqlite3_column_bytes(st, col);
   if (n % static_cast<int>(sizeof(T)) != 0) {
-    const char* table = sqlite3_column_table_name(st, col);
-    throw StoreError("session store " + path + ": column '" + sqlite3_column_name(st, col) + "'" +
-                     (table ? std::string(" of table '") + table + "'" : std::string()) + " holds a blob of " +
-                     std::to_string(n) + " bytes, not a whole number of " + std::to_string(sizeof(T)) +
-                     "-byte values (damaged)");
+    throw StoreError("session store " + path + ": " + columnLabel(st, col) + " holds a blob of " + std::to_string(n) +
+                     " bytes, not a whole number of " + std::to_string(sizeof(T)) + "-byte values (damaged)");
   }
   return blobPrefix<T>(st, col);
 }
@@ -178,9 +182,7 @@ std::vector<T> blobVector(sqlite3_stmt* st, int col, const std::string& path) {
     const char* t = reinterpret_cast<const char*>(sqlite3_column_text(q, col));
     held = "the text '" + std::string(t ? t : "").substr(0, 40) + "'";
   }
-  const char* table = sqlite3_column_table_name(q, col);  // NULL for an expression
-  throw StoreError("session store " + path + ": column '" + sqlite3_column_name(q, col) + "'" +
-                   (table ? std::string(" of table '") + table + "'" : std::string()) + " holds " + held +
+  throw StoreError("session store " + path + ": " + columnLabel(q, col) + " holds " + held +
                    " where a number belongs (damaged)");
 }
 
