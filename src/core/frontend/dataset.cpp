@@ -18,6 +18,12 @@ namespace fs = std::filesystem;
 
 namespace {
 
+// A spreadsheet saving "CSV UTF-8" (or an editor) starts a file with a UTF-8 byte-order mark: not
+// part of its first line.
+void dropByteOrderMark(std::string* first_line) {
+  if (first_line->compare(0, 3, "\xEF\xBB\xBF") == 0) first_line->erase(0, 3);
+}
+
 std::string trim(const std::string& s) {
   const auto b = s.find_first_not_of(" \t\r\n");
   if (b == std::string::npos) return "";
@@ -69,8 +75,7 @@ void readCsv(const std::string& path, const std::vector<std::string>& header, F 
   if (!in) fail(path, 0, "cannot open");
   std::string line;
   if (!std::getline(in, line)) fail(path, 0, "empty file (expected header '" + expected + "')");
-  // A spreadsheet saving "CSV UTF-8" starts the file with a byte-order mark: not part of the header.
-  if (line.compare(0, 3, "\xEF\xBB\xBF") == 0) line.erase(0, 3);
+  dropByteOrderMark(&line);
   if (splitCsv(trim(line)) != header) {
     fail(path, 1, "unexpected header '" + trim(line) + "' (expected '" + expected + "')");
   }
@@ -168,7 +173,7 @@ CameraIntrinsics readCameraYaml(const std::string& path) {
   int n = 0;
   while (std::getline(in, line)) {
     ++n;
-    if (n == 1 && line.compare(0, 3, "\xEF\xBB\xBF") == 0) line.erase(0, 3);  // a byte-order mark
+    if (n == 1) dropByteOrderMark(&line);
     const auto hash = line.find('#');
     if (hash != std::string::npos) line = line.substr(0, hash);
     if (trim(line).empty() || trim(line).rfind("%YAML", 0) == 0 || trim(line) == "---") continue;

@@ -61,13 +61,13 @@ namespace {
 
 CameraIntrinsics scaledTo(const CameraIntrinsics& c, const cv::Size& size) { return cameraScaledTo(c, size); }
 
-// A keyframe the mosaic can place: finite pose, positive finite altitude (anything else is a
-// bad store row: left out and counted as missing, never a NaN extent).
-// A keyframe is drawn when its pose and altitude are valid and its session's camera is known (a
-// session stored with a 0x0 camera by an older version is not: restoreStore says so).
+// A keyframe the mosaic can place: finite pose, positive finite altitude and a known camera
+// (anything else is a bad store row, or a session an older version stored with a 0x0 camera: left
+// out and counted as missing, never a NaN extent). Stored cameras are validated when read, so a
+// known one has a focal length of at least a pixel.
 bool drawable(const ExportKeyframe& k, const CameraIntrinsics& c) {
-  return k.pose.mean.isFinite() && std::isfinite(k.altitude_m) && k.altitude_m > 0.0 && c.width > 0 && c.height > 0 &&
-         c.fx > 0.0 && c.fy > 0.0;
+  return k.pose.mean.isFinite() && std::isfinite(k.altitude_m) && k.altitude_m > 0.0 && !c.unknown() && c.fx > 0.0 &&
+         c.fy > 0.0;
 }
 
 // Pixel (u, v, 1) of the image seen through `cam` -> ground point in the map's image axes (the
@@ -225,7 +225,7 @@ std::vector<std::string> MosaicImages::matchSessions(const SurveyExport& survey)
     int best = -1, best_n = 0, ties = 0, other_size = 0;
     bool best_named = false;
     const CameraIntrinsics* cam = survey.findCamera(s.sessions.front());
-    if (cam && (cam->width <= 0 || cam->height <= 0)) cam = nullptr;  // stored unknown (a placeholder origin)
+    if (cam && cam->unknown()) cam = nullptr;  // not "another size"
     for (int d = 0; d < static_cast<int>(datasets_.size()); ++d) {
       // Frames are matched by stamp and index, which another mission can share (simulated ones
       // do, and any counter from 0): a folder whose images are not the session camera's size

@@ -1003,7 +1003,7 @@ Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* ou
   s.unloaded = false;
   // Older stores kept a 0x0 camera for some sessions with keyframes: their features cannot be put
   // in metres, so no loop to them verifies (the loop detector refuses such keyframes).
-  if (s.camera.width == 0 && s.camera.height == 0 && !s.stamps.empty())
+  if (s.camera.unknown() && !s.stamps.empty())
     say("session " + std::to_string(id) + " '" + s.name + "' has no stored camera (0x0, written by an older " +
         "version): no loop to its " + std::to_string(s.stamps.size()) + " keyframes can be verified");
   *out = std::move(r);

@@ -565,9 +565,7 @@ void SessionStore::checkHashSettings(const HashSettings& mine) {
   descriptor_bytes_ = descriptorBytes(mine.features);
 }
 
-std::string unusableCamera(const CameraIntrinsics& c) {
-  return c.width == 0 && c.height == 0 ? std::string() : c.validate();
-}
+std::string unusableCamera(const CameraIntrinsics& c) { return c.unknown() ? std::string() : c.validate(); }
 
 std::int64_t SessionStore::addSession(const std::string& name, const CameraIntrinsics& c, double start_stamp_s) {
   if (const std::string bad = unusableCamera(c); !bad.empty())

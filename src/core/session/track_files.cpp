@@ -32,7 +32,7 @@ TrackFiles writeTrackFiles(const ExportTrack& t, const SurveyExport& survey, con
   // drawn: its other files are written, the mosaic is left out with the reason.
   const bool any_camera = std::any_of(t.sessions.begin(), t.sessions.end(), [&](std::int64_t id) {
     const CameraIntrinsics* c = survey.findCamera(id);
-    return c && c->width > 0 && c->height > 0;
+    return c && !c->unknown();
   });
   if (!any_camera) {
     out.no_mosaic = "no session of " + t.label + " has a stored camera (0x0, written by an older version)";

@@ -46,6 +46,8 @@ struct CameraIntrinsics {
   std::string validate() const;
   /// Some coefficient of D is not zero.
   bool distorted() const;
+  /// 0x0: not known (a stored session without keyframes; older stores kept it for some with).
+  bool unknown() const { return width == 0 && height == 0; }
   /// The same K without distortion: the camera of undistorted feature points.
   CameraIntrinsics pinhole() const;
   bool operator==(const CameraIntrinsics& o) const;
