@@ -653,6 +653,8 @@ TEST(Store, TextForNumbersPartBlobsAndATwiceNamedSessionAreDamagedAndNamed) {
            {"UPDATE loops SET session_b = session_a, keyframe_b = keyframe_a WHERE id = (SELECT min(id) FROM loops)",
             "from a keyframe to itself"},
            {"UPDATE loops SET x = 9e999 WHERE id = (SELECT min(id) FROM loops)", "mean not finite"},
+           // Finite but absurd: it had been written to the maps' outputs and copied by merge_stores.
+           {"UPDATE loops SET y = -1e300 WHERE id = (SELECT min(id) FROM loops)", "mean farther than 1e7 m"},
            {"UPDATE motions SET y = 9e999 WHERE keyframe = 3", "motion 3: mean not finite"},
        }) {
     std::filesystem::copy_file(clean, copy, std::filesystem::copy_options::overwrite_existing);

@@ -11,6 +11,7 @@
 
 #include <Eigen/Dense>
 
+#include <cmath>
 #include <random>
 
 #include "uw_multislam/core/geometry/uncertain_pose.h"
@@ -150,6 +151,14 @@ TEST(CheckUncertainPose, CovarianceThenMeanThenInverse) {
   UncertainPose2 inf_yaw = good;
   inf_yaw.mean = Pose2(1, 2, std::numeric_limits<double>::infinity());
   EXPECT_EQ(checkUncertainPose(inf_yaw), "mean not finite");
+  // Finite, but no motion between keyframes: refused beyond kMaxRelativeTranslationM, in x or y.
+  UncertainPose2 far = good;
+  far.mean = Pose2(kMaxRelativeTranslationM, -kMaxRelativeTranslationM, 0.3);
+  EXPECT_EQ(checkUncertainPose(far), "");
+  far.mean = Pose2(std::nextafter(kMaxRelativeTranslationM, 2e7), 2, 0.3);
+  EXPECT_NE(checkUncertainPose(far).find("farther than 1e7 m"), std::string::npos);
+  far.mean = Pose2(1, -1e300, 0.3);
+  EXPECT_NE(checkUncertainPose(far).find("farther than 1e7 m"), std::string::npos);
   UncertainPose2 asym = good;
   asym.covariance(0, 1) += 0.01;
   EXPECT_NE(checkUncertainPose(asym).find("symmetric"), std::string::npos);

@@ -10,6 +10,16 @@
 namespace uw_multislam {
 namespace core {
 
+namespace {
+
+// An empty image, with why the file at `path` was not read.
+cv::Mat refusal(const std::string& path, const std::string& reason, std::string* why) {
+  if (why) *why = path + ": " + reason;
+  return cv::Mat();
+}
+
+}  // namespace
+
 bool isTruncatedJpeg(const std::vector<std::uint8_t>& b) {
   if (b.size() < 3 || b[0] != 0xFF || b[1] != 0xD8 || b[2] != 0xFF) return false;  // not a JPEG
   std::size_t end = b.size();
@@ -28,10 +38,7 @@ cv::Mat scaleTo8Bit(const cv::Mat& in16) {
 }
 
 cv::Mat decodeImageFile(const std::string& path, std::string* why) {
-  const auto refuse = [&](const std::string& reason) {
-    if (why) *why = path + ": " + reason;
-    return cv::Mat();
-  };
+  const auto refuse = [&](const std::string& reason) { return refusal(path, reason, why); };
   std::ifstream in(path, std::ios::binary);
   if (!in) return refuse("cannot open");
   const std::vector<std::uint8_t> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -49,10 +56,7 @@ cv::Mat decodeImageFile(const std::string& path, std::string* why) {
 }
 
 cv::Mat readFrameImage(const std::string& path, std::string* why) {
-  const auto refuse = [&](const std::string& reason) {
-    if (why) *why = path + ": " + reason;
-    return cv::Mat();
-  };
+  const auto refuse = [&](const std::string& reason) { return refusal(path, reason, why); };
   cv::Mat image = decodeImageFile(path, why);
   if (image.empty()) return image;
   if (image.depth() == CV_16U) {

@@ -5,6 +5,7 @@
 #include <Eigen/LU>
 
 #include <algorithm>
+#include <cmath>
 #include <sstream>
 
 namespace uw_multislam {
@@ -39,6 +40,13 @@ std::string checkCovariance(const Eigen::Matrix3d& p) {
 std::string checkUncertainPose(const UncertainPose2& u, bool invertible) {
   std::string bad = checkCovariance(u.covariance);
   if (bad.empty() && !u.mean.isFinite()) bad = "mean not finite";
+  // Every pose these functions see is a relative motion between two keyframes (odometry, a loop,
+  // a link, a map's motion): one beyond kMaxRelativeTranslationM is a damaged row or message, and
+  // its square (1e300 m in a stored loop had been written to the maps' outputs) overflows the
+  // solvers' residuals.
+  if (bad.empty() &&
+      (std::abs(u.mean.x()) > kMaxRelativeTranslationM || std::abs(u.mean.y()) > kMaxRelativeTranslationM))
+    bad = "mean farther than 1e7 m (not a motion between keyframes)";
   // The inverse itself must be finite: 1e-110 * I passes the Cholesky test, its inverse overflows
   // (the pose graph's edge weight came out inf and the solver failed).
   if (bad.empty() && invertible &&

@@ -83,16 +83,18 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
   }
   std::map<std::int64_t, int> loop_of;
   for (const StoredLoop& l : store.loops()) {
-    const std::string where = "session store " + store.path() + ": loop " + std::to_string(l.id) + " (session " +
-                              std::to_string(l.session_a) + " keyframe " + std::to_string(l.keyframe_a) +
-                              " -> session " + std::to_string(l.session_b) + " keyframe " +
-                              std::to_string(l.keyframe_b) + "): ";
+    // Built only when refusing the loop: a restart restores every stored loop.
+    const auto where = [&] {
+      return "session store " + store.path() + ": loop " + std::to_string(l.id) + " (session " +
+             std::to_string(l.session_a) + " keyframe " + std::to_string(l.keyframe_a) + " -> session " +
+             std::to_string(l.session_b) + " keyframe " + std::to_string(l.keyframe_b) + "): ";
+    };
     // Rows no build writes: a loop naming a session the store does not hold (it was dropped
     // without a word), or from a keyframe to itself (it was kept).
     if (!rows.count(l.session_a) || !rows.count(l.session_b))
-      throw StoreError(where + "names a session the store does not hold (damaged)");
+      throw StoreError(where() + "names a session the store does not hold (damaged)");
     if (l.session_a == l.session_b && l.keyframe_a == l.keyframe_b)
-      throw StoreError(where + "from a keyframe to itself (damaged)");
+      throw StoreError(where() + "from a keyframe to itself (damaged)");
     const auto a = session_of.find(l.session_a), b = session_of.find(l.session_b);
     if (a == session_of.end() || b == session_of.end()) continue;  // a session without keyframes
     const bool again = unsummarised.count(l.id) > 0;
@@ -103,7 +105,7 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     try {
       loop_of[l.id] = backend->restoreLoop(r);
     } catch (const std::invalid_argument& e) {  // a damaged pose or covariance, a keyframe past the session
-      throw StoreError(where + e.what());
+      throw StoreError(where() + e.what());
     }
     out.loop_ids.push_back(l.id);
     out.loops.push_back(l);

@@ -32,7 +32,12 @@ UncertainPose2 invert(const UncertainPose2& a);
 /// semi-definite. Returns an empty string when it is, else a sentence saying what is wrong.
 std::string checkCovariance(const Eigen::Matrix3d& p);
 
-/// Checks that a pose with covariance is usable: checkCovariance, then a finite mean; with
+/// Farthest relative motion (metres, in x or y) checkUncertainPose accepts: 10 000 km, beyond any
+/// survey, well inside what a squared residual can hold.
+constexpr double kMaxRelativeTranslationM = 1e7;
+
+/// Checks that a pose with covariance is usable: checkCovariance, then a finite mean within
+/// kMaxRelativeTranslationM; with
 /// `invertible`, a covariance without an inverse (a measurement that needs an information matrix)
 /// is refused too. Returns an empty string when it is usable, else a sentence saying what is wrong.
 std::string checkUncertainPose(const UncertainPose2& u, bool invertible = false);
