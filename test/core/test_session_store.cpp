@@ -642,6 +642,10 @@ TEST(Store, TextForNumbersPartBlobsAndATwiceNamedSessionAreDamagedAndNamed) {
             "column 'loops' of table 'links' holds a blob of"},
            {"UPDATE maps SET motions = substr(motions, 1, length(motions) - 3)",
             "column 'motions' of table 'maps' holds a blob of"},
+           // Text where a blob belongs, 72 characters: they had been read as a covariance of nine tiny
+           // doubles (positive semi-definite) and the link accepted.
+           {"UPDATE links SET cov = substr(hex(zeroblob(36)), 1, 72)",
+            "column 'cov' of table 'links' holds text where a blob belongs"},
            {"INSERT INTO map_sessions(map, position, session) SELECT map, 99, session FROM map_sessions "
             "WHERE position = 0 LIMIT 1; INSERT INTO links(map, position, x, y, yaw, cov, loops) SELECT map, 99, x, y, "
             "yaw, cov, loops FROM links LIMIT 1",

@@ -148,9 +148,15 @@ std::string columnLabel(sqlite3_stmt* q, int col) {
 }
 
 // A blob column as the whole values of T it holds (a keyframe's blobs, whose sizes readKeyframe
-// checks against num_features, naming the keyframe).
+// checks against num_features, naming the keyframe). Text or a number where a blob belongs is
+// damaged: SQLite hands out its characters as the blob's bytes (72 characters in a link's
+// covariance had been read as nine tiny doubles and the link accepted).
 template <typename T>
-std::vector<T> blobPrefix(sqlite3_stmt* st, int col) {
+std::vector<T> blobPrefix(sqlite3_stmt* st, int col, const std::string& path) {
+  const int type = sqlite3_column_type(st, col);
+  if (type != SQLITE_BLOB && type != SQLITE_NULL)
+    throw StoreError("session store " + path + ": " + columnLabel(st, col) + " holds " +
+                     (type == SQLITE_TEXT ? "text" : "a number") + " where a blob belongs (damaged)");
   const int n = sqlite3_column_bytes(st, col);
   const void* p = sqlite3_column_blob(st, col);
   std::vector<T> out(static_cast<std::size_t>(n) / sizeof(T));
@@ -168,7 +174,7 @@ std::vector<T> blobVector(sqlite3_stmt* st, int col, const std::string& path) {
     throw StoreError("session store " + path + ": " + columnLabel(st, col) + " holds a blob of " + std::to_string(n) +
                      " bytes, not a whole number of " + std::to_string(sizeof(T)) + "-byte values (damaged)");
   }
-  return blobPrefix<T>(st, col);
+  return blobPrefix<T>(st, col, path);
 }
 
 // A number read from a column: SQLite keeps whatever a row holds whatever the column's type, and
@@ -826,8 +832,8 @@ void SessionStore::readKeyframe(sqlite3_stmt* q, std::int64_t session, KeyframeC
                       std::to_string(session) + " has blobs of the wrong size (corrupt)");
   };
   if (features) {
-    k->points = blobPrefix<cv::Point2f>(q, 7);
-    const std::vector<std::uint8_t> d = blobPrefix<std::uint8_t>(q, 8);
+    k->points = blobPrefix<cv::Point2f>(q, 7, path_);
+    const std::vector<std::uint8_t> d = blobPrefix<std::uint8_t>(q, 8, path_);
     // n x 128 bytes (SIFT) or n x 32 (ORB): the blob's size tells which (the store's meta row
     // `features` says which kind all its sessions hold).
     const std::size_t sift = descriptorBytes(FeatureType::kSift), orb = descriptorBytes(FeatureType::kOrb);
@@ -841,7 +847,7 @@ void SessionStore::readKeyframe(sqlite3_stmt* q, std::int64_t session, KeyframeC
     if (n > 0) std::memcpy(k->descriptors.data, d.data(), d.size());
   }
   if (columns != KeyframeColumns::kFrame) {
-    const std::vector<float> h = blobPrefix<float>(q, 9);
+    const std::vector<float> h = blobPrefix<float>(q, 9, path_);
     if (h.size() != static_cast<std::size_t>(HalocProjections::kHashSize)) throw corrupt();
     k->hash = Eigen::Map<const Eigen::VectorXf>(h.data(), static_cast<Eigen::Index>(h.size()));
   }
