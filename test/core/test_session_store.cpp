@@ -652,6 +652,7 @@ TEST(Store, TextForNumbersPartBlobsAndATwiceNamedSessionAreDamagedAndNamed) {
             "names session"},
            // Values no build writes, named with the row: each was kept or dropped without a word.
            {"UPDATE keyframes SET stamp = -9e999 WHERE keyframe = 2", "keyframe 2 of session"},
+           {"PRAGMA ignore_check_constraints = ON; UPDATE sessions SET state = 'done'", "has state 'done' (damaged"},
            {"UPDATE loops SET session_a = 77 WHERE id = (SELECT min(id) FROM loops)",
             "names a session the store does not hold"},
            {"UPDATE loops SET session_b = session_a, keyframe_b = keyframe_a WHERE id = (SELECT min(id) FROM loops)",

@@ -168,6 +168,26 @@ def test_refusals_leave_nothing(stores, tmp_path):
     db.close()
     r = run("merge_stores", out, made["a"], rec)
     assert r.returncode == 1 and "still recording" in r.stderr, r.stderr
+    # A session state outside the schema's CHECK (written with the check off): damaged, not
+    # "still recording"; a damaged projections row: not "other projection vectors".
+    odd = tmp_path / "odd_state.db"
+    shutil.copy(made["b"], odd)
+    db = sqlite3.connect(str(odd))
+    db.execute("PRAGMA ignore_check_constraints = ON")
+    db.execute("UPDATE sessions SET state = 'done'")
+    db.commit()
+    db.close()
+    r = run("merge_stores", out, made["a"], odd)
+    assert r.returncode == 1 and "has state 'done' (damaged" in r.stderr, r.stderr
+    cut = tmp_path / "cut_projections.db"
+    shutil.copy(made["b"], cut)
+    db = sqlite3.connect(str(cut))
+    db.execute("UPDATE meta SET value = substr(value, 1, 300) WHERE key = 'projections'")
+    db.commit()
+    db.close()
+    r = run("merge_stores", out, made["a"], cut)
+    assert r.returncode == 1 and "%s: its meta table is damaged (projections: HALOC projections: " % cut in r.stderr, r.stderr
+    assert "other projection vectors" not in r.stderr, r.stderr
     # A damaged row (a loop naming a session the store does not hold): refused as every reader
     # refuses it, by name (the copy took it without a word, one loop short).
     dangling = tmp_path / "dangling.db"

@@ -787,9 +787,14 @@ std::vector<StoredSession> SessionStore::sessions() const {
     StoredSession s;
     s.id = sqlite3_column_int64(q, 0);
     s.name = reinterpret_cast<const char*>(sqlite3_column_text(q, 1));
-    s.state = std::strcmp(reinterpret_cast<const char*>(sqlite3_column_text(q, 2)), "finished") == 0
-                  ? StoredSessionState::kFinished
-                  : StoredSessionState::kRecording;
+    // The schema's CHECK allows these two (a row written with the check off read as recording:
+    // merge_stores called the session "still recording").
+    const char* state = reinterpret_cast<const char*>(sqlite3_column_text(q, 2));
+    const std::string state_text = state ? state : "NULL";
+    if (state_text != "finished" && state_text != "recording")
+      throw StoreError("session store " + path_ + ": session " + std::to_string(s.id) + " has state '" +
+                       state_text.substr(0, 40) + "' (damaged: 'recording' or 'finished')");
+    s.state = state_text == "finished" ? StoredSessionState::kFinished : StoredSessionState::kRecording;
     s.start_stamp_s = realColumn(q, 3, path_);
     s.end_stamp_s = realColumn(q, 4, path_);
     s.camera.width = intColumn(q, 5, path_);

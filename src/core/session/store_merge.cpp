@@ -11,6 +11,7 @@
 #include <set>
 #include <stdexcept>
 
+#include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/session/map_persistence.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/session_store.h"
@@ -74,6 +75,17 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
     HashSettings h;
     if (!in.back()->hashSettings(&h))
       throw std::invalid_argument(path + ": has no hash settings (no session was ever stored in it)");
+    // The stored projection vectors, read back and checked against the store's own settings: a
+    // damaged text was blamed below on the other input's "other projection vectors".
+    try {
+      const HalocProjections p = HalocProjections::fromText(h.projections);
+      if (p.n() != h.num_features || p.seed() != h.seed)
+        throw std::invalid_argument("vectors for n = " + std::to_string(p.n()) + ", seed " + std::to_string(p.seed()) +
+                                    ", settings n = " + std::to_string(h.num_features) + ", seed " +
+                                    std::to_string(h.seed));
+    } catch (const std::invalid_argument& e) {
+      throw StoreError("session store " + path + ": its meta table is damaged (projections: " + e.what() + ")");
+    }
     if (i == 0) {
       settings = h;
     } else if (h.mode != settings.mode || h.seed != settings.seed || h.num_features != settings.num_features ||
