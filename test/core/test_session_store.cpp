@@ -652,7 +652,17 @@ TEST(Store, TextForNumbersPartBlobsAndATwiceNamedSessionAreDamagedAndNamed) {
             "names session"},
            // Values no build writes, named with the row: each was kept or dropped without a word.
            {"UPDATE keyframes SET stamp = -9e999 WHERE keyframe = 2", "keyframe 2 of session"},
-           {"PRAGMA ignore_check_constraints = ON; UPDATE sessions SET state = 'done'", "has state 'done' (damaged"},
+           // Outside the schema's CHECKs (written with them off): read as one of the allowed values.
+           {"PRAGMA ignore_check_constraints = ON; UPDATE sessions SET state = 'done'",
+            "column 'state' of table 'sessions' holds 'done' (damaged"},
+           {"PRAGMA ignore_check_constraints = ON; UPDATE loops SET kind = 'Global'",
+            "column 'kind' of table 'loops' holds 'Global' (damaged"},
+           // Text for a session id (read as session 0) and a keyframe past 32 bits (read as its low bits).
+           {"UPDATE loops SET session_b = 'one' WHERE id = (SELECT min(id) FROM loops)",
+            "column 'session_b' of table 'loops' holds the text 'one'"},
+           {"UPDATE loops SET keyframe_a = keyframe_a + 4294967296 WHERE id = (SELECT min(id) FROM loops)",
+            "beyond any count or index"},
+           {"UPDATE map_sessions SET session = 'x' WHERE position = 0", "column 'session' of table 'map_sessions'"},
            {"UPDATE loops SET session_a = 77 WHERE id = (SELECT min(id) FROM loops)",
             "names a session the store does not hold"},
            {"UPDATE loops SET session_b = session_a, keyframe_b = keyframe_a WHERE id = (SELECT min(id) FROM loops)",

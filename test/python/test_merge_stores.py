@@ -178,7 +178,7 @@ def test_refusals_leave_nothing(stores, tmp_path):
     db.commit()
     db.close()
     r = run("merge_stores", out, made["a"], odd)
-    assert r.returncode == 1 and "has state 'done' (damaged" in r.stderr, r.stderr
+    assert r.returncode == 1 and "column 'state' of table 'sessions' holds 'done' (damaged" in r.stderr, r.stderr
     cut = tmp_path / "cut_projections.db"
     shutil.copy(made["b"], cut)
     db = sqlite3.connect(str(cut))

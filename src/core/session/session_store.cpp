@@ -14,6 +14,8 @@
 #include <ctime>
 #include <filesystem>
 #include <fstream>
+#include <initializer_list>
+#include <limits>
 #include <map>
 #include <set>
 
@@ -198,9 +200,33 @@ double realColumn(sqlite3_stmt* q, int col, const std::string& path) {
   return sqlite3_column_double(q, col);
 }
 
-int intColumn(sqlite3_stmt* q, int col, const std::string& path) {
+std::int64_t int64Column(sqlite3_stmt* q, int col, const std::string& path) {
   if (sqlite3_column_type(q, col) != SQLITE_INTEGER) notANumber(q, col, path);
-  return sqlite3_column_int(q, col);
+  return sqlite3_column_int64(q, col);
+}
+
+// sqlite3_column_int keeps the low 32 bits of a larger value without a word.
+int intColumn(sqlite3_stmt* q, int col, const std::string& path) {
+  const std::int64_t v = int64Column(q, col, path);
+  if (v < std::numeric_limits<int>::min() || v > std::numeric_limits<int>::max())
+    throw StoreError("session store " + path + ": " + columnLabel(q, col) + " holds " + std::to_string(v) +
+                     ", beyond any count or index (damaged)");
+  return static_cast<int>(v);
+}
+
+// A text column the schema's CHECK limits to `allowed`: a row written with the checks off
+// (PRAGMA ignore_check_constraints) had been read as one of them without a word (merge_stores
+// called a session in state 'done' "still recording").
+std::string checkedText(sqlite3_stmt* q, int col, const std::string& path, std::initializer_list<const char*> allowed) {
+  const unsigned char* t = sqlite3_column_text(q, col);
+  const std::string v = t ? reinterpret_cast<const char*>(t) : "";
+  std::string list;
+  for (const char* a : allowed) {
+    if (v == a && sqlite3_column_type(q, col) == SQLITE_TEXT) return v;
+    list += std::string(list.empty() ? "'" : ", '") + a + "'";
+  }
+  throw StoreError("session store " + path + ": " + columnLabel(q, col) + " holds '" + v.substr(0, 40) +
+                   "' (damaged: one of " + list + ")");
 }
 
 std::vector<double> covBlob(const Eigen::Matrix3d& c) {
@@ -787,14 +813,8 @@ std::vector<StoredSession> SessionStore::sessions() const {
     StoredSession s;
     s.id = sqlite3_column_int64(q, 0);
     s.name = reinterpret_cast<const char*>(sqlite3_column_text(q, 1));
-    // The schema's CHECK allows these two (a row written with the check off read as recording:
-    // merge_stores called the session "still recording").
-    const char* state = reinterpret_cast<const char*>(sqlite3_column_text(q, 2));
-    const std::string state_text = state ? state : "NULL";
-    if (state_text != "finished" && state_text != "recording")
-      throw StoreError("session store " + path_ + ": session " + std::to_string(s.id) + " has state '" +
-                       state_text.substr(0, 40) + "' (damaged: 'recording' or 'finished')");
-    s.state = state_text == "finished" ? StoredSessionState::kFinished : StoredSessionState::kRecording;
+    s.state = checkedText(q, 2, path_, {"recording", "finished"}) == "finished" ? StoredSessionState::kFinished
+                                                                                : StoredSessionState::kRecording;
     s.start_stamp_s = realColumn(q, 3, path_);
     s.end_stamp_s = realColumn(q, 4, path_);
     s.camera.width = intColumn(q, 5, path_);
@@ -941,11 +961,11 @@ std::vector<StoredLoop> SessionStore::loops() const {
     sqlite3_stmt* q = st.get();
     StoredLoop l;
     l.id = sqlite3_column_int64(q, 0);
-    l.session_a = sqlite3_column_int64(q, 1);
+    l.session_a = int64Column(q, 1, path_);
     l.keyframe_a = intColumn(q, 2, path_);
-    l.session_b = sqlite3_column_int64(q, 3);
+    l.session_b = int64Column(q, 3, path_);
     l.keyframe_b = intColumn(q, 4, path_);
-    l.global = std::strcmp(reinterpret_cast<const char*>(sqlite3_column_text(q, 5)), "global") == 0;
+    l.global = checkedText(q, 5, path_, {"local", "global"}) == "global";
     l.inliers = intColumn(q, 6, path_);
     const std::vector<double> c = blobVector<double>(q, 10, path_);
     if (c.size() != 9) throw StoreError("session store " + path_ + ": a loop covariance has the wrong size");
@@ -976,14 +996,14 @@ std::vector<StoredMap> SessionStore::maps() const {
   }
   Statement ms(this, "SELECT map, session FROM map_sessions ORDER BY map, position");
   while (ms.step()) {
-    const auto it = at.find(sqlite3_column_int64(ms.get(), 0));
+    const auto it = at.find(int64Column(ms.get(), 0, path_));
     if (it == at.end()) throw StoreError("session store " + path_ + ": a map session of no map");
-    out[it->second].chain.push_back(sqlite3_column_int64(ms.get(), 1));
+    out[it->second].chain.push_back(int64Column(ms.get(), 1, path_));
   }
   Statement ln(this, "SELECT map, x, y, yaw, cov, loops FROM links ORDER BY map, position");
   while (ln.step()) {
     sqlite3_stmt* q = ln.get();
-    const auto it = at.find(sqlite3_column_int64(q, 0));
+    const auto it = at.find(int64Column(q, 0, path_));
     if (it == at.end()) throw StoreError("session store " + path_ + ": a link of no map");
     const std::vector<double> c = blobVector<double>(q, 4, path_);
     if (c.size() != 9) throw StoreError("session store " + path_ + ": a link covariance has the wrong size");
@@ -1010,7 +1030,7 @@ std::vector<StoredMap> SessionStore::maps() const {
 std::vector<std::pair<std::int64_t, std::int64_t>> SessionStore::splitPairs() const {
   Statement st(this, "SELECT session_a, session_b FROM split_pairs ORDER BY session_a, session_b");
   std::vector<std::pair<std::int64_t, std::int64_t>> out;
-  while (st.step()) out.emplace_back(sqlite3_column_int64(st.get(), 0), sqlite3_column_int64(st.get(), 1));
+  while (st.step()) out.emplace_back(int64Column(st.get(), 0, path_), int64Column(st.get(), 1, path_));
   return out;
 }
 
@@ -1056,9 +1076,9 @@ std::vector<SessionProvenance> SessionStore::provenance() const {
   auto text = [&](int col) { return columnText(st.get(), col); };
   while (st.step()) {
     SessionProvenance p;
-    p.session = sqlite3_column_int64(st.get(), 0);
+    p.session = int64Column(st.get(), 0, path_);
     p.source_file = text(1);
-    p.source_session = sqlite3_column_int64(st.get(), 2);
+    p.source_session = int64Column(st.get(), 2, path_);
     p.source_name = text(3);
     p.vehicle = text(4);
     p.dive = text(5);
