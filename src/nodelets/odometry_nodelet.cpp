@@ -372,6 +372,8 @@ void OdometryNodelet::onRange(const sensor_msgs::RangeConstPtr& range) {
   std::string why;
   if (!rc::altitudeFromMsg(*range, config_.odometry.max_altitude_m, &altitude, &why)) {
     altitude = std::numeric_limits<double>::quiet_NaN();  // kept as an invalid reading
+    ++ranges_refused_;
+    if (std::isfinite(range->range) && range->range > config_.odometry.max_altitude_m) ++ranges_above_max_;
     NODELET_WARN_THROTTLE(
         5, "odometry: %s: images at this reading's stamp get no altitude (the last valid one is used)", why.c_str());
   }
@@ -880,6 +882,8 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
       {{"images_received", static_cast<double>(images)},
        {"camera_infos_received", static_cast<double>(infos_in_)},
        {"altitudes_received", static_cast<double>(ranges_in_)},
+       {"altitudes_refused", static_cast<double>(ranges_refused_), true},
+       {"altitudes_above_max_altitude", static_cast<double>(ranges_above_max_), true},
        {"frames_synchronised", static_cast<double>(synced)},
        {"images_not_paired", static_cast<double>(not_paired)},
        {"images_waiting_pairing", static_cast<double>(waiting)},
@@ -933,14 +937,15 @@ void OdometryNodelet::logStats(const char* when) {
   NODELET_INFO(
       "odometry %s: %ld frames received, %ld dropped (queue full), %ld bad images (%ld too large), %ld bad "
       "camera_info, "
-      "%ld bad altitudes, %ld duplicated and %ld late stamps skipped, %ld time jumps, %ld keyframes published, %ld "
+      "%ld bad altitudes (%ld readings refused, %ld above odometry.max_altitude_m), %ld duplicated and %ld late stamps "
+      "skipped, %ld time jumps, %ld keyframes published, %ld "
       "fallbacks, %ld sessions (%ld after tracking loss); current "
       "session %d: %d frames, "
       "%d keyframes, %d altitudes reused (%d above odometry.max_altitude_m), %.1f ms/frame",
       when, counts_.frames, counts_.dropped, counts_.bad_image, counts_.too_large, counts_.bad_camera,
-      counts_.bad_altitude, counts_.duplicates, counts_.out_of_order, counts_.jumps_back + counts_.jumps_forward,
-      counts_.keyframes, counts_.fallbacks, counts_.sessions, counts_.losses, session_, s.frames, s.keyframes,
-      s.altitude_reused, s.altitude_out_of_range, ms);
+      counts_.bad_altitude, ranges_refused_.load(), ranges_above_max_.load(), counts_.duplicates, counts_.out_of_order,
+      counts_.jumps_back + counts_.jumps_forward, counts_.keyframes, counts_.fallbacks, counts_.sessions,
+      counts_.losses, session_, s.frames, s.keyframes, s.altitude_reused, s.altitude_out_of_range, ms);
 }
 
 }  // namespace nodelets

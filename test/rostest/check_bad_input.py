@@ -9,7 +9,8 @@ with the test's own stamps and encodings, phase after phase:
   an image whose size differs from camera_info, an image larger than ~max_image_pixels with a
   matching camera_info (each skipped and counted by kind); the next
   frames as rgba8, mono16 (12-bit values) and bayer_rggb8 (converted and processed); a NaN and a
-  negative altitude (the last valid altitude is reused, counted); a duplicated stamp and a late
+  negative altitude (the last valid altitude is reused, counted) and a reading above
+  max_altitude_m (refused, counted); a duplicated stamp and a late
   stamp (skipped, counted); a hovering camera whose camera_info is lost for 3 frames (skipped,
   counted, and the next frame continues the session); the mission again from its first stamp, as a bag that loops (a new
   session); a burst (frames dropped by the worker's short queue, counted; the gaps the drops
@@ -189,7 +190,13 @@ class BadInputTest(unittest.TestCase):
         for i, encoding in zip((8, 9, 10), ("rgba8", "mono16", "bayer_rggb8")):
             image, info, altitude = cls.frame(i)
             cls.publish(cls.reencoded(image, encoding), info, altitude, cls.stamp_of(i))
-        # 4. NaN and negative altitude (the last valid one is reused).
+        # 4. NaN and negative altitude (the last valid one is reused). Before frame 11's reading, one
+        # alone at its stamp above slam/odometry/max_altitude_m (an altimeter's "no bottom"): refused
+        # and counted, and frame 11's NaN replaces it.
+        image, info, altitude = cls.frame(11)
+        altitude.range, altitude.max_range = 500.0, 0.0
+        altitude.header.stamp = cls.stamp_of(11)
+        cls.pubs[2].publish(altitude)
         for i, bad_range in ((11, float("nan")), (12, -1.0)):
             image, info, altitude = cls.frame(i)
             altitude.range = bad_range
@@ -336,6 +343,8 @@ class BadInputTest(unittest.TestCase):
     def test_convertible_encodings_and_bad_altitudes_are_processed(self):
         v = self.odometry()
         self.assertEqual(v["bad_altitude_replaced"], 2)
+        self.assertEqual(v["altitudes_refused"], 3)  # 500 m, NaN, -1
+        self.assertEqual(v["altitudes_above_max_altitude"], 1)
         self.assertEqual(v["skipped_by_odometry"], 0, "a frame reached the odometry and was refused there")
         # Each of them gives a pose: 3 converted + 2 with a bad altitude + 2 good after the
         # duplicate and the late frame, all processed (the status after them: nothing queued).

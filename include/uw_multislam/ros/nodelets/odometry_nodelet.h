@@ -333,6 +333,10 @@ class OdometryNodelet : public nodelet::Nodelet {
 
   // Arrivals, written by the callbacks (wall seconds of the last one, 0 = never).
   std::atomic<long> images_in_{0}, infos_in_{0}, ranges_in_{0};
+  // Altitude readings refused (NaN, <= 0, outside the sensor's range or above
+  // slam/odometry/max_altitude_m), and of those above max_altitude_m: the offline odometry's
+  // "above odometry.max_altitude_m" count, live.
+  std::atomic<long> ranges_refused_{0}, ranges_above_max_{0};
   std::atomic<double> last_image_{0.0}, last_info_{0.0}, last_range_{0.0};
   // Images since the last altitude, and the wall time of the first of them: the altitude topic is
   // silent when images have kept coming without one for ~input_timeout_s (a pause of every input
