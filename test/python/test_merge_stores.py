@@ -139,6 +139,17 @@ def test_merged_store_loads_in_offline_slam(merged):
     assert "already" in (r.stdout + r.stderr), r.stdout + r.stderr
 
 
+def damaged_copy(src, dst, *sql):
+    """A copy of the store src at dst with the SQL statements applied."""
+    shutil.copy(src, dst)
+    db = sqlite3.connect(str(dst))
+    for statement in sql:
+        db.execute(statement)
+    db.commit()
+    db.close()
+    return dst
+
+
 def test_refusals_leave_nothing(stores, tmp_path):
     base, made = stores
     before = {k: md5(p) for k, p in made.items()}
@@ -160,43 +171,26 @@ def test_refusals_leave_nothing(stores, tmp_path):
     r = run("merge_stores", out, made["a"], other)
     assert r.returncode == 1 and "projection_seed 7" in r.stderr and "projection_seed 20231122" in r.stderr, r.stderr
     # A session still recording (an interrupted run).
-    rec = tmp_path / "recording.db"
-    shutil.copy(made["b"], rec)
-    db = sqlite3.connect(str(rec))
-    db.execute("UPDATE sessions SET state = 'recording'")
-    db.commit()
-    db.close()
+    rec = damaged_copy(made["b"], tmp_path / "recording.db", "UPDATE sessions SET state = 'recording'")
     r = run("merge_stores", out, made["a"], rec)
     assert r.returncode == 1 and "still recording" in r.stderr, r.stderr
     # A session state outside the schema's CHECK (written with the check off): damaged, not
     # "still recording"; a damaged projections row: not "other projection vectors".
-    odd = tmp_path / "odd_state.db"
-    shutil.copy(made["b"], odd)
-    db = sqlite3.connect(str(odd))
-    db.execute("PRAGMA ignore_check_constraints = ON")
-    db.execute("UPDATE sessions SET state = 'done'")
-    db.commit()
-    db.close()
+    odd = damaged_copy(made["b"], tmp_path / "odd_state.db", "PRAGMA ignore_check_constraints = ON",
+                       "UPDATE sessions SET state = 'done'")
     r = run("merge_stores", out, made["a"], odd)
     assert r.returncode == 1 and "column 'state' of table 'sessions' holds 'done' (damaged" in r.stderr, r.stderr
-    cut = tmp_path / "cut_projections.db"
-    shutil.copy(made["b"], cut)
-    db = sqlite3.connect(str(cut))
-    db.execute("UPDATE meta SET value = substr(value, 1, 300) WHERE key = 'projections'")
-    db.commit()
-    db.close()
+    cut = damaged_copy(made["b"], tmp_path / "cut_projections.db",
+                       "UPDATE meta SET value = substr(value, 1, 300) WHERE key = 'projections'")
     r = run("merge_stores", out, made["a"], cut)
     assert r.returncode == 1 and "%s: its meta table is damaged (projections: HALOC projections: " % cut in r.stderr, r.stderr
     assert "other projection vectors" not in r.stderr, r.stderr
     # A damaged row (a loop naming a session the store does not hold): refused as every reader
     # refuses it, by name (the copy took it without a word, one loop short).
-    dangling = tmp_path / "dangling.db"
-    shutil.copy(made["both"], dangling)
-    db = sqlite3.connect(str(dangling))
-    (loop,) = db.execute("SELECT min(id) FROM loops").fetchone()
-    db.execute("UPDATE loops SET session_a = 77 WHERE id = ?", (loop,))
-    db.commit()
-    db.close()
+    with sqlite3.connect("file:%s?mode=ro" % made["both"], uri=True) as db:
+        (loop,) = db.execute("SELECT min(id) FROM loops").fetchone()
+    dangling = damaged_copy(made["both"], tmp_path / "dangling.db",
+                            "UPDATE loops SET session_a = 77 WHERE id = %d" % loop)
     r = run("merge_stores", out, made["a"], dangling)
     assert r.returncode == 1 and "loop %d (session 77" % loop in r.stderr, r.stderr
     assert "names a session the store does not hold" in r.stderr, r.stderr
