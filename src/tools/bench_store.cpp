@@ -210,7 +210,6 @@ int main(int argc, char** argv) {
       fs::remove(path + "-wal");
       fs::remove(path + "-shm");
       std::mt19937 rng(1);
-      std::uniform_real_distribution<float> u(0.0f, 1.0f);
       core::CameraIntrinsics cam;
       cam.width = 320;
       cam.height = 240;
@@ -225,17 +224,7 @@ int main(int argc, char** argv) {
         store.checkHashSettings({lo.global.hash_mode, lo.global.projection_seed, features, hasher.projections().toText()});
         const std::int64_t s = store.addSession("bench", cam, 0.0);
         for (int k = 0; k < n; ++k) {
-          core::StoredKeyframe kf;
-          kf.session = s;
-          kf.keyframe = k;
-          kf.frame_index = k;
-          kf.stamp_s = k;
-          kf.altitude_m = 2.0;
-          kf.image_size = cv::Size(320, 240);
-          for (int i = 0; i < features; ++i) kf.points.emplace_back(320 * u(rng), 240 * u(rng));
-          kf.descriptors = cv::Mat(features, 128, CV_8U);
-          cv::randu(kf.descriptors, 0, 256);
-          kf.hash = Eigen::VectorXf::Random(core::HalocProjections::kHashSize) * 0.1f;
+          core::StoredKeyframe kf = syntheticKeyframe(s, k, features, rng);
           kf.thumbnail.resize(2500);
           for (auto& b : kf.thumbnail) b = static_cast<std::uint8_t>(rng());
           const core::UncertainPose2 m(core::Pose2(0.3, 0.01, 0.001), Eigen::Matrix3d::Identity() * 1e-4);
