@@ -882,8 +882,10 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
       {{"images_received", static_cast<double>(images)},
        {"camera_infos_received", static_cast<double>(infos_in_)},
        {"altitudes_received", static_cast<double>(ranges_in_)},
-       {"altitudes_refused", static_cast<double>(ranges_refused_), true},
-       {"altitudes_above_max_altitude", static_cast<double>(ranges_above_max_), true},
+       // Readings, not frames: an altimeter without bottom lock (the descent) refuses readings
+       // no frame may use; the frames that do use one are the WARN (bad_altitude_replaced).
+       {"altitudes_refused", static_cast<double>(ranges_refused_)},
+       {"altitudes_above_max_altitude", static_cast<double>(ranges_above_max_)},
        {"frames_synchronised", static_cast<double>(synced)},
        {"images_not_paired", static_cast<double>(not_paired)},
        {"images_waiting_pairing", static_cast<double>(waiting)},
@@ -934,6 +936,8 @@ void OdometryNodelet::logStats(const char* when) {
   const core::Odometry* odo = odometry_ ? odometry_->odometry() : nullptr;
   const core::OdometryStats s = odo ? odo->stats() : core::OdometryStats();
   const double ms = odometry_ ? odometry_->times().get("odometry_total").meanMs() : 0.0;
+  // Live, readings above max_altitude_m are refused before the core sees them: counted as
+  // readings above, not as the core's altitude_out_of_range (always 0 here).
   NODELET_INFO(
       "odometry %s: %ld frames received, %ld dropped (queue full), %ld bad images (%ld too large), %ld bad "
       "camera_info, "
@@ -941,11 +945,11 @@ void OdometryNodelet::logStats(const char* when) {
       "skipped, %ld time jumps, %ld keyframes published, %ld "
       "fallbacks, %ld sessions (%ld after tracking loss); current "
       "session %d: %d frames, "
-      "%d keyframes, %d altitudes reused (%d above odometry.max_altitude_m), %.1f ms/frame",
+      "%d keyframes, %d altitudes reused, %.1f ms/frame",
       when, counts_.frames, counts_.dropped, counts_.bad_image, counts_.too_large, counts_.bad_camera,
       counts_.bad_altitude, ranges_refused_.load(), ranges_above_max_.load(), counts_.duplicates, counts_.out_of_order,
       counts_.jumps_back + counts_.jumps_forward, counts_.keyframes, counts_.fallbacks, counts_.sessions,
-      counts_.losses, session_, s.frames, s.keyframes, s.altitude_reused, s.altitude_out_of_range, ms);
+      counts_.losses, session_, s.frames, s.keyframes, s.altitude_reused, ms);
 }
 
 }  // namespace nodelets

@@ -657,6 +657,8 @@ TEST(Store, TextForNumbersPartBlobsAndATwiceNamedSessionAreDamagedAndNamed) {
             "column 'state' of table 'sessions' holds 'done' (damaged"},
            {"PRAGMA ignore_check_constraints = ON; UPDATE loops SET kind = 'Global'",
             "column 'kind' of table 'loops' holds 'Global' (damaged"},
+           {"PRAGMA ignore_check_constraints = ON; UPDATE sessions SET state = CAST('finished' AS BLOB)",
+            "column 'state' of table 'sessions' holds a non-text 'finished' (damaged"},
            // Text for a session id (read as session 0) and a keyframe past 32 bits (read as its low bits).
            {"UPDATE loops SET session_b = 'one' WHERE id = (SELECT min(id) FROM loops)",
             "column 'session_b' of table 'loops' holds the text 'one'"},

@@ -187,10 +187,11 @@ def test_refusals_leave_nothing(stores, tmp_path):
     assert "other projection vectors" not in r.stderr, r.stderr
     # A damaged row (a loop naming a session the store does not hold): refused as every reader
     # refuses it, by name (the copy took it without a word, one loop short).
-    with sqlite3.connect("file:%s?mode=ro" % made["both"], uri=True) as db:
-        (loop,) = db.execute("SELECT min(id) FROM loops").fetchone()
     dangling = damaged_copy(made["both"], tmp_path / "dangling.db",
-                            "UPDATE loops SET session_a = 77 WHERE id = %d" % loop)
+                            "UPDATE loops SET session_a = 77 WHERE id = (SELECT min(id) FROM loops)")
+    db = sqlite3.connect(str(dangling))
+    (loop,) = db.execute("SELECT id FROM loops WHERE session_a = 77").fetchone()
+    db.close()
     r = run("merge_stores", out, made["a"], dangling)
     assert r.returncode == 1 and "loop %d (session 77" % loop in r.stderr, r.stderr
     assert "names a session the store does not hold" in r.stderr, r.stderr

@@ -218,15 +218,16 @@ int intColumn(sqlite3_stmt* q, int col, const std::string& path) {
 // (PRAGMA ignore_check_constraints) had been read as one of them without a word (merge_stores
 // called a session in state 'done' "still recording").
 std::string checkedText(sqlite3_stmt* q, int col, const std::string& path, std::initializer_list<const char*> allowed) {
+  const bool text = sqlite3_column_type(q, col) == SQLITE_TEXT;  // before column_text converts the value
   const unsigned char* t = sqlite3_column_text(q, col);
   const std::string v = t ? reinterpret_cast<const char*>(t) : "";
   std::string list;
   for (const char* a : allowed) {
-    if (v == a && sqlite3_column_type(q, col) == SQLITE_TEXT) return v;
+    if (text && v == a) return v;
     list += std::string(list.empty() ? "'" : ", '") + a + "'";
   }
-  throw StoreError("session store " + path + ": " + columnLabel(q, col) + " holds '" + v.substr(0, 40) +
-                   "' (damaged: one of " + list + ")");
+  throw StoreError("session store " + path + ": " + columnLabel(q, col) + " holds " + (text ? "" : "a non-text ") +
+                   "'" + v.substr(0, 40) + "' (damaged: one of " + list + ")");
 }
 
 std::vector<double> covBlob(const Eigen::Matrix3d& c) {
