@@ -41,14 +41,15 @@ bool parseJoinPolicy(const std::string& name, JoinPolicy* out) {
 }
 
 std::string BackendOptions::validate() const {
+  // Named by their keys in the configuration's backend block (iekf.*, sparse.*, consistency.*).
   std::string bad = iekf.validate();
-  if (!bad.empty()) return bad;
+  if (!bad.empty()) return "iekf." + bad;
   bad = sparse.validate();
-  if (!bad.empty()) return bad;
+  if (!bad.empty()) return "sparse." + bad;
   if (optimise_every < 1) return "optimise_every must be >= 1";
   if (join_min_loops < 0) return "join_min_loops must be >= 0 (0 = no automatic joining)";
   if (!(join_gate_m > 0)) return "join_gate_m must be positive";
-  if (max_keyframes < 2) return "max_keyframes must be >= 2";
+  if (max_keyframes < 2) return "iekf.max_keyframes must be >= 2";
   if (join_min_consistent < 1) return "join_min_consistent must be >= 1";
   if (!(intra_gate_inflation >= 1 && std::isfinite(intra_gate_inflation))) return "intra_gate_inflation must be >= 1";
   if (!(iekf_gate_inflation >= 1 && std::isfinite(iekf_gate_inflation))) return "iekf_gate_inflation must be >= 1";
@@ -57,7 +58,7 @@ std::string BackendOptions::validate() const {
   if (join_min_inliers < 0) return "join_min_inliers must be >= 0";
   if (!(join_min_spread_m >= 0 && std::isfinite(join_min_spread_m))) return "join_min_spread_m must be >= 0";
   bad = consistency.validate();
-  if (!bad.empty()) return bad;
+  if (!bad.empty()) return "consistency." + bad;
   return {};
 }
 

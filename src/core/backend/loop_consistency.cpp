@@ -13,10 +13,10 @@ namespace uw_multislam {
 namespace core {
 
 std::string ConsistencyOptions::validate() const {
-  if (!(confidence > 0.5 && confidence < 1.0)) return "consistency_confidence must be in (0.5, 1)";
-  if (!(min_sigma_m >= 0.0 && std::isfinite(min_sigma_m))) return "consistency_min_sigma_m must be >= 0";
-  if (!(min_sigma_rad >= 0.0 && std::isfinite(min_sigma_rad))) return "consistency_min_sigma_rad must be >= 0";
-  if (max_loops < 2 || max_loops > 2000) return "consistency_max_loops must be in [2, 2000]";
+  if (!(confidence > 0.5 && confidence < 1.0)) return "confidence must be in (0.5, 1)";
+  if (!(min_sigma_m >= 0.0 && std::isfinite(min_sigma_m))) return "min_sigma_m must be >= 0";
+  if (!(min_sigma_rad >= 0.0 && std::isfinite(min_sigma_rad))) return "min_sigma_rad must be >= 0";
+  if (max_loops < 2 || max_loops > 2000) return "max_loops must be in [2, 2000]";
   return {};
 }
 

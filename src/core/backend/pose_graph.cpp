@@ -34,7 +34,9 @@ bool parseRobustLoss(const std::string& name, RobustLoss* out) {
 
 std::string SparseOptions::validate() const {
   if (max_iterations < 1) return "max_iterations must be >= 1";
-  if (!(function_tolerance > 0)) return "function_tolerance must be positive";
+  // Ceres stops when the cost changes by less than this fraction: 1 or more stopped before the
+  // first step (the maps were left as they were, "optimised").
+  if (!(function_tolerance > 0 && function_tolerance < 1)) return "function_tolerance must be in (0, 1)";
   if (!(loss_scale > 0)) return "loss_scale must be positive";
   return {};
 }

@@ -42,7 +42,12 @@ void refuseDuplicateKeys(const YAML::Node& node, const std::string& where, const
 YAML::Node parseYaml(const std::string& text, const std::string& what) {
   YAML::Node root;
   try {
-    root = YAML::Load(text);
+    // Every document, so that a second one (after '---') is refused rather than ignored.
+    const std::vector<YAML::Node> documents = YAML::LoadAll(text);
+    if (documents.size() > 1)
+      throw std::invalid_argument(what + " YAML: " + std::to_string(documents.size()) +
+                                  " documents (separated by '---'); one is read, so the others would be ignored");
+    if (!documents.empty()) root = documents.front();
   } catch (const YAML::Exception& e) {
     throw std::invalid_argument(what + " YAML: " + e.what());
   }

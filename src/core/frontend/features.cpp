@@ -58,10 +58,16 @@ std::string FeatureOptions::validate() const {
     os << "candidate_factor " << candidate_factor << " must be in [1, 20]";
   } else if (!(contrast_threshold > 0.0 && contrast_threshold < 1.0)) {
     os << "contrast_threshold " << contrast_threshold << " must be in (0, 1)";
-  } else if (!(edge_threshold > 1.0) || !(sigma > 0.0) || octave_layers < 1) {
-    os << "edge_threshold must be > 1, sigma > 0, octave_layers >= 1";
-  } else if (border_px < 0) {
-    os << "border_px must be >= 0";
+  } else if (!(edge_threshold > 1.0 && edge_threshold <= 1000.0)) {
+    // Bounds beyond any SIFT setting (Lowe: edge 10, sigma 1.6, 3 layers): a sigma of 1000 built
+    // Gaussian kernels for minutes, 100000 layers took 12 GB, 1e308 as edge threshold found nothing.
+    os << "edge_threshold " << edge_threshold << " must be in (1, 1000]";
+  } else if (!(sigma > 0.0 && sigma <= 10.0)) {
+    os << "sigma " << sigma << " must be in (0, 10]";
+  } else if (octave_layers < 1 || octave_layers > 10) {
+    os << "octave_layers " << octave_layers << " must be in [1, 10]";
+  } else if (border_px < 0 || border_px > 1000) {
+    os << "border_px " << border_px << " must be in [0, 1000]";
   } else if (first_octave != -1 && first_octave != 0) {
     os << "first_octave " << first_octave << " must be -1 (OpenCV's doubled image) or 0 (no doubling)";
   } else if (type == FeatureType::kOrb && first_octave != -1) {

@@ -16,10 +16,11 @@ std::string KltOptions::validate() const {
     os << "max_corners " << max_corners << " must be in [8, 20000]";
   } else if (!(corner_quality > 0.0 && corner_quality < 1.0)) {
     os << "corner_quality " << corner_quality << " must be in (0, 1)";
-  } else if (!(corner_min_distance_px >= 0.0)) {
-    os << "corner_min_distance_px must be >= 0";
-  } else if (border_px < 0) {
-    os << "border_px must be >= 0";
+  } else if (!(corner_min_distance_px >= 0.0 && corner_min_distance_px <= 1000.0)) {
+    // Upper bounds: OpenCV's corner search crashed on 1e308 and 2^31 (2 * border_px overflowed).
+    os << "corner_min_distance_px " << corner_min_distance_px << " must be in [0, 1000]";
+  } else if (border_px < 0 || border_px > 1000) {
+    os << "border_px " << border_px << " must be in [0, 1000]";
   } else if (window_px < 5 || window_px > 101 || window_px % 2 == 0) {
     os << "window_px " << window_px << " must be odd, in [5, 101]";
   } else if (pyramid_levels < 0 || pyramid_levels > 8) {

@@ -54,11 +54,12 @@ bool parseMotionSource(const std::string& name, MotionSource* s) {
 
 std::string NavPriorOptions::validate() const {
   std::ostringstream os;
-  if (!(inflation >= 1.0 && std::isfinite(inflation))) {
-    os << "inflation " << inflation << " must be >= 1 (the nav is never trusted more than it claims)";
-  } else if (!(min_sigma_m > 0.0) || !(min_sigma_rad > 0.0) || !std::isfinite(min_sigma_m) ||
-             !std::isfinite(min_sigma_rad)) {
-    os << "min_sigma_m and min_sigma_rad must be positive";
+  // Upper bounds keep a nav motion's covariance finite and invertible (1e308 or 1e154 had ended
+  // the run in the back-end).
+  if (!(inflation >= 1.0 && inflation <= 1e6)) {
+    os << "inflation " << inflation << " must be in [1, 1e6] (the nav is never trusted more than it claims)";
+  } else if (!(min_sigma_m > 0.0 && min_sigma_m <= 1000.0) || !(min_sigma_rad > 0.0 && min_sigma_rad <= 10.0)) {
+    os << "min_sigma_m must be in (0, 1000] and min_sigma_rad in (0, 10]";
   } else if (!(gate_confidence == 0.0 || (gate_confidence > 0.5 && gate_confidence < 1.0))) {
     os << "gate_confidence " << gate_confidence << " must be in (0.5, 1), or 0 for no gate";
   } else if (min_features_to_restart < 1) {

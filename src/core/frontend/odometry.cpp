@@ -28,8 +28,11 @@ std::string KeyframeOptions::validate() const {
 }
 
 std::string FallbackOptions::validate() const {
-  if (!(min_sigma_m > 0) || !(relative_sigma >= 0) || !(sigma_yaw_rad > 0)) {
-    return "min_sigma_m and sigma_yaw_rad must be positive, relative_sigma >= 0";
+  // Upper bounds keep the fallback's covariance (their squares) finite and invertible: 1e308 had
+  // ended the run at the first fallback ("covariance has non-finite entries").
+  if (!(min_sigma_m > 0 && min_sigma_m <= 1000) || !(relative_sigma >= 0 && relative_sigma <= 1000) ||
+      !(sigma_yaw_rad > 0 && sigma_yaw_rad <= 10)) {
+    return "min_sigma_m must be in (0, 1000], relative_sigma in [0, 1000], sigma_yaw_rad in (0, 10]";
   }
   return {};
 }
@@ -43,6 +46,10 @@ std::string OdometryOptions::validate() const {
     if (!c.second.empty()) return std::string(c.first) + ": " + c.second;
   }
   if (!(max_altitude_m > 0.0) || !std::isfinite(max_altitude_m)) return "max_altitude_m must be positive and finite";
+  // More inliers than features can never be found: every frame was a fallback, without a word.
+  if (ransac.min_inliers > features.num_features)
+    return "ransac: min_inliers " + std::to_string(ransac.min_inliers) + " is more than features.num_features " +
+           std::to_string(features.num_features);
   return {};
 }
 

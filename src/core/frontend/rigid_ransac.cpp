@@ -115,8 +115,9 @@ bool fitSimilarity2D(const std::vector<Eigen::Vector2d>& a, const std::vector<Ei
 
 std::string RansacOptions::validate() const {
   std::ostringstream os;
-  if (!(inlier_threshold_px > 0)) {
-    os << "inlier_threshold_px must be positive";
+  if (!(inlier_threshold_px > 0 && inlier_threshold_px <= 100)) {
+    // Beyond 100 px every match is an inlier of any motion: 1000 px tracked nothing.
+    os << "inlier_threshold_px " << inlier_threshold_px << " must be in (0, 100]";
   } else if (min_inliers < 3) {
     os << "min_inliers must be at least 3";
   } else if (!(confidence > 0 && confidence < 1)) {
@@ -125,8 +126,8 @@ std::string RansacOptions::validate() const {
     os << "need 1 <= min_iterations <= max_iterations";
   } else if (refine_iterations < 0) {
     os << "refine_iterations must be >= 0";
-  } else if (!(min_noise_px >= 0)) {
-    os << "min_noise_px must be >= 0";
+  } else if (!(min_noise_px >= 0 && min_noise_px <= 100)) {
+    os << "min_noise_px " << min_noise_px << " must be in [0, 100]";
   } else if (!(max_scale_change > 0 && max_scale_change < 1)) {
     os << "max_scale_change must be in (0, 1)";
   }

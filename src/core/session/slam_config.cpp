@@ -233,10 +233,15 @@ std::string SlamConfig::validate() const {
   if (!o.empty()) return "odometry." + o;
   const std::string t = tracking.validate();
   if (!t.empty()) return "tracking." + t;
+  // A new session needs this many features of a frame; more than the extractor keeps never comes
+  // (no session ever started, without a word).
+  if (tracking.min_features > odometry.features.num_features)
+    return "tracking.min_features " + std::to_string(tracking.min_features) +
+           " is more than odometry.features.num_features " + std::to_string(odometry.features.num_features);
   const std::string l = loops.validate();
   if (!l.empty()) return "loops." + l;
   const std::string b = backend.validate();
-  if (!b.empty()) return "backend: " + b;
+  if (!b.empty()) return "backend." + b;
   const std::string s = store_image.validate();
   return s.empty() ? s : "store." + s;
 }

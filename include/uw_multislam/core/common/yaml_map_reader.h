@@ -6,9 +6,11 @@
 #include <yaml-cpp/yaml.h>
 #include <Eigen/Core>
 
+#include <cmath>
 #include <set>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "uw_multislam/core/frontend/dataset.h"
@@ -26,6 +28,7 @@ class MapReader {
   void finish() const {
     if (!present()) return;
     for (const auto& kv : node_) {
+      if (!kv.first.IsScalar()) fail("a key that is not a word (a list or a map as a key)");
       const std::string key = kv.first.as<std::string>();
       if (!used_.count(key)) fail("unknown key '" + key + "'");
     }
@@ -38,6 +41,14 @@ class MapReader {
       *out = node_[key].template as<T>();
     } catch (const YAML::Exception&) {
       fail(std::string("bad value for '") + key + "'");
+    }
+    // .inf / .nan parse as numbers: no option means anything by them (0 is "off" where there is
+    // an off), and an infinite threshold or sigma crashed OpenCV or overflowed a covariance.
+    if constexpr (std::is_floating_point_v<T>) {
+      if (!std::isfinite(*out)) fail(std::string("bad value for '") + key + "' (not a finite number)");
+    } else if constexpr (std::is_same_v<T, std::vector<double>>) {
+      for (double x : *out)
+        if (!std::isfinite(x)) fail(std::string("bad value for '") + key + "' (not a finite number)");
     }
   }
   void readVector2(const char* key, Eigen::Vector2d* out) { readVector<2>(key, out); }
@@ -77,6 +88,8 @@ auto parseYamlFile(const std::string& path, Parse parse) -> decltype(parse(std::
   try {
     return parse(text);
   } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(path + ": " + e.what());
+  } catch (const YAML::Exception& e) {  // one the readers did not turn into a message of their own
     throw std::invalid_argument(path + ": " + e.what());
   }
 }
