@@ -50,13 +50,15 @@ TEST(SlamConfig, RefusesValuesThatCrashOrSilentlyRuinTheRunByKey) {
             "odometry.ransac: min_inliers 501 is more than features.num_features 500"},
            {"backend: {sparse: {function_tolerance: 1}}", "backend.sparse.function_tolerance must be in (0, 1)"},
            // Infinity where 0 is "off": refused for every number, with the key.
-           {"odometry: {keyframes: {max_rotation_rad: .inf}}", "bad value for 'max_rotation_rad' (not a finite number)"},
+           {"odometry: {keyframes: {max_rotation_rad: .inf}}",
+            "bad value for 'max_rotation_rad' (not a finite number)"},
            {"loops: {local: {max_radius_m: -.inf}}", "bad value for 'max_radius_m' (not a finite number)"},
            // Messages naming the key as the file spells it.
            {"backend: {iekf: {max_iterations: 0}}", "backend.iekf.max_iterations must be >= 1"},
            {"backend: {sparse: {max_iterations: 0}}", "backend.sparse.max_iterations must be >= 1"},
            {"backend: {consistency: {confidence: 0.2}}", "backend.consistency.confidence must be in (0.5, 1)"},
            {"backend: {iekf: {max_keyframes: 1}}", "backend.iekf.max_keyframes must be >= 2"},
+           {"odometry: {features: {grid_cols: 0}}", "odometry.features: grid_rows 4 x grid_cols 0 must be"},
            // Files: a second document was ignored, a list as a key said only "bad conversion".
            {"odometry: {max_altitude_m: 50}\n---\nodometry: {max_altitude_m: 100}\n", "2 documents"},
            {"? [a, b]\n: 1\n", "config: a key that is not a word"},

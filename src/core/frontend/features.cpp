@@ -53,7 +53,8 @@ std::string FeatureOptions::validate() const {
     os << "num_features " << num_features << " must be in [8, 20000]";
   } else if (grid_rows < 1 || grid_cols < 1 || grid_rows > num_features || grid_cols > num_features ||
              static_cast<long long>(grid_rows) * grid_cols > num_features) {
-    os << "grid " << grid_rows << "x" << grid_cols << " must have 1..num_features cells";
+    os << "grid_rows " << grid_rows << " x grid_cols " << grid_cols << " must be 1..num_features (" << num_features
+       << ") cells, each at least 1";
   } else if (!(candidate_factor >= 1.0 && candidate_factor <= 20.0)) {
     os << "candidate_factor " << candidate_factor << " must be in [1, 20]";
   } else if (!(contrast_threshold > 0.0 && contrast_threshold < 1.0)) {
