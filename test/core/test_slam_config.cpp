@@ -49,6 +49,9 @@ TEST(SlamConfig, RefusesValuesThatCrashOrSilentlyRuinTheRunByKey) {
            {"odometry: {ransac: {min_inliers: 501}}",
             "odometry.ransac: min_inliers 501 is more than features.num_features 500"},
            {"backend: {sparse: {function_tolerance: 1}}", "backend.sparse.function_tolerance must be in (0, 1)"},
+           {"loops: {local: {min_inliers: 2147483647}}",
+            "loops.local.min_inliers 2147483647 is more than odometry.features.num_features 500"},
+           {"loops: {global: {min_inliers: 501}}", "loops.global.min_inliers 501 is more than"},
            // Infinity where 0 is "off": refused for every number, with the key.
            {"odometry: {keyframes: {max_rotation_rad: .inf}}",
             "bad value for 'max_rotation_rad' (not a finite number)"},
@@ -76,6 +79,7 @@ TEST(SlamConfig, TheBoundsThemselvesAreAcceptedAndRoundTrip) {
       "  fallback: {min_sigma_m: 1000, relative_sigma: 1000, sigma_yaw_rad: 10}\n"
       "  ransac: {inlier_threshold_px: 100, min_noise_px: 100, min_inliers: 500}\n"
       "tracking: {min_features: 500}\n"
+      "loops: {local: {min_inliers: 500}, global: {min_inliers: 500}}\n"
       "nav: {inflation: 1e6, min_sigma_m: 1000, min_sigma_rad: 10}\n"
       "backend: {sparse: {function_tolerance: 0.999}}\n");
   EXPECT_EQ(c.odometry.features.sigma, 10.0);

@@ -2,6 +2,7 @@
 
 #include <fstream>
 #include <sstream>
+#include <utility>
 
 #include "uw_multislam/core/common/yaml_map_reader.h"
 
@@ -240,6 +241,13 @@ std::string SlamConfig::validate() const {
            " is more than odometry.features.num_features " + std::to_string(odometry.features.num_features);
   const std::string l = loops.validate();
   if (!l.empty()) return "loops." + l;
+  // A loop's inliers are matches between two keyframes' features: more than a keyframe keeps
+  // never verifies one (no loop was ever found, without a word).
+  for (const auto& [key, inliers] : {std::pair<const char*, int>{"loops.local.min_inliers", loops.local.min_inliers},
+                                     std::pair<const char*, int>{"loops.global.min_inliers", loops.global.min_inliers}})
+    if (inliers > odometry.features.num_features)
+      return std::string(key) + " " + std::to_string(inliers) + " is more than odometry.features.num_features " +
+             std::to_string(odometry.features.num_features) + ": no loop could be verified";
   const std::string b = backend.validate();
   if (!b.empty()) return "backend." + b;
   const std::string s = store_image.validate();
