@@ -3,7 +3,7 @@
 // (core/frontend/nav_prior.h) the nav carries the blank stretch and a wrong visual motion is refused.
 #include <gtest/gtest.h>
 
-#include "../common/rendered_seabed.h"
+#include "../../common/rendered_seabed.h"
 #include "uw_multislam/core/frontend/tracking.h"
 
 #include <functional>

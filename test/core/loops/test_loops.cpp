@@ -7,7 +7,7 @@
 #include <random>
 #include <set>
 
-#include "../common/seabed_features.h"
+#include "../../common/seabed_features.h"
 #include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/sim/seabed_world.h"

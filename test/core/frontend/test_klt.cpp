@@ -6,7 +6,7 @@
 
 #include <cmath>
 
-#include "../common/rendered_seabed.h"
+#include "../../common/rendered_seabed.h"
 #include "uw_multislam/core/frontend/features.h"
 #include "uw_multislam/core/frontend/klt_tracker.h"
 #include "uw_multislam/core/frontend/odometry.h"

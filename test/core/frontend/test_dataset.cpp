@@ -5,7 +5,7 @@
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
 
-#include "../common/scoped_temp_dir.h"
+#include "../../common/scoped_temp_dir.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/image_file.h"
 #include "uw_multislam/core/session/slam_config.h"

@@ -13,8 +13,8 @@
 #include <string>
 #include <vector>
 
-#include "../common/scoped_temp_dir.h"
-#include "../common/seabed_features.h"
+#include "../../common/scoped_temp_dir.h"
+#include "../../common/seabed_features.h"
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/session/pipeline.h"
 #include "uw_multislam/core/session/session_manager.h"

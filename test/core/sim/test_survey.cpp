@@ -9,7 +9,7 @@
 #include <fstream>
 #include <sstream>
 
-#include "../common/scoped_temp_dir.h"
+#include "../../common/scoped_temp_dir.h"
 #include "uw_multislam/core/frontend/camera_model.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/sim/survey_config.h"

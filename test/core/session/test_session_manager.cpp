@@ -10,9 +10,9 @@
 #include <optional>
 #include <tuple>
 
-#include "../common/scoped_temp_dir.h"
-#include "../common/seabed_features.h"
-#include "../common/sql_file.h"
+#include "../../common/scoped_temp_dir.h"
+#include "../../common/seabed_features.h"
+#include "../../common/sql_file.h"
 #include "uw_multislam/core/session/run_outputs.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/stored_loops.h"

@@ -12,9 +12,9 @@
 #include <set>
 #include <utility>
 
-#include "../common/rendered_seabed.h"
-#include "../common/scoped_temp_dir.h"
-#include "../common/sql_file.h"
+#include "../../common/rendered_seabed.h"
+#include "../../common/scoped_temp_dir.h"
+#include "../../common/sql_file.h"
 #include "uw_multislam/core/frontend/enhancement.h"
 #include "uw_multislam/core/frontend/features.h"
 #include "uw_multislam/core/frontend/matching.h"

@@ -7,7 +7,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "../common/rendered_seabed.h"
+#include "../../common/rendered_seabed.h"
 #include "uw_multislam/core/session/keyframe_image.h"
 #include "uw_multislam/core/session/slam_config.h"
 

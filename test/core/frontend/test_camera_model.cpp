@@ -8,7 +8,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "../common/scoped_temp_dir.h"
+#include "../../common/scoped_temp_dir.h"
 #include "uw_multislam/core/frontend/camera_model.h"
 #include "uw_multislam/core/frontend/features.h"
 

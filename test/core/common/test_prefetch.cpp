@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "../common/rendered_seabed.h"
+#include "../../common/rendered_seabed.h"
 #include "uw_multislam/core/common/ordered_prefetch.h"
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/frontend/tracking.h"

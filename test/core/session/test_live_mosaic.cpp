@@ -9,7 +9,7 @@
 #include <filesystem>
 #include <memory>
 
-#include "../common/scoped_temp_dir.h"
+#include "../../common/scoped_temp_dir.h"
 #include "uw_multislam/core/session/export_root.h"
 #include "uw_multislam/core/session/live_mosaic.h"
 

@@ -9,7 +9,7 @@
 
 #include <random>
 
-#include "../common/rendered_seabed.h"
+#include "../../common/rendered_seabed.h"
 #include "uw_multislam/core/backend/loop_consistency.h"
 #include "uw_multislam/core/frontend/features.h"
 #include "uw_multislam/core/frontend/matching.h"

@@ -14,8 +14,8 @@
 #include <map>
 #include <random>
 
-#include "../common/scoped_temp_dir.h"
-#include "../common/sql_file.h"
+#include "../../common/scoped_temp_dir.h"
+#include "../../common/sql_file.h"
 #include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/session/interrupted_run.h"
 #include "uw_multislam/core/session/map_persistence.h"

@@ -10,7 +10,7 @@
 #include <fstream>
 #include <random>
 
-#include "../common/scoped_temp_dir.h"
+#include "../../common/scoped_temp_dir.h"
 #include "uw_multislam/core/backend/loop_consistency.h"
 #include "uw_multislam/core/frontend/nav_prior.h"
 #include "uw_multislam/core/session/slam_config.h"
