@@ -8,7 +8,7 @@ PACKAGES=(
   catkin ros-core-dev libroscpp-dev libnodeletlib-dev libnodeletlib-tools
   libtf2-ros-dev libtf2-geometry-msgs-dev libimage-transport-dev libcv-bridge-dev
   libimage-geometry-dev libcamera-calibration-parsers-dev libroslib-dev
-  librosbag-dev python3-rosbag libboost-dev python3-catkin-pkg python3-rospkg
+  librosbag-dev python3-rosbag libboost-dev libboost-program-options-dev python3-catkin-pkg python3-rospkg
   ros-message-generation ros-message-runtime ros-std-msgs ros-sensor-msgs ros-nav-msgs ros-geometry-msgs
   ros-visualization-msgs ros-diagnostic-msgs libdiagnostic-updater-dev python3-diagnostic-msgs
   python3-roslaunch python3-rostest librostest-dev rosbash python3-rostopic python3-rosservice

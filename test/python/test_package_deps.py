@@ -28,6 +28,7 @@ CMAKE_PACKAGE_KEYS = {
     "SQLite3": "libsqlite3-dev",
     "GeographicLib": "geographiclib",
     "GDAL": "libgdal-dev",
+    "Boost": "libboost-program-options-dev",  # its one compiled component the package links (the tools' parser)
     "Threads": None,  # the C library, no key
     "catkin": "catkin",
     "roslaunch": "roslaunch",
@@ -47,6 +48,8 @@ INCLUDE_KEYS = {
     "uw_multislam": None,
     "ros": "roscpp",  # roscpp's headers are ros/*.h
 }
+# Include directories more specific than their first one (checked first).
+INCLUDE_PREFIX_KEYS = {"boost/program_options": "libboost-program-options-dev"}
 INCLUDE_FILE_KEYS = {"sqlite3.h": "libsqlite3-dev", "gdal_priv.h": "libgdal-dev", "ogr_spatialref.h": "libgdal-dev",
                      "cpl_conv.h": "libgdal-dev"}
 # Python modules that are not ROS packages -> rosdep key.
@@ -126,7 +129,11 @@ def cpp_keys(dirs):
                         key = INCLUDE_FILE_KEYS.get(inc)
                     else:
                         top = inc.split("/")[0]
-                        if top in INCLUDE_KEYS:
+                        prefix = next((p for p in INCLUDE_PREFIX_KEYS
+                                       if inc == p + ".hpp" or inc.startswith(p + "/")), None)
+                        if prefix:
+                            key = INCLUDE_PREFIX_KEYS[prefix]
+                        elif top in INCLUDE_KEYS:
                             key = INCLUDE_KEYS[top]
                         else:
                             assert is_ros_package(top), "%s includes <%s>: not a ROS package; add its key to " \

@@ -1,0 +1,256 @@
+// The offline runner (offline_run.h): dataset reading and calls into core::Pipeline / core::SessionManager,
+// the nodelets' engine.
+#include "offline_run.h"
+
+#include <opencv2/core.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/common/ordered_prefetch.h"
+#include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/frontend/image_file.h"
+#include "uw_multislam/core/session/interrupted_run.h"
+#include "uw_multislam/core/session/pipeline.h"
+#include "uw_multislam/core/session/run_outputs.h"
+#include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/core/session/slam_config.h"
+#include "uw_multislam/core/session/stored_loops.h"
+
+namespace uw_multislam::tools {
+
+namespace {
+
+int inStore(const std::string& why) {
+  std::fprintf(stderr, "offline_slam: %s\n", why.c_str());
+  return kInStore;
+}
+
+// Folders whose run in the store `db` was interrupted: without a choice the first
+// is refused (kInStore, naming the option); `discard` deletes the run and keeps the folder,
+// `finish` marks it finished and drops the folder from `folders` and `datasets`. Only an
+// existing store is opened (a new one is created by the session manager); the store is closed
+// again before the manager opens it. `finished` gets the ids of the sessions marked finished
+// (the folder they belong to is skipped: another folder with the same frames must not be taken
+// for it). Returns 0 or the exit status.
+int resolveInterrupted(const std::string& db, std::optional<core::InterruptedChoice> choice,
+                       std::vector<std::string>* folders, std::vector<core::Dataset>* datasets,
+                       std::set<int>* finished) {
+  std::error_code ec;
+  if (db.empty() || !std::filesystem::is_regular_file(db, ec) || std::filesystem::file_size(db, ec) == 0) return 0;
+  core::SessionStore store(db);
+  std::vector<std::string> kept_folders;
+  std::vector<core::Dataset> kept;
+  for (std::size_t ds = 0; ds < datasets->size(); ++ds) {
+    const std::vector<core::InterruptedRun> runs = core::findInterruptedRuns(store, (*datasets)[ds].frames);
+    bool skip = false;
+    for (const core::InterruptedRun& r : runs) {
+      const std::string what = "session " + std::to_string(r.ids.back()) + " '" + r.name + "', " +
+                               std::to_string(r.keyframes) + " keyframes in " + std::to_string(r.ids.size()) +
+                               " session(s)";
+      if (!choice)
+        return inStore((*folders)[ds] + " is in " + db + " from an interrupted run (" + what +
+                       ", still recording): pass --interrupted discard (delete it and process the folder again) "
+                       "or --interrupted finish (keep it as stored and skip the folder)");
+      if (*choice == core::InterruptedChoice::kDiscard) {
+        core::resolveInterruptedRun(&store, r, core::InterruptedChoice::kDiscard);
+        std::fprintf(stderr,
+                     "offline_slam: %s: the interrupted run (%s) deleted from %s; processing the folder again\n",
+                     (*folders)[ds].c_str(), what.c_str(), db.c_str());
+      } else {
+        core::resolveInterruptedRun(&store, r, core::InterruptedChoice::kFinish);
+        finished->insert(r.ids.begin(), r.ids.end());
+        std::fprintf(stderr,
+                     "offline_slam: %s: the interrupted run (%s) marked finished as stored in %s; folder skipped\n",
+                     (*folders)[ds].c_str(), what.c_str(), db.c_str());
+        skip = true;
+      }
+    }
+    if (skip) continue;
+    kept_folders.push_back((*folders)[ds]);
+    kept.push_back(std::move((*datasets)[ds]));
+  }
+  *folders = std::move(kept_folders);
+  *datasets = std::move(kept);
+  return 0;
+}
+
+}  // namespace
+
+int runOffline(const OfflineOptions& options) {
+  std::vector<std::string> folders = options.folders;  // less the folders resolveInterrupted skips
+  const std::string& out = options.out;
+  const std::string& db = options.db;
+  const bool quiet = options.quiet, again = options.again, detect_loops = options.detect_loops;
+  const bool localise_only = options.localise_only;
+  const int threads = options.threads;
+  const long finish_after = options.finish_after;
+  const std::vector<OperatorLink>& links = options.links;
+  try {
+    core::SlamConfig config =
+        options.config_file.empty() ? core::SlamConfig() : core::loadSlamConfig(options.config_file);
+    if (options.nav) config.odometry.nav.enabled = *options.nav;
+    if (options.dump_config) return std::fputs(core::slamConfigToYaml(config).c_str(), stdout), 0;
+    if (localise_only && !std::filesystem::exists(db)) {
+      std::fprintf(stderr, "offline_slam: --localise-only: no store %s (it would not be created)\n", db.c_str());
+      return 1;
+    }
+    // Our own workers (below) use the cores: OpenCV's threads inside them would only
+    // oversubscribe. (OpenCV's own parallelism, cv::setNumThreads(2), gave 1.41x on the demo on
+    // 2 cores, against 1.83x for the workers: SIFT's pyramid is built serially.)
+    cv::setNumThreads(1);
+    // Every folder and the store are checked before any work or any output.
+    std::vector<core::Dataset> datasets;
+    for (const auto& dir : folders) datasets.push_back(core::loadDataset(dir, true, core::StampOrder::kRequired));
+    std::set<int> finished_now;
+    if (const int refused = resolveInterrupted(db, options.interrupted, &folders, &datasets, &finished_now);
+        refused != 0)
+      return refused;
+    if (datasets.empty() && !detect_loops && links.empty()) {
+      std::printf("offline_slam: every folder was skipped: nothing to process\n");
+      return 0;
+    }
+    auto print = [quiet](const char* prefix) {
+      return [quiet, prefix](const std::string& line) {
+        if (!quiet) std::printf("%s%s\n", prefix, line.c_str());
+      };
+    };
+    const auto t0 = std::chrono::steady_clock::now();
+    core::SessionManager manager(core::sessionManagerOptions(config, db), {}, print("backend: "));
+    if (localise_only) manager.setLocalisation(true);  // before any keyframe: nothing is written
+    core::Pipeline pipeline(config, &manager, print(""), !quiet);
+    const int stored = manager.restoredSessions();
+    for (std::size_t ds = 0; !again && ds < datasets.size(); ++ds) {
+      std::vector<int> s = manager.storedSessionsOf(datasets[ds].frames);
+      s.erase(std::remove_if(s.begin(), s.end(), [&](int id) { return finished_now.count(id) > 0; }), s.end());
+      if (!s.empty())
+        return inStore(folders[ds] + " is already in " + db + " (session " + std::to_string(s.front()) +
+                       "): pass --again to process it once more as new sessions");
+    }
+    if (!db.empty() && !quiet)
+      std::printf("store %s: %d sessions, %d loops loaded in %.1f ms\n", db.c_str(), stored,
+                  static_cast<int>(manager.loops().size()),
+                  std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    // The operator's links (the back-end's add_link, offline): all checked and measured before
+    // anything is written, so that a refusal adds none of them and leaves OUT alone.
+    std::vector<OperatorLink> parsed = links;  // measured in place
+    for (auto& [l, measured] : parsed) {
+      core::Status st = manager.checkLinkEnds(l);
+      if (st.ok()) st = manager.storedMapsMayChange("add-link");
+      if (st.ok() && !measured) st = core::findStoredLink(manager, config, &l);
+      if (!st.ok()) {
+        std::fprintf(stderr, "offline_slam: --add-link %d:%d:%d:%d refused (%s): %s; no link added\n", l.session_a,
+                     l.keyframe_a, l.session_b, l.keyframe_b, core::statusCodeName(st.code), st.message.c_str());
+        return 1;
+      }
+    }
+    core::writeRunInputs(out, datasets, stored, core::slamConfigToYaml(config));  // creates OUT; folders + config
+    if (detect_loops) {
+      // Global loops among the stored sessions: each one searches the ones stored
+      // before it; loops the store holds already are skipped; the back-end joins by its policy.
+      std::vector<std::vector<int>> groups;
+      for (int s = 0; s < stored; ++s) groups.push_back({s});
+      const core::StoredLoopSearch f = core::searchStoredLoops(&manager, config, groups, print(""));
+      if (!quiet)
+        std::printf(
+            "detect-loops among %d stored sessions: %d keyframes queried, %d candidates verified, %d loops "
+            "(%d already stored), %d accepted, %d refused; %d joins\n",
+            stored, f.queries, f.candidates, f.found, f.duplicates, f.accepted, f.refused,
+            manager.backendStats().joins);
+    }
+    for (const auto& [l, measured] : parsed) {  // checked above; the back-end may still refuse one
+      const core::Status st = manager.addLink(l);
+      if (!st.ok()) {
+        std::fprintf(stderr, "offline_slam: --add-link %d:%d:%d:%d refused (%s): %s (the links before it are added)\n",
+                     l.session_a, l.keyframe_a, l.session_b, l.keyframe_b, core::statusCodeName(st.code),
+                     st.message.c_str());
+        return 1;
+      }
+      if (!quiet)
+        std::printf("add-link %d:%d -> %d:%d: (%.4f, %.4f, %.4f) %s, %d inliers: added\n", l.session_a, l.keyframe_a,
+                    l.session_b, l.keyframe_b, l.z.mean.x(), l.z.mean.y(), l.z.mean.yaw(),
+                    measured ? "as given" : "found by RANSAC", l.inliers);
+    }
+
+    std::map<int, int> csv_of;  // session id -> the folder's number (stored sessions keep their id)
+    const auto frames_t0 = std::chrono::steady_clock::now();
+    std::size_t frames_read = 0;
+    for (std::size_t ds = 0; ds < datasets.size(); ++ds) {
+      const core::Dataset& d = datasets[ds];
+      pipeline.beginStream(d);  // its camera, its images (thumbnails), its nav.csv
+      // --finish-after (the back-end's finish_session, offline): the frames after the first N
+      // are dropped and counted, as the odometry drops them after finish_session.
+      const std::size_t taken =
+          finish_after > 0 ? std::min(d.frames.size(), static_cast<std::size_t>(finish_after)) : d.frames.size();
+      // --threads N >= 2: N workers read and prepare (enhance, SIFT) the next
+      // frames while this thread runs the odometry's matching, loops and back-end on the current
+      // one; a prepared frame gives the same output as one the odometry prepares itself.
+      std::vector<std::unique_ptr<core::FramePreparer>> preparers;
+      for (int w = 0; threads > 1 && w < threads; ++w)
+        preparers.push_back(std::make_unique<core::FramePreparer>(pipeline.preparer()));
+      struct Loaded {
+        cv::Mat image;
+        std::string why;  // when the image could not be used
+        core::PreparedFrame prepared;
+      };
+      core::OrderedPrefetch<Loaded> loaded(taken, threads > 1 ? threads : 0, 2 * static_cast<std::size_t>(threads),
+                                           [&](std::size_t i, int worker) {
+                                             Loaded l;
+                                             // As the live odometry reads its messages (a cut-off JPEG refused, 16 bits
+                                             // scaled to 8 by the frame's range); grey as BGR, as cv::IMREAD_COLOR gave
+                                             // it before.
+                                             l.image = core::readFrameImageBgr(d.imagePath(d.frames[i]), &l.why);
+                                             if (!preparers.empty()) l.prepared = preparers[worker]->prepare(l.image);
+                                             return l;
+                                           });
+      frames_read += taken;
+      for (std::size_t i = 0; i < taken; ++i) {
+        const core::FrameRecord& f = d.frames[i];
+        Loaded l = loaded.next();
+        if (l.image.empty()) std::fprintf(stderr, "offline_slam: %s: frame %d skipped\n", l.why.c_str(), f.index);
+        pipeline.processFrame({f.index, f.stamp_s, f.altitude_m, l.image}, preparers.empty() ? nullptr : &l.prepared);
+      }
+      pipeline.endStream(taken == 0 ? 0.0 : d.frames[taken - 1].stamp_s);
+      if (taken < d.frames.size() && !quiet)
+        std::printf("%s: session finished after %zu frames (--finish-after), %zu frames dropped\n", folders[ds].c_str(),
+                    taken, d.frames.size() - taken);
+      for (int id : pipeline.streamSessions().back()) csv_of[id] = stored + static_cast<int>(ds);
+    }
+    pipeline.finish();
+    const double frames_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - frames_t0).count();
+    if (!quiet && frames_read > 0)
+      std::printf("throughput: %zu frames in %.2f s wall, %.1f ms/frame (image reading included; --threads %d)\n",
+                  frames_read, frames_s, 1000.0 * frames_s / static_cast<double>(frames_read), threads);
+    core::writeRunOutputs(out, manager, csv_of, stored + static_cast<int>(datasets.size()), pipeline.times());
+    if (!quiet) {
+      const core::BackendStats& bs = manager.backendStats();
+      const core::LoopStats& ls = pipeline.loopDetector().stats();
+      std::printf(
+          "back-end (%s): %zu maps, %d joins, %d optimisations (%.1f ms total, %.1f ms max), %d loops refused\n",
+          core::optimizerName(config.backend.optimizer), manager.mapIds().size(), bs.joins, bs.optimisations,
+          bs.optimise_ms_total, bs.optimise_ms_max, bs.loops_refused);
+      std::printf(
+          "loops: %d local accepted of %d candidates, %d global accepted of %d candidates, %zu keyframes stored\n",
+          ls.local_accepted, ls.local_candidates, ls.global_accepted, ls.global_candidates,
+          pipeline.loopDetector().size());
+    }
+    if (manager.stats().store_failures > 0) {
+      std::fprintf(stderr, "offline_slam: %s: %ld store writes failed (see above); the outputs in %s are complete\n",
+                   db.c_str(), manager.stats().store_failures, out.c_str());
+      return 1;
+    }
+    return 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "offline_slam: %s\n", e.what());
+    return 1;
+  }
+}
+
+}  // namespace uw_multislam::tools
