@@ -1,5 +1,5 @@
-// baseline_odometry: the naive OpenCV odometry our SIFT odometry is measured against (issue:
-// "SIFT, ratio test, estimateAffinePartial2D with RANSAC between consecutive frames"). Every
+// baseline_odometry: the naive OpenCV odometry our SIFT odometry is measured against ("SIFT, ratio
+// test, estimateAffinePartial2D with RANSAC between consecutive frames"). Every
 // frame is a keyframe; points are scaled to metres with each frame's altitude exactly as ours
 // are, so the comparison isolates the estimator. Output: odometry.csv and trajectory.csv in the
 // offline runner's format, so evaluate.py scores both the same way.
@@ -13,8 +13,11 @@
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
+#include <optional>
 #include <string>
 #include <vector>
+
+#include "cli.h"
 
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/features.h"
@@ -22,32 +25,28 @@
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;
+namespace po = boost::program_options;
+namespace tools = uw_multislam::tools;
 
-int main(int argc, char** argv) {
-  std::vector<std::string> sessions;
-  std::string out;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "-h" || a == "--help") {
-      std::puts(
-          "usage: baseline_odometry --session DIR [--session DIR ...] --out OUT\n"
-          "Naive OpenCV odometry (SIFT, ratio test 0.75, estimateAffinePartial2D RANSAC 3 px) between\n"
-          "consecutive frames, scaled by altitude. Writes odometry.csv, trajectory.csv, loops.csv, timing.csv\n"
-          "in the offline runner's format (every frame a keyframe; a failed frame keeps the identity motion).");
-      return 0;
-    } else if (a == "--session" && i + 1 < argc) {
-      sessions.push_back(argv[++i]);
-    } else if (a == "--out" && i + 1 < argc) {
-      out = argv[++i];
-    } else {
-      std::fprintf(stderr, "baseline_odometry: bad argument '%s' (see --help)\n", a.c_str());
-      return 2;
-    }
-  }
-  if (sessions.empty() || out.empty()) {
-    std::fprintf(stderr, "baseline_odometry: --session and --out are required\n");
-    return 2;
-  }
+namespace {
+
+const char* kUsage =
+    "usage: baseline_odometry --session DIR [--session DIR ...] --out OUT\n"
+    "Naive OpenCV odometry (SIFT, ratio test 0.75, estimateAffinePartial2D RANSAC 3 px) between\n"
+    "consecutive frames, scaled by altitude. Writes odometry.csv, trajectory.csv, loops.csv, timing.csv\n"
+    "in the offline runner's format (every frame a keyframe; a failed frame keeps the identity motion).";
+
+std::optional<int> parseArguments(int argc, char** argv, std::vector<std::string>* sessions, std::string* out) {
+  tools::CommandLine cli("baseline_odometry", kUsage);
+  auto option = cli.add();
+  option("session", po::value(sessions));
+  option("out", po::value(out));
+  if (const auto status = cli.parse(argc, argv)) return status;
+  if (sessions->empty() || out->empty()) return cli.bad("--session and --out are required");
+  return std::nullopt;
+}
+
+int runBaseline(const std::vector<std::string>& sessions, const std::string& out) {
   try {
     cv::setNumThreads(1);
     fs::create_directories(out);
@@ -130,4 +129,13 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "baseline_odometry: %s\n", e.what());
     return 1;
   }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::vector<std::string> sessions;
+  std::string out;
+  if (const auto status = parseArguments(argc, argv, &sessions, &out)) return *status;
+  return runBaseline(sessions, out);
 }

@@ -6,7 +6,7 @@
 //       5 cm / 5° to 25 cm / 25° per motion), every ground-truth loop measured with 1 cm / 0.5°
 //       noise, `--runs` seeds per level, joined with K = 1, 10, 20, 30 loops, by both optimisers.
 //       Prints mean ± σ of the errors before (odometry) and after SLAM.
-//   --outliers P[,P...] --mission DIR   wrong loops (issue 17): the mission's ground-truth loops
+//   --outliers P[,P...] --mission DIR   wrong loops: the mission's ground-truth loops
 //       (1 cm / 0.5° noise, 30-120 inliers) plus P % as many wrong ones (random keyframe pairs of
 //       different sessions, 30-120 inliers, poses off by 2-5 m and any yaw), odometry 2σ = 1 cm /
 //       1°, both join policies, the sparse optimiser; prints map ATE, wrong loops kept, joins.
@@ -25,17 +25,22 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <random>
 #include <sstream>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
+#include "cli.h"
+
 #include "uw_multislam/core/backend/backend.h"
 #include "uw_multislam/core/frontend/dataset.h"
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;
+namespace po = boost::program_options;
+namespace tools = uw_multislam::tools;
 using Clock = std::chrono::steady_clock;
 
 namespace {
@@ -410,77 +415,80 @@ int cost(int n, int loops, core::OptimizerKind opt) {
   return 0;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  std::string mission, optimizer = "sparse";
-  int runs = 20, n = 0, loops = 0;
-  bool robust = false, runs_given = false;
+// The bench to run and its settings; every value checked.
+struct Arguments {
+  enum class Mode { kCost, kRobustness, kOutliers } mode = Mode::kCost;
+  std::string mission;
+  int runs = 0;
   std::vector<int> percents;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    const bool v = i + 1 < argc;
-    if (a == "-h" || a == "--help") {
-      std::puts(kUsage);
-      return 0;
-    } else if (a == "--robustness") {
-      robust = true;
-    } else if (a == "--mission" && v) {
-      mission = argv[++i];
-    } else if (a == "--runs" && v) {
-      runs = std::atoi(argv[++i]);
-      runs_given = true;
-    } else if (a == "--outliers" && v) {
-      std::istringstream list(argv[++i]);
-      std::string item;
-      while (std::getline(list, item, ',')) {
-        char* end = nullptr;
-        const long p = std::strtol(item.c_str(), &end, 10);
-        if (item.empty() || *end != '\0' || p < 0 || p > 500) {
-          std::fprintf(stderr, "bench_backend: --outliers takes percentages in [0, 500], e.g. 0,10,30,50\n");
-          return 2;
-        }
-        percents.push_back(static_cast<int>(p));
-      }
-    } else if (a == "--cost" && v) {
-      n = std::atoi(argv[++i]);
-    } else if (a == "--loops" && v) {
-      loops = std::atoi(argv[++i]);
-    } else if (a == "--optimizer" && v) {
-      optimizer = argv[++i];
-    } else {
-      std::fprintf(stderr, "bench_backend: unknown or incomplete argument '%s' (see --help)\n", a.c_str());
-      return 2;
-    }
+  int n = 0, loops = 0;
+  core::OptimizerKind optimizer = core::OptimizerKind::kSparse;
+};
+
+std::string parsePercents(const std::string& text, std::vector<int>* percents) {
+  std::istringstream list(text);
+  std::string item;
+  while (std::getline(list, item, ',')) {
+    long long p = 0;
+    if (!tools::parseInteger(item, 0, 500, &p)) return "--outliers takes percentages in [0, 500], e.g. 0,10,30,50";
+    percents->push_back(static_cast<int>(p));
   }
+  return "";
+}
+
+std::optional<int> parseArguments(int argc, char** argv, Arguments* a) {
+  std::string optimizer = "sparse";
+  bool robust = false;
+  int runs = 20;
+  tools::CommandLine cli("bench_backend", kUsage);
+  auto option = cli.add();
+  option("robustness", tools::flag(&robust));
+  option("outliers", tools::checked(&a->percents, parsePercents));
+  option("mission", po::value(&a->mission));
+  option("runs", tools::integer(&runs));
+  option("cost", tools::integer(&a->n));
+  option("loops", tools::integer(&a->loops));
+  option("optimizer", po::value(&optimizer));
+  if (const auto status = cli.parse(argc, argv)) return status;
+  if (!a->percents.empty()) {
+    if (a->mission.empty() || runs < 1) return cli.bad("--outliers needs --mission DIR and --runs >= 1");
+    if (!core::parseOptimizer(optimizer, &a->optimizer)) return cli.bad("--optimizer iekf|sparse");
+    a->mode = Arguments::Mode::kOutliers;
+    a->runs = cli.given("runs") ? runs : 5;
+    return std::nullopt;
+  }
+  if (robust) {
+    if (a->mission.empty() || runs < 1) return cli.bad("--robustness needs --mission DIR and --runs >= 1");
+    a->mode = Arguments::Mode::kRobustness;
+    a->runs = runs;
+    return std::nullopt;
+  }
+  if (a->n < 2 * 50 || a->loops < 0 || !core::parseOptimizer(optimizer, &a->optimizer))
+    return cli.bad("--cost N (>= 100) --loops L --optimizer iekf|sparse");
+  return std::nullopt;
+}
+
+int bench(const Arguments& a) {
   try {
-    if (!percents.empty()) {
-      if (mission.empty() || runs < 1) {
-        std::fprintf(stderr, "bench_backend: --outliers needs --mission DIR and --runs >= 1\n");
-        return 2;
-      }
-      core::OptimizerKind k;
-      if (!core::parseOptimizer(optimizer, &k)) {
-        std::fprintf(stderr, "bench_backend: --optimizer iekf|sparse\n");
-        return 2;
-      }
-      return outliers(mission, percents, runs_given ? runs : 5, k);
+    switch (a.mode) {
+      case Arguments::Mode::kOutliers:
+        return outliers(a.mission, a.percents, a.runs, a.optimizer);
+      case Arguments::Mode::kRobustness:
+        return robustness(a.mission, a.runs);
+      case Arguments::Mode::kCost:
+        break;
     }
-    if (robust) {
-      if (mission.empty() || runs < 1) {
-        std::fprintf(stderr, "bench_backend: --robustness needs --mission DIR and --runs >= 1\n");
-        return 2;
-      }
-      return robustness(mission, runs);
-    }
-    core::OptimizerKind k;
-    if (n < 2 * 50 || loops < 0 || !core::parseOptimizer(optimizer, &k)) {
-      std::fprintf(stderr, "bench_backend: --cost N (>= 100) --loops L --optimizer iekf|sparse (see --help)\n");
-      return 2;
-    }
-    return cost(n, loops, k);
+    return cost(a.n, a.loops, a.optimizer);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "bench_backend: %s\n", e.what());
     return 1;
   }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Arguments arguments;
+  if (const auto status = parseArguments(argc, argv, &arguments)) return *status;
+  return bench(arguments);
 }

@@ -1,4 +1,4 @@
-// bench_export: export_survey's cost on a large map (issue 18): writes a store with one session of
+// bench_export: export_survey's cost on a large map: writes a store with one session of
 // N keyframes on a lawnmower (SIFT-sized random features, as bench_store; the thumbnails, altitude
 // and camera of a real store's keyframes, cycled), then loads it as export_survey does and draws
 // its mosaic, printing the times, the mosaic's size and the process's peak resident memory.
@@ -9,9 +9,12 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
+
+#include "cli.h"
 
 #include "uw_multislam/core/session/mosaic.h"
 #include "uw_multislam/core/session/session_store.h"
@@ -19,6 +22,8 @@
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;
+namespace po = boost::program_options;
+namespace tools = uw_multislam::tools;
 
 namespace {
 
@@ -42,36 +47,35 @@ double peakMb() {
   return u.ru_maxrss / 1024.0;  // kB on Linux
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
+struct Arguments {
   int n = 10000, features = 500;
   std::string from, dir = fs::temp_directory_path().string();
   core::MosaicOptions options;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    const bool v = i + 1 < argc;
-    if (a == "--keyframes" && v)
-      n = std::atoi(argv[++i]);
-    else if (a == "--features" && v)
-      features = std::atoi(argv[++i]);
-    else if (a == "--from" && v)
-      from = argv[++i];
-    else if (a == "--dir" && v)
-      dir = argv[++i];
-    else if (a == "--resolution" && v)
-      options.resolution_m = std::atof(argv[++i]);
-    else if (a == "--blend" && v && core::parseMosaicBlend(argv[i + 1], &options.blend))
-      ++i;
-    else {
-      std::puts(kUsage);
-      return a == "-h" || a == "--help" ? 0 : 2;
-    }
-  }
-  if (from.empty() || n < 2 || features < 0) {
-    std::fprintf(stderr, "bench_export: --from STORE is required, --keyframes at least 2 (see --help)\n");
-    return 2;
-  }
+};
+
+std::string parseBlend(const std::string& text, core::MosaicBlend* blend) {
+  return core::parseMosaicBlend(text, blend) ? "" : "bad --blend '%value%': multiband, feather or none";
+}
+
+std::optional<int> parseArguments(int argc, char** argv, Arguments* a) {
+  tools::CommandLine cli("bench_export", kUsage);
+  auto option = cli.add();
+  option("from", po::value(&a->from));
+  option("keyframes", tools::integer(&a->n));
+  option("features", tools::integer(&a->features));
+  option("resolution", po::value(&a->options.resolution_m));
+  option("blend", tools::checked(&a->options.blend, parseBlend));
+  option("dir", po::value(&a->dir));
+  if (const auto status = cli.parse(argc, argv)) return status;
+  if (a->from.empty() || a->n < 2 || a->features < 0)
+    return cli.bad("--from STORE is required, --keyframes at least 2");
+  return std::nullopt;
+}
+
+int bench(const Arguments& a) {
+  const int n = a.n, features = a.features;
+  const std::string &from = a.from, &dir = a.dir;
+  const core::MosaicOptions& options = a.options;
   const std::string path = (fs::path(dir) / ("bench_export_" + std::to_string(n) + ".db")).string();
   try {
     std::vector<std::vector<std::uint8_t>> thumbs;
@@ -141,4 +145,12 @@ int main(int argc, char** argv) {
     fs::remove(path);
     return 1;
   }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Arguments arguments;
+  if (const auto status = parseArguments(argc, argv, &arguments)) return *status;
+  return bench(arguments);
 }

@@ -18,6 +18,7 @@
 #include <fstream>
 #include <limits>
 #include <map>
+#include <optional>
 #include <random>
 #include <set>
 #include <sstream>
@@ -26,6 +27,8 @@
 #include <tuple>
 #include <utility>
 #include <vector>
+
+#include "cli.h"
 
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/enhancement.h"
@@ -38,6 +41,8 @@
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;
+namespace po = boost::program_options;
+namespace tools = uw_multislam::tools;
 using Clock = std::chrono::steady_clock;
 
 namespace {
@@ -75,10 +80,6 @@ constexpr float kQuantStep = 2.0f * 0.5f / 255.0f;  // HashStore's default range
 constexpr double kPosidoniaAltitude = 2.0;
 constexpr double kPosidoniaFocal = 400.0;
 const std::vector<int> kBestK = {5, 10, 20};
-
-struct BadArgs : std::runtime_error {
-  using std::runtime_error::runtime_error;
-};
 
 struct Args {
   std::vector<std::string> sessions;
@@ -125,54 +126,46 @@ double heapBytes() {
   return static_cast<double>(m.uordblks) + static_cast<double>(m.hblkhd);
 }
 
-std::vector<int> parseSizes(const std::string& text) {
-  std::vector<int> sizes;
+// --sizes N,N,...: store sizes in [1, 10^7].
+std::string parseSizes(const std::string& text, std::vector<int>* sizes) {
+  sizes->clear();  // the default replaced
   std::stringstream ss(text);
   std::string tok;
   while (std::getline(ss, tok, ',')) {
-    char* end = nullptr;
-    const long n = std::strtol(tok.c_str(), &end, 10);
-    if (tok.empty() || *end != '\0' || n < 1 || n > 10000000) throw BadArgs("bad --sizes value '" + tok + "'");
-    sizes.push_back(static_cast<int>(n));
+    long long n = 0;
+    if (!tools::parseInteger(tok, 1, 10000000, &n)) return "bad --sizes value '" + tok + "'";
+    sizes->push_back(static_cast<int>(n));
   }
-  if (sizes.empty()) throw BadArgs("--sizes needs at least one size");
-  return sizes;
+  if (sizes->empty()) return "--sizes needs at least one size";
+  return "";
 }
 
-Args parseArgs(int argc, char** argv, bool* help) {
-  Args a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    const bool has_value = i + 1 < argc;
-    if (arg == "-h" || arg == "--help") {
-      *help = true;
-      return a;
-    } else if (arg == "--session" && has_value) {
-      a.sessions.push_back(argv[++i]);
-    } else if (arg == "--posidonia" && has_value) {
-      a.posidonia = argv[++i];
-    } else if (arg == "--sizes" && has_value) {
-      a.sizes = parseSizes(argv[++i]);
-    } else if (arg == "--hash-mode" && has_value) {
-      const std::string name = argv[++i];
-      core::HashMode mode;
-      if (name == "both") {
-        a.modes = {core::HashMode::kSortedDct, core::HashMode::kHaloc};
-      } else if (core::parseHashMode(name, &mode)) {
-        a.modes = {mode};
-      } else {
-        throw BadArgs("--hash-mode '" + name + "': sorted_dct, haloc or both");
-      }
-    } else {
-      const bool known = arg == "--session" || arg == "--posidonia" || arg == "--sizes" || arg == "--hash-mode";
-      throw BadArgs(known ? arg + " needs a value" : "unknown argument '" + arg + "'");
-    }
+// --hash-mode sorted_dct|haloc|both.
+std::string parseModes(const std::string& name, std::vector<core::HashMode>* modes) {
+  core::HashMode mode;
+  if (name == "both") {
+    *modes = {core::HashMode::kSortedDct, core::HashMode::kHaloc};
+  } else if (core::parseHashMode(name, &mode)) {
+    *modes = {mode};
+  } else {
+    return "--hash-mode '" + name + "': sorted_dct, haloc or both";
   }
-  if (a.sessions.empty() || a.sessions.size() % 2 != 0) {
-    throw BadArgs("sessions come in pairs: --session A --session B per mission (got " +
-                  std::to_string(a.sessions.size()) + ")");
+  return "";
+}
+
+std::optional<int> parseArguments(int argc, char** argv, Args* a) {
+  tools::CommandLine cli("bench_loops", kUsage);
+  auto option = cli.add();
+  option("session", po::value(&a->sessions));
+  option("posidonia", po::value(&a->posidonia));
+  option("sizes", tools::checked(&a->sizes, parseSizes));
+  option("hash-mode", tools::checked(&a->modes, parseModes));
+  if (const auto status = cli.parse(argc, argv)) return status;
+  if (a->sessions.empty() || a->sessions.size() % 2 != 0) {
+    return cli.bad("sessions come in pairs: --session A --session B per mission (got " +
+                   std::to_string(a->sessions.size()) + ")");
   }
-  return a;
+  return std::nullopt;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -852,17 +845,10 @@ int run(const Args& args) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  Args args;
+  if (const auto status = parseArguments(argc, argv, &args)) return *status;
   try {
-    bool help = false;
-    const Args args = parseArgs(argc, argv, &help);
-    if (help) {
-      std::puts(kUsage);
-      return 0;
-    }
     return run(args);
-  } catch (const BadArgs& e) {
-    std::fprintf(stderr, "bench_loops: %s (see --help)\n", e.what());
-    return 2;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "bench_loops: %s\n", e.what());
     return 1;

@@ -1,4 +1,4 @@
-// bench_scale: what a store of N keyframes costs a vehicle that restarts on it (issue 20, item 3).
+// bench_scale: what a store of N keyframes costs a vehicle that restarts on it.
 //
 // It builds a store of N synthetic keyframes (sessions of --per-session keyframes; n random
 // SIFT-sized descriptors and keypoints, a random hash of the real size, a thumbnail-sized blob,
@@ -30,9 +30,12 @@
 #include <deque>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
+
+#include "cli.h"
 
 #include "uw_multislam/core/session/pipeline.h"
 #include "uw_multislam/core/session/session_manager.h"
@@ -41,6 +44,8 @@
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;
+namespace po = boost::program_options;
+namespace tools = uw_multislam::tools;
 
 namespace {
 
@@ -239,34 +244,21 @@ int runChild(const std::vector<std::string>& args) {
   return 128 + (WIFSIGNALED(status) ? WTERMSIG(status) : 0);
 }
 
-}  // namespace
+std::optional<int> parseArguments(int argc, char** argv, Args* a) {
+  tools::CommandLine cli("bench_scale", kUsage);
+  auto option = cli.add();
+  option("keyframes", tools::integer(&a->keyframes));
+  option("per-session", tools::integer(&a->per_session));
+  option("features", tools::integer(&a->features));
+  option("config", po::value(&a->config_path));
+  option("queries", tools::integer(&a->queries));
+  option("dir", po::value(&a->dir));
+  option("keep", tools::flag(&a->keep));
+  option("load", po::value(&a->load));
+  return cli.parse(argc, argv);
+}
 
-int main(int argc, char** argv) {
-  Args a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string s = argv[i];
-    const bool more = i + 1 < argc;
-    if (s == "--keyframes" && more)
-      a.keyframes = std::atoi(argv[++i]);
-    else if (s == "--per-session" && more)
-      a.per_session = std::atoi(argv[++i]);
-    else if (s == "--features" && more)
-      a.features = std::atoi(argv[++i]);
-    else if (s == "--queries" && more)
-      a.queries = std::atoi(argv[++i]);
-    else if (s == "--config" && more)
-      a.config_path = argv[++i];
-    else if (s == "--dir" && more)
-      a.dir = argv[++i];
-    else if (s == "--load" && more)
-      a.load = argv[++i];
-    else if (s == "--keep")
-      a.keep = true;
-    else {
-      std::puts(kUsage);
-      return s == "-h" || s == "--help" ? 0 : 2;
-    }
-  }
+int bench(Args a) {
   try {
     const core::SlamConfig config = a.config_path.empty() ? core::SlamConfig() : core::loadSlamConfig(a.config_path);
     if (a.features < 0) a.features = config.odometry.features.num_features;
@@ -297,4 +289,12 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "bench_scale: %s\n", e.what());
     return 1;
   }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args arguments;
+  if (const auto status = parseArguments(argc, argv, &arguments)) return *status;
+  return bench(std::move(arguments));
 }

@@ -1,9 +1,9 @@
-// bench_store: the session store's numbers for the closing note of issue 8: bytes per keyframe
+// bench_store: the session store's numbers (README "Session store"): bytes per keyframe
 // on disk, write time per keyframe (one transaction each, synchronous=FULL), and the time to
 // reload a session of N keyframes into a back-end and a loop detector (every keyframe's
 // features and hash). Synthetic keyframes: n SIFT-sized features with random coordinates and
 // descriptors (incompressible, as real ones nearly are), a 96 px JPEG-sized thumbnail.
-// Then the keyframe image the store keeps (issue 18, item 2; config `store`): for each longest
+// Then the keyframe image the store keeps (config `store`): for each longest
 // side and JPEG quality, the bytes it adds per keyframe on disk, its encode and write times, on
 // real-looking frames (the survey simulator's seabed through its water model, 1280 x 960, or the
 // frames of a dataset folder given with --images), so that the default is chosen from them.
@@ -15,9 +15,13 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <limits>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
+
+#include "cli.h"
 
 #include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/session/keyframe_image.h"
@@ -28,6 +32,8 @@
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;
+namespace po = boost::program_options;
+namespace tools = uw_multislam::tools;
 
 namespace {
 
@@ -172,34 +178,45 @@ void printImageTable(const std::string& dir, const std::string& dataset_dir, int
   }
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  std::vector<int> sizes;
+struct Arguments {
+  std::vector<int> sizes;  // empty: 1000 and 10000
   int features = 500;
   std::string dir = fs::temp_directory_path().string();
   std::string dataset_dir;
   int image_keyframes = 200;
   bool images = true, images_only = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "--keyframes" && i + 1 < argc) sizes.push_back(std::atoi(argv[++i]));
-    else if (a == "--images" && i + 1 < argc) dataset_dir = argv[++i];
-    else if (a == "--image-keyframes" && i + 1 < argc) image_keyframes = std::atoi(argv[++i]);
-    else if (a == "--no-images") images = false;
-    else if (a == "--images-only") images_only = true;
-    else if (a == "--features" && i + 1 < argc) features = std::atoi(argv[++i]);
-    else if (a == "--dir" && i + 1 < argc) dir = argv[++i];
-    else {
-      std::puts(kUsage);
-      return a == "-h" || a == "--help" ? 0 : 2;
-    }
-  }
+};
+
+std::string parseKeyframes(const std::string& text, int* n) {
+  long long v = 0;
+  if (!tools::parseInteger(text, 0, std::numeric_limits<int>::max(), &v)) return "bad --keyframes '%value%'";
+  *n = static_cast<int>(v);
+  return "";
+}
+
+std::optional<int> parseArguments(int argc, char** argv, Arguments* a) {
+  bool no_images = false;
+  tools::CommandLine cli("bench_store", kUsage);
+  auto option = cli.add();
+  option("keyframes", tools::checkedEach(&a->sizes, parseKeyframes));
+  option("features", tools::integer(&a->features));
+  option("dir", po::value(&a->dir));
+  option("images", po::value(&a->dataset_dir));
+  option("image-keyframes", tools::integer(&a->image_keyframes));
+  option("no-images", tools::flag(&no_images));
+  option("images-only", tools::flag(&a->images_only));
+  if (const auto status = cli.parse(argc, argv)) return status;
+  a->images = !no_images;
+  if (a->image_keyframes < 1 || a->features < 1) return cli.bad("--image-keyframes and --features must be at least 1");
+  return std::nullopt;
+}
+
+int bench(Arguments a) {
+  std::vector<int>& sizes = a.sizes;
+  const int features = a.features, image_keyframes = a.image_keyframes;
+  const std::string &dir = a.dir, &dataset_dir = a.dataset_dir;
+  const bool images = a.images, images_only = a.images_only;
   if (sizes.empty()) sizes = {1000, 10000};
-  if (image_keyframes < 1 || features < 1) {
-    std::fprintf(stderr, "bench_store: --image-keyframes and --features must be at least 1\n");
-    return 2;
-  }
   if (images_only) sizes.clear();
   if (!sizes.empty()) std::printf("| keyframes | features | bytes per keyframe | write ms per keyframe | reload ms (back-end + detector) | reload ms (back-end only) |\n");
   if (!sizes.empty()) std::printf("|---|---|---|---|---|---|\n");
@@ -277,4 +294,12 @@ int main(int argc, char** argv) {
     return 1;
   }
   return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Arguments arguments;
+  if (const auto status = parseArguments(argc, argv, &arguments)) return *status;
+  return bench(std::move(arguments));
 }

@@ -1,13 +1,16 @@
-// export_survey: the survey's products from a session store or an offline_slam output folder (issue
-// 18): argument parsing and calls into core/session/survey_export.h and run_export.h; contract:
+// export_survey: the survey's products from a session store or an offline_slam output folder:
+// argument parsing and calls into core/session/survey_export.h and run_export.h; contract:
 // --help, README "Exporting a survey".
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
+
+#include "cli.h"
 
 #include "uw_multislam/core/session/mosaic.h"
 #include "uw_multislam/core/session/run_export.h"
@@ -16,6 +19,8 @@
 #include "uw_multislam/core/session/track_files.h"
 
 namespace core = uw_multislam::core;
+namespace po = boost::program_options;
+namespace tools = uw_multislam::tools;
 
 namespace {
 
@@ -79,75 +84,73 @@ options:
 
 Exit status 0 on success, 2 on bad arguments, 1 with a one-line reason on bad input.)usage";
 
-int badArgs(const std::string& why) {
-  std::fprintf(stderr, "export_survey: %s (see --help)\n", why.c_str());
-  return 2;
+struct Arguments {
+  std::string db, run_dir, out;
+  std::vector<std::string> session_dirs, image_dirs;
+  std::optional<core::GeoOrigin> origin;
+  core::MosaicOptions mosaic_options;
+  bool quiet = false, mosaic = true;
+};
+
+std::string parseOrigin(const std::string& text, std::optional<core::GeoOrigin>* origin) {
+  core::GeoOrigin o;
+  std::string why;
+  if (!core::parseGeoOrigin(text, &o, &why)) return "bad --origin: " + why;
+  *origin = o;
+  return "";
 }
 
-}  // namespace
+std::string parseResolution(const std::string& text, double* metres) {
+  if (!tools::parseNumber(text, metres) || *metres <= 0.0 || *metres > 100.0)
+    return "bad --resolution '%value%': metres per pixel, in (0, 100]";
+  return "";
+}
 
-int main(int argc, char** argv) {
-  std::string db, run_dir, out, origin_text;
-  std::vector<std::string> session_dirs;
-  bool quiet = false, mosaic = true;
-  core::MosaicOptions mosaic_options;
-  std::vector<std::string> image_dirs;
-  auto number = [](const char* text, double* v) {
-    char* end = nullptr;
-    *v = std::strtod(text, &end);
-    return end != text && *end == '\0' && std::isfinite(*v);
-  };
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    const bool has_value = i + 1 < argc;
-    if (arg == "-h" || arg == "--help") return std::puts(kUsage), 0;
-    if (arg == "--db" && has_value) {
-      db = argv[++i];
-    } else if (arg == "--run" && has_value) {
-      run_dir = argv[++i];
-    } else if (arg == "--session" && has_value) {
-      const std::size_t before = session_dirs.size();
-      while (i + 1 < argc && std::string(argv[i + 1]).rfind("--", 0) != 0) session_dirs.push_back(argv[++i]);
-      if (session_dirs.size() == before) return badArgs("--session needs a dataset folder");
-    } else if (arg == "--out" && has_value) {
-      out = argv[++i];
-    } else if (arg == "--origin" && has_value) {
-      origin_text = argv[++i];
-    } else if (arg == "--quiet") {
-      quiet = true;
-    } else if (arg == "--no-mosaic") {
-      mosaic = false;
-    } else if (arg == "--no-exposure") {
-      mosaic_options.exposure = false;
-    } else if (arg == "--resolution" && has_value) {
-      double v = 0.0;
-      if (!number(argv[++i], &v) || v <= 0.0 || v > 100.0)
-        return badArgs(std::string("bad --resolution '") + argv[i] + "': metres per pixel, in (0, 100]");
-      mosaic_options.resolution_m = v;
-    } else if (arg == "--tile" && has_value) {
-      double v = 0.0;
-      if (!number(argv[++i], &v) || v != std::floor(v) || v < 64 || v > 16384)
-        return badArgs(std::string("bad --tile '") + argv[i] + "': pixels, an integer in [64, 16384]");
-      mosaic_options.tile_px = static_cast<int>(v);
-    } else if (arg == "--blend" && has_value) {
-      if (!core::parseMosaicBlend(argv[++i], &mosaic_options.blend))
-        return badArgs(std::string("bad --blend '") + argv[i] + "': multiband, feather or none");
-    } else if (arg == "--images" && has_value) {
-      const std::size_t before = image_dirs.size();
-      while (i + 1 < argc && std::string(argv[i + 1]).rfind("--", 0) != 0) image_dirs.push_back(argv[++i]);
-      if (image_dirs.size() == before) return badArgs("--images needs at least one dataset folder");
-    } else {
-      return badArgs(has_value || arg.rfind("--", 0) != 0 ? "unknown argument '" + arg + "'" : arg + " needs a value");
-    }
-  }
-  if (db.empty() == run_dir.empty()) return badArgs("one of --db STORE or --run RUN_DIR is required");
-  if (!session_dirs.empty() && run_dir.empty()) return badArgs("--session goes with --run");
-  if (!run_dir.empty() && !image_dirs.empty())
-    return badArgs("--images goes with --db (with --run the --session folders' frames are drawn)");
-  if (out.empty()) return badArgs("--out DIR is required");
-  core::GeoOrigin origin;
-  std::string why;
-  if (!origin_text.empty() && !core::parseGeoOrigin(origin_text, &origin, &why)) return badArgs("bad --origin: " + why);
+std::string parseTile(const std::string& text, int* px) {
+  double v = 0.0;
+  if (!tools::parseNumber(text, &v) || v != std::floor(v) || v < 64 || v > 16384)
+    return "bad --tile '%value%': pixels, an integer in [64, 16384]";
+  *px = static_cast<int>(v);
+  return "";
+}
+
+std::string parseBlend(const std::string& text, core::MosaicBlend* blend) {
+  return core::parseMosaicBlend(text, blend) ? "" : "bad --blend '%value%': multiband, feather or none";
+}
+
+std::optional<int> parseArguments(int argc, char** argv, Arguments* a) {
+  bool no_mosaic = false, no_exposure = false;
+  tools::CommandLine cli("export_survey", kUsage);
+  auto option = cli.add();
+  option("db", po::value(&a->db));
+  option("run", po::value(&a->run_dir));
+  option("session", po::value(&a->session_dirs)->multitoken());
+  option("out", po::value(&a->out));
+  option("origin", tools::checked(&a->origin, parseOrigin));
+  option("resolution", tools::checked(&a->mosaic_options.resolution_m, parseResolution));
+  option("images", po::value(&a->image_dirs)->multitoken());
+  option("blend", tools::checked(&a->mosaic_options.blend, parseBlend));
+  option("no-exposure", tools::flag(&no_exposure));
+  option("tile", tools::checked(&a->mosaic_options.tile_px, parseTile));
+  option("no-mosaic", tools::flag(&no_mosaic));
+  option("quiet", tools::flag(&a->quiet));
+  if (const auto status = cli.parse(argc, argv)) return status;
+  a->mosaic = !no_mosaic;
+  if (no_exposure) a->mosaic_options.exposure = false;
+  if (a->db.empty() == a->run_dir.empty()) return cli.bad("one of --db STORE or --run RUN_DIR is required");
+  if (!a->session_dirs.empty() && a->run_dir.empty()) return cli.bad("--session goes with --run");
+  if (!a->run_dir.empty() && !a->image_dirs.empty())
+    return cli.bad("--images goes with --db (with --run the --session folders' frames are drawn)");
+  if (a->out.empty()) return cli.bad("--out DIR is required");
+  return std::nullopt;
+}
+
+int exportSurvey(Arguments a) {
+  const std::string &db = a.db, &run_dir = a.run_dir, &out = a.out;
+  const std::vector<std::string>& session_dirs = a.session_dirs;
+  std::vector<std::string>& image_dirs = a.image_dirs;
+  const bool quiet = a.quiet, mosaic = a.mosaic;
+  const core::MosaicOptions& mosaic_options = a.mosaic_options;
   try {
     std::vector<std::string> notes;
     core::SurveyExport survey;
@@ -175,7 +178,7 @@ int main(int argc, char** argv) {
     core::TrackFilesOptions track_options;
     track_options.mosaic = mosaic;
     track_options.mosaic_options = mosaic_options;
-    track_options.origin = origin_text.empty() ? nullptr : &origin;
+    track_options.origin = a.origin ? &*a.origin : nullptr;
     auto writeAll = [&](const core::ExportTrack& t) {
       const core::TrackFiles written = core::writeTrackFiles(t, survey, images, out, track_options);
       files += static_cast<int>(written.files.size());
@@ -196,7 +199,7 @@ int main(int argc, char** argv) {
         std::printf("%s (%s): %zu sessions, %zu keyframes, %zu edges\n", m.label.c_str(), m.name.c_str(),
                     m.sessions.size(), m.keyframes.size(), m.edges.size());
       std::printf("%zu sessions, %zu maps: %d files in %s%s\n", survey.sessions.size(), survey.maps.size(), files,
-                  out.c_str(), origin_text.empty() ? " (no --origin: no GeoJSON)" : "");
+                  out.c_str(), a.origin ? "" : " (no --origin: no GeoJSON)");
       for (const std::string& note : notes) std::printf("note: %s\n", note.c_str());
       if (mosaic && image_dirs.empty())
         std::printf(
@@ -211,4 +214,12 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "export_survey: %s\n", e.what());
     return 1;
   }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Arguments arguments;
+  if (const auto status = parseArguments(argc, argv, &arguments)) return *status;
+  return exportSurvey(std::move(arguments));
 }

@@ -7,64 +7,64 @@
 #include <cstdlib>
 #include <exception>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
+
+#include "cli.h"
 
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/ros/dataset_bag.h"
 
 namespace core = uw_multislam::core;
 namespace rb = uw_multislam::ros_bag;
+namespace po = boost::program_options;
+namespace tools = uw_multislam::tools;
 
 namespace {
 
-int usage(int code) {
+std::string usageText() {
   const rb::DatasetBagOptions d;
-  std::fprintf(code ? stderr : stdout,
-               "usage: folder_to_bag DATASET_DIR OUT.bag [options]\n"
-               "Writes a dataset folder (frames.csv, camera.yaml, images, optional gt.csv) to a ROS bag.\n"
-               "Per frame, all stamped start time + stamp_s (the bag time too):\n"
-               "  %-22s sensor_msgs/Image       the image, lossless (colour bgr8, grey mono8)\n"
-               "  %-22s sensor_msgs/CameraInfo  plumb_bob, zero distortion, K and P from camera.yaml\n"
-               "  %-22s sensor_msgs/Range       altitude_m (ULTRASOUND, %.0f deg beam, %.1f..%.0f m);\n"
-               "  %-22s                         not written for a NaN or out-of-range altitude\n"
-               "  %-22s nav_msgs/Odometry       gt.csv pose in frame '%s', child the camera frame;\n"
-               "  %-22s                         only when the folder has gt.csv\n"
-               "and per nav.csv row (the vehicle's dead reckoning), at start time + its stamp_s:\n"
-               "  %-22s nav_msgs/Odometry       base_link in 'odom', z-up, with its covariance\n"
-               "options:\n"
-               "  --start-time SEC          time of stamp_s = 0, seconds since the epoch (default %u)\n"
-               "  --no-ground-truth         do not write the ground-truth odometry\n"
-               "  --no-nav                  do not write the nav odometry\n"
-               "  --camera-frame ID         frame id of Image/CameraInfo, odometry child (default '%s')\n"
-               "  --altimeter-frame ID      frame id of the Range messages (default '%s')\n"
-               "  --gt-frame ID             frame id of the ground-truth odometry (default '%s')\n"
-               "  --image-topic NAME        (default %s)\n"
-               "  --camera-info-topic NAME  (default %s)\n"
-               "  --altitude-topic NAME     (default %s)\n"
-               "  --gt-topic NAME           (default %s)\n"
-               "  --encoding ENC            convert images to mono8, mono16, bgr8, rgb8, bgr16 or rgb16\n"
-               "                            (default: as stored)\n"
-               "  --image-format F          raw (sensor_msgs/Image), or jpeg / png: sensor_msgs/CompressedImage\n"
-               "                            on IMAGE_TOPIC/compressed instead, as compressed_image_transport\n"
-               "                            writes it (default raw)\n"
-               "  --jpeg-quality Q          JPEG quality 1..100 (default %d)\n"
-               "  --compression C           none, lz4 or bz2 (default none)\n"
-               "  -h, --help                this text\n"
-               "Exit status 0 on success, 1 on bad input or a failed write, 2 on a bad command line.\n",
-               d.topics.image.c_str(), d.topics.camera_info.c_str(), d.topics.altitude.c_str(),
-               d.altimeter.field_of_view_rad * 180.0 / M_PI, d.altimeter.min_range_m, d.altimeter.max_range_m, "",
-               d.topics.ground_truth.c_str(), d.frames.ground_truth_origin.c_str(), "", d.topics.nav.c_str(),
-               rb::kDefaultStartTimeSec,
-               d.frames.camera.c_str(), d.frames.altimeter.c_str(), d.frames.ground_truth_origin.c_str(),
-               d.topics.image.c_str(), d.topics.camera_info.c_str(), d.topics.altitude.c_str(),
-               d.topics.ground_truth.c_str(), d.jpeg_quality);
-  return code;
-}
-
-int badArgument(const std::string& what) {
-  std::fprintf(stderr, "folder_to_bag: %s (see --help)\n", what.c_str());
-  return 2;
+  char text[8192];
+  std::snprintf(text, sizeof(text),
+                "usage: folder_to_bag DATASET_DIR OUT.bag [options]\n"
+                "Writes a dataset folder (frames.csv, camera.yaml, images, optional gt.csv) to a ROS bag.\n"
+                "Per frame, all stamped start time + stamp_s (the bag time too):\n"
+                "  %-22s sensor_msgs/Image       the image, lossless (colour bgr8, grey mono8)\n"
+                "  %-22s sensor_msgs/CameraInfo  plumb_bob, zero distortion, K and P from camera.yaml\n"
+                "  %-22s sensor_msgs/Range       altitude_m (ULTRASOUND, %.0f deg beam, %.1f..%.0f m);\n"
+                "  %-22s                         not written for a NaN or out-of-range altitude\n"
+                "  %-22s nav_msgs/Odometry       gt.csv pose in frame '%s', child the camera frame;\n"
+                "  %-22s                         only when the folder has gt.csv\n"
+                "and per nav.csv row (the vehicle's dead reckoning), at start time + its stamp_s:\n"
+                "  %-22s nav_msgs/Odometry       base_link in 'odom', z-up, with its covariance\n"
+                "options:\n"
+                "  --start-time SEC          time of stamp_s = 0, seconds since the epoch (default %u)\n"
+                "  --no-ground-truth         do not write the ground-truth odometry\n"
+                "  --no-nav                  do not write the nav odometry\n"
+                "  --camera-frame ID         frame id of Image/CameraInfo, odometry child (default '%s')\n"
+                "  --altimeter-frame ID      frame id of the Range messages (default '%s')\n"
+                "  --gt-frame ID             frame id of the ground-truth odometry (default '%s')\n"
+                "  --image-topic NAME        (default %s)\n"
+                "  --camera-info-topic NAME  (default %s)\n"
+                "  --altitude-topic NAME     (default %s)\n"
+                "  --gt-topic NAME           (default %s)\n"
+                "  --encoding ENC            convert images to mono8, mono16, bgr8, rgb8, bgr16 or rgb16\n"
+                "                            (default: as stored)\n"
+                "  --image-format F          raw (sensor_msgs/Image), or jpeg / png: sensor_msgs/CompressedImage\n"
+                "                            on IMAGE_TOPIC/compressed instead, as compressed_image_transport\n"
+                "                            writes it (default raw)\n"
+                "  --jpeg-quality Q          JPEG quality 1..100 (default %d)\n"
+                "  --compression C           none, lz4 or bz2 (default none)\n"
+                "  -h, --help                this text\n"
+                "Exit status 0 on success, 1 on bad input or a failed write, 2 on a bad command line.",
+                d.topics.image.c_str(), d.topics.camera_info.c_str(), d.topics.altitude.c_str(),
+                d.altimeter.field_of_view_rad * 180.0 / M_PI, d.altimeter.min_range_m, d.altimeter.max_range_m, "",
+                d.topics.ground_truth.c_str(), d.frames.ground_truth_origin.c_str(), "", d.topics.nav.c_str(),
+                rb::kDefaultStartTimeSec, d.frames.camera.c_str(), d.frames.altimeter.c_str(),
+                d.frames.ground_truth_origin.c_str(), d.topics.image.c_str(), d.topics.camera_info.c_str(),
+                d.topics.altitude.c_str(), d.topics.ground_truth.c_str(), d.jpeg_quality);
+  return text;
 }
 
 bool parseStartTime(const std::string& s, ros::Time* out) {
@@ -107,28 +107,6 @@ bool parseCompression(const std::string& s, rb::BagCompression* out) {
   return true;
 }
 
-// Applies one option taking a value; false when the option is unknown or its value bad.
-bool applyOption(const std::string& name, const std::string& value, rb::DatasetBagOptions* o) {
-  std::string* text = name == "--camera-frame"        ? &o->frames.camera
-                      : name == "--altimeter-frame"   ? &o->frames.altimeter
-                      : name == "--gt-frame"          ? &o->frames.ground_truth_origin
-                      : name == "--image-topic"       ? &o->topics.image
-                      : name == "--camera-info-topic" ? &o->topics.camera_info
-                      : name == "--altitude-topic"    ? &o->topics.altitude
-                      : name == "--gt-topic"          ? &o->topics.ground_truth
-                      : name == "--encoding"          ? &o->image_encoding
-                                                      : nullptr;
-  if (text) {
-    *text = value;
-    return true;
-  }
-  if (name == "--start-time") return parseStartTime(value, &o->start_time);
-  if (name == "--compression") return parseCompression(value, &o->compression);
-  if (name == "--image-format") return parseImageFormat(value, &o->image_format);
-  if (name == "--jpeg-quality") return parseQuality(value, &o->jpeg_quality);
-  return false;
-}
-
 // A one-line reason when `dir` is a directory without the files of a dataset folder; loadDataset
 // reports everything else (not a directory, bad files, missing images).
 std::string notADatasetFolder(const std::string& dir) {
@@ -141,38 +119,54 @@ std::string notADatasetFolder(const std::string& dir) {
   return missing.empty() ? "" : dir + ": not a dataset folder (no " + missing + ")";
 }
 
-}  // namespace
+// An option's value converted by one of the parse functions above; refused as "bad option '--NAME VALUE'".
+template <typename T>
+po::typed_value<std::string>* convertedBy(T* target, bool (*parse)(const std::string&, T*)) {
+  return tools::checked<T>(target, [parse](const std::string& text, T* value) {
+    return parse(text, value) ? std::string() : std::string("bad option '%canonical_option% %value%'");
+  });
+}
 
-int main(int argc, char** argv) {
-  rb::DatasetBagOptions options;
+std::optional<int> parseArguments(int argc, char** argv, rb::DatasetBagOptions* o, std::string* dir, std::string* bag) {
   std::vector<std::string> positional;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "-h" || a == "--help") return usage(0);
-    if (a == "--no-ground-truth") {
-      options.include_ground_truth = false;
-    } else if (a == "--no-nav") {
-      options.include_nav = false;
-    } else if (a.size() > 1 && a[0] == '-') {
-      if (i + 1 >= argc) return badArgument("option " + a + " needs a value");
-      if (!applyOption(a, argv[i + 1], &options)) return badArgument("bad option '" + a + " " + argv[i + 1] + "'");
-      ++i;
-    } else {
-      positional.push_back(a);
-    }
-  }
-  if (positional.size() != 2) return badArgument("expected DATASET_DIR and OUT.bag");
-  const std::string bad = options.validate();
-  if (!bad.empty()) return badArgument(bad);
+  bool no_ground_truth = false, no_nav = false;
+  tools::CommandLine cli("folder_to_bag", usageText());
+  auto option = cli.add();
+  option("start-time", convertedBy(&o->start_time, parseStartTime));
+  option("no-ground-truth", tools::flag(&no_ground_truth));
+  option("no-nav", tools::flag(&no_nav));
+  option("camera-frame", po::value(&o->frames.camera));
+  option("altimeter-frame", po::value(&o->frames.altimeter));
+  option("gt-frame", po::value(&o->frames.ground_truth_origin));
+  option("image-topic", po::value(&o->topics.image));
+  option("camera-info-topic", po::value(&o->topics.camera_info));
+  option("altitude-topic", po::value(&o->topics.altitude));
+  option("gt-topic", po::value(&o->topics.ground_truth));
+  option("encoding", po::value(&o->image_encoding));
+  option("image-format", convertedBy(&o->image_format, parseImageFormat));
+  option("jpeg-quality", convertedBy(&o->jpeg_quality, parseQuality));
+  option("compression", convertedBy(&o->compression, parseCompression));
+  cli.positional(&positional);
+  if (const auto status = cli.parse(argc, argv)) return status;
+  if (no_ground_truth) o->include_ground_truth = false;
+  if (no_nav) o->include_nav = false;
+  if (positional.size() != 2) return cli.bad("expected DATASET_DIR and OUT.bag");
+  const std::string bad = o->validate();
+  if (!bad.empty()) return cli.bad(bad);
+  *dir = positional[0];
+  *bag = positional[1];
+  return std::nullopt;
+}
 
-  const std::string not_dataset = notADatasetFolder(positional[0]);
+int writeBag(const std::string& dir, const std::string& bag, const rb::DatasetBagOptions& options) {
+  const std::string not_dataset = notADatasetFolder(dir);
   if (!not_dataset.empty()) {
     std::fprintf(stderr, "folder_to_bag: %s\n", not_dataset.c_str());
     return 1;
   }
   try {
-    const core::Dataset dataset = core::loadDataset(positional[0]);
-    const rb::DatasetBagStats stats = rb::writeDatasetBag(dataset, options, positional[1]);
+    const core::Dataset dataset = core::loadDataset(dir);
+    const rb::DatasetBagStats stats = rb::writeDatasetBag(dataset, options, bag);
     for (const auto& w : rb::warnings(stats)) std::fprintf(stderr, "folder_to_bag: warning: %s\n", w.c_str());
     std::printf("folder_to_bag: wrote %s\n", rb::summarize(stats, options).c_str());
   } catch (const std::exception& e) {
@@ -180,4 +174,13 @@ int main(int argc, char** argv) {
     return 1;
   }
   return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  rb::DatasetBagOptions options;
+  std::string dir, bag;
+  if (const auto status = parseArguments(argc, argv, &options, &dir, &bag)) return *status;
+  return writeBag(dir, bag, options);
 }

@@ -10,11 +10,14 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
 
 #include <unistd.h>  // isatty
+
+#include "cli.h"
 
 #include "uw_multislam/sim/survey_config.h"
 #include "uw_multislam/ros/dataset_bag.h"
@@ -22,6 +25,8 @@
 namespace core = uw_multislam::core;
 namespace ros_bag = uw_multislam::ros_bag;
 namespace fs = std::filesystem;
+namespace po = boost::program_options;
+namespace tools = uw_multislam::tools;
 
 namespace {
 
@@ -59,94 +64,68 @@ Exit status 0 on success, 2 on bad arguments, 1 with a one-line reason on any ot
 struct Args {
   std::string out, preset = "demo", config, mosaic_image, mosaic_georef;
   std::vector<double> distortion;
-  bool seed_given = false, no_bag = false, dump = false, list = false, quiet = false;
-  unsigned long long seed = 1;
+  bool no_bag = false, dump = false, list = false, quiet = false;
+  std::optional<unsigned long long> seed;  // unset: the spec's
 };
 
-int badArgs(const std::string& why) {
-  std::fprintf(stderr, "make_survey: %s (see --help)\n", why.c_str());
-  return 2;
+// "bad seed '...'" unless the text is an unsigned 64-bit integer, digits only: strtoull skips leading space,
+// takes a sign (" -1" wraps to 2^64 - 1) and clamps past 2^64 - 1, each making two seeds one survey.
+std::string parseSeed(const std::string& text, std::optional<unsigned long long>* seed) {
+  const char* v = text.c_str();
+  char* end = nullptr;
+  errno = 0;
+  const unsigned long long n = std::strtoull(v, &end, 10);
+  if (!std::isdigit(static_cast<unsigned char>(*v)) || *end != '\0' || errno == ERANGE)
+    return "bad seed '%value%': an integer in [0, 18446744073709551615]";
+  *seed = n;
+  return "";
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  Args a;
-  bool preset_given = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    auto value = [&](const char* what) -> const char* {
-      if (i + 1 >= argc) return nullptr;
-      (void)what;
-      return argv[++i];
-    };
-    if (arg == "-h" || arg == "--help") {
-      std::puts(kUsage);
-      return 0;
-    } else if (arg == "--out") {
-      const char* v = value("DIR");
-      if (!v) return badArgs("--out needs a directory");
-      a.out = v;
-    } else if (arg == "--preset") {
-      const char* v = value("NAME");
-      if (!v) return badArgs("--preset needs a name");
-      a.preset = v;
-      preset_given = true;
-    } else if (arg == "--config") {
-      const char* v = value("FILE");
-      if (!v) return badArgs("--config needs a file");
-      a.config = v;
-    } else if (arg == "--seed") {
-      const char* v = value("N");
-      char* end = nullptr;
-      if (!v) return badArgs("--seed needs a number");
-      errno = 0;
-      a.seed = std::strtoull(v, &end, 10);
-      // Digits only: strtoull skips leading space, takes a sign (" -1" wraps to 2^64 - 1) and clamps
-      // past 2^64 - 1, each making two seeds one survey.
-      if (!std::isdigit(static_cast<unsigned char>(*v)) || *end != '\0' || errno == ERANGE)
-        return badArgs(std::string("bad seed '") + v + "': an integer in [0, 18446744073709551615]");
-      a.seed_given = true;
-    } else if (arg == "--mosaic") {
-      if (i + 2 >= argc) return badArgs("--mosaic needs an image and its georeference text file");
-      a.mosaic_image = argv[++i];
-      a.mosaic_georef = argv[++i];
-    } else if (arg == "--distortion") {
-      const char* v = value("K1,K2");
-      if (!v) return badArgs("--distortion needs k1,k2");
-      std::stringstream ss(v);
-      std::string cell;
-      a.distortion.clear();
-      while (std::getline(ss, cell, ',')) {
-        char* end = nullptr;
-        const double d = std::strtod(cell.c_str(), &end);
-        if (cell.empty() || *end != '\0' || !std::isfinite(d)) {
-          return badArgs("--distortion: bad number '" + cell + "'");
-        }
-        a.distortion.push_back(d);
-      }
-      if (a.distortion.empty() || a.distortion.size() > 5) return badArgs("--distortion needs 1 to 5 numbers");
-    } else if (arg == "--no-bag") {
-      a.no_bag = true;
-    } else if (arg == "--dump-config") {
-      a.dump = true;
-    } else if (arg == "--list-presets") {
-      a.list = true;
-    } else if (arg == "--quiet") {
-      a.quiet = true;
-    } else {
-      return badArgs("unknown argument '" + arg + "'");
-    }
+// --distortion k1[,k2[,p1,p2,k3]]: 1 to 5 finite numbers.
+std::string parseDistortion(const std::string& text, std::vector<double>* distortion) {
+  std::stringstream ss(text);
+  std::string cell;
+  distortion->clear();
+  while (std::getline(ss, cell, ',')) {
+    double d = 0.0;
+    if (!tools::parseNumber(cell, &d)) return "--distortion: bad number '" + cell + "'";
+    distortion->push_back(d);
   }
+  if (distortion->empty() || distortion->size() > 5) return "--distortion needs 1 to 5 numbers";
+  return "";
+}
+
+std::optional<int> parseArguments(int argc, char** argv, Args* a) {
+  std::vector<std::string> mosaic;  // IMAGE TXT
+  tools::CommandLine cli("make_survey", kUsage);
+  auto option = cli.add();
+  option("out", po::value(&a->out));
+  option("preset", po::value(&a->preset));
+  option("config", po::value(&a->config));
+  option("seed", tools::checked(&a->seed, parseSeed));
+  option("mosaic", po::value(&mosaic)->multitoken());
+  option("distortion", tools::checked(&a->distortion, parseDistortion));
+  option("no-bag", tools::flag(&a->no_bag));
+  option("dump-config", tools::flag(&a->dump));
+  option("list-presets", tools::flag(&a->list));
+  option("quiet", tools::flag(&a->quiet));
+  if (const auto status = cli.parse(argc, argv)) return status;
+  if (!mosaic.empty() && mosaic.size() != 2) return cli.bad("--mosaic needs an image and its georeference text file");
+  if (mosaic.size() == 2) a->mosaic_image = mosaic[0], a->mosaic_georef = mosaic[1];
+  if (a->list) return std::nullopt;
+  if (cli.given("preset") && !a->config.empty()) return cli.bad("give --preset or --config, not both");
+  if (!a->dump && a->out.empty()) return cli.bad("--out DIR is required");
+  return std::nullopt;
+}
+
+int makeSurvey(const Args& a) {
   if (a.list) {
     for (const auto& p : core::surveyPresets()) std::puts(p.c_str());
     return 0;
   }
-  if (preset_given && !a.config.empty()) return badArgs("give --preset or --config, not both");
-
   try {
     core::SurveySpec spec = a.config.empty() ? core::surveyPreset(a.preset) : core::loadSurveyYaml(a.config);
-    if (a.seed_given) spec.seed = a.seed;
+    if (a.seed) spec.seed = *a.seed;
     for (auto& s : spec.sessions) {
       if (a.distortion.empty()) break;
       s.camera.distortion_model = core::DistortionModel::kPlumbBob;
@@ -161,7 +140,6 @@ int main(int argc, char** argv) {
       std::fputs(core::surveyToYaml(spec).c_str(), stdout);
       return 0;
     }
-    if (a.out.empty()) return badArgs("--out DIR is required");
 
     const auto t0 = std::chrono::steady_clock::now();
     int last_session = -1;
@@ -216,4 +194,12 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "make_survey: %s\n", e.what());
     return 1;
   }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args a;
+  if (const auto status = parseArguments(argc, argv, &a)) return *status;
+  return makeSurvey(a);
 }

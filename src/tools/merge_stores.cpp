@@ -1,16 +1,20 @@
-// merge_stores: session stores of several vehicles or dives into one (issue 20, item 4). Argument
-// parsing around core::mergeStores (core/session/store_merge.h); contract: --help, README "Fleet
-// merge".
+// merge_stores: session stores of several vehicles or dives into one. Argument parsing around
+// core::mergeStores (core/session/store_merge.h); contract: --help, README "Fleet merge".
 #include <cstdio>
 #include <exception>
+#include <optional>
 #include <string>
 #include <vector>
+
+#include "cli.h"
 
 #include "uw_multislam/core/session/session_store.h"
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/core/session/store_merge.h"
 
 namespace core = uw_multislam::core;
+namespace po = boost::program_options;
+namespace tools = uw_multislam::tools;
 
 namespace {
 
@@ -49,56 +53,50 @@ Prints one line per input and a summary:
   merge_stores out=OUT inputs=N sessions=S keyframes=K copied_loops=L new_loops=A refused_loops=R joins=J maps=M
 Exit status 0 on success, 2 on bad arguments, 1 with a one-line reason on bad input.)usage";
 
-int badArgs(const std::string& why) {
-  std::fprintf(stderr, "merge_stores: %s (see --help)\n", why.c_str());
-  return 2;
+struct Arguments {
+  std::string out;  // the new store
+  std::vector<core::MergeInput> inputs;
+  std::string config_file;  // "": the defaults
+  bool loops = true, quiet = false;
+};
+
+std::optional<int> parseArguments(int argc, char** argv, Arguments* a) {
+  std::vector<std::string> positional, vehicles, dives;
+  bool no_loops = false;
+  tools::CommandLine cli("merge_stores", kUsage);
+  auto option = cli.add();
+  option("config", po::value(&a->config_file));
+  option("vehicle", po::value(&vehicles));
+  option("dive", po::value(&dives));
+  option("no-loops", tools::flag(&no_loops));
+  option("quiet", tools::flag(&a->quiet));
+  cli.positional(&positional);
+  if (const auto status = cli.parse(argc, argv)) return status;
+  if (positional.size() < 3) return cli.bad("give OUT and at least two input stores");
+  a->out = positional[0];
+  for (std::size_t i = 1; i < positional.size(); ++i) a->inputs.push_back({positional[i], "", ""});
+  if (vehicles.size() > a->inputs.size()) return cli.bad("more --vehicle names than inputs");
+  if (dives.size() > a->inputs.size()) return cli.bad("more --dive names than inputs");
+  for (std::size_t i = 0; i < vehicles.size(); ++i) a->inputs[i].vehicle = vehicles[i];
+  for (std::size_t i = 0; i < dives.size(); ++i) a->inputs[i].dive = dives[i];
+  a->loops = !no_loops;
+  return std::nullopt;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  std::vector<std::string> positional, vehicles, dives;
-  std::string config_file;
-  bool quiet = false, loops = true;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    const bool has_value = i + 1 < argc;
-    if (arg == "-h" || arg == "--help") return std::puts(kUsage), 0;
-    if (arg == "--config" && has_value) {
-      config_file = argv[++i];
-    } else if (arg == "--vehicle" && has_value) {
-      vehicles.push_back(argv[++i]);
-    } else if (arg == "--dive" && has_value) {
-      dives.push_back(argv[++i]);
-    } else if (arg == "--no-loops") {
-      loops = false;
-    } else if (arg == "--quiet") {
-      quiet = true;
-    } else if (arg.rfind("--", 0) == 0 || arg == "-") {
-      return badArgs(has_value || arg == "-" ? "unknown argument '" + arg + "'" : arg + " needs a value");
-    } else {
-      positional.push_back(arg);
-    }
-  }
-  if (positional.size() < 3) return badArgs("give OUT and at least two input stores");
-  std::vector<core::MergeInput> inputs;
-  for (std::size_t i = 1; i < positional.size(); ++i) inputs.push_back({positional[i], "", ""});
-  if (vehicles.size() > inputs.size()) return badArgs("more --vehicle names than inputs");
-  if (dives.size() > inputs.size()) return badArgs("more --dive names than inputs");
-  for (std::size_t i = 0; i < vehicles.size(); ++i) inputs[i].vehicle = vehicles[i];
-  for (std::size_t i = 0; i < dives.size(); ++i) inputs[i].dive = dives[i];
+int merge(const Arguments& a) {
+  const bool quiet = a.quiet;
   try {
-    const core::SlamConfig config = config_file.empty() ? core::SlamConfig() : core::loadSlamConfig(config_file);
+    const core::SlamConfig config = a.config_file.empty() ? core::SlamConfig() : core::loadSlamConfig(a.config_file);
     auto log = [quiet](const std::string& line) {
       if (!quiet) std::printf("%s\n", line.c_str());
     };
-    const core::MergeReport r = core::mergeStores(positional[0], inputs, config, loops, log);
+    const core::MergeReport r = core::mergeStores(a.out, a.inputs, config, a.loops, log);
     if (!quiet)
       std::printf(
           "merge_stores out=%s inputs=%d sessions=%d keyframes=%d copied_loops=%d new_loops=%d refused_loops=%d "
           "joins=%d maps=%d\n",
-          positional[0].c_str(), r.inputs, r.sessions, r.keyframes, r.copied_loops, r.loops_accepted, r.loops_refused,
-          r.joins, r.maps);
+          a.out.c_str(), r.inputs, r.sessions, r.keyframes, r.copied_loops, r.loops_accepted, r.loops_refused, r.joins,
+          r.maps);
     if (!quiet && r.renamed_sessions > 0)
       std::printf("%d sessions renamed NAME@VEHICLE (their names were taken by an earlier input)\n", r.renamed_sessions);
     if (!quiet && r.skipped_empty_sessions > 0)
@@ -108,4 +106,12 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "merge_stores: %s\n", e.what());
     return 1;
   }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Arguments arguments;
+  if (const auto status = parseArguments(argc, argv, &arguments)) return *status;
+  return merge(arguments);
 }
