@@ -19,9 +19,9 @@
 
 #include "cli.h"
 
+#include "uw_multislam/core/common/stage_timer.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/features.h"
-#include "uw_multislam/core/common/stage_timer.h"
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;

@@ -81,7 +81,7 @@ Eigen::Matrix3d diag(double sxy, double syaw) {
 }
 
 struct Mission {
-  std::vector<std::vector<core::Pose2>> sessions;                 // world poses, every frame a keyframe
+  std::vector<std::vector<core::Pose2>> sessions;                          // world poses, every frame a keyframe
   std::vector<std::pair<std::pair<int, int>, std::pair<int, int>>> loops;  // (session, keyframe) pairs
 };
 
@@ -176,12 +176,14 @@ RunErrors runOnce(const Mission& m, double level, const RunSpec& spec, unsigned 
     o.intra_loop_gate = std::atof(f) > 0;
   }
   // UWMS_BENCH_RESIDUAL_INFLATION=F: residual_gate_inflation F, for experiments.
-  if (const char* f = std::getenv("UWMS_BENCH_RESIDUAL_INFLATION")) o.residual_gate_inflation = std::max(1.0, std::atof(f));
+  if (const char* f = std::getenv("UWMS_BENCH_RESIDUAL_INFLATION"))
+    o.residual_gate_inflation = std::max(1.0, std::atof(f));
   // UWMS_BENCH_READMIT=0: readmit_refused_loops off, for comparison.
   if (const char* f = std::getenv("UWMS_BENCH_READMIT")) o.readmit_refused_loops = std::atoi(f) != 0;
   // UWMS_BENCH_LOG=1: the back-end's log (joins, refused and switched-off loops) on stderr.
   core::MultiSessionBackend::Log log;
-  if (std::getenv("UWMS_BENCH_LOG") != nullptr) log = [](const std::string& l) { std::fprintf(stderr, "%s\n", l.c_str()); };
+  if (std::getenv("UWMS_BENCH_LOG") != nullptr)
+    log = [](const std::string& l) { std::fprintf(stderr, "%s\n", l.c_str()); };
   core::MultiSessionBackend b(o, log);
   // The loops, true ones first, then the wrong ones: random keyframe pairs, 2-5 m and any yaw off.
   auto loops = m.loops;
@@ -289,7 +291,8 @@ int robustness(const fs::path& dir, int runs) {
   for (const auto& l : m.loops) intra += l.first.first == l.second.first;
   std::printf("mission %s: %zu sessions, %zu loops (%d intra, %zu inter), %d runs per level\n\n", dir.c_str(),
               m.sessions.size(), m.loops.size(), intra, m.loops.size() - intra, runs);
-  std::printf("| noise 2σ | K | optimiser | odo e_k (m) | e_k intra (m) | e_k inter (m) | map ATE (m) | joined | ms/run |\n");
+  std::printf(
+      "| noise 2σ | K | optimiser | odo e_k (m) | e_k intra (m) | e_k inter (m) | map ATE (m) | joined | ms/run |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|\n");
   for (int level = 1; level <= 5; ++level) {
     const double lv = 0.05 * level;
@@ -323,8 +326,9 @@ int outliers(const fs::path& dir, const std::vector<int>& percents, int runs, co
   const Mission m = loadMission(dir);
   std::printf("mission %s: %zu sessions, %zu true loops, %d runs per row; odometry 2σ = 1 cm / 1°, %s optimiser\n\n",
               dir.c_str(), m.sessions.size(), m.loops.size(), runs, core::optimizerName(optimizer));
-  std::printf("| wrong loops | policy | map ATE (m) | ATE change, mean / max (mm) | wrong loops kept | true loops "
-              "refused | joins made | joins refused | wrong joins |\n");
+  std::printf(
+      "| wrong loops | policy | map ATE (m) | ATE change, mean / max (mm) | wrong loops kept | true loops "
+      "refused | joins made | joins refused | wrong joins |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|\n");
   for (int p : percents) {
     for (auto policy : {core::JoinPolicy::kCount, core::JoinPolicy::kConsistent}) {
@@ -387,9 +391,9 @@ int cost(int n, int loops, core::OptimizerKind opt) {
   const auto t0 = Clock::now();
   for (int k = 1; k < n; ++k) {
     const core::Pose2 t = core::between(truth[k - 1], truth[k]);
-    b.addMotion(s, core::UncertainPose2(core::Pose2(t.x() + 0.01 * n01(rng), t.y() + 0.01 * n01(rng),
-                                                    t.yaw() + 0.0087 * n01(rng)),
-                                        diag(0.01, 0.0087)));
+    b.addMotion(s, core::UncertainPose2(
+                       core::Pose2(t.x() + 0.01 * n01(rng), t.y() + 0.01 * n01(rng), t.yaw() + 0.0087 * n01(rng)),
+                       diag(0.01, 0.0087)));
   }
   const auto t1 = Clock::now();
   std::uniform_int_distribution<int> pick(kRow, n - 1);
@@ -408,7 +412,8 @@ int cost(int n, int loops, core::OptimizerKind opt) {
   const auto t4 = Clock::now();
   double ate = 0;
   const auto est = b.sessionPoses(s);
-  for (int k = 0; k < n; ++k) ate += (est[k].translation() - core::between(truth[0], truth[k]).translation()).squaredNorm();
+  for (int k = 0; k < n; ++k)
+    ate += (est[k].translation() - core::between(truth[0], truth[k]).translation()).squaredNorm();
   std::printf("| %s | %d | %d | %.1f | %.1f | %.1f | %.1f | %.3f |\n", core::optimizerName(opt), n, loops, ms(t0, t1),
               ms(t2, t3), ms(t3, t4), peakRssKb() / 1024.0, std::sqrt(ate / n));
   (void)t2;

@@ -33,11 +33,11 @@
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/enhancement.h"
 #include "uw_multislam/core/frontend/features.h"
-#include "uw_multislam/core/loops/haloc.h"
-#include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/frontend/pair_motion.h"
 #include "uw_multislam/core/geometry/se2.h"
+#include "uw_multislam/core/loops/haloc.h"
+#include "uw_multislam/core/loops/loop_detector.h"
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;
@@ -429,8 +429,7 @@ void benchQueries(const std::vector<Session>& sessions, const std::vector<Eigen:
       "Hash (%s): %.3f ms per image (mean over %zu).\n\n",
       base.size(), hashed_frames, extra.size(), sigma, kPerturbation * 100, sigma / kPerturbation, sigma / kQuantStep,
       kEntriesPerSession, kTimedQueries, sizeof(core::HashEntry), mode.c_str(),
-      hashed_frames ? hash_ms / hashed_frames : 0.0,
-      hashed_frames);
+      hashed_frames ? hash_ms / hashed_frames : 0.0, hashed_frames);
   std::vector<std::vector<std::string>> rows;
   for (int size : sizes) rows.push_back(timeQueries(base, size, sigma));
   printTable({"entries", "median ms", "max ms", "target ms", "median within target", "bytes/entry (layout)",

@@ -113,8 +113,8 @@ struct ImageCost {
 
 // A store of n keyframes with the images of `options` (max_side_px 0: none): bytes per keyframe on
 // disk, encode and write ms per keyframe.
-ImageCost imageCost(const std::string& dir, const std::vector<cv::Mat>& frames, const core::KeyframeImageOptions& options,
-                    int n, int features) {
+ImageCost imageCost(const std::string& dir, const std::vector<cv::Mat>& frames,
+                    const core::KeyframeImageOptions& options, int n, int features) {
   const std::string path = (fs::path(dir) / "bench_store_images.db").string();
   for (const char* suffix : {"", "-wal", "-shm"}) fs::remove(path + suffix);
   ImageCost cost;
@@ -157,7 +157,9 @@ void printImageTable(const std::string& dir, const std::string& dataset_dir, int
   const std::vector<cv::Mat> frames = benchFrames(dataset_dir);
   std::printf("\nkeyframe image (config store), %d keyframes of %d features, frames %d x %d from %s:\n", n, features,
               frames.front().cols, frames.front().rows, dataset_dir.empty() ? "the simulator" : dataset_dir.c_str());
-  std::printf("| image_max_side_px | image_jpeg_quality | stored size | JPEG bytes | PSNR dB | store bytes per keyframe | image share | encode ms | write ms per keyframe |\n");
+  std::printf(
+      "| image_max_side_px | image_jpeg_quality | stored size | JPEG bytes | PSNR dB | store bytes per keyframe | "
+      "image share | encode ms | write ms per keyframe |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|\n");
   core::KeyframeImageOptions none;
   none.max_side_px = 0;
@@ -218,7 +220,10 @@ int bench(Arguments a) {
   const bool images = a.images, images_only = a.images_only;
   if (sizes.empty()) sizes = {1000, 10000};
   if (images_only) sizes.clear();
-  if (!sizes.empty()) std::printf("| keyframes | features | bytes per keyframe | write ms per keyframe | reload ms (back-end + detector) | reload ms (back-end only) |\n");
+  if (!sizes.empty())
+    std::printf(
+        "| keyframes | features | bytes per keyframe | write ms per keyframe | reload ms (back-end + detector) | "
+        "reload ms (back-end only) |\n");
   if (!sizes.empty()) std::printf("|---|---|---|---|---|---|\n");
   try {
     for (int n : sizes) {
@@ -238,7 +243,8 @@ int bench(Arguments a) {
       double write_ms = 0.0;
       {
         core::SessionStore store(path);
-        store.checkHashSettings({lo.global.hash_mode, lo.global.projection_seed, features, hasher.projections().toText()});
+        store.checkHashSettings(
+            {lo.global.hash_mode, lo.global.projection_seed, features, hasher.projections().toText()});
         const std::int64_t s = store.addSession("bench", cam, 0.0);
         for (int k = 0; k < n; ++k) {
           core::StoredKeyframe kf = syntheticKeyframe(s, k, features, rng);
@@ -274,7 +280,8 @@ int bench(Arguments a) {
         std::vector<std::unique_ptr<core::CameraIntrinsics>> cameras;
         const core::RestoredStore r = core::restoreStore(store, &backend, &detector, &cameras);
         reload_full = msSince(t0);
-        if (r.keyframes != n || static_cast<int>(detector.size()) != n) throw std::runtime_error("reload lost keyframes");
+        if (r.keyframes != n || static_cast<int>(detector.size()) != n)
+          throw std::runtime_error("reload lost keyframes");
       }
       {
         const auto t0 = std::chrono::steady_clock::now();
@@ -284,7 +291,8 @@ int bench(Arguments a) {
         core::restoreStore(store, &backend, nullptr, nullptr);
         reload_backend = msSince(t0);
       }
-      std::printf("| %d | %d | %.0f | %.2f | %.0f | %.0f |\n", n, features, bytes, write_ms / n, reload_full, reload_backend);
+      std::printf("| %d | %d | %.0f | %.2f | %.0f | %.0f |\n", n, features, bytes, write_ms / n, reload_full,
+                  reload_backend);
       std::fflush(stdout);
       fs::remove(path);
     }

@@ -19,8 +19,8 @@
 
 #include "cli.h"
 
-#include "uw_multislam/sim/survey_config.h"
 #include "uw_multislam/ros/dataset_bag.h"
+#include "uw_multislam/sim/survey_config.h"
 
 namespace core = uw_multislam::core;
 namespace ros_bag = uw_multislam::ros_bag;

@@ -18,7 +18,8 @@ namespace tools = uw_multislam::tools;
 
 namespace {
 
-const char* kUsage = R"usage(usage: merge_stores OUT IN1 IN2 ... [--config FILE] [--vehicle NAME ...] [--dive NAME ...] [options]
+const char* kUsage =
+    R"usage(usage: merge_stores OUT IN1 IN2 ... [--config FILE] [--vehicle NAME ...] [--dive NAME ...] [options]
 
 Merges session stores (offline_slam --db, the back-end's store_path) of several vehicles or dives
 into the new store OUT:
@@ -98,7 +99,8 @@ int merge(const Arguments& a) {
           a.out.c_str(), r.inputs, r.sessions, r.keyframes, r.copied_loops, r.loops_accepted, r.loops_refused, r.joins,
           r.maps);
     if (!quiet && r.renamed_sessions > 0)
-      std::printf("%d sessions renamed NAME@VEHICLE (their names were taken by an earlier input)\n", r.renamed_sessions);
+      std::printf("%d sessions renamed NAME@VEHICLE (their names were taken by an earlier input)\n",
+                  r.renamed_sessions);
     if (!quiet && r.skipped_empty_sessions > 0)
       std::printf("%d sessions without a keyframe were not copied\n", r.skipped_empty_sessions);
     return 0;
