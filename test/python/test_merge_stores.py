@@ -1,4 +1,4 @@
-"""merge_stores (issue 20, item 4): two stores made separately, one session each, merged into one,
+"""merge_stores: two stores made separately, one session each, merged into one,
 against one offline_slam run over both folders into one store. Also every refusal (OUT exists, an
 input twice, hash settings that differ, a recording session) with the inputs untouched and no
 OUT or temporary file left."""
@@ -161,6 +161,17 @@ def test_refusals_leave_nothing(stores, tmp_path):
     out.unlink()
     r = run("merge_stores", out, made["a"], made["a"])
     assert r.returncode == 1 and "given twice" in r.stderr, r.stderr
+    # The same store through a hard link or a symbolic link: the same file, refused naming both.
+    hard, soft = tmp_path / "ahard.db", tmp_path / "asoft.db"
+    os.link(made["a"], hard)
+    os.symlink(made["a"], soft)
+    for other in (hard, soft):
+        r = run("merge_stores", out, made["a"], other)
+        lines = [l for l in r.stderr.splitlines() if l.strip()]
+        assert r.returncode == 1 and len(lines) == 1 and "given twice" in lines[0], r.stderr
+        assert str(other) in lines[0] and str(made["a"]) in lines[0], r.stderr
+    hard.unlink()
+    soft.unlink()
     # A store made with other hash settings.
     cfg = tmp_path / "seed.yaml"
     cfg.write_text("loops:\n  global:\n    projection_seed: 7\n")

@@ -3,6 +3,8 @@
 #include <fcntl.h>
 #include <sqlite3.h>
 #include <sys/file.h>
+#include <sys/stat.h>
+#include <sys/sysmacros.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -17,7 +19,9 @@
 #include <initializer_list>
 #include <limits>
 #include <map>
+#include <mutex>
 #include <set>
+#include <sstream>
 
 namespace uw_multislam {
 namespace core {
@@ -71,7 +75,7 @@ CREATE TABLE links(map INTEGER NOT NULL, position INTEGER NOT NULL,  -- joins ch
 CREATE TABLE split_pairs(session_a INTEGER NOT NULL, session_b INTEGER NOT NULL, PRIMARY KEY(session_a, session_b));
 )sql";
 
-// A covering index of the keyframes' frame data (issue 20, start-up). A keyframe row is 74 kB: its
+// A covering index of the keyframes' frame data (for the start-up). A keyframe row is 74 kB: its
 // frame data share a page with the start of its points, so reading them for every keyframe at a
 // restart (the session manager and restoreStore do) reads one 4 kB page per keyframe; from this
 // index, about 60 bytes. An index changes nothing any build reads or writes (SQLite keeps it up to
@@ -81,7 +85,7 @@ const char* kFrameIndex =
     "CREATE INDEX IF NOT EXISTS keyframes_frame ON keyframes(session, keyframe, frame_index, stamp, altitude, "
     "image_width, image_height, num_features)";
 
-// The hashes the start-up reads for every stored keyframe, with the frame data (issue 20, 2): from
+// The hashes the start-up reads for every stored keyframe, with the frame data: from
 // the row they sat behind its points and descriptors, so SQLite walked the row's whole overflow
 // chain (about 18 pages) to reach them; an index entry of about 1.6 kB is one page and one
 // overflow page. Like kFrameIndex no new schema version: created when the store is opened for
@@ -91,14 +95,14 @@ const char* kHashIndex =
     "CREATE INDEX IF NOT EXISTS keyframes_hash ON keyframes(session, keyframe, frame_index, stamp, altitude, "
     "image_width, image_height, num_features, hash)";
 
-// Where merged sessions came from (merge_stores, issue 20, 4). Like kFrameIndex, created when the
+// Where merged sessions came from (merge_stores). Like kFrameIndex, created when the
 // store is opened for writing: no build before it reads it, so no new schema version.
 const char* kProvenanceTable =
     "CREATE TABLE IF NOT EXISTS provenance(session INTEGER PRIMARY KEY REFERENCES sessions(id), "
     "source_file TEXT NOT NULL, source_session INTEGER NOT NULL, source_name TEXT NOT NULL, "
     "vehicle TEXT NOT NULL, dive TEXT NOT NULL)";
 
-// The audit trail (issue 16, 5): created like provenance, when the store is opened for writing.
+// The audit trail: created like provenance, when the store is opened for writing.
 const char* kHistoryTable =
     "CREATE TABLE IF NOT EXISTS history(id INTEGER PRIMARY KEY, time_utc TEXT NOT NULL, kind TEXT NOT NULL, "
     "cause TEXT NOT NULL, sessions TEXT NOT NULL, loops TEXT NOT NULL, message TEXT NOT NULL)";
@@ -316,30 +320,243 @@ void SessionStore::exec(const std::string& sql) const {
   }
 }
 
+namespace {
+
+// What a refused second writer is told about the holder: "pid N (its command) on HOST".
+std::string describeProcess(long pid) {
+  std::string comm;
+  std::ifstream in("/proc/" + std::to_string(pid) + "/comm");
+  std::getline(in, comm);
+  char host[128] = {};
+  gethostname(host, sizeof host - 1);
+  return "pid " + std::to_string(pid) + (comm.empty() ? "" : " (" + comm + ")") + " on " + host;
+}
+
+// The process holding an flock() on the file: the kernel lists every lock in /proc/locks as
+// "N: FLOCK ADVISORY WRITE <pid> <major>:<minor>:<inode> 0 EOF" (major and minor in hex). -1 when
+// it is not listed (no /proc, a lock taken on another host over NFS).
+long flockHolder(const FileId& id) {
+  std::ifstream in("/proc/locks");
+  std::string line;
+  while (std::getline(in, line)) {
+    std::istringstream words(line);
+    std::string number, kind, advisory, access, where;
+    long pid = -1;
+    words >> number >> kind;
+    if (kind == "->") words >> kind;  // a waiter (none with LOCK_NB, but the format allows it)
+    if (kind != "FLOCK" || !(words >> advisory >> access >> pid >> where)) continue;
+    unsigned int major = 0, minor = 0;
+    unsigned long long inode = 0;
+    if (std::sscanf(where.c_str(), "%x:%x:%llu", &major, &minor, &inode) != 3) continue;
+    if (major == ::major(id.device) && minor == ::minor(id.device) && inode == id.inode) return pid;
+  }
+  return -1;
+}
+
+// The store files this process holds open, by identity (device, inode). SQLite locks a database
+// with POSIX advisory (fcntl) locks, which belong to a process and an inode: closing ANY
+// descriptor of the inode in the process drops all of them ("How To Corrupt An SQLite Database
+// File", 2.2). So a descriptor of a file another store of this process holds is never closed while
+// that store lives: it is parked here and closed with the last one. The registry also refuses a
+// second writer in this process through another path (a hard link, a bind mount) before any
+// descriptor of the file is opened.
+class HeldFiles {
+ public:
+  static HeldFiles& instance() {
+    static HeldFiles held;
+    return held;
+  }
+  /// The description of this process's writer of the file; "" when none.
+  std::string writerOf(const FileId& id) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const auto it = held_.find(id);
+    return it == held_.end() || it->second.writers == 0 ? "" : it->second.holder;
+  }
+  /// Registers a store's descriptor of the file; false (with the holder) when a writer is asked
+  /// for and this process has one: then the descriptor is parked, not closed.
+  bool enter(const FileId& id, int fd, bool writer, std::string* holder) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    Entry& e = held_[id];
+    if (writer && e.writers > 0) {
+      *holder = e.holder;
+      e.parked.push_back(fd);
+      return false;
+    }
+    ++e.users;
+    if (writer) {
+      ++e.writers;
+      e.holder = describeProcess(::getpid());
+    }
+    return true;
+  }
+  /// A store's descriptor goes (entered: it was registered): closed, with the parked ones, when no
+  /// other store of this process holds the file; else parked.
+  void leave(const FileId& id, int fd, bool entered, bool writer) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const auto it = held_.find(id);
+    if (it == held_.end()) {
+      ::close(fd);
+      return;
+    }
+    Entry& e = it->second;
+    if (entered) {
+      --e.users;
+      if (writer) --e.writers;
+    }
+    if (e.users > 0) {
+      e.parked.push_back(fd);
+      return;
+    }
+    for (int p : e.parked) ::close(p);
+    ::close(fd);
+    held_.erase(it);
+  }
+
+ private:
+  struct Entry {
+    int users = 0, writers = 0;
+    std::string holder;       // the writer's description
+    std::vector<int> parked;  // descriptors closed with the last user
+  };
+  std::mutex mutex_;
+  std::map<FileId, Entry> held_;  // guarded by mutex_
+};
+
+std::string inUse(const std::string& path, const std::string& who) {
+  return "session store " + path + ": in use by " + who +
+         "; one process writes a store at a time (stop it, or give this run another store)";
+}
+
+}  // namespace
+
+SessionStore::HeldFile::~HeldFile() {
+  if (fd < 0) return;
+  // Released now, also when the descriptor is parked for a reader of this process (its close would
+  // come later); flock(LOCK_UN) leaves SQLite's fcntl locks alone.
+  if (writer) ::flock(fd, LOCK_UN);
+  HeldFiles::instance().leave(id, fd, true, writer);
+}
+
+void SessionStore::openFile(StoreAccess mode, bool* fresh) {
+  namespace fs = std::filesystem;
+  const bool writer = mode != StoreAccess::kReadOnly;
+  std::error_code ec;
+  int fd = -1;
+  struct stat st {};
+  // A few tries: the name may be created or removed by another process between the look and the open.
+  for (int attempt = 0; fd < 0; ++attempt) {
+    const bool exists = ::lstat(path_.c_str(), &st) == 0;
+    if (exists && mode == StoreAccess::kCreateNew)
+      throw StoreError("session store " + path_ + ": exists; a new store was asked for (the file was left as it is)");
+    if (exists) {
+      // A store holds a mission's images' features and the vehicle's track: never through a
+      // symbolic link (it could point anywhere).
+      if (S_ISLNK(st.st_mode))
+        throw StoreError("session store " + path_ + ": a symbolic link; give the file's own path");
+      if (!S_ISREG(st.st_mode)) throw StoreError("session store " + path_ + ": not a regular file");
+      // Refused before a descriptor of the file is opened (closing it would drop the locks this
+      // process's writer holds through SQLite).
+      if (writer) {
+        const std::string who = HeldFiles::instance().writerOf({st.st_dev, st.st_ino});
+        if (!who.empty()) throw StoreError(inUse(path_, who + ", this process"));
+      }
+      fd = ::open(path_.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_NOCTTY | O_CLOEXEC);
+      if (fd < 0) {
+        const int err = errno;
+        if (err == ENOENT && attempt < 3) continue;  // removed meanwhile: look again
+        if (err == ELOOP) throw StoreError("session store " + path_ + ": a symbolic link; give the file's own path");
+        throw StoreError("session store " + path_ + ": cannot read the file (" + std::strerror(err) + ")");
+      }
+    } else {
+      if (!writer) throw StoreError("session store " + path_ + ": no such file");
+      const fs::path parent = fs::path(path_).parent_path();
+      if (!parent.empty() && !fs::is_directory(parent, ec))
+        throw StoreError("session store " + path_ + ": the directory " + parent.string() + " does not exist");
+      // Created here, exclusively and 0600 (SQLite gives its -wal and -shm files the database's
+      // mode), refusing a link or a file that appeared meanwhile.
+      fd = ::open(path_.c_str(), O_RDWR | O_CREAT | O_EXCL | O_NOFOLLOW | O_NOCTTY | O_CLOEXEC, 0600);
+      if (fd < 0) {
+        const int err = errno;
+        if (err == EEXIST && attempt < 3) continue;  // made meanwhile: look again
+        std::string why = std::strerror(err);
+        if (err == EACCES || err == EROFS || err == EPERM) why = "read-only path (" + why + ")";
+        throw StoreError("session store " + path_ + ": cannot create: " + why);
+      }
+      created_ = true;
+    }
+  }
+  FileId id;
+  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+    HeldFiles::instance().leave({st.st_dev, st.st_ino}, fd, false, false);
+    throw StoreError("session store " + path_ + ": not a regular file");
+  }
+  id = {st.st_dev, st.st_ino};
+  std::string holder;
+  if (!HeldFiles::instance().enter(id, fd, writer, &holder)) throw StoreError(inUse(path_, holder + ", this process"));
+  file_.id = id;
+  file_.fd = fd;
+  file_.writer = writer;
+  if (writer) {
+    // One writer per store for the whole run. SQLite's own locks are per transaction: two
+    // processes writing one store both succeed, and the last one to save the maps silently wins;
+    // two paths to one file (hard links) even get a WAL each and corrupt it ("How To Corrupt An
+    // SQLite Database File", 2.5). So the lock is on the file itself: an flock() through this
+    // descriptor, held while this object lives, released by the kernel when the process dies
+    // (kill -9 included), so a stale lock never blocks a restart. flock() locks belong to the open
+    // file and are independent of SQLite's fcntl() locks on Linux.
+    if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+      const int err = errno;
+      created_ = false;  // another process holds what we just made: it is theirs now
+      if (err != EWOULDBLOCK) throw StoreError("session store " + path_ + ": cannot lock it: " + std::strerror(err));
+      const long pid = flockHolder(id);
+      throw StoreError(inUse(path_, pid > 0 ? describeProcess(pid) : "another process"));
+    }
+  }
+  *fresh = created_ || st.st_size == 0;  // 0 bytes: created but never written (a crash before the first commit)
+}
+
+void SessionStore::checkStillTheFile() const {
+  struct stat st {};
+  if (::lstat(path_.c_str(), &st) != 0 || FileId{st.st_dev, st.st_ino} != file_.id)
+    throw StoreError("session store " + path_ + ": the file was replaced while it was being opened");
+}
+
+void SessionStore::removeCreated(const bool beside_existed[2]) noexcept {
+  // Only the file made here, and what SQLite made beside it (never a file or link that was there
+  // before): a refused open leaves nothing.
+  struct stat st {};
+  if (!created_ || ::lstat(path_.c_str(), &st) != 0 || FileId{st.st_dev, st.st_ino} != file_.id) return;
+  ::unlink(path_.c_str());
+  const char* suffixes[2] = {"-wal", "-shm"};
+  for (int i = 0; i < 2; ++i)
+    if (!beside_existed[i] && ::lstat((path_ + suffixes[i]).c_str(), &st) == 0 && S_ISREG(st.st_mode))
+      ::unlink((path_ + suffixes[i]).c_str());
+}
+
 SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(path) {
   namespace fs = std::filesystem;
   std::error_code ec;
-  // A store holds a mission's images' features and the vehicle's track: never through a symbolic
-  // link (it could point anywhere), and created readable by its owner only (0600; SQLite gives
-  // its -wal and -shm files the database's mode, the lock file is made 0600 too).
-  if (fs::is_symlink(fs::symlink_status(path, ec)))
-    throw StoreError("session store " + path + ": a symbolic link; give the file's own path");
-  const bool exists = fs::exists(path, ec);
   const bool read_only = mode == StoreAccess::kReadOnly;
-  if (read_only && !exists) throw StoreError("session store " + path + ": no such file");
-  bool fresh = !exists;
-  if (exists) {
-    if (!fs::is_regular_file(path, ec)) throw StoreError("session store " + path + ": not a regular file");
-    const auto size = fs::file_size(path, ec);
-    fresh = !ec && size == 0;  // created but never written (a crash before the first commit)
+  bool fresh = false;
+  openFile(mode, &fresh);  // file_ releases it if anything below throws
+  bool beside_existed[2] = {false, false};  // -wal, -shm
+  try {
+    // SQLite opens "<store>-wal" and "<store>-shm" by name and would follow a link there.
+    const char* suffixes[2] = {"-wal", "-shm"};
+    for (int i = 0; i < 2; ++i) {
+      struct stat beside {};
+      beside_existed[i] = ::lstat((path + suffixes[i]).c_str(), &beside) == 0;
+      if (beside_existed[i] && !S_ISREG(beside.st_mode))
+        throw StoreError("session store " + path + ": its " + suffixes[i] + " file is " +
+                         (S_ISLNK(beside.st_mode) ? "a symbolic link" : "not a regular file") +
+                         "; the file was left as it is");
+    }
     if (read_only && fresh) throw StoreError("session store " + path + ": an empty file (no session was ever stored)");
     if (!fresh) {
       // Check before SQLite touches it: the header, then a read-only open.
       char header[16] = {};
-      std::ifstream in(path, std::ios::binary);
-      if (!in) throw StoreError("session store " + path + ": cannot read the file (permission denied?)");
-      in.read(header, sizeof header);
-      if (in.gcount() < 16 || std::memcmp(header, "SQLite format 3", 16) != 0)
+      if (::pread(file_.fd, header, sizeof header, 0) != static_cast<ssize_t>(sizeof header) ||
+          std::memcmp(header, "SQLite format 3", 16) != 0)
         throw StoreError("session store " + path +
                          ": not an SQLite database (wrong header); the file was left as it is");
       // Read-only; without a WAL beside it (no crash, no other writer) also "immutable", so that
@@ -347,12 +564,19 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
       sqlite3* ro = nullptr;
       const bool has_wal = fs::exists(path + "-wal", ec);
       const std::string uri = "file:" + uriEscape(fs::absolute(path, ec).string()) + (has_wal ? "" : "?immutable=1");
-      const int rc = sqlite3_open_v2(uri.c_str(), &ro, SQLITE_OPEN_READONLY | SQLITE_OPEN_URI, nullptr);
+      const int rc =
+          sqlite3_open_v2(uri.c_str(), &ro, SQLITE_OPEN_READONLY | SQLITE_OPEN_URI | SQLITE_OPEN_NOFOLLOW, nullptr);
       auto refuse = [&](const std::string& why) {
         sqlite3_close(ro);
         throw StoreError("session store " + path + ": " + why + "; the file was left as it is");
       };
       if (rc != SQLITE_OK) refuse(codeText(rc));
+      try {
+        checkStillTheFile();
+      } catch (...) {
+        sqlite3_close(ro);
+        throw;
+      }
       auto scalar = [&](const char* sql, std::string* out) {
         sqlite3_stmt* st = nullptr;
         int r = sqlite3_prepare_v2(ro, sql, -1, &st, nullptr);
@@ -379,10 +603,10 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
       if (v != std::to_string(kSchemaVersion))
         refuse("schema version " + v + ", this build reads version " + std::to_string(kSchemaVersion) +
                " (use the matching uw_multislam, or a new file)");
-      // quick_check of every table but the keyframes (issue 20, 2): checking those read the whole
-      // file (3.5 s at 100 k keyframes, the start-up's largest part). A keyframe's pages are
-      // checked as they are read instead: a corrupt one fails that read (DATA_LOSS, or a counted
-      // skip when paged), the rest of the store goes on.
+      // quick_check of every table but the keyframes: checking those read the whole file (3.5 s
+      // at 100 k keyframes, the start-up's largest part). A keyframe's pages are checked as they
+      // are read instead: a corrupt one fails that read (DATA_LOSS, or a counted skip when
+      // paged), the rest of the store goes on.
       std::vector<std::string> tables;
       {
         sqlite3_stmt* st = nullptr;
@@ -404,13 +628,7 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
       // The kind its sessions hold, read on this read-only connection: a damaged meta row is
       // refused before the writable open below touches the file (WAL mode, indexes).
       db_ = ro;
-      try {
-        learnKind();
-      } catch (...) {
-        db_ = nullptr;
-        sqlite3_close(ro);
-        throw;
-      }
+      learnKind();
       if (read_only) {  // the checked read-only connection is the store's
         sqlite3_extended_result_codes(db_, 1);
         sqlite3_busy_timeout(db_, 2000);
@@ -418,44 +636,34 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
       }
       db_ = nullptr;
       sqlite3_close(ro);
+      // A file nobody may write (chmod a-w) is refused even as root, for whom access(W_OK) and
+      // the open succeed: its owner marked it read-only on purpose.
+      const fs::perms p = fs::status(path, ec).permissions();
+      if (!ec && (p & (fs::perms::owner_write | fs::perms::group_write | fs::perms::others_write)) == fs::perms::none)
+        throw StoreError("session store " + path +
+                         ": cannot open for writing: the file is read-only (no write "
+                         "permission for anyone; chmod u+w it to extend it, or use another file)");
     }
-  } else {
-    const fs::path parent = fs::path(path).parent_path();
-    if (!parent.empty() && !fs::is_directory(parent, ec))
-      throw StoreError("session store " + path + ": the directory " + parent.string() + " does not exist");
-  }
-  if (exists) {
-    // A file nobody may write (chmod a-w) is refused even as root, for whom access(W_OK) and the
-    // open succeed: its owner marked it read-only on purpose (issue 21, 11).
-    const fs::perms p = fs::status(path, ec).permissions();
-    if (!ec && (p & (fs::perms::owner_write | fs::perms::group_write | fs::perms::others_write)) == fs::perms::none)
-      throw StoreError("session store " + path + ": cannot open for writing: the file is read-only (no write "
-                       "permission for anyone; chmod u+w it to extend it, or use another file)");
-  }
-  if (!exists) {  // created here first, 0600, refusing a link or a file that appeared meanwhile
-    const int fd = open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0600);
-    if (fd >= 0) close(fd);  // a failure (read-only path, ...) shows in SQLite's open below
-  }
-  const int flags = SQLITE_OPEN_READWRITE | (fresh ? SQLITE_OPEN_CREATE : 0);
-  const int rc = sqlite3_open_v2(path.c_str(), &db_, flags, nullptr);
-  if (rc != SQLITE_OK) {
-    const int ext = db_ ? sqlite3_extended_errcode(db_) : rc;
-    const int sys = db_ ? sqlite3_system_errno(db_) : 0;
-    sqlite3_close(db_);
-    db_ = nullptr;
-    std::string why = codeText(ext);
-    if (sys != 0) why += ": " + std::string(std::strerror(sys));
-    if (sys == EACCES || sys == EROFS || sys == EPERM)
-      why = "read-only path (" + why + ")";
-    else if (access(fs::path(path).parent_path().empty() ? "." : fs::path(path).parent_path().c_str(), W_OK) != 0 ||
-             (exists && access(path.c_str(), W_OK) != 0))
-      why = "read-only path (" + why + ")";
-    throw StoreError("session store " + path + ": " + (fresh ? "cannot create: " : "cannot open for writing: ") + why);
-  }
-  sqlite3_extended_result_codes(db_, 1);
-  sqlite3_busy_timeout(db_, 2000);
-  try {
-    lockForWriting();  // before anything is written (opening writes nothing but an empty new file)
+    const int flags = SQLITE_OPEN_READWRITE | SQLITE_OPEN_NOFOLLOW;  // the file exists: made above if it did not
+    const int rc = sqlite3_open_v2(path.c_str(), &db_, flags, nullptr);
+    if (rc != SQLITE_OK) {
+      const int ext = db_ ? sqlite3_extended_errcode(db_) : rc;
+      const int sys = db_ ? sqlite3_system_errno(db_) : 0;
+      sqlite3_close(db_);
+      db_ = nullptr;
+      std::string why = codeText(ext);
+      if (sys != 0) why += ": " + std::string(std::strerror(sys));
+      if (sys == EACCES || sys == EROFS || sys == EPERM)
+        why = "read-only path (" + why + ")";
+      else if (access(fs::path(path).parent_path().empty() ? "." : fs::path(path).parent_path().c_str(), W_OK) != 0 ||
+               access(path.c_str(), W_OK) != 0)
+        why = "read-only path (" + why + ")";
+      throw StoreError("session store " + path + ": " + (fresh ? "cannot create: " : "cannot open for writing: ") +
+                       why);
+    }
+    checkStillTheFile();
+    sqlite3_extended_result_codes(db_, 1);
+    sqlite3_busy_timeout(db_, 2000);
     exec("PRAGMA journal_mode=WAL");
     exec("PRAGMA synchronous=FULL");
     exec("PRAGMA foreign_keys=ON");
@@ -471,54 +679,19 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
     exec(kProvenanceTable);
     exec(kHistoryTable);
   } catch (...) {
-    sqlite3_close(db_);
+    cache_.clear();
+    if (db_) sqlite3_close(db_);
     db_ = nullptr;
+    removeCreated(beside_existed);
     throw;
   }
+  created_ = false;  // the store's from now on
 }
 
 SessionStore::~SessionStore() {
   cache_.clear();
   if (db_) sqlite3_close(db_);
-}  // then lock_ releases the lock (the kernel does too if the process dies)
-
-SessionStore::LockFile::~LockFile() {
-  if (fd >= 0) close(fd);
-}
-
-void SessionStore::lockForWriting() {
-  // One writer per store for the whole run. SQLite's own locks are per transaction: two processes
-  // writing one store both succeed, and the last one to save the maps silently wins. An flock()
-  // on "<store>.lock" is held while this object lives and released by the kernel when the
-  // process dies (kill -9 included), so a stale lock never blocks a restart. The file holds the
-  // holder's description, for the refusal's message; it is left in place (deleting it would race).
-  const std::string lock_path = path_ + ".lock";
-  LockFile lock;
-  lock.fd = open(lock_path.c_str(), O_RDWR | O_CREAT | O_NOFOLLOW | O_CLOEXEC, 0600);
-  if (lock.fd < 0)
-    throw StoreError("session store " + path_ + ": cannot open its lock file " + lock_path + ": " +
-                     std::strerror(errno));
-  if (flock(lock.fd, LOCK_EX | LOCK_NB) != 0) {
-    const int err = errno;
-    char holder[256] = {};
-    const ssize_t n = pread(lock.fd, holder, sizeof holder - 1, 0);
-    std::string who = n > 0 ? std::string(holder, static_cast<std::size_t>(n)) : std::string("another process");
-    while (!who.empty() && (who.back() == '\n' || who.back() == ' ')) who.pop_back();
-    if (err == EWOULDBLOCK)
-      throw StoreError("session store " + path_ + ": in use by " + who +
-                       "; one process writes a store at a time (stop it, or give this run another store)");
-    throw StoreError("session store " + path_ + ": cannot lock " + lock_path + ": " + std::strerror(err));
-  }
-  char host[128] = {};
-  gethostname(host, sizeof host - 1);
-  const std::string me = "pid " + std::to_string(getpid()) + " on " + host + " since " +
-                         std::to_string(static_cast<long long>(std::time(nullptr))) + " (unix time)\n";
-  if (ftruncate(lock.fd, 0) != 0 || pwrite(lock.fd, me.data(), me.size(), 0) != static_cast<ssize_t>(me.size())) {
-    // The lock holds without the description; only a refused second writer's message is poorer.
-  }
-  lock_.fd = lock.fd;
-  lock.fd = -1;
-}
+}  // then file_ goes: the lock is released (the kernel releases it too if the process dies)
 
 void SessionStore::begin() { exec("BEGIN IMMEDIATE"); }
 void SessionStore::commit() { exec("COMMIT"); }

@@ -1,6 +1,7 @@
 #include "uw_multislam/core/session/store_merge.h"
 
 #include <sqlite3.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -11,6 +12,7 @@
 #include <set>
 #include <stdexcept>
 
+#include "uw_multislam/core/common/file_identity.h"
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/session/map_persistence.h"
 #include "uw_multislam/core/session/session_manager.h"
@@ -24,20 +26,39 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// The temporary output and what SQLite and the store put beside it; removed unless renamed.
+// The temporary output and what SQLite puts beside it; removed unless published. The store is
+// created exclusively (StoreAccess::kCreateNew): a file already at the name, a link planted
+// there, is never opened nor removed; only the file made here is.
 class TemporaryStore {
  public:
-  explicit TemporaryStore(std::string path) : path_(std::move(path)) {}
+  explicit TemporaryStore(const std::string& out) {
+    for (int attempt = 0; attempt < 100; ++attempt) {
+      const std::string candidate =
+          out + ".partial-" + std::to_string(getpid()) + (attempt ? "-" + std::to_string(attempt) : "");
+      struct stat st {};
+      if (::lstat(candidate.c_str(), &st) == 0 || errno != ENOENT) continue;  // taken: never ours to use
+      path_ = candidate;
+      return;
+    }
+    throw StoreError(out + ": no free name for the temporary store beside it");
+  }
   ~TemporaryStore() {
-    std::error_code ec;
-    for (const char* suffix : {"", "-wal", "-shm", ".lock"}) fs::remove(path_ + suffix, ec);
+    if (!made_) return;
+    struct stat st {};
+    if (::lstat(path_.c_str(), &st) == 0 && FileId{st.st_dev, st.st_ino} == id_) ::unlink(path_.c_str());
+    for (const char* suffix : {"-wal", "-shm"})
+      if (::lstat((path_ + suffix).c_str(), &st) == 0 && S_ISREG(st.st_mode)) ::unlink((path_ + suffix).c_str());
   }
   TemporaryStore(const TemporaryStore&) = delete;
   TemporaryStore& operator=(const TemporaryStore&) = delete;
   const std::string& path() const { return path_; }
+  /// Called once the store is created: its identity, for the removal.
+  void made() { made_ = fileIdOf(path_, &id_); }
 
  private:
   std::string path_;
+  FileId id_;
+  bool made_ = false;
 };
 
 std::string settingsText(const HashSettings& h) {
@@ -63,14 +84,17 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
 
   // --- Inputs: read-only, distinct, comparable hashes, nothing recording ----------------------
   std::vector<std::unique_ptr<SessionStore>> in;
-  std::set<fs::path> seen;
+  std::map<FileId, std::string>
+      seen;  // by identity: a hard link, a bind mount or a symbolic link to one store is that store
   HashSettings settings;
   for (std::size_t i = 0; i < inputs.size(); ++i) {
     const std::string& path = inputs[i].path;
-    if (!fs::exists(path, ec)) throw std::invalid_argument(path + ": no such store");
-    const fs::path canonical = fs::canonical(path, ec);
-    if (!seen.insert(canonical).second)
-      throw std::invalid_argument(path + ": given twice (" + canonical.string() + "); each store once");
+    FileId id;
+    if (!fileIdOf(path, &id)) throw std::invalid_argument(path + ": no such store");
+    const auto [first, fresh] = seen.emplace(id, path);
+    if (!fresh)
+      throw std::invalid_argument(path + ": given twice: it is the same file as " + first->second +
+                                  " (the same path, or a hard or symbolic link to it); each store once");
     in.push_back(std::make_unique<SessionStore>(path, StoreAccess::kReadOnly));
     HashSettings h;
     if (!in.back()->hashSettings(&h))
@@ -115,10 +139,11 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
   report.inputs = static_cast<int>(inputs.size());
 
   // --- Copy into a temporary file beside OUT ----------------------------------------------------
-  const TemporaryStore tmp(out + ".partial-" + std::to_string(getpid()));
+  TemporaryStore tmp(out);
   std::vector<int> input_of;  // the input of each merged session, by the id the manager gives it (copy order)
   {
-    SessionStore dst(tmp.path());
+    SessionStore dst(tmp.path(), StoreAccess::kCreateNew);
+    tmp.made();
     // The temporary file is renamed only when complete, so a crash loses nothing durable:
     // per-keyframe fsyncs (synchronous=FULL, one transaction per keyframe) would make a 100-dive
     // merge take hours. Synced once at the end (checkpoint), and by the manager's own writes.

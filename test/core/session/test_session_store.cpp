@@ -8,6 +8,7 @@
 #include <cstring>
 #include <limits>
 
+#include <algorithm>
 #include <csignal>
 #include <fstream>
 #include <iterator>
@@ -426,7 +427,7 @@ TEST(Store, KeyframeFeaturesComeBackExactly) {
   EXPECT_EQ(store.sessions()[0].state, StoredSessionState::kRecording);
 }
 
-// Start-up (issue 20): the keyframes' frame data come from a covering index (about 60 bytes a
+// Start-up: the keyframes' frame data come from a covering index (about 60 bytes a
 // keyframe) instead of each 74 kB row's first page; a store written before the index gets it when
 // opened, with its contents unchanged.
 TEST(Store, FrameDataAreReadFromACoveringIndexThatOlderStoresGetWhenOpened) {
@@ -783,7 +784,7 @@ TEST(Store, RefusesAReadOnlyOrMissingPath) {
     EXPECT_NE(std::string(e.what()).find("does not exist"), std::string::npos) << e.what();
   }
   EXPECT_FALSE(std::filesystem::exists(dir.path() / "no"));
-  // A store nobody may write (chmod 444) is refused, even as root, and left as it is (issue 21, 11).
+  // A store nobody may write (chmod 444) is refused, even as root, and left as it is.
   const std::string locked = (dir.path() / "locked.db").string();
   { SessionStore made(locked); }
   ::chmod(locked.c_str(), 0444);
@@ -904,7 +905,7 @@ TEST(Store, FilesAreTheOwnersOnlyAndASymbolicLinkIsRefused) {
     store.addSession("mine", camera(), 0.0);
     EXPECT_EQ(mode(path), 0600);
     EXPECT_EQ(mode(path + "-wal"), 0600);
-    EXPECT_EQ(mode(path + ".lock"), 0600);
+    EXPECT_FALSE(std::filesystem::exists(path + ".lock"));  // the lock is on the file itself: no file beside it
   }
   const std::string link = (dir.path() / "link.db").string();
   ASSERT_EQ(::symlink(path.c_str(), link.c_str()), 0);
@@ -970,6 +971,191 @@ TEST(Store, ASecondWriterIsRefusedWithTheHolderNamedAndADeadHolderReleasesIt) {
   ::waitpid(child, &status, 0);
   SessionStore after(path);  // the kernel released the dead holder's lock
   EXPECT_EQ(after.sessions().size(), 1u);
+}
+
+// The open descriptors of the file `path` names held by this process (/proc/self/fd).
+int descriptorsOf(const std::string& path) {
+  struct stat target {};
+  if (::stat(path.c_str(), &target) != 0) return -1;
+  int n = 0;
+  for (const auto& e : std::filesystem::directory_iterator("/proc/self/fd")) {
+    struct stat st {};
+    if (::stat(e.path().c_str(), &st) == 0 && st.st_dev == target.st_dev && st.st_ino == target.st_ino) ++n;
+  }
+  return n;
+}
+
+std::vector<std::string> namesIn(const std::filesystem::path& dir) {
+  std::vector<std::string> out;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) out.push_back(e.path().filename().string());
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+// The lock is on the file, not on the name: a hard link, a rename (what a bind mount shows: the
+// same file under another path) or a symbolic link to a held store is refused in this process like
+// the same path, the holder named, and the refused open leaves nothing beside its path.
+TEST(Store, AnotherPathToAHeldStoreIsRefusedInThisProcessAndLeavesNothing) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "c3.db").string();
+  const std::string hard = (dir.path() / "c3hard.db").string();
+  const std::string soft = (dir.path() / "c3soft.db").string();
+  SessionStore first(path);
+  const std::int64_t s = first.addSession("mine", camera(), 0.0);
+  ASSERT_EQ(::link(path.c_str(), hard.c_str()), 0);
+  ASSERT_EQ(::symlink(path.c_str(), soft.c_str()), 0);
+  const int held = descriptorsOf(path);
+  auto refusal = [](const std::string& p) {
+    try {
+      SessionStore second(p);
+    } catch (const StoreError& e) {
+      return std::string(e.what());
+    }
+    return std::string("(opened)");
+  };
+  std::string why = refusal(hard);
+  EXPECT_NE(why.find(hard + ": in use by pid " + std::to_string(::getpid()) + " "), std::string::npos) << why;
+  EXPECT_NE(why.find("one process writes a store at a time"), std::string::npos) << why;
+  why = refusal(soft);
+  EXPECT_NE(why.find("symbolic link"), std::string::npos) << why;
+  // No descriptor of the file was opened for the refusals (closing one would drop the POSIX locks
+  // SQLite holds on it for the first store), and nothing appeared beside the other paths.
+  EXPECT_EQ(descriptorsOf(path), held);
+  EXPECT_EQ(namesIn(dir.path()),
+            (std::vector<std::string>{"c3.db", "c3.db-shm", "c3.db-wal", "c3hard.db", "c3soft.db"}));
+  // Moved under another name while held: still the held file.
+  const std::string moved = (dir.path() / "moved.db").string();
+  ASSERT_EQ(::rename(hard.c_str(), moved.c_str()), 0);
+  why = refusal(moved);
+  EXPECT_NE(why.find("in use by pid " + std::to_string(::getpid())), std::string::npos) << why;
+  // The first store goes on, whole.
+  std::mt19937 rng(4);
+  first.addKeyframe(randomKeyframe(s, 0, 50, &rng), nullptr, nullptr);
+  EXPECT_EQ(first.keyframes(s, false).size(), 1u);
+  EXPECT_EQ(first.sessions().size(), 1u);
+}
+
+// A second process through a hard link: refused naming the first (its pid), and nothing appears
+// beside the link (SQLite would have made a second WAL for the one file); the first store's data
+// are whole once it ends.
+TEST(Store, AHardLinkToAStoreHeldByAnotherProcessIsRefusedNamingIt) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "c3.db").string();
+  const std::string hard = (dir.path() / "c3hard.db").string();
+  { SessionStore made(path); }
+  ASSERT_EQ(::link(path.c_str(), hard.c_str()), 0);
+  int ready[2], hold[2];
+  ASSERT_EQ(::pipe(ready), 0);
+  ASSERT_EQ(::pipe(hold), 0);
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    int code = 0;
+    try {
+      SessionStore store(path);
+      const std::int64_t s = store.addSession("first", camera(), 0.0);
+      std::mt19937 rng(9);
+      for (int k = 0; k < 3; ++k) store.addKeyframe(randomKeyframe(s, k, 50, &rng), nullptr, nullptr);
+      const char c = 1;
+      if (::write(ready[1], &c, 1) != 1) ::_exit(3);
+      char wait = 0;
+      if (::read(hold[0], &wait, 1) < 0) code = 4;  // until the parent says so
+      std::mt19937 rng2(10);
+      store.addKeyframe(randomKeyframe(s, 3, 50, &rng2), nullptr, nullptr);  // after the refusal: still its
+    } catch (...) {
+      ::_exit(2);
+    }
+    ::_exit(code);
+  }
+  char c = 0;
+  ASSERT_EQ(::read(ready[0], &c, 1), 1);
+  std::string why = "(opened)";
+  try {
+    SessionStore second(hard);
+  } catch (const StoreError& e) {
+    why = e.what();
+  }
+  EXPECT_NE(why.find(hard + ": in use by pid " + std::to_string(child) + " "), std::string::npos) << why;
+  EXPECT_NE(why.find("one process writes a store at a time"), std::string::npos) << why;
+  EXPECT_FALSE(std::filesystem::exists(hard + "-wal"));
+  EXPECT_FALSE(std::filesystem::exists(hard + "-shm"));
+  EXPECT_FALSE(std::filesystem::exists(hard + ".lock"));
+  ASSERT_EQ(::write(hold[1], &c, 1), 1);
+  int status = 0;
+  ASSERT_EQ(::waitpid(child, &status, 0), child);
+  ASSERT_TRUE(WIFEXITED(status));
+  ASSERT_EQ(WEXITSTATUS(status), 0);
+  SessionStore after(hard);  // free now, through either path
+  ASSERT_EQ(after.sessions().size(), 1u);
+  EXPECT_EQ(after.keyframes(after.sessions()[0].id, false).size(), 4u);  // nothing of the holder's lost
+}
+
+// A reader beside a writer in this process (export beside a live back-end): its descriptor of the
+// file is not closed while the writer lives (that would drop the writer's SQLite locks), and every
+// descriptor is closed with the last store of the file.
+TEST(Store, AReaderBesideAWriterInOneProcessKeepsItsDescriptorUntilTheWriterEnds) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = makeStore(dir);
+  const int none = descriptorsOf(path);
+  ASSERT_EQ(none, 0);
+  {
+    SessionStore writer(path);
+    const int writing = descriptorsOf(path);
+    {
+      const SessionStore reader(path, StoreAccess::kReadOnly);
+      EXPECT_EQ(reader.sessions().size(), writer.sessions().size());
+      EXPECT_GT(descriptorsOf(path), writing);
+    }
+    EXPECT_GT(descriptorsOf(path), writing);  // the reader's own descriptor parked, not closed
+    writer.addSession("after the reader", camera(), 5.0);
+  }
+  EXPECT_EQ(descriptorsOf(path), 0);  // closed with the writer
+  { const SessionStore reader(path, StoreAccess::kReadOnly); }
+  EXPECT_EQ(descriptorsOf(path), 0);  // alone, a reader closes its own at once
+  // A writer that ends while a reader of this process lives: its lock goes with it (its descriptor
+  // is parked), so the next writer opens.
+  {
+    const SessionStore reader(path, StoreAccess::kReadOnly);
+    { SessionStore writer(path); }
+    SessionStore next(path);
+    EXPECT_EQ(next.sessions().size(), reader.sessions().size());
+  }
+  EXPECT_EQ(descriptorsOf(path), 0);
+}
+
+// A refused open leaves nothing: a new store whose open fails removes the file it created; a
+// link planted at its -wal or -shm is refused before SQLite could follow it; kCreateNew refuses
+// anything already at the path.
+TEST(Store, ARefusedOpenLeavesNothingBehind) {
+  ScopedTempDir dir("uwms_store");
+  ScopedTempDir outside("uwms_store_outside");
+  const std::string victim = (outside.path() / "victim").string();
+  writeBytes(victim, "precious");
+  const std::string path = (dir.path() / "new.db").string();
+  ASSERT_EQ(::symlink(victim.c_str(), (path + "-wal").c_str()), 0);
+  try {
+    SessionStore store(path);
+    FAIL() << "opened beside a planted -wal link";
+  } catch (const StoreError& e) {
+    EXPECT_NE(std::string(e.what()).find("-wal file is a symbolic link"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(namesIn(dir.path()), std::vector<std::string>{"new.db-wal"});  // no 0-byte store left
+  EXPECT_EQ(readBytes(victim), "precious");
+  std::filesystem::remove(path + "-wal");
+  // kCreateNew: an existing file (a store too) is refused and left as it is.
+  const std::string existing = makeStore(dir);
+  const std::string bytes = readBytes(existing);
+  EXPECT_THROW(SessionStore(existing, StoreAccess::kCreateNew), StoreError);
+  EXPECT_EQ(readBytes(existing), bytes);
+  {
+    SessionStore made(path, StoreAccess::kCreateNew);
+    EXPECT_TRUE(made.sessions().empty());
+  }
+  // A store nobody may write is refused and nothing is created beside it.
+  ::chmod(path.c_str(), 0400);
+  EXPECT_THROW(SessionStore{path}, StoreError);
+  EXPECT_FALSE(std::filesystem::exists(path + "-wal"));
+  EXPECT_FALSE(std::filesystem::exists(path + "-shm"));
 }
 
 // A mission cut by a crash: the last session never ended and its map was saved before its last
@@ -1129,7 +1315,7 @@ std::string loopsWithout(const std::string& path, std::int64_t id) {
   return rowBytes(path, "SELECT * FROM loops WHERE session_a != " + s + " AND session_b != " + s + " ORDER BY id");
 }
 
-// Deleting a session (an interrupted run discarded, issue 21, 8): one transaction that takes out
+// Deleting a session (an interrupted run discarded): one transaction that takes out
 // its rows and its loops, cuts it out of the maps, and leaves every other session's rows byte for
 // byte as they were; the store passes integrity_check and restores into a back-end.
 TEST(Store, DeletingASessionLeavesTheOthersByteForByteAndCutsItOutOfTheMaps) {
@@ -1335,7 +1521,7 @@ TEST(Store, AnInterruptedRunIsFoundWithItsPiecesAndFinishedOrDiscarded) {
   EXPECT_EQ(integrityOf(copy), "ok");
 }
 
-// A full disk in the middle of saving the maps (issue 21, 4; the cap is SQLite's max_page_count):
+// A full disk in the middle of saving the maps (the cap is SQLite's max_page_count):
 // the new state is refused with "the disk is full" after its first rows were written, the
 // transaction is rolled back, and the store keeps the previous maps byte for byte and restores
 // exactly as before. With room again the same save succeeds.

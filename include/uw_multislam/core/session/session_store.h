@@ -1,4 +1,4 @@
-// The session store: one SQLite file that keeps every session of every mission (issue 8).
+// The session store: one SQLite file that keeps every session of every mission.
 //
 // What it holds (schema version kSchemaVersion, tables in session_store.cpp):
 //  - the hash settings (mode, seed, n, the HALOC vectors as exact text): hashes of different
@@ -33,6 +33,7 @@
 #include <utility>
 #include <vector>
 
+#include "uw_multislam/core/common/file_identity.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/features.h"
 #include "uw_multislam/core/frontend/nav_prior.h"
@@ -118,7 +119,7 @@ struct HashSettings {
   FeatureType features = FeatureType::kSift;
 };
 
-/// Where a session of a merged store came from (merge_stores, issue 20, 4): one row per session
+/// Where a session of a merged store came from (merge_stores): one row per session
 /// copied from another store. Kept in the table `provenance`, which a store gets when it is opened
 /// for writing (like the keyframes_frame index: no build before it reads it, so no new schema
 /// version); a store without the table, or a session never merged, has no row.
@@ -130,7 +131,7 @@ struct SessionProvenance {
   std::string vehicle, dive;        // labels given to merge_stores (default: the file's stem, the name)
 };
 
-/// One entry of the audit trail (issue 16, item 5): every join, split, manual link, deletion and
+/// One entry of the audit trail: every join, split, manual link, deletion and
 /// mode change, when, why and with which loops. Kept in the table `history`, which a store gets
 /// when it is opened for writing (like `provenance`: no new schema version). Sessions and loops
 /// are named by the session ids of the run that wrote the entry (the services' ids, which a later
@@ -148,20 +149,23 @@ struct HistoryEntry {
 /// Now, wall clock, UTC, as the audit trail writes it: ISO 8601 to the second (2026-11-25T02:13:04Z).
 std::string utcTimestamp();
 
-/// How a store is opened: kReadWrite (the default: created when missing, locked for writing) or
+/// How a store is opened: kReadWrite (the default: created when missing, locked for writing),
 /// kReadOnly (for tools that only read it, e.g. export_survey: a missing or empty file is an
-/// error, nothing is created or locked, and every write is refused by SQLite).
-enum class StoreAccess { kReadWrite, kReadOnly };
+/// error, nothing is created or locked, and every write is refused by SQLite) or kCreateNew (a
+/// new store, created exclusively: anything already at the path, a link too, is refused).
+enum class StoreAccess { kReadWrite, kReadOnly, kCreateNew };
 
 class SessionStore {
  public:
   static constexpr int kSchemaVersion = 2;  // 2: motions.source
   static constexpr std::int32_t kApplicationId = 0x55574d53;  // "UWMS"
 
-  /// Opens the store at `path`, creating it (and nothing else) when missing or empty. The file
-  /// is checked read-only before anything is written; then an exclusive lock on "<path>.lock" is
-  /// held as long as this object lives: a second writer (another process, or a second
-  /// SessionStore on the same file) is refused with the holder named. Throws StoreError.
+  /// Opens the store at `path`, creating it (and nothing else: 0600, exclusively) when missing or
+  /// empty. An exclusive flock() on the file itself is held as long as this object lives: a second
+  /// writer (another process, or a second SessionStore of this process, through this path or any
+  /// other one to the same file: a hard link, a bind mount) is refused with the holder named. The
+  /// file is checked read-only before anything is written. A refused open leaves nothing behind
+  /// (no file it created, no -wal/-shm). Throws StoreError.
   /// kReadOnly: the same checks, then a read-only open (no lock, no file created).
   explicit SessionStore(const std::string& path, StoreAccess mode = StoreAccess::kReadWrite);
   ~SessionStore();
@@ -208,7 +212,7 @@ class SessionStore {
 
   std::vector<StoredSession> sessions() const;
   /// What keyframes() reads besides the frame data (index, stamp, altitude, image size): nothing,
-  /// the hash only (what the hash search keeps in RAM: paging, issue 20), or every blob.
+  /// the hash only (what the hash search keeps in RAM when paging), or every blob.
   enum class KeyframeColumns { kFrame, kHash, kAll };
   /// The keyframes of a session in order; `with_features` false leaves points, descriptors,
   /// hash and thumbnail empty.
@@ -254,16 +258,26 @@ class SessionStore {
   sqlite3* handle() { return db_; }
 
  private:
-  struct LockFile {  // the descriptor is closed (the lock released) with it, also when the constructor throws
+  /// The store's file, open for the object's life: its identity, and for a writer the flock() on
+  /// it, held through this descriptor. Released (or parked: session_store.cpp, HeldFiles) with the
+  /// object, also when the constructor throws.
+  struct HeldFile {
+    FileId id;
     int fd = -1;
-    LockFile() = default;
-    LockFile(const LockFile&) = delete;
-    LockFile& operator=(const LockFile&) = delete;
-    ~LockFile();
+    bool writer = false;
+    HeldFile() = default;
+    HeldFile(const HeldFile&) = delete;
+    HeldFile& operator=(const HeldFile&) = delete;
+    ~HeldFile();
   };
-  void lockForWriting();
-  void learnKind();  // descriptor_bytes_ from the meta row, if written
-  LockFile lock_;  // the held lock on "<path>.lock"
+  /// Opens (or creates, exclusively) the file, refuses a link, a second writer of this process
+  /// (any path to the file) or of another one (the flock); fresh: nothing stored in it yet.
+  void openFile(StoreAccess mode, bool* fresh);
+  void checkStillTheFile() const;  // the path still names the file held (SQLite opens it by name)
+  void removeCreated(const bool beside_existed[2]) noexcept;  // a failed open removes what it created
+  void learnKind();                // descriptor_bytes_ from the meta row, if written
+  HeldFile file_;
+  bool created_ = false;  // the file was created by this object's open (until the open succeeds)
   class Statement;
   void exec(const std::string& sql) const;
   [[noreturn]] void fail(const std::string& what) const;

@@ -1,4 +1,4 @@
-// Fleet merge (issue 20, item 4): session stores of several vehicles or dives into one, then the
+// Fleet merge: session stores of several vehicles or dives into one, then the
 // global loops between them and the joins they support.
 //
 // 1. Copy. Every session of every input with at least one keyframe is copied in input order (its
