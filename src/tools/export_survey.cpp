@@ -169,7 +169,10 @@ int exportSurvey(Arguments a) {
         if (!quiet) std::printf("images of %s\n", line.c_str());
     namespace fs = std::filesystem;
     std::error_code ec;
-    fs::create_directories(out, ec);
+    try {  // new directories take the store's permissions (0700 for a 0600 store)
+      core::makeDirectories(out, survey.modes.directory);
+    } catch (const core::FileWriteError&) {  // said below
+    }
     if (!fs::is_directory(out, ec)) {
       std::fprintf(stderr, "export_survey: %s: cannot create the output directory\n", out.c_str());
       return 1;

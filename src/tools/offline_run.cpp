@@ -151,7 +151,8 @@ int runOffline(const OfflineOptions& options) {
         return 1;
       }
     }
-    core::writeRunInputs(out, datasets, stored, core::slamConfigToYaml(config));  // creates OUT; folders + config
+    // Creates OUT; folders + config. Outputs take the store's permissions (0600 / 0700 for a 0600 store).
+    core::writeRunInputs(out, datasets, stored, core::slamConfigToYaml(config), core::outputModesOf(db));
     if (detect_loops) {
       // Global loops among the stored sessions: each one searches the ones stored
       // before it; loops the store holds already are skipped; the back-end joins by its policy.
@@ -228,7 +229,8 @@ int runOffline(const OfflineOptions& options) {
     if (!quiet && frames_read > 0)
       std::printf("throughput: %zu frames in %.2f s wall, %.1f ms/frame (image reading included; --threads %d)\n",
                   frames_read, frames_s, 1000.0 * frames_s / static_cast<double>(frames_read), threads);
-    core::writeRunOutputs(out, manager, csv_of, stored + static_cast<int>(datasets.size()), pipeline.times());
+    core::writeRunOutputs(out, manager, csv_of, stored + static_cast<int>(datasets.size()), pipeline.times(),
+                          core::outputModesOf(db));
     if (!quiet) {
       const core::BackendStats& bs = manager.backendStats();
       const core::LoopStats& ls = pipeline.loopDetector().stats();

@@ -341,7 +341,7 @@ def test_missing_arguments(tmp_path):
     assert r.returncode == 2 and "needs a value" in r.stderr
 
 
-# --- export_survey --run: from an offline_slam output folder and its dataset folders (issue 18, item 1)
+# --- export_survey --run: from an offline_slam output folder and its dataset folders
 
 @pytest.fixture(scope="module")
 def exported_run(store, survey, tmp_path_factory):
@@ -710,7 +710,7 @@ def test_no_geotiff_without_origin(store, tmp_path):
     assert len([p for p in names if p.endswith(".png")]) == 3
 
 
-# --- evaluate.py --mosaic-score (issue 18, item 4) ------------------------------------------------
+# --- evaluate.py --mosaic-score ----------------------------------------------------------
 
 def mosaic_scores(survey, run_dir, report):
     import subprocess
@@ -751,7 +751,7 @@ def test_mosaic_score_of_the_map_is_close_to_the_ground_truths(store, survey, tm
     assert worse["mosaic_ratio"] > m["mosaic_ratio"] + 0.1, (worse, m)
 
 
-# --- keyframe images in the store (issue 18, item 2) ----------------------------------------------
+# --- keyframe images in the store --------------------------------------------------------
 
 # IJG's luminance quantisation table (JPEG Annex K.1), natural order, and libjpeg's scaling by quality
 IJG_LUMA = [16, 11, 10, 16, 24, 40, 51, 61, 12, 12, 14, 19, 26, 58, 60, 55, 14, 13, 16, 24, 40, 57, 69, 56,
@@ -859,7 +859,7 @@ def test_store_only_mosaics_are_finer_and_sharper_with_larger_images(stores_by_i
     assert results[240]["ncc"] > 0.98, results
 
 
-# --- evaluate.py --mosaic-png: the mosaics side by side (issue 18, item 4) --------------------------
+# --- evaluate.py --mosaic-png: the mosaics side by side ------------------------------------
 
 def mosaic_pngs(survey, run_dir, directory):
     import subprocess
@@ -950,3 +950,46 @@ def test_mosaic_pngs_of_estimate_and_ground_truth_side_by_side(store, survey, tm
     assert moved > 2.0 * close and off > 2.0 * close and back < 0.5 * moved, (close, moved, off, back)
     print("mosaic colour difference: good map vs truth %.2f, turned vs first %.2f, turned vs truth %.2f, "
           "turned back vs first %.2f" % (close, moved, off, back))
+
+
+def test_exports_take_the_stores_permissions_and_never_write_through_a_planted_link(exported, store, tmp_path):
+    """Every file is created exclusively in the output directory and renamed into place: a symbolic
+    link planted at a file's temporary name (<file>.tmp) or at its final name never makes the export
+    write elsewhere; the files and the directory take the store's permissions (0600 / 0700)."""
+    db, _ = store
+    assert os.stat(db).st_mode & 0o777 == 0o600
+    clean, _ = exported
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    out = tmp_path / "out"
+    out.mkdir()
+    names = sorted(os.listdir(clean))
+    victims = {}
+    for i, name in enumerate(names):
+        victim = outside / ("tmp_%d" % i)
+        victim.write_text("precious %d\n" % i)
+        os.symlink(victim, out / (name + ".tmp"))
+        victims[victim] = victim.read_text()
+        if i % 2:
+            final = outside / ("final_%d" % i)
+            final.write_text("precious final %d\n" % i)
+            os.symlink(final, out / name)
+            victims[final] = final.read_text()
+    r = run("export_survey", "--db", db, "--out", out, "--origin", ",".join(map(str, ORIGIN)), "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert {v: v.read_text() for v in victims} == victims
+    assert sorted(os.listdir(outside)) == sorted(v.name for v in victims)
+    for name in names:
+        p = out / name
+        assert p.is_file() and not p.is_symlink(), name
+        assert os.stat(p).st_mode & 0o777 == 0o600, name
+        if not name.endswith((".png", ".tif")):  # GDAL's files: compared as files only
+            assert digest(p) == digest(clean / name), name
+        assert (out / (name + ".tmp")).is_symlink(), name  # not ours: left as it was
+    # A directory the export creates: 0700, like the store's own.
+    fresh = tmp_path / "new" / "dir"
+    r = run("export_survey", "--db", db, "--out", fresh, "--no-mosaic", "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert os.stat(tmp_path / "new").st_mode & 0o777 == 0o700
+    assert os.stat(fresh).st_mode & 0o777 == 0o700
+    assert all(os.stat(fresh / n).st_mode & 0o777 == 0o600 for n in os.listdir(fresh))

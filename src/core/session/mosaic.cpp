@@ -3,7 +3,6 @@
 #include <cpl_conv.h>
 #include <gdal_priv.h>
 #include <ogr_spatialref.h>
-#include <unistd.h>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -20,6 +19,7 @@
 #include <ostream>
 #include <sstream>
 
+#include "uw_multislam/core/common/file_identity.h"
 #include "uw_multislam/core/frontend/image_file.h"
 #include "uw_multislam/core/session/mosaic_geometry.h"
 
@@ -193,10 +193,6 @@ std::vector<cv::Scalar> exposureGains(const ExportTrack& track, const SurveyExpo
   return gains;
 }
 
-std::string tempName(const std::string& path, const char* ext) {
-  return path + ".tmp" + std::to_string(getpid()) + ext;
-}
-
 }  // namespace
 
 void MosaicImages::addDataset(const std::string& directory) {
@@ -215,7 +211,11 @@ const FrameRecord* MosaicImages::frameOf(int dataset, const ExportKeyframe& k) c
 
 std::vector<std::string> MosaicImages::matchSessions(const SurveyExport& survey) {
   std::vector<std::string> lines;
+  // The folder the session is named after: the same directory (its identity: any path to it, a
+  // link or a bind mount too), or, when the name no longer exists as given, the same path text.
   auto same = [](const std::string& a, const std::string& b) {
+    FileId x, y;
+    if (fileIdOf(a, &x) && fileIdOf(b, &y)) return x == y;
     std::error_code ec;
     return std::filesystem::weakly_canonical(a, ec) == std::filesystem::weakly_canonical(b, ec);
   };
@@ -394,11 +394,21 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
   GDALAllRegister();
   CPLSetConfigOption("GDAL_CACHEMAX", std::to_string(options.gdal_cache_mb).c_str());
   CPLSetConfigOption("GDAL_PAM_ENABLED", "NO");  // no .aux.xml beside the outputs
-  const std::string tmp_tif = tempName(png_path, ".tif"), tmp_png = tempName(png_path, ".png");
+  // GDAL writes by path: it is given the temporaries AtomicFile made (exclusive, no link followed,
+  // in the destination's directory) by their /proc/self/fd paths, which reopen those very files
+  // whatever their names have become; each is renamed into place when complete. Without an origin
+  // the GeoTIFF is only the PNG's source: its temporary is never renamed (removed with it).
+  std::unique_ptr<AtomicFile> tif, png_file;
+  try {
+    tif = std::make_unique<AtomicFile>(origin ? geotiff_path : png_path + ".tif", survey.modes.file);
+    png_file = std::make_unique<AtomicFile>(png_path, survey.modes.file);
+  } catch (const FileWriteError& e) {
+    throw ExportError(e.what());
+  }
+  const std::string tmp_tif = tif->reopenPath(), tmp_png = png_file->reopenPath();
   auto cleanup = [&] {
-    std::error_code ec;
-    std::filesystem::remove(tmp_tif, ec);
-    std::filesystem::remove(tmp_png, ec);
+    png_file.reset();
+    tif.reset();
   };
   GDALDriver* gtiff = GetGDALDriverManager()->GetDriverByName("GTiff");
   GDALDriver* png = GetGDALDriverManager()->GetDriverByName("PNG");
@@ -413,7 +423,8 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
   CSLDestroy(create);
   if (!ds) {
     cleanup();
-    throw ExportError(png_path + ": GDAL cannot create " + tmp_tif + ": " + CPLGetLastErrorMsg());
+    throw ExportError(png_path + ": GDAL cannot create its GeoTIFF (" + tif->temporaryName() +
+                      "): " + CPLGetLastErrorMsg());
   }
   try {
     ImageCache cache(images, options.cache_bytes, n);
@@ -509,7 +520,8 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
         }
         if (ds->RasterIO(GF_Write, core.x, core.y, core.width, core.height, rgba.data, core.width, core.height,
                          GDT_Byte, 4, nullptr, 4, static_cast<GSpacing>(rgba.step), 1, nullptr) != CE_None)
-          throw ExportError(png_path + ": GDAL cannot write " + tmp_tif + ": " + CPLGetLastErrorMsg());
+          throw ExportError(png_path + ": GDAL cannot write its GeoTIFF (" + tif->temporaryName() +
+                            "): " + CPLGetLastErrorMsg());
         ++result.tiles;
       }
     }
@@ -536,31 +548,29 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
     GDALClose(ds);
     ds = nullptr;
     GDALDataset* src = static_cast<GDALDataset*>(GDALOpen(tmp_tif.c_str(), GA_ReadOnly));
-    if (!src) throw ExportError(png_path + ": GDAL cannot reopen " + tmp_tif);
+    if (!src) throw ExportError(png_path + ": GDAL cannot reopen its GeoTIFF (" + tif->temporaryName() + ")");
     char** copy = CSLSetNameValue(nullptr, "WORLDFILE", "NO");
     GDALDataset* out = png->CreateCopy(tmp_png.c_str(), src, FALSE, copy, nullptr, nullptr);
     CSLDestroy(copy);
     GDALClose(src);
     if (!out) throw ExportError(png_path + ": GDAL cannot write the PNG: " + CPLGetLastErrorMsg());
     GDALClose(out);
-    std::error_code ec;
-    std::filesystem::rename(tmp_png, png_path, ec);
-    if (ec) throw ExportError(png_path + ": cannot rename " + tmp_png + ": " + ec.message());
     // World file: pixel size, rotation terms, then the centre of the upper-left pixel (z-up map frame).
     std::filesystem::path world(png_path);
     world.replace_extension(".pgw");
-    writeFileAtomically(world.string(), [&](std::ostream& f) {
+    writeExportFile(world.string(), survey.modes.file, [&](std::ostream& f) {
       f << std::setprecision(12) << raster.res << "\n0\n0\n"
         << -raster.res << "\n"
         << result.x0 + raster.res / 2.0 << "\n"
         << result.y0 - raster.res / 2.0 << "\n";
     });
-    if (origin) {
-      std::filesystem::rename(tmp_tif, geotiff_path, ec);
-      if (ec) throw ExportError(geotiff_path + ": cannot rename " + tmp_tif + ": " + ec.message());
-    } else {
-      std::filesystem::remove(tmp_tif, ec);
+    try {
+      png_file->commit();
+      if (origin) tif->commit();
+    } catch (const FileWriteError& e) {
+      throw ExportError(e.what());
     }
+    cleanup();  // the GeoTIFF's temporary, when it was only the PNG's source
   } catch (...) {
     if (ds) GDALClose(ds);
     cleanup();

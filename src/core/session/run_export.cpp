@@ -341,6 +341,8 @@ RunExport loadRunExport(const std::string& run_dir, std::vector<std::string> dir
     out.survey.cameras.emplace_back(u.store, datasets[static_cast<std::size_t>(u.session)].camera);
   }
   out.survey.store_path = run_dir;
+  // The exported files take the permissions of the run's own (0600 when it was run on a 0600 store).
+  out.survey.modes = outputModesOf((std::filesystem::path(run_dir) / "trajectory.csv").string());
   out.dataset_dirs = dirs;
   out.notes.push_back(
       "from an offline_slam output folder: no pose covariances (the CSV's covariance columns are nan), no "

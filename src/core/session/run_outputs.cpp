@@ -2,8 +2,10 @@
 
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <iomanip>
+#include <memory>
+
+#include "uw_multislam/core/common/atomic_file.h"
 
 #include "uw_multislam/core/frontend/dataset.h"
 
@@ -11,23 +13,38 @@ namespace uw_multislam {
 namespace core {
 
 void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, const std::map<int, int>& csv_of,
-                     int first_free_label, const StageTimes& times) {
+                     int first_free_label, const StageTimes& times, const OutputModes& modes) {
   namespace fs = std::filesystem;
   auto csv = [&](int id) {
     const auto it = csv_of.find(id);
     return it == csv_of.end() ? id : it->second;
   };
-  std::ofstream odo(fs::path(out_dir) / "odometry.csv"), traj(fs::path(out_dir) / "trajectory.csv");
-  std::ofstream loops(fs::path(out_dir) / "loops.csv"), loop_poses(fs::path(out_dir) / "loop_poses.csv");
-  std::ofstream links(fs::path(out_dir) / "links.csv"), timing(fs::path(out_dir) / "timing.csv");
-  std::ofstream motions(fs::path(out_dir) / "motions.csv");
+  // Each file written atomically (core/common/atomic_file.h), renamed into place once all are
+  // complete: a failure leaves the previous files, or none, never a half-written one.
+  std::map<std::string, std::unique_ptr<AtomicFile>> files;
+  auto file = [&](const char* name) -> std::ostream& {
+    try {
+      auto& f = files[name];
+      f = std::make_unique<AtomicFile>((fs::path(out_dir) / name).string(), modes.file);
+      return f->stream();
+    } catch (const FileWriteError& e) {
+      throw DatasetError(out_dir + ": cannot write the output files: " + e.what());
+    }
+  };
+  std::ostream& odo = file("odometry.csv");
+  std::ostream& traj = file("trajectory.csv");
+  std::ostream& loops = file("loops.csv");
+  std::ostream& loop_poses = file("loop_poses.csv");
+  std::ostream& links = file("links.csv");
+  std::ostream& timing = file("timing.csv");
+  std::ostream& motions = file("motions.csv");
   motions << "session,index,source\n";
   odo << "session,index,x_m,y_m,yaw_rad\n" << std::fixed;
   traj << "session,index,map,x_m,y_m,yaw_rad\n" << std::fixed;
   loops << "session_a,index_a,session_b,index_b,kind,inliers\n";
   // The loops the back-end refused (inconsistent at a join, or gated inside a map): not in
   // loops.csv, whose contract is the accepted loops; the same columns in a file of their own.
-  std::ofstream refused(fs::path(out_dir) / "loops_refused.csv");
+  std::ostream& refused = file("loops_refused.csv");
   refused << "session_a,index_a,session_b,index_b,kind,inliers\n";
   loop_poses << "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw\n"
              << std::fixed << std::setprecision(6);
@@ -45,7 +62,7 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
     previous = id;
   }
   // pieces.csv: which session of the engine (and of the store) each piece of a folder is.
-  std::ofstream pieces(fs::path(out_dir) / "pieces.csv");
+  std::ostream& pieces = file("pieces.csv");
   pieces << "session,piece,store_session,first_index,last_index,keyframes,map\n";
   for (int id : manager.sessionIds()) {
     const std::vector<int>& frames = manager.frames(id);
@@ -91,16 +108,37 @@ void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, 
   timing << "stage,calls,total_ms,mean_ms,max_ms\n" << std::fixed << std::setprecision(3);
   for (const auto& s : times.stats())
     timing << s.stage << "," << s.calls << "," << s.total_ms << "," << s.meanMs() << "," << s.max_ms << "\n";
-  if (!odo || !traj || !loops || !loop_poses || !links || !timing || !pieces || !motions)
-    throw DatasetError(out_dir + ": cannot write the output files");
+  try {
+    for (auto& [name, f] : files) f->commit();
+  } catch (const FileWriteError& e) {
+    throw DatasetError(out_dir + ": cannot write the output files: " + e.what());
+  }
 }
 
 void writeRunInputs(const std::string& out_dir, const std::vector<Dataset>& datasets, int first_number,
-                    const std::string& config_yaml) {
+                    const std::string& config_yaml, const OutputModes& modes) {
   namespace fs = std::filesystem;
-  std::error_code ec;
-  fs::create_directories(out_dir, ec);
-  std::ofstream f(fs::path(out_dir) / "inputs.csv");
+  try {
+    makeDirectories(out_dir, modes.directory);
+  } catch (const FileWriteError& e) {
+    throw DatasetError(std::string(e.what()) + " (cannot write inputs.csv)");
+  }
+  auto atomic = [&](const char* name) {
+    try {
+      return std::make_unique<AtomicFile>((fs::path(out_dir) / name).string(), modes.file);
+    } catch (const FileWriteError& e) {
+      throw DatasetError(out_dir + ": cannot write " + name + ": " + e.what());
+    }
+  };
+  auto commit = [&](AtomicFile* file, const char* name) {
+    try {
+      file->commit();
+    } catch (const FileWriteError& e) {
+      throw DatasetError(out_dir + ": cannot write " + name + ": " + e.what());
+    }
+  };
+  const std::unique_ptr<AtomicFile> inputs = atomic("inputs.csv");
+  std::ostream& f = inputs->stream();
   f << "session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m\n" << std::fixed << std::setprecision(6);
   for (std::size_t ds = 0; ds < datasets.size(); ++ds) {
     const Dataset& d = datasets[ds];
@@ -117,11 +155,12 @@ void writeRunInputs(const std::string& out_dir, const std::vector<Dataset>& data
       << (d.frames.empty() ? 0.0 : d.frames.front().stamp_s) << "," << (d.frames.empty() ? 0.0 : d.frames.back().stamp_s)
       << "," << (finite ? sum / finite : std::nan("")) << "\n";
   }
-  if (!f) throw DatasetError(out_dir + ": cannot write inputs.csv");
+  commit(inputs.get(), "inputs.csv");
   if (config_yaml.empty()) return;
-  std::ofstream c(fs::path(out_dir) / "config.yaml");
-  c << "# The effective configuration of this run (offline_slam --config reads it back).\n" << config_yaml;
-  if (!c) throw DatasetError(out_dir + ": cannot write config.yaml");
+  const std::unique_ptr<AtomicFile> config = atomic("config.yaml");
+  config->stream() << "# The effective configuration of this run (offline_slam --config reads it back).\n"
+                   << config_yaml;
+  commit(config.get(), "config.yaml");
 }
 
 }  // namespace core

@@ -1,6 +1,5 @@
 #include "uw_multislam/core/session/survey_export.h"
 
-#include <unistd.h>
 #include <GeographicLib/LocalCartesian.hpp>
 
 #include <Eigen/LU>
@@ -10,7 +9,6 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <iomanip>
 #include <map>
 #include <sstream>
@@ -63,6 +61,7 @@ SurveyExport loadSurveyExport(const std::string& store_path) {
   if (!restored.notes.empty()) throw ExportError(restored.notes.front() + " (export refused: the store is damaged)");
   SurveyExport out;
   out.store_path = store_path;
+  out.modes = outputModesOf(store_path);
   std::map<std::int64_t, StoredSession> stored_session;
   for (const StoredSession& s : store.sessions()) stored_session[s.id] = s;
   std::map<std::int64_t, int> backend_of;  // store session id -> back-end session id
@@ -212,29 +211,16 @@ Eigen::Vector2d latLon(const GeoOrigin& o, double x, double y) {
   return {lat, lon};
 }
 
-void writeFileAtomically(const std::string& path, const std::function<void(std::ostream&)>& fill) {
-  namespace fs = std::filesystem;
-  const std::string tmp = path + ".tmp" + std::to_string(getpid());
+void writeExportFile(const std::string& path, mode_t mode, const std::function<void(std::ostream&)>& fill) {
   try {
-    {
-      std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
-      if (!f) throw ExportError(path + ": cannot create " + tmp + ": " + std::strerror(errno));
-      fill(f);
-      f.flush();
-      if (!f) throw ExportError(path + ": write failed (disk full?)");
-    }
-    std::error_code ec;
-    fs::rename(tmp, path, ec);
-    if (ec) throw ExportError(path + ": cannot rename " + tmp + ": " + ec.message());
-  } catch (...) {
-    std::error_code ec;
-    fs::remove(tmp, ec);
-    throw;
+    writeFileAtomically(path, fill, mode);
+  } catch (const FileWriteError& e) {
+    throw ExportError(e.what());
   }
 }
 
-void writeTum(const std::string& path, const ExportTrack& track) {
-  writeFileAtomically(path, [&](std::ostream& f) {
+void writeTum(const std::string& path, const ExportTrack& track, mode_t mode) {
+  writeExportFile(path, mode, [&](std::ostream& f) {
     f << std::fixed;
     for (const ExportKeyframe& k : track.keyframes) {
       const Pose2& p = k.pose.mean;
@@ -244,8 +230,8 @@ void writeTum(const std::string& path, const ExportTrack& track) {
   });
 }
 
-void writeKitti(const std::string& path, const ExportTrack& track) {
-  writeFileAtomically(path, [&](std::ostream& f) {
+void writeKitti(const std::string& path, const ExportTrack& track, mode_t mode) {
+  writeExportFile(path, mode, [&](std::ostream& f) {
     f << std::scientific << std::setprecision(9);
     for (const ExportKeyframe& k : track.keyframes) {
       const Pose2& p = k.pose.mean;
@@ -256,8 +242,8 @@ void writeKitti(const std::string& path, const ExportTrack& track) {
   });
 }
 
-void writeTrackCsv(const std::string& path, const ExportTrack& track) {
-  writeFileAtomically(path, [&](std::ostream& f) {
+void writeTrackCsv(const std::string& path, const ExportTrack& track, mode_t mode) {
+  writeExportFile(path, mode, [&](std::ostream& f) {
     f << "stamp_s,session,keyframe,frame_index,x_m,y_m,yaw_rad,altitude_m,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,"
          "cov_yawyaw\n";
     for (const ExportKeyframe& k : track.keyframes) {
@@ -275,8 +261,8 @@ void writeTrackCsv(const std::string& path, const ExportTrack& track) {
   });
 }
 
-void writeG2o(const std::string& path, const ExportTrack& track) {
-  writeFileAtomically(path, [&](std::ostream& f) {
+void writeG2o(const std::string& path, const ExportTrack& track, mode_t mode) {
+  writeExportFile(path, mode, [&](std::ostream& f) {
     f << std::setprecision(12);
     int unknown = 0;
     for (const ExportEdge& e : track.edges) unknown += !e.information_known;
@@ -308,8 +294,9 @@ void writeG2o(const std::string& path, const ExportTrack& track) {
   });
 }
 
-void writeGeoJson(const std::string& path, const std::vector<const ExportTrack*>& sessions, const GeoOrigin& origin) {
-  writeFileAtomically(path, [&](std::ostream& f) {
+void writeGeoJson(const std::string& path, const std::vector<const ExportTrack*>& sessions, const GeoOrigin& origin,
+                  mode_t mode) {
+  writeExportFile(path, mode, [&](std::ostream& f) {
     f << "{\"type\": \"FeatureCollection\", \"features\": [";
     for (std::size_t t = 0; t < sessions.size(); ++t) {
       const ExportTrack& s = *sessions[t];

@@ -11,20 +11,21 @@ TrackFiles writeTrackFiles(const ExportTrack& t, const SurveyExport& survey, con
   TrackFiles out;
   const std::string base = (std::filesystem::path(directory) / t.label).string();
   auto wrote = [&](const std::string& ext) { out.files.push_back(base + ext); };
-  writeTum(base + ".tum", t);
+  const mode_t mode = survey.modes.file;  // the store's permissions (0600 for a 0600 store)
+  writeTum(base + ".tum", t, mode);
   wrote(".tum");
-  writeKitti(base + ".kitti", t);
+  writeKitti(base + ".kitti", t, mode);
   wrote(".kitti");
-  writeTrackCsv(base + ".csv", t);
+  writeTrackCsv(base + ".csv", t, mode);
   wrote(".csv");
-  writeG2o(base + ".g2o", t);
+  writeG2o(base + ".g2o", t, mode);
   wrote(".g2o");
   if (options.origin) {
     std::vector<const ExportTrack*> sessions;  // the track's sessions, one GeoJSON feature each
     for (std::int64_t id : t.sessions)
       for (const ExportTrack& s : survey.sessions)
         if (s.sessions.front() == id) sessions.push_back(&s);
-    writeGeoJson(base + ".geojson", sessions, *options.origin);
+    writeGeoJson(base + ".geojson", sessions, *options.origin, mode);
     wrote(".geojson");
   }
   if (!options.mosaic) return out;

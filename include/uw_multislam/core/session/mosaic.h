@@ -1,4 +1,4 @@
-// Photomosaics of a session or a map (issue 18): every keyframe's image drawn on the seabed plane
+// Photomosaics of a session or a map: every keyframe's image drawn on the seabed plane
 // by its optimised pose and altitude, blended with OpenCV's stitching module, written tile by
 // tile through GDAL (PNG + world file, and a GeoTIFF when the map frame is georeferenced).
 //

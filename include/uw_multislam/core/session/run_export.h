@@ -1,6 +1,5 @@
 // The survey of an offline_slam output folder (doc/run_outputs.md) and its dataset folders, in
-// the form export_survey writes from a store (survey_export.h): export_survey --run (issue 18,
-// item 1).
+// the form export_survey writes from a store (survey_export.h): export_survey --run.
 //
 // What the folder holds and what it does not. trajectory.csv gives the optimised keyframe poses in
 // their map's frame (6 decimals), pieces.csv which session of the engine each piece of a folder

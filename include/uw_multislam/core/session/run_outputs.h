@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "uw_multislam/core/common/atomic_file.h"
 #include "uw_multislam/core/common/stage_timer.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/session/session_manager.h"
@@ -21,16 +22,18 @@ namespace core {
 /// CSV files (sessions not in it keep their id). Maps are labelled by their first session's CSV
 /// number, except when that number is shared by an earlier session (pieces of one folder after a
 /// tracking loss): such maps take numbers after `first_free_label`. Throws DatasetError when a
-/// file cannot be written.
+/// file cannot be written. Each file is written atomically (core/common/atomic_file.h) with
+/// `modes.file` (outputModesOf(the store): a 0600 store gives 0600 files).
 void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, const std::map<int, int>& csv_of,
-                     int first_free_label, const StageTimes& times);
+                     int first_free_label, const StageTimes& times, const OutputModes& modes = OutputModes());
 
 /// Creates `out_dir` and writes inputs.csv (session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m):
 /// one row per dataset folder, numbered from `first_number`, so that evaluate.py can refuse to score
 /// the run against other folders. The altitude mean is over the finite altitudes (nan when none).
-/// With `config_yaml` (slamConfigToYaml of the run's configuration) also config.yaml.
+/// With `config_yaml` (slamConfigToYaml of the run's configuration) also config.yaml. Directories
+/// it creates get `modes.directory`, files `modes.file`.
 void writeRunInputs(const std::string& out_dir, const std::vector<Dataset>& datasets, int first_number,
-                    const std::string& config_yaml = "");
+                    const std::string& config_yaml = "", const OutputModes& modes = OutputModes());
 
 }  // namespace core
 }  // namespace uw_multislam

@@ -1,4 +1,4 @@
-// The survey's products from a session store (issue 18): trajectories (TUM, KITTI, CSV with
+// The survey's products from a session store: trajectories (TUM, KITTI, CSV with
 // covariances), pose graphs (g2o) and GeoJSON tracks, per session and per map. export_survey is
 // the command line around it; mosaic.h draws the photomosaics from the same SurveyExport.
 //
@@ -27,6 +27,7 @@
 #include <string>
 #include <vector>
 
+#include "uw_multislam/core/common/atomic_file.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/geometry/uncertain_pose.h"
 
@@ -77,6 +78,9 @@ struct ExportTrack {
 
 struct SurveyExport {
   std::string store_path;
+  /// The permissions of the files (and directories) exported from it: those of the store (or of
+  /// the run folder's trajectory.csv), so that a 0600 store gives 0600 files (outputModesOf).
+  OutputModes modes;
   std::vector<ExportTrack> sessions;  // store order, sessions without keyframes left out
   std::vector<ExportTrack> maps;
   std::vector<std::pair<std::int64_t, CameraIntrinsics>> cameras;  // per store session
@@ -109,31 +113,35 @@ Eigen::Vector2d eastNorth(const GeoOrigin& origin, double x, double y);
 /// at the origin (exact ellipsoidal maths, no hand-written projection).
 Eigen::Vector2d latLon(const GeoOrigin& origin, double x, double y);
 
-// --- Writers. Each writes its file atomically: a temporary file in the same directory, then
-// rename(), so a reader sees the old file or the whole new one, never half of it; on any error
-// the temporary file is removed and ExportError names the file.
+// --- Writers. Each writes its file atomically (core/common/atomic_file.h): a temporary created
+// exclusively, without following a link, in the same directory, then renamed; a reader sees the
+// old file or the whole new one, never half of it; a link planted at either name never makes a
+// write land elsewhere; on any error the temporary is removed and ExportError names the file.
+// `mode`: the file's permissions (narrowed by the umask), SurveyExport::modes.file for exports.
 
-/// Writes `path` through `fill`; fill's stream errors (and its exceptions) fail the write.
-void writeFileAtomically(const std::string& path, const std::function<void(std::ostream&)>& fill);
+/// Writes `path` (writeFileAtomically) through `fill`; fill's stream errors (and its exceptions)
+/// fail the write; ExportError names the file.
+void writeExportFile(const std::string& path, mode_t mode, const std::function<void(std::ostream&)>& fill);
 
 /// TUM: "stamp x y z qx qy qz qw" per keyframe, z = 0, the quaternion a rotation by yaw about z.
-void writeTum(const std::string& path, const ExportTrack& track);
+void writeTum(const std::string& path, const ExportTrack& track, mode_t mode = 0666);
 /// KITTI: the 3x4 matrix [R | t] per keyframe, row-major on one line, R = Rz(yaw), t = (x, y, 0).
-void writeKitti(const std::string& path, const ExportTrack& track);
+void writeKitti(const std::string& path, const ExportTrack& track, mode_t mode = 0666);
 /// CSV: stamp_s,session,keyframe,frame_index,x_m,y_m,yaw_rad,altitude_m, then the covariance
 /// cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw (as loop_poses.csv names them); "nan" in each
 /// covariance column of a keyframe whose covariance is unknown (covariance_known false).
-void writeTrackCsv(const std::string& path, const ExportTrack& track);
+void writeTrackCsv(const std::string& path, const ExportTrack& track, mode_t mode = 0666);
 /// g2o: "VERTEX_SE2 i x y yaw" per keyframe (i = index in the track), "FIX 0", and
 /// "EDGE_SE2 i j dx dy dyaw I11 I12 I13 I22 I23 I33" per edge, the information matrix being the
 /// inverse of the measurement's covariance (upper triangle). A singular covariance is an
 /// ExportError naming the edge. An edge whose information is unknown (information_known false)
 /// is written as a comment, "# EDGE_SE2 i j dx dy dyaw information unknown", never with invented
 /// numbers; a header comment counts them.
-void writeG2o(const std::string& path, const ExportTrack& track);
+void writeG2o(const std::string& path, const ExportTrack& track, mode_t mode = 0666);
 /// GeoJSON (RFC 7946, WGS84 lon/lat): one LineString feature per session of the tracks, with
 /// properties session, name, map, keyframes, first/last stamp.
-void writeGeoJson(const std::string& path, const std::vector<const ExportTrack*>& sessions, const GeoOrigin& origin);
+void writeGeoJson(const std::string& path, const std::vector<const ExportTrack*>& sessions, const GeoOrigin& origin,
+                  mode_t mode = 0666);
 
 /// The three g2o kinds' names, for logs: "odometry", "link", "loop".
 const char* edgeKindName(ExportEdge::Kind kind);
