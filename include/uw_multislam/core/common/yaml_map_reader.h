@@ -37,6 +37,15 @@ class MapReader {
   void read(const char* key, T* out) {
     used_.insert(key);
     if (!present() || !node_[key]) return;
+    // A quoted scalar ("2", '0.5', "true") is text: yaml-cpp would convert it all the same, so a
+    // number written as a string (a template's placeholder, a value pasted from JSON) would pass
+    // unnoticed where any other text is refused. Its tag is "!" (a plain scalar's is "?").
+    if constexpr (std::is_arithmetic_v<T>) {
+      refuseQuoted(key, node_[key]);
+    } else if constexpr (std::is_same_v<T, std::vector<double>>) {
+      if (node_[key].IsSequence())
+        for (const YAML::Node& item : node_[key]) refuseQuoted(key, item);
+    }
     try {
       *out = node_[key].template as<T>();
     } catch (const YAML::Exception&) {
@@ -70,6 +79,11 @@ class MapReader {
     if (!present() || !node_[key]) return;
     if (static_cast<int>(v.size()) != N) fail(std::string("'") + key + "' needs " + std::to_string(N) + " numbers");
     for (int i = 0; i < N; ++i) (*out)[i] = v[i];
+  }
+  void refuseQuoted(const char* key, const YAML::Node& value) const {
+    if (value.IsScalar() && value.Tag() == "!")
+      fail(std::string("bad value for '") + key + "': \"" + value.Scalar() +
+           "\" is quoted text, not a number (write it without quotes)");
   }
   const YAML::Node node_;
   std::string where_;
