@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""The fault matrix (issue 21, 6): runs each fault against the offline runner (offline_slam --db) or
+"""The fault matrix: runs each fault against the offline runner (offline_slam --db) or
 the live nodelets (slam.launch on a ROS master of its own) and prints one markdown table row per
 case, `| case | expected | observed | verdict |` (held / FAILED), then `N of M held`.
 
@@ -230,6 +230,126 @@ def case_two_writers(m, off):
         m.done(d)
 
 
+def csv_rows(path):
+    with open(path) as f:
+        return max(0, len([line for line in f.read().splitlines() if line]) - 1)
+
+
+def case_hard_link_writer(m, off):
+    case = "a second offline_slam --db writer through a hard link to the held store"
+    expected = ("the second refused at once in one line naming the holder (in use by pid); nothing created beside the "
+                "link; the first exits 0; integrity ok; every keyframe of the first run stored")
+    d = m.tempdir(case)
+    first = log = None
+    try:
+        store = os.path.join(d, "c3.db")
+        hard = os.path.join(d, "c3hard.db")
+        log = open(os.path.join(d, "first.log"), "w")
+        out1 = os.path.join(d, "o1")
+        first = off.start(["--session", off.folder("a"), "--session", off.folder("b"), "--out", out1, "--db", store], log)
+        wait_for(lambda: (keyframe_count(store) or 0) >= 1 or first.poll() is not None, 60, 0.02)
+        still_running = first.poll() is None
+        os.link(store, hard)
+        r = off.run(["--session", off.folder("b"), "--out", os.path.join(d, "o2"), "--db", hard, "--again"])
+        first_running_after = first.poll() is None
+        beside = sorted(f for f in os.listdir(d) if f.startswith("c3hard.db") and f != "c3hard.db")
+        status = first.wait(timeout=180)
+        ok = integrity(store)
+        stored = keyframe_count(store)
+        ran = csv_rows(os.path.join(out1, "trajectory.csv")) if status == 0 else None
+        lines = reason(r.stderr)
+        held = (still_running and first_running_after and r.returncode != 0 and len(lines) == 1
+                and "in use by pid %d " % first.pid in lines[0] and hard in lines[0] and not beside and status == 0
+                and ok == "ok" and ran is not None and stored == ran)
+        observed = ("second: status %d, %s (first still running: %s); beside the link: %s; first: status %d; integrity "
+                    "%s; keyframes stored %s of the run's %s") % (
+            r.returncode, " / ".join(lines) or "(no message)", first_running_after, beside or "nothing", status, ok,
+            stored, ran)
+        m.row(case, expected, observed, held)
+    finally:
+        stop(first)
+        if log is not None:
+            log.close()
+        m.done(d)
+
+
+def tool(off, name):
+    return os.path.join(off.bin, name)
+
+
+def case_export_planted_links(m, off):
+    case = "export_survey over links planted at the temporary and the final names"
+    expected = ("status 0; the files outside the export directory byte-identical; every export file a regular file "
+                "with the bytes of a clean export; the planted temporary links left as they were")
+    d = m.tempdir("export_links")
+    try:
+        outside = os.path.join(d, "outside")
+        os.mkdir(outside)
+        ref, out = os.path.join(d, "ref"), os.path.join(d, "out")
+        r = subprocess.run([tool(off, "export_survey"), "--db", off.valid_store, "--out", ref, "--quiet"],
+                           capture_output=True, text=True, timeout=180)
+        if r.returncode != 0:
+            return m.row(case, expected, "the clean export failed (status %d): %s" % (r.returncode, short(r.stderr)),
+                         False)
+        names = sorted(os.listdir(ref))
+        os.mkdir(out)
+        victims = {}
+        for i, name in enumerate(names):
+            # The writer's first temporary name, and for one file in two the final name too.
+            victim = os.path.join(outside, "tmp_%d" % i)
+            with open(victim, "w") as f:
+                f.write("precious %d\n" % i)
+            victims[victim] = md5(victim)
+            os.symlink(victim, os.path.join(out, name + ".tmp"))
+            if i % 2 == 0:
+                final = os.path.join(outside, "final_%d" % i)
+                with open(final, "w") as f:
+                    f.write("precious final %d\n" % i)
+                victims[final] = md5(final)
+                os.symlink(final, os.path.join(out, name))
+        r = subprocess.run([tool(off, "export_survey"), "--db", off.valid_store, "--out", out, "--quiet"],
+                           capture_output=True, text=True, timeout=180)
+        untouched = all(md5(v) == h for v, h in victims.items()) and sorted(os.listdir(outside)) == sorted(
+            os.path.basename(v) for v in victims)
+        regular = [n for n in names if os.path.isfile(os.path.join(out, n)) and not os.path.islink(os.path.join(out, n))]
+        # The mosaic's PNG is GDAL's: compared as a regular file only; the text files byte for byte.
+        same = [n for n in regular if n.endswith(".png") or md5(os.path.join(out, n)) == md5(os.path.join(ref, n))]
+        links_left = [n for n in names if os.path.islink(os.path.join(out, n + ".tmp"))]
+        held = (r.returncode == 0 and untouched and len(regular) == len(names) and len(same) == len(names)
+                and len(links_left) == len(names))
+        observed = ("status %d%s; %d files: %d regular, %d equal to the clean export; outside files %s; planted "
+                    "temporary links left: %d of %d") % (
+            r.returncode, (": " + " / ".join(reason(r.stderr))) if r.returncode else "", len(names), len(regular),
+            len(same), "byte-identical" if untouched else "CHANGED", len(links_left), len(names))
+        m.row(case, expected, observed, held)
+    finally:
+        m.done(d)
+
+
+def case_self_merge_hard_link(m, off):
+    case = "merge_stores of a store and its hard link"
+    expected = "refused (status 1) in one line naming both inputs (given twice); no OUT, no temporary; the input unchanged"
+    d = m.tempdir("self_merge")
+    try:
+        a = os.path.join(d, "a.db")
+        shutil.copyfile(off.valid_store, a)
+        hard = os.path.join(d, "ahard.db")
+        os.link(a, hard)
+        before = md5(a)
+        out = os.path.join(d, "o.db")
+        r = subprocess.run([tool(off, "merge_stores"), out, a, hard], capture_output=True, text=True, timeout=180)
+        lines = reason(r.stderr)
+        left = sorted(f for f in os.listdir(d) if f not in ("a.db", "ahard.db"))
+        held = (r.returncode == 1 and len(lines) == 1 and "given twice" in lines[0] and a in lines[0] and hard in lines[0]
+                and not left and md5(a) == before)
+        observed = "status %d: %s; left beside the inputs: %s; input %s" % (
+            r.returncode, " / ".join(lines) or "(no message)", left or "nothing", "unchanged" if md5(a) == before
+            else "CHANGED")
+        m.row(case, expected, observed, held)
+    finally:
+        m.done(d)
+
+
 def bad_store_case(m, off, label, make, expect_refusal=True, expected=None):
     case = "store: " + label
     expected = expected or "refused: one line naming the file; the file byte-identical"
@@ -410,13 +530,14 @@ def offline_dataset_cases(m, off):
                  "README Bad input: a new session (2 pieces); or a one-line refusal; no crash", counted("2 pieces"))
 
 
-OFFLINE_CASES = [case_kill_offline, case_two_writers, offline_store_cases, offline_dataset_cases]
+OFFLINE_CASES = [case_kill_offline, case_two_writers, case_hard_link_writer, case_export_planted_links,
+                 case_self_merge_hard_link, offline_store_cases, offline_dataset_cases]
 
 
 # Each in a process of its own (rospy talks to one master per process): fault_matrix_live.py.
 LIVE_CASES = [("service_misuse", 240), ("concurrent", 240), ("kill_manager", 240), ("bad_images", 240),
               ("kill_manager_moments", 240), ("replay_rates", 240), ("silent_altitude", 240), ("burst", 240),
-              ("store_cap", 240)]
+              ("store_cap", 240), ("export_links", 240)]
 
 
 def live_case(name, timeout):

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The fault matrix (issue 21, 6): each fault against offline_slam --db or the live nodelets, one
+# The fault matrix: each fault against offline_slam --db or the live nodelets, one
 # markdown table row per case (case, expected, observed, verdict) and "N of M held" at the end.
 # Exit status 0 only when every case held. Options are fault_matrix.py's:
 #

@@ -95,7 +95,7 @@ class Stack:
         import rospy
         from uw_multislam import srv
         kinds = {"list_sessions": srv.ListSessions, "join_sessions": srv.JoinSessions, "split_session": srv.SplitSession,
-                 "start_session": srv.StartSession, "reload_session": srv.ReloadSession}
+                 "start_session": srv.StartSession, "reload_session": srv.ReloadSession, "export": srv.ExportSurvey}
         rospy.wait_for_service(NS + "/" + name, timeout=timeout)
         return rospy.ServiceProxy(NS + "/" + name, kinds[name])(*request)
 
@@ -700,14 +700,14 @@ def config_with(st, name, overrides):
 
 
 def case_store_cap(st, survey, room_kb=64):
-    """A full disk through ROS (issue 21, 4). A first run (its own store) measures the file after bag
+    """A full disk through ROS. A first run (its own store) measures the file after bag
     a; the second, on a new store, is launched with store_max_mb that size plus 64 kB (room for small
     writes, not for bag b's keyframes), plays bags a and b, then split_session 1 and join_sessions 0 1.
     The back-end must count the failed writes on /diagnostics (store_failures), go on in memory
     (keyframes listed, split and join answered OK), and leave a store that passes integrity_check and
     restores each session as a prefix of what was listed, bag b's session short of it.
     (A relaunch on a stored session would not do: the live loop detectors do not search the stored
-    sessions yet, issue 16, so bag b could not be joined.)"""
+    sessions, so bag b could not be joined.)"""
     final_store = st.store
     st.store = os.path.join(st.work, "probe", "s.db")
     st.start_slam("standalone:=false")
@@ -756,10 +756,57 @@ def case_store_cap(st, survey, room_kb=64):
         "store_failures > 0 on /diagnostics; keyframes, split and join go on in memory (OK); nodes alive; integrity "
         "ok; the file within the cap; restored: each session a prefix of the listed one, bag b's short", observed, held)
 
+def case_export_links(st, survey):
+    """The back-end's export service over links planted in its folder: at the writer's first
+    temporary name of every file (<file>.tmp) and at the final name of one, each pointing at a file
+    outside the export root. The export must answer OK, leave the files outside byte-identical,
+    replace the final-name link by the file and never touch the planted temporaries."""
+    root = os.path.join(st.work, "exports")
+    folder = os.path.join(root, "ok3")
+    outside = os.path.join(st.work, "outside")
+    os.makedirs(folder)
+    os.makedirs(outside)
+    names = ["session_0." + ext for ext in ("tum", "kitti", "csv", "g2o")]
+    victims = {}
+    for i, name in enumerate(names):
+        victim = os.path.join(outside, "tmp_%d" % i)
+        with open(victim, "w") as f:
+            f.write("precious %d\n" % i)
+        victims[victim] = open(victim).read()
+        os.symlink(victim, os.path.join(folder, name + ".tmp"))
+    final = os.path.join(outside, "final")
+    with open(final, "w") as f:
+        f.write("precious final\n")
+    victims[final] = open(final).read()
+    os.symlink(final, os.path.join(folder, "session_0.csv"))
+    st.start_slam("config:=" + config_with(st, "exports.yaml", {"backend_node": {"export_root": root}}))
+    st.play(os.path.join(survey, "a.bag"))
+    wait_for(lambda: len(st.sessions()) >= 1 and st.sessions()[0][4] > 2, 30, 0.5)
+    res = st.call("export", "0", False, "ok3", "", 0.0, True, timeout=30)
+    code, msg = status_code(res)
+    nodes, dead = st.alive()
+    st.stop_group(st.launch)
+    untouched = all(open(v).read() == text for v, text in victims.items())
+    regular = [n for n in names if os.path.isfile(os.path.join(folder, n)) and not os.path.islink(os.path.join(folder, n))]
+    links_left = [n for n in names if os.path.islink(os.path.join(folder, n + ".tmp"))]
+    with open(os.path.join(folder, "session_0.csv")) as f:
+        csv_ok = f.readline().startswith("stamp_s,session,keyframe")
+    held = code == 0 and untouched and len(regular) == len(names) and csv_ok and len(links_left) == len(names) and \
+        nodes and not dead
+    observed = ("export: code %d%s; files outside %s; %d of %d written as regular files (session_0.csv %s); planted "
+                "temporary links left: %d; %d nodes alive%s") % (
+        code, (" '%s'" % msg[:80]) if code else "", "byte-identical" if untouched else "CHANGED", len(regular),
+        len(names), "a track" if csv_ok else "NOT a track", len(links_left), len(nodes),
+        "" if not dead else ", DEAD: %s" % dead)
+    row("live: export service over links planted at the temporary and the final names",
+        "OK; the files outside the export root byte-identical; the final-name link replaced by the file; the planted "
+        "temporaries left as they were; nodes alive", observed, held)
+
+
 CASES = {"service_misuse": case_service_misuse, "concurrent": case_concurrent, "kill_manager": case_kill_manager,
          "bad_images": case_bad_images, "kill_manager_moments": case_kill_manager_moments,
          "replay_rates": case_replay_rates, "silent_altitude": case_silent_altitude, "burst": case_burst,
-         "store_cap": case_store_cap}
+         "store_cap": case_store_cap, "export_links": case_export_links}
 
 
 def main():
