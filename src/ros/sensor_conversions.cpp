@@ -13,6 +13,8 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <cstdio>
+#include <limits>
 #include <sstream>
 
 #include "uw_multislam/ros/conversions.h"
@@ -29,13 +31,22 @@ bool fail(std::string* why, const std::string& reason) {
 
 std::string imageRefusalName(ImageRefusal r) {
   switch (r) {
-    case ImageRefusal::kNone: return "none";
-    case ImageRefusal::kEmpty: return "empty";
-    case ImageRefusal::kEncoding: return "encoding";
-    case ImageRefusal::kLayout: return "layout";
-    case ImageRefusal::kTooSmall: return "too_small";
-    case ImageRefusal::kCorrupt: return "corrupt";
-    case ImageRefusal::kTooLarge: return "too_large";
+    case ImageRefusal::kNone:
+      return "none";
+    case ImageRefusal::kEmpty:
+      return "empty";
+    case ImageRefusal::kEncoding:
+      return "encoding";
+    case ImageRefusal::kLayout:
+      return "layout";
+    case ImageRefusal::kTooSmall:
+      return "too_small";
+    case ImageRefusal::kCorrupt:
+      return "corrupt";
+    case ImageRefusal::kTooLarge:
+      return "too_large";
+    case ImageRefusal::kSizeMismatch:
+      return "size_mismatch";
   }
   return "?";
 }
@@ -242,8 +253,8 @@ bool imageFromCompressedMsg(const sensor_msgs::CompressedImage& msg, sensor_msgs
     return refuseTooLarge(why, refusal, width, height, max_pixels, std::string("compressed ") + name + " image ");
   if (msg.data.size() / 8 > max_pixels) {
     std::ostringstream big;
-    big << "compressed image of " << msg.data.size() << " bytes: more than an image of ~max_image_pixels "
-        << max_pixels << " takes";
+    big << "compressed image of " << msg.data.size() << " bytes: more than an image of ~max_image_pixels " << max_pixels
+        << " takes";
     return refuse(why, refusal, ImageRefusal::kTooLarge, big.str());
   }
   cv::Mat image;
@@ -275,8 +286,7 @@ bool imageFromCompressedMsg(const sensor_msgs::CompressedImage& msg, sensor_msgs
   return true;
 }
 
-bool cameraFromMsg(const sensor_msgs::CameraInfo& msg, bool rectified, core::CameraIntrinsics* out,
-                   std::string* why) {
+bool cameraFromMsg(const sensor_msgs::CameraInfo& msg, bool rectified, core::CameraIntrinsics* out, std::string* why) {
   image_geometry::PinholeCameraModel model;
   try {
     model.fromCameraInfo(msg);
@@ -369,14 +379,32 @@ bool altitudeFromMsg(const sensor_msgs::Range& msg, double max_altitude_m, doubl
   return true;
 }
 
-bool navFromMsg(const nav_msgs::Odometry& msg, const core::CameraMount& mount, core::NavRecord* nav,
-                std::string* why) {
+std::string describeCamera(const core::CameraIntrinsics& c) {
+  char head[160];
+  std::snprintf(head, sizeof(head), "%dx%d fx %.1f fy %.1f cx %.1f cy %.1f, distortion %s", c.width, c.height, c.fx,
+                c.fy, c.cx, c.cy, core::distortionModelName(c.distortion_model).c_str());
+  std::ostringstream d;
+  d << head;
+  for (double k : c.distortion) d << " " << k;
+  return d.str();
+}
+
+double altitudeReading(const sensor_msgs::Range& msg, double max_altitude_m, bool* above_max, std::string* why) {
+  double altitude = std::numeric_limits<double>::quiet_NaN();
+  *above_max = false;
+  if (altitudeFromMsg(msg, max_altitude_m, &altitude, why)) return altitude;
+  *above_max = std::isfinite(msg.range) && msg.range > max_altitude_m;
+  return std::numeric_limits<double>::quiet_NaN();
+}
+
+bool navFromMsg(const nav_msgs::Odometry& msg, const core::CameraMount& mount, core::NavRecord* nav, std::string* why) {
   auto refuse = [why](const std::string& w) {
     if (why) *why = w;
     return false;
   };
   core::UncertainPose2 vehicle;
-  if (!fromMsg(msg.pose, &vehicle)) return refuse("nav odometry: the pose or its covariance is not usable (not finite, a negative variance)");
+  if (!fromMsg(msg.pose, &vehicle))
+    return refuse("nav odometry: the pose or its covariance is not usable (not finite, a negative variance)");
   if (msg.header.stamp.isZero()) return refuse("nav odometry: zero stamp");
   const Eigen::Matrix3d& c = vehicle.covariance;
   if (!(c(0, 0) >= 0) || !(c(1, 1) >= 0) || !(c(2, 2) >= 0))

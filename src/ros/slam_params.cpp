@@ -4,6 +4,7 @@
 #include <ros/names.h>
 #include <ros/param.h>
 
+#include <cstdio>
 #include <cstdlib>
 
 #include <yaml-cpp/yaml.h>
@@ -166,6 +167,34 @@ LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh
   o.diagnostic_period_s = param(
       pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
   return o;
+}
+
+core::SlamConfig loopDetectorConfig(const ros::NodeHandle& nh, const LoopDetectorNodeletOptions& o) {
+  core::SlamConfig config = slamConfigFromParams(nh);
+  const std::string bad = config.validate();
+  if (!bad.empty()) throw std::invalid_argument(nh.resolveName("slam") + ": " + bad);
+  config.loops.local.enabled = config.loops.local.enabled && o.mode != "global";
+  config.loops.global.enabled = config.loops.global.enabled && o.mode != "local";
+  return config;
+}
+
+std::string describe(const LoopDetectorNodeletOptions& o, const core::SlamConfig& config) {
+  const core::LoopOptions& l = config.loops;
+  char line[1024];
+  std::snprintf(
+      line, sizeof(line),
+      "mode %s (local %s: radius %.2f m up to %.2f m, %d candidates, %d inliers; global %s: hash %s, best_k %d, %d "
+      "inliers, seed %llu), queue_size %d (oldest dropped when full), max_keyframe_gap %d, hashes %s, stored "
+      "keyframes %s",
+      o.mode.c_str(), l.local.enabled ? "on" : "off", l.local.radius_m, l.local.max_radius_m, l.local.max_candidates,
+      l.local.min_inliers, l.global.enabled ? "on" : "off", core::hashModeName(l.global.hash_mode).c_str(),
+      l.global.best_k, l.global.min_inliers, static_cast<unsigned long long>(l.global.projection_seed), o.queue_size,
+      o.max_keyframe_gap, o.publishHashes() ? "published" : "not published",
+      l.page_stored ? ("paged (features from the back-end's store through a " + std::to_string(l.feature_cache_mb) +
+                       " MiB cache)")
+                          .c_str()
+                    : "kept in RAM with their features");
+  return line;
 }
 
 std::string formerPrivateNamespace(const std::string& private_ns) {

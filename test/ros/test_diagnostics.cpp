@@ -3,7 +3,17 @@
 
 #include <diagnostic_msgs/DiagnosticStatus.h>
 
+#include <fstream>
+#include <map>
+#include <regex>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
 #include "uw_multislam/ros/diagnostics.h"
+#include "uw_multislam/ros/loop_detector_counters.h"
+#include "uw_multislam/ros/odometry_counters.h"
 
 namespace uw_multislam {
 namespace {
@@ -68,6 +78,81 @@ TEST(Diagnostics, ACounterAlreadyNonZeroAtTheFirstReportWarns) {
 TEST(Diagnostics, CountersLine) {
   EXPECT_EQ(ros_diagnostics::countersLine("counters so far:", {{"frames", 12}, {"rate_hz", 2.5}, {"drops", 0, true}}),
             "counters so far: frames 12 rate_hz 2.500 drops 0");
+}
+
+// A counter table: each field under its key, in order, with its flag; a key twice is refused.
+struct Sample {
+  long frames = 0, drops = 0;
+  double ms = 0.0;
+};
+
+TEST(CounterTable, GivesEachFieldUnderItsKeyInOrder) {
+  const rd::CounterTable<Sample> table = {{"frames", &Sample::frames, "frames seen"},
+                                          {"drops", &Sample::drops, "frames dropped", true},
+                                          {"ms", &Sample::ms, "time, ms"}};
+  Sample s;
+  s.frames = 7, s.drops = 2, s.ms = 1.5;
+  const std::vector<rd::Counter> c = table.counters(s);
+  ASSERT_EQ(c.size(), 3u);
+  EXPECT_EQ(c[0].key, "frames");
+  EXPECT_EQ(c[0].value, 7.0);
+  EXPECT_FALSE(c[0].warn_on_growth);
+  EXPECT_EQ(c[1].key, "drops");
+  EXPECT_EQ(c[1].value, 2.0);
+  EXPECT_TRUE(c[1].warn_on_growth);
+  EXPECT_EQ(c[2].value, 1.5);
+  EXPECT_EQ(table.specs()[1].help, "frames dropped");
+  EXPECT_EQ(rd::countersLine("counters at shutdown:", c), "counters at shutdown: frames 7 drops 2 ms 1.500");
+  EXPECT_THROW((rd::CounterTable<Sample>{{"frames", &Sample::frames, "a"}, {"frames", &Sample::drops, "b"}}),
+               std::logic_error);
+  EXPECT_THROW((rd::CounterTable<Sample>{{"frames", &Sample::frames, ""}}), std::logic_error);
+}
+
+// doc/diagnostics.md against the counter tables: one markdown table per nodelet section
+// ("## odometry"), rows "| `key` | meaning | WARN |".
+struct DocRow {
+  std::string help;
+  bool warn = false;
+};
+
+std::map<std::string, DocRow> documented(const std::string& section) {
+  std::ifstream in(std::string(UWMS_SOURCE_DIR) + "/doc/diagnostics.md");
+  if (!in) throw std::runtime_error("doc/diagnostics.md not found under " UWMS_SOURCE_DIR);
+  std::map<std::string, DocRow> rows;
+  const std::regex row(R"(^\| `([a-zA-Z0-9_]+)` \| (.*) \| (WARN)? *\|$)");
+  std::string line;
+  bool inside = false;
+  while (std::getline(in, line)) {
+    if (line.rfind("## ", 0) == 0) inside = line == "## " + section;
+    std::smatch m;
+    if (!inside || !std::regex_match(line, m, row)) continue;
+    EXPECT_TRUE(rows.emplace(m[1], DocRow{m[2], m[3].matched}).second) << section << ": " << m[1] << " twice";
+  }
+  return rows;
+}
+
+void expectDocumented(const std::string& section, const std::vector<rd::CounterSpec>& specs) {
+  std::map<std::string, DocRow> doc = documented(section);
+  EXPECT_FALSE(doc.empty()) << "no table in section " << section;
+  for (const rd::CounterSpec& s : specs) {
+    const auto found = doc.find(s.key);
+    if (found == doc.end()) {
+      ADD_FAILURE() << section << ": key " << s.key << " is not documented in doc/diagnostics.md";
+      continue;
+    }
+    EXPECT_EQ(found->second.help, s.help) << section << ": " << s.key;
+    EXPECT_EQ(found->second.warn, s.warn_on_growth) << section << ": " << s.key << " WARN flag";
+    doc.erase(found);
+  }
+  for (const auto& extra : doc) ADD_FAILURE() << section << ": " << extra.first << " is documented but not a counter";
+}
+
+TEST(DiagnosticsDoc, TheOdometrysCountersAreDocumentedAsTheCodeDeclaresThem) {
+  expectDocumented("odometry", rd::odometryCounterTable().specs());
+}
+
+TEST(DiagnosticsDoc, TheLoopDetectorsCountersAreDocumentedAsTheCodeDeclaresThem) {
+  expectDocumented("loop_detector", rd::loopDetectorCounterTable().specs());
 }
 
 }  // namespace

@@ -97,7 +97,8 @@ TEST(BoundedWorkQueue, TheDropHandlerHandsTheDroppedItemToItsSuccessor) {
   EXPECT_EQ(f.stamp, 5.0);
   EXPECT_TRUE(f.dropped_before.empty());
   // Capacity 1: the successor is the item just pushed.
-  BoundedWorkQueue<Frame> one(1, [](Frame& dropped, Frame& successor) { successor.dropped_before.push_back(dropped.stamp); });
+  BoundedWorkQueue<Frame> one(
+      1, [](Frame& dropped, Frame& successor) { successor.dropped_before.push_back(dropped.stamp); });
   one.push(Frame{7.0, {}});
   one.push(Frame{8.0, {}});
   ASSERT_TRUE(one.pop(&f));
@@ -127,7 +128,7 @@ TEST(BoundedWorkQueue, PriorityItemsComeFirstAndAreNeverDropped) {
   q.push(1);
   q.push(2);
   for (int i = 100; i < 110; ++i) q.pushPriority(i);  // beyond the capacity: none dropped
-  q.push(3);                                         // drops 1 (the oldest bounded item)
+  q.push(3);                                          // drops 1 (the oldest bounded item)
   EXPECT_EQ(q.dropped(), 1);
   EXPECT_EQ(q.size(), 12u);
   int v = 0;
@@ -198,6 +199,52 @@ TEST(BoundedWorkQueue, ConcurrentProducersLoseOnlyWhatIsCountedAsDropped) {
   EXPECT_EQ(received.load() + q.dropped(), kProducers * kEach);
   EXPECT_EQ(sum.load(), received.load());
   EXPECT_EQ(q.size(), 0u);
+}
+
+// The worker's loop with preparation ahead: every item processed once, in order; only items
+// already waiting are prepared ahead, so the first of a burst is processed without waiting.
+TEST(DrainWithPrepareAhead, ProcessesEveryItemInOrderAndPreparesOnlyWaitingOnes) {
+  for (int threads : {0, 1, 2}) {
+    BoundedWorkQueue<int> q(100);
+    for (int i = 0; i < 40; ++i) q.push(i);
+    q.close();
+    std::vector<int> order;
+    int prepared = 0;
+    drainWithPrepareAhead<int, int>(
+        q, threads, [](const int& item) { return item * 10; },
+        [&](int& item, int* p) {
+          order.push_back(item);
+          if (p) {
+            EXPECT_EQ(*p, item * 10) << "its own preparation";
+            ++prepared;
+          }
+        });
+    ASSERT_EQ(order.size(), 40u) << threads << " threads";
+    for (int i = 0; i < 40; ++i) EXPECT_EQ(order[static_cast<std::size_t>(i)], i);
+    // The first item is taken with nothing in preparation: processed as it is; then the window
+    // (threads items) is refilled from the waiting ones before each, so all but the first are prepared.
+    EXPECT_EQ(prepared, threads == 0 ? 0 : 39) << threads << " threads";
+  }
+}
+
+TEST(DrainWithPrepareAhead, AnItemArrivingAloneIsNotHeldForPreparation) {
+  BoundedWorkQueue<int> q(10);
+  std::promise<void> first_processed;
+  std::atomic<int> with_preparation{0};
+  std::thread worker([&] {
+    drainWithPrepareAhead<int, int>(
+        q, 2, [](const int& item) { return item; },
+        [&](int& item, int* p) {
+          if (p) ++with_preparation;
+          if (item == 0) first_processed.set_value();
+        });
+  });
+  ASSERT_TRUE(awaitWaiting(q, 1));
+  q.push(0);  // alone: processed at once, without a preparation thread
+  ASSERT_EQ(first_processed.get_future().wait_for(kDeadline), std::future_status::ready);
+  q.close();
+  worker.join();
+  EXPECT_EQ(with_preparation.load(), 0);
 }
 
 }  // namespace

@@ -11,8 +11,8 @@
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/Range.h>
 
-#include <opencv2/core.hpp>
 #include <cstdint>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
 
@@ -24,8 +24,9 @@ namespace uw_multislam {
 namespace ros_conversions {
 
 /// Why imageFromMsg refused an image (the odometry nodelet counts each kind separately).
-enum class ImageRefusal { kNone, kEmpty, kEncoding, kLayout, kTooSmall, kCorrupt, kTooLarge };
-/// "none", "empty", "encoding", "layout", "too_small", "corrupt", "too_large".
+/// kSizeMismatch: another size than the camera's (ros/image_input.h imageFromInput).
+enum class ImageRefusal { kNone, kEmpty, kEncoding, kLayout, kTooSmall, kCorrupt, kTooLarge, kSizeMismatch };
+/// "none", "empty", "encoding", "layout", "too_small", "corrupt", "too_large", "size_mismatch".
 std::string imageRefusalName(ImageRefusal r);
 
 /// Images narrower or lower than this are refused (kTooSmall): SIFT finds nothing useful in
@@ -35,7 +36,7 @@ constexpr unsigned kMinImageSide = 32;
 /// The default largest image (pixels, width x height) the odometry takes: 25 Mpx, more than a
 /// survey camera gives (4096 x 4096 is 16.8 Mpx, 6000 x 4000 is 24 Mpx). A larger image is
 /// refused (kTooLarge) from its header, before anything is converted, decoded or allocated: a
-/// 10000 x 10000 image used to take 14 s and 5 GB (issue 21, 6). The odometry's
+/// 10000 x 10000 image used to take 14 s and 5 GB. The odometry's
 /// ~max_image_pixels sets it.
 constexpr std::uint64_t kDefaultMaxImagePixels = 25000000;
 
@@ -93,6 +94,9 @@ using core::isTruncatedJpeg;
 bool cameraFromMsg(const sensor_msgs::CameraInfo& msg, bool rectified, core::CameraIntrinsics* out,
                    std::string* why = nullptr);
 
+/// "WxH fx F fy F cx C cy C, distortion MODEL k1 k2 ..." for the log.
+std::string describeCamera(const core::CameraIntrinsics& camera);
+
 /// A calibration file (camera_calibration_parsers: YAML or INI) named by a camera_info_url
 /// (file:///abs/path, package://pkg/path or a plain absolute path), for bags without camera_info.
 bool cameraInfoFromUrl(const std::string& url, sensor_msgs::CameraInfo* out, std::string* why = nullptr);
@@ -103,6 +107,11 @@ bool cameraInfoFromUrl(const std::string& url, sensor_msgs::CameraInfo* out, std
 /// altimeter's "no bottom" value whatever range the message claims.
 bool altitudeFromMsg(const sensor_msgs::Range& msg, double max_altitude_m, double* altitude_m,
                      std::string* why = nullptr);
+
+/// The reading as core::AltitudeBuffer keeps it: altitudeFromMsg's altitude, or NaN for a refused
+/// reading (kept as an invalid one: images at its stamp get no altitude), `why` saying why and
+/// `above_max` whether it was refused for being above max_altitude_m.
+double altitudeReading(const sensor_msgs::Range& msg, double max_altitude_m, bool* above_max, std::string* why);
 
 /// The vehicle's dead reckoning (nav_msgs/Odometry: base_link in its odom frame, z-up, REP-105)
 /// as a nav row of the core (the camera's pose in the core's image axes, core::cameraFromVehicle

@@ -54,7 +54,7 @@ struct BackendNodeletOptions {
   /// The `export` service writes below this folder (created at start-up; "" = no exports);
   /// default $ROS_HOME/uw_multislam/exports.
   std::string export_root;
-  /// Hash exchange between vehicles (issue 20, item 5): ~fleet/vehicle names this vehicle (""
+  /// Hash exchange between vehicles: ~fleet/vehicle names this vehicle (""
   /// = off); ~fleet/peers maps each other vehicle's name to its keyframe_features service (how
   /// this back-end asks for a candidate's features).
   std::string fleet_vehicle;
@@ -86,6 +86,13 @@ struct LoopDetectorNodeletOptions {
 /// Reads and validates the loop-detector nodelet's parameters (std::invalid_argument naming the key);
 /// warns about an old config file's block (warnAboutFormerPrivateNamespace).
 LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh);
+
+/// The SLAM configuration at `nh`/slam, validated, with the loop kinds ~mode leaves out switched off
+/// (loops.local/global.enabled still apply on top of the mode). std::invalid_argument naming the key.
+core::SlamConfig loopDetectorConfig(const ros::NodeHandle& nh, const LoopDetectorNodeletOptions& o);
+
+/// The loop detector's start-up line: its effective options.
+std::string describe(const LoopDetectorNodeletOptions& o, const core::SlamConfig& config);
 
 /// The private namespace a node had before the nodes were named after their executables
 /// (launch/slam.launch): `private_ns` with its last name odometry_node, loop_detector_node,

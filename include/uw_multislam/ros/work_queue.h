@@ -5,9 +5,9 @@
 // Drop policy: push() on a full queue drops the OLDEST item and counts it (live, the newest
 // data matters most). An optional drop handler sees each dropped item together with its
 // successor (the item that now heads the queue), to hand on what must survive the drop (the
-// odometry hands on the dropped frame's stamp, so its own drops never look like a time gap). pushPriority() is for the few items that must never be lost (e.g. a
-// reload of stored keyframes): they are served before the bounded ones, are never dropped and
-// do not count against the capacity.
+// odometry hands on the dropped frame's stamp, so its own drops never look like a time gap). pushPriority() is for the
+// few items that must never be lost (e.g. a reload of stored keyframes): they are served before the bounded ones, are
+// never dropped and do not count against the capacity.
 //
 // Shutdown: close() wakes every pop(); pop() then still returns what is queued, in order (a clean
 // shutdown processes it: nothing queued is lost), and false once the queue is empty. Items pushed
@@ -21,6 +21,8 @@
 #include <mutex>
 #include <stdexcept>
 #include <utility>
+
+#include "uw_multislam/core/common/ordered_prefetch.h"
 
 namespace uw_multislam {
 namespace ros_work {
@@ -152,6 +154,34 @@ class BoundedWorkQueue {
   long popped_ = 0;         // guarded by mutex_
   int waiting_ = 0;         // guarded by mutex_
 };
+
+/// The worker's loop: takes the items of `queue` until it is closed and drained, and calls
+/// process(item, prepared) for each in order. With `threads` > 0, up to `threads` items already
+/// waiting are taken out early and `prepare`d (P(const T&)) by that many long-lived threads
+/// (core::OrderedPrefetch) while the item before them is processed; an item is never waited for:
+/// one taken while none is in preparation is processed at once (prepared null). Drop policy: the
+/// items taken out early are the worker's, no longer the queue's to drop.
+template <typename T, typename P, typename Prepare, typename Process>
+void drainWithPrepareAhead(BoundedWorkQueue<T>& queue, int threads, Prepare prepare, Process process) {
+  using Item = std::pair<T, P>;
+  core::OrderedPrefetch<Item, T> ahead(threads, [&prepare](T item, int) {
+    P p = prepare(static_cast<const T&>(item));
+    return Item(std::move(item), std::move(p));
+  });
+  const std::size_t n = static_cast<std::size_t>(threads < 0 ? 0 : threads);
+  for (;;) {
+    T item;
+    const bool now = ahead.pending() == 0;  // nothing in preparation: this item is processed as it is
+    if (now && !queue.pop(&item)) return;   // closed and drained
+    for (T next; ahead.pending() < n + (now ? 0 : 1) && queue.tryPop(&next); next = T()) ahead.submit(std::move(next));
+    if (now) {
+      process(item, static_cast<P*>(nullptr));
+    } else {
+      Item prepared = ahead.next();
+      process(prepared.first, &prepared.second);
+    }
+  }
+}
 
 }  // namespace ros_work
 }  // namespace uw_multislam

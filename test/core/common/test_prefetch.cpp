@@ -1,8 +1,12 @@
-// Issue 19, item 3: frames prepared ahead on worker threads (OrderedPrefetch + FramePreparer, what
-// offline_slam --threads N runs) give exactly the odometry of frames prepared in line.
+// Frames prepared ahead on worker threads (OrderedPrefetch + FramePreparer, what offline_slam
+// --threads N and the odometry nodelet's ~prepare_threads run) give exactly the odometry of
+// frames prepared in line.
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <mutex>
 #include <cmath>
 #include <memory>
 #include <stdexcept>
@@ -73,6 +77,51 @@ TEST(OrderedPrefetch, StopsWithItemsNeverHandedOut) {
     EXPECT_EQ(p.next(), 0);
   }  // the destructor returns: the workers were stopped, not left waiting
   EXPECT_LE(started.load(), 1 + 4 + 2);  // the window, plus items taken as it moved
+}
+
+// The odometry nodelet's use: items submitted as they come (only those already waiting), handed
+// out in the order submitted, each computed once, with per-worker state.
+TEST(OrderedPrefetch, HandsOutSubmittedItemsInTheOrderSubmitted) {
+  for (int threads : {0, 1, 3}) {
+    std::vector<std::atomic<int>> computed(100);
+    OrderedPrefetch<std::string, std::string> p(threads, [&](std::string item, int worker) {
+      EXPECT_GE(worker, 0);
+      EXPECT_LT(worker, std::max(threads, 1));
+      ++computed[static_cast<std::size_t>(std::stoi(item.substr(5)))];
+      return item + " done";
+    });
+    EXPECT_TRUE(p.done());
+    EXPECT_THROW(p.next(), std::out_of_range);
+    int handed = 0;
+    for (int burst = 1; burst <= 13; ++burst) {  // bursts of 1..13 items, handed out partly in between
+      for (int k = 0; k < burst && handed + static_cast<int>(p.pending()) < 91; ++k)
+        p.submit("item " + std::to_string(handed + static_cast<int>(p.pending())));
+      for (int k = 0; k < burst / 2 && !p.done(); ++k, ++handed)
+        EXPECT_EQ(p.next(), "item " + std::to_string(handed) + " done") << threads << " threads";
+    }
+    while (!p.done()) EXPECT_EQ(p.next(), "item " + std::to_string(handed++) + " done");
+    EXPECT_EQ(handed, 91);
+    for (int i = 0; i < 91; ++i) EXPECT_EQ(computed[static_cast<std::size_t>(i)].load(), 1) << i;
+  }
+}
+
+TEST(OrderedPrefetch, ASubmittedItemIsComputedBeforeItIsAskedFor) {
+  std::mutex m;
+  std::condition_variable cv;
+  bool started = false;
+  OrderedPrefetch<int, int> p(1, [&](int item, int) {
+    {
+      std::lock_guard<std::mutex> lock(m);
+      started = true;
+    }
+    cv.notify_all();
+    return item * 2;
+  });
+  p.submit(21);
+  std::unique_lock<std::mutex> lock(m);
+  EXPECT_TRUE(cv.wait_for(lock, std::chrono::seconds(10), [&] { return started; })) << "no worker took it";
+  lock.unlock();
+  EXPECT_EQ(p.next(), 42);
 }
 
 // The odometry of a stream whose frames were prepared by workers equals the odometry that

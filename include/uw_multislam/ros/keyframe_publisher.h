@@ -1,0 +1,38 @@
+// The odometry's output of new keyframes: each as a uw_multislam/Keyframe with its features, its
+// hash (paper (6)(7), computed once here with the slam/loops/global options; the loop detectors
+// and the back-end reuse it) and the store's thumbnail, and, only while someone subscribes, its
+// image with the features drawn (odometry/keyframe_image). Messages are published as shared
+// pointers, so nodelets in the same manager receive them without a copy. The odometry's worker only.
+#pragma once
+
+#include <image_transport/image_transport.h>
+#include <ros/ros.h>
+#include <std_msgs/Header.h>
+
+#include <opencv2/core.hpp>
+
+#include "uw_multislam/core/frontend/tracking.h"
+#include "uw_multislam/core/loops/haloc.h"
+#include "uw_multislam/core/session/keyframe_image.h"
+#include "uw_multislam/core/session/slam_config.h"
+
+namespace uw_multislam {
+namespace ros_outputs {
+
+class KeyframePublisher {
+ public:
+  KeyframePublisher(ros::NodeHandle nh, image_transport::ImageTransport* it, const core::SlamConfig& config);
+  /// The keyframes the last frame made (odometry.newKeyframes()); `image` and `header` are the
+  /// frame's (`update` its update). Returns how many were published.
+  int publish(const core::SegmentedOdometry& odometry, const core::OdometryUpdate& update, int session,
+              const cv::Mat& image, const std_msgs::Header& header);
+
+ private:
+  core::KeyframeImageOptions store_image_;
+  core::ImageHasher hasher_;
+  ros::Publisher keyframe_pub_;
+  image_transport::Publisher image_pub_;
+};
+
+}  // namespace ros_outputs
+}  // namespace uw_multislam

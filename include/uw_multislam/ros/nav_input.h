@@ -1,0 +1,94 @@
+// The odometry's nav input: the vehicle's dead reckoning at each frame's stamp, as a nav row of the
+// core (core/frontend/nav_prior.h), from one of two sources (~nav_source):
+//   topic  nav_msgs/Odometry on nav/odom (base_link in its odom frame, with covariance), kept for
+//          ~nav_buffer_s and interpolated at the stamp (no extrapolation: a frame after the last
+//          reading goes without). Bad readings (not finite, a negative variance, a zero stamp, not
+//          after the last one) are skipped and counted. A frame newer than the newest reading waits
+//          up to ~nav_wait_s for the next one while readings keep coming (the nav and the image
+//          travel on separate connections); after 1 s without readings (an outage) it does not wait.
+//   tf     odom_frame -> base_frame at the stamp (waiting up to ~nav_tf_wait_s); a frame without the
+//          transform goes without nav (counted). tf has no covariance: sigma grows with the distance
+//          travelled (TfNavDrift).
+// The two differ in their sigmas on purpose: a topic reading carries the nav's own covariance.
+// Threading: the topic callback (any thread) appends under a mutex of its own; at() is called by
+// the odometry's worker only.
+#pragma once
+
+#include <nav_msgs/Odometry.h>
+#include <ros/ros.h>
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/transform_listener.h>
+
+#include <atomic>
+#include <condition_variable>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+
+#include "uw_multislam/core/frontend/nav_prior.h"
+#include "uw_multislam/core/geometry/vehicle_frame.h"
+
+namespace uw_multislam {
+namespace ros_inputs {
+
+struct NavInputOptions {
+  std::string source = "topic";      // topic, tf or none
+  double wait_s = 0.05;              // topic: how long a frame newer than the newest reading waits
+  double buffer_s = 60.0;            // topic: readings kept this long behind the newest
+  double reorder_tolerance_s = 1.0;  // topic: a reading further back is a new clock (the track restarts)
+  double tf_wait_s = 0.05;           // tf: how long a frame waits for its transform
+  double tf_drift = 0.01;            // tf: sigma_xy = this x the distance travelled
+  double tf_yaw_drift = 0.001;       // tf: sigma_yaw = this (rad/m) x the distance travelled
+  std::string odom_frame = "odom", base_frame = "base_link";
+};
+
+/// The tf source's sigmas: the distance travelled along the poses given, times the drift rates.
+class TfNavDrift {
+ public:
+  TfNavDrift(double xy_per_m, double yaw_per_m) : xy_per_m_(xy_per_m), yaw_per_m_(yaw_per_m) {}
+  /// The nav row of the vehicle's pose `vehicle` (in odom) at `stamp_s`: the camera's pose by
+  /// `mount`, sigmas from the distance travelled up to it.
+  core::NavRecord add(double stamp_s, const core::Pose2& vehicle, const core::CameraMount& mount);
+  double distance() const { return distance_m_; }
+
+ private:
+  double xy_per_m_, yaw_per_m_;
+  std::optional<core::Pose2> last_;
+  double distance_m_ = 0.0;
+};
+
+class NavInput {
+ public:
+  /// Subscribes to `topic` (source topic) or listens to tf (source tf); nothing with none.
+  NavInput(ros::NodeHandle nh, const std::string& topic, const NavInputOptions& options,
+           const core::CameraMount& mount);
+  /// The nav at a frame's stamp, if there is one (the worker's thread).
+  std::optional<core::NavRecord> at(const ros::Time& stamp);
+  void shutdown() { sub_.shutdown(); }
+  long received() const { return received_; }
+  long refused() const { return refused_; }
+  long tfMissing() const { return tf_missing_; }
+  /// The start-up line: where the nav comes from (`used`: slam/odometry/nav/enabled).
+  std::string description(bool used) const;
+
+ private:
+  void onNav(const nav_msgs::OdometryConstPtr& msg);
+  std::optional<core::NavRecord> fromTopic(double stamp_s);
+  std::optional<core::NavRecord> fromTf(const ros::Time& stamp);
+
+  NavInputOptions options_;
+  core::CameraMount mount_;
+  std::mutex mutex_;
+  std::condition_variable appended_;
+  core::NavTrack track_;         // guarded by mutex_
+  ros::WallTime last_appended_;  // guarded by mutex_: when the last reading was appended (zero: none yet)
+  std::atomic<long> received_{0}, refused_{0}, tf_missing_{0};
+  std::unique_ptr<tf2_ros::Buffer> tf_buffer_;
+  std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
+  TfNavDrift drift_;  // the worker's
+  ros::Subscriber sub_;
+};
+
+}  // namespace ros_inputs
+}  // namespace uw_multislam

@@ -1,0 +1,77 @@
+// The odometry nodelet's options: its own parameters (~ private; config/default.yaml and
+// doc/nodes/odometry.md document each), the SLAM configuration it runs, the camera mount and the
+// fallback calibration, read and validated once by odometryNodeletOptions() (the nodelet never
+// reads a parameter itself). Tested in rostest bad_input (each refusal names the key).
+#pragma once
+
+#include <ros/node_handle.h>
+#include <sensor_msgs/CameraInfo.h>
+
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/frontend/input_pairing.h"
+#include "uw_multislam/core/geometry/vehicle_frame.h"
+#include "uw_multislam/core/session/slam_config.h"
+#include "uw_multislam/ros/nav_input.h"
+#include "uw_multislam/ros/topics.h"
+
+namespace uw_multislam {
+namespace ros_params {
+
+struct OdometryNodeletOptions {
+  bool use_altitude_topic = true;
+  double altitude_m = 0.0;           // used when use_altitude_topic is false
+  int queue_size = 5;                // frames waiting for the worker
+  int prepare_threads = 0;           // frames waiting that are prepared ahead, each on its own thread
+  int sync_queue_size = 10;          // subscriber queues; 2x: images waiting for their pairing
+  double sync_max_interval_s = 0.1;  // largest image - camera_info stamp difference
+  double altitude_max_age_s = 1.0;   // altitude: largest gap interpolated / age used alone; longest wait
+  int session = 0;                   // id of the first session
+  double session_gap_s = 10.0;       // stamps jumping forward more than this start a session; 0 = never
+  double reorder_tolerance_s = 1.0;  // stamps at most this far back are late frames (skipped)
+  double input_timeout_s = 5.0;      // images without a synchronised set this long: warn
+  double fallback_altitude_m = 0.0;  // > 0: used when the altitude topic is silent; 0 = off
+  double diagnostic_period_s = 1.0;
+  double stats_period_s = 30.0;
+  int max_image_pixels = 25000000;   // larger images are skipped before any conversion (counted)
+  std::string nav_source = "topic";  // topic: nav/odom (nav_msgs/Odometry); tf: odom -> base_link; none
+  double nav_tf_wait_s = 0.05;       // tf: how long a frame waits for its transform
+  double nav_wait_s = 0.05;          // topic: how long a frame newer than the newest reading waits
+  double nav_tf_drift = 0.01;        // tf: sigma_xy = this x the distance travelled
+  double nav_tf_yaw_drift = 0.001;   // tf: sigma_yaw = this (rad/m) x the distance travelled
+  double nav_buffer_s = 60.0;        // nav readings kept this long behind the newest
+  bool rectified_images = false;     // the images are rectified: P, no distortion; else K with D
+  std::string camera_info_url;       // calibration used when no camera_info arrives; empty = none
+  std::string session_frame_prefix = topics::kDefaultSessionFramePrefix;
+  std::string odom_frame = "odom", base_frame = "base_link";  // frames/ (~nav_source tf)
+
+  core::SlamConfig config;                               // slam/ (config/slam.yaml), validated
+  sensor_msgs::CameraInfoConstPtr fallback_camera_info;  // from camera_info_url (null without one)
+  core::CameraMount mount;     // the altimeter's range + its camera_above_altimeter_m; odometry/pose is base_link's
+  bool mount_resolved = true;  // false: tf had no mount in time, the default is used (mount_note says so)
+  std::string mount_note;
+
+  /// The pairing rules these options give (core::InputPairing).
+  core::InputPairingOptions pairing() const;
+  /// The nav input's options (~nav_*, frames/).
+  ros_inputs::NavInputOptions nav() const;
+};
+
+/// Reads and validates the odometry nodelet's parameters (`nh`: the pipeline's namespace, `pnh`:
+/// the node's private one); std::invalid_argument naming the key for a bad value.
+OdometryNodeletOptions odometryNodeletOptions(const ros::NodeHandle& nh, const ros::NodeHandle& pnh);
+
+/// The start-up log lines: the effective options.
+std::vector<std::string> describe(const OdometryNodeletOptions& o);
+
+/// The resolved names of the odometry's inputs, for the messages.
+struct InputTopics {
+  std::string image, transport, camera_info, altitude;
+};
+/// The warning for a silent input (core::InputPairing::silence); empty for kNone.
+std::string silenceMessage(const core::InputSilence& silence, const OdometryNodeletOptions& o,
+                           const InputTopics& topics);
+
+}  // namespace ros_params
+}  // namespace uw_multislam

@@ -1,0 +1,183 @@
+#include "uw_multislam/ros/odometry_options.h"
+
+#include <boost/make_shared.hpp>
+
+#include <cmath>
+#include <cstdio>
+#include <iomanip>
+#include <sstream>
+#include <stdexcept>
+
+#include "uw_multislam/core/frontend/enhancement.h"
+#include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/ros/camera_mount.h"
+#include "uw_multislam/ros/sensor_conversions.h"
+#include "uw_multislam/ros/slam_params.h"
+
+namespace uw_multislam {
+namespace ros_params {
+
+namespace rc = ros_conversions;
+
+core::InputPairingOptions OdometryNodeletOptions::pairing() const {
+  core::InputPairingOptions p;
+  p.sync_max_interval_s = sync_max_interval_s;
+  p.altitude_max_age_s = altitude_max_age_s;
+  p.reorder_tolerance_s = reorder_tolerance_s;
+  p.max_waiting = 2 * static_cast<std::size_t>(sync_queue_size);
+  p.altitude_topic = use_altitude_topic;
+  p.fixed_altitude_m = altitude_m;
+  p.input_timeout_s = input_timeout_s;
+  p.fallback_altitude_m = fallback_altitude_m;
+  return p;
+}
+
+ros_inputs::NavInputOptions OdometryNodeletOptions::nav() const {
+  ros_inputs::NavInputOptions n;
+  n.source = nav_source;
+  n.wait_s = nav_wait_s;
+  n.buffer_s = nav_buffer_s;
+  n.reorder_tolerance_s = reorder_tolerance_s;
+  n.tf_wait_s = nav_tf_wait_s;
+  n.tf_drift = nav_tf_drift;
+  n.tf_yaw_drift = nav_tf_yaw_drift;
+  n.odom_frame = odom_frame;
+  n.base_frame = base_frame;
+  return n;
+}
+
+OdometryNodeletOptions odometryNodeletOptions(const ros::NodeHandle& nh, const ros::NodeHandle& pnh) {
+  warnAboutFormerPrivateNamespace(pnh);
+  OdometryNodeletOptions o;
+  auto any = [](const auto&) { return true; };
+  auto positive = [](double v) { return v > 0; };
+  auto in_0_1 = [](double v) { return std::isfinite(v) && v >= 0 && v <= 1; };
+  auto in_0_1_open = [](double v) { return std::isfinite(v) && v > 0 && v <= 1; };
+  o.use_altitude_topic = param(pnh, "use_altitude_topic", true, any, "a bool");
+  o.altitude_m = param(pnh, "altitude", 0.0, any, "");
+  if (!o.use_altitude_topic && !(std::isfinite(o.altitude_m) && o.altitude_m > 0)) {
+    throw std::invalid_argument(pnh.resolveName("altitude") + " = " + std::to_string(o.altitude_m) +
+                                ": must be a positive altitude in metres when use_altitude_topic is false");
+  }
+  o.queue_size = param(
+      pnh, "queue_size", 5, [](int v) { return v >= 1 && v <= 10000; }, "in [1, 10000]");
+  o.prepare_threads = param(
+      pnh, "prepare_threads", 0, [](int v) { return v >= 0 && v <= 8; }, "in [0, 8]");
+  o.sync_queue_size = param(
+      pnh, "sync_queue_size", 10, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
+  o.sync_max_interval_s = param(pnh, "sync_max_interval_s", 0.1, positive, "positive");
+  o.altitude_max_age_s = param(
+      pnh, "altitude_max_age_s", 1.0, [](double v) { return std::isfinite(v) && v > 0 && v <= 60; },
+      "in (0, 60] seconds");
+  o.session = param(
+      pnh, "session", 0, [](int v) { return v >= 0 && v <= core::kMaxSessionId; },
+      "in [0, " + std::to_string(core::kMaxSessionId) + "]");
+  o.session_gap_s = param(
+      pnh, "session_gap_s", 10.0, [](double v) { return v >= 0; }, ">= 0 (0 = off)");
+  o.stats_period_s = param(pnh, "stats_period_s", 30.0, positive, "positive");
+  o.reorder_tolerance_s = param(
+      pnh, "reorder_tolerance_s", 1.0, [](double v) { return std::isfinite(v) && v >= 0; }, ">= 0");
+  o.input_timeout_s = param(pnh, "input_timeout_s", 5.0, positive, "positive");
+  o.fallback_altitude_m = param(
+      pnh, "fallback_altitude", 0.0, [](double v) { return std::isfinite(v) && v >= 0; }, ">= 0 metres (0 = off)");
+  o.diagnostic_period_s = param(pnh, "diagnostic_period", 1.0, positive, "positive");
+  o.max_image_pixels = param(
+      pnh, "max_image_pixels", static_cast<int>(rc::kDefaultMaxImagePixels),
+      [](int v) { return v >= static_cast<int>(rc::kMinImageSide * rc::kMinImageSide) && v <= 1000000000; },
+      "in [1024, 1000000000] pixels");
+  o.rectified_images = param(pnh, "rectified_images", false, any, "a bool");
+  o.nav_source = param(
+      pnh, "nav_source", std::string("topic"),
+      [](const std::string& s) { return s == "topic" || s == "tf" || s == "none"; },
+      "topic (nav/odom, nav_msgs/Odometry), tf (odom -> base_link) or none");
+  o.nav_tf_wait_s = param(pnh, "nav_tf_wait_s", 0.05, in_0_1, "in [0, 1] s");
+  o.nav_wait_s = param(pnh, "nav_wait_s", 0.05, in_0_1, "in [0, 1] s");
+  o.nav_tf_drift = param(pnh, "nav_tf_drift", 0.01, in_0_1_open, "in (0, 1]");
+  o.nav_tf_yaw_drift = param(pnh, "nav_tf_yaw_drift", 0.001, in_0_1_open, "in (0, 1] rad per metre");
+  if (o.nav_source == "tf" && nh.param("backend_node/publish_odom_tf", true))
+    throw std::invalid_argument(pnh.resolveName("nav_source") +
+                                ": tf needs the vehicle's own odom -> base_link, but the back-end publishes it from "
+                                "the visual odometry (set backend_node/publish_odom_tf false)");
+  o.odom_frame = nh.param("frames/odom_frame", std::string("odom"));
+  o.base_frame = nh.param("frames/base_frame", std::string("base_link"));
+  o.nav_buffer_s = param(
+      pnh, "nav_buffer_s", 60.0, [](double v) { return std::isfinite(v) && v >= 1 && v <= 3600; },
+      "in [1, 3600] seconds");
+  o.camera_info_url = param(pnh, "camera_info_url", std::string(), any, "");
+  if (!o.camera_info_url.empty()) {
+    auto info = boost::make_shared<sensor_msgs::CameraInfo>();
+    core::CameraIntrinsics camera;
+    std::string why;
+    if (!rc::cameraInfoFromUrl(o.camera_info_url, info.get(), &why) ||
+        !rc::cameraFromMsg(*info, o.rectified_images, &camera, &why)) {
+      throw std::invalid_argument(pnh.resolveName("camera_info_url") + ": " + why);
+    }
+    o.fallback_camera_info = info;
+  }
+  o.session_frame_prefix = sessionFramePrefix(nh);
+  o.config = slamConfigFromParams(nh);
+  const std::string bad = o.config.validate();
+  if (!bad.empty()) throw std::invalid_argument(nh.resolveName("slam") + ": " + bad);
+  // The fixed altitudes are bounded like the readings (every frame would be skipped at one above).
+  const double max_alt = o.config.odometry.max_altitude_m;
+  if (!o.use_altitude_topic && o.altitude_m > max_alt)
+    throw std::invalid_argument(pnh.resolveName("altitude") + " = " + std::to_string(o.altitude_m) +
+                                ": above slam/odometry/max_altitude_m (" + std::to_string(max_alt) + ")");
+  if (o.fallback_altitude_m > max_alt)
+    throw std::invalid_argument(pnh.resolveName("fallback_altitude") + " = " + std::to_string(o.fallback_altitude_m) +
+                                ": above slam/odometry/max_altitude_m (" + std::to_string(max_alt) + ")");
+  // Where the camera sits on the vehicle (frames/ parameters or tf).
+  o.mount_resolved = ros_frames::resolveCameraMount(nh, ros_frames::mountOptions(nh), &o.mount, &o.mount_note);
+  return o;
+}
+
+std::vector<std::string> describe(const OdometryNodeletOptions& o) {
+  const core::SlamConfig& c = o.config;
+  char line[1024];
+  std::snprintf(
+      line, sizeof(line),
+      "altitude from %s (interpolated at the image stamp, altitude_max_age_s %.2f), queue_size %d (oldest dropped "
+      "when full), prepare_threads %d, max_image_pixels %d, sync_queue_size %d, sync_max_interval_s %.3f, first "
+      "session %d, session_gap_s %.1f, reorder_tolerance_s %.2f, input_timeout_s %.1f, fallback_altitude %s, stats "
+      "every %.0f s, diagnostics every %.1f s; n = %d features, enhancement %s, keyframes at overlap < %.2f",
+      o.use_altitude_topic ? "the altitude topic"
+                           : ("the fixed altitude " + std::to_string(o.altitude_m) + " m").c_str(),
+      o.altitude_max_age_s, o.queue_size, o.prepare_threads, o.max_image_pixels, o.sync_queue_size,
+      o.sync_max_interval_s, o.session, o.session_gap_s, o.reorder_tolerance_s, o.input_timeout_s,
+      o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off", o.stats_period_s,
+      o.diagnostic_period_s, c.odometry.features.num_features,
+      core::enhancementName(c.odometry.enhancement.mode).c_str(), c.odometry.keyframes.min_overlap);
+  std::ostringstream os;
+  os << "camera from camera_info, " << (o.rectified_images ? "rectified images (P)" : "raw images (K, D)")
+     << (o.camera_info_url.empty() ? "" : "; while none arrives, from ~camera_info_url ") << o.camera_info_url;
+  return {line, os.str()};
+}
+
+std::string silenceMessage(const core::InputSilence& q, const OdometryNodeletOptions& o, const InputTopics& topics) {
+  using K = core::InputSilence::Kind;
+  if (q.kind == K::kNone) return "";
+  std::ostringstream os;
+  os << std::fixed << std::setprecision(0);
+  if (q.kind == K::kNoImage) {
+    os << "no image on " << topics.image << " (transport '" << topics.transport << "') "
+       << (q.image_ever ? "for " : "in the ") << q.for_s << (q.image_ever ? " s" : " s since start") << ", while "
+       << (q.camera_info_arrives ? "camera_info arrives" : "no camera_info arrives either") << " and "
+       << (q.altitude_arrives ? "altitude arrives" : "no altitude arrives either")
+       << ": check the topic name (rostopic list; launch argument image:=) and the transport";
+    return os.str();
+  }
+  os << "images arrive on " << topics.image << " but none was paired for " << q.for_s << " s: ";
+  if (q.kind == K::kNoCameraInfo) {
+    os << "no camera_info on " << topics.camera_info;
+  } else if (q.kind == K::kNoAltitude) {
+    os << "no altitude on " << topics.altitude
+       << " (set ~fallback_altitude to fly on a fixed altitude, or ~use_altitude_topic false)";
+  } else {
+    os << "their stamps are further apart than ~sync_max_interval_s " << o.sync_max_interval_s
+       << " s (camera_info) or ~altitude_max_age_s " << o.altitude_max_age_s << " s (altitude)";
+  }
+  return os.str();
+}
+
+}  // namespace ros_params
+}  // namespace uw_multislam
