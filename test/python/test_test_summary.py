@@ -1,9 +1,14 @@
 """scripts/test_summary.py, the CI's verdict: a failure, a skip, a suite that did not run or one
-that is not in the expected list each make it fail (issue 21, 5)."""
+that is not in the expected list each make it fail. And scripts/format_check.sh, one of its suites:
+a file clang-format would change fails it, named in its JUnit result."""
 import os
+import shutil
 import subprocess
 
-SCRIPT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scripts", "test_summary.py")
+import pytest
+
+SCRIPTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scripts")
+SCRIPT = os.path.join(SCRIPTS, "test_summary.py")
 PASS = '<testsuite name="s"><testcase classname="c" name="a"/></testsuite>'
 
 
@@ -44,3 +49,49 @@ def test_a_failure_fails(tmp_path):
     failing = '<testsuite name="s"><testcase classname="c" name="a"><failure message="boom"/></testcase></testsuite>'
     code, out = summary(tmp_path, {"a.xml": failing}, ["a.xml"])
     assert code == 1 and "boom" in out, out
+
+
+FORMATTED = "int add(int a, int b) { return a + b; }\n"
+# Two statements on one line and no spaces: clang-format (Google style) would change both.
+UNFORMATTED = "int   add(int a,int b){int c=a+b;return c;}\n"
+needs_clang_format = pytest.mark.skipif(shutil.which("clang-format") is None, reason="clang-format not installed")
+
+
+def format_check(tmp_path, sources):
+    """format_check.sh on a tree of its own (the repository's .clang-format, `sources` under src/):
+    its exit status, its output, and its JUnit result as the summary reads it."""
+    root = tmp_path / "tree"
+    (root / "src").mkdir(parents=True)
+    (root / "include").mkdir()
+    shutil.copy(os.path.join(SCRIPTS, "..", ".clang-format"), root / ".clang-format")
+    for name, text in sources.items():
+        (root / "src" / name).write_text(text)
+    junit = tmp_path / "results" / "uw_multislam" / "format-clang_format.xml"
+    r = subprocess.run(["bash", os.path.join(SCRIPTS, "format_check.sh"), "--root", str(root), "--junit", str(junit)],
+                       capture_output=True, text=True)
+    s = subprocess.run(["/usr/bin/python3", SCRIPT, str(tmp_path / "results")], capture_output=True, text=True)
+    return r.returncode, r.stdout + r.stderr, s.returncode, s.stdout
+
+
+@needs_clang_format
+def test_format_check_passes_formatted_sources(tmp_path):
+    code, out, summary_code, summary_out = format_check(tmp_path, {"a.cpp": FORMATTED, "b.h": FORMATTED})
+    assert code == 0 and "2 files formatted" in out, out
+    assert summary_code == 0 and summary_out.strip().endswith("1 passed, 0 failed, 0 skipped"), summary_out
+
+
+@needs_clang_format
+def test_format_check_fails_and_names_an_unformatted_file(tmp_path):
+    code, out, summary_code, summary_out = format_check(tmp_path, {"a.cpp": FORMATTED, "bad.cpp": UNFORMATTED})
+    assert code == 1 and "1 of 2 files not formatted" in out and "src/bad.cpp" in out, out
+    assert "src/a.cpp" not in out.split("--- the first differences")[0], out
+    assert summary_code == 1 and "FAILED uw_multislam/format-clang_format.xml" in summary_out, summary_out
+    assert "src/bad.cpp" in summary_out, summary_out
+
+
+def test_format_check_without_sources_fails(tmp_path):
+    (tmp_path / "empty").mkdir()
+    shutil.copy(os.path.join(SCRIPTS, "..", ".clang-format"), tmp_path / "empty" / ".clang-format")
+    r = subprocess.run(["bash", os.path.join(SCRIPTS, "format_check.sh"), "--root", str(tmp_path / "empty")],
+                       capture_output=True, text=True)
+    assert r.returncode == 1 and "no C++ file" in r.stderr, r.stderr
