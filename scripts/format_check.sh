@@ -54,7 +54,7 @@ if [ ! -f "$repo/.clang-format" ]; then
 fi
 
 cd "$repo" || exit 1
-mapfile -t files < <(find src include -type f 2>/dev/null \( -name '*.cpp' -o -name '*.cc' -o -name '*.h' -o -name '*.hpp' \) | sort)
+mapfile -t files < <(find src include -type f \( -name '*.cpp' -o -name '*.cc' -o -name '*.h' -o -name '*.hpp' \) 2>/dev/null | sort)
 if [ ${#files[@]} -eq 0 ]; then
   msg="no C++ file found under src/ and include/"
   echo "format_check: $msg" >&2
