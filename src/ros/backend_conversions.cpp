@@ -45,9 +45,23 @@ core::KeyframeInput toKeyframeInput(const KeyframeData& k, double stamp_s) {
   in.features = k.features;
   in.motion = k.motion;
   in.odometry_pose = k.odometry_pose;
-  in.hash = k.hash;  // computed once, by the odometry (empty from older senders: the manager hashes)
+  in.hash = k.hash;            // computed once, by the odometry (empty from older senders: the manager hashes)
   in.thumbnail = k.thumbnail;  // kept by the store (empty: none)
   return in;
+}
+
+uw_multislam::DetectLoops::Response toDetectLoopsResponse(const core::Status& st, const core::StoredLoopSearch& f,
+                                                          int joins) {
+  uw_multislam::DetectLoops::Response res;
+  res.status = toStatusMsg(st);
+  res.queries = f.queries;
+  res.candidates = f.candidates;
+  res.found = f.found;
+  res.already_held = f.duplicates;
+  res.accepted = f.accepted;
+  res.refused = f.refused;
+  res.joins = joins;
+  return res;
 }
 
 KeyframeData reloadedKeyframe(const core::ReloadedSession& session, const core::StoredKeyframe& k) {
@@ -102,6 +116,18 @@ uw_multislam::HistoryEntry toHistoryEntryMsg(const core::HistoryEntry& e) {
   return m;
 }
 
+uw_multislam::History::Response toHistoryResponse(const std::vector<core::HistoryEntry>& h, int last) {
+  uw_multislam::History::Response res;
+  if (last < 0) {
+    res.status = toStatusMsg({core::StatusCode::kInvalidArgument, "history: last must be >= 0 (0: all entries)"});
+    return res;
+  }
+  const std::size_t from = last == 0 ? 0 : h.size() - std::min(h.size(), static_cast<std::size_t>(last));
+  for (std::size_t i = from; i < h.size(); ++i) res.entries.push_back(toHistoryEntryMsg(h[i]));
+  res.status = toStatusMsg(core::Status::Ok());
+  return res;
+}
+
 std::vector<core::Pose2> vehiclePoses(const core::SessionManager& manager, int id, const core::CameraMount& mount) {
   std::vector<core::Pose2> p = manager.poses(id);
   for (core::Pose2& x : p) x = core::vehicleFromCamera(x, mount);
@@ -146,9 +172,9 @@ std::vector<Segment> loopSegments(const core::SessionManager& manager, const cor
   for (std::size_t i = 0; i < manager.loops().size(); ++i) {
     const core::Loop& l = manager.loops()[i];
     if (manager.mapOf(l.session_a) != manager.mapOf(l.session_b)) continue;
-    const Segment::Kind kind = manager.loopRefused(i)                 ? Segment::Kind::kRefused
+    const Segment::Kind kind = manager.loopRefused(i)               ? Segment::Kind::kRefused
                                : l.kind == core::Loop::Kind::kLocal ? Segment::Kind::kLocal
-                                                                      : Segment::Kind::kGlobal;
+                                                                    : Segment::Kind::kGlobal;
     segments.push_back({posesOf(l.session_a)[l.keyframe_a], posesOf(l.session_b)[l.keyframe_b], kind});
   }
   for (const core::SessionLink& link : manager.links())

@@ -152,6 +152,47 @@ core::SessionManagerOptions sessionManagerOptions(const BackendNodeletOptions& o
   return m;
 }
 
+std::unique_ptr<core::SessionWorker> makeSessionWorker(const BackendNodeletOptions& o, const core::SlamConfig& config,
+                                                       core::SessionManager::EventSink events,
+                                                       std::function<void(const std::string&)> say) {
+  if (o.store_path.empty()) ROS_WARN("back-end: no session store (~store_path empty): in memory only");
+  auto manager = std::make_unique<core::SessionManager>(sessionManagerOptions(o, config), std::move(events), say);
+  if (o.localisation) manager->setLocalisation(true);  // ~mode: nothing written from the start
+  using S = core::SessionWorker::Severity;
+  return std::make_unique<core::SessionWorker>(std::move(manager), sessionWorkerOptions(o, config),
+                                               [say](S s, const std::string& line) {
+                                                 if (s == S::kInfo) say(line);
+                                                 if (s == S::kWarn) ROS_WARN_THROTTLE(5, "back-end: %s", line.c_str());
+                                                 if (s == S::kError)
+                                                   ROS_ERROR_THROTTLE(5, "back-end: %s", line.c_str());
+                                               });
+}
+
+std::vector<std::string> describeBackend(const BackendNodeletOptions& o, const core::SlamConfig& config) {
+  const core::BackendOptions& b = config.backend;
+  const ros_frames::FrameOptions& f = o.frames;
+  char optimiser[600], mosaic[400];
+  std::snprintf(optimiser, sizeof optimiser,
+                "optimiser %s (optimise %s, every %d pending loops), join after %d global loops (gate %.2f m), tf %s "
+                "(%s -> %s at %.0f Hz, %s -> %s from %s), queue_size %d, store ",
+                core::optimizerName(b.optimizer), b.optimise ? "on" : "off", b.optimise_every, b.join_min_loops,
+                b.join_gate_m, f.publish_tf ? "on" : "off", f.map_frame.c_str(), f.odom_frame.c_str(), f.tf_rate_hz,
+                f.odom_frame.c_str(), f.base_frame.c_str(),
+                f.publish_odom_tf ? "the visual odometry" : "the vehicle (tf)", o.queue_size);
+  std::snprintf(mosaic, sizeof mosaic, "live mosaic %s (%.2f Hz, %.3f m/px, at most %d px), exports below ",
+                o.mosaic_rate_hz > 0 ? "on" : "off", o.mosaic_rate_hz, o.mosaic.resolution_m, o.mosaic.max_side_px);
+  return {optimiser + (o.store_path.empty() ? std::string("none") : o.store_path),
+          mosaic + (o.export_root.empty() ? std::string("(none: off)") : o.export_root)};
+}
+
+core::SessionWorkerOptions sessionWorkerOptions(const BackendNodeletOptions& o, const core::SlamConfig& config) {
+  core::SessionWorkerOptions w;
+  w.queue_size = o.queue_size;
+  w.max_waiting_loops = o.max_waiting_loops;
+  w.page_stored = config.loops.page_stored;
+  return w;
+}
+
 LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh) {
   warnAboutFormerPrivateNamespace(pnh);
   LoopDetectorNodeletOptions o;

@@ -13,6 +13,8 @@
 #include <vector>
 
 #include "uw_multislam/AddLink.h"
+#include "uw_multislam/DetectLoops.h"
+#include "uw_multislam/History.h"
 #include "uw_multislam/HistoryEntry.h"
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/SessionTrajectory.h"
@@ -20,6 +22,7 @@
 #include "uw_multislam/core/backend/backend.h"
 #include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/core/session/stored_loops.h"
 #include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 
@@ -42,10 +45,15 @@ KeyframeData reloadedKeyframe(const core::ReloadedSession& session, const core::
 /// in `frame_id` (the session's frame).
 uw_multislam::Keyframe reloadedKeyframeMsg(const core::ReloadedSession& session, const core::StoredKeyframe& k,
                                            const std::string& frame_id);
+/// detect_loops' answer: the search's counts and the joins it brought about.
+uw_multislam::DetectLoops::Response toDetectLoopsResponse(const core::Status& st, const core::StoredLoopSearch& f,
+                                                          int joins);
 /// One session of list_sessions.
 uw_multislam::SessionState toSessionStateMsg(const core::SessionSummary& s);
 /// One entry of the audit trail (history service).
 uw_multislam::HistoryEntry toHistoryEntryMsg(const core::HistoryEntry& e);
+/// The history service's answer: the last `last` entries (0: all); INVALID_ARGUMENT when negative.
+uw_multislam::History::Response toHistoryResponse(const std::vector<core::HistoryEntry>& history, int last);
 
 /// The session manager's own counters for /diagnostics and the back-end's log line (keyframes
 /// stale, refused and bridged, loops refused, store failures, sessions, maps, joins, splits,

@@ -8,13 +8,17 @@
 #include <ros/node_handle.h>
 #include <xmlrpcpp/XmlRpcValue.h>
 
+#include <functional>
 #include <map>
+#include <memory>
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "uw_multislam/core/session/live_mosaic.h"
 #include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/core/session/session_worker.h"
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/frame_publisher.h"
 #include "uw_multislam/ros/topics.h"
@@ -36,7 +40,7 @@ core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::stri
 /// The nodelet's own parameters (~ private ones and the shared frames/ block; config/default.yaml
 /// documents each), read once by backendNodeletOptions(). The algorithms' are core::SlamConfig.
 struct BackendNodeletOptions {
-  std::string store_path;  // "" = no store; default $ROS_HOME/uw_multislam/sessions.db
+  std::string store_path;     // "" = no store; default $ROS_HOME/uw_multislam/sessions.db
   double store_max_mb = 0.0;  // a cap on the store file (0: none); writes past it are counted failures
   bool localisation = false;  // ~mode localisation at start (SessionManager::setLocalisation); set_mode changes it
   /// ~reload_stored: every stored session is reloaded at start-up and its keyframes handed to the
@@ -72,6 +76,17 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
 /// The session manager's options for the back-end nodelet: the SLAM configuration's, the store
 /// path and the nodelet's limits (max_keyframe_gap, max_empty_sessions).
 core::SessionManagerOptions sessionManagerOptions(const BackendNodeletOptions& o, const core::SlamConfig& config);
+/// The back-end's session worker around its manager (the store opened and restored, ~mode
+/// localisation applied): events and INFO lines to `events` and `say`, the worker's warnings and
+/// errors to rosconsole (throttled). Throws as SessionManager's constructor.
+std::unique_ptr<core::SessionWorker> makeSessionWorker(const BackendNodeletOptions& o, const core::SlamConfig& config,
+                                                       core::SessionManager::EventSink events,
+                                                       std::function<void(const std::string&)> say);
+/// The back-end's start-up lines: optimiser, joins, tf, queue and store; live mosaic and exports.
+std::vector<std::string> describeBackend(const BackendNodeletOptions& o, const core::SlamConfig& config);
+/// The session worker's options for the back-end nodelet: its queue and waiting-loop limits, and
+/// paging of stored sessions (loops.page_stored).
+core::SessionWorkerOptions sessionWorkerOptions(const BackendNodeletOptions& o, const core::SlamConfig& config);
 
 /// The loop-detector nodelet's own parameters (~ private; config/default.yaml documents each).
 struct LoopDetectorNodeletOptions {

@@ -35,7 +35,7 @@ class PortableGaussian {
 };
 
 // Descriptor rows as unit vectors (zero rows stay zero), 128 values each. A SIFT row is taken as
-// it is. An ORB row (256 bits, issue 19) is embedded first: value 4k + p is the sum of bits 2p
+// it is. An ORB row (256 bits) is embedded first: value 4k + p is the sum of bits 2p
 // and 2p + 1 of byte k (0, 1 or 2), so that descriptors a few bits apart stay close in L2 (each
 // differing bit moves one value by 1) and the hash (and its 8-bit codes) keeps its 384 values.
 // Not centred (values 0..2, mean 1, so unrelated rows are far from orthogonal): centring them
@@ -166,6 +166,17 @@ bool parseHashMode(const std::string& name, HashMode* out) {
     return false;
   }
   return true;
+}
+
+bool HashSettings::compatible(const HashSettings& a, const HashSettings& b, std::string* why) {
+  auto text = [](const HashSettings& h) {
+    return "hash_mode " + hashModeName(h.mode) + ", projection_seed " + std::to_string(h.seed) +
+           ", n = " + std::to_string(h.num_features) + ", " + featureTypeName(h.features) + " features";
+  };
+  if (a.mode == b.mode && a.seed == b.seed && a.num_features == b.num_features && a.features == b.features)
+    return true;
+  if (why) *why = "hashes made with " + text(a) + " cannot be compared with hashes made with " + text(b);
+  return false;
 }
 
 ImageHasher::ImageHasher(HashMode mode, int n, std::uint64_t seed) : mode_(mode), haloc_(n, seed) {

@@ -11,14 +11,27 @@
 namespace uw_multislam {
 namespace core {
 
+Pipeline::Pipeline(const SlamConfig& config, SessionWorker* worker, Log log, bool verbose)
+    : Pipeline(config, worker, nullptr, std::move(log), verbose) {}
+
 Pipeline::Pipeline(const SlamConfig& config, SessionManager* manager, Log log, bool verbose)
+    : Pipeline(config, nullptr, std::make_unique<SessionWorker>(manager, SessionWorkerOptions()), std::move(log),
+               verbose) {}
+
+Pipeline::Pipeline(const SlamConfig& config, SessionWorker* worker, std::unique_ptr<SessionWorker> own, Log log,
+                   bool verbose)
     : config_(config),
-      manager_(manager),
+      own_worker_(std::move(own)),
+      worker_(worker ? worker : own_worker_.get()),
       log_(std::move(log)),
       verbose_(verbose),
       detector_(config.loops, config.odometry.matching, config.odometry.ransac, config.odometry.features.num_features) {
   ScopedStage stage(&times_, "store_load");
-  loadStoredSessions(manager_, &detector_, &cameras_);
+  worker_->locked([this](SessionManager& m) { return loadStoredSessions(&m, &detector_, &cameras_); });
+  // The detector reads a stored candidate's features through the worker (under its lock).
+  detector_.setFeatureLoader([w = worker_](int session, int keyframe) {
+    return w->locked([&](const SessionManager& m) { return m.storedFeatures(session, keyframe).features(); });
+  });
 }
 
 int loadStoredSessions(SessionManager* manager, LoopDetector* detector, std::deque<CameraIntrinsics>* cameras) {
@@ -70,13 +83,16 @@ void Pipeline::beginStream(const Dataset& d) {
 void Pipeline::startPiece(double stamp_s) {
   // Names are unique (start_session and reload_session address sessions by them): a folder run
   // again against the same store becomes "<folder> (2)", and so on.
-  std::string name = pieces_ == 0 ? stream_ : stream_ + "#" + std::to_string(pieces_);
-  for (int run = 2; manager_->idOfName(name) >= 0; ++run)
-    name = (pieces_ == 0 ? stream_ : stream_ + "#" + std::to_string(pieces_)) + " (" + std::to_string(run) + ")";
+  const std::string base = pieces_ == 0 ? stream_ : stream_ + "#" + std::to_string(pieces_);
   ++pieces_;
   ScopedStage stage(&times_, "session_manager");
-  const Status st = manager_->startSession(name, stamp_s, -1, &session_);
+  const Status st = worker_->locked([&](SessionManager& m) {
+    std::string name = base;
+    for (int run = 2; m.idOfName(name) >= 0; ++run) name = base + " (" + std::to_string(run) + ")";
+    return m.startSession(name, stamp_s, -1, &session_);
+  });
   if (!st.ok()) throw std::invalid_argument(stream_ + ": " + st.message);
+  worker_->optimiseDue();  // the session it ended may have left its map due
   stream_sessions_.back().push_back(session_);
   chain_ = SessionChain();
 }
@@ -84,7 +100,8 @@ void Pipeline::startPiece(double stamp_s) {
 void Pipeline::endPiece(double stamp_s) {
   {
     ScopedStage stage(&times_, "session_manager");
-    manager_->endSession(stamp_s);
+    worker_->locked([&](SessionManager& m) { return m.endSession(stamp_s); });
+    worker_->optimiseDue();
   }
   const Odometry& odometry = *segmented_->odometry();
   const OdometryStats& st = odometry.stats();
@@ -95,7 +112,8 @@ void Pipeline::endPiece(double stamp_s) {
                 st.frames, st.keyframes, st.tracked, st.fallbacks, st.promotions,
                 st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude, st.altitude_reused,
                 st.altitude_out_of_range, odometry.times().get("odometry_total").meanMs());
-  say("session " + std::to_string(session_) + " (" + manager_->name(session_) + "): " + line);
+  const std::string name = worker_->locked([&](const SessionManager& m) { return m.name(session_); });
+  say("session " + std::to_string(session_) + " (" + name + "): " + line);
   if (st.gate_checks > 0 || st.nav_frames > 0 || st.nav_implausible > 0) {
     std::snprintf(line, sizeof line,
                   "session %d: nav prior: %d frames carried by the nav, %d visual motions checked, %d refused by the "
@@ -162,22 +180,27 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input, Prepa
     k.odometry_pose = odometry.trajectory().absolutePose(kf.id);
     {
       ScopedStage stage(&times_, "hash");
-      k.hash = manager_->hasher().hash(kf.features.descriptors);  // once: the detector and the store share it
+      k.hash = worker_->hasher().hash(kf.features.descriptors);  // once: the detector and the store share it
     }
     chain_.append(kf.id, k.motion, k.odometry_pose);
-    const std::vector<Loop> loops =
+    const auto [session_poses, store] = worker_->locked([&](const SessionManager& m) {
+      return std::make_pair(m.posesInSessionFrame(session_), m.hasStore());
+    });
+    std::vector<Loop> loops =
         detector_.addKeyframe(session_, kf.id, info.frame_index, info.altitude_m, &cameras_.back(), kf.features,
-                              chain_.candidateTrajectory(manager_->posesInSessionFrame(session_)), &k.hash);
+                              chain_.candidateTrajectory(session_poses), &k.hash);
     if (detector_.stats().feature_read_failures > read_failures_) {
       read_failures_ = detector_.stats().feature_read_failures;
       say("stream " + stream_ + " keyframe " + std::to_string(kf.id) + ": a stored loop candidate skipped (" +
           std::to_string(read_failures_) + " so far): " + detector_.lastReadError());
     }
-    if (manager_->hasStore() && image_of_)
+    if (store && image_of_)
       k.thumbnail = encodeKeyframeImage(info.frame_index == frame.index ? frame.image : image_of_(info.frame_index),
                                         config_.store_image);
     ScopedStage stage(&times_, "session_manager");
-    const Status st = manager_->addKeyframe(k, loops);
+    Status st;
+    worker_->addKeyframe(std::move(k), std::move(loops),
+                         [&st](const SessionManager&, const KeyframeInput&, const Status& s) { st = s; });
     if (!st.ok()) throw std::logic_error("session manager refused an in-process keyframe: " + st.message);
   }
   if (step.session_closed) {
@@ -204,7 +227,7 @@ void Pipeline::endStream(double stamp_s) {
 
 void Pipeline::finish() {
   ScopedStage stage(&times_, "session_manager");
-  manager_->flush();
+  worker_->locked([](SessionManager& m) { m.flush(); });
 }
 
 StageTimes Pipeline::times() const {

@@ -112,8 +112,7 @@ SessionManager::SessionManager(const SessionManagerOptions& options, EventSink e
   }
   store_ = std::make_unique<SessionStore>(options_.store_path);
   if (options_.store_max_mb > 0.0) store_->setMaxBytes(static_cast<std::uint64_t>(options_.store_max_mb * 1048576.0));
-  store_->checkHashSettings({options_.hash_mode, options_.projection_seed, options_.num_features,
-                             hasher_.projections().toText(), options_.features});
+  store_->checkHashSettings(hashSettings());
   restore();
 }
 
@@ -237,7 +236,14 @@ int SessionManager::trailingEmptySessions() const {
 }
 
 void SessionManager::emit(SessionEvent::Kind kind, int session, int other, int map, const std::string& message) const {
-  if (events_) events_({kind, session, other, map, message});
+  if (!events_) return;
+  const auto s = sessions_.find(session);
+  events_({kind, session, other, map, message, s == sessions_.end() ? std::string() : s->second.vehicle});
+}
+
+HashSettings SessionManager::hashSettings() const {
+  return {options_.hash_mode, options_.projection_seed, options_.num_features, hasher_.projections().toText(),
+          options_.features};
 }
 
 template <typename F>
@@ -540,7 +546,7 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
   return Status::Ok();
 }
 
-// --- Another vehicle's sessions (issue 20, item 5) ---------------------------------------------
+// --- Another vehicle's sessions (the hash exchange) -----------------------------------------
 
 bool validVehicleName(const std::string& v) {
   if (v.empty() || v.size() > 64) return false;
@@ -738,13 +744,17 @@ Status SessionManager::storedMapsMayChange(const std::string& what) const {
           what + " is refused in localisation mode (no stored map changes): set_mode mapping first"};
 }
 
-Status SessionManager::addLink(Loop l) {
+Status SessionManager::checkLink(const Loop& l) const {
   if (const Status ends = checkLinkEnds(l); !ends.ok()) return ends;
   if (const std::string bad = checkUncertainPose(l.z, true); !bad.empty())
     return {StatusCode::kInvalidArgument,
             "add_link: the pose: " + bad + " (x, y, yaw; m, rad; covariance m^2, rad^2, row-major)"};
   if (l.inliers < 0) return {StatusCode::kInvalidArgument, "add_link: inliers must be >= 0"};
-  if (const Status mode = storedMapsMayChange("add_link"); !mode.ok()) return mode;
+  return storedMapsMayChange("add_link");
+}
+
+Status SessionManager::addLink(Loop l) {
+  if (const Status checked = checkLink(l); !checked.ok()) return checked;
   l.kind = l.session_a == l.session_b ? Loop::Kind::kLocal : Loop::Kind::kGlobal;
   l.frame_a = at(l.session_a).frames.at(l.keyframe_a);
   l.frame_b = at(l.session_b).frames.at(l.keyframe_b);
@@ -974,7 +984,7 @@ std::vector<StoredKeyframe> SessionManager::storedHashes(int session) const {
 
 Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* out, ReloadRead read) {
   if (!store_) return {StatusCode::kFailedPrecondition, "no session store: nothing to reload"};
-  const int id = sessionNamed(name_or_id);
+  const int id = findSession(name_or_id);
   if (id < 0 || at(id).store_id < 0 || id >= restored_sessions_)
     return {StatusCode::kNotFound, "no stored session named '" + name_or_id + "' in " + storeName() +
                                        " (list_sessions shows the stored ones as UNLOADED)"};
@@ -1013,7 +1023,7 @@ Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* ou
 Status SessionManager::unload(const std::string& name_or_id, int* id_out) {
   if (id_out) *id_out = -1;
   if (!store_) return {StatusCode::kFailedPrecondition, "no session store: nothing was reloaded, nothing to unload"};
-  const int id = sessionNamed(name_or_id);
+  const int id = findSession(name_or_id);
   if (id < 0)
     return {StatusCode::kNotFound, "no session named or numbered '" + name_or_id + "' (list_sessions shows them)"};
   if (id_out) *id_out = id;
@@ -1035,7 +1045,7 @@ Status SessionManager::deleteSession(const std::string& name_or_id, bool confirm
   if (id_out) *id_out = -1;
   if (!store_) return {StatusCode::kFailedPrecondition, "no session store: nothing to delete from"};
   if (const Status mode = storedMapsMayChange("delete_session"); !mode.ok()) return mode;
-  const int id = sessionNamed(name_or_id);
+  const int id = findSession(name_or_id);
   if (id < 0)
     return {StatusCode::kNotFound, "no session named or numbered '" + name_or_id + "' (list_sessions shows them)"};
   if (id_out) *id_out = id;
@@ -1099,7 +1109,7 @@ Status SessionManager::deleteSession(const std::string& name_or_id, bool confirm
 
 // --- Queries ----------------------------------------------------------------------------------
 
-int SessionManager::sessionNamed(const std::string& name_or_id) const {
+int SessionManager::findSession(const std::string& name_or_id) const {
   // A session's name first (names are unique), then its id: a session named "3" is not session 3.
   for (const auto& [sid, s] : sessions_)
     if (s.name == name_or_id) return sid;

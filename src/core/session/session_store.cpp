@@ -739,16 +739,11 @@ void SessionStore::learnKind() {
 void SessionStore::checkHashSettings(const HashSettings& mine) {
   HashSettings stored;
   if (hashSettings(&stored)) {
-    if (stored.mode != mine.mode || stored.seed != mine.seed || stored.num_features != mine.num_features)
-      throw StoreError("session store " + path_ + ": its hashes were made with hash_mode " + hashModeName(stored.mode) +
-                       ", projection_seed " + std::to_string(stored.seed) +
-                       ", n = " + std::to_string(stored.num_features) + "; this configuration has " +
-                       hashModeName(mine.mode) + ", " + std::to_string(mine.seed) +
-                       ", n = " + std::to_string(mine.num_features) + ": hashes would not be comparable");
-    if (stored.features != mine.features)
-      throw StoreError("session store " + path_ + ": its keyframes hold " + featureTypeName(stored.features) +
-                       " features; this configuration extracts " + featureTypeName(mine.features) +
-                       " (odometry.features.type): their hashes and matches would not be comparable");
+    std::string why;
+    if (!HashSettings::compatible(stored, mine, &why))
+      throw StoreError("session store " + path_ + ": the store's " + why +
+                       " (this configuration's: loops.global.hash_mode, projection_seed, "
+                       "odometry.features.num_features, type)");
     descriptor_bytes_ = descriptorBytes(stored.features);
     return;
   }

@@ -159,5 +159,14 @@ Status detectStoredLoops(SessionManager* manager, const SlamConfig& config, cons
   return Status::Ok();
 }
 
+Status checkOperatorLink(const SessionManager& manager, const SlamConfig& config, bool measure, Loop* link) {
+  return measure ? findStoredLink(manager, config, link) : manager.checkLink(*link);
+}
+
+Status addOperatorLink(SessionManager* manager, const SlamConfig& config, bool measure, Loop* link) {
+  if (const Status st = checkOperatorLink(*manager, config, measure, link); !st.ok()) return st;
+  return manager->addLink(*link);
+}
+
 }  // namespace core
 }  // namespace uw_multislam

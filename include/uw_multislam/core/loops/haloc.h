@@ -23,6 +23,8 @@
 #include <utility>
 #include <vector>
 
+#include "uw_multislam/core/frontend/features.h"
+
 namespace uw_multislam {
 namespace core {
 
@@ -72,6 +74,25 @@ class HalocProjections {
 enum class HashMode { kHaloc, kSortedDct };
 std::string hashModeName(HashMode m);
 bool parseHashMode(const std::string& name, HashMode* out);
+
+/// What makes two keyframe hashes comparable: the mode, the seed of the projection vectors, the
+/// number of features n they project, and the feature kind hashed. The session store keeps them
+/// (meta table), the hash exchange between vehicles sends them with each hash.
+struct HashSettings {
+  HashMode mode = HashMode::kSortedDct;
+  std::uint64_t seed = 0;
+  int num_features = 0;
+  std::string projections;  // HalocProjections::toText (the store's copy; not part of the rule)
+  /// The feature kind of every keyframe (meta row `features`; a store written before it was
+  /// recorded holds SIFT).
+  FeatureType features = FeatureType::kSift;
+
+  /// The one rule (the store at open, the back-end for another vehicle's hashes): hashes made
+  /// with `a` and `b` can be compared when mode, seed, n and feature kind agree. The projection
+  /// vectors follow from the seed, so they are not compared. false with a sentence in *why
+  /// naming both sides' values (a's first).
+  static bool compatible(const HashSettings& a, const HashSettings& b, std::string* why = nullptr);
+};
 
 /// The keyframe hash of either mode (kHashSize values), from one seed.
 class ImageHasher {

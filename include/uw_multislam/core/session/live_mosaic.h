@@ -1,4 +1,4 @@
-// The live mosaic (issue 18, item 3): a small, downsampled photomosaic of the active map that the
+// The live mosaic: a small, downsampled photomosaic of the active map that the
 // back-end publishes while the mission runs, the active keyframe outlined.
 //
 // Three steps, so that the host's lock is held only for copies: LiveMosaicImages keeps the image
@@ -64,7 +64,7 @@ struct LiveMosaicImage {
 /// The images the keyframes carried, per (session, keyframe), with the altitude and camera.
 /// Not thread-safe (the host's lock).
 ///
-/// Memory (issue 20, item 1): with a resolution, an image finer on the seabed than the mosaic is
+/// Memory: with a resolution, an image finer on the seabed than the mosaic is
 /// ever drawn (resolution_m metres per pixel at the keyframe's altitude; the mosaic only gets
 /// coarser, max_side_px) is kept downsampled to that resolution (INTER_AREA, JPEG quality 90), so
 /// a long session costs about 1 kB per keyframe instead of its thumbnail's 13 kB (320 x 240) and

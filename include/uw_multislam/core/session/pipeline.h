@@ -4,7 +4,9 @@
 //          -> the keyframe's hash, computed once (SessionManager's ImageHasher)
 //          -> LoopDetector (loops/loop_detector.h: local and global loops), whose local search
 //             trajectory comes from SessionChain::candidateTrajectory as in the loop nodelet
-//          -> SessionManager (session_manager.h: sessions, ids, back-end, store, joins).
+//          -> SessionManager (session_manager.h: sessions, ids, back-end, store, joins), driven
+//             synchronously by a SessionWorker (session_worker.h: the same work items and
+//             optimisation loop the back-end nodelet runs on its thread).
 // A camera stream (a dataset folder, or a bag's camera) is begun, fed frame by frame and ended;
 // tracking loss inside a stream closes its session and the next good frame starts another
 // (named "<stream>#<piece>").
@@ -23,6 +25,7 @@
 #include "uw_multislam/core/loops/session_chain.h"
 #include "uw_multislam/core/session/keyframe_image.h"
 #include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/core/session/session_worker.h"
 #include "uw_multislam/core/session/slam_config.h"
 
 namespace uw_multislam {
@@ -42,9 +45,13 @@ class Pipeline {
   /// A stream's image of a frame index (for a keyframe's stored image, config `store`; may return empty).
   using ImageOf = std::function<cv::Mat(int frame_index)>;
 
-  /// `manager` must outlive the pipeline. Every stored session of the manager is reloaded into
-  /// the loop detector, so that new keyframes find global loops against them. `log` receives
-  /// one line per session piece and per tracking loss; `verbose` adds skipped and fallback frames.
+  /// `worker` (synchronous: never started) must outlive the pipeline. Every stored session of
+  /// its manager is reloaded into the loop detector, so that new keyframes find global loops
+  /// against them. `log` receives one line per session piece and per tracking loss; `verbose`
+  /// adds skipped and fallback frames.
+  Pipeline(const SlamConfig& config, SessionWorker* worker, Log log = {}, bool verbose = true);
+  /// The same with a synchronous worker of its own around `manager` (which must outlive the
+  /// pipeline, and is driven with deferred optimisation from now on).
   Pipeline(const SlamConfig& config, SessionManager* manager, Log log = {}, bool verbose = true);
 
   /// `nav` (may be empty): the stream's dead-reckoned nav; each frame without a nav of its own
@@ -64,6 +71,8 @@ class Pipeline {
   void endStream(double stamp_s);
   /// Optimises what is pending and saves the maps.
   void finish();
+  /// The worker that drives the manager (the host's requests and queries go through it).
+  SessionWorker& worker() { return *worker_; }
 
   /// The sessions begun for each stream, in order (several when tracking was lost).
   const std::vector<std::vector<int>>& streamSessions() const { return stream_sessions_; }
@@ -72,12 +81,14 @@ class Pipeline {
   StageTimes times() const;
 
  private:
+  Pipeline(const SlamConfig& config, SessionWorker* worker, std::unique_ptr<SessionWorker> own, Log log, bool verbose);
   void startPiece(double stamp_s);
   void endPiece(double stamp_s);
   void say(const std::string& line) const;
 
   SlamConfig config_;
-  SessionManager* manager_;
+  std::unique_ptr<SessionWorker> own_worker_;  // when made around a manager
+  SessionWorker* worker_;
   Log log_;
   bool verbose_;
   LoopDetector detector_;

@@ -1,10 +1,11 @@
 // The session manager: the one object that owns sessions, their ids, maps, joins and splits, and
 // the session store (README "Architecture"; cf. cartographer's MapBuilder).
 //
-// Both heads drive it: offline_slam through core::Pipeline (pipeline.h, every stage in one
-// process), and the back-end nodelet, which hosts it and feeds it the Keyframe and Loop messages
-// of the odometry and loop-detector nodelets. Nothing else starts a session, assigns an id or
-// writes the store.
+// Both heads drive it through a SessionWorker (session_worker.h: its lock, work queue and
+// optimisation loop): offline_slam through core::Pipeline (pipeline.h, every stage in one
+// process) synchronously, and the back-end nodelet, which feeds it the Keyframe and Loop
+// messages of the odometry and loop-detector nodelets, on the worker's thread. Nothing else
+// starts a session, assigns an id or writes the store.
 //
 // One id space. A session's id is what services, messages, the store's rows as the user sees
 // them, CSV outputs, rviz frames and logs call it. Sessions restored from the store take ids
@@ -23,7 +24,7 @@
 // nothing. Store writes that fail (disk full, I/O error) are counted and logged, never fatal: the
 // map lives on in memory, and the next successful save of the maps writes it whole.
 //
-// Not thread-safe: one caller at a time (the back-end nodelet serialises its worker and services).
+// Not thread-safe: one caller at a time (SessionWorker holds the lock every head takes).
 #pragma once
 
 #include <Eigen/Core>
@@ -54,7 +55,7 @@ namespace core {
 /// nextId() would pass it (RESOURCE_EXHAUSTED): ids never overflow an int.
 constexpr int kMaxSessionId = 1000000;
 /// The longest session name start_session accepts (bytes): names go into topics' and files'
-/// names, the store and every reply (a 100 kB name was accepted before, issue 21, 6).
+/// names, the store and every reply (a 100 kB name was accepted before the limit).
 constexpr std::size_t kMaxSessionNameLength = 256;
 
 struct SessionManagerOptions {
@@ -145,6 +146,7 @@ struct SessionEvent {
   int other = -1;    // a loop's or a join's other session
   int map = -1;
   std::string message;
+  std::string vehicle;  // kSessionStarted/kSessionEnded: another vehicle's session, its name (empty: ours)
 };
 const char* sessionEventName(SessionEvent::Kind k);
 
@@ -195,7 +197,7 @@ class SessionManager {
   /// keyframe of an older session, or repeated, is FAILED_PRECONDITION (stale); lost keyframes
   /// (a gap in the ids) are bridged by placeholders that no loop may use, up to max_keyframe_gap.
   Status addKeyframe(const KeyframeInput& keyframe, const std::vector<Loop>& loops = {});
-  /// Another vehicle's keyframe (issue 20, item 5: hash exchange): `keyframe.session` is its id
+  /// Another vehicle's keyframe (the hash exchange between vehicles): `keyframe.session` is its id
   /// on that vehicle. The first keyframe of (vehicle, session) opens a session of this manager
   /// (nextId(), named "<vehicle>_session_<id>", local_id says which), which grows beside the
   /// active one: both are recording, each in its own map, until loops join them once one has
@@ -236,6 +238,9 @@ class SessionManager {
   /// session or keyframe), FAILED_PRECONDITION (a bridged keyframe that never arrived, or the
   /// back-end refusing the loop).
   Status addLink(Loop loop);
+  /// addLink's checks, nothing changed: OK when addLink would take the link (unless the back-end
+  /// refuses the loop).
+  Status checkLink(const Loop& loop) const;
   /// addLink's checks of the two ends alone (ids, keyframes, a bridged keyframe, a keyframe linked
   /// to itself; codes as addLink's), for a caller that measures the link first (findStoredLink).
   Status checkLinkEnds(const Loop& loop) const;
@@ -243,7 +248,7 @@ class SessionManager {
   /// optimise_every) is optimised now, or (deferred) marked due. `maps`: how many.
   /// FAILED_PRECONDITION when optimisation is off (backend.optimise false).
   Status optimisePending(int* maps = nullptr);
-  /// Localisation mode (set_mode, issue 16 item 4): nothing is written to the store and no stored
+  /// Localisation mode (set_mode): nothing is written to the store and no stored
   /// map changes, while sessions are still tracked. A session recording when it is switched on
   /// keeps what is stored and the rest in memory only; sessions started in it are memory only;
   /// neither is ever written later (a store keeps a prefix of each session). Automatic joins wait;
@@ -266,13 +271,13 @@ class SessionManager {
   /// Brings a stored (UNLOADED) session back by name or id: its keyframes as `read` says, for the
   /// loop detector. NOT_FOUND, ALREADY_EXISTS (loaded), FAILED_PRECONDITION (no store), DATA_LOSS.
   Status reload(const std::string& name_or_id, ReloadedSession* out, ReloadRead read = ReloadRead::kFeatures);
-  /// unload_session (issue 16, item 4): a reloaded stored session goes back to UNLOADED, so the
+  /// unload_session: a reloaded stored session goes back to UNLOADED, so the
   /// host drops its features from the loop detectors (it keeps its place in its map, its poses and
   /// loops; reload() brings it back). Nothing is lost: only sessions restored from the store,
   /// whose keyframes are all stored, qualify. NOT_FOUND (no such stored or recorded session),
   /// FAILED_PRECONDITION (no store, a session recorded in this run, already unloaded).
   Status unload(const std::string& name_or_id, int* id = nullptr);
-  /// delete_session (issue 16, item 4): removes a finished session alone in its map from the store
+  /// delete_session: removes a finished session alone in its map from the store
   /// (keyframes, motions, its loops, its map; one transaction) and from memory, for good. The ids
   /// of the others stay (a later restart numbers the stored sessions 0..k-1 again), ids are not
   /// reused. Recorded in the audit trail. Refused with nothing changed: NOT_FOUND,
@@ -281,7 +286,7 @@ class SessionManager {
   /// (the store could not be changed).
   Status deleteSession(const std::string& name_or_id, bool confirm, int* id = nullptr);
   /// One keyframe as the store keeps it (points, descriptors): of a session restored from the
-  /// store (paging, issue 20), or of this run's sessions once written (add_link's "find it").
+  /// store (paging), or of this run's sessions once written (add_link's "find it").
   /// Throws StoreError: no store, a keyframe not in the store (not yet, or kept in memory only),
   /// a missing or corrupt one.
   StoredKeyframe storedFeatures(int session, int keyframe) const;
@@ -321,6 +326,10 @@ class SessionManager {
   const CameraIntrinsics& camera(int session) const { return at(session).camera; }
   /// The session named `name`, or -1.
   int idOfName(const std::string& name) const;
+  /// The session a request names: by its name first (names are unique), else by its id in
+  /// decimal digits (a session named "3" is not session 3); -1 when none. Every service and tool
+  /// that takes a name or an id resolves it here.
+  int findSession(const std::string& name_or_id) const;
   int mapOf(int session) const;
   std::vector<int> mapIds() const;
   /// The session's keyframe poses in its map's frame, and in its own frame.
@@ -337,7 +346,7 @@ class SessionManager {
   /// map <- odometry correction of the session: its last pose in the map times the inverse of its
   /// last odometry pose.
   Pose2 correction(int session) const;
-  /// Relocalisation (issue 16, item 3): the session in a stored map before or without a join
+  /// Relocalisation: the session in a stored map before or without a join
   /// (MultiSessionBackend::relocalise, the consistency rule), in session ids; nullopt when no
   /// map holding a session restored from the store has loops that pass it, or the session is
   /// unknown. (Maps of this run's sessions only join as usual.) Changes nothing; works in
@@ -351,7 +360,7 @@ class SessionManager {
   };
   std::optional<Relocalisation> relocalise(int session) const;
   std::vector<SessionLink> links() const;
-  /// The audit trail (issue 16, item 5): every join, split, manual link and mode change, restored
+  /// The audit trail: every join, split, manual link and mode change, restored
   /// from the store and then this run's, in order (session_store.h, HistoryEntry). Written to the
   /// store as it happens, except in localisation mode (the store must stay byte-identical): the
   /// mode change itself is recorded when mapping resumes. Without a store it lives in memory.
@@ -364,6 +373,9 @@ class SessionManager {
   const BackendStats& backendStats() const { return backend_->stats(); }
   const SessionManagerOptions& options() const { return options_; }
   const ImageHasher& hasher() const { return hasher_; }
+  /// The settings this manager's hashes are made with (HashSettings::compatible decides whether
+  /// another vehicle's or a store's can be compared with them).
+  HashSettings hashSettings() const;
   bool hasStore() const { return store_ != nullptr; }
   const std::string& storePath() const { return options_.store_path; }
   /// The store as replies name it: its file name only (the log keeps the full path).
@@ -398,8 +410,6 @@ class SessionManager {
   /// Whether the keyframe is in the store (or `pending`: written in the same transaction).
   bool keyframeStored(int session, int keyframe, int pending_session = -1, int pending_keyframe = -1) const;
 
-  /// The session named `name_or_id` (its name, else its id in digits), or -1.
-  int sessionNamed(const std::string& name_or_id) const;
   const Session& at(int session) const;
   Session& at(int session);
   int idOfBackend(int backend_session) const { return id_of_backend_.at(backend_session); }

@@ -109,16 +109,6 @@ struct StoredMap {
   int pending = 0;
 };
 
-struct HashSettings {
-  HashMode mode = HashMode::kSortedDct;
-  std::uint64_t seed = 0;
-  int num_features = 0;
-  std::string projections;  // HalocProjections::toText
-  /// The feature kind of every keyframe (meta row `features`; a store written before it was
-  /// recorded holds SIFT).
-  FeatureType features = FeatureType::kSift;
-};
-
 /// Where a session of a merged store came from (merge_stores): one row per session
 /// copied from another store. Kept in the table `provenance`, which a store gets when it is opened
 /// for writing (like the keyframes_frame index: no build before it reads it, so no new schema

@@ -1,6 +1,5 @@
-// Global loops between stored sessions (issue 16, item 3: "loops are also searched among reloaded
-// sessions, so two stored sessions can be joined without a live one"; issue 20, item 4: the
-// loops between merged stores).
+// Global loops between stored sessions: loops are also searched among reloaded sessions, so that
+// two stored sessions can be joined without a live one (and the sessions of merged stores).
 //
 // The sessions come in groups; the keyframes of group g are queried against the sessions of
 // groups 0..g-1 only, as if group g had been recorded after them: the stored hash of each keyframe
@@ -51,6 +50,16 @@ Status detectStoredLoops(SessionManager* manager, const SlamConfig& config, cons
 /// of this run, localisation mode, or no motion verified: fewer inliers than the loops'
 /// min_inliers, said with the counts), DATA_LOSS (the stored features cannot be read).
 Status findStoredLink(const SessionManager& manager, const SlamConfig& config, Loop* link);
+
+/// The operator's link (the back-end's add_link, offline_slam --add-link), checked and, when
+/// `measure`, measured from the stored features (findStoredLink: z and inliers), nothing changed:
+/// OK when SessionManager::addLink would take it; the codes of findStoredLink, or of addLink's
+/// checks (SessionManager::checkLink) when the pose is given. A caller that checks several links
+/// before adding any (offline_slam) calls this first, then addOperatorLink.
+Status checkOperatorLink(const SessionManager& manager, const SlamConfig& config, bool measure, Loop* link);
+/// checkOperatorLink, then SessionManager::addLink: the link is a loop like a detector's (stored,
+/// optimised, counted towards joins). *link holds the measured pose and inliers.
+Status addOperatorLink(SessionManager* manager, const SlamConfig& config, bool measure, Loop* link);
 
 }  // namespace core
 }  // namespace uw_multislam
