@@ -739,11 +739,18 @@ void SessionStore::learnKind() {
 void SessionStore::checkHashSettings(const HashSettings& mine) {
   HashSettings stored;
   if (hashSettings(&stored)) {
-    std::string why;
-    if (!HashSettings::compatible(stored, mine, &why))
-      throw StoreError("session store " + path_ + ": the store's " + why +
-                       " (this configuration's: loops.global.hash_mode, projection_seed, "
-                       "odometry.features.num_features, type)");
+    // HashSettings::compatible decides; the message names what differs in the configuration's terms.
+    if (!HashSettings::compatible(stored, mine)) {
+      if (stored.mode != mine.mode || stored.seed != mine.seed || stored.num_features != mine.num_features)
+        throw StoreError("session store " + path_ + ": its hashes were made with hash_mode " +
+                         hashModeName(stored.mode) + ", projection_seed " + std::to_string(stored.seed) +
+                         ", n = " + std::to_string(stored.num_features) + "; this configuration has " +
+                         hashModeName(mine.mode) + ", " + std::to_string(mine.seed) +
+                         ", n = " + std::to_string(mine.num_features) + ": hashes would not be comparable");
+      throw StoreError("session store " + path_ + ": its keyframes hold " + featureTypeName(stored.features) +
+                       " features; this configuration extracts " + featureTypeName(mine.features) +
+                       " (odometry.features.type): their hashes and matches would not be comparable");
+    }
     descriptor_bytes_ = descriptorBytes(stored.features);
     return;
   }
