@@ -30,9 +30,9 @@ BackendNodelet::~BackendNodelet() {
   worker_->stop();  // processes what is queued
   worker_->locked([this](SessionManager& m) {
     m.flush();  // pending optimisation, and the maps saved
-    say(ros_diagnostics::countersLine("counters at shutdown:", counters(m)));
+    say(ros_diagnostics::countersLine("counters at shutdown:", counters(m.view())));
     try {  // now, while every member onEvent reports to is alive (the manager's destructor would do it)
-      m.finishForeignSessions();
+      m.fleet().finishAll();
     } catch (const std::exception& e) {
       say(std::string("other vehicles' sessions not finished at shutdown: ") + e.what());
     }
@@ -73,7 +73,7 @@ void BackendNodelet::onInit() {
     NODELET_WARN("back-end: ~export_root: %s: export answers FAILED_PRECONDITION", why.c_str());
   for (const std::string& line : ros_params::describeBackend(options_, config_)) say(line);
   peers_ = std::make_unique<ros_fleet::PeerClient>(nh, options_.fleet_peers, options_.fleet_peer_timeout_s);
-  worker_->locked([this](const SessionManager& m) {
+  worker_->locked([this](const core::SessionQueries& m) {
     if (m.restoredSessions() == 0) return;
     sessions_->publishAll(m, true);
     sessions_->announceNextSession(m);  // stored sessions hold ids 0..k-1: the odometry continues from k
@@ -82,8 +82,8 @@ void BackendNodelet::onInit() {
     fleet_ = std::make_unique<ros_fleet::HashExchange>(
         nh, options_.fleet_vehicle, options_.queue_size, options_.fleet_hash_codes,
         options_.frames.session_frame_prefix, worker_.get(),
-        [this](const SessionManager& m) { sessions_->announceNextId(m); });
-  worker_->start([this](SessionManager& m) { sessions_->publishAll(m, std::exchange(publish_all_, false)); });
+        [this](const core::SessionQueries& m) { sessions_->announceNextId(m); });
+  worker_->start([this](SessionManager& m) { sessions_->publishAll(m.view(), std::exchange(publish_all_, false)); });
   services_ = {
       nh.advertiseService(topics::kJoinSessionsService, &BackendNodelet::onJoin, this),
       nh.advertiseService(topics::kSplitSessionService, &BackendNodelet::onSplit, this),
@@ -108,7 +108,7 @@ void BackendNodelet::onInit() {
                                          [this](const ros::WallTimerEvent&) { updater_->force_update(); });
   stats_timer_ = nh.createWallTimer(ros::WallDuration(options_.stats_period_s), [this](const ros::WallTimerEvent&) {
     worker_->locked(
-        [this](const SessionManager& m) { say(ros_diagnostics::countersLine("counters so far:", counters(m))); });
+        [this](const core::SessionQueries& m) { say(ros_diagnostics::countersLine("counters so far:", counters(m))); });
   });
   // roscpp's own queues as deep as the worker's: a starved callback thread must not drop uncounted.
   keyframe_sub_ = nh.subscribe(topics::kKeyframes, options_.queue_size, &BackendNodelet::onKeyframe, this);
@@ -131,7 +131,7 @@ void BackendNodelet::onKeyframe(const uw_multislam::KeyframeConstPtr& msg) {
   k.features = core::FrameFeatures();  // the input has them; the link needs the hash, motion and pose only
   k.thumbnail.clear();
   worker_->addKeyframe(std::move(input), {},
-                       [this, k, header = msg->header](const SessionManager& m, const core::KeyframeInput& in,
+                       [this, k, header = msg->header](const core::SessionQueries& m, const core::KeyframeInput& in,
                                                        const Status& st) mutable {
                          if (!st.ok()) {
                            NODELET_WARN_THROTTLE(5, "back-end: keyframe skipped: %s", st.message.c_str());
@@ -169,7 +169,7 @@ template <typename F>
 uw_multislam::Status BackendNodelet::change(F request) {
   const Status st = worker_->locked([&](SessionManager& m) {
     const Status st = request(m);
-    if (st.ok()) sessions_->publishAll(m, true);  // lists, states, maps: every session
+    if (st.ok()) sessions_->publishAll(m.view(), true);  // lists, states, maps: every session
     return st;
   });
   if (st.ok()) worker_->optimiseDue();  // what the request left due, solved by the worker
@@ -179,7 +179,7 @@ uw_multislam::Status BackendNodelet::change(F request) {
 bool BackendNodelet::onJoin(uw_multislam::JoinSessions::Request& req, uw_multislam::JoinSessions::Response& res) {
   res.status = change([&](SessionManager& m) {
     const Status st = m.join(req.session_a, req.session_b, req.min_loops);
-    res.map = m.has(req.session_a) ? m.mapOf(req.session_a) : -1;
+    res.map = m.view().has(req.session_a) ? m.view().mapOf(req.session_a) : -1;
     return st;
   });
   return true;
@@ -191,7 +191,7 @@ bool BackendNodelet::onSplit(uw_multislam::SplitSession::Request& req, uw_multis
 }
 
 bool BackendNodelet::onList(uw_multislam::ListSessions::Request&, uw_multislam::ListSessions::Response& res) {
-  worker_->locked([&](const SessionManager& m) {
+  worker_->locked([&](const core::SessionQueries& m) {
     for (const core::SessionSummary& s : m.list()) {
       res.sessions.push_back(rc::toSessionStateMsg(s));
       if (s.id < m.restoredSessions()) continue;  // stored sessions: only this run's relocalise
@@ -207,9 +207,9 @@ bool BackendNodelet::onStart(uw_multislam::StartSession::Request& req, uw_multis
   res.status = change([&](SessionManager& m) {
     const Status st = m.startSession(req.name, ros::Time::now().toSec(), -1, &res.session);
     if (!st.ok()) return st;
-    sessions_->announceNextSession(m);
+    sessions_->announceNextSession(m.view());
     NODELET_INFO("back-end: start_session: session %d '%s' started; the odometry's next keyframe is its origin",
-                 res.session, m.name(res.session).c_str());
+                 res.session, m.view().name(res.session).c_str());
     return st;
   });
   return true;
@@ -218,16 +218,16 @@ bool BackendNodelet::onStart(uw_multislam::StartSession::Request& req, uw_multis
 bool BackendNodelet::onFinish(uw_multislam::FinishSession::Request&, uw_multislam::FinishSession::Response& res) {
   res.session = -1;
   res.status = change([&](SessionManager& m) {
-    const int id = m.activeSession();
+    const int id = m.view().activeSession();
     const Status st = m.endSession(ros::Time::now().toSec());
     if (!st.ok()) return st;
     res.session = id;
     // No session records now: the odometry drops frames until start_session or resume, then
     // starts the session with the next id.
-    sessions_->announceNextSession(m, uw_multislam::SessionState::FINISHED);
+    sessions_->announceNextSession(m.view(), uw_multislam::SessionState::FINISHED);
     sessions_->resetRelocalisation();  // no active session: nothing relocalised (diagnostics)
     NODELET_INFO("back-end: finish_session: session %d '%s' finished; the odometry waits for start_session or resume",
-                 id, m.name(id).c_str());
+                 id, m.view().name(id).c_str());
     return st;
   });
   return true;
@@ -253,7 +253,7 @@ bool BackendNodelet::onOptimise(uw_multislam::Optimise::Request&, uw_multislam::
 }
 
 bool BackendNodelet::onHistory(uw_multislam::History::Request& req, uw_multislam::History::Response& res) {
-  worker_->locked([&](const SessionManager& m) { res = rc::toHistoryResponse(m.history(), req.last); });
+  worker_->locked([&](const core::SessionQueries& m) { res = rc::toHistoryResponse(m.history(), req.last); });
   return true;
 }
 
@@ -261,10 +261,10 @@ bool BackendNodelet::onDetectLoops(uw_multislam::DetectLoops::Request& req, uw_m
   core::StoredLoopSearch f;
   int joins = 0;
   const Status st = worker_->locked([&](SessionManager& m) {  // the worker waits meanwhile
-    joins = -m.backendStats().joins;
+    joins = -m.view().backendStats().joins;
     const Status st = core::detectStoredLoops(&m, config_, req.sessions, &f, [this](const std::string& l) { say(l); });
-    joins += m.backendStats().joins;
-    if (f.accepted > 0) sessions_->publishAll(m, true);
+    joins += m.view().backendStats().joins;
+    if (f.accepted > 0) sessions_->publishAll(m.view(), true);
     return st;
   });
   res = rc::toDetectLoopsResponse(st, f, joins);
@@ -283,7 +283,7 @@ bool BackendNodelet::onSetMode(uw_multislam::SetMode::Request& req, uw_multislam
                           ? m.setLocalisation(req.mode == "localisation")
                           : Status{StatusCode::kInvalidArgument, "set_mode: mode '" + req.mode.substr(0, 64) +
                                                                      "' is neither 'mapping' nor 'localisation'"};
-    res.mode = m.localising() ? "localisation" : "mapping";
+    res.mode = m.view().localising() ? "localisation" : "mapping";
     return st;
   });
   res.status = rc::toStatusMsg(st);
@@ -369,7 +369,7 @@ bool BackendNodelet::onKeyframeFeatures(uw_multislam::KeyframeFeatures::Request&
   return true;
 }
 
-std::vector<ros_diagnostics::Counter> BackendNodelet::counters(const SessionManager& m) const {
+std::vector<ros_diagnostics::Counter> BackendNodelet::counters(const core::SessionQueries& m) const {
   auto d = [](auto v) { return static_cast<double>(v); };
   const core::SessionWorkerStats w = worker_->stats();
   const long messages = received_ + (fleet_ ? fleet_->messages() : 0);
@@ -424,7 +424,7 @@ std::vector<ros_diagnostics::Counter> BackendNodelet::counters(const SessionMana
 }
 
 void BackendNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat) {
-  worker_->locked([&](const SessionManager& m) {
+  worker_->locked([&](const core::SessionQueries& m) {
     stat.add("optimizer", core::optimizerName(config_.backend.optimizer));
     stat.add("store", m.hasStore() ? options_.store_path : std::string("none"));
     stat.add("mode", m.localising() ? "localisation" : "mapping");

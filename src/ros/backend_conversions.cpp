@@ -128,13 +128,13 @@ uw_multislam::History::Response toHistoryResponse(const std::vector<core::Histor
   return res;
 }
 
-std::vector<core::Pose2> vehiclePoses(const core::SessionManager& manager, int id, const core::CameraMount& mount) {
+std::vector<core::Pose2> vehiclePoses(const core::SessionQueries& manager, int id, const core::CameraMount& mount) {
   std::vector<core::Pose2> p = manager.poses(id);
   for (core::Pose2& x : p) x = core::vehicleFromCamera(x, mount);
   return p;
 }
 
-std::map<int, double> mapOffsets(const core::SessionManager& manager, const core::CameraMount& mount) {
+std::map<int, double> mapOffsets(const core::SessionQueries& manager, const core::CameraMount& mount) {
   std::map<int, std::pair<double, double>> extent;  // map -> min x, max x
   for (int id : manager.sessionIds()) {
     auto& e = extent.emplace(manager.mapOf(id), std::make_pair(1e300, -1e300)).first->second;
@@ -154,7 +154,7 @@ std::map<int, double> mapOffsets(const core::SessionManager& manager, const core
   return offsets;
 }
 
-std::vector<Segment> loopSegments(const core::SessionManager& manager, const core::CameraMount& mount,
+std::vector<Segment> loopSegments(const core::SessionQueries& manager, const core::CameraMount& mount,
                                   const std::map<int, double>& offsets) {
   std::map<int, std::vector<core::Pose2>> poses;  // each session's poses once, shifted with its map
   auto posesOf = [&](int id) -> const std::vector<core::Pose2>& {
@@ -196,7 +196,7 @@ std_msgs::ColorRGBA sessionColour(int id) {
   return c;
 }
 
-visualization_msgs::MarkerArray toTrajectoryMarkersMsg(const core::SessionManager& manager,
+visualization_msgs::MarkerArray toTrajectoryMarkersMsg(const core::SessionQueries& manager,
                                                        const core::CameraMount& mount,
                                                        const std::map<int, double>& offsets,
                                                        const std::string& frame_id, const ros::Time& stamp) {
@@ -327,7 +327,7 @@ visualization_msgs::MarkerArray toMarkerArrayMsg(const std::vector<Segment>& seg
   return out;
 }
 
-std::vector<ros_diagnostics::Counter> managerCounters(const core::SessionManager& manager) {
+std::vector<ros_diagnostics::Counter> managerCounters(const core::SessionQueries& manager) {
   const core::SessionManagerStats& m = manager.stats();
   const core::BackendStats& b = manager.backendStats();
   int unloaded = 0;

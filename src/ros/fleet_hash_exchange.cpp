@@ -16,7 +16,7 @@ namespace rc = ros_conversions;
 
 HashExchange::HashExchange(ros::NodeHandle& nh, std::string vehicle, int queue_size, bool hash_codes,
                            std::string session_frame_prefix, core::SessionWorker* worker,
-                           std::function<void(const core::SessionManager&)> opened)
+                           std::function<void(const core::SessionQueries&)> opened)
     : vehicle_(std::move(vehicle)),
       hash_codes_(hash_codes),
       session_frame_prefix_(std::move(session_frame_prefix)),
@@ -41,7 +41,7 @@ void HashExchange::hashIfMissing(rc::KeyframeData* k) const {
     k->hash = worker_->hasher().hash(k->features.descriptors);
 }
 
-void HashExchange::sendOurs(const core::SessionManager& m, rc::KeyframeData k, const std_msgs::Header& header) {
+void HashExchange::sendOurs(const core::SessionQueries& m, rc::KeyframeData k, const std_msgs::Header& header) {
   if (k.hash.size() != core::HalocProjections::kHashSize) return;  // nothing to compare (no features)
   const core::SessionManagerOptions& o = m.options();
   const auto out = boost::make_shared<uw_multislam::KeyframeHash>(rc::toFleetHashMsg(
@@ -68,7 +68,7 @@ void HashExchange::onHash(const uw_multislam::KeyframeHashConstPtr& msg) {
   const std::string vehicle = msg->vehicle;
   if (msg->session_ended) {
     worker_->endForeignSession(vehicle, msg->session, msg->header.stamp.toSec(),
-                               [this, vehicle](const core::SessionManager&, const core::Status& st) {
+                               [this, vehicle](const core::SessionQueries&, const core::Status& st) {
                                  if (st.ok()) {
                                    ++stats_.sessions_ended;
                                    return;
@@ -82,14 +82,14 @@ void HashExchange::onHash(const uw_multislam::KeyframeHashConstPtr& msg) {
   rc::KeyframeHashData h;
   std::string why;
   if (!rc::fromFleetHashMsg(*msg, &k, &h, &why)) {
-    worker_->locked([&](const core::SessionManager&) { refused(vehicle, msg->session, msg->keyframe, why); });
+    worker_->locked([&](const core::SessionQueries&) { refused(vehicle, msg->session, msg->keyframe, why); });
     return;
   }
   const long bytes = static_cast<long>(ros::serialization::serializationLength(*msg));
   worker_->addForeignKeyframe(
       vehicle, {h.mode, h.projection_seed, h.num_features, "", h.features},
       rc::toKeyframeInput(k, msg->header.stamp.toSec()),
-      [this, vehicle, k, header = msg->header, bytes](const core::SessionManager& m, const core::KeyframeInput& in,
+      [this, vehicle, k, header = msg->header, bytes](const core::SessionQueries& m, const core::KeyframeInput& in,
                                                       const core::Status& st, int local, bool opened) mutable {
         if (!st.ok()) return refused(vehicle, in.session, in.keyframe, st.message);
         if (opened && opened_) opened_(m);  // it took an id: our next session takes another

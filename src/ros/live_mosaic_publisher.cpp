@@ -66,7 +66,7 @@ void LiveMosaicPublisher::run() {
   while (!wake_.wait_for(wait, period, [this] { return stop_; })) {
     if (!due_ || pub_.getNumSubscribers() == 0) continue;  // latched: the last one stays
     wait.unlock();
-    const core::LiveMosaicSnapshot snapshot = worker_.locked([this](const core::SessionManager& m) {
+    const core::LiveMosaicSnapshot snapshot = worker_.locked([this](const core::SessionQueries& m) {
       due_ = false;
       std::lock_guard<std::mutex> lock(mutex_);
       return core::liveMosaicSnapshot(m, images_);  // poses copied, images shared

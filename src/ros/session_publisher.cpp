@@ -44,7 +44,7 @@ void SessionPublisher::onOdometry(const geometry_msgs::PoseWithCovarianceStamped
   pose_pub_.publish(p);
 }
 
-core::Pose2 SessionPublisher::publishSession(const core::SessionManager& m, int id) {
+core::Pose2 SessionPublisher::publishSession(const core::SessionQueries& m, int id) {
   const std::vector<core::Pose2> poses = m.poses(id);
   const core::Pose2 correction = m.correction(id);
   std::vector<ros::Time> stamps;
@@ -59,7 +59,7 @@ core::Pose2 SessionPublisher::publishSession(const core::SessionManager& m, int 
   if (path) path.publish(rc::toPathMsg(rc::vehiclePoses(m, id, frames_->mount()), stamps, map, now));
   if (id != m.activeSession()) return correction;
   std::string said;
-  const std::optional<core::SessionManager::Relocalisation> reloc = reloc_.update(m, id, &said);
+  const std::optional<core::SessionQueries::Relocalisation> reloc = reloc_.update(m, id, &said);
   if (!said.empty() && say_) say_(said);
   if (!reloc) {
     frames_->setActive(id, correction, poses.back(), now);
@@ -75,7 +75,7 @@ core::Pose2 SessionPublisher::publishSession(const core::SessionManager& m, int 
   return reloc->correction;  // map -> session_<id> as map -> odom: the stored map's
 }
 
-void SessionPublisher::publishAll(const core::SessionManager& m, bool all_sessions) {
+void SessionPublisher::publishAll(const core::SessionQueries& m, bool all_sessions) {
   if (all_sessions) offsets_ = rc::mapOffsets(m, frames_->mount());  // maps change only with events
   std::map<int, core::Pose2> corrections;                            // map -> session_<id>: sent together
   for (int id : all_sessions ? m.sessionIds() : std::vector<int>{m.activeSession()})
@@ -92,7 +92,7 @@ void SessionPublisher::publishAll(const core::SessionManager& m, bool all_sessio
       rc::toMarkerArrayMsg(rc::loopSegments(m, frames_->mount(), offsets_), options_.map_frame, ros::Time::now()));
 }
 
-uw_multislam::SessionState SessionPublisher::sessionRequest(const core::SessionManager& m, std::uint8_t state) const {
+uw_multislam::SessionState SessionPublisher::sessionRequest(const core::SessionQueries& m, std::uint8_t state) const {
   uw_multislam::SessionState st;
   st.session = m.activeSession() >= 0 ? m.activeSession() : m.nextId();
   st.name = m.has(st.session) ? m.name(st.session) : core::defaultSessionName(st.session);
@@ -103,12 +103,12 @@ uw_multislam::SessionState SessionPublisher::sessionRequest(const core::SessionM
   return st;
 }
 
-void SessionPublisher::announceNextSession(const core::SessionManager& m, std::uint8_t state) {
+void SessionPublisher::announceNextSession(const core::SessionQueries& m, std::uint8_t state) {
   announced_ = sessionRequest(m, state);
   active_pub_.publish(announced_);
 }
 
-void SessionPublisher::announceNextId(const core::SessionManager& m) {
+void SessionPublisher::announceNextId(const core::SessionQueries& m) {
   // The last request, repeated for a late subscriber (none yet: what the odometry would be asked now).
   uw_multislam::SessionState st =
       announced_.name.empty() ? sessionRequest(m, uw_multislam::SessionState::ACTIVE) : announced_;

@@ -185,7 +185,7 @@ int measure(const Args& a, const core::SlamConfig& config) {
   const long rss1 = rssKb();
   if (loaded <= 0) throw std::runtime_error(a.load + ": no keyframes loaded");
 
-  const int new_session = manager.nextId();
+  const int new_session = manager.view().nextId();
   std::vector<double> query_ms, verify_ms;
   for (int q = 0; q < a.queries; ++q) {
     const Eigen::VectorXf h = randomHash(&rng);

@@ -126,9 +126,9 @@ int runOffline(const OfflineOptions& options) {
     core::SessionManager manager(core::sessionManagerOptions(config, db), {}, print("backend: "));
     if (localise_only) manager.setLocalisation(true);  // before any keyframe: nothing is written
     core::Pipeline pipeline(config, &manager, print(""), !quiet);
-    const int stored = manager.restoredSessions();
+    const int stored = manager.view().restoredSessions();
     for (std::size_t ds = 0; !again && ds < datasets.size(); ++ds) {
-      std::vector<int> s = manager.storedSessionsOf(datasets[ds].frames);
+      std::vector<int> s = manager.view().storedSessionsOf(datasets[ds].frames);
       s.erase(std::remove_if(s.begin(), s.end(), [&](int id) { return finished_now.count(id) > 0; }), s.end());
       if (!s.empty())
         return inStore(folders[ds] + " is already in " + db + " (session " + std::to_string(s.front()) +
@@ -136,15 +136,15 @@ int runOffline(const OfflineOptions& options) {
     }
     if (!db.empty() && !quiet)
       std::printf("store %s: %d sessions, %d loops loaded in %.1f ms\n", db.c_str(), stored,
-                  static_cast<int>(manager.loops().size()),
+                  static_cast<int>(manager.view().loops().size()),
                   std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
     // The operator's links (the back-end's add_link, offline): all checked and measured before
     // anything is written, so that a refusal adds none of them and leaves OUT alone.
     std::vector<OperatorLink> parsed = links;  // measured in place
     for (auto& [l, measured] : parsed) {
-      core::Status st = manager.checkLinkEnds(l);
-      if (st.ok()) st = manager.storedMapsMayChange("add-link");
-      if (st.ok() && !measured) st = core::findStoredLink(manager, config, &l);
+      core::Status st = manager.view().checkLinkEnds(l);
+      if (st.ok()) st = manager.view().storedMapsMayChange("add-link");
+      if (st.ok() && !measured) st = core::findStoredLink(manager.view(), config, &l);
       if (!st.ok()) {
         std::fprintf(stderr, "offline_slam: --add-link %d:%d:%d:%d refused (%s): %s; no link added\n", l.session_a,
                      l.keyframe_a, l.session_b, l.keyframe_b, core::statusCodeName(st.code), st.message.c_str());
@@ -164,7 +164,7 @@ int runOffline(const OfflineOptions& options) {
             "detect-loops among %d stored sessions: %d keyframes queried, %d candidates verified, %d loops "
             "(%d already stored), %d accepted, %d refused; %d joins\n",
             stored, f.queries, f.candidates, f.found, f.duplicates, f.accepted, f.refused,
-            manager.backendStats().joins);
+            manager.view().backendStats().joins);
     }
     for (const auto& [l, measured] : parsed) {  // checked above; the back-end may still refuse one
       const core::Status st = manager.addLink(l);
@@ -229,23 +229,23 @@ int runOffline(const OfflineOptions& options) {
     if (!quiet && frames_read > 0)
       std::printf("throughput: %zu frames in %.2f s wall, %.1f ms/frame (image reading included; --threads %d)\n",
                   frames_read, frames_s, 1000.0 * frames_s / static_cast<double>(frames_read), threads);
-    core::writeRunOutputs(out, manager, csv_of, stored + static_cast<int>(datasets.size()), pipeline.times(),
+    core::writeRunOutputs(out, manager.view(), csv_of, stored + static_cast<int>(datasets.size()), pipeline.times(),
                           core::outputModesOf(db));
     if (!quiet) {
-      const core::BackendStats& bs = manager.backendStats();
+      const core::BackendStats& bs = manager.view().backendStats();
       const core::LoopStats& ls = pipeline.loopDetector().stats();
       std::printf(
           "back-end (%s): %zu maps, %d joins, %d optimisations (%.1f ms total, %.1f ms max), %d loops refused\n",
-          core::optimizerName(config.backend.optimizer), manager.mapIds().size(), bs.joins, bs.optimisations,
+          core::optimizerName(config.backend.optimizer), manager.view().mapIds().size(), bs.joins, bs.optimisations,
           bs.optimise_ms_total, bs.optimise_ms_max, bs.loops_refused);
       std::printf(
           "loops: %d local accepted of %d candidates, %d global accepted of %d candidates, %zu keyframes stored\n",
           ls.local_accepted, ls.local_candidates, ls.global_accepted, ls.global_candidates,
           pipeline.loopDetector().size());
     }
-    if (manager.stats().store_failures > 0) {
+    if (manager.view().stats().store_failures > 0) {
       std::fprintf(stderr, "offline_slam: %s: %ld store writes failed (see above); the outputs in %s are complete\n",
-                   db.c_str(), manager.stats().store_failures, out.c_str());
+                   db.c_str(), manager.view().stats().store_failures, out.c_str());
       return 1;
     }
     return 0;

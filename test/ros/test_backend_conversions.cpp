@@ -144,25 +144,25 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
       ASSERT_TRUE(m.addKeyframe(in).ok());
     }
   }
-  ASSERT_EQ(m.mapIds().size(), 6u);
+  ASSERT_EQ(m.view().mapIds().size(), 6u);
   core::CameraMount mount;  // a lever arm: the markers draw the vehicle, not the camera
   mount.base_from_camera = core::Pose2(0.3, -0.2, 0.4);
-  const std::map<int, double> offsets = mapOffsets(m, mount);
+  const std::map<int, double> offsets = mapOffsets(m.view(), mount);
   ASSERT_EQ(offsets.size(), 6u);
-  EXPECT_EQ(offsets.at(m.mapOf(5)), 0.0);  // the recording session's map stays where tf has it
+  EXPECT_EQ(offsets.at(m.view().mapOf(5)), 0.0);  // the recording session's map stays where tf has it
   // The maps' x ranges, shifted, do not overlap.
   std::vector<std::pair<double, double>> ranges;
   for (int s = 0; s < 6; ++s) {
     double lo = 1e9, hi = -1e9;
-    for (const core::Pose2& p : vehiclePoses(m, s, mount))
-      lo = std::min(lo, p.x() + offsets.at(m.mapOf(s))), hi = std::max(hi, p.x() + offsets.at(m.mapOf(s)));
+    for (const core::Pose2& p : vehiclePoses(m.view(), s, mount))
+      lo = std::min(lo, p.x() + offsets.at(m.view().mapOf(s))), hi = std::max(hi, p.x() + offsets.at(m.view().mapOf(s)));
     ranges.emplace_back(lo, hi);
   }
   for (int a = 0; a < 6; ++a)
     for (int b = a + 1; b < 6; ++b)
       EXPECT_TRUE(ranges[a].second < ranges[b].first || ranges[b].second < ranges[a].first) << a << " " << b;
 
-  const visualization_msgs::MarkerArray all = toTrajectoryMarkersMsg(m, mount, offsets, "map", ros::Time(5.0));
+  const visualization_msgs::MarkerArray all = toTrajectoryMarkersMsg(m.view(), mount, offsets, "map", ros::Time(5.0));
   ASSERT_FALSE(all.markers.empty());
   EXPECT_EQ(all.markers.front().action, visualization_msgs::Marker::DELETEALL);
   std::map<int, visualization_msgs::Marker> lines;
@@ -178,8 +178,8 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
   for (int s = 0; s < 6; ++s) {
     EXPECT_EQ(lines[s].points.size(), 4u);
     // z-up: (x, -y) of the camera, then the lever arm (core::vehicleFromCamera, tested on its own).
-    const core::Pose2 v = core::vehicleFromCamera(m.poses(s).back(), mount);
-    EXPECT_DOUBLE_EQ(lines[s].points.back().x, v.x() + offsets.at(m.mapOf(s)));
+    const core::Pose2 v = core::vehicleFromCamera(m.view().poses(s).back(), mount);
+    EXPECT_DOUBLE_EQ(lines[s].points.back().x, v.x() + offsets.at(m.view().mapOf(s)));
     EXPECT_DOUBLE_EQ(lines[s].points.back().y, v.y());
     EXPECT_DOUBLE_EQ(lines[s].scale.x, s == 5 ? 0.06 : 0.03);
     for (int t = s + 1; t < 6; ++t) {  // colours far apart
@@ -188,7 +188,7 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
     }
   }
   // The loop segments move with their maps.
-  EXPECT_TRUE(loopSegments(m, mount, offsets).empty());  // no loops here
+  EXPECT_TRUE(loopSegments(m.view(), mount, offsets).empty());  // no loops here
   // Issue 17: a local loop that agrees with the odometry, and one 3 m off that the back-end's gate
   // refuses: drawn apart, in a namespace and colour of their own.
   for (const core::Pose2& off : {core::Pose2(), core::Pose2(0.0, 3.0, 0.0)}) {
@@ -197,13 +197,13 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
     l.session_a = l.session_b = 0;
     l.keyframe_a = 0;
     l.keyframe_b = 3;
-    l.z = core::UncertainPose2(core::compose(core::between(m.odometryPoses(0)[0], m.odometryPoses(0)[3]), off),
+    l.z = core::UncertainPose2(core::compose(core::between(m.view().odometryPoses(0)[0], m.view().odometryPoses(0)[3]), off),
                                Eigen::Matrix3d::Identity() * 1e-4);
     l.inliers = 50;
     ASSERT_TRUE(m.addLoop(l).ok());
   }
-  ASSERT_TRUE(m.loopRefused(1) && !m.loopRefused(0));
-  const std::vector<Segment> segments = loopSegments(m, mount, offsets);
+  ASSERT_TRUE(m.view().loopRefused(1) && !m.view().loopRefused(0));
+  const std::vector<Segment> segments = loopSegments(m.view(), mount, offsets);
   ASSERT_EQ(segments.size(), 2u);
   EXPECT_EQ(segments[0].kind, Segment::Kind::kLocal);
   EXPECT_EQ(segments[1].kind, Segment::Kind::kRefused);

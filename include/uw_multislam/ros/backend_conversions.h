@@ -58,7 +58,7 @@ uw_multislam::History::Response toHistoryResponse(const std::vector<core::Histor
 /// The session manager's own counters for /diagnostics and the back-end's log line (keyframes
 /// stale, refused and bridged, loops refused, store failures, sessions, maps, joins, splits,
 /// optimisations and their longest time); the drops and refusals WARN while they grow.
-std::vector<ros_diagnostics::Counter> managerCounters(const core::SessionManager& manager);
+std::vector<ros_diagnostics::Counter> managerCounters(const core::SessionQueries& manager);
 
 /// A session's keyframe poses (in its map's frame) as a Path in `frame_id`; stamps[k] per pose
 /// (missing stamps: the last one given, or `fallback`).
@@ -67,7 +67,7 @@ nav_msgs::Path toPathMsg(const std::vector<core::Pose2>& poses, const std::vecto
 
 /// A session's keyframe poses in its map's frame as the vehicle's (z-up, base_link; the core's are
 /// the camera's: core/geometry/vehicle_frame.h), as every output in the map frame gives them.
-std::vector<core::Pose2> vehiclePoses(const core::SessionManager& manager, int id, const core::CameraMount& mount);
+std::vector<core::Pose2> vehiclePoses(const core::SessionQueries& manager, int id, const core::CameraMount& mount);
 
 /// One segment to draw: two vehicle positions in a map's frame.
 struct Segment {
@@ -78,16 +78,16 @@ struct Segment {
 /// map (else the lowest id) where it is, so that it agrees with tf and the pose; every other map
 /// after it in id order, shifted to start 1 m past the previous one's extent, so that maps that
 /// are not joined (not related) do not sit on top of each other in rviz.
-std::map<int, double> mapOffsets(const core::SessionManager& manager, const core::CameraMount& mount);
+std::map<int, double> mapOffsets(const core::SessionQueries& manager, const core::CameraMount& mount);
 /// The segments to draw for a manager's state: its loops inside a map (those the back-end refused
 /// as kRefused), and its links, each map shifted by its offset (missing: 0).
-std::vector<Segment> loopSegments(const core::SessionManager& manager, const core::CameraMount& mount,
+std::vector<Segment> loopSegments(const core::SessionQueries& manager, const core::CameraMount& mount,
                                   const std::map<int, double>& offsets = {});
 /// rviz markers for any number of sessions: each session's keyframes as a LINE_STRIP (namespace
 /// "trajectories", id = session id, a colour of its own; the active session twice as wide) with a
 /// text label "session <id>" at its last keyframe (namespace "labels"), and a label "map <id>"
 /// over each shifted map (namespace "maps"), maps shifted by `offsets`, after a DELETEALL.
-visualization_msgs::MarkerArray toTrajectoryMarkersMsg(const core::SessionManager& manager,
+visualization_msgs::MarkerArray toTrajectoryMarkersMsg(const core::SessionQueries& manager,
                                                        const core::CameraMount& mount,
                                                        const std::map<int, double>& offsets,
                                                        const std::string& frame_id, const ros::Time& stamp);

@@ -39,7 +39,7 @@ class HashExchange {
   /// another vehicle's session took one of our ids.
   HashExchange(ros::NodeHandle& nh, std::string vehicle, int queue_size, bool hash_codes,
                std::string session_frame_prefix, core::SessionWorker* worker,
-               std::function<void(const core::SessionManager&)> opened);
+               std::function<void(const core::SessionQueries&)> opened);
   /// Subscribes to fleet/hashes_in (queue_size deep: the worker's bound) and says so, naming
   /// `peers` (whose features keyframe_features asks for).
   void listen(ros::NodeHandle& nh, int queue_size, const std::map<std::string, std::string>& peers);
@@ -49,7 +49,7 @@ class HashExchange {
   /// needs it.
   void hashIfMissing(ros_conversions::KeyframeData* k) const;
   /// Our keyframe, taken by the manager (its features are not needed): out on fleet/hashes_out.
-  void sendOurs(const core::SessionManager& m, ros_conversions::KeyframeData k, const std_msgs::Header& header);
+  void sendOurs(const core::SessionQueries& m, ros_conversions::KeyframeData k, const std_msgs::Header& header);
   /// Our session ended: the other vehicles may join it now.
   void sessionEnded(int session);
   /// A message of fleet/hashes_in: another vehicle's keyframe or session-ended notice.
@@ -64,7 +64,7 @@ class HashExchange {
   const bool hash_codes_;
   const std::string session_frame_prefix_;
   core::SessionWorker* worker_;
-  const std::function<void(const core::SessionManager&)> opened_;
+  const std::function<void(const core::SessionQueries&)> opened_;
   ros::Publisher out_pub_, foreign_pub_;
   ros::Subscriber in_sub_;
   std::atomic<long> messages_{0};

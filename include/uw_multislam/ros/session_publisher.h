@@ -36,13 +36,13 @@ class SessionPublisher {
 
   /// The active session (all_sessions false: its trajectory, path, pose and tf; the markers at
   /// most at 1 Hz) or every session (after an event: joins, splits, optimisations, requests).
-  void publishAll(const core::SessionManager& m, bool all_sessions);
+  void publishAll(const core::SessionQueries& m, bool all_sessions);
   /// On active_session: the recording session, else the id the next one gets, in `state` (ACTIVE,
   /// or FINISHED after finish_session: the odometry then drops frames until start_session).
-  void announceNextSession(const core::SessionManager& m, std::uint8_t state = uw_multislam::SessionState::ACTIVE);
+  void announceNextSession(const core::SessionQueries& m, std::uint8_t state = uw_multislam::SessionState::ACTIVE);
   /// On active_session, next_session_only: another vehicle's session took an id, so our
   /// odometry's own next session takes a later one; the last request repeated, not renewed.
-  void announceNextId(const core::SessionManager& m);
+  void announceNextId(const core::SessionQueries& m);
   /// odometry/pose (the odometry's pose in its session's frame): the vehicle's pose in the map
   /// frame on `pose`, and odom -> base_link (frame publisher). Never waits for the worker.
   void onOdometry(const geometry_msgs::PoseWithCovarianceStampedConstPtr& msg);
@@ -53,8 +53,8 @@ class SessionPublisher {
   const core::RelocalisationTracker::State& relocalisation() const { return reloc_.state(); }
 
  private:
-  core::Pose2 publishSession(const core::SessionManager& m, int id);  // returns map <- session
-  uw_multislam::SessionState sessionRequest(const core::SessionManager& m, std::uint8_t state) const;
+  core::Pose2 publishSession(const core::SessionQueries& m, int id);  // returns map <- session
+  uw_multislam::SessionState sessionRequest(const core::SessionQueries& m, std::uint8_t state) const;
 
   ros::NodeHandle nh_;
   ros_frames::FramePublisher* frames_;

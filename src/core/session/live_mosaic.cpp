@@ -92,7 +92,7 @@ const LiveMosaicImages::Entry* LiveMosaicImages::find(int session, int keyframe)
   return it == entries_.end() ? nullptr : &it->second;
 }
 
-LiveMosaicSnapshot liveMosaicSnapshot(const SessionManager& manager, const LiveMosaicImages& images) {
+LiveMosaicSnapshot liveMosaicSnapshot(const SessionQueries& manager, const LiveMosaicImages& images) {
   LiveMosaicSnapshot out;
   const int active = manager.activeSession();
   if (active < 0 || !manager.has(active) || !manager.hasKeyframe(active)) return out;

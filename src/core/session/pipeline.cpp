@@ -30,16 +30,15 @@ Pipeline::Pipeline(const SlamConfig& config, SessionWorker* worker, std::unique_
   worker_->locked([this](SessionManager& m) { return loadStoredSessions(&m, &detector_, &cameras_); });
   // The detector reads a stored candidate's features through the worker (under its lock).
   detector_.setFeatureLoader([w = worker_](int session, int keyframe) {
-    return w->locked([&](const SessionManager& m) { return m.storedFeatures(session, keyframe).features(); });
+    return w->locked([&](const SessionQueries& m) { return m.storedFeatures(session, keyframe).features(); });
   });
 }
 
 int loadStoredSessions(SessionManager* manager, LoopDetector* detector, std::deque<CameraIntrinsics>* cameras) {
   int keyframes = 0;
-  detector->setFeatureLoader([manager](int session, int keyframe) {
-    return manager->storedFeatures(session, keyframe).features();
-  });
-  for (const SessionSummary& s : manager->list()) {
+  detector->setFeatureLoader(
+      [manager](int session, int keyframe) { return manager->view().storedFeatures(session, keyframe).features(); });
+  for (const SessionSummary& s : manager->view().list()) {
     if (s.state != SessionState::kUnloaded) continue;
     ReloadedSession r;
     const Status st = manager->reload(std::to_string(s.id), &r, SessionManager::ReloadRead::kHashes);
@@ -88,7 +87,7 @@ void Pipeline::startPiece(double stamp_s) {
   ScopedStage stage(&times_, "session_manager");
   const Status st = worker_->locked([&](SessionManager& m) {
     std::string name = base;
-    for (int run = 2; m.idOfName(name) >= 0; ++run) name = base + " (" + std::to_string(run) + ")";
+    for (int run = 2; m.view().idOfName(name) >= 0; ++run) name = base + " (" + std::to_string(run) + ")";
     return m.startSession(name, stamp_s, -1, &session_);
   });
   if (!st.ok()) throw std::invalid_argument(stream_ + ": " + st.message);
@@ -112,7 +111,7 @@ void Pipeline::endPiece(double stamp_s) {
                 st.frames, st.keyframes, st.tracked, st.fallbacks, st.promotions,
                 st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude, st.altitude_reused,
                 st.altitude_out_of_range, odometry.times().get("odometry_total").meanMs());
-  const std::string name = worker_->locked([&](const SessionManager& m) { return m.name(session_); });
+  const std::string name = worker_->locked([&](const SessionQueries& m) { return m.name(session_); });
   say("session " + std::to_string(session_) + " (" + name + "): " + line);
   if (st.gate_checks > 0 || st.nav_frames > 0 || st.nav_implausible > 0) {
     std::snprintf(line, sizeof line,
@@ -183,9 +182,8 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input, Prepa
       k.hash = worker_->hasher().hash(kf.features.descriptors);  // once: the detector and the store share it
     }
     chain_.append(kf.id, k.motion, k.odometry_pose);
-    const auto [session_poses, store] = worker_->locked([&](const SessionManager& m) {
-      return std::make_pair(m.posesInSessionFrame(session_), m.hasStore());
-    });
+    const auto [session_poses, store] = worker_->locked(
+        [&](const SessionQueries& m) { return std::make_pair(m.posesInSessionFrame(session_), m.hasStore()); });
     std::vector<Loop> loops =
         detector_.addKeyframe(session_, kf.id, info.frame_index, info.altitude_m, &cameras_.back(), kf.features,
                               chain_.candidateTrajectory(session_poses), &k.hash);
@@ -200,7 +198,7 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input, Prepa
     ScopedStage stage(&times_, "session_manager");
     Status st;
     worker_->addKeyframe(std::move(k), std::move(loops),
-                         [&st](const SessionManager&, const KeyframeInput&, const Status& s) { st = s; });
+                         [&st](const SessionQueries&, const KeyframeInput&, const Status& s) { st = s; });
     if (!st.ok()) throw std::logic_error("session manager refused an in-process keyframe: " + st.message);
   }
   if (step.session_closed) {

@@ -12,7 +12,7 @@
 namespace uw_multislam {
 namespace core {
 
-void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, const std::map<int, int>& csv_of,
+void writeRunOutputs(const std::string& out_dir, const SessionQueries& manager, const std::map<int, int>& csv_of,
                      int first_free_label, const StageTimes& times, const OutputModes& modes) {
   namespace fs = std::filesystem;
   auto csv = [&](int id) {

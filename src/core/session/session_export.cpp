@@ -40,7 +40,7 @@ Status SessionExporter::run(const SessionWorker& worker, const SessionExportRequ
   std::string directory;
   if (const Status st = checkExportRequest(root_, request, &options, &origin, &directory); !st.ok()) return st;
   std::string name, label, store;
-  const Status found = worker.locked([&](const SessionManager& m) -> Status {
+  const Status found = worker.locked([&](const SessionQueries& m) -> Status {
     const int id = m.findSession(request.session);
     if (id < 0)
       return {StatusCode::kNotFound,

@@ -25,9 +25,9 @@ const SessionWorkerOptions& checked(const SessionWorkerOptions& o) {
 
 }  // namespace
 
-std::optional<SessionManager::Relocalisation> RelocalisationTracker::update(const SessionManager& manager, int session,
+std::optional<SessionQueries::Relocalisation> RelocalisationTracker::update(const SessionQueries& manager, int session,
                                                                             std::string* said) {
-  std::optional<SessionManager::Relocalisation> r = manager.relocalise(session);
+  std::optional<SessionQueries::Relocalisation> r = manager.relocalise(session);
   const int map = r ? r->map : -1;
   said->clear();
   if (session != state_.session || map != state_.map) {
@@ -163,22 +163,22 @@ void SessionWorker::process(Item& item) {
           ++stats_.keyframes;
         }
         const Status st = manager_->addKeyframe(k->keyframe, k->loops);
-        if (k->done) k->done(*manager_, k->keyframe, st);
+        if (k->done) k->done(manager_->view(), k->keyframe, st);
       } else if (auto* f = std::get_if<ForeignKeyframeItem>(&item)) {
         std::string why;
         Status st;
         int local = -1;
         bool opens = false;
-        if (!HashSettings::compatible(f->settings, manager_->hashSettings(), &why)) {
+        if (!HashSettings::compatible(f->settings, manager_->view().hashSettings(), &why)) {
           st = {StatusCode::kFailedPrecondition, why + " (ours): its hashes cannot be compared with ours"};
         } else {
-          opens = manager_->foreignSession(f->vehicle, f->keyframe.session) < 0;
-          st = manager_->addForeignKeyframe(f->vehicle, f->keyframe, &local);
+          opens = manager_->view().foreignSession(f->vehicle, f->keyframe.session) < 0;
+          st = manager_->fleet().addKeyframe(f->vehicle, f->keyframe, &local);
         }
-        if (f->done) f->done(*manager_, f->keyframe, st, local, opens && st.ok());
+        if (f->done) f->done(manager_->view(), f->keyframe, st, local, opens && st.ok());
       } else if (auto* e = std::get_if<ForeignEndItem>(&item)) {
-        const Status st = manager_->endForeignSession(e->vehicle, e->remote_session, e->stamp_s);
-        if (e->done) e->done(*manager_, st);
+        const Status st = manager_->fleet().endSession(e->vehicle, e->remote_session, e->stamp_s);
+        if (e->done) e->done(manager_->view(), st);
       }
       retry = std::exchange(waiting_, {});
     });
@@ -260,7 +260,7 @@ std::pair<int, long> SessionWorker::reloadStored() {
   std::lock_guard<std::mutex> lock(mutex_);
   int sessions = 0;
   long keyframes = 0;
-  for (const SessionSummary& s : manager_->list()) {
+  for (const SessionSummary& s : manager_->view().list()) {
     if (s.state != SessionState::kUnloaded) continue;
     ReloadedSession r;
     // Nothing read here: the handover reads each session's hashes when a loop detector
@@ -313,7 +313,7 @@ HandoverStats SessionWorker::handOver(const std::string& to,
     std::lock_guard<std::mutex> h(handover_mutex_);
     ids = handed_;
     handover_.total = 0;
-    for (int id : ids) handover_.total += static_cast<long>(manager_->frames(id).size());
+    for (int id : ids) handover_.total += static_cast<long>(manager_->view().frames(id).size());
     handover_.sent = handover_.without_features = 0;
     ++handover_.subscribers;
   }
@@ -327,9 +327,9 @@ HandoverStats SessionWorker::handOver(const std::string& to,
     }
     ReloadedSession r;
     r.id = id;
-    r.camera = manager_->camera(id);
+    r.camera = manager_->view().camera(id);
     try {
-      r.keyframes = manager_->storedHashes(id);
+      r.keyframes = manager_->view().storedHashes(id);
     } catch (const std::exception& e) {
       ++failed;
       say(Severity::kError, "stored session " + std::to_string(id) + " not sent to " + to + ": " + e.what());
@@ -338,7 +338,7 @@ HandoverStats SessionWorker::handOver(const std::string& to,
     for (StoredKeyframe& k : r.keyframes) {
       if (!options_.page_stored) {  // paging: hashes only, the loop detector asks keyframe_features
         try {
-          const StoredKeyframe f = manager_->storedFeatures(id, k.keyframe);
+          const StoredKeyframe f = manager_->view().storedFeatures(id, k.keyframe);
           k.points = f.points;
           k.descriptors = f.descriptors;
           k.image_size = f.image_size;
@@ -387,7 +387,7 @@ Status SessionWorker::keyframeFeatures(int session, int keyframe, bool check_onl
     return {StatusCode::kInvalidArgument,
             "session " + std::to_string(session) + ", keyframe " + std::to_string(keyframe) + ": ids must be >= 0"};
   std::lock_guard<std::mutex> lock(mutex_);
-  const SessionManager& m = *manager_;
+  const SessionQueries& m = manager_->view();
   if (m.has(session) && !m.vehicleOf(session).empty()) {  // another vehicle's: that vehicle has the features
     out->vehicle = m.vehicleOf(session);
     out->remote_session = m.remoteIdOf(session);

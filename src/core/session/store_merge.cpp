@@ -239,13 +239,13 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
   // --- Global loops between the inputs, joins by the manager's policy ---------------------------
   {
     SessionManager manager(sessionManagerOptions(config, tmp.path()), {}, say);
-    if (manager.hasher().projections().toText() != settings.projections)
+    if (manager.view().hasher().projections().toText() != settings.projections)
       throw std::invalid_argument("the inputs' projection vectors are not the ones this build makes from " +
                                   settingsText(settings) + ": no loop could be found between them");
-    if (static_cast<int>(manager.sessionIds().size()) != report.sessions)
-      throw StoreError("merge_stores: the merged store restores " + std::to_string(manager.sessionIds().size()) +
+    if (static_cast<int>(manager.view().sessionIds().size()) != report.sessions)
+      throw StoreError("merge_stores: the merged store restores " + std::to_string(manager.view().sessionIds().size()) +
                        " sessions, " + std::to_string(report.sessions) + " were copied");
-    const int joins_before = manager.backendStats().joins;
+    const int joins_before = manager.view().backendStats().joins;
     if (search_loops && inputs.size() > 1) {
       std::vector<std::vector<int>> groups(inputs.size());  // the merged sessions of each input
       for (std::size_t s = 0; s < input_of.size(); ++s) groups[input_of[s]].push_back(static_cast<int>(s));
@@ -257,11 +257,11 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
       report.loops_refused = found.refused;
     }
     manager.flush();  // optimises what the new loops made due, saves the maps
-    if (manager.stats().store_failures > 0)
-      throw StoreError("merge_stores: " + std::to_string(manager.stats().store_failures) +
+    if (manager.view().stats().store_failures > 0)
+      throw StoreError("merge_stores: " + std::to_string(manager.view().stats().store_failures) +
                        " writes to the merged store failed (see the log)");
-    report.joins = manager.backendStats().joins - joins_before;
-    report.maps = static_cast<int>(manager.mapIds().size());
+    report.joins = manager.view().backendStats().joins - joins_before;
+    report.maps = static_cast<int>(manager.view().mapIds().size());
   }
 
   // --- Publish: a hard link never replaces an OUT that appeared meanwhile -----------------------

@@ -19,29 +19,28 @@ StoredLoopSearch searchStoredLoops(SessionManager* manager, const SlamConfig& co
   std::set<int> named;
   for (const std::vector<int>& g : groups)
     for (int s : g) {
-      if (!manager->has(s) || s >= manager->restoredSessions())
+      if (!manager->view().has(s) || s >= manager->view().restoredSessions())
         throw std::invalid_argument("session " + std::to_string(s) + " is not a stored session");
       if (!named.insert(s).second) throw std::invalid_argument("session " + std::to_string(s) + " is named twice");
     }
   // The pairs the manager holds already (either direction): a stored session recorded after
   // another found its loops against it then.
   std::set<std::tuple<int, int, int, int>> held;
-  for (const Loop& l : manager->loops()) {
+  for (const Loop& l : manager->view().loops()) {
     held.emplace(l.session_a, l.keyframe_a, l.session_b, l.keyframe_b);
     held.emplace(l.session_b, l.keyframe_b, l.session_a, l.keyframe_a);
   }
   StoredLoopSearch r;
   LoopDetector detector(config.loops, config.odometry.matching, config.odometry.ransac,
                         config.odometry.features.num_features);
-  detector.setFeatureLoader([manager](int session, int keyframe) {
-    return manager->storedFeatures(session, keyframe).features();
-  });
+  detector.setFeatureLoader(
+      [manager](int session, int keyframe) { return manager->view().storedFeatures(session, keyframe).features(); });
   std::deque<CameraIntrinsics> cameras;  // the detector keeps pointers: never moved
   for (std::size_t g = 0; g < groups.size(); ++g) {
     std::vector<std::pair<int, std::vector<StoredKeyframe>>> group;
     for (int s : groups[g]) {
-      cameras.push_back(manager->camera(s));
-      group.emplace_back(s, manager->storedHashes(s));
+      cameras.push_back(manager->view().camera(s));
+      group.emplace_back(s, manager->view().storedHashes(s));
     }
     const std::size_t first_camera = cameras.size() - group.size();
     for (std::size_t i = 0; i < group.size() && g > 0; ++i) {
@@ -50,7 +49,7 @@ StoredLoopSearch searchStoredLoops(SessionManager* manager, const SlamConfig& co
         const std::vector<HashCandidate> candidates = detector.globalCandidates(kf.hash, session);
         ++r.queries;
         if (candidates.empty()) continue;
-        FrameFeatures now = manager->storedFeatures(session, kf.keyframe).features();
+        FrameFeatures now = manager->view().storedFeatures(session, kf.keyframe).features();
         now.descriptors = extractorDescriptors(now.descriptors);  // as the extractor gives them
         const View view{&now, kf.altitude_m, &cameras[first_camera + i]};
         for (const HashCandidate& candidate : candidates) {
@@ -88,7 +87,7 @@ StoredLoopSearch searchStoredLoops(SessionManager* manager, const SlamConfig& co
   return r;
 }
 
-Status findStoredLink(const SessionManager& manager, const SlamConfig& config, Loop* link) {
+Status findStoredLink(const SessionQueries& manager, const SlamConfig& config, Loop* link) {
   if (!manager.hasStore()) return {StatusCode::kFailedPrecondition, "add_link find: no session store"};
   if (const Status mode = manager.storedMapsMayChange("add_link"); !mode.ok()) return mode;
   const Loop& l = *link;
@@ -134,37 +133,38 @@ Status detectStoredLoops(SessionManager* manager, const SlamConfig& config, cons
   *out = StoredLoopSearch();
   if (sessions.size() < 2)
     return {StatusCode::kInvalidArgument, "detect_loops needs two or more stored sessions (list_sessions ids)"};
-  if (!manager->hasStore()) return {StatusCode::kFailedPrecondition, "detect_loops: no session store"};
-  if (const Status mode = manager->storedMapsMayChange("detect_loops"); !mode.ok()) return mode;
+  if (!manager->view().hasStore()) return {StatusCode::kFailedPrecondition, "detect_loops: no session store"};
+  if (const Status mode = manager->view().storedMapsMayChange("detect_loops"); !mode.ok()) return mode;
   std::set<int> seen;
   for (int s : sessions) {
     if (!seen.insert(s).second)
       return {StatusCode::kInvalidArgument, "detect_loops names session " + std::to_string(s) + " twice"};
-    if (!manager->has(s))
-      return {StatusCode::kNotFound, "detect_loops: no session " + std::to_string(s) + " (call list_sessions for the ids)"};
-    if (s >= manager->restoredSessions())
+    if (!manager->view().has(s))
+      return {StatusCode::kNotFound,
+              "detect_loops: no session " + std::to_string(s) + " (call list_sessions for the ids)"};
+    if (s >= manager->view().restoredSessions())
       return {StatusCode::kFailedPrecondition, "detect_loops: session " + std::to_string(s) +
                                                    " was recorded in this run (its loops were searched live); "
                                                    "only sessions restored from the store are searched"};
   }
   std::vector<std::vector<int>> groups;
   for (int s : sessions) groups.push_back({s});
-  const int loops_before = static_cast<int>(manager->loops().size());
+  const int loops_before = static_cast<int>(manager->view().loops().size());
   try {
     *out = searchStoredLoops(manager, config, groups, log);
   } catch (const StoreError& e) {
-    out->accepted = static_cast<int>(manager->loops().size()) - loops_before;
+    out->accepted = static_cast<int>(manager->view().loops().size()) - loops_before;
     return {StatusCode::kDataLoss, std::string("detect_loops: ") + e.what()};
   }
   return Status::Ok();
 }
 
-Status checkOperatorLink(const SessionManager& manager, const SlamConfig& config, bool measure, Loop* link) {
+Status checkOperatorLink(const SessionQueries& manager, const SlamConfig& config, bool measure, Loop* link) {
   return measure ? findStoredLink(manager, config, link) : manager.checkLink(*link);
 }
 
 Status addOperatorLink(SessionManager* manager, const SlamConfig& config, bool measure, Loop* link) {
-  if (const Status st = checkOperatorLink(*manager, config, measure, link); !st.ok()) return st;
+  if (const Status st = checkOperatorLink(manager->view(), config, measure, link); !st.ok()) return st;
   return manager->addLink(*link);
 }
 

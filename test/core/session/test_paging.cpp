@@ -45,7 +45,7 @@ class PagingTest : public testing_util::SeabedFeaturesTest {
       in.features = features(p, 2.0);
       in.motion = UncertainPose2(between(previous, p), Eigen::Matrix3d::Identity() * 1e-4);
       in.odometry_pose = between(Pose2(2.5, 3.0, 0.0), p);
-      in.hash = m.hasher().hash(in.features.descriptors);
+      in.hash = m.view().hasher().hash(in.features.descriptors);
       ASSERT_TRUE(m.addKeyframe(in).ok());
       previous = p;
     }

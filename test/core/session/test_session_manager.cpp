@@ -23,7 +23,7 @@ namespace {
 
 SessionManagerOptions options(const std::string& store = "") {
   SessionManagerOptions o;
-  o.backend.join_min_loops = 0;  // joins only when asked
+  o.backend.join_min_loops = 0;                // joins only when asked
   o.backend.join_policy = JoinPolicy::kCount;  // where a test turns joins on: by K loops
   o.store_path = store;
   return o;
@@ -79,25 +79,25 @@ TEST(SessionManager, SessionsTakeTheIdsTheirKeyframesNameAndIdsOnlyGrow) {
   std::vector<SessionEvent> events;
   SessionManager m(options(), [&](const SessionEvent& e) { events.push_back(e); });
   addStraightSession(&m, 0, 3);
-  EXPECT_EQ(m.activeSession(), 0);
+  EXPECT_EQ(m.view().activeSession(), 0);
   addStraightSession(&m, 3, 2);  // the odometry skipped ids 1, 2: the manager follows it
-  EXPECT_EQ(m.activeSession(), 3);
-  EXPECT_EQ(m.sessionIds(), (std::vector<int>{0, 3}));
-  EXPECT_EQ(m.nextId(), 4);
+  EXPECT_EQ(m.view().activeSession(), 3);
+  EXPECT_EQ(m.view().sessionIds(), (std::vector<int>{0, 3}));
+  EXPECT_EQ(m.view().nextId(), 4);
   // Session 0 ended when 3 started: its keyframes are refused as stale, nothing changes.
   const Status stale = m.addKeyframe(keyframe(0, 3, Pose2(3, 0, 0), Pose2(2, 0, 0)));
   EXPECT_EQ(stale.code, StatusCode::kFailedPrecondition);
-  EXPECT_EQ(m.list()[0].keyframes, 3);
-  EXPECT_EQ(m.list()[0].state, SessionState::kFinished);
-  EXPECT_EQ(m.list()[1].state, SessionState::kActive);
+  EXPECT_EQ(m.view().list()[0].keyframes, 3);
+  EXPECT_EQ(m.view().list()[0].state, SessionState::kFinished);
+  EXPECT_EQ(m.view().list()[1].state, SessionState::kActive);
   // start_session takes the next id and refuses a name in use or an old id.
   int id = -1;
   EXPECT_EQ(m.startSession("session_0", 5.0).code, StatusCode::kAlreadyExists);
   EXPECT_EQ(m.startSession("x", 5.0, 2).code, StatusCode::kInvalidArgument);
-  EXPECT_EQ(m.activeSession(), 3);  // refused requests changed nothing
+  EXPECT_EQ(m.view().activeSession(), 3);  // refused requests changed nothing
   ASSERT_TRUE(m.startSession("dive 2", 5.0, -1, &id).ok());
   EXPECT_EQ(id, 4);
-  EXPECT_EQ(m.name(4), "dive 2");
+  EXPECT_EQ(m.view().name(4), "dive 2");
   int started = 0, ended = 0;
   for (const SessionEvent& e : events) {
     started += e.kind == SessionEvent::Kind::kSessionStarted;
@@ -113,26 +113,26 @@ TEST(SessionManager, AKeyframeIdFarPastTheLastIsRefusedWithoutBridging) {
   const Status st = m.addKeyframe(keyframe(0, INT_MAX, Pose2(3, 0, 0), Pose2(2, 0, 0)));
   EXPECT_EQ(st.code, StatusCode::kInvalidArgument);
   EXPECT_NE(st.message.find("max_keyframe_gap"), std::string::npos) << st.message;
-  EXPECT_EQ(m.list()[0].keyframes, 3);
+  EXPECT_EQ(m.view().list()[0].keyframes, 3);
   EXPECT_EQ(m.addKeyframe(keyframe(7, INT_MAX, Pose2(), Pose2())).code, StatusCode::kInvalidArgument);
-  EXPECT_FALSE(m.has(7));
+  EXPECT_FALSE(m.view().has(7));
   // A small gap is bridged: placeholders at the last pose, no loop may use them.
   ASSERT_TRUE(m.addKeyframe(keyframe(0, 6, Pose2(6, 0, 0), Pose2(2, 0, 0))).ok());
-  EXPECT_EQ(m.list()[0].keyframes, 7);
-  EXPECT_EQ(m.stats().keyframe_gaps, 1);
-  EXPECT_NEAR(m.poses(0)[4].x(), 2.0, 1e-9);
-  EXPECT_NEAR(m.poses(0)[6].x(), 6.0, 1e-9);
+  EXPECT_EQ(m.view().list()[0].keyframes, 7);
+  EXPECT_EQ(m.view().stats().keyframe_gaps, 1);
+  EXPECT_NEAR(m.view().poses(0)[4].x(), 2.0, 1e-9);
+  EXPECT_NEAR(m.view().poses(0)[6].x(), 6.0, 1e-9);
   // A keyframe whose camera is unusable is refused before it reaches the session or the store.
   KeyframeInput no_camera = keyframe(0, 7, Pose2(7, 0, 0), Pose2(6, 0, 0));
   no_camera.camera.fx = 0;
   const Status refused = m.addKeyframe(no_camera);
   EXPECT_EQ(refused.code, StatusCode::kInvalidArgument);
   EXPECT_NE(refused.message.find("camera: focal length"), std::string::npos) << refused.message;
-  EXPECT_EQ(m.list()[0].keyframes, 7);
+  EXPECT_EQ(m.view().list()[0].keyframes, 7);
   Loop onPlaceholder = globalLoop(0, 4, 0, 6, Pose2(4, 0, 0));
   onPlaceholder.kind = Loop::Kind::kLocal;
   EXPECT_EQ(m.addLoop(onPlaceholder).code, StatusCode::kFailedPrecondition);
-  EXPECT_EQ(m.loops().size(), 0u);
+  EXPECT_EQ(m.view().loops().size(), 0u);
 }
 
 // Keyframe 0 lost on the way: the placeholder origin opens the session's store row, which gets the
@@ -145,7 +145,7 @@ TEST(SessionManager, APlaceholderOriginStoresTheSessionsCamera) {
     SessionManager m(options(db));
     ASSERT_TRUE(m.addKeyframe(keyframe(0, 1, Pose2(1, 0, 0), Pose2(0, 0, 0))).ok());
     ASSERT_TRUE(m.addKeyframe(keyframe(0, 2, Pose2(2, 0, 0), Pose2(1, 0, 0))).ok());
-    EXPECT_EQ(m.stats().store_failures, 0);
+    EXPECT_EQ(m.view().stats().store_failures, 0);
   }
   const SessionStore store(db, StoreAccess::kReadOnly);
   const std::vector<StoredSession> sessions = store.sessions();
@@ -177,7 +177,7 @@ TEST(SessionManager, ARowMadeBeforeTheFirstKeyframeGetsItsCamera) {
       EXPECT_EQ(store.sessions()[1].camera.width, 0);  // made by the save, before any keyframe
     }
     addStraightSession(&m, b, 3);
-    EXPECT_EQ(m.stats().store_failures, 0);
+    EXPECT_EQ(m.view().stats().store_failures, 0);
   }
   {
     const SessionStore store(db, StoreAccess::kReadOnly);
@@ -215,7 +215,7 @@ TEST(SessionManager, LoopsOnKeyframesNotYetArrivedWait) {
   addStraightSession(&m, 1, 1);
   EXPECT_TRUE(m.addLoop(globalLoop(0, 1, 1, 0, Pose2(0, 1, 0)), &waiting).ok());
   EXPECT_FALSE(waiting);
-  EXPECT_EQ(m.list()[1].loops, 1);
+  EXPECT_EQ(m.view().list()[1].loops, 1);
 }
 
 TEST(SessionManager, JoinAndSplitAnswerInSessionIdsAndFailedRequestsChangeNothing) {
@@ -226,14 +226,14 @@ TEST(SessionManager, JoinAndSplitAnswerInSessionIdsAndFailedRequestsChangeNothin
   EXPECT_EQ(m.join(0, 1, -1).code, StatusCode::kInvalidArgument);
   const Status six = m.join(0, 1, 6);
   EXPECT_EQ(six.code, StatusCode::kFailedPrecondition) << six.message;  // 5 loops only
-  EXPECT_EQ(m.mapIds(), (std::vector<int>{0, 1}));
+  EXPECT_EQ(m.view().mapIds(), (std::vector<int>{0, 1}));
   ASSERT_TRUE(m.join(0, 1, 5).ok());
-  EXPECT_EQ(m.mapOf(1), 0);
-  ASSERT_EQ(m.links().size(), 1u);
-  EXPECT_EQ(m.links()[0].previous, 0);
-  EXPECT_EQ(m.links()[0].current, 1);
+  EXPECT_EQ(m.view().mapOf(1), 0);
+  ASSERT_EQ(m.view().links().size(), 1u);
+  EXPECT_EQ(m.view().links()[0].previous, 0);
+  EXPECT_EQ(m.view().links()[0].current, 1);
   // Session 1's keyframe k lies one metre to the side of session 0's keyframe k.
-  const std::vector<Pose2> p0 = m.poses(0), p1 = m.poses(1);
+  const std::vector<Pose2> p0 = m.view().poses(0), p1 = m.view().poses(1);
   for (int k = 0; k < 8; ++k) {
     EXPECT_NEAR(p1[k].x(), p0[k].x(), 1e-6) << k;
     EXPECT_NEAR(p1[k].y(), p0[k].y() + 1.0, 1e-6) << k;
@@ -242,7 +242,7 @@ TEST(SessionManager, JoinAndSplitAnswerInSessionIdsAndFailedRequestsChangeNothin
   EXPECT_EQ(m.split(-1).code, StatusCode::kInvalidArgument);  // outside the ids: said so
   EXPECT_EQ(m.join(0, INT_MAX).code, StatusCode::kInvalidArgument);
   ASSERT_TRUE(m.split(1).ok());
-  EXPECT_EQ(m.mapOf(1), 1);
+  EXPECT_EQ(m.view().mapOf(1), 1);
   const Status again = m.split(1);
   EXPECT_EQ(again.code, StatusCode::kFailedPrecondition) << again.message;
   bool joined = false, split = false;
@@ -261,37 +261,37 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
     SessionManager m(options(db));
     twoSessionsWithLoops(&m);
     ASSERT_TRUE(m.join(0, 1, 5).ok());
-    joined = m.poses(1);
+    joined = m.view().poses(1);
     // A session opened by start_session that no keyframe follows must not stop the maps from
     // being saved (it used to: the join was lost at the next start).
     ASSERT_TRUE(m.startSession("empty", 20.0).ok());
     ASSERT_TRUE(m.endSession(21.0).ok());
     ASSERT_TRUE(m.split(1).ok());
     ASSERT_TRUE(m.join(0, 1, 5).ok());
-    EXPECT_EQ(m.stats().store_failures, 0);
+    EXPECT_EQ(m.view().stats().store_failures, 0);
   }
   std::vector<std::string> log;
   SessionManager again(options(db), {}, [&](const std::string& line) { log.push_back(line); });
-  ASSERT_EQ(again.restoredSessions(), 2);
+  ASSERT_EQ(again.view().restoredSessions(), 2);
   // The start-up log names what an earlier run left.
   EXPECT_NE(std::find(log.begin(), log.end(),
                       "restored sessions: 0 'session_0' (8 keyframes, map 0), 1 'session_1' (8 keyframes, map 0)"),
             log.end());
-  const std::vector<SessionSummary> list = again.list();
+  const std::vector<SessionSummary> list = again.view().list();
   ASSERT_EQ(list.size(), 2u);
   EXPECT_EQ(list[0].state, SessionState::kUnloaded);
   EXPECT_EQ(list[1].map, 0);  // still joined after the restart
   EXPECT_EQ(list[1].keyframes, 8);
   EXPECT_EQ(list[1].loops, 5);
-  const std::vector<Pose2> back = again.poses(1);
+  const std::vector<Pose2> back = again.view().poses(1);
   for (std::size_t k = 0; k < back.size(); ++k) EXPECT_NEAR(back[k].y(), joined[k].y(), 1e-9) << k;
-  EXPECT_EQ(again.nextId(), 2);
+  EXPECT_EQ(again.view().nextId(), 2);
   // The frames session 1 was made from are recognised (a folder run into the store again).
   std::vector<FrameRecord> frames;
   for (int k = 0; k < 8; ++k) frames.push_back({10 * k, "", 100.0 + k, 2.0});
-  EXPECT_EQ(again.storedSessionsOf(frames), std::vector<int>{1});
+  EXPECT_EQ(again.view().storedSessionsOf(frames), std::vector<int>{1});
   frames[3].stamp_s += 0.5;  // other stamps: another recording
-  EXPECT_TRUE(again.storedSessionsOf(frames).empty());
+  EXPECT_TRUE(again.view().storedSessionsOf(frames).empty());
   ReloadedSession r;
   EXPECT_EQ(again.reload("nope", &r).code, StatusCode::kNotFound);
   ASSERT_TRUE(again.reload("1", &r).ok());
@@ -299,7 +299,7 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
   EXPECT_EQ(r.keyframes.size(), 8u);
   EXPECT_EQ(r.camera.width, 640);
   EXPECT_EQ(again.reload("session_1", &r).code, StatusCode::kAlreadyExists);
-  EXPECT_EQ(again.list()[1].state, SessionState::kFinished);
+  EXPECT_EQ(again.view().list()[1].state, SessionState::kFinished);
   // unload_session: back to UNLOADED, in its map with its loops, and reload brings it back.
   int id = -1;
   EXPECT_EQ(again.unload("0", &id).code, StatusCode::kFailedPrecondition);  // never reloaded
@@ -307,22 +307,23 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
   EXPECT_EQ(again.unload("nope", &id).code, StatusCode::kNotFound);
   ASSERT_TRUE(again.unload("session_1", &id).ok());
   EXPECT_EQ(id, 1);
-  EXPECT_EQ(again.list()[1].state, SessionState::kUnloaded);
-  EXPECT_EQ((std::vector<int>{again.list()[1].map, again.list()[1].keyframes, again.list()[1].loops}),
-            (std::vector<int>{0, 8, 5}));
+  EXPECT_EQ(again.view().list()[1].state, SessionState::kUnloaded);
+  EXPECT_EQ(
+      (std::vector<int>{again.view().list()[1].map, again.view().list()[1].keyframes, again.view().list()[1].loops}),
+      (std::vector<int>{0, 8, 5}));
   const Status twice = again.unload("1");
   EXPECT_EQ(twice.code, StatusCode::kFailedPrecondition);
   EXPECT_NE(twice.message.find("not loaded"), std::string::npos) << twice.message;
   ASSERT_TRUE(again.reload("1", &r).ok());
   EXPECT_EQ(r.keyframes.size(), 8u);
-  EXPECT_EQ(again.list()[1].state, SessionState::kFinished);
+  EXPECT_EQ(again.view().list()[1].state, SessionState::kFinished);
   // Reloaded reading nothing (the back-end's ~reload_stored: the hashes are handed over later),
   // or the hashes only; loaded all the same.
   ASSERT_TRUE(again.unload("1").ok());
   ASSERT_TRUE(again.reload("1", &r, SessionManager::ReloadRead::kNothing).ok());
   EXPECT_TRUE(r.keyframes.empty());
-  EXPECT_EQ(again.list()[1].state, SessionState::kFinished);
-  EXPECT_EQ(again.storedHashes(1).size(), 8u);
+  EXPECT_EQ(again.view().list()[1].state, SessionState::kFinished);
+  EXPECT_EQ(again.view().storedHashes(1).size(), 8u);
   EXPECT_EQ(again.reload("1", &r, SessionManager::ReloadRead::kNothing).code, StatusCode::kAlreadyExists);
   ASSERT_TRUE(again.unload("1").ok());
   ASSERT_TRUE(again.reload("1", &r, SessionManager::ReloadRead::kHashes).ok());
@@ -330,12 +331,12 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
   EXPECT_EQ(r.keyframes[3].hash.size(), 384);
   EXPECT_TRUE(r.keyframes[3].points.empty());
   // New sessions continue after the stored ones.
-  addStraightSession(&again, again.nextId(), 2);
-  EXPECT_EQ(again.activeSession(), 2);
+  addStraightSession(&again, again.view().nextId(), 2);
+  EXPECT_EQ(again.view().activeSession(), 2);
   const Status live = again.unload("2");
   EXPECT_EQ(live.code, StatusCode::kFailedPrecondition);  // recorded in this run
   EXPECT_NE(live.message.find("recorded in this run"), std::string::npos) << live.message;
-  EXPECT_EQ(again.list()[2].state, SessionState::kActive);
+  EXPECT_EQ(again.view().list()[2].state, SessionState::kActive);
   SessionManager none(options());
   EXPECT_EQ(none.reload("0", &r).code, StatusCode::kFailedPrecondition);
   EXPECT_EQ(none.unload("0").code, StatusCode::kFailedPrecondition);
@@ -355,18 +356,18 @@ TEST(SessionManager, LoopsClosedByANewSessionsFirstKeyframeSurviveARestart) {
     ASSERT_TRUE(m.addKeyframe(keyframe(1, 0, Pose2(), Pose2()), at_origin).ok());
     ASSERT_TRUE(m.addKeyframe(keyframe(1, 1, Pose2(1, 0, 0), Pose2())).ok());
     ASSERT_TRUE(m.endSession(102.0).ok());
-    EXPECT_EQ(m.stats().store_failures, 0);
-    ASSERT_EQ(m.loops().size(), 2u);
+    EXPECT_EQ(m.view().stats().store_failures, 0);
+    ASSERT_EQ(m.view().loops().size(), 2u);
   }
   SessionManager again(options(db));
-  ASSERT_EQ(again.restoredSessions(), 2);
-  ASSERT_EQ(again.loops().size(), 2u);
-  for (const Loop& l : again.loops()) {
+  ASSERT_EQ(again.view().restoredSessions(), 2);
+  ASSERT_EQ(again.view().loops().size(), 2u);
+  for (const Loop& l : again.view().loops()) {
     EXPECT_EQ(l.session_a, 0);
     EXPECT_EQ(l.session_b, 1);
     EXPECT_EQ(l.keyframe_b, 0);
   }
-  EXPECT_EQ(again.list()[1].loops, 2);
+  EXPECT_EQ(again.view().list()[1].loops, 2);
 }
 
 TEST(SessionManager, DeferredOptimisationRunsOutsideRequestsAndSavesTheFinishedMap) {
@@ -385,7 +386,7 @@ TEST(SessionManager, DeferredOptimisationRunsOutsideRequestsAndSavesTheFinishedM
     l.kind = Loop::Kind::kLocal;
     ASSERT_TRUE(m.addLoop(l).ok());
     EXPECT_EQ(optimisations, 0);
-    EXPECT_DOUBLE_EQ(m.poses(0).back().x(), 7.0);  // the request did not optimise
+    EXPECT_DOUBLE_EQ(m.view().poses(0).back().x(), 7.0);  // the request did not optimise
     std::optional<MapOptimisation> job = m.nextOptimisation();
     ASSERT_TRUE(job.has_value());
     EXPECT_EQ(job->map, 0);
@@ -394,16 +395,16 @@ TEST(SessionManager, DeferredOptimisationRunsOutsideRequestsAndSavesTheFinishedM
     EXPECT_TRUE(m.applyOptimisation(*job));
     EXPECT_EQ(optimisations, 1);
     EXPECT_FALSE(m.nextOptimisation().has_value());
-    optimised = m.poses(0);
+    optimised = m.view().poses(0);
     EXPECT_GT(optimised.back().x(), 7.1);
   }  // no flush: what the store holds now is what applyOptimisation saved
   SessionManager again(options(db));
-  const std::vector<Pose2> back = again.poses(0);
+  const std::vector<Pose2> back = again.view().poses(0);
   ASSERT_EQ(back.size(), optimised.size());
   for (std::size_t k = 0; k < back.size(); ++k) EXPECT_NEAR(back[k].x(), optimised[k].x(), 1e-9) << k;
 }
 
-// add_link (issue 16, item 4): an operator's loop with a measured pose. Every misuse is refused
+// add_link: an operator's loop with a measured pose. Every misuse is refused
 // with its code and changes nothing; an accepted link is a loop like a detector's: it carries its
 // measured pose into a join and survives a restart.
 TEST(SessionManager, AManualLinkIsALoopLikeADetectorsAndAMisuseChangesNothing) {
@@ -421,46 +422,57 @@ TEST(SessionManager, AManualLinkIsALoopLikeADetectorsAndAMisuseChangesNothing) {
     asymmetric.z.covariance(0, 1) = 1e-7;
     indefinite.z.covariance(2, 2) = -1e-6;
     negative.inliers = -1;
-    const std::vector<std::pair<Loop, StatusCode>> misuses{
-        {link(0, 2, 42, 2), StatusCode::kNotFound},          {link(-1, 2, 1, 2), StatusCode::kInvalidArgument},
-        {link(0, 8, 1, 2), StatusCode::kNotFound},           {link(0, -1, 1, 2), StatusCode::kInvalidArgument},
-        {link(1, 2, 1, 2), StatusCode::kInvalidArgument},    {link(0, 2, 1, 4), StatusCode::kFailedPrecondition},
-        {nan, StatusCode::kInvalidArgument},                 {asymmetric, StatusCode::kInvalidArgument},
-        {indefinite, StatusCode::kInvalidArgument},          {singular, StatusCode::kInvalidArgument},
-        {negative, StatusCode::kInvalidArgument}};
+    const std::vector<std::pair<Loop, StatusCode>> misuses{{link(0, 2, 42, 2), StatusCode::kNotFound},
+                                                           {link(-1, 2, 1, 2), StatusCode::kInvalidArgument},
+                                                           {link(0, 8, 1, 2), StatusCode::kNotFound},
+                                                           {link(0, -1, 1, 2), StatusCode::kInvalidArgument},
+                                                           {link(1, 2, 1, 2), StatusCode::kInvalidArgument},
+                                                           {link(0, 2, 1, 4), StatusCode::kFailedPrecondition},
+                                                           {nan, StatusCode::kInvalidArgument},
+                                                           {asymmetric, StatusCode::kInvalidArgument},
+                                                           {indefinite, StatusCode::kInvalidArgument},
+                                                           {singular, StatusCode::kInvalidArgument},
+                                                           {negative, StatusCode::kInvalidArgument}};
     for (std::size_t i = 0; i < misuses.size(); ++i) {
       const Status st = m.addLink(misuses[i].first);
       EXPECT_EQ(st.code, misuses[i].second) << i << ": " << st.message;
       EXPECT_FALSE(st.message.empty()) << i;
+      // The heads' one function (add_link, offline_slam --add-link) checks the same before adding.
+      Loop l = misuses[i].first;
+      EXPECT_EQ(checkOperatorLink(m.view(), SlamConfig(), false, &l).code, misuses[i].second) << i;
+      EXPECT_EQ(addOperatorLink(&m, SlamConfig(), false, &l).code, misuses[i].second) << i;
     }
-    EXPECT_TRUE(m.loops().empty());
-    EXPECT_EQ(m.list()[0].loops + m.list()[1].loops, 0);
+    EXPECT_TRUE(m.view().loops().empty());
+    EXPECT_EQ(m.view().list()[0].loops + m.view().list()[1].loops, 0);
     // Accepted: global between the sessions, local inside one (kind from the sessions, not the
     // request), frames filled in.
     Loop local = link(0, 1, 0, 5);
     local.z = UncertainPose2(Pose2(4, 0, 0), Eigen::Matrix3d::Identity() * 1e-6);
     local.kind = Loop::Kind::kGlobal;
-    ASSERT_TRUE(m.addLink(link(0, 2, 1, 2)).ok());
+    Loop given = link(0, 2, 1, 2);
+    ASSERT_TRUE(checkOperatorLink(m.view(), SlamConfig(), false, &given).ok());
+    EXPECT_TRUE(m.view().loops().empty()) << "a check adds nothing";
+    ASSERT_TRUE(addOperatorLink(&m, SlamConfig(), false, &given).ok());
     ASSERT_TRUE(m.addLink(local).ok());
-    ASSERT_EQ(m.loops().size(), 2u);
-    EXPECT_EQ(m.loops()[0].kind, Loop::Kind::kGlobal);
-    EXPECT_EQ(m.loops()[1].kind, Loop::Kind::kLocal);
-    EXPECT_EQ(m.loops()[0].frame_b, 20);
-    EXPECT_EQ(m.list()[0].loops, 2);
+    ASSERT_EQ(m.view().loops().size(), 2u);
+    EXPECT_EQ(m.view().loops()[0].kind, Loop::Kind::kGlobal);
+    EXPECT_EQ(m.view().loops()[1].kind, Loop::Kind::kLocal);
+    EXPECT_EQ(m.view().loops()[0].frame_b, 20);
+    EXPECT_EQ(m.view().list()[0].loops, 2);
     // One link is enough for an operator's join with min_loops 1; it places session 1 one metre
     // to the side of session 0 (keyframe 2 of both).
     ASSERT_TRUE(m.join(0, 1, 1).ok());
-    EXPECT_NEAR(m.poses(1)[2].x(), m.poses(0)[2].x(), 1e-6);
-    EXPECT_NEAR(m.poses(1)[2].y(), m.poses(0)[2].y() + 1.0, 1e-6);
+    EXPECT_NEAR(m.view().poses(1)[2].x(), m.view().poses(0)[2].x(), 1e-6);
+    EXPECT_NEAR(m.view().poses(1)[2].y(), m.view().poses(0)[2].y() + 1.0, 1e-6);
     ASSERT_TRUE(m.endSession(200.0).ok());
   }
   SessionManager again(options(db));
-  ASSERT_EQ(again.loops().size(), 2u);
-  EXPECT_EQ(again.mapOf(1), 0);
-  EXPECT_NEAR(again.loops()[0].z.mean.y(), 1.0, 1e-12);
+  ASSERT_EQ(again.view().loops().size(), 2u);
+  EXPECT_EQ(again.view().mapOf(1), 0);
+  EXPECT_NEAR(again.view().loops()[0].z.mean.y(), 1.0, 1e-12);
 }
 
-// optimise (issue 16, item 4): maps with fewer than optimise_every loops pending wait; the
+// optimise: maps with fewer than optimise_every loops pending wait; the
 // operator's optimise solves them now (deferred: marks them due), and says when nothing waits.
 TEST(SessionManager, OptimiseNowSolvesTheMapsWhoseLoopsWaitAndOnlyThose) {
   SessionManagerOptions o = options();
@@ -472,20 +484,20 @@ TEST(SessionManager, OptimiseNowSolvesTheMapsWhoseLoopsWaitAndOnlyThose) {
   Loop l = globalLoop(1, 0, 1, 7, Pose2(7.3, 0, 0));
   l.kind = Loop::Kind::kLocal;
   ASSERT_TRUE(m.addLoop(l).ok());
-  EXPECT_DOUBLE_EQ(m.poses(1).back().x(), 7.0);  // 1 of 100 loops: waiting
-  const int before = m.backendStats().optimisations;
+  EXPECT_DOUBLE_EQ(m.view().poses(1).back().x(), 7.0);  // 1 of 100 loops: waiting
+  const int before = m.view().backendStats().optimisations;
   int maps = -1;
   const Status st = m.optimisePending(&maps);
   ASSERT_TRUE(st.ok()) << st.message;
   EXPECT_EQ(maps, 1);
-  EXPECT_EQ(m.backendStats().optimisations, before + 1);
-  EXPECT_GT(m.poses(1).back().x(), 7.1);
-  EXPECT_DOUBLE_EQ(m.poses(0).back().x(), 7.0);  // the other map was not touched
+  EXPECT_EQ(m.view().backendStats().optimisations, before + 1);
+  EXPECT_GT(m.view().poses(1).back().x(), 7.1);
+  EXPECT_DOUBLE_EQ(m.view().poses(0).back().x(), 7.0);  // the other map was not touched
   const Status again = m.optimisePending(&maps);
   EXPECT_TRUE(again.ok());
   EXPECT_EQ(maps, 0);
   EXPECT_NE(again.message.find("no map"), std::string::npos) << again.message;
-  EXPECT_EQ(m.backendStats().optimisations, before + 1);
+  EXPECT_EQ(m.view().backendStats().optimisations, before + 1);
 
   // Deferred (the back-end nodelet): marked due, solved by the host.
   SessionManager d(o);
@@ -497,7 +509,7 @@ TEST(SessionManager, OptimiseNowSolvesTheMapsWhoseLoopsWaitAndOnlyThose) {
   EXPECT_FALSE(d.nextOptimisation().has_value());
   ASSERT_TRUE(d.optimisePending(&maps).ok());
   EXPECT_EQ(maps, 1);
-  EXPECT_DOUBLE_EQ(d.poses(0).back().x(), 7.0);
+  EXPECT_DOUBLE_EQ(d.view().poses(0).back().x(), 7.0);
   ASSERT_TRUE(d.nextOptimisation().has_value());
 
   o.backend.optimise = false;
@@ -507,7 +519,7 @@ TEST(SessionManager, OptimiseNowSolvesTheMapsWhoseLoopsWaitAndOnlyThose) {
   EXPECT_EQ(maps, 0);
 }
 
-// detect_loops (issue 16, item 3): every misuse is refused before anything is searched; the
+// detect_loops: every misuse is refused before anything is searched; the
 // search itself is tested on real images through the service (rostest operator_services) and
 // offline_slam --detect-loops (pytest test_merge_stores.py).
 TEST(SessionManager, DetectLoopsIsRefusedWithNothingChangedForEveryMisuse) {
@@ -539,24 +551,24 @@ TEST(SessionManager, DetectLoopsIsRefusedWithNothingChangedForEveryMisuse) {
       {globalLoop(0, 1, 1, 4, Pose2()), StatusCode::kNotFound},
       {globalLoop(0, -1, 1, 1, Pose2()), StatusCode::kInvalidArgument},
       {globalLoop(1, 1, 1, 1, Pose2()), StatusCode::kInvalidArgument},
-      {globalLoop(0, 1, 2, 1, Pose2()), StatusCode::kFailedPrecondition},  // this run's: no features stored
+      {globalLoop(0, 1, 2, 1, Pose2()), StatusCode::kFailedPrecondition},   // this run's: no features stored
       {globalLoop(0, 1, 1, 1, Pose2()), StatusCode::kFailedPrecondition}};  // no motion verified
   for (std::size_t i = 0; i < finds.size(); ++i) {
     Loop l = finds[i].first;
-    const Status st = findStoredLink(m, config, &l);
+    const Status st = findStoredLink(m.view(), config, &l);
     EXPECT_EQ(st.code, finds[i].second) << i << ": " << st.message;
     EXPECT_FALSE(st.message.empty()) << i;
   }
   Loop unverified = globalLoop(0, 1, 1, 1, Pose2());
-  EXPECT_NE(findStoredLink(m, config, &unverified).message.find("no motion verified"), std::string::npos);
+  EXPECT_NE(findStoredLink(m.view(), config, &unverified).message.find("no motion verified"), std::string::npos);
   SessionManager none(options());
   addStraightSession(&none, 0, 2);
   addStraightSession(&none, 1, 2);
   EXPECT_EQ(detectStoredLoops(&none, config, {0, 1}, &f).code, StatusCode::kFailedPrecondition);
   Loop without_store = globalLoop(0, 1, 1, 1, Pose2());
-  EXPECT_EQ(findStoredLink(none, config, &without_store).code, StatusCode::kFailedPrecondition);
-  EXPECT_TRUE(m.loops().empty());
-  EXPECT_EQ(m.mapIds(), (std::vector<int>{0, 1, 2}));
+  EXPECT_EQ(findStoredLink(none.view(), config, &without_store).code, StatusCode::kFailedPrecondition);
+  EXPECT_TRUE(m.view().loops().empty());
+  EXPECT_EQ(m.view().mapIds(), (std::vector<int>{0, 1, 2}));
 }
 
 // add_link's "find it" between keyframes of this run's sessions: their features are read from the
@@ -579,14 +591,14 @@ TEST_F(SessionManagerFeatures, FindItMeasuresALinkBetweenThisRunsStoredKeyframes
   add(0, a);
   add(1, b);  // session 1 records; session 0 ended
   Loop l = globalLoop(0, 1, 1, 0, Pose2());
-  ASSERT_TRUE(m.inStore(0, 1) && m.inStore(1, 0));
-  const Status st = findStoredLink(m, SlamConfig(), &l);
+  ASSERT_TRUE(m.view().inStore(0, 1) && m.view().inStore(1, 0));
+  const Status st = findStoredLink(m.view(), SlamConfig(), &l);
   ASSERT_TRUE(st.ok()) << st.message;
   const Pose2 truth = between(a[1], b[0]);
   EXPECT_TRUE(approxEqual(l.z.mean, truth, 0.02, 0.01)) << l.z.mean << " vs " << truth;
   EXPECT_GE(l.inliers, 25);
   ASSERT_TRUE(m.addLink(l).ok());
-  EXPECT_EQ(m.loops().size(), 1u);
+  EXPECT_EQ(m.view().loops().size(), 1u);
   // A keyframe kept in memory only (localisation mode) cannot be measured: refused, said why.
   ASSERT_TRUE(m.setLocalisation(true).ok());
   KeyframeInput more = keyframe(1, 2, between(b[0], Pose2(4.0, 5.7, 1.2)), between(b[0], b[1]));
@@ -594,9 +606,9 @@ TEST_F(SessionManagerFeatures, FindItMeasuresALinkBetweenThisRunsStoredKeyframes
   more.features = features(Pose2(4.0, 5.7, 1.2), 2.0);
   ASSERT_TRUE(m.addKeyframe(more).ok());
   ASSERT_TRUE(m.setLocalisation(false).ok());
-  EXPECT_FALSE(m.inStore(1, 2));
+  EXPECT_FALSE(m.view().inStore(1, 2));
   Loop memory_only = globalLoop(0, 2, 1, 2, Pose2());
-  const Status refused = findStoredLink(m, SlamConfig(), &memory_only);
+  const Status refused = findStoredLink(m.view(), SlamConfig(), &memory_only);
   EXPECT_EQ(refused.code, StatusCode::kFailedPrecondition);
   EXPECT_NE(refused.message.find("keyframe 2 of session 1 is not in the store"), std::string::npos) << refused.message;
 }
@@ -606,7 +618,7 @@ std::string fileBytes(const std::string& path) {
   return std::string(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
 }
 
-// set_mode localisation (issue 16, item 4): the store stays byte-identical while sessions are
+// set_mode localisation: the store stays byte-identical while sessions are
 // tracked, the requests that would change a stored map are refused, automatic joins wait; a
 // session cut by the mode keeps its stored prefix and the store restores.
 TEST(SessionManager, LocalisationModeWritesNothingChangesNoStoredMapAndLeavesARestorableStore) {
@@ -624,13 +636,13 @@ TEST(SessionManager, LocalisationModeWritesNothingChangesNoStoredMapAndLeavesARe
   {
     SessionManager m(o);
     EXPECT_TRUE(m.setLocalisation(true).ok());
-    EXPECT_TRUE(m.localising());
+    EXPECT_TRUE(m.view().localising());
     addStraightSession(&m, 1, 5);
     Loop local = globalLoop(1, 0, 1, 4, Pose2(4, 0, 0));
     local.kind = Loop::Kind::kLocal;
     ASSERT_TRUE(m.addLoop(local).ok());
     ASSERT_TRUE(m.addLoop(globalLoop(0, 2, 1, 2, Pose2(0, 1, 0))).ok());
-    EXPECT_EQ(m.mapIds(), (std::vector<int>{0, 1}));  // the automatic join waits
+    EXPECT_EQ(m.view().mapIds(), (std::vector<int>{0, 1}));  // the automatic join waits
     int maps = 0;
     const std::vector<Status> refused{m.join(0, 1, 1), m.split(1), m.addLink(globalLoop(0, 3, 1, 3, Pose2(0, 1, 0))),
                                       m.optimisePending(&maps)};
@@ -642,10 +654,10 @@ TEST(SessionManager, LocalisationModeWritesNothingChangesNoStoredMapAndLeavesARe
     const Status detect = detectStoredLoops(&m, SlamConfig(), {0, 1}, &f);
     EXPECT_EQ(detect.code, StatusCode::kFailedPrecondition);
     EXPECT_NE(detect.message.find("localisation mode"), std::string::npos) << detect.message;
-    EXPECT_EQ(m.list()[1].keyframes, 5);  // tracked all the same
-    EXPECT_EQ(m.loops().size(), 2u);
+    EXPECT_EQ(m.view().list()[1].keyframes, 5);  // tracked all the same
+    EXPECT_EQ(m.view().loops().size(), 2u);
     ASSERT_TRUE(m.endSession(20.0).ok());
-    EXPECT_EQ(m.stats().store_failures, 0);
+    EXPECT_EQ(m.view().stats().store_failures, 0);
   }
   EXPECT_EQ(fileBytes(db), before) << "localisation mode changed the store";
   EXPECT_FALSE(std::filesystem::exists(db + "-wal") && std::filesystem::file_size(db + "-wal") > 0);
@@ -653,7 +665,7 @@ TEST(SessionManager, LocalisationModeWritesNothingChangesNoStoredMapAndLeavesARe
     // Mapping, then localisation in the middle of a session, then mapping again: the session keeps
     // its 3 stored keyframes; a loop on a memory-only keyframe joins in memory, written nowhere.
     SessionManager m(o);
-    ASSERT_EQ(m.restoredSessions(), 1);  // the localisation session was never stored
+    ASSERT_EQ(m.view().restoredSessions(), 1);  // the localisation session was never stored
     addStraightSession(&m, 1, 3);
     EXPECT_TRUE(m.setLocalisation(true).ok());
     EXPECT_TRUE(m.setLocalisation(true).ok());  // again: said, nothing changes
@@ -661,30 +673,29 @@ TEST(SessionManager, LocalisationModeWritesNothingChangesNoStoredMapAndLeavesARe
     EXPECT_TRUE(m.setLocalisation(false).ok());
     for (int k = 5; k < 7; ++k) ASSERT_TRUE(m.addKeyframe(keyframe(1, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok());
     ASSERT_TRUE(m.addLoop(globalLoop(0, 2, 1, 5, Pose2(-3, 1, 0))).ok());
-    EXPECT_EQ(m.mapOf(1), 0);  // mapping again: the automatic join happens
+    EXPECT_EQ(m.view().mapOf(1), 0);  // mapping again: the automatic join happens
     ASSERT_TRUE(m.endSession(30.0).ok());
-    EXPECT_EQ(m.stats().store_failures, 0);
+    EXPECT_EQ(m.view().stats().store_failures, 0);
   }
   {
     SessionManager again(o);
-    ASSERT_EQ(again.restoredSessions(), 2);
-    EXPECT_EQ(again.list()[0].keyframes, 8);
-    EXPECT_EQ(again.list()[1].keyframes, 3);
-    EXPECT_TRUE(again.loops().empty());  // the only loop was on a memory-only keyframe
+    ASSERT_EQ(again.view().restoredSessions(), 2);
+    EXPECT_EQ(again.view().list()[0].keyframes, 8);
+    EXPECT_EQ(again.view().list()[1].keyframes, 3);
+    EXPECT_TRUE(again.view().loops().empty());  // the only loop was on a memory-only keyframe
     // A session cut by the mode that also ends in it: its end is not written (the store keeps it
     // as recording, like an interrupted run).
     addStraightSession(&again, 2, 3);
     EXPECT_TRUE(again.setLocalisation(true).ok());
-    for (int k = 3; k < 5; ++k)
-      ASSERT_TRUE(again.addKeyframe(keyframe(2, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok());
+    for (int k = 3; k < 5; ++k) ASSERT_TRUE(again.addKeyframe(keyframe(2, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok());
     ASSERT_TRUE(again.endSession(40.0).ok());
-    EXPECT_EQ(again.stats().store_failures, 0);
+    EXPECT_EQ(again.view().stats().store_failures, 0);
   }
   // The next start restores its stored prefix all the same.
   SessionManager last(o);
-  ASSERT_EQ(last.restoredSessions(), 3);
-  EXPECT_EQ(last.list()[2].keyframes, 3);
-  EXPECT_EQ(last.nextId(), 3);
+  ASSERT_EQ(last.view().restoredSessions(), 3);
+  EXPECT_EQ(last.view().list()[2].keyframes, 3);
+  EXPECT_EQ(last.view().nextId(), 3);
 }
 
 TEST(SessionManager, TheAuditTrailRecordsJoinsSplitsLinksAndModeChangesWithCauseAndLoopsAndSurvivesARestart) {
@@ -697,16 +708,16 @@ TEST(SessionManager, TheAuditTrailRecordsJoinsSplitsLinksAndModeChangesWithCause
   {
     SessionManager m(o);
     twoSessionsWithLoops(&m);
-    ASSERT_EQ(m.mapOf(1), 0);
+    ASSERT_EQ(m.view().mapOf(1), 0);
     ASSERT_TRUE(m.split(1).ok());
     Loop link = globalLoop(0, 6, 1, 6, Pose2(0, 1, 0));
     ASSERT_TRUE(m.addLink(link).ok());
-    ASSERT_EQ(m.mapOf(1), 1);  // a split pair: the rule does not join it again by itself
+    ASSERT_EQ(m.view().mapOf(1), 1);  // a split pair: the rule does not join it again by itself
     ASSERT_TRUE(m.join(0, 1, 1).ok());
     ASSERT_TRUE(m.setLocalisation(true).ok());
     ASSERT_TRUE(m.setLocalisation(false).ok());
     ASSERT_TRUE(m.split(1).ok());
-    written = m.history();
+    written = m.view().history();
   }
   ASSERT_EQ(written.size(), 6u);
   const std::vector<std::string> kinds{"join", "split", "link", "join", "mode", "split"};
@@ -737,7 +748,7 @@ TEST(SessionManager, TheAuditTrailRecordsJoinsSplitsLinksAndModeChangesWithCause
 
   // In the store: a restart restores it, and the next entry follows on.
   SessionManager again(o);
-  const std::vector<HistoryEntry>& h = again.history();
+  const std::vector<HistoryEntry>& h = again.view().history();
   ASSERT_EQ(h.size(), written.size());
   for (std::size_t i = 0; i < h.size(); ++i) {
     EXPECT_EQ(h[i].id, written[i].id);
@@ -746,14 +757,14 @@ TEST(SessionManager, TheAuditTrailRecordsJoinsSplitsLinksAndModeChangesWithCause
               written[i].kind + written[i].cause + written[i].sessions + written[i].loops + written[i].message);
   }
   ASSERT_TRUE(again.join(0, 1, 1).ok());
-  EXPECT_EQ(again.history().back().id, 7);
+  EXPECT_EQ(again.view().history().back().id, 7);
 
   // offline_slam's manager (requester tool) without a store: the trail lives in memory.
   SessionManager tool(options());
   twoSessionsWithLoops(&tool);
   ASSERT_TRUE(tool.join(0, 1, 5).ok());
-  ASSERT_EQ(tool.history().size(), 1u);
-  EXPECT_EQ(tool.history()[0].cause, "tool");
+  ASSERT_EQ(tool.view().history().size(), 1u);
+  EXPECT_EQ(tool.view().history()[0].cause, "tool");
   SessionManagerOptions bad = options();
   bad.requester = "operator";
   EXPECT_THROW(SessionManager{bad}, std::invalid_argument);
@@ -767,20 +778,20 @@ TEST(SessionManager, DeleteSessionRemovesASessionAloneInItsMapFromStoreAndMemory
     SessionManager m(options(db));
     twoSessionsWithLoops(&m);  // sessions 0 and 1, five global loops
     ASSERT_TRUE(m.join(0, 1, 5).ok());
-    joined = m.poses(1);
+    joined = m.view().poses(1);
     addStraightSession(&m, 2, 4);
     ASSERT_TRUE(m.addLoop(globalLoop(0, 6, 2, 1, Pose2(0, -1, 0))).ok());
     Loop own = globalLoop(2, 0, 2, 3, Pose2(3, 0, 0));
     own.kind = Loop::Kind::kLocal;
     ASSERT_TRUE(m.addLoop(own).ok());
-    const std::vector<SessionSummary> before = m.list();
+    const std::vector<SessionSummary> before = m.view().list();
     auto unchanged = [&] {
-      const std::vector<SessionSummary> now = m.list();
+      const std::vector<SessionSummary> now = m.view().list();
       ASSERT_EQ(now.size(), before.size());
       for (std::size_t i = 0; i < now.size(); ++i)
         EXPECT_EQ((std::vector<int>{now[i].id, now[i].map, now[i].keyframes, now[i].loops}),
                   (std::vector<int>{before[i].id, before[i].map, before[i].keyframes, before[i].loops}));
-      EXPECT_EQ(m.loops().size(), 7u);
+      EXPECT_EQ(m.view().loops().size(), 7u);
     };
     int id = -1;
     const Status recording = m.deleteSession("2", true, &id);
@@ -804,30 +815,30 @@ TEST(SessionManager, DeleteSessionRemovesASessionAloneInItsMapFromStoreAndMemory
 
     ASSERT_TRUE(m.deleteSession("2", true, &id).ok());
     EXPECT_EQ(id, 2);
-    EXPECT_FALSE(m.has(2));
-    EXPECT_EQ(m.sessionIds(), (std::vector<int>{0, 1}));
-    EXPECT_EQ(m.list()[0].loops, 5);  // the loop to session 2 went with it
-    EXPECT_EQ(m.loops().size(), 5u);
-    EXPECT_EQ(m.nextId(), 3);  // its id is not given again
-    EXPECT_EQ(m.history().back().kind, "delete");
-    EXPECT_EQ(m.history().back().sessions, "2");
-    EXPECT_NE(m.history().back().message.find("'session_2' deleted (4 keyframes, 2 loops)"), std::string::npos)
-        << m.history().back().message;
-    for (std::size_t k = 0; k < joined.size(); ++k) EXPECT_NEAR(m.poses(1)[k].y(), joined[k].y(), 1e-9) << k;
-    addStraightSession(&m, m.nextId(), 2);  // sessions go on after it
-    EXPECT_EQ(m.activeSession(), 3);
+    EXPECT_FALSE(m.view().has(2));
+    EXPECT_EQ(m.view().sessionIds(), (std::vector<int>{0, 1}));
+    EXPECT_EQ(m.view().list()[0].loops, 5);  // the loop to session 2 went with it
+    EXPECT_EQ(m.view().loops().size(), 5u);
+    EXPECT_EQ(m.view().nextId(), 3);  // its id is not given again
+    EXPECT_EQ(m.view().history().back().kind, "delete");
+    EXPECT_EQ(m.view().history().back().sessions, "2");
+    EXPECT_NE(m.view().history().back().message.find("'session_2' deleted (4 keyframes, 2 loops)"), std::string::npos)
+        << m.view().history().back().message;
+    for (std::size_t k = 0; k < joined.size(); ++k) EXPECT_NEAR(m.view().poses(1)[k].y(), joined[k].y(), 1e-9) << k;
+    addStraightSession(&m, m.view().nextId(), 2);  // sessions go on after it
+    EXPECT_EQ(m.view().activeSession(), 3);
     ASSERT_TRUE(m.endSession(40.0).ok());
-    EXPECT_EQ(m.stats().store_failures, 0);
+    EXPECT_EQ(m.view().stats().store_failures, 0);
   }
   // The store: session 2 and its loops are gone; the joined map and session 3 (now 2) remain.
   SessionManager again(options(db));
-  ASSERT_EQ(again.restoredSessions(), 3);
-  EXPECT_EQ(again.list()[2].keyframes, 2);
-  EXPECT_EQ(again.loops().size(), 5u);
-  EXPECT_EQ(again.mapOf(1), 0);
-  for (std::size_t k = 0; k < joined.size(); ++k) EXPECT_NEAR(again.poses(1)[k].y(), joined[k].y(), 1e-9) << k;
-  ASSERT_GE(again.history().size(), 2u);
-  EXPECT_EQ(again.history().back().kind, "delete");
+  ASSERT_EQ(again.view().restoredSessions(), 3);
+  EXPECT_EQ(again.view().list()[2].keyframes, 2);
+  EXPECT_EQ(again.view().loops().size(), 5u);
+  EXPECT_EQ(again.view().mapOf(1), 0);
+  for (std::size_t k = 0; k < joined.size(); ++k) EXPECT_NEAR(again.view().poses(1)[k].y(), joined[k].y(), 1e-9) << k;
+  ASSERT_GE(again.view().history().size(), 2u);
+  EXPECT_EQ(again.view().history().back().kind, "delete");
   SessionManager none(options());
   addStraightSession(&none, 0, 2);
   EXPECT_EQ(none.deleteSession("0", true).code, StatusCode::kFailedPrecondition);  // no store
@@ -857,40 +868,42 @@ TEST(SessionManager, DeletingTheFirstSessionLeavesTheLaterOnesTheirPosesMapsLink
     for (int k = 1; k <= 5; ++k) ASSERT_TRUE(m.addLoop(globalLoop(1, k, 2, k, Pose2(0, 1, 0))).ok());
     for (int k = 1; k <= 3; ++k) ASSERT_TRUE(m.addLoop(globalLoop(1, k, 3, k, Pose2(0, -1, 0))).ok());
     ASSERT_TRUE(m.join(1, 2, 5).ok());
-    for (int s = 1; s <= 3; ++s) poses.push_back(m.poses(s));
-    const std::vector<SessionLink> links = m.links();
+    for (int s = 1; s <= 3; ++s) poses.push_back(m.view().poses(s));
+    const std::vector<SessionLink> links = m.view().links();
     std::vector<Ends> kept;
-    for (const Ends& e : ends(m.loops()))
+    for (const Ends& e : ends(m.view().loops()))
       if (std::get<0>(e) != 0) kept.push_back(e);
-    const int loops_of_1 = m.list()[1].loops;
+    const int loops_of_1 = m.view().list()[1].loops;
 
     ASSERT_TRUE(m.deleteSession("0", true).ok());
-    EXPECT_EQ(m.sessionIds(), (std::vector<int>{1, 2, 3}));
+    EXPECT_EQ(m.view().sessionIds(), (std::vector<int>{1, 2, 3}));
     for (int s = 1; s <= 3; ++s)
       for (std::size_t k = 0; k < poses[s - 1].size(); ++k)
-        EXPECT_TRUE(approxEqual(m.poses(s)[k], poses[s - 1][k], 0.0, 0.0)) << s << " " << k;
-    EXPECT_EQ((std::vector<int>{m.mapOf(1), m.mapOf(2), m.mapOf(3)}), (std::vector<int>{1, 1, 3}));
-    ASSERT_EQ(m.links().size(), links.size());
+        EXPECT_TRUE(approxEqual(m.view().poses(s)[k], poses[s - 1][k], 0.0, 0.0)) << s << " " << k;
+    EXPECT_EQ((std::vector<int>{m.view().mapOf(1), m.view().mapOf(2), m.view().mapOf(3)}), (std::vector<int>{1, 1, 3}));
+    ASSERT_EQ(m.view().links().size(), links.size());
     for (std::size_t i = 0; i < links.size(); ++i)
-      EXPECT_EQ((std::vector<int>{m.links()[i].map, m.links()[i].previous, m.links()[i].current, m.links()[i].loops}),
+      EXPECT_EQ((std::vector<int>{m.view().links()[i].map, m.view().links()[i].previous, m.view().links()[i].current,
+                                  m.view().links()[i].loops}),
                 (std::vector<int>{links[i].map, links[i].previous, links[i].current, links[i].loops}));
-    EXPECT_EQ(ends(m.loops()), kept);
-    EXPECT_EQ(m.list()[0].loops, loops_of_1 - 1);  // list()[0] is session 1 now
+    EXPECT_EQ(ends(m.view().loops()), kept);
+    EXPECT_EQ(m.view().list()[0].loops, loops_of_1 - 1);  // list()[0] is session 1 now
     EXPECT_EQ(m.addLoop(globalLoop(0, 1, 1, 1, Pose2(0, 1, 0))).code, StatusCode::kNotFound);  // deleted: no wait
     ASSERT_TRUE(m.join(1, 3, 3).ok());
-    EXPECT_EQ(m.history().back().kind, "join");
-    EXPECT_EQ(m.history().back().sessions, "1,2+3");
-    EXPECT_EQ(m.history().back().loops, "1:1>3:1 1:2>3:2 1:3>3:3");
-    for (int s = 1; s <= 3; ++s) poses[s - 1] = m.poses(s);
-    EXPECT_EQ(m.stats().store_failures, 0);
+    EXPECT_EQ(m.view().history().back().kind, "join");
+    EXPECT_EQ(m.view().history().back().sessions, "1,2+3");
+    EXPECT_EQ(m.view().history().back().loops, "1:1>3:1 1:2>3:2 1:3>3:3");
+    for (int s = 1; s <= 3; ++s) poses[s - 1] = m.view().poses(s);
+    EXPECT_EQ(m.view().stats().store_failures, 0);
   }
   SessionManager again(options(db));
-  ASSERT_EQ(again.restoredSessions(), 3);  // ids 0..2 now: the old 1..3
-  EXPECT_EQ((std::vector<int>{again.mapOf(0), again.mapOf(1), again.mapOf(2)}), (std::vector<int>{0, 0, 0}));
-  EXPECT_EQ(again.loops().size(), 8u);
+  ASSERT_EQ(again.view().restoredSessions(), 3);  // ids 0..2 now: the old 1..3
+  EXPECT_EQ((std::vector<int>{again.view().mapOf(0), again.view().mapOf(1), again.view().mapOf(2)}),
+            (std::vector<int>{0, 0, 0}));
+  EXPECT_EQ(again.view().loops().size(), 8u);
   for (int s = 0; s < 3; ++s)
     for (std::size_t k = 0; k < poses[s].size(); ++k)
-      EXPECT_TRUE(approxEqual(again.poses(s)[k], poses[s][k], 1e-9, 1e-9)) << s << " " << k;
+      EXPECT_TRUE(approxEqual(again.view().poses(s)[k], poses[s][k], 1e-9, 1e-9)) << s << " " << k;
 }
 
 TEST(SessionManager, ASplitAfterARestartDoesNotClaimToUndoAnEarlierRunsJoinOfOtherSessions) {
@@ -908,18 +921,20 @@ TEST(SessionManager, ASplitAfterARestartDoesNotClaimToUndoAnEarlierRunsJoinOfOth
     }
     ASSERT_TRUE(m.deleteSession("0", true).ok());
     ASSERT_TRUE(m.deleteSession("1", true).ok());
-    ASSERT_EQ(m.history().size(), 4u);
-    EXPECT_EQ(m.history()[1].sessions, "2+3");
+    ASSERT_EQ(m.view().history().size(), 4u);
+    EXPECT_EQ(m.view().history()[1].sessions, "2+3");
   }
   SessionManager again(options(db));
-  ASSERT_EQ(again.restoredSessions(), 4);
-  ASSERT_EQ(again.mapOf(3), 2);
+  ASSERT_EQ(again.view().restoredSessions(), 4);
+  ASSERT_EQ(again.view().mapOf(3), 2);
   ASSERT_TRUE(again.split(3).ok());
-  EXPECT_EQ(again.history().back().sessions, "3+2");
-  EXPECT_EQ(again.history().back().message.find("undoes"), std::string::npos) << again.history().back().message;
+  EXPECT_EQ(again.view().history().back().sessions, "3+2");
+  EXPECT_EQ(again.view().history().back().message.find("undoes"), std::string::npos)
+      << again.view().history().back().message;
   ASSERT_TRUE(again.join(2, 3, 1).ok());  // this run's join: its split is an undo again
   ASSERT_TRUE(again.split(3).ok());
-  EXPECT_NE(again.history().back().message.find("undoes join #6"), std::string::npos) << again.history().back().message;
+  EXPECT_NE(again.view().history().back().message.find("undoes join #6"), std::string::npos)
+      << again.view().history().back().message;
 }
 
 TEST(SessionManager, ANewSessionRelocalisesInAStoredMapOnlyAndWithItsOdometryCorrection) {
@@ -938,27 +953,27 @@ TEST(SessionManager, ANewSessionRelocalisesInAStoredMapOnlyAndWithItsOdometryCor
   SessionManager m(o);
   ASSERT_TRUE(m.setLocalisation(true).ok());
   addStraightSession(&m, 1, 4);
-  EXPECT_FALSE(m.relocalise(1));
+  EXPECT_FALSE(m.view().relocalise(1));
   ASSERT_TRUE(m.addLoop(globalLoop(0, 2, 1, 2, Pose2(0, 1, 0))).ok());
-  EXPECT_FALSE(m.relocalise(1)) << "one loop";
+  EXPECT_FALSE(m.view().relocalise(1)) << "one loop";
   ASSERT_TRUE(m.addLoop(globalLoop(0, 3, 1, 3, Pose2(0, 1, 0))).ok());
-  const auto r = m.relocalise(1);
+  const auto r = m.view().relocalise(1);
   ASSERT_TRUE(r);
   EXPECT_EQ(r->map, 0);
   EXPECT_EQ(r->loops, 2);
   EXPECT_EQ(r->keyframe, 3);
   EXPECT_TRUE(approxEqual(r->pose.mean, Pose2(3, 1, 0), 1e-6, 1e-6)) << r->pose.mean;  // a (+) z: (3, 0) (+) (0, 1)
   // The correction takes the session's odometry frame into map 0: its last odometry pose lands there.
-  EXPECT_TRUE(approxEqual(compose(r->correction, m.odometryPoses(1).back()), r->pose.mean, 1e-6, 1e-6));
-  EXPECT_EQ(m.mapIds(), (std::vector<int>{0, 1}));
+  EXPECT_TRUE(approxEqual(compose(r->correction, m.view().odometryPoses(1).back()), r->pose.mean, 1e-6, 1e-6));
+  EXPECT_EQ(m.view().mapIds(), (std::vector<int>{0, 1}));
   addStraightSession(&m, 2, 4);
   ASSERT_TRUE(m.addLoop(globalLoop(1, 1, 2, 1, Pose2(0, 1, 0))).ok());
   ASSERT_TRUE(m.addLoop(globalLoop(1, 2, 2, 2, Pose2(0, 1, 0))).ok());
-  EXPECT_FALSE(m.relocalise(2)) << "session 1's map holds no stored session";
-  EXPECT_FALSE(m.relocalise(7)) << "no such session";
+  EXPECT_FALSE(m.view().relocalise(2)) << "session 1's map holds no stored session";
+  EXPECT_FALSE(m.view().relocalise(7)) << "no such session";
 }
 
-// Issue 20, item 5: another vehicle's session (from its hashes) grows beside this vehicle's
+// The hash exchange: another vehicle's session (from its hashes) grows beside this vehicle's
 // recording session; the loops between them join the two maps once one of them has ended, as
 // one vehicle's two sessions joined by the same loops.
 TEST(SessionManager, AnotherVehiclesSessionGrowsBesideTheActiveOneAndJoinsOnceOneEnds) {
@@ -977,20 +992,20 @@ TEST(SessionManager, AnotherVehiclesSessionGrowsBesideTheActiveOneAndJoinsOnceOn
       KeyframeInput theirs = keyframe(7, k, pose, previous);
       theirs.features.descriptors = cv::Mat::ones(3, 128, CV_8U);  // not kept: only what crossed the link
       int local = -1;
-      const Status st = m.addForeignKeyframe("auv_b", theirs, &local);
+      const Status st = m.fleet().addKeyframe("auv_b", theirs, &local);
       ASSERT_TRUE(st.ok()) << st.message;
       ASSERT_EQ(local, 1);
       if (k >= 1 && k <= 5) {
         ASSERT_TRUE(m.addLoop(globalLoop(1, k, 0, k, Pose2(0, -1, 0))).ok());
       }
     }
-    EXPECT_EQ(m.activeSession(), 0);
-    EXPECT_EQ(m.foreignSession("auv_b", 7), 1);
-    EXPECT_EQ(m.vehicleOf(1), "auv_b");
-    EXPECT_EQ(m.name(1), "auv_b_session_7");
+    EXPECT_EQ(m.view().activeSession(), 0);
+    EXPECT_EQ(m.view().foreignSession("auv_b", 7), 1);
+    EXPECT_EQ(m.view().vehicleOf(1), "auv_b");
+    EXPECT_EQ(m.view().name(1), "auv_b_session_7");
     // Both recording, each in its own map: five loops wait, no join yet.
-    EXPECT_NE(m.mapOf(0), m.mapOf(1));
-    const std::vector<SessionSummary> l = m.list();
+    EXPECT_NE(m.view().mapOf(0), m.view().mapOf(1));
+    const std::vector<SessionSummary> l = m.view().list();
     ASSERT_EQ(l.size(), 2u);
     EXPECT_EQ(l[0].state, SessionState::kActive);
     EXPECT_EQ(l[1].state, SessionState::kActive);
@@ -998,27 +1013,27 @@ TEST(SessionManager, AnotherVehiclesSessionGrowsBesideTheActiveOneAndJoinsOnceOn
     EXPECT_EQ(l[1].keyframes, 8);
 
     // Misuse changes nothing.
-    EXPECT_EQ(m.addForeignKeyframe("", keyframe(7, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).code,
+    EXPECT_EQ(m.fleet().addKeyframe("", keyframe(7, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).code,
               StatusCode::kInvalidArgument);
-    EXPECT_EQ(m.addForeignKeyframe("auv b/../x", keyframe(7, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).code,
+    EXPECT_EQ(m.fleet().addKeyframe("auv b/../x", keyframe(7, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).code,
               StatusCode::kInvalidArgument);
-    EXPECT_EQ(m.addForeignKeyframe("auv_b", keyframe(7, 3, Pose2(3, 0, 0), Pose2(2, 0, 0))).code,
+    EXPECT_EQ(m.fleet().addKeyframe("auv_b", keyframe(7, 3, Pose2(3, 0, 0), Pose2(2, 0, 0))).code,
               StatusCode::kFailedPrecondition);  // stale
     EXPECT_EQ(m.addKeyframe(keyframe(1, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).code,
               StatusCode::kFailedPrecondition);  // our odometry cannot write into their session
-    EXPECT_EQ(m.endForeignSession("auv_c", 7, 9.0).code, StatusCode::kNotFound);
-    EXPECT_EQ(m.sessionIds(), (std::vector<int>{0, 1}));
-    EXPECT_EQ(m.list()[1].keyframes, 8);
+    EXPECT_EQ(m.fleet().endSession("auv_c", 7, 9.0).code, StatusCode::kNotFound);
+    EXPECT_EQ(m.view().sessionIds(), (std::vector<int>{0, 1}));
+    EXPECT_EQ(m.view().list()[1].keyframes, 8);
 
     // Their session ends: the postponed join is made; ours goes on recording at the map's end.
-    ASSERT_TRUE(m.endForeignSession("auv_b", 7, 107.5).ok());
-    EXPECT_EQ(m.mapOf(0), m.mapOf(1));
-    EXPECT_EQ(m.mapOf(0), 1);  // the finished session first: the map is named by it
-    EXPECT_EQ(m.foreignSession("auv_b", 7), -1);
-    EXPECT_EQ(m.addForeignKeyframe("auv_b", keyframe(7, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).code,
+    ASSERT_TRUE(m.fleet().endSession("auv_b", 7, 107.5).ok());
+    EXPECT_EQ(m.view().mapOf(0), m.view().mapOf(1));
+    EXPECT_EQ(m.view().mapOf(0), 1);  // the finished session first: the map is named by it
+    EXPECT_EQ(m.view().foreignSession("auv_b", 7), -1);
+    EXPECT_EQ(m.fleet().addKeyframe("auv_b", keyframe(7, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).code,
               StatusCode::kFailedPrecondition);  // ended
     ASSERT_TRUE(m.addKeyframe(keyframe(0, 8, Pose2(8, 0, 0), Pose2(7, 0, 0))).ok());
-    const std::vector<Pose2> ours = m.poses(0), theirs = m.poses(1);
+    const std::vector<Pose2> ours = m.view().poses(0), theirs = m.view().poses(1);
     ASSERT_EQ(ours.size(), 9u);
     for (int k = 0; k < 8; ++k) {
       EXPECT_NEAR(ours[k].x(), theirs[k].x(), 1e-6) << k;
@@ -1031,31 +1046,31 @@ TEST(SessionManager, AnotherVehiclesSessionGrowsBesideTheActiveOneAndJoinsOnceOn
 
     // Its origin sent again: stale. Another keyframe 0 of its session 7 (it restarted on a new
     // store): a new session, named apart; left recording when the manager goes.
-    EXPECT_EQ(m.addForeignKeyframe("auv_b", keyframe(7, 0, Pose2(), Pose2())).code, StatusCode::kFailedPrecondition);
+    EXPECT_EQ(m.fleet().addKeyframe("auv_b", keyframe(7, 0, Pose2(), Pose2())).code, StatusCode::kFailedPrecondition);
     KeyframeInput restarted = keyframe(7, 0, Pose2(), Pose2());
     restarted.stamp_s = 500.0;
     int local = -1;
-    ASSERT_TRUE(m.addForeignKeyframe("auv_b", restarted, &local).ok());
+    ASSERT_TRUE(m.fleet().addKeyframe("auv_b", restarted, &local).ok());
     EXPECT_EQ(local, 2);
-    EXPECT_EQ(m.name(2), "auv_b_session_7_2");
-    EXPECT_EQ(m.foreignSession("auv_b", 7), 2);
-    EXPECT_EQ(m.mapOf(2), 2);  // a map of its own
-    EXPECT_EQ(m.stats().store_failures, 0);
+    EXPECT_EQ(m.view().name(2), "auv_b_session_7_2");
+    EXPECT_EQ(m.view().foreignSession("auv_b", 7), 2);
+    EXPECT_EQ(m.view().mapOf(2), 2);  // a map of its own
+    EXPECT_EQ(m.view().stats().store_failures, 0);
   }
   // In the store: their session (hashes and motions, no features), where it came from, the join.
   SessionManager again(options(db));
-  ASSERT_EQ(again.restoredSessions(), 3);
-  EXPECT_EQ(again.name(1), "auv_b_session_7");
-  EXPECT_EQ(again.vehicleOf(1), "auv_b");  // whose it is, and its id there, from the provenance
-  EXPECT_EQ(again.remoteIdOf(1), 7);
-  EXPECT_EQ(again.vehicleOf(0), "");
-  EXPECT_EQ(again.list()[1].vehicle, "auv_b");
-  EXPECT_EQ(again.list()[1].state, SessionState::kUnloaded);
-  EXPECT_EQ(again.foreignSession("auv_b", 7), -1);  // not recording here any more
-  EXPECT_EQ(again.poses(1).size(), 8u);
-  EXPECT_EQ(again.mapOf(0), again.mapOf(1));
-  EXPECT_EQ(again.loops().size(), 5u);
-  EXPECT_TRUE(again.storedFeatures(1, 3).points.empty());
+  ASSERT_EQ(again.view().restoredSessions(), 3);
+  EXPECT_EQ(again.view().name(1), "auv_b_session_7");
+  EXPECT_EQ(again.view().vehicleOf(1), "auv_b");  // whose it is, and its id there, from the provenance
+  EXPECT_EQ(again.view().remoteIdOf(1), 7);
+  EXPECT_EQ(again.view().vehicleOf(0), "");
+  EXPECT_EQ(again.view().list()[1].vehicle, "auv_b");
+  EXPECT_EQ(again.view().list()[1].state, SessionState::kUnloaded);
+  EXPECT_EQ(again.view().foreignSession("auv_b", 7), -1);  // not recording here any more
+  EXPECT_EQ(again.view().poses(1).size(), 8u);
+  EXPECT_EQ(again.view().mapOf(0), again.view().mapOf(1));
+  EXPECT_EQ(again.view().loops().size(), 5u);
+  EXPECT_TRUE(again.view().storedFeatures(1, 3).points.empty());
   SessionStore store(db, StoreAccess::kReadOnly);
   const std::vector<SessionProvenance> p = store.provenance();
   ASSERT_EQ(p.size(), 2u);
@@ -1067,8 +1082,8 @@ TEST(SessionManager, AnotherVehiclesSessionGrowsBesideTheActiveOneAndJoinsOnceOn
   for (const StoredSession& st : store.sessions())
     EXPECT_EQ(st.state, st.name.rfind("auv_b", 0) == 0 ? StoredSessionState::kFinished : StoredSessionState::kRecording)
         << st.name;
-  EXPECT_EQ(again.name(2), "auv_b_session_7_2");
-  EXPECT_EQ(again.vehicleOf(2), "auv_b");
+  EXPECT_EQ(again.view().name(2), "auv_b_session_7_2");
+  EXPECT_EQ(again.view().vehicleOf(2), "auv_b");
 }
 
 TEST(SessionManager, TheStoresDirectoryItCreatesIsTheOwnersOnly) {
@@ -1082,17 +1097,17 @@ TEST(SessionManager, TheStoresDirectoryItCreatesIsTheOwnersOnly) {
 TEST(SessionManager, SessionIdsBeyondTheMaximumAreRefusedAndIdsNeverWrap) {
   SessionManager m(options());
   addStraightSession(&m, 0, 2);
-  // A corrupt message naming session 2^31 - 1 (issue 21, 7): it used to open that session, and
+  // A corrupt message naming session 2^31 - 1: it used to open that session, and
   // the next start_session wrapped to -2^31 and every later one failed.
   for (int id : {INT_MAX, kMaxSessionId + 1}) {
     const Status st = m.addKeyframe(keyframe(id, 0, Pose2(), Pose2()));
     EXPECT_EQ(st.code, StatusCode::kInvalidArgument) << id;
     EXPECT_NE(st.message.find(std::to_string(kMaxSessionId)), std::string::npos) << st.message;
-    EXPECT_FALSE(m.has(id));
+    EXPECT_FALSE(m.view().has(id));
   }
-  EXPECT_EQ(m.stats().keyframes_refused, 2);
-  EXPECT_EQ(m.nextId(), 1);
-  EXPECT_EQ(m.activeSession(), 0);
+  EXPECT_EQ(m.view().stats().keyframes_refused, 2);
+  EXPECT_EQ(m.view().nextId(), 1);
+  EXPECT_EQ(m.view().activeSession(), 0);
   // A loop naming such a session is refused at once: it does not wait for a keyframe that may
   // never come.
   bool waiting = true;
@@ -1106,11 +1121,11 @@ TEST(SessionManager, SessionIdsBeyondTheMaximumAreRefusedAndIdsNeverWrap) {
   EXPECT_EQ(m.startSession("too far", 6.0, INT_MAX).code, StatusCode::kInvalidArgument);
   // The largest id is still usable; past it start_session answers, and nothing wraps.
   addStraightSession(&m, kMaxSessionId, 2);
-  EXPECT_EQ(m.activeSession(), kMaxSessionId);
+  EXPECT_EQ(m.view().activeSession(), kMaxSessionId);
   const Status full = m.startSession("past the last id", 7.0);
   EXPECT_EQ(full.code, StatusCode::kResourceExhausted) << full.message;
-  EXPECT_EQ(m.activeSession(), kMaxSessionId);
-  for (int s : m.sessionIds()) EXPECT_GE(s, 0);
+  EXPECT_EQ(m.view().activeSession(), kMaxSessionId);
+  for (int s : m.view().sessionIds()) EXPECT_GE(s, 0);
 }
 
 TEST(SessionManager, StartSessionIsRefusedWhileTooManySessionsInARowHaveNoKeyframe) {
@@ -1124,21 +1139,21 @@ TEST(SessionManager, StartSessionIsRefusedWhileTooManySessionsInARowHaveNoKeyfra
   const Status st = m.startSession("c", 5.0);
   EXPECT_EQ(st.code, StatusCode::kResourceExhausted) << st.message;
   EXPECT_NE(st.message.find("max_empty_sessions"), std::string::npos) << st.message;
-  EXPECT_EQ(m.sessionIds(), (std::vector<int>{0, 1, 2}));
-  EXPECT_EQ(m.activeSession(), 2);
-  EXPECT_FALSE(m.hasKeyframe(2));
-  EXPECT_TRUE(m.hasKeyframe(0));
+  EXPECT_EQ(m.view().sessionIds(), (std::vector<int>{0, 1, 2}));
+  EXPECT_EQ(m.view().activeSession(), 2);
+  EXPECT_FALSE(m.view().hasKeyframe(2));
+  EXPECT_TRUE(m.view().hasKeyframe(0));
   // The session's first keyframe lifts the limit.
   addStraightSession(&m, 2, 1);
-  EXPECT_TRUE(m.hasKeyframe(2));
+  EXPECT_TRUE(m.view().hasKeyframe(2));
   EXPECT_TRUE(m.startSession("c", 5.0).ok());
-  // 3,000 calls leave at most max_empty_sessions empty sessions (issue 21, 10).
+  // 3,000 calls leave at most max_empty_sessions empty sessions.
   for (int i = 0; i < 3000; ++i) m.startSession("x" + std::to_string(i), 6.0 + i);
-  EXPECT_EQ(m.sessionIds().size(), 5u);
-  // A name past kMaxSessionNameLength is refused and changes nothing (issue 21: a 100 kB name was stored).
-  const std::vector<int> ids = m.sessionIds();
+  EXPECT_EQ(m.view().sessionIds().size(), 5u);
+  // A name past kMaxSessionNameLength is refused and changes nothing (a 100 kB name was stored before).
+  const std::vector<int> ids = m.view().sessionIds();
   EXPECT_EQ(m.startSession(std::string(100000, 'n'), 9000.0).code, StatusCode::kInvalidArgument);
-  EXPECT_EQ(m.sessionIds(), ids);
+  EXPECT_EQ(m.view().sessionIds(), ids);
   SessionManagerOptions bad = options();
   bad.max_empty_sessions = -1;  // 0 is no limit (offline_slam)
   EXPECT_THROW(SessionManager{bad}, std::invalid_argument);
@@ -1181,26 +1196,26 @@ TEST(SessionManager, AGatedLoopIsMarkedRefusedAndWrittenApartFromTheAcceptedOnes
   wrong.kind = Loop::Kind::kLocal;
   ASSERT_TRUE(m.addLoop(good).ok());
   ASSERT_TRUE(m.addLoop(wrong).ok());  // received; the back-end refuses it
-  ASSERT_EQ(m.loops().size(), 2u);
-  EXPECT_FALSE(m.loopRefused(0));
-  EXPECT_TRUE(m.loopRefused(1));
-  EXPECT_FALSE(m.loopRefused(5));  // no such loop
-  EXPECT_EQ(m.backendStats().loops_gated, 1);
+  ASSERT_EQ(m.view().loops().size(), 2u);
+  EXPECT_FALSE(m.view().loopRefused(0));
+  EXPECT_TRUE(m.view().loopRefused(1));
+  EXPECT_FALSE(m.view().loopRefused(5));  // no such loop
+  EXPECT_EQ(m.view().backendStats().loops_gated, 1);
   testing_util::ScopedTempDir dir("run_outputs");
-  writeRunOutputs(dir.path().string(), m, {}, 1, StageTimes());
+  writeRunOutputs(dir.path().string(), m.view(), {}, 1, StageTimes());
   auto lines = [&](const char* name) {
     std::ifstream f(dir.path() / name);
     std::vector<std::string> out;
     for (std::string line; std::getline(f, line);) out.push_back(line);
     return out;
   };
-  EXPECT_EQ(lines("loops.csv"), (std::vector<std::string>{"session_a,index_a,session_b,index_b,kind,inliers",
-                                                          "0,10,0,60,local,50"}));
-  EXPECT_EQ(lines("loops_refused.csv"), (std::vector<std::string>{"session_a,index_a,session_b,index_b,kind,inliers",
-                                                                  "0,20,0,70,local,50"}));
+  EXPECT_EQ(lines("loops.csv"),
+            (std::vector<std::string>{"session_a,index_a,session_b,index_b,kind,inliers", "0,10,0,60,local,50"}));
+  EXPECT_EQ(lines("loops_refused.csv"),
+            (std::vector<std::string>{"session_a,index_a,session_b,index_b,kind,inliers", "0,20,0,70,local,50"}));
 }
 
-// A store that cannot grow (store_max_mb just above the file's size: a full disk, issue 21, 4): each write
+// A store that cannot grow (store_max_mb just above the file's size: a full disk): each write
 // that does not fit is counted (store_failures) and logged, the manager goes on in memory (keyframes,
 // loops, a join answered OK), and the store stays restorable: a session's stored keyframes stay a
 // prefix (a big keyframe that fails is not followed by a small one that would fit: a gap would make
@@ -1219,7 +1234,7 @@ TEST(SessionManager, AFullStoreIsCountedAndTheManagerGoesOnWithARestorableStore)
   {
     std::vector<std::string> log;
     SessionManager m(o, {}, [&](const std::string& line) { log.push_back(line); });
-    ASSERT_EQ(m.restoredSessions(), 1);
+    ASSERT_EQ(m.view().restoredSessions(), 1);
     for (int k = 0; k < 8; ++k) {
       KeyframeInput in = keyframe(1, k, Pose2(k, 0, 0), Pose2(std::max(0, k - 1), 0, 0));
       if (k % 2 == 0) {  // big ones (3000 features, 390 kB) between small ones (no features)
@@ -1231,25 +1246,25 @@ TEST(SessionManager, AFullStoreIsCountedAndTheManagerGoesOnWithARestorableStore)
     }
     for (int k = 1; k <= 3; ++k) ASSERT_TRUE(m.addLoop(globalLoop(0, k, 1, k, Pose2(0, 1, 0))).ok());
     ASSERT_TRUE(m.join(0, 1, 3).ok());
-    EXPECT_EQ(m.mapOf(1), 0);  // joined in memory
-    EXPECT_GT(m.stats().store_failures, 0);
+    EXPECT_EQ(m.view().mapOf(1), 0);  // joined in memory
+    EXPECT_GT(m.view().stats().store_failures, 0);
     bool full = false;
     for (const std::string& line : log) full = full || line.find("the disk is full") != std::string::npos;
     EXPECT_TRUE(full) << "no store failure logged";
-    const long failures = m.stats().store_failures;
+    const long failures = m.view().stats().store_failures;
     ASSERT_TRUE(m.endSession(9.0).ok());
-    EXPECT_GE(m.stats().store_failures, failures);
+    EXPECT_GE(m.view().stats().store_failures, failures);
   }
   // What the store kept restores: session 1's keyframes are a prefix, every stored loop on
   // stored keyframes.
   SessionManager again(options(db));
-  const std::vector<SessionSummary> list = again.list();
+  const std::vector<SessionSummary> list = again.view().list();
   ASSERT_GE(list.size(), 1u);
   EXPECT_EQ(list[0].keyframes, 4);
   if (list.size() > 1) {
     EXPECT_LT(list[1].keyframes, 8);
   }
-  EXPECT_EQ(again.stats().store_failures, 0);
+  EXPECT_EQ(again.view().stats().store_failures, 0);
 }
 
 }  // namespace

@@ -93,7 +93,7 @@ struct Maps {
 };
 
 Maps mapsOf(const SessionWorker& w) {
-  return w.locked([](const SessionManager& m) {
+  return w.locked([](const SessionQueries& m) {
     Maps out;
     for (int id : m.sessionIds()) {
       out.poses.push_back(m.poses(id));
@@ -147,13 +147,13 @@ TEST(SessionWorker, ALoopWaitingForItsKeyframeIsAppliedWhenItArrives) {
   for (int k = 0; k < 4; ++k) w.addKeyframe(keyframe(0, k));
   w.addLoop(loop(0, 1, 1, 2));  // session 1's keyframe 2 has not arrived
   EXPECT_EQ(w.stats().waiting, 1u);
-  EXPECT_EQ(w.locked([](const SessionManager& m) { return m.loops().size(); }), 0u);
+  EXPECT_EQ(w.locked([](const SessionQueries& m) { return m.loops().size(); }), 0u);
   w.addKeyframe(keyframe(1, 0));
   w.addKeyframe(keyframe(1, 1));
   EXPECT_EQ(w.stats().waiting, 1u) << "keyframe 2 is still missing";
   w.addKeyframe(keyframe(1, 2));
   EXPECT_EQ(w.stats().waiting, 0u);
-  const std::vector<Loop> loops = w.locked([](const SessionManager& m) { return m.loops(); });
+  const std::vector<Loop> loops = w.locked([](const SessionQueries& m) { return m.loops(); });
   ASSERT_EQ(loops.size(), 1u);
   EXPECT_EQ(loops[0].keyframe_b, 2);
   EXPECT_EQ(w.stats().loops, 1) << "a retried loop counts once";
@@ -170,7 +170,7 @@ TEST(SessionWorker, WaitingLoopsPastTheBoundAreDroppedOldestFirstAndCounted) {
   EXPECT_EQ(w.stats().waiting_dropped, 1);
   for (int k = 0; k < 3; ++k) w.addKeyframe(keyframe(1, k));
   EXPECT_EQ(w.stats().waiting, 0u);
-  const std::vector<Loop> loops = w.locked([](const SessionManager& m) { return m.loops(); });
+  const std::vector<Loop> loops = w.locked([](const SessionQueries& m) { return m.loops(); });
   ASSERT_EQ(loops.size(), 2u) << "the oldest waiting loop was dropped";
   EXPECT_EQ(loops[0].keyframe_b, 1);
   EXPECT_EQ(loops[1].keyframe_b, 2);
@@ -196,7 +196,7 @@ TEST(SessionWorker, AMapChangedDuringItsSolveIsSolvedAgain) {
   EXPECT_EQ(w.stats().solves, 2);
   EXPECT_EQ(w.stats().solved_again, 1);
   w.locked([](SessionManager& m) {
-    EXPECT_EQ(m.backendStats().optimisations_discarded, 1);
+    EXPECT_EQ(m.view().backendStats().optimisations_discarded, 1);
     int maps = -1;
     ASSERT_TRUE(m.optimisePending(&maps).ok());
     EXPECT_EQ(maps, 0) << "the second solve took the loop added during the first";
@@ -210,7 +210,7 @@ TEST(SessionWorker, SynchronousFailuresReachTheCaller) {
   w.addKeyframe(keyframe(0, 0));
   KeyframeInput bad = keyframe(0, 1);
   bad.camera.fx = -1;  // not a camera: refused, counted by the manager
-  w.addKeyframe(bad, {}, [&](const SessionManager&, const KeyframeInput&, const Status& s) { st = s; });
+  w.addKeyframe(bad, {}, [&](const SessionQueries&, const KeyframeInput&, const Status& s) { st = s; });
   EXPECT_EQ(st.code, StatusCode::kInvalidArgument);
   EXPECT_THROW(w.locked([](SessionManager&) -> int { throw std::runtime_error("boom"); }), std::runtime_error);
   SessionWorkerOptions no_queue;
@@ -220,18 +220,18 @@ TEST(SessionWorker, SynchronousFailuresReachTheCaller) {
 
 TEST(SessionWorker, AnotherVehiclesHashesAreTakenOnlyWithComparableSettings) {
   SessionWorker w(std::make_unique<SessionManager>(options()), SessionWorkerOptions());
-  const HashSettings ours = w.locked([](const SessionManager& m) { return m.hashSettings(); });
+  const HashSettings ours = w.locked([](const SessionQueries& m) { return m.hashSettings(); });
   HashSettings orb = ours;
   orb.features = FeatureType::kOrb;
   Status refused = Status::Ok();
   w.addForeignKeyframe("auv_b", orb, keyframe(0, 0),
-                       [&](const SessionManager&, const KeyframeInput&, const Status& s, int, bool) { refused = s; });
+                       [&](const SessionQueries&, const KeyframeInput&, const Status& s, int, bool) { refused = s; });
   EXPECT_EQ(refused.code, StatusCode::kFailedPrecondition);
   EXPECT_NE(refused.message.find("orb features"), std::string::npos) << refused.message;
   int local = -1;
   bool opened = false;
   w.addForeignKeyframe("auv_b", ours, keyframe(0, 0),
-                       [&](const SessionManager&, const KeyframeInput&, const Status& s, int id, bool o) {
+                       [&](const SessionQueries&, const KeyframeInput&, const Status& s, int id, bool o) {
                          ASSERT_TRUE(s.ok()) << s.message;
                          local = id;
                          opened = o;
@@ -239,9 +239,9 @@ TEST(SessionWorker, AnotherVehiclesHashesAreTakenOnlyWithComparableSettings) {
   EXPECT_EQ(local, 0);
   EXPECT_TRUE(opened);
   Status ended = Status::Ok();
-  w.endForeignSession("auv_b", 0, 1.0, [&](const SessionManager&, const Status& s) { ended = s; });
+  w.endForeignSession("auv_b", 0, 1.0, [&](const SessionQueries&, const Status& s) { ended = s; });
   EXPECT_TRUE(ended.ok()) << ended.message;
-  w.endForeignSession("auv_b", 0, 1.0, [&](const SessionManager&, const Status& s) { ended = s; });
+  w.endForeignSession("auv_b", 0, 1.0, [&](const SessionQueries&, const Status& s) { ended = s; });
   EXPECT_EQ(ended.code, StatusCode::kNotFound);
 }
 
@@ -289,10 +289,10 @@ TEST(SessionWorker, KeyframeFeaturesAnswersAreClassified) {
   const Status damaged = w.keyframeFeatures(0, 2, false, &a);
   EXPECT_EQ(damaged.code, StatusCode::kDataLoss) << damaged.message;
   // Another vehicle's session: nothing read here, the answer says whom to ask.
-  const HashSettings ours = w.locked([](const SessionManager& m) { return m.hashSettings(); });
+  const HashSettings ours = w.locked([](const SessionQueries& m) { return m.hashSettings(); });
   int local = -1;
   w.addForeignKeyframe("auv_b", ours, keyframe(7, 0),
-                       [&](const SessionManager&, const KeyframeInput&, const Status&, int id, bool) { local = id; });
+                       [&](const SessionQueries&, const KeyframeInput&, const Status&, int id, bool) { local = id; });
   ASSERT_GT(local, 0);
   KeyframeFeaturesAnswer theirs;
   ASSERT_TRUE(w.keyframeFeatures(local, 0, false, &theirs).ok());
@@ -354,7 +354,7 @@ TEST(RelocalisationTracker, SaysAChangeOnceAndResets) {
   for (int k = 0; k < 3; ++k) ASSERT_TRUE(m.addKeyframe(keyframe(0, k)).ok());
   RelocalisationTracker t;
   std::string said = "x";
-  EXPECT_FALSE(t.update(m, 0, &said));  // no stored map: never relocalised
+  EXPECT_FALSE(t.update(m.view(), 0, &said));  // no stored map: never relocalised
   EXPECT_TRUE(said.empty());
   EXPECT_EQ(t.state().session, 0);
   EXPECT_EQ(t.state().map, -1);

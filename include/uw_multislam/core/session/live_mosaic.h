@@ -3,7 +3,7 @@
 //
 // Three steps, so that the host's lock is held only for copies: LiveMosaicImages keeps the image
 // each keyframe carries (today the JPEG thumbnail), fed with every keyframe; liveMosaicSnapshot
-// copies the active map's keyframe poses out of the SessionManager (call it under the host's
+// copies the active map's keyframe poses out of the SessionManager's view (call it under the host's
 // lock: poses only, the images are shared, not copied); drawLiveMosaic warps and draws the
 // snapshot WITHOUT any lock, with the same plane warp as export_survey's mosaics
 // (mosaic_geometry.h). Each keyframe is drawn over the earlier ones (no blending, no exposure
@@ -30,7 +30,7 @@
 namespace uw_multislam {
 namespace core {
 
-class SessionManager;
+class SessionQueries;
 
 struct LiveMosaicOptions {
   double resolution_m = 0.05;  // metres per pixel of the drawn mosaic
@@ -96,7 +96,7 @@ class LiveMosaicImages {
 /// The active session's map: every keyframe of its sessions with its pose in the map, the
 /// active session's last keyframe as the active one. Keyframes the images do not know (restored
 /// sessions, placeholders) are listed without an image.
-LiveMosaicSnapshot liveMosaicSnapshot(const SessionManager& manager, const LiveMosaicImages& images);
+LiveMosaicSnapshot liveMosaicSnapshot(const SessionQueries& manager, const LiveMosaicImages& images);
 
 /// Draws a snapshot (no lock needed). A keyframe without a decodable image, or without a finite
 /// pose and a positive altitude, is counted missing; a snapshot with no drawable keyframe gives

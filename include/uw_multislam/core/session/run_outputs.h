@@ -24,7 +24,7 @@ namespace core {
 /// tracking loss): such maps take numbers after `first_free_label`. Throws DatasetError when a
 /// file cannot be written. Each file is written atomically (core/common/atomic_file.h) with
 /// `modes.file` (outputModesOf(the store): a 0600 store gives 0600 files).
-void writeRunOutputs(const std::string& out_dir, const SessionManager& manager, const std::map<int, int>& csv_of,
+void writeRunOutputs(const std::string& out_dir, const SessionQueries& manager, const std::map<int, int>& csv_of,
                      int first_free_label, const StageTimes& times, const OutputModes& modes = OutputModes());
 
 /// Creates `out_dir` and writes inputs.csv (session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m):

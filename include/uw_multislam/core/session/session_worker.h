@@ -34,6 +34,7 @@
 #include <optional>
 #include <string>
 #include <thread>
+#include <type_traits>
 #include <variant>
 #include <vector>
 
@@ -98,7 +99,7 @@ class RelocalisationTracker {
   };
   /// The session's relocalisation now; a change (relocalised, or no longer: not by a join) goes
   /// into *said (else it is cleared).
-  std::optional<SessionManager::Relocalisation> update(const SessionManager& manager, int session, std::string* said);
+  std::optional<SessionQueries::Relocalisation> update(const SessionQueries& manager, int session, std::string* said);
   void published() { ++state_.published; }
   /// No active session (finish_session): nothing relocalised.
   void reset() { state_ = State(); }
@@ -113,10 +114,10 @@ class SessionWorker {
   enum class Severity { kInfo, kWarn, kError };
   using Log = std::function<void(Severity, const std::string&)>;
   /// Work items' callbacks, under the mutex, after the manager's call.
-  using KeyframeDone = std::function<void(const SessionManager&, const KeyframeInput&, const Status&)>;
+  using KeyframeDone = std::function<void(const SessionQueries&, const KeyframeInput&, const Status&)>;
   using ForeignDone =
-      std::function<void(const SessionManager&, const KeyframeInput&, const Status&, int local_id, bool opened)>;
-  using Done = std::function<void(const SessionManager&, const Status&)>;
+      std::function<void(const SessionQueries&, const KeyframeInput&, const Status&, int local_id, bool opened)>;
+  using Done = std::function<void(const SessionQueries&, const Status&)>;
   using AfterItem = std::function<void(SessionManager&)>;
 
   /// Takes the manager and turns its deferred optimisation on (this worker optimises). Throws
@@ -156,19 +157,23 @@ class SessionWorker {
   void optimiseDue();
 
   // --- Requests and queries under the mutex ---------------------------------------------------
-  /// f(manager) under the mutex; its result. What it returns must not refer into the manager.
+  /// f(manager) under the mutex (the const one: f(manager.view()), the queries); its result.
+  /// What it returns must not refer into the manager.
   template <typename F>
   decltype(auto) locked(F&& f) {
     std::lock_guard<std::mutex> lock(mutex_);
-    return f(*manager_);
+    if constexpr (std::is_invocable_v<F, SessionManager&>)
+      return f(*manager_);
+    else
+      return f(manager_->view());
   }
   template <typename F>
   decltype(auto) locked(F&& f) const {
     std::lock_guard<std::mutex> lock(mutex_);
-    return f(static_cast<const SessionManager&>(*manager_));
+    return f(manager_->view());
   }
   /// The manager's hasher (immutable: no lock needed).
-  const ImageHasher& hasher() const { return manager_->hasher(); }
+  const ImageHasher& hasher() const { return manager_->view().hasher(); }
   SessionWorkerStats stats() const;
 
   // --- Stored sessions and the loop detectors ---------------------------------------------------

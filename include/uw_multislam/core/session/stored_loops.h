@@ -49,14 +49,14 @@ Status detectStoredLoops(SessionManager* manager, const SlamConfig& config, cons
 /// itself), NOT_FOUND (an unknown session or keyframe), FAILED_PRECONDITION (no store, a session
 /// of this run, localisation mode, or no motion verified: fewer inliers than the loops'
 /// min_inliers, said with the counts), DATA_LOSS (the stored features cannot be read).
-Status findStoredLink(const SessionManager& manager, const SlamConfig& config, Loop* link);
+Status findStoredLink(const SessionQueries& manager, const SlamConfig& config, Loop* link);
 
 /// The operator's link (the back-end's add_link, offline_slam --add-link), checked and, when
 /// `measure`, measured from the stored features (findStoredLink: z and inliers), nothing changed:
 /// OK when SessionManager::addLink would take it; the codes of findStoredLink, or of addLink's
 /// checks (SessionManager::checkLink) when the pose is given. A caller that checks several links
 /// before adding any (offline_slam) calls this first, then addOperatorLink.
-Status checkOperatorLink(const SessionManager& manager, const SlamConfig& config, bool measure, Loop* link);
+Status checkOperatorLink(const SessionQueries& manager, const SlamConfig& config, bool measure, Loop* link);
 /// checkOperatorLink, then SessionManager::addLink: the link is a loop like a detector's (stored,
 /// optimised, counted towards joins). *link holds the measured pose and inliers.
 Status addOperatorLink(SessionManager* manager, const SlamConfig& config, bool measure, Loop* link);

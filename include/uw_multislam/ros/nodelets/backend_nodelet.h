@@ -84,7 +84,7 @@ class BackendNodelet : public nodelet::Nodelet {
   bool onDelete(uw_multislam::DeleteSession::Request& req, uw_multislam::DeleteSession::Response& res);
   bool onExport(uw_multislam::ExportSurvey::Request& req, uw_multislam::ExportSurvey::Response& res);
   bool onKeyframeFeatures(uw_multislam::KeyframeFeatures::Request& req, uw_multislam::KeyframeFeatures::Response& res);
-  std::vector<ros_diagnostics::Counter> counters(const core::SessionManager& m) const;  // worker's lock
+  std::vector<ros_diagnostics::Counter> counters(const core::SessionQueries& m) const;  // worker's lock
   void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
   void say(const std::string& line) const;  // INFO, also once rosconsole is shut down
 
