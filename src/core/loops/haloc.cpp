@@ -173,8 +173,7 @@ bool HashSettings::compatible(const HashSettings& a, const HashSettings& b, std:
     return "hash_mode " + hashModeName(h.mode) + ", projection_seed " + std::to_string(h.seed) +
            ", n = " + std::to_string(h.num_features) + ", " + featureTypeName(h.features) + " features";
   };
-  if (a.mode == b.mode && a.seed == b.seed && a.num_features == b.num_features && a.features == b.features)
-    return true;
+  if (a.mode == b.mode && a.seed == b.seed && a.num_features == b.num_features && a.features == b.features) return true;
   if (why) *why = "hashes made with " + text(a) + " cannot be compared with hashes made with " + text(b);
   return false;
 }

@@ -56,8 +56,7 @@ class Pipeline {
 
   /// `nav` (may be empty): the stream's dead-reckoned nav; each frame without a nav of its own
   /// gets the track's pose at its stamp (config odometry.nav.enabled).
-  void beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of = {},
-                   NavTrack nav = {});
+  void beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of = {}, NavTrack nav = {});
   /// A dataset folder as a stream: named by its directory, its camera, its images read from the
   /// folder for the keyframes' stored images, its nav.csv as `nav`. `d` must outlive the stream.
   void beginStream(const Dataset& d);
@@ -99,7 +98,7 @@ class Pipeline {
   NavTrack nav_;
   std::unique_ptr<SegmentedOdometry> segmented_;
   SessionChain chain_;
-  int session_ = -1;  // the manager's id of the stream's open piece; -1 while lost
+  int session_ = -1;       // the manager's id of the stream's open piece; -1 while lost
   int read_failures_ = 0;  // the detector's feature_read_failures already logged
   int pieces_ = 0;
   long stream_frames_ = 0, stream_unreadable_ = 0;  // this stream's frames, and how many came without an image
