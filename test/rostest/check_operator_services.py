@@ -241,7 +241,7 @@ class OperatorServicesTest(unittest.TestCase):
             self.assertIsNotNone(found, "no pair of keyframes across the sessions was verified")
             print("add_link find: 0:%d -> 1:%d, pose (%.3f, %.3f, %.4f), %d inliers" % (
                 found[0], found[1], found[2].pose.x, found[2].pose.y, found[2].pose.theta, found[2].inliers), flush=True)
-            self.assertGreaterEqual(found[2].inliers, 25)  # loops.global.min_inliers
+            self.assertGreaterEqual(found[2].inliers, 20)  # loops.global.min_inliers
             # The first pair tried, both sessions' first keyframes, overlaps: SURVEY starts s1 at
             # (6.5, 5.5) heading pi/2 and s0 at (6.0, 5.0) heading 0, so b in a is (0.5, 0.5, pi/2).
             self.assertEqual(found[:2], (0, 0))

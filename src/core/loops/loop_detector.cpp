@@ -37,12 +37,19 @@ std::string LoopOptions::validate() const {
   if (!bad.empty()) return "local: " + bad;
   bad = global.validate();
   if (!bad.empty()) return "global: " + bad;
+  if (!(ratio > 0.0 && ratio <= 1.0)) return "ratio must be in (0, 1]";
   if (!(feature_cache_mb >= 0) || feature_cache_mb > 1e6) return "feature_cache_mb must be in [0, 1e6] (MiB)";
   if (page_live_after < 0) return "page_live_after must be >= 0 (0: never)";
   return {};
 }
 
 std::string loopKindName(Loop::Kind k) { return k == Loop::Kind::kLocal ? "local" : "global"; }
+
+MatchOptions loopMatching(const MatchOptions& odometry, const LoopOptions& loops) {
+  MatchOptions m = odometry;
+  m.ratio = loops.ratio;
+  return m;
+}
 
 namespace {
 const LoopOptions& checked(const LoopOptions& o) {
@@ -55,7 +62,7 @@ const LoopOptions& checked(const LoopOptions& o) {
 LoopDetector::LoopDetector(const LoopOptions& options, const MatchOptions& matching, const RansacOptions& ransac,
                            int num_features)
     : options_(checked(options)),
-      matching_(matching),
+      matching_(loopMatching(matching, options)),
       ransac_(ransac),
       hasher_(options.global.hash_mode, num_features, options.global.projection_seed),
       hashes_(hashCodeRange(options.global.hash_mode)) {}

@@ -255,7 +255,7 @@ TEST_F(LoopTest, PlantedRevisitIsFoundWithTheRightPoseAndAWrongCandidateIsReject
     EXPECT_TRUE(approxEqual(l.z.mean, truth, 0.02, 0.01))
         << "kf " << l.keyframe_a << ": " << l.z.mean << " vs " << truth;
     found = found || l.keyframe_a == 2;
-    EXPECT_GE(l.inliers, 25);
+    EXPECT_GE(l.inliers, LoopOptions().global.min_inliers);
   }
   EXPECT_TRUE(found);
   // A view of a place session 0 never saw: every hash candidate is rejected by RANSAC.
