@@ -173,12 +173,90 @@ std::vector<Loop> LoopDetector::addKeyframe(int session, int keyframe, int frame
     }
   }
   if (queryGlobal(hash, session)) verifyGlobal(now, &loops);
+  if (options_.global.enabled && options_.global.follow_loops) {
+    ScopedStage s(&times_, "global_follow");
+    followLoops(session, keyframe, trajectory, now, &loops);
+  }
   nameNewKeyframe(&loops, session, keyframe, frame_index);
 
-  // Store the keyframe for later queries.
+  // Store the keyframe for later queries, with its pose for the other sessions' followed loops.
   last_hash_ = hash;
   store(session, keyframe, frame_index, altitude_m, camera, &features, hash);
+  keyframes_.back().has_pose = true;
+  keyframes_.back().pose = trajectory.absolutePose(keyframe);
   return loops;
+}
+
+void LoopDetector::followLoops(int session, int keyframe, const Trajectory& t, const View& now,
+                               std::vector<Loop>* loops) {
+  const LocalLoopOptions& radius = options_.local;
+  const Pose2& here = t.absolutePose(keyframe);
+  // This keyframe's place in each other session by its best global loop there (most inliers).
+  const auto placed = [&]() {
+    std::map<int, Pose2> out;
+    std::map<int, int> inliers;
+    for (const Loop& l : *loops) {
+      if (l.kind != Loop::Kind::kGlobal || !has(l.session_a, l.keyframe_a)) continue;
+      const Stored& a = keyframes_[by_session_[l.session_a][l.keyframe_a]];
+      if (!a.has_pose || (inliers.count(l.session_a) && inliers[l.session_a] >= l.inliers)) continue;
+      inliers[l.session_a] = l.inliers;
+      out[l.session_a] = compose(a.pose, l.z.mean);
+    }
+    return out;
+  };
+  // Per other session: the predicted pose of this keyframe in its frame and the search radius.
+  std::map<int, std::pair<Pose2, double>> predicted;
+  for (const auto& [other, at] : placed()) predicted[other] = {at, radius.radius_m};
+  for (auto it = anchors_.begin(); it != anchors_.end();) {
+    const int other = it->first.second;
+    if (it->first.first != session || predicted.count(other)) {
+      ++it;
+      continue;
+    }
+    // The odometry from the anchor keyframe to this one, with its uncertainty (as localCandidates).
+    const Anchor& anchor = it->second;
+    UncertainPose2 rel = UncertainPose2::exact(Pose2());
+    for (int i = anchor.keyframe + 1; i <= keyframe && i < static_cast<int>(t.numKeyframes()); ++i)
+      rel = compose(rel, t.motion(i));
+    const double sigma = std::sqrt(std::max(0.0, rel.covariance.topLeftCorner<2, 2>().trace()));
+    const double r = radius.radius_m + radius.sigma_widening * sigma;
+    if (r >= radius.max_radius_m) {
+      it = anchors_.erase(it);  // the prediction says no more than the radius: the anchor is spent
+      continue;
+    }
+    predicted[other] = {compose(anchor.in_other, between(t.absolutePose(anchor.keyframe), here)), r};
+    ++it;
+  }
+  std::vector<int> verified;  // entries this keyframe was already verified against
+  for (const HashCandidate& c : scratch_) verified.push_back(c.entry);
+  for (const auto& [other, place] : predicted) {
+    if (other < 0 || other >= static_cast<int>(by_session_.size())) continue;
+    std::vector<std::pair<double, int>> near;
+    for (const int entry : by_session_[other]) {
+      if (entry < 0 || !keyframes_[entry].has_pose) continue;
+      if (std::find(verified.begin(), verified.end(), entry) != verified.end()) continue;
+      bool looped = false;
+      for (const Loop& l : *loops) looped = looped || (l.session_a == other && l.keyframe_a == keyframes_[entry].keyframe);
+      if (looped) continue;
+      const double d = (keyframes_[entry].pose.translation() - place.first.translation()).norm();
+      if (d <= place.second) near.push_back({d, entry});
+    }
+    std::sort(near.begin(), near.end());
+    if (static_cast<int>(near.size()) > radius.max_candidates) near.resize(radius.max_candidates);
+    for (const auto& [d, entry] : near) {
+      ++stats_.global_candidates;
+      ++stats_.followed_candidates;
+      Loop l;
+      l.kind = Loop::Kind::kGlobal;
+      if (!verify(keyframes_[entry], now, &l)) continue;
+      // A loop that puts the keyframe far from where it was looked for is not the revisit followed.
+      const Pose2 at = compose(keyframes_[entry].pose, l.z.mean);
+      if ((at.translation() - place.first.translation()).norm() > place.second) continue;
+      ++stats_.followed_accepted;
+      loops->push_back(l);
+    }
+  }
+  for (const auto& [other, at] : placed()) anchors_[{session, other}] = {keyframe, at};
 }
 
 bool LoopDetector::queryGlobal(const Eigen::VectorXf& hash, int session) {
@@ -229,6 +307,8 @@ void LoopDetector::addStoredKeyframe(int session, int keyframe, int frame_index,
 
 int LoopDetector::dropSession(int session) {
   if (cache_) cache_->eraseSession(session);
+  for (auto it = anchors_.begin(); it != anchors_.end();)
+    it = (it->first.first == session || it->first.second == session) ? anchors_.erase(it) : std::next(it);
   const int removed = hashes_.removeSession(session);
   // keyframes_[i] <-> hash entry i: remove the same entries, then index the rest again.
   keyframes_.erase(std::remove_if(keyframes_.begin(), keyframes_.end(),
@@ -306,7 +386,7 @@ void LoopDetector::checkStored(int session, int keyframe, const Eigen::VectorXf&
 
 void LoopDetector::store(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
                          const FrameFeatures* features, const Eigen::VectorXf& hash) {
-  Stored st{session, keyframe, frame_index, altitude_m, camera, FrameFeatures(), features == nullptr};
+  Stored st{session, keyframe, frame_index, altitude_m, camera, FrameFeatures(), features == nullptr, false, Pose2()};
   if (features) {
     st.features.keypoints = features->keypoints;
     st.features.image_size = features->image_size;

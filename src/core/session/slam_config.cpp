@@ -157,6 +157,7 @@ void visitLoops(V& v, O& o) {
     g("max_l1", o.global.max_l1);
     g("min_inliers", o.global.min_inliers);
     g("projection_seed", o.global.projection_seed);
+    g("follow_loops", o.global.follow_loops);
     g.enumeration("hash_mode", o.global.hash_mode, hashModeName, parseHashMode, "sorted_dct, haloc");
   });
 }

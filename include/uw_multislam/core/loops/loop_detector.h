@@ -9,6 +9,16 @@
 // hashes of every keyframe of the other sessions; the best `best_k` (and, if set, those within
 // `max_l1`) are verified by RANSAC.
 //
+// Candidates from the map's own geometry (global.follow_loops): once a global loop puts the new
+// keyframe in another session's frame, the other session's keyframes within the local radius of
+// that place are verified too (a revisit overlaps several keyframes, the hash ranks only some of
+// them high); and the session's next keyframes are predicted there by their odometry from that
+// anchor (the local search's radius, widened by the odometry's uncertainty since the anchor; the
+// anchor is dropped once the radius reaches max_radius_m), so a revisit is followed keyframe by
+// keyframe where the hash misses it. Such a candidate is accepted only when its measured pose puts
+// the new keyframe within that radius of the prediction. Only keyframes added live (addKeyframe)
+// carry the pose in their session's frame this needs; stored keyframes are found by hash alone.
+//
 // A loop is accepted when RANSAC succeeds with at least `min_inliers` inliers; its measurement
 // is the motion of the new keyframe in the old one's frame with the RANSAC covariance.
 //
@@ -22,6 +32,7 @@
 
 #include <cstdint>
 #include <limits>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -64,6 +75,9 @@ struct GlobalLoopOptions {
   /// kSortedDct (default, see haloc.h: it ranks true revisits far better) or the paper's kHaloc.
   HashMode hash_mode = HashMode::kSortedDct;
   int min_inliers = 20;  // as the local loops'
+  /// Verify around where an accepted global loop puts the keyframe in the other session, and
+  /// follow the revisit with the odometry (see the header comment).
+  bool follow_loops = true;
   std::uint64_t projection_seed = 20231122;  // the HALOC vectors; stored with the maps
 
   std::string validate() const;
@@ -110,7 +124,8 @@ struct Loop {
 struct LoopStats {
   int keyframes = 0;
   int local_candidates = 0, local_accepted = 0;
-  int global_candidates = 0, global_accepted = 0;
+  int global_candidates = 0, global_accepted = 0;  // hash and followed candidates together
+  int followed_candidates = 0, followed_accepted = 0;  // of them, from the map's geometry (follow_loops)
   int feature_read_failures = 0;  // paged candidates skipped: their features could not be read
 };
 
@@ -195,7 +210,18 @@ class LoopDetector {
     const CameraIntrinsics* camera;
     FrameFeatures features;  // keypoint positions; descriptors as CV_8U (empty when paged)
     bool paged;              // features read through cache_ when needed
+    bool has_pose = false;   // added live: `pose` is its pose in its session's frame then
+    Pose2 pose;
   };
+  // Where keyframe `keyframe` of a session was put in another session's frame by a global loop.
+  struct Anchor {
+    int keyframe = -1;
+    Pose2 in_other;
+  };
+  /// follow_loops: the candidates of the other sessions around the new keyframe's predicted
+  /// places (from this keyframe's accepted global loops, else from the anchors), verified into
+  /// `loops`; the anchors updated.
+  void followLoops(int session, int keyframe, const Trajectory& trajectory, const View& now, std::vector<Loop>* loops);
   bool verify(const Stored& old, const View& now, Loop* loop);
   /// The global search (into scratch_) when it is on and something is held; true: candidates.
   bool queryGlobal(const Eigen::VectorXf& hash, int session);
@@ -215,6 +241,7 @@ class LoopDetector {
   HashStore hashes_;  // entry i <-> keyframes_[i]; range set by the hash mode
   std::vector<Stored> keyframes_;
   std::vector<std::vector<int>> by_session_;  // [session][keyframe] -> index into keyframes_
+  std::map<std::pair<int, int>, Anchor> anchors_;  // (session, other session) -> its latest anchor there
   std::vector<HashCandidate> scratch_;
   Eigen::VectorXf last_hash_;
   std::unique_ptr<FeatureCache> cache_;
