@@ -236,7 +236,8 @@ void LoopDetector::followLoops(int session, int keyframe, const Trajectory& t, c
       if (entry < 0 || !keyframes_[entry].has_pose) continue;
       if (std::find(verified.begin(), verified.end(), entry) != verified.end()) continue;
       bool looped = false;
-      for (const Loop& l : *loops) looped = looped || (l.session_a == other && l.keyframe_a == keyframes_[entry].keyframe);
+      for (const Loop& l : *loops)
+        looped = looped || (l.session_a == other && l.keyframe_a == keyframes_[entry].keyframe);
       if (looped) continue;
       const double d = (keyframes_[entry].pose.translation() - place.first.translation()).norm();
       if (d <= place.second) near.push_back({d, entry});
