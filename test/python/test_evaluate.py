@@ -756,7 +756,7 @@ def test_measured_loop_poses_decide_correctness_and_nan_altitude_is_na(tmp_path)
 
 
 # ---------------------------------------------------------------------------------------------
-# The run must be the run of the folders given (issue 22: test1's run scored against test2).
+# The run must be the run of the folders given (a run of test1 had been scored against test2's folder).
 
 def write_inputs(run, rows):
     """inputs.csv as offline_slam writes it: (session, folder, frames, first, last, mean altitude)."""

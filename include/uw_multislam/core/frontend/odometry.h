@@ -21,7 +21,7 @@
 // tracking.max_fallbacks the session has ended before that (tracking loss: a new piece), so
 // reuse is what a session that must never end (max_fallbacks 0) falls back on.
 //
-// Navigation prior (core/frontend/nav_prior.h; issue 16), when the input carries the vehicle's
+// Navigation prior (core/frontend/nav_prior.h), when the input carries the vehicle's
 // dead-reckoned nav and options.nav.enabled: (a) RANSAC's 2-point hypotheses far from the nav's
 // motion (the same chi-square gate, with the hypothesis's own noise added) are not scored, so a
 // repetitive seabed cannot lead the consensus astray (nav.gate_ransac); (c) every visual motion is compared with the nav's
@@ -212,7 +212,7 @@ struct OdometryStats {
 /// What Odometry::process computes from a frame's image alone, before it looks at its own state:
 /// the enhanced grey image and (SIFT on every frame, klt off) its features, keypoints undistorted.
 /// A pure function of the image and the options, so a worker thread may compute it ahead of the
-/// frame (two cores, issue 19 item 3: offline_slam --threads) and the odometry's output is the
+/// frame (two cores: offline_slam --threads) and the odometry's output is the
 /// same as when it computes them itself.
 struct PreparedFrame {
   bool done = false;   // false: nothing prepared (another image size than the camera's: process skips it)

@@ -23,8 +23,8 @@
 // is the motion of the new keyframe in the old one's frame with the RANSAC covariance.
 //
 // Every keyframe's features are kept (descriptors as 8 bits: OpenCV's SIFT values are integers
-// in 0..255) for later verification: about 66 kB per keyframe with n = 500. Except with paging
-// (issue 20): a keyframe of a stored session added by addPagedKeyframe keeps only its hash and
+// in 0..255) for later verification: about 66 kB per keyframe with n = 500. Except with paging:
+// a keyframe of a stored session added by addPagedKeyframe keeps only its hash and
 // ids in RAM (about 0.5 kB); its features are read from the session store when it is a
 // candidate, through an LRU cache of `feature_cache_mb` (feature_cache.h). The search is the same
 // exact one, and so are the loops found (tested).
@@ -97,7 +97,7 @@ struct LoopOptions {
   /// Paging: the byte budget (MiB) of the cache of stored keyframes' features read from the
   /// session store for verification (about 78 kB each at n = 500: 64 MiB keeps about 850).
   double feature_cache_mb = 64.0;
-  /// In the nodelets (issue 20, paging): the back-end hands stored keyframes to the loop
+  /// In the nodelets (paging): the back-end hands stored keyframes to the loop
   /// detectors with their hashes only, and a loop detector reads a candidate's features from the
   /// back-end's store (service keyframe_features) through that cache. false: every stored
   /// keyframe's features are sent and kept in the loop detector's RAM (about 70 kB each).
@@ -159,7 +159,7 @@ class LoopDetector {
   /// std::invalid_argument without a loader, on a bad hash size or a keyframe stored twice.
   void addPagedKeyframe(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
                         const Eigen::VectorXf& hash);
-  /// Another vehicle's keyframe (issue 20, item 5), of which only the hash crossed the link: the
+  /// Another vehicle's keyframe (a fleet exchanging hashes), of which only the hash crossed the link: the
   /// global search runs for it against every other session held (this vehicle's included), and
   /// only when there are candidates are its features read with the loader (asked of that
   /// vehicle) to verify them; it is then held paged, so this vehicle's later keyframes find it
