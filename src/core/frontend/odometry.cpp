@@ -39,10 +39,14 @@ std::string FallbackOptions::validate() const {
 }
 
 std::string OdometryOptions::validate() const {
-  const std::pair<const char*, std::string> checks[] = {
-      {"enhancement", enhancement.validate()}, {"features", features.validate()},   {"matching", matching.validate()},
-      {"ransac", ransac.validate()},           {"keyframes", keyframes.validate()}, {"fallback", fallback.validate()},
-      {"nav", nav.validate()},                 {"klt", klt.validate()}};
+  const std::pair<const char*, std::string> checks[] = {{"enhancement", enhancement.validate()},
+                                                        {"features", features.validate()},
+                                                        {"matching", matching.validate()},
+                                                        {"ransac", ransac.validate()},
+                                                        {"keyframes", keyframes.validate()},
+                                                        {"fallback", fallback.validate()},
+                                                        {"nav", nav.validate()},
+                                                        {"klt", klt.validate()}};
   for (const auto& c : checks) {
     if (!c.second.empty()) return std::string(c.first) + ": " + c.second;
   }
@@ -244,7 +248,8 @@ bool Odometry::needsKeyframe(const RansacResult& r, double overlap, double stamp
 void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback,
                            MotionSource source) {
   // Incremental: Trajectory::absolute(k) would compose all k motions again at every frame.
-  last_kf_covariance_ = compose(UncertainPose2(trajectory_.absolutePoses().back(), last_kf_covariance_), motion).covariance;
+  last_kf_covariance_ =
+      compose(UncertainPose2(trajectory_.absolutePoses().back(), last_kf_covariance_), motion).covariance;
   trajectory_.append(motion);
   new_keyframes_.push_back({static_cast<int>(keyframes_.size()), frame.features});
   keyframes_.push_back({frame.index, frame.stamp_s, frame.altitude_m, fallback,
@@ -421,8 +426,8 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
       up.reason = why;
     }
   }
-  if (nav && (up.gate_refused || (!m.ransac.success &&
-                                  options_.nav.on_tracking_loss == TrackingLossPolicy::kDeadReckoning))) {
+  if (nav &&
+      (up.gate_refused || (!m.ransac.success && options_.nav.on_tracking_loss == TrackingLossPolicy::kDeadReckoning))) {
     // (b) The nav carries the frame: vision failed (dead reckoning) or was refused.
     if (!up.gate_refused) up.reason = "dead reckoning: " + m.ransac.failure;
     up.inliers = m.ransac.success ? static_cast<int>(m.ransac.inliers.size()) : 0;

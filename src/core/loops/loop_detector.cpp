@@ -285,8 +285,8 @@ void LoopDetector::nameNewKeyframe(std::vector<Loop>* loops, int session, int ke
 }
 
 const std::vector<HashCandidate>& LoopDetector::globalCandidates(const Eigen::VectorXf& hash, int session) {
-  const float max_l1 = options_.global.max_l1 > 0 ? static_cast<float>(options_.global.max_l1)
-                                                  : std::numeric_limits<float>::infinity();
+  const float max_l1 =
+      options_.global.max_l1 > 0 ? static_cast<float>(options_.global.max_l1) : std::numeric_limits<float>::infinity();
   hashes_.query(hash, session, options_.global.best_k, max_l1, &scratch_);
   return scratch_;
 }
@@ -312,9 +312,9 @@ int LoopDetector::dropSession(int session) {
     it = (it->first.first == session || it->first.second == session) ? anchors_.erase(it) : std::next(it);
   const int removed = hashes_.removeSession(session);
   // keyframes_[i] <-> hash entry i: remove the same entries, then index the rest again.
-  keyframes_.erase(std::remove_if(keyframes_.begin(), keyframes_.end(),
-                                  [session](const Stored& k) { return k.session == session; }),
-                   keyframes_.end());
+  keyframes_.erase(
+      std::remove_if(keyframes_.begin(), keyframes_.end(), [session](const Stored& k) { return k.session == session; }),
+      keyframes_.end());
   keyframes_.shrink_to_fit();
   if (static_cast<int>(keyframes_.size()) != static_cast<int>(hashes_.size()))
     throw std::logic_error("loops: keyframes and hashes drifted apart");

@@ -37,10 +37,10 @@
 #include <string>
 #include <vector>
 
-#include "uw_multislam/core/loops/feature_cache.h"
-#include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/frontend/pair_motion.h"
 #include "uw_multislam/core/geometry/trajectory.h"
+#include "uw_multislam/core/loops/feature_cache.h"
+#include "uw_multislam/core/loops/haloc.h"
 
 namespace uw_multislam {
 namespace core {
@@ -124,9 +124,9 @@ struct Loop {
 struct LoopStats {
   int keyframes = 0;
   int local_candidates = 0, local_accepted = 0;
-  int global_candidates = 0, global_accepted = 0;  // hash and followed candidates together
+  int global_candidates = 0, global_accepted = 0;      // hash and followed candidates together
   int followed_candidates = 0, followed_accepted = 0;  // of them, from the map's geometry (follow_loops)
-  int feature_read_failures = 0;  // paged candidates skipped: their features could not be read
+  int feature_read_failures = 0;                       // paged candidates skipped: their features could not be read
 };
 
 class LoopDetector {
@@ -240,7 +240,7 @@ class LoopDetector {
   ImageHasher hasher_;
   HashStore hashes_;  // entry i <-> keyframes_[i]; range set by the hash mode
   std::vector<Stored> keyframes_;
-  std::vector<std::vector<int>> by_session_;  // [session][keyframe] -> index into keyframes_
+  std::vector<std::vector<int>> by_session_;       // [session][keyframe] -> index into keyframes_
   std::map<std::pair<int, int>, Anchor> anchors_;  // (session, other session) -> its latest anchor there
   std::vector<HashCandidate> scratch_;
   Eigen::VectorXf last_hash_;
