@@ -60,7 +60,8 @@ above the folders (make_survey and ../shared/data/flights write them). Prints ma
      principal point at the image centre) queried against every mission keyframe; a loop
      accepted there is a false loop.
 Everything runs on one core (cv::setNumThreads(1)); the odometry, matching and RANSAC options
-are the defaults of offline_slam, a loop needs 25 RANSAC inliers.
+are the defaults of offline_slam (verification matching: loops.ratio), a loop needs
+loops.global.min_inliers RANSAC inliers.
 
 options:
   --session DIR       a dataset folder (an even number of them: A B per mission)
@@ -177,6 +178,8 @@ struct Pipeline {
   }
   core::OdometryOptions odometry;
   core::GlobalLoopOptions global;
+  /// The loop detector's verification matching (the loops' ratio).
+  core::MatchOptions matching() const { return core::loopMatching(odometry.matching, core::LoopOptions()); }
   std::vector<core::HashMode> modes;  // the modes compared; hashes are kept in this order
   std::vector<core::ImageHasher> hashers;
   /// The keyframe hash of every mode, in the order of `modes`.
@@ -255,7 +258,7 @@ struct Verdict {
 };
 
 Verdict verify(const Pipeline& p, const core::View& a, const core::View& b) {
-  const core::PairMotion m = core::estimatePairMotion(a, b, p.odometry.matching, p.odometry.ransac);
+  const core::PairMotion m = core::estimatePairMotion(a, b, p.matching(), p.odometry.ransac);
   Verdict v;
   v.inliers = m.ransac.success ? static_cast<int>(m.ransac.inliers.size()) : 0;
   v.accepted = m.ransac.success && v.inliers >= p.global.min_inliers;
@@ -270,7 +273,7 @@ int consensus(const Pipeline& p, const core::View& a, const core::View& b, const
   if (v.inliers > 0) return v.inliers;
   core::RansacOptions relaxed = p.odometry.ransac;
   relaxed.min_inliers = 3;
-  const core::PairMotion m = core::estimatePairMotion(a, b, p.odometry.matching, relaxed);
+  const core::PairMotion m = core::estimatePairMotion(a, b, p.matching(), relaxed);
   return m.ransac.success ? static_cast<int>(m.ransac.inliers.size()) : 0;
 }
 

@@ -40,6 +40,15 @@ Metrics (per session, for both estimates; keyframes in index order)
                        of the same map (slam only; needs world_gt.csv), ek_inter_pairs.
   Consecutive pairs and e_k pairs are used only when both keyframes lie in the same map.
 
+Steps between consecutive keyframes (per session, both estimates; kinks)
+  max_step_m           the largest distance between consecutive keyframes (the pairs of RPE).
+  max_step_gt_m        the same in the ground truth, over the same pairs.
+  max_step_excess_m    max_step_m - max_step_gt_m: a kink (a step the vehicle did not make)
+                       shows as a positive excess.
+  max_step_err_m       the largest |t_gt(j|i) - t_est(j|i)| over the same pairs (the worst RPE
+                       term); max_step_err_index: the frame index of that step's second keyframe.
+  max_turn_deg, max_turn_gt_deg, max_turn_err_deg: the same for |yaw(j|i)|, in degrees.
+
 Metrics (per map, slam)
   n_sessions (the pieces of a split folder counted apart), n_keyframes, ate_rmse_m,
   ate_aligned_rmse_m over all keyframes of the map,
@@ -88,6 +97,16 @@ Metrics (loops, rows intra / inter / all)
   gt_pairs_keyframes   of those, pairs whose two frames are both keyframes of the run.
   found                accepted pairs among gt_pairs_keyframes.
   recall               found / gt_pairs_keyframes.
+  found_near           gt_pairs found by an accepted loop that is not judged wrong and joins
+                       keyframes within NEAR_FRAMES (1) frame index of each of the pair's frames,
+                       in the same sessions (either order): a pair whose frames did not both
+                       become keyframes can still be found through their neighbours.
+  recall_all           found_near / gt_pairs: the recall over all ground-truth pairs.
+
+Similarity alignment (per session and map, both estimates)
+  ate_sim_rmse_m       ATE after the best 2-D similarity (rotation, translation and scale)
+                       alignment (Umeyama): for reconstructions without metric scale (SfM).
+  sim_scale            that alignment's scale (estimate -> ground truth).
 
 Timing: timing.csv copied as rows (scope timing, id = stage).
 
@@ -548,6 +567,26 @@ def ate_aligned_rmse(est_xy, gt_xy):
     return ate_rmse(aligned, gt_xy)
 
 
+def align_sim2(est_xy, gt_xy):
+    """Best 2-D similarity (scale, yaw, t) minimising sum |s R(yaw) est + t - gt|^2 (Umeyama 1991)."""
+    est_xy, gt_xy = np.asarray(est_xy, float), np.asarray(gt_xy, float)
+    ce, cg = est_xy.mean(axis=0), gt_xy.mean(axis=0)
+    e, g = est_xy - ce, gt_xy - cg
+    cross = np.sum(e[:, 0] * g[:, 1] - e[:, 1] * g[:, 0])
+    dot = np.sum(e[:, 0] * g[:, 0] + e[:, 1] * g[:, 1])
+    var = float(np.sum(e * e))
+    scale = math.hypot(cross, dot) / var if var > 0 else 1.0
+    yaw = math.atan2(cross, dot)
+    return scale, yaw, cg - scale * rotate(ce, yaw)
+
+
+def ate_sim_rmse(est_xy, gt_xy):
+    """(ATE RMSE after the best similarity alignment of the estimate onto the gt, its scale)."""
+    scale, yaw, t = align_sim2(est_xy, gt_xy)
+    aligned = scale * rotate_rows(np.asarray(est_xy, float), yaw) + t
+    return ate_rmse(aligned, gt_xy), scale
+
+
 def path_length(gt_xy):
     """Sum of distances between consecutive positions."""
     gt_xy = np.asarray(gt_xy, float)
@@ -588,6 +627,34 @@ def rpe(estimate, gt, keys):
             "rpe_rot_rmse_deg": NA if not len(rot) else math.degrees(rms(rot))}
 
 
+STEP_NAMES = ("max_step_m", "max_step_gt_m", "max_step_excess_m", "max_step_err_m", "max_step_err_index",
+              "max_turn_deg", "max_turn_gt_deg", "max_turn_err_deg")
+
+
+def step_metrics(estimate, gt, keys):
+    """Kinks: the largest step between consecutive keyframes (in `keys` order, same frame) against
+    the ground truth's over the same pairs, and the largest error of one step (see the docstring)."""
+    pairs = [(a, b) for a, b in zip(keys, keys[1:]) if estimate.same_frame(a, b)]
+    rows = []
+    for a, b in pairs:
+        truth = gt.relative(a, b)
+        if truth is None:
+            continue
+        est = estimate.relative(a, b)
+        rows.append((a, b, float(np.hypot(est[0], est[1])), float(np.hypot(truth[0], truth[1])),
+                     float(np.hypot(*(truth[:2] - est[:2]))), abs(wrap_angle(est[2])), abs(wrap_angle(truth[2])),
+                     abs(wrap_angle(est[2] - truth[2]))))
+    if not rows:
+        return dict.fromkeys(STEP_NAMES, NA)
+    worst = max(rows, key=lambda r: r[4])
+    step, step_gt = max(r[2] for r in rows), max(r[3] for r in rows)
+    return {"max_step_m": step, "max_step_gt_m": step_gt, "max_step_excess_m": step - step_gt,
+            "max_step_err_m": worst[4], "max_step_err_index": worst[1][1],
+            "max_turn_deg": math.degrees(max(r[5] for r in rows)),
+            "max_turn_gt_deg": math.degrees(max(r[6] for r in rows)),
+            "max_turn_err_deg": math.degrees(max(r[7] for r in rows))}
+
+
 def e_k(estimate, gt, pairs):
     """The paper's e_k (35) over the pairs usable in the estimate: (mean error, pairs used)."""
     usable = [p for p in pairs if estimate.same_frame(*p)]
@@ -596,13 +663,16 @@ def e_k(estimate, gt, pairs):
 
 
 def absolute_metrics(estimate, gt_poses, keys, with_drift=True):
-    """ATE, aligned ATE and (optionally) path length and end drift over `keys`."""
-    names = ["ate_rmse_m", "ate_aligned_rmse_m"] + (["path_length_m", "end_drift_pct"] if with_drift else [])
+    """ATE, aligned ATE (rigid and similarity) and (optionally) path length and end drift over `keys`."""
+    names = ["ate_rmse_m", "ate_aligned_rmse_m", "ate_sim_rmse_m", "sim_scale"] + (
+        ["path_length_m", "end_drift_pct"] if with_drift else [])
     if not keys or any(k not in gt_poses for k in keys):
         return dict.fromkeys(names, NA)
     est_xy = np.array([estimate.poses[k][:2] for k in keys])
     gt_xy = np.array([gt_poses[k][:2] for k in keys])
-    out = {"ate_rmse_m": ate_rmse(est_xy, gt_xy), "ate_aligned_rmse_m": ate_aligned_rmse(est_xy, gt_xy)}
+    sim, scale = ate_sim_rmse(est_xy, gt_xy)
+    out = {"ate_rmse_m": ate_rmse(est_xy, gt_xy), "ate_aligned_rmse_m": ate_aligned_rmse(est_xy, gt_xy),
+           "ate_sim_rmse_m": sim, "sim_scale": scale}
     if with_drift:
         out.update(path_length_m=path_length(gt_xy), end_drift_pct=end_drift_pct(est_xy, gt_xy))
     return out
@@ -619,6 +689,7 @@ def session_metrics(estimate, gt, gt_poses, session, unit_keys=None):
     out = {"n_keyframes": len(keys)}
     out.update(absolute_metrics(estimate, gt_poses, keys))
     out.update(rpe(estimate, gt, keys))
+    out.update(step_metrics(estimate, gt, keys))
     gt_pairs = gt.loops or []
     inside = set(keys)
     out.update(ek_metrics(estimate, gt, [p for p in gt_pairs if p[0][0] == p[1][0] == session and (
@@ -925,13 +996,28 @@ def of_kind(pairs, kind):
     return [p for p in pairs if kind == "all" or loop_kind(p) == kind]
 
 
+NEAR_FRAMES = 1  # recall_all: an accepted loop within this many frame indexes of each frame of a gt pair
+
+
+def near(key, other):
+    return key[0] == other[0] and abs(key[1] - other[1]) <= NEAR_FRAMES
+
+
+def found_near(gt_pairs, accepted, verdict):
+    """The gt pairs found by an accepted loop, not judged wrong, that joins keyframes within
+    NEAR_FRAMES of each of the pair's frames (either order)."""
+    good = [p for p in accepted if verdict.get(p) is not False]
+    return [p for p in gt_pairs if any((near(p[0], a) and near(p[1], b)) or (near(p[0], b) and near(p[1], a))
+                                       for a, b in good)]
+
+
 def loop_metrics(run, gt, verdict):
     """Precision and recall per kind (intra, inter, all)."""
     keyframes = run.keyframes()
     out = {}
     for kind in LOOP_KINDS:
         m = dict.fromkeys(("accepted", "correct", "precision", "gt_pairs", "gt_pairs_keyframes", "found",
-                           "recall"), NA)
+                           "recall", "found_near", "recall_all"), NA)
         if run.loops is not None:
             accepted = of_kind(run.loops, kind)
             judged = [verdict[p] for p in accepted]
@@ -945,6 +1031,8 @@ def loop_metrics(run, gt, verdict):
             if run.loops is not None:
                 m["found"] = len(set(reachable) & set(run.loops))
                 m["recall"] = m["found"] / len(reachable) if reachable else NA
+                m["found_near"] = len(found_near(gt_pairs, of_kind(run.loops, kind), verdict))
+                m["recall_all"] = m["found_near"] / len(gt_pairs) if gt_pairs else NA
         out[kind] = m
     return out
 
@@ -1041,10 +1129,15 @@ SESSION_COLUMNS = (("keyframes", "n_keyframes"), ("path (m)", "path_length_m"), 
                    ("aligned ATE (m)", "ate_aligned_rmse_m"), ("end drift (%)", "end_drift_pct"),
                    ("RPE trans (m)", "rpe_trans_rmse_m"), ("RPE rot (deg)", "rpe_rot_rmse_deg"))
 MAP_COLUMNS = (("sessions", "n_sessions"), ("keyframes", "n_keyframes"), ("ATE (m)", "ate_rmse_m"),
-               ("aligned ATE (m)", "ate_aligned_rmse_m"))
+               ("aligned ATE (m)", "ate_aligned_rmse_m"), ("similarity ATE (m)", "ate_sim_rmse_m"))
 MOSAIC_COLUMNS = (("disagreement", "mosaic_disagreement"), ("ground truth's", "mosaic_disagreement_gt"),
                   ("ratio", "mosaic_ratio"), ("pairs", "mosaic_pairs"))
-LOOP_COLUMNS = ("accepted", "correct", "precision", "gt_pairs", "gt_pairs_keyframes", "found", "recall")
+LOOP_COLUMNS = ("accepted", "correct", "precision", "gt_pairs", "gt_pairs_keyframes", "found", "recall",
+                "found_near", "recall_all")
+STEP_COLUMNS = (("largest step (m)", "max_step_m"), ("ground truth's (m)", "max_step_gt_m"),
+                ("excess (m)", "max_step_excess_m"), ("worst step error (m)", "max_step_err_m"),
+                ("at keyframe", "max_step_err_index"), ("largest turn (deg)", "max_turn_deg"),
+                ("ground truth's (deg)", "max_turn_gt_deg"), ("worst turn error (deg)", "max_turn_err_deg"))
 EK_HEADERS = ("e_k intra (m) (pairs)", "e_k inter (m) (pairs)")
 
 
@@ -1059,6 +1152,10 @@ def markdown(ev):
             for sid, by_est in data.get("session", {}).items() for est, m in by_est.items()]
     parts += ["## Sessions", md_table(["session", "estimate"] + [h for h, _ in SESSION_COLUMNS] + list(EK_HEADERS),
                                       rows)]
+    rows = [[sid, est] + metric_cells(m, STEP_COLUMNS) for sid, by_est in data.get("session", {}).items()
+            for est, m in by_est.items() if "max_step_m" in m]
+    parts += ["## Steps between consecutive keyframes (kinks)",
+              md_table(["session", "estimate"] + [h for h, _ in STEP_COLUMNS], rows)]
     rows = [[mid] + metric_cells(m["slam"], MAP_COLUMNS) + [with_pairs(m["slam"], "intra"),
                                                             with_pairs(m["slam"], "inter")]
             for mid, m in data.get("map", {}).items()]

@@ -347,6 +347,99 @@ def test_loop_precision_and_recall_with_planted_false_loops(tmp_path):
     assert both["precision"] == pytest.approx(6 / 8) and both["recall"] == pytest.approx(6 / 8)
 
 
+def write_loop_poses(run, rows):
+    """loop_poses.csv: rows of ((s, i), (s, i), measured pose of b in a)."""
+    write_csv(os.path.join(run, "loop_poses.csv"), "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad",
+              [(a[0], a[1], b[0], b[1]) + tuple(z) for a, b, z in rows])
+
+
+def test_recall_over_all_pairs_finds_a_pair_through_keyframes_within_one_frame(tmp_path):
+    # Out along x for 8 frames, then back along a line 0.2 m below: frame i revisits frame 15 - i.
+    gt = [(0.1 * i, 0.0, 0.0) for i in range(8)] + [(0.1 * (15 - i), 0.2, math.pi) for i in range(8, 16)]
+    s0 = write_session(tmp_path / "s0", gt)
+    pairs = [((0, 2), (0, 13)), ((0, 3), (0, 12)), ((0, 4), (0, 11)), ((0, 5), (0, 10)), ((0, 6), (0, 9))]
+    loops_gt = write_loops_gt(tmp_path / "loops_gt.csv", pairs)
+    keyframes = [0, 2, 4, 6, 7, 9, 11, 13, 15]  # frames 3, 5, 10, 12 never became keyframes
+    accepted = [((0, 2), (0, 13)),  # a pair itself; within one frame also of (3, 12)
+                ((0, 11), (0, 4)),  # given reversed; within one frame of (5, 10) too
+                ((0, 7), (0, 9))]   # 7 is one frame from 6: (6, 9) found
+    run = write_run(tmp_path / "run", {0: indexed(gt, keyframes)}, loops=accepted)
+    m = evaluate_dirs(tmp_path, [s0], run, loops_gt=loops_gt)["loops"]["intra"]["loops"]
+    assert m["gt_pairs"] == 5 and m["gt_pairs_keyframes"] == 3  # (2,13), (4,11), (6,9)
+    assert m["found"] == 2 and m["recall"] == pytest.approx(2 / 3)  # (7, 9) is not a keyframe pair of the gt
+    assert m["found_near"] == 5 and m["recall_all"] == pytest.approx(1.0)
+    # Two frames away is not near: a loop (0, 15) is near no pair; a loop (2, 11) is near none of
+    # (2, 13) and (4, 11) but finds (3, 12) (one frame from each).
+    run = write_run(tmp_path / "run2", {0: indexed(gt, keyframes)}, loops=[((0, 0), (0, 15)), ((0, 2), (0, 11))])
+    m = evaluate_dirs(tmp_path / "b", [s0], run, loops_gt=loops_gt)["loops"]["intra"]["loops"]
+    assert m["found_near"] == 1 and m["recall_all"] == pytest.approx(1 / 5)
+    # A loop whose measured pose is wrong finds nothing, even next to a pair (loop_poses.csv).
+    run = write_run(tmp_path / "run3", {0: indexed(gt, keyframes)}, loops=[((0, 2), (0, 13)), ((0, 4), (0, 11))])
+    write_loop_poses(run, [((0, 2), (0, 13), ev.relative(np.array(gt[2]), np.array(gt[13]))),
+                           ((0, 4), (0, 11), (0.5, 0.5, 0.0))])
+    m = evaluate_dirs(tmp_path / "c", [s0], run, loops_gt=loops_gt)["loops"]["intra"]["loops"]
+    assert m["precision"] == pytest.approx(0.5)
+    assert m["found_near"] == 2 and m["recall_all"] == pytest.approx(2 / 5)  # (2,13) and (3,12); not (4,11), (5,10)
+
+
+def test_recall_over_all_pairs_needs_the_same_sessions(tmp_path):
+    s0, s1, world, local0, local1 = loop_scene(tmp_path)
+    loops_gt = write_loops_gt(tmp_path / "loops_gt.csv", [((0, 1), (1, 1))])
+    run = write_run(tmp_path / "run", {0: indexed(local0), 1: indexed(local1)}, loops=[((0, 1), (0, 2))])
+    m = evaluate_dirs(tmp_path, [s0, s1], run, world=world, loops_gt=loops_gt)["loops"]["all"]["loops"]
+    assert m["found_near"] == 0 and m["recall_all"] == 0.0  # (0,1)-(0,2) is within one index of (0,1)-(1,1)'s indexes only
+
+
+def test_a_kink_is_the_largest_step_beyond_the_ground_truths(tmp_path):
+    # A smooth line of 0.3 m steps; the estimate jumps 1 m sideways between frames 5 and 6 and
+    # turns 10 degrees there (the rest follows, shifted).
+    gt = [(0.0, 0.3 * i, 0.0) for i in range(10)]
+    est = [(0.0 if i < 6 else 1.0, 0.3 * i, 0.0 if i < 6 else math.radians(10)) for i in range(10)]
+    s0 = write_session(tmp_path / "s0", gt)
+    run = write_run(tmp_path / "run", {0: indexed(est)}, {0: [(i, 0, p) for i, p in indexed(gt)]})
+    data = evaluate_dirs(tmp_path, [s0], run)["session"]["0"]
+    m = data["odometry"]
+    assert m["max_step_gt_m"] == pytest.approx(0.3)
+    assert m["max_step_m"] == pytest.approx(math.hypot(1.0, 0.3))
+    assert m["max_step_excess_m"] == pytest.approx(math.hypot(1.0, 0.3) - 0.3)
+    assert m["max_step_err_m"] == pytest.approx(1.0) and m["max_step_err_index"] == 6
+    assert m["max_turn_deg"] == pytest.approx(10.0) and m["max_turn_gt_deg"] == pytest.approx(0.0, abs=1e-9)
+    assert m["max_turn_err_deg"] == pytest.approx(10.0)
+    s = data["slam"]  # the slam estimate is the ground truth: no kink
+    assert s["max_step_excess_m"] == pytest.approx(0.0, abs=1e-12) and s["max_step_err_m"] == pytest.approx(0.0, abs=1e-12)
+    text = (tmp_path / "report" / "metrics.md").read_text()
+    assert "## Steps between consecutive keyframes (kinks)" in text and "| 1.000 | 6 |" in text
+
+
+def test_similarity_alignment_removes_scale_rotation_and_offset(tmp_path):
+    gt = lawnmower()
+    s0 = write_session(tmp_path / "s0", gt)
+    # An SfM-like estimate: scaled by 0.37, turned by 1 rad, moved; yaw turns with it.
+    est = [tuple(ev.compose(np.array([3.0, -1.0, 1.0]), np.array([0.37 * x, 0.37 * y, yaw]))) for x, y, yaw in gt]
+    run = write_run(tmp_path / "run", {0: indexed(est)})
+    m = evaluate_dirs(tmp_path, [s0], run)["session"]["0"]["odometry"]
+    assert m["ate_sim_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+    assert m["sim_scale"] == pytest.approx(1 / 0.37)
+    assert m["ate_aligned_rmse_m"] > 0.1  # a rigid alignment cannot undo the scale
+    # With noise on one keyframe the alignment is the least-squares optimum: any other scale or
+    # rotation (with its best translation) leaves more, and the metric is that optimum's RMSE.
+    noisy = list(est)
+    noisy[3] = (noisy[3][0] + 0.05, noisy[3][1], noisy[3][2])
+    run = write_run(tmp_path / "run2", {0: indexed(noisy)})
+    m = evaluate_dirs(tmp_path / "b", [s0], run)["session"]["0"]["odometry"]
+    e, g = np.array([p[:2] for p in noisy]), np.array([p[:2] for p in gt])
+
+    def residual(scale, yaw):
+        moved = scale * ev.rotate_rows(e, yaw)
+        return float(np.sqrt(np.mean(np.sum((moved - moved.mean(axis=0) - g + g.mean(axis=0)) ** 2, axis=1))))
+
+    scale, yaw, _ = ev.align_sim2(e, g)
+    assert m["ate_sim_rmse_m"] == pytest.approx(residual(scale, yaw))
+    assert 0 < m["ate_sim_rmse_m"] < 0.05 / 0.37
+    for ds, dy in ((0.01, 0), (-0.01, 0), (0, 0.01), (0, -0.01)):
+        assert residual(scale * (1 + ds), yaw + dy) > m["ate_sim_rmse_m"]
+
+
 def test_default_true_loop_distance_is_the_footprint_height(tmp_path):
     s0, s1, world, local0, local1 = loop_scene(tmp_path)
     accepted = [((0, 0), (0, 2)), ((0, 0), (0, 3))]  # 0.4 m (overlap) and 0.6 m (no overlap) apart
@@ -663,7 +756,7 @@ def test_measured_loop_poses_decide_correctness_and_nan_altitude_is_na(tmp_path)
 
 
 # ---------------------------------------------------------------------------------------------
-# The run must be the run of the folders given (issue 22: test1's run scored against test2).
+# The run must be the run of the folders given (a run of test1 had been scored against test2's folder).
 
 def write_inputs(run, rows):
     """inputs.csv as offline_slam writes it: (session, folder, frames, first, last, mean altitude)."""

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""rostest: the back-end's operator services add_link, optimise (issue 16, item 4), detect_loops
+"""rostest: the back-end's operator services add_link, optimise, detect_loops
 (item 3) and history (item 5), called right and called wrong, on back-end nodes this test starts with their own stores.
 
 Session 0 (8 keyframes) and session 1 (5), each driven straight along x at 0.5 m per keyframe;
@@ -163,7 +163,7 @@ class OperatorServicesTest(unittest.TestCase):
         self.assertEqual(after[1][1], 0, after)
         self.assertEqual((after[0][3], after[1][3]), (1, 2), after)
 
-        # The audit trail (issue 16, item 5): both links and the join, each with the service as cause;
+        # The audit trail: both links and the join, each with the service as cause;
         # splitting the joined session off again undoes that join and says so.
         history = rospy.ServiceProxy(NS + "/history", History)
         res = history(0)
@@ -241,7 +241,7 @@ class OperatorServicesTest(unittest.TestCase):
             self.assertIsNotNone(found, "no pair of keyframes across the sessions was verified")
             print("add_link find: 0:%d -> 1:%d, pose (%.3f, %.3f, %.4f), %d inliers" % (
                 found[0], found[1], found[2].pose.x, found[2].pose.y, found[2].pose.theta, found[2].inliers), flush=True)
-            self.assertGreaterEqual(found[2].inliers, 25)  # loops.global.min_inliers
+            self.assertGreaterEqual(found[2].inliers, 20)  # loops.global.min_inliers
             # The first pair tried, both sessions' first keyframes, overlaps: SURVEY starts s1 at
             # (6.5, 5.5) heading pi/2 and s0 at (6.0, 5.0) heading 0, so b in a is (0.5, 0.5, pi/2).
             self.assertEqual(found[:2], (0, 0))
@@ -273,7 +273,7 @@ class OperatorServicesTest(unittest.TestCase):
             shutil.rmtree(tmp, ignore_errors=True)
 
     def test_delete_session_called_right_and_wrong(self):
-        """delete_session (issue 16, item 4): refused with nothing changed while the session records,
+        """delete_session: refused with nothing changed while the session records,
         shares its map, without confirm, in localisation mode, for an unknown name; then deleted from
         memory and store (its loops too), its path emptied, recorded in the history."""
         self.start_backend(self.db, {"intra_loop_gate": False})
@@ -333,7 +333,7 @@ class OperatorServicesTest(unittest.TestCase):
                              [("link",), ("join",), ("split",), ("mode",), ("delete",)])
 
     def test_localisation_mode_leaves_the_store_byte_identical(self):
-        """set_mode (issue 16, item 4; must-show: the store byte-identical by md5)."""
+        """set_mode (the store byte-identical by md5)."""
         self.start_backend(self.db, name="mapping_node")
         rospy.wait_for_service(NS + "/list_sessions", timeout=60)
         self.feed({0: 8})

@@ -34,14 +34,19 @@ std::string FallbackOptions::validate() const {
       !(sigma_yaw_rad > 0 && sigma_yaw_rad <= 10)) {
     return "min_sigma_m must be in (0, 1000], relative_sigma in [0, 1000], sigma_yaw_rad in (0, 10]";
   }
+  if (bridge_frames < 0 || bridge_frames > 1000000) return "bridge_frames must be in [0, 1000000]";
   return {};
 }
 
 std::string OdometryOptions::validate() const {
-  const std::pair<const char*, std::string> checks[] = {
-      {"enhancement", enhancement.validate()}, {"features", features.validate()},   {"matching", matching.validate()},
-      {"ransac", ransac.validate()},           {"keyframes", keyframes.validate()}, {"fallback", fallback.validate()},
-      {"nav", nav.validate()},                 {"klt", klt.validate()}};
+  const std::pair<const char*, std::string> checks[] = {{"enhancement", enhancement.validate()},
+                                                        {"features", features.validate()},
+                                                        {"matching", matching.validate()},
+                                                        {"ransac", ransac.validate()},
+                                                        {"keyframes", keyframes.validate()},
+                                                        {"fallback", fallback.validate()},
+                                                        {"nav", nav.validate()},
+                                                        {"klt", klt.validate()}};
   for (const auto& c : checks) {
     if (!c.second.empty()) return std::string(c.first) + ": " + c.second;
   }
@@ -243,7 +248,8 @@ bool Odometry::needsKeyframe(const RansacResult& r, double overlap, double stamp
 void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback,
                            MotionSource source) {
   // Incremental: Trajectory::absolute(k) would compose all k motions again at every frame.
-  last_kf_covariance_ = compose(UncertainPose2(trajectory_.absolutePoses().back(), last_kf_covariance_), motion).covariance;
+  last_kf_covariance_ =
+      compose(UncertainPose2(trajectory_.absolutePoses().back(), last_kf_covariance_), motion).covariance;
   trajectory_.append(motion);
   new_keyframes_.push_back({static_cast<int>(keyframes_.size()), frame.features});
   keyframes_.push_back({frame.index, frame.stamp_s, frame.altitude_m, fallback,
@@ -420,8 +426,8 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
       up.reason = why;
     }
   }
-  if (nav && (up.gate_refused || (!m.ransac.success &&
-                                  options_.nav.on_tracking_loss == TrackingLossPolicy::kDeadReckoning))) {
+  if (nav &&
+      (up.gate_refused || (!m.ransac.success && options_.nav.on_tracking_loss == TrackingLossPolicy::kDeadReckoning))) {
     // (b) The nav carries the frame: vision failed (dead reckoning) or was refused.
     if (!up.gate_refused) up.reason = "dead reckoning: " + m.ransac.failure;
     up.inliers = m.ransac.success ? static_cast<int>(m.ransac.inliers.size()) : 0;
@@ -448,12 +454,31 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
       ++stats_.tracked;
       up.status = FrameStatus::kTracked;
     }
+  } else if (unmatched_ < options_.fallback.bridge_frames) {
+    // Bridged: no motion is made up. The next frame is matched to the last keyframe (the previous
+    // frame, promoted above when it was only tracked); the session's state stays that of the last
+    // matched frame. The pose reported is the constant-step prediction, for display only.
+    predicted_ = compose(unmatched_ > 0 ? predicted_ : prev_.pose, last_step_);
+    ++unmatched_;
+    ++stats_.fallbacks;
+    ++stats_.bridged;
+    up.pose = predicted_;
+    up.covariance = last_kf_covariance_;
+    up.status = FrameStatus::kFallback;
+    up.source = MotionSource::kFallback;
+    up.reason = "unmatched, bridged to the next frame: " + m.ransac.failure;
+    return up;
   } else {
-    // Reuse the previous frame-to-frame motion (paper §5), with a deliberately large covariance.
-    cur.pose = compose(prev_.pose, last_step_);
+    // Reuse the previous frame-to-frame motion (paper §5), with a deliberately large covariance,
+    // from the prediction of the frames bridged before (one step each, as many steps' variance).
+    const int steps = unmatched_ > 0 && unmatched_ <= options_.fallback.bridge_frames ? unmatched_ + 1 : 1;
+    cur.pose = compose(unmatched_ > 0 ? predicted_ : prev_.pose, last_step_);
+    predicted_ = cur.pose;
+    ++unmatched_;
     const FallbackOptions& f = options_.fallback;
     const double sxy = std::max(f.min_sigma_m, f.relative_sigma * last_step_.translation().norm());
-    const Eigen::Matrix3d cov = Eigen::Vector3d(sxy * sxy, sxy * sxy, f.sigma_yaw_rad * f.sigma_yaw_rad).asDiagonal();
+    const Eigen::Matrix3d cov =
+        steps * Eigen::Vector3d(sxy * sxy, sxy * sxy, f.sigma_yaw_rad * f.sigma_yaw_rad).asDiagonal().toDenseMatrix();
     addKeyframe(cur, UncertainPose2(between(last_kf_.pose, cur.pose), cov), true);
     up.covariance = last_kf_covariance_;
     ++stats_.fallbacks;
@@ -468,6 +493,7 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
 }
 
 void Odometry::finishFrame(TrackedFrame* cur, const OdometryUpdate& up) {
+  if (up.status != FrameStatus::kFallback) unmatched_ = 0;  // matched (or carried by the nav) again
   cur->match = {up.matches, up.inliers, up.overlap, up.scale};
   if (!keyframes_.empty() && keyframes_.back().frame_index == cur->index && !keyframes_.back().fallback)
     keyframes_.back().match = cur->match;

@@ -37,12 +37,19 @@ std::string LoopOptions::validate() const {
   if (!bad.empty()) return "local: " + bad;
   bad = global.validate();
   if (!bad.empty()) return "global: " + bad;
+  if (!(ratio > 0.0 && ratio <= 1.0)) return "ratio must be in (0, 1]";
   if (!(feature_cache_mb >= 0) || feature_cache_mb > 1e6) return "feature_cache_mb must be in [0, 1e6] (MiB)";
   if (page_live_after < 0) return "page_live_after must be >= 0 (0: never)";
   return {};
 }
 
 std::string loopKindName(Loop::Kind k) { return k == Loop::Kind::kLocal ? "local" : "global"; }
+
+MatchOptions loopMatching(const MatchOptions& odometry, const LoopOptions& loops) {
+  MatchOptions m = odometry;
+  m.ratio = loops.ratio;
+  return m;
+}
 
 namespace {
 const LoopOptions& checked(const LoopOptions& o) {
@@ -55,7 +62,7 @@ const LoopOptions& checked(const LoopOptions& o) {
 LoopDetector::LoopDetector(const LoopOptions& options, const MatchOptions& matching, const RansacOptions& ransac,
                            int num_features)
     : options_(checked(options)),
-      matching_(matching),
+      matching_(loopMatching(matching, options)),
       ransac_(ransac),
       hasher_(options.global.hash_mode, num_features, options.global.projection_seed),
       hashes_(hashCodeRange(options.global.hash_mode)) {}
@@ -166,12 +173,91 @@ std::vector<Loop> LoopDetector::addKeyframe(int session, int keyframe, int frame
     }
   }
   if (queryGlobal(hash, session)) verifyGlobal(now, &loops);
+  if (options_.global.enabled && options_.global.follow_loops) {
+    ScopedStage s(&times_, "global_follow");
+    followLoops(session, keyframe, trajectory, now, &loops);
+  }
   nameNewKeyframe(&loops, session, keyframe, frame_index);
 
-  // Store the keyframe for later queries.
+  // Store the keyframe for later queries, with its pose for the other sessions' followed loops.
   last_hash_ = hash;
   store(session, keyframe, frame_index, altitude_m, camera, &features, hash);
+  keyframes_.back().has_pose = true;
+  keyframes_.back().pose = trajectory.absolutePose(keyframe);
   return loops;
+}
+
+void LoopDetector::followLoops(int session, int keyframe, const Trajectory& t, const View& now,
+                               std::vector<Loop>* loops) {
+  const LocalLoopOptions& radius = options_.local;
+  const Pose2& here = t.absolutePose(keyframe);
+  // This keyframe's place in each other session by its best global loop there (most inliers).
+  const auto placed = [&]() {
+    std::map<int, Pose2> out;
+    std::map<int, int> inliers;
+    for (const Loop& l : *loops) {
+      if (l.kind != Loop::Kind::kGlobal || !has(l.session_a, l.keyframe_a)) continue;
+      const Stored& a = keyframes_[by_session_[l.session_a][l.keyframe_a]];
+      if (!a.has_pose || (inliers.count(l.session_a) && inliers[l.session_a] >= l.inliers)) continue;
+      inliers[l.session_a] = l.inliers;
+      out[l.session_a] = compose(a.pose, l.z.mean);
+    }
+    return out;
+  };
+  // Per other session: the predicted pose of this keyframe in its frame and the search radius.
+  std::map<int, std::pair<Pose2, double>> predicted;
+  for (const auto& [other, at] : placed()) predicted[other] = {at, radius.radius_m};
+  for (auto it = anchors_.begin(); it != anchors_.end();) {
+    const int other = it->first.second;
+    if (it->first.first != session || predicted.count(other)) {
+      ++it;
+      continue;
+    }
+    // The odometry from the anchor keyframe to this one, with its uncertainty (as localCandidates).
+    const Anchor& anchor = it->second;
+    UncertainPose2 rel = UncertainPose2::exact(Pose2());
+    for (int i = anchor.keyframe + 1; i <= keyframe && i < static_cast<int>(t.numKeyframes()); ++i)
+      rel = compose(rel, t.motion(i));
+    const double sigma = std::sqrt(std::max(0.0, rel.covariance.topLeftCorner<2, 2>().trace()));
+    const double r = radius.radius_m + radius.sigma_widening * sigma;
+    if (r >= radius.max_radius_m) {
+      it = anchors_.erase(it);  // the prediction says no more than the radius: the anchor is spent
+      continue;
+    }
+    predicted[other] = {compose(anchor.in_other, between(t.absolutePose(anchor.keyframe), here)), r};
+    ++it;
+  }
+  std::vector<int> verified;  // entries this keyframe was already verified against
+  for (const HashCandidate& c : scratch_) verified.push_back(c.entry);
+  for (const auto& [other, place] : predicted) {
+    if (other < 0 || other >= static_cast<int>(by_session_.size())) continue;
+    std::vector<std::pair<double, int>> near;
+    for (const int entry : by_session_[other]) {
+      if (entry < 0 || !keyframes_[entry].has_pose) continue;
+      if (std::find(verified.begin(), verified.end(), entry) != verified.end()) continue;
+      bool looped = false;
+      for (const Loop& l : *loops)
+        looped = looped || (l.session_a == other && l.keyframe_a == keyframes_[entry].keyframe);
+      if (looped) continue;
+      const double d = (keyframes_[entry].pose.translation() - place.first.translation()).norm();
+      if (d <= place.second) near.push_back({d, entry});
+    }
+    std::sort(near.begin(), near.end());
+    if (static_cast<int>(near.size()) > radius.max_candidates) near.resize(radius.max_candidates);
+    for (const auto& [d, entry] : near) {
+      ++stats_.global_candidates;
+      ++stats_.followed_candidates;
+      Loop l;
+      l.kind = Loop::Kind::kGlobal;
+      if (!verify(keyframes_[entry], now, &l)) continue;
+      // A loop that puts the keyframe far from where it was looked for is not the revisit followed.
+      const Pose2 at = compose(keyframes_[entry].pose, l.z.mean);
+      if ((at.translation() - place.first.translation()).norm() > place.second) continue;
+      ++stats_.followed_accepted;
+      loops->push_back(l);
+    }
+  }
+  for (const auto& [other, at] : placed()) anchors_[{session, other}] = {keyframe, at};
 }
 
 bool LoopDetector::queryGlobal(const Eigen::VectorXf& hash, int session) {
@@ -199,8 +285,8 @@ void LoopDetector::nameNewKeyframe(std::vector<Loop>* loops, int session, int ke
 }
 
 const std::vector<HashCandidate>& LoopDetector::globalCandidates(const Eigen::VectorXf& hash, int session) {
-  const float max_l1 = options_.global.max_l1 > 0 ? static_cast<float>(options_.global.max_l1)
-                                                  : std::numeric_limits<float>::infinity();
+  const float max_l1 =
+      options_.global.max_l1 > 0 ? static_cast<float>(options_.global.max_l1) : std::numeric_limits<float>::infinity();
   hashes_.query(hash, session, options_.global.best_k, max_l1, &scratch_);
   return scratch_;
 }
@@ -222,11 +308,13 @@ void LoopDetector::addStoredKeyframe(int session, int keyframe, int frame_index,
 
 int LoopDetector::dropSession(int session) {
   if (cache_) cache_->eraseSession(session);
+  for (auto it = anchors_.begin(); it != anchors_.end();)
+    it = (it->first.first == session || it->first.second == session) ? anchors_.erase(it) : std::next(it);
   const int removed = hashes_.removeSession(session);
   // keyframes_[i] <-> hash entry i: remove the same entries, then index the rest again.
-  keyframes_.erase(std::remove_if(keyframes_.begin(), keyframes_.end(),
-                                  [session](const Stored& k) { return k.session == session; }),
-                   keyframes_.end());
+  keyframes_.erase(
+      std::remove_if(keyframes_.begin(), keyframes_.end(), [session](const Stored& k) { return k.session == session; }),
+      keyframes_.end());
   keyframes_.shrink_to_fit();
   if (static_cast<int>(keyframes_.size()) != static_cast<int>(hashes_.size()))
     throw std::logic_error("loops: keyframes and hashes drifted apart");
@@ -299,7 +387,7 @@ void LoopDetector::checkStored(int session, int keyframe, const Eigen::VectorXf&
 
 void LoopDetector::store(int session, int keyframe, int frame_index, double altitude_m, const CameraIntrinsics* camera,
                          const FrameFeatures* features, const Eigen::VectorXf& hash) {
-  Stored st{session, keyframe, frame_index, altitude_m, camera, FrameFeatures(), features == nullptr};
+  Stored st{session, keyframe, frame_index, altitude_m, camera, FrameFeatures(), features == nullptr, false, Pose2()};
   if (features) {
     st.features.keypoints = features->keypoints;
     st.features.image_size = features->image_size;

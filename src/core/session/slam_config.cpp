@@ -120,6 +120,7 @@ void visitOdometry(V& v, O& o) {
     b("min_sigma_m", o.fallback.min_sigma_m);
     b("relative_sigma", o.fallback.relative_sigma);
     b("sigma_yaw_rad", o.fallback.sigma_yaw_rad);
+    b("bridge_frames", o.fallback.bridge_frames);
   });
   v.block("klt", [&](V& k) {
     k("enabled", o.klt.enabled);
@@ -137,6 +138,7 @@ void visitOdometry(V& v, O& o) {
 
 template <typename V, typename O>
 void visitLoops(V& v, O& o) {
+  v("ratio", o.ratio);
   v("feature_cache_mb", o.feature_cache_mb);
   v("page_stored", o.page_stored);
   v("page_live_after", o.page_live_after);
@@ -155,6 +157,7 @@ void visitLoops(V& v, O& o) {
     g("max_l1", o.global.max_l1);
     g("min_inliers", o.global.min_inliers);
     g("projection_seed", o.global.projection_seed);
+    g("follow_loops", o.global.follow_loops);
     g.enumeration("hash_mode", o.global.hash_mode, hashModeName, parseHashMode, "sorted_dct, haloc");
   });
 }

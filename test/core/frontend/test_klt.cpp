@@ -74,9 +74,12 @@ TEST_F(KltTest, ADegradedTrackFallsBackToExtraction) {
   EXPECT_EQ(odo.newKeyframes().front().features.size(), 500u);
   EXPECT_EQ(blank.status, FrameStatus::kFallback);
   // Seabed elsewhere: the tracks do not give the motion, the full way does not match either
-  // (fallback keyframe). No tracks start at a fallback keyframe (on a blank frame they would sit on
-  // noise): the next frame goes the full way; tracks start again at the next measured keyframe.
-  Odometry far(camera_, kltOn());
+  // (fallback keyframe, the reused motion: bridge_frames 0). No tracks start at a fallback keyframe
+  // (on a blank frame they would sit on noise): the next frame goes the full way; tracks start again
+  // at the next measured keyframe.
+  OdometryOptions reuse = kltOn();
+  reuse.fallback.bridge_frames = 0;
+  Odometry far(camera_, reuse);
   far.process({0, 0.0, 2.0, render(Pose2(2.0, 2.0, 0.0), 2.0)});
   const OdometryUpdate elsewhere = far.process({1, 1.0, 2.0, render(Pose2(6.0, 4.5, 1.0), 2.0)});
   EXPECT_FALSE(elsewhere.klt);

@@ -254,7 +254,9 @@ TEST_F(OdometryTest, RecoversMotionWithAltitudeScale) {
 }
 
 TEST_F(OdometryTest, NoOverlapFallsBackCleanlyAndIsCounted) {
-  Odometry odo(camera_, OdometryOptions());
+  OdometryOptions reuse;
+  reuse.fallback.bridge_frames = 0;  // the paper's reuse at once (bridging: the next tests)
+  Odometry odo(camera_, reuse);
   odo.process({0, 0.0, 2.0, render(Pose2(2.0, 2.0, 0.0), 2.0)});
   odo.process({1, 1.0, 2.0, render(Pose2(2.3, 2.0, 0.0), 2.0)});
   const OdometryUpdate u = odo.process({2, 2.0, 2.0, render(Pose2(6.0, 4.5, 1.0), 2.0)});  // elsewhere
@@ -266,6 +268,65 @@ TEST_F(OdometryTest, NoOverlapFallsBackCleanlyAndIsCounted) {
   const UncertainPose2& m = odo.trajectory().motion(odo.trajectory().numMotions());
   EXPECT_GT(m.covariance(0, 0), 0.04 * 0.04);
   EXPECT_NEAR(odo.trajectory().absolutePoses().back().x(), 0.6, 0.03);
+}
+
+// An unmatched frame is bridged: no keyframe and no made-up motion; the next frame is matched to
+// the frame before it (promoted), so the track has no kink where the reused step would have put one.
+TEST_F(OdometryTest, AnUnmatchedFrameIsBridgedByItsNeighbours) {
+  Odometry odo(camera_, OdometryOptions());
+  odo.process({0, 0.0, 2.0, render(Pose2(2.0, 2.0, 0.0), 2.0)});
+  odo.process({1, 1.0, 2.0, render(Pose2(2.3, 2.0, 0.0), 2.0)});
+  const OdometryUpdate u = odo.process({2, 2.0, 2.0, render(Pose2(6.0, 4.5, 1.0), 2.0)});  // elsewhere
+  EXPECT_EQ(u.status, FrameStatus::kFallback);
+  EXPECT_EQ(u.keyframe_id, -1);
+  EXPECT_NE(u.reason.find("bridged"), std::string::npos) << u.reason;
+  EXPECT_EQ(odo.stats().fallbacks, 1);
+  EXPECT_EQ(odo.stats().bridged, 1);
+  EXPECT_EQ(odo.stats().promotions, 1);  // frame 1, to match frame 3 against
+  EXPECT_NEAR(u.pose.x(), 0.6, 0.03);    // the prediction reported (display only)
+  // The vehicle turned and slowed: a reused step (0.3 m along x) would be 0.25 m off here.
+  const OdometryUpdate next = odo.process({3, 3.0, 2.0, render(Pose2(2.4, 2.15, 0.2), 2.0)});
+  ASSERT_TRUE(next.status == FrameStatus::kKeyframe || next.status == FrameStatus::kTracked) << next.reason;
+  EXPECT_TRUE(approxEqual(next.pose, Pose2(0.4, 0.15, 0.2), 0.01, 0.005)) << next.pose;
+  for (const KeyframeInfo& k : odo.keyframes()) {
+    EXPECT_FALSE(k.fallback) << "keyframe of frame " << k.frame_index;
+    EXPECT_NE(k.frame_index, 2);
+  }
+  // The control: reusing at once (bridge_frames 0) makes frame 2 a keyframe 0.3 m on, where frame
+  // 3 cannot be matched either: a second reused step, the track 0.25 m and more off.
+  OdometryOptions reuse;
+  reuse.fallback.bridge_frames = 0;
+  Odometry paper(camera_, reuse);
+  paper.process({0, 0.0, 2.0, render(Pose2(2.0, 2.0, 0.0), 2.0)});
+  paper.process({1, 1.0, 2.0, render(Pose2(2.3, 2.0, 0.0), 2.0)});
+  paper.process({2, 2.0, 2.0, render(Pose2(6.0, 4.5, 1.0), 2.0)});
+  const OdometryUpdate guessed = paper.process({3, 3.0, 2.0, render(Pose2(2.4, 2.15, 0.2), 2.0)});
+  EXPECT_EQ(guessed.status, FrameStatus::kFallback);
+  EXPECT_GT((guessed.pose.translation() - Eigen::Vector2d(0.4, 0.15)).norm(), 0.25) << guessed.pose;
+}
+
+// After bridge_frames consecutive unmatched frames the previous step is reused (a session that never
+// ends needs a pose to go on from): from the prediction over the bridged frames, with their steps' variance.
+TEST_F(OdometryTest, BeyondTheBridgeThePreviousStepIsReused) {
+  OdometryOptions o;
+  o.fallback.bridge_frames = 2;
+  Odometry odo(camera_, o);
+  odo.process({0, 0.0, 2.0, render(Pose2(2.0, 2.0, 0.0), 2.0)});
+  odo.process({1, 1.0, 2.0, render(Pose2(2.3, 2.0, 0.0), 2.0)});
+  const cv::Mat elsewhere = render(Pose2(6.0, 4.5, 1.0), 2.0);
+  EXPECT_EQ(odo.process({2, 2.0, 2.0, elsewhere}).keyframe_id, -1);
+  EXPECT_EQ(odo.process({3, 3.0, 2.0, elsewhere}).keyframe_id, -1);
+  const int before = static_cast<int>(odo.keyframes().size());
+  const OdometryUpdate u = odo.process({4, 4.0, 2.0, elsewhere});
+  EXPECT_EQ(u.status, FrameStatus::kFallback);
+  ASSERT_EQ(static_cast<int>(odo.keyframes().size()), before + 1);
+  EXPECT_TRUE(odo.keyframes().back().fallback);
+  EXPECT_EQ(odo.stats().bridged, 2);
+  EXPECT_EQ(odo.stats().fallbacks, 3);
+  EXPECT_NEAR(odo.trajectory().absolutePoses().back().x(), 0.3 + 3 * 0.3, 0.05);  // three steps past frame 1
+  const UncertainPose2& m = odo.trajectory().motion(odo.trajectory().numMotions());
+  const double sxy = std::max(o.fallback.min_sigma_m, o.fallback.relative_sigma * 0.3);
+  EXPECT_NEAR(m.covariance(0, 0), 3 * sxy * sxy, 0.2 * sxy * sxy);
 }
 
 TEST_F(OdometryTest, BadInputIsSkippedOrRepairedAndCounted) {

@@ -45,7 +45,9 @@ class TrackingTest : public testing_util::RenderedSeabedTest {
 TEST_F(TrackingTest, ABlankStretchClosesTheSessionAndTheNextTexturedFrameStartsOne) {
   TrackingLossOptions loss;
   loss.max_fallbacks = 3;
-  SegmentedOdometry odo(camera_, OdometryOptions(), loss);
+  OdometryOptions reuse;
+  reuse.fallback.bridge_frames = 0;  // reused motions, held back (bridged frames make no keyframe: below)
+  SegmentedOdometry odo(camera_, reuse, loss);
   std::vector<int> kfs;
   const auto steps = fly(&odo, 30, 10, 18, &kfs);
   int closed_at = -1, started_at = -1;
@@ -70,6 +72,35 @@ TEST_F(TrackingTest, ABlankStretchClosesTheSessionAndTheNextTexturedFrameStartsO
   // The new session's own frame: its origin is frame 18, its last keyframe ~2.75 m further on.
   const Pose2 last = odo.odometry()->trajectory().absolutePoses().back();
   EXPECT_NEAR(last.x(), 0.25 * (odo.odometry()->keyframes().back().frame_index - 18), 0.05);
+}
+
+TEST_F(TrackingTest, ABridgedBlankStretchMakesNoKeyframeAndClosesTheSessionAlike) {
+  TrackingLossOptions loss;
+  loss.max_fallbacks = 3;
+  SegmentedOdometry odo(camera_, OdometryOptions(), loss);
+  const auto steps = fly(&odo, 30, 10, 18);
+  int closed_at = -1;
+  for (int k = 0; k < 30; ++k)
+    if (steps[k].session_closed) closed_at = k;
+  EXPECT_EQ(closed_at, 12) << "the third unmatched frame closes the session";
+  for (int k = 10; k <= 12; ++k) {
+    EXPECT_EQ(steps[k].update.status, FrameStatus::kFallback) << k;
+    EXPECT_EQ(steps[k].update.keyframe_id, -1) << k;
+  }
+  EXPECT_EQ(kept_at_close, made_at_close);  // nothing made up, nothing to drop
+  EXPECT_FALSE(fallback_kept_at_close);
+  EXPECT_EQ(odo.sessions(), 2);
+}
+
+TEST_F(TrackingTest, OneBlankFrameIsBridgedInTheSession) {
+  // One blank frame: frames 9 and 11 overlap, the session goes on, every keyframe measured.
+  SegmentedOdometry odo(camera_, OdometryOptions(), TrackingLossOptions());
+  fly(&odo, 16, 10, 11);
+  EXPECT_EQ(odo.sessions(), 1);
+  const Odometry& o = *odo.odometry();
+  EXPECT_EQ(o.stats().bridged, 1);
+  for (const KeyframeInfo& k : o.keyframes()) EXPECT_FALSE(k.fallback) << k.frame_index;
+  EXPECT_NEAR(o.trajectory().absolutePoses().back().x(), 0.25 * o.keyframes().back().frame_index, 0.05);
 }
 
 TEST_F(TrackingTest, AShortDropoutStaysInTheSession) {

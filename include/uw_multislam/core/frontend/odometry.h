@@ -10,11 +10,18 @@
 //
 // Failure handling: when the frame cannot be matched to the last keyframe, the last frame that
 // was tracked is promoted to keyframe and the match is tried again against it. If that fails
-// too (or there is no such frame), the previous frame-to-frame motion is reused, as the paper
-// does: the frame becomes a keyframe whose motion is marked as a fallback, with the fallback
-// covariance, and is counted.
+// too (or there is no such frame) the frame is unmatched (status kFallback, counted). It is
+// bridged: it gets no keyframe and no motion, only a predicted pose to report, and the next frame
+// is matched to the last keyframe (the frame before it, promoted), with which it still overlaps
+// when consecutive frames overlap by more than half. A reused motion is a guess that is wrong
+// whenever the vehicle changed its step (a metre-sized kink in a smooth real track), so none is
+// made while bridging. Only after fallback.bridge_frames consecutive unmatched frames is the
+// previous frame-to-frame motion reused, as the paper does (§5): the frame becomes a keyframe
+// whose motion is marked as a fallback, with the fallback covariance; with the default
+// tracking.max_fallbacks the session has ended before that (tracking loss: a new piece), so
+// reuse is what a session that must never end (max_fallbacks 0) falls back on.
 //
-// Navigation prior (core/frontend/nav_prior.h; issue 16), when the input carries the vehicle's
+// Navigation prior (core/frontend/nav_prior.h), when the input carries the vehicle's
 // dead-reckoned nav and options.nav.enabled: (a) RANSAC's 2-point hypotheses far from the nav's
 // motion (the same chi-square gate, with the hypothesis's own noise added) are not scored, so a
 // repetitive seabed cannot lead the consensus astray (nav.gate_ransac); (c) every visual motion is compared with the nav's
@@ -72,7 +79,12 @@ namespace core {
 struct KeyframeOptions {
   double min_overlap = 0.5;       // fraction of the current footprint seen by the last keyframe
   double max_rotation_rad = 0.5;  // turned since the last keyframe
-  double max_interval_s = 0.0;    // 0 = no time limit
+  /// At least one keyframe this often (0 = no time limit). The overlap rule alone took none for
+  /// 150 s while a real ROV hovered at a turn (11 frames, 13-15 s apart), and the revisits among
+  /// those frames (50 of the survey's 148 ground-truth pairs) could not be found as loops. 10 s
+  /// costs nothing at video rates while the vehicle moves (the overlap rule fires first) and keeps
+  /// every frame of a still camera that shoots less often.
+  double max_interval_s = 10.0;
   int min_tracking_inliers = 40;  // fewer inliers than this: take a keyframe while matching works
 
   std::string validate() const;
@@ -84,6 +96,9 @@ struct FallbackOptions {
   double min_sigma_m = 0.05;
   double relative_sigma = 0.5;
   double sigma_yaw_rad = 0.1;
+  /// Consecutive unmatched frames bridged (no keyframe, no motion) before the previous motion is
+  /// reused; 0: reuse at once (the paper's §5).
+  int bridge_frames = 5;
 
   std::string validate() const;
 };
@@ -124,7 +139,7 @@ enum class FrameStatus {
   kFirstKeyframe,  // the session's origin
   kTracked,        // matched to the last keyframe, not a keyframe itself
   kKeyframe,       // matched and made a keyframe
-  kFallback,       // not matched: made a keyframe with the reused motion
+  kFallback,       // not matched: bridged (no keyframe, keyframe_id -1) or made a keyframe with the reused motion
   kSkipped,        // not used (empty image, no altitude yet)
 };
 std::string statusName(FrameStatus s);
@@ -177,6 +192,7 @@ struct OdometryStats {
   int keyframes = 0;
   int tracked = 0;
   int fallbacks = 0;
+  int bridged = 0;     // ... of them, bridged (no keyframe, no reused motion)
   int promotions = 0;  // previous frames promoted to keyframe after a failed match
   int skipped_image = 0;
   int skipped_altitude = 0;
@@ -196,7 +212,7 @@ struct OdometryStats {
 /// What Odometry::process computes from a frame's image alone, before it looks at its own state:
 /// the enhanced grey image and (SIFT on every frame, klt off) its features, keypoints undistorted.
 /// A pure function of the image and the options, so a worker thread may compute it ahead of the
-/// frame (two cores, issue 19 item 3: offline_slam --threads) and the odometry's output is the
+/// frame (two cores: offline_slam --threads) and the odometry's output is the
 /// same as when it computes them itself.
 struct PreparedFrame {
   bool done = false;   // false: nothing prepared (another image size than the camera's: process skips it)
@@ -303,6 +319,8 @@ class Odometry {
   TrackedFrame prev_;            // the last frame processed (tracked or keyframe)
   std::optional<NavRecord> prev_nav_received_;  // the previous frame's nav as received (the glitch check)
   Pose2 last_step_;              // frame-to-frame motion of the last successful step
+  int unmatched_ = 0;            // consecutive unmatched frames (bridged, then reused)
+  Pose2 predicted_;              // the last unmatched frame's predicted pose (prev_ and last_step_ on)
   double last_altitude_ = -1.0;  // last valid altitude
   OdometryStats stats_;
   StageTimes times_;
