@@ -1,6 +1,7 @@
 """scripts/bench_nav.py, the nav benchmark's scoring: which keyframes count as blind, the two ATEs
 against a planted trajectory with known errors, and one tiny row end to end (its table line, its
 verdict and exit status agreeing with the numbers)."""
+import importlib.util
 import math
 import os
 import subprocess
@@ -11,9 +12,9 @@ import yaml
 from tool_runner import BIN_DIR, make_survey, read_csv as rows
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.realpath(__file__))))
-
-sys.path.insert(0, os.path.join(REPO, "scripts"))
-import bench_nav  # noqa: E402
+_spec = importlib.util.spec_from_file_location("bench_nav", os.path.join(REPO, "scripts", "bench_nav.py"))
+bench_nav = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bench_nav)
 
 # A short out-and-back, 4 blank frames on the way out.
 SURVEY = {
