@@ -132,6 +132,12 @@ SurveySpec surveyFromYaml(const std::string& yaml_text, const std::string& base_
     w.read("pebble_density_per_m2", &spec.world.procedural.pebble_density_per_m2);
     w.finish();
   }
+  {
+    MapReader d(r.child("nav_datum"), "nav_datum");
+    d.read("name", &spec.nav_datum.name);
+    d.read("origin_lat_lon_deg", &spec.nav_datum.origin_lat_lon_deg);
+    d.finish();
+  }
   const YAML::Node sessions = r.child("sessions");
   if (sessions && !sessions.IsNull()) {
     if (!sessions.IsSequence()) r.fail("'sessions' must be a list");
@@ -156,6 +162,9 @@ SurveySpec surveyFromYaml(const std::string& yaml_text, const std::string& base_
         nr.read("heading_bias_rad", &s.nav.heading_bias_rad);
         nr.read("random_walk_m_per_sqrt_m", &s.nav.random_walk_m_per_sqrt_m);
         nr.read("heading_random_walk_rad_per_sqrt_m", &s.nav.heading_random_walk_rad_per_sqrt_m);
+        std::string frame = navOutputFrameName(s.nav.frame);
+        nr.read("frame", &frame);
+        if (!parseNavOutputFrame(frame, &s.nav.frame)) nr.fail("frame '" + frame + "' is not session, enu or ned");
         nr.finish();
       }
       sr.finish();
@@ -196,6 +205,12 @@ std::string surveyToYaml(const SurveySpec& spec) {
   out << YAML::Key << "seagrass_fraction" << YAML::Value << w.procedural.seagrass_fraction;
   out << YAML::Key << "rock_density_per_m2" << YAML::Value << w.procedural.rock_density_per_m2;
   out << YAML::Key << "pebble_density_per_m2" << YAML::Value << w.procedural.pebble_density_per_m2;
+  out << YAML::EndMap;
+  out << YAML::Key << "nav_datum" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "name" << YAML::Value << spec.nav_datum.name;
+  out << YAML::Key << "origin_lat_lon_deg" << YAML::Value;
+  vec(Eigen::Map<const Eigen::VectorXd>(spec.nav_datum.origin_lat_lon_deg.data(),
+                                        static_cast<Eigen::Index>(spec.nav_datum.origin_lat_lon_deg.size())));
   out << YAML::EndMap;
   out << YAML::Key << "sessions" << YAML::Value << YAML::BeginSeq;
   for (const auto& s : spec.sessions) {
@@ -261,6 +276,7 @@ std::string surveyToYaml(const SurveySpec& spec) {
     out << YAML::Key << "heading_bias_rad" << YAML::Value << s.nav.heading_bias_rad;
     out << YAML::Key << "random_walk_m_per_sqrt_m" << YAML::Value << s.nav.random_walk_m_per_sqrt_m;
     out << YAML::Key << "heading_random_walk_rad_per_sqrt_m" << YAML::Value << s.nav.heading_random_walk_rad_per_sqrt_m;
+    out << YAML::Key << "frame" << YAML::Value << navOutputFrameName(s.nav.frame);
     out << YAML::EndMap;
     out << YAML::EndMap;
   }

@@ -15,6 +15,7 @@
 #include <stdexcept>
 
 #include "uw_multislam/core/frontend/camera_model.h"
+#include "uw_multislam/core/geometry/vehicle_frame.h"
 
 namespace uw_multislam {
 namespace core {
@@ -90,7 +91,56 @@ std::string NavErrorSpec::validate() const {
   return {};
 }
 
+std::string navOutputFrameName(NavOutputFrame f) {
+  switch (f) {
+    case NavOutputFrame::kEnu:
+      return "enu";
+    case NavOutputFrame::kNed:
+      return "ned";
+    default:
+      return "session";
+  }
+}
+
+bool parseNavOutputFrame(const std::string& name, NavOutputFrame* f) {
+  for (const NavOutputFrame c : {NavOutputFrame::kSession, NavOutputFrame::kEnu, NavOutputFrame::kNed}) {
+    if (name == navOutputFrameName(c)) {
+      *f = c;
+      return true;
+    }
+  }
+  return false;
+}
+
+std::string NavDatumSpec::validate() const {
+  if (!origin_lat_lon_deg.empty() && origin_lat_lon_deg.size() != 2)
+    return "nav_datum: origin_lat_lon_deg takes [latitude, longitude] or []";
+  const std::string bad = frame(WorldConvention::kEnu).validate();
+  return bad.empty() ? "" : "nav_datum: " + bad;
+}
+
+NavFrame NavDatumSpec::frame(WorldConvention convention) const {
+  NavFrame f;
+  f.name = name;
+  f.convention = convention;
+  f.has_origin = origin_lat_lon_deg.size() == 2;
+  if (f.has_origin) f.latitude_deg = origin_lat_lon_deg[0], f.longitude_deg = origin_lat_lon_deg[1];
+  return f;
+}
+
+std::vector<NavRecord> navRowsInConvention(std::vector<NavRecord> rows, WorldConvention convention) {
+  for (NavRecord& r : rows) r.pose = convention == WorldConvention::kNed ? swapEnuNed(zUp(r.pose)) : zUp(r.pose);
+  return rows;
+}
+
 std::vector<NavRecord> simulateNav(const std::vector<MissionFrame>& plan, const NavErrorSpec& spec, std::uint64_t seed) {
+  std::vector<NavRecord> nav = simulateWorldNav(plan, spec, seed);
+  for (NavRecord& r : nav) r.pose = between(plan.front().pose, r.pose);
+  return nav;
+}
+
+std::vector<NavRecord> simulateWorldNav(const std::vector<MissionFrame>& plan, const NavErrorSpec& spec,
+                                        std::uint64_t seed) {
   std::vector<NavRecord> nav;
   if (plan.empty()) return nav;
   std::mt19937_64 rng(seed);
@@ -118,8 +168,7 @@ std::vector<NavRecord> simulateNav(const std::vector<MissionFrame>& plan, const 
     }
     heading = normalizeAngle(f.pose.yaw() + bias + heading_walk);
     const double d = f.path_m - plan.front().path_m;
-    const Pose2 world(position.x(), position.y(), heading);
-    nav.push_back({f.stamp_s, between(plan.front().pose, world),
+    nav.push_back({f.stamp_s, Pose2(position.x(), position.y(), heading),
                    drift * d + spec.random_walk_m_per_sqrt_m * std::sqrt(d),
                    std::abs(spec.heading_bias_rad) + spec.heading_random_walk_rad_per_sqrt_m * std::sqrt(d)});
   }
@@ -134,6 +183,7 @@ std::string SurveySpec::validate() const {
     return "a mosaic world needs both mosaic_image and mosaic_georef";
   }
   if (!(world.auto_metres_per_px >= 0)) return "world metres_per_px must be >= 0 (0 = automatic)";
+  if (const std::string bad = nav_datum.validate(); !bad.empty()) return bad;
   const std::regex name_re("[A-Za-z0-9_-]+");
   std::set<std::string> names;
   for (const auto& s : sessions) {
@@ -257,8 +307,14 @@ SurveyResult generateSurvey(const SurveySpec& spec, const std::string& out_dir,
     writeCameraYaml((dir / "camera.yaml").string(), s.camera);
     writeFramesCsv((dir / "frames.csv").string(), frames);
     writeGroundTruthCsv((dir / "gt.csv").string(), gt);
-    if (s.nav.enabled)
-      writeNavCsv((dir / "nav.csv").string(), simulateNav(plan, s.nav, frameSeed(spec.seed, static_cast<int>(si), -2)));
+    const std::uint64_t nav_seed = frameSeed(spec.seed, static_cast<int>(si), -2);
+    if (s.nav.enabled && s.nav.frame == NavOutputFrame::kSession) {
+      writeNavCsv((dir / "nav.csv").string(), simulateNav(plan, s.nav, nav_seed));
+    } else if (s.nav.enabled) {
+      const WorldConvention c = s.nav.frame == NavOutputFrame::kNed ? WorldConvention::kNed : WorldConvention::kEnu;
+      writeNavCsv((dir / "nav.csv").string(), navRowsInConvention(simulateWorldNav(plan, s.nav, nav_seed), c));
+      writeNavFrameYaml((dir / "nav_frame.yaml").string(), spec.nav_datum.frame(c));
+    }
     result.session_dirs.push_back(dir.string());
   }
 

@@ -33,7 +33,9 @@ namespace {
 const char* kUsage = R"(usage: make_survey --out DIR [--preset NAME | --config FILE] [options]
 
 Renders camera missions over a seabed with exact ground truth. Writes into DIR:
-  <session>/          one dataset folder per session: NNNN.jpg, frames.csv, camera.yaml, gt.csv
+  <session>/          one dataset folder per session: NNNN.jpg, frames.csv, camera.yaml, gt.csv;
+                      with the session's nav enabled nav.csv, in gt.csv's frame or (nav.frame
+                      enu/ned) in the survey's world frame with nav_frame.yaml (doc/dataset_format.md)
   <session>.bag       the same session as a ROS bag (/camera/image_raw, /camera/camera_info,
                       /altitude as sensor_msgs/Range, /ground_truth/odom as nav_msgs/Odometry)
   world_gt.csv        session,index,x_m,y_m,yaw_rad: every frame in one world frame

@@ -27,12 +27,25 @@ namespace core {
 /// variance h^2 d^3 / 3). The first frame's nav position is exact, its yaw off by the bias.
 /// nav.csv's sigma columns: sigma_xy_m = sqrt(scale^2 + bias^2) * d + random_walk * sqrt(d),
 /// sigma_yaw_rad = |heading_bias_rad| + heading_random_walk * sqrt(d), d the distance so far.
+///
+/// Where nav.csv's poses are (`frame`): in gt.csv's frame (the session's first frame's image axes,
+/// as before), or in the mission's world frame, written in ENU or NED with a nav_frame.yaml beside
+/// it (SurveySpec::nav_datum). The world frame is world_gt.csv's seen as a north-up chart: its
+/// origin is world_gt.csv's, east along its x (the raster's columns), north against its y (the
+/// rows), so ENU (x, y, yaw) = (x_w, -y_w, -yaw_w) (zUp, core/geometry/vehicle_frame.h) and NED is
+/// ENU through swapEnuNed (core/frontend/dataset.h). Every session's nav then shares one frame.
+enum class NavOutputFrame { kSession, kEnu, kNed };
+/// "session", "enu", "ned".
+std::string navOutputFrameName(NavOutputFrame f);
+bool parseNavOutputFrame(const std::string& name, NavOutputFrame* f);
+
 struct NavErrorSpec {
   bool enabled = false;  // write nav.csv (off: the folders are as before)
   double scale_error = 0.007;
   double heading_bias_rad = 0.007;
   double random_walk_m_per_sqrt_m = 0.002;
   double heading_random_walk_rad_per_sqrt_m = 0.0005;
+  NavOutputFrame frame = NavOutputFrame::kSession;
 
   std::string validate() const;
 };
@@ -40,6 +53,12 @@ struct NavErrorSpec {
 /// The nav track of a planned mission (rows at the frame stamps, in the first frame's image axes
 /// as gt.csv), drawn with `seed`.
 std::vector<NavRecord> simulateNav(const std::vector<MissionFrame>& plan, const NavErrorSpec& spec, std::uint64_t seed);
+/// The same track in the world frame of the plan (world_gt.csv's axes, z down); simulateNav is
+/// this one seen from the plan's first frame.
+std::vector<NavRecord> simulateWorldNav(const std::vector<MissionFrame>& plan, const NavErrorSpec& spec,
+                                        std::uint64_t seed);
+/// World-frame rows (simulateWorldNav) as nav.csv writes them for `frame` kEnu or kNed.
+std::vector<NavRecord> navRowsInConvention(std::vector<NavRecord> world_rows, WorldConvention convention);
 
 struct SessionSpec {
   std::string name = "s0";  // folder name
@@ -65,10 +84,22 @@ struct WorldSpec {
   double auto_metres_per_px = 0.0;
 };
 
+/// nav_frame.yaml of the sessions whose nav is written in the world frame (NavErrorSpec::frame):
+/// the frame's name and, optionally, the latitude and longitude of its origin.
+struct NavDatumSpec {
+  std::string name = "survey";
+  std::vector<double> origin_lat_lon_deg;  // empty, or [latitude, longitude]
+
+  std::string validate() const;
+  /// The nav_frame.yaml of a session whose nav is written in `convention`.
+  NavFrame frame(WorldConvention convention) const;
+};
+
 struct SurveySpec {
   std::uint64_t seed = 1;
   WorldSpec world;
   std::vector<SessionSpec> sessions;
+  NavDatumSpec nav_datum;
   /// loops_gt.csv: frame pairs whose centres are closer than this fraction of the footprint
   /// height (image_height * altitude / fy, the lower altitude of the two)...
   double loop_distance_fraction = 0.4;

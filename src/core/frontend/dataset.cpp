@@ -1,6 +1,8 @@
 #include "uw_multislam/core/frontend/dataset.h"
 
+#include "uw_multislam/core/common/yaml_map_reader.h"
 #include "uw_multislam/core/frontend/camera_model.h"
+#include "uw_multislam/core/geometry/vehicle_frame.h"
 
 #include <algorithm>
 #include <cmath>
@@ -8,6 +10,7 @@
 #include <fstream>
 #include <iomanip>
 #include <map>
+#include <regex>
 #include <set>
 #include <sstream>
 
@@ -318,6 +321,83 @@ void writeNavCsv(const std::string& path, const std::vector<NavRecord>& nav) {
   if (!out) throw DatasetError(path + ": write failed");
 }
 
+std::string worldConventionName(WorldConvention c) { return c == WorldConvention::kNed ? "ned" : "enu"; }
+
+bool parseWorldConvention(const std::string& name, WorldConvention* c) {
+  for (const WorldConvention w : {WorldConvention::kEnu, WorldConvention::kNed}) {
+    if (name == worldConventionName(w)) {
+      *c = w;
+      return true;
+    }
+  }
+  return false;
+}
+
+Pose2 swapEnuNed(const Pose2& p) { return Pose2(p.y(), p.x(), normalizeAngle(M_PI / 2 - p.yaw())); }
+
+std::string NavFrame::validate() const {
+  // A tf frame id (the live side publishes it): no spaces, no leading slash (tf2 refuses those).
+  static const std::regex frame_id("[A-Za-z0-9_][A-Za-z0-9_./-]*");
+  std::ostringstream os;
+  if (!std::regex_match(name, frame_id)) {
+    os << "name '" << name << "' must be a frame id (letters, digits, '_', '.', '/', '-'; not starting with '/')";
+  } else if (has_origin && !(std::isfinite(latitude_deg) && std::abs(latitude_deg) <= 90.0)) {
+    os << "latitude_deg " << latitude_deg << " must be in [-90, 90]";
+  } else if (has_origin && !(std::isfinite(longitude_deg) && std::abs(longitude_deg) <= 180.0)) {
+    os << "longitude_deg " << longitude_deg << " must be in [-180, 180]";
+  }
+  return os.str();
+}
+
+bool NavFrame::operator==(const NavFrame& o) const {
+  return name == o.name && convention == o.convention && has_origin == o.has_origin &&
+         (!has_origin || (latitude_deg == o.latitude_deg && longitude_deg == o.longitude_deg));
+}
+
+NavFrame readNavFrameYaml(const std::string& path) {
+  try {
+    return parseYamlFile(path, [&](const std::string& text) {
+      const YAML::Node root = parseYaml(text, "nav_frame");
+      if (root.IsMap() && root.size() == 0)
+        throw std::invalid_argument("nav_frame: empty file (needs name and convention)");
+      MapReader r(root, "nav_frame");
+      NavFrame f;
+      std::string convention;
+      r.read("name", &f.name);
+      r.read("convention", &convention);
+      const bool has_lat = static_cast<bool>(r.child("latitude_deg")),
+                 has_lon = static_cast<bool>(r.child("longitude_deg"));
+      r.read("latitude_deg", &f.latitude_deg);
+      r.read("longitude_deg", &f.longitude_deg);
+      r.finish();
+      if (f.name.empty()) r.fail("missing key 'name' (the world frame's name)");
+      if (convention.empty()) r.fail("missing key 'convention' (enu or ned)");
+      if (!parseWorldConvention(convention, &f.convention)) r.fail("convention '" + convention + "' is not enu or ned");
+      if (has_lat != has_lon)
+        r.fail(std::string("'") + (has_lat ? "latitude_deg" : "longitude_deg") + "' without '" +
+               (has_lat ? "longitude_deg" : "latitude_deg") + "' (the origin takes both, or neither)");
+      f.has_origin = has_lat;
+      const std::string bad = f.validate();
+      if (!bad.empty()) r.fail(bad);
+      return f;
+    });
+  } catch (const std::invalid_argument& e) {
+    throw DatasetError(e.what());
+  }
+}
+
+void writeNavFrameYaml(const std::string& path, const NavFrame& f) {
+  std::ofstream out(path);
+  if (!out) throw DatasetError(path + ": cannot write");
+  out << "# nav.csv's world frame (doc/dataset_format.md)\n"
+      << "name: " << f.name << "\n"
+      << "convention: " << worldConventionName(f.convention) << "\n";
+  if (f.has_origin)
+    out << std::setprecision(12) << "latitude_deg: " << f.latitude_deg << "\nlongitude_deg: " << f.longitude_deg
+        << "\n";
+  if (!out) throw DatasetError(path + ": write failed");
+}
+
 std::string readTextFile(const std::string& path) {
   // A directory opens as an ifstream on Linux and reads as nothing: it would pass for an empty
   // file (a --config DIR then ran on the defaults without a word).
@@ -350,7 +430,15 @@ Dataset loadDataset(const std::string& directory, bool check_images_exist, Stamp
   const fs::path gt = fs::path(directory) / "gt.csv";
   if (fs::exists(gt)) d.ground_truth = readGroundTruthCsv(gt.string());
   const fs::path nav = fs::path(directory) / "nav.csv";
+  const fs::path nav_frame = fs::path(directory) / "nav_frame.yaml";
   if (fs::exists(nav)) d.nav = readNavCsv(nav.string());
+  if (fs::exists(nav_frame)) {
+    if (d.nav.empty()) throw DatasetError(nav_frame.string() + ": no nav.csv beside it (the frame is nav.csv's)");
+    d.nav_frame = readNavFrameYaml(nav_frame.string());
+    // Into ENU, then z-down as every pose of the core: relative motions taken from these rows are
+    // then the camera's, as with rows in gt.csv's frame.
+    for (NavRecord& r : d.nav) r.pose = zUp(toEnu(r.pose, d.nav_frame->convention));
+  }
   return d;
 }
 

@@ -8,6 +8,7 @@
 #include "../../common/scoped_temp_dir.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/image_file.h"
+#include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/core/session/slam_config.h"
 
 namespace uw_multislam {
@@ -186,6 +187,79 @@ TEST_F(DatasetTest, ClearErrors) {
   expectError("principal point cx=5000 cy=120 is outside the 320x240 image");
   write("camera.yaml", "image_width: 320\nimage_height: 240\nfx: 300\nfy: 300\ncx: 160\n");
   expectError("missing key 'cy'");
+}
+
+TEST(NavFrame, NedAndEnuSwapAsRep103Says) {
+  // A heading of 0 (north) in NED is 90 degrees from east, counter-clockwise, in ENU; 2 m north and
+  // 1 m east is x 1, y 2 in ENU.
+  EXPECT_TRUE(approxEqual(swapEnuNed(Pose2(2.0, 1.0, 0.0)), Pose2(1.0, 2.0, M_PI / 2)));
+  EXPECT_TRUE(approxEqual(swapEnuNed(Pose2(0.0, 0.0, M_PI / 2)), Pose2(0.0, 0.0, 0.0)));    // heading east
+  EXPECT_TRUE(approxEqual(swapEnuNed(Pose2(0.0, 0.0, M_PI)), Pose2(0.0, 0.0, -M_PI / 2)));  // heading south
+  for (const Pose2& p : {Pose2(3.0, -4.0, 2.9), Pose2(-1.0, 0.5, -3.1)})
+    EXPECT_TRUE(approxEqual(swapEnuNed(swapEnuNed(p)), p, 1e-12, 1e-12));  // its own inverse
+  EXPECT_TRUE(approxEqual(toEnu(Pose2(2.0, 1.0, 0.3), WorldConvention::kEnu), Pose2(2.0, 1.0, 0.3)));
+}
+
+TEST_F(DatasetTest, NavFrameYamlPutsNavCsvInAWorldFrameReadAsTheCoreTakesIt) {
+  writeValid();
+  writeNavCsv(path("nav.csv"), {{0.0, Pose2(2.0, 1.0, 0.0), 0.0, 0.0}, {0.5, Pose2(2.0, 1.5, M_PI / 2), 0.01, 0.001}});
+  const std::vector<NavRecord> as_written = loadDataset(dir_.string()).nav;  // no nav_frame.yaml: gt.csv's frame
+  EXPECT_TRUE(approxEqual(as_written[1].pose, Pose2(2.0, 1.5, M_PI / 2), 1e-6, 1e-6));
+  EXPECT_FALSE(loadDataset(dir_.string()).nav_frame);
+  write("nav_frame.yaml", "# the site\nname: site_ned\nconvention: ned\nlatitude_deg: 43.1\nlongitude_deg: 5.9\n");
+  const Dataset d = loadDataset(dir_.string());
+  ASSERT_TRUE(d.nav_frame);
+  EXPECT_EQ(d.nav_frame->name, "site_ned");
+  EXPECT_EQ(d.nav_frame->convention, WorldConvention::kNed);
+  EXPECT_TRUE(d.nav_frame->has_origin);
+  EXPECT_DOUBLE_EQ(d.nav_frame->latitude_deg, 43.1);
+  EXPECT_DOUBLE_EQ(d.nav_frame->longitude_deg, 5.9);
+  ASSERT_EQ(d.nav.size(), 2u);
+  // 2 m north, 1 m east, heading north: ENU (1, 2, pi/2), z-down (1, -2, -pi/2). Then 0.5 m east
+  // with a right turn (heading east): ENU (1.5, 2, 0).
+  EXPECT_TRUE(approxEqual(zUp(d.nav[0].pose), Pose2(1.0, 2.0, M_PI / 2), 1e-6, 1e-6));
+  EXPECT_TRUE(approxEqual(d.nav[0].pose, Pose2(1.0, -2.0, -M_PI / 2), 1e-6, 1e-6));
+  EXPECT_TRUE(approxEqual(zUp(d.nav[1].pose), Pose2(1.5, 2.0, 0.0), 1e-6, 1e-6));
+  EXPECT_NEAR(d.nav[1].sigma_xy_m, 0.01, 1e-9);
+  // The motion the odometry takes: in the camera's image axes (y along the rows: to the right of
+  // the direction of travel when the columns point ahead), the move east is along x, the right turn
+  // (clockwise seen from above) a positive yaw, as in gt.csv's frame.
+  const Pose2 step = between(d.nav[0].pose, d.nav[1].pose);
+  EXPECT_TRUE(approxEqual(step, Pose2(0.0, 0.5, M_PI / 2), 1e-6, 1e-6)) << step.x() << " " << step.y();
+
+  // Written and read back; ENU rows are taken as written (then turned z-down).
+  const NavFrame enu{"site", WorldConvention::kEnu, false, 0.0, 0.0};
+  writeNavFrameYaml(path("nav_frame.yaml"), enu);
+  EXPECT_EQ(readNavFrameYaml(path("nav_frame.yaml")), enu);
+  EXPECT_TRUE(approxEqual(loadDataset(dir_.string()).nav[1].pose, Pose2(2.0, -1.5, -M_PI / 2), 1e-6, 1e-6));
+}
+
+TEST_F(DatasetTest, ABadNavFrameYamlIsRefusedNamingTheKey) {
+  writeValid();
+  write("nav_frame.yaml", "name: site\nconvention: enu\n");
+  expectError("nav_frame.yaml: no nav.csv beside it");
+  writeNavCsv(path("nav.csv"), {{0.0, Pose2(), 0.0, 0.0}});
+  EXPECT_TRUE(loadDataset(dir_.string()).nav_frame);
+  const std::pair<const char*, const char*> cases[] = {
+      {"", "empty file (needs name and convention)"},
+      {"convention: enu\n", "missing key 'name'"},
+      {"name: site\n", "missing key 'convention' (enu or ned)"},
+      {"name: site\nconvention: nwu\n", "convention 'nwu' is not enu or ned"},
+      {"name: site\nconvention: enu\nlatitude_deg: 43\n", "'latitude_deg' without 'longitude_deg'"},
+      {"name: site\nconvention: enu\nlongitude_deg: 5\n", "'longitude_deg' without 'latitude_deg'"},
+      {"name: site\nconvention: enu\nlatitude_deg: 91\nlongitude_deg: 5\n", "latitude_deg 91 must be in [-90, 90]"},
+      {"name: site\nconvention: enu\nlatitude_deg: 43\nlongitude_deg: 181\n", "longitude_deg 181 must be in"},
+      {"name: site\nconvention: enu\nlatitude_deg: \"43\"\nlongitude_deg: 5\n", "bad value for 'latitude_deg'"},
+      {"name: site\nconvention: enu\nlatitude_deg: north\nlongitude_deg: 5\n", "bad value for 'latitude_deg'"},
+      {"name: /site\nconvention: enu\n", "name '/site' must be a frame id"},
+      {"name: site\nconvention: enu\ndatum: wgs84\n", "unknown key 'datum'"},
+      {"name: [site\n", "nav_frame YAML"},
+  };
+  for (const auto& [text, needle] : cases) {
+    write("nav_frame.yaml", text);
+    expectError(needle);
+    expectError(path("nav_frame.yaml"));  // the file is named
+  }
 }
 
 TEST(Dataset, NotADirectory) { EXPECT_THROW(loadDataset("/nonexistent/uwms"), DatasetError); }

@@ -12,6 +12,7 @@
 #include "../../common/scoped_temp_dir.h"
 #include "uw_multislam/core/frontend/camera_model.h"
 #include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/sim/survey_config.h"
 #include "uw_multislam/sim/survey_generator.h"
 
@@ -493,6 +494,126 @@ TEST(NavErrorModel, YamlKeysAndValidation) {
   EXPECT_EQ(surveyToYaml(surveyFromYaml(surveyToYaml(s))), surveyToYaml(s));
   EXPECT_THROW(surveyFromYaml("sessions: [{nav: {scale: 0.02}}]\n"), std::invalid_argument);
   EXPECT_THROW(surveyFromYaml("sessions: [{nav: {random_walk_m_per_sqrt_m: -1}}]\n"), std::invalid_argument);
+}
+
+TEST(NavErrorModel, WorldFrameYamlKeysAndValidation) {
+  const SurveySpec s = surveyFromYaml(
+      "nav_datum: {name: site_enu, origin_lat_lon_deg: [-33.8, 151.2]}\n"
+      "sessions: [{nav: {enabled: true, frame: ned}}]\n");
+  EXPECT_EQ(s.sessions[0].nav.frame, NavOutputFrame::kNed);
+  EXPECT_EQ(s.nav_datum.name, "site_enu");
+  const NavFrame f = s.nav_datum.frame(WorldConvention::kNed);
+  EXPECT_TRUE(f.has_origin);
+  EXPECT_DOUBLE_EQ(f.latitude_deg, -33.8);
+  EXPECT_DOUBLE_EQ(f.longitude_deg, 151.2);
+  EXPECT_EQ(surveyToYaml(surveyFromYaml(surveyToYaml(s))), surveyToYaml(s));
+  EXPECT_FALSE(SurveySpec().nav_datum.frame(WorldConvention::kEnu).has_origin);  // no origin by default
+  auto error = [](const std::string& text) {
+    try {
+      surveyFromYaml(text);
+    } catch (const std::invalid_argument& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  EXPECT_NE(error("sessions: [{nav: {frame: nwu}}]\n").find("frame 'nwu' is not session, enu or ned"),
+            std::string::npos);
+  EXPECT_NE(error("nav_datum: {origin_lat_lon_deg: [1]}\nsessions: [{}]\n").find("origin_lat_lon_deg"),
+            std::string::npos);
+  EXPECT_NE(error("nav_datum: {origin_lat_lon_deg: [91, 0]}\nsessions: [{}]\n").find("latitude_deg 91"),
+            std::string::npos);
+  EXPECT_NE(error("nav_datum: {name: 'a b'}\nsessions: [{}]\n").find("name 'a b'"), std::string::npos);
+  EXPECT_NE(error("nav_datum: {nam: x}\n").find("unknown key 'nam'"), std::string::npos);
+}
+
+// One mission rendered three times, its nav written in gt.csv's frame, in ENU and in NED (same
+// seed: the same nav track). Its first leg runs along the world's +x (east on the chart), the way
+// back along -x, the turn between towards +y (south).
+class WorldNavTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    spec_.world.procedural.width_m = 8;
+    spec_.world.procedural.height_m = 6;
+    spec_.nav_datum.name = "site";
+    spec_.nav_datum.origin_lat_lon_deg = {43.1, 5.9};
+    SessionSpec a;
+    a.name = "a";
+    a.camera = CameraIntrinsics{64, 48, 60.0, 60.0, 31.5, 23.5};
+    a.mission.pattern = MissionPattern::kOutAndBack;
+    a.mission.start_m = Eigen::Vector2d(2.0, 2.0);
+    a.mission.length_m = 3.0;
+    a.mission.leg_spacing_m = 1.0;
+    a.mission.altitude_m = 1.5;
+    a.mission.speed_m_s = 0.5;
+    a.mission.wobble_yaw_rad = 0.0;
+    a.mission.camera_yaw_offset_rad = 0.4;
+    a.image_format = "png";
+    a.nav.enabled = true;
+    a.nav.scale_error = 0.02;
+    a.nav.heading_bias_rad = 0.01;
+    spec_.sessions = {a};
+  }
+  Dataset generate(NavOutputFrame frame, const std::string& name) {
+    SurveySpec s = spec_;
+    s.sessions[0].nav.frame = frame;
+    result_ = generateSurvey(s, (tmp_.path() / name).string());
+    return loadDataset(result_.session_dirs[0]);
+  }
+  std::vector<NavRecord> rawNav(const std::string& name) const {
+    return readNavCsv((tmp_.path() / name / "a" / "nav.csv").string());
+  }
+  testing_util::ScopedTempDir tmp_{"uwms_world_nav"};
+  SurveySpec spec_;
+  SurveyResult result_;
+};
+
+TEST_F(WorldNavTest, EnuIsTheChartNorthUpAndNedIsEnuMirroredAsRep103Says) {
+  const Dataset session = generate(NavOutputFrame::kSession, "session");
+  EXPECT_FALSE(session.nav_frame);
+  EXPECT_FALSE(fs::exists(tmp_.path() / "session" / "a" / "nav_frame.yaml"));
+  const Dataset enu = generate(NavOutputFrame::kEnu, "enu");
+  const std::vector<WorldPose> world = result_.world_poses;
+  const Dataset ned = generate(NavOutputFrame::kNed, "ned");
+  ASSERT_TRUE(enu.nav_frame && ned.nav_frame);
+  EXPECT_EQ(*enu.nav_frame, spec_.nav_datum.frame(WorldConvention::kEnu));
+  EXPECT_EQ(ned.nav_frame->convention, WorldConvention::kNed);
+  EXPECT_EQ(ned.nav_frame->name, "site");
+  const std::vector<NavRecord> e = rawNav("enu"), n = rawNav("ned");
+  ASSERT_EQ(e.size(), world.size());
+  ASSERT_EQ(n.size(), e.size());
+  // The first row's position is exact (nav starts at the truth): east = world x, north = -world y.
+  EXPECT_NEAR(e[0].pose.x(), world[0].pose.x(), 1e-6);
+  EXPECT_NEAR(e[0].pose.y(), -world[0].pose.y(), 1e-6);
+  EXPECT_NEAR(std::abs(normalizeAngle(e[0].pose.yaw() + world[0].pose.yaw())), 0.01, 1e-6);  // yaw = -world yaw + bias
+  // The first leg goes east (ENU x grows, NED y grows); the turn goes south (ENU y, NED x fall).
+  const std::size_t mid = e.size() / 2;
+  EXPECT_GT(e[3].pose.x() - e[0].pose.x(), 1.0);
+  EXPECT_GT(n[3].pose.y() - n[0].pose.y(), 1.0);
+  EXPECT_LT(e[mid].pose.y() - e[0].pose.y(), -0.5);
+  EXPECT_LT(n[mid].pose.x() - n[0].pose.x(), -0.5);
+  // An image whose columns point 0.4 rad from east towards south (world yaw 0.4): ENU yaw -0.4, NED
+  // heading pi/2 + 0.4 (clockwise from north), both off by the heading bias.
+  EXPECT_NEAR(std::abs(normalizeAngle(e[1].pose.yaw() + 0.4)), 0.01, 0.02);
+  EXPECT_NEAR(std::abs(normalizeAngle(n[1].pose.yaw() - (M_PI / 2 + 0.4))), 0.01, 0.02);
+  for (std::size_t i = 0; i < e.size(); ++i) {  // REP-103: x_ned = y_enu, y_ned = x_enu, yaw_ned = pi/2 - yaw_enu
+    ASSERT_NEAR(n[i].pose.x(), e[i].pose.y(), 1e-6) << i;
+    ASSERT_NEAR(n[i].pose.y(), e[i].pose.x(), 1e-6) << i;
+    ASSERT_NEAR(normalizeAngle(n[i].pose.yaw() - (M_PI / 2 - e[i].pose.yaw())), 0.0, 2e-7) << i;
+    ASSERT_EQ(n[i].sigma_xy_m, e[i].sigma_xy_m);
+  }
+  // Read: NED and ENU give the same rows; relative motions are those of the nav in gt.csv's frame
+  // (a mirrored reading would flip the sign of every lateral step and turn).
+  ASSERT_EQ(enu.nav.size(), session.nav.size());
+  for (std::size_t i = 0; i < enu.nav.size(); ++i) {
+    ASSERT_TRUE(approxEqual(enu.nav[i].pose, ned.nav[i].pose, 2e-6, 4e-7)) << i;
+    ASSERT_TRUE(approxEqual(zUp(enu.nav[i].pose), e[i].pose, 1e-9, 1e-9)) << i;
+    for (const std::size_t j : {i + 1, i + 5, std::size_t{0}}) {
+      if (j >= enu.nav.size()) continue;
+      ASSERT_TRUE(approxEqual(between(enu.nav[i].pose, enu.nav[j].pose),
+                              between(session.nav[i].pose, session.nav[j].pose), 5e-6, 5e-7))
+          << i << " -> " << j;
+    }
+  }
 }
 
 }  // namespace

@@ -1,9 +1,10 @@
-// Dataset folders (doc/dataset_format.md): frames.csv, camera.yaml, images, optional gt.csv and
-// nav.csv.
+// Dataset folders (doc/dataset_format.md): frames.csv, camera.yaml, images, optional gt.csv,
+// nav.csv and nav_frame.yaml.
 // The project reads and writes this format: the survey generator writes it, folder_to_bag and
 // offline_slam read it. Errors are reported as DatasetError with the file and line at fault.
 #pragma once
 
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -79,12 +80,51 @@ struct NavRecord {
   double sigma_yaw_rad = 0.0;
 };
 
+/// The axes of a world frame (REP-103): ENU is x east, y north, z up, yaw counter-clockwise from
+/// east; NED is x north, y east, z down, yaw (a heading) clockwise from north.
+enum class WorldConvention { kEnu, kNed };
+/// "enu", "ned".
+std::string worldConventionName(WorldConvention c);
+/// False for any other name.
+bool parseWorldConvention(const std::string& name, WorldConvention* c);
+
+/// REP-103's NED <-> ENU for a planar pose, (x, y, yaw) -> (y, x, pi/2 - yaw) with yaw wrapped: a
+/// proper rotation in 3-D ((x, y, z) -> (y, x, -z)), its own inverse.
+Pose2 swapEnuNed(const Pose2& p);
+/// A pose of a world frame written in `c`, in ENU.
+inline Pose2 toEnu(const Pose2& p, WorldConvention c) { return c == WorldConvention::kNed ? swapEnuNed(p) : p; }
+
+/// nav_frame.yaml: nav.csv's poses are in this world frame, shared by every folder of a mission
+/// that names it, instead of in gt.csv's frame (doc/dataset_format.md).
+struct NavFrame {
+  std::string name;                                    // the frame's name (a tf frame id)
+  WorldConvention convention = WorldConvention::kEnu;  // as nav.csv is written
+  bool has_origin = false;                             // latitude_deg, longitude_deg given
+  double latitude_deg = 0.0;                           // WGS84 of the frame's origin (x = y = 0)
+  double longitude_deg = 0.0;
+
+  /// Empty when usable, else a sentence naming the key at fault.
+  std::string validate() const;
+  bool operator==(const NavFrame& o) const;
+};
+/// Reads nav_frame.yaml: `name` and `convention` (enu or ned) required, `latitude_deg` and
+/// `longitude_deg` together or not at all, no other key; DatasetError naming the file and the key.
+NavFrame readNavFrameYaml(const std::string& path);
+void writeNavFrameYaml(const std::string& path, const NavFrame& frame);
+
 struct Dataset {
   std::string directory;
   CameraIntrinsics camera;
   std::vector<FrameRecord> frames;
   std::vector<GroundTruthRecord> ground_truth;  // empty when the folder has no gt.csv
-  std::vector<NavRecord> nav;                   // empty when the folder has no nav.csv
+  /// nav.csv's rows in the core's conventions (image axes, z down), which is what the odometry
+  /// takes relative motions from; empty when the folder has no nav.csv. Without nav_frame.yaml they
+  /// are in gt.csv's frame as written. With it, they are that world frame read into ENU (NED
+  /// turned by swapEnuNed) and turned z-down by zUp (geometry/vehicle_frame.h): zUp(nav[i].pose)
+  /// is the row's ENU pose.
+  std::vector<NavRecord> nav;
+  /// Set when the folder has nav_frame.yaml: nav.csv's world frame.
+  std::optional<NavFrame> nav_frame;
 
   /// Full path of a frame's image.
   std::string imagePath(const FrameRecord& f) const;
@@ -123,6 +163,7 @@ std::string readTextFile(const std::string& path);
 /// Loads a dataset folder; throws DatasetError with a one-line reason when it is not one
 /// (missing files, bad header, unparsable number, duplicate index, missing image file). nav.csv
 /// is read when present; it must cover the stamps of the frames it is used for (see NavTrack).
+/// nav_frame.yaml is read when present and needs nav.csv beside it.
 Dataset loadDataset(const std::string& directory, bool check_images_exist = true,
                     StampOrder order = StampOrder::kAsWritten);
 
