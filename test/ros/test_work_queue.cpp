@@ -5,6 +5,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <deque>
 #include <future>
 #include <memory>
 #include <thread>
@@ -104,6 +105,41 @@ TEST(BoundedWorkQueue, TheDropHandlerHandsTheDroppedItemToItsSuccessor) {
   ASSERT_TRUE(one.pop(&f));
   EXPECT_EQ(f.stamp, 8.0);
   EXPECT_EQ(f.dropped_before, (std::vector<double>{7.0}));
+}
+
+TEST(BoundedWorkQueue, PopSelectedSkipsTheItemsBeforeTheChosenOneAndCountsThem) {
+  BoundedWorkQueue<std::vector<int>> q(10);
+  for (int i = 1; i <= 5; ++i) q.push({i});
+  std::vector<int> v;
+  std::size_t seen = 0;
+  // Take the fourth: 1, 2, 3 are skipped, each handed to the taken item; 5 stays.
+  ASSERT_TRUE(q.popSelected(
+      &v,
+      [&](const std::deque<std::vector<int>>& waiting) {
+        seen = waiting.size();
+        return 3;
+      },
+      [](std::vector<int>& skipped, std::vector<int>& taken) { taken.push_back(skipped.front()); }));
+  EXPECT_EQ(seen, 5u);
+  EXPECT_EQ(v, (std::vector<int>{4, 1, 2, 3}));
+  EXPECT_EQ(q.skipped(), 3);
+  EXPECT_EQ(q.popped(), 1);
+  EXPECT_EQ(q.dropped(), 0);
+  EXPECT_EQ(q.size(), 1u);
+  // An index past the end takes the newest; 0 takes the oldest, as pop().
+  q.push({6});
+  ASSERT_TRUE(q.popSelected(&v, [](const auto&) { return 99; }, [](auto&, auto&) {}));
+  EXPECT_EQ(v, std::vector<int>{6});
+  EXPECT_EQ(q.skipped(), 4);
+  q.push({7});
+  q.push({8});
+  ASSERT_TRUE(q.popSelected(&v, [](const auto&) { return 0; }, [](auto&, auto&) {}));
+  EXPECT_EQ(v, std::vector<int>{7});
+  EXPECT_EQ(q.skipped(), 4);
+  EXPECT_EQ(q.pushed(), q.popped() + q.skipped() + q.dropped() + static_cast<long>(q.size()));
+  q.close();
+  ASSERT_TRUE(q.popSelected(&v, [](const auto&) { return 0; }, [](auto&, auto&) {}));
+  EXPECT_FALSE(q.popSelected(&v, [](const auto&) { return 0; }, [](auto&, auto&) {})) << "closed and drained";
 }
 
 TEST(BoundedWorkQueue, CloseDrainsWhatIsQueuedThenReturnsFalse) {

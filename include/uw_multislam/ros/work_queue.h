@@ -9,11 +9,15 @@
 // few items that must never be lost (e.g. a reload of stored keyframes): they are served before the bounded ones, are
 // never dropped and do not count against the capacity.
 //
+// Selection: popSelected() lets the worker take a newer waiting item than the oldest, skipping
+// (and counting) the ones before it: the odometry's bounded-latency policy (core/frontend/frame_skip.h).
+//
 // Shutdown: close() wakes every pop(); pop() then still returns what is queued, in order (a clean
 // shutdown processes it: nothing queued is lost), and false once the queue is empty. Items pushed
 // after close() are refused.
 #pragma once
 
+#include <algorithm>
 #include <condition_variable>
 #include <cstddef>
 #include <deque>
@@ -90,6 +94,31 @@ class BoundedWorkQueue {
     return true;
   }
 
+  /// pop() of the bounded item `select` picks: select(const std::deque<T>& waiting) returns the
+  /// index of the item to take (0: the oldest, as pop()); the items before it are skipped, each
+  /// handed to `on_skip(skipped, taken)` under the lock (like a drop, to hand on what must survive)
+  /// and counted in skipped(). Priority items are taken first, as by pop(). Blocks like pop().
+  template <typename Select, typename OnSkip>
+  bool popSelected(T* out, Select select, OnSkip on_skip) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    ++waiting_;
+    wake_.wait(lock, [this] { return closed_ || !priority_.empty() || !items_.empty(); });
+    --waiting_;
+    if (priority_.empty() && items_.empty()) return false;  // closed and drained
+    if (!priority_.empty()) {
+      *out = std::move(priority_.front());
+      priority_.pop_front();
+    } else {
+      const std::size_t take = std::min<std::size_t>(select(static_cast<const std::deque<T>&>(items_)), items_.size() - 1);
+      for (std::size_t i = 0; i < take; ++i) on_skip(items_[i], items_[take]);
+      *out = std::move(items_[take]);
+      items_.erase(items_.begin(), items_.begin() + static_cast<std::ptrdiff_t>(take) + 1);
+      skipped_ += static_cast<long>(take);
+    }
+    ++popped_;
+    return true;
+  }
+
   /// pop() without the wait: false when nothing is queued (now).
   bool tryPop(T* out) {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -126,6 +155,11 @@ class BoundedWorkQueue {
     std::lock_guard<std::mutex> lock(mutex_);
     return pushed_;
   }
+  /// Items popSelected() passed over for a newer one.
+  long skipped() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return skipped_;
+  }
   /// Items handed out by pop().
   long popped() const {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -152,6 +186,7 @@ class BoundedWorkQueue {
   long dropped_ = 0;        // guarded by mutex_
   long pushed_ = 0;         // guarded by mutex_
   long popped_ = 0;         // guarded by mutex_
+  long skipped_ = 0;        // guarded by mutex_
   int waiting_ = 0;         // guarded by mutex_
 };
 

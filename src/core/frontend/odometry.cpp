@@ -9,6 +9,7 @@
 #include <stdexcept>
 
 #include "uw_multislam/core/frontend/camera_model.h"
+#include "uw_multislam/core/frontend/frame_skip.h"
 
 namespace uw_multislam {
 namespace core {
@@ -222,20 +223,7 @@ bool Odometry::trackBetweenKeyframes(const cv::Mat& grey, TrackedFrame* cur, Odo
 }
 
 double Odometry::footprintOverlap(const Pose2& motion, double kf_altitude, double altitude) const {
-  auto corners = [&](double alt, const Pose2& to_kf) {
-    std::vector<cv::Point2f> poly;
-    for (const cv::Point2f px : {cv::Point2f(0, 0), cv::Point2f(camera_.width, 0),
-                                 cv::Point2f(camera_.width, camera_.height), cv::Point2f(0, camera_.height)}) {
-      const Eigen::Vector2d p = transformPoint(to_kf, pixelToMetres(px, camera_, alt));
-      poly.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
-    }
-    return poly;
-  };
-  const std::vector<cv::Point2f> kf = corners(kf_altitude, Pose2()), cur = corners(altitude, motion);
-  std::vector<cv::Point2f> inter;
-  const double area = cv::intersectConvexConvex(kf, cur, inter, true);
-  const double cur_area = cv::contourArea(cur);
-  return cur_area > 0 ? std::max(0.0, area) / cur_area : 0.0;
+  return core::footprintOverlap(camera_, motion, kf_altitude, altitude);  // one rule, shared with FrameSkipRule
 }
 
 bool Odometry::needsKeyframe(const RansacResult& r, double overlap, double stamp_s) const {

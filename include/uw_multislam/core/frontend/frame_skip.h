@@ -1,0 +1,131 @@
+// Bounded latency for a live camera faster than the odometry: which waiting frame to process next.
+//
+// When frames arrive faster than the odometry processes them, processing them in order makes the
+// latency grow to the queue's length, and dropping the oldest leaves which frames are used to
+// chance. FrameSkipRule takes the NEWEST waiting frame instead, unless skipping there could change
+// the keyframe chain, so that skipping never splits a session that processing every frame would
+// not split (tracking is lost only when frames cannot be matched to their keyframe, paper 000 §5):
+//
+//   - Each waiting frame's pose is predicted from the last two frames processed (constant velocity
+//     between their stamps), and with it its footprint overlap with the last keyframe and its turn
+//     from it: the quantities of the keyframe rule (core/frontend/odometry.h: min_overlap,
+//     max_rotation_rad, max_interval_s).
+//   - A frame the keyframe rule would NOT take is "safe": processing every frame, it would be a
+//     tracked frame matched to the same keyframe; skipping it changes no keyframe.
+//   - The newest waiting frame is taken when it is safe (the frames before it are skipped).
+//     Otherwise the first waiting frame that is not safe is taken: the frame at which processing
+//     every frame would make the next keyframe, at no lower overlap than it would have then; the
+//     safe frames before it are skipped and the newer ones wait for the next choice, against the
+//     new keyframe.
+//   - Without a prediction (a session's first frame, after a frame that could not be matched or
+//     was skipped by the odometry, while tracking is lost) the oldest waiting frame is taken:
+//     exactly what processing every frame does.
+//
+// FrameBudget measures what the live node reports on /diagnostics: the recent processing time per
+// frame against the recent input period.
+//
+// ROS-free; tested in test/core/frontend/test_frame_skip.cpp.
+#pragma once
+
+#include <cstddef>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/frontend/odometry.h"
+#include "uw_multislam/core/geometry/se2.h"
+
+namespace uw_multislam {
+namespace core {
+
+/// The fraction of the footprint of a frame at `altitude_m`, placed by `motion` in its keyframe's
+/// frame, that the keyframe's footprint (at `kf_altitude_m`) covers: the keyframe rule's overlap.
+double footprintOverlap(const CameraIntrinsics& camera, const Pose2& motion, double kf_altitude_m, double altitude_m);
+
+/// A frame waiting for the odometry.
+struct WaitingFrame {
+  double stamp_s = 0.0;
+  double altitude_m = 0.0;  // not finite or <= 0: unknown (the last frame's is assumed)
+};
+
+/// What the odometry did with a frame it processed.
+struct ProcessedFrame {
+  double stamp_s = 0.0;
+  bool matched = false;  // a session is open and the frame's motion was measured (tracked, a keyframe, the first)
+  bool first = false;    // the frame started a session (its origin: no velocity yet)
+  Pose2 pose;            // in the session frame (when matched)
+  double altitude_m = 0.0;
+  Pose2 keyframe_pose;  // the session's last keyframe after this frame
+  double keyframe_altitude_m = 0.0;
+  double keyframe_stamp_s = 0.0;
+};
+
+/// The ProcessedFrame of an odometry's update (`odometry`: the session's, null while none is open).
+ProcessedFrame processedFrame(const OdometryUpdate& update, double stamp_s, double altitude_m, bool session_started,
+                              const Odometry* odometry);
+
+class FrameSkipRule {
+ public:
+  enum class Reason {
+    kOldest,       // no prediction: the oldest waiting frame, as without skipping
+    kNewestSafe,   // the newest waiting frame, which the keyframe rule would not take
+    kKeyframeDue,  // the first waiting frame the keyframe rule would take
+    kOnlyOne,      // one frame waiting: nothing to choose
+  };
+  struct Choice {
+    std::size_t index = 0;  // into the waiting frames; the ones before it are skipped
+    Reason reason = Reason::kOnlyOne;
+  };
+
+  /// `camera`: the images' (footprints); `keyframes`: the odometry's keyframe rule.
+  FrameSkipRule(const CameraIntrinsics& camera, const KeyframeOptions& keyframes);
+
+  /// After each frame the odometry processed, in order.
+  void observe(const ProcessedFrame& frame);
+  /// A new session or camera: no prediction until two frames of it were matched.
+  void reset();
+
+  /// The frame to process next among `waiting` (oldest first, stamps increasing; not empty).
+  Choice choose(const std::vector<WaitingFrame>& waiting) const;
+
+  /// Whether a frame at `stamp_s` and `altitude_m` would be taken by the keyframe rule, as
+  /// predicted; nullopt without a prediction.
+  std::optional<bool> keyframeDue(double stamp_s, double altitude_m) const;
+
+ private:
+  CameraIntrinsics camera_;
+  KeyframeOptions keyframes_;
+  std::optional<ProcessedFrame> last_, before_;  // the last two matched frames of the session, newest first
+};
+
+std::string reasonName(FrameSkipRule::Reason r);
+
+/// The recent cost of a frame against the recent input period, as exponential moving averages
+/// over about `window` frames (ROS-free; the caller gives the times).
+class FrameBudget {
+ public:
+  explicit FrameBudget(int window = 20) : alpha_(2.0 / (window + 1.0)) {}
+  /// A frame arrived (wall time, s): the input period is the interval between arrivals.
+  void arrived(double now_s);
+  /// A frame was processed in `ms`.
+  void processed(double ms);
+  /// Mean of the recent processing times, ms (0 before any).
+  double msPerFrame() const { return ms_; }
+  /// Mean of the recent input intervals, ms (0 before two arrivals).
+  double inputPeriodMs() const { return period_ms_; }
+  /// msPerFrame / inputPeriodMs: above 1 the input outruns the odometry (0 while unknown).
+  double load() const { return ms_ > 0 && period_ms_ > 0 ? ms_ / period_ms_ : 0.0; }
+  /// A frame arrived within `within_s` of `now_s` (the input is running).
+  bool arriving(double now_s, double within_s) const { return last_arrival_s_ && now_s - *last_arrival_s_ <= within_s; }
+
+ private:
+  double alpha_;
+  double ms_ = 0.0, period_ms_ = 0.0;
+  bool any_ms_ = false;
+  std::optional<double> last_arrival_s_;
+  int intervals_ = 0;
+};
+
+}  // namespace core
+}  // namespace uw_multislam

@@ -1,0 +1,120 @@
+#include "uw_multislam/core/frontend/frame_skip.h"
+
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
+#include <cmath>
+
+#include "uw_multislam/core/frontend/features.h"
+
+namespace uw_multislam {
+namespace core {
+
+double footprintOverlap(const CameraIntrinsics& camera, const Pose2& motion, double kf_altitude_m, double altitude_m) {
+  auto corners = [&](double alt, const Pose2& to_kf) {
+    std::vector<cv::Point2f> poly;
+    for (const cv::Point2f px : {cv::Point2f(0, 0), cv::Point2f(camera.width, 0),
+                                 cv::Point2f(camera.width, camera.height), cv::Point2f(0, camera.height)}) {
+      const Eigen::Vector2d p = transformPoint(to_kf, pixelToMetres(px, camera, alt));
+      poly.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
+    }
+    return poly;
+  };
+  const std::vector<cv::Point2f> kf = corners(kf_altitude_m, Pose2()), cur = corners(altitude_m, motion);
+  std::vector<cv::Point2f> inter;
+  const double area = cv::intersectConvexConvex(kf, cur, inter, true);
+  const double cur_area = cv::contourArea(cur);
+  return cur_area > 0 ? std::max(0.0, area) / cur_area : 0.0;
+}
+
+ProcessedFrame processedFrame(const OdometryUpdate& update, double stamp_s, double altitude_m, bool session_started,
+                              const Odometry* odometry) {
+  ProcessedFrame p;
+  p.stamp_s = stamp_s;
+  p.first = session_started;
+  const bool measured = update.status == FrameStatus::kFirstKeyframe || update.status == FrameStatus::kTracked ||
+                        update.status == FrameStatus::kKeyframe;
+  // A motion carried by the nav means vision failed: no velocity to trust for a skip.
+  p.matched = odometry && measured && update.source != MotionSource::kNav && !odometry->keyframes().empty();
+  if (!p.matched) return p;
+  p.pose = update.pose;
+  p.altitude_m = std::isfinite(altitude_m) && altitude_m > 0 ? altitude_m : odometry->keyframes().back().altitude_m;
+  p.keyframe_pose = odometry->trajectory().absolutePoses().back();
+  p.keyframe_altitude_m = odometry->keyframes().back().altitude_m;
+  p.keyframe_stamp_s = odometry->keyframes().back().stamp_s;
+  return p;
+}
+
+FrameSkipRule::FrameSkipRule(const CameraIntrinsics& camera, const KeyframeOptions& keyframes)
+    : camera_(camera), keyframes_(keyframes) {}
+
+void FrameSkipRule::observe(const ProcessedFrame& frame) {
+  if (!frame.matched) {
+    reset();
+    return;
+  }
+  if (frame.first) reset();
+  before_ = last_;
+  last_ = frame;
+}
+
+void FrameSkipRule::reset() {
+  last_.reset();
+  before_.reset();
+}
+
+std::optional<bool> FrameSkipRule::keyframeDue(double stamp_s, double altitude_m) const {
+  if (!last_ || !before_) return std::nullopt;
+  const double dt = last_->stamp_s - before_->stamp_s;
+  if (!(dt > 0) || !std::isfinite(stamp_s)) return std::nullopt;
+  // Constant velocity from the last two frames: the step between them, scaled to the stamp.
+  const Pose2 step = between(before_->pose, last_->pose);
+  const double f = (stamp_s - last_->stamp_s) / dt;
+  const Pose2 predicted = compose(last_->pose, Pose2(f * step.x(), f * step.y(), f * step.yaw()));
+  const Pose2 motion = between(last_->keyframe_pose, predicted);
+  const double alt = std::isfinite(altitude_m) && altitude_m > 0 ? altitude_m : last_->altitude_m;
+  const double overlap = footprintOverlap(camera_, motion, last_->keyframe_altitude_m, alt);
+  return overlap < keyframes_.min_overlap || std::abs(motion.yaw()) > keyframes_.max_rotation_rad ||
+         (keyframes_.max_interval_s > 0 && stamp_s - last_->keyframe_stamp_s > keyframes_.max_interval_s);
+}
+
+FrameSkipRule::Choice FrameSkipRule::choose(const std::vector<WaitingFrame>& waiting) const {
+  if (waiting.size() <= 1) return {0, Reason::kOnlyOne};
+  const auto due = [&](std::size_t i) { return keyframeDue(waiting[i].stamp_s, waiting[i].altitude_m); };
+  const std::optional<bool> newest = due(waiting.size() - 1);
+  if (!newest) return {0, Reason::kOldest};
+  if (!*newest) return {waiting.size() - 1, Reason::kNewestSafe};
+  for (std::size_t i = 0; i + 1 < waiting.size(); ++i)
+    if (due(i).value_or(true)) return {i, Reason::kKeyframeDue};
+  return {waiting.size() - 1, Reason::kKeyframeDue};
+}
+
+std::string reasonName(FrameSkipRule::Reason r) {
+  switch (r) {
+    case FrameSkipRule::Reason::kOldest:
+      return "oldest (no prediction)";
+    case FrameSkipRule::Reason::kNewestSafe:
+      return "newest";
+    case FrameSkipRule::Reason::kKeyframeDue:
+      return "the first frame a keyframe is due at";
+    case FrameSkipRule::Reason::kOnlyOne:
+      return "the only one waiting";
+  }
+  return "?";
+}
+
+void FrameBudget::arrived(double now_s) {
+  if (last_arrival_s_ && now_s > *last_arrival_s_) {
+    const double ms = (now_s - *last_arrival_s_) * 1e3;
+    period_ms_ = intervals_++ == 0 ? ms : period_ms_ + alpha_ * (ms - period_ms_);
+  }
+  last_arrival_s_ = now_s;
+}
+
+void FrameBudget::processed(double ms) {
+  ms_ = any_ms_ ? ms_ + alpha_ * (ms - ms_) : ms;
+  any_ms_ = true;
+}
+
+}  // namespace core
+}  // namespace uw_multislam

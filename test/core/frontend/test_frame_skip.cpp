@@ -1,0 +1,244 @@
+// FrameSkipRule and FrameBudget: which waiting frame the live odometry takes when the camera is
+// faster than it, and the budget it reports.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <vector>
+
+#include "uw_multislam/core/frontend/frame_skip.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+using Reason = FrameSkipRule::Reason;
+
+constexpr double kAltitude = 2.0;
+
+CameraIntrinsics camera() {
+  CameraIntrinsics c;
+  c.width = 320;
+  c.height = 240;
+  c.fx = c.fy = 300.0;
+  c.cx = 160.0;
+  c.cy = 120.0;
+  return c;  // at 2 m: a footprint of 2.13 m x 1.6 m
+}
+
+// A matched frame at `pose`, with the session's last keyframe at `keyframe`.
+ProcessedFrame matched(double stamp_s, const Pose2& pose, const Pose2& keyframe, double keyframe_stamp_s = 0.0) {
+  ProcessedFrame p;
+  p.stamp_s = stamp_s;
+  p.matched = true;
+  p.pose = pose;
+  p.altitude_m = kAltitude;
+  p.keyframe_pose = keyframe;
+  p.keyframe_altitude_m = kAltitude;
+  p.keyframe_stamp_s = keyframe_stamp_s;
+  return p;
+}
+
+std::vector<WaitingFrame> waitingAt(const std::vector<double>& stamps) {
+  std::vector<WaitingFrame> w;
+  for (double s : stamps) w.push_back({s, kAltitude});
+  return w;
+}
+
+TEST(FootprintOverlap, IsTheSharedFractionOfTheFootprint) {
+  const CameraIntrinsics c = camera();
+  EXPECT_NEAR(footprintOverlap(c, Pose2(), kAltitude, kAltitude), 1.0, 1e-6);
+  // 2.1333 m wide: a quarter of the width along x leaves three quarters.
+  EXPECT_NEAR(footprintOverlap(c, Pose2(0.25 * 320 / 300.0 * kAltitude, 0, 0), kAltitude, kAltitude), 0.75, 1e-4);
+  EXPECT_NEAR(footprintOverlap(c, Pose2(5.0, 0, 0), kAltitude, kAltitude), 0.0, 1e-9);
+}
+
+TEST(FrameSkipRule, WithoutAPredictionTheOldestFrameIsTaken) {
+  FrameSkipRule rule(camera(), KeyframeOptions());
+  EXPECT_EQ(rule.choose(waitingAt({1.0})).reason, Reason::kOnlyOne);
+  const auto none = rule.choose(waitingAt({1.0, 2.0, 3.0}));
+  EXPECT_EQ(none.index, 0u);
+  EXPECT_EQ(none.reason, Reason::kOldest);
+  // One frame of the session: no velocity yet.
+  ProcessedFrame first = matched(0.0, Pose2(), Pose2());
+  first.first = true;
+  rule.observe(first);
+  EXPECT_EQ(rule.choose(waitingAt({1.0, 2.0})).reason, Reason::kOldest);
+  rule.observe(matched(1.0, Pose2(0.1, 0, 0), Pose2()));
+  EXPECT_EQ(rule.choose(waitingAt({2.0, 3.0})).reason, Reason::kNewestSafe);
+  // A frame that could not be matched (a fallback): the velocity is not trusted any more.
+  ProcessedFrame lost;
+  lost.stamp_s = 2.0;
+  rule.observe(lost);
+  EXPECT_FALSE(rule.keyframeDue(3.0, kAltitude).has_value());
+  EXPECT_EQ(rule.choose(waitingAt({3.0, 4.0})).index, 0u);
+  // A new session's origin forgets the old session's frames.
+  rule.observe(matched(5.0, Pose2(), Pose2()));
+  rule.observe(matched(6.0, Pose2(0.1, 0, 0), Pose2()));
+  ProcessedFrame origin = matched(20.0, Pose2(), Pose2());
+  origin.first = true;
+  rule.observe(origin);
+  EXPECT_EQ(rule.choose(waitingAt({21.0, 22.0})).reason, Reason::kOldest);
+}
+
+TEST(FrameSkipRule, TheNewestFrameIsTakenWhileNoKeyframeIsDue) {
+  FrameSkipRule rule(camera(), KeyframeOptions());
+  rule.observe(matched(0.0, Pose2(), Pose2()));
+  rule.observe(matched(1.0, Pose2(0.1, 0, 0), Pose2()));  // 0.1 m/s along x, keyframe at 0
+  // Predicted at 4 s: 0.4 m from the keyframe, overlap 0.81 > 0.5.
+  EXPECT_EQ(rule.keyframeDue(4.0, kAltitude), std::optional<bool>(false));
+  const auto c = rule.choose(waitingAt({2.0, 3.0, 4.0}));
+  EXPECT_EQ(c.index, 2u);
+  EXPECT_EQ(c.reason, Reason::kNewestSafe);
+}
+
+TEST(FrameSkipRule, WhenTheNewestIsTooFarTheFirstFrameAKeyframeIsDueAtIsTaken) {
+  FrameSkipRule rule(camera(), KeyframeOptions());  // min_overlap 0.5: due beyond 1.067 m along x
+  rule.observe(matched(0.0, Pose2(), Pose2()));
+  rule.observe(matched(1.0, Pose2(0.3, 0, 0), Pose2()));  // 0.3 m/s
+  // 0.9 m (overlap 0.58), 1.2 m (0.44), 1.5 m (0.30): the newest is too far from the keyframe.
+  EXPECT_EQ(rule.keyframeDue(3.0, kAltitude), std::optional<bool>(false));
+  EXPECT_EQ(rule.keyframeDue(4.0, kAltitude), std::optional<bool>(true));
+  const auto c = rule.choose(waitingAt({2.0, 3.0, 4.0, 5.0}));
+  EXPECT_EQ(c.index, 2u) << "the frame at 4 s: where processing every frame makes the keyframe";
+  EXPECT_EQ(c.reason, Reason::kKeyframeDue);
+  // The oldest already due: nothing is skipped.
+  EXPECT_EQ(rule.choose(waitingAt({4.0, 5.0})).index, 0u);
+}
+
+TEST(FrameSkipRule, ATurnOrTheTimeLimitMakeAKeyframeDueLikeTheKeyframeRule) {
+  KeyframeOptions k;
+  k.max_rotation_rad = 0.5;
+  FrameSkipRule turning(camera(), k);
+  turning.observe(matched(0.0, Pose2(), Pose2()));
+  turning.observe(matched(1.0, Pose2(0, 0, 0.2), Pose2()));  // turning in place, 0.2 rad/s
+  EXPECT_EQ(turning.keyframeDue(2.0, kAltitude), std::optional<bool>(false));
+  EXPECT_EQ(turning.keyframeDue(3.0, kAltitude), std::optional<bool>(true));  // 0.6 rad
+  EXPECT_EQ(turning.choose(waitingAt({2.0, 3.0, 4.0})).index, 1u);
+  k.max_interval_s = 2.5;
+  FrameSkipRule timed(camera(), k);
+  timed.observe(matched(0.0, Pose2(), Pose2(), 0.0));
+  timed.observe(matched(1.0, Pose2(), Pose2(), 0.0));  // standing still
+  EXPECT_EQ(timed.keyframeDue(2.0, kAltitude), std::optional<bool>(false));
+  EXPECT_EQ(timed.keyframeDue(3.0, kAltitude), std::optional<bool>(true));
+}
+
+TEST(FrameSkipRule, AHigherAltitudeWidensTheFootprint) {
+  FrameSkipRule low(camera(), KeyframeOptions());
+  low.observe(matched(0.0, Pose2(), Pose2()));
+  low.observe(matched(1.0, Pose2(0.3, 0, 0), Pose2()));
+  EXPECT_EQ(low.keyframeDue(4.0, kAltitude), std::optional<bool>(true));  // 1.2 m of a 2.13 m footprint: 0.44
+  EXPECT_EQ(low.keyframeDue(4.0, std::nan("")), std::optional<bool>(true)) << "unknown: the last frame's altitude";
+  FrameSkipRule high(camera(), KeyframeOptions());
+  for (double t : {0.0, 1.0}) {
+    ProcessedFrame p = matched(t, Pose2(0.3 * t, 0, 0), Pose2());
+    p.altitude_m = p.keyframe_altitude_m = 4.0;
+    high.observe(p);
+  }
+  EXPECT_EQ(high.keyframeDue(4.0, 4.0), std::optional<bool>(false)) << "1.2 m of a 4.27 m footprint: 0.72";
+  EXPECT_EQ(high.keyframeDue(4.0, std::nan("")), std::optional<bool>(false));
+}
+
+// A camera `speedup` times faster than the odometry, on a lawnmower leg with a turn: the worker
+// takes frames by the rule whenever it is free. With an exact prediction the keyframes are the
+// very frames processing every frame makes keyframes, so no link is weaker and no session splits.
+struct SkipRun {
+  std::vector<int> keyframes;        // frame indexes
+  std::vector<double> link_overlap;  // each keyframe's overlap with the one before
+  int processed = 0;
+  double worst_latency_periods = 0;  // from a frame's arrival to the end of its processing
+};
+
+Pose2 truth(int i) {
+  // 0.12 m per frame along x for 40 frames, then a turn of 0.04 rad per frame while moving.
+  if (i <= 40) return Pose2(0.12 * i, 0, 0);
+  Pose2 p(0.12 * 40, 0, 0);
+  for (int k = 41; k <= i; ++k) p = compose(p, Pose2(0.12, 0, 0.04));
+  return p;
+}
+
+SkipRun simulate(int frames, double speedup, bool skip) {
+  const CameraIntrinsics c = camera();
+  KeyframeOptions k;
+  FrameSkipRule rule(c, k);
+  SkipRun run;
+  int kf = -1;
+  Pose2 kf_pose;
+  const double period = 1.0, cost = speedup * period;  // processing one frame takes `speedup` periods
+  double free_at = 0.0;
+  int next = 0;  // oldest frame not taken or skipped
+  while (next < frames) {
+    const double now = std::max(free_at, next * period);
+    const int newest = std::min(frames - 1, static_cast<int>(std::floor(now / period + 1e-9)));
+    std::vector<WaitingFrame> waiting;
+    for (int i = next; i <= newest; ++i) waiting.push_back({i * period, kAltitude});
+    const int take = skip ? next + static_cast<int>(rule.choose(waiting).index) : next;
+    // The ideal odometry: the true pose; a keyframe when the keyframe rule says so.
+    const Pose2 pose = truth(take);
+    ProcessedFrame p = matched(take * period, pose, kf_pose);
+    p.first = kf < 0;
+    if (kf < 0) {
+      kf = take, kf_pose = pose;
+      run.keyframes.push_back(take);
+    } else {
+      const Pose2 m = between(kf_pose, pose);
+      const double overlap = footprintOverlap(c, m, kAltitude, kAltitude);
+      if (overlap < k.min_overlap || std::abs(m.yaw()) > k.max_rotation_rad) {
+        kf = take, kf_pose = pose;
+        run.keyframes.push_back(take);
+        run.link_overlap.push_back(overlap);
+      }
+    }
+    p.keyframe_pose = kf_pose;
+    p.keyframe_stamp_s = kf * period;
+    rule.observe(p);
+    ++run.processed;
+    free_at = now + cost;
+    run.worst_latency_periods = std::max(run.worst_latency_periods, (free_at - take * period) / period);
+    next = take + 1;
+  }
+  return run;
+}
+
+TEST(FrameSkipRule, SkippingKeepsTheKeyframesOfProcessingEveryFrame) {
+  const SkipRun every = simulate(120, 0.5, false);  // the odometry keeps up
+  ASSERT_GT(every.keyframes.size(), 10u);
+  for (double speedup : {2.0, 4.0}) {
+    const SkipRun skipping = simulate(120, speedup, true);
+    EXPECT_EQ(skipping.keyframes, every.keyframes) << speedup << "x";
+    EXPECT_LT(skipping.processed, 120 * 0.8) << "frames were skipped at " << speedup << "x";
+    for (std::size_t i = 0; i < skipping.link_overlap.size(); ++i)
+      EXPECT_GE(skipping.link_overlap[i], every.link_overlap[i] - 1e-9);
+  }
+  // Without the rule (the newest frame, always) links are weaker than processing every frame's:
+  // the comparison above could fail.
+  const CameraIntrinsics c = camera();
+  const double newest_link = footprintOverlap(c, between(truth(0), truth(12)), kAltitude, kAltitude);
+  EXPECT_LT(newest_link, *std::min_element(every.link_overlap.begin(), every.link_overlap.end()));
+}
+
+TEST(FrameSkipRule, TheLatencyStaysBoundedWhereTheQueueWouldGrow) {
+  // In order (a FIFO without drops) the latency grows with the run; with the rule it stays within
+  // a few processing times (a frame waits at most for the one in progress and a keyframe's).
+  const SkipRun fifo = simulate(120, 2.0, false);
+  const SkipRun skipping = simulate(120, 2.0, true);
+  EXPECT_GT(fifo.worst_latency_periods, 100.0);
+  EXPECT_LE(skipping.worst_latency_periods, 3 * 2.0 + 1e-9);
+}
+
+TEST(FrameBudget, ComparesTheRecentCostWithTheRecentInputPeriod) {
+  FrameBudget b(4);
+  EXPECT_EQ(b.load(), 0.0) << "unknown";
+  for (int i = 0; i < 20; ++i) b.arrived(0.05 * i);  // 20 Hz
+  EXPECT_NEAR(b.inputPeriodMs(), 50.0, 1e-9);
+  for (int i = 0; i < 20; ++i) b.processed(100.0);
+  EXPECT_NEAR(b.msPerFrame(), 100.0, 1e-9);
+  EXPECT_NEAR(b.load(), 2.0, 1e-9);
+  for (int i = 0; i < 20; ++i) b.processed(25.0);  // the recent frames count, not the first ones
+  EXPECT_NEAR(b.load(), 0.5, 1e-3);
+  b.arrived(0.5);  // a clock that stands still or goes back adds no interval
+  EXPECT_NEAR(b.inputPeriodMs(), 50.0, 1e-9);
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam
