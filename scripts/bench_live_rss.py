@@ -61,7 +61,7 @@ def run_case(bag, config, store, rate, period, env):
     """Samples (keyframes, {node: VmRSS kB}, cache MB) until the bag has played and the queues emptied."""
     import rospy
     from diagnostic_msgs.msg import DiagnosticArray
-    launch = subprocess.Popen(["roslaunch", "uw_multislam", "replay.launch", "standalone:=true", "bag:=" + bag,
+    launch = subprocess.Popen(["roslaunch", "uw_multislam", "replay.launch", "standalone:=true", "camera_mount:=0 0 0 0", "bag:=" + bag,
                                "rate:=%g" % rate, "store_path:=" + store, "slam_config:=" + config],
                               stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, env=env)
     diag = {}

@@ -100,7 +100,7 @@ def run_case(store, config, expect, env):
     VmRSS (kB) once it reports `expect` keyframes reloaded, and the seconds that took."""
     import rospy
     from diagnostic_msgs.msg import DiagnosticArray
-    launch = subprocess.Popen(["roslaunch", "uw_multislam", "slam.launch", "standalone:=true",
+    launch = subprocess.Popen(["roslaunch", "uw_multislam", "slam.launch", "standalone:=true", "camera_mount:=0 0 0 0",
                                "store_path:=" + (store or "none"), "reload_stored:=" + ("true" if store else "false"),
                                "mode:=localisation", "slam_config:=" + config],
                               stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, env=env)

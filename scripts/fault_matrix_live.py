@@ -73,7 +73,7 @@ class Stack:
         return p
 
     def start_slam(self, *args):
-        self.launch = self.spawn(["roslaunch", "--wait", "uw_multislam", "slam.launch", "store_path:=" + self.store] +
+        self.launch = self.spawn(["roslaunch", "--wait", "uw_multislam", "slam.launch", "camera_mount:=0 0 0 0", "store_path:=" + self.store] +
                                  list(args), "launch.log")
         if not wait_for(lambda: self.launch.poll() is not None or self.services_ready(), 60, 0.2) or \
                 self.launch.poll() is not None:
@@ -370,7 +370,7 @@ def case_kill_manager_moments(st, survey):
     # During start-up: SIGINT the launch, start it again without waiting, kill -9 the manager as
     # soon as it is registered, then relaunch and list.
     st.stop_group(st.launch)
-    st.launch = st.spawn(["roslaunch", "--wait", "uw_multislam", "slam.launch", "store_path:=" + st.store,
+    st.launch = st.spawn(["roslaunch", "--wait", "uw_multislam", "slam.launch", "camera_mount:=0 0 0 0", "store_path:=" + st.store,
                           "standalone:=false"], "launch.log")
     pid = [None]
     wait_for(lambda: pid.__setitem__(0, st.manager_pid()) or pid[0], 60, 0.02)

@@ -54,7 +54,7 @@ trap 'exit 143' TERM
 # roslaunch starts the master (port above), the nodelets, rosbag play and rviz; playing waits for
 # the odometry to subscribe, and skip-empty jumps over the day between the missions.
 echo "[rviz_snapshot] replay.launch with rviz, rate $rate"
-roslaunch -p "$port" uw_multislam replay.launch rviz:=true rate:="$rate" delay:=5 \
+roslaunch -p "$port" uw_multislam replay.launch rviz:=true rate:="$rate" delay:=5 camera_mount:="0 0 0 0" \
   bag:="${bags% }" \
   play_args:="-q --skip-empty=5 --wait-for-subscribers --topics /camera/image_raw /camera/camera_info /altitude" \
   >"$work/launch.log" 2>&1 &

@@ -41,10 +41,6 @@ void OdometryNodelet::onInit() {
   }
   const auto& o = options_;
   const core::SlamConfig& config = o.config;
-  if (o.mount_resolved)
-    NODELET_INFO("odometry: camera mount %s", o.mount_note.c_str());
-  else
-    NODELET_WARN("odometry: %s", o.mount_note.c_str());
   for (const std::string& line : ros_params::describe(o)) NODELET_INFO("odometry: %s", line.c_str());
   NODELET_INFO("odometry: %s", images_->description().c_str());
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config));
@@ -59,7 +55,9 @@ void OdometryNodelet::onInit() {
   stamps_ = std::make_unique<core::StampGuard>(core::StampGuardOptions{o.reorder_tolerance_s, o.session_gap_s});
   pairing_ = std::make_unique<Pairing>(
       o.pairing(), wallNow(), o.fallback_camera_info ? std::make_optional(o.fallback_camera_info) : std::nullopt);
-  nav_ = std::make_unique<ros_inputs::NavInput>(nh, topics::kNavOdometry, o.nav(), o.mount);
+  sensor_mount_ =
+      std::make_unique<ros_frames::SensorMount>(nh, o.base_frame, o.mount_wait_s, o.max_camera_tilt_deg * M_PI / 180.0);
+  nav_ = std::make_unique<ros_inputs::NavInput>(nh, topics::kNavOdometry, o.nav());
   if (o.nav_source != "none") NODELET_INFO("odometry: %s", nav_->description(config.odometry.nav.enabled).c_str());
 
   keyframes_ = std::make_unique<ros_outputs::KeyframePublisher>(nh, it_.get(), config);
@@ -111,6 +109,7 @@ void OdometryNodelet::onRange(const sensor_msgs::RangeConstPtr& range) {
         5, "odometry: %s: images at this reading's stamp get no altitude (the last valid one is used)", why.c_str());
   }
   std::lock_guard<std::mutex> lock(pairing_mutex_);
+  altimeter_frame_ = range->header.frame_id;
   const double last = pairing_->newestAltitude();
   bool cleared = false;
   handle(pairing_->addAltitude(range->header.stamp.toSec(), altitude, wallNow(), &cleared));
@@ -139,11 +138,12 @@ void OdometryNodelet::handle(Pairing::Decisions decisions) {
       if (d.first_fallback)
         NODELET_WARN("odometry: no camera_info on %s: images use the calibration of ~camera_info_url %s",
                      info_sub_.getTopic().c_str(), options_.camera_info_url.c_str());
-      // The altimeter's range -> the camera's altitude; a fixed or fallback altitude is the camera's already.
-      const double altitude = d.altitude == core::PairedAltitude::kReading
-                                  ? core::cameraAltitude(d.altitude_m, options_.mount)
-                                  : d.altitude_m;
-      queue_->push({std::move(d.image), std::move(d.info), d.altitude, altitude, std::move(d.passed_over)});
+      {
+        std::lock_guard<std::mutex> lock(budget_mutex_);
+        budget_.arrived(wallNow());
+      }
+      queue_->push({std::move(d.image), std::move(d.info), d.altitude, d.altitude_m, altimeter_frame_,
+                    std::move(d.passed_over)});
     }
   }
 }
@@ -182,34 +182,67 @@ void OdometryNodelet::onActiveSession(const uw_multislam::SessionStateConstPtr& 
 
 void OdometryNodelet::work() {
   last_stats_ = ros::WallTime::now();
-  // ~prepare_threads: frames already waiting are prepared on long-lived threads while this one
-  // processes the frame before them (a thread per frame was slower than none: bench_load.sh).
-  ros_work::drainWithPrepareAhead<Frame, Ahead>(
-      *queue_, options_.prepare_threads, [this](const Frame& f) { return prepareAhead(f); },
-      [this](Frame& f, Ahead* ahead) {
-        const ros::WallTime start = ros::WallTime::now();
-        try {
-          process(f, ahead);
-        } catch (const std::exception& e) {  // the core throws only on programming errors: log, keep going
-          NODELET_ERROR_THROTTLE(5, "odometry: frame skipped, %s", e.what());
-        }
-        const double ms = (ros::WallTime::now() - start).toSec() * 1e3;
-        counts_.frameTime(ms);
-        counts_.session = session_;
-        {
-          std::lock_guard<std::mutex> lock(stats_mutex_);
-          published_ = counts_;
-        }
-        if ((ros::WallTime::now() - last_stats_).toSec() >= options_.stats_period_s) {
-          logStats("so far");
-          last_stats_ = ros::WallTime::now();
-        }
-      });
+  if (options_.drop_policy == "oldest") {
+    // ~prepare_threads: frames already waiting are prepared on long-lived threads while this one
+    // processes the frame before them (a thread per frame was slower than none: bench_load.sh).
+    ros_work::drainWithPrepareAhead<Frame, Ahead>(
+        *queue_, options_.prepare_threads, [this](const Frame& f) { return prepareAhead(f); },
+        [this](Frame& f, Ahead* ahead) { run(f, ahead); });
+    return;
+  }
+  // A skipped frame's stamps travel on with the frame taken: seen, not a gap in the images.
+  const auto hand_on = [](Frame& skipped, Frame& taken) {
+    taken.passed_over.insert(taken.passed_over.end(), skipped.passed_over.begin(), skipped.passed_over.end());
+    taken.passed_over.push_back(skipped.msg.header().stamp.toSec());
+    std::sort(taken.passed_over.begin(), taken.passed_over.end());
+  };
+  Frame f;
+  while (queue_->popSelected(
+      &f, [this](const std::deque<Frame>& w) { return chooseNext(w); }, hand_on)) {
+    run(f, nullptr);
+    f = Frame();
+  }
+}
+
+std::size_t OdometryNodelet::chooseNext(const std::deque<Frame>& waiting) {
+  if (!skip_rule_ || waiting.size() < 2) return 0;
+  std::vector<core::WaitingFrame> w;
+  w.reserve(waiting.size());
+  for (const Frame& f : waiting)
+    w.push_back({f.msg.header().stamp.toSec(), f.altitude == core::PairedAltitude::kReading
+                                                   ? core::cameraAltitude(f.altitude_m, mount_)
+                                                   : f.altitude_m});
+  return skip_rule_->choose(w).index;
+}
+
+void OdometryNodelet::run(Frame& f, Ahead* ahead) {
+  const ros::WallTime start = ros::WallTime::now();
+  try {
+    process(f, ahead);
+  } catch (const std::exception& e) {  // the core throws only on programming errors: log, keep going
+    NODELET_ERROR_THROTTLE(5, "odometry: frame skipped, %s", e.what());
+  }
+  const double ms = (ros::WallTime::now() - start).toSec() * 1e3;
+  counts_.frameTime(ms);
+  counts_.session = session_;
+  {
+    std::lock_guard<std::mutex> lock(budget_mutex_);
+    budget_.processed(ms);
+  }
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    published_ = counts_;
+  }
+  if ((ros::WallTime::now() - last_stats_).toSec() >= options_.stats_period_s) {
+    logStats("so far");
+    last_stats_ = ros::WallTime::now();
+  }
 }
 
 void OdometryNodelet::startSession(int id, const core::CameraIntrinsics& camera, const std::string& why) {
   if (odometry_) logStats("at the end of session " + std::to_string(session_));
   odometry_ = std::make_unique<core::SegmentedOdometry>(camera, options_.config.odometry, options_.config.tracking);
+  skip_rule_.emplace(camera, options_.config.odometry.keyframes);
   camera_ = camera;
   session_ = id;
   frame_index_ = 0;
@@ -275,6 +308,25 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
                             stamp.toSec(), stamps_->last() - stamp.toSec(), n);
     return;
   }
+  // The sensors' mount from tf: no tracking without it (no default mount). After the image and
+  // stamp checks, so a bad frame is counted for what is wrong with it.
+  const ros_frames::SensorMount::Lookup mount = sensor_mount_->get(f.msg.header().frame_id, f.altimeter_frame);
+  if (mount.state != ros_frames::SensorMount::State::kResolved) {
+    const long n = ++counts_.skipped_no_mount;
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      mount_error_ = mount.message;
+    }
+    NODELET_ERROR_THROTTLE(5, "odometry: frame skipped, tracking does not start: %s (%ld frames so far)",
+                           mount.message.c_str(), n);
+    return;
+  }
+  if (mount.fresh) {
+    NODELET_INFO("odometry: sensor mount %s", mount.message.c_str());
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    mount_error_.clear();
+  }
+  mount_ = mount.mount;
   if (f.altitude == core::PairedAltitude::kFallback) {
     ++counts_.fixed_altitude_frames;
     NODELET_WARN_THROTTLE(10,
@@ -304,15 +356,20 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   }
   if (start.starts()) startSession(start.id, camera, start.why);
 
-  const std::optional<core::NavRecord> nav = options_.config.odometry.nav.enabled ? nav_->at(stamp) : std::nullopt;
+  const std::optional<core::NavRecord> nav =
+      options_.config.odometry.nav.enabled ? nav_->at(stamp, mount_) : std::nullopt;
   if (nav) ++counts_.frames_with_nav;
   // Prepared ahead with this frame's camera: the session's (a new camera has started a session above).
   core::PreparedFrame* prepared =
       ahead && ahead->prepared.done && ahead->camera == camera_ ? &ahead->prepared : nullptr;
   counts_.prepared_ahead += prepared != nullptr;
+  // The altimeter's range -> the camera's altitude; a fixed or fallback altitude is the camera's already.
+  const double altitude =
+      f.altitude == core::PairedAltitude::kReading ? core::cameraAltitude(f.altitude_m, mount_) : f.altitude_m;
   const core::SegmentedOdometry::Step step =
-      odometry_->process({frame_index_++, stamp.toSec(), f.altitude_m, image, nav}, prepared);
+      odometry_->process({frame_index_++, stamp.toSec(), altitude, image, nav}, prepared);
   const core::OdometryUpdate& u = step.update;
+  skip_rule_->observe(core::processedFrame(u, stamp.toSec(), altitude, step.session_started, odometry_->odometry()));
   const bool done = u.status != core::FrameStatus::kSkipped;
   counts_.nav_motions += done && u.source == core::MotionSource::kNav;
   counts_.fused_motions += done && u.source == core::MotionSource::kFused;
@@ -343,9 +400,9 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
         u.index, options_.config.tracking.max_fallbacks, session_, options_.config.tracking.min_features, session_ + 1);
   }
   // base_link in the z-up session frame, with the covariance of the motions since its first frame.
-  pose_pub_.publish(rc::toPoseWithCovarianceStampedMsg(
-      core::vehicleFromCamera(core::UncertainPose2(u.pose, u.covariance), options_.mount),
-      options_.session_frame_prefix + std::to_string(session_), stamp));
+  pose_pub_.publish(
+      rc::toPoseWithCovarianceStampedMsg(core::vehicleFromCamera(core::UncertainPose2(u.pose, u.covariance), mount_),
+                                         options_.session_frame_prefix + std::to_string(session_), stamp));
 }
 
 std::string OdometryNodelet::silentInput(double now) {
@@ -365,6 +422,11 @@ OdometryCounters OdometryNodelet::snapshot(OdometryCounters c) {
   }
   c.altitudes_refused = ranges_refused_, c.altitudes_above_max_altitude = ranges_above_max_;
   c.dropped_queue_full = queue_->dropped(), c.queue_length = static_cast<long>(queue_->size());
+  c.skipped_for_newest = queue_->skipped();
+  {
+    std::lock_guard<std::mutex> lock(budget_mutex_);
+    c.ms_per_frame_recent = budget_.msPerFrame(), c.input_period_ms = budget_.inputPeriodMs();
+  }
   c.frames_synchronised = queue_->pushed(), c.frames_processed = queue_->popped();
   // Images not paired: skipped for want of a camera_info or an altitude, or still waiting.
   c.images_not_paired = std::max(0L, c.images_received - c.frames_synchronised);
@@ -376,12 +438,24 @@ OdometryCounters OdometryNodelet::snapshot(OdometryCounters c) {
 
 void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat) {
   OdometryCounters c;
+  std::string error;
   {
     std::lock_guard<std::mutex> lock(stats_mutex_);
     c = published_;
+    error = mount_error_;
   }
-  diagnostic_status_.fill(stat, ros_diagnostics::odometryCounterTable().counters(snapshot(c)), wallNow(),
-                          silentInput(wallNow()));
+  c = snapshot(c);
+  std::string problem = silentInput(wallNow());
+  if (problem.empty()) {
+    bool arriving = false;
+    {
+      std::lock_guard<std::mutex> lock(budget_mutex_);
+      arriving = budget_.arriving(wallNow(), options_.input_timeout_s);
+    }
+    problem = ros_diagnostics::budgetProblem(c, options_.drop_policy, arriving);
+  }
+  diagnostic_status_.fill(stat, ros_diagnostics::odometryCounterTable().counters(c), wallNow(), problem,
+                          error.empty() ? "" : "tracking does not start: " + error);
 }
 
 void OdometryNodelet::logStats(const std::string& when) {  // the worker's thread, or after it was joined

@@ -149,5 +149,70 @@ bool resolveCameraMount(const ros::NodeHandle& nh, const MountOptions& o, core::
   return true;
 }
 
+SensorMount::SensorMount(ros::NodeHandle nh, const std::string& base_frame, double wait_s, double max_tilt_rad)
+    : base_frame_(base_frame),
+      wait_s_(wait_s),
+      max_tilt_rad_(max_tilt_rad),
+      buffer_(std::make_unique<tf2_ros::Buffer>()),
+      listener_(std::make_unique<tf2_ros::TransformListener>(*buffer_, nh, true)) {}
+
+SensorMount::Lookup SensorMount::get(const std::string& camera_frame, const std::string& altimeter_frame) {
+  Lookup l;
+  const auto frames = std::make_pair(camera_frame, altimeter_frame);
+  if (resolved_for_ && *resolved_for_ == frames) {
+    l.state = State::kResolved;
+    l.mount = resolved_;
+    return l;
+  }
+  if (camera_frame.empty()) {
+    l.message = "the image has no header.frame_id: the camera cannot be placed on " + base_frame_ +
+                " (set the camera driver's frame_id)";
+    return l;
+  }
+  const bool altimeter = !altimeter_frame.empty();
+  auto have = [&](const std::string& f) { return buffer_->canTransform(base_frame_, f, ros::Time(0)); };
+  // A poll of an awaited condition, bounded by wall time (simulated time may not run yet).
+  const double now = ros::WallTime::now().toSec();
+  if (!deadline_s_) deadline_s_ = now + wait_s_;
+  while (!(have(camera_frame) && (!altimeter || have(altimeter_frame))) &&
+         ros::WallTime::now().toSec() < *deadline_s_ && ros::ok())
+    ros::WallDuration(0.01).sleep();
+  std::string missing;
+  for (const std::string& f : {camera_frame, altimeter_frame}) {
+    if (f.empty()) continue;
+    std::string error;
+    if (!buffer_->canTransform(base_frame_, f, ros::Time(0), &error))
+      missing += (missing.empty() ? "" : "; ") + base_frame_ + " -> " + f + " (" + error + ")";
+  }
+  if (!missing.empty()) {
+    l.message = "no transform " + missing + " in tf after " + std::to_string(wait_s_).substr(0, 4) +
+                " s: publish the sensors' mount (the vehicle's URDF with robot_state_publisher, or the launch "
+                "files' camera_mount / altimeter_mount arguments)";
+    return l;
+  }
+  geometry_msgs::TransformStamped cam, alt;
+  cam = buffer_->lookupTransform(base_frame_, camera_frame, ros::Time(0));
+  if (altimeter) {
+    alt = buffer_->lookupTransform(base_frame_, altimeter_frame, ros::Time(0));
+  } else {
+    alt.transform.translation = cam.transform.translation;  // the altitude is the camera's
+    alt.transform.rotation.w = 1.0;
+  }
+  std::string why;
+  if (!mountFromTransforms(cam.transform, alt.transform, max_tilt_rad_, &l.mount, &why)) {
+    l.state = State::kRefused;
+    l.message = base_frame_ + " -> " + camera_frame + ": " + why;
+    return l;
+  }
+  l.state = State::kResolved;
+  l.fresh = true;
+  l.message = "from tf, " + base_frame_ + " -> " + camera_frame +
+              (altimeter ? " and " + base_frame_ + " -> " + altimeter_frame : std::string(" (no altimeter)")) + ": " +
+              core::describe(l.mount);
+  resolved_for_ = frames;
+  resolved_ = l.mount;
+  return l;
+}
+
 }  // namespace ros_frames
 }  // namespace uw_multislam

@@ -23,9 +23,8 @@ core::NavRecord TfNavDrift::add(double stamp_s, const core::Pose2& vehicle, cons
   return r;
 }
 
-NavInput::NavInput(ros::NodeHandle nh, const std::string& topic, const NavInputOptions& options,
-                   const core::CameraMount& mount)
-    : options_(options), mount_(mount), drift_(options.tf_drift, options.tf_yaw_drift) {
+NavInput::NavInput(ros::NodeHandle nh, const std::string& topic, const NavInputOptions& options)
+    : options_(options), drift_(options.tf_drift, options.tf_yaw_drift) {
   if (options_.source == "tf") {
     tf_buffer_ = std::make_unique<tf2_ros::Buffer>(ros::Duration(std::max(10.0, options_.buffer_s)));
     tf_listener_ = std::make_unique<tf2_ros::TransformListener>(*tf_buffer_, nh);
@@ -52,16 +51,19 @@ std::string NavInput::description(bool used) const {
   return line;
 }
 
-std::optional<core::NavRecord> NavInput::at(const ros::Time& stamp) {
-  if (tf_buffer_) return fromTf(stamp);
-  return fromTopic(stamp.toSec());
+std::optional<core::NavRecord> NavInput::at(const ros::Time& stamp, const core::CameraMount& mount) {
+  if (tf_buffer_) return fromTf(stamp, mount);
+  std::optional<core::NavRecord> r = fromTopic(stamp.toSec());
+  // The track holds a camera at base_link: back to base_link, then to the mounted camera.
+  if (r) r->pose = core::cameraFromVehicle(core::vehicleFromCamera(r->pose, core::CameraMount()), mount);
+  return r;
 }
 
 void NavInput::onNav(const nav_msgs::OdometryConstPtr& msg) {
   ++received_;
   core::NavRecord r;
   std::string why;
-  bool ok = rc::navFromMsg(*msg, mount_, &r, &why);
+  bool ok = rc::navFromMsg(*msg, core::CameraMount(), &r, &why);
   if (ok) {
     std::lock_guard<std::mutex> lock(mutex_);
     // Further back than a late reading may be: a new clock (a bag played again), the track restarts.
@@ -93,7 +95,7 @@ std::optional<core::NavRecord> NavInput::fromTopic(double stamp_s) {
   return r;
 }
 
-std::optional<core::NavRecord> NavInput::fromTf(const ros::Time& stamp) {
+std::optional<core::NavRecord> NavInput::fromTf(const ros::Time& stamp, const core::CameraMount& mount) {
   geometry_msgs::TransformStamped t;
   try {
     t = tf_buffer_->lookupTransform(options_.odom_frame, options_.base_frame, stamp, ros::Duration(options_.tf_wait_s));
@@ -108,7 +110,7 @@ std::optional<core::NavRecord> NavInput::fromTf(const ros::Time& stamp) {
     ++tf_missing_;
     return std::nullopt;
   }
-  return drift_.add(stamp.toSec(), vehicle, mount_);
+  return drift_.add(stamp.toSec(), vehicle, mount);
 }
 
 }  // namespace ros_inputs

@@ -1,5 +1,7 @@
 #include "uw_multislam/ros/odometry_counters.h"
 
+#include <cstdio>
+
 namespace uw_multislam {
 namespace ros_diagnostics {
 
@@ -29,11 +31,14 @@ const CounterTable<OdometryCounters>& odometryCounterTable() {
        "altitude stamps jumped back (a bag that loops, a clock reset): the earlier readings dropped"},
       {"frames_processed", &C::frames_processed, "frames the worker took (finished or in progress)"},
       {"frames_finished", &C::frames_finished, "frames the worker is done with (published or skipped)"},
-      {"dropped_queue_full", &C::dropped_queue_full, "frames the worker's FIFO dropped when full (the oldest)", kWarn},
+      {"dropped_queue_full", &C::dropped_queue_full, "frames the worker's queue dropped when full (the oldest)", kWarn},
+      // Deliberate (bounded latency); the WARN is the budget's, while the input outruns the odometry.
+      {"skipped_for_newest", &C::skipped_for_newest,
+       "frames the worker passed over for a newer one it could safely take (~drop_policy newest: it was behind)"},
       {"paused", &C::paused, "1 while paused by the operator (services pause, resume), else 0"},
       {"frames_dropped_paused", &C::frames_dropped_paused,
        "frames the worker dropped while paused, among the finished"},
-      {"queue_length", &C::queue_length, "frames waiting in the worker's FIFO"},
+      {"queue_length", &C::queue_length, "frames waiting in the worker's queue"},
       {"skipped_empty_image", &C::skipped_empty_image, "frames skipped: an empty image", kWarn},
       {"skipped_encoding", &C::skipped_encoding,
        "frames skipped: an encoding the odometry cannot use (float, YUV, ...), or a compressed format neither jpeg "
@@ -56,6 +61,10 @@ const CounterTable<OdometryCounters>& odometryCounterTable() {
       {"skipped_out_of_order", &C::skipped_out_of_order,
        "frames skipped: a stamp up to ~reorder_tolerance_s before the last frame's", kWarn},
       {"skipped_by_odometry", &C::skipped_by_odometry, "frames the core odometry skipped (e.g. no valid altitude yet)",
+       kWarn},
+      {"skipped_no_mount", &C::skipped_no_mount,
+       "frames refused: no base_link -> camera (image frame_id) or -> altimeter (Range frame_id) transform in tf, or "
+       "a tilted camera (the status is ERROR while they are)",
        kWarn},
       {"bad_altitude_replaced", &C::bad_altitude_replaced,
        "frames whose altitude would use an invalid reading: the last valid altitude is used", kWarn},
@@ -84,6 +93,9 @@ const CounterTable<OdometryCounters>& odometryCounterTable() {
       {"ms_per_frame_mean", &C::ms_per_frame_mean, "mean time per finished frame, ms"},
       {"ms_per_frame_max", &C::ms_per_frame_max, "longest time of a frame, ms"},
       {"ms_last_frame", &C::ms_last_frame, "time of the last frame, ms"},
+      {"ms_per_frame_recent", &C::ms_per_frame_recent, "the budget: mean time of the last ~20 frames, ms"},
+      {"input_period_ms", &C::input_period_ms,
+       "mean interval between the last ~20 paired frames' arrivals, ms (WARN while ms_per_frame_recent is above it)"},
   };
   return table;
 }
@@ -96,6 +108,18 @@ void setPairingCounters(const core::InputPairingCounts& in, std::size_t waiting,
   c->skipped_no_altitude = in.skipped_no_altitude;
   c->altitude_stamps_jumped_back = in.altitude_clears;
   c->images_waiting_pairing = static_cast<long>(waiting);
+}
+
+std::string budgetProblem(const OdometryCounters& c, const std::string& drop_policy, bool arriving) {
+  if (!arriving || c.input_period_ms <= 0 || c.ms_per_frame_recent <= c.input_period_ms) return "";
+  char line[320];
+  std::snprintf(line, sizeof(line),
+                "the input outruns the odometry: %.1f ms per frame against an input period of %.1f ms (%s: %ld "
+                "frames skipped for a newer one, %ld dropped from a full queue so far)",
+                c.ms_per_frame_recent, c.input_period_ms,
+                drop_policy == "newest" ? "the newest frame that is safe to take" : "every frame in order",
+                c.skipped_for_newest, c.dropped_queue_full);
+  return line;
 }
 
 long OdometryCounters::*imageRefusalCounter(ros_conversions::ImageRefusal refusal) {

@@ -61,7 +61,7 @@ class RelocaliseTest(unittest.TestCase):
         self.assertIn("  page_stored: true ", text)
         with open(config, "w") as f:
             f.write(text.replace("  page_stored: true ", "  page_stored: %s " % ("true" if self.page else "false")))
-        self.launch = subprocess.Popen(["roslaunch", "uw_multislam", "slam.launch", "store_path:=" + self.db,
+        self.launch = subprocess.Popen(["roslaunch", "uw_multislam", "slam.launch", "camera_mount:=0 0 0 0", "store_path:=" + self.db,
                                         "mode:=localisation", "reload_stored:=true", "slam_config:=" + config],
                                        stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
 

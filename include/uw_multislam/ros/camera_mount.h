@@ -11,8 +11,14 @@
 #include <geometry_msgs/TransformStamped.h>
 #include <ros/node_handle.h>
 
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/transform_listener.h>
+
 #include <array>
+#include <memory>
+#include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "uw_multislam/core/geometry/vehicle_frame.h"
@@ -51,6 +57,36 @@ bool mountFromTransforms(const geometry_msgs::Transform& base_from_camera_optica
 /// mount (the caller WARNs). `note` says where the mount came from. std::invalid_argument for a
 /// tilted camera.
 bool resolveCameraMount(const ros::NodeHandle& nh, const MountOptions& o, core::CameraMount* out, std::string* note);
+
+/// The mount of the sensors that named their frames: base_frame -> the camera's frame (an image's
+/// header.frame_id) and base_frame -> the altimeter's (a Range's header.frame_id), looked up in
+/// tf (the vehicle's URDF through robot_state_publisher, or scripts/mount_publisher.py) and kept
+/// once found (they are static). No default: without them the caller refuses the frame. The
+/// first lookup waits up to wait_s (wall time: simulated time may not run yet) for them; later
+/// ones do not wait, so a refused frame costs nothing. Not thread-safe (the odometry's worker).
+class SensorMount {
+ public:
+  SensorMount(ros::NodeHandle nh, const std::string& base_frame, double wait_s, double max_tilt_rad);
+
+  enum class State { kResolved, kMissing, kRefused };
+  struct Lookup {
+    State state = State::kMissing;
+    core::CameraMount mount;  // when kResolved
+    std::string message;      // kMissing / kRefused: what is missing or wrong; kResolved: where it came from
+    bool fresh = false;       // kResolved for these frames for the first time (log it)
+  };
+  /// The mount for these frames (`altimeter_frame` empty: no altimeter, the altitude is the camera's).
+  Lookup get(const std::string& camera_frame, const std::string& altimeter_frame);
+
+ private:
+  std::string base_frame_;
+  double wait_s_, max_tilt_rad_;
+  std::optional<double> deadline_s_;  // wall time: the first lookup's wait ends then
+  std::unique_ptr<tf2_ros::Buffer> buffer_;
+  std::unique_ptr<tf2_ros::TransformListener> listener_;
+  std::optional<std::pair<std::string, std::string>> resolved_for_;
+  core::CameraMount resolved_;
+};
 
 }  // namespace ros_frames
 }  // namespace uw_multislam

@@ -61,10 +61,9 @@ class TfNavDrift {
 class NavInput {
  public:
   /// Subscribes to `topic` (source topic) or listens to tf (source tf); nothing with none.
-  NavInput(ros::NodeHandle nh, const std::string& topic, const NavInputOptions& options,
-           const core::CameraMount& mount);
-  /// The nav at a frame's stamp, if there is one (the worker's thread).
-  std::optional<core::NavRecord> at(const ros::Time& stamp);
+  NavInput(ros::NodeHandle nh, const std::string& topic, const NavInputOptions& options);
+  /// The nav at a frame's stamp, if there is one: the camera's pose by `mount` (the worker's thread).
+  std::optional<core::NavRecord> at(const ros::Time& stamp, const core::CameraMount& mount);
   void shutdown() { sub_.shutdown(); }
   long received() const { return received_; }
   long refused() const { return refused_; }
@@ -75,13 +74,14 @@ class NavInput {
  private:
   void onNav(const nav_msgs::OdometryConstPtr& msg);
   std::optional<core::NavRecord> fromTopic(double stamp_s);
-  std::optional<core::NavRecord> fromTf(const ros::Time& stamp);
+  std::optional<core::NavRecord> fromTf(const ros::Time& stamp, const core::CameraMount& mount);
 
   NavInputOptions options_;
-  core::CameraMount mount_;
   std::mutex mutex_;
   std::condition_variable appended_;
-  core::NavTrack track_;         // guarded by mutex_
+  // Guarded by mutex_: the readings as the camera's poses of a camera at base_link (the identity
+  // mount): the mount comes from tf at the first frame, after readings may have arrived.
+  core::NavTrack track_;
   ros::WallTime last_appended_;  // guarded by mutex_: when the last reading was appended (zero: none yet)
   std::atomic<long> received_{0}, refused_{0}, tf_missing_{0};
   std::unique_ptr<tf2_ros::Buffer> tf_buffer_;

@@ -1,7 +1,8 @@
 // The odometry nodelet's options: its own parameters (~ private; config/default.yaml and
-// doc/nodes/odometry.md document each), the SLAM configuration it runs, the camera mount and the
-// fallback calibration, read and validated once by odometryNodeletOptions() (the nodelet never
-// reads a parameter itself). Tested in rostest bad_input (each refusal names the key).
+// doc/nodes/odometry.md document each), the SLAM configuration it runs, the frames and the
+// fallback calibration (the sensors' mount comes from tf at the first frame, ros/camera_mount.h), read and validated
+// once by odometryNodeletOptions() (the nodelet never reads a parameter itself). Tested in rostest bad_input (each
+// refusal names the key).
 #pragma once
 
 #include <ros/node_handle.h>
@@ -21,17 +22,18 @@ namespace ros_params {
 
 struct OdometryNodeletOptions {
   bool use_altitude_topic = true;
-  double altitude_m = 0.0;           // used when use_altitude_topic is false
-  int queue_size = 5;                // frames waiting for the worker
-  int prepare_threads = 0;           // frames waiting that are prepared ahead, each on its own thread
-  int sync_queue_size = 10;          // subscriber queues; 2x: images waiting for their pairing
-  double sync_max_interval_s = 0.1;  // largest image - camera_info stamp difference
-  double altitude_max_age_s = 1.0;   // altitude: largest gap interpolated / age used alone; longest wait
-  int session = 0;                   // id of the first session
-  double session_gap_s = 10.0;       // stamps jumping forward more than this start a session; 0 = never
-  double reorder_tolerance_s = 1.0;  // stamps at most this far back are late frames (skipped)
-  double input_timeout_s = 5.0;      // images without a synchronised set this long: warn
-  double fallback_altitude_m = 0.0;  // > 0: used when the altitude topic is silent; 0 = off
+  double altitude_m = 0.0;             // used when use_altitude_topic is false
+  int queue_size = 5;                  // frames waiting for the worker
+  std::string drop_policy = "newest";  // newest: the newest safe frame is taken (core::FrameSkipRule); oldest: FIFO
+  int prepare_threads = 0;             // frames waiting that are prepared ahead, each on its own thread (oldest only)
+  int sync_queue_size = 10;            // subscriber queues; 2x: images waiting for their pairing
+  double sync_max_interval_s = 0.1;    // largest image - camera_info stamp difference
+  double altitude_max_age_s = 1.0;     // altitude: largest gap interpolated / age used alone; longest wait
+  int session = 0;                     // id of the first session
+  double session_gap_s = 10.0;         // stamps jumping forward more than this start a session; 0 = never
+  double reorder_tolerance_s = 1.0;    // stamps at most this far back are late frames (skipped)
+  double input_timeout_s = 5.0;        // images without a synchronised set this long: warn
+  double fallback_altitude_m = 0.0;    // > 0: used when the altitude topic is silent; 0 = off
   double diagnostic_period_s = 1.0;
   double stats_period_s = 30.0;
   int max_image_pixels = 25000000;   // larger images are skipped before any conversion (counted)
@@ -46,11 +48,11 @@ struct OdometryNodeletOptions {
   std::string session_frame_prefix = topics::kDefaultSessionFramePrefix;
   std::string odom_frame = "odom", base_frame = "base_link";  // frames/ (~nav_source tf)
 
+  double mount_wait_s = 2.0;         // frames/mount_wait_s: the first frame waits this long for the mount in tf
+  double max_camera_tilt_deg = 5.0;  // frames/max_camera_tilt_deg: a more tilted camera is refused
+
   core::SlamConfig config;                               // slam/ (config/slam.yaml), validated
   sensor_msgs::CameraInfoConstPtr fallback_camera_info;  // from camera_info_url (null without one)
-  core::CameraMount mount;     // the altimeter's range + its camera_above_altimeter_m; odometry/pose is base_link's
-  bool mount_resolved = true;  // false: tf had no mount in time, the default is used (mount_note says so)
-  std::string mount_note;
 
   /// The pairing rules these options give (core::InputPairing).
   core::InputPairingOptions pairing() const;

@@ -1,11 +1,14 @@
 // uw_multislam/Odometry: paper 000 §5 (core::SegmentedOdometry) on live images. Topics, services,
 // parameters, sessions, pause, bad input: doc/nodes/odometry.md; counters: doc/diagnostics.md.
 // Threading: the image, camera_info and altitude callbacks (any of the manager's threads) pair
-// under pairing_mutex_ (core::InputPairing) and push each paired frame onto a bounded FIFO
+// under pairing_mutex_ (core::InputPairing) and push each paired frame onto a bounded queue
 // (~queue_size; when full the OLDEST is dropped and counted, its stamp handed on to the next). One
-// worker owns the odometry and does the rest (conversion, SIFT, RANSAC, publishing); with
-// ~prepare_threads it has frames already waiting prepared ahead (core::OrderedPrefetch). On unload
-// the FIFO is closed and the worker processes what is in it before it is joined.
+// worker owns the odometry and does the rest (the sensor mount from tf, conversion, SIFT, RANSAC,
+// publishing). When it is free it takes, with ~drop_policy newest, the newest waiting frame that is
+// safe to take (core::FrameSkipRule: the ones before it are skipped, counted, their stamps handed
+// on), with oldest the oldest; with ~prepare_threads (oldest only) it has frames already waiting
+// prepared ahead (core::OrderedPrefetch). On unload the queue is closed and the worker processes
+// what is in it before it is joined.
 #pragma once
 
 #include <diagnostic_updater/diagnostic_updater.h>
@@ -14,14 +17,18 @@
 #include <sensor_msgs/Range.h>
 
 #include <atomic>
+#include <deque>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <thread>
 
 #include "uw_multislam/OperatorCommand.h"
 #include "uw_multislam/SessionState.h"
+#include "uw_multislam/core/frontend/frame_skip.h"
 #include "uw_multislam/core/frontend/stream_control.h"
 #include "uw_multislam/core/frontend/tracking.h"
+#include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/image_input.h"
 #include "uw_multislam/ros/keyframe_publisher.h"
 #include "uw_multislam/ros/nav_input.h"
@@ -42,7 +49,8 @@ class OdometryNodelet : public nodelet::Nodelet {
     ros_inputs::ImageMsg msg;
     sensor_msgs::CameraInfoConstPtr info;
     core::PairedAltitude altitude = core::PairedAltitude::kFixed;
-    double altitude_m = 0.0;          // the camera's (NaN: the core reuses the last valid one)
+    double altitude_m = 0.0;          // kReading: the altimeter's range, else the camera's (NaN: the last valid one)
+    std::string altimeter_frame;      // of the altitude readings (empty: none yet, or no altitude topic)
     std::vector<double> passed_over;  // stamps received before it and not processed: seen, no time gap
   };
   struct Ahead {  // a frame converted and prepared on another thread (~prepare_threads)
@@ -56,6 +64,8 @@ class OdometryNodelet : public nodelet::Nodelet {
   bool setPaused(bool paused, uw_multislam::OperatorCommand::Response* res);
   void handle(Pairing::Decisions decisions);  // pushes the paired frames, logs the skipped; under pairing_mutex_
   void work();
+  void run(Frame& f, Ahead* ahead);                          // one frame, timed
+  std::size_t chooseNext(const std::deque<Frame>& waiting);  // ~drop_policy newest (the worker, under the queue's lock)
   using Refusal = long ros_diagnostics::OdometryCounters::*;  // convert(): null, or the refusal's counter
   Refusal convert(const Frame& f, core::CameraIntrinsics* camera, cv::Mat* image, std::string* why) const;
   Ahead prepareAhead(const Frame& f) const;
@@ -73,14 +83,21 @@ class OdometryNodelet : public nodelet::Nodelet {
   core::StreamControl control_;  // pause / resume and the back-end's session requests (thread-safe)
   std::mutex pairing_mutex_;
   std::unique_ptr<Pairing> pairing_;                           // guarded by pairing_mutex_
+  std::string altimeter_frame_;                                // guarded by pairing_mutex_: the last Range's frame
   std::atomic<long> ranges_refused_{0}, ranges_above_max_{0};  // altitude readings refused, of those above the max
   std::mutex stats_mutex_;
-  ros_diagnostics::OdometryCounters published_;       // guarded by stats_mutex_: the worker's, after each frame
+  ros_diagnostics::OdometryCounters published_;  // guarded by stats_mutex_: the worker's, after each frame
+  std::string mount_error_;                      // guarded by stats_mutex_: why frames are refused, while they are
+  std::mutex budget_mutex_;
+  core::FrameBudget budget_;                          // guarded by budget_mutex_
   ros_diagnostics::CounterStatus diagnostic_status_;  // the updater's thread only
   // Worker-only state.
   std::unique_ptr<core::SegmentedOdometry> odometry_;  // a new session on tracking loss
   std::unique_ptr<core::StampGuard> stamps_;
   core::CameraIntrinsics camera_;  // the session's
+  std::unique_ptr<ros_frames::SensorMount> sensor_mount_;
+  core::CameraMount mount_;                       // the sensors' on the vehicle, once tf gave it
+  std::optional<core::FrameSkipRule> skip_rule_;  // the session's (~drop_policy newest)
   int session_ = 0, frame_index_ = 0;
   ros_diagnostics::OdometryCounters counts_;
   ros::WallTime last_stats_;
