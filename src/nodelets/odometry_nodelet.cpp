@@ -432,6 +432,7 @@ OdometryCounters OdometryNodelet::snapshot(OdometryCounters c) {
   c.images_not_paired = std::max(0L, c.images_received - c.frames_synchronised);
   c.paused = control_.paused() ? 1 : 0;
   c.nav_received = nav_->received(), c.nav_refused = nav_->refused(), c.nav_tf_missing = nav_->tfMissing();
+  c.nav_covariance_replaced = nav_->covarianceReplaced();
   c.ms_per_frame_mean = c.frames_finished > 0 ? c.total_ms / static_cast<double>(c.frames_finished) : 0.0;
   return c;
 }

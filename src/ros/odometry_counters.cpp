@@ -78,7 +78,13 @@ const CounterTable<OdometryCounters>& odometryCounterTable() {
       {"tracking_losses", &C::tracking_losses, "sessions closed by the tracking-loss rule", kWarn},
       {"nav_received", &C::nav_received, "nav/odom readings received (~nav_source topic)"},
       {"nav_refused", &C::nav_refused,
-       "nav readings refused: not finite, a negative variance, a zero stamp or not after the last one", kWarn},
+       "nav readings refused: frames other than odom / odom_ned and base_link / base_link_frd, not finite, a "
+       "negative variance, a zero stamp or not after the last one",
+       kWarn},
+      {"nav_covariance_replaced", &C::nav_covariance_replaced,
+       "nav readings whose covariance did not grow over 2 m travelled (constant or zero): the drift model's sigmas "
+       "used (~nav_tf_drift)",
+       kWarn},
       {"frames_with_nav", &C::frames_with_nav, "frames given a nav pose"},
       {"nav_motions", &C::nav_motions, "motions taken from the nav (vision failed, or the gate refused its motion)"},
       {"fused_motions", &C::fused_motions, "visual motions fused with the nav's (slam/odometry/nav/fuse)"},

@@ -30,7 +30,7 @@ struct OdometryCounters {
   long bad_altitude_replaced = 0, fixed_altitude_frames = 0, time_jumps_back = 0, time_jumps_forward = 0;
   long fallbacks = 0, tracking_losses = 0;
   long nav_received = 0, nav_refused = 0, frames_with_nav = 0, nav_motions = 0, fused_motions = 0;
-  long nav_implausible = 0, nav_tf_missing = 0, prepared_ahead = 0;
+  long nav_implausible = 0, nav_tf_missing = 0, nav_covariance_replaced = 0, prepared_ahead = 0;
   long sessions = 0, session = 0, keyframes = 0;
   double ms_per_frame_mean = 0.0, ms_per_frame_max = 0.0, ms_last_frame = 0.0;
   double ms_per_frame_recent = 0.0, input_period_ms = 0.0;  // the budget (core::FrameBudget)
