@@ -17,19 +17,6 @@ namespace uw_multislam {
 namespace ros_frames {
 
 namespace {
-bool finite(const std::array<double, 3>& v) {
-  return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]) && std::abs(v[0]) < 1e3 &&
-         std::abs(v[1]) < 1e3 && std::abs(v[2]) < 1e3;
-}
-
-std::array<double, 3> position(const ros::NodeHandle& nh, const std::string& key) {
-  std::vector<double> v{0.0, 0.0, 0.0};
-  if (nh.hasParam(key) && (!nh.getParam(key, v) || v.size() != 3 || !finite({v[0], v[1], v[2]})))
-    throw std::invalid_argument(nh.resolveName(key) +
-                                ": must be [x, y, z] in metres in the base frame, each finite, |.| < 1000");
-  return {v[0], v[1], v[2]};
-}
-
 tf2::Transform toTf(const geometry_msgs::Transform& m) {
   tf2::Transform t;
   tf2::fromMsg(m, t);
@@ -49,47 +36,20 @@ MountOptions mountOptions(const ros::NodeHandle& nh) {
   auto nonempty = [](const std::string& s) { return !s.empty(); };
   MountOptions o;
   o.base_frame = param(nh, "frames/base_frame", o.base_frame, nonempty, "a frame id");
-  o.camera_frame = param(nh, "frames/camera_frame", o.camera_frame, nonempty, "a frame id");
-  o.altimeter_frame = param(nh, "frames/altimeter_frame", o.altimeter_frame, nonempty, "a frame id");
-  if (o.camera_frame == o.base_frame || o.altimeter_frame == o.base_frame)
-    throw std::invalid_argument(nh.resolveName("frames") +
-                                ": camera_frame and altimeter_frame must differ from base_frame");
-  o.publish_tf = param(
-      nh, "frames/publish_mount_tf", true, [](bool) { return true; }, "a bool");
-  o.camera_position = position(nh, "frames/camera_position");
-  o.camera_yaw = param(
-      nh, "frames/camera_yaw", 0.0, [](double v) { return std::isfinite(v) && std::abs(v) <= 2 * M_PI; },
-      "in [-2 pi, 2 pi] rad");
-  o.altimeter_position = position(nh, "frames/altimeter_position");
   o.wait_s = param(
       nh, "frames/mount_wait_s", 2.0, [](double v) { return v >= 0 && v <= 60; }, "in [0, 60] s");
   o.max_tilt_deg = param(
       nh, "frames/max_camera_tilt_deg", 5.0, [](double v) { return v >= 0 && v <= 45; }, "in [0, 45] degrees");
+  std::string former;
+  for (const char* key :
+       {"camera_position", "camera_yaw", "altimeter_position", "publish_mount_tf", "camera_frame", "altimeter_frame"})
+    if (nh.hasParam(std::string("frames/") + key)) former += std::string(former.empty() ? "" : ", ") + key;
+  if (!former.empty())
+    ROS_WARN_ONCE(
+        "%s: %s not read any more: the sensors' mount comes from tf, base_link -> the frame_id of the images and "
+        "of the altitude readings (the vehicle's URDF, or the launch files' camera_mount / altimeter_mount arguments)",
+        nh.resolveName("frames").c_str(), former.c_str());
   return o;
-}
-
-std::vector<geometry_msgs::TransformStamped> mountTransforms(const MountOptions& o, const ros::Time& stamp) {
-  // The optical frame is the level frame (x along the columns, z up) turned by pi about x.
-  tf2::Quaternion level;
-  level.setRPY(0.0, 0.0, o.camera_yaw);
-  tf2::Quaternion flip;
-  flip.setRPY(M_PI, 0.0, 0.0);
-  std::vector<geometry_msgs::TransformStamped> out(2);
-  for (auto& t : out) {
-    t.header.stamp = stamp;
-    t.header.frame_id = o.base_frame;
-  }
-  out[0].child_frame_id = o.camera_frame;
-  out[0].transform.translation.x = o.camera_position[0];
-  out[0].transform.translation.y = o.camera_position[1];
-  out[0].transform.translation.z = o.camera_position[2];
-  out[0].transform.rotation = tf2::toMsg((level * flip).normalized());
-  out[1].child_frame_id = o.altimeter_frame;
-  out[1].transform.translation.x = o.altimeter_position[0];
-  out[1].transform.translation.y = o.altimeter_position[1];
-  out[1].transform.translation.z = o.altimeter_position[2];
-  out[1].transform.rotation.w = 1.0;
-  return out;
 }
 
 bool mountFromTransforms(const geometry_msgs::Transform& base_from_camera_optical,
@@ -114,38 +74,6 @@ bool mountFromTransforms(const geometry_msgs::Transform& base_from_camera_optica
   const tf2::Vector3 x = level.getColumn(0);
   out->base_from_camera = core::Pose2(cam.getOrigin().x(), cam.getOrigin().y(), std::atan2(x.y(), x.x()));
   out->camera_above_altimeter_m = cam.getOrigin().z() - base_from_altimeter.translation.z;
-  return true;
-}
-
-bool resolveCameraMount(const ros::NodeHandle& nh, const MountOptions& o, core::CameraMount* out, std::string* note) {
-  std::vector<geometry_msgs::TransformStamped> t = mountTransforms(o, ros::Time(0));
-  core::CameraMount mount;
-  std::string why;
-  if (!o.publish_tf) {
-    // The vehicle's static transforms: a listener of our own for the wait (a poll of an awaited
-    // condition, bounded by wait_s of wall time: simulated time may not run yet).
-    tf2_ros::Buffer buffer;
-    tf2_ros::TransformListener listener(buffer, ros::NodeHandle(nh), true);
-    const ros::WallTime until = ros::WallTime::now() + ros::WallDuration(o.wait_s);
-    bool found = false;
-    while (!(found = buffer.canTransform(o.base_frame, o.camera_frame, ros::Time(0)) &&
-                     buffer.canTransform(o.base_frame, o.altimeter_frame, ros::Time(0))) &&
-           ros::WallTime::now() < until && ros::ok())
-      ros::WallDuration(0.01).sleep();
-    if (!found) {
-      *note = "no " + o.base_frame + " -> " + o.camera_frame + " / " + o.altimeter_frame + " in tf within " +
-              std::to_string(o.wait_s) + " s (frames/publish_mount_tf is false): the default mount, " +
-              core::describe(mount);
-      *out = mount;
-      return false;
-    }
-    t[0] = buffer.lookupTransform(o.base_frame, o.camera_frame, ros::Time(0));
-    t[1] = buffer.lookupTransform(o.base_frame, o.altimeter_frame, ros::Time(0));
-  }
-  if (!mountFromTransforms(t[0].transform, t[1].transform, o.max_tilt_deg * M_PI / 180.0, &mount, &why))
-    throw std::invalid_argument(o.base_frame + " -> " + o.camera_frame + ": " + why);
-  *note = std::string(o.publish_tf ? "from the frames/ parameters" : "from tf") + ": " + core::describe(mount);
-  *out = mount;
   return true;
 }
 

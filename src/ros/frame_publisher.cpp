@@ -1,6 +1,9 @@
 #include "uw_multislam/ros/frame_publisher.h"
 
+#include <cmath>
 #include <vector>
+
+#include "uw_multislam/Keyframe.h"
 
 #include "uw_multislam/ros/conversions.h"
 
@@ -14,13 +17,12 @@ bool same(const core::Pose2& a, const core::Pose2& b) { return a.x() == b.x() &&
 }  // namespace
 
 FramePublisher::FramePublisher(ros::NodeHandle nh, const FrameOptions& options) : options_(options) {
-  std::string note;
-  if (resolveCameraMount(nh, options_.mount, &mount_, &note))
-    ROS_INFO("frames: camera mount %s", note.c_str());
-  else
-    ROS_WARN("frames: %s", note.c_str());
-  if (options_.publish_tf && options_.mount.publish_tf)
-    static_tf_.sendTransform(mountTransforms(options_.mount, ros::Time::now()));
+  mount_buffer_ = std::make_unique<tf2_ros::Buffer>();
+  mount_listener_ = std::make_unique<tf2_ros::TransformListener>(*mount_buffer_, nh, true);
+  // The camera's frame is the one the images name (the keyframes carry their header); one
+  // subscription of the process per topic, so no second copy of the keyframes is received.
+  camera_frame_sub_ = nh.subscribe<uw_multislam::Keyframe>(
+      topics::kKeyframes, 10, [this](const uw_multislam::KeyframeConstPtr& k) { onCameraFrame(k->header.frame_id); });
   if (options_.publish_tf && !options_.publish_odom_tf) {
     buffer_ = std::make_unique<tf2_ros::Buffer>();
     listener_ = std::make_unique<tf2_ros::TransformListener>(*buffer_, nh);
@@ -32,16 +34,57 @@ FramePublisher::FramePublisher(ros::NodeHandle nh, const FrameOptions& options) 
                                 [this](const ros::SteadyTimerEvent&) { tick(); });
 }
 
-FramePublisher::~FramePublisher() { timer_.stop(); }
+FramePublisher::~FramePublisher() {
+  timer_.stop();
+  camera_frame_sub_.shutdown();
+}
+
+void FramePublisher::onCameraFrame(const std::string& frame) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (frame.empty() || frame == mount_for_) return;
+    camera_frame_ = frame;
+  }
+  geometry_msgs::TransformStamped t;
+  std::string why;
+  core::CameraMount m;
+  try {
+    t = mount_buffer_->lookupTransform(options_.mount.base_frame, frame, ros::Time(0));
+  } catch (const tf2::TransformException& e) {
+    ROS_WARN_THROTTLE(10, "frames: no %s -> %s in tf (%s): poses drawn as the camera's until it comes",
+                      options_.mount.base_frame.c_str(), frame.c_str(), e.what());
+    return;
+  }
+  // The altimeter does not matter here: only the camera's place in base_link's plane.
+  geometry_msgs::Transform level_altimeter = t.transform;
+  level_altimeter.rotation = geometry_msgs::Quaternion();
+  level_altimeter.rotation.w = 1.0;
+  if (!mountFromTransforms(t.transform, level_altimeter, options_.mount.max_tilt_deg * M_PI / 180.0, &m, &why)) {
+    ROS_WARN_THROTTLE(10, "frames: %s -> %s: %s", options_.mount.base_frame.c_str(), frame.c_str(), why.c_str());
+    return;
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    mount_ = m;
+    mount_for_ = frame;
+  }
+  ROS_INFO("frames: camera mount from tf, %s -> %s: %s", options_.mount.base_frame.c_str(), frame.c_str(),
+           core::describe(m).c_str());
+}
+
+core::CameraMount FramePublisher::mount() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return mount_;
+}
 
 void FramePublisher::setActive(int session, const core::Pose2& map_from_session,
                                const core::Pose2& map_from_last_keyframe, const ros::Time& keyframe_stamp) {
+  const core::Pose2 base = vehicle(map_from_last_keyframe);  // (takes the lock itself)
   {
     std::lock_guard<std::mutex> lock(mutex_);
     active_ = session;
     map_from_session_ = core::zUp(map_from_session);
-    if (options_.publish_tf && !options_.publish_odom_tf)
-      keyframe_ = std::make_pair(vehicle(map_from_last_keyframe), keyframe_stamp);
+    if (options_.publish_tf && !options_.publish_odom_tf) keyframe_ = std::make_pair(base, keyframe_stamp);
   }
   if (options_.publish_tf) tick();  // a new correction (a join, an optimisation) goes out now, not at the next tick
 }
@@ -63,7 +106,7 @@ void FramePublisher::setSessionFrames(const std::map<int, core::Pose2>& map_from
 }
 
 std::optional<core::Pose2> FramePublisher::onOdometry(int session, const core::UncertainPose2& pose,
-                                                       const ros::Time& stamp) {
+                                                      const ros::Time& stamp) {
   std::optional<core::Pose2> in_map;
   core::Pose2 in_odom;
   nav_msgs::Odometry odom;
@@ -80,9 +123,9 @@ std::optional<core::Pose2> FramePublisher::onOdometry(int session, const core::U
       // odom <- base = (odom <- session, exact) (+) (session <- base): the covariance turns with the placement.
       const core::UncertainPose2 u = core::compose(core::UncertainPose2::exact(*chain_.offset(session)), pose);
       const bool later = last_odom_ && stamp > last_odom_->second;
-      odom = rc::toOdometryMsg(u, later ? &last_odom_->first : nullptr,
-                               later ? (stamp - last_odom_->second).toSec() : 0.0, options_.odom_frame,
-                               options_.base_frame, stamp);
+      odom =
+          rc::toOdometryMsg(u, later ? &last_odom_->first : nullptr, later ? (stamp - last_odom_->second).toSec() : 0.0,
+                            options_.odom_frame, options_.base_frame, stamp);
       last_odom_ = std::make_pair(in_odom, stamp);
     }
   }

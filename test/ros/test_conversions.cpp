@@ -184,37 +184,35 @@ TEST(CameraMount, OpticalAxesWrittenByHandGiveTheMount) {
   r.col(2) = -Eigen::Vector3d::UnitZ();
   core::CameraMount m;
   std::string why;
-  ASSERT_TRUE(ros_frames::mountFromTransforms(transformOf({0.5, 0.1, -0.2}, r),
-                                              transformOf({0.0, 0.0, -0.35}, Eigen::Matrix3d::Identity()), 0.1, &m,
-                                              &why))
+  ASSERT_TRUE(ros_frames::mountFromTransforms(
+      transformOf({0.5, 0.1, -0.2}, r), transformOf({0.0, 0.0, -0.35}, Eigen::Matrix3d::Identity()), 0.1, &m, &why))
       << why;
   EXPECT_TRUE(core::approxEqual(m.base_from_camera, Pose2(0.5, 0.1, M_PI / 2), 1e-12, 1e-12)) << m.base_from_camera;
   EXPECT_NEAR(m.camera_above_altimeter_m, 0.15, 1e-12);
 }
 
-TEST(CameraMount, PublishedTransformsReadBackAsTheirOptions) {
+TEST(CameraMount, TheLaunchPublishersTransformsReadBackAsTheMount) {
+  // scripts/mount_publisher.py: the optical frame is the level frame (yaw about z) turned by pi
+  // about x, quaternion (x, y, z, w) = (cos(yaw / 2), sin(yaw / 2), 0, 0); the altimeter unrotated.
   std::mt19937 rng(3);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   for (int i = 0; i < 50; ++i) {
-    ros_frames::MountOptions o;
-    o.camera_position = {u(rng), u(rng), u(rng)};
-    o.camera_yaw = 3 * u(rng);
-    o.altimeter_position = {u(rng), u(rng), u(rng)};
-    const auto t = ros_frames::mountTransforms(o, ros::Time(0));
-    ASSERT_EQ(t.size(), 2u);
-    EXPECT_EQ(t[0].header.frame_id, "base_link");
-    EXPECT_EQ(t[0].child_frame_id, "camera_optical");
-    EXPECT_EQ(t[1].child_frame_id, "altimeter");
+    const Eigen::Vector3d camera(u(rng), u(rng), u(rng)), altimeter(u(rng), u(rng), u(rng));
+    const double yaw = 3 * u(rng);
+    geometry_msgs::Transform c, a;
+    c.translation.x = camera.x(), c.translation.y = camera.y(), c.translation.z = camera.z();
+    c.rotation.x = std::cos(yaw / 2), c.rotation.y = std::sin(yaw / 2), c.rotation.z = 0, c.rotation.w = 0;
+    a.translation.x = altimeter.x(), a.translation.y = altimeter.y(), a.translation.z = altimeter.z();
+    a.rotation.w = 1.0;
     // The optical axis points down in base_link (an independent rotation of (0, 0, 1)).
-    const auto& q = t[0].transform.rotation;
-    const Eigen::Vector3d axis = Eigen::Quaterniond(q.w, q.x, q.y, q.z) * Eigen::Vector3d::UnitZ();
+    const Eigen::Vector3d axis =
+        Eigen::Quaterniond(c.rotation.w, c.rotation.x, c.rotation.y, c.rotation.z) * Eigen::Vector3d::UnitZ();
     EXPECT_NEAR((axis + Eigen::Vector3d::UnitZ()).norm(), 0.0, 1e-12);
     core::CameraMount m;
     std::string why;
-    ASSERT_TRUE(ros_frames::mountFromTransforms(t[0].transform, t[1].transform, 1e-6, &m, &why)) << why;
-    EXPECT_TRUE(core::approxEqual(
-        m.base_from_camera, Pose2(o.camera_position[0], o.camera_position[1], o.camera_yaw), 1e-12, 1e-9));
-    EXPECT_NEAR(m.camera_above_altimeter_m, o.camera_position[2] - o.altimeter_position[2], 1e-12);
+    ASSERT_TRUE(ros_frames::mountFromTransforms(c, a, 1e-6, &m, &why)) << why;
+    EXPECT_TRUE(core::approxEqual(m.base_from_camera, Pose2(camera.x(), camera.y(), yaw), 1e-12, 1e-9));
+    EXPECT_NEAR(m.camera_above_altimeter_m, camera.z() - altimeter.z(), 1e-12);
   }
 }
 

@@ -43,7 +43,7 @@ from uw_multislam.srv import JoinSessions, ListSessions
 
 TOLERANCE_M = 0.10  # SLAM's pose of base_link in session 0 vs the ground truth (the odometry drifts ~cm)
 JOIN_LATENCY_S = 0.1
-MOUNT = (0.0, 0.0, 0.0)  # the camera in base_link (x, y, yaw): frames.test's frames/ parameters, read at start
+MOUNT = (0.0, 0.0, 0.0)  # the camera in base_link (x, y, yaw): frames.test's camera_mount, read from tf at start
 
 
 def transform(parent, child, stamp, x, y, yaw):
@@ -259,9 +259,10 @@ class FramesTest(unittest.TestCase):
         here = self.world[(1, index)]
         in_map0 = in_frame(self.world[(0, 0)], here)
         before = planar(self.buffer.lookup_transform("map", "base_link", rospy.Time(0), rospy.Duration(2.0)))
-        # The mount's static tf is there too: base_link -> camera_optical looks straight down.
-        optical = self.buffer.lookup_transform("base_link", "camera_optical", rospy.Time(0)).transform
-        self.assertAlmostEqual(optical.translation.x, MOUNT[0], delta=1e-9)
+        # The mount's static tf (frames.test's camera_mount, for the images' frame) looks straight down.
+        optical = self.buffer.lookup_transform("base_link", "camera", rospy.Time(0)).transform
+        self.assertAlmostEqual(optical.translation.x, 0.35, delta=1e-9)
+        self.assertAlmostEqual(MOUNT[2], 0.4, delta=1e-9)  # the camera's yaw as the test reads it
         self.assertAlmostEqual(abs(optical.rotation.w) + abs(optical.rotation.z), 0.0, delta=1e-9)  # pi about a level axis
         # Before the join session 1 is a map of its own: base_link is far from its place in map 0.
         self.assertGreater(math.hypot(before[0] - in_map0[0], before[1] - in_map0[1]), 0.5)

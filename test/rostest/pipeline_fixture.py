@@ -152,10 +152,23 @@ def invert(a):
     return -c * a[0] - s * a[1], s * a[0] - c * a[1], -a[2]
 
 
-def mount_of_params():
-    """The camera's (x, y, yaw) in base_link from the pipeline's frames/ parameters."""
-    position = rospy.get_param(NS + "/frames/camera_position", [0.0, 0.0, 0.0])
-    return float(position[0]), float(position[1]), float(rospy.get_param(NS + "/frames/camera_yaw", 0.0))
+def mount_of_params(camera_frame="camera", timeout=30.0):
+    """The camera's (x, y, yaw) in base_link, from tf (the launch's camera_mount, scripts/mount_publisher.py):
+    the yaw of the image columns (the optical frame's x) in base_link's plane."""
+    import tf2_ros
+    buffer = tf2_ros.Buffer()
+    listener = tf2_ros.TransformListener(buffer)  # noqa: F841 (fills the buffer)
+    # Polled on wall time: with use_sim_time the clock may not run yet (a bag not playing).
+    deadline = time.time() + timeout
+    while not buffer.can_transform("base_link", camera_frame, rospy.Time(0)):
+        if time.time() > deadline:
+            raise AssertionError("no base_link -> %s in tf within %.0f s" % (camera_frame, timeout))
+        time.sleep(0.05)
+    t = buffer.lookup_transform("base_link", camera_frame, rospy.Time(0)).transform
+    q = t.rotation
+    # The optical x axis in base_link: the first column of the rotation matrix.
+    x0, x1 = 1 - 2 * (q.y * q.y + q.z * q.z), 2 * (q.x * q.y + q.w * q.z)
+    return t.translation.x, t.translation.y, math.atan2(x1, x0)
 
 
 def vehicle_from_camera(p, mount=(0.0, 0.0, 0.0)):

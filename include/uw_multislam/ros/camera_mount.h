@@ -1,10 +1,11 @@
-// Where the camera and the altimeter sit on the vehicle (README "Frames"): the frames/ block's
-// camera_* / altimeter_* parameters, published by backend_node as static tf (the default: a
-// camera at base_link looking straight down), or, with frames/publish_mount_tf false, the
-// vehicle's own tf (URDF, robot_state_publisher) read once at start-up. Both nodelets use the
-// mount: the odometry adds the camera's height above the altimeter to each altitude and
-// publishes the vehicle's pose, the back-end publishes every pose as the vehicle's
-// (core/geometry/vehicle_frame.h). Tested in test/ros/test_conversions.cpp.
+// Where the camera and the altimeter sit on the vehicle (doc/frames.md): tf's base_link -> the
+// frame_id the sensors write into their headers (the vehicle's URDF through robot_state_publisher,
+// a bag's /tf_static, or the launch files' camera_mount argument: scripts/mount_publisher.py).
+// There is no default mount. Both nodelets use it: the odometry (SensorMount) adds the camera's
+// height above the altimeter to each altitude and publishes the vehicle's pose, and refuses to
+// track without it; the back-end (ros/frame_publisher.h) publishes every pose as the vehicle's
+// (core/geometry/vehicle_frame.h). Tested in test/ros/test_conversions.cpp and rostest
+// sensor_frames.
 #pragma once
 
 #include <geometry_msgs/Transform.h>
@@ -27,23 +28,16 @@ namespace uw_multislam {
 namespace ros_frames {
 
 struct MountOptions {
-  std::string base_frame = "base_link", camera_frame = "camera_optical", altimeter_frame = "altimeter";
-  bool publish_tf = true;                      // from the values below; false: read from the vehicle's tf
-  std::array<double, 3> camera_position{};     // optical centre in base_link, m
-  double camera_yaw = 0.0;                     // image columns from base_link's x, rad (looking straight down)
-  std::array<double, 3> altimeter_position{};  // in base_link, m
-  double wait_s = 2.0;                         // for the vehicle's tf at start-up
-  double max_tilt_deg = 5.0;                   // optical axis from straight down
+  std::string base_frame = "base_link";
+  double wait_s = 2.0;        // the odometry's first frame waits this long for the mount in tf
+  double max_tilt_deg = 5.0;  // optical axis from straight down
 };
 
-/// frames/{base_frame, camera_frame, altimeter_frame, publish_mount_tf, camera_position,
-/// camera_yaw, altimeter_position, mount_wait_s, max_camera_tilt_deg} of `nh` (the pipeline's
-/// namespace); std::invalid_argument naming the key for a bad value.
+/// frames/{base_frame, mount_wait_s, max_camera_tilt_deg} of `nh` (the pipeline's namespace);
+/// std::invalid_argument naming the key for a bad value. The former mount parameters
+/// (frames/camera_position, camera_yaw, altimeter_position, publish_mount_tf, camera_frame,
+/// altimeter_frame) are not read any more: a WARN names those that are set.
 MountOptions mountOptions(const ros::NodeHandle& nh);
-
-/// base_link -> camera optical frame (z down, x along the image columns) and base_link ->
-/// altimeter, as the options place them.
-std::vector<geometry_msgs::TransformStamped> mountTransforms(const MountOptions& o, const ros::Time& stamp);
 
 /// The mount from tf's two transforms. False, with `why`, for a non-finite transform or a camera
 /// whose optical axis is more than max_tilt_rad from base_link's -z (the 2-D model needs a
@@ -51,12 +45,6 @@ std::vector<geometry_msgs::TransformStamped> mountTransforms(const MountOptions&
 bool mountFromTransforms(const geometry_msgs::Transform& base_from_camera_optical,
                          const geometry_msgs::Transform& base_from_altimeter, double max_tilt_rad,
                          core::CameraMount* out, std::string* why);
-
-/// The mount the options give: their values, or with publish_tf false tf's (waiting up to
-/// wait_s for the static transforms). False when tf had none in time: then `out` is the default
-/// mount (the caller WARNs). `note` says where the mount came from. std::invalid_argument for a
-/// tilted camera.
-bool resolveCameraMount(const ros::NodeHandle& nh, const MountOptions& o, core::CameraMount* out, std::string* note);
 
 /// The mount of the sensors that named their frames: base_frame -> the camera's frame (an image's
 /// header.frame_id) and base_frame -> the altimeter's (a Range's header.frame_id), looked up in

@@ -15,9 +15,11 @@
 //    odom <- base at t looked up in tf (retried on each tick until tf has it; failures counted).
 //  - map -> session_<id>: static transforms (latched; they change only when a map is optimised,
 //    joined or split), sent again when a correction changes.
-//  - base_link -> camera optical frame, base_link -> altimeter: static, from the frames/ mount
-//    parameters (frames/publish_mount_tf, the default), else the vehicle's tf gives them
-//    (ros/camera_mount.h).
+//  - the camera's mount is not published here: tf gives base_link -> the camera's frame (the
+//    vehicle's URDF, or the launch files' scripts/mount_publisher.py). This class looks it up for
+//    the frame the keyframes name in their header (the image's frame_id), when the first keyframe
+//    comes (the odometry sends none before it has found the same transform); until then poses are
+//    drawn with the camera at base_link, with a WARN.
 // The class takes the core's poses (the camera's, image axes) where it says so and publishes
 // REP-103 ones (z-up, base_link: core/geometry/vehicle_frame.h); odometry/pose comes in as the
 // vehicle's already (the odometry nodelet converts it).
@@ -61,10 +63,9 @@ struct FrameStats {
 
 class FramePublisher {
  public:
-  /// Resolves the camera mount (resolveCameraMount: may wait up to options.mount.wait_s for the
-  /// vehicle's tf; std::invalid_argument for a tilted camera), publishes it when it comes from the
-  /// parameters, and starts the timer on `nh` (steady: it runs while a bag is paused, and
-  /// publishes nothing new then). Rates and frames are checked by ros_params::backendNodeletOptions.
+  /// Listens to the keyframes' camera frame and tf for the mount, and starts the timer on `nh`
+  /// (steady: it runs while a bag is paused, and publishes nothing new then). Rates and frames are
+  /// checked by ros_params::backendNodeletOptions.
   FramePublisher(ros::NodeHandle nh, const FrameOptions& options);
   ~FramePublisher();  // stops the timer before anything it reads goes
   FramePublisher(const FramePublisher&) = delete;
@@ -83,22 +84,26 @@ class FramePublisher {
   /// before any correction.
   std::optional<core::Pose2> onOdometry(int session, const core::UncertainPose2& pose, const ros::Time& stamp);
   /// The vehicle's pose (z-up, base_link) from a core pose of the camera.
-  core::Pose2 vehicle(const core::Pose2& camera) const { return core::vehicleFromCamera(camera, mount_); }
+  core::Pose2 vehicle(const core::Pose2& camera) const { return core::vehicleFromCamera(camera, mount()); }
   core::UncertainPose2 vehicle(const core::UncertainPose2& camera) const {
-    return core::vehicleFromCamera(camera, mount_);
+    return core::vehicleFromCamera(camera, mount());
   }
-  const core::CameraMount& mount() const { return mount_; }
+  /// base_link -> the keyframes' camera frame from tf; the camera at base_link until it is known.
+  core::CameraMount mount() const;
   FrameStats stats() const;
 
  private:
   void tick();
+  void onCameraFrame(const std::string& frame);  // a keyframe's header.frame_id
 
   FrameOptions options_;
-  core::CameraMount mount_;
+  std::unique_ptr<tf2_ros::Buffer> mount_buffer_;  // thread-safe
+  std::unique_ptr<tf2_ros::TransformListener> mount_listener_;
+  ros::Subscriber camera_frame_sub_;
   ros::SteadyTimer timer_;
   tf2_ros::TransformBroadcaster tf_;
   tf2_ros::StaticTransformBroadcaster static_tf_;
-  ros::Publisher odom_pub_;  // topics::kOdometry, with publish_odom_tf
+  ros::Publisher odom_pub_;                  // topics::kOdometry, with publish_odom_tf
   std::unique_ptr<tf2_ros::Buffer> buffer_;  // vehicle odometry only
   std::unique_ptr<tf2_ros::TransformListener> listener_;
 
@@ -109,10 +114,12 @@ class FramePublisher {
   mutable std::mutex mutex_;  // guards everything below
   core::OdomChain chain_;
   int active_ = -1;
+  core::CameraMount mount_;                                    // from tf, once found
+  std::string camera_frame_, mount_for_;                       // the keyframes' camera frame; mount_'s
   std::optional<core::Pose2> map_from_session_;                // of the active session
   std::optional<std::pair<core::Pose2, ros::Time>> keyframe_;  // vehicle odometry: waiting for its lookup
   std::optional<core::Pose2> map_from_odom_;
-  std::optional<core::Pose2> sent_;  // map_from_odom_ as last published
+  std::optional<core::Pose2> sent_;                             // map_from_odom_ as last published
   std::optional<std::pair<core::Pose2, ros::Time>> last_odom_;  // for the twist
   ros::Time last_stamp_;
   std::map<int, core::Pose2> session_frames_;
