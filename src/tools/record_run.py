@@ -73,17 +73,24 @@ def camera_pose(x, y, yaw, mount):
     return cx, -cy, math.atan2(math.sin(c), math.cos(c))
 
 
-def mount_of(ns):
-    """The camera's (x, y, yaw) in base_link from the frames/ parameters the back-end publishes as tf
-    (frames/publish_mount_tf). When the vehicle's own tf places the camera instead, this tool does not
-    read it and assumes the default mount (said on stderr)."""
-    p = ns.rstrip("/") + "/frames/"
-    if not rospy.get_param(p + "publish_mount_tf", True):
-        print("[record_run] frames/publish_mount_tf is false: trajectory.csv assumes the camera at base_link",
-              file=sys.stderr, flush=True)
-        return 0.0, 0.0, 0.0
-    position = rospy.get_param(p + "camera_position", [0.0, 0.0, 0.0])
-    return float(position[0]), float(position[1]), float(rospy.get_param(p + "camera_yaw", 0.0))
+def mount_of(camera_frame, timeout_s=5.0):
+    """The camera's (x, y, yaw) in base_link from tf, base_link -> `camera_frame` (the images'
+    frame_id; the odometry looks the same transform up), polled on wall time (the clock may not run
+    yet). Without it within timeout_s: the camera at base_link, said on stderr."""
+    import tf2_ros
+    buffer = tf2_ros.Buffer()
+    listener = tf2_ros.TransformListener(buffer)  # noqa: F841 (fills the buffer)
+    deadline = time.time() + timeout_s
+    while not buffer.can_transform("base_link", camera_frame, rospy.Time(0)):
+        if time.time() > deadline:
+            print("[record_run] no base_link -> %s in tf: trajectory.csv assumes the camera at base_link" % camera_frame,
+                  file=sys.stderr, flush=True)
+            return 0.0, 0.0, 0.0
+        time.sleep(0.05)
+    t = buffer.lookup_transform("base_link", camera_frame, rospy.Time(0)).transform
+    q = t.rotation
+    # The yaw of the image columns: the optical frame's x axis in base_link's plane.
+    return t.translation.x, t.translation.y, math.atan2(2 * (q.x * q.y + q.w * q.z), 1 - 2 * (q.y * q.y + q.z * q.z))
 
 
 DEFAULT_BAG_START = 1700000000.0  # folder_to_bag's and make_survey's default start time
@@ -346,6 +353,8 @@ def main():
                         help="time of stamp_s = 0 in the bags (folder_to_bag --start-time): once for all folders, "
                              "or once per --session-dir in the same order (default 1700000000, make_survey's)")
     parser.add_argument("--ns", default="/uw_multislam", help="namespace of the SLAM topics")
+    parser.add_argument("--camera-frame", default="camera",
+                        help="the images' frame_id: base_link -> it in tf places the camera (default camera)")
     parser.add_argument("--ready-file", help="created once subscribed (for scripts that wait for it)")
     parser.add_argument("--until-idle", type=float, metavar="SEC",
                         help="write and exit once no message has arrived for SEC seconds (wall time) after the "
@@ -363,7 +372,7 @@ def main():
         sys.exit("record_run: %s" % e)
 
     rospy.init_node("record_run", disable_signals=False)
-    recorder = Recorder(args.ns, frame_stamps, mount_of(args.ns),
+    recorder = Recorder(args.ns, frame_stamps, mount_of(args.camera_frame),
                         stamp_ranges(args.session_dir, frame_stamps) if frame_stamps else "", inputs)
     if args.ready_file:
         open(args.ready_file, "w").close()
