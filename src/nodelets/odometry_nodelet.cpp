@@ -391,6 +391,11 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
     ++counts_.fallbacks;
     NODELET_WARN_THROTTLE(5, "odometry: frame %d: fallback motion (%s)", u.index, u.reason.c_str());
   }
+  // base_link in the z-up session frame, with the covariance of the motions since its first frame.
+  // Before the keyframe's message (hash, thumbnail): the pose's latency is the frame's, not the keyframe's.
+  pose_pub_.publish(
+      rc::toPoseWithCovarianceStampedMsg(core::vehicleFromCamera(core::UncertainPose2(u.pose, u.covariance), mount_),
+                                         options_.session_frame_prefix + std::to_string(session_), stamp));
   counts_.keyframes += keyframes_->publish(*odometry_, u, session_, image, f.msg.header());
   if (step.session_closed) {
     ++counts_.tracking_losses;
@@ -399,10 +404,6 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
         "%d features starts session %d",
         u.index, options_.config.tracking.max_fallbacks, session_, options_.config.tracking.min_features, session_ + 1);
   }
-  // base_link in the z-up session frame, with the covariance of the motions since its first frame.
-  pose_pub_.publish(
-      rc::toPoseWithCovarianceStampedMsg(core::vehicleFromCamera(core::UncertainPose2(u.pose, u.covariance), mount_),
-                                         options_.session_frame_prefix + std::to_string(session_), stamp));
 }
 
 std::string OdometryNodelet::silentInput(double now) {
