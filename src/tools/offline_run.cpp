@@ -142,9 +142,8 @@ int runOffline(const OfflineOptions& options) {
     // anything is written, so that a refusal adds none of them and leaves OUT alone.
     std::vector<OperatorLink> parsed = links;  // measured in place
     for (auto& [l, measured] : parsed) {
-      core::Status st = manager.view().checkLinkEnds(l);
-      if (st.ok()) st = manager.view().storedMapsMayChange("add-link");
-      if (st.ok() && !measured) st = core::findStoredLink(manager.view(), config, &l);
+      // The back-end's add_link checks, in one place; added below, after the folders.
+      const core::Status st = core::checkOperatorLink(manager.view(), config, !measured, &l);
       if (!st.ok()) {
         std::fprintf(stderr, "offline_slam: --add-link %d:%d:%d:%d refused (%s): %s; no link added\n", l.session_a,
                      l.keyframe_a, l.session_b, l.keyframe_b, core::statusCodeName(st.code), st.message.c_str());
