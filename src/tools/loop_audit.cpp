@@ -30,8 +30,11 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <limits>
+#include <optional>
 #include <vector>
 
+#include "cli.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/features.h"
 #include "uw_multislam/core/frontend/image_file.h"
@@ -41,6 +44,8 @@
 #include "uw_multislam/core/session/slam_config.h"
 
 namespace core = uw_multislam::core;
+namespace tools = uw_multislam::tools;
+namespace po = boost::program_options;
 
 namespace {
 
@@ -145,40 +150,21 @@ struct Args {
   bool verify_only = false;
 };
 
-Args parse(int argc, char** argv) {
-  Args a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string k = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argc) throw std::invalid_argument(k + " needs a value");
-      return argv[++i];
-    };
-    if (k == "--session")
-      a.session = value();
-    else if (k == "--run")
-      a.run = value();
-    else if (k == "--loops-gt")
-      a.loops_gt = value();
-    else if (k == "--config")
-      a.config = value();
-    else if (k == "--csv")
-      a.csv = value();
-    else if (k == "--enhancement")
-      a.enhancement = value();
-    else if (k == "--min-inliers")
-      a.min_inliers = std::stoi(value());
-    else if (k == "--verify-only")
-      a.verify_only = true;
-    else if (k == "--help" || k == "-h") {
-      std::fputs(kUsage, stdout);
-      std::exit(0);
-    } else {
-      throw std::invalid_argument("unknown option " + k);
-    }
-  }
-  if (a.session.empty() || (a.run.empty() && !a.verify_only) || a.loops_gt.empty())
-    throw std::invalid_argument("--session, --run and --loops-gt are required (--run not with --verify-only)");
-  return a;
+std::optional<int> parseArguments(int argc, char** argv, Args* a) {
+  tools::CommandLine cli("loop_audit", kUsage);
+  auto option = cli.add();
+  option("session", po::value(&a->session));
+  option("run", po::value(&a->run));
+  option("loops-gt", po::value(&a->loops_gt));
+  option("config", po::value(&a->config));
+  option("csv", po::value(&a->csv));
+  option("enhancement", po::value(&a->enhancement));
+  option("min-inliers", tools::integer(&a->min_inliers, 0, std::numeric_limits<int>::max()));
+  option("verify-only", tools::flag(&a->verify_only));
+  if (const auto status = cli.parse(argc, argv)) return status;
+  if (a->session.empty() || (a->run.empty() && !a->verify_only) || a->loops_gt.empty())
+    return cli.bad("--session, --run and --loops-gt are required (--run not with --verify-only)");
+  return std::nullopt;
 }
 
 core::EnhancementMode modeNamed(const std::string& name) {
@@ -264,9 +250,10 @@ std::set<std::pair<int, int>> framePairs(const std::string& file) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  Args args;
+  if (const auto status = parseArguments(argc, argv, &args)) return *status;
   try {
     cv::setNumThreads(1);
-    const Args args = parse(argc, argv);
     const core::SlamConfig config = args.config.empty() ? core::SlamConfig() : core::loadSlamConfig(args.config);
     const core::Dataset d = core::loadDataset(args.session);
     const int min_inliers = config.loops.local.min_inliers;

@@ -185,8 +185,9 @@ def launch_keys(pattern):
     for path in glob.glob(os.path.join(PKG_DIR, pattern)):
         with open(path) as f:
             text = f.read()
-        for m in re.finditer(r'\bpkg="([^"$]+)"|\$\(find ([^)\s]+)\)', text):
-            name = m.group(1) or m.group(2)
+        # pkg="...", $(find ...), and nodelet plugins loaded by type ("load pkg/Class", "standalone pkg/Class")
+        for m in re.finditer(r'\bpkg="([^"$]+)"|\$\(find ([^)\s]+)\)|\b(?:load|standalone)\s+([a-z][a-z0-9_]*)/', text):
+            name = m.group(1) or m.group(2) or m.group(3)
             if name != package().name:
                 keys.setdefault(name, os.path.relpath(path, PKG_DIR))
     return keys

@@ -31,6 +31,7 @@ OPTIONS = {
     "bench_store": ("--dir", "--no-images"),
     "export_survey": ("--out", "--quiet"),
     "folder_to_bag": ("--gt-topic", "--no-nav"),
+    "loop_audit": ("--csv", "--verify-only"),
     "make_survey": ("--out", "--quiet"),
     "merge_stores": ("--config", "--quiet"),
     "offline_slam": ("--out", "--quiet"),
