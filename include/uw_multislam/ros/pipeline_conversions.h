@@ -87,7 +87,7 @@ struct KeyframeHashData {
 uw_multislam::KeyframeHash toKeyframeHashMsg(const KeyframeHashData& h, const std_msgs::Header& header);
 bool fromMsg(const uw_multislam::KeyframeHash& m, KeyframeHashData* out, std::string* why = nullptr);
 
-/// Hash exchange between vehicles (issue 20, item 5): keyframe `k` (its hash, motion, pose,
+/// Hash exchange between vehicles: keyframe `k` (its hash, motion, pose,
 /// camera and altitude; no features, no image) as vehicle `vehicle` sends it on fleet/hashes_out,
 /// with the hash settings it was made with; `codes`: the hash as the loop detector's 8-bit codes
 /// (384 bytes instead of 1536, the same search) instead of values.

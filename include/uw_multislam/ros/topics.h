@@ -21,7 +21,7 @@ constexpr char kNavOdometry[] = "nav/odom";
 /// nav_msgs/Odometry: ground-truth pose of the camera, for evaluation only (never fed to SLAM).
 constexpr char kGroundTruthOdom[] = "ground_truth/odom";
 /// nav_msgs/Odometry: the vehicle's dead-reckoned navigation (DVL/INS), base_link in odom, with
-/// its covariance (a dataset's nav.csv in a bag; the navigation prior of issue 16).
+/// its covariance (a dataset's nav.csv in a bag): the odometry's navigation prior.
 constexpr char kNavOdom[] = "nav/odom";
 
 // --- The pipeline (README "Architecture"): odometry -> keyframes -> loop detection -> back-end ------------
@@ -68,7 +68,7 @@ constexpr char kTrajectoryMarkers[] = "trajectory_markers";
 /// uw_multislam/Keyframe: the keyframes of a session reload_session brought back from the session
 /// store (back-end), for the loop detector(s) to store as candidates without searching.
 constexpr char kReloadedKeyframes[] = "reloaded_keyframes";
-/// Hash exchange between vehicles (issue 20, item 5; with the back-end's ~fleet/vehicle set):
+/// Hash exchange between vehicles (with the back-end's ~fleet/vehicle set):
 /// uw_multislam/KeyframeHash, this vehicle's keyframes (hash, motion, pose, camera; no features)
 /// and session-ended notices, for the other vehicles' back-ends (a relay carries them across).
 constexpr char kFleetHashesOut[] = "fleet/hashes_out";

@@ -161,7 +161,7 @@ void MultiSessionBackend::endSession(int session) {
   Map& m = mapAt(mapOf(session));
   if (m.pending > 0) optimise(mapOf(session));
   // Joins postponed while both maps held a recording session (two vehicles' sessions growing side
-  // by side, issue 20 item 5) are tried again now that one has ended: the loops between them
+  // by side) are tried again now that one has ended: the loops between them
   // arrived while the join could not be made, and no new loop may come to trigger it.
   bool joined = true;
   while (joined) {

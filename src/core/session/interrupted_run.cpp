@@ -60,7 +60,7 @@ std::vector<InterruptedRun> findInterruptedRuns(const SessionStore& store, const
 
 void resolveInterruptedRun(SessionStore* store, const InterruptedRun& run, InterruptedChoice choice) {
   if (choice == InterruptedChoice::kDiscard) {
-    // The audit trail (issue 16, item 5): a deletion by the tool, in the deletion's transaction.
+    // The audit trail: a deletion by the tool, in the deletion's transaction.
     std::string ids;
     for (int id : run.ids) ids += (ids.empty() ? "" : ",") + std::to_string(id);
     const HistoryEntry entry{0, utcTimestamp(), "delete", "tool", ids, "",

@@ -202,8 +202,8 @@ struct BackendStats {
   double optimise_ms_total = 0.0, optimise_ms_max = 0.0;
 };
 
-/// A join or a split as it happened, in back-end session ids (the session manager's audit trail,
-/// issue 16 item 5, takes them with takeMapChanges()).
+/// A join or a split as it happened, in back-end session ids (the session manager's audit trail
+/// takes them with takeMapChanges()).
 struct MapChange {
   bool join = true;
   std::vector<int> first, second;  // join: the two chains, second attached after first; split: {session}, the rest
@@ -311,7 +311,7 @@ class MultiSessionBackend {
   /// (the IEKF's diagonal blocks, or the odometry's with the sparse optimiser), their correlations
   /// left out. Throws std::invalid_argument for an unknown keyframe.
   UncertainPose2 keyframeInMap(int s, int keyframe) const;
-  /// Relocalisation (issue 16, item 3): where session `s` is in another map, before (or without)
+  /// Relocalisation: where session `s` is in another map, before (or without)
   /// a join. For every other map with global loops to the session's map, the link a join would
   /// take under the consistency rule (join_min_consistent loops, join_min_inliers, join_min_spread_m
   /// and the pairwise chi-square test, whatever join_policy is; the spread is the other map's: loops
@@ -359,7 +359,7 @@ class MultiSessionBackend {
   BackendStatus restoreMap(const MapState& state);
   /// Marks two sessions as split apart by the user.
   void restoreSplitPair(int session_a, int session_b);
-  /// delete_session (issue 16, item 4): removes a finished session that is alone in its map, its
+  /// delete_session: removes a finished session that is alone in its map, its
   /// map and every loop on it. The sessions after it move down one index, their maps with them
   /// (a map's id is its first session's), and loop ids close up (links keep naming the same
   /// loops). Every map is touched, so an optimisation prepared before is dropped and done again.

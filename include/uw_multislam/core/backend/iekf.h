@@ -16,7 +16,7 @@
 // the prediction itself (we read it as a typo). Yaw residuals are wrapped to (−π, π].
 //
 // Memory O(N²), update O(N² · m) for m loop rows: the paper's method for sessions of up to a few
-// thousand keyframes; the sparse back-end is the scalable one (issue 6).
+// thousand keyframes; the sparse back-end is the scalable one (pose_graph.h).
 #pragma once
 
 #include <Eigen/Core>

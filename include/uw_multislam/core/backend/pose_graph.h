@@ -1,4 +1,4 @@
-// The sparse back-end: a 2-D pose graph solved with Ceres (issue 6).
+// The sparse back-end: a 2-D pose graph solved with Ceres.
 //
 // The dense IEKF of iekf.h holds a 3N x 3N covariance; this solver holds the same information as
 // a sparse graph over the absolute poses X_k of one map (the map's first keyframe fixed, the gauge):

@@ -1,5 +1,4 @@
-// The altitude at an image's stamp from the recent altimeter readings (issue 15, "altitude by
-// stamp"): the altimeter is usually slower than the camera (2 Hz against 10 Hz), so pairing
+// The altitude at an image's stamp from the recent altimeter readings: the altimeter is usually slower than the camera (2 Hz against 10 Hz), so pairing
 // each image with one reading would drop most images. The buffer keeps the last readings
 // (sorted by stamp, at most `capacity`) and answers, for an image stamp t:
 //

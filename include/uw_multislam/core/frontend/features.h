@@ -1,7 +1,7 @@
 // SIFT features for odometry and loop detection (paper 000 §5): a fixed number n per image,
 // the strongest by response but spread over the image by bucketing, in a fixed order
 // (descending response), so that matching and the HALOC hashes (§7) behave the same on every
-// frame. ORB (binary) features are an option beside SIFT (issue 19, item 2): the same n, the
+// frame. ORB (binary) features are an option beside SIFT for clear water: the same n, the
 // same bucketing and order; matched by Hamming distance and hashed through a fixed embedding.
 #pragma once
 
@@ -38,7 +38,7 @@ FeatureType descriptorType(const cv::Mat& descriptors);
 cv::Mat extractorDescriptors(const cv::Mat& stored);
 
 struct FeatureOptions {
-  /// Which features: SIFT (default) or ORB (issue 19: the README's front-end table).
+  /// Which features: SIFT (default: the only one that holds in turbid water) or ORB (clear water).
   FeatureType type = FeatureType::kSift;
   /// ORB only: FAST's threshold (OpenCV's default 20 finds too few corners on dull seabed: the
   /// demo's dim second session lost tracking with 10).

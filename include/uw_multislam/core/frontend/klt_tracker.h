@@ -1,4 +1,4 @@
-// Tracking between keyframes (issue 19, item 1): the frames between two keyframes only need their
+// Tracking between keyframes: the frames between two keyframes only need their
 // motion from the last keyframe and the keyframe decision, not SIFT. At each keyframe Shi-Tomasi
 // corners are detected on its image (as the turbid-water paper tracks Harris corners with KLT);
 // each later frame follows them with OpenCV's pyramidal Lucas-Kanade, frame to frame (small

@@ -1,5 +1,5 @@
-// The vehicle's dead-reckoned navigation (DVL + INS) as a prior for the visual odometry
-// (issue 16): nav.csv rows (core/frontend/dataset.h) interpolated at image stamps, the relative
+// The vehicle's dead-reckoned navigation (DVL + INS) as a prior for the visual odometry:
+// nav.csv rows (core/frontend/dataset.h) interpolated at image stamps, the relative
 // nav motion between two frames with its covariance, and the chi-square gate that compares a
 // visual motion with it.
 //

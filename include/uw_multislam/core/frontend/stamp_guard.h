@@ -12,7 +12,7 @@
 //
 // Frames the node received but dropped itself (its worker queue was full) are passOver()ed: their
 // stamps move `last` as processed ones do, so the gap our own drops leave between two processed
-// frames is no time gap (issue 21, 9: a burst used to split a session several times), while a
+// frames is no time gap (else a burst would split a session several times), while a
 // jump among them (the camera did pause, or the bag looped) is held and reported by the next
 // accept(). ROS-free: the odometry nodelet uses it with header stamps in seconds. Tested in
 // test/core/test_stamp_guard.cpp.

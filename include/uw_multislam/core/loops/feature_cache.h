@@ -1,4 +1,4 @@
-// The features of stored keyframes, read on demand (issue 20, paging): an LRU cache with a byte
+// The features of stored keyframes, read on demand (paging): an LRU cache with a byte
 // budget in front of a loader (the session store's read of one keyframe).
 //
 // A stored keyframe keeps only what the hash search needs in RAM (its hash, ids, altitude); its

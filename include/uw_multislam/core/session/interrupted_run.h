@@ -1,5 +1,5 @@
 // A run killed before its session ended (kill -9, power cut) leaves that session `recording` in
-// the store, with every keyframe written before the kill (issue 21, 8). Running the same folder
+// the store, with every keyframe written before the kill. Running the same folder
 // again must not silently duplicate it, nor refuse it as if it were complete: the caller chooses
 // explicitly (offline_slam --interrupted discard|finish).
 #pragma once

@@ -1,4 +1,4 @@
-// The image a keyframe keeps in the session store (issue 18, item 2): the whole frame, grey,
+// The image a keyframe keeps in the session store: the whole frame, grey,
 // resized so that its longest side is at most max_side_px (never enlarged) and JPEG-encoded at
 // jpeg_quality. Mosaics drawn from the store alone (export_survey without --images) use it, with
 // the camera scaled by the stored image's size (core/session/mosaic.h). The store's `thumbnail`
