@@ -1,4 +1,4 @@
-// uw_multislam/Odometry: wiring, conversions and the worker's loop (doc/nodes/odometry.md).
+// uw_multislam/Odometry: wiring, conversions and the worker's loop (doc/ros_api.md).
 #include "uw_multislam/ros/nodelets/odometry_nodelet.h"
 
 #include <geometry_msgs/PoseWithCovarianceStamped.h>
@@ -10,6 +10,7 @@
 #include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/ros/conversions.h"
+#include "uw_multislam/ros/odometry_reports.h"
 #include "uw_multislam/ros/topics.h"
 
 namespace uw_multislam {
@@ -45,13 +46,8 @@ void OdometryNodelet::onInit() {
   NODELET_INFO("odometry: %s", images_->description().c_str());
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config));
   session_ = o.session;
-  // A dropped frame's stamp travels on with the frame after it, which the worker passes over
-  // first: the queue's own drops never look like a gap in the images (a new session).
-  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(
-      static_cast<std::size_t>(o.queue_size), [](Frame& dropped, Frame& next) {
-        dropped.passed_over.push_back(dropped.msg.header().stamp.toSec());
-        next.passed_over.insert(next.passed_over.begin(), dropped.passed_over.begin(), dropped.passed_over.end());
-      });
+  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(static_cast<std::size_t>(o.queue_size),
+                                                               ros_inputs::handOnDropped);
   stamps_ = std::make_unique<core::StampGuard>(core::StampGuardOptions{o.reorder_tolerance_s, o.session_gap_s});
   pairing_ = std::make_unique<Pairing>(
       o.pairing(), wallNow(), o.fallback_camera_info ? std::make_optional(o.fallback_camera_info) : std::nullopt);
@@ -123,17 +119,10 @@ void OdometryNodelet::onRange(const sensor_msgs::RangeConstPtr& range) {
 void OdometryNodelet::handle(Pairing::Decisions decisions) {
   using K = Pairing::Decision::Kind;
   for (Pairing::Decision& d : decisions) {
-    const core::InputPairingCounts& n = pairing_->counts();
-    if (d.kind == K::kNoCameraInfo) {
-      NODELET_WARN_THROTTLE(5,
-                            "odometry: image at %.3f skipped: no camera_info within ~sync_max_interval_s %.3f s of "
-                            "its stamp (%ld so far)",
-                            d.stamp_s, options_.sync_max_interval_s, n.skipped_no_camera_info);
-    } else if (d.kind == K::kNoAltitude) {
-      NODELET_WARN_THROTTLE(5,
-                            "odometry: image at %.3f skipped: no altitude reading within ~altitude_max_age_s %.2f s "
-                            "of its stamp (%ld so far)",
-                            d.stamp_s, options_.altitude_max_age_s, n.skipped_no_altitude);
+    if (d.kind != K::kPaired) {
+      const bool no_info = d.kind == K::kNoCameraInfo;
+      ros_diagnostics::reportUnpaired(
+          no_info, d.stamp_s, no_info ? options_.sync_max_interval_s : options_.altitude_max_age_s, pairing_->counts());
     } else {
       if (d.first_fallback)
         NODELET_WARN("odometry: no camera_info on %s: images use the calibration of ~camera_info_url %s",
@@ -190,15 +179,9 @@ void OdometryNodelet::work() {
         [this](Frame& f, Ahead* ahead) { run(f, ahead); });
     return;
   }
-  // A skipped frame's stamps travel on with the frame taken: seen, not a gap in the images.
-  const auto hand_on = [](Frame& skipped, Frame& taken) {
-    taken.passed_over.insert(taken.passed_over.end(), skipped.passed_over.begin(), skipped.passed_over.end());
-    taken.passed_over.push_back(skipped.msg.header().stamp.toSec());
-    std::sort(taken.passed_over.begin(), taken.passed_over.end());
-  };
   Frame f;
   while (queue_->popSelected(
-      &f, [this](const std::deque<Frame>& w) { return chooseNext(w); }, hand_on)) {
+      &f, [this](const std::deque<Frame>& w) { return chooseNext(w); }, ros_inputs::handOnSkipped)) {
     run(f, nullptr);
     f = Frame();
   }
@@ -285,75 +268,31 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   core::CameraIntrinsics camera;
   cv::Mat image;
   if (const Refusal refusal = convert(f, &camera, &image, &why)) {
-    ++(counts_.*refusal);
-    const long so_far =
-        refusal == &OdometryCounters::skipped_camera_info ? counts_.skipped_camera_info : counts_.badImages();
-    NODELET_WARN_THROTTLE(5, "odometry: frame skipped: %s (%ld so far)", why.c_str(), so_far);
+    ros_diagnostics::reportRefusal(refusal, why, &counts_);
     return;
   }
   // Stamps: duplicates and late frames are skipped before they touch the odometry (or count a bad altitude).
   const ros::Time stamp = f.msg.header().stamp;
   const core::StampClass timing = stamps_->accept(stamp.toSec());
-  // (Counted before logging: a throttled log line does not evaluate its arguments.)
-  if (timing == core::StampClass::kDuplicate || timing == core::StampClass::kOutOfOrder) {
-    const bool duplicate = timing == core::StampClass::kDuplicate;
-    const long n = ++(duplicate ? counts_.skipped_duplicate_stamp : counts_.skipped_out_of_order);
-    if (duplicate)
-      NODELET_WARN_THROTTLE(5, "odometry: frame skipped: stamp %.6f seen before (duplicated frame; %ld so far)",
-                            stamp.toSec(), n);
-    else
-      NODELET_WARN_THROTTLE(5,
-                            "odometry: frame skipped: stamp %.6f is %.3f s before the last frame's (out of order; "
-                            "%ld so far)",
-                            stamp.toSec(), stamps_->last() - stamp.toSec(), n);
-    return;
-  }
+  if (ros_diagnostics::reportStamp(timing, stamp.toSec(), stamps_->last(), &counts_)) return;
   // The sensors' mount from tf: no tracking without it (no default mount). After the image and
   // stamp checks, so a bad frame is counted for what is wrong with it.
   const ros_frames::SensorMount::Lookup mount = sensor_mount_->get(f.msg.header().frame_id, f.altimeter_frame);
-  if (mount.state != ros_frames::SensorMount::State::kResolved) {
-    const long n = ++counts_.skipped_no_mount;
-    {
-      std::lock_guard<std::mutex> lock(stats_mutex_);
-      mount_error_ = mount.message;
-    }
-    NODELET_ERROR_THROTTLE(5, "odometry: frame skipped, tracking does not start: %s (%ld frames so far)",
-                           mount.message.c_str(), n);
-    return;
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex_);  // why frames are refused, while they are
+    if (mount.state != ros_frames::SensorMount::State::kResolved) mount_error_ = mount.message;
+    if (mount.fresh) mount_error_.clear();
   }
-  if (mount.fresh) {
-    NODELET_INFO("odometry: sensor mount %s", mount.message.c_str());
-    std::lock_guard<std::mutex> lock(stats_mutex_);
-    mount_error_.clear();
-  }
+  if (!ros_diagnostics::reportMount(mount, &counts_)) return;
   mount_ = mount.mount;
-  if (f.altitude == core::PairedAltitude::kFallback) {
-    ++counts_.fixed_altitude_frames;
-    NODELET_WARN_THROTTLE(10,
-                          "odometry: no altitude on %s for %.0f s: the fixed ~fallback_altitude %.2f m is used "
-                          "(%ld frames so far)",
-                          range_sub_.getTopic().c_str(), options_.input_timeout_s, f.altitude_m,
-                          counts_.fixed_altitude_frames);
-  } else if (f.altitude == core::PairedAltitude::kInvalidReading) {
-    ++counts_.bad_altitude_replaced;
-    NODELET_WARN_THROTTLE(5,
-                          "odometry: the altitude at %.3f would use an invalid reading (NaN, <= 0 or out of "
-                          "range): the last valid altitude is used (%ld so far)",
-                          stamp.toSec(), counts_.bad_altitude_replaced);
-  }
+  ros_diagnostics::reportAltitude(f.altitude, f.altitude_m, stamp.toSec(), range_sub_.getTopic(),
+                                 options_.input_timeout_s, &counts_);
 
   const core::StreamControl::Requested requested = control_.take();
   const core::SessionStart start =
       core::sessionStart(!odometry_, session_, requested, timing, stamps_->lastJump(), odometry_ && camera_ != camera);
-  if (start.cause == core::SessionStart::Cause::kStampJump) {
-    const bool back = timing == core::StampClass::kJumpBack;
-    ++(back ? counts_.time_jumps_back : counts_.time_jumps_forward);
-    if (back)
-      NODELET_WARN("odometry: image stamps jumped back by %.3f s (a bag that loops, or a clock reset)",
-                   -stamps_->lastJump());
-    else
-      NODELET_INFO("odometry: image stamps jumped forward by %.3f s (a gap in the images)", stamps_->lastJump());
-  }
+  if (start.cause == core::SessionStart::Cause::kStampJump)
+    ros_diagnostics::reportJump(timing, stamps_->lastJump(), &counts_);
   if (start.starts()) startSession(start.id, camera, start.why);
 
   const std::optional<core::NavRecord> nav =
@@ -370,27 +309,13 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
       odometry_->process({frame_index_++, stamp.toSec(), altitude, image, nav}, prepared);
   const core::OdometryUpdate& u = step.update;
   skip_rule_->observe(core::processedFrame(u, stamp.toSec(), altitude, step.session_started, odometry_->odometry()));
-  const bool done = u.status != core::FrameStatus::kSkipped;
-  counts_.nav_motions += done && u.source == core::MotionSource::kNav;
-  counts_.fused_motions += done && u.source == core::MotionSource::kFused;
-  if (!u.nav_note.empty()) {
-    ++counts_.nav_implausible;
-    NODELET_WARN_THROTTLE(5, "odometry: frame %d: %s", u.index, u.nav_note.c_str());
-  }
+  const bool done = ros_diagnostics::reportUpdate(u, &counts_);
   if (step.session_started && odometry_->sessions() > 1) {
     session_ = std::max(session_ + 1, requested.next_free);
     ++counts_.sessions;
     NODELET_INFO("odometry: tracking resumed at frame %d: session %d starts", u.index, session_);
   }
-  if (!done) {
-    ++counts_.skipped_by_odometry;
-    NODELET_WARN_THROTTLE(5, "odometry: frame %d skipped: %s", u.index, u.reason.c_str());
-    return;
-  }
-  if (u.status == core::FrameStatus::kFallback) {
-    ++counts_.fallbacks;
-    NODELET_WARN_THROTTLE(5, "odometry: frame %d: fallback motion (%s)", u.index, u.reason.c_str());
-  }
+  if (!done) return;
   // base_link in the z-up session frame, with the covariance of the motions since its first frame.
   // Before the keyframe's message (hash, thumbnail): the pose's latency is the frame's, not the keyframe's.
   pose_pub_.publish(

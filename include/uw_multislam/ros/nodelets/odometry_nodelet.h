@@ -1,14 +1,9 @@
-// uw_multislam/Odometry: paper 000 §5 (core::SegmentedOdometry) on live images. Topics, services,
-// parameters, sessions, pause, bad input: doc/nodes/odometry.md; counters: doc/diagnostics.md.
-// Threading: the image, camera_info and altitude callbacks (any of the manager's threads) pair
-// under pairing_mutex_ (core::InputPairing) and push each paired frame onto a bounded queue
-// (~queue_size; when full the OLDEST is dropped and counted, its stamp handed on to the next). One
-// worker owns the odometry and does the rest (the sensor mount from tf, conversion, SIFT, RANSAC,
-// publishing). When it is free it takes, with ~drop_policy newest, the newest waiting frame that is
-// safe to take (core::FrameSkipRule: the ones before it are skipped, counted, their stamps handed
-// on), with oldest the oldest; with ~prepare_threads (oldest only) it has frames already waiting
-// prepared ahead (core::OrderedPrefetch). On unload the queue is closed and the worker processes
-// what is in it before it is joined.
+// uw_multislam/Odometry: paper 000 §5 (core::SegmentedOdometry) on live images (doc/ros_api.md).
+// Threads: the callbacks pair image, camera_info and altitude under pairing_mutex_ (core::InputPairing)
+// onto a bounded queue (~queue_size; full: the oldest dropped, counted, its stamp handed on). One worker
+// owns the odometry: mount from tf, conversion, SIFT, RANSAC, publishing. It takes the newest frame
+// core::FrameSkipRule allows (~drop_policy newest) or the oldest, then with ~prepare_threads the next
+// ones prepared ahead (core::OrderedPrefetch). On unload the queue is closed and drained, then joined.
 #pragma once
 
 #include <diagnostic_updater/diagnostic_updater.h>
@@ -32,6 +27,7 @@
 #include "uw_multislam/ros/image_input.h"
 #include "uw_multislam/ros/keyframe_publisher.h"
 #include "uw_multislam/ros/nav_input.h"
+#include "uw_multislam/ros/odometry_frame.h"
 #include "uw_multislam/ros/odometry_counters.h"
 #include "uw_multislam/ros/odometry_options.h"
 #include "uw_multislam/ros/work_queue.h"
@@ -45,18 +41,8 @@ class OdometryNodelet : public nodelet::Nodelet {
 
  private:
   using Pairing = core::InputPairing<ros_inputs::ImageMsg, sensor_msgs::CameraInfoConstPtr>;
-  struct Frame {
-    ros_inputs::ImageMsg msg;
-    sensor_msgs::CameraInfoConstPtr info;
-    core::PairedAltitude altitude = core::PairedAltitude::kFixed;
-    double altitude_m = 0.0;          // kReading: the altimeter's range, else the camera's (NaN: the last valid one)
-    std::string altimeter_frame;      // of the altitude readings (empty: none yet, or no altitude topic)
-    std::vector<double> passed_over;  // stamps received before it and not processed: seen, no time gap
-  };
-  struct Ahead {  // a frame converted and prepared on another thread (~prepare_threads)
-    core::CameraIntrinsics camera;
-    core::PreparedFrame prepared;  // prepared.done false: nothing usable (process() converts and reports)
-  };
+  using Frame = ros_inputs::OdometryFrame;
+  using Ahead = ros_inputs::PreparedAhead;
   void onInit() override;
   void onCameraInfo(const sensor_msgs::CameraInfoConstPtr& info);
   void onRange(const sensor_msgs::RangeConstPtr& range);
@@ -81,21 +67,21 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::unique_ptr<ros_work::BoundedWorkQueue<Frame>> queue_;  // pushed(): frames paired, popped(): taken
   std::thread worker_;
   core::StreamControl control_;  // pause / resume and the back-end's session requests (thread-safe)
-  std::mutex pairing_mutex_;
-  std::unique_ptr<Pairing> pairing_;                           // guarded by pairing_mutex_
-  std::string altimeter_frame_;                                // guarded by pairing_mutex_: the last Range's frame
+  std::mutex pairing_mutex_;  // guards pairing_ and altimeter_frame_ (the last Range's frame)
+  std::unique_ptr<Pairing> pairing_;
+  std::string altimeter_frame_;
   std::atomic<long> ranges_refused_{0}, ranges_above_max_{0};  // altitude readings refused, of those above the max
-  std::mutex stats_mutex_;
-  ros_diagnostics::OdometryCounters published_;  // guarded by stats_mutex_: the worker's, after each frame
-  std::string mount_error_;                      // guarded by stats_mutex_: why frames are refused, while they are
-  std::mutex budget_mutex_;
-  core::FrameBudget budget_;                          // guarded by budget_mutex_
+  std::mutex stats_mutex_;  // guards published_ (the worker's counters after each frame) and mount_error_
+  ros_diagnostics::OdometryCounters published_;
+  std::string mount_error_;  // why frames are refused, while they are
+  std::mutex budget_mutex_;  // guards budget_
+  core::FrameBudget budget_;
   ros_diagnostics::CounterStatus diagnostic_status_;  // the updater's thread only
   // Worker-only state.
   std::unique_ptr<core::SegmentedOdometry> odometry_;  // a new session on tracking loss
   std::unique_ptr<core::StampGuard> stamps_;
-  core::CameraIntrinsics camera_;  // the session's
   std::unique_ptr<ros_frames::SensorMount> sensor_mount_;
+  core::CameraIntrinsics camera_;                 // the session's
   core::CameraMount mount_;                       // the sensors' on the vehicle, once tf gave it
   std::optional<core::FrameSkipRule> skip_rule_;  // the session's (~drop_policy newest)
   int session_ = 0, frame_index_ = 0;
