@@ -370,57 +370,41 @@ bool BackendNodelet::onKeyframeFeatures(uw_multislam::KeyframeFeatures::Request&
 }
 
 std::vector<ros_diagnostics::Counter> BackendNodelet::counters(const core::SessionQueries& m) const {
-  auto d = [](auto v) { return static_cast<double>(v); };
+  ros_diagnostics::BackendCounters c;
   const core::SessionWorkerStats w = worker_->stats();
-  const long messages = received_ + (fleet_ ? fleet_->messages() : 0);
-  std::vector<ros_diagnostics::Counter> c = {{"messages_received", d(messages)},
-                                             {"keyframes_received", d(w.keyframes + bad_keyframes_)},
-                                             {"loops_received", d(w.loops + bad_loops_)},
-                                             {"loops_waiting", d(w.waiting)},
-                                             {"loops_dropped_waiting", d(w.waiting_dropped), true},
-                                             {"dropped_queue_full", d(w.dropped_queue_full), true},
-                                             {"queue_length", d(w.queued)},
-                                             {"bad_messages", d(w.skipped + bad_keyframes_ + bad_loops_), true}};
+  c.messages_received = received_ + (fleet_ ? fleet_->messages() : 0);
+  c.keyframes_received = w.keyframes + bad_keyframes_, c.loops_received = w.loops + bad_loops_;
+  c.loops_waiting = w.waiting, c.loops_dropped_waiting = w.waiting_dropped;
+  c.dropped_queue_full = w.dropped_queue_full, c.queue_length = w.queued;
+  c.bad_messages = w.skipped + bad_keyframes_ + bad_loops_;
   const ros_frames::FrameStats f = frames_->stats();
-  c.push_back({"map_to_odom_published", d(f.map_to_odom_published)});
-  c.push_back({"map_to_odom_rate_hz", f.map_to_odom_rate_hz});
-  c.push_back({"odom_lookup_failures", d(f.odom_lookup_failures), true});
-  c.push_back({"sessions_unloaded", d(sessions_unloaded_)});
+  c.map_to_odom_published = f.map_to_odom_published, c.map_to_odom_rate_hz = f.map_to_odom_rate_hz;
+  c.odom_lookup_failures = f.odom_lookup_failures;
+  c.sessions_unloaded = sessions_unloaded_, c.sessions_deleted = sessions_deleted_;
   // The newest handover of the stored keyframes to a loop detector (reloaded_keyframes): its
   // progress while it runs (sent of total), then how long it took.
   const core::HandoverStats h = worker_->handoverStats();
-  c.push_back({"handover_subscribers", d(h.subscribers)});
-  c.push_back({"handover_keyframes_total", d(h.total)});
-  c.push_back({"handover_keyframes_sent", d(h.sent)});
-  c.push_back({"handover_s", h.seconds});
-  c.push_back({"sessions_deleted", d(sessions_deleted_)});
+  c.handover_subscribers = h.subscribers, c.handover_keyframes_total = h.total;
+  c.handover_keyframes_sent = h.sent, c.handover_s = h.seconds;
   const core::RelocalisationTracker::State& reloc = sessions_->relocalisation();
-  c.push_back({"relocalised_map", d(reloc.map)});
-  c.push_back({"relocalised_loops", d(reloc.loops)});
-  c.push_back({"relocalised_poses_published", d(reloc.published)});
+  c.relocalised_map = reloc.map, c.relocalised_loops = reloc.loops, c.relocalised_poses_published = reloc.published;
   const ros_mosaic::MosaicStats mosaic = mosaic_ ? mosaic_->stats() : ros_mosaic::MosaicStats();
-  c.push_back({"mosaic_published", d(mosaic.published)});
-  c.push_back({"mosaic_keyframes_drawn", d(mosaic.drawn)});
-  c.push_back({"mosaic_keyframes_missing", d(mosaic.missing)});
-  c.push_back({"mosaic_draw_ms", mosaic.ms});
-  c.push_back({"mosaic_resolution_m", mosaic.resolution_m});
-  c.push_back({"mosaic_images_kB", mosaic.images_kB});
+  c.mosaic_published = mosaic.published, c.mosaic_keyframes_drawn = mosaic.drawn;
+  c.mosaic_keyframes_missing = mosaic.missing, c.mosaic_draw_ms = mosaic.ms;
+  c.mosaic_resolution_m = mosaic.resolution_m, c.mosaic_images_kB = mosaic.images_kB;
+  ros_diagnostics::setManagerCounters(m, &c);
+  std::vector<ros_diagnostics::Counter> out = ros_diagnostics::backendCounterTable().counters(c);
   if (fleet_) {  // the hash exchange: what crossed the link, per direction
     const ros_fleet::HashExchangeStats& x = fleet_->stats();
-    c.push_back({"fleet_hashes_sent", d(x.hashes_sent)});
-    c.push_back({"fleet_hash_bytes_sent", d(x.hash_bytes_sent)});
-    c.push_back({"fleet_hashes_received", d(x.hashes_received)});
-    c.push_back({"fleet_hash_bytes_received", d(x.hash_bytes_received)});
-    c.push_back({"fleet_refused", d(x.refused), true});
-    c.push_back({"fleet_sessions_ended", d(x.sessions_ended)});
     const ros_fleet::PeerStats p = peers_->stats();
-    c.push_back({"fleet_features_requested", d(p.requested)});
-    c.push_back({"fleet_feature_bytes_received", d(p.bytes_received)});
-    c.push_back({"fleet_feature_failures", d(p.failures), true});
-    c.push_back({"fleet_feature_timeouts", d(p.timeouts), true});
+    ros_diagnostics::FleetCounters fc;
+    fc.hashes_sent = x.hashes_sent, fc.hash_bytes_sent = x.hash_bytes_sent, fc.hashes_received = x.hashes_received;
+    fc.hash_bytes_received = x.hash_bytes_received, fc.refused = x.refused, fc.sessions_ended = x.sessions_ended;
+    fc.features_requested = p.requested, fc.feature_bytes_received = p.bytes_received;
+    fc.feature_failures = p.failures, fc.feature_timeouts = p.timeouts;
+    for (ros_diagnostics::Counter& k : ros_diagnostics::fleetCounters(fc)) out.push_back(std::move(k));
   }
-  for (ros_diagnostics::Counter& x : rc::managerCounters(m)) c.push_back(std::move(x));
-  return c;
+  return out;
 }
 
 void BackendNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat) {

@@ -327,31 +327,5 @@ visualization_msgs::MarkerArray toMarkerArrayMsg(const std::vector<Segment>& seg
   return out;
 }
 
-std::vector<ros_diagnostics::Counter> managerCounters(const core::SessionQueries& manager) {
-  const core::SessionManagerStats& m = manager.stats();
-  const core::BackendStats& b = manager.backendStats();
-  int unloaded = 0;
-  for (const core::SessionSummary& s : manager.list()) unloaded += s.state == core::SessionState::kUnloaded;
-  auto d = [](auto v) { return static_cast<double>(v); };
-  return {{"keyframes_stale", d(m.keyframes_stale), true},
-          {"keyframes_refused", d(m.keyframes_refused), true},
-          {"keyframe_gaps", d(m.keyframe_gaps), true},
-          {"loops_refused", d(m.loops_refused), true},
-          {"store_failures", d(m.store_failures), true},
-          {"sessions", d(manager.sessionIds().size())},
-          {"sessions_unloaded", d(unloaded)},
-          {"maps", d(manager.mapIds().size())},
-          {"joins", d(b.joins)},
-          {"splits", d(b.splits)},
-          {"loops_refused_at_join", d(b.loops_refused)},
-          {"joins_refused", d(b.joins_refused)},
-          {"loops_gated", d(b.loops_gated)},
-          {"loops_switched_off", d(b.loops_switched_off)},
-          {"loops_readmitted", d(b.loops_readmitted)},
-          {"optimisations", d(b.optimisations)},
-          {"optimisations_discarded", d(b.optimisations_discarded)},
-          {"optimise_ms_max", b.optimise_ms_max}};
-}
-
 }  // namespace ros_conversions
 }  // namespace uw_multislam

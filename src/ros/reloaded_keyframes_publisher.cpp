@@ -1,5 +1,7 @@
 #include "uw_multislam/ros/reloaded_keyframes_publisher.h"
 
+#include <ros/single_subscriber_publisher.h>
+
 #include <utility>
 
 #include "uw_multislam/Keyframe.h"

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "uw_multislam/ros/diagnostics.h"
+#include "uw_multislam/ros/backend_counters.h"
 #include "uw_multislam/ros/loop_detector_counters.h"
 #include "uw_multislam/ros/odometry_counters.h"
 
@@ -153,6 +154,11 @@ TEST(DiagnosticsDoc, TheOdometrysCountersAreDocumentedAsTheCodeDeclaresThem) {
 
 TEST(DiagnosticsDoc, TheLoopDetectorsCountersAreDocumentedAsTheCodeDeclaresThem) {
   expectDocumented("loop_detector", rd::loopDetectorCounterTable().specs());
+}
+
+TEST(DiagnosticsDoc, TheBackEndsCountersAreDocumentedAsTheCodeDeclaresThem) {
+  expectDocumented("backend", rd::backendCounterTable().specs());
+  expectDocumented("backend, with fleet/vehicle", rd::fleetCounterTable().specs());
 }
 
 }  // namespace

@@ -23,7 +23,6 @@
 #include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/stored_loops.h"
-#include "uw_multislam/ros/diagnostics.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 
 namespace uw_multislam {
@@ -55,10 +54,6 @@ uw_multislam::HistoryEntry toHistoryEntryMsg(const core::HistoryEntry& e);
 /// The history service's answer: the last `last` entries (0: all); INVALID_ARGUMENT when negative.
 uw_multislam::History::Response toHistoryResponse(const std::vector<core::HistoryEntry>& history, int last);
 
-/// The session manager's own counters for /diagnostics and the back-end's log line (keyframes
-/// stale, refused and bridged, loops refused, store failures, sessions, maps, joins, splits,
-/// optimisations and their longest time); the drops and refusals WARN while they grow.
-std::vector<ros_diagnostics::Counter> managerCounters(const core::SessionQueries& manager);
 
 /// A session's keyframe poses (in its map's frame) as a Path in `frame_id`; stamps[k] per pose
 /// (missing stamps: the last one given, or `fallback`).

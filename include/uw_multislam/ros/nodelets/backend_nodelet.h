@@ -44,7 +44,7 @@
 #include "uw_multislam/StartSession.h"
 #include "uw_multislam/core/session/session_export.h"
 #include "uw_multislam/core/session/session_worker.h"
-#include "uw_multislam/ros/diagnostics.h"
+#include "uw_multislam/ros/backend_counters.h"
 #include "uw_multislam/ros/fleet_hash_exchange.h"
 #include "uw_multislam/ros/fleet_peer_client.h"
 #include "uw_multislam/ros/frame_publisher.h"

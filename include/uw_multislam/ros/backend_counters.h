@@ -1,0 +1,55 @@
+// The back-end nodelet's counters (/diagnostics status "<node>: backend", and its periodic and
+// shutdown log lines): one field each, named once in backendCounterTable() (and, with fleet/vehicle
+// set, fleetCounterTable()) with its help text; doc/diagnostics.md documents them and
+// test/ros/test_diagnostics.cpp checks it against the tables.
+#pragma once
+
+#include "uw_multislam/ros/diagnostics.h"
+
+namespace uw_multislam {
+namespace core {
+class SessionQueries;
+}
+namespace ros_diagnostics {
+
+struct BackendCounters {
+  // The worker's queue and the messages it took.
+  long messages_received = 0, keyframes_received = 0, loops_received = 0, loops_waiting = 0;
+  long loops_dropped_waiting = 0, dropped_queue_full = 0, queue_length = 0, bad_messages = 0;
+  // map -> odom.
+  long map_to_odom_published = 0, odom_lookup_failures = 0;
+  double map_to_odom_rate_hz = 0.0;
+  // Operator services, the stored keyframes' handover, relocalisation, the live mosaic.
+  long sessions_unloaded = 0, sessions_deleted = 0;
+  long handover_subscribers = 0, handover_keyframes_total = 0, handover_keyframes_sent = 0;
+  double handover_s = 0.0;
+  long relocalised_map = -1, relocalised_loops = 0, relocalised_poses_published = 0;
+  long mosaic_published = 0, mosaic_keyframes_drawn = 0, mosaic_keyframes_missing = 0;
+  double mosaic_draw_ms = 0.0, mosaic_resolution_m = 0.0, mosaic_images_kB = 0.0;
+  // The session manager and its back-end (setManagerCounters).
+  long keyframes_stale = 0, keyframes_refused = 0, keyframe_gaps = 0, loops_refused = 0, store_failures = 0;
+  long sessions = 0, sessions_unloaded_now = 0, maps = 0, joins = 0, splits = 0;
+  long loops_refused_at_join = 0, joins_refused = 0, loops_gated = 0, loops_switched_off = 0, loops_readmitted = 0;
+  long optimisations = 0, optimisations_discarded = 0;
+  double optimise_ms_max = 0.0;
+};
+
+/// The hash exchange and the feature requests between vehicles (only with fleet/vehicle set).
+struct FleetCounters {
+  long hashes_sent = 0, hash_bytes_sent = 0, hashes_received = 0, hash_bytes_received = 0;
+  long refused = 0, sessions_ended = 0;
+  long features_requested = 0, feature_bytes_received = 0, feature_failures = 0, feature_timeouts = 0;
+};
+
+const CounterTable<BackendCounters>& backendCounterTable();
+const CounterTable<FleetCounters>& fleetCounterTable();
+
+/// The fleet counters as fleetCounterTable() names them (a function of its own: GCC 12 warns, wrongly, that a
+/// local FleetCounters is used uninitialised when the table's std::visit is inlined into the caller).
+std::vector<Counter> fleetCounters(const FleetCounters& c);
+
+/// The session manager's and its back-end's counters into `c` (call under the worker's lock).
+void setManagerCounters(const core::SessionQueries& manager, BackendCounters* c);
+
+}  // namespace ros_diagnostics
+}  // namespace uw_multislam

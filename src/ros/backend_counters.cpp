@@ -1,0 +1,103 @@
+#include "uw_multislam/ros/backend_counters.h"
+
+#include "uw_multislam/core/session/session_queries.h"
+
+namespace uw_multislam {
+namespace ros_diagnostics {
+
+const CounterTable<BackendCounters>& backendCounterTable() {
+  using C = BackendCounters;
+  constexpr bool kWarn = true;  // a drop, a refusal or a failure: the status WARNs while it grows
+  static const CounterTable<C> table = {
+      {"messages_received", &C::messages_received, "messages taken from the subscriptions onto the worker's queue"},
+      {"keyframes_received", &C::keyframes_received, "keyframes received"},
+      {"loops_received", &C::loops_received, "loops received"},
+      {"loops_waiting", &C::loops_waiting, "loops waiting for their keyframes now"},
+      {"loops_dropped_waiting", &C::loops_dropped_waiting,
+       "loops dropped while waiting for their keyframes (the wait is bounded)", kWarn},
+      {"dropped_queue_full", &C::dropped_queue_full, "messages the worker's queue dropped when full", kWarn},
+      {"queue_length", &C::queue_length, "messages waiting in the worker's queue"},
+      {"bad_messages", &C::bad_messages, "messages refused as unreadable", kWarn},
+      {"map_to_odom_published", &C::map_to_odom_published, "map -> odom transforms published"},
+      {"map_to_odom_rate_hz", &C::map_to_odom_rate_hz, "their rate, Hz"},
+      {"odom_lookup_failures", &C::odom_lookup_failures,
+       "odom -> base_link lookups that failed (the vehicle's own odometry)", kWarn},
+      {"sessions_unloaded", &C::sessions_unloaded, "sessions unloaded (unload_session)"},
+      {"handover_subscribers", &C::handover_subscribers, "loop detectors the stored keyframes were handed over to"},
+      {"handover_keyframes_total", &C::handover_keyframes_total, "stored keyframes of the newest handover"},
+      {"handover_keyframes_sent", &C::handover_keyframes_sent, "of those, sent so far"},
+      {"handover_s", &C::handover_s, "how long the newest handover took, s"},
+      {"sessions_deleted", &C::sessions_deleted, "sessions deleted (delete_session)"},
+      {"relocalised_map", &C::relocalised_map, "the stored map the active session is relocalised in (-1: none)"},
+      {"relocalised_loops", &C::relocalised_loops, "loops to it"},
+      {"relocalised_poses_published", &C::relocalised_poses_published, "poses published on relocalised_pose"},
+      {"mosaic_published", &C::mosaic_published, "live mosaics published"},
+      {"mosaic_keyframes_drawn", &C::mosaic_keyframes_drawn, "keyframes drawn in the last one"},
+      {"mosaic_keyframes_missing", &C::mosaic_keyframes_missing, "keyframes without a thumbnail in the last one"},
+      {"mosaic_draw_ms", &C::mosaic_draw_ms, "time to draw the last one, ms"},
+      {"mosaic_resolution_m", &C::mosaic_resolution_m, "its resolution, m/px"},
+      {"mosaic_images_kB", &C::mosaic_images_kB, "thumbnails kept for the mosaic, kB"},
+      {"keyframes_stale", &C::keyframes_stale,
+       "keyframes of a session no longer recording (e.g. after finish_session)", kWarn},
+      {"keyframes_refused", &C::keyframes_refused,
+       "keyframes refused: an id more than ~max_keyframe_gap past the last, or a session id past 1,000,000", kWarn},
+      {"keyframe_gaps", &C::keyframe_gaps, "gaps in the keyframe ids, bridged", kWarn},
+      {"loops_refused", &C::loops_refused, "loops refused by the session manager", kWarn},
+      {"store_failures", &C::store_failures, "session store writes that failed", kWarn},
+      {"sessions", &C::sessions, "sessions known"},
+      {"sessions_unloaded_now", &C::sessions_unloaded_now,
+       "of those, unloaded now (in the store only, their keyframes not in memory)"},
+      {"maps", &C::maps, "maps"},
+      {"joins", &C::joins, "joins"},
+      {"splits", &C::splits, "splits"},
+      {"loops_refused_at_join", &C::loops_refused_at_join,
+       "every loop the back-end refused: at a join, by the entry gate or switched off"},
+      {"joins_refused", &C::joins_refused, "joins refused"},
+      {"loops_gated", &C::loops_gated, "loops refused by the entry gate inside a map"},
+      {"loops_switched_off", &C::loops_switched_off, "loops switched off by the residual gate after a solve"},
+      {"loops_readmitted", &C::loops_readmitted, "refused loops taken back after a solve"},
+      {"optimisations", &C::optimisations, "optimisations"},
+      {"optimisations_discarded", &C::optimisations_discarded,
+       "results dropped because a service changed their map while they were solved (solved again)"},
+      {"optimise_ms_max", &C::optimise_ms_max, "longest optimisation, ms"},
+  };
+  return table;
+}
+
+const CounterTable<FleetCounters>& fleetCounterTable() {
+  using C = FleetCounters;
+  constexpr bool kWarn = true;
+  static const CounterTable<C> table = {
+      {"fleet_hashes_sent", &C::hashes_sent, "keyframe hashes sent to the other vehicles"},
+      {"fleet_hash_bytes_sent", &C::hash_bytes_sent, "their bytes"},
+      {"fleet_hashes_received", &C::hashes_received, "other vehicles' hashes received"},
+      {"fleet_hash_bytes_received", &C::hash_bytes_received, "their bytes"},
+      {"fleet_refused", &C::refused, "other vehicles' messages refused", kWarn},
+      {"fleet_sessions_ended", &C::sessions_ended, "other vehicles' sessions ended"},
+      {"fleet_features_requested", &C::features_requested, "keyframe features asked of other vehicles"},
+      {"fleet_feature_bytes_received", &C::feature_bytes_received, "their bytes"},
+      {"fleet_feature_failures", &C::feature_failures, "such requests that failed", kWarn},
+      {"fleet_feature_timeouts", &C::feature_timeouts, "such requests that timed out (~fleet/peer_timeout_s)", kWarn},
+  };
+  return table;
+}
+
+std::vector<Counter> fleetCounters(const FleetCounters& c) { return fleetCounterTable().counters(c); }
+
+void setManagerCounters(const core::SessionQueries& manager, BackendCounters* c) {
+  const core::SessionManagerStats& m = manager.stats();
+  const core::BackendStats& b = manager.backendStats();
+  c->keyframes_stale = m.keyframes_stale, c->keyframes_refused = m.keyframes_refused;
+  c->keyframe_gaps = m.keyframe_gaps, c->loops_refused = m.loops_refused, c->store_failures = m.store_failures;
+  c->sessions = static_cast<long>(manager.sessionIds().size());
+  c->sessions_unloaded_now = 0;
+  for (const core::SessionSummary& s : manager.list()) c->sessions_unloaded_now += s.state == core::SessionState::kUnloaded;
+  c->maps = static_cast<long>(manager.mapIds().size());
+  c->joins = b.joins, c->splits = b.splits, c->loops_refused_at_join = b.loops_refused;
+  c->joins_refused = b.joins_refused, c->loops_gated = b.loops_gated, c->loops_switched_off = b.loops_switched_off;
+  c->loops_readmitted = b.loops_readmitted, c->optimisations = b.optimisations;
+  c->optimisations_discarded = b.optimisations_discarded, c->optimise_ms_max = b.optimise_ms_max;
+}
+
+}  // namespace ros_diagnostics
+}  // namespace uw_multislam
