@@ -74,9 +74,11 @@ void BackendNodelet::onInit() {
   for (const std::string& line : ros_params::describeBackend(options_, config_)) say(line);
   peers_ = std::make_unique<ros_fleet::PeerClient>(nh, options_.fleet_peers, options_.fleet_peer_timeout_s);
   worker_->locked([this](const core::SessionQueries& m) {
-    if (m.restoredSessions() == 0) return;
+    if (m.nextId() == 0) return;  // an empty store, or none: the odometry starts at 0 anyway
     sessions_->publishAll(m, true);
-    sessions_->announceNextSession(m);  // stored sessions hold ids 0..k-1: the odometry continues from k
+    // Stored sessions keep their store ids: the odometry continues past every one of them (and
+    // past deleted ones), so its next session's id is new and becomes its store id.
+    sessions_->announceNextSession(m);
   });
   if (!options_.fleet_vehicle.empty())
     fleet_ = std::make_unique<ros_fleet::HashExchange>(
@@ -194,7 +196,7 @@ bool BackendNodelet::onList(uw_multislam::ListSessions::Request&, uw_multislam::
   worker_->locked([&](const core::SessionQueries& m) {
     for (const core::SessionSummary& s : m.list()) {
       res.sessions.push_back(rc::toSessionStateMsg(s));
-      if (s.id < m.restoredSessions()) continue;  // stored sessions: only this run's relocalise
+      if (m.restored(s.id)) continue;  // stored sessions: only this run's relocalise
       if (const auto r = m.relocalise(s.id)) res.sessions.back().relocalised_map = r->map;
     }
   });

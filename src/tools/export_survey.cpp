@@ -48,8 +48,8 @@ temporary name and renamed, so none is ever half-written. The store is never mod
 
 From an offline_slam output folder (--run; doc/run_outputs.md): the poses of trajectory.csv
 (6 decimals), sessions numbered by pieces.csv's store_session, the engine's session id (the
-folder's number unless a tracking loss split a folder; a store numbers from 1, so the store's
-export of the same run is one higher), maps chained by links.csv, odometry motions from odometry.csv, loops from loops.csv
+folder's number unless a tracking loss split a folder; the store's export of the same run names
+them alike: a session's id is its store id), maps chained by links.csv, odometry motions from odometry.csv, loops from loops.csv
 with their measured pose and covariance from loop_poses.csv; stamps, altitudes, cameras and the
 mosaics' images from the dataset folders. What the folder does not record is not invented: the
 CSV's six covariance columns are "nan" (no pose covariance is written by offline_slam), the g2o

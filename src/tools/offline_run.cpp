@@ -127,6 +127,9 @@ int runOffline(const OfflineOptions& options) {
     if (localise_only) manager.setLocalisation(true);  // before any keyframe: nothing is written
     core::Pipeline pipeline(config, &manager, print(""), !quiet);
     const int stored = manager.view().restoredSessions();
+    // The folders' CSV numbers start at the first id this run gives, past every stored (or
+    // deleted) session's id, so that they never name a stored session in the CSV files.
+    const int first = manager.view().firstNewId();
     for (std::size_t ds = 0; !again && ds < datasets.size(); ++ds) {
       std::vector<int> s = manager.view().storedSessionsOf(datasets[ds].frames);
       s.erase(std::remove_if(s.begin(), s.end(), [&](int id) { return finished_now.count(id) > 0; }), s.end());
@@ -151,12 +154,13 @@ int runOffline(const OfflineOptions& options) {
       }
     }
     // Creates OUT; folders + config. Outputs take the store's permissions (0600 / 0700 for a 0600 store).
-    core::writeRunInputs(out, datasets, stored, core::slamConfigToYaml(config), core::outputModesOf(db));
+    core::writeRunInputs(out, datasets, first, core::slamConfigToYaml(config), core::outputModesOf(db));
     if (detect_loops) {
       // Global loops among the stored sessions: each one searches the ones stored
       // before it; loops the store holds already are skipped; the back-end joins by its policy.
       std::vector<std::vector<int>> groups;
-      for (int s = 0; s < stored; ++s) groups.push_back({s});
+      for (int s : manager.view().sessionIds())
+        if (manager.view().restored(s)) groups.push_back({s});
       const core::StoredLoopSearch f = core::searchStoredLoops(&manager, config, groups, print(""));
       if (!quiet)
         std::printf(
@@ -221,14 +225,27 @@ int runOffline(const OfflineOptions& options) {
       if (taken < d.frames.size() && !quiet)
         std::printf("%s: session finished after %zu frames (--finish-after), %zu frames dropped\n", folders[ds].c_str(),
                     taken, d.frames.size() - taken);
-      for (int id : pipeline.streamSessions().back()) csv_of[id] = stored + static_cast<int>(ds);
+      for (int id : pipeline.streamSessions().back()) csv_of[id] = first + static_cast<int>(ds);
     }
     pipeline.finish();
     const double frames_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - frames_t0).count();
     if (!quiet && frames_read > 0)
       std::printf("throughput: %zu frames in %.2f s wall, %.1f ms/frame (image reading included; --threads %d)\n",
                   frames_read, frames_s, 1000.0 * frames_s / static_cast<double>(frames_read), threads);
-    core::writeRunOutputs(out, manager.view(), csv_of, stored + static_cast<int>(datasets.size()), pipeline.times(),
+    if (!quiet && !datasets.empty()) {
+      // The mapping from the command line to ids, once: the CSV files number a folder by its
+      // position (from `first`), the store, the services and export_survey by its sessions' ids.
+      const std::vector<std::vector<int>>& streams = pipeline.streamSessions();
+      std::printf("session ids (CSV session -> store session ids):\n");
+      for (std::size_t ds = 0; ds < datasets.size() && ds < streams.size(); ++ds) {
+        std::string ids;
+        for (int id : streams[ds])
+          ids += (ids.empty() ? "" : ", ") + std::to_string(id) + " '" + manager.view().name(id) + "'";
+        std::printf("  %d %s -> %s\n", first + static_cast<int>(ds), folders[ds].c_str(),
+                    ids.empty() ? "no session" : ids.c_str());
+      }
+    }
+    core::writeRunOutputs(out, manager.view(), csv_of, first + static_cast<int>(datasets.size()), pipeline.times(),
                           core::outputModesOf(db));
     if (!quiet) {
       const core::BackendStats& bs = manager.view().backendStats();

@@ -29,8 +29,9 @@ support it (backend.join_policy: consistent, the default: a pairwise-consistent 
 backend.join_min_consistent loops with join_min_inliers inliers and join_min_spread_m spread; count:
 backend.join_min_loops loops), and each map is optimised (backend.optimizer); `map` is the map's first session, whose frame it is.
 
-With --db FILE (the session store, created if missing) the stored sessions come first as 0..k-1,
-the folders follow from k; global loops are searched against them and everything is written to the
+With --db FILE (the session store, created if missing) the stored sessions keep their store ids,
+the folders follow from the first id no session has had (the run prints which folder got which
+session ids once); global loops are searched against them and everything is written to the
 store as it happens. A folder already in it (frame indexes and stamps) is refused (exit status 3)
 without --again. A run killed before it ended (kill -9, power cut) leaves the folder's session
 `recording` in the store: running the folder again is refused (exit status 3) until you choose

@@ -356,7 +356,7 @@ def exported_run(store, survey, tmp_path_factory):
 def test_run_folder_export_gives_the_stores_tum_poses(exported, exported_run):
     from_store, _ = exported
     from_run, r = exported_run
-    def tum_files(folder):  # sessions by id, then the map (a store numbers from 1, the run's engine from 0)
+    def tum_files(folder):  # sessions by id, then the map (the same ids: a session's id is its store id)
         names = [p for p in os.listdir(folder) if p.endswith(".tum")]
         return sorted(names, key=lambda p: (p.startswith("map_"), int(p.split("_")[1].split(".")[0])))
 
@@ -381,15 +381,13 @@ def test_run_folder_export_gives_the_stores_tum_poses(exported, exported_run):
 def test_run_folder_export_marks_what_the_folder_lacks(exported, exported_run):
     from_store, _ = exported
     from_run, _ = exported_run
-    def renumbered(name):  # the store's name of a run file: ids one higher (see --help)
-        kind, rest = name.split("_", 1)
-        number, ext = rest.split(".", 1)
-        return "%s_%d.%s" % (kind, int(number) + 1, ext)
+    def renumbered(name):  # the store's name of a run file: the same (a session's id is its store id,
+        return name         # and a store numbers from 0 as the engine; stores numbered from 1 before)
 
     for name in (p for p in os.listdir(from_run) if p.endswith(".csv")):
         store_rows, run_rows = rows(from_store / renumbered(name)), rows(from_run / name)
         assert [r["frame_index"] for r in run_rows] == [r["frame_index"] for r in store_rows]
-        assert [int(r["session"]) + 1 for r in run_rows] == [int(r["session"]) for r in store_rows]
+        assert [int(r["session"]) for r in run_rows] == [int(r["session"]) for r in store_rows]
         for r in run_rows:  # no covariance in the folder: unknown, not invented
             assert [r[c] for c in ("cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw")] == ["nan"] * 6
     g2o = sorted(p for p in os.listdir(from_run) if p.endswith(".g2o"))

@@ -456,15 +456,22 @@ def test_db_rerun_after_kill_with_discard_processes_the_folder_again_as_one_clea
     # The audit trail: the deletion by the tool, then the rule's join of the new run.
     history = store_rows(db, "SELECT id, kind, cause, sessions, message FROM history ORDER BY id")
     assert history[0][:4] == (1, "delete", "tool", "0") and str(survey / "a") in history[0][4], history
-    assert [h[1:4] for h in history[1:]] == [("join", "automatic", "0+1")], history
+    # A session's id is its store id for life and is never given twice: the deleted session 0's id
+    # stays unused, so the new run's sessions are 1 and 2, in the store, its history and the CSV
+    # files (folders numbered from the first new id), where a clean run has 0 and 1.
+    assert [h[1:4] for h in history[1:]] == [("join", "automatic", "1+2")], history
+    assert store_rows(db, "SELECT id FROM sessions ORDER BY id") == [(1,), (2,)]
     one_run, _ = result
-    key = lambda l: tuple(l.values())
-    assert sorted(map(key, rows(os.path.join(out, "loops.csv")))) == sorted(map(key, rows(one_run / "loops.csv")))
-    assert rows(os.path.join(out, "links.csv")) == rows(one_run / "links.csv")
+    shift = {"session", "session_a", "session_b", "map", "previous_session", "current_session"}
+    key = lambda l: tuple(str(int(v) - 1) if k in shift else v for k, v in l.items())
+    assert sorted(map(key, rows(os.path.join(out, "loops.csv")))) == sorted(map(tuple, (l.values() for l in rows(
+        one_run / "loops.csv"))))
+    assert list(map(key, rows(os.path.join(out, "links.csv")))) == list(map(tuple, (l.values() for l in rows(
+        one_run / "links.csv"))))
     traj, clean = rows(os.path.join(out, "trajectory.csv")), rows(one_run / "trajectory.csv")
     assert len(traj) == len(clean)
     for a, b in zip(traj, clean):
-        assert (a["session"], a["index"], a["map"]) == (b["session"], b["index"], b["map"])
+        assert (int(a["session"]) - 1, a["index"], int(a["map"]) - 1) == (int(b["session"]), b["index"], int(b["map"]))
         assert abs(float(a["x_m"]) - float(b["x_m"])) < 1e-5 and abs(float(a["y_m"]) - float(b["y_m"])) < 1e-5
     # Each stored keyframe once: as many as the run's trajectory has.
     assert keyframes_in(db) == len(traj)

@@ -27,10 +27,9 @@ std::vector<InterruptedRun> findInterruptedRuns(const SessionStore& store, const
     bool ours = false;
   };
   std::vector<Seen> seen;
-  int next_id = 0;
   for (const StoredSession& s : store.sessions()) {
-    if (s.keyframes == 0) continue;  // never restored, never numbered (a crash before its first keyframe)
-    Seen x{s, next_id++, {}, {}, false};
+    if (s.keyframes == 0) continue;  // never restored (a crash before its first keyframe)
+    Seen x{s, static_cast<int>(s.id), {}, {}, false};  // a session's id is its store id
     for (const StoredKeyframe& k : store.keyframes(s.id, false)) {
       x.indexes.push_back(k.frame_index);
       x.stamps.push_back(k.stamp_s);

@@ -13,7 +13,8 @@ namespace core {
 using namespace session_detail;  // NOLINT: the manager's own helpers
 
 void SessionManager::addStoreRow(Session& s, double stamp_s) {
-  s.store_id = store_->addSession(s.name, s.camera, stamp_s);
+  // Its row takes the session's id: a session's id is its store id for life.
+  s.store_id = store_->addSession(s.name, s.camera, stamp_s, idOfBackend(s.backend));
   if (!s.vehicle.empty()) {  // another vehicle's: where it came from, as merge_stores records it
     SessionProvenance p;
     p.session = s.store_id;

@@ -101,7 +101,13 @@ void SessionManager::restore() {
   for (const std::string& note : r.notes) say(note);
   const std::vector<StoredSession> stored = store_->sessions();
   for (std::size_t b = 0; b < r.session_ids.size(); ++b) {
-    const int id = static_cast<int>(b);  // store order: ids 0..k-1
+    // A session's id is its store id, for life: the same after every restart, in every service
+    // answer, export file name and export_survey, and no id ever names two sessions.
+    if (r.session_ids[b] < 0 || r.session_ids[b] > kMaxSessionId)
+      throw StoreError("session store " + options_.store_path + ": a session with store id " +
+                       std::to_string(r.session_ids[b]) + ", outside [0, " + std::to_string(kMaxSessionId) +
+                       "]: session ids are store ids, so it cannot be used");
+    const int id = static_cast<int>(r.session_ids[b]);
     Session s;
     s.backend = static_cast<int>(b);
     s.store_id = r.session_ids[b];
@@ -151,6 +157,14 @@ void SessionManager::restore() {
     if (l.session_b != l.session_a) ++at(l.session_b).loops;
   }
   restored_sessions_ = static_cast<int>(sessions_.size());
+  // This run's sessions take their ids past every id the store holds or held. The id is the
+  // store id its row gets when the session is first written (addStoreRow), not reserved by an
+  // empty row at once: the store is held by this process alone (its lock), so no other writer
+  // can take the id meanwhile, and a session that never gets a keyframe leaves no row behind.
+  // nextSessionId() also counts deleted sessions, so an id is never given twice.
+  const std::int64_t next = store_->nextSessionId();
+  next_id_floor_ = static_cast<int>(std::min<std::int64_t>(next, kMaxSessionId + 1));
+  first_new_id_ = nextId();
   history_ = store_->history();
   history_restored_ = static_cast<std::ptrdiff_t>(history_.size());
   backend_->takeMapChanges();  // restoring is no join
@@ -311,8 +325,8 @@ void SessionManager::recordMapChanges() {
     }
     // Undoing the last join is a split, and says so: the last change of the maps was a join of
     // exactly this session and the rest.
-    // Only among this run's entries: a restart numbers the stored sessions 0..k-1 again, so an
-    // earlier run's ids may name other sessions now.
+    // Only among this run's entries: stores written before session ids were store ids numbered
+    // the stored sessions 0..k-1 at each restart, so an earlier run's entries may name others.
     std::string undo;
     for (auto it = history_.rbegin(); it != history_.rend() - history_restored_; ++it) {
       if (it->kind == "delete") break;  // the ids after a deleted one could be taken for others

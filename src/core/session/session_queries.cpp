@@ -83,7 +83,7 @@ std::vector<int> SessionQueries::sessionIds() const {
 std::vector<int> SessionQueries::storedSessionsOf(const std::vector<FrameRecord>& frames) const {
   std::vector<int> ids;
   for (const auto& [id, s] : sessions_)
-    if (id < restored_sessions_ && keyframesAreFramesOf(s.frames, s.stamps, frames)) ids.push_back(id);
+    if (restored(id) && keyframesAreFramesOf(s.frames, s.stamps, frames)) ids.push_back(id);
   return ids;
 }
 
@@ -124,7 +124,7 @@ std::optional<SessionQueries::Relocalisation> SessionQueries::relocalise(int ses
   const Session& s = at(session);
   const auto r = backend_->relocalise(s.backend, [this](int map) {
     for (int b : backend_->chain(map))
-      if (idOfBackend(b) < restored_sessions_) return true;
+      if (restored(idOfBackend(b))) return true;
     return false;
   });
   if (!r) return std::nullopt;
@@ -233,7 +233,7 @@ StoredKeyframe SessionQueries::storedFeatures(int session, int keyframe) const {
 std::vector<StoredKeyframe> SessionQueries::storedHashes(int session) const {
   if (!store_) throw StoreError("no session store: no stored hashes");
   const auto it = sessions_.find(session);
-  if (it == sessions_.end() || it->second.store_id < 0 || session >= restored_sessions_)
+  if (it == sessions_.end() || it->second.store_id < 0 || !restored(session))
     throw StoreError("session store " + options_.store_path + ": session " + std::to_string(session) +
                      " is not a stored session");
   std::vector<StoredKeyframe> out = store_->keyframes(it->second.store_id, SessionStore::KeyframeColumns::kHash);

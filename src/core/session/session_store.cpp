@@ -775,15 +775,47 @@ void SessionStore::checkHashSettings(const HashSettings& mine) {
 
 std::string unusableCamera(const CameraIntrinsics& c) { return c.unknown() ? std::string() : c.validate(); }
 
-std::int64_t SessionStore::addSession(const std::string& name, const CameraIntrinsics& c, double start_stamp_s) {
+namespace {
+// The meta row that keeps the ids of deleted sessions from being given again: `id INTEGER PRIMARY
+// KEY` without AUTOINCREMENT reuses the largest id once its row is gone, and a schema change
+// (AUTOINCREMENT) would make older builds' stores unreadable for nothing. A store without the row
+// has deleted no session (or only below its largest id).
+const char* kDeletedIdsKey = "next_session_id";
+}  // namespace
+
+std::int64_t SessionStore::nextSessionId() const {
+  Statement st(this,
+               "SELECT COALESCE((SELECT MAX(id) + 1 FROM sessions), 0), "
+               "COALESCE((SELECT CAST(value AS INTEGER) FROM meta WHERE key = ?), 0)");
+  st.bind(1, std::string(kDeletedIdsKey));
+  if (!st.step()) throw StoreError("session store " + path_ + ": its session ids could not be read");
+  return std::max(sqlite3_column_int64(st.get(), 0), sqlite3_column_int64(st.get(), 1));
+}
+
+std::int64_t SessionStore::addSession(const std::string& name, const CameraIntrinsics& c, double start_stamp_s,
+                                      std::int64_t id) {
   if (const std::string bad = unusableCamera(c); !bad.empty())
     throw StoreError("session store " + path_ + ": session '" + name + "' not added: its camera is not usable (" + bad +
                      ")");
+  Statement deleted(this, "SELECT CAST(value AS INTEGER) FROM meta WHERE key = ?");
+  deleted.bind(1, std::string(kDeletedIdsKey));
+  const std::int64_t floor = deleted.step() ? sqlite3_column_int64(deleted.get(), 0) : 0;
+  if (id >= 0 && id < floor) {
+    Statement taken(this, "SELECT count(*) FROM sessions WHERE id = ?");
+    taken.bind(1, id);
+    if (!taken.step() || sqlite3_column_int(taken.get(), 0) == 0)
+      throw StoreError("session store " + path_ + ": session '" + name + "' not added: id " + std::to_string(id) +
+                       " was a deleted session's (ids are never given twice)");
+  }
+  // Without an id (merge_stores, tools): the next one no session has had, from 0 like the session
+  // manager's, so that a store's ids are the ids the engine gave (SQLite would start at 1).
+  if (id < 0) id = nextSessionId();
   Statement st(this,
-               "INSERT INTO sessions(name, state, start_stamp, end_stamp, cam_width, cam_height, cam_fx, cam_fy, "
-               "cam_cx, cam_cy) VALUES (?, 'recording', ?, ?, ?, ?, ?, ?, ?, ?)");
-  st.bind(1, name).bind(2, start_stamp_s).bind(3, start_stamp_s).bind(4, c.width).bind(5, c.height);
-  st.bind(6, c.fx).bind(7, c.fy).bind(8, c.cx).bind(9, c.cy).run();
+               "INSERT INTO sessions(id, name, state, start_stamp, end_stamp, cam_width, cam_height, cam_fx, cam_fy, "
+               "cam_cx, cam_cy) VALUES (?, ?, 'recording', ?, ?, ?, ?, ?, ?, ?, ?)");
+  st.bind(1, id);
+  st.bind(2, name).bind(3, start_stamp_s).bind(4, start_stamp_s).bind(5, c.width).bind(6, c.height);
+  st.bind(7, c.fx).bind(8, c.fy).bind(9, c.cx).bind(10, c.cy).run();
   return sqlite3_last_insert_rowid(db_);
 }
 
@@ -935,6 +967,10 @@ void SessionStore::deleteOne(std::int64_t session) {
   if (!has.step() || sqlite3_column_int(has.get(), 0) == 0)
     throw StoreError("session store " + path_ + ": no session with store id " + std::to_string(session) + " to delete");
   has.reset();
+  // Ids are for life: the deleted id (and every one below the largest so far) is never given
+  // again, also after a restart (nextSessionId).
+  Statement mark(this, "INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)");
+  mark.bind(1, std::string(kDeletedIdsKey)).bind(2, std::to_string(nextSessionId())).run();
   std::set<std::int64_t> gone_loops;
   Statement gl(this, "SELECT id FROM loops WHERE session_a = ? OR session_b = ?");
   gl.bind(1, session).bind(2, session);

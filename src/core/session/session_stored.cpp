@@ -14,7 +14,7 @@ using namespace session_detail;  // NOLINT: the manager's own helpers
 Status SessionManager::reload(const std::string& name_or_id, ReloadedSession* out, ReloadRead read) {
   if (!store_) return {StatusCode::kFailedPrecondition, "no session store: nothing to reload"};
   const int id = findSession(name_or_id);
-  if (id < 0 || at(id).store_id < 0 || id >= restored_sessions_)
+  if (id < 0 || at(id).store_id < 0 || !restored(id))
     return {StatusCode::kNotFound, "no stored session named '" + name_or_id + "' in " + storeName() +
                                        " (list_sessions shows the stored ones as UNLOADED)"};
   Session& s = at(id);
@@ -57,7 +57,7 @@ Status SessionManager::unload(const std::string& name_or_id, int* id_out) {
     return {StatusCode::kNotFound, "no session named or numbered '" + name_or_id + "' (list_sessions shows them)"};
   if (id_out) *id_out = id;
   Session& s = at(id);
-  if (id >= restored_sessions_)
+  if (!restored(id))
     return {StatusCode::kFailedPrecondition,
             "session " + std::to_string(id) + " ('" + s.name +
                 "') was recorded in this run: only sessions restored from the store can be unloaded "

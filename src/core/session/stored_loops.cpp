@@ -19,7 +19,7 @@ StoredLoopSearch searchStoredLoops(SessionManager* manager, const SlamConfig& co
   std::set<int> named;
   for (const std::vector<int>& g : groups)
     for (int s : g) {
-      if (!manager->view().has(s) || s >= manager->view().restoredSessions())
+      if (!manager->view().restored(s))
         throw std::invalid_argument("session " + std::to_string(s) + " is not a stored session");
       if (!named.insert(s).second) throw std::invalid_argument("session " + std::to_string(s) + " is named twice");
     }
@@ -142,7 +142,7 @@ Status detectStoredLoops(SessionManager* manager, const SlamConfig& config, cons
     if (!manager->view().has(s))
       return {StatusCode::kNotFound,
               "detect_loops: no session " + std::to_string(s) + " (call list_sessions for the ids)"};
-    if (s >= manager->view().restoredSessions())
+    if (!manager->view().restored(s))
       return {StatusCode::kFailedPrecondition, "detect_loops: session " + std::to_string(s) +
                                                    " was recorded in this run (its loops were searched live); "
                                                    "only sessions restored from the store are searched"};

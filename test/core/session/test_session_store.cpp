@@ -599,7 +599,7 @@ TEST(Store, RefusesADamagedCameraRowAndReadsAnUnknownOne) {
       SessionStore(copy, StoreAccess::kReadOnly).sessions();
       ADD_FAILURE() << damage << ": read";
     } catch (const StoreError& e) {
-      EXPECT_NE(std::string(e.what()).find("session 1 'good' has a damaged camera row"), std::string::npos)
+      EXPECT_NE(std::string(e.what()).find("session 0 'good' has a damaged camera row"), std::string::npos)
           << damage << ": " << e.what();
     }
   }
@@ -1412,6 +1412,39 @@ TEST(Store, DeletingASessionLeavesTheOthersByteForByteAndCutsItOutOfTheMaps) {
 
 // The session at the end of a chain (what an interrupted run usually is: joined to a stored map
 // by its global loops): the chain keeps the rest; a map it was not in stays byte for byte.
+// A session's id is its store id for life: a deleted session's id is never given again, not
+// even when it was the largest (SQLite would reuse it) and the store is opened again; an id given
+// explicitly (the session manager's) must be new.
+TEST(Store, ASessionIdIsGivenOnceAlsoWhenTheLargestWasDeletedAndTheStoreReopened) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  {
+    SessionStore store(path);
+    EXPECT_EQ(store.nextSessionId(), 0);  // never held a session
+    EXPECT_EQ(store.addSession("a", camera(), 0.0, 0), 0);
+    EXPECT_EQ(store.addSession("b", camera(), 0.0, 1), 1);
+    EXPECT_EQ(store.addSession("c", camera(), 0.0, 2), 2);
+    EXPECT_EQ(store.nextSessionId(), 3);
+    EXPECT_THROW(store.addSession("taken", camera(), 0.0, 1), StoreError);
+    store.deleteSessions({2});
+    EXPECT_EQ(store.nextSessionId(), 3);  // SQLite alone would give 2 again
+  }
+  SessionStore store(path);
+  EXPECT_EQ(store.nextSessionId(), 3);
+  try {
+    store.addSession("again", camera(), 0.0, 2);
+    ADD_FAILURE() << "a deleted session's id was given again";
+  } catch (const StoreError& e) {
+    EXPECT_NE(std::string(e.what()).find("id 2 was a deleted session's"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(store.addSession("d", camera(), 0.0), 3);  // no id given: past the deleted one too
+  EXPECT_EQ(store.addSession("e", camera(), 0.0, 7), 7);
+  EXPECT_EQ(store.nextSessionId(), 8);
+  std::vector<std::int64_t> ids;
+  for (const StoredSession& st : store.sessions()) ids.push_back(st.id);
+  EXPECT_EQ(ids, (std::vector<std::int64_t>{0, 1, 3, 7}));
+}
+
 TEST(Store, DeletingTheLastSessionOfAChainKeepsTheRestOfTheMap) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
@@ -1492,7 +1525,9 @@ TEST(Store, AnInterruptedRunIsFoundWithItsPiecesAndFinishedOrDiscarded) {
     const std::vector<InterruptedRun> runs = findInterruptedRuns(store, folder);
     ASSERT_EQ(runs.size(), 1u);
     EXPECT_EQ(runs[0].store_ids, (std::vector<std::int64_t>{id["f"], id["f#1"]}));
-    EXPECT_EQ(runs[0].ids, (std::vector<int>{3, 4}));  // "empty" has no id
+    // A session's id is its store id ("empty" has one too, though it is never restored).
+    EXPECT_EQ(runs[0].ids, (std::vector<int>{static_cast<int>(id["f"]), static_cast<int>(id["f#1"])}));
+    EXPECT_EQ(runs[0].ids, (std::vector<int>{4, 5}));
     EXPECT_EQ(runs[0].name, "f#1");
     EXPECT_EQ(runs[0].keyframes, 5);
     EXPECT_DOUBLE_EQ(runs[0].last_stamp_s, 10.0 + 0.1 * 112);

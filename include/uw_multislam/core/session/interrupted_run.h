@@ -24,7 +24,7 @@ bool keyframesAreFramesOf(const std::vector<int>& frame_indexes, const std::vect
 /// each ending before the next one's first frame).
 struct InterruptedRun {
   std::vector<std::int64_t> store_ids;  // in store order; the last is the recording session
-  std::vector<int> ids;                 // the same as the session manager numbers them (0..k-1)
+  std::vector<int> ids;                 // the session manager's ids: the store ids
   std::string name;                     // the recording session's name
   int keyframes = 0;                    // in all of them
   double last_stamp_s = 0.0;            // the recording session's last keyframe

@@ -8,10 +8,13 @@
 // starts a session, assigns an id or writes the store.
 //
 // One id space. A session's id is what services, messages, the store's rows as the user sees
-// them, CSV outputs, rviz frames and logs call it. Sessions restored from the store take ids
-// 0..k-1 in store order (the store's own row ids are remapped here and never leave this class);
-// a live session takes the id its first keyframe names (the odometry continues from nextId(),
-// which the back-end announces) or, from startSession, nextId(). Ids only grow, and never past
+// them, CSV outputs, rviz frames and logs call it, and it is the session's store id for life:
+// sessions restored from the store keep their store ids (after every restart, in export file
+// names and in export_survey alike), and a session of this run takes an id past every id the
+// store holds or held (SessionStore::nextSessionId, deleted sessions included), which its store
+// row gets when it is first written. A live session takes the id its first keyframe names (the
+// odometry continues from nextId(), which the back-end announces) or, from startSession,
+// nextId(). Ids only grow, are never given twice (not after a deletion either), and never past
 // kMaxSessionId: a keyframe, loop or request naming a larger (or negative) id is refused, so a
 // corrupt message cannot make the ids wrap. A map is named by the id of its first session, its
 // frame is that session's frame.
@@ -154,7 +157,7 @@ class SessionManager : private SessionQueries {
   Status unload(const std::string& name_or_id, int* id = nullptr);
   /// delete_session: removes a finished session alone in its map from the store
   /// (keyframes, motions, its loops, its map; one transaction) and from memory, for good. The ids
-  /// of the others stay (a later restart numbers the stored sessions 0..k-1 again), ids are not
+  /// of the others stay (also after a restart), ids are not
   /// reused. Recorded in the audit trail. Refused with nothing changed: NOT_FOUND,
   /// FAILED_PRECONDITION (no store, localisation mode, the recording session, a session sharing
   /// its map: split it off first, `confirm` false: the message says what would go), DATA_LOSS

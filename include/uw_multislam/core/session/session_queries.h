@@ -176,7 +176,13 @@ class SessionQueries {
   int remoteIdOf(int session) const { return at(session).remote_id; }
   /// This manager's id of a vehicle's session while it records here, or -1.
   int foreignSession(const std::string& vehicle, int remote_session) const;
+  /// How many sessions were restored from the store.
   int restoredSessions() const { return restored_sessions_; }
+  /// Whether the session was restored from the store (not recorded in this run). Its id is its
+  /// store id, and this run's sessions take ids past every stored one (firstNewId() on).
+  bool restored(int session) const { return session < first_new_id_ && has(session); }
+  /// The first id this run gives: past every id the store holds or held (deleted sessions).
+  int firstNewId() const { return first_new_id_; }
   /// The stored sessions made from these frames before (a dataset folder run into the store
   /// again): every keyframe of such a session is one of `frames`, same index and stamp (to 1 us).
   std::vector<int> storedSessionsOf(const std::vector<FrameRecord>& frames) const;
@@ -320,6 +326,7 @@ class SessionQueries {
   std::string localising_since_;           // when localisation mode began (UTC), for its entry
   int active_ = -1;
   int restored_sessions_ = 0;
+  int first_new_id_ = 0;  // nextId() once the store is restored: ids below it are stored sessions'
   int next_id_floor_ = 0;  // past every id given so far (a deleted session's id is not reused)
   std::set<int> deleted_;  // ids of sessions deleted in this run
   std::map<std::pair<std::string, int>, int> foreign_ids_;    // (vehicle, its session) recording here -> id

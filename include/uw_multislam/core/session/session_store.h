@@ -170,8 +170,15 @@ class SessionStore {
   /// The stored settings, if any.
   bool hashSettings(HashSettings* out) const;
 
-  /// A new session (state recording). Returns its store id.
-  std::int64_t addSession(const std::string& name, const CameraIntrinsics& camera, double start_stamp_s);
+  /// A new session (state recording). Returns its store id: `id` when given (>= 0; the session
+  /// manager gives the id the session already has), else nextSessionId() (0 in a new store, as the
+  /// session manager numbers). StoreError when `id` is taken or was a deleted session's.
+  std::int64_t addSession(const std::string& name, const CameraIntrinsics& camera, double start_stamp_s,
+                          std::int64_t id = -1);
+  /// The smallest id no session has had: past every stored id and every deleted one (0 for a
+  /// store that never held a session). A session's store id is its id for life (README
+  /// "Session ids"), so a deleted session's id is never given again, also after a restart.
+  std::int64_t nextSessionId() const;
   /// Gives a session's row its camera (a row made before the session's first keyframe arrived,
   /// e.g. by saving the maps after start_session, has none: 0x0). Refused like addSession's.
   void setSessionCamera(std::int64_t session, const CameraIntrinsics& camera);
