@@ -645,6 +645,16 @@ def test_db_inputs_csv_numbers_the_folders_after_the_stored_sessions(stored_runs
     assert [(i["session"], i["folder"]) for i in rows(base / "r2" / "inputs.csv")] == [("1", str(survey / "b"))]
 
 
+def test_db_prints_which_folder_got_which_session_ids_once(stored_runs, survey):
+    """The mapping from the command line to session ids (the store's, the services', export_survey's),
+    printed once per run: folder b, the first folder after stored session 0, is CSV session 1 and
+    store session 1."""
+    _, r1, r2 = stored_runs
+    for r, number, folder in ((r1, 0, survey / "a"), (r2, 1, survey / "b")):
+        assert r.stdout.count("session ids (CSV session -> store session ids):") == 1, r.stdout
+        assert "\n  %d %s -> %d '%s'\n" % (number, folder, number, folder) in r.stdout, r.stdout
+
+
 def unrelated_folder(path):
     """A dataset folder of ../shared/data/posidonia_queries: 75 real seagrass and rock frames from
     another sea (480x270, not a sequence), with a plausible camera and altitude."""
