@@ -326,6 +326,55 @@ def case_export_planted_links(m, off):
         m.done(d)
 
 
+def case_restart_ids(m, off):
+    case = "session ids across restarts: a killed run discarded, then two more runs on the store"
+    expected = ("each session keeps its id and name in every run's start-up list, the store's rows and export_survey's "
+                "file names; the discarded session's id is never given again; each run prints its folder -> id "
+                "mapping once")
+    d = m.tempdir("restart_ids")
+    proc = None
+    try:
+        store = os.path.join(d, "s.db")
+        args = ["--session", off.folder("a"), "--out", os.path.join(d, "o1"), "--db", store]
+        with open(os.path.join(d, "run1.log"), "w") as log:
+            proc = off.start(args, log)
+            wait_for(lambda: (keyframe_count(store) or 0) >= 3 or proc.poll() is not None, 60, 0.02)
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(timeout=30)
+        # Run 2 deletes the killed run's session 0 and processes a again; run 3 adds b; run 4 only restores.
+        runs = [off.run(args + ["--interrupted", "discard"], quiet=False),
+                off.run(["--session", off.folder("b"), "--out", os.path.join(d, "o3"), "--db", store], quiet=False),
+                off.run(["--session", off.folder("a"), "--out", os.path.join(d, "o4"), "--db", store, "--again"],
+                        quiet=False)]
+        con = ro_connect(store)
+        try:
+            rows = con.execute("SELECT id, name FROM sessions ORDER BY id").fetchall()
+        finally:
+            con.close()
+        out = os.path.join(d, "export")
+        e = subprocess.run([tool(off, "export_survey"), "--db", store, "--out", out, "--quiet", "--no-mosaic"],
+                           capture_output=True, text=True, timeout=180)
+        exported = sorted(n for n in os.listdir(out) if n.startswith("session_") and n.endswith(".tum")) if \
+            e.returncode == 0 else []
+        a, b = off.folder("a"), off.folder("b")
+        want = [(1, a), (2, b), (3, a + " (2)")]  # a's second session: its name is taken, so " (2)"
+        mapping = ["\n  1 %s -> 1 '%s'\n" % (a, a), "\n  2 %s -> 2 '%s'\n" % (b, b), "\n  3 %s -> 3 '%s (2)'\n" % (a, a)]
+        printed_once = all(r.stdout.count("session ids (CSV session -> store session ids):") == 1 for r in runs)
+        held = (all(r.returncode == 0 for r in runs) and rows == want and exported == ["session_%d.tum" % i for i, _ in want]
+                and all(mp in r.stdout for mp, r in zip(mapping, runs)) and printed_once
+                and ("restored sessions: 1 '%s' (" % a) in runs[1].stdout
+                and ("restored sessions: 1 '%s' (" % a) in runs[2].stdout and ("2 '%s' (" % b) in runs[2].stdout)
+        observed = ("statuses %s; store rows %s; export_survey %s; mappings printed %s; run 3 and 4 restored %s / %s") % (
+            [r.returncode for r in runs], rows, exported or ("status %d: %s" % (e.returncode, short(e.stderr))),
+            [mp.strip() in r.stdout for mp, r in zip(mapping, runs)],
+            short(next((l for l in runs[1].stdout.splitlines() if "restored sessions:" in l), "none"), 120),
+            short(next((l for l in runs[2].stdout.splitlines() if "restored sessions:" in l), "none"), 120))
+        m.row(case, expected, observed, held)
+    finally:
+        stop(proc)
+        m.done(d)
+
+
 def case_self_merge_hard_link(m, off):
     case = "merge_stores of a store and its hard link"
     expected = "refused (status 1) in one line naming both inputs (given twice); no OUT, no temporary; the input unchanged"
@@ -531,7 +580,7 @@ def offline_dataset_cases(m, off):
 
 
 OFFLINE_CASES = [case_kill_offline, case_two_writers, case_hard_link_writer, case_export_planted_links,
-                 case_self_merge_hard_link, offline_store_cases, offline_dataset_cases]
+                 case_self_merge_hard_link, case_restart_ids, offline_store_cases, offline_dataset_cases]
 
 
 # Each in a process of its own (rospy talks to one master per process): fault_matrix_live.py.
