@@ -28,8 +28,9 @@ std::vector<InterruptedRun> findInterruptedRuns(const SessionStore& store, const
   };
   std::vector<Seen> seen;
   for (const StoredSession& s : store.sessions()) {
-    if (s.keyframes == 0) continue;  // never restored (a crash before its first keyframe)
-    Seen x{s, static_cast<int>(s.id), {}, {}, false};  // a session's id is its store id
+    // A row without keyframes (a crash before its first) is never restored. A session's id is its store id.
+    if (s.keyframes == 0) continue;
+    Seen x{s, static_cast<int>(s.id), {}, {}, false};
     for (const StoredKeyframe& k : store.keyframes(s.id, false)) {
       x.indexes.push_back(k.frame_index);
       x.stamps.push_back(k.stamp_s);

@@ -326,7 +326,7 @@ class SessionQueries {
   std::string localising_since_;           // when localisation mode began (UTC), for its entry
   int active_ = -1;
   int restored_sessions_ = 0;
-  int first_new_id_ = 0;  // nextId() once the store is restored: ids below it are stored sessions'
+  int first_new_id_ = 0;   // nextId() once the store is restored: ids below it are stored sessions'
   int next_id_floor_ = 0;  // past every id given so far (a deleted session's id is not reused)
   std::set<int> deleted_;  // ids of sessions deleted in this run
   std::map<std::pair<std::string, int>, int> foreign_ids_;    // (vehicle, its session) recording here -> id
