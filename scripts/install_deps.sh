@@ -14,6 +14,7 @@ PACKAGES=(
   python3-roslaunch python3-rostest librostest-dev rosbash python3-rostopic python3-rosservice
   libopencv-dev libeigen3-dev libceres-dev libsqlite3-dev libgtest-dev libyaml-cpp-dev
   libgeographiclib-dev libgdal-dev python3-gdal python3-pil
+  libvlfeat-dev
   python3-nodelet python3-rosnode python3-tf2-ros python3-tf2-msgs python3-geometry-msgs python3-sensor-msgs python3-nav-msgs python3-visualization-msgs python3-numpy python3-matplotlib python3-yaml python3-pytest bc
   topic-tools libimage-proc-dev
   rviz xvfb imagemagick clang-format

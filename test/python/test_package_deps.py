@@ -29,6 +29,7 @@ CMAKE_PACKAGE_KEYS = {
     "GeographicLib": "geographiclib",
     "GDAL": "libgdal-dev",
     "Boost": "libboost-program-options-dev",  # its one compiled component the package links (the tools' parser)
+    "VLFeat": "libvlfeat-dev",
     "Threads": None,  # the C library, no key
     "catkin": "catkin",
     "roslaunch": "roslaunch",
@@ -43,6 +44,7 @@ INCLUDE_KEYS = {
     "yaml-cpp": "yaml-cpp",
     "GeographicLib": "geographiclib",
     "boost": "boost",
+    "vl": "libvlfeat-dev",
     "gtest": "gtest",
     "sys": None,
     "uw_multislam": None,
@@ -75,8 +77,16 @@ def declared(kind):
 
 
 def cmake_text():
-    with open(os.path.join(PKG_DIR, "CMakeLists.txt")) as f:
-        return re.sub(r"#[^\n]*", "", f.read())
+    """CMakeLists.txt with the package's own cmake/*.cmake files it include()s put in their place."""
+    def read(path):
+        with open(path) as f:
+            return re.sub(r"#[^\n]*", "", f.read())
+
+    def inline(m):
+        return read(os.path.join(PKG_DIR, "cmake", m.group(1)))
+
+    return re.sub(r"include\(\$\{CMAKE_CURRENT_SOURCE_DIR\}/cmake/([\w.]+\.cmake)\)", inline,
+                  read(os.path.join(PKG_DIR, "CMakeLists.txt")))
 
 
 def catkin_components():

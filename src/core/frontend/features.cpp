@@ -5,8 +5,12 @@
 #include <stdexcept>
 
 #include <opencv2/imgproc.hpp>
+#ifdef UWMS_OPENCV_SIFT_XFEATURES2D
+#include <opencv2/xfeatures2d.hpp>
+#endif
 
 #include "uw_multislam/core/frontend/camera_model.h"
+#include "uw_multislam/core/frontend/vlfeat_sift.h"
 
 namespace uw_multislam {
 namespace core {
@@ -47,6 +51,64 @@ cv::Mat extractorDescriptors(const cv::Mat& stored) {
   return f;
 }
 
+std::string siftBackendName(SiftBackend b) { return b == SiftBackend::kVlfeat ? "vlfeat" : "opencv"; }
+
+bool parseSiftBackend(const std::string& name, SiftBackend* out) {
+  if (name == "opencv")
+    *out = SiftBackend::kOpenCv;
+  else if (name == "vlfeat")
+    *out = SiftBackend::kVlfeat;
+  else if (name == "auto")
+    *out = defaultSiftBackend();
+  else
+    return false;
+  return true;
+}
+
+namespace {
+
+/// OpenCV's SIFT as this build has it (cmake/uwms_platform.cmake).
+cv::Ptr<cv::Feature2D> createOpenCvSift(const FeatureOptions& o, int candidates) {
+#if defined(UWMS_OPENCV_SIFT_FEATURES2D)
+  return cv::SIFT::create(candidates, o.octave_layers, o.contrast_threshold, o.edge_threshold, o.sigma);
+#elif defined(UWMS_OPENCV_SIFT_XFEATURES2D)
+  return cv::xfeatures2d::SIFT::create(candidates, o.octave_layers, o.contrast_threshold, o.edge_threshold, o.sigma);
+#else
+  (void)o;
+  (void)candidates;
+  throw std::invalid_argument("features: " + siftBackendUnavailable(SiftBackend::kOpenCv));
+#endif
+}
+
+}  // namespace
+
+std::string siftBackendUnavailable(SiftBackend b) {
+  if (b == SiftBackend::kVlfeat) return vlfeatSiftUnavailable();
+#if defined(UWMS_OPENCV_SIFT_FEATURES2D)
+  return std::string();
+#elif defined(UWMS_OPENCV_SIFT_XFEATURES2D)
+  // opencv_contrib before 4.3 builds xfeatures2d's SIFT only with OPENCV_ENABLE_NONFREE, and
+  // throws when it is created otherwise (Ubuntu 20.04's libopencv-contrib-dev): ask it once.
+  static const std::string why = [] {
+    try {
+      cv::xfeatures2d::SIFT::create();
+      return std::string();
+    } catch (const cv::Exception& e) {
+      return "OpenCV " CV_VERSION "'s cv::xfeatures2d::SIFT refuses to run (" + std::string(e.err) + "); use vlfeat";
+    }
+  }();
+  return why;
+#else
+  return "this build's OpenCV (" CV_VERSION
+         ") has no SIFT (cv::SIFT is in features2d from 4.4 on, "
+         "cv::xfeatures2d::SIFT in opencv_contrib; built with UWMS_FORCE_SIFT_BACKEND=vlfeat?): use vlfeat";
+#endif
+}
+
+SiftBackend defaultSiftBackend() {
+  return siftBackendUnavailable(SiftBackend::kOpenCv).empty() ? SiftBackend::kOpenCv : SiftBackend::kVlfeat;
+}
+
 std::string FeatureOptions::validate() const {
   std::ostringstream os;
   if (num_features < 8 || num_features > 20000) {
@@ -77,6 +139,8 @@ std::string FeatureOptions::validate() const {
     os << "orb_fast_threshold " << orb_fast_threshold << " must be in [1, 255]";
   } else if (orb_levels < 1 || orb_levels > 16 || !(orb_scale_factor > 1.0 && orb_scale_factor <= 2.0)) {
     os << "orb_levels must be in [1, 16] and orb_scale_factor in (1, 2]";
+  } else if (type == FeatureType::kSift && !siftBackendUnavailable(sift_backend).empty()) {
+    os << "sift_backend " << siftBackendName(sift_backend) << ": " << siftBackendUnavailable(sift_backend);
   }
   return os.str();
 }
@@ -90,9 +154,10 @@ FeatureExtractor::FeatureExtractor(const FeatureOptions& options) : options_(opt
     // and the pyramid (FeatureOptions). Its patch (31 px) keeps corners that far from the border.
     detector_ = cv::ORB::create(candidates, static_cast<float>(options.orb_scale_factor), options.orb_levels, 31, 0, 2,
                                 cv::ORB::HARRIS_SCORE, 31, options.orb_fast_threshold);
+  } else if (options.sift_backend == SiftBackend::kVlfeat) {
+    detector_ = createVlfeatSift(options, candidates);
   } else {
-    detector_ = cv::SIFT::create(candidates, options.octave_layers, options.contrast_threshold, options.edge_threshold,
-                                 options.sigma);
+    detector_ = createOpenCvSift(options, candidates);
   }
 }
 
@@ -137,7 +202,9 @@ FrameFeatures FeatureExtractor::extract(const cv::Mat& grey) const {
   // would build the pyramid again, which costs as much as the detection).
   std::vector<cv::KeyPoint> candidates;
   cv::Mat descriptors;
-  if (options_.type == FeatureType::kSift && options_.first_octave == 0 && grey.cols >= 32 && grey.rows >= 32) {
+  // VLFeat's SIFT starts its scale space at first_octave itself.
+  if (options_.type == FeatureType::kSift && options_.sift_backend == SiftBackend::kOpenCv &&
+      options_.first_octave == 0 && grey.cols >= 32 && grey.rows >= 32) {
     // No doubling (first_octave in features.h): OpenCV's octave -1 of the halved image is at
     // the full image's resolution. A half-image pixel i covers full pixels 2i, 2i + 1, and
     // SIFT's doubled coordinates put i at 2i: full = 2 x half.

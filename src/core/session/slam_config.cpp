@@ -79,6 +79,7 @@ void visitOdometry(V& v, O& o) {
   });
   v.block("features", [&](V& f) {
     f.enumeration("type", o.features.type, featureTypeName, parseFeatureType, "sift, orb");
+    f.enumeration("sift_backend", o.features.sift_backend, siftBackendName, parseSiftBackend, "auto, opencv, vlfeat");
     f("num_features", o.features.num_features);
     f("grid_rows", o.features.grid_rows);
     f("grid_cols", o.features.grid_cols);

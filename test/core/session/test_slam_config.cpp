@@ -91,3 +91,37 @@ TEST(SlamConfig, TheBoundsThemselvesAreAcceptedAndRoundTrip) {
   EXPECT_EQ(slamConfigToYaml(slamConfigFromYaml("---\n" + slamConfigToYaml(SlamConfig()))),
             slamConfigToYaml(SlamConfig()));
 }
+
+// odometry.features.sift_backend: auto is the build's default (OpenCV's SIFT where it runs, else
+// VLFeat's) and the dump shows the one chosen; a backend this build cannot run is refused by key,
+// a word that names none too. Both outcomes are checked for each backend: which one a build gets
+// depends on its OpenCV and VLFeat.
+TEST(SlamConfig, SiftBackendAutoResolvesAndAnUnavailableOneIsRefusedByKey) {
+  using uw_multislam::core::defaultSiftBackend;
+  using uw_multislam::core::SiftBackend;
+  using uw_multislam::core::siftBackendName;
+  using uw_multislam::core::siftBackendUnavailable;
+  const SlamConfig automatic = slamConfigFromYaml("odometry: {features: {sift_backend: auto}}");
+  EXPECT_EQ(automatic.odometry.features.sift_backend, defaultSiftBackend());
+  EXPECT_EQ(SlamConfig().odometry.features.sift_backend, defaultSiftBackend());
+  EXPECT_NE(slamConfigToYaml(automatic).find("sift_backend: " + siftBackendName(defaultSiftBackend())),
+            std::string::npos);
+  EXPECT_EQ(siftBackendUnavailable(defaultSiftBackend()), "");
+  for (SiftBackend b : {SiftBackend::kOpenCv, SiftBackend::kVlfeat}) {
+    const std::string yaml = "odometry: {features: {sift_backend: " + siftBackendName(b) + "}}";
+    if (siftBackendUnavailable(b).empty()) {
+      EXPECT_EQ(slamConfigFromYaml(yaml).odometry.features.sift_backend, b);
+    } else {
+      EXPECT_NE(refusal(yaml).find("odometry.features.sift_backend " + siftBackendName(b) + ": "), std::string::npos)
+          << refusal(yaml);
+    }
+    // With ORB features the SIFT backend is not used, and not refused.
+    EXPECT_EQ(slamConfigFromYaml("odometry: {features: {type: orb, sift_backend: " + siftBackendName(b) + "}}")
+                  .odometry.features.sift_backend,
+              b);
+  }
+  EXPECT_NE(
+      refusal("odometry: {features: {sift_backend: cuda}}").find("unknown sift_backend 'cuda' (auto, opencv, vlfeat)"),
+      std::string::npos)
+      << refusal("odometry: {features: {sift_backend: cuda}}");
+}

@@ -37,9 +37,27 @@ FeatureType descriptorType(const cv::Mat& descriptors);
 /// turns back into the matched form.
 cv::Mat extractorDescriptors(const cv::Mat& stored);
 
+/// Which implementation computes SIFT (odometry.features.sift_backend). kOpenCv: OpenCV's
+/// (cv::SIFT of features2d from OpenCV 4.4 on, else cv::xfeatures2d::SIFT of opencv_contrib).
+/// kVlfeat: VLFeat's (core/frontend/vlfeat_sift.h), for an OpenCV without SIFT (Ubuntu 20.04's
+/// 4.2). Both give the same kind of feature: 128 whole numbers 0..255 in the same bin order, for
+/// the same points (measured: a point both find has descriptors 9x closer than two different
+/// points, and views match across backends as often as within one, doc/benchmarks/platforms.md).
+/// So a store, a loop detector or a peer vehicle may mix them; only the type is held to one.
+enum class SiftBackend { kOpenCv, kVlfeat };
+std::string siftBackendName(SiftBackend b);
+/// "opencv", "vlfeat", or "auto": defaultSiftBackend().
+bool parseSiftBackend(const std::string& name, SiftBackend* out);
+/// Why this build (and its OpenCV at run time) cannot run `b`, or empty when it can.
+std::string siftBackendUnavailable(SiftBackend b);
+/// OpenCV's SIFT where it runs, else VLFeat's.
+SiftBackend defaultSiftBackend();
+
 struct FeatureOptions {
   /// Which features: SIFT (default: the only one that holds in turbid water) or ORB (clear water).
   FeatureType type = FeatureType::kSift;
+  /// Which SIFT (type sift only): OpenCV's where this build has it, else VLFeat's.
+  SiftBackend sift_backend = defaultSiftBackend();
   /// ORB only: FAST's threshold (OpenCV's default 20 finds too few corners on dull seabed: the
   /// demo's dim second session lost tracking with 10).
   int orb_fast_threshold = 5;
@@ -63,7 +81,8 @@ struct FeatureOptions {
   int octave_layers = 3;
   /// Features closer than this to the image border are dropped (their descriptors are clipped).
   int border_px = 8;
-  /// First octave of the scale space (VLFeat's name): -1 = OpenCV's SIFT as it is, on the image
+  /// First octave of the scale space (VLFeat's name; VLFeat's SIFT takes it as it is, the text below
+  /// is about OpenCV's): -1 = OpenCV's SIFT as it is, on the image
   /// doubled first (its firstOctave = -1 is hard-coded in OpenCV 4.6's detectAndCompute);
   /// 0 = no doubling: the scale space starts at the image's own resolution. OpenCV offers no
   /// parameter for it, so 0 runs the same OpenCV SIFT on the image halved (cv::INTER_AREA),
