@@ -187,6 +187,8 @@ int exportSurvey(Arguments a) {
       files += static_cast<int>(written.files.size());
       if (!written.no_mosaic.empty())
         std::printf("%s.png: not drawn: %s\n", t.label.c_str(), written.no_mosaic.c_str());
+      if (!written.no_geotiff.empty())
+        std::printf("%s.tif: not written: %s\n", t.label.c_str(), written.no_geotiff.c_str());
       if (!written.mosaic || quiet) return;
       const core::MosaicResult& r = written.mosaic_result;
       std::printf(

@@ -1,8 +1,10 @@
 #include "uw_multislam/core/session/mosaic.h"
 
+#ifdef UWMS_HAVE_GDAL
 #include <cpl_conv.h>
 #include <gdal_priv.h>
 #include <ogr_spatialref.h>
+#endif
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -193,7 +195,162 @@ std::vector<cv::Scalar> exposureGains(const ExportTrack& track, const SurveyExpo
   return gains;
 }
 
+#ifdef UWMS_HAVE_GDAL
+/// The mosaic's raster, tile by tile into a tiled, compressed GeoTIFF, then streamed into the PNG
+/// by GDAL's CreateCopy: memory stays within GDAL's capped block cache. GDAL writes by path: it is
+/// given the temporaries AtomicFile made (exclusive, no link followed, in the destination's
+/// directory) by their /proc/self/fd paths, which reopen those very files whatever their names have
+/// become; each is renamed into place by commit(). Without an origin the GeoTIFF is only the PNG's
+/// source: its temporary is never renamed (removed with this object).
+class RasterFile {
+ public:
+  RasterFile(const std::string& png_path, const std::string& tif_path, mode_t mode, int width, int height,
+             int cache_mb)
+      : png_path_(png_path) {
+    GDALAllRegister();
+    CPLSetConfigOption("GDAL_CACHEMAX", std::to_string(cache_mb).c_str());
+    CPLSetConfigOption("GDAL_PAM_ENABLED", "NO");  // no .aux.xml beside the outputs
+    try {
+      tif_ = std::make_unique<AtomicFile>(tif_path, mode);
+      png_file_ = std::make_unique<AtomicFile>(png_path, mode);
+    } catch (const FileWriteError& e) {
+      throw ExportError(e.what());
+    }
+    GDALDriver* gtiff = GetGDALDriverManager()->GetDriverByName("GTiff");
+    png_ = GetGDALDriverManager()->GetDriverByName("PNG");
+    if (!gtiff || !png_) throw ExportError("GDAL has no GTiff or PNG driver");
+    char** create = nullptr;
+    create = CSLSetNameValue(create, "TILED", "YES");
+    create = CSLSetNameValue(create, "COMPRESS", "DEFLATE");
+    create = CSLSetNameValue(create, "PHOTOMETRIC", "RGB");
+    create = CSLSetNameValue(create, "ALPHA", "YES");
+    create = CSLSetNameValue(create, "BIGTIFF", "IF_SAFER");
+    ds_ = gtiff->Create(tif_->reopenPath().c_str(), width, height, 4, GDT_Byte, create);
+    CSLDestroy(create);
+    if (!ds_)
+      throw ExportError(png_path + ": GDAL cannot create its GeoTIFF (" + tif_->temporaryName() +
+                        "): " + CPLGetLastErrorMsg());
+  }
+  RasterFile(const RasterFile&) = delete;
+  RasterFile& operator=(const RasterFile&) = delete;
+  ~RasterFile() {
+    if (ds_) GDALClose(ds_);
+    // The AtomicFiles remove their temporaries unless committed.
+  }
+  void write(const cv::Rect& r, cv::Mat& rgba) {
+    if (ds_->RasterIO(GF_Write, r.x, r.y, r.width, r.height, rgba.data, r.width, r.height, GDT_Byte, 4, nullptr, 4,
+                      static_cast<GSpacing>(rgba.step), 1, nullptr) != CE_None)
+      throw ExportError(png_path_ + ": GDAL cannot write its GeoTIFF (" + tif_->temporaryName() +
+                        "): " + CPLGetLastErrorMsg());
+  }
+  /// A transverse Mercator centred on the origin (WGS84): at survey scale its grid is the local
+  /// tangent plane of the GeoJSON tracks to well under a millimetre per kilometre. (x0, y0): the
+  /// raster's top-left corner in the z-up map frame.
+  void georeference(const GeoOrigin& origin, double x0, double y0, double res) {
+    OGRSpatialReference srs;
+    srs.SetWellKnownGeogCS("WGS84");
+    srs.SetTM(origin.lat_deg, origin.lon_deg, 1.0, 0.0, 0.0);
+    srs.SetLinearUnits(SRS_UL_METER, 1.0);
+    // Pixel corner (c, r) -> map z-up (x0 + c res, y0 - r res) -> (east, north).
+    const double hd = origin.heading_deg * M_PI / 180.0, sh = std::sin(hd), chd = std::cos(hd);
+    double gt[6] = {x0 * sh - y0 * chd, res * sh, res * chd, x0 * chd + y0 * sh, res * chd, -res * sh};
+    ds_->SetGeoTransform(gt);
+    ds_->SetSpatialRef(&srs);
+  }
+  /// Completes the PNG's temporary from the GeoTIFF's (nothing renamed yet).
+  void finish() {
+    GDALClose(ds_);
+    ds_ = nullptr;
+    GDALDataset* src = static_cast<GDALDataset*>(GDALOpen(tif_->reopenPath().c_str(), GA_ReadOnly));
+    if (!src) throw ExportError(png_path_ + ": GDAL cannot reopen its GeoTIFF (" + tif_->temporaryName() + ")");
+    char** copy = CSLSetNameValue(nullptr, "WORLDFILE", "NO");
+    GDALDataset* out = png_->CreateCopy(png_file_->reopenPath().c_str(), src, FALSE, copy, nullptr, nullptr);
+    CSLDestroy(copy);
+    GDALClose(src);
+    if (!out) throw ExportError(png_path_ + ": GDAL cannot write the PNG: " + CPLGetLastErrorMsg());
+    GDALClose(out);
+  }
+  /// Renames the PNG into place, and the GeoTIFF when `keep_geotiff`.
+  void commit(bool keep_geotiff) {
+    try {
+      png_file_->commit();
+      if (keep_geotiff) tif_->commit();
+    } catch (const FileWriteError& e) {
+      throw ExportError(e.what());
+    }
+  }
+
+ private:
+  std::string png_path_;
+  std::unique_ptr<AtomicFile> tif_, png_file_;
+  GDALDriver* png_ = nullptr;
+  GDALDataset* ds_ = nullptr;
+};
+#else
+/// Without GDAL: the raster in memory (4 bytes a pixel, at most kMaxPixels), encoded once by
+/// OpenCV's PNG encoder into the PNG's AtomicFile; no GeoTIFF (geotiffUnavailable()).
+class RasterFile {
+ public:
+  RasterFile(const std::string& png_path, const std::string& /*tif_path: GDAL's*/, mode_t mode, int width,
+             int height, int /*cache_mb: GDAL's*/)
+      : png_path_(png_path) {
+    if (static_cast<double>(width) * height > kMaxPixels)
+      throw ExportError(png_path + ": " + std::to_string(width) + " x " + std::to_string(height) +
+                        " px is more than a build without GDAL assembles in memory (" +
+                        std::to_string(static_cast<int>(kMaxPixels / 1e6)) +
+                        " megapixels; GDAL streams it to disk): give a coarser --resolution");
+    try {
+      png_file_ = std::make_unique<AtomicFile>(png_path, mode);
+    } catch (const FileWriteError& e) {
+      throw ExportError(e.what());
+    }
+    rgba_.create(height, width, CV_8UC4);
+  }
+  RasterFile(const RasterFile&) = delete;
+  RasterFile& operator=(const RasterFile&) = delete;
+  void write(const cv::Rect& r, cv::Mat& rgba) { rgba.copyTo(rgba_(r)); }
+  void georeference(const GeoOrigin&, double, double, double) { throw ExportError(geotiffUnavailable()); }
+  void finish() {
+    cv::Mat bgra;
+    cv::cvtColor(rgba_, bgra, cv::COLOR_RGBA2BGRA);
+    rgba_.release();
+    std::vector<uchar> bytes;
+    bool ok = false;
+    try {
+      ok = cv::imencode(".png", bgra, bytes);
+    } catch (const cv::Exception& e) {
+      throw ExportError(png_path_ + ": cannot encode the PNG: " + e.what());
+    }
+    if (!ok) throw ExportError(png_path_ + ": cannot encode the PNG");
+    png_file_->stream().write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+  }
+  void commit(bool keep_geotiff) {
+    if (keep_geotiff) throw ExportError(png_path_ + ": " + geotiffUnavailable());
+    try {
+      png_file_->commit();
+    } catch (const FileWriteError& e) {
+      throw ExportError(e.what());
+    }
+  }
+
+ private:
+  static constexpr double kMaxPixels = 256e6;  // 1 GiB of RGBA
+  std::string png_path_;
+  std::unique_ptr<AtomicFile> png_file_;
+  cv::Mat rgba_;
+};
+#endif
+
 }  // namespace
+
+std::string geotiffUnavailable() {
+#ifdef UWMS_HAVE_GDAL
+  return std::string();
+#else
+  return "GeoTIFF export needs GDAL, and this build has none (install libgdal-dev, or GDAL >= 3.0, and rebuild); "
+         "the mosaic's PNG, its world file and the other files are written without it";
+#endif
+}
 
 void MosaicImages::addDataset(const std::string& directory) {
   datasets_.push_back(loadDataset(directory));
@@ -391,42 +548,11 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
       for (int tx = tx0; tx <= tx1; ++tx) touching[static_cast<std::size_t>(ty) * nx + tx].push_back(i);
   }
 
-  GDALAllRegister();
-  CPLSetConfigOption("GDAL_CACHEMAX", std::to_string(options.gdal_cache_mb).c_str());
-  CPLSetConfigOption("GDAL_PAM_ENABLED", "NO");  // no .aux.xml beside the outputs
-  // GDAL writes by path: it is given the temporaries AtomicFile made (exclusive, no link followed,
-  // in the destination's directory) by their /proc/self/fd paths, which reopen those very files
-  // whatever their names have become; each is renamed into place when complete. Without an origin
-  // the GeoTIFF is only the PNG's source: its temporary is never renamed (removed with it).
-  std::unique_ptr<AtomicFile> tif, png_file;
-  try {
-    tif = std::make_unique<AtomicFile>(origin ? geotiff_path : png_path + ".tif", survey.modes.file);
-    png_file = std::make_unique<AtomicFile>(png_path, survey.modes.file);
-  } catch (const FileWriteError& e) {
-    throw ExportError(e.what());
-  }
-  const std::string tmp_tif = tif->reopenPath(), tmp_png = png_file->reopenPath();
-  auto cleanup = [&] {
-    png_file.reset();
-    tif.reset();
-  };
-  GDALDriver* gtiff = GetGDALDriverManager()->GetDriverByName("GTiff");
-  GDALDriver* png = GetGDALDriverManager()->GetDriverByName("PNG");
-  if (!gtiff || !png) throw ExportError("GDAL has no GTiff or PNG driver");
-  char** create = nullptr;
-  create = CSLSetNameValue(create, "TILED", "YES");
-  create = CSLSetNameValue(create, "COMPRESS", "DEFLATE");
-  create = CSLSetNameValue(create, "PHOTOMETRIC", "RGB");
-  create = CSLSetNameValue(create, "ALPHA", "YES");
-  create = CSLSetNameValue(create, "BIGTIFF", "IF_SAFER");
-  GDALDataset* ds = gtiff->Create(tmp_tif.c_str(), raster.width, raster.height, 4, GDT_Byte, create);
-  CSLDestroy(create);
-  if (!ds) {
-    cleanup();
-    throw ExportError(png_path + ": GDAL cannot create its GeoTIFF (" + tif->temporaryName() +
-                      "): " + CPLGetLastErrorMsg());
-  }
-  try {
+  if (origin && !geotiffUnavailable().empty()) throw ExportError(geotiff_path + ": " + geotiffUnavailable());
+  // Its temporaries go with it unless committed.
+  RasterFile out(png_path, origin ? geotiff_path : png_path + ".tif", survey.modes.file, raster.width, raster.height,
+                 options.gdal_cache_mb);
+  {
     ImageCache cache(images, options.cache_bytes, n);
     double seam_sum = 0.0, all_sum = 0.0;
     long long seam_n = 0, all_n = 0;
@@ -518,10 +644,7 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
             }
           }
         }
-        if (ds->RasterIO(GF_Write, core.x, core.y, core.width, core.height, rgba.data, core.width, core.height,
-                         GDT_Byte, 4, nullptr, 4, static_cast<GSpacing>(rgba.step), 1, nullptr) != CE_None)
-          throw ExportError(png_path + ": GDAL cannot write its GeoTIFF (" + tif->temporaryName() +
-                            "): " + CPLGetLastErrorMsg());
+        out.write(core, rgba);
         ++result.tiles;
       }
     }
@@ -531,30 +654,8 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
       result.from_thumbnails += c == ImageCache::kThumbnail;
       result.missing += c == ImageCache::kNone || c == ImageCache::kNotLoaded;
     }
-    if (origin) {
-      // A transverse Mercator centred on the origin (WGS84): at survey scale its grid is the
-      // local tangent plane of the GeoJSON tracks to well under a millimetre per kilometre.
-      OGRSpatialReference srs;
-      srs.SetWellKnownGeogCS("WGS84");
-      srs.SetTM(origin->lat_deg, origin->lon_deg, 1.0, 0.0, 0.0);
-      srs.SetLinearUnits(SRS_UL_METER, 1.0);
-      // Pixel corner (c, r) -> map z-up (x0 + c res, y0 - r res) -> (east, north).
-      const double hd = origin->heading_deg * M_PI / 180.0, sh = std::sin(hd), chd = std::cos(hd);
-      const double x0 = result.x0, y0 = result.y0, res = raster.res;
-      double gt[6] = {x0 * sh - y0 * chd, res * sh, res * chd, x0 * chd + y0 * sh, res * chd, -res * sh};
-      ds->SetGeoTransform(gt);
-      ds->SetSpatialRef(&srs);
-    }
-    GDALClose(ds);
-    ds = nullptr;
-    GDALDataset* src = static_cast<GDALDataset*>(GDALOpen(tmp_tif.c_str(), GA_ReadOnly));
-    if (!src) throw ExportError(png_path + ": GDAL cannot reopen its GeoTIFF (" + tif->temporaryName() + ")");
-    char** copy = CSLSetNameValue(nullptr, "WORLDFILE", "NO");
-    GDALDataset* out = png->CreateCopy(tmp_png.c_str(), src, FALSE, copy, nullptr, nullptr);
-    CSLDestroy(copy);
-    GDALClose(src);
-    if (!out) throw ExportError(png_path + ": GDAL cannot write the PNG: " + CPLGetLastErrorMsg());
-    GDALClose(out);
+    if (origin) out.georeference(*origin, result.x0, result.y0, raster.res);
+    out.finish();
     // World file: pixel size, rotation terms, then the centre of the upper-left pixel (z-up map frame).
     std::filesystem::path world(png_path);
     world.replace_extension(".pgw");
@@ -564,17 +665,7 @@ MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, c
         << result.x0 + raster.res / 2.0 << "\n"
         << result.y0 - raster.res / 2.0 << "\n";
     });
-    try {
-      png_file->commit();
-      if (origin) tif->commit();
-    } catch (const FileWriteError& e) {
-      throw ExportError(e.what());
-    }
-    cleanup();  // the GeoTIFF's temporary, when it was only the PNG's source
-  } catch (...) {
-    if (ds) GDALClose(ds);
-    cleanup();
-    throw;
+    out.commit(origin != nullptr);
   }
   result.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return result;

@@ -39,12 +39,18 @@ TrackFiles writeTrackFiles(const ExportTrack& t, const SurveyExport& survey, con
     out.no_mosaic = "no session of " + t.label + " has a stored camera (0x0, written by an older version)";
     return out;
   }
+  // A build without GDAL draws the PNG and refuses only the GeoTIFF, saying why.
+  const GeoOrigin* geotiff_origin = options.origin;
+  if (options.origin && !geotiffUnavailable().empty()) {
+    out.no_geotiff = geotiffUnavailable();
+    geotiff_origin = nullptr;
+  }
   out.mosaic_result =
-      writeMosaic(t, survey, images, options.mosaic_options, base + ".png", options.origin, base + ".tif");
+      writeMosaic(t, survey, images, options.mosaic_options, base + ".png", geotiff_origin, base + ".tif");
   out.mosaic = true;
   wrote(".png");
   wrote(".pgw");
-  if (options.origin) wrote(".tif");
+  if (geotiff_origin) wrote(".tif");
   return out;
 }
 

@@ -1,6 +1,7 @@
 // Photomosaics of a session or a map: every keyframe's image drawn on the seabed plane
 // by its optimised pose and altitude, blended with OpenCV's stitching module, written tile by
-// tile through GDAL (PNG + world file, and a GeoTIFF when the map frame is georeferenced).
+// tile through GDAL (PNG + world file, and a GeoTIFF when the map frame is georeferenced; GDAL is
+// optional: without it the PNG is assembled in memory and the GeoTIFF refused, geotiffUnavailable()).
 //
 // Geometry. The camera looks straight down (the package's 2-D model): the pixel (u, v) of a
 // keyframe at altitude h sees the seabed point pose (+) ((u - cx) h / fx, (v - cy) h / fy) in
@@ -93,9 +94,15 @@ struct MosaicResult {
   double seam_ratio = 0.0;
 };
 
+/// Why this build cannot write GeoTIFFs (it was built without GDAL, which is optional), or empty
+/// when it can. Without GDAL the PNG is assembled in memory (at most 256 megapixels) and written
+/// by OpenCV; everything else is the same.
+std::string geotiffUnavailable();
+
 /// Draws `track`'s mosaic and writes `png_path` (PNG, RGBA) and its world file (`png_path` with
 /// .pgw), and, when `origin` is not null, `geotiff_path` (GeoTIFF, a transverse Mercator
-/// centred on the origin on WGS84, the raster's rotation in the geotransform). Each file is
+/// centred on the origin on WGS84, the raster's rotation in the geotransform; refused with
+/// geotiffUnavailable() before anything is drawn when the build has no GDAL). Each file is
 /// written to a temporary name and renamed. Throws ExportError.
 MosaicResult writeMosaic(const ExportTrack& track, const SurveyExport& survey, const MosaicImages& images,
                          const MosaicOptions& options, const std::string& png_path, const GeoOrigin* origin,

@@ -23,6 +23,7 @@ struct TrackFiles {
   std::vector<std::string> files;  // the paths written, in order
   bool mosaic = false;             // whether `mosaic` below was drawn
   std::string no_mosaic;           // why it was not, when asked for but not drawn
+  std::string no_geotiff;          // why the mosaic's GeoTIFF was not written, when an origin asked for it
   MosaicResult mosaic_result;
 };
 
