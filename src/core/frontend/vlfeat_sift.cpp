@@ -128,8 +128,10 @@ class VlfeatSift final : public cv::Feature2D {
     // The strongest max_keypoints_ seen so far (a min-heap of responses): a keypoint weaker than
     // the weakest of a full heap is never described, so only about max_keypoints_ descriptors
     // are computed (each octave's keypoints are visited strongest first).
-    const auto weaker = [&](int a, int b) { return stronger(all[b].keypoint, all[a].keypoint); };
-    std::priority_queue<int, std::vector<int>, decltype(weaker)> heap(weaker);
+    // std::priority_queue keeps on top what its comparison puts last: the weakest, when a stronger
+    // candidate compares "less".
+    const auto weakest_on_top = [&](int a, int b) { return stronger(all[a].keypoint, all[b].keypoint); };
+    std::priority_queue<int, std::vector<int>, decltype(weakest_on_top)> heap(weakest_on_top);
     std::vector<char> dropped;
     const auto full = [&] { return max_keypoints_ > 0 && static_cast<int>(heap.size()) >= max_keypoints_; };
     float raw[kDescriptorSize];

@@ -7,7 +7,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <map>
+#include <set>
 #include <vector>
 
 #include <opencv2/imgproc.hpp>
@@ -85,6 +87,34 @@ TEST_F(VlfeatSiftTest, GivesTheFixedCountSpreadInResponseOrderWithOpenCvsDescrip
   // A featureless image gives none, a too small one too, without error.
   EXPECT_LT(ex.extract(cv::Mat(240, 320, CV_8U, cv::Scalar(128))).size(), 5u);
   EXPECT_TRUE(ex.extract(cv::Mat(5, 5, CV_8U, cv::Scalar(9))).empty());
+}
+
+// The strongest max_keypoints of all VLFeat finds, whichever octave they come from (cv::SIFT's
+// nfeatures): the responses kept are the largest of the unlimited run, at the doubled image and without it.
+TEST_F(VlfeatSiftTest, KeepsTheStrongestKeypointsOfEveryOctave) {
+  const cv::Mat img = grey(Pose2(3.0, 3.0, 0.0));
+  for (int first_octave : {-1, 0}) {
+    FeatureOptions o = options(SiftBackend::kVlfeat);
+    o.first_octave = first_octave;
+    std::vector<cv::KeyPoint> all, best;
+    cv::Mat d;
+    createVlfeatSift(o, 0)->detectAndCompute(img, cv::noArray(), all, d);
+    ASSERT_GT(all.size(), 250u) << first_octave;
+    const std::size_t n = all.size() / 2;
+    createVlfeatSift(o, static_cast<int>(n))->detectAndCompute(img, cv::noArray(), best, d);
+    ASSERT_EQ(best.size(), n);
+    ASSERT_EQ(d.rows, static_cast<int>(n));
+    std::vector<float> top, kept;
+    for (const auto& k : all) top.push_back(k.response);
+    std::sort(top.begin(), top.end(), std::greater<float>());
+    top.resize(n);
+    for (const auto& k : best) kept.push_back(k.response);
+    EXPECT_EQ(kept, top) << "first_octave " << first_octave;
+    // Both octaves' scales among them (the doubled image's small ones and larger ones).
+    std::set<int> octaves;
+    for (const auto& k : best) octaves.insert(static_cast<signed char>(k.octave & 255));
+    EXPECT_GE(octaves.size(), 2u) << first_octave;
+  }
 }
 
 // The keypoints OpenCV and VLFeat both find (within 0.5 px and 10 % in size): their angles and

@@ -112,7 +112,7 @@ TEST(SlamConfig, SiftBackendAutoResolvesAndAnUnavailableOneIsRefusedByKey) {
     if (siftBackendUnavailable(b).empty()) {
       EXPECT_EQ(slamConfigFromYaml(yaml).odometry.features.sift_backend, b);
     } else {
-      EXPECT_NE(refusal(yaml).find("odometry.features.sift_backend " + siftBackendName(b) + ": "), std::string::npos)
+      EXPECT_NE(refusal(yaml).find("odometry.features: sift_backend " + siftBackendName(b) + ": "), std::string::npos)
           << refusal(yaml);
     }
     // With ORB features the SIFT backend is not used, and not refused.
