@@ -34,7 +34,7 @@ else()
 endif()
 set(UWMS_HAVE_VLFEAT OFF)
 if(NOT UWMS_FORCE_SIFT_BACKEND STREQUAL "opencv")
-  find_package(VLFeat QUIET)
+  find_package(VLFeat)
   if(VLFeat_FOUND)
     set(UWMS_HAVE_VLFEAT ON)
     list(APPEND UWMS_PLATFORM_DEFINITIONS UWMS_HAVE_VLFEAT)
@@ -44,7 +44,8 @@ endif()
 if(UWMS_OPENCV_SIFT STREQUAL "none" AND NOT UWMS_HAVE_VLFEAT)
   message(FATAL_ERROR "No SIFT: OpenCV ${OpenCV_VERSION} (OpenCV_DIR=${OpenCV_DIR}) has none (cv::SIFT is in features2d "
     "from 4.4 on, cv::xfeatures2d::SIFT needs opencv_contrib; -DUWMS_FORCE_SIFT_BACKEND=${UWMS_FORCE_SIFT_BACKEND}), and VLFeat was not found. "
-    "Install libvlfeat-dev (Debian, Ubuntu), or pass -DVLFeat_ROOT=<prefix of include/vl/sift.h and lib/libvl.so>.")
+    "Install libvlfeat-dev with SIFT (Debian 12's 0.9.21+full; the '+dfsg' packages of Debian 11 and Ubuntu leave it "
+    "out), or build VLFeat from its source and pass -DVLFeat_ROOT=<prefix of include/vl/sift.h and lib/libvl.so>.")
 endif()
 if(UWMS_FORCE_SIFT_BACKEND STREQUAL "opencv" AND UWMS_OPENCV_SIFT STREQUAL "none")
   message(FATAL_ERROR "UWMS_FORCE_SIFT_BACKEND=opencv, but OpenCV ${OpenCV_VERSION} has no SIFT (features2d from 4.4 "

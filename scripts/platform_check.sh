@@ -230,6 +230,18 @@ if [ "$ARCH" = amd64 ]; then
     log "bullseye lacks ${ros_missing[*]}: the ROS-free core, the simulator and test_core only"
   fi
   install_in_root "$AMD" amd64 "${amd_packages[@]}"
+  # Debian 11's libvlfeat-dev (0.9.21+dfsg0, like Ubuntu 20.04's) leaves SIFT out (vl/sift.h, for the
+  # patent, expired in 2020); Debian 12's (0.9.21+full) has it and installs on bullseye (glibc 2.29,
+  # libgomp1): this host's two packages, fetched by its apt, stand in for a VLFeat built from source.
+  if [ ! -e "$AMD/usr/include/vl/sift.h" ]; then
+    mkdir -p "$DIR/debs"
+    (cd "$DIR/debs" && apt-get download libvlfeat1 libvlfeat-dev > "$DIR/apt-download.log" 2>&1) \
+      || { tail "$DIR/apt-download.log" >&2; die "apt-get download libvlfeat1 libvlfeat-dev failed"; }
+    cp "$DIR"/debs/libvlfeat*.deb "$AMD/tmp/"
+    in_root "$AMD" bash -c "dpkg -i /tmp/libvlfeat*.deb && rm /tmp/libvlfeat*.deb" > "$DIR/dpkg-vlfeat.log" 2>&1 \
+      || { tail "$DIR/dpkg-vlfeat.log" >&2; die "dpkg -i of Debian 12's VLFeat in the bullseye root failed"; }
+    log "bullseye's libvlfeat-dev has no SIFT: Debian 12's $(ls "$DIR"/debs/libvlfeat-dev_*.deb | xargs -n1 basename) installed instead"
+  fi
   setup_s=$((setup_s + SECONDS - t0))
   versions=$(in_root "$AMD" dpkg-query -W -f='${Package} ${Version}\n' g++-10 g++-9 libopencv-dev libgdal-dev \
     libceres-dev cmake libboost-dev libeigen3-dev libvlfeat-dev libgeographic-dev ros-core-dev 2>/dev/null \
@@ -271,8 +283,8 @@ if [ "$ARCH" = amd64 ]; then
   fi
 
   # 2. Ubuntu 20.04's compiler and its OpenCV without SIFT: g++-9, VLFeat's SIFT alone.
-  if [ -n "$(unavailable "$AMD" libvlfeat-dev)" ]; then
-    summary+=("platform_check: bullseye amd64 g++-9 core: not built (no libvlfeat-dev)")
+  if [ ! -e "$AMD/usr/include/vl/sift.h" ]; then
+    summary+=("platform_check: bullseye amd64 g++-9 core: not built (no VLFeat with SIFT)")
   else
     t0=$SECONDS
     set +e

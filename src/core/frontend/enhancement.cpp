@@ -4,6 +4,7 @@
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
+#include <utility>
 #include <vector>
 
 namespace uw_multislam {
@@ -280,7 +281,14 @@ FeatureImageEnhancer::FeatureImageEnhancer(const EnhancementOptions& options) : 
 
 FeatureImageEnhancer::~FeatureImageEnhancer() = default;
 FeatureImageEnhancer::FeatureImageEnhancer(FeatureImageEnhancer&&) noexcept = default;
-FeatureImageEnhancer& FeatureImageEnhancer::operator=(FeatureImageEnhancer&&) noexcept = default;
+// Written out, not "= default": GCC 9 refuses a defaulted noexcept whose implicit specification
+// differs, and OpenCV before 4.6 does not declare cv::Ptr's move assignment noexcept (it is).
+FeatureImageEnhancer& FeatureImageEnhancer::operator=(FeatureImageEnhancer&& other) noexcept {
+  options_ = std::move(other.options_);
+  clahe_ = std::move(other.clahe_);
+  workspace_ = std::move(other.workspace_);
+  return *this;
+}
 
 cv::Mat FeatureImageEnhancer::enhance(const cv::Mat& image) {
   checkInput(image);

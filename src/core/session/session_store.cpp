@@ -166,7 +166,9 @@ std::vector<T> blobPrefix(sqlite3_stmt* st, int col, const std::string& path) {
   const int n = sqlite3_column_bytes(st, col);
   const void* p = sqlite3_column_blob(st, col);
   std::vector<T> out(static_cast<std::size_t>(n) / sizeof(T));
-  if (p && !out.empty()) std::memcpy(out.data(), p, out.size() * sizeof(T));
+  // void*: OpenCV before 4.6 declares cv::Point_'s copy assignment itself, which GCC's
+  // -Wclass-memaccess takes for a non-trivial one; the bytes are a float pair all the same.
+  if (p && !out.empty()) std::memcpy(static_cast<void*>(out.data()), p, out.size() * sizeof(T));
   return out;
 }
 
