@@ -85,9 +85,11 @@ unmount_all() {
   done
 }
 trap unmount_all EXIT
-in_root() {  # in_root ROOT COMMAND...: a command in the root, with its own /proc
+in_root() {  # in_root ROOT COMMAND...: a command in the root, with its own /proc and a read-only /sys
   local root=$1; shift
   mountpoint -q "$root/proc" || mount -t proc proc "$root/proc"
+  # As on a real system, /sys is not writable (a store test expects a path there to be refused).
+  mountpoint -q "$root/sys" || mount -t sysfs -o ro sysfs "$root/sys"
   chroot "$root" /usr/bin/env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin HOME=/root DEBIAN_FRONTEND=noninteractive \
     LC_ALL=C "$@"
 }
@@ -368,10 +370,12 @@ EOF
     summary+=("platform_check: bullseye arm64 core build (cross GCC 10, -Werror): ok, $build_s s")
     # An aarch64 ELF (e_machine 0xb7 at offset 18), not a host binary by mistake.
     [ "$(od -An -tx1 -j18 -N2 "$AMD/build/arm64/test_core" | tr -d ' \n')" = b700 ] || die "test_core is not an aarch64 ELF"
-    # qemu-aarch64-static -L: the arm64 loader and libraries from the root; the repository (which
+    # qemu-aarch64-static -L: the arm64 loader and libraries from the root; the package's own
+    # libraries from the build (their RPATH is the amd64 root's /build/arm64); the repository (which
     # test_core reads through UWMS_SOURCE_DIR) is at the same path on the host.
     run_gtest "bullseye arm64 test_core (qemu-user)" "$DIR/test_core-arm64.xml" "$DIR/test_core-arm64.log" \
-      bash -c "cd '$AMD/build/arm64' && qemu-aarch64-static -L '$ARM' ./test_core --gtest_output=xml:'$DIR/test_core-arm64.xml' $*"
+      bash -c "cd '$AMD/build/arm64' && qemu-aarch64-static -L '$ARM' -E LD_LIBRARY_PATH='$AMD/build/arm64' \
+        ./test_core --gtest_output=xml:'$DIR/test_core-arm64.xml' $*"
   fi
 fi
 

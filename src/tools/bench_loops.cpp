@@ -123,7 +123,12 @@ double median(std::vector<double> v) {
 
 /// Bytes the process holds from malloc (glibc: brk arena in use + mmapped blocks).
 double heapBytes() {
+#if __GLIBC__ > 2 || (__GLIBC__ == 2 && __GLIBC_MINOR__ >= 33)
   const struct mallinfo2 m = mallinfo2();
+#else
+  // glibc before 2.33 (Ubuntu 20.04, Debian 11) has only mallinfo, whose int fields wrap past 2 GiB.
+  const struct mallinfo m = mallinfo();
+#endif
   return static_cast<double>(m.uordblks) + static_cast<double>(m.hblkhd);
 }
 
