@@ -254,7 +254,10 @@ if [ "$ARCH" = amd64 ]; then
   t0=$SECONDS
   set +e
   if [ $mode = full ]; then
+    # A fresh CMake cache each run (the objects stay): Debian 11's cmake-extras GMockConfig defines the
+    # gmock_main target only when it is first found; a re-configure from the cache links a missing one.
     in_root "$AMD" bash -c "mkdir -p /ws/src && ln -sfn '$UWMS_REPO' /ws/src/uw_multislam && cd /ws && \
+      rm -f build/CMakeCache.txt && \
       catkin_make -DPYTHON_EXECUTABLE=/usr/bin/python3 -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCATKIN_ENABLE_TESTING=ON \
         -DUWMS_WERROR=ON -j$JOBS && \
       make -C build -j$JOBS test_core test_conversions test_no_gdal" > "$DIR/build-amd64.log" 2>&1
