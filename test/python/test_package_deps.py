@@ -106,7 +106,7 @@ def cmake_packages():
     text = cmake_text()
     testing = text.index("if(CATKIN_ENABLE_TESTING)")
     build, test = set(), set()
-    for m in re.finditer(r"find_package\((\S+)", text):
+    for m in re.finditer(r"find_package\(([^\s)]+)", text):
         name = m.group(1)
         assert name in CMAKE_PACKAGE_KEYS, "find_package(%s): add its rosdep key to CMAKE_PACKAGE_KEYS" % name
         key = CMAKE_PACKAGE_KEYS[name]

@@ -204,8 +204,7 @@ std::vector<cv::Scalar> exposureGains(const ExportTrack& track, const SurveyExpo
 /// source: its temporary is never renamed (removed with this object).
 class RasterFile {
  public:
-  RasterFile(const std::string& png_path, const std::string& tif_path, mode_t mode, int width, int height,
-             int cache_mb)
+  RasterFile(const std::string& png_path, const std::string& tif_path, mode_t mode, int width, int height, int cache_mb)
       : png_path_(png_path) {
     GDALAllRegister();
     CPLSetConfigOption("GDAL_CACHEMAX", std::to_string(cache_mb).c_str());
@@ -291,8 +290,8 @@ class RasterFile {
 /// OpenCV's PNG encoder into the PNG's AtomicFile; no GeoTIFF (geotiffUnavailable()).
 class RasterFile {
  public:
-  RasterFile(const std::string& png_path, const std::string& /*tif_path: GDAL's*/, mode_t mode, int width,
-             int height, int /*cache_mb: GDAL's*/)
+  RasterFile(const std::string& png_path, const std::string& /*tif_path: GDAL's*/, mode_t mode, int width, int height,
+             int /*cache_mb: GDAL's*/)
       : png_path_(png_path) {
     if (static_cast<double>(width) * height > kMaxPixels)
       throw ExportError(png_path + ": " + std::to_string(width) + " x " + std::to_string(height) +
