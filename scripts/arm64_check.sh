@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# arm64 check (issue 19, item 5): builds the ROS-free core (uw_multislam_core), the simulator
+# arm64 check: builds the ROS-free core (uw_multislam_core), the simulator
 # (uw_multislam_sim, which the tests link) and the core's gtests (test_core) for aarch64, the CPU of
 # a Jetson-class vehicle computer, and runs the tests under emulation (qemu-user). Not part of CI
 # (about 47 min from nothing, 20 to 25 min again, README "arm64 check").

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The benchmark report (issue 9): ONE markdown table with the machine and the date.
+# The benchmark report: ONE markdown table with the machine and the date.
 #   - ms per keyframe of each stage (feature extraction, matching, RANSAC, hashing, hash query,
 #     loop verification, optimisation) from offline_slam's timing.csv on the generated demo
 #     mission (two sessions, one core), and the whole pipeline's time as a ratio to feature
@@ -11,7 +11,7 @@
 #   - IEKF against sparse (bench_backend --cost 1000), HALOC against brute-force loop search on the
 #     demo mission (bench_loops), our odometry against the naive OpenCV baseline on
 #     ../shared/data/acfr (scripts/bench_odometry.sh; skipped when the data is not there);
-#   - the front-end options table (scripts/bench_frontend.sh, issue 19): ms/frame per odometry option
+#   - the front-end options table (scripts/bench_frontend.sh): ms/frame per odometry option
 #     on one core at 680x512 (acfr) and 320x240 (demo) beside OpenCV SIFT alone and the naive
 #     odometer in the same run, acfr drift and demo loop precision/recall; printed after the table.
 # usage: scripts/bench.sh [--quick] [OUT_DIR]   (needs a build: scripts/build.sh)

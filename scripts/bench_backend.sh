@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Back-end benchmark (issue 6), four tables:
+# Back-end benchmark, four tables:
 #   1. accuracy: offline_slam on generated missions with one, two and three sessions, the IEKF
 #      and the sparse optimiser side by side (ATE, the paper's e_k before and after, joins);
 #   2. cost: time and peak memory per optimiser at 100, 1k and 10k keyframes (bench_backend --cost);
@@ -74,7 +74,7 @@ if [ "${SKIP_ROBUSTNESS:-0}" != 1 ]; then
   "$bin/bench_backend" --robustness --mission "$out/m3" --runs "${RUNS:-20}"
 fi
 
-# 4. Wrong loops (issue 17): the two-session demo mission's true loops plus 0-50 % wrong ones
+# 4. Wrong loops (the join policies' robustness): the two-session demo mission's true loops plus 0-50 % wrong ones
 # between sessions, both join policies (bench_backend --outliers).
 echo; echo "## 4. Wrong loops on the demo mission (bench_backend --outliers)"; echo
 [ -d "$out/demo" ] || "$bin/make_survey" --preset demo --out "$out/demo" --no-bag --quiet

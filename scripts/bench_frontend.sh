@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Front-end options, measured (issue 19, items 2, 3 and 4): two markdown tables. The first: every
+# Front-end options, measured (feature options, threads, image size): two markdown tables. The first: every
 # run pinned to one core (taskset -c 0, offline_slam --threads 1), the references in the same run
 # so that the ratios hold on a noisy machine. The second: each option on two cores (taskset -c 0,1,
 # offline_slam --threads 2) against the same one-core run, wall ms/frame from offline_slam's
@@ -112,7 +112,7 @@ for n in "${names[@]}"; do
     > "$out/${n}_680.log" 2>&1 || { cat "$out/${n}_680.log" >&2; exit 1; }
   "${one_core[@]}" "$bin/offline_slam" "${demo[@]}" --out "$out/${n}_320" --threads 1 --config "$cfg" \
     > "$out/${n}_320.log" 2>&1 || { cat "$out/${n}_320.log" >&2; exit 1; }
-  # Two cores (issue 19, item 3): --threads 2 on cores 0 and 1, the same outputs expected.
+  # Two cores (a second core preparing frames): --threads 2 on cores 0 and 1, the same outputs expected.
   for size in 680 320; do
     if [ "$size" = 680 ]; then set -- "${acfr[@]}"; else set -- "${demo[@]}"; fi
     "${two_cores[@]}" "$bin/offline_slam" "$@" --out "$out/${n}_${size}_t2" --threads 2 --config "$cfg" \

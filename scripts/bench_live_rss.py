@@ -1,6 +1,6 @@
 #!/usr/bin/python3
-"""Memory of the live session through ROS (issue 20, item 1: "the live session's RSS grows
-<= 10 kB per keyframe beyond the cache budget"). Generates one long lawnmower session (the demo's
+"""Memory of the live session through ROS (the bar: the live session's RSS grows
+<= 10 kB per keyframe beyond the cache budget). Generates one long lawnmower session (the demo's
 second session, a loop, flown LAPS times over its seabed, so local loops keep reading old keyframes back),
 then plays its bag through replay.launch standalone (one process per node) with a session store,
 once per value of slam/loops/page_live_after (default 50 and 0 = live keyframes kept). Every

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""The loop detector's memory per stored keyframe through ROS (issue 20, paging): slam.launch
+"""The loop detector's memory per stored keyframe through ROS (paging of stored keyframes): slam.launch
 standalone (one process per node) on a store of N synthetic keyframes (bench_scale --keep), with
 reload_stored:=true and mode:=localisation, once with slam/loops/page_stored true (the default:
 hashes in RAM, features read from the back-end's store on demand) and once false (every feature

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""The current pose and a service during a large optimisation (issue 14): the back-end must never
+"""The current pose and a service during a large optimisation: the back-end must never
 make the per-frame pose or a service call wait for an optimisation. Starts backend_node (no
 store) on the running master, feeds it one session of N featureless keyframes in a straight
 line, then, while odometry/pose arrives at RATE Hz and list_sessions is called back to back, the
@@ -145,7 +145,7 @@ def main():
         period_ms = 1e3 / args.rate
         ratio = (lambda x: x / ms if optimised and ms > 0 else float("nan"))
         # The reference, measured in the same run: a pose or a call that waited for the
-        # optimisation (the back-end before issue 14 took its state lock for it) would take the
+        # optimisation (a back-end that took its state lock for it) would take the
         # whole optimisation.
         print("pose gap: %d keyframes, optimisation %s ms, longest gap in pose %.1f ms (odometry/pose every %.1f ms), "
               "gap / optimisation %.2f, longest list_sessions call %.1f ms (%d calls), call / optimisation %.2f"

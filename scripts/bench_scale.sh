@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Scale benchmark (issue 20): bench_scale for stores of 1 k and 10 k synthetic keyframes (and
+# Scale benchmark (stores of many keyframes): bench_scale for stores of 1 k and 10 k synthetic keyframes (and
 # 100 k with --100k: about 7 GB of store written to the temporary directory, checked first),
 # one markdown table row each: RSS per stored keyframe after a restart on the store, the
 # restart's load time, the median hash query and the median verification of one candidate
