@@ -1,4 +1,4 @@
-// The back-end nodelet: threading in its header; topics, services, parameters in doc/nodes/backend.md.
+// The back-end nodelet: threading in its header; behaviour in doc/nodes/backend.md, ROS API in doc/ros_api.md.
 #include "uw_multislam/ros/nodelets/backend_nodelet.h"
 
 #include <pluginlib/class_list_macros.hpp>

@@ -1,4 +1,4 @@
-// uw_multislam/LoopDetector: wiring, conversions and the worker's loop (doc/nodes/loop_detector.md).
+// uw_multislam/LoopDetector: wiring, conversions and the worker's loop (doc/nodes/loop_detector.md, doc/ros_api.md).
 #include "uw_multislam/ros/nodelets/loop_detector_nodelet.h"
 
 #include <pluginlib/class_list_macros.hpp>

@@ -1,5 +1,5 @@
 // The odometry nodelet's options: its own parameters (~ private; config/default.yaml and
-// doc/nodes/odometry.md document each), the SLAM configuration it runs, the frames and the
+// doc/ros_api.md document each), the SLAM configuration it runs, the frames and the
 // fallback calibration (the sensors' mount comes from tf at the first frame, ros/camera_mount.h), read and validated
 // once by odometryNodeletOptions() (the nodelet never reads a parameter itself). Tested in rostest bad_input (each
 // refusal names the key).

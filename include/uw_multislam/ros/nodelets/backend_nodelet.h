@@ -2,7 +2,7 @@
 // core::SessionWorker (core/session/session_worker.h), which owns the SessionManager, its work
 // queue and the optimisation loop: messages are converted and handed to the worker, services lock
 // (through the worker) and delegate, and what the manager's events say changed is published.
-// Topics, services and parameters: doc/nodes/backend.md.
+// Topics, services and parameters: doc/ros_api.md; behaviour: doc/nodes/backend.md.
 //
 // Threading: the subscriber callbacks convert and hand each message to the worker's bounded queue
 // (oldest dropped, counted); the worker's thread processes them and optimises outside its lock,
