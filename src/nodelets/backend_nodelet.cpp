@@ -4,6 +4,8 @@
 #include <pluginlib/class_list_macros.hpp>
 
 #include <cstdio>
+#include <filesystem>
+#include <tuple>
 #include <utility>
 
 #include "uw_multislam/SessionTrajectory.h"
@@ -175,7 +177,31 @@ uw_multislam::Status BackendNodelet::change(F request) {
     return st;
   });
   if (st.ok()) worker_->optimiseDue();  // what the request left due, solved by the worker
-  return rc::toStatusMsg(st);
+  return answer(st, "request");
+}
+
+uw_multislam::Status BackendNodelet::answer(const core::Status& st, const char* service) const {
+  std::vector<std::pair<std::string, std::string>> roles;
+  // Each path as given and as resolved (a relative one, or one through a symlink, appears absolute
+  // in the core's messages). The core says "session store PATH" and "export root 'PATH'": the role
+  // replaces both words.
+  for (const auto& [path, word, role] :
+       {std::tuple<std::string, std::string, std::string>{options_.store_path, "session store", "the store"},
+        {options_.export_root, "export root", "the export root"}}) {
+    if (path.empty()) continue;
+    std::error_code ec;
+    const std::string resolved = std::filesystem::weakly_canonical(path, ec).string();
+    const std::string absolute = std::filesystem::absolute(path, ec).lexically_normal().string();
+    for (const std::string& p : {path, resolved, absolute}) {
+      roles.push_back({word + " '" + p + "'", role});
+      roles.push_back({word + " " + p, role});
+      roles.push_back({"'" + p + "'", role});
+      roles.push_back({p, role});
+    }
+  }
+  const core::Status out = core::withRoles(st, roles);
+  if (out.message != st.message) NODELET_WARN("back-end: %s: %s", service, st.message.c_str());
+  return rc::toStatusMsg(out);
 }
 
 bool BackendNodelet::onJoin(uw_multislam::JoinSessions::Request& req, uw_multislam::JoinSessions::Response& res) {
@@ -200,7 +226,7 @@ bool BackendNodelet::onList(uw_multislam::ListSessions::Request&, uw_multislam::
       if (const auto r = m.relocalise(s.id)) res.sessions.back().relocalised_map = r->map;
     }
   });
-  res.status = rc::toStatusMsg(Status::Ok());
+  res.status = answer(Status::Ok(), "list_sessions");
   return true;
 }
 
@@ -239,17 +265,18 @@ bool BackendNodelet::onAddLink(uw_multislam::AddLink::Request& req, uw_multislam
   core::Loop l;  // checked as a detector's loop is, then by the core (find: RANSAC on the stored features)
   std::string why;
   if (!rc::fromAddLinkRequest(req, &l, &why)) {
-    res.status = rc::toStatusMsg({StatusCode::kInvalidArgument, "add_link: " + why});
+    res.status = answer({StatusCode::kInvalidArgument, "add_link: " + why}, "add_link");
     return true;
   }
-  res.status = change([&](SessionManager& m) { return core::addOperatorLink(&m, config_, req.find, &l); });
+  res.status =
+      change([&](SessionManager& m) { return core::addOperatorLink(&m, config_, req.find, &l, req.pose.theta); });
   res.pose = rc::toPose2DMsg(l.z.mean);
   res.inliers = l.inliers;
   return true;
 }
 
 bool BackendNodelet::onOptimise(uw_multislam::Optimise::Request&, uw_multislam::Optimise::Response& res) {
-  res.status = rc::toStatusMsg(worker_->locked([&](SessionManager& m) { return m.optimisePending(&res.maps); }));
+  res.status = answer(worker_->locked([&](SessionManager& m) { return m.optimisePending(&res.maps); }), "optimise");
   if (res.status.code == uw_multislam::Status::OK && res.maps > 0) worker_->optimiseDue();  // the worker solves them
   return true;
 }
@@ -270,6 +297,7 @@ bool BackendNodelet::onDetectLoops(uw_multislam::DetectLoops::Request& req, uw_m
     return st;
   });
   res = rc::toDetectLoopsResponse(st, f, joins);
+  res.status = answer(st, "detect_loops");
   NODELET_INFO(
       "back-end: detect_loops: %s; %d keyframes queried, %d candidates, %d loops (%d held already), "
       "%d accepted, %d refused, %d joins",
@@ -288,7 +316,7 @@ bool BackendNodelet::onSetMode(uw_multislam::SetMode::Request& req, uw_multislam
     res.mode = m.view().localising() ? "localisation" : "mapping";
     return st;
   });
-  res.status = rc::toStatusMsg(st);
+  res.status = answer(st, "set_mode");
   if (st.ok()) NODELET_INFO("back-end: set_mode %s: %s", res.mode.c_str(), st.message.c_str());
   return true;
 }
@@ -296,7 +324,7 @@ bool BackendNodelet::onSetMode(uw_multislam::SetMode::Request& req, uw_multislam
 bool BackendNodelet::onReload(uw_multislam::ReloadSession::Request& req, uw_multislam::ReloadSession::Response& res) {
   core::ReloadedSession r;
   const Status st = reloaded_->reload(req.name, &r);
-  res.status = rc::toStatusMsg(st);
+  res.status = answer(st, "reload_session");
   res.session = r.id;
   if (!st.ok()) return true;
   mosaic_->add(r);
@@ -345,7 +373,7 @@ bool BackendNodelet::onExport(uw_multislam::ExportSurvey::Request& req, uw_multi
   const Status st = exporter_->run(
       *worker_, {req.session, req.folder, req.origin, req.resolution_m, !req.no_mosaic, static_cast<bool>(req.map)},
       &out);
-  res.status = rc::toStatusMsg(st);
+  res.status = answer(st, "export");
   if (!st.ok()) {
     NODELET_WARN("back-end: export '%s' refused: %s", req.session.c_str(), st.message.c_str());
     return true;
@@ -366,7 +394,7 @@ bool BackendNodelet::onKeyframeFeatures(uw_multislam::KeyframeFeatures::Request&
     res = peers_->request(a.vehicle, a.remote_session, req.session, req, frame);
     return true;
   }
-  res.status = rc::toStatusMsg(st);
+  res.status = answer(st, "keyframe_features");
   if (st.ok() && !req.check_only) res.keyframe = rc::reloadedKeyframeMsg(a.session, a.keyframe, frame);
   return true;
 }

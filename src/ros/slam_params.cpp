@@ -86,7 +86,7 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
     throw std::invalid_argument(nh.resolveName("frames") + ": map_frame, odom_frame and base_frame must differ");
   o.queue_size = param(pnh, "queue_size", 1000, count, "in [1, 1000000]");
   o.max_waiting_loops = param(pnh, "max_waiting_loops", 1000, count, "in [1, 1000000]");
-  o.max_keyframe_gap = param(pnh, "max_keyframe_gap", 1000, count, "in [1, 1000000]");
+  o.max_keyframe_gap = param(pnh, "max_keyframe_gap", 32, count, "in [1, 1000000]");
   o.max_empty_sessions = param(
       pnh, "max_empty_sessions", 1, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
   o.frames.publish_tf = param(

@@ -11,6 +11,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -26,6 +27,7 @@
 #include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/session/keyframe_image.h"
 #include "uw_multislam/core/session/map_persistence.h"
+#include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/session_store.h"
 #include "uw_multislam/sim/seabed_world.h"
 #include "uw_multislam/sim/water_model.h"
@@ -39,6 +41,13 @@ namespace {
 
 const char* kUsage = R"(usage: bench_store [--keyframes N ...] [--features n] [--dir DIR] [--images DATASET_DIR]
                    [--image-keyframes N] [--no-images] [--images-only]
+       bench_store --index-steps [--dir DIR]
+
+--index-steps: the store's growth per keyframe message when the keyframe index steps by 1, by
+max_keyframe_gap + 1 (the largest gap bridged), 1000 and 2^20 (a corrupt or hostile sender),
+through the session manager as the back-end uses it (default options), 10 messages of 500
+features each; prints the bytes the store (database, WAL and shared memory files) grew per
+message, and the largest single message's growth.
 
 Writes one session of N keyframes (default: 1000 and 10000) into a fresh store in DIR (default:
 the system temporary directory; removed afterwards) and prints bytes per keyframe, write ms per
@@ -187,6 +196,7 @@ struct Arguments {
   std::string dataset_dir;
   int image_keyframes = 200;
   bool images = true, images_only = false;
+  bool index_steps = false;
 };
 
 std::string parseKeyframes(const std::string& text, int* n) {
@@ -207,13 +217,89 @@ std::optional<int> parseArguments(int argc, char** argv, Arguments* a) {
   option("image-keyframes", tools::integer(&a->image_keyframes));
   option("no-images", tools::flag(&no_images));
   option("images-only", tools::flag(&a->images_only));
+  option("index-steps", tools::flag(&a->index_steps));
   if (const auto status = cli.parse(argc, argv)) return status;
   a->images = !no_images;
   if (a->image_keyframes < 1 || a->features < 1) return cli.bad("--image-keyframes and --features must be at least 1");
   return std::nullopt;
 }
 
+// The store's files together: SQLite's WAL holds what a checkpoint has not moved yet.
+std::uintmax_t storeBytes(const std::string& path) {
+  std::uintmax_t total = 0;
+  for (const std::string& f : {path, path + "-wal", path + "-shm"}) {
+    std::error_code ec;
+    const std::uintmax_t n = fs::file_size(f, ec);
+    if (!ec) total += n;
+  }
+  return total;
+}
+
+// Keyframe messages whose index steps by `step`: what each one costs the store.
+int benchIndexSteps(const std::string& dir) {
+  std::printf("| index step | messages | accepted | refused | store bytes per message (mean) | largest message |\n");
+  std::printf("|---|---|---|---|---|---|\n");
+  const long long bridged = core::SessionManagerOptions().max_keyframe_gap + 1LL;
+  for (const long long step : {1LL, bridged, 1000LL, 1LL << 20}) {
+    const std::string path = (fs::path(dir) / ("bench_store_steps_" + std::to_string(step) + ".db")).string();
+    for (const std::string& f : {path, path + "-wal", path + "-shm", path + ".lock"}) fs::remove(f);
+    std::mt19937 rng(1);
+    core::SessionManagerOptions o;
+    o.store_path = path;
+    int accepted = 0, refused = 0;
+    const int messages = 10;
+    std::uintmax_t largest = 0, first = 0, last = 0;
+    {
+      core::SessionManager m(o);
+      for (int i = 0; i <= messages; ++i) {  // message 0: the session's origin, not counted
+        const long long index = i * step;
+        core::KeyframeInput k;
+        k.session = 0;
+        k.keyframe = static_cast<int>(std::min<long long>(index, std::numeric_limits<int>::max()));
+        k.frame_index = k.keyframe;
+        k.stamp_s = i;
+        k.altitude_m = 2.0;
+        k.camera.width = 320;
+        k.camera.height = 240;
+        k.camera.fx = k.camera.fy = 300;
+        k.camera.cx = 160;
+        k.camera.cy = 120;
+        const core::StoredKeyframe synthetic = syntheticKeyframe(0, k.keyframe, o.num_features, rng);
+        for (const cv::Point2f& p : synthetic.points) k.features.keypoints.emplace_back(p, 1.0f);
+        k.features.descriptors = synthetic.descriptors;
+        k.features.image_size = synthetic.image_size;
+        k.motion = core::UncertainPose2(core::Pose2(0.3, 0, 0), Eigen::Matrix3d::Identity() * 1e-4);
+        k.odometry_pose = core::Pose2(0.3 * i, 0, 0);
+        const std::uintmax_t before = storeBytes(path);
+        const core::Status st = m.addKeyframe(k);
+        const std::uintmax_t after = storeBytes(path);
+        if (i == 0) {
+          if (!st.ok()) throw std::runtime_error("the origin was refused: " + st.message);
+          first = after;
+          continue;
+        }
+        (st.ok() ? accepted : refused) += 1;
+        largest = std::max(largest, after > before ? after - before : 0);
+        last = after;
+      }
+    }
+    std::printf("| %lld | %d | %d | %d | %.0f | %ju |\n", step, messages, accepted, refused,
+                static_cast<double>(last > first ? last - first : 0) / messages, largest);
+    std::fflush(stdout);
+    for (const std::string& f : {path, path + "-wal", path + "-shm", path + ".lock"}) fs::remove(f);
+  }
+  return 0;
+}
+
 int bench(Arguments a) {
+  if (a.index_steps) {
+    try {
+      return benchIndexSteps(a.dir);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "bench_store: %s\n", e.what());
+      return 1;
+    }
+  }
   std::vector<int>& sizes = a.sizes;
   const int features = a.features, image_keyframes = a.image_keyframes;
   const std::string &dir = a.dir, &dataset_dir = a.dataset_dir;

@@ -144,9 +144,9 @@ int runOffline(const OfflineOptions& options) {
     // The operator's links (the back-end's add_link, offline): all checked and measured before
     // anything is written, so that a refusal adds none of them and leaves OUT alone.
     std::vector<OperatorLink> parsed = links;  // measured in place
-    for (auto& [l, measured] : parsed) {
+    for (auto& [l, measured, yaw] : parsed) {
       // The back-end's add_link checks, in one place; added below, after the folders.
-      const core::Status st = core::checkOperatorLink(manager.view(), config, !measured, &l);
+      const core::Status st = core::checkOperatorLink(manager.view(), config, !measured, &l, yaw);
       if (!st.ok()) {
         std::fprintf(stderr, "offline_slam: --add-link %d:%d:%d:%d refused (%s): %s; no link added\n", l.session_a,
                      l.keyframe_a, l.session_b, l.keyframe_b, core::statusCodeName(st.code), st.message.c_str());
@@ -169,7 +169,7 @@ int runOffline(const OfflineOptions& options) {
             stored, f.queries, f.candidates, f.found, f.duplicates, f.accepted, f.refused,
             manager.view().backendStats().joins);
     }
-    for (const auto& [l, measured] : parsed) {  // checked above; the back-end may still refuse one
+    for (const auto& [l, measured, yaw] : parsed) {  // checked above; the back-end may still refuse one
       const core::Status st = manager.addLink(l);
       if (!st.ok()) {
         std::fprintf(stderr, "offline_slam: --add-link %d:%d:%d:%d refused (%s): %s (the links before it are added)\n",

@@ -18,6 +18,7 @@ constexpr int kInStore = 3;
 struct OperatorLink {
   core::Loop loop;        // sessions and keyframes; z and its covariance when measured
   bool measured = false;  // z given; else found by RANSAC between the two stored keyframes
+  double yaw = 0.0;       // z's yaw as given (rad), before Pose2 wrapped it: checked to be in [-pi, pi]
 };
 
 /// offline_slam's command line, each value checked and every combination allowed (offline_slam.cpp).

@@ -83,7 +83,7 @@ folder is already in the store (the one-line reason names the option to pass: --
 
 // --add-link A:KA:B:KB[:X:Y:YAW:SXY:SYAW] -> a link (sessions, keyframes; z when measured). false:
 // not that shape, or a number that is not one (sigmas must be > 0).
-bool parseLink(const std::string& spec, core::Loop* link, bool* measured) {
+bool parseLink(const std::string& spec, core::Loop* link, bool* measured, double* yaw) {
   std::vector<std::string> f;
   std::size_t start = 0;
   for (std::size_t colon; (colon = spec.find(':', start)) != std::string::npos; start = colon + 1)
@@ -112,6 +112,7 @@ bool parseLink(const std::string& spec, core::Loop* link, bool* measured) {
   link->z = core::UncertainPose2(core::Pose2(x[0], x[1], x[2]),
                                  Eigen::Vector3d(x[3] * x[3], x[3] * x[3], x[4] * x[4]).asDiagonal());
   link->inliers = 0;
+  *yaw = x[2];
   return true;
 }
 
@@ -128,7 +129,7 @@ std::string parseInterrupted(const std::string& text, std::optional<core::Interr
 }
 
 std::string parseAddLink(const std::string& spec, tools::OperatorLink* link) {
-  if (parseLink(spec, &link->loop, &link->measured)) return "";
+  if (parseLink(spec, &link->loop, &link->measured, &link->yaw)) return "";
   return "bad --add-link '%value%': A:KA:B:KB (find it) or A:KA:B:KB:X:Y:YAW:SXY:SYAW (sigmas >= 1e-6)";
 }
 

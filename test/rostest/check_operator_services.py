@@ -134,11 +134,19 @@ class OperatorServicesTest(unittest.TestCase):
                  ((0, 2, 1, 2), {"pose": (math.nan, 0.0, 0.0)}, Status.INVALID_ARGUMENT),
                  ((0, 2, 1, 2), {"covariance": [0.0] * 9}, Status.INVALID_ARGUMENT),
                  ((0, 2, 1, 2), {"covariance": [1e-4, 5e-5, 0, 0, 1e-4, 0, 0, 0, 1e-4]}, Status.INVALID_ARGUMENT),
-                 ((0, 2, 1, 2), {"inliers": -3}, Status.INVALID_ARGUMENT)]
+                 ((0, 2, 1, 2), {"inliers": -3}, Status.INVALID_ARGUMENT),
+                 # Out of range, named as such: a yaw Pose2 would have wrapped to 0.577 rad, and more
+                 # inliers than a keyframe has features.
+                 ((0, 2, 1, 2), {"pose": (0.0, 1.0, 1e9)}, Status.INVALID_ARGUMENT),
+                 ((0, 2, 1, 2), {"inliers": 2 ** 31 - 1}, Status.INVALID_ARGUMENT)]
+        reasons = {(0.0, 1.0, 1e9): "outside [-pi, pi]", 2 ** 31 - 1: "inliers is more than"}
         for args, kwargs, code in wrong:
             res = self.link(*args, **kwargs)
             self.assertEqual(res.status.code, code, "%s %s: %s" % (args, kwargs, res.status.message))
             self.assertTrue(res.status.message, (args, kwargs))
+            for value in kwargs.values():
+                if isinstance(value, (tuple, int)) and value in reasons:
+                    self.assertIn(reasons[value], res.status.message)
         self.assertEqual(self.sessions(), before, "a refused add_link changed the sessions")
 
         # A local link 0.3 m longer than the odometry: it waits (1 of 100), optimise solves it.

@@ -31,8 +31,10 @@ bool resolveExportFolder(const std::string& root, const std::string& folder, std
   // Below the root: the root's components are a prefix of the target's.
   const bool below = std::mismatch(base.begin(), base.end(), target.begin(), target.end()).first == base.end();
   if (!below) {
-    *why = "folder '" + folder + "' resolves to " + target.string() + ", outside the export root " + base.string() +
-           ": give a folder below it (no '..' out of it, no absolute path or symbolic link elsewhere)";
+    // Named by role, not by path: the message answers a service's caller (the node logs the paths).
+    *why = "folder '" + folder +
+           "' resolves outside the export root: give a folder below it (no '..' out of it, no absolute path or "
+           "symbolic link elsewhere)";
     return false;
   }
   *out = target.string();

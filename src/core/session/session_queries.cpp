@@ -203,6 +203,26 @@ Status SessionQueries::checkLink(const Loop& l) const {
     return {StatusCode::kInvalidArgument,
             "add_link: the pose: " + bad + " (x, y, yaw; m, rad; covariance m^2, rad^2, row-major)"};
   if (l.inliers < 0) return {StatusCode::kInvalidArgument, "add_link: inliers must be >= 0"};
+  // Inliers are matched features of both keyframes: no more than either keyframe has. Their stored
+  // feature counts when both are in the store with features, else the extractor's cap
+  // (num_features), which no keyframe of this configuration exceeds.
+  int most = options_.num_features;
+  std::string bound = "num_features, the most features a keyframe has";
+  if (l.inliers > 0 && l.inliers <= most && inStore(l.session_a, l.keyframe_a) && inStore(l.session_b, l.keyframe_b)) {
+    try {
+      const StoredKeyframe a = storedFeatures(l.session_a, l.keyframe_a);
+      const StoredKeyframe b = storedFeatures(l.session_b, l.keyframe_b);
+      // A keyframe stored without features (a sender that gives only poses) bounds nothing more.
+      if (!a.points.empty() && !b.points.empty()) {
+        most = static_cast<int>(std::min(a.points.size(), b.points.size()));
+        bound = "the fewer features of the two keyframes";
+      }
+    } catch (const StoreError&) {  // unreadable: the cap still bounds it
+    }
+  }
+  if (l.inliers > most)
+    return {StatusCode::kInvalidArgument, "add_link: " + std::to_string(l.inliers) + " inliers is more than " +
+                                              std::to_string(most) + " (" + bound + ")"};
   return storedMapsMayChange("add_link");
 }
 

@@ -383,9 +383,12 @@ std::vector<int> SessionWorker::handedOver() const {
 }
 
 Status SessionWorker::keyframeFeatures(int session, int keyframe, bool check_only, KeyframeFeaturesAnswer* out) const {
-  if (session < 0 || session > kMaxSessionId || keyframe < 0)
+  if (session < 0 || session > kMaxSessionId)
+    return {StatusCode::kInvalidArgument, "keyframe_features names session " + std::to_string(session) +
+                                              ", outside the ids [0, " + std::to_string(kMaxSessionId) + "]"};
+  if (keyframe < 0)
     return {StatusCode::kInvalidArgument,
-            "session " + std::to_string(session) + ", keyframe " + std::to_string(keyframe) + ": ids must be >= 0"};
+            "keyframe_features: keyframe ids are >= 0 (got " + std::to_string(keyframe) + ")"};
   std::lock_guard<std::mutex> lock(mutex_);
   const SessionQueries& m = manager_->view();
   if (m.has(session) && !m.vehicleOf(session).empty()) {  // another vehicle's: that vehicle has the features

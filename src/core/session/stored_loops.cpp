@@ -1,5 +1,6 @@
 #include "uw_multislam/core/session/stored_loops.h"
 
+#include <cmath>
 #include <deque>
 #include <set>
 #include <stdexcept>
@@ -159,12 +160,19 @@ Status detectStoredLoops(SessionManager* manager, const SlamConfig& config, cons
   return Status::Ok();
 }
 
-Status checkOperatorLink(const SessionQueries& manager, const SlamConfig& config, bool measure, Loop* link) {
-  return measure ? findStoredLink(manager, config, link) : manager.checkLink(*link);
+Status checkOperatorLink(const SessionQueries& manager, const SlamConfig& config, bool measure, Loop* link,
+                         double given_yaw) {
+  if (measure) return findStoredLink(manager, config, link);
+  // The yaw as given, before Pose2 wrapped it (1e9 rad had gone in as 0.577 rad): an angle out of
+  // range is a wrong unit or a typo, not a turn.
+  if (!(std::abs(given_yaw) <= M_PI))
+    return {StatusCode::kInvalidArgument,
+            "add_link: yaw " + std::to_string(given_yaw) + " rad is outside [-pi, pi] (radians, not degrees)"};
+  return manager.checkLink(*link);
 }
 
-Status addOperatorLink(SessionManager* manager, const SlamConfig& config, bool measure, Loop* link) {
-  if (const Status st = checkOperatorLink(manager->view(), config, measure, link); !st.ok()) return st;
+Status addOperatorLink(SessionManager* manager, const SlamConfig& config, bool measure, Loop* link, double given_yaw) {
+  if (const Status st = checkOperatorLink(manager->view(), config, measure, link, given_yaw); !st.ok()) return st;
   return manager->addLink(*link);
 }
 

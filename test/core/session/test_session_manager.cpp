@@ -427,6 +427,8 @@ TEST(SessionManager, AManualLinkIsALoopLikeADetectorsAndAMisuseChangesNothing) {
     asymmetric.z.covariance(0, 1) = 1e-7;
     indefinite.z.covariance(2, 2) = -1e-6;
     negative.inliers = -1;
+    Loop too_many = link(0, 2, 1, 2);
+    too_many.inliers = 2147483647;  // more than num_features (500): no keyframe has that many features
     const std::vector<std::pair<Loop, StatusCode>> misuses{{link(0, 2, 42, 2), StatusCode::kNotFound},
                                                            {link(-1, 2, 1, 2), StatusCode::kInvalidArgument},
                                                            {link(0, 8, 1, 2), StatusCode::kNotFound},
@@ -437,15 +439,29 @@ TEST(SessionManager, AManualLinkIsALoopLikeADetectorsAndAMisuseChangesNothing) {
                                                            {asymmetric, StatusCode::kInvalidArgument},
                                                            {indefinite, StatusCode::kInvalidArgument},
                                                            {singular, StatusCode::kInvalidArgument},
-                                                           {negative, StatusCode::kInvalidArgument}};
+                                                           {negative, StatusCode::kInvalidArgument},
+                                                           {too_many, StatusCode::kInvalidArgument}};
     for (std::size_t i = 0; i < misuses.size(); ++i) {
       const Status st = m.addLink(misuses[i].first);
       EXPECT_EQ(st.code, misuses[i].second) << i << ": " << st.message;
       EXPECT_FALSE(st.message.empty()) << i;
       // The heads' one function (add_link, offline_slam --add-link) checks the same before adding.
       Loop l = misuses[i].first;
-      EXPECT_EQ(checkOperatorLink(m.view(), SlamConfig(), false, &l).code, misuses[i].second) << i;
-      EXPECT_EQ(addOperatorLink(&m, SlamConfig(), false, &l).code, misuses[i].second) << i;
+      EXPECT_EQ(checkOperatorLink(m.view(), SlamConfig(), false, &l, l.z.mean.yaw()).code, misuses[i].second) << i;
+      EXPECT_EQ(addOperatorLink(&m, SlamConfig(), false, &l, l.z.mean.yaw()).code, misuses[i].second) << i;
+    }
+    {
+      const Status st = m.addLink(too_many);
+      EXPECT_NE(st.message.find("inliers is more than 500 (num_features"), std::string::npos) << st.message;
+    }
+    // A yaw out of [-pi, pi] as given (1e9 rad wraps to 0.577 rad in Pose2) is refused, naming it;
+    // pi itself is an angle.
+    for (const double yaw : {1e9, -3.2, 2 * M_PI}) {
+      Loop l = link(0, 2, 1, 2);
+      l.z.mean = Pose2(0, 1, yaw);
+      const Status st = addOperatorLink(&m, SlamConfig(), false, &l, yaw);
+      EXPECT_EQ(st.code, StatusCode::kInvalidArgument) << yaw;
+      EXPECT_NE(st.message.find("outside [-pi, pi]"), std::string::npos) << st.message;
     }
     EXPECT_TRUE(m.view().loops().empty());
     EXPECT_EQ(m.view().list()[0].loops + m.view().list()[1].loops, 0);
@@ -455,9 +471,10 @@ TEST(SessionManager, AManualLinkIsALoopLikeADetectorsAndAMisuseChangesNothing) {
     local.z = UncertainPose2(Pose2(4, 0, 0), Eigen::Matrix3d::Identity() * 1e-6);
     local.kind = Loop::Kind::kGlobal;
     Loop given = link(0, 2, 1, 2);
-    ASSERT_TRUE(checkOperatorLink(m.view(), SlamConfig(), false, &given).ok());
+    given.inliers = 500;  // num_features: possible
+    ASSERT_TRUE(checkOperatorLink(m.view(), SlamConfig(), false, &given, M_PI).ok());
     EXPECT_TRUE(m.view().loops().empty()) << "a check adds nothing";
-    ASSERT_TRUE(addOperatorLink(&m, SlamConfig(), false, &given).ok());
+    ASSERT_TRUE(addOperatorLink(&m, SlamConfig(), false, &given, given.z.mean.yaw()).ok());
     ASSERT_TRUE(m.addLink(local).ok());
     ASSERT_EQ(m.view().loops().size(), 2u);
     EXPECT_EQ(m.view().loops()[0].kind, Loop::Kind::kGlobal);

@@ -256,6 +256,11 @@ TEST(SessionWorker, KeyframeFeaturesAnswersAreClassified) {
     EXPECT_EQ(w.keyframeFeatures(-1, 0, false, &a).code, StatusCode::kInvalidArgument);
     EXPECT_EQ(w.keyframeFeatures(0, -1, false, &a).code, StatusCode::kInvalidArgument);
     EXPECT_EQ(w.keyframeFeatures(kMaxSessionId + 1, 0, false, &a).code, StatusCode::kInvalidArgument);
+    // The real reason: a huge id is out of range, not negative.
+    const Status huge = w.keyframeFeatures(2147483647, 0, false, &a);
+    EXPECT_NE(huge.message.find("session 2147483647, outside the ids [0, 1000000]"), std::string::npos)
+        << huge.message;
+    EXPECT_NE(w.keyframeFeatures(0, -1, false, &a).message.find("keyframe ids are >= 0"), std::string::npos);
     EXPECT_EQ(w.keyframeFeatures(0, 0, false, &a).code, StatusCode::kFailedPrecondition) << "no store";
     EXPECT_EQ(w.keyframeFeatures(0, 0, true, &a).code, StatusCode::kFailedPrecondition) << "no store";
   }

@@ -5,6 +5,8 @@
 
 #include <cstdint>
 #include <string>
+#include <utility>
+#include <vector>
 
 namespace uw_multislam {
 namespace core {
@@ -17,8 +19,8 @@ enum class StatusCode : std::uint8_t {
   kResourceExhausted = 8,   // a limit is reached (e.g. too many empty sessions, no session id left)
   kFailedPrecondition = 9,  // a valid request the current state does not allow
   kInternal = 13,
-  kUnavailable = 14,        // busy now (e.g. another export running): try again
-  kDataLoss = 15,           // the session store could not be read
+  kUnavailable = 14,  // busy now (e.g. another export running): try again
+  kDataLoss = 15,     // the session store could not be read
 };
 
 struct Status {
@@ -29,6 +31,12 @@ struct Status {
 };
 
 const char* statusCodeName(StatusCode c);
+
+/// `s` with every occurrence of each path of `roles` ({path, role}, e.g. {"/data/s.db", "the
+/// store"}) replaced by its role, longer paths first (a folder inside a named one keeps its own
+/// name relative to the role). Services answer any caller: they name files by role, and the node
+/// logs the full message. Empty paths are ignored.
+Status withRoles(Status s, std::vector<std::pair<std::string, std::string>> roles);
 
 }  // namespace core
 }  // namespace uw_multislam

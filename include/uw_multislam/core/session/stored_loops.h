@@ -55,11 +55,15 @@ Status findStoredLink(const SessionQueries& manager, const SlamConfig& config, L
 /// `measure`, measured from the stored features (findStoredLink: z and inliers), nothing changed:
 /// OK when SessionManager::addLink would take it; the codes of findStoredLink, or of addLink's
 /// checks (SessionManager::checkLink) when the pose is given. A caller that checks several links
-/// before adding any (offline_slam) calls this first, then addOperatorLink.
-Status checkOperatorLink(const SessionQueries& manager, const SlamConfig& config, bool measure, Loop* link);
+/// before adding any (offline_slam) calls this first, then addOperatorLink. `given_yaw` is the
+/// pose's yaw as the caller received it (rad; Pose2 wraps it): a given pose's yaw outside
+/// [-pi, pi] is refused (INVALID_ARGUMENT), and so are inliers above the keyframes' feature
+/// count (SessionQueries::checkLink).
+Status checkOperatorLink(const SessionQueries& manager, const SlamConfig& config, bool measure, Loop* link,
+                         double given_yaw);
 /// checkOperatorLink, then SessionManager::addLink: the link is a loop like a detector's (stored,
 /// optimised, counted towards joins). *link holds the measured pose and inliers.
-Status addOperatorLink(SessionManager* manager, const SlamConfig& config, bool measure, Loop* link);
+Status addOperatorLink(SessionManager* manager, const SlamConfig& config, bool measure, Loop* link, double given_yaw);
 
 }  // namespace core
 }  // namespace uw_multislam

@@ -87,6 +87,9 @@ class BackendNodelet : public nodelet::Nodelet {
   std::vector<ros_diagnostics::Counter> counters(const core::SessionQueries& m) const;  // worker's lock
   void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
   void say(const std::string& line) const;  // INFO, also once rosconsole is shut down
+  /// A service's answer: `st` with the store's and the export root's paths named by role ("the
+  /// store", "the export root"): any caller reads answers; the full message goes to the log (WARN).
+  uw_multislam::Status answer(const core::Status& st, const char* service) const;
 
   core::SlamConfig config_;
   ros_params::BackendNodeletOptions options_;
