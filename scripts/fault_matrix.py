@@ -399,6 +399,50 @@ def case_self_merge_hard_link(m, off):
         m.done(d)
 
 
+def case_index_steps(m, off, bound_kb=3000):
+    case = "keyframe index stepped by 1, max_keyframe_gap + 1, 1000 and 2^20 per message (bench_store --index-steps)"
+    expected = ("the store grows at most %d kB per message whatever the index (a keyframe's own ~120 kB and at most "
+                "max_keyframe_gap placeholders, 32 by default); steps 1000 and 2^20 refused, growing nothing" % bound_kb)
+    d = m.tempdir("index_steps")
+    try:
+        r = subprocess.run([tool(off, "bench_store"), "--index-steps", "--dir", d], capture_output=True, text=True,
+                           timeout=300)
+        rows = {}
+        for line in r.stdout.splitlines():
+            cells = [c.strip() for c in line.strip().strip("|").split("|")]
+            if len(cells) == 6 and cells[0].isdigit():
+                rows[int(cells[0])] = [int(c) for c in cells[1:]]  # messages, accepted, refused, mean, largest
+        steps = sorted(rows)
+        held = (r.returncode == 0 and len(steps) == 4 and 1000 in rows and 2 ** 20 in rows
+                and all(rows[s][4] <= bound_kb * 1000 for s in steps)
+                and rows[1][1] == rows[1][0] and rows[1000][2] == rows[1000][0] and rows[2 ** 20][2] == rows[2 ** 20][0]
+                and rows[1000][4] == 0 and rows[2 ** 20][4] == 0)
+        observed = "status %d; %s" % (r.returncode, "; ".join(
+            "step %d: %d accepted, %d refused, %.0f kB per message, largest %.0f kB" % (
+                s, rows[s][1], rows[s][2], rows[s][3] / 1000.0, rows[s][4] / 1000.0) for s in steps) or short(r.stderr))
+        m.row(case, expected, observed, held)
+    finally:
+        m.done(d)
+
+
+def case_add_link_yaw_offline(m, off):
+    case = "offline_slam --add-link with a yaw of 1e9 rad"
+    expected = "refused (status 1) in one line naming the yaw outside [-pi, pi]; the store unchanged"
+    d = m.tempdir("add_link_yaw")
+    try:
+        store = os.path.join(d, "s.db")
+        shutil.copyfile(off.valid_store, store)
+        before = md5(store)
+        r = off.run(["--db", store, "--out", os.path.join(d, "o"), "--add-link", "0:1:0:5:0:0:1e9:0.1:0.1"])
+        lines = reason(r.stderr)
+        held = r.returncode == 1 and len(lines) == 1 and "outside [-pi, pi]" in lines[0] and md5(store) == before
+        observed = "status %d: %s; store %s" % (r.returncode, " / ".join(lines) or "(no message)",
+                                                 "unchanged" if md5(store) == before else "CHANGED")
+        m.row(case, expected, observed, held)
+    finally:
+        m.done(d)
+
+
 def bad_store_case(m, off, label, make, expect_refusal=True, expected=None):
     case = "store: " + label
     expected = expected or "refused: one line naming the file; the file byte-identical"
@@ -580,13 +624,14 @@ def offline_dataset_cases(m, off):
 
 
 OFFLINE_CASES = [case_kill_offline, case_two_writers, case_hard_link_writer, case_export_planted_links,
-                 case_self_merge_hard_link, case_restart_ids, offline_store_cases, offline_dataset_cases]
+                 case_self_merge_hard_link, case_restart_ids, case_index_steps, case_add_link_yaw_offline,
+                 offline_store_cases, offline_dataset_cases]
 
 
 # Each in a process of its own (rospy talks to one master per process): fault_matrix_live.py.
 LIVE_CASES = [("service_misuse", 240), ("concurrent", 240), ("kill_manager", 240), ("bad_images", 240),
               ("kill_manager_moments", 240), ("replay_rates", 240), ("silent_altitude", 240), ("burst", 240),
-              ("store_cap", 240), ("export_links", 240)]
+              ("store_cap", 240), ("export_links", 240), ("bounds_and_paths", 240)]
 
 
 def live_case(name, timeout):

@@ -95,7 +95,8 @@ class Stack:
         import rospy
         from uw_multislam import srv
         kinds = {"list_sessions": srv.ListSessions, "join_sessions": srv.JoinSessions, "split_session": srv.SplitSession,
-                 "start_session": srv.StartSession, "reload_session": srv.ReloadSession, "export": srv.ExportSurvey}
+                 "start_session": srv.StartSession, "reload_session": srv.ReloadSession, "export": srv.ExportSurvey,
+                 "add_link": srv.AddLink, "keyframe_features": srv.KeyframeFeatures}
         rospy.wait_for_service(NS + "/" + name, timeout=timeout)
         return rospy.ServiceProxy(NS + "/" + name, kinds[name])(*request)
 
@@ -803,7 +804,53 @@ def case_export_links(st, survey):
         "temporaries left as they were; nodes alive", observed, held)
 
 
-CASES = {"service_misuse": case_service_misuse, "concurrent": case_concurrent, "kill_manager": case_kill_manager,
+def case_bounds_and_paths(st, survey):
+    """Arguments out of range and answers without paths: add_link with a yaw of 1e9 rad and with
+    2^31-1 inliers, keyframe_features of session 2^31-1 and of a keyframe the store lacks, export
+    into a folder outside the export root and of an unknown session. Each is refused naming its
+    reason, and no answer carries the store's or the export root's path (the log has them)."""
+    from geometry_msgs.msg import Pose2D
+    root = os.path.join(st.work, "exports")
+    os.makedirs(root)
+    st.start_slam("config:=" + config_with(st, "exports.yaml", {"backend_node": {"export_root": root}}))
+    two_sessions(st, survey)
+    big = 2 ** 31 - 1
+    cov = [1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-4]
+    # Sessions, maps and states (keyframe counts may still grow while the back-end catches up).
+    before = [s[:4] for s in st.sessions()]
+    a, b = before[0][0], before[1][0]
+    answers = [
+        ("add_link yaw 1e9", st.call("add_link", a, 1, b, 1, Pose2D(0.0, 0.0, 1e9), cov, 0, False), "outside [-pi, pi]"),
+        ("add_link inliers 2^31-1", st.call("add_link", a, 1, b, 1, Pose2D(0.0, 0.0, 0.1), cov, big, False),
+         "inliers is more than"),
+        ("keyframe_features 2^31-1 0", st.call("keyframe_features", big, 0, False), "outside the ids"),
+        ("keyframe_features %d 999999" % a, st.call("keyframe_features", a, 999999, False), "not"),
+        ("export into ../outside", st.call("export", str(a), False, "../outside", "", 0.0, True, timeout=30),
+         "outside the export root"),
+        ("export of an unknown session", st.call("export", "no_such", False, "x", "", 0.0, True, timeout=30), "no session"),
+    ]
+    after = [s[:4] for s in st.sessions()]
+    nodes, dead = st.alive()
+    st.stop_group(st.launch)
+    paths = {st.store, os.path.realpath(st.store), root, os.path.realpath(root), st.work, os.path.realpath(st.work)}
+    bad, notes = [], []
+    for label, res, reason in answers:
+        code, msg = status_code(res)
+        notes.append("%s: code %d '%s'" % (label, code, msg[:90]))
+        if code == 0 or reason not in msg:
+            bad.append("%s: code %d, reason '%s' not named" % (label, code, reason))
+        if any(p in msg for p in paths) or "/tmp" in msg:
+            bad.append("%s: a path in the answer" % label)
+    held = not bad and nodes and not dead and after == before and integrity(st.store) == "ok"
+    observed = "%s%s; list_sessions %s; %d nodes alive%s" % (
+        "; ".join(notes), "" if not bad else " -- " + "; ".join(bad), "unchanged" if after == before else "CHANGED",
+        len(nodes), "" if not dead else ", DEAD: %s" % dead)
+    row("live: arguments out of range (add_link yaw 1e9, inliers 2^31-1, keyframe_features 2^31-1) and answers "
+        "without paths", "each refused naming its real reason; no answer carries the store's or the export root's "
+        "path; sessions unchanged; nodes alive", observed, held)
+
+
+CASES = {"service_misuse": case_service_misuse, "bounds_and_paths": case_bounds_and_paths, "concurrent": case_concurrent, "kill_manager": case_kill_manager,
          "bad_images": case_bad_images, "kill_manager_moments": case_kill_manager_moments,
          "replay_rates": case_replay_rates, "silent_altitude": case_silent_altitude, "burst": case_burst,
          "store_cap": case_store_cap, "export_links": case_export_links}
