@@ -243,6 +243,7 @@ void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& moti
   keyframes_.push_back({frame.index, frame.stamp_s, frame.altitude_m, fallback,
                         fallback ? MotionSource::kFallback : source, fallback ? MatchSummary() : frame.match});
   last_kf_ = frame;
+  if (fallback) last_kf_.nav.reset();  // an extrapolated pose is never the nav's anchor
   last_kf_.pose = trajectory_.absolutePoses().back();
   last_kf_.motion = motion;
   ++stats_.keyframes;
@@ -308,22 +309,22 @@ OdometryUpdate Odometry::process(const OdometryInput& in, PreparedFrame* prepare
   if (cur.nav) {
     // A glitch of the nav (one bad row, a reset) must not overrule the camera through the gate
     // or carry the frame: this frame is processed as one without nav. Checked against the last
-    // keyframe (the motion's other end) and against the previous frame's nav as received, refused
-    // or not (a short interval, so the bound stays tight far from the last keyframe, and a glitch
-    // of several rows is caught where it starts and where it ends). After a refusal no nav motion
-    // is taken until the next keyframe (last_kf_.nav dropped): none may span the glitch.
+    // keyframe (the motion's other end) and against the last ACCEPTED reading: a refused reading
+    // is never a reference, so a glitch that comes back is accepted where it ends, and a turn
+    // spread over several readings is judged over its whole duration. The anchor (last_kf_.nav)
+    // is kept through a refusal: the next accepted reading's motion is taken from it, so no
+    // heading change is dropped.
+    nav_seen_ = true;
     std::string bad;
     if (last_kf_.nav) bad = navStepImplausible(*last_kf_.nav, *cur.nav, options_.nav);
-    if (bad.empty() && prev_nav_received_) bad = navStepImplausible(*prev_nav_received_, *cur.nav, options_.nav);
-    prev_nav_received_ = cur.nav;
+    if (bad.empty() && prev_nav_accepted_) bad = navStepImplausible(*prev_nav_accepted_, *cur.nav, options_.nav);
     if (!bad.empty()) {
       cur.nav.reset();
-      last_kf_.nav.reset();
       ++stats_.nav_implausible;
       up.nav_note = bad;
+    } else {
+      prev_nav_accepted_ = cur.nav;
     }
-  } else {
-    prev_nav_received_.reset();
   }
   cv::Mat grey;
   try {
@@ -455,6 +456,23 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
     up.status = FrameStatus::kFallback;
     up.source = MotionSource::kFallback;
     up.reason = "unmatched, bridged to the next frame: " + m.ransac.failure;
+    return up;
+  } else if (navStream()) {
+    // A nav stream whose reading is refused or missing beyond the bridged frames: the piece ends
+    // (the tracking loss a run without nav makes; loops rejoin it). Reusing the previous motion
+    // here would extrapolate across whatever the vehicle did (a turn the nav's refused reading
+    // saw), and the nav's later motions would be chained onto that wrong pose for good.
+    predicted_ = compose(unmatched_ > 0 ? predicted_ : prev_.pose, last_step_);  // for display only
+    ++unmatched_;
+    ++stats_.fallbacks;
+    ++stats_.nav_losses;
+    up.pose = predicted_;
+    up.covariance = last_kf_covariance_;
+    up.status = FrameStatus::kFallback;
+    up.source = MotionSource::kFallback;
+    up.nav_loss = true;
+    up.reason = "no visual motion and no usable nav reading for " + std::to_string(unmatched_) +
+                " frames: tracking lost (" + m.ransac.failure + ")";
     return up;
   } else {
     // Reuse the previous frame-to-frame motion (paper §5), with a deliberately large covariance,

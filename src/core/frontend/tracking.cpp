@@ -65,6 +65,10 @@ SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input, P
   } else if (st != FrameStatus::kSkipped) {
     consecutive_fallbacks_ = 0;
   }
+  // Only a visual match (not a frame the nav carried) releases the fallback keyframes held: a
+  // nav-carried frame says nothing about whether the reused motions were right.
+  const bool matched =
+      (st == FrameStatus::kTracked || st == FrameStatus::kKeyframe) && step.update.source != MotionSource::kNav;
   // Hold fallback keyframes (and any after them) until a frame is matched again.
   for (const auto& kf : odometry_->newKeyframes()) {
     if (pending_.empty() && !odometry_->keyframes()[kf.id].fallback) {
@@ -73,12 +77,14 @@ SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input, P
       pending_.push_back(kf);
     }
   }
-  if (st == FrameStatus::kTracked || st == FrameStatus::kKeyframe) {
+  if (matched) {
     released_.insert(released_.end(), pending_.begin(), pending_.end());
     pending_.clear();
   }
   kept_ += static_cast<int>(released_.size());
-  if (loss_.max_fallbacks > 0 && consecutive_fallbacks_ >= loss_.max_fallbacks) {
+  // A nav stream ends at once when neither vision nor the nav gives a motion past the bridged
+  // frames (Odometry made none up); max_fallbacks 0 keeps the session open, unmatched.
+  if (loss_.max_fallbacks > 0 && (consecutive_fallbacks_ >= loss_.max_fallbacks || step.update.nav_loss)) {
     step.session_closed = true;
     closed_ = true;
     ++losses_;

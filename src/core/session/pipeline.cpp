@@ -116,9 +116,10 @@ void Pipeline::endPiece(double stamp_s) {
   if (st.gate_checks > 0 || st.nav_frames > 0 || st.nav_implausible > 0) {
     std::snprintf(line, sizeof line,
                   "session %d: nav prior: %d frames carried by the nav, %d visual motions checked, %d refused by the "
-                  "gate, %d fused, %ld RANSAC hypotheses gated, %d nav steps too fast to be a motion (not used)",
+                  "gate, %d fused, %ld RANSAC hypotheses gated, %d nav steps too fast to be a motion (not used), %d "
+                  "frames with neither a visual motion nor a usable nav reading past the bridged ones (tracking lost)",
                   session_, st.nav_frames, st.gate_checks, st.gate_refusals, st.fused, st.hypotheses_gated,
-                  st.nav_implausible);
+                  st.nav_implausible, st.nav_losses);
     say(line);
   }
   if (st.klt_tracked > 0 || st.klt_extracted > 0) {

@@ -6,6 +6,7 @@
 #include "../../common/rendered_seabed.h"
 #include "uw_multislam/core/frontend/tracking.h"
 
+#include <cmath>
 #include <functional>
 
 namespace uw_multislam {
@@ -215,6 +216,70 @@ TEST_F(TrackingTest, AVisualMotionTheNavContradictsIsRefusedAndCounted) {
   const auto fused_steps = fly(&odo3, 8, 100, 100);
   EXPECT_EQ(fused_steps[5].update.source, MotionSource::kFused);
   EXPECT_EQ(odo3.odometry()->stats().gate_refusals, 0);
+}
+
+
+// The vehicle pivots 2.5 rad between frames 11 and 12, inside a black-out (frames 10-17), and flies
+// on along its new heading: its nav (an INS heading, right) turns faster than
+// nav.max_yaw_rate_rad_s, so frame 12's reading is refused, and frame 13's too (2.5 rad in 2 s from
+// the last accepted one, frame 11's); frame 14's (3 s) is accepted. The images after the black-out
+// are the straight pass, which is the same body-frame motion.
+NavRecord turnNav(int k) {
+  const double turn = 2.5;
+  if (k < 12) return straightNav(k);
+  const double d = 0.25 * (k - 12);
+  return {1.0 * k, Pose2(0.25 * 12 + d * std::cos(turn), d * std::sin(turn), turn), 0.01 * 0.25 * k, 0.001};
+}
+
+TEST_F(TrackingTest, ARefusedTurnInABlackoutEndsThePieceRatherThanExtrapolate) {
+  // One bridged frame: frame 13 has neither a visual motion nor an accepted reading. The piece
+  // ends there, as it would without nav; before, frame 13 became a keyframe with the previous
+  // motion reused (no turn) and the nav carried on from it, the 2.5 rad lost for good.
+  nav = turnNav;
+  OdometryOptions one_bridged;
+  one_bridged.fallback.bridge_frames = 1;
+  SegmentedOdometry odo(camera_, one_bridged, TrackingLossOptions());  // max_fallbacks 5
+  const auto steps = fly(&odo, 30, 10, 18);
+  int closed_at = -1;
+  for (int k = 0; k < 30; ++k)
+    if (steps[k].session_closed) closed_at = k;
+  EXPECT_EQ(closed_at, 13);
+  EXPECT_TRUE(steps[13].update.nav_loss);
+  EXPECT_NE(steps[13].update.reason.find("tracking lost"), std::string::npos) << steps[13].update.reason;
+  EXPECT_FALSE(fallback_kept_at_close) << "no extrapolated keyframe is kept";
+  EXPECT_EQ(odo.losses(), 1);
+  EXPECT_EQ(odo.sessions(), 2);
+  EXPECT_NE(steps[12].update.nav_note.find("max_yaw_rate_rad_s"), std::string::npos) << steps[12].update.nav_note;
+  EXPECT_NE(steps[13].update.nav_note.find("max_yaw_rate_rad_s"), std::string::npos) << steps[13].update.nav_note;
+}
+
+TEST_F(TrackingTest, TheNextAcceptedReadingAfterARefusedTurnKeepsTheHeadingChange) {
+  // Three bridged frames: frame 14's reading is accepted within them and taken from the last
+  // accepted one (frame 11's, the anchor kept through the refusals): the session turns 2.5 rad.
+  // Before, a refusal dropped the anchor, frame 15 reused the previous motion and the nav carried
+  // on from it: the heading stayed near 0.
+  nav = turnNav;
+  OdometryOptions three_bridged;
+  three_bridged.fallback.bridge_frames = 3;
+  SegmentedOdometry odo(camera_, three_bridged, TrackingLossOptions());
+  const auto steps = fly(&odo, 30, 10, 18);
+  EXPECT_EQ(odo.sessions(), 1);
+  EXPECT_EQ(odo.losses(), 0);
+  const Odometry& o = *odo.odometry();
+  EXPECT_EQ(o.stats().nav_implausible, 2) << "frames 12 and 13 refused, and counted";
+  EXPECT_EQ(o.stats().nav_losses, 0);
+  EXPECT_FALSE(steps[12].update.nav_note.empty());
+  EXPECT_FALSE(steps[13].update.nav_note.empty());
+  EXPECT_TRUE(steps[14].update.nav_note.empty()) << steps[14].update.nav_note;
+  EXPECT_EQ(steps[14].update.source, MotionSource::kNav);
+  for (const KeyframeInfo& kf : o.keyframes()) EXPECT_FALSE(kf.fallback) << kf.frame_index;
+  // The heading at the end: the turn (the visual motions after it are straight), within the
+  // nav's reading noise; the position: the nav's 3 m after the turn.
+  const Pose2 end = o.trajectory().absolutePoses().back();
+  const NavRecord truth = turnNav(o.keyframes().back().frame_index);
+  EXPECT_NEAR(end.yaw(), 2.5, 0.02);
+  EXPECT_NEAR(end.x(), truth.pose.x(), 0.05);
+  EXPECT_NEAR(end.y(), truth.pose.y(), 0.05);
 }
 
 }  // namespace

@@ -165,6 +165,9 @@ struct OdometryUpdate {
   MotionSource source = MotionSource::kVisual;
   bool gate_refused = false;  // the visual motion failed the nav gate
   double gate_distance2 = -1.0;  // the gate's squared Mahalanobis distance, -1 when not checked
+  /// A nav stream lost both vision and the nav (refused or missing readings) for more than
+  /// fallback.bridge_frames frames: no motion was made up, the session must end (SegmentedOdometry).
+  bool nav_loss = false;
 };
 
 /// How a frame's motion from its keyframe was measured (its OdometryUpdate's numbers).
@@ -204,6 +207,7 @@ struct OdometryStats {
   int fused = 0;          // ... combined with the nav (nav.fuse)
   long hypotheses_gated = 0;  // RANSAC hypotheses the nav prior refused (nav.gate_ransac)
   int nav_implausible = 0;    // frames whose nav step was too fast to be a motion (nav.max_speed_m_s): no nav
+  int nav_losses = 0;  // frames past the bridged ones with neither a visual motion nor a usable nav reading
   int klt_tracked = 0;    // frames whose motion came from KLT tracks (klt.enabled), no extraction
   int klt_extracted = 0;  // frames KLT tracked but that went the full way (keyframe due or degraded)
   int klt_degraded = 0;   // ... of them, because the tracks failed (too few, RANSAC, nav gate)
@@ -305,6 +309,11 @@ class Odometry {
   void addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback,
                    MotionSource source = MotionSource::kVisual);
   bool needsKeyframe(const RansacResult& r, double overlap, double stamp_s) const;
+  // A session the nav carries across vision's gaps: it ends (OdometryUpdate::nav_loss) rather than
+  // reuse the previous motion when neither vision nor an accepted nav reading gives one.
+  bool navStream() const {
+    return options_.nav.enabled && options_.nav.on_tracking_loss == TrackingLossPolicy::kDeadReckoning && nav_seen_;
+  }
 
   CameraIntrinsics camera_;
   CameraIntrinsics feature_camera_;
@@ -317,7 +326,8 @@ class Odometry {
   TrackedFrame last_kf_;
   Eigen::Matrix3d last_kf_covariance_ = Eigen::Matrix3d::Zero();  // of last_kf_.pose, kept as keyframes are added
   TrackedFrame prev_;            // the last frame processed (tracked or keyframe)
-  std::optional<NavRecord> prev_nav_received_;  // the previous frame's nav as received (the glitch check)
+  std::optional<NavRecord> prev_nav_accepted_;  // the last nav reading not refused (the glitch check)
+  bool nav_seen_ = false;  // a nav reading came with a frame of this session (refused or not)
   Pose2 last_step_;              // frame-to-frame motion of the last successful step
   int unmatched_ = 0;            // consecutive unmatched frames (bridged, then reused)
   Pose2 predicted_;              // the last unmatched frame's predicted pose (prev_ and last_step_ on)
