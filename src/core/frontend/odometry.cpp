@@ -244,6 +244,11 @@ void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& moti
                         fallback ? MotionSource::kFallback : source, fallback ? MatchSummary() : frame.match});
   last_kf_ = frame;
   if (fallback) last_kf_.nav.reset();  // an extrapolated pose is never the nav's anchor
+  if (!fallback && source != MotionSource::kNav && !frame.nav && refused_nav_ && refused_nav_->first == frame.index) {
+    // Vision measured this pose and the nav has stayed where it jumped: it anchors the nav again.
+    last_kf_.nav = refused_nav_->second;
+    prev_nav_accepted_ = refused_nav_->second;
+  }
   last_kf_.pose = trajectory_.absolutePoses().back();
   last_kf_.motion = motion;
   ++stats_.keyframes;
@@ -309,22 +314,36 @@ OdometryUpdate Odometry::process(const OdometryInput& in, PreparedFrame* prepare
   if (cur.nav) {
     // A glitch of the nav (one bad row, a reset) must not overrule the camera through the gate
     // or carry the frame: this frame is processed as one without nav. Checked against the last
-    // keyframe (the motion's other end) and against the last ACCEPTED reading: a refused reading
-    // is never a reference, so a glitch that comes back is accepted where it ends, and a turn
-    // spread over several readings is judged over its whole duration. The anchor (last_kf_.nav)
-    // is kept through a refusal: the next accepted reading's motion is taken from it, so no
-    // heading change is dropped.
+    // keyframe (the motion's other end) and against the last ACCEPTED reading, never a refused
+    // one, over one frame's interval: a glitch that comes back is accepted where it ends, one of
+    // several rows is refused on each of them (each is as far from the last accepted reading).
+    // The anchor (last_kf_.nav) is kept through a refusal: the next accepted reading's motion is
+    // taken from it, so no heading change is dropped. A jump that stays (a turn faster than the
+    // limit, a reset) is refused until a keyframe vision measured takes it as the new anchor
+    // (addKeyframe); with vision blind the session ends first (processExtracted).
     nav_seen_ = true;
+    const NavRecord reading = *cur.nav;
     std::string bad;
-    if (last_kf_.nav) bad = navStepImplausible(*last_kf_.nav, *cur.nav, options_.nav);
-    if (bad.empty() && prev_nav_accepted_) bad = navStepImplausible(*prev_nav_accepted_, *cur.nav, options_.nav);
+    if (last_kf_.nav) bad = navStepImplausible(*last_kf_.nav, reading, options_.nav);
+    if (bad.empty() && prev_nav_accepted_) {
+      NavRecord from = *prev_nav_accepted_;
+      if (prev_nav_received_) from.stamp_s = prev_nav_received_->stamp_s;
+      bad = navStepImplausible(from, reading, options_.nav);
+    }
+    refused_nav_.reset();
     if (!bad.empty()) {
       cur.nav.reset();
       ++stats_.nav_implausible;
       up.nav_note = bad;
+      // Steady since the previous reading: a jump that stays, which a visual keyframe may anchor.
+      if (prev_nav_received_ && navStepImplausible(*prev_nav_received_, reading, options_.nav).empty())
+        refused_nav_ = std::make_pair(cur.index, reading);
     } else {
-      prev_nav_accepted_ = cur.nav;
+      prev_nav_accepted_ = reading;
     }
+    prev_nav_received_ = reading;
+  } else {
+    prev_nav_received_.reset();
   }
   cv::Mat grey;
   try {

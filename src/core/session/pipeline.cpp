@@ -117,7 +117,8 @@ void Pipeline::endPiece(double stamp_s) {
     std::snprintf(line, sizeof line,
                   "session %d: nav prior: %d frames carried by the nav, %d visual motions checked, %d refused by the "
                   "gate, %d fused, %ld RANSAC hypotheses gated, %d nav steps too fast to be a motion (not used), %d "
-                  "frames with neither a visual motion nor a usable nav reading past the bridged ones (tracking lost)",
+                  "frames with neither a visual motion nor a usable nav reading past the bridged ones (the "
+                  "session ended)",
                   session_, st.nav_frames, st.gate_checks, st.gate_refusals, st.fused, st.hypotheses_gated,
                   st.nav_implausible, st.nav_losses);
     say(line);

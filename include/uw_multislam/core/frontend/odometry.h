@@ -59,6 +59,7 @@
 #include <opencv2/core.hpp>
 
 #include <optional>
+#include <utility>
 #include <string>
 #include <vector>
 
@@ -327,6 +328,8 @@ class Odometry {
   Eigen::Matrix3d last_kf_covariance_ = Eigen::Matrix3d::Zero();  // of last_kf_.pose, kept as keyframes are added
   TrackedFrame prev_;            // the last frame processed (tracked or keyframe)
   std::optional<NavRecord> prev_nav_accepted_;  // the last nav reading not refused (the glitch check)
+  std::optional<NavRecord> prev_nav_received_;  // the previous frame's reading, refused or not (its stamp)
+  std::optional<std::pair<int, NavRecord>> refused_nav_;  // this frame's refused but steady reading
   bool nav_seen_ = false;  // a nav reading came with a frame of this session (refused or not)
   Pose2 last_step_;              // frame-to-frame motion of the last successful step
   int unmatched_ = 0;            // consecutive unmatched frames (bridged, then reused)
