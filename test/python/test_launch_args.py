@@ -1,4 +1,4 @@
-"""Every launch file's arguments, as `roslaunch --ros-args` shows them to a user (issue 22, 8):
+"""Every launch file's arguments, as `roslaunch --ros-args` shows them to a user:
 each documented, and only the bags required. roslaunch lists an argument whose default is empty
 as required, so the launch files use the words 'config' and 'none' for "leave it to the config"
 and "nothing"; the second test checks that those words reach the parameters and commands as

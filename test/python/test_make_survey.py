@@ -128,7 +128,7 @@ def test_effective_spec_reproduces_the_survey(survey, tmp_path):
 
 def test_progress_in_a_log_is_a_few_whole_lines(survey, tmp_path):
     """stderr is a pipe here, as in a log: no carriage returns, a line per 10 % of each session,
-    ending at its last frame (issue 22, 7: progress was one huge line)."""
+    ending at its last frame (progress was one huge line)."""
     out, _ = survey
     config = tmp_path / "tiny.yaml"
     config.write_text(TINY)
@@ -144,7 +144,7 @@ def test_progress_in_a_log_is_a_few_whole_lines(survey, tmp_path):
 
 
 def test_the_readme_mosaic_mission_flies_inside_the_imaged_reef(tmp_path):
-    """README's mosaic example (issue 22, 5: the one it showed left the mosaic and was refused)."""
+    """README's mosaic example (the one it showed left the mosaic and was refused)."""
     repo = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
     data = os.path.join(repo, "..", "shared", "data", "acfr", "test4")
     result = run("--config", os.path.join(repo, "config", "missions", "acfr_test4_mosaic.yaml"), "--mosaic",

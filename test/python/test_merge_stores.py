@@ -223,7 +223,7 @@ def test_copy_only_keeps_two_maps(stores, tmp_path):
 
 
 def test_detect_loops_joins_stored_sessions_without_a_new_one(merged, tmp_path):
-    """Issue 16, item 3: loops are searched among stored sessions (offline_slam --db --detect-loops,
+    """Loops are searched among stored sessions (offline_slam --db --detect-loops,
     no folder): the copy-only merge's two maps are joined like merge_stores joins them, and a
     second search finds only loops the store already holds."""
     _, made, _, loops_db, _ = merged
@@ -252,7 +252,7 @@ def test_detect_loops_joins_stored_sessions_without_a_new_one(merged, tmp_path):
 
 
 def test_localise_only_leaves_the_store_byte_identical(stores, tmp_path):
-    """Issue 16, item 4 (offline equivalent of set_mode localisation): offline_slam --localise-only
+    """Offline equivalent of set_mode localisation: offline_slam --localise-only
     over folder b against store a (session 0) tracks b, finds its global loops to session 0, does not
     join (automatic joins wait), writes its outputs, and leaves the store byte-identical; the same run
     without the flag writes to the store (so the md5 check can fail). Bad combinations exit 2."""
@@ -285,7 +285,7 @@ def test_localise_only_leaves_the_store_byte_identical(stores, tmp_path):
 
 
 def test_add_link_offline_finds_or_takes_the_link_and_a_refusal_adds_none(stores, tmp_path):
-    """Issue 16, item 4 (offline equivalent of add_link): offline_slam --db --add-link on the two
+    """Offline equivalent of add_link: offline_slam --db --add-link on the two
     stored sessions of a copy-only merge. "Find it" measures the link between two keyframes that
     overlap in the ground truth (loops_gt.csv) by RANSAC on their stored features, within 2 cm and
     0.01 rad of world_gt.csv; a given pose is taken as given; both are stored loops. One bad link

@@ -1,4 +1,4 @@
-"""The navigation prior end to end (issue 16, items 1-2): a generated two-session mission whose
+"""The navigation prior end to end: a generated two-session mission whose
 first session goes blind for 30 frames, with the vehicle's dead reckoning in nav.csv at the default
 1 % drift. With --nav on the first session stays one session through the blackout, its error there
 stays within the nav's drift, and the map after the loops is back below 1 cm; with --nav off it

@@ -425,7 +425,7 @@ def interrupted(survey, tmp_path):
 
 
 def test_db_rerun_after_kill_is_refused_naming_the_interrupted_option(interrupted, survey):
-    """Issue 21, 8: the re-run of the killed command is refused with its own status (3, not the
+    """The re-run of the killed command is refused with its own status (3, not the
     bad-arguments 2), in one line naming the folder and both choices; the store is left as it is."""
     db, args = interrupted
     before = store_rows(db, "SELECT session, keyframe, frame_index, stamp FROM keyframes ORDER BY session, keyframe")
@@ -591,7 +591,7 @@ def short_revisits(tmp_path_factory):
 
 
 def test_consistency_joins_every_short_revisit_and_nothing_else(short_revisits):
-    """Issue 17: the five passes over one patch share 2-4 correct loops per pair, never K = 5: the
+    """The five passes over one patch share 2-4 correct loops per pair, never K = 5: the
     count policy leaves six maps, the consistent one joins the five passes into one map (in its
     first pass's frame, within 3 cm of the truth) and leaves the pass over other ground alone."""
     mission, runs = short_revisits
@@ -670,7 +670,7 @@ def unrelated_folder(path):
 
 
 def test_an_unrelated_session_between_two_of_one_mission_gets_no_loop_and_no_join(survey, tmp_path):
-    """Issue 17: real frames of another sea between the two sessions of one mission: no loop
+    """Real frames of another sea between the two sessions of one mission: no loop
     touches them and they join nothing, while the mission's two sessions still join."""
     unrelated = unrelated_folder(tmp_path / "posidonia")
     out = tmp_path / "o"

@@ -1,4 +1,4 @@
-"""The Python tools are found and answer --help (issue 22, item 3).
+"""The Python tools are found and answer --help.
 
 - rosrun finds exactly one of each (a workspace inside the repository made it find 9 copies, loop
   through the workspace's link back, and stop at a menu or `exec: : not found`); run the way a user

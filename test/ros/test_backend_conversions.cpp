@@ -189,7 +189,7 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
   }
   // The loop segments move with their maps.
   EXPECT_TRUE(loopSegments(m.view(), mount, offsets).empty());  // no loops here
-  // Issue 17: a local loop that agrees with the odometry, and one 3 m off that the back-end's gate
+  // A local loop that agrees with the odometry, and one 3 m off that the back-end's gate
   // refuses: drawn apart, in a namespace and colour of their own.
   for (const core::Pose2& off : {core::Pose2(), core::Pose2(0.0, 3.0, 0.0)}) {
     core::Loop l;

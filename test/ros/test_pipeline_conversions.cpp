@@ -156,7 +156,7 @@ TEST_F(PipelineConversions, BadKeyframeMessagesAreRefusedWithAReason) {
   m.keyframe = -1;
   refused(m, "negative");
   m = good;
-  m.session = std::numeric_limits<int>::max();  // would make the session ids wrap (issue 21, 7)
+  m.session = std::numeric_limits<int>::max();  // would make the session ids wrap
   refused(m, "session id past the largest, 1000000");
   m.session = 1000001;
   refused(m, "session id past the largest");
@@ -208,7 +208,7 @@ TEST_F(PipelineConversions, KeyframeHashTravelsWithTheKeyframe) {
   EXPECT_EQ(back.hash.size(), 0);
 }
 
-// Hash exchange between vehicles (issue 20, item 5): a keyframe crosses as its hash, motion,
+// Hash exchange between vehicles: a keyframe crosses as its hash, motion,
 // pose, camera and altitude, without features or image, and comes back out checked as a Keyframe.
 TEST_F(PipelineConversions, AFleetHashCarriesTheKeyframeWithoutItsFeaturesAndIsCheckedAsOne) {
   rc::KeyframeData k = someKeyframe();

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""rostest: altitude by stamp (issue 15, item 4). A 10 Hz camera with a 2 Hz altimeter: every image
+"""rostest: altitude by stamp. A 10 Hz camera with a 2 Hz altimeter: every image
 is processed, each with the altitude interpolated at its stamp.
 
 The frames of a generated mission (make_survey, 0.1 s apart, read back from its bag) are

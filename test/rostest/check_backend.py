@@ -254,7 +254,7 @@ class BackendTest(unittest.TestCase):
         self.assertEqual(self.start("s1_name_taken").status.code, Status.OK)
         self.assertEqual(self.start("s1_name_taken").status.code, Status.ALREADY_EXISTS)
         # Session 2 has no keyframe yet: another start_session is refused (~max_empty_sessions 1),
-        # so that calls in a loop cannot pile up empty sessions (issue 21, 10).
+        # so that calls in a loop cannot pile up empty sessions.
         res = self.start("another")
         self.assertEqual(res.status.code, Status.RESOURCE_EXHAUSTED, res.status.message)
         self.assertIn("max_empty_sessions", res.status.message)
@@ -313,7 +313,7 @@ class BackendTest(unittest.TestCase):
             sub.unregister()
 
     def test_5_malformed_keyframes_and_loops_are_counted_and_change_nothing(self):
-        """Issue 21, 4: a keyframe of a negative session (refused by the message conversion:
+        """A keyframe of a negative session (refused by the message conversion:
         bad_messages), one far beyond its session's last (a gap over ~max_keyframe_gap: refused by
         the session manager, keyframes_refused; sent to the active session, as a finished session's
         keyframes are stale whatever their id), and loops on keyframes that never arrived (held

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """rostest: bad input never crashes the pipeline or reaches the map, and every kind is counted on
-/diagnostics (issue 9).
+/diagnostics.
 
 Frames of a generated mission (make_survey, read back from its bag) are published one by one
 with the test's own stamps and encodings, phase after phase:
@@ -385,7 +385,7 @@ class BadInputTest(unittest.TestCase):
     def test_a_burst_drops_frames_and_counts_every_one(self):
         v = self.odometry()
         self.assertGreater(v["dropped_queue_full"], 0)
-        # Our own drops are no gap in the recording: no session from them (issue 21, 9).
+        # Our own drops are no gap in the recording: no session from them.
         self.assertEqual(v["time_jumps_forward"], 0, self.where_frames_went(v))
         # Every synchronised frame is processed, dropped or still queued.
         self.assertEqual(v["frames_synchronised"], v["frames_processed"] + v["dropped_queue_full"] + v["queue_length"])

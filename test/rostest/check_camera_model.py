@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""rostest: the camera model (issue 15, item 5). A mission with a distorted lens gets the accuracy
+"""rostest: the camera model. A mission with a distorted lens gets the accuracy
 of the same mission through a pinhole, within 1 mm ATE; with the lens's D dropped it does not.
 
 One survey is generated twice with the same seed (make_survey, and make_survey --distortion

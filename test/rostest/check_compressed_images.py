@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""rostest: compressed images (issue 15, item 6). slam.launch with transport:=compressed plays a bag
+"""rostest: compressed images. slam.launch with transport:=compressed plays a bag
 of JPEG sensor_msgs/CompressedImage (folder_to_bag --image-format jpeg, on
 /camera/image_raw/compressed). Debian has no compressed_image_transport plugin, so the odometry
 decodes them itself (OpenCV); with the plugin installed the plugin does it. Either way:

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""rostest: hash exchange between two vehicles (issue 20, item 5), test/rostest/fleet.test.
+"""rostest: hash exchange between two vehicles, test/rostest/fleet.test.
 
 Two pipelines, /auv_a and /auv_b, each with its own store, exchange only KeyframeHash messages
 (/fleet/hashes). The fixture mission's session s0 is flown by auv_a and s1 by auv_b at the same

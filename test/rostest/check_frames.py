@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""rostest: the back-end beside a vehicle's own navigation (issue 15, REP-105 frames).
+"""rostest: the back-end beside a vehicle's own navigation (REP-105 frames).
 
 The vehicle's nav stack is this test: for every image it broadcasts odom -> base_link at the
 image's stamp, from the ground truth (odom = the survey's world frame), and the back-end runs

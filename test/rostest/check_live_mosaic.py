@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""rostest: the back-end's live mosaic (topic mosaic) and its export service (issue 18, item 3).
+"""rostest: the back-end's live mosaic (topic mosaic) and its export service.
 
 The two-session mission of pipeline_fixture is played (automatic joining off). The mosaic's size
 is checked against the active map's keyframe footprints computed here from the published paths

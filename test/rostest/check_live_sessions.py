@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""rostest: sessions that change while a bag plays through slam.launch (issue 21, item 4).
+"""rostest: sessions that change while a bag plays through slam.launch.
 
 The case comes from the private parameter ~case (live_sessions.test registers it once per case, so
 each runs against a fresh pipeline and the cases do not depend on each other's order):
@@ -12,7 +12,7 @@ tracking_loss  One session flown over two laps with seven blank frames in the fi
                offline test_offline_slam.py tracking-loss mission, at 240 x 180): tracking is lost,
                the odometry closes session 0 and starts session 1 when the seabed is back, and the
                second lap's global loops join the two again in one map, within 5 cm of the truth.
-pause          The operator's pause / resume (issue 16, item 4) on the odometry: the test publishes a
+pause          The operator's pause / resume on the odometry: the test publishes a
                one-session mission frame by frame (each awaited: its odometry pose, or for a frame
                sent while paused the count of frames dropped on /diagnostics). Frames sent while
                paused are dropped and counted (no pose, no keyframe), the session goes on after

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""rostest: the navigation prior through slam.launch (issue 16, item 1).
+"""rostest: the navigation prior through slam.launch.
 
 The mission of test/python/test_nav_prior.py, live: session a goes blind for 30 frames (8..37) and
 its bag carries the vehicle's dead reckoning on /nav/odom at make_survey's default 1 % drift;

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""rostest: relocalisation in a stored map (issue 16, item 3), in localisation mode.
+"""rostest: relocalisation in a stored map, in localisation mode.
 
 The fixture mission's session s0 is mapped by offline_slam into a store. slam.launch then starts on
 that store with reload_stored:=true and mode:=localisation, and session s1 (which starts inside s0's

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""rostest: the session store through ROS (issue 8).
+"""rostest: the session store through ROS.
 
 1. Session 0 is replayed; after 8 keyframes the back-end process gets SIGKILL mid-replay and
    roslaunch respawns it. It reopens the store: session 0 is there (UNLOADED) with every keyframe
@@ -10,7 +10,7 @@
    loop detector (reloaded_keyframes, each one once); the second session's bag is played and
    global loops are found against the reloaded session.
 3. Wrong reloads: an unknown name (NOT_FOUND, the store named by its file name only) and a second
-   reload (ALREADY_EXISTS). Then unload_session (issue 16, item 4): session 0 UNLOADED again, the
+   reload (ALREADY_EXISTS). Then unload_session: session 0 UNLOADED again, the
    loop detector forgets exactly its keyframes (/diagnostics), wrong unloads refused with nothing
    changed, and a reload hands every keyframe to the loop detector once more.
 4. join_sessions, then split_session through the services, each followed by kill -9 of the
@@ -263,7 +263,7 @@ class StoreTest(unittest.TestCase):
         return {i: (s.name, s.map, s.num_keyframes, s.num_loops) for i, s in listed.items()}
 
     def test_4_join_and_split_through_the_services_survive_kill_9(self):
-        """Issue 21, 4: a join, then a split, each answered OK through the services with the store
+        """A join, then a split, each answered OK through the services with the store
         on; after each a kill -9 of the back-end and its respawn: list_sessions comes back with
         the same sessions, maps (the links), keyframes and loops."""
         join = rospy.ServiceProxy(NS + "/join_sessions", JoinSessions, persistent=False)

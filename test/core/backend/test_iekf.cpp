@@ -113,7 +113,7 @@ TEST(Iekf, ReducesTheRelativeErrorBetweenRevisitedPlaces) {
 }
 
 TEST(Iekf, LinearCasePosteriorCovarianceIsTheKalmanOneExactly) {
-  // Issue 21, 3. No rotation (the problem is linear): two motions along x with variances 1 and 3,
+  // No rotation (the problem is linear): two motions along x with variances 1 and 3,
   // a loop saying their sum is 1.5 (prior sum 2.0) with variance 2. By hand, with H = [1 1]:
   //   S = H P Hᵀ + R = 1 + 3 + 2 = 6, K = P Hᵀ / S = (1/6, 3/6),
   //   x⁺ = x⁻ + K (1.5 − 2.0) = (1 − 0.5/6, 1 − 1.5/6) = (0.91667, 0.75),
@@ -140,7 +140,7 @@ TEST(Iekf, LinearCasePosteriorCovarianceIsTheKalmanOneExactly) {
 std::vector<Pose2> octagon() { return std::vector<Pose2>(8, Pose2(1.0, 0.0, M_PI / 4)); }
 
 TEST(Iekf, NonlinearUpdateIsConsistentByMonteCarlo) {
-  // Issue 21, 3: the posterior covariance of a non-linear update against Monte-Carlo. Each draw:
+  // The posterior covariance of a non-linear update against Monte-Carlo. Each draw:
   // true motions from the prior N(octagon, Q), odometry = truth + N(0, Q), the loop 0 -> 8
   // measured from the truth with N(0, R); the IEKF's error on X_4^0 (half way, where the loop
   // helps least) and on its motions is scored by its own covariance (NEES). A consistent filter's
@@ -185,7 +185,7 @@ TEST(Iekf, NonlinearUpdateIsConsistentByMonteCarlo) {
 }
 
 TEST(Iekf, IncrementalUpdatesStayCloseToTheBatchSolution) {
-  // Issue 21, 3: the incremental IEKF (loops one at a time, as they arrive) against the batch
+  // The incremental IEKF (loops one at a time, as they arrive) against the batch
   // non-linear least-squares solution of the same graph (Ceres, all loops at once, no robust
   // loss). For a linear problem the two are identical; the gap is the linearisation of the
   // earlier updates, of second order in the noise. Odometry noise 5 cm / 0.02 rad per 1 m motion,

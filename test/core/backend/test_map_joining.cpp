@@ -105,7 +105,7 @@ TEST(MapJoining, SeveralNoisyLoopsAverageAndTheCovarianceShrinks) {
 }
 
 TEST(MapJoining, TheLinkCovarianceCoversTheErrorByMonteCarlo) {
-  // Issue 21, 3: the covariance (30) of the joined link against Monte-Carlo. Ten loops, each
+  // The covariance (30) of the joined link against Monte-Carlo. Ten loops, each
   // measured with exactly the noise its covariance states (2 cm per axis, 0.01 rad), 400 draws.
   // The link's error scored by the link's own covariance (NEES) averages 3 (3 dof) and stays
   // below the 95 % chi-square quantile 7.81 in 95 % of the draws when (30) is right. Spreads:

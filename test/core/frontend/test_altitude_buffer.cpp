@@ -1,4 +1,4 @@
-// AltitudeBuffer: the altitude at an image stamp from a slower altimeter (issue 15, item 4).
+// AltitudeBuffer: the altitude at an image stamp from a slower altimeter.
 #include <gtest/gtest.h>
 
 #include <cmath>

@@ -1,4 +1,4 @@
-// Issue 19, item 2: ORB (binary) features beside SIFT. Extraction, Hamming matching against
+// ORB (binary) features beside SIFT. Extraction, Hamming matching against
 // OpenCV's own matcher, the motion between two rendered views, the hash's embedding of the bits,
 // the store, and a loop detector meeting the other kind: all on frames rendered from the
 // procedural seabed or on random bit strings.

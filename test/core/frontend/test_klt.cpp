@@ -1,4 +1,4 @@
-// Issue 19: tracking between keyframes (KLT) and SIFT without the x2 upsampling, on frames rendered
+// Tracking between keyframes (KLT) and SIFT without the x2 upsampling, on frames rendered
 // from the procedural seabed with a known motion.
 #include <gtest/gtest.h>
 

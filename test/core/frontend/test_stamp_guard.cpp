@@ -1,4 +1,4 @@
-// StampGuard: duplicated, late, looping and gapped stamps (issue 9, bad input).
+// StampGuard: duplicated, late, looping and gapped stamps (bad input).
 #include <gtest/gtest.h>
 
 #include <limits>
@@ -44,7 +44,7 @@ TEST(StampGuard, BoundariesAndOff) {
 }
 
 TEST(StampGuard, StampsPassedOverBridgeTheGapOurOwnDropsLeave) {
-  // A 10 Hz burst of 1,000 frames of which the node's own queue kept one in 50 (issue 21, 9):
+  // A 10 Hz burst of 1,000 frames of which the node's own queue kept one in 50:
   // the kept frames are 5 s apart, more than session_gap_s, but the camera never paused.
   StampGuard g(StampGuardOptions{1.0, 2.0});
   StampGuard without(StampGuardOptions{1.0, 2.0});  // the same frames, the drops not passed over

@@ -168,7 +168,7 @@ TEST(LiveMosaic, ImagesOfARemovedSessionAreForgottenWithTheirBytes) {
   }
 }
 
-// Memory (issue 20, item 1): an image finer than the mosaic is kept at the mosaic's resolution,
+// Memory: an image finer than the mosaic is kept at the mosaic's resolution,
 // and the mosaic drawn from the kept images is the one drawn from the full images.
 TEST(LiveMosaic, ImagesAreKeptAtTheMosaicsResolutionAndDrawTheSameMosaic) {
   const double res = 0.05;  // full images: 1.6 / 220 = 0.0073 m per pixel

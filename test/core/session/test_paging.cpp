@@ -1,4 +1,4 @@
-// Paging (issue 20): a reloaded store's keyframes keep only their hashes in RAM and their
+// Paging: a reloaded store's keyframes keep only their hashes in RAM and their
 // features are read from the store when verified. The loops found must not depend on it: the
 // same pairs, inliers and measurements with a cache of about one keyframe, an unlimited cache,
 // or every feature in RAM (the nodelet's path); a corrupt row skips that candidate, counted.
@@ -185,7 +185,7 @@ TEST_F(PagingTest, LiveKeyframesPagedOutBehindTheSessionFindTheSameLocalLoops) {
   EXPECT_GT(paged_cache.misses, 0) << "the return leg's candidates were read through the loader";
 }
 
-// Hash exchange between vehicles (issue 20, item 5): vehicle A's session 0 reaches vehicle B's
+// Hash exchange between vehicles: vehicle A's session 0 reaches vehicle B's
 // loop detector as hashes only; its features are asked for (the loader: A's store) only for a
 // keyframe that has candidates. Either way round (A's hashes before B's keyframes, or after them)
 // B finds the loops one detector finds with every feature at hand.

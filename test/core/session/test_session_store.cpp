@@ -701,7 +701,7 @@ TEST(Store, RefusesACorruptFile) {
 }
 
 TEST(Store, CorruptKeyframePagesDoNotStopTheOpenAndFailWhereTheyAreRead) {
-  // Issue 20, 2: the open checks every table but the keyframes (whose pages are most of a store);
+  // The open checks every table but the keyframes (whose pages are most of a store);
   // a keyframe's pages are checked when read. Every overflow page of the keyframes' rows garbage:
   // the store opens, frame data and hashes come from their indexes intact, each keyframe's
   // features fail to read with a StoreError.
