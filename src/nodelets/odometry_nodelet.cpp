@@ -286,7 +286,7 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   if (!ros_diagnostics::reportMount(mount, &counts_)) return;
   mount_ = mount.mount;
   ros_diagnostics::reportAltitude(f.altitude, f.altitude_m, stamp.toSec(), range_sub_.getTopic(),
-                                 options_.input_timeout_s, &counts_);
+                                  options_.input_timeout_s, &counts_);
 
   const core::StreamControl::Requested requested = control_.take();
   const core::SessionStart start =

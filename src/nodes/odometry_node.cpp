@@ -5,7 +5,7 @@
 
 int main(int argc, char** argv) {
   ros::init(argc, argv, "odometry_node");
-  nodelet::Loader loader(false);  // no manager services: a plain node
+  nodelet::Loader loader(false);       // no manager services: a plain node
   const nodelet::M_string remappings;  // the process's own remappings already apply
   const nodelet::V_string nodelet_argv;
   if (!loader.load(ros::this_node::getName(), "uw_multislam/Odometry", remappings, nodelet_argv)) {

@@ -37,8 +37,8 @@ const CounterTable<BackendCounters>& backendCounterTable() {
       {"mosaic_draw_ms", &C::mosaic_draw_ms, "time to draw the last one, ms"},
       {"mosaic_resolution_m", &C::mosaic_resolution_m, "its resolution, m/px"},
       {"mosaic_images_kB", &C::mosaic_images_kB, "thumbnails kept for the mosaic, kB"},
-      {"keyframes_stale", &C::keyframes_stale,
-       "keyframes of a session no longer recording (e.g. after finish_session)", kWarn},
+      {"keyframes_stale", &C::keyframes_stale, "keyframes of a session no longer recording (e.g. after finish_session)",
+       kWarn},
       {"keyframes_refused", &C::keyframes_refused,
        "keyframes refused: an id more than ~max_keyframe_gap past the last, or a session id past 1,000,000", kWarn},
       {"keyframe_gaps", &C::keyframe_gaps, "gaps in the keyframe ids, bridged", kWarn},
@@ -91,7 +91,8 @@ void setManagerCounters(const core::SessionQueries& manager, BackendCounters* c)
   c->keyframe_gaps = m.keyframe_gaps, c->loops_refused = m.loops_refused, c->store_failures = m.store_failures;
   c->sessions = static_cast<long>(manager.sessionIds().size());
   c->sessions_unloaded_now = 0;
-  for (const core::SessionSummary& s : manager.list()) c->sessions_unloaded_now += s.state == core::SessionState::kUnloaded;
+  for (const core::SessionSummary& s : manager.list())
+    c->sessions_unloaded_now += s.state == core::SessionState::kUnloaded;
   c->maps = static_cast<long>(manager.mapIds().size());
   c->joins = b.joins, c->splits = b.splits, c->loops_refused_at_join = b.loops_refused;
   c->joins_refused = b.joins_refused, c->loops_gated = b.loops_gated, c->loops_switched_off = b.loops_switched_off;

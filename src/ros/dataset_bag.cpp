@@ -388,8 +388,8 @@ sensor_msgs::CameraInfo toCameraInfoMsg(const core::CameraIntrinsics& c) {
   sensor_msgs::CameraInfo m;
   m.width = static_cast<std::uint32_t>(c.width);
   m.height = static_cast<std::uint32_t>(c.height);
-  m.distortion_model = c.distortion_model == core::DistortionModel::kRationalPolynomial ? "rational_polynomial"
-                                                                                      : "plumb_bob";
+  m.distortion_model =
+      c.distortion_model == core::DistortionModel::kRationalPolynomial ? "rational_polynomial" : "plumb_bob";
   m.D = c.distortion;
   m.D.resize(m.distortion_model == "plumb_bob" ? std::max<std::size_t>(m.D.size(), 5) : 8, 0.0);
   m.K = {c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0};

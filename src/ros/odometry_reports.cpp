@@ -35,8 +35,9 @@ bool reportStamp(core::StampClass timing, double stamp_s, double last_s, Odometr
     }
     case core::StampClass::kOutOfOrder: {
       const long n = ++c->skipped_out_of_order;
-      ROS_WARN_THROTTLE(5, "odometry: frame skipped: stamp %.6f is %.3f s before the last frame's (out of order; %ld so far)",
-                        stamp_s, last_s - stamp_s, n);
+      ROS_WARN_THROTTLE(
+          5, "odometry: frame skipped: stamp %.6f is %.3f s before the last frame's (out of order; %ld so far)",
+          stamp_s, last_s - stamp_s, n);
       return true;
     }
     default:

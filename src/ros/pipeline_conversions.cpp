@@ -121,9 +121,15 @@ uw_multislam::Keyframe toKeyframeMsg(const KeyframeData& k, const std_msgs::Head
   toArray(k.motion.covariance, &m.motion_covariance);
   m.odometry_pose = toPose2DMsg(k.odometry_pose);
   switch (k.quality) {
-    case KeyframeQuality::kFirst: m.status = uw_multislam::Keyframe::FIRST; break;
-    case KeyframeQuality::kMatched: m.status = uw_multislam::Keyframe::MATCHED; break;
-    case KeyframeQuality::kFallback: m.status = uw_multislam::Keyframe::FALLBACK; break;
+    case KeyframeQuality::kFirst:
+      m.status = uw_multislam::Keyframe::FIRST;
+      break;
+    case KeyframeQuality::kMatched:
+      m.status = uw_multislam::Keyframe::MATCHED;
+      break;
+    case KeyframeQuality::kFallback:
+      m.status = uw_multislam::Keyframe::FALLBACK;
+      break;
   }
   m.matches = k.matches;
   m.inliers = k.inliers;
@@ -200,9 +206,9 @@ bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* wh
   k.thumbnail = m.thumbnail;
   k.motion = first ? core::UncertainPose2::exact(core::Pose2()) : core::UncertainPose2(fromMsg(m.motion), cov);
   k.odometry_pose = fromMsg(m.odometry_pose);
-  k.quality = first ? KeyframeQuality::kFirst
-                    : (m.status == uw_multislam::Keyframe::FALLBACK ? KeyframeQuality::kFallback
-                                                                     : KeyframeQuality::kMatched);
+  k.quality =
+      first ? KeyframeQuality::kFirst
+            : (m.status == uw_multislam::Keyframe::FALLBACK ? KeyframeQuality::kFallback : KeyframeQuality::kMatched);
   k.matches = m.matches;
   k.inliers = m.inliers;
   k.overlap = m.overlap;
@@ -260,8 +266,8 @@ uw_multislam::KeyframeHash toKeyframeHashMsg(const KeyframeHashData& h, const st
   m.session = h.session;
   m.keyframe = h.keyframe;
   m.frame_index = h.frame_index;
-  m.hash_mode = h.mode == core::HashMode::kHaloc ? uw_multislam::KeyframeHash::HALOC
-                                                 : uw_multislam::KeyframeHash::SORTED_DCT;
+  m.hash_mode =
+      h.mode == core::HashMode::kHaloc ? uw_multislam::KeyframeHash::HALOC : uw_multislam::KeyframeHash::SORTED_DCT;
   m.projection_seed = h.projection_seed;
   m.num_features = h.num_features;
   m.features = core::featureTypeName(h.features);

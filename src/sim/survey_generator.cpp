@@ -133,7 +133,8 @@ std::vector<NavRecord> navRowsInConvention(std::vector<NavRecord> rows, WorldCon
   return rows;
 }
 
-std::vector<NavRecord> simulateNav(const std::vector<MissionFrame>& plan, const NavErrorSpec& spec, std::uint64_t seed) {
+std::vector<NavRecord> simulateNav(const std::vector<MissionFrame>& plan, const NavErrorSpec& spec,
+                                   std::uint64_t seed) {
   std::vector<NavRecord> nav = simulateWorldNav(plan, spec, seed);
   for (NavRecord& r : nav) r.pose = between(plan.front().pose, r.pose);
   return nav;

@@ -25,13 +25,13 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <map>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <stdexcept>
 #include <string>
-#include <limits>
-#include <optional>
 #include <vector>
 
 #include "cli.h"

@@ -19,10 +19,10 @@
 #include "uw_multislam/Loop.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/features.h"
-#include "uw_multislam/core/loops/haloc.h"
-#include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/geometry/uncertain_pose.h"
+#include "uw_multislam/core/loops/haloc.h"
+#include "uw_multislam/core/loops/loop_detector.h"
 
 namespace uw_multislam {
 namespace ros_conversions {

@@ -109,7 +109,8 @@ class BoundedWorkQueue {
       *out = std::move(priority_.front());
       priority_.pop_front();
     } else {
-      const std::size_t take = std::min<std::size_t>(select(static_cast<const std::deque<T>&>(items_)), items_.size() - 1);
+      const std::size_t take =
+          std::min<std::size_t>(select(static_cast<const std::deque<T>&>(items_)), items_.size() - 1);
       for (std::size_t i = 0; i < take; ++i) on_skip(items_[i], items_[take]);
       *out = std::move(items_[take]);
       items_.erase(items_.begin(), items_.begin() + static_cast<std::ptrdiff_t>(take) + 1);

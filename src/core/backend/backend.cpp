@@ -10,7 +10,6 @@
 #include <sstream>
 #include <stdexcept>
 
-
 namespace uw_multislam {
 namespace core {
 
@@ -92,8 +91,7 @@ Pose2 relativeOfMotions(const std::vector<Pose2>& motions, int i, int j) {
 // The squared Mahalanobis distance of a loop's measurement from its prediction in a solution,
 // under the residual gate's covariance (the loop's, inflated, plus the floors).
 double residualDistance2(const Pose2& predicted, const UncertainPose2& z, const OptimisationJob& job) {
-  return mahalanobis2(between(predicted, z.mean), job.residual_gate_inflation * z.covariance,
-                      job.residual_gate_floors);
+  return mahalanobis2(between(predicted, z.mean), job.residual_gate_inflation * z.covariance, job.residual_gate_floors);
 }
 
 // The index of the loop with the largest distance beyond the job's residual gate, or -1.
@@ -284,8 +282,8 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
 bool MultiSessionBackend::tryAutomaticJoin(int ma, int mb) {
   // The count policy waits for K loops; the consistency policy tries from its minimum set on
   // (join_min_loops 0 turns automatic joining off for both).
-  const int needed = options_.join_policy == JoinPolicy::kCount ? options_.join_min_loops
-                                                                 : options_.join_min_consistent;
+  const int needed =
+      options_.join_policy == JoinPolicy::kCount ? options_.join_min_loops : options_.join_min_consistent;
   if (!automatic_joins_ || options_.join_min_loops <= 0 || static_cast<int>(loopsBetween(ma, mb, true).size()) < needed)
     return false;
   // Both growing (two vehicles' sessions side by side): not a refusal; endSession tries again.
@@ -456,8 +454,7 @@ void MultiSessionBackend::solveOptimisation(OptimisationJob* job) {
     std::vector<std::size_t> back;
     for (std::size_t k = 0; gate && k < tried.size(); ++k) {
       if (tried[k]) continue;
-      const UncertainPose2& z =
-          job->iekf ? job->refused_measurements[k].z : job->refused_edges[k].z;
+      const UncertainPose2& z = job->iekf ? job->refused_measurements[k].z : job->refused_edges[k].z;
       const double d2 = residualDistance2(pred(k), z, *job);
       if (!(d2 <= job->residual_gate_chi2)) continue;
       tried[k] = true;
@@ -595,15 +592,15 @@ BackendStatus MultiSessionBackend::join(int session_a, int session_b, int min_lo
   // 0: the configured rule, with its support (the count policy's K, at least 1; the consistency
   // policy's minimum set, inliers and spread); > 0: the caller's count, in the consistent set.
   const bool rule = min_loops == 0;
-  const int k = !rule ? min_loops
-                      : options_.join_policy == JoinPolicy::kCount ? std::max(1, options_.join_min_loops)
-                                                                   : std::max(1, options_.join_min_consistent);
+  const int k = !rule                                        ? min_loops
+                : options_.join_policy == JoinPolicy::kCount ? std::max(1, options_.join_min_loops)
+                                                             : std::max(1, options_.join_min_consistent);
   return joinMaps(mapOf(session_a), mapOf(session_b), k, false, !rule);
 }
 
 MultiSessionBackend::LinkEstimate MultiSessionBackend::estimateLink(int first, int second, const std::vector<int>& ids,
-                                                                  int min_loops, JoinPolicy policy,
-                                                                  bool spread_in_first, bool requested) const {
+                                                                    int min_loops, JoinPolicy policy,
+                                                                    bool spread_in_first, bool requested) const {
   LinkEstimate e;
   auto failed = [&e](const std::string& why) {
     e.status = {StatusCode::kFailedPrecondition, why};
@@ -648,7 +645,8 @@ MultiSessionBackend::LinkEstimate MultiSessionBackend::estimateLink(int first, i
         << set.loops.size() << " loops, " << set.inliers << " inliers, spread " << spread_m << " m; needed "
         << min_loops << " loops";
     if (!requested) why << ", " << options_.join_min_inliers << " inliers, " << options_.join_min_spread_m << " m";
-    const bool supported = requested || (set.inliers >= options_.join_min_inliers && spread_m >= options_.join_min_spread_m);
+    const bool supported =
+        requested || (set.inliers >= options_.join_min_inliers && spread_m >= options_.join_min_spread_m);
     if (set.loops.empty() || static_cast<int>(set.loops.size()) < min_loops || !supported) return failed(why.str());
     std::fill(in.begin(), in.end(), false);
     std::vector<JoinLoop> jl;
@@ -665,9 +663,9 @@ MultiSessionBackend::LinkEstimate MultiSessionBackend::estimateLink(int first, i
     for (std::size_t k = 0; k < cand.size(); ++k)
       if (in[k]) jl.push_back({cand[k].pe_from_pi.mean, cand[k].ci_from_cs.mean, cand[k].z});
     if (static_cast<int>(jl.size()) < min_loops) {
-      return failed(std::to_string(jl.size()) + " of the " + std::to_string(cand.size()) + " global loops between map " +
-                    std::to_string(first) + " and map " + std::to_string(second) + " agree, " +
-                    std::to_string(min_loops) + " needed");
+      return failed(std::to_string(jl.size()) + " of the " + std::to_string(cand.size()) +
+                    " global loops between map " + std::to_string(first) + " and map " + std::to_string(second) +
+                    " agree, " + std::to_string(min_loops) + " needed");
     }
     res = estimateJoinLink(jl, options_.iekf);
     bool changed = false;
@@ -1067,7 +1065,8 @@ int MultiSessionBackend::restoreSession(const std::string& name, const std::vect
 
 BackendStatus MultiSessionBackend::removeSession(int s) {
   if (!hasSession(s)) return {StatusCode::kNotFound, "no session " + std::to_string(s)};
-  if (sessions_[s].recording) return {StatusCode::kFailedPrecondition, "session " + std::to_string(s) + " is recording"};
+  if (sessions_[s].recording)
+    return {StatusCode::kFailedPrecondition, "session " + std::to_string(s) + " is recording"};
   if (mapAt(sessions_[s].map).chain.size() != 1)
     return {StatusCode::kFailedPrecondition, "session " + std::to_string(s) + " shares map " +
                                                  std::to_string(sessions_[s].map) + " with other sessions"};

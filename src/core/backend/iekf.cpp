@@ -136,7 +136,7 @@ IekfResult TrajectoryIekf::update(const std::vector<LoopMeasurement>& loops) {
   auto p = state();
   const Eigen::MatrixXd s = g * p * g.transpose() + r;
   k_gain = p * g.transpose() * s.ldlt().solve(Eigen::MatrixXd::Identity(m, m));
-  p -= k_gain * (g * p);  // K (G P): O(N² m), not (K G) P: O(N³)
+  p -= k_gain * (g * p);                   // K (G P): O(N² m), not (K G) P: O(N³)
   p = (0.5 * (p + p.transpose())).eval();  // eval: p appears on both sides
   motions_ = unstack(x);
   res.chi2_after = nu.dot(r.ldlt().solve(nu));

@@ -25,10 +25,14 @@ const char* robustLossName(RobustLoss l) {
 }
 
 bool parseRobustLoss(const std::string& name, RobustLoss* out) {
-  if (name == "none") *out = RobustLoss::kNone;
-  else if (name == "huber") *out = RobustLoss::kHuber;
-  else if (name == "cauchy") *out = RobustLoss::kCauchy;
-  else return false;
+  if (name == "none")
+    *out = RobustLoss::kNone;
+  else if (name == "huber")
+    *out = RobustLoss::kHuber;
+  else if (name == "cauchy")
+    *out = RobustLoss::kCauchy;
+  else
+    return false;
   return true;
 }
 
@@ -97,8 +101,8 @@ void checkEdges(std::size_t n, const std::vector<PoseGraphEdge>& edges, int fixe
 }
 
 // Builds the problem over `blocks` (x, y, yaw per pose). Loss functions are owned by the problem.
-void buildProblem(ceres::Problem* problem, std::vector<Eigen::Vector3d>* blocks, const std::vector<PoseGraphEdge>& edges,
-                  const SparseOptions* options, int fixed) {
+void buildProblem(ceres::Problem* problem, std::vector<Eigen::Vector3d>* blocks,
+                  const std::vector<PoseGraphEdge>& edges, const SparseOptions* options, int fixed) {
   for (const auto& e : edges) {
     ceres::LossFunction* loss = nullptr;
     if (options != nullptr && e.robust) {
@@ -114,7 +118,7 @@ void buildProblem(ceres::Problem* problem, std::vector<Eigen::Vector3d>* blocks,
 
 ceres::SparseLinearAlgebraLibraryType sparseLibrary() {
   return ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::SUITE_SPARSE) ? ceres::SUITE_SPARSE
-                                                                                  : ceres::EIGEN_SPARSE;
+                                                                               : ceres::EIGEN_SPARSE;
 }
 
 }  // namespace
@@ -151,8 +155,9 @@ SparseResult optimisePoseGraph(std::vector<Pose2>* poses, const std::vector<Pose
   return res;
 }
 
-std::vector<Eigen::Matrix3d> poseGraphMarginals(const std::vector<Pose2>& poses, const std::vector<PoseGraphEdge>& edges,
-                                                const std::vector<int>& which, int fixed) {
+std::vector<Eigen::Matrix3d> poseGraphMarginals(const std::vector<Pose2>& poses,
+                                                const std::vector<PoseGraphEdge>& edges, const std::vector<int>& which,
+                                                int fixed) {
   checkEdges(poses.size(), edges, fixed);
   std::vector<Eigen::Vector3d> blocks(poses.size());
   for (std::size_t k = 0; k < poses.size(); ++k) blocks[k] = poses[k].vector();

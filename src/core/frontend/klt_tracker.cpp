@@ -57,8 +57,8 @@ void KltTracker::reset(const cv::Mat& grey, int keyframe_id) {
   cv::Mat mask(grey.size(), CV_8UC1, cv::Scalar(0));
   mask(cv::Rect(b, b, grey.cols - 2 * b, grey.rows - 2 * b)).setTo(255);
   std::vector<cv::Point2f> corners;
-  cv::goodFeaturesToTrack(grey, corners, options_.max_corners, options_.corner_quality,
-                          options_.corner_min_distance_px, mask);
+  cv::goodFeaturesToTrack(grey, corners, options_.max_corners, options_.corner_quality, options_.corner_min_distance_px,
+                          mask);
   if (static_cast<int>(corners.size()) < options_.min_tracks) return;
   cv::buildOpticalFlowPyramid(grey, previous_pyramid_, cv::Size(options_.window_px, options_.window_px),
                               options_.pyramid_levels);
@@ -82,10 +82,9 @@ KltTracker::Tracks KltTracker::track(const cv::Mat& grey) {
   for (std::size_t i = 0; i < next.size(); ++i) next[i] = previous_px_[i] + step_px_[i];  // constant velocity
   std::vector<unsigned char> status;
   std::vector<float> error;
-  cv::calcOpticalFlowPyrLK(previous_pyramid_, pyramid, previous_px_, next, status, error, window,
-                           options_.pyramid_levels,
-                           cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 0.01),
-                           cv::OPTFLOW_USE_INITIAL_FLOW);
+  cv::calcOpticalFlowPyrLK(
+      previous_pyramid_, pyramid, previous_px_, next, status, error, window, options_.pyramid_levels,
+      cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 0.01), cv::OPTFLOW_USE_INITIAL_FLOW);
   // Back from the new frame to the previous one, started where each track came from.
   std::vector<unsigned char> back_status;
   std::vector<cv::Point2f> back;
@@ -93,10 +92,9 @@ KltTracker::Tracks KltTracker::track(const cv::Mat& grey) {
   if (check) {
     back = previous_px_;
     std::vector<float> back_error;
-    cv::calcOpticalFlowPyrLK(pyramid, previous_pyramid_, next, back, back_status, back_error, window,
-                             options_.pyramid_levels,
-                             cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 0.01),
-                             cv::OPTFLOW_USE_INITIAL_FLOW);
+    cv::calcOpticalFlowPyrLK(
+        pyramid, previous_pyramid_, next, back, back_status, back_error, window, options_.pyramid_levels,
+        cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 0.01), cv::OPTFLOW_USE_INITIAL_FLOW);
   }
   const double fb2 = options_.max_forward_backward_px * options_.max_forward_backward_px;
   std::vector<cv::Point2f> kept_keyframe, kept_previous, kept_step;

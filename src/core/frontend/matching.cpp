@@ -16,7 +16,8 @@ namespace core {
 
 std::string MatchOptions::validate() const {
   std::ostringstream os;
-  if (!(ratio > 0.0 && ratio <= 1.0)) os << "ratio " << ratio << " must be in (0, 1]";
+  if (!(ratio > 0.0 && ratio <= 1.0))
+    os << "ratio " << ratio << " must be in (0, 1]";
   else if (!(binary_ratio > 0.0 && binary_ratio <= 1.0))
     os << "binary_ratio " << binary_ratio << " must be in (0, 1]";
   return os.str();

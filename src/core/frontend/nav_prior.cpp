@@ -91,8 +91,9 @@ NavTrack::NavTrack(std::vector<NavRecord> rows) : rows_(std::move(rows)) {
 bool NavTrack::append(const NavRecord& row, std::string* why, double restart_after_s) {
   std::string bad = invalid(row);
   if (bad.empty() && restart_after_s > 0 && !rows_.empty() && row.stamp_s < rows_.back().stamp_s - restart_after_s) {
-    if (why) *why = "stamp " + std::to_string(row.stamp_s) + " jumped back from " + std::to_string(rows_.back().stamp_s) +
-                    ": the track starts again";
+    if (why)
+      *why = "stamp " + std::to_string(row.stamp_s) + " jumped back from " + std::to_string(rows_.back().stamp_s) +
+             ": the track starts again";
     rows_.assign(1, row);
     return true;
   }

@@ -19,12 +19,18 @@ std::string StampGuardOptions::validate() const {
 
 std::string stampClassName(StampClass c) {
   switch (c) {
-    case StampClass::kFirst: return "first";
-    case StampClass::kNext: return "next";
-    case StampClass::kDuplicate: return "duplicate";
-    case StampClass::kOutOfOrder: return "out_of_order";
-    case StampClass::kJumpBack: return "jump_back";
-    case StampClass::kJumpForward: return "jump_forward";
+    case StampClass::kFirst:
+      return "first";
+    case StampClass::kNext:
+      return "next";
+    case StampClass::kDuplicate:
+      return "duplicate";
+    case StampClass::kOutOfOrder:
+      return "out_of_order";
+    case StampClass::kJumpBack:
+      return "jump_back";
+    case StampClass::kJumpForward:
+      return "jump_forward";
   }
   return "?";
 }

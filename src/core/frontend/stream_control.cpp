@@ -43,8 +43,8 @@ StreamControl::Requested StreamControl::take() {
   return r;
 }
 
-SessionStart sessionStart(bool first_frame, int current, const StreamControl::Requested& requested,
-                          StampClass timing, double jump_s, bool camera_changed) {
+SessionStart sessionStart(bool first_frame, int current, const StreamControl::Requested& requested, StampClass timing,
+                          double jump_s, bool camera_changed) {
   using C = SessionStart::Cause;
   const int next_own = std::max(current + 1, requested.next_free);
   if (first_frame) return {C::kFirstFrame, requested.session >= 0 ? requested.session : current, "first frame"};

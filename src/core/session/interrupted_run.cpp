@@ -63,10 +63,15 @@ void resolveInterruptedRun(SessionStore* store, const InterruptedRun& run, Inter
     // The audit trail: a deletion by the tool, in the deletion's transaction.
     std::string ids;
     for (int id : run.ids) ids += (ids.empty() ? "" : ",") + std::to_string(id);
-    const HistoryEntry entry{0, utcTimestamp(), "delete", "tool", ids, "",
+    const HistoryEntry entry{0,
+                             utcTimestamp(),
+                             "delete",
+                             "tool",
+                             ids,
+                             "",
                              "offline_slam --interrupted discard: the interrupted run of '" + run.name + "' deleted (" +
-                                 std::to_string(run.store_ids.size()) + " sessions, " +
-                                 std::to_string(run.keyframes) + " keyframes, their loops and their places in the maps)"};
+                                 std::to_string(run.store_ids.size()) + " sessions, " + std::to_string(run.keyframes) +
+                                 " keyframes, their loops and their places in the maps)"};
     store->deleteSessions(run.store_ids, &entry);
   } else {
     store->endSession(run.store_ids.back(), run.last_stamp_s);

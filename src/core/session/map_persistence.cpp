@@ -184,8 +184,8 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
   return out;
 }
 
-void saveBackendMaps(SessionStore* store, const MultiSessionBackend& backend, const std::vector<std::int64_t>& session_ids,
-                     const std::vector<std::int64_t>& loop_ids) {
+void saveBackendMaps(SessionStore* store, const MultiSessionBackend& backend,
+                     const std::vector<std::int64_t>& session_ids, const std::vector<std::int64_t>& loop_ids) {
   auto sid = [&](int s) {
     if (s < 0 || s >= static_cast<int>(session_ids.size()))
       throw std::invalid_argument("saveBackendMaps: session " + std::to_string(s) + " has no store id");

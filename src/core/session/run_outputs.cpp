@@ -46,10 +46,11 @@ void writeRunOutputs(const std::string& out_dir, const SessionQueries& manager, 
   // loops.csv, whose contract is the accepted loops; the same columns in a file of their own.
   std::ostream& refused = file("loops_refused.csv");
   refused << "session_a,index_a,session_b,index_b,kind,inliers\n";
-  loop_poses << "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw\n"
-             << std::fixed << std::setprecision(6);
-  links << "map,previous_session,current_session,loops,x_m,y_m,yaw_rad,previous_piece,current_piece\n" << std::fixed
-        << std::setprecision(6);
+  loop_poses
+      << "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw\n"
+      << std::fixed << std::setprecision(6);
+  links << "map,previous_session,current_session,loops,x_m,y_m,yaw_rad,previous_piece,current_piece\n"
+        << std::fixed << std::setprecision(6);
   // Map labels: a session that shares its CSV number with the session before it (a later piece
   // of one folder, after a tracking loss) labels its map with the next free number. Pieces are
   // numbered from 0 within their folder, in session order.
@@ -67,7 +68,8 @@ void writeRunOutputs(const std::string& out_dir, const SessionQueries& manager, 
   for (int id : manager.sessionIds()) {
     const std::vector<int>& frames = manager.frames(id);
     pieces << csv(id) << "," << piece.at(id) << "," << id << "," << (frames.empty() ? -1 : frames.front()) << ","
-           << (frames.empty() ? -1 : frames.back()) << "," << frames.size() << "," << label.at(manager.mapOf(id)) << "\n";
+           << (frames.empty() ? -1 : frames.back()) << "," << frames.size() << "," << label.at(manager.mapOf(id))
+           << "\n";
   }
   for (int id : manager.sessionIds()) {
     const std::vector<Pose2>& o = manager.odometryPoses(id);
@@ -92,14 +94,15 @@ void writeRunOutputs(const std::string& out_dir, const SessionQueries& manager, 
   }
   for (std::size_t i = 0; i < manager.loops().size(); ++i) {
     const Loop& l = manager.loops()[i];
-    (manager.loopRefused(i) ? refused : loops) << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b)
-                                                << "," << l.frame_b << "," << loopKindName(l.kind) << "," << l.inliers
-                                                << "\n";
+    (manager.loopRefused(i) ? refused : loops) << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b) << ","
+                                               << l.frame_b << "," << loopKindName(l.kind) << "," << l.inliers << "\n";
     loop_poses << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b) << "," << l.frame_b << ","
-               << l.z.mean.x() << "," << l.z.mean.y() << "," << l.z.mean.yaw() << std::scientific << std::setprecision(9);
+               << l.z.mean.x() << "," << l.z.mean.y() << "," << l.z.mean.yaw() << std::scientific
+               << std::setprecision(9);
     const Eigen::Matrix3d& c = l.z.covariance;
-    loop_poses << "," << c(0, 0) << "," << c(0, 1) << "," << c(0, 2) << "," << c(1, 1) << "," << c(1, 2) << "," << c(2, 2)
-               << "\n" << std::fixed << std::setprecision(6);
+    loop_poses << "," << c(0, 0) << "," << c(0, 1) << "," << c(0, 2) << "," << c(1, 1) << "," << c(1, 2) << ","
+               << c(2, 2) << "\n"
+               << std::fixed << std::setprecision(6);
   }
   for (const SessionLink& l : manager.links())
     links << label.at(l.map) << "," << csv(l.previous) << "," << csv(l.current) << "," << l.loops << ","
@@ -152,8 +155,8 @@ void writeRunInputs(const std::string& out_dir, const std::vector<Dataset>& data
       ++finite;
     }
     f << first_number + static_cast<int>(ds) << ",\"" << folder << "\"," << d.frames.size() << ","
-      << (d.frames.empty() ? 0.0 : d.frames.front().stamp_s) << "," << (d.frames.empty() ? 0.0 : d.frames.back().stamp_s)
-      << "," << (finite ? sum / finite : std::nan("")) << "\n";
+      << (d.frames.empty() ? 0.0 : d.frames.front().stamp_s) << ","
+      << (d.frames.empty() ? 0.0 : d.frames.back().stamp_s) << "," << (finite ? sum / finite : std::nan("")) << "\n";
   }
   commit(inputs.get(), "inputs.csv");
   if (config_yaml.empty()) return;

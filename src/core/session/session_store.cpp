@@ -540,7 +540,7 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
   std::error_code ec;
   const bool read_only = mode == StoreAccess::kReadOnly;
   bool fresh = false;
-  openFile(mode, &fresh);  // file_ releases it if anything below throws
+  openFile(mode, &fresh);                   // file_ releases it if anything below throws
   bool beside_existed[2] = {false, false};  // -wal, -shm
   try {
     // SQLite opens "<store>-wal" and "<store>-shm" by name and would follow a link there.
@@ -1285,8 +1285,8 @@ void SessionStore::addProvenance(const SessionProvenance& p) {
 std::vector<SessionProvenance> SessionStore::provenance() const {
   std::vector<SessionProvenance> out;
   if (!hasTable("provenance")) return out;
-  Statement st(this,
-               "SELECT session, source_file, source_session, source_name, vehicle, dive FROM provenance ORDER BY session");
+  Statement st(
+      this, "SELECT session, source_file, source_session, source_name, vehicle, dive FROM provenance ORDER BY session");
   auto text = [&](int col) { return columnText(st.get(), col); };
   while (st.step()) {
     SessionProvenance p;
@@ -1316,7 +1316,8 @@ std::int64_t SessionStore::addHistory(HistoryEntry e) {
     last.step();
     e.id = sqlite3_column_int64(last.get(), 0) + 1;
   }
-  Statement st(this, "INSERT INTO history(id, time_utc, kind, cause, sessions, loops, message) VALUES (?, ?, ?, ?, ?, ?, ?)");
+  Statement st(this,
+               "INSERT INTO history(id, time_utc, kind, cause, sessions, loops, message) VALUES (?, ?, ?, ?, ?, ?, ?)");
   st.bind(1, e.id).bind(2, e.time_utc).bind(3, e.kind).bind(4, e.cause).bind(5, e.sessions).bind(6, e.loops);
   st.bind(7, e.message).run();
   return e.id;

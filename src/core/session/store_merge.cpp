@@ -124,8 +124,10 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
     }
     for (const StoredSession& s : in.back()->sessions())
       if (s.state == StoredSessionState::kRecording && s.keyframes > 0)
-        throw std::invalid_argument(path + ": session " + std::to_string(s.id) + " '" + s.name +
-                                    "' is still recording (an interrupted run): finish or discard it first (offline_slam --db " + path + " --session ITS_FOLDER --interrupted finish|discard)");
+        throw std::invalid_argument(
+            path + ": session " + std::to_string(s.id) + " '" + s.name +
+            "' is still recording (an interrupted run): finish or discard it first (offline_slam --db " + path +
+            " --session ITS_FOLDER --interrupted finish|discard)");
     {  // The checks every reader of a store applies (a damaged row refused by name), before
        // anything is copied: the copy reads rows itself and took a dangling loop without a word.
       MultiSessionBackend scratch{BackendOptions{}};
@@ -155,7 +157,8 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
     std::vector<std::pair<std::int64_t, std::int64_t>> pairs;
     for (std::size_t i = 0; i < in.size(); ++i) {
       const SessionStore& src = *in[i];
-      const std::string vehicle = inputs[i].vehicle.empty() ? fs::path(inputs[i].path).stem().string() : inputs[i].vehicle;
+      const std::string vehicle =
+          inputs[i].vehicle.empty() ? fs::path(inputs[i].path).stem().string() : inputs[i].vehicle;
       std::map<std::int64_t, std::int64_t> session_of;  // source store id -> merged store id
       for (const StoredSession& s : src.sessions()) {
         if (s.keyframes == 0) {  // created, then nothing (the back-end never restores it either)
@@ -188,7 +191,8 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
           dst.addKeyframe(kf, k > 0 ? &odometry[k - 1] : nullptr, nullptr);
         }
         dst.endSession(id, s.end_stamp_s);
-        dst.addProvenance({id, inputs[i].path, s.id, s.name, vehicle, inputs[i].dive.empty() ? s.name : inputs[i].dive});
+        dst.addProvenance(
+            {id, inputs[i].path, s.id, s.name, vehicle, inputs[i].dive.empty() ? s.name : inputs[i].dive});
         report.keyframes += static_cast<int>(keyframes.size());
         ++report.sessions;
         input_of.push_back(static_cast<int>(i));

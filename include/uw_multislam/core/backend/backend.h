@@ -87,10 +87,10 @@ struct BackendOptions {
                              // than this is refused (metres, not χ²: odometry covariances are
                              // over-confident over long chains, a χ² gate refused true loops)
   JoinPolicy join_policy = JoinPolicy::kConsistent;
-  int join_min_consistent = 2;       // kConsistent: loops in the consistent set
-  int join_min_inliers = 60;         // kConsistent: their total RANSAC inliers
-  double join_min_spread_m = 0.2;    // kConsistent: distance between their keyframes (both maps)
-  ConsistencyOptions consistency;    // kConsistent: the pairwise test
+  int join_min_consistent = 2;     // kConsistent: loops in the consistent set
+  int join_min_inliers = 60;       // kConsistent: their total RANSAC inliers
+  double join_min_spread_m = 0.2;  // kConsistent: distance between their keyframes (both maps)
+  ConsistencyOptions consistency;  // kConsistent: the pairwise test
   /// A loop inside one map is refused when it disagrees with the map's current estimate beyond
   /// the chi-square gate of consistency.confidence, the covariance being the chain's between its
   /// two keyframes plus the loop's plus the consistency floors (both optimisers; before the
@@ -189,10 +189,10 @@ struct MapState {
 };
 
 struct BackendStats {
-  int loops = 0;          // loops received
-  int loops_refused = 0;  // refused at a join as inconsistent with the others
-  int joins_refused = 0;  // automatic joins the consistency policy refused (reason: last_join_refusal)
-  int loops_gated = 0;    // loops inside a map refused by intra_loop_gate (also in loops_refused)
+  int loops = 0;               // loops received
+  int loops_refused = 0;       // refused at a join as inconsistent with the others
+  int joins_refused = 0;       // automatic joins the consistency policy refused (reason: last_join_refusal)
+  int loops_gated = 0;         // loops inside a map refused by intra_loop_gate (also in loops_refused)
   int loops_switched_off = 0;  // loops refused by loop_residual_gate after a solve (also in loops_refused)
   int loops_readmitted = 0;    // refused loops taken back after a solve (readmit_refused_loops)
   std::string last_join_refusal;
@@ -315,16 +315,16 @@ class MultiSessionBackend {
   /// a join. For every other map with global loops to the session's map, the link a join would
   /// take under the consistency rule (join_min_consistent loops, join_min_inliers, join_min_spread_m
   /// and the pairwise chi-square test, whatever join_policy is; the spread is the other map's: loops
-  /// from one new keyframe to stored keyframes that agree on where it is relocalise it at once); the map whose consistent set is
-  /// largest (then: most inliers) wins; loops between sessions the user split apart do not count.
+  /// from one new keyframe to stored keyframes that agree on where it is relocalise it at once); the map whose
+  /// consistent set is largest (then: most inliers) wins; loops between sessions the user split apart do not count.
   /// nullopt: no map passes. Nothing changes (localisation mode
   /// uses it while joins wait).
   struct Relocalisation {
-    int map = -1;                 // the other map
-    int loops = 0, inliers = 0;   // the consistent set's
-    UncertainPose2 origin;        // the session's map frame in `map`'s frame (the end of `map`'s chain, then the link)
-    UncertainPose2 pose;          // the session's last keyframe in `map`'s frame
-    int keyframe = -1;            // which keyframe that is
+    int map = -1;                // the other map
+    int loops = 0, inliers = 0;  // the consistent set's
+    UncertainPose2 origin;       // the session's map frame in `map`'s frame (the end of `map`'s chain, then the link)
+    UncertainPose2 pose;         // the session's last keyframe in `map`'s frame
+    int keyframe = -1;           // which keyframe that is
   };
   /// `eligible` (optional): only maps for which it says true are considered (by map id).
   std::optional<Relocalisation> relocalise(int s, const std::function<bool(int map)>& eligible = {}) const;
@@ -439,7 +439,7 @@ class MultiSessionBackend {
   BackendStats stats_;
   bool deferred_ = false;
   bool automatic_joins_ = true;
-  std::set<int> due_;  // maps marked for a deferred optimisation
+  std::set<int> due_;               // maps marked for a deferred optimisation
   std::vector<MapChange> changes_;  // joins and splits not yet taken
 };
 

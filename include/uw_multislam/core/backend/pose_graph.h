@@ -29,17 +29,17 @@ bool parseRobustLoss(const std::string& name, RobustLoss* out);
 
 struct SparseOptions {
   int max_iterations = 50;
-  double function_tolerance = 1e-10;  // relative cost change that stops the solver
+  double function_tolerance = 1e-10;            // relative cost change that stops the solver
   RobustLoss robust_loss = RobustLoss::kHuber;  // Cauchy under-weighted true loops (over-confident covariances)
-  double loss_scale = 3.0;  // in standard deviations: loops beyond it are down-weighted
+  double loss_scale = 3.0;                      // in standard deviations: loops beyond it are down-weighted
 
   std::string validate() const;
 };
 
 struct PoseGraphEdge {
-  int from = 0;       // index of keyframe i
-  int to = 0;         // index of keyframe j
-  UncertainPose2 z;   // the measured pose of j in i's frame, X_j^i
+  int from = 0;         // index of keyframe i
+  int to = 0;           // index of keyframe j
+  UncertainPose2 z;     // the measured pose of j in i's frame, X_j^i
   bool robust = false;  // behind the robust loss (loops), or plain least squares (odometry, links)
 };
 
@@ -60,8 +60,9 @@ SparseResult optimisePoseGraph(std::vector<Pose2>* poses, const std::vector<Pose
 /// The marginal covariances of poses `which` (relative to the fixed pose) at the given estimate,
 /// from the graph's information matrix. Throws std::runtime_error when the graph leaves one of
 /// them unconstrained.
-std::vector<Eigen::Matrix3d> poseGraphMarginals(const std::vector<Pose2>& poses, const std::vector<PoseGraphEdge>& edges,
-                                                const std::vector<int>& which, int fixed = 0);
+std::vector<Eigen::Matrix3d> poseGraphMarginals(const std::vector<Pose2>& poses,
+                                                const std::vector<PoseGraphEdge>& edges, const std::vector<int>& which,
+                                                int fixed = 0);
 
 }  // namespace core
 }  // namespace uw_multislam

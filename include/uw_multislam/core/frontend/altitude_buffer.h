@@ -1,6 +1,6 @@
-// The altitude at an image's stamp from the recent altimeter readings: the altimeter is usually slower than the camera (2 Hz against 10 Hz), so pairing
-// each image with one reading would drop most images. The buffer keeps the last readings
-// (sorted by stamp, at most `capacity`) and answers, for an image stamp t:
+// The altitude at an image's stamp from the recent altimeter readings: the altimeter is usually slower than the camera
+// (2 Hz against 10 Hz), so pairing each image with one reading would drop most images. The buffer keeps the last
+// readings (sorted by stamp, at most `capacity`) and answers, for an image stamp t:
 //
 //   a reading stamped exactly t                          that reading            kExact
 //   readings a < t < b with b - a <= max_age_s           linear between a and b  kInterpolated

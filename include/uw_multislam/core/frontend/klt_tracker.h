@@ -23,7 +23,7 @@ struct KltOptions {
   bool enabled = false;
   /// Shi-Tomasi corners started at each keyframe (cv::goodFeaturesToTrack).
   int max_corners = 400;
-  double corner_quality = 0.01;         // relative to the strongest corner, (0, 1)
+  double corner_quality = 0.01;          // relative to the strongest corner, (0, 1)
   double corner_min_distance_px = 10.0;  // spread
   int border_px = 8;                     // corners this close to the border are not started
   /// Lucas-Kanade window side (odd, pixels) and pyramid levels above the image.

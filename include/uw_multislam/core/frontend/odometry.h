@@ -24,13 +24,12 @@
 // Navigation prior (core/frontend/nav_prior.h), when the input carries the vehicle's
 // dead-reckoned nav and options.nav.enabled: (a) RANSAC's 2-point hypotheses far from the nav's
 // motion (the same chi-square gate, with the hypothesis's own noise added) are not scored, so a
-// repetitive seabed cannot lead the consensus astray (nav.gate_ransac); (c) every visual motion is compared with the nav's
-// motion over the same interval by a chi-square gate; a motion that fails is refused (counted,
-// the reason in the update) and the nav's motion used instead; with nav.fuse a motion that passes
-// is combined with the nav's. (b) With on_tracking_loss dead_reckoning a frame that cannot be
-// matched is carried by the nav's motion (not a fallback: the session goes on); such a frame
-// becomes a keyframe when the nav-predicted footprint overlap drops below keyframes.min_overlap,
-// it turned by more than max_rotation_rad, or it has nav.min_features_to_restart features while
+// repetitive seabed cannot lead the consensus astray (nav.gate_ransac); (c) every visual motion is compared with the
+// nav's motion over the same interval by a chi-square gate; a motion that fails is refused (counted, the reason in the
+// update) and the nav's motion used instead; with nav.fuse a motion that passes is combined with the nav's. (b) With
+// on_tracking_loss dead_reckoning a frame that cannot be matched is carried by the nav's motion (not a fallback: the
+// session goes on); such a frame becomes a keyframe when the nav-predicted footprint overlap drops below
+// keyframes.min_overlap, it turned by more than max_rotation_rad, or it has nav.min_features_to_restart features while
 // the last keyframe has fewer (a blank): so vision restarts at the first good frame. Without
 // nav every frame is processed exactly as before. Every keyframe's motion has its source.
 //
@@ -59,10 +58,11 @@
 #include <opencv2/core.hpp>
 
 #include <optional>
-#include <utility>
 #include <string>
+#include <utility>
 #include <vector>
 
+#include "uw_multislam/core/common/stage_timer.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/enhancement.h"
 #include "uw_multislam/core/frontend/features.h"
@@ -71,7 +71,6 @@
 #include "uw_multislam/core/frontend/nav_prior.h"
 #include "uw_multislam/core/frontend/pair_motion.h"
 #include "uw_multislam/core/frontend/rigid_ransac.h"
-#include "uw_multislam/core/common/stage_timer.h"
 #include "uw_multislam/core/geometry/trajectory.h"
 
 namespace uw_multislam {
@@ -164,7 +163,7 @@ struct OdometryUpdate {
   double scale = 1.0;    // RANSAC's scale correction (altitude inconsistency), when matched
   /// Where the frame's motion from the last keyframe came from (kNav: vision failed or refused).
   MotionSource source = MotionSource::kVisual;
-  bool gate_refused = false;  // the visual motion failed the nav gate
+  bool gate_refused = false;     // the visual motion failed the nav gate
   double gate_distance2 = -1.0;  // the gate's squared Mahalanobis distance, -1 when not checked
   /// A nav stream lost both vision and the nav (refused or missing readings) for more than
   /// fallback.bridge_frames frames: no motion was made up, the session must end (SegmentedOdometry).
@@ -184,7 +183,7 @@ struct KeyframeInfo {
   int frame_index = 0;
   double stamp_s = 0.0;
   double altitude_m = 0.0;
-  bool fallback = false;  // its motion from the previous keyframe is a reused one
+  bool fallback = false;                        // its motion from the previous keyframe is a reused one
   MotionSource source = MotionSource::kVisual;  // of that motion (kFallback when fallback)
   /// The frame's own match to the keyframe before it: of the frame that became the keyframe, or
   /// of a promoted frame from when it was tracked (zeros for the first keyframe and fallbacks).
@@ -202,16 +201,16 @@ struct OdometryStats {
   int skipped_altitude = 0;
   int altitude_reused = 0;
   int altitude_out_of_range = 0;  // finite but above max_altitude_m (then reused, or skipped when none yet)
-  int nav_frames = 0;     // frames whose motion is the nav's (vision failed or was refused)
-  int gate_checks = 0;    // visual motions compared with the nav
-  int gate_refusals = 0;  // ... refused by the gate
-  int fused = 0;          // ... combined with the nav (nav.fuse)
-  long hypotheses_gated = 0;  // RANSAC hypotheses the nav prior refused (nav.gate_ransac)
-  int nav_implausible = 0;    // frames whose nav step was too fast to be a motion (nav.max_speed_m_s): no nav
-  int nav_losses = 0;  // frames past the bridged ones with neither a visual motion nor a usable nav reading
-  int klt_tracked = 0;    // frames whose motion came from KLT tracks (klt.enabled), no extraction
-  int klt_extracted = 0;  // frames KLT tracked but that went the full way (keyframe due or degraded)
-  int klt_degraded = 0;   // ... of them, because the tracks failed (too few, RANSAC, nav gate)
+  int nav_frames = 0;             // frames whose motion is the nav's (vision failed or was refused)
+  int gate_checks = 0;            // visual motions compared with the nav
+  int gate_refusals = 0;          // ... refused by the gate
+  int fused = 0;                  // ... combined with the nav (nav.fuse)
+  long hypotheses_gated = 0;      // RANSAC hypotheses the nav prior refused (nav.gate_ransac)
+  int nav_implausible = 0;        // frames whose nav step was too fast to be a motion (nav.max_speed_m_s): no nav
+  int nav_losses = 0;             // frames past the bridged ones with neither a visual motion nor a usable nav reading
+  int klt_tracked = 0;            // frames whose motion came from KLT tracks (klt.enabled), no extraction
+  int klt_extracted = 0;          // frames KLT tracked but that went the full way (keyframe due or degraded)
+  int klt_degraded = 0;           // ... of them, because the tracks failed (too few, RANSAC, nav gate)
 };
 
 /// What Odometry::process computes from a frame's image alone, before it looks at its own state:
@@ -220,10 +219,10 @@ struct OdometryStats {
 /// frame (two cores: offline_slam --threads) and the odometry's output is the
 /// same as when it computes them itself.
 struct PreparedFrame {
-  bool done = false;   // false: nothing prepared (another image size than the camera's: process skips it)
-  cv::Mat grey;        // enhanced
+  bool done = false;  // false: nothing prepared (another image size than the camera's: process skips it)
+  cv::Mat grey;       // enhanced
   std::optional<FrameFeatures> features;  // none with klt on: whether a frame is extracted depends on its tracks
-  std::string error;   // the image is unusable (the std::invalid_argument process would have caught)
+  std::string error;                      // the image is unusable (the std::invalid_argument process would have caught)
   double enhance_ms = 0.0;
   double features_ms = 0.0;
 };
@@ -326,11 +325,11 @@ class Odometry {
   std::vector<KeyframeInfo> keyframes_;
   TrackedFrame last_kf_;
   Eigen::Matrix3d last_kf_covariance_ = Eigen::Matrix3d::Zero();  // of last_kf_.pose, kept as keyframes are added
-  TrackedFrame prev_;            // the last frame processed (tracked or keyframe)
-  std::optional<NavRecord> prev_nav_accepted_;  // the last nav reading not refused (the glitch check)
-  std::optional<NavRecord> prev_nav_received_;  // the previous frame's reading, refused or not (its stamp)
+  TrackedFrame prev_;                                             // the last frame processed (tracked or keyframe)
+  std::optional<NavRecord> prev_nav_accepted_;                    // the last nav reading not refused (the glitch check)
+  std::optional<NavRecord> prev_nav_received_;            // the previous frame's reading, refused or not (its stamp)
   std::optional<std::pair<int, NavRecord>> refused_nav_;  // this frame's refused but steady reading
-  bool nav_seen_ = false;  // a nav reading came with a frame of this session (refused or not)
+  bool nav_seen_ = false;        // a nav reading came with a frame of this session (refused or not)
   Pose2 last_step_;              // frame-to-frame motion of the last successful step
   int unmatched_ = 0;            // consecutive unmatched frames (bridged, then reused)
   Pose2 predicted_;              // the last unmatched frame's predicted pose (prev_ and last_step_ on)

@@ -3,11 +3,11 @@
 // odometry (frame to keyframe) and by the loop detectors (verification, (5) and (9)).
 #pragma once
 
+#include "uw_multislam/core/common/stage_timer.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/features.h"
 #include "uw_multislam/core/frontend/matching.h"
 #include "uw_multislam/core/frontend/rigid_ransac.h"
-#include "uw_multislam/core/common/stage_timer.h"
 
 namespace uw_multislam {
 namespace core {

@@ -65,8 +65,8 @@ struct SessionStart {
   std::string why;  // for the log
   bool starts() const { return cause != Cause::kNone; }
 };
-SessionStart sessionStart(bool first_frame, int current, const StreamControl::Requested& requested,
-                          StampClass timing, double jump_s, bool camera_changed);
+SessionStart sessionStart(bool first_frame, int current, const StreamControl::Requested& requested, StampClass timing,
+                          double jump_s, bool camera_changed);
 
 }  // namespace core
 }  // namespace uw_multislam

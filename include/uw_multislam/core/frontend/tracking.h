@@ -20,8 +20,8 @@ namespace uw_multislam {
 namespace core {
 
 struct TrackingLossOptions {
-  int max_fallbacks = 5;    // consecutive unmatched frames that close the session (0 = never)
-  int min_features = 100;   // features a frame needs to start the next session
+  int max_fallbacks = 5;   // consecutive unmatched frames that close the session (0 = never)
+  int min_features = 100;  // features a frame needs to start the next session
 
   std::string validate() const;
 };

@@ -20,10 +20,10 @@ namespace core {
 /// session manager's reload). Sessions are restored in store order as finished sessions (the
 /// back-end's ids follow the order); a session without keyframes is skipped.
 struct RestoredStore {
-  std::vector<std::int64_t> session_ids;   // back-end session -> store session id
-  std::vector<std::int64_t> loop_ids;      // back-end loop -> store loop id
+  std::vector<std::int64_t> session_ids;            // back-end session -> store session id
+  std::vector<std::int64_t> loop_ids;               // back-end loop -> store loop id
   std::vector<std::vector<int>> frame_of_keyframe;  // per restored session
-  std::vector<StoredLoop> loops;           // the stored loops, in back-end loop order
+  std::vector<StoredLoop> loops;                    // the stored loops, in back-end loop order
   int keyframes = 0;
   /// What was repaired on the way, one line each (for the log): a map whose stored motions were
   /// damaged (not finite, a covariance checkCovariance refuses) is rebuilt from its sessions'

@@ -74,10 +74,10 @@ struct StoredKeyframe {
   double stamp_s = 0.0;
   double altitude_m = 0.0;
   cv::Size image_size;
-  std::vector<cv::Point2f> points;      // keypoint pixel coordinates, descending response
-  cv::Mat descriptors;                  // points.size() x 128, CV_8U (CV_32F accepted when writing)
-  Eigen::VectorXf hash;                 // HalocProjections::kHashSize values
-  std::vector<std::uint8_t> thumbnail;  // the keyframe image (keyframe_image.h; JPEG), may be empty
+  std::vector<cv::Point2f> points;                     // keypoint pixel coordinates, descending response
+  cv::Mat descriptors;                                 // points.size() x 128, CV_8U (CV_32F accepted when writing)
+  Eigen::VectorXf hash;                                // HalocProjections::kHashSize values
+  std::vector<std::uint8_t> thumbnail;                 // the keyframe image (keyframe_image.h; JPEG), may be empty
   MotionSource motion_source = MotionSource::kVisual;  // of the motion written with it
 
   /// Its features as the loop detector takes them: keypoints at the stored pixel positions (size
@@ -147,7 +147,7 @@ enum class StoreAccess { kReadWrite, kReadOnly, kCreateNew };
 
 class SessionStore {
  public:
-  static constexpr int kSchemaVersion = 2;  // 2: motions.source
+  static constexpr int kSchemaVersion = 2;                    // 2: motions.source
   static constexpr std::int32_t kApplicationId = 0x55574d53;  // "UWMS"
 
   /// Opens the store at `path`, creating it (and nothing else: 0600, exclusively) when missing or
@@ -272,7 +272,7 @@ class SessionStore {
   void openFile(StoreAccess mode, bool* fresh);
   void checkStillTheFile() const;  // the path still names the file held (SQLite opens it by name)
   void removeCreated(const bool beside_existed[2]) noexcept;  // a failed open removes what it created
-  void learnKind();                // descriptor_bytes_ from the meta row, if written
+  void learnKind();                                           // descriptor_bytes_ from the meta row, if written
   HeldFile file_;
   bool created_ = false;  // the file was created by this object's open (until the open succeeds)
   class Statement;

@@ -5,9 +5,9 @@
 #include <string>
 
 #include "uw_multislam/core/backend/backend.h"
-#include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/frontend/tracking.h"
+#include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/session/keyframe_image.h"
 
 namespace uw_multislam {

@@ -27,8 +27,8 @@
 #include "uw_multislam/ros/image_input.h"
 #include "uw_multislam/ros/keyframe_publisher.h"
 #include "uw_multislam/ros/nav_input.h"
-#include "uw_multislam/ros/odometry_frame.h"
 #include "uw_multislam/ros/odometry_counters.h"
+#include "uw_multislam/ros/odometry_frame.h"
 #include "uw_multislam/ros/odometry_options.h"
 #include "uw_multislam/ros/work_queue.h"
 
@@ -67,7 +67,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::unique_ptr<ros_work::BoundedWorkQueue<Frame>> queue_;  // pushed(): frames paired, popped(): taken
   std::thread worker_;
   core::StreamControl control_;  // pause / resume and the back-end's session requests (thread-safe)
-  std::mutex pairing_mutex_;  // guards pairing_ and altimeter_frame_ (the last Range's frame)
+  std::mutex pairing_mutex_;     // guards pairing_ and altimeter_frame_ (the last Range's frame)
   std::unique_ptr<Pairing> pairing_;
   std::string altimeter_frame_;
   std::atomic<long> ranges_refused_{0}, ranges_above_max_{0};  // altitude readings refused, of those above the max
