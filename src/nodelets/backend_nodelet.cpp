@@ -4,8 +4,6 @@
 #include <pluginlib/class_list_macros.hpp>
 
 #include <cstdio>
-#include <filesystem>
-#include <tuple>
 #include <utility>
 
 #include "uw_multislam/SessionTrajectory.h"
@@ -181,25 +179,7 @@ uw_multislam::Status BackendNodelet::change(F request) {
 }
 
 uw_multislam::Status BackendNodelet::answer(const core::Status& st, const char* service) const {
-  std::vector<std::pair<std::string, std::string>> roles;
-  // Each path as given and as resolved (a relative one, or one through a symlink, appears absolute
-  // in the core's messages). The core says "session store PATH" and "export root 'PATH'": the role
-  // replaces both words.
-  for (const auto& [path, word, role] :
-       {std::tuple<std::string, std::string, std::string>{options_.store_path, "session store", "the store"},
-        {options_.export_root, "export root", "the export root"}}) {
-    if (path.empty()) continue;
-    std::error_code ec;
-    const std::string resolved = std::filesystem::weakly_canonical(path, ec).string();
-    const std::string absolute = std::filesystem::absolute(path, ec).lexically_normal().string();
-    for (const std::string& p : {path, resolved, absolute}) {
-      roles.push_back({word + " '" + p + "'", role});
-      roles.push_back({word + " " + p, role});
-      roles.push_back({"'" + p + "'", role});
-      roles.push_back({p, role});
-    }
-  }
-  const core::Status out = core::withRoles(st, roles);
+  const core::Status out = core::withRoles(st, core::pathRoles(options_.store_path, options_.export_root));
   if (out.message != st.message) NODELET_WARN("back-end: %s: %s", service, st.message.c_str());
   return rc::toStatusMsg(out);
 }

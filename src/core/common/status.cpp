@@ -1,6 +1,7 @@
 #include "uw_multislam/core/common/status.h"
 
 #include <algorithm>
+#include <filesystem>
 
 namespace uw_multislam {
 namespace core {
@@ -38,6 +39,29 @@ Status withRoles(Status s, std::vector<std::pair<std::string, std::string>> role
       s.message.replace(at, path.size(), role);
   }
   return s;
+}
+
+std::vector<std::pair<std::string, std::string>> pathRoles(const std::string& store_path,
+                                                           const std::string& export_root) {
+  std::vector<std::pair<std::string, std::string>> roles;
+  const std::pair<std::string, std::string> words[] = {{"session store", "the store"},
+                                                       {"export root", "the export root"}};
+  const std::string* paths[] = {&store_path, &export_root};
+  for (int i = 0; i < 2; ++i) {
+    const std::string& path = *paths[i];
+    const auto& [word, role] = words[i];
+    if (path.empty()) continue;
+    std::error_code ec;
+    const std::string resolved = std::filesystem::weakly_canonical(path, ec).string();
+    const std::string absolute = std::filesystem::absolute(path, ec).lexically_normal().string();
+    for (const std::string& p : {path, resolved, absolute}) {
+      roles.push_back({word + " '" + p + "'", role});
+      roles.push_back({word + " " + p, role});
+      roles.push_back({"'" + p + "'", role});
+      roles.push_back({p, role});
+    }
+  }
+  return roles;
 }
 
 }  // namespace core

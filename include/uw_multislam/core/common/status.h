@@ -38,5 +38,12 @@ const char* statusCodeName(StatusCode c);
 /// logs the full message. Empty paths are ignored.
 Status withRoles(Status s, std::vector<std::pair<std::string, std::string>> roles);
 
+/// The roles for withRoles of the session store's and the export root's paths ("the store", "the
+/// export root"; an empty path: none): each path as given, resolved and absolute (a relative path,
+/// or one through a symlink, appears absolute in the core's messages), with and without the words
+/// and quotes the core puts around it ("session store PATH", "export root 'PATH'").
+std::vector<std::pair<std::string, std::string>> pathRoles(const std::string& store_path,
+                                                           const std::string& export_root);
+
 }  // namespace core
 }  // namespace uw_multislam
