@@ -254,6 +254,16 @@ void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& moti
   ++stats_.keyframes;
 }
 
+void Odometry::unmatchedFrame(OdometryUpdate* up) {
+  predicted_ = compose(unmatched_ > 0 ? predicted_ : prev_.pose, last_step_);
+  ++unmatched_;
+  ++stats_.fallbacks;
+  up->pose = predicted_;
+  up->covariance = last_kf_covariance_;
+  up->status = FrameStatus::kFallback;
+  up->source = MotionSource::kFallback;
+}
+
 void Odometry::carryByNav(TrackedFrame* cur, const UncertainPose2& m, OdometryUpdate* up) {
   cur->motion = m;
   cur->source = MotionSource::kNav;
@@ -466,14 +476,8 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
     // Bridged: no motion is made up. The next frame is matched to the last keyframe (the previous
     // frame, promoted above when it was only tracked); the session's state stays that of the last
     // matched frame. The pose reported is the constant-step prediction, for display only.
-    predicted_ = compose(unmatched_ > 0 ? predicted_ : prev_.pose, last_step_);
-    ++unmatched_;
-    ++stats_.fallbacks;
+    unmatchedFrame(&up);
     ++stats_.bridged;
-    up.pose = predicted_;
-    up.covariance = last_kf_covariance_;
-    up.status = FrameStatus::kFallback;
-    up.source = MotionSource::kFallback;
     up.reason = "unmatched, bridged to the next frame: " + m.ransac.failure;
     return up;
   } else if (navStream()) {
@@ -481,14 +485,8 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
     // (the tracking loss a run without nav makes; loops rejoin it). Reusing the previous motion
     // here would extrapolate across whatever the vehicle did (a turn the nav's refused reading
     // saw), and the nav's later motions would be chained onto that wrong pose for good.
-    predicted_ = compose(unmatched_ > 0 ? predicted_ : prev_.pose, last_step_);  // for display only
-    ++unmatched_;
-    ++stats_.fallbacks;
+    unmatchedFrame(&up);
     ++stats_.nav_losses;
-    up.pose = predicted_;
-    up.covariance = last_kf_covariance_;
-    up.status = FrameStatus::kFallback;
-    up.source = MotionSource::kFallback;
     up.nav_loss = true;
     up.reason = "no visual motion and no usable nav reading for " + std::to_string(unmatched_) +
                 " frames: tracking lost (" + m.ransac.failure + ")";

@@ -294,6 +294,9 @@ class Odometry {
   void finishFrame(TrackedFrame* cur, const OdometryUpdate& up);
   // The frame carried by the nav's motion `m` from the last keyframe (vision failed or refused).
   void carryByNav(TrackedFrame* cur, const UncertainPose2& m, OdometryUpdate* up);
+  // A frame no motion was measured for (bridged, or ending a piece with nav): counted as a fallback, its
+  // pose the constant-step prediction for display only; the session's state stays the last matched frame's.
+  void unmatchedFrame(OdometryUpdate* up);
   PairMotion matchToKeyframe(const FrameFeatures& f, double altitude_m, const std::optional<NavRecord>& nav);
   // The nav prior gating RANSAC's hypotheses for a frame with `nav`, if any (nav.gate_ransac).
   std::optional<MotionPrior> ransacPrior(const std::optional<NavRecord>& nav) const;
