@@ -135,18 +135,23 @@ class FleetTest(unittest.TestCase):
                 send_a(i)
             if i - 1 < len(frames_b):
                 send_b(i - 1)
+        # The odometry publishes a frame's pose before its keyframe message, so the last keyframe may
+        # still be on its way when the last pose has come: counts are taken live, once each
+        # odometry's own count of keyframes published has reached the test.
+        n = lambda v: len(self.keyframes[v])
+        await_condition(self.lock, lambda: self.settled("auv_a") and self.settled("auv_b") and
+                        all(self.value(v, "odometry", "keyframes") == n(v) for v in VEHICLES) and
+                        self.value("auv_b", "backend", "fleet_hashes_received") == n("auv_a") and
+                        self.value("auv_a", "backend", "fleet_hashes_received") == n("auv_b") and
+                        self.value("auv_b", "loop_detector", "foreign_keyframes") == n("auv_a") and
+                        self.value("auv_a", "loop_detector", "foreign_keyframes") == n("auv_b"), 120,
+                        "every keyframe and loop on both vehicles", state)
         with self.lock:
-            n_a, n_b = len(self.keyframes["auv_a"]), len(self.keyframes["auv_b"])
+            n_a, n_b = n("auv_a"), n("auv_b")
             for v in VEHICLES:
                 self.assertTrue(all(k.session == self.keyframes[v][0].session for k in self.keyframes[v]), v)
         self.assertGreater(n_a, 10)
         self.assertGreater(n_b, 10)
-        await_condition(self.lock, lambda: self.settled("auv_a") and self.settled("auv_b") and
-                        self.value("auv_b", "backend", "fleet_hashes_received") == n_a and
-                        self.value("auv_a", "backend", "fleet_hashes_received") == n_b and
-                        self.value("auv_b", "loop_detector", "foreign_keyframes") == n_a and
-                        self.value("auv_a", "loop_detector", "foreign_keyframes") == n_b, 120,
-                        "every keyframe and loop on both vehicles", state)
         # Both recording: not joined yet on either vehicle.
         listed = {v: self.sessions(v) for v in VEHICLES}
         for v in VEHICLES:
