@@ -89,6 +89,24 @@ void FramePublisher::setActive(int session, const core::Pose2& map_from_session,
   if (options_.publish_tf) tick();  // a new correction (a join, an optimisation) goes out now, not at the next tick
 }
 
+void FramePublisher::publishEarth(const Eigen::Isometry3d& earth_from_map) {
+  if (!options_.publish_tf) return;
+  geometry_msgs::TransformStamped t;
+  t.header.stamp = ros::Time::now();
+  t.header.frame_id = options_.earth_frame;
+  t.child_frame_id = options_.map_frame;
+  const Eigen::Vector3d p = earth_from_map.translation();
+  const Eigen::Quaterniond q(earth_from_map.linear());
+  t.transform.translation.x = p.x();
+  t.transform.translation.y = p.y();
+  t.transform.translation.z = p.z();
+  t.transform.rotation.x = q.x();
+  t.transform.rotation.y = q.y();
+  t.transform.rotation.z = q.z();
+  t.transform.rotation.w = q.w();
+  static_tf_.sendTransform(t);
+}
+
 void FramePublisher::setSessionFrames(const std::map<int, core::Pose2>& map_from_session) {
   if (!options_.publish_tf || !options_.publish_session_frames) return;
   std::vector<geometry_msgs::TransformStamped> changed;

@@ -4,6 +4,7 @@
 #include <ros/names.h>
 #include <ros/param.h>
 
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 
@@ -96,6 +97,25 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
   o.frames.publish_session_frames = param(
       pnh, "publish_session_frames", true, [](bool) { return true; }, "a bool");
   o.frames.mount = ros_frames::mountOptions(nh);
+  // A datum needs both coordinates: one without the other would put map somewhere wrong, silently.
+  const bool has_lat = pnh.hasParam("datum/latitude_deg"), has_lon = pnh.hasParam("datum/longitude_deg");
+  if (has_lat != has_lon)
+    throw std::invalid_argument(pnh.resolveName("datum") + ": latitude_deg and longitude_deg together or not at all");
+  if (has_lat) {
+    core::GeoOrigin d;
+    d.lat_deg = param(
+        pnh, "datum/latitude_deg", 0.0, [](double v) { return std::abs(v) <= 90.0; }, "in [-90, 90] degrees");
+    d.lon_deg = param(
+        pnh, "datum/longitude_deg", 0.0, [](double v) { return std::abs(v) <= 180.0; }, "in [-180, 180] degrees");
+    d.heading_deg = param(
+        pnh, "datum/heading_deg", 90.0, [](double v) { return std::abs(v) <= 360.0; },
+        "in [-360, 360] degrees (the compass heading of map's x axis; 90: ENU)");
+    o.frames.datum = d;
+  }
+  o.frames.earth_frame = param(pnh, "datum/earth_frame", std::string("earth"), nonempty, "a frame id");
+  if (o.frames.earth_frame == o.frames.map_frame || o.frames.earth_frame == o.frames.odom_frame ||
+      o.frames.earth_frame == o.frames.base_frame)
+    throw std::invalid_argument(pnh.resolveName("datum/earth_frame") + ": must differ from map, odom and base frames");
   o.frames.tf_rate_hz = param(
       pnh, "tf_rate", 20.0, [](double v) { return v > 0 && v <= 1000; }, "in (0, 1000] Hz");
   o.frames.tf_future_s = param(

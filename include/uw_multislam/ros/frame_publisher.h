@@ -37,7 +37,10 @@
 #include <optional>
 #include <string>
 
+#include <Eigen/Geometry>
+
 #include "uw_multislam/core/session/odom_chain.h"
+#include "uw_multislam/core/session/survey_export.h"
 #include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/topics.h"
 
@@ -53,6 +56,10 @@ struct FrameOptions {
   double tf_rate_hz = 20.0;            // map -> odom
   double tf_future_s = 0.0;            // its stamp: now + this
   MountOptions mount;                  // frames/ camera and altimeter on the vehicle
+  /// ~datum/*: map's origin on WGS84 and the heading of its x axis; set: a static earth_frame ->
+  /// map_frame (publishEarth).
+  std::optional<core::GeoOrigin> datum;
+  std::string earth_frame = "earth";
 };
 
 struct FrameStats {
@@ -75,6 +82,10 @@ class FramePublisher {
   /// and its last keyframe's pose in the map with its stamp (the core's).
   void setActive(int session, const core::Pose2& map_from_session, const core::Pose2& map_from_last_keyframe,
                  const ros::Time& keyframe_stamp);
+  /// The static earth_frame -> map_frame transform (REP-105's earth: ECEF), from map's datum as
+  /// core::earthFromMap gives it. Called once, right after construction, before anything can call
+  /// setSessionFrames (the broadcaster's other user, not thread-safe).
+  void publishEarth(const Eigen::Isometry3d& earth_from_map);
   /// map -> session_<id> for these sessions (the core's corrections); those that changed are sent, in one message.
   void setSessionFrames(const std::map<int, core::Pose2>& map_from_session);
   /// An odometry pose (the vehicle's, in the session's z-up frame, with its covariance): with
