@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# arm64 check: builds the ROS-free core (uw_multislam_core), the simulator
-# (uw_multislam_sim, which the tests link) and the core's gtests (test_core) for aarch64, the CPU of
+# arm64 check: builds the ROS-free core (uw_multislam_core), the simulator and the export library
+# (uw_multislam_sim, uw_multislam_export, which the tests link) and the core's gtests (test_core) for aarch64, the CPU of
 # a Jetson-class vehicle computer, and runs the tests under emulation (qemu-user). Not part of CI
 # (about 47 min from nothing, 20 to 25 min again, README "arm64 check").
 #
@@ -117,10 +117,12 @@ if [ ! -e "$ROOTFS/.uwms_debootstrap_done" ]; then
   log "root file system: $((SECONDS - t_setup)) s"
 fi
 
-# The arm64 libraries the core, the simulator and test_core need (find_package in
-# scripts/arm64/CMakeLists.txt; Boost's headers for boost/math in the back-end), and libc6-dev for
-# the sysroot's crt files and libc.
-ROOT_PACKAGES=(libc6-dev libopencv-dev libeigen3-dev libceres-dev libsqlite3-dev libyaml-cpp-dev libboost-dev libgtest-dev)
+# The arm64 libraries the core, the simulator, the export library and test_core need (find_package in
+# scripts/arm64/CMakeLists.txt; Boost's headers for boost/math in the back-end; GeographicLib for the
+# export library, GDAL left out: optional, GeoTIFFs refused), and libc6-dev for the sysroot's crt
+# files and libc.
+ROOT_PACKAGES=(libc6-dev libopencv-dev libeigen3-dev libceres-dev libsqlite3-dev libyaml-cpp-dev libboost-dev libgtest-dev
+  libgeographiclib-dev)
 {
   echo "deb $MIRROR $SUITE main"
   echo "deb $MIRROR $SUITE-updates main"

@@ -23,6 +23,8 @@
 #                         bullseye-amd64/, bullseye-arm64/, logs)
 #   UWMS_PLATFORM_JOBS    compile jobs (default 1: the machine is shared)
 #   UWMS_PLATFORM_MIRROR  Debian mirror (default: the one the host's apt uses for its own suite)
+#   UWMS_PLATFORM_PACKAGE amd64 only: 0 skips step 1 (the package with GCC 10, an hour or more at -j1 from
+#                         nothing) and runs step 2 alone (default 1)
 # Idempotent and incremental: a second run reuses the roots and the builds. The repository is
 # bind-mounted read-only into the amd64 root at its own path. Prints, last, one line per build:
 # "platform_check: <what>: N tests passed, M failed (...), build X s, run Y s"; exits non-zero when
@@ -253,7 +255,9 @@ if [ "$ARCH" = amd64 ]; then
   # 1. The package (or the core) with bullseye's GCC 10, every SIFT it has.
   t0=$SECONDS
   set +e
-  if [ $mode = full ]; then
+  if [ "${UWMS_PLATFORM_PACKAGE:-1}" = 0 ]; then
+    rc=skipped
+  elif [ $mode = full ]; then
     # A fresh CMake cache each run (the objects stay): Debian 11's cmake-extras GMockConfig defines the
     # gmock_main target only when it is first found; a re-configure from the cache links a missing one.
     in_root "$AMD" bash -c "mkdir -p /ws/src && ln -sfn '$UWMS_REPO' /ws/src/uw_multislam && cd /ws && \
@@ -261,15 +265,18 @@ if [ "$ARCH" = amd64 ]; then
       catkin_make -DPYTHON_EXECUTABLE=/usr/bin/python3 -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCATKIN_ENABLE_TESTING=ON \
         -DUWMS_WERROR=ON -j$JOBS && \
       make -C build -j$JOBS test_core test_conversions test_no_gdal" > "$DIR/build-amd64.log" 2>&1
+    rc=$?
   else
     in_root "$AMD" bash -c "cmake -S '$UWMS_REPO/scripts/arm64' -B /build/core -DUWMS_WERROR=ON && \
       cmake --build /build/core -j$JOBS" > "$DIR/build-amd64.log" 2>&1
+    rc=$?
   fi
-  rc=$?
   set -e
   build_s=$((SECONDS - t0))
-  grep -E 'uw_multislam SIFT|GDAL not found|warning:|error:' "$DIR/build-amd64.log" >&2 || true
-  if [ $rc -ne 0 ]; then
+  [ $rc = skipped ] || grep -E 'uw_multislam SIFT|GDAL not found|warning:|error:' "$DIR/build-amd64.log" >&2 || true
+  if [ $rc = skipped ]; then
+    summary+=("platform_check: bullseye amd64 $mode build: skipped (UWMS_PLATFORM_PACKAGE=0)")
+  elif [ $rc -ne 0 ]; then
     tail -30 "$DIR/build-amd64.log" >&2
     summary+=("platform_check: bullseye amd64 $mode build FAILED after $build_s s ($DIR/build-amd64.log)")
     status=1
@@ -317,7 +324,9 @@ else
   install_in_root "$AMD" amd64-cross cmake make g++-aarch64-linux-gnu python3
   make_root arm64 "$ARM"
   apt_sources "$ARM"
-  arm_packages=(libc6-dev libopencv-dev libeigen3-dev libceres-dev libsqlite3-dev libyaml-cpp-dev libboost-dev libgtest-dev)
+  # GeographicLib for the export library (test_core links it); no GDAL (optional: GeoTIFFs refused).
+  arm_packages=(libc6-dev libopencv-dev libeigen3-dev libceres-dev libsqlite3-dev libyaml-cpp-dev libboost-dev libgtest-dev
+    libgeographic-dev)
   [ -z "$(unavailable "$ARM" libvlfeat-dev)" ] && arm_packages+=(libvlfeat-dev)
   if ! cmp -s <(printf '%s\n' "${arm_packages[@]}") "$ARM/.uwms_packages_arm64"; then
     unmount_all
