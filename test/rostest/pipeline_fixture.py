@@ -222,3 +222,18 @@ def await_condition(lock, condition, timeout, what, state=lambda: ""):
         time.sleep(0.1)
     with lock:
         raise AssertionError("timed out after %.0f s waiting for %s%s" % (timeout, what, state()))
+
+
+def publisher_connected(node, topic, caller="/rostest_bus_info"):
+    """True when `node` (another process publishing `topic`, e.g. a relay) has a connection to every
+    node the master lists as subscribed to `topic` (and there is at least one): connected() for a
+    publisher the test does not own. Its first message would be lost for a subscriber not connected yet."""
+    import xmlrpc.client
+    master = rosgraph.Master(caller)
+    subscribed = {t: set(nodes) for t, nodes in master.getSystemState()[1]}.get(topic, set())
+    code, _, info = xmlrpc.client.ServerProxy(master.lookupNode(node)).getBusInfo(caller)
+    if code != 1:
+        raise AssertionError("getBusInfo of %s failed" % node)
+    # Each connection: [id, the peer's name, direction, transport, topic, connected, ...].
+    open_to = {c[1] for c in info if c[4] == topic and c[2] == "o" and c[5]}
+    return bool(subscribed) and subscribed <= open_to
