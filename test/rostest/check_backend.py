@@ -324,9 +324,11 @@ class BackendTest(unittest.TestCase):
         before = self.sessions()
         keyframes = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=10)
         loops = rospy.Publisher(NS + "/loops", Loop, queue_size=10)
-        deadline = time.time() + 10  # this test subscribes to the loops too: it may connect first
+        deadline = time.time() + 60  # this test subscribes to the loops too: it may connect first
         while time.time() < deadline and not connected([keyframes, loops]):
             time.sleep(0.1)
+        # Sent before the back-end's connections, the malformed messages would be lost, not counted.
+        self.assertTrue(connected([keyframes, loops]), "the back-end never connected to this test's publishers")
         active = [s.session for s in before.values() if s.state == SessionState.ACTIVE]
         self.assertEqual(len(active), 1, before)
         for session, keyframe in ((-5, 0), (active[0], 1000000)):

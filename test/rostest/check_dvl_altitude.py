@@ -16,7 +16,7 @@ import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, connected, diagnostic_values,
-                              make_mission, wait_for_subscribers)
+                              make_mission, publisher_connected, wait_for_subscribers)
 from sensor_msgs.msg import CameraInfo, Image
 from uw_multislam.msg import Keyframe
 
@@ -54,6 +54,10 @@ class DvlAltitudeTest(unittest.TestCase):
         cls.pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(topics, (Image, CameraInfo, Odometry))]
         wait_for_subscribers(SENSOR_TOPICS[:2] + ["/dvl/data"], "/check_dvl_altitude")
         cls.await_condition(lambda: connected(cls.pubs), 30.0, "publisher connections")
+        # The relay's own publisher too: it is made when the relay starts, and the odometry connects to
+        # it on the master's word; a reading relayed before that would be lost (not queued, not latched).
+        cls.await_condition(lambda: publisher_connected(NS + "/dvl_altitude", NS + "/dvl_altitude"), 30.0,
+                            "the relay's connection to the odometry")
         cls.readings = {}
         for i, (image, info, altitude) in enumerate(cls.frames):
             dvl = Odometry()

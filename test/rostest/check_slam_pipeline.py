@@ -340,9 +340,11 @@ class SlamPipelineTest(unittest.TestCase):
         altitude: skipped (no pose, no keyframe), and the node keeps running."""
         pubs = [rospy.Publisher(t, m, queue_size=10) for t, m in
                 (("/camera/image_raw", Image), ("/camera/camera_info", CameraInfo), ("/altitude", Range))]
-        deadline = time.time() + 10
+        deadline = time.time() + 60
         while time.time() < deadline and not connected(pubs):
             time.sleep(0.2)
+        # Sent before the odometry's connections, the bad frames would be lost, not counted.
+        self.assertTrue(connected(pubs), "the odometry never connected to this test's publishers")
         with self.lock:
             poses_before, keyframes_before = len(self.poses), len(self.keyframes)
         stamp = rospy.Time(1700005000)  # after both sessions

@@ -67,13 +67,16 @@ class StoreTest(unittest.TestCase):
         cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, keep(cls.keyframes), queue_size=1000),
                     rospy.Subscriber(NS + "/loops", Loop, keep(cls.loops), queue_size=1000),
                     rospy.Subscriber(NS + "/reloaded_keyframes", Keyframe, keep(cls.reloaded), queue_size=1000)]
-        cls.detector = {}
+        cls.detector, cls.backend = {}, {}
 
         def on_diagnostics(msg):
             for st in msg.status:
                 if st.name.endswith(": loop_detector"):
                     with cls.lock:
                         cls.detector = diagnostic_values(st)
+                elif st.name.endswith(": backend"):
+                    with cls.lock:
+                        cls.backend = diagnostic_values(st)
         cls.subs.append(rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100))
         cls.list = rospy.ServiceProxy(NS + "/list_sessions", ListSessions, persistent=False)
         cls.reload = rospy.ServiceProxy(NS + "/reload_session", ReloadSession, persistent=False)
@@ -90,9 +93,13 @@ class StoreTest(unittest.TestCase):
             if n >= 8:
                 pid = backend_pid()
                 if pid:
-                    time.sleep(0.2)  # the keyframes published so far reach the back-end
-                    with cls.lock:
-                        cls.killed_after = len(cls.keyframes)
+                    # The kill comes once the back-end's worker has taken the first n keyframes (its
+                    # keyframes_received counts them as it takes them, in order): on a loaded machine a
+                    # fixed pause does not bring them there, and the store would then rightly lack
+                    # keyframes that were still on their way.
+                    await_condition(cls.lock, lambda: cls.backend.get("keyframes_received", 0) >= n, 60,
+                                    "the back-end to take %d keyframes" % n, lambda: ": %s" % cls.backend)
+                    cls.killed_after = n
                     os.kill(pid, signal.SIGKILL)
                     cls.killed_pid = pid
             time.sleep(0.05)

@@ -222,3 +222,32 @@ def await_condition(lock, condition, timeout, what, state=lambda: ""):
         time.sleep(0.1)
     with lock:
         raise AssertionError("timed out after %.0f s waiting for %s%s" % (timeout, what, state()))
+
+
+def messages_received(node, topic, caller="/rostest_bus_stats"):
+    """How many messages `node` (a roscpp node's name) has taken from its publishers on `topic`,
+    from its slave API's getBusStats: a message counted there has reached that node's subscription
+    (its callback queue), which a test cannot see otherwise when the node publishes nothing about it."""
+    import xmlrpc.client
+    uri = rosgraph.Master(caller).lookupNode(node)
+    answer = xmlrpc.client.ServerProxy(uri).getBusStats(caller)
+    # roscpp answers [publications, subscriptions] (its status code and message are overwritten: the
+    # callback fills its result with the statistics), other clients [code, message, [publications,
+    # subscriptions, services]]; a subscription is [topic, [[connection id, bytes, messages, drops, 0], ...]].
+    stats = answer[2] if len(answer) == 3 and answer[0] == 1 else answer
+    return sum(c[2] for t, conns in stats[1] if t == topic for c in conns)
+
+
+def publisher_connected(node, topic, caller="/rostest_bus_info"):
+    """True when `node` (another process publishing `topic`, e.g. a relay) has a connection to every
+    node the master lists as subscribed to `topic` (and there is at least one): connected() for a
+    publisher the test does not own. Its first message would be lost for a subscriber not connected yet."""
+    import xmlrpc.client
+    master = rosgraph.Master(caller)
+    subscribed = {t: set(nodes) for t, nodes in master.getSystemState()[1]}.get(topic, set())
+    code, _, info = xmlrpc.client.ServerProxy(master.lookupNode(node)).getBusInfo(caller)
+    if code != 1:
+        raise AssertionError("getBusInfo of %s failed" % node)
+    # Each connection: [id, the peer's name, direction, transport, topic, connected, ...].
+    open_to = {c[1] for c in info if c[4] == topic and c[2] == "o" and c[5]}
+    return bool(subscribed) and subscribed <= open_to
