@@ -215,7 +215,14 @@ std::size_t OdometryNodelet::chooseNext(const std::deque<Frame>& waiting) {
     w.push_back({f.msg.header().stamp.toSec(), f.altitude == core::PairedAltitude::kReading
                                                    ? core::cameraAltitude(f.altitude_m, mount_)
                                                    : f.altitude_m});
-  return skip_rule_->choose(w).index;
+  core::FrameSkipRule::Choice choice = skip_rule_->choose(w);
+  if (prepare_on_arrival_) {  // prefer a frame whose preparation is under way over one not started
+    std::vector<bool> prepared;
+    prepared.reserve(waiting.size());
+    for (const Frame& f : waiting) prepared.push_back(prepare_on_arrival_->started(f.arrival));
+    choice = skip_rule_->preferPrepared(w, choice, prepared);
+  }
+  return choice.index;
 }
 
 void OdometryNodelet::run(Frame& f, Ahead* ahead, ros::WallTime start) {

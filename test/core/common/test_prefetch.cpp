@@ -193,6 +193,10 @@ TEST_F(NewestFirst, AWorkerStartsTheNewestAndTheTakenItemGetsItsOwnResult) {
   ASSERT_TRUE(awaitStarted(2));
   EXPECT_EQ(started(), (std::vector<int>{0, 2}));
   EXPECT_EQ(p->pending(), 3u);
+  EXPECT_TRUE(p->started(0));   // done
+  EXPECT_FALSE(p->started(1));  // superseded
+  EXPECT_TRUE(p->started(2));   // under way
+  EXPECT_FALSE(p->started(3));  // not submitted
   open(2);
   // The consumer took item 2 (0 and 1 skipped): 2's own result, not 0's (computed, superseded).
   const std::optional<std::string> got = p->takeIfStarted(2);
@@ -200,6 +204,7 @@ TEST_F(NewestFirst, AWorkerStartsTheNewestAndTheTakenItemGetsItsOwnResult) {
   EXPECT_EQ(*got, "prepared 2");
   EXPECT_EQ(p->discardedComputed(), 1);  // item 0: computed, then discarded
   EXPECT_TRUE(p->done());
+  EXPECT_FALSE(p->started(2));  // handed out
   EXPECT_THROW(p->takeIfStarted(1), std::out_of_range);  // handed out (discarded) already
   EXPECT_THROW(p->takeIfStarted(3), std::out_of_range);  // not submitted
   EXPECT_THROW(p->next(), std::logic_error);             // kNewest hands out by number only

@@ -154,6 +154,16 @@ class OrderedPrefetch {
     return std::move(slot.value);
   }
 
+  /// Whether a worker has started item `number` (under way or done) and it is not handed out.
+  bool started(std::size_t number) const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (number < next_out_ || number >= submitted_) return false;
+    for (const auto& w : waiting_)
+      if (w.first == number) return false;
+    const auto r = ready_.find(number);
+    return r == ready_.end() || r->second.computed;
+  }
+
   /// Results computed and then discarded by takeIfStarted (a worker's time spent in vain).
   long discardedComputed() const {
     std::lock_guard<std::mutex> lock(mutex_);
