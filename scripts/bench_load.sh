@@ -87,26 +87,44 @@ print("Reference, every frame at 10 Hz (drop_policy oldest, queue 10000): %d pro
           ref["frames_processed"], ref["sessions"], ref["tracking_losses"], ref["keyframes"], ref["ms_per_frame_mean"],
           sustainable))
 print()
-print("| policy | rate | frames/s | processed | prepared on arrival | skipped for newest | dropped (queue full) "
-      "| sessions | tracking losses | keyframes | driver CPU | latency median ms (periods) | latency p99 ms (periods) |")
-print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+print("| policy | rate | frames/s | behind | processed | prepared on arrival | skipped for newest | dropped (queue full) "
+      "| sessions | tracking losses | keyframes | driver CPU | load average | latency median ms (periods) "
+      "| latency p99 ms (periods) |")
+print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
 names = {"oldest": "oldest (queue 5, former)", "newest": "newest", "prepare": "newest, prepare_threads 1 (onboard)"}
 verdict = []
 for m in multiples:
+    rows = {}
     for policy in ("oldest", "newest", "prepare"):
         r = json.load(open(os.path.join(out, "%s_%sx.json" % (policy, m))))
+        rows[policy] = r
+    # How far behind the camera the odometry really was: the offered rate times a frame's cost in
+    # that very run (the machine is shared: its load moves between the reference and the rows).
+    # A worker that is behind is never idle, so its mean ms per frame is that cost; with a
+    # preparing thread it is not (the features come from the other core): that row is given the
+    # cost of the newest row run just before it.
+    cost = {"oldest": rows["oldest"].get("ms_per_frame_mean"), "newest": rows["newest"].get("ms_per_frame_mean")}
+    cost["prepare"] = cost["newest"]
+    for policy in ("oldest", "newest", "prepare"):
+        r = rows[policy]
         if "error" in r:
             print("| %s | %sx | (%s) |" % (names[policy], m, r["error"]))
             continue
-        print("| %s | %sx | %.1f | %d | %d | %d | %d | %d | %d | %d | %.0f %% | %.0f (%.1f) | %.0f (%.1f) |" % (
-            names[policy], m, r["rate_hz"], r["frames_processed"], r["prepared_ahead"], r["skipped_for_newest"],
-            r["dropped_queue_full"], r["sessions"], r["tracking_losses"], r["keyframes"], 100 * r["driver_cpu"],
-            r["latency_median_ms"], r["latency_median_periods"], r["latency_p99_ms"], r["latency_p99_periods"]))
+        behind = r["rate_hz"] * (cost[policy] or float("nan")) / 1000.0
+        print("| %s | %sx | %.1f | %.1fx%s | %d | %d | %d | %d | %d | %d | %d | %.0f %% | %.1f | %.0f (%.1f) | %.0f (%.1f) |" % (
+            names[policy], m, r["rate_hz"], behind, "*" if policy == "prepare" else "", r["frames_processed"],
+            r["prepared_ahead"], r["skipped_for_newest"], r["dropped_queue_full"], r["sessions"], r["tracking_losses"],
+            r["keyframes"], 100 * r["driver_cpu"], r["load_average"], r["latency_median_ms"],
+            r["latency_median_periods"], r["latency_p99_ms"], r["latency_p99_periods"]))
         if policy != "oldest" and m == "2":
             ok = r["latency_p99_periods"] <= 3.0 and r["sessions"] <= ref["sessions"]
-            verdict.append("%s at 2x: p99 %.1f input periods (bar: <= 3), %d sessions (every frame: %d): %s" % (
-                names[policy], r["latency_p99_periods"], r["sessions"], ref["sessions"],
-                "meets the bar" if ok else "MISSES the bar"))
+            verdict.append("%s at 2x (%.1fx behind): p99 %.1f input periods (bar: <= 3), %d sessions (every frame: "
+                           "%d): %s%s" % (
+                               names[policy], behind, r["latency_p99_periods"], r["sessions"], ref["sessions"],
+                               "meets the bar" if ok else "MISSES the bar",
+                               "" if 1.8 <= behind <= 2.2 else " (not a true 2x: the load moved since the reference)"))
+print()
+print("behind: the offered rate times a frame's cost in the same run (* that of the newest row before it).")
 print()
 for v in verdict:
     print(v)
