@@ -140,8 +140,8 @@ void OdometryNodelet::handle(Pairing::Decisions decisions) {
         std::lock_guard<std::mutex> lock(budget_mutex_);
         budget_.arrived(wallNow());
       }
-      Frame frame{std::move(d.image), std::move(d.info), d.altitude, d.altitude_m, altimeter_frame_,
-                  std::move(d.passed_over)};
+      Frame frame{std::move(d.image), std::move(d.info), d.altitude,
+                  d.altitude_m,       altimeter_frame_,  std::move(d.passed_over)};
       if (prepare_on_arrival_) frame.arrival = prepare_on_arrival_->submit(frame);  // in the queue's order
       queue_->push(std::move(frame));
     }

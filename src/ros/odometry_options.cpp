@@ -152,13 +152,12 @@ std::vector<std::string> describe(const OdometryNodeletOptions& o) {
       o.drop_policy == "newest" ? "when behind, the newest frame that is safe to take; the oldest dropped when full"
                                 : "every frame in order; the oldest dropped when full",
       o.prepare_threads,
-      o.prepare_threads == 0            ? "each frame prepared by the worker"
+      o.prepare_threads == 0      ? "each frame prepared by the worker"
       : o.drop_policy == "newest" ? "the newest frame prepared as it arrives"
                                   : "the frames waiting prepared in order",
-      o.max_image_pixels, o.sync_queue_size, o.sync_max_interval_s, o.session, o.session_gap_s,
-      o.reorder_tolerance_s, o.input_timeout_s,
-      o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off", o.stats_period_s,
-      o.diagnostic_period_s, c.odometry.features.num_features,
+      o.max_image_pixels, o.sync_queue_size, o.sync_max_interval_s, o.session, o.session_gap_s, o.reorder_tolerance_s,
+      o.input_timeout_s, o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off",
+      o.stats_period_s, o.diagnostic_period_s, c.odometry.features.num_features,
       core::enhancementName(c.odometry.enhancement.mode).c_str(), c.odometry.keyframes.min_overlap);
   std::ostringstream os;
   os << "sensor mount from tf: " << o.base_frame << " -> each image's header.frame_id and each altitude reading's "

@@ -164,9 +164,8 @@ class NewestFirst : public ::testing::Test {
   /// Waits until a worker has started `item` (false after 10 s: a failure, not a timing).
   bool awaitStarted(int item) {
     std::unique_lock<std::mutex> lock(m_);
-    return changed_.wait_for(lock, std::chrono::seconds(10), [&] {
-      return std::find(started_.begin(), started_.end(), item) != started_.end();
-    });
+    return changed_.wait_for(lock, std::chrono::seconds(10),
+                             [&] { return std::find(started_.begin(), started_.end(), item) != started_.end(); });
   }
   std::vector<int> started() {
     std::lock_guard<std::mutex> lock(m_);
@@ -204,7 +203,7 @@ TEST_F(NewestFirst, AWorkerStartsTheNewestAndTheTakenItemGetsItsOwnResult) {
   EXPECT_EQ(*got, "prepared 2");
   EXPECT_EQ(p->discardedComputed(), 1);  // item 0: computed, then discarded
   EXPECT_TRUE(p->done());
-  EXPECT_FALSE(p->started(2));  // handed out
+  EXPECT_FALSE(p->started(2));                           // handed out
   EXPECT_THROW(p->takeIfStarted(1), std::out_of_range);  // handed out (discarded) already
   EXPECT_THROW(p->takeIfStarted(3), std::out_of_range);  // not submitted
   EXPECT_THROW(p->next(), std::logic_error);             // kNewest hands out by number only
