@@ -3,13 +3,16 @@
 rate, each stamped with the time it is sent (a live camera), and measures the latency from an
 image's stamp to its odometry/pose (wall time at receipt minus the stamp). Waits until the
 odometry is idle, then prints one JSON line: the latencies' median and p99 (ms and input periods),
-frames sent, and the odometry's counters from /diagnostics (processed, skipped_for_newest,
-dropped_queue_full, sessions, tracking_losses, keyframes, ms_per_frame_mean).
+frames sent, the machine's load average at the start and the CPU this driver took while sending
+(a fraction of one core: it shares the machine with the pipeline), and the odometry's counters
+from /diagnostics (processed, prepared_ahead, skipped_for_newest, dropped_queue_full, sessions,
+tracking_losses, keyframes, ms_per_frame_mean).
 
     bench_load_drive.py BAG RATE_HZ [--ns /uw_multislam] [--timeout 120]
 """
 import argparse
 import json
+import os
 import sys
 import threading
 import time
@@ -76,6 +79,8 @@ def main():
         time.sleep(0.05)
     time.sleep(1.0)  # the subscribers' connections settle (get_num_connections counts them early)
     period = 1.0 / a.rate
+    load_average = os.getloadavg()[0]
+    cpu_start = sum(os.times()[:2])
     start = time.time()
     for i, (image, info, altitude) in enumerate(frames):
         delay = start + i * period - time.time()
@@ -87,6 +92,7 @@ def main():
         pubs[1].publish(info)
         pubs[0].publish(image)
     sent_s = time.time() - start
+    driver_cpu = (sum(os.times()[:2]) - cpu_start) / sent_s
 
     def idle():
         with lock:
@@ -102,11 +108,12 @@ def main():
         lat, s = list(latencies), dict(status)
     ms = [1e3 * x for x in lat]
     out = {"rate_hz": a.rate, "frames": len(frames), "sent_s": sent_s, "idle": idle(), "poses": len(lat),
+           "load_average": load_average, "driver_cpu": driver_cpu,
            "latency_median_ms": percentile(ms, 50), "latency_p99_ms": percentile(ms, 99),
            "latency_max_ms": max(ms) if ms else float("nan"),
            "latency_median_periods": percentile(ms, 50) / (1e3 * period),
            "latency_p99_periods": percentile(ms, 99) / (1e3 * period)}
-    for k in ("images_received", "frames_processed", "skipped_for_newest", "dropped_queue_full", "sessions",
+    for k in ("images_received", "frames_processed", "prepared_ahead", "skipped_for_newest", "dropped_queue_full", "sessions",
               "tracking_losses", "keyframes", "ms_per_frame_mean", "ms_per_frame_recent", "input_period_ms",
               "images_not_paired", "fallbacks"):
         out[k] = s.get(k, float("nan"))

@@ -5,34 +5,27 @@
 # (VmHWM) from /proc. Prints one markdown table and the highest rate held without a dropped or
 # unpaired frame; then the longest gap in the back-end's current pose during an optimisation of
 # a 5,000-keyframe map (scripts/bench_pose_gap.py). Not a test: numbers for this machine.
-# usage: scripts/bench_load_sweep.sh [--rates "1 2 5 10 20 40 80 160"] [--preset NAME] [--prepare-threads N] [OUT_DIR]
+# usage: scripts/bench_load_sweep.sh [--rates "1 2 5 10 20 40 80 160"] [--preset NAME] [--prepare-threads N]
+#                                    [--drop-policy newest|oldest] [OUT_DIR]
 #   default mission: make_survey --preset demo, session s0 (its bag); rates 1 2 5 10 20 40 80 160.
 set -euo pipefail
-source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
+source "$(dirname "${BASH_SOURCE[0]}")/bench_load_common.sh"
 rates="1 2 5 10 20 40 80 160"
 preset=demo
-prepare_threads=0  # the odometry nodelet's ~prepare_threads (a second core preparing waiting frames)
+prepare_threads=0  # the odometry nodelet's ~prepare_threads (a second core preparing frames)
+policy=newest      # its ~drop_policy
 while [ $# -gt 0 ]; do
   case "$1" in
     --rates) rates=$2; shift 2 ;;
     --preset) preset=$2; shift 2 ;;
     --prepare-threads) prepare_threads=$2; shift 2 ;;
+    --drop-policy) policy=$2; shift 2 ;;
     *) break ;;
   esac
 done
-out=${1:-$(mktemp -d /tmp/uwms_bench_load.XXXXXX)}
-mkdir -p "$out"
-bin="$UWMS_WS/devel/lib/uw_multislam"
-[ -x "$bin/make_survey" ] || { echo "bench_load_sweep: build first (scripts/build.sh)" >&2; exit 1; }
-# The ROS-side parameters with the odometry's prepare_threads set (slam.launch config:=).
-grep -q '^  prepare_threads: 0$' "$UWMS_REPO/config/default.yaml" || { echo "bench_load_sweep: prepare_threads not in config/default.yaml" >&2; exit 1; }
-# prepare_threads > 0 needs drop_policy oldest (frames prepared in the order they wait).
-policy=newest; [ "$prepare_threads" -gt 0 ] && policy=oldest
-sed -e "s/^  prepare_threads: 0$/  prepare_threads: $prepare_threads/" -e "s/^  drop_policy: newest$/  drop_policy: $policy/" \
-  "$UWMS_REPO/config/default.yaml" > "$out/default.yaml"
-set +u; source "$UWMS_WS/devel/setup.bash"; set -u
-export ROS_MASTER_URI=${BENCH_MASTER_URI:-http://localhost:11391}  # a master of its own
-log() { echo "[bench_load_sweep] $*" >&2; }
+bench_init bench_load_sweep 11391 "${1:-}"
+# The ROS-side parameters (slam.launch config:=).
+bench_config "$out/default.yaml" prepare_threads="$prepare_threads" drop_policy="$policy"
 
 [ -d "$out/mission" ] || { log "make_survey --preset $preset"; "$bin/make_survey" --preset "$preset" --out "$out/mission" --quiet > /dev/null; }
 bag="$out/mission/s0.bag"
@@ -40,16 +33,7 @@ frames=$(/usr/bin/python3 -c 'import rosbag,sys; b=rosbag.Bag(sys.argv[1]); prin
 read -r n_frames duration_s <<< "$frames"
 log "bag: $n_frames frames over $duration_s s"
 
-port=${ROS_MASTER_URI##*:}
-roscore -p "$port" > "$out/roscore.log" 2>&1 &
-core_pid=$!
-launch_pid=""
-cleanup() {
-  [ -n "$launch_pid" ] && kill -INT "$launch_pid" 2> /dev/null && wait "$launch_pid" 2> /dev/null || true
-  kill -INT "$core_pid" 2> /dev/null && wait "$core_pid" 2> /dev/null || true
-}
-trap cleanup EXIT
-for _ in $(seq 50); do rostopic list > /dev/null 2>&1 && break; sleep 0.2; done
+bench_roscore
 
 echo "### Load: $(basename "$bag") ($n_frames frames, $(printf %.0f "$duration_s") s) through slam.launch (odometry prepare_threads $prepare_threads, drop_policy $policy), $(date -u +%F), $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores"
 echo
@@ -57,10 +41,7 @@ echo "| rate | frames/s offered | images received | processed | dropped (odometr
 echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
 best=""
 for rate in $rates; do
-  rosparam delete /uw_multislam > /dev/null 2>&1 || true
-  # A fresh pipeline per rate: no session store, so nothing carries over from the last rate.
-  roslaunch uw_multislam slam.launch store_path:=none camera_mount:="0 0 0 0" config:="$out/default.yaml" > "$out/launch_$rate.log" 2>&1 &
-  launch_pid=$!
+  bench_launch "$out/launch_$rate.log" "$out/default.yaml"  # a fresh pipeline per rate
   for _ in $(seq 100); do  # the odometry subscribes (through the nodelet manager)
     rostopic info /camera/image_raw 2> /dev/null | grep -q "/uw_multislam/manager" && break; sleep 0.2
   done
@@ -71,9 +52,7 @@ for rate in $rates; do
   /usr/bin/python3 "$UWMS_REPO/scripts/diagnostics_snapshot.py" --wait 2.5 > "$out/diag_$rate.json" || true
   rss_kb=$(awk '/VmHWM/ {print $2}' "/proc/$manager_pid/status" 2> /dev/null || echo 0)
   alive=yes; kill -0 "$manager_pid" 2> /dev/null || alive=no
-  kill -INT "$launch_pid" 2> /dev/null || true
-  wait "$launch_pid" 2> /dev/null || true
-  launch_pid=""
+  bench_stop
   row=$(/usr/bin/python3 - "$out/diag_$rate.json" "$rate" "$duration_s" "$rss_kb" "$alive" "$n_frames" <<'PY'
 import json, sys
 d = json.load(open(sys.argv[1])); rate = float(sys.argv[2]); dur = float(sys.argv[3]); rss = int(sys.argv[4] or 0)

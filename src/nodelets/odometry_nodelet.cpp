@@ -27,6 +27,7 @@ OdometryNodelet::~OdometryNodelet() {
   range_sub_.shutdown();
   if (queue_) queue_->close();  // later frames are refused; the queued ones are still processed
   if (worker_.joinable()) worker_.join();
+  prepare_on_arrival_.reset();  // its threads stopped while the members they read (control_) are alive
   if (odometry_) logStats("at shutdown");
 }
 
@@ -48,6 +49,14 @@ void OdometryNodelet::onInit() {
   session_ = o.session;
   queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(static_cast<std::size_t>(o.queue_size),
                                                                ros_inputs::handOnDropped);
+  // With newest the worker takes the newest frame when it frees up: its features are started on
+  // arrival (on another core), so that only matching and RANSAC remain when it is taken. A frame
+  // superseded before a thread was free is never prepared (core::OrderedPrefetch::Start::kNewest).
+  if (o.prepare_threads > 0 && o.drop_policy == "newest")
+    prepare_on_arrival_ = std::make_unique<core::OrderedPrefetch<Ahead, Frame>>(
+        o.prepare_threads,
+        [this](Frame f, int) { return control_.paused() ? Ahead() : prepareAhead(f); },  // paused: dropped anyway
+        core::OrderedPrefetch<Ahead, Frame>::Start::kNewest);
   stamps_ = std::make_unique<core::StampGuard>(core::StampGuardOptions{o.reorder_tolerance_s, o.session_gap_s});
   pairing_ = std::make_unique<Pairing>(
       o.pairing(), wallNow(), o.fallback_camera_info ? std::make_optional(o.fallback_camera_info) : std::nullopt);
@@ -131,8 +140,10 @@ void OdometryNodelet::handle(Pairing::Decisions decisions) {
         std::lock_guard<std::mutex> lock(budget_mutex_);
         budget_.arrived(wallNow());
       }
-      queue_->push({std::move(d.image), std::move(d.info), d.altitude, d.altitude_m, altimeter_frame_,
-                    std::move(d.passed_over)});
+      Frame frame{std::move(d.image), std::move(d.info), d.altitude,
+                  d.altitude_m,       altimeter_frame_,  std::move(d.passed_over)};
+      if (prepare_on_arrival_) frame.arrival = prepare_on_arrival_->submit(frame);  // in the queue's order
+      queue_->push(std::move(frame));
     }
   }
 }
@@ -182,7 +193,16 @@ void OdometryNodelet::work() {
   Frame f;
   while (queue_->popSelected(
       &f, [this](const std::deque<Frame>& w) { return chooseNext(w); }, ros_inputs::handOnSkipped)) {
-    run(f, nullptr);
+    const ros::WallTime start = ros::WallTime::now();  // a wait for the frame's own preparation is its cost
+    std::optional<Ahead> ahead;
+    try {
+      // This frame's own preparation, if a thread started it (the skipped frames' are discarded);
+      // otherwise the odometry prepares it (a thread busy with a superseded frame is not waited for).
+      if (prepare_on_arrival_) ahead = prepare_on_arrival_->takeIfStarted(f.arrival);
+    } catch (const std::exception& e) {  // a numbering error: prepare it here rather than stop
+      NODELET_ERROR_THROTTLE(5, "odometry: frame prepared on arrival not found: %s", e.what());
+    }
+    run(f, ahead ? &*ahead : nullptr, start);
     f = Frame();
   }
 }
@@ -195,11 +215,17 @@ std::size_t OdometryNodelet::chooseNext(const std::deque<Frame>& waiting) {
     w.push_back({f.msg.header().stamp.toSec(), f.altitude == core::PairedAltitude::kReading
                                                    ? core::cameraAltitude(f.altitude_m, mount_)
                                                    : f.altitude_m});
-  return skip_rule_->choose(w).index;
+  core::FrameSkipRule::Choice choice = skip_rule_->choose(w);
+  if (prepare_on_arrival_) {  // prefer a frame whose preparation is under way over one not started
+    std::vector<bool> prepared;
+    prepared.reserve(waiting.size());
+    for (const Frame& f : waiting) prepared.push_back(prepare_on_arrival_->started(f.arrival));
+    choice = skip_rule_->preferPrepared(w, choice, prepared);
+  }
+  return choice.index;
 }
 
-void OdometryNodelet::run(Frame& f, Ahead* ahead) {
-  const ros::WallTime start = ros::WallTime::now();
+void OdometryNodelet::run(Frame& f, Ahead* ahead, ros::WallTime start) {
   try {
     process(f, ahead);
   } catch (const std::exception& e) {  // the core throws only on programming errors: log, keep going

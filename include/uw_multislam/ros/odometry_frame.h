@@ -5,6 +5,7 @@
 #include <sensor_msgs/CameraInfo.h>
 
 #include <algorithm>
+#include <cstddef>
 #include <string>
 #include <vector>
 
@@ -23,6 +24,7 @@ struct OdometryFrame {
   double altitude_m = 0.0;          // kReading: the altimeter's range, else the camera's (NaN: the last valid one)
   std::string altimeter_frame;      // of the altitude readings (empty: none yet, or no altitude topic)
   std::vector<double> passed_over;  // stamps received before it and not processed: seen, no time gap
+  std::size_t arrival = 0;          // its number among the frames prepared on arrival (~prepare_threads, newest)
 };
 
 /// A frame the queue dropped when full: its stamps travel on with the frame after it, which the worker passes

@@ -25,7 +25,7 @@ struct OdometryNodeletOptions {
   double altitude_m = 0.0;             // used when use_altitude_topic is false
   int queue_size = 5;                  // frames waiting for the worker
   std::string drop_policy = "newest";  // newest: the newest safe frame is taken (core::FrameSkipRule); oldest: FIFO
-  int prepare_threads = 0;             // frames waiting that are prepared ahead, each on its own thread (oldest only)
+  int prepare_threads = 0;             // threads preparing frames ahead (newest: on arrival; oldest: those waiting)
   int sync_queue_size = 10;            // subscriber queues; 2x: images waiting for their pairing
   double sync_max_interval_s = 0.1;    // largest image - camera_info stamp difference
   double altitude_max_age_s = 1.0;     // altitude: largest gap interpolated / age used alone; longest wait

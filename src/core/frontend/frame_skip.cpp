@@ -89,6 +89,15 @@ FrameSkipRule::Choice FrameSkipRule::choose(const std::vector<WaitingFrame>& wai
   return {waiting.size() - 1, Reason::kKeyframeDue};
 }
 
+FrameSkipRule::Choice FrameSkipRule::preferPrepared(const std::vector<WaitingFrame>& waiting, Choice choice,
+                                                    const std::vector<bool>& prepared) const {
+  if (choice.index >= waiting.size() || prepared.size() != waiting.size() || prepared[choice.index]) return choice;
+  for (std::size_t i = choice.index; i-- > 0;)
+    if (prepared[i] && keyframeDue(waiting[i].stamp_s, waiting[i].altitude_m) == std::optional<bool>(false))
+      return {i, Reason::kPrepared};
+  return choice;
+}
+
 std::string reasonName(FrameSkipRule::Reason r) {
   switch (r) {
     case FrameSkipRule::Reason::kOldest:
@@ -99,6 +108,8 @@ std::string reasonName(FrameSkipRule::Reason r) {
       return "the first frame a keyframe is due at";
     case FrameSkipRule::Reason::kOnlyOne:
       return "the only one waiting";
+    case FrameSkipRule::Reason::kPrepared:
+      return "an earlier safe frame, prepared or under way";
   }
   return "?";
 }

@@ -3,12 +3,15 @@
 // frames prepared in line.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <mutex>
 #include <cmath>
 #include <memory>
+#include <optional>
+#include <set>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -122,6 +125,167 @@ TEST(OrderedPrefetch, ASubmittedItemIsComputedBeforeItIsAskedFor) {
   EXPECT_TRUE(cv.wait_for(lock, std::chrono::seconds(10), [&] { return started; })) << "no worker took it";
   lock.unlock();
   EXPECT_EQ(p.next(), 42);
+}
+
+// Start::kNewest, the odometry nodelet's ~prepare_threads with drop_policy newest: every frame is
+// submitted as it arrives; a worker starts only the newest one; the consumer takes one frame by
+// its number and gets that frame's own result or nothing (then it prepares the frame itself).
+// The work below waits at a gate the test opens, so which item a worker has started is known.
+class NewestFirst : public ::testing::Test {
+ protected:
+  using Prefetch = OrderedPrefetch<std::string, int>;
+  Prefetch* make(int threads) {
+    prefetch_ = std::make_unique<Prefetch>(
+        threads,
+        [this](int item, int) {
+          std::unique_lock<std::mutex> lock(m_);
+          started_.push_back(item);
+          changed_.notify_all();
+          changed_.wait(lock, [&] { return all_open_ || open_.count(item) > 0; });
+          ++computed_;
+          return "prepared " + std::to_string(item);
+        },
+        Prefetch::Start::kNewest);
+    return prefetch_.get();
+  }
+  void TearDown() override {  // after a failed assertion too: no worker left at a closed gate
+    {
+      std::lock_guard<std::mutex> lock(m_);
+      all_open_ = true;
+      changed_.notify_all();
+    }
+    prefetch_.reset();
+  }
+  void open(int item) {
+    std::lock_guard<std::mutex> lock(m_);
+    open_.insert(item);
+    changed_.notify_all();
+  }
+  /// Waits until a worker has started `item` (false after 10 s: a failure, not a timing).
+  bool awaitStarted(int item) {
+    std::unique_lock<std::mutex> lock(m_);
+    return changed_.wait_for(lock, std::chrono::seconds(10),
+                             [&] { return std::find(started_.begin(), started_.end(), item) != started_.end(); });
+  }
+  std::vector<int> started() {
+    std::lock_guard<std::mutex> lock(m_);
+    return started_;
+  }
+
+  std::mutex m_;
+  std::condition_variable changed_;
+  std::vector<int> started_;  // items a worker started, in order (under m_)
+  std::set<int> open_;        // items whose work may finish (under m_)
+  bool all_open_ = false;     // (under m_)
+  int computed_ = 0;          // (under m_)
+  std::unique_ptr<Prefetch> prefetch_;
+};
+
+TEST_F(NewestFirst, AWorkerStartsTheNewestAndTheTakenItemGetsItsOwnResult) {
+  Prefetch* p = make(1);
+  EXPECT_EQ(p->submit(0), 0u);
+  ASSERT_TRUE(awaitStarted(0));
+  // While the worker is busy with 0, items 1 and 2 arrive: 2 supersedes 1, which is never started.
+  EXPECT_EQ(p->submit(1), 1u);
+  EXPECT_EQ(p->submit(2), 2u);
+  open(0);
+  ASSERT_TRUE(awaitStarted(2));
+  EXPECT_EQ(started(), (std::vector<int>{0, 2}));
+  EXPECT_EQ(p->pending(), 3u);
+  EXPECT_TRUE(p->started(0));   // done
+  EXPECT_FALSE(p->started(1));  // superseded
+  EXPECT_TRUE(p->started(2));   // under way
+  EXPECT_FALSE(p->started(3));  // not submitted
+  open(2);
+  // The consumer took item 2 (0 and 1 skipped): 2's own result, not 0's (computed, superseded).
+  const std::optional<std::string> got = p->takeIfStarted(2);
+  ASSERT_TRUE(got.has_value());
+  EXPECT_EQ(*got, "prepared 2");
+  EXPECT_EQ(p->discardedComputed(), 1);  // item 0: computed, then discarded
+  EXPECT_TRUE(p->done());
+  EXPECT_FALSE(p->started(2));                           // handed out
+  EXPECT_THROW(p->takeIfStarted(1), std::out_of_range);  // handed out (discarded) already
+  EXPECT_THROW(p->takeIfStarted(3), std::out_of_range);  // not submitted
+  EXPECT_THROW(p->next(), std::logic_error);             // kNewest hands out by number only
+  std::lock_guard<std::mutex> lock(m_);
+  EXPECT_EQ(computed_, 2);  // 1 never computed
+}
+
+TEST_F(NewestFirst, AnItemNoWorkerStartedIsTheCallersAndADiscardedOneIsNotReused) {
+  Prefetch* p = make(1);
+  p->submit(0);
+  ASSERT_TRUE(awaitStarted(0));
+  p->submit(1);
+  // The only worker is busy with 0: 1 was not started, so the consumer is told to compute it itself
+  // (not given 0's result, not made to wait for 0), and 1 is never started later.
+  EXPECT_FALSE(p->takeIfStarted(1).has_value());
+  EXPECT_TRUE(p->done());
+  // Item 0 was in progress when item 1 was taken: its result is thrown away when done.
+  open(0);
+  p->submit(2);
+  ASSERT_TRUE(awaitStarted(2));  // after 0 finished (one worker)
+  EXPECT_EQ(p->discardedComputed(), 1);
+  open(2);
+  EXPECT_EQ(p->takeIfStarted(2).value_or("none"), "prepared 2");
+  EXPECT_EQ(started(), (std::vector<int>{0, 2}));
+}
+
+TEST_F(NewestFirst, AnOlderItemTakenAfterANewerArrivedIsComputedByTheCaller) {
+  // The skip rule may take an older frame (the keyframe due) and leave newer ones waiting: the
+  // older one, superseded, is the caller's; the newer one keeps its own result for later.
+  Prefetch* p = make(2);
+  p->submit(0);
+  ASSERT_TRUE(awaitStarted(0));
+  p->submit(1);
+  ASSERT_TRUE(awaitStarted(1));  // the second worker was free
+  p->submit(2);
+  p->submit(3);  // supersedes 2: both workers are busy
+  EXPECT_FALSE(p->takeIfStarted(2).has_value());  // 0 and 1 discarded (in progress), 2 superseded
+  open(0);
+  open(1);
+  ASSERT_TRUE(awaitStarted(3));
+  open(3);
+  EXPECT_EQ(p->takeIfStarted(3).value_or("none"), "prepared 3");
+  EXPECT_EQ(started(), (std::vector<int>{0, 1, 3}));
+}
+
+TEST(OrderedPrefetch, NewestWithoutWorkersLeavesEveryItemToTheCaller) {
+  int computed = 0;
+  OrderedPrefetch<int, int> p(
+      0, [&](int item, int) { return ++computed, item; }, OrderedPrefetch<int, int>::Start::kNewest);
+  for (int i = 0; i < 3; ++i) p.submit(i);
+  EXPECT_FALSE(p.takeIfStarted(0).has_value());
+  EXPECT_FALSE(p.takeIfStarted(2).has_value());
+  EXPECT_EQ(computed, 0);
+  EXPECT_TRUE(p.done());
+}
+
+TEST(OrderedPrefetch, TakeIfStartedRethrowsTheWorkersError) {
+  std::mutex m;
+  std::condition_variable cv;
+  bool started = false;
+  OrderedPrefetch<int, int> p(
+      1,
+      [&](int item, int) -> int {
+        {
+          std::lock_guard<std::mutex> lock(m);
+          started = true;
+        }
+        cv.notify_all();
+        throw std::runtime_error("bad item " + std::to_string(item));
+      },
+      OrderedPrefetch<int, int>::Start::kNewest);
+  p.submit(7);
+  {
+    std::unique_lock<std::mutex> lock(m);
+    ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(10), [&] { return started; })) << "no worker took it";
+  }
+  try {
+    p.takeIfStarted(0);
+    ADD_FAILURE() << "item 0 should throw";
+  } catch (const std::runtime_error& e) {
+    EXPECT_STREQ(e.what(), "bad item 7");
+  }
 }
 
 // The odometry of a stream whose frames were prepared by workers equals the odometry that

@@ -105,6 +105,47 @@ TEST(FrameSkipRule, WhenTheNewestIsTooFarTheFirstFrameAKeyframeIsDueAtIsTaken) {
   EXPECT_EQ(rule.choose(waitingAt({4.0, 5.0})).index, 0u);
 }
 
+// Frames prepared on arrival by another thread (~prepare_threads): an earlier safe frame whose
+// preparation is under way beats a chosen one whose preparation has not started.
+TEST(FrameSkipRule, AnEarlierSafeFrameUnderPreparationIsPreferredToOneNotStarted) {
+  FrameSkipRule rule(camera(), KeyframeOptions());
+  rule.observe(matched(0.0, Pose2(), Pose2()));
+  rule.observe(matched(1.0, Pose2(0.1, 0, 0), Pose2()));  // 0.1 m/s: no keyframe due up to 4 s
+  const std::vector<WaitingFrame> w = waitingAt({2.0, 3.0, 4.0});
+  const FrameSkipRule::Choice newest = rule.choose(w);
+  ASSERT_EQ(newest.index, 2u);
+  // The choice itself under way: kept.
+  EXPECT_EQ(rule.preferPrepared(w, newest, {true, true, true}).index, 2u);
+  // Not started, an earlier one under way: the newest of those.
+  const FrameSkipRule::Choice earlier = rule.preferPrepared(w, newest, {true, true, false});
+  EXPECT_EQ(earlier.index, 1u);
+  EXPECT_EQ(earlier.reason, Reason::kPrepared);
+  EXPECT_EQ(rule.preferPrepared(w, newest, {true, false, false}).index, 0u);
+  // None under way (or no flags for these frames): the choice.
+  EXPECT_EQ(rule.preferPrepared(w, newest, {false, false, false}).reason, Reason::kNewestSafe);
+  EXPECT_EQ(rule.preferPrepared(w, newest, {true, true}).index, 2u);
+}
+
+TEST(FrameSkipRule, APreparedFrameIsTakenOnlyWhereItIsSafe) {
+  FrameSkipRule rule(camera(), KeyframeOptions());
+  rule.observe(matched(0.0, Pose2(), Pose2()));
+  rule.observe(matched(1.0, Pose2(0.3, 0, 0), Pose2()));  // 0.3 m/s: due from 4 s on
+  const std::vector<WaitingFrame> w = waitingAt({2.0, 3.0, 4.0, 5.0});
+  const FrameSkipRule::Choice due = rule.choose(w);
+  ASSERT_EQ(due.index, 2u);
+  ASSERT_EQ(due.reason, Reason::kKeyframeDue);
+  // An earlier safe frame under way: taken (the keyframe frame waits for the next choice).
+  EXPECT_EQ(rule.preferPrepared(w, due, {false, true, false, true}).index, 1u);
+  // Only a later frame under way: never a frame past the one a keyframe is due at.
+  EXPECT_EQ(rule.preferPrepared(w, due, {false, false, false, true}).index, 2u);
+  // Without a prediction nothing is known to be safe: the choice (the oldest) stays.
+  FrameSkipRule fresh(camera(), KeyframeOptions());
+  const FrameSkipRule::Choice oldest = fresh.choose(w);
+  ASSERT_EQ(oldest.reason, Reason::kOldest);
+  EXPECT_EQ(fresh.preferPrepared(w, oldest, {false, true, true, true}).index, 0u);
+  EXPECT_EQ(fresh.preferPrepared(w, {3, Reason::kNewestSafe}, {true, true, true, false}).index, 3u);
+}
+
 TEST(FrameSkipRule, ATurnOrTheTimeLimitMakeAKeyframeDueLikeTheKeyframeRule) {
   KeyframeOptions k;
   k.max_rotation_rad = 0.5;

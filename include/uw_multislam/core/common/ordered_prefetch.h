@@ -3,14 +3,20 @@
 // and back-end of this one. One class for both heads:
 //   - offline_slam --threads: the items are a dataset's frame numbers 0..count-1, submitted by the
 //     class itself at most `ahead` beyond the one next() hands out next (images are megabytes);
-//   - the odometry nodelet (~prepare_threads): the items are the frames its worker takes out of its
-//     FIFO, submitted by the caller (submit) only when they are already waiting, so that a frame is
-//     never held back for a worker when frames do not back up.
+//   - the odometry nodelet (~prepare_threads), drop_policy oldest: the items are the frames its
+//     worker takes out of its FIFO, submitted by the caller (submit) only when they are already
+//     waiting, so that a frame is never held back for a worker when frames do not back up;
+//   - the odometry nodelet, drop_policy newest (Start::kNewest): every frame is submitted as it
+//     arrives and a worker starts only the newest one not started, so that when the odometry
+//     frees up and takes the newest frame its features are ready or under way; a frame submitted
+//     supersedes the ones no worker has started (they are never started: the odometry skips
+//     them, or prepares one itself), and the consumer takes one item (takeIfStarted), discarding
+//     the ones before it.
 //
-// Hand-written, ~100 lines, because what is needed is not a plain thread pool: results in order, a
-// bounded lookahead, and per-worker state (a SIFT extractor is not thread-safe, so each worker owns
-// one: `work` gets the worker's number). OpenCV's parallel_for_ and std::async give none of the
-// three; Boost.Asio's thread_pool gives none of the last two.
+// Hand-written because what is needed is not a plain thread pool: results in order, a bounded
+// lookahead (or only the newest item started), and per-worker state (a SIFT extractor is not
+// thread-safe, so each worker owns one: `work` gets the worker's number). OpenCV's parallel_for_
+// and std::async give none of the three; Boost.Asio's thread_pool gives none of the last two.
 #pragma once
 
 #include <condition_variable>
@@ -21,7 +27,10 @@
 #include <limits>
 #include <map>
 #include <mutex>
+#include <optional>
+#include <set>
 #include <stdexcept>
+#include <string>
 #include <thread>
 #include <type_traits>
 #include <utility>
@@ -36,17 +45,26 @@ class OrderedPrefetch {
   /// Work(item, worker): worker in [0, threads) (0 when computed by next() itself).
   using Work = std::function<T(In item, int worker)>;
 
+  /// Which submitted item a free worker starts.
+  enum class Start {
+    kInOrder,  // the oldest not started: every item is computed
+    kNewest,   // the newest not started; submit() supersedes the items not started (never started)
+  };
+
   /// Items submitted by the caller (submit), computed by `threads` workers, handed out in the
   /// order submitted. With threads == 0 nothing runs in the background: next() computes each item
   /// in the caller (worker 0).
-  OrderedPrefetch(int threads, Work work) : ahead_(kUnbounded), work_(std::move(work)) { start(threads); }
+  OrderedPrefetch(int threads, Work work, Start start_order = Start::kInOrder)
+      : ahead_(kUnbounded), newest_(start_order == Start::kNewest), work_(std::move(work)) {
+    start(threads);
+  }
 
   /// The items 0..count-1 (In = std::size_t), computed by `threads` workers in index order, at most
   /// `ahead` items beyond the one next() hands out next (ahead >= 1).
   OrderedPrefetch(std::size_t count, int threads, std::size_t ahead, Work work)
       : ahead_(ahead < 1 ? 1 : ahead), work_(std::move(work)) {
     static_assert(std::is_same<In, std::size_t>::value, "OrderedPrefetch: a count of items needs In = std::size_t");
-    for (std::size_t i = 0; i < count; ++i) waiting_.push_back(i);
+    for (std::size_t i = 0; i < count; ++i) waiting_.emplace_back(i, i);
     submitted_ = count;
     start(threads);
   }
@@ -62,14 +80,21 @@ class OrderedPrefetch {
   OrderedPrefetch(const OrderedPrefetch&) = delete;
   OrderedPrefetch& operator=(const OrderedPrefetch&) = delete;
 
-  /// Adds an item after those submitted before.
-  void submit(In item) {
+  /// Adds an item after those submitted before; returns its number (0, 1, ... in the order
+  /// submitted). Start::kNewest: the items no worker has started are superseded (never started).
+  std::size_t submit(In item) {
+    std::size_t number = 0;
     {
       std::lock_guard<std::mutex> lock(mutex_);
-      waiting_.push_back(std::move(item));
-      ++submitted_;
+      if (newest_) {
+        for (auto& w : waiting_) ready_.emplace(w.first, Slot{T{}, nullptr, false});
+        waiting_.clear();
+      }
+      number = submitted_++;
+      waiting_.emplace_back(number, std::move(item));
     }
     changed_.notify_all();
+    return number;
   }
 
   /// Items submitted and not handed out yet.
@@ -79,15 +104,16 @@ class OrderedPrefetch {
   }
   bool done() const { return pending() == 0; }
 
-  /// The next item in order; waits for it. Rethrows what `work` threw for it.
+  /// The next item in order; waits for it. Rethrows what `work` threw for it. Start::kInOrder only
+  /// (with kNewest an item may never be computed: takeIfStarted).
   T next() {
+    if (newest_) throw std::logic_error("OrderedPrefetch::next: Start::kNewest hands out by takeIfStarted");
     std::unique_lock<std::mutex> lock(mutex_);
     if (next_out_ >= submitted_) throw std::out_of_range("OrderedPrefetch::next: every item was handed out");
     const std::size_t item = next_out_++;  // written under the lock: the workers read it
     if (workers_.empty()) {
-      In in = std::move(waiting_.front());
+      In in = std::move(waiting_.front().second);
       waiting_.pop_front();
-      ++next_in_;
       lock.unlock();
       return work_(std::move(in), 0);
     }
@@ -100,12 +126,73 @@ class OrderedPrefetch {
     return std::move(slot.value);
   }
 
+  /// Hands out item `number` (submit's), and discards the items before it not handed out yet: a
+  /// discarded item not started is never started, one in progress is thrown away when done. Its
+  /// value when a worker started it (waiting for it to finish), else nullopt: never started (or
+  /// superseded), it is the caller's to compute, rather than wait until a busy worker is free.
+  /// Rethrows what `work` threw for it.
+  std::optional<T> takeIfStarted(std::size_t number) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    if (number < next_out_ || number >= submitted_)
+      throw std::out_of_range("OrderedPrefetch::takeIfStarted: item " + std::to_string(number) +
+                              " was handed out or not submitted");
+    for (; next_out_ < number; ++next_out_) discardLocked(next_out_);
+    ++next_out_;
+    for (auto w = waiting_.begin(); w != waiting_.end(); ++w) {
+      if (w->first != number) continue;
+      waiting_.erase(w);
+      changed_.notify_all();
+      return std::nullopt;
+    }
+    changed_.notify_all();
+    changed_.wait(lock, [&] { return ready_.count(number) > 0; });
+    Slot slot = std::move(ready_.at(number));
+    ready_.erase(number);
+    lock.unlock();
+    if (!slot.computed) return std::nullopt;
+    if (slot.error) std::rethrow_exception(slot.error);
+    return std::move(slot.value);
+  }
+
+  /// Whether a worker has started item `number` (under way or done) and it is not handed out.
+  bool started(std::size_t number) const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (number < next_out_ || number >= submitted_) return false;
+    for (const auto& w : waiting_)
+      if (w.first == number) return false;
+    const auto r = ready_.find(number);
+    return r == ready_.end() || r->second.computed;
+  }
+
+  /// Results computed and then discarded by takeIfStarted (a worker's time spent in vain).
+  long discardedComputed() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return discarded_computed_;
+  }
+
  private:
   static constexpr std::size_t kUnbounded = std::numeric_limits<std::size_t>::max() / 2;
   struct Slot {
     T value{};
     std::exception_ptr error;
+    bool computed = true;  // false: superseded before a worker started it (Start::kNewest)
   };
+
+  // Under mutex_: item `item` (not handed out) is not wanted.
+  void discardLocked(std::size_t item) {
+    for (auto w = waiting_.begin(); w != waiting_.end(); ++w) {
+      if (w->first != item) continue;
+      waiting_.erase(w);
+      return;
+    }
+    const auto r = ready_.find(item);
+    if (r == ready_.end()) {
+      unwanted_.insert(item);  // in progress: dropped when its worker is done
+      return;
+    }
+    discarded_computed_ += r->second.computed;
+    ready_.erase(r);
+  }
 
   void start(int threads) {
     if (threads < 0) throw std::invalid_argument("OrderedPrefetch: threads < 0");
@@ -115,10 +202,11 @@ class OrderedPrefetch {
   void run(int worker) {
     std::unique_lock<std::mutex> lock(mutex_);
     for (;;) {
-      changed_.wait(lock, [&] { return stop_ || (!waiting_.empty() && next_in_ < next_out_ + ahead_); });
+      changed_.wait(lock, [&] { return stop_ || (!waiting_.empty() && waiting_.front().first < next_out_ + ahead_); });
       if (stop_) return;
-      const std::size_t item = next_in_++;
-      In in = std::move(waiting_.front());
+      // kNewest keeps at most one item waiting (submit supersedes the others): front is back.
+      const std::size_t item = waiting_.front().first;
+      In in = std::move(waiting_.front().second);
       waiting_.pop_front();
       lock.unlock();
       Slot slot;
@@ -128,21 +216,26 @@ class OrderedPrefetch {
         slot.error = std::current_exception();
       }
       lock.lock();
-      ready_.emplace(item, std::move(slot));
+      if (unwanted_.erase(item) > 0)
+        ++discarded_computed_;
+      else
+        ready_.emplace(item, std::move(slot));
       changed_.notify_all();
     }
   }
 
   const std::size_t ahead_;
+  const bool newest_ = false;  // Start::kNewest
   Work work_;
   mutable std::mutex mutex_;
   std::condition_variable changed_;
-  std::deque<In> waiting_;     // submitted, not started: the items next_in_, next_in_ + 1, ... (under mutex_)
-  std::size_t submitted_ = 0;  // items submitted (under mutex_)
-  std::size_t next_in_ = 0;    // the next item a worker takes (under mutex_)
-  std::size_t next_out_ = 0;   // the next item next() hands out (under mutex_)
-  std::map<std::size_t, Slot> ready_;
-  bool stop_ = false;
+  std::deque<std::pair<std::size_t, In>> waiting_;  // submitted, not started: (number, item), in order (under mutex_)
+  std::size_t submitted_ = 0;                       // items submitted (under mutex_)
+  std::size_t next_out_ = 0;                        // the next item handed out (under mutex_)
+  std::map<std::size_t, Slot> ready_;               // done or superseded, not handed out (under mutex_)
+  std::set<std::size_t> unwanted_;                  // discarded while in progress (under mutex_)
+  long discarded_computed_ = 0;                     // (under mutex_)
+  bool stop_ = false;                               // (under mutex_)
   std::vector<std::thread> workers_;
 };
 

@@ -72,6 +72,7 @@ class FrameSkipRule {
     kNewestSafe,   // the newest waiting frame, which the keyframe rule would not take
     kKeyframeDue,  // the first waiting frame the keyframe rule would take
     kOnlyOne,      // one frame waiting: nothing to choose
+    kPrepared,     // an earlier frame than the choice, safe, whose preparation is under way (preferPrepared)
   };
   struct Choice {
     std::size_t index = 0;  // into the waiting frames; the ones before it are skipped
@@ -88,6 +89,15 @@ class FrameSkipRule {
 
   /// The frame to process next among `waiting` (oldest first, stamps increasing; not empty).
   Choice choose(const std::vector<WaitingFrame>& waiting) const;
+
+  /// With frames prepared on arrival by other threads (the odometry nodelet's ~prepare_threads):
+  /// `choice` (choose()'s) unless its preparation has not started (!prepared[choice.index]) while
+  /// that of an earlier waiting frame has; then the newest such frame that the keyframe rule would
+  /// not take (safe, as the frames before `choice` are: a tracked frame of the same keyframe, so no
+  /// keyframe changes). Its pose comes out sooner than the choice's, whose preparation would only
+  /// start now, and the other thread's work is used instead of repeated beside it on a second core.
+  Choice preferPrepared(const std::vector<WaitingFrame>& waiting, Choice choice,
+                        const std::vector<bool>& prepared) const;
 
   /// Whether a frame at `stamp_s` and `altitude_m` would be taken by the keyframe rule, as
   /// predicted; nullopt without a prediction.

@@ -2,8 +2,10 @@
 // Threads: the callbacks pair image, camera_info and altitude under pairing_mutex_ (core::InputPairing)
 // onto a bounded queue (~queue_size; full: the oldest dropped, counted, its stamp handed on). One worker
 // owns the odometry: mount from tf, conversion, SIFT, RANSAC, publishing. It takes the newest frame
-// core::FrameSkipRule allows (~drop_policy newest) or the oldest, then with ~prepare_threads the next
-// ones prepared ahead (core::OrderedPrefetch). On unload the queue is closed and drained, then joined.
+// core::FrameSkipRule allows (~drop_policy newest) or the oldest. ~prepare_threads (core::OrderedPrefetch):
+// with newest each frame is handed to the preparing threads as it arrives, a free one preparing the newest
+// (conversion, enhancement, features), so the frame the worker takes is often ready; with oldest the frames
+// waiting behind the one in progress are prepared. On unload the queue is closed and drained, then joined.
 #pragma once
 
 #include <diagnostic_updater/diagnostic_updater.h>
@@ -20,6 +22,7 @@
 
 #include "uw_multislam/OperatorCommand.h"
 #include "uw_multislam/SessionState.h"
+#include "uw_multislam/core/common/ordered_prefetch.h"
 #include "uw_multislam/core/frontend/frame_skip.h"
 #include "uw_multislam/core/frontend/stream_control.h"
 #include "uw_multislam/core/frontend/tracking.h"
@@ -50,7 +53,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   bool setPaused(bool paused, uw_multislam::OperatorCommand::Response* res);
   void handle(Pairing::Decisions decisions);  // pushes the paired frames, logs the skipped; under pairing_mutex_
   void work();
-  void run(Frame& f, Ahead* ahead);                          // one frame, timed
+  void run(Frame& f, Ahead* ahead, ros::WallTime start = ros::WallTime::now());  // one frame, timed from `start`
   std::size_t chooseNext(const std::deque<Frame>& waiting);  // ~drop_policy newest (the worker, under the queue's lock)
   using Refusal = long ros_diagnostics::OdometryCounters::*;  // convert(): null, or the refusal's counter
   Refusal convert(const Frame& f, core::CameraIntrinsics* camera, cv::Mat* image, std::string* why) const;
@@ -65,6 +68,9 @@ class OdometryNodelet : public nodelet::Nodelet {
 
   ros_params::OdometryNodeletOptions options_;
   std::unique_ptr<ros_work::BoundedWorkQueue<Frame>> queue_;  // pushed(): frames paired, popped(): taken
+  // ~prepare_threads with newest: every frame submitted on arrival (under pairing_mutex_, in the queue's
+  // order), the newest prepared; the worker takes its frame's preparation by Frame::arrival. Thread-safe.
+  std::unique_ptr<core::OrderedPrefetch<ros_inputs::PreparedAhead, Frame>> prepare_on_arrival_;
   std::thread worker_;
   core::StreamControl control_;  // pause / resume and the back-end's session requests (thread-safe)
   std::mutex pairing_mutex_;     // guards pairing_ and altimeter_frame_ (the last Range's frame)
