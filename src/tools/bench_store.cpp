@@ -242,7 +242,7 @@ std::uintmax_t storeBytes(const std::string& path) {
 struct StepRow {
   long long step = 1;
   bool jump_once = false;
-  int accepted = 0, refused = 0, sessions = 0;
+  int accepted = 0, refused = 0, sessions = 0, kept = 0;  // kept: keyframes in the sessions, lost ones included
   double mean = 0.0;  // bytes per message
   std::uintmax_t largest = 0;
 };
@@ -293,6 +293,7 @@ StepRow measureSteps(const std::string& dir, long long step, bool jump_once) {
       last = after;
     }
     row.sessions = static_cast<int>(m.view().list().size());
+    for (const auto& s : m.view().list()) row.kept += s.keyframes;
   }
   row.mean = static_cast<double>(last > first ? last - first : 0) / messages;
   for (const std::string& f : {path, path + "-wal", path + "-shm", path + ".lock"}) fs::remove(f);
@@ -301,9 +302,9 @@ StepRow measureSteps(const std::string& dir, long long step, bool jump_once) {
 
 int benchIndexSteps(const std::string& dir) {
   std::printf(
-      "| index step | messages | accepted | refused | sessions | store bytes per message (mean) | largest message | "
-      "largest / a real keyframe |\n");
-  std::printf("|---|---|---|---|---|---|---|---|\n");
+      "| index step | messages | accepted | refused | sessions | keyframes kept | store bytes per message (mean) | "
+      "largest message | largest / a real keyframe |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|\n");
   const long long bridged = core::SessionManagerOptions().max_keyframe_gap + 1LL;
   std::vector<StepRow> rows;
   for (const long long step : {1LL, bridged, 1000LL, 100000LL, 1LL << 20}) rows.push_back(measureSteps(dir, step, false));
@@ -312,8 +313,8 @@ int benchIndexSteps(const std::string& dir) {
   std::uintmax_t worst = 0;
   for (const StepRow& r : rows) {
     worst = std::max(worst, r.largest);
-    std::printf("| %lld%s | %d | %d | %d | %d | %.0f | %ju | %.2f |\n", r.step, r.jump_once ? " once, then 1" : "",
-                r.accepted + r.refused, r.accepted, r.refused, r.sessions, r.mean, r.largest,
+    std::printf("| %lld%s | %d | %d | %d | %d | %d | %.0f | %ju | %.2f |\n", r.step, r.jump_once ? " once, then 1" : "",
+                r.accepted + r.refused, r.accepted, r.refused, r.sessions, r.kept, r.mean, r.largest,
                 real > 0 ? static_cast<double>(r.largest) / real : 0.0);
   }
   // The bound the fault matrix checks: any one message, whatever its index, against a real
