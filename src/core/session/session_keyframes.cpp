@@ -118,6 +118,16 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
       if (!st.ok()) return st;
     }
   }
+  if (piece_.to != piece_.from && k.session == piece_.to && active_ == piece_.to) {
+    // The odometry's next session took the id the piece took (nobody told it the piece's): it is
+    // a session of its own, under the next free id, its keyframe ids kept.
+    const int id = nextId();
+    if (id > kMaxSessionId) return badSessionId("keyframe " + std::to_string(k.keyframe), id);
+    say("the odometry's session " + std::to_string(k.session) + " is session " + std::to_string(id) + " here (" +
+        std::to_string(k.session) + " is the piece its session " + std::to_string(piece_.from) + " went on in)");
+    open(id, "", k.stamp_s);
+    piece_ = {k.session, id, 0};
+  }
   toPiece(&k.session, &k.keyframe);
   auto it = sessions_.find(k.session);
   if (it == sessions_.end()) {

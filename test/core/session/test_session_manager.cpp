@@ -265,9 +265,14 @@ TEST(SessionManager, AJumpPastTheGapBoundEndsThePieceAndLosesNothingAfterIt) {
     EXPECT_EQ(m.view().stats().keyframes_refused, 2);
     // A keyframe of the odometry's session from before the jump: the finished piece's, stale.
     EXPECT_EQ(m.addKeyframe(keyframe(0, 3, Pose2(3, 0, 0), Pose2(2, 0, 0))).code, StatusCode::kFailedPrecondition);
+    // The odometry's next session takes id 1, the piece's: a session of its own, 2 here.
+    addStraightSession(&m, 1, 2);
+    ASSERT_TRUE(m.view().has(2));
+    EXPECT_EQ(m.view().list()[1].keyframes, 6);
+    EXPECT_EQ(m.view().list()[2].keyframes, 2);
   }
   SessionStore store(db, StoreAccess::kReadOnly);
-  ASSERT_EQ(store.sessions().size(), 2u);
+  ASSERT_EQ(store.sessions().size(), 3u);
   EXPECT_EQ(store.keyframes(0, false).size(), 3u);
   EXPECT_EQ(store.keyframes(1, false).size(), 6u);
   EXPECT_EQ(store.loops().size(), 1u);
