@@ -91,7 +91,8 @@ void setManagerCounters(const core::SessionQueries& manager, BackendCounters* c)
   const core::SessionManagerStats& m = manager.stats();
   const core::BackendStats& b = manager.backendStats();
   c->keyframes_stale = m.keyframes_stale, c->keyframes_refused = m.keyframes_refused;
-  c->keyframe_gaps = m.keyframe_gaps, c->keyframe_jumps = m.keyframe_jumps, c->loops_refused = m.loops_refused, c->store_failures = m.store_failures;
+  c->keyframe_gaps = m.keyframe_gaps, c->keyframe_jumps = m.keyframe_jumps, c->loops_refused = m.loops_refused,
+  c->store_failures = m.store_failures;
   c->sessions = static_cast<long>(manager.sessionIds().size());
   c->sessions_unloaded_now = 0;
   for (const core::SessionSummary& s : manager.list())

@@ -243,7 +243,7 @@ struct StepRow {
   long long step = 1;
   bool jump_once = false;
   int accepted = 0, refused = 0, sessions = 0, kept = 0;  // kept: keyframes in the sessions, lost ones included
-  double mean = 0.0;  // bytes per message
+  double mean = 0.0;                                      // bytes per message
   std::uintmax_t largest = 0;
 };
 
@@ -307,7 +307,8 @@ int benchIndexSteps(const std::string& dir) {
   std::printf("|---|---|---|---|---|---|---|---|---|\n");
   const long long bridged = core::SessionManagerOptions().max_keyframe_gap + 1LL;
   std::vector<StepRow> rows;
-  for (const long long step : {1LL, bridged, 1000LL, 100000LL, 1LL << 20}) rows.push_back(measureSteps(dir, step, false));
+  for (const long long step : {1LL, bridged, 1000LL, 100000LL, 1LL << 20})
+    rows.push_back(measureSteps(dir, step, false));
   rows.push_back(measureSteps(dir, 1000, true));
   const double real = rows[0].mean;  // a real keyframe (500 features) in this run
   std::uintmax_t worst = 0;

@@ -109,7 +109,8 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
   KeyframeInput k = input;
   if (k.hash.size() != HalocProjections::kHashSize && !k.features.descriptors.empty())
     k.hash = hasher_.hash(k.features.descriptors);  // the one place a keyframe is hashed when nobody upstream did
-  if (jump_) {  // the keyframe after a refused jump decides what the jump was
+  // The keyframe after a refused jump decides what the jump was.
+  if (jump_) {
     KeyframeInput held = std::move(*jump_);
     jump_.reset();
     const long long step = static_cast<long long>(k.keyframe) - held.keyframe;
@@ -165,8 +166,7 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
   const int expected = static_cast<int>(s.stamps.size());
   if (k.keyframe > expected && k.keyframe - expected > options_.max_keyframe_gap) {
     const std::string why = "keyframe " + std::to_string(k.keyframe) + " of session " + std::to_string(id) + ": " +
-                            std::to_string(k.keyframe - expected) +
-                            " keyframes missing, more than max_keyframe_gap (" +
+                            std::to_string(k.keyframe - expected) + " keyframes missing, more than max_keyframe_gap (" +
                             std::to_string(options_.max_keyframe_gap) + ")";
     return refuseJump(std::move(k), why);
   }
@@ -283,8 +283,8 @@ Status SessionManager::startPiece(KeyframeInput held) {
   piece_ = {raw, id, held.keyframe};
   ++stats_.keyframe_jumps;
   say("session " + std::to_string(raw) + "'s keyframe ids jumped to " + std::to_string(held.keyframe) +
-      ", past max_keyframe_gap (" + std::to_string(options_.max_keyframe_gap) + "): " +
-      (ended >= 0 ? "session " + std::to_string(ended) + " ended, " : std::string()) + "session " +
+      ", past max_keyframe_gap (" + std::to_string(options_.max_keyframe_gap) +
+      "): " + (ended >= 0 ? "session " + std::to_string(ended) + " ended, " : std::string()) + "session " +
       std::to_string(id) + " starts there (keyframe " + std::to_string(held.keyframe) + " is its 0)");
   const Pose2 origin = held.odometry_pose;
   held.session = id;

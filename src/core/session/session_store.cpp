@@ -878,7 +878,8 @@ void SessionStore::insertKeyframe(const StoredKeyframe& kf, const UncertainPose2
   k.run();
   if (motion) {
     const std::vector<double> cov = covBlob(motion->covariance);
-    Statement& m = cached("INSERT INTO motions(session, keyframe, x, y, yaw, cov, source) VALUES (?, ?, ?, ?, ?, ?, ?)");
+    Statement& m =
+        cached("INSERT INTO motions(session, keyframe, x, y, yaw, cov, source) VALUES (?, ?, ?, ?, ?, ?, ?)");
     m.bind(1, kf.session).bind(2, kf.keyframe).bind(3, motion->mean.x()).bind(4, motion->mean.y());
     m.bind(5, motion->mean.yaw()).blob(6, cov).bind(7, std::string(motionSourceName(kf.motion_source))).run();
   }

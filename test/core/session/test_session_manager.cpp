@@ -151,9 +151,9 @@ std::vector<int> hashBytes(const std::string& db, std::int64_t session) {
   sqlite3* h = nullptr;
   EXPECT_EQ(sqlite3_open_v2(db.c_str(), &h, SQLITE_OPEN_READONLY, nullptr), SQLITE_OK);
   sqlite3_stmt* st = nullptr;
-  EXPECT_EQ(sqlite3_prepare_v2(h, "SELECT length(hash) FROM keyframes WHERE session = ? ORDER BY keyframe", -1, &st,
-                               nullptr),
-            SQLITE_OK);
+  EXPECT_EQ(
+      sqlite3_prepare_v2(h, "SELECT length(hash) FROM keyframes WHERE session = ? ORDER BY keyframe", -1, &st, nullptr),
+      SQLITE_OK);
   sqlite3_bind_int64(st, 1, session);
   while (sqlite3_step(st) == SQLITE_ROW) out.push_back(sqlite3_column_int(st, 0));
   sqlite3_finalize(st);
