@@ -399,10 +399,13 @@ def case_self_merge_hard_link(m, off):
         m.done(d)
 
 
-def case_index_steps(m, off, bound_kb=3000):
-    case = "keyframe index stepped by 1, max_keyframe_gap + 1, 1000 and 2^20 per message (bench_store --index-steps)"
-    expected = ("the store grows at most %d kB per message whatever the index (a keyframe's own ~120 kB and at most "
-                "max_keyframe_gap placeholders, 32 by default); steps 1000 and 2^20 refused, growing nothing" % bound_kb)
+def case_index_steps(m, off, bound_ratio=2.5):
+    case = ("keyframe index stepped by 1, max_keyframe_gap + 1, 1000, 100000 and 2^20 per message, and by 1000 once "
+            "then 1 (bench_store --index-steps)")
+    expected = ("no message grows the store by more than %.1f real keyframes (measured in the same run) whatever its "
+                "index; a bridged gap of 32 costs under half a keyframe; steps 1000, 100000 and 2^20 refused, growing "
+                "nothing; a jump continued by the next keyframe ends the piece: a second session, every keyframe from "
+                "the jump on kept" % bound_ratio)
     d = m.tempdir("index_steps")
     try:
         r = subprocess.run([tool(off, "bench_store"), "--index-steps", "--dir", d], capture_output=True, text=True,
@@ -410,16 +413,24 @@ def case_index_steps(m, off, bound_kb=3000):
         rows = {}
         for line in r.stdout.splitlines():
             cells = [c.strip() for c in line.strip().strip("|").split("|")]
-            if len(cells) == 6 and cells[0].isdigit():
-                rows[int(cells[0])] = [int(c) for c in cells[1:]]  # messages, accepted, refused, mean, largest
-        steps = sorted(rows)
-        held = (r.returncode == 0 and len(steps) == 4 and 1000 in rows and 2 ** 20 in rows
-                and all(rows[s][4] <= bound_kb * 1000 for s in steps)
-                and rows[1][1] == rows[1][0] and rows[1000][2] == rows[1000][0] and rows[2 ** 20][2] == rows[2 ** 20][0]
-                and rows[1000][4] == 0 and rows[2 ** 20][4] == 0)
-        observed = "status %d; %s" % (r.returncode, "; ".join(
-            "step %d: %d accepted, %d refused, %.0f kB per message, largest %.0f kB" % (
-                s, rows[s][1], rows[s][2], rows[s][3] / 1000.0, rows[s][4] / 1000.0) for s in steps) or short(r.stderr))
+            if len(cells) == 9 and cells[0][:1].isdigit():
+                key = "jump" if "once" in cells[0] else int(cells[0])
+                # messages, accepted, refused, sessions, kept, mean, largest
+                rows[key] = [int(c) for c in cells[1:6]] + [float(cells[6]), int(cells[7])]
+        real = rows[1][5] if 1 in rows else 0.0
+        bound = re.search(r"^bound: .* at most (\d+) bytes", r.stdout, re.M)
+        worst = int(bound.group(1)) if bound else -1
+        refused = [1000, 100000, 2 ** 20]
+        held = (r.returncode == 0 and set(rows) == {1, 33, "jump"} | set(refused) and real > 0 and bound is not None
+                and worst == max(v[6] for v in rows.values()) and worst <= bound_ratio * real
+                and rows[1][1] == rows[1][0] and rows[33][1] == rows[33][0] and rows[33][6] - real <= 0.5 * real
+                and all(rows[s][2] == rows[s][0] and rows[s][6] == 0 for s in refused)
+                # the origin and all 10 messages: the jumping one is the new session's first keyframe
+                and rows["jump"][3] == 2 and rows["jump"][4] == 1 + rows["jump"][0] and rows["jump"][2] == 1)
+        observed = "status %d; %s; %s" % (r.returncode, "; ".join(
+            "step %s: %d accepted, %d refused, %d sessions, %d keyframes kept, %.0f kB per message, largest %.0f kB" % (
+                s, v[1], v[2], v[3], v[4], v[5] / 1000.0, v[6] / 1000.0) for s, v in rows.items()) or short(r.stderr),
+            bound.group(0) if bound else "no bound printed")
         m.row(case, expected, observed, held)
     finally:
         m.done(d)

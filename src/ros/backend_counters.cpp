@@ -42,6 +42,9 @@ const CounterTable<BackendCounters>& backendCounterTable() {
       {"keyframes_refused", &C::keyframes_refused,
        "keyframes refused: an id more than ~max_keyframe_gap past the last, or a session id past 1,000,000", kWarn},
       {"keyframe_gaps", &C::keyframe_gaps, "gaps in the keyframe ids, bridged", kWarn},
+      {"keyframe_jumps", &C::keyframe_jumps,
+       "jumps in the keyframe ids past ~max_keyframe_gap that the next keyframe continued: a new session from there",
+       kWarn},
       {"loops_refused", &C::loops_refused, "loops refused by the session manager", kWarn},
       {"store_failures", &C::store_failures, "session store writes that failed", kWarn},
       {"sessions", &C::sessions, "sessions known"},
@@ -88,7 +91,8 @@ void setManagerCounters(const core::SessionQueries& manager, BackendCounters* c)
   const core::SessionManagerStats& m = manager.stats();
   const core::BackendStats& b = manager.backendStats();
   c->keyframes_stale = m.keyframes_stale, c->keyframes_refused = m.keyframes_refused;
-  c->keyframe_gaps = m.keyframe_gaps, c->loops_refused = m.loops_refused, c->store_failures = m.store_failures;
+  c->keyframe_gaps = m.keyframe_gaps, c->keyframe_jumps = m.keyframe_jumps, c->loops_refused = m.loops_refused,
+  c->store_failures = m.store_failures;
   c->sessions = static_cast<long>(manager.sessionIds().size());
   c->sessions_unloaded_now = 0;
   for (const core::SessionSummary& s : manager.list())

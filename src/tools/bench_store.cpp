@@ -44,10 +44,12 @@ const char* kUsage = R"(usage: bench_store [--keyframes N ...] [--features n] [-
        bench_store --index-steps [--dir DIR]
 
 --index-steps: the store's growth per keyframe message when the keyframe index steps by 1, by
-max_keyframe_gap + 1 (the largest gap bridged), 1000 and 2^20 (a corrupt or hostile sender),
-through the session manager as the back-end uses it (default options), 10 messages of 500
-features each; prints the bytes the store (database, WAL and shared memory files) grew per
-message, and the largest single message's growth.
+max_keyframe_gap + 1 (the largest gap bridged), 1000, 100000 and 2^20 (a corrupt or hostile
+sender), and by 1000 once then 1 (ids that really jumped: a new session from the jump), through
+the session manager as the back-end uses it (default options), 10 messages of 500 features
+each; prints the bytes the store (database, WAL and shared memory files) grew per message, the
+largest single message's growth and its ratio to a real keyframe (step 1's mean in the same
+run), then the bound: the largest growth of any one message.
 
 Writes one session of N keyframes (default: 1000 and 10000) into a fresh store in DIR (default:
 the system temporary directory; removed afterwards) and prints bytes per keyframe, write ms per
@@ -235,59 +237,92 @@ std::uintmax_t storeBytes(const std::string& path) {
   return total;
 }
 
-// Keyframe messages whose index steps by `step`: what each one costs the store.
-int benchIndexSteps(const std::string& dir) {
-  std::printf("| index step | messages | accepted | refused | store bytes per message (mean) | largest message |\n");
-  std::printf("|---|---|---|---|---|---|\n");
-  const long long bridged = core::SessionManagerOptions().max_keyframe_gap + 1LL;
-  for (const long long step : {1LL, bridged, 1000LL, 1LL << 20}) {
-    const std::string path = (fs::path(dir) / ("bench_store_steps_" + std::to_string(step) + ".db")).string();
-    for (const std::string& f : {path, path + "-wal", path + "-shm", path + ".lock"}) fs::remove(f);
-    std::mt19937 rng(1);
-    core::SessionManagerOptions o;
-    o.store_path = path;
-    int accepted = 0, refused = 0;
-    const int messages = 10;
-    std::uintmax_t largest = 0, first = 0, last = 0;
-    {
-      core::SessionManager m(o);
-      for (int i = 0; i <= messages; ++i) {  // message 0: the session's origin, not counted
-        const long long index = i * step;
-        core::KeyframeInput k;
-        k.session = 0;
-        k.keyframe = static_cast<int>(std::min<long long>(index, std::numeric_limits<int>::max()));
-        k.frame_index = k.keyframe;
-        k.stamp_s = i;
-        k.altitude_m = 2.0;
-        k.camera.width = 320;
-        k.camera.height = 240;
-        k.camera.fx = k.camera.fy = 300;
-        k.camera.cx = 160;
-        k.camera.cy = 120;
-        const core::StoredKeyframe synthetic = syntheticKeyframe(0, k.keyframe, o.num_features, rng);
-        for (const cv::Point2f& p : synthetic.points) k.features.keypoints.emplace_back(p, 1.0f);
-        k.features.descriptors = synthetic.descriptors;
-        k.features.image_size = synthetic.image_size;
-        k.motion = core::UncertainPose2(core::Pose2(0.3, 0, 0), Eigen::Matrix3d::Identity() * 1e-4);
-        k.odometry_pose = core::Pose2(0.3 * i, 0, 0);
-        const std::uintmax_t before = storeBytes(path);
-        const core::Status st = m.addKeyframe(k);
-        const std::uintmax_t after = storeBytes(path);
-        if (i == 0) {
-          if (!st.ok()) throw std::runtime_error("the origin was refused: " + st.message);
-          first = after;
-          continue;
-        }
-        (st.ok() ? accepted : refused) += 1;
-        largest = std::max(largest, after > before ? after - before : 0);
-        last = after;
+// Keyframe messages whose index steps by `step` (`jump_once`: by `step` once, then by 1, as
+// an odometry whose ids really moved on): what each one costs the store.
+struct StepRow {
+  long long step = 1;
+  bool jump_once = false;
+  int accepted = 0, refused = 0, sessions = 0, kept = 0;  // kept: keyframes in the sessions, lost ones included
+  double mean = 0.0;                                      // bytes per message
+  std::uintmax_t largest = 0;
+};
+
+StepRow measureSteps(const std::string& dir, long long step, bool jump_once) {
+  const std::string path = (fs::path(dir) / ("bench_store_steps_" + std::to_string(step) + ".db")).string();
+  for (const std::string& f : {path, path + "-wal", path + "-shm", path + ".lock"}) fs::remove(f);
+  std::mt19937 rng(1);
+  core::SessionManagerOptions o;
+  o.store_path = path;
+  StepRow row;
+  row.step = step;
+  row.jump_once = jump_once;
+  const int messages = 10;
+  std::uintmax_t first = 0, last = 0;
+  {
+    core::SessionManager m(o);
+    long long index = 0;
+    for (int i = 0; i <= messages; ++i) {  // message 0: the session's origin, not counted
+      if (i > 0) index += jump_once && i > 1 ? 1 : step;
+      core::KeyframeInput k;
+      k.session = 0;
+      k.keyframe = static_cast<int>(std::min<long long>(index, std::numeric_limits<int>::max()));
+      k.frame_index = k.keyframe;
+      k.stamp_s = i;
+      k.altitude_m = 2.0;
+      k.camera.width = 320;
+      k.camera.height = 240;
+      k.camera.fx = k.camera.fy = 300;
+      k.camera.cx = 160;
+      k.camera.cy = 120;
+      const core::StoredKeyframe synthetic = syntheticKeyframe(0, k.keyframe, o.num_features, rng);
+      for (const cv::Point2f& p : synthetic.points) k.features.keypoints.emplace_back(p, 1.0f);
+      k.features.descriptors = synthetic.descriptors;
+      k.features.image_size = synthetic.image_size;
+      k.motion = core::UncertainPose2(core::Pose2(0.3, 0, 0), Eigen::Matrix3d::Identity() * 1e-4);
+      k.odometry_pose = core::Pose2(0.3 * i, 0, 0);
+      const std::uintmax_t before = storeBytes(path);
+      const core::Status st = m.addKeyframe(k);
+      const std::uintmax_t after = storeBytes(path);
+      if (i == 0) {
+        if (!st.ok()) throw std::runtime_error("the origin was refused: " + st.message);
+        first = after;
+        continue;
       }
+      (st.ok() ? row.accepted : row.refused) += 1;
+      row.largest = std::max(row.largest, after > before ? after - before : 0);
+      last = after;
     }
-    std::printf("| %lld | %d | %d | %d | %.0f | %ju |\n", step, messages, accepted, refused,
-                static_cast<double>(last > first ? last - first : 0) / messages, largest);
-    std::fflush(stdout);
-    for (const std::string& f : {path, path + "-wal", path + "-shm", path + ".lock"}) fs::remove(f);
+    row.sessions = static_cast<int>(m.view().list().size());
+    for (const auto& s : m.view().list()) row.kept += s.keyframes;
   }
+  row.mean = static_cast<double>(last > first ? last - first : 0) / messages;
+  for (const std::string& f : {path, path + "-wal", path + "-shm", path + ".lock"}) fs::remove(f);
+  return row;
+}
+
+int benchIndexSteps(const std::string& dir) {
+  std::printf(
+      "| index step | messages | accepted | refused | sessions | keyframes kept | store bytes per message (mean) | "
+      "largest message | largest / a real keyframe |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|\n");
+  const long long bridged = core::SessionManagerOptions().max_keyframe_gap + 1LL;
+  std::vector<StepRow> rows;
+  for (const long long step : {1LL, bridged, 1000LL, 100000LL, 1LL << 20})
+    rows.push_back(measureSteps(dir, step, false));
+  rows.push_back(measureSteps(dir, 1000, true));
+  const double real = rows[0].mean;  // a real keyframe (500 features) in this run
+  std::uintmax_t worst = 0;
+  for (const StepRow& r : rows) {
+    worst = std::max(worst, r.largest);
+    std::printf("| %lld%s | %d | %d | %d | %d | %d | %.0f | %ju | %.2f |\n", r.step, r.jump_once ? " once, then 1" : "",
+                r.accepted + r.refused, r.accepted, r.refused, r.sessions, r.kept, r.mean, r.largest,
+                real > 0 ? static_cast<double>(r.largest) / real : 0.0);
+  }
+  // The bound the fault matrix checks: any one message, whatever its index, against a real
+  // keyframe's mean cost measured in the same run.
+  std::printf("bound: one keyframe message grew the store by at most %ju bytes = %.2f x a real keyframe (%.0f bytes)\n",
+              worst, real > 0 ? static_cast<double>(worst) / real : 0.0, real);
+  std::fflush(stdout);
   return 0;
 }
 

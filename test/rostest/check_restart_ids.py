@@ -12,7 +12,6 @@
    export service's file names, in export_survey's and in the store's rows.
 """
 import os
-import signal
 import shutil
 import sqlite3
 import subprocess
@@ -20,12 +19,11 @@ import tempfile
 import threading
 import time
 import unittest
-import xmlrpc.client
 
-import rosgraph
 import rospy
 import rostest
-from pipeline_fixture import NS, SENSOR_TOPICS, SURVEY, make_mission, tool, wait_for_subscribers, wait_until_quiet
+from pipeline_fixture import (NS, SENSOR_TOPICS, SURVEY, kill_backend_and_await_respawn, make_mission, tool,
+                              wait_for_subscribers, wait_until_quiet)
 from uw_multislam.msg import Keyframe, SessionState, Status
 from uw_multislam.srv import DeleteSession, ExportSurvey, FinishSession, ListSessions, StartSession
 
@@ -37,17 +35,6 @@ SURVEY_3 = SURVEY + """  - name: s2
               frame_period_s: 1.0, altitude_m: 1.6, start_time_s: 2000}
 """
 TRACKS = ("tum", "kitti", "csv", "g2o")
-
-
-def backend_pid():
-    """The pid of this test's back-end, asked of the node through this test's master (a machine-wide
-    pgrep would also find other workspaces' back-ends)."""
-    try:
-        uri = rosgraph.Master("/check_restart_ids").lookupNode(NS + "/backend_node")
-        code, _, pid = xmlrpc.client.ServerProxy(uri).getPid("/check_restart_ids")
-    except (rosgraph.MasterError, OSError, xmlrpc.client.Error):
-        return None
-    return pid if code == 1 else None
 
 
 class RestartIdsTest(unittest.TestCase):
@@ -112,13 +99,7 @@ class RestartIdsTest(unittest.TestCase):
         self.assertEqual((res.status.code, res.session), (Status.OK, session), res.status.message)
 
     def restart(self):
-        pid = backend_pid()
-        self.assertIsNotNone(pid, "no back-end to kill")
-        os.kill(pid, signal.SIGKILL)
-        deadline = time.time() + 60
-        while time.time() < deadline and backend_pid() in (None, pid):
-            time.sleep(0.2)
-        self.assertNotIn(backend_pid(), (None, pid), "the back-end was not respawned")
+        kill_backend_and_await_respawn(self, "/check_restart_ids")
 
     def exported(self, session, folder):
         """The export service's file names for a session and for its map (tracks only)."""

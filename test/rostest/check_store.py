@@ -24,30 +24,16 @@ import subprocess
 import threading
 import time
 import unittest
-import xmlrpc.client
 
-import rosgraph
 import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
-from pipeline_fixture import (NS, SENSOR_TOPICS, await_condition, diagnostic_values, make_mission, wait_for_subscribers,
-                              wait_until_quiet)
+from pipeline_fixture import (NS, SENSOR_TOPICS, await_condition, backend_pid, diagnostic_values,
+                              kill_backend_and_await_respawn, make_mission, wait_for_subscribers, wait_until_quiet)
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
 from uw_multislam.srv import JoinSessions, ListSessions, ReloadSession, SplitSession
 
 
-
-
-def backend_pid():
-    """The pid of this test's back-end, asked of the node through this test's master: a machine-wide
-    pgrep for backend_node also finds the back-ends of other workspaces' tests and benchmarks running
-    at the same time (and killed one of them)."""
-    try:
-        uri = rosgraph.Master("/check_store").lookupNode(NS + "/backend_node")
-        code, _, pid = xmlrpc.client.ServerProxy(uri).getPid("/check_store")
-    except (rosgraph.MasterError, OSError, xmlrpc.client.Error):
-        return None
-    return pid if code == 1 else None
 
 
 class StoreTest(unittest.TestCase):
@@ -91,7 +77,7 @@ class StoreTest(unittest.TestCase):
             with cls.lock:
                 n = len(cls.keyframes)
             if n >= 8:
-                pid = backend_pid()
+                pid = backend_pid("/check_store")
                 if pid:
                     # The kill comes once the back-end's worker has taken the first n keyframes (its
                     # keyframes_received counts them as it takes them, in order): on a loaded machine a
@@ -107,7 +93,7 @@ class StoreTest(unittest.TestCase):
         # Respawned: a back-end with another pid answers through the master (the dead one's service
         # registration may linger until the new one registers).
         deadline = time.time() + 60
-        while time.time() < deadline and backend_pid() in (None, getattr(cls, "killed_pid", None)):
+        while time.time() < deadline and backend_pid("/check_store") in (None, getattr(cls, "killed_pid", None)):
             time.sleep(0.2)
         rospy.wait_for_service(NS + "/list_sessions", timeout=60)
         cls.after_restart = cls.sessions()
@@ -256,13 +242,7 @@ class StoreTest(unittest.TestCase):
             self.assertEqual(self.detector["keyframes_reloaded"], reloaded + with_features, self.detector)
 
     def kill_backend_and_wait_for_respawn(self):
-        pid = backend_pid()
-        self.assertIsNotNone(pid, "no back-end to kill")
-        os.kill(pid, signal.SIGKILL)
-        deadline = time.time() + 60
-        while time.time() < deadline and backend_pid() in (None, pid):
-            time.sleep(0.2)
-        self.assertNotIn(backend_pid(), (None, pid), "the back-end was not respawned")
+        kill_backend_and_await_respawn(self, "/check_store")
         rospy.wait_for_service(NS + "/list_sessions", timeout=60)
 
     @staticmethod

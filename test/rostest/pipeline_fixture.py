@@ -2,9 +2,11 @@
 waits for the pipeline's subscriptions."""
 import math
 import os
+import signal
 import subprocess
 import tempfile
 import time
+import xmlrpc.client
 
 import rosgraph
 import roslib.packages
@@ -29,6 +31,30 @@ sessions:
 """
 NS = os.environ.get("UWMS_TEST_NS", "/uw_multislam")  # the pipeline's namespace (a .test may move it)
 SENSOR_TOPICS = ["/camera/image_raw", "/camera/camera_info", "/altitude"]
+
+
+def backend_pid(caller):
+    """The pid of this test's back-end, asked of the node through this test's master: a machine-wide
+    pgrep for backend_node also finds the back-ends of other workspaces' tests and benchmarks running
+    at the same time (and killed one of them)."""
+    try:
+        uri = rosgraph.Master(caller).lookupNode(NS + "/backend_node")
+        code, _, pid = xmlrpc.client.ServerProxy(uri).getPid(caller)
+    except (rosgraph.MasterError, OSError, xmlrpc.client.Error):
+        return None
+    return pid if code == 1 else None
+
+
+def kill_backend_and_await_respawn(test, caller, timeout=60.0):
+    """SIGKILL to this test's back-end, then waits (assertions of `test`) until roslaunch has
+    respawned it under another pid."""
+    pid = backend_pid(caller)
+    test.assertIsNotNone(pid, "no back-end to kill")
+    os.kill(pid, signal.SIGKILL)
+    deadline = time.time() + timeout
+    while time.time() < deadline and backend_pid(caller) in (None, pid):
+        time.sleep(0.2)
+    test.assertNotIn(backend_pid(caller), (None, pid), "the back-end was not respawned")
 
 
 def tool(name):

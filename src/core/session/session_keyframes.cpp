@@ -27,7 +27,8 @@ void SessionManager::addStoreRow(Session& s, double stamp_s) {
 }
 
 void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion,
-                                   double stamp_s, const std::vector<Loop>* loops, std::vector<StoredLoop>* stored) {
+                                   double stamp_s, const std::vector<Loop>* loops, std::vector<StoredLoop>* stored,
+                                   int gap, const UncertainPose2* gap_motion) {
   if (!store_) return;
   if (localising_ && !s.memory_only) {
     s.memory_only = true;
@@ -35,7 +36,7 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
         std::to_string(keyframe) + " on are kept in memory only (" + std::to_string(s.stored) + " stored)");
   }
   if (s.memory_only) return;
-  if (s.store_cut || keyframe != s.stored) {  // after a failed write: not stored, counted
+  if (s.store_cut || keyframe - gap != s.stored) {  // after a failed write: not stored, counted
     ++stats_.store_failures;
     return;
   }
@@ -54,6 +55,13 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
       stored->clear();
       for (const Loop& l : *loops) stored->push_back(toStored(l));
     }
+    std::vector<StoredKeyframe> lost(static_cast<std::size_t>(gap));  // minimal rows (SessionStore::addKeyframe)
+    for (int i = 0; i < gap; ++i) {
+      lost[i].session = s.store_id;
+      lost[i].keyframe = keyframe - gap + i;
+      lost[i].stamp_s = stamp_s;
+      lost[i].hash = Eigen::VectorXf::Zero(HalocProjections::kHashSize);
+    }
     StoredKeyframe sk;
     sk.session = s.store_id;
     sk.keyframe = keyframe;
@@ -70,10 +78,10 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
       sk.thumbnail = k->thumbnail;
       sk.motion_source = k->motion_source;
     }
-    store_->addKeyframe(sk, motion, stored);
+    store_->addKeyframe(sk, motion, stored, lost, gap_motion);
   });
   if (ok) {
-    ++s.stored;
+    s.stored += gap + 1;
     return;
   }
   s.store_cut = true;
@@ -101,6 +109,27 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
   KeyframeInput k = input;
   if (k.hash.size() != HalocProjections::kHashSize && !k.features.descriptors.empty())
     k.hash = hasher_.hash(k.features.descriptors);  // the one place a keyframe is hashed when nobody upstream did
+  // The keyframe after a refused jump decides what the jump was.
+  if (jump_) {
+    KeyframeInput held = std::move(*jump_);
+    jump_.reset();
+    const long long step = static_cast<long long>(k.keyframe) - held.keyframe;
+    if (held.session == k.session && step >= 1 && step <= options_.max_keyframe_gap + 1LL) {
+      const Status st = startPiece(std::move(held));
+      if (!st.ok()) return st;
+    }
+  }
+  if (piece_.to != piece_.from && k.session == piece_.to && active_ == piece_.to) {
+    // The odometry's next session took the id the piece took (nobody told it the piece's): it is
+    // a session of its own, under the next free id, its keyframe ids kept.
+    const int id = nextId();
+    if (id > kMaxSessionId) return badSessionId("keyframe " + std::to_string(k.keyframe), id);
+    say("the odometry's session " + std::to_string(k.session) + " is session " + std::to_string(id) + " here (" +
+        std::to_string(k.session) + " is the piece its session " + std::to_string(piece_.from) + " went on in)");
+    open(id, "", k.stamp_s);
+    piece_ = {k.session, id, 0};
+  }
+  toPiece(&k.session, &k.keyframe);
   auto it = sessions_.find(k.session);
   if (it == sessions_.end()) {
     if (k.session < nextId()) {
@@ -109,10 +138,10 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
                                                    " skipped (session " + std::to_string(active_) + " is recording)"};
     }
     if (k.keyframe > options_.max_keyframe_gap) {
-      ++stats_.keyframes_refused;
-      return {StatusCode::kInvalidArgument, "keyframe " + std::to_string(k.keyframe) + " starts session " +
-                                                std::to_string(k.session) + ": more than max_keyframe_gap (" +
-                                                std::to_string(options_.max_keyframe_gap) + ") keyframes missing"};
+      const std::string why = "keyframe " + std::to_string(k.keyframe) + " starts session " +
+                              std::to_string(k.session) + ": more than max_keyframe_gap (" +
+                              std::to_string(options_.max_keyframe_gap) + ") keyframes missing";
+      return refuseJump(std::move(k), why);
     }
     open(k.session, "", k.stamp_s);
     it = sessions_.find(k.session);
@@ -122,7 +151,13 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
     ++stats_.keyframes_stale;
     return {StatusCode::kFailedPrecondition, "keyframe of finished session " + std::to_string(id) + " skipped"};
   }
-  return appendKeyframe(std::move(k), loops);
+  if (piece_.from < 0) return appendKeyframe(std::move(k), loops);
+  std::vector<Loop> named = loops;  // the odometry's ids after a jump, as this manager names them
+  for (Loop& l : named) {
+    toPiece(&l.session_a, &l.keyframe_a);
+    toPiece(&l.session_b, &l.keyframe_b);
+  }
+  return appendKeyframe(std::move(k), named);
 }
 
 Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& loops) {
@@ -130,14 +165,15 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
   Session& s = at(id);
   const int expected = static_cast<int>(s.stamps.size());
   if (k.keyframe > expected && k.keyframe - expected > options_.max_keyframe_gap) {
-    ++stats_.keyframes_refused;
-    return {StatusCode::kInvalidArgument, "keyframe " + std::to_string(k.keyframe) + " of session " +
-                                              std::to_string(id) + ": " + std::to_string(k.keyframe - expected) +
-                                              " keyframes missing, more than max_keyframe_gap (" +
-                                              std::to_string(options_.max_keyframe_gap) + ")"};
+    const std::string why = "keyframe " + std::to_string(k.keyframe) + " of session " + std::to_string(id) + ": " +
+                            std::to_string(k.keyframe - expected) + " keyframes missing, more than max_keyframe_gap (" +
+                            std::to_string(options_.max_keyframe_gap) + ")";
+    return refuseJump(std::move(k), why);
   }
   UncertainPose2 motion = k.motion;
   const UncertainPose2* stored_motion = &motion;
+  int gap = 0;  // keyframes lost just before this one
+  const UncertainPose2 still(Pose2(), Eigen::Matrix3d::Identity() * 1e-8);
   if (!s.origin_received && k.keyframe == 0) {
     // The origin: the session's first keyframe, or fills in start_session's placeholder origin.
     s.origin_received = true;
@@ -165,15 +201,16 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
           std::to_string(k.keyframe - 1) + " never arrived, bridged by the odometry");
       const Pose2 last = s.odometry.back();
       for (int g = expected; g < k.keyframe; ++g) {
-        const UncertainPose2 still(Pose2(), Eigen::Matrix3d::Identity() * 1e-8);
         backend_->addMotion(s.backend, still);
         s.phantoms.insert(g);
         s.stamps.push_back(k.stamp_s);
         s.odometry.push_back(last);
         s.frames.push_back(k.frame_index);
         s.sources.push_back(MotionSource::kVisual);
-        storeKeyframe(s, nullptr, g, &still, k.stamp_s, nullptr, nullptr);
       }
+      // Stored with this keyframe, in its transaction, as minimal rows: written one by one, each
+      // had cost a transaction's WAL pages and a 1.5 kB zero hash (17 kB a lost keyframe).
+      gap = k.keyframe - expected;
       motion = UncertainPose2(between(last, k.odometry_pose),
                               k.motion.covariance * static_cast<double>(k.keyframe - expected + 1));
     }
@@ -199,7 +236,7 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
   }
   std::vector<StoredLoop> stored;  // to_store in store ids, their ids set when written
   const int stored_before = s.stored;
-  storeKeyframe(s, &k, k.keyframe, stored_motion, k.stamp_s, &to_store, store_ ? &stored : nullptr);
+  storeKeyframe(s, &k, k.keyframe, stored_motion, k.stamp_s, &to_store, store_ ? &stored : nullptr, gap, &still);
   if (s.stored == stored_before) stored_at.assign(loops.size(), -1);  // the keyframe, and its loops, not written
   emit(SessionEvent::Kind::kKeyframeAdded, id, -1, mapOf(id), "");
   for (std::size_t i = 0; i < loops.size(); ++i) {
@@ -214,6 +251,48 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
   }
   afterBackendChange();
   return Status::Ok();
+}
+
+void SessionManager::toPiece(int* session, int* keyframe) const {
+  if (*session != piece_.from || *keyframe < piece_.base) return;
+  *session = piece_.to;
+  *keyframe -= piece_.base;
+}
+
+Status SessionManager::refuseJump(KeyframeInput k, const std::string& why) {
+  ++stats_.keyframes_refused;
+  // Held in the odometry's own names: the next keyframe is compared with it before toPiece.
+  if (k.session == piece_.to && piece_.from >= 0) {
+    k.session = piece_.from;
+    k.keyframe += piece_.base;
+  }
+  jump_ = std::move(k);
+  return {StatusCode::kInvalidArgument,
+          why + ": refused; if the next keyframe continues from it, a new session starts there"};
+}
+
+Status SessionManager::startPiece(KeyframeInput held) {
+  const int raw = held.session;
+  const auto open_raw = sessions_.find(raw);
+  // The odometry's session if it never opened here (its first keyframe was the jump), else a new id.
+  const int id = open_raw == sessions_.end() && raw >= nextId() ? raw : nextId();
+  if (id > kMaxSessionId) return badSessionId("keyframe " + std::to_string(held.keyframe), id);
+  const int ended = active_;
+  const Status opened = open(id, "", held.stamp_s);
+  if (!opened.ok()) return opened;
+  piece_ = {raw, id, held.keyframe};
+  ++stats_.keyframe_jumps;
+  say("session " + std::to_string(raw) + "'s keyframe ids jumped to " + std::to_string(held.keyframe) +
+      ", past max_keyframe_gap (" + std::to_string(options_.max_keyframe_gap) +
+      "): " + (ended >= 0 ? "session " + std::to_string(ended) + " ended, " : std::string()) + "session " +
+      std::to_string(id) + " starts there (keyframe " + std::to_string(held.keyframe) + " is its 0)");
+  const Pose2 origin = held.odometry_pose;
+  held.session = id;
+  held.keyframe = 0;
+  const Status st = appendKeyframe(std::move(held), {});
+  // The odometry's pose of the piece's origin: a gap right after it is bridged from there.
+  if (st.ok()) at(id).odometry[0] = origin;
+  return st;
 }
 
 StoredLoop SessionManager::toStored(const Loop& l) const {
@@ -244,8 +323,11 @@ void SessionManager::acceptLoop(const Loop& l) {
   emit(SessionEvent::Kind::kLoopAccepted, l.session_b, l.session_a, mapOf(l.session_b), "");
 }
 
-Status SessionManager::addLoop(const Loop& l, bool* waiting) {
+Status SessionManager::addLoop(const Loop& in, bool* waiting) {
   if (waiting) *waiting = false;
+  Loop l = in;  // the odometry's ids after a jump, as this manager names them
+  toPiece(&l.session_a, &l.keyframe_a);
+  toPiece(&l.session_b, &l.keyframe_b);
   if (!validSessionId(l.session_a) || !validSessionId(l.session_b) || l.keyframe_a < 0 || l.keyframe_b < 0) {
     ++stats_.loops_refused;
     return validSessionId(l.session_a) && validSessionId(l.session_b)

@@ -265,6 +265,8 @@ class SessionStore::Statement {
   Statement& bind(int i, const std::string& v) {
     return check(sqlite3_bind_text(st_, i, v.c_str(), static_cast<int>(v.size()), SQLITE_TRANSIENT));
   }
+  /// A blob of no bytes (not NULL).
+  Statement& emptyBlob(int i) { return check(sqlite3_bind_zeroblob(st_, i, 0)); }
   Statement& blob(int i, const void* p, std::size_t n) {
     if (n == 0) return check(sqlite3_bind_null(st_, i));
     return check(sqlite3_bind_blob(st_, i, p, static_cast<int>(n), SQLITE_STATIC));
@@ -836,7 +838,16 @@ void SessionStore::endSession(std::int64_t session, double end_stamp_s) {
   st.bind(1, end_stamp_s).bind(2, session).run();
 }
 
-void SessionStore::addKeyframe(const StoredKeyframe& kf, const UncertainPose2* motion, std::vector<StoredLoop>* loops) {
+// A keyframe that never arrived (no features, no image, a zero hash): its row is the minimal
+// form, an empty hash blob instead of 384 zeros, so a gap of lost keyframes costs a few bytes per
+// keyframe of store rather than 1.5 kB each (readKeyframe gives it back as the zero hash).
+namespace {
+bool isPlaceholder(const StoredKeyframe& kf) {
+  return kf.points.empty() && kf.descriptors.empty() && kf.thumbnail.empty() && kf.hash.isZero(0.0f);
+}
+}  // namespace
+
+void SessionStore::insertKeyframe(const StoredKeyframe& kf, const UncertainPose2* motion) {
   if (kf.hash.size() != HalocProjections::kHashSize)
     throw StoreError("session store " + path_ + ": keyframe " + std::to_string(kf.keyframe) + ": hash of " +
                      std::to_string(kf.hash.size()) + " values");
@@ -851,25 +862,43 @@ void SessionStore::addKeyframe(const StoredKeyframe& kf, const UncertainPose2* m
   if (!desc.empty() && descriptor_bytes_ > 0 && desc.cols != descriptor_bytes_)
     throw StoreError("session store " + path_ + ": keyframe " + std::to_string(kf.keyframe) + " has descriptors of " +
                      std::to_string(desc.cols) + " bytes; this store's kind has " + std::to_string(descriptor_bytes_));
+  Statement& k = cached(
+      "INSERT INTO keyframes(session, keyframe, frame_index, stamp, altitude, image_width, image_height, "
+      "num_features, points, descriptors, hash, thumbnail) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  k.bind(1, kf.session).bind(2, kf.keyframe).bind(3, kf.frame_index).bind(4, kf.stamp_s).bind(5, kf.altitude_m);
+  k.bind(6, kf.image_size.width).bind(7, kf.image_size.height).bind(8, static_cast<int>(kf.points.size()));
+  k.blob(9, kf.points.data(), kf.points.size() * sizeof(cv::Point2f));
+  k.blob(10, desc.data, desc.total());
+  if (isPlaceholder(kf)) {
+    k.emptyBlob(11);  // not NULL: the column is NOT NULL, and NULL would read as damage
+  } else {
+    k.blob(11, kf.hash.data(), sizeof(float) * kf.hash.size());
+  }
+  k.blob(12, kf.thumbnail);
+  k.run();
+  if (motion) {
+    const std::vector<double> cov = covBlob(motion->covariance);
+    Statement& m =
+        cached("INSERT INTO motions(session, keyframe, x, y, yaw, cov, source) VALUES (?, ?, ?, ?, ?, ?, ?)");
+    m.bind(1, kf.session).bind(2, kf.keyframe).bind(3, motion->mean.x()).bind(4, motion->mean.y());
+    m.bind(5, motion->mean.yaw()).blob(6, cov).bind(7, std::string(motionSourceName(kf.motion_source))).run();
+  }
+}
+
+void SessionStore::addKeyframe(const StoredKeyframe& kf, const UncertainPose2* motion, std::vector<StoredLoop>* loops,
+                               const std::vector<StoredKeyframe>& gap, const UncertainPose2* gap_motion) {
+  if (!gap.empty() && !gap_motion)
+    throw StoreError("session store " + path_ + ": keyframe " + std::to_string(kf.keyframe) +
+                     ": a gap without its motion");
   begin();
   try {
-    Statement& k = cached(
-        "INSERT INTO keyframes(session, keyframe, frame_index, stamp, altitude, image_width, image_height, "
-        "num_features, points, descriptors, hash, thumbnail) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
-    k.bind(1, kf.session).bind(2, kf.keyframe).bind(3, kf.frame_index).bind(4, kf.stamp_s).bind(5, kf.altitude_m);
-    k.bind(6, kf.image_size.width).bind(7, kf.image_size.height).bind(8, static_cast<int>(kf.points.size()));
-    k.blob(9, kf.points.data(), kf.points.size() * sizeof(cv::Point2f));
-    k.blob(10, desc.data, desc.total());
-    k.blob(11, kf.hash.data(), sizeof(float) * kf.hash.size());
-    k.blob(12, kf.thumbnail);
-    k.run();
-    if (motion) {
-      const std::vector<double> cov = covBlob(motion->covariance);
-      Statement& m =
-          cached("INSERT INTO motions(session, keyframe, x, y, yaw, cov, source) VALUES (?, ?, ?, ?, ?, ?, ?)");
-      m.bind(1, kf.session).bind(2, kf.keyframe).bind(3, motion->mean.x()).bind(4, motion->mean.y());
-      m.bind(5, motion->mean.yaw()).blob(6, cov).bind(7, std::string(motionSourceName(kf.motion_source))).run();
+    for (const StoredKeyframe& lost : gap) {
+      if (!isPlaceholder(lost))
+        throw StoreError("session store " + path_ + ": keyframe " + std::to_string(lost.keyframe) +
+                         " of a gap has features, an image or a hash");
+      insertKeyframe(lost, gap_motion);
     }
+    insertKeyframe(kf, motion);
     if (loops) insertLoops(loops);
     commit();
   } catch (...) {
@@ -1087,8 +1116,12 @@ void SessionStore::readKeyframe(sqlite3_stmt* q, std::int64_t session, KeyframeC
   }
   if (columns != KeyframeColumns::kFrame) {
     const std::vector<float> h = blobPrefix<float>(q, 9, path_);
-    if (h.size() != static_cast<std::size_t>(HalocProjections::kHashSize)) throw corrupt();
-    k->hash = Eigen::Map<const Eigen::VectorXf>(h.data(), static_cast<Eigen::Index>(h.size()));
+    if (h.empty() && sqlite3_column_type(q, 9) == SQLITE_BLOB && n == 0) {
+      k->hash = Eigen::VectorXf::Zero(HalocProjections::kHashSize);  // a keyframe that never arrived
+    } else {
+      if (h.size() != static_cast<std::size_t>(HalocProjections::kHashSize)) throw corrupt();
+      k->hash = Eigen::Map<const Eigen::VectorXf>(h.data(), static_cast<Eigen::Index>(h.size()));
+    }
   }
   if (columns == KeyframeColumns::kAll) k->thumbnail = blobVector<std::uint8_t>(q, 10, path_);
 }

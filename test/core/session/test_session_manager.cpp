@@ -15,6 +15,7 @@
 #include "../../common/sql_file.h"
 #include "uw_multislam/core/session/run_outputs.h"
 #include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/core/session/store_merge.h"
 #include "uw_multislam/core/session/stored_loops.h"
 
 namespace uw_multislam {
@@ -133,6 +134,148 @@ TEST(SessionManager, AKeyframeIdFarPastTheLastIsRefusedWithoutBridging) {
   onPlaceholder.kind = Loop::Kind::kLocal;
   EXPECT_EQ(m.addLoop(onPlaceholder).code, StatusCode::kFailedPrecondition);
   EXPECT_EQ(m.view().loops().size(), 0u);
+}
+
+// The store's bytes: the file and its write-ahead log (where a transaction's pages go first).
+std::uintmax_t storeBytes(const std::string& db) {
+  std::error_code ec;
+  std::uintmax_t n = std::filesystem::file_size(db, ec);
+  if (ec) n = 0;
+  const std::uintmax_t wal = std::filesystem::file_size(db + "-wal", ec);
+  return n + (ec ? 0 : wal);
+}
+
+// Each stored keyframe's hash blob length (keyframe order) of store session `session`.
+std::vector<int> hashBytes(const std::string& db, std::int64_t session) {
+  std::vector<int> out;  // through SQLite itself: the blob's length is the point
+  sqlite3* h = nullptr;
+  EXPECT_EQ(sqlite3_open_v2(db.c_str(), &h, SQLITE_OPEN_READONLY, nullptr), SQLITE_OK);
+  sqlite3_stmt* st = nullptr;
+  EXPECT_EQ(
+      sqlite3_prepare_v2(h, "SELECT length(hash) FROM keyframes WHERE session = ? ORDER BY keyframe", -1, &st, nullptr),
+      SQLITE_OK);
+  sqlite3_bind_int64(st, 1, session);
+  while (sqlite3_step(st) == SQLITE_ROW) out.push_back(sqlite3_column_int(st, 0));
+  sqlite3_finalize(st);
+  sqlite3_close(h);
+  return out;
+}
+
+// A gap of lost keyframes is stored as minimal rows (no features, an empty hash blob) in one
+// transaction: written one by one with a 1.5 kB zero hash each, a gap of 32 had cost 550 kB of
+// store. Each way the rows are read back (restart, the paging read of hashes, reload, the
+// features of one keyframe, merge_stores) gives the lost keyframes as they were: no features, the
+// zero hash.
+TEST(SessionManager, AGapIsStoredAsMinimalRowsAndReadBackEverywhere) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  const auto real = [](int k) {
+    KeyframeInput in = keyframe(0, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0));
+    in.hash = Eigen::VectorXf::Constant(HalocProjections::kHashSize, 0.25f);
+    return in;
+  };
+  const int gap = SessionManagerOptions().max_keyframe_gap;  // the largest gap bridged
+  std::uintmax_t before = 0, after = 0;
+  {
+    SessionManager m(options(db));
+    for (int k = 0; k < 3; ++k) ASSERT_TRUE(m.addKeyframe(real(k)).ok());
+    before = storeBytes(db);
+    ASSERT_TRUE(m.addKeyframe(real(3 + gap)).ok());
+    after = storeBytes(db);
+    EXPECT_EQ(m.view().stats().keyframe_gaps, 1);
+    ASSERT_TRUE(m.endSession(50.0).ok());
+  }
+  // The rows and pages of one transaction, not 32 x 17 kB (4 kB pages: the keyframes' table, its
+  // covering index, the motions' table and their parents).
+  EXPECT_LT(after - before, 64u * 1024u) << before << " -> " << after;
+  std::vector<int> expected(3 + gap + 1, 4 * HalocProjections::kHashSize);
+  for (int k = 3; k < 3 + gap; ++k) expected[k] = 0;
+  EXPECT_EQ(hashBytes(db, 0), expected);
+  const auto isLost = [](const StoredKeyframe& k) { return k.points.empty() && k.hash.isZero(0.0f); };
+  const auto checkRows = [&](const std::vector<StoredKeyframe>& rows, const std::string& how) {
+    ASSERT_EQ(rows.size(), expected.size()) << how;
+    for (std::size_t k = 0; k < rows.size(); ++k) {
+      ASSERT_EQ(rows[k].hash.size(), HalocProjections::kHashSize) << how << " " << k;
+      EXPECT_EQ(isLost(rows[k]), expected[k] == 0) << how << " " << k;
+      EXPECT_EQ(rows[k].hash.isZero(0.0f), expected[k] == 0) << how << " " << k;
+    }
+  };
+  {
+    SessionStore store(db, StoreAccess::kReadOnly);
+    checkRows(store.keyframes(0, SessionStore::KeyframeColumns::kAll), "all columns");
+    checkRows(store.keyframes(0, SessionStore::KeyframeColumns::kHash), "hashes (paging)");
+    EXPECT_EQ(store.keyframeFeatures(0, 4).points.size(), 0u);
+    EXPECT_EQ(store.odometry(0).size(), expected.size() - 1);
+  }
+  {
+    SessionManager again(options(db));  // a restart
+    ASSERT_EQ(again.view().list().size(), 1u);
+    EXPECT_EQ(again.view().list()[0].keyframes, static_cast<int>(expected.size()));
+    ReloadedSession r;
+    ASSERT_TRUE(again.reload("0", &r, SessionManager::ReloadRead::kHashes).ok());
+    checkRows(r.keyframes, "reload");
+  }
+  const std::string merged = (dir.path() / "m.db").string();
+  const MergeReport report = mergeStores(merged, {{db, "auv", ""}}, SlamConfig(), false);
+  EXPECT_EQ(report.keyframes, static_cast<int>(expected.size()));
+  SessionStore out(merged, StoreAccess::kReadOnly);
+  ASSERT_EQ(out.sessions().size(), 1u);
+  const std::int64_t id = out.sessions()[0].id;
+  EXPECT_EQ(hashBytes(merged, id), expected);
+  checkRows(out.keyframes(id, SessionStore::KeyframeColumns::kAll), "merged");
+}
+
+// Keyframe ids that jump past max_keyframe_gap: the jumping keyframe alone is refused (a corrupt
+// id must not start a session), and when the next one continues from it, the odometry's ids
+// really moved on: the piece ends and a new session starts from the refused keyframe, as after a
+// tracking loss. Nothing from the jump on is lost; the odometry's ids (keyframes and loops) keep
+// naming it.
+TEST(SessionManager, AJumpPastTheGapBoundEndsThePieceAndLosesNothingAfterIt) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 3);
+    const Status jump = m.addKeyframe(keyframe(0, 1003, Pose2(3, 0, 0), Pose2(2, 0, 0)));
+    EXPECT_EQ(jump.code, StatusCode::kInvalidArgument);
+    EXPECT_NE(jump.message.find("max_keyframe_gap"), std::string::npos) << jump.message;
+    EXPECT_FALSE(m.view().has(1));
+    ASSERT_TRUE(m.addKeyframe(keyframe(0, 1004, Pose2(4, 0, 0), Pose2(3, 0, 0))).ok());
+    ASSERT_TRUE(m.view().has(1));
+    EXPECT_EQ(m.view().list()[0].keyframes, 3);
+    EXPECT_EQ(m.view().list()[1].keyframes, 2);  // 1003 and 1004: its 0 and 1
+    EXPECT_EQ(m.view().stats().keyframe_jumps, 1);
+    EXPECT_EQ(m.view().stats().keyframes_refused, 1);
+    // A gap after the jump is bridged from the jumping keyframe's odometry pose.
+    ASSERT_TRUE(m.addKeyframe(keyframe(0, 1007, Pose2(7, 0, 0), Pose2(4, 0, 0))).ok());
+    EXPECT_EQ(m.view().list()[1].keyframes, 5);
+    EXPECT_NEAR(m.view().poses(1)[4].x() - m.view().poses(1)[0].x(), 4.0, 1e-6);
+    // A loop in the odometry's ids: keyframe 1007 of its session 0 is keyframe 4 of session 1.
+    ASSERT_TRUE(m.addLoop(globalLoop(0, 1, 0, 1007, Pose2(0, 1, 0))).ok());
+    ASSERT_EQ(m.view().loops().size(), 1u);
+    EXPECT_EQ(m.view().loops()[0].session_b, 1);
+    EXPECT_EQ(m.view().loops()[0].keyframe_b, 4);
+    // A lone corrupt id inside the new piece: refused, dropped when the next keyframe does not
+    // continue from it, no new session.
+    EXPECT_EQ(m.addKeyframe(keyframe(0, 99999, Pose2(8, 0, 0), Pose2(7, 0, 0))).code, StatusCode::kInvalidArgument);
+    ASSERT_TRUE(m.addKeyframe(keyframe(0, 1008, Pose2(8, 0, 0), Pose2(7, 0, 0))).ok());
+    EXPECT_FALSE(m.view().has(2));
+    EXPECT_EQ(m.view().list()[1].keyframes, 6);
+    EXPECT_EQ(m.view().stats().keyframe_jumps, 1);
+    EXPECT_EQ(m.view().stats().keyframes_refused, 2);
+    // A keyframe of the odometry's session from before the jump: the finished piece's, stale.
+    EXPECT_EQ(m.addKeyframe(keyframe(0, 3, Pose2(3, 0, 0), Pose2(2, 0, 0))).code, StatusCode::kFailedPrecondition);
+    // The odometry's next session takes id 1, the piece's: a session of its own, 2 here.
+    addStraightSession(&m, 1, 2);
+    ASSERT_TRUE(m.view().has(2));
+    EXPECT_EQ(m.view().list()[1].keyframes, 6);
+    EXPECT_EQ(m.view().list()[2].keyframes, 2);
+  }
+  SessionStore store(db, StoreAccess::kReadOnly);
+  ASSERT_EQ(store.sessions().size(), 3u);
+  EXPECT_EQ(store.keyframes(0, false).size(), 3u);
+  EXPECT_EQ(store.keyframes(1, false).size(), 6u);
+  EXPECT_EQ(store.loops().size(), 1u);
 }
 
 // Keyframe 0 lost on the way: the placeholder origin opens the session's store row, which gets the

@@ -189,9 +189,29 @@ class SessionManager : private SessionQueries {
   Status appendKeyframe(KeyframeInput k, const std::vector<Loop>& loops);
   /// The session's store row (with its provenance when it is another vehicle's); sets store_id.
   void addStoreRow(Session& s, double stamp_s);
-  /// Writes a keyframe with its motion and `loops` (converted to `stored`, whose ids are set).
+  /// Writes a keyframe with its motion and `loops` (converted to `stored`, whose ids are set),
+  /// after the `gap` keyframes lost just before it (each with `gap_motion`), in one transaction.
   void storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion, double stamp_s,
-                     const std::vector<Loop>* loops, std::vector<StoredLoop>* stored);
+                     const std::vector<Loop>* loops, std::vector<StoredLoop>* stored, int gap = 0,
+                     const UncertainPose2* gap_motion = nullptr);
+  /// A keyframe id or loop end of the odometry's session as this manager names it: after a jump
+  /// past max_keyframe_gap ended a piece, the odometry's (piece_.from, k >= piece_.base) is
+  /// (piece_.to, k - piece_.base). Unchanged otherwise.
+  void toPiece(int* session, int* keyframe) const;
+  /// A keyframe too far past its session's last (or starting a session too far in): held, and
+  /// refused. The next keyframe decides: continuing from the held one, it was a jump (the
+  /// odometry's ids really moved on, as after a long queue overflow): the piece ends and a new
+  /// session starts from the held keyframe, so nothing from it on is lost, as after a tracking
+  /// loss. Anything else: the held one was a corrupt id, dropped.
+  Status refuseJump(KeyframeInput k, const std::string& why);
+  /// The held keyframe of a confirmed jump: ends the active session, opens one (the odometry's
+  /// id if it never opened, else nextId()) with it as keyframe 0, counted keyframe_jumps.
+  Status startPiece(KeyframeInput held);
+  struct Piece {
+    int from = -1, to = -1, base = 0;  // see toPiece
+  };
+  Piece piece_;
+  std::optional<KeyframeInput> jump_;  // the held keyframe of a refused jump (one at most: bounded RAM)
   /// Adds an accepted loop to the back-end (throws std::invalid_argument as the back-end does).
   void acceptLoop(const Loop& l);
   StoredLoop toStored(const Loop& l) const;

@@ -133,6 +133,7 @@ const char* sessionEventName(SessionEvent::Kind k);
 
 struct SessionManagerStats {
   long keyframes = 0, keyframes_stale = 0, keyframes_refused = 0, keyframe_gaps = 0;
+  long keyframe_jumps = 0;  // jumps past max_keyframe_gap that ended a piece (a new session from there)
   long loops = 0, loops_refused = 0;
   long store_failures = 0;
 };

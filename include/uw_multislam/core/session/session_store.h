@@ -185,10 +185,15 @@ class SessionStore {
   /// Marks a session finished.
   void endSession(std::int64_t session, double end_stamp_s);
 
-  /// One transaction: the keyframe, the odometry motion reaching it (nullptr for keyframe 0)
-  /// and the loops it closed (their ids are set). Throws StoreError (the transaction is rolled
-  /// back: nothing of the keyframe is kept).
-  void addKeyframe(const StoredKeyframe& keyframe, const UncertainPose2* motion, std::vector<StoredLoop>* loops);
+  /// One transaction: the keyframes lost in a gap just before it (`gap`: no features, no image,
+  /// a zero hash; each with `gap_motion`), the keyframe, the odometry motion reaching it (nullptr
+  /// for keyframe 0) and the loops it closed (their ids are set). A keyframe with no features, no
+  /// image and a zero hash (a lost one, also the placeholder origin) is a row of a few dozen bytes
+  /// (an empty hash blob, read back as the zero hash): a gap costs the pages of the rows it adds
+  /// to the one transaction, not a transaction and 1.5 kB per lost keyframe. Throws StoreError
+  /// (the transaction is rolled back: nothing of the keyframe or its gap is kept).
+  void addKeyframe(const StoredKeyframe& keyframe, const UncertainPose2* motion, std::vector<StoredLoop>* loops,
+                   const std::vector<StoredKeyframe>& gap = {}, const UncertainPose2* gap_motion = nullptr);
   /// One transaction: loops that arrive on their own (the live system's loop messages); their
   /// ids are set. Both keyframes must be stored.
   void addLoops(std::vector<StoredLoop>* loops);
@@ -282,6 +287,8 @@ class SessionStore {
   void commit();
   void rollback() noexcept;
   void insertLoops(std::vector<StoredLoop>* loops);
+  /// One keyframe's rows, inside the caller's transaction (placeholders in their minimal form).
+  void insertKeyframe(const StoredKeyframe& keyframe, const UncertainPose2* motion);
   /// Replaces maps, map_sessions and links (inside the caller's transaction).
   void writeMaps(const std::vector<StoredMap>& maps);
   void deleteOne(std::int64_t session);  // inside the caller's transaction
