@@ -1,6 +1,7 @@
 // The session manager's keyframes, loops and links: stored as they arrive, then into the back-end.
 #include "uw_multislam/core/session/session_manager.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <utility>
@@ -119,15 +120,20 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
       if (!st.ok()) return st;
     }
   }
-  if (piece_.to != piece_.from && k.session == piece_.to && active_ == piece_.to) {
-    // The odometry's next session took the id the piece took (nobody told it the piece's): it is
-    // a session of its own, under the next free id, its keyframe ids kept.
+  const auto piece_took =
+      std::find_if(pieces_.begin(), pieces_.end(), [&](const Piece& p) { return p.to != p.from && p.to == k.session; });
+  const bool renamed = std::any_of(pieces_.begin(), pieces_.end(), [&](const Piece& p) { return p.from == k.session; });
+  if (piece_took != pieces_.end() && !renamed) {
+    // The odometry's next session took the id a piece took (nobody told it the piece's), whether
+    // that piece is still recording or finished: it is a session of its own, under the next free
+    // id, its keyframe ids kept.
     const int id = nextId();
     if (id > kMaxSessionId) return badSessionId("keyframe " + std::to_string(k.keyframe), id);
+    const int from = piece_took->from;
+    if (const Status st = open(id, "", k.stamp_s); !st.ok()) return st;
     say("the odometry's session " + std::to_string(k.session) + " is session " + std::to_string(id) + " here (" +
-        std::to_string(k.session) + " is the piece its session " + std::to_string(piece_.from) + " went on in)");
-    open(id, "", k.stamp_s);
-    piece_ = {k.session, id, 0};
+        std::to_string(k.session) + " is the piece its session " + std::to_string(from) + " went on in)");
+    pieces_.push_back({k.session, id, 0});
   }
   toPiece(&k.session, &k.keyframe);
   auto it = sessions_.find(k.session);
@@ -151,7 +157,7 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
     ++stats_.keyframes_stale;
     return {StatusCode::kFailedPrecondition, "keyframe of finished session " + std::to_string(id) + " skipped"};
   }
-  if (piece_.from < 0) return appendKeyframe(std::move(k), loops);
+  if (pieces_.empty()) return appendKeyframe(std::move(k), loops);
   std::vector<Loop> named = loops;  // the odometry's ids after a jump, as this manager names them
   for (Loop& l : named) {
     toPiece(&l.session_a, &l.keyframe_a);
@@ -254,18 +260,25 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
 }
 
 void SessionManager::toPiece(int* session, int* keyframe) const {
-  if (*session != piece_.from || *keyframe < piece_.base) return;
-  *session = piece_.to;
-  *keyframe -= piece_.base;
+  // The piece of the odometry's session that holds this keyframe: the one that starts last at or
+  // before it (one odometry session can jump more than once; earlier pieces keep their names).
+  const Piece* in = nullptr;
+  for (const Piece& p : pieces_)
+    if (p.from == *session && p.base <= *keyframe && (!in || p.base >= in->base)) in = &p;
+  if (!in) return;
+  *session = in->to;
+  *keyframe -= in->base;
 }
 
 Status SessionManager::refuseJump(KeyframeInput k, const std::string& why) {
   ++stats_.keyframes_refused;
   // Held in the odometry's own names: the next keyframe is compared with it before toPiece.
-  if (k.session == piece_.to && piece_.from >= 0) {
-    k.session = piece_.from;
-    k.keyframe += piece_.base;
-  }
+  for (const Piece& p : pieces_)
+    if (p.to == k.session && p.from != p.to) {
+      k.session = p.from;
+      k.keyframe += p.base;
+      break;
+    }
   jump_ = std::move(k);
   return {StatusCode::kInvalidArgument,
           why + ": refused; if the next keyframe continues from it, a new session starts there"};
@@ -280,7 +293,7 @@ Status SessionManager::startPiece(KeyframeInput held) {
   const int ended = active_;
   const Status opened = open(id, "", held.stamp_s);
   if (!opened.ok()) return opened;
-  piece_ = {raw, id, held.keyframe};
+  pieces_.push_back({raw, id, held.keyframe});
   ++stats_.keyframe_jumps;
   say("session " + std::to_string(raw) + "'s keyframe ids jumped to " + std::to_string(held.keyframe) +
       ", past max_keyframe_gap (" + std::to_string(options_.max_keyframe_gap) +

@@ -278,6 +278,40 @@ TEST(SessionManager, AJumpPastTheGapBoundEndsThePieceAndLosesNothingAfterIt) {
   EXPECT_EQ(store.loops().size(), 1u);
 }
 
+// Two jumps in one odometry session: every piece keeps its names (a loop from the second piece to
+// the first is not read as one to the odometry's original session), and the odometry's next
+// session that takes a finished piece's id is still a session of its own, not a stale one.
+TEST(SessionManager, TwoJumpsKeepEveryPiecesNamesAndAFinishedPiecesIdStillNamesANewSession) {
+  testing_util::ScopedTempDir dir("session_manager");
+  SessionManager m(options((dir.path() / "s.db").string()));
+  addStraightSession(&m, 0, 3);
+  EXPECT_EQ(m.addKeyframe(keyframe(0, 1003, Pose2(3, 0, 0), Pose2(2, 0, 0))).code, StatusCode::kInvalidArgument);
+  ASSERT_TRUE(m.addKeyframe(keyframe(0, 1004, Pose2(4, 0, 0), Pose2(3, 0, 0))).ok());
+  EXPECT_EQ(m.addKeyframe(keyframe(0, 5004, Pose2(5, 0, 0), Pose2(4, 0, 0))).code, StatusCode::kInvalidArgument);
+  ASSERT_TRUE(m.addKeyframe(keyframe(0, 5005, Pose2(6, 0, 0), Pose2(5, 0, 0))).ok());
+  ASSERT_TRUE(m.view().has(2));
+  EXPECT_EQ(m.view().stats().keyframe_jumps, 2);
+  EXPECT_EQ(m.view().list()[1].keyframes, 2);  // 1003, 1004
+  EXPECT_EQ(m.view().list()[2].keyframes, 2);  // 5004, 5005
+  // The odometry's keyframe 1004 is the first piece's 1, its 5005 the second piece's 1.
+  bool waiting = true;
+  ASSERT_TRUE(m.addLoop(globalLoop(0, 1004, 0, 5005, Pose2(0, 1, 0)), &waiting).ok());
+  EXPECT_FALSE(waiting);
+  ASSERT_EQ(m.view().loops().size(), 1u);
+  EXPECT_EQ(m.view().loops()[0].session_a, 1);
+  EXPECT_EQ(m.view().loops()[0].keyframe_a, 1);
+  EXPECT_EQ(m.view().loops()[0].session_b, 2);
+  EXPECT_EQ(m.view().loops()[0].keyframe_b, 1);
+  // The second piece finished, then the odometry's next session takes id 1 (the first piece's,
+  // also finished): a session of its own, 3 here, every keyframe kept.
+  ASSERT_TRUE(m.endSession(10.0).ok());
+  addStraightSession(&m, 1, 3);
+  ASSERT_TRUE(m.view().has(3));
+  EXPECT_EQ(m.view().list()[1].keyframes, 2);
+  EXPECT_EQ(m.view().list()[3].keyframes, 3);
+  EXPECT_EQ(m.view().stats().keyframes_stale, 0);
+}
+
 // Keyframe 0 lost on the way: the placeholder origin opens the session's store row, which gets the
 // camera of the keyframe that did arrive (it got a 0x0 camera, and export_survey --images then left
 // every folder out as "of another size").

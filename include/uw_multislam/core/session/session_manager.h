@@ -195,8 +195,8 @@ class SessionManager : private SessionQueries {
                      const std::vector<Loop>* loops, std::vector<StoredLoop>* stored, int gap = 0,
                      const UncertainPose2* gap_motion = nullptr);
   /// A keyframe id or loop end of the odometry's session as this manager names it: after a jump
-  /// past max_keyframe_gap ended a piece, the odometry's (piece_.from, k >= piece_.base) is
-  /// (piece_.to, k - piece_.base). Unchanged otherwise.
+  /// past max_keyframe_gap ended a piece, the odometry's (from, k >= base) is (to, k - base) for
+  /// the piece of pieces_ that starts last at or before k. Unchanged otherwise.
   void toPiece(int* session, int* keyframe) const;
   /// A keyframe too far past its session's last (or starting a session too far in): held, and
   /// refused. The next keyframe decides: continuing from the held one, it was a jump (the
@@ -210,7 +210,9 @@ class SessionManager : private SessionQueries {
   struct Piece {
     int from = -1, to = -1, base = 0;  // see toPiece
   };
-  Piece piece_;
+  // Every piece of this run, in order: a loop can name a keyframe of any of them. One per jump or
+  // renamed session (each also opens a session, so bounded as sessions are).
+  std::vector<Piece> pieces_;
   std::optional<KeyframeInput> jump_;  // the held keyframe of a refused jump (one at most: bounded RAM)
   /// Adds an accepted loop to the back-end (throws std::invalid_argument as the back-end does).
   void acceptLoop(const Loop& l);
