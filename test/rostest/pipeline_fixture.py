@@ -254,7 +254,6 @@ def messages_received(node, topic, caller="/rostest_bus_stats"):
     """How many messages `node` (a roscpp node's name) has taken from its publishers on `topic`,
     from its slave API's getBusStats: a message counted there has reached that node's subscription
     (its callback queue), which a test cannot see otherwise when the node publishes nothing about it."""
-    import xmlrpc.client
     uri = rosgraph.Master(caller).lookupNode(node)
     answer = xmlrpc.client.ServerProxy(uri).getBusStats(caller)
     # roscpp answers [publications, subscriptions] (its status code and message are overwritten: the
@@ -268,7 +267,6 @@ def publisher_connected(node, topic, caller="/rostest_bus_info"):
     """True when `node` (another process publishing `topic`, e.g. a relay) has a connection to every
     node the master lists as subscribed to `topic` (and there is at least one): connected() for a
     publisher the test does not own. Its first message would be lost for a subscriber not connected yet."""
-    import xmlrpc.client
     master = rosgraph.Master(caller)
     subscribed = {t: set(nodes) for t, nodes in master.getSystemState()[1]}.get(topic, set())
     code, _, info = xmlrpc.client.ServerProxy(master.lookupNode(node)).getBusInfo(caller)
