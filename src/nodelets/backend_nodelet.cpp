@@ -55,14 +55,8 @@ void BackendNodelet::onInit() {
         options_, config_, [this](const core::SessionEvent& e) { onEvent(e); },
         [this](const std::string& line) { say(line); });
     frames_ = std::make_unique<ros_frames::FramePublisher>(nh, options_.frames);  // a tilted camera throws
-    if (const std::optional<core::GeoOrigin>& d = options_.frames.datum) {
-      frames_->publishEarth(core::earthFromMap(*d));
-      char line[200];
-      std::snprintf(line, sizeof line, "datum: static %s -> %s, origin %.7f, %.7f, x axis heading %.1f deg",
-                    options_.frames.earth_frame.c_str(), options_.frames.map_frame.c_str(), d->lat_deg, d->lon_deg,
-                    d->heading_deg);
-      say(line);
-    }
+    if (const std::optional<core::GeoOrigin>& d = options_.frames.datum)
+      say(frames_->publishEarth(core::earthFromMap(*d)));
   } catch (const std::exception& e) {
     NODELET_FATAL(
         "back-end: not starting (no topics, no services): %s%s", e.what(),

@@ -1,6 +1,7 @@
 #include "uw_multislam/ros/frame_publisher.h"
 
 #include <cmath>
+#include <cstdio>
 #include <vector>
 
 #include "uw_multislam/Keyframe.h"
@@ -89,8 +90,9 @@ void FramePublisher::setActive(int session, const core::Pose2& map_from_session,
   if (options_.publish_tf) tick();  // a new correction (a join, an optimisation) goes out now, not at the next tick
 }
 
-void FramePublisher::publishEarth(const Eigen::Isometry3d& earth_from_map) {
-  if (!options_.publish_tf) return;
+std::string FramePublisher::publishEarth(const Eigen::Isometry3d& earth_from_map) {
+  if (!options_.publish_tf)
+    return "datum: publish_tf is false, no " + options_.earth_frame + " -> " + options_.map_frame;
   geometry_msgs::TransformStamped t;
   t.header.stamp = ros::Time::now();
   t.header.frame_id = options_.earth_frame;
@@ -105,6 +107,14 @@ void FramePublisher::publishEarth(const Eigen::Isometry3d& earth_from_map) {
   t.transform.rotation.z = q.z();
   t.transform.rotation.w = q.w();
   static_tf_.sendTransform(t);
+  char line[200];
+  if (const std::optional<core::GeoOrigin>& d = options_.datum)
+    std::snprintf(line, sizeof line, "datum: static %s -> %s, origin %.7f, %.7f, x axis heading %.1f deg",
+                  options_.earth_frame.c_str(), options_.map_frame.c_str(), d->lat_deg, d->lon_deg, d->heading_deg);
+  else
+    std::snprintf(line, sizeof line, "datum: static %s -> %s", options_.earth_frame.c_str(),
+                  options_.map_frame.c_str());
+  return line;
 }
 
 void FramePublisher::setSessionFrames(const std::map<int, core::Pose2>& map_from_session) {

@@ -84,8 +84,9 @@ class FramePublisher {
                  const ros::Time& keyframe_stamp);
   /// The static earth_frame -> map_frame transform (REP-105's earth: ECEF), from map's datum as
   /// core::earthFromMap gives it. Called once, right after construction, before anything can call
-  /// setSessionFrames (the broadcaster's other user, not thread-safe).
-  void publishEarth(const Eigen::Isometry3d& earth_from_map);
+  /// setSessionFrames (the broadcaster's other user, not thread-safe). Returns the line that says
+  /// what was published, for the node's log.
+  std::string publishEarth(const Eigen::Isometry3d& earth_from_map);
   /// map -> session_<id> for these sessions (the core's corrections); those that changed are sent, in one message.
   void setSessionFrames(const std::map<int, core::Pose2>& map_from_session);
   /// An odometry pose (the vehicle's, in the session's z-up frame, with its covariance): with
