@@ -6,7 +6,8 @@ here (independent of GeographicLib, which the back-end uses):
 2. the static map -> utm puts map's origin at the datum's UTM easting/northing (Krueger's series)
    with map's x axis at the heading less the grid convergence;
 3. keyframe_fix is keyframe_pose's position on WGS84 (through earth -> map, then ECEF -> geodetic)
-   with keyframe_pose's (x, y) covariance turned into east/north/up."""
+   with keyframe_pose's (x, y) covariance turned into east/north/up.
+Without a datum (datum.test datum:=false): keyframe_pose comes, keyframe_fix is not advertised."""
 import math
 import os
 import sys
@@ -98,22 +99,92 @@ def utm(lat_deg, lon_deg):
     return zone, easting, northing, math.degrees(gamma)
 
 
+def send_two_keyframes():
+    """Session 0's keyframe 0 and keyframe 1 (40 m along, 25 m across, with a covariance) to the
+    back-end; returns keyframe 1's stamp."""
+    keyframes = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=10)
+    deadline = time.time() + 45
+    while time.time() < deadline and not connected([keyframes]):
+        time.sleep(0.1)
+    if not connected([keyframes]):
+        raise AssertionError("the back-end never connected to this test's keyframes")
+    stamp = rospy.Time.now()
+    for index, motion, cov in ((0, (0.0, 0.0, 0.0), [0.0] * 9),
+                               (1, (40.0, 25.0, 0.3), [0.04, 0.01, 0.0, 0.01, 0.09, 0.0, 0.0, 0.0, 0.001])):
+        k = Keyframe(session=0, keyframe=index, frame_index=index, altitude_m=2.0, width=240, height=180, fx=220,
+                     fy=220, cx=119.5, cy=89.5, descriptor_size=128,
+                     status=Keyframe.FIRST if index == 0 else Keyframe.MATCHED)
+        k.header.stamp = stamp + rospy.Duration(index)
+        k.motion.x, k.motion.y, k.motion.theta = motion
+        k.odometry_pose.x, k.odometry_pose.y, k.odometry_pose.theta = motion
+        k.motion_covariance = cov
+        keyframes.publish(k)
+    return stamp + rospy.Duration(1)
+
+
+class Recorder(object):
+    """keyframe_pose and keyframe_fix as they come."""
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.poses, self.fixes = [], []
+        self.subscribers = [rospy.Subscriber(NS + "/keyframe_pose", PoseWithCovarianceStamped, self.keep(self.poses)),
+                            rospy.Subscriber(NS + "/keyframe_fix", NavSatFix, self.keep(self.fixes))]
+
+    def keep(self, into):
+        def callback(msg):
+            with self.lock:
+                into.append(msg)
+        return callback
+
+    def connect(self, with_fix, timeout=45.0):
+        """Awaits the back-end's connections to keyframe_pose (and keyframe_fix): neither is latched."""
+        subscribers = self.subscribers if with_fix else self.subscribers[:1]
+        deadline = time.time() + timeout
+        while time.time() < deadline and not all(s.get_num_connections() > 0 for s in subscribers):
+            time.sleep(0.1)
+        if not all(s.get_num_connections() > 0 for s in subscribers):
+            raise AssertionError("the back-end's keyframe_pose%s never connected" % (" or keyframe_fix" * with_fix))
+
+    def at(self, stamp, with_fix, timeout=30.0):
+        """The last keyframe_pose of `stamp` (and keyframe_fix, with_fix), awaited; None on time-out."""
+        # The back-end keeps stamps as double seconds: equal to well under a microsecond, not to the ns.
+        def near(m):
+            return abs((m.header.stamp - stamp).to_sec()) < 1e-6
+
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            with self.lock:
+                poses = [p for p in self.poses if near(p)]
+                fixes = [f for f in self.fixes if near(f)]
+            if poses and (fixes or not with_fix):
+                # keyframe_fix goes out right after keyframe_pose, with the same stamp.
+                return poses[-1], fixes[-1] if fixes else None
+            time.sleep(0.05)
+        return None
+
+
+class NoDatumTest(unittest.TestCase):
+    def test_without_a_datum_keyframe_fix_is_not_advertised(self):
+        recorder = Recorder()
+        recorder.connect(with_fix=False)
+        last = send_two_keyframes()
+        got = recorder.at(last, with_fix=False)
+        self.assertIsNotNone(got, "no keyframe_pose of keyframe 1 (stamp %s)" % last)
+        # The back-end advertises keyframe_fix (with a datum) before it subscribes to keyframes, so
+        # by now the master would list it.
+        topics = [name for name, _ in rospy.get_published_topics()]
+        self.assertIn(NS + "/keyframe_pose", topics)
+        self.assertNotIn(NS + "/keyframe_fix", topics)
+        self.assertEqual(recorder.fixes, [])
+
+
 class DatumTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.buffer = tf2_ros.Buffer()
         cls.listener = tf2_ros.TransformListener(cls.buffer)
-        cls.lock = threading.Lock()
-        cls.poses, cls.fixes = [], []
-
-        def keep(into):
-            def callback(msg):
-                with cls.lock:
-                    into.append(msg)
-            return callback
-
-        cls.subscribers = [rospy.Subscriber(NS + "/keyframe_pose", PoseWithCovarianceStamped, keep(cls.poses)),
-                           rospy.Subscriber(NS + "/keyframe_fix", NavSatFix, keep(cls.fixes))]
+        cls.recorder = Recorder()
 
     def test_1_earth_to_map_is_the_datum(self):
         # Awaited: the latched /tf_static arrives once the back-end is up.
@@ -149,35 +220,11 @@ class DatumTest(unittest.TestCase):
         self.assertAlmostEqual(rotate(q, (0.0, 0.0, 1.0))[2], 1.0, delta=1e-12)
 
     def test_3_keyframe_fix_is_keyframe_pose_on_wgs84(self):
-        keyframes = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=10)
-        deadline = time.time() + 45
-        while time.time() < deadline and not connected([keyframes]):
-            time.sleep(0.1)
-        self.assertTrue(connected([keyframes]), "the back-end never connected to this test's keyframes")
-        stamp = rospy.Time.now()
-        # Keyframe 0, the session's origin, then one 40 m along, 25 m across, with a covariance.
-        for index, motion, cov in ((0, (0.0, 0.0, 0.0), [0.0] * 9),
-                                   (1, (40.0, 25.0, 0.3), [0.04, 0.01, 0.0, 0.01, 0.09, 0.0, 0.0, 0.0, 0.001])):
-            k = Keyframe(session=0, keyframe=index, frame_index=index, altitude_m=2.0, width=240, height=180, fx=220,
-                         fy=220, cx=119.5, cy=89.5, descriptor_size=128,
-                         status=Keyframe.FIRST if index == 0 else Keyframe.MATCHED)
-            k.header.stamp = stamp + rospy.Duration(index)
-            k.motion.x, k.motion.y, k.motion.theta = motion
-            k.odometry_pose.x, k.odometry_pose.y, k.odometry_pose.theta = motion
-            k.motion_covariance = cov
-            keyframes.publish(k)
-        last = stamp + rospy.Duration(1)
-        deadline = time.time() + 30
-        pair = None
-        while time.time() < deadline and pair is None:
-            with self.lock:
-                poses = [p for p in self.poses if p.header.stamp == last]
-                fixes = [f for f in self.fixes if f.header.stamp == last]
-            if poses and fixes:
-                pair = poses[-1], fixes[-1]
-            time.sleep(0.05)
+        self.recorder.connect(with_fix=True)
+        last = send_two_keyframes()
+        pair = self.recorder.at(last, with_fix=True)
         self.assertIsNotNone(pair, "no keyframe_pose and keyframe_fix of keyframe 1 (stamp %s): %d poses, %d fixes" %
-                             (last, len(self.poses), len(self.fixes)))
+                             (last, len(self.recorder.poses), len(self.recorder.fixes)))
         pose, fix = pair
         x, y = pose.pose.pose.position.x, pose.pose.pose.position.y
         self.assertGreater(math.hypot(x, y), 40.0, "keyframe 1 is at the map's origin: %s" % ((x, y),))
@@ -185,6 +232,7 @@ class DatumTest(unittest.TestCase):
         lat, lon, height = geodetic(tuple(origin[i] + x * x_axis[i] + y * y_axis[i] for i in range(3)))
         print("keyframe 1 at map (%.3f, %.3f): fix %.9f, %.9f, %.4f m; expected %.9f, %.9f, %.4f m" %
               (x, y, fix.latitude, fix.longitude, fix.altitude, lat, lon, height))
+        self.assertEqual(fix.header.stamp, pose.header.stamp)  # one publication, one stamp
         self.assertEqual(fix.header.frame_id, "base_link")
         self.assertEqual(fix.status.status, NavSatStatus.STATUS_FIX)
         self.assertEqual(fix.position_covariance_type, NavSatFix.COVARIANCE_TYPE_KNOWN)
@@ -209,4 +257,6 @@ class DatumTest(unittest.TestCase):
 
 if __name__ == "__main__":
     rospy.init_node("check_datum")
-    rostest.rosrun("uw_multislam", "datum", DatumTest)
+    with_datum = os.environ.get("UWMS_TEST_DATUM", "true") == "true"
+    rostest.rosrun("uw_multislam", "datum_%s" % ("true" if with_datum else "false"),
+                   DatumTest if with_datum else NoDatumTest)
