@@ -95,6 +95,14 @@ TEST(GeoDatum, AFixsCovarianceIsThePosesTurnedIntoEastNorthUp) {
   const GeoFix north = fixFromMap({43.0, 5.0, 0.0}, pose);
   const std::array<double, 9> turned{1.0, -0.5, 0.0, -0.5, 4.0, 0.0, 0.0, 0.0, 0.0};
   for (int i = 0; i < 9; ++i) EXPECT_NEAR(north.enu_covariance[i], turned[i], 1e-12) << i;
+  // Heading 60 (a turn of 30 degrees, where turning one way or the other differs): east = s x - y / 2,
+  // north = x / 2 + s y, s = sqrt(3) / 2, so var(e) = 3 + 1/4 - s/2, var(n) = 1 + 3/4 + s/2,
+  // cov(e, n) = 4 s/2 + (s^2 - 1/4) 0.5 - s/2 = 3s/2 + 1/4.
+  const double s = std::sqrt(3.0) / 2.0;
+  const GeoFix sixty = fixFromMap({43.0, 5.0, 60.0}, pose);
+  const std::array<double, 9> by_hand{3.25 - s / 2, 1.5 * s + 0.25, 0.0, 1.5 * s + 0.25, 1.75 + s / 2, 0.0, 0.0, 0.0,
+                                      0.0};
+  for (int i = 0; i < 9; ++i) EXPECT_NEAR(sixty.enu_covariance[i], by_hand[i], 1e-12) << i;
 }
 
 TEST(GeoDatum, UtmFromMapPutsMapPointsWhereTheUtmForwardDoes) {
