@@ -7,7 +7,6 @@
 #include <utility>
 
 #include "uw_multislam/SessionTrajectory.h"
-#include "uw_multislam/core/session/geo_datum.h"
 #include "uw_multislam/core/session/stored_loops.h"
 #include "uw_multislam/ros/backend_conversions.h"
 #include "uw_multislam/ros/conversions.h"
@@ -55,8 +54,7 @@ void BackendNodelet::onInit() {
         options_, config_, [this](const core::SessionEvent& e) { onEvent(e); },
         [this](const std::string& line) { say(line); });
     frames_ = std::make_unique<ros_frames::FramePublisher>(nh, options_.frames);  // a tilted camera throws
-    if (const std::optional<core::GeoOrigin>& d = options_.frames.datum)
-      say(frames_->publishEarth(core::earthFromMap(*d)));
+    for (const std::string& line : frames_->publishDatum()) say(line);  // a polar datum with a UTM frame throws
   } catch (const std::exception& e) {
     NODELET_FATAL(
         "back-end: not starting (no topics, no services): %s%s", e.what(),

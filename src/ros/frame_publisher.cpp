@@ -4,7 +4,10 @@
 #include <cstdio>
 #include <vector>
 
+#include <sensor_msgs/NavSatFix.h>
+
 #include "uw_multislam/Keyframe.h"
+#include "uw_multislam/core/session/geo_datum.h"
 
 #include "uw_multislam/ros/conversions.h"
 
@@ -30,6 +33,7 @@ FramePublisher::FramePublisher(ros::NodeHandle nh, const FrameOptions& options) 
   }
   window_start_ = ros::SteadyTime::now();
   if (options_.publish_odom_tf) odom_pub_ = nh.advertise<nav_msgs::Odometry>(topics::kOdometry, 10);
+  if (options_.datum) fix_pub_ = nh.advertise<sensor_msgs::NavSatFix>(topics::kKeyframeFix, 10);
   if (!options_.publish_tf) return;
   timer_ = nh.createSteadyTimer(ros::WallDuration(1.0 / options_.tf_rate_hz),
                                 [this](const ros::SteadyTimerEvent&) { tick(); });
@@ -90,31 +94,74 @@ void FramePublisher::setActive(int session, const core::Pose2& map_from_session,
   if (options_.publish_tf) tick();  // a new correction (a join, an optimisation) goes out now, not at the next tick
 }
 
-std::string FramePublisher::publishEarth(const Eigen::Isometry3d& earth_from_map) {
-  if (!options_.publish_tf)
-    return "datum: publish_tf is false, no " + options_.earth_frame + " -> " + options_.map_frame;
-  geometry_msgs::TransformStamped t;
-  t.header.stamp = ros::Time::now();
-  t.header.frame_id = options_.earth_frame;
-  t.child_frame_id = options_.map_frame;
-  const Eigen::Vector3d p = earth_from_map.translation();
-  const Eigen::Quaterniond q(earth_from_map.linear());
-  t.transform.translation.x = p.x();
-  t.transform.translation.y = p.y();
-  t.transform.translation.z = p.z();
-  t.transform.rotation.x = q.x();
-  t.transform.rotation.y = q.y();
-  t.transform.rotation.z = q.z();
-  t.transform.rotation.w = q.w();
+namespace {
+geometry_msgs::TransformStamped toTransformMsg(const Eigen::Isometry3d& t, const std::string& parent,
+                                               const std::string& child) {
+  geometry_msgs::TransformStamped m;
+  m.header.stamp = ros::Time::now();
+  m.header.frame_id = parent;
+  m.child_frame_id = child;
+  const Eigen::Vector3d p = t.translation();
+  const Eigen::Quaterniond q(t.linear());
+  m.transform.translation.x = p.x();
+  m.transform.translation.y = p.y();
+  m.transform.translation.z = p.z();
+  m.transform.rotation.x = q.x();
+  m.transform.rotation.y = q.y();
+  m.transform.rotation.z = q.z();
+  m.transform.rotation.w = q.w();
+  return m;
+}
+}  // namespace
+
+std::vector<std::string> FramePublisher::publishDatum() {
+  const std::optional<core::GeoOrigin>& d = options_.datum;
+  if (!d)
+    return {"datum: none (~datum/latitude_deg and longitude_deg unset): no " + options_.earth_frame +
+            " frame, no UTM frame, " + topics::kKeyframeFix + " not advertised"};
+  char line[240];
+  std::snprintf(line, sizeof line, "datum: origin %.7f, %.7f, map's x axis heading %.1f deg; %s published", d->lat_deg,
+                d->lon_deg, d->heading_deg, topics::kKeyframeFix);
+  std::vector<std::string> lines{line};
+  const std::optional<core::UtmDatum> utm =
+      options_.utm_frame.empty() ? std::nullopt : std::optional<core::UtmDatum>(core::utmFromMap(*d));
+  if (!options_.publish_tf) {
+    lines.push_back("datum: publish_tf is false, no " + options_.earth_frame + " -> " + options_.map_frame +
+                    (utm ? " nor " + options_.map_frame + " -> " + options_.utm_frame : std::string()));
+    return lines;
+  }
+  std::vector<geometry_msgs::TransformStamped> t{
+      toTransformMsg(core::earthFromMap(*d), options_.earth_frame, options_.map_frame)};
+  lines.push_back("datum: static " + options_.earth_frame + " -> " + options_.map_frame + " (ECEF)");
+  if (utm) {
+    t.push_back(toTransformMsg(utm->utm_from_map.inverse(), options_.map_frame, options_.utm_frame));
+    std::snprintf(line, sizeof line,
+                  "datum: static %s -> %s, UTM zone %s (WGS84), origin at easting %.3f m, northing %.3f m, grid "
+                  "convergence %.4f deg, scale %.6f (left out)",
+                  options_.map_frame.c_str(), options_.utm_frame.c_str(), utm->zoneName().c_str(),
+                  utm->utm_from_map.translation().x(), utm->utm_from_map.translation().y(), utm->convergence_deg,
+                  utm->scale);
+    lines.push_back(line);
+  }
   static_tf_.sendTransform(t);
-  char line[200];
-  if (const std::optional<core::GeoOrigin>& d = options_.datum)
-    std::snprintf(line, sizeof line, "datum: static %s -> %s, origin %.7f, %.7f, x axis heading %.1f deg",
-                  options_.earth_frame.c_str(), options_.map_frame.c_str(), d->lat_deg, d->lon_deg, d->heading_deg);
-  else
-    std::snprintf(line, sizeof line, "datum: static %s -> %s", options_.earth_frame.c_str(),
-                  options_.map_frame.c_str());
-  return line;
+  return lines;
+}
+
+void FramePublisher::publishFix(const core::UncertainPose2& vehicle_in_map, const ros::Time& stamp) {
+  if (!options_.datum) return;
+  const core::GeoFix f = core::fixFromMap(*options_.datum, vehicle_in_map);
+  sensor_msgs::NavSatFix m;
+  m.header.stamp = stamp;
+  m.header.frame_id = options_.base_frame;  // NavSatFix: where on the vehicle the position is (here base_link)
+  // A SLAM estimate, no satellite service; STATUS_FIX: a position without augmentation.
+  m.status.status = sensor_msgs::NavSatStatus::STATUS_FIX;
+  m.status.service = 0;
+  m.latitude = f.lat_deg;
+  m.longitude = f.lon_deg;
+  m.altitude = f.alt_m;
+  for (std::size_t i = 0; i < m.position_covariance.size(); ++i) m.position_covariance[i] = f.enu_covariance[i];
+  m.position_covariance_type = sensor_msgs::NavSatFix::COVARIANCE_TYPE_KNOWN;
+  fix_pub_.publish(m);
 }
 
 void FramePublisher::setSessionFrames(const std::map<int, core::Pose2>& map_from_session) {

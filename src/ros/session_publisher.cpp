@@ -63,13 +63,17 @@ core::Pose2 SessionPublisher::publishSession(const core::SessionQueries& m, int 
   if (!said.empty() && say_) say_(said);
   if (!reloc) {
     frames_->setActive(id, correction, poses.back(), now);
-    keyframe_pose_pub_.publish(rc::toPoseWithCovarianceStampedMsg(frames_->vehicle(m.lastKeyframeInMap(id)), map, now));
+    const core::UncertainPose2 vehicle = frames_->vehicle(m.lastKeyframeInMap(id));
+    keyframe_pose_pub_.publish(rc::toPoseWithCovarianceStampedMsg(vehicle, map, now));
+    frames_->publishFix(vehicle, now);  // keyframe_fix: the same pose on WGS84, with a datum
     return correction;
   }
   // Relocalised in another map: tf and the poses go out in that map's frame (where it is drawn).
   frames_->setActive(id, reloc->correction, reloc->pose.mean, now);
-  const auto msg = rc::toPoseWithCovarianceStampedMsg(frames_->vehicle(reloc->pose), map, now);
+  const core::UncertainPose2 vehicle = frames_->vehicle(reloc->pose);
+  const auto msg = rc::toPoseWithCovarianceStampedMsg(vehicle, map, now);
   keyframe_pose_pub_.publish(msg);
+  frames_->publishFix(vehicle, now);
   relocalised_pub_.publish(msg);
   reloc_.published();
   return reloc->correction;  // map -> session_<id> as map -> odom: the stored map's

@@ -116,6 +116,17 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
   if (o.frames.earth_frame == o.frames.map_frame || o.frames.earth_frame == o.frames.odom_frame ||
       o.frames.earth_frame == o.frames.base_frame)
     throw std::invalid_argument(pnh.resolveName("datum/earth_frame") + ": must differ from map, odom and base frames");
+  // Empty (the default): no UTM frame. navsat_transform's name for it is utm.
+  o.frames.utm_frame = param(
+      pnh, "datum/utm_frame", std::string(), [](const std::string&) { return true; }, "a frame id or empty");
+  if (!o.frames.utm_frame.empty() && !o.frames.datum)
+    throw std::invalid_argument(pnh.resolveName("datum/utm_frame") +
+                                ": needs the datum (datum/latitude_deg and datum/longitude_deg)");
+  if (!o.frames.utm_frame.empty() &&
+      (o.frames.utm_frame == o.frames.map_frame || o.frames.utm_frame == o.frames.odom_frame ||
+       o.frames.utm_frame == o.frames.base_frame || o.frames.utm_frame == o.frames.earth_frame))
+    throw std::invalid_argument(pnh.resolveName("datum/utm_frame") +
+                                ": must differ from map, odom, base and earth frames");
   o.frames.tf_rate_hz = param(
       pnh, "tf_rate", 20.0, [](double v) { return v > 0 && v <= 1000; }, "in (0, 1000] Hz");
   o.frames.tf_future_s = param(

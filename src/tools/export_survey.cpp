@@ -12,6 +12,7 @@
 
 #include "cli.h"
 
+#include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/session/mosaic.h"
 #include "uw_multislam/core/session/run_export.h"
 #include "uw_multislam/core/session/session_store.h"
@@ -68,6 +69,9 @@ options:
   --origin LAT,LON,HEADING_DEG
                     WGS84 latitude and longitude (degrees) of the map frame's origin and the
                     compass heading of its x axis (degrees clockwise from north): GeoJSON tracks
+                    and GeoTIFFs. Without it none are written; a dataset folder's nav_frame.yaml
+                    datum is not taken (it is the origin of nav.csv's frame, and a map's frame is
+                    its first keyframe's); the line "origin: ..." says which was used
   --resolution M    mosaic metres per pixel (default: the median keyframe's ground pixel size
                     of the images drawn)
   --images DIR...   dataset folders whose frames (matched by stamp and frame index; a folder whose
@@ -98,6 +102,31 @@ std::string parseOrigin(const std::string& text, std::optional<core::GeoOrigin>*
   if (!core::parseGeoOrigin(text, &o, &why)) return "bad --origin: " + why;
   *origin = o;
   return "";
+}
+
+/// The line that says which georeference the exports take. A dataset folder's nav_frame.yaml may
+/// hold a datum, but it is the origin of nav.csv's world frame, and offline_slam's maps are not in
+/// that frame (a map's frame is its first keyframe's, whatever frame the nav is written in: the
+/// same trajectory.csv from a nav in the session frame, in ENU and in NED), so it is not taken.
+std::string originLine(const std::optional<core::GeoOrigin>& origin, const std::vector<std::string>& dataset_dirs) {
+  char line[512];
+  if (origin) {
+    std::snprintf(line, sizeof line, "origin: --origin %.7f, %.7f, map x axis heading %.1f deg", origin->lat_deg,
+                  origin->lon_deg, origin->heading_deg);
+    return line;
+  }
+  for (const std::string& dir : dataset_dirs) {
+    const std::filesystem::path yaml = std::filesystem::path(dir) / "nav_frame.yaml";
+    if (!std::filesystem::exists(yaml)) continue;
+    const core::NavFrame f = core::readNavFrameYaml(yaml.string());  // checked by loadRunExport's dataset read
+    if (!f.has_origin) continue;
+    std::snprintf(line, sizeof line,
+                  "origin: none (no --origin: no GeoJSON, no GeoTIFF); %s has a datum (%.7f, %.7f), the origin of "
+                  "nav.csv's frame '%s', not of the run's maps (each map's frame is its first keyframe's): not used",
+                  yaml.string().c_str(), f.latitude_deg, f.longitude_deg, f.name.c_str());
+    return line;
+  }
+  return "origin: none (no --origin: no GeoJSON, no GeoTIFF)";
 }
 
 std::string parseResolution(const std::string& text, double* metres) {
@@ -197,6 +226,7 @@ int exportSurvey(Arguments a) {
           t.label.c_str(), r.width, r.height, r.resolution_m, r.tiles, core::mosaicBlendName(mosaic_options.blend),
           mosaic_options.exposure ? " + gains" : "", r.ms, r.seam_ratio, r.from_frames, r.from_thumbnails, r.missing);
     };
+    if (!quiet) std::printf("%s\n", originLine(a.origin, image_dirs).c_str());
     for (const core::ExportTrack& s : survey.sessions) writeAll(s);
     for (const core::ExportTrack& m : survey.maps) writeAll(m);
     if (!quiet) {

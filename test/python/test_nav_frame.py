@@ -85,3 +85,22 @@ def test_a_bad_nav_frame_stops_the_run_naming_the_key(missions, tmp_path, text, 
     r = run("offline_slam", "--session", tmp_path / "a", "--out", tmp_path / "o")
     assert r.returncode == 1 and needle in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
+
+
+def test_export_says_which_origin_and_does_not_take_the_nav_frames_datum(missions, tmp_path):
+    """nav_frame.yaml's datum is the origin of nav.csv's world frame; offline_slam's map frame is its
+    first keyframe's (the same trajectory.csv from every nav frame, above), so export_survey does not
+    take the datum as the exports' origin: it says so, and which origin it used."""
+    slam(missions["enu"], tmp_path / "run")
+    r = run("export_survey", "--run", tmp_path / "run", "--out", tmp_path / "plain", "--no-mosaic")
+    assert r.returncode == 0, r.stderr
+    datum_line = [line for line in r.stdout.splitlines() if line.startswith("origin: ")]
+    assert len(datum_line) == 1, r.stdout
+    assert "origin: none (no --origin: no GeoJSON, no GeoTIFF); " in datum_line[0]
+    assert "nav_frame.yaml has a datum (43.1000000, 5.9000000), the origin of nav.csv's frame 'site'" in datum_line[0]
+    assert not list((tmp_path / "plain").glob("*.geojson"))
+    r = run("export_survey", "--run", tmp_path / "run", "--out", tmp_path / "geo", "--no-mosaic",
+            "--origin", "43.2,5.8,90")
+    assert r.returncode == 0, r.stderr
+    assert "origin: --origin 43.2000000, 5.8000000, map x axis heading 90.0 deg\n" in r.stdout
+    assert list((tmp_path / "geo").glob("*.geojson"))

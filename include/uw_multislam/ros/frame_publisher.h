@@ -36,6 +36,7 @@
 #include <mutex>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include <Eigen/Geometry>
 
@@ -57,9 +58,10 @@ struct FrameOptions {
   double tf_future_s = 0.0;            // its stamp: now + this
   MountOptions mount;                  // frames/ camera and altimeter on the vehicle
   /// ~datum/*: map's origin on WGS84 and the heading of its x axis; set: a static earth_frame ->
-  /// map_frame (publishEarth).
+  /// map_frame, map_frame -> utm_frame when that is not empty (publishDatum), and keyframe_fix.
   std::optional<core::GeoOrigin> datum;
   std::string earth_frame = "earth";
+  std::string utm_frame;  // empty: no UTM frame
 };
 
 struct FrameStats {
@@ -82,11 +84,17 @@ class FramePublisher {
   /// and its last keyframe's pose in the map with its stamp (the core's).
   void setActive(int session, const core::Pose2& map_from_session, const core::Pose2& map_from_last_keyframe,
                  const ros::Time& keyframe_stamp);
-  /// The static earth_frame -> map_frame transform (REP-105's earth: ECEF), from map's datum as
-  /// core::earthFromMap gives it. Called once, right after construction, before anything can call
-  /// setSessionFrames (the broadcaster's other user, not thread-safe). Returns the line that says
-  /// what was published, for the node's log.
-  std::string publishEarth(const Eigen::Isometry3d& earth_from_map);
+  /// With a datum, the static earth_frame -> map_frame (REP-105's earth: ECEF; core::earthFromMap)
+  /// and, with a utm_frame, map_frame -> utm_frame (core::utmFromMap inverted: utm is map's child,
+  /// as navsat_transform sends it by default, because map's one parent in tf is earth). Called
+  /// once, right after construction, before anything can call setSessionFrames (the broadcaster's
+  /// other user, not thread-safe). Returns the lines that say what was published (or that nothing
+  /// was, without a datum), for the node's log. Throws std::invalid_argument for a utm_frame with
+  /// a polar datum.
+  std::vector<std::string> publishDatum();
+  /// With a datum: keyframe_fix, the geographic position of keyframe_pose (the vehicle's pose in
+  /// the map, z up) at its stamp (core::fixFromMap). Without one: nothing (not advertised).
+  void publishFix(const core::UncertainPose2& vehicle_in_map, const ros::Time& stamp);
   /// map -> session_<id> for these sessions (the core's corrections); those that changed are sent, in one message.
   void setSessionFrames(const std::map<int, core::Pose2>& map_from_session);
   /// An odometry pose (the vehicle's, in the session's z-up frame, with its covariance): with
@@ -116,6 +124,7 @@ class FramePublisher {
   tf2_ros::TransformBroadcaster tf_;
   tf2_ros::StaticTransformBroadcaster static_tf_;
   ros::Publisher odom_pub_;                  // topics::kOdometry, with publish_odom_tf
+  ros::Publisher fix_pub_;                   // topics::kKeyframeFix, with a datum
   std::unique_ptr<tf2_ros::Buffer> buffer_;  // vehicle odometry only
   std::unique_ptr<tf2_ros::TransformListener> listener_;
 

@@ -85,6 +85,9 @@ constexpr char kCurrentPose[] = "pose";
 /// geometry_msgs/PoseWithCovarianceStamped (back-end): the active session's last keyframe in the
 /// map frame with its covariance (6x6, z / roll / pitch unknown), at each keyframe and optimisation.
 constexpr char kKeyframePoseWithCovariance[] = "keyframe_pose";
+/// sensor_msgs/NavSatFix (back-end, advertised only with a datum): keyframe_pose's position on
+/// WGS84 (core::fixFromMap), its east/north covariance from keyframe_pose's, frame base_link.
+constexpr char kKeyframeFix[] = "keyframe_fix";
 constexpr char kRelocalisedPose[] = "relocalised_pose";
 /// sensor_msgs/Image (back-end, latched, bgr8, drawn only while subscribed): the live mosaic of the
 /// active map (core/session/live_mosaic.h), the active keyframe outlined in red; rows along the
