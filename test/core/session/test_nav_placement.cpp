@@ -13,6 +13,7 @@
 
 #include "../../common/rendered_seabed.h"
 #include "../../common/scoped_temp_dir.h"
+#include "../../common/sql_file.h"
 #include "uw_multislam/core/backend/backend.h"
 #include "uw_multislam/core/frontend/nav_prior.h"
 #include "uw_multislam/core/frontend/tracking.h"
@@ -349,6 +350,16 @@ TEST(NavPlacement, APlacedPieceIsInItsPredecessorsMapFromItsFirstKeyframeLoopsRe
   ASSERT_EQ(restored.size(), placed_poses.size());
   for (std::size_t k = 0; k < restored.size(); ++k)
     EXPECT_LT((restored[k].translation() - placed_poses[k].translation()).norm(), 1e-9) << k;
+  // Split off and deleted, the placed session takes its placement's row with it.
+  ASSERT_TRUE(again.split(1).ok());
+  ASSERT_TRUE(again.deleteSession("1", true).ok());
+  {
+    SessionStore store(db, StoreAccess::kReadOnly);
+    EXPECT_TRUE(store.loops().empty());
+  }
+  EXPECT_TRUE(testing_util::execSql(db,
+                                    "CREATE TEMP TABLE left_over(n CHECK(n = 0)); "
+                                    "INSERT INTO left_over SELECT COUNT(*) FROM nav_placements;"));
 }
 
 TEST(NavPlacement, APlacementIsNoEvidenceForAnAutomaticJoin) {
