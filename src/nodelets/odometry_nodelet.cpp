@@ -336,7 +336,9 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   const core::OdometryUpdate& u = step.update;
   skip_rule_->observe(core::processedFrame(u, stamp.toSec(), altitude, step.session_started, odometry_->odometry()));
   const bool done = ros_diagnostics::reportUpdate(u, &counts_);
+  std::optional<core::NavPlacementInput> placement;  // the nav's, of a piece after a tracking loss
   if (step.session_started && odometry_->sessions() > 1) {
+    if (step.placement) placement = core::NavPlacementInput{session_, step.placement->keyframe, step.placement->z};
     session_ = std::max(session_ + 1, requested.next_free);
     ++counts_.sessions;
     NODELET_INFO("odometry: tracking resumed at frame %d: session %d starts", u.index, session_);
@@ -347,7 +349,7 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   pose_pub_.publish(
       rc::toPoseWithCovarianceStampedMsg(core::vehicleFromCamera(core::UncertainPose2(u.pose, u.covariance), mount_),
                                          options_.session_frame_prefix + std::to_string(session_), stamp));
-  counts_.keyframes += keyframes_->publish(*odometry_, u, session_, image, f.msg.header());
+  counts_.keyframes += keyframes_->publish(*odometry_, u, session_, image, f.msg.header(), placement);
   if (step.session_closed) {
     ++counts_.tracking_losses;
     NODELET_WARN(

@@ -47,6 +47,7 @@ core::KeyframeInput toKeyframeInput(const KeyframeData& k, double stamp_s) {
   in.odometry_pose = k.odometry_pose;
   in.hash = k.hash;            // computed once, by the odometry (empty from older senders: the manager hashes)
   in.thumbnail = k.thumbnail;  // kept by the store (empty: none)
+  in.nav_placement = k.nav_placement;
   return in;
 }
 

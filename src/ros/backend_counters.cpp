@@ -45,6 +45,7 @@ const CounterTable<BackendCounters>& backendCounterTable() {
       {"keyframe_jumps", &C::keyframe_jumps,
        "jumps in the keyframe ids past ~max_keyframe_gap that the next keyframe continued: a new session from there",
        kWarn},
+      {"nav_placements", &C::nav_placements, "sessions placed in their predecessor's map by the nav"},
       {"loops_refused", &C::loops_refused, "loops refused by the session manager", kWarn},
       {"store_failures", &C::store_failures, "session store writes that failed", kWarn},
       {"sessions", &C::sessions, "sessions known"},
@@ -91,8 +92,8 @@ void setManagerCounters(const core::SessionQueries& manager, BackendCounters* c)
   const core::SessionManagerStats& m = manager.stats();
   const core::BackendStats& b = manager.backendStats();
   c->keyframes_stale = m.keyframes_stale, c->keyframes_refused = m.keyframes_refused;
-  c->keyframe_gaps = m.keyframe_gaps, c->keyframe_jumps = m.keyframe_jumps, c->loops_refused = m.loops_refused,
-  c->store_failures = m.store_failures;
+  c->keyframe_gaps = m.keyframe_gaps, c->keyframe_jumps = m.keyframe_jumps, c->nav_placements = m.nav_placements,
+  c->loops_refused = m.loops_refused, c->store_failures = m.store_failures;
   c->sessions = static_cast<long>(manager.sessionIds().size());
   c->sessions_unloaded_now = 0;
   for (const core::SessionSummary& s : manager.list())

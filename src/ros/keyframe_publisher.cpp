@@ -22,11 +22,13 @@ KeyframePublisher::KeyframePublisher(ros::NodeHandle nh, image_transport::ImageT
       image_pub_(it->advertise(topics::kKeyframeImage, 1)) {}
 
 int KeyframePublisher::publish(const core::SegmentedOdometry& segmented, const core::OdometryUpdate& u, int session,
-                               const cv::Mat& image, const std_msgs::Header& frame_header) {
+                               const cv::Mat& image, const std_msgs::Header& frame_header,
+                               const std::optional<core::NavPlacementInput>& placement) {
   const core::Odometry& odometry = *segmented.odometry();
   int n = 0;
   for (const auto& kf : segmented.newKeyframes()) {
     rc::KeyframeData data = rc::keyframeData(odometry, kf, u, session);
+    if (kf.id == 0) data.nav_placement = placement;
     data.hash = hasher_.hash(kf.features.descriptors);  // once here; the loop detector and back-end reuse it
     // The store's keyframe image (config store.*), made as offline_slam makes it; a promoted
     // keyframe's image is gone.

@@ -135,6 +135,12 @@ uw_multislam::Keyframe toKeyframeMsg(const KeyframeData& k, const std_msgs::Head
   m.inliers = k.inliers;
   m.overlap = static_cast<float>(k.overlap);
   m.scale = static_cast<float>(k.scale);
+  m.placement_session = k.nav_placement ? k.nav_placement->session : -1;
+  m.placement_keyframe = k.nav_placement ? k.nav_placement->keyframe : -1;
+  if (k.nav_placement) {
+    m.placement = toPose2DMsg(k.nav_placement->z.mean);
+    toArray(k.nav_placement->z.covariance, &m.placement_covariance);
+  }
   return m;
 }
 
@@ -176,7 +182,20 @@ bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* wh
   } else if (!cov.allFinite()) {
     return fail(why, who + "non-finite motion covariance");
   }
+  std::optional<core::NavPlacementInput> placement;
+  const Eigen::Matrix3d placement_cov = fromArray(m.placement_covariance);
+  if (!placement_cov.isZero(0.0)) {  // zero: none (also what an older sender leaves)
+    if (m.placement_session < 0 || m.placement_session > core::kMaxSessionId || m.placement_keyframe < 0)
+      return fail(why, who + "placement names no keyframe (session " + std::to_string(m.placement_session) +
+                           ", keyframe " + std::to_string(m.placement_keyframe) + ")");
+    if (!finitePose(m.placement)) return fail(why, who + "non-finite placement");
+    const std::string bad = core::checkCovariance(placement_cov);
+    if (!bad.empty()) return fail(why, who + "placement covariance: " + bad);
+    placement = core::NavPlacementInput{m.placement_session, m.placement_keyframe,
+                                        core::UncertainPose2(fromMsg(m.placement), placement_cov)};
+  }
   KeyframeData k;
+  k.nav_placement = placement;
   k.session = m.session;
   k.keyframe = m.keyframe;
   k.frame_index = m.frame_index;

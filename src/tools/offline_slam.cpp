@@ -22,7 +22,8 @@ Runs uw_multislam over dataset folders (frames.csv, camera.yaml, images; see
 doc/dataset_format.md), in the order given, as consecutive missions. Writes into OUT (columns in
 doc/run_outputs.md): odometry.csv (odometry keyframe poses, each session in its own frame), trajectory.csv
 (final keyframe poses in the frame of their map), loops.csv, loop_poses.csv (measured pose and covariance),
-links.csv (joins), pieces.csv (the pieces tracking loss splits a folder into), timing.csv, inputs.csv, config.yaml.
+links.csv (joins), pieces.csv (the pieces tracking loss splits a folder into), nav_placements.csv (pieces and
+sessions placed by the nav, --nav on), timing.csv, inputs.csv, config.yaml.
 `session` is the folder's position on the command line, `index` the frame's index in frames.csv.
 Sessions are joined into maps through one link (paper §9) once the global loops between them
 support it (backend.join_policy: consistent, the default: a pairwise-consistent set of at least

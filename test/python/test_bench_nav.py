@@ -81,3 +81,43 @@ def test_a_row_end_to_end(tmp_path):
     r = subprocess.run([sys.executable, os.path.join(REPO, "scripts", "bench_nav.py"), "--bin", BIN_DIR, "--out",
                         tmp_path / "o2", "--spec", spec, "--rows", "tiny,nope"], capture_output=True, text=True)
     assert r.returncode == 2 and "unknown rows nope" in r.stderr
+
+
+def test_a_piece_the_nav_placed_is_scored_in_its_own_frame_until_a_loop_ties_it(tmp_path):
+    """A planted run: one folder in two pieces (a tracking loss at frame 5), both in one map because
+    the nav placed the second 0.5 m off (no other error). The map ATE of the table scores each
+    visual group (pieces tied by loops.csv) in its own frame: 0 while no loop ties the pieces, the
+    0.5 m once one does; the one-frame ATE sees the 0.5 m either way; nav_placements.csv's row
+    is scored against the ground truth's relative pose."""
+    mission = make_survey(tmp_path, yaml.safe_dump(SURVEY))
+    gt = rows(mission / "a" / "gt.csv")
+    run = tmp_path / "run"
+    run.mkdir()
+    odo, traj = ["session,index,x_m,y_m,yaw_rad"], ["session,index,map,x_m,y_m,yaw_rad"]
+    for g in gt:
+        i = int(g["index"])
+        dx = 0.5 if i >= 5 else 0.0
+        x, y, yaw = float(g["x_m"]) + dx, float(g["y_m"]), float(g["yaw_rad"])
+        odo.append(f"0,{i},{x},{y},{yaw}")
+        traj.append(f"0,{i},0,{x},{y},{yaw}")
+    last = int(gt[-1]["index"])
+    (run / "odometry.csv").write_text("\n".join(odo) + "\n")
+    (run / "trajectory.csv").write_text("\n".join(traj) + "\n")
+    (run / "pieces.csv").write_text("session,piece,store_session,first_index,last_index,keyframes,map\n"
+                                    f"0,0,0,0,4,5,0\n0,1,1,5,{last},{last - 4},0\n")
+    loops = "session_a,index_a,session_b,index_b,kind,inliers\n"
+    (run / "loops.csv").write_text(loops)
+    g4, g5 = gt[4], gt[5]
+    truth = bench_nav.evaluate.relative(*[(float(g["x_m"]), float(g["y_m"]), float(g["yaw_rad"])) for g in (g4, g5)])
+    (run / "nav_placements.csv").write_text("session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad,sigma_xy_m,"
+                                            f"sigma_yaw_rad\n0,4,0,5,{truth[0] + 0.03},{truth[1]},{truth[2]},0.1,0.01\n")
+    args = (str(run), [str(mission / "a")], str(mission / "world_gt.csv"))
+    n, n_placed = len(gt), len(gt) - 5
+    seen, _ = bench_nav.ate(*args, set())
+    assert seen == pytest.approx(0.0, abs=2e-6)
+    one_frame = bench_nav.one_frame_ate(*args, set())
+    assert one_frame == pytest.approx(math.sqrt(n_placed * 0.25 / n), abs=2e-6)
+    [(error, sigma)] = bench_nav.placement_errors(*args)
+    assert error == pytest.approx(0.03, abs=2e-6) and sigma == 0.1
+    (run / "loops.csv").write_text(loops + "0,2,0,7,global,80\n")
+    assert bench_nav.ate(*args, set())[0] == pytest.approx(one_frame, abs=2e-6)

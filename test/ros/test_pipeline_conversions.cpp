@@ -91,6 +91,51 @@ TEST_F(PipelineConversions, KeyframeRoundTripIsLossless) {
             1e-6);
 }
 
+TEST_F(PipelineConversions, TheNavPlacementTravelsWithKeyframeZeroAndABadOneIsRefused) {
+  rc::KeyframeData k = someKeyframe();
+  // None: -1 ids and a zero covariance; what an older sender leaves (all zero) is none too.
+  uw_multislam::Keyframe m = rc::toKeyframeMsg(k, header());
+  EXPECT_EQ(m.placement_session, -1);
+  EXPECT_EQ(m.placement_keyframe, -1);
+  rc::KeyframeData back;
+  std::string why;
+  ASSERT_TRUE(rc::fromMsg(m, &back, &why)) << why;
+  EXPECT_FALSE(back.nav_placement.has_value());
+  m.placement_session = m.placement_keyframe = 0;
+  ASSERT_TRUE(rc::fromMsg(m, &back, &why)) << why;
+  EXPECT_FALSE(back.nav_placement.has_value());
+  // Given: session, keyframe, pose and covariance as sent, and on into the back-end's input.
+  Eigen::Matrix3d c;
+  c << 0.04, 0.001, 0.0, 0.001, 0.05, 0.0, 0.0, 0.0, 1e-4;
+  k.nav_placement = core::NavPlacementInput{1, 12, UncertainPose2(Pose2(2.5, -0.75, 3.0), c)};
+  m = rc::toKeyframeMsg(k, header());
+  EXPECT_EQ(m.placement_session, 1);
+  EXPECT_EQ(m.placement_keyframe, 12);
+  EXPECT_DOUBLE_EQ(m.placement_covariance[4], 0.05);
+  ASSERT_TRUE(rc::fromMsg(m, &back, &why)) << why;
+  ASSERT_TRUE(back.nav_placement.has_value());
+  EXPECT_EQ(back.nav_placement->session, 1);
+  EXPECT_EQ(back.nav_placement->keyframe, 12);
+  EXPECT_TRUE(core::approxEqual(back.nav_placement->z.mean, Pose2(2.5, -0.75, 3.0), 1e-12, 1e-12));
+  EXPECT_TRUE(back.nav_placement->z.covariance.isApprox(c));
+  const core::KeyframeInput in = rc::toKeyframeInput(back, 1.0);
+  ASSERT_TRUE(in.nav_placement.has_value());
+  EXPECT_EQ(in.nav_placement->keyframe, 12);
+  // Refused, naming what: no keyframe named, a covariance not positive definite, a non-finite pose.
+  uw_multislam::Keyframe bad = m;
+  bad.placement_keyframe = -1;
+  EXPECT_FALSE(rc::fromMsg(bad, &back, &why));
+  EXPECT_NE(why.find("placement names no keyframe"), std::string::npos) << why;
+  bad = m;
+  bad.placement_covariance[8] = -1.0;
+  EXPECT_FALSE(rc::fromMsg(bad, &back, &why));
+  EXPECT_NE(why.find("placement covariance"), std::string::npos) << why;
+  bad = m;
+  bad.placement.x = std::nan("");
+  EXPECT_FALSE(rc::fromMsg(bad, &back, &why));
+  EXPECT_NE(why.find("non-finite placement"), std::string::npos) << why;
+}
+
 TEST_F(PipelineConversions, AnOrbKeyframeTravelsAsItsBitsAndOwnsThemOnArrival) {
   rc::KeyframeData k = someKeyframe();
   core::FeatureOptions orb;

@@ -11,9 +11,12 @@
 
 #include <opencv2/core.hpp>
 
+#include <optional>
+
 #include "uw_multislam/core/frontend/tracking.h"
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/session/keyframe_image.h"
+#include "uw_multislam/core/session/session_queries.h"
 #include "uw_multislam/core/session/slam_config.h"
 
 namespace uw_multislam {
@@ -23,9 +26,11 @@ class KeyframePublisher {
  public:
   KeyframePublisher(ros::NodeHandle nh, image_transport::ImageTransport* it, const core::SlamConfig& config);
   /// The keyframes the last frame made (odometry.newKeyframes()); `image` and `header` are the
-  /// frame's (`update` its update). Returns how many were published.
+  /// frame's (`update` its update). `placement`: the nav's placement of `session`, carried by its
+  /// keyframe 0. Returns how many were published.
   int publish(const core::SegmentedOdometry& odometry, const core::OdometryUpdate& update, int session,
-              const cv::Mat& image, const std_msgs::Header& header);
+              const cv::Mat& image, const std_msgs::Header& header,
+              const std::optional<core::NavPlacementInput>& placement = std::nullopt);
 
  private:
   core::KeyframeImageOptions store_image_;

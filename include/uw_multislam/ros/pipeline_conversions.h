@@ -11,6 +11,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -23,6 +24,7 @@
 #include "uw_multislam/core/geometry/uncertain_pose.h"
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/session/session_queries.h"
 
 namespace uw_multislam {
 namespace ros_conversions {
@@ -52,6 +54,8 @@ struct KeyframeData {
   int inliers = 0;
   double overlap = 0.0;
   double scale = 1.0;
+  /// Keyframe 0 of a piece the nav places (Keyframe.msg placement_*), else none.
+  std::optional<core::NavPlacementInput> nav_placement = std::nullopt;
 };
 
 /// The keyframe `id` of an odometry, as loop detection and the back-end need it: its features,

@@ -329,7 +329,7 @@ std::vector<int> MultiSessionBackend::loopsBetween(int map_a, int map_b, bool au
     if (st.summarised || st.refused) continue;
     const int ma = mapOf(st.loop.session_a), mb = mapOf(st.loop.session_b);
     if (!((ma == map_a && mb == map_b) || (ma == map_b && mb == map_a))) continue;
-    if (automatic && barred(st.loop.session_a, st.loop.session_b)) continue;
+    if (automatic && (barred(st.loop.session_a, st.loop.session_b) || st.loop.nav_placement)) continue;
     ids.push_back(k);
   }
   return ids;

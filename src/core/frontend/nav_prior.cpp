@@ -137,6 +137,17 @@ UncertainPose2 navMotion(const NavRecord& a, const NavRecord& b, const NavPriorO
   return UncertainPose2(between(a.pose, b.pose), Eigen::Vector3d(sxy * sxy, sxy * sxy, syaw * syaw).asDiagonal());
 }
 
+UncertainPose2 navPlacement(const NavRecord& a, const NavRecord& b, const NavPriorOptions& o, bool one_track) {
+  if (one_track) return navMotion(a, b, o);
+  // b's position error in a's frame: both positions' errors, and a's heading error turning the
+  // vector between them (first order).
+  const double reach = a.sigma_yaw_rad * (b.pose.translation() - a.pose.translation()).norm();
+  const double sxy = std::max(o.min_sigma_m, o.inflation * std::sqrt(a.sigma_xy_m * a.sigma_xy_m +
+                                                                     b.sigma_xy_m * b.sigma_xy_m + reach * reach));
+  const double syaw = std::max(o.min_sigma_rad, o.inflation * std::hypot(a.sigma_yaw_rad, b.sigma_yaw_rad));
+  return UncertainPose2(between(a.pose, b.pose), Eigen::Vector3d(sxy * sxy, sxy * sxy, syaw * syaw).asDiagonal());
+}
+
 double navGateDistance2(const UncertainPose2& visual, const UncertainPose2& nav) {
   ConsistencyOptions no_floor;  // the nav covariance has its own floors
   no_floor.min_sigma_m = 0.0;

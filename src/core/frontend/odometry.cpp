@@ -251,6 +251,7 @@ void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& moti
   }
   last_kf_.pose = trajectory_.absolutePoses().back();
   last_kf_.motion = motion;
+  keyframes_.back().nav = last_kf_.nav;
   ++stats_.keyframes;
 }
 
@@ -410,6 +411,7 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
     new_keyframes_.push_back({0, cur.features});
     cur.pose = Pose2();
     keyframes_.push_back({cur.index, cur.stamp_s, cur.altitude_m, false});
+    keyframes_.back().nav = cur.nav;
     last_kf_ = cur;
     prev_ = cur;
     ++stats_.keyframes;

@@ -1,5 +1,6 @@
 #include "uw_multislam/core/frontend/tracking.h"
 
+#include <algorithm>
 #include <stdexcept>
 
 namespace uw_multislam {
@@ -56,6 +57,13 @@ SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input, P
     kept_ = static_cast<int>(released_.size());
     ++sessions_;
     step.session_started = true;
+    // The nav saw the whole stretch the odometry lost: it places this piece against the last one
+    // (a link the back-end joins the maps by, loops refine it), instead of a new map.
+    const std::optional<NavRecord>& here = odometry_->keyframes().front().nav;
+    if (options_.nav.enabled && options_.nav.place_pieces && previous_nav_ && here)
+      step.placement =
+          NavPlacement{previous_nav_->first, navPlacement(previous_nav_->second, *here, options_.nav, true)};
+    previous_nav_.reset();
     return step;
   }
   step.update = odometry_->process(input, prepared);
@@ -89,8 +97,17 @@ SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input, P
     closed_ = true;
     ++losses_;
     pending_.clear();  // dropped: the session ends at its last measured keyframe
+    previous_nav_ = lastNavKeyframe();
   }
   return step;
+}
+
+std::optional<std::pair<int, NavRecord>> SegmentedOdometry::lastNavKeyframe() const {
+  if (!odometry_) return std::nullopt;
+  const std::vector<KeyframeInfo>& kfs = odometry_->keyframes();
+  for (int k = std::min(kept_, static_cast<int>(kfs.size())) - 1; k >= 0; --k)
+    if (kfs[k].nav) return std::make_pair(k, *kfs[k].nav);
+  return std::nullopt;
 }
 
 }  // namespace core

@@ -98,7 +98,7 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     const auto a = session_of.find(l.session_a), b = session_of.find(l.session_b);
     if (a == session_of.end() || b == session_of.end()) continue;  // a session without keyframes
     const bool again = unsummarised.count(l.id) > 0;
-    LoopRecord r{{a->second, l.keyframe_a, b->second, l.keyframe_b, l.z, l.inliers},
+    LoopRecord r{{a->second, l.keyframe_a, b->second, l.keyframe_b, l.z, l.inliers, l.nav_placement},
                  l.summarised && !again,
                  l.applied && !again,
                  l.refused};

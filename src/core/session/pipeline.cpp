@@ -4,6 +4,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 
 #include "uw_multislam/core/frontend/image_file.h"
@@ -55,8 +56,12 @@ void Pipeline::say(const std::string& line) const {
   if (log_) log_(line);
 }
 
-void Pipeline::beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of, NavTrack nav) {
+void Pipeline::beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of, NavTrack nav,
+                           std::optional<NavFrame> nav_frame) {
   stream_ = name;
+  nav_frame_ = std::move(nav_frame);
+  previous_piece_ = -1;
+  stream_anchor_.reset();
   image_of_ = std::move(image_of);
   nav_ = config_.odometry.nav.enabled ? std::move(nav) : NavTrack();
   cameras_.push_back(camera.pinhole());  // the camera of the (undistorted) features keyframes carry
@@ -76,7 +81,7 @@ void Pipeline::beginStream(const Dataset& d) {
           if (f.index == index) return readFrameImageBgr(d.imagePath(f));
         return cv::Mat();
       },
-      NavTrack(d.nav));
+      NavTrack(d.nav), d.nav_frame);
 }
 
 void Pipeline::startPiece(double stamp_s) {
@@ -113,6 +118,11 @@ void Pipeline::endPiece(double stamp_s) {
                 st.altitude_out_of_range, odometry.times().get("odometry_total").meanMs());
   const std::string name = worker_->locked([&](const SessionQueries& m) { return m.name(session_); });
   say("session " + std::to_string(session_) + " (" + name + "): " + line);
+  previous_piece_ = session_;
+  if (nav_frame_) {
+    if (const auto last = segmented_->lastNavKeyframe())
+      stream_anchor_ = NavAnchor{session_, last->first, last->second, *nav_frame_};
+  }
   if (st.gate_checks > 0 || st.nav_frames > 0 || st.nav_implausible > 0) {
     std::snprintf(line, sizeof line,
                   "session %d: nav prior: %d frames carried by the nav, %d visual motions checked, %d refused by the "
@@ -197,6 +207,7 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input, Prepa
     if (store && image_of_)
       k.thumbnail = encodeKeyframeImage(info.frame_index == frame.index ? frame.image : image_of_(info.frame_index),
                                         config_.store_image);
+    if (step.session_started && kf.id == 0) k.nav_placement = placementOf(step);
     ScopedStage stage(&times_, "session_manager");
     Status st;
     worker_->addKeyframe(std::move(k), std::move(loops),
@@ -212,8 +223,39 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input, Prepa
   return step;
 }
 
+std::optional<NavPlacementInput> Pipeline::placementOf(const SegmentedOdometry::Step& step) const {
+  const NavPriorOptions& o = config_.odometry.nav;
+  if (!o.enabled || !o.place_pieces) return std::nullopt;
+  NavPlacementInput p;
+  std::string what;
+  if (step.placement && previous_piece_ >= 0) {
+    p.session = previous_piece_;  // the piece the tracking loss ended, one dead reckoning
+    p.keyframe = step.placement->keyframe;
+    p.z = step.placement->z;
+    what = "after the tracking loss";
+  } else if (pieces_ == 1 && nav_anchor_ && nav_frame_ && nav_anchor_->frame == *nav_frame_) {
+    const std::optional<NavRecord>& here = segmented_->odometry()->keyframes().front().nav;
+    if (!here) return std::nullopt;
+    p.session = nav_anchor_->session;
+    p.keyframe = nav_anchor_->keyframe;
+    p.z = navPlacement(nav_anchor_->nav, *here, o, false);  // two dead reckonings: independent errors
+    what = "in the nav's world frame " + nav_frame_->name;
+  } else {
+    return std::nullopt;
+  }
+  char line[200];
+  std::snprintf(line, sizeof line,
+                " against session %d keyframe %d: (%.3f m, %.3f m, %.3f rad), sigma %.3f m, %.4f rad", p.session,
+                p.keyframe, p.z.mean.x(), p.z.mean.y(), p.z.mean.yaw(), std::sqrt(p.z.covariance(0, 0)),
+                std::sqrt(p.z.covariance(2, 2)));
+  say("stream " + stream_ + ": session " + std::to_string(session_) + " placed by the nav " + what + line);
+  return p;
+}
+
 void Pipeline::endStream(double stamp_s) {
   if (session_ >= 0) endPiece(stamp_s);
+  if (stream_anchor_) nav_anchor_ = stream_anchor_;
+  stream_anchor_.reset();
   if (pieces_ == 0 && segmented_) {
     // Not one session: every frame unusable (unreadable images, no altitude, another size, no
     // features). Said once, with the counts, instead of the session lines that never come.

@@ -92,8 +92,20 @@ void writeRunOutputs(const std::string& out_dir, const SessionQueries& manager, 
       traj << csv(id) << "," << frames[k] << "," << map << "," << std::setprecision(6) << p[k].x() << "," << p[k].y()
            << "," << std::setprecision(7) << p[k].yaw() << "\n";
   }
+  // The nav's placements of sessions (SessionManager::addNavPlacement) are no visual loops: a file of
+  // their own, so that loops.csv stays the loops the images measured (evaluate.py scores them).
+  std::ostream& placements = file("nav_placements.csv");
+  placements << "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad,sigma_xy_m,sigma_yaw_rad\n"
+             << std::fixed << std::setprecision(6);
+  for (const Loop& l : manager.loops()) {
+    if (!l.nav_placement) continue;
+    placements << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b) << "," << l.frame_b << ","
+               << l.z.mean.x() << "," << l.z.mean.y() << "," << l.z.mean.yaw() << "," << std::sqrt(l.z.covariance(0, 0))
+               << "," << std::sqrt(l.z.covariance(2, 2)) << "\n";
+  }
   for (std::size_t i = 0; i < manager.loops().size(); ++i) {
     const Loop& l = manager.loops()[i];
+    if (l.nav_placement) continue;
     (manager.loopRefused(i) ? refused : loops) << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b) << ","
                                                << l.frame_b << "," << loopKindName(l.kind) << "," << l.inliers << "\n";
     loop_poses << csv(l.session_a) << "," << l.frame_a << "," << csv(l.session_b) << "," << l.frame_b << ","

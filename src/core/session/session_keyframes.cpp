@@ -318,6 +318,7 @@ StoredLoop SessionManager::toStored(const Loop& l) const {
   sl.global = l.kind == Loop::Kind::kGlobal;
   sl.inliers = l.inliers;
   sl.z = l.z;
+  sl.nav_placement = l.nav_placement;
   return sl;
 }
 
@@ -326,7 +327,7 @@ void SessionManager::acceptLoop(const Loop& l) {
   const Session& b = at(l.session_b);
   if (a.phantoms.count(l.keyframe_a) || b.phantoms.count(l.keyframe_b))
     throw std::invalid_argument("loop on a keyframe that never arrived");
-  backend_->addLoop({a.backend, l.keyframe_a, b.backend, l.keyframe_b, l.z, l.inliers});
+  backend_->addLoop({a.backend, l.keyframe_a, b.backend, l.keyframe_b, l.z, l.inliers, l.nav_placement});
   Loop named = l;
   if (l.keyframe_a < static_cast<int>(a.frames.size())) named.frame_a = a.frames[l.keyframe_a];
   if (l.keyframe_b < static_cast<int>(b.frames.size())) named.frame_b = b.frames[l.keyframe_b];
@@ -415,6 +416,59 @@ Status SessionManager::addLink(Loop l) {
            link, std::string(kind) + " link " + link + ": " + pose, options_.requester.c_str());
   }
   recordMapChanges();
+  return st;
+}
+
+Status SessionManager::addNavPlacement(Loop l) {
+  toPiece(&l.session_a, &l.keyframe_a);  // the odometry's ids after a jump, as this manager names them
+  toPiece(&l.session_b, &l.keyframe_b);
+  Status checked = checkLinkEnds(l);
+  if (checked.ok() && l.session_a == l.session_b)
+    checked = {StatusCode::kInvalidArgument, "it links a session to itself"};
+  if (checked.ok()) {
+    if (const std::string bad = checkUncertainPose(l.z, true); !bad.empty())
+      checked = {StatusCode::kInvalidArgument, "the pose: " + bad};
+  }
+  if (checked.ok()) checked = storedMapsMayChange("a nav placement");
+  if (!checked.ok()) return {checked.code, "nav placement: " + checked.message};
+  if (mapOf(l.session_a) == mapOf(l.session_b))
+    return {StatusCode::kOk, "nav placement: sessions " + std::to_string(l.session_a) + " and " +
+                                 std::to_string(l.session_b) + " are already in one map"};
+  l.kind = Loop::Kind::kGlobal;
+  l.nav_placement = true;
+  l.inliers = 0;  // no features matched: no support in any join rule
+  l.hash_l1 = 0.0f;
+  Status st;
+  {
+    // The placement goes into the audit trail before the join it brings about.
+    struct Hold {
+      bool* flag;
+      ~Hold() { *flag = false; }
+    } hold{&hold_changes_};
+    hold_changes_ = true;
+    st = addLoop(l);
+    if (st.ok()) {
+      char pose[200];
+      std::snprintf(pose, sizeof pose, "pose (%.4f m, %.4f m, %.4f rad), sigma (%.4g m, %.4g rad)", l.z.mean.x(),
+                    l.z.mean.y(), l.z.mean.yaw(), std::sqrt(l.z.covariance(0, 0)), std::sqrt(l.z.covariance(2, 2)));
+      const std::string link = loopText(l);
+      say("nav placement " + link + ": " + pose);
+      record("nav_placement", std::to_string(l.session_a) + "," + std::to_string(l.session_b), link,
+             "nav placement " + link + ": " + pose, "nav");
+      // One placement is the whole support the operator's join with one loop asks for.
+      st = backend_->join(at(l.session_a).backend, at(l.session_b).backend, 1);
+      if (st.ok()) {
+        ++stats_.nav_placements;
+      } else {
+        say("nav placement " + link + " stored but not joined: " + st.message);
+        st = {st.code, "nav placement: " + st.message};
+      }
+    }
+  }
+  const char* cause = cause_;
+  cause_ = "nav";
+  afterBackendChange();
+  cause_ = cause;
   return st;
 }
 

@@ -152,6 +152,7 @@ void SessionManager::restore() {
     l.frame_b = at(l.session_b).frames.at(bl.keyframe_b);
     l.z = bl.z;
     l.inliers = r.loops[i].inliers;
+    l.nav_placement = r.loops[i].nav_placement;
     loops_.push_back(l);
     ++at(l.session_a).loops;
     if (l.session_b != l.session_a) ++at(l.session_b).loops;

@@ -102,6 +102,11 @@ const char* kProvenanceTable =
     "source_file TEXT NOT NULL, source_session INTEGER NOT NULL, source_name TEXT NOT NULL, "
     "vehicle TEXT NOT NULL, dive TEXT NOT NULL)";
 
+// Which loops are the nav's placements of a session (SessionManager::addNavPlacement), not visual
+// loops. Created like provenance, when the store is opened for writing: a build before it reads
+// such a loop as a global loop (and restores the map's link from it all the same).
+const char* kNavPlacementTable = "CREATE TABLE IF NOT EXISTS nav_placements(loop INTEGER PRIMARY KEY)";
+
 // The audit trail: created like provenance, when the store is opened for writing.
 const char* kHistoryTable =
     "CREATE TABLE IF NOT EXISTS history(id INTEGER PRIMARY KEY, time_utc TEXT NOT NULL, kind TEXT NOT NULL, "
@@ -682,6 +687,7 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
     exec(kHashIndex);
     exec(kProvenanceTable);
     exec(kHistoryTable);
+    exec(kNavPlacementTable);
   } catch (...) {
     cache_.clear();
     if (db_) sqlite3_close(db_);
@@ -918,6 +924,7 @@ void SessionStore::insertLoops(std::vector<StoredLoop>* loops) {
     l.bind(7, lp.z.mean.x()).bind(8, lp.z.mean.y()).bind(9, lp.z.mean.yaw()).blob(10, cov);
     l.bind(11, lp.summarised ? 1 : 0).bind(12, lp.applied ? 1 : 0).bind(13, lp.refused ? 1 : 0).run();
     lp.id = sqlite3_last_insert_rowid(db_);
+    if (lp.nav_placement) cached("INSERT INTO nav_placements(loop) VALUES (?)").bind(1, lp.id).run();
   }
 }
 
@@ -1037,6 +1044,7 @@ void SessionStore::deleteOne(std::int64_t session) {
   }
   for (const char* sql :
        {"DELETE FROM keyframes WHERE session = ?1", "DELETE FROM motions WHERE session = ?1",
+        "DELETE FROM nav_placements WHERE loop IN (SELECT id FROM loops WHERE session_a = ?1 OR session_b = ?1)",
         "DELETE FROM loops WHERE session_a = ?1 OR session_b = ?1",
         "DELETE FROM split_pairs WHERE session_a = ?1 OR session_b = ?1", "DELETE FROM sessions WHERE id = ?1"}) {
     Statement d(this, sql);
@@ -1222,6 +1230,12 @@ std::vector<StoredLoop> SessionStore::loops() const {
     l.applied = intColumn(q, 12, path_) != 0;
     l.refused = intColumn(q, 13, path_) != 0;
     out.push_back(l);
+  }
+  if (hasTable("nav_placements")) {
+    std::set<std::int64_t> placements;
+    Statement np(this, "SELECT loop FROM nav_placements");
+    while (np.step()) placements.insert(sqlite3_column_int64(np.get(), 0));
+    for (StoredLoop& l : out) l.nav_placement = placements.count(l.id) > 0;
   }
   return out;
 }

@@ -163,6 +163,17 @@ void SessionWorker::process(Item& item) {
           ++stats_.keyframes;
         }
         const Status st = manager_->addKeyframe(k->keyframe, k->loops);
+        if (st.ok() && k->keyframe.nav_placement) {
+          // The piece is placed once its first keyframe is in (offline and live alike).
+          Loop l;
+          l.session_a = k->keyframe.nav_placement->session;
+          l.keyframe_a = k->keyframe.nav_placement->keyframe;
+          l.session_b = k->keyframe.session;
+          l.keyframe_b = k->keyframe.keyframe;
+          l.z = k->keyframe.nav_placement->z;
+          const Status placed = manager_->addNavPlacement(l);
+          if (!placed.ok()) say(Severity::kWarn, placed.message);
+        }
         if (k->done) k->done(manager_->view(), k->keyframe, st);
       } else if (auto* f = std::get_if<ForeignKeyframeItem>(&item)) {
         std::string why;

@@ -220,6 +220,7 @@ void visitConfig(V& v, C& c) {
     n("min_features_to_restart", o.min_features_to_restart);
     n("max_speed_m_s", o.max_speed_m_s);
     n("max_yaw_rate_rad_s", o.max_yaw_rate_rad_s);
+    n("place_pieces", o.place_pieces);
   });
   v.block("loops", [&](V& l) { visitLoops(l, c.loops); });
   v.block("backend", [&](V& b) { visitBackend(b, c.backend); });

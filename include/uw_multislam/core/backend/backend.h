@@ -143,6 +143,10 @@ struct BackendLoop {
   int session_b = 0, keyframe_b = 0;
   UncertainPose2 z;
   int inliers = 0;  // RANSAC's (the consistency policy's support)
+  /// The nav's placement of a new session (SessionManager::addNavPlacement), not a visual match:
+  /// it joins the two maps it was made for, and is never evidence for an automatic join or a
+  /// relocalisation (after a split, only a join the operator asks for may use it again).
+  bool nav_placement = false;
 };
 
 using BackendStatus = Status;

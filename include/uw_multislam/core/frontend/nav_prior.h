@@ -76,6 +76,10 @@ struct NavPriorOptions {
   /// The same for the heading: a turn faster than this (plus three sigma, the nav's and a 2-degree
   /// reading noise of each heading).
   double max_yaw_rate_rad_s = 1.0;
+  /// Place each new piece (after a tracking loss) and each new session whose nav is in the same
+  /// declared world frame by the nav (navPlacement below), so that it is in its predecessor's map
+  /// from its first keyframe instead of a map of its own until visual loops come.
+  bool place_pieces = true;
 
   std::string validate() const;
 };
@@ -110,6 +114,17 @@ class NavTrack {
 
 /// The nav's motion from a to b (b in a's frame) with the covariance of the model above.
 UncertainPose2 navMotion(const NavRecord& a, const NavRecord& b, const NavPriorOptions& options);
+
+/// The nav's placement of a keyframe b relative to an earlier keyframe a, across a stretch the
+/// odometry did not carry (a tracking loss, or from one session to the next): b's nav pose in a's
+/// nav frame. `one_track`: a and b are readings of one continuous dead reckoning (the pieces of a
+/// stream), whose error is systematic: navMotion's covariance, the growth of the nav's sigma over
+/// the stretch times nav.inflation (so the distance travelled in the gap sets it, never a fixed
+/// sigma). Otherwise (two sessions, each dead-reckoned from its own start in one declared world
+/// frame) their accumulated errors are independent: sigma_xy = inflation x sqrt(sigma_xy(a)^2 +
+/// sigma_xy(b)^2 + (sigma_yaw(a) |b - a|)^2) (a's heading error turns the vector between them),
+/// sigma_yaw = inflation x sqrt(sigma_yaw(a)^2 + sigma_yaw(b)^2), floored as navMotion's.
+UncertainPose2 navPlacement(const NavRecord& a, const NavRecord& b, const NavPriorOptions& options, bool one_track);
 
 /// The squared Mahalanobis distance between a visual and a nav motion (summed covariances), and
 /// the gate's threshold.

@@ -188,6 +188,9 @@ struct KeyframeInfo {
   /// The frame's own match to the keyframe before it: of the frame that became the keyframe, or
   /// of a promoted frame from when it was tracked (zeros for the first keyframe and fallbacks).
   MatchSummary match{};
+  /// The nav reading that anchors the nav at this keyframe (accepted, not refused; none for a
+  /// fallback keyframe or a frame without nav): where a piece's nav placement starts or ends.
+  std::optional<NavRecord> nav = std::nullopt;
 };
 
 struct OdometryStats {

@@ -12,7 +12,9 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
+#include <utility>
 
 #include "uw_multislam/core/frontend/odometry.h"
 
@@ -26,12 +28,23 @@ struct TrackingLossOptions {
   std::string validate() const;
 };
 
+/// Where the nav puts a new piece's first keyframe: relative to keyframe `keyframe` of the piece
+/// before it (its id there), `z` the first keyframe's pose in that keyframe's frame with the nav's
+/// covariance over the stretch between them (navPlacement, one track).
+struct NavPlacement {
+  int keyframe = -1;
+  UncertainPose2 z;
+};
+
 class SegmentedOdometry {
  public:
   struct Step {
     OdometryUpdate update;         // of the current session's odometry (status kSkipped while lost)
     bool session_started = false;  // this frame is the origin of a session (the first one too)
     bool session_closed = false;   // this frame closed the session (tracking lost)
+    /// With session_started after a tracking loss, when nav.place_pieces and the nav has a reading
+    /// at a kept keyframe of the previous piece and at this one: the nav's placement of this piece.
+    std::optional<NavPlacement> placement = std::nullopt;
   };
 
   /// Throws std::invalid_argument on bad options.
@@ -49,6 +62,9 @@ class SegmentedOdometry {
   /// Keyframes of the current (or just closed) session that count: its trajectory's first
   /// keptKeyframes() keyframes; fallback keyframes dropped at a close are not among them.
   int keptKeyframes() const { return kept_; }
+  /// The last kept keyframe of the current (or just closed) session with a nav reading: its id
+  /// and that reading (a nav placement's start). nullopt: none, or no session.
+  std::optional<std::pair<int, NavRecord>> lastNavKeyframe() const;
   /// Sessions started so far.
   int sessions() const { return sessions_; }
   /// Frames processed while lost (no session), and sessions closed by tracking loss.
@@ -66,6 +82,8 @@ class SegmentedOdometry {
   std::vector<Odometry::NewKeyframe> pending_, released_;
   int kept_ = 0;
   int consecutive_fallbacks_ = 0;
+  // The closed piece's lastNavKeyframe(), until the next piece starts (its placement's start).
+  std::optional<std::pair<int, NavRecord>> previous_nav_;
   int sessions_ = 0, frames_lost_ = 0, losses_ = 0;
   StageTimes times_;  // finished odometries' timings
 };

@@ -118,7 +118,8 @@ struct Loop {
   int session_b = 0, keyframe_b = 0, frame_b = 0;  // the new keyframe
   UncertainPose2 z;                                // pose of b in a's frame
   int inliers = 0;
-  float hash_l1 = 0.0f;  // global loops: the hash distance
+  float hash_l1 = 0.0f;        // global loops: the hash distance
+  bool nav_placement = false;  // not a visual loop: the nav's placement of a session (session_manager.h)
 };
 
 struct LoopStats {

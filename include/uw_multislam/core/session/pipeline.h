@@ -10,6 +10,13 @@
 // A camera stream (a dataset folder, or a bag's camera) is begun, fed frame by frame and ended;
 // tracking loss inside a stream closes its session and the next good frame starts another
 // (named "<stream>#<piece>").
+//
+// With the nav (odometry.nav.enabled and nav.place_pieces) a new piece is placed by the nav in the
+// map of the piece before it at its first keyframe (SegmentedOdometry's NavPlacement, handed to
+// SessionManager::addNavPlacement), and so is the first session of a stream whose nav is in the
+// same declared world frame (nav_frame.yaml) as an earlier stream's: against that stream's last
+// keyframe with a nav reading, the two dead reckonings' errors taken as independent
+// (navPlacement, not one track). Loops then refine the placement.
 #pragma once
 
 #include <opencv2/core.hpp>
@@ -17,6 +24,7 @@
 #include <deque>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -55,8 +63,11 @@ class Pipeline {
   Pipeline(const SlamConfig& config, SessionManager* manager, Log log = {}, bool verbose = true);
 
   /// `nav` (may be empty): the stream's dead-reckoned nav; each frame without a nav of its own
-  /// gets the track's pose at its stamp (config odometry.nav.enabled).
-  void beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of = {}, NavTrack nav = {});
+  /// gets the track's pose at its stamp (config odometry.nav.enabled). `nav_frame`: the declared
+  /// world frame its nav is in (nav_frame.yaml), if any: streams in the same one are placed
+  /// against each other.
+  void beginStream(const std::string& name, const CameraIntrinsics& camera, ImageOf image_of = {}, NavTrack nav = {},
+                   std::optional<NavFrame> nav_frame = std::nullopt);
   /// A dataset folder as a stream: named by its directory, its camera, its images read from the
   /// folder for the keyframes' stored images, its nav.csv as `nav`. `d` must outlive the stream.
   void beginStream(const Dataset& d);
@@ -83,6 +94,8 @@ class Pipeline {
   Pipeline(const SlamConfig& config, SessionWorker* worker, std::unique_ptr<SessionWorker> own, Log log, bool verbose);
   void startPiece(double stamp_s);
   void endPiece(double stamp_s);
+  // The nav's placement of the piece just started (for its keyframe 0), if the nav gives one.
+  std::optional<NavPlacementInput> placementOf(const SegmentedOdometry::Step& step) const;
   void say(const std::string& line) const;
 
   SlamConfig config_;
@@ -96,6 +109,17 @@ class Pipeline {
   CameraIntrinsics stream_camera_;  // the stream's camera, with its distortion
   ImageOf image_of_;
   NavTrack nav_;
+  std::optional<NavFrame> nav_frame_;  // the stream's declared nav world frame
+  int previous_piece_ = -1;            // the manager's id of this stream's last closed piece
+  // The last keyframe with a nav reading of a finished stream's pieces, in its declared world
+  // frame: where the next stream in that frame is placed from.
+  struct NavAnchor {
+    int session = -1, keyframe = -1;
+    NavRecord nav;
+    NavFrame frame;
+  };
+  std::optional<NavAnchor> nav_anchor_;
+  std::optional<NavAnchor> stream_anchor_;  // this stream's latest, handed on at its end
   std::unique_ptr<SegmentedOdometry> segmented_;
   SessionChain chain_;
   int session_ = -1;       // the manager's id of the stream's open piece; -1 while lost

@@ -1,7 +1,9 @@
 // The offline runner's output files (the contract offline_slam --help states), written from a
 // SessionManager's final state: odometry.csv, trajectory.csv, loops.csv, loop_poses.csv,
 // links.csv, timing.csv, motions.csv (session,index,source: where each keyframe's odometry motion
-// came from, visual / nav / fused / fallback, one row per keyframe after a session's first) (and inputs.csv, the
+// came from, visual / nav / fused / fallback, one row per keyframe after a session's first),
+// nav_placements.csv (the nav's placements of pieces and sessions, SessionManager::addNavPlacement:
+// the two keyframes, the pose and its sigmas; not in loops.csv) (and inputs.csv, the
 // folders the run was made from). The CSV `session` column is the caller's numbering (offline_slam: the folder's
 // position on the command line; a stored session: its id), given per session id.
 #pragma once

@@ -126,6 +126,21 @@ class SessionManager : private SessionQueries {
   /// session or keyframe), FAILED_PRECONDITION (a bridged keyframe that never arrived, or the
   /// back-end refusing the loop).
   Status addLink(Loop loop);
+  /// The nav's placement of session `loop.session_b` (a new piece or session, its keyframe
+  /// `keyframe_b`, usually 0) relative to keyframe `keyframe_a` of an earlier session: `loop.z`
+  /// from the nav with the nav's covariance over the stretch between them (nav_prior.h
+  /// navPlacement; the caller never gives a fixed small sigma). Stored as a global loop marked a
+  /// nav placement (SessionStore table nav_placements), it joins the two maps at once (the link
+  /// is the placement, through the chains), so the session is in its predecessor's map from its
+  /// first keyframe; counted nav_placements, in the audit trail as "nav_placement". It is no visual
+  /// evidence: never counted towards an automatic join or a relocalisation (BackendLoop::
+  /// nav_placement), and later loops between the two go through the intra-map gate against the
+  /// map that holds it, then refine the link in the solve. OK without a change when the two are
+  /// already in one map (loops came first). Refused with nothing changed: INVALID_ARGUMENT (ids,
+  /// one session, a pose or covariance not finite or not positive definite), NOT_FOUND,
+  /// FAILED_PRECONDITION (a bridged keyframe, localisation mode); a join the back-end refuses
+  /// (both maps hold a recording session) leaves the placement stored, unused, and says why.
+  Status addNavPlacement(Loop loop);
   /// The operator's "optimise now": every map with loops waiting for optimisation (fewer than
   /// optimise_every) is optimised now, or (deferred) marked due. `maps`: how many.
   /// FAILED_PRECONDITION when optimisation is off (backend.optimise false).

@@ -78,6 +78,14 @@ enum class SessionState { kActive, kFinished, kUnloaded };
 const char* sessionStateName(SessionState s);
 
 /// A keyframe as the session manager takes it (from the odometry, in process or by message).
+/// The nav's placement of a session's first keyframe (SessionManager::addNavPlacement): the earlier
+/// keyframe it is placed against and the first keyframe's pose in that keyframe's frame, with the
+/// nav's covariance over the stretch between them (nav_prior.h navPlacement).
+struct NavPlacementInput {
+  int session = -1, keyframe = -1;
+  UncertainPose2 z;
+};
+
 struct KeyframeInput {
   int session = 0;
   int keyframe = 0;  // 0 is the session's origin
@@ -91,6 +99,9 @@ struct KeyframeInput {
   Pose2 odometry_pose;                                 // X_k^0 of the odometry chain
   Eigen::VectorXf hash;                                // the keyframe's hash; empty: the manager computes it (once)
   std::vector<std::uint8_t> thumbnail;                 // small JPEG for the store, may be empty
+  /// Keyframe 0 of a piece or session the nav places (offline: core::Pipeline; live: the Keyframe
+  /// message's placement): the SessionWorker hands it to addNavPlacement once the keyframe is in.
+  std::optional<NavPlacementInput> nav_placement = std::nullopt;
 };
 
 struct SessionSummary {
@@ -134,6 +145,7 @@ const char* sessionEventName(SessionEvent::Kind k);
 struct SessionManagerStats {
   long keyframes = 0, keyframes_stale = 0, keyframes_refused = 0, keyframe_gaps = 0;
   long keyframe_jumps = 0;  // jumps past max_keyframe_gap that ended a piece (a new session from there)
+  long nav_placements = 0;  // sessions placed in their predecessor's map by the nav (addNavPlacement)
   long loops = 0, loops_refused = 0;
   long store_failures = 0;
 };

@@ -94,6 +94,10 @@ struct StoredLoop {
   int inliers = 0;
   UncertainPose2 z;  // pose of b in a
   bool summarised = false, applied = false, refused = false;
+  /// The nav's placement of a session (SessionManager::addNavPlacement), not a visual loop: a row
+  /// of the table nav_placements (created like provenance, no new schema version; a build
+  /// before it reads the loop as a global loop whose link it restores the same).
+  bool nav_placement = false;
 };
 
 struct StoredLink {

@@ -1,0 +1,392 @@
+// The nav's placement of a new piece or session (nav_prior.h navPlacement, tracking.h NavPlacement,
+// SessionManager::addNavPlacement): its covariance against a Monte-Carlo of a dead reckoning
+// simulated here on its own, the odometry's placement after a tracking loss, the manager putting
+// the piece in its predecessor's map from its first keyframe, loops refining it, the store keeping
+// it (and its kind) across a restart, and the back-end never taking it as visual evidence.
+#include <gtest/gtest.h>
+
+#include <Eigen/LU>
+
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "../../common/rendered_seabed.h"
+#include "../../common/scoped_temp_dir.h"
+#include "../../common/sql_file.h"
+#include "uw_multislam/core/backend/backend.h"
+#include "uw_multislam/core/frontend/nav_prior.h"
+#include "uw_multislam/core/frontend/tracking.h"
+#include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/core/session/session_store.h"
+
+namespace uw_multislam {
+namespace core {
+namespace {
+
+// --- The covariance against a Monte-Carlo -------------------------------------------------------
+
+// A DVL/INS dead reckoning written here apart from the simulator: a scale error s ~ N(0, sigma_s)
+// on the body displacement, a heading bias b ~ N(0, sigma_b), a position random walk of
+// `walk` m/sqrt(m); its stated sigma what a nav.csv states for that model (make_survey's):
+// hypot(sigma_s, sigma_b) x distance + walk x sqrt(distance), sigma_yaw sigma_b.
+struct DeadReckoning {
+  double sigma_s = 0.007, sigma_b = 0.007, walk = 0.002;
+  std::vector<NavRecord> fly(const std::vector<Pose2>& truth, std::mt19937_64* rng) const {
+    std::normal_distribution<double> g(0.0, 1.0);
+    const double s = sigma_s * g(*rng), b = sigma_b * g(*rng);
+    std::vector<NavRecord> nav;
+    Eigen::Vector2d p = truth.front().translation();
+    double distance = 0.0;
+    for (std::size_t k = 0; k < truth.size(); ++k) {
+      if (k > 0) {
+        const Eigen::Vector2d step = truth[k].translation() - truth[k - 1].translation();
+        distance += step.norm();
+        p += Pose2(0, 0, b).rotation() * ((1.0 + s) * step) +
+             walk * std::sqrt(step.norm()) * Eigen::Vector2d(g(*rng), g(*rng));
+      }
+      nav.push_back({1.0 * k, Pose2(p.x(), p.y(), truth[k].yaw() + b),
+                     std::hypot(sigma_s, sigma_b) * distance + walk * std::sqrt(distance), sigma_b});
+    }
+    return nav;
+  }
+};
+
+// 0.4 m steps: 10 m east, a quarter turn, 10 m north (the turn inside the stretch).
+std::vector<Pose2> lShapedTrack(const Pose2& start) {
+  std::vector<Pose2> t;
+  for (int k = 0; k <= 25; ++k) t.push_back(compose(start, Pose2(0.4 * k, 0, 0)));
+  for (int k = 1; k <= 25; ++k) t.push_back(compose(start, Pose2(10, 0.4 * k, M_PI / 2)));
+  return t;
+}
+
+struct Coverage {
+  double inside = 0.0;          // fraction of runs with d^2 (3 dof) within the 0.99 quantile
+  double sigma_over_rms = 0.0;  // the placement's sigma_xy over the runs' rms error per axis
+};
+
+template <typename Place>
+Coverage monteCarlo(Place place, int runs) {
+  std::mt19937_64 rng(7);
+  int inside = 0;
+  double sum2 = 0.0, sigma = 0.0;
+  for (int r = 0; r < runs; ++r) {
+    Pose2 truth_a, truth_b;
+    const UncertainPose2 z = place(&rng, &truth_a, &truth_b);
+    const Pose2 truth = between(truth_a, truth_b);
+    const Eigen::Vector3d e(z.mean.x() - truth.x(), z.mean.y() - truth.y(), normalizeAngle(z.mean.yaw() - truth.yaw()));
+    if (e.dot(z.covariance.inverse() * e) <= 11.345) ++inside;  // chi-square 3 dof, 0.99
+    sum2 += 0.5 * e.head<2>().squaredNorm();
+    sigma += std::sqrt(z.covariance(0, 0)) / runs;
+  }
+  return {static_cast<double>(inside) / runs, sigma / std::sqrt(sum2 / runs)};
+}
+
+TEST(NavPlacement, OneTracksCovarianceIsTheDriftOverTheStretchAndCoversAMonteCarlo) {
+  NavPriorOptions o;
+  const DeadReckoning dr;
+  const std::vector<Pose2> track = lShapedTrack(Pose2(3, 2, 0.3));
+  // The drift model written out: a at 4 m travelled, b at 16 m: inflation x hypot(s, b) x 12 m,
+  // plus the random walk's growth.
+  std::mt19937_64 rng(1);
+  const std::vector<NavRecord> nav = dr.fly(track, &rng);
+  const UncertainPose2 z = navPlacement(nav[10], nav[40], o, true);
+  const double expected = 2.0 * (std::hypot(0.007, 0.007) * 12.0 + 0.002 * (std::sqrt(16.0) - std::sqrt(4.0)));
+  EXPECT_NEAR(std::sqrt(z.covariance(0, 0)), expected, 1e-9);
+  EXPECT_NEAR(std::sqrt(z.covariance(1, 1)), expected, 1e-9);
+  EXPECT_NEAR(std::sqrt(z.covariance(2, 2)), o.min_sigma_rad, 1e-12) << "a constant heading bias: the floor";
+  const Pose2 nav_motion = between(nav[10].pose, nav[40].pose);
+  EXPECT_NEAR(z.mean.x(), nav_motion.x(), 1e-12);
+  EXPECT_NEAR(z.mean.y(), nav_motion.y(), 1e-12);
+  // Monte-Carlo: the nav's motion across the turn is within the placement's covariance (99 % of
+  // runs at the 0.99 quantile): a true loop is never refused against it. It is conservative by
+  // design, not loose without bound: nav.inflation (2) x the stated drift hypot(s, b) over the
+  // scale error s alone (sqrt 2: a constant heading bias cancels within one track) x the path over
+  // the displacement (12 m / 8.5 m) x sqrt 2 (the error lies along the displacement, one axis):
+  // 5.66 times the rms error per axis.
+  const Coverage c = monteCarlo(
+      [&](std::mt19937_64* g, Pose2* ta, Pose2* tb) {
+        const std::vector<NavRecord> n = dr.fly(track, g);
+        *ta = track[10];
+        *tb = track[40];
+        return navPlacement(n[10], n[40], o, true);
+      },
+      4000);
+  EXPECT_GE(c.inside, 0.99);
+  EXPECT_NEAR(c.sigma_over_rms, 2.0 * std::sqrt(2.0) * (12.0 / std::hypot(6.0, 6.0)) * std::sqrt(2.0), 0.5);
+  // A fixed small sigma (the nav prior's 5 mm floor) would be refused against by the truth.
+  NavPriorOptions tiny = o;
+  tiny.inflation = 1.0;
+  const Coverage overconfident = monteCarlo(
+      [&](std::mt19937_64* g, Pose2* ta, Pose2* tb) {
+        const std::vector<NavRecord> n = dr.fly(track, g);
+        *ta = track[10];
+        *tb = track[40];
+        UncertainPose2 p = navPlacement(n[10], n[40], tiny, true);
+        p.covariance.topLeftCorner<2, 2>() = Eigen::Matrix2d::Identity() * tiny.min_sigma_m * tiny.min_sigma_m;
+        return p;
+      },
+      1000);
+  EXPECT_LT(overconfident.inside, 0.5);
+}
+
+TEST(NavPlacement, TwoSessionsErrorsAreIndependentAndTheHeadingErrorReachesAcrossTheGap) {
+  NavPriorOptions o;
+  const DeadReckoning dr;
+  // Session a flies the L from (0, 0); session b starts 6 m west of a's end, its own dead
+  // reckoning from a known start (sigma 0 there), in the same world frame.
+  const std::vector<Pose2> a = lShapedTrack(Pose2());
+  const std::vector<Pose2> b = lShapedTrack(Pose2(4, 10, M_PI));
+  const Coverage c = monteCarlo(
+      [&](std::mt19937_64* g, Pose2* ta, Pose2* tb) {
+        const std::vector<NavRecord> na = dr.fly(a, g), nb = dr.fly(b, g);
+        *ta = a.back();
+        *tb = b.front();
+        return navPlacement(na.back(), nb.front(), o, false);
+      },
+      4000);
+  // Covered, and conservative by about the same factors as one track (the inflation, the stated
+  // drift over the path against an error over the displacement).
+  EXPECT_GE(c.inside, 0.99);
+  EXPECT_GE(c.sigma_over_rms, 2.0);
+  EXPECT_LE(c.sigma_over_rms, 6.0);
+  std::mt19937_64 rng(3);
+  const NavRecord end = dr.fly(a, &rng).back(), start = dr.fly(b, &rng).front();
+  const UncertainPose2 z = navPlacement(end, start, o, false);
+  const double reach = 0.007 * (start.pose.translation() - end.pose.translation()).norm();
+  EXPECT_NEAR(std::sqrt(z.covariance(0, 0)), 2.0 * std::hypot(end.sigma_xy_m, reach), 1e-9);
+  EXPECT_NEAR(std::sqrt(z.covariance(2, 2)), 2.0 * std::hypot(0.007, 0.007), 1e-9);
+}
+
+// --- The odometry's placement after a tracking loss ---------------------------------------------
+
+class NavPlacementTracking : public testing_util::RenderedSeabedTest {};
+
+TEST_F(NavPlacementTracking, APieceAfterATrackingLossIsPlacedByTheNavFromThePreviousPiecesLastNavKeyframe) {
+  // The straight pass, 0.25 m a frame; frames 10-17 blank. The nav's heading turns 2.5 rad at
+  // frame 12 (beyond nav.max_yaw_rate_rad_s: refused, the piece ends at frame 13 with one
+  // bridged frame); the second piece starts at frame 18.
+  const auto nav = [](int k) -> NavRecord {
+    if (k < 12) return {1.0 * k, Pose2(0.25 * k, 0.0, 0.0), 0.01 * 0.25 * k, 0.001};
+    const double d = 0.25 * (k - 12);
+    return {1.0 * k, Pose2(3.0 + d * std::cos(2.5), d * std::sin(2.5), 2.5), 0.01 * 0.25 * k, 0.001};
+  };
+  const auto fly = [&](const OdometryOptions& options, bool with_nav, std::vector<SegmentedOdometry::Step>* steps) {
+    SegmentedOdometry odo(camera_, options, TrackingLossOptions());
+    const cv::Mat grey(240, 320, CV_8UC3, cv::Scalar(90, 110, 60));
+    int last_nav_kf = -1, last_nav_frame = -1;
+    for (int k = 0; k < 24; ++k) {
+      OdometryInput in{k, 1.0 * k, 2.0, (k >= 10 && k < 18) ? grey : render(Pose2(2.0 + 0.25 * k, 4.0, 0.0), 2.0)};
+      if (with_nav) in.nav = nav(k);
+      steps->push_back(odo.process(in));
+      if (steps->back().session_closed) {
+        const auto last = odo.lastNavKeyframe();
+        if (last) {
+          last_nav_kf = last->first;
+          last_nav_frame = odo.odometry()->keyframes()[last->first].frame_index;
+        }
+      }
+    }
+    return std::make_pair(last_nav_kf, last_nav_frame);
+  };
+  OdometryOptions one_bridged;
+  one_bridged.fallback.bridge_frames = 1;
+  std::vector<SegmentedOdometry::Step> steps;
+  const auto [kf, frame] = fly(one_bridged, true, &steps);
+  ASSERT_TRUE(steps[13].session_closed);
+  ASSERT_TRUE(steps[18].session_started);
+  ASSERT_GE(kf, 0);
+  EXPECT_LE(frame, 11) << "a keyframe whose reading was accepted, before the refused turn";
+  ASSERT_TRUE(steps[18].placement.has_value());
+  const NavPlacement& p = *steps[18].placement;
+  EXPECT_EQ(p.keyframe, kf);
+  // The nav's motion from that keyframe's reading to frame 18's, with the growth of its sigma
+  // (1 % of 0.25 m a frame) times nav.inflation.
+  const Pose2 nav_motion = between(nav(frame).pose, nav(18).pose);
+  EXPECT_NEAR(p.z.mean.x(), nav_motion.x(), 1e-12);
+  EXPECT_NEAR(p.z.mean.y(), nav_motion.y(), 1e-12);
+  EXPECT_NEAR(p.z.mean.yaw(), nav_motion.yaw(), 1e-12);
+  const double sigma = 2.0 * 0.01 * 0.25 * (18 - frame);
+  EXPECT_NEAR(std::sqrt(p.z.covariance(0, 0)), sigma, 1e-12);
+  for (int k = 0; k < 24; ++k) EXPECT_EQ(steps[k].placement.has_value(), k == 18) << k;
+  // Off: nav.place_pieces false, or no nav (then the path is the one without nav).
+  OdometryOptions off = one_bridged;
+  off.nav.place_pieces = false;
+  std::vector<SegmentedOdometry::Step> off_steps, no_nav_steps;
+  fly(off, true, &off_steps);
+  EXPECT_TRUE(off_steps[18].session_started);
+  EXPECT_FALSE(off_steps[18].placement.has_value());
+  OdometryOptions disabled = one_bridged;
+  disabled.nav.enabled = false;
+  fly(disabled, true, &no_nav_steps);
+  for (const auto& s : no_nav_steps) EXPECT_FALSE(s.placement.has_value());
+}
+
+// --- The session manager ---------------------------------------------------------------------------
+
+SessionManagerOptions managerOptions(const std::string& store = "") {
+  SessionManagerOptions o;
+  o.store_path = store;
+  o.backend.join_policy = JoinPolicy::kCount;
+  o.backend.join_min_loops = 2;  // two visual loops join maps automatically
+  return o;
+}
+
+KeyframeInput keyframeAt(int session, int k, const Pose2& pose, const Pose2& previous) {
+  KeyframeInput in;
+  in.session = session;
+  in.keyframe = k;
+  in.frame_index = 10 * k;
+  in.stamp_s = 100.0 * session + k;
+  in.altitude_m = 2.0;
+  in.camera = CameraIntrinsics{640, 480, 500.0, 500.0, 320.0, 240.0};
+  in.motion = UncertainPose2(between(previous, pose), Eigen::Vector3d(1e-6, 1e-6, 1e-8).asDiagonal());
+  in.odometry_pose = pose;
+  return in;
+}
+
+// Session 0: 8 keyframes 1 m apart along x. Session 1 (after a tracking loss) starts at
+// truthOne(0) in session 0's frame and flies along its own x.
+const Pose2 kOneStart(10.0, 1.5, 0.4);
+Pose2 truthOne(int k) { return compose(kOneStart, Pose2(k, 0, 0)); }
+
+Loop placementOf(const Pose2& z, double sigma_m, double sigma_rad) {
+  Loop l;
+  l.session_a = 0;
+  l.keyframe_a = 7;
+  l.session_b = 1;
+  l.keyframe_b = 0;
+  l.z = UncertainPose2(z, Eigen::Vector3d(sigma_m * sigma_m, sigma_m * sigma_m, sigma_rad * sigma_rad).asDiagonal());
+  return l;
+}
+
+Loop visualLoop(int ka, int kb, const Pose2& a_pose, const Pose2& b_pose) {
+  Loop l;
+  l.kind = Loop::Kind::kGlobal;
+  l.session_a = 0;
+  l.keyframe_a = ka;
+  l.session_b = 1;
+  l.keyframe_b = kb;
+  l.z = UncertainPose2(between(a_pose, b_pose), Eigen::Vector3d(1e-6, 1e-6, 1e-6).asDiagonal());
+  l.inliers = 80;
+  return l;
+}
+
+TEST(NavPlacement, APlacedPieceIsInItsPredecessorsMapFromItsFirstKeyframeLoopsRefineItAndTheStoreKeepsIt) {
+  testing_util::ScopedTempDir dir("nav_placement");
+  const std::string db = (dir.path() / "s.db").string();
+  // The nav's placement is 8 cm and 0.02 rad off the truth, its sigma 0.1 m, 0.03 rad.
+  const Pose2 truth_z = between(Pose2(7, 0, 0), kOneStart);
+  const Pose2 nav_z = compose(truth_z, Pose2(0.08, -0.03, 0.02));
+  std::vector<Pose2> placed_poses;
+  {
+    std::vector<SessionEvent> events;
+    SessionManager m(managerOptions(db), [&](const SessionEvent& e) { events.push_back(e); });
+    for (int k = 0; k < 8; ++k)
+      ASSERT_TRUE(m.addKeyframe(keyframeAt(0, k, Pose2(k, 0, 0), Pose2(std::max(0, k - 1), 0, 0))).ok());
+    ASSERT_TRUE(m.addKeyframe(keyframeAt(1, 0, Pose2(), Pose2())).ok());
+    ASSERT_NE(m.view().mapOf(1), m.view().mapOf(0));
+    events.clear();
+    const Status st = m.addNavPlacement(placementOf(nav_z, 0.1, 0.03));
+    ASSERT_TRUE(st.ok()) << st.message;
+    // In session 0's map from its first keyframe, where the nav puts it.
+    EXPECT_EQ(m.view().mapOf(1), m.view().mapOf(0));
+    const Pose2 placed = m.view().poses(1)[0];
+    const Pose2 expected = compose(m.view().poses(0)[7], nav_z);
+    EXPECT_NEAR(placed.x(), expected.x(), 1e-9);
+    EXPECT_NEAR(placed.y(), expected.y(), 1e-9);
+    EXPECT_NEAR(placed.yaw(), expected.yaw(), 1e-9);
+    bool joined = false;
+    for (const SessionEvent& e : events) joined |= e.kind == SessionEvent::Kind::kMapsJoined;
+    EXPECT_TRUE(joined);
+    EXPECT_EQ(m.view().stats().nav_placements, 1);
+    ASSERT_EQ(m.view().loops().size(), 1u);
+    EXPECT_TRUE(m.view().loops()[0].nav_placement);
+    EXPECT_EQ(m.view().loops()[0].inliers, 0);
+    // A second placement of the same pair changes nothing (already one map).
+    EXPECT_TRUE(m.addNavPlacement(placementOf(nav_z, 0.1, 0.03)).ok());
+    EXPECT_EQ(m.view().loops().size(), 1u);
+    EXPECT_EQ(m.view().stats().nav_placements, 1);
+    // Misuse: nothing changed.
+    Loop same = placementOf(nav_z, 0.1, 0.03);
+    same.session_a = 1;
+    same.keyframe_a = 0;
+    same.keyframe_b = 0;
+    EXPECT_EQ(m.addNavPlacement(same).code, StatusCode::kInvalidArgument);
+    Loop zero = placementOf(nav_z, 0.0, 0.0);
+    EXPECT_EQ(m.addNavPlacement(zero).code, StatusCode::kInvalidArgument);
+    // Session 1 flies on; its odometry is exact. Three true visual loops to session 0 (now inside
+    // one map: the intra-map gate checks them against the chain through the placement's
+    // covariance) are taken and the solve moves the piece onto the truth.
+    for (int k = 1; k < 6; ++k) ASSERT_TRUE(m.addKeyframe(keyframeAt(1, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok());
+    const long refused_before = m.view().stats().loops_refused;
+    ASSERT_TRUE(m.addLoop(visualLoop(7, 0, Pose2(7, 0, 0), truthOne(0))).ok());
+    ASSERT_TRUE(m.addLoop(visualLoop(6, 1, Pose2(6, 0, 0), truthOne(1))).ok());
+    ASSERT_TRUE(m.addLoop(visualLoop(5, 2, Pose2(5, 0, 0), truthOne(2))).ok());
+    m.flush();
+    EXPECT_EQ(m.view().stats().loops_refused, refused_before) << "a true loop is not refused against the placement";
+    const Pose2 refined = between(m.view().poses(0)[0], m.view().poses(1)[0]);
+    EXPECT_LT((refined.translation() - kOneStart.translation()).norm(), 0.005);
+    EXPECT_NEAR(normalizeAngle(refined.yaw() - kOneStart.yaw()), 0.0, 0.002);
+    EXPECT_GT((between(m.view().poses(0)[0], placed).translation() - kOneStart.translation()).norm(), 0.05)
+        << "the placement alone was off: the loops moved it";
+    ASSERT_TRUE(m.endSession(300.0).ok());
+    placed_poses = m.view().poses(1);
+  }
+  // The store says what the link is and a restart restores the map with it.
+  {
+    SessionStore store(db, StoreAccess::kReadOnly);
+    int marked = 0;
+    for (const StoredLoop& l : store.loops()) marked += l.nav_placement ? 1 : 0;
+    EXPECT_EQ(marked, 1);
+    EXPECT_EQ(store.loops().size(), 4u);
+  }
+  SessionManager again(managerOptions(db));
+  EXPECT_EQ(again.view().mapOf(1), again.view().mapOf(0));
+  ASSERT_EQ(again.view().loops().size(), 4u);
+  EXPECT_TRUE(again.view().loops()[0].nav_placement);
+  for (std::size_t i = 1; i < 4; ++i) EXPECT_FALSE(again.view().loops()[i].nav_placement) << i;
+  const std::vector<Pose2> restored = again.view().poses(1);
+  ASSERT_EQ(restored.size(), placed_poses.size());
+  for (std::size_t k = 0; k < restored.size(); ++k)
+    EXPECT_LT((restored[k].translation() - placed_poses[k].translation()).norm(), 1e-9) << k;
+  // Split off and deleted, the placed session takes its placement's row with it.
+  ASSERT_TRUE(again.split(1).ok());
+  ASSERT_TRUE(again.deleteSession("1", true).ok());
+  {
+    SessionStore store(db, StoreAccess::kReadOnly);
+    EXPECT_TRUE(store.loops().empty());
+  }
+  EXPECT_TRUE(testing_util::execSql(db,
+                                    "CREATE TEMP TABLE left_over(n CHECK(n = 0)); "
+                                    "INSERT INTO left_over SELECT COUNT(*) FROM nav_placements;"));
+}
+
+TEST(NavPlacement, APlacementIsNoEvidenceForAnAutomaticJoin) {
+  // Two maps with one visual loop and a placement loop between them (as after a split):
+  // join_min_loops 2 joins with two loops, not with the placement standing in for one.
+  for (const bool placement : {true, false}) {
+    BackendOptions o;
+    o.join_policy = JoinPolicy::kCount;
+    o.join_min_loops = 2;
+    MultiSessionBackend b(o);
+    const int s0 = b.startSession("a");
+    for (int k = 1; k < 5; ++k) b.addMotion(s0, UncertainPose2(Pose2(1, 0, 0), Eigen::Matrix3d::Identity() * 1e-6));
+    b.endSession(s0);
+    const int s1 = b.startSession("b");
+    for (int k = 1; k < 5; ++k) b.addMotion(s1, UncertainPose2(Pose2(1, 0, 0), Eigen::Matrix3d::Identity() * 1e-6));
+    b.endSession(s1);
+    BackendLoop nav{s0, 4, s1, 0, UncertainPose2(Pose2(1, 1, 0), Eigen::Matrix3d::Identity() * 1e-2), 0, placement};
+    b.addLoop(nav);
+    // Consistent with the placement: keyframe 1 of b at (6, 1) in a's frame.
+    b.addLoop({s0, 2, s1, 1, UncertainPose2(Pose2(4, 1, 0), Eigen::Matrix3d::Identity() * 1e-6), 80});
+    EXPECT_EQ(b.mapOf(s0) == b.mapOf(s1), !placement) << placement;
+    if (placement) {
+      EXPECT_FALSE(b.relocalise(s1).has_value()) << "one visual loop relocalises nothing";
+    }
+  }
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace uw_multislam
