@@ -342,16 +342,15 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
     ++counts_.sessions;
     NODELET_INFO("odometry: tracking resumed at frame %d: session %d starts", u.index, session_);
   }
-  std::string said;  // the nav's placement of a new piece or session (its keyframe 0), or why there is none
-  const std::optional<core::NavPlacementInput> placement = placer_.step(step, *odometry_, session_, &said);
-  if (!said.empty()) NODELET_INFO("odometry: %s", said.c_str());
+  const core::NavSessionPlacer::Sent nav_placement = placer_.step(step, *odometry_, session_);  // for keyframe 0
+  if (!nav_placement.said.empty()) NODELET_INFO("odometry: %s", nav_placement.said.c_str());
   if (!done) return;
   // base_link in the z-up session frame, with the covariance of the motions since its first frame.
   // Before the keyframe's message (hash, thumbnail): the pose's latency is the frame's, not the keyframe's.
   pose_pub_.publish(
       rc::toPoseWithCovarianceStampedMsg(core::vehicleFromCamera(core::UncertainPose2(u.pose, u.covariance), mount_),
                                          options_.session_frame_prefix + std::to_string(session_), stamp));
-  counts_.keyframes += keyframes_->publish(*odometry_, u, session_, image, f.msg.header(), placement);
+  counts_.keyframes += keyframes_->publish(*odometry_, u, session_, image, f.msg.header(), nav_placement.placement);
   if (step.session_closed) {
     ++counts_.tracking_losses;
     NODELET_WARN(

@@ -25,12 +25,10 @@ std::string describePlacement(const NavPlacementInput& p) {
 NavSessionPlacer::NavSessionPlacer(const NavPriorOptions& nav, bool world_fixed)
     : nav_(nav), world_fixed_(world_fixed) {}
 
-std::optional<NavPlacementInput> NavSessionPlacer::step(const SegmentedOdometry::Step& step,
-                                                        const SegmentedOdometry& odometry, int session,
-                                                        std::string* said) {
-  said->clear();
-  std::optional<NavPlacementInput> placement;
-  if (step.session_started && odometry.odometry()) placement = place(step, odometry, session, said);
+NavSessionPlacer::Sent NavSessionPlacer::step(const SegmentedOdometry::Step& step, const SegmentedOdometry& odometry,
+                                              int session) {
+  Sent sent;
+  if (step.session_started && odometry.odometry()) sent.placement = place(step, odometry, session, &sent.said);
   // Released keyframes are sent and kept (a close drops only the held ones): the latest with a
   // reading is where the next piece or session is placed from.
   if (const Odometry* odo = odometry.odometry()) {
@@ -43,7 +41,7 @@ std::optional<NavPlacementInput> NavSessionPlacer::step(const SegmentedOdometry:
       }
     }
   }
-  return placement;
+  return sent;
 }
 
 std::optional<NavPlacementInput> NavSessionPlacer::place(const SegmentedOdometry::Step& step,

@@ -184,8 +184,7 @@ TEST_F(NavPlacementTracking, APieceAfterATrackingLossIsPlacedByTheNavFromThePrev
       OdometryInput in{k, 1.0 * k, 2.0, (k >= 10 && k < 18) ? grey : render(Pose2(2.0 + 0.25 * k, 4.0, 0.0), 2.0)};
       if (with_nav) in.nav = nav(k);
       steps->push_back(odo.process(in));
-      std::string said;
-      sent.push_back(placer.step(steps->back(), odo, odo.sessions() - 1, &said));
+      sent.push_back(placer.step(steps->back(), odo, odo.sessions() - 1).placement);
       if (steps->back().session_closed) {
         const auto last = odo.lastNavKeyframe();
         if (last) {
@@ -257,9 +256,8 @@ TEST_F(NavPlacementTracking, ANewSessionInAWorldFixedNavFrameIsPlacedAgainstTheP
     for (int k = first; k < last; ++k) {
       const SegmentedOdometry::Step step =
           odo.process({k, 1.0 * k, 2.0, render(Pose2(2.0 + 0.25 * k, 4.0, 0.0), 2.0), worldNav(k)});
-      PlacedStep p;
-      p.placement = placer->step(step, odo, id, &p.said);
-      out->push_back(p);
+      const NavSessionPlacer::Sent sent = placer->step(step, odo, id);
+      out->push_back({sent.placement, sent.said});
     }
     if (last_nav) *last_nav = odo.lastNavKeyframe();
     EXPECT_EQ(odo.sessions(), 1);

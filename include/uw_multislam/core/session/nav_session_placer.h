@@ -39,13 +39,15 @@ class NavSessionPlacer {
   /// placed against an earlier one (the odometry's ~nav_world_fixed).
   NavSessionPlacer(const NavPriorOptions& nav = {}, bool world_fixed = false);
 
+  struct Sent {
+    std::optional<NavPlacementInput> placement;  // for the started piece's keyframe 0
+    std::string said;  // not empty: a line for the log (the placement, or why a new session has none)
+  };
   /// After `odometry.process()` gave `step`, whose keyframes go out as session `session`: the
-  /// nav's placement of the piece or session that step started (for its keyframe 0), if any; then
-  /// the step's released keyframes' latest with a nav reading becomes the anchor. `said`, when not
-  /// empty, is a line for the log: the placement, or why a new session is not placed (that nothing
-  /// is known to place it against: said once).
-  std::optional<NavPlacementInput> step(const SegmentedOdometry::Step& step, const SegmentedOdometry& odometry,
-                                        int session, std::string* said);
+  /// nav's placement of the piece or session that step started, if any; then the step's released
+  /// keyframes' latest with a nav reading becomes the anchor. That nothing is known to place a new
+  /// session against is said once.
+  Sent step(const SegmentedOdometry::Step& step, const SegmentedOdometry& odometry, int session);
 
   /// The last keyframe with an accepted nav reading seen so far (the next session's anchor).
   const std::optional<NavAnchor>& anchor() const { return anchor_; }
