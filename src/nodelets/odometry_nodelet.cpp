@@ -63,6 +63,7 @@ void OdometryNodelet::onInit() {
   sensor_mount_ =
       std::make_unique<ros_frames::SensorMount>(nh, o.base_frame, o.mount_wait_s, o.max_camera_tilt_deg * M_PI / 180.0);
   nav_ = std::make_unique<ros_inputs::NavInput>(nh, topics::kNavOdometry, o.nav());
+  placer_ = core::NavSessionPlacer(config.odometry.nav, o.nav_world_fixed);
   if (o.nav_source != "none") NODELET_INFO("odometry: %s", nav_->description(config.odometry.nav.enabled).c_str());
 
   keyframes_ = std::make_unique<ros_outputs::KeyframePublisher>(nh, it_.get(), config);
@@ -336,20 +337,20 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   const core::OdometryUpdate& u = step.update;
   skip_rule_->observe(core::processedFrame(u, stamp.toSec(), altitude, step.session_started, odometry_->odometry()));
   const bool done = ros_diagnostics::reportUpdate(u, &counts_);
-  std::optional<core::NavPlacementInput> placement;  // the nav's, of a piece after a tracking loss
   if (step.session_started && odometry_->sessions() > 1) {
-    if (step.placement) placement = core::NavPlacementInput{session_, step.placement->keyframe, step.placement->z};
     session_ = std::max(session_ + 1, requested.next_free);
     ++counts_.sessions;
     NODELET_INFO("odometry: tracking resumed at frame %d: session %d starts", u.index, session_);
   }
+  const core::NavSessionPlacer::Sent nav_placement = placer_.step(step, *odometry_, session_);  // for keyframe 0
+  if (!nav_placement.said.empty()) NODELET_INFO("odometry: %s", nav_placement.said.c_str());
   if (!done) return;
   // base_link in the z-up session frame, with the covariance of the motions since its first frame.
   // Before the keyframe's message (hash, thumbnail): the pose's latency is the frame's, not the keyframe's.
   pose_pub_.publish(
       rc::toPoseWithCovarianceStampedMsg(core::vehicleFromCamera(core::UncertainPose2(u.pose, u.covariance), mount_),
                                          options_.session_frame_prefix + std::to_string(session_), stamp));
-  counts_.keyframes += keyframes_->publish(*odometry_, u, session_, image, f.msg.header(), placement);
+  counts_.keyframes += keyframes_->publish(*odometry_, u, session_, image, f.msg.header(), nav_placement.placement);
   if (step.session_closed) {
     ++counts_.tracking_losses;
     NODELET_WARN(

@@ -107,6 +107,7 @@ OdometryNodeletOptions odometryNodeletOptions(const ros::NodeHandle& nh, const r
   o.nav_buffer_s = param(
       pnh, "nav_buffer_s", 60.0, [](double v) { return std::isfinite(v) && v >= 1 && v <= 3600; },
       "in [1, 3600] seconds");
+  o.nav_world_fixed = param(pnh, "nav_world_fixed", false, any, "a bool");
   o.camera_info_url = param(pnh, "camera_info_url", std::string(), any, "");
   if (!o.camera_info_url.empty()) {
     auto info = boost::make_shared<sensor_msgs::CameraInfo>();
@@ -164,6 +165,9 @@ std::vector<std::string> describe(const OdometryNodeletOptions& o) {
      << "(waiting up to frames/mount_wait_s " << o.mount_wait_s << " s at the first frame; none: frames are refused); ";
   os << "camera from camera_info, " << (o.rectified_images ? "rectified images (P)" : "raw images (K, D)")
      << (o.camera_info_url.empty() ? "" : "; while none arrives, from ~camera_info_url ") << o.camera_info_url;
+  if (o.nav_world_fixed && o.nav_source != "none" && c.odometry.nav.enabled)
+    os << "; the nav's frame is world-fixed (~nav_world_fixed): each new session is placed by the nav against the "
+       << "last keyframe with a nav reading before it";
   return {line, os.str()};
 }
 

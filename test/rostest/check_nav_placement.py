@@ -15,6 +15,15 @@ put the two pieces in one map.
   in the first piece's frame within 3 sigma of the placement, far from the new piece's origin.
 - ~case off (place_pieces false): no placement, two maps, and keyframe_pose jumps to the new
   piece's origin (what the placement removes).
+- ~case new_session (the odometry's ~nav_world_fixed: the nav's frame does not reset between
+  sessions): the frames before the black-out are session 0; then start_session, and the black-out
+  and the frames after it go to the new session (no tracking loss: the new session's odometry
+  starts at the first textured frame), the nav continuous across both. The new session's keyframe
+  0 carries the nav's placement against session 0's last keyframe with a reading (the two
+  readings' errors independent), the back-end puts it in session 0's map at once and keyframe_pose
+  is where the truth puts the vehicle within 3 sigma, as in case place.
+- ~case new_session_off (~nav_world_fixed unset, the default): the same flight, no placement, a
+  new map, keyframe_pose at the new session's origin.
 """
 import csv
 import math
@@ -32,7 +41,8 @@ from sensor_msgs.msg import CameraInfo, Image, Range
 from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, compose, connected,
                               diagnostic_values, invert, make_mission, mount_of_params, vehicle_from_camera)
 from uw_multislam.msg import Keyframe
-from uw_multislam.srv import ListSessions
+from uw_multislam.msg import SessionState, Status
+from uw_multislam.srv import ListSessions, StartSession
 
 BLACKOUT = range(8, 38)  # frames 8..37 of session a
 with open(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "nav_blackout_survey.yaml")) as _f:
@@ -73,7 +83,11 @@ class NavPlacementTest(unittest.TestCase):
                         "the odometry's subscriptions and diagnostics")
         frames = bag_frames(os.path.join(self.mission, "a.bag"), TOPICS)
         frame_of = {}  # image stamp -> frame index
+        new_session = self.case.startswith("new_session")
+        started = None  # start_session's new session (cases new_session*)
         for i, (image, info, altitude, nav) in enumerate(frames):
+            if new_session and i == BLACKOUT.start:
+                started = self.start_session(lock)
             frame_of[image.header.stamp] = i
             pubs[3].publish(nav)
             pubs[2].publish(altitude)
@@ -94,13 +108,19 @@ class NavPlacementTest(unittest.TestCase):
             keyframes, keyframe_poses = list(keyframes), list(keyframe_poses)
 
         self.assertEqual(odometry["frames_with_nav"], len(frames), "every frame with its nav reading")
-        self.assertEqual(odometry["tracking_losses"], 1, "the black-out ends the first piece")
+        if new_session:
+            self.assertEqual(odometry["tracking_losses"], 0, "start_session, not the black-out, ends session 0")
+        else:
+            self.assertEqual(odometry["tracking_losses"], 1, "the black-out ends the first piece")
         first, second = keyframes[0].session, None
         for k in keyframes:
             if k.session != first:
                 second = k
                 break
         self.assertIsNotNone(second, "a second piece")
+        if new_session:
+            self.assertEqual(second.session, started, "the second piece is start_session's")
+            self.assertLess(frame_of[[k for k in keyframes if k.session == first][-1].header.stamp], BLACKOUT.start)
         self.assertEqual(second.keyframe, 0)
         start = frame_of[second.header.stamp]
         self.assertGreaterEqual(start, BLACKOUT.stop, "the second piece starts after the black-out")
@@ -112,7 +132,7 @@ class NavPlacementTest(unittest.TestCase):
         self.assertTrue(at_start, "keyframe_pose for the second piece's first keyframe")
         pose = at_start[0].pose.pose.position
 
-        if self.case == "off":
+        if self.case in ("off", "new_session_off"):
             self.assertEqual(second.placement_session, -1)
             self.assertEqual(second.placement_keyframe, -1)
             self.assertEqual(list(second.placement_covariance), [0.0] * 9)
@@ -127,6 +147,8 @@ class NavPlacementTest(unittest.TestCase):
         self.assertEqual(len(placed_from), 1, "the placement names a keyframe of the first piece")
         self.assertLess(frame_of[placed_from[0].header.stamp], BLACKOUT.start, "a keyframe that saw the seabed")
         sigma = math.sqrt(second.placement_covariance[0])
+        if new_session:  # the last keyframe of session 0 (each carries its reading)
+            self.assertEqual(second.placement_keyframe, max(k.keyframe for k in keyframes if k.session == first))
         self.assertAlmostEqual(second.placement_covariance[4], second.placement_covariance[0])
         self.assertGreater(sigma, 0.005, "more than the nav prior's floor: the drift over the black-out")
         self.assertEqual(backend["nav_placements"], 1)
@@ -144,6 +166,19 @@ class NavPlacementTest(unittest.TestCase):
                       "%.2f m from its own origin", start, error * 100, sigma * 100, math.hypot(pose.x, pose.y))
         self.assertLessEqual(error, 3 * sigma)
         self.assertGreater(math.hypot(truth[0], truth[1]), 3 * sigma, "at the new piece's origin it would fail")
+
+    def start_session(self, lock):
+        """start_session, and the back-end's active_session naming the new session (which the odometry
+        takes at its next frame). Returns the new session's id."""
+        announced = []
+        sub = rospy.Subscriber(NS + "/active_session", SessionState, appender(lock, announced), queue_size=10)
+        rospy.wait_for_service(NS + "/start_session", timeout=30)
+        res = rospy.ServiceProxy(NS + "/start_session", StartSession)("second")
+        self.assertEqual(res.status.code, Status.OK, res.status.message)
+        await_condition(lock, lambda: any(m.session == res.session and m.state == SessionState.ACTIVE
+                                          for m in announced), 30, "active_session naming session %d" % res.session)
+        sub.unregister()
+        return res.session
 
 
 if __name__ == "__main__":

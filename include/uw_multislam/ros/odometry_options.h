@@ -43,6 +43,7 @@ struct OdometryNodeletOptions {
   double nav_tf_drift = 0.01;        // tf: sigma_xy = this x the distance travelled
   double nav_tf_yaw_drift = 0.001;   // tf: sigma_yaw = this (rad/m) x the distance travelled
   double nav_buffer_s = 60.0;        // nav readings kept this long behind the newest
+  bool nav_world_fixed = false;      // the nav's frame never resets: new sessions placed by it (NavSessionPlacer)
   bool rectified_images = false;     // the images are rectified: P, no distortion; else K with D
   std::string camera_info_url;       // calibration used when no camera_info arrives; empty = none
   std::string session_frame_prefix = topics::kDefaultSessionFramePrefix;

@@ -8,6 +8,7 @@
 #include <cstdio>
 
 #include "uw_multislam/core/frontend/image_file.h"
+#include "uw_multislam/core/session/nav_session_placer.h"
 
 namespace uw_multislam {
 namespace core {
@@ -236,19 +237,13 @@ std::optional<NavPlacementInput> Pipeline::placementOf(const SegmentedOdometry::
   } else if (pieces_ == 1 && nav_anchor_ && nav_frame_ && nav_anchor_->frame == *nav_frame_) {
     const std::optional<NavRecord>& here = segmented_->odometry()->keyframes().front().nav;
     if (!here) return std::nullopt;
-    p.session = nav_anchor_->session;
-    p.keyframe = nav_anchor_->keyframe;
-    p.z = navPlacement(nav_anchor_->nav, *here, o, false);  // two dead reckonings: independent errors
+    p = placeAgainst({nav_anchor_->session, nav_anchor_->keyframe, nav_anchor_->nav}, *here, o);
     what = "in the nav's world frame " + nav_frame_->name;
   } else {
     return std::nullopt;
   }
-  char line[200];
-  std::snprintf(line, sizeof line,
-                " against session %d keyframe %d: (%.3f m, %.3f m, %.3f rad), sigma %.3f m, %.4f rad", p.session,
-                p.keyframe, p.z.mean.x(), p.z.mean.y(), p.z.mean.yaw(), std::sqrt(p.z.covariance(0, 0)),
-                std::sqrt(p.z.covariance(2, 2)));
-  say("stream " + stream_ + ": session " + std::to_string(session_) + " placed by the nav " + what + line);
+  say("stream " + stream_ + ": session " + std::to_string(session_) + " placed by the nav " + what + " " +
+      describePlacement(p));
   return p;
 }
 

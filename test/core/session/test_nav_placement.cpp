@@ -17,6 +17,7 @@
 #include "uw_multislam/core/backend/backend.h"
 #include "uw_multislam/core/frontend/nav_prior.h"
 #include "uw_multislam/core/frontend/tracking.h"
+#include "uw_multislam/core/session/nav_session_placer.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/session_store.h"
 
@@ -171,14 +172,19 @@ TEST_F(NavPlacementTracking, APieceAfterATrackingLossIsPlacedByTheNavFromThePrev
     const double d = 0.25 * (k - 12);
     return {1.0 * k, Pose2(3.0 + d * std::cos(2.5), d * std::sin(2.5), 2.5), 0.01 * 0.25 * k, 0.001};
   };
+  // `sent`: what the odometry nodelet sends with each step (NavSessionPlacer; pieces numbered 0, 1).
+  std::vector<std::optional<NavPlacementInput>> sent;
   const auto fly = [&](const OdometryOptions& options, bool with_nav, std::vector<SegmentedOdometry::Step>* steps) {
     SegmentedOdometry odo(camera_, options, TrackingLossOptions());
+    NavSessionPlacer placer(options.nav, false);
+    sent.clear();
     const cv::Mat grey(240, 320, CV_8UC3, cv::Scalar(90, 110, 60));
     int last_nav_kf = -1, last_nav_frame = -1;
     for (int k = 0; k < 24; ++k) {
       OdometryInput in{k, 1.0 * k, 2.0, (k >= 10 && k < 18) ? grey : render(Pose2(2.0 + 0.25 * k, 4.0, 0.0), 2.0)};
       if (with_nav) in.nav = nav(k);
       steps->push_back(odo.process(in));
+      sent.push_back(placer.step(steps->back(), odo, odo.sessions() - 1).placement);
       if (steps->back().session_closed) {
         const auto last = odo.lastNavKeyframe();
         if (last) {
@@ -209,6 +215,13 @@ TEST_F(NavPlacementTracking, APieceAfterATrackingLossIsPlacedByTheNavFromThePrev
   const double sigma = 2.0 * 0.01 * 0.25 * (18 - frame);
   EXPECT_NEAR(std::sqrt(p.z.covariance(0, 0)), sigma, 1e-12);
   for (int k = 0; k < 24; ++k) EXPECT_EQ(steps[k].placement.has_value(), k == 18) << k;
+  // Sent by the nodelet's placer as it is, against piece 0.
+  for (int k = 0; k < 24; ++k) EXPECT_EQ(sent[k].has_value(), k == 18) << k;
+  ASSERT_TRUE(sent[18].has_value());
+  EXPECT_EQ(sent[18]->session, 0);
+  EXPECT_EQ(sent[18]->keyframe, kf);
+  EXPECT_EQ(sent[18]->z.mean.x(), p.z.mean.x());
+  EXPECT_EQ(sent[18]->z.covariance, p.z.covariance);
   // Off: nav.place_pieces false, or no nav (then the path is the one without nav).
   OdometryOptions off = one_bridged;
   off.nav.place_pieces = false;
@@ -220,6 +233,102 @@ TEST_F(NavPlacementTracking, APieceAfterATrackingLossIsPlacedByTheNavFromThePrev
   disabled.nav.enabled = false;
   fly(disabled, true, &no_nav_steps);
   for (const auto& s : no_nav_steps) EXPECT_FALSE(s.placement.has_value());
+}
+
+// --- A new session live, in a world-fixed nav frame (NavSessionPlacer) -----------------------------
+
+// One straight pass, 0.25 m a frame; the nav continuous in one world frame across the sessions
+// (0.01 x distance, yaw 0.002 rad). Session `id` is a new SegmentedOdometry (start_session, a
+// camera change) flying frames [first, last); each step goes through `placer` as the odometry
+// nodelet sends it. Returns every step's placement and log line.
+struct PlacedStep {
+  std::optional<NavPlacementInput> placement;
+  std::string said;
+};
+
+NavRecord worldNav(int k) { return {1.0 * k, Pose2(0.25 * k, 0.0, 0.0), 0.01 * 0.25 * k, 0.002}; }
+
+TEST_F(NavPlacementTracking, ANewSessionInAWorldFixedNavFrameIsPlacedAgainstThePreviousSessionsLastNavKeyframe) {
+  OdometryOptions options;
+  const auto session = [&](NavSessionPlacer* placer, int id, int first, int last, std::vector<PlacedStep>* out,
+                           std::optional<std::pair<int, NavRecord>>* last_nav = nullptr) {
+    SegmentedOdometry odo(camera_, options, TrackingLossOptions());
+    for (int k = first; k < last; ++k) {
+      const SegmentedOdometry::Step step =
+          odo.process({k, 1.0 * k, 2.0, render(Pose2(2.0 + 0.25 * k, 4.0, 0.0), 2.0), worldNav(k)});
+      const NavSessionPlacer::Sent sent = placer->step(step, odo, id);
+      out->push_back({sent.placement, sent.said});
+    }
+    if (last_nav) *last_nav = odo.lastNavKeyframe();
+    EXPECT_EQ(odo.sessions(), 1);
+  };
+  // Session 0 over frames 0-11, session 1 (after a gap: frames 12-15 never processed) from 16.
+  NavSessionPlacer placer(options.nav, true);
+  std::vector<PlacedStep> s0, s1;
+  std::optional<std::pair<int, NavRecord>> end0;
+  session(&placer, 0, 0, 12, &s0, &end0);
+  ASSERT_TRUE(end0.has_value());
+  ASSERT_TRUE(placer.anchor().has_value());
+  EXPECT_EQ(placer.anchor()->session, 0);
+  EXPECT_EQ(placer.anchor()->keyframe, end0->first) << "the last kept keyframe with a reading";
+  // The first session since the placer started: nothing known to place it against, said once.
+  EXPECT_FALSE(s0[0].placement.has_value());
+  EXPECT_NE(s0[0].said.find("session 0 is not placed by the nav: no earlier keyframe"), std::string::npos)
+      << s0[0].said;
+  for (std::size_t k = 1; k < s0.size(); ++k) EXPECT_TRUE(s0[k].said.empty()) << k << ": " << s0[k].said;
+  session(&placer, 1, 16, 20, &s1);
+  ASSERT_TRUE(s1[0].placement.has_value());
+  const NavPlacementInput& p = *s1[0].placement;
+  EXPECT_EQ(p.session, 0);
+  EXPECT_EQ(p.keyframe, end0->first);
+  // Frame 16's reading in that keyframe's, the two readings' errors independent (as offline).
+  const int from = static_cast<int>(std::lround(end0->second.stamp_s));
+  const Pose2 expected = between(worldNav(from).pose, worldNav(16).pose);
+  EXPECT_NEAR(p.z.mean.x(), expected.x(), 1e-12);
+  EXPECT_NEAR(p.z.mean.y(), expected.y(), 1e-12);
+  EXPECT_NEAR(p.z.mean.yaw(), expected.yaw(), 1e-12);
+  EXPECT_GT(p.z.mean.x(), 1.0) << "at least the four frames never processed";
+  const UncertainPose2 independent = navPlacement(worldNav(from), worldNav(16), options.nav, false);
+  EXPECT_EQ(p.z.covariance, independent.covariance);
+  const double reach = 0.002 * (16 - from) * 0.25;
+  EXPECT_NEAR(std::sqrt(p.z.covariance(0, 0)),
+              options.nav.inflation * std::sqrt(std::pow(worldNav(from).sigma_xy_m, 2) +
+                                                std::pow(worldNav(16).sigma_xy_m, 2) + reach * reach),
+              1e-12);
+  EXPECT_NE(s1[0].said.find("session 1 placed by the nav in its world-fixed frame against session 0"),
+            std::string::npos)
+      << s1[0].said;
+  for (std::size_t k = 1; k < s1.size(); ++k) EXPECT_FALSE(s1[k].placement.has_value()) << k;
+  EXPECT_EQ(placer.anchor()->session, 1) << "session 1's keyframes are the next one's anchor";
+
+  // Not world-fixed (the default), or no nav prior, or nav.place_pieces false: a new session is
+  // not placed, and nothing is said of it.
+  OdometryOptions no_nav = options;
+  no_nav.nav.enabled = false;
+  OdometryOptions not_placing = options;
+  not_placing.nav.place_pieces = false;
+  for (const NavSessionPlacer& fresh : {NavSessionPlacer(options.nav, false), NavSessionPlacer(no_nav.nav, true),
+                                        NavSessionPlacer(not_placing.nav, true)}) {
+    NavSessionPlacer off = fresh;
+    std::vector<PlacedStep> a, b;
+    session(&off, 0, 0, 12, &a);
+    session(&off, 1, 16, 20, &b);
+    for (const auto& s : {a, b})
+      for (const PlacedStep& x : s) {
+        EXPECT_FALSE(x.placement.has_value());
+        EXPECT_TRUE(x.said.empty()) << x.said;
+      }
+  }
+  // A restarted odometry knows nothing of the sessions before it: its first session is not placed
+  // (said once, not again), the next one is placed against it.
+  NavSessionPlacer restarted(options.nav, true);
+  std::vector<PlacedStep> r1, r2;
+  session(&restarted, 5, 16, 20, &r1);
+  EXPECT_FALSE(r1[0].placement.has_value());
+  EXPECT_FALSE(r1[0].said.empty());
+  session(&restarted, 6, 20, 24, &r2);
+  ASSERT_TRUE(r2[0].placement.has_value());
+  EXPECT_EQ(r2[0].placement->session, 5);
 }
 
 // --- The session manager ---------------------------------------------------------------------------

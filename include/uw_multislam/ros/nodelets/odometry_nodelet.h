@@ -26,6 +26,7 @@
 #include "uw_multislam/core/frontend/frame_skip.h"
 #include "uw_multislam/core/frontend/stream_control.h"
 #include "uw_multislam/core/frontend/tracking.h"
+#include "uw_multislam/core/session/nav_session_placer.h"
 #include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/image_input.h"
 #include "uw_multislam/ros/keyframe_publisher.h"
@@ -85,6 +86,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   ros_diagnostics::CounterStatus diagnostic_status_;  // the updater's thread only
   // Worker-only state.
   std::unique_ptr<core::SegmentedOdometry> odometry_;  // a new session on tracking loss
+  core::NavSessionPlacer placer_;  // the nav's placement of each new piece and session, across sessions
   std::unique_ptr<core::StampGuard> stamps_;
   std::unique_ptr<ros_frames::SensorMount> sensor_mount_;
   core::CameraIntrinsics camera_;                 // the session's
