@@ -91,14 +91,14 @@ void OdometryNodelet::onInit() {
       topics::kPauseService, [this](Op::Request&, Op::Response& res) { return setPaused(true, &res); }));
   services_.push_back(nh.advertiseService<Op::Request, Op::Response>(
       topics::kResumeService, [this](Op::Request&, Op::Response& res) { return setPaused(false, &res); }));
-  images_->subscribe(o.sync_queue_size, [this](ros_inputs::ImageMsg m) {
+  images_->subscribe(o.inputQueueSize(), [this](ros_inputs::ImageMsg m) {
     std::lock_guard<std::mutex> lock(pairing_mutex_);
     const double stamp = m.header().stamp.toSec();
     handle(pairing_->addImage(std::move(m), stamp, wallNow()));
   });
-  info_sub_ = nh.subscribe(topics::kCameraInfo, o.sync_queue_size, &OdometryNodelet::onCameraInfo, this);
+  info_sub_ = nh.subscribe(topics::kCameraInfo, o.inputQueueSize(), &OdometryNodelet::onCameraInfo, this);
   if (o.use_altitude_topic)
-    range_sub_ = nh.subscribe(topics::kAltitude, o.sync_queue_size, &OdometryNodelet::onRange, this);
+    range_sub_ = nh.subscribe(topics::kAltitude, o.inputQueueSize(), &OdometryNodelet::onRange, this);
 }
 
 void OdometryNodelet::onCameraInfo(const sensor_msgs::CameraInfoConstPtr& info) {
