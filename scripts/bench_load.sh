@@ -109,8 +109,8 @@ print("Reference, every frame at 10 Hz (drop_policy oldest, queue 10000): %d pro
 print()
 print("| policy | rate | frames/s | behind | processed | prepared on arrival | skipped for newest | dropped (queue full, or no prediction) "
       "| not received | sessions | tracking losses | keyframes | driver CPU | load average "
-      "| latency median ms (periods) | latency p99 ms (periods) |")
-print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+      "| latency median ms (periods) | latency p99 ms (periods) | p99 ms: keyframes / others |")
+print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
 names = {"oldest": "oldest (queue 5, former)", "newest": "newest", "prepare": "newest, prepare_threads 1",
          "newest_nice": "newest, loops and back-end at nice %d" % nice,
          "prepare_nice": "newest, prepare_threads 1, loops and back-end at nice %d" % nice}
@@ -136,12 +136,13 @@ for m in multiples:
             continue
         behind = r["rate_hz"] * (cost[policy] or float("nan")) / 1000.0
         print("| %s | %sx | %.1f | %.1fx%s | %d | %d | %d | %d | %d | %d | %d | %d | %.0f %% | %.1f | %.0f (%.1f) "
-              "| %.0f (%.1f) |" % (
+              "| %.0f (%.1f) | %.0f / %.0f |" % (
                   names[policy], m, r["rate_hz"], behind, "*" if policy.startswith("prepare") else "",
                   r["frames_processed"], r["prepared_ahead"], r["skipped_for_newest"], r["dropped_queue_full"],
                   r["frames"] - r["images_received"], r["sessions"], r["tracking_losses"], r["keyframes"],
                   100 * r["driver_cpu"], r["load_average"], r["latency_median_ms"], r["latency_median_periods"],
-                  r["latency_p99_ms"], r["latency_p99_periods"]))
+                  r["latency_p99_ms"], r["latency_p99_periods"], r.get("latency_p99_keyframes_ms", float("nan")),
+                  r.get("latency_p99_others_ms", float("nan"))))
         if policy != "oldest" and m == "2":
             ok = r["latency_p99_periods"] <= 3.0 and r["sessions"] <= ref["sessions"]
             verdict.append("%s at 2x (%.1fx behind): p99 %.1f input periods (bar: <= 3; the former queue %.1f), %d "
@@ -152,7 +153,8 @@ for m in multiples:
                                "" if 1.8 <= behind <= 2.2 else " (not a true 2x: the load moved since the calibration)"))
 print()
 print("behind: the offered rate times a frame's cost in the same run (* that of the row without a preparing thread "
-      "before it). not received: frames sent that never reached the odometry (its subscriber's queue).")
+      "before it). not received: frames sent that never reached the odometry (its subscriber's queue). "
+      "keyframes / others: the p99 of the poses of the frames that became keyframes, and of the rest.")
 print()
 for v in verdict:
     print(v)
