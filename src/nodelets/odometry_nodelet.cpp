@@ -191,8 +191,10 @@ void OdometryNodelet::work() {
     return;
   }
   // The skip rule chooses among the waiting frames (the worker's state: popSelected runs on this thread).
+  // Without a prediction every frame is processed in order, none dropped short of the queue's depth:
+  // those nearest the last keyframe are the ones that may re-acquire tracking.
   ros_work::drainNewest<Frame, Ahead>(
-      *queue_, static_cast<std::size_t>(options_.queue_size), prepare_on_arrival_.get(),
+      *queue_, queue_->capacity(), prepare_on_arrival_.get(),
       [this](const std::deque<Frame>& w, const std::vector<bool>& started) {
         return ros_inputs::chooseNewest(skip_rule_ ? &*skip_rule_ : nullptr, w, mount_, started);
       },

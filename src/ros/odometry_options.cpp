@@ -157,7 +157,7 @@ std::vector<std::string> describe(const OdometryNodeletOptions& o) {
                            : ("the fixed altitude " + std::to_string(o.altitude_m) + " m").c_str(),
       o.altitude_max_age_s, o.queue_size, o.drop_policy.c_str(),
       o.drop_policy == "newest" ? "when behind, the newest frame that is safe to take; 20 x queue_size may wait, "
-                                  "queue_size without a prediction, the oldest dropped beyond"
+                                  "the oldest dropped beyond"
                                 : "every frame in order; the oldest dropped when full",
       o.prepare_threads,
       o.prepare_threads == 0      ? "each frame prepared by the worker"

@@ -243,7 +243,8 @@ void drainWithPrepareAhead(BoundedWorkQueue<T>& queue, int threads, Prepare prep
 /// waits behind while it cannot choose). Deeper, so that a stall of the worker does not make the
 /// queue drop frames the choice never saw (a full queue drops the oldest, maybe the frame a
 /// keyframe was due at, which can split the session); the choice skips the rest, so the depth
-/// costs no latency while the choice can predict, and drainNewest() keeps `queue_size` while not.
+/// costs no latency while the choice can predict (without a prediction the frames are processed in
+/// order, as without skipping: the latency grows then, up to this depth).
 inline std::size_t newestCapacity(std::size_t queue_size) { return std::max<std::size_t>(1, 20 * queue_size); }
 
 /// What the newest policy's choice returned: the item to take, and whether it was chosen with a
@@ -258,7 +259,7 @@ struct NewestChoice {
 ///     `started`: whether each waiting item's preparation on arrival is under way (empty without
 ///     `prefetch`); the items before it are skipped (on_skip(skipped, taken), counted by the queue).
 ///     Without a prediction at most `bound` items are kept: the older ones are dropped (counted as
-///     the queue's drops, as the former full queue of `bound` did) so the latency stays bounded.
+///     the queue's drops, as a full queue of `bound` does; the odometry passes its queue's depth).
 ///   - its preparation on arrival, if a `prefetch` thread started it (by arrival(item)), is taken
 ///     (a superseded item's is discarded, a busy thread not waited for); otherwise prepared is null.
 ///     A numbering error is reported by on_error and the item processed without it.

@@ -3,7 +3,7 @@
 // onto a bounded queue (~queue_size; full: the oldest dropped, counted, its stamp handed on). One worker
 // owns the odometry: mount from tf, conversion, SIFT, RANSAC, publishing. It takes the newest frame
 // core::FrameSkipRule allows (~drop_policy newest: the queue 20x deeper, so the rule, not a full queue,
-// passes frames over; without a prediction ~queue_size frames wait at most) or the oldest.
+// passes frames over; without a prediction every frame is processed, as without skipping) or the oldest.
 // ~prepare_threads (core::OrderedPrefetch): with newest each frame is handed to the preparing threads as it arrives, a
 // free one preparing the newest (conversion, enhancement, features), so the frame the worker takes is often ready; with
 // oldest the frames waiting behind the one in progress are prepared. On unload the queue is closed and drained, then
