@@ -1,8 +1,8 @@
 # Set-up shared by scripts/bench_load.sh and scripts/bench_load_sweep.sh. Sourced, not run.
 #   bench_init NAME DEFAULT_PORT [OUT_DIR]  out (made), bin, log(), ROS_MASTER_URI (BENCH_MASTER_URI or
 #                                            the port: a master of its own), the workspace's setup.bash
-#   bench_config FILE KEY=VALUE...          config/default.yaml with the odometry node's keys set (each
-#                                            checked: a renamed key stops the bench, not its meaning)
+#   bench_config FILE [NODE/]KEY=VALUE...   config/default.yaml with the keys set (NODE: odometry_node by
+#                                            default; each checked: a renamed key stops the bench)
 #   bench_roscore                           starts the master; on exit it and any launch are stopped
 #   bench_launch LOG CONFIG                 slam.launch (one nodelet manager, no store) in the background
 #   bench_stop                              stops that launch
@@ -20,15 +20,16 @@ bench_init() {
 
 log() { echo "[$bench_name] $*" >&2; }
 
-bench_config() {  # FILE KEY=VALUE...: the keys of odometry_node: in config/default.yaml
-  local f=$1 kv key value section
+bench_config() {  # FILE [NODE/]KEY=VALUE...: keys of config/default.yaml's NODE: section (default odometry_node)
+  local f=$1 kv key value node section
   shift
   cp "$UWMS_REPO/config/default.yaml" "$f"
   for kv in "$@"; do
-    key=${kv%%=*} value=${kv#*=}
-    # Only inside the odometry_node: section (other nodes have a queue_size too).
-    section=$(awk -v k="$key" '/^[a-z_]+:/ { s = $1 } s == "odometry_node:" && $0 ~ "^  " k ":" { print NR; exit }' "$f")
-    [ -n "$section" ] || { echo "$bench_name: odometry_node/$key not found in config/default.yaml" >&2; exit 1; }
+    key=${kv%%=*} value=${kv#*=} node=odometry_node
+    case "$key" in */*) node=${key%%/*} key=${key#*/} ;; esac
+    # Only inside the node's section (other nodes have a queue_size too).
+    section=$(awk -v k="$key" -v n="$node:" '/^[a-z_]+:/ { s = $1 } s == n && $0 ~ "^  " k ":" { print NR; exit }' "$f")
+    [ -n "$section" ] || { echo "$bench_name: $node/$key not found in config/default.yaml" >&2; exit 1; }
     sed -i "${section}s/^  $key: .*/  $key: $value/" "$f"
   done
 }

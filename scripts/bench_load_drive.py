@@ -6,13 +6,15 @@ odometry is idle, then prints one JSON line: the latencies' median and p99 (ms a
 frames sent, the machine's load average at the start and the CPU this driver took while sending
 (a fraction of one core: it shares the machine with the pipeline), and the odometry's counters
 from /diagnostics (processed, prepared_ahead, skipped_for_newest, dropped_queue_full, sessions,
-tracking_losses, keyframes, ms_per_frame_mean).
+tracking_losses, keyframes, ms_per_frame_mean), and the p99 of the poses of keyframes and of the
+other frames apart (a keyframe is where the skip rule may take an older frame than the newest).
 
     bench_load_drive.py BAG RATE_HZ [--ns /uw_multislam] [--timeout 120]
 """
 import argparse
 import json
 import os
+import struct
 import sys
 import threading
 import time
@@ -54,12 +56,17 @@ def main():
     frames = [f for f in frames_of(a.bag) if f[1] is not None and f[2] is not None]
     rospy.init_node("bench_load_drive", disable_signals=True)
     lock = threading.Lock()
-    latencies, status = [], {}
+    latencies, status, keyframe_stamps = [], {}, set()
 
     def on_pose(msg):
         now = time.time()
         with lock:
-            latencies.append(now - msg.header.stamp.to_sec())
+            latencies.append((msg.header.stamp.to_nsec(), now - msg.header.stamp.to_sec()))
+
+    def on_keyframe(raw):  # only the header's stamp (seq, secs, nsecs first): no message class needed
+        secs, nsecs = struct.unpack_from("<II", raw._buff, 4)
+        with lock:
+            keyframe_stamps.add(secs * 1000000000 + nsecs)
 
     def on_diag(msg):
         for s in msg.status:
@@ -70,6 +77,7 @@ def main():
 
     rospy.Subscriber(a.ns + "/odometry/pose", PoseWithCovarianceStamped, on_pose, queue_size=10000)
     rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)
+    rospy.Subscriber(a.ns + "/keyframes", rospy.AnyMsg, on_keyframe, queue_size=1000)
     pubs = [rospy.Publisher(t, m, queue_size=1000) for t, m in zip(TOPICS, (Image, CameraInfo, Range))]
     deadline = time.time() + 60
     while any(pub.get_num_connections() == 0 for pub in pubs):
@@ -105,14 +113,18 @@ def main():
         time.sleep(0.1)
     time.sleep(1.5)  # one more status after the last frame
     with lock:
-        lat, s = list(latencies), dict(status)
-    ms = [1e3 * x for x in lat]
+        lat, s, kf = list(latencies), dict(status), set(keyframe_stamps)
+    ms = [1e3 * x for _, x in lat]
+    ms_kf = [1e3 * x for t, x in lat if t in kf]
+    ms_other = [1e3 * x for t, x in lat if t not in kf]
     out = {"rate_hz": a.rate, "frames": len(frames), "sent_s": sent_s, "idle": idle(), "poses": len(lat),
            "load_average": load_average, "driver_cpu": driver_cpu,
            "latency_median_ms": percentile(ms, 50), "latency_p99_ms": percentile(ms, 99),
            "latency_max_ms": max(ms) if ms else float("nan"),
            "latency_median_periods": percentile(ms, 50) / (1e3 * period),
-           "latency_p99_periods": percentile(ms, 99) / (1e3 * period)}
+           "latency_p99_periods": percentile(ms, 99) / (1e3 * period),
+           "keyframe_poses": len(ms_kf), "latency_p99_keyframes_ms": percentile(ms_kf, 99),
+           "latency_p99_others_ms": percentile(ms_other, 99), "latency_median_keyframes_ms": percentile(ms_kf, 50)}
     for k in ("images_received", "frames_processed", "prepared_ahead", "skipped_for_newest", "dropped_queue_full", "sessions",
               "tracking_losses", "keyframes", "ms_per_frame_mean", "ms_per_frame_recent", "input_period_ms",
               "images_not_paired", "fallbacks"):

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 
+#include "uw_multislam/core/common/thread_priority.h"
 #include "uw_multislam/ros/conversions.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 #include "uw_multislam/ros/topics.h"
@@ -150,6 +151,8 @@ void LoopDetectorNodelet::processForeign(const uw_multislam::Keyframe& msg) {
 
 void LoopDetectorNodelet::work() {
   last_stats_ = ros::WallTime::now();
+  std::string why;
+  if (!core::setThisThreadNice(options_.worker_nice, &why)) NODELET_WARN("loop detector: worker_nice: %s", why.c_str());
   Work w;
   while (queue_->pop(&w)) {  // false once closed and drained
     const ros::WallTime start = ros::WallTime::now();

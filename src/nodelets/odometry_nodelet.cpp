@@ -5,6 +5,7 @@
 #include <pluginlib/class_list_macros.hpp>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 
 #include "uw_multislam/core/geometry/vehicle_frame.h"
@@ -47,8 +48,10 @@ void OdometryNodelet::onInit() {
   NODELET_INFO("odometry: %s", images_->description().c_str());
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config));
   session_ = o.session;
-  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(static_cast<std::size_t>(o.queue_size),
-                                                               ros_inputs::handOnDropped);
+  // newest: deeper, so that the skip rule, not a full queue, decides which frames are passed over.
+  const auto depth = static_cast<std::size_t>(o.queue_size);
+  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(
+      o.drop_policy == "newest" ? ros_work::newestCapacity(depth) : depth, ros_inputs::handOnDropped);
   // With newest the worker takes the newest frame when it frees up: its features are started on
   // arrival (on another core), so that only matching and RANSAC remain when it is taken. A frame
   // superseded before a thread was free is never prepared (core::OrderedPrefetch::Start::kNewest).
@@ -89,14 +92,14 @@ void OdometryNodelet::onInit() {
       topics::kPauseService, [this](Op::Request&, Op::Response& res) { return setPaused(true, &res); }));
   services_.push_back(nh.advertiseService<Op::Request, Op::Response>(
       topics::kResumeService, [this](Op::Request&, Op::Response& res) { return setPaused(false, &res); }));
-  images_->subscribe(o.sync_queue_size, [this](ros_inputs::ImageMsg m) {
+  images_->subscribe(o.inputQueueSize(), [this](ros_inputs::ImageMsg m) {
     std::lock_guard<std::mutex> lock(pairing_mutex_);
     const double stamp = m.header().stamp.toSec();
     handle(pairing_->addImage(std::move(m), stamp, wallNow()));
   });
-  info_sub_ = nh.subscribe(topics::kCameraInfo, o.sync_queue_size, &OdometryNodelet::onCameraInfo, this);
+  info_sub_ = nh.subscribe(topics::kCameraInfo, o.inputQueueSize(), &OdometryNodelet::onCameraInfo, this);
   if (o.use_altitude_topic)
-    range_sub_ = nh.subscribe(topics::kAltitude, o.sync_queue_size, &OdometryNodelet::onRange, this);
+    range_sub_ = nh.subscribe(topics::kAltitude, o.inputQueueSize(), &OdometryNodelet::onRange, this);
 }
 
 void OdometryNodelet::onCameraInfo(const sensor_msgs::CameraInfoConstPtr& info) {
@@ -137,10 +140,7 @@ void OdometryNodelet::handle(Pairing::Decisions decisions) {
       if (d.first_fallback)
         NODELET_WARN("odometry: no camera_info on %s: images use the calibration of ~camera_info_url %s",
                      info_sub_.getTopic().c_str(), options_.camera_info_url.c_str());
-      {
-        std::lock_guard<std::mutex> lock(budget_mutex_);
-        budget_.arrived(wallNow());
-      }
+      budget_.arrived(wallNow());
       Frame frame{std::move(d.image), std::move(d.info), d.altitude,
                   d.altitude_m,       altimeter_frame_,  std::move(d.passed_over)};
       if (prepare_on_arrival_) frame.arrival = prepare_on_arrival_->submit(frame);  // in the queue's order
@@ -191,54 +191,31 @@ void OdometryNodelet::work() {
         [this](Frame& f, Ahead* ahead) { run(f, ahead); });
     return;
   }
-  Frame f;
-  while (queue_->popSelected(
-      &f, [this](const std::deque<Frame>& w) { return chooseNext(w); }, ros_inputs::handOnSkipped)) {
-    const ros::WallTime start = ros::WallTime::now();  // a wait for the frame's own preparation is its cost
-    std::optional<Ahead> ahead;
-    try {
-      // This frame's own preparation, if a thread started it (the skipped frames' are discarded);
-      // otherwise the odometry prepares it (a thread busy with a superseded frame is not waited for).
-      if (prepare_on_arrival_) ahead = prepare_on_arrival_->takeIfStarted(f.arrival);
-    } catch (const std::exception& e) {  // a numbering error: prepare it here rather than stop
-      NODELET_ERROR_THROTTLE(5, "odometry: frame prepared on arrival not found: %s", e.what());
-    }
-    run(f, ahead ? &*ahead : nullptr, start);
-    f = Frame();
-  }
+  // The skip rule chooses among the waiting frames (the worker's state: popSelected runs on this thread).
+  // Without a prediction every frame is processed in order, none dropped short of the queue's depth:
+  // those nearest the last keyframe are the ones that may re-acquire tracking.
+  ros_work::drainNewest<Frame, Ahead>(
+      *queue_, queue_->capacity(), prepare_on_arrival_.get(),
+      [this](const std::deque<Frame>& w, const std::vector<bool>& started) {
+        return ros_inputs::chooseNewest(skip_rule_ ? &*skip_rule_ : nullptr, w, mount_, started);
+      },
+      ros_inputs::handOnSkipped, [](const Frame& f) { return f.arrival; },
+      [this](Frame& f, Ahead* ahead, Clock::time_point start) { run(f, ahead, start); },
+      [this](const std::string& e) {  // a numbering error: the frame is prepared here rather than stop
+        NODELET_ERROR_THROTTLE(5, "odometry: frame prepared on arrival not found: %s", e.c_str());
+      });
 }
 
-std::size_t OdometryNodelet::chooseNext(const std::deque<Frame>& waiting) {
-  if (!skip_rule_ || waiting.size() < 2) return 0;
-  std::vector<core::WaitingFrame> w;
-  w.reserve(waiting.size());
-  for (const Frame& f : waiting)
-    w.push_back({f.msg.header().stamp.toSec(), f.altitude == core::PairedAltitude::kReading
-                                                   ? core::cameraAltitude(f.altitude_m, mount_)
-                                                   : f.altitude_m});
-  core::FrameSkipRule::Choice choice = skip_rule_->choose(w);
-  if (prepare_on_arrival_) {  // prefer a frame whose preparation is under way over one not started
-    std::vector<bool> prepared;
-    prepared.reserve(waiting.size());
-    for (const Frame& f : waiting) prepared.push_back(prepare_on_arrival_->started(f.arrival));
-    choice = skip_rule_->preferPrepared(w, choice, prepared);
-  }
-  return choice.index;
-}
-
-void OdometryNodelet::run(Frame& f, Ahead* ahead, ros::WallTime start) {
+void OdometryNodelet::run(Frame& f, Ahead* ahead, Clock::time_point start) {
   try {
     process(f, ahead);
   } catch (const std::exception& e) {  // the core throws only on programming errors: log, keep going
     NODELET_ERROR_THROTTLE(5, "odometry: frame skipped, %s", e.what());
   }
-  const double ms = (ros::WallTime::now() - start).toSec() * 1e3;
+  const double ms = std::chrono::duration<double, std::milli>(Clock::now() - start).count();
   counts_.frameTime(ms);
   counts_.session = session_;
-  {
-    std::lock_guard<std::mutex> lock(budget_mutex_);
-    budget_.processed(ms);
-  }
+  budget_.processed(ms);
   {
     std::lock_guard<std::mutex> lock(stats_mutex_);
     published_ = counts_;
@@ -378,10 +355,7 @@ OdometryCounters OdometryNodelet::snapshot(OdometryCounters c) {
   c.altitudes_refused = ranges_refused_, c.altitudes_above_max_altitude = ranges_above_max_;
   c.dropped_queue_full = queue_->dropped(), c.queue_length = static_cast<long>(queue_->size());
   c.skipped_for_newest = queue_->skipped();
-  {
-    std::lock_guard<std::mutex> lock(budget_mutex_);
-    c.ms_per_frame_recent = budget_.msPerFrame(), c.input_period_ms = budget_.inputPeriodMs();
-  }
+  c.ms_per_frame_recent = budget_.msPerFrame(), c.input_period_ms = budget_.inputPeriodMs();
   c.frames_synchronised = queue_->pushed(), c.frames_processed = queue_->popped();
   // Images not paired: skipped for want of a camera_info or an altitude, or still waiting.
   c.images_not_paired = std::max(0L, c.images_received - c.frames_synchronised);
@@ -403,11 +377,7 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
   c = snapshot(c);
   std::string problem = silentInput(wallNow());
   if (problem.empty()) {
-    bool arriving = false;
-    {
-      std::lock_guard<std::mutex> lock(budget_mutex_);
-      arriving = budget_.arriving(wallNow(), options_.input_timeout_s);
-    }
+    const bool arriving = budget_.arriving(wallNow(), options_.input_timeout_s);
     problem = ros_diagnostics::budgetProblem(c, options_.drop_policy, arriving);
   }
   diagnostic_status_.fill(stat, ros_diagnostics::odometryCounterTable().counters(c), wallNow(), problem,

@@ -2,6 +2,7 @@
 
 #include <boost/make_shared.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <iomanip>
@@ -13,18 +14,24 @@
 #include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/sensor_conversions.h"
 #include "uw_multislam/ros/slam_params.h"
+#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace ros_params {
 
 namespace rc = ros_conversions;
 
+int OdometryNodeletOptions::inputQueueSize() const {
+  if (drop_policy != "newest") return sync_queue_size;
+  return std::max(sync_queue_size, static_cast<int>(ros_work::newestCapacity(static_cast<std::size_t>(queue_size))));
+}
+
 core::InputPairingOptions OdometryNodeletOptions::pairing() const {
   core::InputPairingOptions p;
   p.sync_max_interval_s = sync_max_interval_s;
   p.altitude_max_age_s = altitude_max_age_s;
   p.reorder_tolerance_s = reorder_tolerance_s;
-  p.max_waiting = 2 * static_cast<std::size_t>(sync_queue_size);
+  p.max_waiting = 2 * static_cast<std::size_t>(inputQueueSize());
   p.altitude_topic = use_altitude_topic;
   p.fixed_altitude_m = altitude_m;
   p.input_timeout_s = input_timeout_s;
@@ -150,7 +157,8 @@ std::vector<std::string> describe(const OdometryNodeletOptions& o) {
       o.use_altitude_topic ? "the altitude topic"
                            : ("the fixed altitude " + std::to_string(o.altitude_m) + " m").c_str(),
       o.altitude_max_age_s, o.queue_size, o.drop_policy.c_str(),
-      o.drop_policy == "newest" ? "when behind, the newest frame that is safe to take; the oldest dropped when full"
+      o.drop_policy == "newest" ? "when behind, the newest frame that is safe to take; 20 x queue_size may wait, "
+                                  "the oldest dropped beyond"
                                 : "every frame in order; the oldest dropped when full",
       o.prepare_threads,
       o.prepare_threads == 0      ? "each frame prepared by the worker"

@@ -87,6 +87,8 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
     throw std::invalid_argument(nh.resolveName("frames") + ": map_frame, odom_frame and base_frame must differ");
   o.queue_size = param(pnh, "queue_size", 1000, count, "in [1, 1000000]");
   o.max_waiting_loops = param(pnh, "max_waiting_loops", 1000, count, "in [1, 1000000]");
+  o.worker_nice = param(
+      pnh, "worker_nice", 0, [](int v) { return v >= 0 && v <= 19; }, "in [0, 19]");
   o.max_keyframe_gap = param(pnh, "max_keyframe_gap", 32, count, "in [1, 1000000]");
   o.max_empty_sessions = param(
       pnh, "max_empty_sessions", 1, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
@@ -221,6 +223,7 @@ core::SessionWorkerOptions sessionWorkerOptions(const BackendNodeletOptions& o, 
   w.queue_size = o.queue_size;
   w.max_waiting_loops = o.max_waiting_loops;
   w.page_stored = config.loops.page_stored;
+  w.nice = o.worker_nice;
   return w;
 }
 
@@ -238,6 +241,8 @@ LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh
       pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
   o.diagnostic_period_s = param(
       pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
+  o.worker_nice = param(
+      pnh, "worker_nice", 0, [](int v) { return v >= 0 && v <= 19; }, "in [0, 19]");
   return o;
 }
 

@@ -8,6 +8,7 @@
 #include <deque>
 #include <future>
 #include <memory>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -281,6 +282,130 @@ TEST(DrainWithPrepareAhead, AnItemArrivingAloneIsNotHeldForPreparation) {
   q.close();
   worker.join();
   EXPECT_EQ(with_preparation.load(), 0);
+}
+
+TEST(BoundedWorkQueue, ASelectionCountsItsOldestAsDroppedAndTheRestAsSkipped) {
+  BoundedWorkQueue<int> q(10);
+  for (int i = 0; i < 6; ++i) q.push(i);
+  int v = -1;
+  std::vector<int> passed;
+  ASSERT_TRUE(q.popSelected(
+      &v, [](const std::deque<int>&) { return Selection{4, 3}; }, [&](int& s, int&) { passed.push_back(s); }));
+  EXPECT_EQ(v, 4);
+  EXPECT_EQ(passed, (std::vector<int>{0, 1, 2, 3}));  // every one handed on, dropped or skipped
+  EXPECT_EQ(q.dropped(), 3);
+  EXPECT_EQ(q.skipped(), 1);
+  EXPECT_EQ(q.size(), 1u);
+}
+
+// The newest policy's worker when it stalls (CPU starvation) while a burst arrives at 4x: the
+// choice sees every frame of the burst, so none is lost to a full queue (one was, with the former
+// queue of 5 frames, and with it the frame a keyframe was due at: a split session).
+TEST(DrainNewest, ABurstDuringAStallIsChosenFromNotDropped) {
+  BoundedWorkQueue<int> q(newestCapacity(5));
+  std::promise<void> stalled, release;
+  std::shared_future<void> released = release.get_future().share();
+  std::vector<int> processed, skipped;
+  std::thread worker([&] {
+    drainNewest<int, int>(
+        q, 5, nullptr,
+        [](const std::deque<int>& w, const std::vector<bool>& started) {
+          EXPECT_TRUE(started.empty()) << "nothing prepared on arrival";
+          for (std::size_t i = 0; i + 1 < w.size(); ++i)
+            if (w[i] % 8 == 0) return NewestChoice{i, true};  // a keyframe due at every 8th frame
+          return NewestChoice{w.size() - 1, true};           // else the newest
+        },
+        [&](int& s, int&) { skipped.push_back(s); }, [](const int& i) { return static_cast<std::size_t>(i); },
+        [&](int& item, int* prepared, std::chrono::steady_clock::time_point) {
+          EXPECT_EQ(prepared, nullptr);
+          processed.push_back(item);
+          if (item == 0) {
+            stalled.set_value();
+            released.wait();
+          }
+        },
+        [](const std::string& e) { ADD_FAILURE() << e; });
+  });
+  q.push(0);
+  ASSERT_EQ(stalled.get_future().wait_for(kDeadline), std::future_status::ready);
+  for (int i = 1; i <= 40; ++i) q.push(i);
+  release.set_value();
+  q.close();
+  worker.join();
+  EXPECT_EQ(q.dropped(), 0);
+  EXPECT_EQ(processed, (std::vector<int>{0, 8, 16, 24, 32, 40})) << "every due frame, then the newest";
+  EXPECT_EQ(processed.size() + skipped.size(), 41u) << "every frame processed or skipped";
+  EXPECT_EQ(q.skipped(), 35);
+}
+
+// Without a prediction (tracking lost, no session yet) the oldest is taken, as processing every
+// frame: then the wait is bounded as by the former queue, the older frames counted as dropped.
+TEST(DrainNewest, WithoutAPredictionAtMostTheBoundWaits) {
+  BoundedWorkQueue<int> q(newestCapacity(5));
+  std::promise<void> stalled, release;
+  std::shared_future<void> released = release.get_future().share();
+  std::vector<int> processed;
+  int handed_on = 0;
+  std::thread worker([&] {
+    drainNewest<int, int>(
+        q, 5, nullptr, [](const std::deque<int>&, const std::vector<bool>&) { return NewestChoice{0, false}; },
+        [&](int&, int&) { ++handed_on; }, [](const int& i) { return static_cast<std::size_t>(i); },
+        [&](int& item, int*, std::chrono::steady_clock::time_point) {
+          processed.push_back(item);
+          if (item == 0) {
+            stalled.set_value();
+            released.wait();
+          }
+        },
+        [](const std::string& e) { ADD_FAILURE() << e; });
+  });
+  q.push(0);
+  ASSERT_EQ(stalled.get_future().wait_for(kDeadline), std::future_status::ready);
+  for (int i = 1; i <= 12; ++i) q.push(i);
+  release.set_value();
+  q.close();
+  worker.join();
+  EXPECT_EQ(processed, (std::vector<int>{0, 8, 9, 10, 11, 12}));
+  EXPECT_EQ(q.dropped(), 7);
+  EXPECT_EQ(q.skipped(), 0);
+  EXPECT_EQ(handed_on, 7) << "the dropped frames' stamps handed on";
+}
+
+// With frames prepared on arrival: the choice gets one flag per waiting frame, and an item is
+// processed with its own preparation or none, never another's.
+TEST(DrainNewest, AnItemGetsItsOwnPreparationOrNone) {
+  struct Item {
+    int value = -1;
+    std::size_t arrival = 0;
+  };
+  core::OrderedPrefetch<int, Item> prefetch(1, [](Item i, int) { return i.value * 10; },
+                                            core::OrderedPrefetch<int, Item>::Start::kNewest);
+  BoundedWorkQueue<Item> q(newestCapacity(5));
+  for (int i = 0; i < 30; ++i) {
+    Item item{i, 0};
+    item.arrival = prefetch.submit(item);
+    q.push(item);
+  }
+  q.close();
+  int processed = 0, with_preparation = 0;
+  drainNewest<Item, int>(
+      q, 5, &prefetch,
+      [](const std::deque<Item>& w, const std::vector<bool>& started) {
+        EXPECT_EQ(started.size(), w.size());
+        return NewestChoice{w.size() - 1, true};
+      },
+      [](Item&, Item&) {}, [](const Item& i) { return i.arrival; },
+      [&](Item& item, int* prepared, std::chrono::steady_clock::time_point) {
+        ++processed;
+        if (prepared) {
+          ++with_preparation;
+          EXPECT_EQ(*prepared, item.value * 10);
+        }
+      },
+      [](const std::string& e) { ADD_FAILURE() << e; });
+  EXPECT_EQ(processed, 1) << "the newest of the 30 waiting";
+  EXPECT_LE(with_preparation, 1);
+  EXPECT_EQ(q.skipped(), 29);
 }
 
 }  // namespace

@@ -6,13 +6,17 @@
 
 #include <algorithm>
 #include <cstddef>
+#include <deque>
 #include <string>
 #include <vector>
 
 #include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/frontend/frame_skip.h"
 #include "uw_multislam/core/frontend/input_pairing.h"
 #include "uw_multislam/core/frontend/odometry.h"
+#include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/ros/image_input.h"
+#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace ros_inputs {
@@ -39,6 +43,24 @@ inline void handOnSkipped(OdometryFrame& skipped, OdometryFrame& taken) {
   taken.passed_over.insert(taken.passed_over.end(), skipped.passed_over.begin(), skipped.passed_over.end());
   taken.passed_over.push_back(skipped.msg.header().stamp.toSec());
   std::sort(taken.passed_over.begin(), taken.passed_over.end());
+}
+
+/// The frame as the skip rule sees it: its stamp, and the camera's altitude (a range reading through `mount`).
+inline core::WaitingFrame waitingFrame(const OdometryFrame& f, const core::CameraMount& mount) {
+  return {f.msg.header().stamp.toSec(),
+          f.altitude == core::PairedAltitude::kReading ? core::cameraAltitude(f.altitude_m, mount) : f.altitude_m};
+}
+
+/// ~drop_policy newest: the frame `rule` (the session's; null before the first session: every frame, as the former
+/// queue) takes among `waiting`, preferring one whose preparation is `started` (empty: none prepared on arrival).
+inline ros_work::NewestChoice chooseNewest(const core::FrameSkipRule* rule, const std::deque<OdometryFrame>& waiting,
+                                           const core::CameraMount& mount, const std::vector<bool>& started) {
+  if (!rule) return {0, false};
+  std::vector<core::WaitingFrame> w;
+  w.reserve(waiting.size());
+  for (const OdometryFrame& f : waiting) w.push_back(waitingFrame(f, mount));
+  const core::FrameSkipRule::Choice choice = rule->choose(w, started);
+  return {choice.index, choice.reason != core::FrameSkipRule::Reason::kOldest};
 }
 
 struct PreparedAhead {

@@ -55,6 +55,9 @@ struct OdometryNodeletOptions {
   core::SlamConfig config;                               // slam/ (config/slam.yaml), validated
   sensor_msgs::CameraInfoConstPtr fallback_camera_info;  // from camera_info_url (null without one)
 
+  /// The input subscribers' queues: ~sync_queue_size; with newest at least the worker's queue
+  /// (ros_work::newestCapacity), so that a stalled callback thread does not drop images the skip rule never saw.
+  int inputQueueSize() const;
   /// The pairing rules these options give (core::InputPairing).
   core::InputPairingOptions pairing() const;
   /// The nav input's options (~nav_*, frames/).

@@ -49,6 +49,7 @@ struct BackendNodeletOptions {
   bool reload_stored = false;
   ros_frames::FrameOptions frames;  // frames/* and the tf switches and rates
   int queue_size = 1000, max_waiting_loops = 1000, max_keyframe_gap = 1000;
+  int worker_nice = 0;         // the worker thread's nice value (0..19: above 0 the odometry's frames come first)
   int max_empty_sessions = 1;  // start_session refused while this many sessions in a row have no keyframe
   double stats_period_s = 30.0, diagnostic_period_s = 1.0;
   /// The live mosaic (core/session/live_mosaic.h): redrawn at most at mosaic_rate_hz when the
@@ -95,6 +96,7 @@ struct LoopDetectorNodeletOptions {
   int max_keyframe_gap = 1000;  // the most lost keyframes a gap in the ids may bridge
   double stats_period_s = 30.0;
   double diagnostic_period_s = 1.0;
+  int worker_nice = 0;  // the worker thread's nice value (0..19: above 0 the odometry's frames come first)
   bool publishHashes() const { return mode != "local"; }
 };
 

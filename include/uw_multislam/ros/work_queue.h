@@ -18,18 +18,30 @@
 #pragma once
 
 #include <algorithm>
+#include <chrono>
 #include <condition_variable>
 #include <cstddef>
 #include <deque>
+#include <exception>
 #include <functional>
 #include <mutex>
+#include <optional>
 #include <stdexcept>
+#include <string>
+#include <type_traits>
 #include <utility>
+#include <vector>
 
 #include "uw_multislam/core/common/ordered_prefetch.h"
 
 namespace uw_multislam {
 namespace ros_work {
+
+/// popSelected()'s choice: the item to take, and how many of the oldest before it count as dropped.
+struct Selection {
+  std::size_t take = 0;
+  std::size_t dropped = 0;
+};
 
 template <typename T>
 class BoundedWorkQueue {
@@ -98,6 +110,8 @@ class BoundedWorkQueue {
   /// index of the item to take (0: the oldest, as pop()); the items before it are skipped, each
   /// handed to `on_skip(skipped, taken)` under the lock (like a drop, to hand on what must survive)
   /// and counted in skipped(). Priority items are taken first, as by pop(). Blocks like pop().
+  /// `select` may also return a Selection: its first `dropped` items (of those before `take`) are
+  /// counted in dropped() rather than skipped() (passed over without a choice, like a full queue's drop).
   template <typename Select, typename OnSkip>
   bool popSelected(T* out, Select select, OnSkip on_skip) {
     std::unique_lock<std::mutex> lock(mutex_);
@@ -109,12 +123,18 @@ class BoundedWorkQueue {
       *out = std::move(priority_.front());
       priority_.pop_front();
     } else {
-      const std::size_t take =
-          std::min<std::size_t>(select(static_cast<const std::deque<T>&>(items_)), items_.size() - 1);
+      Selection s;
+      if constexpr (std::is_same<decltype(select(items_)), Selection>::value)
+        s = select(static_cast<const std::deque<T>&>(items_));
+      else
+        s.take = select(static_cast<const std::deque<T>&>(items_));
+      const std::size_t take = std::min<std::size_t>(s.take, items_.size() - 1);
+      const std::size_t dropped = std::min(s.dropped, take);
       for (std::size_t i = 0; i < take; ++i) on_skip(items_[i], items_[take]);
       *out = std::move(items_[take]);
       items_.erase(items_.begin(), items_.begin() + static_cast<std::ptrdiff_t>(take) + 1);
-      skipped_ += static_cast<long>(take);
+      dropped_ += static_cast<long>(dropped);
+      skipped_ += static_cast<long>(take - dropped);
     }
     ++popped_;
     return true;
@@ -216,6 +236,64 @@ void drainWithPrepareAhead(BoundedWorkQueue<T>& queue, int threads, Prepare prep
       Item prepared = ahead.next();
       process(prepared.first, &prepared.second);
     }
+  }
+}
+
+/// ~drop_policy newest: the capacity of the worker's queue for a `queue_size` (the frames the worker
+/// waits behind while it cannot choose). Deeper, so that a stall of the worker does not make the
+/// queue drop frames the choice never saw (a full queue drops the oldest, maybe the frame a
+/// keyframe was due at, which can split the session); the choice skips the rest, so the depth
+/// costs no latency while the choice can predict (without a prediction the frames are processed in
+/// order, as without skipping: the latency grows then, up to this depth).
+inline std::size_t newestCapacity(std::size_t queue_size) { return std::max<std::size_t>(1, 20 * queue_size); }
+
+/// What the newest policy's choice returned: the item to take, and whether it was chosen with a
+/// prediction (else the oldest, as processing every item: drainNewest bounds the wait).
+struct NewestChoice {
+  std::size_t index = 0;
+  bool predicted = true;
+};
+
+/// The worker's loop under ~drop_policy newest, until `queue` is closed and drained. For each item:
+///   - choose(const std::deque<T>& waiting, const std::vector<bool>& started) picks it (NewestChoice),
+///     `started`: whether each waiting item's preparation on arrival is under way (empty without
+///     `prefetch`); the items before it are skipped (on_skip(skipped, taken), counted by the queue).
+///     Without a prediction at most `bound` items are kept: the older ones are dropped (counted as
+///     the queue's drops, as a full queue of `bound` does; the odometry passes its queue's depth).
+///   - its preparation on arrival, if a `prefetch` thread started it (by arrival(item)), is taken
+///     (a superseded item's is discarded, a busy thread not waited for); otherwise prepared is null.
+///     A numbering error is reported by on_error and the item processed without it.
+///   - process(item, prepared, start): `start` is before the take, so a wait for the preparation
+///     is part of its cost.
+template <typename T, typename P, typename Choose, typename OnSkip, typename Arrival, typename Process,
+          typename OnError>
+void drainNewest(BoundedWorkQueue<T>& queue, std::size_t bound, core::OrderedPrefetch<P, T>* prefetch, Choose choose,
+                 OnSkip on_skip, Arrival arrival, Process process, OnError on_error) {
+  const auto select = [&](const std::deque<T>& waiting) {
+    std::vector<bool> started;
+    if (prefetch) {
+      started.reserve(waiting.size());
+      for (const T& w : waiting) started.push_back(prefetch->started(arrival(w)));
+    }
+    const NewestChoice c = choose(waiting, static_cast<const std::vector<bool>&>(started));
+    Selection s{c.index, 0};
+    if (!c.predicted && waiting.size() > bound) {
+      s.dropped = waiting.size() - bound;
+      s.take = std::max(s.take, s.dropped);
+    }
+    return s;
+  };
+  T item;
+  while (queue.popSelected(&item, select, on_skip)) {
+    const auto start = std::chrono::steady_clock::now();
+    std::optional<P> prepared;
+    try {
+      if (prefetch) prepared = prefetch->takeIfStarted(arrival(item));
+    } catch (const std::exception& e) {
+      on_error(std::string(e.what()));
+    }
+    process(item, prepared ? &*prepared : static_cast<P*>(nullptr), start);
+    item = T();
   }
 }
 

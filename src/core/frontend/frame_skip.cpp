@@ -89,6 +89,12 @@ FrameSkipRule::Choice FrameSkipRule::choose(const std::vector<WaitingFrame>& wai
   return {waiting.size() - 1, Reason::kKeyframeDue};
 }
 
+FrameSkipRule::Choice FrameSkipRule::choose(const std::vector<WaitingFrame>& waiting,
+                                            const std::vector<bool>& prepared) const {
+  const Choice choice = choose(waiting);
+  return prepared.empty() ? choice : preferPrepared(waiting, choice, prepared);
+}
+
 FrameSkipRule::Choice FrameSkipRule::preferPrepared(const std::vector<WaitingFrame>& waiting, Choice choice,
                                                     const std::vector<bool>& prepared) const {
   if (choice.index >= waiting.size() || prepared.size() != waiting.size() || prepared[choice.index]) return choice;
@@ -115,6 +121,7 @@ std::string reasonName(FrameSkipRule::Reason r) {
 }
 
 void FrameBudget::arrived(double now_s) {
+  std::lock_guard<std::mutex> lock(mutex_);
   if (last_arrival_s_ && now_s > *last_arrival_s_) {
     const double ms = (now_s - *last_arrival_s_) * 1e3;
     period_ms_ = intervals_++ == 0 ? ms : period_ms_ + alpha_ * (ms - period_ms_);
@@ -123,6 +130,7 @@ void FrameBudget::arrived(double now_s) {
 }
 
 void FrameBudget::processed(double ms) {
+  std::lock_guard<std::mutex> lock(mutex_);
   ms_ = any_ms_ ? ms_ + alpha_ * (ms - ms_) : ms;
   any_ms_ = true;
 }

@@ -6,12 +6,15 @@
 #include <stdexcept>
 #include <utility>
 
+#include "uw_multislam/core/common/thread_priority.h"
+
 namespace uw_multislam {
 namespace core {
 
 std::string SessionWorkerOptions::validate() const {
   if (queue_size < 1) return "queue_size must be >= 1";
   if (max_waiting_loops < 0) return "max_waiting_loops must be >= 0";
+  if (nice < 0 || nice > 19) return "nice must be in [0, 19]";
   return "";
 }
 
@@ -109,6 +112,8 @@ bool SessionWorker::submit(Item item) {
 }
 
 void SessionWorker::run() {
+  std::string why;
+  if (!setThisThreadNice(options_.nice, &why)) say(Severity::kWarn, "worker nice not applied: " + why);
   for (;;) {
     Item item;
     {

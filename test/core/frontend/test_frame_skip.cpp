@@ -124,6 +124,11 @@ TEST(FrameSkipRule, AnEarlierSafeFrameUnderPreparationIsPreferredToOneNotStarted
   // None under way (or no flags for these frames): the choice.
   EXPECT_EQ(rule.preferPrepared(w, newest, {false, false, false}).reason, Reason::kNewestSafe);
   EXPECT_EQ(rule.preferPrepared(w, newest, {true, true}).index, 2u);
+  // choose() with the flags: the same preference; without any (nothing prepared on arrival): choose().
+  EXPECT_EQ(rule.choose(w, {true, true, false}).index, 1u);
+  EXPECT_EQ(rule.choose(w, {true, true, false}).reason, Reason::kPrepared);
+  EXPECT_EQ(rule.choose(w, {}).index, 2u);
+  EXPECT_EQ(rule.choose(w, {}).reason, Reason::kNewestSafe);
 }
 
 TEST(FrameSkipRule, APreparedFrameIsTakenOnlyWhereItIsSafe) {

@@ -216,6 +216,9 @@ TEST(SessionWorker, SynchronousFailuresReachTheCaller) {
   SessionWorkerOptions no_queue;
   no_queue.queue_size = 0;
   EXPECT_THROW(SessionWorker(std::make_unique<SessionManager>(options()), no_queue), std::invalid_argument);
+  SessionWorkerOptions raised;
+  raised.nice = -1;  // a worker may only yield the cores, not take them
+  EXPECT_THROW(SessionWorker(std::make_unique<SessionManager>(options()), raised), std::invalid_argument);
 }
 
 TEST(SessionWorker, AnotherVehiclesHashesAreTakenOnlyWithComparableSettings) {

@@ -28,6 +28,7 @@
 #pragma once
 
 #include <cstddef>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -99,6 +100,9 @@ class FrameSkipRule {
   Choice preferPrepared(const std::vector<WaitingFrame>& waiting, Choice choice,
                         const std::vector<bool>& prepared) const;
 
+  /// choose(), then preferPrepared() with `prepared` when it is given (not empty: one flag per waiting frame).
+  Choice choose(const std::vector<WaitingFrame>& waiting, const std::vector<bool>& prepared) const;
+
   /// Whether a frame at `stamp_s` and `altitude_m` would be taken by the keyframe rule, as
   /// predicted; nullopt without a prediction.
   std::optional<bool> keyframeDue(double stamp_s, double altitude_m) const;
@@ -112,7 +116,8 @@ class FrameSkipRule {
 std::string reasonName(FrameSkipRule::Reason r);
 
 /// The recent cost of a frame against the recent input period, as exponential moving averages
-/// over about `window` frames (ROS-free; the caller gives the times).
+/// over about `window` frames (ROS-free; the caller gives the times). Thread-safe: the frames'
+/// arrivals, their processing and the diagnostics are on different threads.
 class FrameBudget {
  public:
   explicit FrameBudget(int window = 20) : alpha_(2.0 / (window + 1.0)) {}
@@ -121,20 +126,33 @@ class FrameBudget {
   /// A frame was processed in `ms`.
   void processed(double ms);
   /// Mean of the recent processing times, ms (0 before any).
-  double msPerFrame() const { return ms_; }
+  double msPerFrame() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return ms_;
+  }
   /// Mean of the recent input intervals, ms (0 before two arrivals).
-  double inputPeriodMs() const { return period_ms_; }
+  double inputPeriodMs() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return period_ms_;
+  }
   /// msPerFrame / inputPeriodMs: above 1 the input outruns the odometry (0 while unknown).
-  double load() const { return ms_ > 0 && period_ms_ > 0 ? ms_ / period_ms_ : 0.0; }
+  double load() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return ms_ > 0 && period_ms_ > 0 ? ms_ / period_ms_ : 0.0;
+  }
   /// A frame arrived within `within_s` of `now_s` (the input is running).
-  bool arriving(double now_s, double within_s) const { return last_arrival_s_ && now_s - *last_arrival_s_ <= within_s; }
+  bool arriving(double now_s, double within_s) const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return last_arrival_s_ && now_s - *last_arrival_s_ <= within_s;
+  }
 
  private:
-  double alpha_;
-  double ms_ = 0.0, period_ms_ = 0.0;
-  bool any_ms_ = false;
-  std::optional<double> last_arrival_s_;
-  int intervals_ = 0;
+  const double alpha_;
+  mutable std::mutex mutex_;              // guards the members below
+  double ms_ = 0.0, period_ms_ = 0.0;     // guarded by mutex_
+  bool any_ms_ = false;                   // guarded by mutex_
+  std::optional<double> last_arrival_s_;  // guarded by mutex_
+  int intervals_ = 0;                     // guarded by mutex_
 };
 
 }  // namespace core

@@ -51,6 +51,9 @@ struct SessionWorkerOptions {
   /// loops.page_stored: stored sessions go to the loop detectors with their hashes only (the
   /// detectors read features with keyframeFeatures when a keyframe is a candidate).
   bool page_stored = false;
+  /// The worker thread's nice value, 0..19 (core/common/thread_priority.h): above 0 it yields the
+  /// cores to the odometry's frames, which are latency bound, while both want them.
+  int nice = 0;
   /// How a due map's problem is solved (default SessionManager::solveOptimisation). Runs without
   /// the mutex; a test wraps it to change the map meanwhile.
   std::function<void(MapOptimisation*)> solve;

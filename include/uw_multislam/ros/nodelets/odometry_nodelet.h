@@ -2,10 +2,12 @@
 // Threads: the callbacks pair image, camera_info and altitude under pairing_mutex_ (core::InputPairing)
 // onto a bounded queue (~queue_size; full: the oldest dropped, counted, its stamp handed on). One worker
 // owns the odometry: mount from tf, conversion, SIFT, RANSAC, publishing. It takes the newest frame
-// core::FrameSkipRule allows (~drop_policy newest) or the oldest. ~prepare_threads (core::OrderedPrefetch):
-// with newest each frame is handed to the preparing threads as it arrives, a free one preparing the newest
-// (conversion, enhancement, features), so the frame the worker takes is often ready; with oldest the frames
-// waiting behind the one in progress are prepared. On unload the queue is closed and drained, then joined.
+// core::FrameSkipRule allows (~drop_policy newest: the queue 20x deeper, so the rule, not a full queue,
+// passes frames over; without a prediction every frame is processed, as without skipping) or the oldest.
+// ~prepare_threads (core::OrderedPrefetch): with newest each frame is handed to the preparing threads as it arrives, a
+// free one preparing the newest (conversion, enhancement, features), so the frame the worker takes is often ready; with
+// oldest the frames waiting behind the one in progress are prepared. On unload the queue is closed and drained, then
+// joined.
 #pragma once
 
 #include <diagnostic_updater/diagnostic_updater.h>
@@ -14,11 +16,13 @@
 #include <sensor_msgs/Range.h>
 
 #include <atomic>
+#include <chrono>
 #include <deque>
 #include <memory>
 #include <mutex>
 #include <optional>
 #include <thread>
+#include <vector>
 
 #include "uw_multislam/OperatorCommand.h"
 #include "uw_multislam/SessionState.h"
@@ -54,8 +58,8 @@ class OdometryNodelet : public nodelet::Nodelet {
   bool setPaused(bool paused, uw_multislam::OperatorCommand::Response* res);
   void handle(Pairing::Decisions decisions);  // pushes the paired frames, logs the skipped; under pairing_mutex_
   void work();
-  void run(Frame& f, Ahead* ahead, ros::WallTime start = ros::WallTime::now());  // one frame, timed from `start`
-  std::size_t chooseNext(const std::deque<Frame>& waiting);  // ~drop_policy newest (the worker, under the queue's lock)
+  using Clock = std::chrono::steady_clock;
+  void run(Frame& f, Ahead* ahead, Clock::time_point start = Clock::now());  // one frame, timed from `start`
   using Refusal = long ros_diagnostics::OdometryCounters::*;  // convert(): null, or the refusal's counter
   Refusal convert(const Frame& f, core::CameraIntrinsics* camera, cv::Mat* image, std::string* why) const;
   Ahead prepareAhead(const Frame& f) const;
@@ -80,9 +84,8 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::atomic<long> ranges_refused_{0}, ranges_above_max_{0};  // altitude readings refused, of those above the max
   std::mutex stats_mutex_;  // guards published_ (the worker's counters after each frame) and mount_error_
   ros_diagnostics::OdometryCounters published_;
-  std::string mount_error_;  // why frames are refused, while they are
-  std::mutex budget_mutex_;  // guards budget_
-  core::FrameBudget budget_;
+  std::string mount_error_;                           // why frames are refused, while they are
+  core::FrameBudget budget_;                          // thread-safe: arrivals (callbacks), costs (worker), diagnostics
   ros_diagnostics::CounterStatus diagnostic_status_;  // the updater's thread only
   // Worker-only state.
   std::unique_ptr<core::SegmentedOdometry> odometry_;  // a new session on tracking loss
