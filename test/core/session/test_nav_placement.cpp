@@ -471,6 +471,36 @@ TEST(NavPlacement, APlacedPieceIsInItsPredecessorsMapFromItsFirstKeyframeLoopsRe
                                     "INSERT INTO left_over SELECT COUNT(*) FROM nav_placements;"));
 }
 
+TEST(NavPlacement, APlacementAgainstAPieceWhoseKeyframeIdsJumpedNamesThatKeyframeOnce) {
+  // Session 1's first keyframe to arrive is its odometry's keyframe 10, past max_keyframe_gap: the
+  // manager opens it under its own id 1 with the ids from 10 on as 0, 1, ... The placement names
+  // the odometry's (1, 30), which is the manager's (1, 20): translated once, never twice.
+  SessionManagerOptions o = managerOptions();
+  o.max_keyframe_gap = 5;
+  SessionManager m(o);
+  for (int k = 0; k < 8; ++k)
+    ASSERT_TRUE(m.addKeyframe(keyframeAt(0, k, Pose2(k, 0, 0), Pose2(std::max(0, k - 1), 0, 0))).ok());
+  EXPECT_FALSE(m.addKeyframe(keyframeAt(1, 10, Pose2(10, 0, 0), Pose2(9, 0, 0))).ok());  // held: a jump
+  for (int k = 11; k <= 30; ++k)
+    ASSERT_TRUE(m.addKeyframe(keyframeAt(1, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok()) << k;
+  ASSERT_EQ(m.view().poses(1).size(), 21u);
+  ASSERT_TRUE(m.addKeyframe(keyframeAt(2, 0, Pose2(), Pose2())).ok());
+  ASSERT_NE(m.view().mapOf(2), m.view().mapOf(1));
+  Loop l = placementOf(Pose2(0.5, 0.2, 0.1), 0.1, 0.03);
+  l.session_a = 1;
+  l.keyframe_a = 30;
+  l.session_b = 2;
+  const Status st = m.addNavPlacement(l);
+  ASSERT_TRUE(st.ok()) << st.message;
+  ASSERT_EQ(m.view().loops().size(), 1u);
+  EXPECT_EQ(m.view().loops()[0].session_a, 1);
+  EXPECT_EQ(m.view().loops()[0].keyframe_a, 20);
+  EXPECT_EQ(m.view().mapOf(2), m.view().mapOf(1));
+  const Pose2 expected = compose(m.view().poses(1)[20], Pose2(0.5, 0.2, 0.1));
+  EXPECT_NEAR(m.view().poses(2)[0].x(), expected.x(), 1e-9);
+  EXPECT_NEAR(m.view().poses(2)[0].y(), expected.y(), 1e-9);
+}
+
 TEST(NavPlacement, APlacementIsNoEvidenceForAnAutomaticJoin) {
   // Two maps with one visual loop and a placement loop between them (as after a split):
   // join_min_loops 2 joins with two loops, not with the placement standing in for one.
