@@ -20,6 +20,7 @@
 #include "uw_multislam/core/session/nav_session_placer.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/session_store.h"
+#include "uw_multislam/core/session/store_merge.h"
 
 namespace uw_multislam {
 namespace core {
@@ -459,6 +460,24 @@ TEST(NavPlacement, APlacedPieceIsInItsPredecessorsMapFromItsFirstKeyframeLoopsRe
   ASSERT_EQ(restored.size(), placed_poses.size());
   for (std::size_t k = 0; k < restored.size(); ++k)
     EXPECT_LT((restored[k].translation() - placed_poses[k].translation()).norm(), 1e-9) << k;
+  // merge_stores copies the mark with its loop: the merged store still tells the placement from
+  // the visual loops, and restores the placed session in the same map.
+  {
+    const std::string merged = (dir.path() / "merged.db").string();
+    const MergeReport report = mergeStores(merged, {{db, "auv", ""}}, SlamConfig(), false);
+    EXPECT_EQ(report.copied_loops, 4);
+    {
+      SessionStore out(merged, StoreAccess::kReadOnly);
+      int marked = 0;
+      for (const StoredLoop& l : out.loops()) marked += l.nav_placement ? 1 : 0;
+      EXPECT_EQ(marked, 1);
+    }
+    SessionManager from_merged(managerOptions(merged));
+    EXPECT_EQ(from_merged.view().mapOf(1), from_merged.view().mapOf(0));
+    int placements = 0;
+    for (const Loop& l : from_merged.view().loops()) placements += l.nav_placement ? 1 : 0;
+    EXPECT_EQ(placements, 1);
+  }
   // Split off and deleted, the placed session takes its placement's row with it.
   ASSERT_TRUE(again.split(1).ok());
   ASSERT_TRUE(again.deleteSession("1", true).ok());
