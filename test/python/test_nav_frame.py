@@ -104,3 +104,18 @@ def test_export_says_which_origin_and_does_not_take_the_nav_frames_datum(mission
     assert r.returncode == 0, r.stderr
     assert "origin: --origin 43.2000000, 5.8000000, map x axis heading 90.0 deg\n" in r.stdout
     assert list((tmp_path / "geo").glob("*.geojson"))
+
+
+@pytest.mark.parametrize("second", ["enu", "ned"])
+def test_a_folder_in_the_same_named_frame_is_placed_whatever_its_convention(missions, tmp_path, second):
+    """Two folders whose nav_frame.yaml name the frame 'site': the second is placed by the nav against
+    the first (one nav_placements.csv row, folder 1's first keyframe against folder 0) whether its
+    nav.csv is written ENU or NED: both are read into one frame, so the convention is how the rows are
+    written, not another frame."""
+    out = tmp_path / "run"
+    r = run("offline_slam", "--session", missions["enu"] / "a", "--session", missions[second] / "a", "--out", out,
+            "--nav", "on")
+    assert r.returncode == 0, r.stderr
+    placed = rows(out / "nav_placements.csv")
+    assert [(p["session_a"], p["session_b"]) for p in placed] == [("0", "1")], r.stdout
+    assert "placed by the nav in the nav's world frame site" in r.stdout

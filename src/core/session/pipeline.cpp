@@ -224,6 +224,16 @@ SegmentedOdometry::Step Pipeline::processFrame(const OdometryInput& input, Prepa
   return step;
 }
 
+namespace {
+// Two nav_frame.yaml declare one world frame when they name it alike: the convention is only how
+// nav.csv's rows are written (both are read into the same ENU frame), and an origin given in one
+// file but not the other is the same frame; two different origins under one name are not.
+bool sameWorldFrame(const NavFrame& a, const NavFrame& b) {
+  return a.name == b.name &&
+         (!a.has_origin || !b.has_origin || (a.latitude_deg == b.latitude_deg && a.longitude_deg == b.longitude_deg));
+}
+}  // namespace
+
 std::optional<NavPlacementInput> Pipeline::placementOf(const SegmentedOdometry::Step& step) const {
   const NavPriorOptions& o = config_.odometry.nav;
   if (!o.enabled || !o.place_pieces) return std::nullopt;
@@ -234,7 +244,7 @@ std::optional<NavPlacementInput> Pipeline::placementOf(const SegmentedOdometry::
     p.keyframe = step.placement->keyframe;
     p.z = step.placement->z;
     what = "after the tracking loss";
-  } else if (pieces_ == 1 && nav_anchor_ && nav_frame_ && nav_anchor_->frame == *nav_frame_) {
+  } else if (pieces_ == 1 && nav_anchor_ && nav_frame_ && sameWorldFrame(nav_anchor_->frame, *nav_frame_)) {
     const std::optional<NavRecord>& here = segmented_->odometry()->keyframes().front().nav;
     if (!here) return std::nullopt;
     p = placeAgainst({nav_anchor_->session, nav_anchor_->keyframe, nav_anchor_->nav}, *here, o);

@@ -420,6 +420,13 @@ Status SessionManager::addLink(Loop l) {
 }
 
 Status SessionManager::addNavPlacement(Loop l) {
+  l.kind = Loop::Kind::kGlobal;
+  l.nav_placement = true;
+  l.inliers = 0;  // no features matched: no support in any join rule
+  l.hash_l1 = 0.0f;
+  // addLoop takes the odometry's ids and names them itself: given l's, a keyframe past a jump
+  // whose piece kept its session's id would be moved back by the jump twice.
+  const Loop odometry_ids = l;
   toPiece(&l.session_a, &l.keyframe_a);  // the odometry's ids after a jump, as this manager names them
   toPiece(&l.session_b, &l.keyframe_b);
   Status checked = checkLinkEnds(l);
@@ -434,10 +441,6 @@ Status SessionManager::addNavPlacement(Loop l) {
   if (mapOf(l.session_a) == mapOf(l.session_b))
     return {StatusCode::kOk, "nav placement: sessions " + std::to_string(l.session_a) + " and " +
                                  std::to_string(l.session_b) + " are already in one map"};
-  l.kind = Loop::Kind::kGlobal;
-  l.nav_placement = true;
-  l.inliers = 0;  // no features matched: no support in any join rule
-  l.hash_l1 = 0.0f;
   Status st;
   {
     // The placement goes into the audit trail before the join it brings about.
@@ -446,7 +449,7 @@ Status SessionManager::addNavPlacement(Loop l) {
       ~Hold() { *flag = false; }
     } hold{&hold_changes_};
     hold_changes_ = true;
-    st = addLoop(l);
+    st = addLoop(odometry_ids);
     if (st.ok()) {
       char pose[200];
       std::snprintf(pose, sizeof pose, "pose (%.4f m, %.4f m, %.4f rad), sigma (%.4g m, %.4g rad)", l.z.mean.x(),

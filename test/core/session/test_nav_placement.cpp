@@ -20,6 +20,7 @@
 #include "uw_multislam/core/session/nav_session_placer.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/session_store.h"
+#include "uw_multislam/core/session/store_merge.h"
 
 namespace uw_multislam {
 namespace core {
@@ -459,6 +460,24 @@ TEST(NavPlacement, APlacedPieceIsInItsPredecessorsMapFromItsFirstKeyframeLoopsRe
   ASSERT_EQ(restored.size(), placed_poses.size());
   for (std::size_t k = 0; k < restored.size(); ++k)
     EXPECT_LT((restored[k].translation() - placed_poses[k].translation()).norm(), 1e-9) << k;
+  // merge_stores copies the mark with its loop: the merged store still tells the placement from
+  // the visual loops, and restores the placed session in the same map.
+  {
+    const std::string merged = (dir.path() / "merged.db").string();
+    const MergeReport report = mergeStores(merged, {{db, "auv", ""}}, SlamConfig(), false);
+    EXPECT_EQ(report.copied_loops, 4);
+    {
+      SessionStore out(merged, StoreAccess::kReadOnly);
+      int marked = 0;
+      for (const StoredLoop& l : out.loops()) marked += l.nav_placement ? 1 : 0;
+      EXPECT_EQ(marked, 1);
+    }
+    SessionManager from_merged(managerOptions(merged));
+    EXPECT_EQ(from_merged.view().mapOf(1), from_merged.view().mapOf(0));
+    int placements = 0;
+    for (const Loop& l : from_merged.view().loops()) placements += l.nav_placement ? 1 : 0;
+    EXPECT_EQ(placements, 1);
+  }
   // Split off and deleted, the placed session takes its placement's row with it.
   ASSERT_TRUE(again.split(1).ok());
   ASSERT_TRUE(again.deleteSession("1", true).ok());
@@ -469,6 +488,36 @@ TEST(NavPlacement, APlacedPieceIsInItsPredecessorsMapFromItsFirstKeyframeLoopsRe
   EXPECT_TRUE(testing_util::execSql(db,
                                     "CREATE TEMP TABLE left_over(n CHECK(n = 0)); "
                                     "INSERT INTO left_over SELECT COUNT(*) FROM nav_placements;"));
+}
+
+TEST(NavPlacement, APlacementAgainstAPieceWhoseKeyframeIdsJumpedNamesThatKeyframeOnce) {
+  // Session 1's first keyframe to arrive is its odometry's keyframe 10, past max_keyframe_gap: the
+  // manager opens it under its own id 1 with the ids from 10 on as 0, 1, ... The placement names
+  // the odometry's (1, 30), which is the manager's (1, 20): translated once, never twice.
+  SessionManagerOptions o = managerOptions();
+  o.max_keyframe_gap = 5;
+  SessionManager m(o);
+  for (int k = 0; k < 8; ++k)
+    ASSERT_TRUE(m.addKeyframe(keyframeAt(0, k, Pose2(k, 0, 0), Pose2(std::max(0, k - 1), 0, 0))).ok());
+  EXPECT_FALSE(m.addKeyframe(keyframeAt(1, 10, Pose2(10, 0, 0), Pose2(9, 0, 0))).ok());  // held: a jump
+  for (int k = 11; k <= 30; ++k)
+    ASSERT_TRUE(m.addKeyframe(keyframeAt(1, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok()) << k;
+  ASSERT_EQ(m.view().poses(1).size(), 21u);
+  ASSERT_TRUE(m.addKeyframe(keyframeAt(2, 0, Pose2(), Pose2())).ok());
+  ASSERT_NE(m.view().mapOf(2), m.view().mapOf(1));
+  Loop l = placementOf(Pose2(0.5, 0.2, 0.1), 0.1, 0.03);
+  l.session_a = 1;
+  l.keyframe_a = 30;
+  l.session_b = 2;
+  const Status st = m.addNavPlacement(l);
+  ASSERT_TRUE(st.ok()) << st.message;
+  ASSERT_EQ(m.view().loops().size(), 1u);
+  EXPECT_EQ(m.view().loops()[0].session_a, 1);
+  EXPECT_EQ(m.view().loops()[0].keyframe_a, 20);
+  EXPECT_EQ(m.view().mapOf(2), m.view().mapOf(1));
+  const Pose2 expected = compose(m.view().poses(1)[20], Pose2(0.5, 0.2, 0.1));
+  EXPECT_NEAR(m.view().poses(2)[0].x(), expected.x(), 1e-9);
+  EXPECT_NEAR(m.view().poses(2)[0].y(), expected.y(), 1e-9);
 }
 
 TEST(NavPlacement, APlacementIsNoEvidenceForAnAutomaticJoin) {
