@@ -545,6 +545,33 @@ TEST(NavPlacement, APlacementIsNoEvidenceForAnAutomaticJoin) {
   }
 }
 
+TEST(NavPlacement, ALinkOnlyTheNavPlacedIsGatedWithItsOwnCovarianceNotTheInflatedOne) {
+  // Two sparse sessions joined by a placement of sigma 0.77 m (two sessions' dead reckonings, as
+  // bench_nav's two_sessions rows state it). A visual loop 10 m off the placement is wrong: the
+  // intra-map gate inflating the placement 100 times (sigma 7.7 m) took it and moved the piece by
+  // it. A true loop 0.5 m off the placement (within its error) is still taken.
+  for (const double off : {10.0, 0.5}) {
+    BackendOptions o;
+    o.optimise = false;
+    MultiSessionBackend b(o);
+    const Eigen::Matrix3d step = Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal();
+    const int s0 = b.startSession("a");
+    for (int k = 1; k < 5; ++k) b.addMotion(s0, UncertainPose2(Pose2(1, 0, 0), step));
+    b.endSession(s0);
+    const int s1 = b.startSession("b");
+    for (int k = 1; k < 5; ++k) b.addMotion(s1, UncertainPose2(Pose2(1, 0, 0), step));
+    const Eigen::Matrix3d nav_cov = Eigen::Vector3d(0.77 * 0.77, 0.77 * 0.77, 1e-3).asDiagonal();
+    b.addLoop({s0, 4, s1, 0, UncertainPose2(Pose2(0, 5, 0), nav_cov), 0, true});
+    ASSERT_TRUE(b.join(s0, s1, 1).ok());
+    ASSERT_EQ(b.mapOf(s0), b.mapOf(s1));
+    const int gated = b.stats().loops_gated;
+    // The pose of b's keyframe 1 in a's keyframe 2 by the placement: (3, 5); the loop says `off`
+    // more in x.
+    b.addLoop({s0, 2, s1, 1, UncertainPose2(Pose2(3 + off, 5, 0), Eigen::Matrix3d::Identity() * 1e-4), 80});
+    EXPECT_EQ(b.stats().loops_gated, gated + (off > 1.0 ? 1 : 0)) << "a loop " << off << " m off the placement";
+  }
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam

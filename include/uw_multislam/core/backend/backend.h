@@ -396,6 +396,8 @@ class MultiSessionBackend {
   Map& mapAt(int id);
   const Map& mapAt(int id) const;
   int offset(const Map& m, int session) const;  // index of the session's first keyframe in the map
+  /// Per motion of `m`: whether it is a link whose every loop is a nav placement (no visual match).
+  std::vector<bool> navPlacedMotions(const Map& m) const;
   int indexOf(int session, int keyframe) const { return offset(mapAt(mapOf(session)), session) + keyframe; }
   /// Every new map, and every change of one, takes a revision never used before (process-wide).
   static std::uint64_t nextRevision();
