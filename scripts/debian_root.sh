@@ -1,3 +1,4 @@
+# shellcheck shell=bash
 # Debian root file systems for the checks that build and test beside the host's own Debian:
 # scripts/arm64_check.sh (a bookworm arm64 root as sysroot and qemu -L prefix) and
 # scripts/platform_check.sh (bullseye amd64 and arm64 roots). Sourced, not run; the caller runs as

@@ -121,8 +121,8 @@ run_rostest() {
     status=1
     tail -20 "$logf" >&2
   fi
-  summary+=("platform_check: bullseye amd64 rostest $r: ${result:-no result}, ${tests:-0} tests, ${errors:-?} errors,"\
-" ${failures:-?} failures, run $((SECONDS - t0)) s")
+  local counts="${tests:-0} tests, ${errors:-?} errors, ${failures:-?} failures"
+  summary+=("platform_check: bullseye amd64 rostest $r: ${result:-no result}, $counts, run $((SECONDS - t0)) s")
 }
 
 # --- the amd64 root: always (the native build; for arm64, bullseye's cross compiler) --------------
