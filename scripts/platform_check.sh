@@ -1,15 +1,18 @@
 #!/usr/bin/env bash
 # Platform check: builds uw_multislam against Debian 11 (bullseye), the nearest this machine can reach
 # to the platforms users run (Ubuntu 20.04 with ROS Noetic; JetPack 5, Ubuntu 20.04 arm64): GCC 10
-# (and GCC 9, Ubuntu 20.04's), OpenCV 4.5.1, GDAL 3.2 (no CMake config file: FindGDAL), Ceres 2.0,
+# (and GCC 9, Ubuntu 20.04's), OpenCV 4.5.1, GDAL 3.2 (no CMake config file: FindGDAL), Ceres 1.14,
 # CMake 3.18, Boost 1.74, Eigen 3.3, VLFeat 0.9.21 (amd64 only) and Debian's ROS 1 packages. Runs the
 # gtests there and prints their counts. Not part of CI (an hour or more per architecture).
 #
+# The roots come from scripts/debian_root.sh (debootstrap, mounts, apt-get inside), as arm64_check.sh's.
+#
 #   amd64: a bullseye amd64 root (debootstrap --variant=minbase); in it, with its own compilers:
-#     1. the whole package with catkin_make when every ROS -dev package it needs is in bullseye
-#        (else the ROS-free core, the simulator and test_core with plain CMake, scripts/arm64/
-#        CMakeLists.txt, and the missing packages named); then test_core, test_no_gdal and, for the
-#        whole package, test_conversions;
+#     1. the whole package with catkin_make (every node and tool, and every gtest: make tests) when
+#        every ROS -dev package it needs is in bullseye (else the ROS-free core, the simulator and
+#        test_core with plain CMake, scripts/arm64/CMakeLists.txt, and the missing packages named);
+#        then test_core and, for the whole package, the ROS-free gtests (test_conversions,
+#        test_no_gdal, test_work_queue, test_dataset_bag) and a few rostests;
 #     2. the core, the simulator and test_core again with g++-9 and -DUWMS_FORCE_SIFT_BACKEND=vlfeat:
 #        Ubuntu 20.04's compiler, and its OpenCV 4.2 that has no SIFT (VLFeat's instead).
 #   arm64: as scripts/arm64_check.sh does for Debian 12: a bullseye arm64 root (debootstrap, second
@@ -23,6 +26,10 @@
 #                         bullseye-amd64/, bullseye-arm64/, logs)
 #   UWMS_PLATFORM_JOBS    compile jobs (default 1: the machine is shared)
 #   UWMS_PLATFORM_MIRROR  Debian mirror (default: the one the host's apt uses for its own suite)
+#   UWMS_ROOT_SETUP_ONLY  1: set the roots up (debootstrap, apt-get; scripts/debian_root.sh) and stop
+#   UWMS_PLATFORM_ROSTESTS amd64 whole package only: the rostests run in the root (default core_launch.test
+#                         datum.test slam_pipeline.test sensor_frames.test dvl_altitude.test
+#                         backend_services.test, about 2 min; empty: none)
 #   UWMS_PLATFORM_PACKAGE amd64 only: 0 skips step 1 (the package with GCC 10, an hour or more at -j1 from
 #                         nothing) and runs step 2 alone (default 1)
 # Idempotent and incremental: a second run reuses the roots and the builds. The repository is
@@ -31,6 +38,7 @@
 # a build or a test fails.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
+source "$(dirname "${BASH_SOURCE[0]}")/debian_root.sh"
 ARCH=${1:-}
 case "$ARCH" in amd64 | arm64) shift ;; *) echo "usage: sudo $0 amd64|arm64 [gtest arguments]" >&2; exit 2 ;; esac
 DIR=${UWMS_PLATFORM_ROOT:-$(dirname "$UWMS_REPO")/$(basename "$UWMS_REPO")_platform}
@@ -38,8 +46,8 @@ SUITE=bullseye
 AMD=$DIR/$SUITE-amd64
 ARM=$DIR/$SUITE-arm64
 JOBS=${UWMS_PLATFORM_JOBS:-1}
-APT=(apt-get -o DPkg::Lock::Timeout=900 -y -qq --no-install-recommends)
-export DEBIAN_FRONTEND=noninteractive
+ROSTESTS=${UWMS_PLATFORM_ROSTESTS-core_launch.test datum.test slam_pipeline.test sensor_frames.test dvl_altitude.test
+backend_services.test}
 log() { echo "[platform_check] $*" >&2; }
 die() { log "$*"; exit 1; }
 [ "$(id -u)" -eq 0 ] || die "needs root (debootstrap, chroot, mount): run it with sudo"
@@ -47,83 +55,22 @@ case "$DIR" in "$UWMS_REPO" | "$UWMS_REPO"/*) die "UWMS_PLATFORM_ROOT=$DIR is in
 mkdir -p "$DIR"
 t_start=$SECONDS
 
-# --- host tools ------------------------------------------------------------------------------------
-HOST_PACKAGES=(debootstrap python3)
-[ "$ARCH" = arm64 ] && HOST_PACKAGES+=(qemu-user-static binfmt-support)
-missing=()
-for p in "${HOST_PACKAGES[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
-if [ ${#missing[@]} -gt 0 ]; then
-  log "installing on the host: ${missing[*]}"
-  { "${APT[@]}" install "${missing[@]}" || { apt-get -qq update && "${APT[@]}" install "${missing[@]}"; }; } \
-    > "$DIR/host_apt.log" 2>&1 || { tail -20 "$DIR/host_apt.log" >&2; die "host apt-get install failed"; }
-fi
+# --- host tools; the roots (scripts/debian_root.sh) from the host's Debian archive, the only one
+# reachable here; everything mounted below them comes down on exit, error or ^C -----------------------
 if [ "$ARCH" = arm64 ]; then
-  binfmt=/proc/sys/fs/binfmt_misc
-  [ -e $binfmt/register ] || mount -t binfmt_misc binfmt_misc $binfmt \
-    || die "cannot mount binfmt_misc on $binfmt (a container without it cannot run the arm64 root)"
-  [ -e $binfmt/qemu-aarch64 ] || update-binfmts --enable qemu-aarch64 || die "update-binfmts --enable qemu-aarch64 failed"
-  grep -q '^enabled' $binfmt/qemu-aarch64 || die "$binfmt/qemu-aarch64 is disabled"
+  host_install "$DIR/host_apt.log" debootstrap python3 qemu-user-static binfmt-support
+  binfmt_arm64 > /dev/null
+else
+  host_install "$DIR/host_apt.log" debootstrap python3
 fi
-
-# --- mirror: the host's Debian archive (only it is reachable here), its one-line or deb822 sources ----
-host_uri() {
-  local uri
-  uri=$(cat /etc/apt/sources.list /etc/apt/sources.list.d/*.list 2>/dev/null | awk '
-    $1 == "deb" { i = 2; if ($2 ~ /^\[/) { while (i < NF && $i !~ /\]$/) i++; i++ }
-                  if ($i ~ /debian\/?$/) { print $i; exit } }')
-  [ -n "$uri" ] || uri=$(cat /etc/apt/sources.list.d/*.sources 2>/dev/null | awk '
-    /^URIs:/ { for (i = 2; i <= NF; i++) if ($i ~ /debian\/?$/) { print $i; exit } }')
-  echo "${uri:-http://deb.debian.org/debian}"
-}
-MIRROR=${UWMS_PLATFORM_MIRROR:-$(host_uri)}
-
-# --- mounts: everything below the roots comes down on exit, error or ^C ---------------------------
-unmount_all() {
-  local m
-  for m in $(awk -v r="$DIR/" 'index($5, r) == 1 { print $5 }' /proc/self/mountinfo | sort -r); do
-    umount "$m" 2>/dev/null || umount -l "$m" || true
-  done
-}
-trap unmount_all EXIT
-in_root() {  # in_root ROOT COMMAND...: a command in the root, with its own /proc and a read-only /sys
-  local root=$1; shift
-  mountpoint -q "$root/proc" || mount -t proc proc "$root/proc"
-  # As on a real system, /sys is not writable (a store test expects a path there to be refused).
-  mountpoint -q "$root/sys" || mount -t sysfs -o ro sysfs "$root/sys"
-  chroot "$root" /usr/bin/env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin HOME=/root DEBIAN_FRONTEND=noninteractive \
-    LC_ALL=C "$@"
-}
-bind_ro() {  # bind_ro SOURCE TARGET
-  mkdir -p "$2"
-  mountpoint -q "$2" || { mount --bind "$1" "$2" && mount -o remount,bind,ro "$2"; }
-}
-
-make_root() {  # make_root ARCH ROOT
-  local arch=$1 root=$2 t0=$SECONDS
-  [ -e "$root/.uwms_debootstrap_done" ] && return
-  unmount_all
-  [ -e "$root" ] && { log "removing the unfinished root $root"; rm -rf --one-file-system "$root"; }
-  if [ "$arch" = amd64 ]; then
-    log "debootstrap $SUITE amd64 (minbase) from $MIRROR into $root"
-    debootstrap --arch=amd64 --variant=minbase $SUITE "$root" "$MIRROR" > "$DIR/debootstrap-$arch.log" 2>&1 \
-      || { tail -20 "$DIR/debootstrap-$arch.log" >&2; die "debootstrap $arch failed ($DIR/debootstrap-$arch.log)"; }
-  else
-    log "debootstrap $SUITE arm64 (minbase) from $MIRROR into $root (first stage, then the second under qemu)"
-    debootstrap --arch=arm64 --variant=minbase --foreign $SUITE "$root" "$MIRROR" > "$DIR/debootstrap-$arch.log" 2>&1 \
-      || { tail -20 "$DIR/debootstrap-$arch.log" >&2; die "debootstrap $arch failed ($DIR/debootstrap-$arch.log)"; }
-    if ! grep -q '^flags:.*F' /proc/sys/fs/binfmt_misc/qemu-aarch64; then
-      # Without binfmt's F flag the interpreter must be inside the root.
-      interp=$(awk '/^interpreter/ { print $2 }' /proc/sys/fs/binfmt_misc/qemu-aarch64)
-      install -D "$interp" "$root$interp"
-    fi
-    chroot "$root" /debootstrap/debootstrap --second-stage >> "$DIR/debootstrap-$arch.log" 2>&1 \
-      || { tail -20 "$DIR/debootstrap-$arch.log" >&2; die "debootstrap --second-stage failed"; }
-  fi
-  touch "$root/.uwms_debootstrap_done"
-  log "$arch root file system: $((SECONDS - t0)) s"
-}
+MIRROR=${UWMS_PLATFORM_MIRROR:-$(host_uri $SUITE)}
+trap 'unmount_below "$DIR"' EXIT
+{
+  echo "deb $MIRROR $SUITE main"
+  echo "deb $MIRROR $SUITE-updates main"
+  # No $SUITE-security: a build check needs no security fixes, and the archive this machine reaches
+  # lists bullseye-security packages it does not serve (404).
+} > "$DIR/sources.list"
 
 # unavailable ROOT PACKAGES... -> the names apt in ROOT has no candidate for (unknown, or only
 # named by other packages), one a line
@@ -133,51 +80,7 @@ unavailable() {
   for p in "$@"; do [[ "$(in_root "$root" apt-cache policy "$p" 2>/dev/null)" == *"Candidate: "[^\(]* ]] || echo "$p"; done
 }
 
-install_in_root() {  # install_in_root ROOT NAME PACKAGES...: apt-get install once per package list
-  local root=$1 name=$2 t0=$SECONDS; shift 2
-  local stamp="$root/.uwms_packages_$name"
-  if ! cmp -s <(printf '%s\n' "$@") "$stamp"; then
-    log "apt-get install in the $name root: $*"
-    # The lists anew: an archive's security updates replace packages (an old list's .deb is a 404).
-    { in_root "$root" apt-get -qq update && in_root "$root" "${APT[@]}" install "$@" && in_root "$root" apt-get clean; } \
-      > "$DIR/apt-$name.log" 2>&1 \
-      || { tail -20 "$DIR/apt-$name.log" >&2; die "apt-get in the $name root failed ($DIR/apt-$name.log)"; }
-    printf '%s\n' "$@" > "$stamp"
-    log "$name packages: $((SECONDS - t0)) s"
-  fi
-}
-
-apt_sources() {  # apt_sources ROOT: bullseye, its updates and security, then apt-get update (daily)
-  local root=$1
-  {
-    echo "deb $MIRROR $SUITE main"
-    echo "deb $MIRROR $SUITE-updates main"
-    # No $SUITE-security: a build check needs no security fixes, and the archive this machine reaches
-    # lists bullseye-security packages it does not serve (404).
-  } > "$DIR/sources.list"
-  cp /etc/resolv.conf "$root/etc/resolv.conf" 2>/dev/null || true
-  if ! cmp -s "$DIR/sources.list" "$root/etc/apt/sources.list" || [ -z "$(find "$root/var/lib/apt/lists" \
-    -maxdepth 1 -name '*Packages*' -mtime -1 2>/dev/null)" ]; then
-    cp "$DIR/sources.list" "$root/etc/apt/sources.list"
-    in_root "$root" apt-get -qq update > "$DIR/apt-update.log" 2>&1 || { tail "$DIR/apt-update.log" >&2; die "apt-get update failed"; }
-  fi
-}
-
-# --- gtest counts (skipped and disabled tests count neither way) -------------------------------------
-count_py='
-import sys, xml.etree.ElementTree as ET
-passed = failed = 0
-try:
-    for c in ET.parse(sys.argv[1]).getroot().iter("testcase"):
-        if c.get("result", "completed") != "completed" or c.get("status") == "notrun":
-            continue
-        if c.find("failure") is not None:
-            failed += 1
-        else:
-            passed += 1
-except Exception:
-    pass
-print(passed, failed)'
+# --- gtest runs, counted by scripts/debian_root.sh (skipped and disabled tests count neither way) ----
 summary=()
 status=0
 # run_gtest WHAT XML LOG COMMAND...: runs one gtest binary, counts it from its XML (or its log if it died)
@@ -189,12 +92,7 @@ run_gtest() {
   "$@" > "$logf" 2>&1
   rc=$?
   set -e
-  if [ -s "$xml" ]; then
-    read -r passed failed < <(python3 -c "$count_py" "$xml")
-  else
-    passed=$(grep -c '^\[       OK \]' "$logf" || true)
-    failed=$(grep -c '^\[  FAILED  \] .* ms)$' "$logf" || true)
-  fi
+  read -r passed failed < <(gtest_counts "$xml" "$logf")
   if [ "$rc" -ne 0 ] && [ "$failed" -eq 0 ]; then
     tail -20 "$logf" >&2
     failed=1
@@ -204,17 +102,44 @@ run_gtest() {
   summary+=("platform_check: $what: $passed tests passed, $failed failed, run $((SECONDS - t0)) s")
 }
 
+# run_rostest FILE: one rostest of the package in the amd64 root, counted from its summary
+run_rostest() {
+  local r=$1 t0=$SECONDS logf="$DIR/rostest-${1%.test}-amd64.log" tests errors failures result
+  log "bullseye amd64 rostest $r (log: $logf)"
+  set +e
+  in_root "$AMD" bash -c "source /ws/devel/setup.bash && ROS_HOME=/ws/ros_home ROS_HOSTNAME=localhost \
+    rostest uw_multislam $r" > "$logf" 2>&1
+  set -e
+  # rostest colours its summary even into a file.
+  sed -i 's/\x1b\[[0-9;]*m//g' "$logf"
+  tests=$(sed -n 's/^ \* TESTS: //p' "$logf" | tail -1)
+  errors=$(sed -n 's/^ \* ERRORS: //p' "$logf" | tail -1)
+  failures=$(sed -n 's/^ \* FAILURES: //p' "$logf" | tail -1)
+  result=$(sed -n 's/^ \* RESULT: //p' "$logf" | tail -1)
+  sed -n '/^SUMMARY/,$p' "$logf" >&2
+  if [ "$result" != SUCCESS ]; then
+    status=1
+    tail -20 "$logf" >&2
+  fi
+  local counts="${tests:-0} tests, ${errors:-?} errors, ${failures:-?} failures"
+  summary+=("platform_check: bullseye amd64 rostest $r: ${result:-no result}, $counts, run $((SECONDS - t0)) s")
+}
+
 # --- the amd64 root: always (the native build; for arm64, bullseye's cross compiler) --------------
 ROS_PACKAGES=(catkin ros-core-dev libroscpp-dev libnodeletlib-dev libtf2-ros-dev libtf2-geometry-msgs-dev
   libimage-transport-dev libcv-bridge-dev libimage-geometry-dev libcamera-calibration-parsers-dev libroslib-dev
   librosbag-dev ros-message-generation ros-message-runtime ros-std-msgs ros-sensor-msgs ros-nav-msgs
   ros-geometry-msgs ros-visualization-msgs ros-diagnostic-msgs libdiagnostic-updater-dev python3-catkin-pkg
   python3-rospkg python3-roslaunch python3-rostest librostest-dev python3-rosbag)
+# What the nodes, launch files and rostests use at run time (scripts/install_deps.sh's), where bullseye has it.
+ROS_RUN_PACKAGES=(libnodeletlib-tools rosbash python3-rostopic python3-rosservice python3-nodelet python3-rosnode
+  python3-tf2-ros python3-tf2-msgs python3-geometry-msgs python3-sensor-msgs python3-nav-msgs python3-visualization-msgs
+  python3-diagnostic-msgs python3-numpy python3-yaml python3-pytest topic-tools libimage-proc-dev)
 CORE_PACKAGES=(build-essential cmake libopencv-dev libeigen3-dev libceres-dev libsqlite3-dev libyaml-cpp-dev
   libboost-dev libgtest-dev libgdal-dev python3)
 t_setup=$SECONDS
-make_root amd64 "$AMD"
-apt_sources "$AMD"
+make_root amd64 $SUITE "$AMD" "$MIRROR" "$DIR/debootstrap-amd64.log"
+root_sources "$AMD" "$DIR/sources.list"
 setup_s=$((SECONDS - t_setup))
 bind_ro "$UWMS_REPO" "$AMD$UWMS_REPO"
 
@@ -228,12 +153,15 @@ if [ "$ARCH" = amd64 ]; then
   mapfile -t ros_missing < <(unavailable "$AMD" "${ROS_PACKAGES[@]}")
   if [ ${#ros_missing[@]} -eq 0 ]; then
     mode=full
+    mapfile -t run_missing < <(unavailable "$AMD" "${ROS_RUN_PACKAGES[@]}")
+    for p in "${ROS_RUN_PACKAGES[@]}"; do [[ " ${run_missing[*]} " == *" $p "* ]] || amd_packages+=("$p"); done
+    [ ${#run_missing[@]} -eq 0 ] || log "bullseye lacks ${run_missing[*]}: rostests that need them fail"
     amd_packages+=("${ROS_PACKAGES[@]}")
   else
     mode=core
     log "bullseye lacks ${ros_missing[*]}: the ROS-free core, the simulator and test_core only"
   fi
-  install_in_root "$AMD" amd64 "${amd_packages[@]}"
+  root_install "$AMD" "$AMD/.uwms_packages_amd64" "$DIR/apt-amd64.log" "${amd_packages[@]}"
   # Debian 11's libvlfeat-dev (0.9.21+dfsg0, like Ubuntu 20.04's) leaves SIFT out (vl/sift.h, for the
   # patent, expired in 2020); Debian 12's (0.9.21+full) has it and installs on bullseye (glibc 2.29,
   # libgomp1): this host's two packages, fetched by its apt, stand in for a VLFeat built from source.
@@ -251,6 +179,7 @@ if [ "$ARCH" = amd64 ]; then
     libceres-dev cmake libboost-dev libeigen3-dev libvlfeat-dev libgeographic-dev ros-core-dev 2>/dev/null \
     | tr '\n' ';' || true)
   log "bullseye amd64: $versions"
+  [ "${UWMS_ROOT_SETUP_ONLY:-0}" = 0 ] || { echo "platform_check: Debian $SUITE amd64 roots set up ($DIR), root setup $setup_s s; nothing built (UWMS_ROOT_SETUP_ONLY)"; exit 0; }
 
   # 1. The package (or the core) with bullseye's GCC 10, every SIFT it has.
   t0=$SECONDS
@@ -260,11 +189,13 @@ if [ "$ARCH" = amd64 ]; then
   elif [ $mode = full ]; then
     # A fresh CMake cache each run (the objects stay): Debian 11's cmake-extras GMockConfig defines the
     # gmock_main target only when it is first found; a re-configure from the cache links a missing one.
+    # --force-cmake: with a Makefile there, catkin_make would let make re-run CMake without its own
+    # arguments, and the devel space would move to build/devel (the tests then run from the old one).
     in_root "$AMD" bash -c "mkdir -p /ws/src && ln -sfn '$UWMS_REPO' /ws/src/uw_multislam && cd /ws && \
       rm -f build/CMakeCache.txt && \
-      catkin_make -DPYTHON_EXECUTABLE=/usr/bin/python3 -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCATKIN_ENABLE_TESTING=ON \
+      catkin_make --force-cmake -DPYTHON_EXECUTABLE=/usr/bin/python3 -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCATKIN_ENABLE_TESTING=ON \
         -DUWMS_WERROR=ON -j$JOBS && \
-      make -C build -j$JOBS test_core test_conversions test_no_gdal" > "$DIR/build-amd64.log" 2>&1
+      make -C build -j$JOBS tests" > "$DIR/build-amd64.log" 2>&1
     rc=$?
   else
     in_root "$AMD" bash -c "cmake -S '$UWMS_REPO/scripts/arm64' -B /build/core -DUWMS_WERROR=ON && \
@@ -284,9 +215,14 @@ if [ "$ARCH" = amd64 ]; then
     summary+=("platform_check: bullseye amd64 $mode build (GCC 10, -Werror): ok, $build_s s, $(grep -c 'warning:' "$DIR/build-amd64.log" || true) warnings")
     if [ $mode = full ]; then
       bin=/ws/devel/lib/uw_multislam
-      for t in test_core test_conversions test_no_gdal; do
+      for t in test_core test_conversions test_no_gdal test_work_queue test_dataset_bag; do
         run_gtest "bullseye amd64 $t" "$AMD/ws/$t.xml" "$DIR/$t-amd64.log" \
           in_root "$AMD" bash -c "cd /ws && $bin/$t --gtest_output=xml:/ws/$t.xml $*"
+      done
+      # rostests in the root (each starts its own master on a free port); /dev/shm, as on a real system.
+      mountpoint -q "$AMD/dev/shm" || { mkdir -p "$AMD/dev/shm" && mount -t tmpfs -o mode=1777 shm "$AMD/dev/shm"; }
+      for r in $ROSTESTS; do
+        run_rostest "$r"
       done
     else
       run_gtest "bullseye amd64 test_core" "$AMD/build/core/test_core.xml" "$DIR/test_core-amd64.log" \
@@ -321,26 +257,18 @@ if [ "$ARCH" = amd64 ]; then
 else
   # --- arm64: the arm64 root as sysroot of bullseye's cross compiler in the amd64 root ----------------
   t0=$SECONDS
-  install_in_root "$AMD" amd64-cross cmake make g++-aarch64-linux-gnu python3
-  make_root arm64 "$ARM"
-  apt_sources "$ARM"
+  root_install "$AMD" "$AMD/.uwms_packages_amd64-cross" "$DIR/apt-amd64-cross.log" cmake make g++-aarch64-linux-gnu python3
+  make_root arm64 $SUITE "$ARM" "$MIRROR" "$DIR/debootstrap-arm64.log"
+  root_sources "$ARM" "$DIR/sources.list"
   # GeographicLib for the export library (test_core links it); no GDAL (optional: GeoTIFFs refused).
   arm_packages=(libc6-dev libopencv-dev libeigen3-dev libceres-dev libsqlite3-dev libyaml-cpp-dev libboost-dev libgtest-dev
     libgeographic-dev)
   [ -z "$(unavailable "$ARM" libvlfeat-dev)" ] && arm_packages+=(libvlfeat-dev)
   if ! cmp -s <(printf '%s\n' "${arm_packages[@]}") "$ARM/.uwms_packages_arm64"; then
-    unmount_all
-    install_in_root "$ARM" arm64 "${arm_packages[@]}"
-    unmount_all
-    # Absolute symlinks (update-alternatives' libblas.so.3 -> /etc/alternatives/...) would resolve in
-    # the amd64 root when this root is its /sysroot: made relative, they resolve the same anywhere.
-    n=0
-    while IFS= read -r -d '' l; do
-      t=$(readlink "$l")
-      ln -sfn "$(realpath -s -m --relative-to="$(dirname "$l")" "$ARM$t")" "$l"
-      n=$((n + 1))
-    done < <(find "$ARM" -xdev -type l -lname '/*' ! -path "$ARM/proc/*" ! -path "$ARM/dev/*" -print0)
-    log "$n absolute symlinks in the arm64 root made relative"
+    unmount_below "$DIR"
+    root_install "$ARM" "$ARM/.uwms_packages_arm64" "$DIR/apt-arm64.log" "${arm_packages[@]}"
+    # The arm64 root is the amd64 root's /sysroot: its absolute symlinks would resolve in the amd64 root.
+    relative_symlinks "$ARM"
     bind_ro "$UWMS_REPO" "$AMD$UWMS_REPO"
   fi
   setup_s=$((setup_s + SECONDS - t0))
@@ -348,23 +276,8 @@ else
   versions=$(in_root "$ARM" dpkg-query -W -f='${Package} ${Version}\n' libopencv-dev libceres-dev libeigen3-dev \
     libvlfeat-dev 2>/dev/null | tr '\n' ';' || true)
   log "bullseye arm64: $versions; cross: $(in_root "$AMD" aarch64-linux-gnu-g++ --version | head -1)"
-  cat > "$DIR/aarch64-toolchain.cmake.new" <<EOF
-# Written by scripts/platform_check.sh: bullseye's cross compiler, the bullseye arm64 root as sysroot.
-set(CMAKE_SYSTEM_NAME Linux)
-set(CMAKE_SYSTEM_PROCESSOR aarch64)
-set(CMAKE_C_COMPILER aarch64-linux-gnu-gcc)
-set(CMAKE_CXX_COMPILER aarch64-linux-gnu-g++)
-set(CMAKE_LIBRARY_ARCHITECTURE aarch64-linux-gnu)
-set(CMAKE_SYSROOT /sysroot)
-set(CMAKE_FIND_ROOT_PATH /sysroot)
-set(CMAKE_FIND_ROOT_PATH_MODE_PROGRAM NEVER)
-set(CMAKE_FIND_ROOT_PATH_MODE_LIBRARY ONLY)
-set(CMAKE_FIND_ROOT_PATH_MODE_INCLUDE ONLY)
-set(CMAKE_FIND_ROOT_PATH_MODE_PACKAGE ONLY)
-EOF
-  mkdir -p "$AMD/build"
-  cmp -s "$DIR/aarch64-toolchain.cmake.new" "$AMD/build/aarch64-toolchain.cmake" && rm "$DIR/aarch64-toolchain.cmake.new" \
-    || mv "$DIR/aarch64-toolchain.cmake.new" "$AMD/build/aarch64-toolchain.cmake"
+  [ "${UWMS_ROOT_SETUP_ONLY:-0}" = 0 ] || { echo "platform_check: Debian $SUITE arm64 roots set up ($DIR), root setup $setup_s s; nothing built (UWMS_ROOT_SETUP_ONLY)"; exit 0; }
+  aarch64_toolchain "$AMD/build/aarch64-toolchain.cmake" /sysroot
   t0=$SECONDS
   set +e
   in_root "$AMD" bash -c "cmake -S '$UWMS_REPO/scripts/arm64' -B /build/arm64 \
