@@ -337,11 +337,15 @@ void SessionManager::acceptLoop(const Loop& l) {
   emit(SessionEvent::Kind::kLoopAccepted, l.session_b, l.session_a, mapOf(l.session_b), "");
 }
 
-Status SessionManager::addLoop(const Loop& in, bool* waiting) {
+Status SessionManager::addLoop(const Loop& in, bool* waiting) { return addLoopIn(in, true, waiting); }
+
+Status SessionManager::addLoopIn(const Loop& in, bool odometry_ids, bool* waiting) {
   if (waiting) *waiting = false;
-  Loop l = in;  // the odometry's ids after a jump, as this manager names them
-  toPiece(&l.session_a, &l.keyframe_a);
-  toPiece(&l.session_b, &l.keyframe_b);
+  Loop l = in;
+  if (odometry_ids) {  // the odometry's ids after a jump, as this manager names them
+    toPiece(&l.session_a, &l.keyframe_a);
+    toPiece(&l.session_b, &l.keyframe_b);
+  }
   if (!validSessionId(l.session_a) || !validSessionId(l.session_b) || l.keyframe_a < 0 || l.keyframe_b < 0) {
     ++stats_.loops_refused;
     return validSessionId(l.session_a) && validSessionId(l.session_b)
@@ -400,7 +404,7 @@ Status SessionManager::addLink(Loop l) {
       ~Hold() { *flag = false; }
     } hold{&hold_changes_};
     hold_changes_ = true;
-    st = addLoop(l);
+    st = addLoopIn(l, false, nullptr);  // already this manager's ids: never moved by a jump again
   }
   if (st.ok()) {
     const std::string link = loopText(l);

@@ -520,6 +520,32 @@ TEST(NavPlacement, APlacementAgainstAPieceWhoseKeyframeIdsJumpedNamesThatKeyfram
   EXPECT_NEAR(m.view().poses(2)[0].y(), expected.y(), 1e-9);
 }
 
+TEST(NavPlacement, AnOperatorsLinkInAJumpedPieceNamesTheManagersKeyframe) {
+  // As above, session 1 holds the odometry's keyframes 10..30 as its 0..20. The operator names
+  // keyframes as list_sessions shows them: (1, 15) is the manager's 15, not the odometry's 15
+  // (which would be the manager's 5).
+  SessionManagerOptions o = managerOptions();
+  o.max_keyframe_gap = 5;
+  SessionManager m(o);
+  for (int k = 0; k < 8; ++k)
+    ASSERT_TRUE(m.addKeyframe(keyframeAt(0, k, Pose2(k, 0, 0), Pose2(std::max(0, k - 1), 0, 0))).ok());
+  EXPECT_FALSE(m.addKeyframe(keyframeAt(1, 10, Pose2(10, 0, 0), Pose2(9, 0, 0))).ok());  // held: a jump
+  for (int k = 11; k <= 30; ++k)
+    ASSERT_TRUE(m.addKeyframe(keyframeAt(1, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok()) << k;
+  ASSERT_EQ(m.view().poses(1).size(), 21u);
+  ASSERT_TRUE(m.addKeyframe(keyframeAt(2, 0, Pose2(), Pose2())).ok());
+  Loop l = placementOf(Pose2(0.5, 0.2, 0.1), 0.1, 0.03);
+  l.session_a = 1;
+  l.keyframe_a = 15;
+  l.session_b = 2;
+  l.inliers = 50;
+  const Status st = m.addLink(l);
+  ASSERT_TRUE(st.ok()) << st.message;
+  ASSERT_EQ(m.view().loops().size(), 1u);
+  EXPECT_EQ(m.view().loops()[0].session_a, 1);
+  EXPECT_EQ(m.view().loops()[0].keyframe_a, 15);
+}
+
 TEST(NavPlacement, APlacementIsNoEvidenceForAnAutomaticJoin) {
   // Two maps with one visual loop and a placement loop between them (as after a split):
   // join_min_loops 2 joins with two loops, not with the placement standing in for one.

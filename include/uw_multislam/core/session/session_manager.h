@@ -202,6 +202,9 @@ class SessionManager : private SessionQueries {
   Status open(int id, const std::string& name, double stamp_s, const std::string& vehicle = "", int remote_id = -1);
   /// Appends keyframe k of an open session (k.session in this manager's ids) with its loops.
   Status appendKeyframe(KeyframeInput k, const std::vector<Loop>& loops);
+  /// addLoop with `loop` in this manager's ids (add_link: the operator names what list_sessions
+  /// shows) or, `odometry_ids`, in the odometry's (toPiece names them after a jump).
+  Status addLoopIn(const Loop& loop, bool odometry_ids, bool* waiting);
   /// The session's store row (with its provenance when it is another vehicle's); sets store_id.
   void addStoreRow(Session& s, double stamp_s);
   /// Writes a keyframe with its motion and `loops` (converted to `stored`, whose ids are set),
