@@ -13,6 +13,21 @@ namespace core {
 
 using namespace session_detail;  // NOLINT: the manager's own helpers
 
+namespace {
+/// While alive, afterBackendChange leaves the map changes to the caller (hold_changes_), so an
+/// audit-trail line goes in before the join it brings about; released also when a call throws.
+class HeldChanges {
+ public:
+  explicit HeldChanges(bool* flag) : flag_(flag) { *flag_ = true; }
+  ~HeldChanges() { *flag_ = false; }
+  HeldChanges(const HeldChanges&) = delete;
+  HeldChanges& operator=(const HeldChanges&) = delete;
+
+ private:
+  bool* flag_;
+};
+}  // namespace
+
 void SessionManager::addStoreRow(Session& s, double stamp_s) {
   // Its row takes the session's id: a session's id is its store id for life.
   s.store_id = store_->addSession(s.name, s.camera, stamp_s, idOfBackend(s.backend));
@@ -399,11 +414,7 @@ Status SessionManager::addLink(Loop l) {
   Status st;
   {
     // The link goes into the audit trail before a join it brings about (also when addLoop throws).
-    struct Hold {
-      bool* flag;
-      ~Hold() { *flag = false; }
-    } hold{&hold_changes_};
-    hold_changes_ = true;
+    const HeldChanges hold(&hold_changes_);
     st = addLoopIn(l, false, nullptr);  // already this manager's ids: never moved by a jump again
   }
   if (st.ok()) {
@@ -448,11 +459,7 @@ Status SessionManager::addNavPlacement(Loop l) {
   Status st;
   {
     // The placement goes into the audit trail before the join it brings about.
-    struct Hold {
-      bool* flag;
-      ~Hold() { *flag = false; }
-    } hold{&hold_changes_};
-    hold_changes_ = true;
+    const HeldChanges hold(&hold_changes_);
     st = addLoop(odometry_ids);
     if (st.ok()) {
       char pose[200];
