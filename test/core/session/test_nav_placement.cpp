@@ -490,6 +490,19 @@ TEST(NavPlacement, APlacedPieceIsInItsPredecessorsMapFromItsFirstKeyframeLoopsRe
                                     "INSERT INTO left_over SELECT COUNT(*) FROM nav_placements;"));
 }
 
+/// Session 0 (keyframes 0..7); session 1, whose first keyframe to arrive is its odometry's keyframe
+/// 10, past max_keyframe_gap 5: the manager holds it, then opens session 1 with the odometry's
+/// 10..30 as its 0..20; session 2's keyframe 0, a map of its own.
+void feedAJumpedSession(SessionManager* m) {
+  for (int k = 0; k < 8; ++k)
+    ASSERT_TRUE(m->addKeyframe(keyframeAt(0, k, Pose2(k, 0, 0), Pose2(std::max(0, k - 1), 0, 0))).ok());
+  EXPECT_FALSE(m->addKeyframe(keyframeAt(1, 10, Pose2(10, 0, 0), Pose2(9, 0, 0))).ok());  // held: a jump
+  for (int k = 11; k <= 30; ++k)
+    ASSERT_TRUE(m->addKeyframe(keyframeAt(1, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok()) << k;
+  ASSERT_EQ(m->view().poses(1).size(), 21u);
+  ASSERT_TRUE(m->addKeyframe(keyframeAt(2, 0, Pose2(), Pose2())).ok());
+}
+
 TEST(NavPlacement, APlacementAgainstAPieceWhoseKeyframeIdsJumpedNamesThatKeyframeOnce) {
   // Session 1's first keyframe to arrive is its odometry's keyframe 10, past max_keyframe_gap: the
   // manager opens it under its own id 1 with the ids from 10 on as 0, 1, ... The placement names
@@ -497,13 +510,8 @@ TEST(NavPlacement, APlacementAgainstAPieceWhoseKeyframeIdsJumpedNamesThatKeyfram
   SessionManagerOptions o = managerOptions();
   o.max_keyframe_gap = 5;
   SessionManager m(o);
-  for (int k = 0; k < 8; ++k)
-    ASSERT_TRUE(m.addKeyframe(keyframeAt(0, k, Pose2(k, 0, 0), Pose2(std::max(0, k - 1), 0, 0))).ok());
-  EXPECT_FALSE(m.addKeyframe(keyframeAt(1, 10, Pose2(10, 0, 0), Pose2(9, 0, 0))).ok());  // held: a jump
-  for (int k = 11; k <= 30; ++k)
-    ASSERT_TRUE(m.addKeyframe(keyframeAt(1, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok()) << k;
-  ASSERT_EQ(m.view().poses(1).size(), 21u);
-  ASSERT_TRUE(m.addKeyframe(keyframeAt(2, 0, Pose2(), Pose2())).ok());
+  feedAJumpedSession(&m);
+  if (HasFatalFailure()) return;
   ASSERT_NE(m.view().mapOf(2), m.view().mapOf(1));
   Loop l = placementOf(Pose2(0.5, 0.2, 0.1), 0.1, 0.03);
   l.session_a = 1;
@@ -527,13 +535,8 @@ TEST(NavPlacement, AnOperatorsLinkInAJumpedPieceNamesTheManagersKeyframe) {
   SessionManagerOptions o = managerOptions();
   o.max_keyframe_gap = 5;
   SessionManager m(o);
-  for (int k = 0; k < 8; ++k)
-    ASSERT_TRUE(m.addKeyframe(keyframeAt(0, k, Pose2(k, 0, 0), Pose2(std::max(0, k - 1), 0, 0))).ok());
-  EXPECT_FALSE(m.addKeyframe(keyframeAt(1, 10, Pose2(10, 0, 0), Pose2(9, 0, 0))).ok());  // held: a jump
-  for (int k = 11; k <= 30; ++k)
-    ASSERT_TRUE(m.addKeyframe(keyframeAt(1, k, Pose2(k, 0, 0), Pose2(k - 1, 0, 0))).ok()) << k;
-  ASSERT_EQ(m.view().poses(1).size(), 21u);
-  ASSERT_TRUE(m.addKeyframe(keyframeAt(2, 0, Pose2(), Pose2())).ok());
+  feedAJumpedSession(&m);
+  if (HasFatalFailure()) return;
   Loop l = placementOf(Pose2(0.5, 0.2, 0.1), 0.1, 0.03);
   l.session_a = 1;
   l.keyframe_a = 15;
