@@ -2,7 +2,11 @@
 // as rosparam would load config/slam.yaml).
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
+#include "uw_multislam/ros/odometry_options.h"
 #include "uw_multislam/ros/slam_params.h"
+#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace {
@@ -87,6 +91,30 @@ TEST(SlamParams, YamlOfScalarsAndLists) {
   const std::string y = ros_params::xmlRpcToYaml(t);
   EXPECT_NE(y.find("a: 1"), std::string::npos) << y;
   EXPECT_NE(y.find("b: [2.5, x]"), std::string::npos) << y;
+}
+
+// The worker's queue and the subscribers' queues come from the options alone (the nodelet builds
+// both from them): with newest the worker's queue is deeper than ~queue_size, so that the skip
+// rule chooses, and the subscribers' queues are at least as deep, so that they do not drop first.
+TEST(OdometryOptions, WorkerAndInputQueuesFollowTheDropPolicy) {
+  for (const int queue_size : {1, 5, 40}) {
+    for (const int sync_queue_size : {1, 10, 1000}) {
+      ros_params::OdometryNodeletOptions o;
+      o.queue_size = queue_size;
+      o.sync_queue_size = sync_queue_size;
+      const std::string at =
+          "queue_size " + std::to_string(queue_size) + ", sync_queue_size " + std::to_string(sync_queue_size);
+      o.drop_policy = "oldest";  // every frame in order: the worker's queue is ~queue_size, the oldest dropped beyond
+      EXPECT_EQ(o.workerQueueSize(), static_cast<std::size_t>(queue_size)) << at;
+      EXPECT_EQ(o.inputQueueSize(), sync_queue_size) << at;
+      o.drop_policy = "newest";
+      EXPECT_EQ(o.workerQueueSize(), ros_work::newestCapacity(static_cast<std::size_t>(queue_size))) << at;
+      // 20 x queue_size, as ~queue_size's documentation and the start-up log line say.
+      EXPECT_EQ(o.workerQueueSize(), 20u * static_cast<std::size_t>(queue_size)) << at;
+      EXPECT_GE(o.inputQueueSize(), static_cast<int>(o.workerQueueSize())) << at;
+      EXPECT_EQ(o.inputQueueSize(), std::max(sync_queue_size, static_cast<int>(o.workerQueueSize()))) << at;
+    }
+  }
 }
 
 }  // namespace
