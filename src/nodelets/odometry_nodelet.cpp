@@ -48,10 +48,7 @@ void OdometryNodelet::onInit() {
   NODELET_INFO("odometry: %s", images_->description().c_str());
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config));
   session_ = o.session;
-  // newest: deeper, so that the skip rule, not a full queue, decides which frames are passed over.
-  const auto depth = static_cast<std::size_t>(o.queue_size);
-  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(
-      o.drop_policy == "newest" ? ros_work::newestCapacity(depth) : depth, ros_inputs::handOnDropped);
+  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(o.workerQueueSize(), ros_inputs::handOnDropped);
   // With newest the worker takes the newest frame when it frees up: its features are started on
   // arrival (on another core), so that only matching and RANSAC remain when it is taken. A frame
   // superseded before a thread was free is never prepared (core::OrderedPrefetch::Start::kNewest).

@@ -21,9 +21,14 @@ namespace ros_params {
 
 namespace rc = ros_conversions;
 
+std::size_t OdometryNodeletOptions::workerQueueSize() const {
+  const auto depth = static_cast<std::size_t>(queue_size);
+  return drop_policy == "newest" ? ros_work::newestCapacity(depth) : depth;
+}
+
 int OdometryNodeletOptions::inputQueueSize() const {
   if (drop_policy != "newest") return sync_queue_size;
-  return std::max(sync_queue_size, static_cast<int>(ros_work::newestCapacity(static_cast<std::size_t>(queue_size))));
+  return std::max(sync_queue_size, static_cast<int>(workerQueueSize()));
 }
 
 core::InputPairingOptions OdometryNodeletOptions::pairing() const {

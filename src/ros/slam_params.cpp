@@ -10,6 +10,8 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include "uw_multislam/core/session/geo_datum.h"
+
 namespace uw_multislam {
 namespace ros_params {
 
@@ -73,6 +75,24 @@ core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::stri
   return slamConfigFromXmlRpc(tree, nh.resolveName(key));
 }
 
+void checkDatumFrames(const ros_frames::FrameOptions& f, const std::string& datum_key) {
+  if (f.earth_frame == f.map_frame || f.earth_frame == f.odom_frame || f.earth_frame == f.base_frame)
+    throw std::invalid_argument(datum_key + "/earth_frame: must differ from map, odom and base frames");
+  if (f.utm_frame.empty()) return;
+  if (!f.datum)
+    throw std::invalid_argument(datum_key + "/utm_frame: needs the datum (datum/latitude_deg and datum/longitude_deg)");
+  if (f.utm_frame == f.map_frame || f.utm_frame == f.odom_frame || f.utm_frame == f.base_frame ||
+      f.utm_frame == f.earth_frame)
+    throw std::invalid_argument(datum_key + "/utm_frame: must differ from map, odom, base and earth frames");
+  // Refused here, before the store is opened, rather than by publishDatum after it.
+  try {
+    core::utmFromMap(*f.datum);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(datum_key + "/utm_frame: no UTM frame for this datum (" + e.what() +
+                                "); leave utm_frame empty");
+  }
+}
+
 BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros::NodeHandle& pnh) {
   warnAboutFormerPrivateNamespace(pnh);
   BackendNodeletOptions o;
@@ -115,20 +135,10 @@ BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros
     o.frames.datum = d;
   }
   o.frames.earth_frame = param(pnh, "datum/earth_frame", std::string("earth"), nonempty, "a frame id");
-  if (o.frames.earth_frame == o.frames.map_frame || o.frames.earth_frame == o.frames.odom_frame ||
-      o.frames.earth_frame == o.frames.base_frame)
-    throw std::invalid_argument(pnh.resolveName("datum/earth_frame") + ": must differ from map, odom and base frames");
   // Empty (the default): no UTM frame. navsat_transform's name for it is utm.
   o.frames.utm_frame = param(
       pnh, "datum/utm_frame", std::string(), [](const std::string&) { return true; }, "a frame id or empty");
-  if (!o.frames.utm_frame.empty() && !o.frames.datum)
-    throw std::invalid_argument(pnh.resolveName("datum/utm_frame") +
-                                ": needs the datum (datum/latitude_deg and datum/longitude_deg)");
-  if (!o.frames.utm_frame.empty() &&
-      (o.frames.utm_frame == o.frames.map_frame || o.frames.utm_frame == o.frames.odom_frame ||
-       o.frames.utm_frame == o.frames.base_frame || o.frames.utm_frame == o.frames.earth_frame))
-    throw std::invalid_argument(pnh.resolveName("datum/utm_frame") +
-                                ": must differ from map, odom, base and earth frames");
+  checkDatumFrames(o.frames, pnh.resolveName("datum"));
   o.frames.tf_rate_hz = param(
       pnh, "tf_rate", 20.0, [](double v) { return v > 0 && v <= 1000; }, "in (0, 1000] Hz");
   o.frames.tf_future_s = param(

@@ -2,7 +2,11 @@
 // as rosparam would load config/slam.yaml).
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
+#include "uw_multislam/ros/odometry_options.h"
 #include "uw_multislam/ros/slam_params.h"
+#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace {
@@ -87,6 +91,108 @@ TEST(SlamParams, YamlOfScalarsAndLists) {
   const std::string y = ros_params::xmlRpcToYaml(t);
   EXPECT_NE(y.find("a: 1"), std::string::npos) << y;
   EXPECT_NE(y.find("b: [2.5, x]"), std::string::npos) << y;
+}
+
+// The worker's queue and the subscribers' queues come from the options alone (the nodelet builds
+// both from them): with newest the worker's queue is deeper than ~queue_size, so that the skip
+// rule chooses, and the subscribers' queues are at least as deep, so that they do not drop first.
+TEST(OdometryOptions, WorkerAndInputQueuesFollowTheDropPolicy) {
+  for (const int queue_size : {1, 5, 40}) {
+    for (const int sync_queue_size : {1, 10, 1000}) {
+      ros_params::OdometryNodeletOptions o;
+      o.queue_size = queue_size;
+      o.sync_queue_size = sync_queue_size;
+      const std::string at =
+          "queue_size " + std::to_string(queue_size) + ", sync_queue_size " + std::to_string(sync_queue_size);
+      o.drop_policy = "oldest";  // every frame in order: the worker's queue is ~queue_size, the oldest dropped beyond
+      EXPECT_EQ(o.workerQueueSize(), static_cast<std::size_t>(queue_size)) << at;
+      EXPECT_EQ(o.inputQueueSize(), sync_queue_size) << at;
+      o.drop_policy = "newest";
+      EXPECT_EQ(o.workerQueueSize(), ros_work::newestCapacity(static_cast<std::size_t>(queue_size))) << at;
+      // 20 x queue_size, as ~queue_size's documentation and the start-up log line say.
+      EXPECT_EQ(o.workerQueueSize(), 20u * static_cast<std::size_t>(queue_size)) << at;
+      EXPECT_GE(o.inputQueueSize(), static_cast<int>(o.workerQueueSize())) << at;
+      EXPECT_EQ(o.inputQueueSize(), std::max(sync_queue_size, static_cast<int>(o.workerQueueSize()))) << at;
+    }
+  }
+}
+
+// ~datum's frames, as backendNodeletOptions checks them once read: each refusal is an
+// std::invalid_argument that names the parameter under the node's resolved ~datum.
+constexpr char kDatumKey[] = "/uw_multislam/backend_node/datum";
+
+std::string datumRefusal(const ros_frames::FrameOptions& f) {
+  try {
+    ros_params::checkDatumFrames(f, kDatumKey);
+  } catch (const std::invalid_argument& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// datum.test's datum (Toulon) at latitude `lat_deg`, with a UTM frame named utm.
+ros_frames::FrameOptions utmAt(double lat_deg) {
+  ros_frames::FrameOptions f;
+  f.datum = core::GeoOrigin{lat_deg, 5.9307, 30.0};
+  f.utm_frame = "utm";
+  return f;
+}
+
+TEST(DatumFrames, AUtmFrameWithoutADatumIsRefusedNamingTheKey) {
+  ros_frames::FrameOptions f;
+  f.utm_frame = "utm";
+  const std::string what = datumRefusal(f);
+  EXPECT_EQ(what.rfind(std::string(kDatumKey) + "/utm_frame: ", 0), 0u) << what;
+  EXPECT_NE(what.find("needs the datum"), std::string::npos) << what;
+  EXPECT_THROW(ros_params::checkDatumFrames(f, kDatumKey), std::invalid_argument);
+}
+
+TEST(DatumFrames, AUtmFrameNamedAsMapOdomBaseOrEarthIsRefusedNamingTheKey) {
+  // Names other than the defaults: the check compares with the configured frames.
+  ros_frames::FrameOptions f = utmAt(43.0951);
+  f.map_frame = "auv_map";
+  f.odom_frame = "auv_odom";
+  f.base_frame = "auv_base";
+  f.earth_frame = "auv_earth";
+  ASSERT_EQ(datumRefusal(f), "");
+  for (const std::string& clash : {f.map_frame, f.odom_frame, f.base_frame, f.earth_frame}) {
+    ros_frames::FrameOptions bad = f;
+    bad.utm_frame = clash;
+    const std::string what = datumRefusal(bad);
+    EXPECT_EQ(what.rfind(std::string(kDatumKey) + "/utm_frame: ", 0), 0u) << clash << ": " << what;
+    EXPECT_NE(what.find("must differ"), std::string::npos) << clash << ": " << what;
+    EXPECT_THROW(ros_params::checkDatumFrames(bad, kDatumKey), std::invalid_argument) << clash;
+  }
+}
+
+TEST(DatumFrames, AnEarthFrameNamedAsMapOdomOrBaseIsRefusedNamingTheKey) {
+  ros_frames::FrameOptions f;
+  ASSERT_EQ(datumRefusal(f), "");
+  for (const std::string& clash : {f.map_frame, f.odom_frame, f.base_frame}) {
+    ros_frames::FrameOptions bad = f;
+    bad.earth_frame = clash;
+    const std::string what = datumRefusal(bad);
+    EXPECT_EQ(what.rfind(std::string(kDatumKey) + "/earth_frame: ", 0), 0u) << clash << ": " << what;
+    EXPECT_THROW(ros_params::checkDatumFrames(bad, kDatumKey), std::invalid_argument) << clash;
+  }
+}
+
+TEST(DatumFrames, APolarDatumWithAUtmFrameIsRefusedNamingTheKey) {
+  // UTM spans latitudes [-80, 84) (core::utmFromMap): beyond, the zone would be UPS, which is not
+  // published. Before, the parameters passed and publishDatum threw after the store was opened,
+  // with a message that did not name the key.
+  for (const double lat : {85.0, -82.0}) {
+    const std::string what = datumRefusal(utmAt(lat));
+    EXPECT_EQ(what.rfind(std::string(kDatumKey) + "/utm_frame: ", 0), 0u) << lat << ": " << what;
+    EXPECT_NE(what.find("outside UTM"), std::string::npos) << lat << ": " << what;
+    EXPECT_THROW(ros_params::checkDatumFrames(utmAt(lat), kDatumKey), std::invalid_argument) << lat;
+  }
+  // Just inside UTM's latitudes a UTM frame is published; a polar datum without one keeps its earth -> map.
+  EXPECT_EQ(datumRefusal(utmAt(83.5)), "");
+  EXPECT_EQ(datumRefusal(utmAt(-79.5)), "");
+  ros_frames::FrameOptions polar = utmAt(85.0);
+  polar.utm_frame.clear();
+  EXPECT_EQ(datumRefusal(polar), "");
 }
 
 }  // namespace

@@ -7,10 +7,15 @@ here (independent of GeographicLib, which the back-end uses):
    with map's x axis at the heading less the grid convergence;
 3. keyframe_fix is keyframe_pose's position on WGS84 (through earth -> map, then ECEF -> geodetic)
    with keyframe_pose's (x, y) covariance turned into east/north/up.
-Without a datum (datum.test datum:=false): keyframe_pose comes, keyframe_fix is not advertised."""
+Without a datum (datum.test datum:=false): keyframe_pose comes, keyframe_fix is not advertised; and a
+second back-end given a polar datum with a UTM frame refuses to start, naming ~datum/utm_frame."""
 import math
 import os
+import shutil
+import signal
+import subprocess
 import sys
+import tempfile
 import threading
 import time
 import unittest
@@ -22,7 +27,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from pipeline_fixture import connected  # noqa: E402
+from pipeline_fixture import connected, tool  # noqa: E402
 from uw_multislam.msg import Keyframe  # noqa: E402
 
 NS = "/uw_multislam"
@@ -165,6 +170,41 @@ class Recorder(object):
 
 
 class NoDatumTest(unittest.TestCase):
+    def test_a_polar_datum_with_a_utm_frame_stops_the_backend_naming_the_key(self):
+        """A second back-end, datum at latitude 85 (UTM ends at 84) with ~datum/utm_frame: one FATAL
+        line naming the key, given before the store is opened (its file is not created); the node
+        stays up, inert, and SIGINT ends it cleanly."""
+        ns = "/bad_datum"
+        tmp = tempfile.mkdtemp(prefix="uwms_bad_datum_")
+        store = os.path.join(tmp, "sessions.db")
+        rospy.set_param(ns + "/backend_node", {"store_path": store, "export_root": "",
+                                               "datum": {"latitude_deg": 85.0, "longitude_deg": 10.0,
+                                                         "utm_frame": "utm"}})
+        node = subprocess.Popen([tool("backend_node"), "__ns:=" + ns, "__name:=backend_node"],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        lines = []
+        reader = threading.Thread(target=lambda: lines.extend(node.stdout), daemon=True)
+        reader.start()
+        try:
+            deadline = time.time() + 60
+            while time.time() < deadline and node.poll() is None and not any("not starting" in l for l in lines):
+                time.sleep(0.1)
+            fatal = [l for l in lines if "not starting" in l]
+            self.assertEqual(len(fatal), 1, "".join(lines))
+            self.assertIn(ns + "/backend_node/datum/utm_frame: ", fatal[0])
+            self.assertIn("outside UTM", fatal[0])
+            self.assertFalse(os.path.exists(store), "the store was opened before the datum was refused")
+            self.assertIsNone(node.poll(), "the node died:\n" + "".join(lines))
+            node.send_signal(signal.SIGINT)
+            node.wait(timeout=60)
+        finally:
+            rospy.delete_param(ns + "/backend_node")
+            if node.poll() is None:
+                node.kill()
+                node.wait()
+            shutil.rmtree(tmp, ignore_errors=True)
+        self.assertEqual(node.returncode, 0, "".join(lines))
+
     def test_without_a_datum_keyframe_fix_is_not_advertised(self):
         recorder = Recorder()
         recorder.connect(with_fix=False)

@@ -8,6 +8,7 @@
 #include <ros/node_handle.h>
 #include <sensor_msgs/CameraInfo.h>
 
+#include <cstddef>
 #include <string>
 #include <vector>
 
@@ -55,8 +56,11 @@ struct OdometryNodeletOptions {
   core::SlamConfig config;                               // slam/ (config/slam.yaml), validated
   sensor_msgs::CameraInfoConstPtr fallback_camera_info;  // from camera_info_url (null without one)
 
-  /// The input subscribers' queues: ~sync_queue_size; with newest at least the worker's queue
-  /// (ros_work::newestCapacity), so that a stalled callback thread does not drop images the skip rule never saw.
+  /// The worker's queue of frames: ~queue_size with oldest; with newest ros_work::newestCapacity(queue_size), deeper,
+  /// so that the skip rule (core::FrameSkipRule), not a full queue, decides which frames are passed over.
+  std::size_t workerQueueSize() const;
+  /// The input subscribers' queues: ~sync_queue_size; with newest at least workerQueueSize(), so that a stalled
+  /// callback thread does not drop images the skip rule never saw.
   int inputQueueSize() const;
   /// The pairing rules these options give (core::InputPairing).
   core::InputPairingOptions pairing() const;

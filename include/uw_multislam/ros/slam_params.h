@@ -70,6 +70,12 @@ struct BackendNodeletOptions {
   double fleet_peer_timeout_s = 30.0;
 };
 
+/// The datum's frames against the others (backendNodeletOptions): ~datum/earth_frame must differ from map, odom and
+/// base; a non-empty ~datum/utm_frame needs the datum, must differ from those and earth, and the datum must lie in
+/// UTM's latitudes (core::utmFromMap). `datum_key`: the resolved ~datum. Throws std::invalid_argument
+/// "<datum_key>/earth_frame: ..." or "<datum_key>/utm_frame: ...".
+void checkDatumFrames(const ros_frames::FrameOptions& frames, const std::string& datum_key);
+
 /// Reads and validates the back-end nodelet's parameters (std::invalid_argument naming the key);
 /// warns about an old config file's block (warnAboutFormerPrivateNamespace).
 BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros::NodeHandle& pnh);
