@@ -120,13 +120,41 @@ std::string reasonName(FrameSkipRule::Reason r) {
   return "?";
 }
 
-void FrameBudget::arrived(double now_s) {
+void FrameBudget::arrived(double now_s, double stamp_s) {
   std::lock_guard<std::mutex> lock(mutex_);
   if (last_arrival_s_ && now_s > *last_arrival_s_) {
     const double ms = (now_s - *last_arrival_s_) * 1e3;
     period_ms_ = intervals_++ == 0 ? ms : period_ms_ + alpha_ * (ms - period_ms_);
   }
   last_arrival_s_ = now_s;
+  if (!std::isfinite(stamp_s)) return;
+  if (last_stamp_s_ && stamp_s > *last_stamp_s_) {
+    const double d = stamp_s - *last_stamp_s_;
+    stamp_period_s_ = stamp_intervals_++ == 0 ? d : stamp_period_s_ + alpha_ * (d - stamp_period_s_);
+  }
+  last_stamp_s_ = stamp_s;
+}
+
+WaitAdvice waitForNext(const FrameSkipRule& rule, const std::vector<WaitingFrame>& waiting,
+                       const FrameSkipRule::Choice& choice, const InputTiming& t, double stale_fraction) {
+  using R = FrameSkipRule::Reason;
+  if (waiting.empty() || choice.index + 1 != waiting.size()) return {};
+  if (choice.reason != R::kNewestSafe && choice.reason != R::kOnlyOne) return {};
+  const WaitingFrame& newest = waiting.back();
+  // Safe and predicted (kOnlyOne says neither): a keyframe due at it, or no prediction, is taken now.
+  if (rule.keyframeDue(newest.stamp_s, newest.altitude_m) != std::optional<bool>(false)) return {};
+  if (!(stale_fraction < 1.0) || !(t.period_s > 0) || !(t.last_arrival_s > 0)) return {};
+  const double next = t.last_arrival_s + t.period_s;  // the next frame's expected arrival
+  // Overdue by half a period (the input stopped or slowed; less is the arrivals' jitter) or a clock step: no wait.
+  const double until = next + 0.5 * t.period_s;
+  if (until <= t.now_s || next - t.now_s > t.period_s) return {};
+  if (t.now_s - t.chosen_arrival_s <= stale_fraction * t.period_s) return {};
+  return {WaitAdvice::Why::kStale, until};
+}
+
+double keyframeLookaheadS(double cost_s, double period_s, double stamp_period_s) {
+  if (!(cost_s > period_s) || !(period_s > 0) || !(stamp_period_s > 0) || !std::isfinite(cost_s)) return 0.0;
+  return (std::ceil(cost_s / period_s) - 1.0) * stamp_period_s;
 }
 
 void FrameBudget::processed(double ms) {
