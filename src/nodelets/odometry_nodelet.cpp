@@ -49,9 +49,8 @@ void OdometryNodelet::onInit() {
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config));
   session_ = o.session;
   queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(o.workerQueueSize(), ros_inputs::handOnDropped);
-  // With newest the worker takes the newest frame when it frees up: its features are started on
-  // arrival (on another core), so that only matching and RANSAC remain when it is taken. A frame
-  // superseded before a thread was free is never prepared (core::OrderedPrefetch::Start::kNewest).
+  // With newest the worker takes the newest frame when it frees up: its features are started on arrival (on another
+  // core). A frame superseded before a thread was free is never prepared (core::OrderedPrefetch::Start::kNewest).
   if (o.prepare_threads > 0 && o.drop_policy == "newest")
     prepare_on_arrival_ = std::make_unique<core::OrderedPrefetch<Ahead, Frame>>(
         o.prepare_threads,
@@ -137,9 +136,10 @@ void OdometryNodelet::handle(Pairing::Decisions decisions) {
       if (d.first_fallback)
         NODELET_WARN("odometry: no camera_info on %s: images use the calibration of ~camera_info_url %s",
                      info_sub_.getTopic().c_str(), options_.camera_info_url.c_str());
-      budget_.arrived(wallNow());
-      Frame frame{std::move(d.image), std::move(d.info), d.altitude,
-                  d.altitude_m,       altimeter_frame_,  std::move(d.passed_over)};
+      const double now = wallNow();
+      budget_.arrived(now, d.image.header().stamp.toSec());
+      Frame frame{std::move(d.image), std::move(d.info), d.altitude, d.altitude_m, altimeter_frame_, {}, 0, now};
+      frame.passed_over = std::move(d.passed_over);
       if (prepare_on_arrival_) frame.arrival = prepare_on_arrival_->submit(frame);  // in the queue's order
       queue_->push(std::move(frame));
     }
@@ -188,13 +188,12 @@ void OdometryNodelet::work() {
         [this](Frame& f, Ahead* ahead) { run(f, ahead); });
     return;
   }
-  // The skip rule chooses among the waiting frames (the worker's state: popSelected runs on this thread).
-  // Without a prediction every frame is processed in order, none dropped short of the queue's depth:
-  // those nearest the last keyframe are the ones that may re-acquire tracking.
+  // The skip rule chooses, or waits for the next frame (the worker's state: popSelected runs on this thread).
+  ros_inputs::NewestChooser choose(options_.stale_fraction, &budget_, &counts_);
   ros_work::drainNewest<Frame, Ahead>(
       *queue_, queue_->capacity(), prepare_on_arrival_.get(),
-      [this](const std::deque<Frame>& w, const std::vector<bool>& started) {
-        return ros_inputs::chooseNewest(skip_rule_ ? &*skip_rule_ : nullptr, w, mount_, started);
+      [this, &choose](const std::deque<Frame>& w, const std::vector<bool>& started) {
+        return choose(skip_rule_ ? &*skip_rule_ : nullptr, w, mount_, started);
       },
       ros_inputs::handOnSkipped, [](const Frame& f) { return f.arrival; },
       [this](Frame& f, Ahead* ahead, Clock::time_point start) { run(f, ahead, start); },
@@ -306,8 +305,9 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   // The altimeter's range -> the camera's altitude; a fixed or fallback altitude is the camera's already.
   const double altitude =
       f.altitude == core::PairedAltitude::kReading ? core::cameraAltitude(f.altitude_m, mount_) : f.altitude_m;
+  const double kf_ahead = options_.keyframe_lookahead ? ros_inputs::keyframeLookahead(budget_) : 0.0;  // newest only
   const core::SegmentedOdometry::Step step =
-      odometry_->process({frame_index_++, stamp.toSec(), altitude, image, nav}, prepared);
+      odometry_->process({frame_index_++, stamp.toSec(), altitude, image, nav, kf_ahead}, prepared);
   const core::OdometryUpdate& u = step.update;
   skip_rule_->observe(core::processedFrame(u, stamp.toSec(), altitude, step.session_started, odometry_->odometry()));
   const bool done = ros_diagnostics::reportUpdate(u, &counts_);
