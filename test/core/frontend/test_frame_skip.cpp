@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <utility>
 #include <vector>
 
 #include "uw_multislam/core/frontend/frame_skip.h"
@@ -50,6 +51,25 @@ TEST(FootprintOverlap, IsTheSharedFractionOfTheFootprint) {
   // 2.1333 m wide: a quarter of the width along x leaves three quarters.
   EXPECT_NEAR(footprintOverlap(c, Pose2(0.25 * 320 / 300.0 * kAltitude, 0, 0), kAltitude, kAltitude), 0.75, 1e-4);
   EXPECT_NEAR(footprintOverlap(c, Pose2(5.0, 0, 0), kAltitude, kAltitude), 0.0, 1e-9);
+}
+
+// Footprints moved along an image axis have nearly collinear edges: with cv::intersectConvexConvex
+// a rotation of 1e-6 rad gave an overlap of 1.0 for a shift that leaves 0.44 (a keyframe the rule
+// never took) and 0.48 for one that leaves 0.72 (a keyframe too early).
+TEST(FootprintOverlap, IsRightForFootprintsNearlyAlignedWithTheKeyframes) {
+  const CameraIntrinsics c = camera();
+  const double w = 320 / 300.0 * kAltitude, h = 240 / 300.0 * kAltitude;
+  for (const double x : {0.2, 0.4, 0.6, 0.8, 1.0, 1.2})
+    for (const auto& [y, yaw] : std::vector<std::pair<double, double>>{
+             {0.0, 0.0}, {0.0, 1e-6}, {1e-6, 1e-6}, {1e-5, -2e-5}, {-1e-6, -2e-5}, {-3e-5, 1e-6}})
+      EXPECT_NEAR(footprintOverlap(c, Pose2(x, y, yaw), kAltitude, kAltitude), 1.0 - x / w, 1e-3)
+          << x << " " << y << " " << yaw;
+  // Along y, diagonally, and turned a quarter about the centre (a 1.6 m square of the 2.13 x 1.6 m footprint).
+  EXPECT_NEAR(footprintOverlap(c, Pose2(0, 0.4, 1e-6), kAltitude, kAltitude), 0.75, 1e-3);
+  EXPECT_NEAR(footprintOverlap(c, Pose2(w / 2, h / 2, 0), kAltitude, kAltitude), 0.25, 1e-6);
+  EXPECT_NEAR(footprintOverlap(c, Pose2(0, 0, M_PI / 2), kAltitude, kAltitude), h / w, 1e-6);
+  EXPECT_NEAR(footprintOverlap(c, Pose2(), kAltitude, 2 * kAltitude), 0.25, 1e-6) << "twice as high: a quarter seen";
+  EXPECT_NEAR(footprintOverlap(c, Pose2(), 2 * kAltitude, kAltitude), 1.0, 1e-6);
 }
 
 TEST(FrameSkipRule, WithoutAPredictionTheOldestFrameIsTaken) {
