@@ -151,7 +151,7 @@ for m in multiples:
                   r.get("latency_p99_others_ms", float("nan")), r.get("waits_for_fresher", 0),
                   r.get("early_keyframes", 0), r.get("pose_age_mean_ms", float("nan")),
                   r.get("pose_age_mean_periods", float("nan"))))
-        if policy != "oldest" and m == "2":
+        if policy not in ("oldest", "newest_now") and m == "2":
             ok = r["latency_p99_periods"] <= 3.0 and r["sessions"] <= ref["sessions"]
             verdict.append("%s at 2x (%.1fx behind): p99 %.1f input periods (bar: <= 3; the former queue %.1f), %d "
                            "sessions (every frame: %d): %s%s" % (

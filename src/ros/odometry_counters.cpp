@@ -37,7 +37,7 @@ const CounterTable<OdometryCounters>& odometryCounterTable() {
        "frames the worker passed over for a newer one it could safely take (~drop_policy newest: it was behind)"},
       {"waits_for_fresher", &C::waits_for_fresher,
        "times the worker waited for the next frame rather than start one that had waited over ~stale_fraction of "
-       "an input period (~stale_fraction; the one passed over is counted in skipped_for_newest)"},
+       "an input period (when the next one came, the stale one was skipped: skipped_for_newest)"},
       {"paused", &C::paused, "1 while paused by the operator (services pause, resume), else 0"},
       {"frames_dropped_paused", &C::frames_dropped_paused,
        "frames the worker dropped while paused, among the finished"},

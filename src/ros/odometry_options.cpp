@@ -79,7 +79,7 @@ OdometryNodeletOptions odometryNodeletOptions(const ros::NodeHandle& nh, const r
       "oldest (every frame in order; the oldest dropped when the queue is full)");
   o.prepare_threads = param(
       pnh, "prepare_threads", 0, [](int v) { return v >= 0 && v <= 8; }, "in [0, 8]");
-  o.stale_fraction = param(pnh, "stale_fraction", 0.25, in_0_1, "in [0, 1]");
+  o.stale_fraction = param(pnh, "stale_fraction", 0.25, in_0_1_open, "in (0, 1]");
   o.keyframe_lookahead = param(pnh, "keyframe_lookahead", true, any, "a bool") && o.drop_policy == "newest";
   o.sync_queue_size = param(
       pnh, "sync_queue_size", 10, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");

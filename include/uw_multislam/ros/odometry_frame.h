@@ -32,7 +32,7 @@ struct OdometryFrame {
   std::string altimeter_frame;      // of the altitude readings (empty: none yet, or no altitude topic)
   std::vector<double> passed_over;  // stamps received before it and not processed: seen, no time gap
   std::size_t arrival = 0;          // its number among the frames prepared on arrival (~prepare_threads, newest)
-  double arrived_s = 0.0;           // wall time it was paired and queued (its wait for the worker starts)
+  double arrived_s = 0.0;           // steady time it was paired and queued (its wait for the worker starts)
 };
 
 /// A frame the queue dropped when full: its stamps travel on with the frame after it, which the worker passes
@@ -68,6 +68,8 @@ inline core::InputTiming inputTiming(const core::FrameBudget& budget, double now
   t.now_s = now_s;
   t.last_arrival_s = budget.lastArrivalS();
   t.period_s = budget.inputPeriodMs() / 1e3;
+  t.jitter_s = budget.inputJitterMs() / 1e3;
+  t.cost_s = budget.msPerFrame() / 1e3;
   return t;
 }
 
@@ -78,7 +80,8 @@ inline double keyframeLookahead(const core::FrameBudget& budget) {
 
 /// ~drop_policy newest: the frame `rule` (the session's; null before the first session: every frame, as the former
 /// queue) takes among `waiting`, preferring one whose preparation is `started` (empty: none prepared on arrival);
-/// with `wait`, whether to wait for the next frame instead (NewestChoice::wait_for, `wait->advice`).
+/// with `wait`, whether to wait for the next frame instead (NewestChoice::wait_for, `wait->advice`); not with frames
+/// prepared on arrival (a frame under preparation would be taken after the wait: the stale one, later).
 inline ros_work::NewestChoice chooseNewest(const core::FrameSkipRule* rule, const std::deque<OdometryFrame>& waiting,
                                            const core::CameraMount& mount, const std::vector<bool>& started,
                                            NextFrameWait* wait = nullptr) {
@@ -89,7 +92,7 @@ inline ros_work::NewestChoice chooseNewest(const core::FrameSkipRule* rule, cons
   for (const OdometryFrame& f : waiting) w.push_back(waitingFrame(f, mount));
   const core::FrameSkipRule::Choice choice = rule->choose(w, started);
   ros_work::NewestChoice c{choice.index, choice.reason != core::FrameSkipRule::Reason::kOldest};
-  if (!wait) return c;
+  if (!wait || !started.empty()) return c;
   wait->timing.chosen_arrival_s = waiting[choice.index].arrived_s;
   wait->advice = core::waitForNext(*rule, w, choice, wait->timing, wait->stale_fraction);
   if (wait->advice.why != core::WaitAdvice::Why::kNone)
@@ -107,7 +110,7 @@ class NewestChooser {
       : stale_fraction_(stale_fraction), budget_(budget), counters_(counters) {}
   ros_work::NewestChoice operator()(const core::FrameSkipRule* rule, const std::deque<OdometryFrame>& waiting,
                                     const core::CameraMount& mount, const std::vector<bool>& started) {
-    NextFrameWait wait{inputTiming(*budget_, ros::WallTime::now().toSec()), stale_fraction_, {}};
+    NextFrameWait wait{inputTiming(*budget_, ros::SteadyTime::now().toSec()), stale_fraction_, {}};
     const ros_work::NewestChoice c = chooseNewest(rule, waiting, mount, started, &wait);
     // A take asks again after each frame that arrives during its wait: counted at its first.
     if (c.wait_for && counted_take_ != counters_->frames_finished) {

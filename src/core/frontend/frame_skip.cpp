@@ -159,6 +159,7 @@ void FrameBudget::arrived(double now_s, double stamp_s) {
   std::lock_guard<std::mutex> lock(mutex_);
   if (last_arrival_s_ && now_s > *last_arrival_s_) {
     const double ms = (now_s - *last_arrival_s_) * 1e3;
+    if (intervals_ > 0) jitter_ms_ += alpha_ * (std::abs(ms - period_ms_) - jitter_ms_);
     period_ms_ = intervals_++ == 0 ? ms : period_ms_ + alpha_ * (ms - period_ms_);
   }
   last_arrival_s_ = now_s;
@@ -179,7 +180,8 @@ WaitAdvice waitForNext(const FrameSkipRule& rule, const std::vector<WaitingFrame
   // Safe and predicted (kOnlyOne says neither): a keyframe due at it, or no prediction, is taken now.
   if (rule.keyframeDue(newest.stamp_s, newest.altitude_m) != std::optional<bool>(false)) return {};
   if (!(stale_fraction < 1.0) || !(t.period_s > 0) || !(t.last_arrival_s > 0)) return {};
-  const double next = t.last_arrival_s + t.period_s;  // the next frame's expected arrival
+  if (!(t.cost_s > t.period_s) || !(t.jitter_s <= 0.25 * t.period_s)) return {};  // keeping up, or irregular
+  const double next = t.last_arrival_s + t.period_s;                              // the next frame's expected arrival
   // Overdue by half a period (the input stopped or slowed; less is the arrivals' jitter) or a clock step: no wait.
   const double until = next + 0.5 * t.period_s;
   if (until <= t.now_s || next - t.now_s > t.period_s) return {};

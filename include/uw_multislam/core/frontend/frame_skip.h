@@ -121,6 +121,9 @@ class FrameSkipRule {
   /// choose(), then preferPrepared() with `prepared` when it is given (not empty: one flag per waiting frame).
   Choice choose(const std::vector<WaitingFrame>& waiting, const std::vector<bool>& prepared) const;
 
+  /// Whether the last two frames processed give a prediction (a velocity).
+  bool predicting() const { return last_ && before_; }
+
   /// Whether a frame at `stamp_s` and `altitude_m` would be taken by the keyframe rule, as
   /// predicted; nullopt without a prediction.
   std::optional<bool> keyframeDue(double stamp_s, double altitude_m) const;
@@ -139,6 +142,8 @@ struct InputTiming {
   double chosen_arrival_s = 0.0;  // when the choice arrived
   double last_arrival_s = 0.0;    // when the newest frame arrived
   double period_s = 0.0;          // the recent interval between arrivals
+  double jitter_s = 0.0;          // the recent mean deviation of those intervals from period_s
+  double cost_s = 0.0;            // the recent processing time of a frame
 };
 
 /// Whether the worker should wait for the next frame rather than start the choice now, and until when.
@@ -152,8 +157,12 @@ struct WaitAdvice {
 };
 
 /// The worker's wait for the next frame (see above). Only for a choice that is the newest waiting
-/// frame and safe (chosen with a prediction, no keyframe due at it), while frames arrive at a known
-/// period and the next one is not overdue. `stale_fraction`: of the input period (>= 1: never).
+/// frame and safe (chosen with a prediction, no keyframe due at it), while the worker is behind on
+/// average (cost above the period: a worker that keeps up processes a frame late after one slow
+/// frame rather than skip it), frames arrive regularly (the intervals' mean deviation at most a
+/// quarter period: frames released in bursts, e.g. paired with a slower altimeter, give no next
+/// arrival to wait for) and the next one is not overdue. `stale_fraction`: of the input period
+/// (>= 1: never).
 WaitAdvice waitForNext(const FrameSkipRule& rule, const std::vector<WaitingFrame>& waiting,
                        const FrameSkipRule::Choice& choice, const InputTiming& timing, double stale_fraction);
 
@@ -171,6 +180,11 @@ class FrameBudget {
   /// A frame arrived (wall time, s): the input period is the interval between arrivals; with its
   /// stamp (s), also the interval between stamps (a bag replayed faster than recorded differs).
   void arrived(double now_s, double stamp_s = std::numeric_limits<double>::quiet_NaN());
+  /// Mean deviation of the recent input intervals from their mean, ms (0 before two arrivals).
+  double inputJitterMs() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return jitter_ms_;
+  }
   /// A frame was processed in `ms`.
   void processed(double ms);
   /// Mean of the recent processing times, ms (0 before any).
@@ -208,6 +222,7 @@ class FrameBudget {
   const double alpha_;
   mutable std::mutex mutex_;              // guards the members below
   double ms_ = 0.0, period_ms_ = 0.0;     // guarded by mutex_
+  double jitter_ms_ = 0.0;                // guarded by mutex_
   bool any_ms_ = false;                   // guarded by mutex_
   std::optional<double> last_arrival_s_;  // guarded by mutex_
   int intervals_ = 0;                     // guarded by mutex_
