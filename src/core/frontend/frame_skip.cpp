@@ -180,10 +180,11 @@ WaitAdvice waitForNext(const FrameSkipRule& rule, const std::vector<WaitingFrame
   // Safe and predicted (kOnlyOne says neither): a keyframe due at it, or no prediction, is taken now.
   if (rule.keyframeDue(newest.stamp_s, newest.altitude_m) != std::optional<bool>(false)) return {};
   if (!(stale_fraction < 1.0) || !(t.period_s > 0) || !(t.last_arrival_s > 0)) return {};
-  if (!(t.cost_s > t.period_s) || !(t.jitter_s <= 0.25 * t.period_s)) return {};  // keeping up, or irregular
+  if (!(t.cost_s > t.period_s) || !(t.jitter_s <= 0.5 * t.period_s)) return {};  // keeping up, or irregular
   const double next = t.last_arrival_s + t.period_s;                              // the next frame's expected arrival
-  // Overdue by half a period (the input stopped or slowed; less is the arrivals' jitter) or a clock step: no wait.
-  const double until = next + 0.5 * t.period_s;
+  // The margin for the arrivals' jitter: four mean deviations, within [1/8, 1/2] period. Overdue
+  // beyond it (the input stopped or slowed: the last frame of a run) or a clock step: no wait.
+  const double until = next + std::clamp(4.0 * t.jitter_s, 0.125 * t.period_s, 0.5 * t.period_s);
   if (until <= t.now_s || next - t.now_s > t.period_s) return {};
   if (t.now_s - t.chosen_arrival_s <= stale_fraction * t.period_s) return {};
   return {WaitAdvice::Why::kStale, until};

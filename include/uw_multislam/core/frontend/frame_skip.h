@@ -153,14 +153,14 @@ struct WaitAdvice {
     kStale,  // it waited longer than stale_fraction of a period; the next one is due sooner
   };
   Why why = Why::kNone;
-  double until_s = 0.0;  // give up waiting then (the expected arrival plus half a period) and choose again
+  double until_s = 0.0;  // give up then (the expected arrival plus a jitter margin, 1/8 to 1/2 period) and choose again
 };
 
 /// The worker's wait for the next frame (see above). Only for a choice that is the newest waiting
 /// frame and safe (chosen with a prediction, no keyframe due at it), while the worker is behind on
 /// average (cost above the period: a worker that keeps up processes a frame late after one slow
-/// frame rather than skip it), frames arrive regularly (the intervals' mean deviation at most a
-/// quarter period: frames released in bursts, e.g. paired with a slower altimeter, give no next
+/// frame rather than skip it), frames arrive regularly (the intervals' mean deviation at most half
+/// a period: frames released in bursts, e.g. paired with a slower altimeter, give no next
 /// arrival to wait for) and the next one is not overdue. `stale_fraction`: of the input period
 /// (>= 1: never).
 WaitAdvice waitForNext(const FrameSkipRule& rule, const std::vector<WaitingFrame>& waiting,
