@@ -8,6 +8,9 @@ frames sent, the machine's load average at the start and the CPU this driver too
 from /diagnostics (processed, prepared_ahead, skipped_for_newest, dropped_queue_full, sessions,
 tracking_losses, keyframes, ms_per_frame_mean), and the p99 of the poses of keyframes and of the
 other frames apart (a keyframe is where the skip rule may take an older frame than the newest).
+Also the time-averaged age of the newest pose received (from the first pose to the last: at each
+moment, the time since the stamp of the freshest pose so far), which a worker that waits for a
+fresher frame must lower, not only the latency of the poses it publishes.
 
     bench_load_drive.py BAG RATE_HZ [--ns /uw_multislam] [--timeout 120]
 """
@@ -46,6 +49,20 @@ def percentile(values, q):
     return v[k]
 
 
+def mean_pose_age(received):
+    """Time average of (now - stamp of the freshest pose received so far) between the first and the
+    last receipt; `received`: (receipt time, stamp) pairs, s."""
+    r = sorted(received)
+    if len(r) < 2:
+        return float("nan")
+    area, freshest = 0.0, r[0][1]
+    for (t0, s0), (t1, _) in zip(r, r[1:]):
+        freshest = max(freshest, s0)
+        d = t1 - t0
+        area += d * (t0 - freshest) + d * d / 2.0
+    return area / (r[-1][0] - r[0][0])
+
+
 def main():
     p = argparse.ArgumentParser()
     p.add_argument("bag")
@@ -61,7 +78,7 @@ def main():
     def on_pose(msg):
         now = time.time()
         with lock:
-            latencies.append((msg.header.stamp.to_nsec(), now - msg.header.stamp.to_sec()))
+            latencies.append((msg.header.stamp.to_nsec(), now - msg.header.stamp.to_sec(), now))
 
     def on_keyframe(raw):  # only the header's stamp (seq, secs, nsecs first): no message class needed
         secs, nsecs = struct.unpack_from("<II", raw._buff, 4)
@@ -114,20 +131,22 @@ def main():
     time.sleep(1.5)  # one more status after the last frame
     with lock:
         lat, s, kf = list(latencies), dict(status), set(keyframe_stamps)
-    ms = [1e3 * x for _, x in lat]
-    ms_kf = [1e3 * x for t, x in lat if t in kf]
-    ms_other = [1e3 * x for t, x in lat if t not in kf]
+    ms = [1e3 * x for _, x, _ in lat]
+    ms_kf = [1e3 * x for t, x, _ in lat if t in kf]
+    ms_other = [1e3 * x for t, x, _ in lat if t not in kf]
+    age_ms = 1e3 * mean_pose_age([(r, r - x) for _, x, r in lat])
     out = {"rate_hz": a.rate, "frames": len(frames), "sent_s": sent_s, "idle": idle(), "poses": len(lat),
            "load_average": load_average, "driver_cpu": driver_cpu,
            "latency_median_ms": percentile(ms, 50), "latency_p99_ms": percentile(ms, 99),
            "latency_max_ms": max(ms) if ms else float("nan"),
            "latency_median_periods": percentile(ms, 50) / (1e3 * period),
+           "pose_age_mean_ms": age_ms, "pose_age_mean_periods": age_ms / (1e3 * period),
            "latency_p99_periods": percentile(ms, 99) / (1e3 * period),
            "keyframe_poses": len(ms_kf), "latency_p99_keyframes_ms": percentile(ms_kf, 99),
            "latency_p99_others_ms": percentile(ms_other, 99), "latency_median_keyframes_ms": percentile(ms_kf, 50)}
     for k in ("images_received", "frames_processed", "prepared_ahead", "skipped_for_newest", "dropped_queue_full", "sessions",
               "tracking_losses", "keyframes", "ms_per_frame_mean", "ms_per_frame_recent", "input_period_ms",
-              "images_not_paired", "fallbacks"):
+              "images_not_paired", "fallbacks", "waits_for_fresher", "early_keyframes"):
         out[k] = s.get(k, float("nan"))
     print(json.dumps(out))
     return 0

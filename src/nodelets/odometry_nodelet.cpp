@@ -49,9 +49,8 @@ void OdometryNodelet::onInit() {
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config));
   session_ = o.session;
   queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(o.workerQueueSize(), ros_inputs::handOnDropped);
-  // With newest the worker takes the newest frame when it frees up: its features are started on
-  // arrival (on another core), so that only matching and RANSAC remain when it is taken. A frame
-  // superseded before a thread was free is never prepared (core::OrderedPrefetch::Start::kNewest).
+  // With newest the worker takes the newest frame when it frees up: its features are started on arrival (on another
+  // core). A frame superseded before a thread was free is never prepared (core::OrderedPrefetch::Start::kNewest).
   if (o.prepare_threads > 0 && o.drop_policy == "newest")
     prepare_on_arrival_ = std::make_unique<core::OrderedPrefetch<Ahead, Frame>>(
         o.prepare_threads,
@@ -59,7 +58,7 @@ void OdometryNodelet::onInit() {
         core::OrderedPrefetch<Ahead, Frame>::Start::kNewest);
   stamps_ = std::make_unique<core::StampGuard>(core::StampGuardOptions{o.reorder_tolerance_s, o.session_gap_s});
   pairing_ = std::make_unique<Pairing>(
-      o.pairing(), wallNow(), o.fallback_camera_info ? std::make_optional(o.fallback_camera_info) : std::nullopt);
+      o.pairing(), steadyNow(), o.fallback_camera_info ? std::make_optional(o.fallback_camera_info) : std::nullopt);
   sensor_mount_ =
       std::make_unique<ros_frames::SensorMount>(nh, o.base_frame, o.mount_wait_s, o.max_camera_tilt_deg * M_PI / 180.0);
   nav_ = std::make_unique<ros_inputs::NavInput>(nh, topics::kNavOdometry, o.nav());
@@ -72,7 +71,7 @@ void OdometryNodelet::onInit() {
   updater_->setHardwareID("none");
   updater_->add("odometry", this, &OdometryNodelet::fillDiagnostics);
   watchdog_ = nh.createWallTimer(ros::WallDuration(o.diagnostic_period_s), [this](const ros::WallTimerEvent&) {
-    const std::string silent = silentInput(wallNow());
+    const std::string silent = silentInput(steadyNow());
     if (!silent.empty()) NODELET_WARN_THROTTLE(10, "odometry: %s", silent.c_str());
     updater_->force_update();
   });
@@ -81,7 +80,7 @@ void OdometryNodelet::onInit() {
   pairing_timer_ = nh.createWallTimer(ros::WallDuration(std::min(0.1, o.altitude_max_age_s / 4)),
                                       [this](const ros::WallTimerEvent&) {
                                         std::lock_guard<std::mutex> lock(pairing_mutex_);
-                                        handle(pairing_->update(wallNow()));
+                                        handle(pairing_->update(steadyNow()));
                                       });
   session_sub_ = nh.subscribe(topics::kActiveSession, 1, &OdometryNodelet::onActiveSession, this);
   using Op = uw_multislam::OperatorCommand;
@@ -92,7 +91,7 @@ void OdometryNodelet::onInit() {
   images_->subscribe(o.inputQueueSize(), [this](ros_inputs::ImageMsg m) {
     std::lock_guard<std::mutex> lock(pairing_mutex_);
     const double stamp = m.header().stamp.toSec();
-    handle(pairing_->addImage(std::move(m), stamp, wallNow()));
+    handle(pairing_->addImage(std::move(m), stamp, steadyNow()));
   });
   info_sub_ = nh.subscribe(topics::kCameraInfo, o.inputQueueSize(), &OdometryNodelet::onCameraInfo, this);
   if (o.use_altitude_topic)
@@ -101,7 +100,7 @@ void OdometryNodelet::onInit() {
 
 void OdometryNodelet::onCameraInfo(const sensor_msgs::CameraInfoConstPtr& info) {
   std::lock_guard<std::mutex> lock(pairing_mutex_);
-  handle(pairing_->addCameraInfo(info, info->header.stamp.toSec(), wallNow()));
+  handle(pairing_->addCameraInfo(info, info->header.stamp.toSec(), steadyNow()));
 }
 
 void OdometryNodelet::onRange(const sensor_msgs::RangeConstPtr& range) {
@@ -118,7 +117,7 @@ void OdometryNodelet::onRange(const sensor_msgs::RangeConstPtr& range) {
   altimeter_frame_ = range->header.frame_id;
   const double last = pairing_->newestAltitude();
   bool cleared = false;
-  handle(pairing_->addAltitude(range->header.stamp.toSec(), altitude, wallNow(), &cleared));
+  handle(pairing_->addAltitude(range->header.stamp.toSec(), altitude, steadyNow(), &cleared));
   if (cleared)
     NODELET_WARN(
         "odometry: altitude stamps jumped back by %.3f s (a bag that loops, or a clock reset): earlier "
@@ -137,9 +136,10 @@ void OdometryNodelet::handle(Pairing::Decisions decisions) {
       if (d.first_fallback)
         NODELET_WARN("odometry: no camera_info on %s: images use the calibration of ~camera_info_url %s",
                      info_sub_.getTopic().c_str(), options_.camera_info_url.c_str());
-      budget_.arrived(wallNow());
-      Frame frame{std::move(d.image), std::move(d.info), d.altitude,
-                  d.altitude_m,       altimeter_frame_,  std::move(d.passed_over)};
+      const double now = steadyNow();
+      budget_.arrived(now, d.image.header().stamp.toSec());
+      Frame frame{std::move(d.image), std::move(d.info), d.altitude, d.altitude_m, altimeter_frame_, {}, 0, now};
+      frame.passed_over = std::move(d.passed_over);
       if (prepare_on_arrival_) frame.arrival = prepare_on_arrival_->submit(frame);  // in the queue's order
       queue_->push(std::move(frame));
     }
@@ -188,13 +188,12 @@ void OdometryNodelet::work() {
         [this](Frame& f, Ahead* ahead) { run(f, ahead); });
     return;
   }
-  // The skip rule chooses among the waiting frames (the worker's state: popSelected runs on this thread).
-  // Without a prediction every frame is processed in order, none dropped short of the queue's depth:
-  // those nearest the last keyframe are the ones that may re-acquire tracking.
+  // The skip rule chooses, or waits for the next frame (the worker's state: popSelected runs on this thread).
+  ros_inputs::NewestChooser choose(options_.stale_fraction, &budget_, &counts_);
   ros_work::drainNewest<Frame, Ahead>(
       *queue_, queue_->capacity(), prepare_on_arrival_.get(),
-      [this](const std::deque<Frame>& w, const std::vector<bool>& started) {
-        return ros_inputs::chooseNewest(skip_rule_ ? &*skip_rule_ : nullptr, w, mount_, started);
+      [this, &choose](const std::deque<Frame>& w, const std::vector<bool>& started) {
+        return choose(skip_rule_ ? &*skip_rule_ : nullptr, w, mount_, started);
       },
       ros_inputs::handOnSkipped, [](const Frame& f) { return f.arrival; },
       [this](Frame& f, Ahead* ahead, Clock::time_point start) { run(f, ahead, start); },
@@ -306,8 +305,10 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   // The altimeter's range -> the camera's altitude; a fixed or fallback altitude is the camera's already.
   const double altitude =
       f.altitude == core::PairedAltitude::kReading ? core::cameraAltitude(f.altitude_m, mount_) : f.altitude_m;
+  const double kf_ahead =  // newest only, with a prediction (without one, frames are taken in order: none waits)
+      options_.keyframe_lookahead && skip_rule_->predicting() ? ros_inputs::keyframeLookahead(budget_) : 0.0;
   const core::SegmentedOdometry::Step step =
-      odometry_->process({frame_index_++, stamp.toSec(), altitude, image, nav}, prepared);
+      odometry_->process({frame_index_++, stamp.toSec(), altitude, image, nav, kf_ahead}, prepared);
   const core::OdometryUpdate& u = step.update;
   skip_rule_->observe(core::processedFrame(u, stamp.toSec(), altitude, step.session_started, odometry_->odometry()));
   const bool done = ros_diagnostics::reportUpdate(u, &counts_);
@@ -372,12 +373,12 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
     error = mount_error_;
   }
   c = snapshot(c);
-  std::string problem = silentInput(wallNow());
+  std::string problem = silentInput(steadyNow());
   if (problem.empty()) {
-    const bool arriving = budget_.arriving(wallNow(), options_.input_timeout_s);
+    const bool arriving = budget_.arriving(steadyNow(), options_.input_timeout_s);
     problem = ros_diagnostics::budgetProblem(c, options_.drop_policy, arriving);
   }
-  diagnostic_status_.fill(stat, ros_diagnostics::odometryCounterTable().counters(c), wallNow(), problem,
+  diagnostic_status_.fill(stat, ros_diagnostics::odometryCounterTable().counters(c), steadyNow(), problem,
                           error.empty() ? "" : "tracking does not start: " + error);
 }
 

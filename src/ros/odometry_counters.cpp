@@ -35,6 +35,9 @@ const CounterTable<OdometryCounters>& odometryCounterTable() {
       // Deliberate (bounded latency); the WARN is the budget's, while the input outruns the odometry.
       {"skipped_for_newest", &C::skipped_for_newest,
        "frames the worker passed over for a newer one it could safely take (~drop_policy newest: it was behind)"},
+      {"waits_for_fresher", &C::waits_for_fresher,
+       "times the worker waited for the next frame rather than start one that had waited over ~stale_fraction of "
+       "an input period (when the next one came, the stale one was skipped: skipped_for_newest)"},
       {"paused", &C::paused, "1 while paused by the operator (services pause, resume), else 0"},
       {"frames_dropped_paused", &C::frames_dropped_paused,
        "frames the worker dropped while paused, among the finished"},
@@ -96,6 +99,9 @@ const CounterTable<OdometryCounters>& odometryCounterTable() {
       {"sessions", &C::sessions, "sessions started"},
       {"session", &C::session, "the current session's id"},
       {"keyframes", &C::keyframes, "keyframes published"},
+      {"early_keyframes", &C::early_keyframes,
+       "keyframes made ahead of the keyframe rule, at a frame processed while behind, because the rule would take a "
+       "frame that would wait behind a newer one (~keyframe_lookahead)"},
       {"ms_per_frame_mean", &C::ms_per_frame_mean, "mean time per finished frame, ms"},
       {"ms_per_frame_max", &C::ms_per_frame_max, "longest time of a frame, ms"},
       {"ms_last_frame", &C::ms_last_frame, "time of the last frame, ms"},

@@ -79,6 +79,8 @@ OdometryNodeletOptions odometryNodeletOptions(const ros::NodeHandle& nh, const r
       "oldest (every frame in order; the oldest dropped when the queue is full)");
   o.prepare_threads = param(
       pnh, "prepare_threads", 0, [](int v) { return v >= 0 && v <= 8; }, "in [0, 8]");
+  o.stale_fraction = param(pnh, "stale_fraction", 0.25, in_0_1_open, "in (0, 1]");
+  o.keyframe_lookahead = param(pnh, "keyframe_lookahead", true, any, "a bool") && o.drop_policy == "newest";
   o.sync_queue_size = param(
       pnh, "sync_queue_size", 10, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
   o.sync_max_interval_s = param(pnh, "sync_max_interval_s", 0.1, positive, "positive");
@@ -156,7 +158,8 @@ std::vector<std::string> describe(const OdometryNodeletOptions& o) {
   std::snprintf(
       line, sizeof(line),
       "altitude from %s (interpolated at the image stamp, altitude_max_age_s %.2f), queue_size %d, drop_policy %s "
-      "(%s), prepare_threads %d (%s), max_image_pixels %d, sync_queue_size %d, sync_max_interval_s %.3f, first "
+      "(%s), prepare_threads %d (%s), stale_fraction %.2f, keyframe_lookahead %s, max_image_pixels %d, sync_queue_size "
+      "%d, sync_max_interval_s %.3f, first "
       "session %d, session_gap_s %.1f, reorder_tolerance_s %.2f, input_timeout_s %.1f, fallback_altitude %s, stats "
       "every %.0f s, diagnostics every %.1f s; n = %d features, enhancement %s, keyframes at overlap < %.2f",
       o.use_altitude_topic ? "the altitude topic"
@@ -169,9 +172,10 @@ std::vector<std::string> describe(const OdometryNodeletOptions& o) {
       o.prepare_threads == 0      ? "each frame prepared by the worker"
       : o.drop_policy == "newest" ? "the newest frame prepared as it arrives"
                                   : "the frames waiting prepared in order",
-      o.max_image_pixels, o.sync_queue_size, o.sync_max_interval_s, o.session, o.session_gap_s, o.reorder_tolerance_s,
-      o.input_timeout_s, o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off",
-      o.stats_period_s, o.diagnostic_period_s, c.odometry.features.num_features,
+      o.stale_fraction, o.keyframe_lookahead ? "on" : "off", o.max_image_pixels, o.sync_queue_size,
+      o.sync_max_interval_s, o.session, o.session_gap_s, o.reorder_tolerance_s, o.input_timeout_s,
+      o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off", o.stats_period_s,
+      o.diagnostic_period_s, c.odometry.features.num_features,
       core::enhancementName(c.odometry.enhancement.mode).c_str(), c.odometry.keyframes.min_overlap);
   std::ostringstream os;
   os << "sensor mount from tf: " << o.base_frame << " -> each image's header.frame_id and each altitude reading's "

@@ -87,6 +87,7 @@ bool reportUpdate(const core::OdometryUpdate& u, OdometryCounters* c) {
   const bool done = u.status != core::FrameStatus::kSkipped;
   c->nav_motions += done && u.source == core::MotionSource::kNav;
   c->fused_motions += done && u.source == core::MotionSource::kFused;
+  c->early_keyframes += u.early_keyframe;
   if (!u.nav_note.empty()) {
     ++c->nav_implausible;
     ROS_WARN_THROTTLE(5, "odometry: frame %d: %s", u.index, u.nav_note.c_str());

@@ -3,11 +3,13 @@
 // turn a hang into a failure, never the thing asserted.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <deque>
 #include <future>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <thread>
 #include <vector>
@@ -406,6 +408,226 @@ TEST(DrainNewest, AnItemGetsItsOwnPreparationOrNone) {
   EXPECT_EQ(processed, 1) << "the newest of the 30 waiting";
   EXPECT_LE(with_preparation, 1);
   EXPECT_EQ(q.skipped(), 29);
+}
+
+// Selection::hold_until: the worker waits inside popSelected() for a newer item. The selectors
+// below signal (a promise, under the queue's lock) when they asked for a hold, so the test acts
+// during the hold without a sleep; the holds that must end by themselves are checked from below
+// only (the time taken is at least the hold).
+using Clock = std::chrono::steady_clock;
+
+TEST(BoundedWorkQueue, APushDuringAHoldEndsItAndTheSelectorChoosesAgain) {
+  BoundedWorkQueue<int> q(10);
+  q.push(1);
+  std::promise<void> held;
+  std::vector<std::size_t> asked;  // the waiting items at each call (worker thread; read after join)
+  std::vector<int> passed;
+  int taken = -1;
+  bool ok = false;
+  const Clock::time_point start = Clock::now();
+  Clock::time_point end;
+  std::thread worker([&] {
+    ok = q.popSelected(
+        &taken,
+        [&](const std::deque<int>& w) {
+          asked.push_back(w.size());
+          Selection s{w.size() - 1, 0, std::nullopt};
+          if (asked.size() == 1) {
+            s.hold_until = Clock::now() + kDeadline;  // a push must end it long before
+            held.set_value();
+          }
+          return s;
+        },
+        [&](int& s, int&) { passed.push_back(s); });
+    end = Clock::now();
+  });
+  ASSERT_EQ(held.get_future().wait_for(kDeadline), std::future_status::ready);
+  q.push(2);
+  worker.join();
+  ASSERT_TRUE(ok);
+  EXPECT_EQ(taken, 2) << "the newer item";
+  EXPECT_EQ(asked, (std::vector<std::size_t>{1, 2})) << "chosen again with the new item";
+  EXPECT_EQ(passed, (std::vector<int>{1}));
+  EXPECT_EQ(q.skipped(), 1);
+  EXPECT_EQ(q.holds(), 1);
+  EXPECT_EQ(q.size(), 0u);
+  EXPECT_LT(end - start, kDeadline / 2) << "woken by the push, not by the time";
+}
+
+TEST(BoundedWorkQueue, AHoldWithoutAPushEndsAtItsTime) {
+  BoundedWorkQueue<int> q(10);
+  q.push(1);
+  q.push(2);
+  const auto hold = std::chrono::milliseconds(100);
+  int calls = 0, taken = -1;
+  Clock::time_point until;
+  const Clock::time_point start = Clock::now();
+  ASSERT_TRUE(q.popSelected(
+      &taken,
+      [&](const std::deque<int>& w) {
+        Selection s{w.size() - 1, 0, std::nullopt};
+        if (++calls == 1) s.hold_until = until = Clock::now() + hold;  // once: the queue must do the waiting
+        return s;
+      },
+      [](int&, int&) {}));
+  const Clock::time_point end = Clock::now();
+  EXPECT_GE(end - start, hold);
+  EXPECT_GE(end, until);
+  EXPECT_EQ(calls, 2);
+  EXPECT_EQ(taken, 2);
+  EXPECT_EQ(q.skipped(), 1);
+  EXPECT_EQ(q.holds(), 1);
+  // A hold whose time has passed already: chosen again at once, still counted as a hold.
+  q.push(3);
+  calls = 0;
+  ASSERT_TRUE(q.popSelected(
+      &taken,
+      [&](const std::deque<int>&) {
+        Selection s;
+        if (++calls == 1) s.hold_until = Clock::now() - hold;
+        return s;
+      },
+      [](int&, int&) {}));
+  EXPECT_EQ(taken, 3);
+  EXPECT_EQ(calls, 2);
+  EXPECT_EQ(q.holds(), 2);
+}
+
+TEST(BoundedWorkQueue, CloseEndsAHoldAndTheQueuedItemIsStillHandedOut) {
+  BoundedWorkQueue<int> q(10);
+  q.push(1);
+  std::promise<void> held;
+  int calls = 0, taken = -1;
+  bool ok = false;
+  const Clock::time_point start = Clock::now();
+  Clock::time_point end;
+  std::thread worker([&] {
+    ok = q.popSelected(
+        &taken,
+        [&](const std::deque<int>&) {
+          if (++calls == 1) held.set_value();
+          return Selection{0, 0, Clock::now() + kDeadline};  // always asks: the close must win
+        },
+        [](int&, int&) {});
+    end = Clock::now();
+  });
+  ASSERT_EQ(held.get_future().wait_for(kDeadline), std::future_status::ready);
+  q.close();
+  worker.join();
+  ASSERT_TRUE(ok);
+  EXPECT_EQ(taken, 1);
+  EXPECT_EQ(calls, 2);
+  EXPECT_EQ(q.holds(), 1);
+  EXPECT_LT(end - start, kDeadline / 2) << "ended by the close, not by the time";
+  int v = -1;
+  EXPECT_FALSE(q.popSelected(
+      &v,
+      [](const std::deque<int>&) {
+        return Selection{0, 0, Clock::now() + kDeadline};
+      },
+      [](int&, int&) {}))
+      << "closed and drained";
+  // Closed before the selector asks: no hold at all.
+  BoundedWorkQueue<int> closed(10);
+  closed.push(7);
+  closed.close();
+  ASSERT_TRUE(closed.popSelected(
+      &v,
+      [](const std::deque<int>&) {
+        return Selection{0, 0, Clock::now() + kDeadline};
+      },
+      [](int&, int&) {}));
+  EXPECT_EQ(v, 7);
+  EXPECT_EQ(closed.holds(), 0);
+}
+
+TEST(BoundedWorkQueue, APriorityItemDuringAHoldIsServedFirstAndTheHeldItemStaysQueued) {
+  BoundedWorkQueue<int> q(10);
+  q.push(1);
+  std::promise<void> held;
+  int calls = 0, taken = -1;
+  bool ok = false;
+  std::thread worker([&] {
+    ok = q.popSelected(
+        &taken,
+        [&](const std::deque<int>&) {
+          if (++calls == 1) held.set_value();
+          return Selection{0, 0, Clock::now() + kDeadline};
+        },
+        [](int&, int&) { ADD_FAILURE() << "nothing is skipped"; });
+  });
+  ASSERT_EQ(held.get_future().wait_for(kDeadline), std::future_status::ready);
+  q.pushPriority(99);
+  worker.join();
+  ASSERT_TRUE(ok);
+  EXPECT_EQ(taken, 99);
+  EXPECT_EQ(calls, 1) << "not chosen again: the bounded items wait for the next call";
+  EXPECT_EQ(q.size(), 1u);
+  EXPECT_EQ(q.popped(), 1);
+  EXPECT_EQ(q.skipped(), 0);
+  int v = -1;
+  ASSERT_TRUE(q.popSelected(
+      &v, [](const std::deque<int>&) { return std::size_t{0}; }, [](int&, int&) {}));
+  EXPECT_EQ(v, 1);
+}
+
+// drainNewest keeps the first deadline of a take: the chooser's later asks (after each new item)
+// do not move it. The first ask waits 300 ms, the one after the push 10 s: the take must come by
+// the first deadline (so well before 10 s), and no sooner. The next take has its own deadline.
+TEST(DrainNewest, AWaitForTheNextItemEndsByTheTakesFirstDeadline) {
+  BoundedWorkQueue<int> q(newestCapacity(5));
+  const auto first_wait = std::chrono::milliseconds(300);
+  std::promise<void> asked;
+  std::mutex m;
+  std::vector<Clock::time_point> asks;     // guarded by m
+  std::vector<std::size_t> waiting_sizes;  // guarded by m
+  std::vector<std::pair<int, Clock::time_point>> processed;
+  std::vector<int> skipped;
+  std::thread worker([&] {
+    drainNewest<int, int>(
+        q, 5, nullptr,
+        [&](const std::deque<int>& w, const std::vector<bool>&) {
+          std::lock_guard<std::mutex> lock(m);
+          asks.push_back(Clock::now());
+          waiting_sizes.push_back(w.size());
+          NewestChoice c{w.size() - 1, true};
+          // Take 1: asks for 300 ms, then (after item 2 arrived) for 10 s. Take 2 (item 3): 300 ms again.
+          c.wait_for = (w.back() == 2) ? std::chrono::duration_cast<Clock::duration>(kDeadline)
+                                       : std::chrono::duration_cast<Clock::duration>(first_wait);
+          if (asks.size() == 1) asked.set_value();
+          return c;
+        },
+        [&](int& s, int&) { skipped.push_back(s); }, [](const int& i) { return static_cast<std::size_t>(i); },
+        [&](int& item, int*, Clock::time_point) { processed.emplace_back(item, Clock::now()); },
+        [](const std::string& e) { ADD_FAILURE() << e; });
+  });
+  q.push(1);
+  ASSERT_EQ(asked.get_future().wait_for(kDeadline), std::future_status::ready);
+  q.push(2);  // during the first ask's hold: chosen again, asks for 10 s
+  // The take of 2, then a lone item 3 with its own (new) deadline.
+  // (EXPECT, not ASSERT, while the worker runs: the close below ends any hold, so it is joined.)
+  const auto end = Clock::now() + kDeadline;
+  while (q.popped() < 1 && Clock::now() < end) std::this_thread::yield();
+  EXPECT_EQ(q.popped(), 1) << "take 1 not by its first deadline";
+  q.push(3);
+  while (q.popped() < 2 && Clock::now() < end) std::this_thread::yield();
+  q.close();
+  worker.join();
+  ASSERT_EQ(processed.size(), 2u);
+  EXPECT_EQ(processed[0].first, 2);
+  EXPECT_EQ(processed[1].first, 3);
+  EXPECT_EQ(skipped, (std::vector<int>{1}));
+  std::lock_guard<std::mutex> lock(m);
+  ASSERT_GE(asks.size(), 4u);
+  // Take 1: no sooner than the first ask's deadline, and not after the second ask's 10 s.
+  EXPECT_GE(processed[0].second - asks[0], first_wait);
+  EXPECT_LT(processed[0].second - asks[0], kDeadline / 2) << "the second ask moved the deadline";
+  // Take 2's deadline is its own (from its first ask), not take 1's, which had passed.
+  const auto take2_first_ask =
+      std::find_if(asks.begin(), asks.end(), [&](const Clock::time_point& t) { return t > processed[0].second; });
+  ASSERT_NE(take2_first_ask, asks.end());
+  EXPECT_GE(processed[1].second - *take2_first_ask, first_wait) << "take 2 held for its own wait";
+  EXPECT_EQ(q.holds(), 3) << "take 1: two holds (before and after item 2); take 2: one";
 }
 
 }  // namespace

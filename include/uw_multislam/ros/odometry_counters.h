@@ -22,6 +22,7 @@ struct OdometryCounters {
   // The worker's FIFO.
   long frames_processed = 0, frames_finished = 0, dropped_queue_full = 0, skipped_for_newest = 0, queue_length = 0;
   long paused = 0, frames_dropped_paused = 0;
+  long waits_for_fresher = 0;  // takes that waited for the next frame (core::waitForNext)
   // Frames the worker skipped, by kind (the image refusals of ros/sensor_conversions.h, stamps).
   long skipped_empty_image = 0, skipped_encoding = 0, skipped_corrupt_image = 0, skipped_image_layout = 0;
   long skipped_tiny_image = 0, skipped_image_too_large = 0, skipped_size_mismatch = 0, skipped_camera_info = 0;
@@ -31,7 +32,7 @@ struct OdometryCounters {
   long fallbacks = 0, tracking_losses = 0;
   long nav_received = 0, nav_refused = 0, frames_with_nav = 0, nav_motions = 0, fused_motions = 0;
   long nav_implausible = 0, nav_tf_missing = 0, nav_covariance_replaced = 0, prepared_ahead = 0;
-  long sessions = 0, session = 0, keyframes = 0;
+  long sessions = 0, session = 0, keyframes = 0, early_keyframes = 0;
   double ms_per_frame_mean = 0.0, ms_per_frame_max = 0.0, ms_last_frame = 0.0;
   double ms_per_frame_recent = 0.0, input_period_ms = 0.0;  // the budget (core::FrameBudget)
 

@@ -2,9 +2,11 @@
 // in the worker's queue, and the same frame prepared ahead on another thread (~prepare_threads).
 #pragma once
 
+#include <ros/time.h>
 #include <sensor_msgs/CameraInfo.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cstddef>
 #include <deque>
 #include <string>
@@ -16,6 +18,7 @@
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/ros/image_input.h"
+#include "uw_multislam/ros/odometry_counters.h"
 #include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
@@ -29,6 +32,7 @@ struct OdometryFrame {
   std::string altimeter_frame;      // of the altitude readings (empty: none yet, or no altitude topic)
   std::vector<double> passed_over;  // stamps received before it and not processed: seen, no time gap
   std::size_t arrival = 0;          // its number among the frames prepared on arrival (~prepare_threads, newest)
+  double arrived_s = 0.0;           // steady time it was paired and queued (its wait for the worker starts)
 };
 
 /// A frame the queue dropped when full: its stamps travel on with the frame after it, which the worker passes
@@ -51,17 +55,77 @@ inline core::WaitingFrame waitingFrame(const OdometryFrame& f, const core::Camer
           f.altitude == core::PairedAltitude::kReading ? core::cameraAltitude(f.altitude_m, mount) : f.altitude_m};
 }
 
+/// ~stale_fraction: what the newest policy's wait for the next frame (core::waitForNext) is given, and gives back.
+struct NextFrameWait {
+  core::InputTiming timing;  // chosen_arrival_s is the choice's (chooseNewest fills it in)
+  double stale_fraction = 0.25;
+  core::WaitAdvice advice;  // out: the advice for the choice
+};
+
+/// The input's timing as `budget` (the odometry's, fed at each arrival) has it, at wall time `now_s`.
+inline core::InputTiming inputTiming(const core::FrameBudget& budget, double now_s) {
+  core::InputTiming t;
+  t.now_s = now_s;
+  t.last_arrival_s = budget.lastArrivalS();
+  t.period_s = budget.inputPeriodMs() / 1e3;
+  t.jitter_s = budget.inputJitterMs() / 1e3;
+  t.cost_s = budget.msPerFrame() / 1e3;
+  return t;
+}
+
+/// core::OdometryInput::keyframe_lookahead_s for the next frame, from `budget` (0 while the odometry keeps up).
+inline double keyframeLookahead(const core::FrameBudget& budget) {
+  return core::keyframeLookaheadS(budget.msPerFrame() / 1e3, budget.inputPeriodMs() / 1e3, budget.stampPeriodS());
+}
+
 /// ~drop_policy newest: the frame `rule` (the session's; null before the first session: every frame, as the former
-/// queue) takes among `waiting`, preferring one whose preparation is `started` (empty: none prepared on arrival).
+/// queue) takes among `waiting`, preferring one whose preparation is `started` (empty: none prepared on arrival);
+/// with `wait`, whether to wait for the next frame instead (NewestChoice::wait_for, `wait->advice`); not with frames
+/// prepared on arrival (a frame under preparation would be taken after the wait: the stale one, later).
 inline ros_work::NewestChoice chooseNewest(const core::FrameSkipRule* rule, const std::deque<OdometryFrame>& waiting,
-                                           const core::CameraMount& mount, const std::vector<bool>& started) {
+                                           const core::CameraMount& mount, const std::vector<bool>& started,
+                                           NextFrameWait* wait = nullptr) {
+  if (wait) wait->advice = core::WaitAdvice();
   if (!rule) return {0, false};
   std::vector<core::WaitingFrame> w;
   w.reserve(waiting.size());
   for (const OdometryFrame& f : waiting) w.push_back(waitingFrame(f, mount));
   const core::FrameSkipRule::Choice choice = rule->choose(w, started);
-  return {choice.index, choice.reason != core::FrameSkipRule::Reason::kOldest};
+  ros_work::NewestChoice c{choice.index, choice.reason != core::FrameSkipRule::Reason::kOldest};
+  if (!wait || !started.empty()) return c;
+  wait->timing.chosen_arrival_s = waiting[choice.index].arrived_s;
+  wait->advice = core::waitForNext(*rule, w, choice, wait->timing, wait->stale_fraction);
+  if (wait->advice.why != core::WaitAdvice::Why::kNone)
+    c.wait_for = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+        std::chrono::duration<double>(std::max(0.0, wait->advice.until_s - wait->timing.now_s)));
+  return c;
 }
+
+/// The odometry worker's choice under ~drop_policy newest (chooseNewest), waiting for the next frame rather than
+/// start a stale one (stale_fraction < 1), each take's wait counted once in the worker's `counters`.
+class NewestChooser {
+ public:
+  /// `budget`: the odometry's (its arrivals give the input's timing); `counters`: the worker's.
+  NewestChooser(double stale_fraction, const core::FrameBudget* budget, ros_diagnostics::OdometryCounters* counters)
+      : stale_fraction_(stale_fraction), budget_(budget), counters_(counters) {}
+  ros_work::NewestChoice operator()(const core::FrameSkipRule* rule, const std::deque<OdometryFrame>& waiting,
+                                    const core::CameraMount& mount, const std::vector<bool>& started) {
+    NextFrameWait wait{inputTiming(*budget_, ros::SteadyTime::now().toSec()), stale_fraction_, {}};
+    const ros_work::NewestChoice c = chooseNewest(rule, waiting, mount, started, &wait);
+    // A take asks again after each frame that arrives during its wait: counted at its first.
+    if (c.wait_for && counted_take_ != counters_->frames_finished) {
+      counted_take_ = counters_->frames_finished;
+      ++counters_->waits_for_fresher;
+    }
+    return c;
+  }
+
+ private:
+  double stale_fraction_;
+  const core::FrameBudget* budget_;
+  ros_diagnostics::OdometryCounters* counters_;  // frames_finished numbers the takes
+  long counted_take_ = -1;
+};
 
 struct PreparedAhead {
   core::CameraIntrinsics camera;

@@ -27,14 +27,17 @@ struct OdometryNodeletOptions {
   int queue_size = 5;                  // frames waiting for the worker
   std::string drop_policy = "newest";  // newest: the newest safe frame is taken (core::FrameSkipRule); oldest: FIFO
   int prepare_threads = 0;             // threads preparing frames ahead (newest: on arrival; oldest: those waiting)
-  int sync_queue_size = 10;            // subscriber queues; 2x: images waiting for their pairing
-  double sync_max_interval_s = 0.1;    // largest image - camera_info stamp difference
-  double altitude_max_age_s = 1.0;     // altitude: largest gap interpolated / age used alone; longest wait
-  int session = 0;                     // id of the first session
-  double session_gap_s = 10.0;         // stamps jumping forward more than this start a session; 0 = never
-  double reorder_tolerance_s = 1.0;    // stamps at most this far back are late frames (skipped)
-  double input_timeout_s = 5.0;        // images without a synchronised set this long: warn
-  double fallback_altitude_m = 0.0;    // > 0: used when the altitude topic is silent; 0 = off
+  double stale_fraction = 0.25;        // newest: wait for the next frame rather than start one older than this
+                                       // fraction of the input period (core::waitForNext; 1: never)
+  bool keyframe_lookahead = true;    // newest only: keyframes ahead of frames that will wait (core::keyframeLookaheadS)
+  int sync_queue_size = 10;          // subscriber queues; 2x: images waiting for their pairing
+  double sync_max_interval_s = 0.1;  // largest image - camera_info stamp difference
+  double altitude_max_age_s = 1.0;   // altitude: largest gap interpolated / age used alone; longest wait
+  int session = 0;                   // id of the first session
+  double session_gap_s = 10.0;       // stamps jumping forward more than this start a session; 0 = never
+  double reorder_tolerance_s = 1.0;  // stamps at most this far back are late frames (skipped)
+  double input_timeout_s = 5.0;      // images without a synchronised set this long: warn
+  double fallback_altitude_m = 0.0;  // > 0: used when the altitude topic is silent; 0 = off
   double diagnostic_period_s = 1.0;
   double stats_period_s = 30.0;
   int max_image_pixels = 25000000;   // larger images are skipped before any conversion (counted)

@@ -41,6 +41,9 @@ namespace ros_work {
 struct Selection {
   std::size_t take = 0;
   std::size_t dropped = 0;
+  /// Set: take nothing yet; wait until an item is pushed, the queue is closed or this time has
+  /// come, then select again (the selector must stop asking, e.g. once its deadline has passed).
+  std::optional<std::chrono::steady_clock::time_point> hold_until = std::nullopt;
 };
 
 template <typename T>
@@ -111,7 +114,9 @@ class BoundedWorkQueue {
   /// handed to `on_skip(skipped, taken)` under the lock (like a drop, to hand on what must survive)
   /// and counted in skipped(). Priority items are taken first, as by pop(). Blocks like pop().
   /// `select` may also return a Selection: its first `dropped` items (of those before `take`) are
-  /// counted in dropped() rather than skipped() (passed over without a choice, like a full queue's drop).
+  /// counted in dropped() rather than skipped() (passed over without a choice, like a full queue's drop),
+  /// and with hold_until set nothing is taken yet: the worker waits for the next item (or a close,
+  /// or that time) and `select` chooses again; a close ends the hold (what is queued is still handed out).
   template <typename Select, typename OnSkip>
   bool popSelected(T* out, Select select, OnSkip on_skip) {
     std::unique_lock<std::mutex> lock(mutex_);
@@ -124,10 +129,22 @@ class BoundedWorkQueue {
       priority_.pop_front();
     } else {
       Selection s;
-      if constexpr (std::is_same<decltype(select(items_)), Selection>::value)
-        s = select(static_cast<const std::deque<T>&>(items_));
-      else
-        s.take = select(static_cast<const std::deque<T>&>(items_));
+      for (;;) {
+        if constexpr (std::is_same<decltype(select(items_)), Selection>::value)
+          s = select(static_cast<const std::deque<T>&>(items_));
+        else
+          s.take = select(static_cast<const std::deque<T>&>(items_));
+        if (!s.hold_until || closed_) break;
+        const long pushed = pushed_;
+        ++holds_;
+        wake_.wait_until(lock, *s.hold_until, [&] { return closed_ || pushed_ != pushed || !priority_.empty(); });
+        if (!priority_.empty()) {  // served first, as by pop(); the bounded items wait for the next call
+          *out = std::move(priority_.front());
+          priority_.pop_front();
+          ++popped_;
+          return true;
+        }
+      }
       const std::size_t take = std::min<std::size_t>(s.take, items_.size() - 1);
       const std::size_t dropped = std::min(s.dropped, take);
       for (std::size_t i = 0; i < take; ++i) on_skip(items_[i], items_[take]);
@@ -181,6 +198,11 @@ class BoundedWorkQueue {
     std::lock_guard<std::mutex> lock(mutex_);
     return skipped_;
   }
+  /// Times popSelected() waited for a newer item at its selector's request (Selection::hold_until).
+  long holds() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return holds_;
+  }
   /// Items handed out by pop().
   long popped() const {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -208,6 +230,7 @@ class BoundedWorkQueue {
   long pushed_ = 0;         // guarded by mutex_
   long popped_ = 0;         // guarded by mutex_
   long skipped_ = 0;        // guarded by mutex_
+  long holds_ = 0;          // guarded by mutex_
   int waiting_ = 0;         // guarded by mutex_
 };
 
@@ -252,6 +275,9 @@ inline std::size_t newestCapacity(std::size_t queue_size) { return std::max<std:
 struct NewestChoice {
   std::size_t index = 0;
   bool predicted = true;
+  /// Set: wait for the next item rather than take this one, for at most this long from now (drainNewest
+  /// keeps the first such deadline of each take: the waits for one item end by it).
+  std::optional<std::chrono::steady_clock::duration> wait_for = std::nullopt;
 };
 
 /// The worker's loop under ~drop_policy newest, until `queue` is closed and drained. For each item:
@@ -269,6 +295,8 @@ template <typename T, typename P, typename Choose, typename OnSkip, typename Arr
           typename OnError>
 void drainNewest(BoundedWorkQueue<T>& queue, std::size_t bound, core::OrderedPrefetch<P, T>* prefetch, Choose choose,
                  OnSkip on_skip, Arrival arrival, Process process, OnError on_error) {
+  using Clock = std::chrono::steady_clock;
+  std::optional<Clock::time_point> deadline;  // of the current take's waits for a newer item
   const auto select = [&](const std::deque<T>& waiting) {
     std::vector<bool> started;
     if (prefetch) {
@@ -276,15 +304,20 @@ void drainNewest(BoundedWorkQueue<T>& queue, std::size_t bound, core::OrderedPre
       for (const T& w : waiting) started.push_back(prefetch->started(arrival(w)));
     }
     const NewestChoice c = choose(waiting, static_cast<const std::vector<bool>&>(started));
-    Selection s{c.index, 0};
+    Selection s{c.index, 0, std::nullopt};
     if (!c.predicted && waiting.size() > bound) {
       s.dropped = waiting.size() - bound;
       s.take = std::max(s.take, s.dropped);
     }
+    if (c.wait_for) {
+      const Clock::time_point now = Clock::now();
+      if (!deadline) deadline = now + *c.wait_for;
+      if (now < *deadline) s.hold_until = deadline;
+    }
     return s;
   };
   T item;
-  while (queue.popSelected(&item, select, on_skip)) {
+  while (deadline.reset(), queue.popSelected(&item, select, on_skip)) {
     const auto start = std::chrono::steady_clock::now();
     std::optional<P> prepared;
     try {

@@ -2,6 +2,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -194,7 +195,8 @@ bool Odometry::trackBetweenKeyframes(const cv::Mat& grey, TrackedFrame* cur, Odo
     }
   }
   const double overlap = footprintOverlap(r.motion, last_kf_.altitude_m, cur->altitude_m);
-  if (needsKeyframe(r, overlap, cur->stamp_s)) {
+  if (needsKeyframe(r, overlap, cur->stamp_s) ||
+      dueAhead(compose(last_kf_.pose, r.motion), cur->stamp_s, cur->altitude_m)) {
     ++stats_.klt_extracted;  // a keyframe is due: SIFT measures it
     return false;
   }
@@ -231,6 +233,20 @@ bool Odometry::needsKeyframe(const RansacResult& r, double overlap, double stamp
   return overlap < k.min_overlap || std::abs(r.motion.yaw()) > k.max_rotation_rad ||
          (k.max_interval_s > 0 && stamp_s - last_kf_.stamp_s > k.max_interval_s) ||
          static_cast<int>(r.inliers.size()) < k.min_tracking_inliers;
+}
+
+bool Odometry::dueAhead(const Pose2& pose, double stamp_s, double altitude_m) const {
+  const double dt = stamp_s - prev_.stamp_s;
+  if (!(lookahead_s_ > 0) || !(dt > 0)) return false;
+  // Constant velocity from the previous frame, as FrameSkipRule predicts the frames waiting.
+  const Pose2 step = between(prev_.pose, pose);
+  const double f = lookahead_s_ / dt;
+  const Pose2 ahead = compose(pose, Pose2(f * step.x(), f * step.y(), f * step.yaw()));
+  const Pose2 motion = between(last_kf_.pose, ahead);
+  const KeyframeOptions& k = options_.keyframes;
+  return footprintOverlap(motion, last_kf_.altitude_m, altitude_m) < k.min_overlap ||
+         std::abs(motion.yaw()) > k.max_rotation_rad ||
+         (k.max_interval_s > 0 && stamp_s + lookahead_s_ - last_kf_.stamp_s > k.max_interval_s);
 }
 
 void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback,
@@ -290,6 +306,7 @@ OdometryUpdate Odometry::process(const OdometryInput& in, PreparedFrame* prepare
   ScopedStage total(&times_, "odometry_total");
   ++stats_.frames;
   new_keyframes_.clear();
+  lookahead_s_ = std::isfinite(in.keyframe_lookahead_s) ? std::max(0.0, in.keyframe_lookahead_s) : 0.0;
   OdometryUpdate up;
   up.index = in.index;
   if (in.image.empty()) {
@@ -466,7 +483,10 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
     up.scale = m.ransac.scale;
     up.overlap = footprintOverlap(cur.motion.mean, last_kf_.altitude_m, alt);
     up.covariance = compose(UncertainPose2(last_kf_.pose, last_kf_covariance_), cur.motion).covariance;
-    if (needsKeyframe(m.ransac, up.overlap, cur.stamp_s)) {
+    const bool due = needsKeyframe(m.ransac, up.overlap, cur.stamp_s);
+    if (due || dueAhead(cur.pose, cur.stamp_s, alt)) {
+      up.early_keyframe = !due;
+      stats_.early_keyframes += !due;
       addKeyframe(cur, cur.motion, false, cur.source);
       up.status = FrameStatus::kKeyframe;
       up.keyframe_id = static_cast<int>(keyframes_.size()) - 1;

@@ -3,6 +3,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
+#include <tuple>
+#include <utility>
 #include <vector>
 
 #include "uw_multislam/core/frontend/frame_skip.h"
@@ -50,6 +53,25 @@ TEST(FootprintOverlap, IsTheSharedFractionOfTheFootprint) {
   // 2.1333 m wide: a quarter of the width along x leaves three quarters.
   EXPECT_NEAR(footprintOverlap(c, Pose2(0.25 * 320 / 300.0 * kAltitude, 0, 0), kAltitude, kAltitude), 0.75, 1e-4);
   EXPECT_NEAR(footprintOverlap(c, Pose2(5.0, 0, 0), kAltitude, kAltitude), 0.0, 1e-9);
+}
+
+// Footprints moved along an image axis have nearly collinear edges: with cv::intersectConvexConvex
+// a rotation of 1e-6 rad gave an overlap of 1.0 for a shift that leaves 0.44 (a keyframe the rule
+// never took) and 0.48 for one that leaves 0.72 (a keyframe too early).
+TEST(FootprintOverlap, IsRightForFootprintsNearlyAlignedWithTheKeyframes) {
+  const CameraIntrinsics c = camera();
+  const double w = 320 / 300.0 * kAltitude, h = 240 / 300.0 * kAltitude;
+  for (const double x : {0.2, 0.4, 0.6, 0.8, 1.0, 1.2})
+    for (const auto& [y, yaw] : std::vector<std::pair<double, double>>{
+             {0.0, 0.0}, {0.0, 1e-6}, {1e-6, 1e-6}, {1e-5, -2e-5}, {-1e-6, -2e-5}, {-3e-5, 1e-6}})
+      EXPECT_NEAR(footprintOverlap(c, Pose2(x, y, yaw), kAltitude, kAltitude), 1.0 - x / w, 1e-3)
+          << x << " " << y << " " << yaw;
+  // Along y, diagonally, and turned a quarter about the centre (a 1.6 m square of the 2.13 x 1.6 m footprint).
+  EXPECT_NEAR(footprintOverlap(c, Pose2(0, 0.4, 1e-6), kAltitude, kAltitude), 0.75, 1e-3);
+  EXPECT_NEAR(footprintOverlap(c, Pose2(w / 2, h / 2, 0), kAltitude, kAltitude), 0.25, 1e-6);
+  EXPECT_NEAR(footprintOverlap(c, Pose2(0, 0, M_PI / 2), kAltitude, kAltitude), h / w, 1e-6);
+  EXPECT_NEAR(footprintOverlap(c, Pose2(), kAltitude, 2 * kAltitude), 0.25, 1e-6) << "twice as high: a quarter seen";
+  EXPECT_NEAR(footprintOverlap(c, Pose2(), 2 * kAltitude, kAltitude), 1.0, 1e-6);
 }
 
 TEST(FrameSkipRule, WithoutAPredictionTheOldestFrameIsTaken) {
@@ -283,6 +305,219 @@ TEST(FrameBudget, ComparesTheRecentCostWithTheRecentInputPeriod) {
   EXPECT_NEAR(b.load(), 0.5, 1e-3);
   b.arrived(0.5);  // a clock that stands still or goes back adds no interval
   EXPECT_NEAR(b.inputPeriodMs(), 50.0, 1e-9);
+}
+
+TEST(FrameBudget, KeepsTheStampsPeriodApartFromTheArrivals) {
+  FrameBudget b(4);  // EMA weight 2 / (4 + 1) = 0.4
+  EXPECT_EQ(b.stampPeriodS(), 0.0) << "unknown";
+  EXPECT_EQ(b.lastArrivalS(), 0.0) << "none yet";
+  // A bag replayed twice as fast as recorded: stamps 0.1 s apart arrive every 0.05 s.
+  for (int i = 0; i < 10; ++i) b.arrived(100.0 + 0.05 * i, 0.1 * i);
+  EXPECT_NEAR(b.inputPeriodMs(), 50.0, 1e-9);
+  EXPECT_NEAR(b.stampPeriodS(), 0.1, 1e-12);
+  EXPECT_DOUBLE_EQ(b.lastArrivalS(), 100.0 + 0.05 * 9);
+  // One interval of 0.2 s moves the mean by 0.4 of the difference.
+  b.arrived(100.5, 1.1);
+  EXPECT_NEAR(b.stampPeriodS(), 0.1 + 0.4 * (0.2 - 0.1), 1e-12);
+  const double before = b.stampPeriodS();
+  // A stamp that goes back, or none (NaN), adds no stamp interval; the arrival still counts.
+  b.arrived(100.55, 1.0);
+  EXPECT_EQ(b.stampPeriodS(), before);
+  EXPECT_DOUBLE_EQ(b.lastArrivalS(), 100.55);
+  b.arrived(100.6);
+  EXPECT_EQ(b.stampPeriodS(), before);
+  EXPECT_DOUBLE_EQ(b.lastArrivalS(), 100.6);
+  // The next stamp's interval is from the one that went back (1.0), not from 1.1.
+  b.arrived(100.65, 1.1);
+  EXPECT_NEAR(b.stampPeriodS(), before + 0.4 * (0.1 - before), 1e-12);
+  // The first interval is taken as it is (no average of it with the unknown 0).
+  FrameBudget first(4);
+  first.arrived(1.0, 5.0);
+  EXPECT_EQ(first.stampPeriodS(), 0.0) << "one stamp: no interval";
+  first.arrived(1.01, 5.25);
+  EXPECT_DOUBLE_EQ(first.stampPeriodS(), 0.25);
+}
+
+TEST(KeyframeLookahead, SpansTheFramesThatArriveWhileOneIsProcessedButTheNewest) {
+  const double period = 0.125, stamps = 0.25;  // a replay twice as fast as recorded
+  EXPECT_EQ(keyframeLookaheadS(0.1, period, stamps), 0.0) << "keeps up";
+  EXPECT_EQ(keyframeLookaheadS(period, period, stamps), 0.0) << "exactly keeps up";
+  EXPECT_EQ(keyframeLookaheadS(2 * period, period, stamps), stamps) << "2x: one frame waits behind the newest";
+  EXPECT_EQ(keyframeLookaheadS(2.1 * period, period, stamps), 2 * stamps);
+  EXPECT_EQ(keyframeLookaheadS(4 * period, period, stamps), 3 * stamps);
+  EXPECT_EQ(keyframeLookaheadS(4 * period, period, period), 3 * period) << "in stamps, not arrivals";
+  const double nan = std::nan(""), inf = std::numeric_limits<double>::infinity();
+  for (const auto& [cost, p, s] : std::vector<std::tuple<double, double, double>>{{nan, period, stamps},
+                                                                                  {inf, period, stamps},
+                                                                                  {0.5, nan, stamps},
+                                                                                  {0.5, 0.0, stamps},
+                                                                                  {0.5, -0.1, stamps},
+                                                                                  {0.5, period, 0.0},
+                                                                                  {0.5, period, nan},
+                                                                                  {0.5, period, -0.25},
+                                                                                  {0.0, 0.0, 0.0}})
+    EXPECT_EQ(keyframeLookaheadS(cost, p, s), 0.0) << cost << " " << p << " " << s;
+}
+
+// waitForNext: a rule at 0.1 m/s with its keyframe at 0 (no keyframe due before 10 s), frames
+// arriving every 0.125 s (binary fractions: the deadlines compare exactly), regularly, the newest at
+// 100 s, a worker twice as slow as the input (behind).
+class WaitForNextTest : public ::testing::Test {
+ protected:
+  static constexpr double kPeriod = 0.125, kLast = 100.0, kFraction = 0.25;
+  static constexpr double kNext = kLast + kPeriod, kUntil = kNext + kPeriod / 8;  // jitter 0: the least margin
+
+  WaitForNextTest() : rule_(camera(), KeyframeOptions()) {
+    rule_.observe(matched(0.0, Pose2(), Pose2()));
+    rule_.observe(matched(1.0, Pose2(0.1, 0, 0), Pose2()));
+  }
+  // The newest of the frames waiting, chosen at `now`.
+  InputTiming at(double now) const {
+    InputTiming t;
+    t.now_s = now;
+    t.chosen_arrival_s = kLast;
+    t.last_arrival_s = kLast;
+    t.period_s = kPeriod;
+    t.cost_s = 2 * kPeriod;
+    return t;
+  }
+  WaitAdvice advice(const std::vector<WaitingFrame>& w, const InputTiming& t, double fraction = kFraction) const {
+    return waitForNext(rule_, w, rule_.choose(w), t, fraction);
+  }
+
+  FrameSkipRule rule_;
+  const std::vector<WaitingFrame> waiting_ = waitingAt({2.0, 3.0, 4.0});
+};
+
+TEST_F(WaitForNextTest, AStaleNewestChoiceWaitsForTheNextFrameUntilAMarginAfterItsExpectedArrival) {
+  ASSERT_EQ(rule_.choose(waiting_).reason, Reason::kNewestSafe);
+  const WaitAdvice a = advice(waiting_, at(kLast + kPeriod / 2));  // waited half a period > a quarter
+  EXPECT_EQ(a.why, WaitAdvice::Why::kStale);
+  EXPECT_EQ(a.until_s, kUntil);
+  // Alone and predicted safe (kOnlyOne): the same.
+  const std::vector<WaitingFrame> one = waitingAt({4.0});
+  ASSERT_EQ(rule_.choose(one).reason, Reason::kOnlyOne);
+  const WaitAdvice alone = advice(one, at(kLast + kPeriod / 2));
+  EXPECT_EQ(alone.why, WaitAdvice::Why::kStale);
+  EXPECT_EQ(alone.until_s, kUntil);
+}
+
+TEST_F(WaitForNextTest, AFreshChoiceIsTakenNow) {
+  EXPECT_EQ(advice(waiting_, at(kLast)).why, WaitAdvice::Why::kNone);
+  EXPECT_EQ(advice(waiting_, at(kLast + kFraction * kPeriod)).why, WaitAdvice::Why::kNone) << "exactly the fraction";
+  EXPECT_EQ(advice(waiting_, at(kLast + kFraction * kPeriod + 1.0 / 1024)).why, WaitAdvice::Why::kStale);
+  // The choice's own arrival counts, not the newest arrival's.
+  InputTiming older = at(kLast + kFraction * kPeriod);
+  older.chosen_arrival_s = kLast - 1.0 / 1024;
+  EXPECT_EQ(advice(waiting_, older).why, WaitAdvice::Why::kStale);
+}
+
+TEST_F(WaitForNextTest, ANextFrameLateWithinTheJitterMarginIsWaitedForOneLaterBeyondItIsNot) {
+  const WaitAdvice late = advice(waiting_, at(kNext + kPeriod / 16));  // jitter: still expected
+  EXPECT_EQ(late.why, WaitAdvice::Why::kStale);
+  EXPECT_EQ(late.until_s, kUntil) << "the same deadline, not a margin from now";
+  EXPECT_EQ(advice(waiting_, at(kUntil)).why, WaitAdvice::Why::kNone) << "the deadline itself";
+  EXPECT_EQ(advice(waiting_, at(kNext + kPeriod)).why, WaitAdvice::Why::kNone) << "the input stopped or slowed";
+  // The margin is four mean deviations of the arrivals, within [1/8, 1/2] period.
+  InputTiming jittery = at(kLast + kPeriod / 2);
+  jittery.jitter_s = kPeriod / 16;
+  EXPECT_EQ(advice(waiting_, jittery).until_s, kNext + kPeriod / 4);
+  jittery.jitter_s = kPeriod / 4;
+  EXPECT_EQ(advice(waiting_, jittery).until_s, kNext + kPeriod / 2);
+  EXPECT_EQ(advice(waiting_, at(kNext + kPeriod / 4)).why, WaitAdvice::Why::kNone) << "beyond the least margin";
+}
+
+TEST_F(WaitForNextTest, AClockThatSteppedBackIsNotWaitedOn) {
+  // The chosen frame arrived long before; the newest arrival lies ahead of now by more than a period.
+  InputTiming t = at(kLast - kPeriod);
+  t.chosen_arrival_s = kLast - 1.0;
+  EXPECT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kNone);
+  t.now_s = kLast;  // the next arrival a period ahead: waited for
+  EXPECT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kStale);
+}
+
+TEST_F(WaitForNextTest, AKeyframeDueOrNoPredictionIsTakenNow) {
+  const InputTiming stale = at(kLast + kPeriod / 2);
+  // 0.3 m/s: due at 4 s (1.2 m from the keyframe), not at 3 s.
+  FrameSkipRule fast(camera(), KeyframeOptions());
+  fast.observe(matched(0.0, Pose2(), Pose2()));
+  fast.observe(matched(1.0, Pose2(0.3, 0, 0), Pose2()));
+  const std::vector<WaitingFrame> safe = waitingAt({2.0, 3.0});
+  ASSERT_EQ(fast.choose(safe).reason, Reason::kNewestSafe);
+  EXPECT_EQ(waitForNext(fast, safe, fast.choose(safe), stale, kFraction).why, WaitAdvice::Why::kStale) << "control";
+  // The newest is the first frame due: kKeyframeDue at the newest.
+  const std::vector<WaitingFrame> due_newest = waitingAt({2.0, 3.0, 4.0});
+  const FrameSkipRule::Choice c = fast.choose(due_newest);
+  ASSERT_EQ(c.index, 2u);
+  ASSERT_EQ(c.reason, Reason::kKeyframeDue);
+  EXPECT_EQ(waitForNext(fast, due_newest, c, stale, kFraction).why, WaitAdvice::Why::kNone);
+  // Even labelled newest-safe, a newest frame a keyframe is due at is not passed over.
+  EXPECT_EQ(waitForNext(fast, due_newest, {2, Reason::kNewestSafe}, stale, kFraction).why, WaitAdvice::Why::kNone);
+  // Alone and due.
+  EXPECT_EQ(waitForNext(fast, waitingAt({4.0}), {0, Reason::kOnlyOne}, stale, kFraction).why, WaitAdvice::Why::kNone);
+  // An older frame a keyframe is due at (newer ones waiting).
+  const std::vector<WaitingFrame> due_older = waitingAt({2.0, 3.0, 4.0, 5.0});
+  const FrameSkipRule::Choice older = fast.choose(due_older);
+  ASSERT_EQ(older.index, 2u);
+  ASSERT_EQ(older.reason, Reason::kKeyframeDue);
+  EXPECT_EQ(waitForNext(fast, due_older, older, stale, kFraction).why, WaitAdvice::Why::kNone);
+  // An earlier prepared frame, safe but not the newest.
+  EXPECT_EQ(advice(waiting_, stale).why, WaitAdvice::Why::kStale) << "control";
+  const FrameSkipRule::Choice prepared = rule_.choose(waiting_, {true, true, false});
+  ASSERT_EQ(prepared.reason, Reason::kPrepared);
+  EXPECT_EQ(waitForNext(rule_, waiting_, prepared, stale, kFraction).why, WaitAdvice::Why::kNone);
+  // No prediction (a fresh session): the oldest of several, or the only one, taken now.
+  FrameSkipRule fresh(camera(), KeyframeOptions());
+  ASSERT_EQ(fresh.choose(waiting_).reason, Reason::kOldest);
+  EXPECT_EQ(waitForNext(fresh, waiting_, fresh.choose(waiting_), stale, kFraction).why, WaitAdvice::Why::kNone);
+  EXPECT_EQ(waitForNext(fresh, waiting_, {2, Reason::kNewestSafe}, stale, kFraction).why, WaitAdvice::Why::kNone);
+  const std::vector<WaitingFrame> one = waitingAt({4.0});
+  ASSERT_EQ(fresh.choose(one).reason, Reason::kOnlyOne);
+  EXPECT_EQ(waitForNext(fresh, one, fresh.choose(one), stale, kFraction).why, WaitAdvice::Why::kNone);
+  // Nothing waiting, or a choice past the end.
+  EXPECT_EQ(waitForNext(rule_, {}, {0, Reason::kOnlyOne}, stale, kFraction).why, WaitAdvice::Why::kNone);
+  EXPECT_EQ(waitForNext(rule_, waiting_, {3, Reason::kNewestSafe}, stale, kFraction).why, WaitAdvice::Why::kNone);
+}
+
+TEST_F(WaitForNextTest, AFractionOfOneOrAnUnknownTimingNeverWaits) {
+  const InputTiming stale = at(kLast + kPeriod / 2);
+  ASSERT_EQ(advice(waiting_, stale).why, WaitAdvice::Why::kStale);
+  EXPECT_EQ(advice(waiting_, stale, 0.0).why, WaitAdvice::Why::kStale) << "0: any wait is too long";
+  for (const double fraction : {1.0, 2.0, std::nan("")})
+    EXPECT_EQ(advice(waiting_, stale, fraction).why, WaitAdvice::Why::kNone) << fraction;
+  for (const double period : {0.0, -kPeriod, std::nan("")}) {
+    InputTiming t = stale;
+    t.period_s = period;
+    EXPECT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kNone) << "period " << period;
+  }
+  InputTiming none = stale;
+  none.last_arrival_s = 0.0;
+  EXPECT_EQ(advice(waiting_, none).why, WaitAdvice::Why::kNone) << "no arrival yet";
+}
+
+TEST_F(WaitForNextTest, AWorkerThatKeepsUpOnAverageOrIrregularArrivalsNeverWait) {
+  InputTiming t = at(kLast + kPeriod / 2);  // stale
+  ASSERT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kStale);
+  t.cost_s = kPeriod;  // keeps up on average: the late frame is processed, not skipped
+  EXPECT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kNone);
+  t.cost_s = 0.0;  // not measured yet
+  EXPECT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kNone);
+  t.cost_s = 2 * kPeriod;
+  t.jitter_s = kPeriod / 2;  // at the bound: still regular
+  EXPECT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kStale);
+  t.jitter_s = kPeriod;  // bursts (frames paired with a slower altimeter): no next arrival to wait for
+  EXPECT_EQ(advice(waiting_, t).why, WaitAdvice::Why::kNone);
+}
+
+TEST(FrameBudget, TheJitterIsTheMeanDeviationOfTheIntervals) {
+  FrameBudget regular(4), bursts(4);
+  for (int i = 0; i < 40; ++i) regular.arrived(0.1 * i);
+  EXPECT_NEAR(regular.inputJitterMs(), 0.0, 1e-6);
+  // Five frames at once every 0.5 s (a 10 Hz camera paired with a 2 Hz altimeter): period 100 ms on
+  // average, intervals 0 or 500 ms.
+  for (int burst = 0; burst < 20; ++burst)
+    for (int k = 0; k < 5; ++k) bursts.arrived(0.5 * burst + 1e-6 * k);
+  EXPECT_GT(bursts.inputJitterMs(), 0.5 * bursts.inputPeriodMs());
 }
 
 }  // namespace

@@ -430,6 +430,91 @@ TEST_F(OdometryTest, EachFramesCovarianceIsTheChainsComposedToFirstOrder) {
   EXPECT_GE(odo.stats().keyframes, 3);
 }
 
+// Keyframes ahead (OdometryInput::keyframe_lookahead_s) on a straight run at constant velocity:
+// 0.2 m steps 0.5 s apart along x, a footprint 2.13 m wide. The keyframe rule (overlap < 0.5, from
+// 1.067 m on) takes every 6th frame (1.2 m, overlap 0.44; the 5th lies at 1.0 m, overlap 0.53).
+struct LookaheadRun {
+  std::vector<int> keyframes;  // frame indexes, the first included
+  std::vector<int> early;      // ... of them, made early (OdometryUpdate::early_keyframe)
+  std::vector<double> early_overlap;
+  std::vector<int> klt_frames;  // frames KLT tracked (klt.enabled)
+  OdometryStats stats;
+};
+
+class LookaheadTest : public OdometryTest {
+ protected:
+  LookaheadRun run(double lookahead_s, bool klt) const {
+    OdometryOptions o;
+    o.klt.enabled = klt;
+    Odometry odo(camera_, o);
+    LookaheadRun r;
+    for (int k = 0; k <= 12; ++k) {
+      OdometryInput in{k, 0.5 * k, 2.0, render(Pose2(1.8 + 0.2 * k, 3.0, 0.0), 2.0)};
+      in.keyframe_lookahead_s = lookahead_s;
+      const OdometryUpdate u = odo.process(in);
+      EXPECT_TRUE(u.status == FrameStatus::kFirstKeyframe || u.status == FrameStatus::kKeyframe ||
+                  u.status == FrameStatus::kTracked)
+          << "frame " << k << ": " << u.reason;
+      EXPECT_NEAR(u.pose.x(), 0.2 * k, 0.02) << "frame " << k;
+      if (u.keyframe_id >= 0) r.keyframes.push_back(k);
+      if (u.early_keyframe) {
+        EXPECT_GE(u.keyframe_id, 0) << "frame " << k;
+        r.early.push_back(k);
+        r.early_overlap.push_back(u.overlap);
+      }
+      if (u.klt) r.klt_frames.push_back(k);
+    }
+    r.stats = odo.stats();
+    return r;
+  }
+};
+
+TEST_F(LookaheadTest, AKeyframeDueAtTheFrameThatWillWaitIsMadeOneFrameEarlierNeverLater) {
+  const LookaheadRun rule = run(0.0, false);
+  ASSERT_EQ(rule.keyframes, (std::vector<int>{0, 6, 12})) << "the rule's keyframes, every frame processed";
+  EXPECT_TRUE(rule.early.empty()) << "no lookahead: nothing early";
+  EXPECT_EQ(rule.stats.early_keyframes, 0);
+  // The next frame (one interval ahead) will wait: its keyframe is made at the frame before.
+  const LookaheadRun one = run(0.5, false);
+  EXPECT_EQ(one.keyframes, (std::vector<int>{0, 5, 10}));
+  EXPECT_EQ(one.early, (std::vector<int>{5, 10}));
+  EXPECT_EQ(one.stats.early_keyframes, 2);
+  EXPECT_EQ(one.stats.keyframes, 3);
+  // Early: the rule did not take them (their overlap is still above min_overlap).
+  for (const double overlap : one.early_overlap) {
+    EXPECT_GE(overlap, OdometryOptions().keyframes.min_overlap);
+    EXPECT_NEAR(overlap, 1.0 - 1.0 / (320 / 300.0 * 2.0), 0.02);  // 1.0 m of 2.13 m
+  }
+  // Two intervals ahead: two frames earlier.
+  const LookaheadRun two = run(1.0, false);
+  EXPECT_EQ(two.keyframes, (std::vector<int>{0, 4, 8, 12}));
+  EXPECT_EQ(two.early, (std::vector<int>{4, 8, 12}));
+  EXPECT_EQ(two.stats.early_keyframes, 3);
+  // Not finite or negative: the rule as it is.
+  for (const double bad : {std::nan(""), -0.5, std::numeric_limits<double>::infinity()}) {
+    const LookaheadRun r = run(bad, false);
+    EXPECT_EQ(r.keyframes, rule.keyframes) << bad;
+    EXPECT_EQ(r.stats.early_keyframes, 0) << bad;
+  }
+}
+
+// With KLT between keyframes: a frame KLT tracked whose lookahead is due goes the full way (SIFT)
+// and becomes the keyframe, as a frame the rule itself takes does.
+TEST_F(LookaheadTest, AKltFrameWhoseLookaheadIsDueIsExtractedAndMadeTheKeyframe) {
+  const LookaheadRun rule = run(0.0, true);
+  ASSERT_EQ(rule.keyframes, (std::vector<int>{0, 6, 12}));
+  EXPECT_EQ(rule.klt_frames, (std::vector<int>{1, 2, 3, 4, 5, 7, 8, 9, 10, 11}));
+  EXPECT_EQ(rule.stats.early_keyframes, 0);
+  const LookaheadRun one = run(0.5, true);
+  EXPECT_EQ(one.keyframes, (std::vector<int>{0, 5, 10}));
+  EXPECT_EQ(one.early, (std::vector<int>{5, 10}));
+  EXPECT_EQ(one.stats.early_keyframes, 2);
+  EXPECT_EQ(one.klt_frames, (std::vector<int>{1, 2, 3, 4, 6, 7, 8, 9, 11, 12}));
+  EXPECT_EQ(one.stats.klt_extracted, 2) << "frames 5 and 10: tracked, then extracted";
+  EXPECT_EQ(one.stats.klt_degraded, 0);
+  for (const double overlap : one.early_overlap) EXPECT_GE(overlap, OdometryOptions().keyframes.min_overlap);
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam

@@ -133,6 +133,13 @@ struct OdometryInput {
   cv::Mat image;  // 8-bit BGR or grey
   /// The vehicle's dead-reckoned nav at stamp_s (frame and conventions of gt.csv), if any.
   std::optional<NavRecord> nav = std::nullopt;
+  /// > 0: the frames within this span (s of stamps) after this one will not be processed before a
+  /// newer one (a live odometry behind its camera, taking the newest frame: they arrive while this
+  /// one is processed, core/frontend/frame_skip.h). If the keyframe rule would take one of them,
+  /// predicted at this frame's velocity, this frame becomes the keyframe now (counted in
+  /// early_keyframes): earlier, at a higher overlap, rather than at a frame that would wait behind
+  /// a newer one. 0: the rule as it is (every frame processed).
+  double keyframe_lookahead_s = 0.0;
 };
 
 enum class FrameStatus {
@@ -153,10 +160,11 @@ struct OdometryUpdate {
   /// Its covariance: the motions since the session's first frame composed to first order (the
   /// keyframes' chain, then this frame's motion from the last keyframe), as Trajectory::absolute.
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
-  int keyframe_id = -1;  // new keyframe's id (trajectory index) when one was made
-  int features = 0;      // SIFT features extracted (0 for a frame tracked by KLT)
-  int tracks = 0;        // KLT tracks from the last keyframe, when tracked (klt.enabled)
-  bool klt = false;      // the frame's motion is KLT's (no extraction)
+  int keyframe_id = -1;         // new keyframe's id (trajectory index) when one was made
+  bool early_keyframe = false;  // made a keyframe by OdometryInput::keyframe_lookahead_s, not by the rule itself
+  int features = 0;             // SIFT features extracted (0 for a frame tracked by KLT)
+  int tracks = 0;               // KLT tracks from the last keyframe, when tracked (klt.enabled)
+  bool klt = false;             // the frame's motion is KLT's (no extraction)
   int matches = 0;
   int inliers = 0;
   double overlap = 0.0;  // with the last keyframe, when matched
@@ -198,8 +206,9 @@ struct OdometryStats {
   int keyframes = 0;
   int tracked = 0;
   int fallbacks = 0;
-  int bridged = 0;     // ... of them, bridged (no keyframe, no reused motion)
-  int promotions = 0;  // previous frames promoted to keyframe after a failed match
+  int bridged = 0;          // ... of them, bridged (no keyframe, no reused motion)
+  int promotions = 0;       // previous frames promoted to keyframe after a failed match
+  int early_keyframes = 0;  // keyframes made ahead of the rule (OdometryInput::keyframe_lookahead_s)
   int skipped_image = 0;
   int skipped_altitude = 0;
   int altitude_reused = 0;
@@ -315,6 +324,9 @@ class Odometry {
   void addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback,
                    MotionSource source = MotionSource::kVisual);
   bool needsKeyframe(const RansacResult& r, double overlap, double stamp_s) const;
+  // Whether the keyframe rule would take a frame `lookahead_s_` after one at `pose` (session frame)
+  // and `stamp_s`, at the velocity since the previous frame (OdometryInput::keyframe_lookahead_s).
+  bool dueAhead(const Pose2& pose, double stamp_s, double altitude_m) const;
   // A session the nav carries across vision's gaps: it ends (OdometryUpdate::nav_loss) rather than
   // reuse the previous motion when neither vision nor an accepted nav reading gives one.
   bool navStream() const {
@@ -326,7 +338,8 @@ class Odometry {
   OdometryOptions options_;
   FramePreparer preparer_;
   KltTracker klt_;
-  cv::Mat prev_grey_;  // prev_'s enhanced image when it was tracked by KLT (no features yet)
+  double lookahead_s_ = 0.0;  // the frame in process()'s OdometryInput::keyframe_lookahead_s
+  cv::Mat prev_grey_;         // prev_'s enhanced image when it was tracked by KLT (no features yet)
   Trajectory trajectory_;
   std::vector<KeyframeInfo> keyframes_;
   TrackedFrame last_kf_;

@@ -69,7 +69,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::string silentInput(double now);
   void logStats(const std::string& when);
   void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
-  static double wallNow() { return ros::WallTime::now().toSec(); }
+  static double steadyNow() { return ros::SteadyTime::now().toSec(); }  // timeouts, arrivals: never steps
 
   ros_params::OdometryNodeletOptions options_;
   std::unique_ptr<ros_work::BoundedWorkQueue<Frame>> queue_;  // pushed(): frames paired, popped(): taken
