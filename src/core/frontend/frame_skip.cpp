@@ -181,7 +181,7 @@ WaitAdvice waitForNext(const FrameSkipRule& rule, const std::vector<WaitingFrame
   if (rule.keyframeDue(newest.stamp_s, newest.altitude_m) != std::optional<bool>(false)) return {};
   if (!(stale_fraction < 1.0) || !(t.period_s > 0) || !(t.last_arrival_s > 0)) return {};
   if (!(t.cost_s > t.period_s) || !(t.jitter_s <= 0.5 * t.period_s)) return {};  // keeping up, or irregular
-  const double next = t.last_arrival_s + t.period_s;                              // the next frame's expected arrival
+  const double next = t.last_arrival_s + t.period_s;                             // the next frame's expected arrival
   // The margin for the arrivals' jitter: four mean deviations, within [1/8, 1/2] period. Overdue
   // beyond it (the input stopped or slowed: the last frame of a run) or a clock step: no wait.
   const double until = next + std::clamp(4.0 * t.jitter_s, 0.125 * t.period_s, 0.5 * t.period_s);
