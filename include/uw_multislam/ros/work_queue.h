@@ -249,7 +249,7 @@ void drainWithPrepareAhead(BoundedWorkQueue<T>& queue, int threads, Prepare prep
   });
   const std::size_t n = static_cast<std::size_t>(threads < 0 ? 0 : threads);
   for (;;) {
-    T item;
+    T item{};  // value-initialised: gcc 10 (bullseye) warns maybe-uninitialized for T = int otherwise
     const bool now = ahead.pending() == 0;  // nothing in preparation: this item is processed as it is
     if (now && !queue.pop(&item)) return;   // closed and drained
     for (T next; ahead.pending() < n + (now ? 0 : 1) && queue.tryPop(&next); next = T()) ahead.submit(std::move(next));
@@ -316,7 +316,7 @@ void drainNewest(BoundedWorkQueue<T>& queue, std::size_t bound, core::OrderedPre
     }
     return s;
   };
-  T item;
+  T item{};
   while (deadline.reset(), queue.popSelected(&item, select, on_skip)) {
     const auto start = std::chrono::steady_clock::now();
     std::optional<P> prepared;
