@@ -8,6 +8,7 @@
 #include <utility>
 #include <vector>
 
+#include "../../common/fixtures.h"
 #include "uw_multislam/core/frontend/frame_skip.h"
 
 namespace uw_multislam {
@@ -18,15 +19,7 @@ using Reason = FrameSkipRule::Reason;
 
 constexpr double kAltitude = 2.0;
 
-CameraIntrinsics camera() {
-  CameraIntrinsics c;
-  c.width = 320;
-  c.height = 240;
-  c.fx = c.fy = 300.0;
-  c.cx = 160.0;
-  c.cy = 120.0;
-  return c;  // at 2 m: a footprint of 2.13 m x 1.6 m
-}
+using testing_util::camera320;
 
 // A matched frame at `pose`, with the session's last keyframe at `keyframe`.
 ProcessedFrame matched(double stamp_s, const Pose2& pose, const Pose2& keyframe, double keyframe_stamp_s = 0.0) {
@@ -48,7 +41,7 @@ std::vector<WaitingFrame> waitingAt(const std::vector<double>& stamps) {
 }
 
 TEST(FootprintOverlap, IsTheSharedFractionOfTheFootprint) {
-  const CameraIntrinsics c = camera();
+  const CameraIntrinsics c = camera320();
   EXPECT_NEAR(footprintOverlap(c, Pose2(), kAltitude, kAltitude), 1.0, 1e-6);
   // 2.1333 m wide: a quarter of the width along x leaves three quarters.
   EXPECT_NEAR(footprintOverlap(c, Pose2(0.25 * 320 / 300.0 * kAltitude, 0, 0), kAltitude, kAltitude), 0.75, 1e-4);
@@ -59,7 +52,7 @@ TEST(FootprintOverlap, IsTheSharedFractionOfTheFootprint) {
 // a rotation of 1e-6 rad gave an overlap of 1.0 for a shift that leaves 0.44 (a keyframe the rule
 // never took) and 0.48 for one that leaves 0.72 (a keyframe too early).
 TEST(FootprintOverlap, IsRightForFootprintsNearlyAlignedWithTheKeyframes) {
-  const CameraIntrinsics c = camera();
+  const CameraIntrinsics c = camera320();
   const double w = 320 / 300.0 * kAltitude, h = 240 / 300.0 * kAltitude;
   for (const double x : {0.2, 0.4, 0.6, 0.8, 1.0, 1.2})
     for (const auto& [y, yaw] : std::vector<std::pair<double, double>>{
@@ -75,7 +68,7 @@ TEST(FootprintOverlap, IsRightForFootprintsNearlyAlignedWithTheKeyframes) {
 }
 
 TEST(FrameSkipRule, WithoutAPredictionTheOldestFrameIsTaken) {
-  FrameSkipRule rule(camera(), KeyframeOptions());
+  FrameSkipRule rule(camera320(), KeyframeOptions());
   EXPECT_EQ(rule.choose(waitingAt({1.0})).reason, Reason::kOnlyOne);
   const auto none = rule.choose(waitingAt({1.0, 2.0, 3.0}));
   EXPECT_EQ(none.index, 0u);
@@ -103,7 +96,7 @@ TEST(FrameSkipRule, WithoutAPredictionTheOldestFrameIsTaken) {
 }
 
 TEST(FrameSkipRule, TheNewestFrameIsTakenWhileNoKeyframeIsDue) {
-  FrameSkipRule rule(camera(), KeyframeOptions());
+  FrameSkipRule rule(camera320(), KeyframeOptions());
   rule.observe(matched(0.0, Pose2(), Pose2()));
   rule.observe(matched(1.0, Pose2(0.1, 0, 0), Pose2()));  // 0.1 m/s along x, keyframe at 0
   // Predicted at 4 s: 0.4 m from the keyframe, overlap 0.81 > 0.5.
@@ -114,7 +107,7 @@ TEST(FrameSkipRule, TheNewestFrameIsTakenWhileNoKeyframeIsDue) {
 }
 
 TEST(FrameSkipRule, WhenTheNewestIsTooFarTheFirstFrameAKeyframeIsDueAtIsTaken) {
-  FrameSkipRule rule(camera(), KeyframeOptions());  // min_overlap 0.5: due beyond 1.067 m along x
+  FrameSkipRule rule(camera320(), KeyframeOptions());  // min_overlap 0.5: due beyond 1.067 m along x
   rule.observe(matched(0.0, Pose2(), Pose2()));
   rule.observe(matched(1.0, Pose2(0.3, 0, 0), Pose2()));  // 0.3 m/s
   // 0.9 m (overlap 0.58), 1.2 m (0.44), 1.5 m (0.30): the newest is too far from the keyframe.
@@ -130,7 +123,7 @@ TEST(FrameSkipRule, WhenTheNewestIsTooFarTheFirstFrameAKeyframeIsDueAtIsTaken) {
 // Frames prepared on arrival by another thread (~prepare_threads): an earlier safe frame whose
 // preparation is under way beats a chosen one whose preparation has not started.
 TEST(FrameSkipRule, AnEarlierSafeFrameUnderPreparationIsPreferredToOneNotStarted) {
-  FrameSkipRule rule(camera(), KeyframeOptions());
+  FrameSkipRule rule(camera320(), KeyframeOptions());
   rule.observe(matched(0.0, Pose2(), Pose2()));
   rule.observe(matched(1.0, Pose2(0.1, 0, 0), Pose2()));  // 0.1 m/s: no keyframe due up to 4 s
   const std::vector<WaitingFrame> w = waitingAt({2.0, 3.0, 4.0});
@@ -154,7 +147,7 @@ TEST(FrameSkipRule, AnEarlierSafeFrameUnderPreparationIsPreferredToOneNotStarted
 }
 
 TEST(FrameSkipRule, APreparedFrameIsTakenOnlyWhereItIsSafe) {
-  FrameSkipRule rule(camera(), KeyframeOptions());
+  FrameSkipRule rule(camera320(), KeyframeOptions());
   rule.observe(matched(0.0, Pose2(), Pose2()));
   rule.observe(matched(1.0, Pose2(0.3, 0, 0), Pose2()));  // 0.3 m/s: due from 4 s on
   const std::vector<WaitingFrame> w = waitingAt({2.0, 3.0, 4.0, 5.0});
@@ -166,7 +159,7 @@ TEST(FrameSkipRule, APreparedFrameIsTakenOnlyWhereItIsSafe) {
   // Only a later frame under way: never a frame past the one a keyframe is due at.
   EXPECT_EQ(rule.preferPrepared(w, due, {false, false, false, true}).index, 2u);
   // Without a prediction nothing is known to be safe: the choice (the oldest) stays.
-  FrameSkipRule fresh(camera(), KeyframeOptions());
+  FrameSkipRule fresh(camera320(), KeyframeOptions());
   const FrameSkipRule::Choice oldest = fresh.choose(w);
   ASSERT_EQ(oldest.reason, Reason::kOldest);
   EXPECT_EQ(fresh.preferPrepared(w, oldest, {false, true, true, true}).index, 0u);
@@ -176,14 +169,14 @@ TEST(FrameSkipRule, APreparedFrameIsTakenOnlyWhereItIsSafe) {
 TEST(FrameSkipRule, ATurnOrTheTimeLimitMakeAKeyframeDueLikeTheKeyframeRule) {
   KeyframeOptions k;
   k.max_rotation_rad = 0.5;
-  FrameSkipRule turning(camera(), k);
+  FrameSkipRule turning(camera320(), k);
   turning.observe(matched(0.0, Pose2(), Pose2()));
   turning.observe(matched(1.0, Pose2(0, 0, 0.2), Pose2()));  // turning in place, 0.2 rad/s
   EXPECT_EQ(turning.keyframeDue(2.0, kAltitude), std::optional<bool>(false));
   EXPECT_EQ(turning.keyframeDue(3.0, kAltitude), std::optional<bool>(true));  // 0.6 rad
   EXPECT_EQ(turning.choose(waitingAt({2.0, 3.0, 4.0})).index, 1u);
   k.max_interval_s = 2.5;
-  FrameSkipRule timed(camera(), k);
+  FrameSkipRule timed(camera320(), k);
   timed.observe(matched(0.0, Pose2(), Pose2(), 0.0));
   timed.observe(matched(1.0, Pose2(), Pose2(), 0.0));  // standing still
   EXPECT_EQ(timed.keyframeDue(2.0, kAltitude), std::optional<bool>(false));
@@ -191,12 +184,12 @@ TEST(FrameSkipRule, ATurnOrTheTimeLimitMakeAKeyframeDueLikeTheKeyframeRule) {
 }
 
 TEST(FrameSkipRule, AHigherAltitudeWidensTheFootprint) {
-  FrameSkipRule low(camera(), KeyframeOptions());
+  FrameSkipRule low(camera320(), KeyframeOptions());
   low.observe(matched(0.0, Pose2(), Pose2()));
   low.observe(matched(1.0, Pose2(0.3, 0, 0), Pose2()));
   EXPECT_EQ(low.keyframeDue(4.0, kAltitude), std::optional<bool>(true));  // 1.2 m of a 2.13 m footprint: 0.44
   EXPECT_EQ(low.keyframeDue(4.0, std::nan("")), std::optional<bool>(true)) << "unknown: the last frame's altitude";
-  FrameSkipRule high(camera(), KeyframeOptions());
+  FrameSkipRule high(camera320(), KeyframeOptions());
   for (double t : {0.0, 1.0}) {
     ProcessedFrame p = matched(t, Pose2(0.3 * t, 0, 0), Pose2());
     p.altitude_m = p.keyframe_altitude_m = 4.0;
@@ -225,7 +218,7 @@ Pose2 truth(int i) {
 }
 
 SkipRun simulate(int frames, double speedup, bool skip) {
-  const CameraIntrinsics c = camera();
+  const CameraIntrinsics c = camera320();
   KeyframeOptions k;
   FrameSkipRule rule(c, k);
   SkipRun run;
@@ -279,7 +272,7 @@ TEST(FrameSkipRule, SkippingKeepsTheKeyframesOfProcessingEveryFrame) {
   }
   // Without the rule (the newest frame, always) links are weaker than processing every frame's:
   // the comparison above could fail.
-  const CameraIntrinsics c = camera();
+  const CameraIntrinsics c = camera320();
   const double newest_link = footprintOverlap(c, between(truth(0), truth(12)), kAltitude, kAltitude);
   EXPECT_LT(newest_link, *std::min_element(every.link_overlap.begin(), every.link_overlap.end()));
 }
@@ -367,7 +360,7 @@ class WaitForNextTest : public ::testing::Test {
   static constexpr double kPeriod = 0.125, kLast = 100.0, kFraction = 0.25;
   static constexpr double kNext = kLast + kPeriod, kUntil = kNext + kPeriod / 8;  // jitter 0: the least margin
 
-  WaitForNextTest() : rule_(camera(), KeyframeOptions()) {
+  WaitForNextTest() : rule_(camera320(), KeyframeOptions()) {
     rule_.observe(matched(0.0, Pose2(), Pose2()));
     rule_.observe(matched(1.0, Pose2(0.1, 0, 0), Pose2()));
   }
@@ -439,7 +432,7 @@ TEST_F(WaitForNextTest, AClockThatSteppedBackIsNotWaitedOn) {
 TEST_F(WaitForNextTest, AKeyframeDueOrNoPredictionIsTakenNow) {
   const InputTiming stale = at(kLast + kPeriod / 2);
   // 0.3 m/s: due at 4 s (1.2 m from the keyframe), not at 3 s.
-  FrameSkipRule fast(camera(), KeyframeOptions());
+  FrameSkipRule fast(camera320(), KeyframeOptions());
   fast.observe(matched(0.0, Pose2(), Pose2()));
   fast.observe(matched(1.0, Pose2(0.3, 0, 0), Pose2()));
   const std::vector<WaitingFrame> safe = waitingAt({2.0, 3.0});
@@ -467,7 +460,7 @@ TEST_F(WaitForNextTest, AKeyframeDueOrNoPredictionIsTakenNow) {
   ASSERT_EQ(prepared.reason, Reason::kPrepared);
   EXPECT_EQ(waitForNext(rule_, waiting_, prepared, stale, kFraction).why, WaitAdvice::Why::kNone);
   // No prediction (a fresh session): the oldest of several, or the only one, taken now.
-  FrameSkipRule fresh(camera(), KeyframeOptions());
+  FrameSkipRule fresh(camera320(), KeyframeOptions());
   ASSERT_EQ(fresh.choose(waiting_).reason, Reason::kOldest);
   EXPECT_EQ(waitForNext(fresh, waiting_, fresh.choose(waiting_), stale, kFraction).why, WaitAdvice::Why::kNone);
   EXPECT_EQ(waitForNext(fresh, waiting_, {2, Reason::kNewestSafe}, stale, kFraction).why, WaitAdvice::Why::kNone);

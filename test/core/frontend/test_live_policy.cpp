@@ -11,6 +11,7 @@
 #include <utility>
 #include <vector>
 
+#include "../../common/fixtures.h"
 #include "uw_multislam/core/frontend/frame_skip.h"
 
 namespace uw_multislam {
@@ -19,15 +20,7 @@ namespace {
 
 constexpr double kAltitude = 2.0;
 
-CameraIntrinsics camera() {
-  CameraIntrinsics c;
-  c.width = 320;
-  c.height = 240;
-  c.fx = c.fy = 300.0;
-  c.cx = 160.0;
-  c.cy = 120.0;
-  return c;  // at 2 m: a footprint of 2.13 m x 1.6 m
-}
+using testing_util::camera320;
 
 // 0.06 m per frame along x for 80 frames, then a turn of 0.02 rad per frame while moving.
 Pose2 truth(int i) {
@@ -53,7 +46,7 @@ struct SimRun {
 
 // Frames arrive at i (periods), stamped i; a frame costs `cost` periods.
 SimRun simulate(int frames, double cost, const Policy& policy) {
-  const CameraIntrinsics c = camera();
+  const CameraIntrinsics c = camera320();
   const KeyframeOptions k;
   FrameSkipRule rule(c, k);
   SimRun run;

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <memory>
 
+#include "../../common/fixtures.h"
 #include "../../common/scoped_temp_dir.h"
 #include "uw_multislam/core/session/export_root.h"
 #include "uw_multislam/core/session/live_mosaic.h"
@@ -19,15 +20,7 @@ namespace {
 
 constexpr double kAltitude = 1.6;
 
-CameraIntrinsics camera() {
-  CameraIntrinsics c;
-  c.width = 240;
-  c.height = 180;
-  c.fx = c.fy = 220.0;
-  c.cx = 119.5;
-  c.cy = 89.5;
-  return c;
-}
+CameraIntrinsics camera() { return testing_util::pinholeCamera(240, 180, 220.0, 119.5, 89.5); }
 
 // A thumbnail-sized JPEG (the whole image resized, as the store keeps it): left half `left`,
 // right half `right` (BGR).

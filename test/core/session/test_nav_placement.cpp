@@ -11,6 +11,7 @@
 #include <random>
 #include <vector>
 
+#include "../../common/fixtures.h"
 #include "../../common/rendered_seabed.h"
 #include "../../common/scoped_temp_dir.h"
 #include "../../common/sql_file.h"
@@ -343,16 +344,8 @@ SessionManagerOptions managerOptions(const std::string& store = "") {
 }
 
 KeyframeInput keyframeAt(int session, int k, const Pose2& pose, const Pose2& previous) {
-  KeyframeInput in;
-  in.session = session;
-  in.keyframe = k;
-  in.frame_index = 10 * k;
-  in.stamp_s = 100.0 * session + k;
-  in.altitude_m = 2.0;
-  in.camera = CameraIntrinsics{640, 480, 500.0, 500.0, 320.0, 240.0};
-  in.motion = UncertainPose2(between(previous, pose), Eigen::Vector3d(1e-6, 1e-6, 1e-8).asDiagonal());
-  in.odometry_pose = pose;
-  return in;
+  return testing_util::keyframeInput(
+      session, k, pose, UncertainPose2(between(previous, pose), Eigen::Vector3d(1e-6, 1e-6, 1e-8).asDiagonal()));
 }
 
 // Session 0: 8 keyframes 1 m apart along x. Session 1 (after a tracking loss) starts at

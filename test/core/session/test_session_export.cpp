@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <memory>
 
+#include "../../common/fixtures.h"
 #include "../../common/scoped_temp_dir.h"
 #include "uw_multislam/core/session/session_export.h"
 
@@ -16,19 +17,9 @@ namespace {
 namespace fs = std::filesystem;
 
 KeyframeInput keyframe(int s, int k) {
-  KeyframeInput in;
-  in.session = s;
-  in.keyframe = k;
-  in.frame_index = k;
-  in.stamp_s = 100.0 * s + k;
-  in.altitude_m = 2.0;
-  in.camera.width = 640;
-  in.camera.height = 480;
-  in.camera.fx = in.camera.fy = 500;
-  in.camera.cx = 320;
-  in.camera.cy = 240;
-  in.odometry_pose = Pose2(k, 0, 0);
-  in.motion = UncertainPose2(k == 0 ? Pose2() : Pose2(1, 0, 0), Eigen::Matrix3d::Identity() * 1e-4);
+  KeyframeInput in = testing_util::keyframeInput(
+      s, k, Pose2(k, 0, 0), UncertainPose2(k == 0 ? Pose2() : Pose2(1, 0, 0), Eigen::Matrix3d::Identity() * 1e-4));
+  in.frame_index = k;  // one frame a keyframe here
   return in;
 }
 

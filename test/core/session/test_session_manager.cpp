@@ -10,6 +10,7 @@
 #include <optional>
 #include <tuple>
 
+#include "../../common/fixtures.h"
 #include "../../common/scoped_temp_dir.h"
 #include "../../common/seabed_features.h"
 #include "../../common/sql_file.h"
@@ -31,20 +32,8 @@ SessionManagerOptions options(const std::string& store = "") {
 }
 
 KeyframeInput keyframe(int session, int k, const Pose2& pose, const Pose2& previous) {
-  KeyframeInput in;
-  in.session = session;
-  in.keyframe = k;
-  in.frame_index = 10 * k;
-  in.stamp_s = 100.0 * session + k;
-  in.altitude_m = 2.0;
-  in.camera.width = 640;
-  in.camera.height = 480;
-  in.camera.fx = in.camera.fy = 500;
-  in.camera.cx = 320;
-  in.camera.cy = 240;
-  in.motion = UncertainPose2(between(previous, pose), Eigen::Matrix3d::Identity() * 1e-4);
-  in.odometry_pose = pose;
-  return in;
+  return testing_util::keyframeInput(session, k, pose,
+                                     UncertainPose2(between(previous, pose), Eigen::Matrix3d::Identity() * 1e-4));
 }
 
 /// Session `s`: n keyframes one metre apart along x, starting at the session's origin.

@@ -15,6 +15,7 @@
 #include <map>
 #include <random>
 
+#include "../../common/fixtures.h"
 #include "../../common/scoped_temp_dir.h"
 #include "../../common/sql_file.h"
 #include "uw_multislam/core/loops/loop_detector.h"
@@ -42,15 +43,7 @@ Eigen::Matrix3d diag(double sxy, double syaw) {
   return Eigen::Vector3d(sxy * sxy, sxy * sxy, syaw * syaw).asDiagonal();
 }
 
-CameraIntrinsics camera() {
-  CameraIntrinsics c;
-  c.width = 320;
-  c.height = 240;
-  c.fx = c.fy = 300.0;
-  c.cx = 160.0;
-  c.cy = 120.0;
-  return c;
-}
+using testing_util::camera320;
 
 // A keyframe with random features (n points) and a random hash.
 StoredKeyframe randomKeyframe(std::int64_t session, int k, int n, std::mt19937* rng) {
@@ -81,7 +74,7 @@ struct Recorder {
 
   int start(const std::string& name) {
     const int s = backend->startSession(name);
-    session_ids.push_back(store->addSession(name, camera(), 0.0));
+    session_ids.push_back(store->addSession(name, camera320(), 0.0));
     StoredKeyframe kf = randomKeyframe(session_ids[s], 0, 20, &rng);
     store->addKeyframe(kf, nullptr, nullptr);
     return s;
@@ -413,7 +406,7 @@ TEST(Store, KeyframeFeaturesComeBackExactly) {
   StoredKeyframe kf = randomKeyframe(0, 0, 500, &rng);
   {
     SessionStore store(path);
-    kf.session = store.addSession("s", camera(), 10.0);
+    kf.session = store.addSession("s", camera320(), 10.0);
     store.addKeyframe(kf, nullptr, nullptr);
   }
   SessionStore store(path);
@@ -437,8 +430,9 @@ TEST(Store, FrameDataAreReadFromACoveringIndexThatOlderStoresGetWhenOpened) {
   std::int64_t s = 0;
   auto plan = [&](SessionStore& store, const char* columns = "") {
     sqlite3_stmt* st = nullptr;
-    const std::string sql = std::string("EXPLAIN QUERY PLAN SELECT keyframe, frame_index, stamp, altitude, image_width, "
-                                        "image_height, num_features") +
+    const std::string sql = std::string(
+                                "EXPLAIN QUERY PLAN SELECT keyframe, frame_index, stamp, altitude, image_width, "
+                                "image_height, num_features") +
                             columns + " FROM keyframes WHERE session = 1 ORDER BY keyframe";
     EXPECT_EQ(sqlite3_prepare_v2(store.handle(), sql.c_str(), -1, &st, nullptr), SQLITE_OK);
     std::string detail;
@@ -448,7 +442,7 @@ TEST(Store, FrameDataAreReadFromACoveringIndexThatOlderStoresGetWhenOpened) {
   };
   {
     SessionStore store(path);
-    s = store.addSession("s", camera(), 10.0);
+    s = store.addSession("s", camera320(), 10.0);
     for (int k = 0; k < 3; ++k) store.addKeyframe(randomKeyframe(s, k, 50, &rng), nullptr, nullptr);
     EXPECT_NE(plan(store).find("COVERING INDEX keyframes_frame"), std::string::npos) << plan(store);
     EXPECT_NE(plan(store, ", hash").find("COVERING INDEX keyframes_hash"), std::string::npos) << plan(store, ", hash");
@@ -479,7 +473,7 @@ TEST(Store, TheHistoryTableComesWithOpeningForWritingAndKeepsItsEntries) {
   const HistoryEntry e{1, "2026-11-25T02:13:04Z", "join", "automatic", "0+1", "0:1>1:1 0:2>1:2", "map 1 joined"};
   {
     SessionStore store(path);
-    store.addSession("s", camera(), 10.0);
+    store.addSession("s", camera320(), 10.0);
     store.addHistory(e);
     EXPECT_THROW(store.addHistory(e), StoreError);  // the same id twice
     // As a store written before the table was.
@@ -515,7 +509,7 @@ TEST(Store, EachMotionKeepsItsSource) {
   std::int64_t session = 0;
   {
     SessionStore store(path);
-    session = store.addSession("s", camera(), 10.0);
+    session = store.addSession("s", camera320(), 10.0);
     store.addKeyframe(randomKeyframe(session, 0, 10, &rng), nullptr, nullptr);
     for (std::size_t k = 0; k < sources.size(); ++k) {
       StoredKeyframe kf = randomKeyframe(session, static_cast<int>(k) + 1, 10, &rng);
@@ -575,7 +569,7 @@ TEST(Store, RefusesADamagedMetaRowAtTheOpen) {
 TEST(Store, RefusesADamagedCameraRowAndReadsAnUnknownOne) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
-  const CameraIntrinsics cam = camera();
+  const CameraIntrinsics cam = camera320();
   {
     SessionStore store(path);
     store.addSession("good", cam, 1.0);
@@ -714,7 +708,7 @@ TEST(Store, CorruptKeyframePagesDoNotStopTheOpenAndFailWhereTheyAreRead) {
   int page_size = 0;
   {
     SessionStore store(path);
-    s = store.addSession("s", camera(), 10.0);
+    s = store.addSession("s", camera320(), 10.0);
     for (int k = 0; k < 3; ++k) {
       written.push_back(randomKeyframe(s, k, 500, &rng));
       store.addKeyframe(written.back(), nullptr, nullptr);
@@ -734,7 +728,8 @@ TEST(Store, CorruptKeyframePagesDoNotStopTheOpenAndFailWhereTheyAreRead) {
   ASSERT_GT(pages.size(), 30u);  // 3 keyframes of about 68 kB
   std::string bytes = readBytes(path);
   for (int p : pages)
-    for (int i = 0; i < page_size; ++i) bytes[static_cast<std::size_t>(p - 1) * page_size + i] = static_cast<char>(rng());
+    for (int i = 0; i < page_size; ++i)
+      bytes[static_cast<std::size_t>(p - 1) * page_size + i] = static_cast<char>(rng());
   writeBytes(path, bytes);
 
   SessionStore store(path);  // opened: the keyframes' pages are not read at the open
@@ -805,7 +800,7 @@ TEST(Store, AFullDiskIsReportedAndLosesOnlyThatKeyframe) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();
   SessionStore store(path);
-  const std::int64_t s = store.addSession("s", camera(), 0.0);
+  const std::int64_t s = store.addSession("s", camera320(), 0.0);
   std::mt19937 rng(3);
   // Simulate a full disk: the file may not grow past its current size plus a little.
   sqlite3_stmt* st = nullptr;
@@ -850,7 +845,7 @@ TEST(Store, KillNineLosesAtMostTheKeyframeInFlight) {
     ::close(fds[0]);
     try {
       SessionStore store(path);
-      const std::int64_t s = store.addSession("crash", camera(), 0.0);
+      const std::int64_t s = store.addSession("crash", camera320(), 0.0);
       std::mt19937 rng(4);
       for (int k = 0;; ++k) {
         const UncertainPose2 m(Pose2(0.5, 0, 0.01), diag(0.02, 0.01));
@@ -902,7 +897,7 @@ TEST(Store, FilesAreTheOwnersOnlyAndASymbolicLinkIsRefused) {
   };
   {
     SessionStore store(path);
-    store.addSession("mine", camera(), 0.0);
+    store.addSession("mine", camera320(), 0.0);
     EXPECT_EQ(mode(path), 0600);
     EXPECT_EQ(mode(path + "-wal"), 0600);
     EXPECT_FALSE(std::filesystem::exists(path + ".lock"));  // the lock is on the file itself: no file beside it
@@ -938,7 +933,7 @@ TEST(Store, ASecondWriterIsRefusedWithTheHolderNamedAndADeadHolderReleasesIt) {
   };
   {
     SessionStore first(path);
-    first.addSession("mine", camera(), 0.0);
+    first.addSession("mine", camera320(), 0.0);
     const std::string why = refusal();  // the same process, a second object: refused too
     EXPECT_NE(why.find("in use by pid " + std::to_string(::getpid())), std::string::npos) << why;
     EXPECT_EQ(first.sessions().size(), 1u);  // the holder goes on
@@ -1001,7 +996,7 @@ TEST(Store, AnotherPathToAHeldStoreIsRefusedInThisProcessAndLeavesNothing) {
   const std::string hard = (dir.path() / "c3hard.db").string();
   const std::string soft = (dir.path() / "c3soft.db").string();
   SessionStore first(path);
-  const std::int64_t s = first.addSession("mine", camera(), 0.0);
+  const std::int64_t s = first.addSession("mine", camera320(), 0.0);
   ASSERT_EQ(::link(path.c_str(), hard.c_str()), 0);
   ASSERT_EQ(::symlink(path.c_str(), soft.c_str()), 0);
   const int held = descriptorsOf(path);
@@ -1053,7 +1048,7 @@ TEST(Store, AHardLinkToAStoreHeldByAnotherProcessIsRefusedNamingIt) {
     int code = 0;
     try {
       SessionStore store(path);
-      const std::int64_t s = store.addSession("first", camera(), 0.0);
+      const std::int64_t s = store.addSession("first", camera320(), 0.0);
       std::mt19937 rng(9);
       for (int k = 0; k < 3; ++k) store.addKeyframe(randomKeyframe(s, k, 50, &rng), nullptr, nullptr);
       const char c = 1;
@@ -1107,7 +1102,7 @@ TEST(Store, AReaderBesideAWriterInOneProcessKeepsItsDescriptorUntilTheWriterEnds
       EXPECT_GT(descriptorsOf(path), writing);
     }
     EXPECT_GT(descriptorsOf(path), writing);  // the reader's own descriptor parked, not closed
-    writer.addSession("after the reader", camera(), 5.0);
+    writer.addSession("after the reader", camera320(), 5.0);
   }
   EXPECT_EQ(descriptorsOf(path), 0);  // closed with the writer
   { const SessionStore reader(path, StoreAccess::kReadOnly); }
@@ -1251,7 +1246,7 @@ TEST(Store, ReadOnlyReadsEverythingAndWritesNothing) {
   const std::string before = readBytes(path);
   {
     SessionStore ro(path, StoreAccess::kReadOnly);
-    EXPECT_THROW(ro.addSession("x", camera(), 0.0), StoreError);
+    EXPECT_THROW(ro.addSession("x", camera320(), 0.0), StoreError);
     EXPECT_THROW(ro.saveMaps({}, {}, {}), StoreError);
   }
   EXPECT_EQ(readBytes(path), before);
@@ -1421,24 +1416,24 @@ TEST(Store, ASessionIdIsGivenOnceAlsoWhenTheLargestWasDeletedAndTheStoreReopened
   {
     SessionStore store(path);
     EXPECT_EQ(store.nextSessionId(), 0);  // never held a session
-    EXPECT_EQ(store.addSession("a", camera(), 0.0, 0), 0);
-    EXPECT_EQ(store.addSession("b", camera(), 0.0, 1), 1);
-    EXPECT_EQ(store.addSession("c", camera(), 0.0, 2), 2);
+    EXPECT_EQ(store.addSession("a", camera320(), 0.0, 0), 0);
+    EXPECT_EQ(store.addSession("b", camera320(), 0.0, 1), 1);
+    EXPECT_EQ(store.addSession("c", camera320(), 0.0, 2), 2);
     EXPECT_EQ(store.nextSessionId(), 3);
-    EXPECT_THROW(store.addSession("taken", camera(), 0.0, 1), StoreError);
+    EXPECT_THROW(store.addSession("taken", camera320(), 0.0, 1), StoreError);
     store.deleteSessions({2});
     EXPECT_EQ(store.nextSessionId(), 3);  // SQLite alone would give 2 again
   }
   SessionStore store(path);
   EXPECT_EQ(store.nextSessionId(), 3);
   try {
-    store.addSession("again", camera(), 0.0, 2);
+    store.addSession("again", camera320(), 0.0, 2);
     ADD_FAILURE() << "a deleted session's id was given again";
   } catch (const StoreError& e) {
     EXPECT_NE(std::string(e.what()).find("id 2 was a deleted session's"), std::string::npos) << e.what();
   }
-  EXPECT_EQ(store.addSession("d", camera(), 0.0), 3);  // no id given: past the deleted one too
-  EXPECT_EQ(store.addSession("e", camera(), 0.0, 7), 7);
+  EXPECT_EQ(store.addSession("d", camera320(), 0.0), 3);  // no id given: past the deleted one too
+  EXPECT_EQ(store.addSession("e", camera320(), 0.0, 7), 7);
   EXPECT_EQ(store.nextSessionId(), 8);
   std::vector<std::int64_t> ids;
   for (const StoredSession& st : store.sessions()) ids.push_back(st.id);
@@ -1501,7 +1496,7 @@ TEST(Store, AnInterruptedRunIsFoundWithItsPiecesAndFinishedOrDiscarded) {
   {
     SessionStore store(path);
     auto add = [&](const std::string& name, const std::vector<int>& frames, bool finished, double offset = 0.0) {
-      id[name] = store.addSession(name, camera(), 0.0);
+      id[name] = store.addSession(name, camera320(), 0.0);
       for (std::size_t k = 0; k < frames.size(); ++k) {
         StoredKeyframe kf = randomKeyframe(id[name], static_cast<int>(k), 10, &rng);
         if (frames[k] >= 0) {

@@ -8,6 +8,7 @@
 #include <memory>
 #include <vector>
 
+#include "../../common/fixtures.h"
 #include "../../common/scoped_temp_dir.h"
 #include "../../common/sql_file.h"
 #include "uw_multislam/core/session/session_worker.h"
@@ -25,32 +26,14 @@ SessionManagerOptions options(const std::string& store = "") {
   return o;
 }
 
-CameraIntrinsics camera() {
-  CameraIntrinsics c;
-  c.width = 640;
-  c.height = 480;
-  c.fx = c.fy = 500;
-  c.cx = 320;
-  c.cy = 240;
-  return c;
-}
-
 /// Keyframe k of session s on a straight line along x, its odometry 2 % long and turning a little
 /// (so that loops move the optimised poses away from the odometry's).
 KeyframeInput keyframe(int s, int k) {
-  KeyframeInput in;
-  in.session = s;
-  in.keyframe = k;
-  in.frame_index = 10 * k;
-  in.stamp_s = 100.0 * s + k;
-  in.altitude_m = 2.0;
-  in.camera = camera();
   const Pose2 step(1.02, 0.0, 0.01);
   Pose2 pose;
   for (int i = 0; i < k; ++i) pose = compose(pose, step);
-  in.odometry_pose = pose;
-  in.motion = UncertainPose2(k == 0 ? Pose2() : step, Eigen::Matrix3d::Identity() * 1e-4);
-  return in;
+  return testing_util::keyframeInput(s, k, pose,
+                                     UncertainPose2(k == 0 ? Pose2() : step, Eigen::Matrix3d::Identity() * 1e-4));
 }
 
 /// Keyframe ka of session a sees keyframe kb of session b: one metre to the side (another
@@ -261,8 +244,7 @@ TEST(SessionWorker, KeyframeFeaturesAnswersAreClassified) {
     EXPECT_EQ(w.keyframeFeatures(kMaxSessionId + 1, 0, false, &a).code, StatusCode::kInvalidArgument);
     // The real reason: a huge id is out of range, not negative.
     const Status huge = w.keyframeFeatures(2147483647, 0, false, &a);
-    EXPECT_NE(huge.message.find("session 2147483647, outside the ids [0, 1000000]"), std::string::npos)
-        << huge.message;
+    EXPECT_NE(huge.message.find("session 2147483647, outside the ids [0, 1000000]"), std::string::npos) << huge.message;
     EXPECT_NE(w.keyframeFeatures(0, -1, false, &a).message.find("keyframe ids are >= 0"), std::string::npos);
     EXPECT_EQ(w.keyframeFeatures(0, 0, false, &a).code, StatusCode::kFailedPrecondition) << "no store";
     EXPECT_EQ(w.keyframeFeatures(0, 0, true, &a).code, StatusCode::kFailedPrecondition) << "no store";
