@@ -306,7 +306,8 @@ void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   const double altitude =
       f.altitude == core::PairedAltitude::kReading ? core::cameraAltitude(f.altitude_m, mount_) : f.altitude_m;
   const double kf_ahead =  // newest only, with a prediction (without one, frames are taken in order: none waits)
-      options_.keyframe_lookahead && skip_rule_->predicting() ? ros_inputs::keyframeLookahead(budget_) : 0.0;
+      options_.keyframe_lookahead && skip_rule_->predicting() ? core::keyframeLookaheadS(budget_.timing(steadyNow()))
+                                                              : 0.0;
   const core::SegmentedOdometry::Step step =
       odometry_->process({frame_index_++, stamp.toSec(), altitude, image, nav, kf_ahead}, prepared);
   const core::OdometryUpdate& u = step.update;

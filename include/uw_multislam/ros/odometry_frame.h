@@ -55,49 +55,27 @@ inline core::WaitingFrame waitingFrame(const OdometryFrame& f, const core::Camer
           f.altitude == core::PairedAltitude::kReading ? core::cameraAltitude(f.altitude_m, mount) : f.altitude_m};
 }
 
-/// ~stale_fraction: what the newest policy's wait for the next frame (core::waitForNext) is given, and gives back.
-struct NextFrameWait {
-  core::InputTiming timing;  // chosen_arrival_s is the choice's (chooseNewest fills it in)
-  double stale_fraction = 0.25;
-  core::WaitAdvice advice;  // out: the advice for the choice
-};
-
-/// The input's timing as `budget` (the odometry's, fed at each arrival) has it, at wall time `now_s`.
-inline core::InputTiming inputTiming(const core::FrameBudget& budget, double now_s) {
-  core::InputTiming t;
-  t.now_s = now_s;
-  t.last_arrival_s = budget.lastArrivalS();
-  t.period_s = budget.inputPeriodMs() / 1e3;
-  t.jitter_s = budget.inputJitterMs() / 1e3;
-  t.cost_s = budget.msPerFrame() / 1e3;
-  return t;
-}
-
-/// core::OdometryInput::keyframe_lookahead_s for the next frame, from `budget` (0 while the odometry keeps up).
-inline double keyframeLookahead(const core::FrameBudget& budget) {
-  return core::keyframeLookaheadS(budget.msPerFrame() / 1e3, budget.inputPeriodMs() / 1e3, budget.stampPeriodS());
-}
-
 /// ~drop_policy newest: the frame `rule` (the session's; null before the first session: every frame, as the former
 /// queue) takes among `waiting`, preferring one whose preparation is `started` (empty: none prepared on arrival);
-/// with `wait`, whether to wait for the next frame instead (NewestChoice::wait_for, `wait->advice`); not with frames
-/// prepared on arrival (a frame under preparation would be taken after the wait: the stale one, later).
+/// with `timing` (the input's: FrameBudget::timing), whether to wait for the next frame instead (core::waitForNext with
+/// `stale_fraction`: NewestChoice::wait_for); not with frames prepared on arrival (a frame under preparation would be
+/// taken after the wait: the stale one, later).
 inline ros_work::NewestChoice chooseNewest(const core::FrameSkipRule* rule, const std::deque<OdometryFrame>& waiting,
                                            const core::CameraMount& mount, const std::vector<bool>& started,
-                                           NextFrameWait* wait = nullptr) {
-  if (wait) wait->advice = core::WaitAdvice();
+                                           const core::InputTiming* timing = nullptr, double stale_fraction = 1.0) {
   if (!rule) return {0, false};
   std::vector<core::WaitingFrame> w;
   w.reserve(waiting.size());
   for (const OdometryFrame& f : waiting) w.push_back(waitingFrame(f, mount));
   const core::FrameSkipRule::Choice choice = rule->choose(w, started);
   ros_work::NewestChoice c{choice.index, choice.reason != core::FrameSkipRule::Reason::kOldest};
-  if (!wait || !started.empty()) return c;
-  wait->timing.chosen_arrival_s = waiting[choice.index].arrived_s;
-  wait->advice = core::waitForNext(*rule, w, choice, wait->timing, wait->stale_fraction);
-  if (wait->advice.why != core::WaitAdvice::Why::kNone)
+  if (!timing || !started.empty()) return c;
+  core::InputTiming t = *timing;
+  t.chosen_arrival_s = waiting[choice.index].arrived_s;
+  const core::WaitAdvice advice = core::waitForNext(*rule, w, choice, t, stale_fraction);
+  if (advice.why != core::WaitAdvice::Why::kNone)
     c.wait_for = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-        std::chrono::duration<double>(std::max(0.0, wait->advice.until_s - wait->timing.now_s)));
+        std::chrono::duration<double>(std::max(0.0, advice.until_s - t.now_s)));
   return c;
 }
 
@@ -110,8 +88,8 @@ class NewestChooser {
       : stale_fraction_(stale_fraction), budget_(budget), counters_(counters) {}
   ros_work::NewestChoice operator()(const core::FrameSkipRule* rule, const std::deque<OdometryFrame>& waiting,
                                     const core::CameraMount& mount, const std::vector<bool>& started) {
-    NextFrameWait wait{inputTiming(*budget_, ros::SteadyTime::now().toSec()), stale_fraction_, {}};
-    const ros_work::NewestChoice c = chooseNewest(rule, waiting, mount, started, &wait);
+    const core::InputTiming timing = budget_->timing(ros::SteadyTime::now().toSec());
+    const ros_work::NewestChoice c = chooseNewest(rule, waiting, mount, started, &timing, stale_fraction_);
     // A take asks again after each frame that arrives during its wait: counted at its first.
     if (c.wait_for && counted_take_ != counters_->frames_finished) {
       counted_take_ = counters_->frames_finished;

@@ -103,14 +103,12 @@ std::optional<bool> FrameSkipRule::keyframeDue(double stamp_s, double altitude_m
   const double dt = last_->stamp_s - before_->stamp_s;
   if (!(dt > 0) || !std::isfinite(stamp_s)) return std::nullopt;
   // Constant velocity from the last two frames: the step between them, scaled to the stamp.
-  const Pose2 step = between(before_->pose, last_->pose);
-  const double f = (stamp_s - last_->stamp_s) / dt;
-  const Pose2 predicted = compose(last_->pose, Pose2(f * step.x(), f * step.y(), f * step.yaw()));
+  const Pose2 predicted =
+      extrapolate(last_->pose, between(before_->pose, last_->pose), (stamp_s - last_->stamp_s) / dt);
   const Pose2 motion = between(last_->keyframe_pose, predicted);
   const double alt = std::isfinite(altitude_m) && altitude_m > 0 ? altitude_m : last_->altitude_m;
-  const double overlap = footprintOverlap(camera_, motion, last_->keyframe_altitude_m, alt);
-  return overlap < keyframes_.min_overlap || std::abs(motion.yaw()) > keyframes_.max_rotation_rad ||
-         (keyframes_.max_interval_s > 0 && stamp_s - last_->keyframe_stamp_s > keyframes_.max_interval_s);
+  return keyframes_.takes(footprintOverlap(camera_, motion, last_->keyframe_altitude_m, alt), motion.yaw(),
+                          stamp_s - last_->keyframe_stamp_s);
 }
 
 FrameSkipRule::Choice FrameSkipRule::choose(const std::vector<WaitingFrame>& waiting) const {
@@ -169,6 +167,18 @@ void FrameBudget::arrived(double now_s, double stamp_s) {
     stamp_period_s_ = stamp_intervals_++ == 0 ? d : stamp_period_s_ + alpha_ * (d - stamp_period_s_);
   }
   last_stamp_s_ = stamp_s;
+}
+
+InputTiming FrameBudget::timing(double now_s) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  InputTiming t;
+  t.now_s = now_s;
+  t.last_arrival_s = last_arrival_s_.value_or(0.0);
+  t.period_s = period_ms_ / 1e3;
+  t.jitter_s = jitter_ms_ / 1e3;
+  t.stamp_period_s = stamp_period_s_;
+  t.cost_s = ms_ / 1e3;
+  return t;
 }
 
 WaitAdvice waitForNext(const FrameSkipRule& rule, const std::vector<WaitingFrame>& waiting,

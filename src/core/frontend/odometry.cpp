@@ -230,8 +230,7 @@ double Odometry::footprintOverlap(const Pose2& motion, double kf_altitude, doubl
 
 bool Odometry::needsKeyframe(const RansacResult& r, double overlap, double stamp_s) const {
   const KeyframeOptions& k = options_.keyframes;
-  return overlap < k.min_overlap || std::abs(r.motion.yaw()) > k.max_rotation_rad ||
-         (k.max_interval_s > 0 && stamp_s - last_kf_.stamp_s > k.max_interval_s) ||
+  return k.takes(overlap, r.motion.yaw(), stamp_s - last_kf_.stamp_s) ||
          static_cast<int>(r.inliers.size()) < k.min_tracking_inliers;
 }
 
@@ -239,14 +238,9 @@ bool Odometry::dueAhead(const Pose2& pose, double stamp_s, double altitude_m) co
   const double dt = stamp_s - prev_.stamp_s;
   if (!(lookahead_s_ > 0) || !(dt > 0)) return false;
   // Constant velocity from the previous frame, as FrameSkipRule predicts the frames waiting.
-  const Pose2 step = between(prev_.pose, pose);
-  const double f = lookahead_s_ / dt;
-  const Pose2 ahead = compose(pose, Pose2(f * step.x(), f * step.y(), f * step.yaw()));
-  const Pose2 motion = between(last_kf_.pose, ahead);
-  const KeyframeOptions& k = options_.keyframes;
-  return footprintOverlap(motion, last_kf_.altitude_m, altitude_m) < k.min_overlap ||
-         std::abs(motion.yaw()) > k.max_rotation_rad ||
-         (k.max_interval_s > 0 && stamp_s + lookahead_s_ - last_kf_.stamp_s > k.max_interval_s);
+  const Pose2 motion = between(last_kf_.pose, extrapolate(pose, between(prev_.pose, pose), lookahead_s_ / dt));
+  return options_.keyframes.takes(footprintOverlap(motion, last_kf_.altitude_m, altitude_m), motion.yaw(),
+                                  stamp_s + lookahead_s_ - last_kf_.stamp_s);
 }
 
 void Odometry::addKeyframe(const TrackedFrame& frame, const UncertainPose2& motion, bool fallback,

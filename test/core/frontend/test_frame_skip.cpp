@@ -302,33 +302,33 @@ TEST(FrameBudget, ComparesTheRecentCostWithTheRecentInputPeriod) {
 
 TEST(FrameBudget, KeepsTheStampsPeriodApartFromTheArrivals) {
   FrameBudget b(4);  // EMA weight 2 / (4 + 1) = 0.4
-  EXPECT_EQ(b.stampPeriodS(), 0.0) << "unknown";
-  EXPECT_EQ(b.lastArrivalS(), 0.0) << "none yet";
+  EXPECT_EQ(b.timing(0).stamp_period_s, 0.0) << "unknown";
+  EXPECT_EQ(b.timing(0).last_arrival_s, 0.0) << "none yet";
   // A bag replayed twice as fast as recorded: stamps 0.1 s apart arrive every 0.05 s.
   for (int i = 0; i < 10; ++i) b.arrived(100.0 + 0.05 * i, 0.1 * i);
   EXPECT_NEAR(b.inputPeriodMs(), 50.0, 1e-9);
-  EXPECT_NEAR(b.stampPeriodS(), 0.1, 1e-12);
-  EXPECT_DOUBLE_EQ(b.lastArrivalS(), 100.0 + 0.05 * 9);
+  EXPECT_NEAR(b.timing(0).stamp_period_s, 0.1, 1e-12);
+  EXPECT_DOUBLE_EQ(b.timing(0).last_arrival_s, 100.0 + 0.05 * 9);
   // One interval of 0.2 s moves the mean by 0.4 of the difference.
   b.arrived(100.5, 1.1);
-  EXPECT_NEAR(b.stampPeriodS(), 0.1 + 0.4 * (0.2 - 0.1), 1e-12);
-  const double before = b.stampPeriodS();
+  EXPECT_NEAR(b.timing(0).stamp_period_s, 0.1 + 0.4 * (0.2 - 0.1), 1e-12);
+  const double before = b.timing(0).stamp_period_s;
   // A stamp that goes back, or none (NaN), adds no stamp interval; the arrival still counts.
   b.arrived(100.55, 1.0);
-  EXPECT_EQ(b.stampPeriodS(), before);
-  EXPECT_DOUBLE_EQ(b.lastArrivalS(), 100.55);
+  EXPECT_EQ(b.timing(0).stamp_period_s, before);
+  EXPECT_DOUBLE_EQ(b.timing(0).last_arrival_s, 100.55);
   b.arrived(100.6);
-  EXPECT_EQ(b.stampPeriodS(), before);
-  EXPECT_DOUBLE_EQ(b.lastArrivalS(), 100.6);
+  EXPECT_EQ(b.timing(0).stamp_period_s, before);
+  EXPECT_DOUBLE_EQ(b.timing(0).last_arrival_s, 100.6);
   // The next stamp's interval is from the one that went back (1.0), not from 1.1.
   b.arrived(100.65, 1.1);
-  EXPECT_NEAR(b.stampPeriodS(), before + 0.4 * (0.1 - before), 1e-12);
+  EXPECT_NEAR(b.timing(0).stamp_period_s, before + 0.4 * (0.1 - before), 1e-12);
   // The first interval is taken as it is (no average of it with the unknown 0).
   FrameBudget first(4);
   first.arrived(1.0, 5.0);
-  EXPECT_EQ(first.stampPeriodS(), 0.0) << "one stamp: no interval";
+  EXPECT_EQ(first.timing(0).stamp_period_s, 0.0) << "one stamp: no interval";
   first.arrived(1.01, 5.25);
-  EXPECT_DOUBLE_EQ(first.stampPeriodS(), 0.25);
+  EXPECT_DOUBLE_EQ(first.timing(0).stamp_period_s, 0.25);
 }
 
 TEST(KeyframeLookahead, SpansTheFramesThatArriveWhileOneIsProcessedButTheNewest) {
@@ -505,12 +505,12 @@ TEST_F(WaitForNextTest, AWorkerThatKeepsUpOnAverageOrIrregularArrivalsNeverWait)
 TEST(FrameBudget, TheJitterIsTheMeanDeviationOfTheIntervals) {
   FrameBudget regular(4), bursts(4);
   for (int i = 0; i < 40; ++i) regular.arrived(0.1 * i);
-  EXPECT_NEAR(regular.inputJitterMs(), 0.0, 1e-6);
+  EXPECT_NEAR(regular.timing(0).jitter_s, 0.0, 1e-9);
   // Five frames at once every 0.5 s (a 10 Hz camera paired with a 2 Hz altimeter): period 100 ms on
   // average, intervals 0 or 500 ms.
   for (int burst = 0; burst < 20; ++burst)
     for (int k = 0; k < 5; ++k) bursts.arrived(0.5 * burst + 1e-6 * k);
-  EXPECT_GT(bursts.inputJitterMs(), 0.5 * bursts.inputPeriodMs());
+  EXPECT_GT(bursts.timing(0).jitter_s, 0.5 * bursts.timing(0).period_s);
 }
 
 }  // namespace

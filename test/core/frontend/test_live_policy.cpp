@@ -59,8 +59,7 @@ SimRun simulate(int frames, double cost, const Policy& policy) {
     return footprintOverlap(c, between(kf_pose, pose), kAltitude, kAltitude);
   };
   const auto due = [&](const Pose2& pose, double stamp) {  // the keyframe rule (Odometry::needsKeyframe)
-    return overlapFromKeyframe(pose) < k.min_overlap || std::abs(between(kf_pose, pose).yaw()) > k.max_rotation_rad ||
-           (k.max_interval_s > 0 && stamp - kf > k.max_interval_s);
+    return k.takes(overlapFromKeyframe(pose), between(kf_pose, pose).yaw(), stamp - kf);
   };
   while (next < frames) {
     double now = std::max(free_at, static_cast<double>(next));
@@ -93,9 +92,7 @@ SimRun simulate(int frames, double cost, const Policy& policy) {
       if (!keyframe && policy.lookahead && last >= 0) {
         // Odometry::dueAhead: constant velocity from the previous frame processed.
         const double ahead = keyframeLookaheadS(cost, 1.0, 1.0);
-        const Pose2 step = between(truth(last), pose);
-        const double f = ahead / (take - last);
-        if (ahead > 0 && due(compose(pose, Pose2(f * step.x(), f * step.y(), f * step.yaw())), take + ahead)) {
+        if (ahead > 0 && due(extrapolate(pose, between(truth(last), pose), ahead / (take - last)), take + ahead)) {
           keyframe = true;
           ++run.early;
         }

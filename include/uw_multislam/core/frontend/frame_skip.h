@@ -143,6 +143,7 @@ struct InputTiming {
   double last_arrival_s = 0.0;    // when the newest frame arrived
   double period_s = 0.0;          // the recent interval between arrivals
   double jitter_s = 0.0;          // the recent mean deviation of those intervals from period_s
+  double stamp_period_s = 0.0;    // the recent interval between the frames' stamps
   double cost_s = 0.0;            // the recent processing time of a frame
 };
 
@@ -170,6 +171,10 @@ WaitAdvice waitForNext(const FrameSkipRule& rule, const std::vector<WaitingFrame
 /// but the newest of them (core::OdometryInput::keyframe_lookahead_s): (ceil(cost / period) - 1)
 /// stamp periods; 0 when the odometry keeps up (cost <= period) or a value is unknown (<= 0).
 double keyframeLookaheadS(double cost_s, double period_s, double stamp_period_s);
+/// The same from a FrameBudget's timing().
+inline double keyframeLookaheadS(const InputTiming& t) {
+  return keyframeLookaheadS(t.cost_s, t.period_s, t.stamp_period_s);
+}
 
 /// The recent cost of a frame against the recent input period, as exponential moving averages
 /// over about `window` frames (ROS-free; the caller gives the times). Thread-safe: the frames'
@@ -180,11 +185,6 @@ class FrameBudget {
   /// A frame arrived (wall time, s): the input period is the interval between arrivals; with its
   /// stamp (s), also the interval between stamps (a bag replayed faster than recorded differs).
   void arrived(double now_s, double stamp_s = std::numeric_limits<double>::quiet_NaN());
-  /// Mean deviation of the recent input intervals from their mean, ms (0 before two arrivals).
-  double inputJitterMs() const {
-    std::lock_guard<std::mutex> lock(mutex_);
-    return jitter_ms_;
-  }
   /// A frame was processed in `ms`.
   void processed(double ms);
   /// Mean of the recent processing times, ms (0 before any).
@@ -197,16 +197,10 @@ class FrameBudget {
     std::lock_guard<std::mutex> lock(mutex_);
     return period_ms_;
   }
-  /// Mean of the recent intervals between the arriving frames' stamps, s (0 before two).
-  double stampPeriodS() const {
-    std::lock_guard<std::mutex> lock(mutex_);
-    return stamp_period_s_;
-  }
-  /// When the newest frame arrived (wall time, s; 0 before any).
-  double lastArrivalS() const {
-    std::lock_guard<std::mutex> lock(mutex_);
-    return last_arrival_s_.value_or(0.0);
-  }
+  /// What waitForNext and keyframeLookaheadS need, read together (chosen_arrival_s is left 0):
+  /// `now_s`, the newest arrival (0 before any), the arrivals' period and mean deviation from it (0
+  /// before two), the stamps' period (0 before two) and the recent cost of a frame, in s.
+  InputTiming timing(double now_s) const;
   /// msPerFrame / inputPeriodMs: above 1 the input outruns the odometry (0 while unknown).
   double load() const {
     std::lock_guard<std::mutex> lock(mutex_);

@@ -57,6 +57,7 @@
 
 #include <opencv2/core.hpp>
 
+#include <cmath>
 #include <optional>
 #include <string>
 #include <utility>
@@ -87,8 +88,21 @@ struct KeyframeOptions {
   double max_interval_s = 10.0;
   int min_tracking_inliers = 40;  // fewer inliers than this: take a keyframe while matching works
 
+  /// The rule's geometric and time tests for a frame at `overlap` with the last keyframe, turned by
+  /// `yaw_rad` from it, `since_keyframe_s` after it (the inlier test is the matcher's, apart): one
+  /// rule for the odometry's decision, its lookahead and FrameSkipRule's prediction.
+  bool takes(double overlap, double yaw_rad, double since_keyframe_s) const {
+    return overlap < min_overlap || std::abs(yaw_rad) > max_rotation_rad ||
+           (max_interval_s > 0 && since_keyframe_s > max_interval_s);
+  }
   std::string validate() const;
 };
+
+/// Constant velocity: `pose` moved on by `f` times `step` (its x, y and yaw scaled alike), the
+/// prediction of a frame `f` steps after `pose` (FrameSkipRule, the odometry's keyframe lookahead).
+inline Pose2 extrapolate(const Pose2& pose, const Pose2& step, double f) {
+  return compose(pose, Pose2(f * step.x(), f * step.y(), f * step.yaw()));
+}
 
 struct FallbackOptions {
   /// Covariance of a reused motion: sigma_xy = max(min_sigma_m, relative_sigma * |step|),
