@@ -21,7 +21,8 @@ import rosgraph
 import rosnode
 import rospy
 import rostest
-from pipeline_fixture import NS, SENSOR_TOPICS, connected, make_mission, wait_for_subscribers, wait_until_quiet
+from pipeline_fixture import (NS, SENSOR_TOPICS, connected, frames_by_stamp, make_mission, wait_for_subscribers,
+                              wait_until_quiet)
 from nav_msgs.msg import Path
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
 from uw_multislam.srv import JoinSessions, ListSessions, SplitSession, StartSession, ReloadSession
@@ -81,6 +82,7 @@ class BackendTest(unittest.TestCase):
                             "--topics"] + SENSOR_TOPICS, check=True,
                            timeout=120)
             wait_until_quiet(cls.lock, lambda: cls.last_message, 5.0)
+        cls.frames = frames_by_stamp(cls.mission)  # image stamp -> (session, index) of world_gt.csv
         with open(os.path.join(cls.mission, "world_gt.csv")) as f:
             cls.world = {(int(r["session"]), int(r["index"])): (float(r["x_m"]), float(r["y_m"]), float(r["yaw_rad"]))
                          for r in csv.DictReader(f)}
@@ -124,16 +126,14 @@ class BackendTest(unittest.TestCase):
 
     def joined_error(self):
         """Largest distance of session 1's keyframes (in map 0, i.e. session 0's frame) from the
-        ground truth expressed in session 0's first frame. Keyframes are matched to frames by
-        their stamps (frame_period 1 s, session 1 starting 1000 s later)."""
+        ground truth expressed in session 0's first keyframe's frame. Poses are matched to the
+        bags' images by their stamps."""
         p1 = self.path(1).poses
-        t0 = self.path(1).poses[0].header.stamp.to_sec()
-        ox, oy, oyaw = self.world[(0, 0)]
+        ox, oy, oyaw = self.world[self.frames[self.path(0).poses[0].header.stamp.to_nsec()]]
         c, s = math.cos(oyaw), math.sin(oyaw)
         worst = 0.0
         for p in p1:
-            index = int(round(p.header.stamp.to_sec() - t0))
-            gx, gy, _ = self.world[(1, index)]
+            gx, gy, _ = self.world[self.frames[p.header.stamp.to_nsec()]]
             tx, ty = c * (gx - ox) + s * (gy - oy), -s * (gx - ox) + c * (gy - oy)
             # The path gives base_link in the z-up map (camera at base_link): y is the image axes' -y.
             worst = max(worst, math.hypot(p.pose.position.x - tx, -p.pose.position.y - ty))

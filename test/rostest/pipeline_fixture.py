@@ -148,6 +148,31 @@ def bag_frames(path, topics=SENSOR_TOPICS):
     return [tuple(f[t] for t in topics) for _, f in sorted(by_stamp.items()) if len(f) == len(topics)]
 
 
+def frames_by_stamp(mission, names=("s0", "s1")):
+    """{image stamp (ns): (session, index)} for the mission's bags, index as in world_gt.csv.
+    A test matches what the pipeline publishes to the ground truth by the image's stamp, never by
+    counting the images it or the pipeline received: a bag's first messages can be lost while
+    rosbag play's connections open, on a loaded machine even after its -d delay."""
+    out = {}
+    for session, name in enumerate(names):
+        for index, (image,) in enumerate(bag_frames(os.path.join(mission, name + ".bag"), SENSOR_TOPICS[:1])):
+            out[image.header.stamp.to_nsec()] = (session, index)
+    return out
+
+
+def map_origin(keyframes, frames, most_lost=2):
+    """(session, index) of map 0's origin: the image of session 0's keyframe 0 (the map frame is
+    that keyframe's). It is image 0 unless the first images were lost in transport; more than
+    `most_lost` of them is an error (the pipeline did not start on the first images it was sent)."""
+    first = [k for k in keyframes if k.session == 0 and k.keyframe == 0]
+    if not first:
+        raise AssertionError("no keyframe 0 of session 0 received")
+    origin = frames[first[0].header.stamp.to_nsec()]
+    if origin[1] > most_lost:
+        raise AssertionError("session 0 started at image %d of its bag" % origin[1])
+    return origin
+
+
 def diagnostic_values(status):
     """A diagnostic_msgs/DiagnosticStatus's key/value pairs, numbers as floats."""
     out = {}
