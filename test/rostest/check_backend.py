@@ -78,7 +78,8 @@ class BackendTest(unittest.TestCase):
         cls.reload = rospy.ServiceProxy(NS + "/reload_session", ReloadSession)
         wait_for_subscribers(["/camera/image_raw", NS + "/keyframes", NS + "/loops"], "/check_backend")
         for name in ("s0", "s1"):
-            subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", "4", os.path.join(cls.mission, name + ".bag"),
+            subprocess.run(["rosbag", "play", "-q", "--wait-for-subscribers", "-d", "1", "-r", "4",
+                            os.path.join(cls.mission, name + ".bag"),
                             "--topics"] + SENSOR_TOPICS, check=True,
                            timeout=120)
             wait_until_quiet(cls.lock, lambda: cls.last_message, 5.0)
@@ -140,10 +141,8 @@ class BackendTest(unittest.TestCase):
         return worst
 
     def keyframe_indexes(self, session):
-        """The frame index of each keyframe of a session's path (frame_period 1 s)."""
-        poses = self.path(session).poses
-        t0 = poses[0].header.stamp.to_sec()
-        return [int(round(p.header.stamp.to_sec() - t0)) for p in poses]
+        """The frame index (world_gt.csv's) of each keyframe of a session's path."""
+        return [self.frames[p.header.stamp.to_nsec()][1] for p in self.path(session).poses]
 
     def join_tolerance(self):
         """3 x the largest rms position error that the altimeter's noise gives a keyframe of session

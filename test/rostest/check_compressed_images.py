@@ -96,7 +96,8 @@ class CompressedImagesTest(unittest.TestCase):
         wait_for_subscribers(SENSOR_TOPICS, "/check_compressed_images")
         cls.subscriptions = {t: n for t, n in rosgraph.Master("/check_compressed_images").getSystemState()[1]}
 
-        subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", str(PLAY_RATE), cls.bag, "--topics"] + SENSOR_TOPICS,
+        subprocess.run(["rosbag", "play", "-q", "--wait-for-subscribers", "-d", "1", "-r", str(PLAY_RATE), cls.bag,
+                        "--topics"] + SENSOR_TOPICS,
                        check=True, timeout=120)
         cls.await_odometry(cls.n_images, "every image of the bag processed")
         with cls.lock:

@@ -128,7 +128,7 @@ class FramesTest(unittest.TestCase):
         cls.list = rospy.ServiceProxy(NS + "/list_sessions", ListSessions)
         wait_for_subscribers(["/camera/image_raw", NS + "/keyframes", NS + "/loops"], "/check_frames")
         for name in ("s0", "s1"):
-            subprocess.run(["rosbag", "play", "-q", "--clock", "-d", "1", "-r", "4",
+            subprocess.run(["rosbag", "play", "-q", "--wait-for-subscribers", "--clock", "-d", "1", "-r", "4",
                             os.path.join(cls.mission, name + ".bag"), "--topics"] + SENSOR_TOPICS, check=True,
                            timeout=120)
         with cls.lock:

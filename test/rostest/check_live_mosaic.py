@@ -68,7 +68,8 @@ class LiveMosaicTest(unittest.TestCase):
         cls.resolution = rospy.get_param(NS + "/backend_node/mosaic_resolution")
         wait_for_subscribers(["/camera/image_raw", NS + "/keyframes", NS + "/loops"], "/check_live_mosaic")
         for name in ("s0", "s1"):
-            subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", "4", os.path.join(cls.mission, name + ".bag"),
+            subprocess.run(["rosbag", "play", "-q", "--wait-for-subscribers", "-d", "1", "-r", "4",
+                            os.path.join(cls.mission, name + ".bag"),
                             "--topics"] + SENSOR_TOPICS, check=True, timeout=120)
             wait_until_quiet(cls.lock, lambda: cls.last_message, 5.0)
 

@@ -115,7 +115,8 @@ class SlamPipelineTest(unittest.TestCase):
                     rospy.Subscriber(NS + "/odom", Odometry, keep(cls.odoms), queue_size=1000)]
         wait_for_subscribers(SENSOR_TOPICS + [NS + "/keyframes"], "/check_slam_pipeline")
         for bag in cls.bags:
-            subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", str(rospy.get_param("~play_rate", PLAY_RATE)), bag,
+            subprocess.run(["rosbag", "play", "-q", "--wait-for-subscribers", "-d", "1", "-r",
+                            str(rospy.get_param("~play_rate", PLAY_RATE)), bag,
                             "--topics",
                             "/camera/image_raw", "/camera/camera_info", "/altitude"], check=True, timeout=120)
             wait_until_quiet(cls.lock, lambda: cls.last_message, 5.0)

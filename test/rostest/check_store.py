@@ -176,7 +176,8 @@ class StoreTest(unittest.TestCase):
         self.assertEqual(sorted(got), stored, "reloaded_keyframes")
         with self.lock:
             loops_before = len(self.loops)
-        subprocess.run(["rosbag", "play", "-q", "-d", "1", "-r", "4", os.path.join(self.mission, "s1.bag"),
+        subprocess.run(["rosbag", "play", "-q", "--wait-for-subscribers", "-d", "1", "-r", "4",
+                        os.path.join(self.mission, "s1.bag"),
                         "--topics"] + SENSOR_TOPICS, check=True, timeout=120)
         wait_until_quiet(self.lock, lambda: self.last, 5.0, timeout=60)
         with self.lock:
