@@ -113,8 +113,8 @@ class LiveSessionsTest(unittest.TestCase):
         return {s.session: s for s in res.sessions}
 
     def play(self, bag):
-        return subprocess.Popen(["rosbag", "play", "-q", "-d", "1", "-r", str(PLAY_RATE), bag, "--topics"]
-                                + SENSOR_TOPICS)
+        return subprocess.Popen(["rosbag", "play", "-q", "--wait-for-subscribers", "-d", "1", "-r", str(PLAY_RATE), bag,
+                                 "--topics"] + SENSOR_TOPICS)
 
     def wait_for_bag(self, play, timeout=180):
         self.assertEqual(play.wait(timeout=timeout), 0, "rosbag play failed")
