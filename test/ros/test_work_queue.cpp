@@ -7,6 +7,7 @@
 #include <atomic>
 #include <chrono>
 #include <deque>
+#include <functional>
 #include <future>
 #include <memory>
 #include <mutex>
@@ -131,18 +132,23 @@ TEST(BoundedWorkQueue, PopSelectedSkipsTheItemsBeforeTheChosenOneAndCountsThem) 
   EXPECT_EQ(q.size(), 1u);
   // An index past the end takes the newest; 0 takes the oldest, as pop().
   q.push({6});
-  ASSERT_TRUE(q.popSelected(&v, [](const auto&) { return 99; }, [](auto&, auto&) {}));
+  ASSERT_TRUE(q.popSelected(
+      &v, [](const auto&) { return 99; }, [](auto&, auto&) {}));
   EXPECT_EQ(v, std::vector<int>{6});
   EXPECT_EQ(q.skipped(), 4);
   q.push({7});
   q.push({8});
-  ASSERT_TRUE(q.popSelected(&v, [](const auto&) { return 0; }, [](auto&, auto&) {}));
+  ASSERT_TRUE(q.popSelected(
+      &v, [](const auto&) { return 0; }, [](auto&, auto&) {}));
   EXPECT_EQ(v, std::vector<int>{7});
   EXPECT_EQ(q.skipped(), 4);
   EXPECT_EQ(q.pushed(), q.popped() + q.skipped() + q.dropped() + static_cast<long>(q.size()));
   q.close();
-  ASSERT_TRUE(q.popSelected(&v, [](const auto&) { return 0; }, [](auto&, auto&) {}));
-  EXPECT_FALSE(q.popSelected(&v, [](const auto&) { return 0; }, [](auto&, auto&) {})) << "closed and drained";
+  ASSERT_TRUE(q.popSelected(
+      &v, [](const auto&) { return 0; }, [](auto&, auto&) {}));
+  EXPECT_FALSE(q.popSelected(
+      &v, [](const auto&) { return 0; }, [](auto&, auto&) {}))
+      << "closed and drained";
 }
 
 TEST(BoundedWorkQueue, CloseDrainsWhatIsQueuedThenReturnsFalse) {
@@ -292,7 +298,11 @@ TEST(BoundedWorkQueue, ASelectionCountsItsOldestAsDroppedAndTheRestAsSkipped) {
   int v = -1;
   std::vector<int> passed;
   ASSERT_TRUE(q.popSelected(
-      &v, [](const std::deque<int>&) { return Selection{4, 3}; }, [&](int& s, int&) { passed.push_back(s); }));
+      &v,
+      [](const std::deque<int>&) {
+        return Selection{4, 3};
+      },
+      [&](int& s, int&) { passed.push_back(s); }));
   EXPECT_EQ(v, 4);
   EXPECT_EQ(passed, (std::vector<int>{0, 1, 2, 3}));  // every one handed on, dropped or skipped
   EXPECT_EQ(q.dropped(), 3);
@@ -300,24 +310,19 @@ TEST(BoundedWorkQueue, ASelectionCountsItsOldestAsDroppedAndTheRestAsSkipped) {
   EXPECT_EQ(q.size(), 1u);
 }
 
-// The newest policy's worker when it stalls (CPU starvation) while a burst arrives at 4x: the
-// choice sees every frame of the burst, so none is lost to a full queue (one was, with the former
-// queue of 5 frames, and with it the frame a keyframe was due at: a split session).
-TEST(DrainNewest, ABurstDuringAStallIsChosenFromNotDropped) {
-  BoundedWorkQueue<int> q(newestCapacity(5));
+/// drainNewest on `q` (bound 5, no preparation) with `choose`, while the worker stalls (CPU
+/// starvation) in item 0 until items 1..`burst` are queued; then the queue is closed and drained.
+/// Returns the items processed, in order; `on_skip` gets each skipped or dropped item.
+template <typename Choose>
+std::vector<int> drainAfterAStall(BoundedWorkQueue<int>& q, int burst, Choose choose,
+                                  const std::function<void(int&)>& on_skip) {
   std::promise<void> stalled, release;
   std::shared_future<void> released = release.get_future().share();
-  std::vector<int> processed, skipped;
+  std::vector<int> processed;
   std::thread worker([&] {
     drainNewest<int, int>(
-        q, 5, nullptr,
-        [](const std::deque<int>& w, const std::vector<bool>& started) {
-          EXPECT_TRUE(started.empty()) << "nothing prepared on arrival";
-          for (std::size_t i = 0; i + 1 < w.size(); ++i)
-            if (w[i] % 8 == 0) return NewestChoice{i, true};  // a keyframe due at every 8th frame
-          return NewestChoice{w.size() - 1, true};           // else the newest
-        },
-        [&](int& s, int&) { skipped.push_back(s); }, [](const int& i) { return static_cast<std::size_t>(i); },
+        q, 5, nullptr, choose, [&](int& s, int&) { on_skip(s); },
+        [](const int& i) { return static_cast<std::size_t>(i); },
         [&](int& item, int* prepared, std::chrono::steady_clock::time_point) {
           EXPECT_EQ(prepared, nullptr);
           processed.push_back(item);
@@ -329,11 +334,30 @@ TEST(DrainNewest, ABurstDuringAStallIsChosenFromNotDropped) {
         [](const std::string& e) { ADD_FAILURE() << e; });
   });
   q.push(0);
-  ASSERT_EQ(stalled.get_future().wait_for(kDeadline), std::future_status::ready);
-  for (int i = 1; i <= 40; ++i) q.push(i);
+  // (EXPECT, not ASSERT, while the worker runs: it is released and joined either way.)
+  EXPECT_EQ(stalled.get_future().wait_for(kDeadline), std::future_status::ready);
+  for (int i = 1; i <= burst; ++i) q.push(i);
   release.set_value();
   q.close();
   worker.join();
+  return processed;
+}
+
+// The newest policy's worker when it stalls (CPU starvation) while a burst arrives at 4x: the
+// choice sees every frame of the burst, so none is lost to a full queue (one was, with the former
+// queue of 5 frames, and with it the frame a keyframe was due at: a split session).
+TEST(DrainNewest, ABurstDuringAStallIsChosenFromNotDropped) {
+  BoundedWorkQueue<int> q(newestCapacity(5));
+  std::vector<int> skipped;
+  const std::vector<int> processed = drainAfterAStall(
+      q, 40,
+      [](const std::deque<int>& w, const std::vector<bool>& started) {
+        EXPECT_TRUE(started.empty()) << "nothing prepared on arrival";
+        for (std::size_t i = 0; i + 1 < w.size(); ++i)
+          if (w[i] % 8 == 0) return NewestChoice{i, true};  // a keyframe due at every 8th frame
+        return NewestChoice{w.size() - 1, true};            // else the newest
+      },
+      [&](int& s) { skipped.push_back(s); });
   EXPECT_EQ(q.dropped(), 0);
   EXPECT_EQ(processed, (std::vector<int>{0, 8, 16, 24, 32, 40})) << "every due frame, then the newest";
   EXPECT_EQ(processed.size() + skipped.size(), 41u) << "every frame processed or skipped";
@@ -344,29 +368,13 @@ TEST(DrainNewest, ABurstDuringAStallIsChosenFromNotDropped) {
 // frame: then the wait is bounded as by the former queue, the older frames counted as dropped.
 TEST(DrainNewest, WithoutAPredictionAtMostTheBoundWaits) {
   BoundedWorkQueue<int> q(newestCapacity(5));
-  std::promise<void> stalled, release;
-  std::shared_future<void> released = release.get_future().share();
-  std::vector<int> processed;
   int handed_on = 0;
-  std::thread worker([&] {
-    drainNewest<int, int>(
-        q, 5, nullptr, [](const std::deque<int>&, const std::vector<bool>&) { return NewestChoice{0, false}; },
-        [&](int&, int&) { ++handed_on; }, [](const int& i) { return static_cast<std::size_t>(i); },
-        [&](int& item, int*, std::chrono::steady_clock::time_point) {
-          processed.push_back(item);
-          if (item == 0) {
-            stalled.set_value();
-            released.wait();
-          }
-        },
-        [](const std::string& e) { ADD_FAILURE() << e; });
-  });
-  q.push(0);
-  ASSERT_EQ(stalled.get_future().wait_for(kDeadline), std::future_status::ready);
-  for (int i = 1; i <= 12; ++i) q.push(i);
-  release.set_value();
-  q.close();
-  worker.join();
+  const std::vector<int> processed = drainAfterAStall(
+      q, 12,
+      [](const std::deque<int>&, const std::vector<bool>&) {
+        return NewestChoice{0, false};
+      },
+      [&](int&) { ++handed_on; });
   EXPECT_EQ(processed, (std::vector<int>{0, 8, 9, 10, 11, 12}));
   EXPECT_EQ(q.dropped(), 7);
   EXPECT_EQ(q.skipped(), 0);
@@ -380,8 +388,8 @@ TEST(DrainNewest, AnItemGetsItsOwnPreparationOrNone) {
     int value = -1;
     std::size_t arrival = 0;
   };
-  core::OrderedPrefetch<int, Item> prefetch(1, [](Item i, int) { return i.value * 10; },
-                                            core::OrderedPrefetch<int, Item>::Start::kNewest);
+  core::OrderedPrefetch<int, Item> prefetch(
+      1, [](Item i, int) { return i.value * 10; }, core::OrderedPrefetch<int, Item>::Start::kNewest);
   BoundedWorkQueue<Item> q(newestCapacity(5));
   for (int i = 0; i < 30; ++i) {
     Item item{i, 0};
