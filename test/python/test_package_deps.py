@@ -204,7 +204,14 @@ def launch_keys(pattern):
 
 
 def tool_scripts():
-    return sorted(glob.glob(os.path.join(PKG_DIR, "src", "tools", "*.py")))
+    """The installed Python programs: catkin_install_python(PROGRAMS ...) of CMakeLists.txt."""
+    with open(os.path.join(PKG_DIR, "CMakeLists.txt")) as f:
+        text = f.read()
+    programs = []
+    for m in re.finditer(r"catkin_install_python\(PROGRAMS(.*?)DESTINATION", text, re.S):
+        programs += [os.path.join(PKG_DIR, p) for p in m.group(1).split()]
+    assert programs, "no catkin_install_python(PROGRAMS ...) in CMakeLists.txt"
+    return sorted(programs)
 
 
 def python_test_sources():

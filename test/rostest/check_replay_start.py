@@ -1,0 +1,82 @@
+#!/usr/bin/python3
+"""rostest: replay.launch's player waits for the odometry (scripts/resume_player.py).
+
+replay.launch starts with delay:=0 (rosbag play publishes at once) on the fixture mission's s0.bag,
+the nodelets loading meanwhile. The player starts paused and is resumed once the odometry is
+connected: the odometry receives every image of the bag (its diagnostics' images_received) and
+session 0's keyframe 0 is the bag's first image. ~wait_for_odometry false is for measuring what
+the wait prevents (the images lost without it); it is not registered as a test.
+"""
+import os
+import shutil
+import signal
+import subprocess
+import threading
+import unittest
+
+import rospy
+import rostest
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from pipeline_fixture import NS, SENSOR_TOPICS, appender, await_condition, bag_frames, diagnostic_values, make_mission
+from uw_multislam.msg import Keyframe
+
+
+class ReplayStartTest(unittest.TestCase):
+    def setUp(self):
+        self.tmp, self.mission = make_mission("uwms_replay_start_")
+        self.wait = rospy.get_param("~wait_for_odometry", True)
+
+    def tearDown(self):
+        if self.launch.poll() is None:
+            self.launch.send_signal(signal.SIGINT)
+            try:
+                self.launch.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                self.launch.kill()
+                self.launch.wait()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def test_the_odometry_receives_every_image_from_the_first(self):
+        bag = os.path.join(self.mission, "s0.bag")
+        images = [image.header.stamp for (image,) in bag_frames(bag, SENSOR_TOPICS[:1])]
+        lock = threading.Lock()
+        keyframes, poses, odometry = [], [], {}
+
+        def on_diag(msg):
+            for s in msg.status:
+                if s.name.endswith(": odometry"):
+                    with lock:
+                        odometry.update(diagnostic_values(s))
+
+        subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, appender(lock, keyframes), queue_size=1000),
+                rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, appender(lock, poses),
+                                 queue_size=1000),
+                rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)]
+        self.launch = subprocess.Popen(["roslaunch", "uw_multislam", "replay.launch", "bag:=" + bag, "delay:=0",
+                                        "rate:=4", "camera_mount:=0 0 0 0",
+                                        "wait_for_odometry:=" + ("true" if self.wait else "false")],
+                                       stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+        # The bag is over when the odometry's pose of its last image is out (every processed frame has
+        # one); the diagnostics (every second) then count what the odometry received.
+        await_condition(lock, lambda: any(p.header.stamp == images[-1] for p in poses), 120,
+                        "the odometry's pose of the bag's last image", lambda: ": %s" % odometry)
+        await_condition(lock, lambda: odometry.get("frames_finished") == odometry.get("images_received") and
+                        odometry.get("frames_finished", 0) >= len(poses), 10,
+                        "the odometry's diagnostics after the last image", lambda: ": %s" % odometry)
+        for s in subs:
+            s.unregister()
+        with lock:
+            received = int(odometry["images_received"])
+            first = [k for k in keyframes if k.session == 0 and k.keyframe == 0]
+        rospy.loginfo("replay_start (wait_for_odometry %s): the odometry received %d of the bag's %d images; "
+                      "session 0 starts at image %s", self.wait, received, len(images),
+                      images.index(first[0].header.stamp) if first else "none")
+        self.assertEqual(received, len(images))
+        self.assertTrue(first, "no keyframe 0 of session 0")
+        self.assertEqual(first[0].header.stamp, images[0])
+
+
+if __name__ == "__main__":
+    rospy.init_node("check_replay_start")
+    rostest.rosrun("uw_multislam", "check_replay_start", ReplayStartTest)
