@@ -28,7 +28,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from sensor_msgs.msg import CameraInfo, Image, Range
 from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, compose, connected,
-                              diagnostic_values, invert, make_mission, mount_of_params, tool, vehicle_from_camera)
+                              diagnostic_values, invert, make_mission, mount_of_params, stop_launch, tool,
+                              vehicle_from_camera)
 from uw_multislam.msg import Keyframe
 from uw_multislam.srv import ListSessions
 
@@ -66,13 +67,7 @@ class RelocaliseTest(unittest.TestCase):
                                        stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
 
     def tearDown(self):
-        if self.launch.poll() is None:
-            self.launch.send_signal(signal.SIGINT)
-            try:
-                self.launch.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                self.launch.kill()
-                self.launch.wait()
+        stop_launch(self.launch)
         shutil.rmtree(self.tmp, ignore_errors=True)
 
     def test_relocalises_within_three_keyframes_to_two_centimetres(self):

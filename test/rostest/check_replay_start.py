@@ -9,7 +9,6 @@ the wait prevents (the images lost without it); it is not registered as a test.
 """
 import os
 import shutil
-import signal
 import subprocess
 import threading
 import unittest
@@ -18,7 +17,8 @@ import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from pipeline_fixture import NS, SENSOR_TOPICS, appender, await_condition, bag_frames, diagnostic_values, make_mission
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, diagnostic_values, make_mission,
+                              stop_launch)
 from uw_multislam.msg import Keyframe
 
 
@@ -28,13 +28,7 @@ class ReplayStartTest(unittest.TestCase):
         self.wait = rospy.get_param("~wait_for_odometry", True)
 
     def tearDown(self):
-        if self.launch.poll() is None:
-            self.launch.send_signal(signal.SIGINT)
-            try:
-                self.launch.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                self.launch.kill()
-                self.launch.wait()
+        stop_launch(self.launch)
         shutil.rmtree(self.tmp, ignore_errors=True)
 
     def test_the_odometry_receives_every_image_from_the_first(self):

@@ -148,6 +148,18 @@ def bag_frames(path, topics=SENSOR_TOPICS):
     return [tuple(f[t] for t in topics) for _, f in sorted(by_stamp.items()) if len(f) == len(topics)]
 
 
+def stop_launch(launch, timeout=60):
+    """Stops a roslaunch started with subprocess.Popen as Ctrl-C does (SIGINT), killed after
+    `timeout` seconds."""
+    if launch.poll() is None:
+        launch.send_signal(signal.SIGINT)
+        try:
+            launch.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            launch.kill()
+            launch.wait()
+
+
 def frames_by_stamp(mission, names=("s0", "s1")):
     """{image stamp (ns): (session, index)} for the mission's bags, index as in world_gt.csv.
     A test matches what the pipeline publishes to the ground truth by the image's stamp, never by
