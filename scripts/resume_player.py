@@ -65,7 +65,7 @@ def main():
     while not rospy.is_shutdown():
         try:
             ok, what = ready(master, player, subscriber, image)
-        except (rosgraph.MasterError, OSError, xmlrpc.client.Fault) as e:  # the player not registered yet
+        except (rosgraph.MasterException, OSError, xmlrpc.client.Fault) as e:  # e.g. the player not registered yet
             ok, what = False, str(e)
         now = time.monotonic()
         if not ok:
