@@ -72,10 +72,9 @@ inline ros_work::NewestChoice chooseNewest(const core::FrameSkipRule* rule, cons
   if (!timing || !started.empty()) return c;
   core::InputTiming t = *timing;
   t.chosen_arrival_s = waiting[choice.index].arrived_s;
-  const core::WaitAdvice advice = core::waitForNext(*rule, w, choice, t, stale_fraction);
-  if (advice.why != core::WaitAdvice::Why::kNone)
+  if (const std::optional<double> until = core::waitForNext(*rule, w, choice, t, stale_fraction))
     c.wait_for = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-        std::chrono::duration<double>(std::max(0.0, advice.until_s - t.now_s)));
+        std::chrono::duration<double>(std::max(0.0, *until - t.now_s)));
   return c;
 }
 

@@ -181,23 +181,23 @@ InputTiming FrameBudget::timing(double now_s) const {
   return t;
 }
 
-WaitAdvice waitForNext(const FrameSkipRule& rule, const std::vector<WaitingFrame>& waiting,
-                       const FrameSkipRule::Choice& choice, const InputTiming& t, double stale_fraction) {
+std::optional<double> waitForNext(const FrameSkipRule& rule, const std::vector<WaitingFrame>& waiting,
+                                  const FrameSkipRule::Choice& choice, const InputTiming& t, double stale_fraction) {
   using R = FrameSkipRule::Reason;
-  if (waiting.empty() || choice.index + 1 != waiting.size()) return {};
-  if (choice.reason != R::kNewestSafe && choice.reason != R::kOnlyOne) return {};
+  if (waiting.empty() || choice.index + 1 != waiting.size()) return std::nullopt;
+  if (choice.reason != R::kNewestSafe && choice.reason != R::kOnlyOne) return std::nullopt;
   const WaitingFrame& newest = waiting.back();
   // Safe and predicted (kOnlyOne says neither): a keyframe due at it, or no prediction, is taken now.
-  if (rule.keyframeDue(newest.stamp_s, newest.altitude_m) != std::optional<bool>(false)) return {};
-  if (!(stale_fraction < 1.0) || !(t.period_s > 0) || !(t.last_arrival_s > 0)) return {};
-  if (!(t.cost_s > t.period_s) || !(t.jitter_s <= 0.5 * t.period_s)) return {};  // keeping up, or irregular
-  const double next = t.last_arrival_s + t.period_s;                             // the next frame's expected arrival
+  if (rule.keyframeDue(newest.stamp_s, newest.altitude_m) != std::optional<bool>(false)) return std::nullopt;
+  if (!(stale_fraction < 1.0) || !(t.period_s > 0) || !(t.last_arrival_s > 0)) return std::nullopt;
+  if (!(t.cost_s > t.period_s) || !(t.jitter_s <= 0.5 * t.period_s)) return std::nullopt;  // keeping up, or irregular
+  const double next = t.last_arrival_s + t.period_s;  // the next frame's expected arrival
   // The margin for the arrivals' jitter: four mean deviations, within [1/8, 1/2] period. Overdue
   // beyond it (the input stopped or slowed: the last frame of a run) or a clock step: no wait.
   const double until = next + std::clamp(4.0 * t.jitter_s, 0.125 * t.period_s, 0.5 * t.period_s);
-  if (until <= t.now_s || next - t.now_s > t.period_s) return {};
-  if (t.now_s - t.chosen_arrival_s <= stale_fraction * t.period_s) return {};
-  return {WaitAdvice::Why::kStale, until};
+  if (until <= t.now_s || next - t.now_s > t.period_s) return std::nullopt;
+  if (t.now_s - t.chosen_arrival_s <= stale_fraction * t.period_s) return std::nullopt;
+  return until;
 }
 
 double keyframeLookaheadS(double cost_s, double period_s, double stamp_period_s) {

@@ -77,11 +77,11 @@ SimRun simulate(int frames, double cost, const Policy& policy) {
       t.last_arrival_s = newest;
       t.period_s = 1.0;
       t.cost_s = cost;
-      const WaitAdvice a = policy.skip && newest + 1 < frames
-                               ? waitForNext(rule, waiting, choice, t, policy.stale_fraction)
-                               : WaitAdvice();
-      if (a.why == WaitAdvice::Why::kNone) break;
-      if (!deadline) deadline = a.until_s, ++run.waits;
+      const std::optional<double> until = policy.skip && newest + 1 < frames
+                                              ? waitForNext(rule, waiting, choice, t, policy.stale_fraction)
+                                              : std::nullopt;
+      if (!until) break;
+      if (!deadline) deadline = *until, ++run.waits;
       if (now >= *deadline) break;
       now = std::min(*deadline, static_cast<double>(newest + 1));  // the next arrival (always before the deadline)
     }

@@ -147,25 +147,19 @@ struct InputTiming {
   double cost_s = 0.0;            // the recent processing time of a frame
 };
 
-/// Whether the worker should wait for the next frame rather than start the choice now, and until when.
-struct WaitAdvice {
-  enum class Why {
-    kNone,   // start the choice now
-    kStale,  // it waited longer than stale_fraction of a period; the next one is due sooner
-  };
-  Why why = Why::kNone;
-  double until_s = 0.0;  // give up then (the expected arrival plus a jitter margin, 1/8 to 1/2 period) and choose again
-};
-
-/// The worker's wait for the next frame (see above). Only for a choice that is the newest waiting
-/// frame and safe (chosen with a prediction, no keyframe due at it), while the worker is behind on
-/// average (cost above the period: a worker that keeps up processes a frame late after one slow
-/// frame rather than skip it), frames arrive regularly (the intervals' mean deviation at most half
-/// a period: frames released in bursts, e.g. paired with a slower altimeter, give no next
-/// arrival to wait for) and the next one is not overdue. `stale_fraction`: of the input period
-/// (>= 1: never).
-WaitAdvice waitForNext(const FrameSkipRule& rule, const std::vector<WaitingFrame>& waiting,
-                       const FrameSkipRule::Choice& choice, const InputTiming& timing, double stale_fraction);
+/// The worker's wait for the next frame (see above): the time (s, as timing's) until which to wait
+/// rather than start the choice now, which waited longer than stale_fraction of a period while the
+/// next frame is due sooner. Then (the expected arrival plus a jitter margin, 1/8 to 1/2 period)
+/// the worker gives up and chooses again. nullopt: start the choice now.
+/// Only for a choice that is the newest waiting frame and safe (chosen with a prediction, no
+/// keyframe due at it), while the worker is behind on average (cost above the period: a worker
+/// that keeps up processes a frame late after one slow frame rather than skip it), frames arrive
+/// regularly (the intervals' mean deviation at most half a period: frames released in bursts, e.g.
+/// paired with a slower altimeter, give no next arrival to wait for) and the next one is not
+/// overdue. `stale_fraction`: of the input period (>= 1: never).
+std::optional<double> waitForNext(const FrameSkipRule& rule, const std::vector<WaitingFrame>& waiting,
+                                  const FrameSkipRule::Choice& choice, const InputTiming& timing,
+                                  double stale_fraction);
 
 /// The span of stamps after a frame in which the frames that arrive while it is processed lie, all
 /// but the newest of them (core::OdometryInput::keyframe_lookahead_s): (ceil(cost / period) - 1)
