@@ -27,8 +27,7 @@ std::size_t OdometryNodeletOptions::workerQueueSize() const {
 }
 
 int OdometryNodeletOptions::inputQueueSize() const {
-  if (drop_policy != "newest") return sync_queue_size;
-  return std::max(sync_queue_size, static_cast<int>(workerQueueSize()));
+  return std::max(sync_queue_size, static_cast<int>(ros_work::newestCapacity(static_cast<std::size_t>(queue_size))));
 }
 
 core::InputPairingOptions OdometryNodeletOptions::pairing() const {
