@@ -7,7 +7,7 @@
 #include <sensor_msgs/NavSatFix.h>
 
 #include "uw_multislam/Keyframe.h"
-#include "uw_multislam/core/session/geo_datum.h"
+#include "uw_multislam/core/export/geo_datum.h"
 
 #include "uw_multislam/ros/conversions.h"
 

@@ -10,7 +10,7 @@
 
 #include <yaml-cpp/yaml.h>
 
-#include "uw_multislam/core/session/geo_datum.h"
+#include "uw_multislam/core/export/geo_datum.h"
 
 namespace uw_multislam {
 namespace ros_params {

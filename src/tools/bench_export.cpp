@@ -16,9 +16,9 @@
 
 #include "cli.h"
 
-#include "uw_multislam/core/session/mosaic.h"
-#include "uw_multislam/core/session/session_store.h"
-#include "uw_multislam/core/session/survey_export.h"
+#include "uw_multislam/core/export/mosaic.h"
+#include "uw_multislam/core/export/survey_export.h"
+#include "uw_multislam/core/store/session_store.h"
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;

@@ -39,8 +39,8 @@
 
 #include "uw_multislam/core/session/pipeline.h"
 #include "uw_multislam/core/session/session_manager.h"
-#include "uw_multislam/core/session/session_store.h"
 #include "uw_multislam/core/session/slam_config.h"
+#include "uw_multislam/core/store/session_store.h"
 
 namespace core = uw_multislam::core;
 namespace fs = std::filesystem;

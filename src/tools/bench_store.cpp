@@ -25,10 +25,10 @@
 #include "cli.h"
 
 #include "uw_multislam/core/loops/loop_detector.h"
-#include "uw_multislam/core/session/keyframe_image.h"
-#include "uw_multislam/core/session/map_persistence.h"
 #include "uw_multislam/core/session/session_manager.h"
-#include "uw_multislam/core/session/session_store.h"
+#include "uw_multislam/core/store/keyframe_image.h"
+#include "uw_multislam/core/store/map_persistence.h"
+#include "uw_multislam/core/store/session_store.h"
 #include "uw_multislam/sim/seabed_world.h"
 #include "uw_multislam/sim/water_model.h"
 

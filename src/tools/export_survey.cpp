@@ -1,5 +1,5 @@
 // export_survey: the survey's products from a session store or an offline_slam output folder:
-// argument parsing and calls into core/session/survey_export.h and run_export.h; contract:
+// argument parsing and calls into core/export/survey_export.h and run_export.h; contract:
 // --help, README "Exporting a survey".
 #include <cerrno>
 #include <cmath>
@@ -12,12 +12,12 @@
 
 #include "cli.h"
 
+#include "uw_multislam/core/export/mosaic.h"
+#include "uw_multislam/core/export/run_export.h"
+#include "uw_multislam/core/export/survey_export.h"
+#include "uw_multislam/core/export/track_files.h"
 #include "uw_multislam/core/frontend/dataset.h"
-#include "uw_multislam/core/session/mosaic.h"
-#include "uw_multislam/core/session/run_export.h"
-#include "uw_multislam/core/session/session_store.h"
-#include "uw_multislam/core/session/survey_export.h"
-#include "uw_multislam/core/session/track_files.h"
+#include "uw_multislam/core/store/session_store.h"
 
 namespace core = uw_multislam::core;
 namespace po = boost::program_options;

@@ -1,5 +1,5 @@
 // merge_stores: session stores of several vehicles or dives into one. Argument parsing around
-// core::mergeStores (core/session/store_merge.h); contract: --help, README "Fleet merge".
+// core::mergeStores (core/store/store_merge.h); contract: --help, README "Fleet merge".
 #include <cstdio>
 #include <exception>
 #include <optional>
@@ -8,9 +8,9 @@
 
 #include "cli.h"
 
-#include "uw_multislam/core/session/session_store.h"
 #include "uw_multislam/core/session/slam_config.h"
-#include "uw_multislam/core/session/store_merge.h"
+#include "uw_multislam/core/store/session_store.h"
+#include "uw_multislam/core/store/store_merge.h"
 
 namespace core = uw_multislam::core;
 namespace po = boost::program_options;

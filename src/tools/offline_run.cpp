@@ -15,14 +15,14 @@
 #include <vector>
 
 #include "uw_multislam/core/common/ordered_prefetch.h"
+#include "uw_multislam/core/export/run_outputs.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/image_file.h"
-#include "uw_multislam/core/session/interrupted_run.h"
 #include "uw_multislam/core/session/pipeline.h"
-#include "uw_multislam/core/session/run_outputs.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/core/session/stored_loops.h"
+#include "uw_multislam/core/store/interrupted_run.h"
 
 namespace uw_multislam::tools {
 

@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "uw_multislam/core/loops/loop_detector.h"
-#include "uw_multislam/core/session/interrupted_run.h"
+#include "uw_multislam/core/store/interrupted_run.h"
 
 namespace uw_multislam::tools {
 

@@ -40,8 +40,8 @@
 
 #include <Eigen/Geometry>
 
+#include "uw_multislam/core/export/survey_export.h"
 #include "uw_multislam/core/session/odom_chain.h"
-#include "uw_multislam/core/session/survey_export.h"
 #include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/topics.h"
 

@@ -15,9 +15,9 @@
 
 #include "uw_multislam/core/frontend/tracking.h"
 #include "uw_multislam/core/loops/haloc.h"
-#include "uw_multislam/core/session/keyframe_image.h"
 #include "uw_multislam/core/session/session_queries.h"
 #include "uw_multislam/core/session/slam_config.h"
+#include "uw_multislam/core/store/keyframe_image.h"
 
 namespace uw_multislam {
 namespace ros_outputs {

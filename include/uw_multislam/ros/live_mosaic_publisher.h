@@ -1,4 +1,4 @@
-// The back-end's live mosaic (core/session/live_mosaic.h) on the `mosaic` topic (latched): the
+// The back-end's live mosaic (core/export/live_mosaic.h) on the `mosaic` topic (latched): the
 // active map, the active keyframe outlined, redrawn at most at ~mosaic_rate when it changed
 // (markDue: keyframes, joins, splits, optimisations) and someone subscribes.
 //
@@ -20,7 +20,7 @@
 #include <thread>
 #include <vector>
 
-#include "uw_multislam/core/session/live_mosaic.h"
+#include "uw_multislam/core/export/live_mosaic.h"
 #include "uw_multislam/core/session/session_worker.h"
 
 namespace uw_multislam {

@@ -16,7 +16,7 @@
 #include <string>
 #include <vector>
 
-#include "uw_multislam/core/session/live_mosaic.h"
+#include "uw_multislam/core/export/live_mosaic.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/session_worker.h"
 #include "uw_multislam/core/session/slam_config.h"
@@ -52,7 +52,7 @@ struct BackendNodeletOptions {
   int worker_nice = 0;         // the worker thread's nice value (0..19: above 0 the odometry's frames come first)
   int max_empty_sessions = 1;  // start_session refused while this many sessions in a row have no keyframe
   double stats_period_s = 30.0, diagnostic_period_s = 1.0;
-  /// The live mosaic (core/session/live_mosaic.h): redrawn at most at mosaic_rate_hz when the
+  /// The live mosaic (core/export/live_mosaic.h): redrawn at most at mosaic_rate_hz when the
   /// active map changed (0: off), at mosaic_resolution_m, coarser when wider than mosaic_max_side_px.
   double mosaic_rate_hz = 0.2;
   core::LiveMosaicOptions mosaic;

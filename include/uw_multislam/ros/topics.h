@@ -90,7 +90,7 @@ constexpr char kKeyframePoseWithCovariance[] = "keyframe_pose";
 constexpr char kKeyframeFix[] = "keyframe_fix";
 constexpr char kRelocalisedPose[] = "relocalised_pose";
 /// sensor_msgs/Image (back-end, latched, bgr8, drawn only while subscribed): the live mosaic of the
-/// active map (core/session/live_mosaic.h), the active keyframe outlined in red; rows along the
+/// active map (core/export/live_mosaic.h), the active keyframe outlined in red; rows along the
 /// map's image-axes y, redrawn at most at ~mosaic_rate after keyframes, joins, splits and optimisations.
 constexpr char kLiveMosaic[] = "mosaic";
 

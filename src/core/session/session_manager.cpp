@@ -8,8 +8,8 @@
 #include <utility>
 
 #include "session_detail.h"
-#include "uw_multislam/core/session/interrupted_run.h"
-#include "uw_multislam/core/session/map_persistence.h"
+#include "uw_multislam/core/store/interrupted_run.h"
+#include "uw_multislam/core/store/map_persistence.h"
 
 namespace uw_multislam {
 namespace core {

@@ -6,7 +6,7 @@
 #include <utility>
 
 #include "session_detail.h"
-#include "uw_multislam/core/session/interrupted_run.h"
+#include "uw_multislam/core/store/interrupted_run.h"
 
 namespace uw_multislam {
 namespace core {

@@ -23,8 +23,8 @@
 #include "uw_multislam/core/geometry/trajectory.h"
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/loops/loop_detector.h"
-#include "uw_multislam/core/session/session_store.h"
 #include "uw_multislam/core/session/slam_config.h"
+#include "uw_multislam/core/store/session_store.h"
 
 namespace uw_multislam {
 namespace core {

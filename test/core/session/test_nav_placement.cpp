@@ -20,8 +20,8 @@
 #include "uw_multislam/core/frontend/tracking.h"
 #include "uw_multislam/core/session/nav_session_placer.h"
 #include "uw_multislam/core/session/session_manager.h"
-#include "uw_multislam/core/session/session_store.h"
-#include "uw_multislam/core/session/store_merge.h"
+#include "uw_multislam/core/store/session_store.h"
+#include "uw_multislam/core/store/store_merge.h"
 
 namespace uw_multislam {
 namespace core {

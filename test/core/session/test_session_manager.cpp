@@ -14,10 +14,10 @@
 #include "../../common/scoped_temp_dir.h"
 #include "../../common/seabed_features.h"
 #include "../../common/sql_file.h"
-#include "uw_multislam/core/session/run_outputs.h"
+#include "uw_multislam/core/export/run_outputs.h"
 #include "uw_multislam/core/session/session_manager.h"
-#include "uw_multislam/core/session/store_merge.h"
 #include "uw_multislam/core/session/stored_loops.h"
+#include "uw_multislam/core/store/store_merge.h"
 
 namespace uw_multislam {
 namespace core {

@@ -31,10 +31,10 @@
 #include "uw_multislam/core/frontend/tracking.h"
 #include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/loops/session_chain.h"
-#include "uw_multislam/core/session/keyframe_image.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/session_worker.h"
 #include "uw_multislam/core/session/slam_config.h"
+#include "uw_multislam/core/store/keyframe_image.h"
 
 namespace uw_multislam {
 namespace core {

@@ -8,7 +8,7 @@
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/frontend/tracking.h"
 #include "uw_multislam/core/loops/loop_detector.h"
-#include "uw_multislam/core/session/keyframe_image.h"
+#include "uw_multislam/core/store/keyframe_image.h"
 
 namespace uw_multislam {
 namespace core {

@@ -42,7 +42,7 @@
 #include "uw_multislam/SetMode.h"
 #include "uw_multislam/SplitSession.h"
 #include "uw_multislam/StartSession.h"
-#include "uw_multislam/core/session/session_export.h"
+#include "uw_multislam/core/export/session_export.h"
 #include "uw_multislam/core/session/session_worker.h"
 #include "uw_multislam/ros/backend_counters.h"
 #include "uw_multislam/ros/fleet_hash_exchange.h"

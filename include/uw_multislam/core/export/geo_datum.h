@@ -1,0 +1,59 @@
+// The datum of the map frame: where `map`'s origin is on the earth, for the static earth -> map
+// and utm -> map transforms robot_localization's navsat_transform publishes, and the geographic
+// position of a keyframe. Part of uw_multislam_export (GeographicLib stays out of the core library).
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <array>
+#include <string>
+
+#include "uw_multislam/core/export/survey_export.h"
+#include "uw_multislam/core/geometry/uncertain_pose.h"
+
+namespace uw_multislam {
+namespace core {
+
+/// The pose of `map` in ECEF (WGS84, metres): translation = the origin's ECEF position (height
+/// 0), rotation = the local east-north-up axes at the origin turned by the heading. Exact
+/// ellipsoidal maths (GeographicLib::Geocentric), consistent with latLon(): a map point p lies at
+/// earthFromMap(origin) * p, whose geodetic latitude/longitude is latLon(origin, p.x, p.y) for z = 0.
+Eigen::Isometry3d earthFromMap(const GeoOrigin& origin);
+
+/// A map-frame position on WGS84, as sensor_msgs/NavSatFix carries one.
+struct GeoFix {
+  double lat_deg = 0.0, lon_deg = 0.0;
+  /// Height above the ellipsoid of the map point (x, y, 0): map's z = 0 plane, tangent at the
+  /// origin at height 0, rises with the distance d from it (d^2 / 2R, 8 mm at 320 m). The vehicle's
+  /// depth is not part of a 2-D pose.
+  double alt_m = 0.0;
+  /// Row-major 3x3 covariance in east, north, up (m^2): the pose's (x, y) block turned by the
+  /// heading; the up row and column are 0 (the point lies on map's plane by construction).
+  std::array<double, 9> enu_covariance{};
+};
+
+/// The geographic position of a map-frame (z-up) pose: its (x, y) on map's z = 0 plane through
+/// GeographicLib's LocalCartesian at the origin (the path latLon() and the exports take), and its
+/// position covariance rotated into east/north/up.
+GeoFix fixFromMap(const GeoOrigin& origin, const UncertainPose2& pose);
+
+/// `map` in its datum's UTM zone, as navsat_transform's utm -> map: x = easting, y = northing
+/// (metres, false easting/northing included), z up.
+struct UtmDatum {
+  int zone = 0;       // 1..60
+  bool north = true;  // hemisphere
+  /// Rigid: map's origin at the datum's (easting, northing), map's x axis turned to the heading
+  /// measured from grid north (= heading - convergence). UTM's scale factor k is left out (tf
+  /// transforms are rigid): a map point d metres from the origin lands within |k - 1| d of its
+  /// true UTM coordinates (k in [0.9996, 1.001] inside a zone: at most 1 mm per metre).
+  Eigen::Isometry3d utm_from_map = Eigen::Isometry3d::Identity();
+  double convergence_deg = 0.0;  // bearing of grid north clockwise from true north, at the origin
+  double scale = 1.0;            // k at the origin
+  std::string zoneName() const;  // "31N", "56S"
+};
+/// Throws std::invalid_argument for a datum outside UTM's latitudes ([-80, 84]; UPS is not a UTM
+/// zone and navsat_transform does not publish it either).
+UtmDatum utmFromMap(const GeoOrigin& origin);
+
+}  // namespace core
+}  // namespace uw_multislam
