@@ -183,39 +183,47 @@ TEST(TypedParams, AQuotedDatumStopsTheBackendNamingTheKey) {
   EXPECT_EQ(o.frames.datum->heading_deg, 30.0);
 }
 
+std::string odometryRefusal(const XmlRpcValue& tree) {
+  const ros_params::Params nh(tree, "/uw_multislam");
+  return thrown([&] { ros_params::odometryNodeletOptions(nh, nh.child("odometry_node")); });
+}
+
+std::string loopDetectorRefusal(const XmlRpcValue& tree) {
+  const ros_params::Params nh(tree, "/uw_multislam");
+  return thrown([&] { ros_params::loopDetectorNodeletOptions(nh.child("loop_detector_node")); });
+}
+
 TEST(TypedParams, EachNodeRefusesAValueOfAnotherTypeNamingTheKey) {
-  EXPECT_EQ(backendRefusal(pipeline("backend_node", "publish_tf", XmlRpcValue("true"))),
-            "/uw_multislam/backend_node/publish_tf = 'true': text, not true or false (write it without quotes)");
-  EXPECT_EQ(backendRefusal(pipeline("backend_node", "queue_size", XmlRpcValue(10.5))),
-            "/uw_multislam/backend_node/queue_size = 10.5: not a whole number within [-2147483648, 2147483647]");
-  EXPECT_EQ(backendRefusal(pipeline("backend_node", "store_path", XmlRpcValue(1))),
-            "/uw_multislam/backend_node/store_path = 1: a number, not text (quote it)");
-  EXPECT_EQ(backendRefusal(pipeline("frames", "map_frame", XmlRpcValue(7))),
-            "/uw_multislam/frames/map_frame = 7: a number, not text (quote it)");
-  EXPECT_EQ(backendRefusal(pipeline("backend_node", "queue_size", XmlRpcValue(10.0))), "");  // whole: fine
-
-  const auto odometry = [](const XmlRpcValue& tree) {
-    const ros_params::Params nh(tree, "/uw_multislam");
-    return thrown([&] { ros_params::odometryNodeletOptions(nh, nh.child("odometry_node")); });
+  const std::string text = ": text, not a number (write it without quotes)", number = ": a number, not text (quote it)";
+  struct Case {
+    std::string (*refusal)(const XmlRpcValue&);
+    const char *block, *key;
+    XmlRpcValue value;
+    std::string expected;  // after "/uw_multislam/<block>/<key> = "; "" when taken
   };
-  EXPECT_EQ(odometry(pipeline("odometry_node", "session_gap_s", XmlRpcValue("60"))),
-            "/uw_multislam/odometry_node/session_gap_s = '60': text, not a number (write it without quotes)");
-  EXPECT_EQ(odometry(pipeline("odometry_node", "image_transport", XmlRpcValue(1))),
-            "/uw_multislam/odometry_node/image_transport = 1: a number, not text (quote it)");
-  EXPECT_EQ(odometry(pipeline("backend_node", "publish_odom_tf", XmlRpcValue(0))),
-            "/uw_multislam/backend_node/publish_odom_tf = 0: a number, not true or false");
-  EXPECT_EQ(odometry(pipeline("frames", "mount_wait_s", XmlRpcValue("2"))),
-            "/uw_multislam/frames/mount_wait_s = '2': text, not a number (write it without quotes)");
-  EXPECT_EQ(odometry(pipeline("odometry_node", "session_gap_s", XmlRpcValue(60))), "");  // an int: fine
-
-  const auto loops = [](const XmlRpcValue& tree) {
-    const ros_params::Params nh(tree, "/uw_multislam");
-    return thrown([&] { ros_params::loopDetectorNodeletOptions(nh.child("loop_detector_node")); });
+  const Case cases[] = {
+      {backendRefusal, "backend_node", "publish_tf", XmlRpcValue("true"),
+       "'true': text, not true or false (write it without quotes)"},
+      {backendRefusal, "backend_node", "queue_size", XmlRpcValue(10.5),
+       "10.5: not a whole number within [-2147483648, 2147483647]"},
+      {backendRefusal, "backend_node", "queue_size", XmlRpcValue(10.0), ""},  // whole: fine
+      {backendRefusal, "backend_node", "store_path", XmlRpcValue(1), "1" + number},
+      {backendRefusal, "frames", "map_frame", XmlRpcValue(7), "7" + number},
+      {odometryRefusal, "odometry_node", "session_gap_s", XmlRpcValue("60"), "'60'" + text},
+      {odometryRefusal, "odometry_node", "session_gap_s", XmlRpcValue(60), ""},  // an int for a double: fine
+      {odometryRefusal, "odometry_node", "image_transport", XmlRpcValue(1), "1" + number},
+      {odometryRefusal, "backend_node", "publish_odom_tf", XmlRpcValue(0), "0: a number, not true or false"},
+      {odometryRefusal, "frames", "mount_wait_s", XmlRpcValue("2"), "'2'" + text},
+      // Range and cross-checks come after the type's, with the value as read.
+      {odometryRefusal, "odometry_node", "fallback_altitude", XmlRpcValue(300),
+       "300: above slam/odometry/max_altitude_m (200)"},
+      {loopDetectorRefusal, "loop_detector_node", "queue_size", XmlRpcValue("100"), "'100'" + text},
+      {loopDetectorRefusal, "loop_detector_node", "mode", XmlRpcValue(true), "true: true/false, not text (quote it)"},
   };
-  EXPECT_EQ(loops(pipeline("loop_detector_node", "queue_size", XmlRpcValue("100"))),
-            "/uw_multislam/loop_detector_node/queue_size = '100': text, not a number (write it without quotes)");
-  EXPECT_EQ(loops(pipeline("loop_detector_node", "mode", XmlRpcValue(true))),
-            "/uw_multislam/loop_detector_node/mode = true: true/false, not text (quote it)");
+  for (const Case& c : cases) {
+    const std::string key = std::string("/uw_multislam/") + c.block + "/" + c.key;
+    EXPECT_EQ(c.refusal(pipeline(c.block, c.key, c.value)), c.expected.empty() ? "" : key + " = " + c.expected) << key;
+  }
 }
 
 TEST(TypedParams, TheSlamTreeRefusesQuotedNumbersAndBoolsNamingTheKey) {

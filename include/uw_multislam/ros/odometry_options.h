@@ -1,8 +1,9 @@
 // The odometry nodelet's options: its own parameters (~ private; config/default.yaml and
 // doc/ros_api.md document each), the SLAM configuration it runs, the frames and the
 // fallback calibration (the sensors' mount comes from tf at the first frame, ros/camera_mount.h), read and validated
-// once by odometryNodeletOptions() (the nodelet never reads a parameter itself). Tested in rostest bad_input (each
-// refusal names the key).
+// once by odometryNodeletOptions() (the nodelet never reads a parameter itself; ros_params::Params checks each
+// value's type). Tested in gtest TypedParams and ConfigDefaults, rostests bad_input and bad_params (each refusal
+// names the key).
 #pragma once
 
 #include <ros/node_handle.h>

@@ -2,7 +2,9 @@
 // config/slam.yaml), read from the parameter server tree where launch/core.launch loads that
 // file (<namespace>/slam), so offline_slam and the nodelets share one file, one parser and one
 // validation: missing keys keep their defaults, unknown keys and bad values are errors naming
-// the key. Tested in test/ros/test_slam_params.cpp.
+// the key. The nodelets' own parameters are read through ros_params::Params (typed_params.h) into
+// the options structs below, whose initialisers are the defaults. Tested in
+// test/ros/test_slam_params.cpp, test_typed_params.cpp and test_config_defaults.cpp.
 #pragma once
 
 #include <ros/node_handle.h>
