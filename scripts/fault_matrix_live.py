@@ -850,10 +850,68 @@ def case_bounds_and_paths(st, survey):
         "path; sessions unchanged; nodes alive", observed, held)
 
 
+def ecef(lat_deg, lon_deg):
+    """WGS84 ECEF (m) of a point on the ellipsoid."""
+    import math
+    a, f = 6378137.0, 1.0 / 298.257223563
+    e2 = f * (2 - f)
+    phi, lam = math.radians(lat_deg), math.radians(lon_deg)
+    n = a / math.sqrt(1 - e2 * math.sin(phi) ** 2)
+    return (n * math.cos(phi) * math.cos(lam), n * math.cos(phi) * math.sin(lam), n * (1 - e2) * math.sin(phi))
+
+
+def case_quoted_datum(st, survey):
+    """A datum whose latitude is quoted in the config (backend_node/datum/latitude_deg: '43', text
+    on the parameter server, as a hand-edited file or a launch file's <param type="str"> gives it),
+    through slam.launch. The back-end must refuse to start with one line naming the key, before
+    it opens the store (no file) or advertises anything; the other nodes stay up. (Read as 0
+    degrees, the datum put earth -> map thousands of km off; the row then says how far.)"""
+    lat, lon = 43.0951, 5.9307
+    config = config_with(st, "quoted_datum.yaml",
+                         {"backend_node": {"datum": {"latitude_deg": "%g" % lat, "longitude_deg": lon}}})
+    st.launch = st.spawn(["roslaunch", "--wait", "uw_multislam", "slam.launch", "camera_mount:=0 0 0 0",
+                          "store_path:=" + st.store, "config:=" + config], "launch.log")
+    key = NS + "/backend_node/datum/latitude_deg = '%g'" % lat
+
+    def fatal():
+        with open(os.path.join(st.work, "launch.log"), errors="replace") as f:
+            return [line.strip() for line in f if "not starting" in line]
+
+    wait_for(lambda: fatal() or st.services_ready() or st.launch.poll() is not None, 90, 0.5)
+    started = st.services_ready()
+    off_note = ""
+    if started:  # the datum was taken: how far is earth -> map from it?
+        import rospy
+        import tf2_ros
+        rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
+        buf = tf2_ros.Buffer()
+        tf2_ros.TransformListener(buf)
+        try:
+            t = buf.lookup_transform("earth", "map", rospy.Time(0), rospy.Duration(20.0)).transform.translation
+            want = ecef(lat, lon)
+            off_note = "; earth -> map %.0f km from the datum" % (
+                ((t.x - want[0]) ** 2 + (t.y - want[1]) ** 2 + (t.z - want[2]) ** 2) ** 0.5 / 1000.0)
+        except Exception as e:
+            off_note = "; no earth -> map (%s)" % type(e).__name__
+    lines = fatal()
+    nodes, dead = st.alive()
+    store_made = os.path.exists(st.store)
+    st.stop_group(st.launch)
+    named = len(lines) == 1 and key in lines[0]
+    held = named and not started and not store_made and len(nodes) >= 3 and not dead
+    observed = "%s; back-end services %s%s; store file %s; %d nodes alive%s" % (
+        ("FATAL: " + lines[0][lines[0].find("back-end"):][:160]) if lines else "no refusal in the log",
+        "advertised" if started else "not advertised", off_note, "created" if store_made else "not created",
+        len(nodes), "" if not dead else ", DEAD: %s" % dead)
+    row("live: a quoted datum latitude ('43.0951') in the config",
+        "the back-end refuses to start with one line naming backend_node/datum/latitude_deg, before the store is "
+        "opened and before any service; the other nodes up", observed, held)
+
+
 CASES = {"service_misuse": case_service_misuse, "bounds_and_paths": case_bounds_and_paths, "concurrent": case_concurrent, "kill_manager": case_kill_manager,
          "bad_images": case_bad_images, "kill_manager_moments": case_kill_manager_moments,
          "replay_rates": case_replay_rates, "silent_altitude": case_silent_altitude, "burst": case_burst,
-         "store_cap": case_store_cap, "export_links": case_export_links}
+         "store_cap": case_store_cap, "export_links": case_export_links, "quoted_datum": case_quoted_datum}
 
 
 def main():

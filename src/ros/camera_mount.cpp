@@ -11,8 +11,6 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "uw_multislam/ros/slam_params.h"
-
 namespace uw_multislam {
 namespace ros_frames {
 
@@ -31,24 +29,25 @@ bool finiteMsg(const geometry_msgs::Transform& m) {
 }
 }  // namespace
 
-MountOptions mountOptions(const ros::NodeHandle& nh) {
+MountOptions mountOptions(const ros_params::Params& nh) {
   using ros_params::param;
-  auto nonempty = [](const std::string& s) { return !s.empty(); };
   MountOptions o;
-  o.base_frame = param(nh, "frames/base_frame", o.base_frame, nonempty, "a frame id");
-  o.wait_s = param(
-      nh, "frames/mount_wait_s", 2.0, [](double v) { return v >= 0 && v <= 60; }, "in [0, 60] s");
-  o.max_tilt_deg = param(
-      nh, "frames/max_camera_tilt_deg", 5.0, [](double v) { return v >= 0 && v <= 45; }, "in [0, 45] degrees");
+  param(
+      nh, "frames/base_frame", &o.base_frame, [](const std::string& s) { return !s.empty(); }, "a frame id");
+  param(
+      nh, "frames/mount_wait_s", &o.wait_s, [](double v) { return v >= 0 && v <= 60; }, "in [0, 60] s");
+  param(
+      nh, "frames/max_camera_tilt_deg", &o.max_tilt_deg, [](double v) { return v >= 0 && v <= 45; },
+      "in [0, 45] degrees");
   std::string former;
   for (const char* key :
        {"camera_position", "camera_yaw", "altimeter_position", "publish_mount_tf", "camera_frame", "altimeter_frame"})
-    if (nh.hasParam(std::string("frames/") + key)) former += std::string(former.empty() ? "" : ", ") + key;
+    if (nh.has(std::string("frames/") + key)) former += std::string(former.empty() ? "" : ", ") + key;
   if (!former.empty())
     ROS_WARN_ONCE(
         "%s: %s not read any more: the sensors' mount comes from tf, base_link -> the frame_id of the images and "
         "of the altitude readings (the vehicle's URDF, or the launch files' camera_mount / altimeter_mount arguments)",
-        nh.resolveName("frames").c_str(), former.c_str());
+        nh.resolve("frames").c_str(), former.c_str());
   return o;
 }
 

@@ -12,6 +12,7 @@
 #include "uw_multislam/core/frontend/enhancement.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/ros/camera_mount.h"
+#include "uw_multislam/ros/frame_publisher.h"
 #include "uw_multislam/ros/sensor_conversions.h"
 #include "uw_multislam/ros/slam_params.h"
 #include "uw_multislam/ros/work_queue.h"
@@ -59,97 +60,101 @@ ros_inputs::NavInputOptions OdometryNodeletOptions::nav() const {
 
 OdometryNodeletOptions odometryNodeletOptions(const ros::NodeHandle& nh, const ros::NodeHandle& pnh) {
   warnAboutFormerPrivateNamespace(pnh);
+  return odometryNodeletOptions(Params(nh), Params(pnh));
+}
+
+OdometryNodeletOptions odometryNodeletOptions(const Params& nh, const Params& pnh) {
   OdometryNodeletOptions o;
-  auto any = [](const auto&) { return true; };
   auto positive = [](double v) { return v > 0; };
-  auto in_0_1 = [](double v) { return std::isfinite(v) && v >= 0 && v <= 1; };
-  auto in_0_1_open = [](double v) { return std::isfinite(v) && v > 0 && v <= 1; };
-  o.use_altitude_topic = param(pnh, "use_altitude_topic", true, any, "a bool");
-  o.altitude_m = param(pnh, "altitude", 0.0, any, "");
-  if (!o.use_altitude_topic && !(std::isfinite(o.altitude_m) && o.altitude_m > 0)) {
-    throw std::invalid_argument(pnh.resolveName("altitude") + " = " + std::to_string(o.altitude_m) +
+  auto in_0_1 = [](double v) { return v >= 0 && v <= 1; };
+  auto in_0_1_open = [](double v) { return v > 0 && v <= 1; };
+  param(pnh, "image_transport", &o.image_transport);
+  param(pnh, "use_altitude_topic", &o.use_altitude_topic);
+  param(pnh, "altitude", &o.altitude_m);
+  if (!o.use_altitude_topic && !(o.altitude_m > 0)) {
+    throw std::invalid_argument(pnh.resolve("altitude") + " = " + shownMember(o.altitude_m) +
                                 ": must be a positive altitude in metres when use_altitude_topic is false");
   }
-  o.queue_size = param(
-      pnh, "queue_size", 5, [](int v) { return v >= 1 && v <= 10000; }, "in [1, 10000]");
-  o.drop_policy = param(
-      pnh, "drop_policy", std::string("newest"), [](const std::string& s) { return s == "newest" || s == "oldest"; },
+  param(
+      pnh, "queue_size", &o.queue_size, [](int v) { return v >= 1 && v <= 10000; }, "in [1, 10000]");
+  param(
+      pnh, "drop_policy", &o.drop_policy, [](const std::string& s) { return s == "newest" || s == "oldest"; },
       "newest (bounded latency: the newest frame that is safe to take, the ones before it skipped and counted) or "
       "oldest (every frame in order; the oldest dropped when the queue is full)");
-  o.prepare_threads = param(
-      pnh, "prepare_threads", 0, [](int v) { return v >= 0 && v <= 8; }, "in [0, 8]");
-  o.stale_fraction = param(pnh, "stale_fraction", 0.25, in_0_1_open, "in (0, 1]");
-  o.keyframe_lookahead = param(pnh, "keyframe_lookahead", true, any, "a bool") && o.drop_policy == "newest";
-  o.sync_queue_size = param(
-      pnh, "sync_queue_size", 10, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
-  o.sync_max_interval_s = param(pnh, "sync_max_interval_s", 0.1, positive, "positive");
-  o.altitude_max_age_s = param(
-      pnh, "altitude_max_age_s", 1.0, [](double v) { return std::isfinite(v) && v > 0 && v <= 60; },
+  param(
+      pnh, "prepare_threads", &o.prepare_threads, [](int v) { return v >= 0 && v <= 8; }, "in [0, 8]");
+  param(pnh, "stale_fraction", &o.stale_fraction, in_0_1_open, "in (0, 1]");
+  param(pnh, "keyframe_lookahead", &o.keyframe_lookahead);
+  o.keyframe_lookahead = o.keyframe_lookahead && o.drop_policy == "newest";
+  param(
+      pnh, "sync_queue_size", &o.sync_queue_size, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
+  param(pnh, "sync_max_interval_s", &o.sync_max_interval_s, positive, "positive");
+  param(
+      pnh, "altitude_max_age_s", &o.altitude_max_age_s, [](double v) { return v > 0 && v <= 60; },
       "in (0, 60] seconds");
-  o.session = param(
-      pnh, "session", 0, [](int v) { return v >= 0 && v <= core::kMaxSessionId; },
+  param(
+      pnh, "session", &o.session, [](int v) { return v >= 0 && v <= core::kMaxSessionId; },
       "in [0, " + std::to_string(core::kMaxSessionId) + "]");
-  o.session_gap_s = param(
-      pnh, "session_gap_s", 10.0, [](double v) { return v >= 0; }, ">= 0 (0 = off)");
-  o.session_gap_periods = param(
-      pnh, "session_gap_periods", 10.0, [](double v) { return std::isfinite(v) && v >= 1; }, ">= 1");
-  o.stats_period_s = param(pnh, "stats_period_s", 30.0, positive, "positive");
-  o.reorder_tolerance_s = param(
-      pnh, "reorder_tolerance_s", 1.0, [](double v) { return std::isfinite(v) && v >= 0; }, ">= 0");
-  o.input_timeout_s = param(pnh, "input_timeout_s", 5.0, positive, "positive");
-  o.fallback_altitude_m = param(
-      pnh, "fallback_altitude", 0.0, [](double v) { return std::isfinite(v) && v >= 0; }, ">= 0 metres (0 = off)");
-  o.diagnostic_period_s = param(pnh, "diagnostic_period", 1.0, positive, "positive");
-  o.max_image_pixels = param(
-      pnh, "max_image_pixels", static_cast<int>(rc::kDefaultMaxImagePixels),
+  param(
+      pnh, "session_gap_s", &o.session_gap_s, [](double v) { return v >= 0; }, ">= 0 (0 = off)");
+  param(
+      pnh, "session_gap_periods", &o.session_gap_periods, [](double v) { return v >= 1; }, ">= 1");
+  param(pnh, "stats_period_s", &o.stats_period_s, positive, "positive");
+  param(
+      pnh, "reorder_tolerance_s", &o.reorder_tolerance_s, [](double v) { return v >= 0; }, ">= 0");
+  param(pnh, "input_timeout_s", &o.input_timeout_s, positive, "positive");
+  param(
+      pnh, "fallback_altitude", &o.fallback_altitude_m, [](double v) { return v >= 0; }, ">= 0 metres (0 = off)");
+  param(pnh, "diagnostic_period", &o.diagnostic_period_s, positive, "positive");
+  param(
+      pnh, "max_image_pixels", &o.max_image_pixels,
       [](int v) { return v >= static_cast<int>(rc::kMinImageSide * rc::kMinImageSide) && v <= 1000000000; },
       "in [1024, 1000000000] pixels");
-  o.rectified_images = param(pnh, "rectified_images", false, any, "a bool");
-  o.nav_source = param(
-      pnh, "nav_source", std::string("topic"),
-      [](const std::string& s) { return s == "topic" || s == "tf" || s == "none"; },
+  param(pnh, "rectified_images", &o.rectified_images);
+  param(
+      pnh, "nav_source", &o.nav_source, [](const std::string& s) { return s == "topic" || s == "tf" || s == "none"; },
       "topic (nav/odom, nav_msgs/Odometry), tf (odom -> base_link) or none");
-  o.nav_tf_wait_s = param(pnh, "nav_tf_wait_s", 0.05, in_0_1, "in [0, 1] s");
-  o.nav_wait_s = param(pnh, "nav_wait_s", 0.05, in_0_1, "in [0, 1] s");
-  o.nav_tf_drift = param(pnh, "nav_tf_drift", 0.01, in_0_1_open, "in (0, 1]");
-  o.nav_tf_yaw_drift = param(pnh, "nav_tf_yaw_drift", 0.001, in_0_1_open, "in (0, 1] rad per metre");
-  if (o.nav_source == "tf" && nh.param("backend_node/publish_odom_tf", true))
-    throw std::invalid_argument(pnh.resolveName("nav_source") +
+  param(pnh, "nav_tf_wait_s", &o.nav_tf_wait_s, in_0_1, "in [0, 1] s");
+  param(pnh, "nav_wait_s", &o.nav_wait_s, in_0_1, "in [0, 1] s");
+  param(pnh, "nav_tf_drift", &o.nav_tf_drift, in_0_1_open, "in (0, 1]");
+  param(pnh, "nav_tf_yaw_drift", &o.nav_tf_yaw_drift, in_0_1_open, "in (0, 1] rad per metre");
+  ros_frames::FrameOptions backend;  // the back-end's frames/ and ~publish_odom_tf, from the same defaults
+  readFrames(nh, &backend);
+  param(nh, "backend_node/publish_odom_tf", &backend.publish_odom_tf);
+  if (o.nav_source == "tf" && backend.publish_odom_tf)
+    throw std::invalid_argument(pnh.resolve("nav_source") +
                                 ": tf needs the vehicle's own odom -> base_link, but the back-end publishes it from "
                                 "the visual odometry (set backend_node/publish_odom_tf false)");
-  o.odom_frame = nh.param("frames/odom_frame", std::string("odom"));
-  o.base_frame = nh.param("frames/base_frame", std::string("base_link"));
-  o.nav_buffer_s = param(
-      pnh, "nav_buffer_s", 60.0, [](double v) { return std::isfinite(v) && v >= 1 && v <= 3600; },
-      "in [1, 3600] seconds");
-  o.nav_world_fixed = param(pnh, "nav_world_fixed", false, any, "a bool");
-  o.camera_info_url = param(pnh, "camera_info_url", std::string(), any, "");
+  o.odom_frame = backend.odom_frame;
+  o.base_frame = backend.base_frame;
+  o.session_frame_prefix = backend.session_frame_prefix;
+  o.mount_wait_s = backend.mount.wait_s;
+  o.max_camera_tilt_deg = backend.mount.max_tilt_deg;
+  param(
+      pnh, "nav_buffer_s", &o.nav_buffer_s, [](double v) { return v >= 1 && v <= 3600; }, "in [1, 3600] seconds");
+  param(pnh, "nav_world_fixed", &o.nav_world_fixed);
+  param(pnh, "camera_info_url", &o.camera_info_url);
   if (!o.camera_info_url.empty()) {
     auto info = boost::make_shared<sensor_msgs::CameraInfo>();
     core::CameraIntrinsics camera;
     std::string why;
     if (!rc::cameraInfoFromUrl(o.camera_info_url, info.get(), &why) ||
         !rc::cameraFromMsg(*info, o.rectified_images, &camera, &why)) {
-      throw std::invalid_argument(pnh.resolveName("camera_info_url") + ": " + why);
+      throw std::invalid_argument(pnh.resolve("camera_info_url") + ": " + why);
     }
     o.fallback_camera_info = info;
   }
-  o.session_frame_prefix = sessionFramePrefix(nh);
   o.config = slamConfigFromParams(nh);
   const std::string bad = o.config.validate();
-  if (!bad.empty()) throw std::invalid_argument(nh.resolveName("slam") + ": " + bad);
+  if (!bad.empty()) throw std::invalid_argument(nh.resolve("slam") + ": " + bad);
   // The fixed altitudes are bounded like the readings (every frame would be skipped at one above).
   const double max_alt = o.config.odometry.max_altitude_m;
   if (!o.use_altitude_topic && o.altitude_m > max_alt)
-    throw std::invalid_argument(pnh.resolveName("altitude") + " = " + std::to_string(o.altitude_m) +
-                                ": above slam/odometry/max_altitude_m (" + std::to_string(max_alt) + ")");
+    throw std::invalid_argument(pnh.resolve("altitude") + " = " + shownMember(o.altitude_m) +
+                                ": above slam/odometry/max_altitude_m (" + shownMember(max_alt) + ")");
   if (o.fallback_altitude_m > max_alt)
-    throw std::invalid_argument(pnh.resolveName("fallback_altitude") + " = " + std::to_string(o.fallback_altitude_m) +
-                                ": above slam/odometry/max_altitude_m (" + std::to_string(max_alt) + ")");
-  o.mount_wait_s = param(
-      nh, "frames/mount_wait_s", 2.0, [](double v) { return v >= 0 && v <= 60; }, "in [0, 60] s");
-  o.max_camera_tilt_deg = param(
-      nh, "frames/max_camera_tilt_deg", 5.0, [](double v) { return v >= 0 && v <= 45; }, "in [0, 45] degrees");
+    throw std::invalid_argument(pnh.resolve("fallback_altitude") + " = " + shownMember(o.fallback_altitude_m) +
+                                ": above slam/odometry/max_altitude_m (" + shownMember(max_alt) + ")");
   return o;
 }
 

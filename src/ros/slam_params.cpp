@@ -29,7 +29,12 @@ void emit(YAML::Emitter& out, XmlRpc::XmlRpcValue& v) {
       out << static_cast<double>(v);
       break;
     case XmlRpc::XmlRpcValue::TypeString:
-      out << static_cast<std::string>(v);
+      // Quoted, so that the core's reader refuses text where a number or a bool belongs ('43',
+      // 'true'), as in a YAML file; rosparam's numbers left as text (1e-06) stay numbers.
+      if (isRosparamNumberText(static_cast<std::string&>(v)))
+        out << static_cast<std::string&>(v);
+      else
+        out << YAML::DoubleQuoted << static_cast<std::string&>(v);
       break;
     case XmlRpc::XmlRpcValue::TypeArray:
       out << YAML::Flow << YAML::BeginSeq;
@@ -69,6 +74,12 @@ core::SlamConfig slamConfigFromXmlRpc(const XmlRpc::XmlRpcValue& tree, const std
   }
 }
 
+core::SlamConfig slamConfigFromParams(const Params& nh, const std::string& key) {
+  const XmlRpc::XmlRpcValue* tree = nh.find(key);
+  if (tree == nullptr) return core::SlamConfig();
+  return slamConfigFromXmlRpc(*tree, nh.resolve(key));
+}
+
 core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::string& key) {
   XmlRpc::XmlRpcValue tree;
   if (!nh.getParam(key, tree)) return core::SlamConfig();
@@ -93,93 +104,102 @@ void checkDatumFrames(const ros_frames::FrameOptions& f, const std::string& datu
   }
 }
 
+void readFrames(const Params& nh, ros_frames::FrameOptions* f) {
+  auto nonempty = [](const std::string& s) { return !s.empty(); };
+  param(nh, "frames/map_frame", &f->map_frame, nonempty, "a frame id");
+  param(nh, "frames/session_frame_prefix", &f->session_frame_prefix, nonempty, "a non-empty frame id prefix");
+  param(nh, "frames/base_frame", &f->base_frame, nonempty, "a frame id");
+  param(nh, "frames/odom_frame", &f->odom_frame, nonempty, "a frame id");
+  if (f->odom_frame == f->map_frame || f->odom_frame == f->base_frame || f->map_frame == f->base_frame)
+    throw std::invalid_argument(nh.resolve("frames") + ": map_frame, odom_frame and base_frame must differ");
+  f->mount = ros_frames::mountOptions(nh);
+}
+
+namespace {
+
+// ~datum/heading_deg when a datum is set without one: map's x axis east (ENU, REP-103).
+constexpr double kEnuHeadingDeg = 90.0;
+
+// ~datum/*: map's origin on WGS84 when both coordinates are set, and the earth and UTM frames.
+void readDatum(const Params& pnh, ros_frames::FrameOptions* f) {
+  // A datum needs both coordinates: one without the other would put map somewhere wrong, silently.
+  const bool has_lat = pnh.has("datum/latitude_deg"), has_lon = pnh.has("datum/longitude_deg");
+  if (has_lat != has_lon)
+    throw std::invalid_argument(pnh.resolve("datum") + ": latitude_deg and longitude_deg together or not at all");
+  core::GeoOrigin d{0.0, 0.0, kEnuHeadingDeg};
+  param(
+      pnh, "datum/latitude_deg", &d.lat_deg, [](double v) { return std::abs(v) <= 90.0; }, "in [-90, 90] degrees");
+  param(
+      pnh, "datum/longitude_deg", &d.lon_deg, [](double v) { return std::abs(v) <= 180.0; }, "in [-180, 180] degrees");
+  param(
+      pnh, "datum/heading_deg", &d.heading_deg, [](double v) { return std::abs(v) <= 360.0; },
+      "in [-360, 360] degrees (the compass heading of map's x axis; 90: ENU)");
+  if (has_lat) f->datum = d;
+  param(
+      pnh, "datum/earth_frame", &f->earth_frame, [](const std::string& s) { return !s.empty(); }, "a frame id");
+  // Empty (the default): no UTM frame. navsat_transform's name for it is utm.
+  param(pnh, "datum/utm_frame", &f->utm_frame);
+  checkDatumFrames(*f, pnh.resolve("datum"));
+}
+
+}  // namespace
+
 BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros::NodeHandle& pnh) {
   warnAboutFormerPrivateNamespace(pnh);
+  return backendNodeletOptions(Params(nh), Params(pnh));
+}
+
+BackendNodeletOptions backendNodeletOptions(const Params& nh, const Params& pnh) {
   BackendNodeletOptions o;
-  auto nonempty = [](const std::string& s) { return !s.empty(); };
   auto count = [](int v) { return v >= 1 && v <= 1000000; };
-  o.frames.map_frame = param(nh, "frames/map_frame", std::string("map"), nonempty, "a frame id");
-  o.frames.session_frame_prefix = sessionFramePrefix(nh);
-  o.frames.base_frame = param(nh, "frames/base_frame", std::string("base_link"), nonempty, "a frame id");
-  o.frames.odom_frame = param(nh, "frames/odom_frame", std::string("odom"), nonempty, "a frame id");
-  if (o.frames.odom_frame == o.frames.map_frame || o.frames.odom_frame == o.frames.base_frame ||
-      o.frames.map_frame == o.frames.base_frame)
-    throw std::invalid_argument(nh.resolveName("frames") + ": map_frame, odom_frame and base_frame must differ");
-  o.queue_size = param(pnh, "queue_size", 1000, count, "in [1, 1000000]");
-  o.max_waiting_loops = param(pnh, "max_waiting_loops", 1000, count, "in [1, 1000000]");
-  o.worker_nice = param(
-      pnh, "worker_nice", 0, [](int v) { return v >= 0 && v <= 19; }, "in [0, 19]");
-  o.max_keyframe_gap = param(pnh, "max_keyframe_gap", 32, count, "in [1, 1000000]");
-  o.max_empty_sessions = param(
-      pnh, "max_empty_sessions", 1, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
-  o.frames.publish_tf = param(
-      pnh, "publish_tf", true, [](bool) { return true; }, "a bool");
-  o.frames.publish_odom_tf = param(
-      pnh, "publish_odom_tf", true, [](bool) { return true; }, "a bool");
-  o.frames.publish_session_frames = param(
-      pnh, "publish_session_frames", true, [](bool) { return true; }, "a bool");
-  o.frames.mount = ros_frames::mountOptions(nh);
-  // A datum needs both coordinates: one without the other would put map somewhere wrong, silently.
-  const bool has_lat = pnh.hasParam("datum/latitude_deg"), has_lon = pnh.hasParam("datum/longitude_deg");
-  if (has_lat != has_lon)
-    throw std::invalid_argument(pnh.resolveName("datum") + ": latitude_deg and longitude_deg together or not at all");
-  if (has_lat) {
-    core::GeoOrigin d;
-    d.lat_deg = param(
-        pnh, "datum/latitude_deg", 0.0, [](double v) { return std::abs(v) <= 90.0; }, "in [-90, 90] degrees");
-    d.lon_deg = param(
-        pnh, "datum/longitude_deg", 0.0, [](double v) { return std::abs(v) <= 180.0; }, "in [-180, 180] degrees");
-    d.heading_deg = param(
-        pnh, "datum/heading_deg", 90.0, [](double v) { return std::abs(v) <= 360.0; },
-        "in [-360, 360] degrees (the compass heading of map's x axis; 90: ENU)");
-    o.frames.datum = d;
-  }
-  o.frames.earth_frame = param(pnh, "datum/earth_frame", std::string("earth"), nonempty, "a frame id");
-  // Empty (the default): no UTM frame. navsat_transform's name for it is utm.
-  o.frames.utm_frame = param(
-      pnh, "datum/utm_frame", std::string(), [](const std::string&) { return true; }, "a frame id or empty");
-  checkDatumFrames(o.frames, pnh.resolveName("datum"));
-  o.frames.tf_rate_hz = param(
-      pnh, "tf_rate", 20.0, [](double v) { return v > 0 && v <= 1000; }, "in (0, 1000] Hz");
-  o.frames.tf_future_s = param(
-      pnh, "tf_future_s", 0.0, [](double v) { return v >= 0 && v <= 1; }, "in [0, 1] s");
-  o.stats_period_s = param(
-      pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
-  o.diagnostic_period_s = param(
-      pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
-  o.store_path = param(
-      pnh, "store_path", ros_params::defaultStorePath(), [](const std::string&) { return true; }, "a path");
-  o.mosaic_rate_hz = param(
-      pnh, "mosaic_rate", 0.2, [](double v) { return v >= 0 && v <= 10; }, "in [0, 10] Hz (0: no live mosaic)");
-  o.mosaic.resolution_m = param(
-      pnh, "mosaic_resolution", 0.05, [](double v) { return v > 0 && v <= 100; }, "in (0, 100] m/px");
-  o.mosaic.max_side_px = param(
-      pnh, "mosaic_max_side", 1024, [](int v) { return v >= 16 && v <= 8192; }, "in [16, 8192] px");
-  o.export_root = param(
-      pnh, "export_root", ros_params::defaultExportRoot(), [](const std::string&) { return true; }, "a path");
-  o.store_max_mb = param(
-      pnh, "store_max_mb", 0.0, [](double v) { return v >= 0 && v <= 1e9; }, "in [0, 1e9] MB (0: no cap)");
-  o.localisation = param(
-                       pnh, "mode", std::string("mapping"),
-                       [](const std::string& m) { return m == "mapping" || m == "localisation"; },
-                       "mapping or localisation") == "localisation";
-  o.reload_stored = param(
-      pnh, "reload_stored", false, [](bool) { return true; }, "true or false");
-  o.fleet_vehicle = param(
-      pnh, "fleet/vehicle", std::string(), [](const std::string& v) { return v.empty() || core::validVehicleName(v); },
+  auto positive = [](double v) { return v > 0; };
+  readFrames(nh, &o.frames);
+  param(pnh, "queue_size", &o.queue_size, count, "in [1, 1000000]");
+  param(pnh, "max_waiting_loops", &o.max_waiting_loops, count, "in [1, 1000000]");
+  param(
+      pnh, "worker_nice", &o.worker_nice, [](int v) { return v >= 0 && v <= 19; }, "in [0, 19]");
+  param(pnh, "max_keyframe_gap", &o.max_keyframe_gap, count, "in [1, 1000000]");
+  param(
+      pnh, "max_empty_sessions", &o.max_empty_sessions, [](int v) { return v >= 1 && v <= 1000; }, "in [1, 1000]");
+  param(pnh, "publish_tf", &o.frames.publish_tf);
+  param(pnh, "publish_odom_tf", &o.frames.publish_odom_tf);
+  param(pnh, "publish_session_frames", &o.frames.publish_session_frames);
+  readDatum(pnh, &o.frames);
+  param(
+      pnh, "tf_rate", &o.frames.tf_rate_hz, [](double v) { return v > 0 && v <= 1000; }, "in (0, 1000] Hz");
+  param(
+      pnh, "tf_future_s", &o.frames.tf_future_s, [](double v) { return v >= 0 && v <= 1; }, "in [0, 1] s");
+  param(pnh, "stats_period_s", &o.stats_period_s, positive, "positive");
+  param(pnh, "diagnostic_period", &o.diagnostic_period_s, positive, "positive");
+  param(pnh, "store_path", &o.store_path);
+  param(
+      pnh, "mosaic_rate", &o.mosaic_rate_hz, [](double v) { return v >= 0 && v <= 10; },
+      "in [0, 10] Hz (0: no live mosaic)");
+  param(
+      pnh, "mosaic_resolution", &o.mosaic.resolution_m, [](double v) { return v > 0 && v <= 100; }, "in (0, 100] m/px");
+  param(
+      pnh, "mosaic_max_side", &o.mosaic.max_side_px, [](int v) { return v >= 16 && v <= 8192; }, "in [16, 8192] px");
+  param(pnh, "export_root", &o.export_root);
+  param(
+      pnh, "store_max_mb", &o.store_max_mb, [](double v) { return v >= 0 && v <= 1e9; }, "in [0, 1e9] MB (0: no cap)");
+  param(
+      pnh, "mode", &o.mode, [](const std::string& m) { return m == "mapping" || m == "localisation"; },
+      "mapping or localisation");
+  param(pnh, "reload_stored", &o.reload_stored);
+  param(
+      pnh, "fleet/vehicle", &o.fleet_vehicle,
+      [](const std::string& v) { return v.empty() || core::validVehicleName(v); },
       "empty (off) or 1 to 64 characters of A-Z a-z 0-9 _ -");
-  o.fleet_hash_codes = param(
-      pnh, "fleet/hash_codes", true, [](bool) { return true; }, "true or false");
-  o.fleet_peer_timeout_s = param(
-      pnh, "fleet/peer_timeout_s", 30.0, [](double t) { return t > 0.0 && t <= 3600.0; }, "in (0, 3600] seconds");
-  if (pnh.hasParam("fleet/peers") && !pnh.getParam("fleet/peers", o.fleet_peers))
-    throw std::invalid_argument(pnh.resolveName("fleet/peers") +
-                                ": a dictionary of vehicle name: keyframe_features service name");
+  param(pnh, "fleet/hash_codes", &o.fleet_hash_codes);
+  param(
+      pnh, "fleet/peer_timeout_s", &o.fleet_peer_timeout_s, [](double t) { return t > 0.0 && t <= 3600.0; },
+      "in (0, 3600] seconds");
+  param(pnh, "fleet/peers", &o.fleet_peers);
   for (const auto& [vehicle, service] : o.fleet_peers) {
     std::string bad_name;
     if (!core::validVehicleName(vehicle) || vehicle == o.fleet_vehicle || service.empty() ||
         !ros::names::validate(service, bad_name))
-      throw std::invalid_argument(pnh.resolveName("fleet/peers") + ": '" + vehicle + "': '" + service +
+      throw std::invalid_argument(pnh.resolve("fleet/peers") + ": '" + vehicle + "': '" + service +
                                   "': another vehicle's name (A-Z a-z 0-9 _ -) and a valid service name" +
                                   (bad_name.empty() ? "" : " (" + bad_name + ")"));
   }
@@ -200,7 +220,7 @@ std::unique_ptr<core::SessionWorker> makeSessionWorker(const BackendNodeletOptio
                                                        std::function<void(const std::string&)> say) {
   if (o.store_path.empty()) ROS_WARN("back-end: no session store (~store_path empty): in memory only");
   auto manager = std::make_unique<core::SessionManager>(sessionManagerOptions(o, config), std::move(events), say);
-  if (o.localisation) manager->setLocalisation(true);  // ~mode: nothing written from the start
+  if (o.localisation()) manager->setLocalisation(true);  // ~mode: nothing written from the start
   using S = core::SessionWorker::Severity;
   return std::make_unique<core::SessionWorker>(std::move(manager), sessionWorkerOptions(o, config),
                                                [say](S s, const std::string& line) {
@@ -239,27 +259,34 @@ core::SessionWorkerOptions sessionWorkerOptions(const BackendNodeletOptions& o, 
 
 LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh) {
   warnAboutFormerPrivateNamespace(pnh);
+  return loopDetectorNodeletOptions(Params(pnh));
+}
+
+LoopDetectorNodeletOptions loopDetectorNodeletOptions(const Params& pnh) {
   LoopDetectorNodeletOptions o;
-  o.mode = param(
-      pnh, "mode", std::string("both"),
-      [](const std::string& m) { return m == "both" || m == "local" || m == "global"; }, "one of both, local, global");
-  o.queue_size = param(
-      pnh, "queue_size", 100, [](int v) { return v >= 1 && v <= 100000; }, "in [1, 100000]");
-  o.max_keyframe_gap = param(
-      pnh, "max_keyframe_gap", 1000, [](int v) { return v >= 1 && v <= 1000000; }, "in [1, 1000000]");
-  o.stats_period_s = param(
-      pnh, "stats_period_s", 30.0, [](double v) { return v > 0; }, "positive");
-  o.diagnostic_period_s = param(
-      pnh, "diagnostic_period", 1.0, [](double v) { return v > 0; }, "positive");
-  o.worker_nice = param(
-      pnh, "worker_nice", 0, [](int v) { return v >= 0 && v <= 19; }, "in [0, 19]");
+  auto positive = [](double v) { return v > 0; };
+  param(
+      pnh, "mode", &o.mode, [](const std::string& m) { return m == "both" || m == "local" || m == "global"; },
+      "one of both, local, global");
+  param(
+      pnh, "queue_size", &o.queue_size, [](int v) { return v >= 1 && v <= 100000; }, "in [1, 100000]");
+  param(
+      pnh, "max_keyframe_gap", &o.max_keyframe_gap, [](int v) { return v >= 1 && v <= 1000000; }, "in [1, 1000000]");
+  param(pnh, "stats_period_s", &o.stats_period_s, positive, "positive");
+  param(pnh, "diagnostic_period", &o.diagnostic_period_s, positive, "positive");
+  param(
+      pnh, "worker_nice", &o.worker_nice, [](int v) { return v >= 0 && v <= 19; }, "in [0, 19]");
   return o;
 }
 
 core::SlamConfig loopDetectorConfig(const ros::NodeHandle& nh, const LoopDetectorNodeletOptions& o) {
+  return loopDetectorConfig(Params(nh), o);
+}
+
+core::SlamConfig loopDetectorConfig(const Params& nh, const LoopDetectorNodeletOptions& o) {
   core::SlamConfig config = slamConfigFromParams(nh);
   const std::string bad = config.validate();
-  if (!bad.empty()) throw std::invalid_argument(nh.resolveName("slam") + ": " + bad);
+  if (!bad.empty()) throw std::invalid_argument(nh.resolve("slam") + ": " + bad);
   config.loops.local.enabled = config.loops.local.enabled && o.mode != "global";
   config.loops.global.enabled = config.loops.global.enabled && o.mode != "local";
   return config;
@@ -310,12 +337,6 @@ bool warnAboutFormerPrivateNamespace(const ros::NodeHandle& pnh) {
                                          "config/default.yaml). Not read: "
                                       << keys);
   return true;
-}
-
-std::string sessionFramePrefix(const ros::NodeHandle& nh) {
-  return param(
-      nh, "frames/session_frame_prefix", std::string(topics::kDefaultSessionFramePrefix),
-      [](const std::string& s) { return !s.empty(); }, "a non-empty frame id prefix");
 }
 
 std::string defaultExportRoot() {

@@ -88,9 +88,12 @@ TEST(SlamParams, YamlOfScalarsAndLists) {
   t["a"] = 1;
   t["b"][0] = 2.5;
   t["b"][1] = std::string("x");
+  t["b"][2] = std::string("1e-06");
   const std::string y = ros_params::xmlRpcToYaml(t);
   EXPECT_NE(y.find("a: 1"), std::string::npos) << y;
-  EXPECT_NE(y.find("b: [2.5, x]"), std::string::npos) << y;
+  // Text quoted, so that the core's reader refuses it where a number belongs; a number rosparam
+  // left as text (1e-06: PyYAML reads YAML 1.1) is written as the number.
+  EXPECT_NE(y.find("b: [2.5, \"x\", 1e-06]"), std::string::npos) << y;
 }
 
 // The worker's queue and the subscribers' queues come from the options alone (the nodelet builds

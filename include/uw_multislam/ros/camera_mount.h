@@ -23,12 +23,14 @@
 #include <vector>
 
 #include "uw_multislam/core/geometry/vehicle_frame.h"
+#include "uw_multislam/ros/topics.h"
+#include "uw_multislam/ros/typed_params.h"
 
 namespace uw_multislam {
 namespace ros_frames {
 
 struct MountOptions {
-  std::string base_frame = "base_link";
+  std::string base_frame = frames::kDefaultBaseFrame;
   double wait_s = 2.0;        // the odometry's first frame waits this long for the mount in tf
   double max_tilt_deg = 5.0;  // optical axis from straight down
 };
@@ -37,7 +39,7 @@ struct MountOptions {
 /// std::invalid_argument naming the key for a bad value. The former mount parameters
 /// (frames/camera_position, camera_yaw, altimeter_position, publish_mount_tf, camera_frame,
 /// altimeter_frame) are not read any more: a WARN names those that are set.
-MountOptions mountOptions(const ros::NodeHandle& nh);
+MountOptions mountOptions(const ros_params::Params& nh);
 
 /// The mount from tf's two transforms. False, with `why`, for a non-finite transform or a camera
 /// whose optical axis is more than max_tilt_rad from base_link's -z (the 2-D model needs a

@@ -49,7 +49,8 @@ namespace uw_multislam {
 namespace ros_frames {
 
 struct FrameOptions {
-  std::string map_frame = "map", odom_frame = "odom", base_frame = "base_link";
+  std::string map_frame = frames::kDefaultMapFrame, odom_frame = frames::kDefaultOdomFrame,
+              base_frame = frames::kDefaultBaseFrame;
   std::string session_frame_prefix = topics::kDefaultSessionFramePrefix;
   bool publish_tf = true;              // false: no tf at all (the pose is still computed)
   bool publish_odom_tf = true;         // false: the vehicle publishes odom -> base_link
@@ -60,7 +61,7 @@ struct FrameOptions {
   /// ~datum/*: map's origin on WGS84 and the heading of its x axis; set: a static earth_frame ->
   /// map_frame, map_frame -> utm_frame when that is not empty (publishDatum), and keyframe_fix.
   std::optional<core::GeoOrigin> datum;
-  std::string earth_frame = "earth";
+  std::string earth_frame = frames::kDefaultEarthFrame;
   std::string utm_frame;  // empty: no UTM frame
 };
 

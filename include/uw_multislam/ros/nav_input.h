@@ -34,6 +34,7 @@
 #include "uw_multislam/core/frontend/nav_drift.h"
 #include "uw_multislam/core/frontend/nav_prior.h"
 #include "uw_multislam/core/geometry/vehicle_frame.h"
+#include "uw_multislam/ros/topics.h"
 
 namespace uw_multislam {
 namespace ros_inputs {
@@ -46,7 +47,7 @@ struct NavInputOptions {
   double tf_wait_s = 0.05;           // tf: how long a frame waits for its transform
   double tf_drift = 0.01;            // tf: sigma_xy = this x the distance travelled
   double tf_yaw_drift = 0.001;       // tf: sigma_yaw = this (rad/m) x the distance travelled
-  std::string odom_frame = "odom", base_frame = "base_link";
+  std::string odom_frame = frames::kDefaultOdomFrame, base_frame = frames::kDefaultBaseFrame;
 };
 
 /// The tf source's sigmas: the distance travelled along the poses given, times the drift rates

@@ -2,7 +2,9 @@
 // config/slam.yaml), read from the parameter server tree where launch/core.launch loads that
 // file (<namespace>/slam), so offline_slam and the nodelets share one file, one parser and one
 // validation: missing keys keep their defaults, unknown keys and bad values are errors naming
-// the key. Tested in test/ros/test_slam_params.cpp.
+// the key. The nodelets' own parameters are read through ros_params::Params (typed_params.h) into
+// the options structs below, whose initialisers are the defaults. Tested in
+// test/ros/test_slam_params.cpp, test_typed_params.cpp and test_config_defaults.cpp.
 #pragma once
 
 #include <ros/node_handle.h>
@@ -11,8 +13,6 @@
 #include <functional>
 #include <map>
 #include <memory>
-#include <sstream>
-#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -22,9 +22,16 @@
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/frame_publisher.h"
 #include "uw_multislam/ros/topics.h"
+#include "uw_multislam/ros/typed_params.h"
 
 namespace uw_multislam {
 namespace ros_params {
+
+/// The session store's default path: $ROS_HOME/uw_multislam/sessions.db (ROS_HOME defaulting to
+/// ~/.ros, as roslaunch's logs).
+std::string defaultStorePath();
+/// $ROS_HOME/uw_multislam/exports (ROS_HOME defaults to ~/.ros): the export service's default root.
+std::string defaultExportRoot();
 
 /// The parameter tree as YAML text (maps, lists, scalars; doubles with full precision).
 std::string xmlRpcToYaml(const XmlRpc::XmlRpcValue& value);
@@ -35,30 +42,38 @@ core::SlamConfig slamConfigFromXmlRpc(const XmlRpc::XmlRpcValue& tree, const std
 
 /// The SlamConfig at `nh`/`key` (default "slam"); all defaults when the key is absent.
 /// Throws std::invalid_argument "<resolved key>: <reason>" for an unknown key or a bad value.
+core::SlamConfig slamConfigFromParams(const Params& nh, const std::string& key = "slam");
 core::SlamConfig slamConfigFromParams(const ros::NodeHandle& nh, const std::string& key = "slam");
 
 /// The nodelet's own parameters (~ private ones and the shared frames/ block; config/default.yaml
 /// documents each), read once by backendNodeletOptions(). The algorithms' are core::SlamConfig.
+/// Each default is written here once (or in the core's options it is handed to), and only here.
 struct BackendNodeletOptions {
-  std::string store_path;     // "" = no store; default $ROS_HOME/uw_multislam/sessions.db
-  double store_max_mb = 0.0;  // a cap on the store file (0: none); writes past it are counted failures
-  bool localisation = false;  // ~mode localisation at start (SessionManager::setLocalisation); set_mode changes it
+  std::string store_path = defaultStorePath();                       // "" = no store
+  double store_max_mb = core::SessionManagerOptions().store_max_mb;  // a cap on the store file (0: none)
+  std::string mode = "mapping";  // ~mode at start: mapping or localisation (SessionManager::setLocalisation)
+  bool localisation() const { return mode == "localisation"; }
   /// ~reload_stored: every stored session is reloaded at start-up and its keyframes handed to the
   /// loop detectors (each gets them when it subscribes), so that new sessions find global loops to
   /// the stored maps and relocalise in them from their first keyframe. Off: reload_session by hand.
   bool reload_stored = false;
   ros_frames::FrameOptions frames;  // frames/* and the tf switches and rates
-  int queue_size = 1000, max_waiting_loops = 1000, max_keyframe_gap = 1000;
-  int worker_nice = 0;         // the worker thread's nice value (0..19: above 0 the odometry's frames come first)
-  int max_empty_sessions = 1;  // start_session refused while this many sessions in a row have no keyframe
+  int queue_size = core::SessionWorkerOptions().queue_size;
+  int max_waiting_loops = core::SessionWorkerOptions().max_waiting_loops;
+  /// The most lost keyframes a gap in a session's ids may bridge: the core's bound, small because
+  /// each placeholder is a stored row (doc/robustness.md, "What one message costs").
+  int max_keyframe_gap = core::SessionManagerOptions().max_keyframe_gap;
+  int worker_nice = core::SessionWorkerOptions().nice;  // 0..19: above 0 the odometry's frames come first
+  /// start_session refused while this many sessions in a row have no keyframe. The core's default
+  /// is no limit (offline nothing calls start_session in a loop); a live service caller may.
+  int max_empty_sessions = 1;
   double stats_period_s = 30.0, diagnostic_period_s = 1.0;
   /// The live mosaic (core/export/live_mosaic.h): redrawn at most at mosaic_rate_hz when the
   /// active map changed (0: off), at mosaic_resolution_m, coarser when wider than mosaic_max_side_px.
   double mosaic_rate_hz = 0.2;
   core::LiveMosaicOptions mosaic;
-  /// The `export` service writes below this folder (created at start-up; "" = no exports);
-  /// default $ROS_HOME/uw_multislam/exports.
-  std::string export_root;
+  /// The `export` service writes below this folder (created at start-up; "" = no exports).
+  std::string export_root = defaultExportRoot();
   /// Hash exchange between vehicles: ~fleet/vehicle names this vehicle (""
   /// = off); ~fleet/peers maps each other vehicle's name to its keyframe_features service (how
   /// this back-end asks for a candidate's features).
@@ -76,8 +91,11 @@ struct BackendNodeletOptions {
 /// "<datum_key>/earth_frame: ..." or "<datum_key>/utm_frame: ...".
 void checkDatumFrames(const ros_frames::FrameOptions& frames, const std::string& datum_key);
 
-/// Reads and validates the back-end nodelet's parameters (std::invalid_argument naming the key);
-/// warns about an old config file's block (warnAboutFormerPrivateNamespace).
+/// Reads and validates the back-end nodelet's parameters (std::invalid_argument naming the key):
+/// `nh` the pipeline's namespace, `pnh` the node's private one.
+BackendNodeletOptions backendNodeletOptions(const Params& nh, const Params& pnh);
+/// The same from the parameter server; first warns about an old config file's block
+/// (warnAboutFormerPrivateNamespace).
 BackendNodeletOptions backendNodeletOptions(const ros::NodeHandle& nh, const ros::NodeHandle& pnh);
 
 /// The session manager's options for the back-end nodelet: the SLAM configuration's, the store
@@ -97,21 +115,26 @@ core::SessionWorkerOptions sessionWorkerOptions(const BackendNodeletOptions& o, 
 
 /// The loop-detector nodelet's own parameters (~ private; config/default.yaml documents each).
 struct LoopDetectorNodeletOptions {
-  std::string mode = "both";    // both, local (same-session loops) or global (other sessions, hashes)
-  int queue_size = 100;         // keyframes waiting for the worker (oldest dropped when full)
-  int max_keyframe_gap = 1000;  // the most lost keyframes a gap in the ids may bridge
+  std::string mode = "both";  // both, local (same-session loops) or global (other sessions, hashes)
+  int queue_size = 100;       // keyframes waiting for the worker (oldest dropped when full)
+  /// The most lost keyframes a gap in the ids may bridge. Larger than the back-end's: here a
+  /// placeholder is < 100 B of RAM, never stored, and a longer bridge keeps loops for the piece after it.
+  int max_keyframe_gap = 1000;
   double stats_period_s = 30.0;
   double diagnostic_period_s = 1.0;
   int worker_nice = 0;  // the worker thread's nice value (0..19: above 0 the odometry's frames come first)
   bool publishHashes() const { return mode != "local"; }
 };
 
-/// Reads and validates the loop-detector nodelet's parameters (std::invalid_argument naming the key);
-/// warns about an old config file's block (warnAboutFormerPrivateNamespace).
+/// Reads and validates the loop-detector nodelet's parameters (std::invalid_argument naming the key).
+LoopDetectorNodeletOptions loopDetectorNodeletOptions(const Params& pnh);
+/// The same from the parameter server; first warns about an old config file's block
+/// (warnAboutFormerPrivateNamespace).
 LoopDetectorNodeletOptions loopDetectorNodeletOptions(const ros::NodeHandle& pnh);
 
 /// The SLAM configuration at `nh`/slam, validated, with the loop kinds ~mode leaves out switched off
 /// (loops.local/global.enabled still apply on top of the mode). std::invalid_argument naming the key.
+core::SlamConfig loopDetectorConfig(const Params& nh, const LoopDetectorNodeletOptions& o);
 core::SlamConfig loopDetectorConfig(const ros::NodeHandle& nh, const LoopDetectorNodeletOptions& o);
 
 /// The loop detector's start-up line: its effective options.
@@ -130,29 +153,10 @@ std::string formerPrivateNamespace(const std::string& private_ns);
 /// nodelet calls it once while reading its parameters.
 bool warnAboutFormerPrivateNamespace(const ros::NodeHandle& pnh);
 
-/// frames/session_frame_prefix of the nodelets' namespace (default topics::kDefaultSessionFramePrefix).
-std::string sessionFramePrefix(const ros::NodeHandle& nh);
-
-/// The session store's default path: $ROS_HOME/uw_multislam/sessions.db (ROS_HOME defaulting to
-/// ~/.ros, as roslaunch's logs).
-std::string defaultStorePath();
-/// $ROS_HOME/uw_multislam/exports (ROS_HOME defaults to ~/.ros): the export service's default root.
-std::string defaultExportRoot();
-
-/// A required-or-defaulted scalar parameter with a check; throws std::invalid_argument
-/// "<resolved name> = <value>: must be <requirement>" when `ok(value)` is false.
-template <typename T, typename Check>
-T param(const ros::NodeHandle& nh, const std::string& name, const T& fallback, Check ok,
-        const std::string& requirement) {
-  T value = fallback;
-  nh.param(name, value, fallback);
-  if (!ok(value)) {
-    std::ostringstream os;
-    os << nh.resolveName(name) << " = " << value << ": must be " << requirement;
-    throw std::invalid_argument(os.str());
-  }
-  return value;
-}
+/// The shared frames/ names of the nodelets' namespace `nh` into `frames` (map_frame, odom_frame,
+/// base_frame, session_frame_prefix: non-empty; map, odom and base must differ) and the sensors'
+/// mount options (ros_frames::mountOptions). std::invalid_argument naming the key.
+void readFrames(const Params& nh, ros_frames::FrameOptions* frames);
 
 }  // namespace ros_params
 }  // namespace uw_multislam

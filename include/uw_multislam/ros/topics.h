@@ -29,7 +29,7 @@ constexpr char kNavOdom[] = "nav/odom";
 /// uw_multislam/Keyframe: each new keyframe with its features (odometry nodelet).
 constexpr char kKeyframes[] = "keyframes";
 /// Default of frames/session_frame_prefix: session `id`'s frame is "<prefix><id>" (ros_params::
-/// sessionFramePrefix reads it for every nodelet).
+/// readFrames reads it for every nodelet).
 constexpr char kDefaultSessionFramePrefix[] = "session_";
 /// geometry_msgs/PoseWithCovarianceStamped: the odometry-only pose of the latest frame (base_link)
 /// in its session's z-up frame with its covariance (odometry nodelet; frame_id =
@@ -124,6 +124,14 @@ inline std::string globalName(const std::string& relative) {
 }  // namespace topics
 
 namespace frames {
+
+/// The frames/ parameters' defaults (REP-105 names; config/default.yaml): every options struct
+/// that holds one of these frames starts from these.
+constexpr char kDefaultMapFrame[] = "map";
+constexpr char kDefaultOdomFrame[] = "odom";
+constexpr char kDefaultBaseFrame[] = "base_link";
+/// ~datum/earth_frame's default (REP-105 earth).
+constexpr char kDefaultEarthFrame[] = "earth";
 
 /// The camera's frame, optical convention: x along image columns (u, right), y along rows
 /// (v, down), z = x × y along the optical axis, towards the seabed for a bottom-looking camera.
