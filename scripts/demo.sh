@@ -134,7 +134,7 @@ sessions split 1
 sessions list
 sessions join 0 1 0
 echo "[demo] a wrong call answers with a status and changes nothing:"
-sessions join 0 42 0
+sessions join 0 42 0 || echo "[demo] sessions.py exit status $?: refused"
 sessions list
 sleep 2  # the republished (latched) paths reach the recorder
 

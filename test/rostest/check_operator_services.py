@@ -201,7 +201,7 @@ class OperatorServicesTest(unittest.TestCase):
         self.assertEqual((tool_says.returncode, tool_says.stdout.strip()), (0, "optimise -> OK, 0 maps due"), tool_says)
         tool_says = subprocess.run([SESSIONS_TOOL, "--ns", NS, "link", "0", "2", "7", "2", "0", "1", "0", "0.01", "0.01"],
                                    capture_output=True, text=True, timeout=60)
-        self.assertEqual(tool_says.returncode, 0, tool_says)
+        self.assertEqual(tool_says.returncode, 3, tool_says)  # refused: non-zero
         self.assertTrue(tool_says.stdout.startswith("add_link 0:2 -> 7:2 -> NOT_FOUND: no session 7"), tool_says.stdout)
 
         self.stop_backend()
@@ -315,7 +315,7 @@ class OperatorServicesTest(unittest.TestCase):
         self.assertEqual(set_mode("mapping").status.code, Status.OK)
         tool_says = subprocess.run([SESSIONS_TOOL, "--ns", NS, "delete", "1"], capture_output=True, text=True,
                                    timeout=60)
-        self.assertEqual(tool_says.returncode, 0, tool_says)
+        self.assertEqual(tool_says.returncode, 3, tool_says)  # refused: non-zero
         self.assertTrue(tool_says.stdout.startswith("delete_session '1' -> FAILED_PRECONDITION: delete_session removes "
                                                     "session 1 ('session_1')"), tool_says.stdout)
 
