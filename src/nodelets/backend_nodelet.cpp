@@ -290,10 +290,7 @@ bool BackendNodelet::onDetectLoops(uw_multislam::DetectLoops::Request& req, uw_m
 
 bool BackendNodelet::onSetMode(uw_multislam::SetMode::Request& req, uw_multislam::SetMode::Response& res) {
   const Status st = worker_->locked([&](SessionManager& m) {
-    const Status st = req.mode == "mapping" || req.mode == "localisation"
-                          ? m.setLocalisation(req.mode == "localisation")
-                          : Status{StatusCode::kInvalidArgument, "set_mode: mode '" + req.mode.substr(0, 64) +
-                                                                     "' is neither 'mapping' nor 'localisation'"};
+    const Status st = rc::setMode(&m, req.mode);
     res.mode = m.view().localising() ? "localisation" : "mapping";
     return st;
   });

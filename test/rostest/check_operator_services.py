@@ -359,7 +359,7 @@ class OperatorServicesTest(unittest.TestCase):
                                    timeout=60)
         self.assertEqual((tool_says.returncode, tool_says.stdout.strip()),
                          (0, "set_mode localisation -> OK, localisation mode"), tool_says)
-        res = set_mode("localisation")  # again: OK, said
+        res = set_mode("localization")  # again, in the ROS world's spelling: OK, said
         self.assertEqual((res.status.code, res.mode), (Status.OK, "localisation"), res.status.message)
         await_condition(self.lock, lambda: self.status.get("mode") == "localisation", 30, "mode on /diagnostics")
         local = Loop(kind=Loop.LOCAL, session_a=1, keyframe_a=0, session_b=1, keyframe_b=4, pose=Pose2D(2.0, 0, 0),
