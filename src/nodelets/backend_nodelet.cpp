@@ -86,7 +86,11 @@ void BackendNodelet::onInit() {
         nh, options_.fleet_vehicle, options_.queue_size, options_.fleet_hash_codes,
         options_.frames.session_frame_prefix, worker_.get(),
         [this](const core::SessionQueries& m) { sessions_->announceNextId(m); });
-  worker_->start([this](SessionManager& m) { sessions_->publishAll(m.view(), std::exchange(publish_all_, false)); });
+  status_ = std::make_unique<ros_status::BackendStatusPublisher>(nh, worker_.get(), options_.frames.base_frame);
+  worker_->start([this](SessionManager& m) {
+    sessions_->publishAll(m.view(), std::exchange(publish_all_, false));
+    status_->afterItem(m.view());  // at each keyframe: the status
+  });
   services_ = {
       nh.advertiseService(topics::kJoinSessionsService, &BackendNodelet::onJoin, this),
       nh.advertiseService(topics::kSplitSessionService, &BackendNodelet::onSplit, this),
@@ -290,10 +294,7 @@ bool BackendNodelet::onDetectLoops(uw_multislam::DetectLoops::Request& req, uw_m
 
 bool BackendNodelet::onSetMode(uw_multislam::SetMode::Request& req, uw_multislam::SetMode::Response& res) {
   const Status st = worker_->locked([&](SessionManager& m) {
-    const Status st = req.mode == "mapping" || req.mode == "localisation"
-                          ? m.setLocalisation(req.mode == "localisation")
-                          : Status{StatusCode::kInvalidArgument, "set_mode: mode '" + req.mode.substr(0, 64) +
-                                                                     "' is neither 'mapping' nor 'localisation'"};
+    const Status st = rc::setMode(&m, req.mode);
     res.mode = m.view().localising() ? "localisation" : "mapping";
     return st;
   });

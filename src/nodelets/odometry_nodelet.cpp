@@ -73,6 +73,7 @@ void OdometryNodelet::onInit() {
   if (o.nav_source != "none") NODELET_INFO("odometry: %s", nav_->description(config.odometry.nav.enabled).c_str());
 
   keyframes_ = std::make_unique<ros_outputs::KeyframePublisher>(nh, it_.get(), config);
+  status_ = std::make_unique<ros_status::OdometryStatusPublisher>(nh, o.input_timeout_s);
   pose_pub_ = nh.advertise<geometry_msgs::PoseWithCovarianceStamped>(topics::kOdometryPose, 10);
   updater_ = std::make_unique<diagnostic_updater::Updater>(nh, getPrivateNodeHandle(), getName());
   updater_->setHardwareID("none");
@@ -223,6 +224,7 @@ void OdometryNodelet::run(Frame& f, Ahead* ahead, Clock::time_point start) {
     std::lock_guard<std::mutex> lock(stats_mutex_);
     published_ = counts_;
   }
+  status_->frame(snapshot(counts_));
   if ((ros::WallTime::now() - last_stats_).toSec() >= options_.stats_period_s) {
     logStats("so far");
     last_stats_ = ros::WallTime::now();

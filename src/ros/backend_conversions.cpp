@@ -129,6 +129,13 @@ uw_multislam::History::Response toHistoryResponse(const std::vector<core::Histor
   return res;
 }
 
+core::Status setMode(core::SessionManager* m, const std::string& mode) {
+  if (mode == "mapping") return m->setLocalisation(false);
+  if (mode == "localisation" || mode == "localization") return m->setLocalisation(true);
+  return {core::StatusCode::kInvalidArgument,
+          "set_mode: mode '" + mode.substr(0, 64) + "' is neither 'mapping' nor 'localisation' (or 'localization')"};
+}
+
 std::vector<core::Pose2> vehiclePoses(const core::SessionQueries& manager, int id, const core::CameraMount& mount) {
   std::vector<core::Pose2> p = manager.poses(id);
   for (core::Pose2& x : p) x = core::vehicleFromCamera(x, mount);

@@ -4,8 +4,12 @@ runner's contract"), so that evaluate.py scores a ROS run like an offline_slam o
 
     record_run.py --out OUT [--session-dir DIR [--bag-start SEC] ...] [--ns /uw_multislam]
 
-Subscribes to the back-end's outputs and, when it is stopped (SIGINT / SIGTERM / rosnode kill), or
-with --until-idle SEC once nothing has arrived for SEC seconds after the first keyframe, writes into OUT:
+Subscribes to the back-end's outputs and writes them into OUT as they come, until it is stopped
+(SIGINT / SIGTERM / rosnode kill), or with --until-idle SEC until nothing has arrived for SEC seconds
+after the first keyframe. A recorder that is killed (SIGKILL, a crash) leaves every row it had
+received: odometry.csv, loops.csv and loop_poses.csv are appended and flushed row by row, and
+trajectory.csv and pieces.csv, which optimisations change, are replaced whole (a temporary file
+renamed over them) at most once a second while they change, and once more at the end:
 
   odometry.csv    session,index,x_m,y_m,yaw_rad            Keyframe.odometry_pose (session frame)
   trajectory.csv  session,index,map,x_m,y_m,yaw_rad        the last paths/session_<id> (nav_msgs/Path
@@ -41,9 +45,11 @@ the clock stops with the bag.
 """
 import argparse
 import csv
+import io
 import math
 import os
 import sys
+import tempfile
 import threading
 import time
 
@@ -180,21 +186,109 @@ def stamp_ranges(folders, table):
     return "; ".join(ranges)
 
 
+def _umask():
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+UMASK = _umask()  # once, before any thread: a replaced file gets the mode open() would have given it
+
+
+def write_replacing(path, text):
+    """Replaces the file at `path` with `text` whole: written to a temporary file in the same folder,
+    flushed to disk and renamed over it, so that a reader, or a recorder killed meanwhile, finds the
+    old file or the new one and never half of one. (The one place to swap for the Python tools'
+    shared safe writer.)"""
+    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp",
+                               dir=os.path.dirname(path) or ".")
+    try:
+        os.fchmod(fd, 0o666 & ~UMASK)  # mkstemp's file is 0600
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+class RunFiles:
+    """The run's files in OUT, kept up to date while the run goes on, so that a recorder killed
+    (SIGKILL, a crash, the machine's power) leaves what it had received. The rows of odometry.csv,
+    loops.csv and loop_poses.csv never change once their message has come: each is appended and
+    flushed at once. trajectory.csv and pieces.csv change with every optimisation and new session:
+    they are replaced whole (write_replacing) while they change, at most once a second, and at the
+    end. inputs.csv is written at the start. A new run replaces the files of an earlier one."""
+    APPENDED = {"odometry.csv": "session,index,x_m,y_m,yaw_rad",
+                "loops.csv": "session_a,index_a,session_b,index_b,kind,inliers",
+                "loop_poses.csv": "session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad"}
+
+    def __init__(self, out):
+        os.makedirs(out, exist_ok=True)
+        self.out = out
+        self.files = {}
+        for name, header in self.APPENDED.items():
+            self.files[name] = open(os.path.join(out, name), "w")
+            self.append(name, header)
+
+    def append(self, name, row):
+        f = self.files[name]
+        f.write(row + "\n")
+        f.flush()  # in the operating system's hands: a killed process loses none of it
+
+    def replace(self, name, text):
+        write_replacing(os.path.join(self.out, name), text)
+
+    def close(self):
+        for f in self.files.values():
+            f.close()
+
+
+def inputs_text(inputs):
+    rows = ["session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m"]
+    for n, folder, frames, first, last, altitude in inputs:
+        out = io.StringIO()
+        csv.writer(out, lineterminator="").writerow((n, folder, frames, "%.6f" % first, "%.6f" % last,
+                                                     "%.6f" % altitude))
+        rows.append(out.getvalue())
+    return "\n".join(rows) + "\n"
+
+
 class Recorder:
-    def __init__(self, ns, frame_stamps, mount=(0.0, 0.0, 0.0), describe_folders="", inputs=None):
-        self.ns = ns.rstrip("/")
+    """What the run has received, written into its RunFiles as it comes. The ROS callbacks
+    (subscribe()) and the main loop (refresh(), finish()) take the lock."""
+
+    REPLACE_PERIOD_S = 1.0  # trajectory.csv and pieces.csv replaced at most this often while they change
+
+    def __init__(self, files, frame_stamps, mount=(0.0, 0.0, 0.0), describe_folders="", inputs=None):
+        self.files = files
         self.mount = mount  # the camera in base_link: paths give base_link, the files the camera
         self.frame_stamps = frame_stamps  # None: ROS ids as they are
         self.lock = threading.Lock()
         self.keyframes = {}  # (ros session, keyframe id) -> Keyframe fields we keep
-        self.loops = []
+        self.waiting_loops = []  # loops that came before a keyframe they name
+        self.loops_written = 0
+        self.loops_missing = 0  # loops naming a keyframe not placed by stamp
         self.paths = {}  # ros session -> last Path
         self.maps = {}  # ros session -> map (ros session id) of its last session_trajectory
         self.path_subs = {}
         self.unplaced = 0
         self.last_message = None  # wall time (time.time()) of the last message
         self.describe_folders = describe_folders  # the folders' stamp ranges, for the unplaced warning
-        self.inputs = inputs  # inputs.csv rows (run_inputs), None without folders
+        self.changed, self.replaced_at = True, 0.0  # trajectory.csv and pieces.csv due
+        self.trajectory_rows = self.trajectory_missing = 0
+        self.ns = None  # subscribe() sets it; without, messages come from the caller (tests)
+        if inputs is not None:
+            files.replace("inputs.csv", inputs_text(inputs))
+        self.refresh(force=True)  # an earlier run's files replaced from the start
+
+    def subscribe(self, ns):
+        self.ns = ns.rstrip("/")
         rospy.Subscriber(self.ns + "/keyframes", Keyframe, self.on_keyframe, queue_size=1000, buff_size=2 ** 24)
         rospy.Subscriber(self.ns + "/loops", Loop, self.on_loop, queue_size=1000)
         rospy.Subscriber(self.ns + "/session_trajectory", SessionTrajectory, self.on_trajectory, queue_size=100)
@@ -222,30 +316,60 @@ class Recorder:
     def on_keyframe(self, msg):
         with self.lock:
             self.last_message = time.time()
+            if (msg.session, msg.keyframe) in self.keyframes:
+                return  # sent twice: written once
             if not any(s == msg.session for s, _ in self.keyframes):
                 print("[record_run] session %d: first keyframe" % msg.session, flush=True)
-            self.watch(msg.session)
-            self.keyframes[(msg.session, msg.keyframe)] = {
-                "key": self.place(msg.session, msg.frame_index, msg.header.stamp),
-                "odometry": (msg.odometry_pose.x, msg.odometry_pose.y, msg.odometry_pose.theta),
-                "stamp": msg.header.stamp,
-            }
+            if self.ns is not None:
+                self.watch(msg.session)
+            key = self.place(msg.session, msg.frame_index, msg.header.stamp)
+            self.keyframes[(msg.session, msg.keyframe)] = {"key": key, "stamp": msg.header.stamp}
+            if key is not None:
+                pose = msg.odometry_pose
+                self.files.append("odometry.csv", "%d,%d,%.6f,%.6f,%.7f" % (key + (pose.x, pose.y, pose.theta)))
+            self.changed = True  # pieces.csv
+            waiting, self.waiting_loops = self.waiting_loops, []
+            for loop in waiting:
+                self.add_loop(loop)
 
     def on_loop(self, msg):
         with self.lock:
             self.last_message = time.time()
-            self.loops.append(msg)
+            self.add_loop(msg)
+
+    def add_loop(self, loop):
+        """Writes a loop's rows, or keeps it until the keyframes it names have come (caller holds the lock)."""
+        a = self.key_of(loop.session_a, loop.keyframe_a)
+        b = self.key_of(loop.session_b, loop.keyframe_b, loop.header.stamp)
+        if a is None or b is None:
+            came = lambda s, k: (s, k) in self.keyframes  # noqa: E731
+            # An end that will never be placed: its keyframe came and is no frame of the folders (nor
+            # is the new keyframe's stamp). Left out like that keyframe; else it waits for its keyframe.
+            if (a is None and came(loop.session_a, loop.keyframe_a)) or \
+                    (b is None and (came(loop.session_b, loop.keyframe_b) or self.frame_stamps is not None)):
+                self.loops_missing += 1
+            else:
+                self.waiting_loops.append(loop)
+            return
+        kind = "local" if loop.kind == Loop.LOCAL else "global"
+        self.files.append("loops.csv", "%d,%d,%d,%d,%s,%d" % (a + b + (kind, loop.inliers)))
+        self.files.append("loop_poses.csv", "%d,%d,%d,%d,%.6f,%.6f,%.7f" % (
+            a + b + (loop.pose.x, loop.pose.y, loop.pose.theta)))
+        self.loops_written += 1
 
     def on_trajectory(self, msg):
         with self.lock:
             self.last_message = time.time()
             self.maps[msg.session] = msg.map
-            self.watch(msg.session)
+            self.changed = True
+            if self.ns is not None:
+                self.watch(msg.session)
 
     def on_path(self, session, msg):
         with self.lock:
             self.last_message = time.time()
             self.paths[session] = msg
+            self.changed = True
 
     def idle_for(self):
         """Seconds since the last message, or 0 before the first keyframe."""
@@ -260,69 +384,52 @@ class Recorder:
             return self.frame_stamps.get(stamp_key(stamp.to_sec()))
         return None
 
-    def write(self, out):
+    def refresh(self, force=False):
+        """trajectory.csv and pieces.csv replaced when they changed (at most once per REPLACE_PERIOD_S
+        unless forced)."""
         with self.lock:
-            os.makedirs(out, exist_ok=True)
-            counts = {"odometry": 0, "trajectory": 0, "loops": 0, "missing": 0}
-            with open(os.path.join(out, "odometry.csv"), "w") as f:
-                f.write("session,index,x_m,y_m,yaw_rad\n")
-                for _, kf in sorted(self.keyframes.items()):
-                    if kf["key"] is None:
-                        continue
-                    x, y, yaw = kf["odometry"]
-                    f.write("%d,%d,%.6f,%.6f,%.7f\n" % (kf["key"] + (x, y, yaw)))
-                    counts["odometry"] += 1
+            if not (force or self.changed and time.time() - self.replaced_at >= self.REPLACE_PERIOD_S):
+                return
             first_key = {}  # ros session -> its first keyframe's folder number
             for (session, keyframe), kf in sorted(self.keyframes.items()):
                 if kf["key"] is not None and session not in first_key:
                     first_key[session] = kf["key"][0]
             piece, label = pieces_and_map_labels(first_key)
-            with open(os.path.join(out, "trajectory.csv"), "w") as f:
-                f.write("session,index,map,x_m,y_m,yaw_rad\n")
-                for session, path in sorted(self.paths.items()):
-                    ros_map = self.maps.get(session, session)
-                    map_id = label.get(ros_map, ros_map)
-                    for k, p in enumerate(path.poses):
-                        key = self.key_of(session, k, p.header.stamp)
-                        if key is None:
-                            counts["missing"] += 1
-                            continue
-                        x, y, yaw = camera_pose(p.pose.position.x, p.pose.position.y, yaw_of(p.pose.orientation),
-                                                self.mount)
-                        f.write("%d,%d,%d,%.6f,%.6f,%.7f\n" % (key[0], key[1], map_id, x, y, yaw))
-                        counts["trajectory"] += 1
-            with open(os.path.join(out, "loops.csv"), "w") as f, \
-                    open(os.path.join(out, "loop_poses.csv"), "w") as g:
-                f.write("session_a,index_a,session_b,index_b,kind,inliers\n")
-                g.write("session_a,index_a,session_b,index_b,x_m,y_m,yaw_rad\n")
-                for loop in self.loops:
-                    a = self.key_of(loop.session_a, loop.keyframe_a)
-                    b = self.key_of(loop.session_b, loop.keyframe_b, loop.header.stamp)
-                    if a is None or b is None:
-                        counts["missing"] += 1
+            rows, missing = ["session,index,map,x_m,y_m,yaw_rad"], 0
+            for session, path in sorted(self.paths.items()):
+                ros_map = self.maps.get(session, session)
+                map_id = label.get(ros_map, ros_map)
+                for k, p in enumerate(path.poses):
+                    key = self.key_of(session, k, p.header.stamp)
+                    if key is None:
+                        missing += 1
                         continue
-                    kind = "local" if loop.kind == Loop.LOCAL else "global"
-                    f.write("%d,%d,%d,%d,%s,%d\n" % (a + b + (kind, loop.inliers)))
-                    g.write("%d,%d,%d,%d,%.6f,%.6f,%.7f\n" % (a + b + (loop.pose.x, loop.pose.y, loop.pose.theta)))
-                    counts["loops"] += 1
-            with open(os.path.join(out, "pieces.csv"), "w") as f:
-                f.write("session,piece,store_session,first_index,last_index,keyframes,map\n")
-                for session in sorted(piece):
-                    indexes = [kf["key"][1] for (s, _), kf in self.keyframes.items() if s == session and kf["key"]]
-                    ros_map = self.maps.get(session, session)
-                    f.write("%d,%d,%d,%d,%d,%d,%d\n" % (first_key[session], piece[session], session, min(indexes),
+                    x, y, yaw = camera_pose(p.pose.position.x, p.pose.position.y, yaw_of(p.pose.orientation), self.mount)
+                    rows.append("%d,%d,%d,%.6f,%.6f,%.7f" % (key[0], key[1], map_id, x, y, yaw))
+            self.files.replace("trajectory.csv", "\n".join(rows) + "\n")
+            self.trajectory_rows, self.trajectory_missing = len(rows) - 1, missing
+            pieces = ["session,piece,store_session,first_index,last_index,keyframes,map"]
+            for session in sorted(piece):
+                indexes = [kf["key"][1] for (s, _), kf in self.keyframes.items() if s == session and kf["key"]]
+                ros_map = self.maps.get(session, session)
+                pieces.append("%d,%d,%d,%d,%d,%d,%d" % (first_key[session], piece[session], session, min(indexes),
                                                         max(indexes), len(indexes), label.get(ros_map, ros_map)))
-            if self.inputs is not None:
-                with open(os.path.join(out, "inputs.csv"), "w", newline="") as f:
-                    rows = csv.writer(f, lineterminator="\n")
-                    rows.writerow(("session", "folder", "frames", "first_stamp_s", "last_stamp_s", "altitude_mean_m"))
-                    rows.writerows((n, folder, frames, "%.6f" % first, "%.6f" % last, "%.6f" % altitude)
-                                   for n, folder, frames, first, last, altitude in self.inputs)
+            self.files.replace("pieces.csv", "\n".join(pieces) + "\n")
+            self.changed, self.replaced_at = False, time.time()
+
+    def finish(self):
+        """The last trajectory and pieces, the files closed, and the summary line; returns the counts."""
+        self.refresh(force=True)
+        with self.lock:
+            self.files.close()
+            counts = {"odometry": sum(1 for kf in self.keyframes.values() if kf["key"] is not None),
+                      "trajectory": self.trajectory_rows, "loops": self.loops_written,
+                      "missing": self.trajectory_missing + self.loops_missing + len(self.waiting_loops)}
             sessions = sorted({s for s, _ in self.keyframes})
             print("[record_run] %d sessions %s, %d keyframes (%d odometry rows), %d trajectory rows from %d paths, "
                   "%d loops; %d keyframes not placed by stamp, %d rows skipped -> %s" % (
                       len(sessions), sessions, len(self.keyframes), counts["odometry"], counts["trajectory"],
-                      len(self.paths), counts["loops"], self.unplaced, counts["missing"], out), flush=True)
+                      len(self.paths), counts["loops"], self.unplaced, counts["missing"], self.files.out), flush=True)
             return counts
 
 
@@ -371,17 +478,22 @@ def main():
     except ValueError as e:
         sys.exit("record_run: %s" % e)
 
+    try:
+        files = RunFiles(args.out)
+    except OSError as e:
+        sys.exit("record_run: --out %s: %s" % (args.out, e.strerror or e))
     rospy.init_node("record_run", disable_signals=False)
-    recorder = Recorder(args.ns, frame_stamps, mount_of(args.camera_frame),
+    recorder = Recorder(files, frame_stamps, mount_of(args.camera_frame),
                         stamp_ranges(args.session_dir, frame_stamps) if frame_stamps else "", inputs)
+    recorder.subscribe(args.ns)
     if args.ready_file:
         open(args.ready_file, "w").close()
-    if args.until_idle is None:
-        rospy.spin()  # until SIGINT / SIGTERM / rosnode kill
-    else:
-        while not rospy.is_shutdown() and recorder.idle_for() <= args.until_idle:
-            time.sleep(0.2)  # wall time: under use_sim_time the clock stops with the bag
-    recorder.write(args.out)
+    # Until SIGINT / SIGTERM / rosnode kill, or --until-idle; wall time: under use_sim_time the clock
+    # stops with the bag.
+    while not rospy.is_shutdown() and (args.until_idle is None or recorder.idle_for() <= args.until_idle):
+        recorder.refresh()
+        time.sleep(0.2)
+    recorder.finish()
 
 
 if __name__ == "__main__":

@@ -23,8 +23,9 @@
     sessions.py history [N]               (the audit trail: joins, splits, links, deletions, mode changes;
                                            the last N entries, default all)
 
-Exit status: 0 when the service answered (whatever its status code: the answer is printed),
-1 when it could not be called (no master, or no back-end within --timeout), 2 for wrong arguments.
+Exit status: 0 when the service answered OK, 3 when it refused the request (the answer, with its
+status code and message, is printed as for OK), 1 when it could not be called (no master, or no
+back-end within --timeout), 2 for wrong arguments.
 """
 import argparse
 import sys
@@ -51,6 +52,8 @@ def status_text(status):
     text = constants(Status).get(status.code, str(status.code))
     return text + (": " + status.message if status.message else "")
 
+
+REFUSED = 3  # the exit status when the back-end answered with another code than OK
 
 # command -> (fewest, most) arguments
 ARITY = {"list": (0, 0), "join": (2, 3), "split": (1, 1), "start": (0, 1), "reload": (1, 1), "unload": (1, 1), "delete": (1, 2), "pause": (0, 0),
@@ -176,7 +179,7 @@ def main():
     except (rospy.ROSException, rospy.ServiceException) as e:
         print("sessions.py %s: %s" % (args.command, e), file=sys.stderr)
         return 1
-    return 0
+    return 0 if res.status.code == Status.OK else REFUSED
 
 
 if __name__ == "__main__":

@@ -270,5 +270,37 @@ def test_what_is_declared_is_used():
     assert not problems, "declared in package.xml but used nowhere: " + ", ".join(problems)
 
 
+ROSDISTRO_KEYS = os.path.join(HERE, "data", "rosdistro_keys.yaml")
+OWN_ROSDEP = os.path.join(PKG_DIR, "rosdep", "uw_multislam.yaml")
+INSTALL_DOC = os.path.join(PKG_DIR, "doc", "build_and_test.md")
+
+
+def every_key():
+    p = package()
+    return {d.name for kind in (p.build_depends, p.buildtool_depends, p.build_export_depends, p.exec_depends,
+                                p.test_depends) for d in kind}
+
+
+def test_every_key_resolves_through_rosdistro_or_the_repository_rosdep_file():
+    """`rosdep install --from-paths` needs every key defined: in rosdistro's rosdep/base.yaml or
+    python.yaml or its noetic index (the committed excerpt, with where it came from), or in the
+    rosdep source file the repository ships, which the install docs name."""
+    import yaml
+    with open(ROSDISTRO_KEYS) as f:
+        rosdistro = yaml.safe_load(f)
+    known = {k for block in rosdistro.values() for k in block}
+    with open(OWN_ROSDEP) as f:
+        own = yaml.safe_load(f)
+    undefined = sorted(every_key() - known - set(own))
+    assert not undefined, "package.xml keys no rosdep source defines (%s, %s): %s" % (
+        os.path.relpath(ROSDISTRO_KEYS, PKG_DIR), os.path.relpath(OWN_ROSDEP, PKG_DIR), undefined)
+    # The repository's file only adds what rosdistro lacks, each for the platforms the docs name.
+    assert not set(own) & known, "rosdep/uw_multislam.yaml redefines rosdistro keys: %s" % sorted(set(own) & known)
+    for key, rules in own.items():
+        assert {"debian", "ubuntu"} <= set(rules), "%s: no debian or ubuntu rule" % key
+    with open(INSTALL_DOC) as f:
+        assert "rosdep/uw_multislam.yaml" in f.read(), "doc/build_and_test.md does not say how to add the rosdep file"
+
+
 if __name__ == "__main__":
     sys.exit(pytest.main([__file__, "-q"]))

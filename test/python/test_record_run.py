@@ -139,10 +139,8 @@ def test_inputs_csv_is_what_evaluate_checks_the_folders_against(tmp_path):
     b = write_folder(tmp_path, "b", [4.0, 5.0])
     with open(os.path.join(b, "frames.csv"), "a") as f:
         f.write("2,0002.png,6.0,nan\n3,0003.png,7.0,2.5\n")  # an altitude missing: left out of the mean
-    recorder = rr.Recorder.__new__(rr.Recorder)
-    recorder.lock, recorder.keyframes, recorder.paths, recorder.maps, recorder.loops = threading.Lock(), {}, {}, {}, []
-    recorder.unplaced, recorder.inputs = 0, rr.run_inputs([a, b])
-    recorder.write(str(tmp_path / "run"))
+    recorder = rr.Recorder(rr.RunFiles(str(tmp_path / "run")), None, inputs=rr.run_inputs([a, b]))
+    recorder.finish()
     rows = ev.read_table(str(tmp_path / "run" / "inputs.csv"), ev.INPUTS_COLUMNS)
     assert [(r["session"], r["folder"], r["frames"]) for r in rows] == [(0, a, 3), (1, b, 4)]
     assert rows[1]["altitude_mean_m"] == pytest.approx((1.5 + 1.5 + 2.5) / 3)
@@ -172,3 +170,83 @@ def test_pieces_of_a_split_folder_and_their_map_labels_follow_offline_slam():
     assert piece == {3: 0, 4: 1, 5: 0, 7: 2}
     assert label == {3: 0, 4: 2, 5: 1, 7: 3}
     assert rr.pieces_and_map_labels({}) == ({}, {})
+
+
+# --- the files written as the messages come (no ROS master: the callbacks called directly) ---
+
+def keyframe(session, k, stamp):
+    from uw_multislam.msg import Keyframe
+    m = Keyframe(session=session, keyframe=k, frame_index=k)
+    m.header.stamp = rospy.Time(stamp)
+    m.odometry_pose.x, m.odometry_pose.y, m.odometry_pose.theta = 0.5 * k, -0.25 * k, 0.01 * k
+    return m
+
+
+def loop(session_a, ka, session_b, kb, stamp):
+    from uw_multislam.msg import Loop
+    m = Loop(kind=Loop.LOCAL if session_a == session_b else Loop.GLOBAL, session_a=session_a, keyframe_a=ka,
+             session_b=session_b, keyframe_b=kb, inliers=40 + kb)
+    m.header.stamp = rospy.Time(stamp)
+    m.pose.x, m.pose.y, m.pose.theta = 0.1, 0.2, 0.03
+    return m
+
+
+def rows(path):
+    with open(path) as f:
+        return f.read().splitlines()
+
+
+def test_rows_are_on_disk_as_each_message_comes(tmp_path):
+    """Nothing waits for the end: each keyframe's odometry row and each loop's rows are in the files
+    (flushed) when the callback returns; a loop that names a keyframe not received yet is written
+    once it comes; the path's trajectory rows at the next refresh. An earlier run's files in OUT are
+    replaced at the start."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "trajectory.csv").write_text("session,index,map,x_m,y_m,yaw_rad\n9,9,9,0,0,0\n")
+    (out / "odometry.csv").write_text("session,index,x_m,y_m,yaw_rad\n9,9,0,0,0\n")
+    recorder = rr.Recorder(rr.RunFiles(str(out)), None)
+    assert rows(out / "trajectory.csv") == ["session,index,map,x_m,y_m,yaw_rad"]
+    assert rows(out / "odometry.csv") == ["session,index,x_m,y_m,yaw_rad"]
+    for k in range(3):
+        recorder.on_keyframe(keyframe(0, k, 100 + k))
+        assert rows(out / "odometry.csv")[1:] == ["0,%d,%.6f,%.6f,%.7f" % (i, 0.5 * i, -0.25 * i, 0.01 * i)
+                                                  for i in range(k + 1)]
+    recorder.on_keyframe(keyframe(0, 2, 102))  # sent twice: one row
+    assert len(rows(out / "odometry.csv")) == 4
+    recorder.on_loop(loop(0, 0, 0, 2, 102))
+    recorder.on_loop(loop(0, 1, 0, 3, 103))  # keyframe 3 has not come yet
+    assert rows(out / "loops.csv")[1:] == ["0,0,0,2,local,42"]
+    assert rows(out / "loop_poses.csv")[1:] == ["0,0,0,2,0.100000,0.200000,0.0300000"]
+    recorder.on_keyframe(keyframe(0, 3, 103))
+    assert rows(out / "loops.csv")[1:] == ["0,0,0,2,local,42", "0,1,0,3,local,43"]
+    from nav_msgs.msg import Path
+    from geometry_msgs.msg import PoseStamped
+    path = Path(poses=[PoseStamped() for _ in range(4)])
+    for k, p in enumerate(path.poses):
+        p.header.stamp, p.pose.position.x, p.pose.orientation.w = rospy.Time(100 + k), 1.0 * k, 1.0
+    recorder.on_path(0, path)
+    recorder.refresh(force=True)
+    assert [r.split(",")[:4] for r in rows(out / "trajectory.csv")[1:]] == [["0", str(k), "0", "%.6f" % k]
+                                                                          for k in range(4)]
+    assert rows(out / "pieces.csv")[1:] == ["0,0,0,0,3,4,0"]
+    assert recorder.finish() == {"odometry": 4, "trajectory": 4, "loops": 2, "missing": 0}
+
+
+def test_trajectory_is_replaced_at_most_once_a_period_while_it_changes(tmp_path):
+    recorder = rr.Recorder(rr.RunFiles(str(tmp_path / "run")), None)
+    from nav_msgs.msg import Path
+    from geometry_msgs.msg import PoseStamped
+    recorder.on_keyframe(keyframe(0, 0, 100))
+    recorder.on_path(0, Path(poses=[PoseStamped()]))
+    recorder.replaced_at = time.time()  # just replaced: the next change waits for the period
+    recorder.refresh()
+    assert rows(tmp_path / "run" / "trajectory.csv") == ["session,index,map,x_m,y_m,yaw_rad"]
+    recorder.replaced_at -= rr.Recorder.REPLACE_PERIOD_S
+    recorder.refresh()
+    assert len(rows(tmp_path / "run" / "trajectory.csv")) == 2
+    before = os.stat(tmp_path / "run" / "trajectory.csv").st_mtime_ns
+    recorder.replaced_at -= rr.Recorder.REPLACE_PERIOD_S
+    recorder.refresh()  # nothing changed since: not written again
+    assert os.stat(tmp_path / "run" / "trajectory.csv").st_mtime_ns == before
+    assert [n for n in os.listdir(tmp_path / "run") if n.endswith(".tmp")] == []

@@ -265,7 +265,7 @@ class BackendTest(unittest.TestCase):
         # The same answer through sessions.py (its argument checks: test/python/test_sessions.py).
         tool = subprocess.run(["/usr/bin/python3", SESSIONS_TOOL, "--ns", NS, "reload", "yesterday"],
                               capture_output=True, text=True, timeout=60)
-        self.assertEqual(tool.returncode, 0, tool.stderr)
+        self.assertEqual(tool.returncode, 3, tool.stderr)  # refused: non-zero, the code and message printed
         self.assertIn("reload_session 'yesterday' -> FAILED_PRECONDITION: no session store", tool.stdout)
         after = self.sessions()
         self.assertEqual(len(after), len(before) + 1)  # only the good start_session changed anything

@@ -39,7 +39,7 @@ from nav_msgs.msg import Path
 from sensor_msgs.msg import CameraInfo, Image, Range
 from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, connected, diagnostic_values,
                               make_mission, vehicle_from_camera, wait_for_subscribers)
-from uw_multislam.msg import Keyframe, Loop, SessionState, Status
+from uw_multislam.msg import Keyframe, Loop, SessionState, SlamStatus, Status
 from uw_multislam.srv import FinishSession, ListSessions, OperatorCommand, StartSession
 
 PLAY_RATE = 4.0  # frames per second: far below the odometry's speed on 240 x 180 images
@@ -89,8 +89,10 @@ class LiveSessionsTest(unittest.TestCase):
             with cls.lock:
                 cls.loops.append(msg)
 
+        cls.statuses = []
         cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, on_keyframe, queue_size=1000),
-                    rospy.Subscriber(NS + "/loops", Loop, on_loop, queue_size=1000)]
+                    rospy.Subscriber(NS + "/loops", Loop, on_loop, queue_size=1000),
+                    rospy.Subscriber(NS + "/status", SlamStatus, appender(cls.lock, cls.statuses), queue_size=1000)]
         for srv in ("list_sessions", "start_session"):
             rospy.wait_for_service(NS + "/" + srv, timeout=60)
         cls.list = rospy.ServiceProxy(NS + "/list_sessions", ListSessions)
@@ -111,6 +113,26 @@ class LiveSessionsTest(unittest.TestCase):
         res = self.list()
         self.assertEqual(res.status.code, Status.OK)
         return {s.session: s for s in res.sessions}
+
+    def states(self):
+        """The status topic's (state, session) in the order published, repeats dropped."""
+        out = []
+        with self.lock:
+            for s in self.statuses:
+                if not out or out[-1] != (s.state, s.session):
+                    out.append((s.state, s.session))
+        return out
+
+    def assert_states_in_order(self, expected):
+        """`expected` (state, session) pairs are among the status's states, in this order."""
+        states = self.states()
+        names = {v: k for k, v in vars(SlamStatus).items() if k.isupper() and isinstance(v, int)}
+        at = 0
+        for e in expected:
+            while at < len(states) and states[at] != e:
+                at += 1
+            self.assertLess(at, len(states), "status states %s do not hold %s in order" % (
+                [(names.get(s, s), n) for s, n in states], [(names[s], n) for s, n in expected]))
 
     def play(self, bag):
         return subprocess.Popen(["rosbag", "play", "-q", "--wait-for-subscribers", "-d", "1", "-r", str(PLAY_RATE), bag,
@@ -228,6 +250,20 @@ class LiveSessionsTest(unittest.TestCase):
                   min(stamps[0]), max(stamps[0]), len(stamps[0]), min(stamps[1]), max(stamps[1]), len(stamps[1]),
                   len(global_loops), worst))
         self.assertLess(worst, JOINED_TOLERANCE_M)
+        # The status followed it: tracking session 0, lost, tracking session 1; then, joined, session
+        # 1 in map 0 (the last status the back-end published once the join was listed).
+        self.assert_states_in_order([(SlamStatus.TRACKING, 0), (SlamStatus.LOST, 0), (SlamStatus.TRACKING, 1)])
+        def counted(last):  # every keyframe received so far (the odometry may still be finishing the bag)
+            return last.map == 0 and last.maps == 1 and last.keyframes == len(self.keyframes) and \
+                last.session_keyframes == len([k for k in self.keyframes if k.session == 1])
+        await_condition(self.lock, lambda: counted(self.statuses[-1]), 30,
+                        "a status with session 1 in map 0 and every keyframe", lambda: ": %s" % self.statuses[-1])
+        with self.lock:
+            last = self.statuses[-1]
+        self.assertEqual((last.session, last.sessions, last.tracking_losses), (1, 2, 1))
+        self.assertGreater(last.loops, 0)
+        self.assertTrue(0.0 <= last.last_loop_age_s < 60.0, last.last_loop_age_s)  # loops came during the bag
+        print("status: %s; last: %s" % (self.states(), last.text))
 
     def frame_by_frame(self):
         """Subscriptions to odometry/pose and the odometry's /diagnostics, publishers of the sensor
@@ -303,7 +339,11 @@ class LiveSessionsTest(unittest.TestCase):
                 self.assertFalse(r.paused)
                 self.assertEqual(r.frames_dropped_paused, len(PAUSED))
             send(i, i - PAUSED.start + 1 if i in PAUSED else None)
+            if i == PAUSED.start:  # the status says so at once (the odometry's state changed)
+                await_condition(self.lock, lambda: self.statuses and self.statuses[-1].state == SlamStatus.PAUSED, 10,
+                                "a PAUSED status", lambda: ": %s" % self.states())
         final, stamps, keyframes = finished()
+        self.assert_states_in_order([(SlamStatus.TRACKING, 0), (SlamStatus.PAUSED, 0), (SlamStatus.TRACKING, 0)])
         paused = {frames[i][0].header.stamp for i in PAUSED}
         self.assertEqual(len(stamps), len(frames) - len(PAUSED), "a pose for every frame not paused")
         self.assertFalse(paused & set(stamps), "no pose for a paused frame")

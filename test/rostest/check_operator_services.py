@@ -201,7 +201,7 @@ class OperatorServicesTest(unittest.TestCase):
         self.assertEqual((tool_says.returncode, tool_says.stdout.strip()), (0, "optimise -> OK, 0 maps due"), tool_says)
         tool_says = subprocess.run([SESSIONS_TOOL, "--ns", NS, "link", "0", "2", "7", "2", "0", "1", "0", "0.01", "0.01"],
                                    capture_output=True, text=True, timeout=60)
-        self.assertEqual(tool_says.returncode, 0, tool_says)
+        self.assertEqual(tool_says.returncode, 3, tool_says)  # refused: non-zero
         self.assertTrue(tool_says.stdout.startswith("add_link 0:2 -> 7:2 -> NOT_FOUND: no session 7"), tool_says.stdout)
 
         self.stop_backend()
@@ -315,7 +315,7 @@ class OperatorServicesTest(unittest.TestCase):
         self.assertEqual(set_mode("mapping").status.code, Status.OK)
         tool_says = subprocess.run([SESSIONS_TOOL, "--ns", NS, "delete", "1"], capture_output=True, text=True,
                                    timeout=60)
-        self.assertEqual(tool_says.returncode, 0, tool_says)
+        self.assertEqual(tool_says.returncode, 3, tool_says)  # refused: non-zero
         self.assertTrue(tool_says.stdout.startswith("delete_session '1' -> FAILED_PRECONDITION: delete_session removes "
                                                     "session 1 ('session_1')"), tool_says.stdout)
 
@@ -359,7 +359,7 @@ class OperatorServicesTest(unittest.TestCase):
                                    timeout=60)
         self.assertEqual((tool_says.returncode, tool_says.stdout.strip()),
                          (0, "set_mode localisation -> OK, localisation mode"), tool_says)
-        res = set_mode("localisation")  # again: OK, said
+        res = set_mode("localization")  # again, in the ROS world's spelling: OK, said
         self.assertEqual((res.status.code, res.mode), (Status.OK, "localisation"), res.status.message)
         await_condition(self.lock, lambda: self.status.get("mode") == "localisation", 30, "mode on /diagnostics")
         local = Loop(kind=Loop.LOCAL, session_a=1, keyframe_a=0, session_b=1, keyframe_b=4, pose=Pose2D(2.0, 0, 0),

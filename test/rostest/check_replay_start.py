@@ -1,16 +1,21 @@
 #!/usr/bin/python3
-"""rostest: replay.launch's player waits for the odometry (scripts/resume_player.py).
+"""rostest: replay.launch from its start to its end.
 
 replay.launch starts with delay:=0 (rosbag play publishes at once) on the fixture mission's s0.bag,
-the nodelets loading meanwhile. The player starts paused and is resumed once the odometry is
-connected: the odometry receives every image of the bag (its diagnostics' images_received) and
-session 0's keyframe 0 is the bag's first image. ~wait_for_odometry false is for measuring what
-the wait prevents (the images lost without it); it is not registered as a test.
+the nodelets loading meanwhile, with a session store. The player starts paused and is resumed once
+the odometry is connected (scripts/resume_player.py): the odometry receives every image of the bag
+(its diagnostics' images_received) and session 0's keyframe 0 is the bag's first image. Then the
+replay ends by itself (scripts/replay_end.py), saying so, once the pipeline has processed the bag:
+every keyframe the odometry published is in the store, and the store was closed (no write-ahead
+log left). ~wait_for_odometry false is for measuring what the wait prevents (the images lost
+without it); it is not registered as a test.
 """
 import os
 import shutil
+import sqlite3
 import subprocess
 import threading
+import time
 import unittest
 
 import rospy
@@ -47,15 +52,20 @@ class ReplayStartTest(unittest.TestCase):
                 rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, appender(lock, poses),
                                  queue_size=1000),
                 rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)]
+        store = os.path.join(self.tmp, "sessions.db")
+        log = open(os.path.join(self.tmp, "launch.log"), "w")
         self.launch = subprocess.Popen(["roslaunch", "uw_multislam", "replay.launch", "bag:=" + bag, "delay:=0",
-                                        "rate:=4", "camera_mount:=0 0 0 0",
+                                        "rate:=4", "camera_mount:=0 0 0 0", "store_path:=" + store,
                                         "wait_for_odometry:=" + ("true" if self.wait else "false")],
-                                       stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+                                       stdout=log, stderr=subprocess.STDOUT)
         # The bag is over when the odometry's pose of its last image is out (every processed frame has
         # one); the diagnostics (every second) then count what the odometry received.
         await_condition(lock, lambda: any(p.header.stamp == images[-1] for p in poses), 120,
                         "the odometry's pose of the bag's last image", lambda: ": %s" % odometry)
-        await_condition(lock, lambda: odometry.get("frames_finished") == odometry.get("images_received") and
+        # Every image received is finished or was passed over for a newer one (~drop_policy newest, on a
+        # loaded machine): the odometry is done with the bag.
+        await_condition(lock, lambda: odometry.get("frames_finished", -1) + odometry.get("skipped_for_newest", 0) +
+                        odometry.get("dropped_queue_full", 0) == odometry.get("images_received") and
                         odometry.get("frames_finished", 0) >= len(poses), 10,
                         "the odometry's diagnostics after the last image", lambda: ": %s" % odometry)
         for s in subs:
@@ -69,6 +79,29 @@ class ReplayStartTest(unittest.TestCase):
         self.assertEqual(received, len(images))
         self.assertTrue(first, "no keyframe 0 of session 0")
         self.assertEqual(first[0].header.stamp, images[0])
+
+        # The end: replay.launch stops by itself once the pipeline is done with the bag.
+        played = time.time()
+        try:
+            self.launch.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            self.fail("replay.launch still running 120 s after the bag's last image")
+        ended_s = time.time() - played
+        log.close()
+        with open(log.name) as f:
+            said = f.read()
+        self.assertIn("replay_end: the bag(s) ended", said)
+        self.assertIn("the pipeline is idle", said)
+        self.assertIn("Ending the replay", said)
+        with lock:
+            published = sorted((k.session, k.keyframe) for k in keyframes)
+        self.assertFalse(os.path.exists(store + "-wal"), "the store's write-ahead log is left: not closed")
+        with sqlite3.connect(store) as db:
+            stored = sorted(db.execute("SELECT session, keyframe FROM keyframes").fetchall())
+        rospy.loginfo("replay_start: replay.launch ended %.1f s after the bag's last image; %d keyframes published, "
+                      "%d in the store", ended_s, len(published), len(stored))
+        self.assertTrue(published)
+        self.assertEqual(stored, published)
 
 
 if __name__ == "__main__":

@@ -54,6 +54,10 @@ uw_multislam::HistoryEntry toHistoryEntryMsg(const core::HistoryEntry& e);
 /// The history service's answer: the last `last` entries (0: all); INVALID_ARGUMENT when negative.
 uw_multislam::History::Response toHistoryResponse(const std::vector<core::HistoryEntry>& history, int last);
 
+/// set_mode's request: "mapping", or "localisation" with its other spelling "localization" (the
+/// ROS world's); another word is INVALID_ARGUMENT and changes nothing.
+core::Status setMode(core::SessionManager* m, const std::string& mode);
+
 /// A session's keyframe poses (in its map's frame) as a Path in `frame_id`; stamps[k] per pose
 /// (missing stamps: the last one given, or `fallback`).
 nav_msgs::Path toPathMsg(const std::vector<core::Pose2>& poses, const std::vector<ros::Time>& stamps,

@@ -41,6 +41,9 @@ constexpr char kOdometry[] = "odom";
 /// sensor_msgs/Image: the latest keyframe's image with its features drawn (odometry nodelet,
 /// only while someone subscribes).
 constexpr char kKeyframeImage[] = "odometry/keyframe_image";
+/// uw_multislam/SlamStatus, latched (odometry nodelet): the odometry's part of the status
+/// (tracking, lost, paused; frame time, skips), which the back-end completes on kStatus.
+constexpr char kOdometryStatus[] = "odometry/status";
 /// uw_multislam/Loop: verified loops, local and global (loop detector nodelet(s)).
 constexpr char kLoops[] = "loops";
 /// uw_multislam/KeyframeHash: each keyframe's compact hash (loop detector in global/both mode).
@@ -93,6 +96,12 @@ constexpr char kRelocalisedPose[] = "relocalised_pose";
 /// active map (core/export/live_mosaic.h), the active keyframe outlined in red; rows along the
 /// map's image-axes y, redrawn at most at ~mosaic_rate after keyframes, joins, splits and optimisations.
 constexpr char kLiveMosaic[] = "mosaic";
+/// uw_multislam/SlamStatus (back-end, latched): the SLAM at a glance (ros/slam_status.h), at each
+/// keyframe, when the odometry's state changes and at least once a second.
+constexpr char kStatus[] = "status";
+/// visualization_msgs/Marker (back-end, latched, only while subscribed): the status as a text
+/// beside the vehicle (TEXT_VIEW_FACING in frames/base_frame) for rviz.
+constexpr char kStatusMarker[] = "status_marker";
 
 // --- Services of the session manager (uw_multislam/srv) ---------------------------------------
 constexpr char kJoinSessionsService[] = "join_sessions";

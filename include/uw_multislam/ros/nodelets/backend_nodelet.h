@@ -52,6 +52,7 @@
 #include "uw_multislam/ros/reloaded_keyframes_publisher.h"
 #include "uw_multislam/ros/session_publisher.h"
 #include "uw_multislam/ros/slam_params.h"
+#include "uw_multislam/ros/slam_status.h"
 
 namespace uw_multislam {
 namespace nodelets {
@@ -101,6 +102,7 @@ class BackendNodelet : public nodelet::Nodelet {
   std::unique_ptr<ros_sessions::SessionPublisher> sessions_;  // worker's lock
   std::unique_ptr<ros_fleet::HashExchange> fleet_;            // ~fleet/vehicle set
   std::unique_ptr<ros_sessions::ReloadedKeyframesPublisher> reloaded_;
+  std::unique_ptr<ros_status::BackendStatusPublisher> status_;  // its own lock, after the worker's
   std::unique_ptr<diagnostic_updater::Updater> updater_;
   ros_diagnostics::CounterStatus diagnostic_status_;  // the diagnostics timer's thread only
   ros::WallTimer diagnostic_timer_, stats_timer_;

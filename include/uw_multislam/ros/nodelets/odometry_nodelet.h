@@ -38,6 +38,7 @@
 #include "uw_multislam/ros/odometry_counters.h"
 #include "uw_multislam/ros/odometry_frame.h"
 #include "uw_multislam/ros/odometry_options.h"
+#include "uw_multislam/ros/slam_status.h"
 #include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
@@ -100,6 +101,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   std::vector<ros::ServiceServer> services_;
   std::unique_ptr<image_transport::ImageTransport> it_;
   std::unique_ptr<ros_outputs::KeyframePublisher> keyframes_;
+  std::unique_ptr<ros_status::OdometryStatusPublisher> status_;  // odometry/status: the worker's frames
   std::unique_ptr<ros_inputs::NavInput> nav_;
   std::unique_ptr<ros_inputs::ImageInput> images_;
   ros::Subscriber session_sub_, info_sub_, range_sub_;
