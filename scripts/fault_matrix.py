@@ -41,6 +41,8 @@ sessions:
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
+sys.path.insert(0, os.path.join(REPO, "src", "tools"))
+from atomic_file import write_atomically  # noqa: E402  (the tools' safe writer)
 
 
 def wait_for(condition, timeout_s, step_s=0.05):
@@ -321,6 +323,44 @@ def case_export_planted_links(m, off):
                     "temporary links left: %d of %d") % (
             r.returncode, (": " + " / ".join(reason(r.stderr))) if r.returncode else "", len(names), len(regular),
             len(same), "byte-identical" if untouched else "CHANGED", len(links_left), len(names))
+        m.row(case, expected, observed, held)
+    finally:
+        m.done(d)
+
+
+def case_evaluate_planted_links(m, off):
+    case = "evaluate.py over links planted at its report's final names and temporaries"
+    expected = ("status 0; the files outside the report byte-identical, nothing created outside; every report file "
+                "a regular file; the planted temporary links left as they were")
+    d = m.tempdir("evaluate_links")
+    try:
+        outside, report = os.path.join(d, "outside"), os.path.join(d, "report")
+        os.mkdir(outside)
+        os.mkdir(report)
+        finals = ["metrics.json", "metrics.csv", "metrics.md", "session_0.png", "report.html"]
+        temporaries = ["metrics.json.tmp", "report.html.tmp", "map_0.png.tmp"]
+        victims = {}
+        for name in finals + temporaries:
+            victim = os.path.join(outside, name)
+            with open(victim, "w") as f:
+                f.write("precious %s\n" % name)
+            victims[victim] = md5(victim)
+            os.symlink(victim, os.path.join(report, name))
+        os.symlink(os.path.join(outside, "created"), os.path.join(report, "metrics.md.tmp"))  # dangling
+        tool_path = tool(off, "evaluate.py")
+        if not os.path.exists(tool_path):
+            tool_path = os.path.join(REPO, "src", "tools", "evaluate.py")
+        r = subprocess.run(["/usr/bin/python3", tool_path, "--run", os.path.join(off.base, "valid_out"), "--session",
+                            off.folder("a"), "--report", report, "--html"], capture_output=True, text=True, timeout=180)
+        untouched = all(md5(v) == h for v, h in victims.items()) and sorted(os.listdir(outside)) == sorted(
+            os.path.basename(v) for v in victims)
+        regular = [n for n in finals if os.path.isfile(os.path.join(report, n))
+                   and not os.path.islink(os.path.join(report, n))]
+        links_left = [n for n in temporaries + ["metrics.md.tmp"] if os.path.islink(os.path.join(report, n))]
+        held = r.returncode == 0 and untouched and len(regular) == len(finals) and len(links_left) == len(temporaries) + 1
+        observed = "status %d%s; %d of %d report files regular; outside files %s; planted temporary links left: %d of %d" % (
+            r.returncode, (": " + " / ".join(reason(r.stderr)[-2:])) if r.returncode else "", len(regular), len(finals),
+            "byte-identical, nothing created" if untouched else "CHANGED", len(links_left), len(temporaries) + 1)
         m.row(case, expected, observed, held)
     finally:
         m.done(d)
@@ -635,6 +675,7 @@ def offline_dataset_cases(m, off):
 
 
 OFFLINE_CASES = [case_kill_offline, case_two_writers, case_hard_link_writer, case_export_planted_links,
+                 case_evaluate_planted_links,
                  case_self_merge_hard_link, case_restart_ids, case_index_steps, case_add_link_yaw_offline,
                  offline_store_cases, offline_dataset_cases]
 
@@ -683,17 +724,17 @@ def live_case(name, timeout):
 
 def junit(path, rows, seconds):
     failures = sum(1 for r in rows if not r[3])
-    with open(path, "w") as f:
-        f.write('<?xml version="1.0" encoding="utf-8"?>\n')
-        f.write('<testsuite name="fault_matrix" tests="%d" failures="%d" errors="0" skipped="0" time="%.1f">\n' %
-                (len(rows), failures, seconds))
-        for case, expected, observed, held, _ in rows:
-            f.write('  <testcase classname="fault_matrix" name=%s>\n' % xml.sax.saxutils.quoteattr(case))
-            if not held:
-                f.write('    <failure message=%s/>\n' % xml.sax.saxutils.quoteattr("expected: %s; observed: %s" %
-                                                                                  (expected, observed)))
-            f.write("  </testcase>\n")
-        f.write("</testsuite>\n")
+    parts = ['<?xml version="1.0" encoding="utf-8"?>\n',
+             '<testsuite name="fault_matrix" tests="%d" failures="%d" errors="0" skipped="0" time="%.1f">\n' %
+             (len(rows), failures, seconds)]
+    for case, expected, observed, held, _ in rows:
+        parts.append('  <testcase classname="fault_matrix" name=%s>\n' % xml.sax.saxutils.quoteattr(case))
+        if not held:
+            parts.append('    <failure message=%s/>\n' % xml.sax.saxutils.quoteattr("expected: %s; observed: %s" %
+                                                                                   (expected, observed)))
+        parts.append("  </testcase>\n")
+    parts.append("</testsuite>\n")
+    write_atomically(path, "".join(parts))
 
 
 def main():

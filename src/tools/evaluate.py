@@ -128,6 +128,9 @@ Outputs
                 stretched view below the equal-axes one
   report.html   with --html: one self-contained file (no external link) with the figures, the
                 tables, the run's inputs.csv and config.yaml, and the command
+  Every file is written by atomic_file.py (beside this file): a temporary in the same folder,
+  created without following a link, fsync'd and renamed into place; a link planted at a report
+  name is replaced, never written through.
 
 Exit status 0 on success; 1 with a one-line reason on stderr for bad input (2 for a bad command line).
 """
@@ -140,6 +143,10 @@ import sys
 from dataclasses import dataclass, field
 
 import numpy as np
+
+# atomic_file.py sits beside this file (in the source tree and where the tools are installed).
+sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
+from atomic_file import AtomicFile, write_atomically  # noqa: E402
 
 NA = None  # a metric that cannot be computed
 
@@ -923,9 +930,11 @@ def write_mosaic_pngs(ev, run, gt, directory):
         written = []
         for name in ("slam", "gt"):
             path = os.path.join(directory, "map_%d_%s.png" % (map_id, name))
-            Image.fromarray(images[name], "RGBA").save(path, optimize=True)
-            with open(path[:-4] + ".pgw", "w") as f:  # image-axes y down = z-up y up: -y
-                f.write("%.12g\n0\n0\n%.12g\n%.12g\n%.12g\n" % (res, -res, x0 + res / 2, -(y0 + res / 2)))
+            with AtomicFile(path, "wb") as f:
+                Image.fromarray(images[name], "RGBA").save(f, format="PNG", optimize=True)
+            # image-axes y down = z-up y up: -y
+            write_atomically(path[:-4] + ".pgw", "%.12g\n0\n0\n%.12g\n%.12g\n%.12g\n" % (
+                res, -res, x0 + res / 2, -(y0 + res / 2)))
             written.append(path)
         m = scores.get(str(map_id), {}).get("slam", {})
         score = ""
@@ -1177,16 +1186,13 @@ def markdown(ev):
 
 def write_report(ev, report_dir):
     os.makedirs(report_dir, exist_ok=True)
-    with open(os.path.join(report_dir, "metrics.csv"), "w", newline="") as f:
+    with AtomicFile(os.path.join(report_dir, "metrics.csv"), "w", newline="") as f:
         out = csv.writer(f, lineterminator="\n")
         out.writerow(("scope", "id", "estimate", "metric", "value"))
         out.writerows(row[:4] + (csv_value(row[4]),) for row in ev.rows)
-    with open(os.path.join(report_dir, "metrics.json"), "w") as f:
-        json.dump(ev.nested(), f, indent=2)
-        f.write("\n")
+    write_atomically(os.path.join(report_dir, "metrics.json"), json.dumps(ev.nested(), indent=2) + "\n")
     text = markdown(ev)
-    with open(os.path.join(report_dir, "metrics.md"), "w") as f:
-        f.write(text)
+    write_atomically(os.path.join(report_dir, "metrics.md"), text)
     return text
 
 
@@ -1371,7 +1377,8 @@ def render(plt, layers, title, path):
         draw_layers(stretched, layers)
         style_axes(stretched, "the same, stretched across (not to scale)", equal=False)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
+    with AtomicFile(path, "wb") as f:
+        fig.savefig(f, format="png", dpi=110, bbox_inches="tight")
     plt.close(fig)
     return 2 if thin else 1
 
@@ -1461,9 +1468,7 @@ def write_html(ev, run_dir, report_dir, figures, command):
         parts.append("<p>The run has no config.yaml (record_run.py does not write one; see the launch parameters).</p>")
     parts.append("</body></html>")
     path = os.path.join(report_dir, "report.html")
-    with open(path + ".tmp", "w") as f:
-        f.write("\n".join(parts) + "\n")
-    os.replace(path + ".tmp", path)
+    write_atomically(path, "\n".join(parts) + "\n")
     return path
 
 

@@ -639,6 +639,34 @@ def test_html_report_is_one_self_contained_file_with_tables_figures_and_configur
     assert "join_min_loops: 7  # &lt;marker&gt;" in page
 
 
+def test_links_planted_in_the_report_are_replaced_never_written_through(tmp_path):
+    """Every report file is written by atomic_file.py: a link at a final name (metrics.json, a plot) or
+    at a temporary name (report.html.tmp, metrics.csv.tmp) leaves the files it points to untouched."""
+    figure_inputs(tmp_path)
+    outside, report = tmp_path / "outside", tmp_path / "r"
+    outside.mkdir()
+    report.mkdir()
+    planted = ["metrics.json", "metrics.md", "map_0.png", "report.html.tmp", "metrics.csv.tmp", "session_0.png.tmp"]
+    for n, name in enumerate(planted):
+        (outside / name).write_text("precious %d\n" % n)
+        (report / name).symlink_to(outside / name)
+    (report / "metrics.csv.tmp.dangling").symlink_to(outside / "created")
+    base = ["--run", tmp_path / "run", "--session", tmp_path / "s0", "--session", tmp_path / "s1", "--world-gt",
+            tmp_path / "world_gt.csv", "--report", report, "--html"]
+    assert run_main(base) == 0
+    assert run_main(base[:-3] + ["--report", tmp_path / "clean", "--no-plots"]) == 0
+    assert sorted(os.listdir(outside)) == sorted(planted)  # nothing created outside
+    for n, name in enumerate(planted):
+        assert (outside / name).read_text() == "precious %d\n" % n, name
+    for name in ("metrics.json", "metrics.md", "map_0.png"):
+        assert not (report / name).is_symlink() and (report / name).is_file(), name
+    for name in ("metrics.json", "metrics.md", "metrics.csv"):
+        assert (report / name).read_text() == (tmp_path / "clean" / name).read_text(), name
+    assert is_png(report / "map_0.png") and is_png(report / "session_0.png")
+    assert (report / "report.html.tmp").is_symlink()  # not the writer's: left as it was
+    assert "<html>" in (report / "report.html").read_text()
+
+
 def test_a_folder_split_by_tracking_loss_is_scored_and_drawn_per_piece(tmp_path):
     """pieces.csv (offline_slam): folder 0 in two pieces, frames 0-5 and 8-11, each piece's odometry
     exact in its own frame (restarting at the origin), the SLAM exact in one map joined by a link."""
