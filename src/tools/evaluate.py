@@ -256,30 +256,95 @@ def read_table(path, columns, required=True, optional=()):
     return rows
 
 
+def _CameraYamlLoader():
+    """PyYAML's safe loader reading plain numbers as YAML 1.2 and yaml-cpp do: 1e3 is a number (YAML 1.1
+    wants a dot, 1.0e+3). Quoted scalars stay text."""
+    import re
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(
+        r"^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?$"), list("-+0123456789."))
+    return Loader
+
+
 def read_camera_yaml(path):
-    """Reads the flat 'key: value' camera.yaml of a dataset folder."""
+    """Reads a dataset folder's camera.yaml in either layout core::readCameraYaml reads
+    (doc/dataset_format.md): the six keys image_width, image_height, fx, fy, cx, cy, or a ROS
+    calibration YAML (camera_calibration_parsers' format, recognised by its camera_matrix key; K
+    gives fx, fy, cx, cy). Only K and the image size are used here: the poses are the image
+    centres', and the mosaic score projects with K (a lens's distortion is not undone there).
+    Returns {key: float} for the six keys; EvalError naming the file and the key otherwise."""
+    import yaml
     if not os.path.isfile(path):
         raise EvalError("%s: file not found" % path)
-    values = {}
-    with open(path) as f:
-        for n, line in enumerate(f, start=1):
-            line = line.split("#", 1)[0].strip()
-            if not line or line.startswith("%YAML") or line == "---":
-                continue
-            key, sep, text = line.partition(":")
-            if not sep:
-                raise EvalError("%s:%d: expected 'key: value', found '%s'" % (path, n, line))
-            values[key.strip()] = text.strip()
-    camera = {}
-    for key in CAMERA_KEYS:
-        if key not in values:
+    with open(path, encoding="utf-8-sig") as f:
+        text = f.read()
+    try:
+        root = yaml.load(text, Loader=_CameraYamlLoader())
+    except yaml.YAMLError as e:
+        where = getattr(e, "problem_mark", None)
+        raise EvalError("%s%s: not YAML (%s)" % (path, ":%d" % (where.line + 1) if where else "",
+                                                   getattr(e, "problem", None) or e)) from None
+    if not isinstance(root, dict):
+        raise EvalError("%s: expected 'key: value' lines (image_width, image_height, fx, fy, cx, cy) or a ROS "
+                        "calibration YAML" % path)
+
+    def number(value, key):
+        # A quoted number is text, as the C++ readers say (bool is an int in Python: refused too).
+        if isinstance(value, str):
+            try:
+                float(value)
+            except ValueError:
+                pass
+            else:
+                raise EvalError("%s: %s: '%s' is quoted text, not a number (write it without quotes)" % (
+                    path, key, value))
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise EvalError("%s: %s: cannot read %r as a number" % (path, key, value))
+        return float(value)
+
+    def required(key):
+        if key not in root:
             raise EvalError("%s: missing key '%s'" % (path, key))
-        try:
-            camera[key] = float(values[key])
-        except ValueError:
-            raise EvalError("%s: %s: cannot read '%s' as a number" % (path, key, values[key])) from None
-    if camera["fy"] <= 0 or camera["image_height"] <= 0:
-        raise EvalError("%s: fy and image_height must be positive" % path)
+        return root[key]
+
+    def matrix(key, rows, cols):
+        m = required(key)
+        data = m.get("data") if isinstance(m, dict) else None
+        if not isinstance(data, list) or m.get("rows") != rows or m.get("cols") != cols or len(data) != rows * cols:
+            raise EvalError("%s: %s must be {rows: %d, cols: %d, data: [%d numbers]}" % (
+                path, key, rows, cols, rows * cols))
+        return [number(v, "%s.data[%d]" % (key, i)) for i, v in enumerate(data)]
+
+    if "camera_matrix" in root:
+        k = matrix("camera_matrix", 3, 3)
+        camera = {"image_width": number(required("image_width"), "image_width"),
+                  "image_height": number(required("image_height"), "image_height"),
+                  "fx": k[0], "fy": k[4], "cx": k[2], "cy": k[5]}
+        model = required("distortion_model")
+        counts = {"plumb_bob": (4, 5), "rational_polynomial": (8,)}
+        if model not in counts:
+            raise EvalError("%s: distortion_model '%s' is not supported (plumb_bob or rational_polynomial)" % (
+                path, model))
+        d = required("distortion_coefficients")
+        n = d.get("cols") if isinstance(d, dict) else None
+        if n not in counts[model]:
+            raise EvalError("%s: distortion_coefficients: %s takes %s coefficients, found %s" % (
+                path, model, " or ".join(map(str, counts[model])), n))
+        matrix("distortion_coefficients", 1, n)
+        if "rectification_matrix" in root:
+            matrix("rectification_matrix", 3, 3)
+        if "projection_matrix" in root:
+            matrix("projection_matrix", 3, 4)
+    else:
+        camera = {key: number(required(key), key) for key in CAMERA_KEYS}
+    for key in ("image_width", "image_height"):
+        if not (1 <= camera[key] <= 1e6 and camera[key] == int(camera[key])):
+            raise EvalError("%s: %s must be a whole number of pixels in [1, 1000000]" % (path, key))
+    if not (camera["fx"] > 0 and camera["fy"] > 0):
+        raise EvalError("%s: fx and fy must be positive" % path)
     return camera
 
 

@@ -1,12 +1,15 @@
 """Tests of src/tools/atomic_file.py, the Python tools' writer (the rules of core/common/atomic_file.h)."""
+import importlib.util
 import os
-import sys
 
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools"))
-import atomic_file  # noqa: E402
-from atomic_file import AtomicFile, FileWriteError, open_streaming, write_atomically  # noqa: E402
+_spec = importlib.util.spec_from_file_location("atomic_file", os.path.join(
+    os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "atomic_file.py"))
+atomic_file = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(atomic_file)
+AtomicFile, FileWriteError = atomic_file.AtomicFile, atomic_file.FileWriteError
+open_streaming, write_atomically = atomic_file.open_streaming, atomic_file.write_atomically
 
 
 @pytest.fixture
