@@ -157,27 +157,18 @@ def test_the_readme_mosaic_mission_flies_inside_the_imaged_reef(tmp_path):
     assert len(read_csv(tmp_path / "m" / "s0" / "frames.csv")) == 28
 
 
-LENS = """
-seed: 11
-world: {width_m: 9, height_m: 6, featureless_fraction: 0}
-sessions:
-  - name: a
-    mission: {pattern: out_and_back, start_m: [2.0, 2.0], length_m: 4.0, leg_spacing_m: 1.0,
-              speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.0}
-"""
-
-
 def test_a_survey_with_lens_distortion_is_scored_by_evaluate(tmp_path):
     """make_survey --distortion writes camera.yaml as a ROS calibration YAML (doc/dataset_format.md);
     offline_slam runs on it and evaluate.py scores the run, its camera read from K."""
-    config = tmp_path / "lens.yaml"
-    config.write_text(LENS)
+    config = tmp_path / "tiny.yaml"
+    config.write_text(TINY)
     mission = tmp_path / "m"
     r = run("--config", config, "--out", mission, "--distortion", "-0.08,0.01", "--no-bag", "--quiet")
     assert r.returncode == 0, r.stderr
-    calibration = yaml.safe_load((mission / "a" / "camera.yaml").read_text())
+    calibration = yaml.safe_load((mission / "first" / "camera.yaml").read_text())
     assert "camera_matrix" in calibration and calibration["distortion_model"] == "plumb_bob"
-    r = run_tool("offline_slam", "--session", mission / "a", "--out", tmp_path / "run", "--quiet")
+    r = run_tool("offline_slam", "--session", mission / "first", "--session", mission / "second", "--out",
+                 tmp_path / "run", "--quiet")
     assert r.returncode == 0, r.stderr
     evaluate = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "evaluate.py")
     report = tmp_path / "report"
@@ -192,6 +183,6 @@ def test_a_survey_with_lens_distortion_is_scored_by_evaluate(tmp_path):
     spec = importlib.util.spec_from_file_location("evaluate", evaluate)
     ev = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(ev)
-    camera = ev.read_camera_yaml(str(mission / "a" / "camera.yaml"))
+    camera = ev.read_camera_yaml(str(mission / "first" / "camera.yaml"))
     assert (camera["fx"], camera["fy"], camera["cx"], camera["cy"]) == (k[0], k[4], k[2], k[5])
     assert (camera["image_width"], camera["image_height"]) == (calibration["image_width"], calibration["image_height"])
