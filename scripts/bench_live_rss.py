@@ -32,6 +32,7 @@ import yaml
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_paging import init_node, pid_of, rss_kb, start_master, stop  # noqa: E402
+from atomic_file import write_atomically  # noqa: E402  (the tools' safe writer, on bench_paging's path)
 
 NODES = ("odometry_node", "loop_detector_node", "backend_node")
 
@@ -50,8 +51,7 @@ def make_mission(out, laps, bin_dir):
     spec["sessions"][0]["mission"]["laps"] = laps
     spec["sessions"][0]["mission"]["start_time_s"] = 0
     cfg = os.path.join(out, "long.yaml")
-    with open(cfg, "w") as f:
-        yaml.safe_dump(spec, f)
+    write_atomically(cfg, yaml.safe_dump(spec))
     subprocess.check_call([os.path.join(bin_dir, "make_survey"), "--out", os.path.join(out, "survey"), "--config", cfg,
                            "--quiet"])
     return os.path.join(out, "survey", spec["sessions"][0]["name"] + ".bag")
@@ -130,8 +130,7 @@ def main():
             sys.exit("bench_live_rss: page_live_after 50 not in config/slam.yaml")
         for value in [int(v) for v in a.page_live_after.split(",")]:
             config = os.path.join(tmp, "slam_%d.yaml" % value)
-            with open(config, "w") as f:
-                f.write(text.replace("  page_live_after: 50 ", "  page_live_after: %d " % value))
+            write_atomically(config, text.replace("  page_live_after: 50 ", "  page_live_after: %d " % value))
             store = os.path.join(tmp, "store_%d.db" % value)
             samples, loops = run_case(bag, config, store, a.rate, a.period, env)
             fit = [s for s in samples if s[0] >= a.skip]

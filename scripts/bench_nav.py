@@ -48,6 +48,7 @@ RULE_MARGIN_M = 0.005
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(REPO, "src", "tools"))
 import evaluate  # noqa: E402  (the scoring of evaluate.py, used as a module)
+from atomic_file import AtomicFile, write_atomically  # noqa: E402  (the tools' safe writer)
 
 
 def read_csv(path):
@@ -56,7 +57,7 @@ def read_csv(path):
 
 
 def run(cmd, log):
-    with open(log, "w") as out:
+    with AtomicFile(log, "wb") as out:
         r = subprocess.run([str(c) for c in cmd], stdout=out, stderr=subprocess.STDOUT)
     if r.returncode != 0:
         with open(log) as f:
@@ -157,8 +158,7 @@ def count(pattern, text):
 def run_row(row, args, out):
     os.makedirs(out, exist_ok=True)
     spec_path = os.path.join(out, "survey.yaml")
-    with open(spec_path, "w") as f:
-        yaml.safe_dump(row["survey"], f, sort_keys=False)
+    write_atomically(spec_path, yaml.safe_dump(row["survey"], sort_keys=False))
     mission = os.path.join(out, "mission")
     run([os.path.join(args.bin, "make_survey"), "--config", spec_path, "--out", mission, "--no-bag", "--quiet"],
         os.path.join(out, "make_survey.log"))

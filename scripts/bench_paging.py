@@ -32,6 +32,9 @@ import time
 
 import rospkg
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "src", "tools"))
+from atomic_file import write_atomically  # noqa: E402  (the tools' safe writer)
+
 
 def free_port():
     with socket.socket() as s:
@@ -164,8 +167,7 @@ def main():
         configs = {}
         for page in pages:
             configs[page] = os.path.join(tmp, "slam_%s.yaml" % page)
-            with open(configs[page], "w") as f:
-                f.write(text.replace("  page_stored: true ", "  page_stored: %s " % page))
+            write_atomically(configs[page], text.replace("  page_stored: true ", "  page_stored: %s " % page))
         # A copy per run: localisation mode writes nothing, but the store's lock is per file.
         for page in pages:
             empty_kb, _, _ = run_case(None, configs[page], 0, env)

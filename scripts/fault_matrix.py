@@ -43,6 +43,8 @@ sessions:
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
+sys.path.insert(0, os.path.join(REPO, "src", "tools"))
+from atomic_file import write_atomically  # noqa: E402  (the tools' safe writer)
 
 
 def wait_for(condition, timeout_s, step_s=0.05):
@@ -279,6 +281,15 @@ def tool(off, name):
     return os.path.join(off.bin, name)
 
 
+def plant(victims, victim, link, text):
+    """A file `victim` holding `text` (outside what a tool writes) and a symbolic link to it at `link`;
+    victims[victim] = its md5."""
+    with open(victim, "w") as f:
+        f.write(text)
+    victims[victim] = md5(victim)
+    os.symlink(victim, link)
+
+
 def case_export_planted_links(m, off):
     case = "export_survey over links planted at the temporary and the final names"
     expected = ("status 0; the files outside the export directory byte-identical; every export file a regular file "
@@ -298,17 +309,10 @@ def case_export_planted_links(m, off):
         victims = {}
         for i, name in enumerate(names):
             # The writer's first temporary name, and for one file in two the final name too.
-            victim = os.path.join(outside, "tmp_%d" % i)
-            with open(victim, "w") as f:
-                f.write("precious %d\n" % i)
-            victims[victim] = md5(victim)
-            os.symlink(victim, os.path.join(out, name + ".tmp"))
+            plant(victims, os.path.join(outside, "tmp_%d" % i), os.path.join(out, name + ".tmp"), "precious %d\n" % i)
             if i % 2 == 0:
-                final = os.path.join(outside, "final_%d" % i)
-                with open(final, "w") as f:
-                    f.write("precious final %d\n" % i)
-                victims[final] = md5(final)
-                os.symlink(final, os.path.join(out, name))
+                plant(victims, os.path.join(outside, "final_%d" % i), os.path.join(out, name),
+                      "precious final %d\n" % i)
         r = subprocess.run([tool(off, "export_survey"), "--db", off.valid_store, "--out", out, "--quiet"],
                            capture_output=True, text=True, timeout=180)
         untouched = all(md5(v) == h for v, h in victims.items()) and sorted(os.listdir(outside)) == sorted(
@@ -323,6 +327,40 @@ def case_export_planted_links(m, off):
                     "temporary links left: %d of %d") % (
             r.returncode, (": " + " / ".join(reason(r.stderr))) if r.returncode else "", len(names), len(regular),
             len(same), "byte-identical" if untouched else "CHANGED", len(links_left), len(names))
+        m.row(case, expected, observed, held)
+    finally:
+        m.done(d)
+
+
+def case_evaluate_planted_links(m, off):
+    case = "evaluate.py over links planted at its report's final names and temporaries"
+    expected = ("status 0; the files outside the report byte-identical, nothing created outside; every report file "
+                "a regular file; the planted temporary links left as they were")
+    d = m.tempdir("evaluate_links")
+    try:
+        outside, report = os.path.join(d, "outside"), os.path.join(d, "report")
+        os.mkdir(outside)
+        os.mkdir(report)
+        finals = ["metrics.json", "metrics.csv", "metrics.md", "session_0.png", "report.html"]
+        temporaries = ["metrics.json.tmp", "report.html.tmp", "map_0.png.tmp"]
+        victims = {}
+        for name in finals + temporaries:
+            plant(victims, os.path.join(outside, name), os.path.join(report, name), "precious %s\n" % name)
+        os.symlink(os.path.join(outside, "created"), os.path.join(report, "metrics.md.tmp"))  # dangling
+        tool_path = tool(off, "evaluate.py")
+        if not os.path.exists(tool_path):
+            tool_path = os.path.join(REPO, "src", "tools", "evaluate.py")
+        r = subprocess.run(["/usr/bin/python3", tool_path, "--run", os.path.join(off.base, "valid_out"), "--session",
+                            off.folder("a"), "--report", report, "--html"], capture_output=True, text=True, timeout=180)
+        untouched = all(md5(v) == h for v, h in victims.items()) and sorted(os.listdir(outside)) == sorted(
+            os.path.basename(v) for v in victims)
+        regular = [n for n in finals if os.path.isfile(os.path.join(report, n))
+                   and not os.path.islink(os.path.join(report, n))]
+        links_left = [n for n in temporaries + ["metrics.md.tmp"] if os.path.islink(os.path.join(report, n))]
+        held = r.returncode == 0 and untouched and len(regular) == len(finals) and len(links_left) == len(temporaries) + 1
+        observed = "status %d%s; %d of %d report files regular; outside files %s; planted temporary links left: %d of %d" % (
+            r.returncode, (": " + " / ".join(reason(r.stderr)[-2:])) if r.returncode else "", len(regular), len(finals),
+            "byte-identical, nothing created" if untouched else "CHANGED", len(links_left), len(temporaries) + 1)
         m.row(case, expected, observed, held)
     finally:
         m.done(d)
@@ -629,6 +667,65 @@ def offline_dataset_cases(m, off):
             r[2] = "%.6f" % (float(r[2]) + 86400.0)
         write_frames(folder, header, rows)
 
+    def refused(*words):
+        """Refused (status 1) in one line holding every word, before anything is written."""
+        def judge(r, out):
+            lines = reason(r.stderr)
+            held = (r.returncode == 1 and len(lines) == 1 and all(w in lines[0] for w in words)
+                    and not os.path.exists(out))
+            return held, "status %d: %s%s" % (r.returncode, " / ".join(lines[-2:]) or summary(r),
+                                               "" if not os.path.exists(out) else "; outputs written")
+        return judge
+
+    def entry(value, make=None):
+        """frames.csv's middle entry set to `value` (None: kept), after make(folder, entry) made what it names."""
+        def mutate(folder):
+            header, rows = read_frames(folder)
+            row = rows[len(rows) // 2]
+            if make:
+                make(folder, row[1])
+            if value is not None:
+                row[1] = value(folder) if callable(value) else value
+            write_frames(folder, header, rows)
+        return mutate
+
+    def outside_image(folder):  # a real image of the mission, outside this folder
+        path = os.path.join(os.path.dirname(folder), "outside.jpg")
+        shutil.copyfile(os.path.join(off.folder("b"), read_frames(off.folder("b"))[1][0][1]), path)
+        return path
+
+    def link_out(folder, name):
+        os.remove(os.path.join(folder, name))
+        os.symlink(outside_image(folder), os.path.join(folder, name))
+
+    leave = "refused (status 1) in one line naming frames.csv and the entry, which leaves the folder; nothing written"
+    dataset_case(m, off, "frames.csv entry ../../etc/passwd", entry("../../etc/passwd"), leave,
+                 refused("frames.csv:", "'../../etc/passwd' climbs above the folder"))
+    dataset_case(m, off, "frames.csv entry the absolute path of a real image outside the folder", entry(outside_image),
+                 leave, refused("frames.csv:", "outside.jpg' is an absolute path"))
+    dataset_case(m, off, "an image symlinked to a real image outside the folder", entry(None, link_out), leave,
+                 refused("frames.csv: image '", "resolves to", "outside.jpg, outside the folder"))
+    dataset_case(m, off, "an image entry that is a directory",
+                 entry("adir", lambda folder, name: os.mkdir(os.path.join(folder, "adir"))),
+                 "refused (status 1) in one line saying the entry is a directory; nothing written",
+                 refused("image 'adir' of frame", "is a directory, not an image file"))
+    dataset_case(m, off, "an image entry that is a FIFO",
+                 entry("pipe.jpg", lambda folder, name: os.mkfifo(os.path.join(folder, "pipe.jpg"))),
+                 "refused (status 1) at once in one line saying the entry is a FIFO (never opened); nothing written",
+                 refused("image 'pipe.jpg' of frame", "is a FIFO (named pipe), not an image file"))
+
+    def camera_doubled(folder):
+        path = os.path.join(folder, "camera.yaml")
+        with open(path) as f:
+            values = dict(line.split(":", 1) for line in f.read().splitlines() if ":" in line)
+        with open(path, "w") as f:
+            f.write("".join("%s: %g\n" % (k.strip(), 2 * float(v)) for k, v in values.items()))
+
+    dataset_case(m, off, "camera.yaml of twice the images' size", camera_doubled,
+                 "refused (status 1) before the run in one line naming camera.yaml and both sizes (every frame would "
+                 "be skipped); nothing written",
+                 refused("camera.yaml: a camera of", "px, but the images are", "every frame would be skipped"))
+
     dataset_case(m, off, "stamps going backwards (one frame 5 s back)", backwards,
                  "README Bad input: skipped (counted) or a new session; or a one-line refusal; no crash",
                  counted("1 skipped (1 image", "2 pieces"))
@@ -699,6 +796,7 @@ def case_nav_jump_offline(m, off):
 
 
 OFFLINE_CASES = [case_kill_offline, case_two_writers, case_hard_link_writer, case_export_planted_links,
+                 case_evaluate_planted_links,
                  case_self_merge_hard_link, case_restart_ids, case_index_steps, case_add_link_yaw_offline,
                  offline_store_cases, offline_dataset_cases, case_nav_jump_offline]
 
@@ -706,7 +804,8 @@ OFFLINE_CASES = [case_kill_offline, case_two_writers, case_hard_link_writer, cas
 # Each in a process of its own (rospy talks to one master per process): fault_matrix_live.py.
 LIVE_CASES = [("service_misuse", 240), ("concurrent", 240), ("kill_manager", 240), ("bad_images", 240),
               ("kill_manager_moments", 240), ("replay_rates", 240), ("silent_altitude", 240), ("burst", 240),
-              ("store_cap", 240), ("export_links", 240), ("bounds_and_paths", 240), ("quoted_datum", 240)]
+              ("store_cap", 240), ("export_links", 240), ("bounds_and_paths", 240), ("quoted_datum", 240),
+              ("dvl_relay", 240)]
 
 
 def live_case(name, timeout):
@@ -747,17 +846,17 @@ def live_case(name, timeout):
 
 def junit(path, rows, seconds):
     failures = sum(1 for r in rows if not r[3])
-    with open(path, "w") as f:
-        f.write('<?xml version="1.0" encoding="utf-8"?>\n')
-        f.write('<testsuite name="fault_matrix" tests="%d" failures="%d" errors="0" skipped="0" time="%.1f">\n' %
-                (len(rows), failures, seconds))
-        for case, expected, observed, held, _ in rows:
-            f.write('  <testcase classname="fault_matrix" name=%s>\n' % xml.sax.saxutils.quoteattr(case))
-            if not held:
-                f.write('    <failure message=%s/>\n' % xml.sax.saxutils.quoteattr("expected: %s; observed: %s" %
-                                                                                  (expected, observed)))
-            f.write("  </testcase>\n")
-        f.write("</testsuite>\n")
+    parts = ['<?xml version="1.0" encoding="utf-8"?>\n',
+             '<testsuite name="fault_matrix" tests="%d" failures="%d" errors="0" skipped="0" time="%.1f">\n' %
+             (len(rows), failures, seconds)]
+    for case, expected, observed, held, _ in rows:
+        parts.append('  <testcase classname="fault_matrix" name=%s>\n' % xml.sax.saxutils.quoteattr(case))
+        if not held:
+            parts.append('    <failure message=%s/>\n' % xml.sax.saxutils.quoteattr("expected: %s; observed: %s" %
+                                                                                   (expected, observed)))
+        parts.append("  </testcase>\n")
+    parts.append("</testsuite>\n")
+    write_atomically(path, "".join(parts))
 
 
 def main():

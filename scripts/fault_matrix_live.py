@@ -908,10 +908,64 @@ def case_quoted_datum(st, survey):
         "opened and before any service; the other nodes up", observed, held)
 
 
+def case_dvl_relay(st, survey):
+    """onboard.launch's DVL relay given a field the DVL's message type lacks
+    (dvl_altitude:=m.pose.pose.position.zz on nav_msgs/Odometry): 15 messages at 10 Hz, fewer than
+    its error period. One ERROR naming the field, the type missing it and that type's fields; no
+    traceback, no second line within the period; the relay and the pipeline alive."""
+    st.launch = st.spawn(["roslaunch", "--wait", "uw_multislam", "onboard.launch", "store_path:=none",
+                          "camera_mount:=0 0 0 0", "dvl:=/dvl/data", "dvl_altitude:=m.pose.pose.position.zz"],
+                         "launch.log")
+    import rospy
+    from nav_msgs.msg import Odometry
+    from rosgraph_msgs.msg import Log
+    relay = NS + "/dvl_altitude"
+    rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
+    logs = []
+    sub = rospy.Subscriber("/rosout", Log, lambda m: logs.append(m) if m.name == relay else None, queue_size=1000)
+    pub = rospy.Publisher("/dvl/data", Odometry, queue_size=100)
+
+    def relay_uri():
+        try:
+            return st.master.lookupNode(relay)
+        except Exception:  # not registered yet
+            return None
+
+    # A subscriber's connection is known by its publisher's URI: the relay's /rosout, then its /dvl/data.
+    ready = wait_for(lambda: pub.get_num_connections() > 0 and relay_uri() in {
+        c.endpoint_id for c in list(sub.impl.connections) if not c.done}, 60, 0.1)
+    if not ready:
+        return row("live: the DVL relay given a field its message type lacks", "runs to its verdict",
+                   "the relay did not connect within 60 s (launch.log: %s)" % st.log_tail("launch.log"), False)
+    for i in range(15):
+        m = Odometry()
+        m.header.stamp = rospy.Time.now()
+        m.pose.pose.position.z = 2.0
+        pub.publish(m)
+        time.sleep(0.1)  # a DVL's pace (10 Hz)
+    errors = lambda: [m.msg for m in logs if m.level >= Log.ERROR]
+    wait_for(lambda: errors(), 20, 0.1)
+    wait_for(lambda: len(errors()) > 1, 3, 0.1)  # a second line would come as fast as the first
+    said = errors()
+    nodes, dead = st.alive()
+    st.stop_group(st.launch)
+    first = said[0] if said else ""
+    held = (len(said) == 1 and "reads 'zz', which m.pose.pose.position (geometry_msgs/Point) does not have (its "
+            "fields: x, y, z)" in first and not any("Traceback" in m.msg or "bad callback" in m.msg for m in logs)
+            and relay in nodes and not dead)
+    observed = "%d ERROR line(s) from the relay for 15 messages%s; traceback: %s; %d nodes alive%s" % (
+        len(said), (": " + first[:170] + "...") if first else "", "yes" if any("Traceback" in m.msg for m in logs)
+        else "none", len(nodes), "" if not dead else ", DEAD: %s" % dead)
+    row("live: the DVL relay (onboard.launch dvl:=) given a field its message type lacks",
+        "one ERROR naming the field, the type missing it and its fields (then at most one per 10 s); no traceback; "
+        "the relay and the nodes alive", observed, held)
+
+
 CASES = {"service_misuse": case_service_misuse, "bounds_and_paths": case_bounds_and_paths, "concurrent": case_concurrent, "kill_manager": case_kill_manager,
          "bad_images": case_bad_images, "kill_manager_moments": case_kill_manager_moments,
          "replay_rates": case_replay_rates, "silent_altitude": case_silent_altitude, "burst": case_burst,
-         "store_cap": case_store_cap, "export_links": case_export_links, "quoted_datum": case_quoted_datum}
+         "store_cap": case_store_cap, "export_links": case_export_links, "quoted_datum": case_quoted_datum,
+         "dvl_relay": case_dvl_relay}
 
 
 def main():

@@ -128,6 +128,9 @@ Outputs
                 stretched view below the equal-axes one
   report.html   with --html: one self-contained file (no external link) with the figures, the
                 tables, the run's inputs.csv and config.yaml, and the command
+  Every file is written by atomic_file.py (beside this file): a temporary in the same folder,
+  created without following a link, fsync'd and renamed into place; a link planted at a report
+  name is replaced, never written through.
 
 Exit status 0 on success; 1 with a one-line reason on stderr for bad input (2 for a bad command line).
 """
@@ -140,6 +143,10 @@ import sys
 from dataclasses import dataclass, field
 
 import numpy as np
+
+# atomic_file.py sits beside this file (in the source tree and where the tools are installed).
+sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
+from atomic_file import AtomicFile, write_atomically  # noqa: E402
 
 NA = None  # a metric that cannot be computed
 
@@ -249,30 +256,95 @@ def read_table(path, columns, required=True, optional=()):
     return rows
 
 
+def _CameraYamlLoader():
+    """PyYAML's safe loader reading plain numbers as YAML 1.2 and yaml-cpp do: 1e3 is a number (YAML 1.1
+    wants a dot, 1.0e+3). Quoted scalars stay text."""
+    import re
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(
+        r"^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?$"), list("-+0123456789."))
+    return Loader
+
+
 def read_camera_yaml(path):
-    """Reads the flat 'key: value' camera.yaml of a dataset folder."""
+    """Reads a dataset folder's camera.yaml in either layout core::readCameraYaml reads
+    (doc/dataset_format.md): the six keys image_width, image_height, fx, fy, cx, cy, or a ROS
+    calibration YAML (camera_calibration_parsers' format, recognised by its camera_matrix key; K
+    gives fx, fy, cx, cy). Only K and the image size are used here: the poses are the image
+    centres', and the mosaic score projects with K (a lens's distortion is not undone there).
+    Returns {key: float} for the six keys; EvalError naming the file and the key otherwise."""
+    import yaml
     if not os.path.isfile(path):
         raise EvalError("%s: file not found" % path)
-    values = {}
-    with open(path) as f:
-        for n, line in enumerate(f, start=1):
-            line = line.split("#", 1)[0].strip()
-            if not line or line.startswith("%YAML") or line == "---":
-                continue
-            key, sep, text = line.partition(":")
-            if not sep:
-                raise EvalError("%s:%d: expected 'key: value', found '%s'" % (path, n, line))
-            values[key.strip()] = text.strip()
-    camera = {}
-    for key in CAMERA_KEYS:
-        if key not in values:
+    with open(path, encoding="utf-8-sig") as f:
+        text = f.read()
+    try:
+        root = yaml.load(text, Loader=_CameraYamlLoader())
+    except yaml.YAMLError as e:
+        where = getattr(e, "problem_mark", None)
+        raise EvalError("%s%s: not YAML (%s)" % (path, ":%d" % (where.line + 1) if where else "",
+                                                   getattr(e, "problem", None) or e)) from None
+    if not isinstance(root, dict):
+        raise EvalError("%s: expected 'key: value' lines (image_width, image_height, fx, fy, cx, cy) or a ROS "
+                        "calibration YAML" % path)
+
+    def number(value, key):
+        # A quoted number is text, as the C++ readers say (bool is an int in Python: refused too).
+        if isinstance(value, str):
+            try:
+                float(value)
+            except ValueError:
+                pass
+            else:
+                raise EvalError("%s: %s: '%s' is quoted text, not a number (write it without quotes)" % (
+                    path, key, value))
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise EvalError("%s: %s: cannot read %r as a number" % (path, key, value))
+        return float(value)
+
+    def required(key):
+        if key not in root:
             raise EvalError("%s: missing key '%s'" % (path, key))
-        try:
-            camera[key] = float(values[key])
-        except ValueError:
-            raise EvalError("%s: %s: cannot read '%s' as a number" % (path, key, values[key])) from None
-    if camera["fy"] <= 0 or camera["image_height"] <= 0:
-        raise EvalError("%s: fy and image_height must be positive" % path)
+        return root[key]
+
+    def matrix(key, rows, cols):
+        m = required(key)
+        data = m.get("data") if isinstance(m, dict) else None
+        if not isinstance(data, list) or m.get("rows") != rows or m.get("cols") != cols or len(data) != rows * cols:
+            raise EvalError("%s: %s must be {rows: %d, cols: %d, data: [%d numbers]}" % (
+                path, key, rows, cols, rows * cols))
+        return [number(v, "%s.data[%d]" % (key, i)) for i, v in enumerate(data)]
+
+    if "camera_matrix" in root:
+        k = matrix("camera_matrix", 3, 3)
+        camera = {"image_width": number(required("image_width"), "image_width"),
+                  "image_height": number(required("image_height"), "image_height"),
+                  "fx": k[0], "fy": k[4], "cx": k[2], "cy": k[5]}
+        model = required("distortion_model")
+        counts = {"plumb_bob": (4, 5), "rational_polynomial": (8,)}
+        if model not in counts:
+            raise EvalError("%s: distortion_model '%s' is not supported (plumb_bob or rational_polynomial)" % (
+                path, model))
+        d = required("distortion_coefficients")
+        n = d.get("cols") if isinstance(d, dict) else None
+        if n not in counts[model]:
+            raise EvalError("%s: distortion_coefficients: %s takes %s coefficients, found %s" % (
+                path, model, " or ".join(map(str, counts[model])), n))
+        matrix("distortion_coefficients", 1, n)
+        if "rectification_matrix" in root:
+            matrix("rectification_matrix", 3, 3)
+        if "projection_matrix" in root:
+            matrix("projection_matrix", 3, 4)
+    else:
+        camera = {key: number(required(key), key) for key in CAMERA_KEYS}
+    for key in ("image_width", "image_height"):
+        if not (1 <= camera[key] <= 1e6 and camera[key] == int(camera[key])):
+            raise EvalError("%s: %s must be a whole number of pixels in [1, 1000000]" % (path, key))
+    if not (camera["fx"] > 0 and camera["fy"] > 0):
+        raise EvalError("%s: fx and fy must be positive" % path)
     return camera
 
 
@@ -923,9 +995,11 @@ def write_mosaic_pngs(ev, run, gt, directory):
         written = []
         for name in ("slam", "gt"):
             path = os.path.join(directory, "map_%d_%s.png" % (map_id, name))
-            Image.fromarray(images[name], "RGBA").save(path, optimize=True)
-            with open(path[:-4] + ".pgw", "w") as f:  # image-axes y down = z-up y up: -y
-                f.write("%.12g\n0\n0\n%.12g\n%.12g\n%.12g\n" % (res, -res, x0 + res / 2, -(y0 + res / 2)))
+            with AtomicFile(path, "wb") as f:
+                Image.fromarray(images[name], "RGBA").save(f, format="PNG", optimize=True)
+            # image-axes y down = z-up y up: -y
+            write_atomically(path[:-4] + ".pgw", "%.12g\n0\n0\n%.12g\n%.12g\n%.12g\n" % (
+                res, -res, x0 + res / 2, -(y0 + res / 2)))
             written.append(path)
         m = scores.get(str(map_id), {}).get("slam", {})
         score = ""
@@ -1177,16 +1251,13 @@ def markdown(ev):
 
 def write_report(ev, report_dir):
     os.makedirs(report_dir, exist_ok=True)
-    with open(os.path.join(report_dir, "metrics.csv"), "w", newline="") as f:
+    with AtomicFile(os.path.join(report_dir, "metrics.csv"), "w", newline="") as f:
         out = csv.writer(f, lineterminator="\n")
         out.writerow(("scope", "id", "estimate", "metric", "value"))
         out.writerows(row[:4] + (csv_value(row[4]),) for row in ev.rows)
-    with open(os.path.join(report_dir, "metrics.json"), "w") as f:
-        json.dump(ev.nested(), f, indent=2)
-        f.write("\n")
+    write_atomically(os.path.join(report_dir, "metrics.json"), json.dumps(ev.nested(), indent=2) + "\n")
     text = markdown(ev)
-    with open(os.path.join(report_dir, "metrics.md"), "w") as f:
-        f.write(text)
+    write_atomically(os.path.join(report_dir, "metrics.md"), text)
     return text
 
 
@@ -1371,7 +1442,8 @@ def render(plt, layers, title, path):
         draw_layers(stretched, layers)
         style_axes(stretched, "the same, stretched across (not to scale)", equal=False)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
+    with AtomicFile(path, "wb") as f:
+        fig.savefig(f, format="png", dpi=110, bbox_inches="tight")
     plt.close(fig)
     return 2 if thin else 1
 
@@ -1461,9 +1533,7 @@ def write_html(ev, run_dir, report_dir, figures, command):
         parts.append("<p>The run has no config.yaml (record_run.py does not write one; see the launch parameters).</p>")
     parts.append("</body></html>")
     path = os.path.join(report_dir, "report.html")
-    with open(path + ".tmp", "w") as f:
-        f.write("\n".join(parts) + "\n")
-    os.replace(path + ".tmp", path)
+    write_atomically(path, "\n".join(parts) + "\n")
     return path
 
 

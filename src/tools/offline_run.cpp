@@ -108,7 +108,11 @@ int runOffline(const OfflineOptions& options) {
     cv::setNumThreads(1);
     // Every folder and the store are checked before any work or any output.
     std::vector<core::Dataset> datasets;
-    for (const auto& dir : folders) datasets.push_back(core::loadDataset(dir, true, core::StampOrder::kRequired));
+    for (const auto& dir : folders) {
+      datasets.push_back(core::loadDataset(dir, true, core::StampOrder::kRequired));
+      if (const std::string bad = core::checkCameraFitsImages(datasets.back()); !bad.empty())
+        throw core::DatasetError(bad);
+    }
     std::set<int> finished_now;
     if (const int refused = resolveInterrupted(db, options.interrupted, &folders, &datasets, &finished_now);
         refused != 0)

@@ -113,6 +113,20 @@ def test_tool_answers_help(tool):
     assert "usage" in helped.stdout.lower(), helped.stdout + helped.stderr
 
 
+def test_the_python_tools_modules_are_installed_beside_them():
+    """The modules CMakeLists.txt installs with install(FILES src/tools/*.py) (the tools import them from
+    their own directory): present, and what an installed tool imports."""
+    with open(os.path.join(REPO, "CMakeLists.txt")) as f:
+        text = re.sub(r"#[^\n]*", "", f.read())
+    modules = re.findall(r"install\(FILES ((?:src/tools/\w+\.py ?)+) DESTINATION", text)
+    names = [os.path.basename(p)[:-3] for group in modules for p in group.split()]
+    assert "atomic_file" in names, modules
+    for name in names:
+        found = run("/usr/bin/python3", "-c", "import sys; sys.path.insert(0, %r); import %s; print(%s.__file__)" % (
+            LIBEXEC, name, name))
+        assert found.returncode == 0 and in_install(found.stdout.strip()), found.stdout + found.stderr
+
+
 def test_nodes_are_installed():
     for node in sorted(built_tools()[1]):
         assert os.access(os.path.join(LIBEXEC, node), os.X_OK), "%s is built but not installed" % node

@@ -639,6 +639,34 @@ def test_html_report_is_one_self_contained_file_with_tables_figures_and_configur
     assert "join_min_loops: 7  # &lt;marker&gt;" in page
 
 
+def test_links_planted_in_the_report_are_replaced_never_written_through(tmp_path):
+    """Every report file is written by atomic_file.py: a link at a final name (metrics.json, a plot) or
+    at a temporary name (report.html.tmp, metrics.csv.tmp) leaves the files it points to untouched."""
+    figure_inputs(tmp_path)
+    outside, report = tmp_path / "outside", tmp_path / "r"
+    outside.mkdir()
+    report.mkdir()
+    planted = ["metrics.json", "metrics.md", "map_0.png", "report.html.tmp", "metrics.csv.tmp", "session_0.png.tmp"]
+    for n, name in enumerate(planted):
+        (outside / name).write_text("precious %d\n" % n)
+        (report / name).symlink_to(outside / name)
+    (report / "metrics.csv.tmp.dangling").symlink_to(outside / "created")
+    base = ["--run", tmp_path / "run", "--session", tmp_path / "s0", "--session", tmp_path / "s1", "--world-gt",
+            tmp_path / "world_gt.csv", "--report", report, "--html"]
+    assert run_main(base) == 0
+    assert run_main(base[:-3] + ["--report", tmp_path / "clean", "--no-plots"]) == 0
+    assert sorted(os.listdir(outside)) == sorted(planted)  # nothing created outside
+    for n, name in enumerate(planted):
+        assert (outside / name).read_text() == "precious %d\n" % n, name
+    for name in ("metrics.json", "metrics.md", "map_0.png"):
+        assert not (report / name).is_symlink() and (report / name).is_file(), name
+    for name in ("metrics.json", "metrics.md", "metrics.csv"):
+        assert (report / name).read_text() == (tmp_path / "clean" / name).read_text(), name
+    assert is_png(report / "map_0.png") and is_png(report / "session_0.png")
+    assert (report / "report.html.tmp").is_symlink()  # not the writer's: left as it was
+    assert "<html>" in (report / "report.html").read_text()
+
+
 def test_a_folder_split_by_tracking_loss_is_scored_and_drawn_per_piece(tmp_path):
     """pieces.csv (offline_slam): folder 0 in two pieces, frames 0-5 and 8-11, each piece's odometry
     exact in its own frame (restarting at the origin), the SLAM exact in one map joined by a link."""
@@ -724,6 +752,52 @@ def test_bad_input_exits_non_zero_with_one_line(tmp_path, capsys):
     check_fails(capsys, ["--run", bad, "--session", s0] + report, ["odometry.csv", "not found"])
     write_run(bad, {0: [(99, (0.0, 0.0, 0.0))]})
     check_fails(capsys, ["--run", bad, "--session", s0] + report, ["gt.csv", "99"])
+
+
+ROS_CALIBRATION = """image_width: 240
+image_height: 180
+camera_name: down
+camera_matrix: {rows: 3, cols: 3, data: [220, 0, 119.5, 0, 221, 89.5, 0, 0, 1]}
+distortion_model: plumb_bob
+distortion_coefficients: {rows: 1, cols: 5, data: [-0.1, 0.02, 0, 0, 0]}
+rectification_matrix: {rows: 3, cols: 3, data: [1, 0, 0, 0, 1, 0, 0, 0, 1]}
+projection_matrix: {rows: 3, cols: 4, data: [220, 0, 119.5, 0, 0, 221, 89.5, 0, 0, 0, 1, 0]}
+"""
+
+
+def test_camera_yaml_is_read_in_both_layouts_and_refused_by_key(tmp_path):
+    """As core::readCameraYaml (doc/dataset_format.md): the six keys, or a ROS calibration YAML (K)."""
+    path = tmp_path / "camera.yaml"
+
+    def read(text):
+        path.write_text(text)
+        return ev.read_camera_yaml(str(path))
+
+    want = {"image_width": 240, "image_height": 180, "fx": 220, "fy": 221, "cx": 119.5, "cy": 89.5}
+    assert read(ROS_CALIBRATION) == want
+    assert read("image_width: 240\nimage_height: 180\nfx: 2.2e2\nfy: 221  # comment\n"
+                "cx: 119.5\ncy: 89.5\n") == want
+    assert read(ROS_CALIBRATION.replace("plumb_bob", "rational_polynomial").replace(
+        "cols: 5, data: [-0.1, 0.02, 0, 0, 0]", "cols: 8, data: [-0.1, 0.02, 0, 0, 0, 0, 0, 0]")) == want
+    # Optional keys may be missing.
+    assert read("\n".join(line for line in ROS_CALIBRATION.splitlines()
+                          if not line.startswith(("rectification", "projection", "camera_name")))) == want
+    for text, words in [
+            (ROS_CALIBRATION.replace("distortion_model: plumb_bob\n", ""), ["missing key 'distortion_model'"]),
+            (ROS_CALIBRATION.replace("plumb_bob", "equidistant"), ["distortion_model 'equidistant'"]),
+            (ROS_CALIBRATION.replace("rows: 3, cols: 3, data: [220, 0, 119.5, 0, 221, 89.5, 0, 0, 1]",
+                                     "rows: 3, cols: 3, data: [220, 0, 119.5]"), ["camera_matrix must be"]),
+            (ROS_CALIBRATION.replace("cols: 5, data: [-0.1, 0.02, 0, 0, 0]", "cols: 3, data: [-0.1, 0.02, 0]"),
+             ["distortion_coefficients", "4 or 5"]),
+            (ROS_CALIBRATION.replace("image_width: 240", "image_width: 240.5"), ["image_width", "whole number"]),
+            ("image_width: 240\nimage_height: 180\nfx: 220\nfy: 221\ncx: 119.5\n", ["missing key 'cy'"]),
+            ("image_width: 240\nimage_height: 180\nfx: '220'\nfy: 221\ncx: 119.5\ncy: 89.5\n",
+             ["fx", "'220' is quoted text"]),
+            ("image_width: 240\nimage_height: 180\nfx: 0\nfy: 221\ncx: 119.5\ncy: 89.5\n", ["fx and fy"]),
+            ("fx: [1,\n", ["not YAML"]), ("just text\n", ["expected 'key: value'"])]:
+        with pytest.raises(ev.EvalError) as e:
+            read(text)
+        assert str(e.value).startswith(str(path) + ":") and all(w in str(e.value) for w in words), (str(e.value), words)
 
 
 def test_command_line_process_has_help_and_clean_errors(tmp_path):

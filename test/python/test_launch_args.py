@@ -4,6 +4,7 @@ as required, so the launch files use the words 'config' and 'none' for "leave it
 and "nothing"; the second test checks that those words reach the parameters and commands as
 nothing, by expanding the launch files the way roslaunch does."""
 import os
+import shlex
 import subprocess
 
 import pytest
@@ -31,18 +32,34 @@ def test_every_argument_is_documented_and_only_the_bags_are_required(name):
     assert required == REQUIRED.get(name, []), text
 
 
+def load(name, *args):
+    import roslaunch.config
+    import roslaunch.xmlloader
+    loader = roslaunch.xmlloader.XmlLoader()
+    config = roslaunch.config.ROSLaunchConfig()
+    loader.load(os.path.join(LAUNCH, name), config, argv=list(args), verbose=False)
+    return config
+
+
+def test_the_dvl_relay_is_the_packages_with_the_expression_as_one_argument():
+    """onboard.launch dvl:= starts scripts/dvl_altitude.py (one throttled error naming a wrong field;
+    rostest dvl_relay_errors), each argument whole as roslaunch splits them (an expression with
+    spaces, a frame)."""
+    config = load("onboard.launch", "dvl:=/dvl/data", "dvl_altitude:=m.range * 0.5", "dvl_frame:=dvl_link")
+    relay, = [n for n in config.nodes if n.name == "dvl_altitude"]
+    assert (relay.namespace, relay.package, relay.type) == ("/uw_multislam/", "uw_multislam", "dvl_altitude.py")
+    assert shlex.split(relay.args) == ["--input", "/dvl/data", "--expression", "m.range * 0.5", "--frame", "dvl_link"]
+    config = load("onboard.launch", "dvl:=/auv/dvl", "ns:=auv2")
+    relay, = [n for n in config.nodes if n.name == "dvl_altitude"]
+    assert shlex.split(relay.args) == ["--input", "/auv/dvl", "--expression", "m.altitude", "--frame", "header"]
+    odometry, = [n for n in config.nodes if n.name == "odometry_node"]
+    assert ["altitude", "/auv2/dvl_altitude"] in odometry.remap_args  # the odometry reads the relay
+    assert not [n for n in load("onboard.launch").nodes if n.name == "dvl_altitude"]  # dvl:=none
+
+
 def test_the_default_words_expand_to_nothing():
     """slam.launch with the defaults sets none of the five config-backed parameters and gives the
     manager no prefix; with values it sets them; replay.launch passes no play_args by default."""
-    import roslaunch.config
-    import roslaunch.xmlloader
-
-    def load(name, *args):
-        loader = roslaunch.xmlloader.XmlLoader()
-        config = roslaunch.config.ROSLaunchConfig()
-        loader.load(os.path.join(LAUNCH, name), config, argv=list(args), verbose=False)
-        return config
-
     keys = ("backend_node/store_path", "odometry_node/image_transport", "odometry_node/camera_info_url",
             "odometry_node/rectified_images", "backend_node/mode")
     config = load("slam.launch")

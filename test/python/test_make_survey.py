@@ -1,6 +1,9 @@
 """make_survey end to end: command line, dataset folders, ground truth and the bags it writes."""
+import importlib.util
+import json
 import math
 import os
+import subprocess
 
 import pytest
 import rosbag
@@ -152,3 +155,34 @@ def test_the_readme_mosaic_mission_flies_inside_the_imaged_reef(tmp_path):
                  "--no-bag", "--quiet")
     assert result.returncode == 0, result.stderr
     assert len(read_csv(tmp_path / "m" / "s0" / "frames.csv")) == 28
+
+
+def test_a_survey_with_lens_distortion_is_scored_by_evaluate(tmp_path):
+    """make_survey --distortion writes camera.yaml as a ROS calibration YAML (doc/dataset_format.md);
+    offline_slam runs on it and evaluate.py scores the run, its camera read from K."""
+    config = tmp_path / "tiny.yaml"
+    config.write_text(TINY)
+    mission = tmp_path / "m"
+    r = run("--config", config, "--out", mission, "--distortion", "-0.08,0.01", "--no-bag", "--quiet")
+    assert r.returncode == 0, r.stderr
+    calibration = yaml.safe_load((mission / "first" / "camera.yaml").read_text())
+    assert "camera_matrix" in calibration and calibration["distortion_model"] == "plumb_bob"
+    r = run_tool("offline_slam", "--session", mission / "first", "--session", mission / "second", "--out",
+                 tmp_path / "run", "--quiet")
+    assert r.returncode == 0, r.stderr
+    evaluate = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "evaluate.py")
+    report = tmp_path / "report"
+    e = subprocess.run(["/usr/bin/python3", evaluate, "--run", tmp_path / "run", "--mission", mission, "--report",
+                        report, "--no-plots"], capture_output=True, text=True, timeout=300)
+    assert e.returncode == 0, e.stderr
+    metrics = json.loads((report / "metrics.json").read_text())["session"]["0"]["odometry"]
+    keyframes = [row for row in read_csv(tmp_path / "run" / "odometry.csv") if row["session"] == "0"]
+    assert metrics["n_keyframes"] == len(keyframes) > 2
+    # The footprint (image_height * altitude / fy) is what loop correctness is judged by: K's fy.
+    k = calibration["camera_matrix"]["data"]
+    spec = importlib.util.spec_from_file_location("evaluate", evaluate)
+    ev = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ev)
+    camera = ev.read_camera_yaml(str(mission / "first" / "camera.yaml"))
+    assert (camera["fx"], camera["fy"], camera["cx"], camera["cy"]) == (k[0], k[4], k[2], k[5])
+    assert (camera["image_width"], camera["image_height"]) == (calibration["image_width"], calibration["image_height"])

@@ -260,6 +260,24 @@ def test_unreadable_image_is_skipped_and_counted(tmp_path, survey):
     assert "1 skipped (1 image" in r.stdout
 
 
+def test_a_camera_of_another_size_than_the_images_is_refused_before_the_run(tmp_path, survey):
+    """camera.yaml of 640 px for 320 px images: every frame would be skipped (the run used to exit 0
+    with "no session started"). Refused with exit 1 in one line naming both sizes, nothing written."""
+    folder = tmp_path / "a"
+    shutil.copytree(survey / "a", folder)
+    camera = yaml.safe_load((folder / "camera.yaml").read_text())
+    doubled = {k: 2 * v for k, v in camera.items()}
+    (folder / "camera.yaml").write_text("".join("%s: %s\n" % kv for kv in doubled.items()))
+    r = run("offline_slam", "--session", survey / "b", "--session", folder, "--out", tmp_path / "o")
+    assert r.returncode == 1, r.stdout
+    assert r.stderr.strip().splitlines() == [
+        "offline_slam: %s/camera.yaml: a camera of %dx%d px, but the images are %dx%d px ('0000.jpg', frame 0): every "
+        "frame would be skipped; give the camera of these images (a calibration made at another resolution scales "
+        "image_width, image_height, fx, fy, cx and cy by the same factor)" % (
+            folder, doubled["image_width"], doubled["image_height"], camera["image_width"], camera["image_height"])]
+    assert not (tmp_path / "o").exists()  # checked before any work or output
+
+
 def test_the_session_line_is_whole_for_a_long_folder_path(tmp_path, survey):
     """The session's summary line names its folder: a long path (250 characters, near the 256 a
     session name may have) must not cut the counts after it (a 400-byte buffer did)."""

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
-"""rostest: the altitude from a DVL's own message, through onboard.launch's topic_tools transform
-relay (dvl:=/dvl/data dvl_altitude:=m.pose.pose.position.z dvl_frame:=dvl_link). nav_msgs/Odometry
+"""rostest: the altitude from a DVL's own message, through onboard.launch's relay
+(scripts/dvl_altitude.py; dvl:=/dvl/data dvl_altitude:=m.pose.pose.position.z dvl_frame:=dvl_link). nav_msgs/Odometry
 stands in for a DVL driver's message (a header and an altitude field). The frames of a generated
 mission are published with the altitude only on /dvl/data, the DVL 0.2 m below the camera
 (altimeter_mount): every frame is processed, each keyframe's altitude is the DVL's reading plus

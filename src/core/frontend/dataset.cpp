@@ -2,6 +2,7 @@
 
 #include "uw_multislam/core/common/yaml_map_reader.h"
 #include "uw_multislam/core/frontend/camera_model.h"
+#include "uw_multislam/core/frontend/image_file.h"
 #include "uw_multislam/core/geometry/vehicle_frame.h"
 
 #include <algorithm>
@@ -92,6 +93,41 @@ void readCsv(const std::string& path, const std::vector<std::string>& header, F 
     }
     row(cells, n);
   }
+}
+
+// Why an image entry of frames.csv is not a path inside its folder, from its text alone ("" when
+// it may be): an absolute path, or one climbing above the folder with "..".
+std::string entryLeavesTheFolder(const std::string& image) {
+  const fs::path p(image);
+  if (p.has_root_name() || p.has_root_directory()) return "is an absolute path";
+  const fs::path normal = p.lexically_normal();
+  if (!normal.empty() && *normal.begin() == "..") return "climbs above the folder ('..')";
+  return "";
+}
+
+// `path` lies in `folder` (both real paths: no link, no "." or "..").
+bool isInside(const fs::path& path, const fs::path& folder) {
+  return std::mismatch(folder.begin(), folder.end(), path.begin(), path.end()).first == folder.end();
+}
+
+// Why the image at `image` cannot be a frame of the folder whose real path is `folder`, or "" when
+// it can: it must exist, resolve (links followed) inside the folder, and be a regular file. Only
+// looked at (stat), never opened: a FIFO would block the reader.
+std::string imageEntryProblem(const fs::path& folder, const fs::path& image) {
+  std::error_code ec;
+  const fs::file_status st = fs::status(image, ec);
+  if (st.type() == fs::file_type::not_found) {
+    std::error_code lec;
+    return fs::is_symlink(fs::symlink_status(image, lec)) ? "is a symbolic link to a missing file" : "does not exist";
+  }
+  if (ec) return "cannot be examined (" + ec.message() + ")";
+  const fs::path real = fs::canonical(image, ec);
+  if (ec) return "cannot be resolved (" + ec.message() + ")";
+  if (!isInside(real, folder))
+    return "resolves to " + real.string() + ", outside the folder " + folder.string() +
+           " (an image entry must stay inside its folder)";
+  if (st.type() != fs::file_type::regular) return "is " + fileTypeName(st.type()) + ", not an image file";
+  return "";
 }
 
 }  // namespace
@@ -226,6 +262,8 @@ std::vector<FrameRecord> readFramesCsv(const std::string& path, StampOrder order
     f.index = parseInt(c[0], path, n, "index");
     f.image = c[1];
     if (f.image.empty()) fail(path, n, "empty image name");
+    if (const std::string bad = entryLeavesTheFolder(f.image); !bad.empty())
+      fail(path, n, "image '" + f.image + "' " + bad + ": an image entry is a file inside the folder");
     f.stamp_s = parseDouble(c[2], path, n, "stamp_s");
     f.altitude_m = parseDouble(c[3], path, n, "altitude_m");
     if (!seen.insert(f.index).second) fail(path, n, "duplicate index " + c[0]);
@@ -420,11 +458,12 @@ Dataset loadDataset(const std::string& directory, bool check_images_exist, Stamp
   d.frames = readFramesCsv(frames_path, order);
   if (d.frames.empty()) throw DatasetError(frames_path + ": no frames");
   if (check_images_exist) {
+    std::error_code ec;
+    const fs::path real = fs::canonical(directory, ec);
+    if (ec) throw DatasetError(directory + ": cannot be resolved (" + ec.message() + ")");
     for (const auto& f : d.frames) {
-      if (!fs::is_regular_file(d.imagePath(f))) {
-        throw DatasetError(frames_path + ": image '" + f.image + "' of frame " + std::to_string(f.index) +
-                           " does not exist");
-      }
+      if (const std::string bad = imageEntryProblem(real, d.imagePath(f)); !bad.empty())
+        throw DatasetError(frames_path + ": image '" + f.image + "' of frame " + std::to_string(f.index) + " " + bad);
     }
   }
   const fs::path gt = fs::path(directory) / "gt.csv";
@@ -440,6 +479,24 @@ Dataset loadDataset(const std::string& directory, bool check_images_exist, Stamp
     for (NavRecord& r : d.nav) r.pose = zUp(toEnu(r.pose, d.nav_frame->convention));
   }
   return d;
+}
+
+std::string checkCameraFitsImages(const Dataset& d) {
+  const std::size_t n = std::min(d.frames.size(), kCameraCheckFrames);
+  for (std::size_t i = 0; i < n; ++i) {
+    std::string why;
+    const cv::Mat image = readFrameImage(d.imagePath(d.frames[i]), &why);
+    if (image.empty()) continue;
+    if (image.cols == d.camera.width && image.rows == d.camera.height) return "";
+    std::ostringstream os;
+    os << (fs::path(d.directory) / "camera.yaml").string() << ": a camera of " << d.camera.width << "x"
+       << d.camera.height << " px, but the images are " << image.cols << "x" << image.rows << " px ('"
+       << d.frames[i].image << "', frame " << d.frames[i].index
+       << "): every frame would be skipped; give the camera of these images (a calibration made at another "
+          "resolution scales image_width, image_height, fx, fy, cx and cy by the same factor)";
+    return os.str();
+  }
+  return "";
 }
 
 }  // namespace core

@@ -1,8 +1,12 @@
 #include "uw_multislam/core/frontend/image_file.h"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <cctype>
-#include <fstream>
-#include <iterator>
+#include <cerrno>
+#include <cstring>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -18,7 +22,77 @@ cv::Mat refusal(const std::string& path, const std::string& reason, std::string*
   return cv::Mat();
 }
 
+std::filesystem::file_type typeOf(mode_t mode) {
+  using T = std::filesystem::file_type;
+  if (S_ISREG(mode)) return T::regular;
+  if (S_ISDIR(mode)) return T::directory;
+  if (S_ISFIFO(mode)) return T::fifo;
+  if (S_ISSOCK(mode)) return T::socket;
+  if (S_ISBLK(mode)) return T::block;
+  if (S_ISCHR(mode)) return T::character;
+  return T::unknown;
+}
+
+// The whole file at `path`, or a reason. Opened without blocking (a FIFO would wait for a writer)
+// and read only when it is a regular file.
+bool readRegularFile(const std::string& path, std::vector<std::uint8_t>* bytes, std::string* reason) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+  if (fd < 0) {
+    *reason = std::string("cannot open (") + std::strerror(errno) + ")";
+    return false;
+  }
+  struct stat st {};
+  bool ok = ::fstat(fd, &st) == 0;
+  if (!ok) {
+    *reason = std::string("cannot examine (") + std::strerror(errno) + ")";
+  } else if (!S_ISREG(st.st_mode)) {
+    *reason = fileTypeName(typeOf(st.st_mode)) + ", not an image file";
+    ok = false;
+  }
+  bytes->clear();
+  if (ok) bytes->reserve(static_cast<std::size_t>(st.st_size));
+  std::uint8_t chunk[1 << 16];
+  while (ok) {
+    const ssize_t n = ::read(fd, chunk, sizeof chunk);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      *reason = std::string("read error (") + std::strerror(errno) + ")";
+      ok = false;
+    } else if (n == 0) {
+      break;
+    } else {
+      bytes->insert(bytes->end(), chunk, chunk + n);
+    }
+  }
+  ::close(fd);
+  return ok;
+}
+
 }  // namespace
+
+std::string fileTypeName(std::filesystem::file_type t) {
+  using T = std::filesystem::file_type;
+  switch (t) {
+    case T::regular:
+      return "a regular file";
+    case T::directory:
+      return "a directory";
+    case T::fifo:
+      return "a FIFO (named pipe)";
+    case T::socket:
+      return "a socket";
+    case T::block:
+      return "a block device";
+    case T::character:
+      return "a character device";
+    case T::symlink:
+      return "a symbolic link";
+    case T::not_found:
+      return "missing";
+    default:
+      return "not a regular file";
+  }
+}
 
 bool isTruncatedJpeg(const std::vector<std::uint8_t>& b) {
   if (b.size() < 3 || b[0] != 0xFF || b[1] != 0xD8 || b[2] != 0xFF) return false;  // not a JPEG
@@ -39,10 +113,9 @@ cv::Mat scaleTo8Bit(const cv::Mat& in16) {
 
 cv::Mat decodeImageFile(const std::string& path, std::string* why) {
   const auto refuse = [&](const std::string& reason) { return refusal(path, reason, why); };
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return refuse("cannot open");
-  const std::vector<std::uint8_t> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) return refuse("read error");
+  std::vector<std::uint8_t> bytes;
+  std::string reason;
+  if (!readRegularFile(path, &bytes, &reason)) return refuse(reason);
   if (bytes.empty()) return refuse("empty file");
   if (isTruncatedJpeg(bytes)) return refuse("corrupt image (truncated JPEG: no end-of-image marker)");
   cv::Mat image;

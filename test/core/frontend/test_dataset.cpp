@@ -1,5 +1,6 @@
 // Dataset folders: round trips and clear errors on broken files.
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <filesystem>
 #include <fstream>
@@ -187,6 +188,92 @@ TEST_F(DatasetTest, ClearErrors) {
   expectError("principal point cx=5000 cy=120 is outside the 320x240 image");
   write("camera.yaml", "image_width: 320\nimage_height: 240\nfx: 300\nfy: 300\ncx: 160\n");
   expectError("missing key 'cy'");
+}
+
+// frames.csv names files inside its folder: an entry that leaves it (an absolute path, "..", a link
+// out of the folder) is refused naming the line or the frame, even when what it names is a real image.
+TEST_F(DatasetTest, ImageEntriesThatLeaveTheFolderAreRefused) {
+  testing_util::ScopedTempDir outside_dir{"uwms_outside"};
+  const fs::path outside = outside_dir.path() / "real.png";
+  cv::Mat grey(48, 64, CV_8UC1, cv::Scalar(90));
+  ASSERT_TRUE(cv::imwrite(outside.string(), grey));
+  writeValid();
+  const auto frames = [&](const std::string& second) {
+    write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,2\n1," + second + ",0.5,2\n");
+  };
+  frames("../../etc/passwd");
+  expectError("frames.csv:3: image '../../etc/passwd' climbs above the folder ('..')");
+  frames("sub/../../x.jpg");
+  expectError("frames.csv:3: image 'sub/../../x.jpg' climbs above the folder");
+  frames("/etc/passwd");
+  expectError("frames.csv:3: image '/etc/passwd' is an absolute path");
+  frames(outside.string());  // a real image, absolute
+  expectError("is an absolute path: an image entry is a file inside the folder");
+  // Links: resolved, and compared with the folder's real path.
+  fs::create_symlink(outside, dir_ / "link_out.png");
+  frames("link_out.png");
+  expectError("image 'link_out.png' of frame 1 resolves to " + fs::canonical(outside).string() +
+              ", outside the folder");
+  fs::create_directory(dir_ / "sub");
+  fs::create_directory_symlink(outside_dir.path(), dir_ / "sub" / "elsewhere");
+  frames("sub/elsewhere/real.png");
+  expectError("image 'sub/elsewhere/real.png' of frame 1 resolves to");
+  fs::create_symlink("/etc/passwd", dir_ / "passwd");
+  frames("passwd");
+  expectError("outside the folder");
+  // Inside the folder, through links or subfolders, entries stay valid (and the folder itself may be
+  // reached through a link).
+  ASSERT_TRUE(cv::imwrite((dir_ / "sub" / "inner.png").string(), grey));
+  fs::create_symlink("sub/inner.png", dir_ / "link_in.png");
+  for (const char* ok : {"link_in.png", "sub/inner.png", "sub/../0001.jpg", "./0001.jpg"}) {
+    frames(ok);
+    EXPECT_EQ(loadDataset(dir_.string(), true, StampOrder::kRequired).frames[1].image, ok);
+  }
+  fs::create_directory_symlink(dir_, outside_dir.path() / "folder_link");
+  frames("link_in.png");
+  EXPECT_EQ(loadDataset((outside_dir.path() / "folder_link").string()).frames.size(), 2u);
+}
+
+// An entry that is a directory or a FIFO says what it is, and the FIFO is never opened (a reader
+// would block until a writer came): loading, and reading it as an image, return at once.
+TEST_F(DatasetTest, ImageEntriesThatAreNotFilesSayWhatTheyAre) {
+  writeValid();
+  const auto frames = [&](const std::string& second) {
+    write("frames.csv", "index,image,stamp_s,altitude_m\n0,0000.jpg,0.0,2\n1," + second + ",0.5,2\n");
+  };
+  fs::create_directory(dir_ / "adir");
+  frames("adir");
+  expectError("image 'adir' of frame 1 is a directory, not an image file");
+  ASSERT_EQ(::mkfifo((dir_ / "pipe.png").c_str(), 0600), 0);
+  frames("pipe.png");
+  expectError("image 'pipe.png' of frame 1 is a FIFO (named pipe), not an image file");
+  fs::create_symlink("pipe.png", dir_ / "to_pipe.png");
+  frames("to_pipe.png");
+  expectError("image 'to_pipe.png' of frame 1 is a FIFO (named pipe)");
+  fs::create_symlink("gone.png", dir_ / "dangling.png");
+  frames("dangling.png");
+  expectError("image 'dangling.png' of frame 1 is a symbolic link to a missing file");
+  std::string why;
+  EXPECT_TRUE(readFrameImage((dir_ / "pipe.png").string(), &why).empty());
+  EXPECT_EQ(why, (dir_ / "pipe.png").string() + ": a FIFO (named pipe), not an image file");
+  EXPECT_TRUE(readFrameImage((dir_ / "adir").string(), &why).empty());
+  EXPECT_EQ(why, (dir_ / "adir").string() + ": a directory, not an image file");
+}
+
+// A camera.yaml of another resolution than the images (every frame would be skipped): said before
+// a run, from the first image that reads, naming both sizes.
+TEST_F(DatasetTest, ACameraOfAnotherSizeThanTheImagesIsSaid) {
+  writeValid();  // 0000.jpg does not decode: passed over
+  ASSERT_TRUE(cv::imwrite(path("0001.jpg"), cv::Mat(240, 320, CV_8UC3, cv::Scalar(40, 80, 120))));
+  EXPECT_EQ(checkCameraFitsImages(loadDataset(dir_.string())), "");  // camera.yaml: 320x240
+  writeCameraYaml(path("camera.yaml"), CameraIntrinsics{640, 480, 600.0, 600.0, 320.0, 240.0});
+  EXPECT_EQ(checkCameraFitsImages(loadDataset(dir_.string())),
+            path("camera.yaml") +
+                ": a camera of 640x480 px, but the images are 320x240 px ('0001.jpg', frame 1): every frame would be "
+                "skipped; give the camera of these images (a calibration made at another resolution scales "
+                "image_width, image_height, fx, fy, cx and cy by the same factor)");
+  write("0001.jpg", "x");  // nothing reads: left to the run's counted skips
+  EXPECT_EQ(checkCameraFitsImages(loadDataset(dir_.string())), "");
 }
 
 TEST(NavFrame, NedAndEnuSwapAsRep103Says) {

@@ -143,7 +143,8 @@ constexpr double kMaxFrameGapS = 3600.0;
 /// kRequired: frames.csv's stamps must increase by at most kMaxFrameGapS (the SLAM runs: one
 /// folder is one mission); kAsWritten: read as they are (folder_to_bag, the benches).
 enum class StampOrder { kAsWritten, kRequired };
-/// Reads frames.csv: header "index,image,stamp_s,altitude_m", indexes unique, the stamps' order
+/// Reads frames.csv: header "index,image,stamp_s,altitude_m", indexes unique, image entries paths
+/// inside the folder (no absolute path, none climbing above it with ".."), the stamps' order
 /// checked as `order` says (DatasetError naming the line). Altitudes are read as written (NaN or
 /// negative values are the consumer's to reject), as are non-finite stamps.
 std::vector<FrameRecord> readFramesCsv(const std::string& path, StampOrder order = StampOrder::kAsWritten);
@@ -161,11 +162,22 @@ void writeNavCsv(const std::string& path, const std::vector<NavRecord>& nav);
 std::string readTextFile(const std::string& path);
 
 /// Loads a dataset folder; throws DatasetError with a one-line reason when it is not one
-/// (missing files, bad header, unparsable number, duplicate index, missing image file). nav.csv
+/// (missing files, bad header, unparsable number, duplicate index). With check_images_exist, each
+/// image entry must be a regular file whose real path (links followed) lies inside the folder's
+/// real path: one missing, outside (a link out of the folder), a directory or a FIFO is refused
+/// naming what it is, without opening it. nav.csv
 /// is read when present; it must cover the stamps of the frames it is used for (see NavTrack).
 /// nav_frame.yaml is read when present and needs nav.csv beside it.
 Dataset loadDataset(const std::string& directory, bool check_images_exist = true,
                     StampOrder order = StampOrder::kAsWritten);
+
+/// The frames checkCameraFitsImages reads at most to find one image that decodes.
+constexpr std::size_t kCameraCheckFrames = 20;
+/// Why the folder's camera.yaml is not its images' camera ("" when it is): the first image that reads
+/// (readFrameImage; among the first kCameraCheckFrames frames) has another size than camera.yaml
+/// says, so a SLAM run would skip every frame. "" also when none of those frames reads (those are
+/// the run's counted skips).
+std::string checkCameraFitsImages(const Dataset& d);
 
 }  // namespace core
 }  // namespace uw_multislam

@@ -4,6 +4,7 @@
 // smallest power-of-two range holding the frame's maximum, alpha is dropped.
 
 #include <cstdint>
+#include <filesystem>
 #include <string>
 #include <vector>
 
@@ -11,6 +12,10 @@
 
 namespace uw_multislam {
 namespace core {
+
+/// What a path of type `t` is, for a message refusing it as an image file ("a directory", "a FIFO
+/// (named pipe)", "a socket", ...; "a regular file" for one).
+std::string fileTypeName(std::filesystem::file_type t);
 
 /// Whether bytes starting as a JPEG (FF D8 FF) lack the end-of-image marker FF D9 (trailing
 /// zero or white-space padding allowed): libjpeg decodes such a cut-off file with only a warning
@@ -22,7 +27,8 @@ bool isTruncatedJpeg(const std::vector<std::uint8_t>& bytes);
 cv::Mat scaleTo8Bit(const cv::Mat& in16);
 
 /// An image file decoded as stored (IMREAD_ANYCOLOR | IMREAD_ANYDEPTH: grey stays grey, 16 bits
-/// stay 16 bits). Empty, with `why` (naming the file), when it cannot be opened or read, is empty,
+/// stay 16 bits). Empty, with `why` (naming the file), when it cannot be opened or read, is not a
+/// regular file (a directory, a FIFO: opened without blocking and refused by what it is), is empty,
 /// is a truncated JPEG or does not decode.
 cv::Mat decodeImageFile(const std::string& path, std::string* why);
 
