@@ -28,41 +28,44 @@ class HeldChanges {
 };
 }  // namespace
 
-void SessionManager::addStoreRow(Session& s, double stamp_s) {
+void SessionManager::addStoreRow(int id, double stamp_s) {
   // Its row takes the session's id: a session's id is its store id for life.
-  s.store_id = store_->addSession(s.name, s.camera, stamp_s, idOfBackend(s.backend));
-  if (!s.vehicle.empty()) {  // another vehicle's: where it came from, as merge_stores records it
+  const Session& s = table_.at(id);
+  table_.setStoreRow(id, table_.store()->addSession(s.name(), s.camera, stamp_s, id));
+  if (!s.vehicle().empty()) {  // another vehicle's: where it came from, as merge_stores records it
     SessionProvenance p;
-    p.session = s.store_id;
-    p.source_file = "fleet:" + s.vehicle;
-    p.source_session = s.remote_id;
-    p.source_name = s.name;
-    p.vehicle = s.vehicle;
-    store_->addProvenance(p);
+    p.session = s.storeRow();
+    p.source_file = "fleet:" + s.vehicle();
+    p.source_session = s.remoteId();
+    p.source_name = s.name();
+    p.vehicle = s.vehicle();
+    table_.store()->addProvenance(p);
   }
 }
 
-void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion,
+void SessionManager::storeKeyframe(int id, const KeyframeInput* k, int keyframe, const UncertainPose2* motion,
                                    double stamp_s, const std::vector<Loop>* loops, std::vector<StoredLoop>* stored,
                                    int gap, const UncertainPose2* gap_motion) {
-  if (!store_) return;
-  if (localising_ && !s.memory_only) {
+  SessionStore* store = table_.store();
+  if (!store) return;
+  Session& s = table_.at(id);
+  if (table_.localising() && !s.memory_only) {
     s.memory_only = true;
-    say("localisation mode: session " + std::to_string(idOfBackend(s.backend)) + " '" + s.name + "': keyframes from " +
+    say("localisation mode: session " + std::to_string(id) + " '" + s.name() + "': keyframes from " +
         std::to_string(keyframe) + " on are kept in memory only (" + std::to_string(s.stored) + " stored)");
   }
   if (s.memory_only) return;
   if (s.store_cut || keyframe - gap != s.stored) {  // after a failed write: not stored, counted
-    ++stats_.store_failures;
+    ++table_.stats().store_failures;
     return;
   }
   const bool ok = storeWrite("writing a keyframe", [&] {
-    if (s.store_id < 0) {
-      addStoreRow(s, stamp_s);  // the camera is known before a placeholder origin too
+    if (s.storeRow() < 0) {
+      addStoreRow(id, stamp_s);  // the camera is known before a placeholder origin too
     } else if (keyframe == 0) {
       // A row made before the session's first keyframe (saveMaps after start_session) has no
       // camera yet (0x0): it gets the one the origin (or the placeholder origin) brought.
-      store_->setSessionCamera(s.store_id, s.camera);
+      store->setSessionCamera(s.storeRow(), s.camera);
     }
     // The loops in store ids only now: a new session's row is made with its first keyframe, and
     // the loops that keyframe closed name it (they were stored with session -1 and lost at the
@@ -73,13 +76,13 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
     }
     std::vector<StoredKeyframe> lost(static_cast<std::size_t>(gap));  // minimal rows (SessionStore::addKeyframe)
     for (int i = 0; i < gap; ++i) {
-      lost[i].session = s.store_id;
+      lost[i].session = s.storeRow();
       lost[i].keyframe = keyframe - gap + i;
       lost[i].stamp_s = stamp_s;
       lost[i].hash = Eigen::VectorXf::Zero(HalocProjections::kHashSize);
     }
     StoredKeyframe sk;
-    sk.session = s.store_id;
+    sk.session = s.storeRow();
     sk.keyframe = keyframe;
     sk.stamp_s = stamp_s;
     sk.hash = Eigen::VectorXf::Zero(HalocProjections::kHashSize);
@@ -94,101 +97,106 @@ void SessionManager::storeKeyframe(Session& s, const KeyframeInput* k, int keyfr
       sk.thumbnail = k->thumbnail;
       sk.motion_source = k->motion_source;
     }
-    store_->addKeyframe(sk, motion, stored, lost, gap_motion);
+    store->addKeyframe(sk, motion, stored, lost, gap_motion);
   });
   if (ok) {
     s.stored += gap + 1;
     return;
   }
   s.store_cut = true;
-  say("session store " + options_.store_path + ": session '" + s.name + "': keyframes from " +
+  say("session store " + table_.options().store_path + ": session '" + s.name() + "': keyframes from " +
       std::to_string(keyframe) + " on are not stored (each counted a store failure); the " + std::to_string(s.stored) +
       " stored before stay restorable");
 }
 
 Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector<Loop>& loops) {
+  SessionManagerStats& stats = table_.stats();
+  const SessionManagerOptions& options = table_.options();
   if (!validSessionId(input.session)) {
-    ++stats_.keyframes_refused;
+    ++stats.keyframes_refused;
     return badSessionId("keyframe " + std::to_string(input.keyframe), input.session);
   }
   if (input.keyframe < 0) {
-    ++stats_.keyframes_refused;
+    ++stats.keyframes_refused;
     return {StatusCode::kInvalidArgument, "keyframe id " + std::to_string(input.keyframe) + " is negative"};
   }
   // The store keeps the session's camera (and refuses an unusable one): refused here, before it
   // could make the session's row, and with it every later save of the maps, fail.
   if (const std::string bad = unusableCamera(input.camera); !bad.empty()) {
-    ++stats_.keyframes_refused;
+    ++stats.keyframes_refused;
     return {StatusCode::kInvalidArgument, "keyframe " + std::to_string(input.keyframe) + " of session " +
                                               std::to_string(input.session) + ": camera: " + bad};
   }
   KeyframeInput k = input;
+  // The one place a keyframe is hashed when nobody upstream did.
   if (k.hash.size() != HalocProjections::kHashSize && !k.features.descriptors.empty())
-    k.hash = hasher_.hash(k.features.descriptors);  // the one place a keyframe is hashed when nobody upstream did
+    k.hash = table_.hasher().hash(k.features.descriptors);
   // The keyframe after a refused jump decides what the jump was.
-  if (jump_) {
-    KeyframeInput held = std::move(*jump_);
-    jump_.reset();
+  if (table_.held()) {
+    KeyframeInput held = std::move(*table_.held());
+    table_.held().reset();
     const long long step = static_cast<long long>(k.keyframe) - held.keyframe;
-    if (held.session == k.session && step >= 1 && step <= options_.max_keyframe_gap + 1LL) {
+    if (held.session == k.session && step >= 1 && step <= options.max_keyframe_gap + 1LL) {
       const Status st = startPiece(std::move(held));
       if (!st.ok()) return st;
     }
   }
+  const std::vector<Piece>& pieces = table_.pieces();
   const auto piece_took =
-      std::find_if(pieces_.begin(), pieces_.end(), [&](const Piece& p) { return p.to != p.from && p.to == k.session; });
-  const bool renamed = std::any_of(pieces_.begin(), pieces_.end(), [&](const Piece& p) { return p.from == k.session; });
-  if (piece_took != pieces_.end() && !renamed) {
+      std::find_if(pieces.begin(), pieces.end(), [&](const Piece& p) { return p.to != p.from && p.to == k.session; });
+  const bool renamed = std::any_of(pieces.begin(), pieces.end(), [&](const Piece& p) { return p.from == k.session; });
+  if (piece_took != pieces.end() && !renamed) {
     // The odometry's next session took the id a piece took (nobody told it the piece's), whether
     // that piece is still recording or finished: it is a session of its own, under the next free
     // id, its keyframe ids kept.
-    const int id = nextId();
+    const int id = table_.nextId();
     if (id > kMaxSessionId) return badSessionId("keyframe " + std::to_string(k.keyframe), id);
     const int from = piece_took->from;
     if (const Status st = open(id, "", k.stamp_s); !st.ok()) return st;
     say("the odometry's session " + std::to_string(k.session) + " is session " + std::to_string(id) + " here (" +
         std::to_string(k.session) + " is the piece its session " + std::to_string(from) + " went on in)");
-    pieces_.push_back({k.session, id, 0});
+    table_.addPiece({k.session, id, 0});
   }
-  toPiece(&k.session, &k.keyframe);
-  auto it = sessions_.find(k.session);
-  if (it == sessions_.end()) {
-    if (k.session < nextId()) {
-      ++stats_.keyframes_stale;
+  table_.toPiece(&k.session, &k.keyframe);
+  if (!table_.has(k.session)) {
+    if (k.session < table_.nextId()) {
+      ++stats.keyframes_stale;
       return {StatusCode::kFailedPrecondition, "keyframe of old session " + std::to_string(k.session) +
-                                                   " skipped (session " + std::to_string(active_) + " is recording)"};
+                                                   " skipped (session " + std::to_string(table_.active()) +
+                                                   " is recording)"};
     }
-    if (k.keyframe > options_.max_keyframe_gap) {
+    if (k.keyframe > options.max_keyframe_gap) {
       const std::string why = "keyframe " + std::to_string(k.keyframe) + " starts session " +
                               std::to_string(k.session) + ": more than max_keyframe_gap (" +
-                              std::to_string(options_.max_keyframe_gap) + ") keyframes missing";
+                              std::to_string(options.max_keyframe_gap) + ") keyframes missing";
       return refuseJump(std::move(k), why);
     }
     open(k.session, "", k.stamp_s);
-    it = sessions_.find(k.session);
   }
   const int id = k.session;
-  if (id != active_) {
-    ++stats_.keyframes_stale;
+  if (id != table_.active()) {
+    ++stats.keyframes_stale;
     return {StatusCode::kFailedPrecondition, "keyframe of finished session " + std::to_string(id) + " skipped"};
   }
-  if (pieces_.empty()) return appendKeyframe(std::move(k), loops);
+  if (pieces.empty()) return appendKeyframe(std::move(k), loops);
   std::vector<Loop> named = loops;  // the odometry's ids after a jump, as this manager names them
   for (Loop& l : named) {
-    toPiece(&l.session_a, &l.keyframe_a);
-    toPiece(&l.session_b, &l.keyframe_b);
+    table_.toPiece(&l.session_a, &l.keyframe_a);
+    table_.toPiece(&l.session_b, &l.keyframe_b);
   }
   return appendKeyframe(std::move(k), named);
 }
 
 Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& loops) {
   const int id = k.session;
-  Session& s = at(id);
+  Session& s = table_.at(id);
+  SessionManagerStats& stats = table_.stats();
+  const int max_gap = table_.options().max_keyframe_gap;
   const int expected = static_cast<int>(s.stamps.size());
-  if (k.keyframe > expected && k.keyframe - expected > options_.max_keyframe_gap) {
+  if (k.keyframe > expected && k.keyframe - expected > max_gap) {
     const std::string why = "keyframe " + std::to_string(k.keyframe) + " of session " + std::to_string(id) + ": " +
                             std::to_string(k.keyframe - expected) + " keyframes missing, more than max_keyframe_gap (" +
-                            std::to_string(options_.max_keyframe_gap) + ")";
+                            std::to_string(max_gap) + ")";
     return refuseJump(std::move(k), why);
   }
   UncertainPose2 motion = k.motion;
@@ -207,22 +215,22 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
       s.origin_received = true;
       s.camera = k.camera;
       s.phantoms.insert(0);
-      storeKeyframe(s, nullptr, 0, nullptr, k.stamp_s, nullptr, nullptr);
+      storeKeyframe(id, nullptr, 0, nullptr, k.stamp_s, nullptr, nullptr);
     }
     if (k.keyframe < expected) {
-      ++stats_.keyframes_stale;
+      ++stats.keyframes_stale;
       return {StatusCode::kFailedPrecondition, "keyframe " + std::to_string(k.keyframe) + " of session " +
                                                    std::to_string(id) + " received twice or out of order, skipped"};
     }
     if (k.keyframe > expected) {
       // Keyframes lost on the way (a queue overflow): they stay where the last received one is
       // (phantoms: no loop may use them) and this one gets the odometry's motion across the gap.
-      ++stats_.keyframe_gaps;
+      ++stats.keyframe_gaps;
       say("session " + std::to_string(id) + " keyframes " + std::to_string(expected) + ".." +
           std::to_string(k.keyframe - 1) + " never arrived, bridged by the odometry");
       const Pose2 last = s.odometry.back();
       for (int g = expected; g < k.keyframe; ++g) {
-        backend_->addMotion(s.backend, still);
+        table_.backend().addMotion(s.backend(), still);
         s.phantoms.insert(g);
         s.stamps.push_back(k.stamp_s);
         s.odometry.push_back(last);
@@ -235,13 +243,13 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
       motion = UncertainPose2(between(last, k.odometry_pose),
                               k.motion.covariance * static_cast<double>(k.keyframe - expected + 1));
     }
-    backend_->addMotion(s.backend, motion);
+    table_.backend().addMotion(s.backend(), motion);
     s.stamps.push_back(k.stamp_s);
     s.odometry.push_back(k.odometry_pose);
     s.frames.push_back(k.frame_index);
     s.sources.push_back(k.motion_source);
   }
-  ++stats_.keyframes;
+  ++stats.keyframes;
   // The loops it closed go into the store with it (one transaction), then into the back-end.
   // Only loops whose keyframes are (or are being) stored: a stored loop on a keyframe the store
   // lacks would make it unrestorable.
@@ -249,24 +257,24 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
   std::vector<int> stored_at(loops.size(), -1);
   for (std::size_t i = 0; i < loops.size(); ++i) {
     const Loop& l = loops[i];
-    if (!keyframeStored(l.session_a, l.keyframe_a, id, k.keyframe) ||
-        !keyframeStored(l.session_b, l.keyframe_b, id, k.keyframe))
+    if (!table_.keyframeStored(l.session_a, l.keyframe_a, id, k.keyframe) ||
+        !table_.keyframeStored(l.session_b, l.keyframe_b, id, k.keyframe))
       continue;
     stored_at[i] = static_cast<int>(to_store.size());
     to_store.push_back(l);
   }
   std::vector<StoredLoop> stored;  // to_store in store ids, their ids set when written
   const int stored_before = s.stored;
-  storeKeyframe(s, &k, k.keyframe, stored_motion, k.stamp_s, &to_store, store_ ? &stored : nullptr, gap, &still);
+  const bool has_store = table_.store() != nullptr;
+  storeKeyframe(id, &k, k.keyframe, stored_motion, k.stamp_s, &to_store, has_store ? &stored : nullptr, gap, &still);
   if (s.stored == stored_before) stored_at.assign(loops.size(), -1);  // the keyframe, and its loops, not written
-  emit(SessionEvent::Kind::kKeyframeAdded, id, -1, mapOf(id), "");
+  emit(SessionEvent::Kind::kKeyframeAdded, id, -1, view_.mapOf(id), "");
   for (std::size_t i = 0; i < loops.size(); ++i) {
-    ++stats_.loops;
+    ++stats.loops;
     try {
-      acceptLoop(loops[i]);
-      store_loops_.push_back(store_ && stored_at[i] >= 0 ? stored[static_cast<std::size_t>(stored_at[i])].id : -1);
+      acceptLoop(loops[i], has_store && stored_at[i] >= 0 ? stored[static_cast<std::size_t>(stored_at[i])].id : -1);
     } catch (const std::invalid_argument& e) {
-      ++stats_.loops_refused;
+      ++stats.loops_refused;
       emit(SessionEvent::Kind::kLoopRefused, loops[i].session_b, loops[i].session_a, -1, e.what());
     }
   }
@@ -274,44 +282,32 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
   return Status::Ok();
 }
 
-void SessionManager::toPiece(int* session, int* keyframe) const {
-  // The piece of the odometry's session that holds this keyframe: the one that starts last at or
-  // before it (one odometry session can jump more than once; earlier pieces keep their names).
-  const Piece* in = nullptr;
-  for (const Piece& p : pieces_)
-    if (p.from == *session && p.base <= *keyframe && (!in || p.base >= in->base)) in = &p;
-  if (!in) return;
-  *session = in->to;
-  *keyframe -= in->base;
-}
-
 Status SessionManager::refuseJump(KeyframeInput k, const std::string& why) {
-  ++stats_.keyframes_refused;
+  ++table_.stats().keyframes_refused;
   // Held in the odometry's own names: the next keyframe is compared with it before toPiece.
-  for (const Piece& p : pieces_)
+  for (const Piece& p : table_.pieces())
     if (p.to == k.session && p.from != p.to) {
       k.session = p.from;
       k.keyframe += p.base;
       break;
     }
-  jump_ = std::move(k);
+  table_.held() = std::move(k);
   return {StatusCode::kInvalidArgument,
           why + ": refused; if the next keyframe continues from it, a new session starts there"};
 }
 
 Status SessionManager::startPiece(KeyframeInput held) {
   const int raw = held.session;
-  const auto open_raw = sessions_.find(raw);
   // The odometry's session if it never opened here (its first keyframe was the jump), else a new id.
-  const int id = open_raw == sessions_.end() && raw >= nextId() ? raw : nextId();
+  const int id = !table_.has(raw) && raw >= table_.nextId() ? raw : table_.nextId();
   if (id > kMaxSessionId) return badSessionId("keyframe " + std::to_string(held.keyframe), id);
-  const int ended = active_;
+  const int ended = table_.active();
   const Status opened = open(id, "", held.stamp_s);
   if (!opened.ok()) return opened;
-  pieces_.push_back({raw, id, held.keyframe});
-  ++stats_.keyframe_jumps;
+  table_.addPiece({raw, id, held.keyframe});
+  ++table_.stats().keyframe_jumps;
   say("session " + std::to_string(raw) + "'s keyframe ids jumped to " + std::to_string(held.keyframe) +
-      ", past max_keyframe_gap (" + std::to_string(options_.max_keyframe_gap) +
+      ", past max_keyframe_gap (" + std::to_string(table_.options().max_keyframe_gap) +
       "): " + (ended >= 0 ? "session " + std::to_string(ended) + " ended, " : std::string()) + "session " +
       std::to_string(id) + " starts there (keyframe " + std::to_string(held.keyframe) + " is its 0)");
   const Pose2 origin = held.odometry_pose;
@@ -319,15 +315,14 @@ Status SessionManager::startPiece(KeyframeInput held) {
   held.keyframe = 0;
   const Status st = appendKeyframe(std::move(held), {});
   // The odometry's pose of the piece's origin: a gap right after it is bridged from there.
-  if (st.ok()) at(id).odometry[0] = origin;
+  if (st.ok()) table_.at(id).odometry[0] = origin;
   return st;
 }
 
 StoredLoop SessionManager::toStored(const Loop& l) const {
   StoredLoop sl;
-  const auto a = sessions_.find(l.session_a), b = sessions_.find(l.session_b);
-  sl.session_a = a == sessions_.end() ? -1 : a->second.store_id;
-  sl.session_b = b == sessions_.end() ? -1 : b->second.store_id;
+  sl.session_a = table_.has(l.session_a) ? table_.at(l.session_a).storeRow() : -1;
+  sl.session_b = table_.has(l.session_b) ? table_.at(l.session_b).storeRow() : -1;
   sl.keyframe_a = l.keyframe_a;
   sl.keyframe_b = l.keyframe_b;
   sl.global = l.kind == Loop::Kind::kGlobal;
@@ -337,19 +332,9 @@ StoredLoop SessionManager::toStored(const Loop& l) const {
   return sl;
 }
 
-void SessionManager::acceptLoop(const Loop& l) {
-  const Session& a = at(l.session_a);
-  const Session& b = at(l.session_b);
-  if (a.phantoms.count(l.keyframe_a) || b.phantoms.count(l.keyframe_b))
-    throw std::invalid_argument("loop on a keyframe that never arrived");
-  backend_->addLoop({a.backend, l.keyframe_a, b.backend, l.keyframe_b, l.z, l.inliers, l.nav_placement});
-  Loop named = l;
-  if (l.keyframe_a < static_cast<int>(a.frames.size())) named.frame_a = a.frames[l.keyframe_a];
-  if (l.keyframe_b < static_cast<int>(b.frames.size())) named.frame_b = b.frames[l.keyframe_b];
-  loops_.push_back(named);
-  ++at(l.session_a).loops;
-  if (l.session_b != l.session_a) ++at(l.session_b).loops;
-  emit(SessionEvent::Kind::kLoopAccepted, l.session_b, l.session_a, mapOf(l.session_b), "");
+void SessionManager::acceptLoop(const Loop& l, std::int64_t store_row) {
+  table_.acceptLoop(l, store_row);
+  emit(SessionEvent::Kind::kLoopAccepted, l.session_b, l.session_a, view_.mapOf(l.session_b), "");
 }
 
 Status SessionManager::addLoop(const Loop& in, bool* waiting) { return addLoopIn(in, true, waiting); }
@@ -358,58 +343,60 @@ Status SessionManager::addLoopIn(const Loop& in, bool odometry_ids, bool* waitin
   if (waiting) *waiting = false;
   Loop l = in;
   if (odometry_ids) {  // the odometry's ids after a jump, as this manager names them
-    toPiece(&l.session_a, &l.keyframe_a);
-    toPiece(&l.session_b, &l.keyframe_b);
+    table_.toPiece(&l.session_a, &l.keyframe_a);
+    table_.toPiece(&l.session_b, &l.keyframe_b);
   }
+  SessionManagerStats& stats = table_.stats();
   if (!validSessionId(l.session_a) || !validSessionId(l.session_b) || l.keyframe_a < 0 || l.keyframe_b < 0) {
-    ++stats_.loops_refused;
+    ++stats.loops_refused;
     return validSessionId(l.session_a) && validSessionId(l.session_b)
                ? Status{StatusCode::kInvalidArgument, "a loop names a negative keyframe id"}
                : badSessionId("a loop", validSessionId(l.session_a) ? l.session_b : l.session_a);
   }
   for (int s : {l.session_a, l.session_b}) {
-    if (deleted_.count(s)) {  // deleted: nothing will arrive for it
-      ++stats_.loops_refused;
+    if (table_.deleted(s)) {  // deleted: nothing will arrive for it
+      ++stats.loops_refused;
       return {StatusCode::kNotFound, "a loop names session " + std::to_string(s) + ", which was deleted"};
     }
   }
-  const auto a = sessions_.find(l.session_a), b = sessions_.find(l.session_b);
-  if (a == sessions_.end() || b == sessions_.end() || l.keyframe_a >= static_cast<int>(a->second.stamps.size()) ||
-      l.keyframe_b >= static_cast<int>(b->second.stamps.size())) {
+  if (!table_.has(l.session_a) || !table_.has(l.session_b) ||
+      l.keyframe_a >= static_cast<int>(table_.at(l.session_a).stamps.size()) ||
+      l.keyframe_b >= static_cast<int>(table_.at(l.session_b).stamps.size())) {
     if (waiting) *waiting = true;
     return {StatusCode::kFailedPrecondition, "a keyframe of the loop has not arrived yet"};
   }
-  ++stats_.loops;
+  ++stats.loops;
+  std::size_t index = 0;
   try {
-    acceptLoop(l);
+    acceptLoop(l, -1);
+    index = table_.loops().size() - 1;
   } catch (const std::invalid_argument& e) {
-    ++stats_.loops_refused;
+    ++stats.loops_refused;
     emit(SessionEvent::Kind::kLoopRefused, l.session_b, l.session_a, -1, e.what());
     return {StatusCode::kFailedPrecondition, std::string("loop refused: ") + e.what()};
   }
-  std::int64_t stored_id = -1;
-  auto memoryOnly = [&](int s, int k) { return !keyframeStored(s, k) && at(s).memory_only; };
-  if (!store_ || localising_ || memoryOnly(l.session_a, l.keyframe_a) || memoryOnly(l.session_b, l.keyframe_b)) {
+  auto memoryOnly = [&](int s, int k) { return !table_.keyframeStored(s, k) && table_.at(s).memory_only; };
+  if (!table_.store() || table_.localising() || memoryOnly(l.session_a, l.keyframe_a) ||
+      memoryOnly(l.session_b, l.keyframe_b)) {
     // nothing written: no store, or localisation mode (not a failure)
-  } else if (!keyframeStored(l.session_a, l.keyframe_a) || !keyframeStored(l.session_b, l.keyframe_b)) {
-    ++stats_.store_failures;  // on a keyframe the store lacks (a failed write): kept in memory only
+  } else if (!table_.keyframeStored(l.session_a, l.keyframe_a) || !table_.keyframeStored(l.session_b, l.keyframe_b)) {
+    ++stats.store_failures;  // on a keyframe the store lacks (a failed write): kept in memory only
   } else {
     storeWrite("writing a loop", [&] {
       std::vector<StoredLoop> one{toStored(l)};
-      store_->addLoops(&one);
-      stored_id = one[0].id;
+      table_.store()->addLoops(&one);
+      table_.setLoopStoreRow(index, one[0].id);
     });
   }
-  store_loops_.push_back(stored_id);
   afterBackendChange();
   return Status::Ok();
 }
 
 Status SessionManager::addLink(Loop l) {
-  if (const Status checked = checkLink(l); !checked.ok()) return checked;
+  if (const Status checked = view_.checkLink(l); !checked.ok()) return checked;
   l.kind = l.session_a == l.session_b ? Loop::Kind::kLocal : Loop::Kind::kGlobal;
-  l.frame_a = at(l.session_a).frames.at(l.keyframe_a);
-  l.frame_b = at(l.session_b).frames.at(l.keyframe_b);
+  l.frame_a = table_.at(l.session_a).frames.at(l.keyframe_a);
+  l.frame_b = table_.at(l.session_b).frames.at(l.keyframe_b);
   l.hash_l1 = 0.0f;
   Status st;
   {
@@ -428,7 +415,7 @@ Status SessionManager::addLink(Loop l) {
     record("link",
            l.session_a == l.session_b ? std::to_string(l.session_a)
                                       : std::to_string(l.session_a) + "," + std::to_string(l.session_b),
-           link, std::string(kind) + " link " + link + ": " + pose, options_.requester.c_str());
+           link, std::string(kind) + " link " + link + ": " + pose, table_.options().requester.c_str());
   }
   recordMapChanges();
   return st;
@@ -442,18 +429,18 @@ Status SessionManager::addNavPlacement(Loop l) {
   // addLoop takes the odometry's ids and names them itself: given l's, a keyframe past a jump
   // whose piece kept its session's id would be moved back by the jump twice.
   const Loop odometry_ids = l;
-  toPiece(&l.session_a, &l.keyframe_a);  // the odometry's ids after a jump, as this manager names them
-  toPiece(&l.session_b, &l.keyframe_b);
-  Status checked = checkLinkEnds(l);
+  table_.toPiece(&l.session_a, &l.keyframe_a);  // the odometry's ids after a jump, as this manager names them
+  table_.toPiece(&l.session_b, &l.keyframe_b);
+  Status checked = view_.checkLinkEnds(l);
   if (checked.ok() && l.session_a == l.session_b)
     checked = {StatusCode::kInvalidArgument, "it links a session to itself"};
   if (checked.ok()) {
     if (const std::string bad = checkUncertainPose(l.z, true); !bad.empty())
       checked = {StatusCode::kInvalidArgument, "the pose: " + bad};
   }
-  if (checked.ok()) checked = storedMapsMayChange("a nav placement");
+  if (checked.ok()) checked = view_.storedMapsMayChange("a nav placement");
   if (!checked.ok()) return {checked.code, "nav placement: " + checked.message};
-  if (mapOf(l.session_a) == mapOf(l.session_b))
+  if (view_.mapOf(l.session_a) == view_.mapOf(l.session_b))
     return {StatusCode::kOk, "nav placement: sessions " + std::to_string(l.session_a) + " and " +
                                  std::to_string(l.session_b) + " are already in one map"};
   Status st;
@@ -470,9 +457,9 @@ Status SessionManager::addNavPlacement(Loop l) {
       record("nav_placement", std::to_string(l.session_a) + "," + std::to_string(l.session_b), link,
              "nav placement " + link + ": " + pose, "nav");
       // One placement is the whole support the operator's join with one loop asks for.
-      st = backend_->join(at(l.session_a).backend, at(l.session_b).backend, 1);
+      st = table_.backend().join(table_.at(l.session_a).backend(), table_.at(l.session_b).backend(), 1);
       if (st.ok()) {
-        ++stats_.nav_placements;
+        ++table_.stats().nav_placements;
       } else {
         say("nav placement " + link + " stored but not joined: " + st.message);
         st = {st.code, "nav placement: " + st.message};

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <filesystem>
-#include <stdexcept>
 #include <utility>
 
 #include "session_detail.h"
@@ -13,94 +12,39 @@ namespace core {
 
 using namespace session_detail;  // NOLINT: the manager's own helpers
 
-SessionQueries::SessionQueries(const SessionManagerOptions& options, EventSink events, Log log)
-    : options_(options),
-      events_(std::move(events)),
-      log_(std::move(log)),
-      hasher_(options.hash_mode, options.num_features, options.projection_seed),
-      backend_(std::make_unique<MultiSessionBackend>(checked(options), [this](const std::string& l) { say(l); })) {}
-
-bool SessionQueries::keyframeStored(int session, int keyframe, int pending_session, int pending_keyframe) const {
-  if (session == pending_session && keyframe == pending_keyframe) return true;
-  const auto it = sessions_.find(session);
-  return it != sessions_.end() && keyframe >= 0 && keyframe < it->second.stored;
-}
-
-const SessionQueries::Session& SessionQueries::at(int session) const {
-  const auto it = sessions_.find(session);
-  if (it == sessions_.end()) throw std::invalid_argument("session manager: no session " + std::to_string(session));
-  return it->second;
-}
-
-SessionQueries::Session& SessionQueries::at(int session) {
-  return const_cast<Session&>(static_cast<const SessionQueries*>(this)->at(session));
-}
-
-void SessionQueries::say(const std::string& line) const {
-  if (log_) log_(line);
-}
-
-std::string SessionQueries::storeName() const { return std::filesystem::path(options_.store_path).filename().string(); }
-
-int SessionQueries::trailingEmptySessions() const {
-  int n = 0;
-  for (auto it = sessions_.rbegin(); it != sessions_.rend() && !it->second.origin_received; ++it) ++n;
-  return n;
-}
-
-void SessionQueries::emit(SessionEvent::Kind kind, int session, int other, int map, const std::string& message) const {
-  if (!events_) return;
-  const auto s = sessions_.find(session);
-  events_({kind, session, other, map, message, s == sessions_.end() ? std::string() : s->second.vehicle});
+std::string SessionQueries::storeName() const {
+  return std::filesystem::path(t_.options().store_path).filename().string();
 }
 
 HashSettings SessionQueries::hashSettings() const {
-  return {options_.hash_mode, options_.projection_seed, options_.num_features, hasher_.projections().toText(),
-          options_.features};
-}
-
-int SessionQueries::findSession(const std::string& name_or_id) const {
-  // A session's name first (names are unique), then its id: a session named "3" is not session 3.
-  for (const auto& [sid, s] : sessions_)
-    if (s.name == name_or_id) return sid;
-  for (const auto& [sid, s] : sessions_)
-    if (std::to_string(sid) == name_or_id) return sid;
-  return -1;
-}
-
-int SessionQueries::idOfName(const std::string& name) const {
-  for (const auto& [id, s] : sessions_)
-    if (s.name == name) return id;
-  return -1;
+  const SessionManagerOptions& o = t_.options();
+  return {o.hash_mode, o.projection_seed, o.num_features, t_.hasher().projections().toText(), o.features};
 }
 
 std::vector<int> SessionQueries::sessionIds() const {
   std::vector<int> ids;
-  for (const auto& [id, s] : sessions_) ids.push_back(id);
+  for (const auto& [id, s] : t_.sessions()) ids.push_back(id);
   return ids;
 }
 
 std::vector<int> SessionQueries::storedSessionsOf(const std::vector<FrameRecord>& frames) const {
   std::vector<int> ids;
-  for (const auto& [id, s] : sessions_)
+  for (const auto& [id, s] : t_.sessions())
     if (restored(id) && keyframesAreFramesOf(s.frames, s.stamps, frames)) ids.push_back(id);
   return ids;
 }
 
-int SessionQueries::foreignSession(const std::string& vehicle, int remote_session) const {
-  const auto it = foreign_ids_.find({vehicle, remote_session});
-  return it == foreign_ids_.end() ? -1 : it->second;
-}
-
-int SessionQueries::mapOf(int session) const { return idOfBackend(backend_->mapOf(at(session).backend)); }
+int SessionQueries::mapOf(int session) const { return t_.idOfBackend(t_.backend().mapOf(t_.at(session).backend())); }
 
 std::vector<int> SessionQueries::mapIds() const {
   std::vector<int> ids;
-  for (int m : backend_->mapIds()) ids.push_back(idOfBackend(m));
+  for (int m : t_.backend().mapIds()) ids.push_back(t_.idOfBackend(m));
   return ids;
 }
 
-std::vector<Pose2> SessionQueries::poses(int session) const { return backend_->sessionPoses(at(session).backend); }
+std::vector<Pose2> SessionQueries::poses(int session) const {
+  return t_.backend().sessionPoses(t_.at(session).backend());
+}
 
 std::vector<Pose2> SessionQueries::posesInSessionFrame(int session) const {
   std::vector<Pose2> p = poses(session);
@@ -110,26 +54,26 @@ std::vector<Pose2> SessionQueries::posesInSessionFrame(int session) const {
 }
 
 UncertainPose2 SessionQueries::lastKeyframeInMap(int session) const {
-  const Session& s = at(session);
-  return backend_->keyframeInMap(s.backend, static_cast<int>(s.stamps.size()) - 1);
+  const SessionTable::Session& s = t_.at(session);
+  return t_.backend().keyframeInMap(s.backend(), static_cast<int>(s.stamps.size()) - 1);
 }
 
 Pose2 SessionQueries::correction(int session) const {
-  const Session& s = at(session);
-  return compose(backend_->sessionPoses(s.backend).back(), invert(s.odometry.back()));
+  const SessionTable::Session& s = t_.at(session);
+  return compose(t_.backend().sessionPoses(s.backend()).back(), invert(s.odometry.back()));
 }
 
 std::optional<SessionQueries::Relocalisation> SessionQueries::relocalise(int session) const {
-  if (!has(session) || !at(session).origin_received) return std::nullopt;
-  const Session& s = at(session);
-  const auto r = backend_->relocalise(s.backend, [this](int map) {
-    for (int b : backend_->chain(map))
-      if (restored(idOfBackend(b))) return true;
+  if (!has(session) || !t_.at(session).origin_received) return std::nullopt;
+  const SessionTable::Session& s = t_.at(session);
+  const auto r = t_.backend().relocalise(s.backend(), [this](int map) {
+    for (int b : t_.backend().chain(map))
+      if (restored(t_.idOfBackend(b))) return true;
     return false;
   });
   if (!r) return std::nullopt;
   Relocalisation out;
-  out.map = idOfBackend(r->map);
+  out.map = t_.idOfBackend(r->map);
   out.loops = r->loops;
   out.inliers = r->inliers;
   out.keyframe = r->keyframe;
@@ -140,26 +84,27 @@ std::optional<SessionQueries::Relocalisation> SessionQueries::relocalise(int ses
 
 std::vector<SessionLink> SessionQueries::links() const {
   std::vector<SessionLink> out;
-  for (int m : backend_->mapIds())
-    for (const LinkInfo& l : backend_->links(m))
-      out.push_back({idOfBackend(m), idOfBackend(l.previous), idOfBackend(l.current), l.loops, l.measured, l.estimate});
+  for (int m : t_.backend().mapIds())
+    for (const LinkInfo& l : t_.backend().links(m))
+      out.push_back(
+          {t_.idOfBackend(m), t_.idOfBackend(l.previous), t_.idOfBackend(l.current), l.loops, l.measured, l.estimate});
   return out;
 }
 
 std::vector<SessionSummary> SessionQueries::list() const {
   std::vector<SessionSummary> out;
-  for (const auto& [id, s] : sessions_) {
+  for (const auto& [id, s] : t_.sessions()) {
     SessionSummary x;
     x.id = id;
-    x.name = s.name;
-    const bool foreign_recording = !s.vehicle.empty() && foreignSession(s.vehicle, s.remote_id) == id;
-    x.state = id == active_ || foreign_recording ? SessionState::kActive
-              : s.unloaded                       ? SessionState::kUnloaded
-                                                 : SessionState::kFinished;
-    x.vehicle = s.vehicle;
+    x.name = s.name();
+    const bool foreign_recording = !s.vehicle().empty() && foreignSession(s.vehicle(), s.remoteId()) == id;
+    x.state = id == t_.active() || foreign_recording ? SessionState::kActive
+              : s.unloaded                           ? SessionState::kUnloaded
+                                                     : SessionState::kFinished;
+    x.vehicle = s.vehicle();
     x.map = mapOf(id);
     x.keyframes = static_cast<int>(s.stamps.size());
-    x.loops = s.loops;
+    x.loops = s.loops();
     x.first_stamp_s = s.stamps.front();
     x.last_stamp_s = s.stamps.back();
     out.push_back(x);
@@ -168,7 +113,7 @@ std::vector<SessionSummary> SessionQueries::list() const {
 }
 
 bool SessionQueries::loopRefused(std::size_t i) const {
-  return i < loops_.size() && backend_->loopRecord(static_cast<int>(i)).refused;
+  return i < loops().size() && t_.backend().loopRecord(static_cast<int>(i)).refused;
 }
 
 Status SessionQueries::checkLinkEnds(const Loop& l) const {
@@ -177,12 +122,12 @@ Status SessionQueries::checkLinkEnds(const Loop& l) const {
     if (!has(s)) return notFound(s);
   }
   for (const auto& [s, k] : {std::pair<int, int>{l.session_a, l.keyframe_a}, {l.session_b, l.keyframe_b}}) {
-    const int n = static_cast<int>(at(s).stamps.size());
+    const int n = static_cast<int>(t_.at(s).stamps.size());
     if (k < 0) return {StatusCode::kInvalidArgument, "add_link: keyframe ids are >= 0"};
     if (k >= n)
       return {StatusCode::kNotFound, "add_link: session " + std::to_string(s) + " has no keyframe " +
                                          std::to_string(k) + " (it has " + std::to_string(n) + ")"};
-    if (at(s).phantoms.count(k))
+    if (t_.at(s).phantoms.count(k))
       return {StatusCode::kFailedPrecondition, "add_link: keyframe " + std::to_string(k) + " of session " +
                                                    std::to_string(s) + " never arrived (bridged)"};
   }
@@ -192,7 +137,7 @@ Status SessionQueries::checkLinkEnds(const Loop& l) const {
 }
 
 Status SessionQueries::storedMapsMayChange(const std::string& what) const {
-  if (!localising_) return Status::Ok();
+  if (!localising()) return Status::Ok();
   return {StatusCode::kFailedPrecondition,
           what + " is refused in localisation mode (no stored map changes): set_mode mapping first"};
 }
@@ -206,7 +151,7 @@ Status SessionQueries::checkLink(const Loop& l) const {
   // Inliers are matched features of both keyframes: no more than either keyframe has. Their stored
   // feature counts when both are in the store with features, else the extractor's cap
   // (num_features), which no keyframe of this configuration exceeds.
-  int most = options_.num_features;
+  int most = options().num_features;
   std::string bound = "num_features, the most features a keyframe has";
   if (l.inliers > 0 && l.inliers <= most && inStore(l.session_a, l.keyframe_a) && inStore(l.session_b, l.keyframe_b)) {
     try {
@@ -226,37 +171,23 @@ Status SessionQueries::checkLink(const Loop& l) const {
   return storedMapsMayChange("add_link");
 }
 
-std::string SessionQueries::chainText(const std::vector<int>& backend_sessions) const {
-  std::string t;
-  for (int b : backend_sessions) t += (t.empty() ? "" : ",") + std::to_string(idOfBackend(b));
-  return t;
-}
-
-std::string SessionQueries::loopsText(const std::vector<int>& backend_loops) const {
-  std::string t;
-  for (int i : backend_loops)  // loops_[i] is the back-end's loop i
-    t += (t.empty() ? "" : " ") + loopText(loops_.at(static_cast<std::size_t>(i)));
-  return t;
-}
-
 StoredKeyframe SessionQueries::storedFeatures(int session, int keyframe) const {
-  if (!store_) throw StoreError("no session store: no stored features");
-  const auto it = sessions_.find(session);
-  if (it == sessions_.end() || it->second.store_id < 0 || !keyframeStored(session, keyframe))
-    throw StoreError("session store " + options_.store_path + ": keyframe " + std::to_string(keyframe) +
-                     " of session " + std::to_string(session) + " is not stored");
-  StoredKeyframe k = store_->keyframeFeatures(it->second.store_id, keyframe);
+  if (!hasStore()) throw StoreError("no session store: no stored features");
+  if (!has(session) || t_.at(session).storeRow() < 0 || !t_.keyframeStored(session, keyframe))
+    throw StoreError("session store " + storePath() + ": keyframe " + std::to_string(keyframe) + " of session " +
+                     std::to_string(session) + " is not stored");
+  StoredKeyframe k = t_.store()->keyframeFeatures(t_.at(session).storeRow(), keyframe);
   k.session = session;
   return k;
 }
 
 std::vector<StoredKeyframe> SessionQueries::storedHashes(int session) const {
-  if (!store_) throw StoreError("no session store: no stored hashes");
-  const auto it = sessions_.find(session);
-  if (it == sessions_.end() || it->second.store_id < 0 || !restored(session))
-    throw StoreError("session store " + options_.store_path + ": session " + std::to_string(session) +
+  if (!hasStore()) throw StoreError("no session store: no stored hashes");
+  if (!has(session) || t_.at(session).storeRow() < 0 || !restored(session))
+    throw StoreError("session store " + storePath() + ": session " + std::to_string(session) +
                      " is not a stored session");
-  std::vector<StoredKeyframe> out = store_->keyframes(it->second.store_id, SessionStore::KeyframeColumns::kHash);
+  std::vector<StoredKeyframe> out =
+      t_.store()->keyframes(t_.at(session).storeRow(), SessionStore::KeyframeColumns::kHash);
   for (StoredKeyframe& k : out) k.session = session;
   return out;
 }

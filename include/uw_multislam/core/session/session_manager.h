@@ -27,9 +27,11 @@
 // nothing. Store writes that fail (disk full, I/O error) are counted and logged, never fatal: the
 // map lives on in memory, and the next successful save of the maps writes it whole.
 //
-// Its queries are a class of their own, reached by view() (session_queries.h); other vehicles'
-// sessions (the hash exchange) by fleet(). Not thread-safe: one caller at a time (SessionWorker
-// holds the lock every head takes).
+// Its state is one value it owns (session_table.h: the sessions, the id maps and their
+// invariants, the loops, the audit trail, the back-end and the store); its queries are a const
+// view of that value, reached by view() (session_queries.h); other vehicles' sessions (the hash
+// exchange) by fleet(). Not thread-safe: one caller at a time (SessionWorker holds the lock every
+// head takes).
 #pragma once
 
 #include <optional>
@@ -77,10 +79,10 @@ class FleetSessions {
   SessionManager* manager_;
 };
 
-class SessionManager : private SessionQueries {
+class SessionManager {
  public:
-  using EventSink = SessionQueries::EventSink;
-  using Log = SessionQueries::Log;
+  using EventSink = SessionEventSink;
+  using Log = SessionLog;
   using Relocalisation = SessionQueries::Relocalisation;
 
   /// Opens the store (if any), checks its hash settings and restores every stored session,
@@ -92,7 +94,7 @@ class SessionManager : private SessionQueries {
   SessionManager& operator=(const SessionManager&) = delete;
 
   /// Every query (sessions, maps, poses, loops, the store, counters): the read-only view.
-  const SessionQueries& view() const { return *this; }
+  const SessionQueries& view() const { return view_; }
   /// Other vehicles' sessions.
   FleetSessions& fleet() { return fleet_; }
 
@@ -186,7 +188,7 @@ class SessionManager : private SessionQueries {
   // "Deferred optimisation"). The host takes each due map's problem with nextOptimisation() under
   // its lock, solves it with solveOptimisation() without the lock (other requests and queries go
   // on meanwhile), and hands it back with applyOptimisation() under the lock again.
-  void setDeferredOptimisation(bool on) { backend_->setDeferred(on); }
+  void setDeferredOptimisation(bool on) { table_.backend().setDeferred(on); }
   /// The first due map's problem (its map in session ids), or nullopt when none is due.
   std::optional<MapOptimisation> nextOptimisation() const;
   static void solveOptimisation(MapOptimisation* o) { MultiSessionBackend::solveOptimisation(&o->job); }
@@ -196,7 +198,8 @@ class SessionManager : private SessionQueries {
 
  private:
   friend class FleetSessions;
-  void restore();
+  using Session = SessionTable::Session;
+  using Piece = SessionTable::Piece;
   /// Opens a session: this vehicle's (ends the active one, becomes active) or, with `vehicle`,
   /// another vehicle's `remote_id` (beside the active one).
   Status open(int id, const std::string& name, double stamp_s, const std::string& vehicle = "", int remote_id = -1);
@@ -205,17 +208,13 @@ class SessionManager : private SessionQueries {
   /// addLoop with `loop` in this manager's ids (add_link: the operator names what list_sessions
   /// shows) or, `odometry_ids`, in the odometry's (toPiece names them after a jump).
   Status addLoopIn(const Loop& loop, bool odometry_ids, bool* waiting);
-  /// The session's store row (with its provenance when it is another vehicle's); sets store_id.
-  void addStoreRow(Session& s, double stamp_s);
+  /// The session's store row (with its provenance when it is another vehicle's).
+  void addStoreRow(int id, double stamp_s);
   /// Writes a keyframe with its motion and `loops` (converted to `stored`, whose ids are set),
   /// after the `gap` keyframes lost just before it (each with `gap_motion`), in one transaction.
-  void storeKeyframe(Session& s, const KeyframeInput* k, int keyframe, const UncertainPose2* motion, double stamp_s,
+  void storeKeyframe(int id, const KeyframeInput* k, int keyframe, const UncertainPose2* motion, double stamp_s,
                      const std::vector<Loop>* loops, std::vector<StoredLoop>* stored, int gap = 0,
                      const UncertainPose2* gap_motion = nullptr);
-  /// A keyframe id or loop end of the odometry's session as this manager names it: after a jump
-  /// past max_keyframe_gap ended a piece, the odometry's (from, k >= base) is (to, k - base) for
-  /// the piece of pieces_ that starts last at or before k. Unchanged otherwise.
-  void toPiece(int* session, int* keyframe) const;
   /// A keyframe too far past its session's last (or starting a session too far in): held, and
   /// refused. The next keyframe decides: continuing from the held one, it was a jump (the
   /// odometry's ids really moved on, as after a long queue overflow): the piece ends and a new
@@ -225,15 +224,9 @@ class SessionManager : private SessionQueries {
   /// The held keyframe of a confirmed jump: ends the active session, opens one (the odometry's
   /// id if it never opened, else nextId()) with it as keyframe 0, counted keyframe_jumps.
   Status startPiece(KeyframeInput held);
-  struct Piece {
-    int from = -1, to = -1, base = 0;  // see toPiece
-  };
-  // Every piece of this run, in order: a loop can name a keyframe of any of them. One per jump or
-  // renamed session (each also opens a session, so bounded as sessions are).
-  std::vector<Piece> pieces_;
-  std::optional<KeyframeInput> jump_;  // the held keyframe of a refused jump (one at most: bounded RAM)
-  /// Adds an accepted loop to the back-end (throws std::invalid_argument as the back-end does).
-  void acceptLoop(const Loop& l);
+  /// Adds an accepted loop to the back-end with its store row (throws std::invalid_argument as
+  /// the back-end does); its event.
+  void acceptLoop(const Loop& l, std::int64_t store_row);
   StoredLoop toStored(const Loop& l) const;
   /// After a back-end call: events for joins, splits and optimisations, and the maps saved when
   /// a join or split happened.
@@ -247,23 +240,36 @@ class SessionManager : private SessionQueries {
               const std::string& message, const char* cause = nullptr);
   /// The back-end's joins and splits since the last call, into the audit trail.
   void recordMapChanges();
+  /// "a,b,c" of back-end sessions, in session ids.
+  std::string chainText(const std::vector<int>& backend_sessions) const;
+  /// "a:ka>b:kb ..." of back-end loop ids.
+  std::string loopsText(const std::vector<int>& backend_loops) const;
+  void emit(SessionEvent::Kind kind, int session, int other, int map, const std::string& message) const;
+  void say(const std::string& line) const;
   /// Runs a store write unless there is no store or the manager localises: true when written;
   /// a failure is counted (store_failures) and logged, never thrown (the map lives on in memory).
   template <typename F>
   bool storeWrite(const char* what, F write);
 
+  EventSink events_;
+  Log log_;
+  SessionTable table_;  // the state: everything the manager knows
+  SessionQueries view_{table_};
+  const char* cause_ = "automatic";                                // of the joins and splits recordMapChanges finds
+  bool hold_changes_ = false;                                      // afterBackendChange leaves them to the caller
+  int seen_joins_ = 0, seen_splits_ = 0, seen_optimisations_ = 0;  // the back-end's, reported so far
   FleetSessions fleet_{this};
 };
 
 template <typename F>
 bool SessionManager::storeWrite(const char* what, F write) {
-  if (!store_ || localising_) return false;  // localisation mode: nothing written (not a failure)
+  if (!table_.store() || table_.localising()) return false;  // localisation mode: nothing written (not a failure)
   try {
     write();
     return true;
   } catch (const std::exception& e) {
-    ++stats_.store_failures;
-    say("session store " + options_.store_path + ": " + what + " failed (" + std::to_string(stats_.store_failures) +
+    const long failures = ++table_.stats().store_failures;
+    say("session store " + table_.options().store_path + ": " + what + " failed (" + std::to_string(failures) +
         " failures so far; the map lives on in memory): " + e.what());
     return false;
   }

@@ -1,6 +1,6 @@
 // The session store: one SQLite file that keeps every session of every mission.
 //
-// What it holds (schema version kSchemaVersion, tables in session_store.cpp):
+// What it holds (schema version kSchemaVersion, tables in session_store_open.cpp):
 //  - the hash settings (mode, seed, n, the HALOC vectors as exact text): hashes of different
 //    runs are comparable only with the same vectors, so a store refuses other settings;
 //  - sessions (name, stamps, state, camera intrinsics);
@@ -265,7 +265,7 @@ class SessionStore {
 
  private:
   /// The store's file, open for the object's life: its identity, and for a writer the flock() on
-  /// it, held through this descriptor. Released (or parked: session_store.cpp, HeldFiles) with the
+  /// it, held through this descriptor. Released (or parked: session_store_open.cpp, HeldFiles) with the
   /// object, also when the constructor throws.
   struct HeldFile {
     FileId id;
