@@ -162,15 +162,23 @@ void SessionTable::remove(int id) {
   deleted_.insert(id);
 }
 
-void SessionTable::toPiece(int* session, int* keyframe) const {
+void SessionTable::toPiece(int* session, int* keyframe, bool detector_loop) const {
   // The piece of the odometry's session that holds this keyframe: the one that starts last at or
   // before it (one odometry session can jump more than once; earlier pieces keep their names).
   const Piece* in = nullptr;
   for (const Piece& p : pieces_)
-    if (p.from == *session && p.base <= *keyframe && (!in || p.base >= in->base)) in = &p;
+    if (p.from == *session && p.base <= *keyframe && (!in || p.base >= in->base) &&
+        !(detector_loop && p.keyframes_only))
+      in = &p;
   if (!in) return;
   *session = in->to;
   *keyframe -= in->base;
+}
+
+int SessionTable::newestOwnSession() const {
+  for (auto it = sessions_.rbegin(); it != sessions_.rend(); ++it)
+    if (it->second.vehicle_.empty()) return it->first;
+  return -1;
 }
 
 std::size_t SessionTable::acceptLoop(const Loop& l, std::int64_t store_row) {

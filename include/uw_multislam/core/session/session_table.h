@@ -76,9 +76,11 @@ class SessionTable {
 
   /// A piece of one of the odometry's sessions that this manager knows under another id (after
   /// a keyframe jump, or a session renamed because its id was taken): the odometry's (from,
-  /// k >= base) is (to, k - base) here.
+  /// k >= base) is (to, k - base) here. `keyframes_only`: the id `from` is another vehicle's
+  /// session here, so the loops naming it (the loop detectors') are that session's, not this one's.
   struct Piece {
     int from = -1, to = -1, base = 0;
+    bool keyframes_only = false;
   };
 
   /// Checks the options (std::invalid_argument) and makes the hasher and the back-end; no store.
@@ -151,8 +153,11 @@ class SessionTable {
   // --- The odometry's pieces and the held keyframe -------------------------------------------
   const std::vector<Piece>& pieces() const { return pieces_; }
   void addPiece(const Piece& p) { pieces_.push_back(p); }
-  /// A keyframe id or loop end of the odometry's session as this manager names it (Piece).
-  void toPiece(int* session, int* keyframe) const;
+  /// A keyframe id or loop end of the odometry's session as this manager names it (Piece);
+  /// `detector_loop`: a loop detector's loop end (keyframes-only pieces left out).
+  void toPiece(int* session, int* keyframe, bool detector_loop = false) const;
+  /// The newest of this vehicle's sessions (not another vehicle's), or -1.
+  int newestOwnSession() const;
   /// The held keyframe of a refused jump (one at most: bounded RAM).
   std::optional<KeyframeInput>& held() { return held_; }
 

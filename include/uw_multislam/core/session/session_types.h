@@ -136,6 +136,9 @@ const char* sessionEventName(SessionEvent::Kind k);
 
 struct SessionManagerStats {
   long keyframes = 0, keyframes_stale = 0, keyframes_refused = 0, keyframe_gaps = 0;
+  /// Keyframes naming a session this manager did not open for our odometry (past nextId(), or
+  /// another vehicle's): refused, the newest held (SessionManager::addKeyframe).
+  long keyframes_unopened = 0;
   long keyframe_jumps = 0;  // jumps past max_keyframe_gap that ended a piece (a new session from there)
   long nav_placements = 0;  // sessions placed in their predecessor's map by the nav (addNavPlacement)
   long loops = 0, loops_refused = 0;
