@@ -88,7 +88,7 @@ void Pipeline::beginStream(const Dataset& d) {
 void Pipeline::startPiece(double stamp_s) {
   // Names are unique (start_session and reload_session address sessions by them): a folder run
   // again against the same store becomes "<folder> (2)", and so on.
-  const std::string base = pieces_ == 0 ? stream_ : stream_ + "#" + std::to_string(pieces_);
+  const std::string base = pieces_ == 0 ? sessionNameOfFolder(stream_) : stream_ + "#" + std::to_string(pieces_);
   ++pieces_;
   ScopedStage stage(&times_, "session_manager");
   const Status st = worker_->locked([&](SessionManager& m) {

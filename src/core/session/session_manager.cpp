@@ -133,6 +133,9 @@ Status SessionManager::startSession(const std::string& name, double stamp_s, int
   if (name.size() > kMaxSessionNameLength)
     return {StatusCode::kInvalidArgument, "a session name of " + std::to_string(name.size()) + " bytes: at most " +
                                               std::to_string(kMaxSessionNameLength)};
+  if (nameIsAnId(name))
+    return {StatusCode::kInvalidArgument, "a session name made only of digits ('" + name + "') would read as session " +
+                                              name + "'s id wherever a name or an id is taken: add a letter"};
   const int other = name.empty() ? -1 : table_.idOfName(name);
   if (other >= 0)
     return {StatusCode::kAlreadyExists,

@@ -1,6 +1,8 @@
 #include "uw_multislam/core/session/session_table.h"
 
 #include <algorithm>
+#include <cctype>
+#include <cmath>
 #include <filesystem>
 #include <stdexcept>
 #include <utility>
@@ -12,6 +14,12 @@ namespace uw_multislam {
 namespace core {
 
 using namespace session_detail;  // NOLINT: the manager's own helpers
+
+bool nameIsAnId(const std::string& name) {
+  return !name.empty() && std::all_of(name.begin(), name.end(), [](unsigned char c) { return std::isdigit(c) != 0; });
+}
+
+std::string sessionNameOfFolder(const std::string& folder) { return nameIsAnId(folder) ? "./" + folder : folder; }
 
 SessionTable::SessionTable(const SessionManagerOptions& options, SessionLog log)
     : options_(options),
@@ -42,11 +50,14 @@ int SessionTable::idOfName(const std::string& name) const {
 }
 
 int SessionTable::findSession(const std::string& name_or_id) const {
-  // A session's name first (names are unique), then its id: a session named "3" is not session 3.
+  // Digits only name an id (no name is made of them); a session of an older store may still be
+  // named so: found by that name when no session has the id. Anything else is a name.
+  const bool digits = nameIsAnId(name_or_id);
+  if (digits)
+    for (const auto& [id, s] : sessions_)
+      if (std::to_string(id) == name_or_id) return id;
   const int named = idOfName(name_or_id);
-  if (named >= 0) return named;
-  for (const auto& [id, s] : sessions_)
-    if (std::to_string(id) == name_or_id) return id;
+  if (named >= 0 || digits) return named;
   return -1;
 }
 

@@ -1612,6 +1612,45 @@ TEST(SessionManager, OurSessionAfterAnotherVehiclesGoesInWhicheverTookTheIdFirst
   EXPECT_EQ(m.view().activeSession(), 5);
 }
 
+// A name made only of digits would read as an id wherever a name or an id is taken ("1" named a
+// session while session 1 existed, and lookups found the wrong one): start_session refuses it,
+// offline_slam names a folder "7" "./7", and digits name an id first (a store written before the
+// rule may still hold such a name: found by it when no session has that id).
+TEST(SessionManager, ANameMadeOnlyOfDigitsIsRefusedAndDigitsNameAnId) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 2);
+    addStraightSession(&m, 1, 2);
+    for (const std::string name : {"1", "0", "007", "999999999999"}) {
+      const Status st = m.startSession(name, 5.0);
+      EXPECT_EQ(st.code, StatusCode::kInvalidArgument) << name;
+      EXPECT_NE(st.message.find("only of digits"), std::string::npos) << st.message;
+    }
+    EXPECT_EQ(m.view().sessionIds(), (std::vector<int>{0, 1}));
+    EXPECT_EQ(m.view().activeSession(), 1);
+    EXPECT_EQ(m.view().findSession("1"), 1);
+    EXPECT_EQ(sessionNameOfFolder("7"), "./7");
+    EXPECT_EQ(sessionNameOfFolder("/data/7"), "/data/7");
+    EXPECT_EQ(sessionNameOfFolder("dive 7"), "dive 7");
+    int id = -1;
+    ASSERT_TRUE(m.startSession(sessionNameOfFolder("7"), 6.0, -1, &id).ok());
+    addStraightSession(&m, id, 2);
+    EXPECT_EQ(m.view().findSession("./7"), 2);
+    ASSERT_TRUE(m.startSession("1a", 7.0).ok());
+    addStraightSession(&m, 3, 2);
+  }
+  ASSERT_TRUE(testing_util::execSql(db, "UPDATE sessions SET name = '1' WHERE id = 0"));
+  ASSERT_TRUE(testing_util::execSql(db, "UPDATE sessions SET name = '9' WHERE id = 3"));
+  SessionManager m(options(db));
+  EXPECT_EQ(m.view().findSession("1"), 1);  // the id, not session 0 named "1"
+  EXPECT_EQ(m.view().findSession("0"), 0);
+  EXPECT_EQ(m.view().findSession("9"), 3);  // no session 9: the older name
+  EXPECT_EQ(m.view().findSession("./7"), 2);
+  EXPECT_EQ(m.view().findSession("8"), -1);
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam

@@ -102,7 +102,8 @@ class SessionManager {
   // --- Requests ----------------------------------------------------------------------------
   /// Ends the active session and starts a new one, `id` or (-1) nextId(), named `name` (empty:
   /// "session_<id>"). ALREADY_EXISTS when the name is taken, INVALID_ARGUMENT for an id that is
-  /// not new or past kMaxSessionId or the name longer than kMaxSessionNameLength, RESOURCE_EXHAUSTED when
+  /// not new or past kMaxSessionId, a name longer than kMaxSessionNameLength or made only of
+  /// digits (it would read as an id: nameIsAnId), RESOURCE_EXHAUSTED when
   /// max_empty_sessions sessions in a row have no keyframe or no id is left. The session has its origin keyframe; the
   /// next keyframe 0 given to it fills it in.
   Status startSession(const std::string& name, double stamp_s, int id = -1, int* started = nullptr);

@@ -43,9 +43,10 @@ class SessionQueries {
   const CameraIntrinsics& camera(int session) const { return t_.at(session).camera; }
   /// The session named `name`, or -1.
   int idOfName(const std::string& name) const { return t_.idOfName(name); }
-  /// The session a request names: by its name first (names are unique), else by its id in
-  /// decimal digits (a session named "3" is not session 3); -1 when none. Every service and tool
-  /// that takes a name or an id resolves it here.
+  /// The session a request names: digits only, by its id (no name is made only of digits; a
+  /// session an older store named "3" is found by that name when no session 3 exists); anything
+  /// else, by its name (names are unique); -1 when none. Every service and tool that takes a name
+  /// or an id resolves it here.
   int findSession(const std::string& name_or_id) const { return t_.findSession(name_or_id); }
   /// The vehicle a session came from (empty: this vehicle's own), and its id there (-1: ours).
   const std::string& vehicleOf(int session) const { return t_.at(session).vehicle(); }

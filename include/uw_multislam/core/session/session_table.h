@@ -119,8 +119,8 @@ class SessionTable {
   int idOfBackend(int backend_session) const { return id_of_backend_.at(backend_session); }
   /// The session named `name`, or -1.
   int idOfName(const std::string& name) const;
-  /// The session a request names: by its name first (names are unique), else by its id in
-  /// decimal digits; -1 when none.
+  /// The session a request names: digits only, by its id (or, when no session has that id, a
+  /// session an older store named so); anything else, by its name (names are unique); -1 when none.
   int findSession(const std::string& name_or_id) const;
   /// This table's id of a vehicle's session while it records here, or -1; or that ended here in
   /// this run (endedForeignSession).

@@ -62,6 +62,13 @@ struct SessionManagerOptions {
 /// The manager's options from the SLAM configuration (back-end, hash settings) and a store path.
 SessionManagerOptions sessionManagerOptions(const SlamConfig& config, const std::string& store_path);
 
+/// Whether a session name is made only of digits: such a name would read as a session's id in
+/// every request that takes a name or an id, so start_session refuses it.
+bool nameIsAnId(const std::string& name);
+/// The session name of a dataset folder (offline_slam): the folder as given, "./7" for a folder
+/// named "7" (the same folder, and a name that is not an id).
+std::string sessionNameOfFolder(const std::string& folder);
+
 /// A vehicle's name as the hash exchange takes it (it goes into session names, the store, logs):
 /// 1 to 64 characters of A-Z a-z 0-9 _ -.
 bool validVehicleName(const std::string& vehicle);
