@@ -215,11 +215,13 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
     s.camera = k.camera;
     s.stamps[0] = k.stamp_s;
     s.frames[0] = k.frame_index;
+    s.altitudes[0] = k.altitude_m;
     stored_motion = nullptr;
   } else {
     if (!s.origin_received) {  // keyframe 0 never arrived: a placeholder origin
       s.origin_received = true;
       s.camera = k.camera;
+      s.altitudes[0] = k.altitude_m;
       s.phantoms.insert(0);
       storeKeyframe(id, nullptr, 0, nullptr, k.stamp_s, nullptr, nullptr);
     }
@@ -241,6 +243,7 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
         s.stamps.push_back(k.stamp_s);
         s.odometry.push_back(last);
         s.frames.push_back(k.frame_index);
+        s.altitudes.push_back(k.altitude_m);
         s.sources.push_back(MotionSource::kVisual);
       }
       // Stored with this keyframe, in its transaction, as minimal rows: written one by one, each
@@ -253,6 +256,7 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
     s.stamps.push_back(k.stamp_s);
     s.odometry.push_back(k.odometry_pose);
     s.frames.push_back(k.frame_index);
+    s.altitudes.push_back(k.altitude_m);
     s.sources.push_back(k.motion_source);
   }
   ++stats.keyframes;

@@ -113,6 +113,7 @@ SessionTable::Session& SessionTable::open(int id, const std::string& name, doubl
   s.stamps.push_back(stamp_s);
   s.odometry.push_back(Pose2());
   s.frames.push_back(0);
+  s.altitudes.push_back(0.0);
   s.sources.push_back(MotionSource::kVisual);
   Session& added = sessions_.emplace(id, std::move(s)).first->second;
   if (foreign) {
@@ -245,6 +246,7 @@ std::vector<std::string> SessionTable::openStore() {
     for (const StoredKeyframe& k : store_->keyframes(s.store_row_, false)) {
       s.stamps.push_back(k.stamp_s);
       s.frames.push_back(k.frame_index);
+      s.altitudes.push_back(k.altitude_m);
     }
     s.odometry.push_back(Pose2());
     for (const UncertainPose2& m : store_->odometry(s.store_row_))

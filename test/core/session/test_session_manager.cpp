@@ -1651,6 +1651,31 @@ TEST(SessionManager, ANameMadeOnlyOfDigitsIsRefusedAndDigitsNameAnId) {
   EXPECT_EQ(m.view().findSession("8"), -1);
 }
 
+// A link is between two keyframes that see the same seabed: no longer than the maps that hold
+// them reach (their extents and what the two cameras see). A 1,000 km link with a 1 cm sigma
+// (accepted before: only 1e7 m was a bound) is refused naming the bound; nothing changes.
+TEST(SessionManager, ALinkLongerThanTheMapsCanHoldIsRefusedNamingTheBound) {
+  SessionManager m(options());
+  addStraightSession(&m, 0, 8);  // 7 m long
+  addStraightSession(&m, 1, 4);  // 3 m long
+  // 640 x 480 px, f = 500 px, 2 m up: 1.6 m from a keyframe to its image's corner on the seabed.
+  EXPECT_NEAR(m.view().mapExtent(0), 7.0, 1e-9);
+  EXPECT_NEAR(m.view().linkReach(0, 2, 1, 2), 7.0 + 3.0 + 2 * 1.6, 1e-9);
+  EXPECT_NEAR(m.view().linkReach(0, 2, 0, 5), 7.0 + 2 * 1.6, 1e-9);  // one map counted once
+  Loop far = globalLoop(0, 2, 1, 2, Pose2(1e6, 0, 0));
+  far.z.covariance = Eigen::Matrix3d::Identity() * 1e-4;
+  const Status st = m.addLink(far);
+  EXPECT_EQ(st.code, StatusCode::kInvalidArgument) << st.message;
+  EXPECT_NE(st.message.find("the link is 1e+06 m long"), std::string::npos) << st.message;
+  EXPECT_NE(st.message.find("at most 13.2 m (map 0's extent 7 m, map 1's 3 m"), std::string::npos) << st.message;
+  EXPECT_TRUE(m.view().loops().empty());
+  Loop across = globalLoop(0, 2, 1, 2, Pose2(0, 13.1, 0));  // within the bound
+  ASSERT_TRUE(m.addLink(across).ok());
+  Loop beyond = globalLoop(0, 2, 1, 3, Pose2(0, 13.3, 0));
+  EXPECT_EQ(m.addLink(beyond).code, StatusCode::kInvalidArgument);
+  EXPECT_EQ(m.view().loops().size(), 1u);
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam

@@ -54,6 +54,7 @@ class SessionTable {
     std::vector<double> stamps;         // per keyframe ([0]: the start's stamp until keyframe 0 comes)
     std::vector<Pose2> odometry;        // X_k^0 per keyframe
     std::vector<int> frames;            // frame index per keyframe
+    std::vector<double> altitudes;      // per keyframe, m (0: not known)
     std::vector<MotionSource> sources;  // per keyframe, of the motion reaching it
     std::set<int> phantoms;             // keyframes that never arrived (bridged)
     bool origin_received = false;       // keyframe 0 arrived (not only start_session)
