@@ -1676,6 +1676,26 @@ TEST(SessionManager, ALinkLongerThanTheMapsCanHoldIsRefusedNamingTheBound) {
   EXPECT_EQ(m.view().loops().size(), 1u);
 }
 
+// A clean close writes the WAL back into the store and cuts it to nothing, also while another
+// connection to the file is open (a reader: an export, a tool, a monitor); SQLite did that only
+// when the last connection closed, and the WAL stayed at its full size.
+TEST(SessionManager, AStoreClosedCleanlyLeavesAnEmptyWalAlsoWithAReaderOpen) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  std::optional<SessionStore> reader;
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 20);
+    reader.emplace(db, StoreAccess::kReadOnly);
+    ASSERT_EQ(reader->sessions().size(), 1u);
+    EXPECT_GT(std::filesystem::file_size(db + "-wal"), 0u);
+  }
+  EXPECT_EQ(std::filesystem::file_size(db + "-wal"), 0u);
+  EXPECT_EQ(reader->keyframes(0, false).size(), 20u);  // the reader reads it all, from the file
+  reader.reset();
+  EXPECT_EQ(SessionManager(options(db)).view().list()[0].keyframes, 20);
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam
