@@ -105,7 +105,7 @@ std::vector<SessionSummary> SessionQueries::list() const {
                                                      : SessionState::kFinished;
     x.vehicle = s.vehicle();
     x.map = mapOf(id);
-    x.keyframes = static_cast<int>(s.stamps.size());
+    x.keyframes = s.keyframes();
     x.loops = s.loops();
     x.first_stamp_s = s.stamps.front();
     x.last_stamp_s = s.stamps.back();

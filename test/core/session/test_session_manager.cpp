@@ -324,9 +324,9 @@ TEST(SessionManager, APlaceholderOriginStoresTheSessionsCamera) {
 }
 
 // start_session, then the maps saved (a flush, another map's optimisation) before the session's
-// first keyframe: its row is made then, without a camera; the first keyframe brings it (the row
-// kept 0x0 and the session's loops could not be verified after a restart; found by a review).
-// A store that still holds such a row says so when the session is reloaded.
+// first keyframe: no row yet; the first keyframe makes it, with the session's camera (a row made
+// by the save kept 0x0, and the session's loops could not be verified after a restart). A store
+// that still holds such a row says so when the session is reloaded.
 TEST(SessionManager, ARowMadeBeforeTheFirstKeyframeGetsItsCamera) {
   testing_util::ScopedTempDir dir("session_manager");
   const std::string db = (dir.path() / "s.db").string();
@@ -339,8 +339,7 @@ TEST(SessionManager, ARowMadeBeforeTheFirstKeyframeGetsItsCamera) {
     m.flush();
     {
       const SessionStore store(db, StoreAccess::kReadOnly);
-      ASSERT_EQ(store.sessions().size(), 2u);
-      EXPECT_EQ(store.sessions()[1].camera.width, 0);  // made by the save, before any keyframe
+      EXPECT_EQ(store.sessions().size(), 1u);  // nothing of b before its first keyframe
     }
     addStraightSession(&m, b, 3);
     EXPECT_EQ(m.view().stats().store_failures, 0);
@@ -451,10 +450,10 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
   EXPECT_EQ(list[1].loops, 5);
   const std::vector<Pose2> back = again.view().poses(1);
   for (std::size_t k = 0; k < back.size(); ++k) EXPECT_NEAR(back[k].y(), joined[k].y(), 1e-9) << k;
-  // Session 2 ('empty') has a store row but no keyframe, so it is not restored; its id is its
-  // store id all the same, and is never given to another session.
-  EXPECT_EQ(again.view().nextId(), 3);
-  EXPECT_EQ(again.view().firstNewId(), 3);
+  // Session 2 ('empty') never had a keyframe: nothing of it was stored, so the store never held
+  // its id, and this run may give it again.
+  EXPECT_EQ(again.view().nextId(), 2);
+  EXPECT_EQ(again.view().firstNewId(), 2);
   EXPECT_TRUE(again.view().restored(1));
   EXPECT_FALSE(again.view().restored(2));
   // The frames session 1 was made from are recognised (a folder run into the store again).
@@ -501,10 +500,10 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
   ASSERT_EQ(r.keyframes.size(), 8u);
   EXPECT_EQ(r.keyframes[3].hash.size(), 384);
   EXPECT_TRUE(r.keyframes[3].points.empty());
-  // New sessions continue after the stored ones (and after the row of 'empty').
+  // New sessions continue after the stored ones.
   addStraightSession(&again, again.view().nextId(), 2);
-  EXPECT_EQ(again.view().activeSession(), 3);
-  const Status live = again.unload("3");
+  EXPECT_EQ(again.view().activeSession(), 2);
+  const Status live = again.unload("2");
   EXPECT_EQ(live.code, StatusCode::kFailedPrecondition);  // recorded in this run
   EXPECT_NE(live.message.find("recorded in this run"), std::string::npos) << live.message;
   EXPECT_EQ(again.view().list()[2].state, SessionState::kActive);
@@ -1694,6 +1693,41 @@ TEST(SessionManager, AStoreClosedCleanlyLeavesAnEmptyWalAlsoWithAReaderOpen) {
   EXPECT_EQ(reader->keyframes(0, false).size(), 20u);  // the reader reads it all, from the file
   reader.reset();
   EXPECT_EQ(SessionManager(options(db)).view().list()[0].keyframes, 20);
+}
+
+// A session start_session opened that no keyframe has followed: listed with 0 keyframes, and
+// nothing of it stored until its first keyframe (no row left recording, no map saved for it);
+// when the next session starts it is finished, and after a restart it is gone with nothing lost.
+TEST(SessionManager, ASessionWithoutKeyframesIsListedEmptyAndNotStored) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 3);
+    int empty = -1;
+    ASSERT_TRUE(m.startSession("empty", 10.0, -1, &empty).ok());
+    ASSERT_EQ(empty, 1);
+    EXPECT_EQ(m.view().list()[1].keyframes, 0);
+    EXPECT_EQ(m.view().list()[1].state, SessionState::kActive);
+    m.flush();  // the maps saved: nothing of session 1
+    int next = -1;
+    ASSERT_TRUE(m.startSession("next", 11.0, -1, &next).ok());
+    EXPECT_EQ(m.view().list()[1].state, SessionState::kFinished);
+    EXPECT_EQ(m.view().list()[1].keyframes, 0);
+    addStraightSession(&m, next, 2);
+    ASSERT_TRUE(m.startSession("last", 20.0).ok());  // left without a keyframe at the end
+    EXPECT_EQ(m.view().stats().store_failures, 0);
+  }
+  {
+    const SessionStore store(db, StoreAccess::kReadOnly);
+    std::vector<std::pair<std::int64_t, StoredSessionState>> rows;
+    for (const StoredSession& s : store.sessions()) rows.emplace_back(s.id, s.state);
+    EXPECT_EQ(rows, (std::vector<std::pair<std::int64_t, StoredSessionState>>{{0, StoredSessionState::kFinished},
+                                                                              {2, StoredSessionState::kFinished}}));
+  }
+  SessionManager again(options(db));
+  EXPECT_EQ(again.view().sessionIds(), (std::vector<int>{0, 2}));
+  EXPECT_EQ(again.view().list()[1].keyframes, 2);
 }
 
 }  // namespace
