@@ -494,6 +494,34 @@ def case_add_link_yaw_offline(m, off):
         m.done(d)
 
 
+def case_names_and_links_offline(m, off):
+    case = "offline_slam --db on a folder named '7', then --add-link of 1000 km with a 1 cm sigma"
+    expected = ("status 0, the folder's session named './7' (a name of digits only would read as session 7's id); the "
+                "link refused (status 1) in one line naming its bound; the store unchanged by the refusal")
+    d = m.tempdir("names_links")
+    try:
+        shutil.copytree(off.folder("a"), os.path.join(d, "7"))
+        store = os.path.join(d, "s.db")
+        r = subprocess.run(off.cmd(["--session", "7", "--out", os.path.join(d, "o"), "--db", store]), cwd=d,
+                           capture_output=True, text=True, timeout=180)
+        con = ro_connect(store)
+        try:
+            names = [n for (n,) in con.execute("SELECT name FROM sessions ORDER BY id")]
+        finally:
+            con.close()
+        before = md5(store)
+        link = off.run(["--db", store, "--out", os.path.join(d, "o2"), "--add-link", "0:1:0:5:1e6:0:0:0.01:0.01"])
+        lines = reason(link.stderr)
+        held = (r.returncode == 0 and names == ["./7"] and link.returncode == 1 and len(lines) == 1
+                and "at most" in lines[0] and md5(store) == before)
+        observed = "run: status %d, sessions %s; --add-link: status %d: %s; store %s" % (
+            r.returncode, names, link.returncode, " / ".join(lines) or "(no message)",
+            "unchanged" if md5(store) == before else "CHANGED")
+        m.row(case, expected, observed, held)
+    finally:
+        m.done(d)
+
+
 def bad_store_case(m, off, label, make, expect_refusal=True, expected=None):
     case = "store: " + label
     expected = expected or "refused: one line naming the file; the file byte-identical"
@@ -798,14 +826,14 @@ def case_nav_jump_offline(m, off):
 OFFLINE_CASES = [case_kill_offline, case_two_writers, case_hard_link_writer, case_export_planted_links,
                  case_evaluate_planted_links,
                  case_self_merge_hard_link, case_restart_ids, case_index_steps, case_add_link_yaw_offline,
-                 offline_store_cases, offline_dataset_cases, case_nav_jump_offline]
+                 case_names_and_links_offline, offline_store_cases, offline_dataset_cases, case_nav_jump_offline]
 
 
 # Each in a process of its own (rospy talks to one master per process): fault_matrix_live.py.
 LIVE_CASES = [("service_misuse", 240), ("concurrent", 240), ("kill_manager", 240), ("bad_images", 240),
               ("kill_manager_moments", 240), ("replay_rates", 240), ("silent_altitude", 240), ("burst", 240),
               ("store_cap", 240), ("export_links", 240), ("bounds_and_paths", 240), ("quoted_datum", 240),
-              ("dvl_relay", 240)]
+              ("dvl_relay", 240), ("ids_and_inputs", 240)]
 
 
 def live_case(name, timeout):

@@ -16,7 +16,7 @@ import threading
 import time
 import xmlrpc.client
 
-from fault_matrix import integrity, keyframe_count, wait_for  # this script's folder is on sys.path
+from fault_matrix import integrity, keyframe_count, ro_connect, wait_for  # this script's folder is on sys.path
 
 NS = "/uw_multislam"
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -961,11 +961,121 @@ def case_dvl_relay(st, survey):
         "the relay and the nodes alive", observed, held)
 
 
+def hostile_keyframe(session, keyframe=0):
+    """A well-formed Keyframe message (one feature) naming any session, as a faulty vehicle or a
+    stray publisher could send it."""
+    import rospy
+    from geometry_msgs.msg import Pose2D
+    from uw_multislam.msg import Keyframe
+    m = Keyframe()
+    m.header.stamp = rospy.Time.now()
+    m.header.frame_id = "camera"
+    m.session, m.keyframe, m.frame_index, m.altitude_m = session, keyframe, keyframe, 2.0
+    m.width, m.height, m.fx, m.fy, m.cx, m.cy = 320, 240, 300.0, 300.0, 159.5, 119.5
+    m.u_px, m.v_px, m.response = [10.0], [20.0], [1.0]
+    m.descriptor_size = 128
+    m.descriptors = bytes(128)
+    m.odometry_pose = Pose2D(0.0, 0.0, 0.0)
+    m.status, m.scale = Keyframe.FIRST, 1.0
+    return m
+
+
+def case_ids_and_inputs(st, survey):
+    """Where session ids, names, links and the store's files enter: a Keyframe message naming
+    session 999999 (before the first bag and again between the two), start_session named "7" and
+    one with no keyframe after it, an add_link of 1,000 km with a 1 cm sigma, then a clean
+    shutdown with a reader's connection open (the WAL) and a restart (the next id)."""
+    import rospy
+    from geometry_msgs.msg import Pose2D
+    from uw_multislam.msg import Keyframe, Status
+    st.start_slam()
+    rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
+    back, odo = NodeStatus(": backend"), NodeStatus()
+    published = []
+    rospy.Subscriber(NS + "/keyframes", Keyframe, lambda m: published.append(m) if m._connection_header.get(
+        "callerid", "") != rospy.get_name() else None, queue_size=1000)
+    stray = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=10)
+
+    def subscribers():  # every node the master lists on the topic, this one's subscriber included
+        return [n for t, nodes in st.master.getSystemState()[1] if t == NS + "/keyframes" for n in nodes]
+    wait_for(lambda: back.latest and odo.latest and subscribers() and stray.get_num_connections() == len(subscribers()),
+             30, 0.1)
+
+    def ours():
+        n = {}
+        for k in published:
+            n[k.session] = n.get(k.session, 0) + 1
+        return n
+
+    def listed():
+        return {s[0]: s[4] for s in st.sessions()}
+
+    def caught_up():  # the odometry's keyframes all received here and listed by the back-end
+        odo.fresh()
+        return odo.value("keyframes") == len(published) and listed() == ours()
+    stray.publish(hostile_keyframe(999999))
+    st.play(os.path.join(survey, "a.bag"))
+    wait_for(caught_up, 60, 0.2)
+    stray.publish(hostile_keyframe(999999, 1))
+    stray.publish(hostile_keyframe(500000))
+    st.play(os.path.join(survey, "b.bag"))
+    wait_for(caught_up, 60, 0.2)
+    kept, sent = listed(), ours()
+    back.fresh()
+    unopened = back.value("keyframes_unopened")
+    digits = status_code(st.call("start_session", "7"))
+    res = st.call("start_session", "dive 3")
+    empty_id = res.session
+    empty = [s for s in st.sessions() if s[0] == empty_id]
+    cov = [1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-4]
+    far = status_code(st.call("add_link", 0, 1, 1, 1, Pose2D(1e6, 0.0, 0.0), cov, 0, False))
+    # A monitoring tool's read-only connection stays open across the shutdown: the back-end's is
+    # then not the last one, and SQLite leaves the WAL to its last connection.
+    reader = ro_connect(st.store)
+    reader.execute("SELECT count(*) FROM keyframes").fetchone()
+    st.stop_group(st.launch)
+    clean = st.launch.returncode
+    wal = os.path.getsize(st.store + "-wal") if os.path.exists(st.store + "-wal") else 0
+    reader.close()
+    ok = integrity(st.store)
+    st.start_slam()
+    restored = [s[0] for s in st.sessions()]
+    after = st.call("start_session", "after restart").session
+    st.stop_group(st.launch)
+    bad = []
+    if kept != sent or sorted(sent) != [0, 1]:
+        bad.append("sessions %s, the odometry published %s" % (kept, sent))
+    if unopened != 3:
+        bad.append("keyframes_unopened %d, not 3" % unopened)
+    if digits[0] != Status.INVALID_ARGUMENT or "digits" not in digits[1]:
+        bad.append("start_session '7': code %d '%s'" % digits)
+    if res.status.code != Status.OK or empty_id != 2 or not empty or empty[0][4] != 0:
+        bad.append("start_session 'dive 3': code %d, session %d, listed %s" % (res.status.code, empty_id, empty))
+    if far[0] != Status.INVALID_ARGUMENT or "at most" not in far[1]:
+        bad.append("add_link of 1000 km: code %d '%s'" % far)
+    if wal != 0 or ok != "ok":
+        bad.append("after the clean exit: WAL %d bytes, integrity %s" % (wal, ok))
+    if restored != [0, 1] or after != 2:
+        bad.append("restarted: sessions %s, start_session gave %d" % (restored, after))
+    observed = ("keyframes of sessions 999999 and 500000 refused (keyframes_unopened %d); sessions %s as published %s; "
+                "start_session '7': code %d '%s'; 'dive 3' (no keyframe): session %d listed with %s keyframes; "
+                "add_link 1000 km: code %d '%s'; clean exit (status %s): WAL %d bytes, integrity %s; restarted: "
+                "sessions %s, start_session gave %d%s") % (
+        unopened, kept, sent, digits[0], digits[1][:80], empty_id, empty[0][4] if empty else "no", far[0],
+        far[1][:110], clean, wal, ok, restored, after, "" if not bad else " -- " + "; ".join(bad))
+    row("live: a keyframe of session 999999, a session named '7', one without keyframes, a 1000 km link, the WAL "
+        "after a clean exit (a reader open), a restart",
+        "the stray keyframes refused and counted, every keyframe of the odometry kept in sessions 0 and 1; '7' refused "
+        "(digits only); the empty session listed with 0 keyframes; the link refused naming its bound; WAL 0 bytes "
+        "after a clean exit with a reader open; "
+        "after the restart sessions 0 and 1 and the next id 2", observed, not bad)
+
+
 CASES = {"service_misuse": case_service_misuse, "bounds_and_paths": case_bounds_and_paths, "concurrent": case_concurrent, "kill_manager": case_kill_manager,
          "bad_images": case_bad_images, "kill_manager_moments": case_kill_manager_moments,
          "replay_rates": case_replay_rates, "silent_altitude": case_silent_altitude, "burst": case_burst,
          "store_cap": case_store_cap, "export_links": case_export_links, "quoted_datum": case_quoted_datum,
-         "dvl_relay": case_dvl_relay}
+         "dvl_relay": case_dvl_relay, "ids_and_inputs": case_ids_and_inputs}
 
 
 def main():

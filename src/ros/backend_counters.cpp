@@ -41,6 +41,8 @@ const CounterTable<BackendCounters>& backendCounterTable() {
        kWarn},
       {"keyframes_refused", &C::keyframes_refused,
        "keyframes refused: an id more than ~max_keyframe_gap past the last, or a session id past 1,000,000", kWarn},
+      {"keyframes_unopened", &C::keyframes_unopened,
+       "keyframes of a session the back-end did not open (past the next id, or another vehicle's): refused", kWarn},
       {"keyframe_gaps", &C::keyframe_gaps, "gaps in the keyframe ids, bridged", kWarn},
       {"keyframe_jumps", &C::keyframe_jumps,
        "jumps in the keyframe ids past ~max_keyframe_gap that the next keyframe continued: a new session from there",
@@ -92,6 +94,7 @@ void setManagerCounters(const core::SessionQueries& manager, BackendCounters* c)
   const core::SessionManagerStats& m = manager.stats();
   const core::BackendStats& b = manager.backendStats();
   c->keyframes_stale = m.keyframes_stale, c->keyframes_refused = m.keyframes_refused;
+  c->keyframes_unopened = m.keyframes_unopened;
   c->keyframe_gaps = m.keyframe_gaps, c->keyframe_jumps = m.keyframe_jumps, c->nav_placements = m.nav_placements,
   c->loops_refused = m.loops_refused, c->store_failures = m.store_failures;
   c->sessions = static_cast<long>(manager.sessionIds().size());

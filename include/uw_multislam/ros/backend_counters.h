@@ -27,8 +27,8 @@ struct BackendCounters {
   long mosaic_published = 0, mosaic_keyframes_drawn = 0, mosaic_keyframes_missing = 0;
   double mosaic_draw_ms = 0.0, mosaic_resolution_m = 0.0, mosaic_images_kB = 0.0;
   // The session manager and its back-end (setManagerCounters).
-  long keyframes_stale = 0, keyframes_refused = 0, keyframe_gaps = 0, keyframe_jumps = 0, nav_placements = 0,
-       loops_refused = 0, store_failures = 0;
+  long keyframes_stale = 0, keyframes_refused = 0, keyframes_unopened = 0, keyframe_gaps = 0, keyframe_jumps = 0,
+       nav_placements = 0, loops_refused = 0, store_failures = 0;
   long sessions = 0, sessions_unloaded_now = 0, maps = 0, joins = 0, splits = 0;
   long loops_refused_at_join = 0, joins_refused = 0, loops_gated = 0, loops_switched_off = 0, loops_readmitted = 0;
   long optimisations = 0, optimisations_discarded = 0;

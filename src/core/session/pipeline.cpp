@@ -91,7 +91,7 @@ void Pipeline::beginStream(const Dataset& d) {
 int Pipeline::startPiece(const SessionOpening& o) {
   // Names are unique (start_session and reload_session address sessions by them): a folder run
   // again against the same store becomes "<folder> (2)", and so on.
-  const std::string base = o.piece == 0 ? stream_ : stream_ + "#" + std::to_string(o.piece);
+  const std::string base = o.piece == 0 ? sessionNameOfFolder(stream_) : stream_ + "#" + std::to_string(o.piece);
   ++pieces_;
   ScopedStage stage(&times_, "session_manager");
   const Status st = worker_->locked([&](SessionManager& m) {

@@ -158,7 +158,13 @@ Status SessionManager::addKeyframe(const KeyframeInput& input, const std::vector
     table_.addPiece({k.session, id, 0});
   }
   table_.toPiece(&k.session, &k.keyframe);
+  // Our odometry's keyframe naming another vehicle's session newer than every one of ours: a
+  // stray message, or our odometry took that id in the instant the other vehicle's session took
+  // it here (before active_session told it the next free id). The next keyframe tells which.
+  if (table_.has(k.session) && !table_.at(k.session).vehicle().empty() && k.session > table_.newestOwnSession())
+    return refuseUnopened(std::move(k));
   if (!table_.has(k.session)) {
+    if (k.session > table_.nextId()) return refuseUnopened(std::move(k));
     if (k.session < table_.nextId()) {
       ++stats.keyframes_stale;
       return {StatusCode::kFailedPrecondition, "keyframe of old session " + std::to_string(k.session) +
@@ -209,11 +215,13 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
     s.camera = k.camera;
     s.stamps[0] = k.stamp_s;
     s.frames[0] = k.frame_index;
+    s.altitudes[0] = k.altitude_m;
     stored_motion = nullptr;
   } else {
     if (!s.origin_received) {  // keyframe 0 never arrived: a placeholder origin
       s.origin_received = true;
       s.camera = k.camera;
+      s.altitudes[0] = k.altitude_m;
       s.phantoms.insert(0);
       storeKeyframe(id, nullptr, 0, nullptr, k.stamp_s, nullptr, nullptr);
     }
@@ -235,6 +243,7 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
         s.stamps.push_back(k.stamp_s);
         s.odometry.push_back(last);
         s.frames.push_back(k.frame_index);
+        s.altitudes.push_back(k.altitude_m);
         s.sources.push_back(MotionSource::kVisual);
       }
       // Stored with this keyframe, in its transaction, as minimal rows: written one by one, each
@@ -247,6 +256,7 @@ Status SessionManager::appendKeyframe(KeyframeInput k, const std::vector<Loop>& 
     s.stamps.push_back(k.stamp_s);
     s.odometry.push_back(k.odometry_pose);
     s.frames.push_back(k.frame_index);
+    s.altitudes.push_back(k.altitude_m);
     s.sources.push_back(k.motion_source);
   }
   ++stats.keyframes;
@@ -296,20 +306,47 @@ Status SessionManager::refuseJump(KeyframeInput k, const std::string& why) {
           why + ": refused; if the next keyframe continues from it, a new session starts there"};
 }
 
+Status SessionManager::refuseUnopened(KeyframeInput k) {
+  ++table_.stats().keyframes_unopened;
+  const std::string s = std::to_string(k.session);
+  const std::string whose = table_.has(k.session)
+                                ? "session " + s + " is vehicle " + table_.at(k.session).vehicle() + "'s here"
+                                : "no session " + s + " was opened";
+  const std::string why = "keyframe " + std::to_string(k.keyframe) + " of session " + s + " refused: " + whose +
+                          " (session ids are the back-end's to give: the next is " + std::to_string(table_.nextId()) +
+                          "); held: if the next keyframe continues it, our odometry's session starts there";
+  table_.held() = std::move(k);
+  return {StatusCode::kFailedPrecondition, why};
+}
+
 Status SessionManager::startPiece(KeyframeInput held) {
-  const int raw = held.session;
-  // The odometry's session if it never opened here (its first keyframe was the jump), else a new id.
-  const int id = !table_.has(raw) && raw >= table_.nextId() ? raw : table_.nextId();
+  const int raw = held.session, next = table_.nextId(), max_gap = table_.options().max_keyframe_gap;
+  const bool foreign = table_.has(raw) && !table_.at(raw).vehicle().empty();
+  const bool unopened = !table_.has(raw) && raw > next;
+  // The odometry's session if it never opened here (its first keyframe was the jump, or the
+  // sessions before it were lost on the way: at most max_keyframe_gap of them, so that ids stay
+  // dense), else the next id.
+  const int id = !table_.has(raw) && raw >= next && raw - next <= max_gap ? raw : next;
   if (id > kMaxSessionId) return badSessionId("keyframe " + std::to_string(held.keyframe), id);
   const int ended = table_.active();
   const Status opened = open(id, "", held.stamp_s);
   if (!opened.ok()) return opened;
-  table_.addPiece({raw, id, held.keyframe});
-  ++table_.stats().keyframe_jumps;
-  say("session " + std::to_string(raw) + "'s keyframe ids jumped to " + std::to_string(held.keyframe) +
-      ", past max_keyframe_gap (" + std::to_string(table_.options().max_keyframe_gap) +
-      "): " + (ended >= 0 ? "session " + std::to_string(ended) + " ended, " : std::string()) + "session " +
-      std::to_string(id) + " starts there (keyframe " + std::to_string(held.keyframe) + " is its 0)");
+  table_.addPiece({raw, id, held.keyframe, foreign});
+  const std::string was = ended >= 0 ? "session " + std::to_string(ended) + " ended, " : std::string();
+  const std::string starts =
+      "session " + std::to_string(id) + " starts there (keyframe " + std::to_string(held.keyframe) + " is its 0)";
+  if (foreign) {
+    say("the odometry's session " + std::to_string(raw) + " is vehicle " + table_.at(raw).vehicle() +
+        "'s session here (both took the id at once): " + was + starts);
+  } else if (unopened) {
+    say("the odometry's session " + std::to_string(raw) + " went on past its refused keyframe " +
+        std::to_string(held.keyframe) + ": its sessions from " + std::to_string(next) + " were lost on the way; " +
+        was + starts);
+  } else {
+    ++table_.stats().keyframe_jumps;
+    say("session " + std::to_string(raw) + "'s keyframe ids jumped to " + std::to_string(held.keyframe) +
+        ", past max_keyframe_gap (" + std::to_string(max_gap) + "): " + was + starts);
+  }
   const Pose2 origin = held.odometry_pose;
   held.session = id;
   held.keyframe = 0;
@@ -343,8 +380,8 @@ Status SessionManager::addLoopIn(const Loop& in, bool odometry_ids, bool* waitin
   if (waiting) *waiting = false;
   Loop l = in;
   if (odometry_ids) {  // the odometry's ids after a jump, as this manager names them
-    table_.toPiece(&l.session_a, &l.keyframe_a);
-    table_.toPiece(&l.session_b, &l.keyframe_b);
+    table_.toPiece(&l.session_a, &l.keyframe_a, true);
+    table_.toPiece(&l.session_b, &l.keyframe_b, true);
   }
   SessionManagerStats& stats = table_.stats();
   if (!validSessionId(l.session_a) || !validSessionId(l.session_b) || l.keyframe_a < 0 || l.keyframe_b < 0) {
@@ -426,10 +463,9 @@ Status SessionManager::addNavPlacement(Loop l) {
   l.nav_placement = true;
   l.inliers = 0;  // no features matched: no support in any join rule
   l.hash_l1 = 0.0f;
-  // addLoop takes the odometry's ids and names them itself: given l's, a keyframe past a jump
-  // whose piece kept its session's id would be moved back by the jump twice.
-  const Loop odometry_ids = l;
-  table_.toPiece(&l.session_a, &l.keyframe_a);  // the odometry's ids after a jump, as this manager names them
+  // The odometry's ids after a jump or a renamed session, as this manager names them (every
+  // piece: the nav's placement is the odometry's own, never a loop detector's).
+  table_.toPiece(&l.session_a, &l.keyframe_a);
   table_.toPiece(&l.session_b, &l.keyframe_b);
   Status checked = view_.checkLinkEnds(l);
   if (checked.ok() && l.session_a == l.session_b)
@@ -447,7 +483,7 @@ Status SessionManager::addNavPlacement(Loop l) {
   {
     // The placement goes into the audit trail before the join it brings about.
     const HeldChanges hold(&hold_changes_);
-    st = addLoop(odometry_ids);
+    st = addLoopIn(l, false, nullptr);  // named already: a piece must not move it twice
     if (st.ok()) {
       char pose[200];
       std::snprintf(pose, sizeof pose, "pose (%.4f m, %.4f m, %.4f rad), sigma (%.4g m, %.4g rad)", l.z.mean.x(),

@@ -133,6 +133,9 @@ Status SessionManager::startSession(const std::string& name, double stamp_s, int
   if (name.size() > kMaxSessionNameLength)
     return {StatusCode::kInvalidArgument, "a session name of " + std::to_string(name.size()) + " bytes: at most " +
                                               std::to_string(kMaxSessionNameLength)};
+  if (nameIsAnId(name))
+    return {StatusCode::kInvalidArgument, "a session name made only of digits ('" + name + "') would read as session " +
+                                              name + "'s id wherever a name or an id is taken: add a letter"};
   const int other = name.empty() ? -1 : table_.idOfName(name);
   if (other >= 0)
     return {StatusCode::kAlreadyExists,
@@ -169,7 +172,7 @@ Status SessionManager::endSession(double stamp_s) {
     if (s.storeRow() >= 0) table_.store()->endSession(s.storeRow(), stamp_s);
   });
   emit(SessionEvent::Kind::kSessionEnded, id, -1, view_.mapOf(id),
-       "session " + std::to_string(id) + " ended with " + std::to_string(s.stamps.size()) + " keyframes");
+       "session " + std::to_string(id) + " ended with " + std::to_string(s.keyframes()) + " keyframes");
   afterBackendChange();
   saveMaps();
   return Status::Ok();
@@ -276,8 +279,11 @@ void SessionManager::saveMaps() {
     for (int b = 0; b < n; ++b) {
       const int id = table_.idOfBackend(b);
       // A session whose store row could not be written (a failed write) gets it now: every
-      // session of every map must have one, or the maps could not be saved at all.
-      if (table_.at(id).storeRow() < 0) addStoreRow(id, table_.at(id).stamps.front());
+      // session of every map must have one, or the maps could not be saved at all. One without a
+      // keyframe (start_session, nothing since) has nothing to store: no row, and its map (it
+      // alone) is left out.
+      const Session& s = table_.at(id);
+      if (s.storeRow() < 0 && s.origin_received) addStoreRow(id, s.stamps.front());
       ids[static_cast<std::size_t>(b)] = table_.at(id).storeRow();
     }
     saveBackendMaps(table_.store(), table_.backend(), ids, table_.loopStoreRows());

@@ -1,6 +1,8 @@
 #include "uw_multislam/core/session/session_queries.h"
 
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <utility>
 
@@ -103,7 +105,7 @@ std::vector<SessionSummary> SessionQueries::list() const {
                                                      : SessionState::kFinished;
     x.vehicle = s.vehicle();
     x.map = mapOf(id);
-    x.keyframes = static_cast<int>(s.stamps.size());
+    x.keyframes = s.keyframes();
     x.loops = s.loops();
     x.first_stamp_s = s.stamps.front();
     x.last_stamp_s = s.stamps.back();
@@ -142,11 +144,65 @@ Status SessionQueries::storedMapsMayChange(const std::string& what) const {
           what + " is refused in localisation mode (no stored map changes): set_mode mapping first"};
 }
 
+namespace {
+/// How far from its keyframe a camera sees the seabed: the half diagonal of its image on the
+/// seabed (a 90 degree view for an unknown camera); 0 without an altitude.
+double viewRadius(double altitude_m, const CameraIntrinsics& c) {
+  const double altitude = std::isfinite(altitude_m) && altitude_m > 0.0 ? altitude_m : 0.0;
+  if (c.unknown() || !(c.fx > 0.0) || !(c.fy > 0.0)) return altitude;
+  return 0.5 * altitude * std::hypot(c.width / c.fx, c.height / c.fy);
+}
+
+std::string metres(double v) {
+  char out[32];
+  std::snprintf(out, sizeof out, "%.4g m", v);
+  return out;
+}
+}  // namespace
+
+double SessionQueries::mapExtent(int map) const {
+  Eigen::Vector2d lo(0.0, 0.0), hi(0.0, 0.0);
+  bool any = false;
+  for (int b : t_.backend().chain(t_.at(map).backend()))
+    for (const Pose2& p : t_.backend().sessionPoses(b)) {
+      const Eigen::Vector2d x(p.x(), p.y());
+      lo = any ? lo.cwiseMin(x) : x;
+      hi = any ? hi.cwiseMax(x) : x;
+      any = true;
+    }
+  return (hi - lo).norm();
+}
+
+double SessionQueries::linkReach(int session_a, int keyframe_a, int session_b, int keyframe_b, std::string* why) const {
+  const int map_a = mapOf(session_a), map_b = mapOf(session_b);
+  const double extent_a = mapExtent(map_a), extent_b = map_b == map_a ? 0.0 : mapExtent(map_b);
+  const auto radius = [&](int s, int k) {
+    const SessionTable::Session& x = t_.at(s);
+    return viewRadius(k < static_cast<int>(x.altitudes.size()) ? x.altitudes[static_cast<std::size_t>(k)] : 0.0,
+                      x.camera);
+  };
+  const double view = radius(session_a, keyframe_a) + radius(session_b, keyframe_b);
+  if (why)
+    *why = "map " + std::to_string(map_a) + "'s extent " + metres(extent_a) +
+           (map_b == map_a ? std::string() : ", map " + std::to_string(map_b) + "'s " + metres(extent_b)) +
+           ", and what the two cameras see around their keyframes, " + metres(view);
+  return extent_a + extent_b + view;
+}
+
 Status SessionQueries::checkLink(const Loop& l) const {
   if (const Status ends = checkLinkEnds(l); !ends.ok()) return ends;
   if (const std::string bad = checkUncertainPose(l.z, true); !bad.empty())
     return {StatusCode::kInvalidArgument,
             "add_link: the pose: " + bad + " (x, y, yaw; m, rad; covariance m^2, rad^2, row-major)"};
+  // Two keyframes a link joins see the same seabed, so they are no farther apart than the maps
+  // that hold them reach (a 1,000 km link with a 1 cm sigma would drag a map across the sea).
+  std::string terms;
+  const double reach = linkReach(l.session_a, l.keyframe_a, l.session_b, l.keyframe_b, &terms);
+  const double length = std::hypot(l.z.mean.x(), l.z.mean.y());
+  if (length > reach)
+    return {StatusCode::kInvalidArgument, "add_link: the link is " + metres(length) +
+                                              " long, more than the maps can hold: at most " + metres(reach) + " (" +
+                                              terms + ")"};
   if (l.inliers < 0) return {StatusCode::kInvalidArgument, "add_link: inliers must be >= 0"};
   // Inliers are matched features of both keyframes: no more than either keyframe has. Their stored
   // feature counts when both are in the store with features, else the extractor's cap

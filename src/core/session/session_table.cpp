@@ -1,6 +1,8 @@
 #include "uw_multislam/core/session/session_table.h"
 
 #include <algorithm>
+#include <cctype>
+#include <cmath>
 #include <filesystem>
 #include <stdexcept>
 #include <utility>
@@ -12,6 +14,12 @@ namespace uw_multislam {
 namespace core {
 
 using namespace session_detail;  // NOLINT: the manager's own helpers
+
+bool nameIsAnId(const std::string& name) {
+  return !name.empty() && std::all_of(name.begin(), name.end(), [](unsigned char c) { return std::isdigit(c) != 0; });
+}
+
+std::string sessionNameOfFolder(const std::string& folder) { return nameIsAnId(folder) ? "./" + folder : folder; }
 
 SessionTable::SessionTable(const SessionManagerOptions& options, SessionLog log)
     : options_(options),
@@ -42,11 +50,14 @@ int SessionTable::idOfName(const std::string& name) const {
 }
 
 int SessionTable::findSession(const std::string& name_or_id) const {
-  // A session's name first (names are unique), then its id: a session named "3" is not session 3.
+  // Digits only name an id (no name is made of them); a session of an older store may still be
+  // named so: found by that name when no session has the id. Anything else is a name.
+  const bool digits = nameIsAnId(name_or_id);
+  if (digits)
+    for (const auto& [id, s] : sessions_)
+      if (std::to_string(id) == name_or_id) return id;
   const int named = idOfName(name_or_id);
-  if (named >= 0) return named;
-  for (const auto& [id, s] : sessions_)
-    if (std::to_string(id) == name_or_id) return id;
+  if (named >= 0 || digits) return named;
   return -1;
 }
 
@@ -102,6 +113,7 @@ SessionTable::Session& SessionTable::open(int id, const std::string& name, doubl
   s.stamps.push_back(stamp_s);
   s.odometry.push_back(Pose2());
   s.frames.push_back(0);
+  s.altitudes.push_back(0.0);
   s.sources.push_back(MotionSource::kVisual);
   Session& added = sessions_.emplace(id, std::move(s)).first->second;
   if (foreign) {
@@ -162,15 +174,23 @@ void SessionTable::remove(int id) {
   deleted_.insert(id);
 }
 
-void SessionTable::toPiece(int* session, int* keyframe) const {
+void SessionTable::toPiece(int* session, int* keyframe, bool detector_loop) const {
   // The piece of the odometry's session that holds this keyframe: the one that starts last at or
   // before it (one odometry session can jump more than once; earlier pieces keep their names).
   const Piece* in = nullptr;
   for (const Piece& p : pieces_)
-    if (p.from == *session && p.base <= *keyframe && (!in || p.base >= in->base)) in = &p;
+    if (p.from == *session && p.base <= *keyframe && (!in || p.base >= in->base) &&
+        !(detector_loop && p.keyframes_only))
+      in = &p;
   if (!in) return;
   *session = in->to;
   *keyframe -= in->base;
+}
+
+int SessionTable::newestOwnSession() const {
+  for (auto it = sessions_.rbegin(); it != sessions_.rend(); ++it)
+    if (it->second.vehicle_.empty()) return it->first;
+  return -1;
 }
 
 std::size_t SessionTable::acceptLoop(const Loop& l, std::int64_t store_row) {
@@ -226,6 +246,7 @@ std::vector<std::string> SessionTable::openStore() {
     for (const StoredKeyframe& k : store_->keyframes(s.store_row_, false)) {
       s.stamps.push_back(k.stamp_s);
       s.frames.push_back(k.frame_index);
+      s.altitudes.push_back(k.altitude_m);
     }
     s.odometry.push_back(Pose2());
     for (const UncertainPose2& m : store_->odometry(s.store_row_))

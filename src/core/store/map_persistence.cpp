@@ -194,6 +194,9 @@ void saveBackendMaps(SessionStore* store, const MultiSessionBackend& backend,
   std::vector<StoredMap> maps;
   for (int id : backend.mapIds()) {
     const MapState st = backend.mapState(id);
+    // A session without a store id has no keyframe yet (nothing of it is stored): its map, which
+    // holds it alone (no loop can reach it), is left out.
+    if (std::any_of(st.chain.begin(), st.chain.end(), [&](int s) { return sid(s) < 0; })) continue;
     StoredMap m;
     for (int s : st.chain) m.chain.push_back(sid(s));
     for (const MapLinkState& l : st.links) {
@@ -217,7 +220,8 @@ void saveBackendMaps(SessionStore* store, const MultiSessionBackend& backend,
     states.push_back(l);
   }
   std::vector<std::pair<std::int64_t, std::int64_t>> pairs;
-  for (const auto& [a, b] : backend.splitPairs()) pairs.emplace_back(sid(a), sid(b));
+  for (const auto& [a, b] : backend.splitPairs())
+    if (sid(a) >= 0 && sid(b) >= 0) pairs.emplace_back(sid(a), sid(b));
   store->saveMaps(maps, states, pairs);
 }
 

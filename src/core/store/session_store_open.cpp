@@ -495,6 +495,10 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
 
 SessionStore::~SessionStore() {
   cache_.clear();
+  // A writer's WAL written back into the file and cut to nothing: SQLite does it by itself only
+  // when the last connection to the file closes, so with a reader still open (an export, a tool)
+  // the WAL stayed at its full size after a clean exit. A failure leaves it as it was (restorable).
+  if (db_ && file_.writer) sqlite3_exec(db_, "PRAGMA wal_checkpoint(TRUNCATE)", nullptr, nullptr, nullptr);
   if (db_) sqlite3_close(db_);
 }  // then file_ goes: the lock is released (the kernel releases it too if the process dies)
 bool SessionStore::hashSettings(HashSettings* out) const {

@@ -65,16 +65,16 @@ void twoSessionsWithLoops(SessionManager* m) {
   for (int k = 1; k <= 5; ++k) ASSERT_TRUE(m->addLoop(globalLoop(0, k, 1, k, Pose2(0, 1, 0))).ok());
 }
 
-TEST(SessionManager, SessionsTakeTheIdsTheirKeyframesNameAndIdsOnlyGrow) {
+TEST(SessionManager, SessionsTakeTheNextIdAndIdsOnlyGrow) {
   std::vector<SessionEvent> events;
   SessionManager m(options(), [&](const SessionEvent& e) { events.push_back(e); });
   addStraightSession(&m, 0, 3);
   EXPECT_EQ(m.view().activeSession(), 0);
-  addStraightSession(&m, 3, 2);  // the odometry skipped ids 1, 2: the manager follows it
-  EXPECT_EQ(m.view().activeSession(), 3);
-  EXPECT_EQ(m.view().sessionIds(), (std::vector<int>{0, 3}));
-  EXPECT_EQ(m.view().nextId(), 4);
-  // Session 0 ended when 3 started: its keyframes are refused as stale, nothing changes.
+  addStraightSession(&m, 1, 2);  // the odometry's next session: the next id
+  EXPECT_EQ(m.view().activeSession(), 1);
+  EXPECT_EQ(m.view().sessionIds(), (std::vector<int>{0, 1}));
+  EXPECT_EQ(m.view().nextId(), 2);
+  // Session 0 ended when 1 started: its keyframes are refused as stale, nothing changes.
   const Status stale = m.addKeyframe(keyframe(0, 3, Pose2(3, 0, 0), Pose2(2, 0, 0)));
   EXPECT_EQ(stale.code, StatusCode::kFailedPrecondition);
   EXPECT_EQ(m.view().list()[0].keyframes, 3);
@@ -83,11 +83,11 @@ TEST(SessionManager, SessionsTakeTheIdsTheirKeyframesNameAndIdsOnlyGrow) {
   // start_session takes the next id and refuses a name in use or an old id.
   int id = -1;
   EXPECT_EQ(m.startSession("session_0", 5.0).code, StatusCode::kAlreadyExists);
-  EXPECT_EQ(m.startSession("x", 5.0, 2).code, StatusCode::kInvalidArgument);
-  EXPECT_EQ(m.view().activeSession(), 3);  // refused requests changed nothing
+  EXPECT_EQ(m.startSession("x", 5.0, 1).code, StatusCode::kInvalidArgument);
+  EXPECT_EQ(m.view().activeSession(), 1);  // refused requests changed nothing
   ASSERT_TRUE(m.startSession("dive 2", 5.0, -1, &id).ok());
-  EXPECT_EQ(id, 4);
-  EXPECT_EQ(m.view().name(4), "dive 2");
+  EXPECT_EQ(id, 2);
+  EXPECT_EQ(m.view().name(2), "dive 2");
   int started = 0, ended = 0;
   for (const SessionEvent& e : events) {
     started += e.kind == SessionEvent::Kind::kSessionStarted;
@@ -104,8 +104,8 @@ TEST(SessionManager, AKeyframeIdFarPastTheLastIsRefusedWithoutBridging) {
   EXPECT_EQ(st.code, StatusCode::kInvalidArgument);
   EXPECT_NE(st.message.find("max_keyframe_gap"), std::string::npos) << st.message;
   EXPECT_EQ(m.view().list()[0].keyframes, 3);
-  EXPECT_EQ(m.addKeyframe(keyframe(7, INT_MAX, Pose2(), Pose2())).code, StatusCode::kInvalidArgument);
-  EXPECT_FALSE(m.view().has(7));
+  EXPECT_EQ(m.addKeyframe(keyframe(7, INT_MAX, Pose2(), Pose2())).code, StatusCode::kFailedPrecondition);
+  EXPECT_FALSE(m.view().has(7));  // a session not opened (the next is 1), and nothing bridged
   // A small gap is bridged: placeholders at the last pose, no loop may use them.
   ASSERT_TRUE(m.addKeyframe(keyframe(0, 6, Pose2(6, 0, 0), Pose2(2, 0, 0))).ok());
   EXPECT_EQ(m.view().list()[0].keyframes, 7);
@@ -324,9 +324,9 @@ TEST(SessionManager, APlaceholderOriginStoresTheSessionsCamera) {
 }
 
 // start_session, then the maps saved (a flush, another map's optimisation) before the session's
-// first keyframe: its row is made then, without a camera; the first keyframe brings it (the row
-// kept 0x0 and the session's loops could not be verified after a restart; found by a review).
-// A store that still holds such a row says so when the session is reloaded.
+// first keyframe: no row yet; the first keyframe makes it, with the session's camera (a row made
+// by the save kept 0x0, and the session's loops could not be verified after a restart). A store
+// that still holds such a row says so when the session is reloaded.
 TEST(SessionManager, ARowMadeBeforeTheFirstKeyframeGetsItsCamera) {
   testing_util::ScopedTempDir dir("session_manager");
   const std::string db = (dir.path() / "s.db").string();
@@ -339,8 +339,7 @@ TEST(SessionManager, ARowMadeBeforeTheFirstKeyframeGetsItsCamera) {
     m.flush();
     {
       const SessionStore store(db, StoreAccess::kReadOnly);
-      ASSERT_EQ(store.sessions().size(), 2u);
-      EXPECT_EQ(store.sessions()[1].camera.width, 0);  // made by the save, before any keyframe
+      EXPECT_EQ(store.sessions().size(), 1u);  // nothing of b before its first keyframe
     }
     addStraightSession(&m, b, 3);
     EXPECT_EQ(m.view().stats().store_failures, 0);
@@ -451,10 +450,10 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
   EXPECT_EQ(list[1].loops, 5);
   const std::vector<Pose2> back = again.view().poses(1);
   for (std::size_t k = 0; k < back.size(); ++k) EXPECT_NEAR(back[k].y(), joined[k].y(), 1e-9) << k;
-  // Session 2 ('empty') has a store row but no keyframe, so it is not restored; its id is its
-  // store id all the same, and is never given to another session.
-  EXPECT_EQ(again.view().nextId(), 3);
-  EXPECT_EQ(again.view().firstNewId(), 3);
+  // Session 2 ('empty') never had a keyframe: nothing of it was stored, so the store never held
+  // its id, and this run may give it again.
+  EXPECT_EQ(again.view().nextId(), 2);
+  EXPECT_EQ(again.view().firstNewId(), 2);
   EXPECT_TRUE(again.view().restored(1));
   EXPECT_FALSE(again.view().restored(2));
   // The frames session 1 was made from are recognised (a folder run into the store again).
@@ -501,10 +500,10 @@ TEST(SessionManager, TheStoreBringsBackSessionsIdsMapsAndLoopsAndReloadHandsBack
   ASSERT_EQ(r.keyframes.size(), 8u);
   EXPECT_EQ(r.keyframes[3].hash.size(), 384);
   EXPECT_TRUE(r.keyframes[3].points.empty());
-  // New sessions continue after the stored ones (and after the row of 'empty').
+  // New sessions continue after the stored ones.
   addStraightSession(&again, again.view().nextId(), 2);
-  EXPECT_EQ(again.view().activeSession(), 3);
-  const Status live = again.unload("3");
+  EXPECT_EQ(again.view().activeSession(), 2);
+  const Status live = again.unload("2");
   EXPECT_EQ(live.code, StatusCode::kFailedPrecondition);  // recorded in this run
   EXPECT_NE(live.message.find("recorded in this run"), std::string::npos) << live.message;
   EXPECT_EQ(again.view().list()[2].state, SessionState::kActive);
@@ -1364,7 +1363,9 @@ TEST(SessionManager, SessionIdsBeyondTheMaximumAreRefusedAndIdsNeverWrap) {
   ASSERT_TRUE(m.startSession("next", 5.0, -1, &id).ok());
   EXPECT_EQ(id, 1);
   EXPECT_EQ(m.startSession("too far", 6.0, INT_MAX).code, StatusCode::kInvalidArgument);
-  // The largest id is still usable; past it start_session answers, and nothing wraps.
+  // The largest id is still usable (given explicitly); past it start_session answers, and
+  // nothing wraps.
+  ASSERT_TRUE(m.startSession("the last id", 6.5, kMaxSessionId).ok());
   addStraightSession(&m, kMaxSessionId, 2);
   EXPECT_EQ(m.view().activeSession(), kMaxSessionId);
   const Status full = m.startSession("past the last id", 7.0);
@@ -1510,6 +1511,223 @@ TEST(SessionManager, AFullStoreIsCountedAndTheManagerGoesOnWithARestorableStore)
     EXPECT_LT(list[1].keyframes, 8);
   }
   EXPECT_EQ(again.view().stats().store_failures, 0);
+}
+
+// A session's id is the back-end's to give. A keyframe naming a session it did not open (past
+// nextId()) is refused, counted and held, ends nothing and spends no id (one such message used to
+// open session 999999, every real keyframe after it stale, and the next session after a restart
+// 1,000,000). The legitimate ways in still work: the odometry's next session (after a tracking
+// loss it takes max(session + 1, next_free), the next id), start_session, a restart, and a
+// session whose predecessors were lost on the way (the next keyframe continues the held one).
+TEST(SessionManager, AKeyframeOfASessionNotOpenedIsRefusedEndsNothingAndSpendsNoId) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  {
+    SessionManager m(options(db));
+    const Status first = m.addKeyframe(keyframe(999999, 0, Pose2(), Pose2()));
+    EXPECT_EQ(first.code, StatusCode::kFailedPrecondition);
+    EXPECT_NE(first.message.find("session 999999"), std::string::npos) << first.message;
+    EXPECT_FALSE(m.view().has(999999));
+    addStraightSession(&m, 0, 3);  // 0:0 does not continue the held keyframe: it is dropped
+    for (int stray : {500000, 2, kMaxSessionId}) {
+      const Status st = m.addKeyframe(keyframe(stray, 0, Pose2(), Pose2()));
+      EXPECT_EQ(st.code, StatusCode::kFailedPrecondition) << stray;
+      EXPECT_NE(st.message.find("the next is 1"), std::string::npos) << st.message;
+    }
+    ASSERT_TRUE(m.addKeyframe(keyframe(0, 3, Pose2(3, 0, 0), Pose2(2, 0, 0))).ok());  // session 0 goes on
+    EXPECT_EQ(m.view().activeSession(), 0);
+    EXPECT_EQ(m.view().sessionIds(), (std::vector<int>{0}));
+    EXPECT_EQ(m.view().nextId(), 1);
+    EXPECT_EQ(m.view().stats().keyframes_unopened, 4);
+    // The odometry's next session (a tracking loss): the next id.
+    addStraightSession(&m, 1, 2);
+    // Its session 2 lost on the way, every keyframe: session 3's first keyframe is held, its next
+    // one continues it, and session 3 opens with both (id 2 never given).
+    EXPECT_EQ(m.addKeyframe(keyframe(3, 0, Pose2(), Pose2())).code, StatusCode::kFailedPrecondition);
+    ASSERT_TRUE(m.addKeyframe(keyframe(3, 1, Pose2(1, 0, 0), Pose2())).ok());
+    EXPECT_EQ(m.view().sessionIds(), (std::vector<int>{0, 1, 3}));
+    EXPECT_EQ(m.view().list().back().keyframes, 2);
+    EXPECT_EQ(m.view().stats().keyframe_jumps, 0);
+    addStraightSession(&m, 4, 1);  // and the one after it: the next id again
+    // Two messages far past the next id that continue each other open a session under the next
+    // id (dense), their ids mapped onto it.
+    EXPECT_EQ(m.addKeyframe(keyframe(999999, 0, Pose2(), Pose2())).code, StatusCode::kFailedPrecondition);
+    ASSERT_TRUE(m.addKeyframe(keyframe(999999, 1, Pose2(1, 0, 0), Pose2())).ok());
+    ASSERT_TRUE(m.addKeyframe(keyframe(999999, 2, Pose2(2, 0, 0), Pose2(1, 0, 0))).ok());
+    EXPECT_EQ(m.view().sessionIds(), (std::vector<int>{0, 1, 3, 4, 5}));
+    EXPECT_EQ(m.view().list().back().keyframes, 3);
+    EXPECT_EQ(m.view().nextId(), 6);
+    int started = -1;
+    ASSERT_TRUE(m.startSession("dive", 50.0, -1, &started).ok());
+    EXPECT_EQ(started, 6);
+    addStraightSession(&m, 6, 2);
+  }
+  // A restart keeps the ids, and the next is past them: 7, not 1,000,000.
+  SessionManager again(options(db));
+  EXPECT_EQ(again.view().sessionIds(), (std::vector<int>{0, 1, 3, 4, 5, 6}));
+  EXPECT_EQ(again.view().nextId(), 7);
+  EXPECT_EQ(again.addKeyframe(keyframe(6, 2, Pose2(2, 0, 0), Pose2(1, 0, 0))).code,
+            StatusCode::kFailedPrecondition);  // stored: stale
+  EXPECT_EQ(again.addKeyframe(keyframe(999999, 0, Pose2(), Pose2())).code, StatusCode::kFailedPrecondition);
+  addStraightSession(&again, 7, 2);
+  EXPECT_EQ(again.view().nextId(), 8);
+}
+
+// Another vehicle's session takes the next id: active_session tells our odometry the next free
+// one, and our next session, at that id, goes in. When our odometry took the id in the same
+// instant (before it was told), its first keyframe is held and the next one continues it: our
+// session goes in under the next free id, while a loop detector's loop naming that id is the
+// other vehicle's session's. A lone keyframe naming their session changes nothing.
+TEST(SessionManager, OurSessionAfterAnotherVehiclesGoesInWhicheverTookTheIdFirst) {
+  SessionManager m(options());
+  addStraightSession(&m, 0, 3);
+  int local = -1;
+  ASSERT_TRUE(m.fleet().addKeyframe("auv_b", keyframe(0, 0, Pose2(), Pose2()), &local).ok());
+  ASSERT_EQ(local, 1);
+  EXPECT_EQ(m.view().nextId(), 2);
+  addStraightSession(&m, 2, 2);  // told next_session 2: max(0 + 1, 2)
+  EXPECT_EQ(m.view().activeSession(), 2);
+  ASSERT_TRUE(m.fleet().addKeyframe("auv_b", keyframe(1, 0, Pose2(), Pose2()), &local).ok());
+  ASSERT_EQ(local, 3);
+  // A lone keyframe of ours naming 3: refused, held, dropped by the next one; session 2 goes on.
+  EXPECT_EQ(m.addKeyframe(keyframe(3, 5, Pose2(), Pose2())).code, StatusCode::kFailedPrecondition);
+  ASSERT_TRUE(m.addKeyframe(keyframe(2, 2, Pose2(2, 0, 0), Pose2(1, 0, 0))).ok());
+  EXPECT_EQ(m.view().activeSession(), 2);
+  // Our odometry's session 3, started as the other vehicle's took 3: it becomes session 4.
+  EXPECT_EQ(m.addKeyframe(keyframe(3, 0, Pose2(), Pose2())).code, StatusCode::kFailedPrecondition);
+  ASSERT_TRUE(m.addKeyframe(keyframe(3, 1, Pose2(1, 0, 0), Pose2())).ok());
+  ASSERT_TRUE(m.addKeyframe(keyframe(3, 2, Pose2(2, 0, 0), Pose2(1, 0, 0))).ok());
+  EXPECT_EQ(m.view().activeSession(), 4);
+  EXPECT_EQ(m.view().vehicleOf(4), "");
+  EXPECT_EQ(m.view().stamps(4).size(), 3u);
+  EXPECT_EQ(m.view().vehicleOf(3), "auv_b");
+  EXPECT_EQ(m.view().stamps(3).size(), 1u);
+  // A loop detector's loop naming 3 is the other vehicle's session.
+  ASSERT_TRUE(m.addLoop(globalLoop(0, 1, 3, 0, Pose2(0, 1, 0))).ok());
+  EXPECT_EQ(m.view().loops().back().session_b, 3);
+  EXPECT_EQ(m.view().list()[3].loops, 1);  // session 3 (ids 0, 1, 2, 3, 4)
+  // Our odometry's next session, 4 (which our renamed session holds here), is a session of its own.
+  ASSERT_TRUE(m.addKeyframe(keyframe(4, 0, Pose2(), Pose2())).ok());
+  EXPECT_EQ(m.view().activeSession(), 5);
+}
+
+// A name made only of digits would read as an id wherever a name or an id is taken ("1" named a
+// session while session 1 existed, and lookups found the wrong one): start_session refuses it,
+// offline_slam names a folder "7" "./7", and digits name an id first (a store written before the
+// rule may still hold such a name: found by it when no session has that id).
+TEST(SessionManager, ANameMadeOnlyOfDigitsIsRefusedAndDigitsNameAnId) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 2);
+    addStraightSession(&m, 1, 2);
+    for (const std::string name : {"1", "0", "007", "999999999999"}) {
+      const Status st = m.startSession(name, 5.0);
+      EXPECT_EQ(st.code, StatusCode::kInvalidArgument) << name;
+      EXPECT_NE(st.message.find("only of digits"), std::string::npos) << st.message;
+    }
+    EXPECT_EQ(m.view().sessionIds(), (std::vector<int>{0, 1}));
+    EXPECT_EQ(m.view().activeSession(), 1);
+    EXPECT_EQ(m.view().findSession("1"), 1);
+    EXPECT_EQ(sessionNameOfFolder("7"), "./7");
+    EXPECT_EQ(sessionNameOfFolder("/data/7"), "/data/7");
+    EXPECT_EQ(sessionNameOfFolder("dive 7"), "dive 7");
+    int id = -1;
+    ASSERT_TRUE(m.startSession(sessionNameOfFolder("7"), 6.0, -1, &id).ok());
+    addStraightSession(&m, id, 2);
+    EXPECT_EQ(m.view().findSession("./7"), 2);
+    ASSERT_TRUE(m.startSession("1a", 7.0).ok());
+    addStraightSession(&m, 3, 2);
+  }
+  ASSERT_TRUE(testing_util::execSql(db, "UPDATE sessions SET name = '1' WHERE id = 0"));
+  ASSERT_TRUE(testing_util::execSql(db, "UPDATE sessions SET name = '9' WHERE id = 3"));
+  SessionManager m(options(db));
+  EXPECT_EQ(m.view().findSession("1"), 1);  // the id, not session 0 named "1"
+  EXPECT_EQ(m.view().findSession("0"), 0);
+  EXPECT_EQ(m.view().findSession("9"), 3);  // no session 9: the older name
+  EXPECT_EQ(m.view().findSession("./7"), 2);
+  EXPECT_EQ(m.view().findSession("8"), -1);
+}
+
+// A link is between two keyframes that see the same seabed: no longer than the maps that hold
+// them reach (their extents and what the two cameras see). A 1,000 km link with a 1 cm sigma
+// (accepted before: only 1e7 m was a bound) is refused naming the bound; nothing changes.
+TEST(SessionManager, ALinkLongerThanTheMapsCanHoldIsRefusedNamingTheBound) {
+  SessionManager m(options());
+  addStraightSession(&m, 0, 8);  // 7 m long
+  addStraightSession(&m, 1, 4);  // 3 m long
+  // 640 x 480 px, f = 500 px, 2 m up: 1.6 m from a keyframe to its image's corner on the seabed.
+  EXPECT_NEAR(m.view().mapExtent(0), 7.0, 1e-9);
+  EXPECT_NEAR(m.view().linkReach(0, 2, 1, 2), 7.0 + 3.0 + 2 * 1.6, 1e-9);
+  EXPECT_NEAR(m.view().linkReach(0, 2, 0, 5), 7.0 + 2 * 1.6, 1e-9);  // one map counted once
+  Loop far = globalLoop(0, 2, 1, 2, Pose2(1e6, 0, 0));
+  far.z.covariance = Eigen::Matrix3d::Identity() * 1e-4;
+  const Status st = m.addLink(far);
+  EXPECT_EQ(st.code, StatusCode::kInvalidArgument) << st.message;
+  EXPECT_NE(st.message.find("the link is 1e+06 m long"), std::string::npos) << st.message;
+  EXPECT_NE(st.message.find("at most 13.2 m (map 0's extent 7 m, map 1's 3 m"), std::string::npos) << st.message;
+  EXPECT_TRUE(m.view().loops().empty());
+  Loop across = globalLoop(0, 2, 1, 2, Pose2(0, 13.1, 0));  // within the bound
+  ASSERT_TRUE(m.addLink(across).ok());
+  Loop beyond = globalLoop(0, 2, 1, 3, Pose2(0, 13.3, 0));
+  EXPECT_EQ(m.addLink(beyond).code, StatusCode::kInvalidArgument);
+  EXPECT_EQ(m.view().loops().size(), 1u);
+}
+
+// A clean close writes the WAL back into the store and cuts it to nothing, also while another
+// connection to the file is open (a reader: an export, a tool, a monitor); SQLite did that only
+// when the last connection closed, and the WAL stayed at its full size.
+TEST(SessionManager, AStoreClosedCleanlyLeavesAnEmptyWalAlsoWithAReaderOpen) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  std::optional<SessionStore> reader;
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 20);
+    reader.emplace(db, StoreAccess::kReadOnly);
+    ASSERT_EQ(reader->sessions().size(), 1u);
+    EXPECT_GT(std::filesystem::file_size(db + "-wal"), 0u);
+  }
+  EXPECT_EQ(std::filesystem::file_size(db + "-wal"), 0u);
+  EXPECT_EQ(reader->keyframes(0, false).size(), 20u);  // the reader reads it all, from the file
+  reader.reset();
+  EXPECT_EQ(SessionManager(options(db)).view().list()[0].keyframes, 20);
+}
+
+// A session start_session opened that no keyframe has followed: listed with 0 keyframes, and
+// nothing of it stored until its first keyframe (no row left recording, no map saved for it);
+// when the next session starts it is finished, and after a restart it is gone with nothing lost.
+TEST(SessionManager, ASessionWithoutKeyframesIsListedEmptyAndNotStored) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 3);
+    int empty = -1;
+    ASSERT_TRUE(m.startSession("empty", 10.0, -1, &empty).ok());
+    ASSERT_EQ(empty, 1);
+    EXPECT_EQ(m.view().list()[1].keyframes, 0);
+    EXPECT_EQ(m.view().list()[1].state, SessionState::kActive);
+    m.flush();  // the maps saved: nothing of session 1
+    int next = -1;
+    ASSERT_TRUE(m.startSession("next", 11.0, -1, &next).ok());
+    EXPECT_EQ(m.view().list()[1].state, SessionState::kFinished);
+    EXPECT_EQ(m.view().list()[1].keyframes, 0);
+    addStraightSession(&m, next, 2);
+    ASSERT_TRUE(m.startSession("last", 20.0).ok());  // left without a keyframe at the end
+    EXPECT_EQ(m.view().stats().store_failures, 0);
+  }
+  {
+    const SessionStore store(db, StoreAccess::kReadOnly);
+    std::vector<std::pair<std::int64_t, StoredSessionState>> rows;
+    for (const StoredSession& s : store.sessions()) rows.emplace_back(s.id, s.state);
+    EXPECT_EQ(rows, (std::vector<std::pair<std::int64_t, StoredSessionState>>{{0, StoredSessionState::kFinished},
+                                                                              {2, StoredSessionState::kFinished}}));
+  }
+  SessionManager again(options(db));
+  EXPECT_EQ(again.view().sessionIds(), (std::vector<int>{0, 2}));
+  EXPECT_EQ(again.view().list()[1].keyframes, 2);
 }
 
 }  // namespace

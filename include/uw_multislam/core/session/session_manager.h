@@ -12,12 +12,13 @@
 // sessions restored from the store keep their store ids (after every restart, in export file
 // names and in export_survey alike), and a session of this run takes an id past every id the
 // store holds or held (SessionStore::nextSessionId, deleted sessions included), which its store
-// row gets when it is first written. A live session takes the id its first keyframe names (the
-// odometry continues from nextId(), which the back-end announces) or, from startSession,
-// nextId(). Ids only grow, are never given twice (not after a deletion either), and never past
-// kMaxSessionId: a keyframe, loop or request naming a larger (or negative) id is refused, so a
-// corrupt message cannot make the ids wrap. A map is named by the id of its first session, its
-// frame is that session's frame.
+// row gets with the session's first keyframe. A new session takes nextId(), whoever starts it:
+// the odometry continues from it (the back-end announces it), startSession, another vehicle's
+// session. A keyframe naming a session not opened for our odometry is refused and spends no id
+// (addKeyframe), so ids stay dense. Ids only grow, are never given twice (not after a deletion
+// either), and never past kMaxSessionId: a keyframe, loop or request naming a larger (or
+// negative) id is refused, so a corrupt message cannot make the ids wrap. A map is named by the
+// id of its first session, its frame is that session's frame.
 //
 // What changed is reported through an EventSink: session started/ended, keyframe added, loop
 // accepted/refused, maps joined/split, map optimised. The ROS layer turns events into messages
@@ -101,7 +102,8 @@ class SessionManager {
   // --- Requests ----------------------------------------------------------------------------
   /// Ends the active session and starts a new one, `id` or (-1) nextId(), named `name` (empty:
   /// "session_<id>"). ALREADY_EXISTS when the name is taken, INVALID_ARGUMENT for an id that is
-  /// not new or past kMaxSessionId or the name longer than kMaxSessionNameLength, RESOURCE_EXHAUSTED when
+  /// not new or past kMaxSessionId, a name longer than kMaxSessionNameLength or made only of
+  /// digits (it would read as an id: nameIsAnId), RESOURCE_EXHAUSTED when
   /// max_empty_sessions sessions in a row have no keyframe or no id is left. The session has its origin keyframe; the
   /// next keyframe 0 given to it fills it in.
   Status startSession(const std::string& name, double stamp_s, int id = -1, int* started = nullptr);
@@ -112,6 +114,10 @@ class SessionManager {
   /// `loops` (optional) are loops it closed, stored with it in one transaction (offline). A
   /// keyframe of an older session, or repeated, is FAILED_PRECONDITION (stale); lost keyframes
   /// (a gap in the ids) are bridged by placeholders that no loop may use, up to max_keyframe_gap.
+  /// A new session must be nextId(): a keyframe naming a session not opened for our odometry
+  /// (past nextId(), or another vehicle's newer than all of ours) is FAILED_PRECONDITION, counted
+  /// keyframes_unopened and held, and opens its session only when the next keyframe continues it
+  /// (refuseUnopened).
   Status addKeyframe(const KeyframeInput& keyframe, const std::vector<Loop>& loops = {});
   /// A loop in session ids. UNAVAILABLE-like answer through `waiting`: true when one of its
   /// keyframes has not arrived yet (try again after the next keyframe); else OK (accepted) or a
@@ -222,8 +228,16 @@ class SessionManager {
   /// loss. Anything else: the held one was a corrupt id, dropped.
   Status refuseJump(KeyframeInput k, const std::string& why);
   /// The held keyframe of a confirmed jump: ends the active session, opens one (the odometry's
-  /// id if it never opened, else nextId()) with it as keyframe 0, counted keyframe_jumps.
+  /// id if it never opened and is at most max_keyframe_gap past nextId(), else nextId()) with it
+  /// as keyframe 0; counted keyframe_jumps when the keyframe ids jumped.
   Status startPiece(KeyframeInput held);
+  /// A keyframe naming a session this manager did not open for our odometry: past nextId() (a
+  /// session's id is the back-end's to give), or another vehicle's newer than all of ours.
+  /// Refused, counted keyframes_unopened, and held. The next keyframe decides: continuing it, it
+  /// was our odometry's (its sessions before it lost on the way, or its id taken by the other
+  /// vehicle in the same instant): the session opens (startPiece), so nothing from it on is lost.
+  /// Anything else: the held one is dropped, no id spent, nothing ended.
+  Status refuseUnopened(KeyframeInput k);
   /// Adds an accepted loop to the back-end with its store row (throws std::invalid_argument as
   /// the back-end does); its event.
   void acceptLoop(const Loop& l, std::int64_t store_row);

@@ -43,9 +43,10 @@ class SessionQueries {
   const CameraIntrinsics& camera(int session) const { return t_.at(session).camera; }
   /// The session named `name`, or -1.
   int idOfName(const std::string& name) const { return t_.idOfName(name); }
-  /// The session a request names: by its name first (names are unique), else by its id in
-  /// decimal digits (a session named "3" is not session 3); -1 when none. Every service and tool
-  /// that takes a name or an id resolves it here.
+  /// The session a request names: digits only, by its id (no name is made only of digits; a
+  /// session an older store named "3" is found by that name when no session 3 exists); anything
+  /// else, by its name (names are unique); -1 when none. Every service and tool that takes a name
+  /// or an id resolves it here.
   int findSession(const std::string& name_or_id) const { return t_.findSession(name_or_id); }
   /// The vehicle a session came from (empty: this vehicle's own), and its id there (-1: ours).
   const std::string& vehicleOf(int session) const { return t_.at(session).vehicle(); }
@@ -108,8 +109,16 @@ class SessionQueries {
   /// Whether loops()[i] was refused by the back-end (inconsistent at a join, or gated inside a map).
   bool loopRefused(std::size_t i) const;
   /// addLink's checks, nothing changed: OK when addLink would take the link (unless the back-end
-  /// refuses the loop).
+  /// refuses the loop). Besides the ends, the pose and the inliers, the link's length: at most
+  /// linkReach (a longer one is no link the maps could hold; the reply says the bound).
   Status checkLink(const Loop& loop) const;
+  /// How far apart two keyframes a link joins can be: the extent of the map of each (the
+  /// diagonal of its keyframes' box; one map counted once) and what the two cameras see around
+  /// their keyframes (altitude x the image's half diagonal in focal lengths). `why` (optional):
+  /// the terms in words.
+  double linkReach(int session_a, int keyframe_a, int session_b, int keyframe_b, std::string* why = nullptr) const;
+  /// The diagonal of the box of a map's keyframes (in its frame), m.
+  double mapExtent(int map) const;
   /// addLink's checks of the two ends alone (ids, keyframes, a bridged keyframe, a keyframe linked
   /// to itself; codes as addLink's), for a caller that measures the link first (findStoredLink).
   Status checkLinkEnds(const Loop& loop) const;

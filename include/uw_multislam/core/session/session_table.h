@@ -54,6 +54,7 @@ class SessionTable {
     std::vector<double> stamps;         // per keyframe ([0]: the start's stamp until keyframe 0 comes)
     std::vector<Pose2> odometry;        // X_k^0 per keyframe
     std::vector<int> frames;            // frame index per keyframe
+    std::vector<double> altitudes;      // per keyframe, m (0: not known)
     std::vector<MotionSource> sources;  // per keyframe, of the motion reaching it
     std::set<int> phantoms;             // keyframes that never arrived (bridged)
     bool origin_received = false;       // keyframe 0 arrived (not only start_session)
@@ -76,9 +77,11 @@ class SessionTable {
 
   /// A piece of one of the odometry's sessions that this manager knows under another id (after
   /// a keyframe jump, or a session renamed because its id was taken): the odometry's (from,
-  /// k >= base) is (to, k - base) here.
+  /// k >= base) is (to, k - base) here. `keyframes_only`: the id `from` is another vehicle's
+  /// session here, so the loops naming it (the loop detectors') are that session's, not this one's.
   struct Piece {
     int from = -1, to = -1, base = 0;
+    bool keyframes_only = false;
   };
 
   /// Checks the options (std::invalid_argument) and makes the hasher and the back-end; no store.
@@ -117,8 +120,8 @@ class SessionTable {
   int idOfBackend(int backend_session) const { return id_of_backend_.at(backend_session); }
   /// The session named `name`, or -1.
   int idOfName(const std::string& name) const;
-  /// The session a request names: by its name first (names are unique), else by its id in
-  /// decimal digits; -1 when none.
+  /// The session a request names: digits only, by its id (or, when no session has that id, a
+  /// session an older store named so); anything else, by its name (names are unique); -1 when none.
   int findSession(const std::string& name_or_id) const;
   /// This table's id of a vehicle's session while it records here, or -1; or that ended here in
   /// this run (endedForeignSession).
@@ -151,8 +154,11 @@ class SessionTable {
   // --- The odometry's pieces and the held keyframe -------------------------------------------
   const std::vector<Piece>& pieces() const { return pieces_; }
   void addPiece(const Piece& p) { pieces_.push_back(p); }
-  /// A keyframe id or loop end of the odometry's session as this manager names it (Piece).
-  void toPiece(int* session, int* keyframe) const;
+  /// A keyframe id or loop end of the odometry's session as this manager names it (Piece);
+  /// `detector_loop`: a loop detector's loop end (keyframes-only pieces left out).
+  void toPiece(int* session, int* keyframe, bool detector_loop = false) const;
+  /// The newest of this vehicle's sessions (not another vehicle's), or -1.
+  int newestOwnSession() const;
   /// The held keyframe of a refused jump (one at most: bounded RAM).
   std::optional<KeyframeInput>& held() { return held_; }
 

@@ -62,6 +62,13 @@ struct SessionManagerOptions {
 /// The manager's options from the SLAM configuration (back-end, hash settings) and a store path.
 SessionManagerOptions sessionManagerOptions(const SlamConfig& config, const std::string& store_path);
 
+/// Whether a session name is made only of digits: such a name would read as a session's id in
+/// every request that takes a name or an id, so start_session refuses it.
+bool nameIsAnId(const std::string& name);
+/// The session name of a dataset folder (offline_slam): the folder as given, "./7" for a folder
+/// named "7" (the same folder, and a name that is not an id).
+std::string sessionNameOfFolder(const std::string& folder);
+
 /// A vehicle's name as the hash exchange takes it (it goes into session names, the store, logs):
 /// 1 to 64 characters of A-Z a-z 0-9 _ -.
 bool validVehicleName(const std::string& vehicle);
@@ -136,6 +143,9 @@ const char* sessionEventName(SessionEvent::Kind k);
 
 struct SessionManagerStats {
   long keyframes = 0, keyframes_stale = 0, keyframes_refused = 0, keyframe_gaps = 0;
+  /// Keyframes naming a session this manager did not open for our odometry (past nextId(), or
+  /// another vehicle's): refused, the newest held (SessionManager::addKeyframe).
+  long keyframes_unopened = 0;
   long keyframe_jumps = 0;  // jumps past max_keyframe_gap that ended a piece (a new session from there)
   long nav_placements = 0;  // sessions placed in their predecessor's map by the nav (addNavPlacement)
   long loops = 0, loops_refused = 0;
