@@ -833,7 +833,8 @@ OFFLINE_CASES = [case_kill_offline, case_two_writers, case_hard_link_writer, cas
 LIVE_CASES = [("service_misuse", 240), ("concurrent", 240), ("kill_manager", 240), ("bad_images", 240),
               ("kill_manager_moments", 240), ("replay_rates", 240), ("silent_altitude", 240), ("burst", 240),
               ("store_cap", 240), ("export_links", 240), ("bounds_and_paths", 240), ("quoted_datum", 240),
-              ("dvl_relay", 240), ("ids_and_inputs", 240)]
+              ("dvl_relay", 240), ("ids_and_inputs", 240),
+              ("nav_clock_and_mount", 240)]
 
 
 def live_case(name, timeout):

@@ -16,7 +16,7 @@ import threading
 import time
 import xmlrpc.client
 
-from fault_matrix import integrity, keyframe_count, ro_connect, wait_for  # this script's folder is on sys.path
+from fault_matrix import SURVEY, integrity, keyframe_count, ro_connect, wait_for  # this script's folder is on sys.path
 
 NS = "/uw_multislam"
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -686,6 +686,94 @@ def case_burst(st, survey, n=1000):
         "stored; nodes alive; integrity ok", observed, held)
 
 
+# The matrix's session a alone, with the vehicle's dead reckoning on /nav/odom in its bag.
+NAV_SURVEY = SURVEY[:SURVEY.index("  - name: b")] + "    nav: {enabled: true}\n"
+
+
+def case_nav_clock_and_mount(st, survey):
+    """A bag with its nav (/nav/odom) played, then a second mount publisher moves the camera 0.1 m
+    and the bag is played again without its nav: its stamps jump back (a new session), and the nav
+    readings of the clock before must be dropped, not found again at the same stamps; the moved
+    mount is said (WARN), counted (mount_changes) and starts no session of its own."""
+    import rospy
+    import tf2_ros
+    from rosgraph_msgs.msg import Log
+    d = os.path.join(st.work, "nav_survey")
+    os.makedirs(d, exist_ok=True)
+    with open(os.path.join(d, "survey.yaml"), "w") as f:
+        f.write(NAV_SURVEY)
+    r = subprocess.run([os.path.join(os.environ.get("UWMS_BIN_DIR", ""), "make_survey"), "--config",
+                        os.path.join(d, "survey.yaml"), "--out", os.path.join(d, "m"), "--quiet"],
+                       capture_output=True, text=True, timeout=120)
+    if r.returncode != 0:
+        row("live: nav and mount", "make_survey runs", "make_survey failed: " + r.stderr[-300:], False)
+        return
+    bag = os.path.join(d, "m", "a.bag")
+    st.start_slam("standalone:=false")
+    rospy.init_node("fault_matrix", anonymous=True, disable_signals=True)
+    warnings, lock = [], threading.Lock()
+
+    def on_log(m):
+        if m.level == Log.WARN:  # the nodelets log as their manager
+            with lock:
+                warnings.append(m.msg)
+    rospy.Subscriber("/rosout", Log, on_log, queue_size=1000)
+    odo = NodeStatus()
+    wait_for(lambda: odo.latest, 30, 0.1)
+    n = len(bag_frames(os.path.join(d, "m"), "a.bag"))
+
+    def play(topics):
+        odo.fresh()
+        before = dict(odo.latest)
+        p = st.spawn(["rosbag", "play", "-q", "--wait-for-subscribers", "-r", "4", bag, "--topics"] + topics, "play.log")
+        status = p.wait(timeout=120)
+        # Until the odometry has received every image and is idle.
+        wait_for(lambda: odo.fresh(5) and odo.value("queue_length") == 0 and
+                 odo.value("images_received") - int(float(before.get("images_received", 0))) >= n, 60, 0.1)
+        odo.fresh()
+        return status, {k: odo.value(k) - int(float(before.get(k, 0))) for k in
+                        ("images_received", "frames_processed", "frames_with_nav", "time_jumps_back", "sessions",
+                         "mount_changes", "tracking_losses")}
+
+    status1, first = play(TOPICS + ["/nav/odom"])
+    # The second mount publisher, awaited in tf before the replay.
+    st.spawn(["rosrun", "uw_multislam", "mount_publisher.py", "--camera", "camera", "0.1", "0", "0", "0",
+              "__name:=second_mount_publisher"], "mount.log")
+    buf = tf2_ros.Buffer()
+    tf2_ros.TransformListener(buf)
+
+    def moved():
+        try:
+            return abs(buf.lookup_transform("base_link", "camera", rospy.Time(0)).transform.translation.x - 0.1) < 1e-9
+        except Exception:
+            return False
+    mount_seen = wait_for(moved, 30, 0.1)
+    status2, second = play(TOPICS)
+    wait_for(lambda: odo.fresh(5) and odo.value("mount_changes") >= 1, 15, 0.1)
+    with lock:
+        dropped = [w for w in warnings if "nav readings of the clock before dropped" in w]
+        said = [w for w in warnings if "mount moved in tf" in w]
+    nodes, dead = st.alive()
+    st.stop_group(st.launch)
+    ok = integrity(st.store)
+    held = (status1 == 0 and first["frames_with_nav"] > 0 and status2 == 0 and second["time_jumps_back"] == 1 and
+            second["frames_processed"] > 0 and second["frames_with_nav"] == 0 and len(dropped) == 1)
+    row("live: the image clock jumps back (the bag with its nav played, then again without it)",
+        "a new session (time_jumps_back +1); the nav readings of the old clock dropped (one WARN): no frame of the "
+        "replay given a nav pose (frames_with_nav +0)",
+        "first play (status %s): %s; replay (status %s): %s; %d WARN of dropped readings%s" % (
+            status1, first, status2, second, len(dropped), ": " + dropped[0] if dropped else ""), held)
+    held = (mount_seen and odo.value("mount_changes") == 1 and second["sessions"] == 1 and len(said) == 1 and
+            nodes and not dead and ok == "ok")
+    row("live: a second mount publisher moves the camera 0.1 m between the two plays",
+        "said once (WARN naming both mounts), counted (mount_changes 1) and used; no session from it (sessions +1 "
+        "in the replay: its jump back only); nodes alive; integrity ok",
+        "moved mount in tf: %s; mount_changes %d; sessions +%d in the replay; %d WARN%s; %d nodes alive%s; "
+        "integrity %s" % (mount_seen, odo.value("mount_changes"), second["sessions"], len(said),
+                          ": " + said[0] if said else "", len(nodes), "" if not dead else ", DEAD: %s" % dead, ok),
+        held)
+
+
 def config_with(st, name, overrides):
     """The launch's config (config/default.yaml) with {node: {key: value}} changed, written into the
     case's folder (slam.launch loads its config file over any parameter set before the launch)."""
@@ -1075,7 +1163,8 @@ CASES = {"service_misuse": case_service_misuse, "bounds_and_paths": case_bounds_
          "bad_images": case_bad_images, "kill_manager_moments": case_kill_manager_moments,
          "replay_rates": case_replay_rates, "silent_altitude": case_silent_altitude, "burst": case_burst,
          "store_cap": case_store_cap, "export_links": case_export_links, "quoted_datum": case_quoted_datum,
-         "dvl_relay": case_dvl_relay, "ids_and_inputs": case_ids_and_inputs}
+         "dvl_relay": case_dvl_relay, "ids_and_inputs": case_ids_and_inputs,
+         "nav_clock_and_mount": case_nav_clock_and_mount}
 
 
 def main():

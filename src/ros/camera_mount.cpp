@@ -93,12 +93,7 @@ SensorMount::Lookup SensorMount::get(const std::string& camera_frame, const std:
     if (now < next_check_s_) return l;
     next_check_s_ = now + 1.0;
     const Lookup again = lookup(camera_frame, altimeter_frame);
-    constexpr double kSame = 1e-6;  // m and rad: the same transform published again
-    const core::Pose2 moved = core::between(resolved_.base_from_camera, again.mount.base_from_camera);
-    if (again.state != State::kResolved ||
-        (moved.translation().norm() <= kSame && std::abs(moved.yaw()) <= kSame &&
-         std::abs(again.mount.camera_above_altimeter_m - resolved_.camera_above_altimeter_m) <= kSame))
-      return l;
+    if (again.state != State::kResolved || !core::mountMoved(resolved_, again.mount)) return l;
     l.changed = true;
     l.message = "moved in tf: " + core::describe(resolved_) + " before, " + again.message + " now";
     l.mount = resolved_ = again.mount;

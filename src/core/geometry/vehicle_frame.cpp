@@ -1,5 +1,6 @@
 #include "uw_multislam/core/geometry/vehicle_frame.h"
 
+#include <cmath>
 #include <cstdio>
 
 namespace uw_multislam {
@@ -22,6 +23,12 @@ Pose2 cameraFromVehicle(const Pose2& vehicle, const CameraMount& mount) {
 
 UncertainPose2 vehicleFromCamera(const UncertainPose2& camera, const CameraMount& mount) {
   return compose(zUp(camera), UncertainPose2::exact(invert(mount.base_from_camera)));
+}
+
+bool mountMoved(const CameraMount& before, const CameraMount& after, double tolerance) {
+  const Pose2 moved = between(before.base_from_camera, after.base_from_camera);
+  return !(moved.translation().norm() <= tolerance && std::abs(moved.yaw()) <= tolerance &&
+           std::abs(after.camera_above_altimeter_m - before.camera_above_altimeter_m) <= tolerance);
 }
 
 std::string describe(const CameraMount& mount) {

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <cmath>
 #include <random>
 
 #include "uw_multislam/core/geometry/vehicle_frame.h"
@@ -99,6 +100,30 @@ TEST(VehicleFrame, CameraAltitudeAddsTheCameraAboveTheAltimeter) {
   CameraMount mount;
   mount.camera_above_altimeter_m = -0.15 - (-0.30);
   EXPECT_DOUBLE_EQ(cameraAltitude(2.0 - 0.30, mount), 2.0 - 0.15);
+}
+
+TEST(VehicleFrame, AMountMovedByAnyOfItsFourNumbersIsAMoveTheSameOneRepublishedIsNot) {
+  CameraMount before;
+  before.base_from_camera = Pose2(0.35, -0.15, 0.4);
+  before.camera_above_altimeter_m = 0.15;
+  EXPECT_FALSE(mountMoved(before, before));
+  CameraMount again = before;  // the same transform through a float32 and back
+  again.base_from_camera = Pose2(0.35 + 1e-8, -0.15 - 1e-8, 0.4 + 1e-8);
+  again.camera_above_altimeter_m = 0.15 + 1e-8;
+  EXPECT_FALSE(mountMoved(before, again));
+  CameraMount x = before, y = before, yaw = before, height = before, wrapped = before;
+  x.base_from_camera = Pose2(0.45, -0.15, 0.4);  // 0.1 m forward, the rostest's and fault matrix's move
+  y.base_from_camera = Pose2(0.35, -0.14, 0.4);
+  yaw.base_from_camera = Pose2(0.35, -0.15, 0.41);  // turned in place: the vehicle's pose moves with it
+  height.camera_above_altimeter_m = 0.25;           // every altitude 0.1 m off
+  EXPECT_TRUE(mountMoved(before, x));
+  EXPECT_TRUE(mountMoved(before, y));
+  EXPECT_TRUE(mountMoved(before, yaw));
+  EXPECT_TRUE(mountMoved(before, height));
+  // Yaw on the circle: pi and -pi are one mount.
+  before.base_from_camera = Pose2(0.35, -0.15, M_PI);
+  wrapped.base_from_camera = Pose2(0.35, -0.15, -M_PI);
+  EXPECT_FALSE(mountMoved(before, wrapped));
 }
 
 }  // namespace

@@ -44,6 +44,11 @@ inline double cameraAltitude(double altimeter_range_m, const CameraMount& mount)
   return altimeter_range_m + mount.camera_above_altimeter_m;
 }
 
+/// True when `after` places the sensors elsewhere than `before` (a second mount publisher, a changed
+/// URDF): beyond `tolerance` in metres (x, y, the camera's height above the altimeter) or radians
+/// (yaw, on the circle). The same transform published again, with a float's rounding, is no move.
+bool mountMoved(const CameraMount& before, const CameraMount& after, double tolerance = 1e-6);
+
 /// "x y yaw, camera above altimeter" for logs.
 std::string describe(const CameraMount& mount);
 
