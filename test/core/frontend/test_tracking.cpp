@@ -104,6 +104,35 @@ TEST_F(TrackingTest, OneBlankFrameIsBridgedInTheSession) {
   EXPECT_NEAR(o.trajectory().absolutePoses().back().x(), 0.25 * o.keyframes().back().frame_index, 0.05);
 }
 
+// The vehicle jumps (frames 0-4 along one line, then 5-11 along another 4 m away): frame 5 matches
+// nothing, frame 6 registers with frame 5 only. The session ends at frame 6 and the next one starts
+// at frame 5, so frames 6, 7, ... are not failed one by one against frame 4, and no frame is lost.
+TEST_F(TrackingTest, AFrameThatRegistersOnlyWithTheUnmatchedOneBeforeStartsTheNextSessionThere) {
+  SegmentedOdometry odo(camera_, OdometryOptions(), TrackingLossOptions());
+  std::vector<SegmentedOdometry::Step> steps;
+  std::vector<std::vector<int>> released;  // frame indexes of the keyframes each step released
+  const auto at = [](int k) { return k < 5 ? Pose2(2.0 + 0.25 * k, 2.5, 0.0) : Pose2(2.0 + 0.25 * (k - 5), 6.0, 0.0); };
+  for (int k = 0; k < 12; ++k) {
+    steps.push_back(odo.process({k, 1.0 * k, 2.0, render(at(k), 2.0)}));
+    released.emplace_back();
+    for (const auto& kf : odo.newKeyframes()) released.back().push_back(odo.odometry()->keyframes()[kf.id].frame_index);
+  }
+  EXPECT_EQ(steps[5].update.status, FrameStatus::kFallback);
+  EXPECT_EQ(steps[5].update.restart_index, -1);
+  EXPECT_FALSE(steps[5].session_closed);
+  EXPECT_EQ(steps[6].update.restart_index, 5) << steps[6].update.reason;
+  EXPECT_TRUE(steps[6].session_closed);
+  EXPECT_TRUE(steps[7].session_started);
+  ASSERT_FALSE(released[7].empty());
+  EXPECT_EQ(released[7].front(), 5) << "the new session's origin is the unmatched frame";
+  EXPECT_EQ(odo.sessions(), 2);
+  EXPECT_EQ(odo.losses(), 1);
+  EXPECT_EQ(odo.framesLost(), 0);
+  for (int k = 7; k < 12; ++k) EXPECT_NE(steps[k].update.status, FrameStatus::kFallback) << k;
+  // The new session's frame is frame 5's: frame 11 is 1.5 m along x from it.
+  EXPECT_TRUE(approxEqual(steps[11].update.pose, Pose2(1.5, 0.0, 0.0), 0.02, 0.01)) << steps[11].update.pose;
+}
+
 TEST_F(TrackingTest, AShortDropoutStaysInTheSession) {
   TrackingLossOptions loss;
   loss.max_fallbacks = 5;
@@ -198,7 +227,8 @@ TEST_F(TrackingTest, AVisualMotionTheNavContradictsIsRefusedAndCounted) {
   EXPECT_TRUE(steps[12].update.gate_refused);
   EXPECT_EQ(steps[12].update.source, MotionSource::kNav);
   EXPECT_NE(steps[12].update.reason.find("refused by the nav gate"), std::string::npos) << steps[12].update.reason;
-  for (int k = 1; k < 12; ++k) EXPECT_FALSE(steps[k].update.gate_refused) << k << " d2 " << steps[k].update.gate_distance2;
+  for (int k = 1; k < 12; ++k)
+    EXPECT_FALSE(steps[k].update.gate_refused) << k << " d2 " << steps[k].update.gate_distance2;
   // (a) with the RANSAC gate (the default) no hypothesis near the visual motion is even scored:
   // frame 12 finds no consensus and the nav carries it.
   SegmentedOdometry odo2(camera_, OdometryOptions(), TrackingLossOptions());
@@ -217,7 +247,6 @@ TEST_F(TrackingTest, AVisualMotionTheNavContradictsIsRefusedAndCounted) {
   EXPECT_EQ(fused_steps[5].update.source, MotionSource::kFused);
   EXPECT_EQ(odo3.odometry()->stats().gate_refusals, 0);
 }
-
 
 // The vehicle pivots 2.5 rad between frames 11 and 12, inside a black-out (frames 10-17), and flies
 // on along its new heading: its nav (an INS heading, right) turns faster than

@@ -3,7 +3,10 @@
 // camera stream: after max_fallbacks consecutive frames the odometry could not match (blank,
 // occluded or featureless water, a camera restart), the session is closed; a new session starts
 // at the first later frame with at least min_features features, its origin (the first session
-// too starts at the first such frame). Global loops then
+// too starts at the first such frame). When a frame registers with the unmatched frame before it
+// but not with the session (OdometryUpdate::restart_index), the session is closed at that frame and
+// the next one starts, at the next process(), from the unmatched frame: the two frames are processed
+// again in it (their features kept) before the new frame, so none is lost. Global loops then
 // join the pieces back (core/backend/backend.h).
 //
 // Keyframes whose motion is a fallback (a reused motion: the frame could not be matched) are held
@@ -39,9 +42,11 @@ struct NavPlacement {
 class SegmentedOdometry {
  public:
   struct Step {
-    OdometryUpdate update;         // of the current session's odometry (status kSkipped while lost)
-    bool session_started = false;  // this frame is the origin of a session (the first one too)
-    bool session_closed = false;   // this frame closed the session (tracking lost)
+    OdometryUpdate update;  // of the current session's odometry (status kSkipped while lost)
+    /// A session starts with this frame: its origin is this frame (the first session too) or, after
+    /// a restart, the earlier frames restartFrames() named, released as its first keyframes here.
+    bool session_started = false;
+    bool session_closed = false;  // this frame closed the session (tracking lost)
     /// With session_started after a tracking loss, when nav.place_pieces and the nav has a reading
     /// at a kept keyframe of the previous piece and at this one: the nav's placement of this piece.
     std::optional<NavPlacement> placement = std::nullopt;
@@ -74,9 +79,18 @@ class SegmentedOdometry {
   StageTimes times() const;
 
  private:
+  // `odometry` (its first frame processed) becomes the open session.
+  void begin(std::unique_ptr<Odometry> odometry, Step* step);
+  // The next session from the frames the closed one ended at (restart_): false when the first
+  // of them cannot start one.
+  bool restart(Step* step);
+  // The open session's new keyframes after an update: released, or held while fallbacks are unconfirmed.
+  void absorb(const OdometryUpdate& update);
+
   CameraIntrinsics camera_;
   OdometryOptions options_;
   TrackingLossOptions loss_;
+  std::vector<Odometry::RestartFrame> restart_;  // where the next session starts (Odometry::restartFrames)
   std::unique_ptr<Odometry> odometry_;
   bool closed_ = false;  // odometry_ is the session just closed
   std::vector<Odometry::NewKeyframe> pending_, released_;
