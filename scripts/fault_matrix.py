@@ -12,8 +12,10 @@ survey (make_survey, two short missions, their bags) is generated once and only 
 Exit status 0 only when every case held.
 """
 import argparse
+import csv
 import hashlib
 import json
+import math
 import os
 import random
 import re
@@ -634,9 +636,71 @@ def offline_dataset_cases(m, off):
                  "README Bad input: a new session (2 pieces); or a one-line refusal; no crash", counted("2 pieces"))
 
 
+NAV_JUMP_SURVEY = """
+seed: 5
+world: {width_m: 12, height_m: 10, featureless_fraction: 0}
+sessions:
+  - name: a
+    mission: {pattern: loop, start_m: [3.5, 2.5], length_m: 4.0, width_m: 3.0, laps: 1.0,
+              speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.0}
+    water:
+      stretches:
+        - {first_frame: 8, num_frames: 12, kind: blank}
+    nav: {enabled: true}
+"""
+
+
+def case_nav_jump_offline(m, off):
+    """A nav that jumps 1 km where vision goes blank and stays there: each jumped reading is refused
+    (nav_implausible), the blank ends the piece, and the next piece must not be placed by the jumped
+    reading (it was placed 1 km off)."""
+    case = "offline: the nav jumps 1 km east at a black-out (frames 8..19 blank) and stays there"
+    expected = ("the jumped readings refused (nav steps too fast); the piece after the tracking loss not placed "
+                "by the nav (a line says why): every pose within the 12 x 10 m survey, none 1 km off; exit 0")
+    d = m.tempdir("nav_jump")
+    try:
+        with open(os.path.join(d, "survey.yaml"), "w") as f:
+            f.write(NAV_JUMP_SURVEY)
+        r = subprocess.run([os.path.join(off.bin, "make_survey"), "--config", os.path.join(d, "survey.yaml"), "--out",
+                            os.path.join(d, "m"), "--no-bag", "--quiet"], capture_output=True, text=True, timeout=120)
+        if r.returncode != 0:
+            return m.row(case, expected, "make_survey failed: " + short(r.stderr), False)
+        folder = os.path.join(d, "m", "a")
+        nav = os.path.join(folder, "nav.csv")
+        with open(nav) as f:
+            lines = f.read().splitlines()
+        _, frames = read_frames(folder)
+        jump_at = float(frames[8][2])
+        rows = [lines[0]]
+        for line in lines[1:]:
+            c = line.split(",")
+            if float(c[0]) >= jump_at - 1e-9:
+                c[1] = "%.6f" % (float(c[1]) + 1000.0)
+            rows.append(",".join(c))
+        with open(nav, "w") as f:
+            f.write("\n".join(rows) + "\n")
+        out = os.path.join(d, "out")
+        r = off.run(["--session", folder, "--out", out], quiet=False)
+        farthest = float("inf")
+        if r.returncode == 0:
+            with open(os.path.join(out, "trajectory.csv")) as f:
+                farthest = max(math.hypot(float(row["x_m"]), float(row["y_m"])) for row in csv.DictReader(f))
+        said = [line for line in r.stdout.splitlines() if "placed by the nav" in line]
+        too_fast = re.search(r"(\d+) nav steps too fast", r.stdout)
+        held = (r.returncode == 0 and "tracking resumed" in r.stdout and farthest < 20.0 and len(said) == 1
+                and "not placed by the nav after the tracking loss: nav step" in said[0]
+                and too_fast is not None and int(too_fast.group(1)) > 0)
+        observed = "status %d; %s nav steps refused; the farthest pose %.1f m from the map's origin; %s" % (
+            r.returncode, too_fast.group(1) if too_fast else "no", farthest,
+            " / ".join(said) or "no placement said" if r.returncode == 0 else " / ".join(reason(r.stderr)))
+        m.row(case, expected, observed, held)
+    finally:
+        m.done(d)
+
+
 OFFLINE_CASES = [case_kill_offline, case_two_writers, case_hard_link_writer, case_export_planted_links,
                  case_self_merge_hard_link, case_restart_ids, case_index_steps, case_add_link_yaw_offline,
-                 offline_store_cases, offline_dataset_cases]
+                 offline_store_cases, offline_dataset_cases, case_nav_jump_offline]
 
 
 # Each in a process of its own (rospy talks to one master per process): fault_matrix_live.py.

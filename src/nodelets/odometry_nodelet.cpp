@@ -29,7 +29,7 @@ OdometryNodelet::~OdometryNodelet() {
   if (queue_) queue_->close();  // later frames are refused; the queued ones are still processed
   if (worker_.joinable()) worker_.join();
   prepare_on_arrival_.reset();  // its threads stopped while the members they read (control_) are alive
-  if (odometry_) logStats("at shutdown");
+  if (stream_) logStats("at shutdown");
 }
 
 void OdometryNodelet::onInit() {
@@ -47,7 +47,6 @@ void OdometryNodelet::onInit() {
   for (const std::string& line : ros_params::describe(o)) NODELET_INFO("odometry: %s", line.c_str());
   NODELET_INFO("odometry: %s", images_->description().c_str());
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config));
-  session_ = o.session;
   queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(o.workerQueueSize(), ros_inputs::handOnDropped);
   // With newest the worker takes the newest frame when it frees up: its features are started on arrival (on another
   // core). A frame superseded before a thread was free is never prepared (core::OrderedPrefetch::Start::kNewest).
@@ -56,13 +55,21 @@ void OdometryNodelet::onInit() {
         o.prepare_threads,
         [this](Frame f, int) { return control_.paused() ? Ahead() : prepareAhead(f); },  // paused: dropped anyway
         core::OrderedPrefetch<Ahead, Frame>::Start::kNewest);
-  stamps_ = std::make_unique<core::StampGuard>(core::StampGuardOptions{o.reorder_tolerance_s, o.session_gap_s});
+  // Live there is one stream; the odometry numbers its sessions (core::FrameStream), and a session's end says its
+  // numbers.
+  stream_ = std::make_unique<core::FrameStream>(
+      config, o.stamps(),
+      core::SessionHooks{{},
+                         [this](const core::SessionClosing& c) {
+                           logStats("at the end of session " + std::to_string(c.session), c.odometry);
+                         }},
+      o.session);
+  stream_->beginStream(o.nav_world_fixed ? std::make_optional(core::NavFrame{o.odom_frame}) : std::nullopt);
   pairing_ = std::make_unique<Pairing>(
       o.pairing(), steadyNow(), o.fallback_camera_info ? std::make_optional(o.fallback_camera_info) : std::nullopt);
   sensor_mount_ =
       std::make_unique<ros_frames::SensorMount>(nh, o.base_frame, o.mount_wait_s, o.max_camera_tilt_deg * M_PI / 180.0);
   nav_ = std::make_unique<ros_inputs::NavInput>(nh, topics::kNavOdometry, o.nav());
-  placer_ = core::NavSessionPlacer(config.odometry.nav, o.nav_world_fixed);
   if (o.nav_source != "none") NODELET_INFO("odometry: %s", nav_->description(config.odometry.nav.enabled).c_str());
 
   keyframes_ = std::make_unique<ros_outputs::KeyframePublisher>(nh, it_.get(), config);
@@ -193,7 +200,7 @@ void OdometryNodelet::work() {
   ros_work::drainNewest<Frame, Ahead>(
       *queue_, queue_->capacity(), prepare_on_arrival_.get(),
       [this, &choose](const std::deque<Frame>& w, const std::vector<bool>& started) {
-        return choose(skip_rule_ ? &*skip_rule_ : nullptr, w, mount_, started);
+        return choose(stream_->skipRule(), w, mount_, started);
       },
       ros_inputs::handOnSkipped, [](const Frame& f) { return f.arrival; },
       [this](Frame& f, Ahead* ahead, Clock::time_point start) { run(f, ahead, start); },
@@ -210,7 +217,7 @@ void OdometryNodelet::run(Frame& f, Ahead* ahead, Clock::time_point start) {
   }
   const double ms = std::chrono::duration<double, std::milli>(Clock::now() - start).count();
   counts_.frameTime(ms);
-  counts_.session = session_;
+  counts_.session = stream_->lastSession();
   budget_.processed(ms);
   {
     std::lock_guard<std::mutex> lock(stats_mutex_);
@@ -220,17 +227,6 @@ void OdometryNodelet::run(Frame& f, Ahead* ahead, Clock::time_point start) {
     logStats("so far");
     last_stats_ = ros::WallTime::now();
   }
-}
-
-void OdometryNodelet::startSession(int id, const core::CameraIntrinsics& camera, const std::string& why) {
-  if (odometry_) logStats("at the end of session " + std::to_string(session_));
-  odometry_ = std::make_unique<core::SegmentedOdometry>(camera, options_.config.odometry, options_.config.tracking);
-  skip_rule_.emplace(camera, options_.config.odometry.keyframes);
-  camera_ = camera;
-  session_ = id;
-  frame_index_ = 0;
-  ++counts_.sessions;
-  NODELET_INFO("odometry: session %d starts (%s), camera %s", id, why.c_str(), rc::describeCamera(camera).c_str());
 }
 
 OdometryNodelet::Refusal OdometryNodelet::convert(const Frame& f, core::CameraIntrinsics* camera, cv::Mat* image,
@@ -258,82 +254,55 @@ OdometryNodelet::Ahead OdometryNodelet::prepareAhead(const Frame& f) const {
 
 void OdometryNodelet::process(const Frame& f, Ahead* ahead) {
   ++counts_.frames_finished;
-  for (double t : f.passed_over) stamps_->passOver(t);  // received but not processed: seen, not a gap
+  stream_->passOver(f.passed_over);  // received but not processed: seen, not a gap
+  const ros::Time stamp = f.msg.header().stamp;
   if (control_.paused()) {  // dropped and counted; its stamp seen like a queue drop's (the pause is no time gap)
-    stamps_->passOver(f.msg.header().stamp.toSec());
+    stream_->passOver({stamp.toSec()});
     counts_.frames_dropped_paused = control_.countDropped();
     return;
   }
+  core::FrameInput in;
   std::string why;
-  core::CameraIntrinsics camera;
-  cv::Mat image;
-  if (const Refusal refusal = convert(f, &camera, &image, &why)) {
-    ros_diagnostics::reportRefusal(refusal, why, &counts_);
-    return;
-  }
-  // Stamps: duplicates and late frames are skipped before they touch the odometry (or count a bad altitude).
-  const ros::Time stamp = f.msg.header().stamp;
-  const core::StampClass timing = stamps_->accept(stamp.toSec());
-  if (ros_diagnostics::reportStamp(timing, stamp.toSec(), stamps_->last(), &counts_)) return;
-  // The sensors' mount from tf: no tracking without it (no default mount). After the image and
-  // stamp checks, so a bad frame is counted for what is wrong with it.
+  if (const Refusal refusal = convert(f, &in.camera, &in.image, &why))
+    return ros_diagnostics::reportRefusal(refusal, why, &counts_);
+  if (!resolveMount(f)) return stream_->passOver({stamp.toSec()});  // no tracking without it; its stamp is seen
+  const cv::Mat image = in.image;
+  in.stamp_s = stamp.toSec();
+  // The altimeter's range -> the camera's altitude; a fixed or fallback altitude is the camera's already.
+  in.altitude_m =
+      f.altitude == core::PairedAltitude::kReading ? core::cameraAltitude(f.altitude_m, mount_) : f.altitude_m;
+  in.nav = [&](bool clock_jumped_back) { return nav_->at(stamp, mount_, clock_jumped_back); };
+  in.requested = control_.take();
+  // Prepared ahead with this frame's camera (a new camera starts a session with it).
+  in.prepared = ahead && ahead->prepared.done && ahead->camera == in.camera ? &ahead->prepared : nullptr;
+  counts_.prepared_ahead += in.prepared != nullptr;
+  // Newest only, with a prediction (the stream uses it only then; without, frames are taken in order: none waits).
+  in.keyframe_lookahead_s = options_.keyframe_lookahead ? core::keyframeLookaheadS(budget_.timing(steadyNow())) : 0.0;
+  const core::FrameResult r = stream_->process(std::move(in));
+  ros_diagnostics::reportFrame(r, *stream_, options_.config.tracking, &counts_);
+  if (!r.skipped_stamp)
+    ros_diagnostics::reportAltitude(f.altitude, f.altitude_m, stamp.toSec(), range_sub_.getTopic(),
+                                    options_.input_timeout_s, &counts_);
+  if (!r.moved) return;
+  // base_link in the z-up session frame, with the covariance of the motions since its first frame.
+  // Before the keyframe's message (thumbnail): the pose's latency is the frame's, not the keyframe's.
+  pose_pub_.publish(rc::toPoseWithCovarianceStampedMsg(
+      core::vehicleFromCamera(core::UncertainPose2(r.update.pose, r.update.covariance), mount_),
+      options_.session_frame_prefix + std::to_string(r.session), stamp));
+  counts_.keyframes += keyframes_->publish(r.keyframes, r.update.index, image, f.msg.header());
+}
+
+bool OdometryNodelet::resolveMount(const Frame& f) {
+  // The sensors' mount from tf (no default mount), looked up again now and then: a mount that moves is said.
   const ros_frames::SensorMount::Lookup mount = sensor_mount_->get(f.msg.header().frame_id, f.altimeter_frame);
   {
     std::lock_guard<std::mutex> lock(stats_mutex_);  // why frames are refused, while they are
     if (mount.state != ros_frames::SensorMount::State::kResolved) mount_error_ = mount.message;
     if (mount.fresh) mount_error_.clear();
   }
-  if (!ros_diagnostics::reportMount(mount, &counts_)) return;
+  if (!ros_diagnostics::reportMount(mount, &counts_)) return false;
   mount_ = mount.mount;
-  ros_diagnostics::reportAltitude(f.altitude, f.altitude_m, stamp.toSec(), range_sub_.getTopic(),
-                                  options_.input_timeout_s, &counts_);
-
-  const core::StreamControl::Requested requested = control_.take();
-  const core::SessionStart start =
-      core::sessionStart(!odometry_, session_, requested, timing, stamps_->lastJump(), odometry_ && camera_ != camera);
-  if (start.cause == core::SessionStart::Cause::kStampJump)
-    ros_diagnostics::reportJump(timing, stamps_->lastJump(), &counts_);
-  if (start.starts()) startSession(start.id, camera, start.why);
-
-  const std::optional<core::NavRecord> nav =
-      options_.config.odometry.nav.enabled ? nav_->at(stamp, mount_) : std::nullopt;
-  if (nav) ++counts_.frames_with_nav;
-  // Prepared ahead with this frame's camera: the session's (a new camera has started a session above).
-  core::PreparedFrame* prepared =
-      ahead && ahead->prepared.done && ahead->camera == camera_ ? &ahead->prepared : nullptr;
-  counts_.prepared_ahead += prepared != nullptr;
-  // The altimeter's range -> the camera's altitude; a fixed or fallback altitude is the camera's already.
-  const double altitude =
-      f.altitude == core::PairedAltitude::kReading ? core::cameraAltitude(f.altitude_m, mount_) : f.altitude_m;
-  const double kf_ahead =  // newest only, with a prediction (without one, frames are taken in order: none waits)
-      options_.keyframe_lookahead && skip_rule_->predicting() ? core::keyframeLookaheadS(budget_.timing(steadyNow()))
-                                                              : 0.0;
-  const core::SegmentedOdometry::Step step =
-      odometry_->process({frame_index_++, stamp.toSec(), altitude, image, nav, kf_ahead}, prepared);
-  const core::OdometryUpdate& u = step.update;
-  skip_rule_->observe(core::processedFrame(u, stamp.toSec(), altitude, step.session_started, odometry_->odometry()));
-  const bool done = ros_diagnostics::reportUpdate(u, &counts_);
-  if (step.session_started && odometry_->sessions() > 1) {
-    session_ = std::max(session_ + 1, requested.next_free);
-    ++counts_.sessions;
-    NODELET_INFO("odometry: tracking resumed at frame %d: session %d starts", u.index, session_);
-  }
-  const core::NavSessionPlacer::Sent nav_placement = placer_.step(step, *odometry_, session_);  // for keyframe 0
-  if (!nav_placement.said.empty()) NODELET_INFO("odometry: %s", nav_placement.said.c_str());
-  if (!done) return;
-  // base_link in the z-up session frame, with the covariance of the motions since its first frame.
-  // Before the keyframe's message (hash, thumbnail): the pose's latency is the frame's, not the keyframe's.
-  pose_pub_.publish(
-      rc::toPoseWithCovarianceStampedMsg(core::vehicleFromCamera(core::UncertainPose2(u.pose, u.covariance), mount_),
-                                         options_.session_frame_prefix + std::to_string(session_), stamp));
-  counts_.keyframes += keyframes_->publish(*odometry_, u, session_, image, f.msg.header(), nav_placement.placement);
-  if (step.session_closed) {
-    ++counts_.tracking_losses;
-    NODELET_WARN(
-        "odometry: tracking lost at frame %d (%d unmatched frames): session %d closed; the next frame with "
-        "%d features starts session %d",
-        u.index, options_.config.tracking.max_fallbacks, session_, options_.config.tracking.min_features, session_ + 1);
-  }
+  return true;
 }
 
 std::string OdometryNodelet::silentInput(double now) {
@@ -383,14 +352,14 @@ void OdometryNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrappe
                           error.empty() ? "" : "tracking does not start: " + error);
 }
 
-void OdometryNodelet::logStats(const std::string& when) {  // the worker's thread, or after it was joined
-  const core::Odometry* odo = odometry_ ? odometry_->odometry() : nullptr;
+void OdometryNodelet::logStats(const std::string& when, const core::Odometry* odo) {  // the worker's, or joined
+  if (!odo && stream_->odometry()) odo = stream_->odometry()->odometry();
   const core::OdometryStats s = odo ? odo->stats() : core::OdometryStats();
-  const double ms = odometry_ ? odometry_->times().get("odometry_total").meanMs() : 0.0;
+  const double ms = odo ? odo->times().get("odometry_total").meanMs() : 0.0;
   const std::string counters = ros_diagnostics::countersLine(
       "odometry counters " + when + ":", ros_diagnostics::odometryCounterTable().counters(snapshot(counts_)));
-  NODELET_INFO("%s; current session %d: %d frames, %d keyframes, %d altitudes reused, %.1f ms/frame", counters.c_str(),
-               session_, s.frames, s.keyframes, s.altitude_reused, ms);
+  NODELET_INFO("%s; session %d: %d frames, %d keyframes, %d altitudes reused, %.1f ms/frame", counters.c_str(),
+               stream_->lastSession(), s.frames, s.keyframes, s.altitude_reused, ms);
 }
 
 }  // namespace nodelets

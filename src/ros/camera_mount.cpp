@@ -85,26 +85,54 @@ SensorMount::SensorMount(ros::NodeHandle nh, const std::string& base_frame, doub
       listener_(std::make_unique<tf2_ros::TransformListener>(*buffer_, nh, true)) {}
 
 SensorMount::Lookup SensorMount::get(const std::string& camera_frame, const std::string& altimeter_frame) {
-  Lookup l;
   const auto frames = std::make_pair(camera_frame, altimeter_frame);
+  const double now = ros::WallTime::now().toSec();
   if (resolved_for_ && *resolved_for_ == frames) {
+    Lookup l;
     l.state = State::kResolved;
     l.mount = resolved_;
+    if (now < next_check_s_) return l;
+    next_check_s_ = now + 1.0;
+    const Lookup again = lookup(camera_frame, altimeter_frame);
+    constexpr double kSame = 1e-6;  // m and rad: the same transform published again
+    const core::Pose2 moved = core::between(resolved_.base_from_camera, again.mount.base_from_camera);
+    if (again.state != State::kResolved ||
+        (moved.translation().norm() <= kSame && std::abs(moved.yaw()) <= kSame &&
+         std::abs(again.mount.camera_above_altimeter_m - resolved_.camera_above_altimeter_m) <= kSame))
+      return l;
+    l.changed = true;
+    l.message = "moved in tf: " + core::describe(resolved_) + " before, " + again.message + " now";
+    l.mount = resolved_ = again.mount;
     return l;
   }
   if (camera_frame.empty()) {
+    Lookup l;
     l.message = "the image has no header.frame_id: the camera cannot be placed on " + base_frame_ +
                 " (set the camera driver's frame_id)";
     return l;
   }
-  const bool altimeter = !altimeter_frame.empty();
-  auto have = [&](const std::string& f) { return buffer_->canTransform(base_frame_, f, ros::Time(0)); };
+  auto have = [&](const std::string& f) { return f.empty() || buffer_->canTransform(base_frame_, f, ros::Time(0)); };
   // A poll of an awaited condition, bounded by wall time (simulated time may not run yet).
-  const double now = ros::WallTime::now().toSec();
   if (!deadline_s_) deadline_s_ = now + wait_s_;
-  while (!(have(camera_frame) && (!altimeter || have(altimeter_frame))) &&
-         ros::WallTime::now().toSec() < *deadline_s_ && ros::ok())
+  while (!(have(camera_frame) && have(altimeter_frame)) && ros::WallTime::now().toSec() < *deadline_s_ && ros::ok())
     ros::WallDuration(0.01).sleep();
+  Lookup l = lookup(camera_frame, altimeter_frame);
+  if (l.state == State::kMissing)
+    l.message = "no transform " + l.message + " in tf after " + std::to_string(wait_s_).substr(0, 4) +
+                " s: publish the sensors' mount (the vehicle's URDF with robot_state_publisher, or the launch "
+                "files' camera_mount / altimeter_mount arguments)";
+  if (l.state != State::kResolved) return l;
+  l.fresh = true;
+  l.message = "from tf, " + l.message;
+  resolved_for_ = frames;
+  resolved_ = l.mount;
+  next_check_s_ = now + 1.0;
+  return l;
+}
+
+SensorMount::Lookup SensorMount::lookup(const std::string& camera_frame, const std::string& altimeter_frame) {
+  Lookup l;
+  const bool altimeter = !altimeter_frame.empty();
   std::string missing;
   for (const std::string& f : {camera_frame, altimeter_frame}) {
     if (f.empty()) continue;
@@ -113,16 +141,18 @@ SensorMount::Lookup SensorMount::get(const std::string& camera_frame, const std:
       missing += (missing.empty() ? "" : "; ") + base_frame_ + " -> " + f + " (" + error + ")";
   }
   if (!missing.empty()) {
-    l.message = "no transform " + missing + " in tf after " + std::to_string(wait_s_).substr(0, 4) +
-                " s: publish the sensors' mount (the vehicle's URDF with robot_state_publisher, or the launch "
-                "files' camera_mount / altimeter_mount arguments)";
+    l.message = missing;
     return l;
   }
   geometry_msgs::TransformStamped cam, alt;
-  cam = buffer_->lookupTransform(base_frame_, camera_frame, ros::Time(0));
-  if (altimeter) {
-    alt = buffer_->lookupTransform(base_frame_, altimeter_frame, ros::Time(0));
-  } else {
+  try {
+    cam = buffer_->lookupTransform(base_frame_, camera_frame, ros::Time(0));
+    if (altimeter) alt = buffer_->lookupTransform(base_frame_, altimeter_frame, ros::Time(0));
+  } catch (const tf2::TransformException& e) {
+    l.message = e.what();
+    return l;
+  }
+  if (!altimeter) {
     alt.transform.translation = cam.transform.translation;  // the altitude is the camera's
     alt.transform.rotation.w = 1.0;
   }
@@ -133,12 +163,9 @@ SensorMount::Lookup SensorMount::get(const std::string& camera_frame, const std:
     return l;
   }
   l.state = State::kResolved;
-  l.fresh = true;
-  l.message = "from tf, " + base_frame_ + " -> " + camera_frame +
+  l.message = base_frame_ + " -> " + camera_frame +
               (altimeter ? " and " + base_frame_ + " -> " + altimeter_frame : std::string(" (no altimeter)")) + ": " +
               core::describe(l.mount);
-  resolved_for_ = frames;
-  resolved_ = l.mount;
   return l;
 }
 

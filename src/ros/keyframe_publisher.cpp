@@ -16,30 +16,25 @@ namespace rc = ros_conversions;
 KeyframePublisher::KeyframePublisher(ros::NodeHandle nh, image_transport::ImageTransport* it,
                                      const core::SlamConfig& config)
     : store_image_(config.store_image),
-      hasher_(config.loops.global.hash_mode, config.odometry.features.num_features,
-              config.loops.global.projection_seed),
       keyframe_pub_(nh.advertise<uw_multislam::Keyframe>(topics::kKeyframes, 50)),
       image_pub_(it->advertise(topics::kKeyframeImage, 1)) {}
 
-int KeyframePublisher::publish(const core::SegmentedOdometry& segmented, const core::OdometryUpdate& u, int session,
-                               const cv::Mat& image, const std_msgs::Header& frame_header,
-                               const std::optional<core::NavPlacementInput>& placement) {
-  const core::Odometry& odometry = *segmented.odometry();
+int KeyframePublisher::publish(const std::vector<core::StreamKeyframe>& keyframes, int frame_index,
+                               const cv::Mat& image, const std_msgs::Header& frame_header) {
   int n = 0;
-  for (const auto& kf : segmented.newKeyframes()) {
-    rc::KeyframeData data = rc::keyframeData(odometry, kf, u, session);
-    if (kf.id == 0) data.nav_placement = placement;
-    data.hash = hasher_.hash(kf.features.descriptors);  // once here; the loop detector and back-end reuse it
+  for (const core::StreamKeyframe& k : keyframes) {
+    rc::KeyframeData data = rc::keyframeData(k);
+    const bool own = data.frame_index == frame_index;
     // The store's keyframe image (config store.*), made as offline_slam makes it; a promoted
     // keyframe's image is gone.
-    if (data.frame_index == u.index) data.thumbnail = core::encodeKeyframeImage(image, store_image_);
+    if (own) data.thumbnail = core::encodeKeyframeImage(image, store_image_);
     std_msgs::Header header = frame_header;
-    if (data.frame_index != u.index) header.stamp.fromSec(odometry.keyframes()[kf.id].stamp_s);  // promoted or held
+    if (!own) header.stamp.fromSec(k.input.stamp_s);  // promoted or held
     keyframe_pub_.publish(boost::make_shared<uw_multislam::Keyframe>(rc::toKeyframeMsg(data, header)));
     ++n;
-    if (data.frame_index == u.index && image_pub_.getNumSubscribers() > 0) {
+    if (own && image_pub_.getNumSubscribers() > 0) {
       cv::Mat drawn;
-      cv::drawKeypoints(image, kf.features.keypoints, drawn, cv::Scalar(0, 255, 0));
+      cv::drawKeypoints(image, data.features.keypoints, drawn, cv::Scalar(0, 255, 0));
       image_pub_.publish(cv_bridge::CvImage(header, "bgr8", drawn).toImageMsg());
     }
   }

@@ -100,8 +100,22 @@ std::string NavInput::description(bool used) const {
   return line;
 }
 
-std::optional<core::NavRecord> NavInput::at(const ros::Time& stamp, const core::CameraMount& mount) {
+std::optional<core::NavRecord> NavInput::at(const ros::Time& stamp, const core::CameraMount& mount,
+                                            bool clock_jumped_back) {
   if (tf_buffer_) return fromTf(stamp, mount);
+  if (clock_jumped_back) {
+    std::size_t dropped = 0;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      dropped = track_.dropClockBefore(stamp.toSec(), std::max(options_.reorder_tolerance_s, 1e-6));
+      if (dropped > 0) covariance_check_.reset();
+    }
+    if (dropped > 0)
+      ROS_WARN(
+          "odometry: the image stamps jumped back to %.3f: %zu nav readings of the clock before dropped (the new "
+          "session uses only readings of its own clock)",
+          stamp.toSec(), dropped);
+  }
   std::optional<core::NavRecord> r = fromTopic(stamp.toSec());
   // The track holds a camera at base_link: back to base_link, then to the mounted camera.
   if (r) r->pose = core::cameraFromVehicle(core::vehicleFromCamera(r->pose, core::CameraMount()), mount);

@@ -69,6 +69,9 @@ const CounterTable<OdometryCounters>& odometryCounterTable() {
        "frames refused: no base_link -> camera (image frame_id) or -> altimeter (Range frame_id) transform in tf, or "
        "a tilted camera (the status is ERROR while they are)",
        kWarn},
+      {"mount_changes", &C::mount_changes,
+       "times the sensors' mount in tf moved after it was found (a second mount publisher?): the new one is used",
+       kWarn},
       {"bad_altitude_replaced", &C::bad_altitude_replaced,
        "frames whose altitude would use an invalid reading: the last valid altitude is used", kWarn},
       {"fixed_altitude_frames", &C::fixed_altitude_frames,
@@ -76,7 +79,9 @@ const CounterTable<OdometryCounters>& odometryCounterTable() {
       {"time_jumps_back", &C::time_jumps_back,
        "image stamps jumped back by more than ~reorder_tolerance_s: a new session", kWarn},
       {"time_jumps_forward", &C::time_jumps_forward,
-       "image stamps jumped forward by more than ~session_gap_s: a new session", kWarn},
+       "image stamps jumped forward by more than ~session_gap_s and ~session_gap_periods frame periods: a new "
+       "session",
+       kWarn},
       {"fallbacks", &C::fallbacks, "frames given the previous motion again (no match; paper section 5)", kWarn},
       {"tracking_losses", &C::tracking_losses, "sessions closed by the tracking-loss rule", kWarn},
       {"nav_received", &C::nav_received, "nav/odom readings received (~nav_source topic)"},
@@ -93,6 +98,10 @@ const CounterTable<OdometryCounters>& odometryCounterTable() {
       {"fused_motions", &C::fused_motions, "visual motions fused with the nav's (slam/odometry/nav/fuse)"},
       {"nav_implausible", &C::nav_implausible,
        "frames whose nav step was too fast to be a motion (slam/odometry/nav/max_speed_m_s): nav not used", kWarn},
+      {"nav_placements_refused", &C::nav_placements_refused,
+       "new pieces or sessions not placed by the nav: its step across the gap from the last accepted reading is "
+       "no motion of the vehicle (slam/odometry/nav/max_speed_m_s, max_yaw_rate_rad_s)",
+       kWarn},
       {"nav_tf_missing", &C::nav_tf_missing, "frames without the odom -> base_link transform (~nav_source tf)", kWarn},
       {"prepared_ahead", &C::prepared_ahead,
        "frames prepared (conversion, enhancement, features) ahead on another thread (~prepare_threads)"},

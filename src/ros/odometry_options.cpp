@@ -91,6 +91,8 @@ OdometryNodeletOptions odometryNodeletOptions(const ros::NodeHandle& nh, const r
       "in [0, " + std::to_string(core::kMaxSessionId) + "]");
   o.session_gap_s = param(
       pnh, "session_gap_s", 10.0, [](double v) { return v >= 0; }, ">= 0 (0 = off)");
+  o.session_gap_periods = param(
+      pnh, "session_gap_periods", 10.0, [](double v) { return std::isfinite(v) && v >= 1; }, ">= 1");
   o.stats_period_s = param(pnh, "stats_period_s", 30.0, positive, "positive");
   o.reorder_tolerance_s = param(
       pnh, "reorder_tolerance_s", 1.0, [](double v) { return std::isfinite(v) && v >= 0; }, ">= 0");
@@ -159,7 +161,8 @@ std::vector<std::string> describe(const OdometryNodeletOptions& o) {
       "altitude from %s (interpolated at the image stamp, altitude_max_age_s %.2f), queue_size %d, drop_policy %s "
       "(%s), prepare_threads %d (%s), stale_fraction %.2f, keyframe_lookahead %s, max_image_pixels %d, sync_queue_size "
       "%d, sync_max_interval_s %.3f, first "
-      "session %d, session_gap_s %.1f, reorder_tolerance_s %.2f, input_timeout_s %.1f, fallback_altitude %s, stats "
+      "session %d, session_gap_s %.1f (and %.3g frame periods), reorder_tolerance_s %.2f, input_timeout_s %.1f, "
+      "fallback_altitude %s, stats "
       "every %.0f s, diagnostics every %.1f s; n = %d features, enhancement %s, keyframes at overlap < %.2f",
       o.use_altitude_topic ? "the altitude topic"
                            : ("the fixed altitude " + std::to_string(o.altitude_m) + " m").c_str(),
@@ -172,9 +175,9 @@ std::vector<std::string> describe(const OdometryNodeletOptions& o) {
       : o.drop_policy == "newest" ? "the newest frame prepared as it arrives"
                                   : "the frames waiting prepared in order",
       o.stale_fraction, o.keyframe_lookahead ? "on" : "off", o.max_image_pixels, o.sync_queue_size,
-      o.sync_max_interval_s, o.session, o.session_gap_s, o.reorder_tolerance_s, o.input_timeout_s,
-      o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off", o.stats_period_s,
-      o.diagnostic_period_s, c.odometry.features.num_features,
+      o.sync_max_interval_s, o.session, o.session_gap_s, o.session_gap_periods, o.reorder_tolerance_s,
+      o.input_timeout_s, o.fallback_altitude_m > 0 ? (std::to_string(o.fallback_altitude_m) + " m").c_str() : "off",
+      o.stats_period_s, o.diagnostic_period_s, c.odometry.features.num_features,
       core::enhancementName(c.odometry.enhancement.mode).c_str(), c.odometry.keyframes.min_overlap);
   std::ostringstream os;
   os << "sensor mount from tf: " << o.base_frame << " -> each image's header.frame_id and each altitude reading's "

@@ -2,6 +2,8 @@
 
 #include <ros/console.h>
 
+#include "uw_multislam/ros/sensor_conversions.h"
+
 namespace uw_multislam {
 namespace ros_diagnostics {
 
@@ -24,27 +26,6 @@ void reportRefusal(long OdometryCounters::*counter, const std::string& why, Odom
   ROS_WARN_THROTTLE(5, "odometry: frame skipped: %s (%ld so far)", why.c_str(), so_far);
 }
 
-// Counted before logging: a throttled log line does not evaluate its arguments.
-bool reportStamp(core::StampClass timing, double stamp_s, double last_s, OdometryCounters* c) {
-  switch (timing) {
-    case core::StampClass::kDuplicate: {
-      const long n = ++c->skipped_duplicate_stamp;
-      ROS_WARN_THROTTLE(5, "odometry: frame skipped: stamp %.6f seen before (duplicated frame; %ld so far)", stamp_s,
-                        n);
-      return true;
-    }
-    case core::StampClass::kOutOfOrder: {
-      const long n = ++c->skipped_out_of_order;
-      ROS_WARN_THROTTLE(
-          5, "odometry: frame skipped: stamp %.6f is %.3f s before the last frame's (out of order; %ld so far)",
-          stamp_s, last_s - stamp_s, n);
-      return true;
-    }
-    default:
-      return false;
-  }
-}
-
 bool reportMount(const ros_frames::SensorMount::Lookup& mount, OdometryCounters* c) {
   if (mount.state != ros_frames::SensorMount::State::kResolved) {
     const long n = ++c->skipped_no_mount;
@@ -53,17 +34,14 @@ bool reportMount(const ros_frames::SensorMount::Lookup& mount, OdometryCounters*
     return false;
   }
   if (mount.fresh) ROS_INFO("odometry: sensor mount %s", mount.message.c_str());
-  return true;
-}
-
-void reportJump(core::StampClass timing, double jump_s, OdometryCounters* c) {
-  if (timing == core::StampClass::kJumpBack) {
-    ++c->time_jumps_back;
-    ROS_WARN("odometry: image stamps jumped back by %.3f s (a bag that loops, or a clock reset)", -jump_s);
-  } else {
-    ++c->time_jumps_forward;
-    ROS_INFO("odometry: image stamps jumped forward by %.3f s (a gap in the images)", jump_s);
+  if (mount.changed) {
+    ++c->mount_changes;
+    ROS_WARN(
+        "odometry: the sensors' mount %s: the new one is used from this frame on (the vehicle's pose and the "
+        "camera's altitude move with it; a second mount publisher? mount_changes %ld)",
+        mount.message.c_str(), c->mount_changes);
   }
+  return true;
 }
 
 void reportAltitude(core::PairedAltitude kind, double altitude_m, double stamp_s, const std::string& topic,
@@ -100,6 +78,45 @@ bool reportUpdate(const core::OdometryUpdate& u, OdometryCounters* c) {
     ROS_WARN_THROTTLE(5, "odometry: frame %d: fallback motion (%s)", u.index, u.reason.c_str());
   }
   return done;
+}
+
+void reportFrame(const core::FrameResult& r, const core::FrameStream& stream, const core::TrackingLossOptions& loss,
+                 OdometryCounters* c) {
+  const core::FrameStreamCounts& n = stream.counts();
+  c->skipped_duplicate_stamp = n.duplicates, c->skipped_out_of_order = n.out_of_order;
+  c->time_jumps_back = n.jumps_back, c->time_jumps_forward = n.jumps_forward;
+  c->sessions = n.sessions, c->tracking_losses = n.tracking_losses;
+  c->nav_placements_refused = n.placements_refused;
+  const double stamp_s = stream.stamps().last();
+  if (r.timing == core::StampClass::kDuplicate)
+    ROS_WARN_THROTTLE(5, "odometry: frame skipped: stamp %.6f seen before (duplicated frame; %ld so far)", stamp_s,
+                      n.duplicates);
+  if (r.timing == core::StampClass::kOutOfOrder)
+    ROS_WARN_THROTTLE(5,
+                      "odometry: frame skipped: its stamp is up to ~reorder_tolerance_s before %.6f (out of "
+                      "order; %ld so far)",
+                      stamp_s, n.out_of_order);
+  if (r.skipped_stamp) return;
+  if (r.timing == core::StampClass::kJumpBack)
+    ROS_WARN("odometry: image stamps jumped back by %.3f s (a bag that loops, or a clock reset)", -r.jump_s);
+  if (r.timing == core::StampClass::kJumpForward)
+    ROS_INFO("odometry: image stamps jumped forward by %.3f s (a gap in the images beyond %.1f s)", r.jump_s,
+             stream.stamps().gapThreshold());
+  for (const std::string& line : r.warnings) ROS_WARN("odometry: %s", line.c_str());
+  c->frames_with_nav += r.with_nav;
+  reportUpdate(r.update, c);
+  if (r.started) {
+    const core::Odometry* odo = stream.odometry() ? stream.odometry()->odometry() : nullptr;
+    ROS_INFO("odometry: session %d starts (%s), camera %s", r.started->session, r.started->why.c_str(),
+             odo ? ros_conversions::describeCamera(odo->camera()).c_str() : "?");
+  }
+  for (const std::string& line : r.notes) ROS_INFO("odometry: %s", line.c_str());
+  for (const core::FrameResult::Ended& e : r.ended)
+    if (e.cause == core::SessionEnd::kTrackingLoss)
+      ROS_WARN(
+          "odometry: tracking lost at frame %d (%d unmatched frames): session %d closed; the next frame with %d "
+          "features starts the next session",
+          r.update.index, loss.max_fallbacks, e.session, loss.min_features);
 }
 
 }  // namespace ros_diagnostics

@@ -40,37 +40,26 @@ Eigen::Matrix3d fromArray(const boost::array<double, 9>& a) {
   return c;
 }
 
-KeyframeData keyframeData(const core::Odometry& odometry, const core::Odometry::NewKeyframe& kf,
-                          const core::OdometryUpdate& update, int session) {
-  const core::KeyframeInfo& info = odometry.keyframes().at(kf.id);
+KeyframeData keyframeData(const core::StreamKeyframe& s) {
+  const core::KeyframeInput& in = s.input;
   KeyframeData k;
-  k.session = session;
-  k.keyframe = kf.id;
-  k.frame_index = info.frame_index;
-  k.altitude_m = info.altitude_m;
-  k.camera = odometry.featureCamera();  // the keypoints are undistorted
-  k.features = kf.features;
-  k.odometry_pose = odometry.trajectory().absolutePose(kf.id);
-  if (kf.id == 0) {
-    k.motion = core::UncertainPose2::exact(core::Pose2());
-    k.quality = KeyframeQuality::kFirst;
-  } else {
-    k.motion = odometry.trajectory().motion(kf.id);
-    k.quality = info.fallback ? KeyframeQuality::kFallback : KeyframeQuality::kMatched;
-  }
-  if (info.frame_index == update.index && k.quality == KeyframeQuality::kMatched) {
-    k.matches = update.matches;
-    k.inliers = update.inliers;
-    k.overlap = update.overlap;
-    k.scale = update.scale;
-  } else if (k.quality == KeyframeQuality::kMatched) {
-    // An earlier frame promoted to keyframe (its successor could not be matched): its own match,
-    // from when it was tracked (it was reported as 0 matches and inliers before).
-    k.matches = info.match.matches;
-    k.inliers = info.match.inliers;
-    k.overlap = info.match.overlap;
-    k.scale = info.match.scale;
-  }
+  k.session = in.session;
+  k.keyframe = in.keyframe;
+  k.frame_index = in.frame_index;
+  k.altitude_m = in.altitude_m;
+  k.camera = in.camera;
+  k.features = in.features;
+  k.hash = in.hash;
+  k.motion = in.motion;
+  k.odometry_pose = in.odometry_pose;
+  k.nav_placement = in.nav_placement;
+  k.quality = in.keyframe == 0 ? KeyframeQuality::kFirst
+              : s.fallback     ? KeyframeQuality::kFallback
+                               : KeyframeQuality::kMatched;
+  k.matches = s.match.matches;
+  k.inliers = s.match.inliers;
+  k.overlap = s.match.overlap;
+  k.scale = s.match.scale;
   return k;
 }
 

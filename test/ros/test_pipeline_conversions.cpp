@@ -6,8 +6,8 @@
 
 #include "../common/rendered_seabed.h"
 #include "uw_multislam/core/frontend/features.h"
-#include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/frontend/odometry.h"
+#include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/ros/backend_conversions.h"
 #include "uw_multislam/ros/pipeline_conversions.h"
 
@@ -61,7 +61,7 @@ TEST_F(PipelineConversions, KeyframeRoundTripIsLossless) {
   EXPECT_EQ(m.status, uw_multislam::Keyframe::MATCHED);
   EXPECT_EQ(m.descriptor_size, 128u);
   EXPECT_EQ(m.descriptors.size(), k.features.size() * 128);
-  EXPECT_DOUBLE_EQ(m.motion_covariance[1], 1e-5);  // row-major (x, y)
+  EXPECT_DOUBLE_EQ(m.motion_covariance[1], 1e-5);   // row-major (x, y)
   EXPECT_DOUBLE_EQ(m.motion_covariance[7], -3e-6);  // (yaw, y)
 
   rc::KeyframeData back;
@@ -87,8 +87,7 @@ TEST_F(PipelineConversions, KeyframeRoundTripIsLossless) {
 
   // The loop detector's hash of the received features is the sender's.
   const core::ImageHasher hasher(core::HashMode::kSortedDct, 500, 20231122);
-  EXPECT_LT((hasher.hash(back.features.descriptors) - hasher.hash(k.features.descriptors)).cwiseAbs().maxCoeff(),
-            1e-6);
+  EXPECT_LT((hasher.hash(back.features.descriptors) - hasher.hash(k.features.descriptors)).cwiseAbs().maxCoeff(), 1e-6);
 }
 
 TEST_F(PipelineConversions, TheNavPlacementTravelsWithKeyframeZeroAndABadOneIsRefused) {
@@ -354,7 +353,7 @@ TEST_F(PipelineConversions, KeyframeDataFromARunningOdometry) {
   core::Odometry odometry(camera_, core::OdometryOptions());
   core::OdometryUpdate u = odometry.process({0, 0.0, 2.0, render(Pose2(4.0, 3.0, 0.0), 2.0)});
   ASSERT_EQ(odometry.newKeyframes().size(), 1u);
-  rc::KeyframeData first = rc::keyframeData(odometry, odometry.newKeyframes()[0], u, 3);
+  rc::KeyframeData first = rc::keyframeData(core::streamKeyframe(odometry, odometry.newKeyframes()[0], 3, nullptr));
   EXPECT_EQ(first.session, 3);
   EXPECT_EQ(first.keyframe, 0);
   EXPECT_EQ(first.quality, rc::KeyframeQuality::kFirst);
@@ -364,7 +363,8 @@ TEST_F(PipelineConversions, KeyframeDataFromARunningOdometry) {
   // Far enough for the overlap rule: the second frame is a matched keyframe.
   u = odometry.process({1, 1.0, 2.0, render(Pose2(5.3, 3.0, 0.0), 2.0)});
   ASSERT_EQ(odometry.newKeyframes().size(), 1u) << core::statusName(u.status) << " " << u.reason;
-  const rc::KeyframeData second = rc::keyframeData(odometry, odometry.newKeyframes()[0], u, 3);
+  const rc::KeyframeData second =
+      rc::keyframeData(core::streamKeyframe(odometry, odometry.newKeyframes()[0], 3, nullptr));
   EXPECT_EQ(second.keyframe, 1);
   EXPECT_EQ(second.frame_index, 1);
   EXPECT_EQ(second.quality, rc::KeyframeQuality::kMatched);
@@ -387,14 +387,16 @@ TEST_F(PipelineConversions, APromotedKeyframeCarriesItsOwnMatchFromWhenItWasTrac
   const core::OdometryUpdate u = odometry.process({2, 2.0, 2.0, render(Pose2(6.3, 3.0, 0.0), 2.0)});
   ASSERT_EQ(odometry.stats().promotions, 1) << core::statusName(u.status) << " " << u.reason;
   ASSERT_EQ(odometry.newKeyframes().size(), 2u);
-  const rc::KeyframeData promoted = rc::keyframeData(odometry, odometry.newKeyframes()[0], u, 0);
+  const rc::KeyframeData promoted =
+      rc::keyframeData(core::streamKeyframe(odometry, odometry.newKeyframes()[0], 0, nullptr));
   EXPECT_EQ(promoted.frame_index, 1);
   EXPECT_EQ(promoted.quality, rc::KeyframeQuality::kMatched);
   EXPECT_EQ(promoted.matches, tracked.matches);
   EXPECT_EQ(promoted.inliers, tracked.inliers);
   EXPECT_DOUBLE_EQ(promoted.overlap, tracked.overlap);
   EXPECT_DOUBLE_EQ(promoted.scale, tracked.scale);
-  const rc::KeyframeData current = rc::keyframeData(odometry, odometry.newKeyframes()[1], u, 0);
+  const rc::KeyframeData current =
+      rc::keyframeData(core::streamKeyframe(odometry, odometry.newKeyframes()[1], 0, nullptr));
   EXPECT_EQ(current.frame_index, 2);
   EXPECT_EQ(current.inliers, u.inliers);
   EXPECT_EQ(odometry.keyframes().at(2).match.inliers, u.inliers);  // the core keeps it too

@@ -13,6 +13,9 @@ altitude readings say dvl (not the default names):
    range plus 0.3 m, the keyframes carry the camera's frame_id, and the status is not ERROR.
 4. A burst of frames faster than the odometry (~drop_policy newest, the default): frames are
    skipped for newer ones, counted, and every frame is accounted for; no extra session.
+5. A second mount publisher moves the camera 0.1 m forward mid-run: the odometry says so once (a
+   WARN naming the old and the new mount), counts it (mount_changes) and uses the new mount; no new
+   session.
 """
 import math
 import os
@@ -25,6 +28,7 @@ import rospy
 import rostest
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rosgraph_msgs.msg import Log
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, connected, diagnostic_values,
                               make_mission, messages_received, wait_for_subscribers)
@@ -42,8 +46,9 @@ sessions:
 """
 CAMERA_FRAME, ALTIMETER_FRAME = "cam_down_optical", "dvl"
 CAMERA_XYZ, CAMERA_YAW = (0.3, 0.0, -0.1), 0.5
+MOVED_XYZ = (0.4, 0.0, -0.1)  # the second mount publisher's camera
 ALTIMETER_XYZ = (0.1, 0.05, -0.4)  # 0.3 m below the camera
-N_REFUSED, N_TILTED, N_TRACKED, N_BURST = 8, 4, 30, 24
+N_REFUSED, N_TILTED, N_TRACKED, N_BURST, N_MOVED = 8, 4, 30, 24, 20
 RATE_HZ = 10.0
 ODOMETRY_NODE = NS + "/odometry_node"
 
@@ -78,7 +83,7 @@ class SensorFramesTest(unittest.TestCase):
     def setUpClass(cls):
         cls.tmp, out = make_mission("uwms_sensor_frames_", SURVEY, timeout=180)
         cls.frames = bag_frames(os.path.join(out, "s0.bag"))
-        n = N_REFUSED + N_TILTED + N_TRACKED + N_BURST
+        n = N_REFUSED + N_TILTED + N_TRACKED + N_BURST + N_MOVED
         assert len(cls.frames) >= n, len(cls.frames)
         for image, info, altitude in cls.frames:
             image.header.frame_id = info.header.frame_id = CAMERA_FRAME
@@ -86,7 +91,7 @@ class SensorFramesTest(unittest.TestCase):
             altitude.range -= 0.3  # the DVL sits 0.3 m below the camera: its range is shorter
 
         cls.lock = threading.Lock()
-        cls.poses, cls.keyframes, cls.statuses = [], [], []
+        cls.poses, cls.keyframes, cls.statuses, cls.warnings = [], [], [], []
 
         def on_diagnostics(msg):
             with cls.lock:
@@ -95,7 +100,9 @@ class SensorFramesTest(unittest.TestCase):
         cls.subs = [rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, appender(cls.lock, cls.poses),
                                      queue_size=1000),
                     rospy.Subscriber(NS + "/keyframes", Keyframe, appender(cls.lock, cls.keyframes), queue_size=1000),
-                    rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
+                    rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100),
+                    rospy.Subscriber("/rosout", Log, lambda m: m.level == Log.WARN and m.name == ODOMETRY_NODE and
+                                     appender(cls.lock, cls.warnings)(m.msg), queue_size=1000)]
         cls.pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(SENSOR_TOPICS, (Image, CameraInfo, Range))]
         cls.tf = tf2_ros.StaticTransformBroadcaster()
         cls.buffer = tf2_ros.Buffer()
@@ -135,6 +142,14 @@ class SensorFramesTest(unittest.TestCase):
         cls.await_condition(lambda: cls.idle(cls.last()) and cls.last().get("images_received") == cls.sent, 60.0,
                             "the burst processed")
         cls.burst = cls.after_next_status()
+        cls.sent_by_burst = cls.sent
+        # 5. A second mount publisher moves the camera (tf is read again once a second).
+        cls.send_mount([static(CAMERA_FRAME, MOVED_XYZ, optical(CAMERA_YAW)),
+                        static(ALTIMETER_FRAME, ALTIMETER_XYZ, (0, 0, 0, 1))])
+        cls.publish(N_MOVED, RATE_HZ)
+        cls.await_condition(lambda: cls.idle(cls.last()) and cls.last().get("images_received") == cls.sent and
+                            cls.last().get("mount_changes", 0) >= 1, 60.0, "the moved mount counted")
+        cls.moved = cls.after_next_status()
 
     @classmethod
     def tearDownClass(cls):
@@ -249,10 +264,22 @@ class SensorFramesTest(unittest.TestCase):
         self.assertGreater(v["skipped_for_newest"], 0, v)
         self.assertEqual(v["frames_synchronised"],
                          v["frames_processed"] + v["dropped_queue_full"] + v["skipped_for_newest"] + v["queue_length"])
-        self.assertEqual(v["images_received"], self.sent)
+        self.assertEqual(v["images_received"], self.sent_by_burst)
         self.assertEqual(v["sessions"], 1, "no extra session")
         self.assertEqual(v["tracking_losses"], 0)
         self.assertEqual(v["time_jumps_forward"], 0, "the skipped stamps are no gap")
+
+    def test_5_a_mount_that_moves_mid_run_is_warned_of_counted_and_used(self):
+        _, _, before = self.burst
+        _, _, v = self.moved
+        self.assertEqual(before["mount_changes"], 0)
+        self.assertEqual(v["mount_changes"], 1)
+        self.assertEqual(v["sessions"], 1, "no new session")
+        with self.lock:
+            moved = [w for w in self.warnings if "mount moved in tf" in w]
+        self.assertEqual(len(moved), 1, self.warnings)
+        self.assertIn("camera at x 0.300 m", moved[0])
+        self.assertIn("camera at x 0.400 m", moved[0])
 
 
 if __name__ == "__main__":

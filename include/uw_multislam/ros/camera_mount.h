@@ -51,7 +51,10 @@ bool mountFromTransforms(const geometry_msgs::Transform& base_from_camera_optica
 /// tf (the vehicle's URDF through robot_state_publisher, or scripts/mount_publisher.py) and kept
 /// once found (they are static). No default: without them the caller refuses the frame. The
 /// first lookup waits up to wait_s (wall time: simulated time may not run yet) for them; later
-/// ones do not wait, so a refused frame costs nothing. Not thread-safe (the odometry's worker).
+/// ones do not wait, so a refused frame costs nothing. Once found, tf is read again at most once a
+/// second (no wait): a mount that moved (a second static publisher, a changed URDF) is taken and
+/// reported (Lookup::changed); one that vanished keeps the last found. Not thread-safe (the
+/// odometry's worker).
 class SensorMount {
  public:
   SensorMount(ros::NodeHandle nh, const std::string& base_frame, double wait_s, double max_tilt_rad);
@@ -62,13 +65,18 @@ class SensorMount {
     core::CameraMount mount;  // when kResolved
     std::string message;      // kMissing / kRefused: what is missing or wrong; kResolved: where it came from
     bool fresh = false;       // kResolved for these frames for the first time (log it)
+    bool changed = false;     // kResolved, and the mount moved since it was found (message: from what to what)
   };
   /// The mount for these frames (`altimeter_frame` empty: no altimeter, the altitude is the camera's).
   Lookup get(const std::string& camera_frame, const std::string& altimeter_frame);
 
  private:
+  // The mount of `frames` in tf now (no wait): kResolved, or why not.
+  Lookup lookup(const std::string& camera_frame, const std::string& altimeter_frame);
+
   std::string base_frame_;
   double wait_s_, max_tilt_rad_;
+  double next_check_s_ = 0.0;         // wall time: the resolved mount is looked up again from then
   std::optional<double> deadline_s_;  // wall time: the first lookup's wait ends then
   std::unique_ptr<tf2_ros::Buffer> buffer_;
   std::unique_ptr<tf2_ros::TransformListener> listener_;

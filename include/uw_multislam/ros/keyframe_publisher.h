@@ -1,6 +1,6 @@
 // The odometry's output of new keyframes: each as a uw_multislam/Keyframe with its features, its
-// hash (paper (6)(7), computed once here with the slam/loops/global options; the loop detectors
-// and the back-end reuse it) and the store's thumbnail, and, only while someone subscribes, its
+// hash (paper (6)(7), computed once by the front end, core::FrameStream; the loop detectors and the
+// back-end reuse it) and the store's thumbnail, and, only while someone subscribes, its
 // image with the features drawn (odometry/keyframe_image). Messages are published as shared
 // pointers, so nodelets in the same manager receive them without a copy. The odometry's worker only.
 #pragma once
@@ -11,11 +11,9 @@
 
 #include <opencv2/core.hpp>
 
-#include <optional>
+#include <vector>
 
-#include "uw_multislam/core/frontend/tracking.h"
-#include "uw_multislam/core/loops/haloc.h"
-#include "uw_multislam/core/session/session_queries.h"
+#include "uw_multislam/core/session/frame_stream.h"
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/core/store/keyframe_image.h"
 
@@ -25,16 +23,13 @@ namespace ros_outputs {
 class KeyframePublisher {
  public:
   KeyframePublisher(ros::NodeHandle nh, image_transport::ImageTransport* it, const core::SlamConfig& config);
-  /// The keyframes the last frame made (odometry.newKeyframes()); `image` and `header` are the
-  /// frame's (`update` its update). `placement`: the nav's placement of `session`, carried by its
-  /// keyframe 0. Returns how many were published.
-  int publish(const core::SegmentedOdometry& odometry, const core::OdometryUpdate& update, int session,
-              const cv::Mat& image, const std_msgs::Header& header,
-              const std::optional<core::NavPlacementInput>& placement = std::nullopt);
+  /// The keyframes a frame released (core::FrameResult::keyframes); `frame_index`, `image` and `header` are the
+  /// frame's. Returns how many were published.
+  int publish(const std::vector<core::StreamKeyframe>& keyframes, int frame_index, const cv::Mat& image,
+              const std_msgs::Header& header);
 
  private:
   core::KeyframeImageOptions store_image_;
-  core::ImageHasher hasher_;
   ros::Publisher keyframe_pub_;
   image_transport::Publisher image_pub_;
 };

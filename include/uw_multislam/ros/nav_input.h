@@ -76,7 +76,11 @@ class NavInput {
   /// Subscribes to `topic` (source topic) or listens to tf (source tf); nothing with none.
   NavInput(ros::NodeHandle nh, const std::string& topic, const NavInputOptions& options);
   /// The nav at a frame's stamp, if there is one: the camera's pose by `mount` (the worker's thread).
-  std::optional<core::NavRecord> at(const ros::Time& stamp, const core::CameraMount& mount);
+  /// `clock_jumped_back`: the images' stamps just jumped back to `stamp`; topic readings of the clock
+  /// before are dropped first (NavTrack::dropClockBefore; counted, warned), so a new session never
+  /// uses a reading of the pass before (tf's listener clears its own buffer when time jumps back).
+  std::optional<core::NavRecord> at(const ros::Time& stamp, const core::CameraMount& mount,
+                                    bool clock_jumped_back = false);
   void shutdown() { sub_.shutdown(); }
   long received() const { return received_; }
   long refused() const { return refused_; }

@@ -32,6 +32,7 @@ struct OdometryCounters {
   long fallbacks = 0, tracking_losses = 0;
   long nav_received = 0, nav_refused = 0, frames_with_nav = 0, nav_motions = 0, fused_motions = 0;
   long nav_implausible = 0, nav_tf_missing = 0, nav_covariance_replaced = 0, prepared_ahead = 0;
+  long nav_placements_refused = 0, mount_changes = 0;
   long sessions = 0, session = 0, keyframes = 0, early_keyframes = 0;
   double ms_per_frame_mean = 0.0, ms_per_frame_max = 0.0, ms_last_frame = 0.0;
   double ms_per_frame_recent = 0.0, input_period_ms = 0.0;  // the budget (core::FrameBudget)

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "uw_multislam/core/frontend/input_pairing.h"
+#include "uw_multislam/core/frontend/stamp_guard.h"
 #include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/ros/nav_input.h"
@@ -34,10 +35,11 @@ struct OdometryNodeletOptions {
   double sync_max_interval_s = 0.1;  // largest image - camera_info stamp difference
   double altitude_max_age_s = 1.0;   // altitude: largest gap interpolated / age used alone; longest wait
   int session = 0;                   // id of the first session
-  double session_gap_s = 10.0;       // stamps jumping forward more than this start a session; 0 = never
-  double reorder_tolerance_s = 1.0;  // stamps at most this far back are late frames (skipped)
-  double input_timeout_s = 5.0;      // images without a synchronised set this long: warn
-  double fallback_altitude_m = 0.0;  // > 0: used when the altitude topic is silent; 0 = off
+  double session_gap_s = 10.0;       // stamps jumping forward less than this never start a session; 0 = never
+  double session_gap_periods = 10.0;  // ... nor less than this many of the camera's frame periods (core::StampGuard)
+  double reorder_tolerance_s = 1.0;   // stamps at most this far back are late frames (skipped)
+  double input_timeout_s = 5.0;       // images without a synchronised set this long: warn
+  double fallback_altitude_m = 0.0;   // > 0: used when the altitude topic is silent; 0 = off
   double diagnostic_period_s = 1.0;
   double stats_period_s = 30.0;
   int max_image_pixels = 25000000;   // larger images are skipped before any conversion (counted)
@@ -47,7 +49,7 @@ struct OdometryNodeletOptions {
   double nav_tf_drift = 0.01;        // tf: sigma_xy = this x the distance travelled
   double nav_tf_yaw_drift = 0.001;   // tf: sigma_yaw = this (rad/m) x the distance travelled
   double nav_buffer_s = 60.0;        // nav readings kept this long behind the newest
-  bool nav_world_fixed = false;      // the nav's frame never resets: new sessions placed by it (NavSessionPlacer)
+  bool nav_world_fixed = false;      // the nav's frame never resets: new sessions placed by it (core::NavPlacer)
   bool rectified_images = false;     // the images are rectified: P, no distortion; else K with D
   std::string camera_info_url;       // calibration used when no camera_info arrives; empty = none
   std::string session_frame_prefix = topics::kDefaultSessionFramePrefix;
@@ -71,6 +73,8 @@ struct OdometryNodeletOptions {
   core::InputPairingOptions pairing() const;
   /// The nav input's options (~nav_*, frames/).
   ros_inputs::NavInputOptions nav() const;
+  /// The stamp rules (~reorder_tolerance_s, ~session_gap_s, ~session_gap_periods).
+  core::StampGuardOptions stamps() const { return {reorder_tolerance_s, session_gap_s, session_gap_periods}; }
 };
 
 /// Reads and validates the odometry nodelet's parameters (`nh`: the pipeline's namespace, `pnh`:

@@ -7,6 +7,7 @@
 #include "uw_multislam/core/frontend/input_pairing.h"
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/frontend/stamp_guard.h"
+#include "uw_multislam/core/session/frame_stream.h"
 #include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/odometry_counters.h"
 
@@ -21,16 +22,16 @@ void reportUnpaired(bool no_camera_info, double stamp_s, double bound_s, const c
 /// logged with `why`.
 void reportRefusal(long OdometryCounters::*counter, const std::string& why, OdometryCounters* c);
 
-/// A frame the stamp guard refuses (a duplicate or out of order: true, it is skipped), counted and logged.
-bool reportStamp(core::StampClass timing, double stamp_s, double last_s, OdometryCounters* c);
-
 /// The sensors' mount from tf for a frame: unresolved, the frame is skipped (false), counted and logged (no
-/// tracking without a mount: there is no default one); resolved for the first time, logged.
+/// tracking without a mount: there is no default one); resolved for the first time, logged; moved, counted and
+/// warned (the new one is used).
 bool reportMount(const ros_frames::SensorMount::Lookup& mount, OdometryCounters* c);
 
-/// A jump in the image stamps that starts a session (back: a looping bag or a clock reset; forward: a gap in
-/// the images), counted and logged.
-void reportJump(core::StampClass timing, double jump_s, OdometryCounters* c);
+/// What the front end did with a frame (`r`), logged: a skipped stamp, a jump, the odometry's answer
+/// (reportUpdate), sessions started and closed by tracking loss (`loss`: the rule), the nav's placements; the
+/// stream's counts copied into `c`.
+void reportFrame(const core::FrameResult& r, const core::FrameStream& stream, const core::TrackingLossOptions& loss,
+                 OdometryCounters* c);
 
 /// A frame's altitude that is not a fresh reading: the fixed fallback (the altitude topic `topic` silent for
 /// `timeout_s`) or an invalid reading replaced by the last valid one.

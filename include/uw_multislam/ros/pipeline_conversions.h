@@ -24,6 +24,7 @@
 #include "uw_multislam/core/geometry/uncertain_pose.h"
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/session/frame_stream.h"
 #include "uw_multislam/core/session/session_queries.h"
 
 namespace uw_multislam {
@@ -58,12 +59,10 @@ struct KeyframeData {
   std::optional<core::NavPlacementInput> nav_placement = std::nullopt;
 };
 
-/// The keyframe `id` of an odometry, as loop detection and the back-end need it: its features,
-/// camera, altitude, motion and pose. `update` is the process() result that made it (its
-/// matches/inliers are reported for the keyframe of the update's own frame, 0 for a promoted
-/// earlier frame).
-KeyframeData keyframeData(const core::Odometry& odometry, const core::Odometry::NewKeyframe& kf,
-                          const core::OdometryUpdate& update, int session);
+/// A keyframe the front end released (core::FrameStream), as loop detection and the back-end need it:
+/// its features, camera, altitude, motion, pose, hash and placement, and how its motion was measured
+/// (a promoted keyframe's own match, from when it was tracked).
+KeyframeData keyframeData(const core::StreamKeyframe& k);
 
 /// Descriptors are rounded and saturated to 8 bits (SIFT's values are integers in 0..255).
 uw_multislam::Keyframe toKeyframeMsg(const KeyframeData& k, const std_msgs::Header& header);

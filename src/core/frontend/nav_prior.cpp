@@ -110,6 +110,13 @@ void NavTrack::dropBefore(double stamp_s) {
   if (hi - rows_.begin() > 1) rows_.erase(rows_.begin(), hi - 1);
 }
 
+std::size_t NavTrack::dropClockBefore(double stamp_s, double tolerance_s) {
+  if (rows_.empty() || !(rows_.back().stamp_s > stamp_s + tolerance_s)) return 0;
+  const std::size_t n = rows_.size();
+  rows_.clear();
+  return n;
+}
+
 bool NavTrack::at(double stamp_s, NavRecord* out) const {
   if (rows_.empty() || !(stamp_s >= rows_.front().stamp_s) || !(stamp_s <= rows_.back().stamp_s)) return false;
   const auto hi =

@@ -1,8 +1,11 @@
 #include "uw_multislam/core/frontend/stamp_guard.h"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
+#include <vector>
 
 namespace uw_multislam {
 namespace core {
@@ -13,6 +16,8 @@ std::string StampGuardOptions::validate() const {
     os << "reorder_tolerance_s = " << reorder_tolerance_s << ": must be >= 0";
   } else if (!(std::isfinite(session_gap_s) && session_gap_s >= 0)) {
     os << "session_gap_s = " << session_gap_s << ": must be >= 0 (0 = off)";
+  } else if (!(std::isfinite(gap_periods) && gap_periods >= 1)) {
+    os << "session_gap_periods = " << gap_periods << ": must be >= 1";
   }
   return os.str();
 }
@@ -46,21 +51,47 @@ StampClass StampGuard::classify(double stamp_s) const {
   if (stamp_s == last_) return StampClass::kDuplicate;
   if (stamp_s < last_)
     return last_ - stamp_s <= options_.reorder_tolerance_s ? StampClass::kOutOfOrder : StampClass::kJumpBack;
-  if (options_.session_gap_s > 0 && stamp_s - last_ > options_.session_gap_s) return StampClass::kJumpForward;
+  if (stamp_s - last_ > gapThreshold()) return StampClass::kJumpForward;
   return StampClass::kNext;
 }
 
+std::optional<double> StampGuard::period() const {
+  if (intervals_.size() < kMinIntervals) return std::nullopt;
+  std::vector<double> sorted(intervals_.begin(), intervals_.end());
+  const auto mid = sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2);
+  std::nth_element(sorted.begin(), mid, sorted.end());
+  if (sorted.size() % 2 == 1) return *mid;
+  return 0.5 * (*mid + *std::max_element(sorted.begin(), mid));
+}
+
+double StampGuard::gapThreshold() const {
+  if (options_.session_gap_s <= 0) return std::numeric_limits<double>::infinity();
+  const std::optional<double> p = period();
+  if (!p) return options_.gap_periods * options_.session_gap_s;
+  return std::max(options_.session_gap_s, options_.gap_periods * *p);
+}
+
+void StampGuard::advance(double stamp_s, StampClass c) {
+  // The camera's rhythm: the intervals of a running stream, never a jump (nor the first stamp).
+  if (c == StampClass::kNext) {
+    intervals_.push_back(stamp_s - last_);
+    if (intervals_.size() > kPeriodWindow) intervals_.pop_front();
+  }
+  have_last_ = true;
+  last_ = stamp_s;
+}
+
 StampClass StampGuard::accept(double stamp_s) {
-  StampClass c = classify(stamp_s);
-  if (skips(c)) return c;
-  if (startsSession(c)) {
+  const StampClass here = classify(stamp_s);
+  if (skips(here)) return here;
+  StampClass c = here;
+  if (startsSession(here)) {
     last_jump_s_ = stamp_s - last_;
   } else if (startsSession(held_)) {
     c = held_;  // the jump happened among the frames passed over since the last accepted one
   }
   held_ = StampClass::kNext;
-  have_last_ = true;
-  last_ = stamp_s;
+  advance(stamp_s, here);
   return c;
 }
 
@@ -71,8 +102,7 @@ void StampGuard::passOver(double stamp_s) {
     last_jump_s_ = stamp_s - last_;
     if (!startsSession(held_)) held_ = c;  // the first jump decides the class
   }
-  have_last_ = true;
-  last_ = stamp_s;
+  advance(stamp_s, c);
 }
 
 }  // namespace core

@@ -138,6 +138,24 @@ TEST(NavTrack, ALiveTrackRefusesBadRowsAndForgetsOldOnes) {
   EXPECT_NEAR(r.pose.x(), 9.5, 1e-12);
 }
 
+TEST(NavTrack, AJumpBackOfTheImageClockDropsTheReadingsOfTheClockBefore) {
+  // A bag of 30 s played twice: the first pass's readings cover the stamps the second pass's first
+  // image has; its own reading has not arrived yet (the nav and the images travel apart).
+  NavTrack live;
+  for (int k = 0; k <= 30; ++k) ASSERT_TRUE(live.append({100.0 + k, Pose2(0.5 * k, 0, 0), 0.01 * k, 0.001}));
+  NavRecord r;
+  ASSERT_TRUE(live.at(100.0, &r)) << "the first pass's reading at the replayed stamp";
+  EXPECT_EQ(live.dropClockBefore(100.0, 1.0), 31u);
+  EXPECT_TRUE(live.empty());
+  EXPECT_FALSE(live.at(100.0, &r)) << "the new session waits for its own clock's readings";
+  // A track the nav already restarted (its first reading of the new pass came first) is kept.
+  ASSERT_TRUE(live.append({100.0, Pose2(0, 0, 0), 0.0, 0.0}));
+  ASSERT_TRUE(live.append({101.0, Pose2(0.5, 0, 0), 0.01, 0.001}));
+  EXPECT_EQ(live.dropClockBefore(100.5, 1.0), 0u);
+  EXPECT_EQ(live.rows().size(), 2u);
+  EXPECT_EQ(NavTrack().dropClockBefore(0.0, 1.0), 0u);
+}
+
 TEST(NavPrior, MotionCovarianceIsTheInflatedGrowthOfSigmaWithFloors) {
   NavPriorOptions o;
   o.inflation = 3.0;

@@ -8,6 +8,8 @@
 #include <Eigen/LU>
 
 #include <cmath>
+#include <functional>
+#include <optional>
 #include <random>
 #include <vector>
 
@@ -18,7 +20,8 @@
 #include "uw_multislam/core/backend/backend.h"
 #include "uw_multislam/core/frontend/nav_prior.h"
 #include "uw_multislam/core/frontend/tracking.h"
-#include "uw_multislam/core/session/nav_session_placer.h"
+#include "uw_multislam/core/session/frame_stream.h"
+#include "uw_multislam/core/session/nav_placer.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/store/session_store.h"
 #include "uw_multislam/core/store/store_merge.h"
@@ -163,126 +166,191 @@ TEST(NavPlacement, TwoSessionsErrorsAreIndependentAndTheHeadingErrorReachesAcros
 
 // --- The odometry's placement after a tracking loss ---------------------------------------------
 
-class NavPlacementTracking : public testing_util::RenderedSeabedTest {};
+// One stream through the front end (FrameStream, as both heads drive it): frame k at stamp k over the
+// straight pass, 0.25 m a frame, frames [blank_from, blank_to) blank, `nav(k)` its reading. Returns
+// each frame's result; `closed`: the last nav keyframe (id, frame) of the piece a tracking loss closed.
+struct Flight {
+  std::vector<FrameResult> steps;
+  int last_nav_kf = -1, last_nav_frame = -1;
+  // The placement sent with frame k's keyframes, if any.
+  std::optional<NavPlacementInput> placementAt(int k) const {
+    for (const StreamKeyframe& kf : steps[k].keyframes)
+      if (kf.input.nav_placement) return kf.input.nav_placement;
+    return std::nullopt;
+  }
+  bool closedAt(int k) const {
+    for (const auto& e : steps[k].ended)
+      if (e.cause == SessionEnd::kTrackingLoss) return true;
+    return false;
+  }
+};
+
+class NavPlacementTracking : public testing_util::RenderedSeabedTest {
+ protected:
+  Flight fly(const OdometryOptions& options, const std::function<std::optional<NavRecord>(int)>& nav, int frames = 24,
+             int blank_from = 10, int blank_to = 18) const {
+    SlamConfig config;
+    config.odometry = options;
+    FrameStream stream(config, StampGuardOptions());
+    stream.beginStream();
+    const cv::Mat grey(240, 320, CV_8UC3, cv::Scalar(90, 110, 60));
+    Flight f;
+    for (int k = 0; k < frames; ++k) {
+      FrameInput in;
+      in.image = (k >= blank_from && k < blank_to) ? grey : render(Pose2(2.0 + 0.25 * k, 4.0, 0.0), 2.0);
+      in.camera = camera_;
+      in.altitude_m = 2.0;
+      in.stamp_s = 1.0 * k;
+      in.index = k;
+      in.nav = [&nav, k](bool) { return nav(k); };
+      f.steps.push_back(stream.process(in));
+      if (f.closedAt(k)) {
+        const auto last = stream.odometry()->lastNavKeyframe();
+        if (last) {
+          f.last_nav_kf = last->first;
+          f.last_nav_frame = stream.odometry()->odometry()->keyframes()[last->first].frame_index;
+        }
+      }
+    }
+    return f;
+  }
+};
 
 TEST_F(NavPlacementTracking, APieceAfterATrackingLossIsPlacedByTheNavFromThePreviousPiecesLastNavKeyframe) {
   // The straight pass, 0.25 m a frame; frames 10-17 blank. The nav's heading turns 2.5 rad at
   // frame 12 (beyond nav.max_yaw_rate_rad_s: refused, the piece ends at frame 13 with one
   // bridged frame); the second piece starts at frame 18.
-  const auto nav = [](int k) -> NavRecord {
-    if (k < 12) return {1.0 * k, Pose2(0.25 * k, 0.0, 0.0), 0.01 * 0.25 * k, 0.001};
+  const auto nav = [](int k) -> std::optional<NavRecord> {
+    if (k < 12) return NavRecord{1.0 * k, Pose2(0.25 * k, 0.0, 0.0), 0.01 * 0.25 * k, 0.001};
     const double d = 0.25 * (k - 12);
-    return {1.0 * k, Pose2(3.0 + d * std::cos(2.5), d * std::sin(2.5), 2.5), 0.01 * 0.25 * k, 0.001};
-  };
-  // `sent`: what the odometry nodelet sends with each step (NavSessionPlacer; pieces numbered 0, 1).
-  std::vector<std::optional<NavPlacementInput>> sent;
-  const auto fly = [&](const OdometryOptions& options, bool with_nav, std::vector<SegmentedOdometry::Step>* steps) {
-    SegmentedOdometry odo(camera_, options, TrackingLossOptions());
-    NavSessionPlacer placer(options.nav, false);
-    sent.clear();
-    const cv::Mat grey(240, 320, CV_8UC3, cv::Scalar(90, 110, 60));
-    int last_nav_kf = -1, last_nav_frame = -1;
-    for (int k = 0; k < 24; ++k) {
-      OdometryInput in{k, 1.0 * k, 2.0, (k >= 10 && k < 18) ? grey : render(Pose2(2.0 + 0.25 * k, 4.0, 0.0), 2.0)};
-      if (with_nav) in.nav = nav(k);
-      steps->push_back(odo.process(in));
-      sent.push_back(placer.step(steps->back(), odo, odo.sessions() - 1).placement);
-      if (steps->back().session_closed) {
-        const auto last = odo.lastNavKeyframe();
-        if (last) {
-          last_nav_kf = last->first;
-          last_nav_frame = odo.odometry()->keyframes()[last->first].frame_index;
-        }
-      }
-    }
-    return std::make_pair(last_nav_kf, last_nav_frame);
+    return NavRecord{1.0 * k, Pose2(3.0 + d * std::cos(2.5), d * std::sin(2.5), 2.5), 0.01 * 0.25 * k, 0.001};
   };
   OdometryOptions one_bridged;
   one_bridged.fallback.bridge_frames = 1;
-  std::vector<SegmentedOdometry::Step> steps;
-  const auto [kf, frame] = fly(one_bridged, true, &steps);
-  ASSERT_TRUE(steps[13].session_closed);
-  ASSERT_TRUE(steps[18].session_started);
-  ASSERT_GE(kf, 0);
-  EXPECT_LE(frame, 11) << "a keyframe whose reading was accepted, before the refused turn";
-  ASSERT_TRUE(steps[18].placement.has_value());
-  const NavPlacement& p = *steps[18].placement;
-  EXPECT_EQ(p.keyframe, kf);
+  const Flight f = fly(one_bridged, nav);
+  ASSERT_TRUE(f.closedAt(13));
+  ASSERT_TRUE(f.steps[18].started.has_value());
+  EXPECT_EQ(f.steps[18].started->cause, SessionCause::kTrackingResumed);
+  ASSERT_GE(f.last_nav_kf, 0);
+  EXPECT_LE(f.last_nav_frame, 11) << "a keyframe whose reading was accepted, before the refused turn";
+  const std::optional<NavPlacementInput> p = f.placementAt(18);
+  ASSERT_TRUE(p.has_value());
+  EXPECT_EQ(p->session, 0) << "against the piece the loss closed";
+  EXPECT_EQ(p->keyframe, f.last_nav_kf);
+  EXPECT_EQ(f.steps[18].keyframes[0].input.keyframe, 0) << "carried by the new piece's first keyframe";
   // The nav's motion from that keyframe's reading to frame 18's, with the growth of its sigma
   // (1 % of 0.25 m a frame) times nav.inflation.
-  const Pose2 nav_motion = between(nav(frame).pose, nav(18).pose);
-  EXPECT_NEAR(p.z.mean.x(), nav_motion.x(), 1e-12);
-  EXPECT_NEAR(p.z.mean.y(), nav_motion.y(), 1e-12);
-  EXPECT_NEAR(p.z.mean.yaw(), nav_motion.yaw(), 1e-12);
-  const double sigma = 2.0 * 0.01 * 0.25 * (18 - frame);
-  EXPECT_NEAR(std::sqrt(p.z.covariance(0, 0)), sigma, 1e-12);
-  for (int k = 0; k < 24; ++k) EXPECT_EQ(steps[k].placement.has_value(), k == 18) << k;
-  // Sent by the nodelet's placer as it is, against piece 0.
-  for (int k = 0; k < 24; ++k) EXPECT_EQ(sent[k].has_value(), k == 18) << k;
-  ASSERT_TRUE(sent[18].has_value());
-  EXPECT_EQ(sent[18]->session, 0);
-  EXPECT_EQ(sent[18]->keyframe, kf);
-  EXPECT_EQ(sent[18]->z.mean.x(), p.z.mean.x());
-  EXPECT_EQ(sent[18]->z.covariance, p.z.covariance);
+  const Pose2 nav_motion = between(nav(f.last_nav_frame)->pose, nav(18)->pose);
+  EXPECT_NEAR(p->z.mean.x(), nav_motion.x(), 1e-12);
+  EXPECT_NEAR(p->z.mean.y(), nav_motion.y(), 1e-12);
+  EXPECT_NEAR(p->z.mean.yaw(), nav_motion.yaw(), 1e-12);
+  const double sigma = 2.0 * 0.01 * 0.25 * (18 - f.last_nav_frame);
+  EXPECT_NEAR(std::sqrt(p->z.covariance(0, 0)), sigma, 1e-12);
+  for (int k = 0; k < 24; ++k) EXPECT_EQ(f.placementAt(k).has_value(), k == 18) << k;
   // Off: nav.place_pieces false, or no nav (then the path is the one without nav).
   OdometryOptions off = one_bridged;
   off.nav.place_pieces = false;
-  std::vector<SegmentedOdometry::Step> off_steps, no_nav_steps;
-  fly(off, true, &off_steps);
-  EXPECT_TRUE(off_steps[18].session_started);
-  EXPECT_FALSE(off_steps[18].placement.has_value());
+  const Flight not_placing = fly(off, nav);
+  EXPECT_TRUE(not_placing.steps[18].started.has_value());
+  for (int k = 0; k < 24; ++k) EXPECT_FALSE(not_placing.placementAt(k).has_value()) << k;
   OdometryOptions disabled = one_bridged;
   disabled.nav.enabled = false;
-  fly(disabled, true, &no_nav_steps);
-  for (const auto& s : no_nav_steps) EXPECT_FALSE(s.placement.has_value());
+  const Flight no_nav = fly(disabled, nav);
+  for (int k = 0; k < 24; ++k) EXPECT_FALSE(no_nav.placementAt(k).has_value()) << k;
 }
 
-// --- A new session live, in a world-fixed nav frame (NavSessionPlacer) -----------------------------
+TEST_F(NavPlacementTracking, ANavReadingRefusedAsAJumpNeverPlacesThePieceAfterTheTrackingLoss) {
+  // The nav jumps 1 km east at frame 10, where vision goes blank, and stays there: each reading is
+  // refused as no motion of the vehicle (nav_implausible), no visual keyframe takes it as a new
+  // anchor, the piece ends (no visual motion and no usable nav reading past the bridged frames).
+  // The next piece's first reading is the jumped one: a placement from the last accepted reading
+  // would put the piece 1 km away.
+  const auto nav = [](int k) -> std::optional<NavRecord> {
+    return NavRecord{1.0 * k, Pose2(0.25 * k + (k >= 10 ? 1000.0 : 0.0), 0.0, 0.0), 0.01 * 0.25 * k, 0.001};
+  };
+  const Flight f = fly(OdometryOptions(), nav);
+  int closed = -1, implausible = 0;
+  for (int k = 0; k < 24; ++k) {
+    if (f.closedAt(k)) closed = k;
+    implausible += !f.steps[k].update.nav_note.empty();
+  }
+  ASSERT_GT(closed, 10) << "the blank frames end the piece";
+  EXPECT_GE(implausible, 5) << "the jumped readings are refused";
+  int resumed = -1;
+  for (int k = closed + 1; k < 24 && resumed < 0; ++k)
+    if (f.steps[k].started) resumed = k;
+  ASSERT_GE(resumed, 18);
+  for (int k = 0; k < 24; ++k) EXPECT_FALSE(f.placementAt(k).has_value()) << k;
+  ASSERT_EQ(f.steps[resumed].warnings.size(), 1u);
+  EXPECT_NE(f.steps[resumed].warnings[0].find("is not placed by the nav after the tracking loss: nav step of"),
+            std::string::npos)
+      << f.steps[resumed].warnings[0];
+  // The same loss with a nav that did not jump: placed (the refusal is the jump's, not the loss's).
+  const auto steady = [](int k) -> std::optional<NavRecord> {
+    return NavRecord{1.0 * k, Pose2(0.25 * k, 0.0, 0.0), 0.01 * 0.25 * k, 0.001};
+  };
+  OdometryOptions new_session;
+  new_session.nav.on_tracking_loss = TrackingLossPolicy::kNewSession;
+  const Flight g = fly(new_session, steady);
+  int placed = 0;
+  for (int k = 0; k < 24; ++k) placed += g.placementAt(k).has_value();
+  EXPECT_EQ(placed, 1);
+}
+
+// --- A new session live, in a world-fixed nav frame -------------------------------------------------
 
 // One straight pass, 0.25 m a frame; the nav continuous in one world frame across the sessions
-// (0.01 x distance, yaw 0.002 rad). Session `id` is a new SegmentedOdometry (start_session, a
-// camera change) flying frames [first, last); each step goes through `placer` as the odometry
-// nodelet sends it. Returns every step's placement and log line.
+// (0.01 x distance, yaw 0.002 rad).
+NavRecord worldNav(int k) { return {1.0 * k, Pose2(0.25 * k, 0.0, 0.0), 0.01 * 0.25 * k, 0.002}; }
+
+// Sessions of one stream (start_session at frame `first` of each), as the odometry nodelet feeds them;
+// each frame's placement and log lines.
 struct PlacedStep {
   std::optional<NavPlacementInput> placement;
   std::string said;
 };
 
-NavRecord worldNav(int k) { return {1.0 * k, Pose2(0.25 * k, 0.0, 0.0), 0.01 * 0.25 * k, 0.002}; }
-
 TEST_F(NavPlacementTracking, ANewSessionInAWorldFixedNavFrameIsPlacedAgainstThePreviousSessionsLastNavKeyframe) {
-  OdometryOptions options;
-  const auto session = [&](NavSessionPlacer* placer, int id, int first, int last, std::vector<PlacedStep>* out,
+  SlamConfig config;
+  const auto session = [&](FrameStream* stream, int id, int first, int last, std::vector<PlacedStep>* out,
                            std::optional<std::pair<int, NavRecord>>* last_nav = nullptr) {
-    SegmentedOdometry odo(camera_, options, TrackingLossOptions());
     for (int k = first; k < last; ++k) {
-      const SegmentedOdometry::Step step =
-          odo.process({k, 1.0 * k, 2.0, render(Pose2(2.0 + 0.25 * k, 4.0, 0.0), 2.0), worldNav(k)});
-      const NavSessionPlacer::Sent sent = placer->step(step, odo, id);
-      out->push_back({sent.placement, sent.said});
+      FrameInput in;
+      in.image = render(Pose2(2.0 + 0.25 * k, 4.0, 0.0), 2.0);
+      in.camera = camera_;
+      in.altitude_m = 2.0;
+      in.stamp_s = 1.0 * k;
+      in.nav = [k](bool) { return std::optional<NavRecord>(worldNav(k)); };
+      if (k == first) in.requested.session = id;
+      const FrameResult r = stream->process(in);
+      PlacedStep p;
+      for (const StreamKeyframe& kf : r.keyframes)
+        if (kf.input.nav_placement) p.placement = kf.input.nav_placement;
+      for (const auto& lines : {r.notes, r.warnings})
+        for (const std::string& l : lines) p.said += l;
+      out->push_back(p);
     }
-    if (last_nav) *last_nav = odo.lastNavKeyframe();
-    EXPECT_EQ(odo.sessions(), 1);
+    if (last_nav) *last_nav = stream->odometry()->lastNavKeyframe();
+    EXPECT_EQ(stream->odometry()->sessions(), 1);
   };
+  const auto worldFixed = [](FrameStream* s) { s->beginStream(NavFrame{"odom"}); };
   // Session 0 over frames 0-11, session 1 (after a gap: frames 12-15 never processed) from 16.
-  NavSessionPlacer placer(options.nav, true);
+  FrameStream stream(config, StampGuardOptions());
+  worldFixed(&stream);
   std::vector<PlacedStep> s0, s1;
   std::optional<std::pair<int, NavRecord>> end0;
-  session(&placer, 0, 0, 12, &s0, &end0);
+  session(&stream, 0, 0, 12, &s0, &end0);
   ASSERT_TRUE(end0.has_value());
-  ASSERT_TRUE(placer.anchor().has_value());
-  EXPECT_EQ(placer.anchor()->session, 0);
-  EXPECT_EQ(placer.anchor()->keyframe, end0->first) << "the last kept keyframe with a reading";
-  // The first session since the placer started: nothing known to place it against, said once.
+  // The first session since the stream started: nothing known to place it against, said once.
   EXPECT_FALSE(s0[0].placement.has_value());
   EXPECT_NE(s0[0].said.find("session 0 is not placed by the nav: no earlier keyframe"), std::string::npos)
       << s0[0].said;
   for (std::size_t k = 1; k < s0.size(); ++k) EXPECT_TRUE(s0[k].said.empty()) << k << ": " << s0[k].said;
-  session(&placer, 1, 16, 20, &s1);
+  session(&stream, 1, 16, 20, &s1);
   ASSERT_TRUE(s1[0].placement.has_value());
   const NavPlacementInput& p = *s1[0].placement;
   EXPECT_EQ(p.session, 0);
-  EXPECT_EQ(p.keyframe, end0->first);
+  EXPECT_EQ(p.keyframe, end0->first) << "the last kept keyframe with a reading";
   // Frame 16's reading in that keyframe's, the two readings' errors independent (as offline).
   const int from = static_cast<int>(std::lround(end0->second.stamp_s));
   const Pose2 expected = between(worldNav(from).pose, worldNav(16).pose);
@@ -290,40 +358,44 @@ TEST_F(NavPlacementTracking, ANewSessionInAWorldFixedNavFrameIsPlacedAgainstTheP
   EXPECT_NEAR(p.z.mean.y(), expected.y(), 1e-12);
   EXPECT_NEAR(p.z.mean.yaw(), expected.yaw(), 1e-12);
   EXPECT_GT(p.z.mean.x(), 1.0) << "at least the four frames never processed";
-  const UncertainPose2 independent = navPlacement(worldNav(from), worldNav(16), options.nav, false);
+  const UncertainPose2 independent = navPlacement(worldNav(from), worldNav(16), config.odometry.nav, false);
   EXPECT_EQ(p.z.covariance, independent.covariance);
   const double reach = 0.002 * (16 - from) * 0.25;
   EXPECT_NEAR(std::sqrt(p.z.covariance(0, 0)),
-              options.nav.inflation * std::sqrt(std::pow(worldNav(from).sigma_xy_m, 2) +
-                                                std::pow(worldNav(16).sigma_xy_m, 2) + reach * reach),
+              config.odometry.nav.inflation * std::sqrt(std::pow(worldNav(from).sigma_xy_m, 2) +
+                                                        std::pow(worldNav(16).sigma_xy_m, 2) + reach * reach),
               1e-12);
-  EXPECT_NE(s1[0].said.find("session 1 placed by the nav in its world-fixed frame against session 0"),
+  EXPECT_NE(s1[0].said.find("session 1 placed by the nav in the nav's world frame odom against session 0"),
             std::string::npos)
       << s1[0].said;
   for (std::size_t k = 1; k < s1.size(); ++k) EXPECT_FALSE(s1[k].placement.has_value()) << k;
-  EXPECT_EQ(placer.anchor()->session, 1) << "session 1's keyframes are the next one's anchor";
 
   // Not world-fixed (the default), or no nav prior, or nav.place_pieces false: a new session is
   // not placed, and nothing is said of it.
-  OdometryOptions no_nav = options;
-  no_nav.nav.enabled = false;
-  OdometryOptions not_placing = options;
-  not_placing.nav.place_pieces = false;
-  for (const NavSessionPlacer& fresh : {NavSessionPlacer(options.nav, false), NavSessionPlacer(no_nav.nav, true),
-                                        NavSessionPlacer(not_placing.nav, true)}) {
-    NavSessionPlacer off = fresh;
+  SlamConfig no_nav = config;
+  no_nav.odometry.nav.enabled = false;
+  SlamConfig not_placing = config;
+  not_placing.odometry.nav.place_pieces = false;
+  for (int variant = 0; variant < 3; ++variant) {
+    FrameStream off(variant == 1 ? no_nav : variant == 2 ? not_placing : config, StampGuardOptions());
+    if (variant == 0) {
+      off.beginStream();
+    } else {
+      worldFixed(&off);
+    }
     std::vector<PlacedStep> a, b;
     session(&off, 0, 0, 12, &a);
     session(&off, 1, 16, 20, &b);
-    for (const auto& s : {a, b})
-      for (const PlacedStep& x : s) {
-        EXPECT_FALSE(x.placement.has_value());
-        EXPECT_TRUE(x.said.empty()) << x.said;
+    for (const auto& x : {a, b})
+      for (const PlacedStep& y : x) {
+        EXPECT_FALSE(y.placement.has_value()) << variant;
+        EXPECT_TRUE(y.said.empty()) << variant << ": " << y.said;
       }
   }
   // A restarted odometry knows nothing of the sessions before it: its first session is not placed
   // (said once, not again), the next one is placed against it.
-  NavSessionPlacer restarted(options.nav, true);
+  FrameStream restarted(config, StampGuardOptions(), {}, 5);
+  worldFixed(&restarted);
   std::vector<PlacedStep> r1, r2;
   session(&restarted, 5, 16, 20, &r1);
   EXPECT_FALSE(r1[0].placement.has_value());
@@ -331,6 +403,31 @@ TEST_F(NavPlacementTracking, ANewSessionInAWorldFixedNavFrameIsPlacedAgainstTheP
   session(&restarted, 6, 20, 24, &r2);
   ASSERT_TRUE(r2[0].placement.has_value());
   EXPECT_EQ(r2[0].placement->session, 5);
+  // The world-fixed nav jumping 1 km between two sessions of one stream: the new one is not placed.
+  FrameStream jumped(config, StampGuardOptions());
+  worldFixed(&jumped);
+  std::vector<PlacedStep> j0;
+  session(&jumped, 0, 0, 12, &j0);
+  FrameInput in;
+  in.image = render(Pose2(2.0 + 0.25 * 16, 4.0, 0.0), 2.0);
+  in.camera = camera_;
+  in.altitude_m = 2.0;
+  in.stamp_s = 16.0;
+  in.nav = [](bool) {
+    NavRecord r = worldNav(16);
+    r.pose = compose(Pose2(1000.0, 0.0, 0.0), r.pose);
+    return std::optional<NavRecord>(r);
+  };
+  in.requested.session = 1;
+  const FrameResult r = jumped.process(in);
+  ASSERT_TRUE(r.started.has_value());
+  ASSERT_FALSE(r.keyframes.empty());
+  EXPECT_FALSE(r.keyframes[0].input.nav_placement.has_value());
+  ASSERT_EQ(r.warnings.size(), 1u);
+  EXPECT_NE(r.warnings[0].find("is not placed by the nav in the nav's world frame odom against session 0: nav step"),
+            std::string::npos)
+      << r.warnings[0];
+  EXPECT_EQ(jumped.counts().placements_refused, 1);
 }
 
 // --- The session manager ---------------------------------------------------------------------------

@@ -106,6 +106,12 @@ class NavTrack {
   bool append(const NavRecord& row, std::string* why = nullptr, double restart_after_s = 0.0);
   /// Forgets the rows before `stamp_s`, keeping the last one before it (so at(stamp_s) still works).
   void dropBefore(double stamp_s);
+  /// The images' clock jumped back to `stamp_s` (a bag that loops, a clock reset): when the newest row
+  /// is more than `tolerance_s` after it, every row is of the clock before the jump (a looping bag's
+  /// earlier pass covers the same stamps with readings the new session must not use) and the track is
+  /// emptied: returns how many rows were dropped. A track the nav already restarted (append) keeps
+  /// its rows.
+  std::size_t dropClockBefore(double stamp_s, double tolerance_s);
 
  private:
   static std::string invalid(const NavRecord& r);  // "" for a row whose values are valid

@@ -1,7 +1,8 @@
 // Every stage of the mission in one process, around a SessionManager: what offline_slam runs
 // (and what tests drive). The same components the nodelets host, composed in-process:
-//   frames -> SegmentedOdometry (frontend/tracking.h: odometry, keyframes, tracking loss)
-//          -> the keyframe's hash, computed once (SessionManager's ImageHasher)
+//   frames -> FrameStream (session/frame_stream.h: stamps, session starts, odometry, keyframes,
+//             tracking loss, the keyframe's hash computed once, the nav's placement), the
+//             front end the odometry nodelet drives too; the SessionManager gives its session ids
 //          -> LoopDetector (loops/loop_detector.h: local and global loops), whose local search
 //             trajectory comes from SessionChain::candidateTrajectory as in the loop nodelet
 //          -> SessionManager (session_manager.h: sessions, ids, back-end, store, joins), driven
@@ -31,6 +32,7 @@
 #include "uw_multislam/core/frontend/tracking.h"
 #include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/loops/session_chain.h"
+#include "uw_multislam/core/session/frame_stream.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/session_worker.h"
 #include "uw_multislam/core/session/slam_config.h"
@@ -71,9 +73,10 @@ class Pipeline {
   /// A dataset folder as a stream: named by its directory, its camera, its images read from the
   /// folder for the keyframes' stored images, its nav.csv as `nav`. `d` must outlive the stream.
   void beginStream(const Dataset& d);
-  /// One frame of the current stream. `prepared` (may be null): its image prepared ahead by
-  /// another thread (a FramePreparer made by preparer()); the result is the same.
-  SegmentedOdometry::Step processFrame(const OdometryInput& frame, PreparedFrame* prepared = nullptr);
+  /// One frame of the current stream (`frame.nav`: its own nav, else the stream's track at its
+  /// stamp). `prepared` (may be null): its image prepared ahead by another thread (a FramePreparer
+  /// made by preparer()); the result is the same.
+  FrameResult processFrame(const OdometryInput& frame, PreparedFrame* prepared = nullptr);
   /// A FramePreparer for the current stream's frames (its camera, the odometry's options), for a
   /// worker thread that prepares frames ahead (offline_slam --threads).
   FramePreparer preparer() const;
@@ -87,15 +90,18 @@ class Pipeline {
   /// The sessions begun for each stream, in order (several when tracking was lost).
   const std::vector<std::vector<int>>& streamSessions() const { return stream_sessions_; }
   const LoopDetector& loopDetector() const { return detector_; }
+  /// The front end (its counts: stamps skipped, jumps, sessions, placements).
+  const FrameStream& frames() const { return frames_; }
   /// Every stage's timing: odometry (all streams), hashing, loop detection, session manager.
   StageTimes times() const;
 
  private:
   Pipeline(const SlamConfig& config, SessionWorker* worker, std::unique_ptr<SessionWorker> own, Log log, bool verbose);
-  void startPiece(double stamp_s);
-  void endPiece(double stamp_s);
-  // The nav's placement of the piece just started (for its keyframe 0), if the nav gives one.
-  std::optional<NavPlacementInput> placementOf(const SegmentedOdometry::Step& step) const;
+  // The hooks of the front end: a session opens (the manager gives its id) and ends.
+  int startPiece(const SessionOpening& o);
+  void endPiece(const SessionClosing& c);
+  // One released keyframe: loops, the stored image, the manager.
+  void addKeyframe(StreamKeyframe k, const OdometryInput& frame);
   void say(const std::string& line) const;
 
   SlamConfig config_;
@@ -109,25 +115,15 @@ class Pipeline {
   CameraIntrinsics stream_camera_;  // the stream's camera, with its distortion
   ImageOf image_of_;
   NavTrack nav_;
-  std::optional<NavFrame> nav_frame_;  // the stream's declared nav world frame
-  int previous_piece_ = -1;            // the manager's id of this stream's last closed piece
-  // The last keyframe with a nav reading of a finished stream's pieces, in its declared world
-  // frame: where the next stream in that frame is placed from.
-  struct NavAnchor {
-    int session = -1, keyframe = -1;
-    NavRecord nav;
-    NavFrame frame;
-  };
-  std::optional<NavAnchor> nav_anchor_;
-  std::optional<NavAnchor> stream_anchor_;  // this stream's latest, handed on at its end
-  std::unique_ptr<SegmentedOdometry> segmented_;
+  bool streaming_ = false;  // a stream is begun
+  FrameStream frames_;
   SessionChain chain_;
   int session_ = -1;       // the manager's id of the stream's open piece; -1 while lost
   int read_failures_ = 0;  // the detector's feature_read_failures already logged
   int pieces_ = 0;
   long stream_frames_ = 0, stream_unreadable_ = 0;  // this stream's frames, and how many came without an image
   std::vector<std::vector<int>> stream_sessions_;
-  StageTimes times_, finished_;
+  StageTimes times_;
 };
 
 }  // namespace core

@@ -1,7 +1,8 @@
-// uw_multislam/Odometry: paper 000 §5 (core::SegmentedOdometry) on live images (doc/ros_api.md).
-// Threads: the callbacks pair image, camera_info and altitude under pairing_mutex_ (core::InputPairing)
-// onto a bounded queue (~queue_size; full: the oldest dropped, counted, its stamp handed on). One worker
-// owns the odometry: mount from tf, conversion, SIFT, RANSAC, publishing. It takes the newest frame
+// uw_multislam/Odometry: the front end (core::FrameStream, the one offline_slam drives) on live images
+// (doc/ros_api.md). Threads: the callbacks pair image, camera_info and altitude under pairing_mutex_
+// (core::InputPairing) onto a bounded queue (~queue_size; full: the oldest dropped, counted, its stamp handed on).
+// One worker converts each frame (image, camera, mount from tf, the camera's altitude, the nav lookup), feeds the
+// stream and publishes what it returns. It takes the newest frame
 // core::FrameSkipRule allows (~drop_policy newest: the queue 20x deeper, so the rule, not a full queue,
 // passes frames over; without a prediction every frame is processed, as without skipping) or the oldest.
 // ~prepare_threads (core::OrderedPrefetch): with newest each frame is handed to the preparing threads as it arrives, a
@@ -29,8 +30,7 @@
 #include "uw_multislam/core/common/ordered_prefetch.h"
 #include "uw_multislam/core/frontend/frame_skip.h"
 #include "uw_multislam/core/frontend/stream_control.h"
-#include "uw_multislam/core/frontend/tracking.h"
-#include "uw_multislam/core/session/nav_session_placer.h"
+#include "uw_multislam/core/session/frame_stream.h"
 #include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/image_input.h"
 #include "uw_multislam/ros/keyframe_publisher.h"
@@ -64,10 +64,10 @@ class OdometryNodelet : public nodelet::Nodelet {
   Refusal convert(const Frame& f, core::CameraIntrinsics* camera, cv::Mat* image, std::string* why) const;
   Ahead prepareAhead(const Frame& f) const;
   void process(const Frame& f, Ahead* ahead);
-  void startSession(int id, const core::CameraIntrinsics& camera, const std::string& why);
+  bool resolveMount(const Frame& f);  // mount_ for the frame's sensors; false: refused (counted, logged)
   ros_diagnostics::OdometryCounters snapshot(ros_diagnostics::OdometryCounters worker);  // + inputs, FIFO, nav
   std::string silentInput(double now);
-  void logStats(const std::string& when);
+  void logStats(const std::string& when, const core::Odometry* odometry = nullptr);  // null: the current one's
   void fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
   static double steadyNow() { return ros::SteadyTime::now().toSec(); }  // timeouts, arrivals: never steps
 
@@ -88,14 +88,9 @@ class OdometryNodelet : public nodelet::Nodelet {
   core::FrameBudget budget_;                          // thread-safe: arrivals (callbacks), costs (worker), diagnostics
   ros_diagnostics::CounterStatus diagnostic_status_;  // the updater's thread only
   // Worker-only state.
-  std::unique_ptr<core::SegmentedOdometry> odometry_;  // a new session on tracking loss
-  core::NavSessionPlacer placer_;  // the nav's placement of each new piece and session, across sessions
-  std::unique_ptr<core::StampGuard> stamps_;
+  std::unique_ptr<core::FrameStream> stream_;  // stamps, sessions, odometry, keyframes, nav placement
   std::unique_ptr<ros_frames::SensorMount> sensor_mount_;
-  core::CameraIntrinsics camera_;                 // the session's
-  core::CameraMount mount_;                       // the sensors' on the vehicle, once tf gave it
-  std::optional<core::FrameSkipRule> skip_rule_;  // the session's (~drop_policy newest)
-  int session_ = 0, frame_index_ = 0;
+  core::CameraMount mount_;  // the sensors' on the vehicle, once tf gave it
   ros_diagnostics::OdometryCounters counts_;
   ros::WallTime last_stats_;
   // ROS handles; the inputs last: destroyed first, so no callback runs into destroyed members.
