@@ -219,6 +219,29 @@ bool Odometry::registersWithUnmatched(const TrackedFrame& cur) {
   return true;
 }
 
+std::optional<Odometry::Anchor> Odometry::lastKeyframeAnchor() const {
+  if (keyframes_.empty() || keyframes_.back().fallback || last_kf_.features.empty()) return std::nullopt;
+  return Anchor{static_cast<int>(keyframes_.size()) - 1, last_kf_.index, last_kf_.altitude_m, last_kf_.features,
+                last_kf_.images};
+}
+
+std::optional<UncertainPose2> Odometry::registerAnchor(const Anchor& anchor) {
+  if (keyframes_.empty() || keyframes_.back().fallback || last_kf_.features.empty()) return std::nullopt;
+  TrackedFrame a;
+  a.index = anchor.frame_index;
+  a.altitude_m = anchor.altitude_m;
+  a.features = anchor.features;
+  a.images = anchor.images;
+  PairMotion p = estimatePairMotion({&a.features, a.altitude_m, &feature_camera_},
+                                    {&last_kf_.features, last_kf_.altitude_m, &feature_camera_}, options_.matching,
+                                    options_.ransac, &times_);
+  if (!p.ransac.success && dense_ && hasTexture(a.features, options_.dense) &&
+      hasTexture(last_kf_.features, options_.dense))
+    p = matchDense(a, last_kf_, nullptr);
+  if (!p.ransac.success) return std::nullopt;
+  return UncertainPose2(p.ransac.motion, p.ransac.covariance);
+}
+
 FrameFeatures Odometry::extractFeatures(const cv::Mat& grey) {
   ScopedStage s(&times_, "features");
   return preparer_.extract(grey);

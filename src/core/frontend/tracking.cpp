@@ -9,6 +9,7 @@ namespace core {
 std::string TrackingLossOptions::validate() const {
   if (max_fallbacks < 0) return "max_fallbacks must be >= 0 (0 = never close a session)";
   if (min_features < 1) return "min_features must be >= 1";
+  if (rejoin_keyframes < 0) return "rejoin_keyframes must be >= 0 (0 = never)";
   return {};
 }
 
@@ -27,6 +28,19 @@ StageTimes SegmentedOdometry::times() const {
   return all;
 }
 
+void SegmentedOdometry::retire(const Odometry& odometry) {
+  times_.merge(odometry.times());
+  dense_tries_ += odometry.stats().dense_tries;
+  dense_matches_ += odometry.stats().dense_matches;
+  restarts_ += odometry.stats().restarts;
+}
+
+long SegmentedOdometry::denseTries() const { return dense_tries_ + (odometry_ ? odometry_->stats().dense_tries : 0); }
+long SegmentedOdometry::denseMatches() const {
+  return dense_matches_ + (odometry_ ? odometry_->stats().dense_matches : 0);
+}
+long SegmentedOdometry::restarts() const { return restarts_ + (odometry_ ? odometry_->stats().restarts : 0); }
+
 void SegmentedOdometry::begin(std::unique_ptr<Odometry> odometry, Step* step) {
   odometry_ = std::move(odometry);
   consecutive_fallbacks_ = 0;
@@ -42,6 +56,25 @@ void SegmentedOdometry::begin(std::unique_ptr<Odometry> odometry, Step* step) {
     step->placement =
         NavPlacement{previous_nav_->first, navPlacement(previous_nav_->second, *here, options_.nav, true)};
   previous_nav_.reset();
+  if (step->placement) anchor_.reset();  // placed by the nav already
+}
+
+void SegmentedOdometry::rejoin(Step* step) {
+  const int id = step->update.keyframe_id;
+  if (!anchor_ || step->placement || id < 0 || odometry_->keyframes()[static_cast<std::size_t>(id)].fallback) return;
+  // The placement goes with this keyframe: only when it is released now.
+  const auto& released = released_;
+  if (std::none_of(released.begin(), released.end(), [id](const Odometry::NewKeyframe& k) { return k.id == id; }))
+    return;
+  ++rejoin_tries_;
+  --rejoin_left_;
+  if (const std::optional<UncertainPose2> z = odometry_->registerAnchor(*anchor_)) {
+    step->placement = NavPlacement{anchor_->keyframe, *z, true};
+    ++rejoins_;
+    anchor_.reset();
+  } else if (rejoin_left_ <= 0) {
+    anchor_.reset();
+  }
 }
 
 bool SegmentedOdometry::restart(Step* step) {
@@ -50,7 +83,7 @@ bool SegmentedOdometry::restart(Step* step) {
   auto candidate = std::make_unique<Odometry>(camera_, options_);
   const OdometryUpdate first = candidate->process(frames.front().input, &frames.front().prepared);
   if (first.status != FrameStatus::kFirstKeyframe || first.features < loss_.min_features) {
-    times_.merge(candidate->times());
+    retire(*candidate);
     return false;
   }
   begin(std::move(candidate), step);
@@ -89,7 +122,7 @@ SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input, P
   Step step;
   released_.clear();
   if (closed_) {
-    times_.merge(odometry_->times());
+    retire(*odometry_);
     odometry_.reset();
     closed_ = false;
   }
@@ -99,7 +132,7 @@ SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input, P
     auto candidate = std::make_unique<Odometry>(camera_, options_);
     step.update = candidate->process(input, prepared);
     if (step.update.status != FrameStatus::kFirstKeyframe || step.update.features < loss_.min_features) {
-      times_.merge(candidate->times());
+      retire(*candidate);
       if (sessions_ > 0) ++frames_lost_;
       if (step.update.status != FrameStatus::kSkipped) {
         step.update.reason = "no session: " + std::to_string(step.update.features) + " features, " +
@@ -110,10 +143,12 @@ SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input, P
       return step;
     }
     begin(std::move(candidate), &step);
+    rejoin(&step);
     return step;
   }
   step.update = odometry_->process(input, prepared);
   absorb(step.update);
+  rejoin(&step);
   // A nav stream ends at once when neither vision nor the nav gives a motion past the bridged
   // frames (Odometry made none up); max_fallbacks 0 keeps the session open, unmatched. A frame
   // that registers with the unmatched one before it, not with the session, ends it at once too:
@@ -126,6 +161,10 @@ SegmentedOdometry::Step SegmentedOdometry::process(const OdometryInput& input, P
     ++losses_;
     pending_.clear();  // dropped: the session ends at its last measured keyframe
     previous_nav_ = lastNavKeyframe();
+    anchor_ = odometry_->lastKeyframeAnchor();
+    if (anchor_ && anchor_->keyframe >= kept_) anchor_.reset();  // not kept: no link can start there
+    rejoin_left_ = loss_.rejoin_keyframes;
+    if (rejoin_left_ <= 0) anchor_.reset();
     if (restarts) restart_ = odometry_->restartFrames();
   }
   return step;

@@ -215,6 +215,7 @@ void visitConfig(V& v, C& c) {
   v.block("tracking", [&](V& t) {
     t("max_fallbacks", c.tracking.max_fallbacks);
     t("min_features", c.tracking.min_features);
+    t("rejoin_keyframes", c.tracking.rejoin_keyframes);
   });
   v.block("nav", [&](V& n) {
     auto& o = c.odometry.nav;

@@ -332,14 +332,29 @@ class Odometry {
   /// with it, in order, for the next session to start from; empty otherwise.
   const std::vector<RestartFrame>& restartFrames() const { return restart_frames_; }
 
- private:
-  // A frame's grey image (the camera's, for the dense pass) and enhanced one (SIFT's input), and
-  // its dense features once computed: shared by the copies of a frame (prev_, last_kf_, unmatched_frame_).
+  /// A frame's grey image (the camera's, for the dense pass) and enhanced one (SIFT's input), and
+  /// its dense features once computed: shared by the copies of a frame.
   struct FrameImages {
     cv::Mat grey;
     cv::Mat enhanced;
     std::optional<FrameFeatures> dense;
   };
+  /// A keyframe of a closed piece, kept to register a later piece's keyframes with (rejoin:
+  /// SegmentedOdometry).
+  struct Anchor {
+    int keyframe = -1;  // its id in its piece
+    int frame_index = -1;
+    double altitude_m = 0.0;
+    FrameFeatures features;
+    std::shared_ptr<FrameImages> images;
+  };
+  /// The last keyframe, with a measured motion (nullopt: none, or its motion is a reused one).
+  std::optional<Anchor> lastKeyframeAnchor() const;
+  /// The last keyframe registered with `anchor` as a frame with the keyframe (normal, then the
+  /// dense pass; the same acceptance): its pose in the anchor's frame, or nullopt.
+  std::optional<UncertainPose2> registerAnchor(const Anchor& anchor);
+
+ private:
   struct TrackedFrame {
     int index = -1;
     double stamp_s = 0.0;
