@@ -84,6 +84,15 @@ const CounterTable<OdometryCounters>& odometryCounterTable() {
        kWarn},
       {"fallbacks", &C::fallbacks, "frames given the previous motion again (no match; paper section 5)", kWarn},
       {"tracking_losses", &C::tracking_losses, "sessions closed by the tracking-loss rule", kWarn},
+      {"dense_tries", &C::dense_tries, "dense registrations tried where the normal one failed (slam/odometry/dense)"},
+      {"dense_matches", &C::dense_matches, "dense registrations accepted: frames kept in the session"},
+      {"restarts", &C::restarts,
+       "tracking losses where a frame registers only with the unmatched frame before it: the next session starts "
+       "there",
+       kWarn},
+      {"visual_bridges", &C::visual_bridges,
+       "pieces after a tracking loss joined to the piece before by registering a keyframe with its last one "
+       "(slam/tracking/rejoin_keyframes)"},
       {"nav_received", &C::nav_received, "nav/odom readings received (~nav_source topic)"},
       {"nav_refused", &C::nav_refused,
        "nav readings refused: frames other than odom / odom_ned and base_link / base_link_frd, not finite, a "

@@ -87,6 +87,8 @@ void reportFrame(const core::FrameResult& r, const core::FrameStream& stream, co
   c->time_jumps_back = n.jumps_back, c->time_jumps_forward = n.jumps_forward;
   c->sessions = n.sessions, c->tracking_losses = n.tracking_losses;
   c->nav_placements_refused = n.placements_refused;
+  c->dense_tries = n.dense_tries, c->dense_matches = n.dense_matches, c->restarts = n.restarts;
+  c->visual_bridges = n.bridges;
   const double stamp_s = stream.stamps().last();
   if (r.timing == core::StampClass::kDuplicate)
     ROS_WARN_THROTTLE(5, "odometry: frame skipped: stamp %.6f seen before (duplicated frame; %ld so far)", stamp_s,
@@ -114,9 +116,9 @@ void reportFrame(const core::FrameResult& r, const core::FrameStream& stream, co
   for (const core::FrameResult::Ended& e : r.ended)
     if (e.cause == core::SessionEnd::kTrackingLoss)
       ROS_WARN(
-          "odometry: tracking lost at frame %d (%d unmatched frames): session %d closed; the next frame with %d "
-          "features starts the next session",
-          r.update.index, loss.max_fallbacks, e.session, loss.min_features);
+          "odometry: tracking lost at frame %d (%s): session %d closed; the next session starts at a frame with %d "
+          "features",
+          r.update.index, e.why.c_str(), e.session, loss.min_features);
 }
 
 }  // namespace ros_diagnostics

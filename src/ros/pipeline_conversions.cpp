@@ -129,6 +129,7 @@ uw_multislam::Keyframe toKeyframeMsg(const KeyframeData& k, const std_msgs::Head
   if (k.nav_placement) {
     m.placement = toPose2DMsg(k.nav_placement->z.mean);
     toArray(k.nav_placement->z.covariance, &m.placement_covariance);
+    m.placement_visual = k.nav_placement->visual;
   }
   return m;
 }
@@ -181,7 +182,8 @@ bool fromMsg(const uw_multislam::Keyframe& m, KeyframeData* out, std::string* wh
     const std::string bad = core::checkCovariance(placement_cov);
     if (!bad.empty()) return fail(why, who + "placement covariance: " + bad);
     placement = core::NavPlacementInput{m.placement_session, m.placement_keyframe,
-                                        core::UncertainPose2(fromMsg(m.placement), placement_cov)};
+                                        core::UncertainPose2(fromMsg(m.placement), placement_cov),
+                                        static_cast<bool>(m.placement_visual)};
   }
   KeyframeData k;
   k.nav_placement = placement;

@@ -120,6 +120,14 @@ TEST_F(PipelineConversions, TheNavPlacementTravelsWithKeyframeZeroAndABadOneIsRe
   const core::KeyframeInput in = rc::toKeyframeInput(back, 1.0);
   ASSERT_TRUE(in.nav_placement.has_value());
   EXPECT_EQ(in.nav_placement->keyframe, 12);
+  EXPECT_FALSE(in.nav_placement->visual);
+  // A visual bridge stays one across the message (stored as a loop, not a nav placement).
+  k.nav_placement->visual = true;
+  m = rc::toKeyframeMsg(k, header());
+  EXPECT_TRUE(m.placement_visual);
+  ASSERT_TRUE(rc::fromMsg(m, &back, &why)) << why;
+  ASSERT_TRUE(back.nav_placement.has_value());
+  EXPECT_TRUE(back.nav_placement->visual);
   // Refused, naming what: no keyframe named, a covariance not positive definite, a non-finite pose.
   uw_multislam::Keyframe bad = m;
   bad.placement_keyframe = -1;

@@ -29,7 +29,7 @@ struct OdometryCounters {
   long skipped_duplicate_stamp = 0, skipped_out_of_order = 0, skipped_by_odometry = 0, skipped_no_mount = 0;
   // Altitude, sessions and motions.
   long bad_altitude_replaced = 0, fixed_altitude_frames = 0, time_jumps_back = 0, time_jumps_forward = 0;
-  long fallbacks = 0, tracking_losses = 0;
+  long fallbacks = 0, tracking_losses = 0, dense_tries = 0, dense_matches = 0, restarts = 0, visual_bridges = 0;
   long nav_received = 0, nav_refused = 0, frames_with_nav = 0, nav_motions = 0, fused_motions = 0;
   long nav_implausible = 0, nav_tf_missing = 0, nav_covariance_replaced = 0, prepared_ahead = 0;
   long nav_placements_refused = 0, mount_changes = 0;

@@ -48,7 +48,8 @@ std::string OdometryOptions::validate() const {
                                                         {"keyframes", keyframes.validate()},
                                                         {"fallback", fallback.validate()},
                                                         {"nav", nav.validate()},
-                                                        {"klt", klt.validate()}};
+                                                        {"klt", klt.validate()},
+                                                        {"dense", dense.validate()}};
   for (const auto& c : checks) {
     if (!c.second.empty()) return std::string(c.first) + ": " + c.second;
   }
@@ -90,7 +91,9 @@ Odometry::Odometry(const CameraIntrinsics& camera, const OdometryOptions& option
       feature_camera_(camera.pinhole()),
       options_(checked(options, camera)),
       preparer_(camera, options_),
-      klt_(options.klt) {}
+      klt_(options.klt) {
+  if (options_.dense.enabled) dense_.emplace(options_.dense, options_.features);
+}
 
 FramePreparer::FramePreparer(const CameraIntrinsics& camera, const OdometryOptions& options)
     : camera_(camera),
@@ -143,6 +146,100 @@ PairMotion Odometry::matchToKeyframe(const FrameFeatures& f, double altitude_m, 
                                     prior ? &*prior : nullptr);
   stats_.hypotheses_gated += p.ransac.hypotheses_gated;
   return p;
+}
+
+const FrameFeatures& Odometry::denseFeatures(const TrackedFrame& frame) {
+  static const FrameFeatures none;
+  if (!dense_ || !frame.images || frame.images->grey.empty()) return none;
+  if (!frame.images->dense) {
+    ScopedStage s(&times_, "dense_features");
+    frame.images->dense = dense_->extract(frame.images->grey, camera_);
+  }
+  return *frame.images->dense;
+}
+
+PairMotion Odometry::matchDense(const TrackedFrame& a, const TrackedFrame& b, const MotionPrior* prior) {
+  ++stats_.dense_tries;
+  const FrameFeatures& fa = denseFeatures(a);
+  const FrameFeatures& fb = denseFeatures(b);
+  ScopedStage s(&times_, "dense_match");
+  MatchOptions matching = options_.matching;
+  matching.ratio = options_.dense.ratio;
+  matching.mutual = true;
+  RansacOptions ransac = options_.ransac;
+  ransac.min_inliers = options_.dense.min_inliers;
+  PairMotion p = estimatePairMotion({&fa, a.altitude_m, &feature_camera_}, {&fb, b.altitude_m, &feature_camera_},
+                                    matching, ransac, nullptr, prior);
+  stats_.hypotheses_gated += p.ransac.hypotheses_gated;
+  if (p.ransac.success) {
+    std::vector<cv::Point2f> inliers;
+    inliers.reserve(p.ransac.inliers.size());
+    for (int i : p.ransac.inliers) inliers.push_back(fb.keypoints[p.correspondences[i].b].pt);
+    const std::string refused =
+        denseAccepts(static_cast<int>(inliers.size()), convexHullArea(inliers),
+                     footprintOverlap(p.ransac.motion, a.altitude_m, b.altitude_m), feature_camera_, options_.dense);
+    if (refused.empty()) {
+      ++stats_.dense_matches;
+      return p;
+    }
+    p.ransac.success = false;
+    p.ransac.failure = refused;
+  }
+  p.ransac.failure = "dense pass: " + p.ransac.failure;
+  return p;
+}
+
+namespace {
+// The dense pass needs texture: a blank frame (no normal feature) would only give it noise to match.
+bool hasTexture(const FrameFeatures& f, const DenseMatchOptions& o) {
+  return static_cast<int>(f.size()) >= o.min_inliers;
+}
+}  // namespace
+
+bool Odometry::registersWithUnmatched(const TrackedFrame& cur) {
+  const TrackedFrame& u = *unmatched_frame_;
+  PairMotion p = estimatePairMotion({&u.features, u.altitude_m, &feature_camera_},
+                                    {&cur.features, cur.altitude_m, &feature_camera_}, options_.matching,
+                                    options_.ransac, &times_);
+  if (!p.ransac.success && dense_ && hasTexture(u.features, options_.dense) && hasTexture(cur.features, options_.dense))
+    p = matchDense(u, cur, nullptr);
+  if (!p.ransac.success || !u.images || !cur.images) return false;
+  for (const TrackedFrame* f : {&u, &cur}) {
+    RestartFrame r;
+    r.input.index = f->index;
+    r.input.stamp_s = f->stamp_s;
+    r.input.altitude_m = f->altitude_m;
+    r.input.image = f->images->grey;
+    r.input.nav = f->nav;
+    r.prepared.done = true;
+    r.prepared.grey = f->images->enhanced;
+    r.prepared.features = f->features;
+    restart_frames_.push_back(std::move(r));
+  }
+  return true;
+}
+
+std::optional<Odometry::Anchor> Odometry::lastKeyframeAnchor() const {
+  if (keyframes_.empty() || keyframes_.back().fallback || last_kf_.features.empty()) return std::nullopt;
+  return Anchor{static_cast<int>(keyframes_.size()) - 1, last_kf_.index, last_kf_.altitude_m, last_kf_.features,
+                last_kf_.images};
+}
+
+std::optional<UncertainPose2> Odometry::registerAnchor(const Anchor& anchor) {
+  if (keyframes_.empty() || keyframes_.back().fallback || last_kf_.features.empty()) return std::nullopt;
+  TrackedFrame a;
+  a.index = anchor.frame_index;
+  a.altitude_m = anchor.altitude_m;
+  a.features = anchor.features;
+  a.images = anchor.images;
+  PairMotion p = estimatePairMotion({&a.features, a.altitude_m, &feature_camera_},
+                                    {&last_kf_.features, last_kf_.altitude_m, &feature_camera_}, options_.matching,
+                                    options_.ransac, &times_);
+  if (!p.ransac.success && dense_ && hasTexture(a.features, options_.dense) &&
+      hasTexture(last_kf_.features, options_.dense))
+    p = matchDense(a, last_kf_, nullptr);
+  if (!p.ransac.success) return std::nullopt;
+  return UncertainPose2(p.ransac.motion, p.ransac.covariance);
 }
 
 FrameFeatures Odometry::extractFeatures(const cv::Mat& grey) {
@@ -300,6 +397,7 @@ OdometryUpdate Odometry::process(const OdometryInput& in, PreparedFrame* prepare
   ScopedStage total(&times_, "odometry_total");
   ++stats_.frames;
   new_keyframes_.clear();
+  restart_frames_.clear();
   lookahead_s_ = std::isfinite(in.keyframe_lookahead_s) ? std::max(0.0, in.keyframe_lookahead_s) : 0.0;
   OdometryUpdate up;
   up.index = in.index;
@@ -377,6 +475,15 @@ OdometryUpdate Odometry::process(const OdometryInput& in, PreparedFrame* prepare
       ScopedStage s(&times_, "enhance");
       grey = preparer_.enhance(in.image);
     }
+    // Kept with the frame: the dense pass extracts from the camera's grey image (flat-fielded, not
+    // the enhanced one), and a restart processes the frame again. A copy: the caller's buffer may be reused.
+    cur.images = std::make_shared<FrameImages>();
+    if (in.image.channels() == 3) {
+      cv::cvtColor(in.image, cur.images->grey, cv::COLOR_BGR2GRAY);
+    } else {
+      cur.images->grey = in.image.clone();
+    }
+    cur.images->enhanced = grey;
     if (options_.klt.enabled && !keyframes_.empty() && klt_.active(static_cast<int>(keyframes_.size()) - 1) &&
         trackBetweenKeyframes(grey, &cur, &up)) {
       finishFrame(&cur, up);
@@ -440,6 +547,16 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
     ++stats_.promotions;
     m = matchToKeyframe(cur.features, alt, cur.nav);
   }
+  if (!m.ransac.success && dense_ && hasTexture(cur.features, options_.dense)) {
+    const std::optional<MotionPrior> prior = ransacPrior(cur.nav);
+    PairMotion d = matchDense(last_kf_, cur, prior ? &*prior : nullptr);
+    if (d.ransac.success) {
+      m = std::move(d);
+      up.dense = true;
+    } else {
+      m.ransac.failure += "; " + d.ransac.failure;
+    }
+  }
   up.matches = m.matches;
   const bool nav = cur.nav && last_kf_.nav;
   const UncertainPose2 nav_motion = nav ? navMotion(*last_kf_.nav, *cur.nav, options_.nav) : UncertainPose2();
@@ -477,7 +594,9 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
     up.scale = m.ransac.scale;
     up.overlap = footprintOverlap(cur.motion.mean, last_kf_.altitude_m, alt);
     up.covariance = compose(UncertainPose2(last_kf_.pose, last_kf_covariance_), cur.motion).covariance;
-    const bool due = needsKeyframe(m.ransac, up.overlap, cur.stamp_s);
+    // A frame the dense pass matched is kept as a keyframe: the next frame is matched to it rather
+    // than to the keyframe it barely registered with.
+    const bool due = up.dense || needsKeyframe(m.ransac, up.overlap, cur.stamp_s);
     if (due || dueAhead(cur.pose, cur.stamp_s, alt)) {
       up.early_keyframe = !due;
       stats_.early_keyframes += !due;
@@ -488,6 +607,17 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
       ++stats_.tracked;
       up.status = FrameStatus::kTracked;
     }
+  } else if (unmatched_frame_ && registersWithUnmatched(cur)) {
+    // The frame before was unmatched and this one registers with it, not with the session: the
+    // chain breaks before that frame, and matching the next frames against a keyframe that falls
+    // further behind would only fail them too. The session ends; the next starts at that frame.
+    unmatchedFrame(&up);
+    ++stats_.restarts;
+    up.restart_index = unmatched_frame_->index;
+    up.reason = "registers with the unmatched frame " + std::to_string(up.restart_index) + ", not with the session (" +
+                m.ransac.failure + "): the next session starts there";
+    unmatched_frame_.reset();
+    return up;
   } else if (unmatched_ < options_.fallback.bridge_frames) {
     // Bridged: no motion is made up. The next frame is matched to the last keyframe (the previous
     // frame, promoted above when it was only tracked); the session's state stays that of the last
@@ -495,6 +625,7 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
     unmatchedFrame(&up);
     ++stats_.bridged;
     up.reason = "unmatched, bridged to the next frame: " + m.ransac.failure;
+    unmatched_frame_ = cur;
     return up;
   } else if (navStream()) {
     // A nav stream whose reading is refused or missing beyond the bridged frames: the piece ends
@@ -506,6 +637,7 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
     up.nav_loss = true;
     up.reason = "no visual motion and no usable nav reading for " + std::to_string(unmatched_) +
                 " frames: tracking lost (" + m.ransac.failure + ")";
+    unmatched_frame_ = cur;
     return up;
   } else {
     // Reuse the previous frame-to-frame motion (paper §5), with a deliberately large covariance,
@@ -533,6 +665,7 @@ OdometryUpdate Odometry::processExtracted(TrackedFrame* cur_ptr, OdometryUpdate*
 
 void Odometry::finishFrame(TrackedFrame* cur, const OdometryUpdate& up) {
   if (up.status != FrameStatus::kFallback) unmatched_ = 0;  // matched (or carried by the nav) again
+  unmatched_frame_.reset();  // this frame is in the session (matched, carried or a reused motion)
   cur->match = {up.matches, up.inliers, up.overlap, up.scale};
   if (!keyframes_.empty() && keyframes_.back().frame_index == cur->index && !keyframes_.back().fallback)
     keyframes_.back().match = cur->match;

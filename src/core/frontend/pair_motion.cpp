@@ -23,6 +23,7 @@ PairMotion estimatePairMotion(const View& a, const View& b, const MatchOptions& 
   // Pixel thresholds in metres at the scale of the second view (the newer one).
   const double metres_per_px = b.altitude_m / (0.5 * (b.camera->fx + b.camera->fy));
   out.ransac = estimateRigidRansac(pa, pb, metres_per_px, ransac, prior);
+  out.correspondences = std::move(matches);
   return out;
 }
 

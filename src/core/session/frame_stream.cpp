@@ -97,10 +97,10 @@ StageTimes FrameStream::times() const {
   return t;
 }
 
-void FrameStream::end(SessionEnd cause, double stamp_s, FrameResult* r) {
+void FrameStream::end(SessionEnd cause, double stamp_s, FrameResult* r, std::string why) {
   if (!open_) return;
   if (hooks_.close) hooks_.close({session_, cause, stamp_s, segmented_ ? segmented_->odometry() : nullptr});
-  if (r) r->ended.push_back({session_, cause});
+  if (r) r->ended.push_back({session_, cause, std::move(why)});
   open_ = false;
   previous_session_ = session_;
   placer_.pieceEnded();
@@ -109,7 +109,13 @@ void FrameStream::end(SessionEnd cause, double stamp_s, FrameResult* r) {
 
 void FrameStream::restart(const SessionStart& start, const CameraIntrinsics& camera, FrameResult* r) {
   end(SessionEnd::kNextSession, last_stamp_, r);
-  if (segmented_) finished_.merge(segmented_->times());
+  if (segmented_) {
+    finished_.merge(segmented_->times());
+    retired_dense_tries_ += segmented_->denseTries();
+    retired_dense_matches_ += segmented_->denseMatches();
+    retired_restarts_ += segmented_->restarts();
+    retired_rejoin_tries_ += segmented_->rejoinTries();
+  }
   segmented_ = std::make_unique<SegmentedOdometry>(camera, config_.odometry, config_.tracking);
   skip_rule_.emplace(camera, config_.odometry.keyframes);
   camera_ = camera;
@@ -146,13 +152,15 @@ void FrameStream::release(const SegmentedOdometry::Step& step, FrameResult* r) {
     const std::optional<NavRecord>& nav = odometry.keyframes()[static_cast<std::size_t>(kf.id)].nav;
     NavPlacer::Placed placed;
     if (kf.id == placed_kf) {
-      placed = placer_.afterLoss(*held_placement_, previous_session_, session_, kf.id, nav);
+      placed = held_placement_->visual ? NavPlacer::bridged(*held_placement_, previous_session_, session_, kf.id)
+                                       : placer_.afterLoss(*held_placement_, previous_session_, session_, kf.id, nav);
       held_placement_.reset();
     } else if (kf.id == 0 && r->started && r->started->cause != SessionCause::kTrackingResumed) {
       placed = placer_.newSession(session_, nav);
     }
     k.input.nav_placement = placed.placement;
-    counts_.placements += placed.placement.has_value();
+    (placed.placement && placed.placement->visual ? counts_.bridges : counts_.placements) +=
+        placed.placement.has_value();
     counts_.placements_refused += placed.refused;
     if (!placed.said.empty()) (placed.refused ? r->warnings : r->notes).push_back(placed.said);
     placer_.released(session_, kf.id, nav);  // after its own placement: the anchor is an earlier keyframe
@@ -203,6 +211,10 @@ FrameResult FrameStream::process(FrameInput in) {
   const SegmentedOdometry::Step step =
       segmented_->process({index, in.stamp_s, in.altitude_m, in.image, nav, ahead}, in.prepared);
   r.update = step.update;
+  counts_.dense_tries = retired_dense_tries_ + segmented_->denseTries();
+  counts_.dense_matches = retired_dense_matches_ + segmented_->denseMatches();
+  counts_.restarts = retired_restarts_ + segmented_->restarts();
+  counts_.rejoin_tries = retired_rejoin_tries_ + segmented_->rejoinTries();
   r.moved = step.update.status != FrameStatus::kSkipped;
   skip_rule_->observe(
       processedFrame(step.update, in.stamp_s, in.altitude_m, step.session_started, segmented_->odometry()));
@@ -211,8 +223,10 @@ FrameResult FrameStream::process(FrameInput in) {
       open(causeOf(pending_->cause), pending_->id, pending_->why, in.stamp_s, &r);
       pending_.reset();
     } else {
+      // After a restart the piece's origin is the unmatched frame before this one.
+      const int origin = segmented_->odometry()->keyframes().front().frame_index;
       open(SessionCause::kTrackingResumed, std::max(session_ + 1, next_free_),
-           "tracking resumed at frame " + std::to_string(index), in.stamp_s, &r);
+           "tracking resumed at frame " + std::to_string(origin), in.stamp_s, &r);
     }
   }
   if (open_) last_stamp_ = in.stamp_s;
@@ -220,7 +234,16 @@ FrameResult FrameStream::process(FrameInput in) {
   r.session = session();  // the frame's pose is in it, also when this frame closes it
   if (step.session_closed) {
     ++counts_.tracking_losses;
-    end(SessionEnd::kTrackingLoss, in.stamp_s, &r);
+    std::string why;
+    if (step.update.restart_index >= 0) {
+      why = "frame " + std::to_string(step.update.index) + " registers only with the unmatched frame " +
+            std::to_string(step.update.restart_index) + " before it: the next session starts there";
+    } else if (step.update.nav_loss) {
+      why = "neither vision nor the nav gave a motion";
+    } else {
+      why = std::to_string(config_.tracking.max_fallbacks) + " unmatched frames";
+    }
+    end(SessionEnd::kTrackingLoss, in.stamp_s, &r, std::move(why));
   }
   return r;
 }

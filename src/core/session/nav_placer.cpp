@@ -77,6 +77,15 @@ NavPlacer::Placed NavPlacer::afterLoss(const NavPlacement& p, int previous, int 
   return out;
 }
 
+NavPlacer::Placed NavPlacer::bridged(const NavPlacement& p, int previous, int session, int keyframe) {
+  Placed out;
+  if (previous < 0) return out;
+  out.placement = NavPlacementInput{previous, p.keyframe, p.z, true};
+  out.said = "session " + std::to_string(session) + " keyframe " + std::to_string(keyframe) +
+             " registers with the piece before it: placed by that visual bridge " + describePlacement(*out.placement);
+  return out;
+}
+
 NavPlacer::Placed NavPlacer::newSession(int session, const std::optional<NavRecord>& here) {
   Placed out;
   if (!nav_.enabled || !nav_.place_pieces || !frame_) return out;

@@ -119,11 +119,12 @@ void Pipeline::endPiece(const SessionClosing& c) {
   const OdometryStats& st = odometry.stats();
   char line[400];  // numbers only: the session's name (a folder path of any length) goes in as a string
   std::snprintf(line, sizeof line,
-                "%d frames, %d keyframes, %d tracked, %d fallbacks, %d promotions, %d skipped "
-                "(%d image, %d altitude), %d altitudes reused (%d above odometry.max_altitude_m), %.1f ms/frame",
-                st.frames, st.keyframes, st.tracked, st.fallbacks, st.promotions,
-                st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude, st.altitude_reused,
-                st.altitude_out_of_range, odometry.times().get("odometry_total").meanMs());
+                "%d frames, %d keyframes, %d tracked, %d fallbacks, %d promotions, %d dense registrations tried "
+                "(%d accepted), %d restarts, %d skipped (%d image, %d altitude), %d altitudes reused (%d above "
+                "odometry.max_altitude_m), %.1f ms/frame",
+                st.frames, st.keyframes, st.tracked, st.fallbacks, st.promotions, st.dense_tries, st.dense_matches,
+                st.restarts, st.skipped_image + st.skipped_altitude, st.skipped_image, st.skipped_altitude,
+                st.altitude_reused, st.altitude_out_of_range, odometry.times().get("odometry_total").meanMs());
   const std::string name = worker_->locked([&](const SessionQueries& m) { return m.name(c.session); });
   say("session " + std::to_string(c.session) + " (" + name + "): " + line);
   if (st.gate_checks > 0 || st.nav_frames > 0 || st.nav_implausible > 0) {
@@ -187,9 +188,8 @@ FrameResult Pipeline::processFrame(const OdometryInput& input, PreparedFrame* pr
   for (StreamKeyframe& k : r.keyframes) addKeyframe(std::move(k), input);
   for (const FrameResult::Ended& e : r.ended)
     if (e.cause == SessionEnd::kTrackingLoss)
-      say("stream " + stream_ + ": tracking lost at frame " + std::to_string(input.index) + " (" +
-          std::to_string(config_.tracking.max_fallbacks) + " unmatched frames): session " + std::to_string(e.session) +
-          " closed");
+      say("stream " + stream_ + ": tracking lost at frame " + std::to_string(input.index) + " (" + e.why +
+          "): session " + std::to_string(e.session) + " closed");
   return r;
 }
 
@@ -220,6 +220,12 @@ void Pipeline::endStream(double stamp_s) {
   if (!streaming_) return;
   frames_.endStream(stamp_s);
   streaming_ = false;
+  const FrameStreamCounts& n = frames_.counts();
+  if (n.tracking_losses > 0)
+    say("stream " + stream_ + " so far: " + std::to_string(n.tracking_losses) + " tracking losses (" +
+        std::to_string(n.restarts) + " of them restarts at an unmatched frame), " + std::to_string(n.bridges) +
+        " pieces joined to the one before by a visual bridge (" + std::to_string(n.rejoin_tries) +
+        " keyframes tried), " + std::to_string(n.placements) + " placed by the nav");
   if (pieces_ == 0) {
     // Not one session: every frame unusable (unreadable images, no altitude, another size, no
     // features). Said once, with the counts, instead of the session lines that never come.

@@ -458,10 +458,13 @@ Status SessionManager::addLink(Loop l) {
   return st;
 }
 
-Status SessionManager::addNavPlacement(Loop l) {
+Status SessionManager::addNavPlacement(Loop l, bool visual) {
+  // A visual bridge is a registration: stored as the visual loop it is. The nav's placement matched
+  // no features: no support in any join rule.
+  const std::string what = visual ? "visual bridge" : "nav placement";
   l.kind = Loop::Kind::kGlobal;
-  l.nav_placement = true;
-  l.inliers = 0;  // no features matched: no support in any join rule
+  l.nav_placement = !visual;
+  if (!visual) l.inliers = 0;
   l.hash_l1 = 0.0f;
   // The odometry's ids after a jump or a renamed session, as this manager names them (every
   // piece: the nav's placement is the odometry's own, never a loop detector's).
@@ -474,10 +477,10 @@ Status SessionManager::addNavPlacement(Loop l) {
     if (const std::string bad = checkUncertainPose(l.z, true); !bad.empty())
       checked = {StatusCode::kInvalidArgument, "the pose: " + bad};
   }
-  if (checked.ok()) checked = view_.storedMapsMayChange("a nav placement");
-  if (!checked.ok()) return {checked.code, "nav placement: " + checked.message};
+  if (checked.ok()) checked = view_.storedMapsMayChange("a " + what);
+  if (!checked.ok()) return {checked.code, what + ": " + checked.message};
   if (view_.mapOf(l.session_a) == view_.mapOf(l.session_b))
-    return {StatusCode::kOk, "nav placement: sessions " + std::to_string(l.session_a) + " and " +
+    return {StatusCode::kOk, what + ": sessions " + std::to_string(l.session_a) + " and " +
                                  std::to_string(l.session_b) + " are already in one map"};
   Status st;
   {
@@ -489,21 +492,22 @@ Status SessionManager::addNavPlacement(Loop l) {
       std::snprintf(pose, sizeof pose, "pose (%.4f m, %.4f m, %.4f rad), sigma (%.4g m, %.4g rad)", l.z.mean.x(),
                     l.z.mean.y(), l.z.mean.yaw(), std::sqrt(l.z.covariance(0, 0)), std::sqrt(l.z.covariance(2, 2)));
       const std::string link = loopText(l);
-      say("nav placement " + link + ": " + pose);
-      record("nav_placement", std::to_string(l.session_a) + "," + std::to_string(l.session_b), link,
-             "nav placement " + link + ": " + pose, "nav");
+      say(what + " " + link + ": " + pose);
+      record(visual ? "visual_bridge" : "nav_placement",
+             std::to_string(l.session_a) + "," + std::to_string(l.session_b), link, what + " " + link + ": " + pose,
+             visual ? "visual" : "nav");
       // One placement is the whole support the operator's join with one loop asks for.
       st = table_.backend().join(table_.at(l.session_a).backend(), table_.at(l.session_b).backend(), 1);
       if (st.ok()) {
-        ++table_.stats().nav_placements;
+        ++(visual ? table_.stats().visual_bridges : table_.stats().nav_placements);
       } else {
-        say("nav placement " + link + " stored but not joined: " + st.message);
-        st = {st.code, "nav placement: " + st.message};
+        say(what + " " + link + " stored but not joined: " + st.message);
+        st = {st.code, what + ": " + st.message};
       }
     }
   }
   const char* cause = cause_;
-  cause_ = "nav";
+  cause_ = visual ? "visual" : "nav";
   afterBackendChange();
   cause_ = cause;
   return st;

@@ -176,7 +176,7 @@ void SessionWorker::process(Item& item) {
           l.session_b = k->keyframe.session;
           l.keyframe_b = k->keyframe.keyframe;
           l.z = k->keyframe.nav_placement->z;
-          const Status placed = manager_->addNavPlacement(l);
+          const Status placed = manager_->addNavPlacement(l, k->keyframe.nav_placement->visual);
           if (!placed.ok()) say(Severity::kWarn, placed.message);
         }
         if (k->done) k->done(manager_->view(), k->keyframe, st);

@@ -135,6 +135,16 @@ void visitOdometry(V& v, O& o) {
     k("max_forward_backward_px", o.klt.max_forward_backward_px);
     k("min_tracks", o.klt.min_tracks);
   });
+  v.block("dense", [&](V& d) {
+    d("enabled", o.dense.enabled);
+    d("flat_field_sigma_px", o.dense.flat_field_sigma_px);
+    d("contrast_threshold", o.dense.contrast_threshold);
+    d("num_features", o.dense.num_features);
+    d("ratio", o.dense.ratio);
+    d("min_inliers", o.dense.min_inliers);
+    d("inliers_per_overlap", o.dense.inliers_per_overlap);
+    d("min_hull_fraction", o.dense.min_hull_fraction);
+  });
 }
 
 template <typename V, typename O>
@@ -205,6 +215,7 @@ void visitConfig(V& v, C& c) {
   v.block("tracking", [&](V& t) {
     t("max_fallbacks", c.tracking.max_fallbacks);
     t("min_features", c.tracking.min_features);
+    t("rejoin_keyframes", c.tracking.rejoin_keyframes);
   });
   v.block("nav", [&](V& n) {
     auto& o = c.odometry.nav;

@@ -104,6 +104,77 @@ TEST_F(TrackingTest, OneBlankFrameIsBridgedInTheSession) {
   EXPECT_NEAR(o.trajectory().absolutePoses().back().x(), 0.25 * o.keyframes().back().frame_index, 0.05);
 }
 
+// The vehicle jumps (frames 0-4 along one line, then 5-11 along another 4 m away): frame 5 matches
+// nothing, frame 6 registers with frame 5 only. The session ends at frame 6 and the next one starts
+// at frame 5, so frames 6, 7, ... are not failed one by one against frame 4, and no frame is lost.
+TEST_F(TrackingTest, AFrameThatRegistersOnlyWithTheUnmatchedOneBeforeStartsTheNextSessionThere) {
+  SegmentedOdometry odo(camera_, OdometryOptions(), TrackingLossOptions());
+  std::vector<SegmentedOdometry::Step> steps;
+  std::vector<std::vector<int>> released;  // frame indexes of the keyframes each step released
+  const auto at = [](int k) { return k < 5 ? Pose2(2.0 + 0.25 * k, 2.5, 0.0) : Pose2(2.0 + 0.25 * (k - 5), 6.0, 0.0); };
+  for (int k = 0; k < 12; ++k) {
+    steps.push_back(odo.process({k, 1.0 * k, 2.0, render(at(k), 2.0)}));
+    released.emplace_back();
+    for (const auto& kf : odo.newKeyframes()) released.back().push_back(odo.odometry()->keyframes()[kf.id].frame_index);
+  }
+  EXPECT_EQ(steps[5].update.status, FrameStatus::kFallback);
+  EXPECT_EQ(steps[5].update.restart_index, -1);
+  EXPECT_FALSE(steps[5].session_closed);
+  EXPECT_EQ(steps[6].update.restart_index, 5) << steps[6].update.reason;
+  EXPECT_TRUE(steps[6].session_closed);
+  EXPECT_TRUE(steps[7].session_started);
+  ASSERT_FALSE(released[7].empty());
+  EXPECT_EQ(released[7].front(), 5) << "the new session's origin is the unmatched frame";
+  EXPECT_EQ(odo.sessions(), 2);
+  EXPECT_EQ(odo.losses(), 1);
+  EXPECT_EQ(odo.framesLost(), 0);
+  for (int k = 7; k < 12; ++k) EXPECT_NE(steps[k].update.status, FrameStatus::kFallback) << k;
+  // The new session's frame is frame 5's: frame 11 is 1.5 m along x from it.
+  EXPECT_TRUE(approxEqual(steps[11].update.pose, Pose2(1.5, 0.0, 0.0), 0.02, 0.01)) << steps[11].update.pose;
+  // The pieces never overlap again: no keyframe of the new one registers with the old one.
+  for (int k = 0; k < 12; ++k) EXPECT_FALSE(steps[k].placement) << k;
+  EXPECT_GT(odo.rejoinTries(), 0);
+  EXPECT_EQ(odo.rejoins(), 0);
+}
+
+// The vehicle side-steps by more than its footprint (frames 5 and 6, 1.7 m over a 1.6 m high
+// footprint), then comes back half-way (frame 7): frame 6 registers only with frame 5, so the
+// session restarts at frame 5, and frame 7, a keyframe of the new piece, registers with frame 4,
+// the old piece's last keyframe: the new piece is placed against it by that registration.
+TEST_F(TrackingTest, APieceAfterARestartIsBridgedToThePieceBeforeByTheFirstKeyframeThatRegistersWithIt) {
+  SegmentedOdometry odo(camera_, OdometryOptions(), TrackingLossOptions());
+  std::vector<SegmentedOdometry::Step> steps;
+  const std::vector<Pose2> at = {Pose2(2.0, 2.5, 0.0),  Pose2(2.25, 2.5, 0.0), Pose2(2.5, 2.5, 0.0),
+                                 Pose2(2.75, 2.5, 0.0), Pose2(3.0, 2.5, 0.0),  Pose2(3.0, 4.2, 0.0),
+                                 Pose2(3.5, 4.2, 0.0),  Pose2(3.75, 3.3, 0.0), Pose2(4.0, 3.3, 0.0)};
+  int anchor = -1;
+  for (int k = 0; k < static_cast<int>(at.size()); ++k) {
+    steps.push_back(odo.process({k, 1.0 * k, 2.0, render(at[k], 2.0)}));
+    if (steps.back().session_closed) anchor = static_cast<int>(odo.odometry()->keyframes().size()) - 1;
+  }
+  ASSERT_TRUE(steps[6].session_closed) << steps[6].update.reason;
+  EXPECT_EQ(steps[6].update.restart_index, 5);
+  ASSERT_TRUE(steps[7].session_started);
+  ASSERT_TRUE(steps[7].placement) << "frame 7 (" << statusName(steps[7].update.status) << ") registers with frame 4";
+  EXPECT_TRUE(steps[7].placement->visual);
+  EXPECT_EQ(steps[7].placement->keyframe, anchor);
+  EXPECT_TRUE(approxEqual(steps[7].placement->z.mean, between(at[4], at[7]), 0.03, 0.01))
+      << steps[7].placement->z.mean << " vs " << between(at[4], at[7]);
+  EXPECT_GT(steps[7].placement->z.covariance(0, 0), 0.0);
+  EXPECT_GT(steps[7].placement->z.covariance(2, 2), 0.0);
+  EXPECT_EQ(odo.rejoins(), 1);
+  EXPECT_FALSE(steps[8].placement) << "one bridge per piece";
+  EXPECT_EQ(odo.sessions(), 2);
+
+  // rejoin_keyframes 0: the same frames, no bridge.
+  TrackingLossOptions never;
+  never.rejoin_keyframes = 0;
+  SegmentedOdometry plain(camera_, OdometryOptions(), never);
+  for (int k = 0; k < static_cast<int>(at.size()); ++k)
+    EXPECT_FALSE(plain.process({k, 1.0 * k, 2.0, render(at[k], 2.0)}).placement) << k;
+  EXPECT_EQ(plain.rejoinTries(), 0);
+}
+
 TEST_F(TrackingTest, AShortDropoutStaysInTheSession) {
   TrackingLossOptions loss;
   loss.max_fallbacks = 5;
@@ -198,7 +269,8 @@ TEST_F(TrackingTest, AVisualMotionTheNavContradictsIsRefusedAndCounted) {
   EXPECT_TRUE(steps[12].update.gate_refused);
   EXPECT_EQ(steps[12].update.source, MotionSource::kNav);
   EXPECT_NE(steps[12].update.reason.find("refused by the nav gate"), std::string::npos) << steps[12].update.reason;
-  for (int k = 1; k < 12; ++k) EXPECT_FALSE(steps[k].update.gate_refused) << k << " d2 " << steps[k].update.gate_distance2;
+  for (int k = 1; k < 12; ++k)
+    EXPECT_FALSE(steps[k].update.gate_refused) << k << " d2 " << steps[k].update.gate_distance2;
   // (a) with the RANSAC gate (the default) no hypothesis near the visual motion is even scored:
   // frame 12 finds no consensus and the nav carries it.
   SegmentedOdometry odo2(camera_, OdometryOptions(), TrackingLossOptions());
@@ -217,7 +289,6 @@ TEST_F(TrackingTest, AVisualMotionTheNavContradictsIsRefusedAndCounted) {
   EXPECT_EQ(fused_steps[5].update.source, MotionSource::kFused);
   EXPECT_EQ(odo3.odometry()->stats().gate_refusals, 0);
 }
-
 
 // The vehicle pivots 2.5 rad between frames 11 and 12, inside a black-out (frames 10-17), and flies
 // on along its new heading: its nav (an INS heading, right) turns faster than

@@ -166,6 +166,47 @@ TEST_F(FrameStreamTest, TheNavIsAskedAfterTheStampChecksAndToldOfAJumpBack) {
   EXPECT_FALSE(called);
 }
 
+// A piece after a tracking loss whose keyframe registers with the piece before (tracking.h's
+// rejoin): that keyframe carries the placement, marked visual, against the closed session; the
+// tracking loss says why it happened.
+TEST_F(FrameStreamTest, AVisualBridgePlacesThePieceAfterARestartAgainstThePieceBefore) {
+  FrameStream stream(config_, StampGuardOptions());
+  stream.beginStream();
+  const std::vector<Pose2> at = {Pose2(2.0, 2.5, 0.0),  Pose2(2.25, 2.5, 0.0), Pose2(2.5, 2.5, 0.0),
+                                 Pose2(2.75, 2.5, 0.0), Pose2(3.0, 2.5, 0.0),  Pose2(3.0, 4.2, 0.0),
+                                 Pose2(3.5, 4.2, 0.0),  Pose2(3.75, 3.3, 0.0), Pose2(4.0, 3.3, 0.0)};
+  std::vector<FrameResult> r;
+  for (int k = 0; k < static_cast<int>(at.size()); ++k) {
+    FrameInput in;
+    in.image = render(at[k], 2.0);
+    in.camera = camera_;
+    in.altitude_m = 2.0;
+    in.stamp_s = 100.0 + k;
+    in.index = k;
+    r.push_back(stream.process(in));
+  }
+  ASSERT_EQ(r[6].ended.size(), 1u);
+  EXPECT_EQ(r[6].ended[0].cause, SessionEnd::kTrackingLoss);
+  EXPECT_NE(r[6].ended[0].why.find("unmatched frame 5"), std::string::npos) << r[6].ended[0].why;
+  ASSERT_TRUE(r[7].started);
+  const int previous = r[6].ended[0].session;
+  int placed = 0;
+  for (const FrameResult& f : r)
+    for (const StreamKeyframe& k : f.keyframes)
+      if (k.input.nav_placement) {
+        ++placed;
+        EXPECT_TRUE(k.input.nav_placement->visual);
+        EXPECT_EQ(k.input.nav_placement->session, previous);
+        EXPECT_EQ(k.input.session, r[7].started->session);
+        EXPECT_EQ(k.input.frame_index, 7);
+      }
+  EXPECT_EQ(placed, 1);
+  EXPECT_EQ(stream.counts().bridges, 1);
+  EXPECT_EQ(stream.counts().placements, 0) << "no nav placed anything";
+  EXPECT_EQ(stream.counts().restarts, 1);
+  EXPECT_EQ(stream.counts().tracking_losses, 1);
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam

@@ -593,6 +593,27 @@ void feedAJumpedSession(SessionManager* m) {
   ASSERT_TRUE(m->addKeyframe(keyframeAt(2, 0, Pose2(), Pose2())).ok());
 }
 
+// A visual bridge (a piece's keyframe registered with the piece before it, tracking.h's rejoin)
+// goes the placement's way but is what it is: a visual loop, joining the maps at once, counted
+// and audited apart from the nav's placements.
+TEST(NavPlacement, AVisualBridgeJoinsTheMapsAndIsStoredAsAVisualLoopNotANavPlacement) {
+  SessionManager m(managerOptions());
+  for (int k = 0; k < 8; ++k)
+    ASSERT_TRUE(m.addKeyframe(keyframeAt(0, k, Pose2(k, 0, 0), Pose2(std::max(0, k - 1), 0, 0))).ok());
+  ASSERT_TRUE(m.addKeyframe(keyframeAt(1, 0, Pose2(), Pose2())).ok());
+  ASSERT_NE(m.view().mapOf(1), m.view().mapOf(0));
+  const Pose2 z = between(Pose2(7, 0, 0), kOneStart);
+  const Status st = m.addNavPlacement(placementOf(z, 0.02, 0.005), true);
+  ASSERT_TRUE(st.ok()) << st.message;
+  EXPECT_EQ(m.view().mapOf(1), m.view().mapOf(0));
+  const Pose2 placed = between(m.view().poses(0)[7], m.view().poses(1)[0]);
+  EXPECT_TRUE(approxEqual(placed, z, 1e-9, 1e-9)) << placed;
+  EXPECT_EQ(m.view().stats().visual_bridges, 1);
+  EXPECT_EQ(m.view().stats().nav_placements, 0);
+  ASSERT_EQ(m.view().loops().size(), 1u);
+  EXPECT_FALSE(m.view().loops()[0].nav_placement);
+}
+
 TEST(NavPlacement, APlacementAgainstAPieceWhoseKeyframeIdsJumpedNamesThatKeyframeOnce) {
   // Session 1's first keyframe to arrive is its odometry's keyframe 10, past max_keyframe_gap: the
   // manager opens it under its own id 1 with the ids from 10 on as 0, 1, ... The placement names

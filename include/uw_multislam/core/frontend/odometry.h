@@ -10,10 +10,18 @@
 //
 // Failure handling: when the frame cannot be matched to the last keyframe, the last frame that
 // was tracked is promoted to keyframe and the match is tried again against it. If that fails
-// too (or there is no such frame) the frame is unmatched (status kFallback, counted). It is
+// too, the dense pass registers the two again (options.dense, core/frontend/dense_match.h: many
+// more features on flat-field normalised images, accepted by the overlap its motion predicts and
+// its inliers' spread); a frame it matches becomes a keyframe. If that fails as well (or there is
+// no keyframe to try) the frame is unmatched (status kFallback, counted). It is
 // bridged: it gets no keyframe and no motion, only a predicted pose to report, and the next frame
 // is matched to the last keyframe (the frame before it, promoted), with which it still overlaps
-// when consecutive frames overlap by more than half. A reused motion is a guess that is wrong
+// when consecutive frames overlap by more than half. When the next frame does not register with
+// the last keyframe either, it is tried against the unmatched frame before it (normal, then
+// dense): if the two register, the chain breaks between the session and that frame, and rather
+// than fail every following frame against a keyframe that falls further behind, the session ends
+// there (OdometryUpdate::restart_index) and SegmentedOdometry starts the next one at the
+// unmatched frame (restartFrames()), no frame lost. A reused motion is a guess that is wrong
 // whenever the vehicle changed its step (a metre-sized kink in a smooth real track), so none is
 // made while bridging. Only after fallback.bridge_frames consecutive unmatched frames is the
 // previous frame-to-frame motion reused, as the paper does (§5): the frame becomes a keyframe
@@ -58,6 +66,7 @@
 #include <opencv2/core.hpp>
 
 #include <cmath>
+#include <memory>
 #include <optional>
 #include <string>
 #include <utility>
@@ -65,6 +74,7 @@
 
 #include "uw_multislam/core/common/stage_timer.h"
 #include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/frontend/dense_match.h"
 #include "uw_multislam/core/frontend/enhancement.h"
 #include "uw_multislam/core/frontend/features.h"
 #include "uw_multislam/core/frontend/klt_tracker.h"
@@ -128,8 +138,9 @@ struct OdometryOptions {
   RansacOptions ransac;
   KeyframeOptions keyframes;
   FallbackOptions fallback;
-  NavPriorOptions nav;  // used only for frames that carry a nav pose
-  KltOptions klt;       // tracking between keyframes (off: SIFT on every frame)
+  NavPriorOptions nav;      // used only for frames that carry a nav pose
+  KltOptions klt;           // tracking between keyframes (off: SIFT on every frame)
+  DenseMatchOptions dense;  // the denser registration tried where the normal one fails
   /// An altitude above this is not a reading a bottom-looking camera can use (a glitch, 1e308, a
   /// sensor's "no bottom" value such as 9999): treated as missing, the last valid one reused and
   /// counted (stats altitude_out_of_range). The live node also drops readings outside the
@@ -190,6 +201,11 @@ struct OdometryUpdate {
   /// A nav stream lost both vision and the nav (refused or missing readings) for more than
   /// fallback.bridge_frames frames: no motion was made up, the session must end (SegmentedOdometry).
   bool nav_loss = false;
+  bool dense = false;  // the motion came from the dense pass (core/frontend/dense_match.h)
+  /// >= 0: the frame registers with the unmatched frame of this index but not with the session: the
+  /// chain breaks before that frame. The session must end (a tracking loss); Odometry::restartFrames()
+  /// are where the next one starts (SegmentedOdometry).
+  int restart_index = -1;
 };
 
 /// How a frame's motion from its keyframe was measured (its OdometryUpdate's numbers).
@@ -237,6 +253,9 @@ struct OdometryStats {
   int klt_tracked = 0;            // frames whose motion came from KLT tracks (klt.enabled), no extraction
   int klt_extracted = 0;          // frames KLT tracked but that went the full way (keyframe due or degraded)
   int klt_degraded = 0;           // ... of them, because the tracks failed (too few, RANSAC, nav gate)
+  int dense_tries = 0;            // dense registrations tried (the normal one failed)
+  int dense_matches = 0;          // ... accepted: frames the dense pass kept in the session
+  int restarts = 0;               // frames that registered with the unmatched frame before them, not the session
 };
 
 /// What Odometry::process computes from a frame's image alone, before it looks at its own state:
@@ -303,6 +322,38 @@ class Odometry {
   /// right after extraction. Keyframes carry this one.
   const CameraIntrinsics& featureCamera() const { return feature_camera_; }
 
+  /// A frame to process again, with what was computed for it: its grey image as input, its enhanced
+  /// image and features prepared.
+  struct RestartFrame {
+    OdometryInput input;
+    PreparedFrame prepared;
+  };
+  /// After an update with restart_index >= 0: that unmatched frame and the frame that registered
+  /// with it, in order, for the next session to start from; empty otherwise.
+  const std::vector<RestartFrame>& restartFrames() const { return restart_frames_; }
+
+  /// A frame's grey image (the camera's, for the dense pass) and enhanced one (SIFT's input), and
+  /// its dense features once computed: shared by the copies of a frame.
+  struct FrameImages {
+    cv::Mat grey;
+    cv::Mat enhanced;
+    std::optional<FrameFeatures> dense;
+  };
+  /// A keyframe of a closed piece, kept to register a later piece's keyframes with (rejoin:
+  /// SegmentedOdometry).
+  struct Anchor {
+    int keyframe = -1;  // its id in its piece
+    int frame_index = -1;
+    double altitude_m = 0.0;
+    FrameFeatures features;
+    std::shared_ptr<FrameImages> images;
+  };
+  /// The last keyframe, with a measured motion (nullopt: none, or its motion is a reused one).
+  std::optional<Anchor> lastKeyframeAnchor() const;
+  /// The last keyframe registered with `anchor` as a frame with the keyframe (normal, then the
+  /// dense pass; the same acceptance): its pose in the anchor's frame, or nullopt.
+  std::optional<UncertainPose2> registerAnchor(const Anchor& anchor);
+
  private:
   struct TrackedFrame {
     int index = -1;
@@ -314,6 +365,7 @@ class Odometry {
     MotionSource source = MotionSource::kVisual;
     std::optional<NavRecord> nav;
     MatchSummary match;  // its update's, once processed
+    std::shared_ptr<FrameImages> images;
   };
   // The end of a frame's processing: its match summary kept (on its keyframe too, if it became
   // one; a promotion later reports it) and the frame becomes the previous one.
@@ -324,6 +376,13 @@ class Odometry {
   // pose the constant-step prediction for display only; the session's state stays the last matched frame's.
   void unmatchedFrame(OdometryUpdate* up);
   PairMotion matchToKeyframe(const FrameFeatures& f, double altitude_m, const std::optional<NavRecord>& nav);
+  // The dense pass between `a` (the older frame) and `b`: a failure (ransac.success false, the
+  // reason in ransac.failure) unless its motion passes denseAccepts.
+  PairMotion matchDense(const TrackedFrame& a, const TrackedFrame& b, const MotionPrior* prior);
+  const FrameFeatures& denseFeatures(const TrackedFrame& frame);
+  // The unmatched frame before `cur` and `cur` register (normal, then dense): the chain breaks
+  // before that frame. Then restart_frames_ holds both.
+  bool registersWithUnmatched(const TrackedFrame& cur);
   // The nav prior gating RANSAC's hypotheses for a frame with `nav`, if any (nav.gate_ransac).
   std::optional<MotionPrior> ransacPrior(const std::optional<NavRecord>& nav) const;
   // SIFT features of an enhanced grey image, keypoints undistorted.
@@ -351,6 +410,7 @@ class Odometry {
   CameraIntrinsics feature_camera_;
   OdometryOptions options_;
   FramePreparer preparer_;
+  std::optional<DenseExtractor> dense_;  // when options.dense.enabled
   KltTracker klt_;
   double lookahead_s_ = 0.0;  // the frame in process()'s OdometryInput::keyframe_lookahead_s
   cv::Mat prev_grey_;         // prev_'s enhanced image when it was tracked by KLT (no features yet)
@@ -362,10 +422,12 @@ class Odometry {
   std::optional<NavRecord> prev_nav_accepted_;                    // the last nav reading not refused (the glitch check)
   std::optional<NavRecord> prev_nav_received_;            // the previous frame's reading, refused or not (its stamp)
   std::optional<std::pair<int, NavRecord>> refused_nav_;  // this frame's refused but steady reading
-  bool nav_seen_ = false;        // a nav reading came with a frame of this session (refused or not)
-  Pose2 last_step_;              // frame-to-frame motion of the last successful step
-  int unmatched_ = 0;            // consecutive unmatched frames (bridged, then reused)
-  Pose2 predicted_;              // the last unmatched frame's predicted pose (prev_ and last_step_ on)
+  bool nav_seen_ = false;                        // a nav reading came with a frame of this session (refused or not)
+  Pose2 last_step_;                              // frame-to-frame motion of the last successful step
+  int unmatched_ = 0;                            // consecutive unmatched frames (bridged, then reused)
+  Pose2 predicted_;                              // the last unmatched frame's predicted pose (prev_ and last_step_ on)
+  std::optional<TrackedFrame> unmatched_frame_;  // the last frame, when it was unmatched (the next may start from it)
+  std::vector<RestartFrame> restart_frames_;
   double last_altitude_ = -1.0;  // last valid altitude
   OdometryStats stats_;
   StageTimes times_;

@@ -22,6 +22,7 @@ struct View {
 struct PairMotion {
   RansacResult ransac;  // motion of b in a's frame (X_b^a) when ransac.success
   int matches = 0;
+  std::vector<FeatureMatch> correspondences;  // the matches RANSAC ran on (ransac.inliers index them)
 };
 
 /// `times` (optional) receives the "match" and "ransac" stages.

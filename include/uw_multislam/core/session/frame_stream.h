@@ -141,6 +141,7 @@ struct FrameResult {
   struct Ended {
     int session;
     SessionEnd cause;
+    std::string why;  // for the log (a tracking loss: which rule)
   };
   std::vector<Ended> ended;  // sessions that ended at this frame
   std::vector<StreamKeyframe> keyframes;
@@ -159,6 +160,11 @@ struct FrameStreamCounts {
   long tracking_losses = 0;     // sessions ended by tracking loss
   long keyframes = 0;           // released
   long placements = 0;          // keyframes placed by the nav
+  long bridges = 0;             // pieces placed by a visual bridge (tracking.rejoin_keyframes)
+  long rejoin_tries = 0;        // keyframes registered with the piece before theirs for a bridge
+  long dense_tries = 0;         // dense registrations tried (the normal one failed; odometry.dense)
+  long dense_matches = 0;       // ... accepted
+  long restarts = 0;            // tracking losses where a frame registers only with the unmatched one before it
   long placements_refused = 0;  // placements refused: the nav's step across the gap is no vehicle's motion
 };
 
@@ -202,7 +208,7 @@ class FrameStream {
  private:
   // A session begins at this frame (its odometry restarts; its id comes at its first keyframe).
   void restart(const SessionStart& start, const CameraIntrinsics& camera, FrameResult* r);
-  void end(SessionEnd cause, double stamp_s, FrameResult* r);
+  void end(SessionEnd cause, double stamp_s, FrameResult* r, std::string why = {});
   void open(SessionCause cause, int proposed, const std::string& why, double stamp_s, FrameResult* r);
   void release(const SegmentedOdometry::Step& step, FrameResult* r);
 
@@ -230,6 +236,7 @@ class FrameStream {
   std::optional<NavPlacement> held_placement_;  // the odometry's placement, until a keyframe is released
   FrameStreamCounts counts_;
   StageTimes finished_;  // finished odometries' timings
+  long retired_dense_tries_ = 0, retired_dense_matches_ = 0, retired_restarts_ = 0, retired_rejoin_tries_ = 0;
 };
 
 }  // namespace core

@@ -69,6 +69,9 @@ class NavPlacer {
   /// reading is `here`, against keyframe p.keyframe of `previous` (the piece before).
   Placed afterLoss(const NavPlacement& p, int previous, int session, int keyframe,
                    const std::optional<NavRecord>& here);
+  /// After a tracking loss: keyframe `keyframe` of `session` registered with keyframe p.keyframe of
+  /// `previous` (p.visual, SegmentedOdometry's rejoin): placed by that registration, no nav needed.
+  static Placed bridged(const NavPlacement& p, int previous, int session, int keyframe);
   /// Keyframe 0 of a new session (not a piece after a tracking loss), whose reading is `here`.
   Placed newSession(int session, const std::optional<NavRecord>& here);
 

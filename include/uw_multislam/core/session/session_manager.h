@@ -148,7 +148,10 @@ class SessionManager {
   /// one session, a pose or covariance not finite or not positive definite), NOT_FOUND,
   /// FAILED_PRECONDITION (a bridged keyframe, localisation mode); a join the back-end refuses
   /// (both maps hold a recording session) leaves the placement stored, unused, and says why.
-  Status addNavPlacement(Loop loop);
+  /// `visual`: `loop` is a visual bridge (a piece's keyframe registered with the piece before it,
+  /// SegmentedOdometry's rejoin): stored as the visual loop it is, joins the maps the same way,
+  /// counted visual_bridges, "visual_bridge" in the audit trail.
+  Status addNavPlacement(Loop loop, bool visual = false);
   /// The operator's "optimise now": every map with loops waiting for optimisation (fewer than
   /// optimise_every) is optimised now, or (deferred) marked due. `maps`: how many.
   /// FAILED_PRECONDITION when optimisation is off (backend.optimise false).

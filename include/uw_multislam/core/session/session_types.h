@@ -83,6 +83,8 @@ const char* sessionStateName(SessionState s);
 struct NavPlacementInput {
   int session = -1, keyframe = -1;
   UncertainPose2 z;
+  /// `z` is the two keyframes' registration after a tracking loss (a visual bridge), not the nav's.
+  bool visual = false;
 };
 
 struct KeyframeInput {
@@ -148,6 +150,7 @@ struct SessionManagerStats {
   long keyframes_unopened = 0;
   long keyframe_jumps = 0;  // jumps past max_keyframe_gap that ended a piece (a new session from there)
   long nav_placements = 0;  // sessions placed in their predecessor's map by the nav (addNavPlacement)
+  long visual_bridges = 0;  // pieces placed in their predecessor's map by a visual bridge (the same)
   long loops = 0, loops_refused = 0;
   long store_failures = 0;
 };
