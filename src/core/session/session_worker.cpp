@@ -55,7 +55,10 @@ SessionWorker::SessionWorker(std::unique_ptr<SessionManager> manager, const Sess
 }
 
 SessionWorker::SessionWorker(SessionManager* manager, const SessionWorkerOptions& options, Log log)
-    : manager_(manager), options_(checked(options)), log_(std::move(log)) {
+    : manager_(manager),
+      options_(checked(options)),
+      log_(std::move(log)),
+      queue_(static_cast<std::size_t>(options_.queue_size)) {
   if (!manager_) throw std::invalid_argument("session worker: no session manager");
   manager_->setDeferredOptimisation(true);  // optimised here, outside the mutex
 }
@@ -75,59 +78,25 @@ void SessionWorker::start(AfterItem after_item) {
 }
 
 void SessionWorker::stop() {
-  {
-    std::lock_guard<std::mutex> lock(queue_mutex_);
-    closed_ = true;
-  }
-  queue_wake_.notify_all();
+  queue_.close();
   if (thread_.joinable()) thread_.join();
 }
 
 bool SessionWorker::submit(Item item) {
-  const bool priority = std::holds_alternative<OptimiseItem>(item);
-  {
-    std::lock_guard<std::mutex> lock(queue_mutex_);
-    if (closed_) return false;
-    if (thread_.joinable()) {
-      std::lock_guard<std::mutex> s(stats_mutex_);
-      if (priority) {
-        priority_.push_back(std::move(item));
-      } else {
-        if (items_.size() >= static_cast<std::size_t>(options_.queue_size)) {
-          items_.pop_front();  // the oldest: live, the newest data matters most
-          ++stats_.dropped_queue_full;
-        }
-        items_.push_back(std::move(item));
-        ++stats_.pushed;
-      }
-      stats_.queued = items_.size() + priority_.size();
-    }
-  }
-  if (thread_.joinable()) {
-    queue_wake_.notify_one();
-  } else {
+  if (!thread_.joinable()) {
+    if (queue_.closed()) return false;
     process(item);  // synchronous: now, in the caller's thread
+    return true;
   }
-  return true;
+  // When full the oldest is dropped: live, the newest data matters most.
+  return std::holds_alternative<OptimiseItem>(item) ? queue_.pushPriority(std::move(item))
+                                                    : queue_.push(std::move(item));
 }
 
 void SessionWorker::run() {
   std::string why;
   if (!setThisThreadNice(options_.nice, &why)) say(Severity::kWarn, "worker nice not applied: " + why);
-  for (;;) {
-    Item item;
-    {
-      std::unique_lock<std::mutex> lock(queue_mutex_);
-      queue_wake_.wait(lock, [this] { return closed_ || !priority_.empty() || !items_.empty(); });
-      std::deque<Item>& from = !priority_.empty() ? priority_ : items_;
-      if (from.empty()) return;  // closed and drained
-      item = std::move(from.front());
-      from.pop_front();
-      std::lock_guard<std::mutex> s(stats_mutex_);
-      stats_.queued = items_.size() + priority_.size();
-    }
-    process(item);
-  }
+  for (Item item; queue_.pop(&item); item = Item()) process(item);  // until closed and drained
 }
 
 template <typename F>
@@ -266,8 +235,15 @@ bool SessionWorker::endForeignSession(const std::string& vehicle, int remote_ses
 void SessionWorker::optimiseDue() { submit(OptimiseItem{}); }
 
 SessionWorkerStats SessionWorker::stats() const {
-  std::lock_guard<std::mutex> s(stats_mutex_);
-  return stats_;
+  SessionWorkerStats s;
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    s = stats_;
+  }
+  s.pushed = queue_.pushed();
+  s.dropped_queue_full = queue_.dropped();
+  s.queued = queue_.size();
+  return s;
 }
 
 // --- Stored sessions and the loop detectors -----------------------------------------------------

@@ -9,10 +9,11 @@
 // the mutex) and the requests below.
 //  - Synchronous (start() never called): each work item is processed in the caller's thread
 //    before the call returns; exceptions reach the caller.
-//  - Asynchronous (after start()): work items go into a bounded queue (queue_size; when full the
-//    OLDEST is dropped and counted; optimiseDue() is a priority item, never dropped), and one
-//    worker thread, owned here, processes them in order. An item that throws is counted
-//    (stats().skipped) and logged. stop() processes what is queued and joins the thread.
+//  - Asynchronous (after start()): work items go into a bounded queue (core/common/work_queue.h,
+//    queue_size; when full the OLDEST is dropped and counted; optimiseDue() is a priority item,
+//    never dropped), and one worker thread, owned here, processes them in order. An item that
+//    throws is counted (stats().skipped) and logged. stop() processes what is queued and joins
+//    the thread.
 // Either way an item is processed the same: under the mutex, the manager's call and the item's
 // `done` callback; then, after a keyframe, every waiting loop tried again (each under the
 // mutex); then optimisation of every due map: its problem taken under the mutex, solved WITHOUT
@@ -25,7 +26,6 @@
 // call back into the worker. The handover list has a mutex of its own, taken after mutex_.
 #pragma once
 
-#include <condition_variable>
 #include <cstddef>
 #include <deque>
 #include <functional>
@@ -39,6 +39,7 @@
 #include <vector>
 
 #include "uw_multislam/core/common/status.h"
+#include "uw_multislam/core/common/work_queue.h"
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/session/session_manager.h"
 
@@ -252,14 +253,10 @@ class SessionWorker {
   std::deque<Loop> waiting_;  // guarded by mutex_
   AfterItem after_item_;      // set before the thread starts; read by it only
 
-  mutable std::mutex stats_mutex_;  // guards stats_ (the queue's part also the queue)
+  mutable std::mutex stats_mutex_;  // guards stats_ (the queue's counters are the queue's)
   SessionWorkerStats stats_;
 
-  // The queue (asynchronous).
-  std::mutex queue_mutex_;  // guards the four below
-  std::condition_variable queue_wake_;
-  std::deque<Item> items_, priority_;
-  bool closed_ = false;
+  BoundedWorkQueue<Item> queue_;  // asynchronous
   std::thread thread_;
 
   mutable std::mutex handover_mutex_;  // guards handed_ and handover_ (taken after mutex_)

@@ -1,6 +1,7 @@
-// The bounded FIFO between a nodelet's subscriber callbacks and its one worker thread (STYLE.md
-// 5: callbacks enqueue, heavy work runs on a worker with a bounded queue and an explicit,
-// counted drop policy). Header-only and ROS-free, so its test needs neither ROS nor a master.
+// The bounded FIFO between producers and one worker thread (callbacks enqueue, heavy work runs on a
+// worker with a bounded queue and an explicit, counted drop policy): the nodelets' subscriber
+// callbacks and their worker, and the session worker's work items (core/session/session_worker.h).
+// Header-only; its test needs gtest and threads only.
 //
 // Drop policy: push() on a full queue drops the OLDEST item and counts it (live, the newest
 // data matters most). An optional drop handler sees each dropped item together with its
@@ -35,7 +36,7 @@
 #include "uw_multislam/core/common/ordered_prefetch.h"
 
 namespace uw_multislam {
-namespace ros_work {
+namespace core {
 
 /// popSelected()'s choice: the item to take, and how many of the oldest before it count as dropped.
 struct Selection {
@@ -237,13 +238,13 @@ class BoundedWorkQueue {
 /// The worker's loop: takes the items of `queue` until it is closed and drained, and calls
 /// process(item, prepared) for each in order. With `threads` > 0, up to `threads` items already
 /// waiting are taken out early and `prepare`d (P(const T&)) by that many long-lived threads
-/// (core::OrderedPrefetch) while the item before them is processed; an item is never waited for:
+/// (OrderedPrefetch) while the item before them is processed; an item is never waited for:
 /// one taken while none is in preparation is processed at once (prepared null). Drop policy: the
 /// items taken out early are the worker's, no longer the queue's to drop.
 template <typename T, typename P, typename Prepare, typename Process>
 void drainWithPrepareAhead(BoundedWorkQueue<T>& queue, int threads, Prepare prepare, Process process) {
   using Item = std::pair<T, P>;
-  core::OrderedPrefetch<Item, T> ahead(threads, [&prepare](T item, int) {
+  OrderedPrefetch<Item, T> ahead(threads, [&prepare](T item, int) {
     P p = prepare(static_cast<const T&>(item));
     return Item(std::move(item), std::move(p));
   });
@@ -293,7 +294,7 @@ struct NewestChoice {
 ///     is part of its cost.
 template <typename T, typename P, typename Choose, typename OnSkip, typename Arrival, typename Process,
           typename OnError>
-void drainNewest(BoundedWorkQueue<T>& queue, std::size_t bound, core::OrderedPrefetch<P, T>* prefetch, Choose choose,
+void drainNewest(BoundedWorkQueue<T>& queue, std::size_t bound, OrderedPrefetch<P, T>* prefetch, Choose choose,
                  OnSkip on_skip, Arrival arrival, Process process, OnError on_error) {
   using Clock = std::chrono::steady_clock;
   std::optional<Clock::time_point> deadline;  // of the current take's waits for a newer item
@@ -330,5 +331,5 @@ void drainNewest(BoundedWorkQueue<T>& queue, std::size_t bound, core::OrderedPre
   }
 }
 
-}  // namespace ros_work
+}  // namespace core
 }  // namespace uw_multislam
