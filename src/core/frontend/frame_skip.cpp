@@ -137,22 +137,6 @@ FrameSkipRule::Choice FrameSkipRule::preferPrepared(const std::vector<WaitingFra
   return choice;
 }
 
-std::string reasonName(FrameSkipRule::Reason r) {
-  switch (r) {
-    case FrameSkipRule::Reason::kOldest:
-      return "oldest (no prediction)";
-    case FrameSkipRule::Reason::kNewestSafe:
-      return "newest";
-    case FrameSkipRule::Reason::kKeyframeDue:
-      return "the first frame a keyframe is due at";
-    case FrameSkipRule::Reason::kOnlyOne:
-      return "the only one waiting";
-    case FrameSkipRule::Reason::kPrepared:
-      return "an earlier safe frame, prepared or under way";
-  }
-  return "?";
-}
-
 void FrameBudget::arrived(double now_s, double stamp_s) {
   std::lock_guard<std::mutex> lock(mutex_);
   if (last_arrival_s_ && now_s > *last_arrival_s_) {

@@ -134,8 +134,6 @@ class FrameSkipRule {
   std::optional<ProcessedFrame> last_, before_;  // the last two matched frames of the session, newest first
 };
 
-std::string reasonName(FrameSkipRule::Reason r);
-
 /// What waitForNext knows of the input and the worker (wall clock, s; 0: unknown).
 struct InputTiming {
   double now_s = 0.0;
