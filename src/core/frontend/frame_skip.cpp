@@ -138,7 +138,7 @@ FrameSkipRule::Choice FrameSkipRule::preferPrepared(const std::vector<WaitingFra
 }
 
 void FrameBudget::arrived(double now_s, double stamp_s) {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   if (last_arrival_s_ && now_s > *last_arrival_s_) {
     const double ms = (now_s - *last_arrival_s_) * 1e3;
     if (intervals_ > 0) jitter_ms_ += alpha_ * (std::abs(ms - period_ms_) - jitter_ms_);
@@ -154,7 +154,7 @@ void FrameBudget::arrived(double now_s, double stamp_s) {
 }
 
 InputTiming FrameBudget::timing(double now_s) const {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   InputTiming t;
   t.now_s = now_s;
   t.last_arrival_s = last_arrival_s_.value_or(0.0);
@@ -190,7 +190,7 @@ double keyframeLookaheadS(double cost_s, double period_s, double stamp_period_s)
 }
 
 void FrameBudget::processed(double ms) {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   ms_ = any_ms_ ? ms_ + alpha_ * (ms - ms_) : ms;
   any_ms_ = true;
 }

@@ -102,13 +102,13 @@ void SessionWorker::run() {
 template <typename F>
 void SessionWorker::step(F f) {
   {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     try {
       f();
     } catch (const std::exception& e) {
       if (!asynchronous()) throw;
       {
-        std::lock_guard<std::mutex> s(stats_mutex_);
+        MutexLock s(&stats_mutex_);
         ++stats_.skipped;
       }
       say(Severity::kError, std::string("message skipped: ") + e.what());
@@ -122,8 +122,9 @@ void SessionWorker::process(Item& item) {
     optimiseDueNow();
   } else if (auto* l = std::get_if<LoopItem>(&item)) {
     step([&] {
+      mutex_.assertHeld();
       {
-        std::lock_guard<std::mutex> s(stats_mutex_);
+        MutexLock s(&stats_mutex_);
         ++stats_.loops;
       }
       tryLoop(l->loop);
@@ -131,9 +132,10 @@ void SessionWorker::process(Item& item) {
   } else {  // a keyframe (ours or another vehicle's) or a session's end: the waiting loops are tried again
     std::deque<Loop> retry;
     step([&] {
+      mutex_.assertHeld();
       if (auto* k = std::get_if<KeyframeItem>(&item)) {
         {
-          std::lock_guard<std::mutex> s(stats_mutex_);
+          MutexLock s(&stats_mutex_);
           ++stats_.keyframes;
         }
         const Status st = manager_->addKeyframe(k->keyframe, k->loops);
@@ -167,10 +169,15 @@ void SessionWorker::process(Item& item) {
       }
       retry = std::exchange(waiting_, {});
     });
-    for (const Loop& l : retry) step([&] { tryLoop(l); });  // their keyframe may be here
+    for (const Loop& l : retry) {  // their keyframe may be here
+      step([&] {
+        mutex_.assertHeld();
+        tryLoop(l);
+      });
+    }  // their keyframe may be here
   }
   if (after_item_) {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     after_item_(*manager_);
   }
 }
@@ -182,12 +189,12 @@ void SessionWorker::tryLoop(const Loop& loop) {
     const bool full = static_cast<int>(waiting_.size()) >= options_.max_waiting_loops;
     if (full && !waiting_.empty()) waiting_.pop_front();  // the oldest, counted
     if (options_.max_waiting_loops > 0) waiting_.push_back(loop);
-    std::lock_guard<std::mutex> s(stats_mutex_);
+    MutexLock s(&stats_mutex_);
     stats_.waiting_dropped += full ? 1 : 0;
   } else if (!st.ok()) {
     say(Severity::kWarn, st.message);
   }
-  std::lock_guard<std::mutex> s(stats_mutex_);
+  MutexLock s(&stats_mutex_);
   stats_.waiting = waiting_.size();
 }
 
@@ -195,7 +202,7 @@ void SessionWorker::optimiseDueNow() {
   for (;;) {
     std::optional<MapOptimisation> o;
     {
-      std::lock_guard<std::mutex> lock(mutex_);
+      MutexLock lock(&mutex_);
       o = manager_->nextOptimisation();
     }
     if (!o) return;
@@ -209,9 +216,9 @@ void SessionWorker::optimiseDueNow() {
       say(Severity::kError, "optimising map " + std::to_string(o->map) + " failed: " + e.what());
       return;
     }
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     const bool applied = manager_->applyOptimisation(*o);  // false: the map changed meanwhile, still due
-    std::lock_guard<std::mutex> s(stats_mutex_);
+    MutexLock s(&stats_mutex_);
     ++stats_.solves;
     stats_.solved_again += applied ? 0 : 1;
   }
@@ -237,7 +244,7 @@ void SessionWorker::optimiseDue() { submit(OptimiseItem{}); }
 SessionWorkerStats SessionWorker::stats() const {
   SessionWorkerStats s;
   {
-    std::lock_guard<std::mutex> lock(stats_mutex_);
+    MutexLock lock(&stats_mutex_);
     s = stats_;
   }
   s.pushed = queue_.pushed();
@@ -249,7 +256,7 @@ SessionWorkerStats SessionWorker::stats() const {
 // --- Stored sessions and the loop detectors -----------------------------------------------------
 
 std::pair<int, long> SessionWorker::reloadStored() {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   int sessions = 0;
   long keyframes = 0;
   for (const SessionSummary& s : manager_->view().list()) {
@@ -265,7 +272,7 @@ std::pair<int, long> SessionWorker::reloadStored() {
           "~reload_stored: session " + std::to_string(s.id) + " '" + s.name + "' not reloaded: " + st.message);
       continue;
     }
-    std::lock_guard<std::mutex> h(handover_mutex_);
+    MutexLock h(&handover_mutex_);
     handed_.push_back(r.id);
     ++sessions;
     keyframes += s.keyframes;
@@ -277,11 +284,11 @@ std::pair<int, long> SessionWorker::reloadStored() {
 
 Status SessionWorker::reloadSession(const std::string& name_or_id, ReloadedSession* out,
                                     const std::function<void(const ReloadedSession&, const StoredKeyframe&)>& send) {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   const Status st = manager_->reload(name_or_id, out);
   if (!st.ok()) return st;
   {
-    std::lock_guard<std::mutex> h(handover_mutex_);
+    MutexLock h(&handover_mutex_);
     handed_.push_back(out->id);  // and to every loop detector that subscribes later
   }
   for (const StoredKeyframe& k : out->keyframes) {
@@ -301,8 +308,8 @@ HandoverStats SessionWorker::handOver(const std::string& to,
                                       const std::function<void(const ReloadedSession&, const StoredKeyframe&)>& send) {
   std::vector<int> ids;
   {
-    std::lock_guard<std::mutex> lock(mutex_);
-    std::lock_guard<std::mutex> h(handover_mutex_);
+    MutexLock lock(&mutex_);
+    MutexLock h(&handover_mutex_);
     ids = handed_;
     handover_.total = 0;
     for (int id : ids) handover_.total += static_cast<long>(manager_->view().frames(id).size());
@@ -312,9 +319,9 @@ HandoverStats SessionWorker::handOver(const std::string& to,
   const auto start = std::chrono::steady_clock::now();
   long sent = 0, failed = 0;
   for (int id : ids) {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     {
-      std::lock_guard<std::mutex> h(handover_mutex_);
+      MutexLock h(&handover_mutex_);
       if (std::find(handed_.begin(), handed_.end(), id) == handed_.end()) continue;  // unloaded meanwhile
     }
     ReloadedSession r;
@@ -343,10 +350,10 @@ HandoverStats SessionWorker::handOver(const std::string& to,
       send(r, k);
       ++sent;
     }
-    std::lock_guard<std::mutex> h(handover_mutex_);
+    MutexLock h(&handover_mutex_);
     handover_.sent = sent;
   }
-  std::lock_guard<std::mutex> h(handover_mutex_);
+  MutexLock h(&handover_mutex_);
   handover_.without_features = failed;
   handover_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (!ids.empty()) {
@@ -360,17 +367,17 @@ HandoverStats SessionWorker::handOver(const std::string& to,
 }
 
 void SessionWorker::forgetHandedOver(int session) {
-  std::lock_guard<std::mutex> h(handover_mutex_);
+  MutexLock h(&handover_mutex_);
   handed_.erase(std::remove(handed_.begin(), handed_.end(), session), handed_.end());
 }
 
 HandoverStats SessionWorker::handoverStats() const {
-  std::lock_guard<std::mutex> h(handover_mutex_);
+  MutexLock h(&handover_mutex_);
   return handover_;
 }
 
 std::vector<int> SessionWorker::handedOver() const {
-  std::lock_guard<std::mutex> h(handover_mutex_);
+  MutexLock h(&handover_mutex_);
   return handed_;
 }
 
@@ -381,7 +388,7 @@ Status SessionWorker::keyframeFeatures(int session, int keyframe, bool check_onl
   if (keyframe < 0)
     return {StatusCode::kInvalidArgument,
             "keyframe_features: keyframe ids are >= 0 (got " + std::to_string(keyframe) + ")"};
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   const SessionQueries& m = manager_->view();
   if (m.has(session) && !m.vehicleOf(session).empty()) {  // another vehicle's: that vehicle has the features
     out->vehicle = m.vehicleOf(session);

@@ -23,14 +23,14 @@
 // optimisation, so no request (and no service) ever waits for a solve: it only marks maps due.
 //
 // Callbacks (done, after_item, the manager's events, Log) run under the mutex: they must not
-// call back into the worker. The handover list has a mutex of its own, taken after mutex_.
+// call back into the worker. The statistics and the handover list have a mutex each, taken after
+// mutex_ when both are held (ACQUIRED_AFTER: clang -Wthread-safety checks the order).
 #pragma once
 
 #include <cstddef>
 #include <deque>
 #include <functional>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <string>
 #include <thread>
@@ -39,6 +39,7 @@
 #include <vector>
 
 #include "uw_multislam/core/common/status.h"
+#include "uw_multislam/core/common/thread_annotations.h"
 #include "uw_multislam/core/common/work_queue.h"
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/session/session_manager.h"
@@ -164,20 +165,20 @@ class SessionWorker {
   /// f(manager) under the mutex (the const one: f(manager.view()), the queries); its result.
   /// What it returns must not refer into the manager.
   template <typename F>
-  decltype(auto) locked(F&& f) {
-    std::lock_guard<std::mutex> lock(mutex_);
+  decltype(auto) locked(F&& f) EXCLUDES(mutex_) {
+    MutexLock lock(&mutex_);
     if constexpr (std::is_invocable_v<F, SessionManager&>)
       return f(*manager_);
     else
       return f(manager_->view());
   }
   template <typename F>
-  decltype(auto) locked(F&& f) const {
-    std::lock_guard<std::mutex> lock(mutex_);
+  decltype(auto) locked(F&& f) const EXCLUDES(mutex_) {
+    MutexLock lock(&mutex_);
     return f(manager_->view());
   }
   /// The manager's hasher (immutable: no lock needed).
-  const ImageHasher& hasher() const { return manager_->view().hasher(); }
+  const ImageHasher& hasher() const NO_THREAD_SAFETY_ANALYSIS { return manager_->view().hasher(); }
   SessionWorkerStats stats() const;
 
   // --- Stored sessions and the loop detectors ---------------------------------------------------
@@ -236,32 +237,33 @@ class SessionWorker {
 
   bool submit(Item item);
   void run();
-  void process(Item& item);
-  /// `f` under the mutex (asynchronous: a throw counted and logged), then optimiseDueNow().
+  void process(Item& item) EXCLUDES(mutex_);
+  /// `f` under the mutex (asynchronous: a throw counted and logged), then optimiseDueNow(). `f`
+  /// is a lambda: it asserts the mutex held (the analysis does not follow the lock into it).
   template <typename F>
-  void step(F f);
-  /// A loop's attempt: accepted, refused (logged) or waiting (REQUIRES mutex_).
-  void tryLoop(const Loop& loop);
-  void optimiseDueNow();
+  void step(F f) EXCLUDES(mutex_);
+  /// A loop's attempt: accepted, refused (logged) or waiting.
+  void tryLoop(const Loop& loop) REQUIRES(mutex_);
+  void optimiseDueNow() EXCLUDES(mutex_);
   void say(Severity s, const std::string& line) const;
 
   std::unique_ptr<SessionManager> owned_;
-  SessionManager* manager_;  // guarded by mutex_ (hasher() excepted: immutable)
+  SessionManager* manager_ PT_GUARDED_BY(mutex_);  // hasher() excepted: immutable
   const SessionWorkerOptions options_;
   const Log log_;
-  mutable std::mutex mutex_;
-  std::deque<Loop> waiting_;  // guarded by mutex_
-  AfterItem after_item_;      // set before the thread starts; read by it only
+  mutable Mutex mutex_;
+  std::deque<Loop> waiting_ GUARDED_BY(mutex_);
+  AfterItem after_item_;  // set before the thread starts; read by it only
 
-  mutable std::mutex stats_mutex_;  // guards stats_ (the queue's counters are the queue's)
-  SessionWorkerStats stats_;
+  mutable Mutex stats_mutex_ ACQUIRED_AFTER(mutex_);
+  SessionWorkerStats stats_ GUARDED_BY(stats_mutex_);  // the queue's counters are the queue's
 
   BoundedWorkQueue<Item> queue_;  // asynchronous
   std::thread thread_;
 
-  mutable std::mutex handover_mutex_;  // guards handed_ and handover_ (taken after mutex_)
-  std::vector<int> handed_;
-  HandoverStats handover_;
+  mutable Mutex handover_mutex_ ACQUIRED_AFTER(mutex_);
+  std::vector<int> handed_ GUARDED_BY(handover_mutex_);
+  HandoverStats handover_ GUARDED_BY(handover_mutex_);
 };
 
 }  // namespace core
