@@ -32,8 +32,12 @@ run_case() {  # run_case LABEL OPT MISSION SESSION_DIRS...
   for d in "$@"; do args+=(--session "$d"); done
   local o="$out/run_${label}_$opt"
   "$bin/offline_slam" "${args[@]}" --out "$o" --config "$out/$opt.yaml" --quiet > "$o.log" 2>&1 || { echo "offline_slam failed, see $o.log" >&2; exit 1; }
-  # The mission folder holds world_gt.csv / loops_gt.csv; evaluate only the sessions given.
-  /usr/bin/python3 "$UWMS_REPO/src/tools/evaluate.py" --run "$o" --mission "$mission" --report "$o/report" --no-plots > /dev/null
+  # The mission folder holds world_gt.csv / loops_gt.csv; evaluate only the sessions given (evaluate.py refuses a
+  # --mission with sessions the run does not have).
+  local truth=() gt
+  for d in "$@"; do truth+=(--session "$d"); done
+  for gt in world_gt loops_gt; do [ -f "$mission/$gt.csv" ] && truth+=("--${gt/_/-}" "$mission/$gt.csv"); done
+  /usr/bin/python3 "$UWMS_REPO/src/tools/evaluate.py" --run "$o" "${truth[@]}" --report "$o/report" --no-plots > /dev/null
   /usr/bin/python3 - "$o" "$label" "$opt" <<'PY'
 import csv, sys, statistics as st
 run, label, opt = sys.argv[1:]

@@ -17,7 +17,7 @@ PACKAGES=(
   libvlfeat-dev
   python3-nodelet python3-rosnode python3-tf2-ros python3-tf2-msgs python3-geometry-msgs python3-sensor-msgs python3-nav-msgs python3-visualization-msgs python3-numpy python3-matplotlib python3-yaml python3-pytest bc
   topic-tools libimage-proc-dev python3-std-srvs
-  rviz xvfb imagemagick clang-format
+  rviz xvfb imagemagick clang-format clang
 )
 
 missing=()

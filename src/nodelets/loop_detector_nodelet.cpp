@@ -31,7 +31,7 @@ void LoopDetectorNodelet::onInit() {
   try {
     options_ = ros_params::loopDetectorNodeletOptions(getPrivateNodeHandle());
     config_ = ros_params::loopDetectorConfig(nh, options_);
-    queue_ = std::make_unique<ros_work::BoundedWorkQueue<Work>>(static_cast<std::size_t>(options_.queue_size));
+    queue_ = std::make_unique<core::BoundedWorkQueue<Work>>(static_cast<std::size_t>(options_.queue_size));
     detector_ = std::make_unique<core::LoopDetector>(config_.loops, config_.odometry.matching, config_.odometry.ransac,
                                                      config_.odometry.features.num_features);
     // Always: stored keyframes when paging, and other vehicles' keyframes (foreign_keyframes) in

@@ -47,7 +47,7 @@ void OdometryNodelet::onInit() {
   for (const std::string& line : ros_params::describe(o)) NODELET_INFO("odometry: %s", line.c_str());
   NODELET_INFO("odometry: %s", images_->description().c_str());
   NODELET_DEBUG_STREAM("odometry: effective SLAM configuration:\n" << core::slamConfigToYaml(config));
-  queue_ = std::make_unique<ros_work::BoundedWorkQueue<Frame>>(o.workerQueueSize(), ros_inputs::handOnDropped);
+  queue_ = std::make_unique<core::BoundedWorkQueue<Frame>>(o.workerQueueSize(), ros_inputs::handOnDropped);
   // With newest the worker takes the newest frame when it frees up: its features are started on arrival (on another
   // core). A frame superseded before a thread was free is never prepared (core::OrderedPrefetch::Start::kNewest).
   if (o.prepare_threads > 0 && o.drop_policy == "newest")
@@ -191,14 +191,14 @@ void OdometryNodelet::work() {
   if (options_.drop_policy == "oldest") {
     // ~prepare_threads: frames already waiting are prepared on long-lived threads while this one
     // processes the frame before them (a thread per frame was slower than none: bench_load.sh).
-    ros_work::drainWithPrepareAhead<Frame, Ahead>(
+    core::drainWithPrepareAhead<Frame, Ahead>(
         *queue_, options_.prepare_threads, [this](const Frame& f) { return prepareAhead(f); },
         [this](Frame& f, Ahead* ahead) { run(f, ahead); });
     return;
   }
   // The skip rule chooses, or waits for the next frame (the worker's state: popSelected runs on this thread).
   ros_inputs::NewestChooser choose(options_.stale_fraction, &budget_, &counts_);
-  ros_work::drainNewest<Frame, Ahead>(
+  core::drainNewest<Frame, Ahead>(
       *queue_, queue_->capacity(), prepare_on_arrival_.get(),
       [this, &choose](const std::deque<Frame>& w, const std::vector<bool>& started) {
         return choose(stream_->skipRule(), w, mount_, started);

@@ -9,13 +9,13 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "uw_multislam/core/common/work_queue.h"
 #include "uw_multislam/core/frontend/enhancement.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/frame_publisher.h"
 #include "uw_multislam/ros/sensor_conversions.h"
 #include "uw_multislam/ros/slam_params.h"
-#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace ros_params {
@@ -24,11 +24,11 @@ namespace rc = ros_conversions;
 
 std::size_t OdometryNodeletOptions::workerQueueSize() const {
   const auto depth = static_cast<std::size_t>(queue_size);
-  return drop_policy == "newest" ? ros_work::newestCapacity(depth) : depth;
+  return drop_policy == "newest" ? core::newestCapacity(depth) : depth;
 }
 
 int OdometryNodeletOptions::inputQueueSize() const {
-  return std::max(sync_queue_size, static_cast<int>(ros_work::newestCapacity(static_cast<std::size_t>(queue_size))));
+  return std::max(sync_queue_size, static_cast<int>(core::newestCapacity(static_cast<std::size_t>(queue_size))));
 }
 
 core::InputPairingOptions OdometryNodeletOptions::pairing() const {

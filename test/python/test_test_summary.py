@@ -1,6 +1,8 @@
 """scripts/test_summary.py, the CI's verdict: a failure, a skip, a suite that did not run or one
 that is not in the expected list each make it fail. And scripts/format_check.sh, one of its suites:
-a file clang-format would change fails it, named in its JUnit result."""
+a file clang-format would change fails it, named in its JUnit result. And
+scripts/thread_safety_check.py: a field read without its mutex fails it."""
+import json
 import os
 import shutil
 import subprocess
@@ -95,3 +97,63 @@ def test_format_check_without_sources_fails(tmp_path):
     r = subprocess.run(["bash", os.path.join(SCRIPTS, "format_check.sh"), "--root", str(tmp_path / "empty")],
                        capture_output=True, text=True)
     assert r.returncode == 1 and "no C++ file" in r.stderr, r.stderr
+
+
+# scripts/thread_safety_check.py, the suite that runs clang's thread-safety analysis on the core.
+GUARDED = """#include "uw_multislam/core/common/thread_annotations.h"
+namespace uw_multislam { namespace core {
+class Counter {
+ public:
+  void add() { MutexLock lock(&mutex_); ++n_; }
+  %s
+ private:
+  Mutex mutex_;
+  int n_ GUARDED_BY(mutex_) = 0;
+};
+}  }
+"""
+LOCKED_READ = "int get() { MutexLock lock(&mutex_); return n_; }"
+UNLOCKED_READ = "int get() { return n_; }"  # reads n_ without its mutex
+needs_clang = pytest.mark.skipif(shutil.which("clang++") is None, reason="clang++ not installed")
+
+
+def thread_safety_check(tmp_path, sources):
+    """thread_safety_check.py on a tree of its own (the repository's annotations header, `sources`
+    under src/core/, and a compile_commands.json naming them): its exit status, its output, and
+    its JUnit result as the summary reads it."""
+    root = tmp_path / "tree"
+    header = root / "include" / "uw_multislam" / "core" / "common"
+    header.mkdir(parents=True)
+    shutil.copy(os.path.join(SCRIPTS, "..", "include", "uw_multislam", "core", "common", "thread_annotations.h"),
+                header)
+    (root / "src" / "core").mkdir(parents=True)
+    build = tmp_path / "build"
+    build.mkdir()
+    commands = []
+    for name, text in sources.items():
+        (root / "src" / "core" / name).write_text(text)
+        commands.append({"directory": str(build), "file": str(root / "src" / "core" / name),
+                         "command": "/usr/bin/c++ -I%s -std=c++17 -O2 -o x.o -c %s" % (root / "include", name)})
+    (build / "compile_commands.json").write_text(json.dumps(commands))
+    junit = tmp_path / "results" / "uw_multislam" / "thread_safety-core.xml"
+    r = subprocess.run(["/usr/bin/python3", os.path.join(SCRIPTS, "thread_safety_check.py"), "--build", str(build),
+                        "--root", str(root), "--junit", str(junit)], capture_output=True, text=True)
+    s = subprocess.run(["/usr/bin/python3", SCRIPT, str(tmp_path / "results")], capture_output=True, text=True)
+    return r.returncode, r.stdout + r.stderr, s.returncode, s.stdout
+
+
+@needs_clang
+def test_thread_safety_check_passes_guarded_fields_and_skips_units_without_annotations(tmp_path):
+    code, out, summary_code, summary_out = thread_safety_check(
+        tmp_path, {"ok.cpp": GUARDED % LOCKED_READ, "plain.cpp": "int f() { return 1; }\n"})
+    assert code == 0 and "1 of 2 core units see the annotations" in out and "all pass" in out, out
+    assert summary_code == 0 and summary_out.strip().endswith("1 passed, 0 failed, 0 skipped"), summary_out
+
+
+@needs_clang
+def test_thread_safety_check_fails_on_a_field_read_without_its_mutex(tmp_path):
+    code, out, summary_code, summary_out = thread_safety_check(
+        tmp_path, {"ok.cpp": GUARDED % LOCKED_READ, "bad.cpp": GUARDED % UNLOCKED_READ})
+    assert code == 1 and "FAILED: src/core/bad.cpp" in out and "requires holding mutex 'mutex_'" in out, out
+    assert summary_code == 1 and "FAILED uw_multislam/thread_safety-core.xml" in summary_out, summary_out
+    assert "src/core/bad.cpp" in summary_out and "src/core/ok.cpp" not in summary_out, summary_out

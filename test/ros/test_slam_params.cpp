@@ -4,9 +4,9 @@
 
 #include <algorithm>
 
+#include "uw_multislam/core/common/work_queue.h"
 #include "uw_multislam/ros/odometry_options.h"
 #include "uw_multislam/ros/slam_params.h"
-#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace {
@@ -110,13 +110,12 @@ TEST(OdometryOptions, WorkerAndInputQueuesFollowTheDropPolicy) {
           "queue_size " + std::to_string(queue_size) + ", sync_queue_size " + std::to_string(sync_queue_size);
       o.drop_policy = "oldest";  // every frame in order: the worker's queue is ~queue_size, the oldest dropped beyond
       EXPECT_EQ(o.workerQueueSize(), static_cast<std::size_t>(queue_size)) << at;
-      EXPECT_EQ(
-          o.inputQueueSize(),
-          std::max(sync_queue_size, static_cast<int>(ros_work::newestCapacity(static_cast<std::size_t>(queue_size)))))
+      EXPECT_EQ(o.inputQueueSize(),
+                std::max(sync_queue_size, static_cast<int>(core::newestCapacity(static_cast<std::size_t>(queue_size)))))
           << at;
       EXPECT_GE(o.inputQueueSize(), 20 * queue_size) << at;
       o.drop_policy = "newest";
-      EXPECT_EQ(o.workerQueueSize(), ros_work::newestCapacity(static_cast<std::size_t>(queue_size))) << at;
+      EXPECT_EQ(o.workerQueueSize(), core::newestCapacity(static_cast<std::size_t>(queue_size))) << at;
       // 20 x queue_size, as ~queue_size's documentation and the start-up log line say.
       EXPECT_EQ(o.workerQueueSize(), 20u * static_cast<std::size_t>(queue_size)) << at;
       EXPECT_GE(o.inputQueueSize(), static_cast<int>(o.workerQueueSize())) << at;

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "uw_multislam/core/common/work_queue.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/frame_skip.h"
 #include "uw_multislam/core/frontend/input_pairing.h"
@@ -19,7 +20,6 @@
 #include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/ros/image_input.h"
 #include "uw_multislam/ros/odometry_counters.h"
-#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace ros_inputs {
@@ -60,15 +60,15 @@ inline core::WaitingFrame waitingFrame(const OdometryFrame& f, const core::Camer
 /// with `timing` (the input's: FrameBudget::timing), whether to wait for the next frame instead (core::waitForNext with
 /// `stale_fraction`: NewestChoice::wait_for); not with frames prepared on arrival (a frame under preparation would be
 /// taken after the wait: the stale one, later).
-inline ros_work::NewestChoice chooseNewest(const core::FrameSkipRule* rule, const std::deque<OdometryFrame>& waiting,
-                                           const core::CameraMount& mount, const std::vector<bool>& started,
-                                           const core::InputTiming* timing = nullptr, double stale_fraction = 1.0) {
+inline core::NewestChoice chooseNewest(const core::FrameSkipRule* rule, const std::deque<OdometryFrame>& waiting,
+                                       const core::CameraMount& mount, const std::vector<bool>& started,
+                                       const core::InputTiming* timing = nullptr, double stale_fraction = 1.0) {
   if (!rule) return {0, false};
   std::vector<core::WaitingFrame> w;
   w.reserve(waiting.size());
   for (const OdometryFrame& f : waiting) w.push_back(waitingFrame(f, mount));
   const core::FrameSkipRule::Choice choice = rule->choose(w, started);
-  ros_work::NewestChoice c{choice.index, choice.reason != core::FrameSkipRule::Reason::kOldest};
+  core::NewestChoice c{choice.index, choice.reason != core::FrameSkipRule::Reason::kOldest};
   if (!timing || !started.empty()) return c;
   core::InputTiming t = *timing;
   t.chosen_arrival_s = waiting[choice.index].arrived_s;
@@ -85,10 +85,10 @@ class NewestChooser {
   /// `budget`: the odometry's (its arrivals give the input's timing); `counters`: the worker's.
   NewestChooser(double stale_fraction, const core::FrameBudget* budget, ros_diagnostics::OdometryCounters* counters)
       : stale_fraction_(stale_fraction), budget_(budget), counters_(counters) {}
-  ros_work::NewestChoice operator()(const core::FrameSkipRule* rule, const std::deque<OdometryFrame>& waiting,
-                                    const core::CameraMount& mount, const std::vector<bool>& started) {
+  core::NewestChoice operator()(const core::FrameSkipRule* rule, const std::deque<OdometryFrame>& waiting,
+                                const core::CameraMount& mount, const std::vector<bool>& started) {
     const core::InputTiming timing = budget_->timing(ros::SteadyTime::now().toSec());
-    const ros_work::NewestChoice c = chooseNewest(rule, waiting, mount, started, &timing, stale_fraction_);
+    const core::NewestChoice c = chooseNewest(rule, waiting, mount, started, &timing, stale_fraction_);
     // A take asks again after each frame that arrives during its wait: counted at its first.
     if (c.wait_for && counted_take_ != counters_->frames_finished) {
       counted_take_ = counters_->frames_finished;

@@ -76,10 +76,10 @@ struct OdometryNodeletOptions {
   core::SlamConfig config;                               // slam/ (config/slam.yaml), validated
   sensor_msgs::CameraInfoConstPtr fallback_camera_info;  // from camera_info_url (null without one)
 
-  /// The worker's queue of frames: ~queue_size with oldest; with newest ros_work::newestCapacity(queue_size), deeper,
+  /// The worker's queue of frames: ~queue_size with oldest; with newest core::newestCapacity(queue_size), deeper,
   /// so that the skip rule (core::FrameSkipRule), not a full queue, decides which frames are passed over.
   std::size_t workerQueueSize() const;
-  /// The input subscribers' queues: ~sync_queue_size, and at least ros_work::newestCapacity(queue_size) with either
+  /// The input subscribers' queues: ~sync_queue_size, and at least core::newestCapacity(queue_size) with either
   /// policy, so that a stalled callback thread does not make roscpp drop images: a run of those, uncounted, is a
   /// gap in the stamps the node cannot tell from an outage (a false session), where the worker's own queue drops
   /// them counted, their stamps handed on (and with newest the skip rule sees every one).

@@ -50,7 +50,6 @@ class SeabedWorld {
   SeabedWorld(cv::Mat bgr, double metres_per_px, const Eigen::Vector2d& origin_px, cv::Mat valid = cv::Mat());
 
   const cv::Mat& image() const { return image_; }
-  const cv::Mat& validMask() const { return valid_; }
   double metresPerPixel() const { return metres_per_px_; }
   const Eigen::Vector2d& originPx() const { return origin_px_; }
   double widthM() const { return image_.cols * metres_per_px_; }

@@ -10,6 +10,9 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "uw_multislam/core/backend/iekf_optimizer.h"
+#include "uw_multislam/core/backend/pose_graph_optimizer.h"
+
 namespace uw_multislam {
 namespace core {
 
@@ -61,31 +64,20 @@ std::string BackendOptions::validate() const {
   return {};
 }
 
+std::unique_ptr<MapOptimizer> makeMapOptimizer(const BackendOptions& o) {
+  const std::string bad = o.validate();
+  if (!bad.empty()) throw std::invalid_argument("backend: " + bad);
+  PoseGraphOptimizer sparse(o.sparse, o.intra_gate_inflation);
+  if (!o.optimise || o.optimizer == OptimizerKind::kSparse) return std::make_unique<PoseGraphOptimizer>(sparse);
+  return std::make_unique<IekfOptimizer>(o.iekf, o.max_keyframes, o.iekf_gate_inflation, sparse);
+}
+
 namespace {
 
 std::string describe(const Pose2& p) {
   char buf[96];
   std::snprintf(buf, sizeof buf, "(%.3f m, %.3f m, %.4f rad)", p.x(), p.y(), p.yaw());
   return buf;
-}
-
-template <typename Derived>
-Eigen::Matrix3d block3(const Eigen::MatrixBase<Derived>& p, Eigen::Index i, Eigen::Index j) {
-  return p.template block<3, 3>(3 * i, 3 * j);
-}
-
-// Means-only trajectory of a list of motions.
-Trajectory meansTrajectory(const std::vector<Pose2>& motions) {
-  Trajectory t;
-  for (const Pose2& m : motions) t.append(UncertainPose2::exact(m));
-  return t;
-}
-
-// X_j^i from the motions of a chain (motion k reaches keyframe k + 1), means only.
-Pose2 relativeOfMotions(const std::vector<Pose2>& motions, int i, int j) {
-  Pose2 x;
-  for (int k = std::min(i, j); k < std::max(i, j); ++k) x = compose(x, motions[k]);
-  return i <= j ? x : invert(x);
 }
 
 // The squared Mahalanobis distance of a loop's measurement from its prediction in a solution,
@@ -104,19 +96,16 @@ int worstBeyondGate(const std::vector<double>& d2, double gate) {
 
 }  // namespace
 
-int MultiSessionBackend::Map::numMotions() const {
-  return static_cast<int>(iekf ? iekf->motions().size() : motions.size());
-}
-Pose2 MultiSessionBackend::Map::motion(int k) const { return iekf ? iekf->motions()[k] : motions[k]; }
-Eigen::Matrix3d MultiSessionBackend::Map::motionCov(int k) const {
-  return iekf ? block3(iekf->covariance(), k, k) : cov[k];
+MultiSessionBackend::MultiSessionBackend(const BackendOptions& options, std::unique_ptr<MapOptimizer> optimizer,
+                                         Log log)
+    : options_(options), optimizer_(std::move(optimizer)), log_(std::move(log)) {
+  const std::string bad = options.validate();
+  if (!bad.empty()) throw std::invalid_argument("backend: " + bad);
+  if (!optimizer_) throw std::invalid_argument("backend: no optimiser");
 }
 
 MultiSessionBackend::MultiSessionBackend(const BackendOptions& options, Log log)
-    : options_(options), log_(std::move(log)) {
-  const std::string bad = options.validate();
-  if (!bad.empty()) throw std::invalid_argument("backend: " + bad);
-}
+    : MultiSessionBackend(options, makeMapOptimizer(options), std::move(log)) {}
 
 void MultiSessionBackend::say(const std::string& line) const {
   if (log_) log_(line);
@@ -148,7 +137,7 @@ int MultiSessionBackend::startSession(const std::string& name) {
   sessions_.push_back(s);
   Map m;
   m.chain = {id};
-  if (options_.optimise && options_.optimizer == OptimizerKind::kIekf) m.iekf.emplace(options_.iekf);
+  m.estimate = optimizer_->start();
   maps_.emplace(id, std::move(m));
   return id;
 }
@@ -180,27 +169,6 @@ void MultiSessionBackend::endSession(int session) {
   }
 }
 
-void MultiSessionBackend::toSparse(Map& m, const std::string& why) {
-  if (!m.iekf) return;
-  m.motions = m.iekf->motions();
-  m.cov.clear();
-  for (int k = 0; k < static_cast<int>(m.motions.size()); ++k) m.cov.push_back(block3(m.iekf->covariance(), k, k));
-  m.iekf.reset();
-  touch(m);
-  say("map " + std::to_string(m.chain.front()) + ": " + why + ": optimised by the sparse back-end from now on");
-}
-
-void MultiSessionBackend::toDenseIfIekf(Map& m) const {
-  if (!options_.optimise || options_.optimizer != OptimizerKind::kIekf || m.numMotions() + 1 > options_.max_keyframes)
-    return;
-  Eigen::MatrixXd p = Eigen::MatrixXd::Zero(3 * m.numMotions(), 3 * m.numMotions());
-  for (int k = 0; k < m.numMotions(); ++k) p.block<3, 3>(3 * k, 3 * k) = m.cov[k];
-  m.iekf.emplace(options_.iekf, m.motions, std::move(p));
-  m.motions.clear();
-  m.cov.clear();
-  touch(m);
-}
-
 void MultiSessionBackend::addMotion(int session, const UncertainPose2& motion) {
   const Session& s = sessionAt(session);
   if (!s.recording) throw std::invalid_argument("backend: session " + std::to_string(session) + " is not recording");
@@ -208,15 +176,9 @@ void MultiSessionBackend::addMotion(int session, const UncertainPose2& motion) {
     throw std::invalid_argument("backend: motion: " + bad);
   Map& m = mapAt(s.map);
   if (m.chain.back() != session) throw std::logic_error("backend: a recording session is not at the end of its map");
-  if (m.iekf && m.numMotions() + 2 > options_.max_keyframes) {
-    toSparse(m, "more than backend.max_keyframes = " + std::to_string(options_.max_keyframes) + " keyframes");
-  }
-  if (m.iekf) {
-    m.iekf->addMotion(motion);
-  } else {
-    m.motions.push_back(motion.mean);
-    m.cov.push_back(motion.covariance);
-  }
+  std::string note;
+  optimizer_->addMotion(&m.estimate, motion, &note);
+  if (!note.empty()) say("map " + std::to_string(m.chain.front()) + ": " + note);
   touch(m);
   sessions_[session].odometry.push_back(motion);
 }
@@ -240,30 +202,12 @@ void MultiSessionBackend::addLoop(const BackendLoop& l) {
   if (ma == mb) {
     Map& m = mapAt(ma);
     if (options_.intra_loop_gate) {
-      // The loop against the map's estimate of the pose of b in a. Sparse maps: the chain between
-      // the two keyframes composed to first order from the motions' marginal covariances (looser
-      // than the optimised estimate: a conservative gate, widened by intra_gate_inflation). IEKF
-      // maps: the filter's own X_b^a under its joint covariance P (TrajectoryIekf::relative), which
-      // knows what earlier loops pinned down; the marginal chain ignores the motions'
-      // correlations and let wrong loops through (bench_backend --outliers, iekf: 0.67 m mean ATE
-      // change at 10 % wrong loops with it, 0.14 mm with P; doc/benchmarks/outliers.md).
+      // The loop against the map's estimate of the pose of b in a, with the covariance its
+      // optimiser gates against (MapOptimizer::gateChain).
       const int ia = indexOf(l.session_a, l.keyframe_a), ib = indexOf(l.session_b, l.keyframe_b);
-      const double inflation = m.iekf ? options_.iekf_gate_inflation : options_.intra_gate_inflation;
-      UncertainPose2 chain = UncertainPose2::exact(Pose2());
-      if (m.iekf) {
-        chain = m.iekf->relative(ia, ib);
-      } else {
-        // A link that only the nav placed keeps its own covariance in the gate, not times the
-        // inflation: the drift model's covariance is already honest (inflated and checked against a
-        // Monte-Carlo), and a placement of sigma 0.8 m inflated 100 times let one wrong loop 25 m
-        // off through and move the placed piece by all of it.
-        const std::vector<bool> placed = navPlacedMotions(m);
-        for (int k = std::min(ia, ib); k < std::max(ia, ib); ++k)
-          chain = compose(chain, UncertainPose2(m.motion(k), placed[k] ? m.motionCov(k) / inflation : m.motionCov(k)));
-        if (ia > ib) chain = invert(chain);  // the pose of b in a
-      }
+      const UncertainPose2 chain = optimizer_->gateChain(m.estimate, ia, ib, navPlacedMotions(m));
       const Pose2 e = between(chain.mean, l.z.mean);
-      const double d2 = mahalanobis2(e, inflation * chain.covariance + l.z.covariance, options_.consistency);
+      const double d2 = mahalanobis2(e, chain.covariance + l.z.covariance, options_.consistency);
       if (!(d2 <= chiSquare3Quantile(options_.consistency.confidence))) {
         loops_.back().refused = true;
         ++stats_.loops_refused;
@@ -382,6 +326,27 @@ std::vector<int> MultiSessionBackend::dueMaps() const {
   return ids;
 }
 
+MapGraph MultiSessionBackend::graphOf(int map_id) const {
+  const Map& m = mapAt(map_id);
+  MapGraph g;
+  int o = 0;
+  for (std::size_t c = 0; c < m.chain.size(); ++c) {
+    const Session& s = sessions_[m.chain[c]];
+    for (int k = 1; k < s.keyframes(); ++k) g.chain.push_back({o + k - 1, o + k, s.odometry[k - 1], false});
+    o += s.keyframes();
+    if (c + 1 < m.chain.size()) g.chain.push_back({o - 1, o, m.links[c].measured, false});
+  }
+  for (int id = 0; id < static_cast<int>(loops_.size()); ++id) {
+    const LoopRecord& st = loops_[id];
+    if (st.summarised || st.refused) continue;
+    if (mapOf(st.loop.session_a) != map_id || mapOf(st.loop.session_b) != map_id) continue;
+    g.loops.push_back({id, indexOf(st.loop.session_a, st.loop.keyframe_a),
+                       indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z});
+    g.applied.push_back(st.applied);
+  }
+  return g;
+}
+
 OptimisationJob MultiSessionBackend::prepareOptimisation(int map_id) const {
   chain(map_id);  // throws for an unknown map
   const Map& m = mapAt(map_id);
@@ -392,56 +357,16 @@ OptimisationJob MultiSessionBackend::prepareOptimisation(int map_id) const {
     job.residual_gate_chi2 = chiSquare3Quantile(options_.consistency.confidence);
     job.residual_gate_inflation = options_.residual_gate_inflation;
     job.residual_gate_floors = options_.consistency;
-  }
-  // The refused loops inside the map, candidates to be taken back after the solve.
-  const bool readmit = options_.loop_residual_gate && options_.readmit_refused_loops;
-  auto refusedHere = [&](const LoopRecord& st) {
-    return readmit && st.refused && !st.summarised && !st.applied && mapOf(st.loop.session_a) == map_id &&
-           mapOf(st.loop.session_b) == map_id;
-  };
-  if (m.iekf) {
-    job.iekf = true;
-    for (int k = 0; k < static_cast<int>(loops_.size()); ++k) {
-      const LoopRecord& st = loops_[k];
-      const LoopMeasurement lm{indexOf(st.loop.session_a, st.loop.keyframe_a),
-                               indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z};
-      if (refusedHere(st)) {
-        job.refused_measurements.push_back(lm);
-        job.refused_loop_ids.push_back(k);
-      }
-      if (st.summarised || st.refused || st.applied) continue;
-      if (mapOf(st.loop.session_a) != map_id || mapOf(st.loop.session_b) != map_id) continue;
-      job.measurements.push_back(lm);
-      job.loop_ids.push_back(k);
+    // The refused loops inside the map, candidates to be taken back after the solve.
+    for (int id = 0; options_.readmit_refused_loops && id < static_cast<int>(loops_.size()); ++id) {
+      const LoopRecord& st = loops_[id];
+      if (st.refused && !st.summarised && !st.applied && mapOf(st.loop.session_a) == map_id &&
+          mapOf(st.loop.session_b) == map_id)
+        job.refused.push_back({id, indexOf(st.loop.session_a, st.loop.keyframe_a),
+                               indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z});
     }
-    if (!job.measurements.empty()) job.filter = *m.iekf;  // the copy is O(N^2), the update O(N^2 m)
-    return job;
   }
-  job.sparse = options_.sparse;
-  job.poses.push_back(Pose2());
-  for (int k = 0; k < m.numMotions(); ++k) job.poses.push_back(compose(job.poses.back(), m.motions[k]));
-  int o = 0;
-  for (std::size_t c = 0; c < m.chain.size(); ++c) {
-    const Session& s = sessions_[m.chain[c]];
-    for (int k = 1; k < s.keyframes(); ++k) job.edges.push_back({o + k - 1, o + k, s.odometry[k - 1], false});
-    o += s.keyframes();
-    if (c + 1 < m.chain.size()) job.edges.push_back({o - 1, o, m.links[c].measured, false});
-  }
-  job.edge_loop_ids.assign(job.edges.size(), -1);
-  for (int id = 0; id < static_cast<int>(loops_.size()); ++id) {
-    const LoopRecord& st = loops_[id];
-    if (refusedHere(st)) {
-      job.refused_edges.push_back({indexOf(st.loop.session_a, st.loop.keyframe_a),
-                                   indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z, true});
-      job.refused_loop_ids.push_back(id);
-    }
-    if (st.summarised || st.refused) continue;
-    if (mapOf(st.loop.session_a) != map_id || mapOf(st.loop.session_b) != map_id) continue;
-    job.edges.push_back({indexOf(st.loop.session_a, st.loop.keyframe_a), indexOf(st.loop.session_b, st.loop.keyframe_b),
-                         st.loop.z, true});
-    job.edge_loop_ids.push_back(id);
-    job.any_loop = true;
-  }
+  job.problem = optimizer_->prepare(m.estimate, graphOf(map_id), &job.loops);
   return job;
 }
 
@@ -452,84 +377,34 @@ void MultiSessionBackend::solveOptimisation(OptimisationJob* job) {
   // solve again from the same start, until none is beyond the gate (loop_residual_gate). Then
   // take back the refused loops that agree with that solution (readmit_refused_loops) and solve
   // again; each refused loop is taken back at most once per job, so this ends.
-  std::vector<bool> tried(job->refused_loop_ids.size(), false);
-  // The refused loops within the gate of a solution (pred(k): refused loop k's prediction in it),
-  // marked tried; their indexes.
-  auto takeBack = [&](const std::function<Pose2(std::size_t)>& pred) {
-    std::vector<std::size_t> back;
+  std::vector<bool> tried(job->refused.size(), false);
+  MapProblem* problem = job->problem.get();
+  auto distance2 = [&](const MapLoop& l) { return residualDistance2(problem->relative(l.i, l.j), l.z, *job); };
+  while (problem) {
+    while (!job->loops.empty()) {
+      problem->solve(job->loops);
+      if (!gate) break;
+      std::vector<double> d2;
+      for (const MapLoop& l : job->loops) d2.push_back(distance2(l));
+      const int worst = worstBeyondGate(d2, job->residual_gate_chi2);
+      if (worst < 0) break;
+      job->switched_off.push_back(job->loops[worst].id);
+      job->switched_off_chi2.push_back(d2[worst]);
+      job->loops.erase(job->loops.begin() + worst);
+      if (job->loops.empty()) problem->reset();
+    }
+    // The refused loops within the gate of the solution.
+    bool back = false;
     for (std::size_t k = 0; gate && k < tried.size(); ++k) {
       if (tried[k]) continue;
-      const UncertainPose2& z = job->iekf ? job->refused_measurements[k].z : job->refused_edges[k].z;
-      const double d2 = residualDistance2(pred(k), z, *job);
+      const double d2 = distance2(job->refused[k]);
       if (!(d2 <= job->residual_gate_chi2)) continue;
-      tried[k] = true;
-      back.push_back(k);
-      job->readmitted.push_back(job->refused_loop_ids[k]);
+      tried[k] = back = true;
+      job->readmitted.push_back(job->refused[k].id);
       job->readmitted_chi2.push_back(d2);
+      job->loops.push_back(job->refused[k]);
     }
-    return back;
-  };
-  // Loop `worst` of the solve (measurement or edge `worst`, its loop id in ids) switched off.
-  auto switchOff = [&](auto* items, std::vector<int>* ids, int worst, double d2) {
-    job->switched_off.push_back((*ids)[worst]);
-    job->switched_off_chi2.push_back(d2);
-    items->erase(items->begin() + worst);
-    ids->erase(ids->begin() + worst);
-  };
-  if (job->iekf && job->filter) {
-    const TrajectoryIekf start = *job->filter;
-    for (;;) {
-      while (!job->measurements.empty()) {
-        job->filter = start;
-        job->filter->update(job->measurements);
-        if (!gate) break;
-        std::vector<double> d2;
-        for (const LoopMeasurement& l : job->measurements)
-          d2.push_back(residualDistance2(relativeOfMotions(job->filter->motions(), l.i, l.j), l.z, *job));
-        const int worst = worstBeyondGate(d2, job->residual_gate_chi2);
-        if (worst < 0) break;
-        switchOff(&job->measurements, &job->loop_ids, worst, d2[worst]);
-        if (job->measurements.empty()) job->filter = start;
-      }
-      const std::vector<Pose2>& motions = job->filter->motions();
-      const std::vector<std::size_t> back = takeBack([&](std::size_t k) {
-        return relativeOfMotions(motions, job->refused_measurements[k].i, job->refused_measurements[k].j);
-      });
-      if (back.empty()) break;
-      for (std::size_t k : back) {
-        job->measurements.push_back(job->refused_measurements[k]);
-        job->loop_ids.push_back(job->refused_loop_ids[k]);
-      }
-    }
-  } else if (!job->iekf && job->any_loop) {
-    const std::vector<Pose2> start = job->poses;
-    for (;;) {
-      for (;;) {
-        job->poses = start;
-        optimisePoseGraph(&job->poses, job->edges, job->sparse, 0);
-        if (!gate) break;
-        std::vector<double> d2(job->edges.size(), 0.0);
-        for (std::size_t e = 0; e < job->edges.size(); ++e)
-          if (job->edges[e].robust)
-            d2[e] = residualDistance2(between(job->poses[job->edges[e].from], job->poses[job->edges[e].to]),
-                                      job->edges[e].z, *job);
-        const int worst = worstBeyondGate(d2, job->residual_gate_chi2);
-        if (worst < 0) break;
-        switchOff(&job->edges, &job->edge_loop_ids, worst, d2[worst]);
-        if (std::none_of(job->edges.begin(), job->edges.end(), [](const PoseGraphEdge& e) { return e.robust; })) {
-          job->poses = start;
-          break;
-        }
-      }
-      const std::vector<std::size_t> back = takeBack([&](std::size_t k) {
-        return between(job->poses[job->refused_edges[k].from], job->poses[job->refused_edges[k].to]);
-      });
-      if (back.empty()) break;
-      for (std::size_t k : back) {
-        job->edges.push_back(job->refused_edges[k]);
-        job->edge_loop_ids.push_back(job->refused_loop_ids[k]);
-      }
-    }
+    if (!back) break;
   }
   // A loop taken back and switched off again in the same job stays as it was: refused.
   for (std::size_t k = job->readmitted.size(); k-- > 0;) {
@@ -547,7 +422,7 @@ void MultiSessionBackend::solveOptimisation(OptimisationJob* job) {
 bool MultiSessionBackend::applyOptimisation(const OptimisationJob& job) {
   if (!job.solved) throw std::invalid_argument("backend: applyOptimisation of a job that was not solved");
   const auto it = maps_.find(job.map);
-  if (it == maps_.end() || it->second.revision != job.revision || job.iekf != it->second.iekf.has_value()) {
+  if (it == maps_.end() || it->second.revision != job.revision) {
     ++stats_.optimisations_discarded;
     return false;
   }
@@ -573,12 +448,8 @@ bool MultiSessionBackend::applyOptimisation(const OptimisationJob& job) {
        << "'s solution (chi-square " << job.readmitted_chi2[k] << " <= " << job.residual_gate_chi2 << ")";
     say(os.str());
   }
-  if (job.iekf) {
-    if (job.filter) m.iekf = job.filter;
-    for (int k : job.loop_ids) loops_[k].applied = true;
-  } else if (job.any_loop) {
-    for (int k = 0; k < m.numMotions(); ++k) m.motions[k] = between(job.poses[k], job.poses[k + 1]);
-  }
+  if (job.problem && job.problem->apply(&m.estimate))
+    for (const MapLoop& l : job.loops) loops_[l.id].applied = true;
   m.pending = 0;
   touch(m);
   due_.erase(job.map);
@@ -729,33 +600,9 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
   }
   j.links.push_back(link);
   j.links.insert(j.links.end(), c.links.begin(), c.links.end());
-  const int total_motions = p.numMotions() + 1 + c.numMotions();
-  if (p.iekf && c.iekf && total_motions + 1 <= options_.max_keyframes) {
-    // (34): the joint covariance is block-diagonal in the two maps and the link.
-    std::vector<Pose2> motions = p.iekf->motions();
-    motions.push_back(res.link.mean);
-    motions.insert(motions.end(), c.iekf->motions().begin(), c.iekf->motions().end());
-    const Eigen::Index np = p.iekf->covariance().rows(), nc = c.iekf->covariance().rows();
-    Eigen::MatrixXd cov = Eigen::MatrixXd::Zero(np + 3 + nc, np + 3 + nc);
-    cov.topLeftCorner(np, np) = p.iekf->covariance();
-    cov.block<3, 3>(np, np) = res.link.covariance;
-    cov.bottomRightCorner(nc, nc) = c.iekf->covariance();
-    j.iekf.emplace(options_.iekf, std::move(motions), std::move(cov));
-  } else {
-    for (int k = 0; k < p.numMotions(); ++k) {
-      j.motions.push_back(p.motion(k));
-      j.cov.push_back(p.motionCov(k));
-    }
-    j.motions.push_back(res.link.mean);
-    j.cov.push_back(res.link.covariance);
-    for (int k = 0; k < c.numMotions(); ++k) {
-      j.motions.push_back(c.motion(k));
-      j.cov.push_back(c.motionCov(k));
-    }
-    if (p.iekf || c.iekf)
-      say("map " + std::to_string(first) + ": joined map exceeds backend.max_keyframes = " +
-          std::to_string(options_.max_keyframes) + ": optimised by the sparse back-end from now on");
-  }
+  std::string note;
+  j.estimate = optimizer_->join(p.estimate, res.link, c.estimate, &note);
+  if (!note.empty()) say("map " + std::to_string(first) + ": " + note);
   j.pending = p.pending + c.pending;
   for (std::size_t k = 0; k < ids.size(); ++k) {
     if (in[k]) {
@@ -837,68 +684,9 @@ BackendStatus MultiSessionBackend::split(int session) {
   const int d = m.numMotions();
   // Motion k (0-based) reaches keyframe k + 1. The session's own motions are [o, o + n - 1); the
   // link into it is motion o - 1, the link out of it motion o + n - 1.
-  auto slice = [&](Map* out, const std::vector<std::pair<int, int>>& ranges, const Eigen::MatrixXd* composed_j,
-                   int composed_at) {
-    // ranges: motion index ranges [a, b) to keep, in order; if composed_j, the range numbered
-    // composed_at is replaced by one motion, its composition.
-    std::vector<Pose2> motions;
-    std::vector<Eigen::Matrix3d> cov;
-    for (std::size_t r = 0; r < ranges.size(); ++r) {
-      const auto [a, b] = ranges[r];
-      if (composed_j && static_cast<int>(r) == composed_at) {
-        std::vector<Pose2> chain;
-        for (int k = a; k < b; ++k) chain.push_back(m.motion(k));
-        const Trajectory t = meansTrajectory(chain);
-        motions.push_back(t.relative(0, t.numKeyframes() - 1).mean);
-        if (!m.iekf) {
-          Eigen::MatrixXd blk = Eigen::MatrixXd::Zero(3 * (b - a), 3 * (b - a));
-          for (int k = a; k < b; ++k) blk.block<3, 3>(3 * (k - a), 3 * (k - a)) = m.cov[k];
-          cov.push_back(*composed_j * blk * composed_j->transpose());
-        }
-        continue;
-      }
-      for (int k = a; k < b; ++k) {
-        motions.push_back(m.motion(k));
-        if (!m.iekf) cov.push_back(m.cov[k]);
-      }
-    }
-    if (!m.iekf) {
-      out->motions = std::move(motions);
-      out->cov = std::move(cov);
-      return;
-    }
-    // Dense: the kept blocks of P, and for a composed motion J P Jᵀ with its cross terms J P.
-    const auto p = m.iekf->covariance();
-    Eigen::Index dim = 0;
-    std::vector<std::pair<Eigen::Index, Eigen::Index>> src;  // (start, length) in the old state
-    for (std::size_t r = 0; r < ranges.size(); ++r) {
-      const auto [a, b] = ranges[r];
-      src.emplace_back(3 * a, 3 * (b - a));
-      dim += (composed_j && static_cast<int>(r) == composed_at) ? 3 : 3 * (b - a);
-    }
-    Eigen::MatrixXd np = Eigen::MatrixXd::Zero(dim, dim);
-    Eigen::Index ri = 0;
-    for (std::size_t r = 0; r < ranges.size(); ++r) {
-      const bool cr = composed_j && static_cast<int>(r) == composed_at;
-      const Eigen::Index rl = cr ? 3 : src[r].second;
-      Eigen::Index ci = 0;
-      for (std::size_t c = 0; c < ranges.size(); ++c) {
-        const bool cc = composed_j && static_cast<int>(c) == composed_at;
-        const Eigen::Index cl = cc ? 3 : src[c].second;
-        Eigen::MatrixXd b = p.block(src[r].first, src[c].first, src[r].second, src[c].second);
-        if (cr) b = *composed_j * b;
-        if (cc) b = b * composed_j->transpose();
-        np.block(ri, ci, rl, cl) = b;
-        ci += cl;
-      }
-      ri += rl;
-    }
-    out->iekf.emplace(options_.iekf, std::move(motions), 0.5 * (np + np.transpose()));
-  };
-
   Map alone;
   alone.chain = {session};
-  slice(&alone, {{o, o + n - 1}}, nullptr, -1);
+  alone.estimate = m.estimate.slice({{o, o + n - 1}});
 
   Map rest;
   std::vector<int> released;  // loops summarised by removed links that involve the session
@@ -912,20 +700,16 @@ BackendStatus MultiSessionBackend::split(int session) {
     rest.chain.assign(m.chain.begin() + 1, m.chain.end());
     rest.links.assign(m.links.begin() + 1, m.links.end());
     release(m.links[0]);
-    slice(&rest, {{o + n, d}}, nullptr, -1);
+    rest.estimate = m.estimate.slice({{o + n, d}});
   } else if (q == last) {
     rest.chain.assign(m.chain.begin(), m.chain.end() - 1);
     rest.links.assign(m.links.begin(), m.links.end() - 1);
     release(m.links.back());
-    slice(&rest, {{0, o - 1}}, nullptr, -1);
+    rest.estimate = m.estimate.slice({{0, o - 1}});
   } else {
     rest.chain.assign(m.chain.begin(), m.chain.begin() + q);
     rest.chain.insert(rest.chain.end(), m.chain.begin() + q + 1, m.chain.end());
     // The composed link over motions [o - 1, o + n]: link in, the session, link out.
-    std::vector<Pose2> chain;
-    for (int k = o - 1; k <= o + n - 1; ++k) chain.push_back(m.motion(k));
-    const Trajectory t = meansTrajectory(chain);
-    const Eigen::MatrixXd jac = t.relativeJacobian(0, t.numKeyframes() - 1);
     MapLinkState composed;
     const MapLinkState& lin = m.links[q - 1];
     const MapLinkState& lout = m.links[q];
@@ -935,7 +719,7 @@ BackendStatus MultiSessionBackend::split(int session) {
       for (int id : l->loops)
         if (std::find(released.begin(), released.end(), id) == released.end()) composed.loops.push_back(id);
     rest.links.assign(m.links.begin(), m.links.begin() + q - 1);
-    slice(&rest, {{0, o - 1}, {o - 1, o + n}, {o + n, d}}, &jac, 1);
+    rest.estimate = m.estimate.slice({{0, o - 1}, {o - 1, o + n}, {o + n, d}}, 1);
     composed.measured = UncertainPose2(rest.motion(o - 1), rest.motionCov(o - 1));
     rest.links.push_back(composed);
     rest.links.insert(rest.links.end(), m.links.begin() + q + 1, m.links.end());
@@ -1030,14 +814,6 @@ UncertainPose2 MultiSessionBackend::keyframeInMap(int s, int keyframe) const {
   return x;
 }
 
-Trajectory MultiSessionBackend::sessionTrajectory(int s) const {
-  const Map& m = mapAt(mapOf(s));
-  const int o = offset(m, s), n = sessions_[s].keyframes();
-  Trajectory t;
-  for (int k = o; k < o + n - 1; ++k) t.append(UncertainPose2(m.motion(k), m.motionCov(k)));
-  return t;
-}
-
 // --- Session store: export and exact restore ---------------------------------------------------
 
 MapState MultiSessionBackend::mapState(int map) const {
@@ -1071,11 +847,8 @@ int MultiSessionBackend::restoreSession(const std::string& name, const std::vect
   sessions_.push_back(s);
   Map m;
   m.chain = {id};
-  for (const UncertainPose2& u : odometry) {
-    m.motions.push_back(u.mean);
-    m.cov.push_back(u.covariance);
-  }
-  toDenseIfIekf(m);
+  for (const UncertainPose2& u : odometry) m.estimate.append(u);
+  m.estimate = optimizer_->adopt(std::move(m.estimate));
   maps_.emplace(id, std::move(m));
   return id;
 }
@@ -1171,22 +944,14 @@ BackendStatus MultiSessionBackend::restoreMap(const MapState& state) {
   for (std::size_t c = 0; c < state.chain.size(); ++c) {
     if (state.motions.empty()) {
       const Map& own = mapAt(sessions_[state.chain[c]].map);
-      for (int k = 0; k < own.numMotions(); ++k) {
-        m.motions.push_back(own.motion(k));
-        m.cov.push_back(own.motionCov(k));
-      }
-      if (c + 1 < state.chain.size()) {
-        m.motions.push_back(state.links[c].measured.mean);
-        m.cov.push_back(state.links[c].measured.covariance);
-      }
+      for (int k = 0; k < own.numMotions(); ++k) m.estimate.append(UncertainPose2(own.motion(k), own.motionCov(k)));
+      if (c + 1 < state.chain.size()) m.estimate.append(state.links[c].measured);
     }
     if (c + 1 < state.chain.size()) m.links.push_back({state.links[c].measured, state.links[c].loops});
   }
-  for (const UncertainPose2& u : state.motions) {
-    m.motions.push_back(u.mean);
-    m.cov.push_back(u.covariance);
-  }
-  toDenseIfIekf(m);  // the joint covariance is not stored: block-diagonal from the marginals
+  for (const UncertainPose2& u : state.motions) m.estimate.append(u);
+  // The joint covariance is not stored: the optimiser's form from the marginals.
+  m.estimate = optimizer_->adopt(std::move(m.estimate));
   for (const MapLinkState& l : state.links)
     for (int id : l.loops) loops_[id].summarised = true;
   for (int s : state.chain) maps_.erase(sessions_[s].map);

@@ -12,10 +12,10 @@ BoundedCalls::Outcome BoundedCalls::call(const std::string& key, std::function<v
                                          std::string* error) {
   if (!(timeout_s > 0.0)) throw std::invalid_argument("BoundedCalls: the timeout must be positive");
   {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     auto it = hung_.find(key);
     if (it != hung_.end()) {
-      std::lock_guard<std::mutex> slot_lock(it->second->mutex);
+      MutexLock slot_lock(&it->second->mutex);
       if (!it->second->done) return Outcome::kBusy;
     }
     if (it != hung_.end()) hung_.erase(it);  // it has returned: the key is free again
@@ -36,7 +36,7 @@ BoundedCalls::Outcome BoundedCalls::call(const std::string& key, std::function<v
       what = "unknown exception";
     }
     {
-      std::lock_guard<std::mutex> lock(slot->mutex);
+      MutexLock lock(&slot->mutex);
       slot->done = true;
       slot->threw = threw;
       slot->error = what;
@@ -44,23 +44,26 @@ BoundedCalls::Outcome BoundedCalls::call(const std::string& key, std::function<v
     slot->done_cv.notify_all();
   }).detach();
   {
-    std::unique_lock<std::mutex> lock(slot->mutex);
-    if (slot->done_cv.wait_for(lock, std::chrono::duration<double>(timeout_s), [&] { return slot->done; })) {
+    MutexLock lock(&slot->mutex);
+    if (slot->mutex.waitFor(slot->done_cv, std::chrono::duration<double>(timeout_s), [&] {
+          slot->mutex.assertHeld();  // the predicate runs under the lock
+          return slot->done;
+        })) {
       if (!slot->threw) return Outcome::kDone;
       if (error) *error = slot->error;
       return Outcome::kThrew;
     }
   }
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   hung_[key] = slot;  // the key is held until this call returns
   return Outcome::kTimedOut;
 }
 
 int BoundedCalls::running() const {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   int n = 0;
   for (const auto& [key, slot] : hung_) {
-    std::lock_guard<std::mutex> slot_lock(slot->mutex);
+    MutexLock slot_lock(&slot->mutex);
     n += !slot->done;
   }
   return n;

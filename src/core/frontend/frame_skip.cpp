@@ -137,24 +137,8 @@ FrameSkipRule::Choice FrameSkipRule::preferPrepared(const std::vector<WaitingFra
   return choice;
 }
 
-std::string reasonName(FrameSkipRule::Reason r) {
-  switch (r) {
-    case FrameSkipRule::Reason::kOldest:
-      return "oldest (no prediction)";
-    case FrameSkipRule::Reason::kNewestSafe:
-      return "newest";
-    case FrameSkipRule::Reason::kKeyframeDue:
-      return "the first frame a keyframe is due at";
-    case FrameSkipRule::Reason::kOnlyOne:
-      return "the only one waiting";
-    case FrameSkipRule::Reason::kPrepared:
-      return "an earlier safe frame, prepared or under way";
-  }
-  return "?";
-}
-
 void FrameBudget::arrived(double now_s, double stamp_s) {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   if (last_arrival_s_ && now_s > *last_arrival_s_) {
     const double ms = (now_s - *last_arrival_s_) * 1e3;
     if (intervals_ > 0) jitter_ms_ += alpha_ * (std::abs(ms - period_ms_) - jitter_ms_);
@@ -170,7 +154,7 @@ void FrameBudget::arrived(double now_s, double stamp_s) {
 }
 
 InputTiming FrameBudget::timing(double now_s) const {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   InputTiming t;
   t.now_s = now_s;
   t.last_arrival_s = last_arrival_s_.value_or(0.0);
@@ -206,7 +190,7 @@ double keyframeLookaheadS(double cost_s, double period_s, double stamp_period_s)
 }
 
 void FrameBudget::processed(double ms) {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   ms_ = any_ms_ ? ms_ + alpha_ * (ms - ms_) : ms;
   any_ms_ = true;
 }

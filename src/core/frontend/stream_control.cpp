@@ -7,7 +7,7 @@ namespace uw_multislam {
 namespace core {
 
 bool StreamControl::setPaused(bool paused) {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   if (paused_ == paused) return false;
   paused_ = paused;
   paused_by_finish_ = false;
@@ -15,7 +15,7 @@ bool StreamControl::setPaused(bool paused) {
 }
 
 StreamControl::Effect StreamControl::request(int session, int next_free, bool next_session_only, bool finished) {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   next_free_ = next_free;
   // Another vehicle's session took an id: nothing is asked of us (a subscriber that comes now, a
   // respawned odometry, takes the request it repeats).
@@ -36,7 +36,7 @@ StreamControl::Effect StreamControl::request(int session, int next_free, bool ne
 }
 
 StreamControl::Requested StreamControl::take() {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   Requested r;
   std::swap(r.session, requested_);
   r.next_free = next_free_;

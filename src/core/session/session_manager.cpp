@@ -38,18 +38,6 @@ SessionManagerOptions sessionManagerOptions(const SlamConfig& config, const std:
   return o;
 }
 
-const char* sessionStateName(SessionState s) {
-  switch (s) {
-    case SessionState::kActive:
-      return "ACTIVE";
-    case SessionState::kFinished:
-      return "FINISHED";
-    case SessionState::kUnloaded:
-      return "UNLOADED";
-  }
-  return "?";
-}
-
 const char* sessionEventName(SessionEvent::Kind k) {
   using K = SessionEvent::Kind;
   switch (k) {

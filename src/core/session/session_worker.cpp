@@ -55,7 +55,10 @@ SessionWorker::SessionWorker(std::unique_ptr<SessionManager> manager, const Sess
 }
 
 SessionWorker::SessionWorker(SessionManager* manager, const SessionWorkerOptions& options, Log log)
-    : manager_(manager), options_(checked(options)), log_(std::move(log)) {
+    : manager_(manager),
+      options_(checked(options)),
+      log_(std::move(log)),
+      queue_(static_cast<std::size_t>(options_.queue_size)) {
   if (!manager_) throw std::invalid_argument("session worker: no session manager");
   manager_->setDeferredOptimisation(true);  // optimised here, outside the mutex
 }
@@ -75,71 +78,37 @@ void SessionWorker::start(AfterItem after_item) {
 }
 
 void SessionWorker::stop() {
-  {
-    std::lock_guard<std::mutex> lock(queue_mutex_);
-    closed_ = true;
-  }
-  queue_wake_.notify_all();
+  queue_.close();
   if (thread_.joinable()) thread_.join();
 }
 
 bool SessionWorker::submit(Item item) {
-  const bool priority = std::holds_alternative<OptimiseItem>(item);
-  {
-    std::lock_guard<std::mutex> lock(queue_mutex_);
-    if (closed_) return false;
-    if (thread_.joinable()) {
-      std::lock_guard<std::mutex> s(stats_mutex_);
-      if (priority) {
-        priority_.push_back(std::move(item));
-      } else {
-        if (items_.size() >= static_cast<std::size_t>(options_.queue_size)) {
-          items_.pop_front();  // the oldest: live, the newest data matters most
-          ++stats_.dropped_queue_full;
-        }
-        items_.push_back(std::move(item));
-        ++stats_.pushed;
-      }
-      stats_.queued = items_.size() + priority_.size();
-    }
-  }
-  if (thread_.joinable()) {
-    queue_wake_.notify_one();
-  } else {
+  if (!thread_.joinable()) {
+    if (queue_.closed()) return false;
     process(item);  // synchronous: now, in the caller's thread
+    return true;
   }
-  return true;
+  // When full the oldest is dropped: live, the newest data matters most.
+  return std::holds_alternative<OptimiseItem>(item) ? queue_.pushPriority(std::move(item))
+                                                    : queue_.push(std::move(item));
 }
 
 void SessionWorker::run() {
   std::string why;
   if (!setThisThreadNice(options_.nice, &why)) say(Severity::kWarn, "worker nice not applied: " + why);
-  for (;;) {
-    Item item;
-    {
-      std::unique_lock<std::mutex> lock(queue_mutex_);
-      queue_wake_.wait(lock, [this] { return closed_ || !priority_.empty() || !items_.empty(); });
-      std::deque<Item>& from = !priority_.empty() ? priority_ : items_;
-      if (from.empty()) return;  // closed and drained
-      item = std::move(from.front());
-      from.pop_front();
-      std::lock_guard<std::mutex> s(stats_mutex_);
-      stats_.queued = items_.size() + priority_.size();
-    }
-    process(item);
-  }
+  for (Item item; queue_.pop(&item); item = Item()) process(item);  // until closed and drained
 }
 
 template <typename F>
 void SessionWorker::step(F f) {
   {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     try {
       f();
     } catch (const std::exception& e) {
       if (!asynchronous()) throw;
       {
-        std::lock_guard<std::mutex> s(stats_mutex_);
+        MutexLock s(&stats_mutex_);
         ++stats_.skipped;
       }
       say(Severity::kError, std::string("message skipped: ") + e.what());
@@ -153,8 +122,9 @@ void SessionWorker::process(Item& item) {
     optimiseDueNow();
   } else if (auto* l = std::get_if<LoopItem>(&item)) {
     step([&] {
+      mutex_.assertHeld();
       {
-        std::lock_guard<std::mutex> s(stats_mutex_);
+        MutexLock s(&stats_mutex_);
         ++stats_.loops;
       }
       tryLoop(l->loop);
@@ -162,9 +132,10 @@ void SessionWorker::process(Item& item) {
   } else {  // a keyframe (ours or another vehicle's) or a session's end: the waiting loops are tried again
     std::deque<Loop> retry;
     step([&] {
+      mutex_.assertHeld();
       if (auto* k = std::get_if<KeyframeItem>(&item)) {
         {
-          std::lock_guard<std::mutex> s(stats_mutex_);
+          MutexLock s(&stats_mutex_);
           ++stats_.keyframes;
         }
         const Status st = manager_->addKeyframe(k->keyframe, k->loops);
@@ -198,10 +169,15 @@ void SessionWorker::process(Item& item) {
       }
       retry = std::exchange(waiting_, {});
     });
-    for (const Loop& l : retry) step([&] { tryLoop(l); });  // their keyframe may be here
+    for (const Loop& l : retry) {  // their keyframe may be here
+      step([&] {
+        mutex_.assertHeld();
+        tryLoop(l);
+      });
+    }  // their keyframe may be here
   }
   if (after_item_) {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     after_item_(*manager_);
   }
 }
@@ -213,12 +189,12 @@ void SessionWorker::tryLoop(const Loop& loop) {
     const bool full = static_cast<int>(waiting_.size()) >= options_.max_waiting_loops;
     if (full && !waiting_.empty()) waiting_.pop_front();  // the oldest, counted
     if (options_.max_waiting_loops > 0) waiting_.push_back(loop);
-    std::lock_guard<std::mutex> s(stats_mutex_);
+    MutexLock s(&stats_mutex_);
     stats_.waiting_dropped += full ? 1 : 0;
   } else if (!st.ok()) {
     say(Severity::kWarn, st.message);
   }
-  std::lock_guard<std::mutex> s(stats_mutex_);
+  MutexLock s(&stats_mutex_);
   stats_.waiting = waiting_.size();
 }
 
@@ -226,7 +202,7 @@ void SessionWorker::optimiseDueNow() {
   for (;;) {
     std::optional<MapOptimisation> o;
     {
-      std::lock_guard<std::mutex> lock(mutex_);
+      MutexLock lock(&mutex_);
       o = manager_->nextOptimisation();
     }
     if (!o) return;
@@ -240,9 +216,9 @@ void SessionWorker::optimiseDueNow() {
       say(Severity::kError, "optimising map " + std::to_string(o->map) + " failed: " + e.what());
       return;
     }
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     const bool applied = manager_->applyOptimisation(*o);  // false: the map changed meanwhile, still due
-    std::lock_guard<std::mutex> s(stats_mutex_);
+    MutexLock s(&stats_mutex_);
     ++stats_.solves;
     stats_.solved_again += applied ? 0 : 1;
   }
@@ -266,14 +242,21 @@ bool SessionWorker::endForeignSession(const std::string& vehicle, int remote_ses
 void SessionWorker::optimiseDue() { submit(OptimiseItem{}); }
 
 SessionWorkerStats SessionWorker::stats() const {
-  std::lock_guard<std::mutex> s(stats_mutex_);
-  return stats_;
+  SessionWorkerStats s;
+  {
+    MutexLock lock(&stats_mutex_);
+    s = stats_;
+  }
+  s.pushed = queue_.pushed();
+  s.dropped_queue_full = queue_.dropped();
+  s.queued = queue_.size();
+  return s;
 }
 
 // --- Stored sessions and the loop detectors -----------------------------------------------------
 
 std::pair<int, long> SessionWorker::reloadStored() {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   int sessions = 0;
   long keyframes = 0;
   for (const SessionSummary& s : manager_->view().list()) {
@@ -289,7 +272,7 @@ std::pair<int, long> SessionWorker::reloadStored() {
           "~reload_stored: session " + std::to_string(s.id) + " '" + s.name + "' not reloaded: " + st.message);
       continue;
     }
-    std::lock_guard<std::mutex> h(handover_mutex_);
+    MutexLock h(&handover_mutex_);
     handed_.push_back(r.id);
     ++sessions;
     keyframes += s.keyframes;
@@ -301,11 +284,11 @@ std::pair<int, long> SessionWorker::reloadStored() {
 
 Status SessionWorker::reloadSession(const std::string& name_or_id, ReloadedSession* out,
                                     const std::function<void(const ReloadedSession&, const StoredKeyframe&)>& send) {
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   const Status st = manager_->reload(name_or_id, out);
   if (!st.ok()) return st;
   {
-    std::lock_guard<std::mutex> h(handover_mutex_);
+    MutexLock h(&handover_mutex_);
     handed_.push_back(out->id);  // and to every loop detector that subscribes later
   }
   for (const StoredKeyframe& k : out->keyframes) {
@@ -325,8 +308,8 @@ HandoverStats SessionWorker::handOver(const std::string& to,
                                       const std::function<void(const ReloadedSession&, const StoredKeyframe&)>& send) {
   std::vector<int> ids;
   {
-    std::lock_guard<std::mutex> lock(mutex_);
-    std::lock_guard<std::mutex> h(handover_mutex_);
+    MutexLock lock(&mutex_);
+    MutexLock h(&handover_mutex_);
     ids = handed_;
     handover_.total = 0;
     for (int id : ids) handover_.total += static_cast<long>(manager_->view().frames(id).size());
@@ -336,9 +319,9 @@ HandoverStats SessionWorker::handOver(const std::string& to,
   const auto start = std::chrono::steady_clock::now();
   long sent = 0, failed = 0;
   for (int id : ids) {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     {
-      std::lock_guard<std::mutex> h(handover_mutex_);
+      MutexLock h(&handover_mutex_);
       if (std::find(handed_.begin(), handed_.end(), id) == handed_.end()) continue;  // unloaded meanwhile
     }
     ReloadedSession r;
@@ -367,10 +350,10 @@ HandoverStats SessionWorker::handOver(const std::string& to,
       send(r, k);
       ++sent;
     }
-    std::lock_guard<std::mutex> h(handover_mutex_);
+    MutexLock h(&handover_mutex_);
     handover_.sent = sent;
   }
-  std::lock_guard<std::mutex> h(handover_mutex_);
+  MutexLock h(&handover_mutex_);
   handover_.without_features = failed;
   handover_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (!ids.empty()) {
@@ -384,17 +367,17 @@ HandoverStats SessionWorker::handOver(const std::string& to,
 }
 
 void SessionWorker::forgetHandedOver(int session) {
-  std::lock_guard<std::mutex> h(handover_mutex_);
+  MutexLock h(&handover_mutex_);
   handed_.erase(std::remove(handed_.begin(), handed_.end(), session), handed_.end());
 }
 
 HandoverStats SessionWorker::handoverStats() const {
-  std::lock_guard<std::mutex> h(handover_mutex_);
+  MutexLock h(&handover_mutex_);
   return handover_;
 }
 
 std::vector<int> SessionWorker::handedOver() const {
-  std::lock_guard<std::mutex> h(handover_mutex_);
+  MutexLock h(&handover_mutex_);
   return handed_;
 }
 
@@ -405,7 +388,7 @@ Status SessionWorker::keyframeFeatures(int session, int keyframe, bool check_onl
   if (keyframe < 0)
     return {StatusCode::kInvalidArgument,
             "keyframe_features: keyframe ids are >= 0 (got " + std::to_string(keyframe) + ")"};
-  std::lock_guard<std::mutex> lock(mutex_);
+  MutexLock lock(&mutex_);
   const SessionQueries& m = manager_->view();
   if (m.has(session) && !m.vehicleOf(session).empty()) {  // another vehicle's: that vehicle has the features
     out->vehicle = m.vehicleOf(session);

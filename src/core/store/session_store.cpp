@@ -160,15 +160,6 @@ std::string utcTimestamp() {
   std::strftime(out, sizeof out, "%Y-%m-%dT%H:%M:%SZ", &tm);
   return out;
 }
-std::uint64_t SessionStore::bytesOnDisk() const {
-  std::uint64_t total = 0;
-  std::error_code ec;
-  for (const std::string& p : {path_, path_ + "-wal"}) {
-    const auto n = std::filesystem::file_size(p, ec);
-    if (!ec) total += n;
-  }
-  return total;
-}
 void SessionStore::setMaxBytes(std::uint64_t bytes) {
   Statement size(this, "PRAGMA page_size");
   const std::int64_t page = size.step() ? sqlite3_column_int64(size.get(), 0) : 4096;

@@ -16,10 +16,10 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
-#include <mutex>
 #include <sstream>
 
 #include "session_store_detail.h"
+#include "uw_multislam/core/common/thread_annotations.h"
 
 namespace uw_multislam {
 namespace core {
@@ -173,14 +173,14 @@ class HeldFiles {
   }
   /// The description of this process's writer of the file; "" when none.
   std::string writerOf(const FileId& id) {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     const auto it = held_.find(id);
     return it == held_.end() || it->second.writers == 0 ? "" : it->second.holder;
   }
   /// Registers a store's descriptor of the file; false (with the holder) when a writer is asked
   /// for and this process has one: then the descriptor is parked, not closed.
   bool enter(const FileId& id, int fd, bool writer, std::string* holder) {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     Entry& e = held_[id];
     if (writer && e.writers > 0) {
       *holder = e.holder;
@@ -197,7 +197,7 @@ class HeldFiles {
   /// A store's descriptor goes (entered: it was registered): closed, with the parked ones, when no
   /// other store of this process holds the file; else parked.
   void leave(const FileId& id, int fd, bool entered, bool writer) {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     const auto it = held_.find(id);
     if (it == held_.end()) {
       ::close(fd);
@@ -223,8 +223,8 @@ class HeldFiles {
     std::string holder;       // the writer's description
     std::vector<int> parked;  // descriptors closed with the last user
   };
-  std::mutex mutex_;
-  std::map<FileId, Entry> held_;  // guarded by mutex_
+  Mutex mutex_;
+  std::map<FileId, Entry> held_ GUARDED_BY(mutex_);
 };
 
 std::string inUse(const std::string& path, const std::string& who) {

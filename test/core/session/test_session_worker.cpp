@@ -4,7 +4,9 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <chrono>
 #include <cmath>
+#include <future>
 #include <memory>
 #include <vector>
 
@@ -123,6 +125,36 @@ TEST(SessionWorker, SynchronousAndAsynchronousDrivesGiveTheSameMaps) {
   EXPECT_EQ(async.stats().keyframes, 16);
   EXPECT_EQ(async.stats().pushed, 8 + 1 + 8 + 5 + 1);
   EXPECT_EQ(async.stats().queued, 0u);
+}
+
+TEST(SessionWorker, AFullQueueDropsItsOldestItemsCountedButNeverAnOptimisation) {
+  SessionWorkerOptions o;
+  o.queue_size = 3;
+  SessionWorker w(std::make_unique<SessionManager>(options()), o);
+  std::promise<void> entered, release;
+  std::shared_future<void> released = release.get_future().share();
+  std::atomic<int> after_items{0};
+  w.start([&](SessionManager&) {
+    if (after_items++ == 0) {  // the worker holds here after its first item while the others queue up
+      entered.set_value();
+      released.wait();
+    }
+  });
+  std::vector<int> processed;  // under the worker's mutex (done callbacks)
+  auto done = [&](const SessionQueries&, const KeyframeInput& k, const Status&) { processed.push_back(k.keyframe); };
+  ASSERT_TRUE(w.addKeyframe(keyframe(0, 0), {}, done));
+  ASSERT_EQ(entered.get_future().wait_for(std::chrono::seconds(30)), std::future_status::ready);
+  for (int k = 1; k <= 6; ++k) ASSERT_TRUE(w.addKeyframe(keyframe(0, k), {}, done));
+  w.optimiseDue();  // a priority item: not counted against the capacity, never dropped
+  const SessionWorkerStats queued = w.stats();
+  EXPECT_EQ(queued.pushed, 7);
+  EXPECT_EQ(queued.dropped_queue_full, 3);  // keyframes 1, 2 and 3
+  EXPECT_EQ(queued.queued, 3u + 1u);
+  release.set_value();
+  w.stop();
+  EXPECT_EQ(processed, (std::vector<int>{0, 4, 5, 6}));
+  EXPECT_EQ(after_items, 1 + 1 + 3);  // the first keyframe, the optimisation, the three newest
+  EXPECT_EQ(w.stats().queued, 0u);
 }
 
 TEST(SessionWorker, ALoopWaitingForItsKeyframeIsAppliedWhenItArrives) {

@@ -24,11 +24,14 @@
 // inter-map loops again, available to join later; automatic joining will not use loops between
 // a split pair again until the user joins them explicitly.
 //
-// Two optimisers over the same graph (odometry motions, links, loops not summarised by a link):
-//  - "iekf": the paper's intra-map IEKF (iekf.h), a dense 3N x 3N covariance per map, applying
-//    each loop once. A map larger than max_keyframes falls back to the sparse optimiser (logged).
-//  - "sparse" (default): the Ceres pose graph of pose_graph.h, re-solved over the whole map,
-//    warm-started, with a robust loss on loops. Memory O(N + loops).
+// The back-end is given the optimiser of its maps at construction (map_optimizer.h); it keeps each
+// map's estimate in the form that optimiser chooses and hands it the map's graph (odometry motions,
+// links, loops not summarised by a link) when the map is due. Two implement it, and
+// makeMapOptimizer() makes the one BackendOptions::optimizer names:
+//  - "iekf": the paper's intra-map IEKF (iekf_optimizer.h), a dense 3N x 3N covariance per map,
+//    applying each loop once. A map larger than max_keyframes falls back to the sparse optimiser (logged).
+//  - "sparse" (default): the Ceres pose graph (pose_graph_optimizer.h), re-solved over the whole
+//    map, warm-started, with a robust loss on loops. Memory O(N + loops).
 // Optimisation is delayed until optimise_every (M) loops are pending in a map, or a session
 // ends, or flush() is called.
 //
@@ -46,6 +49,7 @@
 #include <cstdint>
 #include <functional>
 #include <map>
+#include <memory>
 #include <optional>
 #include <set>
 #include <string>
@@ -54,7 +58,9 @@
 
 #include "uw_multislam/core/backend/iekf.h"
 #include "uw_multislam/core/backend/loop_consistency.h"
+#include "uw_multislam/core/backend/map_estimate.h"
 #include "uw_multislam/core/backend/map_joining.h"
+#include "uw_multislam/core/backend/map_optimizer.h"
 #include "uw_multislam/core/backend/pose_graph.h"
 #include "uw_multislam/core/common/status.h"
 #include "uw_multislam/core/geometry/trajectory.h"
@@ -137,6 +143,11 @@ struct BackendOptions {
   std::string validate() const;
 };
 
+/// The optimiser `options.optimizer` names, with its options ("sparse" also when optimise is off:
+/// nothing is solved then, and the maps keep the odometry's marginals). Throws
+/// std::invalid_argument on bad options.
+std::unique_ptr<MapOptimizer> makeMapOptimizer(const BackendOptions& options);
+
 /// A loop as the back-end stores it: z is the pose of (session_b, keyframe_b) in (session_a, keyframe_a).
 struct BackendLoop {
   int session_a = 0, keyframe_a = 0;
@@ -171,7 +182,7 @@ struct LinkInfo {
 struct LoopRecord {
   BackendLoop loop;
   bool summarised = false;  // used by a link
-  bool applied = false;     // in an IEKF state
+  bool applied = false;     // in its map's estimate for good (MapProblem::apply: the IEKF's)
   bool refused = false;     // refused as inconsistent at a join
 };
 
@@ -216,33 +227,21 @@ struct MapChange {
   std::string message;
 };
 
-/// One map's optimisation problem taken out of the back-end (see "Deferred optimisation" above).
+/// One map's optimisation problem taken out of the back-end (see "Deferred optimisation" above):
+/// its optimiser's problem and the residual gate around the solve, the same for every optimiser.
 struct OptimisationJob {
   int map = -1;
-  std::uint64_t revision = 0;  // the map's revision when the job was prepared
-  bool iekf = false;
-  // sparse: the map's whole pose graph at its current estimate (empty edges: no loop, nothing to solve)
-  std::vector<Pose2> poses;
-  std::vector<PoseGraphEdge> edges;
-  bool any_loop = false;
-  SparseOptions sparse;
-  // iekf: a copy of the map's filter and the loops it has not applied yet
-  std::optional<TrajectoryIekf> filter;
-  std::vector<LoopMeasurement> measurements;
-  std::vector<int> loop_ids;
-  // both: the loop id of each loop edge / measurement (sparse: -1 for odometry and links), the
-  // residual gate (loop_residual_gate; threshold <= 0: off) and the loops it switched off
-  std::vector<int> edge_loop_ids;
+  std::uint64_t revision = 0;           // the map's revision when the job was prepared
+  std::unique_ptr<MapProblem> problem;  // null: no loop to solve
+  std::vector<MapLoop> loops;           // the loops the problem solves (after the solve: those kept)
+  // The residual gate (loop_residual_gate; threshold <= 0: off) and the loops it switched off.
   double residual_gate_chi2 = 0.0;
   double residual_gate_inflation = 1.0;
   ConsistencyOptions residual_gate_floors;
   std::vector<int> switched_off;  // loops that were in the map's solution
   std::vector<double> switched_off_chi2;
-  // readmit_refused_loops: the map's refused loops (sparse: as edges, iekf: as measurements, with
-  // their loop ids) and those the solve took back, with their distances
-  std::vector<PoseGraphEdge> refused_edges;
-  std::vector<LoopMeasurement> refused_measurements;
-  std::vector<int> refused_loop_ids;
+  // readmit_refused_loops: the map's refused loops, and those the solve took back with their distances.
+  std::vector<MapLoop> refused;
   std::vector<int> readmitted;
   std::vector<double> readmitted_chi2;
   double solve_ms = 0.0;
@@ -252,8 +251,11 @@ struct OptimisationJob {
 class MultiSessionBackend {
  public:
   using Log = std::function<void(const std::string&)>;
-  /// Throws std::invalid_argument on bad options. `log` receives one line per join, split,
-  /// refused loop or optimiser fallback.
+  /// Its maps optimised by `optimizer` (options.optimizer is not read). Throws
+  /// std::invalid_argument on bad options or no optimiser. `log` receives one line per join,
+  /// split, refused loop or optimiser fallback.
+  MultiSessionBackend(const BackendOptions& options, std::unique_ptr<MapOptimizer> optimizer, Log log = {});
+  /// With makeMapOptimizer(options).
   explicit MultiSessionBackend(const BackendOptions& options, Log log = {});
 
   /// A new recording session with one keyframe (its origin), alone in a new map. Returns its id.
@@ -307,9 +309,6 @@ class MultiSessionBackend {
   std::vector<LinkInfo> links(int map) const;
   /// The session's keyframe poses in its map's frame.
   std::vector<Pose2> sessionPoses(int s) const;
-  /// The session's current motions with their covariances, in its own frame (for the local loop
-  /// search: with the sparse optimiser the covariances are the odometry's, an upper bound).
-  Trajectory sessionTrajectory(int s) const;
   /// Keyframe `keyframe` of session `s` in its map's frame with a covariance: the map's motions
   /// up to it composed to first order (uncertain_pose.h). The motions' covariances are marginals
   /// (the IEKF's diagonal blocks, or the odometry's with the sparse optimiser), their correlations
@@ -382,14 +381,12 @@ class MultiSessionBackend {
   struct Map {
     std::vector<int> chain;
     std::vector<MapLinkState> links;          // links[i] joins chain[i] -> chain[i+1]
-    std::vector<Pose2> motions;               // concatenated motion estimates (sparse maps)
-    std::vector<Eigen::Matrix3d> cov;         // their covariances (sparse maps)
-    std::optional<TrajectoryIekf> iekf;       // dense maps: motions and joint covariance
+    MapEstimate estimate;                     // in the form the optimiser keeps
     int pending = 0;                          // loops waiting for optimisation
     std::uint64_t revision = nextRevision();  // changes with every change of the map (touch)
-    int numMotions() const;
-    Pose2 motion(int k) const;  // k = 0-based motion index (motion k reaches keyframe k+1)
-    Eigen::Matrix3d motionCov(int k) const;
+    int numMotions() const { return estimate.numMotions(); }
+    Pose2 motion(int k) const { return estimate.motion(k); }  // motion k reaches keyframe k+1
+    Eigen::Matrix3d motionCov(int k) const { return estimate.motionCov(k); }
   };
 
   const Session& sessionAt(int s) const;
@@ -405,10 +402,8 @@ class MultiSessionBackend {
   /// Optimises map `map_id` now, or (deferred) marks it due.
   void optimise(int map_id);
   void optimiseNow(int map_id);
-  void toSparse(Map& m, const std::string& why);
-  /// A sparse map (motions, marginal covariances) into the IEKF's dense form, when the IEKF is the
-  /// optimiser and the map fits; block-diagonal, the cross-covariances being unknown.
-  void toDenseIfIekf(Map& m) const;
+  /// The map's graph as its optimiser takes it (MapOptimizer::prepare).
+  MapGraph graphOf(int map_id) const;
   /// `requested`: an explicit count of the caller's (estimateLink).
   BackendStatus joinMaps(int map_a, int map_b, int min_loops, bool automatic, bool requested = false);
   /// The link a join of map `second` to the end of map `first` would take from the loops `ids`
@@ -437,6 +432,7 @@ class MultiSessionBackend {
   void say(const std::string& line) const;
 
   BackendOptions options_;
+  std::unique_ptr<MapOptimizer> optimizer_;
   Log log_;
   std::vector<Session> sessions_;
   std::map<int, Map> maps_;

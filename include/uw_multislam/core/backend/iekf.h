@@ -76,6 +76,7 @@ class TrajectoryIekf {
   }
   /// X_j^i with its covariance under the full (correlated) P.
   UncertainPose2 relative(int i, int j) const;
+  const IekfOptions& options() const { return options_; }
 
  private:
   Trajectory meansOnly(const std::vector<Pose2>& motions) const;

@@ -12,8 +12,9 @@
 #include <functional>
 #include <map>
 #include <memory>
-#include <mutex>
 #include <string>
+
+#include "uw_multislam/core/common/thread_annotations.h"
 
 namespace uw_multislam {
 namespace core {
@@ -37,14 +38,15 @@ class BoundedCalls {
 
  private:
   struct Slot {
-    std::mutex mutex;
+    Mutex mutex;  // taken after BoundedCalls::mutex_ when both are held
     std::condition_variable done_cv;
-    bool done = false;
-    std::string error;  // fn's exception, if any
-    bool threw = false;
+    bool done GUARDED_BY(mutex) = false;
+    std::string error GUARDED_BY(mutex);  // fn's exception, if any
+    bool threw GUARDED_BY(mutex) = false;
   };
-  mutable std::mutex mutex_;
-  std::map<std::string, std::shared_ptr<Slot>> hung_;  // a call of each key that timed out, until it returns
+  mutable Mutex mutex_;
+  // A call of each key that timed out, until it returns.
+  std::map<std::string, std::shared_ptr<Slot>> hung_ GUARDED_BY(mutex_);
 };
 
 }  // namespace core

@@ -26,7 +26,6 @@
 #include <functional>
 #include <limits>
 #include <map>
-#include <mutex>
 #include <optional>
 #include <set>
 #include <stdexcept>
@@ -35,6 +34,8 @@
 #include <type_traits>
 #include <utility>
 #include <vector>
+
+#include "uw_multislam/core/common/thread_annotations.h"
 
 namespace uw_multislam {
 namespace core {
@@ -71,7 +72,7 @@ class OrderedPrefetch {
 
   ~OrderedPrefetch() {
     {
-      std::lock_guard<std::mutex> lock(mutex_);
+      MutexLock lock(&mutex_);
       stop_ = true;
     }
     changed_.notify_all();
@@ -85,7 +86,7 @@ class OrderedPrefetch {
   std::size_t submit(In item) {
     std::size_t number = 0;
     {
-      std::lock_guard<std::mutex> lock(mutex_);
+      MutexLock lock(&mutex_);
       if (newest_) {
         for (auto& w : waiting_) ready_.emplace(w.first, Slot{T{}, nullptr, false});
         waiting_.clear();
@@ -99,7 +100,7 @@ class OrderedPrefetch {
 
   /// Items submitted and not handed out yet.
   std::size_t pending() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return submitted_ - next_out_;
   }
   bool done() const { return pending() == 0; }
@@ -108,7 +109,7 @@ class OrderedPrefetch {
   /// (with kNewest an item may never be computed: takeIfStarted).
   T next() {
     if (newest_) throw std::logic_error("OrderedPrefetch::next: Start::kNewest hands out by takeIfStarted");
-    std::unique_lock<std::mutex> lock(mutex_);
+    UniqueMutexLock lock(&mutex_);
     if (next_out_ >= submitted_) throw std::out_of_range("OrderedPrefetch::next: every item was handed out");
     const std::size_t item = next_out_++;  // written under the lock: the workers read it
     if (workers_.empty()) {
@@ -118,7 +119,10 @@ class OrderedPrefetch {
       return work_(std::move(in), 0);
     }
     changed_.notify_all();  // the window moved: a worker may take another item
-    changed_.wait(lock, [&] { return ready_.count(item) > 0; });
+    mutex_.wait(changed_, [&] {
+      mutex_.assertHeld();  // the predicate runs under the lock
+      return ready_.count(item) > 0;
+    });
     Slot slot = std::move(ready_.at(item));
     ready_.erase(item);
     lock.unlock();
@@ -132,7 +136,7 @@ class OrderedPrefetch {
   /// superseded), it is the caller's to compute, rather than wait until a busy worker is free.
   /// Rethrows what `work` threw for it.
   std::optional<T> takeIfStarted(std::size_t number) {
-    std::unique_lock<std::mutex> lock(mutex_);
+    UniqueMutexLock lock(&mutex_);
     if (number < next_out_ || number >= submitted_)
       throw std::out_of_range("OrderedPrefetch::takeIfStarted: item " + std::to_string(number) +
                               " was handed out or not submitted");
@@ -145,7 +149,10 @@ class OrderedPrefetch {
       return std::nullopt;
     }
     changed_.notify_all();
-    changed_.wait(lock, [&] { return ready_.count(number) > 0; });
+    mutex_.wait(changed_, [&] {
+      mutex_.assertHeld();
+      return ready_.count(number) > 0;
+    });
     Slot slot = std::move(ready_.at(number));
     ready_.erase(number);
     lock.unlock();
@@ -156,7 +163,7 @@ class OrderedPrefetch {
 
   /// Whether a worker has started item `number` (under way or done) and it is not handed out.
   bool started(std::size_t number) const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     if (number < next_out_ || number >= submitted_) return false;
     for (const auto& w : waiting_)
       if (w.first == number) return false;
@@ -166,7 +173,7 @@ class OrderedPrefetch {
 
   /// Results computed and then discarded by takeIfStarted (a worker's time spent in vain).
   long discardedComputed() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return discarded_computed_;
   }
 
@@ -178,8 +185,8 @@ class OrderedPrefetch {
     bool computed = true;  // false: superseded before a worker started it (Start::kNewest)
   };
 
-  // Under mutex_: item `item` (not handed out) is not wanted.
-  void discardLocked(std::size_t item) {
+  // Item `item` (not handed out) is not wanted.
+  void discardLocked(std::size_t item) REQUIRES(mutex_) {
     for (auto w = waiting_.begin(); w != waiting_.end(); ++w) {
       if (w->first != item) continue;
       waiting_.erase(w);
@@ -200,9 +207,12 @@ class OrderedPrefetch {
   }
 
   void run(int worker) {
-    std::unique_lock<std::mutex> lock(mutex_);
+    UniqueMutexLock lock(&mutex_);
     for (;;) {
-      changed_.wait(lock, [&] { return stop_ || (!waiting_.empty() && waiting_.front().first < next_out_ + ahead_); });
+      mutex_.wait(changed_, [&] {
+        mutex_.assertHeld();
+        return stop_ || (!waiting_.empty() && waiting_.front().first < next_out_ + ahead_);
+      });
       if (stop_) return;
       // kNewest keeps at most one item waiting (submit supersedes the others): front is back.
       const std::size_t item = waiting_.front().first;
@@ -227,15 +237,16 @@ class OrderedPrefetch {
   const std::size_t ahead_;
   const bool newest_ = false;  // Start::kNewest
   Work work_;
-  mutable std::mutex mutex_;
+  mutable Mutex mutex_;
   std::condition_variable changed_;
-  std::deque<std::pair<std::size_t, In>> waiting_;  // submitted, not started: (number, item), in order (under mutex_)
-  std::size_t submitted_ = 0;                       // items submitted (under mutex_)
-  std::size_t next_out_ = 0;                        // the next item handed out (under mutex_)
-  std::map<std::size_t, Slot> ready_;               // done or superseded, not handed out (under mutex_)
-  std::set<std::size_t> unwanted_;                  // discarded while in progress (under mutex_)
-  long discarded_computed_ = 0;                     // (under mutex_)
-  bool stop_ = false;                               // (under mutex_)
+  std::deque<std::pair<std::size_t, In>> waiting_
+      GUARDED_BY(mutex_);                                 // submitted, not started: (number, item), in order
+  std::size_t submitted_ GUARDED_BY(mutex_) = 0;          // items submitted
+  std::size_t next_out_ GUARDED_BY(mutex_) = 0;           // the next item handed out
+  std::map<std::size_t, Slot> ready_ GUARDED_BY(mutex_);  // done or superseded, not handed out
+  std::set<std::size_t> unwanted_ GUARDED_BY(mutex_);     // discarded while in progress
+  long discarded_computed_ GUARDED_BY(mutex_) = 0;
+  bool stop_ GUARDED_BY(mutex_) = false;
   std::vector<std::thread> workers_;
 };
 

@@ -46,11 +46,11 @@
 
 #include <cstddef>
 #include <limits>
-#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "uw_multislam/core/common/thread_annotations.h"
 #include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/frontend/odometry.h"
 #include "uw_multislam/core/geometry/se2.h"
@@ -134,8 +134,6 @@ class FrameSkipRule {
   std::optional<ProcessedFrame> last_, before_;  // the last two matched frames of the session, newest first
 };
 
-std::string reasonName(FrameSkipRule::Reason r);
-
 /// What waitForNext knows of the input and the worker (wall clock, s; 0: unknown).
 struct InputTiming {
   double now_s = 0.0;
@@ -183,12 +181,12 @@ class FrameBudget {
   void processed(double ms);
   /// Mean of the recent processing times, ms (0 before any).
   double msPerFrame() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return ms_;
   }
   /// Mean of the recent input intervals, ms (0 before two arrivals).
   double inputPeriodMs() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return period_ms_;
   }
   /// What waitForNext and keyframeLookaheadS need, read together (chosen_arrival_s is left 0):
@@ -197,26 +195,27 @@ class FrameBudget {
   InputTiming timing(double now_s) const;
   /// msPerFrame / inputPeriodMs: above 1 the input outruns the odometry (0 while unknown).
   double load() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return ms_ > 0 && period_ms_ > 0 ? ms_ / period_ms_ : 0.0;
   }
   /// A frame arrived within `within_s` of `now_s` (the input is running).
   bool arriving(double now_s, double within_s) const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return last_arrival_s_ && now_s - *last_arrival_s_ <= within_s;
   }
 
  private:
   const double alpha_;
-  mutable std::mutex mutex_;              // guards the members below
-  double ms_ = 0.0, period_ms_ = 0.0;     // guarded by mutex_
-  double jitter_ms_ = 0.0;                // guarded by mutex_
-  bool any_ms_ = false;                   // guarded by mutex_
-  std::optional<double> last_arrival_s_;  // guarded by mutex_
-  int intervals_ = 0;                     // guarded by mutex_
-  std::optional<double> last_stamp_s_;    // guarded by mutex_
-  double stamp_period_s_ = 0.0;           // guarded by mutex_
-  int stamp_intervals_ = 0;               // guarded by mutex_
+  mutable Mutex mutex_;
+  double ms_ GUARDED_BY(mutex_) = 0.0;
+  double period_ms_ GUARDED_BY(mutex_) = 0.0;
+  double jitter_ms_ GUARDED_BY(mutex_) = 0.0;
+  bool any_ms_ GUARDED_BY(mutex_) = false;
+  std::optional<double> last_arrival_s_ GUARDED_BY(mutex_);
+  int intervals_ GUARDED_BY(mutex_) = 0;
+  std::optional<double> last_stamp_s_ GUARDED_BY(mutex_);
+  double stamp_period_s_ GUARDED_BY(mutex_) = 0.0;
+  int stamp_intervals_ GUARDED_BY(mutex_) = 0;
 };
 
 }  // namespace core

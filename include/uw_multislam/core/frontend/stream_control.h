@@ -13,9 +13,9 @@
 #pragma once
 
 #include <atomic>
-#include <mutex>
 #include <string>
 
+#include "uw_multislam/core/common/thread_annotations.h"
 #include "uw_multislam/core/frontend/stamp_guard.h"
 
 namespace uw_multislam {
@@ -45,12 +45,12 @@ class StreamControl {
   long droppedWhilePaused() const { return dropped_paused_; }
 
  private:
-  std::mutex mutex_;
-  std::atomic<bool> paused_{false};
-  bool paused_by_finish_ = false;  // guarded by mutex_: a request after finish resumes
-  int requested_ = -1;             // guarded by mutex_; -1: none
-  int next_free_ = 0;              // guarded by mutex_
-  bool had_request_ = false;       // guarded by mutex_: a request was taken
+  Mutex mutex_;
+  std::atomic<bool> paused_{false};                   // written under mutex_ (read without it)
+  bool paused_by_finish_ GUARDED_BY(mutex_) = false;  // a request after finish resumes
+  int requested_ GUARDED_BY(mutex_) = -1;             // -1: none
+  int next_free_ GUARDED_BY(mutex_) = 0;
+  bool had_request_ GUARDED_BY(mutex_) = false;  // a request was taken
   std::atomic<long> dropped_paused_{0};
 };
 

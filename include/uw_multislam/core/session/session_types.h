@@ -74,7 +74,6 @@ std::string sessionNameOfFolder(const std::string& folder);
 bool validVehicleName(const std::string& vehicle);
 
 enum class SessionState { kActive, kFinished, kUnloaded };
-const char* sessionStateName(SessionState s);
 
 /// A keyframe as the session manager takes it (from the odometry, in process or by message).
 /// The nav's placement of a session's first keyframe (SessionManager::addNavPlacement): the earlier

@@ -9,10 +9,11 @@
 // the mutex) and the requests below.
 //  - Synchronous (start() never called): each work item is processed in the caller's thread
 //    before the call returns; exceptions reach the caller.
-//  - Asynchronous (after start()): work items go into a bounded queue (queue_size; when full the
-//    OLDEST is dropped and counted; optimiseDue() is a priority item, never dropped), and one
-//    worker thread, owned here, processes them in order. An item that throws is counted
-//    (stats().skipped) and logged. stop() processes what is queued and joins the thread.
+//  - Asynchronous (after start()): work items go into a bounded queue (core/common/work_queue.h,
+//    queue_size; when full the OLDEST is dropped and counted; optimiseDue() is a priority item,
+//    never dropped), and one worker thread, owned here, processes them in order. An item that
+//    throws is counted (stats().skipped) and logged. stop() processes what is queued and joins
+//    the thread.
 // Either way an item is processed the same: under the mutex, the manager's call and the item's
 // `done` callback; then, after a keyframe, every waiting loop tried again (each under the
 // mutex); then optimisation of every due map: its problem taken under the mutex, solved WITHOUT
@@ -22,15 +23,14 @@
 // optimisation, so no request (and no service) ever waits for a solve: it only marks maps due.
 //
 // Callbacks (done, after_item, the manager's events, Log) run under the mutex: they must not
-// call back into the worker. The handover list has a mutex of its own, taken after mutex_.
+// call back into the worker. The statistics and the handover list have a mutex each, taken after
+// mutex_ when both are held (ACQUIRED_AFTER: clang -Wthread-safety checks the order).
 #pragma once
 
-#include <condition_variable>
 #include <cstddef>
 #include <deque>
 #include <functional>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <string>
 #include <thread>
@@ -39,6 +39,8 @@
 #include <vector>
 
 #include "uw_multislam/core/common/status.h"
+#include "uw_multislam/core/common/thread_annotations.h"
+#include "uw_multislam/core/common/work_queue.h"
 #include "uw_multislam/core/loops/haloc.h"
 #include "uw_multislam/core/session/session_manager.h"
 
@@ -163,20 +165,20 @@ class SessionWorker {
   /// f(manager) under the mutex (the const one: f(manager.view()), the queries); its result.
   /// What it returns must not refer into the manager.
   template <typename F>
-  decltype(auto) locked(F&& f) {
-    std::lock_guard<std::mutex> lock(mutex_);
+  decltype(auto) locked(F&& f) EXCLUDES(mutex_) {
+    MutexLock lock(&mutex_);
     if constexpr (std::is_invocable_v<F, SessionManager&>)
       return f(*manager_);
     else
       return f(manager_->view());
   }
   template <typename F>
-  decltype(auto) locked(F&& f) const {
-    std::lock_guard<std::mutex> lock(mutex_);
+  decltype(auto) locked(F&& f) const EXCLUDES(mutex_) {
+    MutexLock lock(&mutex_);
     return f(manager_->view());
   }
   /// The manager's hasher (immutable: no lock needed).
-  const ImageHasher& hasher() const { return manager_->view().hasher(); }
+  const ImageHasher& hasher() const NO_THREAD_SAFETY_ANALYSIS { return manager_->view().hasher(); }
   SessionWorkerStats stats() const;
 
   // --- Stored sessions and the loop detectors ---------------------------------------------------
@@ -235,36 +237,33 @@ class SessionWorker {
 
   bool submit(Item item);
   void run();
-  void process(Item& item);
-  /// `f` under the mutex (asynchronous: a throw counted and logged), then optimiseDueNow().
+  void process(Item& item) EXCLUDES(mutex_);
+  /// `f` under the mutex (asynchronous: a throw counted and logged), then optimiseDueNow(). `f`
+  /// is a lambda: it asserts the mutex held (the analysis does not follow the lock into it).
   template <typename F>
-  void step(F f);
-  /// A loop's attempt: accepted, refused (logged) or waiting (REQUIRES mutex_).
-  void tryLoop(const Loop& loop);
-  void optimiseDueNow();
+  void step(F f) EXCLUDES(mutex_);
+  /// A loop's attempt: accepted, refused (logged) or waiting.
+  void tryLoop(const Loop& loop) REQUIRES(mutex_);
+  void optimiseDueNow() EXCLUDES(mutex_);
   void say(Severity s, const std::string& line) const;
 
   std::unique_ptr<SessionManager> owned_;
-  SessionManager* manager_;  // guarded by mutex_ (hasher() excepted: immutable)
+  SessionManager* manager_ PT_GUARDED_BY(mutex_);  // hasher() excepted: immutable
   const SessionWorkerOptions options_;
   const Log log_;
-  mutable std::mutex mutex_;
-  std::deque<Loop> waiting_;  // guarded by mutex_
-  AfterItem after_item_;      // set before the thread starts; read by it only
+  mutable Mutex mutex_;
+  std::deque<Loop> waiting_ GUARDED_BY(mutex_);
+  AfterItem after_item_;  // set before the thread starts; read by it only
 
-  mutable std::mutex stats_mutex_;  // guards stats_ (the queue's part also the queue)
-  SessionWorkerStats stats_;
+  mutable Mutex stats_mutex_ ACQUIRED_AFTER(mutex_);
+  SessionWorkerStats stats_ GUARDED_BY(stats_mutex_);  // the queue's counters are the queue's
 
-  // The queue (asynchronous).
-  std::mutex queue_mutex_;  // guards the four below
-  std::condition_variable queue_wake_;
-  std::deque<Item> items_, priority_;
-  bool closed_ = false;
+  BoundedWorkQueue<Item> queue_;  // asynchronous
   std::thread thread_;
 
-  mutable std::mutex handover_mutex_;  // guards handed_ and handover_ (taken after mutex_)
-  std::vector<int> handed_;
-  HandoverStats handover_;
+  mutable Mutex handover_mutex_ ACQUIRED_AFTER(mutex_);
+  std::vector<int> handed_ GUARDED_BY(handover_mutex_);
+  HandoverStats handover_ GUARDED_BY(handover_mutex_);
 };
 
 }  // namespace core

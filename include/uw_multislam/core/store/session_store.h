@@ -255,8 +255,6 @@ class SessionStore {
   /// disk ("the disk is full"), its transaction rolled back. 0: no cap.
   void setMaxBytes(std::uint64_t bytes);
 
-  /// Bytes on disk: the file and its WAL.
-  std::uint64_t bytesOnDisk() const;
   /// Writes the WAL back into the file (e.g. before measuring or copying it).
   void checkpoint();
 

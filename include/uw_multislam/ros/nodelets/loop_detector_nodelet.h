@@ -25,6 +25,7 @@
 
 #include "uw_multislam/Keyframe.h"
 #include "uw_multislam/SessionTrajectory.h"
+#include "uw_multislam/core/common/work_queue.h"
 #include "uw_multislam/core/loops/loop_detector.h"
 #include "uw_multislam/core/loops/session_chain.h"
 #include "uw_multislam/core/session/slam_config.h"
@@ -32,7 +33,6 @@
 #include "uw_multislam/ros/loop_detector_counters.h"
 #include "uw_multislam/ros/loop_publisher.h"
 #include "uw_multislam/ros/slam_params.h"
-#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace nodelets {
@@ -77,7 +77,7 @@ class LoopDetectorNodelet : public nodelet::Nodelet {
   ros_params::LoopDetectorNodeletOptions options_;
   core::SlamConfig config_;
   std::unique_ptr<core::LoopDetector> detector_;
-  std::unique_ptr<ros_work::BoundedWorkQueue<Work>> queue_;
+  std::unique_ptr<core::BoundedWorkQueue<Work>> queue_;
   std::thread worker_;
   std::mutex optimised_mutex_;
   std::map<int, std::vector<core::Pose2>> optimised_;  // guarded by optimised_mutex_: session_trajectory's

@@ -28,6 +28,7 @@
 #include "uw_multislam/OperatorCommand.h"
 #include "uw_multislam/SessionState.h"
 #include "uw_multislam/core/common/ordered_prefetch.h"
+#include "uw_multislam/core/common/work_queue.h"
 #include "uw_multislam/core/frontend/frame_skip.h"
 #include "uw_multislam/core/frontend/stream_control.h"
 #include "uw_multislam/core/session/frame_stream.h"
@@ -39,7 +40,6 @@
 #include "uw_multislam/ros/odometry_frame.h"
 #include "uw_multislam/ros/odometry_options.h"
 #include "uw_multislam/ros/slam_status.h"
-#include "uw_multislam/ros/work_queue.h"
 
 namespace uw_multislam {
 namespace nodelets {
@@ -73,7 +73,7 @@ class OdometryNodelet : public nodelet::Nodelet {
   static double steadyNow() { return ros::SteadyTime::now().toSec(); }  // timeouts, arrivals: never steps
 
   ros_params::OdometryNodeletOptions options_;
-  std::unique_ptr<ros_work::BoundedWorkQueue<Frame>> queue_;  // pushed(): frames paired, popped(): taken
+  std::unique_ptr<core::BoundedWorkQueue<Frame>> queue_;  // pushed(): frames paired, popped(): taken
   // ~prepare_threads with newest: every frame submitted on arrival (under pairing_mutex_, in the queue's
   // order), the newest prepared; the worker takes its frame's preparation by Frame::arrival. Thread-safe.
   std::unique_ptr<core::OrderedPrefetch<ros_inputs::PreparedAhead, Frame>> prepare_on_arrival_;

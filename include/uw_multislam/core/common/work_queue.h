@@ -1,6 +1,7 @@
-// The bounded FIFO between a nodelet's subscriber callbacks and its one worker thread (STYLE.md
-// 5: callbacks enqueue, heavy work runs on a worker with a bounded queue and an explicit,
-// counted drop policy). Header-only and ROS-free, so its test needs neither ROS nor a master.
+// The bounded FIFO between producers and one worker thread (callbacks enqueue, heavy work runs on a
+// worker with a bounded queue and an explicit, counted drop policy): the nodelets' subscriber
+// callbacks and their worker, and the session worker's work items (core/session/session_worker.h).
+// Header-only; its test needs gtest and threads only.
 //
 // Drop policy: push() on a full queue drops the OLDEST item and counts it (live, the newest
 // data matters most). An optional drop handler sees each dropped item together with its
@@ -33,9 +34,10 @@
 #include <vector>
 
 #include "uw_multislam/core/common/ordered_prefetch.h"
+#include "uw_multislam/core/common/thread_annotations.h"
 
 namespace uw_multislam {
-namespace ros_work {
+namespace core {
 
 /// popSelected()'s choice: the item to take, and how many of the oldest before it count as dropped.
 struct Selection {
@@ -65,7 +67,7 @@ class BoundedWorkQueue {
   /// Returns false (and drops `item`, uncounted) after close().
   bool push(T item) {
     {
-      std::lock_guard<std::mutex> lock(mutex_);
+      MutexLock lock(&mutex_);
       if (closed_) return false;
       if (items_.size() >= capacity_) {
         T oldest = std::move(items_.front());
@@ -86,7 +88,7 @@ class BoundedWorkQueue {
   /// Returns false after close().
   bool pushPriority(T item) {
     {
-      std::lock_guard<std::mutex> lock(mutex_);
+      MutexLock lock(&mutex_);
       if (closed_) return false;
       priority_.push_back(std::move(item));
     }
@@ -97,9 +99,12 @@ class BoundedWorkQueue {
   /// Blocks until an item is available (priority items first) or the queue is closed and empty.
   /// Returns false only then.
   bool pop(T* out) {
-    std::unique_lock<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     ++waiting_;
-    wake_.wait(lock, [this] { return closed_ || !priority_.empty() || !items_.empty(); });
+    mutex_.wait(wake_, [this] {
+      mutex_.assertHeld();  // the predicate runs under the lock
+      return closed_ || !priority_.empty() || !items_.empty();
+    });
     --waiting_;
     std::deque<T>& from = !priority_.empty() ? priority_ : items_;
     if (from.empty()) return false;  // closed and drained
@@ -119,9 +124,12 @@ class BoundedWorkQueue {
   /// or that time) and `select` chooses again; a close ends the hold (what is queued is still handed out).
   template <typename Select, typename OnSkip>
   bool popSelected(T* out, Select select, OnSkip on_skip) {
-    std::unique_lock<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     ++waiting_;
-    wake_.wait(lock, [this] { return closed_ || !priority_.empty() || !items_.empty(); });
+    mutex_.wait(wake_, [this] {
+      mutex_.assertHeld();  // the predicate runs under the lock
+      return closed_ || !priority_.empty() || !items_.empty();
+    });
     --waiting_;
     if (priority_.empty() && items_.empty()) return false;  // closed and drained
     if (!priority_.empty()) {
@@ -137,7 +145,10 @@ class BoundedWorkQueue {
         if (!s.hold_until || closed_) break;
         const long pushed = pushed_;
         ++holds_;
-        wake_.wait_until(lock, *s.hold_until, [&] { return closed_ || pushed_ != pushed || !priority_.empty(); });
+        mutex_.waitUntil(wake_, *s.hold_until, [&] {
+          mutex_.assertHeld();
+          return closed_ || pushed_ != pushed || !priority_.empty();
+        });
         if (!priority_.empty()) {  // served first, as by pop(); the bounded items wait for the next call
           *out = std::move(priority_.front());
           priority_.pop_front();
@@ -159,7 +170,7 @@ class BoundedWorkQueue {
 
   /// pop() without the wait: false when nothing is queued (now).
   bool tryPop(T* out) {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     std::deque<T>& from = !priority_.empty() ? priority_ : items_;
     if (from.empty()) return false;
     *out = std::move(from.front());
@@ -171,7 +182,7 @@ class BoundedWorkQueue {
   /// No more pushes; every waiting pop() wakes. What is queued is still handed out.
   void close() {
     {
-      std::lock_guard<std::mutex> lock(mutex_);
+      MutexLock lock(&mutex_);
       closed_ = true;
     }
     wake_.notify_all();
@@ -180,70 +191,70 @@ class BoundedWorkQueue {
   std::size_t capacity() const { return capacity_; }
   /// Items dropped because the queue was full.
   long dropped() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return dropped_;
   }
   /// Items waiting (bounded and priority).
   std::size_t size() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return items_.size() + priority_.size();
   }
   /// Bounded items accepted by push() (including those dropped later).
   long pushed() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return pushed_;
   }
   /// Items popSelected() passed over for a newer one.
   long skipped() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return skipped_;
   }
   /// Times popSelected() waited for a newer item at its selector's request (Selection::hold_until).
   long holds() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return holds_;
   }
   /// Items handed out by pop().
   long popped() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return popped_;
   }
   /// Threads blocked in pop() right now (lets a test wait until the worker is idle).
   int waiting() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return waiting_;
   }
   bool closed() const {
-    std::lock_guard<std::mutex> lock(mutex_);
+    MutexLock lock(&mutex_);
     return closed_;
   }
 
  private:
   const std::size_t capacity_;
   const DropHandler on_drop_;
-  mutable std::mutex mutex_;
+  mutable Mutex mutex_;
   std::condition_variable wake_;
-  std::deque<T> items_;     // guarded by mutex_
-  std::deque<T> priority_;  // guarded by mutex_
-  bool closed_ = false;     // guarded by mutex_
-  long dropped_ = 0;        // guarded by mutex_
-  long pushed_ = 0;         // guarded by mutex_
-  long popped_ = 0;         // guarded by mutex_
-  long skipped_ = 0;        // guarded by mutex_
-  long holds_ = 0;          // guarded by mutex_
-  int waiting_ = 0;         // guarded by mutex_
+  std::deque<T> items_ GUARDED_BY(mutex_);
+  std::deque<T> priority_ GUARDED_BY(mutex_);
+  bool closed_ GUARDED_BY(mutex_) = false;
+  long dropped_ GUARDED_BY(mutex_) = 0;
+  long pushed_ GUARDED_BY(mutex_) = 0;
+  long popped_ GUARDED_BY(mutex_) = 0;
+  long skipped_ GUARDED_BY(mutex_) = 0;
+  long holds_ GUARDED_BY(mutex_) = 0;
+  int waiting_ GUARDED_BY(mutex_) = 0;
 };
 
 /// The worker's loop: takes the items of `queue` until it is closed and drained, and calls
 /// process(item, prepared) for each in order. With `threads` > 0, up to `threads` items already
 /// waiting are taken out early and `prepare`d (P(const T&)) by that many long-lived threads
-/// (core::OrderedPrefetch) while the item before them is processed; an item is never waited for:
+/// (OrderedPrefetch) while the item before them is processed; an item is never waited for:
 /// one taken while none is in preparation is processed at once (prepared null). Drop policy: the
 /// items taken out early are the worker's, no longer the queue's to drop.
 template <typename T, typename P, typename Prepare, typename Process>
 void drainWithPrepareAhead(BoundedWorkQueue<T>& queue, int threads, Prepare prepare, Process process) {
   using Item = std::pair<T, P>;
-  core::OrderedPrefetch<Item, T> ahead(threads, [&prepare](T item, int) {
+  OrderedPrefetch<Item, T> ahead(threads, [&prepare](T item, int) {
     P p = prepare(static_cast<const T&>(item));
     return Item(std::move(item), std::move(p));
   });
@@ -293,7 +304,7 @@ struct NewestChoice {
 ///     is part of its cost.
 template <typename T, typename P, typename Choose, typename OnSkip, typename Arrival, typename Process,
           typename OnError>
-void drainNewest(BoundedWorkQueue<T>& queue, std::size_t bound, core::OrderedPrefetch<P, T>* prefetch, Choose choose,
+void drainNewest(BoundedWorkQueue<T>& queue, std::size_t bound, OrderedPrefetch<P, T>* prefetch, Choose choose,
                  OnSkip on_skip, Arrival arrival, Process process, OnError on_error) {
   using Clock = std::chrono::steady_clock;
   std::optional<Clock::time_point> deadline;  // of the current take's waits for a newer item
@@ -330,5 +341,5 @@ void drainNewest(BoundedWorkQueue<T>& queue, std::size_t bound, core::OrderedPre
   }
 }
 
-}  // namespace ros_work
+}  // namespace core
 }  // namespace uw_multislam

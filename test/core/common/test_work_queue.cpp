@@ -1,4 +1,4 @@
-// BoundedWorkQueue (ros/work_queue.h): drop policy, shutdown drain, wake-ups, thread safety.
+// BoundedWorkQueue (core/common/work_queue.h): drop policy, shutdown drain, wake-ups, thread safety.
 // Threads are awaited on conditions (waiting(), futures); the timeouts are only deadlines that
 // turn a hang into a failure, never the thing asserted.
 #include <gtest/gtest.h>
@@ -15,10 +15,10 @@
 #include <thread>
 #include <vector>
 
-#include "uw_multislam/ros/work_queue.h"
+#include "uw_multislam/core/common/work_queue.h"
 
 namespace uw_multislam {
-namespace ros_work {
+namespace core {
 namespace {
 
 constexpr auto kDeadline = std::chrono::seconds(10);
@@ -639,5 +639,5 @@ TEST(DrainNewest, AWaitForTheNextItemEndsByTheTakesFirstDeadline) {
 }
 
 }  // namespace
-}  // namespace ros_work
+}  // namespace core
 }  // namespace uw_multislam
