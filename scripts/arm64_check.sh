@@ -2,7 +2,7 @@
 # arm64 check: builds the ROS-free core (uw_multislam_core), the simulator and the export library
 # (uw_multislam_sim, uw_multislam_export, which the tests link) and the core's gtests (test_core) for aarch64, the CPU of
 # a Jetson-class vehicle computer, and runs the tests under emulation (qemu-user). Not part of CI
-# (about 47 min from nothing, 20 to 25 min again, README "arm64 check").
+# (about 47 min from nothing, 20 to 25 min again, doc/arm64_check.md).
 #
 # How: a Debian 12 arm64 root file system (scripts/debian_root.sh, as scripts/platform_check.sh's
 # bullseye roots: debootstrap --variant=minbase, its second stage under qemu through binfmt_misc) holds the arm64 -dev libraries (OpenCV, Eigen, Ceres, SQLite, yaml-cpp,
@@ -11,7 +11,7 @@
 # root as --sysroot (scripts/arm64/CMakeLists.txt: plain CMake, source lists read from the
 # package's CMakeLists.txt), and qemu-aarch64-static -L <root> runs test_core. Cross-compiling,
 # not compiling inside the root under emulation: Debian's arm64 g++ under qemu took 6 to 7 times as
-# long on the same files for the same assembly (README "arm64 check"); only the test run needs the
+# long on the same files for the same assembly (doc/arm64_check.md); only the test run needs the
 # arm64 CPU.
 #
 # usage: sudo scripts/arm64_check.sh [gtest arguments, e.g. --gtest_filter=Iekf.*]

@@ -471,7 +471,7 @@ def case_bad_images(st, survey):
 
     def expected(counts):
         tiny = sum(counts.get(k, 0) for k in ("skipped_tiny_image", "skipped_size_mismatch", "skipped_camera_info"))
-        # README "Bad input": 16UC1 is scaled to 8 bits (processed), float and YUV are skipped_encoding.
+        # doc/robustness.md "Bad input": 16UC1 is scaled to 8 bits (processed), float and YUV are skipped_encoding.
         return (counts.get("skipped_encoding", 0) == 2 and tiny >= 1 and counts.get("skipped_image_too_large", 0) == 1
                 and counts.get("bad_altitude_replaced", 0) == 3)
 

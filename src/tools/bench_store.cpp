@@ -1,4 +1,4 @@
-// bench_store: the session store's numbers (README "Session store"): bytes per keyframe
+// bench_store: the session store's numbers (doc/session_store.md): bytes per keyframe
 // on disk, write time per keyframe (one transaction each, synchronous=FULL), and the time to
 // reload a session of N keyframes into a back-end and a loop detector (every keyframe's
 // features and hash). Synthetic keyframes: n SIFT-sized features with random coordinates and

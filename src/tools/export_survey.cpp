@@ -1,6 +1,6 @@
 // export_survey: the survey's products from a session store or an offline_slam output folder:
 // argument parsing and calls into core/export/survey_export.h and run_export.h; contract:
-// --help, README "Exporting a survey".
+// --help, doc/tools/export_survey.md.
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -43,7 +43,7 @@ folder (--run) with its dataset folders, and writes, per session (session_<id>) 
   <name>.tif      the mosaic as a GeoTIFF when --origin is given (transverse Mercator centred
                   on the origin, WGS84)
 Poses are in the map frame the back-end publishes (z up, x along the map's first image columns,
-y against its rows; README "Frames (REP-105)"): the camera's level frame, z = 0 on the seabed,
+y against its rows; doc/frames.md): the camera's level frame, z = 0 on the seabed,
 yaw about z. A session's files hold its keyframes in its map's frame. Each file is written to a
 temporary name and renamed, so none is ever half-written. The store is never modified.
 

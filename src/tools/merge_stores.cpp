@@ -1,5 +1,5 @@
 // merge_stores: session stores of several vehicles or dives into one. Argument parsing around
-// core::mergeStores (core/store/store_merge.h); contract: --help, README "Fleet merge".
+// core::mergeStores (core/store/store_merge.h); contract: --help, doc/tools/merge_stores.md.
 #include <cstdio>
 #include <exception>
 #include <optional>

@@ -100,7 +100,7 @@ def test_tum_tracks_score_like_evaluate(exported, store, survey, tmp_path):
     for number, (name, folder) in enumerate(zip(sessions, ("a", "b"))):
         tum = read_tum(out / name)
         truth = truth_by_stamp(survey / folder)
-        # z-up map frame -> the image axes gt.csv uses: (x, y) -> (x, -y) (README "Frames")
+        # z-up map frame -> the image axes gt.csv uses: (x, y) -> (x, -y) (doc/frames.md)
         est = [(x, -y) for _, x, y, _ in tum]
         gt = [truth[round(t, 6)] for t, _, _, _ in tum]
         mine = aligned_rmse(est, gt)

@@ -126,7 +126,7 @@ class CameraModelTest(unittest.TestCase):
         for p in poses:
             x, y = cls.gt[p.header.stamp.to_nsec()]
             # odometry/pose is base_link in the z-up session frame (camera at base_link): y is -y of
-            # the image axes the ground truth uses (README "Frames").
+            # the image axes the ground truth uses (doc/frames.md).
             errors.append((p.pose.pose.position.x - x) ** 2 + (-p.pose.pose.position.y - y) ** 2)
         return math.sqrt(sum(errors) / len(errors))
 

@@ -238,7 +238,7 @@ class FramesTest(unittest.TestCase):
                                [covariances.get(k) for k in range(len(poses))])
         x, y, yaw = poses[-1].x, poses[-1].y, poses[-1].theta
         mat, tr = matmul3, transpose3
-        # The vehicle's (README "Frames"): z-up flips y and yaw (F = diag(1, -1, -1)), then (+) the
+        # The vehicle's (doc/frames.md): z-up flips y and yaw (F = diag(1, -1, -1)), then (+) the
         # inverse mount, whose Jacobian in its first argument is J1 again.
         f = [[1, 0, 0], [0, -1, 0], [0, 0, -1]]
         cov = mat(mat(f, cov), f)

@@ -237,7 +237,7 @@ def mount_of_params(camera_frame="camera", timeout=30.0):
 def vehicle_from_camera(p, mount=(0.0, 0.0, 0.0)):
     """base_link's pose in a z-up frame from a camera pose in the core's (image axes, z into the
     seabed; ground truth and offline_slam's files): (x, -y, -yaw) (+) (-)mount, as
-    core::vehicleFromCamera (README "Frames")."""
+    core::vehicleFromCamera (doc/frames.md)."""
     return compose((p[0], -p[1], -p[2]), invert(mount))
 
 

@@ -1,5 +1,5 @@
 // Conversions between the back-end (core/backend/backend.h) and its ROS messages: service statuses,
-// session states, paths and the loop / join markers. One place for them (STYLE.md), each tested in
+// session states, paths and the loop / join markers. One place for them, each tested in
 // test/ros/test_backend_conversions.cpp.
 #pragma once
 

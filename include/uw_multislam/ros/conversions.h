@@ -1,4 +1,4 @@
-// Conversions between core types and ROS messages, in one place (STYLE.md). 2-D poses live in
+// Conversions between core types and ROS messages, in one place. 2-D poses live in
 // the plane z = 0 of their frame; yaw is the rotation about z (REP-103).
 #pragma once
 

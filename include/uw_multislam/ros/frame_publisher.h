@@ -1,5 +1,5 @@
 // The back-end's tf: map -> odom -> base_link (REP-105), and the per-session frames
-// map -> session_<id> (README "Frames"). Thread-safe: the worker reports corrections, the
+// map -> session_<id> (doc/frames.md). Thread-safe: the worker reports corrections, the
 // odometry/pose callback reports poses, a steady timer publishes map -> odom; none of them waits
 // for the others longer than a copy under this class's own mutex.
 //

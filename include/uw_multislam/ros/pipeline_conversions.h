@@ -1,5 +1,5 @@
 // Conversions between the core's keyframes, loops and hashes and the pipeline's messages
-// (uw_multislam/Keyframe, Loop, KeyframeHash). One place for them (STYLE.md); every function has
+// (uw_multislam/Keyframe, Loop, KeyframeHash). One place for them; every function has
 // a test in test/ros/test_pipeline_conversions.cpp.
 //
 // Messages from the wire are checked: fromMsg returns false with a one-line reason (never

@@ -1,4 +1,4 @@
-// Default topic names and frame ids of uw_multislam, declared once (STYLE.md). Nodelets, tools and
+// Default topic names and frame ids of uw_multislam, declared once. Nodelets, tools and
 // launch files use these; users change them by remapping (topics) or by parameters (frame ids).
 //
 // Topic names are relative: a node resolves them in its own namespace and launch
@@ -24,7 +24,7 @@ constexpr char kGroundTruthOdom[] = "ground_truth/odom";
 /// its covariance (a dataset's nav.csv in a bag): the odometry's navigation prior.
 constexpr char kNavOdom[] = "nav/odom";
 
-// --- The pipeline (README "Architecture"): odometry -> keyframes -> loop detection -> back-end ------------
+// --- The pipeline (doc/design.md): odometry -> keyframes -> loop detection -> back-end ------------
 
 /// uw_multislam/Keyframe: each new keyframe with its features (odometry nodelet).
 constexpr char kKeyframes[] = "keyframes";

@@ -1,4 +1,4 @@
-// The core library must stay ROS-free (README "Architecture"): no file under
+// The core library must stay ROS-free (doc/design.md): no file under
 // include/uw_multislam/core or src/core may include a ROS header. This test reads the sources.
 #include <gtest/gtest.h>
 

@@ -156,7 +156,7 @@ TEST_F(LoopTest, SamePlaceHashesCloseOtherPlacesFar) {
   // The default hash (sorted_dct). The paper's HALOC ranks a view shifted by 2 cm only just
   // before an unrelated place here (22.8 against 23.9), after it at 1 and 3 cm, and after it at
   // 2 cm on arm64 (25.9 against 24.0: OpenCV's NEON kernels move SIFT's last digits): it is no
-  // better than chance at ranking revisits (README "Loop detection"), so only its exactness is
+  // better than chance at ranking revisits (doc/algorithms.md "Loop detection"), so only its exactness is
   // asserted for it (the same features, distance 0).
   const ImageHasher h(HashMode::kSortedDct, 500, 20231122);
   const HalocProjections haloc(500, 20231122);

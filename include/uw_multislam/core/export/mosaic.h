@@ -45,7 +45,7 @@ bool parseMosaicBlend(const std::string& name, MosaicBlend* out);
 
 struct MosaicOptions {
   double resolution_m = 0.0;                  // metres per pixel; 0: the median keyframe's ground pixel size
-  MosaicBlend blend = MosaicBlend::kFeather;  // README "Exporting a survey": the seam measure
+  MosaicBlend blend = MosaicBlend::kFeather;  // doc/tools/export_survey.md: the seam measure
   bool exposure = true;                       // gain compensation
   int tile_px = 1024;                         // tile side
   std::size_t cache_bytes = 128u << 20;       // decoded images kept between tiles

@@ -2,8 +2,8 @@
 // covariances), pose graphs (g2o) and GeoJSON tracks, per session and per map. export_survey is
 // the command line around it; mosaic.h draws the photomosaics from the same SurveyExport.
 //
-// Frame. Everything is written in the map frame the back-end publishes (README "Frames
-// (REP-105)"): z up, x along the map's first keyframe's image columns, y against its rows. The
+// Frame. Everything is written in the map frame the back-end publishes (doc/frames.md):
+// z up, x along the map's first keyframe's image columns, y against its rows. The
 // store's poses are the camera's in image axes (z into the seabed); each is turned by
 // zUp() (vehicle_frame.h): (x, y, yaw) -> (x, -y, -yaw), its covariance by F P F, F = diag(1,
 // -1, -1). The store knows nothing of the camera mount, so a pose is the camera's level frame

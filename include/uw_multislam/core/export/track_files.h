@@ -1,6 +1,6 @@
 // The files of one exported track (a session or a map): what export_survey writes per track and
-// the back-end's `export` service writes for the track it is asked for (README "Exporting a
-// survey"): <label>.tum, .kitti, .csv, .g2o, .geojson (with an origin), .png + .pgw (mosaic) and
+// the back-end's `export` service writes for the track it is asked for (doc/tools/
+// export_survey.md): <label>.tum, .kitti, .csv, .g2o, .geojson (with an origin), .png + .pgw (mosaic) and
 // .tif (mosaic with an origin). Each file is written atomically (survey_export.h).
 #pragma once
 

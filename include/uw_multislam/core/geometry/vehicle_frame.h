@@ -1,4 +1,4 @@
-// From the camera's poses to the vehicle's, in REP-103 frames (README "Frames").
+// From the camera's poses to the vehicle's, in REP-103 frames (doc/frames.md).
 //
 // The core's poses are the camera's: a session's frame is its first keyframe's image axes in
 // metres (x along the image columns, y along the rows, z into the seabed: the camera's optical

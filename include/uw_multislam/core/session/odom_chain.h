@@ -1,4 +1,4 @@
-// REP-105 frames from the sessions: map -> odom -> base_link (README "Frames").
+// REP-105 frames from the sessions: map -> odom -> base_link (doc/frames.md).
 //
 // Each session's odometry starts at the identity of its own frame (session_<id>). A vehicle's
 // nav stack wants one continuous odom frame instead. OdomChain places every session's frame in

@@ -1,5 +1,5 @@
 // The session manager: the one object that owns sessions, their ids, maps, joins and splits, and
-// the session store (README "Architecture"; cf. cartographer's MapBuilder).
+// the session store (doc/design.md; cf. cartographer's MapBuilder).
 //
 // Both heads drive it through a SessionWorker (session_worker.h: its lock, work queue and
 // optimisation loop): offline_slam through core::Pipeline (pipeline.h, every stage in one

@@ -3,7 +3,7 @@
 // jpeg_quality. Mosaics drawn from the store alone (export_survey without --images) use it, with
 // the camera scaled by the stored image's size (core/export/mosaic.h). The store's `thumbnail`
 // column holds it (a JPEG either way: no schema change). Config block `store` (config/slam.yaml);
-// the default is chosen from bench_store's cost per keyframe (README "Session store").
+// the default is chosen from bench_store's cost per keyframe (doc/session_store.md).
 #pragma once
 
 #include <opencv2/core.hpp>
