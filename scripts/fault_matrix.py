@@ -810,10 +810,14 @@ def case_nav_jump_offline(m, off):
         if r.returncode == 0:
             with open(os.path.join(out, "trajectory.csv")) as f:
                 farthest = max(math.hypot(float(row["x_m"]), float(row["y_m"])) for row in csv.DictReader(f))
-        said = [line for line in r.stdout.splitlines() if "placed by the nav" in line]
+        # The placer's sentences, not the stream's closing count ("... so far: ..., N placed by the nav").
+        lines = r.stdout.splitlines()
+        said = [line for line in lines if "placed by the nav" in line and " so far: " not in line]
+        counted = [line for line in lines if " so far: " in line]
         too_fast = re.search(r"(\d+) nav steps too fast", r.stdout)
         held = (r.returncode == 0 and "tracking resumed" in r.stdout and farthest < 20.0 and len(said) == 1
                 and "not placed by the nav after the tracking loss: nav step" in said[0]
+                and all(line.endswith(", 0 placed by the nav") for line in counted)
                 and too_fast is not None and int(too_fast.group(1)) > 0)
         observed = "status %d; %s nav steps refused; the farthest pose %.1f m from the map's origin; %s" % (
             r.returncode, too_fast.group(1) if too_fast else "no", farthest,
