@@ -133,6 +133,14 @@ class NavPlacementTest(unittest.TestCase):
         pose = at_start[0].pose.pose.position
 
         if self.case in ("off", "new_session_off"):
+            self.assertEqual(backend["nav_placements"], 0)
+            if second.placement_visual:
+                # The odometry's own registration across the black-out (a visual bridge), not the nav's:
+                # only after a tracking loss, against the first piece, and it joins the two maps.
+                self.assertEqual(self.case, "off", "a visual bridge follows a tracking loss only")
+                self.assertEqual(second.placement_session, first)
+                self.assertEqual(maps[first], maps[second.session], "the bridge joins the maps")
+                return
             self.assertEqual(second.placement_session, -1)
             self.assertEqual(second.placement_keyframe, -1)
             self.assertEqual(list(second.placement_covariance), [0.0] * 9)
