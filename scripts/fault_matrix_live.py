@@ -423,19 +423,34 @@ def case_bad_images(st, survey):
     pid = st.manager_pid()
     rss0 = rss_mb(pid)
     t = [frames[0][TOPICS[0]].header.stamp.to_sec()]
+    sent, received0 = [0], int(float(latest.get("images_received", 0)))
+
+    def handled(status):
+        """Every image sent was received and nothing waits: not for pairing, in the queue or in the worker."""
+        def n(key):
+            return int(float(status.get(key, 0)))
+        return (n("images_received") >= received0 + sent[0] and n("images_waiting_pairing") == 0 and
+                n("queue_length") == 0 and n("frames_processed") == n("frames_finished"))
 
     def send(image, info, rng):
         t[0] += 1.0
         stamp = rospy.Time.from_sec(t[0])
         for msg in (image, info, rng):
             msg.header.stamp = stamp
+        seen = diag_count[0]
         pubs[1].publish(info)
         pubs[2].publish(rng)
         pubs[0].publish(image)
-        time.sleep(0.2)  # publishing pace (5 Hz), not a wait for a condition
+        sent[0] += 1
+        # Each frame handled before the next is sent: the odometry's newest-only rule passes over a
+        # frame that waits while a slow one (the 100 MB image on a loaded machine) is processed,
+        # and a frame passed over is counted as that, not by what is wrong with it.
+        wait_for(lambda: diag_count[0] >= seen + 2 and handled(latest), 60, 0.05)
 
     def image(encoding, w, h, bpp):
+        # The good frames' camera frame: a converted image (16UC1) reaches the mount lookup.
         im = Image(height=h, width=w, encoding=encoding, step=w * bpp)
+        im.header.frame_id = frames[0][TOPICS[0]].header.frame_id
         im.data = bytes(w * h * bpp)
         return im
 
