@@ -248,7 +248,7 @@ def case_service_misuse(st, survey):
         "list_sessions unchanged by wrong calls; integrity ok", observed, held)
 
 
-def case_concurrent(st, survey, seconds=30.0, threads=20, deadline_s=10.0):
+def case_concurrent(st, survey, seconds=12.0, threads=20, deadline_s=10.0):
     st.start_slam()
     two_sessions(st, survey)
     pid = st.manager_pid()
