@@ -8,22 +8,11 @@ import shutil
 import pytest
 import rosbag
 import rospy
+import yaml
 from geometry_msgs.msg import TransformStamped
 from tf2_msgs.msg import TFMessage
-from tool_runner import make_survey, read_csv as rows, run_tool as run
+from tool_runner import TWO_DIVES, make_survey, read_csv as rows, run_tool as run
 
-SURVEY = """
-seed: 11
-world: {width_m: 9, height_m: 6, featureless_fraction: 0}
-sessions:
-  - name: a
-    mission: {pattern: out_and_back, start_m: [2.0, 2.0], length_m: 4.0, leg_spacing_m: 1.0,
-              speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.0}
-    nav: {enabled: true}
-  - name: b
-    mission: {pattern: loop, start_m: [5.5, 3.0], heading_rad: 1.5708, length_m: 2.0, width_m: 1.6,
-              laps: 1.0, speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.2}
-"""
 STAMP = 1700000000  # folder_to_bag's default start time
 
 
@@ -43,7 +32,9 @@ def add_mounts(bag_path):
 
 @pytest.fixture(scope="module")
 def survey(tmp_path_factory):
-    return make_survey(tmp_path_factory.mktemp("bag"), SURVEY)
+    spec = yaml.safe_load(TWO_DIVES)
+    spec["sessions"][0]["nav"] = {"enabled": True}  # the first dive's bag carries /nav/odom
+    return make_survey(tmp_path_factory.mktemp("bag"), yaml.safe_dump(spec))
 
 
 def to_bag(survey, name, path, *args):
@@ -175,3 +166,11 @@ def test_empty_truncated_and_missing_bags_fail_with_one_line(bags, tmp_path):
 def test_bags_and_folders_are_not_mixed(bags, survey, tmp_path):
     assert "not mixed" in fails("--bag", bags / "a.bag", "--session", survey / "a", "--out", tmp_path, status=2)
     assert "numbers" in fails("--bag", bags / "a.bag", "--camera-mount", "0 0 0", "--out", tmp_path, status=2)
+
+
+def test_a_bag_already_in_the_store_is_refused(bags, tmp_path):
+    args = ["--bag", bags / "a.bag", "--db", tmp_path / "s.db", "--finish-after", "4", "--quiet"]
+    r = run("offline_slam", *args, "--out", tmp_path / "o1")
+    assert r.returncode == 0, r.stderr
+    err = fails(*args, "--out", tmp_path / "o2", status=3)
+    assert "a.bag is already in" in err and "--again" in err, err

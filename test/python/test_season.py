@@ -5,20 +5,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from tool_runner import BIN_DIR, make_survey, read_csv as rows, run_tool as run
+from tool_runner import BIN_DIR, TWO_DIVES, make_survey, read_csv as rows, run_tool as run
 
 SEASON = str(Path(__file__).resolve().parents[2] / "src" / "tools" / "season.py")
-SURVEY = """
-seed: 11
-world: {width_m: 9, height_m: 6, featureless_fraction: 0}
-sessions:
-  - name: a
-    mission: {pattern: out_and_back, start_m: [2.0, 2.0], length_m: 4.0, leg_spacing_m: 1.0,
-              speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.0}
-  - name: b
-    mission: {pattern: loop, start_m: [5.5, 3.0], heading_rad: 1.5708, length_m: 2.0, width_m: 1.6,
-              laps: 1.0, speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.2}
-"""
 
 
 def season(*args):
@@ -28,7 +17,7 @@ def season(*args):
 
 @pytest.fixture(scope="module")
 def mission(tmp_path_factory):
-    return make_survey(tmp_path_factory.mktemp("season"), SURVEY)
+    return make_survey(tmp_path_factory.mktemp("season"), TWO_DIVES)
 
 
 @pytest.fixture(scope="module")
