@@ -26,6 +26,7 @@
 #include "uw_multislam/core/frontend/nav_prior.h"
 #include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/image_input.h"
+#include "uw_multislam/ros/message_field.h"
 #include "uw_multislam/ros/nav_input.h"
 #include "uw_multislam/ros/sensor_conversions.h"
 
@@ -114,6 +115,7 @@ struct BagStream::Impl {
   void open(const std::map<std::string, std::string>& types);
   void readCamera(const std::map<std::string, std::string>& types);
   core::AltitudeBuffer readAltitudes(std::string* altimeter_frame);
+  void readDvl(rosbag::View& view, core::AltitudeBuffer* buffer, std::string* altimeter_frame);
   void readMount(const std::string& camera_frame, const std::string& altimeter_frame);
   void readNav(const std::map<std::string, std::string>& types);
 };
@@ -137,7 +139,15 @@ void BagStream::Impl::open(const std::map<std::string, std::string>& types) {
          kCompressedType + "); the bag's image topics: " + topicsOfType(types, kImageType) +
          "; compressed: " + topicsOfType(types, kCompressedType) + ": pass --image-topic (or --ns for a namespace)");
   }
-  if (type_of(altitude_topic) != "sensor_msgs/Range")
+  if (!options.dvl_topic.empty()) {
+    altitude_topic = resolve(options.ns, options.dvl_topic);
+    if (type_of(altitude_topic).empty())
+      fail("no messages on " + altitude_topic + " (--dvl-topic); the bag's topics: " + [&] {
+        std::string list;
+        for (const auto& [topic, type] : types) list += (list.empty() ? "" : ", ") + topic;
+        return list;
+      }());
+  } else if (type_of(altitude_topic) != "sensor_msgs/Range")
     fail("no altitude (sensor_msgs/Range) on " + altitude_topic +
          "; the bag's Range topics: " + topicsOfType(types, "sensor_msgs/Range") + ": pass --altitude-topic (or --ns)");
 }
@@ -180,6 +190,10 @@ core::AltitudeBuffer BagStream::Impl::readAltitudes(std::string* altimeter_frame
   rosbag::View view(bag, rosbag::TopicQuery(altitude_topic));
   o.capacity = view.size() + 1;  // the whole bag's readings: every image decides with all of them
   core::AltitudeBuffer buffer(o);
+  if (!options.dvl_topic.empty()) {
+    readDvl(view, &buffer, altimeter_frame);
+    return buffer;
+  }
   for (const rosbag::MessageInstance& m : view) {
     const auto r = instantiate<sensor_msgs::Range>(m);
     if (counts.altitudes++ == 0) *altimeter_frame = r->header.frame_id;
@@ -190,6 +204,39 @@ core::AltitudeBuffer BagStream::Impl::readAltitudes(std::string* altimeter_frame
     buffer.add(r->header.stamp.toSec(), a);
   }
   return buffer;
+}
+
+void BagStream::Impl::readDvl(rosbag::View& view, core::AltitudeBuffer* buffer, std::string* altimeter_frame) {
+  std::unique_ptr<MessageFields> fields;
+  std::vector<std::uint8_t> bytes;
+  for (const rosbag::MessageInstance& m : view) {
+    if (!fields) {
+      fields = std::make_unique<MessageFields>(m.getDataType(), m.getMessageDefinition());
+      if (!fields->ok()) fail(altitude_topic + " (" + m.getDataType() + "): " + fields->why());
+    }
+    bytes.resize(m.size());
+    ros::serialization::OStream stream(bytes.data(), static_cast<std::uint32_t>(bytes.size()));
+    try {
+      m.write(stream);
+    } catch (const std::exception& e) {
+      fail("cannot read a message on " + altitude_topic + " (" + e.what() + "): the bag is damaged");
+    }
+    double altitude = 0.0, stamp = m.getTime().toSec();
+    std::string why, frame = options.dvl_frame;
+    const bool header = fields->hasHeader();
+    if (!fields->number(bytes.data(), bytes.size(), options.dvl_field, &altitude, &why) ||
+        (header && !fields->number(bytes.data(), bytes.size(), "header.stamp", &stamp, &why)) ||
+        (header && frame == "header" && !fields->text(bytes.data(), bytes.size(), "header.frame_id", &frame, &why)))
+      fail(altitude_topic + " (" + m.getDataType() + "): --dvl-field " + why);
+    if (frame == "header") frame.clear();  // no header: the altitude is the camera's
+    if (counts.altitudes++ == 0) *altimeter_frame = frame;
+    // As the relay's Range, refused by the odometry: no bottom lock (<= 0), not finite, above the bound.
+    if (!(std::isfinite(altitude) && altitude > 0.0 && altitude <= options.max_altitude_m)) {
+      altitude = std::nan("");
+      ++counts.altitudes_refused;
+    }
+    buffer->add(stamp, altitude);
+  }
 }
 
 void BagStream::Impl::readMount(const std::string& camera_frame, const std::string& altimeter_frame) {

@@ -57,6 +57,8 @@ options:
   --image-topic T, --camera-info-topic T, --altitude-topic T, --nav-topic T
                     default camera/image_raw, camera/camera_info, altitude, nav/odom
   --camera-info-url URL  the calibration file for a bag without camera_info
+  --dvl-topic T [--dvl-field F] [--dvl-frame ID]  the altitude from a DVL's own message (any type): the
+                    number at field path F (default altitude), frame ID (default header: its own)
   --camera-mount "X Y Z YAW"  the camera in the base frame (as the launch files' camera_mount),
                     instead of the bag's /tf_static; --altimeter-mount "X Y Z" (default: at the camera)
   --base-frame F    the vehicle's frame in /tf_static and the nav (default base_link)
@@ -138,6 +140,9 @@ std::optional<int> parseArguments(int argc, char** argv, tools::OfflineOptions* 
   option("altitude-topic", po::value(&b->altitude));
   option("nav-topic", po::value(&b->nav));
   option("camera-info-url", po::value(&b->camera_info_url));
+  option("dvl-topic", po::value(&b->dvl_topic));
+  option("dvl-field", po::value(&b->dvl_field));
+  option("dvl-frame", po::value(&b->dvl_frame));
   option("camera-mount", tools::checked(&b->camera_mount, parseMount<4>));
   option("altimeter-mount", tools::checked(&b->altimeter_mount, parseMount<3>));
   option("base-frame", po::value(&b->base_frame));

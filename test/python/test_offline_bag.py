@@ -174,3 +174,29 @@ def test_a_bag_already_in_the_store_is_refused(bags, tmp_path):
     assert r.returncode == 0, r.stderr
     err = fails(*args, "--out", tmp_path / "o2", status=3)
     assert "a.bag is already in" in err and "--again" in err, err
+
+
+def test_a_dvls_own_message_gives_the_altitude_its_range_gives(bags, tmp_path):
+    """The bag's Ranges moved into nav_msgs/Odometry messages (pose.pose.position.z), a DVL driver's own
+    type: read with --dvl-topic/--dvl-field, the outputs are those of the Ranges."""
+    from nav_msgs.msg import Odometry
+    dvl = tmp_path / "dvl.bag"
+    with rosbag.Bag(str(bags / "a.bag")) as src, rosbag.Bag(str(dvl), "w") as dst:
+        for topic, msg, t in src.read_messages():
+            if topic != "/altitude":
+                dst.write(topic, msg, t)
+                continue
+            o = Odometry()
+            o.header = msg.header
+            o.pose.pose.position.z = msg.range
+            dst.write("/dvl/data", o, t)
+    common = ["--out", tmp_path / "o", "--finish-after", "8", "--quiet", "--nav", "off"]
+    r = run("offline_slam", "--bag", bags / "a.bag", *common)
+    assert r.returncode == 0, r.stderr
+    ranges = {n: (tmp_path / "o" / n).read_text() for n in ("trajectory.csv", "odometry.csv")}
+    r = run("offline_slam", "--bag", dvl, *common, "--dvl-topic", "/dvl/data", "--dvl-field", "m.pose.pose.position.z")
+    assert r.returncode == 0, r.stderr
+    assert {n: (tmp_path / "o" / n).read_text() for n in ranges} == ranges
+    assert len(rows(tmp_path / "o" / "trajectory.csv")) > 2
+    err = fails("--bag", dvl, "--out", tmp_path / "o2", "--dvl-topic", "/dvl/data")
+    assert "no field 'altitude'" in err and "pose" in err and "--dvl-field" in err, err

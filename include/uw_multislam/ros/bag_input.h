@@ -11,7 +11,10 @@
 //                calibration changes is refused); without any, a calibration file (camera_info_url)
 //   altitude     sensor_msgs/Range: core::AltitudeBuffer at each image stamp (exact, interpolated,
 //                or the nearest within altitude_max_age_s), plus the camera's height above the
-//                altimeter; an image without a reading that close is skipped and counted, as live
+//                altimeter; an image without a reading that close is skipped and counted, as live.
+//                Or a DVL driver's own message (dvl_topic, any type): the number at dvl_field
+//                (ros/message_field.h), <= 0 (no bottom lock) refused like a bad range, stamped
+//                and placed by its header (or dvl_frame), as the launch files' dvl relay does
 //   nav          nav_msgs/Odometry (optional): navToEnu's frame checks, navFromMsg, the covariance
 //                check and the track's order checks, the rows then moved to the mounted camera
 //   /tf_static   the sensor mounts: base_frame -> the images' frame_id and -> the Ranges' frame_id,
@@ -50,6 +53,9 @@ struct BagInputOptions {
   std::string camera_info = topics::kCameraInfo;
   std::string altitude = topics::kAltitude;
   std::string nav = topics::kNavOdom;
+  std::string dvl_topic;               // set: the altitude from this topic's messages instead of `altitude`
+  std::string dvl_field = "altitude";  // the field path in them (a leading "m." as the relay's is allowed)
+  std::string dvl_frame = "header";    // their frame_id: "header" (the message's own) or a frame
   std::string tf_static = "/tf_static";
   std::string camera_info_url;  // used when the bag has no camera_info (file:///..., package://..., /abs/path)
   std::string base_frame = frames::kDefaultBaseFrame, odom_frame = frames::kDefaultOdomFrame;
