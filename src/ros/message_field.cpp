@@ -97,6 +97,26 @@ std::string MessageFields::fieldList(const std::string& type) const {
   return list;
 }
 
+std::size_t MessageFields::minBytes(const std::string& type) const {
+  if (const auto it = kPrimitives.find(type); it != kPrimitives.end()) return it->second;
+  if (type == "string") return 4;
+  std::size_t n = 0;
+  for (const Field& f : types_.at(type))
+    n += !f.array ? minBytes(f.type) : f.fixed >= 0 ? static_cast<std::size_t>(f.fixed) * minBytes(f.type) : 4;
+  return n;
+}
+
+bool MessageFields::skipMany(const std::string& type, std::uint32_t n, const std::uint8_t** p,
+                             const std::uint8_t* end) const {
+  // A length the bytes cannot hold fails at once (a damaged length would loop for billions of elements).
+  const std::size_t least = minBytes(type);
+  if (least == 0) return true;  // elements of no bytes: nothing to skip
+  if (static_cast<std::size_t>(end - *p) / least < n) return false;
+  for (std::uint32_t i = 0; i < n; ++i)
+    if (!skip(type, p, end)) return false;
+  return true;
+}
+
 bool MessageFields::skip(const std::string& type, const std::uint8_t** p, const std::uint8_t* end) const {
   if (const auto it = kPrimitives.find(type); it != kPrimitives.end()) {
     if (static_cast<std::size_t>(end - *p) < it->second) return false;
@@ -118,8 +138,7 @@ bool MessageFields::skip(const std::string& type, const std::uint8_t** p, const 
       n = static_cast<std::uint32_t>(f.fixed);
     else if (!readLength(p, end, &n))
       return false;
-    for (std::uint32_t i = 0; i < n; ++i)
-      if (!skip(f.type, p, end)) return false;
+    if (!skipMany(f.type, n, p, end)) return false;
   }
   return true;
 }
@@ -154,16 +173,14 @@ bool MessageFields::find(const std::uint8_t* data, std::size_t size, const std::
           return fail(truncated);
       }
       if (f.name != part) {
-        for (std::uint32_t i = 0; i < n; ++i)
-          if (!skip(f.type, &p, end)) return fail(truncated);
+        if (!skipMany(f.type, n, &p, end)) return fail(truncated);
         continue;
       }
       if (f.array != (index >= 0))
         return fail("'" + path + "': " + part + (f.array ? " is an array: give an index" : " is not an array"));
       if (index >= static_cast<long>(n))
         return fail("'" + path + "': " + part + " has " + std::to_string(n) + " elements in this message");
-      for (long i = 0; i < index; ++i)
-        if (!skip(f.type, &p, end)) return fail(truncated);
+      if (index > 0 && !skipMany(f.type, static_cast<std::uint32_t>(index), &p, end)) return fail(truncated);
       type = f.type;
       found = true;
       break;

@@ -7,6 +7,7 @@
 #include <sensor_msgs/CameraInfo.h>
 
 #include <cstdint>
+#include <cstring>
 #include <string>
 #include <vector>
 
@@ -78,6 +79,23 @@ TEST(MessageFields, SkipsVariableArraysBeforeTheField) {
   EXPECT_EQ(v, 77.0);
   ASSERT_TRUE(f.number(b.data(), b.size(), "roi.do_rectify", &v, &why)) << why;
   EXPECT_EQ(v, 1.0);
+}
+
+TEST(MessageFields, ADamagedArrayLengthIsRefusedAtOnce) {
+  sensor_msgs::CameraInfo c;
+  c.distortion_model = "plumb_bob";
+  c.D = {0.1, 0.2};
+  std::vector<std::uint8_t> b = serialize(c);
+  // D's length follows the header, height, width and the distortion model's string.
+  const std::size_t at = ros::serialization::serializationLength(c.header) + 8 + 4 + c.distortion_model.size();
+  const std::uint32_t two = 2, huge = 0xffffffffu;
+  ASSERT_EQ(std::memcmp(b.data() + at, &two, 4), 0);
+  std::memcpy(b.data() + at, &huge, 4);
+  double v = 0.0;
+  std::string why;
+  EXPECT_FALSE(
+      ros_bag::MessageFields(fieldsOf<sensor_msgs::CameraInfo>()).number(b.data(), b.size(), "binning_y", &v, &why));
+  EXPECT_NE(why.find("shorter than its type"), std::string::npos) << why;
 }
 
 TEST(MessageFields, APathTheTypeLacksOrShortBytesAreRefusedWithTheReason) {

@@ -47,6 +47,9 @@ class MessageFields {
   bool find(const std::uint8_t* data, std::size_t size, const std::string& path, Value* out, std::string* why) const;
   // Moves `*p` past one value of `type`; false when the bytes end first.
   bool skip(const std::string& type, const std::uint8_t** p, const std::uint8_t* end) const;
+  bool skipMany(const std::string& type, std::uint32_t n, const std::uint8_t** p, const std::uint8_t* end) const;
+  // The fewest bytes a value of `type` takes (variable arrays and strings: their length).
+  std::size_t minBytes(const std::string& type) const;
   std::string fieldList(const std::string& type) const;
 
   std::string main_;
