@@ -87,8 +87,8 @@ bool parseMount(const std::string& text, std::size_t n, double* out) {
 struct BagStream::Impl {
   std::string path;
   BagInputOptions options;
-  rosbag::Bag bag;
-  std::vector<rosbag::MessageInstance> images;  // the kept frames' messages, in frame order
+  std::vector<std::unique_ptr<rosbag::Bag>> bags;  // one dive's bags (rosbag record --split), read as one
+  std::vector<rosbag::MessageInstance> images;     // the kept frames' messages, in frame order
   bool compressed = false;
   std::string image_topic, camera_info_topic, altitude_topic, nav_topic;
   core::Dataset dataset;
@@ -112,6 +112,12 @@ struct BagStream::Impl {
     return msg;
   }
 
+  // The messages of `query` in every bag, in time order.
+  std::unique_ptr<rosbag::View> view(const boost::function<bool(const rosbag::ConnectionInfo*)>& query) const {
+    auto v = std::make_unique<rosbag::View>();
+    for (const auto& b : bags) v->addQuery(*b, query);
+    return v;
+  }
   void open(const std::map<std::string, std::string>& types);
   void readCamera(const std::map<std::string, std::string>& types);
   core::AltitudeBuffer readAltitudes(std::string* altimeter_frame);
@@ -157,7 +163,8 @@ void BagStream::Impl::readCamera(const std::map<std::string, std::string>& types
   bool have = false;
   std::string why;
   if (it != types.end() && it->second == "sensor_msgs/CameraInfo") {
-    for (const rosbag::MessageInstance& m : rosbag::View(bag, rosbag::TopicQuery(camera_info_topic))) {
+    const std::unique_ptr<rosbag::View> messages = view(rosbag::TopicQuery(camera_info_topic));
+    for (const rosbag::MessageInstance& m : *messages) {
       const auto info = instantiate<sensor_msgs::CameraInfo>(m);
       ++counts.camera_infos;
       core::CameraIntrinsics c;
@@ -187,14 +194,14 @@ void BagStream::Impl::readCamera(const std::map<std::string, std::string>& types
 core::AltitudeBuffer BagStream::Impl::readAltitudes(std::string* altimeter_frame) {
   core::AltitudeBufferOptions o;
   o.max_age_s = options.altitude_max_age_s;
-  rosbag::View view(bag, rosbag::TopicQuery(altitude_topic));
-  o.capacity = view.size() + 1;  // the whole bag's readings: every image decides with all of them
+  const std::unique_ptr<rosbag::View> readings = view(rosbag::TopicQuery(altitude_topic));
+  o.capacity = readings->size() + 1;  // the whole bag's readings: every image decides with all of them
   core::AltitudeBuffer buffer(o);
   if (!options.dvl_topic.empty()) {
-    readDvl(view, &buffer, altimeter_frame);
+    readDvl(*readings, &buffer, altimeter_frame);
     return buffer;
   }
-  for (const rosbag::MessageInstance& m : view) {
+  for (const rosbag::MessageInstance& m : *readings) {
     const auto r = instantiate<sensor_msgs::Range>(m);
     if (counts.altitudes++ == 0) *altimeter_frame = r->header.frame_id;
     bool above = false;
@@ -251,7 +258,8 @@ void BagStream::Impl::readMount(const std::string& camera_frame, const std::stri
   } else {
     tf2::BufferCore tf;
     long statics = 0;
-    for (const rosbag::MessageInstance& m : rosbag::View(bag, rosbag::TopicQuery(options.tf_static))) {
+    const std::unique_ptr<rosbag::View> messages = view(rosbag::TopicQuery(options.tf_static));
+    for (const rosbag::MessageInstance& m : *messages) {
       const auto msg = m.instantiate<tf2_msgs::TFMessage>();
       if (!msg) continue;  // another type on the topic: no mount from it
       for (const auto& t : msg->transforms) statics += tf.setTransform(t, "bag", true) ? 1 : 0;
@@ -286,7 +294,8 @@ void BagStream::Impl::readNav(const std::map<std::string, std::string>& types) {
   core::NavTrack track;
   core::NavCovarianceCheck check(options.nav_drift, options.nav_yaw_drift);
   const double restart_after_s = 1.0;  // ~nav_reorder_tolerance_s
-  for (const rosbag::MessageInstance& m : rosbag::View(bag, rosbag::TopicQuery(nav_topic))) {
+  const std::unique_ptr<rosbag::View> messages = view(rosbag::TopicQuery(nav_topic));
+  for (const rosbag::MessageInstance& m : *messages) {
     const auto msg = instantiate<nav_msgs::Odometry>(m);
     ++counts.nav_readings;
     core::NavRecord r;
@@ -319,19 +328,26 @@ BagStream::BagStream(const std::string& path, const BagInputOptions& options) : 
   b.path = path;
   b.options = options;
   b.dataset.directory = path;
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) b.fail("no such bag (not a regular file)");
-  try {
-    b.bag.open(path, rosbag::bagmode::Read);
-  } catch (const std::exception& e) {
-    b.fail(std::string("cannot open the bag (") + e.what() +
-           "): a truncated bag (a recording that was killed) may be repaired with `rosbag reindex`");
+  std::istringstream parts(path);  // "a_0.bag,a_1.bag": one dive in several bags
+  for (std::string part; std::getline(parts, part, ',');) {
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(part, ec))
+      b.fail((part == path ? "" : part + ": ") + "no such bag (not a regular file)");
+    b.bags.push_back(std::make_unique<rosbag::Bag>());
+    try {
+      b.bags.back()->open(part, rosbag::bagmode::Read);
+    } catch (const std::exception& e) {
+      b.fail((part == path ? "" : part + ": ") + "cannot open the bag (" + e.what() +
+             "): a truncated bag (a recording that was killed) may be repaired with `rosbag reindex`");
+    }
   }
   std::map<std::string, std::string> types;  // topic -> message type
-  {
-    rosbag::View all(b.bag);
-    for (const rosbag::ConnectionInfo* c : all.getConnections()) types[c->topic] = c->datatype;
-  }
+  for (const auto& bag : b.bags)
+    for (const rosbag::ConnectionInfo* c : rosbag::View(*bag).getConnections()) {
+      const auto [it, added] = types.emplace(c->topic, c->datatype);
+      if (!added && it->second != c->datatype)
+        b.fail(c->topic + " is a " + it->second + " in one bag and a " + c->datatype + " in another");
+    }
   if (types.empty()) b.fail("the bag is empty (no topic)");
   b.open(types);
   b.readCamera(types);
@@ -339,8 +355,8 @@ BagStream::BagStream(const std::string& path, const BagInputOptions& options) : 
   const core::AltitudeBuffer altitudes = b.readAltitudes(&altimeter_frame);
   // The frames: every image with an altitude at its stamp (the live pairing's rule), in the bag's order.
   std::string camera_frame;
-  std::vector<std::pair<rosbag::MessageInstance, core::AltitudeAt>> frames;
-  for (const rosbag::MessageInstance& m : rosbag::View(b.bag, rosbag::TopicQuery(b.image_topic))) {
+  const std::unique_ptr<rosbag::View> messages = b.view(rosbag::TopicQuery(b.image_topic));
+  for (const rosbag::MessageInstance& m : *messages) {
     ++b.counts.images;
     const std_msgs::Header header = b.compressed ? b.instantiate<sensor_msgs::CompressedImage>(m)->header
                                                  : b.instantiate<sensor_msgs::Image>(m)->header;

@@ -52,7 +52,8 @@ Bags and folders are not mixed in one run (run them one after the other with the
 
 options:
   --session DIR     a dataset folder (repeat for several missions)
-  --bag FILE        a recorded bag (repeat: consecutive missions, each its own stream)
+  --bag FILE[,FILE...]  a recorded bag, or one dive's bags (rosbag record --split) read as one
+                    (repeat: consecutive missions, each its own stream)
   --ns NS           the namespace relative topic names resolve in (default /)
   --image-topic T, --camera-info-topic T, --altitude-topic T, --nav-topic T
                     default camera/image_raw, camera/camera_info, altitude, nav/odom

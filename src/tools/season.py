@@ -5,7 +5,7 @@ global loops join the dives where they overlap. Writes one summary of the season
 
     season.py [--list FILE] [DIVE ...] --out DIR [--db FILE] [--bin-dir DIR] [-- OFFLINE_SLAM_OPTIONS ...]
 
-DIVE         a bag (*.bag: offline_slam --bag) or a dataset folder (offline_slam --session), in order;
+DIVE         a bag (offline_slam --bag; one dive's bags as A.bag,B.bag) or a dataset folder (--session), in order;
 --list FILE  more dives, one a line (# starts a comment; relative paths are the file's)
 --out DIR    dives/NN/ (each dive's offline_slam outputs and log), season.db (unless --db), season.md,
              season.csv, season.png (every dive's keyframes, one figure, a panel per map), season.html
@@ -57,15 +57,20 @@ def dives_of(args):
         for line in Path(args.list).read_text().splitlines():
             line = line.split("#", 1)[0].strip()
             if line:
-                dives.append(Path(line) if os.path.isabs(line) else base / line)
+                dives.append(Path(",".join(p if os.path.isabs(p) else str(base / p) for p in line.split(","))))
     return dives
+
+
+def is_bag(dive):
+    """A bag, or one dive's bags named together (a,b): what offline_slam --bag reads."""
+    return all(Path(p).is_file() for p in str(dive).split(","))
 
 
 def run_dive(n, dive, args, slam, extra):
     out = Path(args.out) / "dives" / ("%02d" % n)
     if out.exists():
         shutil.rmtree(out)
-    kind = "--bag" if dive.is_file() else "--session"
+    kind = "--bag" if is_bag(dive) else "--session"
     cmd = [slam, kind, str(dive), "--db", args.db, "--out", str(out)] + extra
     t0 = time.monotonic()
     r = subprocess.run(cmd, capture_output=True, text=True)
@@ -208,7 +213,7 @@ def main(argv):
     if not dives:
         parser.error("no dive: give bags or folders, or --list FILE")
     for d in dives:
-        if not d.exists():
+        if not (is_bag(d) or d.is_dir()):
             parser.error("%s: no such bag or folder" % d)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -200,3 +200,22 @@ def test_a_dvls_own_message_gives_the_altitude_its_range_gives(bags, tmp_path):
     assert len(rows(tmp_path / "o" / "trajectory.csv")) > 2
     err = fails("--bag", dvl, "--out", tmp_path / "o2", "--dvl-topic", "/dvl/data")
     assert "no field 'altitude'" in err and "pose" in err and "--dvl-field" in err, err
+
+
+def test_a_dive_split_into_bags_reads_as_one(bags, tmp_path):
+    """rosbag record --split: the halves named together (--bag a_0.bag,a_1.bag) give the whole bag's outputs."""
+    parts = [tmp_path / "a_0.bag", tmp_path / "a_1.bag"]
+    with rosbag.Bag(str(bags / "a.bag")) as src, rosbag.Bag(str(parts[0]), "w") as first, \
+            rosbag.Bag(str(parts[1]), "w") as second:
+        for topic, msg, t in src.read_messages():
+            (first if t.to_sec() < STAMP + 4.5 or topic == "/tf_static" else second).write(topic, msg, t)
+    common = ["--finish-after", "8", "--quiet"]
+    r = run("offline_slam", "--bag", bags / "a.bag", "--out", tmp_path / "whole", *common)
+    assert r.returncode == 0, r.stderr
+    r = run("offline_slam", "--bag", "%s,%s" % tuple(parts), "--out", tmp_path / "split", *common)
+    assert r.returncode == 0, r.stderr
+    for name in ("trajectory.csv", "odometry.csv", "loops.csv"):
+        assert (tmp_path / "split" / name).read_text() == (tmp_path / "whole" / name).read_text(), name
+    assert max(int(t["index"]) for t in rows(tmp_path / "split" / "trajectory.csv")) > 4  # keyframes after the split
+    err = fails("--bag", "%s,%s" % (parts[0], tmp_path / "gone.bag"), "--out", tmp_path / "o")
+    assert "gone.bag: no such bag" in err, err

@@ -79,7 +79,9 @@ struct BagInputCounts {
 
 class BagStream {
  public:
-  /// Opens and indexes the bag (every message but the images' pixels is read here). Throws BagInputError.
+  /// Opens and indexes the bag (every message but the images' pixels is read here); `path` may name
+  /// several bags of one dive separated by commas ("dive_0.bag,dive_1.bag", rosbag record --split):
+  /// their messages are read as one recording, in time order. Throws BagInputError.
   BagStream(const std::string& path, const BagInputOptions& options);
   ~BagStream();
   BagStream(const BagStream&) = delete;
