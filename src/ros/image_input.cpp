@@ -13,6 +13,8 @@ bool imageFromInput(const ImageMsg& m, const core::CameraIntrinsics& camera, std
   sensor_msgs::ImagePtr decoded;
   if (m.compressed && !rc::imageFromCompressedMsg(*m.compressed, &decoded, why, refusal, max_pixels)) return false;
   if (!rc::imageFromMsg(m.compressed ? decoded : m.image, out, why, refusal, max_pixels)) return false;
+  // imageFromMsg shares an 8-bit image's buffer without owning it (u null): the decoded message ends here.
+  if (m.compressed && out->u == nullptr) *out = out->clone();
   if (out->cols == camera.width && out->rows == camera.height) return true;
   if (why)
     *why = "image " + std::to_string(out->cols) + "x" + std::to_string(out->rows) + " but camera_info says " +

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <map>
@@ -33,59 +34,119 @@ int inStore(const std::string& why) {
   return kInStore;
 }
 
-// Folders whose run in the store `db` was interrupted: without a choice the first
-// is refused (kInStore, naming the option); `discard` deletes the run and keeps the folder,
-// `finish` marks it finished and drops the folder from `folders` and `datasets`. Only an
+// Streams whose run in the store `db` was interrupted: without a choice the first
+// is refused (kInStore, naming the option); `discard` deletes the run and keeps the stream,
+// `finish` marks it finished and drops the stream from `streams`. Only an
 // existing store is opened (a new one is created by the session manager); the store is closed
 // again before the manager opens it. `finished` gets the ids of the sessions marked finished
-// (the folder they belong to is skipped: another folder with the same frames must not be taken
+// (the stream they belong to is skipped: another stream with the same frames must not be taken
 // for it). Returns 0 or the exit status.
 int resolveInterrupted(const std::string& db, std::optional<core::InterruptedChoice> choice,
-                       std::vector<std::string>* folders, std::vector<core::Dataset>* datasets,
-                       std::set<int>* finished) {
+                       std::vector<StreamInput>* streams, std::set<int>* finished) {
   std::error_code ec;
   if (db.empty() || !std::filesystem::is_regular_file(db, ec) || std::filesystem::file_size(db, ec) == 0) return 0;
   core::SessionStore store(db);
-  std::vector<std::string> kept_folders;
-  std::vector<core::Dataset> kept;
-  for (std::size_t ds = 0; ds < datasets->size(); ++ds) {
-    const std::vector<core::InterruptedRun> runs = core::findInterruptedRuns(store, (*datasets)[ds].frames);
+  std::vector<StreamInput> kept;
+  for (StreamInput& s : *streams) {
+    const std::string& name = s.dataset.directory;
+    const std::vector<core::InterruptedRun> runs = core::findInterruptedRuns(store, s.dataset.frames);
     bool skip = false;
     for (const core::InterruptedRun& r : runs) {
       const std::string what = "session " + std::to_string(r.ids.back()) + " '" + r.name + "', " +
                                std::to_string(r.keyframes) + " keyframes in " + std::to_string(r.ids.size()) +
                                " session(s)";
       if (!choice)
-        return inStore((*folders)[ds] + " is in " + db + " from an interrupted run (" + what +
+        return inStore(name + " is in " + db + " from an interrupted run (" + what +
                        ", still recording): pass --interrupted discard (delete it and process the folder again) "
                        "or --interrupted finish (keep it as stored and skip the folder)");
       if (*choice == core::InterruptedChoice::kDiscard) {
         core::resolveInterruptedRun(&store, r, core::InterruptedChoice::kDiscard);
         std::fprintf(stderr,
                      "offline_slam: %s: the interrupted run (%s) deleted from %s; processing the folder again\n",
-                     (*folders)[ds].c_str(), what.c_str(), db.c_str());
+                     name.c_str(), what.c_str(), db.c_str());
       } else {
         core::resolveInterruptedRun(&store, r, core::InterruptedChoice::kFinish);
         finished->insert(r.ids.begin(), r.ids.end());
         std::fprintf(stderr,
                      "offline_slam: %s: the interrupted run (%s) marked finished as stored in %s; folder skipped\n",
-                     (*folders)[ds].c_str(), what.c_str(), db.c_str());
+                     name.c_str(), what.c_str(), db.c_str());
         skip = true;
       }
     }
-    if (skip) continue;
-    kept_folders.push_back((*folders)[ds]);
-    kept.push_back(std::move((*datasets)[ds]));
+    if (!skip) kept.push_back(std::move(s));
   }
-  *folders = std::move(kept_folders);
-  *datasets = std::move(kept);
+  *streams = std::move(kept);
   return 0;
 }
 
+// A bag's progress, a line at each tenth of its recording (and at its end): frames, % of the bag, frames/s.
+class Progress {
+ public:
+  Progress(const StreamInput& s, bool on) : s_(s), on_(on && s.recorded_s > 0.0) {}
+  void frame(std::size_t i) {
+    if (!on_) return;
+    const auto& f = s_.dataset.frames;
+    const int tenth = static_cast<int>(10.0 * (f[i].stamp_s - f.front().stamp_s) / s_.recorded_s);
+    if (tenth <= tenth_ && i + 1 != f.size()) return;
+    tenth_ = tenth;
+    const double wall = seconds();
+    std::printf("%s: %zu/%zu frames, %.0f %% of the bag, %.1f frames/s\n", s_.dataset.directory.c_str(), i + 1,
+                f.size(), 100.0 * (f[i].stamp_s - f.front().stamp_s) / s_.recorded_s,
+                wall > 0.0 ? static_cast<double>(i + 1) / wall : 0.0);
+    std::fflush(stdout);
+  }
+  void end() const {
+    if (!on_) return;
+    const double wall = seconds();
+    std::printf("%s: %.1f s recorded processed in %.1f s: %.1fx real time\n", s_.dataset.directory.c_str(),
+                s_.recorded_s, wall, wall > 0.0 ? s_.recorded_s / wall : 0.0);
+  }
+
+ private:
+  double seconds() const { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0_).count(); }
+  const StreamInput& s_;
+  bool on_;
+  int tenth_ = 0;
+  std::chrono::steady_clock::time_point t0_ = std::chrono::steady_clock::now();
+};
+
 }  // namespace
 
+bool parseOperatorLink(const std::string& spec, OperatorLink* out) {
+  core::Loop* link = &out->loop;
+  std::vector<std::string> f;
+  std::size_t start = 0;
+  for (std::size_t colon; (colon = spec.find(':', start)) != std::string::npos; start = colon + 1)
+    f.push_back(spec.substr(start, colon - start));
+  f.push_back(spec.substr(start));
+  if (f.size() != 4 && f.size() != 9) return false;
+  int ids[4];
+  for (int i = 0; i < 4; ++i) {
+    char* end = nullptr;
+    const long v = std::strtol(f[i].c_str(), &end, 10);
+    if (f[i].empty() || *end != '\0' || v < 0 || v > 1000000000) return false;
+    ids[i] = static_cast<int>(v);
+  }
+  double x[5] = {0, 0, 0, 0, 0};
+  for (std::size_t i = 4; i < f.size(); ++i) {
+    char* end = nullptr;
+    x[i - 4] = std::strtod(f[i].c_str(), &end);
+    if (f[i].empty() || *end != '\0' || !std::isfinite(x[i - 4])) return false;
+  }
+  out->measured = f.size() == 9;
+  if (out->measured && !(x[3] >= 1e-6 && x[4] >= 1e-6)) return false;  // squared: a covariance the back-end takes
+  link->session_a = ids[0];
+  link->keyframe_a = ids[1];
+  link->session_b = ids[2];
+  link->keyframe_b = ids[3];
+  link->z = core::UncertainPose2(core::Pose2(x[0], x[1], x[2]),
+                                 Eigen::Vector3d(x[3] * x[3], x[3] * x[3], x[4] * x[4]).asDiagonal());
+  link->inliers = 0;
+  out->yaw = x[2];
+  return true;
+}
+
 int runOffline(const OfflineOptions& options) {
-  std::vector<std::string> folders = options.folders;  // less the folders resolveInterrupted skips
   const std::string& out = options.out;
   const std::string& db = options.db;
   const bool quiet = options.quiet, again = options.again, detect_loops = options.detect_loops;
@@ -106,17 +167,22 @@ int runOffline(const OfflineOptions& options) {
     // oversubscribe. (OpenCV's own parallelism, cv::setNumThreads(2), gave 1.41x on the demo on
     // 2 cores, against 1.83x for the workers: SIFT's pyramid is built serially.)
     cv::setNumThreads(1);
-    // Every folder and the store are checked before any work or any output.
-    std::vector<core::Dataset> datasets;
-    for (const auto& dir : folders) {
-      datasets.push_back(core::loadDataset(dir, true, core::StampOrder::kRequired));
-      if (const std::string bad = core::checkCameraFitsImages(datasets.back()); !bad.empty())
+    // Every folder, bag and the store are checked before any work or any output.
+    std::vector<StreamInput> inputs;
+    for (const auto& dir : options.folders) {
+      inputs.push_back({core::loadDataset(dir, true, core::StampOrder::kRequired), {}, 0.0, ""});
+      if (const std::string bad = core::checkCameraFitsImages(inputs.back().dataset); !bad.empty())
         throw core::DatasetError(bad);
     }
+    for (const auto& bag : options.bags) {
+      inputs.push_back(options.open_bag(bag, config));
+      if (!quiet) std::printf("%s\n", inputs.back().summary.c_str());
+    }
     std::set<int> finished_now;
-    if (const int refused = resolveInterrupted(db, options.interrupted, &folders, &datasets, &finished_now);
-        refused != 0)
+    if (const int refused = resolveInterrupted(db, options.interrupted, &inputs, &finished_now); refused != 0)
       return refused;
+    std::vector<core::Dataset> datasets;  // the streams' frames, for the store's checks and inputs.csv
+    for (const StreamInput& s : inputs) datasets.push_back(s.dataset);
     if (datasets.empty() && !detect_loops && links.empty()) {
       std::printf("offline_slam: every folder was skipped: nothing to process\n");
       return 0;
@@ -138,7 +204,7 @@ int runOffline(const OfflineOptions& options) {
       std::vector<int> s = manager.view().storedSessionsOf(datasets[ds].frames);
       s.erase(std::remove_if(s.begin(), s.end(), [&](int id) { return finished_now.count(id) > 0; }), s.end());
       if (!s.empty())
-        return inStore(folders[ds] + " is already in " + db + " (session " + std::to_string(s.front()) +
+        return inStore(datasets[ds].directory + " is already in " + db + " (session " + std::to_string(s.front()) +
                        "): pass --again to process it once more as new sessions");
     }
     if (!db.empty() && !quiet)
@@ -191,8 +257,22 @@ int runOffline(const OfflineOptions& options) {
     const auto frames_t0 = std::chrono::steady_clock::now();
     std::size_t frames_read = 0;
     for (std::size_t ds = 0; ds < datasets.size(); ++ds) {
-      const core::Dataset& d = datasets[ds];
-      pipeline.beginStream(d);  // its camera, its images (thumbnails), its nav.csv
+      const StreamInput& in = inputs[ds];
+      const core::Dataset& d = in.dataset;
+      if (in.image)  // a bag: its frame indexes are the positions of its images
+        pipeline.beginStream(
+            d.directory, d.camera,
+            [&in, &d](int index) {
+              const auto f = std::lower_bound(d.frames.begin(), d.frames.end(), index,
+                                              [](const core::FrameRecord& r, int i) { return r.index < i; });
+              return f == d.frames.end() || f->index != index
+                         ? cv::Mat()
+                         : in.image(static_cast<std::size_t>(f - d.frames.begin()), nullptr);
+            },
+            core::NavTrack(d.nav), d.nav_frame);
+      else
+        pipeline.beginStream(d);  // its camera, its images (thumbnails), its nav.csv
+      Progress progress(in, !quiet);
       // --finish-after (the back-end's finish_session, offline): the frames after the first N
       // are dropped and counted, as the odometry drops them after finish_session.
       const std::size_t taken =
@@ -208,26 +288,28 @@ int runOffline(const OfflineOptions& options) {
         std::string why;  // when the image could not be used
         core::PreparedFrame prepared;
       };
-      core::OrderedPrefetch<Loaded> loaded(taken, threads > 1 ? threads : 0, 2 * static_cast<std::size_t>(threads),
-                                           [&](std::size_t i, int worker) {
-                                             Loaded l;
-                                             // As the live odometry reads its messages (a cut-off JPEG refused, 16 bits
-                                             // scaled to 8 by the frame's range); grey as BGR, as cv::IMREAD_COLOR gave
-                                             // it before.
-                                             l.image = core::readFrameImageBgr(d.imagePath(d.frames[i]), &l.why);
-                                             if (!preparers.empty()) l.prepared = preparers[worker]->prepare(l.image);
-                                             return l;
-                                           });
+      core::OrderedPrefetch<Loaded> loaded(
+          taken, threads > 1 ? threads : 0, 2 * static_cast<std::size_t>(threads), [&](std::size_t i, int worker) {
+            Loaded l;
+            // As the live odometry reads its messages (a cut-off JPEG refused, 16 bits
+            // scaled to 8 by the frame's range); grey as BGR, as cv::IMREAD_COLOR gave
+            // it before.
+            l.image = in.image ? in.image(i, &l.why) : core::readFrameImageBgr(d.imagePath(d.frames[i]), &l.why);
+            if (!preparers.empty()) l.prepared = preparers[worker]->prepare(l.image);
+            return l;
+          });
       frames_read += taken;
       for (std::size_t i = 0; i < taken; ++i) {
         const core::FrameRecord& f = d.frames[i];
         Loaded l = loaded.next();
         if (l.image.empty()) std::fprintf(stderr, "offline_slam: %s: frame %d skipped\n", l.why.c_str(), f.index);
         pipeline.processFrame({f.index, f.stamp_s, f.altitude_m, l.image}, preparers.empty() ? nullptr : &l.prepared);
+        progress.frame(i);
       }
+      progress.end();
       pipeline.endStream(taken == 0 ? 0.0 : d.frames[taken - 1].stamp_s);
       if (taken < d.frames.size() && !quiet)
-        std::printf("%s: session finished after %zu frames (--finish-after), %zu frames dropped\n", folders[ds].c_str(),
+        std::printf("%s: session finished after %zu frames (--finish-after), %zu frames dropped\n", d.directory.c_str(),
                     taken, d.frames.size() - taken);
       for (int id : pipeline.streamSessions().back()) csv_of[id] = first + static_cast<int>(ds);
     }
@@ -245,7 +327,7 @@ int runOffline(const OfflineOptions& options) {
         std::string ids;
         for (int id : streams[ds])
           ids += (ids.empty() ? "" : ", ") + std::to_string(id) + " '" + manager.view().name(id) + "'";
-        std::printf("  %d %s -> %s\n", first + static_cast<int>(ds), folders[ds].c_str(),
+        std::printf("  %d %s -> %s\n", first + static_cast<int>(ds), datasets[ds].directory.c_str(),
                     ids.empty() ? "no session" : ids.c_str());
       }
     }

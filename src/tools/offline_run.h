@@ -1,12 +1,18 @@
-// The offline runner: the SLAM core over dataset folders without a ROS master (offline_slam's work; its
-// main only parses the command line). Its contract: offline_slam --help and doc/run_outputs.md.
+// The offline runner: the SLAM core over dataset folders (or bags, read by the ROS side: offline_slam --bag)
+// without a ROS master (offline_slam's work; its main only parses the command line). Its contract:
+// offline_slam --help and doc/run_outputs.md.
 #pragma once
 
+#include <opencv2/core.hpp>
+
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "uw_multislam/core/frontend/dataset.h"
 #include "uw_multislam/core/loops/loop_detector.h"
+#include "uw_multislam/core/session/slam_config.h"
 #include "uw_multislam/core/store/interrupted_run.h"
 
 namespace uw_multislam::tools {
@@ -21,9 +27,26 @@ struct OperatorLink {
   double yaw = 0.0;       // z's yaw as given (rad), before Pose2 wrapped it: checked to be in [-pi, pi]
 };
 
+/// --add-link A:KA:B:KB[:X:Y:YAW:SXY:SYAW] -> a link (sessions, keyframes; z when measured). false:
+/// not that shape, or a number that is not one (sigmas must be >= 1e-6).
+bool parseOperatorLink(const std::string& spec, OperatorLink* link);
+
+/// One camera stream the runner processes: a dataset folder, or a bag the ROS side read (ros/bag_input.h).
+struct StreamInput {
+  core::Dataset dataset;  // frames, camera, nav; `directory`: the folder or the bag, the stream's name
+  /// The image of frame i (its position in dataset.frames), thread-safe; empty: the folder's image files.
+  std::function<cv::Mat(std::size_t i, std::string* why)> image;
+  double recorded_s = 0.0;  // a bag's recording length (the real-time ratio); 0 for a folder
+  std::string summary;      // a bag's one line: what was read
+};
+/// Opens a bag as a stream (the configuration: the odometry's altitude bound); throws std::exception.
+using OpenBag = std::function<StreamInput(const std::string& path, const core::SlamConfig& config)>;
+
 /// offline_slam's command line, each value checked and every combination allowed (offline_slam.cpp).
 struct OfflineOptions {
   std::vector<std::string> folders;                    // --session: dataset folders, in order: consecutive missions
+  std::vector<std::string> bags;                       // --bag: bags, in order, one stream each (not with folders)
+  OpenBag open_bag;                                    // reads a bag (offline_slam's main: the ROS side)
   std::string out;                                     // --out: the output directory (created); unused with dump_config
   std::string config_file;                             // --config; empty: the defaults
   std::string db;                                      // --db: the session store; empty: none

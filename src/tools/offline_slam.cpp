@@ -1,13 +1,15 @@
-// offline_slam: the SLAM core over dataset folders, no ROS master. The main parses the command line into
-// tools::OfflineOptions; tools::runOffline (offline_run.h) does the work. Contract: --help, doc/run_outputs.md.
-#include <cmath>
-#include <cstdlib>
+// offline_slam: the SLAM core over dataset folders or bags, no ROS master. The main parses the command line
+// into tools::OfflineOptions; tools::runOffline (offline_run.h) does the work, a bag read by
+// ros_bag::BagStream (ros/bag_input.h). Contract: --help, doc/run_outputs.md, doc/tools/offline_slam.md.
+#include <array>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include "cli.h"
 #include "offline_run.h"
+#include "uw_multislam/ros/bag_input.h"
 
 namespace core = uw_multislam::core;
 namespace po = boost::program_options;
@@ -17,6 +19,7 @@ namespace {
 
 const char* kUsage =
     R"(usage: offline_slam --session DIR [--session DIR ...] --out OUT [--config FILE] [--db FILE] [options]
+       offline_slam --bag FILE [--bag FILE ...] --out OUT [topic and mount options] [options]
 
 Runs uw_multislam over dataset folders (frames.csv, camera.yaml, images; see
 doc/dataset_format.md), in the order given, as consecutive missions. Writes into OUT (columns in
@@ -42,8 +45,24 @@ with --interrupted:
   finish    keep what was stored, mark the session finished, and skip the folder in this run
             (when every folder is skipped, the run ends with status 0 and writes nothing to OUT).
 
+A bag (--bag) is one stream, like a folder: its images (raw, or <image>/compressed), camera_info,
+altitude (sensor_msgs/Range), nav (nav_msgs/Odometry) and the sensor mounts (/tf_static) are read
+straight from it, as fast as the CPU allows; a frame's index is its image's position in the bag.
+Bags and folders are not mixed in one run (run them one after the other with the same --db).
+
 options:
   --session DIR     a dataset folder (repeat for several missions)
+  --bag FILE[,FILE...]  a recorded bag, or one dive's bags (rosbag record --split) read as one
+                    (repeat: consecutive missions, each its own stream)
+  --ns NS           the namespace relative topic names resolve in (default /)
+  --image-topic T, --camera-info-topic T, --altitude-topic T, --nav-topic T
+                    default camera/image_raw, camera/camera_info, altitude, nav/odom
+  --camera-info-url URL  the calibration file for a bag without camera_info
+  --dvl-topic T [--dvl-field F] [--dvl-frame ID]  the altitude from a DVL's own message (any type): the
+                    number at field path F (default altitude), frame ID (default header: its own)
+  --camera-mount "X Y Z YAW"  the camera in the base frame (as the launch files' camera_mount),
+                    instead of the bag's /tf_static; --altimeter-mount "X Y Z" (default: at the camera)
+  --base-frame F    the vehicle's frame in /tf_static and the nav (default base_link)
   --out OUT         output directory (created)
   --config FILE     YAML configuration (see config/slam.yaml; --dump-config shows every key)
   --db FILE         the session store (SQLite) to read and extend
@@ -78,44 +97,10 @@ options:
   --quiet           no per-session summary
   -h, --help        this text
 
-Exit status 0 on success, 2 on bad arguments, 1 with a one-line reason on bad input, 3 when a
+Exit status 0 on success, 2 on bad arguments, 1 with a one-line reason on bad input (a bag without
+a topic or a mount it needs: the reason names it and the option that gives it), 3 when a
 folder is already in the store (the one-line reason names the option to pass: --again, or
 --interrupted discard|finish).)";
-
-// --add-link A:KA:B:KB[:X:Y:YAW:SXY:SYAW] -> a link (sessions, keyframes; z when measured). false:
-// not that shape, or a number that is not one (sigmas must be > 0).
-bool parseLink(const std::string& spec, core::Loop* link, bool* measured, double* yaw) {
-  std::vector<std::string> f;
-  std::size_t start = 0;
-  for (std::size_t colon; (colon = spec.find(':', start)) != std::string::npos; start = colon + 1)
-    f.push_back(spec.substr(start, colon - start));
-  f.push_back(spec.substr(start));
-  if (f.size() != 4 && f.size() != 9) return false;
-  int ids[4];
-  for (int i = 0; i < 4; ++i) {
-    char* end = nullptr;
-    const long v = std::strtol(f[i].c_str(), &end, 10);
-    if (f[i].empty() || *end != '\0' || v < 0 || v > 1000000000) return false;
-    ids[i] = static_cast<int>(v);
-  }
-  double x[5] = {0, 0, 0, 0, 0};
-  for (std::size_t i = 4; i < f.size(); ++i) {
-    char* end = nullptr;
-    x[i - 4] = std::strtod(f[i].c_str(), &end);
-    if (f[i].empty() || *end != '\0' || !std::isfinite(x[i - 4])) return false;
-  }
-  *measured = f.size() == 9;
-  if (*measured && !(x[3] >= 1e-6 && x[4] >= 1e-6)) return false;  // squared: a covariance the back-end takes
-  link->session_a = ids[0];
-  link->keyframe_a = ids[1];
-  link->session_b = ids[2];
-  link->keyframe_b = ids[3];
-  link->z = core::UncertainPose2(core::Pose2(x[0], x[1], x[2]),
-                                 Eigen::Vector3d(x[3] * x[3], x[3] * x[3], x[4] * x[4]).asDiagonal());
-  link->inliers = 0;
-  *yaw = x[2];
-  return true;
-}
 
 std::string parseNav(const std::string& text, std::optional<bool>* on) {
   if (text != "on" && text != "off") return "--nav takes on or off, not '%value%'";
@@ -130,15 +115,38 @@ std::string parseInterrupted(const std::string& text, std::optional<core::Interr
 }
 
 std::string parseAddLink(const std::string& spec, tools::OperatorLink* link) {
-  if (parseLink(spec, &link->loop, &link->measured, &link->yaw)) return "";
+  if (tools::parseOperatorLink(spec, link)) return "";
   return "bad --add-link '%value%': A:KA:B:KB (find it) or A:KA:B:KB:X:Y:YAW:SXY:SYAW (sigmas >= 1e-6)";
 }
 
+template <std::size_t N>
+std::string parseMount(const std::string& text, std::optional<std::array<double, N>>* mount) {
+  std::array<double, N> v;
+  if (!uw_multislam::ros_bag::parseMount(text, N, v.data()))
+    return "'%value%' is not " + std::to_string(N) + " numbers";
+  *mount = v;
+  return "";
+}
+
 // The command line into *o, every value and combination checked; std::nullopt, or the exit status to return.
-std::optional<int> parseArguments(int argc, char** argv, tools::OfflineOptions* o) {
+std::optional<int> parseArguments(int argc, char** argv, tools::OfflineOptions* o,
+                                  uw_multislam::ros_bag::BagInputOptions* b) {
   tools::CommandLine cli("offline_slam", kUsage);
   auto option = cli.add();
   option("session", po::value(&o->folders));
+  option("bag", po::value(&o->bags));
+  option("ns", po::value(&b->ns));
+  option("image-topic", po::value(&b->image));
+  option("camera-info-topic", po::value(&b->camera_info));
+  option("altitude-topic", po::value(&b->altitude));
+  option("nav-topic", po::value(&b->nav));
+  option("camera-info-url", po::value(&b->camera_info_url));
+  option("dvl-topic", po::value(&b->dvl_topic));
+  option("dvl-field", po::value(&b->dvl_field));
+  option("dvl-frame", po::value(&b->dvl_frame));
+  option("camera-mount", tools::checked(&b->camera_mount, parseMount<4>));
+  option("altimeter-mount", tools::checked(&b->altimeter_mount, parseMount<3>));
+  option("base-frame", po::value(&b->base_frame));
   option("out", po::value(&o->out));
   option("config", po::value(&o->config_file));
   option("db", po::value(&o->db));
@@ -163,8 +171,11 @@ std::optional<int> parseArguments(int argc, char** argv, tools::OfflineOptions* 
   if (!o->links.empty() && !store) return cli.bad("--add-link needs --db FILE");
   if (!o->links.empty() && o->localise_only)
     return cli.bad("--localise-only writes nothing to the store: not with --add-link");
-  if (o->folders.empty() && !o->detect_loops && o->links.empty())
-    return cli.bad("at least one --session DIR is required");
+  if (!o->folders.empty() && !o->bags.empty())
+    return cli.bad("--session and --bag are not mixed in one run: run them one after the other with the same --db");
+  if (b->altimeter_mount && !b->camera_mount) return cli.bad("--altimeter-mount needs --camera-mount");
+  if (o->folders.empty() && o->bags.empty() && !o->detect_loops && o->links.empty())
+    return cli.bad("at least one --session DIR or --bag FILE is required");
   if (o->out.empty()) return cli.bad("--out OUT is required");
   return std::nullopt;
 }
@@ -173,6 +184,14 @@ std::optional<int> parseArguments(int argc, char** argv, tools::OfflineOptions* 
 
 int main(int argc, char** argv) {
   tools::OfflineOptions options;
-  if (const auto status = parseArguments(argc, argv, &options)) return *status;
+  uw_multislam::ros_bag::BagInputOptions bag;
+  if (const auto status = parseArguments(argc, argv, &options, &bag)) return *status;
+  options.open_bag = [&bag](const std::string& path, const core::SlamConfig& config) {
+    bag.max_altitude_m = config.odometry.max_altitude_m;
+    bag.read_nav = config.odometry.nav.enabled;
+    auto s = std::make_shared<uw_multislam::ros_bag::BagStream>(path, bag);
+    return tools::StreamInput{s->dataset(), [s](std::size_t i, std::string* why) { return s->image(i, why); },
+                              s->recordedS(), s->summary()};
+  };
   return tools::runOffline(options);
 }

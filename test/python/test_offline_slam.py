@@ -11,19 +11,8 @@ from pathlib import Path
 
 import pytest
 import yaml
-from tool_runner import BIN_DIR, HERE, make_survey, read_csv as rows, run_tool as run
+from tool_runner import BIN_DIR, HERE, TWO_DIVES as SURVEY, make_survey, read_csv as rows, run_tool as run
 
-SURVEY = """
-seed: 11
-world: {width_m: 9, height_m: 6, featureless_fraction: 0}
-sessions:
-  - name: a
-    mission: {pattern: out_and_back, start_m: [2.0, 2.0], length_m: 4.0, leg_spacing_m: 1.0,
-              speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.0}
-  - name: b
-    mission: {pattern: loop, start_m: [5.5, 3.0], heading_rad: 1.5708, length_m: 2.0, width_m: 1.6,
-              laps: 1.0, speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.2}
-"""
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import subprocess
 import pytest
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.realpath(__file__))))
-TOOLS = ["sessions.py", "record_run.py", "evaluate.py"]
+TOOLS = ["sessions.py", "record_run.py", "evaluate.py", "season.py"]
 ROS_TOOLS = {"sessions.py": ["list"], "record_run.py": ["--out", "/nonexistent/never_written"]}
 BARE_ENV = {"PATH": "/usr/bin:/bin", "LANG": "C.UTF-8"}
 

@@ -13,6 +13,21 @@ REPO = os.path.dirname(os.path.dirname(os.path.realpath(__file__)))
 BIN_DIR = os.environ.get("UWMS_BIN_DIR", os.path.join(REPO + "_ws", "devel", "lib", "uw_multislam"))
 
 
+# Two small dives over one seabed that overlap (make_survey YAML): the second's loop crosses the first's
+# out-and-back, so global loops join them into one map. About 40 frames in all.
+TWO_DIVES = """
+seed: 11
+world: {width_m: 9, height_m: 6, featureless_fraction: 0}
+sessions:
+  - name: a
+    mission: {pattern: out_and_back, start_m: [2.0, 2.0], length_m: 4.0, leg_spacing_m: 1.0,
+              speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.0}
+  - name: b
+    mission: {pattern: loop, start_m: [5.5, 3.0], heading_rad: 1.5708, length_m: 2.0, width_m: 1.6,
+              laps: 1.0, speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.2}
+"""
+
+
 def run_tool(tool, *args, timeout=300):
     """Runs BIN_DIR/tool with the arguments; returns the CompletedProcess (text output)."""
     return subprocess.run([os.path.join(BIN_DIR, tool), *map(str, args)], capture_output=True, text=True,

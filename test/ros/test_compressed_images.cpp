@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "../common/rendered_seabed.h"
+#include "uw_multislam/ros/image_input.h"
 #include "uw_multislam/ros/sensor_conversions.h"
 
 namespace uw_multislam {
@@ -101,6 +102,23 @@ TEST_F(CompressedImages, PngGivesTheSamePixels) {
   EXPECT_EQ(decode(compressed(grey_, ".png", "bgr8; png compressed bgr8"))->encoding, enc::MONO8);
 }
 
+TEST_F(CompressedImages, TheOdometrysImageOfACompressedMessageOwnsItsPixels) {
+  // The message decoded inside imageFromInput is gone when it returns: the image must not point into it.
+  core::CameraIntrinsics camera;
+  camera.width = bgr_.cols;
+  camera.height = bgr_.rows;
+  for (const auto& [image, format] : {std::pair<cv::Mat, std::string>{bgr_, "bgr8; png compressed bgr8"},
+                                      std::pair<cv::Mat, std::string>{grey_, "mono8; png compressed "}}) {
+    ros_inputs::ImageMsg m;
+    m.compressed = boost::make_shared<sensor_msgs::CompressedImage>(compressed(image, ".png", format));
+    cv::Mat out;
+    std::string why;
+    ASSERT_TRUE(ros_inputs::imageFromInput(m, camera, rc::kDefaultMaxImagePixels, &out, &why, nullptr)) << why;
+    EXPECT_NE(out.u, nullptr) << format;  // a buffer of its own (reference-counted), not a view
+    EXPECT_EQ(cv::norm(out, image, cv::NORM_INF), 0.0) << format;
+  }
+}
+
 TEST_F(CompressedImages, JpegGivesTheSamePixelsWithinTheCodecsError) {
   // Measured on this 320 x 240 seabed at quality 90 (OpenCV 4.6, libjpeg-turbo): mean absolute
   // error 1.30 (grey) / 1.93 (colour) grey levels, at most 12 (grey) / 34 (colour). A decoder that
@@ -177,8 +195,8 @@ TEST_F(CompressedImages, EmptyDataAndUnknownFormatsAreRefused) {
 
 TEST_F(CompressedImages, ImagesLargerThanTheLimitAreRefusedFromTheirHeaderBeforeDecoding) {
   const std::uint64_t pixels = static_cast<std::uint64_t>(grey_.cols) * grey_.rows;
-  for (const auto& m : {compressed(grey_, ".png", "mono8; png compressed "),
-                        compressed(bgr_, ".jpg", "bgr8; jpeg compressed bgr8")}) {
+  for (const auto& m :
+       {compressed(grey_, ".png", "mono8; png compressed "), compressed(bgr_, ".jpg", "bgr8; jpeg compressed bgr8")}) {
     sensor_msgs::ImagePtr out;
     std::string why;
     rc::ImageRefusal kind = rc::ImageRefusal::kNone;
@@ -197,9 +215,9 @@ TEST_F(CompressedImages, ImagesLargerThanTheLimitAreRefusedFromTheirHeaderBefore
   expectRefused(png, rc::ImageRefusal::kTooLarge, "100000x100000");
   auto jpeg = compressed(bgr_, ".jpg", "bgr8; jpeg compressed bgr8");
   std::size_t sof = 2;  // the first SOFn marker: precision, then height and width (big-endian)
-  while (sof + 9 < jpeg.data.size() && !(jpeg.data[sof] == 0xFF && (jpeg.data[sof + 1] & 0xF0) == 0xC0 &&
-                                          jpeg.data[sof + 1] != 0xC4 && jpeg.data[sof + 1] != 0xC8 &&
-                                          jpeg.data[sof + 1] != 0xCC))
+  while (sof + 9 < jpeg.data.size() &&
+         !(jpeg.data[sof] == 0xFF && (jpeg.data[sof + 1] & 0xF0) == 0xC0 && jpeg.data[sof + 1] != 0xC4 &&
+           jpeg.data[sof + 1] != 0xC8 && jpeg.data[sof + 1] != 0xCC))
     sof += 2 + (jpeg.data[sof + 2] << 8 | jpeg.data[sof + 3]);
   ASSERT_LT(sof + 9, jpeg.data.size());
   for (std::size_t i : {sof + 5, sof + 7}) jpeg.data[i] = 0xEA, jpeg.data[i + 1] = 0x60;  // 60000 x 60000
