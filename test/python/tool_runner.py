@@ -11,6 +11,11 @@ from pathlib import Path
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(os.path.dirname(os.path.realpath(__file__)))
 BIN_DIR = os.environ.get("UWMS_BIN_DIR", os.path.join(REPO + "_ws", "devel", "lib", "uw_multislam"))
+# rosbag::Bag loads its encryption plugins through rospack, which keeps a cache in ROS_HOME and
+# warns on stderr when it cannot create it: ctest gives each suite a ROS_HOME that may not exist
+# yet (a user's ~/.ros does), and the tools' tests count stderr's lines.
+if os.environ.get("ROS_HOME"):
+    os.makedirs(os.environ["ROS_HOME"], exist_ok=True)
 
 
 # Two small dives over one seabed that overlap (make_survey YAML): the second's loop crosses the first's
