@@ -54,7 +54,8 @@ void BackendNodelet::onInit() {
         options_, config_, [this](const core::SessionEvent& e) { onEvent(e); },
         [this](const std::string& line) { say(line); });
     frames_ = std::make_unique<ros_frames::FramePublisher>(nh, options_.frames);  // a tilted camera throws
-    for (const std::string& line : frames_->publishDatum()) say(line);  // a polar datum with a UTM frame throws
+    datum_ = std::make_unique<ros_geo::DatumService>(  // set_datum; a polar datum with a UTM frame throws
+        nh, worker_.get(), frames_.get(), options_.frames, [this](const std::string& line) { say(line); });
   } catch (const std::exception& e) {
     NODELET_FATAL(
         "back-end: not starting (no topics, no services): %s%s", e.what(),

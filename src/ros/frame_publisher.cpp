@@ -20,7 +20,7 @@ namespace {
 bool same(const core::Pose2& a, const core::Pose2& b) { return a.x() == b.x() && a.y() == b.y() && a.yaw() == b.yaw(); }
 }  // namespace
 
-FramePublisher::FramePublisher(ros::NodeHandle nh, const FrameOptions& options) : options_(options) {
+FramePublisher::FramePublisher(ros::NodeHandle nh, const FrameOptions& options) : options_(options), nh_(nh) {
   mount_buffer_ = std::make_unique<tf2_ros::Buffer>();
   mount_listener_ = std::make_unique<tf2_ros::TransformListener>(*mount_buffer_, nh, true);
   // The camera's frame is the one the images name (the keyframes carry their header); one
@@ -33,7 +33,6 @@ FramePublisher::FramePublisher(ros::NodeHandle nh, const FrameOptions& options) 
   }
   window_start_ = ros::SteadyTime::now();
   if (options_.publish_odom_tf) odom_pub_ = nh.advertise<nav_msgs::Odometry>(topics::kOdometry, 10);
-  if (options_.datum) fix_pub_ = nh.advertise<sensor_msgs::NavSatFix>(topics::kKeyframeFix, 10);
   if (!options_.publish_tf) return;
   timer_ = nh.createSteadyTimer(ros::WallDuration(1.0 / options_.tf_rate_hz),
                                 [this](const ros::SteadyTimerEvent&) { tick(); });
@@ -114,27 +113,37 @@ geometry_msgs::TransformStamped toTransformMsg(const Eigen::Isometry3d& t, const
 }
 }  // namespace
 
-std::vector<std::string> FramePublisher::publishDatum() {
-  const std::optional<core::GeoOrigin>& d = options_.datum;
-  if (!d)
-    return {"datum: none (~datum/latitude_deg and longitude_deg unset): no " + options_.earth_frame +
-            " frame, no UTM frame, " + topics::kKeyframeFix + " not advertised"};
-  char line[240];
-  std::snprintf(line, sizeof line, "datum: origin %.7f, %.7f, map's x axis heading %.1f deg; %s published", d->lat_deg,
-                d->lon_deg, d->heading_deg, topics::kKeyframeFix);
-  std::vector<std::string> lines{line};
+std::vector<std::string> FramePublisher::noDatum() const {
+  return {"datum: none (~datum/latitude_deg and longitude_deg unset, none in the store): no " + options_.earth_frame +
+          " frame, no UTM frame, " + topics::kKeyframeFix + " not advertised until set_datum"};
+}
+
+std::optional<core::GeoOrigin> FramePublisher::datum() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return datum_;
+}
+
+std::vector<std::string> FramePublisher::setDatum(const core::GeoOrigin& d) {
+  // Everything that can throw first: a refused datum changes nothing.
   const std::optional<core::UtmDatum> utm =
-      options_.utm_frame.empty() ? std::nullopt : std::optional<core::UtmDatum>(core::utmFromMap(*d));
+      options_.utm_frame.empty() ? std::nullopt : std::optional<core::UtmDatum>(core::utmFromMap(d));
+  std::vector<std::string> lines{"datum: " + core::describeDatum(d) + "; " + topics::kKeyframeFix + " published"};
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (!fix_pub_) fix_pub_ = nh_.advertise<sensor_msgs::NavSatFix>(topics::kKeyframeFix, 10);
+    datum_ = d;
+  }
   if (!options_.publish_tf) {
     lines.push_back("datum: publish_tf is false, no " + options_.earth_frame + " -> " + options_.map_frame +
                     (utm ? " nor " + options_.map_frame + " -> " + options_.utm_frame : std::string()));
     return lines;
   }
   std::vector<geometry_msgs::TransformStamped> t{
-      toTransformMsg(core::earthFromMap(*d), options_.earth_frame, options_.map_frame)};
+      toTransformMsg(core::earthFromMap(d), options_.earth_frame, options_.map_frame)};
   lines.push_back("datum: static " + options_.earth_frame + " -> " + options_.map_frame + " (ECEF)");
   if (utm) {
     t.push_back(toTransformMsg(utm->utm_from_map.inverse(), options_.map_frame, options_.utm_frame));
+    char line[240];
     std::snprintf(line, sizeof line,
                   "datum: static %s -> %s, UTM zone %s (WGS84), origin at easting %.3f m, northing %.3f m, grid "
                   "convergence %.4f deg, scale %.6f (left out)",
@@ -143,13 +152,21 @@ std::vector<std::string> FramePublisher::publishDatum() {
                   utm->scale);
     lines.push_back(line);
   }
-  static_tf_.sendTransform(t);
+  std::lock_guard<std::mutex> lock(static_mutex_);
+  static_tf_.sendTransform(t);  // replaces the last ones (by child frame)
   return lines;
 }
 
 void FramePublisher::publishFix(const core::UncertainPose2& vehicle_in_map, const ros::Time& stamp) {
-  if (!options_.datum) return;
-  const core::GeoFix f = core::fixFromMap(*options_.datum, vehicle_in_map);
+  std::optional<core::GeoOrigin> d;
+  ros::Publisher pub;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    d = datum_;
+    pub = fix_pub_;
+  }
+  if (!d) return;
+  const core::GeoFix f = core::fixFromMap(*d, vehicle_in_map);
   sensor_msgs::NavSatFix m;
   m.header.stamp = stamp;
   m.header.frame_id = options_.base_frame;  // NavSatFix: where on the vehicle the position is (here base_link)
@@ -161,7 +178,7 @@ void FramePublisher::publishFix(const core::UncertainPose2& vehicle_in_map, cons
   m.altitude = f.alt_m;
   for (std::size_t i = 0; i < m.position_covariance.size(); ++i) m.position_covariance[i] = f.enu_covariance[i];
   m.position_covariance_type = sensor_msgs::NavSatFix::COVARIANCE_TYPE_KNOWN;
-  fix_pub_.publish(m);
+  pub.publish(m);
 }
 
 void FramePublisher::setSessionFrames(const std::map<int, core::Pose2>& map_from_session) {
@@ -177,7 +194,9 @@ void FramePublisher::setSessionFrames(const std::map<int, core::Pose2>& map_from
           core::zUp(p), options_.map_frame, options_.session_frame_prefix + std::to_string(id), ros::Time::now()));
     }
   }
-  if (!changed.empty()) static_tf_.sendTransform(changed);  // the broadcaster replaces them by child frame
+  if (changed.empty()) return;
+  std::lock_guard<std::mutex> lock(static_mutex_);
+  static_tf_.sendTransform(changed);  // the broadcaster replaces them by child frame
 }
 
 std::optional<core::Pose2> FramePublisher::onOdometry(int session, const core::UncertainPose2& pose,

@@ -95,7 +95,7 @@ void checkDatumFrames(const ros_frames::FrameOptions& f, const std::string& datu
   if (f.utm_frame == f.map_frame || f.utm_frame == f.odom_frame || f.utm_frame == f.base_frame ||
       f.utm_frame == f.earth_frame)
     throw std::invalid_argument(datum_key + "/utm_frame: must differ from map, odom, base and earth frames");
-  // Refused here, before the store is opened, rather than by publishDatum after it.
+  // Refused here, before the store is opened, rather than by FramePublisher::setDatum after it.
   try {
     core::utmFromMap(*f.datum);
   } catch (const std::invalid_argument& e) {
@@ -117,16 +117,13 @@ void readFrames(const Params& nh, ros_frames::FrameOptions* f) {
 
 namespace {
 
-// ~datum/heading_deg when a datum is set without one: map's x axis east (ENU, REP-103).
-constexpr double kEnuHeadingDeg = 90.0;
-
 // ~datum/*: map's origin on WGS84 when both coordinates are set, and the earth and UTM frames.
 void readDatum(const Params& pnh, ros_frames::FrameOptions* f) {
   // A datum needs both coordinates: one without the other would put map somewhere wrong, silently.
   const bool has_lat = pnh.has("datum/latitude_deg"), has_lon = pnh.has("datum/longitude_deg");
   if (has_lat != has_lon)
     throw std::invalid_argument(pnh.resolve("datum") + ": latitude_deg and longitude_deg together or not at all");
-  core::GeoOrigin d{0.0, 0.0, kEnuHeadingDeg};
+  core::GeoOrigin d{0.0, 0.0, core::kEnuHeadingDeg};  // without ~datum/heading_deg: map's x axis east (ENU)
   param(
       pnh, "datum/latitude_deg", &d.lat_deg, [](double v) { return std::abs(v) <= 90.0; }, "in [-90, 90] degrees");
   param(
@@ -134,6 +131,9 @@ void readDatum(const Params& pnh, ros_frames::FrameOptions* f) {
   param(
       pnh, "datum/heading_deg", &d.heading_deg, [](double v) { return std::abs(v) <= 360.0; },
       "in [-360, 360] degrees (the compass heading of map's x axis; 90: ENU)");
+  param(
+      pnh, "datum/altitude_m", &d.alt_m, [](double v) { return std::abs(v) <= core::kMaxDatumAltitudeM; },
+      "in [-10000, 10000] m (the height of map's origin above the WGS84 ellipsoid)");
   if (has_lat) f->datum = d;
   param(
       pnh, "datum/earth_frame", &f->earth_frame, [](const std::string& s) { return !s.empty(); }, "a frame id");

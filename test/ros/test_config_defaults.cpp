@@ -31,10 +31,10 @@ constexpr char kNs[] = "/uw_multislam";
 // Read by a node, absent from config/default.yaml on purpose: their default turns a feature off
 // (or is a path under $ROS_HOME), and the file shows each in a commented example.
 const std::set<std::string> kDocumentedInACommentOnly = {
-    "backend_node/store_path",          "backend_node/export_root",         "backend_node/datum/latitude_deg",
-    "backend_node/datum/longitude_deg", "backend_node/datum/heading_deg",   "backend_node/datum/earth_frame",
-    "backend_node/datum/utm_frame",     "backend_node/fleet/vehicle",       "backend_node/fleet/peers",
-    "backend_node/fleet/hash_codes",    "backend_node/fleet/peer_timeout_s"};
+    "backend_node/store_path",          "backend_node/export_root",       "backend_node/datum/latitude_deg",
+    "backend_node/datum/longitude_deg", "backend_node/datum/heading_deg", "backend_node/datum/altitude_m",
+    "backend_node/datum/earth_frame",   "backend_node/datum/utm_frame",   "backend_node/fleet/vehicle",
+    "backend_node/fleet/peers",         "backend_node/fleet/hash_codes",  "backend_node/fleet/peer_timeout_s"};
 
 // Keys whose value in config/default.yaml is not the struct's on purpose: the split loop
 // detectors are one nodelet type run in two modes.

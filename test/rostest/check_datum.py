@@ -46,11 +46,12 @@ def rotate(q, v):
     return tuple(v[i] + 2 * w * ux[i] + 2 * uux[i] for i in range(3))
 
 
-def datum_frame():
-    """ECEF origin and map's x, y, z axes in ECEF, from the datum."""
-    phi, lam, h = math.radians(LAT), math.radians(LON), math.radians(HEADING)
+def datum_frame(lat=LAT, lon=LON, heading=HEADING, alt=0.0):
+    """ECEF origin and map's x, y, z axes in ECEF, from the datum (alt: the origin's height)."""
+    phi, lam, h = math.radians(lat), math.radians(lon), math.radians(heading)
     n = WGS84_A / math.sqrt(1 - E2 * math.sin(phi) ** 2)
-    origin = (n * math.cos(phi) * math.cos(lam), n * math.cos(phi) * math.sin(lam), n * (1 - E2) * math.sin(phi))
+    origin = ((n + alt) * math.cos(phi) * math.cos(lam), (n + alt) * math.cos(phi) * math.sin(lam),
+              (n * (1 - E2) + alt) * math.sin(phi))
     east = (-math.sin(lam), math.cos(lam), 0.0)
     north = (-math.sin(phi) * math.cos(lam), -math.sin(phi) * math.sin(lam), math.cos(phi))
     up = (math.cos(phi) * math.cos(lam), math.cos(phi) * math.sin(lam), math.sin(phi))

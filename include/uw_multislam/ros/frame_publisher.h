@@ -59,7 +59,8 @@ struct FrameOptions {
   double tf_future_s = 0.0;            // its stamp: now + this
   MountOptions mount;                  // frames/ camera and altimeter on the vehicle
   /// ~datum/*: map's origin on WGS84 and the heading of its x axis; set: a static earth_frame ->
-  /// map_frame, map_frame -> utm_frame when that is not empty (publishDatum), and keyframe_fix.
+  /// map_frame, map_frame -> utm_frame when that is not empty (setDatum), and keyframe_fix. The
+  /// datum in use is setDatum's (ros/datum_service.h decides it: the store's wins over this).
   std::optional<core::GeoOrigin> datum;
   std::string earth_frame = frames::kDefaultEarthFrame;
   std::string utm_frame;  // empty: no UTM frame
@@ -85,14 +86,17 @@ class FramePublisher {
   /// and its last keyframe's pose in the map with its stamp (the core's).
   void setActive(int session, const core::Pose2& map_from_session, const core::Pose2& map_from_last_keyframe,
                  const ros::Time& keyframe_stamp);
-  /// With a datum, the static earth_frame -> map_frame (REP-105's earth: ECEF; core::earthFromMap)
-  /// and, with a utm_frame, map_frame -> utm_frame (core::utmFromMap inverted: utm is map's child,
-  /// as navsat_transform sends it by default, because map's one parent in tf is earth). Called
-  /// once, right after construction, before anything can call setSessionFrames (the broadcaster's
-  /// other user, not thread-safe). Returns the lines that say what was published (or that nothing
-  /// was, without a datum), for the node's log. Throws std::invalid_argument for a utm_frame with
-  /// a polar datum.
-  std::vector<std::string> publishDatum();
+  /// The datum in use from now on: the static earth_frame -> map_frame (REP-105's earth: ECEF;
+  /// core::earthFromMap) and, with a utm_frame, map_frame -> utm_frame (core::utmFromMap inverted:
+  /// utm is map's child, as navsat_transform sends it by default, because map's one parent in tf
+  /// is earth), sent again in place of the last ones; keyframe_fix advertised at the first datum.
+  /// Thread-safe. Returns the lines that say what was published, for the node's log. Throws
+  /// std::invalid_argument for a utm_frame with a polar datum, with nothing changed.
+  std::vector<std::string> setDatum(const core::GeoOrigin& datum);
+  /// The datum in use (nullopt: none yet).
+  std::optional<core::GeoOrigin> datum() const;
+  /// What is published without a datum, for the node's log.
+  std::vector<std::string> noDatum() const;
   /// With a datum: keyframe_fix, the geographic position of keyframe_pose (the vehicle's pose in
   /// the map, z up) at its stamp (core::fixFromMap). Without one: nothing (not advertised).
   void publishFix(const core::UncertainPose2& vehicle_in_map, const ros::Time& stamp);
@@ -118,14 +122,15 @@ class FramePublisher {
   void onCameraFrame(const std::string& frame);  // a keyframe's header.frame_id
 
   FrameOptions options_;
+  ros::NodeHandle nh_;                             // keyframe_fix is advertised on it at the first datum
   std::unique_ptr<tf2_ros::Buffer> mount_buffer_;  // thread-safe
   std::unique_ptr<tf2_ros::TransformListener> mount_listener_;
   ros::Subscriber camera_frame_sub_;
   ros::SteadyTimer timer_;
   tf2_ros::TransformBroadcaster tf_;
+  std::mutex static_mutex_;  // the static broadcaster is not thread-safe: setDatum and setSessionFrames share it
   tf2_ros::StaticTransformBroadcaster static_tf_;
   ros::Publisher odom_pub_;                  // topics::kOdometry, with publish_odom_tf
-  ros::Publisher fix_pub_;                   // topics::kKeyframeFix, with a datum
   std::unique_ptr<tf2_ros::Buffer> buffer_;  // vehicle odometry only
   std::unique_ptr<tf2_ros::TransformListener> listener_;
 
@@ -145,6 +150,8 @@ class FramePublisher {
   std::optional<std::pair<core::Pose2, ros::Time>> last_odom_;  // for the twist
   ros::Time last_stamp_;
   std::map<int, core::Pose2> session_frames_;
+  std::optional<core::GeoOrigin> datum_;  // in use
+  ros::Publisher fix_pub_;                // topics::kKeyframeFix, from the first datum on
   FrameStats stats_;
   long published_at_window_ = 0;  // the rate's window: publications and start
   ros::SteadyTime window_start_;

@@ -118,6 +118,7 @@ constexpr char kDetectLoopsService[] = "detect_loops";
 constexpr char kSetModeService[] = "set_mode";
 constexpr char kHistoryService[] = "history";
 constexpr char kExportService[] = "export";
+constexpr char kSetDatumService[] = "set_datum";
 // One stored keyframe's features for a loop detector that pages (slam/loops/page_stored).
 constexpr char kKeyframeFeaturesService[] = "keyframe_features";
 // --- Services of the odometry (uw_multislam/srv/OperatorCommand) ---------------------------------

@@ -71,9 +71,10 @@ UncertainPose2 TrajectoryIekf::relative(int i, int j) const {
   return UncertainPose2(t.relative(i, j).mean, jac * block * jac.transpose());
 }
 
-IekfResult TrajectoryIekf::update(const std::vector<LoopMeasurement>& loops) {
+IekfResult TrajectoryIekf::update(const std::vector<LoopMeasurement>& loops,
+                                  const std::vector<PositionPrior>& positions) {
   IekfResult res;
-  if (loops.empty() || motions_.empty()) return res;
+  if ((loops.empty() && positions.empty()) || motions_.empty()) return res;
   const int n = static_cast<int>(motions_.size());
   for (const auto& l : loops) {
     if (l.i == l.j || l.i < 0 || l.j < 0 || l.i > n || l.j > n) {
@@ -83,10 +84,15 @@ IekfResult TrajectoryIekf::update(const std::vector<LoopMeasurement>& loops) {
     const std::string bad = checkCovariance(l.z.covariance);
     if (!bad.empty()) throw std::invalid_argument("iekf: loop covariance: " + bad);
   }
-  const Eigen::Index m = static_cast<Eigen::Index>(3 * loops.size());
+  for (const PositionPrior& p : positions)
+    if (const std::string bad = checkPositionPrior(p, n + 1); !bad.empty()) throw std::invalid_argument("iekf: " + bad);
+  // Rows: 3 per loop, then 2 per position prior.
+  const Eigen::Index ml = static_cast<Eigen::Index>(3 * loops.size());
+  const Eigen::Index m = ml + static_cast<Eigen::Index>(2 * positions.size());
   const Eigen::Index dim = 3 * n;
   Eigen::MatrixXd r = Eigen::MatrixXd::Zero(m, m);  // (13)
   for (std::size_t k = 0; k < loops.size(); ++k) r.block<3, 3>(3 * k, 3 * k) = loops[k].z.covariance;
+  for (std::size_t k = 0; k < positions.size(); ++k) r.block<2, 2>(ml + 2 * k, ml + 2 * k) = positions[k].covariance;
 
   auto stack = [](const std::vector<Pose2>& v) {
     Eigen::VectorXd x(3 * v.size());
@@ -108,6 +114,12 @@ IekfResult TrajectoryIekf::update(const std::vector<LoopMeasurement>& loops) {
       nu->segment<3>(3 * k) = poseError(l.z.mean, t.relative(l.i, l.j).mean);
       const int lo = std::min(l.i, l.j), hi = std::max(l.i, l.j);
       g->block(3 * k, 3 * lo, 3, 3 * (hi - lo)) = t.relativeJacobian(l.i, l.j);
+    }
+    for (std::size_t k = 0; k < positions.size(); ++k) {
+      const PositionPrior& p = positions[k];
+      const Pose2 at = t.relative(0, p.index).mean;
+      nu->segment<2>(ml + 2 * k) = p.position - Eigen::Vector2d(at.x(), at.y());
+      g->block(ml + 2 * k, 0, 2, 3 * p.index) = t.relativeJacobian(0, p.index).topRows(2);
     }
   };
 

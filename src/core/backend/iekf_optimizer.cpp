@@ -18,13 +18,14 @@ Pose2 relativeOfMotions(const std::vector<Pose2>& motions, int i, int j) {
 // A copy of the map's filter; each solve updates a copy of it with the loops as measurements.
 class IekfProblem : public MapProblem {
  public:
-  explicit IekfProblem(TrajectoryIekf start) : start_(std::move(start)) {}
+  IekfProblem(TrajectoryIekf start, std::vector<PositionPrior> priors)
+      : start_(std::move(start)), priors_(std::move(priors)) {}
 
   void solve(const std::vector<MapLoop>& loops) override {
     std::vector<LoopMeasurement> z;
     for (const MapLoop& l : loops) z.push_back({l.i, l.j, l.z});
     filter_ = start_;
-    filter_->update(z);
+    filter_->update(z, priors_);
   }
   void reset() override { filter_ = start_; }
   Pose2 relative(int i, int j) const override { return relativeOfMotions(current().motions(), i, j); }
@@ -37,6 +38,7 @@ class IekfProblem : public MapProblem {
  private:
   const TrajectoryIekf& current() const { return filter_ ? *filter_ : start_; }
   const TrajectoryIekf start_;
+  const std::vector<PositionPrior> priors_;
   std::optional<TrajectoryIekf> filter_;  // the solution (made in solve(): the copy is O(N^2))
 };
 
@@ -108,8 +110,8 @@ std::unique_ptr<MapProblem> IekfOptimizer::prepare(const MapEstimate& estimate, 
   loops->clear();
   for (std::size_t k = 0; k < graph.loops.size(); ++k)
     if (!graph.applied[k]) loops->push_back(graph.loops[k]);
-  if (loops->empty()) return nullptr;
-  return std::make_unique<IekfProblem>(*estimate.filter());
+  if (loops->empty() && graph.priors.empty()) return nullptr;
+  return std::make_unique<IekfProblem>(*estimate.filter(), graph.priors);
 }
 
 }  // namespace core

@@ -85,6 +85,32 @@ class EdgeCost {
   Eigen::Matrix3d w_;
 };
 
+// r = W (t − z): an absolute position prior on one pose's (x, y).
+class PriorCost {
+ public:
+  PriorCost(const Eigen::Vector2d& z, const Eigen::Matrix2d& sqrt_info) : z_(z), w_(sqrt_info) {}
+
+  template <typename T>
+  bool operator()(const T* a, T* residual) const {
+    Eigen::Matrix<T, 2, 1> e;
+    e(0) = a[0] - T(z_(0));
+    e(1) = a[1] - T(z_(1));
+    Eigen::Map<Eigen::Matrix<T, 2, 1>> r(residual);
+    r = w_.cast<T>() * e;
+    return true;
+  }
+
+  static ceres::CostFunction* create(const PositionPrior& p) {
+    const Eigen::Matrix2d info = p.covariance.inverse();
+    const Eigen::Matrix2d w = Eigen::LLT<Eigen::Matrix2d>(0.5 * (info + info.transpose())).matrixU();
+    return new ceres::AutoDiffCostFunction<PriorCost, 2, 3>(new PriorCost(p.position, w));
+  }
+
+ private:
+  Eigen::Vector2d z_;
+  Eigen::Matrix2d w_;
+};
+
 void checkEdges(std::size_t n, const std::vector<PoseGraphEdge>& edges, int fixed) {
   if (fixed < 0 || static_cast<std::size_t>(fixed) >= n)
     throw std::invalid_argument("pose graph: fixed pose " + std::to_string(fixed) + " out of range");
@@ -123,18 +149,34 @@ ceres::SparseLinearAlgebraLibraryType sparseLibrary() {
 
 }  // namespace
 
+std::string checkPositionPrior(const PositionPrior& p, int n) {
+  const std::string which = "position prior on keyframe " + std::to_string(p.index);
+  if (p.index < 1 || p.index >= n)
+    return which + ": outside [1, " + std::to_string(n - 1) + "] (keyframe 0 is the map's frame)";
+  if (!p.position.allFinite() || !p.covariance.allFinite()) return which + ": not finite";
+  if (std::abs(p.covariance(0, 1) - p.covariance(1, 0)) > 1e-9 * p.covariance.norm() ||
+      Eigen::LLT<Eigen::Matrix2d>(p.covariance).info() != Eigen::Success)
+    return which + ": covariance not symmetric positive definite";
+  return "";
+}
+
 SparseResult optimisePoseGraph(std::vector<Pose2>* poses, const std::vector<PoseGraphEdge>& edges,
-                               const SparseOptions& options, int fixed) {
+                               const SparseOptions& options, int fixed, const std::vector<PositionPrior>& priors) {
   const std::string bad = options.validate();
   if (!bad.empty()) throw std::invalid_argument("sparse back-end: " + bad);
   checkEdges(poses->size(), edges, fixed);
+  if (!priors.empty() && fixed != 0) throw std::invalid_argument("pose graph: position priors need pose 0 fixed");
+  for (const PositionPrior& p : priors)
+    if (const std::string why = checkPositionPrior(p, static_cast<int>(poses->size())); !why.empty())
+      throw std::invalid_argument("pose graph: " + why);
   SparseResult res;
-  if (edges.empty()) return res;
+  if (edges.empty() && priors.empty()) return res;
   const auto t0 = std::chrono::steady_clock::now();
   std::vector<Eigen::Vector3d> blocks(poses->size());
   for (std::size_t k = 0; k < poses->size(); ++k) blocks[k] = (*poses)[k].vector();
   ceres::Problem problem;
   buildProblem(&problem, &blocks, edges, &options, fixed);
+  for (const PositionPrior& p : priors) problem.AddResidualBlock(PriorCost::create(p), nullptr, blocks[p.index].data());
 
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;

@@ -10,14 +10,19 @@ namespace {
 // A copy of the map's pose graph at its current estimate, solved from that start each time.
 class PoseGraphProblem : public MapProblem {
  public:
-  PoseGraphProblem(std::vector<Pose2> start, std::vector<PoseGraphEdge> chain, const SparseOptions& options)
-      : start_(std::move(start)), poses_(start_), chain_(std::move(chain)), options_(options) {}
+  PoseGraphProblem(std::vector<Pose2> start, std::vector<PoseGraphEdge> chain, std::vector<PositionPrior> priors,
+                   const SparseOptions& options)
+      : start_(std::move(start)),
+        poses_(start_),
+        chain_(std::move(chain)),
+        priors_(std::move(priors)),
+        options_(options) {}
 
   void solve(const std::vector<MapLoop>& loops) override {
     std::vector<PoseGraphEdge> edges = chain_;
     for (const MapLoop& l : loops) edges.push_back({l.i, l.j, l.z, true});
     poses_ = start_;
-    optimisePoseGraph(&poses_, edges, options_, 0);
+    optimisePoseGraph(&poses_, edges, options_, 0, priors_);
   }
   void reset() override { poses_ = start_; }
   Pose2 relative(int i, int j) const override { return between(poses_[i], poses_[j]); }
@@ -30,6 +35,7 @@ class PoseGraphProblem : public MapProblem {
   const std::vector<Pose2> start_;
   std::vector<Pose2> poses_;
   const std::vector<PoseGraphEdge> chain_;  // odometry and links
+  const std::vector<PositionPrior> priors_;
   const SparseOptions options_;
 };
 
@@ -64,10 +70,10 @@ UncertainPose2 PoseGraphOptimizer::gateChain(const MapEstimate& m, int a, int b,
 std::unique_ptr<MapProblem> PoseGraphOptimizer::prepare(const MapEstimate& estimate, const MapGraph& graph,
                                                         std::vector<MapLoop>* loops) const {
   *loops = graph.loops;
-  if (loops->empty()) return nullptr;
+  if (loops->empty() && graph.priors.empty()) return nullptr;
   std::vector<Pose2> poses{Pose2()};
   for (int k = 0; k < estimate.numMotions(); ++k) poses.push_back(compose(poses.back(), estimate.motion(k)));
-  return std::make_unique<PoseGraphProblem>(std::move(poses), graph.chain, options_);
+  return std::make_unique<PoseGraphProblem>(std::move(poses), graph.chain, graph.priors, options_);
 }
 
 }  // namespace core

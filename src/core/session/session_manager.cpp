@@ -186,6 +186,19 @@ Status SessionManager::setLocalisation(bool on) {
   return Status::Ok();
 }
 
+Status SessionManager::storeDatum(const std::string& text) {
+  if (!table_.store()) return {StatusCode::kFailedPrecondition, "no session store (~store_path is empty)"};
+  if (table_.localising())
+    return {StatusCode::kFailedPrecondition, "localisation mode writes nothing to the session store"};
+  try {
+    table_.store()->setDatum(text);
+  } catch (const StoreError& e) {
+    ++table_.stats().store_failures;
+    return {StatusCode::kDataLoss, std::string("the session store could not keep it: ") + e.what()};
+  }
+  return Status::Ok();
+}
+
 Status SessionManager::optimisePending(int* maps) {
   if (maps) *maps = 0;
   if (const Status mode = view_.storedMapsMayChange("optimise"); !mode.ok()) return mode;

@@ -70,6 +70,8 @@ int intColumn(sqlite3_stmt* q, int col, const std::string& path);
 std::string checkedText(sqlite3_stmt* q, int col, const std::string& path, std::initializer_list<const char*> allowed);
 /// A text column, "" for NULL.
 std::string columnText(sqlite3_stmt* st, int col);
+/// The meta row that keeps the maps' geographic datum (SessionStore::datum).
+constexpr char kDatumKey[] = "datum";
 
 /// A covariance as the 9 float64 of a `cov` blob (row-major), and back.
 std::vector<double> covBlob(const Eigen::Matrix3d& c);

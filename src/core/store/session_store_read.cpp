@@ -286,5 +286,12 @@ std::vector<HistoryEntry> SessionStore::history() const {
   return out;
 }
 
+std::optional<std::string> SessionStore::datum() const {
+  Statement st(this, "SELECT value FROM meta WHERE key = ?");
+  st.bind(1, std::string(kDatumKey));
+  if (!st.step()) return std::nullopt;
+  return columnText(st.get(), 0);
+}
+
 }  // namespace core
 }  // namespace uw_multislam

@@ -307,5 +307,10 @@ std::int64_t SessionStore::addHistory(HistoryEntry e) {
   return e.id;
 }
 
+void SessionStore::setDatum(const std::string& text) {
+  Statement st(this, "INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)");
+  st.bind(1, std::string(kDatumKey)).bind(2, text).run();
+}
+
 }  // namespace core
 }  // namespace uw_multislam

@@ -4,6 +4,7 @@
 
 #include <Eigen/Dense>
 
+#include <cmath>
 #include <memory>
 #include <string>
 #include <vector>
@@ -213,6 +214,108 @@ TEST(MultiSessionBackend, OptimisesWithTheOptimiserItIsGivenWhateverTheOptionsNa
   }
   EXPECT_TRUE(differs_from_iekf);
   EXPECT_THROW(MultiSessionBackend(o, std::unique_ptr<MapOptimizer>()), std::invalid_argument);
+}
+
+// Position priors through MapOptimizer: on a tiny map (three keyframes, two odometry motions, two
+// absolute position priors) both optimisers reach the minimiser of the same cost found by a
+// brute-force Gauss-Newton written here with numeric derivatives, over the two motions:
+//   sum_k |m_k - z_k|^2_{P_k} (yaw wrapped) + sum_p |t(X_p^0) - z_p|^2_{C_p}.
+struct TinyPriorMap {
+  std::vector<UncertainPose2> motions{
+      UncertainPose2(Pose2(10.0, 0.0, 0.1), Eigen::Vector3d(0.04, 0.04, 0.001).asDiagonal()),
+      UncertainPose2(Pose2(10.0, 1.0, -0.05), Eigen::Vector3d(0.09, 0.04, 0.002).asDiagonal())};
+  std::vector<PositionPrior> priors{
+      {1, Eigen::Vector2d(10.5, 0.8), (Eigen::Matrix2d() << 0.25, 0.05, 0.05, 0.16).finished()},
+      {2, Eigen::Vector2d(19.0, 3.5), Eigen::Vector2d(0.36, 0.25).asDiagonal()}};
+
+  double cost(const Eigen::Matrix<double, 6, 1>& x) const {
+    double c = 0.0;
+    std::vector<Pose2> at{Pose2()};
+    for (int k = 0; k < 2; ++k) {
+      const Pose2 m = Pose2::fromVector(x.segment<3>(3 * k));
+      Eigen::Vector3d e = m.vector() - motions[k].mean.vector();
+      e(2) = std::remainder(e(2), 2.0 * M_PI);
+      c += e.dot(motions[k].covariance.inverse() * e);
+      at.push_back(compose(at.back(), m));
+    }
+    for (const PositionPrior& p : priors) {
+      const Eigen::Vector2d e = Eigen::Vector2d(at[p.index].x(), at[p.index].y()) - p.position;
+      c += e.dot(p.covariance.inverse() * e);
+    }
+    return c;
+  }
+  // Newton on the cost with central-difference gradient and Hessian: no Jacobian of this code base.
+  std::vector<Pose2> bruteForce() const {
+    Eigen::Matrix<double, 6, 1> x;
+    x << motions[0].mean.vector(), motions[1].mean.vector();
+    const double h = 1e-4;
+    for (int it = 0; it < 50; ++it) {
+      Eigen::Matrix<double, 6, 1> g;
+      Eigen::Matrix<double, 6, 6> hess;
+      for (int a = 0; a < 6; ++a) {
+        Eigen::Matrix<double, 6, 1> da = Eigen::Matrix<double, 6, 1>::Zero();
+        da(a) = h;
+        g(a) = (cost(x + da) - cost(x - da)) / (2 * h);
+        for (int b = 0; b < 6; ++b) {
+          Eigen::Matrix<double, 6, 1> db = Eigen::Matrix<double, 6, 1>::Zero();
+          db(b) = h;
+          hess(a, b) = (cost(x + da + db) - cost(x + da - db) - cost(x - da + db) + cost(x - da - db)) / (4 * h * h);
+        }
+      }
+      const Eigen::Matrix<double, 6, 1> step = hess.ldlt().solve(g);
+      x -= step;
+      if (step.lpNorm<Eigen::Infinity>() < 1e-10) break;
+    }
+    return {Pose2::fromVector(x.segment<3>(0)), Pose2::fromVector(x.segment<3>(3))};
+  }
+};
+
+TEST(MapOptimizer, PositionPriorsMoveBothOptimisersToTheBruteForceLeastSquares) {
+  const TinyPriorMap t;
+  const std::vector<Pose2> want = t.bruteForce();
+  // The priors disagree with the odometry by decimetres: the minimiser is far from the odometry.
+  EXPECT_GT(poseError(want[1], t.motions[1].mean).head<2>().norm(), 0.1);
+  const PoseGraphOptimizer sparse(SparseOptions(), 1.0);
+  const IekfOptimizer iekf(IekfOptions(), 100, 1.0, sparse);
+  for (const MapOptimizer* o : std::vector<const MapOptimizer*>{&sparse, &iekf}) {
+    MapEstimate e = o->start();
+    std::string note;
+    MapGraph graph;
+    for (int k = 0; k < 2; ++k) {
+      o->addMotion(&e, t.motions[k], &note);
+      graph.chain.push_back({k, k + 1, t.motions[k], false});
+    }
+    std::vector<MapLoop> loops;
+    EXPECT_EQ(o->prepare(e, graph, &loops), nullptr) << o->name();  // nothing to solve without priors
+    graph.priors = t.priors;
+    const std::unique_ptr<MapProblem> problem = o->prepare(e, graph, &loops);
+    ASSERT_NE(problem, nullptr) << o->name();
+    EXPECT_TRUE(loops.empty());
+    problem->solve(loops);
+    problem->apply(&e);
+    for (int k = 0; k < 2; ++k)
+      EXPECT_TRUE(approxEqual(e.motion(k), want[k], 1e-5, 1e-6))
+          << o->name() << " motion " << k << ": " << e.motion(k) << " vs " << want[k];
+  }
+}
+
+TEST(MapOptimizer, APositionPriorOnKeyframeZeroOrNotPositiveDefiniteIsRefused) {
+  EXPECT_NE(checkPositionPrior({0, Eigen::Vector2d(1, 1), Eigen::Matrix2d::Identity()}, 3).find("outside [1, 2]"),
+            std::string::npos);
+  EXPECT_NE(checkPositionPrior({3, Eigen::Vector2d(1, 1), Eigen::Matrix2d::Identity()}, 3).find("outside [1, 2]"),
+            std::string::npos);
+  EXPECT_NE(checkPositionPrior({1, Eigen::Vector2d(NAN, 1), Eigen::Matrix2d::Identity()}, 3).find("not finite"),
+            std::string::npos);
+  EXPECT_NE(checkPositionPrior({1, Eigen::Vector2d(1, 1), -Eigen::Matrix2d::Identity()}, 3).find("positive definite"),
+            std::string::npos);
+  EXPECT_EQ(checkPositionPrior({2, Eigen::Vector2d(1, 1), Eigen::Matrix2d::Identity()}, 3), "");
+  std::vector<Pose2> poses(3);
+  EXPECT_THROW(
+      optimisePoseGraph(&poses, {}, SparseOptions(), 0, {{0, Eigen::Vector2d(1, 1), Eigen::Matrix2d::Identity()}}),
+      std::invalid_argument);
+  TrajectoryIekf f;
+  f.addMotion(UncertainPose2(Pose2(1, 0, 0), Eigen::Matrix3d::Identity()));
+  EXPECT_THROW(f.update({}, {{2, Eigen::Vector2d(1, 1), Eigen::Matrix2d::Identity()}}), std::invalid_argument);
 }
 
 }  // namespace

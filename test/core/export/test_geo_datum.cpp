@@ -7,6 +7,9 @@
 #include <GeographicLib/UTMUPS.hpp>
 
 #include <cmath>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "uw_multislam/core/export/geo_datum.h"
 
@@ -139,6 +142,52 @@ TEST(GeoDatum, UtmFromMapPutsMapPointsWhereTheUtmForwardDoes) {
 TEST(GeoDatum, UtmFromMapRefusesPolarDatums) {
   EXPECT_THROW(utmFromMap({85.0, 10.0, 90.0}), std::invalid_argument);
   EXPECT_THROW(utmFromMap({-81.0, 10.0, 90.0}), std::invalid_argument);
+}
+
+TEST(GeoDatum, AnAltitudeLiftsTheOriginAlongTheEllipsoidsNormal) {
+  // Geodetic height h puts a point at (N + h) cos(lat) cos(lon), ...: h metres along the normal
+  // (map's z axis) from the point at height 0, whatever N is.
+  const GeoOrigin low{43.0951, 5.9307, 30.0}, high{43.0951, 5.9307, 30.0, 12.5};
+  const Eigen::Isometry3d a = earthFromMap(low), b = earthFromMap(high);
+  EXPECT_TRUE(b.linear().isApprox(a.linear(), 1e-15));
+  EXPECT_LT((b.translation() - (a.translation() + 12.5 * a.linear().col(2))).norm(), 1e-6);
+  EXPECT_NEAR(geodetic(b.translation()).z(), 12.5, 1e-6);
+  // A fix of a map point is at the datum's height (plus the plane's rise, well under 1 mm at 10 m).
+  EXPECT_NEAR(fixFromMap(high, UncertainPose2::exact(Pose2(10.0, -5.0, 0.0))).alt_m, 12.5, 1e-3);
+  // utm -> map lifts it as much.
+  EXPECT_NEAR(utmFromMap(high).utm_from_map.translation().z(), 12.5, 0.0);
+}
+
+TEST(GeoDatum, CheckDatumRefusesEveryValueNotANumberOrOutOfRangeNamingIt) {
+  const double nan = std::nan(""), inf = INFINITY;
+  EXPECT_EQ(checkDatum({43.0, 5.9, 90.0, 0.0}), "");
+  EXPECT_EQ(checkDatum({-90.0, 180.0, -360.0, -10000.0}), "");  // the bounds are in
+  const std::vector<std::pair<GeoOrigin, std::string>> bad{
+      {{nan, 5.9, 90.0, 0.0}, "latitude_deg nan is not a number"},
+      {{91.0, 5.9, 90.0, 0.0}, "latitude_deg 91 is outside [-90, 90]"},
+      {{43.0, -180.5, 90.0, 0.0}, "longitude_deg -180.5 is outside [-180, 180]"},
+      {{43.0, inf, 90.0, 0.0}, "longitude_deg inf is not a number"},
+      {{43.0, 5.9, 361.0, 0.0}, "heading_deg 361 is outside [-360, 360]"},
+      {{43.0, 5.9, nan, 0.0}, "heading_deg nan is not a number"},
+      {{43.0, 5.9, 90.0, 2e4}, "altitude_m 20000 is outside [-10000, 10000] m"},
+      {{43.0, 5.9, 90.0, -inf}, "altitude_m -inf is not a number"}};
+  for (const auto& [d, why] : bad) EXPECT_EQ(checkDatum(d), why);
+}
+
+TEST(GeoDatum, TheStoresTextGivesTheDatumBackToTheLastBitAndRefusesADamagedOne) {
+  const GeoOrigin d{-33.856784123456789, 151.215297987654321, 1.0 / 3.0, -2.718281828459045};
+  GeoOrigin back;
+  std::string why;
+  ASSERT_TRUE(parseDatumText(datumText(d), &back, &why)) << why;
+  EXPECT_TRUE(sameDatum(back, d)) << datumText(back) << " vs " << datumText(d);
+  for (const std::string damaged :
+       {"", "43,5.9,90", "43,5.9,90,", "43,5.9,90,1,2", "a,b,c,d", "91,5.9,90,0", "43,5.9,90,nan", "43,5.9,90,1e9"}) {
+    EXPECT_FALSE(parseDatumText(damaged, &back, &why)) << damaged;
+    EXPECT_NE(why.find("datum '" + damaged + "'"), std::string::npos) << why;
+  }
+  EXPECT_EQ(describeDatum({43.0951, 5.9307, 90.0, 0.0}), "43.0951000, 5.9307000, 0.00 m, ENU (map's x axis east)");
+  EXPECT_EQ(describeDatum({43.0951, 5.9307, 30.0, 1.5}),
+            "43.0951000, 5.9307000, 1.50 m, map's x axis heading 30.0 deg");
 }
 
 }  // namespace

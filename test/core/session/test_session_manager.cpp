@@ -1730,6 +1730,34 @@ TEST(SessionManager, ASessionWithoutKeyframesIsListedEmptyAndNotStored) {
   EXPECT_EQ(again.view().list()[1].keyframes, 2);
 }
 
+// The datum set at sea: kept in the store over a restart, and never written in localisation mode
+// (the store stays byte-identical) nor without a store.
+TEST(SessionManager, TheStoreKeepsTheDatumOverARestartExceptInLocalisationMode) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 3);
+    EXPECT_FALSE(m.view().storedDatum());
+    ASSERT_TRUE(m.storeDatum("43.1,5.9,90,0").ok());
+  }
+  const std::string before = fileBytes(db);
+  {
+    SessionManager m(options(db));
+    ASSERT_TRUE(m.view().storedDatum());
+    EXPECT_EQ(*m.view().storedDatum(), "43.1,5.9,90,0");
+    ASSERT_TRUE(m.setLocalisation(true).ok());
+    const Status refused = m.storeDatum("43.2,5.9,90,0");
+    EXPECT_EQ(refused.code, StatusCode::kFailedPrecondition) << refused.message;
+    EXPECT_NE(refused.message.find("localisation mode"), std::string::npos) << refused.message;
+    EXPECT_EQ(*m.view().storedDatum(), "43.1,5.9,90,0");
+  }
+  EXPECT_EQ(fileBytes(db), before);
+  SessionManager memory(options());
+  EXPECT_FALSE(memory.view().storedDatum());
+  EXPECT_EQ(memory.storeDatum("43.1,5.9,90,0").code, StatusCode::kFailedPrecondition);
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam

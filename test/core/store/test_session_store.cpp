@@ -500,6 +500,25 @@ TEST(Store, TheHistoryTableComesWithOpeningForWritingAndKeepsItsEntries) {
   }
 }
 
+TEST(Store, TheDatumIsAMetaRowThatSurvivesReopeningAndIsReplaced) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  const HashSettings hash{HashMode::kSortedDct, 7, 500, "x"};
+  {
+    SessionStore store(path);
+    store.checkHashSettings(hash);
+    EXPECT_FALSE(store.datum());
+    store.setDatum("43.1,5.9,90,0");
+    store.setDatum("43.2,5.8,30,1.5");  // replaced, not a second row
+  }
+  const SessionStore read_only(path, StoreAccess::kReadOnly);
+  ASSERT_TRUE(read_only.datum());
+  EXPECT_EQ(*read_only.datum(), "43.2,5.8,30,1.5");
+  HashSettings back;
+  ASSERT_TRUE(read_only.hashSettings(&back));  // the meta table's other rows read as before
+  EXPECT_EQ(back.seed, 7u);
+}
+
 TEST(Store, EachMotionKeepsItsSource) {
   ScopedTempDir dir("uwms_store");
   const std::string path = (dir.path() / "maps.db").string();

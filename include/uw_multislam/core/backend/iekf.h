@@ -24,6 +24,7 @@
 #include <string>
 #include <vector>
 
+#include "uw_multislam/core/backend/position_prior.h"
 #include "uw_multislam/core/geometry/trajectory.h"
 
 namespace uw_multislam {
@@ -62,7 +63,9 @@ class TrajectoryIekf {
 
   /// Intra-map optimisation with the loops as measurements. Throws std::invalid_argument for a
   /// loop with i == j, an index past the trajectory, or an invalid covariance.
-  IekfResult update(const std::vector<LoopMeasurement>& loops);
+  /// Position priors are measurements too: ẑ ~ the (x, y) of X_k^0, predicted by the first two
+  /// rows of g for the loop 0 -> k (checkPositionPrior refuses a bad one, std::invalid_argument).
+  IekfResult update(const std::vector<LoopMeasurement>& loops, const std::vector<PositionPrior>& positions = {});
 
   std::size_t numKeyframes() const { return motions_.size() + 1; }
   /// The current estimate as a Trajectory: means, and the diagonal 3x3 blocks of P as the

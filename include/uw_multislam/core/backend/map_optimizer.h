@@ -43,6 +43,10 @@ struct MapGraph {
   std::vector<MapLoop> loops;
   /// Per loop: whether an earlier problem's apply() put it in the estimate for good.
   std::vector<bool> applied;
+  /// Absolute position priors on the map's keyframes (chain indices) in the map's frame
+  /// (position_prior.h), solved with every problem's loops. An optimiser whose apply() returns
+  /// true has put them in the estimate for good too: they are given to no later problem.
+  std::vector<PositionPrior> priors;
 };
 
 /// One map's optimisation problem, a copy of what it needs.
@@ -81,8 +85,8 @@ class MapOptimizer {
   /// needs. `nav_placed`, per motion: a link that only the nav placed (no visual match).
   virtual UncertainPose2 gateChain(const MapEstimate& estimate, int a, int b,
                                    const std::vector<bool>& nav_placed) const = 0;
-  /// The map's problem, or null when it has no loop to solve; *loops: the graph's loops it solves,
-  /// in order.
+  /// The map's problem, or null when it has no loop and no prior to solve; *loops: the graph's
+  /// loops it solves, in order (the priors are solved with them, also with none).
   virtual std::unique_ptr<MapProblem> prepare(const MapEstimate& estimate, const MapGraph& graph,
                                               std::vector<MapLoop>* loops) const = 0;
 };

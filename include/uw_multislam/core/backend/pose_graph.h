@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "uw_multislam/core/backend/position_prior.h"
 #include "uw_multislam/core/geometry/uncertain_pose.h"
 
 namespace uw_multislam {
@@ -52,10 +53,13 @@ struct SparseResult {
 };
 
 /// Optimises `poses` in place (absolute poses of one map, all in the frame of poses[fixed]) under
-/// the edges. Throws std::invalid_argument on an edge index out of range, i == j, or an invalid
-/// covariance. Poses not reached by any edge keep their values.
+/// the edges and the absolute position priors (each a residual W (t_k − position), W the upper
+/// Cholesky factor of its information, never robust). Throws std::invalid_argument on an edge index
+/// out of range, i == j, an invalid covariance, or a prior checkPositionPrior refuses (with
+/// fixed 0). Poses not reached by any edge or prior keep their values.
 SparseResult optimisePoseGraph(std::vector<Pose2>* poses, const std::vector<PoseGraphEdge>& edges,
-                               const SparseOptions& options, int fixed = 0);
+                               const SparseOptions& options, int fixed = 0,
+                               const std::vector<PositionPrior>& priors = {});
 
 /// The marginal covariances of poses `which` (relative to the fixed pose) at the given estimate,
 /// from the graph's information matrix. Throws std::runtime_error when the graph leaves one of

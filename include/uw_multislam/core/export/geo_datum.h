@@ -14,8 +14,28 @@
 namespace uw_multislam {
 namespace core {
 
-/// The pose of `map` in ECEF (WGS84, metres): translation = the origin's ECEF position (height
-/// 0), rotation = the local east-north-up axes at the origin turned by the heading. Exact
+/// The compass heading of `map`'s x axis that makes `map` ENU (REP-103: x east, y north, z up).
+constexpr double kEnuHeadingDeg = 90.0;
+/// The largest |height| of a datum above the ellipsoid, m.
+constexpr double kMaxDatumAltitudeM = 1e4;
+
+/// Why a datum cannot be used ("latitude_deg nan is not a number", "... outside [-90, 90]"), or ""
+/// when it can: every value finite, latitude in [-90, 90], longitude in [-180, 180], heading in
+/// [-360, 360], altitude within kMaxDatumAltitudeM.
+std::string checkDatum(const GeoOrigin& d);
+/// The datum as the session store keeps it, "LAT,LON,HEADING_DEG,ALT_M" (every digit a double
+/// holds), and back; false with `why` on a damaged text or a value checkDatum refuses.
+std::string datumText(const GeoOrigin& d);
+bool parseDatumText(const std::string& text, GeoOrigin* out, std::string* why);
+/// "43.0951000, 5.9307000, 0.00 m, map's x axis heading 30.0 deg" ("... ENU" at kEnuHeadingDeg).
+std::string describeDatum(const GeoOrigin& d);
+/// Whether two datums place `map` identically.
+inline bool sameDatum(const GeoOrigin& a, const GeoOrigin& b) {
+  return a.lat_deg == b.lat_deg && a.lon_deg == b.lon_deg && a.heading_deg == b.heading_deg && a.alt_m == b.alt_m;
+}
+
+/// The pose of `map` in ECEF (WGS84, metres): translation = the origin's ECEF position (at its
+/// height alt_m), rotation = the local east-north-up axes at the origin turned by the heading. Exact
 /// ellipsoidal maths (GeographicLib::Geocentric), consistent with latLon(): a map point p lies at
 /// earthFromMap(origin) * p, whose geodetic latitude/longitude is latLon(origin, p.x, p.y) for z = 0.
 Eigen::Isometry3d earthFromMap(const GeoOrigin& origin);
@@ -24,7 +44,7 @@ Eigen::Isometry3d earthFromMap(const GeoOrigin& origin);
 struct GeoFix {
   double lat_deg = 0.0, lon_deg = 0.0;
   /// Height above the ellipsoid of the map point (x, y, 0): map's z = 0 plane, tangent at the
-  /// origin at height 0, rises with the distance d from it (d^2 / 2R, 8 mm at 320 m). The vehicle's
+  /// origin at the origin's height, rises with the distance d from it (d^2 / 2R, 8 mm at 320 m). The vehicle's
   /// depth is not part of a 2-D pose.
   double alt_m = 0.0;
   /// Row-major 3x3 covariance in east, north, up (m^2): the pose's (x, y) block turned by the

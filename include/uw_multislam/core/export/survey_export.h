@@ -104,6 +104,7 @@ SurveyExport loadSurveyExport(const std::string& store_path);
 /// compass heading of its x axis (degrees clockwise from true north).
 struct GeoOrigin {
   double lat_deg = 0.0, lon_deg = 0.0, heading_deg = 0.0;
+  double alt_m = 0.0;  // the origin's height above the WGS84 ellipsoid (the back-end's datum; exports: 0)
 };
 /// "LAT,LON,HEADING_DEG" -> origin; false with `why` set on a bad text or a value out of range.
 bool parseGeoOrigin(const std::string& text, GeoOrigin* out, std::string* why);

@@ -163,6 +163,11 @@ class SessionManager {
   /// join, split, add_link, optimise and detect_loops are refused (FAILED_PRECONDITION). Back in
   /// mapping mode everything goes on as before (the memory-only keyframes stay unstored).
   Status setLocalisation(bool on);
+  /// Keeps the maps' geographic datum (its text, core/export/geo_datum.h datumText) in the store,
+  /// so that a restart keeps a datum set at sea. FAILED_PRECONDITION without a store or in
+  /// localisation mode (the store stays byte-identical), DATA_LOSS when the write failed: the
+  /// store then holds what it held.
+  Status storeDatum(const std::string& text);
   /// Joins the maps of two sessions from the global loops between them (min_loops 0: K).
   /// INVALID_ARGUMENT for an id outside [0, kMaxSessionId], NOT_FOUND for an unknown one.
   Status join(int session_a, int session_b, int min_loops = 0);

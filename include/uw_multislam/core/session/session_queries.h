@@ -129,6 +129,11 @@ class SessionQueries {
 
   // --- The store -----------------------------------------------------------------------------
   bool hasStore() const { return t_.store() != nullptr; }
+  /// The datum the store keeps (SessionManager::storeDatum), nullopt without one or without a
+  /// store. Throws StoreError on a store that cannot be read.
+  std::optional<std::string> storedDatum() const {
+    return t_.store() ? t_.store()->datum() : std::optional<std::string>();
+  }
   const std::string& storePath() const { return t_.options().store_path; }
   /// The store as replies name it: its file name only (the log keeps the full path).
   std::string storeName() const;

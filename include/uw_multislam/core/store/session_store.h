@@ -28,6 +28,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -249,6 +250,11 @@ class SessionStore {
   std::int64_t addHistory(HistoryEntry e);
   /// The audit trail in order; empty for a store without the table.
   std::vector<HistoryEntry> history() const;
+
+  /// The maps' geographic datum as a set_datum at sea left it (core/export/geo_datum.h datumText):
+  /// a row of the meta table; nullopt when none was ever set.
+  std::optional<std::string> datum() const;
+  void setDatum(const std::string& text);
 
   /// A cap on the file's size (SQLite's max_page_count, rounded down to whole pages; never below
   /// what the file holds already): a write that would grow it past the cap fails as on a full

@@ -45,6 +45,7 @@
 #include "uw_multislam/core/export/session_export.h"
 #include "uw_multislam/core/session/session_worker.h"
 #include "uw_multislam/ros/backend_counters.h"
+#include "uw_multislam/ros/datum_service.h"
 #include "uw_multislam/ros/fleet_hash_exchange.h"
 #include "uw_multislam/ros/fleet_peer_client.h"
 #include "uw_multislam/ros/frame_publisher.h"
@@ -97,6 +98,7 @@ class BackendNodelet : public nodelet::Nodelet {
   std::unique_ptr<core::SessionWorker> worker_;  // the manager and its lock
   std::unique_ptr<core::SessionExporter> exporter_;
   std::unique_ptr<ros_frames::FramePublisher> frames_;  // thread-safe on its own
+  std::unique_ptr<ros_geo::DatumService> datum_;        // set_datum: its own mutex, then the worker's lock
   std::unique_ptr<ros_mosaic::LiveMosaicPublisher> mosaic_;
   std::unique_ptr<ros_fleet::PeerClient> peers_;
   std::unique_ptr<ros_sessions::SessionPublisher> sessions_;  // worker's lock
