@@ -571,7 +571,8 @@ def match_bags_to_folders(run, gt):
     (0, 1, ... in time order) and stamps them with their header stamps, which sit a constant offset after the
     folder's stamp_s (folder_to_bag's --start-time, or the clock of the recording): image k of the bag is the
     folder's frame k in stamp order, when the bag has as many images as the folder has frames, over the same
-    span of time (first to last stamp, within 1 ms), at the same mean altitude (0.1 mm). Anything else is
+    span of time (first to last stamp, within 1 ms), at the same mean altitude (0.1 mm) when every frame of the
+    folder has one (a frame without gets the bag's altitudes interpolated at its stamp). Anything else is
     refused (EvalError): never a frame scored against another frame's ground truth."""
     notes, renumber = [], {}
     for row in run.inputs or []:
@@ -585,7 +586,8 @@ def match_bags_to_folders(run, gt):
         truth = gt.sessions[n]
         frames, first, last, altitude = folder_summary(truth)
         span, folder_span = row["last_stamp_s"] - row["first_stamp_s"], last - first
-        made = (row["frames"], 0.0, span, row["altitude_mean_m"])
+        every_altitude = all(math.isfinite(a) for a in truth.altitude.values())
+        made = (row["frames"], 0.0, span, row["altitude_mean_m"] if every_altitude else altitude)
         if not same_summary(made, (frames, 0.0, folder_span, altitude)):
             raise EvalError("session %d of the run was read from bag %s (%d images over %.3f s, mean altitude %.4f m) "
                             "but %s has %d frames over %.3f s, mean altitude %.4f m: not that bag's folder, its frames "
@@ -594,8 +596,9 @@ def match_bags_to_folders(run, gt):
                                folder_span, altitude))
         by_stamp = [truth.indexes[i] for i in sorted(range(frames), key=lambda i: truth.stamps[i])]
         renumber.update({(n, k): (n, index) for k, index in enumerate(by_stamp)})
-        notes.append("session %d: bag %s matched to %s by position, its stamps %.3f s after the folder's"
-                     % (n, row["folder"], truth.directory, row["first_stamp_s"] - first))
+        notes.append("session %d: bag %s matched to %s by position, its stamps %.3f s after the folder's%s"
+                     % (n, row["folder"], truth.directory, row["first_stamp_s"] - first,
+                        "" if every_altitude else " (mean altitude not compared: frames without altitude)"))
     if renumber:
         renumber_keys(run, lambda key: renumber.get(key, key))
     return notes

@@ -166,6 +166,19 @@ def test_ground_truth_that_is_not_the_bags_folder_is_refused(bags, mission, tmp_
     r = evaluate(run, inputs, fewer, mission / "b")
     assert r.returncode == 1 and "24 images" in r.stderr and "has 23 frames" in r.stderr, r.stderr
     assert not (run.parent / "r" / "metrics.csv").exists()
+    for altitude, refused in (("2.5", True), ("nan", False)):  # one frame's altitude: another recording's, or none
+        other = tmp_path / ("alt_" + altitude)
+        shutil.copytree(mission / "a", other)
+        lines = (other / "frames.csv").read_text().splitlines()
+        cells = lines[5].split(",")
+        lines[5] = ",".join(cells[:3] + [altitude])
+        (other / "frames.csv").write_text("\n".join(lines) + "\n")
+        r = evaluate(run, inputs, other, mission / "b")
+        if refused:
+            assert r.returncode == 1 and "mean altitude 2.0017 m) but" in r.stderr, r.stderr
+        else:  # the bag's frame has an altitude interpolated from its neighbours: not compared, said in the notes
+            assert r.returncode == 0, r.stderr
+            assert "mean altitude not compared" in (run.parent / "r" / "metrics.md").read_text()
     # Through season.py: the summary without error columns, the refusal printed, exit status 1.
     r = season(bags.parent / "a.bag", "--out", tmp_path / "s", "--gt", "%s=%s" % (bags.parent / "a.bag", mission / "b"),
                "--", "--camera-mount", "0 0 0 0")
