@@ -10,7 +10,7 @@ DIVE         a bag (offline_slam --bag; one dive's bags as A.bag,B.bag) or a dat
 --out DIR    dives/NN/ (each dive's offline_slam outputs and log), season.db (unless --db), season.md,
              season.csv, season.png (every dive's keyframes, one figure, a panel per map), season.html
              and, when every dive has ground truth, evaluate/ (evaluate.py's report of the last run,
-             which holds every dive)
+             which holds every dive) and inputs.csv (every dive's, for evaluate.py --inputs)
 --gt DIVE=FOLDER  the dataset folder (with gt.csv) of a dive given as DIVE (a bag, or A.bag,B.bag), repeat per
              dive: evaluate.py matches the bag's images to its frames; a folder dive with gt.csv is its own
 --db FILE    the store (default DIR/season.db); dives already in it are refused by offline_slam
