@@ -113,8 +113,14 @@ Timing: timing.csv copied as rows (scope timing, id = stage).
 The run must be the run of the folders given, else it is refused with the reason: one folder per
 session of the run (no folder without keyframes, no session without a folder), every keyframe a
 frame of its folder's gt.csv, and, when the run has inputs.csv (offline_slam and record_run.py
---session-dir write it: session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m), each
-session's folder with the same number of frames, first and last stamp_s and mean altitude.
+--session-dir write it: session,folder,frames,first_stamp_s,last_stamp_s,altitude_mean_m; or
+--inputs FILE), each session's folder with the same number of frames, first and last stamp_s and
+mean altitude. A session read from a bag (its inputs.csv `folder` a file, or named *.bag) numbers
+its frames by position in the bag and stamps them with the header stamps: it is scored against its
+dataset folder given like any other, image k of the bag as the folder's frame k in stamp order,
+when the bag has the folder's number of frames over the same span of time (first to last stamp,
+within 1 ms; the stamps may sit any constant offset after the folder's, e.g. folder_to_bag's
+--start-time) at the same mean altitude; else it is refused.
 
 Outputs
   metrics.csv   long format: scope,id,estimate,metric,value (value n/a when not computable)
@@ -376,6 +382,7 @@ class SessionTruth:
     camera: dict
     stamps: list = field(default_factory=list)  # frames.csv's stamp_s, in file order
     images: dict = field(default_factory=dict)  # index -> image file name (frames.csv)
+    indexes: list = field(default_factory=list)  # frames.csv's index, in file order
 
     def footprint_height(self, index):
         """Height in metres of the seabed seen by frame `index`."""
@@ -418,7 +425,7 @@ def load_session_truth(directory):
     altitude = {r["index"]: r["altitude_m"] for r in frames}
     camera = read_camera_yaml(os.path.join(directory, "camera.yaml"))
     return SessionTruth(directory, poses, altitude, camera, [r["stamp_s"] for r in frames],
-                        {r["index"]: r["image"] for r in frames})
+                        {r["index"]: r["image"] for r in frames}, [r["index"] for r in frames])
 
 
 def unordered(a, b):
@@ -551,6 +558,65 @@ def same_summary(a, b):
     return a[0] == b[0] and close(a[1], b[1], 1e-3) and close(a[2], b[2], 1e-3) and close(a[3], b[3], 1e-4)
 
 
+def is_bag_input(source):
+    """Whether inputs.csv's `folder` is what offline_slam --bag read: a bag, or one dive's bags named together
+    (a,b). A dataset folder is a directory; a bag is a file, or named *.bag when the run is scored elsewhere."""
+    return all(os.path.isfile(part) or (part.endswith(".bag") and not os.path.isdir(part))
+               for part in source.split(","))
+
+
+def match_bags_to_folders(run, gt):
+    """Renumbers the frames of the run's sessions read from bags by their folders' indexes, after checking that
+    each bag is its folder's recording; returns notes for the report. A bag numbers its images by position
+    (0, 1, ... in time order) and stamps them with their header stamps, which sit a constant offset after the
+    folder's stamp_s (folder_to_bag's --start-time, or the clock of the recording): image k of the bag is the
+    folder's frame k in stamp order, when the bag has as many images as the folder has frames, over the same
+    span of time (first to last stamp, within 1 ms), at the same mean altitude (0.1 mm) when every frame of the
+    folder has one (a frame without gets the bag's altitudes interpolated at its stamp). Anything else is
+    refused (EvalError): never a frame scored against another frame's ground truth."""
+    notes, renumber = [], {}
+    for row in run.inputs or []:
+        n = row["session"]
+        if not is_bag_input(row["folder"]):
+            continue
+        if n < 0 or n >= len(gt.sessions):
+            raise EvalError("the run read bag %s as session %d (inputs.csv) but only %d ground-truth folder(s) were "
+                            "given: give each bag's dataset folder, in the run's order" % (row["folder"], n,
+                                                                                          len(gt.sessions)))
+        truth = gt.sessions[n]
+        frames, first, last, altitude = folder_summary(truth)
+        span, folder_span = row["last_stamp_s"] - row["first_stamp_s"], last - first
+        every_altitude = all(math.isfinite(a) for a in truth.altitude.values())
+        made = (row["frames"], 0.0, span, row["altitude_mean_m"] if every_altitude else altitude)
+        if not same_summary(made, (frames, 0.0, folder_span, altitude)):
+            raise EvalError("session %d of the run was read from bag %s (%d images over %.3f s, mean altitude %.4f m) "
+                            "but %s has %d frames over %.3f s, mean altitude %.4f m: not that bag's folder, its frames "
+                            "cannot be matched (give each bag's own dataset folder, in the run's order)"
+                            % (n, row["folder"], row["frames"], span, row["altitude_mean_m"], truth.directory, frames,
+                               folder_span, altitude))
+        by_stamp = [truth.indexes[i] for i in sorted(range(frames), key=lambda i: truth.stamps[i])]
+        renumber.update({(n, k): (n, index) for k, index in enumerate(by_stamp)})
+        notes.append("session %d: bag %s matched to %s by position, its stamps %.3f s after the folder's%s"
+                     % (n, row["folder"], truth.directory, row["first_stamp_s"] - first,
+                        "" if every_altitude else " (mean altitude not compared: frames without altitude)"))
+    if renumber:
+        renumber_keys(run, lambda key: renumber.get(key, key))
+    return notes
+
+
+def renumber_keys(run, new_key):
+    """Every (session, index) key of the run through new_key, in place."""
+    for estimate in run.estimates():
+        estimate.poses = {new_key(k): v for k, v in estimate.poses.items()}
+        estimate.frame = {new_key(k): v for k, v in estimate.frame.items()}
+    if run.loops is not None:
+        run.loops = sorted(unordered(new_key(a), new_key(b)) for a, b in run.loops)
+    if run.loop_poses is not None:
+        run.loop_poses = {(new_key(a), new_key(b)): v for (a, b), v in run.loop_poses.items()}
+    if run.pieces:
+        run.pieces = {new_key(k): v for k, v in run.pieces.items()}
+
+
 def check_run_against_truth(run, gt):
     """Refuses (EvalError with the reason) a run that is not the run of the folders given: one folder per
     session, every key a frame of its folder's gt.csv, and the folders the run's inputs.csv describes.
@@ -575,6 +641,8 @@ def check_run_against_truth(run, gt):
         return ["the run has no inputs.csv: its folders were checked by session count and frame indexes only"]
     for row in run.inputs:
         n = row["session"]
+        if is_bag_input(row["folder"]):
+            continue  # matched by match_bags_to_folders
         if n < 0 or n >= len(gt.sessions):
             raise EvalError("the run was made from folder %s as session %d (inputs.csv) but only %d folder(s) were "
                             "given" % (row["folder"], n, len(gt.sessions)))
@@ -1569,6 +1637,9 @@ def parse_args(argv):
                        help="folder of session subfolders (those holding frames.csv, sorted by name), "
                             "with world_gt.csv and loops_gt.csv taken from it when present")
     parser.add_argument("--world-gt", metavar="FILE", help="world_gt.csv: all sessions in one world frame")
+    parser.add_argument("--inputs", metavar="FILE",
+                        help="an inputs.csv describing the run's sessions, in place of the run's own (which has no "
+                             "row for the sessions a store held before the run; season.py writes one)")
     parser.add_argument("--loops-gt", metavar="FILE", help="loops_gt.csv: the revisits to find")
     parser.add_argument("--report", required=True, metavar="REPORT_DIR", help="where to write the report")
     parser.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
@@ -1622,7 +1693,10 @@ def main(argv=None):
         session_dirs, world_gt, loops_gt = resolve_truth_inputs(args)
         gt = load_ground_truth(session_dirs, world_gt, loops_gt)
         run = load_run(args.run)
-        notes = check_run_against_truth(run, gt)
+        if args.inputs is not None:
+            run.inputs = read_table(args.inputs, INPUTS_COLUMNS)
+        notes = match_bags_to_folders(run, gt)
+        notes += check_run_against_truth(run, gt)
         ev = evaluate(run, gt, args.loop_true_dist, args.mosaic_score or args.mosaic_png is not None)
         ev.notes += notes
         text = write_report(ev, args.report)

@@ -3,22 +3,25 @@
 offline_slam in the order given, all of them with the same --db, so that the store's reload and its
 global loops join the dives where they overlap. Writes one summary of the season:
 
-    season.py [--list FILE] [DIVE ...] --out DIR [--db FILE] [--bin-dir DIR] [-- OFFLINE_SLAM_OPTIONS ...]
+    season.py [--list FILE] [DIVE ...] --out DIR [--gt DIVE=FOLDER ...] [--db FILE] [--bin-dir DIR] [-- OPTIONS ...]
 
 DIVE         a bag (offline_slam --bag; one dive's bags as A.bag,B.bag) or a dataset folder (--session), in order;
 --list FILE  more dives, one a line (# starts a comment; relative paths are the file's)
 --out DIR    dives/NN/ (each dive's offline_slam outputs and log), season.db (unless --db), season.md,
              season.csv, season.png (every dive's keyframes, one figure, a panel per map), season.html
-             and, when every dive is a folder with gt.csv, evaluate/ (evaluate.py's report of the last run,
-             which holds every dive)
+             and, when every dive has ground truth, evaluate/ (evaluate.py's report of the last run,
+             which holds every dive) and inputs.csv (every dive's, for evaluate.py --inputs)
+--gt DIVE=FOLDER  the dataset folder (with gt.csv) of a dive given as DIVE (a bag, or A.bag,B.bag), repeat per
+             dive: evaluate.py matches the bag's images to its frames; a folder dive with gt.csv is its own
 --db FILE    the store (default DIR/season.db); dives already in it are refused by offline_slam
 --           the rest goes to every offline_slam run (e.g. --config F, --camera-mount "0 0 0 0", --ns NS)
 
 Per dive: frames, keyframes, pieces (a tracking loss splits a dive), tracking losses, loops (local,
 global within the dive, global to earlier dives), the earlier dives its map holds (joined), the wall
 time, for a bag the ratio to real time, and with ground truth the SLAM ATE and e_k of evaluate.py.
-Exit status 0, 1 when a dive's run failed (the summary is written for the dives before it), 2 on
-bad arguments. Doc: doc/tools/season.md.
+Exit status 0, 1 when a dive's run failed (the summary is written for the dives before it) or
+evaluate.py refused the ground truth (its reason printed; the summary without errors), 2 on bad arguments.
+Doc: doc/tools/season.md.
 """
 import argparse
 import base64
@@ -116,16 +119,50 @@ def csv_sessions(rows):
     return out
 
 
-def evaluate(args, dives, rows, last_out):
-    """evaluate.py over the last run (every dive's sessions): each CSV session scored against its dive's folder."""
-    if not all(d.is_dir() and (d / "gt.csv").is_file() for d in dives):
-        return None
-    folders = []
-    for ids, d in zip(csv_sessions(rows), dives):
+def same_dive(a, b):
+    return [Path(p).resolve() for p in str(a).split(",")] == [Path(p).resolve() for p in str(b).split(",")]
+
+
+def truth_folders(dives, pairs, parser):
+    """Each dive's ground-truth folder or None: --gt's for the dive it names, else a folder dive's own gt.csv."""
+    given = [None] * len(dives)
+    for pair in pairs:
+        dive, sep, folder = pair.rpartition("=")
+        if not sep or not dive or not folder:
+            parser.error("--gt %s: give DIVE=FOLDER" % pair)
+        hits = [n for n, d in enumerate(dives) if same_dive(d, dive)]
+        if not hits:
+            parser.error("--gt %s: %s is not a dive of the season" % (pair, dive))
+        if not (Path(folder) / "gt.csv").is_file():
+            parser.error("--gt %s: %s has no gt.csv" % (pair, folder))
+        for n in hits:
+            if given[n] is not None:
+                parser.error("--gt %s: dive %s has ground truth twice" % (pair, dive))
+            given[n] = Path(folder)
+    return [g or (d if d.is_dir() and (d / "gt.csv").is_file() else None) for g, d in zip(given, dives)]
+
+
+def evaluate(args, truths, rows, last_out):
+    """evaluate.py over the last run (every dive's sessions): each CSV session scored against its dive's ground-truth
+    folder (a bag's frames matched to the folder's by evaluate.py). Returns (metrics or None, refusal or None)."""
+    if not truths or None in truths:
+        missing = [str(n) for n, t in enumerate(truths) if t is None]
+        if len(missing) < len(truths):
+            print("season.py: no ground truth for dive(s) %s: no error columns (give --gt DIVE=FOLDER)"
+                  % ", ".join(missing), file=sys.stderr)
+        return None, None
+    folders, inputs = [], []
+    for n, (ids, d) in enumerate(zip(csv_sessions(rows), truths)):
         folders += [str(d)] * len(ids)  # the store numbers each piece of a dive
-    world = [d.parent / "world_gt.csv" for d in dives]
+        own = read_csv(Path(args.out) / "dives" / ("%02d" % n) / "inputs.csv")[0]
+        inputs += [dict(own, session=i) for i in ids]
+    with open(Path(args.out) / "inputs.csv", "w", newline="") as f:  # the last run's has no row for stored dives
+        w = csv.DictWriter(f, fieldnames=list(inputs[0]))
+        w.writeheader()
+        w.writerows(inputs)
+    world = [d.parent / "world_gt.csv" for d in truths]
     cmd = [sys.executable, find_tool("evaluate.py", args.bin_dir), "--run", str(last_out), "--report",
-           str(Path(args.out) / "evaluate"), "--html"]
+           str(Path(args.out) / "evaluate"), "--html", "--inputs", str(Path(args.out) / "inputs.csv")]
     for f in folders:
         cmd += ["--session", f]
     if len({w.parent for w in world}) == 1 and world[0].is_file():
@@ -134,9 +171,8 @@ def evaluate(args, dives, rows, last_out):
             cmd += ["--loops-gt", str(world[0].parent / "loops_gt.csv")]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
-        print("season.py: evaluate.py failed: %s" % (r.stderr.strip() or r.stdout.strip()), file=sys.stderr)
-        return None
-    return json.loads((Path(args.out) / "evaluate" / "metrics.json").read_text())
+        return None, r.stderr.strip() or r.stdout.strip()
+    return json.loads((Path(args.out) / "evaluate" / "metrics.json").read_text()), None
 
 
 def add_errors(rows, metrics):
@@ -206,6 +242,7 @@ def main(argv):
     parser.add_argument("dives", nargs="*")
     parser.add_argument("--list")
     parser.add_argument("--out", required=True)
+    parser.add_argument("--gt", action="append", default=[], metavar="DIVE=FOLDER")
     parser.add_argument("--db")
     parser.add_argument("--bin-dir")
     args = parser.parse_args(own)
@@ -215,6 +252,7 @@ def main(argv):
     for d in dives:
         if not (is_bag(d) or d.is_dir()):
             parser.error("%s: no such bag or folder" % d)
+    truths = truth_folders(dives, args.gt, parser)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     args.db = args.db or str(out / "season.db")
@@ -238,7 +276,12 @@ def main(argv):
     if last_out:
         maps = len({t["map"] for t in read_csv(last_out / "trajectory.csv")})
         plot(last_out, rows, out / "season.png")
-    metrics = evaluate(args, dives[:len(rows)], rows, last_out) if last_out and status == 0 else None
+    metrics = None
+    if last_out and status == 0:
+        metrics, refusal = evaluate(args, truths, rows, last_out)
+        if refusal:
+            print("season.py: evaluate.py refused the ground truth, no error columns: %s" % refusal, file=sys.stderr)
+            status = 1
     if metrics:
         add_errors(rows, metrics)
     write_summary(out, rows, maps, metrics is not None)

@@ -4,6 +4,9 @@ faster than real time with progress; a bag without a topic, a camera_info, a mou
 truncated bag fail with one line naming what is missing and the option that gives it."""
 import math
 import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 import rosbag
@@ -14,6 +17,7 @@ from tf2_msgs.msg import TFMessage
 from tool_runner import TWO_DIVES, make_survey, read_csv as rows, run_tool as run
 
 STAMP = 1700000000  # folder_to_bag's default start time
+EVALUATE = str(Path(__file__).resolve().parents[2] / "src" / "tools" / "evaluate.py")
 
 
 def add_mounts(bag_path):
@@ -87,6 +91,23 @@ def test_bags_give_the_keyframes_poses_and_one_map_of_the_folders(folders_run, b
         assert math.hypot(float(f["x_m"]) - float(b["x_m"]), float(f["y_m"]) - float(b["y_m"])) < 1e-3, k
         assert abs(float(f["yaw_rad"]) - float(b["yaw_rad"])) < 1e-3, k
     assert len(rows(out / "loops.csv")) >= 0.95 * len(rows(folders_run / "loops.csv"))
+
+
+def test_evaluate_scores_the_bags_against_their_folders_as_the_folders(survey, folders_run, bags_run, tmp_path):
+    """The run of both bags (its own inputs.csv) against the survey's folders: the folders' run's ATE and e_k."""
+    scores = []
+    for out in (folders_run, bags_run[0]):
+        report = tmp_path / out.name
+        r = subprocess.run([sys.executable, EVALUATE, "--run", str(out), "--mission", str(survey), "--report",
+                            str(report), "--no-plots"], capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        scores.append({(m["scope"], m["id"], m["metric"]): m["value"] for m in rows(report / "metrics.csv")
+                       if m["estimate"] == "slam"})
+    folder, bag = scores
+    for key in [("session", "0", "ate_rmse_m"), ("session", "1", "ate_rmse_m"), ("session", "0", "ek_inter_m"),
+                ("map", "0", "ate_rmse_m"), ("map", "0", "ek_inter_m")]:
+        assert folder[key] != "n/a" and float(bag[key]) == pytest.approx(float(folder[key]), abs=1e-3), key
+    assert bag[("map", "0", "ek_inter_pairs")] == folder[("map", "0", "ek_inter_pairs")] != "0"
 
 
 def test_the_nav_of_the_bag_is_read(bags_run):
