@@ -10,6 +10,12 @@ BUILD_DIR holds compile_commands.json (CMakeLists.txt exports it): each unit is 
 include paths and definitions GCC compiles it with. A unit that does not include the annotations
 header, directly or through the repository's headers, declares no capability and is skipped: the
 analysis would have nothing to check there. --junit writes one test case per unit checked.
+
+The third-party and standard headers (Eigen, OpenCV, gtest, the standard library) are parsed once:
+units compiled with the same flags share a clang precompiled header of the system headers that
+two or more of them include (<BUILD_DIR>/thread_safety_pch/). It holds no header of the
+repository, so every annotated declaration and function body is still analysed in each unit; a
+group whose header does not build is checked without one.
 --root: the source tree (default: this script's repository; its test checks a tree of its own).
 Exit status 0 only when every unit passes.
 """
@@ -71,27 +77,93 @@ def annotated_units(repo, files):
     return [f for f in files if visit(os.path.join(repo, f), set())]
 
 
-def clang_command(entry, clang):
-    """The unit's GCC command as clang++ -fsyntax-only with the analysis's flags: only the include
-    paths, definitions and language standard are kept."""
+def system_includes(repo, path, seen=None):
+    """The <...> headers a file includes, itself or through the repository's headers, in order."""
+    seen = set() if seen is None else seen
+    if path in seen:
+        return []
+    seen.add(path)
+    with open(path, encoding="utf-8", errors="replace") as f:
+        text = f.read()
+    found = []
+    for m in re.finditer(r'^\s*#\s*include\s+(?:<([^>]+)>|"([^"]+)")', text, re.M):
+        if m.group(1):
+            found.append(m.group(1))
+            continue
+        for base in (os.path.join(repo, "include"), os.path.dirname(path), repo):
+            child = os.path.normpath(os.path.join(base, m.group(2)))
+            if os.path.isfile(child):
+                found += system_includes(repo, child, seen)
+                break
+    return found
+
+
+def gcc_flags(entry):
+    """The include paths, definitions and language standard of the unit's GCC command. Not the
+    precompiled header CMake gives GCC (cmake_pch.hxx, beside its .gch, which clang cannot read):
+    the unit includes what it uses."""
     args = entry.get("arguments") or shlex.split(entry["command"])
     keep = []
     i = 1  # args[0]: the compiler
     while i < len(args):
         a = args[i]
         if a in ("-I", "-isystem", "-D", "-include", "-iquote") and i + 1 < len(args):
-            keep += [a, args[i + 1]]
+            if not (a == "-include" and args[i + 1].endswith("cmake_pch.hxx")):
+                keep += [a, args[i + 1]]
             i += 2
             continue
         if a.startswith(("-I", "-D", "-isystem", "-std=", "-iquote")):
             keep.append(a)
         i += 1
-    return [clang] + keep + ANALYSIS + [entry["file"]]
+    return keep
 
 
-def check(entry, clang):
+def clang_command(entry, clang, pch=None):
+    """The unit's GCC command as clang++ -fsyntax-only with the analysis's flags."""
+    return [clang] + gcc_flags(entry) + (["-include-pch", pch] if pch else []) + ANALYSIS + [entry["file"]]
+
+
+def build_pchs(repo, units, by_file, clang, build):
+    """One precompiled header per set of flags that two or more units share: the <...> headers
+    that two or more of them include. Returns {unit: pch path}; a group whose header does not
+    build (or that has nothing to share) gets none."""
+    groups = {}
+    for unit in units:
+        groups.setdefault(tuple(gcc_flags(by_file[unit])), []).append(unit)
+    out_dir = os.path.join(build, "thread_safety_pch")
+    os.makedirs(out_dir, exist_ok=True)
+    pchs = {}
+    for number, (flags, members) in enumerate(sorted(groups.items())):
+        if len(members) < 2:
+            continue
+        counts, order = {}, []
+        for unit in members:
+            for name in dict.fromkeys(system_includes(repo, by_file[unit]["file"])):
+                if name not in counts:
+                    order.append(name)
+                counts[name] = counts.get(name, 0) + 1
+        shared = [name for name in order if counts[name] >= 2]
+        if not shared:
+            continue
+        header = os.path.join(out_dir, "group%d.h" % number)
+        with open(header, "w", encoding="utf-8") as f:
+            f.write("".join("#include <%s>\n" % name for name in shared))
+        pch = header + ".pch"
+        proc = subprocess.run([clang] + list(flags) + ["-x", "c++-header", "-Wno-everything", header, "-o", pch],
+                              cwd=by_file[members[0]]["directory"], stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, universal_newlines=True)
+        if proc.returncode != 0:
+            print("thread_safety_check: no precompiled header for %d units (%s): %s"
+                  % (len(members), ", ".join(members), proc.stdout.strip().splitlines()[:1]))
+            continue
+        for unit in members:
+            pchs[unit] = pch
+    return pchs
+
+
+def check(entry, clang, pch=None):
     start = time.monotonic()
-    proc = subprocess.run(clang_command(entry, clang), cwd=entry["directory"], stdout=subprocess.PIPE,
+    proc = subprocess.run(clang_command(entry, clang, pch), cwd=entry["directory"], stdout=subprocess.PIPE,
                           stderr=subprocess.STDOUT, universal_newlines=True)
     return proc.returncode, proc.stdout, time.monotonic() - start
 
@@ -156,8 +228,12 @@ def main():
     print("thread_safety_check: %d of %d core units see the annotations; %s" % (len(units), len(by_file), version))
     results = []
     before = os.times()
+    pchs = build_pchs(repo, units, by_file, args.clang, args.build)
+    print("thread_safety_check: %d units share %d precompiled headers"
+          % (len(pchs), len(set(pchs.values()))), flush=True)
     with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        for unit, (status, output, seconds) in zip(units, pool.map(lambda u: check(by_file[u], args.clang), units)):
+        for unit, (status, output, seconds) in zip(
+                units, pool.map(lambda u: check(by_file[u], args.clang, pchs.get(u)), units)):
             results.append((unit, status, output, seconds))
             print("  %-60s %s  %.1f s" % (unit, "ok" if status == 0 else "FAILED", seconds), flush=True)
             if status != 0:

@@ -678,11 +678,16 @@ def unrelated_folder(path):
 
 def test_an_unrelated_session_between_two_of_one_mission_gets_no_loop_and_no_join(survey, tmp_path):
     """Real frames of another sea between the two sessions of one mission: no loop
-    touches them and they join nothing, while the mission's two sessions still join."""
+    touches them and they join nothing, while the mission's two sessions still join. Without the
+    odometry's dense pass, which registers consecutive frames of one stream only and is most of
+    this run's cost on frames that do not follow each other: the unrelated frames still give over
+    20 keyframes, each queried against the mission's (global loops and joins do not use it)."""
     unrelated = unrelated_folder(tmp_path / "posidonia")
     out = tmp_path / "o"
+    cfg = tmp_path / "no_dense.yaml"
+    cfg.write_text("odometry:\n  dense:\n    enabled: false\n")
     r = run("offline_slam", "--session", str(survey / "a"), "--session", str(unrelated), "--session", str(survey / "b"),
-            "--out", str(out))
+            "--out", str(out), "--config", str(cfg))
     assert r.returncode == 0, r.stderr
     # (Loops among the unrelated frames themselves may be right: some of them show the same marker.)
     across = [loop for loop in rows(out / "loops.csv") if "1" in (loop["session_a"], loop["session_b"]) and
@@ -693,6 +698,7 @@ def test_an_unrelated_session_between_two_of_one_mission_gets_no_loop_and_no_joi
     for t in traj:
         maps_of.setdefault(t["session"], set()).add(t["map"])
     assert maps_of["0"] == maps_of["2"] and len(maps_of["0"]) == 1  # a and b joined again
+    assert sum(t["session"] == "1" for t in traj) >= 20  # over 20 unrelated keyframes tried against the mission
     for m in maps_of.get("1", set()):  # whatever of the unrelated frames became keyframes, alone
         assert {t["session"] for t in traj if t["map"] == m} == {"1"}
     assert not [link for link in rows(out / "links.csv") if "1" in (link["previous_session"], link["current_session"])

@@ -129,11 +129,15 @@ def thread_safety_check(tmp_path, sources):
     (root / "src" / "core").mkdir(parents=True)
     build = tmp_path / "build"
     build.mkdir()
+    # GCC's precompiled header as CMake passes it (UWMS_PCH): clang cannot read the .gch beside it.
+    (build / "cmake_pch.hxx").write_text("#include <mutex>\n")
+    (build / "cmake_pch.hxx.gch").write_bytes(b"gpch.not-for-clang")
     commands = []
     for name, text in sources.items():
         (root / "src" / "core" / name).write_text(text)
         commands.append({"directory": str(build), "file": str(root / "src" / "core" / name),
-                         "command": "/usr/bin/c++ -I%s -std=c++17 -O2 -o x.o -c %s" % (root / "include", name)})
+                         "command": "/usr/bin/c++ -I%s -std=c++17 -O2 -Winvalid-pch -include %s -o x.o -c %s"
+                         % (root / "include", build / "cmake_pch.hxx", name)})
     (build / "compile_commands.json").write_text(json.dumps(commands))
     junit = tmp_path / "results" / "uw_multislam" / "thread_safety-core.xml"
     r = subprocess.run(["/usr/bin/python3", os.path.join(SCRIPTS, "thread_safety_check.py"), "--build", str(build),
@@ -155,5 +159,6 @@ def test_thread_safety_check_fails_on_a_field_read_without_its_mutex(tmp_path):
     code, out, summary_code, summary_out = thread_safety_check(
         tmp_path, {"ok.cpp": GUARDED % LOCKED_READ, "bad.cpp": GUARDED % UNLOCKED_READ})
     assert code == 1 and "FAILED: src/core/bad.cpp" in out and "requires holding mutex 'mutex_'" in out, out
+    assert "2 units share 1 precompiled headers" in out, out  # the analysis is as strict with one
     assert summary_code == 1 and "FAILED uw_multislam/thread_safety-core.xml" in summary_out, summary_out
     assert "src/core/bad.cpp" in summary_out and "src/core/ok.cpp" not in summary_out, summary_out
