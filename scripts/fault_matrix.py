@@ -29,20 +29,12 @@ import time
 import traceback
 import xml.sax.saxutils
 
-SURVEY = """
-seed: 11
-world: {width_m: 9, height_m: 6, featureless_fraction: 0}
-sessions:
-  - name: a
-    mission: {pattern: out_and_back, start_m: [2.0, 2.0], length_m: 4.0, leg_spacing_m: 1.0,
-              speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.0}
-  - name: b
-    mission: {pattern: loop, start_m: [5.5, 3.0], heading_rad: 1.5708, length_m: 2.0, width_m: 1.6,
-              laps: 1.0, speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.2}
-"""
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
+# Two small overlapping dives (make_survey YAML): the tool tests fly the same file.
+with open(os.path.join(REPO, "config", "missions", "two_dives.yaml")) as _f:
+    SURVEY = _f.read()
 sys.path.insert(0, os.path.join(REPO, "src", "tools"))
 from atomic_file import write_atomically  # noqa: E402  (the tools' safe writer)
 

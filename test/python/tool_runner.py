@@ -9,7 +9,7 @@ import subprocess
 from pathlib import Path
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-REPO = os.path.dirname(os.path.dirname(os.path.realpath(__file__)))
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.realpath(__file__))))
 BIN_DIR = os.environ.get("UWMS_BIN_DIR", os.path.join(REPO + "_ws", "devel", "lib", "uw_multislam"))
 # rosbag::Bag loads its encryption plugins through rospack, which keeps a cache in ROS_HOME and
 # warns on stderr when it cannot create it: ctest gives each suite a ROS_HOME that may not exist
@@ -18,19 +18,8 @@ if os.environ.get("ROS_HOME"):
     os.makedirs(os.environ["ROS_HOME"], exist_ok=True)
 
 
-# Two small dives over one seabed that overlap (make_survey YAML): the second's loop crosses the first's
-# out-and-back, so global loops join them into one map. About 40 frames in all.
-TWO_DIVES = """
-seed: 11
-world: {width_m: 9, height_m: 6, featureless_fraction: 0}
-sessions:
-  - name: a
-    mission: {pattern: out_and_back, start_m: [2.0, 2.0], length_m: 4.0, leg_spacing_m: 1.0,
-              speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.0}
-  - name: b
-    mission: {pattern: loop, start_m: [5.5, 3.0], heading_rad: 1.5708, length_m: 2.0, width_m: 1.6,
-              laps: 1.0, speed_m_s: 0.4, frame_period_s: 1.0, altitude_m: 2.2}
-"""
+# Two small dives over one seabed that overlap (make_survey YAML text; the fault matrix flies the same file).
+TWO_DIVES = Path(REPO, "config", "missions", "two_dives.yaml").read_text()
 
 
 def run_tool(tool, *args, timeout=300):
