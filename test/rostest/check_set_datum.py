@@ -2,11 +2,12 @@
 """rostest set_datum: the back-end's set_datum service, checked with check_datum.py's WGS84, UTM
 and compass arithmetic (independent of GeographicLib and of the back-end's rotation). One back-end
 on a fresh session store with ~datum/* (43.0951, 5.9307, heading 30, utm frame): two keyframes
-come out in ENU for heading 30 (keyframe_pose, the path); bad values and a second datum without
-`replace` are refused with earth -> map unchanged; with `replace` (heading 0, 3 m above the
-ellipsoid) earth -> map (ENU, no heading turn), map -> utm and keyframe_fix follow the new datum,
-and without a new keyframe the path, keyframe_pose and map -> session_0 are published again in the
-new axes (heading 0: the first keyframe's x axis is north); the same datum again is OK, unchanged.
+come out in ENU for heading 30 (keyframe_pose, the path, then `pose` and map -> odom from an
+odometry pose); bad values and a second datum without `replace` are refused with earth -> map
+unchanged; with `replace` (heading 0, 3 m above the ellipsoid) earth -> map (ENU, no heading turn),
+map -> utm and keyframe_fix follow the new datum, and without a new keyframe the path,
+keyframe_pose, map -> session_0 and map -> odom are published again in the new axes (heading 0:
+the first keyframe's x axis is north, 1 m along it is (0, 1)); the same datum again is OK, unchanged.
 Then the back-end is stopped and started again with the same parameters: the store's datum is the
 one in use, and the log says so."""
 import math
@@ -25,8 +26,9 @@ import rostest
 import tf2_ros
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from check_datum import (NS, LAT, LON, HEADING, KEYFRAME_1, Recorder, check_keyframe_1_in_enu, datum_frame,  # noqa: E402
-                         geodetic, in_enu, rotate, send_two_keyframes, utm, yaw_of)
+from check_datum import (NS, LAT, LON, HEADING, KEYFRAME_1, Recorder, check_keyframe_1_in_enu,  # noqa: E402
+                         datum_frame, geodetic, in_enu, rotate, send_two_keyframes, utm, yaw_of)
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped  # noqa: E402
 from nav_msgs.msg import Path  # noqa: E402
 from pipeline_fixture import tool  # noqa: E402
 from uw_multislam.msg import Status  # noqa: E402
@@ -90,6 +92,56 @@ class LastPath(object):
         raise AssertionError("no paths/session_0 ending at (%.4f, %.4f): %s" % (east, north, got))
 
 
+class Odometry(object):
+    """The odometry's part: odometry/pose sent as the vehicle 1 m along session 0's x axis (its first
+    keyframe's image columns), the back-end's `pose` kept."""
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.poses = []
+        self.pub = rospy.Publisher(NS + "/odometry/pose", PoseWithCovarianceStamped, queue_size=10)
+        self.sub = rospy.Subscriber(NS + "/pose", PoseStamped, self.keep)
+
+    def keep(self, msg):
+        with self.lock:
+            self.poses.append(msg)
+
+    def await_pose_at(self, east, north, timeout=30.0):
+        """Sends odometry/pose every 0.2 s until the back-end's `pose` is at (east, north) in map,
+        facing along the same axis; fails with the last one."""
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            m = PoseWithCovarianceStamped()
+            m.header.stamp = rospy.Time.now()
+            m.header.frame_id = "session_0"
+            m.pose.pose.position.x = 1.0
+            m.pose.pose.orientation.w = 1.0
+            m.pose.covariance = [0.01 if i % 7 == 0 else 0.0 for i in range(36)]
+            self.pub.publish(m)
+            time.sleep(0.2)
+            with self.lock:
+                last = self.poses[-1] if self.poses else None
+            if last is not None:
+                p, q = last.pose.position, last.pose.orientation
+                if (abs(p.x - east) < 1e-6 and abs(p.y - north) < 1e-6 and last.header.frame_id == "map" and
+                        abs(yaw_of((q.x, q.y, q.z, q.w)) - math.atan2(north, east)) < 1e-9):
+                    return
+        raise AssertionError("pose never at (%.4f, %.4f): last %s" % (east, north, last))
+
+
+def map_to_odom_yaw_is(test, buffer, yaw, timeout=10.0):
+    """Awaits map -> odom at the origin turned by `yaw` (odom is session 0's frame here)."""
+    deadline = time.time() + timeout
+    while True:
+        t = buffer.lookup_transform("map", "odom", rospy.Time(0), rospy.Duration(timeout)).transform
+        got = yaw_of((t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w))
+        if abs(got - yaw) < 1e-9 and abs(t.translation.x) < 1e-9 and abs(t.translation.y) < 1e-9:
+            return
+        if time.time() > deadline:
+            test.fail("map -> odom %s (yaw %.6f), expected yaw %.6f" % (t, got, yaw))
+        time.sleep(0.05)
+
+
 class SetDatumTest(unittest.TestCase):
     def earth_to_map_is(self, buffer, datum, timeout=30.0):
         """Awaits earth -> map at `datum` (lat, lon, heading, alt): origin to 1 mm, axes to 1e-9
@@ -127,6 +179,10 @@ class SetDatumTest(unittest.TestCase):
             self.assertIsNotNone(pair, "no keyframe_pose and keyframe_fix of keyframe 1")
             check_keyframe_1_in_enu(self, pair[0], HEADING)
             path.await_last_pose_at(*in_enu(KEYFRAME_1[0], KEYFRAME_1[1], HEADING))
+            # The vehicle 1 m along the first keyframe's columns, at heading 30: (sin 30, cos 30) in map.
+            odometry = Odometry()
+            odometry.await_pose_at(*in_enu(1.0, 0.0, HEADING))
+            map_to_odom_yaw_is(self, buffer, math.radians(90.0 - HEADING))
             # Refused, nothing changed: each bad value named.
             for req, key in ((request(float("nan"), LON), "latitude_deg nan is not a number"),
                              (request(91.0, LON), "latitude_deg 91 is outside [-90, 90]"),
@@ -158,6 +214,10 @@ class SetDatumTest(unittest.TestCase):
             s0 = buffer.lookup_transform("map", "session_0", rospy.Time(0), rospy.Duration(10.0)).transform
             self.assertAlmostEqual(yaw_of((s0.rotation.x, s0.rotation.y, s0.rotation.z, s0.rotation.w)), math.pi / 2,
                                    delta=1e-9)  # session 0's x axis (its first keyframe's columns) north
+            map_to_odom_yaw_is(self, buffer, math.pi / 2)
+            # 1 m along the first keyframe's columns is 1 m north: (0, 1) in map.
+            self.assertEqual(tuple(round(v, 12) for v in in_enu(1.0, 0.0, NEW[2])), (0.0, 1.0))
+            odometry.await_pose_at(*in_enu(1.0, 0.0, NEW[2]))
             zone, easting, northing, gamma = utm(NEW[0], NEW[1])
             t = buffer.lookup_transform("utm", "map", rospy.Time(0), rospy.Duration(10.0)).transform
             self.assertAlmostEqual(t.translation.x, easting, delta=1e-3)
