@@ -65,6 +65,7 @@ void BackendNodelet::onInit() {
   }
   sessions_ = std::make_unique<ros_sessions::SessionPublisher>(nh, frames_.get(), options_.frames,
                                                                [this](const std::string& line) { say(line); });
+  datum_->republishWith([this](const core::SessionQueries& m) { sessions_->publishAll(m, true); });  // new axes
   if (options_.reload_stored) worker_->reloadStored();  // handed to every loop detector that subscribes
   reloaded_ = std::make_unique<ros_sessions::ReloadedKeyframesPublisher>(getMTNodeHandle(), worker_.get(),
                                                                          options_.frames.session_frame_prefix);

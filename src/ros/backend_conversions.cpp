@@ -2,6 +2,8 @@
 
 #include "uw_multislam/ros/conversions.h"
 
+#include <Eigen/Geometry>
+
 #include <algorithm>
 #include <cmath>
 #include <map>
@@ -333,6 +335,28 @@ visualization_msgs::MarkerArray toMarkerArrayMsg(const std::vector<Segment>& seg
     if (!m.points.empty()) out.markers.push_back(m);
   }
   return out;
+}
+
+std::vector<core::Pose2> toPublished(const core::MapFrame& out, const std::vector<core::Pose2>& in_core_map) {
+  std::vector<core::Pose2> poses;
+  poses.reserve(in_core_map.size());
+  for (const core::Pose2& p : in_core_map) poses.push_back(out.toPublished(p));
+  return poses;
+}
+
+visualization_msgs::MarkerArray toPublished(const core::MapFrame& out, visualization_msgs::MarkerArray markers) {
+  if (out.isIdentity()) return markers;
+  const Eigen::Quaterniond turn(Eigen::AngleAxisd(out.theta(), Eigen::Vector3d::UnitZ()));
+  for (visualization_msgs::Marker& m : markers.markers) {
+    if (m.action != visualization_msgs::Marker::ADD) continue;
+    geometry_msgs::Pose& p = m.pose;
+    const Eigen::Vector3d at = turn * Eigen::Vector3d(p.position.x, p.position.y, p.position.z);
+    const Eigen::Quaterniond q =
+        turn * Eigen::Quaterniond(p.orientation.w, p.orientation.x, p.orientation.y, p.orientation.z);
+    p.position.x = at.x(), p.position.y = at.y(), p.position.z = at.z();
+    p.orientation.w = q.w(), p.orientation.x = q.x(), p.orientation.y = q.y(), p.orientation.z = q.z();
+  }
+  return markers;
 }
 
 }  // namespace ros_conversions

@@ -79,6 +79,11 @@ DatumService::DatumService(ros::NodeHandle nh, core::SessionWorker* worker, ros_
   server_ = nh.advertiseService(topics::kSetDatumService, &DatumService::onSetDatum, this);
 }
 
+void DatumService::republishWith(std::function<void(const core::SessionQueries&)> republish) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  republish_ = std::move(republish);
+}
+
 bool DatumService::onSetDatum(uw_multislam::SetDatum::Request& req, uw_multislam::SetDatum::Response& res) {
   const core::GeoOrigin wanted = datumFromRequest(req);
   std::lock_guard<std::mutex> lock(mutex_);
@@ -90,9 +95,10 @@ bool DatumService::onSetDatum(uw_multislam::SetDatum::Request& req, uw_multislam
       st = {StatusCode::kDataLoss, "set_datum: " + kept.message + ": nothing changed"};
     } else {
       for (const std::string& line : frames_->setDatum(wanted)) say_(line);
+      if (republish_) worker_->locked([this](const core::SessionQueries& m) { republish_(m); });
       st.message = "datum " + core::describeDatum(wanted) +
                    (current ? " in place of " + core::describeDatum(*current) + " (from " + source_ + ")" : "") +
-                   ": earth -> map, map -> utm and keyframe_fix follow it; " +
+                   ": map (ENU there), earth -> map, map -> utm and keyframe_fix follow it; " +
                    (kept.ok() ? "kept in the session store (a restart keeps it)"
                               : "NOT kept across a restart (" + kept.message + ")");
       source_ = kFromService;

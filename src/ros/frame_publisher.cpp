@@ -123,24 +123,50 @@ std::optional<core::GeoOrigin> FramePublisher::datum() const {
   return datum_;
 }
 
+core::MapFrame FramePublisher::mapFrame() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return map_frame_;
+}
+
+geometry_msgs::TransformStamped FramePublisher::sessionFrame(int id, const core::Pose2& map_from_session) const {
+  return rc::toTransformStampedMsg(map_frame_.toPublished(core::zUp(map_from_session)), options_.map_frame,
+                                   options_.session_frame_prefix + std::to_string(id), ros::Time::now());
+}
+
 std::vector<std::string> FramePublisher::setDatum(const core::GeoOrigin& d) {
+  // The published map is ENU at the datum (core::MapFrame): earth -> map and map -> utm are those
+  // of a datum whose x axis points east, whatever the first keyframe's heading.
+  core::GeoOrigin enu = d;
+  enu.heading_deg = core::kEnuHeadingDeg;
   // Everything that can throw first: a refused datum changes nothing.
   const std::optional<core::UtmDatum> utm =
-      options_.utm_frame.empty() ? std::nullopt : std::optional<core::UtmDatum>(core::utmFromMap(d));
-  std::vector<std::string> lines{"datum: " + core::describeDatum(d) + "; " + topics::kKeyframeFix + " published"};
+      options_.utm_frame.empty() ? std::nullopt : std::optional<core::UtmDatum>(core::utmFromMap(enu));
+  const core::MapFrame turned = core::MapFrame::enuAtHeading(d.heading_deg);
+  std::vector<std::string> lines{"datum: " + core::describeDatum(d) + "; " + options_.map_frame +
+                                 " is ENU there (x east, y north, z up); " + topics::kKeyframeFix + " published"};
+  std::vector<geometry_msgs::TransformStamped> t;
+  // Held to the end, before mutex_ (as setSessionFrames): a session frame built in the old axes
+  // cannot go out after the new ones.
+  std::lock_guard<std::mutex> statics(static_mutex_);
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (!fix_pub_) fix_pub_ = nh_.advertise<sensor_msgs::NavSatFix>(topics::kKeyframeFix, 10);
     datum_ = d;
+    const bool moved = turned.theta() != map_frame_.theta();
+    map_frame_ = turned;
+    // map -> session_<id> as they are published now: re-expressed in the new axes.
+    if (moved && options_.publish_tf && options_.publish_session_frames)
+      for (const auto& [id, p] : session_frames_) t.push_back(sessionFrame(id, p));
   }
+  if (options_.publish_tf) tick();  // map -> odom in the new axes now, not at the next tick
   if (!options_.publish_tf) {
     lines.push_back("datum: publish_tf is false, no " + options_.earth_frame + " -> " + options_.map_frame +
                     (utm ? " nor " + options_.map_frame + " -> " + options_.utm_frame : std::string()));
     return lines;
   }
-  std::vector<geometry_msgs::TransformStamped> t{
-      toTransformMsg(core::earthFromMap(d), options_.earth_frame, options_.map_frame)};
-  lines.push_back("datum: static " + options_.earth_frame + " -> " + options_.map_frame + " (ECEF)");
+  t.push_back(toTransformMsg(core::earthFromMap(enu), options_.earth_frame, options_.map_frame));
+  lines.push_back("datum: static " + options_.earth_frame + " -> " + options_.map_frame + " (ECEF, " +
+                  options_.map_frame + " ENU)");
   if (utm) {
     t.push_back(toTransformMsg(utm->utm_from_map.inverse(), options_.map_frame, options_.utm_frame));
     char line[240];
@@ -152,12 +178,11 @@ std::vector<std::string> FramePublisher::setDatum(const core::GeoOrigin& d) {
                   utm->scale);
     lines.push_back(line);
   }
-  std::lock_guard<std::mutex> lock(static_mutex_);
   static_tf_.sendTransform(t);  // replaces the last ones (by child frame)
   return lines;
 }
 
-void FramePublisher::publishFix(const core::UncertainPose2& vehicle_in_map, const ros::Time& stamp) {
+void FramePublisher::publishFix(const core::UncertainPose2& vehicle_in_core_map, const ros::Time& stamp) {
   std::optional<core::GeoOrigin> d;
   ros::Publisher pub;
   {
@@ -166,7 +191,7 @@ void FramePublisher::publishFix(const core::UncertainPose2& vehicle_in_map, cons
     pub = fix_pub_;
   }
   if (!d) return;
-  const core::GeoFix f = core::fixFromMap(*d, vehicle_in_map);
+  const core::GeoFix f = core::fixFromMap(*d, vehicle_in_core_map);  // the datum's heading: the core map's x axis
   sensor_msgs::NavSatFix m;
   m.header.stamp = stamp;
   m.header.frame_id = options_.base_frame;  // NavSatFix: where on the vehicle the position is (here base_link)
@@ -184,18 +209,17 @@ void FramePublisher::publishFix(const core::UncertainPose2& vehicle_in_map, cons
 void FramePublisher::setSessionFrames(const std::map<int, core::Pose2>& map_from_session) {
   if (!options_.publish_tf || !options_.publish_session_frames) return;
   std::vector<geometry_msgs::TransformStamped> changed;
+  std::lock_guard<std::mutex> statics(static_mutex_);  // before mutex_: in order with setDatum's
   {
     std::lock_guard<std::mutex> lock(mutex_);
     for (const auto& [id, p] : map_from_session) {
       const auto it = session_frames_.find(id);
       if (it != session_frames_.end() && same(it->second, p)) continue;
       session_frames_[id] = p;
-      changed.push_back(rc::toTransformStampedMsg(
-          core::zUp(p), options_.map_frame, options_.session_frame_prefix + std::to_string(id), ros::Time::now()));
+      changed.push_back(sessionFrame(id, p));
     }
   }
   if (changed.empty()) return;
-  std::lock_guard<std::mutex> lock(static_mutex_);
   static_tf_.sendTransform(changed);  // the broadcaster replaces them by child frame
 }
 
@@ -213,6 +237,7 @@ std::optional<core::Pose2> FramePublisher::onOdometry(int session, const core::U
     } else if (options_.publish_odom_tf && map_from_odom_) {
       in_map = core::compose(*map_from_odom_, in_odom);  // a session the back-end has not seen yet
     }
+    if (in_map) in_map = map_frame_.toPublished(*in_map);
     if (options_.publish_odom_tf) {
       // odom <- base = (odom <- session, exact) (+) (session <- base): the covariance turns with the placement.
       const core::UncertainPose2 u = core::compose(core::UncertainPose2::exact(*chain_.offset(session)), pose);
@@ -263,17 +288,18 @@ void FramePublisher::tick() {
       }
     }
     if (!map_from_odom_) return;
+    const core::Pose2 published = map_frame_.toPublished(*map_from_odom_);
     ros::Time stamp = now + ros::Duration(options_.tf_future_s);
     if (stamp <= last_stamp_) {
       // The clock stands still (a paused or finished bag): tf2 would drop a repeated stamp, so
       // nothing is sent, unless the correction changed (a join): then 1 us after the last one, so
       // that listeners asking for the latest transform see it.
-      if (sent_ && same(*sent_, *map_from_odom_)) return;
+      if (sent_ && same(*sent_, published)) return;
       stamp = last_stamp_ + ros::Duration(0, 1000);
     }
     last_stamp_ = stamp;
-    sent_ = map_from_odom_;
-    t = rc::toTransformStampedMsg(*map_from_odom_, options_.map_frame, options_.odom_frame, stamp);
+    sent_ = published;
+    t = rc::toTransformStampedMsg(published, options_.map_frame, options_.odom_frame, stamp);
     ++stats_.map_to_odom_published;
   }
   tf_.sendTransform(t);

@@ -44,7 +44,7 @@ void SessionPublisher::onOdometry(const geometry_msgs::PoseWithCovarianceStamped
   pose_pub_.publish(p);
 }
 
-core::Pose2 SessionPublisher::publishSession(const core::SessionQueries& m, int id) {
+core::Pose2 SessionPublisher::publishSession(const core::SessionQueries& m, int id, const core::MapFrame& out) {
   const std::vector<core::Pose2> poses = m.poses(id);
   const core::Pose2 correction = m.correction(id);
   std::vector<ros::Time> stamps;
@@ -56,7 +56,8 @@ core::Pose2 SessionPublisher::publishSession(const core::SessionQueries& m, int 
   if (!path && m.hasKeyframe(id))
     path = nh_.advertise<nav_msgs::Path>(topics::kSessionPathPrefix + std::to_string(id), 1, true);
   const std::string& map = options_.map_frame;
-  if (path) path.publish(rc::toPathMsg(rc::vehiclePoses(m, id, frames_->mount()), stamps, map, now));
+  if (path)
+    path.publish(rc::toPathMsg(rc::toPublished(out, rc::vehiclePoses(m, id, frames_->mount())), stamps, map, now));
   if (id != m.activeSession()) return correction;
   std::string said;
   const std::optional<core::SessionQueries::Relocalisation> reloc = reloc_.update(m, id, &said);
@@ -64,14 +65,14 @@ core::Pose2 SessionPublisher::publishSession(const core::SessionQueries& m, int 
   if (!reloc) {
     frames_->setActive(id, correction, poses.back(), now);
     const core::UncertainPose2 vehicle = frames_->vehicle(m.lastKeyframeInMap(id));
-    keyframe_pose_pub_.publish(rc::toPoseWithCovarianceStampedMsg(vehicle, map, now));
+    keyframe_pose_pub_.publish(rc::toPoseWithCovarianceStampedMsg(out.toPublished(vehicle), map, now));
     frames_->publishFix(vehicle, now);  // keyframe_fix: the same pose on WGS84, with a datum
     return correction;
   }
   // Relocalised in another map: tf and the poses go out in that map's frame (where it is drawn).
   frames_->setActive(id, reloc->correction, reloc->pose.mean, now);
   const core::UncertainPose2 vehicle = frames_->vehicle(reloc->pose);
-  const auto msg = rc::toPoseWithCovarianceStampedMsg(vehicle, map, now);
+  const auto msg = rc::toPoseWithCovarianceStampedMsg(out.toPublished(vehicle), map, now);
   keyframe_pose_pub_.publish(msg);
   frames_->publishFix(vehicle, now);
   relocalised_pub_.publish(msg);
@@ -82,18 +83,19 @@ core::Pose2 SessionPublisher::publishSession(const core::SessionQueries& m, int 
 void SessionPublisher::publishAll(const core::SessionQueries& m, bool all_sessions) {
   if (all_sessions) offsets_ = rc::mapOffsets(m, frames_->mount());  // maps change only with events
   std::map<int, core::Pose2> corrections;                            // map -> session_<id>: sent together
+  const core::MapFrame out = frames_->mapFrame();                    // one datum for the whole publication
   for (int id : all_sessions ? m.sessionIds() : std::vector<int>{m.activeSession()})
-    if (id >= 0) corrections[id] = publishSession(m, id);
+    if (id >= 0) corrections[id] = publishSession(m, id, out);
   frames_->setSessionFrames(corrections);
   const ros::WallTime now = ros::WallTime::now();  // every session's markers: on events, else at most 1 Hz
   if (trajectory_markers_pub_.getNumSubscribers() > 0 && (all_sessions || (now - markers_sent_).toSec() >= 1.0)) {
     markers_sent_ = now;
-    trajectory_markers_pub_.publish(
-        rc::toTrajectoryMarkersMsg(m, frames_->mount(), offsets_, options_.map_frame, ros::Time::now()));
+    trajectory_markers_pub_.publish(rc::toPublished(
+        out, rc::toTrajectoryMarkersMsg(m, frames_->mount(), offsets_, options_.map_frame, ros::Time::now())));
   }
   if (!all_sessions && m.loops().empty()) return;
-  markers_pub_.publish(
-      rc::toMarkerArrayMsg(rc::loopSegments(m, frames_->mount(), offsets_), options_.map_frame, ros::Time::now()));
+  markers_pub_.publish(rc::toPublished(out, rc::toMarkerArrayMsg(rc::loopSegments(m, frames_->mount(), offsets_),
+                                                                 options_.map_frame, ros::Time::now())));
 }
 
 uw_multislam::SessionState SessionPublisher::sessionRequest(const core::SessionQueries& m, std::uint8_t state) const {

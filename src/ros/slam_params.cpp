@@ -123,14 +123,14 @@ void readDatum(const Params& pnh, ros_frames::FrameOptions* f) {
   const bool has_lat = pnh.has("datum/latitude_deg"), has_lon = pnh.has("datum/longitude_deg");
   if (has_lat != has_lon)
     throw std::invalid_argument(pnh.resolve("datum") + ": latitude_deg and longitude_deg together or not at all");
-  core::GeoOrigin d{0.0, 0.0, core::kEnuHeadingDeg};  // without ~datum/heading_deg: map's x axis east (ENU)
+  core::GeoOrigin d{0.0, 0.0, core::kEnuHeadingDeg};  // without ~datum/heading_deg: the first keyframe's x east
   param(
       pnh, "datum/latitude_deg", &d.lat_deg, [](double v) { return std::abs(v) <= 90.0; }, "in [-90, 90] degrees");
   param(
       pnh, "datum/longitude_deg", &d.lon_deg, [](double v) { return std::abs(v) <= 180.0; }, "in [-180, 180] degrees");
   param(
       pnh, "datum/heading_deg", &d.heading_deg, [](double v) { return std::abs(v) <= 360.0; },
-      "in [-360, 360] degrees (the compass heading of map's x axis; 90: ENU)");
+      "in [-360, 360] degrees (the compass heading of the first keyframe's x axis; map is ENU)");
   param(
       pnh, "datum/altitude_m", &d.alt_m, [](double v) { return std::abs(v) <= core::kMaxDatumAltitudeM; },
       "in [-10000, 10000] m (the height of map's origin above the WGS84 ellipsoid)");

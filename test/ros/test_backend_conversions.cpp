@@ -1,6 +1,8 @@
 // The session manager's answers and state as ROS messages (ros/backend_conversions.h).
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+
 #include <algorithm>
 #include <cmath>
 #include <map>
@@ -214,6 +216,41 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
   EXPECT_EQ(by_ns["local_loops"].points.size(), 2u);
   const auto &a = by_ns["refused_loops"].color, &b = by_ns["local_loops"].color;
   EXPECT_GT(std::abs(a.r - b.r) + std::abs(a.g - b.g) + std::abs(a.b - b.b), 0.5f);
+}
+
+TEST(BackendConversions, MarkersAndPathsGoOutInThePublishedMap) {
+  // Heading 0: the core map's x axis points north, so (x, y) in it is (-y, x) in ENU.
+  const core::MapFrame north = core::MapFrame::enuAtHeading(0.0);
+  const std::vector<core::Pose2> path = toPublished(north, {core::Pose2(2.0, 0.5, 0.0)});
+  ASSERT_EQ(path.size(), 1u);
+  EXPECT_NEAR(path[0].x(), -0.5, 1e-12);
+  EXPECT_NEAR(path[0].y(), 2.0, 1e-12);
+  EXPECT_NEAR(path[0].yaw(), M_PI / 2, 1e-12);
+  Segment s;
+  s.a = core::Pose2(1.0, 0.0, 0.0), s.b = core::Pose2(3.0, 2.0, 0.0);
+  const visualization_msgs::MarkerArray core_markers = toMarkerArrayMsg({s}, "map", ros::Time(5.0));
+  const visualization_msgs::MarkerArray out = toPublished(north, core_markers);
+  ASSERT_EQ(out.markers.size(), core_markers.markers.size());
+  EXPECT_EQ(out.markers[0].action, visualization_msgs::Marker::DELETEALL);
+  int drawn = 0;
+  for (const visualization_msgs::Marker& m : out.markers) {
+    if (m.points.empty()) continue;
+    ++drawn;
+    // Each point as rviz places it: the marker's pose applied to it.
+    const Eigen::Quaterniond q(m.pose.orientation.w, m.pose.orientation.x, m.pose.orientation.y,
+                               m.pose.orientation.z);
+    const Eigen::Vector3d at(m.pose.position.x, m.pose.position.y, m.pose.position.z);
+    ASSERT_EQ(m.points.size(), 2u);
+    const Eigen::Vector3d a = q * Eigen::Vector3d(m.points[0].x, m.points[0].y, 0.0) + at;
+    const Eigen::Vector3d b = q * Eigen::Vector3d(m.points[1].x, m.points[1].y, 0.0) + at;
+    EXPECT_NEAR(a.x(), 0.0, 1e-12);
+    EXPECT_NEAR(a.y(), 1.0, 1e-12);
+    EXPECT_NEAR(b.x(), -2.0, 1e-12);
+    EXPECT_NEAR(b.y(), 3.0, 1e-12);
+  }
+  EXPECT_EQ(drawn, 1);
+  // Without a datum nothing changes.
+  EXPECT_EQ(toPublished(core::MapFrame(), core_markers).markers[1].pose.orientation.w, 1.0);
 }
 
 }  // namespace

@@ -1,12 +1,13 @@
 #!/usr/bin/python3
 """rostest: the back-end's datum (datum.test), checked with plain WGS84 and UTM arithmetic written
-here (independent of GeographicLib, which the back-end uses):
-1. the static earth -> map is the datum's ECEF position and its east/north/up axes turned by the
-   heading;
+here (independent of GeographicLib, which the back-end uses). `map` is ENU at the datum (REP-103),
+whatever the datum's heading (the compass heading of the first keyframe's x axis):
+1. the static earth -> map is the datum's ECEF position and its east/north/up axes, no heading turn;
 2. the static map -> utm puts map's origin at the datum's UTM easting/northing (Krueger's series)
-   with map's x axis at the heading less the grid convergence;
-3. keyframe_fix is keyframe_pose's position on WGS84 (through earth -> map, then ECEF -> geodetic)
-   with keyframe_pose's (x, y) covariance turned into east/north/up.
+   with map's x axis (east) at grid bearing 90 degrees less the grid convergence;
+3. keyframe_pose is in ENU: keyframe 1 (40 m along the first keyframe's image columns, 25 m along
+   its rows) where the heading puts it, its covariance turned with it; keyframe_fix is its position
+   on WGS84 (through earth -> map, then ECEF -> geodetic) with its (x, y) covariance as east/north.
 Without a datum (datum.test datum:=false): keyframe_pose comes, keyframe_fix is not advertised; and a
 second back-end given a polar datum with a UTM frame refuses to start, naming ~datum/utm_frame."""
 import math
@@ -59,6 +60,32 @@ def datum_frame(lat=LAT, lon=LON, heading=HEADING, alt=0.0):
     x_axis = tuple(math.sin(h) * east[i] + math.cos(h) * north[i] for i in range(3))
     y_axis = tuple(-math.cos(h) * east[i] + math.sin(h) * north[i] for i in range(3))
     return origin, x_axis, y_axis, up
+
+
+def in_enu(x_img, y_img, heading_deg, cov=None):
+    """A point x_img along the first keyframe's image columns and y_img along its rows, as
+    (east, north) when those columns point at compass heading h (the image is seen from above, the
+    camera looking down: the rows point 90 degrees clockwise of the columns, at heading h + 90);
+    with `cov` (3x3 over x_img, y_img and the yaw from columns towards rows), also that covariance
+    in (east, north, ENU yaw), where a turn towards the rows is clockwise: the ENU yaw falls."""
+    h = math.radians(heading_deg)
+    cols, rows = (math.sin(h), math.cos(h)), (math.sin(h + math.pi / 2), math.cos(h + math.pi / 2))
+    en = tuple(x_img * cols[i] + y_img * rows[i] for i in range(2))
+    if cov is None:
+        return en
+    m = ((cols[0], rows[0], 0.0), (cols[1], rows[1], 0.0), (0.0, 0.0, -1.0))
+    return en, [[sum(m[i][a] * cov[a][b] * m[j][b] for a in range(3) for b in range(3)) for j in range(3)]
+                for i in range(3)]
+
+
+def yaw_of(q):
+    """The yaw (about z) of a z-up quaternion (x, y, z, w)."""
+    x, y, z, w = q
+    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+KEYFRAME_1 = (40.0, 25.0, 0.3)  # send_two_keyframes' keyframe 1 in the first keyframe's image axes
+KEYFRAME_1_COV = ((0.04, 0.01, 0.0), (0.01, 0.09, 0.0), (0.0, 0.0, 0.001))
 
 
 def geodetic(p):
@@ -116,7 +143,7 @@ def send_two_keyframes():
         raise AssertionError("the back-end never connected to this test's keyframes")
     stamp = rospy.Time.now()
     for index, motion, cov in ((0, (0.0, 0.0, 0.0), [0.0] * 9),
-                               (1, (40.0, 25.0, 0.3), [0.04, 0.01, 0.0, 0.01, 0.09, 0.0, 0.0, 0.0, 0.001])):
+                               (1, KEYFRAME_1, [c for row in KEYFRAME_1_COV for c in row])):
         k = Keyframe(session=0, keyframe=index, frame_index=index, altitude_m=2.0, width=240, height=180, fx=220,
                      fy=220, cx=119.5, cy=89.5, descriptor_size=128,
                      status=Keyframe.FIRST if index == 0 else Keyframe.MATCHED)
@@ -170,6 +197,26 @@ class Recorder(object):
         return None
 
 
+def check_keyframe_1_in_enu(test, pose, heading_deg):
+    """keyframe_pose of send_two_keyframes' keyframe 1 is where a datum of `heading_deg` puts it in
+    ENU (in_enu), its yaw and its x, y, yaw covariance turned with it."""
+    p = pose.pose.pose
+    (east, north), cov = in_enu(KEYFRAME_1[0], KEYFRAME_1[1], heading_deg, KEYFRAME_1_COV)
+    facing = in_enu(math.cos(KEYFRAME_1[2]), math.sin(KEYFRAME_1[2]), heading_deg)
+    yaw = yaw_of((p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w))
+    print("keyframe 1 in map (%.4f, %.4f, yaw %.4f); in ENU at heading %.1f: (%.4f, %.4f, yaw %.4f)" %
+          (p.position.x, p.position.y, yaw, heading_deg, east, north, math.atan2(facing[1], facing[0])))
+    test.assertEqual(pose.header.frame_id, "map")
+    test.assertAlmostEqual(p.position.x, east, delta=1e-6)
+    test.assertAlmostEqual(p.position.y, north, delta=1e-6)
+    turn = yaw - math.atan2(facing[1], facing[0])
+    test.assertAlmostEqual(math.atan2(math.sin(turn), math.cos(turn)), 0.0, delta=1e-9)
+    c = pose.pose.covariance  # 6x6 row-major over x, y, z, roll, pitch, yaw
+    for (i, j), k in (((0, 0), 0), ((0, 1), 1), ((1, 1), 7), ((0, 2), 5), ((1, 2), 11), ((2, 2), 35)):
+        test.assertAlmostEqual(c[k], cov[i][j], delta=1e-12 + 1e-9 * abs(cov[i][j]),
+                               msg="covariance [%d][%d]: %s, expected %s" % (i, j, list(c), cov))
+
+
 class NoDatumTest(unittest.TestCase):
     def test_a_polar_datum_with_a_utm_frame_stops_the_backend_naming_the_key(self):
         """A second back-end, datum at latitude 85 (UTM ends at 84) with ~datum/utm_frame: one FATAL
@@ -212,6 +259,8 @@ class NoDatumTest(unittest.TestCase):
         last = send_two_keyframes()
         got = recorder.at(last, with_fix=False)
         self.assertIsNotNone(got, "no keyframe_pose of keyframe 1 (stamp %s)" % last)
+        # map is the first keyframe's frame, z up: the x axis along its image columns (as at heading 90).
+        check_keyframe_1_in_enu(self, got[0], 90.0)
         # The back-end advertises keyframe_fix (with a datum) before it subscribes to keyframes, so
         # by now the master would list it.
         topics = [name for name, _ in rospy.get_published_topics()]
@@ -227,10 +276,10 @@ class DatumTest(unittest.TestCase):
         cls.listener = tf2_ros.TransformListener(cls.buffer)
         cls.recorder = Recorder()
 
-    def test_1_earth_to_map_is_the_datum(self):
+    def test_1_earth_to_map_is_the_datum_enu(self):
         # Awaited: the latched /tf_static arrives once the back-end is up.
         t = self.buffer.lookup_transform("earth", "map", rospy.Time(0), rospy.Duration(45.0)).transform
-        origin, x_axis, y_axis, up = datum_frame()
+        origin, x_axis, y_axis, up = datum_frame(heading=90.0)  # x east: no turn for the heading
         got = (t.translation.x, t.translation.y, t.translation.z)
         for i in range(3):
             self.assertAlmostEqual(got[i], origin[i], delta=1e-3, msg="ECEF origin %s vs %s" % (got, origin))
@@ -251,8 +300,8 @@ class DatumTest(unittest.TestCase):
         self.assertAlmostEqual(t.translation.x, easting, delta=1e-3)
         self.assertAlmostEqual(t.translation.y, northing, delta=1e-3)
         self.assertAlmostEqual(t.translation.z, 0.0, delta=1e-9)
-        # map's x axis: grid bearing HEADING - gamma, i.e. (sin b, cos b) in (easting, northing).
-        b = math.radians(HEADING - gamma)
+        # map's x axis (east): grid bearing 90 - gamma, i.e. (sin b, cos b) in (easting, northing).
+        b = math.radians(90.0 - gamma)
         q = (t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w)
         x_axis = rotate(q, (1.0, 0.0, 0.0))
         for got, expected in zip(x_axis, (math.sin(b), math.cos(b), 0.0)):
@@ -268,8 +317,8 @@ class DatumTest(unittest.TestCase):
                              (last, len(self.recorder.poses), len(self.recorder.fixes)))
         pose, fix = pair
         x, y = pose.pose.pose.position.x, pose.pose.pose.position.y
-        self.assertGreater(math.hypot(x, y), 40.0, "keyframe 1 is at the map's origin: %s" % ((x, y),))
-        origin, x_axis, y_axis, _ = datum_frame()
+        check_keyframe_1_in_enu(self, pose, HEADING)
+        origin, x_axis, y_axis, _ = datum_frame(heading=90.0)
         lat, lon, height = geodetic(tuple(origin[i] + x * x_axis[i] + y * y_axis[i] for i in range(3)))
         print("keyframe 1 at map (%.3f, %.3f): fix %.9f, %.9f, %.4f m; expected %.9f, %.9f, %.4f m" %
               (x, y, fix.latitude, fix.longitude, fix.altitude, lat, lon, height))
@@ -281,16 +330,10 @@ class DatumTest(unittest.TestCase):
         self.assertAlmostEqual(fix.latitude, lat, delta=1e-9)
         self.assertAlmostEqual(fix.longitude, lon, delta=1e-9)
         self.assertAlmostEqual(fix.altitude, height, delta=1e-4)
-        # Covariance: keyframe_pose's (x, y) block (6x6 row-major) turned into (east, north).
+        # Covariance: keyframe_pose's (x, y) block (6x6 row-major), already east/north.
         c = pose.pose.covariance
-        pxx, pxy, pyy = c[0], c[1], c[7]
-        self.assertGreater(pxx, 0.0)
-        h = math.radians(HEADING)
-        r = ((math.sin(h), -math.cos(h)), (math.cos(h), math.sin(h)))  # (east, north) of map's x and y
-        p = ((pxx, pxy), (pxy, pyy))
-        enu = [[sum(r[i][a] * p[a][b] * r[j][b] for a in range(2) for b in range(2)) for j in range(2)]
-               for i in range(2)]
-        expected = [enu[0][0], enu[0][1], 0.0, enu[1][0], enu[1][1], 0.0, 0.0, 0.0, 0.0]
+        self.assertGreater(c[0], 0.0)
+        expected = [c[0], c[1], 0.0, c[6], c[7], 0.0, 0.0, 0.0, 0.0]
         for i in range(9):
             self.assertAlmostEqual(fix.position_covariance[i], expected[i], delta=1e-12 + 1e-9 * abs(expected[i]),
                                    msg="covariance %s vs %s" % (list(fix.position_covariance), expected))

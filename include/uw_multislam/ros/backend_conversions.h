@@ -20,6 +20,7 @@
 #include "uw_multislam/SessionTrajectory.h"
 #include "uw_multislam/Status.h"
 #include "uw_multislam/core/backend/backend.h"
+#include "uw_multislam/core/geometry/map_frame.h"
 #include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/stored_loops.h"
@@ -98,6 +99,12 @@ uw_multislam::SessionTrajectory toSessionTrajectoryMsg(int session, int map, con
 /// "joins"; green, orange, red), each with a DELETEALL first so removed segments disappear.
 visualization_msgs::MarkerArray toMarkerArrayMsg(const std::vector<Segment>& segments, const std::string& frame_id,
                                                  const ros::Time& stamp);
+
+/// What the back-end publishes in `map`, from the core's z-up map to the published one
+/// (core::MapFrame: ENU at a datum): poses one by one; markers by turning each one's pose (its
+/// points are in it), the DELETEALLs as they are.
+std::vector<core::Pose2> toPublished(const core::MapFrame& out, const std::vector<core::Pose2>& in_core_map);
+visualization_msgs::MarkerArray toPublished(const core::MapFrame& out, visualization_msgs::MarkerArray markers);
 
 }  // namespace ros_conversions
 }  // namespace uw_multislam

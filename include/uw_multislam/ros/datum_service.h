@@ -1,7 +1,8 @@
 // The back-end's datum (doc/frames.md, doc/ros_api.md "set_datum"): which one is in use at
 // start-up, and set_datum, which sets or moves it at sea as robot_localization's navsat_transform
-// does. The datum is map's origin on WGS84 and the compass heading of map's x axis; FramePublisher
-// publishes earth -> map, map -> utm and keyframe_fix from it; the session store keeps the one
+// does. The datum is map's origin on WGS84 and the compass heading of the first keyframe's x axis
+// (z up); `map` is published ENU there (core::MapFrame); FramePublisher publishes earth -> map,
+// map -> utm and keyframe_fix from it; the session store keeps the one
 // set_datum gave (SessionManager::storeDatum), so a restart keeps a datum set at sea.
 //
 // The rules (the least surprising, written out in doc/ros_api.md):
@@ -32,7 +33,7 @@
 namespace uw_multislam {
 namespace ros_geo {
 
-/// set_datum's request as a datum: heading_deg with with_heading, else map's x axis east (ENU).
+/// set_datum's request as a datum: heading_deg with with_heading, else the first keyframe's x axis east.
 core::GeoOrigin datumFromRequest(const uw_multislam::SetDatum::Request& r);
 
 /// Whether set_datum may put `wanted` in place of `current` (from `current_source`): OK (the
@@ -58,6 +59,9 @@ class DatumService {
   /// one with a UTM frame).
   DatumService(ros::NodeHandle nh, core::SessionWorker* worker, ros_frames::FramePublisher* frames,
                const ros_frames::FrameOptions& options, Say say);
+  /// What set_datum calls, under the worker's lock, once it has moved the datum: the back-end
+  /// publishes its sessions again (paths, poses, markers in the new `map` axes). Thread-safe.
+  void republishWith(std::function<void(const core::SessionQueries&)> republish);
 
  private:
   bool onSetDatum(uw_multislam::SetDatum::Request& req, uw_multislam::SetDatum::Response& res);
@@ -66,8 +70,9 @@ class DatumService {
   ros_frames::FramePublisher* frames_;
   const std::string utm_frame_;
   const Say say_;
-  std::mutex mutex_;    // one set_datum at a time; guards source_
+  std::mutex mutex_;    // one set_datum at a time; guards source_ and republish_
   std::string source_;  // of the datum in use: "~datum/* parameters", "set_datum"
+  std::function<void(const core::SessionQueries&)> republish_;
   ros::ServiceServer server_;
 };
 

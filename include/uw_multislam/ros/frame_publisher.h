@@ -22,7 +22,9 @@
 //    drawn with the camera at base_link, with a WARN.
 // The class takes the core's poses (the camera's, image axes) where it says so and publishes
 // REP-103 ones (z-up, base_link: core/geometry/vehicle_frame.h); odometry/pose comes in as the
-// vehicle's already (the odometry nodelet converts it).
+// vehicle's already (the odometry nodelet converts it). It keeps every map pose in the core's map
+// (z-up) and turns it into the published `map` when it sends it (mapFrame(): ENU at the datum,
+// core/geometry/map_frame.h), so a new datum re-expresses what goes out next.
 #pragma once
 
 #include <ros/ros.h>
@@ -41,6 +43,7 @@
 #include <Eigen/Geometry>
 
 #include "uw_multislam/core/export/survey_export.h"
+#include "uw_multislam/core/geometry/map_frame.h"
 #include "uw_multislam/core/session/odom_chain.h"
 #include "uw_multislam/ros/camera_mount.h"
 #include "uw_multislam/ros/topics.h"
@@ -86,27 +89,33 @@ class FramePublisher {
   /// and its last keyframe's pose in the map with its stamp (the core's).
   void setActive(int session, const core::Pose2& map_from_session, const core::Pose2& map_from_last_keyframe,
                  const ros::Time& keyframe_stamp);
-  /// The datum in use from now on: the static earth_frame -> map_frame (REP-105's earth: ECEF;
-  /// core::earthFromMap) and, with a utm_frame, map_frame -> utm_frame (core::utmFromMap inverted:
-  /// utm is map's child, as navsat_transform sends it by default, because map's one parent in tf
-  /// is earth), sent again in place of the last ones; keyframe_fix advertised at the first datum.
+  /// The datum in use from now on: `map` becomes ENU at it (mapFrame()), the static earth_frame ->
+  /// map_frame (REP-105's earth: ECEF; core::earthFromMap of the datum with its x axis east, so no
+  /// heading turn) and, with a utm_frame, map_frame -> utm_frame (core::utmFromMap inverted, the
+  /// grid convergence its only turn: utm is map's child, as navsat_transform sends it by default,
+  /// because map's one parent in tf is earth), sent again in place of the last ones, with map ->
+  /// session_<id> and map -> odom in the new axes; keyframe_fix advertised at the first datum.
   /// Thread-safe. Returns the lines that say what was published, for the node's log. Throws
   /// std::invalid_argument for a utm_frame with a polar datum, with nothing changed.
   std::vector<std::string> setDatum(const core::GeoOrigin& datum);
   /// The datum in use (nullopt: none yet).
   std::optional<core::GeoOrigin> datum() const;
+  /// The published `map` from the core's z-up map: ENU at the datum in use, identity without one.
+  /// Every pose published in map_frame goes through it (here and in SessionPublisher).
+  core::MapFrame mapFrame() const;
   /// What is published without a datum, for the node's log.
   std::vector<std::string> noDatum() const;
-  /// With a datum: keyframe_fix, the geographic position of keyframe_pose (the vehicle's pose in
-  /// the map, z up) at its stamp (core::fixFromMap). Without one: nothing (not advertised).
-  void publishFix(const core::UncertainPose2& vehicle_in_map, const ros::Time& stamp);
+  /// With a datum: keyframe_fix, the geographic position of keyframe_pose at its stamp, from the
+  /// vehicle's pose in the core's z-up map (before mapFrame(): core::fixFromMap with the datum's
+  /// heading). Without one: nothing (not advertised).
+  void publishFix(const core::UncertainPose2& vehicle_in_core_map, const ros::Time& stamp);
   /// map -> session_<id> for these sessions (the core's corrections); those that changed are sent, in one message.
   void setSessionFrames(const std::map<int, core::Pose2>& map_from_session);
   /// An odometry pose (the vehicle's, in the session's z-up frame, with its covariance): with
   /// publish_odom_tf, odom -> base_link and the odom topic (nav_msgs/Odometry: the pose in odom,
   /// its covariance carried through the session's placement; the twist from the last pose).
-  /// Returns the vehicle's pose in the map (the active session's correction applied) or nullopt
-  /// before any correction.
+  /// Returns the vehicle's pose in the published map (the active session's correction applied,
+  /// then mapFrame()) or nullopt before any correction.
   std::optional<core::Pose2> onOdometry(int session, const core::UncertainPose2& pose, const ros::Time& stamp);
   /// The vehicle's pose (z-up, base_link) from a core pose of the camera.
   core::Pose2 vehicle(const core::Pose2& camera) const { return core::vehicleFromCamera(camera, mount()); }
@@ -119,6 +128,8 @@ class FramePublisher {
 
  private:
   void tick();
+  /// map -> session_<id> as published (mutex_ held).
+  geometry_msgs::TransformStamped sessionFrame(int id, const core::Pose2& map_from_session) const;
   void onCameraFrame(const std::string& frame);  // a keyframe's header.frame_id
 
   FrameOptions options_;
@@ -145,12 +156,14 @@ class FramePublisher {
   std::string camera_frame_, mount_for_;                       // the keyframes' camera frame; mount_'s
   std::optional<core::Pose2> map_from_session_;                // of the active session
   std::optional<std::pair<core::Pose2, ros::Time>> keyframe_;  // vehicle odometry: waiting for its lookup
+  // Map poses here are the core map's (z-up), turned by map_frame_ when sent.
   std::optional<core::Pose2> map_from_odom_;
-  std::optional<core::Pose2> sent_;                             // map_from_odom_ as last published
+  std::optional<core::Pose2> sent_;                             // map_from_odom_ as last published (turned)
   std::optional<std::pair<core::Pose2, ros::Time>> last_odom_;  // for the twist
   ros::Time last_stamp_;
   std::map<int, core::Pose2> session_frames_;
   std::optional<core::GeoOrigin> datum_;  // in use
+  core::MapFrame map_frame_;              // published map <- core map (z-up), from datum_
   ros::Publisher fix_pub_;                // topics::kKeyframeFix, from the first datum on
   FrameStats stats_;
   long published_at_window_ = 0;  // the rate's window: publications and start

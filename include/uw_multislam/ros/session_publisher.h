@@ -3,7 +3,8 @@
 // path in the map frame (paths/session_<id>, latched, advertised with its first keyframe), the
 // loop and trajectory markers, the active session's keyframe pose (and, while it is relocalised
 // in another map, relocalised_pose: core::RelocalisationTracker), the corrections the frame
-// publisher sends as tf, and active_session (what the odometry is asked to record next).
+// publisher sends as tf, and active_session (what the odometry is asked to record next). Every
+// pose in the map frame goes out in the published `map` (ENU at a datum: FramePublisher::mapFrame()).
 //
 // Not thread-safe: the back-end calls it under the session worker's lock (the manager's state
 // must not change during a publication), except onOdometry, which never takes that lock: the
@@ -53,7 +54,8 @@ class SessionPublisher {
   const core::RelocalisationTracker::State& relocalisation() const { return reloc_.state(); }
 
  private:
-  core::Pose2 publishSession(const core::SessionQueries& m, int id);  // returns map <- session
+  /// Its poses in the map frame `out` gives; returns the core's map <- session (FramePublisher turns it).
+  core::Pose2 publishSession(const core::SessionQueries& m, int id, const core::MapFrame& out);
   uw_multislam::SessionState sessionRequest(const core::SessionQueries& m, std::uint8_t state) const;
 
   ros::NodeHandle nh_;

@@ -68,10 +68,10 @@ bool parseDatumText(const std::string& text, GeoOrigin* out, std::string* why) {
 std::string describeDatum(const GeoOrigin& d) {
   char line[200];
   if (d.heading_deg == kEnuHeadingDeg)
-    std::snprintf(line, sizeof line, "%.7f, %.7f, %.2f m, ENU (map's x axis east)", d.lat_deg, d.lon_deg, d.alt_m);
+    std::snprintf(line, sizeof line, "%.7f, %.7f, %.2f m, first keyframe's x axis east", d.lat_deg, d.lon_deg, d.alt_m);
   else
-    std::snprintf(line, sizeof line, "%.7f, %.7f, %.2f m, map's x axis heading %.1f deg", d.lat_deg, d.lon_deg, d.alt_m,
-                  d.heading_deg);
+    std::snprintf(line, sizeof line, "%.7f, %.7f, %.2f m, first keyframe's x axis heading %.1f deg", d.lat_deg,
+                  d.lon_deg, d.alt_m, d.heading_deg);
   return line;
 }
 

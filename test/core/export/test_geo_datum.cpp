@@ -185,9 +185,9 @@ TEST(GeoDatum, TheStoresTextGivesTheDatumBackToTheLastBitAndRefusesADamagedOne) 
     EXPECT_FALSE(parseDatumText(damaged, &back, &why)) << damaged;
     EXPECT_NE(why.find("datum '" + damaged + "'"), std::string::npos) << why;
   }
-  EXPECT_EQ(describeDatum({43.0951, 5.9307, 90.0, 0.0}), "43.0951000, 5.9307000, 0.00 m, ENU (map's x axis east)");
+  EXPECT_EQ(describeDatum({43.0951, 5.9307, 90.0, 0.0}), "43.0951000, 5.9307000, 0.00 m, first keyframe's x axis east");
   EXPECT_EQ(describeDatum({43.0951, 5.9307, 30.0, 1.5}),
-            "43.0951000, 5.9307000, 1.50 m, map's x axis heading 30.0 deg");
+            "43.0951000, 5.9307000, 1.50 m, first keyframe's x axis heading 30.0 deg");
 }
 
 }  // namespace

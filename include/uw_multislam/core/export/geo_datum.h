@@ -14,7 +14,10 @@
 namespace uw_multislam {
 namespace core {
 
-/// The compass heading of `map`'s x axis that makes `map` ENU (REP-103: x east, y north, z up).
+/// The compass heading of the core map's x axis (its first keyframe's, z up) that makes it ENU
+/// (REP-103: x east, y north, z up). In this file "map" is the core's map at a datum of any heading;
+/// the back-end publishes `map` ENU (core/geometry/map_frame.h) and passes these functions a datum
+/// of this heading for earth -> map and map -> utm.
 constexpr double kEnuHeadingDeg = 90.0;
 /// The largest |height| of a datum above the ellipsoid, m.
 constexpr double kMaxDatumAltitudeM = 1e4;
@@ -27,7 +30,8 @@ std::string checkDatum(const GeoOrigin& d);
 /// holds), and back; false with `why` on a damaged text or a value checkDatum refuses.
 std::string datumText(const GeoOrigin& d);
 bool parseDatumText(const std::string& text, GeoOrigin* out, std::string* why);
-/// "43.0951000, 5.9307000, 0.00 m, map's x axis heading 30.0 deg" ("... ENU" at kEnuHeadingDeg).
+/// "43.0951000, 5.9307000, 0.00 m, first keyframe's x axis heading 30.0 deg" ("... east" at
+/// kEnuHeadingDeg): the heading is the core map's x axis' (z up); the back-end publishes `map` ENU.
 std::string describeDatum(const GeoOrigin& d);
 /// Whether two datums place `map` identically.
 inline bool sameDatum(const GeoOrigin& a, const GeoOrigin& b) {
