@@ -160,8 +160,9 @@ TEST(Ransac, CovarianceGrowsWhenMatchQualityDrops) {
 // fit predicts. Points b on a strip beside B's centre (a revisit overlapping by a third) and
 // spread over a whole frame; 1 px of independent noise at 4 mm/px, 30 inliers. With N draws the
 // sample standard deviation has a relative standard error of about 1 / sqrt(2 N) (1.8 % at
-// 1500); 8 % is 4 of them, while a yaw sigma off by sqrt(2), e.g. a Jacobian without the scale
-// column or a residual variance divided by n instead of 2n - p, fails it.
+// 1500); 8 % is 4 of them, while leaving the scale's column out of J (on the strip beside the
+// centre the x sigma halves) or dividing the residual variance by n instead of 2n - p (every sigma
+// 1.37 times too large) fails it.
 struct Spread {
   Eigen::Vector3d sample_sigma, predicted_sigma;
 };
