@@ -3,7 +3,7 @@
 
 Each base sequence (../shared/data/skerki_survey/s0, ../shared/data/acfr/test1-6) is run by
 offline_slam (one core, --threads 1) as it is and as variant folders made in a temporary
-directory (image symlinks, frames.csv, gt.csv and the loops' ground truth filtered):
+directory (image hard links or copies, frames.csv, gt.csv and the loops' ground truth filtered):
   all      every frame
   every2   every 2nd frame          every3   every 3rd frame
   gaps0.9  runs of frames removed to make ~0.9 m steps: after every 5 kept frames the frame
@@ -28,6 +28,7 @@ import argparse
 import csv
 import math
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -81,6 +82,17 @@ def gap_selection(gt, keep_run=5, step_m=0.9):
     return chosen
 
 
+def place(src, dst):
+    """src at dst: a hard link, or a copy across file systems. Not a symlink: offline_slam refuses
+    an image whose real path leaves the dataset folder."""
+    if os.path.lexists(dst):
+        return
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copyfile(src, dst)
+
+
 def make_variant(base_dir, name, out_dir, loops_dir=None):
     frames = read_csv(os.path.join(base_dir, "frames.csv"))
     gt = read_csv(os.path.join(base_dir, "gt.csv"))
@@ -92,13 +104,8 @@ def make_variant(base_dir, name, out_dir, loops_dir=None):
         keep = gap_selection(gt)
     d = os.path.join(out_dir, os.path.basename(base_dir.rstrip("/")) + "_" + name)
     os.makedirs(d, exist_ok=True)
-    for k in keep:
-        link = os.path.join(d, frames[k]["image"])
-        if not os.path.lexists(link):
-            os.symlink(os.path.abspath(os.path.join(base_dir, frames[k]["image"])), link)
-    for f in ("camera.yaml",):
-        if not os.path.lexists(os.path.join(d, f)):
-            os.symlink(os.path.abspath(os.path.join(base_dir, f)), os.path.join(d, f))
+    for name_in_dir in [frames[k]["image"] for k in keep] + ["camera.yaml"]:
+        place(os.path.join(base_dir, name_in_dir), os.path.join(d, name_in_dir))
     write_csv(os.path.join(d, "frames.csv"), list(frames[0].keys()), [frames[k] for k in keep])
     write_csv(os.path.join(d, "gt.csv"), list(gt[0].keys()), [gt[k] for k in keep])
     kept = {int(frames[k]["index"]) for k in keep}

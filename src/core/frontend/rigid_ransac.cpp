@@ -128,6 +128,8 @@ std::string RansacOptions::validate() const {
     os << "refine_iterations must be >= 0";
   } else if (!(min_noise_px >= 0 && min_noise_px <= 100)) {
     os << "min_noise_px " << min_noise_px << " must be in [0, 100]";
+  } else if (!(correlated_noise_px >= 0 && correlated_noise_px <= 100)) {
+    os << "correlated_noise_px " << correlated_noise_px << " must be in [0, 100]";
   } else if (!(max_scale_change > 0 && max_scale_change < 1)) {
     os << "max_scale_change must be in (0, 1)";
   }
@@ -241,7 +243,8 @@ RansacResult estimateRigidRansac(const std::vector<Eigen::Vector2d>& a, const st
   res.success = true;
   res.motion = t.pose;
   res.scale = t.scale;
-  res.covariance = sigma2 * lu.inverse().topLeftCorner<3, 3>();
+  const double shared = o.correlated_noise_px * metres_per_px;
+  res.covariance = (sigma2 + m * shared * shared) * lu.inverse().topLeftCorner<3, 3>();
   res.covariance = 0.5 * (res.covariance + res.covariance.transpose());
   res.inliers = std::move(inliers);
   res.rms_residual_m = std::sqrt(sum_r2 / m);

@@ -107,6 +107,7 @@ void visitOdometry(V& v, O& o) {
     a("max_iterations", o.ransac.max_iterations);
     a("refine_iterations", o.ransac.refine_iterations);
     a("min_noise_px", o.ransac.min_noise_px);
+    a("correlated_noise_px", o.ransac.correlated_noise_px);
     a("seed", o.ransac.seed);
     a("estimate_scale", o.ransac.estimate_scale);
     a("max_scale_change", o.ransac.max_scale_change);

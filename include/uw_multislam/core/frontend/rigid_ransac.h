@@ -48,6 +48,13 @@ struct RansacOptions {
   /// Floor of the residual standard deviation used in the covariance, pixels: the fit is never
   /// trusted beyond the image's sub-pixel accuracy, even when residuals happen to be tiny.
   double min_noise_px = 0.3;
+  /// Displacement error the inliers share, pixels: relief parallax, lens distortion, an altitude
+  /// that puts the overlap at the wrong scale move neighbouring points alike, so unlike the
+  /// independent noise above it does not average out over the inliers. It enters the covariance
+  /// as (correlated_noise_px · metres_per_px)² · n (Jᵀ J)⁻¹ (n inliers), the inverse of one
+  /// inlier's mean information: it does not fall with the count but grows as the inliers bunch
+  /// together (a strip of overlap: a large yaw variance). 0: the independent noise alone.
+  double correlated_noise_px = 0.0;
   /// Seed of the sampler: equal inputs give equal results.
   std::uint64_t seed = 7;
   /// Fit a scale correction s along with the motion (similarity instead of rigid). The
@@ -70,8 +77,9 @@ struct RansacResult {
   Pose2 motion;         // X_B^A
   /// Covariance of (x, y, yaw): σ² (Jᵀ J)⁻¹ with J the 2n x p Jacobian of the inlier residuals
   /// with respect to the p = 3 motion parameters (4 with the scale, then marginalised) and
-  /// σ² = max(Σ r² / (2n - p), (min_noise_px · metres_per_px)²). It grows with the residuals
-  /// (poor matches) and when the inliers are few or bunched together.
+  /// σ² = max(Σ r² / (2n - p), (min_noise_px · metres_per_px)²), plus the shared displacement
+  /// error (RansacOptions::correlated_noise_px). It grows with the residuals (poor matches) and
+  /// when the inliers are few or bunched together.
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();
   std::vector<int> inliers;  // indices into the correspondence lists
   double rms_residual_m = 0.0;
