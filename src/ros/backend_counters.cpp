@@ -66,6 +66,23 @@ const CounterTable<BackendCounters>& backendCounterTable() {
       {"optimisations_discarded", &C::optimisations_discarded,
        "results dropped because a service changed their map while they were solved (solved again)"},
       {"optimise_ms_max", &C::optimise_ms_max, "longest optimisation, ms"},
+      {"fixes_used", &C::fixes_used, "fixes used as position priors (~fix/topic)"},
+      {"fixes_waiting", &C::fixes_waiting, "fixes newer than every keyframe, waiting for the next one now"},
+      {"fixes_refused_no_fix", &C::fixes_refused_no_fix, "fixes refused: status NO_FIX", kWarn},
+      {"fixes_refused_not_finite", &C::fixes_refused_not_finite,
+       "fixes refused: latitude or longitude not a number or out of range", kWarn},
+      {"fixes_refused_unknown_covariance", &C::fixes_refused_unknown_covariance,
+       "fixes refused: covariance type UNKNOWN and no ~fix/default_sigma_m", kWarn},
+      {"fixes_refused_bad_variance", &C::fixes_refused_bad_variance,
+       "fixes refused: an east/north variance not finite or not positive, or not positive definite", kWarn},
+      {"fixes_refused_no_datum", &C::fixes_refused_no_datum, "fixes refused: no datum yet (~datum/* or set_datum)",
+       kWarn},
+      {"fixes_refused_no_keyframe", &C::fixes_refused_no_keyframe,
+       "fixes refused: no keyframe within ~fix/max_dt_s (or dropped from a full waiting list)", kWarn},
+      {"fixes_refused_other_map", &C::fixes_refused_other_map,
+       "fixes refused: their keyframe is not in the map the datum places (the active session's)", kWarn},
+      {"fixes_refused_map_origin", &C::fixes_refused_map_origin,
+       "fixes refused: their keyframe is its map's origin (the map's frame, fixed)", kWarn},
   };
   return table;
 }
