@@ -187,6 +187,35 @@ TEST_P(PriorsBothOptimizers, AJoinMovesTheSecondMapsPriorIntoTheJoinedFrame) {
   EXPECT_LT((b.sessionPoses(s1)[3].translation() - want).norm(), 0.05);
 }
 
+TEST_P(PriorsBothOptimizers, SplittingTheFirstSessionOffMovesTheRestsPriorIntoItsNewFrame) {
+  // Map 0 = s0 then s1 (joined by a loop); a prior on s1's keyframe 2 in map 0's frame. Splitting
+  // s0 off re-roots the rest at s1's origin: the prior must follow, as s1's poses do.
+  MultiSessionBackend b(priorOptions(GetParam()));
+  const Eigen::Matrix3d cov = Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal();
+  const int s0 = b.startSession();
+  for (int k = 0; k < 4; ++k) b.addMotion(s0, UncertainPose2(Pose2(5, 0, 0), cov));
+  b.endSession(s0);
+  const int s1 = b.startSession();
+  for (int k = 0; k < 4; ++k) b.addMotion(s1, UncertainPose2(Pose2(2, 0, 0), cov));
+  const Pose2 origin1(20.0, 5.0, M_PI / 2);
+  const Pose2 z = between(Pose2(20.0, 0.0, 0.0), compose(origin1, Pose2(2, 0, 0)));
+  b.addLoop({s0, 4, s1, 1, UncertainPose2(z, cov)});
+  ASSERT_TRUE(b.join(s0, s1, 1).ok());
+  b.endSession(s1);
+  const Pose2 kf2 = b.sessionPoses(s1)[2];  // in map 0's frame
+  ASSERT_TRUE(b.addPositionPrior(s1, 2, kf2.translation(), Eigen::Matrix2d::Identity() * 0.01).ok());
+  const Pose2 kf2_before = b.sessionPoses(s1)[2];
+  ASSERT_TRUE(b.split(s0).ok());
+  ASSERT_EQ(b.mapOf(s1), s1);
+  const Pose2 kf2_after = b.sessionPoses(s1)[2];  // now in s1's own frame
+  ASSERT_EQ(b.priors().size(), 1u);
+  const Eigen::Vector2d want = kf2_after.translation() + kf2_after.rotation() * kf2_before.rotation().transpose() *
+                                                             (kf2.translation() - kf2_before.translation());
+  EXPECT_LT((b.priors()[0].position - want).norm(), 1e-6)
+      << b.priors()[0].position.transpose() << " vs " << want.transpose();
+  EXPECT_GT((b.priors()[0].position - kf2.translation()).norm(), 1.0);  // it did move with the frame
+}
+
 INSTANTIATE_TEST_SUITE_P(Backend, PriorsBothOptimizers, ::testing::Values(OptimizerKind::kIekf, OptimizerKind::kSparse),
                          [](const ::testing::TestParamInfo<OptimizerKind>& i) { return optimizerName(i.param); });
 
