@@ -69,10 +69,13 @@ void FixInput::matchWaiting() {
   const core::CameraMount mount = frames_->mount();
   const int given = worker_->locked([&](core::SessionManager& m) {
     const core::SessionQueries& q = m.view();
-    // The datum places `map`, which is the active session's map (doc/frames.md).
-    const int active = q.activeSession();
-    const int datum_map = active >= 0 && q.has(active) && q.hasKeyframe(active) ? q.mapOf(active) : -1;
     std::lock_guard<std::mutex> lock(mutex_);
+    if (matcher_.waiting() == 0) return 0;
+    // The datum places `map`, which is the active session's map (doc/frames.md); while the session
+    // is relocalised in a stored map, `map` is drawn in that map's frame instead: no map takes fixes.
+    const int active = q.activeSession();
+    const bool own = active >= 0 && q.has(active) && q.hasKeyframe(active) && !q.relocalise(active);
+    const int datum_map = own ? q.mapOf(active) : -1;
     const long before = refusals();
     const std::vector<core::FixPrior> priors = matcher_.match(q, datum, datum_map, mount);
     const int n = matcher_.give(&m, priors);

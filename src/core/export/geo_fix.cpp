@@ -4,6 +4,7 @@
 
 #include <Eigen/Dense>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -153,13 +154,15 @@ std::vector<FixPrior> FixMatcher::match(const SessionQueries& m, const std::opti
     double best = std::numeric_limits<double>::infinity();
     for (int id : m.sessionIds()) {
       if (!m.has(id) || !m.hasKeyframe(id)) continue;
+      // A session's stamps increase: the nearest is one of the two around the fix's.
       const std::vector<double>& stamps = m.stamps(id);
-      for (int k = 0; k < static_cast<int>(stamps.size()); ++k) {
-        const double dt = f.stamp_s - stamps[k];
+      const auto after = std::lower_bound(stamps.begin(), stamps.end(), f.stamp_s);
+      for (auto it = after == stamps.begin() ? after : after - 1; it != stamps.end() && it <= after; ++it) {
+        const double dt = f.stamp_s - *it;
         if (std::abs(dt) < std::abs(best)) {
           best = dt;
           best_session = id;
-          best_keyframe = k;
+          best_keyframe = static_cast<int>(it - stamps.begin());
         }
       }
     }
