@@ -349,6 +349,19 @@ BackendStatus MultiSessionBackend::addPositionPrior(int s, int keyframe, const E
   return BackendStatus::Ok();
 }
 
+BackendStatus MultiSessionBackend::restorePositionPrior(const PriorRecord& r) {
+  if (!hasSession(r.session) || r.keyframe < 0 || r.keyframe >= sessions_[r.session].keyframes())
+    return {StatusCode::kInvalidArgument,
+            "position prior: no keyframe " + std::to_string(r.keyframe) + " of session " + std::to_string(r.session)};
+  const Map& m = mapAt(mapOf(r.session));
+  if (const std::string bad =
+          checkPositionPrior({indexOf(r.session, r.keyframe), r.position, r.covariance}, m.numMotions() + 1);
+      !bad.empty())
+    return {StatusCode::kInvalidArgument, "position prior: " + bad};
+  priors_.push_back(r);
+  return BackendStatus::Ok();
+}
+
 std::vector<Pose2> MultiSessionBackend::priorOrigins() const {
   std::vector<Pose2> origins;
   for (const PriorRecord& p : priors_) origins.push_back(sessionPoses(p.session).front());

@@ -288,6 +288,9 @@ class MultiSessionBackend {
   BackendStatus addPositionPrior(int s, int keyframe, const Eigen::Vector2d& position,
                                  const Eigen::Matrix2d& covariance);
   const std::vector<PriorRecord>& priors() const { return priors_; }
+  /// A stored prior put back as it was (the session store): checked as addPositionPrior checks,
+  /// nothing optimised, its map unchanged.
+  BackendStatus restorePositionPrior(const PriorRecord& record);
   /// Optimises every map with pending loops, now (also when deferred).
   void flush();
   /// The operator's "optimise now": every map with pending loops (fewer than optimise_every) is
