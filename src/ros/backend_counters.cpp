@@ -83,6 +83,8 @@ const CounterTable<BackendCounters>& backendCounterTable() {
        "fixes refused: their keyframe is not in the map the datum places (the active session's)", kWarn},
       {"fixes_refused_map_origin", &C::fixes_refused_map_origin,
        "fixes refused: their keyframe is its map's origin (the map's frame, fixed)", kWarn},
+      {"fixes_refused_keyframe_has_fix", &C::fixes_refused_keyframe_has_fix,
+       "fixes refused: their keyframe has a fix already (one per keyframe)"},
   };
   return table;
 }

@@ -341,6 +341,12 @@ BackendStatus MultiSessionBackend::addPositionPrior(int s, int keyframe, const E
                                                  "'s origin (its frame, fixed)"};
   if (const std::string bad = checkPositionPrior({index, position, covariance}, m.numMotions() + 1); !bad.empty())
     return {StatusCode::kInvalidArgument, "position prior: " + bad};
+  // One per keyframe: fixes a fraction of a second apart share most of their error (a GPS's is
+  // correlated over seconds), and ten of them would count as ten independent ones.
+  for (const PriorRecord& p : priors_)
+    if (p.session == s && p.keyframe == keyframe)
+      return {StatusCode::kAlreadyExists, "position prior: keyframe " + std::to_string(keyframe) + " of session " +
+                                              std::to_string(s) + " has one already (one fix per keyframe)"};
   priors_.push_back({s, keyframe, position, covariance, false});
   ++stats_.priors;
   ++m.pending;

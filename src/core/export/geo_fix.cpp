@@ -59,6 +59,8 @@ const char* fixRefusalName(FixRefusal r) {
       return "other_map";
     case FixRefusal::kMapOrigin:
       return "map_origin";
+    case FixRefusal::kKeyframeHasFix:
+      return "keyframe_has_fix";
     case FixRefusal::kCount:
       break;
   }
@@ -208,7 +210,10 @@ int FixMatcher::give(SessionManager* m, const std::vector<FixPrior>& priors) {
       ++used_;
       ++taken;
     } else {
-      refuse(st.code == StatusCode::kFailedPrecondition ? FixRefusal::kMapOrigin : FixRefusal::kNoKeyframe, st.message);
+      const FixRefusal why = st.code == StatusCode::kFailedPrecondition ? FixRefusal::kMapOrigin
+                             : st.code == StatusCode::kAlreadyExists    ? FixRefusal::kKeyframeHasFix
+                                                                        : FixRefusal::kNoKeyframe;
+      refuse(why, st.message);
     }
   }
   return taken;

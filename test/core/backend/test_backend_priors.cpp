@@ -155,6 +155,9 @@ TEST_P(PriorsBothOptimizers, BadPriorsAreRefusedWithNothingChanged) {
   EXPECT_EQ(b.addPositionPrior(s, 1, Eigen::Vector2d(1, 0), -c).code, StatusCode::kInvalidArgument);
   EXPECT_TRUE(b.priors().empty());
   EXPECT_EQ(b.stats().optimisations, 0);
+  ASSERT_TRUE(b.addPositionPrior(s, 2, Eigen::Vector2d(2, 0), c).ok());
+  EXPECT_EQ(b.addPositionPrior(s, 2, Eigen::Vector2d(2.1, 0), c).code, StatusCode::kAlreadyExists);
+  EXPECT_EQ(b.priors().size(), 1u);
 }
 
 TEST_P(PriorsBothOptimizers, AJoinMovesTheSecondMapsPriorIntoTheJoinedFrame) {

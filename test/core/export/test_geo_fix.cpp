@@ -236,6 +236,23 @@ TEST(FixMatcher, EveryRefusalIsCountedByItsReason) {
   EXPECT_THROW(FixMatcher(FixOptions{0.5, 0.0, 0}), std::invalid_argument);
 }
 
+TEST(FixMatcher, OneFixPerKeyframeTheNextIsCountedKeyframeHasFix) {
+  const GeoOrigin o = datum();
+  SessionManager m(managerOptions());
+  addKeyframes(&m, 0, 0, 5);
+  FixMatcher matcher{FixOptions()};
+  for (double t : {3.0, 3.1}) {  // 0.1 s apart: one keyframe, errors shared
+    ASSERT_EQ(matcher.add(fixAt(o, t, 3.0, -0.2, Eigen::Matrix2d::Identity() * 0.01), true), std::nullopt);
+  }
+  const std::vector<FixPrior> priors = matcher.match(m.view(), o, 0, CameraMount());
+  ASSERT_EQ(priors.size(), 2u);
+  EXPECT_EQ(matcher.give(&m, priors), 1);
+  EXPECT_EQ(matcher.used(), 1);
+  EXPECT_EQ(matcher.refused(FixRefusal::kKeyframeHasFix), 1);
+  EXPECT_EQ(m.view().positionPriors().size(), 1u);
+  EXPECT_STREQ(fixRefusalName(FixRefusal::kKeyframeHasFix), "keyframe_has_fix");
+}
+
 TEST(FixMatcher, AGivenFixPullsItsKeyframeTowardIt) {
   const GeoOrigin o = datum();
   SessionManager m(managerOptions());

@@ -284,7 +284,8 @@ class MultiSessionBackend {
   /// in the current frame of the map that holds the keyframe, with its covariance. Kept (priors()),
   /// given to every optimisation of that map from now on, and the map is optimised now (deferred:
   /// marked due). INVALID_ARGUMENT for an unknown session or keyframe, a position or covariance
-  /// checkPositionPrior refuses; FAILED_PRECONDITION for the map's first keyframe (its frame: fixed).
+  /// checkPositionPrior refuses; FAILED_PRECONDITION for the map's first keyframe (its frame: fixed);
+  /// ALREADY_EXISTS when the keyframe has a prior (one per keyframe: close fixes share their errors).
   BackendStatus addPositionPrior(int s, int keyframe, const Eigen::Vector2d& position,
                                  const Eigen::Matrix2d& covariance);
   const std::vector<PriorRecord>& priors() const { return priors_; }

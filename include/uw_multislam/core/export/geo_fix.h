@@ -57,9 +57,11 @@ enum class FixRefusal {
   kNoKeyframe,         // no keyframe within max_dt_s (or dropped from a full waiting list)
   kOtherMap,           // the keyframe's map is not the one the datum places (the active session's)
   kMapOrigin,          // the keyframe is its map's origin (the map's frame: fixed)
+  kKeyframeHasFix,     // the keyframe has a fix already (one per keyframe: close fixes share their errors)
   kCount
 };
-/// "no_fix", "not_finite", "unknown_covariance", "bad_variance", "no_datum", "no_keyframe", "other_map", "map_origin".
+/// "no_fix", "not_finite", "unknown_covariance", "bad_variance", "no_datum", "no_keyframe", "other_map",
+/// "map_origin", "keyframe_has_fix".
 const char* fixRefusalName(FixRefusal r);
 
 struct FixOptions {
@@ -97,7 +99,8 @@ class FixMatcher {
   std::vector<FixPrior> match(const SessionQueries& m, const std::optional<GeoOrigin>& datum, int datum_map,
                               const CameraMount& mount);
   /// Gives the priors to the manager: each one it takes is counted used, a map origin refused
-  /// (map_origin); another refusal is counted no_keyframe and its message kept (lastRefusal).
+  /// (map_origin), a keyframe with a prior already (keyframe_has_fix); another refusal is counted
+  /// no_keyframe; the message kept (lastRefusal).
   /// Returns how many were taken.
   int give(SessionManager* m, const std::vector<FixPrior>& priors);
 

@@ -173,7 +173,8 @@ class SessionManager {
   /// map (the camera's position, image axes) and covariance (m^2). The back-end keeps it and
   /// optimises the map with it (deferred: the map is due). Refused with nothing changed:
   /// NOT_FOUND (no such session or keyframe, or a bridged keyframe that never arrived),
-  /// FAILED_PRECONDITION (the keyframe is its map's origin: the map's frame),
+  /// FAILED_PRECONDITION (the keyframe is its map's origin: the map's frame), ALREADY_EXISTS (the
+  /// keyframe has a prior already: one per keyframe),
   /// INVALID_ARGUMENT (a position or covariance checkPositionPrior refuses).
   Status addPositionPrior(int session, int keyframe, const Eigen::Vector2d& position,
                           const Eigen::Matrix2d& covariance);
