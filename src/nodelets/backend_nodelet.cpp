@@ -124,6 +124,7 @@ void BackendNodelet::onInit() {
   loop_sub_ = nh.subscribe(topics::kLoops, options_.queue_size, &BackendNodelet::onLoop, this);
   if (fleet_) fleet_->listen(nh, options_.queue_size, options_.fleet_peers);
   pose_sub_ = nh.subscribe(topics::kOdometryPose, 10, &ros_sessions::SessionPublisher::onOdometry, sessions_.get());
+  fix_ = ros_geo::FixInput::make(nh, options_, worker_.get(), frames_.get());  // NavSatFix: position priors
 }
 
 void BackendNodelet::onKeyframe(const uw_multislam::KeyframeConstPtr& msg) {
@@ -407,6 +408,7 @@ std::vector<ros_diagnostics::Counter> BackendNodelet::counters(const core::Sessi
   c.mosaic_keyframes_missing = mosaic.missing, c.mosaic_draw_ms = mosaic.ms;
   c.mosaic_resolution_m = mosaic.resolution_m, c.mosaic_images_kB = mosaic.images_kB;
   ros_diagnostics::setManagerCounters(m, &c);
+  if (fix_) fix_->counters(&c);
   std::vector<ros_diagnostics::Counter> out = ros_diagnostics::backendCounterTable().counters(c);
   if (fleet_) {  // the hash exchange: what crossed the link, per direction
     const ros_fleet::HashExchangeStats& x = fleet_->stats();

@@ -190,6 +190,13 @@ BackendNodeletOptions backendNodeletOptions(const Params& nh, const Params& pnh)
       pnh, "fleet/vehicle", &o.fleet_vehicle,
       [](const std::string& v) { return v.empty() || core::validVehicleName(v); },
       "empty (off) or 1 to 64 characters of A-Z a-z 0-9 _ -");
+  param(pnh, "fix/topic", &o.fix_topic);
+  param(
+      pnh, "fix/max_dt_s", &o.fix.max_dt_s, [](double v) { return v > 0 && v <= 60; }, "in (0, 60] s");
+  param(
+      pnh, "fix/default_sigma_m", &o.fix.default_sigma_m, [](double v) { return v >= 0 && v <= 1e4; },
+      "in [0, 10000] m (0: a fix of unknown covariance is refused)");
+  param(pnh, "fix/max_waiting", &o.fix.max_waiting, count, "in [1, 1000000]");
   param(pnh, "fleet/hash_codes", &o.fleet_hash_codes);
   param(
       pnh, "fleet/peer_timeout_s", &o.fleet_peer_timeout_s, [](double t) { return t > 0.0 && t <= 3600.0; },

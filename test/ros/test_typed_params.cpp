@@ -183,6 +183,37 @@ TEST(TypedParams, AQuotedDatumStopsTheBackendNamingTheKey) {
   EXPECT_EQ(o.frames.datum->heading_deg, 30.0);
 }
 
+TEST(TypedParams, TheFixInputsParametersAreReadTypedAndInRange) {
+  XmlRpcValue tree;
+  tree["backend_node"]["store_path"] = "";
+  const ros_params::Params defaults(tree, "/uw_multislam");
+  const ros_params::BackendNodeletOptions d =
+      ros_params::backendNodeletOptions(defaults, defaults.child("backend_node"));
+  EXPECT_EQ(d.fix_topic, "fix");  // on by default: nothing happens until fixes come
+  EXPECT_EQ(d.fix.max_dt_s, 0.5);
+  EXPECT_EQ(d.fix.default_sigma_m, 0.0);
+  EXPECT_EQ(d.fix.max_waiting, 32);
+  tree["backend_node"]["fix"]["max_dt_s"] = 0.0;
+  const std::string zero = backendRefusal(tree);
+  EXPECT_EQ(zero.rfind("/uw_multislam/backend_node/fix/max_dt_s = 0", 0), 0u) << zero;
+  EXPECT_NE(zero.find(": must be in (0, 60] s"), std::string::npos) << zero;
+  tree["backend_node"]["fix"]["max_dt_s"] = "0.2";
+  EXPECT_EQ(backendRefusal(tree),
+            "/uw_multislam/backend_node/fix/max_dt_s = '0.2': text, not a number (write it without quotes)");
+  tree["backend_node"]["fix"]["max_dt_s"] = 0.2;
+  tree["backend_node"]["fix"]["default_sigma_m"] = -1.0;
+  EXPECT_NE(backendRefusal(tree).find("/uw_multislam/backend_node/fix/default_sigma_m = -1: must be in [0, 10000]"),
+            std::string::npos)
+      << backendRefusal(tree);
+  tree["backend_node"]["fix"]["default_sigma_m"] = 3;  // an int where a double belongs: fine
+  tree["backend_node"]["fix"]["topic"] = "";           // off
+  const ros_params::Params nh(tree, "/uw_multislam");
+  const ros_params::BackendNodeletOptions o = ros_params::backendNodeletOptions(nh, nh.child("backend_node"));
+  EXPECT_EQ(o.fix_topic, "");
+  EXPECT_EQ(o.fix.max_dt_s, 0.2);
+  EXPECT_EQ(o.fix.default_sigma_m, 3.0);
+}
+
 std::string odometryRefusal(const XmlRpcValue& tree) {
   const ros_params::Params nh(tree, "/uw_multislam");
   return thrown([&] { ros_params::odometryNodeletOptions(nh, nh.child("odometry_node")); });

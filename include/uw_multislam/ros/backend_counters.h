@@ -33,6 +33,11 @@ struct BackendCounters {
   long loops_refused_at_join = 0, joins_refused = 0, loops_gated = 0, loops_switched_off = 0, loops_readmitted = 0;
   long optimisations = 0, optimisations_discarded = 0;
   double optimise_ms_max = 0.0;
+  // The NavSatFix input (ros/fix_input.h): fixes used as position priors, waiting, refused by reason.
+  long fixes_used = 0, fixes_waiting = 0;
+  long fixes_refused_no_fix = 0, fixes_refused_not_finite = 0, fixes_refused_unknown_covariance = 0,
+       fixes_refused_bad_variance = 0, fixes_refused_no_datum = 0, fixes_refused_no_keyframe = 0,
+       fixes_refused_other_map = 0, fixes_refused_map_origin = 0, fixes_refused_keyframe_has_fix = 0;
 };
 
 /// The hash exchange and the feature requests between vehicles (only with fleet/vehicle set).

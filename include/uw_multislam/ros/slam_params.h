@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "uw_multislam/core/export/geo_fix.h"
 #include "uw_multislam/core/export/live_mosaic.h"
 #include "uw_multislam/core/session/session_manager.h"
 #include "uw_multislam/core/session/session_worker.h"
@@ -83,6 +84,10 @@ struct BackendNodeletOptions {
   /// ~fleet/peer_timeout_s: how long a request for another vehicle's keyframe features is waited
   /// for (UNAVAILABLE after it, counted); that vehicle is then not asked again for as long.
   double fleet_peer_timeout_s = 30.0;
+  /// The NavSatFix input (ros/fix_input.h): ~fix/topic, its fixes used as absolute position priors
+  /// ("" = off), and how they are matched to keyframes (~fix/max_dt_s, ~fix/default_sigma_m, ~fix/max_waiting).
+  std::string fix_topic = topics::kFix;
+  core::FixOptions fix;
 };
 
 /// The datum's frames against the others (backendNodeletOptions): ~datum/earth_frame must differ from map, odom and

@@ -28,6 +28,8 @@ constexpr char kNavOdom[] = "nav/odom";
 
 /// uw_multislam/Keyframe: each new keyframe with its features (odometry nodelet).
 constexpr char kKeyframes[] = "keyframes";
+// The back-end's NavSatFix input (~fix/topic's default): fixes used as absolute position priors.
+constexpr char kFix[] = "fix";
 /// Default of frames/session_frame_prefix: session `id`'s frame is "<prefix><id>" (ros_params::
 /// readFrames reads it for every nodelet).
 constexpr char kDefaultSessionFramePrefix[] = "session_";

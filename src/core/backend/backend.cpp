@@ -326,7 +326,67 @@ std::vector<int> MultiSessionBackend::dueMaps() const {
   return ids;
 }
 
-MapGraph MultiSessionBackend::graphOf(int map_id) const {
+BackendStatus MultiSessionBackend::addPositionPrior(int s, int keyframe, const Eigen::Vector2d& position,
+                                                    const Eigen::Matrix2d& covariance) {
+  if (!hasSession(s)) return {StatusCode::kInvalidArgument, "position prior: no session " + std::to_string(s)};
+  if (keyframe < 0 || keyframe >= sessions_[s].keyframes())
+    return {StatusCode::kInvalidArgument,
+            "position prior: session " + std::to_string(s) + " has no keyframe " + std::to_string(keyframe)};
+  const int map_id = mapOf(s);
+  Map& m = mapAt(map_id);
+  const int index = indexOf(s, keyframe);
+  if (index == 0)
+    return {StatusCode::kFailedPrecondition, "position prior: keyframe " + std::to_string(keyframe) + " of session " +
+                                                 std::to_string(s) + " is map " + std::to_string(map_id) +
+                                                 "'s origin (its frame, fixed)"};
+  if (const std::string bad = checkPositionPrior({index, position, covariance}, m.numMotions() + 1); !bad.empty())
+    return {StatusCode::kInvalidArgument, "position prior: " + bad};
+  // One per keyframe: fixes a fraction of a second apart share most of their error (a GPS's is
+  // correlated over seconds), and ten of them would count as ten independent ones.
+  for (const PriorRecord& p : priors_)
+    if (p.session == s && p.keyframe == keyframe)
+      return {StatusCode::kAlreadyExists, "position prior: keyframe " + std::to_string(keyframe) + " of session " +
+                                              std::to_string(s) + " has one already (one fix per keyframe)"};
+  priors_.push_back({s, keyframe, position, covariance, false});
+  ++stats_.priors;
+  ++m.pending;
+  touch(m);
+  optimise(map_id);  // a fix is rare and absolute: not held back for optimise_every
+  return BackendStatus::Ok();
+}
+
+BackendStatus MultiSessionBackend::restorePositionPrior(const PriorRecord& r) {
+  if (!hasSession(r.session) || r.keyframe < 0 || r.keyframe >= sessions_[r.session].keyframes())
+    return {StatusCode::kInvalidArgument,
+            "position prior: no keyframe " + std::to_string(r.keyframe) + " of session " + std::to_string(r.session)};
+  const Map& m = mapAt(mapOf(r.session));
+  if (const std::string bad =
+          checkPositionPrior({indexOf(r.session, r.keyframe), r.position, r.covariance}, m.numMotions() + 1);
+      !bad.empty())
+    return {StatusCode::kInvalidArgument, "position prior: " + bad};
+  priors_.push_back(r);
+  return BackendStatus::Ok();
+}
+
+std::vector<Pose2> MultiSessionBackend::priorOrigins() const {
+  std::vector<Pose2> origins;
+  for (const PriorRecord& p : priors_) origins.push_back(sessionPoses(p.session).front());
+  return origins;
+}
+
+void MultiSessionBackend::rebasePriors(const std::vector<Pose2>& before) {
+  for (std::size_t k = 0; k < priors_.size(); ++k) {
+    PriorRecord& p = priors_[k];
+    // new <- old = (new <- session origin) (session origin <- old): the session's own poses
+    // relative to its origin are what a join or a split keeps.
+    const Pose2 t = compose(sessionPoses(p.session).front(), invert(before[k]));
+    const Eigen::Matrix2d r = t.rotation();
+    p.position = r * p.position + t.translation();
+    p.covariance = r * p.covariance * r.transpose();
+  }
+}
+
+MapGraph MultiSessionBackend::graphOf(int map_id, std::vector<int>* prior_ids) const {
   const Map& m = mapAt(map_id);
   MapGraph g;
   int o = 0;
@@ -343,6 +403,16 @@ MapGraph MultiSessionBackend::graphOf(int map_id) const {
     g.loops.push_back({id, indexOf(st.loop.session_a, st.loop.keyframe_a),
                        indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z});
     g.applied.push_back(st.applied);
+  }
+  prior_ids->clear();
+  for (int id = 0; id < static_cast<int>(priors_.size()); ++id) {
+    const PriorRecord& p = priors_[id];
+    if (mapOf(p.session) != map_id) continue;
+    const int index = indexOf(p.session, p.keyframe);
+    if (index == 0) continue;  // its session became the map's first (a split): the map's frame is fixed there
+    g.priors.push_back({index, p.position, p.covariance});
+    g.priors_applied.push_back(p.applied);
+    prior_ids->push_back(id);
   }
   return g;
 }
@@ -366,7 +436,7 @@ OptimisationJob MultiSessionBackend::prepareOptimisation(int map_id) const {
                                indexOf(st.loop.session_b, st.loop.keyframe_b), st.loop.z});
     }
   }
-  job.problem = optimizer_->prepare(m.estimate, graphOf(map_id), &job.loops);
+  job.problem = optimizer_->prepare(m.estimate, graphOf(map_id, &job.priors), &job.loops);
   return job;
 }
 
@@ -381,6 +451,7 @@ void MultiSessionBackend::solveOptimisation(OptimisationJob* job) {
   MapProblem* problem = job->problem.get();
   auto distance2 = [&](const MapLoop& l) { return residualDistance2(problem->relative(l.i, l.j), l.z, *job); };
   while (problem) {
+    if (job->loops.empty()) problem->solve(job->loops);  // a problem without loops has priors: solved with them alone
     while (!job->loops.empty()) {
       problem->solve(job->loops);
       if (!gate) break;
@@ -391,7 +462,12 @@ void MultiSessionBackend::solveOptimisation(OptimisationJob* job) {
       job->switched_off.push_back(job->loops[worst].id);
       job->switched_off_chi2.push_back(d2[worst]);
       job->loops.erase(job->loops.begin() + worst);
-      if (job->loops.empty()) problem->reset();
+      if (job->loops.empty()) {
+        if (job->priors.empty())
+          problem->reset();
+        else
+          problem->solve(job->loops);  // the priors alone
+      }
     }
     // The refused loops within the gate of the solution.
     bool back = false;
@@ -448,8 +524,10 @@ bool MultiSessionBackend::applyOptimisation(const OptimisationJob& job) {
        << "'s solution (chi-square " << job.readmitted_chi2[k] << " <= " << job.residual_gate_chi2 << ")";
     say(os.str());
   }
-  if (job.problem && job.problem->apply(&m.estimate))
+  if (job.problem && job.problem->apply(&m.estimate)) {
     for (const MapLoop& l : job.loops) loops_[l.id].applied = true;
+    for (int id : job.priors) priors_[id].applied = true;
+  }
   m.pending = 0;
   touch(m);
   due_.erase(job.map);
@@ -579,6 +657,7 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
                                                  std::to_string(min_loops) + " needed"};
   const LinkEstimate e = estimateLink(first, second, ids, min_loops, options_.join_policy, false, requested);
   if (!e.status.ok()) return e.status;
+  const std::vector<Pose2> prior_origins = priorOrigins();
   const Map& p = mapAt(first);
   const Map& c = mapAt(second);
   const std::vector<bool>& in = e.in;
@@ -623,6 +702,7 @@ BackendStatus MultiSessionBackend::joinMaps(int map_a, int map_b, int min_loops,
   Map& joined = maps_[first] = std::move(j);
   if (was_due) due_.insert(first);  // what it waited for is still pending in the joined map
   for (int s : joined.chain) sessions_[s].map = first;
+  rebasePriors(prior_origins);  // second's priors: now in first's frame
   // Loops between the two maps that did not take part (barred ones) are now intra-map.
   for (const LoopRecord& st : loops_)
     if (!st.summarised && !st.refused && !st.applied && mapOf(st.loop.session_a) == first &&
@@ -678,6 +758,7 @@ BackendStatus MultiSessionBackend::split(int session) {
   if (m.chain.size() == 1)
     return {StatusCode::kFailedPrecondition,
             "session " + std::to_string(session) + " is alone in its map: nothing to split"};
+  const std::vector<Pose2> prior_origins = priorOrigins();
   const int q = static_cast<int>(std::find(m.chain.begin(), m.chain.end(), session) - m.chain.begin());
   const int last = static_cast<int>(m.chain.size()) - 1;
   const int o = offset(m, session), n = sessions_[session].keyframes();
@@ -741,6 +822,7 @@ BackendStatus MultiSessionBackend::split(int session) {
   sessions_[session].map = session;
   maps_[rest_id] = std::move(rest);
   for (int s : maps_[rest_id].chain) sessions_[s].map = rest_id;
+  rebasePriors(prior_origins);  // the session's own frame, and the rest's first session's
   ++stats_.splits;
   const std::string msg = "split session " + std::to_string(session) + " off map " + std::to_string(old_id) +
                           ": maps " + std::to_string(session) + " and " + std::to_string(rest_id) + ", " +
@@ -873,6 +955,13 @@ BackendStatus MultiSessionBackend::removeSession(int s) {
   }
   const int removed_loops = static_cast<int>(loops_.size() - kept.size());
   loops_ = std::move(kept);
+  std::vector<PriorRecord> priors;
+  for (PriorRecord p : priors_) {
+    if (p.session == s) continue;
+    p.session = shift(p.session);
+    priors.push_back(p);
+  }
+  priors_ = std::move(priors);
   due_.erase(s);
   maps_.erase(s);  // its own map (alone in it: the map's id is s)
   std::map<int, Map> maps;

@@ -110,8 +110,11 @@ std::unique_ptr<MapProblem> IekfOptimizer::prepare(const MapEstimate& estimate, 
   loops->clear();
   for (std::size_t k = 0; k < graph.loops.size(); ++k)
     if (!graph.applied[k]) loops->push_back(graph.loops[k]);
-  if (loops->empty() && graph.priors.empty()) return nullptr;
-  return std::make_unique<IekfProblem>(*estimate.filter(), graph.priors);
+  std::vector<PositionPrior> priors;  // an update applies each once, as the loops
+  for (std::size_t k = 0; k < graph.priors.size(); ++k)
+    if (k >= graph.priors_applied.size() || !graph.priors_applied[k]) priors.push_back(graph.priors[k]);
+  if (loops->empty() && priors.empty()) return nullptr;
+  return std::make_unique<IekfProblem>(*estimate.filter(), std::move(priors));
 }
 
 }  // namespace core

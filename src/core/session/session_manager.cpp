@@ -186,6 +186,21 @@ Status SessionManager::setLocalisation(bool on) {
   return Status::Ok();
 }
 
+Status SessionManager::addPositionPrior(int session, int keyframe, const Eigen::Vector2d& position,
+                                        const Eigen::Matrix2d& covariance) {
+  if (!view_.has(session) || !view_.hasKeyframe(session))
+    return {StatusCode::kNotFound, "position prior: no session " + std::to_string(session) + " with keyframes"};
+  const Session& s = table_.at(session);
+  if (keyframe < 0 || keyframe >= s.keyframes() || s.phantoms.count(keyframe) > 0)
+    return {StatusCode::kNotFound,
+            "position prior: session " + std::to_string(session) + " has no keyframe " + std::to_string(keyframe)};
+  Status st = table_.backend().addPositionPrior(s.backend(), keyframe, position, covariance);
+  if (st.code == StatusCode::kInvalidArgument && st.message.find("no keyframe") != std::string::npos)
+    st.code = StatusCode::kNotFound;
+  if (st.ok()) afterBackendChange();
+  return st;
+}
+
 Status SessionManager::storeDatum(const std::string& text) {
   if (!table_.store()) return {StatusCode::kFailedPrecondition, "no session store (~store_path is empty)"};
   if (table_.localising())

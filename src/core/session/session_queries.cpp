@@ -44,6 +44,12 @@ std::vector<int> SessionQueries::mapIds() const {
   return ids;
 }
 
+std::vector<PriorRecord> SessionQueries::positionPriors() const {
+  std::vector<PriorRecord> out = t_.backend().priors();
+  for (PriorRecord& p : out) p.session = t_.idOfBackend(p.session);
+  return out;
+}
+
 std::vector<Pose2> SessionQueries::poses(int session) const {
   return t_.backend().sessionPoses(t_.at(session).backend());
 }

@@ -165,6 +165,17 @@ RestoredStore restoreStore(const SessionStore& store, MultiSessionBackend* backe
     }
     const BackendStatus status = backend->restoreMap(st);
     if (!status.ok()) throw StoreError("session store " + store.path() + ": " + status.message);
+    for (const StoredPrior& p : sm.priors) {
+      const auto it = session_of.find(p.session);
+      const BackendStatus kept =
+          it == session_of.end()
+              ? BackendStatus{StatusCode::kNotFound, "no session " + std::to_string(p.session)}
+              : backend->restorePositionPrior({it->second, p.keyframe, p.position, p.covariance, p.applied});
+      if (!kept.ok())
+        out.notes.push_back("session store " + store.path() + ": a position prior on keyframe " +
+                            std::to_string(p.keyframe) + " of session " + std::to_string(p.session) +
+                            " is left out: " + kept.message);
+    }
     for (int s : st.chain) in_map[s] = true;
   }
   // Sessions whose map was never saved (a crash in their first mission): their loops are pending.
@@ -207,6 +218,9 @@ void saveBackendMaps(SessionStore* store, const MultiSessionBackend& backend,
     }
     m.motions = st.motions;
     m.pending = st.pending;
+    for (const PriorRecord& p : backend.priors())
+      if (backend.mapOf(p.session) == id)
+        m.priors.push_back({sid(p.session), p.keyframe, p.position, p.covariance, p.applied});
     maps.push_back(std::move(m));
   }
   std::vector<StoredLoop> states;

@@ -106,6 +106,12 @@ const char* kProvenanceTable =
 // loops. Created like provenance, when the store is opened for writing: a build before it reads
 // such a loop as a global loop (and restores the map's link from it all the same).
 const char* kNavPlacementTable = "CREATE TABLE IF NOT EXISTS nav_placements(loop INTEGER PRIMARY KEY)";
+// Position priors (GPS or USBL fixes) with the map they were saved in, written with the maps;
+// created like provenance.
+const char* kPositionPriorTable =
+    "CREATE TABLE IF NOT EXISTS position_priors(map INTEGER NOT NULL, session INTEGER NOT NULL, keyframe INTEGER "
+    "NOT NULL, x REAL NOT NULL, y REAL NOT NULL, cxx REAL NOT NULL, cxy REAL NOT NULL, cyy REAL NOT NULL, "
+    "applied INTEGER NOT NULL)";
 
 // The audit trail: created like provenance, when the store is opened for writing.
 const char* kHistoryTable =
@@ -483,6 +489,7 @@ SessionStore::SessionStore(const std::string& path, StoreAccess mode) : path_(pa
     exec(kProvenanceTable);
     exec(kHistoryTable);
     exec(kNavPlacementTable);
+    exec(kPositionPriorTable);
   } catch (...) {
     cache_.clear();
     if (db_) sqlite3_close(db_);

@@ -238,6 +238,23 @@ std::vector<StoredMap> SessionStore::maps() const {
     l.loops = blobVector<std::int64_t>(q, 5, path_);
     out[it->second].links.push_back(std::move(l));
   }
+  if (hasTable("position_priors")) {
+    Statement pr(this,
+                 "SELECT map, session, keyframe, x, y, cxx, cxy, cyy, applied FROM position_priors ORDER BY rowid");
+    while (pr.step()) {
+      sqlite3_stmt* q = pr.get();
+      const auto it = at.find(int64Column(q, 0, path_));
+      if (it == at.end()) continue;  // a prior of a map that is gone: its frame with it
+      StoredPrior p;
+      p.session = int64Column(q, 1, path_);
+      p.keyframe = intColumn(q, 2, path_);
+      p.position = Eigen::Vector2d(realColumn(q, 3, path_), realColumn(q, 4, path_));
+      p.covariance << realColumn(q, 5, path_), realColumn(q, 6, path_), realColumn(q, 6, path_),
+          realColumn(q, 7, path_);
+      p.applied = intColumn(q, 8, path_) != 0;
+      out[it->second].priors.push_back(p);
+    }
+  }
   for (const StoredMap& m : out) {
     if (m.chain.empty() || m.links.size() + 1 != m.chain.size())
       throw StoreError("session store " + path_ + ": a stored map has " + std::to_string(m.chain.size()) +

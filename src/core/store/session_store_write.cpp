@@ -185,7 +185,24 @@ void SessionStore::saveMaps(const std::vector<StoredMap>& maps, const std::vecto
 }
 
 void SessionStore::writeMaps(const std::vector<StoredMap>& maps) {
-  exec("DELETE FROM maps; DELETE FROM map_sessions; DELETE FROM links;");
+  exec("DELETE FROM maps; DELETE FROM map_sessions; DELETE FROM links; DELETE FROM position_priors;");
+  {
+    Statement pr(this,
+                 "INSERT INTO position_priors(map, session, keyframe, x, y, cxx, cxy, cyy, applied) "
+                 "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)");
+    for (const StoredMap& map : maps)
+      for (const StoredPrior& p : map.priors)
+        pr.bind(1, map.chain.at(0))
+            .bind(2, p.session)
+            .bind(3, p.keyframe)
+            .bind(4, p.position.x())
+            .bind(5, p.position.y())
+            .bind(6, p.covariance(0, 0))
+            .bind(7, p.covariance(0, 1))
+            .bind(8, p.covariance(1, 1))
+            .bind(9, p.applied ? 1 : 0)
+            .run();
+  }
   {
     Statement m(this, "INSERT INTO maps(id, pending, motions) VALUES (?, ?, ?)");
     Statement ms(this, "INSERT INTO map_sessions(map, position, session) VALUES (?, ?, ?)");
@@ -265,6 +282,11 @@ void SessionStore::deleteOne(std::int64_t session) {
       part.links.assign(m.links.begin() + static_cast<std::ptrdiff_t>(first),
                         m.links.begin() + static_cast<std::ptrdiff_t>(last - 1));
       part.pending = std::max(m.pending, 1);
+      // The part before the session keeps the map's first session, so its frame: its priors hold.
+      // The part after it starts a new frame; its priors, in the old one, go.
+      for (const StoredPrior& p : m.priors)
+        if (first == 0 && std::find(part.chain.begin(), part.chain.end(), p.session) != part.chain.end())
+          part.priors.push_back(p);
       kept.push_back(std::move(part));
     }
   }

@@ -220,6 +220,7 @@ MergeReport mergeStores(const std::string& out, const std::vector<MergeInput>& i
           complete = complete && session_of.count(s) > 0;
           if (complete) s = session_of[s];
         }
+        for (StoredPrior& p : c.priors) p.session = session_of.count(p.session) ? session_of[p.session] : -1;
         if (!complete) continue;  // names a session without keyframes: restore skips it too
         for (StoredLink& l : c.links) {
           std::vector<std::int64_t> ids;

@@ -540,6 +540,43 @@ TEST(SessionManager, LoopsClosedByANewSessionsFirstKeyframeSurviveARestart) {
   EXPECT_EQ(again.view().list()[1].loops, 2);
 }
 
+TEST(SessionManager, PositionPriorsSurviveARestartInTheirMapsFrameAndMoveOnWithAJoin) {
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  const Eigen::Matrix2d cov = (Eigen::Matrix2d() << 0.04, 0.01, 0.01, 0.09).finished();
+  Pose2 kf3;
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 6);
+    addStraightSession(&m, 1, 6);  // ends session 0
+    ASSERT_TRUE(m.addPositionPrior(0, 3, Eigen::Vector2d(3.0, 0.4), cov).ok());
+    ASSERT_TRUE(m.addPositionPrior(1, 2, Eigen::Vector2d(2.0, -0.3), cov).ok());
+    EXPECT_EQ(m.addPositionPrior(0, 0, Eigen::Vector2d(0.0, 0.0), cov).code, StatusCode::kFailedPrecondition);
+    EXPECT_EQ(m.addPositionPrior(0, 9, Eigen::Vector2d(0.0, 0.0), cov).code, StatusCode::kNotFound);
+    ASSERT_TRUE(m.endSession(106.0).ok());  // the maps saved, the priors with them
+    kf3 = m.view().poses(0)[3];
+    EXPECT_GT(kf3.y(), 1e-3);  // pulled toward the prior (odometry of 1 cm per metre: a few mm)
+  }
+  SessionManager again(options(db));
+  const std::vector<PriorRecord> priors = again.view().positionPriors();
+  ASSERT_EQ(priors.size(), 2u);
+  EXPECT_EQ(priors[0].session, 0);
+  EXPECT_EQ(priors[0].keyframe, 3);
+  EXPECT_EQ(priors[0].position, Eigen::Vector2d(3.0, 0.4));
+  EXPECT_EQ(priors[0].covariance, cov);
+  EXPECT_EQ(priors[1].session, 1);
+  EXPECT_EQ(priors[1].position, Eigen::Vector2d(2.0, -0.3));
+  EXPECT_TRUE(approxEqual(again.view().poses(0)[3], kf3, 1e-9, 1e-9));
+  // Joined into session 0's map (session 1 one metre to the side), session 1's prior moves into
+  // map 0's frame with its keyframes, and is saved there.
+  for (int k = 1; k <= 5; ++k) ASSERT_TRUE(again.addLoop(globalLoop(0, k, 1, k, Pose2(0, 1, 0))).ok());
+  ASSERT_TRUE(again.join(0, 1).ok());
+  const std::vector<PriorRecord> joined = again.view().positionPriors();
+  ASSERT_EQ(joined.size(), 2u);
+  EXPECT_LT((joined[1].position - Eigen::Vector2d(2.0, 0.7)).norm(), 0.05) << joined[1].position.transpose();
+  EXPECT_LT((joined[0].position - Eigen::Vector2d(3.0, 0.4)).norm(), 1e-12);
+}
+
 TEST(SessionManager, DeferredOptimisationRunsOutsideRequestsAndSavesTheFinishedMap) {
   testing_util::ScopedTempDir dir("session_manager");
   const std::string db = (dir.path() / "s.db").string();

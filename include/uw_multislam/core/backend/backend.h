@@ -186,6 +186,16 @@ struct LoopRecord {
   bool refused = false;     // refused as inconsistent at a join
 };
 
+/// An absolute position prior on a keyframe as the back-end keeps it (addPositionPrior): its
+/// position and covariance in the current frame of the map that holds the keyframe (a join or a
+/// split that moves that frame moves the prior with it).
+struct PriorRecord {
+  int session = 0, keyframe = 0;
+  Eigen::Vector2d position = Eigen::Vector2d::Zero();
+  Eigen::Matrix2d covariance = Eigen::Matrix2d::Identity();
+  bool applied = false;  // in its map's estimate for good (MapProblem::apply: the IEKF's)
+};
+
 /// One link of a map (as the back-end keeps it and the store saves it): its measurement and the
 /// ids of the loops it summarises.
 struct MapLinkState {
@@ -213,6 +223,7 @@ struct BackendStats {
   std::string last_join_refusal;
   int joins = 0, splits = 0;
   int optimisations = 0;
+  int priors = 0;                   // absolute position priors accepted (addPositionPrior)
   int optimisations_discarded = 0;  // deferred results dropped: their map changed while they were solved
   double optimise_ms_total = 0.0, optimise_ms_max = 0.0;
 };
@@ -234,6 +245,7 @@ struct OptimisationJob {
   std::uint64_t revision = 0;           // the map's revision when the job was prepared
   std::unique_ptr<MapProblem> problem;  // null: no loop to solve
   std::vector<MapLoop> loops;           // the loops the problem solves (after the solve: those kept)
+  std::vector<int> priors;              // the ids of the position priors it solves with them
   // The residual gate (loop_residual_gate; threshold <= 0: off) and the loops it switched off.
   double residual_gate_chi2 = 0.0;
   double residual_gate_inflation = 1.0;
@@ -268,6 +280,18 @@ class MultiSessionBackend {
   /// Stores a loop (both keyframes must exist). Inside a map it is pending for optimisation;
   /// between maps it is stored and may trigger a join (K loops). Throws std::invalid_argument.
   void addLoop(const BackendLoop& loop);
+  /// An absolute position prior (position_prior.h) on keyframe `keyframe` of session `s`: its (x, y)
+  /// in the current frame of the map that holds the keyframe, with its covariance. Kept (priors()),
+  /// given to every optimisation of that map from now on, and the map is optimised now (deferred:
+  /// marked due). INVALID_ARGUMENT for an unknown session or keyframe, a position or covariance
+  /// checkPositionPrior refuses; FAILED_PRECONDITION for the map's first keyframe (its frame: fixed);
+  /// ALREADY_EXISTS when the keyframe has a prior (one per keyframe: close fixes share their errors).
+  BackendStatus addPositionPrior(int s, int keyframe, const Eigen::Vector2d& position,
+                                 const Eigen::Matrix2d& covariance);
+  const std::vector<PriorRecord>& priors() const { return priors_; }
+  /// A stored prior put back as it was (the session store): checked as addPositionPrior checks,
+  /// nothing optimised, its map unchanged.
+  BackendStatus restorePositionPrior(const PriorRecord& record);
   /// Optimises every map with pending loops, now (also when deferred).
   void flush();
   /// The operator's "optimise now": every map with pending loops (fewer than optimise_every) is
@@ -402,8 +426,14 @@ class MultiSessionBackend {
   /// Optimises map `map_id` now, or (deferred) marks it due.
   void optimise(int map_id);
   void optimiseNow(int map_id);
-  /// The map's graph as its optimiser takes it (MapOptimizer::prepare).
-  MapGraph graphOf(int map_id) const;
+  /// The map's graph as its optimiser takes it (MapOptimizer::prepare); *prior_ids: the ids of
+  /// graph.priors, in order.
+  MapGraph graphOf(int map_id, std::vector<int>* prior_ids) const;
+  /// Each prior's session origin in its map, taken before a join or a split; rebasePriors moves
+  /// every prior by how its session's origin moved (a join re-roots the second map's frame, a split
+  /// the rest's when the session split off was first).
+  std::vector<Pose2> priorOrigins() const;
+  void rebasePriors(const std::vector<Pose2>& before);
   /// `requested`: an explicit count of the caller's (estimateLink).
   BackendStatus joinMaps(int map_a, int map_b, int min_loops, bool automatic, bool requested = false);
   /// The link a join of map `second` to the end of map `first` would take from the loops `ids`
@@ -437,6 +467,7 @@ class MultiSessionBackend {
   std::vector<Session> sessions_;
   std::map<int, Map> maps_;
   std::vector<LoopRecord> loops_;
+  std::vector<PriorRecord> priors_;
   std::set<std::pair<int, int>> split_pairs_;  // sessions split apart by the user
   BackendStats stats_;
   bool deferred_ = false;

@@ -44,24 +44,27 @@ struct MapGraph {
   /// Per loop: whether an earlier problem's apply() put it in the estimate for good.
   std::vector<bool> applied;
   /// Absolute position priors on the map's keyframes (chain indices) in the map's frame
-  /// (position_prior.h), solved with every problem's loops. An optimiser whose apply() returns
-  /// true has put them in the estimate for good too: they are given to no later problem.
+  /// (position_prior.h), solved with every problem's loops (also with none).
   std::vector<PositionPrior> priors;
+  /// Per prior: whether an earlier problem's apply() put it in the estimate for good (an optimiser
+  /// whose apply() returns true solves only the others, as it does with the loops).
+  std::vector<bool> priors_applied;
 };
 
 /// One map's optimisation problem, a copy of what it needs.
 class MapProblem {
  public:
   virtual ~MapProblem() = default;
-  /// Solves from the estimate the problem was taken from, with `loops` (at least one).
+  /// Solves from the estimate the problem was taken from, with `loops` and the problem's priors
+  /// (`loops` may be empty when it has priors).
   virtual void solve(const std::vector<MapLoop>& loops) = 0;
   /// Back to the estimate the problem was taken from (no loop).
   virtual void reset() = 0;
   /// X_j^i in the current solution (means), for the map's keyframes i and j.
   virtual Pose2 relative(int i, int j) const = 0;
   /// Writes the current solution into `estimate`, the map's (unchanged since the problem was taken).
-  /// true: the loops of the last solve are in the estimate for good and are given to no later
-  /// problem (an IEKF update applies each loop once); false: every later problem gets them again.
+  /// true: the loops and priors of the last solve are in the estimate for good and are given to no
+  /// later problem (an IEKF update applies each once); false: every later problem gets them again.
   virtual bool apply(MapEstimate* estimate) const = 0;
 };
 

@@ -168,6 +168,16 @@ class SessionManager {
   /// localisation mode (the store stays byte-identical), DATA_LOSS when the write failed: the
   /// store then holds what it held.
   Status storeDatum(const std::string& text);
+  /// An absolute position prior (a GPS or USBL fix placed through the datum: core/export/geo_fix.h)
+  /// on keyframe `keyframe` of session `session`: its (x, y) in the current frame of the session's
+  /// map (the camera's position, image axes) and covariance (m^2). The back-end keeps it and
+  /// optimises the map with it (deferred: the map is due). Refused with nothing changed:
+  /// NOT_FOUND (no such session or keyframe, or a bridged keyframe that never arrived),
+  /// FAILED_PRECONDITION (the keyframe is its map's origin: the map's frame), ALREADY_EXISTS (the
+  /// keyframe has a prior already: one per keyframe),
+  /// INVALID_ARGUMENT (a position or covariance checkPositionPrior refuses).
+  Status addPositionPrior(int session, int keyframe, const Eigen::Vector2d& position,
+                          const Eigen::Matrix2d& covariance);
   /// Joins the maps of two sessions from the global loops between them (min_loops 0: K).
   /// INVALID_ARGUMENT for an id outside [0, kMaxSessionId], NOT_FOUND for an unknown one.
   Status join(int session_a, int session_b, int min_loops = 0);

@@ -77,6 +77,9 @@ class SessionQueries {
   /// The odometry's poses of the session's keyframes (X_k^0 as received).
   const std::vector<Pose2>& odometryPoses(int session) const { return t_.at(session).odometry; }
   const std::vector<double>& stamps(int session) const { return t_.at(session).stamps; }
+  /// The position priors the back-end holds (addPositionPrior), `session` in these ids, each in
+  /// the current frame of its map.
+  std::vector<PriorRecord> positionPriors() const;
   const std::vector<int>& frames(int session) const { return t_.at(session).frames; }
   /// Where each keyframe's odometry motion came from ([0], the origin: kVisual).
   const std::vector<MotionSource>& motionSources(int session) const { return t_.at(session).sources; }

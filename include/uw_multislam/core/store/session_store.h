@@ -106,12 +106,25 @@ struct StoredLink {
   std::vector<std::int64_t> loops;  // store loop ids
 };
 
+/// An absolute position prior on a keyframe (a GPS or USBL fix: MultiSessionBackend::addPositionPrior),
+/// in the frame of the map it is saved with (that map's first session's).
+struct StoredPrior {
+  std::int64_t session = 0;  // store id
+  int keyframe = 0;
+  Eigen::Vector2d position = Eigen::Vector2d::Zero();
+  Eigen::Matrix2d covariance = Eigen::Matrix2d::Identity();
+  bool applied = false;  // in the map's estimate for good (the IEKF's)
+};
+
 /// A map: store session ids; motions as MapState (empty: not yet optimised, use the odometry).
 struct StoredMap {
   std::vector<std::int64_t> chain;
   std::vector<StoredLink> links;
   std::vector<UncertainPose2> motions;
   int pending = 0;
+  /// Its keyframes' position priors, in its frame: the table position_priors (created like
+  /// provenance, no new schema version; a build before it restores the map without them).
+  std::vector<StoredPrior> priors;
 };
 
 /// Where a session of a merged store came from (merge_stores): one row per session

@@ -46,6 +46,7 @@
 #include "uw_multislam/core/session/session_worker.h"
 #include "uw_multislam/ros/backend_counters.h"
 #include "uw_multislam/ros/datum_service.h"
+#include "uw_multislam/ros/fix_input.h"
 #include "uw_multislam/ros/fleet_hash_exchange.h"
 #include "uw_multislam/ros/fleet_peer_client.h"
 #include "uw_multislam/ros/frame_publisher.h"
@@ -105,6 +106,7 @@ class BackendNodelet : public nodelet::Nodelet {
   std::unique_ptr<ros_fleet::HashExchange> fleet_;            // ~fleet/vehicle set
   std::unique_ptr<ros_sessions::ReloadedKeyframesPublisher> reloaded_;
   std::unique_ptr<ros_status::BackendStatusPublisher> status_;  // its own lock, after the worker's
+  std::unique_ptr<ros_geo::FixInput> fix_;                      // ~fix/topic set; its own lock, after the worker's
   std::unique_ptr<diagnostic_updater::Updater> updater_;
   ros_diagnostics::CounterStatus diagnostic_status_;  // the diagnostics timer's thread only
   ros::WallTimer diagnostic_timer_, stats_timer_;

@@ -1,0 +1,223 @@
+#include "uw_multislam/core/export/geo_fix.h"
+
+#include <GeographicLib/LocalCartesian.hpp>
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <stdexcept>
+
+namespace uw_multislam {
+namespace core {
+
+namespace {
+// As geo_datum.cpp's: map's x axis at compass heading h is (sin h, cos h) in (east, north), its y
+// axis (-cos h, sin h).
+Eigen::Matrix2d enuFromMap2(double heading_deg) {
+  const double h = heading_deg * M_PI / 180.0;
+  Eigen::Matrix2d r;
+  r << std::sin(h), -std::cos(h), std::cos(h), std::sin(h);
+  return r;
+}
+}  // namespace
+
+MapPoint mapFromFix(const GeoOrigin& o, double lat_deg, double lon_deg, const Eigen::Matrix2d& en_covariance) {
+  const GeographicLib::LocalCartesian plane(o.lat_deg, o.lon_deg, o.alt_m);
+  // fixFromMap puts (e, n, 0) of the tangent plane on the ellipsoid at the height that point has;
+  // find that height (the plane rises d^2 / 2R above the ellipsoid: two steps reach it to the um).
+  double e = 0.0, n = 0.0, u = 0.0, h = o.alt_m;
+  for (int it = 0; it < 4; ++it) {
+    plane.Forward(lat_deg, lon_deg, h, e, n, u);
+    h -= u;
+  }
+  plane.Forward(lat_deg, lon_deg, h, e, n, u);
+  const Eigen::Matrix2d r = enuFromMap2(o.heading_deg);  // a rotation: its inverse is its transpose
+  MapPoint p;
+  p.xy = r.transpose() * Eigen::Vector2d(e, n);
+  p.covariance = r.transpose() * en_covariance * r;
+  return p;
+}
+
+const char* fixRefusalName(FixRefusal r) {
+  switch (r) {
+    case FixRefusal::kNoFix:
+      return "no_fix";
+    case FixRefusal::kNotFinite:
+      return "not_finite";
+    case FixRefusal::kUnknownCovariance:
+      return "unknown_covariance";
+    case FixRefusal::kBadVariance:
+      return "bad_variance";
+    case FixRefusal::kNoDatum:
+      return "no_datum";
+    case FixRefusal::kNoKeyframe:
+      return "no_keyframe";
+    case FixRefusal::kOtherMap:
+      return "other_map";
+    case FixRefusal::kMapOrigin:
+      return "map_origin";
+    case FixRefusal::kKeyframeHasFix:
+      return "keyframe_has_fix";
+    case FixRefusal::kCount:
+      break;
+  }
+  return "?";
+}
+
+std::string FixOptions::validate() const {
+  if (!(max_dt_s > 0.0) || !std::isfinite(max_dt_s)) return "fix/max_dt_s must be > 0 (seconds)";
+  if (!(default_sigma_m >= 0.0) || !std::isfinite(default_sigma_m))
+    return "fix/default_sigma_m must be >= 0 (0: a fix of unknown covariance is refused)";
+  if (max_waiting < 1) return "fix/max_waiting must be >= 1";
+  return "";
+}
+
+FixMatcher::FixMatcher(const FixOptions& options) : options_(options) {
+  if (const std::string bad = options.validate(); !bad.empty()) throw std::invalid_argument(bad);
+}
+
+void FixMatcher::refuse(FixRefusal r, const std::string& why) {
+  ++refused_[static_cast<int>(r)];
+  last_refusal_ = std::string("fix refused (") + fixRefusalName(r) + "): " + why;
+}
+
+std::optional<FixRefusal> FixMatcher::add(const NavFix& f, bool have_datum) {
+  char at[64];
+  std::snprintf(at, sizeof at, "stamp %.3f", f.stamp_s);
+  if (f.status <= NavFix::kStatusNoFix) {
+    refuse(FixRefusal::kNoFix, std::string(at) + ": status NO_FIX");
+    return FixRefusal::kNoFix;
+  }
+  if (!std::isfinite(f.lat_deg) || !std::isfinite(f.lon_deg) || std::abs(f.lat_deg) > 90.0 ||
+      std::abs(f.lon_deg) > 180.0) {
+    refuse(FixRefusal::kNotFinite,
+           std::string(at) + ": latitude/longitude " + std::to_string(f.lat_deg) + ", " + std::to_string(f.lon_deg));
+    return FixRefusal::kNotFinite;
+  }
+  Eigen::Matrix2d c;
+  if (f.covariance_type == NavFix::kCovarianceUnknown) {
+    if (options_.default_sigma_m <= 0.0) {
+      refuse(FixRefusal::kUnknownCovariance,
+             std::string(at) + ": covariance type UNKNOWN and ~fix/default_sigma_m is not set (> 0)");
+      return FixRefusal::kUnknownCovariance;
+    }
+    c = Eigen::Matrix2d::Identity() * options_.default_sigma_m * options_.default_sigma_m;
+  } else if (f.covariance_type == NavFix::kCovarianceDiagonalKnown) {
+    c << f.covariance[0], 0.0, 0.0, f.covariance[4];
+  } else {
+    c << f.covariance[0], f.covariance[1], f.covariance[3], f.covariance[4];
+  }
+  if (!c.allFinite() || !(c(0, 0) > 0.0) || !(c(1, 1) > 0.0) || std::abs(c(0, 1) - c(1, 0)) > 1e-9 * c.norm() ||
+      !(c.determinant() > 0.0)) {
+    refuse(FixRefusal::kBadVariance, std::string(at) + ": east/north covariance [" + std::to_string(c(0, 0)) + ", " +
+                                         std::to_string(c(0, 1)) + "; " + std::to_string(c(1, 0)) + ", " +
+                                         std::to_string(c(1, 1)) + "] is not positive definite");
+    return FixRefusal::kBadVariance;
+  }
+  if (!have_datum) {
+    refuse(FixRefusal::kNoDatum, std::string(at) + ": no datum yet (~datum/* or set_datum)");
+    return FixRefusal::kNoDatum;
+  }
+  if (static_cast<int>(waiting_.size()) >= options_.max_waiting) {
+    char why[160];
+    std::snprintf(why, sizeof why, "stamp %.3f: no keyframe came after it while %d newer fixes waited",
+                  waiting_.front().fix.stamp_s, options_.max_waiting);
+    refuse(FixRefusal::kNoKeyframe, why);
+    waiting_.pop_front();
+  }
+  waiting_.push_back({f, c});
+  return std::nullopt;
+}
+
+std::vector<FixPrior> FixMatcher::match(const SessionQueries& m, const std::optional<GeoOrigin>& datum, int datum_map,
+                                        const CameraMount& mount) {
+  std::vector<FixPrior> out;
+  if (waiting_.empty()) return out;
+  double newest = -std::numeric_limits<double>::infinity();
+  for (int id : m.sessionIds())
+    if (m.has(id) && m.hasKeyframe(id) && !m.stamps(id).empty()) newest = std::max(newest, m.stamps(id).back());
+  std::deque<Waiting> still;
+  for (const Waiting& w : waiting_) {
+    const NavFix& f = w.fix;
+    if (!(f.stamp_s <= newest)) {  // newer than every keyframe: the next one may be nearer
+      still.push_back(w);
+      continue;
+    }
+    char at[64];
+    std::snprintf(at, sizeof at, "stamp %.3f", f.stamp_s);
+    if (!datum) {
+      refuse(FixRefusal::kNoDatum, std::string(at) + ": no datum");
+      continue;
+    }
+    int best_session = -1, best_keyframe = -1;
+    double best = std::numeric_limits<double>::infinity();
+    for (int id : m.sessionIds()) {
+      if (!m.has(id) || !m.hasKeyframe(id)) continue;
+      // A session's stamps increase: the nearest is one of the two around the fix's.
+      const std::vector<double>& stamps = m.stamps(id);
+      const auto after = std::lower_bound(stamps.begin(), stamps.end(), f.stamp_s);
+      for (auto it = after == stamps.begin() ? after : after - 1; it != stamps.end() && it <= after; ++it) {
+        const double dt = f.stamp_s - *it;
+        if (std::abs(dt) < std::abs(best)) {
+          best = dt;
+          best_session = id;
+          best_keyframe = static_cast<int>(it - stamps.begin());
+        }
+      }
+    }
+    if (best_session < 0 || !(std::abs(best) <= options_.max_dt_s)) {
+      char why[160];
+      std::snprintf(why, sizeof why, "%s: the nearest keyframe is %.3f s away (~fix/max_dt_s %.3f)", at, std::abs(best),
+                    options_.max_dt_s);
+      refuse(FixRefusal::kNoKeyframe, why);
+      continue;
+    }
+    const int map = m.mapOf(best_session);
+    if (map != datum_map) {
+      refuse(FixRefusal::kOtherMap, std::string(at) + ": its keyframe " + std::to_string(best_keyframe) +
+                                        " of session " + std::to_string(best_session) + " is in map " +
+                                        std::to_string(map) + ", the datum places map " + std::to_string(datum_map));
+      continue;
+    }
+    // The fix is base_link's position in the z-up map; the keyframe is the camera's pose in image
+    // axes. The vehicle keeps the keyframe's current heading, moved to the fix; the camera follows it.
+    const MapPoint p = mapFromFix(*datum, f.lat_deg, f.lon_deg, w.covariance);
+    const Pose2 camera = m.poses(best_session)[best_keyframe];
+    const Pose2 vehicle = vehicleFromCamera(camera, mount);
+    const Pose2 moved = cameraFromVehicle(Pose2(p.xy.x(), p.xy.y(), vehicle.yaw()), mount);
+    FixPrior prior;
+    prior.session = best_session;
+    prior.keyframe = best_keyframe;
+    prior.dt_s = best;
+    prior.position = moved.translation();
+    // z-up -> image axes is (x, y) -> (x, -y): the covariance's off-diagonal changes sign.
+    const Eigen::Matrix2d flip = Eigen::Vector2d(1.0, -1.0).asDiagonal();
+    prior.covariance = flip * p.covariance * flip;
+    out.push_back(prior);
+  }
+  waiting_ = std::move(still);
+  return out;
+}
+
+int FixMatcher::give(SessionManager* m, const std::vector<FixPrior>& priors) {
+  int taken = 0;
+  for (const FixPrior& p : priors) {
+    const Status st = m->addPositionPrior(p.session, p.keyframe, p.position, p.covariance);
+    if (st.ok()) {
+      ++used_;
+      ++taken;
+    } else {
+      const FixRefusal why = st.code == StatusCode::kFailedPrecondition ? FixRefusal::kMapOrigin
+                             : st.code == StatusCode::kAlreadyExists    ? FixRefusal::kKeyframeHasFix
+                                                                        : FixRefusal::kNoKeyframe;
+      refuse(why, st.message);
+    }
+  }
+  return taken;
+}
+
+}  // namespace core
+}  // namespace uw_multislam
