@@ -46,6 +46,14 @@ def map_to_wgs84(x, y):
     return lat, lon
 
 
+def in_keyframe_axes(position):
+    """A position published in map (ENU at the datum) in the first keyframe's z-up axes, whose x
+    axis has compass heading HEADING: x along (sin H, cos H) in (east, north), y along (-cos H, sin H)."""
+    h = math.radians(HEADING)
+    e, n = position.x, position.y
+    return e * math.sin(h) + n * math.cos(h), -e * math.cos(h) + n * math.sin(h)
+
+
 def predicted_fraction():
     """How far (0..1) keyframe 4 moves toward a fix straight across the leg: the odometry's
     lateral variance at keyframe 4 (each motion's lateral variance, and each yaw error times the
@@ -77,7 +85,7 @@ class FixInputTest(unittest.TestCase):
         got = recorder.at(last, with_fix=True)
         self.assertIsNotNone(got, "no keyframe_pose/keyframe_fix of keyframe 4")
         before, before_fix = got
-        bx, by = before.pose.pose.position.x, before.pose.pose.position.y
+        bx, by = in_keyframe_axes(before.pose.pose.position)
         print("keyframe 4 before the fix: (%.3f, %.3f)" % (bx, by))
         self.assertAlmostEqual(bx, 8.0, delta=0.05)
         self.assertAlmostEqual(by, -1.0, delta=0.05)  # the drift, z up
@@ -101,11 +109,12 @@ class FixInputTest(unittest.TestCase):
         while time.time() < deadline and moved is None:
             with recorder.lock:
                 for p in recorder.poses:
-                    if abs((p.header.stamp - last).to_sec()) < 1e-6 and p.pose.pose.position.y > by + 0.1:
+                    lateral = in_keyframe_axes(p.pose.pose.position)[1]
+                    if abs((p.header.stamp - last).to_sec()) < 1e-6 and lateral > by + 0.1:
                         moved = p
             time.sleep(0.05)
         self.assertIsNotNone(moved, "keyframe_pose of keyframe 4 never moved toward the fix")
-        mx, my = moved.pose.pose.position.x, moved.pose.pose.position.y
+        mx, my = in_keyframe_axes(moved.pose.pose.position)
         want = predicted_fraction()
         frac = (my - by) / (0.0 - by)
         print("keyframe 4 after the fix: (%.3f, %.3f): moved %.3f of the way, predicted %.3f" % (mx, my, frac, want))
