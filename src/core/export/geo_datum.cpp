@@ -13,7 +13,6 @@
 namespace uw_multislam {
 namespace core {
 
-namespace {
 // map's x axis has compass heading h (clockwise from north): (sin h, cos h) in (east, north);
 // its y axis, 90 degrees anticlockwise with z up, is (-cos h, sin h) (as eastNorth()).
 Eigen::Matrix2d enuFromMap2(double heading_deg) {
@@ -22,6 +21,8 @@ Eigen::Matrix2d enuFromMap2(double heading_deg) {
   r << std::sin(h), -std::cos(h), std::cos(h), std::sin(h);
   return r;
 }
+
+namespace {
 std::string outside(const char* name, double v, const char* range) {
   char line[160];
   std::snprintf(line, sizeof line, "%s %.10g is %s", name, v, std::isfinite(v) ? range : "not a number");

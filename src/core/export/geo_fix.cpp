@@ -13,17 +13,6 @@
 namespace uw_multislam {
 namespace core {
 
-namespace {
-// As geo_datum.cpp's: map's x axis at compass heading h is (sin h, cos h) in (east, north), its y
-// axis (-cos h, sin h).
-Eigen::Matrix2d enuFromMap2(double heading_deg) {
-  const double h = heading_deg * M_PI / 180.0;
-  Eigen::Matrix2d r;
-  r << std::sin(h), -std::cos(h), std::cos(h), std::sin(h);
-  return r;
-}
-}  // namespace
-
 MapPoint mapFromFix(const GeoOrigin& o, double lat_deg, double lon_deg, const Eigen::Matrix2d& en_covariance) {
   const GeographicLib::LocalCartesian plane(o.lat_deg, o.lon_deg, o.alt_m);
   // fixFromMap puts (e, n, 0) of the tangent plane on the ellipsoid at the height that point has;

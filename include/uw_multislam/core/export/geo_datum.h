@@ -44,6 +44,10 @@ inline bool sameDatum(const GeoOrigin& a, const GeoOrigin& b) {
 /// earthFromMap(origin) * p, whose geodetic latitude/longitude is latLon(origin, p.x, p.y) for z = 0.
 Eigen::Isometry3d earthFromMap(const GeoOrigin& origin);
 
+/// (east, north) <- map's (x, y) for a datum whose map x axis has compass heading `heading_deg`:
+/// columns (sin h, cos h) and (-cos h, sin h).
+Eigen::Matrix2d enuFromMap2(double heading_deg);
+
 /// A map-frame position on WGS84, as sensor_msgs/NavSatFix carries one.
 struct GeoFix {
   double lat_deg = 0.0, lon_deg = 0.0;
