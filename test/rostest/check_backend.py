@@ -21,12 +21,11 @@ import rosgraph
 import rosnode
 import rospy
 import rostest
-from pipeline_fixture import (NS, SENSOR_TOPICS, connected, frames_by_stamp, make_mission, wait_for_subscribers,
-                              wait_until_quiet)
+from pipeline_fixture import (NS, SENSOR_TOPICS, backend_values, connected, frames_by_stamp, make_mission,
+                              wait_for_subscribers, wait_until_quiet)
 from nav_msgs.msg import Path
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
 from uw_multislam.srv import JoinSessions, ListSessions, SplitSession, StartSession, ReloadSession
-from diagnostic_msgs.msg import DiagnosticArray
 from visualization_msgs.msg import MarkerArray
 
 SESSIONS_TOOL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "src", "tools", "sessions.py")
@@ -279,7 +278,7 @@ class BackendTest(unittest.TestCase):
     def test_4_diagnostics_count_what_the_back_end_did(self):
         # The back-end publishes its status once a second: the first one that counts test_2's join
         # and split (or the last seen after 20 s).
-        values = self.backend_values(lambda v: int(v["joins"]) >= 1 and int(v["splits"]) >= 1)
+        values = backend_values(lambda v: int(v["joins"]) >= 1 and int(v["splits"]) >= 1)
         self.assertIsNotNone(values, "no back-end status on /diagnostics")
         listed = self.sessions()
         self.assertEqual(int(values["keyframes_received"]), sum(s.num_keyframes for s in listed.values() if s.session < 2))
@@ -288,29 +287,6 @@ class BackendTest(unittest.TestCase):
         self.assertEqual(values["store"], "none")
 
 
-    def backend_values(self, condition=lambda v: True, timeout=20.0):
-        """The values of the first back-end status on /diagnostics (published every second) for which
-        condition(values) holds, or of the last one seen when none did within `timeout` seconds."""
-        seen = []
-        cond = threading.Condition()
-
-        def on_diagnostics(msg):
-            with cond:
-                for s in msg.status:
-                    if s.name.endswith(": backend"):
-                        seen.append({kv.key: kv.value for kv in s.values})
-                        cond.notify_all()
-
-        sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
-        try:
-            deadline = time.time() + timeout
-            with cond:
-                while time.time() < deadline and not (seen and condition(seen[-1])):
-                    cond.wait(0.2)
-                return seen[-1] if seen else None
-        finally:
-            sub.unregister()
-
     def test_5_malformed_keyframes_and_loops_are_counted_and_change_nothing(self):
         """A keyframe of a negative session (refused by the message conversion:
         bad_messages), one far beyond its session's last (a gap over ~max_keyframe_gap: refused by
@@ -318,7 +294,7 @@ class BackendTest(unittest.TestCase):
         keyframes are stale whatever their id), and loops on keyframes that never arrived (held
         in the bounded waiting list, loops_waiting, ~max_waiting_loops, in case their keyframes
         come): each counted, the sessions unchanged, the node still answering."""
-        first = self.backend_values()
+        first = backend_values()
         self.assertIsNotNone(first, "no back-end status on /diagnostics")
         before = self.sessions()
         keyframes = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=10)
@@ -342,7 +318,7 @@ class BackendTest(unittest.TestCase):
             loops.publish(loop)
         counters = ("bad_messages", "keyframes_refused", "loops_waiting")
         start = {c: int(first[c]) for c in counters}
-        values = self.backend_values(lambda v: all(int(v[c]) >= start[c] + 1 + (c == "loops_waiting") for c in counters))
+        values = backend_values(lambda v: all(int(v[c]) >= start[c] + 1 + (c == "loops_waiting") for c in counters))
         self.assertEqual([int(values[c]) - start[c] for c in counters], [1, 1, 2], values)
         self.assertEqual(int(values["loops_refused"]), int(first["loops_refused"]), values)
         after = self.sessions()

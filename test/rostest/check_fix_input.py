@@ -11,18 +11,16 @@ fixes_refused_keyframe_has_fix 1."""
 import math
 import os
 import sys
-import threading
 import time
 import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from check_datum import Recorder, datum_frame, geodetic  # noqa: E402
-from pipeline_fixture import connected  # noqa: E402
+from pipeline_fixture import backend_values, connected  # noqa: E402
 from uw_multislam.msg import Keyframe  # noqa: E402
 
 NS = "/uw_multislam"
@@ -136,7 +134,7 @@ class FixInputTest(unittest.TestCase):
         print("keyframe_fix from the good fix: %.3f m before, %.3f m after" % (metres(before_fix), metres(after_fix)))
         self.assertLess(metres(after_fix), 0.5 * metres(before_fix))
 
-        values = self.backend_values(lambda v: int(v.get("fixes_used", 0)) >= 1 and
+        values = backend_values(lambda v: int(v.get("fixes_used", 0)) >= 1 and
                                      int(v.get("fixes_refused_not_finite", 0)) >= 1 and
                                      int(v.get("fixes_refused_keyframe_has_fix", 0)) >= 1)
         self.assertIsNotNone(values, "no back-end status on /diagnostics")
@@ -144,29 +142,6 @@ class FixInputTest(unittest.TestCase):
                        ("fixes_refused_keyframe_has_fix", 1), ("fixes_refused_no_keyframe", 0),
                        ("fixes_refused_no_datum", 0), ("fixes_waiting", 0)):
             self.assertEqual(int(values[key]), n, "%s: %s" % (key, values))
-
-    def backend_values(self, condition, timeout=20.0):
-        """The values of the first back-end status on /diagnostics for which condition holds, or of
-        the last one seen."""
-        seen = []
-        cond = threading.Condition()
-
-        def on_diagnostics(msg):
-            with cond:
-                for s in msg.status:
-                    if s.name.endswith(": backend"):
-                        seen.append({kv.key: kv.value for kv in s.values})
-                        cond.notify_all()
-
-        sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
-        try:
-            deadline = time.time() + timeout
-            with cond:
-                while time.time() < deadline and not (seen and condition(seen[-1])):
-                    cond.wait(0.2)
-                return seen[-1] if seen else None
-        finally:
-            sub.unregister()
 
 
 if __name__ == "__main__":

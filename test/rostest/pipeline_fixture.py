@@ -5,12 +5,14 @@ import os
 import signal
 import subprocess
 import tempfile
+import threading
 import time
 import xmlrpc.client
 
 import rosgraph
 import roslib.packages
 import rospy
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose2D
 from uw_multislam.msg import Keyframe
 
@@ -312,3 +314,27 @@ def publisher_connected(node, topic, caller="/rostest_bus_info"):
     # Each connection: [id, the peer's name, direction, transport, topic, connected, ...].
     open_to = {c[1] for c in info if c[4] == topic and c[2] == "o" and c[5]}
     return bool(subscribed) and subscribed <= open_to
+
+
+def backend_values(condition=lambda v: True, timeout=20.0):
+    """The values of the first back-end status on /diagnostics (published every second) for which
+    condition(values) holds, or of the last one seen when none did within `timeout` seconds."""
+    seen = []
+    cond = threading.Condition()
+
+    def on_diagnostics(msg):
+        with cond:
+            for s in msg.status:
+                if s.name.endswith(": backend"):
+                    seen.append({kv.key: kv.value for kv in s.values})
+                    cond.notify_all()
+
+    sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
+    try:
+        deadline = time.time() + timeout
+        with cond:
+            while time.time() < deadline and not (seen and condition(seen[-1])):
+                cond.wait(0.2)
+            return seen[-1] if seen else None
+    finally:
+        sub.unregister()
