@@ -6,6 +6,8 @@ offline_slam (one core, --threads 1) as it is and as variant folders made in a t
 directory (image hard links or copies, frames.csv, gt.csv and the loops' ground truth filtered):
   all      every frame
   every2   every 2nd frame          every3   every 3rd frame
+  every2k  every 2nd frame, and the frame before each of the recording's own gaps (a stamp step
+           over 1.5 times the median): no step spans a recorded gap and a dropped frame at once
   gaps0.9  runs of frames removed to make ~0.9 m steps: after every 5 kept frames the frame
            whose ground-truth distance from the last kept one is closest to 0.9 m is kept next
            (what a pause or a stalled camera gives)
@@ -82,6 +84,17 @@ def gap_selection(gt, keep_run=5, step_m=0.9):
     return chosen
 
 
+def frames_before_gaps(frames, factor=1.5):
+    """Indexes into frames (rows in order) of the frames followed by a stamp step over `factor`
+    times the median step: the recording's own gaps (skerki s0 has three of 22 s among 13 s steps)."""
+    stamps = [float(r["stamp_s"]) for r in frames]
+    steps = [b - a for a, b in zip(stamps, stamps[1:])]
+    if not steps:
+        return []
+    median = sorted(steps)[len(steps) // 2]
+    return [k for k, step in enumerate(steps) if step > factor * median]
+
+
 def place(src, dst):
     """src at dst: a hard link, or a copy across file systems. Not a symlink: offline_slam refuses
     an image whose real path leaves the dataset folder."""
@@ -98,6 +111,8 @@ def make_variant(base_dir, name, out_dir, loops_dir=None):
     gt = read_csv(os.path.join(base_dir, "gt.csv"))
     if name == "all":
         keep = list(range(len(frames)))
+    elif name == "every2k":
+        keep = sorted(set(range(0, len(frames), 2)) | set(frames_before_gaps(frames)))
     elif name.startswith("every"):
         keep = list(range(0, len(frames), int(name[5:])))
     else:
@@ -313,10 +328,12 @@ def main():
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     results = []
     for base, folder, loops_dir in bases:
-        for variant in ("all", "every2", "every3", "gaps0.9"):
+        for variant in ("all", "every2", "every2k", "every3", "gaps0.9"):
             name = base + "_" + variant
             if args.only and not any(name.startswith(o) for o in args.only):
                 continue
+            if variant == "every2k" and not frames_before_gaps(read_csv(os.path.join(folder, "frames.csv"))):
+                continue  # no recorded gap: the same frames as every2
             d, extra = make_variant(folder, variant, os.path.join(out, "data"), loops_dir)
             r = run_one(name, d, extra, out, args.config, reg)
             results.append(r)
