@@ -85,6 +85,8 @@ const CounterTable<BackendCounters>& backendCounterTable() {
        "fixes refused: their keyframe is its map's origin (the map's frame, fixed)", kWarn},
       {"fixes_refused_keyframe_has_fix", &C::fixes_refused_keyframe_has_fix,
        "fixes refused: their keyframe has a fix already (one per keyframe)"},
+      {"fixes_refused_outlier", &C::fixes_refused_outlier,
+       "fixes refused: beyond ~fix/gate_chi2 from their keyframe (a jump, multipath)", kWarn},
   };
   return table;
 }

@@ -97,6 +97,7 @@ void FixInput::counters(ros_diagnostics::BackendCounters* c) const {
   c->fixes_refused_other_map = matcher_.refused(R::kOtherMap);
   c->fixes_refused_map_origin = matcher_.refused(R::kMapOrigin);
   c->fixes_refused_keyframe_has_fix = matcher_.refused(R::kKeyframeHasFix);
+  c->fixes_refused_outlier = matcher_.refused(R::kOutlier);
 }
 
 }  // namespace ros_geo

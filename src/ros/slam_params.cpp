@@ -197,6 +197,10 @@ BackendNodeletOptions backendNodeletOptions(const Params& nh, const Params& pnh)
       pnh, "fix/default_sigma_m", &o.fix.default_sigma_m, [](double v) { return v >= 0 && v <= 1e4; },
       "in [0, 10000] m (0: a fix of unknown covariance is refused)");
   param(pnh, "fix/max_waiting", &o.fix.max_waiting, count, "in [1, 1000000]");
+  param(
+      pnh, "fix/gate_chi2", &o.fix.gate_chi2, [](double v) { return v >= 0 && v <= 1e6; }, "in [0, 1e6] (0: no gate)");
+  param(
+      pnh, "fix/gate_inflation", &o.fix.gate_inflation, [](double v) { return v >= 1 && v <= 1e6; }, "in [1, 1e6]");
   param(pnh, "fleet/hash_codes", &o.fleet_hash_codes);
   param(
       pnh, "fleet/peer_timeout_s", &o.fleet_peer_timeout_s, [](double t) { return t > 0.0 && t <= 3600.0; },

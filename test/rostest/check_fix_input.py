@@ -3,11 +3,12 @@
 The test sends five keyframes whose odometry drifts 0.25 m to the side per 2 m motion (keyframe 4
 at (8, -1) in the z-up map, the truth (8, 0)); then, with stamps of keyframes it sent, a NO_FIX fix,
 a fix with a NaN latitude, and a good fix of base_link at the truth (sigma 0.1 m east and north),
-twice (the second refused: one fix per keyframe), its latitude/longitude worked out here from the datum with plain WGS84 arithmetic (check_datum.py's).
+twice (the second refused: one fix per keyframe), its latitude/longitude worked out here from the datum with plain WGS84 arithmetic (check_datum.py's),
+and a fix 200 m off (a USBL's multipath) on keyframe 3 with the same small covariance (refused by the gate).
 Checks: keyframe_pose of keyframe 4 moves toward the fix by the fraction the covariances predict
 (odometry's lateral variance over the leg against the fix's, written out here), keyframe_fix with
 it, and /diagnostics counts fixes_used 1, fixes_refused_no_fix 1, fixes_refused_not_finite 1,
-fixes_refused_keyframe_has_fix 1."""
+fixes_refused_keyframe_has_fix 1, fixes_refused_outlier 1."""
 import math
 import os
 import sys
@@ -95,8 +96,11 @@ class FixInputTest(unittest.TestCase):
                NavSatFix(latitude=float("nan"), longitude=lon, position_covariance_type=known)]
         good = NavSatFix(latitude=lat, longitude=lon, position_covariance_type=known,
                          position_covariance=[FIX_VAR, 0, 0, 0, FIX_VAR, 0, 0, 0, 1.0])
-        for f in bad + [good, good]:  # the good one twice: one fix per keyframe
-            f.header.stamp = last
+        jump_lat, jump_lon = map_to_wgs84(6.0, 200.0)
+        jump = NavSatFix(latitude=jump_lat, longitude=jump_lon, position_covariance_type=known)
+        jump.header.stamp = t0 + rospy.Duration(3)  # keyframe 3's
+        for f in bad + [jump, good, good]:  # the good one twice: one fix per keyframe
+            f.header.stamp = f.header.stamp if f is jump else last
             f.header.frame_id = "base_link"
             f.position_covariance = good.position_covariance
             fixes.publish(f)
@@ -136,10 +140,12 @@ class FixInputTest(unittest.TestCase):
 
         values = backend_values(lambda v: int(v.get("fixes_used", 0)) >= 1 and
                                      int(v.get("fixes_refused_not_finite", 0)) >= 1 and
-                                     int(v.get("fixes_refused_keyframe_has_fix", 0)) >= 1)
+                                     int(v.get("fixes_refused_keyframe_has_fix", 0)) >= 1 and
+                                     int(v.get("fixes_refused_outlier", 0)) >= 1)
         self.assertIsNotNone(values, "no back-end status on /diagnostics")
         for key, n in (("fixes_used", 1), ("fixes_refused_no_fix", 1), ("fixes_refused_not_finite", 1),
-                       ("fixes_refused_keyframe_has_fix", 1), ("fixes_refused_no_keyframe", 0),
+                       ("fixes_refused_keyframe_has_fix", 1), ("fixes_refused_outlier", 1),
+                       ("fixes_refused_no_keyframe", 0),
                        ("fixes_refused_no_datum", 0), ("fixes_waiting", 0)):
             self.assertEqual(int(values[key]), n, "%s: %s" % (key, values))
 

@@ -37,7 +37,8 @@ struct BackendCounters {
   long fixes_used = 0, fixes_waiting = 0;
   long fixes_refused_no_fix = 0, fixes_refused_not_finite = 0, fixes_refused_unknown_covariance = 0,
        fixes_refused_bad_variance = 0, fixes_refused_no_datum = 0, fixes_refused_no_keyframe = 0,
-       fixes_refused_other_map = 0, fixes_refused_map_origin = 0, fixes_refused_keyframe_has_fix = 0;
+       fixes_refused_other_map = 0, fixes_refused_map_origin = 0, fixes_refused_keyframe_has_fix = 0,
+       fixes_refused_outlier = 0;
 };
 
 /// The hash exchange and the feature requests between vehicles (only with fleet/vehicle set).

@@ -50,6 +50,8 @@ const char* fixRefusalName(FixRefusal r) {
       return "map_origin";
     case FixRefusal::kKeyframeHasFix:
       return "keyframe_has_fix";
+    case FixRefusal::kOutlier:
+      return "outlier";
     case FixRefusal::kCount:
       break;
   }
@@ -61,6 +63,8 @@ std::string FixOptions::validate() const {
   if (!(default_sigma_m >= 0.0) || !std::isfinite(default_sigma_m))
     return "fix/default_sigma_m must be >= 0 (0: a fix of unknown covariance is refused)";
   if (max_waiting < 1) return "fix/max_waiting must be >= 1";
+  if (!(gate_chi2 >= 0.0) || !std::isfinite(gate_chi2)) return "fix/gate_chi2 must be >= 0 (0: no gate)";
+  if (!(gate_inflation >= 1.0) || !std::isfinite(gate_inflation)) return "fix/gate_inflation must be >= 1";
   return "";
 }
 
@@ -185,6 +189,20 @@ std::vector<FixPrior> FixMatcher::match(const SessionQueries& m, const std::opti
     // z-up -> image axes is (x, y) -> (x, -y): the covariance's off-diagonal changes sign.
     const Eigen::Matrix2d flip = Eigen::Vector2d(1.0, -1.0).asDiagonal();
     prior.covariance = flip * p.covariance * flip;
+    // No chain (zero covariance): the keyframe is its map's origin, which the manager refuses as such.
+    const Eigen::Matrix2d chain = m.keyframeInMap(best_session, best_keyframe).covariance.topLeftCorner<2, 2>();
+    if (options_.gate_chi2 > 0.0 && !chain.isZero(0.0)) {
+      const Eigen::Vector2d nu = prior.position - camera.translation();
+      const double d2 = nu.dot((options_.gate_inflation * chain + prior.covariance).ldlt().solve(nu));
+      if (!(d2 <= options_.gate_chi2)) {
+        char why[200];
+        std::snprintf(why, sizeof why,
+                      "%s: %.2f m from keyframe %d of session %d, chi-square %.1f > ~fix/gate_chi2 %.1f", at, nu.norm(),
+                      best_keyframe, best_session, d2, options_.gate_chi2);
+        refuse(FixRefusal::kOutlier, why);
+        continue;
+      }
+    }
     out.push_back(prior);
   }
   waiting_ = std::move(still);

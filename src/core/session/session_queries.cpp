@@ -66,6 +66,10 @@ UncertainPose2 SessionQueries::lastKeyframeInMap(int session) const {
   return t_.backend().keyframeInMap(s.backend(), static_cast<int>(s.stamps.size()) - 1);
 }
 
+UncertainPose2 SessionQueries::keyframeInMap(int session, int keyframe) const {
+  return t_.backend().keyframeInMap(t_.at(session).backend(), keyframe);
+}
+
 Pose2 SessionQueries::correction(int session) const {
   const SessionTable::Session& s = t_.at(session);
   return compose(t_.backend().sessionPoses(s.backend()).back(), invert(s.odometry.back()));

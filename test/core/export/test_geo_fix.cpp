@@ -268,6 +268,49 @@ TEST(FixMatcher, AGivenFixPullsItsKeyframeTowardIt) {
   EXPECT_LT((after.translation() - Eigen::Vector2d(4.0, 1.0)).norm(), 0.5) << after;
 }
 
+TEST(FixMatcher, AFixBeyondTheGateIsRefusedAsAnOutlierAndOneWithinItIsPlaced) {
+  const GeoOrigin o = datum();
+  SessionManager m(managerOptions());
+  // Four 1 m motions along x, each with variances (x, y, yaw) = (1e-3, 1e-3, 1e-3): keyframe 4's
+  // chain covariance from the origin, written out (first order): var x = 4e-3; var y = 4e-3 plus
+  // each yaw error times the distance still to go, 1e-3 (3² + 2² + 1²) = 0.014.
+  const double var_x = 4e-3, var_y = 4e-3 + 1e-3 * 14.0;
+  for (int k = 0; k < 5; ++k) {
+    const Status st = m.addKeyframe(testing_util::keyframeInput(
+        0, k, Pose2(k, 0, 0), UncertainPose2(k == 0 ? Pose2() : Pose2(1, 0, 0), Eigen::Matrix3d::Identity() * 1e-3)));
+    ASSERT_TRUE(st.ok()) << st.message;
+  }
+  EXPECT_NEAR(m.view().keyframeInMap(0, 4).covariance(0, 0), var_x, 1e-9);
+  EXPECT_NEAR(m.view().keyframeInMap(0, 4).covariance(1, 1), var_y, 1e-9);
+  // S = 100 var + 0.01 (the fix's); across track the gate's edge is sqrt(13.8155 S_yy) = 5.00 m,
+  // along it sqrt(13.8155 S_xx) = 2.38 m.
+  const double edge_y = std::sqrt(13.8155 * (100.0 * var_y + 0.01)),
+               edge_x = std::sqrt(13.8155 * (100.0 * var_x + 0.01));
+  const Eigen::Matrix2d r = Eigen::Matrix2d::Identity() * 0.01;
+  FixMatcher matcher{FixOptions()};
+  ASSERT_EQ(matcher.add(fixAt(o, 4.0, 4.0, -(edge_y - 0.2), r), true), std::nullopt);     // inside
+  ASSERT_EQ(matcher.add(fixAt(o, 3.0, 3.0, -(edge_y - 0.2), r), true), std::nullopt);     // keyframe 3: beyond
+  ASSERT_EQ(matcher.add(fixAt(o, 2.0, 2.0 + edge_x + 0.2, 0.0, r), true), std::nullopt);  // along: beyond
+  const std::vector<FixPrior> priors = matcher.match(m.view(), o, 0, CameraMount());
+  ASSERT_EQ(priors.size(), 1u);
+  EXPECT_EQ(priors[0].keyframe, 4);
+  EXPECT_EQ(matcher.refused(FixRefusal::kOutlier), 2);
+  EXPECT_NE(matcher.lastRefusal().find("chi-square"), std::string::npos) << matcher.lastRefusal();
+  EXPECT_STREQ(fixRefusalName(FixRefusal::kOutlier), "outlier");
+  // Without the gate all three are placed; a bad gate is refused.
+  FixOptions off;
+  off.gate_chi2 = 0.0;
+  FixMatcher open(off);
+  for (double t : {2.0, 3.0, 4.0}) ASSERT_EQ(open.add(fixAt(o, t, t, -(edge_y + 1.0), r), true), std::nullopt);
+  EXPECT_EQ(open.match(m.view(), o, 0, CameraMount()).size(), 3u);
+  FixOptions bad;
+  bad.gate_inflation = 0.5;
+  EXPECT_THROW(FixMatcher{bad}, std::invalid_argument);
+  bad = FixOptions();
+  bad.gate_chi2 = -1.0;
+  EXPECT_THROW(FixMatcher{bad}, std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace uw_multislam

@@ -58,16 +58,25 @@ enum class FixRefusal {
   kOtherMap,           // the keyframe's map is not the one the datum places (the active session's)
   kMapOrigin,          // the keyframe is its map's origin (the map's frame: fixed)
   kKeyframeHasFix,     // the keyframe has a fix already (one per keyframe: close fixes share their errors)
+  kOutlier,            // too far from its keyframe for both covariances (the gate: a USBL's multipath, a jump)
   kCount
 };
 /// "no_fix", "not_finite", "unknown_covariance", "bad_variance", "no_datum", "no_keyframe", "other_map",
-/// "map_origin", "keyframe_has_fix".
+/// "map_origin", "keyframe_has_fix", "outlier".
 const char* fixRefusalName(FixRefusal r);
 
 struct FixOptions {
   double max_dt_s = 0.5;         // a fix is matched to the keyframe nearest in stamp within this (s, > 0)
   double default_sigma_m = 0.0;  // > 0: the east/north sigma of a fix whose covariance type is UNKNOWN
   int max_waiting = 32;          // fixes newer than every keyframe, waiting for the next one (>= 1)
+  /// The gate: a fix is refused (outlier) when d² = νᵀ S⁻¹ ν exceeds gate_chi2, ν the fix minus its
+  /// keyframe's current position, S = gate_inflation × the keyframe's odometry chain covariance from
+  /// its map's origin + the fix's. 13.8155: χ²(2) at 0.999. 0: no gate. The chain covariance is
+  /// first order and over-confident over many motions (doc/benchmarks/real_survey.md), so it is
+  /// inflated as the loops' gate inflates it (backend intra_gate_inflation): the gate refuses a
+  /// jump of metres, not a drift the odometry made.
+  double gate_chi2 = 13.8155;
+  double gate_inflation = 100.0;  // >= 1
   std::string validate() const;
 };
 
@@ -93,9 +102,9 @@ class FixMatcher {
   std::optional<FixRefusal> add(const NavFix& fix, bool have_datum);
   /// The waiting fixes against `m`'s keyframes: each one that is not newer than every keyframe is
   /// matched to the keyframe nearest in stamp (refused no_keyframe beyond max_dt_s, other_map when
-  /// that keyframe's map is not `datum_map`) and placed through `datum` and the camera's `mount`
-  /// at the keyframe's current pose; the rest wait. Refusals are counted; the priors returned are
-  /// not counted until given (give()).
+  /// that keyframe's map is not `datum_map`, outlier beyond the gate) and placed through `datum`
+  /// and the camera's `mount` at the keyframe's current pose; the rest wait. Refusals are counted; the priors returned
+  /// are not counted until given (give()).
   std::vector<FixPrior> match(const SessionQueries& m, const std::optional<GeoOrigin>& datum, int datum_map,
                               const CameraMount& mount);
   /// Gives the priors to the manager: each one it takes is counted used, a map origin refused

@@ -74,6 +74,9 @@ class SessionQueries {
   std::vector<Pose2> posesInSessionFrame(int session) const;
   /// The session's last keyframe in its map's frame with its covariance (MultiSessionBackend::keyframeInMap).
   UncertainPose2 lastKeyframeInMap(int session) const;
+  /// A keyframe of the session in its map's frame, with the covariance of the odometry chain from
+  /// the map's origin (MultiSessionBackend::keyframeInMap).
+  UncertainPose2 keyframeInMap(int session, int keyframe) const;
   /// The odometry's poses of the session's keyframes (X_k^0 as received).
   const std::vector<Pose2>& odometryPoses(int session) const { return t_.at(session).odometry; }
   const std::vector<double>& stamps(int session) const { return t_.at(session).stamps; }
