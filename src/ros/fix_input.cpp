@@ -50,15 +50,24 @@ void FixInput::warnIfRefused(long before) {
 
 void FixInput::onFix(const sensor_msgs::NavSatFixConstPtr& msg) {
   const bool have_datum = frames_->datum().has_value();
+  core::NavFix fix = fromMsg(*msg);
+  const std::string& frame = msg->header.frame_id;
+  std::string why;
+  const std::optional<Eigen::Vector2d> arm =
+      frame.empty() || frame == base_frame_ ? std::optional<Eigen::Vector2d>() : frames_->inBasePlane(frame, &why);
+  if (arm) fix.antenna = *arm;
+  if (!why.empty())
+    ROS_WARN_THROTTLE(10, "back-end: no %s -> %s in tf (%s): fixes taken as %s's position until it comes",
+                      base_frame_.c_str(), frame.c_str(), why.c_str(), base_frame_.c_str());
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (!said_frame_ && !msg->header.frame_id.empty() && msg->header.frame_id != base_frame_) {
-      said_frame_ = true;
-      ROS_INFO("back-end: fixes in frame '%s' are taken as %s's position (no lever arm)", msg->header.frame_id.c_str(),
-               base_frame_.c_str());
+    if (arm && frame != said_frame_) {
+      said_frame_ = frame;
+      ROS_INFO("back-end: fixes in frame '%s': its lever arm from %s is (%.3f, %.3f) m", frame.c_str(),
+               base_frame_.c_str(), arm->x(), arm->y());
     }
     const long before = refusals();
-    matcher_.add(fromMsg(*msg), have_datum);
+    matcher_.add(fix, have_datum);
     warnIfRefused(before);
   }
   matchWaiting();

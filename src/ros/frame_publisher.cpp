@@ -76,6 +76,17 @@ void FramePublisher::onCameraFrame(const std::string& frame) {
            core::describe(m).c_str());
 }
 
+std::optional<Eigen::Vector2d> FramePublisher::inBasePlane(const std::string& frame, std::string* why) const {
+  try {
+    const geometry_msgs::Vector3 t =
+        mount_buffer_->lookupTransform(options_.mount.base_frame, frame, ros::Time(0)).transform.translation;
+    return Eigen::Vector2d(t.x, t.y);
+  } catch (const tf2::TransformException& e) {
+    *why = e.what();
+    return std::nullopt;
+  }
+}
+
 core::CameraMount FramePublisher::mount() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return mount_;

@@ -2,7 +2,8 @@
 """rostest fix_input.test: NavSatFix messages as absolute position priors on the back-end's keyframes.
 The test sends five keyframes whose odometry drifts 0.25 m to the side per 2 m motion (keyframe 4
 at (8, -1) in the z-up map, the truth (8, 0)); then, with stamps of keyframes it sent, a NO_FIX fix,
-a fix with a NaN latitude, and a good fix of base_link at the truth (sigma 0.1 m east and north),
+a fix with a NaN latitude, and a good fix at the truth (sigma 0.1 m east and north) of a GPS antenna
+1.0 m forward and 0.5 m to port of base_link (frame gps; the test publishes base_link -> gps as static tf),
 twice (the second refused: one fix per keyframe), its latitude/longitude worked out here from the datum with plain WGS84 arithmetic (check_datum.py's),
 and a fix 200 m off (a USBL's multipath) on keyframe 3 with the same small covariance (refused by the gate).
 Checks: keyframe_pose of keyframe 4 moves toward the fix by the fraction the covariances predict
@@ -17,6 +18,8 @@ import unittest
 
 import rospy
 import rostest
+import tf2_ros
+from geometry_msgs.msg import TransformStamped
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -29,6 +32,7 @@ LAT, LON, HEADING = 43.0951, 5.9307, 30.0  # fix_input.test's datum
 MOTION = (2.0, 0.25, 0.0)  # the odometry's motion in the camera's image axes (z-up: y -> -y)
 MOTION_VAR = (0.01, 0.01, 1e-4)
 FIX_VAR = 0.01
+ANTENNA = (1.0, 0.5)  # base_link -> gps: the lever arm the back-end must take from tf
 
 
 def await_connected(publisher, what, timeout=45.0):
@@ -65,6 +69,14 @@ class FixInputTest(unittest.TestCase):
     def test_fixes_pull_the_keyframe_and_refusals_are_counted(self):
         recorder = Recorder()
         recorder.connect(with_fix=True)
+        mount = tf2_ros.StaticTransformBroadcaster()
+        arm = TransformStamped()
+        arm.header.stamp = rospy.Time.now()
+        arm.header.frame_id, arm.child_frame_id = "base_link", "gps"
+        arm.transform.translation.x, arm.transform.translation.y = ANTENNA
+        arm.transform.rotation.w = 1.0
+        mount.sendTransform(arm)
+        await_connected(mount.pub_tf, "tf_static")  # latched: the back-end has it once connected
         keyframes = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=10)
         fixes = rospy.Publisher(NS + "/fix", NavSatFix, queue_size=10)
         await_connected(keyframes, "keyframes")
@@ -90,18 +102,20 @@ class FixInputTest(unittest.TestCase):
         self.assertAlmostEqual(by, -1.0, delta=0.05)  # the drift, z up
 
         lat, lon = map_to_wgs84(8.0, 0.0)  # base_link's true position
+        # The antenna's: the vehicle heads along the leg's x (the odometry's yaw is 0 throughout).
+        gps_lat, gps_lon = map_to_wgs84(8.0 + ANTENNA[0], 0.0 + ANTENNA[1])
         known = NavSatFix.COVARIANCE_TYPE_KNOWN
         bad = [NavSatFix(status=NavSatStatus(status=NavSatStatus.STATUS_NO_FIX), latitude=lat, longitude=lon,
                          position_covariance_type=known),
                NavSatFix(latitude=float("nan"), longitude=lon, position_covariance_type=known)]
-        good = NavSatFix(latitude=lat, longitude=lon, position_covariance_type=known,
+        good = NavSatFix(latitude=gps_lat, longitude=gps_lon, position_covariance_type=known,
                          position_covariance=[FIX_VAR, 0, 0, 0, FIX_VAR, 0, 0, 0, 1.0])
         jump_lat, jump_lon = map_to_wgs84(6.0, 200.0)
         jump = NavSatFix(latitude=jump_lat, longitude=jump_lon, position_covariance_type=known)
         jump.header.stamp = t0 + rospy.Duration(3)  # keyframe 3's
         for f in bad + [jump, good, good]:  # the good one twice: one fix per keyframe
             f.header.stamp = f.header.stamp if f is jump else last
-            f.header.frame_id = "base_link"
+            f.header.frame_id = "gps" if f is good else "base_link"
             f.position_covariance = good.position_covariance
             fixes.publish(f)
 

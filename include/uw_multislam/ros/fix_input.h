@@ -1,8 +1,9 @@
 // The back-end's sensor_msgs/NavSatFix input (doc/ros_api.md, backend_node "fix"; doc/frames.md):
 // fixes from a GPS at the surface or a USBL, each matched to the keyframe nearest in stamp and
 // given to the session manager as an absolute position prior with its covariance
-// (core/export/geo_fix.h does the work; this is the glue). A fix is base_link's position: its
-// frame_id is not looked up in tf (no lever arm); another frame_id than base_link is said once.
+// (core/export/geo_fix.h does the work; this is the glue). A fix is the position of its frame_id
+// (the antenna, the transponder), whose lever arm from base_link tf gives (an empty frame_id or
+// base_link: none; a frame tf does not have: none, WARNed).
 // Refusals are counted by reason (/diagnostics, fixes_refused_*) and WARNed, throttled.
 // Threading: the subscription and a steady timer run on the node's callback thread; the matcher
 // has its own mutex, taken after the worker's lock when both are held.
@@ -13,6 +14,7 @@
 
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 
 #include "uw_multislam/core/export/geo_fix.h"
@@ -54,7 +56,7 @@ class FixInput {
   ros_frames::FramePublisher* frames_;
   mutable std::mutex mutex_;  // guards matcher_ and said_frame_
   core::FixMatcher matcher_;
-  bool said_frame_ = false;
+  std::string said_frame_;  // the frame whose lever arm was said last
   ros::Subscriber sub_;
   ros::SteadyTimer timer_;  // fixes waiting for a keyframe are tried again
 };

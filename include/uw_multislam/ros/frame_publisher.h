@@ -124,6 +124,10 @@ class FramePublisher {
   }
   /// base_link -> the keyframes' camera frame from tf; the camera at base_link until it is known.
   core::CameraMount mount() const;
+  /// Where `frame`'s origin is in base_link's plane (x forward, y left: tf's base_frame -> frame,
+  /// the latest), e.g. a GPS antenna's or a USBL transponder's lever arm; nullopt, with `why`,
+  /// when tf does not have it. Thread-safe.
+  std::optional<Eigen::Vector2d> inBasePlane(const std::string& frame, std::string* why) const;
   FrameStats stats() const;
 
  private:

@@ -90,6 +90,10 @@ std::optional<FixRefusal> FixMatcher::add(const NavFix& f, bool have_datum) {
            std::string(at) + ": latitude/longitude " + std::to_string(f.lat_deg) + ", " + std::to_string(f.lon_deg));
     return FixRefusal::kNotFinite;
   }
+  if (!f.antenna.allFinite()) {
+    refuse(FixRefusal::kNotFinite, std::string(at) + ": its lever arm from base_link is not finite");
+    return FixRefusal::kNotFinite;
+  }
   Eigen::Matrix2d c;
   if (f.covariance_type == NavFix::kCovarianceUnknown) {
     if (options_.default_sigma_m <= 0.0) {
@@ -175,12 +179,14 @@ std::vector<FixPrior> FixMatcher::match(const SessionQueries& m, const std::opti
                                         std::to_string(map) + ", the datum places map " + std::to_string(datum_map));
       continue;
     }
-    // The fix is base_link's position in the z-up map; the keyframe is the camera's pose in image
-    // axes. The vehicle keeps the keyframe's current heading, moved to the fix; the camera follows it.
+    // The fix is the antenna's position in the z-up map; the keyframe is the camera's pose in image
+    // axes. The vehicle keeps the keyframe's current heading, moved so that its antenna is at the
+    // fix; the camera follows it.
     const MapPoint p = mapFromFix(*datum, f.lat_deg, f.lon_deg, w.covariance);
     const Pose2 camera = m.poses(best_session)[best_keyframe];
     const Pose2 vehicle = vehicleFromCamera(camera, mount);
-    const Pose2 moved = cameraFromVehicle(Pose2(p.xy.x(), p.xy.y(), vehicle.yaw()), mount);
+    const Eigen::Vector2d base = p.xy - Eigen::Rotation2Dd(vehicle.yaw()) * f.antenna;
+    const Pose2 moved = cameraFromVehicle(Pose2(base.x(), base.y(), vehicle.yaw()), mount);
     FixPrior prior;
     prior.session = best_session;
     prior.keyframe = best_keyframe;

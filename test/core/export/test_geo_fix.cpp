@@ -268,6 +268,38 @@ TEST(FixMatcher, AGivenFixPullsItsKeyframeTowardIt) {
   EXPECT_LT((after.translation() - Eigen::Vector2d(4.0, 1.0)).norm(), 0.5) << after;
 }
 
+TEST(FixMatcher, TheFixIsTheAntennasPositionAndBaseLinkIsItMinusTheTurnedLeverArm) {
+  const GeoOrigin o = datum();
+  SessionManager m(managerOptions());
+  // Keyframes 1 m apart turning 0.2 rad each (image axes): keyframe 3 heads 0.6 rad off the map's x.
+  for (int k = 0; k < 5; ++k) {
+    const Status st = m.addKeyframe(testing_util::keyframeInput(
+        0, k, Pose2(k, 0, 0.2 * k),
+        UncertainPose2(k == 0 ? Pose2() : Pose2(1, 0, 0.2), Eigen::Vector3d(1e-3, 1e-3, 1e-5).asDiagonal())));
+    ASSERT_TRUE(st.ok()) << st.message;
+  }
+  const Pose2 camera = m.view().poses(0)[3];
+  ASSERT_NEAR(camera.yaw(), 0.6, 1e-9);
+  const double psi = -camera.yaw();  // the vehicle's z-up heading (camera at base_link, columns along x)
+  // The antenna 1.2 m forward and 0.4 m to the left of base_link, at z-up (5, -2).
+  NavFix f = fixAt(o, 3.0, 5.0, -2.0, Eigen::Matrix2d::Identity() * 0.01);
+  f.antenna = Eigen::Vector2d(1.2, 0.4);
+  FixOptions opt;
+  opt.gate_chi2 = 0.0;  // the fix is far from the keyframe on purpose
+  FixMatcher matcher(opt);
+  ASSERT_EQ(matcher.add(f, true), std::nullopt);
+  const std::vector<FixPrior> priors = matcher.match(m.view(), o, 0, CameraMount());
+  ASSERT_EQ(priors.size(), 1u);
+  // base_link = antenna - R(psi) (1.2, 0.4), written out; the camera is there, in image axes (x, -y).
+  const double bx = 5.0 - (std::cos(psi) * 1.2 - std::sin(psi) * 0.4);
+  const double by = -2.0 - (std::sin(psi) * 1.2 + std::cos(psi) * 0.4);
+  EXPECT_LT((priors[0].position - Eigen::Vector2d(bx, -by)).norm(), 1e-3) << priors[0].position.transpose();
+  // Without the lever arm the prior would be 1.26 m away: the test tells the two apart.
+  EXPECT_GT((Eigen::Vector2d(bx, -by) - Eigen::Vector2d(5.0, 2.0)).norm(), 1.2);
+  f.antenna.x() = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(matcher.add(f, true), FixRefusal::kNotFinite);
+}
+
 TEST(FixMatcher, AFixBeyondTheGateIsRefusedAsAnOutlierAndOneWithinItIsPlaced) {
   const GeoOrigin o = datum();
   SessionManager m(managerOptions());

@@ -4,9 +4,10 @@
 // the back-end's glue (ros/fix_input.h) converts the message and calls this. Part of
 // uw_multislam_export (GeographicLib).
 //
-// The fix is taken as base_link's position (the antenna or the USBL transponder at the vehicle's
-// origin; no lever arm); the prior is on the camera's position, which the core's keyframes are,
-// through the camera's mount at the keyframe's current heading.
+// The fix is the position of a point fixed on the vehicle (the GPS antenna, the USBL transponder:
+// NavFix::antenna, base_link's origin by default); base_link's position is the fix minus that
+// lever arm turned by the vehicle's heading at the keyframe, and the prior is on the camera's
+// position, which the core's keyframes are, through the camera's mount at that heading.
 #pragma once
 
 #include <Eigen/Core>
@@ -45,6 +46,9 @@ struct NavFix {
   double lat_deg = 0.0, lon_deg = 0.0;
   int covariance_type = kCovarianceUnknown;
   std::array<double, 9> covariance{};  // east, north, up; row-major, m^2
+  /// Where the fix is on the vehicle: the antenna's or transponder's position in base_link's plane
+  /// (x forward, y left, metres; tf's base_link -> the message's frame_id). Zero: base_link itself.
+  Eigen::Vector2d antenna = Eigen::Vector2d::Zero();
 };
 
 /// Why a fix is not used; each counted (fixes_refused_<name>).
