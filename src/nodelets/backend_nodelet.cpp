@@ -65,12 +65,16 @@ void BackendNodelet::onInit() {
   }
   sessions_ = std::make_unique<ros_sessions::SessionPublisher>(nh, frames_.get(), options_.frames,
                                                                [this](const std::string& line) { say(line); });
-  datum_->republishWith([this](const core::SessionQueries& m) { sessions_->publishAll(m, true); });  // new axes
+  datum_->republishWith([this](const core::SessionQueries& m) {  // new axes: every pose, and the mosaic drawn again
+    sessions_->publishAll(m, true);
+    if (mosaic_) mosaic_->markDue();
+  });
   if (options_.reload_stored) worker_->reloadStored();  // handed to every loop detector that subscribes
   reloaded_ = std::make_unique<ros_sessions::ReloadedKeyframesPublisher>(getMTNodeHandle(), worker_.get(),
                                                                          options_.frames.session_frame_prefix);
   mosaic_ = std::make_unique<ros_mosaic::LiveMosaicPublisher>(nh, *worker_, options_.mosaic_rate_hz, options_.mosaic,
-                                                              options_.frames.map_frame);
+                                                              options_.frames.map_frame,
+                                                              [this] { return frames_->mapFrame(); });
   exporter_ = std::make_unique<core::SessionExporter>(options_.export_root);
   if (std::string why; !exporter_->createRoot(&why))
     NODELET_WARN("back-end: ~export_root: %s: export answers FAILED_PRECONDITION", why.c_str());

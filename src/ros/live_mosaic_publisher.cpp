@@ -13,8 +13,10 @@ namespace uw_multislam {
 namespace ros_mosaic {
 
 LiveMosaicPublisher::LiveMosaicPublisher(ros::NodeHandle& nh, const core::SessionWorker& worker, double rate_hz,
-                                         const core::LiveMosaicOptions& options, std::string frame_id)
+                                         const core::LiveMosaicOptions& options, std::string frame_id,
+                                         std::function<core::MapFrame()> map_frame)
     : worker_(worker),
+      map_frame_(std::move(map_frame)),
       rate_hz_(rate_hz),
       options_(options),
       frame_id_(std::move(frame_id)),
@@ -66,11 +68,12 @@ void LiveMosaicPublisher::run() {
   while (!wake_.wait_for(wait, period, [this] { return stop_; })) {
     if (!due_ || pub_.getNumSubscribers() == 0) continue;  // latched: the last one stays
     wait.unlock();
-    const core::LiveMosaicSnapshot snapshot = worker_.locked([this](const core::SessionQueries& m) {
+    core::LiveMosaicSnapshot snapshot = worker_.locked([this](const core::SessionQueries& m) {
       due_ = false;
       std::lock_guard<std::mutex> lock(mutex_);
       return core::liveMosaicSnapshot(m, images_);  // poses copied, images shared
     });
+    if (map_frame_) core::turnLiveMosaic(&snapshot, map_frame_());
     const core::LiveMosaicImage image = core::drawLiveMosaic(snapshot, options_);  // without any lock
     if (!image.bgr.empty()) {
       std_msgs::Header header;

@@ -15,6 +15,7 @@
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -35,9 +36,11 @@ struct MosaicStats {
 
 class LiveMosaicPublisher {
  public:
-  /// rate_hz <= 0: off (advertised, never drawn, no image kept).
+  /// rate_hz <= 0: off (advertised, never drawn, no image kept). `map_frame`: the published map's
+  /// axes at each drawing (core::turnLiveMosaic: north up with a datum); empty: the core's.
   LiveMosaicPublisher(ros::NodeHandle& nh, const core::SessionWorker& worker, double rate_hz,
-                      const core::LiveMosaicOptions& options, std::string frame_id);
+                      const core::LiveMosaicOptions& options, std::string frame_id,
+                      std::function<core::MapFrame()> map_frame = {});
   ~LiveMosaicPublisher();
   LiveMosaicPublisher(const LiveMosaicPublisher&) = delete;
   LiveMosaicPublisher& operator=(const LiveMosaicPublisher&) = delete;
@@ -58,6 +61,7 @@ class LiveMosaicPublisher {
   void run();
 
   const core::SessionWorker& worker_;
+  std::function<core::MapFrame()> map_frame_;
   const double rate_hz_;
   const core::LiveMosaicOptions options_;
   const std::string frame_id_;

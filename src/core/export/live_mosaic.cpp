@@ -9,6 +9,7 @@
 #include <limits>
 
 #include "uw_multislam/core/export/mosaic_geometry.h"
+#include "uw_multislam/core/geometry/vehicle_frame.h"
 #include "uw_multislam/core/session/session_manager.h"
 
 namespace uw_multislam {
@@ -90,6 +91,12 @@ int LiveMosaicImages::removeSession(int session) {
 const LiveMosaicImages::Entry* LiveMosaicImages::find(int session, int keyframe) const {
   const auto it = entries_.find({session, keyframe});
   return it == entries_.end() ? nullptr : &it->second;
+}
+
+void turnLiveMosaic(LiveMosaicSnapshot* snapshot, const MapFrame& frame) {
+  if (frame.isIdentity()) return;
+  const Pose2 turn = zUp(frame.publishedFromCore());
+  for (LiveMosaicKeyframe& k : snapshot->keyframes) k.pose = compose(turn, k.pose);
 }
 
 LiveMosaicSnapshot liveMosaicSnapshot(const SessionQueries& manager, const LiveMosaicImages& images) {

@@ -96,6 +96,48 @@ TEST(LiveMosaic, ImageColumnsFollowTheKeyframesYaw) {
   EXPECT_TRUE(near(m.bgr.at<cv::Vec3b>(3 * m.bgr.rows / 4, m.bgr.cols / 2), kBlue));
 }
 
+// The centroid (column, row) of the pixels near `bgr`.
+cv::Point2d centroid(const cv::Mat& bgr, const cv::Scalar& colour) {
+  double sx = 0.0, sy = 0.0;
+  int n = 0;
+  for (int r = 0; r < bgr.rows; ++r)
+    for (int c = 0; c < bgr.cols; ++c)
+      if (near(bgr.at<cv::Vec3b>(r, c), colour)) sx += c, sy += r, ++n;
+  EXPECT_GT(n, 100);
+  return n > 0 ? cv::Point2d(sx / n, sy / n) : cv::Point2d(-1, -1);
+}
+
+TEST(LiveMosaic, WithADatumNorthIsUpAndEastToTheRight) {
+  LiveMosaicOptions o;
+  o.resolution_m = 0.01;
+  // Keyframe 1 is 3 m along the first keyframe's x axis (image columns, z-up x).
+  LiveMosaicSnapshot s;
+  s.map = 0;
+  s.keyframes = {keyframe(0, Pose2(0.0, 0.0, 0.0), kGreen, kGreen), keyframe(1, Pose2(3.0, 0.0, 0.0), kBlue, kBlue)};
+  // Without a datum, and with that axis heading east (90 deg): keyframe 1 right of keyframe 0.
+  for (const MapFrame& f : {MapFrame(), MapFrame::enuAtHeading(90.0)}) {
+    LiveMosaicSnapshot t = s;
+    turnLiveMosaic(&t, f);
+    const LiveMosaicImage m = drawLiveMosaic(t, o);
+    const cv::Point2d g = centroid(m.bgr, kGreen), b = centroid(m.bgr, kBlue);
+    EXPECT_NEAR(b.x - g.x, 300.0, 5.0);
+    EXPECT_NEAR(b.y - g.y, 0.0, 5.0);
+  }
+  // Heading north: keyframe 1 straight above; heading 225 (south-west): below and to the left, 3 m / sqrt(2) each.
+  LiveMosaicSnapshot north = s;
+  turnLiveMosaic(&north, MapFrame::enuAtHeading(0.0));
+  LiveMosaicImage m = drawLiveMosaic(north, o);
+  cv::Point2d g = centroid(m.bgr, kGreen), b = centroid(m.bgr, kBlue);
+  EXPECT_NEAR(b.x - g.x, 0.0, 5.0);
+  EXPECT_NEAR(b.y - g.y, -300.0, 5.0);
+  LiveMosaicSnapshot south_west = s;
+  turnLiveMosaic(&south_west, MapFrame::enuAtHeading(225.0));
+  m = drawLiveMosaic(south_west, o);
+  g = centroid(m.bgr, kGreen), b = centroid(m.bgr, kBlue);
+  EXPECT_NEAR(b.x - g.x, -300.0 / std::sqrt(2.0), 5.0);
+  EXPECT_NEAR(b.y - g.y, 300.0 / std::sqrt(2.0), 5.0);
+}
+
 TEST(LiveMosaic, TheActiveKeyframeIsOutlined) {
   LiveMosaicOptions o;
   o.resolution_m = 0.01;

@@ -9,7 +9,8 @@
 // (mosaic_geometry.h). Each keyframe is drawn over the earlier ones (no blending, no exposure
 // compensation: a preview, export_survey makes the product).
 //
-// Raster: as mosaic.h's (rows along the map's image-axes y, so it looks as the camera sees it),
+// Raster: as mosaic.h's (rows along the map's image-axes y, so it looks as the camera sees it;
+// turned into the published map's axes by turnLiveMosaic, north up with a datum),
 // at options.resolution_m, coarsened when the map would be larger than max_side_px; the extent is
 // the union of the keyframes' full-camera footprints; uncovered pixels are black.
 #pragma once
@@ -25,6 +26,7 @@
 #include <vector>
 
 #include "uw_multislam/core/frontend/dataset.h"
+#include "uw_multislam/core/geometry/map_frame.h"
 #include "uw_multislam/core/geometry/se2.h"
 
 namespace uw_multislam {
@@ -97,6 +99,12 @@ class LiveMosaicImages {
 /// active session's last keyframe as the active one. Keyframes the images do not know (restored
 /// sessions, placeholders) are listed without an image.
 LiveMosaicSnapshot liveMosaicSnapshot(const SessionQueries& manager, const LiveMosaicImages& images);
+
+/// The snapshot's poses in the published map's axes (map_frame.h): each image-axes pose p becomes
+/// zUp(published <- core) (+) p, the image-axes form of the turn the back-end gives every pose it
+/// publishes in `map`. With a datum the mosaic is then drawn north up (rows southward, columns
+/// eastward), as rviz shows `map`; without one nothing moves.
+void turnLiveMosaic(LiveMosaicSnapshot* snapshot, const MapFrame& frame);
 
 /// Draws a snapshot (no lock needed). A keyframe without a decodable image, or without a finite
 /// pose and a positive altitude, is counted missing; a snapshot with no drawable keyframe gives
