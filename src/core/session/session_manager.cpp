@@ -197,8 +197,32 @@ Status SessionManager::addPositionPrior(int session, int keyframe, const Eigen::
   Status st = table_.backend().addPositionPrior(s.backend(), keyframe, position, covariance);
   if (st.code == StatusCode::kInvalidArgument && st.message.find("no keyframe") != std::string::npos)
     st.code = StatusCode::kNotFound;
-  if (st.ok()) afterBackendChange();
+  if (!st.ok()) return st;
+  storePositionPrior(session, keyframe, position, covariance);
+  afterBackendChange();
   return st;
+}
+
+void SessionManager::storePositionPrior(int session, int keyframe, const Eigen::Vector2d& position,
+                                        const Eigen::Matrix2d& covariance) {
+  // Written when accepted, as a loop is (saveMaps comes only with a join, a split or an end: a
+  // crash before it lost every fix since), by the rules addLoopIn writes a loop by.
+  if (!table_.store() || table_.localising()) return;
+  const Session& s = table_.at(session);
+  if (!table_.keyframeStored(session, keyframe)) {
+    if (!s.memory_only) ++table_.stats().store_failures;  // on a keyframe the store lacks (a failed write)
+    return;
+  }
+  // Its map's frame is that of the map's first session (where addPositionPrior put it).
+  const int first = table_.idOfBackend(table_.backend().mapOf(s.backend()));
+  const std::int64_t map_row = table_.at(first).storeRow();
+  if (map_row < 0) {
+    ++table_.stats().store_failures;
+    return;
+  }
+  storeWrite("writing a position prior", [&] {
+    table_.store()->addPositionPrior(map_row, {s.storeRow(), keyframe, position, covariance, false});
+  });
 }
 
 Status SessionManager::storeDatum(const std::string& text) {

@@ -27,6 +27,24 @@ const char* kDeletedIdsKey = "next_session_id";
 bool isPlaceholder(const StoredKeyframe& kf) {
   return kf.points.empty() && kf.descriptors.empty() && kf.thumbnail.empty() && kf.hash.isZero(0.0f);
 }
+
+const char* kInsertPrior =
+    "INSERT INTO position_priors(map, session, keyframe, x, y, cxx, cxy, cyy, applied) "
+    "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)";
+
+// A template: SessionStore::Statement is the store's own (private) class.
+template <typename S>
+S& bindPrior(S* pr, std::int64_t map, const StoredPrior& p) {
+  return pr->bind(1, map)
+      .bind(2, p.session)
+      .bind(3, p.keyframe)
+      .bind(4, p.position.x())
+      .bind(5, p.position.y())
+      .bind(6, p.covariance(0, 0))
+      .bind(7, p.covariance(0, 1))
+      .bind(8, p.covariance(1, 1))
+      .bind(9, p.applied ? 1 : 0);
+}
 }  // namespace
 
 std::int64_t SessionStore::nextSessionId() const {
@@ -166,6 +184,37 @@ void SessionStore::addLoops(std::vector<StoredLoop>* loops) {
   }
 }
 
+void SessionStore::addPositionPrior(std::int64_t map, const StoredPrior& p) {
+  begin();
+  try {
+    // A session alone in its map since it started has no stored map until a join, a split or its
+    // end saves the maps: without one, a restart would have no frame to put the prior in.
+    Statement stored(this,
+                     "SELECT (SELECT count(*) FROM maps WHERE id = ?1) + "
+                     "(SELECT count(*) FROM map_sessions WHERE session = ?1)");
+    stored.bind(1, map);
+    const bool unsaved = stored.step() && sqlite3_column_int64(stored.get(), 0) == 0;
+    stored.reset();
+    if (unsaved && map == p.session) {
+      // Without motions: restored from the session's odometry.
+      Statement m(this, "INSERT INTO maps(id, pending, motions) VALUES (?, 0, NULL)");
+      m.bind(1, map).run();
+      Statement ms(this, "INSERT INTO map_sessions(map, position, session) VALUES (?, 0, ?)");
+      ms.bind(1, map).bind(2, map).run();
+    }
+    // The stored motions are without it: the map is optimised again after a restart (the
+    // back-end counts a new prior as pending too).
+    Statement due(this, "UPDATE maps SET pending = pending + 1 WHERE id = ?");
+    due.bind(1, map).run();
+    Statement pr(this, kInsertPrior);
+    bindPrior(&pr, map, p).run();
+    commit();
+  } catch (...) {
+    rollback();
+    throw;
+  }
+}
+
 void SessionStore::saveMaps(const std::vector<StoredMap>& maps, const std::vector<StoredLoop>& loop_states,
                             const std::vector<std::pair<std::int64_t, std::int64_t>>& split_pairs) {
   begin();
@@ -187,21 +236,9 @@ void SessionStore::saveMaps(const std::vector<StoredMap>& maps, const std::vecto
 void SessionStore::writeMaps(const std::vector<StoredMap>& maps) {
   exec("DELETE FROM maps; DELETE FROM map_sessions; DELETE FROM links; DELETE FROM position_priors;");
   {
-    Statement pr(this,
-                 "INSERT INTO position_priors(map, session, keyframe, x, y, cxx, cxy, cyy, applied) "
-                 "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)");
+    Statement pr(this, kInsertPrior);
     for (const StoredMap& map : maps)
-      for (const StoredPrior& p : map.priors)
-        pr.bind(1, map.chain.at(0))
-            .bind(2, p.session)
-            .bind(3, p.keyframe)
-            .bind(4, p.position.x())
-            .bind(5, p.position.y())
-            .bind(6, p.covariance(0, 0))
-            .bind(7, p.covariance(0, 1))
-            .bind(8, p.covariance(1, 1))
-            .bind(9, p.applied ? 1 : 0)
-            .run();
+      for (const StoredPrior& p : map.priors) bindPrior(&pr, map.chain.at(0), p).run();
   }
   {
     Statement m(this, "INSERT INTO maps(id, pending, motions) VALUES (?, ?, ?)");

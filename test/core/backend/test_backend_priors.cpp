@@ -1,7 +1,7 @@
 // Absolute position priors through the multi-session back-end (MultiSessionBackend::addPositionPrior):
 // a drifting trajectory pulled toward two fixes by exactly what the weighted least squares says,
 // with both optimisers, with no loop at all; the IEKF applying each prior once; a join moving a
-// prior into the joined map's frame.
+// prior into the joined map's frame; a prior on a later session of a map staying where it was put.
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
@@ -217,6 +217,40 @@ TEST_P(PriorsBothOptimizers, SplittingTheFirstSessionOffMovesTheRestsPriorIntoIt
   EXPECT_LT((b.priors()[0].position - want).norm(), 1e-6)
       << b.priors()[0].position.transpose() << " vs " << want.transpose();
   EXPECT_GT((b.priors()[0].position - kf2.translation()).norm(), 1.0);  // it did move with the frame
+}
+
+TEST_P(PriorsBothOptimizers, APriorOnALaterSessionStaysWhereItWasPutWhenTheMapIsSolvedAgain) {
+  // A fix is absolute: it says where a keyframe is in the map's frame, whatever the map's estimate
+  // of that keyframe's session. Map 0 = s0 then s1, joined by a loop 1 m off along x (s1's origin
+  // said to be at (20, 5), truly at (21, 5)). The first fix moves s1's origin by that metre when
+  // the map is solved; a second fix solves it again. Kept relative to s1's (estimated) origin, the
+  // first fix would move with it, a metre past the truth, and pull s1 there.
+  MultiSessionBackend b(priorOptions(GetParam()));
+  const Eigen::Matrix3d cov = Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal();
+  const int s0 = b.startSession();
+  for (int k = 0; k < 4; ++k) b.addMotion(s0, UncertainPose2(Pose2(5, 0, 0), cov));
+  b.endSession(s0);
+  const int s1 = b.startSession();
+  for (int k = 0; k < 4; ++k) b.addMotion(s1, UncertainPose2(Pose2(2, 0, 0), cov));
+  const Pose2 said(20.0, 5.0, M_PI / 2), truth(21.0, 5.0, M_PI / 2);
+  const Pose2 z = between(Pose2(20.0, 0.0, 0.0), compose(said, Pose2(2, 0, 0)));  // s0:4 -> s1:1
+  b.addLoop({s0, 4, s1, 1, UncertainPose2(z, Eigen::Vector3d(0.25, 0.25, 1e-4).asDiagonal())});
+  ASSERT_TRUE(b.join(s0, s1, 1).ok());
+  const Eigen::Matrix2d tight = Eigen::Matrix2d::Identity() * 1e-4;
+  const Eigen::Vector2d fix3 = compose(truth, Pose2(6, 0, 0)).translation();
+  const Eigen::Vector2d fix4 = compose(truth, Pose2(8, 0, 0)).translation();
+  ASSERT_TRUE(b.addPositionPrior(s1, 3, fix3, tight).ok());
+  b.flush();
+  ASSERT_GT((b.sessionPoses(s1)[0].translation() - said.translation()).norm(), 0.5);  // the fix moved s1's origin
+  ASSERT_TRUE(b.addPositionPrior(s1, 4, fix4, tight).ok());
+  b.flush();
+  ASSERT_EQ(b.priors().size(), 2u);
+  EXPECT_EQ(b.priors()[0].position, fix3);
+  EXPECT_EQ(b.priors()[1].position, fix4);
+  EXPECT_LT((b.sessionPoses(s1)[3].translation() - fix3).norm(), 0.05)
+      << b.sessionPoses(s1)[3].translation().transpose();
+  EXPECT_LT((b.sessionPoses(s1)[4].translation() - fix4).norm(), 0.05)
+      << b.sessionPoses(s1)[4].translation().transpose();
 }
 
 INSTANTIATE_TEST_SUITE_P(Backend, PriorsBothOptimizers, ::testing::Values(OptimizerKind::kIekf, OptimizerKind::kSparse),

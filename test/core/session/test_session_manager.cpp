@@ -577,6 +577,37 @@ TEST(SessionManager, PositionPriorsSurviveARestartInTheirMapsFrameAndMoveOnWithA
   EXPECT_LT((joined[0].position - Eigen::Vector2d(3.0, 0.4)).norm(), 1e-12);
 }
 
+TEST(SessionManager, PositionPriorsReachTheStoreWhenAcceptedAndSurviveACrash) {
+  // The maps are saved at joins, splits and session ends only: a fix accepted after the last of
+  // those must be in the store already when the process dies, on a saved map (session 0's, saved
+  // at its end) and on a session alone in its map since it started (session 1's, never saved).
+  testing_util::ScopedTempDir dir("session_manager");
+  const std::string db = (dir.path() / "s.db").string();
+  const Eigen::Matrix2d cov = (Eigen::Matrix2d() << 0.04, 0.01, 0.01, 0.09).finished();
+  {
+    SessionManager m(options(db));
+    addStraightSession(&m, 0, 6);
+    addStraightSession(&m, 1, 6);  // ends session 0: the maps saved
+    ASSERT_TRUE(m.addPositionPrior(0, 3, Eigen::Vector2d(3.0, 0.4), cov).ok());
+    ASSERT_TRUE(m.addPositionPrior(1, 2, Eigen::Vector2d(2.0, -0.3), cov).ok());
+    EXPECT_EQ(m.view().stats().store_failures, 0);
+  }  // a crash: session 1 never ended, nothing saved the maps since session 0's end
+  SessionManager again(options(db));
+  const std::vector<PriorRecord> priors = again.view().positionPriors();
+  ASSERT_EQ(priors.size(), 2u);
+  EXPECT_EQ(priors[0].session, 0);
+  EXPECT_EQ(priors[0].keyframe, 3);
+  EXPECT_EQ(priors[0].position, Eigen::Vector2d(3.0, 0.4));
+  EXPECT_EQ(priors[0].covariance, cov);
+  EXPECT_EQ(priors[1].session, 1);
+  EXPECT_EQ(priors[1].keyframe, 2);
+  EXPECT_EQ(priors[1].position, Eigen::Vector2d(2.0, -0.3));
+  // Both maps' stored motions are without them: optimised again, they pull toward them.
+  again.flush();
+  EXPECT_GT(again.view().poses(0)[3].y(), 1e-3);
+  EXPECT_LT(again.view().poses(1)[2].y(), -1e-3);
+}
+
 TEST(SessionManager, DeferredOptimisationRunsOutsideRequestsAndSavesTheFinishedMap) {
   testing_util::ScopedTempDir dir("session_manager");
   const std::string db = (dir.path() / "s.db").string();

@@ -1231,6 +1231,55 @@ TEST(Store, ASessionCutByACrashComesBackWithEveryKeyframe) {
     EXPECT_NEAR(between(after[k - 1], after[k]).x(), expected / 10, 1e-6) << k;
 }
 
+// A position prior written when it is accepted (addPositionPrior), between two saves of the maps:
+// on a saved map it joins that map's priors and makes it pending; on a session alone in its map
+// since it started (no map stored) it stores that map, so that a restart has the prior's frame.
+TEST(Store, APositionPriorWrittenBetweenSavesComesBackWithItsMap) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  MultiSessionBackend original(missionOptions());
+  const Eigen::Matrix2d cov = (Eigen::Matrix2d() << 0.04, 0.01, 0.01, 0.09).finished();
+  std::int64_t a = 0, b = 0;
+  {
+    SessionStore store(path);
+    Recorder r(&store, &original);
+    const int s0 = r.start("a");
+    for (int k = 1; k < 6; ++k) r.step(s0, Pose2(0.5, 0.0, 0.0));
+    r.end(s0);  // its map saved
+    const int s1 = r.start("b");
+    for (int k = 1; k < 6; ++k) r.step(s1, Pose2(0.5, 0.0, 0.0));
+    a = r.session_ids[s0];
+    b = r.session_ids[s1];
+    ASSERT_EQ(store.maps().size(), 1u);  // session b's map not yet
+    store.addPositionPrior(a, {a, 3, Eigen::Vector2d(1.5, 0.2), cov, false});
+    store.addPositionPrior(b, {b, 2, Eigen::Vector2d(1.0, -0.2), cov, false});
+    store.addPositionPrior(b, {b, 4, Eigen::Vector2d(2.0, -0.2), cov, false});  // b's map stored once
+  }  // no endSession, no saveMaps: as if killed
+  SessionStore store(path);
+  const std::vector<StoredMap> maps = store.maps();
+  ASSERT_EQ(maps.size(), 2u);
+  EXPECT_EQ(maps[0].chain, std::vector<std::int64_t>{a});
+  EXPECT_EQ(maps[0].pending, 1);
+  ASSERT_EQ(maps[0].priors.size(), 1u);
+  EXPECT_EQ(maps[0].priors[0].position, Eigen::Vector2d(1.5, 0.2));
+  EXPECT_EQ(maps[0].priors[0].covariance, cov);
+  EXPECT_EQ(maps[1].chain, std::vector<std::int64_t>{b});
+  EXPECT_TRUE(maps[1].motions.empty());  // its odometry's
+  EXPECT_EQ(maps[1].pending, 2);
+  ASSERT_EQ(maps[1].priors.size(), 2u);
+  EXPECT_EQ(maps[1].priors[1].keyframe, 4);
+  MultiSessionBackend restored(missionOptions());
+  const RestoredStore out = restoreStore(store, &restored, nullptr, nullptr);
+  EXPECT_TRUE(out.notes.empty());
+  ASSERT_EQ(restored.priors().size(), 3u);
+  EXPECT_EQ(restored.priors()[1].session, 1);
+  EXPECT_EQ(restored.priors()[1].position, Eigen::Vector2d(1.0, -0.2));
+  EXPECT_EQ(restored.dueMaps().size(), 0u);  // not deferred: flush optimises them
+  restored.flush();
+  EXPECT_LT(restored.sessionPoses(1)[2].y(), -1e-3);
+  EXPECT_GT(restored.sessionPoses(0)[3].y(), 1e-3);
+}
+
 // Read-only (export_survey): a missing or empty file is refused and not created; a store reads the
 // same as through a writer, every write is refused, and nothing appears beside the file (no lock,
 // no -wal/-shm) nor changes in it.

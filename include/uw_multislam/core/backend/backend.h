@@ -188,7 +188,11 @@ struct LoopRecord {
 
 /// An absolute position prior on a keyframe as the back-end keeps it (addPositionPrior): its
 /// position and covariance in the current frame of the map that holds the keyframe (a join or a
-/// split that moves that frame moves the prior with it).
+/// split that moves that frame moves the prior with it). Not in its session's frame: a fix is
+/// absolute, and a session's origin in its map is an estimate that the fix itself moves when the
+/// map is solved; composed with it at each solve, the fix would follow it (gtest
+/// APriorOnALaterSessionStaysWhereItWasPutWhenTheMapIsSolvedAgain). Only the map's first keyframe
+/// is fixed, so only a join or a split (which re-roots frames) moves a prior.
 struct PriorRecord {
   int session = 0, keyframe = 0;
   Eigen::Vector2d position = Eigen::Vector2d::Zero();

@@ -171,7 +171,8 @@ class SessionManager {
   /// An absolute position prior (a GPS or USBL fix placed through the datum: core/export/geo_fix.h)
   /// on keyframe `keyframe` of session `session`: its (x, y) in the current frame of the session's
   /// map (the camera's position, image axes) and covariance (m^2). The back-end keeps it and
-  /// optimises the map with it (deferred: the map is due). Refused with nothing changed:
+  /// optimises the map with it (deferred: the map is due); the store gets it at once, as a loop
+  /// (a crash after this keeps it). Refused with nothing changed:
   /// NOT_FOUND (no such session or keyframe, or a bridged keyframe that never arrived),
   /// FAILED_PRECONDITION (the keyframe is its map's origin: the map's frame), ALREADY_EXISTS (the
   /// keyframe has a prior already: one per keyframe),
@@ -282,6 +283,9 @@ class SessionManager {
   /// a failure is counted (store_failures) and logged, never thrown (the map lives on in memory).
   template <typename F>
   bool storeWrite(const char* what, F write);
+  /// A position prior the back-end accepted, written to the store now (SessionStore::addPositionPrior).
+  void storePositionPrior(int session, int keyframe, const Eigen::Vector2d& position,
+                          const Eigen::Matrix2d& covariance);
 
   EventSink events_;
   Log log_;

@@ -12,9 +12,10 @@
 //    their marginal covariances), loop states and the user's split pairs.
 //
 // Crash safety: WAL journal, synchronous=FULL, one transaction per keyframe (keyframe, its motion
-// and its loops together). A kill -9 or a power cut loses at most the keyframe in flight; the map
-// state (saveMaps) is written at joins, splits and session ends, and a reload of a map whose
-// sessions grew since its last save extends it with their odometry.
+// and its loops together), per loop and per position prior arriving on their own. A kill -9 or a
+// power cut loses at most the keyframe in flight; the map state (saveMaps) is written at joins,
+// splits and session ends, and a reload of a map whose sessions grew since its last save extends
+// it with their odometry.
 //
 // Bad files: the file is checked read-only first (SQLite header, application id, schema version,
 // quick_check), so a failed open never writes to it. Every error is a StoreError whose message
@@ -215,6 +216,16 @@ class SessionStore {
   /// One transaction: loops that arrive on their own (the live system's loop messages); their
   /// ids are set. Both keyframes must be stored.
   void addLoops(std::vector<StoredLoop>* loops);
+
+  /// One transaction: a position prior accepted since the maps were last saved (the live
+  /// system's fixes, as addLoops for loops), in the frame of map `map` (the store id of its first
+  /// session); saveMaps rewrites every prior from the back-end. The keyframe must be stored. The
+  /// stored map's pending count grows by one (its stored motions are without the prior: a restart
+  /// optimises it again). A session alone in its map since it started has no stored map until a
+  /// join, a split or its end saves them: then (`map` is the prior's session, in no stored map)
+  /// that map is stored too, the session alone without motions (restored from its odometry), so
+  /// that a restart has the prior's frame.
+  void addPositionPrior(std::int64_t map, const StoredPrior& prior);
 
   /// One transaction: replaces the map state (maps, links, split pairs) and updates the states
   /// of the given loops.
