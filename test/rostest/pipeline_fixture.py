@@ -318,13 +318,15 @@ def publisher_connected(node, topic, caller="/rostest_bus_info"):
 
 class DiagnosticsWatch:
     """The newest values (diagnostic_values: numbers as floats) of each /diagnostics status named
-    "<node>: <name>" for a name in `names`, kept in `values` ({name: values}, a name absent until its
-    first status) under `lock`: the caller's, so that await_condition can join them with its own
-    messages (a new lock when None). With `namespace` ("auv_a"), only nodes under /auv_a/. The
-    nodelets publish their status once a second; unregister() unsubscribes."""
+    "<node>: <name>" for a name in `names`, kept in `values` under `lock`: the caller's, so that
+    await_condition can join them with its own messages (a new lock when None). `values` is keyed
+    by the status's name ({"backend": {...}}), or with by_node by its node's own name
+    ({"local_loops_node": {...}}: two nodes with a status of the same name); a key is absent until
+    its first status. With `namespace` ("auv_a"), only nodes under /auv_a/. The nodelets publish
+    their status once a second; unregister() unsubscribes."""
 
-    def __init__(self, names=("backend",), lock=None, namespace=None):
-        self.names, self.namespace = set(names), namespace
+    def __init__(self, names=("backend",), lock=None, namespace=None, by_node=False):
+        self.names, self.namespace, self.by_node = set(names), namespace, by_node
         self.lock = lock if lock is not None else threading.Lock()
         self.values = {}
         self._changed = threading.Condition(self.lock)
@@ -336,37 +338,44 @@ class DiagnosticsWatch:
                 node, _, name = s.name.rpartition(": ")
                 if name in self.names and (self.namespace is None or
                                            node.lstrip("/").startswith(self.namespace + "/")):
-                    self.values[name] = diagnostic_values(s)
+                    self.values[node.split("/")[-1] if self.by_node else name] = diagnostic_values(s)
             self._changed.notify_all()
 
-    def get(self, name="backend"):
-        """The newest values of `name` ({} before its first status). Each status's values are replaced,
-        never changed in place: read with or without the lock (await_condition's conditions hold it)."""
-        return self.values.get(name, {})
+    def get(self, key="backend"):
+        """The newest values under `key` ({} before its first status). Each status's values are
+        replaced, never changed in place: read with or without the lock (await_condition's
+        conditions hold it)."""
+        return self.values.get(key, {})
 
-    def await_values(self, name="backend", condition=lambda v: True, timeout=20.0):
-        """The first values of `name` for which condition(values) holds, or the newest seen when none
-        did within `timeout` seconds (None when none came)."""
+    def await_values(self, key="backend", condition=lambda v: True, timeout=20.0):
+        """The first values under `key` for which condition(values) holds, or the newest seen when
+        none did within `timeout` seconds (None when none came). With key None, condition and the
+        answer are about all of `values` (a copy)."""
+        def current():
+            return dict(self.values) if key is None else self.values.get(key)
+
         deadline = time.time() + timeout
         with self._changed:
-            while not (name in self.values and condition(self.values[name])):
+            while not (current() is not None and condition(current())):
                 left = deadline - time.time()
                 if left <= 0:
                     break
                 self._changed.wait(min(left, 0.2))
-            return dict(self.values[name]) if name in self.values else None
+            found = current()
+            return dict(found) if found is not None else None
 
     def unregister(self):
         """As a rospy.Subscriber's: a watch can join a test's list of subscriptions."""
         self._sub.unregister()
 
 
-def status_values(name="backend", condition=lambda v: True, timeout=20.0, namespace=None):
-    """DiagnosticsWatch.await_values on a watch of its own, closed after: for a test that needs
-    one status once, not a subscription kept through the test."""
-    watch = DiagnosticsWatch((name,), namespace=namespace)
+def status_values(name="backend", condition=lambda v: True, timeout=20.0, namespace=None, node=None):
+    """DiagnosticsWatch.await_values on a watch of its own, unregistered after: for a test that
+    needs one status once, not a subscription kept through the test. With `node` ("odometry_node"),
+    only that node's status `name`."""
+    watch = DiagnosticsWatch((name,), namespace=namespace, by_node=node is not None)
     try:
-        return watch.await_values(name, condition, timeout)
+        return watch.await_values(name if node is None else node, condition, timeout)
     finally:
         watch.unregister()
 
