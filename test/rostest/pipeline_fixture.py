@@ -322,13 +322,15 @@ class DiagnosticsWatch:
     await_condition can join them with its own messages (a new lock when None). `values` is keyed
     by the status's name ({"backend": {...}}), or with by_node by its node's own name
     ({"local_loops_node": {...}}: two nodes with a status of the same name); a key is absent until
-    its first status. With `namespace` ("auv_a"), only nodes under /auv_a/. The nodelets publish
-    their status once a second; unregister() unsubscribes."""
+    its first status. With `namespace` ("auv_a"), only nodes under /auv_a/. With `history`, also
+    every status's values in order, in history ({key: [values, ...]}). The nodelets publish their
+    status once a second; unregister() unsubscribes."""
 
-    def __init__(self, names=("backend",), lock=None, namespace=None, by_node=False):
+    def __init__(self, names=("backend",), lock=None, namespace=None, by_node=False, history=False):
         self.names, self.namespace, self.by_node = set(names), namespace, by_node
         self.lock = lock if lock is not None else threading.Lock()
         self.values = {}
+        self.history = {} if history else None
         self._changed = threading.Condition(self.lock)
         self._sub = rospy.Subscriber("/diagnostics", DiagnosticArray, self._on_diagnostics, queue_size=100)
 
@@ -338,7 +340,10 @@ class DiagnosticsWatch:
                 node, _, name = s.name.rpartition(": ")
                 if name in self.names and (self.namespace is None or
                                            node.lstrip("/").startswith(self.namespace + "/")):
-                    self.values[node.split("/")[-1] if self.by_node else name] = diagnostic_values(s)
+                    key = node.split("/")[-1] if self.by_node else name
+                    self.values[key] = diagnostic_values(s)
+                    if self.history is not None:
+                        self.history.setdefault(key, []).append(self.values[key])
             self._changed.notify_all()
 
     def get(self, key="backend"):
