@@ -6,7 +6,6 @@
 #include <cstdio>
 #include <utility>
 
-#include "uw_multislam/SessionTrajectory.h"
 #include "uw_multislam/core/session/stored_loops.h"
 #include "uw_multislam/ros/backend_conversions.h"
 #include "uw_multislam/ros/conversions.h"
@@ -290,11 +289,7 @@ bool BackendNodelet::onDetectLoops(uw_multislam::DetectLoops::Request& req, uw_m
   });
   res = rc::toDetectLoopsResponse(st, f, joins);
   res.status = answer(st, "detect_loops");
-  NODELET_INFO(
-      "back-end: detect_loops: %s; %d keyframes queried, %d candidates, %d loops (%d held already), "
-      "%d accepted, %d refused, %d joins",
-      st.ok() ? "OK" : st.message.c_str(), f.queries, f.candidates, f.found, f.duplicates, f.accepted, f.refused,
-      joins);
+  NODELET_INFO("back-end: detect_loops: %s", rc::detectLoopsLine(st, f, joins).c_str());
   if (f.accepted > 0) worker_->optimiseDue();  // the maps the loops touched may be due
   return true;
 }
@@ -389,52 +384,26 @@ bool BackendNodelet::onKeyframeFeatures(uw_multislam::KeyframeFeatures::Request&
 }
 
 std::vector<ros_diagnostics::Counter> BackendNodelet::counters(const core::SessionQueries& m) const {
-  ros_diagnostics::BackendCounters c;
-  const core::SessionWorkerStats w = worker_->stats();
+  namespace rd = ros_diagnostics;
+  rd::BackendCounters c;
   c.messages_received = received_ + (fleet_ ? fleet_->messages() : 0);
-  c.keyframes_received = w.keyframes + bad_keyframes_, c.loops_received = w.loops + bad_loops_;
-  c.loops_waiting = w.waiting, c.loops_dropped_waiting = w.waiting_dropped;
-  c.dropped_queue_full = w.dropped_queue_full, c.queue_length = w.queued;
-  c.bad_messages = w.skipped + bad_keyframes_ + bad_loops_;
-  const ros_frames::FrameStats f = frames_->stats();
-  c.map_to_odom_published = f.map_to_odom_published, c.map_to_odom_rate_hz = f.map_to_odom_rate_hz;
-  c.odom_lookup_failures = f.odom_lookup_failures;
+  rd::setWorkerCounters(worker_->stats(), worker_->handoverStats(), bad_keyframes_, bad_loops_, &c);
+  rd::setFrameCounters(frames_->stats(), &c);
   c.sessions_unloaded = sessions_unloaded_, c.sessions_deleted = sessions_deleted_;
-  // The newest handover of the stored keyframes to a loop detector (reloaded_keyframes): its
-  // progress while it runs (sent of total), then how long it took.
-  const core::HandoverStats h = worker_->handoverStats();
-  c.handover_subscribers = h.subscribers, c.handover_keyframes_total = h.total;
-  c.handover_keyframes_sent = h.sent, c.handover_s = h.seconds;
-  const core::RelocalisationTracker::State& reloc = sessions_->relocalisation();
-  c.relocalised_map = reloc.map, c.relocalised_loops = reloc.loops, c.relocalised_poses_published = reloc.published;
-  const ros_mosaic::MosaicStats mosaic = mosaic_ ? mosaic_->stats() : ros_mosaic::MosaicStats();
-  c.mosaic_published = mosaic.published, c.mosaic_keyframes_drawn = mosaic.drawn;
-  c.mosaic_keyframes_missing = mosaic.missing, c.mosaic_draw_ms = mosaic.ms;
-  c.mosaic_resolution_m = mosaic.resolution_m, c.mosaic_images_kB = mosaic.images_kB;
-  ros_diagnostics::setManagerCounters(m, &c);
+  rd::setRelocalisationCounters(sessions_->relocalisation(), &c);
+  if (mosaic_) rd::setMosaicCounters(mosaic_->stats(), &c);
+  rd::setManagerCounters(m, &c);
   if (fix_) fix_->counters(&c);
-  std::vector<ros_diagnostics::Counter> out = ros_diagnostics::backendCounterTable().counters(c);
-  if (fleet_) {  // the hash exchange: what crossed the link, per direction
-    const ros_fleet::HashExchangeStats& x = fleet_->stats();
-    const ros_fleet::PeerStats p = peers_->stats();
-    ros_diagnostics::FleetCounters fc;
-    fc.hashes_sent = x.hashes_sent, fc.hash_bytes_sent = x.hash_bytes_sent, fc.hashes_received = x.hashes_received;
-    fc.hash_bytes_received = x.hash_bytes_received, fc.refused = x.refused, fc.sessions_ended = x.sessions_ended;
-    fc.features_requested = p.requested, fc.feature_bytes_received = p.bytes_received;
-    fc.feature_failures = p.failures, fc.feature_timeouts = p.timeouts;
-    for (ros_diagnostics::Counter& k : ros_diagnostics::fleetCounters(fc)) out.push_back(std::move(k));
-  }
+  std::vector<rd::Counter> out = rd::backendCounterTable().counters(c);
+  if (fleet_)
+    for (rd::Counter& k : rd::fleetCounters(fleet_->stats(), peers_->stats())) out.push_back(std::move(k));
   return out;
 }
 
 void BackendNodelet::fillDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat) {
   worker_->locked([&](const core::SessionQueries& m) {
-    stat.add("optimizer", core::optimizerName(config_.backend.optimizer));
-    stat.add("store", m.hasStore() ? options_.store_path : std::string("none"));
-    stat.add("mode", m.localising() ? "localisation" : "mapping");
-    const core::RelocalisationTracker::State& r = sessions_->relocalisation();
-    stat.add("relocalised", r.map >= 0 ? "session " + std::to_string(r.session) + " in map " + std::to_string(r.map)
-                                       : std::string("no"));
+    ros_diagnostics::addBackendValues(stat, m, core::optimizerName(config_.backend.optimizer), options_.store_path,
+                                      sessions_->relocalisation());
     diagnostic_status_.fill(stat, counters(m), ros::WallTime::now().toSec());
   });
 }

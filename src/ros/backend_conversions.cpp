@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <map>
 
 namespace uw_multislam {
@@ -65,6 +66,14 @@ uw_multislam::DetectLoops::Response toDetectLoopsResponse(const core::Status& st
   res.refused = f.refused;
   res.joins = joins;
   return res;
+}
+
+std::string detectLoopsLine(const core::Status& st, const core::StoredLoopSearch& f, int joins) {
+  char counts[256];
+  std::snprintf(counts, sizeof(counts),
+                "; %d keyframes queried, %d candidates, %d loops (%d held already), %d accepted, %d refused, %d joins",
+                f.queries, f.candidates, f.found, f.duplicates, f.accepted, f.refused, joins);
+  return (st.ok() ? std::string("OK") : st.message) + counts;
 }
 
 KeyframeData reloadedKeyframe(const core::ReloadedSession& session, const core::StoredKeyframe& k) {

@@ -1,6 +1,10 @@
 #include "uw_multislam/ros/backend_counters.h"
 
 #include "uw_multislam/core/session/session_queries.h"
+#include "uw_multislam/ros/fleet_hash_exchange.h"
+#include "uw_multislam/ros/fleet_peer_client.h"
+#include "uw_multislam/ros/frame_publisher.h"
+#include "uw_multislam/ros/live_mosaic_publisher.h"
 
 namespace uw_multislam {
 namespace ros_diagnostics {
@@ -110,6 +114,49 @@ const CounterTable<FleetCounters>& fleetCounterTable() {
 }
 
 std::vector<Counter> fleetCounters(const FleetCounters& c) { return fleetCounterTable().counters(c); }
+
+std::vector<Counter> fleetCounters(const ros_fleet::HashExchangeStats& x, const ros_fleet::PeerStats& p) {
+  FleetCounters c;
+  c.hashes_sent = x.hashes_sent, c.hash_bytes_sent = x.hash_bytes_sent, c.hashes_received = x.hashes_received;
+  c.hash_bytes_received = x.hash_bytes_received, c.refused = x.refused, c.sessions_ended = x.sessions_ended;
+  c.features_requested = p.requested, c.feature_bytes_received = p.bytes_received;
+  c.feature_failures = p.failures, c.feature_timeouts = p.timeouts;
+  return fleetCounters(c);
+}
+
+void setWorkerCounters(const core::SessionWorkerStats& w, const core::HandoverStats& h, long bad_keyframes,
+                       long bad_loops, BackendCounters* c) {
+  c->keyframes_received = w.keyframes + bad_keyframes, c->loops_received = w.loops + bad_loops;
+  c->loops_waiting = static_cast<long>(w.waiting), c->loops_dropped_waiting = w.waiting_dropped;
+  c->dropped_queue_full = w.dropped_queue_full, c->queue_length = static_cast<long>(w.queued);
+  c->bad_messages = w.skipped + bad_keyframes + bad_loops;
+  c->handover_subscribers = h.subscribers, c->handover_keyframes_total = h.total;
+  c->handover_keyframes_sent = h.sent, c->handover_s = h.seconds;
+}
+
+void setFrameCounters(const ros_frames::FrameStats& f, BackendCounters* c) {
+  c->map_to_odom_published = f.map_to_odom_published, c->map_to_odom_rate_hz = f.map_to_odom_rate_hz;
+  c->odom_lookup_failures = f.odom_lookup_failures;
+}
+
+void setRelocalisationCounters(const core::RelocalisationTracker::State& r, BackendCounters* c) {
+  c->relocalised_map = r.map, c->relocalised_loops = r.loops, c->relocalised_poses_published = r.published;
+}
+
+void addBackendValues(diagnostic_updater::DiagnosticStatusWrapper& stat, const core::SessionQueries& m,
+                      const std::string& optimizer, const std::string& store_path,
+                      const core::RelocalisationTracker::State& r) {
+  stat.add("optimizer", optimizer);
+  stat.add("store", m.hasStore() ? store_path : std::string("none"));
+  stat.add("mode", m.localising() ? "localisation" : "mapping");
+  stat.add("relocalised", r.map >= 0 ? "session " + std::to_string(r.session) + " in map " + std::to_string(r.map)
+                                     : std::string("no"));
+}
+
+void setMosaicCounters(const ros_mosaic::MosaicStats& s, BackendCounters* c) {
+  c->mosaic_published = s.published, c->mosaic_keyframes_drawn = s.drawn, c->mosaic_keyframes_missing = s.missing;
+  c->mosaic_draw_ms = s.ms, c->mosaic_resolution_m = s.resolution_m, c->mosaic_images_kB = s.images_kB;
+}
 
 void setManagerCounters(const core::SessionQueries& manager, BackendCounters* c) {
   const core::SessionManagerStats& m = manager.stats();

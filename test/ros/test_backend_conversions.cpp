@@ -31,6 +31,21 @@ TEST(BackendConversions, EveryCoreStatusCodeIsTheStatusMsgCodeOfTheSameName) {
   }
 }
 
+TEST(BackendConversions, DetectLoopsAnswerAndItsLogLineCountTheSame) {
+  core::StoredLoopSearch f;
+  f.queries = 1, f.candidates = 2, f.found = 3, f.duplicates = 4, f.accepted = 5, f.refused = 6;
+  const uw_multislam::DetectLoops::Response res = toDetectLoopsResponse(core::Status::Ok(), f, 7);
+  EXPECT_EQ(std::make_tuple(res.queries, res.candidates, res.found, res.already_held, res.accepted, res.refused),
+            std::make_tuple(1, 2, 3, 4, 5, 6));
+  EXPECT_EQ(res.joins, 7);
+  EXPECT_EQ(detectLoopsLine(core::Status::Ok(), f, 7),
+            "OK; 1 keyframes queried, 2 candidates, 3 loops (4 held already), 5 accepted, 6 refused, 7 joins");
+  // Refused: the full message (paths too) for the log; the answer names them by role.
+  EXPECT_EQ(detectLoopsLine({core::StatusCode::kNotFound, "no session 'x' in /data/a.db"}, {}, 0),
+            "no session 'x' in /data/a.db; 0 keyframes queried, 0 candidates, 0 loops (0 held already), 0 accepted, "
+            "0 refused, 0 joins");
+}
+
 TEST(BackendConversions, SessionSummaryAsSessionState) {
   core::SessionSummary s;
   s.id = 4;
@@ -58,7 +73,12 @@ TEST(BackendConversions, SessionSummaryAsSessionState) {
 }
 
 TEST(BackendConversions, HistoryEntryAsItsMessageFieldByField) {
-  const core::HistoryEntry e{7, "2026-11-25T02:13:04Z", "split", "service", "2+0,1", "0:1>2:1 0:2>2:2",
+  const core::HistoryEntry e{7,
+                             "2026-11-25T02:13:04Z",
+                             "split",
+                             "service",
+                             "2+0,1",
+                             "0:1>2:1 0:2>2:2",
                              "session 2 split off map 0 (undoes join #6)"};
   const uw_multislam::HistoryEntry m = toHistoryEntryMsg(e);
   EXPECT_EQ(m.id, 7);
@@ -85,7 +105,8 @@ TEST(BackendConversions, AddLinkRequestAsTheLoopItAsksForCheckedAsALoopMessage) 
   std::string why;
   ASSERT_TRUE(fromAddLinkRequest(r, &l, &why)) << why;
   EXPECT_EQ(l.kind, core::Loop::Kind::kGlobal);
-  EXPECT_EQ(std::make_tuple(l.session_a, l.keyframe_a, l.session_b, l.keyframe_b, l.inliers), std::make_tuple(2, 5, 3, 7, 12));
+  EXPECT_EQ(std::make_tuple(l.session_a, l.keyframe_a, l.session_b, l.keyframe_b, l.inliers),
+            std::make_tuple(2, 5, 3, 7, 12));
   EXPECT_DOUBLE_EQ(l.z.mean.x(), 0.4);
   EXPECT_DOUBLE_EQ(l.z.mean.y(), -0.1);
   EXPECT_DOUBLE_EQ(l.z.mean.yaw(), 0.05);
@@ -157,7 +178,8 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
   for (int s = 0; s < 6; ++s) {
     double lo = 1e9, hi = -1e9;
     for (const core::Pose2& p : vehiclePoses(m.view(), s, mount))
-      lo = std::min(lo, p.x() + offsets.at(m.view().mapOf(s))), hi = std::max(hi, p.x() + offsets.at(m.view().mapOf(s)));
+      lo = std::min(lo, p.x() + offsets.at(m.view().mapOf(s))),
+      hi = std::max(hi, p.x() + offsets.at(m.view().mapOf(s)));
     ranges.emplace_back(lo, hi);
   }
   for (int a = 0; a < 6; ++a)
@@ -199,8 +221,9 @@ TEST(BackendConversions, TrajectoryMarkersForAnyNumberOfSessionsWithUnjoinedMaps
     l.session_a = l.session_b = 0;
     l.keyframe_a = 0;
     l.keyframe_b = 3;
-    l.z = core::UncertainPose2(core::compose(core::between(m.view().odometryPoses(0)[0], m.view().odometryPoses(0)[3]), off),
-                               Eigen::Matrix3d::Identity() * 1e-4);
+    l.z = core::UncertainPose2(
+        core::compose(core::between(m.view().odometryPoses(0)[0], m.view().odometryPoses(0)[3]), off),
+        Eigen::Matrix3d::Identity() * 1e-4);
     l.inliers = 50;
     ASSERT_TRUE(m.addLoop(l).ok());
   }
@@ -237,8 +260,7 @@ TEST(BackendConversions, MarkersAndPathsGoOutInThePublishedMap) {
     if (m.points.empty()) continue;
     ++drawn;
     // Each point as rviz places it: the marker's pose applied to it.
-    const Eigen::Quaterniond q(m.pose.orientation.w, m.pose.orientation.x, m.pose.orientation.y,
-                               m.pose.orientation.z);
+    const Eigen::Quaterniond q(m.pose.orientation.w, m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z);
     const Eigen::Vector3d at(m.pose.position.x, m.pose.position.y, m.pose.position.z);
     ASSERT_EQ(m.points.size(), 2u);
     const Eigen::Vector3d a = q * Eigen::Vector3d(m.points[0].x, m.points[0].y, 0.0) + at;

@@ -11,8 +11,14 @@
 #include <string>
 #include <vector>
 
-#include "uw_multislam/ros/diagnostics.h"
+#include "uw_multislam/core/session/session_manager.h"
+#include "uw_multislam/core/session/session_worker.h"
 #include "uw_multislam/ros/backend_counters.h"
+#include "uw_multislam/ros/diagnostics.h"
+#include "uw_multislam/ros/fleet_hash_exchange.h"
+#include "uw_multislam/ros/fleet_peer_client.h"
+#include "uw_multislam/ros/frame_publisher.h"
+#include "uw_multislam/ros/live_mosaic_publisher.h"
 #include "uw_multislam/ros/loop_detector_counters.h"
 #include "uw_multislam/ros/odometry_counters.h"
 
@@ -159,6 +165,94 @@ TEST(DiagnosticsDoc, TheLoopDetectorsCountersAreDocumentedAsTheCodeDeclaresThem)
 TEST(DiagnosticsDoc, TheBackEndsCountersAreDocumentedAsTheCodeDeclaresThem) {
   expectDocumented("backend", rd::backendCounterTable().specs());
   expectDocumented("backend, with fleet/vehicle", rd::fleetCounterTable().specs());
+}
+
+// The back-end's counters from its parts' stats: each input field a distinct value, so that one
+// wired to the wrong key (or not at all) shows.
+std::map<std::string, double> byKey(const std::vector<rd::Counter>& counters) {
+  std::map<std::string, double> out;
+  for (const rd::Counter& c : counters) out[c.key] = c.value;
+  return out;
+}
+
+TEST(BackendCounters, WorkerFramesAndMosaicStatsLandUnderTheirKeys) {
+  core::SessionWorkerStats w;
+  w.keyframes = 11, w.loops = 12, w.waiting = 13, w.waiting_dropped = 14, w.dropped_queue_full = 15;
+  w.queued = 16, w.skipped = 17;
+  core::HandoverStats h;
+  h.subscribers = 21, h.total = 22, h.sent = 23, h.seconds = 2.5;
+  ros_frames::FrameStats f;
+  f.map_to_odom_published = 31, f.odom_lookup_failures = 32, f.map_to_odom_rate_hz = 3.5;
+  ros_mosaic::MosaicStats m;
+  m.published = 41, m.drawn = 42, m.missing = 43, m.ms = 4.5, m.resolution_m = 0.25, m.images_kB = 46.5;
+  rd::BackendCounters c;
+  rd::setWorkerCounters(w, h, 100, 200, &c);  // 100 keyframes and 200 loops refused before the worker
+  rd::setFrameCounters(f, &c);
+  rd::setMosaicCounters(m, &c);
+  const std::map<std::string, double> v = byKey(rd::backendCounterTable().counters(c));
+  const std::map<std::string, double> expected = {{"keyframes_received", 111},
+                                                  {"loops_received", 212},
+                                                  {"loops_waiting", 13},
+                                                  {"loops_dropped_waiting", 14},
+                                                  {"dropped_queue_full", 15},
+                                                  {"queue_length", 16},
+                                                  {"bad_messages", 317},
+                                                  {"handover_subscribers", 21},
+                                                  {"handover_keyframes_total", 22},
+                                                  {"handover_keyframes_sent", 23},
+                                                  {"handover_s", 2.5},
+                                                  {"map_to_odom_published", 31},
+                                                  {"odom_lookup_failures", 32},
+                                                  {"map_to_odom_rate_hz", 3.5},
+                                                  {"mosaic_published", 41},
+                                                  {"mosaic_keyframes_drawn", 42},
+                                                  {"mosaic_keyframes_missing", 43},
+                                                  {"mosaic_draw_ms", 4.5},
+                                                  {"mosaic_resolution_m", 0.25},
+                                                  {"mosaic_images_kB", 46.5}};
+  for (const auto& [key, value] : expected) {
+    ASSERT_TRUE(v.count(key)) << key;
+    EXPECT_EQ(v.at(key), value) << key;
+  }
+}
+
+TEST(BackendCounters, FleetStatsLandUnderTheirKeys) {
+  ros_fleet::HashExchangeStats x;
+  x.hashes_sent = 1, x.hash_bytes_sent = 2, x.hashes_received = 3, x.hash_bytes_received = 4, x.refused = 5;
+  x.sessions_ended = 6;
+  ros_fleet::PeerStats p;
+  p.requested = 7, p.bytes_received = 8, p.failures = 9, p.timeouts = 10;
+  const std::vector<rd::Counter> c = rd::fleetCounters(x, p);
+  const std::vector<std::string> keys = {
+      "fleet_hashes_sent",      "fleet_hash_bytes_sent", "fleet_hashes_received",    "fleet_hash_bytes_received",
+      "fleet_refused",          "fleet_sessions_ended",  "fleet_features_requested", "fleet_feature_bytes_received",
+      "fleet_feature_failures", "fleet_feature_timeouts"};
+  ASSERT_EQ(c.size(), keys.size());
+  for (std::size_t i = 0; i < keys.size(); ++i) {
+    EXPECT_EQ(c[i].key, keys[i]);
+    EXPECT_EQ(c[i].value, static_cast<double>(i + 1)) << keys[i];
+  }
+}
+
+TEST(BackendCounters, StatusValuesBesideTheCounters) {
+  diagnostic_updater::DiagnosticStatusWrapper s;
+  core::SessionManager manager{core::SessionManagerOptions()};  // no store, mapping
+  core::RelocalisationTracker::State r;
+  r.session = 3, r.map = 1, r.loops = 4, r.published = 5;
+  rd::addBackendValues(s, manager.view(), "gtsam", "/tmp/x.db", r);
+  EXPECT_EQ(value(s, "optimizer"), "gtsam");
+  EXPECT_EQ(value(s, "store"), "none");
+  EXPECT_EQ(value(s, "mode"), "mapping");
+  EXPECT_EQ(value(s, "relocalised"), "session 3 in map 1");
+  diagnostic_updater::DiagnosticStatusWrapper t;
+  rd::addBackendValues(t, manager.view(), "gtsam", "/tmp/x.db", core::RelocalisationTracker::State());
+  EXPECT_EQ(value(t, "relocalised"), "no");
+  rd::BackendCounters c;
+  rd::setRelocalisationCounters(r, &c);
+  const std::map<std::string, double> v = byKey(rd::backendCounterTable().counters(c));
+  EXPECT_EQ(v.at("relocalised_map"), 1);
+  EXPECT_EQ(v.at("relocalised_loops"), 4);
+  EXPECT_EQ(v.at("relocalised_poses_published"), 5);
 }
 
 }  // namespace

@@ -17,9 +17,8 @@ import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, connected, diagnostic_values,
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, connected, DiagnosticsWatch,
                               make_mission, wait_for_subscribers)
 from sensor_msgs.msg import CameraInfo, Image, Range
 from uw_multislam.msg import Keyframe
@@ -51,16 +50,12 @@ class AltitudeByStampTest(unittest.TestCase):
         assert len(cls.frames) == N_IMAGES, len(cls.frames)
 
         cls.lock = threading.Lock()
-        cls.poses, cls.keyframes, cls.statuses = [], [], []
-
-        def on_diagnostics(msg):
-            with cls.lock:
-                cls.statuses.extend(s for s in msg.status if s.name.endswith(": odometry"))
-
+        cls.poses, cls.keyframes = [], []
+        cls.diagnostics = DiagnosticsWatch(("odometry",), cls.lock)
         cls.subs = [rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, appender(cls.lock, cls.poses),
                                      queue_size=1000),
                     rospy.Subscriber(NS + "/keyframes", Keyframe, appender(cls.lock, cls.keyframes), queue_size=1000),
-                    rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
+                    cls.diagnostics]
         cls.pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(SENSOR_TOPICS, (Image, CameraInfo, Range))]
         wait_for_subscribers(SENSOR_TOPICS, "/check_altitude_by_stamp")
         cls.await_condition(lambda: connected(cls.pubs), 30.0, "publisher connections")
@@ -81,15 +76,13 @@ class AltitudeByStampTest(unittest.TestCase):
         cls.publish_s = time.time() - start
 
         def done():
-            if not cls.statuses:
-                return False
-            v = diagnostic_values(cls.statuses[-1])
+            v = cls.diagnostics.get("odometry")
             return (v.get("images_received") == N_IMAGES and v.get("images_waiting_pairing") == 0 and
                     v.get("queue_length") == 0 and v.get("frames_processed") == v.get("frames_synchronised") and
                     len(cls.poses) >= v.get("frames_processed", float("inf")))
         cls.await_condition(done, 60.0, "every image received, paired or skipped, and processed")
         with cls.lock:
-            cls.final = diagnostic_values(cls.statuses[-1])
+            cls.final = cls.diagnostics.get("odometry")
             cls.n_poses = len(cls.poses)
             cls.kfs = list(cls.keyframes)
         rospy.loginfo("altitude by stamp: %d images sent at %.0f Hz in %.1f s, %d altitudes at %.0f Hz; odometry: "
@@ -105,7 +98,7 @@ class AltitudeByStampTest(unittest.TestCase):
     @classmethod
     def await_condition(cls, condition, timeout, what):
         await_condition(cls.lock, condition, timeout, what, lambda: "; last odometry status %s" % (
-            diagnostic_values(cls.statuses[-1]) if cls.statuses else None))
+            cls.diagnostics.get("odometry") or None))
 
     def interpolated(self, stamp):
         r = self.readings

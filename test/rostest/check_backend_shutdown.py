@@ -23,9 +23,8 @@ import unittest
 import rosgraph
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose2D
-from pipeline_fixture import connected, synthetic_keyframe, tool
+from pipeline_fixture import connected, status_values, synthetic_keyframe, tool
 from uw_multislam.msg import Keyframe, Loop
 
 NS = "/shutdown_test"
@@ -48,27 +47,17 @@ def loop(k):
 class BackendShutdownTest(unittest.TestCase):
     def setUp(self):
         self.tmp = tempfile.mkdtemp(prefix="uwms_shutdown_")
-        self.received = None
-        self.diag_sub = rospy.Subscriber("/diagnostics", DiagnosticArray, self.on_diagnostics, queue_size=100)
         # One pair of publishers for every run (each run starts a fresh back-end node).
         self.kf_pub = rospy.Publisher(NS + "/keyframes", Keyframe, queue_size=100000)
         self.loop_pub = rospy.Publisher(NS + "/loops", Loop, queue_size=100000)
 
     def tearDown(self):
-        self.diag_sub.unregister()
         self.kf_pub.unregister()
         self.loop_pub.unregister()
         shutil.rmtree(self.tmp, ignore_errors=True)
 
-    def on_diagnostics(self, msg):
-        for status in msg.status:
-            values = {kv.key: kv.value for kv in status.values}
-            if "messages_received" in values:
-                self.received = int(float(values["messages_received"]))
-
     def run_once(self, n):
         db = os.path.join(self.tmp, "store_%d.db" % n)
-        self.received = None
         node = subprocess.Popen([tool("backend_node"), "__ns:=" + NS, "__name:=backend_node_%d" % n, "_store_path:=" + db,
                                  "_diagnostic_period:=0.2", "_queue_size:=100000"],
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -83,10 +72,9 @@ class BackendShutdownTest(unittest.TestCase):
                 if k >= 2:
                     loop_pub.publish(loop(k))
             expected = n + (n - 2)
-            deadline = time.time() + 120
-            while time.time() < deadline and (self.received is None or self.received < expected):
-                time.sleep(0.05)
-            self.assertEqual(self.received, expected, "the back-end did not receive every message")
+            values = status_values("backend", lambda v: v.get("messages_received", -1) >= expected, 120,
+                                   node="backend_node_%d" % n) or {}
+            self.assertEqual(values.get("messages_received"), expected, "the back-end did not receive every message")
             node.send_signal(signal.SIGINT)
             out, _ = node.communicate(timeout=120)
         finally:

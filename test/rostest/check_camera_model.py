@@ -24,9 +24,8 @@ import unittest
 import rospy
 import rostest
 import yaml
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from pipeline_fixture import (appender, await_condition, bag_frames, connected, diagnostic_values, make_mission, tool,
+from pipeline_fixture import (appender, await_condition, bag_frames, connected, DiagnosticsWatch, make_mission, tool,
                               wait_for_subscribers)
 from sensor_msgs.msg import CameraInfo, Image, Range
 
@@ -59,6 +58,11 @@ def ground_truth(folder, frames):
 
 class CameraModelTest(unittest.TestCase):
     @classmethod
+    def status(cls):
+        """{run: its odometry's newest values}, for the runs that sent one."""
+        return {run: w.get("odometry") for run, w in cls.diagnostics.items() if "odometry" in w.values}
+
+    @classmethod
     def setUpClass(cls):
         cls.tmp, pinhole = make_mission("uwms_camera_model_", SURVEY, timeout=180)
         distorted = os.path.join(cls.tmp, "distorted")
@@ -71,19 +75,10 @@ class CameraModelTest(unittest.TestCase):
 
         cls.lock = threading.Lock()
         cls.poses = {run: [] for run in RUNS}
-        cls.status = {}
-
-        def on_diagnostics(msg):
-            with cls.lock:
-                for s in msg.status:
-                    name = "/" + s.name.lstrip("/")
-                    for run in RUNS:
-                        if name.startswith("/%s/" % run) and name.endswith(": odometry"):
-                            cls.status[run] = diagnostic_values(s)
-
+        cls.diagnostics = {run: DiagnosticsWatch(("odometry",), cls.lock, namespace=run) for run in RUNS}
         cls.subs = [rospy.Subscriber("/%s/odometry/pose" % run, PoseWithCovarianceStamped, appender(cls.lock, cls.poses[run]),
                                      queue_size=1000) for run in RUNS]
-        cls.subs.append(rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100))
+        cls.subs += cls.diagnostics.values()
         cls.pubs = {run: [rospy.Publisher("/%s%s" % (run, t), m, queue_size=100)
                           for t, m in zip(BAG_TOPICS, (Image, CameraInfo, Range))] for run in RUNS}
         wait_for_subscribers(["/%s%s" % (run, t) for run in RUNS for t in BAG_TOPICS], "/check_camera_model")
@@ -103,10 +98,10 @@ class CameraModelTest(unittest.TestCase):
                 if with_info:
                     cls.pubs[run][1].publish(info)
                 cls.pubs[run][0].publish(image)
-        cls.await_condition(lambda: all(len(cls.poses[run]) >= n and cls.status.get(run, {}).get("frames_processed") == n
+        cls.await_condition(lambda: all(len(cls.poses[run]) >= n and cls.status().get(run, {}).get("frames_processed") == n
                                         for run in RUNS), 120.0, "every frame processed, a pose for each")
         with cls.lock:
-            cls.final = dict(cls.status)
+            cls.final = cls.status()
             cls.ate = {run: cls.ate_of(cls.poses[run]) for run in RUNS}
         rospy.loginfo("camera model: %d frames; ATE %s", n,
                       ", ".join("%s %.2f mm" % (run, 1000 * cls.ate[run]) for run in RUNS))
@@ -118,7 +113,7 @@ class CameraModelTest(unittest.TestCase):
     @classmethod
     def await_condition(cls, condition, timeout, what):
         await_condition(cls.lock, condition, timeout, what, lambda: "; poses %s; odometry status %s" % (
-            {run: len(p) for run, p in cls.poses.items()}, dict(cls.status)))
+            {run: len(p) for run, p in cls.poses.items()}, cls.status()))
 
     @classmethod
     def ate_of(cls, poses):

@@ -24,8 +24,7 @@ import rosbag
 import rosgraph
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
-from pipeline_fixture import NS, appender, connected, diagnostic_values, make_mission, tool, wait_for_subscribers
+from pipeline_fixture import NS, DiagnosticsWatch, appender, connected, make_mission, tool, wait_for_subscribers
 from sensor_msgs.msg import CameraInfo, CompressedImage, Range
 from uw_multislam.msg import Keyframe
 
@@ -85,14 +84,10 @@ class CompressedImagesTest(unittest.TestCase):
         cls.truth = {int(r["index"]): (float(r["x_m"]), float(r["y_m"])) for r in read_csv(os.path.join(folder, "gt.csv"))}
 
         cls.lock = threading.Lock()
-        cls.keyframes, cls.statuses = [], []
-
-        def on_diagnostics(msg):
-            with cls.lock:
-                cls.statuses.extend(s for s in msg.status if s.name.endswith(": odometry"))
-
+        cls.keyframes = []
+        cls.diagnostics = DiagnosticsWatch(("odometry",), cls.lock)
         cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, appender(cls.lock, cls.keyframes), queue_size=1000),
-                    rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
+                    cls.diagnostics]
         wait_for_subscribers(SENSOR_TOPICS, "/check_compressed_images")
         cls.subscriptions = {t: n for t, n in rosgraph.Master("/check_compressed_images").getSystemState()[1]}
 
@@ -101,13 +96,13 @@ class CompressedImagesTest(unittest.TestCase):
                        check=True, timeout=120)
         cls.await_odometry(cls.n_images, "every image of the bag processed")
         with cls.lock:
-            cls.after_bag = diagnostic_values(cls.statuses[-1])
+            cls.after_bag = cls.diagnostics.get("odometry")
             cls.bag_keyframes = list(cls.keyframes)
 
         cls.send_corrupt_images()
         cls.await_odometry(cls.n_images + 2, "the two corrupt images skipped")
         with cls.lock:
-            cls.final = diagnostic_values(cls.statuses[-1])
+            cls.final = cls.diagnostics.get("odometry")
 
     @classmethod
     def tearDownClass(cls):
@@ -119,15 +114,9 @@ class CompressedImagesTest(unittest.TestCase):
         def done(v):
             return (v.get("images_received") == n and v.get("images_waiting_pairing") == 0 and
                     v.get("queue_length") == 0 and v.get("frames_processed") == v.get("frames_synchronised"))
-        deadline = time.time() + timeout
-        last = None
-        while time.time() < deadline:
-            with cls.lock:
-                last = diagnostic_values(cls.statuses[-1]) if cls.statuses else None
-            if last and done(last):
-                return
-            time.sleep(0.2)
-        raise AssertionError("timed out after %.0f s waiting for %s; last odometry status %s" % (timeout, what, last))
+        last = cls.diagnostics.await_values("odometry", done, timeout)
+        if not (last and done(last)):
+            raise AssertionError("timed out after %.0f s waiting for %s; last odometry status %s" % (timeout, what, last))
 
     @classmethod
     def send_corrupt_images(cls):

@@ -13,9 +13,8 @@ import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
-from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, connected, diagnostic_values,
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, connected, DiagnosticsWatch,
                               make_mission, publisher_connected, wait_for_subscribers)
 from sensor_msgs.msg import CameraInfo, Image
 from uw_multislam.msg import Keyframe
@@ -35,21 +34,20 @@ DVL_BELOW_CAMERA_M = 0.2
 
 class DvlAltitudeTest(unittest.TestCase):
     @classmethod
+    def odometry(cls):
+        """The odometry's newest status values."""
+        return cls.diagnostics.get("odometry")
+
+    @classmethod
     def setUpClass(cls):
         cls.tmp, out = make_mission("uwms_dvl_", SURVEY, timeout=180)
         cls.frames = bag_frames(os.path.join(out, "s0.bag"))[:N]
         assert len(cls.frames) == N
         cls.lock = threading.Lock()
-        cls.keyframes, cls.status = [], {}
-
-        def on_diagnostics(msg):
-            for s in msg.status:
-                if s.name.endswith(": odometry"):
-                    with cls.lock:
-                        cls.status = diagnostic_values(s)
-
+        cls.keyframes = []
+        cls.diagnostics = DiagnosticsWatch(("odometry",), cls.lock)
         cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, appender(cls.lock, cls.keyframes), queue_size=1000),
-                    rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
+                    cls.diagnostics]
         topics = SENSOR_TOPICS[:2] + ["/dvl/data"]
         cls.pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(topics, (Image, CameraInfo, Odometry))]
         wait_for_subscribers(SENSOR_TOPICS[:2] + ["/dvl/data"], "/check_dvl_altitude")
@@ -69,9 +67,9 @@ class DvlAltitudeTest(unittest.TestCase):
             cls.pubs[2].publish(dvl)
             cls.pubs[1].publish(info)
             cls.pubs[0].publish(image)
-            cls.await_condition(lambda: cls.status.get("frames_finished", 0) >= i + 1, 30.0, "frame %d" % i)
+            cls.await_condition(lambda: cls.odometry().get("frames_finished", 0) >= i + 1, 30.0, "frame %d" % i)
         with cls.lock:
-            cls.final = dict(cls.status)
+            cls.final = dict(cls.odometry())
             cls.kfs = list(cls.keyframes)
 
     @classmethod
@@ -80,7 +78,7 @@ class DvlAltitudeTest(unittest.TestCase):
 
     @classmethod
     def await_condition(cls, condition, timeout, what):
-        await_condition(cls.lock, condition, timeout, what, lambda: "; odometry status %s" % cls.status)
+        await_condition(cls.lock, condition, timeout, what, lambda: "; odometry status %s" % cls.odometry())
 
     def test_every_frame_takes_the_dvls_altitude(self):
         v = self.final

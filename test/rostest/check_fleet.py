@@ -21,11 +21,10 @@ import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Path
 from sensor_msgs.msg import CameraInfo, Image, Range
-from pipeline_fixture import (appender, await_condition, bag_frames, compose, connected, diagnostic_values, invert,
+from pipeline_fixture import (appender, await_condition, bag_frames, compose, connected, DiagnosticsWatch, invert,
                               make_mission, vehicle_from_camera)
 from uw_multislam.msg import Keyframe, SessionState, Status
 from uw_multislam.srv import FinishSession, ListSessions
@@ -44,19 +43,11 @@ class FleetTest(unittest.TestCase):
     def setUp(self):
         self.tmp, self.mission = make_mission("uwms_fleet_")
         self.lock = threading.RLock()
-        self.status = {}  # (vehicle, node) -> diagnostic values
         self.keyframes = {v: [] for v in VEHICLES}
         self.poses = {v: [] for v in VEHICLES}
-
-        def on_diag(msg):
-            for s in msg.status:
-                for v in VEHICLES:
-                    for node in ("odometry", "loop_detector", "backend"):
-                        if s.name.lstrip("/").startswith(v + "/") and s.name.endswith(": " + node):
-                            with self.lock:
-                                self.status[(v, node)] = diagnostic_values(s)
-
-        self.subs = [rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)]
+        self.diagnostics = {v: DiagnosticsWatch(("odometry", "loop_detector", "backend"), self.lock, namespace=v)
+                            for v in VEHICLES}
+        self.subs = list(self.diagnostics.values())
         for v in VEHICLES:
             self.subs.append(rospy.Subscriber("/%s/keyframes" % v, Keyframe, appender(self.lock, self.keyframes[v]),
                                               queue_size=1000))
@@ -74,7 +65,12 @@ class FleetTest(unittest.TestCase):
                     os.remove(path + suffix)
 
     def value(self, vehicle, node, key):
-        return self.status.get((vehicle, node), {}).get(key)
+        return self.diagnostics[vehicle].get(node).get(key)
+
+    def status(self):
+        """{(vehicle, node): its newest values}."""
+        with self.lock:  # reentrant: also from await_condition's conditions
+            return {(v, node): values for v, w in self.diagnostics.items() for node, values in w.values.items()}
 
     def player(self, vehicle, bag):
         """The bag's frames, and send(i): frame i published to `vehicle` and its odometry pose awaited."""
@@ -115,8 +111,8 @@ class FleetTest(unittest.TestCase):
         return rospy.wait_for_message("/%s/paths/session_%d" % (vehicle, session), Path, timeout=30)
 
     def test_two_vehicles_exchange_hashes_and_join_their_maps_on_both_sides(self):
-        state = lambda: ": %s" % self.status
-        await_condition(self.lock, lambda: all((v, "backend") in self.status for v in VEHICLES), 60,
+        state = lambda: ": %s" % self.status()
+        await_condition(self.lock, lambda: all((v, "backend") in self.status() for v in VEHICLES), 60,
                         "both back-ends' diagnostics")
         # auv_a starts s0 first, so that the ids are known: its first keyframe opens a session on
         # auv_b, whose odometry is told (active_session's next_session) that its own takes the next id.
@@ -170,7 +166,7 @@ class FleetTest(unittest.TestCase):
                         "auv_b's session-ended notice on auv_a", state)
 
         with self.lock:
-            st = dict(self.status)
+            st = self.status()
             kf = {v: list(self.keyframes[v]) for v in VEHICLES}
         a_b, b_b = st[("auv_a", "backend")], st[("auv_b", "backend")]
         a_d, b_d = st[("auv_a", "loop_detector")], st[("auv_b", "loop_detector")]

@@ -11,8 +11,7 @@ import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
-from pipeline_fixture import await_condition, connected, diagnostic_values
+from pipeline_fixture import DiagnosticsWatch, await_condition, connected
 from uw_multislam.msg import KeyframeHash, Status
 from uw_multislam.srv import KeyframeFeatures, KeyframeFeaturesResponse, ListSessions
 
@@ -39,15 +38,8 @@ def foreign_hash(vehicle="auv_c", features="sift"):
 class FleetPeerTimeoutTest(unittest.TestCase):
     def setUp(self):
         self.lock = threading.Lock()
-        self.backend = {}
         self.release = threading.Event()
         self.served = []  # requests auv_c's service got
-
-        def on_diag(msg):
-            for s in msg.status:
-                if s.name.lstrip("/").startswith("auv_a/") and s.name.endswith(": backend"):
-                    with self.lock:
-                        self.backend = diagnostic_values(s)
 
         def serve(req):  # auv_c: holds each request until the test releases it
             with self.lock:
@@ -59,7 +51,7 @@ class FleetPeerTimeoutTest(unittest.TestCase):
             r.keyframe.descriptor_size = 128
             return r
 
-        self.sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)
+        self.diagnostics = DiagnosticsWatch(("backend",), self.lock, namespace="auv_a")
         self.srv = rospy.Service("/auv_c/keyframe_features", KeyframeFeatures, serve)
 
     def tearDown(self):
@@ -67,7 +59,7 @@ class FleetPeerTimeoutTest(unittest.TestCase):
             self.proxy.close()
         self.release.set()
         self.srv.shutdown()
-        self.sub.unregister()
+        self.diagnostics.unregister()
 
     def call(self, session):
         # One persistent connection: after the first call the times are the back-end's answers
@@ -85,8 +77,8 @@ class FleetPeerTimeoutTest(unittest.TestCase):
         rospy.wait_for_service("/auv_a/keyframe_features", timeout=60)
         # A vehicle whose hashes were made from ORB features: not comparable with ours (SIFT), refused.
         pub.publish(foreign_hash("auv_d", "orb"))
-        await_condition(self.lock, lambda: self.backend.get("fleet_refused") == 1, 30, "auv_d's hash refused",
-                        lambda: " (diagnostics: %s)" % self.backend)
+        await_condition(self.lock, lambda: self.diagnostics.get().get("fleet_refused") == 1, 30, "auv_d's hash refused",
+                        lambda: " (diagnostics: %s)" % self.diagnostics.get())
         pub.publish(foreign_hash())
         sessions = lambda: rospy.ServiceProxy("/auv_a/list_sessions", ListSessions)().sessions
         deadline = time.time() + 30
@@ -112,9 +104,9 @@ class FleetPeerTimeoutTest(unittest.TestCase):
         self.assertLess(took, TIMEOUT_S)
         with self.lock:
             self.assertEqual(len(self.served), 1)
-        await_condition(self.lock, lambda: self.backend.get("fleet_feature_timeouts") == 1 and
-                        self.backend.get("fleet_feature_failures") == 2, 30, "one timeout, two failures",
-                        lambda: " (diagnostics: %s)" % self.backend)
+        await_condition(self.lock, lambda: self.diagnostics.get().get("fleet_feature_timeouts") == 1 and
+                        self.diagnostics.get().get("fleet_feature_failures") == 2, 30, "one timeout, two failures",
+                        lambda: " (diagnostics: %s)" % self.diagnostics.get())
         # 3: auv_c answers again; once the quiet time is over the next request goes through (in
         # our ids).
         self.release.set()

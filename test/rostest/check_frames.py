@@ -31,11 +31,10 @@ import unittest
 import rospy
 import rostest
 import tf2_ros
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
-from pipeline_fixture import (NS, SENSOR_TOPICS, appender, chain_covariance, compose, frames_by_stamp, invert,
-                              make_mission, map_origin, matmul3, mount_of_params, transpose3, vehicle_from_camera,
-                              wait_for_subscribers, wait_until_quiet)
+from pipeline_fixture import (NS, SENSOR_TOPICS, DiagnosticsWatch, appender, chain_covariance, compose,
+                              frames_by_stamp, invert, make_mission, map_origin, matmul3, mount_of_params, transpose3,
+                              vehicle_from_camera, wait_for_subscribers, wait_until_quiet)
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image
 from tf2_msgs.msg import TFMessage
@@ -79,7 +78,6 @@ class FramesTest(unittest.TestCase):
         cls.lock = threading.Lock()
         cls.images = []  # (stamp, session, index)
         cls.map_odom_stamps = []
-        cls.rates = []
         cls.lookups = {"ok": 0, "failed": [], "session0": []}  # session0: (pose in map, image a, image b, u)
         cls.buffer = tf2_ros.Buffer(rospy.Duration(3600))
         cls.listener = tf2_ros.TransformListener(cls.buffer)
@@ -101,13 +99,6 @@ class FramesTest(unittest.TestCase):
                     if t.header.frame_id == "map" and t.child_frame_id == "odom":
                         cls.map_odom_stamps.append(t.header.stamp)
 
-        def on_diagnostics(msg):
-            for s in msg.status:
-                values = {kv.key: kv.value for kv in s.values}
-                if "map_to_odom_rate_hz" in values:
-                    with cls.lock:
-                        cls.rates.append(float(values["map_to_odom_rate_hz"]))
-
         cls.keyframes, cls.trajectories, cls.keyframe_poses = [], [], []
         cls.last_trajectory = [time.time()]  # when the back-end last published a session trajectory
 
@@ -116,13 +107,14 @@ class FramesTest(unittest.TestCase):
                 cls.trajectories.append(msg)
                 cls.last_trajectory[0] = time.time()
 
+        cls.diagnostics = DiagnosticsWatch(("backend",), cls.lock, history=True)  # map_to_odom_rate_hz over time
         cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, appender(cls.lock, cls.keyframes), queue_size=1000),
                     rospy.Subscriber(NS + "/session_trajectory", SessionTrajectory, on_trajectory, queue_size=1000),
                     rospy.Subscriber(NS + "/keyframe_pose", PoseWithCovarianceStamped, appender(cls.lock, cls.keyframe_poses),
                                      queue_size=1000),
                     rospy.Subscriber("/camera/image_raw", Image, on_image, queue_size=100),
                     rospy.Subscriber("/tf", TFMessage, on_tf, queue_size=1000),
-                    rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
+                    cls.diagnostics]
         rospy.wait_for_service(NS + "/join_sessions", timeout=60)
         cls.join = rospy.ServiceProxy(NS + "/join_sessions", JoinSessions)
         cls.list = rospy.ServiceProxy(NS + "/list_sessions", ListSessions)
@@ -132,7 +124,7 @@ class FramesTest(unittest.TestCase):
                             os.path.join(cls.mission, name + ".bag"), "--topics"] + SENSOR_TOPICS, check=True,
                            timeout=120)
         with cls.lock:
-            cls.rates_while_playing = list(cls.rates)
+            cls.rates_while_playing = [v["map_to_odom_rate_hz"] for v in cls.diagnostics.history.get("backend", [])]
         # The bags are over: the vehicle's clock and odometry go on (it holds its last pose).
         cls.stop = threading.Event()
         cls.clock_thread = threading.Thread(target=cls.keep_time)

@@ -33,11 +33,10 @@ import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Path
 from sensor_msgs.msg import CameraInfo, Image, Range
-from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, connected, diagnostic_values,
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, connected, DiagnosticsWatch,
                               make_mission, vehicle_from_camera, wait_for_subscribers)
 from uw_multislam.msg import Keyframe, Loop, SessionState, SlamStatus, Status
 from uw_multislam.srv import FinishSession, ListSessions, OperatorCommand, StartSession
@@ -269,19 +268,16 @@ class LiveSessionsTest(unittest.TestCase):
         """Subscriptions to odometry/pose and the odometry's /diagnostics, publishers of the sensor
         topics, the mission's frames; and send(i, dropped): frame i published and awaited, by its
         pose, or (dropped = the paused count it must make) by the odometry's frames_dropped_paused."""
-        poses, status = [], {}
-
-        def on_diag(msg):
-            for s in msg.status:
-                if s.name.endswith(": odometry"):
-                    with self.lock:
-                        status.update(diagnostic_values(s))
-
+        poses = []
         subs = [rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, appender(self.lock, poses),
                                  queue_size=1000),
-                rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)]
+                DiagnosticsWatch(("odometry",), self.lock)]
+
+        def status():  # the odometry's newest
+            return subs[-1].get("odometry")
+
         pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(SENSOR_TOPICS, (Image, CameraInfo, Range))]
-        await_condition(self.lock, lambda: connected(pubs) and status, 30,
+        await_condition(self.lock, lambda: connected(pubs) and status(), 30,
                         "the odometry's subscriptions and diagnostics")
         frames = bag_frames(os.path.join(self.mission, "a.bag"))
         self.assertGreater(len(frames), PAUSED.stop + 5)
@@ -293,23 +289,23 @@ class LiveSessionsTest(unittest.TestCase):
             pubs[0].publish(image)
             stamp = image.header.stamp
             if dropped is not None:
-                await_condition(self.lock, lambda: status.get("frames_dropped_paused") == dropped and
-                                status.get("frames_finished") == i + 1, 30, "frame %d dropped while paused" % i,
-                                lambda: ": %s" % status)
+                await_condition(self.lock, lambda: status().get("frames_dropped_paused") == dropped and
+                                status().get("frames_finished") == i + 1, 30, "frame %d dropped while paused" % i,
+                                lambda: ": %s" % status())
                 with self.lock:
-                    self.assertEqual(status.get("paused"), 1.0)
+                    self.assertEqual(status().get("paused"), 1.0)
             else:
                 await_condition(self.lock, lambda: any(p.header.stamp == stamp for p in poses), 30,
                                 "the odometry pose of frame %d" % i, lambda: ": %d poses" % len(poses))
 
         def finished():
-            await_condition(self.lock, lambda: status.get("frames_finished") == len(frames) and
-                            status.get("keyframes") == len(self.keyframes), 30, "the last frame finished",
-                            lambda: ": %s" % status)
+            await_condition(self.lock, lambda: status().get("frames_finished") == len(frames) and
+                            status().get("keyframes") == len(self.keyframes), 30, "the last frame finished",
+                            lambda: ": %s" % status())
             for s in subs:
                 s.unregister()
             with self.lock:
-                return dict(status), [p.header.stamp for p in poses], list(self.keyframes)
+                return dict(status()), [p.header.stamp for p in poses], list(self.keyframes)
 
         return frames, send, finished
 

@@ -34,12 +34,11 @@ import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, Image, Range
 from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, compose, connected,
-                              diagnostic_values, invert, make_mission, mount_of_params, vehicle_from_camera)
+                              DiagnosticsWatch, invert, make_mission, mount_of_params, vehicle_from_camera)
 from uw_multislam.msg import Keyframe
 from uw_multislam.msg import SessionState, Status
 from uw_multislam.srv import ListSessions, StartSession
@@ -63,21 +62,15 @@ class NavPlacementTest(unittest.TestCase):
 
     def test_nav_placement_case(self):
         lock = threading.RLock()
-        keyframes, poses, keyframe_poses, status = [], [], [], {}
-
-        def on_diag(msg):
-            for s in msg.status:
-                for node in ("odometry", "backend"):
-                    if s.name.endswith(": " + node):
-                        with lock:
-                            status[node] = diagnostic_values(s)
+        keyframes, poses, keyframe_poses = [], [], []
 
         subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, appender(lock, keyframes), queue_size=1000),
                 rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, appender(lock, poses),
                                  queue_size=1000),
                 rospy.Subscriber(NS + "/keyframe_pose", PoseWithCovarianceStamped, appender(lock, keyframe_poses),
                                  queue_size=1000),
-                rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)]
+                DiagnosticsWatch(("odometry", "backend"), lock)]
+        status = subs[-1].values  # status name -> its newest values
         pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(TOPICS, (Image, CameraInfo, Range, Odometry))]
         await_condition(lock, lambda: connected(pubs) and "odometry" in status and "backend" in status, 60,
                         "the odometry's subscriptions and diagnostics")

@@ -23,13 +23,12 @@ import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
 import tf2_ros
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from nav_msgs.msg import Odometry, Path
 from sensor_msgs.msg import CameraInfo, Image, Range
 from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, compose, connected,
-                              diagnostic_values, invert, make_mission, mount_of_params, vehicle_from_camera)
+                              DiagnosticsWatch, invert, make_mission, mount_of_params, vehicle_from_camera)
 from uw_multislam.msg import Keyframe
 from uw_multislam.srv import ListSessions
 
@@ -58,19 +57,13 @@ class NavPriorTest(unittest.TestCase):
 
     def test_nav_prior_case(self):
         lock = threading.RLock()
-        keyframes, poses, status = [], [], {}
-
-        def on_diag(msg):
-            for s in msg.status:
-                for node in ("odometry", "backend"):
-                    if s.name.endswith(": " + node):
-                        with lock:
-                            status[node] = diagnostic_values(s)
+        keyframes, poses = [], []
 
         subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, appender(lock, keyframes), queue_size=1000),
                 rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, appender(lock, poses),
                                  queue_size=1000),
-                rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)]
+                DiagnosticsWatch(("odometry", "backend"), lock)]
+        status = subs[-1].values  # status name -> its newest values
         pubs = [rospy.Publisher(t, m, queue_size=100) for t, m in zip(TOPICS, (Image, CameraInfo, Range, Odometry))]
         broadcaster = tf2_ros.TransformBroadcaster() if self.case == "tf" else None
         # With tf the odometry listens to /tf (every node's tf listener too), not to /nav/odom.

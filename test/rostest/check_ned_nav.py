@@ -18,10 +18,9 @@ import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
-from pipeline_fixture import (SENSOR_TOPICS, appender, await_condition, bag_frames, connected, diagnostic_values,
+from pipeline_fixture import (SENSOR_TOPICS, appender, await_condition, bag_frames, connected, DiagnosticsWatch,
                               make_mission, wait_for_subscribers)
 from sensor_msgs.msg import CameraInfo, Image, Range
 from uw_multislam.msg import Keyframe
@@ -78,27 +77,23 @@ def planar(pose):
 
 class NedNavTest(unittest.TestCase):
     @classmethod
+    def status(cls):
+        """{run: its odometry's newest values}, for the runs that sent one."""
+        return {run: w.get("odometry") for run, w in cls.diagnostics.items() if "odometry" in w.values}
+
+    @classmethod
     def setUpClass(cls):
         cls.tmp, mission = make_mission("uwms_ned_nav_", MISSION)
         cls.frames = bag_frames(os.path.join(mission, "a.bag"), TOPICS)
         cls.lock = threading.Lock()
         cls.poses = {run: [] for run in RUNS}
         cls.keyframes = {run: [] for run in RUNS}
-        cls.status = {}
-
-        def on_diagnostics(msg):
-            for s in msg.status:
-                name = "/" + s.name.lstrip("/")
-                for run in RUNS:
-                    if name.startswith("/%s/" % run) and name.endswith(": odometry"):
-                        with cls.lock:
-                            cls.status[run] = diagnostic_values(s)
-
+        cls.diagnostics = {run: DiagnosticsWatch(("odometry",), cls.lock, namespace=run) for run in RUNS}
         cls.subs = [rospy.Subscriber("/%s/odometry/pose" % run, PoseWithCovarianceStamped,
                                      appender(cls.lock, cls.poses[run]), queue_size=1000) for run in RUNS]
         cls.subs += [rospy.Subscriber("/%s/keyframes" % run, Keyframe, appender(cls.lock, cls.keyframes[run]),
                                       queue_size=1000) for run in RUNS]
-        cls.subs.append(rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100))
+        cls.subs += cls.diagnostics.values()
         cls.pubs = {run: [rospy.Publisher("/%s%s" % (run, t), m, queue_size=100)
                           for t, m in zip(TOPICS, (Image, CameraInfo, Range, Odometry))] for run in RUNS}
         wait_for_subscribers(["/%s%s" % (run, t) for run in RUNS for t in TOPICS], "/check_ned_nav")
@@ -112,10 +107,10 @@ class NedNavTest(unittest.TestCase):
                 info_pub.publish(info)
                 image_pub.publish(image)
             # Each frame finished by every node before the next (a node never skips or waits).
-            cls.await_condition(lambda: all(cls.status.get(run, {}).get("frames_finished", 0) >= i + 1
+            cls.await_condition(lambda: all(cls.status().get(run, {}).get("frames_finished", 0) >= i + 1
                                             for run in RUNS), 30.0, "frame %d finished" % i)
         with cls.lock:
-            cls.final = dict(cls.status)
+            cls.final = cls.status()
 
     @classmethod
     def tearDownClass(cls):
@@ -123,7 +118,7 @@ class NedNavTest(unittest.TestCase):
 
     @classmethod
     def await_condition(cls, condition, timeout, what):
-        await_condition(cls.lock, condition, timeout, what, lambda: "; statuses %s" % cls.status)
+        await_condition(cls.lock, condition, timeout, what, lambda: "; statuses %s" % cls.status())
 
     def test_the_ned_nav_is_read_and_used(self):
         for run in RUNS:

@@ -28,9 +28,8 @@ import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose2D
-from pipeline_fixture import await_condition, connected, diagnostic_values, make_mission, synthetic_keyframe, tool
+from pipeline_fixture import DiagnosticsWatch, await_condition, connected, make_mission, synthetic_keyframe, tool
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
 from nav_msgs.msg import Path
 from uw_multislam.srv import AddLink, DeleteSession, DetectLoops, FinishSession, History, JoinSessions, ListSessions, Optimise, SetMode, SplitSession
@@ -47,8 +46,7 @@ class OperatorServicesTest(unittest.TestCase):
         self.tmp = tempfile.mkdtemp(prefix="uwms_operator_")
         self.db = os.path.join(self.tmp, "store.db")
         self.lock = threading.RLock()  # await_condition holds it while optimisations() takes it
-        self.status = {}
-        self.diag_sub = rospy.Subscriber("/diagnostics", DiagnosticArray, self.on_diagnostics, queue_size=100)
+        self.diagnostics = DiagnosticsWatch(("backend",), self.lock)
         self.node = None
 
     def start_backend(self, db, backend_params=None, name="backend_node", args=()):
@@ -61,7 +59,7 @@ class OperatorServicesTest(unittest.TestCase):
         threading.Thread(target=lambda: self.lines.extend(self.node.stdout), daemon=True).start()
 
     def tearDown(self):
-        self.diag_sub.unregister()
+        self.diagnostics.unregister()
         if self.node is not None and self.node.poll() is None:
             self.node.send_signal(signal.SIGINT)  # a clean exit unregisters its topics from the master
             try:
@@ -73,20 +71,13 @@ class OperatorServicesTest(unittest.TestCase):
             rospy.delete_param(NS + "/slam")
         shutil.rmtree(self.tmp, ignore_errors=True)
 
-    def on_diagnostics(self, msg):
-        for s in msg.status:
-            if s.name.endswith(": backend"):
-                with self.lock:
-                    self.status = diagnostic_values(s)
-
     def sessions(self):
         res = rospy.ServiceProxy(NS + "/list_sessions", ListSessions)()
         self.assertEqual(res.status.code, Status.OK)
         return {s.session: (s.state, s.map, s.num_keyframes, s.num_loops) for s in res.sessions}
 
     def optimisations(self):
-        with self.lock:
-            return int(self.status.get("optimisations", -1))
+        return int(self.diagnostics.get().get("optimisations", -1))
 
     def stop_backend(self):
         self.node.send_signal(signal.SIGINT)
@@ -158,7 +149,7 @@ class OperatorServicesTest(unittest.TestCase):
         due = optimise()
         self.assertEqual((due.status.code, due.maps), (Status.OK, 1), due.status.message)
         await_condition(self.lock, lambda: self.optimisations() == solved + 1, 30, "the optimisation",
-                        lambda: ": %s" % self.status)
+                        lambda: ": %s" % self.diagnostics.get())
         again = optimise()
         self.assertEqual((again.status.code, again.maps), (Status.OK, 0), again.status.message)
 
@@ -323,7 +314,7 @@ class OperatorServicesTest(unittest.TestCase):
         self.assertEqual((res.status.code, res.session), (Status.OK, 1), res.status.message)
         self.assertEqual(sorted(self.sessions()), [0])
         self.assertEqual(self.sessions()[0][3], 0)  # the link went with it
-        await_condition(self.lock, lambda: self.status.get("sessions_deleted") == 1, 30, "sessions_deleted")
+        await_condition(self.lock, lambda: self.diagnostics.get().get("sessions_deleted") == 1, 30, "sessions_deleted")
         await_condition(self.lock, lambda: paths[-1] == 0, 30, "the emptied path", lambda: ": %s" % paths)
         path_sub.unregister()
         entries = rospy.ServiceProxy(NS + "/history", History)(0).entries
@@ -361,7 +352,7 @@ class OperatorServicesTest(unittest.TestCase):
                          (0, "set_mode localisation -> OK, localisation mode"), tool_says)
         res = set_mode("localization")  # again, in the ROS world's spelling: OK, said
         self.assertEqual((res.status.code, res.mode), (Status.OK, "localisation"), res.status.message)
-        await_condition(self.lock, lambda: self.status.get("mode") == "localisation", 30, "mode on /diagnostics")
+        await_condition(self.lock, lambda: self.diagnostics.get().get("mode") == "localisation", 30, "mode on /diagnostics")
         local = Loop(kind=Loop.LOCAL, session_a=1, keyframe_a=0, session_b=1, keyframe_b=4, pose=Pose2D(2.0, 0, 0),
                      covariance=COV, inliers=80)
         across = Loop(kind=Loop.GLOBAL, session_a=0, keyframe_a=2, session_b=1, keyframe_b=2,
@@ -383,7 +374,7 @@ class OperatorServicesTest(unittest.TestCase):
         # ~mode at start: nothing written from the start; the localisation session was never stored.
         self.start_backend(self.db, name="localising_node", args=["_mode:=localisation"])
         rospy.wait_for_service(NS + "/list_sessions", timeout=60)
-        await_condition(self.lock, lambda: self.status.get("mode") == "localisation", 30, "mode on /diagnostics")
+        await_condition(self.lock, lambda: self.diagnostics.get().get("mode") == "localisation", 30, "mode on /diagnostics")
         self.assertEqual(sorted(self.sessions()), [0])
         self.stop_backend()
         self.assertEqual(md5(self.db), stored, "a start in localisation mode changed the store")

@@ -27,8 +27,7 @@ import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
-from pipeline_fixture import NS, SENSOR_TOPICS, diagnostic_values, tool, wait_for_subscribers, wait_until_quiet
+from pipeline_fixture import NS, SENSOR_TOPICS, DiagnosticsWatch, tool, wait_for_subscribers, wait_until_quiet
 from std_srvs.srv import SetBool
 from uw_multislam.msg import Keyframe
 from uw_multislam.srv import ListSessions
@@ -73,7 +72,7 @@ class RealSurveyTest(unittest.TestCase):
         run = os.path.join(cls.tmp, "run")
         offline = subprocess.Popen([tool("offline_slam"), "--session", folder, "--out", run, "--quiet"])
         cls.lock = threading.Lock()
-        cls.keyframes, cls.odometry = [], {}
+        cls.keyframes = []
         cls.last_message = time.time()
 
         def on_keyframe(msg):
@@ -81,14 +80,8 @@ class RealSurveyTest(unittest.TestCase):
                 cls.keyframes.append(msg)
                 cls.last_message = time.time()
 
-        def on_diagnostics(msg):
-            for s in msg.status:
-                if s.name.endswith(": odometry"):
-                    with cls.lock:
-                        cls.odometry.update(diagnostic_values(s))
-
-        cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, on_keyframe, queue_size=1000),
-                    rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)]
+        cls.diagnostics = DiagnosticsWatch(("odometry",), cls.lock)
+        cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, on_keyframe, queue_size=1000), cls.diagnostics]
         wait_for_subscribers(SENSOR_TOPICS + [NS + "/keyframes"], "/check_real_survey")
         started = time.time()
         cls.pauses = cls.play(bag)
@@ -110,7 +103,8 @@ class RealSurveyTest(unittest.TestCase):
         paused, pauses, deadline = False, 0, time.time() + 300
         while player.poll() is None and time.time() < deadline:
             with cls.lock:
-                waiting = cls.odometry.get("queue_length", 0) + cls.odometry.get("images_waiting_pairing", 0)
+                odometry = cls.diagnostics.get("odometry")
+                waiting = odometry.get("queue_length", 0) + odometry.get("images_waiting_pairing", 0)
             wanted = waiting > (WAITING_MIN if paused else WAITING_MAX)
             if wanted != paused:
                 try:
@@ -132,7 +126,7 @@ class RealSurveyTest(unittest.TestCase):
     def test_one_session_with_the_keyframes_and_poses_of_offline_slam(self):
         with self.lock:
             got = list(self.keyframes)
-            odometry = dict(self.odometry)
+            odometry = dict(self.diagnostics.get("odometry"))
         rospy.loginfo("real survey: %d keyframes live in %.1f s (the player paused %d times); odometry %s", len(got),
                       self.live_s, self.pauses,
                       {k: odometry.get(k) for k in ("images_received", "frames_finished", "sessions",

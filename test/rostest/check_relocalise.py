@@ -24,11 +24,10 @@ import unittest
 import rospkg
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from sensor_msgs.msg import CameraInfo, Image, Range
 from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, compose, connected,
-                              diagnostic_values, invert, make_mission, mount_of_params, stop_launch, tool,
+                              DiagnosticsWatch, invert, make_mission, mount_of_params, stop_launch, tool,
                               vehicle_from_camera)
 from uw_multislam.msg import Keyframe
 from uw_multislam.srv import ListSessions
@@ -72,24 +71,15 @@ class RelocaliseTest(unittest.TestCase):
 
     def test_relocalises_within_three_keyframes_to_two_centimetres(self):
         lock = threading.RLock()
-        keyframes, relocalised, poses, status = [], [], [], {}
-
-        def on_diag(msg):
-            for s in msg.status:
-                for node in ("loop_detector", "backend", "odometry"):
-                    if s.name.endswith(": " + node):
-                        with lock:
-                            status[node] = diagnostic_values(s)
-                            if node == "backend":
-                                status["relocalised"] = s.values and {v.key: v.value for v in s.values}.get(
-                                    "relocalised")
+        keyframes, relocalised, poses = [], [], []
 
         subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, appender(lock, keyframes), queue_size=1000),
                 rospy.Subscriber(NS + "/relocalised_pose", PoseWithCovarianceStamped, appender(lock, relocalised),
                                  queue_size=1000),
                 rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, appender(lock, poses),
                                  queue_size=1000),
-                rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)]
+                DiagnosticsWatch(("loop_detector", "backend", "odometry"), lock)]
+        status = subs[-1].values  # status name -> its newest values
         with open(os.path.join(self.tmp, "out0", "trajectory.csv")) as f:
             stored = sum(1 for r in csv.DictReader(f) if r["session"] == "0")
         self.assertGreater(stored, 10)
@@ -122,7 +112,7 @@ class RelocaliseTest(unittest.TestCase):
             by_stamp = {k.header.stamp: k for k in keyframes}
             self.assertIn(first.header.stamp, by_stamp, "relocalised_pose is stamped with a keyframe's stamp")
             kf = by_stamp[first.header.stamp]
-            self.assertEqual(status["relocalised"], "session %d in map 0" % session)
+            self.assertEqual(status["backend"]["relocalised"], "session %d in map 0" % session)
             self.assertEqual(status["backend"]["relocalised_map"], 0.0)
             self.assertEqual(status["backend"]["relocalised_poses_published"], len(relocalised))
 

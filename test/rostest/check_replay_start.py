@@ -20,9 +20,8 @@ import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, diagnostic_values, make_mission,
+from pipeline_fixture import (NS, SENSOR_TOPICS, appender, await_condition, bag_frames, DiagnosticsWatch, make_mission,
                               stop_launch)
 from uw_multislam.msg import Keyframe
 
@@ -40,18 +39,15 @@ class ReplayStartTest(unittest.TestCase):
         bag = os.path.join(self.mission, "s0.bag")
         images = [image.header.stamp for (image,) in bag_frames(bag, SENSOR_TOPICS[:1])]
         lock = threading.Lock()
-        keyframes, poses, odometry = [], [], {}
-
-        def on_diag(msg):
-            for s in msg.status:
-                if s.name.endswith(": odometry"):
-                    with lock:
-                        odometry.update(diagnostic_values(s))
-
+        keyframes, poses = [], []
         subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, appender(lock, keyframes), queue_size=1000),
                 rospy.Subscriber(NS + "/odometry/pose", PoseWithCovarianceStamped, appender(lock, poses),
                                  queue_size=1000),
-                rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=100)]
+                DiagnosticsWatch(("odometry",), lock)]
+
+        def odometry():  # its newest status
+            return subs[-1].get("odometry")
+
         store = os.path.join(self.tmp, "sessions.db")
         log = open(os.path.join(self.tmp, "launch.log"), "w")
         self.launch = subprocess.Popen(["roslaunch", "uw_multislam", "replay.launch", "bag:=" + bag, "delay:=0",
@@ -61,17 +57,17 @@ class ReplayStartTest(unittest.TestCase):
         # The bag is over when the odometry's pose of its last image is out (every processed frame has
         # one); the diagnostics (every second) then count what the odometry received.
         await_condition(lock, lambda: any(p.header.stamp == images[-1] for p in poses), 120,
-                        "the odometry's pose of the bag's last image", lambda: ": %s" % odometry)
+                        "the odometry's pose of the bag's last image", lambda: ": %s" % odometry())
         # Every image received is finished or was passed over for a newer one (~drop_policy newest, on a
         # loaded machine): the odometry is done with the bag.
-        await_condition(lock, lambda: odometry.get("frames_finished", -1) + odometry.get("skipped_for_newest", 0) +
-                        odometry.get("dropped_queue_full", 0) == odometry.get("images_received") and
-                        odometry.get("frames_finished", 0) >= len(poses), 10,
-                        "the odometry's diagnostics after the last image", lambda: ": %s" % odometry)
+        await_condition(lock, lambda: odometry().get("frames_finished", -1) + odometry().get("skipped_for_newest", 0) +
+                        odometry().get("dropped_queue_full", 0) == odometry().get("images_received") and
+                        odometry().get("frames_finished", 0) >= len(poses), 10,
+                        "the odometry's diagnostics after the last image", lambda: ": %s" % odometry())
         for s in subs:
             s.unregister()
         with lock:
-            received = int(odometry["images_received"])
+            received = int(odometry()["images_received"])
             first = [k for k in keyframes if k.session == 0 and k.keyframe == 0]
         rospy.loginfo("replay_start (wait_for_odometry %s): the odometry received %d of the bag's %d images; "
                       "session 0 starts at image %s", self.wait, received, len(images),

@@ -23,10 +23,9 @@ import unittest
 import rosgraph
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
-from pipeline_fixture import (NS, SENSOR_TOPICS, SURVEY, chain_covariance, diagnostic_values, make_mission, matmul3,
-                              planar_covariance, tool, vehicle_from_camera, wait_for_subscribers, wait_until_quiet,
-                              connected)
+from pipeline_fixture import (NS, SENSOR_TOPICS, SURVEY, DiagnosticsWatch, chain_covariance, make_mission, matmul3,
+                              planar_covariance, status_values, tool, vehicle_from_camera, wait_for_subscribers,
+                              wait_until_quiet, connected)
 import rosnode
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
@@ -50,28 +49,6 @@ assert EXACT_SURVEY.count("altimeter_noise_m: 0") == 2 and "1.625" in EXACT_SURV
 def read_csv(path):
     with open(path) as f:
         return list(csv.DictReader(f))
-
-
-def await_diagnostics(is_status, key, timeout=30.0):
-    """The values of the /diagnostics statuses whose name is_status(name) accepts, merged, once
-    `key` is among them; what came within `timeout` seconds otherwise."""
-    got = {}
-    cond = threading.Condition()
-
-    def on_diagnostics(msg):
-        with cond:
-            for st in msg.status:
-                if is_status(st.name):
-                    got.update({kv.key: kv.value for kv in st.values})
-            cond.notify_all()
-
-    sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
-    try:
-        with cond:
-            cond.wait_for(lambda: key in got, timeout=timeout)
-    finally:
-        sub.unregister()
-    return got
 
 
 class SlamPipelineTest(unittest.TestCase):
@@ -254,7 +231,7 @@ class SlamPipelineTest(unittest.TestCase):
         every other test of this suite holds (the same loops as offline_slam). Without a store
         nothing is paged."""
         live = bool(rospy.get_param("~live_paging", False))
-        got = await_diagnostics(lambda name: name.endswith(": loop_detector"), "keyframes_paged_live")
+        got = status_values("loop_detector", lambda v: "keyframes_paged_live" in v, 30.0) or {}
         self.assertIn("keyframes_paged_live", got, "no loop detector diagnostics")
         paged, misses = int(float(got["keyframes_paged_live"])), int(float(got["feature_cache_misses"]))
         print("live_paging %s: %d live keyframes paged out, %d read back, %s read failures" %
@@ -273,9 +250,7 @@ class SlamPipelineTest(unittest.TestCase):
         test of this suite holds: the same keyframes, loops and maps as offline_slam. With the
         default 0 none is."""
         threads = int(rospy.get_param("~prepare_threads", 0))
-        got = await_diagnostics(
-            lambda name: name.split(":")[0].split("/")[-1] == "odometry_node" and name.endswith("odometry"),
-            "prepared_ahead")
+        got = status_values("odometry", lambda v: "prepared_ahead" in v, 30.0, node="odometry_node") or {}
         self.assertIn("prepared_ahead", got, "no odometry diagnostics")
         prepared, frames = int(got["prepared_ahead"]), int(got["frames_processed"])
         print("prepare_threads %d: %d of %d frames prepared ahead" % (threads, prepared, frames))
@@ -297,29 +272,17 @@ class SlamPipelineTest(unittest.TestCase):
             global_ = len(self.loops) - local
         expected = ({"local_loops_node": ("local", local, 0), "global_loops_node": ("global", 0, global_)} if split
                     else {"loop_detector_node": ("both", local, global_)})
-        seen = {}
-        cond = threading.Condition()
 
-        def on_diagnostics(msg):
-            with cond:
-                for st in msg.status:
-                    node = st.name.split(":")[0].split("/")[-1]
-                    if node in expected or node == "backend_node":
-                        seen[node] = {kv.key: kv.value for kv in st.values}
-                cond.notify_all()
-
-        def done():
+        def done(seen):
             return (all(n in seen and (seen[n]["mode"], int(seen[n]["local_loops"]), int(seen[n]["global_loops"])) == e
                         for n, e in expected.items())
                     and "backend_node" in seen and int(seen["backend_node"]["loops_received"]) == local + global_)
 
-        sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
+        watch = DiagnosticsWatch(("loop_detector", "backend"), by_node=True)
         try:
-            with cond:
-                cond.wait_for(done, timeout=30)
-                got = dict(seen)
+            got = watch.await_values(None, done, 30)
         finally:
-            sub.unregister()
+            watch.unregister()
         self.assertGreaterEqual(local, 5)
         self.assertGreaterEqual(global_, 5)
         for node, (mode, n_local, n_global) in expected.items():
@@ -354,19 +317,9 @@ class SlamPipelineTest(unittest.TestCase):
                  (Image(encoding="mono8", width=0, height=0, step=0, data=b""), good_info),
                  (Image(encoding="mono8", width=240, height=180, step=240, data=bytes(range(240)) * 180),
                   CameraInfo(width=240, height=180, K=[0] * 9))]
-        statuses = []
-        cond = threading.Condition()
-
-        def on_diagnostics(msg):
-            with cond:
-                statuses.extend(diagnostic_values(st) for st in msg.status if st.name.endswith(": odometry"))
-                cond.notify_all()
-
-        diagnostics = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
+        watch = DiagnosticsWatch(("odometry",))
         kinds = ("skipped_encoding", "skipped_empty_image", "skipped_camera_info")
-        with cond:
-            cond.wait_for(lambda: statuses, timeout=20)
-            start = dict(statuses[-1]) if statuses else None
+        start = watch.await_values("odometry")
         self.assertIsNotNone(start, "no odometry status on /diagnostics")
         for i, (image, info) in enumerate(cases):
             image.header.stamp = info.header.stamp = stamp + rospy.Duration(i)
@@ -376,10 +329,8 @@ class SlamPipelineTest(unittest.TestCase):
                 p.publish(m)
             time.sleep(0.5)
         # Until the odometry has counted each bad frame as skipped (its worker is done with them).
-        with cond:
-            cond.wait_for(lambda: all(statuses[-1][k] >= start[k] + 1 for k in kinds), timeout=30)
-            end = dict(statuses[-1])
-        diagnostics.unregister()
+        end = watch.await_values("odometry", lambda v: all(v[k] >= start[k] + 1 for k in kinds), 30)
+        watch.unregister()
         self.assertEqual([end[k] - start[k] for k in kinds], [1, 1, 1])
         with self.lock:
             self.assertEqual(len(self.poses), poses_before, "a bad frame was processed")

@@ -27,8 +27,7 @@ import unittest
 
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
-from pipeline_fixture import (NS, SENSOR_TOPICS, await_condition, backend_pid, diagnostic_values,
+from pipeline_fixture import (NS, SENSOR_TOPICS, await_condition, backend_pid, DiagnosticsWatch,
                               kill_backend_and_await_respawn, make_mission, wait_for_subscribers, wait_until_quiet)
 from uw_multislam.msg import Keyframe, Loop, SessionState, Status
 from uw_multislam.srv import JoinSessions, ListSessions, ReloadSession, SplitSession
@@ -53,17 +52,8 @@ class StoreTest(unittest.TestCase):
         cls.subs = [rospy.Subscriber(NS + "/keyframes", Keyframe, keep(cls.keyframes), queue_size=1000),
                     rospy.Subscriber(NS + "/loops", Loop, keep(cls.loops), queue_size=1000),
                     rospy.Subscriber(NS + "/reloaded_keyframes", Keyframe, keep(cls.reloaded), queue_size=1000)]
-        cls.detector, cls.backend = {}, {}
-
-        def on_diagnostics(msg):
-            for st in msg.status:
-                if st.name.endswith(": loop_detector"):
-                    with cls.lock:
-                        cls.detector = diagnostic_values(st)
-                elif st.name.endswith(": backend"):
-                    with cls.lock:
-                        cls.backend = diagnostic_values(st)
-        cls.subs.append(rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100))
+        cls.diagnostics = DiagnosticsWatch(("loop_detector", "backend"), cls.lock)
+        cls.subs.append(cls.diagnostics)
         cls.list = rospy.ServiceProxy(NS + "/list_sessions", ListSessions, persistent=False)
         cls.reload = rospy.ServiceProxy(NS + "/reload_session", ReloadSession, persistent=False)
         rospy.wait_for_service(NS + "/list_sessions", timeout=60)
@@ -83,8 +73,8 @@ class StoreTest(unittest.TestCase):
                     # keyframes_received counts them as it takes them, in order): on a loaded machine a
                     # fixed pause does not bring them there, and the store would then rightly lack
                     # keyframes that were still on their way.
-                    await_condition(cls.lock, lambda: cls.backend.get("keyframes_received", 0) >= n, 60,
-                                    "the back-end to take %d keyframes" % n, lambda: ": %s" % cls.backend)
+                    await_condition(cls.lock, lambda: cls.diagnostics.get().get("keyframes_received", 0) >= n, 60,
+                                    "the back-end to take %d keyframes" % n, lambda: ": %s" % cls.diagnostics.get())
                     cls.killed_after = n
                     os.kill(pid, signal.SIGKILL)
                     cls.killed_pid = pid
@@ -98,6 +88,10 @@ class StoreTest(unittest.TestCase):
         rospy.wait_for_service(NS + "/list_sessions", timeout=60)
         cls.after_restart = cls.sessions()
         cls.stored_rows = cls.read_store(cls.after_restart[0].name) if 0 in cls.after_restart else None
+
+    def detector(self):
+        """The loop detector's newest status."""
+        return self.diagnostics.get("loop_detector")
 
     @classmethod
     def tearDownClass(cls):
@@ -206,11 +200,11 @@ class StoreTest(unittest.TestCase):
         with_features = len(self.stored_rows)
         # The loop detector held session 0 from the live replay (only the back-end was killed): the
         # reload's keyframes are duplicates it skips.
-        await_condition(self.lock, lambda: self.detector.get("keyframes_reloaded", 0) +
-                        self.detector.get("keyframes_reloaded_again", 0) >= with_features, 30,
-                        "the reloaded keyframes in the loop detector", lambda: ": %s" % self.detector)
+        await_condition(self.lock, lambda: self.detector().get("keyframes_reloaded", 0) +
+                        self.detector().get("keyframes_reloaded_again", 0) >= with_features, 30,
+                        "the reloaded keyframes in the loop detector", lambda: ": %s" % self.detector())
         with self.lock:
-            held, reloaded = self.detector["keyframes_stored"], self.detector["keyframes_reloaded"]
+            held, reloaded = self.detector()["keyframes_stored"], self.detector()["keyframes_reloaded"]
         before = self.sessions()
         res = unload("0")
         self.assertEqual((res.status.code, res.session), (Status.OK, 0), res.status.message)
@@ -223,11 +217,11 @@ class StoreTest(unittest.TestCase):
         with self.lock:
             live = len({k.keyframe for k in self.keyframes if k.session == 0})
         self.assertGreaterEqual(live, with_features)
-        await_condition(self.lock, lambda: self.detector.get("keyframes_unloaded") == live, 30,
-                        "the loop detector to forget session 0", lambda: ": %s" % self.detector)
+        await_condition(self.lock, lambda: self.detector().get("keyframes_unloaded") == live, 30,
+                        "the loop detector to forget session 0", lambda: ": %s" % self.detector())
         with self.lock:
-            self.assertEqual(self.detector["keyframes_stored"], held - live, self.detector)
-            self.assertEqual(self.detector["sessions_unloaded"], 1)
+            self.assertEqual(self.detector()["keyframes_stored"], held - live, self.detector())
+            self.assertEqual(self.detector()["sessions_unloaded"], 1)
         for name, code, why in (("0", Status.FAILED_PRECONDITION, "not loaded"),
                                 ("no_such_session", Status.NOT_FOUND, "no_such_session"),
                                 ("1", Status.FAILED_PRECONDITION, "recorded in this run")):
@@ -239,10 +233,10 @@ class StoreTest(unittest.TestCase):
         # Back again: every stored keyframe reaches the loop detector once more, now held anew.
         res = self.reload("0")
         self.assertEqual(res.status.code, Status.OK, res.status.message)
-        await_condition(self.lock, lambda: self.detector.get("keyframes_stored") == held - live + with_features, 30,
-                        "session 0 held again", lambda: ": %s" % self.detector)
+        await_condition(self.lock, lambda: self.detector().get("keyframes_stored") == held - live + with_features, 30,
+                        "session 0 held again", lambda: ": %s" % self.detector())
         with self.lock:
-            self.assertEqual(self.detector["keyframes_reloaded"], reloaded + with_features, self.detector)
+            self.assertEqual(self.detector()["keyframes_reloaded"], reloaded + with_features, self.detector())
 
     def kill_backend_and_wait_for_respawn(self):
         kill_backend_and_await_respawn(self, "/check_store")

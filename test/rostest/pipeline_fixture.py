@@ -316,25 +316,76 @@ def publisher_connected(node, topic, caller="/rostest_bus_info"):
     return bool(subscribed) and subscribed <= open_to
 
 
+class DiagnosticsWatch:
+    """The newest values (diagnostic_values: numbers as floats) of each /diagnostics status named
+    "<node>: <name>" for a name in `names`, kept in `values` under `lock`: the caller's, so that
+    await_condition can join them with its own messages (a new lock when None). `values` is keyed
+    by the status's name ({"backend": {...}}), or with by_node by its node's own name
+    ({"local_loops_node": {...}}: two nodes with a status of the same name); a key is absent until
+    its first status. With `namespace` ("auv_a"), only nodes under /auv_a/. With `history`, also
+    every status's values in order, in history ({key: [values, ...]}). The nodelets publish their
+    status once a second; unregister() unsubscribes."""
+
+    def __init__(self, names=("backend",), lock=None, namespace=None, by_node=False, history=False):
+        self.names, self.namespace, self.by_node = set(names), namespace, by_node
+        self.lock = lock if lock is not None else threading.Lock()
+        self.values = {}
+        self.history = {} if history else None
+        self._changed = threading.Condition(self.lock)
+        self._sub = rospy.Subscriber("/diagnostics", DiagnosticArray, self._on_diagnostics, queue_size=100)
+
+    def _on_diagnostics(self, msg):
+        with self._changed:
+            for s in msg.status:
+                node, _, name = s.name.rpartition(": ")
+                if name in self.names and (self.namespace is None or
+                                           node.lstrip("/").startswith(self.namespace + "/")):
+                    key = node.split("/")[-1] if self.by_node else name
+                    self.values[key] = diagnostic_values(s)
+                    if self.history is not None:
+                        self.history.setdefault(key, []).append(self.values[key])
+            self._changed.notify_all()
+
+    def get(self, key="backend"):
+        """The newest values under `key` ({} before its first status). Each status's values are
+        replaced, never changed in place: read with or without the lock (await_condition's
+        conditions hold it)."""
+        return self.values.get(key, {})
+
+    def await_values(self, key="backend", condition=lambda v: True, timeout=20.0):
+        """The first values under `key` for which condition(values) holds, or the newest seen when
+        none did within `timeout` seconds (None when none came). With key None, condition and the
+        answer are about all of `values` (a copy)."""
+        def current():
+            return dict(self.values) if key is None else self.values.get(key)
+
+        deadline = time.time() + timeout
+        with self._changed:
+            while not (current() is not None and condition(current())):
+                left = deadline - time.time()
+                if left <= 0:
+                    break
+                self._changed.wait(min(left, 0.2))
+            found = current()
+            return dict(found) if found is not None else None
+
+    def unregister(self):
+        """As a rospy.Subscriber's: a watch can join a test's list of subscriptions."""
+        self._sub.unregister()
+
+
+def status_values(name="backend", condition=lambda v: True, timeout=20.0, namespace=None, node=None):
+    """DiagnosticsWatch.await_values on a watch of its own, unregistered after: for a test that
+    needs one status once, not a subscription kept through the test. With `node` ("odometry_node"),
+    only that node's status `name`."""
+    watch = DiagnosticsWatch((name,), namespace=namespace, by_node=node is not None)
+    try:
+        return watch.await_values(name if node is None else node, condition, timeout)
+    finally:
+        watch.unregister()
+
+
 def backend_values(condition=lambda v: True, timeout=20.0):
     """The values of the first back-end status on /diagnostics (published every second) for which
     condition(values) holds, or of the last one seen when none did within `timeout` seconds."""
-    seen = []
-    cond = threading.Condition()
-
-    def on_diagnostics(msg):
-        with cond:
-            for s in msg.status:
-                if s.name.endswith(": backend"):
-                    seen.append({kv.key: kv.value for kv in s.values})
-                    cond.notify_all()
-
-    sub = rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=100)
-    try:
-        deadline = time.time() + timeout
-        with cond:
-            while time.time() < deadline and not (seen and condition(seen[-1])):
-                cond.wait(0.2)
-            return seen[-1] if seen else None
-    finally:
-        sub.unregister()
+    return status_values("backend", condition, timeout)

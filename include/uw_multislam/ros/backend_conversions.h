@@ -48,6 +48,8 @@ uw_multislam::Keyframe reloadedKeyframeMsg(const core::ReloadedSession& session,
 /// detect_loops' answer: the search's counts and the joins it brought about.
 uw_multislam::DetectLoops::Response toDetectLoopsResponse(const core::Status& st, const core::StoredLoopSearch& f,
                                                           int joins);
+/// The same counts as the back-end's log line: the status ("OK" or its full message) and each count named.
+std::string detectLoopsLine(const core::Status& st, const core::StoredLoopSearch& f, int joins);
 /// One session of list_sessions.
 uw_multislam::SessionState toSessionStateMsg(const core::SessionSummary& s);
 /// One entry of the audit trail (history service).

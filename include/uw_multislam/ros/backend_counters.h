@@ -4,12 +4,20 @@
 // test/ros/test_diagnostics.cpp checks it against the tables.
 #pragma once
 
+#include "uw_multislam/core/session/session_worker.h"
 #include "uw_multislam/ros/diagnostics.h"
 
 namespace uw_multislam {
-namespace core {
-class SessionQueries;
+namespace ros_frames {
+struct FrameStats;
 }
+namespace ros_mosaic {
+struct MosaicStats;
+}
+namespace ros_fleet {
+struct HashExchangeStats;
+struct PeerStats;
+}  // namespace ros_fleet
 namespace ros_diagnostics {
 
 struct BackendCounters {
@@ -55,8 +63,34 @@ const CounterTable<FleetCounters>& fleetCounterTable();
 /// local FleetCounters is used uninitialised when the table's std::visit is inlined into the caller).
 std::vector<Counter> fleetCounters(const FleetCounters& c);
 
+/// The fleet rows from the hash exchange (what crossed the link, per direction) and the feature
+/// requests forwarded to the other vehicles.
+std::vector<Counter> fleetCounters(const ros_fleet::HashExchangeStats& x, const ros_fleet::PeerStats& p);
+
 /// The session manager's and its back-end's counters into `c` (call under the worker's lock).
 void setManagerCounters(const core::SessionQueries& manager, BackendCounters* c);
+
+/// The worker's queue into `c`, with the keyframes and loops the nodelet refused before they reached
+/// it (unreadable messages); and the newest handover of the stored keyframes to a loop detector
+/// (reloaded_keyframes): its progress while it runs (sent of total), then how long it took.
+void setWorkerCounters(const core::SessionWorkerStats& w, const core::HandoverStats& h, long bad_keyframes,
+                       long bad_loops, BackendCounters* c);
+
+/// map -> odom as the frame publisher counts it.
+void setFrameCounters(const ros_frames::FrameStats& f, BackendCounters* c);
+
+/// The active session's relocalisation in a stored map (relocalised_*).
+void setRelocalisationCounters(const core::RelocalisationTracker::State& r, BackendCounters* c);
+
+/// The back-end status's values beside its counters (doc/diagnostics.md): `optimizer`, `store` (its
+/// path, or none), `mode` (mapping or localisation), `relocalised` ("session S in map M", or "no").
+/// Call under the worker's lock.
+void addBackendValues(diagnostic_updater::DiagnosticStatusWrapper& stat, const core::SessionQueries& m,
+                      const std::string& optimizer, const std::string& store_path,
+                      const core::RelocalisationTracker::State& r);
+
+/// The live mosaic's last drawing and the thumbnails it keeps.
+void setMosaicCounters(const ros_mosaic::MosaicStats& s, BackendCounters* c);
 
 }  // namespace ros_diagnostics
 }  // namespace uw_multislam
