@@ -1,5 +1,6 @@
 // The core library must stay ROS-free (doc/design.md): no file under
-// include/uw_multislam/core or src/core may include a ROS header. This test reads the sources.
+// include/uw_multislam/core or src/core may include a ROS header; and the nodelets stay glue
+// within a line budget. This test reads the sources.
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -108,6 +109,20 @@ TEST(CoreIsRosFree, CoreDoesNotIncludeTheSimulator) {
   std::string report;
   for (const auto& b : bad) report += "  " + b + "\n";
   EXPECT_TRUE(bad.empty()) << "core files including the simulator:\n" << report;
+}
+
+// Nodelets only convert, call and publish (doc/design.md): logic that grows goes into the core, or
+// into src/ros beside what it serves. A budget keeps that visible when a nodelet starts to grow.
+TEST(ThinHeads, EachNodeletStaysWithinItsLineBudget) {
+  constexpr int kBudget = 450;
+  const auto nodelets = sourcesUnder(fs::path(UWMS_SOURCE_DIR) / "src" / "nodelets");
+  ASSERT_GE(nodelets.size(), 3u) << "expected the odometry, loop detector and back-end nodelets";
+  for (const auto& f : nodelets) {
+    std::ifstream in(f);
+    int lines = 0;
+    for (std::string line; std::getline(in, line);) ++lines;
+    EXPECT_LE(lines, kBudget) << f << ": move logic to the core or to src/ros";
+  }
 }
 
 }  // namespace
