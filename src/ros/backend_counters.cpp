@@ -91,6 +91,8 @@ const CounterTable<BackendCounters>& backendCounterTable() {
        "fixes refused: their keyframe has a fix already (one per keyframe)"},
       {"fixes_refused_outlier", &C::fixes_refused_outlier,
        "fixes refused: beyond ~fix/gate_chi2 from their keyframe (a jump, multipath)", kWarn},
+      {"fixes_refused_no_lever_arm", &C::fixes_refused_no_lever_arm,
+       "fixes refused: no static base_link -> their frame in tf (or not on the vehicle)", kWarn},
   };
   return table;
 }

@@ -56,13 +56,12 @@ void FixInput::onFix(const sensor_msgs::NavSatFixConstPtr& msg) {
   const std::optional<Eigen::Vector2d> arm =
       frame.empty() || frame == base_frame_ ? std::optional<Eigen::Vector2d>() : frames_->inBasePlane(frame, &why);
   if (arm) fix.antenna = *arm;
-  if (!why.empty())
-    ROS_WARN_THROTTLE(10, "back-end: no %s -> %s in tf (%s): fixes taken as %s's position until it comes",
-                      base_frame_.c_str(), frame.c_str(), why.c_str(), base_frame_.c_str());
+  fix.antenna_known = why.empty();
+  if (!why.empty()) ROS_WARN_THROTTLE(10, "back-end: fixes in frame '%s' refused: %s", frame.c_str(), why.c_str());
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (arm && frame != said_frame_) {
-      said_frame_ = frame;
+    if (arm && (frame != said_frame_ || *arm != said_arm_)) {
+      said_frame_ = frame, said_arm_ = *arm;
       ROS_INFO("back-end: fixes in frame '%s': its lever arm from %s is (%.3f, %.3f) m", frame.c_str(),
                base_frame_.c_str(), arm->x(), arm->y());
     }
@@ -107,6 +106,7 @@ void FixInput::counters(ros_diagnostics::BackendCounters* c) const {
   c->fixes_refused_map_origin = matcher_.refused(R::kMapOrigin);
   c->fixes_refused_keyframe_has_fix = matcher_.refused(R::kKeyframeHasFix);
   c->fixes_refused_outlier = matcher_.refused(R::kOutlier);
+  c->fixes_refused_no_lever_arm = matcher_.refused(R::kNoLeverArm);
 }
 
 }  // namespace ros_geo

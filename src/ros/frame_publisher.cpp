@@ -77,14 +77,22 @@ void FramePublisher::onCameraFrame(const std::string& frame) {
 }
 
 std::optional<Eigen::Vector2d> FramePublisher::inBasePlane(const std::string& frame, std::string* why) const {
+  // A sensor on the vehicle is a static transform (a URDF's fixed joint, /tf_static). Looked up at
+  // an old time, a chain through a moving frame (map, odom, a session's) cannot be had, while a
+  // static one can at any time: that is what tells them apart.
+  geometry_msgs::Vector3 t;
   try {
-    const geometry_msgs::Vector3 t =
-        mount_buffer_->lookupTransform(options_.mount.base_frame, frame, ros::Time(0)).transform.translation;
-    return Eigen::Vector2d(t.x, t.y);
+    t = mount_buffer_->lookupTransform(options_.mount.base_frame, frame, ros::Time(1)).transform.translation;
   } catch (const tf2::TransformException& e) {
-    *why = e.what();
+    *why = std::string("no static ") + options_.mount.base_frame + " -> " + frame + " in tf: " + e.what();
     return std::nullopt;
   }
+  const Eigen::Vector2d arm(t.x, t.y);
+  if (!(arm.norm() <= kMaxLeverArmM)) {
+    *why = options_.mount.base_frame + " -> " + frame + " is " + std::to_string(arm.norm()) + " m: not on the vehicle";
+    return std::nullopt;
+  }
+  return arm;
 }
 
 core::CameraMount FramePublisher::mount() const {

@@ -135,6 +135,9 @@ class FixInputTest(unittest.TestCase):
         frac = (my - by) / (0.0 - by)
         print("keyframe 4 after the fix: (%.3f, %.3f): moved %.3f of the way, predicted %.3f" % (mx, my, frac, want))
         self.assertLess(math.hypot(mx - 8.0, my), math.hypot(bx - 8.0, by))
+        # Along the leg the fix agrees with the odometry once the antenna's 1.0 m forward is taken off
+        # (left on, keyframe 4 would move about 0.8 m ahead).
+        self.assertAlmostEqual(mx, 8.0, delta=0.1)
         self.assertAlmostEqual(frac, want, delta=0.1)
         # keyframe_fix of that publication: nearer the good fix than before, on the earth too.
         deadline = time.time() + 10

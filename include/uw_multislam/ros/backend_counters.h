@@ -46,7 +46,7 @@ struct BackendCounters {
   long fixes_refused_no_fix = 0, fixes_refused_not_finite = 0, fixes_refused_unknown_covariance = 0,
        fixes_refused_bad_variance = 0, fixes_refused_no_datum = 0, fixes_refused_no_keyframe = 0,
        fixes_refused_other_map = 0, fixes_refused_map_origin = 0, fixes_refused_keyframe_has_fix = 0,
-       fixes_refused_outlier = 0;
+       fixes_refused_outlier = 0, fixes_refused_no_lever_arm = 0;
 };
 
 /// The hash exchange and the feature requests between vehicles (only with fleet/vehicle set).

@@ -2,8 +2,9 @@
 // fixes from a GPS at the surface or a USBL, each matched to the keyframe nearest in stamp and
 // given to the session manager as an absolute position prior with its covariance
 // (core/export/geo_fix.h does the work; this is the glue). A fix is the position of its frame_id
-// (the antenna, the transponder), whose lever arm from base_link tf gives (an empty frame_id or
-// base_link: none; a frame tf does not have: none, WARNed).
+// (the antenna, the transponder), whose lever arm from base_link tf's static transforms give (an
+// empty frame_id or base_link: none; a frame without a static transform, or more than 20 m from
+// base_link: refused, counted fixes_refused_no_lever_arm, WARNed).
 // Refusals are counted by reason (/diagnostics, fixes_refused_*) and WARNed, throttled.
 // Threading: the subscription and a steady timer run on the node's callback thread; the matcher
 // has its own mutex, taken after the worker's lock when both are held.
@@ -56,7 +57,8 @@ class FixInput {
   ros_frames::FramePublisher* frames_;
   mutable std::mutex mutex_;  // guards matcher_ and said_frame_
   core::FixMatcher matcher_;
-  std::string said_frame_;  // the frame whose lever arm was said last
+  std::string said_frame_;  // the frame whose lever arm was said last, and that arm
+  Eigen::Vector2d said_arm_ = Eigen::Vector2d::Zero();
   ros::Subscriber sub_;
   ros::SteadyTimer timer_;  // fixes waiting for a keyframe are tried again
 };

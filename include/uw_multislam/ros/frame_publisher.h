@@ -124,10 +124,11 @@ class FramePublisher {
   }
   /// base_link -> the keyframes' camera frame from tf; the camera at base_link until it is known.
   core::CameraMount mount() const;
-  /// Where `frame`'s origin is in base_link's plane (x forward, y left: tf's base_frame -> frame,
-  /// the latest), e.g. a GPS antenna's or a USBL transponder's lever arm; nullopt, with `why`,
-  /// when tf does not have it. Thread-safe.
+  /// Where `frame`'s origin is in base_link's plane (x forward, y left: tf's static base_frame ->
+  /// frame), e.g. a GPS antenna's or a USBL transponder's lever arm; nullopt, with `why`, when tf
+  /// has no static transform there or it is farther than kMaxLeverArmM. Thread-safe.
   std::optional<Eigen::Vector2d> inBasePlane(const std::string& frame, std::string* why) const;
+  static constexpr double kMaxLeverArmM = 20.0;  // beyond any AUV's length: not a sensor on it
   FrameStats stats() const;
 
  private:

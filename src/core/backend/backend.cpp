@@ -896,6 +896,18 @@ UncertainPose2 MultiSessionBackend::keyframeInMap(int s, int keyframe) const {
   return x;
 }
 
+UncertainPose2 MultiSessionBackend::keyframeChain(int s, int from, int to) const {
+  const Session& session = sessionAt(s);
+  if (from < 0 || from > to || to >= session.keyframes())
+    throw std::invalid_argument("backend: session " + std::to_string(s) + " has no chain from keyframe " +
+                                std::to_string(from) + " to " + std::to_string(to));
+  const Map& m = mapAt(session.map);
+  UncertainPose2 x = UncertainPose2::exact(Pose2());
+  for (int k = offset(m, s) + from; k < offset(m, s) + to; ++k)
+    x = compose(x, UncertainPose2(m.motion(k), m.motionCov(k)));
+  return x;
+}
+
 // --- Session store: export and exact restore ---------------------------------------------------
 
 MapState MultiSessionBackend::mapState(int map) const {

@@ -52,6 +52,8 @@ const char* fixRefusalName(FixRefusal r) {
       return "keyframe_has_fix";
     case FixRefusal::kOutlier:
       return "outlier";
+    case FixRefusal::kNoLeverArm:
+      return "no_lever_arm";
     case FixRefusal::kCount:
       break;
   }
@@ -94,6 +96,12 @@ std::optional<FixRefusal> FixMatcher::add(const NavFix& f, bool have_datum) {
     refuse(FixRefusal::kNotFinite, std::string(at) + ": its lever arm from base_link is not finite");
     return FixRefusal::kNotFinite;
   }
+  // Taken as base_link's position instead, it would be off by the arm for good (stored, and the
+  // keyframe's one fix spent): refused until the arm is known.
+  if (!f.antenna_known) {
+    refuse(FixRefusal::kNoLeverArm, std::string(at) + ": where its frame sits on the vehicle is not known");
+    return FixRefusal::kNoLeverArm;
+  }
   Eigen::Matrix2d c;
   if (f.covariance_type == NavFix::kCovarianceUnknown) {
     if (options_.default_sigma_m <= 0.0) {
@@ -129,6 +137,44 @@ std::optional<FixRefusal> FixMatcher::add(const NavFix& f, bool have_datum) {
   return std::nullopt;
 }
 
+std::optional<std::string> FixMatcher::outOfGate(const SessionQueries& m, const std::vector<PriorRecord>& held,
+                                                 int session, int keyframe, const std::vector<Pose2>& poses,
+                                                 const FixPrior& prior) const {
+  // The prediction: dead-reckoned from the nearest earlier keyframe of the session that has a prior
+  // (that prior's position plus the estimate's displacement since; the chain's covariance between
+  // the two, turned into the map, plus the prior's), else the keyframe's estimate with the chain
+  // from its map's origin. Anchored, the gate stays as tight over a long dive as between two fixes
+  // (the chain from the origin grows with the cube of the distance through yaw), and it does not
+  // wait for the map to be solved with the earlier prior.
+  const PriorRecord* anchor = nullptr;
+  for (const PriorRecord& r : held)
+    if (r.session == session && r.keyframe < keyframe && (anchor == nullptr || r.keyframe > anchor->keyframe))
+      anchor = &r;
+  Eigen::Vector2d predicted = poses[keyframe].translation();
+  Eigen::Matrix2d spread;
+  if (anchor != nullptr) {
+    const Pose2& from = poses[anchor->keyframe];
+    predicted = anchor->position + (predicted - from.translation());
+    const Eigen::Matrix2d turn = Eigen::Rotation2Dd(from.yaw()).toRotationMatrix();
+    const Eigen::Matrix2d chain = m.keyframeChain(session, anchor->keyframe, keyframe).covariance.topLeftCorner<2, 2>();
+    spread = options_.gate_inflation * turn * chain * turn.transpose() + anchor->covariance;
+  } else {
+    spread = options_.gate_inflation * m.keyframeInMap(session, keyframe).covariance.topLeftCorner<2, 2>();
+    if (spread.isZero(0.0)) return std::nullopt;  // its map's origin: the manager refuses it as such
+  }
+  const Eigen::Vector2d nu = prior.position - predicted;
+  const double d2 = nu.dot((spread + prior.covariance).ldlt().solve(nu));
+  if (d2 <= options_.gate_chi2) return std::nullopt;
+  char why[200];
+  std::snprintf(why, sizeof why, "%.2f m from keyframe %d of session %d as %s, chi-square %.1f > ~fix/gate_chi2 %.1f",
+                nu.norm(), keyframe, session,
+                anchor != nullptr
+                    ? ("dead-reckoned from the fix on keyframe " + std::to_string(anchor->keyframe)).c_str()
+                    : "the map places it",
+                d2, options_.gate_chi2);
+  return std::string(why);
+}
+
 std::vector<FixPrior> FixMatcher::match(const SessionQueries& m, const std::optional<GeoOrigin>& datum, int datum_map,
                                         const CameraMount& mount) {
   std::vector<FixPrior> out;
@@ -136,6 +182,7 @@ std::vector<FixPrior> FixMatcher::match(const SessionQueries& m, const std::opti
   double newest = -std::numeric_limits<double>::infinity();
   for (int id : m.sessionIds())
     if (m.has(id) && m.hasKeyframe(id) && !m.stamps(id).empty()) newest = std::max(newest, m.stamps(id).back());
+  const std::vector<PriorRecord> held = options_.gate_chi2 > 0.0 ? m.positionPriors() : std::vector<PriorRecord>();
   std::deque<Waiting> still;
   for (const Waiting& w : waiting_) {
     const NavFix& f = w.fix;
@@ -183,7 +230,8 @@ std::vector<FixPrior> FixMatcher::match(const SessionQueries& m, const std::opti
     // axes. The vehicle keeps the keyframe's current heading, moved so that its antenna is at the
     // fix; the camera follows it.
     const MapPoint p = mapFromFix(*datum, f.lat_deg, f.lon_deg, w.covariance);
-    const Pose2 camera = m.poses(best_session)[best_keyframe];
+    const std::vector<Pose2> poses = m.poses(best_session);
+    const Pose2 camera = poses[best_keyframe];
     const Pose2 vehicle = vehicleFromCamera(camera, mount);
     const Eigen::Vector2d base = p.xy - Eigen::Rotation2Dd(vehicle.yaw()) * f.antenna;
     const Pose2 moved = cameraFromVehicle(Pose2(base.x(), base.y(), vehicle.yaw()), mount);
@@ -195,17 +243,10 @@ std::vector<FixPrior> FixMatcher::match(const SessionQueries& m, const std::opti
     // z-up -> image axes is (x, y) -> (x, -y): the covariance's off-diagonal changes sign.
     const Eigen::Matrix2d flip = Eigen::Vector2d(1.0, -1.0).asDiagonal();
     prior.covariance = flip * p.covariance * flip;
-    // No chain (zero covariance): the keyframe is its map's origin, which the manager refuses as such.
-    const Eigen::Matrix2d chain = m.keyframeInMap(best_session, best_keyframe).covariance.topLeftCorner<2, 2>();
-    if (options_.gate_chi2 > 0.0 && !chain.isZero(0.0)) {
-      const Eigen::Vector2d nu = prior.position - camera.translation();
-      const double d2 = nu.dot((options_.gate_inflation * chain + prior.covariance).ldlt().solve(nu));
-      if (!(d2 <= options_.gate_chi2)) {
-        char why[200];
-        std::snprintf(why, sizeof why,
-                      "%s: %.2f m from keyframe %d of session %d, chi-square %.1f > ~fix/gate_chi2 %.1f", at, nu.norm(),
-                      best_keyframe, best_session, d2, options_.gate_chi2);
-        refuse(FixRefusal::kOutlier, why);
+    if (options_.gate_chi2 > 0.0) {
+      const std::optional<std::string> far = outOfGate(m, held, best_session, best_keyframe, poses, prior);
+      if (far) {
+        refuse(FixRefusal::kOutlier, std::string(at) + ": " + *far);
         continue;
       }
     }

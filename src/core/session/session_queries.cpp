@@ -70,6 +70,10 @@ UncertainPose2 SessionQueries::keyframeInMap(int session, int keyframe) const {
   return t_.backend().keyframeInMap(t_.at(session).backend(), keyframe);
 }
 
+UncertainPose2 SessionQueries::keyframeChain(int session, int from, int to) const {
+  return t_.backend().keyframeChain(t_.at(session).backend(), from, to);
+}
+
 Pose2 SessionQueries::correction(int session) const {
   const SessionTable::Session& s = t_.at(session);
   return compose(t_.backend().sessionPoses(s.backend()).back(), invert(s.odometry.back()));

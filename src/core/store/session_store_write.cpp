@@ -206,6 +206,11 @@ void SessionStore::addPositionPrior(std::int64_t map, const StoredPrior& p) {
     // back-end counts a new prior as pending too).
     Statement due(this, "UPDATE maps SET pending = pending + 1 WHERE id = ?");
     due.bind(1, map).run();
+    // No stored map row to hang it on (a join whose save failed): a restart would drop it silently.
+    if (sqlite3_changes(db_) == 0)
+      throw StoreError("session store " + path_ + ": position prior on keyframe " + std::to_string(p.keyframe) +
+                       " of session " + std::to_string(p.session) + " not stored: map " + std::to_string(map) +
+                       " is not in the store");
     Statement pr(this, kInsertPrior);
     bindPrior(&pr, map, p).run();
     commit();

@@ -298,6 +298,51 @@ TEST(FixMatcher, TheFixIsTheAntennasPositionAndBaseLinkIsItMinusTheTurnedLeverAr
   EXPECT_GT((Eigen::Vector2d(bx, -by) - Eigen::Vector2d(5.0, 2.0)).norm(), 1.2);
   f.antenna.x() = std::numeric_limits<double>::quiet_NaN();
   EXPECT_EQ(matcher.add(f, true), FixRefusal::kNotFinite);
+  f.antenna = Eigen::Vector2d(1.2, 0.4);
+  f.antenna_known = false;  // tf has no static transform to the fix's frame (yet)
+  EXPECT_EQ(matcher.add(f, true), FixRefusal::kNoLeverArm);
+  EXPECT_EQ(matcher.refused(FixRefusal::kNoLeverArm), 1);
+  EXPECT_STREQ(fixRefusalName(FixRefusal::kNoLeverArm), "no_lever_arm");
+}
+
+TEST(FixMatcher, LateInALongDiveTheGateIsTheLastFixDeadReckonedNotTheChainFromTheOrigin) {
+  const GeoOrigin o = datum();
+  // 31 keyframes 1 m apart, each motion's variances (x, y, yaw) = 1e-3: the chain from the origin
+  // to keyframe 30 has a lateral variance of 0.03 + 1e-3 (1² + ... + 29²) = 8.6 m², so against it
+  // (times 100) a 20 m jump is within the gate. From a fix on keyframe 28 it is two motions:
+  // 2e-3 + 1e-3 = 3e-3 m², and the gate's edge is sqrt(13.8155 (0.3 + 0.01 + 0.01)) = 2.1 m.
+  auto dive = [](SessionManager* m) {
+    for (int k = 0; k < 31; ++k) {
+      const Status st = m->addKeyframe(testing_util::keyframeInput(
+          0, k, Pose2(k, 0, 0), UncertainPose2(k == 0 ? Pose2() : Pose2(1, 0, 0), Eigen::Matrix3d::Identity() * 1e-3)));
+      ASSERT_TRUE(st.ok()) << st.message;
+    }
+  };
+  const Eigen::Matrix2d r = Eigen::Matrix2d::Identity() * 0.01;
+  const NavFix jump = fixAt(o, 30.0, 30.0, -20.0, r);  // image axes (30, 20): 20 m across
+  {
+    SessionManager m(managerOptions());
+    dive(&m);
+    FixMatcher alone{FixOptions()};
+    ASSERT_EQ(alone.add(jump, true), std::nullopt);
+    EXPECT_EQ(alone.match(m.view(), o, 0, CameraMount()).size(), 1u);  // the chain from the origin lets it in
+  }
+  SessionManager m(managerOptions());
+  dive(&m);
+  FixMatcher matcher{FixOptions()};
+  // A fix on keyframe 28 says the dive is 1 m to the side of the odometry (image axes y + 1).
+  ASSERT_EQ(matcher.add(fixAt(o, 28.0, 28.0, -1.0, r), true), std::nullopt);
+  ASSERT_EQ(matcher.give(&m, matcher.match(m.view(), o, 0, CameraMount())), 1);
+  ASSERT_EQ(matcher.add(jump, true), std::nullopt);
+  EXPECT_TRUE(matcher.match(m.view(), o, 0, CameraMount()).empty());
+  EXPECT_EQ(matcher.refused(FixRefusal::kOutlier), 1);
+  EXPECT_NE(matcher.lastRefusal().find("dead-reckoned from the fix on keyframe 28"), std::string::npos)
+      << matcher.lastRefusal();
+  // A fix on keyframe 30 that agrees with the one on 28 (1 m to the side, 0.5 m more of drift):
+  // within the gate, whether or not the map has been solved with the first one yet.
+  ASSERT_EQ(matcher.add(fixAt(o, 30.0, 30.0, -1.5, r), true), std::nullopt);
+  EXPECT_EQ(matcher.match(m.view(), o, 0, CameraMount()).size(), 1u);
+  EXPECT_EQ(matcher.refused(FixRefusal::kOutlier), 1);
 }
 
 TEST(FixMatcher, AFixBeyondTheGateIsRefusedAsAnOutlierAndOneWithinItIsPlaced) {

@@ -1280,6 +1280,26 @@ TEST(Store, APositionPriorWrittenBetweenSavesComesBackWithItsMap) {
   EXPECT_GT(restored.sessionPoses(0)[3].y(), 1e-3);
 }
 
+TEST(Store, APositionPriorOnAMapTheStoreDoesNotHaveIsRefusedNotOrphaned) {
+  ScopedTempDir dir("uwms_store");
+  const std::string path = (dir.path() / "maps.db").string();
+  MultiSessionBackend original(missionOptions());
+  SessionStore store(path);
+  Recorder r(&store, &original);
+  const int s0 = r.start("a");
+  for (int k = 1; k < 4; ++k) r.step(s0, Pose2(0.5, 0.0, 0.0));
+  const std::int64_t a = r.session_ids[s0];
+  // Map a + 7 (a join whose save failed, say) is not stored and is not the prior's session's own.
+  EXPECT_THROW(store.addPositionPrior(a + 7, {a, 2, Eigen::Vector2d(1.0, 0.0), Eigen::Matrix2d::Identity(), false}),
+               StoreError);
+  EXPECT_TRUE(store.maps().empty());
+  sqlite3_stmt* st = nullptr;  // and no row of the refused write left behind (rolled back)
+  ASSERT_EQ(sqlite3_prepare_v2(store.handle(), "SELECT count(*) FROM position_priors", -1, &st, nullptr), SQLITE_OK);
+  ASSERT_EQ(sqlite3_step(st), SQLITE_ROW);
+  EXPECT_EQ(sqlite3_column_int(st, 0), 0);
+  sqlite3_finalize(st);
+}
+
 // Read-only (export_survey): a missing or empty file is refused and not created; a store reads the
 // same as through a writer, every write is refused, and nothing appears beside the file (no lock,
 // no -wal/-shm) nor changes in it.

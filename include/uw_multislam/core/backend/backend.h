@@ -342,6 +342,9 @@ class MultiSessionBackend {
   /// (the IEKF's diagonal blocks, or the odometry's with the sparse optimiser), their correlations
   /// left out. Throws std::invalid_argument for an unknown keyframe.
   UncertainPose2 keyframeInMap(int s, int keyframe) const;
+  /// Keyframe `to` of session `s` in its keyframe `from`'s frame (from <= to), the motions between
+  /// them composed the same way. Throws std::invalid_argument for unknown keyframes or from > to.
+  UncertainPose2 keyframeChain(int s, int from, int to) const;
   /// Relocalisation: where session `s` is in another map, before (or without)
   /// a join. For every other map with global loops to the session's map, the link a join would
   /// take under the consistency rule (join_min_consistent loops, join_min_inliers, join_min_spread_m

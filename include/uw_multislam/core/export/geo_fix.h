@@ -49,6 +49,7 @@ struct NavFix {
   /// Where the fix is on the vehicle: the antenna's or transponder's position in base_link's plane
   /// (x forward, y left, metres; tf's base_link -> the message's frame_id). Zero: base_link itself.
   Eigen::Vector2d antenna = Eigen::Vector2d::Zero();
+  bool antenna_known = true;  // false: the frame's place on the vehicle is not known (refused)
 };
 
 /// Why a fix is not used; each counted (fixes_refused_<name>).
@@ -63,22 +64,25 @@ enum class FixRefusal {
   kMapOrigin,          // the keyframe is its map's origin (the map's frame: fixed)
   kKeyframeHasFix,     // the keyframe has a fix already (one per keyframe: close fixes share their errors)
   kOutlier,            // too far from its keyframe for both covariances (the gate: a USBL's multipath, a jump)
+  kNoLeverArm,         // its frame's place on the vehicle is not known (not static in tf, or not on the vehicle)
   kCount
 };
 /// "no_fix", "not_finite", "unknown_covariance", "bad_variance", "no_datum", "no_keyframe", "other_map",
-/// "map_origin", "keyframe_has_fix", "outlier".
+/// "map_origin", "keyframe_has_fix", "outlier", "no_lever_arm".
 const char* fixRefusalName(FixRefusal r);
 
 struct FixOptions {
   double max_dt_s = 0.5;         // a fix is matched to the keyframe nearest in stamp within this (s, > 0)
   double default_sigma_m = 0.0;  // > 0: the east/north sigma of a fix whose covariance type is UNKNOWN
   int max_waiting = 32;          // fixes newer than every keyframe, waiting for the next one (>= 1)
-  /// The gate: a fix is refused (outlier) when d² = νᵀ S⁻¹ ν exceeds gate_chi2, ν the fix minus its
-  /// keyframe's current position, S = gate_inflation × the keyframe's odometry chain covariance from
-  /// its map's origin + the fix's. 13.8155: χ²(2) at 0.999. 0: no gate. The chain covariance is
-  /// first order and over-confident over many motions (doc/benchmarks/real_survey.md), so it is
-  /// inflated as the loops' gate inflates it (backend intra_gate_inflation): the gate refuses a
-  /// jump of metres, not a drift the odometry made.
+  /// The gate: a fix is refused (outlier) when d² = νᵀ S⁻¹ ν exceeds gate_chi2, ν the fix minus the
+  /// keyframe's predicted position, S = gate_inflation × the odometry chain's covariance behind that
+  /// prediction + the covariances of the fixes in it: dead-reckoned from the session's nearest
+  /// earlier keyframe with a fix (that fix plus the estimate's displacement since), else the
+  /// keyframe's estimate with the chain from its map's origin. 13.8155: χ²(2) at 0.999. 0: no gate. The chain
+  /// covariance is first order and over-confident over many motions (doc/benchmarks/real_survey.md), so it is inflated
+  /// as the loops' gate inflates it (backend intra_gate_inflation): the gate refuses a jump of metres, not a drift the
+  /// odometry made.
   double gate_chi2 = 13.8155;
   double gate_inflation = 100.0;  // >= 1
   std::string validate() const;
@@ -126,6 +130,9 @@ class FixMatcher {
 
  private:
   void refuse(FixRefusal r, const std::string& why);
+  /// Why `prior` is beyond the gate (options_.gate_chi2), or nullopt when it is within it.
+  std::optional<std::string> outOfGate(const SessionQueries& m, const std::vector<PriorRecord>& held, int session,
+                                       int keyframe, const std::vector<Pose2>& poses, const FixPrior& prior) const;
 
   FixOptions options_;
   struct Waiting {

@@ -77,6 +77,9 @@ class SessionQueries {
   /// A keyframe of the session in its map's frame, with the covariance of the odometry chain from
   /// the map's origin (MultiSessionBackend::keyframeInMap).
   UncertainPose2 keyframeInMap(int session, int keyframe) const;
+  /// Keyframe `to` in keyframe `from`'s frame (from <= to) with the chain's covariance between them
+  /// (MultiSessionBackend::keyframeChain).
+  UncertainPose2 keyframeChain(int session, int from, int to) const;
   /// The odometry's poses of the session's keyframes (X_k^0 as received).
   const std::vector<Pose2>& odometryPoses(int session) const { return t_.at(session).odometry; }
   const std::vector<double>& stamps(int session) const { return t_.at(session).stamps; }
