@@ -6,8 +6,8 @@ offline_slam (one core, --threads 1) as it is and as variant folders made in a t
 directory (image hard links or copies, frames.csv, gt.csv and the loops' ground truth filtered):
   all      every frame
   every2   every 2nd frame          every3   every 3rd frame
-  every2k  every 2nd frame, and the frame before each of the recording's own gaps (a stamp step
-           over 1.5 times the median): no step spans a recorded gap and a dropped frame at once
+  every2k  every 2nd frame, and the frames on both sides of each of the recording's own gaps (a
+           stamp step over 1.5 times the median): no step spans a recorded gap and a dropped frame
   gaps0.9  runs of frames removed to make ~0.9 m steps: after every 5 kept frames the frame
            whose ground-truth distance from the last kept one is closest to 0.9 m is kept next
            (what a pause or a stalled camera gives)
@@ -113,7 +113,7 @@ def make_variant(base_dir, name, out_dir, loops_dir=None):
     if name == "all":
         keep = list(range(len(frames)))
     elif name == "every2k":
-        keep = sorted(set(range(0, len(frames), 2)) | set(frames_before_gaps(frames)))
+        keep = sorted(set(range(0, len(frames), 2)) | {k + d for k in frames_before_gaps(frames) for d in (0, 1)})
     elif name.startswith("every"):
         keep = list(range(0, len(frames), int(name[5:])))
     else:

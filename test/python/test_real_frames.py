@@ -89,7 +89,7 @@ def stress_bench():
 @needs_skerki
 def test_every_second_real_frame_is_followed_end_to_end_where_the_recording_has_no_gap(tmp_path):
     """Every 2nd frame of s0 (steps of 0.8-1.2 m on a 1.3-1.9 m footprint: a third to a half of
-    overlap), with the frame before each of the recording's own 22 s gaps kept (frames 11, 61, 111):
+    overlap), with the frames on both sides of each of the recording's own 22 s gaps kept (11, 61, 111 added):
     the odometry's dense pass and its no-cascade rule follow it in one piece, one map, no frame
     lost, no wrong loop and no kink. Before them it fell into 9 pieces keeping 38 % of the frames
     (doc/benchmarks/real_survey.md)."""
