@@ -38,21 +38,6 @@ INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"', re.M)
 ANALYSIS = ["-fsyntax-only", "-Wno-everything", "-Wthread-safety", "-Wthread-safety-beta", "-Werror"]
 
 
-UNITY_SOURCE = re.compile(r"[/\\]Unity[/\\]unity_[^/\\]*\.cxx$")
-UNITY_INCLUDE = re.compile(r'^#include "([^"]+)"', re.M)
-
-
-def unit_files(entry):
-    """The source files a compile_commands.json entry compiles: its file, or for a CMake unity build's
-    unit (<target>.dir/Unity/unity_*.cxx, cmake/uwms_unity_build.cmake) the files it includes, each
-    of which is then checked alone with the unit's flags."""
-    path = os.path.realpath(os.path.join(entry["directory"], entry["file"]))
-    if not UNITY_SOURCE.search(path):
-        return [path]
-    with open(path, encoding="utf-8", errors="replace") as f:
-        return [os.path.realpath(name) for name in UNITY_INCLUDE.findall(f.read())]
-
-
 def repo_root():
     return os.path.dirname(os.path.dirname(os.path.realpath(__file__)))
 
@@ -231,12 +216,12 @@ def main():
         entries = json.load(f)
     by_file = {}
     for e in entries:
-        for path in unit_files(e):
-            if not path.startswith(repo + os.sep):
-                continue
-            rel = os.path.relpath(path, repo)
-            if UNITS.match(rel) and "_vlfeat.dir" not in e.get("output", e.get("command", "")):
-                by_file.setdefault(rel, dict(e, file=path))
+        path = os.path.realpath(os.path.join(e["directory"], e["file"]))
+        if not path.startswith(repo + os.sep):
+            continue
+        rel = os.path.relpath(path, repo)
+        if UNITS.match(rel) and "_vlfeat.dir" not in e.get("output", e.get("command", "")):
+            by_file.setdefault(rel, dict(e, file=path))
     units = annotated_units(repo, sorted(by_file))
     if not units:
         return fail("no unit of the core includes %s in %s" % (ANNOTATIONS, database))
